@@ -1,0 +1,38 @@
+/* hairfilter: the command-line front end. Each subcommand lives in its own
+ * cmd_<name>.c; this file only dispatches. */
+#include <stdio.h>
+#include <string.h>
+
+#include "commands.h"
+
+static const struct {
+  const char *name;
+  int (*fn)(int, char **);
+  const char *help;
+} commands[] = {
+  {"demo",   cmd_demo,   "render or load the bundled example, filter it, write a PNG"},
+  {"infer",  cmd_infer,  "filter a feature EXR in-process: --weights W --in F.exr --out R.exr"},
+  {"filter", cmd_filter, "filter a feature EXR through hairfilterd: --server URL"},
+  {"render", cmd_render, "render hair with OSMesa: features, ground truth, baselines, datasets"},
+  {"bench",  cmd_bench,  "benchmark backends and variants"},
+  {"eval",   cmd_eval,   "evaluate filtering quality against ground truth"},
+};
+
+static void usage(FILE *f) {
+  fprintf(f, "usage: hairfilter <command> [options]   (hairfilter <command> --help)\n\n");
+  for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
+    fprintf(f, "  %-7s %s\n", commands[i].name, commands[i].help);
+}
+
+int main(int argc, char **argv) {
+  if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
+    usage(argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
+    if (!strcmp(argv[1], commands[i].name))
+      return commands[i].fn(argc - 1, argv + 1);
+  fprintf(stderr, "hairfilter: unknown command '%s'\n", argv[1]);
+  usage(stderr);
+  return 2;
+}

@@ -1,0 +1,69 @@
+/*
+ * The interface every inference backend implements (internal to src/).
+ *
+ * A backend is a table of functions. hf_backend_create() in backend.c picks
+ * one by name; hf_model_* forward to it. Backends own their device state;
+ * the common code owns argument checking, so a backend may assume:
+ *   - cfg passed hf_net_config_validate();
+ *   - io->batch >= 1, io->width >= 1, io->height >= 1, pointers non-NULL,
+ *     io dtypes are HF_F32 or HF_F16.
+ * Padding to multiples of 2^L and cropping back is the backend's job, since
+ * a GPU backend does it on the device.
+ */
+#ifndef HF_BACKEND_H
+#define HF_BACKEND_H
+
+#include "hfcore.h"
+
+typedef struct hf_backend_ops {
+  const char *name;
+  /* Larger is preferred by "auto". */
+  int priority;
+  /* 0 when usable here, else HF_EUNAVAILABLE with why filled in. */
+  int (*probe)(char *why, size_t whylen);
+  /* Device-wide state (handles, streams); may be NULL. */
+  int (*open)(void **dev, char *why, size_t whylen);
+  void (*close)(void *dev);
+  /* A prepared network. */
+  int (*model_create)(void *dev, const hf_weights *w, void **model);
+  void (*model_destroy)(void *model);
+  int (*model_run)(void *model, const hf_io *io, hf_timing *timing);
+  const char *(*model_precision)(void *model);
+  /* Device memory held by the model (weights, activations, workspace);
+   * NULL means 0 (host-only backends). */
+  size_t (*model_device_bytes)(void *model);
+} hf_backend_ops;
+
+extern const hf_backend_ops hf_backend_cpu_ref;
+#ifdef HF_HAVE_ONEDNN
+extern const hf_backend_ops hf_backend_cpu_onednn;
+#endif
+#ifdef HF_HAVE_CUDNN
+extern const hf_backend_ops hf_backend_cudnn;
+#endif
+
+struct hf_backend {
+  const hf_backend_ops *ops;
+  void *dev;
+};
+
+struct hf_model {
+  hf_backend *backend;
+  hf_net_config cfg;
+  void *impl;
+};
+
+/* Shared helpers for CPU backends. */
+
+/* Converts io->in to dense float32 NHWC, zero-padded to (pw, ph) per frame:
+ * dst is [batch][ph][pw][cin]. */
+void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst);
+/* Applies the output transforms to src ([batch][ph][pw][3]), crops to
+ * io->width x io->height and stores in io->out's dtype. */
+void hf_output_from_padded_f32(const float *src, int pw, int ph, const hf_io *io);
+/* Rounds n up to a multiple of a (a power of two). */
+static inline int hf_round_up(int n, int a) { return (n + a - 1) & ~(a - 1); }
+/* Monotonic clock in microseconds. */
+double hf_now_us(void);
+
+#endif /* HF_BACKEND_H */

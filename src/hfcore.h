@@ -1,0 +1,215 @@
+/*
+ * hfcore: the hair-filtering network, its weights, its inference backends,
+ * and the image helpers around them.
+ *
+ * The network is the U-Net of Currius, Assarsson & Sintorn (2022), section
+ * 3.3. A variant is a configuration (samples per pixel, channels per level),
+ * never code: every implementation (cpu-ref, cpu, cudnn, the PyTorch recipe in
+ * weights/) reads the same hf_net_config and wires the layers the same way:
+ *
+ *   enc{i}, i = 0..L-1: 3x3 conv, stride 2, pad 1, ReLU; H/2^i -> H/2^(i+1),
+ *                       c_i output channels; input is the network input for
+ *                       i = 0, else enc{i-1}'s output.
+ *   dec{i}, i = L-1..0: 4x4 transposed conv, stride 2, pad 1; H/2^(i+1) ->
+ *                       H/2^i; input is enc{L-1}'s output for i = L-1, else
+ *                       concat(dec{i+1} output, enc{i} output) (2*c_i ch);
+ *                       output c_{i-1} channels with ReLU, or 3 for dec0
+ *                       with no ReLU but the output transforms.
+ *
+ * Tensors in memory are NHWC, float32 unless a function says otherwise.
+ * Input channels are sample-major: sample k's six features occupy channels
+ * 6k..6k+5 in the order of HF_FEATURE_NAMES. Output channels are
+ * (color, highlight, alpha). Frames whose sides are not multiples of 2^L are
+ * zero-padded at the right and bottom and the output is cropped back.
+ *
+ * Errors are negative HF_E* codes; hf_strerror() names them.
+ */
+#ifndef HFCORE_H
+#define HFCORE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- errors ------------------------------------------------------------ */
+
+#define HF_OK            0
+#define HF_EINVAL       -1  /* bad argument */
+#define HF_ENOMEM       -2  /* allocation failed */
+#define HF_EIO          -3  /* file could not be read or written */
+#define HF_EFORMAT      -4  /* malformed or inconsistent file contents */
+#define HF_EUNSUPPORTED -5  /* valid, but not something this build does */
+#define HF_EUNAVAILABLE -6  /* backend cannot run here (no GPU, ...) */
+#define HF_ERANGE       -7  /* size or count out of the allowed range */
+#define HF_EBACKEND     -8  /* the backend library reported an error */
+#define HF_ENOTFOUND    -9  /* named thing (variant, channel, backend) absent */
+
+const char *hf_strerror(int err);
+
+/* ---- network configuration --------------------------------------------- */
+
+#define HF_FEATURES_PER_SAMPLE 6
+#define HF_OUT_CHANNELS        3
+#define HF_MAX_LEVELS          8
+#define HF_MAX_SPP             16
+#define HF_MAX_CHANNELS        4096
+#define HF_NAME_MAX            64
+
+/* Per-sample input features, in channel order. */
+extern const char *const HF_FEATURE_NAMES[HF_FEATURES_PER_SAMPLE];
+/* Output channels, in channel order. */
+extern const char *const HF_OUTPUT_NAMES[HF_OUT_CHANNELS];
+
+enum { HF_OUT_COLOR = 0, HF_OUT_HIGHLIGHT = 1, HF_OUT_ALPHA = 2 };
+
+typedef struct hf_net_config {
+  char name[HF_NAME_MAX];
+  int spp;                      /* samples per pixel, 1..HF_MAX_SPP */
+  int in_channels;              /* spp * HF_FEATURES_PER_SAMPLE */
+  int out_channels;             /* HF_OUT_CHANNELS */
+  int num_levels;               /* L */
+  int levels[HF_MAX_LEVELS];    /* c_0 .. c_{L-1} */
+} hf_net_config;
+
+/* The seven variants of the paper's Table 1, by name ("Base", "Base@1spp",
+ * "Base@2spp", "Large", "Small", "Shallow", "Deep"), case-insensitive. */
+int hf_variant_preset(const char *name, hf_net_config *out);
+/* Number of presets and the i-th preset's name, for listings. */
+int hf_variant_preset_count(void);
+const char *hf_variant_preset_name(int i);
+
+/* Checks that a configuration describes a network every backend can run. */
+int hf_net_config_validate(const hf_net_config *cfg);
+/* The frame side multiple a network needs: 2^L. */
+int hf_net_align(const hf_net_config *cfg);
+/* Input channels of enc{i} and dec{i}, output channels of enc{i}/dec{i}. */
+int hf_enc_in(const hf_net_config *cfg, int i);
+int hf_enc_out(const hf_net_config *cfg, int i);
+int hf_dec_in(const hf_net_config *cfg, int i);
+int hf_dec_out(const hf_net_config *cfg, int i);
+/* Multiply-accumulates of one forward pass at w x h (after padding). */
+double hf_net_macs(const hf_net_config *cfg, int w, int h);
+
+/* ---- weights ------------------------------------------------------------ */
+
+/* Host-side float32 weights in PyTorch layouts:
+ *   enc_w[i]: [out][in][3][3]   (Conv2d)
+ *   dec_w[i]: [in][out][4][4]   (ConvTranspose2d)
+ *   enc_b[i], dec_b[i]: [out]                                           */
+typedef struct hf_weights {
+  hf_net_config cfg;
+  char features[HF_FEATURES_PER_SAMPLE][32];
+  float *enc_w[HF_MAX_LEVELS], *enc_b[HF_MAX_LEVELS];
+  float *dec_w[HF_MAX_LEVELS], *dec_b[HF_MAX_LEVELS];
+  size_t num_params;
+  void *storage;                /* one allocation behind every array */
+} hf_weights;
+
+/* Loads a safetensors file (see weights/FORMAT.md). Every length and offset
+ * in the file is checked before use; on failure *out is NULL and err (when
+ * not NULL) holds a one-line reason. */
+int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen);
+int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out,
+                        char *err, size_t errlen);
+/* Writes float32 safetensors with the metadata of w->cfg. */
+int hf_weights_save(const char *path, const hf_weights *w);
+/* Allocates zeroed weights for cfg. */
+int hf_weights_alloc(const hf_net_config *cfg, hf_weights **out);
+/* PyTorch-default-like uniform initialisation from a seed (tests, benches). */
+int hf_weights_init_random(const hf_net_config *cfg, uint64_t seed, hf_weights **out);
+void hf_weights_free(hf_weights *w);
+
+/* ---- inference ---------------------------------------------------------- */
+
+typedef enum hf_dtype { HF_F32 = 0, HF_F16 = 1 } hf_dtype;
+
+/* Microseconds spent in one run, as the backend saw it. */
+typedef struct hf_timing {
+  double input_us;    /* upload / convert / pad the input */
+  double infer_us;    /* the network itself */
+  double output_us;   /* transforms, crop, download */
+} hf_timing;
+
+/* One batch of frames of the same size. in: [batch][h][w][in_channels],
+ * out: [batch][h][w][3], both NHWC, dense, of the given dtypes. */
+typedef struct hf_io {
+  int batch, width, height;
+  const void *in;  hf_dtype in_dtype;
+  void *out;       hf_dtype out_dtype;
+} hf_io;
+
+typedef struct hf_backend hf_backend;   /* a device and its library handles */
+typedef struct hf_model hf_model;       /* a network prepared on a backend */
+
+/* name: "cpu-ref", "cpu", "cudnn" or "auto" (best available). When a named
+ * backend cannot run, returns HF_EUNAVAILABLE with the reason in why. For
+ * "auto", why says which backend was chosen over which and why. */
+int hf_backend_create(const char *name, hf_backend **out, char *why, size_t whylen);
+void hf_backend_destroy(hf_backend *b);
+const char *hf_backend_name(const hf_backend *b);
+/* Names of the backends compiled into this build, NULL-terminated. */
+const char *const *hf_backend_list(void);
+
+/* Prepares weights on a backend. The model keeps no pointer into w. */
+int hf_model_create(hf_backend *b, const hf_weights *w, hf_model **out);
+void hf_model_destroy(hf_model *m);
+const hf_net_config *hf_model_config(const hf_model *m);
+/* Runs the network on io; timing may be NULL. */
+int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
+/* The precision the backend computes in ("fp32", "fp16"). */
+const char *hf_model_precision(const hf_model *m);
+/* Device memory the model holds, in bytes (0 for host backends). */
+size_t hf_model_device_bytes(const hf_model *m);
+
+/* The paper's output transforms on one raw network output triple. */
+void hf_output_transform(float *rgb3);
+
+/* ---- half floats -------------------------------------------------------- */
+
+uint16_t hf_f32_to_f16(float f);
+float hf_f16_to_f32(uint16_t h);
+
+/* ---- images ------------------------------------------------------------- */
+
+/* A float image with named channels, interleaved (pixel-major). */
+typedef struct hf_image {
+  int width, height, channels;
+  char (*names)[32];            /* channels names */
+  float *data;                  /* [height][width][channels] */
+} hf_image;
+
+int hf_image_alloc(hf_image *img, int width, int height, int channels);
+void hf_image_free(hf_image *img);
+/* Index of a channel by name, or HF_ENOTFOUND. */
+int hf_image_channel(const hf_image *img, const char *name);
+
+/* Reads every channel of a scanline or tiled EXR as float32. */
+int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen);
+/* Writes an EXR with the image's channel names; half selects 16-bit
+ * storage, else float32. ZIP compression. */
+int hf_exr_write(const char *path, const hf_image *img, int half);
+
+/* Feature EXR <-> network input. Channels are S{k}.color, S{k}.highlight,
+ * S{k}.alpha, S{k}.depth, S{k}.tangent.x, S{k}.tangent.y (protocol/FEATURES.md).
+ * hf_features_from_image fills in (width*height*spp*6 floats, NHWC) and
+ * returns the spp found (or a negative error). */
+int hf_features_spp(const hf_image *img);
+int hf_features_from_image(const hf_image *img, int spp, float *in);
+int hf_features_to_image(const float *in, int width, int height, int spp, hf_image *img);
+/* Result channels "color", "highlight", "alpha". */
+int hf_result_to_image(const float *out, int width, int height, hf_image *img);
+
+/* Composite: rgb = alpha * (hair * color + light * highlight) + (1-alpha) * bg.
+ * out is [h][w][3] linear float. */
+void hf_composite(const float *result3, int width, int height, const float hair[3],
+                  const float light[3], const float bg[3], float *rgb);
+/* 8-bit sRGB PNG of a linear [h][w][3] float image. */
+int hf_png_write_rgb(const char *path, const float *rgb, int width, int height);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* HFCORE_H */
