@@ -186,7 +186,7 @@ void hf_image_free(hf_image *img);
 /* Index of a channel by name, or HF_ENOTFOUND. */
 int hf_image_channel(const hf_image *img, const char *name);
 
-/* Reads every channel of a scanline or tiled EXR as float32. */
+/* Reads every channel of a scanline EXR as float32; err gets the reason. */
 int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen);
 /* Writes an EXR with the image's channel names; half selects 16-bit
  * storage, else float32. ZIP compression. */
@@ -202,7 +202,8 @@ int hf_features_to_image(const float *in, int width, int height, int spp, hf_ima
 /* Result channels "color", "highlight", "alpha". */
 int hf_result_to_image(const float *out, int width, int height, hf_image *img);
 
-/* Composite: rgb = alpha * (hair * color + light * highlight) + (1-alpha) * bg.
+/* Composite (paper Fig. 3, L_o = L_S (C_H (F_d + F_TRT) + F_R)):
+ * rgb = alpha * light * (hair * color + highlight) + (1 - alpha) * bg.
  * out is [h][w][3] linear float. */
 void hf_composite(const float *result3, int width, int height, const float hair[3],
                   const float light[3], const float bg[3], float *rgb);

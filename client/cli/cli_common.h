@@ -1,0 +1,23 @@
+/* Small helpers shared by the CLI subcommands. */
+#ifndef HF_CLI_COMMON_H
+#define HF_CLI_COMMON_H
+
+#include "hfcore.h"
+
+/* Parses "r,g,b" into three floats; 0 on success. */
+int cli_parse_rgb(const char *s, float rgb[3]);
+/* Parses "WxH"; 0 on success. */
+int cli_parse_size(const char *s, int *w, int *h);
+/* Where bundled data (weights/, examples) lives: $HAIRFILTER_DATA, else the
+ * source tree this binary was built from. */
+const char *cli_data_dir(void);
+/* Creates the backend by name and prints one line saying which and why. */
+int cli_open_backend(const char *name, hf_backend **out);
+/* Composites a [h][w][3] result with the given colors and writes a PNG. */
+int cli_write_preview(const char *path, const float *result, int w, int h, const float hair[3],
+                      const float light[3], const float bg[3]);
+
+/* Default colours of previews: brown hair, white light, grey-blue background. */
+extern const float CLI_HAIR_DEFAULT[3], CLI_LIGHT_DEFAULT[3], CLI_BG_DEFAULT[3];
+
+#endif

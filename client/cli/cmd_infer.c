@@ -1,0 +1,137 @@
+/* hairfilter infer: filter a feature EXR in-process with one backend. */
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cli_common.h"
+#include "commands.h"
+
+static void usage(FILE *f) {
+  fprintf(f,
+          "usage: hairfilter infer --weights W.safetensors --in FEATURES.exr --out RESULT.exr\n"
+          "                        [--backend auto|cpu|cpu-ref|cudnn] [--png PREVIEW.png]\n"
+          "                        [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
+          "Reads S{k}.<feature> channels, writes color/highlight/alpha (protocol/FEATURES.md).\n");
+}
+
+/* Runs one frame through weights on backend; result is [h][w][3]. Shared
+ * with the demo command. */
+int cli_infer_file(const char *weights, const char *in_path, const char *backend,
+                   hf_image *result_img, int verbose) {
+  char err[512];
+  hf_weights *w = NULL;
+  hf_backend *b = NULL;
+  hf_model *m = NULL;
+  hf_image feat = {0};
+  float *in = NULL, *out = NULL;
+  int rc = hf_weights_load(weights, &w, err, sizeof err);
+  if (rc) {
+    fprintf(stderr, "hairfilter: %s\n", err);
+    return rc;
+  }
+  if ((rc = hf_exr_read(in_path, &feat, err, sizeof err)) != 0) {
+    fprintf(stderr, "hairfilter: %s\n", err);
+    goto out;
+  }
+  int spp = hf_features_spp(&feat);
+  if (spp < 0) {
+    fprintf(stderr, "hairfilter: %s: no S0.color channel: not a feature file\n", in_path);
+    rc = spp;
+    goto out;
+  }
+  if (spp < w->cfg.spp) {
+    fprintf(stderr, "hairfilter: %s has %d samples per pixel, variant %s needs %d\n", in_path,
+            spp, w->cfg.name, w->cfg.spp);
+    rc = HF_EFORMAT;
+    goto out;
+  }
+  /* A file with more samples than the variant reads is filtered on its
+   * first spp samples (e.g. a 4 spp render through Base@1spp). */
+  size_t npx = (size_t)feat.width * feat.height;
+  in = malloc(npx * w->cfg.in_channels * sizeof(float));
+  out = malloc(npx * 3 * sizeof(float));
+  if (!in || !out) {
+    rc = HF_ENOMEM;
+    goto out;
+  }
+  if ((rc = hf_features_from_image(&feat, w->cfg.spp, in)) < 0) {
+    fprintf(stderr, "hairfilter: %s: missing feature channels\n", in_path);
+    goto out;
+  }
+  if ((rc = cli_open_backend(backend, &b)) != 0) goto out;
+  if ((rc = hf_model_create(b, w, &m)) != 0) {
+    fprintf(stderr, "hairfilter: preparing %s on %s: %s\n", w->cfg.name, hf_backend_name(b),
+            hf_strerror(rc));
+    goto out;
+  }
+  hf_io io = {.batch = 1, .width = feat.width, .height = feat.height,
+              .in = in, .in_dtype = HF_F32, .out = out, .out_dtype = HF_F32};
+  hf_timing t;
+  if ((rc = hf_model_run(m, &io, &t)) != 0) {
+    fprintf(stderr, "hairfilter: inference failed: %s\n", hf_strerror(rc));
+    goto out;
+  }
+  if (verbose)
+    printf("%s %dx%d on %s (%s): input %.3f ms, infer %.3f ms, output %.3f ms\n", w->cfg.name,
+           feat.width, feat.height, hf_backend_name(b), hf_model_precision(m), t.input_us / 1e3,
+           t.infer_us / 1e3, t.output_us / 1e3);
+  rc = hf_result_to_image(out, feat.width, feat.height, result_img);
+out:
+  hf_model_destroy(m);
+  hf_backend_destroy(b);
+  hf_weights_free(w);
+  hf_image_free(&feat);
+  free(in);
+  free(out);
+  return rc;
+}
+
+int cmd_infer(int argc, char **argv) {
+  const char *weights = NULL, *in = NULL, *out = NULL, *png = NULL, *backend = "auto";
+  float hair[3], light[3], bg[3];
+  memcpy(hair, CLI_HAIR_DEFAULT, sizeof hair);
+  memcpy(light, CLI_LIGHT_DEFAULT, sizeof light);
+  memcpy(bg, CLI_BG_DEFAULT, sizeof bg);
+  static const struct option opts[] = {
+    {"weights", required_argument, 0, 'w'}, {"in", required_argument, 0, 'i'},
+    {"out", required_argument, 0, 'o'},     {"backend", required_argument, 0, 'b'},
+    {"png", required_argument, 0, 'p'},     {"hair", required_argument, 0, 'H'},
+    {"light", required_argument, 0, 'L'},   {"background", required_argument, 0, 'B'},
+    {"help", no_argument, 0, 'h'},          {0, 0, 0, 0}};
+  int c;
+  optind = 1;
+  while ((c = getopt_long(argc, argv, "w:i:o:b:p:h", opts, NULL)) != -1) {
+    switch (c) {
+    case 'w': weights = optarg; break;
+    case 'i': in = optarg; break;
+    case 'o': out = optarg; break;
+    case 'b': backend = optarg; break;
+    case 'p': png = optarg; break;
+    case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
+    case 'L': if (cli_parse_rgb(optarg, light)) goto bad; break;
+    case 'B': if (cli_parse_rgb(optarg, bg)) goto bad; break;
+    case 'h': usage(stdout); return 0;
+    default: goto bad;
+    }
+  }
+  if (!weights || !in || !out || optind != argc) goto bad;
+  hf_image res = {0};
+  int rc = cli_infer_file(weights, in, backend, &res, 1);
+  if (rc) return 1;
+  if ((rc = hf_exr_write(out, &res, 0)) != 0) {
+    fprintf(stderr, "hairfilter: writing %s: %s\n", out, hf_strerror(rc));
+    hf_image_free(&res);
+    return 1;
+  }
+  if (png && (rc = cli_write_preview(png, res.data, res.width, res.height, hair, light, bg))) {
+    fprintf(stderr, "hairfilter: writing %s: %s\n", png, hf_strerror(rc));
+    hf_image_free(&res);
+    return 1;
+  }
+  hf_image_free(&res);
+  return 0;
+bad:
+  usage(stderr);
+  return 2;
+}

@@ -1,0 +1,191 @@
+/* Backend registry, selection, and the hf_model_* entry points that check
+ * arguments once so backends need not. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "backend.h"
+
+static const hf_backend_ops *const registry[] = {
+#ifdef HF_HAVE_CUDNN
+  &hf_backend_cudnn,
+#endif
+#ifdef HF_HAVE_ONEDNN
+  &hf_backend_cpu_onednn,
+#endif
+  &hf_backend_cpu_ref,
+};
+#define NREG ((int)(sizeof registry / sizeof registry[0]))
+
+const char *const *hf_backend_list(void) {
+  static const char *names[NREG + 1];
+  for (int i = 0; i < NREG; i++) names[i] = registry[i]->name;
+  names[NREG] = NULL;
+  return names;
+}
+
+static int open_backend(const hf_backend_ops *ops, hf_backend **out, char *why, size_t whylen) {
+  int rc = ops->probe(why, whylen);
+  if (rc) return rc;
+  hf_backend *b = calloc(1, sizeof *b);
+  if (!b) return HF_ENOMEM;
+  b->ops = ops;
+  if (ops->open && (rc = ops->open(&b->dev, why, whylen)) != 0) {
+    free(b);
+    return rc;
+  }
+  *out = b;
+  return HF_OK;
+}
+
+int hf_backend_create(const char *name, hf_backend **out, char *why, size_t whylen) {
+  if (!name || !out) return HF_EINVAL;
+  *out = NULL;
+  if (why && whylen) why[0] = 0;
+  if (strcmp(name, "auto") != 0) {
+    for (int i = 0; i < NREG; i++)
+      if (!strcmp(name, registry[i]->name)) return open_backend(registry[i], out, why, whylen);
+    if (why && whylen) snprintf(why, whylen, "no backend named '%s' in this build", name);
+    return HF_ENOTFOUND;
+  }
+  /* "auto": try by priority and say why each better one was passed over. */
+  const hf_backend_ops *order[NREG];
+  memcpy(order, registry, sizeof order);
+  for (int i = 1; i < NREG; i++)
+    for (int j = i; j > 0 && order[j]->priority > order[j - 1]->priority; j--) {
+      const hf_backend_ops *t = order[j];
+      order[j] = order[j - 1];
+      order[j - 1] = t;
+    }
+  char skipped[512] = "";
+  for (int i = 0; i < NREG; i++) {
+    char reason[256] = "";
+    int rc = open_backend(order[i], out, reason, sizeof reason);
+    if (rc == HF_OK) {
+      if (why && whylen) {
+        if (skipped[0])
+          snprintf(why, whylen, "backend %s (%s)", order[i]->name, skipped);
+        else
+          snprintf(why, whylen, "backend %s (best available)", order[i]->name);
+      }
+      return HF_OK;
+    }
+    size_t used = strlen(skipped);
+    snprintf(skipped + used, sizeof skipped - used, "%s%s unavailable: %s", used ? "; " : "",
+             order[i]->name, reason[0] ? reason : hf_strerror(rc));
+  }
+  if (why && whylen) snprintf(why, whylen, "no backend usable: %s", skipped);
+  return HF_EUNAVAILABLE;
+}
+
+void hf_backend_destroy(hf_backend *b) {
+  if (!b) return;
+  if (b->ops->close) b->ops->close(b->dev);
+  free(b);
+}
+
+const char *hf_backend_name(const hf_backend *b) { return b ? b->ops->name : "none"; }
+
+int hf_model_create(hf_backend *b, const hf_weights *w, hf_model **out) {
+  if (!b || !w || !out) return HF_EINVAL;
+  *out = NULL;
+  int rc = hf_net_config_validate(&w->cfg);
+  if (rc) return rc;
+  hf_model *m = calloc(1, sizeof *m);
+  if (!m) return HF_ENOMEM;
+  m->backend = b;
+  m->cfg = w->cfg;
+  rc = b->ops->model_create(b->dev, w, &m->impl);
+  if (rc) {
+    free(m);
+    return rc;
+  }
+  *out = m;
+  return HF_OK;
+}
+
+void hf_model_destroy(hf_model *m) {
+  if (!m) return;
+  m->backend->ops->model_destroy(m->impl);
+  free(m);
+}
+
+const hf_net_config *hf_model_config(const hf_model *m) { return m ? &m->cfg : NULL; }
+
+/* Frames beyond this many pixels are refused before any backend allocates. */
+#define HF_MAX_SIDE 16384
+#define HF_MAX_PIXELS ((int64_t)1 << 28)
+
+int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing) {
+  if (!m || !io || !io->in || !io->out) return HF_EINVAL;
+  if (io->batch < 1 || io->width < 1 || io->height < 1) return HF_EINVAL;
+  if (io->width > HF_MAX_SIDE || io->height > HF_MAX_SIDE ||
+      (int64_t)io->batch * io->width * io->height > HF_MAX_PIXELS)
+    return HF_ERANGE;
+  if ((io->in_dtype != HF_F32 && io->in_dtype != HF_F16) ||
+      (io->out_dtype != HF_F32 && io->out_dtype != HF_F16))
+    return HF_EINVAL;
+  hf_timing t = {0, 0, 0};
+  int rc = m->backend->ops->model_run(m->impl, io, &t);
+  if (timing) *timing = t;
+  return rc;
+}
+
+const char *hf_model_precision(const hf_model *m) {
+  if (!m) return "none";
+  return m->backend->ops->model_precision ? m->backend->ops->model_precision(m->impl) : "fp32";
+}
+
+size_t hf_model_device_bytes(const hf_model *m) {
+  if (!m || !m->backend->ops->model_device_bytes) return 0;
+  return m->backend->ops->model_device_bytes(m->impl);
+}
+
+/* ---- helpers shared by the CPU backends ---------------------------------- */
+
+double hf_now_us(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return ts.tv_sec * 1e6 + ts.tv_nsec / 1e3;
+}
+
+void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst) {
+  size_t frame_in = (size_t)io->width * io->height * cin;
+  for (int n = 0; n < io->batch; n++) {
+    float *d = dst + (size_t)n * pw * ph * cin;
+    for (int y = 0; y < ph; y++) {
+      float *row = d + (size_t)y * pw * cin;
+      if (y >= io->height) {
+        memset(row, 0, sizeof(float) * pw * cin);
+        continue;
+      }
+      size_t src0 = n * frame_in + (size_t)y * io->width * cin;
+      size_t cnt = (size_t)io->width * cin;
+      if (io->in_dtype == HF_F32) {
+        memcpy(row, (const float *)io->in + src0, cnt * sizeof(float));
+      } else {
+        const uint16_t *s = (const uint16_t *)io->in + src0;
+        for (size_t k = 0; k < cnt; k++) row[k] = hf_f16_to_f32(s[k]);
+      }
+      memset(row + cnt, 0, sizeof(float) * (size_t)(pw - io->width) * cin);
+    }
+  }
+}
+
+void hf_output_from_padded_f32(const float *src, int pw, int ph, const hf_io *io) {
+  for (int n = 0; n < io->batch; n++)
+    for (int y = 0; y < io->height; y++)
+      for (int x = 0; x < io->width; x++) {
+        float v[3];
+        memcpy(v, src + (((size_t)n * ph + y) * pw + x) * 3, sizeof v);
+        hf_output_transform(v);
+        size_t o = (((size_t)n * io->height + y) * io->width + x) * 3;
+        if (io->out_dtype == HF_F32) {
+          memcpy((float *)io->out + o, v, sizeof v);
+        } else {
+          uint16_t *d = (uint16_t *)io->out + o;
+          for (int c = 0; c < 3; c++) d[c] = hf_f32_to_f16(v[c]);
+        }
+      }
+}

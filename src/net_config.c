@@ -1,0 +1,101 @@
+/* Network variants (the paper's Table 1) and the channel arithmetic every
+ * backend shares. */
+#include <stdio.h>
+#include <string.h>
+#include <strings.h>
+
+#include "hfcore.h"
+
+const char *const HF_FEATURE_NAMES[HF_FEATURES_PER_SAMPLE] = {
+  "color", "highlight", "alpha", "depth", "tangent.x", "tangent.y"
+};
+const char *const HF_OUTPUT_NAMES[HF_OUT_CHANNELS] = {"color", "highlight", "alpha"};
+
+static const struct {
+  const char *name;
+  int spp;
+  int num_levels;
+  int levels[HF_MAX_LEVELS];
+} presets[] = {
+  {"Base",      4, 3, {32, 64, 128}},
+  {"Base@1spp", 1, 3, {32, 64, 128}},
+  {"Base@2spp", 2, 3, {32, 64, 128}},
+  {"Large",     4, 3, {64, 128, 256}},
+  {"Small",     4, 3, {16, 32, 64}},
+  {"Shallow",   4, 2, {32, 64}},
+  {"Deep",      4, 4, {32, 64, 128, 256}},
+};
+#define NPRESETS ((int)(sizeof presets / sizeof presets[0]))
+
+int hf_variant_preset_count(void) { return NPRESETS; }
+
+const char *hf_variant_preset_name(int i) {
+  return (i >= 0 && i < NPRESETS) ? presets[i].name : NULL;
+}
+
+int hf_variant_preset(const char *name, hf_net_config *out) {
+  if (!name || !out) return HF_EINVAL;
+  for (int i = 0; i < NPRESETS; i++) {
+    if (strcasecmp(name, presets[i].name)) continue;
+    memset(out, 0, sizeof *out);
+    snprintf(out->name, sizeof out->name, "%s", presets[i].name);
+    out->spp = presets[i].spp;
+    out->in_channels = presets[i].spp * HF_FEATURES_PER_SAMPLE;
+    out->out_channels = HF_OUT_CHANNELS;
+    out->num_levels = presets[i].num_levels;
+    memcpy(out->levels, presets[i].levels, sizeof out->levels);
+    return HF_OK;
+  }
+  return HF_ENOTFOUND;
+}
+
+int hf_net_config_validate(const hf_net_config *cfg) {
+  if (!cfg) return HF_EINVAL;
+  if (cfg->spp < 1 || cfg->spp > HF_MAX_SPP) return HF_ERANGE;
+  if (cfg->in_channels != cfg->spp * HF_FEATURES_PER_SAMPLE) return HF_EFORMAT;
+  if (cfg->out_channels != HF_OUT_CHANNELS) return HF_EFORMAT;
+  if (cfg->num_levels < 1 || cfg->num_levels > HF_MAX_LEVELS) return HF_ERANGE;
+  for (int i = 0; i < cfg->num_levels; i++)
+    if (cfg->levels[i] < 1 || cfg->levels[i] > HF_MAX_CHANNELS) return HF_ERANGE;
+  if (memchr(cfg->name, 0, sizeof cfg->name) == NULL) return HF_EFORMAT;
+  return HF_OK;
+}
+
+int hf_net_align(const hf_net_config *cfg) { return 1 << cfg->num_levels; }
+
+int hf_enc_in(const hf_net_config *cfg, int i) {
+  return i == 0 ? cfg->in_channels : cfg->levels[i - 1];
+}
+
+int hf_enc_out(const hf_net_config *cfg, int i) { return cfg->levels[i]; }
+
+/* The deepest decoder reads the bottleneck alone; the others read their
+ * upper neighbour's output concatenated with the encoder skip. */
+int hf_dec_in(const hf_net_config *cfg, int i) {
+  return i == cfg->num_levels - 1 ? cfg->levels[i] : 2 * cfg->levels[i];
+}
+
+int hf_dec_out(const hf_net_config *cfg, int i) {
+  return i == 0 ? cfg->out_channels : cfg->levels[i - 1];
+}
+
+double hf_net_macs(const hf_net_config *cfg, int w, int h) {
+  double macs = 0;
+  for (int i = 0; i < cfg->num_levels; i++) {
+    double lo = (double)(w >> (i + 1)) * (h >> (i + 1)); /* low-res pixels */
+    /* conv: each output pixel (low res) reads 3x3xin */
+    macs += lo * 9.0 * hf_enc_in(cfg, i) * hf_enc_out(cfg, i);
+    /* transposed conv 4x4 stride 2: each input pixel (low res) scatters
+     * 4x4xout, i.e. 4 taps per output pixel at high res */
+    macs += lo * 16.0 * hf_dec_in(cfg, i) * hf_dec_out(cfg, i);
+  }
+  return macs;
+}
+
+void hf_output_transform(float *v) {
+  float c = v[HF_OUT_COLOR];
+  v[HF_OUT_COLOR] = c * c * c / 32.0f + c / 5.0f + 1.0f;
+  v[HF_OUT_HIGHLIGHT] = v[HF_OUT_HIGHLIGHT] > 0.0f ? v[HF_OUT_HIGHLIGHT] : 0.0f;
+  float a = v[HF_OUT_ALPHA];
+  v[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
+}

@@ -1,0 +1,279 @@
+/* safetensors loader. The file is untrusted: every length, offset, dtype and
+ * shape is checked against the file size and the metadata before any of it is
+ * used, and every failure is a one-line reason, never a crash.
+ *
+ * Layout: u64 little-endian header length N, N bytes of JSON, raw tensor
+ * data. The JSON maps tensor names to {dtype, shape, data_offsets} (offsets
+ * relative to the data start) and may hold "__metadata__", a map of strings,
+ * whose "hairfilter" entry is itself JSON describing the network. */
+#include <errno.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cjson/cJSON.h>
+
+#include "weights.h"
+
+/* A header larger than this is certainly hostile: ours are a few KB. */
+#define HEADER_MAX (16u << 20)
+/* Largest weights file we agree to read (Large is ~3 MB). */
+#define FILE_MAX ((size_t)1 << 31)
+
+static int fail(char *err, size_t errlen, int rc, const char *fmt, ...) {
+  if (err && errlen) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+  }
+  return rc;
+}
+
+static int json_int(const cJSON *obj, const char *key, int lo, int hi, int *out) {
+  const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+  if (!cJSON_IsNumber(v)) return HF_EFORMAT;
+  double d = v->valuedouble;
+  if (d != (double)(int)d || d < lo || d > hi) return HF_ERANGE;
+  *out = (int)d;
+  return HF_OK;
+}
+
+/* Parses the "hairfilter" metadata string into w->cfg and w->features. */
+static int parse_metadata(const char *text, hf_weights *w, char *err, size_t errlen) {
+  cJSON *m = cJSON_Parse(text);
+  if (!m || !cJSON_IsObject(m)) {
+    cJSON_Delete(m);
+    return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not a JSON object");
+  }
+  int rc = HF_OK;
+  hf_net_config *c = &w->cfg;
+  memset(c, 0, sizeof *c);
+  const cJSON *name = cJSON_GetObjectItemCaseSensitive(m, "name");
+  const cJSON *levels = cJSON_GetObjectItemCaseSensitive(m, "levels");
+  const cJSON *features = cJSON_GetObjectItemCaseSensitive(m, "features");
+  const cJSON *arch = cJSON_GetObjectItemCaseSensitive(m, "arch");
+  if (!cJSON_IsString(name) || strlen(name->valuestring) == 0 ||
+      strlen(name->valuestring) >= sizeof c->name) {
+    rc = fail(err, errlen, HF_EFORMAT, "metadata: 'name' missing or longer than %d bytes",
+              (int)sizeof c->name - 1);
+    goto out;
+  }
+  strcpy(c->name, name->valuestring);
+  if (arch && !(cJSON_IsString(arch) && !strcmp(arch->valuestring, "unet"))) {
+    rc = fail(err, errlen, HF_EUNSUPPORTED, "metadata: unsupported 'arch'");
+    goto out;
+  }
+  if (json_int(m, "spp", 1, HF_MAX_SPP, &c->spp) ||
+      json_int(m, "in_channels", 1, HF_MAX_SPP * HF_FEATURES_PER_SAMPLE, &c->in_channels) ||
+      json_int(m, "out_channels", 1, 64, &c->out_channels)) {
+    rc = fail(err, errlen, HF_EFORMAT,
+              "metadata: 'spp', 'in_channels' or 'out_channels' missing or out of range");
+    goto out;
+  }
+  if (c->in_channels != c->spp * HF_FEATURES_PER_SAMPLE) {
+    rc = fail(err, errlen, HF_EFORMAT, "metadata: in_channels %d != spp %d x %d features",
+              c->in_channels, c->spp, HF_FEATURES_PER_SAMPLE);
+    goto out;
+  }
+  if (c->out_channels != HF_OUT_CHANNELS) {
+    rc = fail(err, errlen, HF_EFORMAT, "metadata: out_channels must be %d", HF_OUT_CHANNELS);
+    goto out;
+  }
+  int nl = cJSON_IsArray(levels) ? cJSON_GetArraySize(levels) : -1;
+  if (nl < 1 || nl > HF_MAX_LEVELS) {
+    rc = fail(err, errlen, HF_EFORMAT, "metadata: 'levels' must be an array of 1..%d counts",
+              HF_MAX_LEVELS);
+    goto out;
+  }
+  c->num_levels = nl;
+  for (int i = 0; i < nl; i++) {
+    const cJSON *v = cJSON_GetArrayItem(levels, i);
+    if (!cJSON_IsNumber(v) || v->valuedouble < 1 || v->valuedouble > HF_MAX_CHANNELS ||
+        v->valuedouble != (double)(int)v->valuedouble) {
+      rc = fail(err, errlen, HF_EFORMAT, "metadata: levels[%d] is not a count in 1..%d", i,
+                HF_MAX_CHANNELS);
+      goto out;
+    }
+    c->levels[i] = (int)v->valuedouble;
+  }
+  /* Every backend assumes the canonical feature order: refuse anything else
+   * rather than silently filter the wrong channels. */
+  if (!cJSON_IsArray(features) || cJSON_GetArraySize(features) != HF_FEATURES_PER_SAMPLE) {
+    rc = fail(err, errlen, HF_EFORMAT, "metadata: 'features' must list %d names",
+              HF_FEATURES_PER_SAMPLE);
+    goto out;
+  }
+  for (int k = 0; k < HF_FEATURES_PER_SAMPLE; k++) {
+    const cJSON *v = cJSON_GetArrayItem(features, k);
+    if (!cJSON_IsString(v) || strcmp(v->valuestring, HF_FEATURE_NAMES[k])) {
+      rc = fail(err, errlen, HF_EFORMAT, "metadata: features[%d] must be \"%s\"", k,
+                HF_FEATURE_NAMES[k]);
+      goto out;
+    }
+    snprintf(w->features[k], sizeof w->features[k], "%s", v->valuestring);
+  }
+  rc = hf_net_config_validate(c);
+  if (rc) fail(err, errlen, rc, "metadata: invalid network configuration");
+out:
+  cJSON_Delete(m);
+  return rc;
+}
+
+static uint64_t read_le64(const unsigned char *p) {
+  uint64_t v = 0;
+  for (int i = 7; i >= 0; i--) v = (v << 8) | p[i];
+  return v;
+}
+
+/* Copies one tensor's bytes into dst as float32. */
+static void convert(const unsigned char *src, int is_f16, size_t numel, float *dst) {
+  if (!is_f16) {
+    memcpy(dst, src, numel * 4); /* little-endian hosts only (x86, arm) */
+    return;
+  }
+  for (size_t i = 0; i < numel; i++)
+    dst[i] = hf_f16_to_f32((uint16_t)(src[2 * i] | (src[2 * i + 1] << 8)));
+}
+
+static int check_tensor(const cJSON *t, const hf_tensor_spec *s, size_t data_len,
+                        int *is_f16, size_t *begin, char *err, size_t errlen) {
+  if (!cJSON_IsObject(t)) return fail(err, errlen, HF_EFORMAT, "tensor '%s' missing", s->name);
+  const cJSON *dtype = cJSON_GetObjectItemCaseSensitive(t, "dtype");
+  const cJSON *shape = cJSON_GetObjectItemCaseSensitive(t, "shape");
+  const cJSON *offs = cJSON_GetObjectItemCaseSensitive(t, "data_offsets");
+  if (!cJSON_IsString(dtype))
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': no dtype", s->name);
+  if (!strcmp(dtype->valuestring, "F32")) *is_f16 = 0;
+  else if (!strcmp(dtype->valuestring, "F16")) *is_f16 = 1;
+  else
+    return fail(err, errlen, HF_EUNSUPPORTED, "tensor '%s': dtype %.16s (want F32 or F16)",
+                s->name, dtype->valuestring);
+  if (!cJSON_IsArray(shape) || cJSON_GetArraySize(shape) != s->ndim)
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': expected %d dimensions", s->name,
+                s->ndim);
+  for (int d = 0; d < s->ndim; d++) {
+    const cJSON *v = cJSON_GetArrayItem(shape, d);
+    if (!cJSON_IsNumber(v) || v->valuedouble != (double)s->shape[d])
+      return fail(err, errlen, HF_EFORMAT,
+                  "tensor '%s': shape[%d] should be %lld for this configuration", s->name, d,
+                  (long long)s->shape[d]);
+  }
+  if (!cJSON_IsArray(offs) || cJSON_GetArraySize(offs) != 2)
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': bad data_offsets", s->name);
+  double b = cJSON_GetArrayItem(offs, 0)->valuedouble;
+  double e = cJSON_GetArrayItem(offs, 1)->valuedouble;
+  if (!cJSON_IsNumber(cJSON_GetArrayItem(offs, 0)) || !cJSON_IsNumber(cJSON_GetArrayItem(offs, 1)) ||
+      b < 0 || e < b || e > (double)data_len || b != (double)(size_t)b || e != (double)(size_t)e)
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': data_offsets outside the file", s->name);
+  size_t bytes = s->numel * (*is_f16 ? 2 : 4);
+  if ((size_t)e - (size_t)b != bytes)
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': %zu bytes of data, shape needs %zu",
+                s->name, (size_t)e - (size_t)b, bytes);
+  *begin = (size_t)b;
+  return HF_OK;
+}
+
+int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err,
+                        size_t errlen) {
+  if (!buf || !out) return fail(err, errlen, HF_EINVAL, "null argument");
+  *out = NULL;
+  const unsigned char *p = buf;
+  if (len < 8) return fail(err, errlen, HF_EFORMAT, "file too short (%zu bytes)", len);
+  uint64_t hlen = read_le64(p);
+  if (hlen < 2 || hlen > HEADER_MAX || hlen > len - 8)
+    return fail(err, errlen, HF_EFORMAT, "header length %llu does not fit a %zu-byte file",
+                (unsigned long long)hlen, len);
+  char *text = malloc(hlen + 1);
+  if (!text) return fail(err, errlen, HF_ENOMEM, "out of memory");
+  memcpy(text, p + 8, hlen);
+  text[hlen] = 0;
+  cJSON *root = cJSON_Parse(text);
+  free(text);
+  if (!root || !cJSON_IsObject(root)) {
+    cJSON_Delete(root);
+    return fail(err, errlen, HF_EFORMAT, "header is not valid JSON");
+  }
+  const unsigned char *data = p + 8 + hlen;
+  size_t data_len = len - 8 - (size_t)hlen;
+  int rc;
+  hf_weights tmp;
+  memset(&tmp, 0, sizeof tmp);
+  const cJSON *meta = cJSON_GetObjectItemCaseSensitive(root, "__metadata__");
+  const cJSON *hf = meta ? cJSON_GetObjectItemCaseSensitive(meta, "hairfilter") : NULL;
+  if (!cJSON_IsString(hf)) {
+    rc = fail(err, errlen, HF_EFORMAT, "no '__metadata__.hairfilter' entry");
+    goto out;
+  }
+  rc = parse_metadata(hf->valuestring, &tmp, err, errlen);
+  if (rc) goto out;
+  hf_weights *w;
+  rc = hf_weights_alloc(&tmp.cfg, &w);
+  if (rc) {
+    fail(err, errlen, rc, "cannot allocate weights: %s", hf_strerror(rc));
+    goto out;
+  }
+  memcpy(w->features, tmp.features, sizeof w->features);
+  hf_tensor_spec specs[HF_TENSORS_MAX];
+  int n = hf_weights_specs(w, specs);
+  /* Unknown tensors mean the file describes another network. */
+  int entries = 0;
+  for (const cJSON *it = root->child; it; it = it->next)
+    if (strcmp(it->string, "__metadata__")) entries++;
+  if (entries != n) {
+    rc = fail(err, errlen, HF_EFORMAT, "file has %d tensors, configuration needs %d", entries, n);
+    hf_weights_free(w);
+    goto out;
+  }
+  for (int k = 0; k < n; k++) {
+    int is_f16 = 0;
+    size_t begin = 0;
+    const cJSON *t = cJSON_GetObjectItemCaseSensitive(root, specs[k].name);
+    rc = check_tensor(t, &specs[k], data_len, &is_f16, &begin, err, errlen);
+    if (rc) {
+      hf_weights_free(w);
+      goto out;
+    }
+    convert(data + begin, is_f16, specs[k].numel, *specs[k].slot);
+  }
+  *out = w;
+out:
+  cJSON_Delete(root);
+  return rc;
+}
+
+int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen) {
+  if (!path || !out) return fail(err, errlen, HF_EINVAL, "null argument");
+  *out = NULL;
+  FILE *f = fopen(path, "rb");
+  if (!f) return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
+  int rc = HF_OK;
+  unsigned char *buf = NULL;
+  if (fseek(f, 0, SEEK_END) != 0) {
+    rc = fail(err, errlen, HF_EIO, "%s: cannot seek", path);
+    goto out;
+  }
+  long size = ftell(f);
+  if (size < 0 || (unsigned long)size > FILE_MAX) {
+    rc = fail(err, errlen, HF_ERANGE, "%s: size not supported", path);
+    goto out;
+  }
+  rewind(f);
+  buf = malloc(size ? (size_t)size : 1);
+  if (!buf) {
+    rc = fail(err, errlen, HF_ENOMEM, "%s: out of memory", path);
+    goto out;
+  }
+  if (fread(buf, 1, (size_t)size, f) != (size_t)size) {
+    rc = fail(err, errlen, HF_EIO, "%s: short read", path);
+    goto out;
+  }
+  char inner[200] = "";
+  rc = hf_weights_load_mem(buf, (size_t)size, out, inner, sizeof inner);
+  if (rc) fail(err, errlen, rc, "%s: %s", path, inner);
+out:
+  free(buf);
+  fclose(f);
+  return rc;
+}

@@ -1,0 +1,71 @@
+/* safetensors writer (float32), the inverse of weights_load.c. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cjson/cJSON.h>
+
+#include "weights.h"
+
+/* The metadata JSON the loader expects; caller frees. */
+static char *metadata_json(const hf_weights *w) {
+  const hf_net_config *c = &w->cfg;
+  cJSON *m = cJSON_CreateObject();
+  if (!m) return NULL;
+  cJSON_AddStringToObject(m, "name", c->name);
+  cJSON_AddStringToObject(m, "arch", "unet");
+  cJSON_AddNumberToObject(m, "spp", c->spp);
+  cJSON_AddNumberToObject(m, "in_channels", c->in_channels);
+  cJSON_AddItemToObject(m, "levels", cJSON_CreateIntArray(c->levels, c->num_levels));
+  cJSON_AddNumberToObject(m, "out_channels", c->out_channels);
+  cJSON_AddItemToObject(m, "features",
+                        cJSON_CreateStringArray(HF_FEATURE_NAMES, HF_FEATURES_PER_SAMPLE));
+  char *s = cJSON_PrintUnformatted(m);
+  cJSON_Delete(m);
+  return s;
+}
+
+int hf_weights_save(const char *path, const hf_weights *w) {
+  if (!path || !w || hf_net_config_validate(&w->cfg)) return HF_EINVAL;
+  hf_weights copy = *w; /* specs point into the copy's slots, same arrays */
+  hf_tensor_spec specs[HF_TENSORS_MAX];
+  int n = hf_weights_specs(&copy, specs);
+  int rc = HF_ENOMEM;
+  char *header = NULL, *meta = metadata_json(w);
+  cJSON *root = cJSON_CreateObject();
+  if (!meta || !root) goto out;
+  cJSON *md = cJSON_AddObjectToObject(root, "__metadata__");
+  cJSON_AddStringToObject(md, "hairfilter", meta);
+  size_t off = 0;
+  for (int k = 0; k < n; k++) {
+    cJSON *t = cJSON_AddObjectToObject(root, specs[k].name);
+    cJSON_AddStringToObject(t, "dtype", "F32");
+    cJSON *shape = cJSON_AddArrayToObject(t, "shape");
+    for (int d = 0; d < specs[k].ndim; d++)
+      cJSON_AddItemToArray(shape, cJSON_CreateNumber((double)specs[k].shape[d]));
+    cJSON *o = cJSON_AddArrayToObject(t, "data_offsets");
+    cJSON_AddItemToArray(o, cJSON_CreateNumber((double)off));
+    off += specs[k].numel * 4;
+    cJSON_AddItemToArray(o, cJSON_CreateNumber((double)off));
+  }
+  header = cJSON_PrintUnformatted(root);
+  if (!header) goto out;
+  /* Pad the header with spaces so tensor data starts 8-byte aligned. */
+  size_t hlen = strlen(header), padded = (hlen + 7) & ~(size_t)7;
+  unsigned char lenbuf[8];
+  for (int i = 0; i < 8; i++) lenbuf[i] = (unsigned char)((uint64_t)padded >> (8 * i));
+  FILE *f = fopen(path, "wb");
+  rc = HF_EIO;
+  if (!f) goto out;
+  int ok = fwrite(lenbuf, 1, 8, f) == 8 && fwrite(header, 1, hlen, f) == hlen;
+  for (size_t i = hlen; ok && i < padded; i++) ok = fputc(' ', f) != EOF;
+  for (int k = 0; ok && k < n; k++)
+    ok = fwrite(*specs[k].slot, 4, specs[k].numel, f) == specs[k].numel;
+  if (fclose(f) != 0) ok = 0;
+  rc = ok ? HF_OK : HF_EIO;
+out:
+  free(header);
+  free(meta);
+  cJSON_Delete(root);
+  return rc;
+}
