@@ -1,0 +1,710 @@
+/*
+ * hfproto.c: encoders and decoders of protocol v1 (PROTOCOL.md).
+ *
+ * Decoding goes through a bounds-checked reader: every get either succeeds
+ * or latches an error, and callers check the latch once at the end. That
+ * keeps each decoder a straight transcription of its PROTOCOL.md table while
+ * still making a short frame impossible to over-read.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include "hfproto.h"
+
+#include <math.h>
+#include <string.h>
+
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
+#error "hfproto: tensors are sent in host order, which must be little-endian"
+#endif
+
+static const char *const messages[HFP_E_COUNT] = {
+  [HFP_OK] = "ok",
+  [HFP_E_VERSION] = "no common protocol version",
+  [HFP_E_PROTOCOL] = "malformed frame or unexpected message",
+  [HFP_E_UNKNOWN_VARIANT] = "unknown variant",
+  [HFP_E_TOO_LARGE] = "dimensions or frame over the server's limits",
+  [HFP_E_LENGTH] = "payload length does not match its fields",
+  [HFP_E_BUSY] = "server busy: queue or in-flight limit full",
+  [HFP_E_UNAUTHORIZED] = "unauthorized: missing or wrong token",
+  [HFP_E_INTERNAL] = "internal server error",
+  [HFP_E_UNSUPPORTED] = "unsupported dtype or flag",
+  [HFP_E_SHUTTING_DOWN] = "server shutting down",
+  [HFP_E_INVALID] = "field out of range",
+  [HFP_E_NOSPACE] = "buffer too small",
+};
+
+const char *hfp_strerror(int code) {
+  if (code < 0) code = -code;
+  if (code >= HFP_E_COUNT) return "unknown protocol error";
+  return messages[code];
+}
+
+int hfp_negotiate(uint16_t client_min, uint16_t client_max) {
+  if (client_min > client_max) return -HFP_E_VERSION;
+  if (client_min <= HFP_VERSION && HFP_VERSION <= client_max) return HFP_VERSION;
+  return -HFP_E_VERSION;
+}
+
+int hfp_hist_bucket(uint64_t us) {
+  int b = 0;
+  uint64_t bound = 32;
+  while (b < HFP_HIST_BUCKETS - 1 && us >= bound) {
+    b++;
+    bound <<= 1;
+  }
+  return b;
+}
+
+uint64_t hfp_hist_upper(int i) {
+  if (i < 0) return 0;
+  if (i >= HFP_HIST_BUCKETS - 1) return UINT64_MAX;
+  return (uint64_t)32 << i;
+}
+
+size_t hfp_dtype_size(int dtype) {
+  switch (dtype) {
+    case HFP_F32: return 4;
+    case HFP_F16: return 2;
+    default: return 0;
+  }
+}
+
+static int tensor_bytes(uint32_t width, uint32_t height, uint64_t channels,
+                        int dtype, uint64_t *out) {
+  size_t es = hfp_dtype_size(dtype);
+  if (!es) return -HFP_E_UNSUPPORTED;
+  if (width < 1 || height < 1 || width > HFP_MAX_SIDE || height > HFP_MAX_SIDE)
+    return -HFP_E_INVALID;
+  /* 65535^2 * 96 * 4 < 2^41: no overflow possible in 64 bits. */
+  *out = (uint64_t)width * height * channels * es;
+  return 0;
+}
+
+int hfp_features_bytes(uint32_t width, uint32_t height, uint32_t spp, int dtype,
+                       uint64_t *out) {
+  if (spp < 1 || spp > HFP_MAX_SPP) return -HFP_E_INVALID;
+  return tensor_bytes(width, height, (uint64_t)spp * HFP_FEATURES, dtype, out);
+}
+
+int hfp_output_bytes(uint32_t width, uint32_t height, uint32_t channels,
+                     int dtype, uint64_t *out) {
+  if (channels < 1 || channels > 4) return -HFP_E_INVALID;
+  return tensor_bytes(width, height, channels, dtype, out);
+}
+
+/* ---- header --------------------------------------------------------------- */
+
+void hfp_header_encode(const hfp_header *h, uint8_t out[HFP_HEADER_SIZE]) {
+  hfp_put_u32(out, HFP_MAGIC);
+  hfp_put_u16(out + 4, h->type);
+  hfp_put_u16(out + 6, h->flags);
+  hfp_put_u32(out + 8, h->request_id);
+  hfp_put_u32(out + 12, h->length);
+}
+
+int hfp_header_decode(const uint8_t in[HFP_HEADER_SIZE], uint32_t max_payload,
+                      hfp_header *h) {
+  memset(h, 0, sizeof *h);
+  if (hfp_get_u32(in) != HFP_MAGIC) return -HFP_E_PROTOCOL;
+  h->type = hfp_get_u16(in + 4);
+  h->flags = hfp_get_u16(in + 6);
+  h->request_id = hfp_get_u32(in + 8);
+  h->length = hfp_get_u32(in + 12);
+  if (h->type < 1 || h->type > HFP_TYPE_MAX) return -HFP_E_PROTOCOL;
+  if (h->flags != 0) return -HFP_E_PROTOCOL;
+  if (h->length > max_payload) return -HFP_E_TOO_LARGE;
+  return 0;
+}
+
+/* ---- bounded reader and writer ---------------------------------------- */
+
+typedef struct rd {
+  const uint8_t *p;
+  size_t len, off;
+  int err;
+} rd;
+
+static const uint8_t *rd_take(rd *r, size_t n) {
+  if (r->err) return NULL;
+  if (n > r->len - r->off) {
+    r->err = -HFP_E_LENGTH;
+    return NULL;
+  }
+  const uint8_t *p = r->p + r->off;
+  r->off += n;
+  return p;
+}
+
+static uint8_t rd_u8(rd *r) {
+  const uint8_t *p = rd_take(r, 1);
+  return p ? p[0] : 0;
+}
+static uint16_t rd_u16(rd *r) {
+  const uint8_t *p = rd_take(r, 2);
+  return p ? hfp_get_u16(p) : 0;
+}
+static uint32_t rd_u32(rd *r) {
+  const uint8_t *p = rd_take(r, 4);
+  return p ? hfp_get_u32(p) : 0;
+}
+static uint64_t rd_u64(rd *r) {
+  const uint8_t *p = rd_take(r, 8);
+  if (!p) return 0;
+  return (uint64_t)hfp_get_u32(p) | ((uint64_t)hfp_get_u32(p + 4) << 32);
+}
+static float rd_f32(rd *r) {
+  uint32_t u = rd_u32(r);
+  float f;
+  memcpy(&f, &u, 4);
+  return f;
+}
+
+/* Names and tokens are printable ASCII without spaces; messages may hold
+ * spaces. Rejecting control bytes here means no peer ever logs a terminal
+ * escape sequence it received. */
+static int text_ok(const uint8_t *s, size_t n, int allow_space) {
+  for (size_t i = 0; i < n; i++) {
+    uint8_t c = s[i];
+    if (c > 0x7e || c < 0x20 || (c == 0x20 && !allow_space)) return 0;
+  }
+  return 1;
+}
+
+/* Reads n bytes of text into dst (dst has room for max + 1). */
+static void rd_text(rd *r, size_t n, size_t max, int allow_space, int allow_empty,
+                    char *dst) {
+  dst[0] = 0;
+  if (r->err) return;
+  if (n > max || (n == 0 && !allow_empty)) {
+    r->err = -HFP_E_INVALID;
+    return;
+  }
+  const uint8_t *p = rd_take(r, n);
+  if (!p) return;
+  if (!text_ok(p, n, allow_space)) {
+    r->err = -HFP_E_INVALID;
+    return;
+  }
+  memcpy(dst, p, n);
+  dst[n] = 0;
+}
+
+static int rd_end(rd *r) {
+  if (r->err) return r->err;
+  if (r->off != r->len) return -HFP_E_LENGTH;
+  return 0;
+}
+
+typedef struct wr {
+  uint8_t *p;
+  size_t cap, off;
+  int err;
+} wr;
+
+static uint8_t *wr_take(wr *w, size_t n) {
+  if (w->err) return NULL;
+  if (n > w->cap - w->off) {
+    w->err = -HFP_E_NOSPACE;
+    return NULL;
+  }
+  uint8_t *p = w->p + w->off;
+  w->off += n;
+  return p;
+}
+static void wr_u8(wr *w, uint8_t v) {
+  uint8_t *p = wr_take(w, 1);
+  if (p) p[0] = v;
+}
+static void wr_u16(wr *w, uint16_t v) {
+  uint8_t *p = wr_take(w, 2);
+  if (p) hfp_put_u16(p, v);
+}
+static void wr_u32(wr *w, uint32_t v) {
+  uint8_t *p = wr_take(w, 4);
+  if (p) hfp_put_u32(p, v);
+}
+static void wr_u64(wr *w, uint64_t v) {
+  uint8_t *p = wr_take(w, 8);
+  if (p) {
+    hfp_put_u32(p, (uint32_t)v);
+    hfp_put_u32(p + 4, (uint32_t)(v >> 32));
+  }
+}
+static void wr_f32(wr *w, float f) {
+  uint32_t u;
+  memcpy(&u, &f, 4);
+  wr_u32(w, u);
+}
+static void wr_bytes(wr *w, const void *s, size_t n) {
+  uint8_t *p = wr_take(w, n);
+  if (p && n) memcpy(p, s, n);
+}
+
+/* Validates text before it is sent, with the receiver's rules. */
+static size_t checked_text(wr *w, const char *s, size_t max, int allow_space,
+                           int allow_empty) {
+  size_t n = strnlen(s, max + 1);
+  if (n > max || (n == 0 && !allow_empty) ||
+      !text_ok((const uint8_t *)s, n, allow_space)) {
+    if (!w->err) w->err = -HFP_E_INVALID;
+    return 0;
+  }
+  return n;
+}
+
+/* Starts a frame: reserves the header, whose length is patched by wr_finish
+ * (or set to `length` when the caller appends bulk data itself). */
+static void wr_begin(wr *w, uint8_t *buf, size_t cap) {
+  w->p = buf;
+  w->cap = cap;
+  w->off = 0;
+  w->err = 0;
+  wr_take(w, HFP_HEADER_SIZE);
+}
+
+static int wr_finish(wr *w, int type, uint32_t request_id, uint64_t extra) {
+  if (w->err) return w->err;
+  uint64_t length = (uint64_t)(w->off - HFP_HEADER_SIZE) + extra;
+  if (length > UINT32_MAX) return -HFP_E_TOO_LARGE;
+  hfp_header h = {(uint16_t)type, 0, request_id, (uint32_t)length};
+  hfp_header_encode(&h, w->p);
+  if (w->off > INT32_MAX) return -HFP_E_TOO_LARGE;
+  return (int)w->off;
+}
+
+/* ---- HELLO / HELLO_OK ------------------------------------------------------ */
+
+int hfp_encode_hello(uint8_t *buf, size_t cap, const hfp_hello *m) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  size_t nn = checked_text(&w, m->client_name, HFP_NAME_MAX, 0, 0);
+  size_t tn = checked_text(&w, m->token, HFP_TOKEN_MAX, 0, 1);
+  if (!w.err && (m->min_version < 1 || m->min_version > m->max_version))
+    w.err = -HFP_E_INVALID;
+  wr_u16(&w, m->min_version);
+  wr_u16(&w, m->max_version);
+  wr_u16(&w, (uint16_t)nn);
+  wr_u16(&w, (uint16_t)tn);
+  wr_bytes(&w, m->client_name, nn);
+  wr_bytes(&w, m->token, tn);
+  return wr_finish(&w, HFP_HELLO, 0, 0);
+}
+
+int hfp_decode_hello(const uint8_t *payload, size_t len, hfp_hello *m) {
+  rd r = {payload, len, 0, 0};
+  memset(m, 0, sizeof *m);
+  m->min_version = rd_u16(&r);
+  m->max_version = rd_u16(&r);
+  uint16_t nn = rd_u16(&r), tn = rd_u16(&r);
+  rd_text(&r, nn, HFP_NAME_MAX, 0, 0, m->client_name);
+  rd_text(&r, tn, HFP_TOKEN_MAX, 0, 1, m->token);
+  int rc = rd_end(&r);
+  if (rc) return rc;
+  if (m->min_version < 1 || m->min_version > m->max_version) return -HFP_E_VERSION;
+  return 0;
+}
+
+int hfp_encode_hello_ok(uint8_t *buf, size_t cap, const hfp_hello_ok *m) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  size_t nn = checked_text(&w, m->server_name, HFP_NAME_MAX, 0, 0);
+  if (!w.err && (m->version < 1 || m->max_spp < 1 || m->max_spp > HFP_MAX_SPP ||
+                 m->max_width < 1 || m->max_height < 1 ||
+                 m->max_width > HFP_MAX_SIDE || m->max_height > HFP_MAX_SIDE ||
+                 m->max_inflight < 1 || m->max_batch < 1 ||
+                 !(m->dtypes & HFP_DTYPE_MASK_ALL) || (m->dtypes & ~HFP_DTYPE_MASK_ALL)))
+    w.err = -HFP_E_INVALID;
+  wr_u16(&w, m->version);
+  wr_u16(&w, m->server_flags);
+  wr_u32(&w, m->max_width);
+  wr_u32(&w, m->max_height);
+  wr_u16(&w, m->max_spp);
+  wr_u16(&w, m->max_inflight);
+  wr_u32(&w, m->dtypes);
+  wr_u32(&w, m->max_batch);
+  wr_u32(&w, m->queue_size);
+  wr_u64(&w, m->max_frame_bytes);
+  wr_u16(&w, (uint16_t)nn);
+  wr_bytes(&w, m->server_name, nn);
+  return wr_finish(&w, HFP_HELLO_OK, 0, 0);
+}
+
+int hfp_decode_hello_ok(const uint8_t *payload, size_t len, hfp_hello_ok *m) {
+  rd r = {payload, len, 0, 0};
+  memset(m, 0, sizeof *m);
+  m->version = rd_u16(&r);
+  m->server_flags = rd_u16(&r);
+  m->max_width = rd_u32(&r);
+  m->max_height = rd_u32(&r);
+  m->max_spp = rd_u16(&r);
+  m->max_inflight = rd_u16(&r);
+  m->dtypes = rd_u32(&r);
+  m->max_batch = rd_u32(&r);
+  m->queue_size = rd_u32(&r);
+  m->max_frame_bytes = rd_u64(&r);
+  uint16_t nn = rd_u16(&r);
+  rd_text(&r, nn, HFP_NAME_MAX, 0, 0, m->server_name);
+  int rc = rd_end(&r);
+  if (rc) return rc;
+  if (m->version != HFP_VERSION) return -HFP_E_VERSION;
+  if (m->max_spp < 1 || m->max_spp > HFP_MAX_SPP || m->max_width < 1 ||
+      m->max_height < 1 || m->max_width > HFP_MAX_SIDE ||
+      m->max_height > HFP_MAX_SIDE || m->max_inflight < 1 || m->max_batch < 1 ||
+      !(m->dtypes & HFP_DTYPE_MASK_ALL) || (m->dtypes & ~HFP_DTYPE_MASK_ALL))
+    return -HFP_E_INVALID;
+  return 0;
+}
+
+/* ---- empty requests ---------------------------------------------------- */
+
+int hfp_encode_empty(uint8_t *buf, size_t cap, int type, uint32_t request_id) {
+  if (type != HFP_LIST_VARIANTS && type != HFP_STATS) return -HFP_E_INVALID;
+  wr w;
+  wr_begin(&w, buf, cap);
+  return wr_finish(&w, type, request_id, 0);
+}
+
+/* ---- VARIANTS -------------------------------------------------------------- */
+
+static void wr_short_text(wr *w, const char *s, int allow_empty) {
+  size_t n = checked_text(w, s, HFP_NAME_MAX, 0, allow_empty);
+  wr_u8(w, (uint8_t)n);
+  wr_bytes(w, s, n);
+}
+
+static void rd_short_text(rd *r, char *dst, int allow_empty) {
+  uint8_t n = rd_u8(r);
+  rd_text(r, n, HFP_NAME_MAX, 0, allow_empty, dst);
+}
+
+static int variant_ok(const hfp_variant *v) {
+  if (v->spp < 1 || v->spp > HFP_MAX_SPP) return 0;
+  if (v->num_levels < 1 || v->num_levels > HFP_MAX_LEVELS) return 0;
+  for (int i = 0; i < v->num_levels; i++)
+    if (v->levels[i] < 1) return 0;
+  return 1;
+}
+
+size_t hfp_frame_size_variants(const hfp_variant *v, int count) {
+  size_t n = HFP_HEADER_SIZE + 2;
+  for (int i = 0; i < count; i++)
+    n += 3 + strnlen(v[i].name, HFP_NAME_MAX + 1) +
+         strnlen(v[i].backend, HFP_NAME_MAX + 1) +
+         strnlen(v[i].precision, HFP_NAME_MAX + 1) + 4 + 4 * (size_t)v[i].num_levels;
+  return n;
+}
+
+int hfp_encode_variants(uint8_t *buf, size_t cap, const hfp_variant *v, int count) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  if (count < 0 || count > HFP_MAX_VARIANTS) w.err = -HFP_E_INVALID;
+  wr_u16(&w, (uint16_t)count);
+  for (int i = 0; i < count && !w.err; i++) {
+    if (!variant_ok(&v[i])) w.err = -HFP_E_INVALID;
+    wr_short_text(&w, v[i].name, 0);
+    wr_short_text(&w, v[i].backend, 0);
+    wr_short_text(&w, v[i].precision, 0);
+    wr_u16(&w, v[i].spp);
+    wr_u16(&w, v[i].num_levels);
+    for (int l = 0; l < v[i].num_levels && !w.err; l++) wr_u32(&w, v[i].levels[l]);
+  }
+  return wr_finish(&w, HFP_VARIANTS, 0, 0);
+}
+
+int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,
+                        int max, int *count) {
+  rd r = {payload, len, 0, 0};
+  *count = 0;
+  uint16_t n = rd_u16(&r);
+  if (r.err) return r.err;
+  if (n > HFP_MAX_VARIANTS) return -HFP_E_INVALID;
+  if (n > max) return -HFP_E_NOSPACE;
+  for (int i = 0; i < n; i++) {
+    hfp_variant *e = &v[i];
+    memset(e, 0, sizeof *e);
+    rd_short_text(&r, e->name, 0);
+    rd_short_text(&r, e->backend, 0);
+    rd_short_text(&r, e->precision, 0);
+    e->spp = rd_u16(&r);
+    e->num_levels = rd_u16(&r);
+    if (r.err) return r.err;
+    if (e->num_levels < 1 || e->num_levels > HFP_MAX_LEVELS) return -HFP_E_INVALID;
+    for (int l = 0; l < e->num_levels; l++) e->levels[l] = rd_u32(&r);
+    if (r.err) return r.err;
+    if (!variant_ok(e)) return -HFP_E_INVALID;
+  }
+  int rc = rd_end(&r);
+  if (rc) return rc;
+  *count = n;
+  return 0;
+}
+
+/* ---- FILTER -------------------------------------------------------------- */
+
+static int colors_finite(const float *c, int n) {
+  for (int i = 0; i < n; i++)
+    if (!isfinite(c[i])) return 0;
+  return 1;
+}
+
+/* Checks the fields of a FILTER that the codec owns; limits are the
+ * server's. */
+static int filter_fields(const hfp_filter *m, uint64_t *data_len) {
+  if (m->flags & ~HFP_FILTER_KNOWN) return -HFP_E_UNSUPPORTED;
+  if (!hfp_dtype_size(m->in_dtype) || !hfp_dtype_size(m->out_dtype))
+    return -HFP_E_UNSUPPORTED;
+  if (!colors_finite(m->hair, 3) || !colors_finite(m->light, 3) ||
+      !colors_finite(m->bg, 3))
+    return -HFP_E_INVALID;
+  return hfp_features_bytes(m->width, m->height, m->spp, m->in_dtype, data_len);
+}
+
+int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
+                           const hfp_filter *m, uint64_t *frame_size) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  size_t vn = checked_text(&w, m->variant, HFP_NAME_MAX, 0, 0);
+  uint64_t data_len = 0;
+  if (!w.err) {
+    int rc = filter_fields(m, &data_len);
+    if (rc) w.err = rc;
+    else if (m->data_len != data_len || request_id == 0) w.err = -HFP_E_INVALID;
+  }
+  wr_u16(&w, (uint16_t)vn);
+  wr_u16(&w, m->flags);
+  wr_u32(&w, m->width);
+  wr_u32(&w, m->height);
+  wr_u16(&w, m->spp);
+  wr_u8(&w, m->in_dtype);
+  wr_u8(&w, m->out_dtype);
+  for (int i = 0; i < 3; i++) wr_f32(&w, m->hair[i]);
+  for (int i = 0; i < 3; i++) wr_f32(&w, m->light[i]);
+  for (int i = 0; i < 3; i++) wr_f32(&w, m->bg[i]);
+  wr_bytes(&w, m->variant, vn);
+  int rc = wr_finish(&w, HFP_FILTER, request_id, data_len);
+  if (rc > 0 && frame_size) *frame_size = (uint64_t)rc + data_len;
+  return rc;
+}
+
+int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
+                           hfp_filter *m, size_t *head_len) {
+  memset(m, 0, sizeof *m);
+  if (avail > len) return -HFP_E_INVALID;
+  if (len < HFP_FILTER_FIXED) return -HFP_E_LENGTH;
+  rd r = {payload, avail, 0, 0};
+  uint16_t vn = rd_u16(&r);
+  m->flags = rd_u16(&r);
+  m->width = rd_u32(&r);
+  m->height = rd_u32(&r);
+  m->spp = rd_u16(&r);
+  m->in_dtype = rd_u8(&r);
+  m->out_dtype = rd_u8(&r);
+  for (int i = 0; i < 3; i++) m->hair[i] = rd_f32(&r);
+  for (int i = 0; i < 3; i++) m->light[i] = rd_f32(&r);
+  for (int i = 0; i < 3; i++) m->bg[i] = rd_f32(&r);
+  if (r.err) return -HFP_E_NOSPACE;  /* the fixed part has not all arrived */
+  if (vn < 1 || vn > HFP_NAME_MAX) return -HFP_E_INVALID;
+  if ((size_t)HFP_FILTER_FIXED + vn > len) return -HFP_E_LENGTH;
+  if ((size_t)HFP_FILTER_FIXED + vn > avail) return -HFP_E_NOSPACE;
+  rd_text(&r, vn, HFP_NAME_MAX, 0, 0, m->variant);
+  if (r.err) return r.err;
+  uint64_t data_len;
+  int rc = filter_fields(m, &data_len);
+  if (rc) return rc;
+  if ((uint64_t)len - r.off != data_len) return -HFP_E_LENGTH;
+  m->data_len = data_len;
+  *head_len = r.off;
+  return 0;
+}
+
+int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m) {
+  size_t head;
+  int rc = hfp_decode_filter_head(payload, len, len, m, &head);
+  if (rc) return rc == -HFP_E_NOSPACE ? -HFP_E_LENGTH : rc;
+  m->data = payload + head;
+  return 0;
+}
+
+/* ---- RESULT --------------------------------------------------------------- */
+
+static int result_sizes(const hfp_result *m, uint64_t *data_len, uint64_t *rgba_len) {
+  *data_len = *rgba_len = 0;
+  if (m->flags & ~HFP_FILTER_COMPOSITE) return -HFP_E_INVALID;
+  if (m->status != HFP_OK) {
+    if (m->status >= HFP_E_COUNT || m->width || m->height || m->flags)
+      return -HFP_E_INVALID;
+    return 0;
+  }
+  int rc = hfp_output_bytes(m->width, m->height, HFP_OUTPUTS, m->dtype, data_len);
+  if (rc) return rc;
+  if (m->batch < 1) return -HFP_E_INVALID;
+  if (m->flags & HFP_FILTER_COMPOSITE)
+    return hfp_output_bytes(m->width, m->height, 4, m->dtype, rgba_len);
+  return 0;
+}
+
+int hfp_encode_result_head(uint8_t *buf, size_t cap, uint32_t request_id,
+                           const hfp_result *m, uint64_t *frame_size) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  uint64_t dl = 0, rl = 0;
+  int rc = result_sizes(m, &dl, &rl);
+  if (rc) w.err = rc;
+  else if (m->data_len != dl || (rl && m->rgba_len != rl) || request_id == 0)
+    w.err = -HFP_E_INVALID;
+  wr_u16(&w, m->status);
+  wr_u8(&w, m->dtype);
+  wr_u8(&w, m->flags);
+  wr_u32(&w, m->width);
+  wr_u32(&w, m->height);
+  wr_u32(&w, m->batch);
+  wr_u64(&w, m->timing.queue_us);
+  wr_u64(&w, m->timing.input_us);
+  wr_u64(&w, m->timing.infer_us);
+  wr_u64(&w, m->timing.output_us);
+  wr_u64(&w, m->timing.total_us);
+  rc = wr_finish(&w, HFP_RESULT, request_id, dl + rl);
+  if (rc > 0 && frame_size) *frame_size = (uint64_t)rc + dl + rl;
+  return rc;
+}
+
+int hfp_decode_result_head(const uint8_t *payload, size_t avail, size_t len,
+                           hfp_result *m) {
+  memset(m, 0, sizeof *m);
+  if (avail > len) return -HFP_E_INVALID;
+  if (avail < HFP_RESULT_FIXED) return len < HFP_RESULT_FIXED ? -HFP_E_LENGTH
+                                                              : -HFP_E_NOSPACE;
+  rd r = {payload, avail, 0, 0};
+  m->status = rd_u16(&r);
+  m->dtype = rd_u8(&r);
+  m->flags = rd_u8(&r);
+  m->width = rd_u32(&r);
+  m->height = rd_u32(&r);
+  m->batch = rd_u32(&r);
+  m->timing.queue_us = rd_u64(&r);
+  m->timing.input_us = rd_u64(&r);
+  m->timing.infer_us = rd_u64(&r);
+  m->timing.output_us = rd_u64(&r);
+  m->timing.total_us = rd_u64(&r);
+  if (r.err) return r.err;
+  uint64_t dl, rl;
+  int rc = result_sizes(m, &dl, &rl);
+  if (rc) return rc;
+  if ((uint64_t)len != HFP_RESULT_FIXED + dl + rl) return -HFP_E_LENGTH;
+  m->data_len = dl;
+  m->rgba_len = rl;
+  return 0;
+}
+
+int hfp_decode_result(const uint8_t *payload, size_t len, hfp_result *m) {
+  int rc = hfp_decode_result_head(payload, len, len, m);
+  if (rc) return rc;
+  if (m->data_len) m->data = payload + HFP_RESULT_FIXED;
+  if (m->rgba_len) m->rgba = payload + HFP_RESULT_FIXED + m->data_len;
+  return 0;
+}
+
+/* ---- ERROR ----------------------------------------------------------------- */
+
+int hfp_encode_error(uint8_t *buf, size_t cap, uint32_t request_id, const hfp_error *m) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  size_t n = checked_text(&w, m->message, HFP_MESSAGE_MAX, 1, 1);
+  if (!w.err && (m->code < 1 || m->code >= HFP_E_COUNT || m->code == HFP_E_NOSPACE ||
+                 m->fatal > 1))
+    w.err = -HFP_E_INVALID;
+  wr_u32(&w, m->code);
+  wr_u8(&w, m->fatal);
+  wr_u8(&w, 0);
+  wr_u16(&w, (uint16_t)n);
+  wr_bytes(&w, m->message, n);
+  return wr_finish(&w, HFP_ERROR, request_id, 0);
+}
+
+int hfp_decode_error(const uint8_t *payload, size_t len, hfp_error *m) {
+  rd r = {payload, len, 0, 0};
+  memset(m, 0, sizeof *m);
+  m->code = rd_u32(&r);
+  m->fatal = rd_u8(&r);
+  uint8_t reserved = rd_u8(&r);
+  uint16_t n = rd_u16(&r);
+  rd_text(&r, n, HFP_MESSAGE_MAX, 1, 1, m->message);
+  int rc = rd_end(&r);
+  if (rc) return rc;
+  /* Unknown codes from a newer server are still errors: keep them. */
+  if (m->code == 0 || m->fatal > 1 || reserved) return -HFP_E_INVALID;
+  return 0;
+}
+
+/* ---- STATS_REPLY -------------------------------------------------------- */
+
+#define VSTATS_FIXED (7 * 8 + 2 * HFP_HIST_BUCKETS * 8)
+
+size_t hfp_frame_size_stats(const hfp_stats *m) {
+  size_t n = HFP_HEADER_SIZE + 40;
+  for (int i = 0; i < m->num_variants && i < HFP_MAX_VARIANTS; i++)
+    n += 1 + strnlen(m->variants[i].name, HFP_NAME_MAX + 1) + VSTATS_FIXED;
+  return n;
+}
+
+int hfp_encode_stats(uint8_t *buf, size_t cap, const hfp_stats *m) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  if (m->num_variants > HFP_MAX_VARIANTS) w.err = -HFP_E_INVALID;
+  wr_u64(&w, m->uptime_us);
+  wr_u64(&w, m->connections_total);
+  wr_u32(&w, m->connections_open);
+  wr_u32(&w, m->queue_depth);
+  wr_u32(&w, m->queue_capacity);
+  wr_u64(&w, m->protocol_errors);
+  wr_u16(&w, m->num_variants);
+  wr_u16(&w, HFP_HIST_BUCKETS);
+  for (int i = 0; i < m->num_variants && !w.err; i++) {
+    const hfp_variant_stats *v = &m->variants[i];
+    wr_short_text(&w, v->name, 0);
+    wr_u64(&w, v->requests_ok);
+    wr_u64(&w, v->requests_failed);
+    wr_u64(&w, v->rejected);
+    wr_u64(&w, v->batches);
+    wr_u64(&w, v->sum_queue_us);
+    wr_u64(&w, v->sum_infer_us);
+    wr_u64(&w, v->sum_total_us);
+    for (int b = 0; b < HFP_HIST_BUCKETS; b++) wr_u64(&w, v->hist_total[b]);
+    for (int b = 0; b < HFP_HIST_BUCKETS; b++) wr_u64(&w, v->hist_infer[b]);
+  }
+  return wr_finish(&w, HFP_STATS_REPLY, 0, 0);
+}
+
+int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
+  rd r = {payload, len, 0, 0};
+  memset(m, 0, sizeof *m);
+  m->uptime_us = rd_u64(&r);
+  m->connections_total = rd_u64(&r);
+  m->connections_open = rd_u32(&r);
+  m->queue_depth = rd_u32(&r);
+  m->queue_capacity = rd_u32(&r);
+  m->protocol_errors = rd_u64(&r);
+  m->num_variants = rd_u16(&r);
+  uint16_t buckets = rd_u16(&r);
+  if (r.err) return r.err;
+  if (m->num_variants > HFP_MAX_VARIANTS || buckets != HFP_HIST_BUCKETS) {
+    m->num_variants = 0;
+    return -HFP_E_INVALID;
+  }
+  for (int i = 0; i < m->num_variants; i++) {
+    hfp_variant_stats *v = &m->variants[i];
+    rd_short_text(&r, v->name, 0);
+    v->requests_ok = rd_u64(&r);
+    v->requests_failed = rd_u64(&r);
+    v->rejected = rd_u64(&r);
+    v->batches = rd_u64(&r);
+    v->sum_queue_us = rd_u64(&r);
+    v->sum_infer_us = rd_u64(&r);
+    v->sum_total_us = rd_u64(&r);
+    for (int b = 0; b < HFP_HIST_BUCKETS; b++) v->hist_total[b] = rd_u64(&r);
+    for (int b = 0; b < HFP_HIST_BUCKETS; b++) v->hist_infer[b] = rd_u64(&r);
+    if (r.err) break;
+  }
+  int rc = rd_end(&r);
+  if (rc) m->num_variants = 0;
+  return rc;
+}

@@ -1,0 +1,284 @@
+/*
+ * hfproto: the hairfilter wire protocol, version 1 (see PROTOCOL.md, which is
+ * normative; this header follows it).
+ *
+ * A pure codec: it turns message structs into bytes and bytes into structs.
+ * It does no I/O and never allocates, so every length it reads from the wire
+ * can only make it reject input, never make it reserve memory. Decoders
+ * return pointers into the caller's buffer for bulk data (feature and result
+ * tensors) instead of copying them.
+ *
+ * Every frame is a 16-byte header followed by `length` payload bytes:
+ *
+ *   u32 magic (HFP_MAGIC) | u16 type | u16 flags (0) | u32 request_id | u32 length
+ *
+ * All integers and floats are little-endian. Functions return 0 (or a byte
+ * count) on success and a negative HFP_E* code on failure; the same codes,
+ * positive, travel in ERROR frames and RESULT statuses. hfp_strerror() names
+ * them.
+ */
+#ifndef HFPROTO_H
+#define HFPROTO_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define HFP_MAGIC          0x31504648u  /* "HFP1" in byte order */
+#define HFP_VERSION        1            /* the only version this codec speaks */
+#define HFP_HEADER_SIZE    16
+
+#define HFP_NAME_MAX       64     /* client, server, variant, backend names */
+#define HFP_TOKEN_MAX      256    /* auth token bytes */
+#define HFP_MESSAGE_MAX    256    /* ERROR message bytes */
+#define HFP_MAX_VARIANTS   64     /* entries in one VARIANTS reply */
+#define HFP_MAX_LEVELS     8      /* U-Net levels per variant */
+#define HFP_MAX_SPP        16     /* samples per pixel */
+#define HFP_MAX_SIDE       65535  /* width/height the codec accepts at all */
+#define HFP_FEATURES       6      /* features per sample */
+#define HFP_OUTPUTS        3      /* color, highlight, alpha */
+#define HFP_HIST_BUCKETS   24     /* latency histogram buckets */
+
+/* ---- error codes (stable; wire values are the positive numbers) -------- */
+
+#define HFP_OK               0
+#define HFP_E_VERSION        1   /* no common protocol version */
+#define HFP_E_PROTOCOL       2   /* malformed frame or unexpected message */
+#define HFP_E_UNKNOWN_VARIANT 3  /* FILTER names no loaded variant */
+#define HFP_E_TOO_LARGE      4   /* dimensions or frame over the server's limits */
+#define HFP_E_LENGTH         5   /* payload length disagrees with its fields */
+#define HFP_E_BUSY           6   /* queue or per-connection in-flight limit full */
+#define HFP_E_UNAUTHORIZED   7   /* missing or wrong auth token */
+#define HFP_E_INTERNAL       8   /* the server failed; the request may be retried */
+#define HFP_E_UNSUPPORTED    9   /* valid but not offered (dtype, flag) */
+#define HFP_E_SHUTTING_DOWN  10  /* the server is draining and takes no new work */
+#define HFP_E_INVALID        11  /* a field is out of its domain */
+#define HFP_E_NOSPACE        12  /* (local only) output buffer too small */
+#define HFP_E_COUNT          13
+
+/* Accepts a code of either sign. Never NULL. */
+const char *hfp_strerror(int code);
+
+/* ---- message types ------------------------------------------------------ */
+
+enum {
+  HFP_HELLO         = 1,  /* client -> server */
+  HFP_HELLO_OK      = 2,  /* server -> client */
+  HFP_LIST_VARIANTS = 3,  /* client -> server, empty payload */
+  HFP_VARIANTS      = 4,  /* server -> client */
+  HFP_FILTER        = 5,  /* client -> server */
+  HFP_RESULT        = 6,  /* server -> client */
+  HFP_ERROR         = 7,  /* server -> client */
+  HFP_STATS         = 8,  /* client -> server, empty payload */
+  HFP_STATS_REPLY   = 9,  /* server -> client */
+  HFP_TYPE_MAX      = 9
+};
+
+/* Element types of tensors on the wire (same values as hfcore's hf_dtype). */
+enum { HFP_F32 = 0, HFP_F16 = 1 };
+#define HFP_DTYPE_MASK_ALL ((1u << HFP_F32) | (1u << HFP_F16))
+
+/* FILTER flags. */
+#define HFP_FILTER_COMPOSITE 0x0001u  /* also return composited RGBA */
+#define HFP_FILTER_SHM       0x0002u  /* reserved: payload in shared memory (v2) */
+#define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM)
+
+/* HELLO_OK server flags. */
+#define HFP_SERVER_AUTH_REQUIRED 0x0001u  /* this listener checked a token */
+
+/* ---- header ------------------------------------------------------------- */
+
+typedef struct hfp_header {
+  uint16_t type;
+  uint16_t flags;
+  uint32_t request_id;
+  uint32_t length;        /* payload bytes after the header */
+} hfp_header;
+
+/* Writes 16 bytes. */
+void hfp_header_encode(const hfp_header *h, uint8_t out[HFP_HEADER_SIZE]);
+/* Checks magic, type, flags and length <= max_payload. On HFP_E_TOO_LARGE
+ * *h is still filled in, so a receiver can name the request it rejects. */
+int hfp_header_decode(const uint8_t in[HFP_HEADER_SIZE], uint32_t max_payload,
+                      hfp_header *h);
+
+/* ---- messages ------------------------------------------------------------ */
+
+typedef struct hfp_hello {
+  uint16_t min_version, max_version;
+  char client_name[HFP_NAME_MAX + 1];
+  char token[HFP_TOKEN_MAX + 1];      /* empty: none */
+} hfp_hello;
+
+typedef struct hfp_hello_ok {
+  uint16_t version;
+  uint16_t server_flags;
+  uint32_t max_width, max_height;
+  uint16_t max_spp;
+  uint16_t max_inflight;              /* per connection */
+  uint32_t dtypes;                    /* bit (1 << HFP_F32 / HFP_F16) */
+  uint32_t max_batch;
+  uint32_t queue_size;
+  uint64_t max_frame_bytes;           /* largest payload the server reads */
+  char server_name[HFP_NAME_MAX + 1];
+} hfp_hello_ok;
+
+typedef struct hfp_variant {
+  char name[HFP_NAME_MAX + 1];
+  char backend[HFP_NAME_MAX + 1];
+  char precision[HFP_NAME_MAX + 1];
+  uint16_t spp;
+  uint16_t num_levels;
+  uint32_t levels[HFP_MAX_LEVELS];
+} hfp_variant;
+
+typedef struct hfp_filter {
+  char variant[HFP_NAME_MAX + 1];
+  uint16_t flags;
+  uint32_t width, height;
+  uint16_t spp;
+  uint8_t in_dtype, out_dtype;
+  float hair[3], light[3], bg[3];     /* linear RGB, used with COMPOSITE */
+  const void *data;                   /* [h][w][spp*6] of in_dtype */
+  uint64_t data_len;
+} hfp_filter;
+
+/* Server-side per-request timing, microseconds. */
+typedef struct hfp_timing {
+  uint64_t queue_us;     /* admitted -> taken by the inference worker */
+  uint64_t input_us;     /* batch assembly + upload/convert/pad */
+  uint64_t infer_us;     /* the network */
+  uint64_t output_us;    /* transforms, download, crop, composite */
+  uint64_t total_us;     /* frame fully received -> reply handed to the socket */
+} hfp_timing;
+
+typedef struct hfp_result {
+  uint16_t status;       /* HFP_OK, or an HFP_E_* code and no data */
+  uint8_t dtype;
+  uint8_t flags;         /* HFP_FILTER_COMPOSITE when rgba follows */
+  uint32_t width, height;
+  uint32_t batch;        /* frames inferred together with this one */
+  hfp_timing timing;
+  const void *data;      /* [h][w][3] of dtype */
+  uint64_t data_len;
+  const void *rgba;      /* [h][w][4] of dtype, or NULL */
+  uint64_t rgba_len;
+} hfp_result;
+
+typedef struct hfp_error {
+  uint32_t code;
+  uint8_t fatal;         /* the server closes the connection after it */
+  char message[HFP_MESSAGE_MAX + 1];
+} hfp_error;
+
+typedef struct hfp_variant_stats {
+  char name[HFP_NAME_MAX + 1];
+  uint64_t requests_ok;
+  uint64_t requests_failed;   /* RESULT with a non-zero status */
+  uint64_t rejected;          /* ERROR before admission (busy, limits, ...) */
+  uint64_t batches;           /* backend runs */
+  uint64_t sum_queue_us, sum_infer_us, sum_total_us;
+  uint64_t hist_total[HFP_HIST_BUCKETS];
+  uint64_t hist_infer[HFP_HIST_BUCKETS];
+} hfp_variant_stats;
+
+typedef struct hfp_stats {
+  uint64_t uptime_us;
+  uint64_t connections_total;
+  uint32_t connections_open;
+  uint32_t queue_depth;
+  uint32_t queue_capacity;
+  uint64_t protocol_errors;   /* ERROR frames not tied to a variant */
+  uint16_t num_variants;
+  hfp_variant_stats variants[HFP_MAX_VARIANTS];
+} hfp_stats;
+
+/* Histogram bucket of a latency: bucket 0 is [0, 32) us, bucket i is
+ * [2^(i+4), 2^(i+5)) us, the last bucket is everything from 2^27 us. */
+int hfp_hist_bucket(uint64_t us);
+/* Exclusive upper bound of bucket i in us (UINT64_MAX for the last). */
+uint64_t hfp_hist_upper(int i);
+
+/* Bytes per element of a dtype, or 0 for an unknown one. */
+size_t hfp_dtype_size(int dtype);
+/* Payload sizes of the tensors, with every multiplication checked. Return
+ * HFP_E_INVALID for out-of-domain fields. */
+int hfp_features_bytes(uint32_t width, uint32_t height, uint32_t spp, int dtype,
+                       uint64_t *out);
+int hfp_output_bytes(uint32_t width, uint32_t height, uint32_t channels,
+                     int dtype, uint64_t *out);
+
+/* Encoders write header and payload to buf and return the frame size, or
+ * HFP_E_NOSPACE when cap is too small, or HFP_E_INVALID for a field out of
+ * its domain (so a buggy sender cannot emit what a receiver must reject).
+ * hfp_frame_size_* says how large buf must be. */
+int hfp_encode_hello(uint8_t *buf, size_t cap, const hfp_hello *m);
+int hfp_encode_hello_ok(uint8_t *buf, size_t cap, const hfp_hello_ok *m);
+int hfp_encode_empty(uint8_t *buf, size_t cap, int type, uint32_t request_id);
+int hfp_encode_variants(uint8_t *buf, size_t cap, const hfp_variant *v, int count);
+int hfp_encode_error(uint8_t *buf, size_t cap, uint32_t request_id, const hfp_error *m);
+int hfp_encode_stats(uint8_t *buf, size_t cap, const hfp_stats *m);
+size_t hfp_frame_size_variants(const hfp_variant *v, int count);
+size_t hfp_frame_size_stats(const hfp_stats *m);
+
+/* FILTER and RESULT carry tensors that senders write straight from their
+ * own buffers: the *_head encoders write the header (whose length counts the
+ * tensors) and the fixed fields, and return the head's size; the sender then
+ * writes m->data (and m->rgba) after it. data_len / rgba_len must equal the
+ * sizes the dimensions imply. */
+#define HFP_FILTER_FIXED   52
+#define HFP_RESULT_FIXED   56
+int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
+                           const hfp_filter *m, uint64_t *frame_size);
+int hfp_encode_result_head(uint8_t *buf, size_t cap, uint32_t request_id,
+                           const hfp_result *m, uint64_t *frame_size);
+#define HFP_FILTER_HEAD_MAX (HFP_HEADER_SIZE + HFP_FILTER_FIXED + HFP_NAME_MAX)
+#define HFP_RESULT_HEAD_MAX (HFP_HEADER_SIZE + HFP_RESULT_FIXED)
+
+/* Decoders read a payload (the bytes after the header) of exactly len bytes:
+ * a frame with trailing or missing bytes is HFP_E_LENGTH, and a field out of
+ * its domain HFP_E_INVALID (or HFP_E_VERSION, HFP_E_UNSUPPORTED). Pointers
+ * in the output point into payload. */
+int hfp_decode_hello(const uint8_t *payload, size_t len, hfp_hello *m);
+int hfp_decode_hello_ok(const uint8_t *payload, size_t len, hfp_hello_ok *m);
+int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,
+                        int max, int *count);
+int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m);
+/* The fixed part of a FILTER alone (first HFP_FILTER_FIXED + variant bytes),
+ * so a receiver can validate a request before reading its tensor.
+ * data_len is set from the dimensions; data is NULL. */
+int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
+                           hfp_filter *m, size_t *head_len);
+int hfp_decode_result(const uint8_t *payload, size_t len, hfp_result *m);
+int hfp_decode_result_head(const uint8_t *payload, size_t avail, size_t len,
+                           hfp_result *m);
+int hfp_decode_error(const uint8_t *payload, size_t len, hfp_error *m);
+int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m);
+
+/* Version negotiation: the highest version both sides speak, or
+ * HFP_E_VERSION. */
+int hfp_negotiate(uint16_t client_min, uint16_t client_max);
+
+/* Little-endian helpers (exposed for the tensor converters of the peers). */
+static inline void hfp_put_u16(uint8_t *p, uint16_t v) {
+  p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8);
+}
+static inline void hfp_put_u32(uint8_t *p, uint32_t v) {
+  p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8);
+  p[2] = (uint8_t)(v >> 16); p[3] = (uint8_t)(v >> 24);
+}
+static inline uint16_t hfp_get_u16(const uint8_t *p) {
+  return (uint16_t)(p[0] | (p[1] << 8));
+}
+static inline uint32_t hfp_get_u32(const uint8_t *p) {
+  return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) |
+         ((uint32_t)p[3] << 24);
+}
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* HFPROTO_H */

@@ -1,0 +1,524 @@
+/* Codec unit tests: every message encoded and decoded back, and every
+ * rejection path of every decoder. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hfproto.h"
+
+static uint8_t buf[1 << 16];
+
+/* Decodes the header of buf and returns the payload pointer. */
+static const uint8_t *split(const uint8_t *frame, int n, int type, hfp_header *h) {
+  assert_true(n >= HFP_HEADER_SIZE);
+  assert_int_equal(hfp_header_decode(frame, UINT32_MAX, h), 0);
+  assert_int_equal(h->type, type);
+  assert_int_equal(h->length, (uint32_t)(n - HFP_HEADER_SIZE));
+  return frame + HFP_HEADER_SIZE;
+}
+
+static void test_header(void **state) {
+  (void)state;
+  hfp_header h = {HFP_FILTER, 0, 77, 1234}, d;
+  uint8_t b[16];
+  hfp_header_encode(&h, b);
+  assert_memory_equal(b, "HFP1", 4);
+  assert_int_equal(hfp_header_decode(b, 5000, &d), 0);
+  assert_int_equal(d.type, HFP_FILTER);
+  assert_int_equal(d.request_id, 77);
+  assert_int_equal(d.length, 1234);
+  /* over the receiver's limit: rejected but still decoded */
+  assert_int_equal(hfp_header_decode(b, 1233, &d), -HFP_E_TOO_LARGE);
+  assert_int_equal(d.request_id, 77);
+  /* bad magic */
+  b[0] ^= 1;
+  assert_int_equal(hfp_header_decode(b, 5000, &d), -HFP_E_PROTOCOL);
+  b[0] ^= 1;
+  /* unknown types */
+  h.type = 0;
+  hfp_header_encode(&h, b);
+  assert_int_equal(hfp_header_decode(b, 5000, &d), -HFP_E_PROTOCOL);
+  h.type = HFP_TYPE_MAX + 1;
+  hfp_header_encode(&h, b);
+  assert_int_equal(hfp_header_decode(b, 5000, &d), -HFP_E_PROTOCOL);
+  /* reserved flags */
+  h.type = HFP_HELLO;
+  h.flags = 1;
+  hfp_header_encode(&h, b);
+  assert_int_equal(hfp_header_decode(b, 5000, &d), -HFP_E_PROTOCOL);
+}
+
+static void test_hello(void **state) {
+  (void)state;
+  hfp_hello m = {1, 3, "engine-7", "s3cret"}, d;
+  int n = hfp_encode_hello(buf, sizeof buf, &m);
+  assert_true(n > 0);
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_HELLO, &h);
+  assert_int_equal(hfp_decode_hello(p, h.length, &d), 0);
+  assert_int_equal(d.min_version, 1);
+  assert_int_equal(d.max_version, 3);
+  assert_string_equal(d.client_name, "engine-7");
+  assert_string_equal(d.token, "s3cret");
+  /* truncated, and trailing garbage */
+  for (uint32_t len = 0; len < h.length; len++)
+    assert_int_equal(hfp_decode_hello(p, len, &d), -HFP_E_LENGTH);
+  uint8_t longer[256];
+  memcpy(longer, p, h.length);
+  longer[h.length] = 'x';
+  assert_int_equal(hfp_decode_hello(longer, h.length + 1, &d), -HFP_E_LENGTH);
+  /* no token is fine */
+  m.token[0] = 0;
+  n = hfp_encode_hello(buf, sizeof buf, &m);
+  p = split(buf, n, HFP_HELLO, &h);
+  assert_int_equal(hfp_decode_hello(p, h.length, &d), 0);
+  assert_string_equal(d.token, "");
+  /* control byte in the name */
+  memcpy(longer, p, h.length);
+  longer[8] = '\n';
+  assert_int_equal(hfp_decode_hello(longer, h.length, &d), -HFP_E_INVALID);
+  /* empty name */
+  memcpy(longer, p, h.length);
+  hfp_put_u16(longer + 4, 0);
+  assert_int_equal(hfp_decode_hello(longer, 8, &d), -HFP_E_INVALID);
+  /* name length over the maximum */
+  hfp_put_u16(longer + 4, HFP_NAME_MAX + 1);
+  assert_int_equal(hfp_decode_hello(longer, h.length, &d), -HFP_E_INVALID);
+  /* versions inverted */
+  memcpy(longer, p, h.length);
+  hfp_put_u16(longer, 4);
+  assert_int_equal(hfp_decode_hello(longer, h.length, &d), -HFP_E_VERSION);
+  /* the encoder refuses what the decoder would */
+  hfp_hello bad = {2, 1, "x", ""};
+  assert_int_equal(hfp_encode_hello(buf, sizeof buf, &bad), -HFP_E_INVALID);
+  hfp_hello spaced = {1, 1, "has space", ""};
+  assert_int_equal(hfp_encode_hello(buf, sizeof buf, &spaced), -HFP_E_INVALID);
+  assert_int_equal(hfp_encode_hello(buf, 10, &m), -HFP_E_NOSPACE);
+  /* negotiation */
+  assert_int_equal(hfp_negotiate(1, 1), 1);
+  assert_int_equal(hfp_negotiate(1, 9), 1);
+  assert_int_equal(hfp_negotiate(2, 9), -HFP_E_VERSION);
+  assert_int_equal(hfp_negotiate(0, 0), -HFP_E_VERSION);
+}
+
+static hfp_hello_ok sample_hello_ok(void) {
+  hfp_hello_ok m;
+  memset(&m, 0, sizeof m);
+  m.version = 1;
+  m.server_flags = HFP_SERVER_AUTH_REQUIRED;
+  m.max_width = 4096;
+  m.max_height = 2160;
+  m.max_spp = 8;
+  m.max_inflight = 32;
+  m.dtypes = HFP_DTYPE_MASK_ALL;
+  m.max_batch = 4;
+  m.queue_size = 64;
+  m.max_frame_bytes = 1ull << 33;
+  strcpy(m.server_name, "hairfilterd/0.1");
+  return m;
+}
+
+static void test_hello_ok(void **state) {
+  (void)state;
+  hfp_hello_ok m = sample_hello_ok(), d;
+  int n = hfp_encode_hello_ok(buf, sizeof buf, &m);
+  assert_true(n > 0);
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_HELLO_OK, &h);
+  assert_int_equal(hfp_decode_hello_ok(p, h.length, &d), 0);
+  assert_memory_equal(&m, &d, sizeof m);
+  for (uint32_t len = 0; len < h.length; len++)
+    assert_int_equal(hfp_decode_hello_ok(p, len, &d), -HFP_E_LENGTH);
+  uint8_t c[256];
+  memcpy(c, p, h.length);
+  hfp_put_u16(c, 2);  /* a version this codec does not speak */
+  assert_int_equal(hfp_decode_hello_ok(c, h.length, &d), -HFP_E_VERSION);
+  memcpy(c, p, h.length);
+  hfp_put_u16(c + 12, 0);  /* max_spp */
+  assert_int_equal(hfp_decode_hello_ok(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  hfp_put_u32(c + 16, 4);  /* dtypes: an unknown bit */
+  assert_int_equal(hfp_decode_hello_ok(c, h.length, &d), -HFP_E_INVALID);
+  m.max_spp = 17;
+  assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &m), -HFP_E_INVALID);
+}
+
+static void test_empty(void **state) {
+  (void)state;
+  hfp_header h;
+  int n = hfp_encode_empty(buf, sizeof buf, HFP_LIST_VARIANTS, 5);
+  assert_int_equal(n, HFP_HEADER_SIZE);
+  split(buf, n, HFP_LIST_VARIANTS, &h);
+  assert_int_equal(h.request_id, 5);
+  n = hfp_encode_empty(buf, sizeof buf, HFP_STATS, 0);
+  split(buf, n, HFP_STATS, &h);
+  assert_int_equal(hfp_encode_empty(buf, sizeof buf, HFP_FILTER, 1), -HFP_E_INVALID);
+  assert_int_equal(hfp_encode_empty(buf, 15, HFP_STATS, 1), -HFP_E_NOSPACE);
+}
+
+static void test_variants(void **state) {
+  (void)state;
+  hfp_variant v[2];
+  memset(v, 0, sizeof v);
+  strcpy(v[0].name, "Base");
+  strcpy(v[0].backend, "cpu-ref");
+  strcpy(v[0].precision, "fp32");
+  v[0].spp = 4;
+  v[0].num_levels = 5;
+  for (int i = 0; i < 5; i++) v[0].levels[i] = 16u << i;
+  strcpy(v[1].name, "Small@1spp");
+  strcpy(v[1].backend, "cudnn");
+  strcpy(v[1].precision, "fp16");
+  v[1].spp = 1;
+  v[1].num_levels = 1;
+  v[1].levels[0] = 8;
+  int n = hfp_encode_variants(buf, sizeof buf, v, 2);
+  assert_int_equal((size_t)n, hfp_frame_size_variants(v, 2));
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_VARIANTS, &h);
+  hfp_variant d[HFP_MAX_VARIANTS];
+  int count = -1;
+  assert_int_equal(hfp_decode_variants(p, h.length, d, HFP_MAX_VARIANTS, &count), 0);
+  assert_int_equal(count, 2);
+  assert_memory_equal(&v[0], &d[0], sizeof v[0]);
+  assert_memory_equal(&v[1], &d[1], sizeof v[1]);
+  for (uint32_t len = 0; len < h.length; len++)
+    assert_int_not_equal(hfp_decode_variants(p, len, d, HFP_MAX_VARIANTS, &count), 0);
+  assert_int_equal(hfp_decode_variants(p, h.length, d, 1, &count), -HFP_E_NOSPACE);
+  uint8_t c[1024];
+  memcpy(c, p, h.length);
+  hfp_put_u16(c, HFP_MAX_VARIANTS + 1);
+  assert_int_equal(hfp_decode_variants(c, h.length, d, HFP_MAX_VARIANTS, &count),
+                   -HFP_E_INVALID);
+  /* entry 0 levels field: 2 + (1+4) + (1+7) + (1+4) + 2 = 21 */
+  memcpy(c, p, h.length);
+  hfp_put_u16(c + 21, 9);
+  assert_int_equal(hfp_decode_variants(c, h.length, d, HFP_MAX_VARIANTS, &count),
+                   -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  hfp_put_u16(c + 19, 0);  /* spp 0 */
+  assert_int_equal(hfp_decode_variants(c, h.length, d, HFP_MAX_VARIANTS, &count),
+                   -HFP_E_INVALID);
+  v[0].num_levels = 0;
+  assert_int_equal(hfp_encode_variants(buf, sizeof buf, v, 2), -HFP_E_INVALID);
+  assert_int_equal(hfp_encode_variants(buf, sizeof buf, v, HFP_MAX_VARIANTS + 1),
+                   -HFP_E_INVALID);
+  /* an empty list is valid */
+  n = hfp_encode_variants(buf, sizeof buf, v, 0);
+  p = split(buf, n, HFP_VARIANTS, &h);
+  assert_int_equal(hfp_decode_variants(p, h.length, d, HFP_MAX_VARIANTS, &count), 0);
+  assert_int_equal(count, 0);
+}
+
+static hfp_filter sample_filter(const float *data, uint32_t w, uint32_t hgt, uint16_t spp) {
+  hfp_filter m;
+  memset(&m, 0, sizeof m);
+  strcpy(m.variant, "Base");
+  m.flags = HFP_FILTER_COMPOSITE;
+  m.width = w;
+  m.height = hgt;
+  m.spp = spp;
+  m.in_dtype = HFP_F32;
+  m.out_dtype = HFP_F16;
+  for (int i = 0; i < 3; i++) {
+    m.hair[i] = 0.1f * (float)(i + 1);
+    m.light[i] = 1.0f;
+    m.bg[i] = 0.5f;
+  }
+  m.data = data;
+  m.data_len = (uint64_t)w * hgt * spp * 6 * 4;
+  return m;
+}
+
+static void test_filter(void **state) {
+  (void)state;
+  enum { W = 3, H = 2, S = 2 };
+  float data[W * H * S * 6];
+  for (int i = 0; i < W * H * S * 6; i++) data[i] = (float)i * 0.5f;
+  hfp_filter m = sample_filter(data, W, H, S), d;
+  uint64_t total = 0;
+  int n = hfp_encode_filter_head(buf, sizeof buf, 42, &m, &total);
+  assert_int_equal(n, HFP_HEADER_SIZE + HFP_FILTER_FIXED + 4);
+  assert_int_equal(total, (uint64_t)n + sizeof data);
+  memcpy(buf + n, data, sizeof data);
+  hfp_header h;
+  const uint8_t *p = split(buf, (int)total, HFP_FILTER, &h);
+  assert_int_equal(h.request_id, 42);
+  assert_int_equal(hfp_decode_filter(p, h.length, &d), 0);
+  assert_string_equal(d.variant, "Base");
+  assert_int_equal(d.flags, HFP_FILTER_COMPOSITE);
+  assert_int_equal(d.width, W);
+  assert_int_equal(d.height, H);
+  assert_int_equal(d.spp, S);
+  assert_int_equal(d.in_dtype, HFP_F32);
+  assert_int_equal(d.out_dtype, HFP_F16);
+  assert_memory_equal(d.hair, m.hair, sizeof m.hair);
+  assert_memory_equal(d.bg, m.bg, sizeof m.bg);
+  assert_int_equal(d.data_len, sizeof data);
+  assert_memory_equal(d.data, data, sizeof data);
+
+  /* head alone, incrementally: NOSPACE until the fixed part is in */
+  size_t head = 0;
+  for (size_t avail = 0; avail < HFP_FILTER_FIXED + 4; avail++)
+    assert_int_equal(hfp_decode_filter_head(p, avail, h.length, &d, &head),
+                     -HFP_E_NOSPACE);
+  assert_int_equal(hfp_decode_filter_head(p, HFP_FILTER_FIXED + 4, h.length, &d, &head), 0);
+  assert_int_equal(head, HFP_FILTER_FIXED + 4);
+  assert_null(d.data);
+  assert_int_equal(d.data_len, sizeof data);
+
+  /* every shorter or longer payload is a length mismatch */
+  for (uint32_t len = 0; len < h.length; len++)
+    assert_int_equal(hfp_decode_filter(p, len, &d), -HFP_E_LENGTH);
+  static uint8_t c[4096];
+  memcpy(c, p, h.length);
+  assert_int_equal(hfp_decode_filter(c, h.length + 1, &d), -HFP_E_LENGTH);
+
+#define MUTATE(stmt, want)                                         \
+  do {                                                             \
+    memcpy(c, p, h.length);                                        \
+    stmt;                                                          \
+    assert_int_equal(hfp_decode_filter(c, h.length, &d), (want)); \
+  } while (0)
+  MUTATE(hfp_put_u16(c + 0, 0), -HFP_E_INVALID);                /* empty variant */
+  MUTATE(hfp_put_u16(c + 0, HFP_NAME_MAX + 1), -HFP_E_INVALID);
+  MUTATE(hfp_put_u16(c + 0, 5), -HFP_E_INVALID);     /* variant eats a data byte: 0.0f */
+  MUTATE(c[HFP_FILTER_FIXED] = 0x01, -HFP_E_INVALID); /* control char in name */
+  MUTATE(hfp_put_u16(c + 2, 0x0100), -HFP_E_UNSUPPORTED);      /* unknown flag */
+  MUTATE(hfp_put_u32(c + 4, 0), -HFP_E_INVALID);               /* width 0 */
+  MUTATE(hfp_put_u32(c + 8, HFP_MAX_SIDE + 1), -HFP_E_INVALID);
+  MUTATE(hfp_put_u32(c + 4, 4), -HFP_E_LENGTH);                /* dims vs payload */
+  MUTATE(hfp_put_u16(c + 12, 0), -HFP_E_INVALID);              /* spp 0 */
+  MUTATE(hfp_put_u16(c + 12, HFP_MAX_SPP + 1), -HFP_E_INVALID);
+  MUTATE(hfp_put_u16(c + 12, 1), -HFP_E_LENGTH);
+  MUTATE(c[14] = 2, -HFP_E_UNSUPPORTED);                       /* in dtype */
+  MUTATE(c[15] = 9, -HFP_E_UNSUPPORTED);                       /* out dtype */
+  MUTATE(c[14] = HFP_F16, -HFP_E_LENGTH);                      /* half the bytes */
+  MUTATE(hfp_put_u32(c + 16, 0x7fc00000u), -HFP_E_INVALID);    /* NaN colour */
+  MUTATE(hfp_put_u32(c + 48, 0x7f800000u), -HFP_E_INVALID);    /* inf background */
+#undef MUTATE
+
+  /* f16 in: half the bytes */
+  m.in_dtype = HFP_F16;
+  m.data_len /= 2;
+  n = hfp_encode_filter_head(buf, sizeof buf, 43, &m, &total);
+  assert_true(n > 0);
+  assert_int_equal(total, (uint64_t)n + sizeof data / 2);
+
+  /* the encoder refuses inconsistent requests */
+  m.data_len += 1;
+  assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 1, &m, &total), -HFP_E_INVALID);
+  m.data_len -= 1;
+  assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 0, &m, &total), -HFP_E_INVALID);
+  m.in_dtype = 7;
+  assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 1, &m, &total),
+                   -HFP_E_UNSUPPORTED);
+  m.in_dtype = HFP_F16;
+  assert_int_equal(hfp_encode_filter_head(buf, 20, 1, &m, &total), -HFP_E_NOSPACE);
+  /* the largest frame the codec accepts still has a 64-bit size */
+  uint64_t big;
+  assert_int_equal(hfp_features_bytes(HFP_MAX_SIDE, HFP_MAX_SIDE, HFP_MAX_SPP, HFP_F32, &big), 0);
+  assert_int_equal(big, (uint64_t)HFP_MAX_SIDE * HFP_MAX_SIDE * HFP_MAX_SPP * 24);
+  assert_int_equal(hfp_output_bytes(2, 2, 5, HFP_F32, &big), -HFP_E_INVALID);
+}
+
+static void test_result(void **state) {
+  (void)state;
+  enum { W = 4, H = 3 };
+  uint16_t data[W * H * 3], rgba[W * H * 4];
+  for (int i = 0; i < W * H * 3; i++) data[i] = (uint16_t)i;
+  for (int i = 0; i < W * H * 4; i++) rgba[i] = (uint16_t)(1000 + i);
+  hfp_result m;
+  memset(&m, 0, sizeof m);
+  m.dtype = HFP_F16;
+  m.flags = HFP_FILTER_COMPOSITE;
+  m.width = W;
+  m.height = H;
+  m.batch = 3;
+  m.timing = (hfp_timing){10, 20, 30, 40, 150};
+  m.data = data;
+  m.data_len = sizeof data;
+  m.rgba = rgba;
+  m.rgba_len = sizeof rgba;
+  uint64_t total;
+  int n = hfp_encode_result_head(buf, sizeof buf, 9, &m, &total);
+  assert_int_equal(n, HFP_RESULT_HEAD_MAX);
+  assert_int_equal(total, (uint64_t)n + sizeof data + sizeof rgba);
+  memcpy(buf + n, data, sizeof data);
+  memcpy(buf + n + sizeof data, rgba, sizeof rgba);
+  hfp_header h;
+  const uint8_t *p = split(buf, (int)total, HFP_RESULT, &h);
+  assert_int_equal(h.request_id, 9);
+  hfp_result d;
+  assert_int_equal(hfp_decode_result(p, h.length, &d), 0);
+  assert_int_equal(d.status, 0);
+  assert_int_equal(d.batch, 3);
+  assert_int_equal(d.timing.queue_us, 10);
+  assert_int_equal(d.timing.input_us, 20);
+  assert_int_equal(d.timing.infer_us, 30);
+  assert_int_equal(d.timing.output_us, 40);
+  assert_int_equal(d.timing.total_us, 150);
+  assert_memory_equal(d.data, data, sizeof data);
+  assert_memory_equal(d.rgba, rgba, sizeof rgba);
+  /* head decoding before the tensors arrive */
+  assert_int_equal(hfp_decode_result_head(p, HFP_RESULT_FIXED - 1, h.length, &d),
+                   -HFP_E_NOSPACE);
+  assert_int_equal(hfp_decode_result_head(p, HFP_RESULT_FIXED, h.length, &d), 0);
+  assert_int_equal(d.rgba_len, sizeof rgba);
+  for (uint32_t len = 0; len < h.length; len++)
+    assert_int_equal(hfp_decode_result(p, len, &d), -HFP_E_LENGTH);
+  static uint8_t c[4096];
+  memcpy(c, p, h.length);
+  c[3] = 0;  /* no composite flag: the rgba bytes are now excess */
+  assert_int_equal(hfp_decode_result(c, h.length, &d), -HFP_E_LENGTH);
+  memcpy(c, p, h.length);
+  c[2] = 5;  /* dtype */
+  assert_int_equal(hfp_decode_result(c, h.length, &d), -HFP_E_UNSUPPORTED);
+  memcpy(c, p, h.length);
+  c[3] = 0x80;  /* unknown flag */
+  assert_int_equal(hfp_decode_result(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  hfp_put_u32(c + 12, 0);  /* batch 0 */
+  assert_int_equal(hfp_decode_result(c, h.length, &d), -HFP_E_INVALID);
+
+  /* a failed request: status, no tensors */
+  hfp_result f;
+  memset(&f, 0, sizeof f);
+  f.status = HFP_E_SHUTTING_DOWN;
+  f.timing.queue_us = 5;
+  f.timing.total_us = 6;
+  n = hfp_encode_result_head(buf, sizeof buf, 10, &f, &total);
+  assert_int_equal(total, (uint64_t)n);
+  p = split(buf, n, HFP_RESULT, &h);
+  assert_int_equal(hfp_decode_result(p, h.length, &d), 0);
+  assert_int_equal(d.status, HFP_E_SHUTTING_DOWN);
+  assert_null(d.data);
+  memcpy(c, p, h.length);
+  hfp_put_u32(c + 4, 2);  /* a failure with dimensions */
+  assert_int_equal(hfp_decode_result(c, h.length, &d), -HFP_E_INVALID);
+  f.width = 1;
+  assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 10, &f, &total), -HFP_E_INVALID);
+  m.data_len--;
+  assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 9, &m, &total), -HFP_E_INVALID);
+}
+
+static void test_error(void **state) {
+  (void)state;
+  hfp_error m = {HFP_E_UNKNOWN_VARIANT, 0, "unknown variant 'Huge'"}, d;
+  int n = hfp_encode_error(buf, sizeof buf, 12, &m);
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_ERROR, &h);
+  assert_int_equal(h.request_id, 12);
+  assert_int_equal(hfp_decode_error(p, h.length, &d), 0);
+  assert_int_equal(d.code, HFP_E_UNKNOWN_VARIANT);
+  assert_int_equal(d.fatal, 0);
+  assert_string_equal(d.message, m.message);
+  for (uint32_t len = 0; len < h.length; len++)
+    assert_int_equal(hfp_decode_error(p, len, &d), -HFP_E_LENGTH);
+  uint8_t c[512];
+  memcpy(c, p, h.length);
+  hfp_put_u32(c, 0);
+  assert_int_equal(hfp_decode_error(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  c[4] = 2;
+  assert_int_equal(hfp_decode_error(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  c[5] = 1;
+  assert_int_equal(hfp_decode_error(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  c[10] = 0x1b;  /* escape in the message */
+  assert_int_equal(hfp_decode_error(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  hfp_put_u32(c, 999);  /* a code from a newer server is kept */
+  assert_int_equal(hfp_decode_error(c, h.length, &d), 0);
+  assert_int_equal(d.code, 999);
+  hfp_error bad = {HFP_E_NOSPACE, 0, "local only"};
+  assert_int_equal(hfp_encode_error(buf, sizeof buf, 1, &bad), -HFP_E_INVALID);
+  bad.code = 0;
+  assert_int_equal(hfp_encode_error(buf, sizeof buf, 1, &bad), -HFP_E_INVALID);
+  /* every code has a name */
+  for (int i = 0; i < HFP_E_COUNT; i++) {
+    assert_non_null(hfp_strerror(i));
+    assert_string_equal(hfp_strerror(i), hfp_strerror(-i));
+  }
+  assert_string_equal(hfp_strerror(4242), "unknown protocol error");
+}
+
+static void test_stats(void **state) {
+  (void)state;
+  static hfp_stats m, d;
+  memset(&m, 0, sizeof m);
+  m.uptime_us = 123456789;
+  m.connections_total = 17;
+  m.connections_open = 2;
+  m.queue_depth = 3;
+  m.queue_capacity = 64;
+  m.protocol_errors = 4;
+  m.num_variants = 2;
+  strcpy(m.variants[0].name, "Base");
+  strcpy(m.variants[1].name, "Small");
+  for (int v = 0; v < 2; v++) {
+    m.variants[v].requests_ok = 100 + v;
+    m.variants[v].requests_failed = 2;
+    m.variants[v].rejected = 5;
+    m.variants[v].batches = 50;
+    m.variants[v].sum_queue_us = 1000;
+    m.variants[v].sum_infer_us = 2000;
+    m.variants[v].sum_total_us = 4000;
+    for (int b = 0; b < HFP_HIST_BUCKETS; b++) {
+      m.variants[v].hist_total[b] = (uint64_t)b * 3 + v;
+      m.variants[v].hist_infer[b] = (uint64_t)b;
+    }
+  }
+  int n = hfp_encode_stats(buf, sizeof buf, &m);
+  assert_int_equal((size_t)n, hfp_frame_size_stats(&m));
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_STATS_REPLY, &h);
+  assert_int_equal(hfp_decode_stats(p, h.length, &d), 0);
+  assert_memory_equal(&m, &d, sizeof m);
+  for (uint32_t len = 0; len < h.length; len += 7)
+    assert_int_equal(hfp_decode_stats(p, len, &d), -HFP_E_LENGTH);
+  static uint8_t c[8192];
+  memcpy(c, p, h.length);
+  hfp_put_u16(c + 38, HFP_HIST_BUCKETS - 1);
+  assert_int_equal(hfp_decode_stats(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  hfp_put_u16(c + 36, HFP_MAX_VARIANTS + 1);
+  assert_int_equal(hfp_decode_stats(c, h.length, &d), -HFP_E_INVALID);
+  m.num_variants = HFP_MAX_VARIANTS + 1;
+  assert_int_equal(hfp_encode_stats(buf, sizeof buf, &m), -HFP_E_INVALID);
+}
+
+static void test_histogram(void **state) {
+  (void)state;
+  assert_int_equal(hfp_hist_bucket(0), 0);
+  assert_int_equal(hfp_hist_bucket(31), 0);
+  assert_int_equal(hfp_hist_bucket(32), 1);
+  assert_int_equal(hfp_hist_bucket(63), 1);
+  assert_int_equal(hfp_hist_bucket(64), 2);
+  assert_int_equal(hfp_hist_bucket(UINT64_MAX), HFP_HIST_BUCKETS - 1);
+  for (int i = 0; i < HFP_HIST_BUCKETS - 1; i++) {
+    uint64_t up = hfp_hist_upper(i);
+    assert_int_equal(hfp_hist_bucket(up - 1), i);
+    assert_int_equal(hfp_hist_bucket(up), i + 1);
+  }
+  assert_true(hfp_hist_upper(HFP_HIST_BUCKETS - 1) == UINT64_MAX);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_header),  cmocka_unit_test(test_hello),
+    cmocka_unit_test(test_hello_ok), cmocka_unit_test(test_empty),
+    cmocka_unit_test(test_variants), cmocka_unit_test(test_filter),
+    cmocka_unit_test(test_result),  cmocka_unit_test(test_error),
+    cmocka_unit_test(test_stats),   cmocka_unit_test(test_histogram),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
