@@ -1,0 +1,84 @@
+/* Golden tests: every CPU backend reproduces PyTorch's output (fixtures made
+ * by weights/make_golden.py) within 1e-4 relative L2 error. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "hfcore.h"
+
+static const struct { const char *weights, *stem; } cases[] = {
+  {"Base", "Base_64x48"},           {"Base", "Base_37x23"},
+  {"Shallow", "Shallow_64x48"},     {"Shallow", "Shallow_29x17"},
+  {"Deep", "Deep_64x48"},           {"Deep", "Deep_45x31"},
+  {"Base_1spp", "Base_1spp_64x48"}, {"Base_1spp", "Base_1spp_19x41"},
+};
+
+static int backend_in_build(const char *name) {
+  for (const char *const *b = hf_backend_list(); *b; b++)
+    if (!strcmp(*b, name)) return 1;
+  return 0;
+}
+
+static void run_golden(const char *backend) {
+  if (!backend_in_build(backend)) {
+    printf("SKIP: backend %s is not in this build\n", backend);
+    skip();
+  }
+  hf_backend *b;
+  char why[256];
+  assert_int_equal(hf_backend_create(backend, &b, why, sizeof why), HF_OK);
+  for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+    char path[512], err[256];
+    hf_weights *w;
+    snprintf(path, sizeof path, "%s/golden/%s.safetensors", HF_TEST_DATA, cases[k].weights);
+    assert_int_equal(hf_weights_load(path, &w, err, sizeof err), HF_OK);
+    hf_image feat, want;
+    snprintf(path, sizeof path, "%s/golden/%s.features.exr", HF_TEST_DATA, cases[k].stem);
+    assert_int_equal(hf_exr_read(path, &feat, err, sizeof err), HF_OK);
+    snprintf(path, sizeof path, "%s/golden/%s.expected.exr", HF_TEST_DATA, cases[k].stem);
+    assert_int_equal(hf_exr_read(path, &want, err, sizeof err), HF_OK);
+    assert_int_equal(hf_features_spp(&feat), w->cfg.spp);
+    size_t npx = (size_t)feat.width * feat.height;
+    float *in = malloc(npx * w->cfg.in_channels * 4), *out = malloc(npx * 3 * 4);
+    assert_int_equal(hf_features_from_image(&feat, w->cfg.spp, in), w->cfg.spp);
+    hf_model *m;
+    assert_int_equal(hf_model_create(b, w, &m), HF_OK);
+    hf_io io = {1, feat.width, feat.height, in, HF_F32, out, HF_F32};
+    assert_int_equal(hf_model_run(m, &io, NULL), HF_OK);
+    double num = 0, den = 0;
+    for (size_t p = 0; p < npx; p++)
+      for (int c = 0; c < 3; c++) {
+        int wc = hf_image_channel(&want, HF_OUTPUT_NAMES[c]);
+        assert_true(wc >= 0);
+        double e = want.data[p * want.channels + wc], g = out[p * 3 + c];
+        assert_false(isnan(g));
+        num += (g - e) * (g - e);
+        den += e * e;
+      }
+    double rel = sqrt(num / den);
+    printf("  %-8s %-16s rel L2 %.2e\n", backend, cases[k].stem, rel);
+    assert_true(rel < 1e-4);
+    hf_model_destroy(m);
+    free(in), free(out);
+    hf_image_free(&feat), hf_image_free(&want);
+    hf_weights_free(w);
+  }
+  hf_backend_destroy(b);
+}
+
+static void test_cpu_ref_matches_pytorch(void **state) { run_golden("cpu-ref"); }
+static void test_cpu_matches_pytorch(void **state) { run_golden("cpu"); }
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_cpu_ref_matches_pytorch),
+    cmocka_unit_test(test_cpu_matches_pytorch),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

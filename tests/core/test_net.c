@@ -1,0 +1,187 @@
+/* Network definition: Table 1 presets, channel arithmetic, transforms. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "hfcore.h"
+
+static void test_table1_presets(void **state) {
+  static const struct { const char *name; int spp, L, c[4]; } want[] = {
+    {"Base", 4, 3, {32, 64, 128}},     {"Base@1spp", 1, 3, {32, 64, 128}},
+    {"Base@2spp", 2, 3, {32, 64, 128}}, {"Large", 4, 3, {64, 128, 256}},
+    {"Small", 4, 3, {16, 32, 64}},     {"Shallow", 4, 2, {32, 64}},
+    {"Deep", 4, 4, {32, 64, 128, 256}}};
+  assert_int_equal(hf_variant_preset_count(), 7);
+  for (size_t k = 0; k < sizeof want / sizeof want[0]; k++) {
+    hf_net_config c;
+    assert_int_equal(hf_variant_preset(want[k].name, &c), HF_OK);
+    assert_string_equal(c.name, want[k].name);
+    assert_int_equal(c.spp, want[k].spp);
+    assert_int_equal(c.in_channels, 6 * want[k].spp);
+    assert_int_equal(c.out_channels, 3);
+    assert_int_equal(c.num_levels, want[k].L);
+    for (int i = 0; i < c.num_levels; i++) assert_int_equal(c.levels[i], want[k].c[i]);
+    assert_int_equal(hf_net_config_validate(&c), HF_OK);
+  }
+  hf_net_config c;
+  assert_int_equal(hf_variant_preset("base", &c), HF_OK); /* case-insensitive */
+  assert_int_equal(hf_variant_preset("Huge", &c), HF_ENOTFOUND);
+}
+
+static void test_wiring(void **state) {
+  hf_net_config c;
+  hf_variant_preset("Base", &c);
+  /* enc: 24->32->64->128; dec2: 128->64; dec1: 128->32; dec0: 64->3 */
+  assert_int_equal(hf_enc_in(&c, 0), 24);
+  assert_int_equal(hf_enc_out(&c, 0), 32);
+  assert_int_equal(hf_enc_in(&c, 2), 64);
+  assert_int_equal(hf_dec_in(&c, 2), 128);
+  assert_int_equal(hf_dec_out(&c, 2), 64);
+  assert_int_equal(hf_dec_in(&c, 1), 128);
+  assert_int_equal(hf_dec_out(&c, 1), 32);
+  assert_int_equal(hf_dec_in(&c, 0), 64);
+  assert_int_equal(hf_dec_out(&c, 0), 3);
+  assert_int_equal(hf_net_align(&c), 8);
+  /* hand count at 8x8: enc0 16px*9*24*32, enc1 4*9*32*64, enc2 1*9*64*128,
+   * dec0 16*16*64*3, dec1 4*16*128*32, dec2 1*16*128*64 */
+  double want = 16.0 * 9 * 24 * 32 + 4.0 * 9 * 32 * 64 + 9.0 * 64 * 128 + 16.0 * 16 * 64 * 3 +
+                4.0 * 16 * 128 * 32 + 16.0 * 128 * 64;
+  assert_true(fabs(hf_net_macs(&c, 8, 8) - want) < 1e-6);
+}
+
+static void test_validate_rejects(void **state) {
+  hf_net_config c;
+  hf_variant_preset("Base", &c);
+  hf_net_config bad = c;
+  bad.spp = 0;
+  assert_int_not_equal(hf_net_config_validate(&bad), HF_OK);
+  bad = c;
+  bad.in_channels = 23;
+  assert_int_not_equal(hf_net_config_validate(&bad), HF_OK);
+  bad = c;
+  bad.num_levels = 0;
+  assert_int_not_equal(hf_net_config_validate(&bad), HF_OK);
+  bad = c;
+  bad.num_levels = HF_MAX_LEVELS + 1;
+  assert_int_not_equal(hf_net_config_validate(&bad), HF_OK);
+  bad = c;
+  bad.levels[1] = 0;
+  assert_int_not_equal(hf_net_config_validate(&bad), HF_OK);
+  bad = c;
+  bad.out_channels = 4;
+  assert_int_not_equal(hf_net_config_validate(&bad), HF_OK);
+}
+
+static void test_output_transform(void **state) {
+  float v[3] = {2.0f, -0.5f, 1.5f};
+  hf_output_transform(v);
+  assert_float_equal(v[0], 8.0f / 32 + 0.4f + 1.0f, 1e-6);
+  assert_float_equal(v[1], 0.0f, 0);
+  assert_float_equal(v[2], 1.0f, 0);
+  float w[3] = {0.0f, 0.25f, -3.0f};
+  hf_output_transform(w);
+  assert_float_equal(w[0], 1.0f, 1e-7);
+  assert_float_equal(w[1], 0.25f, 0);
+  assert_float_equal(w[2], 0.0f, 0);
+}
+
+static void test_half_roundtrip(void **state) {
+  /* Every finite half converts to float and back unchanged. */
+  for (uint32_t h = 0; h < 0x10000; h++) {
+    if ((h & 0x7c00) == 0x7c00 && (h & 0x3ff)) continue; /* NaN payloads */
+    assert_int_equal(hf_f32_to_f16(hf_f16_to_f32((uint16_t)h)), h);
+  }
+  assert_int_equal(hf_f32_to_f16(1.0f), 0x3c00);
+  assert_int_equal(hf_f32_to_f16(65504.0f), 0x7bff);
+  assert_int_equal(hf_f32_to_f16(1e6f), 0x7c00);           /* overflow -> inf */
+  assert_int_equal(hf_f32_to_f16(1.0f + 1.0f / 2048), 0x3c00); /* tie to even */
+  assert_int_equal(hf_f32_to_f16(5.96e-8f), 0x0001);        /* smallest subnormal */
+}
+
+static void test_backend_selection(void **state) {
+  hf_backend *b;
+  char why[512];
+  assert_int_equal(hf_backend_create("cpu-ref", &b, why, sizeof why), HF_OK);
+  assert_string_equal(hf_backend_name(b), "cpu-ref");
+  hf_backend_destroy(b);
+  assert_int_equal(hf_backend_create("nope", &b, why, sizeof why), HF_ENOTFOUND);
+  assert_null(b);
+  assert_true(strstr(why, "nope") != NULL);
+  assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
+  assert_true(strstr(why, hf_backend_name(b)) != NULL); /* says which it chose */
+  hf_backend_destroy(b);
+}
+
+static void test_run_rejects_bad_io(void **state) {
+  hf_net_config c;
+  hf_variant_preset("Small", &c);
+  hf_weights *w;
+  assert_int_equal(hf_weights_init_random(&c, 1, &w), HF_OK);
+  hf_backend *b;
+  assert_int_equal(hf_backend_create("cpu-ref", &b, NULL, 0), HF_OK);
+  hf_model *m;
+  assert_int_equal(hf_model_create(b, w, &m), HF_OK);
+  float in[24], out[3];
+  hf_io io = {.batch = 1, .width = 1, .height = 1, .in = in, .out = out};
+  memset(in, 0, sizeof in);
+  assert_int_equal(hf_model_run(m, &io, NULL), HF_OK);
+  io.width = 0;
+  assert_int_equal(hf_model_run(m, &io, NULL), HF_EINVAL);
+  io.width = 100000;
+  assert_int_equal(hf_model_run(m, &io, NULL), HF_ERANGE);
+  io.width = 1;
+  io.in = NULL;
+  assert_int_equal(hf_model_run(m, &io, NULL), HF_EINVAL);
+  io.in = in;
+  io.in_dtype = (hf_dtype)7;
+  assert_int_equal(hf_model_run(m, &io, NULL), HF_EINVAL);
+  hf_model_destroy(m);
+  hf_backend_destroy(b);
+  hf_weights_free(w);
+}
+
+/* Pad-and-crop is the definition for odd sizes: a 13x11 frame must give
+ * exactly the top-left 13x11 of the 16x16 frame padded with zeros. */
+static void test_pad_and_crop(void **state) {
+  hf_net_config c;
+  hf_variant_preset("Shallow", &c); /* align 4 */
+  hf_weights *w;
+  assert_int_equal(hf_weights_init_random(&c, 7, &w), HF_OK);
+  hf_backend *b;
+  assert_int_equal(hf_backend_create("cpu-ref", &b, NULL, 0), HF_OK);
+  hf_model *m;
+  assert_int_equal(hf_model_create(b, w, &m), HF_OK);
+  int W = 13, H = 11, PW = 16, PH = 12, C = 24;
+  float *small = calloc((size_t)W * H * C, 4), *big = calloc((size_t)PW * PH * C, 4);
+  float *os = calloc((size_t)W * H * 3, 4), *ob = calloc((size_t)PW * PH * 3, 4);
+  srand(3);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++)
+      for (int k = 0; k < C; k++)
+        small[(y * W + x) * C + k] = big[(y * PW + x) * C + k] = (float)rand() / RAND_MAX;
+  hf_io a = {1, W, H, small, HF_F32, os, HF_F32}, bb = {1, PW, PH, big, HF_F32, ob, HF_F32};
+  assert_int_equal(hf_model_run(m, &a, NULL), HF_OK);
+  assert_int_equal(hf_model_run(m, &bb, NULL), HF_OK);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++)
+      for (int k = 0; k < 3; k++) assert_true(os[(y * W + x) * 3 + k] == ob[(y * PW + x) * 3 + k]);
+  free(small), free(big), free(os), free(ob);
+  hf_model_destroy(m);
+  hf_backend_destroy(b);
+  hf_weights_free(w);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_table1_presets),   cmocka_unit_test(test_wiring),
+    cmocka_unit_test(test_validate_rejects), cmocka_unit_test(test_output_transform),
+    cmocka_unit_test(test_half_roundtrip),   cmocka_unit_test(test_backend_selection),
+    cmocka_unit_test(test_run_rejects_bad_io), cmocka_unit_test(test_pad_and_crop),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

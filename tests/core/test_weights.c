@@ -1,0 +1,252 @@
+/* The safetensors loader against valid, corrupt and hostile files. Each
+ * corrupt file must give a clean error (never a crash, never weights). */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include <cmocka.h>
+
+#include "hfcore.h"
+
+typedef struct blob {
+  unsigned char *data;
+  size_t len;
+} blob;
+
+static char tmpdir[] = "/tmp/hf_test_weights_XXXXXX";
+
+static blob read_all(const char *path) {
+  blob b = {0};
+  FILE *f = fopen(path, "rb");
+  assert_non_null(f);
+  fseek(f, 0, SEEK_END);
+  b.len = (size_t)ftell(f);
+  rewind(f);
+  b.data = malloc(b.len);
+  assert_int_equal(fread(b.data, 1, b.len, f), b.len);
+  fclose(f);
+  return b;
+}
+
+/* A valid Small model's file. */
+static blob valid_file(hf_weights **w_out) {
+  hf_net_config c;
+  hf_variant_preset("Small", &c);
+  hf_weights *w;
+  assert_int_equal(hf_weights_init_random(&c, 42, &w), HF_OK);
+  char path[256];
+  snprintf(path, sizeof path, "%s/small.safetensors", tmpdir);
+  assert_int_equal(hf_weights_save(path, w), HF_OK);
+  if (w_out) *w_out = w;
+  else hf_weights_free(w);
+  return read_all(path);
+}
+
+static uint64_t hlen_of(const blob *b) {
+  uint64_t v = 0;
+  for (int i = 7; i >= 0; i--) v = (v << 8) | b->data[i];
+  return v;
+}
+
+/* Rebuilds the file with the header's first `from` replaced by `to`. */
+static blob with_header_edit(const blob *b, const char *from, const char *to) {
+  uint64_t hl = hlen_of(b);
+  char *h = malloc(hl + 1);
+  memcpy(h, b->data + 8, hl);
+  h[hl] = 0;
+  char *at = strstr(h, from);
+  assert_non_null(at);
+  size_t nh = hl - strlen(from) + strlen(to);
+  blob o = {malloc(8 + nh + (b->len - 8 - hl)), 8 + nh + (b->len - 8 - hl)};
+  for (int i = 0; i < 8; i++) o.data[i] = (unsigned char)((uint64_t)nh >> (8 * i));
+  size_t pre = (size_t)(at - h);
+  memcpy(o.data + 8, h, pre);
+  memcpy(o.data + 8 + pre, to, strlen(to));
+  memcpy(o.data + 8 + pre + strlen(to), at + strlen(from), hl - pre - strlen(from));
+  memcpy(o.data + 8 + nh, b->data + 8 + hl, b->len - 8 - hl);
+  free(h);
+  return o;
+}
+
+static void expect_reject(const blob *b, int want_rc, const char *want_in_msg) {
+  hf_weights *w = (hf_weights *)0x1;
+  char err[256] = "";
+  int rc = hf_weights_load_mem(b->data, b->len, &w, err, sizeof err);
+  if (want_rc) assert_int_equal(rc, want_rc);
+  else assert_true(rc < 0);
+  assert_null(w);
+  assert_true(strlen(err) > 0);
+  if (want_in_msg && !strstr(err, want_in_msg)) fail_msg("error '%s' lacks '%s'", err, want_in_msg);
+}
+
+static void test_roundtrip_bit_exact(void **state) {
+  hf_weights *w;
+  blob b = valid_file(&w);
+  hf_weights *r;
+  char err[256];
+  assert_int_equal(hf_weights_load_mem(b.data, b.len, &r, err, sizeof err), HF_OK);
+  assert_int_equal(r->num_params, w->num_params);
+  assert_memory_equal(r->storage, w->storage, w->num_params * sizeof(float));
+  assert_string_equal(r->cfg.name, "Small");
+  assert_int_equal(r->cfg.num_levels, 3);
+  assert_int_equal(r->cfg.levels[2], 64);
+  assert_string_equal(r->features[4], "tangent.x");
+  /* and through the path-based loader */
+  char path[256];
+  snprintf(path, sizeof path, "%s/small.safetensors", tmpdir);
+  hf_weights *r2;
+  assert_int_equal(hf_weights_load(path, &r2, err, sizeof err), HF_OK);
+  assert_memory_equal(r2->storage, w->storage, w->num_params * sizeof(float));
+  hf_weights_free(r2);
+  hf_weights_free(r);
+  hf_weights_free(w);
+  free(b.data);
+}
+
+static void test_truncated(void **state) {
+  blob b = valid_file(NULL);
+  size_t cuts[] = {0, 4, 8, 20, (size_t)hlen_of(&b) + 8, b.len - 1};
+  for (size_t k = 0; k < sizeof cuts / sizeof cuts[0]; k++) {
+    blob t = {b.data, cuts[k]};
+    expect_reject(&t, 0, NULL);
+  }
+  free(b.data);
+}
+
+static void test_huge_header_length(void **state) {
+  blob b = valid_file(NULL);
+  uint64_t lens[] = {UINT64_MAX, (uint64_t)1 << 40, b.len, b.len - 7, 1};
+  for (size_t k = 0; k < sizeof lens / sizeof lens[0]; k++) {
+    for (int i = 0; i < 8; i++) b.data[i] = (unsigned char)(lens[k] >> (8 * i));
+    expect_reject(&b, HF_EFORMAT, NULL);
+  }
+  free(b.data);
+}
+
+static void test_offsets_past_end(void **state) {
+  blob b = valid_file(NULL);
+  /* enc0.weight starts at 0: push its end far beyond the data */
+  blob o = with_header_edit(&b, "\"data_offsets\":[0,", "\"data_offsets\":[99999999,");
+  expect_reject(&o, HF_EFORMAT, "data_offsets");
+  free(o.data);
+  blob n = with_header_edit(&b, "\"data_offsets\":[0,", "\"data_offsets\":[-8,");
+  expect_reject(&n, HF_EFORMAT, NULL);
+  free(n.data);
+  blob f = with_header_edit(&b, "\"data_offsets\":[0,", "\"data_offsets\":[1e300,");
+  expect_reject(&f, HF_EFORMAT, NULL);
+  free(f.data);
+  blob s = with_header_edit(&b, "\"data_offsets\":[0,", "\"data_offsets\":[\"0\",");
+  expect_reject(&s, HF_EFORMAT, NULL);
+  free(s.data);
+  free(b.data);
+}
+
+static void test_wrong_shapes(void **state) {
+  blob b = valid_file(NULL);
+  blob o = with_header_edit(&b, "\"shape\":[16,24,3,3]", "\"shape\":[16,24,3,4]");
+  expect_reject(&o, HF_EFORMAT, "enc0.weight");
+  free(o.data);
+  blob d = with_header_edit(&b, "\"shape\":[16,24,3,3]", "\"shape\":[16,24,9]");
+  expect_reject(&d, HF_EFORMAT, "dimensions");
+  free(d.data);
+  /* metadata says other channel counts than the tensors have */
+  blob m = with_header_edit(&b, "[16,32,64]", "[16,32,65]");
+  expect_reject(&m, HF_EFORMAT, NULL);
+  free(m.data);
+  free(b.data);
+}
+
+static void test_bad_json(void **state) {
+  blob b = valid_file(NULL);
+  blob o = with_header_edit(&b, "{\"__metadata__\"", "[\"__metadata__\"");
+  expect_reject(&o, HF_EFORMAT, "JSON");
+  free(o.data);
+  blob m = with_header_edit(&b, "\"__metadata__\"", "\"__metadatum__\"");
+  expect_reject(&m, HF_EFORMAT, "hairfilter");
+  free(m.data);
+  blob n = with_header_edit(&b, "{\\\"name\\\"", "{{\\\"name\\\"");
+  expect_reject(&n, HF_EFORMAT, "metadata");
+  free(n.data);
+  blob f = with_header_edit(&b, "\\\"tangent.x\\\"", "\\\"tangent.z\\\"");
+  expect_reject(&f, HF_EFORMAT, "features");
+  free(f.data);
+  blob s = with_header_edit(&b, "\\\"spp\\\":4", "\\\"spp\\\":3");
+  expect_reject(&s, HF_EFORMAT, "in_channels");
+  free(s.data);
+  blob a = with_header_edit(&b, "\\\"arch\\\":\\\"unet\\\"", "\\\"arch\\\":\\\"gan\\\"");
+  expect_reject(&a, HF_EUNSUPPORTED, "arch");
+  free(a.data);
+  free(b.data);
+}
+
+static void test_bad_dtype_and_tensor_set(void **state) {
+  blob b = valid_file(NULL);
+  blob d = with_header_edit(&b, "\"dtype\":\"F32\"", "\"dtype\":\"I64\"");
+  expect_reject(&d, HF_EUNSUPPORTED, "dtype");
+  free(d.data);
+  /* F16 with F32-sized data: byte count mismatch */
+  blob h = with_header_edit(&b, "\"dtype\":\"F32\"", "\"dtype\":\"F16\"");
+  expect_reject(&h, HF_EFORMAT, "bytes");
+  free(h.data);
+  blob r = with_header_edit(&b, "\"enc0.bias\"", "\"enc9.bias\"");
+  expect_reject(&r, HF_EFORMAT, "enc0.bias");
+  free(r.data);
+  free(b.data);
+}
+
+static void test_missing_file(void **state) {
+  hf_weights *w;
+  char err[256] = "";
+  assert_int_equal(hf_weights_load("/nonexistent/x.safetensors", &w, err, sizeof err), HF_EIO);
+  assert_null(w);
+  assert_non_null(strstr(err, "/nonexistent/x.safetensors"));
+}
+
+/* Random byte flips in the header: whatever happens, no crash, and either a
+ * clean error or a successfully validated model. */
+static void test_header_fuzz(void **state) {
+  blob b = valid_file(NULL);
+  uint64_t hl = hlen_of(&b);
+  unsigned char *copy = malloc(b.len);
+  srand(11);
+  for (int it = 0; it < 3000; it++) {
+    memcpy(copy, b.data, b.len);
+    int flips = 1 + rand() % 4;
+    for (int k = 0; k < flips; k++) copy[8 + rand() % hl] = (unsigned char)rand();
+    hf_weights *w = NULL;
+    char err[256] = "";
+    int rc = hf_weights_load_mem(copy, b.len, &w, err, sizeof err);
+    if (rc == HF_OK) {
+      assert_non_null(w);
+      assert_int_equal(hf_net_config_validate(&w->cfg), HF_OK);
+      hf_weights_free(w);
+    } else {
+      assert_null(w);
+      assert_true(err[0] != 0);
+    }
+  }
+  free(copy);
+  free(b.data);
+}
+
+static int setup(void **state) { return mkdtemp(tmpdir) ? 0 : -1; }
+static int teardown(void **state) {
+  char cmd[300];
+  snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
+  return system(cmd);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_roundtrip_bit_exact), cmocka_unit_test(test_truncated),
+    cmocka_unit_test(test_huge_header_length),  cmocka_unit_test(test_offsets_past_end),
+    cmocka_unit_test(test_wrong_shapes),        cmocka_unit_test(test_bad_json),
+    cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
+    cmocka_unit_test(test_header_fuzz),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}

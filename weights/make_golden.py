@@ -1,0 +1,89 @@
+#!/usr/bin/python3
+"""Writes the golden fixtures of tests/core: for each variant, random
+weights, a random feature EXR and PyTorch's output EXR.
+
+    /usr/bin/python3 weights/make_golden.py tests/data/golden
+
+The C tests (tests/core/test_golden.c) check that every CPU backend
+reproduces PyTorch's result within 1e-4 relative L2 error.
+"""
+import argparse
+import os
+
+import numpy as np
+import OpenImageIO as oiio
+import torch
+
+import hfnet
+
+CASES = [  # variant, width, height: odd sizes exercise pad-and-crop
+    ("Base", 64, 48), ("Base", 37, 23),
+    ("Shallow", 64, 48), ("Shallow", 29, 17),
+    ("Deep", 64, 48), ("Deep", 45, 31),
+    ("Base@1spp", 64, 48), ("Base@1spp", 19, 41),
+]
+
+
+def write_exr(path, names, nhwc):
+    h, w, c = nhwc.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+    spec.channelnames = tuple(names)
+    spec.attribute("compression", "zip")
+    out = oiio.ImageOutput.create(path)
+    if not out or not out.open(path, spec):
+        raise RuntimeError(f"cannot write {path}: {oiio.geterror()}")
+    out.write_image(np.ascontiguousarray(nhwc, dtype=np.float32))
+    out.close()
+
+
+def random_features(rng, h, w, spp):
+    """Plausible feature ranges (protocol/FEATURES.md), not just noise in
+    [0, 1): alpha mostly 0 or coverage-like, tangents in [-1, 1]."""
+    f = np.zeros((h, w, spp, 6), np.float32)
+    f[..., 0] = rng.uniform(0, 2, (h, w, spp))
+    f[..., 1] = rng.exponential(0.2, (h, w, spp))
+    f[..., 2] = rng.uniform(0, 1, (h, w, spp)) * (rng.uniform(size=(h, w, spp)) < 0.7)
+    f[..., 3] = rng.uniform(0, 1, (h, w, spp))
+    f[..., 4:6] = rng.uniform(-1, 1, (h, w, spp, 2))
+    return f.reshape(h, w, spp * 6)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("out")
+    ap.add_argument("--seed", type=int, default=2022)
+    args = ap.parse_args()
+    torch.set_num_threads(os.cpu_count() or 1)
+    os.makedirs(args.out, exist_ok=True)
+    rng = np.random.default_rng(args.seed)
+    nets = {}
+    for k, (variant, w, h) in enumerate(CASES):
+        cfg = hfnet.variant_config(variant)
+        vstem = variant.replace("@", "_")
+        if variant not in nets:
+            # One weights file per variant, stored as F16 to keep the
+            # fixtures small (and to test the F16 path of the loader);
+            # PyTorch runs on the same F16-rounded values in float32.
+            torch.manual_seed(args.seed + k)
+            net = hfnet.HairNet(cfg).eval()
+            with torch.no_grad():
+                for p in net.parameters():
+                    p.copy_(p.half().float())
+            hfnet.save_safetensors(os.path.join(args.out, vstem + ".safetensors"), cfg,
+                                   net.state_dict(), dtype="F16")
+            nets[variant] = net
+        net = nets[variant]
+        stem = f"{vstem}_{w}x{h}"
+        spp = cfg["spp"]
+        feat = random_features(rng, h, w, spp)
+        names = [f"S{s}.{n}" for s in range(spp) for n in hfnet.FEATURES]
+        write_exr(os.path.join(args.out, stem + ".features.exr"), names, feat)
+        with torch.no_grad():
+            y = net(hfnet.nhwc_to_nchw(feat[None]))
+        write_exr(os.path.join(args.out, stem + ".expected.exr"), hfnet.OUTPUTS,
+                  hfnet.nchw_to_nhwc(y)[0])
+        print(f"{stem}: {sum(p.numel() for p in net.parameters())} parameters")
+
+
+if __name__ == "__main__":
+    main()
