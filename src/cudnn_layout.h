@@ -56,7 +56,7 @@ typedef struct hf_cl_view {
 } hf_cl_view;
 
 typedef struct hf_cl_layer {
-  char name[8];                /* "enc0", "dec2" */
+  char name[16];               /* "enc0", "dec2" */
   int kind;                    /* HF_CL_CONV_FWD or HF_CL_CONV_BWD_DATA */
   int level;
   int relu;                    /* ReLU after the bias (all but dec0) */
