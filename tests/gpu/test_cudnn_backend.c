@@ -1,0 +1,227 @@
+/* The cudnn backend against cpu-ref, and its behaviour without a GPU.
+ *
+ * Whether this machine has a usable CUDA device is asked of the CUDA
+ * runtime directly, not of the backend, so the "no GPU" test checks the
+ * backend's answer instead of trusting it. Tests that need a device print
+ * "SKIP: no CUDA device: <reason>" and skip. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include <cuda_runtime_api.h>
+
+#include "hfcore.h"
+
+static char no_gpu_reason[256];   /* "" when a device is present */
+
+static void find_device(void) {
+  int n = 0;
+  cudaError_t e = cudaGetDeviceCount(&n);
+  if (e != cudaSuccess)
+    snprintf(no_gpu_reason, sizeof no_gpu_reason, "cudaGetDeviceCount: %s", cudaGetErrorString(e));
+  else if (n < 1)
+    snprintf(no_gpu_reason, sizeof no_gpu_reason, "cudaGetDeviceCount: 0 devices");
+}
+
+#define REQUIRE_GPU()                                              \
+  do {                                                             \
+    if (no_gpu_reason[0]) {                                        \
+      printf("SKIP: no CUDA device: %s\n", no_gpu_reason);         \
+      skip();                                                      \
+    }                                                              \
+  } while (0)
+
+static void test_availability(void **state) {
+  (void)state;
+  hf_backend *b = NULL;
+  char why[512];
+  int rc = hf_backend_create("cudnn", &b, why, sizeof why);
+  if (no_gpu_reason[0]) {
+    printf("  cudnn unavailable as expected: %s\n", why);
+    assert_int_equal(rc, HF_EUNAVAILABLE);
+    assert_null(b);
+    assert_true(strlen(why) > 0);
+    assert_non_null(strstr(why, "no CUDA device"));
+    /* auto falls back to a CPU backend and says why cudnn was passed over. */
+    assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
+    printf("  auto: %s\n", why);
+    assert_string_not_equal(hf_backend_name(b), "cudnn");
+    assert_true(!strcmp(hf_backend_name(b), "cpu") || !strcmp(hf_backend_name(b), "cpu-ref"));
+    assert_non_null(strstr(why, "cudnn unavailable"));
+  } else {
+    assert_int_equal(rc, HF_OK);
+    assert_string_equal(hf_backend_name(b), "cudnn");
+    hf_backend_destroy(b);
+    assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
+    assert_string_equal(hf_backend_name(b), "cudnn");
+  }
+  hf_backend_destroy(b);
+}
+
+static uint64_t rng = 0x9E3779B97F4A7C15ull;
+static float frand(void) {
+  rng ^= rng << 13;
+  rng ^= rng >> 7;
+  rng ^= rng << 17;
+  return (float)(rng >> 40) / (float)(1 << 24);
+}
+
+static double rel_l2(const float *got, const float *want, size_t n) {
+  double num = 0, den = 0;
+  for (size_t i = 0; i < n; i++) {
+    assert_false(isnan(got[i]));
+    assert_false(isinf(got[i]));
+    num += (got[i] - (double)want[i]) * (got[i] - (double)want[i]);
+    den += (double)want[i] * want[i];
+  }
+  return den > 0 ? sqrt(num / den) : sqrt(num);
+}
+
+typedef struct ctx {
+  hf_backend *gpu, *ref;
+} ctx;
+
+static int setup(void **state) {
+  if (no_gpu_reason[0]) return 0;
+  ctx *c = calloc(1, sizeof *c);
+  char why[512];
+  if (!c || hf_backend_create("cudnn", &c->gpu, why, sizeof why) ||
+      hf_backend_create("cpu-ref", &c->ref, why, sizeof why)) {
+    fprintf(stderr, "setup: %s\n", why);
+    return -1;
+  }
+  *state = c;
+  return 0;
+}
+
+static int teardown(void **state) {
+  ctx *c = *state;
+  if (c) {
+    hf_backend_destroy(c->gpu);
+    hf_backend_destroy(c->ref);
+    free(c);
+  }
+  return 0;
+}
+
+/* One variant at one size and batch: relative L2 against cpu-ref < 1e-2. */
+static void compare(ctx *c, const hf_net_config *cfg, hf_model *gm, hf_model *rm, int batch,
+                    int width, int height) {
+  const size_t npx = (size_t)batch * width * height;
+  float *in = malloc(npx * cfg->in_channels * sizeof(float));
+  float *want = malloc(npx * 3 * sizeof(float)), *got = malloc(npx * 3 * sizeof(float));
+  assert_non_null(in);
+  assert_non_null(want);
+  assert_non_null(got);
+  for (size_t i = 0; i < npx * cfg->in_channels; i++) in[i] = frand();
+  hf_io io = {batch, width, height, in, HF_F32, want, HF_F32};
+  assert_int_equal(hf_model_run(rm, &io, NULL), HF_OK);
+  io.out = got;
+  hf_timing t;
+  assert_int_equal(hf_model_run(gm, &io, &t), HF_OK);
+  double rel = rel_l2(got, want, npx * 3);
+  printf("  %-10s batch %d %4dx%-4d rel L2 %.2e  in %.0f us, net %.0f us, out %.0f us\n",
+         cfg->name, batch, width, height, rel, t.input_us, t.infer_us, t.output_us);
+  assert_true(rel < 1e-2);
+  assert_true(t.infer_us > 0);
+  assert_true(t.input_us > 0);
+  assert_true(t.output_us > 0);
+  /* A second run replays the cached plan (CUDA graph) bit for bit. */
+  float *again = malloc(npx * 3 * sizeof(float));
+  assert_non_null(again);
+  io.out = again;
+  assert_int_equal(hf_model_run(gm, &io, NULL), HF_OK);
+  assert_memory_equal(again, got, npx * 3 * sizeof(float));
+  free(again);
+  free(in);
+  free(want);
+  free(got);
+  (void)c;
+}
+
+static void test_presets_vs_cpu_ref(void **state) {
+  REQUIRE_GPU();
+  ctx *c = *state;
+  static const int sizes[][2] = {{37, 23}, {129, 65}};
+  static const int batches[] = {1, 4};
+  for (int i = 0; i < hf_variant_preset_count(); i++) {
+    hf_net_config cfg;
+    hf_weights *w;
+    assert_int_equal(hf_variant_preset(hf_variant_preset_name(i), &cfg), HF_OK);
+    assert_int_equal(hf_weights_init_random(&cfg, 100 + i, &w), HF_OK);
+    hf_model *gm, *rm;
+    assert_int_equal(hf_model_create(c->gpu, w, &gm), HF_OK);
+    assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
+    assert_string_equal(hf_model_precision(gm), "fp16");
+    size_t weights_only = hf_model_device_bytes(gm);
+    assert_true(weights_only >= w->num_params * 2);
+    for (size_t s = 0; s < sizeof sizes / sizeof sizes[0]; s++)
+      for (size_t b = 0; b < sizeof batches / sizeof batches[0]; b++)
+        compare(c, &cfg, gm, rm, batches[b], sizes[s][0], sizes[s][1]);
+    /* Activations and workspace of the cached plans are counted too. */
+    assert_true(hf_model_device_bytes(gm) > weights_only);
+    hf_model_destroy(gm);
+    hf_model_destroy(rm);
+    hf_weights_free(w);
+  }
+}
+
+/* FP16 in and out, and more shapes than the plan cache holds, so plans are
+ * evicted and rebuilt. */
+static void test_f16_io_and_plan_eviction(void **state) {
+  REQUIRE_GPU();
+  ctx *c = *state;
+  hf_net_config cfg;
+  hf_weights *w;
+  assert_int_equal(hf_variant_preset("Base", &cfg), HF_OK);
+  assert_int_equal(hf_weights_init_random(&cfg, 5, &w), HF_OK);
+  hf_model *gm, *rm;
+  assert_int_equal(hf_model_create(c->gpu, w, &gm), HF_OK);
+  assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
+  static const int sizes[][2] = {{8, 8}, {17, 9}, {33, 31}, {64, 8}, {7, 70}, {17, 9}, {8, 8}};
+  for (size_t s = 0; s < sizeof sizes / sizeof sizes[0]; s++) {
+    const int W = sizes[s][0], H = sizes[s][1];
+    const size_t npx = (size_t)W * H;
+    float *in = malloc(npx * cfg.in_channels * 4), *want = malloc(npx * 12), *got = malloc(npx * 12);
+    uint16_t *in16 = malloc(npx * cfg.in_channels * 2), *out16 = malloc(npx * 6);
+    assert_non_null(in);
+    assert_non_null(in16);
+    assert_non_null(out16);
+    for (size_t i = 0; i < npx * cfg.in_channels; i++) {
+      in16[i] = hf_f32_to_f16(frand());
+      in[i] = hf_f16_to_f32(in16[i]);
+    }
+    hf_io io = {1, W, H, in, HF_F32, want, HF_F32};
+    assert_int_equal(hf_model_run(rm, &io, NULL), HF_OK);
+    hf_io io16 = {1, W, H, in16, HF_F16, out16, HF_F16};
+    assert_int_equal(hf_model_run(gm, &io16, NULL), HF_OK);
+    for (size_t i = 0; i < npx * 3; i++) got[i] = hf_f16_to_f32(out16[i]);
+    double rel = rel_l2(got, want, npx * 3);
+    printf("  f16 io %dx%d: rel L2 %.2e\n", W, H, rel);
+    assert_true(rel < 1e-2);
+    free(in);
+    free(in16);
+    free(out16);
+    free(want);
+    free(got);
+  }
+  hf_model_destroy(gm);
+  hf_model_destroy(rm);
+  hf_weights_free(w);
+}
+
+int main(void) {
+  find_device();
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_availability),
+      cmocka_unit_test_setup_teardown(test_presets_vs_cpu_ref, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_f16_io_and_plan_eviction, setup, teardown),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
