@@ -149,7 +149,7 @@ static int make_plans(cudnnHandle_t h, hf_cg_op *op, cudnnBackendDescriptor_t gr
       s = cudnnBackendCreateDescriptor(CUDNN_BACKEND_EXECUTION_PLAN_DESCRIPTOR, &plan);
       if (s != CUDNN_STATUS_SUCCESS)
         return hf_dnn_report(s, "cudnnBackendCreateDescriptor(plan)", __FILE__, __LINE__);
-      int64_t ws = 0;
+      int64_t ws = 0, nws = 0;
       s = cudnnBackendSetAttribute(plan, CUDNN_ATTR_EXECUTION_PLAN_HANDLE, CUDNN_TYPE_HANDLE, 1,
                                    &h);
       if (s == CUDNN_STATUS_SUCCESS)
@@ -158,7 +158,7 @@ static int make_plans(cudnnHandle_t h, hf_cg_op *op, cudnnBackendDescriptor_t gr
       if (s == CUDNN_STATUS_SUCCESS) s = cudnnBackendFinalize(plan);
       if (s == CUDNN_STATUS_SUCCESS)
         s = cudnnBackendGetAttribute(plan, CUDNN_ATTR_EXECUTION_PLAN_WORKSPACE_SIZE,
-                                     CUDNN_TYPE_INT64, 1, NULL, &ws);
+                                     CUDNN_TYPE_INT64, 1, &nws, &ws);
       if (s != CUDNN_STATUS_SUCCESS || ws < 0 || ws > HF_CG_MAX_WORKSPACE) {
         if (s != CUDNN_STATUS_SUCCESS) rc = unsupported(s, "execution plan", why, whylen);
         cudnnBackendDestroyDescriptor(plan);
