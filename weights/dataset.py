@@ -1,0 +1,249 @@
+"""Training data of the hairfilter recipe: dataset directories, EXR frames,
+the train/validation split, random crops and the augmentations that are valid
+for hair features.
+
+A dataset directory (written by `hairfilter render dataset`, or by
+weights/synth_dataset.py) holds one EXR file per render and a manifest.json:
+
+    {"format": "hairfilter-dataset", "version": 1,
+     "frames": [{"file": "straight_0000.exr", "style": "straight",
+                 "spp": 4, "width": 256, "height": 256, "seed": 17}, ...]}
+
+Each EXR holds the features S{k}.<feature> (protocol/FEATURES.md), the
+ground truth gt.color/gt.highlight/gt.alpha and optional baselines
+st{N}.* / opaque.*. Only "file" is required in a frame entry; "style" falls
+back to the file name's prefix before the first '_'. A directory without a
+manifest is read as every *.exr in it.
+"""
+import glob
+import hashlib
+import json
+import os
+import re
+
+import numpy as np
+import OpenImageIO as oiio
+
+FEATURES = ["color", "highlight", "alpha", "depth", "tangent.x", "tangent.y"]
+TARGETS = ["color", "highlight", "alpha"]
+TANGENT_X, TANGENT_Y = 4, 5
+
+# Keys a manifest may use for its frame list and for a frame's file name.
+_LIST_KEYS = ("frames", "images", "renders", "items", "files")
+_FILE_KEYS = ("file", "path", "exr", "name")
+
+
+class DatasetError(Exception):
+    pass
+
+
+# ---- manifest --------------------------------------------------------------
+
+def _style_from_name(fname):
+    base = os.path.basename(fname)
+    return base.split("_")[0].split(".")[0].lower()
+
+
+def read_manifest(root):
+    """List of frame dicts, each with at least 'file' (absolute path) and
+    'style', sorted by file name so every reader sees the same order."""
+    path = os.path.join(root, "manifest.json")
+    entries = []
+    if os.path.exists(path):
+        with open(path) as f:
+            doc = json.load(f)
+        items = doc
+        if isinstance(doc, dict):
+            items = next((doc[k] for k in _LIST_KEYS if isinstance(doc.get(k), list)), None)
+            if items is None:
+                raise DatasetError(f"{path}: no frame list (one of {', '.join(_LIST_KEYS)})")
+        for it in items:
+            if isinstance(it, str):
+                it = {"file": it}
+            fname = next((it[k] for k in _FILE_KEYS if isinstance(it.get(k), str)), None)
+            if fname is None:
+                raise DatasetError(f"{path}: frame entry without a file name: {it}")
+            e = dict(it)
+            e["file"] = fname if os.path.isabs(fname) else os.path.join(root, fname)
+            e["style"] = str(it.get("style") or _style_from_name(fname)).lower()
+            entries.append(e)
+    else:
+        for fname in glob.glob(os.path.join(root, "*.exr")):
+            entries.append({"file": fname, "style": _style_from_name(fname)})
+    if not entries:
+        raise DatasetError(f"{root}: no frames (no manifest.json entries, no *.exr)")
+    entries.sort(key=lambda e: os.path.basename(e["file"]))
+    return entries
+
+
+def split_frames(entries, val_fraction=0.1):
+    """Deterministic split: the frames whose file-name hash is lowest go to
+    validation (round(val_fraction * n), at least one when n > 1). Depends
+    only on the names, never on a seed or on the listing order."""
+    if val_fraction <= 0 or len(entries) < 2:
+        return list(entries), []
+    n_val = max(1, int(round(val_fraction * len(entries))))
+    key = lambda e: hashlib.sha1(os.path.basename(e["file"]).encode()).hexdigest()
+    ranked = sorted(entries, key=key)
+    val = set(id(e) for e in ranked[:n_val])
+    train = [e for e in entries if id(e) not in val]
+    valid = [e for e in entries if id(e) in val]
+    return train, valid
+
+
+# ---- EXR -------------------------------------------------------------------
+
+def read_exr(path):
+    """(channel names, float32 array [h][w][c])."""
+    inp = oiio.ImageInput.open(path)
+    if not inp:
+        raise DatasetError(f"cannot read {path}: {oiio.geterror()}")
+    spec = inp.spec()
+    names = list(spec.channelnames)
+    data = inp.read_image(oiio.FLOAT)
+    inp.close()
+    if data is None:
+        raise DatasetError(f"cannot read pixels of {path}")
+    data = np.asarray(data, np.float32).reshape(spec.height, spec.width, len(names))
+    return names, data
+
+
+def write_exr(path, names, hwc, half=False):
+    h, w, c = hwc.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.HALF if half else oiio.FLOAT)
+    spec.channelnames = tuple(names)
+    spec.attribute("compression", "zip")
+    out = oiio.ImageOutput.create(path)
+    if not out or not out.open(path, spec):
+        raise DatasetError(f"cannot write {path}: {oiio.geterror()}")
+    out.write_image(np.ascontiguousarray(hwc, dtype=np.float32))
+    out.close()
+
+
+def count_spp(names):
+    """Consecutive S{k}.color channels from S0 (protocol/FEATURES.md)."""
+    s = set(names)
+    k = 0
+    while f"S{k}.color" in s:
+        k += 1
+    return k
+
+
+def pick_channels(names, data, wanted, path=""):
+    idx = {n: i for i, n in enumerate(names)}
+    missing = [n for n in wanted if n not in idx]
+    if missing:
+        raise DatasetError(f"{path}: missing channels {', '.join(missing)}")
+    return data[..., [idx[n] for n in wanted]]
+
+
+def load_frame(path, spp=None, dtype=np.float16):
+    """Features [h][w][spp][6] and target [h][w][3] (gt.color, gt.highlight,
+    gt.alpha) of one dataset EXR. spp=None keeps every sample in the file."""
+    names, data = read_exr(path)
+    have = count_spp(names)
+    if have == 0:
+        raise DatasetError(f"{path}: no S0.color channel: not a feature file")
+    spp = have if spp is None else spp
+    if spp > have:
+        raise DatasetError(f"{path}: {have} samples per pixel, {spp} needed")
+    feat = pick_channels(names, data, [f"S{k}.{f}" for k in range(spp) for f in FEATURES], path)
+    tgt = pick_channels(names, data, [f"gt.{t}" for t in TARGETS], path)
+    h, w = data.shape[:2]
+    return feat.reshape(h, w, spp, 6).astype(dtype), tgt.astype(dtype)
+
+
+# ---- augmentation ----------------------------------------------------------
+
+def augment(feat, tgt, rng, flips=True, rotations=True, permute=True):
+    """Random dihedral transform and sample-slot permutation of one crop.
+
+    feat: [h][w][spp][6], tgt: [h][w][3] (numpy). Tangents are view-space
+    with y up while image rows go down, so a view vector (tx, ty) is the image
+    displacement (du, dv) = (tx, -ty). Hence:
+      horizontal flip (columns reversed):  tx -> -tx
+      vertical flip (rows reversed):       ty -> -ty
+      np.rot90 (counter-clockwise on screen): (tx, ty) -> (-ty, tx)
+    Permuting the sample slots of every pixel the same way is valid because
+    the samples of a pixel are exchangeable draws of the same distribution.
+    """
+    feat = feat.copy()
+    if flips and rng.random() < 0.5:
+        feat, tgt = feat[:, ::-1], tgt[:, ::-1]
+        feat[..., TANGENT_X] *= -1
+    if flips and rng.random() < 0.5:
+        feat, tgt = feat[::-1], tgt[::-1]
+        feat[..., TANGENT_Y] *= -1
+    k = int(rng.integers(4)) if rotations else 0
+    for _ in range(k):
+        feat, tgt = np.rot90(feat, 1, axes=(0, 1)), np.rot90(tgt, 1, axes=(0, 1))
+        tx = feat[..., TANGENT_X].copy()
+        feat[..., TANGENT_X] = -feat[..., TANGENT_Y]
+        feat[..., TANGENT_Y] = tx
+    if permute and feat.shape[2] > 1:
+        feat = feat[:, :, rng.permutation(feat.shape[2])]
+    return np.ascontiguousarray(feat), np.ascontiguousarray(tgt)
+
+
+class FrameSet:
+    """Frames held in memory (float16) for crop sampling."""
+
+    def __init__(self, entries, spp, log=None):
+        """Keeps every sample a file holds, so that variants reading fewer
+        samples than the files hold train on random subsets of them."""
+        self.entries = entries
+        self.feats, self.tgts = [], []
+        for i, e in enumerate(entries):
+            f, t = load_frame(e["file"])
+            if f.shape[2] < spp:
+                raise DatasetError(f"{e['file']}: {f.shape[2]} samples per pixel, {spp} needed")
+            self.feats.append(f)
+            self.tgts.append(t)
+            if log:
+                log(f"loading {i + 1}/{len(entries)}")
+        self.spp = spp
+
+    def __len__(self):
+        return len(self.feats)
+
+    def nbytes(self):
+        return sum(f.nbytes + t.nbytes for f, t in zip(self.feats, self.tgts))
+
+    def crop(self, rng, size, hair_bias=0.9):
+        """One random crop (feat [s][s][samples in file][6], tgt [s][s][3]). With
+        probability hair_bias, retries (a few times) until the crop holds
+        some hair, so training does not spend its steps on background."""
+        for attempt in range(8):
+            i = int(rng.integers(len(self.feats)))
+            f, t = self.feats[i], self.tgts[i]
+            h, w = t.shape[:2]
+            ch, cw = min(size, h), min(size, w)
+            y = int(rng.integers(h - ch + 1))
+            x = int(rng.integers(w - cw + 1))
+            fc, tc = f[y:y + ch, x:x + cw], t[y:y + ch, x:x + cw]
+            if rng.random() > hair_bias or float(tc[..., 2].max()) > 0:
+                break
+        return fc, tc
+
+    def batch(self, rng, size, n, augment_on=True):
+        """Batch of n augmented crops as float32 NCHW input [n][spp*6][s][s]
+        and target [n][3][s][s]. When the frames hold more samples than the
+        variant reads, each crop uses a random subset of them."""
+        xs, ys = [], []
+        for _ in range(n):
+            f, t = self.crop(rng, size)
+            if augment_on:
+                f, t = augment(f, t, rng)
+            if f.shape[2] > self.spp:
+                f = f[:, :, np.sort(rng.choice(f.shape[2], self.spp, replace=False))]
+            h, w = t.shape[:2]
+            xs.append(f.reshape(h, w, -1))
+            ys.append(t)
+        x = np.stack(xs).astype(np.float32).transpose(0, 3, 1, 2)
+        y = np.stack(ys).astype(np.float32).transpose(0, 3, 1, 2)
+        return np.ascontiguousarray(x), np.ascontiguousarray(y)
+
+
+def parse_styles(s):
+    return [x.strip().lower() for x in s.split(",") if x.strip()] if s else []
+
