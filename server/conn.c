@@ -1,0 +1,720 @@
+/*
+ * Connections: the read state machine that turns bytes into requests, and
+ * the writes that carry replies back.
+ *
+ * Reads go straight to where the bytes belong: libuv's alloc callback hands
+ * out the unread rest of the current piece (header, control payload, FILTER
+ * head, tensor, or a sink for a rejected frame), so a feature tensor is
+ * never copied between the socket and the backend, and no read ever spans
+ * two frames. A FILTER is validated from its head before its tensor buffer
+ * is allocated, so a rejected request costs no memory however large it
+ * claims to be.
+ *
+ * Error policy (PROTOCOL.md, "Errors"): a frame whose header is bad, or
+ * whose payload exceeds max_frame_bytes, loses the framing or is not worth
+ * reading, so the connection gets a fatal ERROR and is closed. Anything
+ * wrong inside a well-framed FILTER gets a non-fatal ERROR with its request
+ * id, the rest of the frame is skipped, and the connection goes on.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "server.h"
+
+static void conn_close(hfd_conn *c);
+static void read_next(hfd_conn *c);
+
+/* ---- writes -------------------------------------------------------------- */
+
+typedef struct ctl_write {
+  uv_write_t req;
+  hfd_conn *c;
+  int close_after;
+  size_t len;
+  uint8_t data[];
+} ctl_write;
+
+static void conn_release(hfd_conn *c) {
+  /* Freed only when libuv is done with the handle and nothing in flight
+   * (queued jobs, pending writes) still points at it. */
+  if (!c->handle_closed || c->inflight || c->writes_pending) return;
+  hfd_server *s = c->srv;
+  free(c);
+  hfd_maybe_finish(s);
+}
+
+static void on_ctl_written(uv_write_t *req, int status) {
+  ctl_write *w = (ctl_write *)req;
+  hfd_conn *c = w->c;
+  c->writes_pending--;
+  if (status < 0 && status != UV_ECANCELED)
+    hfd_debug("conn %llu: write failed: %s", (unsigned long long)c->id, uv_strerror(status));
+  if (w->close_after || status < 0) conn_close(c);
+  free(w);
+  conn_release(c);
+}
+
+/* Queues one encoded control frame (at most a few tens of KiB). */
+static void send_ctl(hfd_conn *c, const uint8_t *frame, size_t len, int close_after) {
+  if (c->closing) return;
+  ctl_write *w = malloc(sizeof *w + len);
+  if (!w) {
+    hfd_log("error: conn %llu: out of memory for a reply; closing it",
+            (unsigned long long)c->id);
+    conn_close(c);
+    return;
+  }
+  w->c = c;
+  w->close_after = close_after;
+  w->len = len;
+  memcpy(w->data, frame, len);
+  uv_buf_t b = uv_buf_init((char *)w->data, (unsigned)len);
+  int rc = uv_write(&w->req, &c->h.stream, &b, 1, on_ctl_written);
+  if (rc < 0) {
+    hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
+    free(w);
+    conn_close(c);
+    return;
+  }
+  c->writes_pending++;
+}
+
+/* Sends an ERROR. Fatal errors stop reading; the connection closes once
+ * the ERROR has been written, so the peer gets to see why. */
+static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
+                       const char *fmt, ...) __attribute__((format(printf, 5, 6)));
+static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
+                       const char *fmt, ...) {
+  hfp_error e;
+  memset(&e, 0, sizeof e);
+  e.code = (uint32_t)code;
+  e.fatal = (uint8_t)(fatal != 0);
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(e.message, sizeof e.message, fmt, ap);
+  va_end(ap);
+  /* Keep the message printable whatever went into it (variant names from
+   * the wire are already checked, but be sure). */
+  for (char *p = e.message; *p; p++)
+    if (*p < 0x20 || *p > 0x7e) *p = '?';
+  if (code != HFP_E_BUSY)
+    hfd_log("error: conn %llu (%s%s%s) request %u: %s: %s%s", (unsigned long long)c->id,
+            c->peer, c->client_name[0] ? " " : "", c->client_name, request_id,
+            hfp_strerror(code), e.message, fatal ? "; closing the connection" : "");
+  uint8_t frame[HFP_HEADER_SIZE + 8 + HFP_MESSAGE_MAX];
+  int n = hfp_encode_error(frame, sizeof frame, request_id, &e);
+  if (n < 0) {
+    hfd_log("error: cannot encode an ERROR: %s", hfp_strerror(n));
+    conn_close(c);
+    return;
+  }
+  if (fatal) {
+    c->fatal_sent = 1;
+    uv_read_stop(&c->h.stream);
+  }
+  send_ctl(c, frame, (size_t)n, fatal);
+}
+
+/* ---- jobs ---------------------------------------------------------------- */
+
+static void job_free(hfd_server *s, hfd_job *j) {
+  s->mem_held -= j->bytes_held;
+  free(j->input);
+  free(j->out);
+  free(j->rgba);
+  free(j);
+}
+
+static void on_result_written(uv_write_t *req, int status) {
+  hfd_job *j = req->data;
+  hfd_conn *c = j->conn;
+  hfd_server *s = c->srv;
+  c->writes_pending--;
+  if (status < 0 && status != UV_ECANCELED)
+    hfd_debug("conn %llu: result write failed: %s", (unsigned long long)c->id,
+              uv_strerror(status));
+  if (status < 0) conn_close(c);
+  job_free(s, j);
+  conn_release(c);
+}
+
+static void account(hfd_server *s, hfd_job *j) {
+  hfp_variant_stats *st = &s->variants[j->variant].stats;
+  if (j->status != HFP_OK) {
+    st->requests_failed++;
+    return;
+  }
+  st->requests_ok++;
+  if (j->batch_leader) st->batches++;
+  st->sum_queue_us += j->timing.queue_us;
+  st->sum_infer_us += j->timing.infer_us;
+  st->sum_total_us += j->timing.total_us;
+  st->hist_total[hfp_hist_bucket(j->timing.total_us)]++;
+  st->hist_infer[hfp_hist_bucket(j->timing.infer_us)]++;
+}
+
+/* A job came back from the worker: reply on its connection, if that is
+ * still open. */
+static void deliver(hfd_server *s, hfd_job *j) {
+  hfd_conn *c = j->conn;
+  c->inflight--;
+  s->jobs_outstanding--;
+  double now = hfd_now_us();
+  j->timing.queue_us = j->t_started > j->t_received ? (uint64_t)(j->t_started - j->t_received) : 0;
+  j->timing.total_us = now > j->t_received ? (uint64_t)(now - j->t_received) : 0;
+  if (j->status != HFP_OK) j->timing.input_us = j->timing.infer_us = j->timing.output_us = 0;
+  account(s, j);
+  if (c->closing) {
+    job_free(s, j);
+    conn_release(c);
+    return;
+  }
+  hfp_result r;
+  memset(&r, 0, sizeof r);
+  r.status = (uint16_t)j->status;
+  r.timing = j->timing;
+  if (j->status == HFP_OK) {
+    r.dtype = j->req.out_dtype;
+    r.flags = j->rgba ? HFP_FILTER_COMPOSITE : 0;
+    r.width = j->req.width;
+    r.height = j->req.height;
+    r.batch = j->batch;
+    r.data = j->out;
+    r.data_len = j->out_len;
+    r.rgba = j->rgba;
+    r.rgba_len = j->rgba_len;
+  }
+  uint64_t total;
+  int n = hfp_encode_result_head(j->head, sizeof j->head, j->request_id, &r, &total);
+  if (n < 0) {
+    hfd_log("error: conn %llu request %u: cannot encode RESULT: %s", (unsigned long long)c->id,
+            j->request_id, hfp_strerror(n));
+    job_free(s, j);
+    conn_close(c);
+    conn_release(c);
+    return;
+  }
+  uv_buf_t bufs[3];
+  unsigned nbufs = 0;
+  bufs[nbufs++] = uv_buf_init((char *)j->head, (unsigned)n);
+  if (r.data_len) bufs[nbufs++] = uv_buf_init(j->out, (unsigned)r.data_len);
+  if (r.rgba_len) bufs[nbufs++] = uv_buf_init(j->rgba, (unsigned)r.rgba_len);
+  /* The input tensor is no longer needed; give its memory back now rather
+   * than when the (possibly slow) client has read the reply. */
+  free(j->input);
+  j->input = NULL;
+  s->mem_held -= j->req.data_len;
+  j->bytes_held -= j->req.data_len;
+  j->wreq.data = j;
+  int rc = uv_write(&j->wreq, &c->h.stream, bufs, nbufs, on_result_written);
+  if (rc < 0) {
+    hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
+    job_free(s, j);
+    conn_close(c);
+    conn_release(c);
+    return;
+  }
+  c->writes_pending++;
+}
+
+void hfd_on_async(uv_async_t *a) {
+  hfd_server *s = a->data;
+  hfd_job *j = hfd_worker_take_done(&s->worker);
+  while (j) {
+    hfd_job *next = j->next;
+    deliver(s, j);
+    j = next;
+  }
+  hfd_maybe_finish(s);
+}
+
+/* ---- requests ------------------------------------------------------------ */
+
+static int find_variant(hfd_server *s, const char *name) {
+  for (int i = 0; i < s->num_variants; i++)
+    if (!strcmp(s->variants[i].name, name)) return i;
+  return -1;
+}
+
+static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
+  hfd_server *s = c->srv;
+  hfp_hello h;
+  int rc = hfp_decode_hello(p, len, &h);
+  if (rc == -HFP_E_VERSION || (!rc && hfp_negotiate(h.min_version, h.max_version) < 0)) {
+    send_error(c, 0, HFP_E_VERSION, 1, "client speaks versions %u..%u, server speaks %d",
+               h.min_version, h.max_version, HFP_VERSION);
+    return;
+  }
+  if (rc) {
+    send_error(c, 0, -rc, 1, "malformed HELLO");
+    return;
+  }
+  if (c->listener->auth_required) {
+    /* Constant-time comparison: the time taken says nothing about how much
+     * of a guessed token was right. */
+    const char *want = s->cfg->token;
+    size_t wl = strlen(want), gl = strlen(h.token);
+    unsigned diff = (unsigned)(wl ^ gl);
+    for (size_t i = 0; i < HFP_TOKEN_MAX; i++)
+      diff |= (unsigned)((i < wl ? want[i] : 0) ^ (i < gl ? h.token[i] : 0));
+    if (diff || !wl) {
+      send_error(c, 0, HFP_E_UNAUTHORIZED, 1, "%s", gl ? "wrong token" : "this listener needs a token");
+      return;
+    }
+  }
+  snprintf(c->client_name, sizeof c->client_name, "%s", h.client_name);
+  c->hello_done = 1;
+  hfp_hello_ok ok;
+  memset(&ok, 0, sizeof ok);
+  ok.version = HFP_VERSION;
+  ok.server_flags = c->listener->auth_required ? HFP_SERVER_AUTH_REQUIRED : 0;
+  ok.max_width = (uint32_t)s->cfg->max_width;
+  ok.max_height = (uint32_t)s->cfg->max_height;
+  int max_spp = 1;
+  for (int i = 0; i < s->num_variants; i++)
+    if (s->variants[i].cfg.spp > max_spp) max_spp = s->variants[i].cfg.spp;
+  ok.max_spp = (uint16_t)max_spp;
+  ok.max_inflight = (uint16_t)s->cfg->max_inflight;
+  ok.dtypes = HFP_DTYPE_MASK_ALL;
+  ok.max_batch = (uint32_t)s->cfg->max_batch;
+  ok.queue_size = (uint32_t)s->cfg->queue_size;
+  ok.max_frame_bytes = s->cfg->max_frame_bytes;
+  snprintf(ok.server_name, sizeof ok.server_name, "%s", s->cfg->name);
+  uint8_t frame[HFP_HEADER_SIZE + 64 + HFP_NAME_MAX];
+  int n = hfp_encode_hello_ok(frame, sizeof frame, &ok);
+  if (n < 0) {
+    send_error(c, 0, HFP_E_INTERNAL, 1, "cannot encode HELLO_OK");
+    return;
+  }
+  hfd_debug("conn %llu (%s): hello from %s", (unsigned long long)c->id, c->peer, c->client_name);
+  send_ctl(c, frame, (size_t)n, 0);
+}
+
+static void reply_variants(hfd_conn *c) {
+  hfd_server *s = c->srv;
+  hfp_variant v[HFD_MAX_VARIANTS];
+  memset(v, 0, sizeof v);
+  for (int i = 0; i < s->num_variants; i++) {
+    const hfd_variant *sv = &s->variants[i];
+    snprintf(v[i].name, sizeof v[i].name, "%s", sv->name);
+    snprintf(v[i].backend, sizeof v[i].backend, "%s", hf_backend_name(s->worker.backend));
+    snprintf(v[i].precision, sizeof v[i].precision, "%s", sv->precision);
+    v[i].spp = (uint16_t)sv->cfg.spp;
+    v[i].num_levels = (uint16_t)sv->cfg.num_levels;
+    for (int l = 0; l < sv->cfg.num_levels; l++) v[i].levels[l] = (uint32_t)sv->cfg.levels[l];
+  }
+  size_t need = hfp_frame_size_variants(v, s->num_variants);
+  uint8_t *frame = malloc(need);
+  if (!frame) {
+    send_error(c, 0, HFP_E_INTERNAL, 0, "out of memory");
+    return;
+  }
+  int n = hfp_encode_variants(frame, need, v, s->num_variants);
+  if (n < 0)
+    send_error(c, 0, HFP_E_INTERNAL, 0, "cannot encode VARIANTS: %s", hfp_strerror(n));
+  else
+    send_ctl(c, frame, (size_t)n, 0);
+  free(frame);
+}
+
+static void reply_stats(hfd_conn *c) {
+  static hfp_stats st;  /* 30 KiB; the loop is single-threaded */
+  hfd_fill_stats(c->srv, &st);
+  size_t need = hfp_frame_size_stats(&st);
+  uint8_t *frame = malloc(need);
+  if (!frame) {
+    send_error(c, 0, HFP_E_INTERNAL, 0, "out of memory");
+    return;
+  }
+  int n = hfp_encode_stats(frame, need, &st);
+  if (n < 0)
+    send_error(c, 0, HFP_E_INTERNAL, 0, "cannot encode STATS_REPLY: %s", hfp_strerror(n));
+  else
+    send_ctl(c, frame, (size_t)n, 0);
+  free(frame);
+}
+
+/* Skips what is left of the current frame after a non-fatal rejection. */
+static void discard_rest(hfd_conn *c, uint64_t left) {
+  if (left == 0) {
+    read_next(c);
+    return;
+  }
+  c->rstate = RD_DISCARD;
+  c->discard_left = left;
+}
+
+static void reject(hfd_conn *c, int variant, int code, uint64_t left, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
+static void reject(hfd_conn *c, int variant, int code, uint64_t left, const char *fmt, ...) {
+  char msg[HFP_MESSAGE_MAX + 1];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof msg, fmt, ap);
+  va_end(ap);
+  if (variant >= 0)
+    c->srv->variants[variant].stats.rejected++;
+  else
+    c->srv->protocol_errors++;
+  send_error(c, c->hdr.request_id, code, 0, "%s", msg);
+  discard_rest(c, left);
+}
+
+/* The FILTER head is in ctl[]: check it against the server and, when it
+ * passes, allocate the job that the tensor will be read into. */
+static void filter_head(hfd_conn *c, size_t have) {
+  hfd_server *s = c->srv;
+  const hfd_config *cfg = s->cfg;
+  uint32_t len = c->hdr.length;
+  hfp_filter f;
+  size_t head_len = 0;
+  int rc = hfp_decode_filter_head(c->ctl, have, len, &f, &head_len);
+  if (rc == -HFP_E_NOSPACE) {
+    /* The fixed fields are in; the variant name is still to come. */
+    size_t need = HFP_FILTER_FIXED + hfp_get_u16(c->ctl);
+    c->want = need;
+    return;
+  }
+  uint64_t left = len - have;
+  if (rc) {
+    reject(c, -1, -rc, left, "malformed FILTER: %s", hfp_strerror(rc));
+    return;
+  }
+  int v = find_variant(s, f.variant);
+  if (c->hdr.request_id == 0) {
+    reject(c, v, HFP_E_INVALID, left, "request id 0 is reserved");
+  } else if (v < 0) {
+    reject(c, -1, HFP_E_UNKNOWN_VARIANT, left, "unknown variant '%s'", f.variant);
+  } else if (f.flags & HFP_FILTER_SHM) {
+    reject(c, v, HFP_E_UNSUPPORTED, left, "shared-memory payloads are reserved for a later version");
+  } else if (f.spp != s->variants[v].cfg.spp) {
+    reject(c, v, HFP_E_INVALID, left, "variant %s takes %d spp, request has %u", f.variant,
+           s->variants[v].cfg.spp, f.spp);
+  } else if (f.width > (uint32_t)cfg->max_width || f.height > (uint32_t)cfg->max_height) {
+    reject(c, v, HFP_E_TOO_LARGE, left, "%ux%u is over the limit of %dx%d", f.width, f.height,
+           cfg->max_width, cfg->max_height);
+  } else if (s->draining) {
+    reject(c, v, HFP_E_SHUTTING_DOWN, left, "server is shutting down");
+  } else {
+    uint64_t out_len = 0, rgba_len = 0;
+    hfp_output_bytes(f.width, f.height, HFP_OUTPUTS, f.out_dtype, &out_len);
+    if (f.flags & HFP_FILTER_COMPOSITE) hfp_output_bytes(f.width, f.height, 4, f.out_dtype, &rgba_len);
+    uint64_t bytes = f.data_len + out_len + rgba_len;
+    if (s->mem_held + bytes > cfg->max_memory_bytes) {
+      reject(c, v, HFP_E_BUSY, left, "request buffers full (%llu MiB held)",
+             (unsigned long long)(s->mem_held >> 20));
+      return;
+    }
+    hfd_job *j = calloc(1, sizeof *j);
+    void *in = NULL;
+    if (!j || posix_memalign(&in, 64, (size_t)f.data_len ? (size_t)f.data_len : 64)) {
+      free(j);
+      reject(c, v, HFP_E_BUSY, left, "out of memory for a %llu-byte frame",
+             (unsigned long long)f.data_len);
+      return;
+    }
+    j->conn = c;
+    j->request_id = c->hdr.request_id;
+    j->variant = v;
+    j->req = f;
+    j->req.data = in;
+    j->input = in;
+    j->out_len = out_len;
+    j->rgba_len = rgba_len;
+    j->bytes_held = bytes;
+    s->mem_held += bytes;
+    c->job = j;
+    c->rstate = RD_FILTER_DATA;
+    c->want = (size_t)f.data_len;
+    c->got = 0;
+  }
+}
+
+/* The FILTER's tensor is in: admit it to the queue or say why not. */
+static void filter_admit(hfd_conn *c) {
+  hfd_server *s = c->srv;
+  hfd_job *j = c->job;
+  c->job = NULL;
+  j->t_received = hfd_now_us();
+  int code = 0;
+  const char *why = NULL;
+  if (s->draining) {
+    code = HFP_E_SHUTTING_DOWN;
+    why = "server is shutting down";
+  } else if (c->inflight >= s->cfg->max_inflight) {
+    code = HFP_E_BUSY;
+    why = "too many requests in flight on this connection";
+  } else {
+    j->out = malloc((size_t)j->out_len);
+    j->rgba = j->rgba_len ? malloc((size_t)j->rgba_len) : NULL;
+    if (!j->out || (j->rgba_len && !j->rgba)) {
+      code = HFP_E_BUSY;
+      why = "out of memory for the result";
+    } else if (hfd_worker_submit(&s->worker, j)) {
+      code = HFP_E_BUSY;
+      why = "queue full";
+    }
+  }
+  if (code) {
+    s->variants[j->variant].stats.rejected++;
+    send_error(c, j->request_id, code, 0, "%s", why);
+    job_free(s, j);
+  } else {
+    c->inflight++;
+    s->jobs_outstanding++;
+  }
+  read_next(c);
+}
+
+/* A whole header is in hbuf. */
+static void on_header(hfd_conn *c) {
+  hfd_server *s = c->srv;
+  uint32_t max = s->cfg->max_frame_bytes > UINT32_MAX ? UINT32_MAX
+                                                       : (uint32_t)s->cfg->max_frame_bytes;
+  int rc = hfp_header_decode(c->hbuf, max, &c->hdr);
+  if (rc == -HFP_E_TOO_LARGE) {
+    s->protocol_errors++;
+    send_error(c, c->hdr.request_id, HFP_E_TOO_LARGE, 1,
+               "frame of %u bytes is over the limit of %llu", c->hdr.length,
+               (unsigned long long)s->cfg->max_frame_bytes);
+    return;
+  }
+  if (rc) {
+    s->protocol_errors++;
+    send_error(c, 0, HFP_E_PROTOCOL, 1, "bad frame header (magic, type or flags)");
+    return;
+  }
+  const hfp_header *h = &c->hdr;
+  if (!c->hello_done && h->type != HFP_HELLO) {
+    s->protocol_errors++;
+    send_error(c, h->request_id, HFP_E_PROTOCOL, 1, "HELLO must come first");
+    return;
+  }
+  switch (h->type) {
+    case HFP_HELLO:
+      if (c->hello_done || h->length > 8 + HFP_NAME_MAX + HFP_TOKEN_MAX) {
+        s->protocol_errors++;
+        send_error(c, 0, HFP_E_PROTOCOL, 1, c->hello_done ? "second HELLO" : "HELLO too long");
+        return;
+      }
+      break;
+    case HFP_LIST_VARIANTS:
+    case HFP_STATS:
+      if (h->length != 0) {
+        s->protocol_errors++;
+        send_error(c, h->request_id, HFP_E_LENGTH, 1, "this request has no payload");
+        return;
+      }
+      break;
+    case HFP_FILTER:
+      if (h->length < HFP_FILTER_FIXED) {
+        reject(c, -1, HFP_E_LENGTH, h->length, "FILTER shorter than its fixed fields");
+        return;
+      }
+      c->rstate = RD_FILTER_HEAD;
+      c->want = HFP_FILTER_FIXED;
+      c->got = 0;
+      return;
+    default:
+      s->protocol_errors++;
+      send_error(c, h->request_id, HFP_E_PROTOCOL, 1, "message type %u is not a request", h->type);
+      return;
+  }
+  c->rstate = RD_CONTROL;
+  c->want = h->length;
+  c->got = 0;
+  if (c->want == 0) {
+    /* Complete already. */
+    if (h->type == HFP_LIST_VARIANTS)
+      reply_variants(c);
+    else
+      reply_stats(c);
+    if (!c->fatal_sent) read_next(c);
+  }
+}
+
+static void on_control(hfd_conn *c) {
+  if (c->hdr.type == HFP_HELLO) reply_hello(c, c->ctl, c->want);
+  if (!c->fatal_sent) read_next(c);
+}
+
+static void read_next(hfd_conn *c) {
+  c->rstate = RD_HEADER;
+  c->want = HFP_HEADER_SIZE;
+  c->got = 0;
+}
+
+/* ---- libuv callbacks -------------------------------------------------- */
+
+static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
+  hfd_conn *c = h->data;
+  (void)suggested;
+  size_t left;
+  switch (c->rstate) {
+    case RD_HEADER:
+      *buf = uv_buf_init((char *)c->hbuf + c->got, (unsigned)(c->want - c->got));
+      return;
+    case RD_CONTROL:
+    case RD_FILTER_HEAD:
+      *buf = uv_buf_init((char *)c->ctl + c->got, (unsigned)(c->want - c->got));
+      return;
+    case RD_FILTER_DATA:
+      left = c->want - c->got;
+      if (left > (1u << 30)) left = 1u << 30;
+      *buf = uv_buf_init((char *)c->job->input + c->got, (unsigned)left);
+      return;
+    case RD_DISCARD:
+      left = c->discard_left < sizeof c->sink ? (size_t)c->discard_left : sizeof c->sink;
+      *buf = uv_buf_init((char *)c->sink, (unsigned)left);
+      return;
+  }
+}
+
+static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
+  hfd_conn *c = stream->data;
+  (void)buf;
+  if (nread == 0) return;
+  if (nread < 0) {
+    if (nread != UV_EOF)
+      hfd_debug("conn %llu: read: %s", (unsigned long long)c->id, uv_strerror((int)nread));
+    if (c->rstate != RD_HEADER || c->got)
+      hfd_log("conn %llu (%s): peer left in the middle of a frame", (unsigned long long)c->id,
+              c->peer);
+    conn_close(c);
+    return;
+  }
+  if (c->fatal_sent || c->closing) return;
+  size_t n = (size_t)nread;
+  if (c->rstate == RD_DISCARD) {
+    c->discard_left -= n;
+    if (c->discard_left == 0) read_next(c);
+    return;
+  }
+  c->got += n;
+  if (c->got < c->want) return;
+  switch (c->rstate) {
+    case RD_HEADER: on_header(c); break;
+    case RD_CONTROL: on_control(c); break;
+    case RD_FILTER_HEAD: filter_head(c, c->got); break;
+    case RD_FILTER_DATA: filter_admit(c); break;
+    case RD_DISCARD: break;
+  }
+}
+
+static void on_closed(uv_handle_t *h) {
+  hfd_conn *c = h->data;
+  hfd_server *s = c->srv;
+  if (c->prev)
+    c->prev->next = c->next;
+  else
+    s->conns = c->next;
+  if (c->next) c->next->prev = c->prev;
+  s->num_conns--;
+  c->handle_closed = 1;
+  hfd_debug("conn %llu (%s): closed", (unsigned long long)c->id, c->peer);
+  conn_release(c);
+}
+
+static void conn_close(hfd_conn *c) {
+  if (c->closing) return;
+  c->closing = 1;
+  if (c->job) {
+    /* A FILTER was half received: drop it, nothing else is affected. */
+    job_free(c->srv, c->job);
+    c->job = NULL;
+  }
+  uv_close(&c->h.handle, on_closed);
+}
+
+static void on_shutdown(uv_shutdown_t *req, int status) {
+  hfd_conn *c = req->data;
+  (void)status;
+  free(req);
+  c->writes_pending--;
+  conn_close(c);
+  conn_release(c);
+}
+
+/* Drain: flush what is written, then close. */
+void hfd_conn_shutdown(hfd_conn *c) {
+  if (c->closing) return;
+  uv_read_stop(&c->h.stream);
+  uv_shutdown_t *req = malloc(sizeof *req);
+  if (!req) {
+    conn_close(c);
+    return;
+  }
+  req->data = c;
+  if (uv_shutdown(req, &c->h.stream, on_shutdown) < 0) {
+    free(req);
+    conn_close(c);
+    return;
+  }
+  c->writes_pending++;
+}
+
+void hfd_on_connection(uv_stream_t *server, int status) {
+  hfd_listener *l = server->data;
+  hfd_server *s = l->srv;
+  if (status < 0) {
+    hfd_log("error: accept on %s: %s", l->url, uv_strerror(status));
+    return;
+  }
+  hfd_conn *c = calloc(1, sizeof *c);
+  if (!c) {
+    hfd_log("error: out of memory for a connection on %s", l->url);
+    return;
+  }
+  c->srv = s;
+  c->listener = l;
+  int rc = l->is_tcp ? uv_tcp_init(s->loop, &c->h.tcp) : uv_pipe_init(s->loop, &c->h.pipe, 0);
+  if (rc < 0) {
+    hfd_log("error: %s: handle init: %s", l->url, uv_strerror(rc));
+    free(c);
+    return;
+  }
+  c->h.handle.data = c;
+  c->id = ++s->next_conn_id;
+  c->next = s->conns;
+  if (s->conns) s->conns->prev = c;
+  s->conns = c;
+  s->num_conns++;
+  s->conns_total++;
+  rc = uv_accept(server, &c->h.stream);
+  if (rc < 0) {
+    hfd_log("error: accept on %s: %s", l->url, uv_strerror(rc));
+    conn_close(c);
+    return;
+  }
+  if (l->is_tcp) {
+    struct sockaddr_storage ss;
+    int len = sizeof ss;
+    char ip[64] = "?";
+    if (uv_tcp_getpeername(&c->h.tcp, (struct sockaddr *)&ss, &len) == 0) {
+      if (ss.ss_family == AF_INET6) {
+        uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip);
+        snprintf(c->peer, sizeof c->peer, "[%s]:%d", ip, ntohs(((struct sockaddr_in6 *)&ss)->sin6_port));
+      } else {
+        uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip);
+        snprintf(c->peer, sizeof c->peer, "%s:%d", ip, ntohs(((struct sockaddr_in *)&ss)->sin_port));
+      }
+    }
+    uv_tcp_nodelay(&c->h.tcp, 1);
+  } else {
+    snprintf(c->peer, sizeof c->peer, "unix");
+  }
+  hfd_debug("conn %llu (%s): accepted on %s", (unsigned long long)c->id, c->peer, l->url);
+  read_next(c);
+  if (s->num_conns > s->cfg->max_connections) {
+    s->protocol_errors++;
+    send_error(c, 0, HFP_E_BUSY, 1, "connection limit (%d) reached", s->cfg->max_connections);
+    return;
+  }
+  rc = uv_read_start(&c->h.stream, on_alloc, on_read);
+  if (rc < 0) {
+    hfd_log("error: conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
+    conn_close(c);
+  }
+}

@@ -1,0 +1,466 @@
+/*
+ * hairfilterd: serves hair filtering over protocol v1 (protocol/PROTOCOL.md)
+ * on Unix sockets and TCP. This file holds startup (options, variants,
+ * listeners), shutdown (drain on SIGINT/SIGTERM) and the STATS snapshot;
+ * conn.c reads and answers requests and worker.c runs the network.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "server.h"
+
+int hfd_verbose;
+
+void hfd_log(const char *fmt, ...) {
+  char msg[1024];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof msg, fmt, ap);
+  va_end(ap);
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  struct tm tm;
+  gmtime_r(&ts.tv_sec, &tm);
+  char when[32];
+  strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%S", &tm);
+  /* One fprintf per line so lines from the two threads never interleave. */
+  fprintf(stderr, "%s.%03ldZ hairfilterd[%ld]: %s\n", when, ts.tv_nsec / 1000000L,
+          (long)getpid(), msg);
+}
+
+/* ---- variants ------------------------------------------------------------ */
+
+static int name_ok(const char *s) {
+  size_t n = strlen(s);
+  if (n < 1 || n > HFP_NAME_MAX) return 0;
+  for (size_t i = 0; i < n; i++)
+    if (s[i] <= 0x20 || s[i] > 0x7e) return 0;
+  return 1;
+}
+
+static int add_variant(hfd_server *s, const char *path) {
+  if (s->num_variants == HFD_MAX_VARIANTS) {
+    hfd_log("error: more than %d variants", HFD_MAX_VARIANTS);
+    return -1;
+  }
+  char err[256] = "";
+  hf_weights *w = NULL;
+  int rc = hf_weights_load(path, &w, err, sizeof err);
+  if (rc) {
+    hfd_log("error: %s: %s", path, err[0] ? err : hf_strerror(rc));
+    return -1;
+  }
+  if (!name_ok(w->cfg.name)) {
+    hfd_log("error: %s: variant name '%s' is not 1..%d printable characters without spaces",
+            path, w->cfg.name, HFP_NAME_MAX);
+    hf_weights_free(w);
+    return -1;
+  }
+  for (int i = 0; i < s->num_variants; i++)
+    if (!strcmp(s->variants[i].name, w->cfg.name)) {
+      hfd_log("error: %s: a variant named '%s' is already loaded", path, w->cfg.name);
+      hf_weights_free(w);
+      return -1;
+    }
+  hfd_variant *v = &s->variants[s->num_variants++];
+  memset(v, 0, sizeof *v);
+  snprintf(v->name, sizeof v->name, "%s", w->cfg.name);
+  snprintf(v->stats.name, sizeof v->stats.name, "%s", w->cfg.name);
+  v->cfg = w->cfg;
+  v->weights = w;
+  return 0;
+}
+
+static int has_suffix(const char *s, const char *suf) {
+  size_t n = strlen(s), m = strlen(suf);
+  return n > m && !strcmp(s + n - m, suf);
+}
+
+static int cmp_names(const void *a, const void *b) {
+  return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+static int load_dir(hfd_server *s, const char *dir) {
+  DIR *d = opendir(dir);
+  if (!d) {
+    hfd_log("error: --weights-dir %s: %s", dir, strerror(errno));
+    return -1;
+  }
+  char *names[HFD_MAX_VARIANTS];
+  int n = 0, rc = 0;
+  struct dirent *e;
+  while ((e = readdir(d)) != NULL) {
+    if (e->d_name[0] == '.' || !has_suffix(e->d_name, ".safetensors")) continue;
+    if (n == HFD_MAX_VARIANTS) {
+      hfd_log("error: %s holds more than %d weight files", dir, HFD_MAX_VARIANTS);
+      rc = -1;
+      break;
+    }
+    if (!(names[n] = strdup(e->d_name))) {
+      rc = -1;
+      break;
+    }
+    n++;
+  }
+  closedir(d);
+  /* Sorted, so that the variant order (and VARIANTS replies) is stable. */
+  qsort(names, (size_t)n, sizeof *names, cmp_names);
+  for (int i = 0; i < n; i++) {
+    char path[4096];
+    if (!rc) {
+      if ((size_t)snprintf(path, sizeof path, "%s/%s", dir, names[i]) >= sizeof path) {
+        hfd_log("error: path too long in %s", dir);
+        rc = -1;
+      } else if (add_variant(s, path)) {
+        rc = -1;
+      }
+    }
+    free(names[i]);
+  }
+  if (!rc && n == 0) {
+    hfd_log("error: no *.safetensors in %s", dir);
+    rc = -1;
+  }
+  return rc;
+}
+
+/* ---- listeners ----------------------------------------------------------- */
+
+static int is_loopback(const struct sockaddr *sa) {
+  if (sa->sa_family == AF_INET)
+    return (ntohl(((const struct sockaddr_in *)sa)->sin_addr.s_addr) >> 24) == 127;
+  if (sa->sa_family == AF_INET6) {
+    static const unsigned char lo[16] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1};
+    return !memcmp(&((const struct sockaddr_in6 *)sa)->sin6_addr, lo, 16);
+  }
+  return 0;
+}
+
+/* A socket file left by a server that died is removed; one that a live
+ * server answers on is not. */
+static int clear_stale_socket(const char *path) {
+  struct stat st;
+  if (lstat(path, &st) != 0) return errno == ENOENT ? 0 : -1;
+  if (!S_ISSOCK(st.st_mode)) {
+    hfd_log("error: %s exists and is not a socket", path);
+    return -1;
+  }
+  int fd = socket(AF_UNIX, SOCK_STREAM, 0);
+  if (fd < 0) return -1;
+  struct sockaddr_un sun;
+  memset(&sun, 0, sizeof sun);
+  sun.sun_family = AF_UNIX;
+  snprintf(sun.sun_path, sizeof sun.sun_path, "%s", path);
+  int live = connect(fd, (struct sockaddr *)&sun, sizeof sun) == 0;
+  close(fd);
+  if (live) {
+    hfd_log("error: %s: another server is listening there", path);
+    return -1;
+  }
+  if (unlink(path) != 0) {
+    hfd_log("error: cannot remove stale socket %s: %s", path, strerror(errno));
+    return -1;
+  }
+  return 0;
+}
+
+static int open_listener(hfd_server *s, const char *url) {
+  hfd_listener *l = &s->listeners[s->num_listeners];
+  memset(l, 0, sizeof *l);
+  l->srv = s;
+  int rc;
+  if (!strncmp(url, "unix:", 5)) {
+    const char *path = url + 5;
+    if (!*path || strlen(path) >= sizeof l->unix_path ||
+        strlen(path) >= sizeof(((struct sockaddr_un *)0)->sun_path)) {
+      hfd_log("error: --listen %s: socket path empty or too long", url);
+      return -1;
+    }
+    if (clear_stale_socket(path)) return -1;
+    if ((rc = uv_pipe_init(s->loop, &l->h.pipe, 0)) < 0 ||
+        (rc = uv_pipe_bind(&l->h.pipe, path)) < 0) {
+      hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+      if (rc != UV_EINVAL) uv_close(&l->h.handle, NULL);
+      return -1;
+    }
+    snprintf(l->unix_path, sizeof l->unix_path, "%s", path);
+    snprintf(l->url, sizeof l->url, "unix:%s", path);
+  } else if (!strncmp(url, "tcp:", 4)) {
+    const char *rest = url + 4;
+    char host[128] = "127.0.0.1";
+    const char *port_s = rest;
+    const char *colon = strrchr(rest, ':');
+    if (colon) {
+      size_t hl = (size_t)(colon - rest);
+      if (hl == 0 || hl >= sizeof host) {
+        hfd_log("error: --listen %s: bad host", url);
+        return -1;
+      }
+      if (rest[0] == '[' && rest[hl - 1] == ']') {
+        memcpy(host, rest + 1, hl - 2);
+        host[hl - 2] = 0;
+      } else {
+        memcpy(host, rest, hl);
+        host[hl] = 0;
+      }
+      port_s = colon + 1;
+    }
+    if (!strcmp(host, "localhost")) strcpy(host, "127.0.0.1");
+    char *end;
+    long port = strtol(port_s, &end, 10);
+    if (!*port_s || *end || port < 0 || port > 65535) {
+      hfd_log("error: --listen %s: bad port", url);
+      return -1;
+    }
+    struct sockaddr_storage ss;
+    memset(&ss, 0, sizeof ss);
+    if (uv_ip4_addr(host, (int)port, (struct sockaddr_in *)&ss) != 0 &&
+        uv_ip6_addr(host, (int)port, (struct sockaddr_in6 *)&ss) != 0) {
+      hfd_log("error: --listen %s: host must be a numeric address or localhost", url);
+      return -1;
+    }
+    l->is_tcp = 1;
+    int loop_only = is_loopback((struct sockaddr *)&ss);
+    if (s->cfg->no_auth && !loop_only) {
+      hfd_log("error: --listen %s: --no-auth is only allowed on loopback addresses", url);
+      return -1;
+    }
+    l->auth_required = !s->cfg->no_auth;
+    if (l->auth_required && !s->cfg->token[0]) {
+      hfd_log("error: --listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), "
+              "or --no-auth on loopback", url);
+      return -1;
+    }
+    if ((rc = uv_tcp_init(s->loop, &l->h.tcp)) < 0) {
+      hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+      return -1;
+    }
+    if ((rc = uv_tcp_bind(&l->h.tcp, (struct sockaddr *)&ss, 0)) < 0) {
+      hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+      uv_close(&l->h.handle, NULL);
+      return -1;
+    }
+  } else {
+    hfd_log("error: --listen %s: want unix:PATH or tcp:HOST:PORT", url);
+    return -1;
+  }
+  l->h.handle.data = l;
+  if ((rc = uv_listen(&l->h.stream, 511, hfd_on_connection)) < 0) {
+    hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+    uv_close(&l->h.handle, NULL);
+    if (l->unix_path[0]) unlink(l->unix_path);
+    return -1;
+  }
+  if (l->is_tcp) {
+    /* Resolve the real port (port 0 asks the kernel for a free one). */
+    struct sockaddr_storage ss;
+    int len = sizeof ss;
+    char ip[64];
+    if ((rc = uv_tcp_getsockname(&l->h.tcp, (struct sockaddr *)&ss, &len)) < 0) {
+      hfd_log("error: --listen %s: getsockname: %s", url, uv_strerror(rc));
+      uv_close(&l->h.handle, NULL);
+      return -1;
+    }
+    if (ss.ss_family == AF_INET6) {
+      uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip);
+      snprintf(l->url, sizeof l->url, "tcp:[%s]:%d", ip, ntohs(((struct sockaddr_in6 *)&ss)->sin6_port));
+    } else {
+      uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip);
+      snprintf(l->url, sizeof l->url, "tcp:%s:%d", ip, ntohs(((struct sockaddr_in *)&ss)->sin_port));
+    }
+  }
+  s->num_listeners++;
+  hfd_log("listening on %s%s", l->url, l->is_tcp ? (l->auth_required ? " (token required)"
+                                                                       : " (no auth, loopback)")
+                                                 : "");
+  return 0;
+}
+
+static int write_ready_file(hfd_server *s) {
+  const char *path = s->cfg->ready_file;
+  char tmp[4200];
+  if ((size_t)snprintf(tmp, sizeof tmp, "%s.tmp", path) >= sizeof tmp) return -1;
+  FILE *f = fopen(tmp, "w");
+  if (!f) {
+    hfd_log("error: --ready-file %s: %s", tmp, strerror(errno));
+    return -1;
+  }
+  for (int i = 0; i < s->num_listeners; i++) fprintf(f, "%s\n", s->listeners[i].url);
+  /* Written whole, then renamed: a reader never sees half a file. */
+  if (fclose(f) != 0 || rename(tmp, path) != 0) {
+    hfd_log("error: --ready-file %s: %s", path, strerror(errno));
+    return -1;
+  }
+  return 0;
+}
+
+/* ---- stats ----------------------------------------------------------------- */
+
+void hfd_fill_stats(hfd_server *s, hfp_stats *st) {
+  memset(st, 0, sizeof *st);
+  st->uptime_us = (uint64_t)(hfd_now_us() - s->t_start);
+  st->connections_total = s->conns_total;
+  st->connections_open = (uint32_t)s->num_conns;
+  st->queue_depth = (uint32_t)hfd_worker_queue_depth(&s->worker);
+  st->queue_capacity = (uint32_t)s->cfg->queue_size;
+  st->protocol_errors = s->protocol_errors;
+  st->num_variants = (uint16_t)s->num_variants;
+  for (int i = 0; i < s->num_variants; i++) st->variants[i] = s->variants[i].stats;
+}
+
+/* ---- shutdown ------------------------------------------------------------ */
+
+static void close_handle(uv_handle_t *h) {
+  if (!uv_is_closing(h)) uv_close(h, NULL);
+}
+
+/* Called whenever something finished: once draining and nothing admitted
+ * is left unanswered, flush and close every connection, stop the worker and
+ * close the remaining handles, which lets uv_run return. */
+void hfd_maybe_finish(hfd_server *s) {
+  if (!s->draining || s->stopped || s->jobs_outstanding) return;
+  s->stopped = 1;
+  /* Nothing is queued or running (every admitted job was answered), so the
+   * worker exits at once. */
+  hfd_worker_stop(&s->worker);
+  for (hfd_conn *c = s->conns, *next; c; c = next) {
+    next = c->next;
+    hfd_conn_shutdown(c);
+  }
+  close_handle((uv_handle_t *)&s->async);
+  close_handle((uv_handle_t *)&s->sigint);
+  close_handle((uv_handle_t *)&s->sigterm);
+  close_handle((uv_handle_t *)&s->drain_timer);
+}
+
+static void on_drain_timeout(uv_timer_t *t) {
+  hfd_server *s = t->data;
+  int depth = hfd_worker_queue_depth(&s->worker);
+  hfd_log("drain timeout: failing %d queued request(s) with SHUTTING_DOWN", depth);
+  hfd_worker_cancel(&s->worker);
+}
+
+static void on_signal(uv_signal_t *h, int signum) {
+  hfd_server *s = h->data;
+  if (s->draining) {
+    hfd_log("second %s: failing queued requests now", signum == SIGINT ? "SIGINT" : "SIGTERM");
+    hfd_worker_cancel(&s->worker);
+    return;
+  }
+  s->draining = 1;
+  hfd_log("%s: draining %d request(s), no new work accepted",
+          signum == SIGINT ? "SIGINT" : "SIGTERM", s->jobs_outstanding);
+  for (int i = 0; i < s->num_listeners; i++) {
+    close_handle(&s->listeners[i].h.handle);
+    if (s->listeners[i].unix_path[0]) unlink(s->listeners[i].unix_path);
+  }
+  if (s->cfg->drain_timeout_ms == 0) {
+    hfd_worker_cancel(&s->worker);
+  } else {
+    int rc = uv_timer_start(&s->drain_timer, on_drain_timeout, (uint64_t)s->cfg->drain_timeout_ms, 0);
+    if (rc < 0) {
+      hfd_log("error: drain timer: %s; failing queued requests now", uv_strerror(rc));
+      hfd_worker_cancel(&s->worker);
+    }
+  }
+  hfd_maybe_finish(s);
+}
+
+/* ---- main ------------------------------------------------------------------ */
+
+int main(int argc, char **argv) {
+  static hfd_config cfg;
+  static hfd_server srv;
+  int prc = hfd_config_parse(argc, argv, &cfg);
+  if (prc) return prc > 0 ? 0 : 2;
+  /* A peer that vanishes must not kill us with SIGPIPE; libuv reports EPIPE. */
+  signal(SIGPIPE, SIG_IGN);
+
+  hfd_server *s = &srv;
+  s->cfg = &cfg;
+  s->loop = uv_default_loop();
+  s->t_start = hfd_now_us();
+  hfd_log("starting %s (protocol v%d)", cfg.name, HFP_VERSION);
+
+  for (int i = 0; i < cfg.num_weights; i++)
+    if (add_variant(s, cfg.weights[i])) return 1;
+  if (cfg.weights_dir && load_dir(s, cfg.weights_dir)) return 1;
+
+  hfd_worker *w = &s->worker;
+  w->backend_name = cfg.backend;
+  w->variants = s->variants;
+  w->num_variants = s->num_variants;
+  w->max_batch = cfg.max_batch;
+  w->max_delay_us = cfg.max_queue_delay_us;
+  w->q_cap = cfg.queue_size;
+  w->async = &s->async;
+  int rc = uv_async_init(s->loop, &s->async, hfd_on_async);
+  if (rc < 0) {
+    hfd_log("error: uv_async_init: %s", uv_strerror(rc));
+    return 1;
+  }
+  s->async.data = s;
+  if (hfd_worker_start(w)) {
+    hfd_log("error: cannot start inference: %s", w->init_msg);
+    return 1;
+  }
+  hfd_log("%s", w->init_msg);
+  for (int i = 0; i < s->num_variants; i++) {
+    const hfd_variant *v = &s->variants[i];
+    char levels[128] = "";
+    for (int l = 0; l < v->cfg.num_levels; l++) {
+      size_t used = strlen(levels);
+      snprintf(levels + used, sizeof levels - used, "%s%d", l ? "," : "", v->cfg.levels[l]);
+    }
+    hfd_log("variant %s: %d spp, levels %s, %s on %s", v->name, v->cfg.spp, levels, v->precision,
+            hf_backend_name(w->backend));
+  }
+
+  if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
+      (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
+      (rc = uv_timer_init(s->loop, &s->drain_timer)) < 0) {
+    hfd_log("error: libuv init: %s", uv_strerror(rc));
+    return 1;
+  }
+  s->sigint.data = s->sigterm.data = s->drain_timer.data = s;
+  if ((rc = uv_signal_start(&s->sigint, on_signal, SIGINT)) < 0 ||
+      (rc = uv_signal_start(&s->sigterm, on_signal, SIGTERM)) < 0) {
+    hfd_log("error: signal handlers: %s", uv_strerror(rc));
+    return 1;
+  }
+  for (int i = 0; i < cfg.num_listen; i++)
+    if (open_listener(s, cfg.listen[i])) {
+      for (int k = 0; k < s->num_listeners; k++)
+        if (s->listeners[k].unix_path[0]) unlink(s->listeners[k].unix_path);
+      return 1;
+    }
+  hfd_log("serving: %d variant(s), max batch %d, queue %d, max in-flight %d per connection, "
+          "max %dx%d", s->num_variants, cfg.max_batch, cfg.queue_size, cfg.max_inflight,
+          cfg.max_width, cfg.max_height);
+  if (cfg.ready_file && write_ready_file(s)) return 1;
+
+  rc = uv_run(s->loop, UV_RUN_DEFAULT);
+  if (rc != 0) hfd_log("error: event loop ended with %d active handle(s)", rc);
+  rc = uv_loop_close(s->loop);
+  if (rc < 0) hfd_log("error: uv_loop_close: %s", uv_strerror(rc));
+  if (cfg.ready_file) unlink(cfg.ready_file);
+  uint64_t ok = 0, failed = 0;
+  for (int i = 0; i < s->num_variants; i++) {
+    ok += s->variants[i].stats.requests_ok;
+    failed += s->variants[i].stats.requests_failed;
+  }
+  hfd_log("stopped: %llu request(s) served, %llu failed, %llu connection(s) in all",
+          (unsigned long long)ok, (unsigned long long)failed, (unsigned long long)s->conns_total);
+  return 0;
+}

@@ -1,0 +1,224 @@
+/*
+ * hairfilterd internals: one libuv loop thread does all network I/O; one
+ * inference worker thread owns the backend. They meet at a bounded queue
+ * (loop -> worker) and a completion list (worker -> loop, with uv_async).
+ *
+ * Ownership, which is what keeps this simple: a job belongs to the loop
+ * thread until it is queued, to the worker until it is on the completion
+ * list, and to the loop thread again after. Connections, statistics and
+ * every libuv handle are touched by the loop thread only.
+ */
+#ifndef HFD_SERVER_H
+#define HFD_SERVER_H
+
+#include <pthread.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <uv.h>
+
+#include "hfcore.h"
+#include "hfproto.h"
+
+#define HFD_MAX_LISTENERS 8
+#define HFD_MAX_VARIANTS  HFP_MAX_VARIANTS
+
+/* ---- logging ----------------------------------------------------------- */
+
+void hfd_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+extern int hfd_verbose;
+#define hfd_debug(...) \
+  do {                 \
+    if (hfd_verbose) hfd_log(__VA_ARGS__); \
+  } while (0)
+
+/* ---- configuration ----------------------------------------------------- */
+
+typedef struct hfd_config {
+  const char *listen[HFD_MAX_LISTENERS];
+  int num_listen;
+  const char *weights[HFD_MAX_VARIANTS];
+  int num_weights;
+  const char *weights_dir;
+  const char *backend;           /* auto | cpu | cpu-ref | cudnn */
+  int max_batch;                 /* frames per backend run */
+  int max_queue_delay_us;        /* how long a batch may wait for partners */
+  int queue_size;                /* admitted, not yet running */
+  int max_inflight;              /* per connection */
+  int max_width, max_height;
+  int max_connections;
+  uint64_t max_frame_bytes;      /* largest payload read */
+  uint64_t max_memory_bytes;     /* request buffers held at once */
+  int drain_timeout_ms;
+  int no_auth;
+  char token[HFP_TOKEN_MAX + 1];
+  const char *ready_file;
+  const char *name;
+} hfd_config;
+
+int hfd_config_parse(int argc, char **argv, hfd_config *cfg);
+
+/* ---- variants ---------------------------------------------------------- */
+
+typedef struct hfd_variant {
+  char name[HFP_NAME_MAX + 1];
+  hf_weights *weights;           /* freed once the worker built the model */
+  hf_model *model;               /* worker thread only */
+  hf_net_config cfg;
+  char precision[16];
+  hfp_variant_stats stats;       /* loop thread only */
+} hfd_variant;
+
+/* ---- jobs and the worker --------------------------------------------- */
+
+struct hfd_conn;
+
+typedef struct hfd_job {
+  struct hfd_job *next;
+  struct hfd_conn *conn;
+  uint32_t request_id;
+  int variant;
+  hfp_filter req;                /* decoded head; req.data == input */
+  void *input;                   /* features, 64-byte aligned */
+  void *out;                     /* [h][w][3] of req.out_dtype */
+  void *rgba;                    /* [h][w][4] of req.out_dtype, or NULL */
+  uint64_t out_len, rgba_len, bytes_held;
+  double t_received, t_started, t_done;
+  hfp_timing timing;
+  uint32_t batch;
+  int batch_leader;              /* counts the backend run in the stats */
+  int status;                    /* HFP_OK or an HFP_E_* code */
+  uint8_t head[HFP_RESULT_HEAD_MAX];
+  uv_write_t wreq;
+} hfd_job;
+
+typedef struct hfd_worker {
+  pthread_t thread;
+  pthread_mutex_t mu;
+  pthread_cond_t cv;
+  hfd_job *q_head, *q_tail;
+  int q_len, q_cap;
+  hfd_job *done_head, *done_tail;
+  int stop;                      /* finish what is queued, then exit */
+  int cancel;                    /* fail what is queued, then exit */
+  int busy;                      /* a batch is running */
+  /* startup handshake */
+  int ready, init_rc;
+  char init_msg[512];
+  /* set before start */
+  const char *backend_name;
+  hfd_variant *variants;
+  int num_variants;
+  int max_batch;
+  double max_delay_us;
+  uv_async_t *async;
+  /* worker-private */
+  hf_backend *backend;
+  void *scratch_in, *scratch_out;
+  size_t scratch_in_cap, scratch_out_cap;
+  float *scratch_rgb;
+  size_t scratch_rgb_cap;
+} hfd_worker;
+
+/* Starts the thread; it creates the backend and the models and reports
+ * through init_rc / init_msg before hfd_worker_start returns. */
+int hfd_worker_start(hfd_worker *w);
+/* 0 when queued, HFP_E_BUSY when the queue is full. */
+int hfd_worker_submit(hfd_worker *w, hfd_job *job);
+/* Takes every completed job (in completion order). */
+hfd_job *hfd_worker_take_done(hfd_worker *w);
+int hfd_worker_queue_depth(hfd_worker *w);
+/* Fails every queued job with HFP_E_SHUTTING_DOWN. */
+void hfd_worker_cancel(hfd_worker *w);
+/* Asks the thread to exit once the queue is empty, and joins it. */
+void hfd_worker_stop(hfd_worker *w);
+
+double hfd_now_us(void);
+
+/* ---- listeners and connections ----------------------------------------- */
+
+typedef struct hfd_server hfd_server;
+
+typedef struct hfd_listener {
+  union {
+    uv_tcp_t tcp;
+    uv_pipe_t pipe;
+    uv_stream_t stream;
+    uv_handle_t handle;
+  } h;
+  hfd_server *srv;
+  int is_tcp;
+  int auth_required;
+  char url[256];                 /* as resolved (the real port) */
+  char unix_path[200];
+} hfd_listener;
+
+enum hfd_read_state {
+  RD_HEADER,       /* the 16-byte header */
+  RD_CONTROL,      /* a small control payload into ctl[] */
+  RD_FILTER_HEAD,  /* a FILTER's fixed fields and variant name */
+  RD_FILTER_DATA,  /* its tensor, straight into the job's input buffer */
+  RD_DISCARD       /* the rest of a rejected frame */
+};
+
+typedef struct hfd_conn {
+  union {
+    uv_tcp_t tcp;
+    uv_pipe_t pipe;
+    uv_stream_t stream;
+    uv_handle_t handle;
+  } h;
+  hfd_server *srv;
+  hfd_listener *listener;
+  struct hfd_conn *prev, *next;
+  uint64_t id;
+  char peer[64];
+  char client_name[HFP_NAME_MAX + 1];
+  int hello_done;
+  int closing;                   /* uv_close called or pending */
+  int fatal_sent;                /* reading stopped, closing after the write */
+  int handle_closed;
+  int inflight;                  /* jobs admitted and not yet answered */
+  int writes_pending;
+
+  enum hfd_read_state rstate;
+  hfp_header hdr;
+  uint8_t hbuf[HFP_HEADER_SIZE];
+  uint8_t ctl[HFP_FILTER_FIXED + HFP_TOKEN_MAX + HFP_NAME_MAX + 16];
+  size_t want, got;              /* bytes of the current piece */
+  uint64_t discard_left;
+  hfd_job *job;                  /* the FILTER being received */
+  uint8_t sink[16384];           /* where discarded bytes go */
+} hfd_conn;
+
+struct hfd_server {
+  uv_loop_t *loop;
+  hfd_config *cfg;
+  hfd_listener listeners[HFD_MAX_LISTENERS];
+  int num_listeners;
+  hfd_variant variants[HFD_MAX_VARIANTS];
+  int num_variants;
+  hfd_worker worker;
+  uv_async_t async;
+  uv_signal_t sigint, sigterm;
+  uv_timer_t drain_timer;
+  hfd_conn *conns;
+  int num_conns;
+  uint64_t conns_total, next_conn_id;
+  uint64_t protocol_errors;
+  uint64_t mem_held;             /* bytes of request/response buffers */
+  int jobs_outstanding;          /* admitted, not yet answered */
+  int draining, stopped;
+  double t_start;
+  char backend_desc[512];
+};
+
+/* conn.c */
+void hfd_on_connection(uv_stream_t *listener, int status);
+void hfd_on_async(uv_async_t *a);
+void hfd_conn_shutdown(hfd_conn *c);
+/* server.c */
+void hfd_maybe_finish(hfd_server *s);
+void hfd_fill_stats(hfd_server *s, hfp_stats *st);
+
+#endif /* HFD_SERVER_H */

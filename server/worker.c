@@ -1,0 +1,362 @@
+/*
+ * The inference worker: one thread that owns the backend and every model,
+ * takes jobs from the bounded queue, groups compatible ones into a batch
+ * (same variant, size and dtypes; at most max_batch; waiting at most
+ * max_delay_us for partners, like Triton's dynamic batcher) and hands the
+ * finished jobs back to the loop thread through uv_async_send.
+ *
+ * GPU libraries tie handles and streams to the thread that made them, so
+ * the backend is created here, not in main().
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "server.h"
+
+double hfd_now_us(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec / 1e3;
+}
+
+static uint64_t us(double v) { return v > 0 ? (uint64_t)v : 0; }
+
+/* Grows a worker scratch buffer; sizes come from already-validated jobs. */
+static int ensure(void **buf, size_t *cap, size_t need) {
+  if (*cap >= need) return 0;
+  void *p = NULL;
+  if (posix_memalign(&p, 64, need ? need : 64)) return -1;
+  free(*buf);
+  *buf = p;
+  *cap = need;
+  return 0;
+}
+
+static int compatible(const hfd_job *a, const hfd_job *b) {
+  return a->variant == b->variant && a->req.width == b->req.width &&
+         a->req.height == b->req.height && a->req.in_dtype == b->req.in_dtype &&
+         a->req.out_dtype == b->req.out_dtype;
+}
+
+static void store(void *dst, int dtype, size_t i, float v) {
+  if (dtype == HFP_F16)
+    ((uint16_t *)dst)[i] = hf_f32_to_f16(v);
+  else
+    ((float *)dst)[i] = v;
+}
+
+/* Writes one job's outputs from float32 results: the 3-channel result in
+ * its dtype and, when asked, the composited RGBA (alpha = hair alpha). */
+static int finish_from_f32(hfd_worker *w, hfd_job *j, const float *res) {
+  size_t n = (size_t)j->req.width * j->req.height;
+  for (size_t i = 0; i < n * 3; i++) store(j->out, j->req.out_dtype, i, res[i]);
+  if (!j->rgba) return 0;
+  void *rgb = w->scratch_rgb;
+  if (ensure(&rgb, &w->scratch_rgb_cap, n * 3 * sizeof(float))) return -1;
+  w->scratch_rgb = rgb;
+  hf_composite(res, (int)j->req.width, (int)j->req.height, j->req.hair, j->req.light,
+               j->req.bg, w->scratch_rgb);
+  for (size_t p = 0; p < n; p++) {
+    for (int c = 0; c < 3; c++)
+      store(j->rgba, j->req.out_dtype, p * 4 + c, w->scratch_rgb[p * 3 + c]);
+    store(j->rgba, j->req.out_dtype, p * 4 + 3, res[p * 3 + HF_OUT_ALPHA]);
+  }
+  return 0;
+}
+
+static void run_batch(hfd_worker *w, hfd_job **batch, int nb) {
+  hfd_job *j0 = batch[0];
+  hfd_variant *v = &w->variants[j0->variant];
+  double t0 = hfd_now_us();
+  for (int i = 0; i < nb; i++) {
+    batch[i]->t_started = t0;
+    batch[i]->batch = (uint32_t)nb;
+    batch[i]->batch_leader = i == 0;
+  }
+  size_t in_bytes = (size_t)j0->req.data_len;
+  size_t px = (size_t)j0->req.width * j0->req.height;
+  int composite = 0;
+  for (int i = 0; i < nb; i++) composite |= batch[i]->rgba != NULL;
+  /* Fast path: one frame whose output goes straight to its buffer. Else
+   * gather inputs into one tensor and run with float32 output, converting
+   * per job: that is also where the composite is made. */
+  int direct = nb == 1 && !composite;
+  const void *in = j0->input;
+  int rc = 0;
+  if (nb > 1) {
+    if (ensure(&w->scratch_in, &w->scratch_in_cap, in_bytes * nb)) {
+      rc = HF_ENOMEM;
+      goto done;
+    }
+    for (int i = 0; i < nb; i++)
+      memcpy((uint8_t *)w->scratch_in + in_bytes * i, batch[i]->input, in_bytes);
+    in = w->scratch_in;
+  }
+  if (!direct && ensure(&w->scratch_out, &w->scratch_out_cap, px * 3 * sizeof(float) * nb)) {
+    rc = HF_ENOMEM;
+    goto done;
+  }
+  double t1 = hfd_now_us();
+  hf_io io = {nb, (int)j0->req.width, (int)j0->req.height, in, (hf_dtype)j0->req.in_dtype,
+              direct ? j0->out : w->scratch_out, direct ? (hf_dtype)j0->req.out_dtype : HF_F32};
+  hf_timing t = {0, 0, 0};
+  rc = hf_model_run(v->model, &io, &t);
+  double t2 = hfd_now_us();
+  if (rc) goto done;
+  if (!direct)
+    for (int i = 0; i < nb && !rc; i++)
+      if (finish_from_f32(w, batch[i], (const float *)w->scratch_out + px * 3 * i))
+        rc = HF_ENOMEM;
+  double t3 = hfd_now_us();
+  for (int i = 0; i < nb; i++) {
+    hfp_timing *tm = &batch[i]->timing;
+    tm->input_us = us((t1 - t0) + t.input_us);
+    tm->infer_us = us(t.infer_us);
+    /* What the backend did not attribute to input or inference is output
+     * work (transforms, crop, download), plus our own conversion. */
+    double rest = (t2 - t1) - t.input_us - t.infer_us;
+    tm->output_us = us((rest > 0 ? rest : 0) + (t3 - t2));
+  }
+done:
+  for (int i = 0; i < nb; i++) {
+    batch[i]->status = rc ? HFP_E_INTERNAL : HFP_OK;
+    batch[i]->t_done = hfd_now_us();
+  }
+  if (rc)
+    hfd_log("error: variant %s: inference of %d frame(s) %ux%u failed: %s", v->name, nb,
+            j0->req.width, j0->req.height, hf_strerror(rc));
+}
+
+static void complete(hfd_worker *w, hfd_job **batch, int nb) {
+  pthread_mutex_lock(&w->mu);
+  for (int i = 0; i < nb; i++) {
+    batch[i]->next = NULL;
+    if (w->done_tail)
+      w->done_tail->next = batch[i];
+    else
+      w->done_head = batch[i];
+    w->done_tail = batch[i];
+  }
+  pthread_mutex_unlock(&w->mu);
+  /* uv_async_send is the one libuv call that is safe from another thread;
+   * it only fails for a closed handle, which cannot happen before stop. */
+  uv_async_send(w->async);
+}
+
+/* Removes and returns the first queued job compatible with j0 (mu held). */
+static hfd_job *take_compatible(hfd_worker *w, const hfd_job *j0) {
+  hfd_job *prev = NULL;
+  for (hfd_job *j = w->q_head; j; prev = j, j = j->next) {
+    if (!compatible(j, j0)) continue;
+    if (prev)
+      prev->next = j->next;
+    else
+      w->q_head = j->next;
+    if (w->q_tail == j) w->q_tail = prev;
+    w->q_len--;
+    j->next = NULL;
+    return j;
+  }
+  return NULL;
+}
+
+static void deadline_ts(double when_us, struct timespec *ts) {
+  /* pthread_cond_timedwait takes CLOCK_REALTIME unless told otherwise; the
+   * condition variable is made with CLOCK_MONOTONIC in hfd_worker_start. */
+  ts->tv_sec = (time_t)(when_us / 1e6);
+  ts->tv_nsec = (long)((when_us - (double)ts->tv_sec * 1e6) * 1e3);
+  if (ts->tv_nsec >= 1000000000L) {
+    ts->tv_sec++;
+    ts->tv_nsec -= 1000000000L;
+  }
+  if (ts->tv_nsec < 0) ts->tv_nsec = 0;
+}
+
+static int init_models(hfd_worker *w) {
+  int rc = hf_backend_create(w->backend_name, &w->backend, w->init_msg, sizeof w->init_msg);
+  if (rc) {
+    if (!w->init_msg[0]) snprintf(w->init_msg, sizeof w->init_msg, "%s", hf_strerror(rc));
+    return rc;
+  }
+  if (!w->init_msg[0])
+    snprintf(w->init_msg, sizeof w->init_msg, "backend %s (as requested)",
+             hf_backend_name(w->backend));
+  for (int i = 0; i < w->num_variants; i++) {
+    hfd_variant *v = &w->variants[i];
+    rc = hf_model_create(w->backend, v->weights, &v->model);
+    if (rc) {
+      snprintf(w->init_msg, sizeof w->init_msg, "variant %s: model creation on %s failed: %s",
+               v->name, hf_backend_name(w->backend), hf_strerror(rc));
+      return rc;
+    }
+    snprintf(v->precision, sizeof v->precision, "%s", hf_model_precision(v->model));
+    hf_weights_free(v->weights);
+    v->weights = NULL;
+  }
+  return 0;
+}
+
+static void release_models(hfd_worker *w) {
+  for (int i = 0; i < w->num_variants; i++) {
+    hf_model_destroy(w->variants[i].model);
+    w->variants[i].model = NULL;
+  }
+  hf_backend_destroy(w->backend);
+  w->backend = NULL;
+  free(w->scratch_in);
+  free(w->scratch_out);
+  free(w->scratch_rgb);
+}
+
+static void *worker_main(void *arg) {
+  hfd_worker *w = arg;
+  int rc = init_models(w);
+  pthread_mutex_lock(&w->mu);
+  w->init_rc = rc;
+  w->ready = 1;
+  pthread_cond_broadcast(&w->cv);
+  pthread_mutex_unlock(&w->mu);
+  if (rc) {
+    release_models(w);
+    return NULL;
+  }
+  hfd_job **batch = calloc((size_t)w->max_batch, sizeof *batch);
+  if (!batch) {
+    hfd_log("error: worker: out of memory for the batch table");
+    abort();
+  }
+  pthread_mutex_lock(&w->mu);
+  for (;;) {
+    while (!w->q_head && !w->stop) pthread_cond_wait(&w->cv, &w->mu);
+    if (!w->q_head) break;  /* stop requested and nothing left */
+    hfd_job *j0 = w->q_head;
+    w->q_head = j0->next;
+    if (!w->q_head) w->q_tail = NULL;
+    w->q_len--;
+    j0->next = NULL;
+    int nb = 1;
+    batch[0] = j0;
+    double deadline = j0->t_received + w->max_delay_us;
+    while (nb < w->max_batch && !w->cancel) {
+      hfd_job *j = take_compatible(w, j0);
+      if (j) {
+        batch[nb++] = j;
+        continue;
+      }
+      if (w->stop || hfd_now_us() >= deadline) break;
+      struct timespec ts;
+      deadline_ts(deadline, &ts);
+      int wr = pthread_cond_timedwait(&w->cv, &w->mu, &ts);
+      if (wr && wr != ETIMEDOUT && wr != EINTR) break;
+    }
+    int cancelled = w->cancel;
+    w->busy = 1;
+    pthread_mutex_unlock(&w->mu);
+    if (cancelled) {
+      for (int i = 0; i < nb; i++) {
+        batch[i]->status = HFP_E_SHUTTING_DOWN;
+        batch[i]->t_started = batch[i]->t_done = hfd_now_us();
+        batch[i]->batch = 0;
+      }
+    } else {
+      run_batch(w, batch, nb);
+    }
+    complete(w, batch, nb);
+    pthread_mutex_lock(&w->mu);
+    w->busy = 0;
+  }
+  pthread_mutex_unlock(&w->mu);
+  free(batch);
+  release_models(w);
+  return NULL;
+}
+
+int hfd_worker_start(hfd_worker *w) {
+  pthread_condattr_t ca;
+  if (pthread_mutex_init(&w->mu, NULL)) return -1;
+  if (pthread_condattr_init(&ca) || pthread_condattr_setclock(&ca, CLOCK_MONOTONIC) ||
+      pthread_cond_init(&w->cv, &ca))
+    return -1;
+  pthread_condattr_destroy(&ca);
+  int rc = pthread_create(&w->thread, NULL, worker_main, w);
+  if (rc) {
+    snprintf(w->init_msg, sizeof w->init_msg, "cannot start the worker thread: %s",
+             strerror(rc));
+    return -1;
+  }
+  pthread_mutex_lock(&w->mu);
+  while (!w->ready) pthread_cond_wait(&w->cv, &w->mu);
+  pthread_mutex_unlock(&w->mu);
+  if (w->init_rc) {
+    pthread_join(w->thread, NULL);
+    return w->init_rc;
+  }
+  return 0;
+}
+
+int hfd_worker_submit(hfd_worker *w, hfd_job *job) {
+  pthread_mutex_lock(&w->mu);
+  if (w->q_len >= w->q_cap || w->stop) {
+    pthread_mutex_unlock(&w->mu);
+    return HFP_E_BUSY;
+  }
+  job->next = NULL;
+  if (w->q_tail)
+    w->q_tail->next = job;
+  else
+    w->q_head = job;
+  w->q_tail = job;
+  w->q_len++;
+  pthread_cond_signal(&w->cv);
+  pthread_mutex_unlock(&w->mu);
+  return 0;
+}
+
+hfd_job *hfd_worker_take_done(hfd_worker *w) {
+  pthread_mutex_lock(&w->mu);
+  hfd_job *j = w->done_head;
+  w->done_head = w->done_tail = NULL;
+  pthread_mutex_unlock(&w->mu);
+  return j;
+}
+
+int hfd_worker_queue_depth(hfd_worker *w) {
+  pthread_mutex_lock(&w->mu);
+  int n = w->q_len;
+  pthread_mutex_unlock(&w->mu);
+  return n;
+}
+
+void hfd_worker_cancel(hfd_worker *w) {
+  pthread_mutex_lock(&w->mu);
+  w->cancel = 1;
+  hfd_job *list = w->q_head;
+  w->q_head = w->q_tail = NULL;
+  w->q_len = 0;
+  pthread_mutex_unlock(&w->mu);
+  int n = 0;
+  for (hfd_job *j = list, *next; j; j = next) {
+    next = j->next;
+    j->status = HFP_E_SHUTTING_DOWN;
+    j->t_started = j->t_done = hfd_now_us();
+    j->batch = 0;
+    hfd_job *one[1] = {j};
+    complete(w, one, 1);
+    n++;
+  }
+  (void)n;
+}
+
+void hfd_worker_stop(hfd_worker *w) {
+  pthread_mutex_lock(&w->mu);
+  w->stop = 1;
+  pthread_cond_broadcast(&w->cv);
+  pthread_mutex_unlock(&w->mu);
+  pthread_join(w->thread, NULL);
+  pthread_cond_destroy(&w->cv);
+  pthread_mutex_destroy(&w->mu);
+}
