@@ -15,7 +15,9 @@
  * Environment (for diagnosis): HF_CUDNN_VERBOSE=1 logs plan choices,
  * HF_CUDNN_NO_GRAPH=1 runs the layers eagerly instead of replaying the CUDA
  * graph, HF_CUDNN_NO_FUSION=1 skips the fused bias+ReLU graphs,
- * HF_CUDA_DEVICE picks the device (default 0).
+ * HF_CUDNN_DECONV=shuffle computes transposed convs as conv + pixel shuffle
+ * instead of cuDNN's data gradient, HF_CUDA_DEVICE picks the device
+ * (default 0).
  */
 #include <pthread.h>
 #include <stdint.h>
@@ -37,6 +39,11 @@
 static int env_flag(const char *name) {
   const char *v = getenv(name);
   return v && v[0] && strcmp(v, "0") != 0;
+}
+
+static int env_deconv(void) {
+  const char *v = getenv("HF_CUDNN_DECONV");
+  return v && !strcmp(v, "shuffle") ? HF_CL_DECONV_SHUFFLE : HF_CL_DECONV_BWD_DATA;
 }
 
 static int env_device(void) {
@@ -113,11 +120,13 @@ static void cudnn_close(void *dev) { free(dev); }
 
 /* One layer as it runs: the cuDNN op, plus copies through dense scratch
  * tensors when no engine accepted its strided skip views, plus the bias
- * kernel when no engine fused the epilogue. */
+ * kernel when no engine fused the epilogue, plus the pixel shuffle of a
+ * SHUFFLE decoder (whose op always writes a dense scratch). */
 typedef struct step {
   const hf_cl_layer *ly;
   hf_cg_op op;
   void *x, *y;              /* what the op reads and writes */
+  int y_c, y_stride;        /* channels and pixel stride the op writes */
   void *in_ptr, *out_ptr;   /* the layer's real views */
   void *scratch_in, *scratch_out;
   size_t npix_in, npix_out;
@@ -140,6 +149,7 @@ typedef struct plan {
 
 typedef struct cudnn_model {
   int device;
+  int deconv;                   /* HF_CL_DECONV_* */
   hf_net_config cfg;
   cudnnHandle_t dnn;
   cudaStream_t stream;
@@ -192,18 +202,29 @@ static int is_dense(const hf_cl_view *v) { return v->ch_off == 0 && v->pix_strid
 static int step_build(cudnn_model *m, plan *p, int j) {
   step *st = &p->steps[j];
   const hf_cl_layer *ly = &p->lo.layers[j];
+  const int shuffle = ly->kind == HF_CL_CONV_SHUFFLE;
   st->ly = ly;
   st->in_ptr = view_ptr(p, &ly->in);
   st->out_ptr = view_ptr(p, &ly->out);
   st->npix_in = (size_t)p->batch * ly->in.h * ly->in.w;
   st->npix_out = (size_t)p->batch * ly->out.h * ly->out.w;
-  const int strided = !is_dense(&ly->in) || !is_dense(&ly->out);
+  /* What the cuDNN op writes: the layer's output view, or for SHUFFLE the
+   * 4*C channels at the input resolution. */
+  hf_cl_view opout = ly->out;
+  if (shuffle) {
+    opout.buf = -1;
+    opout.ch_off = 0;
+    opout.c = opout.pix_stride = ly->k;
+    opout.h = ly->in.h;
+    opout.w = ly->in.w;
+  }
+  const int strided = !is_dense(&ly->in) || !is_dense(&opout);
   const int no_fusion = env_flag("HF_CUDNN_NO_FUSION");
   char why[512] = "";
   int rc = HF_EUNSUPPORTED;
   for (int dense = 0; dense <= 1; dense++) {
     if (dense && !strided) break;
-    hf_cl_view in = ly->in, out = ly->out;
+    hf_cl_view in = ly->in, out = opout;
     if (dense) {
       in.ch_off = out.ch_off = 0;
       in.pix_stride = in.c;
@@ -218,19 +239,23 @@ static int step_build(cudnn_model *m, plan *p, int j) {
     size_t acct = 0;
     st->x = st->in_ptr;
     st->y = st->out_ptr;
+    st->y_c = out.c;
+    st->y_stride = out.pix_stride;
     if (dense && !is_dense(&ly->in)) {
       if ((rc = dmalloc(&st->scratch_in, st->npix_in * in.c * 2, &acct))) return rc;
       st->x = st->scratch_in;
     }
-    if (dense && !is_dense(&ly->out)) {
-      if ((rc = dmalloc(&st->scratch_out, st->npix_out * out.c * 2, &acct))) return rc;
+    if (shuffle || (dense && !is_dense(&ly->out))) {
+      const size_t npix = shuffle ? st->npix_in : st->npix_out;
+      if ((rc = dmalloc(&st->scratch_out, npix * out.c * 2, &acct))) return rc;
       st->y = st->scratch_out;
+      st->y_stride = out.c;
     }
     p->device_bytes += acct;
     if (hf_cudnn_verbose())
-      fprintf(stderr, "hfcore cudnn: %s: %s, %s views\n", ly->name,
+      fprintf(stderr, "hfcore cudnn: %s: %s%s, %s views\n", ly->name,
               st->op.fused ? "fused bias+activation" : "separate bias kernel",
-              dense ? "dense scratch" : "direct");
+              shuffle ? ", pixel shuffle" : "", dense ? "dense scratch" : "direct");
     return HF_OK;
   }
   return hf_cudnn_report(HF_EBACKEND, "%s: no cuDNN engine for this layer: %s", ly->name, why);
@@ -244,12 +269,15 @@ static int step_enqueue(cudnn_model *m, const plan *p, const step *st) {
     HF_CU_TRY(hf_cuk_copy_channels(st->scratch_in, ly->in.c, st->in_ptr, ly->in.pix_stride,
                                    st->npix_in, ly->in.c, m->stream));
   HF_TRY(hf_cg_op_exec(m->dnn, &st->op));
-  if (!st->op.fused) {
-    const int ystride = st->scratch_out ? ly->out.c : ly->out.pix_stride;
-    HF_CU_TRY(hf_cuk_bias_act(st->y, st->npix_out, ly->out.c, ystride,
-                              (const float *)m->d_b32 + ly->b_off, ly->relu, m->stream));
-  }
-  if (st->scratch_out)
+  const int shuffle = ly->kind == HF_CL_CONV_SHUFFLE;
+  if (!st->op.fused)
+    HF_CU_TRY(hf_cuk_bias_act(st->y, shuffle ? st->npix_in : st->npix_out, st->y_c,
+                              st->y_stride, (const float *)m->d_b32 + ly->b_off, ly->relu,
+                              m->stream));
+  if (shuffle)
+    HF_CU_TRY(hf_cuk_pixel_shuffle(st->out_ptr, ly->out.pix_stride, st->scratch_out, p->batch,
+                                   ly->in.h, ly->in.w, ly->out.c, m->stream));
+  else if (st->scratch_out)
     HF_CU_TRY(hf_cuk_copy_channels(st->out_ptr, ly->out.pix_stride, st->scratch_out, ly->out.c,
                                    st->npix_out, ly->out.c, m->stream));
   return HF_OK;
@@ -300,7 +328,7 @@ static int plan_create(cudnn_model *m, int batch, int pw, int ph, plan **out) {
   p->batch = batch;
   p->pw = pw;
   p->ph = ph;
-  HF_TRY(hf_cl_layout_init(&m->cfg, batch, pw, ph, &p->lo));
+  HF_TRY(hf_cl_layout_init(&m->cfg, batch, pw, ph, m->deconv, &p->lo));
 
   for (int b = 0; b < p->lo.nbufs; b++) {
     size_t bytes;
@@ -418,6 +446,7 @@ static int cudnn_model_create(void *dev, const hf_weights *w, void **out) {
     return HF_ENOMEM;
   }
   m->device = d->device;
+  m->deconv = env_deconv();
   m->cfg = w->cfg;
   HF_CU_TRY(cudaSetDevice(m->device));
   HF_CU_TRY(cudaStreamCreateWithFlags(&m->stream, cudaStreamNonBlocking));
@@ -427,7 +456,7 @@ static int cudnn_model_create(void *dev, const hf_weights *w, void **out) {
 
   /* Filter shapes do not depend on the frame size: lay out the smallest. */
   const int a = hf_net_align(&m->cfg);
-  HF_TRY(hf_cl_layout_init(&m->cfg, 1, a, a, &m->wlo));
+  HF_TRY(hf_cl_layout_init(&m->cfg, 1, a, a, m->deconv, &m->wlo));
   w16 = malloc(m->wlo.w_elems * sizeof *w16);
   b16 = malloc(m->wlo.b_elems * sizeof *b16);
   b32 = malloc(m->wlo.b_elems * sizeof *b32);

@@ -178,7 +178,7 @@ int hf_cg_op_build(cudnnHandle_t h, const hf_cl_layer *ly, int batch, const hf_c
   op->fused = fused;
   if (why && whylen) why[0] = 0;
   int rc;
-  const int fwd = ly->kind == HF_CL_CONV_FWD;
+  const int fwd = hf_cl_is_fwd(ly);
   /* Forward: x has C channels, y has K. Data gradient: dy has K, dx has C. */
   if (in->c != (fwd ? ly->c : ly->k) || out->c != (fwd ? ly->k : ly->c))
     return hf_cudnn_report(HF_EINVAL, "%s: view channels do not match the filter", ly->name);

@@ -86,6 +86,22 @@ __global__ void copy_kernel(__half *dst, int dst_stride, const __half *src, int 
   }
 }
 
+__global__ void shuffle_kernel(__half *dst, int dst_stride, const __half *src, int batch, int h,
+                               int w, int c) {
+  const size_t total = (size_t)batch * h * w * 4 * c;
+  for (size_t i = blockIdx.x * (size_t)blockDim.x + threadIdx.x; i < total;
+       i += (size_t)gridDim.x * blockDim.x) {
+    size_t t = i;
+    const int k = (int)(t % c); t /= c;
+    const int q = (int)(t % 4); t /= 4;
+    const int x = (int)(t % w); t /= w;
+    const int y = (int)(t % h);
+    const size_t n = t / h;
+    const size_t oy = 2 * (size_t)y + (q >> 1), ox = 2 * (size_t)x + (q & 1);
+    dst[((n * 2 * h + oy) * 2 * w + ox) * dst_stride + k] = src[i];
+  }
+}
+
 }  // namespace
 
 extern "C" cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int w, int h,
@@ -118,5 +134,13 @@ extern "C" cudaError_t hf_cuk_copy_channels(void *dst, int dst_stride, const voi
                                             cudaStream_t stream) {
   copy_kernel<<<blocks_for(npix * c), kThreads, 0, stream>>>(
       (__half *)dst, dst_stride, (const __half *)src, src_stride, npix, c);
+  return cudaGetLastError();
+}
+
+extern "C" cudaError_t hf_cuk_pixel_shuffle(void *dst, int dst_stride, const void *src, int batch,
+                                            int h, int w, int c, cudaStream_t stream) {
+  const size_t total = (size_t)batch * h * w * 4 * c;
+  shuffle_kernel<<<blocks_for(total), kThreads, 0, stream>>>((__half *)dst, dst_stride,
+                                                              (const __half *)src, batch, h, w, c);
   return cudaGetLastError();
 }

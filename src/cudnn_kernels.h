@@ -34,6 +34,12 @@ cudaError_t hf_cuk_bias_act(void *y, size_t npix, int c, int pix_stride, const f
 cudaError_t hf_cuk_copy_channels(void *dst, int dst_stride, const void *src, int src_stride,
                                  size_t npix, int c, cudaStream_t stream);
 
+/* Depth-to-space by 2: src is dense FP16 [batch][h][w][4*c]; channel
+ * (2dy+dx)*c + k of pixel (y, x) goes to channel k of pixel (2y+dy, 2x+dx)
+ * of dst, [batch][2h][2w] with pixel stride dst_stride. */
+cudaError_t hf_cuk_pixel_shuffle(void *dst, int dst_stride, const void *src, int batch, int h,
+                                 int w, int c, cudaStream_t stream);
+
 #ifdef __cplusplus
 }
 #endif

@@ -16,8 +16,10 @@ static hf_cl_view view(int buf, int ch_off, int pix_stride, int c, int h, int w)
   return v;
 }
 
-int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl_layout *lo) {
+int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, int deconv,
+                      hf_cl_layout *lo) {
   if (!cfg || !lo || batch < 1 || pw < 1 || ph < 1) return HF_EINVAL;
+  if (deconv != HF_CL_DECONV_BWD_DATA && deconv != HF_CL_DECONV_SHUFFLE) return HF_EINVAL;
   int rc = hf_net_config_validate(cfg);
   if (rc) return rc;
   const int L = cfg->num_levels;
@@ -101,6 +103,13 @@ int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl
     ly->pad = 1;
     ly->in_real = hf_dec_in(cfg, i);
     ly->out_real = hf_dec_out(cfg, i);
+    if (deconv == HF_CL_DECONV_SHUFFLE) {
+      ly->kind = HF_CL_CONV_SHUFFLE;
+      ly->k = 4 * ly->out.c;
+      ly->c = ly->in.c;
+      ly->r = ly->s = 3;
+      ly->stride = 1;
+    }
   }
   lo->nlayers = n;
 
@@ -109,7 +118,7 @@ int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl
     ly->w_elems = (size_t)ly->k * ly->r * ly->s * ly->c;
     ly->w_off = woff;
     woff = round_up_sz(woff + ly->w_elems, W_ALIGN);
-    ly->b_elems = ly->kind == HF_CL_CONV_FWD ? ly->k : ly->c;
+    ly->b_elems = hf_cl_is_fwd(ly) ? ly->k : ly->c;
     ly->b_off = boff;
     boff = round_up_sz(boff + (size_t)ly->b_elems, B_ALIGN);
   }
@@ -131,7 +140,7 @@ int hf_cl_pack_weights(const hf_cl_layout *lo, const hf_weights *w, uint16_t *w1
   for (int j = 0; j < lo->nlayers; j++) {
     const hf_cl_layer *ly = &lo->layers[j];
     const int R = ly->r, S = ly->s, in_real = ly->in_real, out_real = ly->out_real;
-    if (map_in(ly, in_real - 1) >= (ly->kind == HF_CL_CONV_FWD ? ly->c : ly->k)) return HF_EINVAL;
+    if (map_in(ly, in_real - 1) >= (hf_cl_is_fwd(ly) ? ly->c : ly->k)) return HF_EINVAL;
     uint16_t *f = w16 + ly->w_off;
     const float *src, *bias;
     if (ly->kind == HF_CL_CONV_FWD) {
@@ -144,6 +153,31 @@ int hf_cl_pack_weights(const hf_cl_layout *lo, const hf_weights *w, uint16_t *w1
             for (int s = 0; s < S; s++)
               f[(((size_t)o * R + r) * S + s) * ly->c + map_in(ly, i)] =
                   hf_f32_to_f16(src[(((size_t)o * in_real + i) * R + r) * S + s]);
+    } else if (ly->kind == HF_CL_CONV_SHUFFLE) {
+      /* ConvTranspose2d [in][out][4][4] -> 3x3 conv [K=(2dy+dx)*Cout+o][ty][tx][C=in]:
+       * tap t (input row y-1+t) feeds output phase d through kernel row
+       * tap4[d][t] (-1: not at all). */
+      static const int tap4[2][3] = {{3, 1, -1}, {-1, 2, 0}};
+      const int co = ly->k / 4, T = 4;
+      src = w->dec_w[ly->level];
+      bias = w->dec_b[ly->level];
+      for (int dy = 0; dy < 2; dy++)
+        for (int dx = 0; dx < 2; dx++)
+          for (int ty = 0; ty < 3; ty++)
+            for (int tx = 0; tx < 3; tx++) {
+              const int r4 = tap4[dy][ty], s4 = tap4[dx][tx];
+              if (r4 < 0 || s4 < 0) continue;
+              for (int o = 0; o < out_real; o++)
+                for (int i = 0; i < in_real; i++)
+                  f[(((size_t)((dy * 2 + dx) * co + o) * R + ty) * S + tx) * ly->c + map_in(ly, i)] =
+                      hf_f32_to_f16(src[(((size_t)i * out_real + o) * T + r4) * T + s4]);
+            }
+      for (int q = 0; q < 4; q++)
+        for (int o = 0; o < out_real; o++) {
+          b16[ly->b_off + q * co + o] = hf_f32_to_f16(bias[o]);
+          b32[ly->b_off + q * co + o] = bias[o];
+        }
+      continue;
     } else {
       /* ConvTranspose2d [in][out][R][S] -> [K=in][R][S][C=out]. */
       src = w->dec_w[ly->level];

@@ -23,6 +23,13 @@
  * K is its *input* (cuDNN's dy) and C its *output* (dx); PyTorch's
  * ConvTranspose2d weight [in][out][4][4] is exactly that forward conv's
  * [K][C][R][S], with no flip.
+ *
+ * With HF_CL_DECONV_SHUFFLE a decoder is instead a 3x3 stride-1 forward
+ * conv to 4*C channels at the input resolution followed by a depth-to-space
+ * of 2: output pixel (2y+dy, 2x+dx), channel c, is channel (2dy+dx)*C + c
+ * of conv pixel (y, x). A 4x4 stride-2 pad-1 transposed conv reaches output
+ * row 2y+dy from input rows y-1, y (dy = 0, taps 3, 1) or y, y+1 (dy = 1,
+ * taps 2, 0), which is what the 3x3 filter holds.
  */
 #ifndef HF_CUDNN_LAYOUT_H
 #define HF_CUDNN_LAYOUT_H
@@ -44,7 +51,10 @@ enum {
   HF_CL_MAX_BUFS = HF_CL_BUF_SKIP0 + HF_MAX_LEVELS - 1
 };
 
-enum { HF_CL_CONV_FWD = 0, HF_CL_CONV_BWD_DATA = 1 };
+enum { HF_CL_CONV_FWD = 0, HF_CL_CONV_BWD_DATA = 1, HF_CL_CONV_SHUFFLE = 2 };
+
+/* How decoders (transposed convs) are computed. */
+enum { HF_CL_DECONV_BWD_DATA = 0, HF_CL_DECONV_SHUFFLE = 1 };
 
 /* A 4-D NHWC tensor inside a buffer: elements of pixel p, channel k live at
  * buffer + ch_off + p * pix_stride + k. */
@@ -57,10 +67,11 @@ typedef struct hf_cl_view {
 
 typedef struct hf_cl_layer {
   char name[16];               /* "enc0", "dec2" */
-  int kind;                    /* HF_CL_CONV_FWD or HF_CL_CONV_BWD_DATA */
+  int kind;                    /* HF_CL_CONV_* */
   int level;
   int relu;                    /* ReLU after the bias (all but dec0) */
-  int k, c, r, s;              /* filter [K][R][S][C], padded */
+  int k, c, r, s;              /* filter [K][R][S][C], padded; for
+                                  SHUFFLE K = 4 * out.c */
   int stride, pad;
   /* What the layer reads and writes. For BWD_DATA, in is cuDNN's dy
    * (K channels) and out is dx (C channels). */
@@ -70,7 +81,8 @@ typedef struct hf_cl_layer {
    * in_split_pad + (j - in_split). in_split == in_real means no split. */
   int in_real, out_real, in_split, in_split_pad;
   size_t w_off, w_elems;       /* into the packed FP16 filter array */
-  size_t b_off;                /* into the packed bias arrays (out channels) */
+  size_t b_off;                /* into the packed bias arrays (the conv's
+                                  output channels) */
   int b_elems;
 } hf_cl_layer;
 
@@ -89,7 +101,12 @@ static inline int hf_cl_pad8(int c) { return (c + HF_CL_ALIGN_CH - 1) & ~(HF_CL_
 /* Lays out cfg for batch frames of pw x ph (multiples of 2^L). Returns
  * HF_EINVAL for sizes that are not, HF_ERANGE when a buffer would overflow
  * size_t or a dimension would not fit cuDNN's int64 arithmetic. */
-int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl_layout *lo);
+int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, int deconv,
+                      hf_cl_layout *lo);
+
+/* Whether the layer's cuDNN operation is a forward convolution (x -> y)
+ * rather than a data gradient (dy -> dx). */
+static inline int hf_cl_is_fwd(const hf_cl_layer *ly) { return ly->kind != HF_CL_CONV_BWD_DATA; }
 
 /* Repacks PyTorch-layout float weights into FP16 filters ([K][R][S][C],
  * zeros in padded channels) and biases (FP16 for fused cuDNN graphs, FP32

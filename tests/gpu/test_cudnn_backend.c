@@ -216,12 +216,38 @@ static void test_f16_io_and_plan_eviction(void **state) {
   hf_weights_free(w);
 }
 
+/* The conv + pixel-shuffle form of the transposed convs (an option, see
+ * docs/GPU.md) gives the same network. */
+static void test_shuffle_deconv(void **state) {
+  REQUIRE_GPU();
+  ctx *c = *state;
+  static const char *variants[] = {"Base", "Deep"};
+  for (size_t v = 0; v < sizeof variants / sizeof variants[0]; v++) {
+    hf_net_config cfg;
+    hf_weights *w;
+    assert_int_equal(hf_variant_preset(variants[v], &cfg), HF_OK);
+    assert_int_equal(hf_weights_init_random(&cfg, 77, &w), HF_OK);
+    hf_model *gm, *rm;
+    assert_int_equal(setenv("HF_CUDNN_DECONV", "shuffle", 1), 0);
+    int rc = hf_model_create(c->gpu, w, &gm);
+    unsetenv("HF_CUDNN_DECONV");
+    assert_int_equal(rc, HF_OK);
+    assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
+    compare(c, &cfg, gm, rm, 1, 37, 23);
+    compare(c, &cfg, gm, rm, 4, 129, 65);
+    hf_model_destroy(gm);
+    hf_model_destroy(rm);
+    hf_weights_free(w);
+  }
+}
+
 int main(void) {
   find_device();
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_availability),
       cmocka_unit_test_setup_teardown(test_presets_vs_cpu_ref, setup, teardown),
       cmocka_unit_test_setup_teardown(test_f16_io_and_plan_eviction, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_shuffle_deconv, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -21,7 +21,7 @@ static void test_base_views(void **state) {
   hf_net_config cfg;
   assert_int_equal(hf_variant_preset("Base", &cfg), HF_OK);
   hf_cl_layout lo;
-  assert_int_equal(hf_cl_layout_init(&cfg, 2, 64, 48, &lo), HF_OK);
+  assert_int_equal(hf_cl_layout_init(&cfg, 2, 64, 48, HF_CL_DECONV_BWD_DATA, &lo), HF_OK);
   assert_int_equal(lo.nlayers, 6);
   assert_int_equal(lo.cin_pad, 24);
   assert_int_equal(lo.nbufs, HF_CL_BUF_SKIP0 + 2);
@@ -68,16 +68,17 @@ static void test_padding_and_limits(void **state) {
   hf_cl_layout lo;
   for (size_t i = 0; i < sizeof want / sizeof want[0]; i++) {
     assert_int_equal(hf_variant_preset(want[i].name, &cfg), HF_OK);
-    assert_int_equal(hf_cl_layout_init(&cfg, 1, 8, 8, &lo), HF_OK);
+    assert_int_equal(hf_cl_layout_init(&cfg, 1, 8, 8, HF_CL_DECONV_BWD_DATA, &lo), HF_OK);
     assert_int_equal(lo.cin_pad, want[i].cin_pad);
     assert_int_equal(lo.layers[0].c, want[i].cin_pad);
   }
   assert_int_equal(hf_variant_preset("Deep", &cfg), HF_OK);
-  assert_int_equal(hf_cl_layout_init(&cfg, 1, 24, 16, &lo), HF_EINVAL); /* 24 % 16 */
-  assert_int_equal(hf_cl_layout_init(&cfg, 0, 16, 16, &lo), HF_EINVAL);
-  assert_int_equal(hf_cl_layout_init(&cfg, 1 << 30, 1 << 16, 1 << 16, &lo), HF_ERANGE);
+  assert_int_equal(hf_cl_layout_init(&cfg, 1, 24, 16, HF_CL_DECONV_BWD_DATA, &lo), HF_EINVAL); /* 24 % 16 */
+  assert_int_equal(hf_cl_layout_init(&cfg, 0, 16, 16, HF_CL_DECONV_BWD_DATA, &lo), HF_EINVAL);
+  assert_int_equal(hf_cl_layout_init(&cfg, 1 << 30, 1 << 16, 1 << 16, HF_CL_DECONV_BWD_DATA, &lo), HF_ERANGE);
   /* Every filter block starts 256-byte aligned. */
-  assert_int_equal(hf_cl_layout_init(&cfg, 1, 16, 16, &lo), HF_OK);
+  assert_int_equal(hf_cl_layout_init(&cfg, 1, 16, 16, 7, &lo), HF_EINVAL); /* deconv mode */
+  assert_int_equal(hf_cl_layout_init(&cfg, 1, 16, 16, HF_CL_DECONV_BWD_DATA, &lo), HF_OK);
   for (int j = 0; j < lo.nlayers; j++) {
     assert_int_equal(lo.layers[j].w_off % 128, 0);
     assert_true(lo.layers[j].w_off + lo.layers[j].w_elems <= lo.w_elems);
@@ -105,7 +106,7 @@ static void test_pack_odd_channels(void **state) {
   hf_weights *w;
   assert_int_equal(hf_weights_init_random(&cfg, 7, &w), HF_OK);
   hf_cl_layout lo;
-  assert_int_equal(hf_cl_layout_init(&cfg, 1, 4, 4, &lo), HF_OK);
+  assert_int_equal(hf_cl_layout_init(&cfg, 1, 4, 4, HF_CL_DECONV_BWD_DATA, &lo), HF_OK);
   uint16_t *w16 = malloc(lo.w_elems * 2), *b16 = malloc(lo.b_elems * 2);
   float *b32 = malloc(lo.b_elems * 4);
   assert_non_null(w16);
@@ -170,6 +171,16 @@ static void emu_layer(float **bufs, int batch, const hf_cl_layer *ly, const uint
   const int R = ly->r, S = ly->s, K = ly->k, C = ly->c, st = ly->stride, pd = ly->pad;
   const float *bias = b32 + ly->b_off;
   const hf_cl_view *in = &ly->in, *out = &ly->out;
+  /* SHUFFLE: the conv writes a dense 4*C scratch at the input resolution,
+   * then depth-to-space moves it into the layer's output view. */
+  const int shuffle = ly->kind == HF_CL_CONV_SHUFFLE;
+  hf_cl_view sv = {HF_CL_MAX_BUFS, 0, K, K, in->h, in->w};   /* the spare slot */
+  if (shuffle) {
+    assert_int_equal(K, 4 * out->c);
+    bufs[sv.buf] = malloc((size_t)batch * in->h * in->w * K * sizeof(float));
+    assert_non_null(bufs[sv.buf]);
+    out = &sv;
+  }
   float *wf = malloc(ly->w_elems * sizeof *wf);
   float *acc = malloc(out->c * sizeof *acc);
   assert_non_null(wf);
@@ -182,7 +193,7 @@ static void emu_layer(float **bufs, int batch, const hf_cl_layer *ly, const uint
         for (int r = 0; r < R; r++)
           for (int s = 0; s < S; s++) {
             int iy, ix;
-            if (ly->kind == HF_CL_CONV_FWD) {
+            if (ly->kind != HF_CL_CONV_BWD_DATA) {
               iy = y * st - pd + r;
               ix = x * st - pd + s;
             } else {
@@ -193,7 +204,7 @@ static void emu_layer(float **bufs, int batch, const hf_cl_layer *ly, const uint
             }
             if (iy < 0 || ix < 0 || iy >= in->h || ix >= in->w) continue;
             const float *xp = view_at(bufs, in, ((size_t)n * in->h + iy) * in->w + ix);
-            if (ly->kind == HF_CL_CONV_FWD) {
+            if (ly->kind != HF_CL_CONV_BWD_DATA) {
               for (int k = 0; k < K; k++)
                 for (int c = 0; c < C; c++) acc[k] += xp[c] * wf[((size_t)(k * R + r) * S + s) * C + c];
             } else {
@@ -204,6 +215,20 @@ static void emu_layer(float **bufs, int batch, const hf_cl_layer *ly, const uint
         float *yp = view_at(bufs, out, ((size_t)n * out->h + y) * out->w + x);
         for (int o = 0; o < out->c; o++) yp[o] = ly->relu && acc[o] < 0 ? 0 : acc[o];
       }
+  if (shuffle) {
+    const int co = K / 4;
+    for (int n = 0; n < batch; n++)
+      for (int y = 0; y < in->h; y++)
+        for (int x = 0; x < in->w; x++)
+          for (int q = 0; q < 4; q++) {
+            const float *src = view_at(bufs, &sv, ((size_t)n * in->h + y) * in->w + x) + q * co;
+            float *dst = view_at(bufs, &ly->out,
+                                 ((size_t)n * ly->out.h + 2 * y + q / 2) * ly->out.w + 2 * x + q % 2);
+            memcpy(dst, src, co * sizeof(float));
+          }
+    free(bufs[sv.buf]);
+    bufs[sv.buf] = NULL;
+  }
   free(wf);
   free(acc);
 }
@@ -216,13 +241,14 @@ static float frand(void) {
   return (float)(rng >> 40) / (float)(1 << 24);
 }
 
-static void emulate_vs_cpu_ref(const hf_net_config *cfg, int batch, int width, int height) {
+static void emulate_vs_cpu_ref(const hf_net_config *cfg, int deconv, int batch, int width,
+                               int height) {
   hf_weights *w;
   assert_int_equal(hf_weights_init_random(cfg, 1234, &w), HF_OK);
   const int a = hf_net_align(cfg);
   const int pw = (width + a - 1) / a * a, ph = (height + a - 1) / a * a;
   hf_cl_layout lo;
-  assert_int_equal(hf_cl_layout_init(cfg, batch, pw, ph, &lo), HF_OK);
+  assert_int_equal(hf_cl_layout_init(cfg, batch, pw, ph, deconv, &lo), HF_OK);
   uint16_t *w16 = malloc(lo.w_elems * 2), *b16 = malloc(lo.b_elems * 2);
   float *b32 = malloc(lo.b_elems * 4);
   assert_int_equal(hf_cl_pack_weights(&lo, w, w16, b16, b32), HF_OK);
@@ -232,7 +258,7 @@ static void emulate_vs_cpu_ref(const hf_net_config *cfg, int batch, int width, i
   assert_non_null(in);
   for (size_t i = 0; i < npx * cfg->in_channels; i++) in[i] = frand();
 
-  float *bufs[HF_CL_MAX_BUFS] = {0};
+  float *bufs[HF_CL_MAX_BUFS + 1] = {0};   /* + a spare for SHUFFLE scratch */
   for (int b = 0; b < lo.nbufs; b++) {
     bufs[b] = calloc(lo.buf_elems[b], sizeof(float));
     assert_non_null(bufs[b]);
@@ -268,7 +294,8 @@ static void emulate_vs_cpu_ref(const hf_net_config *cfg, int batch, int width, i
     den += (double)want[i] * want[i];
   }
   double rel = sqrt(num / den);
-  printf("  %-10s batch %d %dx%d: relative L2 %.2e\n", cfg->name, batch, width, height, rel);
+  printf("  %-10s %-9s batch %d %dx%d: relative L2 %.2e\n", cfg->name,
+         deconv == HF_CL_DECONV_SHUFFLE ? "shuffle" : "bwd-data", batch, width, height, rel);
   /* FP16 filters alone: ~1e-3. A wrong channel map or tap order: ~1. */
   assert_true(rel < 5e-3);
 
@@ -289,14 +316,16 @@ static void test_emulation_presets(void **state) {
   for (int i = 0; i < hf_variant_preset_count(); i++) {
     hf_net_config cfg;
     assert_int_equal(hf_variant_preset(hf_variant_preset_name(i), &cfg), HF_OK);
-    emulate_vs_cpu_ref(&cfg, 2, 21, 13);
+    emulate_vs_cpu_ref(&cfg, HF_CL_DECONV_BWD_DATA, 2, 21, 13);
+    emulate_vs_cpu_ref(&cfg, HF_CL_DECONV_SHUFFLE, 2, 21, 13);
   }
 }
 
 static void test_emulation_odd_channels(void **state) {
   (void)state;
   hf_net_config cfg = odd_config();
-  emulate_vs_cpu_ref(&cfg, 1, 37, 23);
+  emulate_vs_cpu_ref(&cfg, HF_CL_DECONV_BWD_DATA, 1, 37, 23);
+  emulate_vs_cpu_ref(&cfg, HF_CL_DECONV_SHUFFLE, 1, 37, 23);
 }
 
 int main(void) {
