@@ -308,6 +308,7 @@ static void plan_capture(cudnn_model *m, plan *p) {
     goto fail;
   }
   cudaGraphDestroy(g);
+  g = NULL;
   /* Replay once now so a graph that cannot run is found at plan time. */
   if ((e = cudaGraphLaunch(p->gexec, m->stream)) == cudaSuccess &&
       (e = cudaStreamSynchronize(m->stream)) == cudaSuccess)
