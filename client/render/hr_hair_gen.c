@@ -1,0 +1,318 @@
+/* Procedural hairstyles on the ellipsoid head of hfrender.h.
+ *
+ * Every style is built in four steps, each strand from its own seeded
+ * stream so a strand does not depend on how many others there are:
+ *   1. a root on the scalp (the part of the ellipsoid above a hairline that
+ *      is high at the forehead and low at the nape);
+ *   2. a base curve grown segment by segment: the direction starts along
+ *      the scalp normal and bends under a style-specific gravity; points
+ *      that enter the head (grown by a per-strand layer offset, which gives
+ *      the hair volume) are pushed back out radially;
+ *   3. a style offset in the strand's moving frame: a planar wave (wavy), a
+ *      helix (curly, coily), ramped in from the root so roots stay put;
+ *   4. clumping towards the nearest of a few guide strands, growing towards
+ *      the tip, then frizz (a smoothed random walk growing to the tip) and a
+ *      last push out of the head.
+ * The ponytail's base curve runs over the scalp to a tie point at the back
+ * of the head and hangs from there. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+
+#include "hfrender.h"
+#include "hr_math.h"
+
+static const char *const style_names[HFR_STYLE_COUNT] = {"straight", "wavy", "curly", "coily",
+                                                         "ponytail"};
+
+const char *hfr_style_name(hfr_style s) {
+  return (unsigned)s < HFR_STYLE_COUNT ? style_names[s] : "unknown";
+}
+
+int hfr_style_from_name(const char *name, hfr_style *out) {
+  if (!name || !out) return HF_EINVAL;
+  for (int i = 0; i < HFR_STYLE_COUNT; i++)
+    if (!strcasecmp(name, style_names[i])) {
+      *out = (hfr_style)i;
+      return HF_OK;
+    }
+  if (!strcasecmp(name, "afro")) {
+    *out = HFR_STYLE_COILY;
+    return HF_OK;
+  }
+  return HF_ENOTFOUND;
+}
+
+int hfr_style_defaults(hfr_style s, hfr_style_params *p) {
+  if (!p || (unsigned)s >= HFR_STYLE_COUNT) return HF_EINVAL;
+  memset(p, 0, sizeof *p);
+  p->style = s;
+  p->seed = 1;
+  p->strands = 50000;
+  p->thickness = 0.0008f;   /* ~80 um on a 10 cm head radius */
+  p->opacity = 0.8f;
+  p->clumping = 0.25f;
+  p->frizz = 0.01f;
+  switch (s) {
+  case HFR_STYLE_STRAIGHT:
+    p->segments = 24, p->length = 2.2f;
+    break;
+  case HFR_STYLE_WAVY:
+    p->segments = 40, p->length = 2.4f, p->curl_radius = 0.07f, p->curl_period = 0.55f;
+    break;
+  case HFR_STYLE_CURLY:
+    p->segments = 64, p->length = 2.0f, p->curl_radius = 0.08f, p->curl_period = 0.28f;
+    p->clumping = 0.4f, p->frizz = 0.02f;
+    break;
+  case HFR_STYLE_COILY:
+    p->segments = 64, p->length = 1.0f, p->curl_radius = 0.035f, p->curl_period = 0.09f;
+    p->clumping = 0.15f, p->frizz = 0.04f;
+    break;
+  case HFR_STYLE_PONYTAIL:
+    p->segments = 40, p->length = 3.2f, p->curl_radius = 0.03f, p->curl_period = 0.8f;
+    p->clumping = 0.2f;
+    break;
+  default:
+    return HF_EINVAL;
+  }
+  return HF_OK;
+}
+
+static const float head_r[3] = HFR_HEAD_RADII;
+
+/* A uniformly distributed point of the scalp and its outward normal. */
+static void scalp_root(hr_rng *g, float p[3], float n[3]) {
+  for (;;) {
+    float d[3] = {hr_rng_normal(g), hr_rng_normal(g), hr_rng_normal(g)};
+    if (hr_len(d) < 1e-6f) continue;
+    hr_normalize(d);
+    /* Hairline: 0.55 above the equator at the forehead, 0 at the ears,
+     * -0.55 at the nape. */
+    if (d[1] < 0.55f * d[2]) continue;
+    for (int k = 0; k < 3; k++) {
+      p[k] = head_r[k] * d[k];
+      n[k] = d[k] / head_r[k];
+    }
+    hr_normalize(n);
+    return;
+  }
+}
+
+/* Pushes p radially out of the head grown by (1 + shell). */
+static void push_out(float p[3], float shell) {
+  float q = 0;
+  for (int k = 0; k < 3; k++) {
+    float t = p[k] / (head_r[k] * (1 + shell));
+    q += t * t;
+  }
+  if (q < 1 && q > 1e-12f) {
+    float s = 1 / sqrtf(q);
+    for (int k = 0; k < 3; k++) p[k] *= s;
+  }
+}
+
+/* Step 2: the base curve of one strand, n + 1 points into c. */
+static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3],
+                      const float nrm[3], float len, float shell, float *c) {
+  int n = sp->segments;
+  float seg = len / n;
+  float dir[3] = {nrm[0], nrm[1], nrm[2]};
+  float gravity = 1.6f, comb = 0.0f;
+  switch (sp->style) {
+  case HFR_STYLE_COILY: gravity = 0.15f; break;
+  case HFR_STYLE_CURLY: gravity = 1.0f, comb = 0.2f; break;
+  default: comb = 0.3f; break;
+  }
+  /* Combing: start slightly backwards/down rather than straight out. */
+  dir[1] -= comb * 0.5f;
+  dir[2] -= comb;
+  hr_normalize(dir);
+  memcpy(c, root, 3 * sizeof(float));
+
+  if (sp->style == HFR_STYLE_PONYTAIL) {
+    /* Over the scalp to the tie, then down. The tie sits at the back. */
+    const float tie[3] = {0.0f, 0.35f, -1.0f};
+    float dt[3] = {tie[0] - root[0], tie[1] - root[1], tie[2] - root[2]};
+    float dist = hr_len(dt) * 1.15f;
+    int n1 = (int)(n * dist / len);
+    if (n1 < 2) n1 = 2;
+    if (n1 > n - 4) n1 = n - 4;
+    for (int i = 1; i <= n1; i++) {
+      float t = (float)i / n1;
+      float *p = c + 3 * i;
+      for (int k = 0; k < 3; k++) p[k] = root[k] + (tie[k] - root[k]) * t;
+      /* Bulge over the scalp, tightening into the tie. */
+      push_out(p, shell * (1 - t) + 0.01f);
+    }
+    /* Tail: strands keep an offset from the tie that shrinks near it. */
+    float off[3] = {hr_rng_normal(g) * 0.08f, hr_rng_normal(g) * 0.08f,
+                    hr_rng_normal(g) * 0.05f};
+    float tdir[3] = {0, -0.35f, -1};
+    hr_normalize(tdir);
+    float tseg = (len - dist) / (n - n1);
+    if (tseg < seg * 0.5f) tseg = seg * 0.5f;
+    float p[3] = {tie[0], tie[1], tie[2]};
+    for (int i = n1 + 1; i <= n; i++) {
+      float t = (float)(i - n1) / (n - n1);
+      tdir[1] -= 1.2f * tseg;
+      hr_normalize(tdir);
+      for (int k = 0; k < 3; k++) p[k] += tdir[k] * tseg;
+      float spread = 0.3f + 1.7f * t;
+      for (int k = 0; k < 3; k++) c[3 * i + k] = p[k] + off[k] * spread;
+      push_out(c + 3 * i, 0.02f);
+    }
+    return;
+  }
+
+  float p[3] = {root[0], root[1], root[2]};
+  for (int i = 1; i <= n; i++) {
+    dir[1] -= gravity * seg;
+    hr_normalize(dir);
+    float prev[3] = {p[0], p[1], p[2]};
+    for (int k = 0; k < 3; k++) p[k] += dir[k] * seg;
+    push_out(p, shell * fminf(1.0f, 4.0f * i / n));
+    for (int k = 0; k < 3; k++) dir[k] = p[k] - prev[k];
+    hr_normalize(dir);
+    memcpy(c + 3 * i, p, sizeof p);
+  }
+}
+
+/* Step 3: wave or helix around the base curve. */
+static void add_curl(const hfr_style_params *sp, hr_rng *g, const float nrm[3], float *c) {
+  int n = sp->segments;
+  int helix = sp->style == HFR_STYLE_CURLY || sp->style == HFR_STYLE_COILY;
+  int wave = sp->style == HFR_STYLE_WAVY || sp->style == HFR_STYLE_PONYTAIL;
+  if ((!helix && !wave) || sp->curl_radius <= 0 || sp->curl_period <= 0) return;
+  float amp = sp->curl_radius * hr_rng_range(g, 0.8f, 1.2f);
+  float period = sp->curl_period * hr_rng_range(g, 0.85f, 1.15f);
+  float phase = hr_rng_range(g, 0, 2 * HR_PI);
+  float *base = malloc(sizeof(float) * 3 * (n + 1));
+  if (!base) return; /* the strand stays straight */
+  memcpy(base, c, sizeof(float) * 3 * (n + 1));
+  float u[3] = {nrm[0], nrm[1], nrm[2]}, s = 0;
+  for (int i = 1; i <= n; i++) {
+    float t[3] = {base[3 * i] - base[3 * i - 3], base[3 * i + 1] - base[3 * i - 2],
+                  base[3 * i + 2] - base[3 * i - 1]};
+    s += hr_len(t);
+    hr_normalize(t);
+    /* Transport u: keep it perpendicular to the tangent. */
+    float d = hr_dot(u, t);
+    for (int k = 0; k < 3; k++) u[k] -= d * t[k];
+    if (hr_len(u) < 1e-4f) {
+      float alt[3] = {1, 0, 0};
+      hr_cross(t, alt, u);
+    }
+    hr_normalize(u);
+    float b[3];
+    hr_cross(t, u, b);
+    float ramp = fminf(1.0f, s / (2.0f * period + 0.05f));
+    float th = 2 * HR_PI * s / period + phase;
+    for (int k = 0; k < 3; k++) {
+      float o = helix ? u[k] * cosf(th) + b[k] * sinf(th) : b[k] * sinf(th);
+      c[3 * i + k] = base[3 * i + k] + ramp * amp * o;
+    }
+  }
+  free(base);
+}
+
+int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
+  if (!sp || !out) return HF_EINVAL;
+  memset(out, 0, sizeof *out);
+  if ((unsigned)sp->style >= HFR_STYLE_COUNT || sp->strands < 1 || sp->segments < 8 ||
+      sp->segments > 1024 || !(sp->length > 0) || !(sp->thickness > 0) ||
+      !(sp->opacity > 0 && sp->opacity <= 1) || sp->clumping < 0 || sp->clumping > 1 ||
+      sp->frizz < 0 || sp->curl_radius < 0 || sp->curl_period < 0)
+    return HF_EINVAL;
+  uint64_t points = (uint64_t)sp->strands * (sp->segments + 1);
+  if ((uint64_t)sp->strands > HFR_MAX_STRANDS || points > HFR_MAX_POINTS) return HF_ERANGE;
+  int n = sp->segments;
+  out->strands = (uint32_t)sp->strands;
+  out->points = (uint32_t)points;
+  out->default_segments = (uint32_t)n;
+  out->default_thickness = sp->thickness;
+  out->default_transparency = 1 - sp->opacity;
+  out->pos = malloc(sizeof(float) * 3 * points);
+  out->thickness = malloc(sizeof(float) * points);
+  out->transparency = malloc(sizeof(float) * points);
+  float *roots = malloc(sizeof(float) * 3 * (size_t)sp->strands);
+  if (!out->pos || !out->thickness || !out->transparency || !roots) {
+    free(roots);
+    hfr_hair_free(out);
+    return HF_ENOMEM;
+  }
+  snprintf(out->info, sizeof out->info, "hairfilter %s seed %llu", hfr_style_name(sp->style),
+           (unsigned long long)sp->seed);
+
+  for (int s = 0; s < sp->strands; s++) {
+    hr_rng g = {sp->seed * 0x9e3779b97f4a7c15ull + (uint64_t)s * 0xd1b54a32d192ed03ull + 1};
+    float nrm[3];
+    float *c = out->pos + 3 * (size_t)s * (n + 1);
+    scalp_root(&g, roots + 3 * s, nrm);
+    float len = sp->length * hr_rng_range(&g, 0.85f, 1.1f);
+    float shell = hr_rng_range(&g, 0.01f, sp->style == HFR_STYLE_COILY ? 0.05f : 0.12f);
+    grow_base(sp, &g, roots + 3 * s, nrm, len, shell, c);
+    add_curl(sp, &g, nrm, c);
+    float opac = sp->opacity * hr_rng_range(&g, 0.9f, 1.0f);
+    for (int i = 0; i <= n; i++) {
+      float t = (float)i / n;
+      /* Strands taper towards the tip. */
+      out->thickness[(size_t)s * (n + 1) + i] = sp->thickness * (1 - 0.5f * t * t);
+      out->transparency[(size_t)s * (n + 1) + i] = 1 - opac;
+    }
+  }
+
+  /* Step 4: clumps. Guides are the first strands (their roots are random
+   * anyway); each strand follows the guide whose root is nearest. */
+  int guides = sp->strands / 80;
+  if (guides < 1) guides = 1;
+  if (guides > 2000) guides = 2000;
+  if (sp->clumping > 0 && sp->strands > guides) {
+    size_t one = sizeof(float) * 3 * (n + 1);
+    float *gcopy = malloc(one * guides);
+    if (!gcopy) {
+      free(roots);
+      hfr_hair_free(out);
+      return HF_ENOMEM;
+    }
+    memcpy(gcopy, out->pos, one * guides);
+    for (int s = guides; s < sp->strands; s++) {
+      const float *r = roots + 3 * s;
+      int best = 0;
+      float bd = INFINITY;
+      for (int q = 0; q < guides; q++) {
+        const float *rq = roots + 3 * q;
+        float d[3] = {r[0] - rq[0], r[1] - rq[1], r[2] - rq[2]};
+        float dd = hr_dot(d, d);
+        if (dd < bd) bd = dd, best = q;
+      }
+      const float *gp = gcopy + 3 * (size_t)best * (n + 1);
+      float *c = out->pos + 3 * (size_t)s * (n + 1);
+      for (int i = 1; i <= n; i++) {
+        float t = (float)i / n, w = sp->clumping * powf(t, 0.7f);
+        for (int k = 0; k < 3; k++) {
+          float target = gp[3 * i + k] + (r[k] - roots[3 * best + k]) * (1 - t);
+          c[3 * i + k] += w * (target - c[3 * i + k]);
+        }
+      }
+    }
+    free(gcopy);
+  }
+  free(roots);
+
+  for (int s = 0; s < sp->strands; s++) {
+    hr_rng g = {sp->seed * 0x2545f4914f6cdd1dull + (uint64_t)s * 0x9e3779b97f4a7c15ull + 7};
+    float *c = out->pos + 3 * (size_t)s * (n + 1);
+    float walk[3] = {0, 0, 0};
+    for (int i = 1; i <= n; i++) {
+      float t = (float)i / n;
+      for (int k = 0; k < 3; k++) {
+        walk[k] = 0.75f * walk[k] + 0.25f * hr_rng_normal(&g);
+        c[3 * i + k] += sp->frizz * t * sqrtf(t) * walk[k] * 2.0f;
+      }
+      push_out(c + 3 * i, 0.005f);
+    }
+  }
+  return HF_OK;
+}

@@ -1,0 +1,282 @@
+/* Cem Yuksel's .hair format: a 128-byte little-endian header, then the
+ * arrays the flag bits announce, in the order segments (uint16 per strand),
+ * points (float3), thickness (float), transparency (float), colors (float3).
+ *
+ *   0 "HAIR"   4 strands   8 points   12 flags   16 default segments
+ *   20 default thickness   24 default transparency   28 default colour[3]
+ *   40 file info (88 bytes)                                               */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hfrender.h"
+
+#define HAIR_HEADER 128
+
+static uint32_t rd_u32(const unsigned char *p) {
+  return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+static float rd_f32(const unsigned char *p) {
+  uint32_t u = rd_u32(p);
+  float f;
+  memcpy(&f, &u, 4);
+  return f;
+}
+static void wr_u32(unsigned char *p, uint32_t v) {
+  p[0] = (unsigned char)v;
+  p[1] = (unsigned char)(v >> 8);
+  p[2] = (unsigned char)(v >> 16);
+  p[3] = (unsigned char)(v >> 24);
+}
+static void wr_f32(unsigned char *p, float f) {
+  uint32_t u;
+  memcpy(&u, &f, 4);
+  wr_u32(p, u);
+}
+
+static int fail(char *err, size_t errlen, int code, const char *msg) {
+  if (err) snprintf(err, errlen, "%s", msg);
+  return code;
+}
+
+void hfr_hair_free(hfr_hair *h) {
+  if (!h) return;
+  free(h->segments);
+  free(h->pos);
+  free(h->thickness);
+  free(h->transparency);
+  free(h->color);
+  memset(h, 0, sizeof *h);
+}
+
+uint32_t hfr_hair_strand_segments(const hfr_hair *h, uint32_t i) {
+  return h->segments ? h->segments[i] : h->default_segments;
+}
+
+uint64_t hfr_hair_total_segments(const hfr_hair *h) {
+  /* Every strand has segments + 1 points. */
+  return (uint64_t)h->points - h->strands;
+}
+
+void hfr_hair_bounds(const hfr_hair *h, float c[3], float *radius) {
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (uint32_t i = 0; i < h->points; i++)
+    for (int k = 0; k < 3; k++) {
+      float v = h->pos[3 * (size_t)i + k];
+      if (v < lo[k]) lo[k] = v;
+      if (v > hi[k]) hi[k] = v;
+    }
+  if (!h->points) {
+    c[0] = c[1] = c[2] = 0;
+    *radius = 1;
+    return;
+  }
+  for (int k = 0; k < 3; k++) c[k] = 0.5f * (lo[k] + hi[k]);
+  float r2 = 0;
+  for (uint32_t i = 0; i < h->points; i++) {
+    float d2 = 0;
+    for (int k = 0; k < 3; k++) {
+      float d = h->pos[3 * (size_t)i + k] - c[k];
+      d2 += d * d;
+    }
+    if (d2 > r2) r2 = d2;
+  }
+  *radius = r2 > 0 ? sqrtf(r2) : 1.0f;
+}
+
+int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, size_t errlen) {
+  if (!buf || !out) return fail(err, errlen, HF_EINVAL, "null argument");
+  memset(out, 0, sizeof *out);
+  const unsigned char *p = buf;
+  if (len < HAIR_HEADER) return fail(err, errlen, HF_EFORMAT, "shorter than the 128-byte header");
+  if (memcmp(p, "HAIR", 4)) return fail(err, errlen, HF_EFORMAT, "not a .hair file (magic)");
+  uint32_t strands = rd_u32(p + 4), points = rd_u32(p + 8), flags = rd_u32(p + 12);
+  uint32_t defseg = rd_u32(p + 16);
+  if (flags & ~31u) return fail(err, errlen, HF_EFORMAT, "unknown flag bits");
+  if (!(flags & HFR_HAIR_POINTS)) return fail(err, errlen, HF_EFORMAT, "no points array");
+  if (strands == 0 || points == 0) return fail(err, errlen, HF_EFORMAT, "no strands or points");
+  if (strands > HFR_MAX_STRANDS || points > HFR_MAX_POINTS)
+    return fail(err, errlen, HF_ERANGE, "more strands or points than supported");
+  if (!(flags & HFR_HAIR_SEGMENTS) && (defseg == 0 || defseg > 65535))
+    return fail(err, errlen, HF_EFORMAT, "no segments array and a bad default segment count");
+
+  /* Exact size from the counts (64-bit: the limits keep it far from
+   * overflow), compared before any allocation. */
+  uint64_t need = HAIR_HEADER;
+  if (flags & HFR_HAIR_SEGMENTS) need += 2ull * strands;
+  need += 12ull * points;
+  if (flags & HFR_HAIR_THICKNESS) need += 4ull * points;
+  if (flags & HFR_HAIR_TRANSPARENCY) need += 4ull * points;
+  if (flags & HFR_HAIR_COLORS) need += 12ull * points;
+  if (len < need) return fail(err, errlen, HF_EFORMAT, "file shorter than its arrays");
+  if (len > need) return fail(err, errlen, HF_EFORMAT, "trailing bytes after the arrays");
+
+  const unsigned char *q = p + HAIR_HEADER;
+  uint64_t total = 0;
+  if (flags & HFR_HAIR_SEGMENTS) {
+    for (uint32_t i = 0; i < strands; i++) {
+      uint32_t s = (uint32_t)q[2 * (size_t)i] | (uint32_t)q[2 * (size_t)i + 1] << 8;
+      if (s == 0) return fail(err, errlen, HF_EFORMAT, "a strand with no segments");
+      total += s + 1u;
+    }
+  } else {
+    total = (uint64_t)strands * (defseg + 1u);
+  }
+  if (total != points)
+    return fail(err, errlen, HF_EFORMAT, "segment counts do not add up to the point count");
+
+  out->strands = strands;
+  out->points = points;
+  out->default_segments = defseg;
+  out->default_thickness = rd_f32(p + 20);
+  out->default_transparency = rd_f32(p + 24);
+  for (int k = 0; k < 3; k++) out->default_color[k] = rd_f32(p + 28 + 4 * k);
+  memcpy(out->info, p + 40, 88);
+  out->info[88] = 0;
+
+  if (flags & HFR_HAIR_SEGMENTS) {
+    out->segments = malloc(sizeof(uint16_t) * strands);
+    if (!out->segments) goto nomem;
+    for (uint32_t i = 0; i < strands; i++)
+      out->segments[i] = (uint16_t)(q[2 * (size_t)i] | q[2 * (size_t)i + 1] << 8);
+    q += 2 * (size_t)strands;
+  }
+  out->pos = malloc(12 * (size_t)points);
+  if (!out->pos) goto nomem;
+  for (size_t i = 0; i < 3 * (size_t)points; i++) {
+    out->pos[i] = rd_f32(q + 4 * i);
+    if (!isfinite(out->pos[i])) {
+      hfr_hair_free(out);
+      return fail(err, errlen, HF_EFORMAT, "non-finite point coordinate");
+    }
+  }
+  q += 12 * (size_t)points;
+  if (flags & HFR_HAIR_THICKNESS) {
+    out->thickness = malloc(4 * (size_t)points);
+    if (!out->thickness) goto nomem;
+    for (size_t i = 0; i < points; i++) {
+      out->thickness[i] = rd_f32(q + 4 * i);
+      if (!isfinite(out->thickness[i]) || out->thickness[i] < 0) {
+        hfr_hair_free(out);
+        return fail(err, errlen, HF_EFORMAT, "negative or non-finite thickness");
+      }
+    }
+    q += 4 * (size_t)points;
+  }
+  if (flags & HFR_HAIR_TRANSPARENCY) {
+    out->transparency = malloc(4 * (size_t)points);
+    if (!out->transparency) goto nomem;
+    for (size_t i = 0; i < points; i++) {
+      float t = rd_f32(q + 4 * i);
+      if (!(t >= 0 && t <= 1)) {
+        hfr_hair_free(out);
+        return fail(err, errlen, HF_EFORMAT, "transparency outside [0, 1]");
+      }
+      out->transparency[i] = t;
+    }
+    q += 4 * (size_t)points;
+  }
+  if (flags & HFR_HAIR_COLORS) {
+    out->color = malloc(12 * (size_t)points);
+    if (!out->color) goto nomem;
+    for (size_t i = 0; i < 3 * (size_t)points; i++) out->color[i] = rd_f32(q + 4 * i);
+  }
+  return HF_OK;
+nomem:
+  hfr_hair_free(out);
+  return fail(err, errlen, HF_ENOMEM, "out of memory");
+}
+
+int hfr_hair_load(const char *path, hfr_hair *out, char *err, size_t errlen) {
+  if (!path || !out) return fail(err, errlen, HF_EINVAL, "null argument");
+  memset(out, 0, sizeof *out);
+  FILE *f = fopen(path, "rb");
+  if (!f) {
+    if (err) snprintf(err, errlen, "%s: %s", path, strerror(errno));
+    return HF_EIO;
+  }
+  long size = -1;
+  if (fseek(f, 0, SEEK_END) == 0) size = ftell(f);
+  if (size < 0 || fseek(f, 0, SEEK_SET) != 0) {
+    fclose(f);
+    return fail(err, errlen, HF_EIO, "cannot size the file");
+  }
+  /* The largest valid file: header + every array at the limits. */
+  uint64_t max = HAIR_HEADER + 2ull * HFR_MAX_STRANDS + 32ull * HFR_MAX_POINTS;
+  if ((uint64_t)size > max) {
+    fclose(f);
+    return fail(err, errlen, HF_ERANGE, "file larger than any supported model");
+  }
+  unsigned char *buf = malloc(size ? (size_t)size : 1);
+  if (!buf) {
+    fclose(f);
+    return fail(err, errlen, HF_ENOMEM, "out of memory");
+  }
+  size_t got = fread(buf, 1, (size_t)size, f);
+  fclose(f);
+  if (got != (size_t)size) {
+    free(buf);
+    return fail(err, errlen, HF_EIO, "short read");
+  }
+  int rc = hfr_hair_load_mem(buf, got, out, err, errlen);
+  free(buf);
+  return rc;
+}
+
+static int write_all(FILE *f, const void *p, size_t n) {
+  return fwrite(p, 1, n, f) == n ? HF_OK : HF_EIO;
+}
+
+static int write_floats(FILE *f, const float *v, size_t n) {
+  unsigned char tmp[4096];
+  size_t i = 0;
+  while (i < n) {
+    size_t k = 0;
+    for (; k < sizeof tmp / 4 && i < n; k++, i++) wr_f32(tmp + 4 * k, v[i]);
+    if (write_all(f, tmp, 4 * k)) return HF_EIO;
+  }
+  return HF_OK;
+}
+
+int hfr_hair_save(const char *path, const hfr_hair *h) {
+  if (!path || !h || !h->pos || !h->strands) return HF_EINVAL;
+  uint64_t total = 0;
+  for (uint32_t i = 0; i < h->strands; i++) {
+    uint32_t s = hfr_hair_strand_segments(h, i);
+    if (s == 0 || s > 65535) return HF_ERANGE;
+    total += s + 1u;
+  }
+  if (total != h->points) return HF_EINVAL;
+  unsigned char hdr[HAIR_HEADER];
+  memset(hdr, 0, sizeof hdr);
+  memcpy(hdr, "HAIR", 4);
+  uint32_t flags = HFR_HAIR_SEGMENTS | HFR_HAIR_POINTS;
+  if (h->thickness) flags |= HFR_HAIR_THICKNESS;
+  if (h->transparency) flags |= HFR_HAIR_TRANSPARENCY;
+  if (h->color) flags |= HFR_HAIR_COLORS;
+  wr_u32(hdr + 4, h->strands);
+  wr_u32(hdr + 8, h->points);
+  wr_u32(hdr + 12, flags);
+  wr_u32(hdr + 16, h->default_segments);
+  wr_f32(hdr + 20, h->default_thickness);
+  wr_f32(hdr + 24, h->default_transparency);
+  for (int k = 0; k < 3; k++) wr_f32(hdr + 28 + 4 * k, h->default_color[k]);
+  memcpy(hdr + 40, h->info, strnlen(h->info, 88));
+
+  FILE *f = fopen(path, "wb");
+  if (!f) return HF_EIO;
+  int rc = write_all(f, hdr, sizeof hdr);
+  for (uint32_t i = 0; rc == HF_OK && i < h->strands; i++) {
+    uint32_t s = hfr_hair_strand_segments(h, i);
+    unsigned char b[2] = {(unsigned char)s, (unsigned char)(s >> 8)};
+    rc = write_all(f, b, 2);
+  }
+  if (rc == HF_OK) rc = write_floats(f, h->pos, 3 * (size_t)h->points);
+  if (rc == HF_OK && h->thickness) rc = write_floats(f, h->thickness, h->points);
+  if (rc == HF_OK && h->transparency) rc = write_floats(f, h->transparency, h->points);
+  if (rc == HF_OK && h->color) rc = write_floats(f, h->color, 3 * (size_t)h->points);
+  if (fclose(f) != 0 && rc == HF_OK) rc = HF_EIO;
+  return rc;
+}

@@ -1,0 +1,80 @@
+/* Internals shared by the renderer's files. */
+#ifndef HR_INTERNAL_H
+#define HR_INTERNAL_H
+
+#include "hfrender.h"
+#include "hr_context.h"
+#include "hr_gl.h"
+
+typedef struct hr_program {
+  GLuint id;
+} hr_program;
+
+/* Compiles and links vs (+ gs when not NULL) + fs. */
+int hr_program_build(hr_program *p, const char *vs, const char *gs, const char *fs, char *err,
+                     size_t errlen);
+void hr_program_free(hr_program *p);
+/* Uniform setters by name; a uniform the compiler removed is ignored. */
+void hr_set_i(const hr_program *p, const char *name, int v);
+void hr_set_u(const hr_program *p, const char *name, unsigned v);
+void hr_set_f(const hr_program *p, const char *name, float v);
+void hr_set_2f(const hr_program *p, const char *name, float x, float y);
+void hr_set_3f(const hr_program *p, const char *name, const float v[3]);
+void hr_set_m4(const hr_program *p, const char *name, const float m[16]);
+
+/* Matrices and ranges of one render, derived from the view and the model. */
+typedef struct hr_camera {
+  float view[16], proj[16];
+  float eye[3];
+  float depth_near, depth_far;  /* depth feature 0..1 over this range */
+  float px_per_unit;            /* at eye distance 1 (perspective) */
+  int ortho;
+} hr_camera;
+
+struct hfr_renderer {
+  hr_context *ctx;
+  hr_program st, shadow, abuf, head, resolve_ms, resolve_abuf;
+  GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
+  GLint *first;                 /* per strand, for glMultiDrawArrays */
+  GLsizei *count;
+  GLsizei strands;
+  GLsizei head_vertices;
+  int has_hair, has_head;
+  uint64_t segments;
+  float centre[3], radius;      /* bounding sphere of hair (and head) */
+  GLuint shadow_tex, shadow_fbo;
+  int shadow_size;
+  int ms_samples;               /* samples the MS framebuffer really has */
+};
+
+/* Camera of the view (jitter excluded) at width x height. */
+void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);
+/* Light camera for the shadow map. */
+void hr_camera_light(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);
+
+/* Passes (hr_passes.c). */
+int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, uint32_t seed,
+                   char *err, size_t errlen);
+/* Sets every shading uniform of p (light, lobes, shadow map) for one pass. */
+void hr_bind_shading(hfr_renderer *r, const hr_program *p, const hfr_view *v,
+                     const hr_camera *cam, const hr_camera *light, uint32_t seed);
+/* One 4x MSAA pass: samples [pass_samples][h][w] features into out as
+ * [h][w][ms_samples][6] floats, rows top first. opaque: geometric coverage
+ * and alpha 1 instead of stochastic transparency. */
+int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
+               const hr_camera *light, uint32_t seed, float jx, float jy, int opaque,
+               float *out, char *err, size_t errlen);
+/* The supersampled A-buffer and its GPU resolve into gt [h][w][3] (rows top
+ * first). When cpu_gt is not NULL the same lists are also read back and
+ * blended on the host into cpu_gt (tests). */
+int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
+               float *gt, float *cpu_gt, hfr_stats *stats, char *err, size_t errlen);
+
+/* Host sort-and-blend of A-buffer lists (heads: ss_w x ss_h, nodes: 5
+ * 32-bit words each: c, h, a, d, next) into [h][w][3] rows bottom first. */
+int hr_abuf_blend_cpu(const uint32_t *heads, const uint32_t *nodes, uint32_t capacity, int w,
+                      int h, int ss, float *out);
+
+double hr_now_ms(void);
+
+#endif

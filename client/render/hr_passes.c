@@ -1,0 +1,466 @@
+/* The GL passes: stochastic shadow map, 4x MSAA feature pass with its
+ * resolve, and the supersampled A-buffer with its resolve. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hr_internal.h"
+#include "hr_math.h"
+#include "hr_shaders.h"
+
+#define ABUF_MIN_NODES (1u << 20)
+#define ABUF_MAX_NODES (1u << 26) /* 1.3 GB of nodes */
+#define NODE_WORDS 5
+
+static GLuint make_tex(GLenum target, GLenum fmt, int w, int h, int samples) {
+  GLuint t = 0;
+  hrgl.GenTextures(1, &t);
+  hrgl.BindTexture(target, t);
+  if (target == GL_TEXTURE_2D_MULTISAMPLE) {
+    hrgl.TexStorage2DMultisample(target, samples, fmt, w, h, GL_TRUE);
+  } else {
+    hrgl.TexStorage2D(target, 1, fmt, w, h);
+    hrgl.TexParameteri(target, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    hrgl.TexParameteri(target, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  }
+  return t;
+}
+
+static int fbo_complete(const char *what, char *err, size_t errlen) {
+  GLenum st = hrgl.CheckFramebufferStatus(GL_FRAMEBUFFER);
+  if (st == GL_FRAMEBUFFER_COMPLETE) return HF_OK;
+  if (err) snprintf(err, errlen, "%s framebuffer incomplete (0x%04x)", what, (unsigned)st);
+  return HF_EBACKEND;
+}
+
+/* Draws the full-viewport triangle over a w x h target: a 2w x 2h viewport
+ * when the implementation allows it (see hr_glsl_fullscreen_vs), else a
+ * w x h viewport with the usual clipped triangle. */
+static void draw_fullscreen(hfr_renderer *r, const hr_program *p, int w, int h) {
+  GLint maxvp[2] = {0, 0};
+  hrgl.GetIntegerv(GL_MAX_VIEWPORT_DIMS, maxvp);
+  int grow = !(2 * w <= maxvp[0] && 2 * h <= maxvp[1]);
+  hr_set_i(p, "u_grow", grow);
+  if (grow) hrgl.Viewport(0, 0, w, h);
+  else hrgl.Viewport(0, 0, 2 * w, 2 * h);
+  hrgl.BindVertexArray(r->empty_vao);
+  hrgl.DrawArrays(GL_TRIANGLES, 0, 3);
+}
+
+static void set_geometry(const hr_program *p, const hr_camera *cam, const hfr_view *v,
+                         float jx, float jy) {
+  hr_set_m4(p, "u_view", cam->view);
+  hr_set_m4(p, "u_proj", cam->proj);
+  hr_set_2f(p, "u_jitter", jx, jy);
+  hr_set_f(p, "u_px_per_unit", cam->px_per_unit);
+  hr_set_i(p, "u_ortho", cam->ortho);
+  hr_set_f(p, "u_thick_scale", v->thickness_scale);
+  hr_set_f(p, "u_depth_near", cam->depth_near);
+  hr_set_f(p, "u_depth_far", cam->depth_far);
+}
+
+static void draw_head(hfr_renderer *r, const hr_camera *cam, const hfr_view *v, float jx,
+                      float jy, int linear_depth) {
+  if (!r->has_head) return;
+  hrgl.UseProgram(r->head.id);
+  set_geometry(&r->head, cam, v, jx, jy);
+  hr_set_i(&r->head, "u_linear_depth", linear_depth);
+  hrgl.BindVertexArray(r->head_vao);
+  hrgl.DrawArrays(GL_TRIANGLES, 0, r->head_vertices);
+}
+
+static void draw_hair(hfr_renderer *r) {
+  hrgl.BindVertexArray(r->hair_vao);
+  hrgl.MultiDrawArrays(GL_LINE_STRIP, r->first, r->count, r->strands);
+}
+
+void hr_bind_shading(hfr_renderer *r, const hr_program *p, const hfr_view *v,
+                     const hr_camera *cam, const hr_camera *light, uint32_t seed) {
+  float l[3];
+  if (v->light_directional) {
+    hr_dir_from_angles(v->light_yaw_deg, v->light_pitch_deg, l);
+  } else {
+    memcpy(l, light->eye, sizeof l);
+  }
+  hr_set_3f(p, "u_light", l);
+  hr_set_i(p, "u_light_directional", v->light_directional);
+  hr_set_3f(p, "u_eye", cam->eye);
+  hr_set_f(p, "u_alpha_r", hr_deg(v->alpha_r_deg));
+  hr_set_f(p, "u_alpha_trt", hr_deg(v->alpha_trt_deg));
+  hr_set_f(p, "u_ambient", v->ambient);
+  hr_set_i(p, "u_spec_half", v->spec_half_vector);
+  hr_set_u(p, "u_seed", seed);
+  hr_set_f(p, "u_hash_scale", 1.0f);
+  int shadows = v->shadow_size > 0 && r->shadow_tex;
+  hr_set_i(p, "u_shadow_on", shadows);
+  hr_set_i(p, "u_shadow", 0);
+  hrgl.ActiveTexture(GL_TEXTURE0);
+  hrgl.BindTexture(GL_TEXTURE_2D, shadows ? r->shadow_tex : 0);
+  float vp[16];
+  hr_mat_mul(light->proj, light->view, vp);
+  hr_set_m4(p, "u_light_view", light->view);
+  hr_set_m4(p, "u_light_vp", vp);
+  hr_set_f(p, "u_shadow_near", light->depth_near);
+  hr_set_f(p, "u_shadow_far", light->depth_far);
+  hr_set_f(p, "u_shadow_bias", v->shadow_bias);
+  hr_set_f(p, "u_shadow_texel", shadows ? 1.0f / r->shadow_size : 0.0f);
+}
+
+int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, uint32_t seed,
+                   char *err, size_t errlen) {
+  if (v->shadow_size <= 0) return HF_OK;
+  if (r->shadow_size != v->shadow_size) {
+    if (r->shadow_tex) hrgl.DeleteTextures(1, &r->shadow_tex);
+    if (r->shadow_fbo) hrgl.DeleteFramebuffers(1, &r->shadow_fbo);
+    r->shadow_tex = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, v->shadow_size,
+                             v->shadow_size, 0);
+    /* Hardware comparison with bilinear PCF. */
+    hrgl.TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    hrgl.TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    hrgl.TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    hrgl.TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    hrgl.TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_COMPARE_MODE, GL_COMPARE_REF_TO_TEXTURE);
+    hrgl.TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_COMPARE_FUNC, GL_LEQUAL);
+    hrgl.GenFramebuffers(1, &r->shadow_fbo);
+    hrgl.BindFramebuffer(GL_FRAMEBUFFER, r->shadow_fbo);
+    hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D,
+                              r->shadow_tex, 0);
+    GLenum none = GL_NONE;
+    hrgl.DrawBuffers(1, &none);
+    int rc = fbo_complete("shadow", err, errlen);
+    if (rc != HF_OK) return rc;
+    r->shadow_size = v->shadow_size;
+  }
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, r->shadow_fbo);
+  hrgl.Viewport(0, 0, r->shadow_size, r->shadow_size);
+  const float one = 1.0f;
+  hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+  hrgl.Enable(GL_DEPTH_TEST);
+  hrgl.DepthFunc(GL_LESS);
+  hrgl.DepthMask(GL_TRUE);
+  draw_head(r, light, v, 0, 0, 1);
+  hrgl.UseProgram(r->shadow.id);
+  set_geometry(&r->shadow, light, v, 0, 0);
+  hr_set_u(&r->shadow, "u_seed", seed);
+  hr_set_f(&r->shadow, "u_hash_scale", 1.0f);
+  draw_hair(r);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
+  return hr_gl_check("shadow pass", err, errlen);
+}
+
+int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
+               const hr_camera *light, uint32_t seed, float jx, float jy, int opaque,
+               float *out, char *err, size_t errlen) {
+  const int W = v->width, H = v->height, S = 4;
+  GLuint tex[3], fbo[2] = {0, 0}, rtex = 0;
+  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, W, H, S);
+  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RG32F, W, H, S);
+  tex[2] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, W, H, S);
+  hrgl.GenFramebuffers(2, fbo);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[0], 0);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT1, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[1], 0);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[2], 0);
+  const GLenum bufs[2] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
+  hrgl.DrawBuffers(2, bufs);
+  float *tmp = NULL;
+  int rc = fbo_complete("feature", err, errlen);
+  GLint samples = 0;
+  if (rc == HF_OK) {
+    hrgl.GetIntegerv(GL_SAMPLES, &samples);
+    if (samples != S) {
+      if (err) snprintf(err, errlen, "asked for %d MSAA samples, got %d", S, (int)samples);
+      rc = HF_EUNSUPPORTED;
+    }
+  }
+  if (rc == HF_OK) {
+    r->ms_samples = samples;
+    /* Samples no fragment covers keep all six features 0
+     * (protocol/FEATURES.md); the depth test uses its own attachment. */
+    const float c0[4] = {0, 0, 0, 0}, c1[4] = {0, 0, 0, 0}, one = 1.0f;
+    hrgl.ClearBufferfv(GL_COLOR, 0, c0);
+    hrgl.ClearBufferfv(GL_COLOR, 1, c1);
+    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+    hrgl.Viewport(0, 0, W, H);
+    hrgl.Enable(GL_MULTISAMPLE);
+    hrgl.Enable(GL_DEPTH_TEST);
+    hrgl.DepthFunc(GL_LESS);
+    hrgl.DepthMask(GL_TRUE);
+    hrgl.ColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+    draw_head(r, cam, v, jx, jy, 0);
+    hrgl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+    hrgl.UseProgram(r->st.id);
+    set_geometry(&r->st, cam, v, jx, jy);
+    hr_bind_shading(r, &r->st, v, cam, light, seed);
+    hr_set_i(&r->st, "u_opaque", opaque);
+    hr_set_i(&r->st, "u_samples", S);
+    draw_hair(r);
+    hrgl.Disable(GL_DEPTH_TEST);
+
+    /* Resolve: a (3W) x (H * S) RG32F target, texel (3x + j, S y + s). */
+    rtex = make_tex(GL_TEXTURE_2D, GL_RG32F, 3 * W, H * S, 0);
+    hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
+    hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, rtex, 0);
+    hrgl.DrawBuffers(1, bufs);
+    rc = fbo_complete("resolve", err, errlen);
+  }
+  if (rc == HF_OK) {
+    hrgl.UseProgram(r->resolve_ms.id);
+    hrgl.ActiveTexture(GL_TEXTURE1);
+    hrgl.BindTexture(GL_TEXTURE_2D_MULTISAMPLE, tex[0]);
+    hrgl.ActiveTexture(GL_TEXTURE2);
+    hrgl.BindTexture(GL_TEXTURE_2D_MULTISAMPLE, tex[1]);
+    hr_set_i(&r->resolve_ms, "u_f0", 1);
+    hr_set_i(&r->resolve_ms, "u_f1", 2);
+    hr_set_i(&r->resolve_ms, "u_samples", S);
+    draw_fullscreen(r, &r->resolve_ms, 3 * W, H * S);
+    tmp = malloc(sizeof(float) * 6 * (size_t)W * H * S);
+    if (!tmp) rc = HF_ENOMEM;
+  }
+  if (rc == HF_OK) {
+    hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
+    hrgl.PixelStorei(GL_PACK_ALIGNMENT, 4);
+    hrgl.ReadPixels(0, 0, 3 * W, H * S, GL_RG, GL_FLOAT, tmp);
+    rc = hr_gl_check("feature pass", err, errlen);
+  }
+  if (rc == HF_OK) {
+    /* GL rows are bottom first; hf_image rows top first. */
+    for (int y = 0; y < H; y++)
+      for (int s = 0; s < S; s++) {
+        const float *src = tmp + (size_t)(y * S + s) * 6 * W;
+        float *dst = out + (size_t)(H - 1 - y) * W * S * 6;
+        for (int x = 0; x < W; x++) memcpy(dst + ((size_t)x * S + s) * 6, src + 6 * x,
+                                           6 * sizeof(float));
+      }
+  }
+  free(tmp);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
+  hrgl.DeleteFramebuffers(2, fbo);
+  hrgl.DeleteTextures(3, tex);
+  if (rtex) hrgl.DeleteTextures(1, &rtex);
+  return rc;
+}
+
+/* ---- ground truth ---------------------------------------------------------- */
+
+typedef struct { float d; uint32_t i; } sort_key;
+
+static int key_cmp(const void *a, const void *b) {
+  const sort_key *x = a, *y = b;
+  if (x->d != y->d) return x->d < y->d ? -1 : 1;
+  return x->i < y->i ? -1 : x->i > y->i;
+}
+
+int hr_abuf_blend_cpu(const uint32_t *heads, const uint32_t *nodes, uint32_t capacity, int w,
+                      int h, int ss, float *out) {
+  size_t cap = 256;
+  sort_key *keys = malloc(sizeof *keys * cap);
+  if (!keys) return HF_ENOMEM;
+  const int sw = w * ss;
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      double acc[3] = {0, 0, 0};
+      for (int sy = 0; sy < ss; sy++)
+        for (int sx = 0; sx < ss; sx++) {
+          size_t n = 0;
+          for (uint32_t i = heads[(size_t)(y * ss + sy) * sw + x * ss + sx];
+               i != 0xFFFFFFFFu && i < capacity; i = nodes[(size_t)i * NODE_WORDS + 4]) {
+            if (n == cap) {
+              sort_key *k2 = realloc(keys, sizeof *keys * cap * 2);
+              if (!k2) {
+                free(keys);
+                return HF_ENOMEM;
+              }
+              keys = k2;
+              cap *= 2;
+            }
+            float d;
+            memcpy(&d, &nodes[(size_t)i * NODE_WORDS + 3], 4);
+            keys[n].d = d;
+            keys[n].i = i;
+            n++;
+          }
+          qsort(keys, n, sizeof *keys, key_cmp);
+          double T = 1, c = 0, hl = 0;
+          for (size_t k = 0; k < n; k++) {
+            float q[3];
+            memcpy(q, &nodes[(size_t)keys[k].i * NODE_WORDS], sizeof q);
+            c += T * q[2] * q[0];
+            hl += T * q[2] * q[1];
+            T *= 1 - q[2];
+          }
+          acc[0] += c, acc[1] += hl, acc[2] += 1 - T;
+        }
+      float *o = out + 3 * ((size_t)y * w + x);
+      double a = acc[2] / (ss * ss);
+      o[0] = a > 0 ? (float)(acc[0] / acc[2]) : 0;
+      o[1] = a > 0 ? (float)(acc[1] / acc[2]) : 0;
+      o[2] = (float)a;
+    }
+  free(keys);
+  return HF_OK;
+}
+
+static void flip_rows(const float *src, float *dst, int w, int h, int ch) {
+  for (int y = 0; y < h; y++)
+    memcpy(dst + (size_t)(h - 1 - y) * w * ch, src + (size_t)y * w * ch,
+           sizeof(float) * w * ch);
+}
+
+int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss, float *gt,
+               float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
+  const int W = v->width, H = v->height, SW = W * ss, SH = H * ss;
+  GLint maxtex = 0;
+  hrgl.GetIntegerv(GL_MAX_TEXTURE_SIZE, &maxtex);
+  if (ss < 1 || SW > maxtex || SH > maxtex) {
+    if (err) snprintf(err, errlen, "supersampled size %dx%d above GL_MAX_TEXTURE_SIZE %d", SW,
+                      SH, (int)maxtex);
+    return HF_ERANGE;
+  }
+  hfr_view sv = *v;
+  sv.width = SW;
+  sv.height = SH;
+  hr_camera cam;
+  hr_camera_from_view(r, &sv, &cam);
+
+  GLuint bufs[4] = {0, 0, 0, 0}; /* heads, nodes, counter, stats */
+  GLuint depth = 0, rtex = 0, fbo[2] = {0, 0};
+  hrgl.GenBuffers(4, bufs);
+  hrgl.GenFramebuffers(2, fbo);
+  depth = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, SW, SH, 0);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, depth, 0);
+  GLenum none = GL_NONE;
+  hrgl.DrawBuffers(1, &none);
+  int rc = fbo_complete("A-buffer", err, errlen);
+
+  hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
+  hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)sizeof(uint32_t) * SW * SH, NULL,
+                  GL_DYNAMIC_COPY);
+  uint64_t want = (uint64_t)SW * SH * 2;
+  uint32_t capacity = want < ABUF_MIN_NODES ? ABUF_MIN_NODES
+                      : want > ABUF_MAX_NODES ? ABUF_MAX_NODES : (uint32_t)want;
+  uint32_t count = 0;
+  double t0 = hr_now_ms();
+  for (int attempt = 0; rc == HF_OK && attempt < 2; attempt++) {
+    hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[1]);
+    hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)capacity * NODE_WORDS * 4, NULL,
+                    GL_DYNAMIC_COPY);
+    const uint32_t empty = 0xFFFFFFFFu, zero = 0;
+    hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
+    hrgl.ClearBufferData(GL_SHADER_STORAGE_BUFFER, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT,
+                         &empty);
+    hrgl.BindBuffer(GL_ATOMIC_COUNTER_BUFFER, bufs[2]);
+    hrgl.BufferData(GL_ATOMIC_COUNTER_BUFFER, 4, &zero, GL_DYNAMIC_COPY);
+    hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, bufs[0]);
+    hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, bufs[1]);
+    hrgl.BindBufferBase(GL_ATOMIC_COUNTER_BUFFER, 0, bufs[2]);
+
+    hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
+    hrgl.Viewport(0, 0, SW, SH);
+    const float one = 1.0f;
+    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+    hrgl.Enable(GL_DEPTH_TEST);
+    hrgl.DepthFunc(GL_LESS);
+    hrgl.DepthMask(GL_TRUE);
+    draw_head(r, &cam, &sv, 0, 0, 0);
+    hrgl.DepthMask(GL_FALSE); /* every hair fragment is kept, none hides another */
+    hrgl.UseProgram(r->abuf.id);
+    set_geometry(&r->abuf, &cam, &sv, 0, 0);
+    hr_bind_shading(r, &r->abuf, &sv, &cam, light, 0);
+    hr_set_2f(&r->abuf, "u_viewport", (float)SW, (float)SH);
+    hr_set_u(&r->abuf, "u_capacity", capacity);
+    hr_set_i(&r->abuf, "u_width", SW);
+    draw_hair(r);
+    hrgl.DepthMask(GL_TRUE);
+    hrgl.Disable(GL_DEPTH_TEST);
+    hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_ATOMIC_COUNTER_BARRIER_BIT |
+                       GL_BUFFER_UPDATE_BARRIER_BIT);
+    hrgl.BindBuffer(GL_ATOMIC_COUNTER_BUFFER, bufs[2]);
+    hrgl.GetBufferSubData(GL_ATOMIC_COUNTER_BUFFER, 0, 4, &count);
+    rc = hr_gl_check("A-buffer pass", err, errlen);
+    if (rc != HF_OK || count <= capacity) break;
+    if (count > ABUF_MAX_NODES) {
+      if (err) snprintf(err, errlen, "%u A-buffer fragments, more than the %u supported: "
+                        "lower the supersampling, size or strand count", count, ABUF_MAX_NODES);
+      rc = HF_ERANGE;
+      break;
+    }
+    /* Too small: grow to what was counted and draw again. */
+    capacity = count + count / 16 > ABUF_MAX_NODES ? ABUF_MAX_NODES : count + count / 16;
+  }
+
+  if (rc == HF_OK) {
+    const uint32_t zero2[2] = {0, 0};
+    hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
+    hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, sizeof zero2, zero2, GL_DYNAMIC_COPY);
+    hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, bufs[3]);
+    rtex = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
+    hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
+    hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, rtex, 0);
+    GLenum b0 = GL_COLOR_ATTACHMENT0;
+    hrgl.DrawBuffers(1, &b0);
+    rc = fbo_complete("A-buffer resolve", err, errlen);
+  }
+  float *tmp = NULL;
+  if (rc == HF_OK) {
+    hrgl.UseProgram(r->resolve_abuf.id);
+    hr_set_i(&r->resolve_abuf, "u_ss", ss);
+    hr_set_i(&r->resolve_abuf, "u_width", SW);
+    hr_set_u(&r->resolve_abuf, "u_capacity", capacity);
+    draw_fullscreen(r, &r->resolve_abuf, W, H);
+    hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
+    if (!tmp) rc = HF_ENOMEM;
+  }
+  if (rc == HF_OK) {
+    hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
+    hrgl.ReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, tmp);
+    uint32_t st[2] = {0, 0};
+    hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
+    hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, sizeof st, st);
+    rc = hr_gl_check("A-buffer resolve", err, errlen);
+    if (stats) {
+      stats->gt_fragments = count;
+      stats->gt_max_depth = st[0];
+      stats->gt_truncated = st[1];
+    }
+  }
+  if (rc == HF_OK) {
+    for (size_t i = 0; i < (size_t)W * H; i++) memcpy(tmp + 3 * i, tmp + 4 * i, 12);
+    flip_rows(tmp, gt, W, H, 3);
+  }
+  if (rc == HF_OK && cpu_gt) {
+    uint32_t *heads = malloc(sizeof(uint32_t) * (size_t)SW * SH);
+    uint32_t *nodes = malloc(sizeof(uint32_t) * NODE_WORDS * (size_t)(count ? count : 1));
+    float *cpu = malloc(sizeof(float) * 3 * (size_t)W * H);
+    if (!heads || !nodes || !cpu) rc = HF_ENOMEM;
+    if (rc == HF_OK) {
+      hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
+      hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, sizeof(uint32_t) * (size_t)SW * SH,
+                            heads);
+      hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[1]);
+      if (count)
+        hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0,
+                              sizeof(uint32_t) * NODE_WORDS * (size_t)count, nodes);
+      rc = hr_gl_check("A-buffer read back", err, errlen);
+    }
+    if (rc == HF_OK) rc = hr_abuf_blend_cpu(heads, nodes, count, W, H, ss, cpu);
+    if (rc == HF_OK) flip_rows(cpu, cpu_gt, W, H, 3);
+    free(heads);
+    free(nodes);
+    free(cpu);
+  }
+  if (stats) stats->gt_ms += hr_now_ms() - t0;
+  free(tmp);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
+  hrgl.DeleteFramebuffers(2, fbo);
+  hrgl.DeleteTextures(1, &depth);
+  if (rtex) hrgl.DeleteTextures(1, &rtex);
+  hrgl.DeleteBuffers(4, bufs);
+  return rc;
+}

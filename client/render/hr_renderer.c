@@ -1,0 +1,248 @@
+/* Renderer lifetime: context, programs, the uploaded model, cameras. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hr_internal.h"
+#include "hr_math.h"
+#include "hr_shaders.h"
+
+#define VERTEX_FLOATS 9 /* pos 3, tangent 3, thickness, opacity, strand id */
+
+const char *hfr_renderer_platform(const hfr_renderer *r) {
+  return r ? hr_context_platform(r->ctx) : "none";
+}
+
+void hfr_renderer_destroy(hfr_renderer *r) {
+  if (!r) return;
+  if (r->ctx && hr_context_make_current(r->ctx) == HF_OK && hrgl.DeleteProgram) {
+    hr_program *progs[] = {&r->st, &r->shadow, &r->abuf, &r->head, &r->resolve_ms,
+                           &r->resolve_abuf};
+    for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) hr_program_free(progs[i]);
+    GLuint vaos[] = {r->hair_vao, r->head_vao, r->empty_vao};
+    GLuint bufs[] = {r->hair_vbo, r->head_vbo};
+    hrgl.DeleteVertexArrays(3, vaos);
+    hrgl.DeleteBuffers(2, bufs);
+    if (r->shadow_tex) hrgl.DeleteTextures(1, &r->shadow_tex);
+    if (r->shadow_fbo) hrgl.DeleteFramebuffers(1, &r->shadow_fbo);
+  }
+  hr_context_destroy(r->ctx);
+  free(r->first);
+  free(r->count);
+  free(r);
+}
+
+/* A lat-long ellipsoid, slightly inside HFR_HEAD_RADII so that it never
+ * hides a root. */
+static int build_head(hfr_renderer *r) {
+  const int slices = 48, stacks = 24;
+  const float rad[3] = HFR_HEAD_RADII;
+  size_t n = (size_t)slices * stacks * 6;
+  float *v = malloc(n * 3 * sizeof(float));
+  if (!v) return HF_ENOMEM;
+  size_t k = 0;
+  for (int i = 0; i < stacks; i++)
+    for (int j = 0; j < slices; j++) {
+      float th[2] = {HR_PI * i / stacks, HR_PI * (i + 1) / stacks};
+      float ph[2] = {2 * HR_PI * j / slices, 2 * HR_PI * (j + 1) / slices};
+      int quad[6][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 0}, {1, 1}, {0, 1}};
+      for (int q = 0; q < 6; q++) {
+        float t = th[quad[q][0]], p = ph[quad[q][1]];
+        v[3 * k + 0] = 0.99f * rad[0] * sinf(t) * sinf(p);
+        v[3 * k + 1] = 0.99f * rad[1] * cosf(t);
+        v[3 * k + 2] = 0.99f * rad[2] * sinf(t) * cosf(p);
+        k++;
+      }
+    }
+  hrgl.GenVertexArrays(1, &r->head_vao);
+  hrgl.GenBuffers(1, &r->head_vbo);
+  hrgl.BindVertexArray(r->head_vao);
+  hrgl.BindBuffer(GL_ARRAY_BUFFER, r->head_vbo);
+  hrgl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(n * 3 * sizeof(float)), v, GL_STATIC_DRAW);
+  hrgl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), (void *)0);
+  hrgl.EnableVertexAttribArray(0);
+  hrgl.BindVertexArray(0);
+  free(v);
+  r->head_vertices = (GLsizei)n;
+  return HF_OK;
+}
+
+int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, size_t errlen) {
+  if (!out) return HF_EINVAL;
+  *out = NULL;
+  hfr_renderer *r = calloc(1, sizeof *r);
+  if (!r) return HF_ENOMEM;
+  int rc = hr_context_create(platform, &r->ctx, err, errlen);
+  if (rc == HF_OK) rc = hr_gl_load(r->ctx, err, errlen);
+  if (rc != HF_OK) {
+    hfr_renderer_destroy(r);
+    return rc;
+  }
+  struct {
+    hr_program *p;
+    const char *vs, *gs, *fs;
+  } progs[] = {
+    {&r->st, hr_glsl_hair_vs, NULL, hr_glsl_st_fs},
+    {&r->shadow, hr_glsl_hair_vs, NULL, hr_glsl_shadow_fs},
+    {&r->abuf, hr_glsl_hair_vs, hr_glsl_hair_gs, hr_glsl_abuf_fs},
+    {&r->head, hr_glsl_head_vs, NULL, hr_glsl_head_fs},
+    {&r->resolve_ms, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_ms_fs},
+    {&r->resolve_abuf, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_abuf_fs},
+  };
+  for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) {
+    rc = hr_program_build(progs[i].p, progs[i].vs, progs[i].gs, progs[i].fs, err, errlen);
+    if (rc != HF_OK) {
+      hfr_renderer_destroy(r);
+      return rc;
+    }
+  }
+  hrgl.GenVertexArrays(1, &r->empty_vao);
+  if ((rc = build_head(r)) != HF_OK || (rc = hr_gl_check("renderer setup", err, errlen))) {
+    hfr_renderer_destroy(r);
+    return rc;
+  }
+  r->radius = 1;
+  *out = r;
+  return HF_OK;
+}
+
+int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *err,
+                          size_t errlen) {
+  if (!r || !h || !h->pos || !h->strands || h->points <= h->strands) return HF_EINVAL;
+  if (h->strands > HFR_MAX_STRANDS || h->points > HFR_MAX_POINTS) return HF_ERANGE;
+  int rc = hr_context_make_current(r->ctx);
+  if (rc != HF_OK) return rc;
+  /* Check the strand layout before trusting any offset computed from it. */
+  uint64_t total = 0;
+  for (uint32_t s = 0; s < h->strands; s++) total += hfr_hair_strand_segments(h, s) + 1u;
+  if (total != h->points) {
+    if (err) snprintf(err, errlen, "segment counts do not add up to the point count");
+    return HF_EINVAL;
+  }
+  size_t bytes = (size_t)h->points * VERTEX_FLOATS * sizeof(float);
+  if (bytes > ((size_t)1 << 31)) {
+    if (err) snprintf(err, errlen, "model too large for one vertex buffer");
+    return HF_ERANGE;
+  }
+  float *v = malloc(bytes);
+  GLint *first = malloc(sizeof(GLint) * h->strands);
+  GLsizei *count = malloc(sizeof(GLsizei) * h->strands);
+  if (!v || !first || !count) {
+    free(v);
+    free(first);
+    free(count);
+    return HF_ENOMEM;
+  }
+  float centre[3], radius;
+  hfr_hair_bounds(h, centre, &radius);
+  float def_thick = h->default_thickness;
+  if (!(def_thick > 0) || !isfinite(def_thick)) def_thick = radius * 5e-4f;
+  float def_opac = 1 - h->default_transparency;
+  if (!(def_opac > 0 && def_opac <= 1)) def_opac = 0.8f;
+
+  size_t base = 0;
+  for (uint32_t s = 0; s < h->strands; s++) {
+    uint32_t n = hfr_hair_strand_segments(h, s) + 1;
+    first[s] = (GLint)base;
+    count[s] = (GLsizei)n;
+    for (uint32_t i = 0; i < n; i++) {
+      size_t a = base + (i ? i - 1 : 0), b = base + (i + 1 < n ? i + 1 : i);
+      float *o = v + (base + i) * VERTEX_FLOATS;
+      const float *p = h->pos + 3 * (base + i);
+      float t[3] = {h->pos[3 * b] - h->pos[3 * a], h->pos[3 * b + 1] - h->pos[3 * a + 1],
+                    h->pos[3 * b + 2] - h->pos[3 * a + 2]};
+      if (hr_len(t) < 1e-20f) t[0] = 0, t[1] = -1, t[2] = 0;
+      hr_normalize(t);
+      o[0] = p[0], o[1] = p[1], o[2] = p[2];
+      o[3] = t[0], o[4] = t[1], o[5] = t[2];
+      o[6] = h->thickness ? h->thickness[base + i] : def_thick;
+      o[7] = h->transparency ? 1 - h->transparency[base + i] : def_opac;
+      o[8] = (float)s;
+    }
+    base += n;
+  }
+  if (!r->hair_vao) {
+    hrgl.GenVertexArrays(1, &r->hair_vao);
+    hrgl.GenBuffers(1, &r->hair_vbo);
+  }
+  hrgl.BindVertexArray(r->hair_vao);
+  hrgl.BindBuffer(GL_ARRAY_BUFFER, r->hair_vbo);
+  hrgl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)bytes, v, GL_STATIC_DRAW);
+  const GLsizei stride = VERTEX_FLOATS * sizeof(float);
+  const GLint sizes[5] = {3, 3, 1, 1, 1}, offs[5] = {0, 3, 6, 7, 8};
+  for (GLuint a = 0; a < 5; a++) {
+    hrgl.VertexAttribPointer(a, sizes[a], GL_FLOAT, GL_FALSE, stride,
+                             (void *)(offs[a] * sizeof(float)));
+    hrgl.EnableVertexAttribArray(a);
+  }
+  hrgl.BindVertexArray(0);
+  free(v);
+  free(r->first);
+  free(r->count);
+  r->first = first;
+  r->count = count;
+  r->strands = (GLsizei)h->strands;
+  r->segments = hfr_hair_total_segments(h);
+  r->has_hair = 1;
+  r->has_head = head != 0;
+  if (r->has_head) {
+    /* Enclose the head too: it can stick out of short hair. */
+    const float hr_[3] = HFR_HEAD_RADII;
+    for (int k = 0; k < 3; k++) {
+      for (int sgn = -1; sgn <= 1; sgn += 2) {
+        float q[3] = {0, 0, 0};
+        q[k] = sgn * hr_[k];
+        float d[3] = {q[0] - centre[0], q[1] - centre[1], q[2] - centre[2]};
+        float l = hr_len(d);
+        if (l > radius) {
+          /* Grow the sphere just enough to contain q. */
+          float nr = 0.5f * (radius + l);
+          for (int c = 0; c < 3; c++) centre[c] += d[c] / l * (nr - radius);
+          radius = nr;
+        }
+      }
+    }
+  }
+  memcpy(r->centre, centre, sizeof centre);
+  r->radius = radius;
+  return hr_gl_check("hair upload", err, errlen);
+}
+
+void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *cam) {
+  float d[3];
+  hr_dir_from_angles(v->cam_yaw_deg, v->cam_pitch_deg, d);
+  float dist = v->cam_distance * r->radius;
+  for (int k = 0; k < 3; k++) cam->eye[k] = r->centre[k] + d[k] * dist;
+  float up[3] = {0, 1, 0};
+  hr_mat_look_at(cam->eye, r->centre, up, cam->view);
+  float n = fmaxf(dist - 1.2f * r->radius, 0.02f * r->radius), f = dist + 1.2f * r->radius;
+  hr_mat_perspective(hr_deg(v->cam_fov_deg), (float)v->width / v->height, n, f, cam->proj);
+  cam->depth_near = dist - r->radius;
+  cam->depth_far = dist + r->radius;
+  cam->px_per_unit = cam->proj[5] * v->height * 0.5f;
+  cam->ortho = 0;
+}
+
+void hr_camera_light(const hfr_renderer *r, const hfr_view *v, hr_camera *cam) {
+  float d[3];
+  hr_dir_from_angles(v->light_yaw_deg, v->light_pitch_deg, d);
+  float R = r->radius;
+  float dist = v->light_directional ? 3 * R : v->light_distance * R;
+  for (int k = 0; k < 3; k++) cam->eye[k] = r->centre[k] + d[k] * dist;
+  float up[3] = {0, 1, 0};
+  hr_mat_look_at(cam->eye, r->centre, up, cam->view);
+  float n = fmaxf(dist - 1.05f * R, 0.02f * R), f = dist + 1.05f * R;
+  int size = v->shadow_size > 0 ? v->shadow_size : 1;
+  if (v->light_directional) {
+    hr_mat_ortho(-1.05f * R, 1.05f * R, -1.05f * R, 1.05f * R, n, f, cam->proj);
+    cam->ortho = 1;
+  } else {
+    float half = asinf(fminf(1.05f / v->light_distance, 0.999f));
+    hr_mat_perspective(2 * half, 1, n, f, cam->proj);
+    cam->ortho = 0;
+  }
+  cam->depth_near = n;
+  cam->depth_far = f;
+  cam->px_per_unit = cam->proj[5] * size * 0.5f;
+}

@@ -1,0 +1,315 @@
+/* GLSL of the renderer. The common fragment code (hashing, shading, shadow
+ * lookup) is pasted in front of each fragment shader by hr_program.c. */
+#include "hr_shaders.h"
+
+#define GLSL_VERSION "#version 450 core\n"
+
+/* Every hair vertex carries its strand id (a float, exact below 2^24): the
+ * hash includes it so that strands sharing a pixel-sized cell of model space
+ * still draw independent coverage. */
+const char hr_glsl_hair_vs[] = GLSL_VERSION
+"layout(location = 0) in vec3 a_pos;\n"
+"layout(location = 1) in vec3 a_tan;\n"
+"layout(location = 2) in float a_thick;\n"
+"layout(location = 3) in float a_opac;\n"
+"layout(location = 4) in float a_strand;\n"
+"uniform mat4 u_view;\n"
+"uniform mat4 u_proj;\n"
+"uniform vec2 u_jitter;          /* NDC offset of this pass */\n"
+"uniform float u_px_per_unit;    /* pixels per model unit at eye distance 1 */\n"
+"uniform int u_ortho;\n"
+"uniform float u_thick_scale;\n"
+"out V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vo;\n"
+"void main() {\n"
+"  vec4 e = u_view * vec4(a_pos, 1.0);\n"
+"  vec4 c = u_proj * e;\n"
+"  c.xy += u_jitter * c.w;\n"
+"  gl_Position = c;\n"
+"  float dist = max(-e.z, 1e-6);\n"
+"  /* Area baked into alpha: the strand's width over the pixel footprint. */\n"
+"  float px = a_thick * u_thick_scale * u_px_per_unit / (u_ortho != 0 ? 1.0 : dist);\n"
+"  vo.alpha = a_opac * clamp(px, 0.0, 1.0);\n"
+"  vo.obj = a_pos;\n"
+"  vo.wtan = a_tan;\n"
+"  vo.vtan = mat3(u_view) * a_tan;\n"
+"  vo.vdist = dist;\n"
+"  vo.strand = uint(a_strand);\n"
+"}\n";
+
+const char hr_glsl_hair_gs[] = GLSL_VERSION
+"layout(lines) in;\n"
+"layout(triangle_strip, max_vertices = 4) out;\n"
+"in V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vi[];\n"
+"out V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vo;\n"
+"uniform vec2 u_viewport;\n"
+"void emit(int k, vec2 off) {\n"
+"  vec4 p = gl_in[k].gl_Position;\n"
+"  gl_Position = vec4(p.xy + off * p.w, p.zw);\n"
+"  vo.obj = vi[k].obj; vo.wtan = vi[k].wtan; vo.vtan = vi[k].vtan;\n"
+"  vo.alpha = vi[k].alpha; vo.vdist = vi[k].vdist; vo.strand = vi[k].strand;\n"
+"  EmitVertex();\n"
+"}\n"
+"void main() {\n"
+"  vec4 p0 = gl_in[0].gl_Position, p1 = gl_in[1].gl_Position;\n"
+"  if (p0.w <= 0.0 || p1.w <= 0.0) return;   /* behind the eye: the camera never is that close */\n"
+"  vec2 s0 = p0.xy / p0.w * u_viewport * 0.5, s1 = p1.xy / p1.w * u_viewport * 0.5;\n"
+"  vec2 d = s1 - s0;\n"
+"  d = length(d) > 1e-6 ? normalize(d) : vec2(1.0, 0.0);\n"
+"  /* Half a pixel each side, in NDC. */\n"
+"  vec2 off = vec2(-d.y, d.x) * 0.5 * 2.0 / u_viewport;\n"
+"  emit(0, off); emit(0, -off); emit(1, off); emit(1, -off);\n"
+"  EndPrimitive();\n"
+"}\n";
+
+/* Shared fragment code: hash, hashed alpha threshold, shading, shadows. */
+#define FS_COMMON                                                               \
+"in V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vi;\n" \
+"uniform uint u_seed;\n"                                                        \
+"uniform float u_hash_scale;\n"                                                 \
+"uniform float u_depth_near, u_depth_far;\n"                                    \
+"uniform vec3 u_light;          /* position, or direction towards the light */\n" \
+"uniform int u_light_directional;\n"                                            \
+"uniform vec3 u_eye;\n"                                                         \
+"uniform float u_alpha_r, u_alpha_trt, u_ambient;\n"                            \
+"uniform int u_spec_half;\n"                                                    \
+"uniform int u_shadow_on;\n"                                                    \
+"uniform sampler2DShadow u_shadow;\n"                                           \
+"uniform mat4 u_light_view, u_light_vp;\n"                                      \
+"uniform float u_shadow_near, u_shadow_far, u_shadow_bias, u_shadow_texel;\n"   \
+"uvec3 pcg3d(uvec3 v) {\n"                                                      \
+"  v = v * 1664525u + 1013904223u;\n"                                           \
+"  v.x += v.y * v.z; v.y += v.z * v.x; v.z += v.x * v.y;\n"                     \
+"  v ^= v >> 16u;\n"                                                            \
+"  v.x += v.y * v.z; v.y += v.z * v.x; v.z += v.x * v.y;\n"                     \
+"  return v;\n"                                                                 \
+"}\n"                                                                           \
+"float hash01(vec3 cell, uint salt) {\n"                                        \
+"  uvec3 v = pcg3d(floatBitsToUint(cell));\n"                                   \
+"  v = pcg3d(v + uvec3(vi.strand * 0x9E3779B9u, salt * 0x85EBCA6Bu, u_seed * 0xC2B2AE35u + 1u));\n" \
+"  return float(v.x >> 8) * (1.0 / 16777216.0);\n"                              \
+"}\n"                                                                           \
+"/* Wyman & McGuire 2017: cells of about one pixel in model space, blended\n"   \
+" * between the two nearest power-of-two scales, then the blend's CDF undone\n" \
+" * so the threshold stays uniform in [0, 1). l2 = log2 of the pixel scale,\n"  \
+" * computed once in uniform control flow. */\n"                                \
+"float hashed_threshold(float l2, uint salt) {\n"                               \
+"  vec2 scales = vec2(exp2(floor(l2)), exp2(ceil(l2)));\n"                      \
+"  float a0 = hash01(floor(scales.x * vi.obj), salt);\n"                        \
+"  float a1 = hash01(floor(scales.y * vi.obj), salt);\n"                        \
+"  float lf = fract(l2);\n"                                                     \
+"  float x = mix(a0, a1, lf);\n"                                                \
+"  float a = min(lf, 1.0 - lf);\n"                                              \
+"  float t;\n"                                                                  \
+"  if (a < 1e-6) t = x;\n"                                                      \
+"  else if (x < a) t = x * x / (2.0 * a * (1.0 - a));\n"                        \
+"  else if (x < 1.0 - a) t = (x - 0.5 * a) / (1.0 - a);\n"                      \
+"  else t = 1.0 - (1.0 - x) * (1.0 - x) / (2.0 * a * (1.0 - a));\n"             \
+"  return clamp(t, 1e-6, 1.0);\n"                                               \
+"}\n"                                                                           \
+"float hash_log2_scale() {\n"                                                   \
+"  float m = max(length(dFdx(vi.obj)), length(dFdy(vi.obj)));\n"                \
+"  return log2(1.0 / (u_hash_scale * max(m, 1e-12)));\n"                        \
+"}\n"                                                                           \
+"float shadow_visibility(vec3 p) {\n"                                           \
+"  if (u_shadow_on == 0) return 1.0;\n"                                         \
+"  vec4 c = u_light_vp * vec4(p, 1.0);\n"                                       \
+"  vec2 uv = c.xy / c.w * 0.5 + 0.5;\n"                                         \
+"  if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;\n" \
+"  float d = -(u_light_view * vec4(p, 1.0)).z;\n"                               \
+"  float ref = (d - u_shadow_near) / (u_shadow_far - u_shadow_near) - u_shadow_bias;\n" \
+"  float s = 0.0;\n"                                                            \
+"  for (int y = -1; y <= 1; y++)\n"                                             \
+"    for (int x = -1; x <= 1; x++)\n"                                           \
+"      s += texture(u_shadow, vec3(uv + vec2(x, y) * u_shadow_texel, ref));\n"  \
+"  return s / 9.0;\n"                                                           \
+"}\n"                                                                           \
+"/* Fig. 3 of the paper: colour factor F_d + F_TRT (+ ambient), highlight F_R. */\n" \
+"void shade(out float color, out float highlight) {\n"                          \
+"  vec3 T = normalize(vi.wtan);\n"                                              \
+"  vec3 L = u_light_directional != 0 ? normalize(u_light) : normalize(u_light - vi.obj);\n" \
+"  float a_hl = acos(clamp(dot(T, L), -1.0, 1.0));\n"                           \
+"  float fd = sin(a_hl);\n"                                                     \
+"  float a_s = a_hl;\n"                                                         \
+"  if (u_spec_half != 0) {\n"                                                   \
+"    vec3 H = normalize(L + normalize(u_eye - vi.obj));\n"                      \
+"    a_s = acos(clamp(dot(T, H), -1.0, 1.0));\n"                                \
+"  }\n"                                                                         \
+"  float fr = pow(max(sin(a_s + u_alpha_r), 0.0), 250.0);\n"                    \
+"  float ftrt = pow(max(sin(a_s + u_alpha_trt), 0.0), 80.0);\n"                 \
+"  float vis = shadow_visibility(vi.obj);\n"                                    \
+"  color = u_ambient + vis * (fd + ftrt);\n"                                    \
+"  highlight = vis * fr;\n"                                                     \
+"}\n"                                                                           \
+"float depth01() {\n"                                                           \
+"  return clamp((vi.vdist - u_depth_near) / (u_depth_far - u_depth_near), 0.0, 1.0);\n" \
+"}\n"
+
+/* Each of the u_samples coverage bits is set with probability alpha from
+ * its own hashed threshold; gl_SampleMask is written on every path (Mesa
+ * requires it once it is written anywhere). Opaque mode keeps the
+ * geometric coverage and alpha 1. */
+const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
+"layout(location = 0) out vec4 o_f0;   /* color, highlight, alpha, depth */\n"
+"layout(location = 1) out vec4 o_f1;   /* tangent.x, tangent.y */\n"
+"uniform int u_opaque;\n"
+"uniform int u_samples;\n"
+"void main() {\n"
+"  float l2 = hash_log2_scale();\n"
+"  int mask = gl_SampleMaskIn[0];\n"
+"  if (u_opaque == 0) {\n"
+"    int m = 0;\n"
+"    for (int s = 0; s < u_samples; s++)\n"
+"      if (hashed_threshold(l2, uint(s)) < vi.alpha) m |= 1 << s;\n"
+"    mask &= m;\n"
+"  }\n"
+"  gl_SampleMask[0] = mask;\n"
+"  float c, h;\n"
+"  shade(c, h);\n"
+"  vec3 t = normalize(vi.vtan);\n"
+"  o_f0 = vec4(c, h, u_opaque != 0 ? 1.0 : vi.alpha, depth01());\n"
+"  o_f1 = vec4(t.xy, 0.0, 0.0);\n"
+"}\n";
+
+/* One sample per texel: the strand survives where its hashed threshold is
+ * below alpha (salt 255: independent of the camera samples' bits). */
+const char hr_glsl_shadow_fs[] = GLSL_VERSION FS_COMMON
+"void main() {\n"
+"  float l2 = hash_log2_scale();\n"
+"  bool keep = hashed_threshold(l2, 255u) < vi.alpha;\n"
+"  gl_FragDepth = depth01();\n"
+"  if (!keep) discard;\n"
+"}\n";
+
+const char hr_glsl_abuf_fs[] = GLSL_VERSION FS_COMMON
+"layout(early_fragment_tests) in;   /* the head's depth culls before insertion */\n"
+"struct Node { float c, h, a, d; uint next; };\n"
+"layout(std430, binding = 0) buffer Heads { uint heads[]; };\n"
+"layout(std430, binding = 1) buffer Nodes { Node nodes[]; };\n"
+"layout(binding = 0, offset = 0) uniform atomic_uint u_count;\n"
+"uniform uint u_capacity;\n"
+"uniform int u_width;\n"
+"void main() {\n"
+"  float c, h;\n"
+"  shade(c, h);\n"
+"  uint i = atomicCounterIncrement(u_count);\n"
+"  if (i >= u_capacity) return;   /* counted: the host grows the pool and redraws */\n"
+"  nodes[i].c = c; nodes[i].h = h; nodes[i].a = vi.alpha; nodes[i].d = depth01();\n"
+"  ivec2 p = ivec2(gl_FragCoord.xy);\n"
+"  nodes[i].next = atomicExchange(heads[p.y * u_width + p.x], i);\n"
+"}\n";
+
+const char hr_glsl_head_vs[] = GLSL_VERSION
+"layout(location = 0) in vec3 a_pos;\n"
+"uniform mat4 u_view, u_proj;\n"
+"uniform vec2 u_jitter;\n"
+"out float v_vdist;\n"
+"void main() {\n"
+"  vec4 e = u_view * vec4(a_pos, 1.0);\n"
+"  vec4 c = u_proj * e;\n"
+"  c.xy += u_jitter * c.w;\n"
+"  gl_Position = c;\n"
+"  v_vdist = -e.z;\n"
+"}\n";
+
+/* In the shadow pass depth is the same linear measure the hair writes. */
+const char hr_glsl_head_fs[] = GLSL_VERSION
+"in float v_vdist;\n"
+"uniform int u_linear_depth;\n"
+"uniform float u_depth_near, u_depth_far;\n"
+"void main() {\n"
+"  gl_FragDepth = u_linear_depth != 0\n"
+"      ? clamp((v_vdist - u_depth_near) / (u_depth_far - u_depth_near), 0.0, 1.0)\n"
+"      : gl_FragCoord.z;\n"
+"}\n";
+
+/* One triangle that covers the framebuffer without being clipped: the
+ * viewport is set to twice the target size and the triangle spans its lower
+ * left half. (A clipped full-screen triangle makes llvmpipe blend some
+ * pixels of partially covered 4x4 blocks wrongly in the A-buffer resolve.) */
+const char hr_glsl_fullscreen_vs[] = GLSL_VERSION
+"uniform int u_grow;   /* 1: w x h viewport, the usual clipped triangle */\n"
+"void main() {\n"
+"  vec2 p = vec2(gl_VertexID == 1 ? 1.0 : -1.0, gl_VertexID == 2 ? 1.0 : -1.0);\n"
+"  if (u_grow != 0) p = 2.0 * p + 1.0;\n"
+"  gl_Position = vec4(p, 0.0, 1.0);\n"
+"}\n";
+
+/* Reads every sample (texelFetch on the MS attachments) into an RG32F
+ * target 3W x (H * u_samples): texel (3x + j, u_samples * y + s) holds
+ * features 2j, 2j + 1 of sample s of pixel (x, y). The host reorders rows
+ * into the core's [h][w][samples][6]. */
+const char hr_glsl_resolve_ms_fs[] = GLSL_VERSION
+"uniform sampler2DMS u_f0, u_f1;\n"
+"uniform int u_samples;\n"
+"out vec2 o;\n"
+"void main() {\n"
+"  ivec2 p = ivec2(gl_FragCoord.xy);\n"
+"  int x = p.x / 3, j = p.x - 3 * x;\n"
+"  int y = p.y / u_samples, s = p.y - u_samples * y;\n"
+"  vec4 a = texelFetch(u_f0, ivec2(x, y), s);\n"
+"  vec4 b = texelFetch(u_f1, ivec2(x, y), s);\n"
+"  o = j == 0 ? a.xy : (j == 1 ? a.zw : b.xy);\n"
+"}\n";
+
+/* Sorts each subsample's list front to back and blends it. The nearest
+ * HR_ABUF_SORT fragments (by depth, then node index, so ties resolve the
+ * same way on the host) are blended exactly; any further ones are blended
+ * behind them in list order and counted in Stats.truncated. */
+#define STR_(x) #x
+#define STR(x) STR_(x)
+const char hr_glsl_resolve_abuf_fs[] = GLSL_VERSION
+"#define K " STR(HR_ABUF_SORT) "\n"
+"struct Node { float c, h, a, d; uint next; };\n"
+"layout(std430, binding = 0) readonly buffer Heads { uint heads[]; };\n"
+"layout(std430, binding = 1) readonly buffer Nodes { Node nodes[]; };\n"
+"layout(std430, binding = 2) buffer Stats { uint max_depth; uint truncated; };\n"
+"uniform int u_ss;\n"
+"uniform int u_width;      /* supersampled width */\n"
+"uniform uint u_capacity;\n"
+"out vec4 o;\n"
+"bool before(float da, uint ia, float db, uint ib) { return da < db || (da == db && ia < ib); }\n"
+"void main() {\n"
+"  ivec2 p = ivec2(gl_FragCoord.xy);\n"
+"  vec3 acc = vec3(0.0);\n"
+"  uint pmax = 0u, ptrunc = 0u;\n"
+"  uint idx[K];\n"
+"  float dep[K];\n"
+"  for (int sy = 0; sy < u_ss; sy++)\n"
+"    for (int sx = 0; sx < u_ss; sx++) {\n"
+"      uint head = heads[(p.y * u_ss + sy) * u_width + p.x * u_ss + sx];\n"
+"      int n = 0;\n"
+"      uint total = 0u;\n"
+"      for (uint i = head; i != 0xFFFFFFFFu && i < u_capacity; i = nodes[i].next) {\n"
+"        total++;\n"
+"        float d = nodes[i].d;\n"
+"        if (n == K && !before(d, i, dep[K - 1], idx[K - 1])) continue;\n"
+"        int k = n < K ? n : K - 1;\n"
+"        while (k > 0 && before(d, i, dep[k - 1], idx[k - 1])) {\n"
+"          dep[k] = dep[k - 1]; idx[k] = idx[k - 1]; k--;\n"
+"        }\n"
+"        dep[k] = d; idx[k] = i;\n"
+"        if (n < K) n++;\n"
+"      }\n"
+"      float T = 1.0, c = 0.0, h = 0.0;\n"
+"      for (int k = 0; k < n; k++) {\n"
+"        Node q = nodes[idx[k]];\n"
+"        c += T * q.a * q.c; h += T * q.a * q.h; T *= 1.0 - q.a;\n"
+"      }\n"
+"      if (total > uint(K)) {\n"
+"        for (uint i = head; i != 0xFFFFFFFFu && i < u_capacity; i = nodes[i].next) {\n"
+"          Node q = nodes[i];\n"
+"          if (!before(q.d, i, dep[K - 1], idx[K - 1]) && i != idx[K - 1]) {\n"
+"            c += T * q.a * q.c; h += T * q.a * q.h; T *= 1.0 - q.a;\n"
+"          }\n"
+"        }\n"
+"        ptrunc++;\n"
+"      }\n"
+"      pmax = max(pmax, total);\n"
+"      acc += vec3(c, h, 1.0 - T);\n"
+"    }\n"
+"  /* One atomic per pixel, not per subsample. */\n"
+"  atomicMax(max_depth, pmax);\n"
+"  if (ptrunc > 0u) atomicAdd(truncated, ptrunc);\n"
+"  acc /= float(u_ss * u_ss);\n"
+"  o = acc.z > 0.0 ? vec4(acc.x / acc.z, acc.y / acc.z, acc.z, 1.0) : vec4(0.0);\n"
+"}\n";

@@ -1,0 +1,26 @@
+/* GLSL sources of the renderer's programs (hr_shaders.c). */
+#ifndef HR_SHADERS_H
+#define HR_SHADERS_H
+
+/* Hair vertex shader, shared by every hair pass. */
+extern const char hr_glsl_hair_vs[];
+/* Expands each line into a quad exactly one pixel wide (A-buffer pass). */
+extern const char hr_glsl_hair_gs[];
+/* Stochastic-transparency features into the MS attachments. */
+extern const char hr_glsl_st_fs[];
+/* Stochastic shadow map: hashed alpha test, linear depth. */
+extern const char hr_glsl_shadow_fs[];
+/* A-buffer insertion. */
+extern const char hr_glsl_abuf_fs[];
+/* Head: an opaque occluder. */
+extern const char hr_glsl_head_vs[];
+extern const char hr_glsl_head_fs[];
+/* Full-viewport triangle and the two resolve passes. */
+extern const char hr_glsl_fullscreen_vs[];
+extern const char hr_glsl_resolve_ms_fs[];
+extern const char hr_glsl_resolve_abuf_fs[];
+
+/* Fragments kept per subsample when the A-buffer is sorted. */
+#define HR_ABUF_SORT 64
+
+#endif
