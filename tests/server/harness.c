@@ -1,0 +1,346 @@
+#define _POSIX_C_SOURCE 200809L
+#define _DEFAULT_SOURCE
+#include "harness.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <netdb.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/time.h>
+#include <sys/un.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#ifndef HAIRFILTERD_PATH
+#error "HAIRFILTERD_PATH must name the daemon under test"
+#endif
+
+static void sleep_ms(int ms) {
+  struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+  nanosleep(&ts, NULL);
+}
+
+/* Three variants with different spp and depth, small enough for cpu-ref. */
+static const struct {
+  const char *name;
+  int spp, L, levels[3];
+} variants[] = {
+  {"Tiny", 2, 2, {8, 16}},
+  {"Small", 4, 3, {16, 32, 64}},
+  {"Mono", 1, 3, {8, 16, 32}},
+};
+
+int harness_init(harness *h) {
+  memset(h, 0, sizeof *h);
+  const char *tmp = getenv("TMPDIR");
+  snprintf(h->dir, sizeof h->dir, "%s/hfsrv-XXXXXX", tmp && *tmp ? tmp : "/tmp");
+  if (!mkdtemp(h->dir)) return -1;
+  snprintf(h->weights_dir, sizeof h->weights_dir, "%s/weights", h->dir);
+  if (mkdir(h->weights_dir, 0700)) return -1;
+  char why[256];
+  if (hf_backend_create("cpu-ref", &h->backend, why, sizeof why)) return -1;
+  for (size_t i = 0; i < sizeof variants / sizeof variants[0]; i++) {
+    hf_net_config c;
+    memset(&c, 0, sizeof c);
+    snprintf(c.name, sizeof c.name, "%s", variants[i].name);
+    c.spp = variants[i].spp;
+    c.in_channels = c.spp * HF_FEATURES_PER_SAMPLE;
+    c.out_channels = HF_OUT_CHANNELS;
+    c.num_levels = variants[i].L;
+    for (int l = 0; l < c.num_levels; l++) c.levels[l] = variants[i].levels[l];
+    if (hf_net_config_validate(&c)) return -1;
+    hf_weights *w;
+    if (hf_weights_init_random(&c, 1000 + i, &w)) return -1;
+    char path[320];
+    snprintf(path, sizeof path, "%s/%s.safetensors", h->weights_dir, c.name);
+    int rc = hf_weights_save(path, w);
+    if (!rc) rc = hf_model_create(h->backend, w, &h->v[h->nv].model);
+    hf_weights_free(w);
+    if (rc) return -1;
+    h->v[h->nv++].cfg = c;
+  }
+  return 0;
+}
+
+void harness_free(harness *h) {
+  for (int i = 0; i < h->nv; i++) hf_model_destroy(h->v[i].model);
+  hf_backend_destroy(h->backend);
+  char cmd[300];
+  snprintf(cmd, sizeof cmd, "rm -rf '%s'", h->dir);
+  if (system(cmd) != 0) fprintf(stderr, "harness: could not remove %s\n", h->dir);
+}
+
+const ref_variant *harness_variant(const harness *h, const char *name) {
+  for (int i = 0; i < h->nv; i++)
+    if (!strcmp(h->v[i].cfg.name, name)) return &h->v[i];
+  return NULL;
+}
+
+void server_dump_log(const server *s) {
+  FILE *f = fopen(s->log, "r");
+  if (!f) return;
+  char line[1024];
+  fprintf(stderr, "---- %s ----\n", s->log);
+  while (fgets(line, sizeof line, f)) fputs(line, stderr);
+  fclose(f);
+}
+
+int server_log_has(const server *s, const char *needle) {
+  FILE *f = fopen(s->log, "r");
+  if (!f) return 0;
+  char line[1024];
+  int found = 0;
+  while (!found && fgets(line, sizeof line, f)) found = strstr(line, needle) != NULL;
+  fclose(f);
+  return found;
+}
+
+int server_start(const harness *h, server *s, const char *const *extra) {
+  static int serial;
+  memset(s, 0, sizeof *s);
+  serial++;
+  char sock[200];
+  snprintf(sock, sizeof sock, "%s/s%d.sock", h->dir, serial);
+  snprintf(s->log, sizeof s->log, "%s/server%d.log", h->dir, serial);
+  snprintf(s->ready, sizeof s->ready, "%s/ready%d", h->dir, serial);
+  char listen_unix[220];
+  snprintf(listen_unix, sizeof listen_unix, "unix:%s", sock);
+  const char *argv[64];
+  int n = 0;
+  argv[n++] = HAIRFILTERD_PATH;
+  argv[n++] = "--listen";
+  argv[n++] = listen_unix;
+  argv[n++] = "--listen";
+  argv[n++] = "tcp:127.0.0.1:0";
+  argv[n++] = "--weights-dir";
+  argv[n++] = h->weights_dir;
+  argv[n++] = "--backend";
+  argv[n++] = "cpu-ref";
+  argv[n++] = "--ready-file";
+  argv[n++] = s->ready;
+  for (int i = 0; extra && extra[i] && n < 62; i++) argv[n++] = extra[i];
+  argv[n] = NULL;
+  pid_t pid = fork();
+  if (pid < 0) return -1;
+  if (pid == 0) {
+    int fd = open(s->log, O_WRONLY | O_CREAT | O_TRUNC, 0600);
+    if (fd >= 0) {
+      dup2(fd, 2);
+      dup2(fd, 1);
+      close(fd);
+    }
+    setenv("HAIRFILTERD_TOKEN", TEST_TOKEN, 1);
+    execv(argv[0], (char *const *)argv);
+    _exit(127);
+  }
+  s->pid = pid;
+  /* The ready file appears once every listener is bound and every model
+   * built: up to 30 s on a slow machine. */
+  for (int waited = 0; waited < 30000; waited += 20) {
+    FILE *f = fopen(s->ready, "r");
+    if (f) {
+      char line[256];
+      while (fgets(line, sizeof line, f)) {
+        line[strcspn(line, "\n")] = 0;
+        if (!strncmp(line, "unix:", 5)) snprintf(s->unix_url, sizeof s->unix_url, "%s", line);
+        if (!strncmp(line, "tcp:", 4)) snprintf(s->tcp_url, sizeof s->tcp_url, "%s", line);
+      }
+      fclose(f);
+      if (s->unix_url[0] && s->tcp_url[0]) return 0;
+    }
+    int st;
+    if (waitpid(pid, &st, WNOHANG) == pid) {
+      fprintf(stderr, "hairfilterd exited during startup (status %d)\n", st);
+      server_dump_log(s);
+      s->pid = 0;
+      return -1;
+    }
+    sleep_ms(20);
+  }
+  fprintf(stderr, "hairfilterd did not become ready\n");
+  server_dump_log(s);
+  kill(pid, SIGKILL);
+  waitpid(pid, NULL, 0);
+  s->pid = 0;
+  return -1;
+}
+
+int server_alive(const server *s) {
+  int st;
+  return s->pid > 0 && waitpid(s->pid, &st, WNOHANG) == 0;
+}
+
+int server_stop(server *s, int timeout_ms) {
+  if (s->pid <= 0) return -1;
+  kill(s->pid, SIGTERM);
+  for (int waited = 0; waited < timeout_ms; waited += 10) {
+    int st;
+    pid_t r = waitpid(s->pid, &st, WNOHANG);
+    if (r == s->pid) {
+      s->pid = 0;
+      return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+    }
+    sleep_ms(10);
+  }
+  fprintf(stderr, "hairfilterd did not exit after SIGTERM; killing it\n");
+  server_dump_log(s);
+  kill(s->pid, SIGKILL);
+  waitpid(s->pid, NULL, 0);
+  s->pid = 0;
+  return -1;
+}
+
+float *make_features(int w, int h, int spp, uint32_t seed) {
+  size_t n = (size_t)w * h * spp * HF_FEATURES_PER_SAMPLE;
+  float *f = malloc(n * sizeof *f);
+  if (!f) return NULL;
+  uint32_t x = seed * 2654435761u + 12345u;
+  for (size_t i = 0; i < n; i++) {
+    x = x * 1664525u + 1013904223u;
+    float u = (float)(x >> 8) / 16777216.0f;
+    int feature = (int)(i % HF_FEATURES_PER_SAMPLE);
+    f[i] = feature >= 4 ? 2.0f * u - 1.0f : u;   /* tangents in [-1, 1] */
+  }
+  return f;
+}
+
+int reference(const ref_variant *v, int w, int h, const void *in, int in_dtype, void *out,
+              int out_dtype) {
+  hf_io io = {1, w, h, in, (hf_dtype)in_dtype, out, (hf_dtype)out_dtype};
+  return hf_model_run(v->model, &io, NULL);
+}
+
+/* ---- raw sockets ------------------------------------------------------- */
+
+int raw_connect(const char *url) {
+  int fd = -1;
+  if (!strncmp(url, "unix:", 5)) {
+    struct sockaddr_un sun;
+    memset(&sun, 0, sizeof sun);
+    sun.sun_family = AF_UNIX;
+    snprintf(sun.sun_path, sizeof sun.sun_path, "%s", url + 5);
+    fd = socket(AF_UNIX, SOCK_STREAM, 0);
+    if (fd < 0 || connect(fd, (struct sockaddr *)&sun, sizeof sun)) {
+      if (fd >= 0) close(fd);
+      return -1;
+    }
+  } else {
+    char host[128];
+    const char *rest = url + 4, *colon = strrchr(rest, ':');
+    if (!colon) return -1;
+    snprintf(host, sizeof host, "%.*s", (int)(colon - rest), rest);
+    struct addrinfo hints = {0}, *res;
+    hints.ai_socktype = SOCK_STREAM;
+    if (getaddrinfo(host, colon + 1, &hints, &res)) return -1;
+    fd = socket(res->ai_family, SOCK_STREAM, 0);
+    if (fd < 0 || connect(fd, res->ai_addr, res->ai_addrlen)) {
+      if (fd >= 0) close(fd);
+      freeaddrinfo(res);
+      return -1;
+    }
+    freeaddrinfo(res);
+  }
+  struct timeval tv = {10, 0};
+  setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof tv);
+  return fd;
+}
+
+int raw_send(int fd, const void *buf, size_t n) {
+  const uint8_t *p = buf;
+  while (n) {
+    ssize_t w = send(fd, p, n, MSG_NOSIGNAL);
+    if (w <= 0) {
+      if (w < 0 && errno == EINTR) continue;
+      return -1;
+    }
+    p += w;
+    n -= (size_t)w;
+  }
+  return 0;
+}
+
+static int recv_all(int fd, void *buf, size_t n) {
+  uint8_t *p = buf;
+  while (n) {
+    ssize_t r = recv(fd, p, n, 0);
+    if (r <= 0) {
+      if (r < 0 && errno == EINTR) continue;
+      return -1;
+    }
+    p += r;
+    n -= (size_t)r;
+  }
+  return 0;
+}
+
+int raw_read(int fd, hfp_header *h, uint8_t **payload) {
+  uint8_t hb[HFP_HEADER_SIZE];
+  *payload = NULL;
+  if (recv_all(fd, hb, sizeof hb)) return -1;
+  if (hfp_header_decode(hb, 1u << 30, h)) return -1;
+  *payload = malloc(h->length ? h->length : 1);
+  if (!*payload) return -1;
+  if (recv_all(fd, *payload, h->length)) {
+    free(*payload);
+    *payload = NULL;
+    return -1;
+  }
+  return 0;
+}
+
+int raw_hello(int fd, const char *token) {
+  hfp_hello m;
+  memset(&m, 0, sizeof m);
+  m.min_version = m.max_version = 1;
+  strcpy(m.client_name, "raw-test");
+  if (token) snprintf(m.token, sizeof m.token, "%s", token);
+  uint8_t b[512];
+  int n = hfp_encode_hello(b, sizeof b, &m);
+  if (n < 0 || raw_send(fd, b, (size_t)n)) return -1;
+  hfp_header h;
+  uint8_t *p;
+  if (raw_read(fd, &h, &p)) return -1;
+  int ok = h.type == HFP_HELLO_OK;
+  free(p);
+  return ok ? 0 : -1;
+}
+
+uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, const float *in,
+                    size_t *len) {
+  hfp_filter f;
+  memset(&f, 0, sizeof f);
+  snprintf(f.variant, sizeof f.variant, "%s", variant);
+  f.width = (uint32_t)w;
+  f.height = (uint32_t)h;
+  f.spp = (uint16_t)spp;
+  f.in_dtype = f.out_dtype = HFP_F32;
+  f.data = in;
+  if (hfp_features_bytes(f.width, f.height, f.spp, HFP_F32, &f.data_len)) return NULL;
+  uint8_t head[HFP_FILTER_HEAD_MAX];
+  uint64_t total;
+  int n = hfp_encode_filter_head(head, sizeof head, id, &f, &total);
+  if (n < 0) return NULL;
+  uint8_t *b = malloc((size_t)total);
+  if (!b) return NULL;
+  memcpy(b, head, (size_t)n);
+  memcpy(b + n, in, (size_t)f.data_len);
+  *len = (size_t)total;
+  return b;
+}
+
+int raw_closed(int fd, int timeout_ms) {
+  struct pollfd p = {fd, POLLIN, 0};
+  if (poll(&p, 1, timeout_ms) <= 0) return 0;
+  char c;
+  ssize_t r = recv(fd, &c, 1, MSG_DONTWAIT);
+  /* Unread bytes at the server turn its close into a reset. */
+  return r == 0 || (r < 0 && errno == ECONNRESET);
+}

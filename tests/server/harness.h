@@ -1,0 +1,75 @@
+/* Test harness for hairfilterd: start and stop a real daemon, raw protocol
+ * sockets for what the client library would never send, and in-process
+ * reference inference to compare against. */
+#ifndef HF_TEST_HARNESS_H
+#define HF_TEST_HARNESS_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <sys/types.h>
+
+#include "hairfilter.h"
+#include "hfcore.h"
+#include "hfproto.h"
+
+#define TEST_TOKEN "t0ken-for-tests"
+
+/* Variants every test server loads (random weights, fixed seeds). */
+typedef struct ref_variant {
+  hf_net_config cfg;
+  hf_model *model;     /* cpu-ref, in process */
+} ref_variant;
+
+typedef struct harness {
+  char dir[128];               /* mkdtemp */
+  char weights_dir[192];
+  ref_variant v[4];
+  int nv;
+  hf_backend *backend;
+} harness;
+
+typedef struct server {
+  pid_t pid;
+  char log[256];
+  char unix_url[256];
+  char tcp_url[256];
+  char ready[256];
+} server;
+
+/* Creates the temp dir, the weight files and the reference models. */
+int harness_init(harness *h);
+void harness_free(harness *h);
+const ref_variant *harness_variant(const harness *h, const char *name);
+
+/* Starts hairfilterd on a fresh Unix socket and a loopback port 0 with the
+ * harness weights on cpu-ref, plus extra arguments (NULL-terminated).
+ * Waits for its ready file; returns 0 or -1 (and prints its log). */
+int server_start(const harness *h, server *s, const char *const *extra);
+/* SIGTERM, then waits up to timeout_ms; returns the exit status, or -1 if it
+ * had to be killed. */
+int server_stop(server *s, int timeout_ms);
+int server_alive(const server *s);
+/* 1 when the log contains needle. */
+int server_log_has(const server *s, const char *needle);
+void server_dump_log(const server *s);
+
+/* Deterministic features in plausible ranges. */
+float *make_features(int w, int h, int spp, uint32_t seed);
+/* Reference run on the in-process model. */
+int reference(const ref_variant *v, int w, int h, const void *in, int in_dtype, void *out,
+              int out_dtype);
+
+/* Raw sockets (blocking, 10 s timeouts). */
+int raw_connect(const char *url);
+int raw_send(int fd, const void *buf, size_t n);
+/* Sends HELLO and reads HELLO_OK; 0 on success. */
+int raw_hello(int fd, const char *token);
+/* Reads one frame: payload (malloc'd) in *payload. 0, or -1 on EOF/timeout. */
+int raw_read(int fd, hfp_header *h, uint8_t **payload);
+/* Builds a FILTER frame (malloc'd, *len bytes). */
+uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, const float *in,
+                    size_t *len);
+/* 1 when the peer has closed (recv returns 0 within timeout_ms). */
+int raw_closed(int fd, int timeout_ms);
+
+#endif

@@ -1,0 +1,608 @@
+/* Integration tests: a real hairfilterd on a temporary Unix socket and a
+ * loopback TCP port, driven through libhairfilter and through raw sockets,
+ * with every result compared bit for bit to in-process cpu-ref inference. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include "harness.h"
+
+static harness H;
+static server S;   /* the shared server: max-size 512x512, batching on */
+
+static const char *const shared_args[] = {"--max-size", "512x512", "--max-batch", "4",
+                                          "--max-queue-delay-us", "2000",
+                                          "--max-frame-mb", "64", NULL};
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H)) return -1;
+  return server_start(&H, &S, shared_args);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  int rc = server_stop(&S, 20000);
+  if (rc != 0) server_dump_log(&S);
+  harness_free(&H);
+  return rc == 0 ? 0 : -1;
+}
+
+static hfc_client *connect_unix(void) {
+  hfc_client *c = NULL;
+  hfc_options o = {"test", NULL, 20000};
+  int rc = hfc_connect(S.unix_url, &o, &c);
+  if (rc) fprintf(stderr, "connect %s: %s\n", S.unix_url, hfc_strerror(rc));
+  assert_int_equal(rc, 0);
+  return c;
+}
+
+static void check_timing(const hfc_timing *t) {
+  assert_true(t->queue_us >= 0 && t->input_us >= 0 && t->infer_us >= 0 && t->output_us >= 0);
+  assert_true(t->server_us > 0);
+  assert_true(t->queue_us + t->input_us + t->infer_us + t->output_us <= t->server_us);
+  assert_true(t->infer_us > 0);
+  assert_true(t->server_us <= t->total_us);
+  assert_true(t->batch >= 1);
+}
+
+/* Filters one frame through c and compares with in-process inference. */
+static void filter_and_compare(hfc_client *c, const char *variant, int w, int h, int f16,
+                               uint32_t seed) {
+  const ref_variant *v = harness_variant(&H, variant);
+  assert_non_null(v);
+  int spp = v->cfg.spp;
+  size_t n_in = (size_t)w * h * spp * HF_FEATURES_PER_SAMPLE, n_out = (size_t)w * h * 3;
+  float *in = make_features(w, h, spp, seed);
+  assert_non_null(in);
+  void *send = in;
+  uint16_t *in16 = NULL;
+  if (f16) {
+    in16 = malloc(n_in * 2);
+    assert_non_null(in16);
+    for (size_t i = 0; i < n_in; i++) in16[i] = hf_f32_to_f16(in[i]);
+    send = in16;
+  }
+  size_t es = f16 ? 2 : 4;
+  void *got = malloc(n_out * es), *want = malloc(n_out * es);
+  assert_non_null(got);
+  assert_non_null(want);
+  memset(got, 0xcd, n_out * es);
+  hfc_request r = {.variant = variant, .width = w, .height = h, .spp = spp,
+                   .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
+                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got};
+  hfc_timing t;
+  int rc = hfc_filter(c, &r, &t);
+  if (rc) fprintf(stderr, "filter %s %dx%d: %s (%s)\n", variant, w, h, hfc_strerror(rc),
+                  hfc_last_message(c));
+  assert_int_equal(rc, 0);
+  check_timing(&t);
+  assert_int_equal(reference(v, w, h, send, f16 ? HF_F16 : HF_F32, want, f16 ? HF_F16 : HF_F32), 0);
+  assert_memory_equal(got, want, n_out * es);
+  free(in);
+  free(in16);
+  free(got);
+  free(want);
+}
+
+static void test_variants(void **state) {
+  (void)state;
+  hfc_client *c = connect_unix();
+  const hfc_server_info *i = hfc_info(c);
+  assert_int_equal(i->version, 1);
+  assert_int_equal(i->max_width, 512);
+  assert_int_equal(i->max_height, 512);
+  assert_int_equal(i->max_spp, 4);
+  assert_int_equal(i->max_batch, 4);
+  assert_int_equal(i->auth_required, 0);
+  assert_true(i->f16 && i->f32);
+  hfc_variant v[8];
+  int n = 0;
+  assert_int_equal(hfc_list_variants(c, v, 8, &n), 0);
+  assert_int_equal(n, 3);
+  /* sorted by file name */
+  assert_string_equal(v[0].name, "Mono");
+  assert_string_equal(v[1].name, "Small");
+  assert_string_equal(v[2].name, "Tiny");
+  for (int k = 0; k < 3; k++) {
+    const ref_variant *r = harness_variant(&H, v[k].name);
+    assert_non_null(r);
+    assert_int_equal(v[k].spp, r->cfg.spp);
+    assert_int_equal(v[k].num_levels, r->cfg.num_levels);
+    for (int l = 0; l < r->cfg.num_levels; l++) assert_int_equal(v[k].levels[l], r->cfg.levels[l]);
+    assert_string_equal(v[k].backend, "cpu-ref");
+    assert_string_equal(v[k].precision, "fp32");
+  }
+  hfc_close(c);
+}
+
+static void test_filter_sizes_unix(void **state) {
+  (void)state;
+  hfc_client *c = connect_unix();
+  static const int sizes[][2] = {{1, 1}, {7, 5}, {64, 48}, {130, 66}};
+  const char *names[] = {"Tiny", "Small", "Mono"};
+  uint32_t seed = 1;
+  for (int v = 0; v < 3; v++)
+    for (int s = 0; s < 4; s++) filter_and_compare(c, names[v], sizes[s][0], sizes[s][1], 0, seed++);
+  filter_and_compare(c, "Small", 33, 17, 1, 99);   /* f16 both ways */
+  hfc_close(c);
+}
+
+static void test_filter_tcp_auth(void **state) {
+  (void)state;
+  hfc_client *c = NULL;
+  hfc_options o = {"test-tcp", TEST_TOKEN, 20000};
+  assert_int_equal(hfc_connect(S.tcp_url, &o, &c), 0);
+  assert_int_equal(hfc_info(c)->auth_required, 1);
+  filter_and_compare(c, "Tiny", 40, 24, 0, 7);
+  filter_and_compare(c, "Mono", 96, 80, 0, 8);
+  filter_and_compare(c, "Small", 17, 3, 1, 9);
+  hfc_close(c);
+  /* wrong token, and none */
+  hfc_options bad = {"test-tcp", "wrong", 20000};
+  assert_int_equal(hfc_connect(S.tcp_url, &bad, &c), HFC_E_UNAUTHORIZED);
+  hfc_options none = {"test-tcp", NULL, 20000};
+  assert_int_equal(hfc_connect(S.tcp_url, &none, &c), HFC_E_UNAUTHORIZED);
+  assert_true(server_alive(&S));
+}
+
+static void test_composite(void **state) {
+  (void)state;
+  hfc_client *c = connect_unix();
+  const ref_variant *v = harness_variant(&H, "Tiny");
+  enum { W = 24, HH = 20 };
+  float *in = make_features(W, HH, v->cfg.spp, 5);
+  float got[W * HH * 3], rgba[W * HH * 4], want[W * HH * 3], rgb[W * HH * 3];
+  hfc_request r = {.variant = "Tiny", .width = W, .height = HH, .spp = v->cfg.spp,
+                   .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = got,
+                   .rgba = rgba, .hair = {0.3f, 0.2f, 0.1f}, .light = {1, 0.9f, 0.8f},
+                   .background = {0.1f, 0.2f, 0.4f}};
+  hfc_timing t;
+  assert_int_equal(hfc_filter(c, &r, &t), 0);
+  assert_int_equal(reference(v, W, HH, in, HF_F32, want, HF_F32), 0);
+  assert_memory_equal(got, want, sizeof want);
+  hf_composite(want, W, HH, r.hair, r.light, r.background, rgb);
+  for (int p = 0; p < W * HH; p++) {
+    for (int k = 0; k < 3; k++) assert_true(rgba[p * 4 + k] == rgb[p * 3 + k]);
+    assert_true(rgba[p * 4 + 3] == want[p * 3 + 2]);
+  }
+  free(in);
+  hfc_close(c);
+}
+
+static void test_pipelined_32(void **state) {
+  (void)state;
+  hfc_client *c = connect_unix();
+  assert_true(hfc_info(c)->max_inflight >= 32);
+  enum { N = 32, W = 20, HH = 12 };
+  const ref_variant *v = harness_variant(&H, "Tiny");
+  float *in[N];
+  float out[N][W * HH * 3];
+  uint32_t ids[N];
+  int seen[N] = {0};
+  for (int i = 0; i < N; i++) {
+    in[i] = make_features(W, HH, v->cfg.spp, 100 + (uint32_t)i);
+    hfc_request r = {.variant = "Tiny", .width = W, .height = HH, .spp = v->cfg.spp,
+                     .in_dtype = HFC_F32, .features = in[i], .out_dtype = HFC_F32,
+                     .result = out[i], .user = (void *)(intptr_t)i};
+    assert_int_equal(hfc_submit(c, &r, &ids[i]), 0);
+  }
+  assert_int_equal(hfc_pending(c), N);
+  int max_batch = 0;
+  for (int k = 0; k < N; k++) {
+    hfc_completion done;
+    assert_int_equal(hfc_wait(c, 20000, &done), 0);
+    assert_int_equal(done.status, 0);
+    int i = (int)(intptr_t)done.user;
+    assert_true(i >= 0 && i < N);
+    assert_int_equal(done.id, ids[i]);
+    assert_int_equal(seen[i], 0);
+    seen[i] = 1;
+    check_timing(&done.timing);
+    if (done.timing.batch > max_batch) max_batch = done.timing.batch;
+  }
+  hfc_completion none;
+  assert_int_equal(hfc_wait(c, 0, &none), HFC_E_NOPENDING);
+  /* Answers are right whatever batch they were computed in. */
+  float want[W * HH * 3];
+  for (int i = 0; i < N; i++) {
+    assert_int_equal(reference(v, W, HH, in[i], HF_F32, want, HF_F32), 0);
+    assert_memory_equal(out[i], want, sizeof want);
+    free(in[i]);
+  }
+  /* 32 frames of one size queued at once on a max-batch-4 server. */
+  assert_true(max_batch > 1 && max_batch <= 4);
+  hfc_close(c);
+}
+
+/* A second connection is served while the first is half-way through
+ * uploading a frame; then the first completes and is answered too. */
+static void test_second_connection_mid_upload(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  enum { W = 64, HH = 64 };
+  float *in = make_features(W, HH, v->cfg.spp, 77);
+  size_t len;
+  uint8_t *frame = raw_filter(41, "Small", W, HH, v->cfg.spp, in, &len);
+  assert_non_null(frame);
+  int fd = raw_connect(S.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  assert_int_equal(raw_send(fd, frame, len / 2), 0);
+
+  hfc_client *c = connect_unix();
+  filter_and_compare(c, "Tiny", 32, 32, 0, 78);
+  hfc_close(c);
+
+  assert_int_equal(raw_send(fd, frame + len / 2, len - len / 2), 0);
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_RESULT);
+  assert_int_equal(h.request_id, 41);
+  hfp_result r;
+  assert_int_equal(hfp_decode_result(p, h.length, &r), 0);
+  assert_int_equal(r.status, 0);
+  float want[W * HH * 3];
+  assert_int_equal(reference(v, W, HH, in, HF_F32, want, HF_F32), 0);
+  assert_int_equal(r.data_len, sizeof want);
+  assert_memory_equal(r.data, want, sizeof want);
+  free(p);
+  free(frame);
+  free(in);
+  close(fd);
+}
+
+static void test_disconnect_mid_frame(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Mono");
+  float *in = make_features(100, 50, v->cfg.spp, 3);
+  size_t len;
+  uint8_t *frame = raw_filter(5, "Mono", 100, 50, v->cfg.spp, in, &len);
+  assert_non_null(frame);
+  for (int k = 0; k < 3; k++) {
+    int fd = raw_connect(k == 1 ? S.tcp_url : S.unix_url);
+    assert_true(fd >= 0);
+    assert_int_equal(raw_hello(fd, TEST_TOKEN), 0);
+    /* stop inside the header, inside the head, inside the tensor */
+    size_t cut = k == 0 ? 7 : k == 1 ? HFP_HEADER_SIZE + 20 : len - 100;
+    assert_int_equal(raw_send(fd, frame, cut), 0);
+    close(fd);
+  }
+  free(frame);
+  free(in);
+  usleep(100000);
+  assert_true(server_alive(&S));
+  assert_true(server_log_has(&S, "peer left in the middle of a frame"));
+  hfc_client *c = connect_unix();
+  filter_and_compare(c, "Mono", 16, 16, 0, 4);
+  hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  /* only this connection remains (the closes have been processed) */
+  assert_int_equal(st.connections_open, 1);
+  hfc_close(c);
+}
+
+/* Sends frame, expects ERROR code (non-fatal: the same connection then
+ * serves a good request). */
+static void expect_error(int fd, const uint8_t *frame, size_t len, uint32_t id, int code) {
+  assert_int_equal(raw_send(fd, frame, len), 0);
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_ERROR);
+  assert_int_equal(h.request_id, id);
+  hfp_error e;
+  assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+  assert_int_equal(e.code, code);
+  assert_int_equal(e.fatal, 0);
+  assert_true(strlen(e.message) > 0);
+  free(p);
+}
+
+static void expect_result(int fd, const uint8_t *frame, size_t len, uint32_t id) {
+  assert_int_equal(raw_send(fd, frame, len), 0);
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_RESULT);
+  assert_int_equal(h.request_id, id);
+  free(p);
+}
+
+static void expect_fatal(int fd, const uint8_t *frame, size_t len, int code) {
+  assert_int_equal(raw_send(fd, frame, len), 0);
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_ERROR);
+  hfp_error e;
+  assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+  assert_int_equal(e.code, code);
+  assert_int_equal(e.fatal, 1);
+  free(p);
+  assert_true(raw_closed(fd, 5000));
+}
+
+static void test_bad_requests_keep_connection(void **state) {
+  (void)state;
+  float *in = make_features(600, 8, 4, 1);
+  int fd = raw_connect(S.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  size_t len;
+  uint8_t *good = raw_filter(1, "Tiny", 8, 8, 2, in, &len);
+  size_t glen = len;
+  expect_result(fd, good, glen, 1);
+
+  uint8_t *f = raw_filter(2, "Nope", 8, 8, 2, in, &len);
+  expect_error(fd, f, len, 2, HFP_E_UNKNOWN_VARIANT);
+  free(f);
+  f = raw_filter(3, "Tiny", 600, 8, 2, in, &len);   /* over --max-size 512x512 */
+  expect_error(fd, f, len, 3, HFP_E_TOO_LARGE);
+  free(f);
+  f = raw_filter(4, "Tiny", 8, 8, 4, in, &len);     /* Tiny takes 2 spp */
+  expect_error(fd, f, len, 4, HFP_E_INVALID);
+  free(f);
+  /* payload 4 bytes short of what the dimensions say */
+  f = raw_filter(5, "Tiny", 8, 8, 2, in, &len);
+  hfp_put_u32(f + 12, hfp_get_u32(f + 12) - 4);
+  expect_error(fd, f, len - 4, 5, HFP_E_LENGTH);
+  free(f);
+  /* unknown flag, bad dtype */
+  f = raw_filter(6, "Tiny", 8, 8, 2, in, &len);
+  hfp_put_u16(f + HFP_HEADER_SIZE + 2, 0x40);
+  expect_error(fd, f, len, 6, HFP_E_UNSUPPORTED);
+  free(f);
+  f = raw_filter(7, "Tiny", 8, 8, 2, in, &len);
+  f[HFP_HEADER_SIZE + 14] = 9;
+  expect_error(fd, f, len, 7, HFP_E_UNSUPPORTED);
+  free(f);
+  /* the reserved shared-memory flag */
+  f = raw_filter(8, "Tiny", 8, 8, 2, in, &len);
+  hfp_put_u16(f + HFP_HEADER_SIZE + 2, HFP_FILTER_SHM);
+  expect_error(fd, f, len, 8, HFP_E_UNSUPPORTED);
+  free(f);
+  /* request id 0 is reserved */
+  f = raw_filter(9, "Tiny", 8, 8, 2, in, &len);
+  hfp_put_u32(f + 8, 0);
+  expect_error(fd, f, len, 0, HFP_E_INVALID);
+  free(f);
+  /* after all that, the connection still works */
+  hfp_put_u32(good + 8, 10);
+  expect_result(fd, good, glen, 10);
+
+  /* a frame larger than --max-frame-mb: fatal, the connection closes */
+  uint8_t hb[HFP_HEADER_SIZE];
+  hfp_header big = {HFP_FILTER, 0, 11, 65u << 20};
+  hfp_header_encode(&big, hb);
+  expect_fatal(fd, hb, sizeof hb, HFP_E_TOO_LARGE);
+  close(fd);
+
+  /* bad magic: fatal */
+  fd = raw_connect(S.unix_url);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  memcpy(hb, "GET / HTTP/1.1\r\n", 16);
+  expect_fatal(fd, hb, sizeof hb, HFP_E_PROTOCOL);
+  close(fd);
+  /* FILTER before HELLO: fatal */
+  fd = raw_connect(S.unix_url);
+  expect_fatal(fd, good, glen, HFP_E_PROTOCOL);
+  close(fd);
+  /* a version the server does not speak: fatal */
+  fd = raw_connect(S.unix_url);
+  uint8_t hello[64];
+  hfp_hello m = {1, 1, "future", ""};
+  int n = hfp_encode_hello(hello, sizeof hello, &m);
+  hfp_put_u16(hello + HFP_HEADER_SIZE, 2);
+  hfp_put_u16(hello + HFP_HEADER_SIZE + 2, 3);
+  expect_fatal(fd, hello, (size_t)n, HFP_E_VERSION);
+  close(fd);
+  /* a response type sent as a request: fatal */
+  fd = raw_connect(S.unix_url);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  hfp_header res = {HFP_RESULT, 0, 1, 0};
+  hfp_header_encode(&res, hb);
+  expect_fatal(fd, hb, sizeof hb, HFP_E_PROTOCOL);
+  close(fd);
+
+  free(good);
+  free(in);
+  assert_true(server_alive(&S));
+  hfc_client *c = connect_unix();
+  filter_and_compare(c, "Tiny", 8, 8, 0, 1);
+  hfc_close(c);
+}
+
+static void test_stats(void **state) {
+  (void)state;
+  hfc_client *c = connect_unix();
+  hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  assert_int_equal(st.num_variants, 3);
+  assert_int_equal(st.queue_capacity, 64);
+  assert_true(st.uptime_us > 0);
+  assert_true(st.connections_total >= 2);
+  uint64_t ok = 0;
+  for (int i = 0; i < st.num_variants; i++) {
+    const hfc_variant_stats *v = &st.variants[i];
+    uint64_t ht = 0, hi = 0;
+    for (int b = 0; b < HFC_HIST_BUCKETS; b++) {
+      ht += v->hist_total[b];
+      hi += v->hist_infer[b];
+    }
+    assert_int_equal(ht, v->requests_ok);
+    assert_int_equal(hi, v->requests_ok);
+    assert_true(v->batches <= v->requests_ok);
+    assert_true(v->sum_queue_us + v->sum_infer_us <= v->sum_total_us);
+    ok += v->requests_ok;
+    if (!strcmp(v->name, "Tiny")) assert_true(v->rejected >= 4);
+  }
+  /* the earlier tests in this group filtered well over 40 frames */
+  assert_true(ok >= 40);
+  assert_true(st.protocol_errors >= 4);
+  hfc_close(c);
+}
+
+/* A queue of one and a slow variant: a burst of pipelined frames must get
+ * BUSY for some, at once, and correct results for the rest. */
+static void test_busy_when_queue_full(void **state) {
+  (void)state;
+  server b;
+  const char *args[] = {"--queue-size", "1", "--max-batch", "1", NULL};
+  assert_int_equal(server_start(&H, &b, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"busy", NULL, 20000};
+  assert_int_equal(hfc_connect(b.unix_url, &o, &c), 0);
+  enum { N = 8, W = 160, HH = 160 };
+  const ref_variant *v = harness_variant(&H, "Small");
+  float *in = make_features(W, HH, v->cfg.spp, 11);
+  static float out[N][W * HH * 3];
+  for (int i = 0; i < N; i++) {
+    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+                     .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
+                     .result = out[i], .user = (void *)(intptr_t)i};
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  }
+  int ok = 0, busy = 0;
+  for (int k = 0; k < N; k++) {
+    hfc_completion d;
+    assert_int_equal(hfc_wait(c, 20000, &d), 0);
+    if (d.status == HFC_E_BUSY) {
+      busy++;
+      /* rejected before admission: no server-side time was spent */
+      assert_true(d.timing.server_us == 0);
+    } else {
+      assert_int_equal(d.status, 0);
+      ok++;
+    }
+  }
+  assert_true(busy >= 1);
+  assert_true(ok >= 1);
+  float *want = malloc(sizeof out[0]);
+  assert_int_equal(reference(v, W, HH, in, HF_F32, want, HF_F32), 0);
+  /* every frame was the same, so any answered slot must equal the reference */
+  int matched = 0;
+  for (int i = 0; i < N; i++) matched += !memcmp(out[i], want, sizeof out[0]);
+  assert_int_equal(matched, ok);
+  hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  uint64_t rejected = 0;
+  for (int i = 0; i < st.num_variants; i++) rejected += st.variants[i].rejected;
+  assert_int_equal(rejected, (uint64_t)busy);
+  free(want);
+  free(in);
+  hfc_close(c);
+  assert_int_equal(server_stop(&b, 20000), 0);
+}
+
+/* SIGTERM with requests queued: they are finished (drain), new ones are
+ * refused, the socket file is removed and the exit status is 0. */
+static void test_sigterm_drains(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-batch", "1", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"drain", NULL, 20000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  enum { N = 6, W = 96, HH = 96 };
+  const ref_variant *v = harness_variant(&H, "Small");
+  float *in = make_features(W, HH, v->cfg.spp, 21);
+  static float out[N][W * HH * 3];
+  for (int i = 0; i < N; i++) {
+    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+                     .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
+                     .result = out[i]};
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  }
+  /* Wait until the first answer is in, so every frame has been received. */
+  hfc_completion first;
+  assert_int_equal(hfc_wait(c, 20000, &first), 0);
+  assert_int_equal(first.status, 0);
+  kill(d.pid, SIGTERM);
+  int ok = 1;
+  for (int k = 1; k < N; k++) {
+    hfc_completion x;
+    assert_int_equal(hfc_wait(c, 20000, &x), 0);
+    assert_int_equal(x.status, 0);
+    ok++;
+  }
+  assert_int_equal(ok, N);
+  hfc_close(c);
+  int st = server_stop(&d, 20000);
+  assert_int_equal(st, 0);
+  assert_true(server_log_has(&d, "SIGTERM: draining"));
+  assert_true(server_log_has(&d, "stopped: "));
+  assert_int_equal(access(d.unix_url + 5, F_OK), -1);
+  free(in);
+}
+
+/* With no drain time, queued requests are failed with SHUTTING_DOWN (a
+ * RESULT status), never dropped, and the exit status is still 0. */
+static void test_sigterm_no_drain_time(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-batch", "1", "--drain-timeout-ms", "0", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"drain0", NULL, 20000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  enum { N = 6, W = 128, HH = 128 };
+  const ref_variant *v = harness_variant(&H, "Small");
+  float *in = make_features(W, HH, v->cfg.spp, 22);
+  static float out[N][W * HH * 3];
+  for (int i = 0; i < N; i++) {
+    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+                     .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
+                     .result = out[i]};
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  }
+  hfc_completion first;
+  assert_int_equal(hfc_wait(c, 20000, &first), 0);
+  assert_int_equal(first.status, 0);
+  kill(d.pid, SIGTERM);
+  int ok = 1, down = 0;
+  for (int k = 1; k < N; k++) {
+    hfc_completion x;
+    assert_int_equal(hfc_wait(c, 20000, &x), 0);
+    if (x.status == HFC_E_SHUTTING_DOWN)
+      down++;
+    else {
+      assert_int_equal(x.status, 0);
+      ok++;
+    }
+  }
+  assert_int_equal(ok + down, N);
+  assert_true(down >= 1);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+  free(in);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_variants),
+    cmocka_unit_test(test_filter_sizes_unix),
+    cmocka_unit_test(test_filter_tcp_auth),
+    cmocka_unit_test(test_composite),
+    cmocka_unit_test(test_pipelined_32),
+    cmocka_unit_test(test_second_connection_mid_upload),
+    cmocka_unit_test(test_disconnect_mid_frame),
+    cmocka_unit_test(test_bad_requests_keep_connection),
+    cmocka_unit_test(test_stats),
+    cmocka_unit_test(test_busy_when_queue_full),
+    cmocka_unit_test(test_sigterm_drains),
+    cmocka_unit_test(test_sigterm_no_drain_time),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
