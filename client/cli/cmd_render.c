@@ -1,8 +1,431 @@
-/* Placeholder until the render command lands. */
+/* hairfilter render: the reference renderer (client/render, hfrender.h).
+ *
+ *   render frame   [model] [view] [outputs] --out F.exr [--png PREFIX]
+ *   render fig6    [model] [view] --out F.png      (the paper's Fig. 6)
+ *   render dataset --styles a,b --count N --size WxH --spp 1,2,4 --seed S --out DIR
+ *   render hair    [model] --out F.hair            (export a procedural style) */
+#include <errno.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
 #include "commands.h"
+#include "hfrender.h"
+
+static void usage(FILE *f) {
+  fprintf(f,
+    "usage: hairfilter render <frame|fig6|dataset|hair> [options]\n"
+    "\n"
+    "model:   --style straight|wavy|curly|coily|ponytail (default straight)\n"
+    "         --hair FILE.hair (instead of a style)   --hair-seed N\n"
+    "         --strands N --segments N --length L --clumping C --frizz F\n"
+    "         --curl-radius R --curl-period P --thickness T --opacity O\n"
+    "view:    --size WxH (256x256)  --cam-distance D --cam-yaw DEG --cam-pitch DEG --fov DEG\n"
+    "         --light-yaw DEG --light-pitch DEG --light-distance D --directional\n"
+    "         --alpha-r DEG --alpha-trt DEG --ambient A --spec-half\n"
+    "         --shadow-size N (0: off) --shadow-bias B --thickness-scale S\n"
+    "         --random-view SEED (camera, light, lobes, colours from a seed)\n"
+    "         --hair-color R,G,B --light-color R,G,B --background R,G,B (composites)\n"
+    "outputs: --spp N (4) --gt-ss S (4; 0: none) --st 1,2,4,... --opaque N (multiple of 4)\n"
+    "         --seed N (hash seed of the stochastic samples)\n"
+    "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites)\n"
+    "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
+    "         --size WxH --strands N --gt-ss S --st LIST --opaque N --quiet\n"
+    "other:   --platform osmesa|egl|auto   --out PATH\n");
+}
+
+typedef struct {
+  const char *cmd, *out, *hair_path, *png, *platform;
+  hfr_style_params style;
+  int style_set;
+  hfr_view view;
+  hfr_outputs outputs;
+  int half, quiet;
+  hfr_dataset_opts ds;
+  int st_set;
+  /* Overrides applied after a --style resets the parameters. */
+  struct { int strands, segments; float length, clumping, frizz, cr, cp, thick, opac; int seed_set;
+           uint64_t seed; } ov;
+  int random_view;
+  uint64_t random_seed;
+  int random_keep_size;
+} opts;
+
+static int parse_int_list(const char *s, int *out, int max, int *n) {
+  *n = 0;
+  char *end;
+  while (*s) {
+    if (*n == max) return -1;
+    errno = 0;
+    long v = strtol(s, &end, 10);
+    if (end == s || errno || v < 1 || v > 1000000) return -1;
+    out[(*n)++] = (int)v;
+    s = end;
+    if (*s == ',') s++;
+    else if (*s) return -1;
+  }
+  return *n > 0 ? 0 : -1;
+}
+
+static int parse_vec3(const char *s, float v[3]) {
+  return sscanf(s, "%f,%f,%f", &v[0], &v[1], &v[2]) == 3 ? 0 : -1;
+}
+
+static int parse_size(const char *s, int *w, int *h) {
+  return sscanf(s, "%dx%d", w, h) == 2 && *w > 0 && *h > 0 ? 0 : -1;
+}
+
+static int parse_float(const char *s, float *f) {
+  char *end;
+  errno = 0;
+  *f = strtof(s, &end);
+  return end != s && !*end && !errno ? 0 : -1;
+}
+
+static int parse_args(int argc, char **argv, opts *o) {
+  for (int i = 2; i < argc; i++) {
+    const char *a = argv[i];
+    const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+#define NEED_VALUE                                                   \
+  if (!v) {                                                          \
+    fprintf(stderr, "hairfilter render: %s needs a value\n", a);     \
+    return -1;                                                       \
+  }                                                                  \
+  i++;
+#define FLOAT_OPT(name, dst)                                                    \
+  if (!strcmp(a, name)) {                                                       \
+    NEED_VALUE;                                                                 \
+    if (parse_float(v, &(dst))) {                                               \
+      fprintf(stderr, "hairfilter render: %s: not a number: %s\n", a, v);       \
+      return -1;                                                                \
+    }                                                                           \
+    continue;                                                                   \
+  }
+    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+      usage(stdout);
+      exit(0);
+    }
+    FLOAT_OPT("--length", o->ov.length)
+    FLOAT_OPT("--clumping", o->ov.clumping)
+    FLOAT_OPT("--frizz", o->ov.frizz)
+    FLOAT_OPT("--curl-radius", o->ov.cr)
+    FLOAT_OPT("--curl-period", o->ov.cp)
+    FLOAT_OPT("--thickness", o->ov.thick)
+    FLOAT_OPT("--opacity", o->ov.opac)
+    FLOAT_OPT("--cam-distance", o->view.cam_distance)
+    FLOAT_OPT("--cam-yaw", o->view.cam_yaw_deg)
+    FLOAT_OPT("--cam-pitch", o->view.cam_pitch_deg)
+    FLOAT_OPT("--fov", o->view.cam_fov_deg)
+    FLOAT_OPT("--light-yaw", o->view.light_yaw_deg)
+    FLOAT_OPT("--light-pitch", o->view.light_pitch_deg)
+    FLOAT_OPT("--light-distance", o->view.light_distance)
+    FLOAT_OPT("--alpha-r", o->view.alpha_r_deg)
+    FLOAT_OPT("--alpha-trt", o->view.alpha_trt_deg)
+    FLOAT_OPT("--ambient", o->view.ambient)
+    FLOAT_OPT("--shadow-bias", o->view.shadow_bias)
+    FLOAT_OPT("--thickness-scale", o->view.thickness_scale)
+    if (!strcmp(a, "--directional")) { o->view.light_directional = 1; continue; }
+    if (!strcmp(a, "--spec-half")) { o->view.spec_half_vector = 1; continue; }
+    if (!strcmp(a, "--half")) { o->half = 1; continue; }
+    if (!strcmp(a, "--quiet")) { o->quiet = 1; continue; }
+    NEED_VALUE;
+    if (!strcmp(a, "--out")) o->out = v;
+    else if (!strcmp(a, "--hair")) o->hair_path = v;
+    else if (!strcmp(a, "--png")) o->png = v;
+    else if (!strcmp(a, "--platform")) o->platform = v;
+    else if (!strcmp(a, "--style")) {
+      hfr_style s;
+      if (hfr_style_from_name(v, &s)) {
+        fprintf(stderr, "hairfilter render: unknown style '%s'\n", v);
+        return -1;
+      }
+      hfr_style_defaults(s, &o->style);
+      o->style_set = 1;
+    } else if (!strcmp(a, "--styles")) {
+      char buf[256];
+      snprintf(buf, sizeof buf, "%s", v);
+      o->ds.n_styles = 0;
+      for (char *t = strtok(buf, ","); t; t = strtok(NULL, ",")) {
+        if (o->ds.n_styles == HFR_STYLE_COUNT || hfr_style_from_name(t, &o->ds.styles[o->ds.n_styles])) {
+          fprintf(stderr, "hairfilter render: bad style list '%s'\n", v);
+          return -1;
+        }
+        o->ds.n_styles++;
+      }
+    } else if (!strcmp(a, "--size")) {
+      if (parse_size(v, &o->view.width, &o->view.height)) {
+        fprintf(stderr, "hairfilter render: --size wants WxH\n");
+        return -1;
+      }
+    } else if (!strcmp(a, "--hair-color") || !strcmp(a, "--light-color") ||
+               !strcmp(a, "--background")) {
+      float *dst = a[2] == 'h' ? o->view.hair_color : a[2] == 'l' ? o->view.light_color
+                                                                  : o->view.background;
+      if (parse_vec3(v, dst)) {
+        fprintf(stderr, "hairfilter render: %s wants R,G,B\n", a);
+        return -1;
+      }
+    } else if (!strcmp(a, "--st")) {
+      if (parse_int_list(v, o->outputs.st_spp, HFR_MAX_BASELINES, &o->outputs.n_st)) {
+        fprintf(stderr, "hairfilter render: --st wants a list like 1,2,4,8,16,64\n");
+        return -1;
+      }
+      o->st_set = 1;
+    } else if (!strcmp(a, "--spp")) {
+      int n = 0;
+      if (parse_int_list(v, o->ds.spp_list, 4, &n)) {
+        fprintf(stderr, "hairfilter render: --spp wants N or a list like 1,2,4\n");
+        return -1;
+      }
+      o->ds.n_spp = n;
+      o->outputs.spp = 0;
+      for (int k = 0; k < n; k++)
+        if (o->ds.spp_list[k] > o->outputs.spp) o->outputs.spp = o->ds.spp_list[k];
+    } else {
+      char *end;
+      errno = 0;
+      long long n = strtoll(v, &end, 10);
+      if (end == v || *end || errno || n < 0) {
+        fprintf(stderr, "hairfilter render: unknown option %s or bad value %s\n", a, v);
+        return -1;
+      }
+      if (!strcmp(a, "--strands")) o->ov.strands = (int)n;
+      else if (!strcmp(a, "--segments")) o->ov.segments = (int)n;
+      else if (!strcmp(a, "--hair-seed")) o->ov.seed_set = 1, o->ov.seed = (uint64_t)n;
+      else if (!strcmp(a, "--shadow-size")) o->view.shadow_size = (int)n;
+      else if (!strcmp(a, "--gt-ss")) o->outputs.gt_supersample = (int)n;
+      else if (!strcmp(a, "--opaque")) o->outputs.opaque_samples = (int)n;
+      else if (!strcmp(a, "--seed")) o->outputs.seed = (uint32_t)n, o->ds.seed = (uint64_t)n;
+      else if (!strcmp(a, "--count")) o->ds.count = (int)n;
+      else if (!strcmp(a, "--random-view")) o->random_view = 1, o->random_seed = (uint64_t)n;
+      else {
+        fprintf(stderr, "hairfilter render: unknown option %s\n", a);
+        return -1;
+      }
+    }
+  }
+  /* Overrides on top of the style's defaults. */
+  hfr_style_params *s = &o->style;
+  if (o->ov.strands) s->strands = o->ov.strands;
+  if (o->ov.segments) s->segments = o->ov.segments;
+  if (o->ov.length) s->length = o->ov.length;
+  if (o->ov.clumping) s->clumping = o->ov.clumping;
+  if (o->ov.frizz) s->frizz = o->ov.frizz;
+  if (o->ov.cr) s->curl_radius = o->ov.cr;
+  if (o->ov.cp) s->curl_period = o->ov.cp;
+  if (o->ov.thick) s->thickness = o->ov.thick;
+  if (o->ov.opac) s->opacity = o->ov.opac;
+  if (o->ov.seed_set) s->seed = o->ov.seed;
+  if (o->random_view) hfr_view_randomize(&o->view, o->random_seed);
+  return 0;
+}
+
+static int load_model(const opts *o, hfr_hair *hair) {
+  char err[256] = "";
+  int rc = o->hair_path ? hfr_hair_load(o->hair_path, hair, err, sizeof err)
+                        : hfr_hair_generate(&o->style, hair);
+  if (rc != HF_OK)
+    fprintf(stderr, "hairfilter render: %s: %s\n",
+            o->hair_path ? o->hair_path : "style", *err ? err : "bad style parameters");
+  return rc;
+}
+
+static int open_renderer(const opts *o, const hfr_hair *hair, hfr_renderer **r) {
+  char err[512] = "";
+  int rc = hfr_renderer_create(o->platform, r, err, sizeof err);
+  if (rc == HF_OK) rc = hfr_renderer_set_hair(*r, hair, o->hair_path == NULL, err, sizeof err);
+  if (rc != HF_OK) {
+    fprintf(stderr, "hairfilter render: %s (%s)\n", err, hf_strerror(rc));
+    hfr_renderer_destroy(*r);
+    *r = NULL;
+  }
+  return rc;
+}
+
+static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_view *v,
+                        const hfr_stats *st) {
+  fprintf(stderr,
+          "%s, %u strands, %llu segments, %dx%d: shadow %.0f ms, features %.0f ms, "
+          "baselines %.0f ms, ground truth %.0f ms (%llu fragments, deepest list %u, "
+          "%llu lists past the sort size)\n",
+          hfr_renderer_platform(r), hair->strands,
+          (unsigned long long)hfr_hair_total_segments(hair), v->width, v->height, st->shadow_ms,
+          st->features_ms, st->baselines_ms, st->gt_ms, (unsigned long long)st->gt_fragments,
+          st->gt_max_depth, (unsigned long long)st->gt_truncated);
+}
+
+static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
+                     const char *path) {
+  float *rgb = malloc(sizeof(float) * 3 * (size_t)img->width * img->height);
+  if (!rgb) return HF_ENOMEM;
+  int rc = hfr_composite_channels(img, prefix, v, rgb);
+  if (rc == HF_OK) rc = hf_png_write_rgb(path, rgb, img->width, img->height);
+  free(rgb);
+  if (rc != HF_OK) fprintf(stderr, "hairfilter render: %s: %s\n", path, hf_strerror(rc));
+  return rc;
+}
+
+static int run_frame(opts *o) {
+  if (!o->out && !o->png) {
+    fprintf(stderr, "hairfilter render frame: --out F.exr and/or --png PREFIX\n");
+    return 2;
+  }
+  hfr_hair hair;
+  hfr_renderer *r = NULL;
+  if (load_model(o, &hair) != HF_OK) return 1;
+  if (open_renderer(o, &hair, &r) != HF_OK) {
+    hfr_hair_free(&hair);
+    return 1;
+  }
+  hf_image img;
+  hfr_stats st;
+  char err[512] = "";
+  int rc = hfr_render(r, &o->view, &o->outputs, &img, &st, err, sizeof err);
+  if (rc == HF_OK) {
+    if (!o->quiet) print_stats(r, &hair, &o->view, &st);
+    if (o->out && (rc = hf_exr_write(o->out, &img, o->half)) != HF_OK)
+      fprintf(stderr, "hairfilter render: %s: %s\n", o->out, hf_strerror(rc));
+    if (rc == HF_OK && o->png) {
+      const char *prefixes[2 + HFR_MAX_BASELINES];
+      char names[HFR_MAX_BASELINES][16];
+      int n = 0;
+      if (o->outputs.gt_supersample) prefixes[n++] = "gt";
+      for (int i = 0; i < o->outputs.n_st; i++) {
+        snprintf(names[i], sizeof names[i], "st%d", o->outputs.st_spp[i]);
+        prefixes[n++] = names[i];
+      }
+      if (o->outputs.opaque_samples) prefixes[n++] = "opaque";
+      for (int i = 0; rc == HF_OK && i < n; i++) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s_%s.png", o->png, prefixes[i]);
+        rc = write_png(&img, prefixes[i], &o->view, path);
+      }
+    }
+    hf_image_free(&img);
+  } else {
+    fprintf(stderr, "hairfilter render: %s (%s)\n", err, hf_strerror(rc));
+  }
+  hfr_renderer_destroy(r);
+  hfr_hair_free(&hair);
+  return rc == HF_OK ? 0 : 1;
+}
+
+/* Fig. 6: ST at several spp, opaque MSAA, ground truth, left to right. */
+static int run_fig6(opts *o) {
+  if (!o->out) {
+    fprintf(stderr, "hairfilter render fig6: --out F.png\n");
+    return 2;
+  }
+  if (!o->st_set) {
+    const int def[] = {1, 4, 16, 64};
+    memcpy(o->outputs.st_spp, def, sizeof def);
+    o->outputs.n_st = 4;
+  }
+  o->outputs.spp = 0;
+  if (!o->outputs.opaque_samples) o->outputs.opaque_samples = 16;
+  if (!o->outputs.gt_supersample) o->outputs.gt_supersample = 4;
+  hfr_hair hair;
+  hfr_renderer *r = NULL;
+  if (load_model(o, &hair) != HF_OK) return 1;
+  if (open_renderer(o, &hair, &r) != HF_OK) {
+    hfr_hair_free(&hair);
+    return 1;
+  }
+  hf_image img;
+  hfr_stats st;
+  char err[512] = "";
+  int rc = hfr_render(r, &o->view, &o->outputs, &img, &st, err, sizeof err);
+  if (rc != HF_OK) {
+    fprintf(stderr, "hairfilter render: %s (%s)\n", err, hf_strerror(rc));
+  } else {
+    if (!o->quiet) print_stats(r, &hair, &o->view, &st);
+    const int W = img.width, H = img.height, tiles = o->outputs.n_st + 2, gap = 2;
+    const int FW = tiles * W + (tiles - 1) * gap;
+    float *fig = malloc(sizeof(float) * 3 * (size_t)FW * H);
+    float *rgb = malloc(sizeof(float) * 3 * (size_t)W * H);
+    if (!fig || !rgb) rc = HF_ENOMEM;
+    for (size_t i = 0; rc == HF_OK && i < 3 * (size_t)FW * H; i++) fig[i] = 1; /* white gaps */
+    for (int t = 0; rc == HF_OK && t < tiles; t++) {
+      char prefix[16];
+      if (t < o->outputs.n_st) snprintf(prefix, sizeof prefix, "st%d", o->outputs.st_spp[t]);
+      else snprintf(prefix, sizeof prefix, "%s", t == tiles - 2 ? "opaque" : "gt");
+      rc = hfr_composite_channels(&img, prefix, &o->view, rgb);
+      for (int y = 0; rc == HF_OK && y < H; y++)
+        memcpy(fig + 3 * ((size_t)y * FW + t * (W + gap)), rgb + 3 * (size_t)y * W,
+               sizeof(float) * 3 * W);
+      if (!o->quiet) fprintf(stderr, "tile %d: %s\n", t + 1, prefix);
+    }
+    if (rc == HF_OK) rc = hf_png_write_rgb(o->out, fig, FW, H);
+    if (rc != HF_OK) fprintf(stderr, "hairfilter render: %s: %s\n", o->out, hf_strerror(rc));
+    free(fig);
+    free(rgb);
+    hf_image_free(&img);
+  }
+  hfr_renderer_destroy(r);
+  hfr_hair_free(&hair);
+  return rc == HF_OK ? 0 : 1;
+}
+
+static int run_dataset(opts *o) {
+  if (!o->out) {
+    fprintf(stderr, "hairfilter render dataset: --out DIR\n");
+    return 2;
+  }
+  hfr_dataset_opts *d = &o->ds;
+  d->out_dir = o->out;
+  d->width = o->view.width;
+  d->height = o->view.height;
+  d->gt_supersample = o->outputs.gt_supersample;
+  d->n_st = o->outputs.n_st;
+  memcpy(d->st_spp, o->outputs.st_spp, sizeof d->st_spp);
+  d->opaque_samples = o->outputs.opaque_samples;
+  if (o->ov.strands) d->strands = o->ov.strands;
+  if (o->ov.segments) d->segments = o->ov.segments;
+  d->shadow_size = o->view.shadow_size;
+  d->half = o->half;
+  d->progress = !o->quiet;
+  d->platform = o->platform;
+  char err[512] = "";
+  int rc = hfr_dataset_run(d, err, sizeof err);
+  if (rc != HF_OK) fprintf(stderr, "hairfilter render dataset: %s (%s)\n", err, hf_strerror(rc));
+  return rc == HF_OK ? 0 : 1;
+}
+
+static int run_hair(opts *o) {
+  if (!o->out) {
+    fprintf(stderr, "hairfilter render hair: --out F.hair\n");
+    return 2;
+  }
+  hfr_hair hair;
+  if (load_model(o, &hair) != HF_OK) return 1;
+  int rc = hfr_hair_save(o->out, &hair);
+  if (rc != HF_OK) fprintf(stderr, "hairfilter render: %s: %s\n", o->out, hf_strerror(rc));
+  else if (!o->quiet)
+    fprintf(stderr, "%s: %u strands, %u points\n", o->out, hair.strands, hair.points);
+  hfr_hair_free(&hair);
+  return rc == HF_OK ? 0 : 1;
+}
+
 int cmd_render(int argc, char **argv) {
-  (void)argc; (void)argv;
-  fprintf(stderr, "hairfilter render: not available in this build\n");
+  if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
+    usage(argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  opts o;
+  memset(&o, 0, sizeof o);
+  o.cmd = argv[1];
+  hfr_style_defaults(HFR_STYLE_STRAIGHT, &o.style);
+  hfr_view_defaults(&o.view);
+  o.outputs.spp = 4;
+  o.outputs.gt_supersample = 4;
+  o.outputs.seed = 1;
+  hfr_dataset_defaults(&o.ds);
+  if (parse_args(argc, argv, &o)) return 2;
+  if (!strcmp(o.cmd, "frame")) return run_frame(&o);
+  if (!strcmp(o.cmd, "fig6")) return run_fig6(&o);
+  if (!strcmp(o.cmd, "dataset")) return run_dataset(&o);
+  if (!strcmp(o.cmd, "hair")) return run_hair(&o);
+  fprintf(stderr, "hairfilter render: unknown mode '%s'\n", o.cmd);
+  usage(stderr);
   return 2;
 }

@@ -211,6 +211,36 @@ void hfr_frame_defaults(hfr_frame *f, int width, int height);
 int hfr_render_frame(const hfr_frame *f, hf_image *out, hfr_stats *stats, char *err,
                      size_t errlen);
 
+/* ---- datasets ------------------------------------------------------------- */
+
+/* Training pairs (paper 3.3.3): for each style, count frames with their own
+ * hair seed, jittered style parameters and a randomised view; each frame is
+ * one EXR ({style}_{i:04d}.exr: features at the largest spp, gt.*, any
+ * baselines) and an entry in DIR/manifest.json recording everything used. */
+typedef struct hfr_dataset_opts {
+  const char *out_dir;
+  hfr_style styles[HFR_STYLE_COUNT];
+  int n_styles;
+  int count;                    /* frames per style */
+  int width, height;
+  int spp_list[4];              /* e.g. 1, 2, 4; features at the largest */
+  int n_spp;
+  int gt_supersample;
+  int st_spp[HFR_MAX_BASELINES];
+  int n_st;
+  int opaque_samples;
+  int strands;                  /* 0: style default */
+  int segments;                 /* 0: style default */
+  int shadow_size;
+  uint64_t seed;
+  int half;                     /* EXR in float16 */
+  int progress;                 /* progress bar with ETA on stderr */
+  const char *platform;
+} hfr_dataset_opts;
+
+void hfr_dataset_defaults(hfr_dataset_opts *o);
+int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen);
+
 /* Composite of three channels named prefix.color/.highlight/.alpha of img
  * ("gt", "st4", "opaque"; "" for a result image with bare names) with the
  * view's colours into rgb [h][w][3]. */

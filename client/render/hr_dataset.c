@@ -1,0 +1,216 @@
+/* Dataset mode: many randomised frames, one EXR each, and a manifest. */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include <cjson/cJSON.h>
+
+#include "hr_internal.h"
+#include "hr_math.h"
+
+void hfr_dataset_defaults(hfr_dataset_opts *o) {
+  memset(o, 0, sizeof *o);
+  o->styles[0] = HFR_STYLE_STRAIGHT;
+  o->styles[1] = HFR_STYLE_WAVY;
+  o->n_styles = 2;
+  o->count = 8;
+  o->width = o->height = 256;
+  o->spp_list[0] = 1, o->spp_list[1] = 2, o->spp_list[2] = 4;
+  o->n_spp = 3;
+  o->gt_supersample = 4;
+  o->strands = 20000;
+  o->shadow_size = 1024;
+  o->seed = 1;
+  o->progress = 1;
+}
+
+static void progress(int done, int total, double start_ms) {
+  double el = (hr_now_ms() - start_ms) / 1000;
+  double eta = done ? el / done * (total - done) : 0;
+  int bar = 30, fill = total ? done * bar / total : bar;
+  char b[64];
+  for (int i = 0; i < bar; i++) b[i] = i < fill ? '#' : '.';
+  b[bar] = 0;
+  fprintf(stderr, "\r[%s] %d/%d  %.0fs elapsed  ETA %.0fs ", b, done, total, el, eta);
+  fflush(stderr);
+}
+
+static cJSON *vec3(const float v[3]) {
+  double d[3] = {v[0], v[1], v[2]};
+  return cJSON_CreateDoubleArray(d, 3);
+}
+
+static cJSON *int_list(const int *v, int n) { return cJSON_CreateIntArray(v, n); }
+
+/* Everything that went into a frame, for the manifest. */
+static cJSON *frame_entry(const char *file, const hfr_style_params *sp, const hfr_view *v,
+                          const hfr_outputs *out, const hfr_dataset_opts *o, uint64_t seed,
+                          const hfr_hair *hair, const hfr_stats *st, double ms) {
+  cJSON *e = cJSON_CreateObject();
+  cJSON_AddStringToObject(e, "file", file);
+  cJSON_AddStringToObject(e, "style", hfr_style_name(sp->style));
+  cJSON_AddNumberToObject(e, "seed", (double)seed);
+  cJSON_AddNumberToObject(e, "width", v->width);
+  cJSON_AddNumberToObject(e, "height", v->height);
+  cJSON_AddNumberToObject(e, "spp", out->spp);
+  cJSON_AddItemToObject(e, "spp_list", int_list(o->spp_list, o->n_spp));
+  cJSON_AddNumberToObject(e, "gt_supersample", out->gt_supersample);
+  cJSON_AddNumberToObject(e, "sample_seed", out->seed);
+  cJSON *cam = cJSON_AddObjectToObject(e, "camera");
+  cJSON_AddNumberToObject(cam, "distance", v->cam_distance);
+  cJSON_AddNumberToObject(cam, "yaw_deg", v->cam_yaw_deg);
+  cJSON_AddNumberToObject(cam, "pitch_deg", v->cam_pitch_deg);
+  cJSON_AddNumberToObject(cam, "fov_deg", v->cam_fov_deg);
+  cJSON *li = cJSON_AddObjectToObject(e, "light");
+  cJSON_AddStringToObject(li, "type", v->light_directional ? "directional" : "point");
+  cJSON_AddNumberToObject(li, "yaw_deg", v->light_yaw_deg);
+  cJSON_AddNumberToObject(li, "pitch_deg", v->light_pitch_deg);
+  cJSON_AddNumberToObject(li, "distance", v->light_distance);
+  cJSON_AddNumberToObject(li, "shadow_size", v->shadow_size);
+  cJSON *sh = cJSON_AddObjectToObject(e, "shading");
+  cJSON_AddNumberToObject(sh, "alpha_r_deg", v->alpha_r_deg);
+  cJSON_AddNumberToObject(sh, "alpha_trt_deg", v->alpha_trt_deg);
+  cJSON_AddNumberToObject(sh, "ambient", v->ambient);
+  cJSON_AddItemToObject(sh, "hair_color", vec3(v->hair_color));
+  cJSON_AddItemToObject(sh, "light_color", vec3(v->light_color));
+  cJSON_AddItemToObject(sh, "background", vec3(v->background));
+  cJSON *h = cJSON_AddObjectToObject(e, "hair");
+  cJSON_AddNumberToObject(h, "seed", (double)sp->seed);
+  cJSON_AddNumberToObject(h, "strands", sp->strands);
+  cJSON_AddNumberToObject(h, "segments", sp->segments);
+  cJSON_AddNumberToObject(h, "length", sp->length);
+  cJSON_AddNumberToObject(h, "clumping", sp->clumping);
+  cJSON_AddNumberToObject(h, "frizz", sp->frizz);
+  cJSON_AddNumberToObject(h, "curl_radius", sp->curl_radius);
+  cJSON_AddNumberToObject(h, "curl_period", sp->curl_period);
+  cJSON_AddNumberToObject(h, "thickness", sp->thickness);
+  cJSON_AddNumberToObject(h, "opacity", sp->opacity);
+  cJSON_AddNumberToObject(e, "strand_count", hair->strands);
+  cJSON_AddNumberToObject(e, "segment_count", (double)hfr_hair_total_segments(hair));
+  cJSON_AddNumberToObject(e, "gt_fragments", (double)st->gt_fragments);
+  cJSON_AddNumberToObject(e, "render_ms", ms);
+  return e;
+}
+
+static int write_manifest(const char *dir, cJSON *doc) {
+  char path[4096], tmp[4200];
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  snprintf(tmp, sizeof tmp, "%s.tmp", path);
+  char *text = cJSON_Print(doc);
+  if (!text) return HF_ENOMEM;
+  FILE *f = fopen(tmp, "w");
+  int rc = f ? HF_OK : HF_EIO;
+  if (f) {
+    if (fputs(text, f) < 0) rc = HF_EIO;
+    if (fclose(f) != 0) rc = HF_EIO;
+  }
+  free(text);
+  /* Rename: a reader never sees half a manifest. */
+  if (rc == HF_OK && rename(tmp, path) != 0) rc = HF_EIO;
+  return rc;
+}
+
+int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
+  if (!o || !o->out_dir || o->n_styles < 1 || o->count < 1 || o->n_spp < 1) {
+    if (err) snprintf(err, errlen, "need an output directory, styles, a count and spp");
+    return HF_EINVAL;
+  }
+  int spp = 0;
+  for (int i = 0; i < o->n_spp; i++) {
+    if (o->spp_list[i] < 1 || o->spp_list[i] > HF_MAX_SPP) {
+      if (err) snprintf(err, errlen, "spp must be 1..%d", HF_MAX_SPP);
+      return HF_EINVAL;
+    }
+    if (o->spp_list[i] > spp) spp = o->spp_list[i];
+  }
+  if (mkdir(o->out_dir, 0777) != 0 && errno != EEXIST) {
+    if (err) snprintf(err, errlen, "%s: %s", o->out_dir, strerror(errno));
+    return HF_EIO;
+  }
+  hfr_renderer *r = NULL;
+  int rc = hfr_renderer_create(o->platform, &r, err, errlen);
+  if (rc != HF_OK) return rc;
+
+  cJSON *doc = cJSON_CreateObject();
+  cJSON_AddStringToObject(doc, "format", "hairfilter-dataset");
+  cJSON_AddNumberToObject(doc, "version", 1);
+  cJSON_AddStringToObject(doc, "generator", "hairfilter render dataset");
+  cJSON_AddStringToObject(doc, "gl_platform", hfr_renderer_platform(r));
+  cJSON_AddNumberToObject(doc, "spp", spp);
+  cJSON_AddItemToObject(doc, "spp_list", int_list(o->spp_list, o->n_spp));
+  cJSON_AddItemToObject(doc, "st", int_list(o->st_spp, o->n_st));
+  cJSON_AddNumberToObject(doc, "seed", (double)o->seed);
+  cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
+
+  const int total = o->n_styles * o->count;
+  double start = hr_now_ms();
+  int done = 0;
+  for (int si = 0; rc == HF_OK && si < o->n_styles; si++)
+    for (int i = 0; rc == HF_OK && i < o->count; i++) {
+      uint64_t seed = o->seed * 1000003ull + (uint64_t)si * 10007ull + (uint64_t)i;
+      hr_rng g = {seed * 0x9e3779b97f4a7c15ull + 3};
+      hfr_style_params sp;
+      hfr_style_defaults(o->styles[si], &sp);
+      sp.seed = seed;
+      if (o->strands > 0) sp.strands = o->strands;
+      if (o->segments > 0) sp.segments = o->segments;
+      /* Some variety within a style. */
+      sp.length *= hr_rng_range(&g, 0.8f, 1.2f);
+      sp.clumping = fminf(1.0f, sp.clumping * hr_rng_range(&g, 0.5f, 1.5f));
+      sp.frizz *= hr_rng_range(&g, 0.5f, 1.5f);
+      sp.curl_radius *= hr_rng_range(&g, 0.8f, 1.2f);
+      sp.thickness *= hr_rng_range(&g, 0.8f, 1.25f);
+      sp.opacity = fminf(1.0f, sp.opacity * hr_rng_range(&g, 0.85f, 1.2f));
+      hfr_view v;
+      hfr_view_defaults(&v);
+      v.width = o->width;
+      v.height = o->height;
+      v.shadow_size = o->shadow_size;
+      hfr_view_randomize(&v, seed);
+      hfr_outputs out = {0};
+      out.spp = spp;
+      out.gt_supersample = o->gt_supersample;
+      out.n_st = o->n_st;
+      memcpy(out.st_spp, o->st_spp, sizeof out.st_spp);
+      out.opaque_samples = o->opaque_samples;
+      out.seed = (uint32_t)(seed * 2654435761u);
+
+      double t0 = hr_now_ms();
+      hfr_hair hair;
+      hf_image img = {0};
+      hfr_stats st;
+      rc = hfr_hair_generate(&sp, &hair);
+      if (rc != HF_OK) {
+        if (err) snprintf(err, errlen, "style generation failed");
+        break;
+      }
+      rc = hfr_renderer_set_hair(r, &hair, 1, err, errlen);
+      if (rc == HF_OK) rc = hfr_render(r, &v, &out, &img, &st, err, errlen);
+      char file[64], path[4200];
+      snprintf(file, sizeof file, "%s_%04d.exr", hfr_style_name(sp.style), i);
+      snprintf(path, sizeof path, "%s/%s", o->out_dir, file);
+      if (rc == HF_OK) {
+        rc = hf_exr_write(path, &img, o->half);
+        if (rc != HF_OK && err) snprintf(err, errlen, "%s: %s", path, hf_strerror(rc));
+      }
+      if (rc == HF_OK) {
+        cJSON_AddItemToArray(frames, frame_entry(file, &sp, &v, &out, o, seed, &hair, &st,
+                                                 hr_now_ms() - t0));
+        /* Rewritten after every frame: an interrupted run keeps a valid
+         * manifest of the frames it finished. */
+        rc = write_manifest(o->out_dir, doc);
+        if (rc != HF_OK && err) snprintf(err, errlen, "cannot write %s/manifest.json", o->out_dir);
+      }
+      hf_image_free(&img);
+      hfr_hair_free(&hair);
+      done++;
+      if (o->progress) progress(done, total, start);
+    }
+  if (o->progress) fprintf(stderr, "\n");
+  cJSON_Delete(doc);
+  hfr_renderer_destroy(r);
+  return rc;
+}
