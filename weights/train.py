@@ -1,0 +1,337 @@
+#!/usr/bin/python3
+"""Trains a hairfilter variant on a dataset directory and exports its weights.
+
+    /usr/bin/python3 weights/train.py --data DATASET --variant Base \
+        --out runs/base --steps 20000 --export weights/base.safetensors
+    /usr/bin/python3 weights/train.py --out runs/base --resume --steps 40000 \
+        --export weights/base.safetensors
+
+DATASET is a directory written by `hairfilter render dataset` or
+weights/synth_dataset.py (format: weights/dataset.py). Frames of the styles
+given by --styles are used; 10% of them (chosen by a hash of the file name,
+so the split never changes) are held out for validation.
+
+Recipe (Currius, Assarsson & Sintorn 2022, section 3.3): random crops with
+flips, 90-degree rotations (tangents rotated with the image) and sample-slot
+permutation; loss = MSE of the alpha-premultiplied outputs (color*alpha,
+highlight*alpha, alpha) + grad_weight * MSE of their finite differences in x
+and y; Adam. Everything random derives from --seed, and the checkpoint
+(RUN/checkpoint.pt: model, optimizer, step, every RNG state) lets a run stop
+and resume with the same result as an uninterrupted one.
+"""
+import argparse
+import json
+import math
+import os
+import random
+import sys
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import dataset  # noqa: E402
+import hfnet  # noqa: E402
+
+CKPT = "checkpoint.pt"
+
+
+# ---- loss ----------------------------------------------------------------------
+
+def premultiply(y):
+    """(color*alpha, highlight*alpha, alpha): color and highlight only matter
+    where the hair is visible."""
+    a = y[:, 2:3]
+    return torch.cat([y[:, 0:1] * a, y[:, 1:2] * a, a], 1)
+
+
+def hair_loss(pred, target, grad_weight=1.0):
+    """The paper's loss on NCHW (color, highlight, alpha) tensors."""
+    p, q = premultiply(pred), premultiply(target)
+    loss = F.mse_loss(p, q)
+    if grad_weight:
+        dxp, dxq = p[..., :, 1:] - p[..., :, :-1], q[..., :, 1:] - q[..., :, :-1]
+        dyp, dyq = p[..., 1:, :] - p[..., :-1, :], q[..., 1:, :] - q[..., :-1, :]
+        loss = loss + grad_weight * (F.mse_loss(dxp, dxq) + F.mse_loss(dyp, dyq))
+    return loss
+
+
+# ---- fast path -------------------------------------------------------------------
+
+# A 4x4 stride-2 pad-1 transposed convolution equals a 3x3 pad-1 convolution
+# with 4x the output channels followed by a 2x pixel shuffle. Output row
+# 2m + r takes input rows m + d through kernel row _KIDX[r][d + 1] (-1: none).
+_KIDX = [[3, 1, -1], [-1, 2, 0]]
+
+
+def deconv_as_conv_weight(wt):
+    """ConvTranspose2d weight [in][out][4][4] -> Conv2d weight
+    [out*4][in][3][3] for conv + pixel_shuffle(2); differentiable, so the
+    trained parameters stay in ConvTranspose2d layout."""
+    cin, cout = wt.shape[:2]
+    padded = torch.cat([wt, wt.new_zeros(cin, cout, 1, 4)], 2)
+    padded = torch.cat([padded, padded.new_zeros(cin, cout, 5, 1)], 3)  # index 4 = zero
+    idx = torch.tensor([[k if k >= 0 else 4 for k in row] for row in _KIDX])
+    # w3[cin][cout][ry][rx][dy][dx] = padded[cin][cout][idx[ry][dy]][idx[rx][dx]]
+    w = padded[:, :, idx[:, :, None, None], idx[None, None, :, :]]   # [cin][cout][ry][dy][rx][dx]
+    w = w.permute(1, 2, 4, 0, 3, 5)                                     # [cout][ry][rx][cin][dy][dx]
+    return w.reshape(cout * 4, cin, 3, 3)
+
+
+def raw_shuffle(net, x):
+    """net.raw() with every transposed convolution as conv + pixel shuffle.
+    Same function and parameters; faster on CPU with torch 1.13 (oneDNN's
+    3x3 convolutions beat its transposed ones, see docs/QUALITY.md), and it
+    runs under bf16 autocast, where torch 1.13 has no ConvTranspose2d."""
+    enc = []
+    for i in range(net.levels):
+        x = F.relu(getattr(net, f"enc{i}")(x))
+        enc.append(x)
+    y = enc[-1]
+    for i in reversed(range(net.levels)):
+        if i < net.levels - 1:
+            y = torch.cat([y, enc[i]], dim=1)
+        layer = getattr(net, f"dec{i}")
+        w = deconv_as_conv_weight(layer.weight)
+        b = layer.bias.repeat_interleave(4)
+        y = F.pixel_shuffle(F.conv2d(y, w, b, padding=1), 2)
+        if i > 0:
+            y = F.relu(y)
+    return y
+
+
+def forward(net, x, deconv="shuffle", bf16=False):
+    """Output-transformed prediction for NCHW x (sides multiples of 2^L)."""
+    if deconv == "transpose" and not bf16:
+        return net(x)
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+        y = raw_shuffle(net, x)
+    return hfnet.output_transform(y.float())
+
+
+# ---- helpers ---------------------------------------------------------------------
+
+def fmt_time(s):
+    s = int(max(0, s))
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
+class Progress:
+    """One stderr line, rewritten in place (plain lines when not a tty)."""
+
+    def __init__(self, total, start):
+        self.total, self.start_step = total, start
+        self.t0 = time.time()
+        self.last = 0.0
+        self.tty = sys.stderr.isatty()
+
+    def update(self, step, loss, val, force=False):
+        now = time.time()
+        if not force and now - self.last < (0.5 if self.tty else 10):
+            return
+        self.last = now
+        done = step - self.start_step
+        rate = done / max(now - self.t0, 1e-9)
+        eta = (self.total - step) / rate if rate > 0 else float("inf")
+        width = 24
+        fill = int(width * step / max(self.total, 1))
+        bar = "#" * fill + "." * (width - fill)
+        vs = f" val {val:.5f}" if val is not None else ""
+        line = (f"[{bar}] {step}/{self.total} loss {loss:.5f}{vs} "
+                f"{1000 / rate if rate > 0 else 0:.0f} ms/step ETA "
+                f"{fmt_time(eta) if math.isfinite(eta) else '?'}")
+        sys.stderr.write(("\r" + line + "\x1b[K") if self.tty else line + "\n")
+        sys.stderr.flush()
+
+    def close(self):
+        if self.tty:
+            sys.stderr.write("\n")
+
+
+def rng_state(np_rng):
+    return dict(torch=torch.get_rng_state(), numpy=np_rng.bit_generator.state,
+                python=random.getstate())
+
+
+def set_rng_state(np_rng, st):
+    torch.set_rng_state(st["torch"])
+    np_rng.bit_generator.state = st["numpy"]
+    random.setstate(st["python"])
+
+
+def save_checkpoint(path, **state):
+    """Atomic: a crash mid-write never leaves a torn checkpoint."""
+    tmp = path + ".tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+@torch.no_grad()
+def validate(net, frames, spp, grad_weight, mode, max_side=256):
+    """Mean loss over the held-out frames (first spp samples, no
+    augmentation; frames larger than max_side are centre-cropped)."""
+    if not frames:
+        return None
+    net.eval()
+    total = 0.0
+    for f, t in zip(frames.feats, frames.tgts):
+        h, w = t.shape[:2]
+        ch, cw = min(h, max_side), min(w, max_side)
+        y0, x0 = (h - ch) // 2, (w - cw) // 2
+        x = f[y0:y0 + ch, x0:x0 + cw, :spp].reshape(ch, cw, -1)
+        y = t[y0:y0 + ch, x0:x0 + cw]
+        x = torch.from_numpy(np.ascontiguousarray(x.astype(np.float32).transpose(2, 0, 1)))[None]
+        y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
+        total += float(hair_loss(forward(net, x, *mode), y, grad_weight))
+    net.train()
+    return total / len(frames)
+
+
+def export(net, path, dtype):
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    hfnet.save_safetensors(path, net.cfg, net.state_dict(), dtype=dtype)
+    print(f"exported {net.cfg['name']} to {path} ({dtype})", file=sys.stderr)
+
+
+# ---- main ------------------------------------------------------------------------
+
+def parse_args(argv):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", help="dataset directory (manifest.json + EXRs)")
+    ap.add_argument("--variant", default="Base", help="Table 1 variant name")
+    ap.add_argument("--out", required=True, help="run directory (checkpoint, log)")
+    ap.add_argument("--steps", type=int, default=10000, help="total optimizer steps")
+    ap.add_argument("--batch", type=int, default=8)
+    ap.add_argument("--crop", type=int, default=128)
+    ap.add_argument("--lr", type=float, default=5e-4)
+    ap.add_argument("--grad-weight", type=float, default=1.0,
+                    help="weight of the image-gradient MSE term")
+    ap.add_argument("--styles", default="straight,wavy",
+                    help="styles to train on (others are never loaded); '' = all")
+    ap.add_argument("--val-fraction", type=float, default=0.1)
+    ap.add_argument("--val-every", type=int, default=500)
+    ap.add_argument("--ckpt-every", type=int, default=500)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--deconv", default="shuffle", choices=["shuffle", "transpose"],
+                    help="transposed convs computed as conv + pixel shuffle (default, "
+                    "faster) or with ConvTranspose2d; same parameters either way")
+    ap.add_argument("--bf16", action="store_true", help="bf16 autocast (implies shuffle)")
+    ap.add_argument("--resume", action="store_true", help="continue RUN/checkpoint.pt")
+    ap.add_argument("--export", help="write the weights here (safetensors)")
+    ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
+    return ap.parse_args(argv)
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    torch.set_num_threads(args.threads)
+    os.makedirs(args.out, exist_ok=True)
+    ckpt_path = os.path.join(args.out, CKPT)
+    log_path = os.path.join(args.out, "log.jsonl")
+
+    ckpt = None
+    if args.resume:
+        if not os.path.exists(ckpt_path):
+            sys.exit(f"train.py: --resume: no {ckpt_path}")
+        ckpt = torch.load(ckpt_path)
+        saved = ckpt["args"]
+        # The run's identity comes from the checkpoint; only the length,
+        # cadence, threads and export may change on resume.
+        for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles",
+                  "val_fraction", "seed", "deconv", "bf16"):
+            setattr(args, k, saved[k])
+    cfg = hfnet.variant_config(args.variant)
+    torch.manual_seed(args.seed)
+    np_rng = np.random.default_rng(args.seed)
+    random.seed(args.seed)
+    net = hfnet.HairNet(cfg)
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    step, history, elapsed, ema = 0, [], 0.0, None
+    if ckpt:
+        net.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        step, history, elapsed = ckpt["step"], ckpt["history"], ckpt.get("elapsed", 0.0)
+        ema = ckpt.get("ema")
+        set_rng_state(np_rng, ckpt["rng"])
+        print(f"resumed {cfg['name']} at step {step} from {ckpt_path}", file=sys.stderr)
+
+    if step < args.steps:
+        if not args.data:
+            sys.exit("train.py: --data is required to train")
+        entries = dataset.read_manifest(args.data)
+        styles = dataset.parse_styles(args.styles)
+        if styles:
+            entries = [e for e in entries if e["style"] in styles]
+        if not entries:
+            sys.exit(f"train.py: no frames of styles {args.styles} in {args.data}")
+        train_e, val_e = dataset.split_frames(entries, args.val_fraction)
+        t0 = time.time()
+        train_set = dataset.FrameSet(train_e, cfg["spp"])
+        val_set = dataset.FrameSet(val_e, cfg["spp"]) if val_e else None
+        print(f"{cfg['name']}: {len(train_e)} training / {len(val_e)} validation frames "
+              f"({', '.join(sorted(set(e['style'] for e in entries)))}), "
+              f"{(train_set.nbytes() + (val_set.nbytes() if val_set else 0)) / 2**20:.0f} MiB, "
+              f"loaded in {time.time() - t0:.1f} s", file=sys.stderr)
+
+        mode = (args.deconv, args.bf16)
+        net.train()
+        prog = Progress(args.steps, step)
+        val = history[-1]["val"] if history else None
+        window = []
+        t_start = time.time()
+        while step < args.steps:
+            x, y = train_set.batch(np_rng, args.crop, args.batch)
+            x, y = torch.from_numpy(x), torch.from_numpy(y)
+            loss = hair_loss(forward(net, x, *mode), y, args.grad_weight)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            lv = float(loss)
+            if not math.isfinite(lv):
+                sys.exit(f"train.py: loss is {lv} at step {step}")
+            ema = lv if ema is None else 0.98 * ema + 0.02 * lv
+            window.append(lv)
+            last = step == args.steps
+            if step % args.val_every == 0 or last:
+                val = validate(net, val_set, cfg["spp"], args.grad_weight, mode)
+                # loss: mean training loss since the previous record.
+                rec = dict(step=step, loss=float(np.mean(window)), val=val,
+                           time=elapsed + time.time() - t_start)
+                window = []
+                history.append(rec)
+                with open(log_path, "a") as f:
+                    f.write(json.dumps(rec) + "\n")
+            prog.update(step, ema, val, force=last)
+            if step % args.ckpt_every == 0 or last:
+                save_checkpoint(ckpt_path, model=net.state_dict(), optimizer=opt.state_dict(),
+                                step=step, rng=rng_state(np_rng), args=vars(args),
+                                history=history, elapsed=elapsed + time.time() - t_start, ema=ema,
+                                config=cfg)
+        prog.close()
+        elapsed += time.time() - t_start
+        with open(os.path.join(args.out, "summary.json"), "w") as f:
+            json.dump(dict(variant=cfg["name"], steps=step, data=os.path.abspath(args.data),
+                           styles=args.styles, train_frames=len(train_e),
+                           val_frames=len(val_e), batch=args.batch, crop=args.crop,
+                           lr=args.lr, grad_weight=args.grad_weight, seed=args.seed,
+                           deconv=args.deconv, bf16=args.bf16, train_seconds=elapsed,
+                           last=history[-1] if history else None), f, indent=1)
+        print(f"{cfg['name']}: step {step}, loss {ema:.6f}, validation "
+              f"{val if val is not None else float('nan'):.6f}, "
+              f"{fmt_time(elapsed)} of training", file=sys.stderr)
+    elif ckpt:
+        print(f"{cfg['name']}: already at step {step} >= --steps {args.steps}", file=sys.stderr)
+
+    if args.export:
+        export(net, args.export, args.export_dtype)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
