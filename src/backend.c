@@ -92,6 +92,8 @@ int hf_model_create(hf_backend *b, const hf_weights *w, hf_model **out) {
   *out = NULL;
   int rc = hf_net_config_validate(&w->cfg);
   if (rc) return rc;
+  unsigned archs = b->ops->archs ? b->ops->archs : 1u << HF_ARCH_UNET;
+  if (!(archs & (1u << w->cfg.arch))) return HF_EUNSUPPORTED;
   hf_model *m = calloc(1, sizeof *m);
   if (!m) return HF_ENOMEM;
   m->backend = b;
@@ -173,13 +175,15 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
   }
 }
 
-void hf_output_from_padded_f32(const float *src, int pw, int ph, const hf_io *io) {
+void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
+                               int pw, int ph, const hf_io *io) {
   for (int n = 0; n < io->batch; n++)
     for (int y = 0; y < io->height; y++)
       for (int x = 0; x < io->width; x++) {
+        size_t px = ((size_t)n * ph + y) * pw + x;
         float v[3];
-        memcpy(v, src + (((size_t)n * ph + y) * pw + x) * 3, sizeof v);
-        hf_output_transform(v);
+        memcpy(v, src + px * 3, sizeof v);
+        hf_output_finish(cfg, in + px * cfg->in_channels, v);
         size_t o = (((size_t)n * io->height + y) * io->width + x) * 3;
         if (io->out_dtype == HF_F32) {
           memcpy((float *)io->out + o, v, sizeof v);

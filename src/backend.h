@@ -19,6 +19,9 @@ typedef struct hf_backend_ops {
   const char *name;
   /* Larger is preferred by "auto". */
   int priority;
+  /* Architectures implemented, as a mask of 1 << hf_arch; 0 means the
+   * paper's U-Net only. hf_model_create refuses the others. */
+  unsigned archs;
   /* 0 when usable here, else HF_EUNAVAILABLE with why filled in. */
   int (*probe)(char *why, size_t whylen);
   /* Device-wide state (handles, streams); may be NULL. */
@@ -58,9 +61,12 @@ struct hf_model {
 /* Converts io->in to dense float32 NHWC, zero-padded to (pw, ph) per frame:
  * dst is [batch][ph][pw][cin]. */
 void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst);
-/* Applies the output transforms to src ([batch][ph][pw][3]), crops to
- * io->width x io->height and stores in io->out's dtype. */
-void hf_output_from_padded_f32(const float *src, int pw, int ph, const hf_io *io);
+/* Finishes the raw network output src ([batch][ph][pw][3]) with
+ * hf_output_finish (which reads the padded input in, [batch][ph][pw][cin],
+ * for the residual architecture), crops to io->width x io->height and stores
+ * in io->out's dtype. */
+void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
+                               int pw, int ph, const hf_io *io);
 /* Rounds n up to a multiple of a (a power of two). */
 static inline int hf_round_up(int n, int a) { return (n + a - 1) & ~(a - 1); }
 /* Monotonic clock in microseconds. */

@@ -142,7 +142,7 @@ static int ref_model_run(void *p, const hf_io *io, hf_timing *t) {
   for (int n = 0; n < io->batch; n++)
     if ((rc = forward(m->w, in + n * in_frame, pw, ph, out + n * out_frame)) != 0) goto out;
   double t2 = hf_now_us();
-  hf_output_from_padded_f32(out, pw, ph, io);
+  hf_output_from_padded_f32(c, in, out, pw, ph, io);
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
   t->output_us = hf_now_us() - t2;
@@ -156,6 +156,7 @@ out:
 const hf_backend_ops hf_backend_cpu_ref = {
   .name = "cpu-ref",
   .priority = 10,
+  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL,
   .probe = ref_probe,
   .model_create = ref_model_create,
   .model_destroy = ref_model_destroy,

@@ -529,8 +529,11 @@ static int run_locked(cudnn_model *m, const hf_io *io, hf_timing *t) {
     HF_TRY(forward_enqueue(m, p));
   HF_CU_TRY(cudaEventRecord(m->ev[2], m->stream));
   /* Output: transforms + crop + dtype in one kernel, async download. */
-  HF_CU_TRY(hf_cuk_output(p->buf[HF_CL_BUF_OUT], HF_CL_OUT_CH, pw, ph, io->batch, io->width,
-                          io->height, p->d_out_raw, io->out_dtype == HF_F16, m->stream));
+  const int residual = m->cfg.arch == HF_ARCH_RESIDUAL;
+  HF_CU_TRY(hf_cuk_output(p->buf[HF_CL_BUF_OUT], HF_CL_OUT_CH,
+                          residual ? p->buf[HF_CL_BUF_IN] : NULL, p->lo.cin_pad, m->cfg.spp, pw,
+                          ph, io->batch, io->width, io->height, p->d_out_raw,
+                          io->out_dtype == HF_F16, m->stream));
   HF_CU_TRY(cudaMemcpyAsync(p->h_out, p->d_out_raw, out_bytes, cudaMemcpyDeviceToHost,
                             m->stream));
   HF_CU_TRY(cudaEventRecord(m->ev[3], m->stream));
@@ -577,6 +580,7 @@ static size_t cudnn_model_device_bytes(void *impl) {
 const hf_backend_ops hf_backend_cudnn = {
   .name = "cudnn",
   .priority = 100,
+  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL,
   .probe = cudnn_probe,
   .open = cudnn_open,
   .close = cudnn_close,

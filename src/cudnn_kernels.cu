@@ -35,8 +35,9 @@ __global__ void input_kernel(const void *src, int src_f16, int batch, int w, int
   }
 }
 
-__global__ void output_kernel(const __half *src, int src_stride, int pw, int ph, int batch,
-                              int w, int h, void *dst, int dst_f16) {
+__global__ void output_kernel(const __half *src, int src_stride, const __half *in,
+                              int in_stride, int spp, int pw, int ph, int batch, int w, int h,
+                              void *dst, int dst_f16) {
   const size_t total = (size_t)batch * h * w;
   for (size_t i = blockIdx.x * (size_t)blockDim.x + threadIdx.x; i < total;
        i += (size_t)gridDim.x * blockDim.x) {
@@ -44,13 +45,34 @@ __global__ void output_kernel(const __half *src, int src_stride, int pw, int ph,
     const int x = (int)(t % w); t /= w;
     const int y = (int)(t % h);
     const size_t n = t / h;
-    const __half *p = src + ((n * ph + y) * pw + x) * src_stride;
-    // The paper's transforms (section 3.3.2), computed in FP32.
+    const size_t px = (n * ph + y) * pw + x;
+    const __half *p = src + px * src_stride;
     const float c = __half2float(p[0]);
     const float hl = __half2float(p[1]);
     const float a = __half2float(p[2]);
-    const float out[3] = {c * c * c / 32.0f + c / 5.0f + 1.0f, fmaxf(hl, 0.0f),
-                          fminf(fmaxf(a, 0.0f), 1.0f)};
+    float out[3];
+    if (in) {
+      // Residual architecture: raw output plus the pixel's stochastic-
+      // transparency estimate (hf_residual_base in net_config.c).
+      const __half *s = in + px * in_stride;
+      float cnt = 0.0f, col = 0.0f, hsum = 0.0f;
+      for (int k = 0; k < spp; k++, s += 6)
+        if (__half2float(s[2]) > 0.0f) {
+          cnt += 1.0f;
+          col += __half2float(s[0]);
+          hsum += __half2float(s[1]);
+        }
+      const float bc = cnt > 0.0f ? col / cnt : 1.0f;
+      const float bh = cnt > 0.0f ? hsum / cnt : 0.0f;
+      out[0] = bc + c;
+      out[1] = fmaxf(bh + hl, 0.0f);
+      out[2] = fminf(fmaxf(cnt / spp + a, 0.0f), 1.0f);
+    } else {
+      // The paper's transforms (section 3.3.2), computed in FP32.
+      out[0] = c * c * c / 32.0f + c / 5.0f + 1.0f;
+      out[1] = fmaxf(hl, 0.0f);
+      out[2] = fminf(fmaxf(a, 0.0f), 1.0f);
+    }
     if (dst_f16) {
       __half *d = (__half *)dst + i * 3;
       for (int k = 0; k < 3; k++) d[k] = __float2half_rn(out[k]);
@@ -113,12 +135,13 @@ extern "C" cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int
   return cudaGetLastError();
 }
 
-extern "C" cudaError_t hf_cuk_output(const void *src, int src_stride, int pw, int ph, int batch,
-                                     int w, int h, void *dst, int dst_f16,
-                                     cudaStream_t stream) {
+extern "C" cudaError_t hf_cuk_output(const void *src, int src_stride, const void *in,
+                                     int in_stride, int spp, int pw, int ph, int batch, int w,
+                                     int h, void *dst, int dst_f16, cudaStream_t stream) {
   const size_t total = (size_t)batch * h * w;
   output_kernel<<<blocks_for(total), kThreads, 0, stream>>>(
-      (const __half *)src, src_stride, pw, ph, batch, w, h, dst, dst_f16);
+      (const __half *)src, src_stride, (const __half *)in, in_stride, spp, pw, ph, batch, w, h,
+      dst, dst_f16);
   return cudaGetLastError();
 }
 

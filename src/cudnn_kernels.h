@@ -18,10 +18,13 @@ cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int w, int h, 
                          void *dst, int pw, int ph, int cpad, cudaStream_t stream);
 
 /* src: FP16 [batch][ph][pw][src_stride], raw network output in channels
- * 0..2 (color, highlight, alpha). Applies the output transforms, crops to
+ * 0..2 (color, highlight, alpha). Applies the output transforms (or, when
+ * in is not NULL, adds the residual base of the FP16 network input in,
+ * [batch][ph][pw][in_stride] with spp samples: HF_ARCH_RESIDUAL), crops to
  * w x h and writes [batch][h][w][3] as FP32 (dst_f16 == 0) or FP16. */
-cudaError_t hf_cuk_output(const void *src, int src_stride, int pw, int ph, int batch, int w,
-                          int h, void *dst, int dst_f16, cudaStream_t stream);
+cudaError_t hf_cuk_output(const void *src, int src_stride, const void *in, int in_stride,
+                          int spp, int pw, int ph, int batch, int w, int h, void *dst,
+                          int dst_f16, cudaStream_t stream);
 
 /* y: FP16 pixels with c channels each, pixel stride pix_stride, npix of
  * them: y = (y + bias) then ReLU when relu. For convolutions no cuDNN

@@ -65,6 +65,13 @@ extern const char *const HF_OUTPUT_NAMES[HF_OUT_CHANNELS];
 
 enum { HF_OUT_COLOR = 0, HF_OUT_HIGHLIGHT = 1, HF_OUT_ALPHA = 2 };
 
+/* Architectures. HF_ARCH_UNET is the paper's network. HF_ARCH_RESIDUAL is the
+ * same U-Net whose raw output is a residual added to the per-pixel
+ * stochastic-transparency estimate read off the samples (hf_residual_base),
+ * so coverage and colour come from the samples and the network learns the
+ * correction, not a prior (protocol/FEATURES.md, "Residual architecture"). */
+typedef enum hf_arch { HF_ARCH_UNET = 0, HF_ARCH_RESIDUAL = 1 } hf_arch;
+
 typedef struct hf_net_config {
   char name[HF_NAME_MAX];
   int spp;                      /* samples per pixel, 1..HF_MAX_SPP */
@@ -72,10 +79,12 @@ typedef struct hf_net_config {
   int out_channels;             /* HF_OUT_CHANNELS */
   int num_levels;               /* L */
   int levels[HF_MAX_LEVELS];    /* c_0 .. c_{L-1} */
+  int arch;                     /* hf_arch */
 } hf_net_config;
 
 /* The seven variants of the paper's Table 1, by name ("Base", "Base@1spp",
- * "Base@2spp", "Large", "Small", "Shallow", "Deep"), case-insensitive. */
+ * "Base@2spp", "Large", "Small", "Shallow", "Deep"), and "Residual" (Base's
+ * shape with HF_ARCH_RESIDUAL), case-insensitive. */
 int hf_variant_preset(const char *name, hf_net_config *out);
 /* Number of presets and the i-th preset's name, for listings. */
 int hf_variant_preset_count(void);
@@ -166,6 +175,17 @@ size_t hf_model_device_bytes(const hf_model *m);
 
 /* The paper's output transforms on one raw network output triple. */
 void hf_output_transform(float *rgb3);
+/* Name of an architecture ("unet", "residual"), and back (HF_ENOTFOUND). */
+const char *hf_arch_name(int arch);
+int hf_arch_from_name(const char *name);
+/* Residual base of one pixel from its spp*6 input features: the
+ * stochastic-transparency estimate (mean colour and highlight of the covered
+ * samples, fraction of covered samples as alpha). */
+void hf_residual_base(const float *pixel_in, int spp, float base[3]);
+/* Final output of one pixel from the raw network output v, in place: the
+ * output transforms for HF_ARCH_UNET, base + residual for HF_ARCH_RESIDUAL
+ * (pixel_in is read only then). */
+void hf_output_finish(const hf_net_config *cfg, const float *pixel_in, float *v);
 
 /* ---- half floats -------------------------------------------------------- */
 

@@ -16,14 +16,17 @@ static const struct {
   int spp;
   int num_levels;
   int levels[HF_MAX_LEVELS];
+  int arch;
 } presets[] = {
-  {"Base",      4, 3, {32, 64, 128}},
-  {"Base@1spp", 1, 3, {32, 64, 128}},
-  {"Base@2spp", 2, 3, {32, 64, 128}},
-  {"Large",     4, 3, {64, 128, 256}},
-  {"Small",     4, 3, {16, 32, 64}},
-  {"Shallow",   4, 2, {32, 64}},
-  {"Deep",      4, 4, {32, 64, 128, 256}},
+  {"Base",      4, 3, {32, 64, 128}, HF_ARCH_UNET},
+  {"Base@1spp", 1, 3, {32, 64, 128}, HF_ARCH_UNET},
+  {"Base@2spp", 2, 3, {32, 64, 128}, HF_ARCH_UNET},
+  {"Large",     4, 3, {64, 128, 256}, HF_ARCH_UNET},
+  {"Small",     4, 3, {16, 32, 64}, HF_ARCH_UNET},
+  {"Shallow",   4, 2, {32, 64}, HF_ARCH_UNET},
+  {"Deep",      4, 4, {32, 64, 128, 256}, HF_ARCH_UNET},
+  /* Beyond the paper: Base's cost, residual on the samples' own estimate. */
+  {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL},
 };
 #define NPRESETS ((int)(sizeof presets / sizeof presets[0]))
 
@@ -44,6 +47,7 @@ int hf_variant_preset(const char *name, hf_net_config *out) {
     out->out_channels = HF_OUT_CHANNELS;
     out->num_levels = presets[i].num_levels;
     memcpy(out->levels, presets[i].levels, sizeof out->levels);
+    out->arch = presets[i].arch;
     return HF_OK;
   }
   return HF_ENOTFOUND;
@@ -58,6 +62,7 @@ int hf_net_config_validate(const hf_net_config *cfg) {
   for (int i = 0; i < cfg->num_levels; i++)
     if (cfg->levels[i] < 1 || cfg->levels[i] > HF_MAX_CHANNELS) return HF_ERANGE;
   if (memchr(cfg->name, 0, sizeof cfg->name) == NULL) return HF_EFORMAT;
+  if (cfg->arch != HF_ARCH_UNET && cfg->arch != HF_ARCH_RESIDUAL) return HF_EUNSUPPORTED;
   return HF_OK;
 }
 
@@ -97,5 +102,50 @@ void hf_output_transform(float *v) {
   v[HF_OUT_COLOR] = c * c * c / 32.0f + c / 5.0f + 1.0f;
   v[HF_OUT_HIGHLIGHT] = v[HF_OUT_HIGHLIGHT] > 0.0f ? v[HF_OUT_HIGHLIGHT] : 0.0f;
   float a = v[HF_OUT_ALPHA];
+  v[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
+}
+
+const char *hf_arch_name(int arch) {
+  return arch == HF_ARCH_UNET ? "unet" : arch == HF_ARCH_RESIDUAL ? "residual" : "unknown";
+}
+
+int hf_arch_from_name(const char *name) {
+  if (name && !strcmp(name, "unet")) return HF_ARCH_UNET;
+  if (name && !strcmp(name, "residual")) return HF_ARCH_RESIDUAL;
+  return HF_ENOTFOUND;
+}
+
+/* A sample is covered when its fragment was kept: uncovered samples carry
+ * all-zero features, and a kept fragment always has alpha > 0. With
+ * coverage drawn with probability alpha, the covered fraction estimates the
+ * blended alpha and the covered samples' mean estimates the blended colour
+ * (Enderton et al. 2011). A pixel with no covered sample gets colour 1, the
+ * neutral value of the paper's colour transform. */
+void hf_residual_base(const float *px, int spp, float base[3]) {
+  float n = 0, col = 0, hl = 0;
+  for (int k = 0; k < spp; k++) {
+    const float *s = px + k * HF_FEATURES_PER_SAMPLE;
+    if (s[2] > 0.0f) {
+      n += 1.0f;
+      col += s[0];
+      hl += s[1];
+    }
+  }
+  base[HF_OUT_COLOR] = n > 0 ? col / n : 1.0f;
+  base[HF_OUT_HIGHLIGHT] = n > 0 ? hl / n : 0.0f;
+  base[HF_OUT_ALPHA] = n / (float)spp;
+}
+
+void hf_output_finish(const hf_net_config *cfg, const float *px, float *v) {
+  if (cfg->arch != HF_ARCH_RESIDUAL) {
+    hf_output_transform(v);
+    return;
+  }
+  float b[3];
+  hf_residual_base(px, cfg->spp, b);
+  v[HF_OUT_COLOR] += b[HF_OUT_COLOR];
+  float h = v[HF_OUT_HIGHLIGHT] + b[HF_OUT_HIGHLIGHT];
+  v[HF_OUT_HIGHLIGHT] = h > 0.0f ? h : 0.0f;
+  float a = v[HF_OUT_ALPHA] + b[HF_OUT_ALPHA];
   v[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
 }

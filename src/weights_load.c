@@ -61,9 +61,14 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
     goto out;
   }
   strcpy(c->name, name->valuestring);
-  if (arch && !(cJSON_IsString(arch) && !strcmp(arch->valuestring, "unet"))) {
-    rc = fail(err, errlen, HF_EUNSUPPORTED, "metadata: unsupported 'arch'");
-    goto out;
+  c->arch = HF_ARCH_UNET; /* files from before 'arch' existed */
+  if (arch) {
+    int a = cJSON_IsString(arch) ? hf_arch_from_name(arch->valuestring) : HF_ENOTFOUND;
+    if (a < 0) {
+      rc = fail(err, errlen, HF_EUNSUPPORTED, "metadata: unsupported 'arch' (want unet or residual)");
+      goto out;
+    }
+    c->arch = a;
   }
   if (json_int(m, "spp", 1, HF_MAX_SPP, &c->spp) ||
       json_int(m, "in_channels", 1, HF_MAX_SPP * HF_FEATURES_PER_SAMPLE, &c->in_channels) ||

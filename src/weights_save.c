@@ -13,7 +13,7 @@ static char *metadata_json(const hf_weights *w) {
   cJSON *m = cJSON_CreateObject();
   if (!m) return NULL;
   cJSON_AddStringToObject(m, "name", c->name);
-  cJSON_AddStringToObject(m, "arch", "unet");
+  cJSON_AddStringToObject(m, "arch", hf_arch_name(c->arch));
   cJSON_AddNumberToObject(m, "spp", c->spp);
   cJSON_AddNumberToObject(m, "in_channels", c->in_channels);
   cJSON_AddItemToObject(m, "levels", cJSON_CreateIntArray(c->levels, c->num_levels));

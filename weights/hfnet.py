@@ -28,14 +28,18 @@ VARIANTS = {
     "Small":     dict(spp=4, levels=[16, 32, 64]),
     "Shallow":   dict(spp=4, levels=[32, 64]),
     "Deep":      dict(spp=4, levels=[32, 64, 128, 256]),
+    # Beyond the paper: Base's shape, output = per-pixel stochastic
+    # transparency estimate + the network's residual.
+    "Residual":  dict(spp=4, levels=[32, 64, 128], arch="residual"),
 }
+TABLE1 = ["Base", "Base@1spp", "Base@2spp", "Large", "Small", "Shallow", "Deep"]
 
 
 def variant_config(name):
     """Metadata dict of a Table 1 variant, as stored in the weights file."""
     for key, v in VARIANTS.items():
         if key.lower() == name.lower():
-            return dict(name=key, arch="unet", spp=v["spp"],
+            return dict(name=key, arch=v.get("arch", "unet"), spp=v["spp"],
                         in_channels=v["spp"] * len(FEATURES),
                         levels=list(v["levels"]), out_channels=len(OUTPUTS),
                         features=list(FEATURES))
@@ -50,10 +54,35 @@ def output_transform(x):
     return torch.cat([color, highlight, alpha], dim=1)
 
 
+def residual_base(x, spp):
+    """Per-pixel stochastic-transparency estimate from NCHW features: mean
+    colour and highlight of covered samples (alpha > 0), covered fraction as
+    alpha; colour 1 where no sample is covered (src/net_config.c)."""
+    n, _, h, w = x.shape
+    s = x.view(n, spp, len(FEATURES), h, w)
+    cov = (s[:, :, 2] > 0).to(x.dtype)
+    cnt = cov.sum(dim=1, keepdim=True)
+    safe = torch.clamp(cnt, min=1)
+    color = torch.where(cnt > 0, (s[:, :, 0] * cov).sum(1, keepdim=True) / safe,
+                        torch.ones_like(cnt))
+    highlight = (s[:, :, 1] * cov).sum(1, keepdim=True) / safe
+    return torch.cat([color, highlight, cnt / spp], dim=1)
+
+
+def residual_finish(raw, base):
+    color = base[:, 0:1] + raw[:, 0:1]
+    highlight = torch.clamp(base[:, 1:2] + raw[:, 1:2], min=0)
+    alpha = torch.clamp(base[:, 2:3] + raw[:, 2:3], 0, 1)
+    return torch.cat([color, highlight, alpha], dim=1)
+
+
 class HairNet(nn.Module):
     def __init__(self, cfg):
         super().__init__()
         self.cfg = dict(cfg)
+        self.arch = cfg.get("arch", "unet")
+        if self.arch not in ("unet", "residual"):
+            raise ValueError(f"unknown arch {self.arch!r}")
         lv = cfg["levels"]
         L = len(lv)
         self.levels = L
@@ -93,7 +122,12 @@ class HairNet(nn.Module):
         ph, pw = (-h) % a, (-w) % a
         if ph or pw:
             x = F.pad(x, (0, pw, 0, ph))
-        return output_transform(self.raw(x))[..., :h, :w]
+        raw = self.raw(x)
+        if self.arch == "residual":
+            out = residual_finish(raw, residual_base(x, self.cfg["spp"]))
+        else:
+            out = output_transform(raw)
+        return out[..., :h, :w]
 
 
 # ---- safetensors ----------------------------------------------------------

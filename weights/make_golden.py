@@ -21,6 +21,7 @@ CASES = [  # variant, width, height: odd sizes exercise pad-and-crop
     ("Shallow", 64, 48), ("Shallow", 29, 17),
     ("Deep", 64, 48), ("Deep", 45, 31),
     ("Base@1spp", 64, 48), ("Base@1spp", 19, 41),
+    ("Residual", 64, 48), ("Residual", 27, 35),
 ]
 
 
@@ -38,13 +39,15 @@ def write_exr(path, names, nhwc):
 
 def random_features(rng, h, w, spp):
     """Plausible feature ranges (protocol/FEATURES.md), not just noise in
-    [0, 1): alpha mostly 0 or coverage-like, tangents in [-1, 1]."""
+    [0, 1): about 30% of samples uncovered (all features 0), alpha in
+    (0, 1], tangents in [-1, 1]."""
     f = np.zeros((h, w, spp, 6), np.float32)
     f[..., 0] = rng.uniform(0, 2, (h, w, spp))
     f[..., 1] = rng.exponential(0.2, (h, w, spp))
-    f[..., 2] = rng.uniform(0, 1, (h, w, spp)) * (rng.uniform(size=(h, w, spp)) < 0.7)
+    f[..., 2] = rng.uniform(0.01, 1, (h, w, spp))
     f[..., 3] = rng.uniform(0, 1, (h, w, spp))
     f[..., 4:6] = rng.uniform(-1, 1, (h, w, spp, 2))
+    f *= (rng.uniform(size=(h, w, spp, 1)) < 0.7)
     return f.reshape(h, w, spp * 6)
 
 

@@ -17,6 +17,7 @@ static const struct { const char *weights, *stem; } cases[] = {
   {"Shallow", "Shallow_64x48"},     {"Shallow", "Shallow_29x17"},
   {"Deep", "Deep_64x48"},           {"Deep", "Deep_45x31"},
   {"Base_1spp", "Base_1spp_64x48"}, {"Base_1spp", "Base_1spp_19x41"},
+  {"Residual", "Residual_64x48"},   {"Residual", "Residual_27x35"},
 };
 
 static int backend_in_build(const char *name) {

@@ -16,7 +16,7 @@ static void test_table1_presets(void **state) {
     {"Base@2spp", 2, 3, {32, 64, 128}}, {"Large", 4, 3, {64, 128, 256}},
     {"Small", 4, 3, {16, 32, 64}},     {"Shallow", 4, 2, {32, 64}},
     {"Deep", 4, 4, {32, 64, 128, 256}}};
-  assert_int_equal(hf_variant_preset_count(), 7);
+  assert_int_equal(hf_variant_preset_count(), 8); /* Table 1 + Residual */
   for (size_t k = 0; k < sizeof want / sizeof want[0]; k++) {
     hf_net_config c;
     assert_int_equal(hf_variant_preset(want[k].name, &c), HF_OK);
@@ -26,11 +26,44 @@ static void test_table1_presets(void **state) {
     assert_int_equal(c.out_channels, 3);
     assert_int_equal(c.num_levels, want[k].L);
     for (int i = 0; i < c.num_levels; i++) assert_int_equal(c.levels[i], want[k].c[i]);
+    assert_int_equal(c.arch, HF_ARCH_UNET);
     assert_int_equal(hf_net_config_validate(&c), HF_OK);
   }
   hf_net_config c;
   assert_int_equal(hf_variant_preset("base", &c), HF_OK); /* case-insensitive */
   assert_int_equal(hf_variant_preset("Huge", &c), HF_ENOTFOUND);
+  assert_int_equal(hf_variant_preset("Residual", &c), HF_OK);
+  assert_int_equal(c.arch, HF_ARCH_RESIDUAL);
+  assert_int_equal(c.spp, 4);
+  assert_int_equal(c.levels[2], 128);
+}
+
+/* The residual base is the stochastic-transparency estimate of the pixel. */
+static void test_residual_base(void **state) {
+  float px[24] = {0};
+  /* samples 0 and 2 covered: colour 0.5 / 1.5, highlight 0.2 / 0.4 */
+  px[0] = 0.5f, px[1] = 0.2f, px[2] = 0.3f;
+  px[12] = 1.5f, px[13] = 0.4f, px[14] = 0.9f;
+  float b[3];
+  hf_residual_base(px, 4, b);
+  assert_float_equal(b[HF_OUT_COLOR], 1.0f, 1e-6);
+  assert_float_equal(b[HF_OUT_HIGHLIGHT], 0.3f, 1e-6);
+  assert_float_equal(b[HF_OUT_ALPHA], 0.5f, 1e-6);
+  float empty[24] = {0};
+  hf_residual_base(empty, 4, b);
+  assert_float_equal(b[HF_OUT_COLOR], 1.0f, 0);
+  assert_float_equal(b[HF_OUT_ALPHA], 0.0f, 0);
+  hf_net_config c;
+  hf_variant_preset("Residual", &c);
+  float v[3] = {0.25f, -1.0f, 0.75f};
+  hf_output_finish(&c, px, v);
+  assert_float_equal(v[HF_OUT_COLOR], 1.25f, 1e-6);
+  assert_float_equal(v[HF_OUT_HIGHLIGHT], 0.0f, 0);   /* clamped */
+  assert_float_equal(v[HF_OUT_ALPHA], 1.0f, 0);       /* clamped */
+  hf_variant_preset("Base", &c);
+  float u[3] = {0.0f, 0.5f, 0.5f};
+  hf_output_finish(&c, NULL, u); /* the paper's transforms; input unused */
+  assert_float_equal(u[HF_OUT_COLOR], 1.0f, 1e-6);
 }
 
 static void test_wiring(void **state) {
@@ -75,6 +108,9 @@ static void test_validate_rejects(void **state) {
   bad = c;
   bad.out_channels = 4;
   assert_int_not_equal(hf_net_config_validate(&bad), HF_OK);
+  bad = c;
+  bad.arch = 9;
+  assert_int_equal(hf_net_config_validate(&bad), HF_EUNSUPPORTED);
 }
 
 static void test_output_transform(void **state) {
@@ -179,6 +215,7 @@ static void test_pad_and_crop(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_table1_presets),   cmocka_unit_test(test_wiring),
+    cmocka_unit_test(test_residual_base),
     cmocka_unit_test(test_validate_rejects), cmocka_unit_test(test_output_transform),
     cmocka_unit_test(test_half_roundtrip),   cmocka_unit_test(test_backend_selection),
     cmocka_unit_test(test_run_rejects_bad_io), cmocka_unit_test(test_pad_and_crop),
