@@ -70,6 +70,10 @@ static void draw_head(hfr_renderer *r, const hr_camera *cam, const hfr_view *v, 
   hrgl.DrawArrays(GL_TRIANGLES, 0, r->head_vertices);
 }
 
+/* Strands go in as line strips; every hair program expands each segment
+ * into a quad exactly one pixel wide (hr_glsl_hair_gs) instead of relying on
+ * GL line rasterisation: llvmpipe's multisampled lines lose coverage on
+ * segments shorter than about a pixel, which fine strands are full of. */
 static void draw_hair(hfr_renderer *r) {
   hrgl.BindVertexArray(r->hair_vao);
   hrgl.MultiDrawArrays(GL_LINE_STRIP, r->first, r->count, r->strands);
@@ -142,6 +146,7 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
   draw_head(r, light, v, 0, 0, 1);
   hrgl.UseProgram(r->shadow.id);
   set_geometry(&r->shadow, light, v, 0, 0);
+  hr_set_2f(&r->shadow, "u_viewport", (float)r->shadow_size, (float)r->shadow_size);
   hr_set_u(&r->shadow, "u_seed", seed);
   hr_set_f(&r->shadow, "u_hash_scale", 1.0f);
   draw_hair(r);
@@ -198,6 +203,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hr_bind_shading(r, &r->st, v, cam, light, seed);
     hr_set_i(&r->st, "u_opaque", opaque);
     hr_set_i(&r->st, "u_samples", S);
+    hr_set_2f(&r->st, "u_viewport", (float)W, (float)H);
     draw_hair(r);
     hrgl.Disable(GL_DEPTH_TEST);
 

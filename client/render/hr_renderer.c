@@ -83,8 +83,8 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
     hr_program *p;
     const char *vs, *gs, *fs;
   } progs[] = {
-    {&r->st, hr_glsl_hair_vs, NULL, hr_glsl_st_fs},
-    {&r->shadow, hr_glsl_hair_vs, NULL, hr_glsl_shadow_fs},
+    {&r->st, hr_glsl_hair_vs, hr_glsl_hair_gs, hr_glsl_st_fs},
+    {&r->shadow, hr_glsl_hair_vs, hr_glsl_hair_gs, hr_glsl_shadow_fs},
     {&r->abuf, hr_glsl_hair_vs, hr_glsl_hair_gs, hr_glsl_abuf_fs},
     {&r->head, hr_glsl_head_vs, NULL, hr_glsl_head_fs},
     {&r->resolve_ms, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_ms_fs},

@@ -4,7 +4,7 @@
 
 /* Hair vertex shader, shared by every hair pass. */
 extern const char hr_glsl_hair_vs[];
-/* Expands each line into a quad exactly one pixel wide (A-buffer pass). */
+/* Expands each line into a quad exactly one pixel wide (every hair pass). */
 extern const char hr_glsl_hair_gs[];
 /* Stochastic-transparency features into the MS attachments. */
 extern const char hr_glsl_st_fs[];

@@ -1,0 +1,226 @@
+/* .hair round trip and malformed files; procedural styles. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "hfrender.h"
+
+static const float head_r[3] = HFR_HEAD_RADII;
+
+static void tmp_path(char *buf, size_t n, const char *name) {
+  snprintf(buf, n, "/tmp/hf_test_hair_%d_%s", (int)getpid(), name);
+}
+
+static hfr_hair small_style(hfr_style s, uint64_t seed) {
+  hfr_style_params p;
+  assert_int_equal(hfr_style_defaults(s, &p), HF_OK);
+  p.strands = 300;
+  p.seed = seed;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+  return h;
+}
+
+static void test_round_trip(void **state) {
+  (void)state;
+  hfr_hair a = small_style(HFR_STYLE_WAVY, 5);
+  /* Give it every optional array, and uneven segment counts. */
+  a.color = malloc(12 * (size_t)a.points);
+  assert_non_null(a.color);
+  for (size_t i = 0; i < 3 * (size_t)a.points; i++) a.color[i] = (float)(i % 7) / 7;
+  char path[256];
+  tmp_path(path, sizeof path, "rt.hair");
+  assert_int_equal(hfr_hair_save(path, &a), HF_OK);
+  hfr_hair b;
+  char err[256] = "";
+  assert_int_equal(hfr_hair_load(path, &b, err, sizeof err), HF_OK);
+  assert_int_equal(a.strands, b.strands);
+  assert_int_equal(a.points, b.points);
+  assert_non_null(b.segments);
+  for (uint32_t s = 0; s < a.strands; s++)
+    assert_int_equal(hfr_hair_strand_segments(&a, s), b.segments[s]);
+  assert_memory_equal(a.pos, b.pos, 12 * (size_t)a.points);
+  assert_memory_equal(a.thickness, b.thickness, 4 * (size_t)a.points);
+  assert_memory_equal(a.transparency, b.transparency, 4 * (size_t)a.points);
+  assert_memory_equal(a.color, b.color, 12 * (size_t)a.points);
+  assert_string_equal(a.info, b.info);
+  assert_true(a.default_thickness == b.default_thickness);
+  remove(path);
+  hfr_hair_free(&a);
+  hfr_hair_free(&b);
+}
+
+/* A valid two-strand file in memory: strands of 1 and 2 segments. */
+static size_t build_file(unsigned char *buf, uint32_t flags) {
+  memset(buf, 0, 1024);
+  memcpy(buf, "HAIR", 4);
+  uint32_t strands = 2, points = 5, defseg = 3;
+  memcpy(buf + 4, &strands, 4);
+  memcpy(buf + 8, &points, 4);
+  memcpy(buf + 12, &flags, 4);
+  memcpy(buf + 16, &defseg, 4);
+  size_t o = 128;
+  if (flags & HFR_HAIR_SEGMENTS) {
+    uint16_t seg[2] = {1, 2};
+    memcpy(buf + o, seg, 4);
+    o += 4;
+  }
+  for (int i = 0; i < 15; i++) {
+    float f = (float)i * 0.1f;
+    memcpy(buf + o, &f, 4);
+    o += 4;
+  }
+  if (flags & HFR_HAIR_THICKNESS)
+    for (int i = 0; i < 5; i++) {
+      float f = 0.01f;
+      memcpy(buf + o, &f, 4);
+      o += 4;
+    }
+  if (flags & HFR_HAIR_TRANSPARENCY)
+    for (int i = 0; i < 5; i++) {
+      float f = 0.5f;
+      memcpy(buf + o, &f, 4);
+      o += 4;
+    }
+  return o;
+}
+
+static void expect_reject(const unsigned char *buf, size_t len, const char *why) {
+  hfr_hair h;
+  char err[256] = "";
+  int rc = hfr_hair_load_mem(buf, len, &h, err, sizeof err);
+  if (rc == HF_OK) fail_msg("accepted a malformed file: %s", why);
+  assert_true(rc == HF_EFORMAT || rc == HF_ERANGE);
+  assert_true(strlen(err) > 0);
+  assert_null(h.pos);
+}
+
+static void test_malformed(void **state) {
+  (void)state;
+  unsigned char buf[1024], bad[1024];
+  const uint32_t full = HFR_HAIR_SEGMENTS | HFR_HAIR_POINTS | HFR_HAIR_THICKNESS |
+                        HFR_HAIR_TRANSPARENCY;
+  size_t n = build_file(buf, full);
+  hfr_hair h;
+  char err[256];
+  assert_int_equal(hfr_hair_load_mem(buf, n, &h, err, sizeof err), HF_OK);
+  assert_int_equal(h.strands, 2);
+  assert_int_equal(hfr_hair_total_segments(&h), 3);
+  hfr_hair_free(&h);
+
+  expect_reject(buf, 64, "short header");
+  expect_reject(buf, n - 1, "truncated arrays");
+  memcpy(bad, buf, n);
+  bad[n] = 0;
+  expect_reject(bad, n + 1, "trailing byte");
+  memcpy(bad, buf, n);
+  bad[0] = 'X';
+  expect_reject(bad, n, "magic");
+  memcpy(bad, buf, n);
+  uint32_t v = 6; /* points no longer match the segments */
+  memcpy(bad + 8, &v, 4);
+  expect_reject(bad, n, "point count");
+  memcpy(bad, buf, n);
+  v = full | 64;
+  memcpy(bad + 12, &v, 4);
+  expect_reject(bad, n, "unknown flag");
+  memcpy(bad, buf, n);
+  v = full & ~(uint32_t)HFR_HAIR_POINTS;
+  memcpy(bad + 12, &v, 4);
+  expect_reject(bad, n, "no points");
+  memcpy(bad, buf, n);
+  bad[128] = 0, bad[129] = 0; /* a strand with 0 segments */
+  expect_reject(bad, n, "zero segments");
+  memcpy(bad, buf, n);
+  float nan = NAN;
+  memcpy(bad + 132 + 8, &nan, 4);
+  expect_reject(bad, n, "NaN position");
+  memcpy(bad, buf, n);
+  float tr = 1.5f;
+  memcpy(bad + n - 4, &tr, 4);
+  expect_reject(bad, n, "transparency > 1");
+  memcpy(bad, buf, n);
+  v = 0xFFFFFFFFu; /* absurd counts: rejected before any allocation */
+  memcpy(bad + 4, &v, 4);
+  memcpy(bad + 8, &v, 4);
+  expect_reject(bad, n, "huge counts");
+  /* Without a segments array the default count must describe the points. */
+  size_t m = build_file(buf, HFR_HAIR_POINTS);
+  expect_reject(buf, m, "default segments do not match");
+  v = 4; /* 1 strand of 4 segments = 5 points */
+  uint32_t one = 1;
+  memcpy(buf + 4, &one, 4);
+  memcpy(buf + 16, &v, 4);
+  assert_int_equal(hfr_hair_load_mem(buf, m, &h, err, sizeof err), HF_OK);
+  assert_null(h.segments);
+  assert_int_equal(hfr_hair_strand_segments(&h, 0), 4);
+  hfr_hair_free(&h);
+  /* Missing file. */
+  assert_int_equal(hfr_hair_load("/nonexistent/x.hair", &h, err, sizeof err), HF_EIO);
+}
+
+static void test_styles(void **state) {
+  (void)state;
+  for (int s = 0; s < HFR_STYLE_COUNT; s++) {
+    hfr_style back;
+    assert_int_equal(hfr_style_from_name(hfr_style_name((hfr_style)s), &back), HF_OK);
+    assert_int_equal(back, s);
+    hfr_hair a = small_style((hfr_style)s, 11), b = small_style((hfr_style)s, 11);
+    hfr_hair c = small_style((hfr_style)s, 12);
+    assert_memory_equal(a.pos, b.pos, 12 * (size_t)a.points);
+    assert_true(memcmp(a.pos, c.pos, 12 * (size_t)a.points) != 0);
+    hfr_style_params p;
+    hfr_style_defaults((hfr_style)s, &p);
+    assert_true(p.strands >= 50000);
+    assert_int_equal(a.strands, 300);
+    assert_int_equal(a.points, 300u * (p.segments + 1));
+    float lo = 1e9f, hi = 0;
+    for (uint32_t i = 0; i < a.points; i++) {
+      float q = 0;
+      for (int k = 0; k < 3; k++) {
+        float x = a.pos[3 * i + k];
+        assert_true(isfinite(x));
+        q += (x / head_r[k]) * (x / head_r[k]);
+      }
+      q = sqrtf(q);
+      /* Roots on the scalp, nothing inside the head. */
+      if (i % (p.segments + 1) == 0) assert_true(fabsf(q - 1) < 1e-3f);
+      if (q < lo) lo = q;
+      if (q > hi) hi = q;
+    }
+    assert_true(lo > 0.999f);
+    assert_true(hi > 1.2f); /* the hair leaves the scalp */
+    hfr_hair_free(&a);
+    hfr_hair_free(&b);
+    hfr_hair_free(&c);
+  }
+  hfr_style s;
+  assert_int_equal(hfr_style_from_name("afro", &s), HF_OK);
+  assert_int_equal(s, HFR_STYLE_COILY);
+  assert_int_equal(hfr_style_from_name("mohawk", &s), HF_ENOTFOUND);
+  hfr_style_params p;
+  hfr_style_defaults(HFR_STYLE_STRAIGHT, &p);
+  p.segments = 2;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_EINVAL);
+  hfr_style_defaults(HFR_STYLE_STRAIGHT, &p);
+  p.strands = 3000000, p.segments = 1000;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_ERANGE);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_round_trip),
+    cmocka_unit_test(test_malformed),
+    cmocka_unit_test(test_styles),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

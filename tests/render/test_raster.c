@@ -1,0 +1,314 @@
+/* The GL passes on a headless context: hashed-alpha coverage statistics,
+ * determinism of the sample mask, the A-buffer blend against a host
+ * sort-and-blend, and the ranges of a whole rendered frame. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "hr_internal.h"
+
+#define W 64
+#define H 64
+#define S 4
+
+static hfr_renderer *R;
+
+static int setup(void **state) {
+  (void)state;
+  char err[512] = "";
+  int rc = hfr_renderer_create("osmesa", &R, err, sizeof err);
+  if (rc != HF_OK) fprintf(stderr, "renderer: %s\n", err);
+  return rc == HF_OK ? 0 : -1;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  hfr_renderer_destroy(R);
+  return 0;
+}
+
+/* Parallel horizontal strands in the z = 0 plane, far enough apart not to
+ * overlap, and so thick that alpha = opacity exactly. */
+static void synthetic(hfr_hair *h, float opacity) {
+  const int strands = 12, seg = 8;
+  memset(h, 0, sizeof *h);
+  h->strands = strands;
+  h->points = strands * (seg + 1);
+  h->default_segments = seg;
+  h->pos = malloc(12 * (size_t)h->points);
+  h->thickness = malloc(4 * (size_t)h->points);
+  h->transparency = malloc(4 * (size_t)h->points);
+  assert_non_null(h->pos);
+  assert_non_null(h->thickness);
+  assert_non_null(h->transparency);
+  for (int s = 0; s < strands; s++)
+    for (int i = 0; i <= seg; i++) {
+      size_t p = (size_t)s * (seg + 1) + i;
+      h->pos[3 * p] = -1 + 2.0f * i / seg;
+      h->pos[3 * p + 1] = -1 + 2.0f * s / (strands - 1);
+      h->pos[3 * p + 2] = 0;
+      h->thickness[p] = 1.0f;
+      h->transparency[p] = 1 - opacity;
+    }
+}
+
+static void flat_view(hfr_view *v) {
+  hfr_view_defaults(v);
+  v->width = W, v->height = H;
+  v->cam_yaw_deg = 0, v->cam_pitch_deg = 0;
+  v->shadow_size = 0;
+}
+
+static void pass(const hfr_view *v, uint32_t seed, int opaque, float *out) {
+  hr_camera cam, light;
+  hr_camera_from_view(R, v, &cam);
+  hr_camera_light(R, v, &light);
+  char err[512] = "";
+  int rc = hr_pass_ms(R, v, &cam, &light, seed, 0, 0, opaque, out, err, sizeof err);
+  if (rc != HF_OK) fail_msg("pass: %s", err);
+}
+
+/* Each sample the geometry covers is kept with probability alpha, the
+ * samples of a pixel independently: per pixel with m covered samples the
+ * kept count is Binomial(m, alpha). Checked through its mean and variance
+ * over all pixels (fully correlated bits would inflate the variance ~m-fold). */
+static void test_hashed_alpha_binomial(void **state) {
+  (void)state;
+  const float alphas[] = {0.1f, 0.3f, 0.7f};
+  float *geo = malloc(sizeof(float) * W * H * S * 6), *st = malloc(sizeof(float) * W * H * S * 6);
+  assert_non_null(geo);
+  assert_non_null(st);
+  for (size_t a = 0; a < sizeof alphas / sizeof alphas[0]; a++) {
+    const double alpha = alphas[a];
+    hfr_hair h;
+    synthetic(&h, (float)alpha);
+    char err[256];
+    assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_OK);
+    hfr_view v;
+    flat_view(&v);
+    pass(&v, 0, 1, geo);
+    double kept = 0, covered = 0, sq = 0, var = 0;
+    int pixels = 0;
+    for (uint32_t seed = 1; seed <= 4; seed++) {
+      pass(&v, seed, 0, st);
+      for (int p = 0; p < W * H; p++) {
+        int m = 0, k = 0;
+        for (int s = 0; s < S; s++) {
+          const float *g = geo + ((size_t)p * S + s) * 6, *f = st + ((size_t)p * S + s) * 6;
+          if (f[2] > 0) {
+            assert_true(g[2] > 0); /* never outside the geometry */
+            assert_true(fabs(f[2] - alpha) < 1e-5);
+            k++;
+          }
+          if (g[2] > 0) m++;
+        }
+        if (!m) continue;
+        pixels++;
+        kept += k, covered += m;
+        sq += (k - m * alpha) * (k - m * alpha);
+        var += m * alpha * (1 - alpha);
+      }
+    }
+    double rate = kept / covered, sigma = sqrt(alpha * (1 - alpha) / covered);
+    print_message("alpha %.2f: %d pixels, %.0f samples, kept %.4f (sigma %.4f), "
+                  "variance ratio %.3f\n", alpha, pixels, covered, rate, sigma, sq / var);
+    assert_true(covered > 2000);
+    /* The mean within 5 sigma: hashed cells are about a pixel along a strand,
+     * so neighbouring pixels are correlated and the effective count is lower. */
+    assert_true(fabs(rate - alpha) < 5 * sigma * 2);
+    assert_true(sq / var > 0.75 && sq / var < 1.3);
+    hfr_hair_free(&h);
+  }
+  free(geo);
+  free(st);
+}
+
+static void test_mask_deterministic(void **state) {
+  (void)state;
+  hfr_hair h;
+  synthetic(&h, 0.5f);
+  char err[256];
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_OK);
+  hfr_view v;
+  flat_view(&v);
+  size_t n = (size_t)W * H * S * 6;
+  float *a = malloc(sizeof(float) * n), *b = malloc(sizeof(float) * n),
+        *c = malloc(sizeof(float) * n);
+  assert_non_null(a);
+  assert_non_null(b);
+  assert_non_null(c);
+  pass(&v, 7, 0, a);
+  pass(&v, 7, 0, b);
+  pass(&v, 8, 0, c);
+  assert_memory_equal(a, b, sizeof(float) * n);
+  size_t differ = 0, set = 0;
+  for (size_t i = 0; i < n; i += 6) {
+    set += a[i + 2] > 0;
+    differ += (a[i + 2] > 0) != (c[i + 2] > 0);
+  }
+  print_message("seed 7: %zu samples kept; seed 8 differs in %zu\n", set, differ);
+  assert_true(set > 500);
+  /* Independent masks at alpha 0.5 differ in about half the covered samples. */
+  assert_true(differ > set / 2);
+  free(a);
+  free(b);
+  free(c);
+  hfr_hair_free(&h);
+}
+
+static void style_scene(hfr_style s, int strands, hfr_view *v) {
+  hfr_style_params p;
+  hfr_style_defaults(s, &p);
+  p.strands = strands;
+  p.seed = 3;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+  char err[256];
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 1, err, sizeof err), HF_OK);
+  hfr_hair_free(&h);
+  hfr_view_defaults(v);
+  v->width = W, v->height = H;
+  v->shadow_size = 256;
+}
+
+static void test_gt_matches_cpu_blend(void **state) {
+  (void)state;
+  hfr_view v;
+  style_scene(HFR_STYLE_CURLY, 600, &v);
+  hr_camera light;
+  hr_camera_light(R, &v, &light);
+  char err[512] = "";
+  assert_int_equal(hr_pass_shadow(R, &v, &light, 1, err, sizeof err), HF_OK);
+  float *gpu = malloc(sizeof(float) * 3 * W * H), *cpu = malloc(sizeof(float) * 3 * W * H);
+  assert_non_null(gpu);
+  assert_non_null(cpu);
+  hfr_stats st;
+  memset(&st, 0, sizeof st);
+  int rc = hr_pass_gt(R, &v, &light, 4, gpu, cpu, &st, err, sizeof err);
+  if (rc != HF_OK) fail_msg("gt: %s", err);
+  assert_int_equal(st.gt_truncated, 0); /* every list sorted in full */
+  assert_true(st.gt_fragments > 1000);
+  double maxd = 0;
+  int hair_px = 0;
+  for (int i = 0; i < W * H; i++) {
+    const float *g = gpu + 3 * i, *c = cpu + 3 * i;
+    hair_px += c[2] > 0;
+    double d[3] = {fabs(g[0] * g[2] - c[0] * c[2]), fabs(g[1] * g[2] - c[1] * c[2]),
+                   fabs(g[2] - c[2])};
+    for (int k = 0; k < 3; k++) maxd = d[k] > maxd ? d[k] : maxd;
+  }
+  print_message("%llu fragments, deepest list %u, %d hair pixels, max |gpu - cpu| %.2e\n",
+                (unsigned long long)st.gt_fragments, st.gt_max_depth, hair_px, maxd);
+  assert_true(hair_px > 200);
+  assert_true(maxd < 1e-4);
+  free(gpu);
+  free(cpu);
+}
+
+static void test_frame_ranges(void **state) {
+  (void)state;
+  hfr_view v;
+  style_scene(HFR_STYLE_WAVY, 3000, &v);
+  hfr_outputs o = {0};
+  o.spp = 4;
+  o.gt_supersample = 4;
+  o.st_spp[0] = 16;
+  o.n_st = 1;
+  o.opaque_samples = 4;
+  o.seed = 5;
+  hf_image img;
+  hfr_stats st;
+  char err[512] = "";
+  int rc = hfr_render(R, &v, &o, &img, &st, err, sizeof err);
+  if (rc != HF_OK) fail_msg("render: %s", err);
+  assert_int_equal(img.channels, 4 * 6 + 3 + 3 + 3);
+  assert_int_equal(hf_features_spp(&img), 4);
+  assert_string_equal(img.names[0], "S0.color");
+  assert_string_equal(img.names[5], "S0.tangent.y");
+  assert_true(hf_image_channel(&img, "gt.alpha") >= 0);
+  assert_true(hf_image_channel(&img, "st16.color") >= 0);
+  assert_true(hf_image_channel(&img, "opaque.highlight") >= 0);
+  const float cmax = 2 + v.ambient;
+  size_t covered = 0;
+  double gt_a = 0, st_a = 0;
+  int c_gt = hf_image_channel(&img, "gt.alpha"), c_st = hf_image_channel(&img, "st16.alpha");
+  for (int p = 0; p < W * H; p++) {
+    const float *px = img.data + (size_t)p * img.channels;
+    for (int c = 0; c < img.channels; c++) assert_true(isfinite(px[c]));
+    for (int k = 0; k < 4; k++) {
+      const float *f = px + 6 * k;
+      if (f[2] == 0) { /* no fragment: every feature 0 */
+        for (int j = 0; j < 6; j++) assert_true(f[j] == 0);
+        continue;
+      }
+      covered++;
+      assert_true(f[0] >= 0 && f[0] <= cmax);
+      assert_true(f[1] >= 0 && f[1] <= 1);
+      assert_true(f[2] > 0 && f[2] <= 1);
+      assert_true(f[3] >= 0 && f[3] <= 1);
+      assert_true(f[4] * f[4] + f[5] * f[5] <= 1.0001f);
+    }
+    for (int c = 24; c < img.channels; c += 3) {
+      assert_true(px[c] >= 0 && px[c] <= cmax);
+      assert_true(px[c + 1] >= 0 && px[c + 1] <= 1);
+      assert_true(px[c + 2] >= 0 && px[c + 2] <= 1);
+    }
+    gt_a += px[c_gt];
+    st_a += px[c_st];
+  }
+  print_message("%zu covered samples; mean alpha gt %.4f, st16 %.4f\n", covered,
+                gt_a / (W * H), st_a / (W * H));
+  assert_true(covered > 500);
+  /* Stochastic transparency converges to the ground truth's coverage. */
+  assert_true(fabs(gt_a - st_a) < 0.1 * gt_a);
+  hf_image_free(&img);
+}
+
+/* The same GL code on EGL, where this build and machine have it. */
+static void test_egl(void **state) {
+  (void)state;
+  hfr_renderer *r = NULL;
+  char err[512] = "";
+  int rc = hfr_renderer_create("egl", &r, err, sizeof err);
+  if (rc != HF_OK) {
+    print_message("EGL unavailable here: %s\n", err);
+    skip();
+  }
+  hfr_hair h;
+  synthetic(&h, 0.5f);
+  assert_int_equal(hfr_renderer_set_hair(r, &h, 0, err, sizeof err), HF_OK);
+  hfr_view v;
+  flat_view(&v);
+  hfr_outputs o = {0};
+  o.spp = 4;
+  o.seed = 1;
+  hf_image img;
+  rc = hfr_render(r, &v, &o, &img, NULL, err, sizeof err);
+  if (rc != HF_OK) fail_msg("egl render: %s", err);
+  size_t kept = 0;
+  for (size_t i = 0; i < (size_t)W * H * 4; i++) kept += img.data[i * 6 + 2] > 0;
+  assert_true(kept > 500);
+  hf_image_free(&img);
+  hfr_hair_free(&h);
+  hfr_renderer_destroy(r);
+  /* Put the suite's OSMesa context back. */
+  assert_int_equal(hr_context_make_current(R->ctx), HF_OK);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_hashed_alpha_binomial),
+    cmocka_unit_test(test_mask_deterministic),
+    cmocka_unit_test(test_gt_matches_cpu_blend),
+    cmocka_unit_test(test_frame_ranges),
+    cmocka_unit_test(test_egl),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
