@@ -1,8 +1,538 @@
-/* Placeholder until the eval command lands. */
+/* hairfilter eval: filtering quality against ground truth over dataset EXRs.
+ *
+ * For every frame (an EXR with S{k}.* features, gt.* and optionally st{N}.*
+ * and opaque.* baselines, as `hairfilter render dataset` writes them) and
+ * every method (the input's own sample average, each weights file run
+ * in-process, each baseline present), the result is composited with one
+ * fixed hair colour, light and background, and compared with the composited
+ * ground truth on the hair pixels (gt.alpha > 0). docs/QUALITY.md defines the
+ * metrics. */
+#define _POSIX_C_SOURCE 200809L
+#include <cjson/cJSON.h>
+#include <dirent.h>
+#include <getopt.h>
+#include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "cli_common.h"
 #include "commands.h"
+#include "eval_metrics.h"
+
+#define MAX_MODELS 16
+#define MAX_METHODS (MAX_MODELS + 16)
+
+static const int ST_SPP[] = {1, 2, 4, 8, 16, 64};
+#define N_ST ((int)(sizeof ST_SPP / sizeof ST_SPP[0]))
+
+static void usage(FILE *f) {
+  fprintf(f,
+          "usage: hairfilter eval [--weights A.safetensors,B.safetensors,...]\n"
+          "                       [--backend auto|cpu|cpu-ref|cudnn] [--styles curly,coily]\n"
+          "                       [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
+          "                       [--input-spp N] [--max-frames N]\n"
+          "                       [--grid OUT.png] [--grid-rows N] [--grid-crop N]\n"
+          "                       DIR|FRAME.exr ...\n"
+          "Compares, on hair pixels (gt.alpha > 0) of the composited image, the networks,\n"
+          "the input's sample average, stochastic transparency st{1,2,4,8,16,64} and opaque\n"
+          "MSAA with the ground truth; prints a Markdown table (docs/QUALITY.md).\n"
+          "The grid has one row per frame: input average, each network, ST 16 spp, truth.\n");
+}
+
+/* ---- frame list -------------------------------------------------------- */
+
+typedef struct frame_ref {
+  char *path;
+  char style[32];
+} frame_ref;
+
+typedef struct frame_list {
+  frame_ref *v;
+  int n, cap;
+} frame_list;
+
+static int list_push(frame_list *l, const char *path, const char *style) {
+  if (l->n == l->cap) {
+    int cap = l->cap ? 2 * l->cap : 64;
+    frame_ref *v = realloc(l->v, cap * sizeof *v);
+    if (!v) return HF_ENOMEM;
+    l->v = v;
+    l->cap = cap;
+  }
+  frame_ref *f = &l->v[l->n];
+  if (!(f->path = strdup(path))) return HF_ENOMEM;
+  snprintf(f->style, sizeof f->style, "%s", style);
+  l->n++;
+  return 0;
+}
+
+static void list_free(frame_list *l) {
+  for (int i = 0; i < l->n; i++) free(l->v[i].path);
+  free(l->v);
+}
+
+/* A file's style when no manifest says: its name up to the first '_'. */
+static void style_from_name(const char *path, char *out, size_t len) {
+  const char *base = strrchr(path, '/');
+  base = base ? base + 1 : path;
+  size_t n = strcspn(base, "_.");
+  if (n >= len) n = len - 1;
+  for (size_t i = 0; i < n; i++) out[i] = (char)(base[i] >= 'A' && base[i] <= 'Z' ? base[i] + 32 : base[i]);
+  out[n] = 0;
+}
+
+static char *read_text(const char *path) {
+  FILE *f = fopen(path, "rb");
+  if (!f) return NULL;
+  char *buf = NULL;
+  if (fseek(f, 0, SEEK_END) == 0) {
+    long n = ftell(f);
+    if (n >= 0 && n < (64l << 20) && fseek(f, 0, SEEK_SET) == 0 && (buf = malloc(n + 1))) {
+      if (fread(buf, 1, n, f) != (size_t)n) {
+        free(buf);
+        buf = NULL;
+      } else {
+        buf[n] = 0;
+      }
+    }
+  }
+  fclose(f);
+  return buf;
+}
+
+/* Style of base name `name` according to DIR/manifest.json, if any. The
+ * manifest lists frames under "frames" (or "images", "renders", "items"),
+ * each an object with "file" (or "path", "exr", "name") and "style". */
+static int manifest_style(const cJSON *doc, const char *name, char *out, size_t len) {
+  static const char *lists[] = {"frames", "images", "renders", "items", "files"};
+  static const char *files[] = {"file", "path", "exr", "name"};
+  const cJSON *arr = cJSON_IsArray(doc) ? doc : NULL;
+  for (size_t i = 0; !arr && i < sizeof lists / sizeof *lists; i++) {
+    const cJSON *a = cJSON_GetObjectItemCaseSensitive(doc, lists[i]);
+    if (cJSON_IsArray(a)) arr = a;
+  }
+  if (!arr) return HF_ENOTFOUND;
+  const cJSON *it;
+  cJSON_ArrayForEach(it, arr) {
+    const char *fname = NULL;
+    for (size_t i = 0; !fname && i < sizeof files / sizeof *files; i++) {
+      const cJSON *s = cJSON_GetObjectItemCaseSensitive(it, files[i]);
+      if (cJSON_IsString(s)) fname = s->valuestring;
+    }
+    if (!fname) continue;
+    const char *b = strrchr(fname, '/');
+    if (strcmp(b ? b + 1 : fname, name)) continue;
+    const cJSON *st = cJSON_GetObjectItemCaseSensitive(it, "style");
+    if (!cJSON_IsString(st)) return HF_ENOTFOUND;
+    snprintf(out, len, "%s", st->valuestring);
+    for (char *p = out; *p; p++)
+      if (*p >= 'A' && *p <= 'Z') *p += 32;
+    return 0;
+  }
+  return HF_ENOTFOUND;
+}
+
+static int cmp_ref(const void *a, const void *b) {
+  return strcmp(((const frame_ref *)a)->path, ((const frame_ref *)b)->path);
+}
+
+static int ends_with(const char *s, const char *suf) {
+  size_t n = strlen(s), m = strlen(suf);
+  return n >= m && !strcmp(s + n - m, suf);
+}
+
+/* Adds FILE.exr, or every *.exr of DIR in name order. */
+static int add_path(frame_list *l, const char *path) {
+  struct stat st;
+  if (stat(path, &st)) {
+    fprintf(stderr, "hairfilter eval: %s: no such file or directory\n", path);
+    return HF_EIO;
+  }
+  char style[32];
+  if (!S_ISDIR(st.st_mode)) {
+    style_from_name(path, style, sizeof style);
+    return list_push(l, path, style);
+  }
+  char mpath[4096];
+  snprintf(mpath, sizeof mpath, "%s/manifest.json", path);
+  char *text = read_text(mpath);
+  cJSON *doc = text ? cJSON_Parse(text) : NULL;
+  free(text);
+  DIR *d = opendir(path);
+  if (!d) {
+    cJSON_Delete(doc);
+    return HF_EIO;
+  }
+  int first = l->n, rc = 0;
+  struct dirent *e;
+  while (!rc && (e = readdir(d))) {
+    if (!ends_with(e->d_name, ".exr")) continue;
+    char full[4096];
+    snprintf(full, sizeof full, "%s/%s", path, e->d_name);
+    if (!doc || manifest_style(doc, e->d_name, style, sizeof style))
+      style_from_name(e->d_name, style, sizeof style);
+    rc = list_push(l, full, style);
+  }
+  closedir(d);
+  cJSON_Delete(doc);
+  qsort(l->v + first, l->n - first, sizeof *l->v, cmp_ref);
+  return rc;
+}
+
+static int style_wanted(const char *styles, const char *style) {
+  if (!styles || !*styles) return 1;
+  size_t n = strlen(style);
+  for (const char *p = styles; *p;) {
+    size_t m = strcspn(p, ",");
+    if (m == n && !strncmp(p, style, n)) return 1;
+    p += m;
+    if (*p == ',') p++;
+  }
+  return 0;
+}
+
+/* ---- methods ------------------------------------------------------------- */
+
+enum { M_INPUT, M_MODEL, M_CHANNELS };
+
+typedef struct method {
+  int kind;
+  char label[128];
+  char prefix[16];              /* M_CHANNELS: "st4", "opaque" */
+  int model;                    /* M_MODEL: index into models */
+  int frames;                   /* frames this method was scored on */
+  double mse, psnr, ssim, col, hl, alpha;
+  int psnr_inf;
+} method;
+
+/* The stochastic-transparency estimate of the input's first spp samples:
+ * alpha = covered fraction, color/highlight = mean over covered samples. */
+static void input_average(const hf_image *img, int spp, float *res) {
+  size_t n = (size_t)img->width * img->height;
+  int idx[HF_MAX_SPP][3];
+  for (int k = 0; k < spp; k++)
+    for (int f = 0; f < 3; f++) {
+      char name[48];
+      snprintf(name, sizeof name, "S%d.%s", k, HF_FEATURE_NAMES[f]);
+      idx[k][f] = hf_image_channel(img, name);
+    }
+  for (size_t p = 0; p < n; p++) {
+    const float *px = img->data + p * img->channels;
+    double col = 0, hl = 0;
+    int cov = 0;
+    for (int k = 0; k < spp; k++) {
+      if (px[idx[k][2]] <= 0) continue;   /* no fragment survived: background */
+      col += px[idx[k][0]];
+      hl += px[idx[k][1]];
+      cov++;
+    }
+    res[3 * p + 0] = cov ? (float)(col / cov) : 0.f;
+    res[3 * p + 1] = cov ? (float)(hl / cov) : 0.f;
+    res[3 * p + 2] = (float)cov / spp;
+  }
+}
+
+/* Copies channels prefix.color/.highlight/.alpha into res; HF_ENOTFOUND when
+ * the frame lacks them. */
+static int gather(const hf_image *img, const char *prefix, float *res) {
+  int idx[3];
+  for (int f = 0; f < 3; f++) {
+    char name[48];
+    snprintf(name, sizeof name, "%s.%s", prefix, HF_OUTPUT_NAMES[f]);
+    if ((idx[f] = hf_image_channel(img, name)) < 0) return HF_ENOTFOUND;
+  }
+  size_t n = (size_t)img->width * img->height;
+  for (size_t p = 0; p < n; p++)
+    for (int f = 0; f < 3; f++) res[3 * p + f] = img->data[p * img->channels + idx[f]];
+  return 0;
+}
+
+typedef struct look {
+  float hair[3], light[3], bg[3];
+} look;
+
+/* Composite, clamped to [0, 1] as a display shows it. */
+static void composite(const look *lk, const float *res, int w, int h, float *rgb) {
+  hf_composite(res, w, h, lk->hair, lk->light, lk->bg, rgb);
+  for (size_t i = 0; i < (size_t)w * h * 3; i++) rgb[i] = fminf(1.f, fmaxf(0.f, rgb[i]));
+}
+
+static int score(method *m, const float *res, const float *gt, const float *rgb,
+                 const float *gt_rgb, int w, int h, const uint8_t *mask) {
+  double mse = eval_mse(rgb, gt_rgb, w, h, 3, mask, NULL);
+  double ssim = eval_ssim(rgb, gt_rgb, w, h, 3, mask);
+  if (ssim < -1.5) return (int)ssim;
+  double psnr = eval_psnr(mse, 1.0);
+  m->mse += mse;
+  if (isinf(psnr)) m->psnr_inf++;
+  else m->psnr += psnr;
+  m->ssim += ssim;
+  m->col += eval_channel_mse(res, 3, 0, 2, gt, 3, 0, 2, w, h, mask);
+  m->hl += eval_channel_mse(res, 3, 1, 2, gt, 3, 1, 2, w, h, mask);
+  m->alpha += eval_channel_mse(res, 3, 2, -1, gt, 3, 2, -1, w, h, mask);
+  m->frames++;
+  return 0;
+}
+
+/* ---- grid ----------------------------------------------------------------- */
+
+typedef struct grid {
+  int rows, cols, tile, gap;
+  int filled;
+  float *rgb;                   /* [rows*(tile+gap)+gap][cols*(tile+gap)+gap][3] */
+} grid;
+
+static int grid_width(const grid *g) { return g->cols * (g->tile + g->gap) + g->gap; }
+static int grid_height(const grid *g) { return g->rows * (g->tile + g->gap) + g->gap; }
+
+/* Puts the centre tile x tile crop of a w x h image at (row, col). */
+static void grid_put(grid *g, int row, int col, const float *rgb, int w, int h) {
+  int gw = grid_width(g);
+  int cw = w < g->tile ? w : g->tile, ch = h < g->tile ? h : g->tile;
+  int x0 = (w - cw) / 2, y0 = (h - ch) / 2;
+  int ox = g->gap + col * (g->tile + g->gap), oy = g->gap + row * (g->tile + g->gap);
+  for (int y = 0; y < ch; y++)
+    memcpy(g->rgb + ((size_t)(oy + y) * gw + ox) * 3, rgb + ((size_t)(y0 + y) * w + x0) * 3,
+           (size_t)cw * 3 * sizeof(float));
+}
+
+/* ---- command ----------------------------------------------------------------- */
+
+static void print_table(method *ms, int nm, int frames, size_t hair_px, const look *lk,
+                        const char *styles) {
+  printf("Frames: %d%s%s%s, hair pixels: %zu; composite: hair %.3g,%.3g,%.3g, light "
+         "%.3g,%.3g,%.3g, background %.3g,%.3g,%.3g\n\n",
+         frames, styles && *styles ? " (styles " : "", styles && *styles ? styles : "",
+         styles && *styles ? ")" : "", hair_px, lk->hair[0], lk->hair[1], lk->hair[2],
+         lk->light[0], lk->light[1], lk->light[2], lk->bg[0], lk->bg[1], lk->bg[2]);
+  printf("| method | frames | PSNR (dB) | SSIM | MSE | color·α MSE | highlight·α MSE | "
+         "alpha MSE |\n");
+  printf("|---|---:|---:|---:|---:|---:|---:|---:|\n");
+  for (int i = 0; i < nm; i++) {
+    method *m = &ms[i];
+    if (!m->frames) continue;
+    double n = m->frames;
+    char psnr[32];
+    if (m->psnr_inf) snprintf(psnr, sizeof psnr, "inf");
+    else snprintf(psnr, sizeof psnr, "%.2f", m->psnr / n);
+    printf("| %s | %d | %s | %.4f | %.5f | %.2e | %.2e | %.2e |\n", m->label, m->frames, psnr,
+           m->ssim / n, m->mse / n, m->col / n, m->hl / n, m->alpha / n);
+  }
+}
+
 int cmd_eval(int argc, char **argv) {
-  (void)argc; (void)argv;
-  fprintf(stderr, "hairfilter eval: not available in this build\n");
+  const char *weights_arg = NULL, *backend_name = "auto", *styles = NULL, *grid_path = NULL;
+  int input_spp = 4, max_frames = 0, grid_rows = 4, grid_crop = 192;
+  look lk;
+  memcpy(lk.hair, CLI_HAIR_DEFAULT, sizeof lk.hair);
+  memcpy(lk.light, CLI_LIGHT_DEFAULT, sizeof lk.light);
+  memcpy(lk.bg, CLI_BG_DEFAULT, sizeof lk.bg);
+  static const struct option opts[] = {
+    {"weights", required_argument, 0, 'w'},   {"backend", required_argument, 0, 'b'},
+    {"styles", required_argument, 0, 's'},    {"hair", required_argument, 0, 'H'},
+    {"light", required_argument, 0, 'L'},     {"background", required_argument, 0, 'B'},
+    {"input-spp", required_argument, 0, 'n'}, {"max-frames", required_argument, 0, 'm'},
+    {"grid", required_argument, 0, 'g'},      {"grid-rows", required_argument, 0, 'r'},
+    {"grid-crop", required_argument, 0, 'c'}, {"help", no_argument, 0, 'h'},
+    {0, 0, 0, 0}};
+  int c;
+  optind = 1;
+  while ((c = getopt_long(argc, argv, "w:b:h", opts, NULL)) != -1) {
+    switch (c) {
+    case 'w': weights_arg = optarg; break;
+    case 'b': backend_name = optarg; break;
+    case 's': styles = optarg; break;
+    case 'H': if (cli_parse_rgb(optarg, lk.hair)) goto bad; break;
+    case 'L': if (cli_parse_rgb(optarg, lk.light)) goto bad; break;
+    case 'B': if (cli_parse_rgb(optarg, lk.bg)) goto bad; break;
+    case 'n': input_spp = atoi(optarg); if (input_spp < 1 || input_spp > HF_MAX_SPP) goto bad; break;
+    case 'm': max_frames = atoi(optarg); if (max_frames < 0) goto bad; break;
+    case 'g': grid_path = optarg; break;
+    case 'r': grid_rows = atoi(optarg); if (grid_rows < 1 || grid_rows > 64) goto bad; break;
+    case 'c': grid_crop = atoi(optarg); if (grid_crop < 8 || grid_crop > 4096) goto bad; break;
+    case 'h': usage(stdout); return 0;
+    default: goto bad;
+    }
+  }
+  if (optind >= argc) goto bad;
+
+  int rc = 0, nmodels = 0, nm = 0;
+  frame_list frames = {0};
+  hf_backend *backend = NULL;
+  hf_model *models[MAX_MODELS] = {0};
+  method ms[MAX_METHODS];
+  memset(ms, 0, sizeof ms);
+  grid g = {0};
+  hf_image img = {0};
+  float *res = NULL, *gt = NULL, *rgb = NULL, *gt_rgb = NULL, *in = NULL;
+  uint8_t *mask = NULL;
+  char err[512];
+
+  for (int i = optind; i < argc; i++)
+    if ((rc = add_path(&frames, argv[i])) != 0) goto out;
+
+  /* Methods: the input average, each network, each baseline. */
+  ms[nm].kind = M_INPUT;
+  snprintf(ms[nm++].label, sizeof ms[0].label, "input (mean of %d samples)", input_spp);
+  if (weights_arg) {
+    if ((rc = cli_open_backend(backend_name, &backend)) != 0) goto out;
+    char *list = strdup(weights_arg);
+    if (!list) { rc = HF_ENOMEM; goto out; }
+    for (char *tok = strtok(list, ","); tok; tok = strtok(NULL, ",")) {
+      if (nmodels == MAX_MODELS) {
+        fprintf(stderr, "hairfilter eval: at most %d weights files\n", MAX_MODELS);
+        rc = HF_ERANGE;
+        break;
+      }
+      hf_weights *w = NULL;
+      if ((rc = hf_weights_load(tok, &w, err, sizeof err)) != 0) {
+        fprintf(stderr, "hairfilter eval: %s\n", err);
+        break;
+      }
+      rc = hf_model_create(backend, w, &models[nmodels]);
+      if (rc) {
+        fprintf(stderr, "hairfilter eval: preparing %s on %s: %s\n", tok,
+                hf_backend_name(backend), hf_strerror(rc));
+        hf_weights_free(w);
+        break;
+      }
+      const char *base = strrchr(tok, '/');
+      ms[nm].kind = M_MODEL;
+      ms[nm].model = nmodels++;
+      snprintf(ms[nm++].label, sizeof ms[0].label, "ours %s (%s)", w->cfg.name,
+               base ? base + 1 : tok);
+      hf_weights_free(w);
+    }
+    free(list);
+    if (rc) goto out;
+  }
+  for (int i = 0; i < N_ST; i++) {
+    ms[nm].kind = M_CHANNELS;
+    snprintf(ms[nm].prefix, sizeof ms[0].prefix, "st%d", ST_SPP[i]);
+    snprintf(ms[nm++].label, sizeof ms[0].label, "stochastic transparency %d spp", ST_SPP[i]);
+  }
+  ms[nm].kind = M_CHANNELS;
+  snprintf(ms[nm].prefix, sizeof ms[0].prefix, "opaque");
+  snprintf(ms[nm++].label, sizeof ms[0].label, "opaque MSAA (no transparency)");
+
+  if (grid_path) {
+    g.rows = grid_rows;
+    g.cols = 3 + nmodels;
+    g.tile = grid_crop;
+    g.gap = 4;
+  }
+
+  int scored = 0;
+  size_t hair_px = 0;
+  for (int fi = 0; fi < frames.n && (!max_frames || scored < max_frames); fi++) {
+    frame_ref *fr = &frames.v[fi];
+    if (!style_wanted(styles, fr->style)) continue;
+    hf_image_free(&img);
+    if ((rc = hf_exr_read(fr->path, &img, err, sizeof err)) != 0) {
+      fprintf(stderr, "hairfilter eval: %s\n", err);
+      goto out;
+    }
+    int w = img.width, h = img.height, spp = hf_features_spp(&img);
+    size_t npx = (size_t)w * h;
+    free(res); free(gt); free(rgb); free(gt_rgb); free(mask); free(in);
+    res = malloc(npx * 3 * sizeof(float));
+    gt = malloc(npx * 3 * sizeof(float));
+    rgb = malloc(npx * 3 * sizeof(float));
+    gt_rgb = malloc(npx * 3 * sizeof(float));
+    in = malloc(npx * HF_MAX_SPP * HF_FEATURES_PER_SAMPLE * sizeof(float));
+    mask = malloc(npx);
+    if (!res || !gt || !rgb || !gt_rgb || !in || !mask) { rc = HF_ENOMEM; goto out; }
+    if (gather(&img, "gt", gt)) {
+      fprintf(stderr, "hairfilter eval: %s: no gt.color/gt.highlight/gt.alpha\n", fr->path);
+      rc = HF_EFORMAT;
+      goto out;
+    }
+    size_t nhair = 0;
+    for (size_t p = 0; p < npx; p++) nhair += (mask[p] = gt[3 * p + 2] > 0);
+    if (!nhair) {
+      fprintf(stderr, "hairfilter eval: %s: no hair pixels, skipped\n", fr->path);
+      continue;
+    }
+    if (spp < 1) {
+      fprintf(stderr, "hairfilter eval: %s: no S0.color: not a feature file\n", fr->path);
+      rc = HF_EFORMAT;
+      goto out;
+    }
+    composite(&lk, gt, w, h, gt_rgb);
+    int grow = g.rows && scored < g.rows ? scored : -1;
+    if (grow >= 0 && !g.rgb) {
+      /* Tiles are the first frame's size, up to the crop: no wasted space. */
+      int side = w > h ? w : h;
+      if (side < g.tile) g.tile = side;
+      g.rgb = malloc((size_t)grid_width(&g) * grid_height(&g) * 3 * sizeof(float));
+      if (!g.rgb) { rc = HF_ENOMEM; goto out; }
+      for (size_t i = 0; i < (size_t)grid_width(&g) * grid_height(&g) * 3; i++) g.rgb[i] = 1.f;
+    }
+    int col = 0;
+    for (int mi = 0; mi < nm; mi++) {
+      method *m = &ms[mi];
+      if (m->kind == M_INPUT) {
+        input_average(&img, input_spp < spp ? input_spp : spp, res);
+      } else if (m->kind == M_MODEL) {
+        const hf_net_config *cfg = hf_model_config(models[m->model]);
+        if (spp < cfg->spp) {
+          fprintf(stderr, "hairfilter eval: %s has %d spp, %s needs %d: skipped for it\n",
+                  fr->path, spp, cfg->name, cfg->spp);
+          continue;
+        }
+        if ((rc = hf_features_from_image(&img, cfg->spp, in)) < 0) goto out;
+        hf_io io = {.batch = 1, .width = w, .height = h, .in = in, .in_dtype = HF_F32,
+                    .out = res, .out_dtype = HF_F32};
+        if ((rc = hf_model_run(models[m->model], &io, NULL)) != 0) {
+          fprintf(stderr, "hairfilter eval: %s on %s: %s\n", cfg->name, fr->path,
+                  hf_strerror(rc));
+          goto out;
+        }
+      } else if (gather(&img, m->prefix, res)) {
+        continue;   /* this frame has no such baseline */
+      }
+      composite(&lk, res, w, h, rgb);
+      if ((rc = score(m, res, gt, rgb, gt_rgb, w, h, mask)) != 0) goto out;
+      if (grow >= 0 && (m->kind != M_CHANNELS || !strcmp(m->prefix, "st16")))
+        grid_put(&g, grow, col++, rgb, w, h);
+    }
+    if (grow >= 0) {
+      grid_put(&g, grow, g.cols - 1, gt_rgb, w, h);
+      g.filled = grow + 1;
+    }
+    hair_px += nhair;
+    scored++;
+    fprintf(stderr, "\reval: %d frames (%s)\x1b[K", scored, fr->path);
+  }
+  fprintf(stderr, "\n");
+  if (!scored) {
+    fprintf(stderr, "hairfilter eval: no frames with hair%s%s\n", styles ? " of styles " : "",
+            styles ? styles : "");
+    rc = HF_ENOTFOUND;
+    goto out;
+  }
+  print_table(ms, nm, scored, hair_px, &lk, styles);
+  if (g.rgb) {
+    g.rows = g.filled;   /* fewer frames than rows: drop the empty rows */
+    if ((rc = hf_png_write_rgb(grid_path, g.rgb, grid_width(&g), grid_height(&g))) != 0) {
+      fprintf(stderr, "hairfilter eval: writing %s: %s\n", grid_path, hf_strerror(rc));
+      goto out;
+    }
+    fprintf(stderr, "eval: grid %s: %d rows; columns: input mean,", grid_path, g.rows);
+    for (int mi = 0; mi < nm; mi++)
+      if (ms[mi].kind == M_MODEL) fprintf(stderr, " %s,", ms[mi].label);
+    fprintf(stderr, " ST 16 spp, ground truth\n");
+  }
+out:
+  for (int i = 0; i < nmodels; i++) hf_model_destroy(models[i]);
+  hf_backend_destroy(backend);
+  hf_image_free(&img);
+  list_free(&frames);
+  free(res); free(gt); free(rgb); free(gt_rgb); free(in); free(mask); free(g.rgb);
+  return rc ? 1 : 0;
+bad:
+  usage(stderr);
   return 2;
 }
