@@ -28,6 +28,8 @@ static void usage(FILE *f) {
           "  --auth-token-file FILE   token TCP clients must send (or $HAIRFILTERD_TOKEN)\n"
           "  --no-auth                accept TCP clients without a token (loopback only)\n"
           "  --drain-timeout-ms N     on SIGTERM, how long queued work may finish (default 10000)\n"
+          "  --stall-timeout-ms N     close a connection silent this long mid-frame or before\n"
+          "                           HELLO (default 30000; 0: never)\n"
           "  --ready-file PATH        write the listening URLs here once serving\n"
           "  --name NAME              server name in HELLO_OK (default hairfilterd)\n"
           "  --verbose                log connections too\n");
@@ -80,6 +82,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   cfg->max_frame_bytes = 1024ull << 20;
   cfg->max_memory_bytes = 4096ull << 20;
   cfg->drain_timeout_ms = 10000;
+  cfg->stall_timeout_ms = 30000;
   cfg->name = "hairfilterd";
   const char *token_file = NULL;
   for (int i = 1; i < argc; i++) {
@@ -166,6 +169,10 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       NEED_VAL;
       if (parse_int(a, val, 0, 3600000, &v)) return -1;
       cfg->drain_timeout_ms = (int)v;
+    } else if (!strcmp(a, "--stall-timeout-ms")) {
+      NEED_VAL;
+      if (parse_int(a, val, 0, 3600000, &v)) return -1;
+      cfg->stall_timeout_ms = (int)v;
     } else if (!strcmp(a, "--ready-file")) {
       NEED_VAL;
       cfg->ready_file = val;

@@ -586,6 +586,7 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     return;
   }
   if (c->fatal_sent || c->closing) return;
+  c->t_last_read = hfd_now_us();
   size_t n = (size_t)nread;
   if (c->rstate == RD_DISCARD) {
     c->discard_left -= n;
@@ -655,6 +656,22 @@ void hfd_conn_shutdown(hfd_conn *c) {
   c->writes_pending++;
 }
 
+void hfd_sweep_stalled(hfd_server *s) {
+  int ms = s->cfg->stall_timeout_ms;
+  if (ms <= 0) return;
+  double now = hfd_now_us();
+  for (hfd_conn *c = s->conns, *next; c; c = next) {
+    next = c->next;
+    if (c->closing || c->fatal_sent) continue;
+    int mid_frame = c->rstate != RD_HEADER || c->got > 0;
+    if ((mid_frame || !c->hello_done) && now - c->t_last_read > ms * 1e3) {
+      s->protocol_errors++;
+      send_error(c, mid_frame ? c->hdr.request_id : 0, HFP_E_PROTOCOL, 1,
+                 "no data for %d ms %s", ms, mid_frame ? "in the middle of a frame" : "before HELLO");
+    }
+  }
+}
+
 void hfd_on_connection(uv_stream_t *server, int status) {
   hfd_listener *l = server->data;
   hfd_server *s = l->srv;
@@ -706,6 +723,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     snprintf(c->peer, sizeof c->peer, "unix");
   }
   hfd_debug("conn %llu (%s): accepted on %s", (unsigned long long)c->id, c->peer, l->url);
+  c->t_last_read = hfd_now_us();
   read_next(c);
   if (s->num_conns > s->cfg->max_connections) {
     s->protocol_errors++;

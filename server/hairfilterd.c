@@ -342,7 +342,10 @@ void hfd_maybe_finish(hfd_server *s) {
   close_handle((uv_handle_t *)&s->sigint);
   close_handle((uv_handle_t *)&s->sigterm);
   close_handle((uv_handle_t *)&s->drain_timer);
+  close_handle((uv_handle_t *)&s->sweep_timer);
 }
+
+static void on_sweep(uv_timer_t *t) { hfd_sweep_stalled(t->data); }
 
 static void on_drain_timeout(uv_timer_t *t) {
   hfd_server *s = t->data;
@@ -429,11 +432,22 @@ int main(int argc, char **argv) {
 
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
-      (rc = uv_timer_init(s->loop, &s->drain_timer)) < 0) {
+      (rc = uv_timer_init(s->loop, &s->drain_timer)) < 0 ||
+      (rc = uv_timer_init(s->loop, &s->sweep_timer)) < 0) {
     hfd_log("error: libuv init: %s", uv_strerror(rc));
     return 1;
   }
-  s->sigint.data = s->sigterm.data = s->drain_timer.data = s;
+  s->sigint.data = s->sigterm.data = s->drain_timer.data = s->sweep_timer.data = s;
+  if (cfg.stall_timeout_ms > 0) {
+    /* Checked a few times per timeout period: a stalled peer is cut off
+     * within 1.5x the timeout. */
+    uint64_t every = (uint64_t)(cfg.stall_timeout_ms / 2 > 1000 ? 1000 : cfg.stall_timeout_ms / 2);
+    if (every < 1) every = 1;
+    if ((rc = uv_timer_start(&s->sweep_timer, on_sweep, every, every)) < 0) {
+      hfd_log("error: stall timer: %s", uv_strerror(rc));
+      return 1;
+    }
+  }
   if ((rc = uv_signal_start(&s->sigint, on_signal, SIGINT)) < 0 ||
       (rc = uv_signal_start(&s->sigterm, on_signal, SIGTERM)) < 0) {
     hfd_log("error: signal handlers: %s", uv_strerror(rc));

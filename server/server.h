@@ -50,6 +50,7 @@ typedef struct hfd_config {
   uint64_t max_frame_bytes;      /* largest payload read */
   uint64_t max_memory_bytes;     /* request buffers held at once */
   int drain_timeout_ms;
+  int stall_timeout_ms;          /* mid-frame or pre-HELLO silence; 0: none */
   int no_auth;
   char token[HFP_TOKEN_MAX + 1];
   const char *ready_file;
@@ -180,6 +181,7 @@ typedef struct hfd_conn {
   int handle_closed;
   int inflight;                  /* jobs admitted and not yet answered */
   int writes_pending;
+  double t_last_read;            /* for the stall sweep */
 
   enum hfd_read_state rstate;
   hfp_header hdr;
@@ -202,6 +204,7 @@ struct hfd_server {
   uv_async_t async;
   uv_signal_t sigint, sigterm;
   uv_timer_t drain_timer;
+  uv_timer_t sweep_timer;        /* closes stalled connections */
   hfd_conn *conns;
   int num_conns;
   uint64_t conns_total, next_conn_id;
@@ -217,6 +220,9 @@ struct hfd_server {
 void hfd_on_connection(uv_stream_t *listener, int status);
 void hfd_on_async(uv_async_t *a);
 void hfd_conn_shutdown(hfd_conn *c);
+/* Fails connections silent for longer than the stall timeout in the middle
+ * of a frame or before their HELLO. */
+void hfd_sweep_stalled(hfd_server *s);
 /* server.c */
 void hfd_maybe_finish(hfd_server *s);
 void hfd_fill_stats(hfd_server *s, hfp_stats *st);

@@ -15,6 +15,8 @@ static void usage(FILE *f) {
           "                         [--variant NAME] [--png PREVIEW.png] [--f16]\n"
           "                         [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "                         [--token TOKEN] [--timeout-ms N]\n"
+          "       hairfilter filter --server URL --list     (variants and limits)\n"
+          "       hairfilter filter --server URL --stats    (counters and latency)\n"
           "URL is unix:PATH or tcp:HOST:PORT. The token defaults to $HAIRFILTER_TOKEN.\n"
           "--variant may be left out when the server has only one. --f16 sends and\n"
           "receives half floats. The PNG is composited by the server.\n");
@@ -31,10 +33,76 @@ static void print_timing(const hfc_timing *t) {
   printf("  total   %10.3f ms\n", t->total_us / 1e3);
 }
 
+static int list_variants(hfc_client *c) {
+  const hfc_server_info *i = hfc_info(c);
+  printf("%s, protocol v%d: max %dx%d, %d spp, %d in flight per connection, batch %d, "
+         "queue %d, frames up to %llu MiB%s\n",
+         i->name, i->version, i->max_width, i->max_height, i->max_spp, i->max_inflight,
+         i->max_batch, i->queue_size, (unsigned long long)(i->max_frame_bytes >> 20),
+         i->auth_required ? ", token checked" : "");
+  hfc_variant vs[64];
+  int n = 0, rc = hfc_list_variants(c, vs, 64, &n);
+  if (rc) {
+    fprintf(stderr, "hairfilter: listing variants: %s\n", hfc_strerror(rc));
+    return 1;
+  }
+  for (int k = 0; k < n && k < 64; k++) {
+    printf("  %-16s %2d spp  levels ", vs[k].name, vs[k].spp);
+    for (int l = 0; l < vs[k].num_levels; l++) printf("%s%d", l ? "," : "", vs[k].levels[l]);
+    printf("  %s %s\n", vs[k].backend, vs[k].precision);
+  }
+  return 0;
+}
+
+/* The upper bound of the histogram bucket where the cumulative count
+ * reaches fraction p: a percentile to within a factor of two. */
+static double hist_pct(const uint64_t *h, uint64_t n, double p) {
+  uint64_t want = (uint64_t)(p * (double)n + 0.999999), cum = 0;
+  for (int b = 0; b < HFC_HIST_BUCKETS; b++) {
+    cum += h[b];
+    if (cum >= want && cum) return b == HFC_HIST_BUCKETS - 1 ? -1 : (double)(32ull << b) / 1e3;
+  }
+  return 0;
+}
+
+static int print_stats(hfc_client *c) {
+  hfc_stats *st = malloc(sizeof *st);
+  if (!st) return 1;
+  int rc = hfc_get_stats(c, st);
+  if (rc) {
+    fprintf(stderr, "hairfilter: stats: %s\n", hfc_strerror(rc));
+    free(st);
+    return 1;
+  }
+  printf("uptime %.1f s, connections %d open / %llu total, queue %d/%d, protocol errors %llu\n",
+         st->uptime_us / 1e6, st->connections_open, (unsigned long long)st->connections_total,
+         st->queue_depth, st->queue_capacity, (unsigned long long)st->protocol_errors);
+  printf("  %-16s %9s %7s %8s %8s %7s %9s %9s %9s %9s\n", "variant", "ok", "failed",
+         "rejected", "batches", "frm/bat", "queue", "infer", "total", "p99<=");
+  for (int i = 0; i < st->num_variants; i++) {
+    const hfc_variant_stats *v = &st->variants[i];
+    double n = v->requests_ok ? (double)v->requests_ok : 1;
+    double p99 = hist_pct(v->hist_total, v->requests_ok, 0.99);
+    printf("  %-16s %9llu %7llu %8llu %8llu %7.2f %7.2fms %7.2fms %7.2fms ", v->name,
+           (unsigned long long)v->requests_ok, (unsigned long long)v->requests_failed,
+           (unsigned long long)v->rejected, (unsigned long long)v->batches,
+           v->batches ? (double)v->requests_ok / (double)v->batches : 0.0,
+           v->sum_queue_us / n / 1e3, v->sum_infer_us / n / 1e3, v->sum_total_us / n / 1e3);
+    if (p99 < 0)
+      printf("%9s\n", "overflow");
+    else
+      printf("%7.2fms\n", p99);
+  }
+  printf("  (queue/infer/total: means over successful requests; p99<=: bound from the "
+         "total-latency histogram)\n");
+  free(st);
+  return 0;
+}
+
 int cmd_filter(int argc, char **argv) {
   const char *server = NULL, *variant = NULL, *in_path = NULL, *out_path = NULL, *png = NULL;
   const char *token = getenv("HAIRFILTER_TOKEN");
-  int f16 = 0, timeout_ms = 0;
+  int f16 = 0, timeout_ms = 0, list = 0, stats = 0;
   float hair[3], light[3], bg[3];
   memcpy(hair, CLI_HAIR_DEFAULT, sizeof hair);
   memcpy(light, CLI_LIGHT_DEFAULT, sizeof light);
@@ -46,6 +114,7 @@ int cmd_filter(int argc, char **argv) {
     {"hair", required_argument, 0, 'H'},   {"light", required_argument, 0, 'L'},
     {"background", required_argument, 0, 'B'}, {"token", required_argument, 0, 'T'},
     {"timeout-ms", required_argument, 0, 't'}, {"help", no_argument, 0, 'h'},
+    {"list", no_argument, 0, 'l'},         {"stats", no_argument, 0, 'S'},
     {0, 0, 0, 0}};
   int opt;
   optind = 1;
@@ -57,6 +126,8 @@ int cmd_filter(int argc, char **argv) {
     case 'o': out_path = optarg; break;
     case 'p': png = optarg; break;
     case 'F': f16 = 1; break;
+    case 'l': list = 1; break;
+    case 'S': stats = 1; break;
     case 'T': token = optarg; break;
     case 't': timeout_ms = atoi(optarg); break;
     case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
@@ -66,7 +137,20 @@ int cmd_filter(int argc, char **argv) {
     default: goto bad;
     }
   }
-  if (!server || !in_path || !out_path || optind != argc) goto bad;
+  if (!server || optind != argc) goto bad;
+  if (list || stats) {
+    hfc_client *c = NULL;
+    hfc_options o = {"hairfilter-cli", token, timeout_ms};
+    int rc = hfc_connect(server, &o, &c);
+    if (rc) {
+      fprintf(stderr, "hairfilter: %s: %s\n", server, hfc_strerror(rc));
+      return 1;
+    }
+    int ret = (list && list_variants(c)) || (stats && print_stats(c));
+    hfc_close(c);
+    return ret;
+  }
+  if (!in_path || !out_path) goto bad;
 
   int ret = 1, rc;
   hfc_client *c = NULL;

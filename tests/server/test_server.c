@@ -12,6 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "harness.h"
@@ -589,6 +590,110 @@ static void test_sigterm_no_drain_time(void **state) {
   free(in);
 }
 
+/* A peer that stops in the middle of a frame, or never says HELLO, is cut
+ * off after the stall timeout instead of holding its buffers forever. */
+static void test_stalled_peer_is_closed(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--stall-timeout-ms", "300", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  float *in = make_features(32, 32, 2, 1);
+  size_t len;
+  uint8_t *f = raw_filter(17, "Tiny", 32, 32, 2, in, &len);
+  int fd = raw_connect(d.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  assert_int_equal(raw_send(fd, f, len / 3), 0);
+  int silent = raw_connect(d.unix_url);
+  assert_true(silent >= 0);
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_ERROR);
+  assert_int_equal(h.request_id, 17);
+  hfp_error e;
+  assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+  assert_int_equal(e.code, HFP_E_PROTOCOL);
+  assert_int_equal(e.fatal, 1);
+  free(p);
+  assert_true(raw_closed(fd, 5000));
+  assert_int_equal(raw_read(silent, &h, &p), 0);
+  assert_int_equal(h.type, HFP_ERROR);
+  free(p);
+  assert_true(raw_closed(silent, 5000));
+  close(fd);
+  close(silent);
+  /* an idle connection between frames is left alone */
+  hfc_client *c = NULL;
+  hfc_options o = {"idle", NULL, 20000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  usleep(700000);
+  float out[32 * 32 * 3];
+  hfc_request r = {.variant = "Tiny", .width = 32, .height = 32, .spp = 2, .in_dtype = HFC_F32,
+                   .features = in, .out_dtype = HFC_F32, .result = out};
+  assert_int_equal(hfc_filter(c, &r, NULL), 0);
+  hfc_close(c);
+  free(f);
+  free(in);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
+/* The CLI end to end: feature EXR in, result EXR and server-composited
+ * PNG out, timing printed; the EXR holds exactly the reference result. */
+static void test_cli_filter(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  enum { W = 40, HH = 28 };
+  float *in = make_features(W, HH, v->cfg.spp, 55);
+  hf_image img = {0};
+  assert_int_equal(hf_features_to_image(in, W, HH, v->cfg.spp, &img), 0);
+  char feat[300], res[300], png[300], outtxt[300], cmd[2000];
+  snprintf(feat, sizeof feat, "%s/cli_features.exr", H.dir);
+  snprintf(res, sizeof res, "%s/cli_result.exr", H.dir);
+  snprintf(png, sizeof png, "%s/cli_preview.png", H.dir);
+  snprintf(outtxt, sizeof outtxt, "%s/cli_out.txt", H.dir);
+  assert_int_equal(hf_exr_write(feat, &img, 0), 0);
+  hf_image_free(&img);
+  snprintf(cmd, sizeof cmd, "'%s' filter --server '%s' --variant Small --in '%s' --out '%s' "
+           "--png '%s' > '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, feat, res, png, outtxt);
+  int rc = system(cmd);
+  if (rc != 0) {
+    snprintf(cmd, sizeof cmd, "cat '%s' >&2", outtxt);
+    if (system(cmd)) {}
+  }
+  assert_int_equal(rc, 0);
+  FILE *f = fopen(outtxt, "r");
+  assert_non_null(f);
+  char text[4096];
+  size_t n = fread(text, 1, sizeof text - 1, f);
+  fclose(f);
+  text[n] = 0;
+  assert_non_null(strstr(text, "infer"));
+  assert_non_null(strstr(text, "server"));
+  assert_non_null(strstr(text, "network"));
+  char err[256];
+  hf_image out = {0};
+  assert_int_equal(hf_exr_read(res, &out, err, sizeof err), 0);
+  assert_int_equal(out.width, W);
+  assert_int_equal(out.height, HH);
+  float want[W * HH * 3];
+  assert_int_equal(reference(v, W, HH, in, HF_F32, want, HF_F32), 0);
+  const char *names[3] = {"color", "highlight", "alpha"};
+  for (int k = 0; k < 3; k++) {
+    int ch = hf_image_channel(&out, names[k]);
+    assert_true(ch >= 0);
+    for (int p = 0; p < W * HH; p++) assert_true(out.data[p * out.channels + ch] == want[p * 3 + k]);
+  }
+  hf_image_free(&out);
+  assert_int_equal(access(png, F_OK), 0);
+  /* an unknown variant fails with a message and status 1 */
+  snprintf(cmd, sizeof cmd, "'%s' filter --server '%s' --variant Nope --in '%s' --out '%s' "
+           "> '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, feat, res, outtxt);
+  rc = system(cmd);
+  assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 1);
+  free(in);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_variants),
@@ -599,10 +704,12 @@ int main(void) {
     cmocka_unit_test(test_second_connection_mid_upload),
     cmocka_unit_test(test_disconnect_mid_frame),
     cmocka_unit_test(test_bad_requests_keep_connection),
+    cmocka_unit_test(test_cli_filter),
     cmocka_unit_test(test_stats),
     cmocka_unit_test(test_busy_when_queue_full),
     cmocka_unit_test(test_sigterm_drains),
     cmocka_unit_test(test_sigterm_no_drain_time),
+    cmocka_unit_test(test_stalled_peer_is_closed),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
