@@ -12,6 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/un.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -694,6 +695,74 @@ static void test_cli_filter(void **state) {
   free(in);
 }
 
+/* Local failures of the client library: bad URLs, nothing listening, a
+ * server that never answers, bad arguments, the in-flight window. */
+static void test_client_errors(void **state) {
+  (void)state;
+  hfc_client *c = NULL;
+  assert_int_equal(hfc_connect("http://x", NULL, &c), HFC_E_URL);
+  assert_int_equal(hfc_connect("tcp:nohostport", NULL, &c), HFC_E_URL);
+  assert_int_equal(hfc_connect("unix:", NULL, &c), HFC_E_URL);
+  char path[300];
+  snprintf(path, sizeof path, "unix:%s/nobody.sock", H.dir);
+  assert_int_equal(hfc_connect(path, NULL, &c), HFC_E_CONNECT);
+  assert_null(c);
+  /* a socket that accepts (in the backlog) but never speaks */
+  snprintf(path, sizeof path, "%s/mute.sock", H.dir);
+  int lfd = socket(AF_UNIX, SOCK_STREAM, 0);
+  struct sockaddr_un sun;
+  memset(&sun, 0, sizeof sun);
+  sun.sun_family = AF_UNIX;
+  assert_true(strlen(path) < sizeof sun.sun_path);
+  memcpy(sun.sun_path, path, strlen(path) + 1);
+  assert_int_equal(bind(lfd, (struct sockaddr *)&sun, sizeof sun), 0);
+  assert_int_equal(listen(lfd, 4), 0);
+  char url[320];
+  snprintf(url, sizeof url, "unix:%s", path);
+  hfc_options quick = {"mute", NULL, 200};
+  assert_int_equal(hfc_connect(url, &quick, &c), HFC_E_TIMEOUT);
+  close(lfd);
+  for (int e = -11; e <= 0; e++) assert_non_null(hfc_strerror(e));
+  assert_string_equal(hfc_strerror(HFC_E_BUSY), hfp_strerror(HFP_E_BUSY));
+  assert_string_equal(hfc_strerror(HFC_E_TIMEOUT), "timed out waiting for the server");
+
+  c = connect_unix();
+  float in[4 * 4 * 12], out[4 * 4 * 3];
+  memset(in, 0, sizeof in);
+  hfc_request r = {.variant = "Tiny", .width = 4, .height = 4, .spp = 2, .in_dtype = HFC_F32,
+                   .features = in, .out_dtype = HFC_F32, .result = out};
+  hfc_request bad = r;
+  bad.width = 0;
+  assert_int_equal(hfc_submit(c, &bad, NULL), HFC_E_ARG);
+  bad = r;
+  bad.result = NULL;
+  assert_int_equal(hfc_submit(c, &bad, NULL), HFC_E_ARG);
+  bad = r;
+  bad.in_dtype = (hfc_dtype)5;
+  assert_int_equal(hfc_submit(c, &bad, NULL), HFC_E_ARG);
+  /* the server's verdicts come back as the protocol's codes */
+  bad = r;
+  bad.variant = "Nope";
+  assert_int_equal(hfc_filter(c, &bad, NULL), HFC_E_UNKNOWN_VARIANT);
+  assert_non_null(strstr(hfc_last_message(c), "Nope"));
+  /* the window is the server's max_inflight; one more is refused locally */
+  int win = hfc_info(c)->max_inflight;
+  static float outs[64][4 * 4 * 3];
+  assert_true(win <= 64);
+  for (int i = 0; i < win; i++) {
+    r.result = outs[i];
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  }
+  assert_int_equal(hfc_submit(c, &r, NULL), HFC_E_INFLIGHT);
+  for (int i = 0; i < win; i++) {
+    hfc_completion d;
+    assert_int_equal(hfc_wait(c, 20000, &d), 0);
+    assert_int_equal(d.status, 0);
+  }
+  assert_int_equal(hfc_pending(c), 0);
+  hfc_close(c);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_variants),
@@ -705,6 +774,7 @@ int main(void) {
     cmocka_unit_test(test_disconnect_mid_frame),
     cmocka_unit_test(test_bad_requests_keep_connection),
     cmocka_unit_test(test_cli_filter),
+    cmocka_unit_test(test_client_errors),
     cmocka_unit_test(test_stats),
     cmocka_unit_test(test_busy_when_queue_full),
     cmocka_unit_test(test_sigterm_drains),
