@@ -38,6 +38,16 @@ const char *hfp_strerror(int code) {
   return messages[code];
 }
 
+static const char *const names[HFP_E_COUNT] = {
+  "OK", "VERSION", "PROTOCOL", "UNKNOWN_VARIANT", "TOO_LARGE", "LENGTH", "BUSY",
+  "UNAUTHORIZED", "INTERNAL", "UNSUPPORTED", "SHUTTING_DOWN", "INVALID", "NOSPACE",
+};
+
+const char *hfp_code_name(int code) {
+  if (code < 0) code = -code;
+  return code < HFP_E_COUNT ? names[code] : "UNKNOWN";
+}
+
 int hfp_negotiate(uint16_t client_min, uint16_t client_max) {
   if (client_min > client_max) return -HFP_E_VERSION;
   if (client_min <= HFP_VERSION && HFP_VERSION <= client_max) return HFP_VERSION;

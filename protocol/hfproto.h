@@ -61,6 +61,8 @@ extern "C" {
 
 /* Accepts a code of either sign. Never NULL. */
 const char *hfp_strerror(int code);
+/* The code's name as PROTOCOL.md spells it ("BUSY"), or "UNKNOWN". */
+const char *hfp_code_name(int code);
 
 /* ---- message types ------------------------------------------------------ */
 

@@ -102,7 +102,7 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
   if (code != HFP_E_BUSY)
     hfd_log("error: conn %llu (%s%s%s) request %u: %s: %s%s", (unsigned long long)c->id,
             c->peer, c->client_name[0] ? " " : "", c->client_name, request_id,
-            hfp_strerror(code), e.message, fatal ? "; closing the connection" : "");
+            hfp_code_name(code), e.message, fatal ? "; closing the connection" : "");
   uint8_t frame[HFP_HEADER_SIZE + 8 + HFP_MESSAGE_MAX];
   int n = hfp_encode_error(frame, sizeof frame, request_id, &e);
   if (n < 0) {
@@ -580,8 +580,8 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     if (nread != UV_EOF)
       hfd_debug("conn %llu: read: %s", (unsigned long long)c->id, uv_strerror((int)nread));
     if (c->rstate != RD_HEADER || c->got)
-      hfd_log("conn %llu (%s): peer left in the middle of a frame", (unsigned long long)c->id,
-              c->peer);
+      hfd_log("conn %llu (%s%s%s): peer left in the middle of a frame", (unsigned long long)c->id,
+              c->peer, c->client_name[0] ? " " : "", c->client_name);
     conn_close(c);
     return;
   }

@@ -26,7 +26,7 @@ typedef struct opts {
 } opts;
 
 typedef struct sample {
-  float total_us, server_us, queue_us, infer_us;
+  float total_us, server_us, queue_us, input_us, infer_us, output_us;
 } sample;
 
 typedef struct worker {
@@ -65,7 +65,10 @@ static int record(worker *w, const hfc_completion *d) {
     w->errors++;
     return 0;
   }
-  if (now_s() < w->t_measure) return 0;
+  /* Only completions inside the measured window count, so the frames still
+   * in flight when it closes do not stretch it. */
+  double t = now_s();
+  if (t < w->t_measure || t > w->t_end) return 0;
   if (w->n == w->cap) {
     size_t cap = w->cap ? w->cap * 2 : 4096;
     sample *s = realloc(w->samples, cap * sizeof *s);
@@ -74,7 +77,8 @@ static int record(worker *w, const hfc_completion *d) {
     w->cap = cap;
   }
   w->samples[w->n++] = (sample){(float)d->timing.total_us, (float)d->timing.server_us,
-                                (float)d->timing.queue_us, (float)d->timing.infer_us};
+                                (float)d->timing.queue_us, (float)d->timing.input_us,
+                                (float)d->timing.infer_us, (float)d->timing.output_us};
   w->batch_sum += d->timing.batch;
   w->batch_n++;
   return 0;
@@ -264,26 +268,27 @@ int main(int argc, char **argv) {
     bsum += w[i].batch_sum;
     bn += w[i].batch_n;
   }
-  double elapsed = now_s() - t0 - o.warmup;
-  float *lat = malloc((total ? total : 1) * sizeof *lat);
-  float *srv = malloc((total ? total : 1) * sizeof *srv);
-  float *inf = malloc((total ? total : 1) * sizeof *inf);
-  float *que = malloc((total ? total : 1) * sizeof *que);
-  if (!lat || !srv || !inf || !que) return 1;
+  double elapsed = o.seconds;
+  /* One sorted column per timing field, for the percentiles. */
+  enum { COLS = 6 };
+  static const char *const names[COLS] = {"total", "server", "queue", "input", "infer", "output"};
+  float *col[COLS];
+  for (int j = 0; j < COLS; j++)
+    if (!(col[j] = malloc((total ? total : 1) * sizeof(float)))) return 1;
   size_t k = 0;
   for (int i = 0; i < o.connections; i++) {
     for (size_t j = 0; j < w[i].n; j++, k++) {
-      lat[k] = w[i].samples[j].total_us;
-      srv[k] = w[i].samples[j].server_us;
-      inf[k] = w[i].samples[j].infer_us;
-      que[k] = w[i].samples[j].queue_us;
+      const sample *sm = &w[i].samples[j];
+      col[0][k] = sm->total_us;
+      col[1][k] = sm->server_us;
+      col[2][k] = sm->queue_us;
+      col[3][k] = sm->input_us;
+      col[4][k] = sm->infer_us;
+      col[5][k] = sm->output_us;
     }
     free(w[i].samples);
   }
-  qsort(lat, total, sizeof *lat, cmp_float);
-  qsort(srv, total, sizeof *srv, cmp_float);
-  qsort(inf, total, sizeof *inf, cmp_float);
-  qsort(que, total, sizeof *que, cmp_float);
+  for (int j = 0; j < COLS; j++) qsort(col[j], total, sizeof(float), cmp_float);
   printf("%s %dx%d %s via %s (%s, %s): %d connection(s) x %d in flight, %.1f s measured\n",
          o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server, backend, precision,
          o.connections, o.inflight, elapsed);
@@ -291,19 +296,12 @@ int main(int argc, char **argv) {
          total, elapsed > 0 ? (double)total / elapsed : 0.0, (unsigned long long)busy,
          (unsigned long long)errors, bn ? (double)bsum / bn : 0.0);
   printf("  %-8s %10s %10s %10s %10s %10s   (ms)\n", "", "p50", "p90", "p99", "p99.9", "max");
-  const struct {
-    const char *name;
-    const float *v;
-  } rows[] = {{"total", lat}, {"server", srv}, {"queue", que}, {"infer", inf}};
-  for (int r = 0; r < 4; r++)
-    printf("  %-8s %10.3f %10.3f %10.3f %10.3f %10.3f\n", rows[r].name,
-           pct(rows[r].v, total, 50) / 1e3, pct(rows[r].v, total, 90) / 1e3,
-           pct(rows[r].v, total, 99) / 1e3, pct(rows[r].v, total, 99.9) / 1e3,
-           total ? rows[r].v[total - 1] / 1e3 : 0.0);
-  free(lat);
-  free(srv);
-  free(inf);
-  free(que);
+  for (int j = 0; j < COLS; j++) {
+    printf("  %-8s %10.3f %10.3f %10.3f %10.3f %10.3f\n", names[j], pct(col[j], total, 50) / 1e3,
+           pct(col[j], total, 90) / 1e3, pct(col[j], total, 99) / 1e3,
+           pct(col[j], total, 99.9) / 1e3, total ? col[j][total - 1] / 1e3 : 0.0);
+    free(col[j]);
+  }
   free(w);
   return fatal || total == 0 ? 1 : 0;
 }

@@ -449,6 +449,10 @@ static void test_error(void **state) {
     assert_string_equal(hfp_strerror(i), hfp_strerror(-i));
   }
   assert_string_equal(hfp_strerror(4242), "unknown protocol error");
+  assert_string_equal(hfp_code_name(HFP_E_BUSY), "BUSY");
+  assert_string_equal(hfp_code_name(-HFP_E_UNKNOWN_VARIANT), "UNKNOWN_VARIANT");
+  assert_string_equal(hfp_code_name(HFP_E_SHUTTING_DOWN), "SHUTTING_DOWN");
+  assert_string_equal(hfp_code_name(99), "UNKNOWN");
 }
 
 static void test_stats(void **state) {
