@@ -763,6 +763,58 @@ static void test_client_errors(void **state) {
   hfc_close(c);
 }
 
+/* Garbage at the server: mutated HELLOs and FILTERs, random bytes and
+ * truncations over many connections. It must survive all of it, keep its
+ * memory accounting straight and serve the next good request. */
+static void test_garbage_survived(void **state) {
+  (void)state;
+  float *in = make_features(6, 4, 2, 9);
+  size_t len;
+  uint8_t *good = raw_filter(1, "Tiny", 6, 4, 2, in, &len);
+  uint8_t hello[128];
+  hfp_hello m = {1, 1, "fuzz", ""};
+  int hn = hfp_encode_hello(hello, sizeof hello, &m);
+  uint8_t buf[4096];
+  uint32_t x = 2024;
+  for (int it = 0; it < 300; it++) {
+    int fd = raw_connect(it % 3 ? S.unix_url : S.tcp_url);
+    assert_true(fd >= 0);
+    size_t n = 0;
+    if (it % 3 == 0) {
+      /* TCP needs the token: send a correct HELLO with it, then garbage */
+      hfp_hello t = {1, 1, "fuzz", TEST_TOKEN};
+      n = (size_t)hfp_encode_hello(buf, sizeof buf, &t);
+    } else if (it % 5 != 1) {
+      memcpy(buf, hello, (size_t)hn);
+      n = (size_t)hn;
+    }
+    memcpy(buf + n, good, len);
+    size_t total = n + len;
+    int edits = 1 + it % 6;
+    for (int e = 0; e < edits; e++) {
+      x = x * 1664525u + 1013904223u;
+      size_t at = (x >> 8) % total;
+      if ((x & 3) == 0)
+        total = at + 1;                    /* truncate */
+      else
+        buf[at] ^= (uint8_t)(1u << ((x >> 4) & 7));
+    }
+    raw_send(fd, buf, total);              /* may fail once the server hung up */
+    close(fd);
+  }
+  free(good);
+  free(in);
+  usleep(200000);
+  assert_true(server_alive(&S));
+  hfc_client *c = connect_unix();
+  filter_and_compare(c, "Tiny", 6, 4, 0, 9);
+  hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  assert_int_equal(st.connections_open, 1);
+  assert_int_equal(st.queue_depth, 0);
+  hfc_close(c);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_variants),
@@ -775,6 +827,7 @@ int main(void) {
     cmocka_unit_test(test_bad_requests_keep_connection),
     cmocka_unit_test(test_cli_filter),
     cmocka_unit_test(test_client_errors),
+    cmocka_unit_test(test_garbage_survived),
     cmocka_unit_test(test_stats),
     cmocka_unit_test(test_busy_when_queue_full),
     cmocka_unit_test(test_sigterm_drains),
