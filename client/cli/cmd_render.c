@@ -247,7 +247,7 @@ static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_v
   fprintf(stderr,
           "%s, %u strands, %llu segments, %dx%d: shadow %.0f ms, features %.0f ms, "
           "baselines %.0f ms, ground truth %.0f ms (%llu fragments, deepest list %u, "
-          "%llu lists past the sort size)\n",
+          "%llu lists sorted in several rounds)\n",
           hfr_renderer_platform(r), hair->strands,
           (unsigned long long)hfr_hair_total_segments(hair), v->width, v->height, st->shadow_ms,
           st->features_ms, st->baselines_ms, st->gt_ms, (unsigned long long)st->gt_fragments,

@@ -169,7 +169,7 @@ typedef struct hfr_stats {
   uint64_t segments;            /* per geometry pass */
   uint64_t gt_fragments;        /* fragments stored in the A-buffer */
   uint32_t gt_max_depth;        /* longest per-subsample fragment list */
-  uint64_t gt_truncated;        /* subsamples whose list exceeded the sort size */
+  uint64_t gt_truncated;        /* subsamples sorted in more than one round */
 } hfr_stats;
 
 typedef struct hfr_renderer hfr_renderer;

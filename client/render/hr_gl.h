@@ -14,6 +14,7 @@
   X(PFNGLGETINTEGERVPROC, GetIntegerv)                                        \
   X(PFNGLENABLEPROC, Enable)                                                  \
   X(PFNGLDISABLEPROC, Disable)                                                \
+  X(PFNGLBLENDFUNCPROC, BlendFunc)                                            \
   X(PFNGLVIEWPORTPROC, Viewport)                                              \
   X(PFNGLDEPTHFUNCPROC, DepthFunc)                                            \
   X(PFNGLDEPTHMASKPROC, DepthMask)                                            \

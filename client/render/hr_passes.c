@@ -401,9 +401,9 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
   }
 
   if (rc == HF_OK) {
-    const uint32_t zero2[2] = {0, 0};
+    const uint32_t zero3[3] = {0, 0, 0};
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
-    hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, sizeof zero2, zero2, GL_DYNAMIC_COPY);
+    hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, sizeof zero3, zero3, GL_DYNAMIC_COPY);
     hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, bufs[3]);
     rtex = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
@@ -414,11 +414,20 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
   }
   float *tmp = NULL;
   if (rc == HF_OK) {
+    const float zero4[4] = {0, 0, 0, 0};
+    hrgl.ClearBufferfv(GL_COLOR, 0, zero4);
     hrgl.UseProgram(r->resolve_abuf.id);
     hr_set_i(&r->resolve_abuf, "u_ss", ss);
     hr_set_i(&r->resolve_abuf, "u_width", SW);
     hr_set_u(&r->resolve_abuf, "u_capacity", capacity);
-    draw_fullscreen(r, &r->resolve_abuf, W, H);
+    /* One draw per subsample, summed (see hr_glsl_resolve_abuf_fs). */
+    hrgl.Enable(GL_BLEND);
+    hrgl.BlendFunc(GL_ONE, GL_ONE);
+    for (int sub = 0; sub < ss * ss; sub++) {
+      hr_set_i(&r->resolve_abuf, "u_sub", sub);
+      draw_fullscreen(r, &r->resolve_abuf, W, H);
+    }
+    hrgl.Disable(GL_BLEND);
     hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
     if (!tmp) rc = HF_ENOMEM;
@@ -426,10 +435,15 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
   if (rc == HF_OK) {
     hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
     hrgl.ReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, tmp);
-    uint32_t st[2] = {0, 0};
+    uint32_t st[3] = {0, 0, 0};
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
     hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, sizeof st, st);
     rc = hr_gl_check("A-buffer resolve", err, errlen);
+    if (rc == HF_OK && st[2] > 0) {
+      if (err) snprintf(err, errlen, "%u A-buffer lists too deep to resolve (longest %u): "
+                        "lower the strand count or raise the supersampling", st[2], st[0]);
+      rc = HF_ERANGE;
+    }
     if (stats) {
       stats->gt_fragments = count;
       stats->gt_max_depth = st[0];
@@ -437,7 +451,12 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     }
   }
   if (rc == HF_OK) {
-    for (size_t i = 0; i < (size_t)W * H; i++) memcpy(tmp + 3 * i, tmp + 4 * i, 12);
+    /* Premultiplied sums -> colour factor, highlight, alpha. */
+    for (size_t i = 0; i < (size_t)W * H; i++) {
+      float a = tmp[4 * i + 2];
+      float c = a > 0 ? tmp[4 * i] / a : 0, h = a > 0 ? tmp[4 * i + 1] / a : 0;
+      tmp[3 * i] = c, tmp[3 * i + 1] = h, tmp[3 * i + 2] = a;
+    }
     flip_rows(tmp, gt, W, H, 3);
   }
   if (rc == HF_OK && cpu_gt) {

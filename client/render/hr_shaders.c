@@ -117,11 +117,13 @@ const char hr_glsl_hair_gs[] = GLSL_VERSION
 "  if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;\n" \
 "  float d = -(u_light_view * vec4(p, 1.0)).z;\n"                               \
 "  float ref = (d - u_shadow_near) / (u_shadow_far - u_shadow_near) - u_shadow_bias;\n" \
+"  /* Four bilinear comparisons half a texel apart: a 3x3-texel PCF footprint\n" \
+"   * that smooths the 1-sample stochastic map. */\n"                          \
 "  float s = 0.0;\n"                                                            \
-"  for (int y = -1; y <= 1; y++)\n"                                             \
-"    for (int x = -1; x <= 1; x++)\n"                                           \
-"      s += texture(u_shadow, vec3(uv + vec2(x, y) * u_shadow_texel, ref));\n"  \
-"  return s / 9.0;\n"                                                           \
+"  for (int y = 0; y < 2; y++)\n"                                               \
+"    for (int x = 0; x < 2; x++)\n"                                             \
+"      s += texture(u_shadow, vec3(uv + (vec2(x, y) - 0.5) * u_shadow_texel, ref));\n" \
+"  return s * 0.25;\n"                                                          \
 "}\n"                                                                           \
 "/* Fig. 3 of the paper: colour factor F_d + F_TRT (+ ambient), highlight F_R. */\n" \
 "void shade(out float color, out float highlight) {\n"                          \
@@ -251,65 +253,77 @@ const char hr_glsl_resolve_ms_fs[] = GLSL_VERSION
 "  o = j == 0 ? a.xy : (j == 1 ? a.zw : b.xy);\n"
 "}\n";
 
-/* Sorts each subsample's list front to back and blends it. The nearest
- * HR_ABUF_SORT fragments (by depth, then node index, so ties resolve the
- * same way on the host) are blended exactly; any further ones are blended
- * behind them in list order and counted in Stats.truncated. */
+/* Sorts one subsample's list front to back and blends it, exactly: in
+ * rounds, each walking the list for the next HR_ABUF_SORT nearest fragments
+ * after the last one blended (order: depth, then node index, so ties
+ * resolve the same way on the host). Lists longer than one round are
+ * counted in Stats.truncated (informative only).
+ *
+ * One draw per subsample (u_sub), summed by additive blending, because
+ * llvmpipe caps the loop iterations of one shader invocation (all loops
+ * together, per 4x4 block) at 65535 and silently leaves the loop after
+ * that; a whole 4x4 supersampled pixel in one invocation went past it on
+ * dense hair. Iterations are still counted, and an invocation that would
+ * come near the cap stops and is reported (Stats.overflow): the host then
+ * fails rather than return a wrong image. Output is premultiplied
+ * (colour * alpha, highlight * alpha, alpha) / s^2. */
 #define STR_(x) #x
 #define STR(x) STR_(x)
 const char hr_glsl_resolve_abuf_fs[] = GLSL_VERSION
 "#define K " STR(HR_ABUF_SORT) "\n"
+"#define BUDGET 60000u\n"
 "struct Node { float c, h, a, d; uint next; };\n"
 "layout(std430, binding = 0) readonly buffer Heads { uint heads[]; };\n"
 "layout(std430, binding = 1) readonly buffer Nodes { Node nodes[]; };\n"
-"layout(std430, binding = 2) buffer Stats { uint max_depth; uint truncated; };\n"
+"layout(std430, binding = 2) buffer Stats { uint max_depth; uint truncated; uint overflow; };\n"
 "uniform int u_ss;\n"
+"uniform int u_sub;        /* subsample sy * u_ss + sx */\n"
 "uniform int u_width;      /* supersampled width */\n"
 "uniform uint u_capacity;\n"
 "out vec4 o;\n"
 "bool before(float da, uint ia, float db, uint ib) { return da < db || (da == db && ia < ib); }\n"
 "void main() {\n"
 "  ivec2 p = ivec2(gl_FragCoord.xy);\n"
-"  vec3 acc = vec3(0.0);\n"
-"  uint pmax = 0u, ptrunc = 0u;\n"
+"  int sy = u_sub / u_ss, sx = u_sub - sy * u_ss;\n"
 "  uint idx[K];\n"
 "  float dep[K];\n"
-"  for (int sy = 0; sy < u_ss; sy++)\n"
-"    for (int sx = 0; sx < u_ss; sx++) {\n"
-"      uint head = heads[(p.y * u_ss + sy) * u_width + p.x * u_ss + sx];\n"
-"      int n = 0;\n"
-"      uint total = 0u;\n"
-"      for (uint i = head; i != 0xFFFFFFFFu && i < u_capacity; i = nodes[i].next) {\n"
-"        total++;\n"
-"        float d = nodes[i].d;\n"
-"        if (n == K && !before(d, i, dep[K - 1], idx[K - 1])) continue;\n"
+"  uint head = heads[(p.y * u_ss + sy) * u_width + p.x * u_ss + sx];\n"
+"  uint total = 0u, iters = 0u, rounds = 0u;\n"
+"  float T = 1.0, c = 0.0, h = 0.0;\n"
+"  float dl = 0.0;       /* last blended fragment (none before round 1) */\n"
+"  uint il = 0u;\n"
+"  int n = K;\n"
+"  bool over = false;\n"
+"  while (n == K && !over) {\n"
+"    n = 0;\n"
+"    uint i = head;\n"
+"    while (i != 0xFFFFFFFFu && i < u_capacity && iters < BUDGET) {\n"
+"      uint nx = nodes[i].next;\n"
+"      float d = nodes[i].d;\n"
+"      iters++;\n"
+"      if (rounds == 0u) total++;\n"
+"      if ((rounds == 0u || before(dl, il, d, i)) &&\n"
+"          (n < K || before(d, i, dep[K - 1], idx[K - 1]))) {\n"
 "        int k = n < K ? n : K - 1;\n"
 "        while (k > 0 && before(d, i, dep[k - 1], idx[k - 1])) {\n"
 "          dep[k] = dep[k - 1]; idx[k] = idx[k - 1]; k--;\n"
+"          iters++;\n"
 "        }\n"
 "        dep[k] = d; idx[k] = i;\n"
-"        if (n < K) n++;\n"
+"        n = min(n + 1, K);\n"
 "      }\n"
-"      float T = 1.0, c = 0.0, h = 0.0;\n"
-"      for (int k = 0; k < n; k++) {\n"
-"        Node q = nodes[idx[k]];\n"
-"        c += T * q.a * q.c; h += T * q.a * q.h; T *= 1.0 - q.a;\n"
-"      }\n"
-"      if (total > uint(K)) {\n"
-"        for (uint i = head; i != 0xFFFFFFFFu && i < u_capacity; i = nodes[i].next) {\n"
-"          Node q = nodes[i];\n"
-"          if (!before(q.d, i, dep[K - 1], idx[K - 1]) && i != idx[K - 1]) {\n"
-"            c += T * q.a * q.c; h += T * q.a * q.h; T *= 1.0 - q.a;\n"
-"          }\n"
-"        }\n"
-"        ptrunc++;\n"
-"      }\n"
-"      pmax = max(pmax, total);\n"
-"      acc += vec3(c, h, 1.0 - T);\n"
+"      i = nx;\n"
 "    }\n"
-"  /* One atomic per pixel, not per subsample. */\n"
-"  atomicMax(max_depth, pmax);\n"
-"  if (ptrunc > 0u) atomicAdd(truncated, ptrunc);\n"
-"  acc /= float(u_ss * u_ss);\n"
-"  o = acc.z > 0.0 ? vec4(acc.x / acc.z, acc.y / acc.z, acc.z, 1.0) : vec4(0.0);\n"
+"    over = i != 0xFFFFFFFFu && i < u_capacity;\n"
+"    for (int k = 0; k < n; k++) {\n"
+"      Node q = nodes[idx[k]];\n"
+"      c += T * q.a * q.c; h += T * q.a * q.h; T *= 1.0 - q.a;\n"
+"    }\n"
+"    if (n > 0) { dl = dep[n - 1]; il = idx[n - 1]; }\n"
+"    rounds++;\n"
+"  }\n"
+"  if (rounds > 1u && total > uint(K)) atomicAdd(truncated, 1u);\n"
+"  if (over) atomicAdd(overflow, 1u);\n"
+"  atomicMax(max_depth, total);\n"
+"  o = vec4(c, h, 1.0 - T, 0.0) / float(u_ss * u_ss);\n"
 "}\n";

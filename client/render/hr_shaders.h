@@ -20,7 +20,7 @@ extern const char hr_glsl_fullscreen_vs[];
 extern const char hr_glsl_resolve_ms_fs[];
 extern const char hr_glsl_resolve_abuf_fs[];
 
-/* Fragments kept per subsample when the A-buffer is sorted. */
+/* Fragments sorted per round of the A-buffer resolve. */
 #define HR_ABUF_SORT 64
 
 #endif

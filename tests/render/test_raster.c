@@ -13,6 +13,7 @@
 #include <cmocka.h>
 
 #include "hr_internal.h"
+#include "hr_shaders.h"
 
 #define W 64
 #define H 64
@@ -212,6 +213,41 @@ static void test_gt_matches_cpu_blend(void **state) {
   free(cpu);
 }
 
+/* Dense hair: lists longer than one sort round, and more loop work per
+ * pixel than llvmpipe allows one shader invocation. Still exact. */
+static void test_gt_dense(void **state) {
+  (void)state;
+  hfr_view v;
+  style_scene(HFR_STYLE_STRAIGHT, 12000, &v);
+  v.shadow_size = 0;
+  hr_camera light;
+  hr_camera_light(R, &v, &light);
+  float *gpu = malloc(sizeof(float) * 3 * W * H), *cpu = malloc(sizeof(float) * 3 * W * H);
+  assert_non_null(gpu);
+  assert_non_null(cpu);
+  hfr_stats st;
+  memset(&st, 0, sizeof st);
+  char err[512] = "";
+  int rc = hr_pass_gt(R, &v, &light, 4, gpu, cpu, &st, err, sizeof err);
+  if (rc != HF_OK) fail_msg("gt: %s", err);
+  assert_true(st.gt_max_depth > HR_ABUF_SORT);
+  assert_true(st.gt_truncated > 0);
+  double da = 0, dc = 0;
+  for (int i = 0; i < W * H; i++) {
+    const float *g = gpu + 3 * i, *c = cpu + 3 * i;
+    da = fmax(da, fabs(g[2] - c[2]));
+    dc = fmax(dc, fabs(g[0] * g[2] - c[0] * c[2]));
+    dc = fmax(dc, fabs(g[1] * g[2] - c[1] * c[2]));
+  }
+  print_message("deepest list %u, %llu truncated lists: max |alpha| diff %.2e, "
+                "max |colour| diff %.2e\n", st.gt_max_depth,
+                (unsigned long long)st.gt_truncated, da, dc);
+  assert_true(da < 1e-4);
+  assert_true(dc < 1e-4);
+  free(gpu);
+  free(cpu);
+}
+
 static void test_frame_ranges(void **state) {
   (void)state;
   hfr_view v;
@@ -307,6 +343,7 @@ int main(void) {
     cmocka_unit_test(test_hashed_alpha_binomial),
     cmocka_unit_test(test_mask_deterministic),
     cmocka_unit_test(test_gt_matches_cpu_blend),
+    cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_frame_ranges),
     cmocka_unit_test(test_egl),
   };
