@@ -25,6 +25,59 @@
 
 static void conn_close(hfd_conn *c);
 static void read_next(hfd_conn *c);
+static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf);
+static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
+
+/* Backpressure on replies: a peer that sends requests without reading the
+ * answers would make us queue replies without bound (a flood of rejected
+ * frames costs it nothing). Past HIGH unwritten replies we stop reading
+ * from it; below LOW we resume. Results are already bounded by
+ * --max-inflight, so this only bites on misbehaving peers. */
+#define WRITES_HIGH 256
+#define WRITES_LOW 64
+
+static void wrote_one(hfd_conn *c) {
+  c->writes_pending--;
+  if (c->read_paused && c->writes_pending <= WRITES_LOW && !c->closing && !c->fatal_sent) {
+    int rc = uv_read_start(&c->h.stream, on_alloc, on_read);
+    if (rc < 0) {
+      hfd_log("error: conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
+      conn_close(c);
+      return;
+    }
+    c->read_paused = 0;
+    c->t_last_read = hfd_now_us();
+  }
+}
+
+static void writing_one(hfd_conn *c) {
+  c->writes_pending++;
+  if (!c->read_paused && c->writes_pending >= WRITES_HIGH && !c->fatal_sent) {
+    uv_read_stop(&c->h.stream);
+    c->read_paused = 1;
+  }
+}
+
+/* Error lines are rate-limited (a peer can make errors as fast as it can
+ * send bytes); what is dropped is counted and reported with the next line. */
+static int log_allowed(void) {
+  static double window_start;
+  static int in_window;
+  static unsigned long suppressed;
+  double now = hfd_now_us();
+  if (now - window_start > 1e6) {
+    if (suppressed) hfd_log("%lu error line(s) suppressed in the last interval", suppressed);
+    window_start = now;
+    in_window = 0;
+    suppressed = 0;
+  }
+  if (in_window < 20) {
+    in_window++;
+    return 1;
+  }
+  suppressed++;
+  return 0;
+}
 
 /* ---- writes -------------------------------------------------------------- */
 
@@ -48,7 +101,7 @@ static void conn_release(hfd_conn *c) {
 static void on_ctl_written(uv_write_t *req, int status) {
   ctl_write *w = (ctl_write *)req;
   hfd_conn *c = w->c;
-  c->writes_pending--;
+  wrote_one(c);
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: write failed: %s", (unsigned long long)c->id, uv_strerror(status));
   if (w->close_after || status < 0) conn_close(c);
@@ -78,7 +131,7 @@ static void send_ctl(hfd_conn *c, const uint8_t *frame, size_t len, int close_af
     conn_close(c);
     return;
   }
-  c->writes_pending++;
+  writing_one(c);
 }
 
 /* Sends an ERROR. Fatal errors stop reading; the connection closes once
@@ -99,7 +152,7 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
    * the wire are already checked, but be sure). */
   for (char *p = e.message; *p; p++)
     if (*p < 0x20 || *p > 0x7e) *p = '?';
-  if (code != HFP_E_BUSY)
+  if (code != HFP_E_BUSY && log_allowed())
     hfd_log("error: conn %llu (%s%s%s) request %u: %s: %s%s", (unsigned long long)c->id,
             c->peer, c->client_name[0] ? " " : "", c->client_name, request_id,
             hfp_code_name(code), e.message, fatal ? "; closing the connection" : "");
@@ -131,7 +184,7 @@ static void on_result_written(uv_write_t *req, int status) {
   hfd_job *j = req->data;
   hfd_conn *c = j->conn;
   hfd_server *s = c->srv;
-  c->writes_pending--;
+  wrote_one(c);
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: result write failed: %s", (unsigned long long)c->id,
               uv_strerror(status));
@@ -216,7 +269,7 @@ static void deliver(hfd_server *s, hfd_job *j) {
     conn_release(c);
     return;
   }
-  c->writes_pending++;
+  writing_one(c);
 }
 
 void hfd_on_async(uv_async_t *a) {
@@ -579,7 +632,7 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
   if (nread < 0) {
     if (nread != UV_EOF)
       hfd_debug("conn %llu: read: %s", (unsigned long long)c->id, uv_strerror((int)nread));
-    if (c->rstate != RD_HEADER || c->got)
+    if ((c->rstate != RD_HEADER || c->got) && log_allowed())
       hfd_log("conn %llu (%s%s%s): peer left in the middle of a frame", (unsigned long long)c->id,
               c->peer, c->client_name[0] ? " " : "", c->client_name);
     conn_close(c);

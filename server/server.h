@@ -181,6 +181,7 @@ typedef struct hfd_conn {
   int handle_closed;
   int inflight;                  /* jobs admitted and not yet answered */
   int writes_pending;
+  int read_paused;               /* too many replies unread by the peer */
   double t_last_read;            /* for the stall sweep */
 
   enum hfd_read_state rstate;

@@ -7,6 +7,8 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <errno.h>
+#include <poll.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -815,6 +817,84 @@ static void test_garbage_survived(void **state) {
   hfc_close(c);
 }
 
+/* A peer that floods requests and reads nothing: the server stops reading
+ * from it once enough replies are waiting (so its memory stays bounded),
+ * and resumes when the peer reads; every request is still answered. */
+static void test_backpressure_on_unread_replies(void **state) {
+  (void)state;
+  enum { N = 40000 };
+  float in[1 * 1 * 12] = {0};
+  size_t len;
+  uint8_t *one = raw_filter(1, "Nope", 1, 1, 2, in, &len);
+  uint8_t *all = malloc(len * N);
+  assert_non_null(all);
+  for (int i = 0; i < N; i++) {
+    memcpy(all + len * i, one, len);
+    hfp_put_u32(all + len * i + 8, (uint32_t)i + 1);
+  }
+  int fd = raw_connect(S.unix_url);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  size_t total = len * N, sent = 0;
+  /* Send without reading until the socket refuses more. */
+  while (sent < total) {
+    ssize_t w = send(fd, all + sent, total - sent, MSG_DONTWAIT | MSG_NOSIGNAL);
+    if (w > 0) {
+      sent += (size_t)w;
+      continue;
+    }
+    assert_true(w < 0 && (errno == EAGAIN || errno == EWOULDBLOCK));
+    /* give the server time to read whatever it is still willing to */
+    struct pollfd p = {fd, POLLOUT, 0};
+    if (poll(&p, 1, 300) == 0) break;
+  }
+  assert_true(sent < total);
+  /* Now read and send together until every request has its ERROR. */
+  int got = 0;
+  uint8_t hb[HFP_HEADER_SIZE], body[512];
+  size_t hfill = 0, bfill = 0, blen = 0;
+  int in_body = 0;
+  while (got < N) {
+    struct pollfd p = {fd, POLLIN | (sent < total ? POLLOUT : 0), 0};
+    assert_true(poll(&p, 1, 10000) > 0);
+    if ((p.revents & POLLOUT) && sent < total) {
+      ssize_t w = send(fd, all + sent, total - sent, MSG_DONTWAIT | MSG_NOSIGNAL);
+      if (w > 0) sent += (size_t)w;
+    }
+    if (!(p.revents & POLLIN)) continue;
+    if (!in_body) {
+      ssize_t r = recv(fd, hb + hfill, sizeof hb - hfill, MSG_DONTWAIT);
+      assert_true(r > 0 || (r < 0 && errno == EAGAIN));
+      if (r > 0) hfill += (size_t)r;
+      if (hfill == sizeof hb) {
+        hfp_header h;
+        assert_int_equal(hfp_header_decode(hb, sizeof body, &h), 0);
+        assert_int_equal(h.type, HFP_ERROR);
+        assert_int_equal(h.request_id, (uint32_t)got + 1);
+        blen = h.length;
+        bfill = 0;
+        in_body = 1;
+        hfill = 0;
+      }
+    } else {
+      ssize_t r = recv(fd, body + bfill, blen - bfill, MSG_DONTWAIT);
+      assert_true(r > 0 || (r < 0 && errno == EAGAIN));
+      if (r > 0) bfill += (size_t)r;
+    }
+    if (in_body && bfill == blen) {
+      hfp_error e;
+      assert_int_equal(hfp_decode_error(body, blen, &e), 0);
+      assert_int_equal(e.code, HFP_E_UNKNOWN_VARIANT);
+      in_body = 0;
+      got++;
+    }
+  }
+  assert_int_equal(sent, total);
+  close(fd);
+  free(all);
+  free(one);
+  assert_true(server_alive(&S));
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_variants),
@@ -828,6 +908,7 @@ int main(void) {
     cmocka_unit_test(test_cli_filter),
     cmocka_unit_test(test_client_errors),
     cmocka_unit_test(test_garbage_survived),
+    cmocka_unit_test(test_backpressure_on_unread_replies),
     cmocka_unit_test(test_stats),
     cmocka_unit_test(test_busy_when_queue_full),
     cmocka_unit_test(test_sigterm_drains),
