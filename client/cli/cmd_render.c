@@ -247,11 +247,12 @@ static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_v
   fprintf(stderr,
           "%s, %u strands, %llu segments, %dx%d: shadow %.0f ms, features %.0f ms, "
           "baselines %.0f ms, ground truth %.0f ms (%llu fragments, deepest list %u, "
-          "%llu lists sorted in several rounds)\n",
+          "%llu lists sorted in several rounds%s)\n",
           hfr_renderer_platform(r), hair->strands,
           (unsigned long long)hfr_hair_total_segments(hair), v->width, v->height, st->shadow_ms,
           st->features_ms, st->baselines_ms, st->gt_ms, (unsigned long long)st->gt_fragments,
-          st->gt_max_depth, (unsigned long long)st->gt_truncated);
+          st->gt_max_depth, (unsigned long long)st->gt_truncated,
+          st->gt_host_resolve ? ", blended on the host" : "");
 }
 
 static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,

@@ -170,6 +170,7 @@ typedef struct hfr_stats {
   uint64_t gt_fragments;        /* fragments stored in the A-buffer */
   uint32_t gt_max_depth;        /* longest per-subsample fragment list */
   uint64_t gt_truncated;        /* subsamples sorted in more than one round */
+  int gt_host_resolve;          /* lists too deep for the GPU resolve: blended on the host */
 } hfr_stats;
 
 typedef struct hfr_renderer hfr_renderer;

@@ -132,8 +132,11 @@ static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3]
   memcpy(c, root, 3 * sizeof(float));
 
   if (sp->style == HFR_STYLE_PONYTAIL) {
-    /* Over the scalp to the tie, then down. The tie sits at the back. */
-    const float tie[3] = {0.0f, 0.35f, -1.0f};
+    /* Over the scalp to the tie, then down. The tie, at the back, is a disc
+     * the strands pass through at random points (a point would put every
+     * strand in one pixel). */
+    float tr = 0.1f * sqrtf(hr_rng_uniform(g)), ta = 2 * HR_PI * hr_rng_uniform(g);
+    const float tie[3] = {tr * cosf(ta), 0.35f + tr * sinf(ta), -1.0f};
     float dt[3] = {tie[0] - root[0], tie[1] - root[1], tie[2] - root[2]};
     float dist = hr_len(dt) * 1.15f;
     int n1 = (int)(n * dist / len);

@@ -413,6 +413,7 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     rc = fbo_complete("A-buffer resolve", err, errlen);
   }
   float *tmp = NULL;
+  int host = 0; /* lists too deep for the shader: blend on the host */
   if (rc == HF_OK) {
     const float zero4[4] = {0, 0, 0, 0};
     hrgl.ClearBufferfv(GL_COLOR, 0, zero4);
@@ -439,18 +440,17 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
     hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, sizeof st, st);
     rc = hr_gl_check("A-buffer resolve", err, errlen);
-    if (rc == HF_OK && st[2] > 0) {
-      if (err) snprintf(err, errlen, "%u A-buffer lists too deep to resolve (longest %u): "
-                        "lower the strand count or raise the supersampling", st[2], st[0]);
-      rc = HF_ERANGE;
-    }
+    host = st[2] > 0;
     if (stats) {
+      stats->gt_host_resolve = host;
       stats->gt_fragments = count;
       stats->gt_max_depth = st[0];
       stats->gt_truncated = st[1];
     }
   }
-  if (rc == HF_OK) {
+  /* Lists too deep for the shader's loop budget: the host blends them all
+   * (same sort, same result, slower). */
+  if (rc == HF_OK && !host) {
     /* Premultiplied sums -> colour factor, highlight, alpha. */
     for (size_t i = 0; i < (size_t)W * H; i++) {
       float a = tmp[4 * i + 2];
@@ -459,7 +459,7 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     }
     flip_rows(tmp, gt, W, H, 3);
   }
-  if (rc == HF_OK && cpu_gt) {
+  if (rc == HF_OK && (cpu_gt || host)) {
     uint32_t *heads = malloc(sizeof(uint32_t) * (size_t)SW * SH);
     uint32_t *nodes = malloc(sizeof(uint32_t) * NODE_WORDS * (size_t)(count ? count : 1));
     float *cpu = malloc(sizeof(float) * 3 * (size_t)W * H);
@@ -475,7 +475,8 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
       rc = hr_gl_check("A-buffer read back", err, errlen);
     }
     if (rc == HF_OK) rc = hr_abuf_blend_cpu(heads, nodes, count, W, H, ss, cpu);
-    if (rc == HF_OK) flip_rows(cpu, cpu_gt, W, H, 3);
+    if (rc == HF_OK) flip_rows(cpu, cpu_gt ? cpu_gt : gt, W, H, 3);
+    if (rc == HF_OK && host && cpu_gt) memcpy(gt, cpu_gt, sizeof(float) * 3 * (size_t)W * H);
     free(heads);
     free(nodes);
     free(cpu);
