@@ -266,6 +266,47 @@ static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
   return rc;
 }
 
+/* Adds composite.<prefix>.R/G/B for every result triple in img (the
+ * ground truth and each baseline), with the view's colours. */
+static int add_composites(hf_image *img, const hfr_outputs *out, const hfr_view *v) {
+  char prefixes[2 + HFR_MAX_BASELINES][16];
+  int n = 0;
+  if (out->gt_supersample) snprintf(prefixes[n++], 16, "gt");
+  for (int i = 0; i < out->n_st; i++) snprintf(prefixes[n++], 16, "st%d", out->st_spp[i]);
+  if (out->opaque_samples) snprintf(prefixes[n++], 16, "opaque");
+  if (!n) return HF_OK;
+  hf_image big;
+  size_t px = (size_t)img->width * img->height;
+  int rc = hf_image_alloc(&big, img->width, img->height, img->channels + 3 * n);
+  if (rc != HF_OK) return rc;
+  float *rgb = malloc(sizeof(float) * 3 * px);
+  if (!rgb) {
+    hf_image_free(&big);
+    return HF_ENOMEM;
+  }
+  for (int c = 0; c < img->channels; c++) memcpy(big.names[c], img->names[c], sizeof big.names[c]);
+  for (size_t i = 0; i < px; i++)
+    memcpy(big.data + i * big.channels, img->data + i * img->channels,
+           sizeof(float) * img->channels);
+  for (int t = 0; rc == HF_OK && t < n; t++) {
+    rc = hfr_composite_channels(img, prefixes[t], v, rgb);
+    int c0 = img->channels + 3 * t;
+    for (int k = 0; k < 3; k++)
+      snprintf(big.names[c0 + k], sizeof big.names[c0 + k], "composite.%s.%c", prefixes[t],
+               "RGB"[k]);
+    for (size_t i = 0; rc == HF_OK && i < px; i++)
+      memcpy(big.data + i * big.channels + c0, rgb + 3 * i, 3 * sizeof(float));
+  }
+  free(rgb);
+  if (rc != HF_OK) {
+    hf_image_free(&big);
+    return rc;
+  }
+  hf_image_free(img);
+  *img = big;
+  return HF_OK;
+}
+
 static int run_frame(opts *o) {
   if (!o->out && !o->png) {
     fprintf(stderr, "hairfilter render frame: --out F.exr and/or --png PREFIX\n");
@@ -284,7 +325,9 @@ static int run_frame(opts *o) {
   int rc = hfr_render(r, &o->view, &o->outputs, &img, &st, err, sizeof err);
   if (rc == HF_OK) {
     if (!o->quiet) print_stats(r, &hair, &o->view, &st);
-    if (o->out && (rc = hf_exr_write(o->out, &img, o->half)) != HF_OK)
+    if (o->out && (rc = add_composites(&img, &o->outputs, &o->view)) != HF_OK)
+      fprintf(stderr, "hairfilter render: composites: %s\n", hf_strerror(rc));
+    if (rc == HF_OK && o->out && (rc = hf_exr_write(o->out, &img, o->half)) != HF_OK)
       fprintf(stderr, "hairfilter render: %s: %s\n", o->out, hf_strerror(rc));
     if (rc == HF_OK && o->png) {
       const char *prefixes[2 + HFR_MAX_BASELINES];
