@@ -208,6 +208,10 @@ def parse_args(argv):
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--crop", type=int, default=128)
     ap.add_argument("--lr", type=float, default=5e-4)
+    ap.add_argument("--schedule", default="cosine", choices=["cosine", "constant"],
+                    help="cosine: lr decays to --lr-floor x lr at --steps (a resumed run "
+                    "with a larger --steps continues on the stretched curve)")
+    ap.add_argument("--lr-floor", type=float, default=0.05)
     ap.add_argument("--grad-weight", type=float, default=1.0,
                     help="weight of the image-gradient MSE term")
     ap.add_argument("--styles", default="straight,wavy",
@@ -222,6 +226,10 @@ def parse_args(argv):
                     "faster) or with ConvTranspose2d; same parameters either way")
     ap.add_argument("--bf16", action="store_true", help="bf16 autocast (implies shuffle)")
     ap.add_argument("--resume", action="store_true", help="continue RUN/checkpoint.pt")
+    ap.add_argument("--stop-at", type=int, default=0,
+                    help="checkpoint and stop at this step (the run stays resumable)")
+    ap.add_argument("--time-limit", type=float, default=0,
+                    help="checkpoint and stop after this many seconds of this invocation")
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
     return ap.parse_args(argv)
@@ -243,6 +251,7 @@ def main(argv=None):
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles",
+                  "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16"):
             setattr(args, k, saved[k])
     cfg = hfnet.variant_config(args.variant)
@@ -284,7 +293,12 @@ def main(argv=None):
         val = history[-1]["val"] if history else None
         window = []
         t_start = time.time()
-        while step < args.steps:
+        stop = min(args.steps, args.stop_at) if args.stop_at > 0 else args.steps
+        while step < stop:
+            if args.schedule == "cosine":
+                f = args.lr_floor + (1 - args.lr_floor) * 0.5 * (1 + math.cos(math.pi * step / args.steps))
+                for g in opt.param_groups:
+                    g["lr"] = args.lr * f
             x, y = train_set.batch(np_rng, args.crop, args.batch)
             x, y = torch.from_numpy(x), torch.from_numpy(y)
             loss = hair_loss(forward(net, x, *mode), y, args.grad_weight)
@@ -297,7 +311,8 @@ def main(argv=None):
                 sys.exit(f"train.py: loss is {lv} at step {step}")
             ema = lv if ema is None else 0.98 * ema + 0.02 * lv
             window.append(lv)
-            last = step == args.steps
+            out_of_time = args.time_limit and time.time() - t_start > args.time_limit
+            last = step == stop or out_of_time
             if step % args.val_every == 0 or last:
                 val = validate(net, val_set, cfg["spp"], args.grad_weight, mode)
                 # loss: mean training loss since the previous record.
@@ -313,16 +328,20 @@ def main(argv=None):
                                 step=step, rng=rng_state(np_rng), args=vars(args),
                                 history=history, elapsed=elapsed + time.time() - t_start, ema=ema,
                                 config=cfg)
+            if out_of_time:
+                print(f"\ntime limit: stopped at step {step}; --resume continues", file=sys.stderr)
+                break
         prog.close()
         elapsed += time.time() - t_start
         with open(os.path.join(args.out, "summary.json"), "w") as f:
             json.dump(dict(variant=cfg["name"], steps=step, data=os.path.abspath(args.data),
                            styles=args.styles, train_frames=len(train_e),
                            val_frames=len(val_e), batch=args.batch, crop=args.crop,
-                           lr=args.lr, grad_weight=args.grad_weight, seed=args.seed,
+                           lr=args.lr, schedule=args.schedule, lr_floor=args.lr_floor,
+                           grad_weight=args.grad_weight, seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)
-        print(f"{cfg['name']}: step {step}, loss {ema:.6f}, validation "
+        print(f"{cfg['name']}: step {step}, loss {ema if ema is not None else float('nan'):.6f}, validation "
               f"{val if val is not None else float('nan'):.6f}, "
               f"{fmt_time(elapsed)} of training", file=sys.stderr)
     elif ckpt:

@@ -188,7 +188,7 @@ class Recipe(unittest.TestCase):
                   "--val-every", "4", "--ckpt-every", "4", "--seed", "9"]
         a, b = os.path.join(self.work, "ra"), os.path.join(self.work, "rb")
         run_train(*common, "--out", a, "--steps", "12", "--export", a + ".safetensors")
-        run_train(*common, "--out", b, "--steps", "8")
+        run_train(*common, "--out", b, "--steps", "12", "--stop-at", "8")
         r = run_train("--out", b, "--resume", "--steps", "12", "--export", b + ".safetensors")
         self.assertIn("resumed Small at step 8", r.stderr)
         _, sa = hfnet.load_safetensors(a + ".safetensors")
