@@ -490,6 +490,17 @@ int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
   for (int i = 0; i < 3; i++) wr_f32(&w, m->light[i]);
   for (int i = 0; i < 3; i++) wr_f32(&w, m->bg[i]);
   wr_bytes(&w, m->variant, vn);
+  if (m->flags & HFP_FILTER_SHM) {
+    /* The tensors stay in the segment: nothing follows the reference. */
+    if (!w.err && (m->shm_segment == 0 || (!(m->flags & HFP_FILTER_COMPOSITE) && m->shm_rgba)))
+      w.err = -HFP_E_INVALID;
+    wr_u32(&w, m->shm_segment);
+    wr_u32(&w, 0);
+    wr_u64(&w, m->shm_in);
+    wr_u64(&w, m->shm_out);
+    wr_u64(&w, m->shm_rgba);
+    data_len = 0;
+  }
   int rc = wr_finish(&w, HFP_FILTER, request_id, data_len);
   if (rc > 0 && frame_size) *frame_size = (uint64_t)rc + data_len;
   return rc;
@@ -514,14 +525,30 @@ int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
   if (r.err) return -HFP_E_NOSPACE;  /* the fixed part has not all arrived */
   if (vn < 1 || vn > HFP_NAME_MAX) return -HFP_E_INVALID;
   if ((size_t)HFP_FILTER_FIXED + vn > len) return -HFP_E_LENGTH;
-  if ((size_t)HFP_FILTER_FIXED + vn > avail) return -HFP_E_NOSPACE;
+  size_t need = (size_t)HFP_FILTER_FIXED + vn +
+                ((m->flags & HFP_FILTER_SHM) ? HFP_SHM_REF_SIZE : 0);
+  if (need > len) return -HFP_E_LENGTH;
+  if (need > avail) return -HFP_E_NOSPACE;
   rd_text(&r, vn, HFP_NAME_MAX, 0, 0, m->variant);
   if (r.err) return r.err;
   uint64_t data_len;
   int rc = filter_fields(m, &data_len);
   if (rc) return rc;
-  if ((uint64_t)len - r.off != data_len) return -HFP_E_LENGTH;
   m->data_len = data_len;
+  if (m->flags & HFP_FILTER_SHM) {
+    m->shm_segment = rd_u32(&r);
+    uint32_t reserved = rd_u32(&r);
+    m->shm_in = rd_u64(&r);
+    m->shm_out = rd_u64(&r);
+    m->shm_rgba = rd_u64(&r);
+    if (r.err) return r.err;
+    if (len != r.off) return -HFP_E_LENGTH;
+    if (m->shm_segment == 0 || reserved ||
+        (!(m->flags & HFP_FILTER_COMPOSITE) && m->shm_rgba))
+      return -HFP_E_INVALID;
+  } else if ((uint64_t)len - r.off != data_len) {
+    return -HFP_E_LENGTH;
+  }
   *head_len = r.off;
   return 0;
 }
@@ -530,7 +557,7 @@ int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m) {
   size_t head;
   int rc = hfp_decode_filter_head(payload, len, len, m, &head);
   if (rc) return rc == -HFP_E_NOSPACE ? -HFP_E_LENGTH : rc;
-  m->data = payload + head;
+  if (!(m->flags & HFP_FILTER_SHM)) m->data = payload + head;
   return 0;
 }
 
@@ -538,7 +565,7 @@ int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m) {
 
 static int result_sizes(const hfp_result *m, uint64_t *data_len, uint64_t *rgba_len) {
   *data_len = *rgba_len = 0;
-  if (m->flags & ~HFP_FILTER_COMPOSITE) return -HFP_E_INVALID;
+  if (m->flags & ~(HFP_FILTER_COMPOSITE | HFP_FILTER_SHM)) return -HFP_E_INVALID;
   if (m->status != HFP_OK) {
     if (m->status >= HFP_E_COUNT || m->width || m->height || m->flags)
       return -HFP_E_INVALID;
@@ -547,8 +574,12 @@ static int result_sizes(const hfp_result *m, uint64_t *data_len, uint64_t *rgba_
   int rc = hfp_output_bytes(m->width, m->height, HFP_OUTPUTS, m->dtype, data_len);
   if (rc) return rc;
   if (m->batch < 1) return -HFP_E_INVALID;
-  if (m->flags & HFP_FILTER_COMPOSITE)
-    return hfp_output_bytes(m->width, m->height, 4, m->dtype, rgba_len);
+  if (m->flags & HFP_FILTER_COMPOSITE) {
+    rc = hfp_output_bytes(m->width, m->height, 4, m->dtype, rgba_len);
+    if (rc) return rc;
+  }
+  /* SHM results were written to the segment: no tensor follows. */
+  if (m->flags & HFP_FILTER_SHM) *data_len = *rgba_len = 0;
   return 0;
 }
 
@@ -559,7 +590,7 @@ int hfp_encode_result_head(uint8_t *buf, size_t cap, uint32_t request_id,
   uint64_t dl = 0, rl = 0;
   int rc = result_sizes(m, &dl, &rl);
   if (rc) w.err = rc;
-  else if (m->data_len != dl || (rl && m->rgba_len != rl) || request_id == 0)
+  else if (m->data_len != dl || m->rgba_len != rl || request_id == 0)
     w.err = -HFP_E_INVALID;
   wr_u16(&w, m->status);
   wr_u8(&w, m->dtype);
@@ -717,4 +748,76 @@ int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
   int rc = rd_end(&r);
   if (rc) m->num_variants = 0;
   return rc;
+}
+
+/* ---- shared segments ------------------------------------------------------ */
+
+int hfp_encode_shm_create(uint8_t *buf, size_t cap, uint64_t bytes) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  if (bytes == 0) w.err = -HFP_E_INVALID;
+  wr_u64(&w, bytes);
+  return wr_finish(&w, HFP_SHM_CREATE, 0, 0);
+}
+
+int hfp_decode_shm_create(const uint8_t *payload, size_t len, uint64_t *bytes) {
+  rd r = {payload, len, 0, 0};
+  *bytes = rd_u64(&r);
+  int rc = rd_end(&r);
+  if (rc) return rc;
+  return *bytes ? 0 : -HFP_E_INVALID;
+}
+
+int hfp_encode_shm_created(uint8_t *buf, size_t cap, uint32_t segment, uint64_t bytes) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  if (segment == 0 || bytes == 0) w.err = -HFP_E_INVALID;
+  wr_u32(&w, segment);
+  wr_u64(&w, bytes);
+  return wr_finish(&w, HFP_SHM_CREATED, 0, 0);
+}
+
+int hfp_decode_shm_created(const uint8_t *payload, size_t len, uint32_t *segment,
+                           uint64_t *bytes) {
+  rd r = {payload, len, 0, 0};
+  *segment = rd_u32(&r);
+  *bytes = rd_u64(&r);
+  int rc = rd_end(&r);
+  if (rc) return rc;
+  return *segment && *bytes ? 0 : -HFP_E_INVALID;
+}
+
+int hfp_encode_shm_destroy(uint8_t *buf, size_t cap, uint32_t segment) {
+  wr w;
+  wr_begin(&w, buf, cap);
+  if (segment == 0) w.err = -HFP_E_INVALID;
+  wr_u32(&w, segment);
+  return wr_finish(&w, HFP_SHM_DESTROY, 0, 0);
+}
+
+int hfp_decode_shm_destroy(const uint8_t *payload, size_t len, uint32_t *segment) {
+  rd r = {payload, len, 0, 0};
+  *segment = rd_u32(&r);
+  int rc = rd_end(&r);
+  if (rc) return rc;
+  return *segment ? 0 : -HFP_E_INVALID;
+}
+
+/* Region [off, off + n) inside [0, size) and aligned to es. */
+static int region_ok(uint64_t off, uint64_t n, uint64_t size, size_t es) {
+  return off % es == 0 && off <= size && n <= size - off;
+}
+
+int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
+  uint64_t in_len, out_len, rgba_len = 0;
+  int rc = hfp_features_bytes(m->width, m->height, m->spp, m->in_dtype, &in_len);
+  if (!rc) rc = hfp_output_bytes(m->width, m->height, HFP_OUTPUTS, m->out_dtype, &out_len);
+  if (!rc && (m->flags & HFP_FILTER_COMPOSITE))
+    rc = hfp_output_bytes(m->width, m->height, 4, m->out_dtype, &rgba_len);
+  if (rc) return rc;
+  if (!region_ok(m->shm_in, in_len, seg_bytes, hfp_dtype_size(m->in_dtype)) ||
+      !region_ok(m->shm_out, out_len, seg_bytes, hfp_dtype_size(m->out_dtype)) ||
+      (rgba_len && !region_ok(m->shm_rgba, rgba_len, seg_bytes, hfp_dtype_size(m->out_dtype))))
+    return -HFP_E_LENGTH;
+  return 0;
 }

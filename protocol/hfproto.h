@@ -76,7 +76,10 @@ enum {
   HFP_ERROR         = 7,  /* server -> client */
   HFP_STATS         = 8,  /* client -> server, empty payload */
   HFP_STATS_REPLY   = 9,  /* server -> client */
-  HFP_TYPE_MAX      = 9
+  HFP_SHM_CREATE    = 10, /* client -> server: a shared segment, please */
+  HFP_SHM_CREATED   = 11, /* server -> client: its id; the fd rides along */
+  HFP_SHM_DESTROY   = 12, /* client -> server: done with a segment */
+  HFP_TYPE_MAX      = 12
 };
 
 /* Element types of tensors on the wire (same values as hfcore's hf_dtype). */
@@ -85,11 +88,15 @@ enum { HFP_F32 = 0, HFP_F16 = 1 };
 
 /* FILTER flags. */
 #define HFP_FILTER_COMPOSITE 0x0001u  /* also return composited RGBA */
-#define HFP_FILTER_SHM       0x0002u  /* reserved: payload in shared memory (v2) */
+#define HFP_FILTER_SHM       0x0002u  /* tensors in a shared segment, not the frame */
 #define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM)
 
 /* HELLO_OK server flags. */
 #define HFP_SERVER_AUTH_REQUIRED 0x0001u  /* this listener checked a token */
+#define HFP_SERVER_SHM           0x0002u  /* this connection can use SHM_CREATE */
+
+/* Size of the shared-memory reference that replaces a FILTER's tensor. */
+#define HFP_SHM_REF_SIZE 32
 
 /* ---- header ------------------------------------------------------------- */
 
@@ -145,7 +152,10 @@ typedef struct hfp_filter {
   uint8_t in_dtype, out_dtype;
   float hair[3], light[3], bg[3];     /* linear RGB, used with COMPOSITE */
   const void *data;                   /* [h][w][spp*6] of in_dtype */
-  uint64_t data_len;
+  uint64_t data_len;                  /* bytes of features, sent or in the segment */
+  /* With HFP_FILTER_SHM: where the tensors are in segment shm_segment. */
+  uint32_t shm_segment;
+  uint64_t shm_in, shm_out, shm_rgba;
 } hfp_filter;
 
 /* Server-side per-request timing, microseconds. */
@@ -259,6 +269,18 @@ int hfp_decode_result_head(const uint8_t *payload, size_t avail, size_t len,
                            hfp_result *m);
 int hfp_decode_error(const uint8_t *payload, size_t len, hfp_error *m);
 int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m);
+
+/* Shared segments (PROTOCOL.md, "Shared memory"). */
+int hfp_encode_shm_create(uint8_t *buf, size_t cap, uint64_t bytes);
+int hfp_decode_shm_create(const uint8_t *payload, size_t len, uint64_t *bytes);
+int hfp_encode_shm_created(uint8_t *buf, size_t cap, uint32_t segment, uint64_t bytes);
+int hfp_decode_shm_created(const uint8_t *payload, size_t len, uint32_t *segment,
+                           uint64_t *bytes);
+int hfp_encode_shm_destroy(uint8_t *buf, size_t cap, uint32_t segment);
+int hfp_decode_shm_destroy(const uint8_t *payload, size_t len, uint32_t *segment);
+/* Checks a FILTER's SHM reference against a segment of seg_bytes: every
+ * region inside it and aligned to its element size. */
+int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes);
 
 /* Version negotiation: the highest version both sides speak, or
  * HFP_E_VERSION. */

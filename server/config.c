@@ -25,6 +25,8 @@ static void usage(FILE *f) {
           "  --max-frame-mb N         largest payload read, MiB (default 1024)\n"
           "  --max-memory-mb N        request buffers held at once, MiB (default 4096)\n"
           "  --max-connections N      open connections (default 256)\n"
+          "  --max-shm-mb N           shared segments for Unix-socket clients, MiB (default\n"
+          "                           1024; 0: no shared memory)\n"
           "  --auth-token-file FILE   token TCP clients must send (or $HAIRFILTERD_TOKEN)\n"
           "  --no-auth                accept TCP clients without a token (loopback only)\n"
           "  --drain-timeout-ms N     on SIGTERM, how long queued work may finish (default 10000)\n"
@@ -81,6 +83,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   cfg->max_connections = 256;
   cfg->max_frame_bytes = 1024ull << 20;
   cfg->max_memory_bytes = 4096ull << 20;
+  cfg->max_shm_bytes = 1024ull << 20;
   cfg->drain_timeout_ms = 10000;
   cfg->stall_timeout_ms = 30000;
   cfg->name = "hairfilterd";
@@ -156,6 +159,10 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       NEED_VAL;
       if (parse_int(a, val, 1, 1 << 30, &v)) return -1;
       cfg->max_memory_bytes = (uint64_t)v << 20;
+    } else if (!strcmp(a, "--max-shm-mb")) {
+      NEED_VAL;
+      if (parse_int(a, val, 0, 1 << 30, &v)) return -1;
+      cfg->max_shm_bytes = (uint64_t)v << 20;
     } else if (!strcmp(a, "--max-connections")) {
       NEED_VAL;
       if (parse_int(a, val, 1, 1000000, &v)) return -1;

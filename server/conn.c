@@ -20,6 +20,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "server.h"
 
@@ -174,9 +175,14 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
 
 static void job_free(hfd_server *s, hfd_job *j) {
   s->mem_held -= j->bytes_held;
-  free(j->input);
-  free(j->out);
-  free(j->rgba);
+  if (j->seg) {
+    /* The tensors are the client's, in the segment. */
+    hfd_seg_unref(s, j->seg);
+  } else {
+    free(j->input);
+    free(j->out);
+    free(j->rgba);
+  }
   free(j);
 }
 
@@ -238,6 +244,10 @@ static void deliver(hfd_server *s, hfd_job *j) {
     r.data_len = j->out_len;
     r.rgba = j->rgba;
     r.rgba_len = j->rgba_len;
+    if (j->seg) {
+      r.flags |= HFP_FILTER_SHM;
+      r.data_len = r.rgba_len = 0;
+    }
   }
   uint64_t total;
   int n = hfp_encode_result_head(j->head, sizeof j->head, j->request_id, &r, &total);
@@ -256,10 +266,12 @@ static void deliver(hfd_server *s, hfd_job *j) {
   if (r.rgba_len) bufs[nbufs++] = uv_buf_init(j->rgba, (unsigned)r.rgba_len);
   /* The input tensor is no longer needed; give its memory back now rather
    * than when the (possibly slow) client has read the reply. */
-  free(j->input);
-  j->input = NULL;
-  s->mem_held -= j->req.data_len;
-  j->bytes_held -= j->req.data_len;
+  if (!j->seg) {
+    free(j->input);
+    j->input = NULL;
+    s->mem_held -= j->req.data_len;
+    j->bytes_held -= j->req.data_len;
+  }
   j->wreq.data = j;
   int rc = uv_write(&j->wreq, &c->h.stream, bufs, nbufs, on_result_written);
   if (rc < 0) {
@@ -322,7 +334,8 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   hfp_hello_ok ok;
   memset(&ok, 0, sizeof ok);
   ok.version = HFP_VERSION;
-  ok.server_flags = c->listener->auth_required ? HFP_SERVER_AUTH_REQUIRED : 0;
+  ok.server_flags = (c->listener->auth_required ? HFP_SERVER_AUTH_REQUIRED : 0) |
+                    (c->is_ipc ? HFP_SERVER_SHM : 0);
   ok.max_width = (uint32_t)s->cfg->max_width;
   ok.max_height = (uint32_t)s->cfg->max_height;
   int max_spp = 1;
@@ -415,6 +428,47 @@ static void reject(hfd_conn *c, int variant, int code, uint64_t left, const char
   discard_rest(c, left);
 }
 
+static void filter_admit(hfd_conn *c);
+
+static hfd_seg *find_seg(hfd_conn *c, uint32_t id) {
+  for (hfd_seg *g = c->segs; g; g = g->next)
+    if (g->id == id) return g;
+  return NULL;
+}
+
+/* A FILTER whose tensors are in a segment: nothing more to read; point the
+ * job at the segment and admit it. */
+static void filter_shm(hfd_conn *c, int v, const hfp_filter *f) {
+  hfd_seg *g = find_seg(c, f->shm_segment);
+  if (!g) {
+    reject(c, v, HFP_E_INVALID, 0, "no segment %u on this connection", f->shm_segment);
+    return;
+  }
+  int rc = hfp_shm_check(f, g->size);
+  if (rc) {
+    reject(c, v, -rc, 0, "tensors outside segment %u (%llu bytes) or misaligned",
+           f->shm_segment, (unsigned long long)g->size);
+    return;
+  }
+  hfd_job *j = calloc(1, sizeof *j);
+  if (!j) {
+    reject(c, v, HFP_E_BUSY, 0, "out of memory");
+    return;
+  }
+  j->conn = c;
+  j->request_id = c->hdr.request_id;
+  j->variant = v;
+  j->req = *f;
+  j->seg = g;
+  g->refs++;
+  j->input = g->addr + f->shm_in;
+  j->req.data = j->input;
+  j->out = g->addr + f->shm_out;
+  j->rgba = (f->flags & HFP_FILTER_COMPOSITE) ? g->addr + f->shm_rgba : NULL;
+  c->job = j;
+  filter_admit(c);
+}
+
 /* The FILTER head is in ctl[]: check it against the server and, when it
  * passes, allocate the job that the tensor will be read into. */
 static void filter_head(hfd_conn *c, size_t have) {
@@ -425,8 +479,10 @@ static void filter_head(hfd_conn *c, size_t have) {
   size_t head_len = 0;
   int rc = hfp_decode_filter_head(c->ctl, have, len, &f, &head_len);
   if (rc == -HFP_E_NOSPACE) {
-    /* The fixed fields are in; the variant name is still to come. */
-    size_t need = HFP_FILTER_FIXED + hfp_get_u16(c->ctl);
+    /* The fixed fields are in; the variant name (and, for SHM, the segment
+     * reference) is still to come. The codec has checked that it fits. */
+    size_t need = HFP_FILTER_FIXED + hfp_get_u16(c->ctl) +
+                  ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_SHM) ? HFP_SHM_REF_SIZE : 0);
     c->want = need;
     return;
   }
@@ -440,8 +496,8 @@ static void filter_head(hfd_conn *c, size_t have) {
     reject(c, v, HFP_E_INVALID, left, "request id 0 is reserved");
   } else if (v < 0) {
     reject(c, -1, HFP_E_UNKNOWN_VARIANT, left, "unknown variant '%s'", f.variant);
-  } else if (f.flags & HFP_FILTER_SHM) {
-    reject(c, v, HFP_E_UNSUPPORTED, left, "shared-memory payloads are reserved for a later version");
+  } else if ((f.flags & HFP_FILTER_SHM) && !c->is_ipc) {
+    reject(c, v, HFP_E_UNSUPPORTED, left, "shared memory needs a Unix socket");
   } else if (f.spp != s->variants[v].cfg.spp) {
     reject(c, v, HFP_E_INVALID, left, "variant %s takes %d spp, request has %u", f.variant,
            s->variants[v].cfg.spp, f.spp);
@@ -450,6 +506,8 @@ static void filter_head(hfd_conn *c, size_t have) {
            cfg->max_width, cfg->max_height);
   } else if (s->draining) {
     reject(c, v, HFP_E_SHUTTING_DOWN, left, "server is shutting down");
+  } else if (f.flags & HFP_FILTER_SHM) {
+    filter_shm(c, v, &f);
   } else {
     uint64_t out_len = 0, rgba_len = 0;
     hfp_output_bytes(f.width, f.height, HFP_OUTPUTS, f.out_dtype, &out_len);
@@ -500,8 +558,10 @@ static void filter_admit(hfd_conn *c) {
     code = HFP_E_BUSY;
     why = "too many requests in flight on this connection";
   } else {
-    j->out = malloc((size_t)j->out_len);
-    j->rgba = j->rgba_len ? malloc((size_t)j->rgba_len) : NULL;
+    if (!j->seg) {
+      j->out = malloc((size_t)j->out_len);
+      j->rgba = j->rgba_len ? malloc((size_t)j->rgba_len) : NULL;
+    }
     if (!j->out || (j->rgba_len && !j->rgba)) {
       code = HFP_E_BUSY;
       why = "out of memory for the result";
@@ -553,6 +613,18 @@ static void on_header(hfd_conn *c) {
         return;
       }
       break;
+    case HFP_SHM_CREATE:
+    case HFP_SHM_DESTROY:
+      if (!c->is_ipc) {
+        reject(c, -1, HFP_E_UNSUPPORTED, h->length, "shared memory needs a Unix socket");
+        return;
+      }
+      if (h->length != (h->type == HFP_SHM_CREATE ? 8u : 4u)) {
+        s->protocol_errors++;
+        send_error(c, 0, HFP_E_LENGTH, 1, "malformed shared-memory request");
+        return;
+      }
+      break;
     case HFP_LIST_VARIANTS:
     case HFP_STATS:
       if (h->length != 0) {
@@ -588,8 +660,108 @@ static void on_header(hfd_conn *c) {
   }
 }
 
+typedef struct fd_write {
+  uv_write_t req;
+  hfd_conn *c;
+  uv_pipe_t fdpipe;              /* wraps the memfd so libuv can send it */
+  uint8_t data[HFP_HEADER_SIZE + 12];
+} fd_write;
+
+static void on_fdpipe_closed(uv_handle_t *h) { free(h->data); }
+
+static void on_fd_written(uv_write_t *req, int status) {
+  fd_write *w = (fd_write *)req;
+  hfd_conn *c = w->c;
+  wrote_one(c);
+  if (status < 0 && status != UV_ECANCELED)
+    hfd_debug("conn %llu: segment send failed: %s", (unsigned long long)c->id, uv_strerror(status));
+  if (status < 0) conn_close(c);
+  /* Our copy of the fd goes; the mapping and the client's copy stay. */
+  w->fdpipe.data = w;
+  uv_close((uv_handle_t *)&w->fdpipe, on_fdpipe_closed);
+  conn_release(c);
+}
+
+static void shm_create(hfd_conn *c) {
+  hfd_server *s = c->srv;
+  uint64_t bytes;
+  if (hfp_decode_shm_create(c->ctl, c->want, &bytes)) {
+    send_error(c, 0, HFP_E_INVALID, 0, "segment size must be at least 1 byte");
+    return;
+  }
+  if (c->num_segs >= HFD_MAX_SEGMENTS) {
+    send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
+    return;
+  }
+  char why[200];
+  hfd_seg *g;
+  int fd;
+  int code = hfd_seg_create(s, bytes, &g, &fd, why, sizeof why);
+  if (code) {
+    send_error(c, 0, code, 0, "%s", why);
+    return;
+  }
+  do g->id = ++c->next_seg_id; while (g->id == 0 || find_seg(c, g->id));
+  fd_write *w = calloc(1, sizeof *w);
+  int rc = w ? uv_pipe_init(s->loop, &w->fdpipe, 0) : UV_ENOMEM;
+  if (rc == 0 && (rc = uv_pipe_open(&w->fdpipe, fd)) < 0) {
+    /* not open: close the handle (it owns nothing yet) and the fd ourselves */
+    w->fdpipe.data = w;
+    uv_close((uv_handle_t *)&w->fdpipe, on_fdpipe_closed);
+    w = NULL;
+    close(fd);
+    fd = -1;
+  }
+  if (rc < 0) {
+    if (fd >= 0) close(fd);
+    free(w);
+    hfd_seg_drop(s, g);
+    send_error(c, 0, HFP_E_INTERNAL, 0, "cannot pass the segment: %s", uv_strerror(rc));
+    return;
+  }
+  int n = hfp_encode_shm_created(w->data, sizeof w->data, g->id, bytes);
+  w->c = c;
+  uv_buf_t b = uv_buf_init((char *)w->data, (unsigned)(n > 0 ? n : 0));
+  rc = n > 0 ? uv_write2(&w->req, &c->h.stream, &b, 1, (uv_stream_t *)&w->fdpipe, on_fd_written)
+             : UV_EINVAL;
+  if (rc < 0) {
+    w->fdpipe.data = w;
+    uv_close((uv_handle_t *)&w->fdpipe, on_fdpipe_closed);
+    hfd_seg_drop(s, g);
+    send_error(c, 0, HFP_E_INTERNAL, 0, "cannot pass the segment: %s", uv_strerror(rc));
+    return;
+  }
+  writing_one(c);
+  g->next = c->segs;
+  c->segs = g;
+  c->num_segs++;
+  hfd_debug("conn %llu: segment %u of %llu bytes", (unsigned long long)c->id, g->id,
+            (unsigned long long)bytes);
+}
+
+static void shm_destroy(hfd_conn *c) {
+  uint32_t id = 0;
+  hfd_seg **pp = &c->segs;
+  if (hfp_decode_shm_destroy(c->ctl, c->want, &id) == 0)
+    for (; *pp; pp = &(*pp)->next)
+      if ((*pp)->id == id) break;
+  if (!id || !*pp) {
+    send_error(c, 0, HFP_E_INVALID, 0, "no segment %u on this connection", id);
+    return;
+  }
+  hfd_seg *g = *pp;
+  *pp = g->next;
+  c->num_segs--;
+  /* Frames still running on it keep it mapped until they are answered. */
+  hfd_seg_drop(c->srv, g);
+}
+
 static void on_control(hfd_conn *c) {
-  if (c->hdr.type == HFP_HELLO) reply_hello(c, c->ctl, c->want);
+  switch (c->hdr.type) {
+    case HFP_HELLO: reply_hello(c, c->ctl, c->want); break;
+    case HFP_SHM_CREATE: shm_create(c); break;
+    case HFP_SHM_DESTROY: shm_destroy(c); break;
+  }
   if (!c->fatal_sent) read_next(c);
 }
 
@@ -639,6 +811,13 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     return;
   }
   if (c->fatal_sent || c->closing) return;
+  if (c->is_ipc && uv_pipe_pending_count(&c->h.pipe) > 0) {
+    /* Descriptors only go from server to client; libuv closes the queued
+     * ones with the connection. */
+    c->srv->protocol_errors++;
+    send_error(c, 0, HFP_E_PROTOCOL, 1, "clients may not send file descriptors");
+    return;
+  }
   c->t_last_read = hfd_now_us();
   size_t n = (size_t)nread;
   if (c->rstate == RD_DISCARD) {
@@ -679,6 +858,12 @@ static void conn_close(hfd_conn *c) {
     job_free(c->srv, c->job);
     c->job = NULL;
   }
+  while (c->segs) {
+    hfd_seg *g = c->segs;
+    c->segs = g->next;
+    hfd_seg_drop(c->srv, g);
+  }
+  c->num_segs = 0;
   uv_close(&c->h.handle, on_closed);
 }
 
@@ -739,7 +924,10 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   }
   c->srv = s;
   c->listener = l;
-  int rc = l->is_tcp ? uv_tcp_init(s->loop, &c->h.tcp) : uv_pipe_init(s->loop, &c->h.pipe, 0);
+  /* Unix connections are IPC pipes so that segment fds can be passed. */
+  c->is_ipc = !l->is_tcp && s->cfg->max_shm_bytes > 0;
+  int rc = l->is_tcp ? uv_tcp_init(s->loop, &c->h.tcp)
+                     : uv_pipe_init(s->loop, &c->h.pipe, c->is_ipc);
   if (rc < 0) {
     hfd_log("error: %s: handle init: %s", l->url, uv_strerror(rc));
     free(c);

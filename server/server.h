@@ -49,6 +49,7 @@ typedef struct hfd_config {
   int max_connections;
   uint64_t max_frame_bytes;      /* largest payload read */
   uint64_t max_memory_bytes;     /* request buffers held at once */
+  uint64_t max_shm_bytes;        /* shared segments held at once; 0: no SHM */
   int drain_timeout_ms;
   int stall_timeout_ms;          /* mid-frame or pre-HELLO silence; 0: none */
   int no_auth;
@@ -74,6 +75,21 @@ typedef struct hfd_variant {
 
 struct hfd_conn;
 
+/* A shared-memory segment made for one connection (shm.c): a sealed
+ * memfd, so the peer can neither shrink it under us (no SIGBUS) nor grow
+ * it past what was counted. Jobs that use it hold references; it is
+ * unmapped when its connection or SHM_DESTROY dropped it and no job is left. */
+#define HFD_MAX_SEGMENTS 16
+
+typedef struct hfd_seg {
+  struct hfd_seg *next;
+  uint32_t id;
+  uint8_t *addr;
+  uint64_t size;
+  int refs;                      /* jobs using it */
+  int dropped;                   /* no longer reachable by id */
+} hfd_seg;
+
 typedef struct hfd_job {
   struct hfd_job *next;
   struct hfd_conn *conn;
@@ -89,6 +105,7 @@ typedef struct hfd_job {
   uint32_t batch;
   int batch_leader;              /* counts the backend run in the stats */
   int status;                    /* HFP_OK or an HFP_E_* code */
+  hfd_seg *seg;                  /* tensors live in this segment, or NULL */
   uint8_t head[HFP_RESULT_HEAD_MAX];
   uv_write_t wreq;
 } hfd_job;
@@ -182,6 +199,10 @@ typedef struct hfd_conn {
   int inflight;                  /* jobs admitted and not yet answered */
   int writes_pending;
   int read_paused;               /* too many replies unread by the peer */
+  int is_ipc;                    /* a Unix socket that can pass segments */
+  hfd_seg *segs;
+  int num_segs;
+  uint32_t next_seg_id;
   double t_last_read;            /* for the stall sweep */
 
   enum hfd_read_state rstate;
@@ -211,6 +232,7 @@ struct hfd_server {
   uint64_t conns_total, next_conn_id;
   uint64_t protocol_errors;
   uint64_t mem_held;             /* bytes of request/response buffers */
+  uint64_t shm_held;             /* bytes of shared segments */
   int jobs_outstanding;          /* admitted, not yet answered */
   int draining, stopped;
   double t_start;
@@ -224,6 +246,14 @@ void hfd_conn_shutdown(hfd_conn *c);
 /* Fails connections silent for longer than the stall timeout in the middle
  * of a frame or before their HELLO. */
 void hfd_sweep_stalled(hfd_server *s);
+/* shm.c */
+/* Makes a sealed, mapped segment of bytes; *fd is its memfd, which the
+ * caller sends to the peer and then closes. */
+int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *why,
+                   size_t whylen);
+void hfd_seg_unref(hfd_server *s, hfd_seg *g);
+/* Drops the connection's reference (SHM_DESTROY or close). */
+void hfd_seg_drop(hfd_server *s, hfd_seg *g);
 /* server.c */
 void hfd_maybe_finish(hfd_server *s);
 void hfd_fill_stats(hfd_server *s, hfp_stats *st);

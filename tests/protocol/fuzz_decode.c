@@ -61,9 +61,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     case 3:
       rc = hfp_decode_filter(p, len, &f);
       check_rc("filter", rc);
-      if (!rc && (f.data_len != len - HFP_FILTER_FIXED - strlen(f.variant) ||
-                  (const uint8_t *)f.data + f.data_len != p + len))
+      if (!rc && !(f.flags & HFP_FILTER_SHM) &&
+          (f.data_len != len - HFP_FILTER_FIXED - strlen(f.variant) ||
+           (const uint8_t *)f.data + f.data_len != p + len))
         fail("filter data bounds", 0);
+      if (!rc && (f.flags & HFP_FILTER_SHM)) {
+        if (len != HFP_FILTER_FIXED + strlen(f.variant) + HFP_SHM_REF_SIZE) fail("shm filter bounds", 0);
+        check_rc("shm_check", hfp_shm_check(&f, UINT64_MAX));
+      }
       break;
     case 4:
       rc = hfp_decode_result(p, len, &r);
@@ -71,6 +76,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
       if (!rc && HFP_RESULT_FIXED + r.data_len + r.rgba_len != len) fail("result bounds", 0);
       rc = hfp_decode_error(p, len, &e);
       check_rc("error", rc);
+      {
+        uint64_t bytes;
+        uint32_t seg;
+        check_rc("shm_create", hfp_decode_shm_create(p, len, &bytes));
+        check_rc("shm_created", hfp_decode_shm_created(p, len, &seg, &bytes));
+        check_rc("shm_destroy", hfp_decode_shm_destroy(p, len, &seg));
+      }
       break;
     case 5:
       rc = hfp_decode_stats(p, len, &st);
@@ -114,7 +126,7 @@ static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
     }
     case 3: {
       static float d[2 * 2 * 6];
-      hfp_filter m = {"Base", 0, 2, 2, 1, HFP_F32, HFP_F32, {0}, {0}, {0}, d, sizeof d};
+      hfp_filter m = {"Base", 0, 2, 2, 1, HFP_F32, HFP_F32, {0}, {0}, {0}, d, sizeof d, 0, 0, 0, 0};
       uint64_t total;
       n = hfp_encode_filter_head(b, cap, 1, &m, &total);
       if (n > 0) {

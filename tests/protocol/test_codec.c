@@ -500,6 +500,115 @@ static void test_stats(void **state) {
   assert_int_equal(hfp_encode_stats(buf, sizeof buf, &m), -HFP_E_INVALID);
 }
 
+static void test_filter_shm(void **state) {
+  (void)state;
+  hfp_filter m = sample_filter(NULL, 8, 4, 2), d;
+  m.flags = HFP_FILTER_SHM | HFP_FILTER_COMPOSITE;
+  m.shm_segment = 3;
+  m.shm_in = 0;
+  m.shm_out = 4096;
+  m.shm_rgba = 8192;
+  uint64_t total;
+  int n = hfp_encode_filter_head(buf, sizeof buf, 7, &m, &total);
+  assert_int_equal(n, HFP_HEADER_SIZE + HFP_FILTER_FIXED + 4 + HFP_SHM_REF_SIZE);
+  assert_int_equal(total, (uint64_t)n); /* no tensor follows */
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_FILTER, &h);
+  assert_int_equal(hfp_decode_filter(p, h.length, &d), 0);
+  assert_int_equal(d.shm_segment, 3);
+  assert_int_equal(d.shm_in, 0);
+  assert_int_equal(d.shm_out, 4096);
+  assert_int_equal(d.shm_rgba, 8192);
+  assert_null(d.data);
+  assert_int_equal(d.data_len, 8 * 4 * 2 * 6 * 4);
+  /* head decoding wants the reference too */
+  size_t head;
+  assert_int_equal(hfp_decode_filter_head(p, HFP_FILTER_FIXED + 4, h.length, &d, &head),
+                   -HFP_E_NOSPACE);
+  for (uint32_t len = 0; len < h.length; len++)
+    assert_int_equal(hfp_decode_filter(p, len, &d), -HFP_E_LENGTH);
+  uint8_t c[256];
+  memcpy(c, p, h.length);
+  assert_int_equal(hfp_decode_filter(c, h.length + 1, &d), -HFP_E_LENGTH);
+  size_t ref = HFP_FILTER_FIXED + 4;
+  memcpy(c, p, h.length);
+  hfp_put_u32(c + ref, 0); /* segment 0 */
+  assert_int_equal(hfp_decode_filter(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  hfp_put_u32(c + ref + 4, 1); /* reserved */
+  assert_int_equal(hfp_decode_filter(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  hfp_put_u16(c + 2, HFP_FILTER_SHM); /* rgba offset without COMPOSITE */
+  assert_int_equal(hfp_decode_filter(c, h.length, &d), -HFP_E_INVALID);
+  m.shm_segment = 0;
+  assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 7, &m, &total), -HFP_E_INVALID);
+
+  /* bounds and alignment against the segment */
+  m.shm_segment = 3;
+  assert_int_equal(hfp_decode_filter(p, h.length, &d), 0);
+  uint64_t rgba_end = 8192 + 8 * 4 * 4 * 2;
+  assert_int_equal(hfp_shm_check(&d, rgba_end), 0);
+  assert_int_equal(hfp_shm_check(&d, rgba_end - 1), -HFP_E_LENGTH);
+  d.shm_out = 4097; /* f16 output at an odd byte */
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+  d.shm_out = 4096;
+  d.shm_in = UINT64_MAX - 3; /* offset + length overflows */
+  assert_int_equal(hfp_shm_check(&d, UINT64_MAX), -HFP_E_LENGTH);
+  d.shm_in = 2; /* f32 input not 4-aligned */
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+
+  /* a RESULT for it carries no tensor */
+  hfp_result r;
+  memset(&r, 0, sizeof r);
+  r.dtype = HFP_F16;
+  r.flags = HFP_FILTER_SHM | HFP_FILTER_COMPOSITE;
+  r.width = 8;
+  r.height = 4;
+  r.batch = 1;
+  n = hfp_encode_result_head(buf, sizeof buf, 7, &r, &total);
+  assert_int_equal(total, (uint64_t)n);
+  p = split(buf, n, HFP_RESULT, &h);
+  hfp_result rd;
+  assert_int_equal(hfp_decode_result(p, h.length, &rd), 0);
+  assert_int_equal(rd.flags, HFP_FILTER_SHM | HFP_FILTER_COMPOSITE);
+  assert_null(rd.data);
+  assert_null(rd.rgba);
+  r.data_len = 10;
+  assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 7, &r, &total), -HFP_E_INVALID);
+}
+
+static void test_shm_messages(void **state) {
+  (void)state;
+  hfp_header h;
+  uint64_t bytes;
+  uint32_t seg;
+  int n = hfp_encode_shm_create(buf, sizeof buf, 123456789012ull);
+  const uint8_t *p = split(buf, n, HFP_SHM_CREATE, &h);
+  assert_int_equal(hfp_decode_shm_create(p, h.length, &bytes), 0);
+  assert_int_equal(bytes, 123456789012ull);
+  assert_int_equal(hfp_decode_shm_create(p, h.length - 1, &bytes), -HFP_E_LENGTH);
+  uint8_t zero[12] = {0};
+  assert_int_equal(hfp_decode_shm_create(zero, 8, &bytes), -HFP_E_INVALID);
+  assert_int_equal(hfp_encode_shm_create(buf, sizeof buf, 0), -HFP_E_INVALID);
+
+  n = hfp_encode_shm_created(buf, sizeof buf, 9, 4096);
+  p = split(buf, n, HFP_SHM_CREATED, &h);
+  assert_int_equal(hfp_decode_shm_created(p, h.length, &seg, &bytes), 0);
+  assert_int_equal(seg, 9);
+  assert_int_equal(bytes, 4096);
+  assert_int_equal(hfp_decode_shm_created(p, h.length + 1, &seg, &bytes), -HFP_E_LENGTH);
+  assert_int_equal(hfp_decode_shm_created(zero, 12, &seg, &bytes), -HFP_E_INVALID);
+  assert_int_equal(hfp_encode_shm_created(buf, sizeof buf, 0, 1), -HFP_E_INVALID);
+
+  n = hfp_encode_shm_destroy(buf, sizeof buf, 9);
+  p = split(buf, n, HFP_SHM_DESTROY, &h);
+  assert_int_equal(hfp_decode_shm_destroy(p, h.length, &seg), 0);
+  assert_int_equal(seg, 9);
+  assert_int_equal(hfp_decode_shm_destroy(p, 3, &seg), -HFP_E_LENGTH);
+  assert_int_equal(hfp_decode_shm_destroy(zero, 4, &seg), -HFP_E_INVALID);
+  assert_int_equal(hfp_encode_shm_destroy(buf, sizeof buf, 0), -HFP_E_INVALID);
+}
+
 static void test_histogram(void **state) {
   (void)state;
   assert_int_equal(hfp_hist_bucket(0), 0);
@@ -523,6 +632,7 @@ int main(void) {
     cmocka_unit_test(test_variants), cmocka_unit_test(test_filter),
     cmocka_unit_test(test_result),  cmocka_unit_test(test_error),
     cmocka_unit_test(test_stats),   cmocka_unit_test(test_histogram),
+    cmocka_unit_test(test_filter_shm), cmocka_unit_test(test_shm_messages),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -371,10 +371,10 @@ static void test_bad_requests_keep_connection(void **state) {
   f[HFP_HEADER_SIZE + 14] = 9;
   expect_error(fd, f, len, 7, HFP_E_UNSUPPORTED);
   free(f);
-  /* the reserved shared-memory flag */
+  /* the shared-memory flag on a frame that carries its tensor */
   f = raw_filter(8, "Tiny", 8, 8, 2, in, &len);
   hfp_put_u16(f + HFP_HEADER_SIZE + 2, HFP_FILTER_SHM);
-  expect_error(fd, f, len, 8, HFP_E_UNSUPPORTED);
+  expect_error(fd, f, len, 8, HFP_E_LENGTH);
   free(f);
   /* request id 0 is reserved */
   f = raw_filter(9, "Tiny", 8, 8, 2, in, &len);
@@ -449,7 +449,8 @@ static void test_stats(void **state) {
     assert_true(v->batches <= v->requests_ok);
     assert_true(v->sum_queue_us + v->sum_infer_us <= v->sum_total_us);
     ok += v->requests_ok;
-    if (!strcmp(v->name, "Tiny")) assert_true(v->rejected >= 4);
+    /* too large, wrong spp, id 0 (the rest fail before a variant is known) */
+    if (!strcmp(v->name, "Tiny")) assert_true(v->rejected >= 3);
   }
   /* the earlier tests in this group filtered well over 40 frames */
   assert_true(ok >= 40);
@@ -811,7 +812,11 @@ static void test_garbage_survived(void **state) {
   hfc_client *c = connect_unix();
   filter_and_compare(c, "Tiny", 6, 4, 0, 9);
   hfc_stats st;
-  assert_int_equal(hfc_get_stats(c, &st), 0);
+  for (int i = 0; i < 50; i++) {
+    assert_int_equal(hfc_get_stats(c, &st), 0);
+    if (st.connections_open == 1) break;
+    usleep(100000);
+  }
   assert_int_equal(st.connections_open, 1);
   assert_int_equal(st.queue_depth, 0);
   hfc_close(c);

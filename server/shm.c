@@ -1,0 +1,75 @@
+/*
+ * Shared-memory segments for local clients (PROTOCOL.md, "Shared memory").
+ *
+ * The server, not the client, makes each segment: a memfd, sized, sealed
+ * against shrinking and growing, mapped, and handed to the client over the
+ * Unix socket. A client-made segment could be truncated while the worker
+ * reads it, and the worker would die of SIGBUS; a sealed one cannot change
+ * size, so the worst a client can do is scribble over its own frame.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include "server.h"
+
+int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *why,
+                   size_t whylen) {
+  *out = NULL;
+  *fd = -1;
+  if (bytes > s->cfg->max_shm_bytes || s->shm_held + bytes > s->cfg->max_shm_bytes) {
+    snprintf(why, whylen, "shared memory full (%llu of %llu MiB held)",
+             (unsigned long long)(s->shm_held >> 20),
+             (unsigned long long)(s->cfg->max_shm_bytes >> 20));
+    return HFP_E_BUSY;
+  }
+  hfd_seg *g = calloc(1, sizeof *g);
+  if (!g) {
+    snprintf(why, whylen, "out of memory");
+    return HFP_E_BUSY;
+  }
+  int f = memfd_create("hairfilterd-segment", MFD_CLOEXEC | MFD_ALLOW_SEALING);
+  if (f < 0) {
+    snprintf(why, whylen, "memfd_create: %s", strerror(errno));
+    free(g);
+    return HFP_E_INTERNAL;
+  }
+  void *addr = MAP_FAILED;
+  if (ftruncate(f, (off_t)bytes) != 0 ||
+      fcntl(f, F_ADD_SEALS, F_SEAL_SHRINK | F_SEAL_GROW | F_SEAL_SEAL) != 0 ||
+      (addr = mmap(NULL, (size_t)bytes, PROT_READ | PROT_WRITE, MAP_SHARED, f, 0)) == MAP_FAILED) {
+    snprintf(why, whylen, "cannot make a %llu-byte segment: %s", (unsigned long long)bytes,
+             strerror(errno));
+    close(f);
+    free(g);
+    return errno == ENOMEM || errno == ENOSPC ? HFP_E_BUSY : HFP_E_INTERNAL;
+  }
+  g->addr = addr;
+  g->size = bytes;
+  s->shm_held += bytes;
+  *out = g;
+  *fd = f;
+  return 0;
+}
+
+static void seg_free(hfd_server *s, hfd_seg *g) {
+  if (munmap(g->addr, (size_t)g->size) != 0)
+    hfd_log("error: munmap of a %llu-byte segment: %s", (unsigned long long)g->size,
+            strerror(errno));
+  s->shm_held -= g->size;
+  free(g);
+}
+
+void hfd_seg_unref(hfd_server *s, hfd_seg *g) {
+  if (--g->refs == 0 && g->dropped) seg_free(s, g);
+}
+
+void hfd_seg_drop(hfd_server *s, hfd_seg *g) {
+  g->dropped = 1;
+  if (g->refs == 0) seg_free(s, g);
+}
