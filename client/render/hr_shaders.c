@@ -83,19 +83,25 @@ const char hr_glsl_hair_gs[] = GLSL_VERSION
 "  v.x += v.y * v.z; v.y += v.z * v.x; v.z += v.x * v.y;\n"                     \
 "  return v;\n"                                                                 \
 "}\n"                                                                           \
-"float hash01(vec3 cell, uint salt) {\n"                                        \
-"  uvec3 v = pcg3d(floatBitsToUint(cell));\n"                                   \
-"  v = pcg3d(v + uvec3(vi.strand * 0x9E3779B9u, salt * 0x85EBCA6Bu, u_seed * 0xC2B2AE35u + 1u));\n" \
+"/* The per-cell part of the hash: cell, strand and seed. */\n"               \
+"uvec3 hash_cell(vec3 cell) {\n"                                                \
+"  return pcg3d(floatBitsToUint(cell) + uvec3(vi.strand * 0x9E3779B9u, u_seed * 0xC2B2AE35u, 1u));\n" \
+"}\n"                                                                           \
+"float hash01(uvec3 cell, uint salt) {\n"                                       \
+"  uvec3 v = pcg3d(cell + uvec3(salt * 0x85EBCA6Bu, 0u, 0u));\n"                \
 "  return float(v.x >> 8) * (1.0 / 16777216.0);\n"                              \
 "}\n"                                                                           \
 "/* Wyman & McGuire 2017: cells of about one pixel in model space, blended\n"   \
 " * between the two nearest power-of-two scales, then the blend's CDF undone\n" \
 " * so the threshold stays uniform in [0, 1). l2 = log2 of the pixel scale,\n"  \
-" * computed once in uniform control flow. */\n"                                \
-"float hashed_threshold(float l2, uint salt) {\n"                               \
-"  vec2 scales = vec2(exp2(floor(l2)), exp2(ceil(l2)));\n"                      \
-"  float a0 = hash01(floor(scales.x * vi.obj), salt);\n"                        \
-"  float a1 = hash01(floor(scales.y * vi.obj), salt);\n"                        \
+" * computed once in uniform control flow; c0, c1 the two cells' hashes. */\n"  \
+"void hash_cells(float l2, out uvec3 c0, out uvec3 c1) {\n"                     \
+"  c0 = hash_cell(floor(exp2(floor(l2)) * vi.obj));\n"                          \
+"  c1 = hash_cell(floor(exp2(ceil(l2)) * vi.obj));\n"                           \
+"}\n"                                                                           \
+"float hashed_threshold(float l2, uvec3 c0, uvec3 c1, uint salt) {\n"           \
+"  float a0 = hash01(c0, salt);\n"                                              \
+"  float a1 = hash01(c1, salt);\n"                                              \
 "  float lf = fract(l2);\n"                                                     \
 "  float x = mix(a0, a1, lf);\n"                                                \
 "  float a = min(lf, 1.0 - lf);\n"                                              \
@@ -159,9 +165,11 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
 "  float l2 = hash_log2_scale();\n"
 "  int mask = gl_SampleMaskIn[0];\n"
 "  if (u_opaque == 0) {\n"
+"    uvec3 c0, c1;\n"
+"    hash_cells(l2, c0, c1);\n"
 "    int m = 0;\n"
 "    for (int s = 0; s < u_samples; s++)\n"
-"      if (hashed_threshold(l2, uint(s)) < vi.alpha) m |= 1 << s;\n"
+"      if (hashed_threshold(l2, c0, c1, uint(s)) < vi.alpha) m |= 1 << s;\n"
 "    mask &= m;\n"
 "  }\n"
 "  gl_SampleMask[0] = mask;\n"
@@ -177,7 +185,9 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
 const char hr_glsl_shadow_fs[] = GLSL_VERSION FS_COMMON
 "void main() {\n"
 "  float l2 = hash_log2_scale();\n"
-"  bool keep = hashed_threshold(l2, 255u) < vi.alpha;\n"
+"  uvec3 c0, c1;\n"
+"  hash_cells(l2, c0, c1);\n"
+"  bool keep = hashed_threshold(l2, c0, c1, 255u) < vi.alpha;\n"
 "  gl_FragDepth = depth01();\n"
 "  if (!keep) discard;\n"
 "}\n";
