@@ -949,7 +949,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   if (l->is_tcp) {
     struct sockaddr_storage ss;
     int len = sizeof ss;
-    char ip[64] = "?";
+    char ip[48] = "?";  /* INET6_ADDRSTRLEN */
     if (uv_tcp_getpeername(&c->h.tcp, (struct sockaddr *)&ss, &len) == 0) {
       if (ss.ss_family == AF_INET6) {
         uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip);

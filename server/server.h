@@ -190,7 +190,7 @@ typedef struct hfd_conn {
   hfd_listener *listener;
   struct hfd_conn *prev, *next;
   uint64_t id;
-  char peer[64];
+  char peer[80];
   char client_name[HFP_NAME_MAX + 1];
   int hello_done;
   int closing;                   /* uv_close called or pending */

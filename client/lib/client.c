@@ -20,6 +20,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/mman.h>
 #include <sys/uio.h>
 #include <sys/un.h>
 #include <time.h>
@@ -28,6 +29,13 @@
 #include "hfproto.h"
 
 #define CTL_MAX (64 * 1024)   /* largest control reply (VARIANTS, STATS) */
+#define MAX_SEGS 16
+
+typedef struct segment {
+  uint32_t id;
+  uint8_t *addr;
+  size_t size;
+} segment;
 
 typedef struct pending {
   int used, done;
@@ -35,6 +43,7 @@ typedef struct pending {
   uint64_t seq;               /* completion order */
   uint32_t width, height;
   int out_dtype;
+  int shm;                    /* the server writes results in a segment */
   void *result, *rgba;
   double t_submit;
   hfc_completion comp;
@@ -51,6 +60,9 @@ struct hfc_client {
   uint32_t next_id;
   uint64_t next_seq;
   char msg[HFP_MESSAGE_MAX + 1];
+  segment segs[MAX_SEGS];
+  int nsegs;
+  int rx_fd;                  /* a descriptor that came with a frame, or -1 */
   /* the control reply being waited for */
   int ctl_type, ctl_done, ctl_status;
   uint8_t *ctl;
@@ -106,7 +118,34 @@ static int recv_all(hfc_client *c, void *buf, size_t n, int first_timeout_ms) {
   uint8_t *p = buf;
   int timeout = first_timeout_ms;
   while (n) {
-    ssize_t r = recv(c->fd, p, n, 0);
+    /* recvmsg, not recv: a segment's descriptor rides with SHM_CREATED,
+     * and any other that arrives must be closed, not leaked. */
+    struct iovec iov = {p, n};
+    union {
+      struct cmsghdr align;
+      char buf[CMSG_SPACE(sizeof(int) * 4)];
+    } cm;
+    struct msghdr mh;
+    memset(&mh, 0, sizeof mh);
+    mh.msg_iov = &iov;
+    mh.msg_iovlen = 1;
+    mh.msg_control = cm.buf;
+    mh.msg_controllen = sizeof cm.buf;
+    ssize_t r = recvmsg(c->fd, &mh, MSG_CMSG_CLOEXEC);
+    if (r >= 0 && mh.msg_controllen) {
+      for (struct cmsghdr *h = CMSG_FIRSTHDR(&mh); h; h = CMSG_NXTHDR(&mh, h)) {
+        if (h->cmsg_level != SOL_SOCKET || h->cmsg_type != SCM_RIGHTS) continue;
+        size_t nfd = (h->cmsg_len - CMSG_LEN(0)) / sizeof(int);
+        for (size_t k = 0; k < nfd; k++) {
+          int fd;
+          memcpy(&fd, CMSG_DATA(h) + k * sizeof(int), sizeof fd);
+          if (c->rx_fd < 0)
+            c->rx_fd = fd;
+          else
+            close(fd);
+        }
+      }
+    }
     if (r > 0) {
       p += r;
       n -= (size_t)r;
@@ -216,12 +255,15 @@ static int pump(hfc_client *c, int first_timeout_ms) {
     t->output_us = (double)r.timing.output_us;
     t->server_us = (double)r.timing.total_us;
     t->batch = (int)r.batch;
+    t->via_shm = p->shm;
     if (r.status != HFP_OK) {
       finish(c, p, -(int)r.status);
       return 0;
     }
+    int shm = (r.flags & HFP_FILTER_SHM) != 0;
+    int has_rgba = (r.flags & HFP_FILTER_COMPOSITE) != 0;
     if (r.width != p->width || r.height != p->height || r.dtype != p->out_dtype ||
-        (r.rgba_len != 0) != (p->rgba != NULL)) {
+        has_rgba != (p->rgba != NULL) || shm != p->shm) {
       snprintf(c->msg, sizeof c->msg, "RESULT for request %u does not match it", h.request_id);
       rc = HFC_E_PROTOCOL;
       goto fail;
@@ -261,10 +303,12 @@ static int pump(hfc_client *c, int first_timeout_ms) {
     } else if (h.request_id == 0 && c->ctl_type && !c->ctl_done) {
       c->ctl_done = 1;
       c->ctl_status = code;
-    } else if (!e.fatal) {
-      rc = HFC_E_PROTOCOL;
+    } else if (h.request_id != 0 && !e.fatal) {
+      rc = HFC_E_PROTOCOL;  /* about a request we never sent */
       goto fail;
     }
+    /* else: about a message that has no reply (SHM_DESTROY); the message
+     * is kept for hfc_last_message. */
     if (e.fatal) set_broken(c, code);
     return 0;
   }
@@ -393,6 +437,7 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
   hfc_client *c = calloc(1, sizeof *c);
   if (!c) return HFC_E_NOMEM;
   c->fd = -1;
+  c->rx_fd = -1;
   c->timeout_ms = o.timeout_ms;
   c->next_id = 1;
   int fd = open_socket(url, o.timeout_ms);
@@ -431,6 +476,7 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
   i->auth_required = (ok.server_flags & HFP_SERVER_AUTH_REQUIRED) != 0;
   i->f32 = (ok.dtypes >> HFP_F32) & 1;
   i->f16 = (ok.dtypes >> HFP_F16) & 1;
+  i->shm = (ok.server_flags & HFP_SERVER_SHM) != 0;
   i->max_frame_bytes = ok.max_frame_bytes;
   /* max_inflight is a u16 on the wire: at most 65535 small slots. */
   c->np = ok.max_inflight;
@@ -446,6 +492,8 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
 void hfc_close(hfc_client *c) {
   if (!c) return;
   if (c->fd >= 0) close(c->fd);
+  if (c->rx_fd >= 0) close(c->rx_fd);
+  for (int i = 0; i < c->nsegs; i++) munmap(c->segs[i].addr, c->segs[i].size);
   free(c->ctl);
   free(c->p);
   free(c);
@@ -541,6 +589,95 @@ int hfc_get_stats(hfc_client *c, hfc_stats *out) {
 
 /* ---- filtering ------------------------------------------------------------ */
 
+/* The segment holding a tensor of n bytes at p, or NULL. */
+static const segment *seg_of(const hfc_client *c, const void *p, uint64_t n) {
+  const uint8_t *b = p;
+  for (int i = 0; i < c->nsegs; i++) {
+    const segment *g = &c->segs[i];
+    if (b >= g->addr && b < g->addr + g->size && n <= (uint64_t)(g->addr + g->size - b)) return g;
+  }
+  return NULL;
+}
+
+/* When every tensor of r lies in one segment, fills f's references and
+ * returns that segment; the server checks the same bounds again. */
+static const segment *shm_place(const hfc_client *c, hfp_filter *f, const hfc_request *r) {
+  uint64_t out_len, rgba_len = 0;
+  if (!c->nsegs || hfp_output_bytes(f->width, f->height, HFP_OUTPUTS, f->out_dtype, &out_len))
+    return NULL;
+  if (r->rgba && hfp_output_bytes(f->width, f->height, 4, f->out_dtype, &rgba_len)) return NULL;
+  const segment *g = seg_of(c, r->features, f->data_len);
+  if (!g || seg_of(c, r->result, out_len) != g || (r->rgba && seg_of(c, r->rgba, rgba_len) != g))
+    return NULL;
+  f->shm_in = (uint64_t)((const uint8_t *)r->features - g->addr);
+  f->shm_out = (uint64_t)((const uint8_t *)r->result - g->addr);
+  f->shm_rgba = r->rgba ? (uint64_t)((const uint8_t *)r->rgba - g->addr) : 0;
+  if (hfp_shm_check(f, g->size)) return NULL;  /* misaligned: use the socket */
+  return g;
+}
+
+int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem) {
+  if (!c || !mem || bytes == 0) return HFC_E_ARG;
+  *mem = NULL;
+  if (!c->info.shm) return HFC_E_UNSUPPORTED;
+  if (c->nsegs == MAX_SEGS) return HFC_E_INFLIGHT;
+  uint8_t frame[HFP_HEADER_SIZE + 8];
+  int n = hfp_encode_shm_create(frame, sizeof frame, (uint64_t)bytes);
+  if (n < 0) return HFC_E_ARG;
+  if (c->rx_fd >= 0) {
+    close(c->rx_fd);
+    c->rx_fd = -1;
+  }
+  int rc = control(c, frame, (size_t)n, HFP_SHM_CREATED);
+  if (rc) return rc;
+  uint32_t id;
+  uint64_t size;
+  rc = hfp_decode_shm_created(c->ctl, c->ctl_len, &id, &size);
+  free(c->ctl);
+  c->ctl = NULL;
+  int fd = c->rx_fd;
+  c->rx_fd = -1;
+  if (rc || size != bytes || fd < 0) {
+    if (fd >= 0) close(fd);
+    set_broken(c, HFC_E_PROTOCOL);
+    return HFC_E_PROTOCOL;
+  }
+  void *addr = mmap(NULL, bytes, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+  close(fd);
+  if (addr == MAP_FAILED) {
+    uint8_t d[HFP_HEADER_SIZE + 4];
+    int dn = hfp_encode_shm_destroy(d, sizeof d, id);
+    struct iovec iov = {d, (size_t)dn};
+    if (dn > 0 && (rc = send_all(c, &iov, 1)) != 0) set_broken(c, rc);
+    return HFC_E_NOMEM;
+  }
+  c->segs[c->nsegs++] = (segment){id, addr, bytes};
+  *mem = addr;
+  return 0;
+}
+
+int hfc_shm_free(hfc_client *c, void *mem) {
+  if (!c || !mem) return HFC_E_ARG;
+  for (int i = 0; i < c->nsegs; i++) {
+    if (c->segs[i].addr != mem) continue;
+    for (int k = 0; k < c->np; k++)
+      if (c->p[k].used && !c->p[k].done && c->p[k].shm &&
+          seg_of(c, c->p[k].result, 1) == &c->segs[i])
+        return HFC_E_ARG;  /* a request still writes into it */
+    uint8_t d[HFP_HEADER_SIZE + 4];
+    int n = hfp_encode_shm_destroy(d, sizeof d, c->segs[i].id);
+    munmap(c->segs[i].addr, c->segs[i].size);
+    c->segs[i] = c->segs[--c->nsegs];
+    if (n < 0) return HFC_E_ARG;
+    if (c->broken) return 0;  /* the server has dropped it with the connection */
+    struct iovec iov = {d, (size_t)n};
+    int rc = send_all(c, &iov, 1);
+    if (rc) set_broken(c, rc);
+    return rc;
+  }
+  return HFC_E_ARG;
+}
+
 int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id) {
   if (!c || !r || !r->variant || !r->features || !r->result || r->width < 1 ||
       r->height < 1 || r->spp < 1 || (r->in_dtype != HFC_F32 && r->in_dtype != HFC_F16) ||
@@ -569,6 +706,11 @@ int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id) {
   f.data = r->features;
   if (hfp_features_bytes(f.width, f.height, f.spp, f.in_dtype, &f.data_len))
     return HFC_E_ARG;
+  const segment *g = shm_place(c, &f, r);
+  if (g) {
+    f.flags |= HFP_FILTER_SHM;
+    f.shm_segment = g->id;
+  }
   /* Ids are never 0 (reserved) and never one still pending. */
   uint32_t rid;
   do {
@@ -585,13 +727,14 @@ int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id) {
   slot->width = f.width;
   slot->height = f.height;
   slot->out_dtype = f.out_dtype;
+  slot->shm = g != NULL;
   slot->result = r->result;
   slot->rgba = r->rgba;
   slot->comp.user = r->user;
   slot->t_submit = now_us();
   c->npending++;
   struct iovec iov[2] = {{head, (size_t)n}, {(void *)r->features, (size_t)f.data_len}};
-  int rc = send_all(c, iov, 2);
+  int rc = send_all(c, iov, g ? 1 : 2);
   if (rc) {
     /* Part of a frame may be out: the stream cannot be trusted any more. */
     set_broken(c, rc);

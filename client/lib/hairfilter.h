@@ -81,6 +81,7 @@ typedef struct hfc_server_info {
   int max_batch, queue_size;
   int auth_required;
   int f16, f32;              /* dtypes accepted */
+  int shm;                   /* hfc_shm_alloc works on this connection */
   uint64_t max_frame_bytes;
 } hfc_server_info;
 
@@ -133,6 +134,7 @@ typedef struct hfc_timing {
   double queue_us, input_us, infer_us, output_us, server_us;
   double total_us;
   int batch;                 /* frames the server ran together with this one */
+  int via_shm;               /* 1: the tensors went through shared memory */
 } hfc_timing;
 
 /* Synchronous: sends r and waits for its result. timing may be NULL. */
@@ -157,6 +159,21 @@ typedef struct hfc_completion {
 int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done);
 /* Requests submitted and not yet returned by hfc_wait. */
 int hfc_pending(const hfc_client *c);
+
+/* ---- shared memory ------------------------------------------------------- */
+
+/* On a Unix socket, frames can skip the socket: allocate buffers in memory
+ * shared with the server, put features, result and rgba of a request in
+ * the same segment, and hfc_filter / hfc_submit send only a reference;
+ * the server reads the features and writes the results in place. Requests
+ * whose buffers are elsewhere go through the socket as usual. At most 16
+ * segments per client; *mem is page-aligned. The server may refuse
+ * (HFC_E_BUSY when its shared-memory budget is spent, HFC_E_UNSUPPORTED on
+ * TCP or when disabled). While a request is pending, do not write its
+ * features or read its results. */
+int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem);
+/* Releases a segment from hfc_shm_alloc; no request on it may be pending. */
+int hfc_shm_free(hfc_client *c, void *mem);
 
 /* ---- statistics -------------------------------------------------------- */
 

@@ -13,6 +13,7 @@
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/time.h>
+#include <sys/uio.h>
 #include <sys/un.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -277,6 +278,37 @@ static int recv_all(int fd, void *buf, size_t n) {
     }
     p += r;
     n -= (size_t)r;
+  }
+  return 0;
+}
+
+int raw_read_fd(int fd, hfp_header *h, uint8_t **payload, int *passed) {
+  uint8_t hb[HFP_HEADER_SIZE];
+  *payload = NULL;
+  *passed = -1;
+  struct iovec iov = {hb, sizeof hb};
+  union {
+    struct cmsghdr align;
+    char buf[CMSG_SPACE(sizeof(int))];
+  } cm;
+  struct msghdr mh;
+  memset(&mh, 0, sizeof mh);
+  mh.msg_iov = &iov;
+  mh.msg_iovlen = 1;
+  mh.msg_control = cm.buf;
+  mh.msg_controllen = sizeof cm.buf;
+  ssize_t r = recvmsg(fd, &mh, MSG_WAITALL);
+  if (r != (ssize_t)sizeof hb) return -1;
+  struct cmsghdr *c = CMSG_FIRSTHDR(&mh);
+  if (c && c->cmsg_level == SOL_SOCKET && c->cmsg_type == SCM_RIGHTS)
+    memcpy(passed, CMSG_DATA(c), sizeof(int));
+  if (hfp_header_decode(hb, 1u << 30, h)) return -1;
+  *payload = malloc(h->length ? h->length : 1);
+  if (!*payload) return -1;
+  if (recv_all(fd, *payload, h->length)) {
+    free(*payload);
+    *payload = NULL;
+    return -1;
   }
   return 0;
 }

@@ -66,6 +66,8 @@ int raw_send(int fd, const void *buf, size_t n);
 int raw_hello(int fd, const char *token);
 /* Reads one frame: payload (malloc'd) in *payload. 0, or -1 on EOF/timeout. */
 int raw_read(int fd, hfp_header *h, uint8_t **payload);
+/* The same, also taking a descriptor passed with the frame (-1 if none). */
+int raw_read_fd(int fd, hfp_header *h, uint8_t **payload, int *passed);
 /* Builds a FILTER frame (malloc'd, *len bytes). */
 uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, const float *in,
                     size_t *len);

@@ -14,6 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/un.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -900,6 +901,178 @@ static void test_backpressure_on_unread_replies(void **state) {
   assert_true(server_alive(&S));
 }
 
+/* Frames through shared memory: features read and results written in
+ * place, bit for bit what the socket path and in-process inference give;
+ * pipelined; refused where the protocol says so. */
+static void test_shared_memory(void **state) {
+  (void)state;
+  hfc_client *c = connect_unix();
+  assert_int_equal(hfc_info(c)->shm, 1);
+  const ref_variant *v = harness_variant(&H, "Small");
+  enum { W = 64, HH = 48, N = 6 };
+  size_t in_b = (size_t)W * HH * v->cfg.spp * 6 * 4, out_b = (size_t)W * HH * 3 * 4,
+         rgba_b = (size_t)W * HH * 4 * 4, per = in_b + out_b + rgba_b;
+  uint8_t *mem;
+  assert_int_equal(hfc_shm_alloc(c, per * N, (void **)&mem), 0);
+  assert_non_null(mem);
+  float *want = malloc(out_b), *rgb = malloc((size_t)W * HH * 3 * 4);
+  assert_non_null(want);
+  assert_non_null(rgb);
+  /* one synchronous frame with a composite */
+  float *in = make_features(W, HH, v->cfg.spp, 31);
+  memcpy(mem, in, in_b);
+  hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+                   .in_dtype = HFC_F32, .features = mem, .out_dtype = HFC_F32,
+                   .result = mem + in_b, .rgba = mem + in_b + out_b,
+                   .hair = {0.4f, 0.3f, 0.2f}, .light = {1, 1, 1}, .background = {0, 0, 0.5f}};
+  hfc_timing t;
+  assert_int_equal(hfc_filter(c, &r, &t), 0);
+  assert_int_equal(t.via_shm, 1);
+  check_timing(&t);
+  assert_int_equal(reference(v, W, HH, in, HF_F32, want, HF_F32), 0);
+  assert_memory_equal(mem + in_b, want, out_b);
+  hf_composite(want, W, HH, r.hair, r.light, r.background, rgb);
+  const float *rgba = (const float *)(mem + in_b + out_b);
+  for (int p = 0; p < W * HH; p++) {
+    for (int k = 0; k < 3; k++) assert_true(rgba[p * 4 + k] == rgb[p * 3 + k]);
+    assert_true(rgba[p * 4 + 3] == want[p * 3 + 2]);
+  }
+  free(in);
+  /* N pipelined frames, each in its own slice of the segment */
+  for (int i = 0; i < N; i++) {
+    float *fi = make_features(W, HH, v->cfg.spp, 40 + (uint32_t)i);
+    memcpy(mem + per * i, fi, in_b);
+    free(fi);
+    hfc_request ri = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+                      .in_dtype = HFC_F32, .features = mem + per * i, .out_dtype = HFC_F32,
+                      .result = mem + per * i + in_b, .user = (void *)(intptr_t)i};
+    assert_int_equal(hfc_submit(c, &ri, NULL), 0);
+  }
+  /* a segment in use cannot be freed */
+  assert_int_equal(hfc_shm_free(c, mem), HFC_E_ARG);
+  for (int k = 0; k < N; k++) {
+    hfc_completion d;
+    assert_int_equal(hfc_wait(c, 20000, &d), 0);
+    assert_int_equal(d.status, 0);
+    assert_int_equal(d.timing.via_shm, 1);
+  }
+  for (int i = 0; i < N; i++) {
+    float *fi = make_features(W, HH, v->cfg.spp, 40 + (uint32_t)i);
+    assert_int_equal(reference(v, W, HH, fi, HF_F32, want, HF_F32), 0);
+    assert_memory_equal(mem + per * i + in_b, want, out_b);
+    free(fi);
+  }
+  /* features in the segment but the result elsewhere: the socket path */
+  float *out = malloc(out_b);
+  r.result = out;
+  r.rgba = NULL;
+  assert_int_equal(hfc_filter(c, &r, &t), 0);
+  assert_int_equal(t.via_shm, 0);
+  free(out);
+  assert_int_equal(hfc_shm_free(c, mem), 0);
+  assert_int_equal(hfc_shm_free(c, mem), HFC_E_ARG);
+  /* more than the server's shared-memory budget */
+  void *huge;
+  assert_int_equal(hfc_shm_alloc(c, (size_t)2048 << 20, &huge), HFC_E_BUSY);
+  assert_null(huge);
+  filter_and_compare(c, "Tiny", 8, 8, 0, 3);   /* and the connection is fine */
+  hfc_close(c);
+  free(want);
+  free(rgb);
+
+  /* TCP cannot pass descriptors */
+  hfc_options o = {"tcp-shm", TEST_TOKEN, 20000};
+  assert_int_equal(hfc_connect(S.tcp_url, &o, &c), 0);
+  assert_int_equal(hfc_info(c)->shm, 0);
+  void *m2;
+  assert_int_equal(hfc_shm_alloc(c, 4096, &m2), HFC_E_UNSUPPORTED);
+  hfc_close(c);
+}
+
+/* The server's side of bad references, with a raw connection holding a
+ * real segment. */
+static void test_shared_memory_bad_references(void **state) {
+  (void)state;
+  int fd = raw_connect(S.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  uint8_t b[64];
+  int n = hfp_encode_shm_create(b, sizeof b, 4096);
+  assert_int_equal(raw_send(fd, b, (size_t)n), 0);
+  hfp_header h;
+  uint8_t *p;
+  int seg_fd;
+  assert_int_equal(raw_read_fd(fd, &h, &p, &seg_fd), 0);
+  assert_int_equal(h.type, HFP_SHM_CREATED);
+  assert_true(seg_fd >= 0);
+  uint32_t seg;
+  uint64_t bytes;
+  assert_int_equal(hfp_decode_shm_created(p, h.length, &seg, &bytes), 0);
+  assert_int_equal(bytes, 4096);
+  free(p);
+  /* sealed: the client can neither shrink nor grow it */
+  struct stat st;
+  assert_int_equal(fstat(seg_fd, &st), 0);
+  assert_int_equal(st.st_size, 4096);
+  assert_int_not_equal(ftruncate(seg_fd, 0), 0);
+  assert_int_not_equal(ftruncate(seg_fd, 1 << 20), 0);
+  close(seg_fd);
+
+  hfp_filter f;
+  memset(&f, 0, sizeof f);
+  strcpy(f.variant, "Tiny");
+  f.flags = HFP_FILTER_SHM;
+  f.width = f.height = 4;
+  f.spp = 2;
+  f.data_len = 4 * 4 * 2 * 6 * 4;
+  uint8_t fr[HFP_FILTER_HEAD_MAX + HFP_SHM_REF_SIZE];
+  uint64_t total;
+  struct { uint32_t id, seg; uint64_t in, out; int code; } cases[] = {
+    {21, 99, 0, 1536, HFP_E_INVALID},        /* no such segment */
+    {22, 0, 0, 4000, HFP_E_LENGTH},          /* result runs past the end */
+    {23, 0, 2, 1536, HFP_E_LENGTH},          /* misaligned features */
+  };
+  for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+    f.shm_segment = cases[k].seg ? cases[k].seg : seg;
+    f.shm_in = cases[k].in;
+    f.shm_out = cases[k].out;
+    n = hfp_encode_filter_head(fr, sizeof fr, cases[k].id, &f, &total);
+    assert_true(n > 0);
+    expect_error(fd, fr, (size_t)n, cases[k].id, cases[k].code);
+  }
+  /* a good reference on the same connection (zero features: any result) */
+  f.shm_segment = seg;
+  f.shm_in = 0;
+  f.shm_out = 1536;
+  n = hfp_encode_filter_head(fr, sizeof fr, 24, &f, &total);
+  assert_int_equal(raw_send(fd, fr, (size_t)n), 0);
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_RESULT);
+  assert_int_equal(h.request_id, 24);
+  hfp_result res;
+  assert_int_equal(hfp_decode_result(p, h.length, &res), 0);
+  assert_int_equal(res.status, 0);
+  assert_true(res.flags & HFP_FILTER_SHM);
+  assert_int_equal(h.length, HFP_RESULT_FIXED);
+  free(p);
+  /* destroying an unknown segment: a non-fatal ERROR */
+  n = hfp_encode_shm_destroy(b, sizeof b, 77);
+  assert_int_equal(raw_send(fd, b, (size_t)n), 0);
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_ERROR);
+  hfp_error e;
+  assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+  assert_int_equal(e.code, HFP_E_INVALID);
+  assert_int_equal(e.fatal, 0);
+  free(p);
+  /* destroy the real one; a reference to it is then refused */
+  n = hfp_encode_shm_destroy(b, sizeof b, seg);
+  assert_int_equal(raw_send(fd, b, (size_t)n), 0);
+  n = hfp_encode_filter_head(fr, sizeof fr, 25, &f, &total);
+  expect_error(fd, fr, (size_t)n, 25, HFP_E_INVALID);
+  close(fd);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_variants),
@@ -913,6 +1086,8 @@ int main(void) {
     cmocka_unit_test(test_cli_filter),
     cmocka_unit_test(test_client_errors),
     cmocka_unit_test(test_garbage_survived),
+    cmocka_unit_test(test_shared_memory),
+    cmocka_unit_test(test_shared_memory_bad_references),
     cmocka_unit_test(test_backpressure_on_unread_replies),
     cmocka_unit_test(test_stats),
     cmocka_unit_test(test_busy_when_queue_full),
