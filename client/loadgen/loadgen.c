@@ -21,7 +21,7 @@
 
 typedef struct opts {
   const char *server, *variant, *token;
-  int width, height, connections, inflight, f16;
+  int width, height, connections, inflight, f16, shm;
   double seconds, warmup;
 } opts;
 
@@ -51,7 +51,8 @@ static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilter-load --server URL --variant NAME [--size WxH] [--connections N]\n"
           "                       [--inflight K] [--seconds S] [--warmup S] [--f16]\n"
-          "                       [--token TOKEN]\n"
+          "                       [--token TOKEN] [--shm]\n"
+          "--shm puts every frame in memory shared with the server (Unix sockets).\n"
           "Defaults: --size 640x480 --connections 1 --inflight 1 --seconds 10 --warmup 1.\n"
           "The token defaults to $HAIRFILTER_TOKEN.\n");
 }
@@ -98,8 +99,23 @@ static void *run(void *arg) {
   size_t px = (size_t)o->width * o->height;
   size_t nin = px * (size_t)w->spp * 6, es = o->f16 ? 2 : 4;
   int k = o->inflight;
-  uint8_t *in = malloc(nin * es);
-  uint8_t *out = malloc(px * 3 * es * (size_t)k);
+  uint8_t *in, *out, *shm = NULL;
+  if (o->shm) {
+    /* One segment: the features once, then K result slots. */
+    size_t bytes = nin * es + px * 3 * es * (size_t)k;
+    rc = hfc_shm_alloc(c, bytes, (void **)&shm);
+    if (rc) {
+      fprintf(stderr, "hairfilter-load: shared memory: %s\n", hfc_strerror(rc));
+      w->fatal = 1;
+      hfc_close(c);
+      return NULL;
+    }
+    in = shm;
+    out = shm + nin * es;
+  } else {
+    in = malloc(nin * es);
+    out = malloc(px * 3 * es * (size_t)k);
+  }
   if (!in || !out) {
     fprintf(stderr, "hairfilter-load: out of memory\n");
     w->fatal = 1;
@@ -149,8 +165,12 @@ static void *run(void *arg) {
     w->fatal = 1;
   }
 done:
-  free(in);
-  free(out);
+  if (shm) {
+    hfc_shm_free(c, shm);
+  } else {
+    free(in);
+    free(out);
+  }
   hfc_close(c);
   return NULL;
 }
@@ -167,7 +187,8 @@ static double pct(const float *v, size_t n, double p) {
 }
 
 int main(int argc, char **argv) {
-  opts o = {NULL, NULL, getenv("HAIRFILTER_TOKEN"), 640, 480, 1, 1, 0, 10, 1};
+  opts o = {.token = getenv("HAIRFILTER_TOKEN"), .width = 640, .height = 480, .connections = 1,
+            .inflight = 1, .seconds = 10, .warmup = 1};
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
@@ -176,6 +197,10 @@ int main(int argc, char **argv) {
     }
     if (!strcmp(a, "--f16")) {
       o.f16 = 1;
+      continue;
+    }
+    if (!strcmp(a, "--shm")) {
+      o.shm = 1;
       continue;
     }
     if (!v) {
@@ -289,8 +314,9 @@ int main(int argc, char **argv) {
     free(w[i].samples);
   }
   for (int j = 0; j < COLS; j++) qsort(col[j], total, sizeof(float), cmp_float);
-  printf("%s %dx%d %s via %s (%s, %s): %d connection(s) x %d in flight, %.1f s measured\n",
-         o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server, backend, precision,
+  printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.1f s measured\n",
+         o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server,
+         o.shm ? " + shared memory" : "", backend, precision,
          o.connections, o.inflight, elapsed);
   printf("  frames %zu  throughput %.1f frames/s  busy %llu  errors %llu  mean batch %.2f\n",
          total, elapsed > 0 ? (double)total / elapsed : 0.0, (unsigned long long)busy,
