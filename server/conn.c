@@ -37,6 +37,13 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
 #define WRITES_HIGH 256
 #define WRITES_LOW 64
 
+/* uv_read_stop cannot fail for a stream that is open (it returns 0), but
+ * say so if that ever changes. */
+static void read_stop(hfd_conn *c) {
+  int rc = uv_read_stop(&c->h.stream);
+  if (rc < 0) hfd_log("error: conn %llu: read stop: %s", (unsigned long long)c->id, uv_strerror(rc));
+}
+
 static void wrote_one(hfd_conn *c) {
   c->writes_pending--;
   if (c->read_paused && c->writes_pending <= WRITES_LOW && !c->closing && !c->fatal_sent) {
@@ -54,7 +61,7 @@ static void wrote_one(hfd_conn *c) {
 static void writing_one(hfd_conn *c) {
   c->writes_pending++;
   if (!c->read_paused && c->writes_pending >= WRITES_HIGH && !c->fatal_sent) {
-    uv_read_stop(&c->h.stream);
+    read_stop(c);
     c->read_paused = 1;
   }
 }
@@ -166,7 +173,7 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
   }
   if (fatal) {
     c->fatal_sent = 1;
-    uv_read_stop(&c->h.stream);
+    read_stop(c);
   }
   send_ctl(c, frame, (size_t)n, fatal);
 }
@@ -879,7 +886,7 @@ static void on_shutdown(uv_shutdown_t *req, int status) {
 /* Drain: flush what is written, then close. */
 void hfd_conn_shutdown(hfd_conn *c) {
   if (c->closing) return;
-  uv_read_stop(&c->h.stream);
+  read_stop(c);
   uv_shutdown_t *req = malloc(sizeof *req);
   if (!req) {
     conn_close(c);
@@ -951,15 +958,18 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     int len = sizeof ss;
     char ip[48] = "?";  /* INET6_ADDRSTRLEN */
     if (uv_tcp_getpeername(&c->h.tcp, (struct sockaddr *)&ss, &len) == 0) {
-      if (ss.ss_family == AF_INET6) {
-        uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip);
-        snprintf(c->peer, sizeof c->peer, "[%s]:%d", ip, ntohs(((struct sockaddr_in6 *)&ss)->sin6_port));
-      } else {
-        uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip);
-        snprintf(c->peer, sizeof c->peer, "%s:%d", ip, ntohs(((struct sockaddr_in *)&ss)->sin_port));
-      }
+      int v6 = ss.ss_family == AF_INET6;
+      int nr = v6 ? uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip)
+                  : uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip);
+      if (nr == 0)
+        snprintf(c->peer, sizeof c->peer, v6 ? "[%s]:%d" : "%s:%d", ip,
+                 ntohs(v6 ? ((struct sockaddr_in6 *)&ss)->sin6_port
+                          : ((struct sockaddr_in *)&ss)->sin_port));
     }
-    uv_tcp_nodelay(&c->h.tcp, 1);
+    if (!c->peer[0]) snprintf(c->peer, sizeof c->peer, "tcp");
+    /* Replies are written whole; Nagle would only delay their last segment. */
+    rc = uv_tcp_nodelay(&c->h.tcp, 1);
+    if (rc < 0) hfd_log("error: conn %llu: TCP_NODELAY: %s", (unsigned long long)c->id, uv_strerror(rc));
   } else {
     snprintf(c->peer, sizeof c->peer, "unix");
   }

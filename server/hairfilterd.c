@@ -272,13 +272,17 @@ static int open_listener(hfd_server *s, const char *url) {
       uv_close(&l->h.handle, NULL);
       return -1;
     }
-    if (ss.ss_family == AF_INET6) {
-      uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip);
-      snprintf(l->url, sizeof l->url, "tcp:[%s]:%d", ip, ntohs(((struct sockaddr_in6 *)&ss)->sin6_port));
-    } else {
-      uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip);
-      snprintf(l->url, sizeof l->url, "tcp:%s:%d", ip, ntohs(((struct sockaddr_in *)&ss)->sin_port));
+    int v6 = ss.ss_family == AF_INET6;
+    rc = v6 ? uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip)
+            : uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip);
+    if (rc < 0) {
+      hfd_log("error: --listen %s: address name: %s", url, uv_strerror(rc));
+      uv_close(&l->h.handle, NULL);
+      return -1;
     }
+    snprintf(l->url, sizeof l->url, v6 ? "tcp:[%s]:%d" : "tcp:%s:%d", ip,
+             ntohs(v6 ? ((struct sockaddr_in6 *)&ss)->sin6_port
+                      : ((struct sockaddr_in *)&ss)->sin_port));
   }
   s->num_listeners++;
   hfd_log("listening on %s%s", l->url, l->is_tcp ? (l->auth_required ? " (token required)"

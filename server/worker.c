@@ -143,8 +143,10 @@ static void complete(hfd_worker *w, hfd_job **batch, int nb) {
   }
   pthread_mutex_unlock(&w->mu);
   /* uv_async_send is the one libuv call that is safe from another thread;
-   * it only fails for a closed handle, which cannot happen before stop. */
-  uv_async_send(w->async);
+   * it only fails for a closed handle, which cannot happen before stop
+   * (the loop closes it after joining this thread). */
+  int rc = uv_async_send(w->async);
+  if (rc < 0) hfd_log("error: worker: uv_async_send: %s", uv_strerror(rc));
 }
 
 /* Removes and returns the first queued job compatible with j0 (mu held). */
