@@ -83,9 +83,9 @@ def deconv_as_conv_weight(wt):
 
 def raw_shuffle(net, x):
     """net.raw() with every transposed convolution as conv + pixel shuffle.
-    Same function and parameters; faster on CPU with torch 1.13 (oneDNN's
-    3x3 convolutions beat its transposed ones, see docs/QUALITY.md), and it
-    runs under bf16 autocast, where torch 1.13 has no ConvTranspose2d."""
+    Same function and parameters (the weights stay in ConvTranspose2d
+    layout); it runs under bf16 autocast, where torch 1.13 has no
+    ConvTranspose2d. Timings: `train.py --benchmark`, docs/QUALITY.md."""
     enc = []
     for i in range(net.levels):
         x = F.relu(getattr(net, f"enc{i}")(x))
@@ -198,6 +198,33 @@ def export(net, path, dtype):
 
 # ---- main ------------------------------------------------------------------------
 
+def benchmark(args):
+    """ms per training step (forward, loss, backward, Adam) of each way of
+    computing the network, on random data of the run's batch and crop."""
+    cfg = hfnet.variant_config(args.variant)
+    torch.manual_seed(args.seed)
+    net = hfnet.HairNet(cfg)
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    x = torch.rand(args.batch, cfg["in_channels"], args.crop, args.crop)
+    y = torch.rand(args.batch, 3, args.crop, args.crop)
+    print(f"| {cfg['name']}, batch {args.batch}, {args.crop}x{args.crop}, "
+          f"{args.threads} threads | ms/step |\n|---|---:|")
+    for label, mode in (("ConvTranspose2d, fp32", ("transpose", False)),
+                        ("conv + pixel shuffle, fp32", ("shuffle", False)),
+                        ("conv + pixel shuffle, bf16 autocast", ("shuffle", True))):
+        times = []
+        for i in range(args.benchmark + 1):
+            t = time.perf_counter()
+            loss = hair_loss(forward(net, x, *mode), y, args.grad_weight)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            if i:  # the first step warms up oneDNN's primitive caches
+                times.append(time.perf_counter() - t)
+        print(f"| {label} | {1000 * float(np.median(times)):.0f} |")
+    return 0
+
+
 def parse_args(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -221,15 +248,19 @@ def parse_args(argv):
     ap.add_argument("--ckpt-every", type=int, default=500)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1))
-    ap.add_argument("--deconv", default="shuffle", choices=["shuffle", "transpose"],
-                    help="transposed convs computed as conv + pixel shuffle (default, "
-                    "faster) or with ConvTranspose2d; same parameters either way")
-    ap.add_argument("--bf16", action="store_true", help="bf16 autocast (implies shuffle)")
+    ap.add_argument("--deconv", default="transpose", choices=["transpose", "shuffle"],
+                    help="fp32 transposed convs with ConvTranspose2d or as conv + pixel "
+                    "shuffle; same parameters either way")
+    ap.add_argument("--bf16", action="store_true",
+                    help="bf16 autocast, deconvs as conv + pixel shuffle (fastest on a CPU "
+                    "with AVX512-BF16; weights and optimizer stay fp32)")
     ap.add_argument("--resume", action="store_true", help="continue RUN/checkpoint.pt")
     ap.add_argument("--stop-at", type=int, default=0,
                     help="checkpoint and stop at this step (the run stays resumable)")
     ap.add_argument("--time-limit", type=float, default=0,
                     help="checkpoint and stop after this many seconds of this invocation")
+    ap.add_argument("--benchmark", type=int, default=0, metavar="N",
+                    help="only time N steps of each forward variant (median ms/step)")
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
     return ap.parse_args(argv)
@@ -238,6 +269,8 @@ def parse_args(argv):
 def main(argv=None):
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
+    if args.benchmark:
+        return benchmark(args)
     os.makedirs(args.out, exist_ok=True)
     ckpt_path = os.path.join(args.out, CKPT)
     log_path = os.path.join(args.out, "log.jsonl")
