@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <cmocka.h>
 
@@ -307,6 +308,76 @@ static void test_frame_ranges(void **state) {
   hf_image_free(&img);
 }
 
+static char *slurp(const char *path) {
+  FILE *f = fopen(path, "rb");
+  assert_non_null(f);
+  assert_int_equal(fseek(f, 0, SEEK_END), 0);
+  long n = ftell(f);
+  assert_true(n > 0 && n < (1 << 24));
+  rewind(f);
+  char *b = malloc((size_t)n + 1);
+  assert_non_null(b);
+  assert_int_equal(fread(b, 1, (size_t)n, f), (size_t)n);
+  b[n] = 0;
+  fclose(f);
+  return b;
+}
+
+/* Dataset mode: EXRs with features and targets, and a manifest that
+ * records each frame's parameters. */
+static void test_dataset_mode(void **state) {
+  (void)state;
+  char dir[256];
+  snprintf(dir, sizeof dir, "/tmp/hf_test_dataset_%d", (int)getpid());
+  hfr_dataset_opts o;
+  hfr_dataset_defaults(&o);
+  o.out_dir = dir;
+  o.styles[0] = HFR_STYLE_CURLY;
+  o.styles[1] = HFR_STYLE_PONYTAIL;
+  o.n_styles = 2;
+  o.count = 2;
+  o.width = 32, o.height = 32;
+  o.strands = 400;
+  o.shadow_size = 128;
+  o.st_spp[0] = 4;
+  o.n_st = 1;
+  o.progress = 0;
+  o.platform = "osmesa";
+  char err[512] = "";
+  int rc = hfr_dataset_run(&o, err, sizeof err);
+  if (rc != HF_OK) fail_msg("dataset: %s", err);
+  assert_int_equal(hr_context_make_current(R->ctx), HF_OK);
+
+  char path[512];
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  char *text = slurp(path);
+  assert_non_null(strstr(text, "\"format\":\t\"hairfilter-dataset\""));
+  assert_non_null(strstr(text, "\"file\":\t\"ponytail_0001.exr\""));
+  assert_non_null(strstr(text, "\"strand_count\":\t400"));
+  assert_non_null(strstr(text, "\"camera\""));
+  free(text);
+  const char *files[] = {"curly_0000.exr", "curly_0001.exr", "ponytail_0000.exr",
+                         "ponytail_0001.exr"};
+  for (int i = 0; i < 4; i++) {
+    snprintf(path, sizeof path, "%s/%s", dir, files[i]);
+    hf_image img;
+    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
+    assert_int_equal(img.width, 32);
+    assert_int_equal(hf_features_spp(&img), 4);
+    int a = hf_image_channel(&img, "gt.alpha");
+    assert_true(a >= 0);
+    assert_true(hf_image_channel(&img, "st4.color") >= 0);
+    double sum = 0;
+    for (int p = 0; p < 32 * 32; p++) sum += img.data[(size_t)p * img.channels + a];
+    assert_true(sum > 0); /* some hair in every frame */
+    hf_image_free(&img);
+    remove(path);
+  }
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  remove(path);
+  rmdir(dir);
+}
+
 /* The same GL code on EGL, where this build and machine have it. */
 static void test_egl(void **state) {
   (void)state;
@@ -345,6 +416,7 @@ int main(void) {
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_frame_ranges),
+    cmocka_unit_test(test_dataset_mode),
     cmocka_unit_test(test_egl),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
