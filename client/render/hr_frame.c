@@ -140,7 +140,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   int rc = validate(v, o, err, errlen);
   if (rc != HF_OK) return rc;
   if (!r->has_hair) return bad(err, errlen, "no hair model set");
-  if ((rc = hr_context_make_current(r->ctx)) != HF_OK) return rc;
+  if ((rc = hr_renderer_bind(r)) != HF_OK) return rc;
   const int W = v->width, H = v->height, S = 4;
   const size_t px = (size_t)W * H;
   if ((rc = hf_image_alloc(out, W, H, hfr_outputs_channels(o))) != HF_OK) return rc;

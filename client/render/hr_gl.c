@@ -7,7 +7,7 @@
 
 hr_gl_table hrgl;
 
-int hr_gl_load(hr_context *ctx, char *why, size_t whylen) {
+int hr_gl_load(hr_context *ctx, hr_gl_table *out, char *why, size_t whylen) {
   hr_gl_table t;
   memset(&t, 0, sizeof t);
 #define HR_GL_LOAD(type, name)                                                 \
@@ -25,6 +25,7 @@ int hr_gl_load(hr_context *ctx, char *why, size_t whylen) {
     if (why) snprintf(why, whylen, "OpenGL %d.%d, need 4.5 core", major, minor);
     return HF_EUNAVAILABLE;
   }
+  *out = t;
   hrgl = t;
   return HF_OK;
 }

@@ -53,7 +53,8 @@
   X(PFNGLVERTEXATTRIBPOINTERPROC, VertexAttribPointer)                        \
   X(PFNGLENABLEVERTEXATTRIBARRAYPROC, EnableVertexAttribArray)                \
   X(PFNGLDRAWARRAYSPROC, DrawArrays)                                          \
-  X(PFNGLMULTIDRAWARRAYSPROC, MultiDrawArrays)                                \
+  X(PFNGLDRAWARRAYSINSTANCEDPROC, DrawArraysInstanced)                        \
+  X(PFNGLVERTEXATTRIBDIVISORPROC, VertexAttribDivisor)                        \
   X(PFNGLMEMORYBARRIERPROC, MemoryBarrier)                                    \
   X(PFNGLCREATESHADERPROC, CreateShader)                                      \
   X(PFNGLSHADERSOURCEPROC, ShaderSource)                                      \
@@ -82,13 +83,15 @@ typedef struct hr_gl_table {
 #undef HR_GL_FIELD
 } hr_gl_table;
 
-/* The table of the current context. Both platforms return
- * context-independent pointers, so one process-wide table is enough. */
+/* The table of the current context: each renderer keeps its own (OSMesa
+ * and EGL hand out different pointers) and installs it here when it makes
+ * its context current (hr_renderer_bind). */
 extern hr_gl_table hrgl;
 
-/* Loads every entry point; on a missing one returns HF_EUNAVAILABLE and its
- * name in why. Also checks the context is at least 4.5 core. */
-int hr_gl_load(hr_context *ctx, char *why, size_t whylen);
+/* Loads every entry point of the current context ctx into *out and hrgl;
+ * on a missing one returns HF_EUNAVAILABLE and its name in why. Also checks
+ * the context is at least 4.5 core. */
+int hr_gl_load(hr_context *ctx, hr_gl_table *out, char *why, size_t whylen);
 
 /* Drains the GL error queue; returns HF_EBACKEND (and the first error and
  * where in why, when given) if there was one. */

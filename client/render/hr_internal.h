@@ -33,11 +33,11 @@ typedef struct hr_camera {
 
 struct hfr_renderer {
   hr_context *ctx;
+  hr_gl_table gl;               /* entry points of ctx */
+  int gl_loaded;
   hr_program st, shadow, abuf, head, resolve_ms, resolve_abuf;
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
-  GLint *first;                 /* per strand, for glMultiDrawArrays */
-  GLsizei *count;
-  GLsizei strands;
+  uint32_t points;              /* instances drawn: points - 1 */
   GLsizei head_vertices;
   int has_hair, has_head;
   uint64_t segments;
@@ -46,6 +46,9 @@ struct hfr_renderer {
   int shadow_size;
   int ms_samples;               /* samples the MS framebuffer really has */
 };
+
+/* Makes r's context current and its entry points the ones hrgl calls. */
+int hr_renderer_bind(hfr_renderer *r);
 
 /* Camera of the view (jitter excluded) at width x height. */
 void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);

@@ -70,13 +70,11 @@ static void draw_head(hfr_renderer *r, const hr_camera *cam, const hfr_view *v, 
   hrgl.DrawArrays(GL_TRIANGLES, 0, r->head_vertices);
 }
 
-/* Strands go in as line strips; every hair program expands each segment
- * into a quad exactly one pixel wide (hr_glsl_hair_gs) instead of relying on
- * GL line rasterisation: llvmpipe's multisampled lines lose coverage on
- * segments shorter than about a pixel, which fine strands are full of. */
+/* One instance per pair of consecutive points; the vertex shader expands
+ * each into a quad one pixel wide and culls pairs that span two strands. */
 static void draw_hair(hfr_renderer *r) {
   hrgl.BindVertexArray(r->hair_vao);
-  hrgl.MultiDrawArrays(GL_LINE_STRIP, r->first, r->count, r->strands);
+  hrgl.DrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, (GLsizei)(r->points - 1));
 }
 
 void hr_bind_shading(hfr_renderer *r, const hr_program *p, const hfr_view *v,

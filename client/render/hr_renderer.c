@@ -14,9 +14,16 @@ const char *hfr_renderer_platform(const hfr_renderer *r) {
   return r ? hr_context_platform(r->ctx) : "none";
 }
 
+int hr_renderer_bind(hfr_renderer *r) {
+  if (!r->gl_loaded) return HF_EINVAL;
+  int rc = hr_context_make_current(r->ctx);
+  if (rc == HF_OK) hrgl = r->gl;
+  return rc;
+}
+
 void hfr_renderer_destroy(hfr_renderer *r) {
   if (!r) return;
-  if (r->ctx && hr_context_make_current(r->ctx) == HF_OK && hrgl.DeleteProgram) {
+  if (r->ctx && hr_renderer_bind(r) == HF_OK) {
     hr_program *progs[] = {&r->st, &r->shadow, &r->abuf, &r->head, &r->resolve_ms,
                            &r->resolve_abuf};
     for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) hr_program_free(progs[i]);
@@ -28,8 +35,6 @@ void hfr_renderer_destroy(hfr_renderer *r) {
     if (r->shadow_fbo) hrgl.DeleteFramebuffers(1, &r->shadow_fbo);
   }
   hr_context_destroy(r->ctx);
-  free(r->first);
-  free(r->count);
   free(r);
 }
 
@@ -74,7 +79,8 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
   hfr_renderer *r = calloc(1, sizeof *r);
   if (!r) return HF_ENOMEM;
   int rc = hr_context_create(platform, &r->ctx, err, errlen);
-  if (rc == HF_OK) rc = hr_gl_load(r->ctx, err, errlen);
+  if (rc == HF_OK) rc = hr_gl_load(r->ctx, &r->gl, err, errlen);
+  if (rc == HF_OK) r->gl_loaded = 1;
   if (rc != HF_OK) {
     hfr_renderer_destroy(r);
     return rc;
@@ -83,9 +89,9 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
     hr_program *p;
     const char *vs, *gs, *fs;
   } progs[] = {
-    {&r->st, hr_glsl_hair_vs, hr_glsl_hair_gs, hr_glsl_st_fs},
-    {&r->shadow, hr_glsl_hair_vs, hr_glsl_hair_gs, hr_glsl_shadow_fs},
-    {&r->abuf, hr_glsl_hair_vs, hr_glsl_hair_gs, hr_glsl_abuf_fs},
+    {&r->st, hr_glsl_hair_vs, NULL, hr_glsl_st_fs},
+    {&r->shadow, hr_glsl_hair_vs, NULL, hr_glsl_shadow_fs},
+    {&r->abuf, hr_glsl_hair_vs, NULL, hr_glsl_abuf_fs},
     {&r->head, hr_glsl_head_vs, NULL, hr_glsl_head_fs},
     {&r->resolve_ms, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_ms_fs},
     {&r->resolve_abuf, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_abuf_fs},
@@ -111,7 +117,7 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
                           size_t errlen) {
   if (!r || !h || !h->pos || !h->strands || h->points <= h->strands) return HF_EINVAL;
   if (h->strands > HFR_MAX_STRANDS || h->points > HFR_MAX_POINTS) return HF_ERANGE;
-  int rc = hr_context_make_current(r->ctx);
+  int rc = hr_renderer_bind(r);
   if (rc != HF_OK) return rc;
   /* Check the strand layout before trusting any offset computed from it. */
   uint64_t total = 0;
@@ -126,14 +132,7 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
     return HF_ERANGE;
   }
   float *v = malloc(bytes);
-  GLint *first = malloc(sizeof(GLint) * h->strands);
-  GLsizei *count = malloc(sizeof(GLsizei) * h->strands);
-  if (!v || !first || !count) {
-    free(v);
-    free(first);
-    free(count);
-    return HF_ENOMEM;
-  }
+  if (!v) return HF_ENOMEM;
   float centre[3], radius;
   hfr_hair_bounds(h, centre, &radius);
   float def_thick = h->default_thickness;
@@ -144,8 +143,6 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
   size_t base = 0;
   for (uint32_t s = 0; s < h->strands; s++) {
     uint32_t n = hfr_hair_strand_segments(h, s) + 1;
-    first[s] = (GLint)base;
-    count[s] = (GLsizei)n;
     for (uint32_t i = 0; i < n; i++) {
       size_t a = base + (i ? i - 1 : 0), b = base + (i + 1 < n ? i + 1 : i);
       float *o = v + (base + i) * VERTEX_FLOATS;
@@ -169,20 +166,21 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
   hrgl.BindVertexArray(r->hair_vao);
   hrgl.BindBuffer(GL_ARRAY_BUFFER, r->hair_vbo);
   hrgl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)bytes, v, GL_STATIC_DRAW);
+  /* Instance i is the segment from point i to point i + 1: attributes 0-4
+   * read point i, 5-9 the next one. */
   const GLsizei stride = VERTEX_FLOATS * sizeof(float);
   const GLint sizes[5] = {3, 3, 1, 1, 1}, offs[5] = {0, 3, 6, 7, 8};
-  for (GLuint a = 0; a < 5; a++) {
-    hrgl.VertexAttribPointer(a, sizes[a], GL_FLOAT, GL_FALSE, stride,
-                             (void *)(offs[a] * sizeof(float)));
-    hrgl.EnableVertexAttribArray(a);
-  }
+  for (GLuint end = 0; end < 2; end++)
+    for (GLuint a = 0; a < 5; a++) {
+      GLuint loc = 5 * end + a;
+      hrgl.VertexAttribPointer(loc, sizes[a], GL_FLOAT, GL_FALSE, stride,
+                               (void *)((offs[a] + end * VERTEX_FLOATS) * sizeof(float)));
+      hrgl.VertexAttribDivisor(loc, 1);
+      hrgl.EnableVertexAttribArray(loc);
+    }
   hrgl.BindVertexArray(0);
   free(v);
-  free(r->first);
-  free(r->count);
-  r->first = first;
-  r->count = count;
-  r->strands = (GLsizei)h->strands;
+  r->points = h->points;
   r->segments = hfr_hair_total_segments(h);
   r->has_hair = 1;
   r->has_head = head != 0;

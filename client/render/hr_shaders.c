@@ -4,61 +4,61 @@
 
 #define GLSL_VERSION "#version 450 core\n"
 
-/* Every hair vertex carries its strand id (a float, exact below 2^24): the
- * hash includes it so that strands sharing a pixel-sized cell of model space
- * still draw independent coverage. */
+/* Hair: one instance per segment, four vertices each, expanded here into
+ * a quad exactly one pixel wide (rather than GL lines, whose multisampled
+ * rasterisation on llvmpipe loses short segments, and rather than a
+ * geometry shader, which costs llvmpipe about twice the time). Attributes
+ * 0-4 are the segment's first point, 5-9 its second; the instance that
+ * would join two strands is culled. Every point carries its strand id (a
+ * float, exact below 2^24): the hash includes it so that strands sharing a
+ * pixel-sized cell of model space still draw independent coverage. */
 const char hr_glsl_hair_vs[] = GLSL_VERSION
-"layout(location = 0) in vec3 a_pos;\n"
-"layout(location = 1) in vec3 a_tan;\n"
-"layout(location = 2) in float a_thick;\n"
-"layout(location = 3) in float a_opac;\n"
-"layout(location = 4) in float a_strand;\n"
+"layout(location = 0) in vec3 a_pos0;\n"
+"layout(location = 1) in vec3 a_tan0;\n"
+"layout(location = 2) in float a_thick0;\n"
+"layout(location = 3) in float a_opac0;\n"
+"layout(location = 4) in float a_strand0;\n"
+"layout(location = 5) in vec3 a_pos1;\n"
+"layout(location = 6) in vec3 a_tan1;\n"
+"layout(location = 7) in float a_thick1;\n"
+"layout(location = 8) in float a_opac1;\n"
+"layout(location = 9) in float a_strand1;\n"
 "uniform mat4 u_view;\n"
 "uniform mat4 u_proj;\n"
 "uniform vec2 u_jitter;          /* NDC offset of this pass */\n"
+"uniform vec2 u_viewport;        /* target size in pixels */\n"
 "uniform float u_px_per_unit;    /* pixels per model unit at eye distance 1 */\n"
 "uniform int u_ortho;\n"
 "uniform float u_thick_scale;\n"
 "out V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vo;\n"
 "void main() {\n"
-"  vec4 e = u_view * vec4(a_pos, 1.0);\n"
-"  vec4 c = u_proj * e;\n"
-"  c.xy += u_jitter * c.w;\n"
-"  gl_Position = c;\n"
+"  vec4 e0 = u_view * vec4(a_pos0, 1.0), e1 = u_view * vec4(a_pos1, 1.0);\n"
+"  vec4 c0 = u_proj * e0, c1 = u_proj * e1;\n"
+"  c0.xy += u_jitter * c0.w;\n"
+"  c1.xy += u_jitter * c1.w;\n"
+"  bool second = gl_VertexID >= 2;\n"
+"  vo.obj = second ? a_pos1 : a_pos0;\n"
+"  vo.wtan = second ? a_tan1 : a_tan0;\n"
+"  vo.vtan = mat3(u_view) * vo.wtan;\n"
+"  vo.strand = uint(a_strand0);\n"
+"  vec4 e = second ? e1 : e0;\n"
 "  float dist = max(-e.z, 1e-6);\n"
-"  /* Area baked into alpha: the strand's width over the pixel footprint. */\n"
-"  float px = a_thick * u_thick_scale * u_px_per_unit / (u_ortho != 0 ? 1.0 : dist);\n"
-"  vo.alpha = a_opac * clamp(px, 0.0, 1.0);\n"
-"  vo.obj = a_pos;\n"
-"  vo.wtan = a_tan;\n"
-"  vo.vtan = mat3(u_view) * a_tan;\n"
 "  vo.vdist = dist;\n"
-"  vo.strand = uint(a_strand);\n"
-"}\n";
-
-const char hr_glsl_hair_gs[] = GLSL_VERSION
-"layout(lines) in;\n"
-"layout(triangle_strip, max_vertices = 4) out;\n"
-"in V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vi[];\n"
-"out V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vo;\n"
-"uniform vec2 u_viewport;\n"
-"void emit(int k, vec2 off) {\n"
-"  vec4 p = gl_in[k].gl_Position;\n"
-"  gl_Position = vec4(p.xy + off * p.w, p.zw);\n"
-"  vo.obj = vi[k].obj; vo.wtan = vi[k].wtan; vo.vtan = vi[k].vtan;\n"
-"  vo.alpha = vi[k].alpha; vo.vdist = vi[k].vdist; vo.strand = vi[k].strand;\n"
-"  EmitVertex();\n"
-"}\n"
-"void main() {\n"
-"  vec4 p0 = gl_in[0].gl_Position, p1 = gl_in[1].gl_Position;\n"
-"  if (p0.w <= 0.0 || p1.w <= 0.0) return;   /* behind the eye: the camera never is that close */\n"
-"  vec2 s0 = p0.xy / p0.w * u_viewport * 0.5, s1 = p1.xy / p1.w * u_viewport * 0.5;\n"
+"  /* Area baked into alpha: the strand's width over the pixel footprint. */\n"
+"  float px = (second ? a_thick1 : a_thick0) * u_thick_scale * u_px_per_unit /\n"
+"             (u_ortho != 0 ? 1.0 : dist);\n"
+"  vo.alpha = (second ? a_opac1 : a_opac0) * clamp(px, 0.0, 1.0);\n"
+"  if (a_strand0 != a_strand1 || c0.w <= 0.0 || c1.w <= 0.0) {\n"
+"    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);   /* outside the clip volume: culled */\n"
+"    return;\n"
+"  }\n"
+"  vec2 s0 = c0.xy / c0.w * u_viewport * 0.5, s1 = c1.xy / c1.w * u_viewport * 0.5;\n"
 "  vec2 d = s1 - s0;\n"
 "  d = length(d) > 1e-6 ? normalize(d) : vec2(1.0, 0.0);\n"
 "  /* Half a pixel each side, in NDC. */\n"
-"  vec2 off = vec2(-d.y, d.x) * 0.5 * 2.0 / u_viewport;\n"
-"  emit(0, off); emit(0, -off); emit(1, off); emit(1, -off);\n"
-"  EndPrimitive();\n"
+"  vec2 off = vec2(-d.y, d.x) / u_viewport * ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
+"  vec4 c = second ? c1 : c0;\n"
+"  gl_Position = vec4(c.xy + off * c.w, c.zw);\n"
 "}\n";
 
 /* Shared fragment code: hash, hashed alpha threshold, shading, shadows. */
@@ -173,6 +173,9 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
 "    mask &= m;\n"
 "  }\n"
 "  gl_SampleMask[0] = mask;\n"
+"  /* Most fragments of fine hair keep no sample: skip their shading (and\n"
+"   * its shadow lookups) once the whole block has none. */\n"
+"  if (mask == 0) discard;\n"
 "  float c, h;\n"
 "  shade(c, h);\n"
 "  vec3 t = normalize(vi.vtan);\n"

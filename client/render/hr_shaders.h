@@ -2,10 +2,9 @@
 #ifndef HR_SHADERS_H
 #define HR_SHADERS_H
 
-/* Hair vertex shader, shared by every hair pass. */
+/* Hair vertex shader, shared by every hair pass: one instance per segment,
+ * expanded into a quad one pixel wide. */
 extern const char hr_glsl_hair_vs[];
-/* Expands each line into a quad exactly one pixel wide (every hair pass). */
-extern const char hr_glsl_hair_gs[];
 /* Stochastic-transparency features into the MS attachments. */
 extern const char hr_glsl_st_fs[];
 /* Stochastic shadow map: hashed alpha test, linear depth. */

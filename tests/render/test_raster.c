@@ -346,7 +346,7 @@ static void test_dataset_mode(void **state) {
   char err[512] = "";
   int rc = hfr_dataset_run(&o, err, sizeof err);
   if (rc != HF_OK) fail_msg("dataset: %s", err);
-  assert_int_equal(hr_context_make_current(R->ctx), HF_OK);
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
 
   char path[512];
   snprintf(path, sizeof path, "%s/manifest.json", dir);
@@ -405,8 +405,8 @@ static void test_egl(void **state) {
   hf_image_free(&img);
   hfr_hair_free(&h);
   hfr_renderer_destroy(r);
-  /* Put the suite's OSMesa context back. */
-  assert_int_equal(hr_context_make_current(R->ctx), HF_OK);
+  /* Put the suite's OSMesa context and entry points back. */
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
 }
 
 int main(void) {
