@@ -33,7 +33,8 @@ static void egl_destroy(hr_context *c) {
   if (e->dpy != EGL_NO_DISPLAY) {
     eglMakeCurrent(e->dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
     if (e->ctx != EGL_NO_CONTEXT) eglDestroyContext(e->dpy, e->ctx);
-    eglTerminate(e->dpy);
+    /* No eglTerminate: the platform hands every renderer the same display,
+     * and terminating it would pull the contexts of the others. */
   }
   free(e);
   free(c);
