@@ -245,10 +245,10 @@ static int open_renderer(const opts *o, const hfr_hair *hair, hfr_renderer **r) 
 static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_view *v,
                         const hfr_stats *st) {
   fprintf(stderr,
-          "%s, %u strands, %llu segments, %dx%d: shadow %.0f ms, features %.0f ms, "
+          "%s (%s), %u strands, %llu segments, %dx%d: shadow %.0f ms, features %.0f ms, "
           "baselines %.0f ms, ground truth %.0f ms (%llu fragments, deepest list %u, "
           "%llu lists sorted in several rounds%s)\n",
-          hfr_renderer_platform(r), hair->strands,
+          hfr_renderer_platform(r), hfr_renderer_gl_name(r), hair->strands,
           (unsigned long long)hfr_hair_total_segments(hair), v->width, v->height, st->shadow_ms,
           st->features_ms, st->baselines_ms, st->gt_ms, (unsigned long long)st->gt_fragments,
           st->gt_max_depth, (unsigned long long)st->gt_truncated,

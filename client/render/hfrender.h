@@ -179,6 +179,8 @@ typedef struct hfr_renderer hfr_renderer;
 int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, size_t errlen);
 void hfr_renderer_destroy(hfr_renderer *r);
 const char *hfr_renderer_platform(const hfr_renderer *r);
+/* GL_RENDERER and GL_VERSION of its context ("llvmpipe (LLVM ...), 4.5 ..."). */
+const char *hfr_renderer_gl_name(const hfr_renderer *r);
 /* Uploads a model (replacing the previous one). head: the model grows on
  * the procedural head (HFR_HEAD_RADII at the origin), which is then drawn as
  * an opaque occluder (hair behind it hidden and shadowed) that itself never

@@ -139,6 +139,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   cJSON_AddNumberToObject(doc, "version", 1);
   cJSON_AddStringToObject(doc, "generator", "hairfilter render dataset");
   cJSON_AddStringToObject(doc, "gl_platform", hfr_renderer_platform(r));
+  cJSON_AddStringToObject(doc, "gl_renderer", hfr_renderer_gl_name(r));
   cJSON_AddNumberToObject(doc, "spp", spp);
   cJSON_AddItemToObject(doc, "spp_list", int_list(o->spp_list, o->n_spp));
   cJSON_AddItemToObject(doc, "st", int_list(o->st_spp, o->n_st));

@@ -32,8 +32,6 @@
   X(PFNGLTEXPARAMETERIPROC, TexParameteri)                                    \
   X(PFNGLTEXSTORAGE2DPROC, TexStorage2D)                                      \
   X(PFNGLTEXSTORAGE2DMULTISAMPLEPROC, TexStorage2DMultisample)                \
-  X(PFNGLGETMULTISAMPLEFVPROC, GetMultisamplefv)                              \
-  X(PFNGLGETINTERNALFORMATIVPROC, GetInternalformativ)                        \
   X(PFNGLGENFRAMEBUFFERSPROC, GenFramebuffers)                                \
   X(PFNGLDELETEFRAMEBUFFERSPROC, DeleteFramebuffers)                          \
   X(PFNGLBINDFRAMEBUFFERPROC, BindFramebuffer)                                \
@@ -44,7 +42,6 @@
   X(PFNGLBINDBUFFERPROC, BindBuffer)                                          \
   X(PFNGLBINDBUFFERBASEPROC, BindBufferBase)                                  \
   X(PFNGLBUFFERDATAPROC, BufferData)                                          \
-  X(PFNGLBUFFERSUBDATAPROC, BufferSubData)                                    \
   X(PFNGLGETBUFFERSUBDATAPROC, GetBufferSubData)                              \
   X(PFNGLCLEARBUFFERDATAPROC, ClearBufferData)                                \
   X(PFNGLGENVERTEXARRAYSPROC, GenVertexArrays)                                \

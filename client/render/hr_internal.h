@@ -34,6 +34,7 @@ typedef struct hr_camera {
 struct hfr_renderer {
   hr_context *ctx;
   hr_gl_table gl;               /* entry points of ctx */
+  char gl_renderer[128];        /* GL_RENDERER and GL_VERSION */
   int gl_loaded;
   hr_program st, shadow, abuf, head, resolve_ms, resolve_abuf;
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;

@@ -14,6 +14,10 @@ const char *hfr_renderer_platform(const hfr_renderer *r) {
   return r ? hr_context_platform(r->ctx) : "none";
 }
 
+const char *hfr_renderer_gl_name(const hfr_renderer *r) {
+  return r ? r->gl_renderer : "none";
+}
+
 int hr_renderer_bind(hfr_renderer *r) {
   if (!r->gl_loaded) return HF_EINVAL;
   int rc = hr_context_make_current(r->ctx);
@@ -80,7 +84,13 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
   if (!r) return HF_ENOMEM;
   int rc = hr_context_create(platform, &r->ctx, err, errlen);
   if (rc == HF_OK) rc = hr_gl_load(r->ctx, &r->gl, err, errlen);
-  if (rc == HF_OK) r->gl_loaded = 1;
+  if (rc == HF_OK) {
+    r->gl_loaded = 1;
+    const char *name = (const char *)hrgl.GetString(GL_RENDERER);
+    const char *ver = (const char *)hrgl.GetString(GL_VERSION);
+    snprintf(r->gl_renderer, sizeof r->gl_renderer, "%s, %s", name ? name : "?",
+             ver ? ver : "?");
+  }
   if (rc != HF_OK) {
     hfr_renderer_destroy(r);
     return rc;
