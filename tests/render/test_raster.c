@@ -378,6 +378,49 @@ static void test_dataset_mode(void **state) {
   rmdir(dir);
 }
 
+/* The one-call API other commands use, on a model from a .hair file. */
+static void test_render_frame_from_file(void **state) {
+  (void)state;
+  hfr_style_params p;
+  hfr_style_defaults(HFR_STYLE_COILY, &p);
+  p.strands = 500;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+  char path[256];
+  snprintf(path, sizeof path, "/tmp/hf_test_frame_%d.hair", (int)getpid());
+  assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+  hfr_hair_free(&h);
+  hfr_frame f;
+  hfr_frame_defaults(&f, 48, 40);
+  f.hair_path = path;
+  f.platform = "osmesa";
+  f.outputs.spp = 2;
+  f.outputs.st_spp[0] = 8;
+  f.outputs.n_st = 1;
+  hf_image img;
+  hfr_stats st;
+  char err[512] = "";
+  int rc = hfr_render_frame(&f, &img, &st, err, sizeof err);
+  remove(path);
+  if (rc != HF_OK) fail_msg("frame: %s", err);
+  assert_int_equal(img.width, 48);
+  assert_int_equal(img.height, 40);
+  assert_int_equal(img.channels, 2 * 6 + 3 + 3);
+  assert_int_equal(hf_features_spp(&img), 2);
+  assert_true(st.gt_fragments > 0);
+  float *rgb = malloc(sizeof(float) * 3 * 48 * 40);
+  assert_non_null(rgb);
+  assert_int_equal(hfr_composite_channels(&img, "gt", &f.view, rgb), HF_OK);
+  assert_int_equal(hfr_composite_channels(&img, "st8", &f.view, rgb), HF_OK);
+  assert_int_equal(hfr_composite_channels(&img, "opaque", &f.view, rgb), HF_ENOTFOUND);
+  free(rgb);
+  hf_image_free(&img);
+  /* A missing file is reported, not rendered. */
+  f.hair_path = "/nonexistent/model.hair";
+  assert_int_equal(hfr_render_frame(&f, &img, NULL, err, sizeof err), HF_EIO);
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
+}
+
 /* The same GL code on EGL, where this build and machine have it. */
 static void test_egl(void **state) {
   (void)state;
@@ -417,6 +460,7 @@ int main(void) {
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_frame_ranges),
     cmocka_unit_test(test_dataset_mode),
+    cmocka_unit_test(test_render_frame_from_file),
     cmocka_unit_test(test_egl),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
