@@ -1,7 +1,8 @@
 /* Procedural hairstyles on the ellipsoid head of hfrender.h.
  *
  * Every style is built in four steps, each strand from its own seeded
- * stream so a strand does not depend on how many others there are:
+ * stream so that its root and base curve do not depend on how many others
+ * there are (its clump guide does):
  *   1. a root on the scalp (the part of the ellipsoid above a hairline that
  *      is high at the forehead and low at the nape);
  *   2. a base curve grown segment by segment: the direction starts along
