@@ -1,0 +1,614 @@
+/*
+ * cpu: the network on oneDNN (2.x C API), float32, NHWC activations.
+ *
+ * Layout choices, measured on oneDNN 2.6 (docs/PERFORMANCE.md):
+ *   - Every activation is dense NHWC. With NHWC, oneDNN picks its brgemm
+ *     convolutions and jit deconvolutions; blocked layouts (nChw16c) made the
+ *     deconvolutions slower and the 24- and 3-channel ends fell back to the
+ *     reference kernels.
+ *   - The decoder's concat(dec{i+1}, enc{i}) is a real buffer that both
+ *     producers are copied into by reorders. Writing the producers in place
+ *     through sub-memory descriptors would save the copies, but oneDNN 2.6
+ *     only has reference (loop) kernels for strided destinations, tens of
+ *     times slower than the copies.
+ *   - ReLU is a post-op of the convolutions but a separate in-place eltwise
+ *     after the deconvolutions: fused into an fp32 deconvolution it made
+ *     that primitive about ten times slower.
+ *   - Weights are reordered once, at model_create, into the format oneDNN
+ *     chooses (format_tag_any); a size whose primitives want another format
+ *     gets a private copy in its plan.
+ *
+ * A plan holds the primitives and buffers of one (batch, padded size); plans
+ * are cached per model (least recently used goes), so a run of a size seen
+ * before allocates nothing.
+ */
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <dnnl.h>
+
+#include "backend.h"
+
+#define OD_PLAN_CACHE 4
+/* Primitives per plan: per level a conv, a deconv, a ReLU and two copies,
+ * plus slack. */
+#define OD_MAX_STEPS (6 * HF_MAX_LEVELS)
+#define OD_MAX_MEMS (16 * HF_MAX_LEVELS)
+
+typedef struct od_dev {
+  dnnl_engine_t eng;
+  dnnl_stream_t stream;
+} od_dev;
+
+typedef struct od_step {
+  dnnl_primitive_t prim;
+  int nargs;
+  dnnl_exec_arg_t args[5];
+} od_step;
+
+typedef struct od_plan {
+  int batch, pw, ph;
+  uint64_t stamp;               /* last use, for eviction */
+  float *in;                    /* padded input [batch][ph][pw][cin] */
+  float *out;                   /* raw output [batch][ph][pw][3] */
+  void *ping[2];                /* non-concat activations, alternating */
+  void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
+  void *scratch;                /* shared by every primitive (run in order) */
+  int nsteps;
+  od_step steps[OD_MAX_STEPS];
+  int nmems;
+  dnnl_memory_t mems[OD_MAX_MEMS];
+  size_t bytes;
+} od_plan;
+
+typedef struct od_model {
+  od_dev *dev;
+  hf_weights *w;                /* private copy, PyTorch layouts */
+  /* Weights in oneDNN's chosen formats, NULL until known. */
+  dnnl_memory_t enc_w[HF_MAX_LEVELS], dec_w[HF_MAX_LEVELS];
+  dnnl_memory_t enc_b[HF_MAX_LEVELS], dec_b[HF_MAX_LEVELS];
+  od_plan *plans[OD_PLAN_CACHE];
+  uint64_t clock;
+} od_model;
+
+/* ---- errors --------------------------------------------------------------- */
+
+static const char *od_status_name(dnnl_status_t s) {
+  switch (s) {
+  case dnnl_success: return "success";
+  case dnnl_out_of_memory: return "out of memory";
+  case dnnl_invalid_arguments: return "invalid arguments";
+  case dnnl_unimplemented: return "unimplemented";
+  case dnnl_iterator_ends: return "iterator ends";
+  case dnnl_runtime_error: return "runtime error";
+  case dnnl_not_required: return "not required";
+  default: return "unknown status";
+  }
+}
+
+/* Logs a failed oneDNN call and maps it to an hfcore error: out-of-memory
+ * stays HF_ENOMEM, everything else is HF_EBACKEND. */
+static int od_report(dnnl_status_t s, const char *call, int line) {
+  fprintf(stderr, "hfcore cpu: %s failed: %s (backend_cpu_onednn.c:%d)\n", call,
+          od_status_name(s), line);
+  return s == dnnl_out_of_memory ? HF_ENOMEM : HF_EBACKEND;
+}
+
+#define OD_TRY(call)                                                      \
+  do {                                                                    \
+    dnnl_status_t od_s_ = (call);                                         \
+    if (od_s_ != dnnl_success) {                                          \
+      rc = od_report(od_s_, #call, __LINE__);                             \
+      goto fail;                                                          \
+    }                                                                     \
+  } while (0)
+
+#define OD_RC(expr)                                                       \
+  do {                                                                    \
+    rc = (expr);                                                          \
+    if (rc) goto fail;                                                    \
+  } while (0)
+
+/* ---- device --------------------------------------------------------------- */
+
+static int od_probe(char *why, size_t whylen) {
+  if (dnnl_engine_get_count(dnnl_cpu) < 1) {
+    if (why && whylen) snprintf(why, whylen, "oneDNN reports no CPU engine");
+    return HF_EUNAVAILABLE;
+  }
+  return HF_OK;
+}
+
+static int od_open(void **out, char *why, size_t whylen) {
+  int rc;
+  od_dev *d = calloc(1, sizeof *d);
+  if (!d) return HF_ENOMEM;
+  OD_TRY(dnnl_engine_create(&d->eng, dnnl_cpu, 0));
+  OD_TRY(dnnl_stream_create(&d->stream, d->eng, dnnl_stream_default_flags));
+  *out = d;
+  return HF_OK;
+fail:
+  if (why && whylen) snprintf(why, whylen, "oneDNN CPU engine could not be created");
+  if (d->eng) dnnl_engine_destroy(d->eng);
+  free(d);
+  return rc;
+}
+
+static void od_close(void *p) {
+  od_dev *d = p;
+  if (!d) return;
+  dnnl_stream_destroy(d->stream);
+  dnnl_engine_destroy(d->eng);
+  free(d);
+}
+
+/* ---- descriptors ---------------------------------------------------------- */
+
+static int od_size_ok(int64_t n, int64_t c, int64_t h, int64_t w) {
+  /* Fits a size_t byte count of floats with room to spare. */
+  return n > 0 && c > 0 && h > 0 && w > 0 && n * c <= INT64_MAX / 4 / h / w;
+}
+
+static int od_nhwc(dnnl_memory_desc_t *md, int n, int c, int h, int w) {
+  dnnl_dims_t d = {n, c, h, w};
+  int rc = HF_OK;
+  if (!od_size_ok(n, c, h, w)) return HF_ERANGE;
+  OD_TRY(dnnl_memory_desc_init_by_tag(md, 4, d, dnnl_f32, dnnl_nhwc));
+fail:
+  return rc;
+}
+
+/* Creates the convolution (3x3, stride 2, pad 1, fused ReLU) or
+ * deconvolution (4x4, stride 2, pad 1, no post-op) primitive descriptor
+ * between src and dst with weights and scratchpad formats left to oneDNN. */
+static int od_layer_pd(od_dev *dev, int deconv, const dnnl_memory_desc_t *src,
+                       const dnnl_memory_desc_t *dst, int cin, int cout,
+                       dnnl_primitive_desc_t *pd) {
+  int rc = HF_OK, k = deconv ? 4 : 3;
+  dnnl_memory_desc_t wmd, bmd;
+  dnnl_dims_t wd = {cout, cin, k, k}, bd = {cout};
+  dnnl_dims_t strides = {2, 2}, pad = {1, 1};
+  dnnl_primitive_attr_t attr = NULL;
+  dnnl_post_ops_t po = NULL;
+  *pd = NULL;
+  OD_TRY(dnnl_memory_desc_init_by_tag(&wmd, 4, wd, dnnl_f32, dnnl_format_tag_any));
+  OD_TRY(dnnl_memory_desc_init_by_tag(&bmd, 1, bd, dnnl_f32, dnnl_x));
+  OD_TRY(dnnl_primitive_attr_create(&attr));
+  OD_TRY(dnnl_primitive_attr_set_scratchpad_mode(attr, dnnl_scratchpad_mode_user));
+  if (deconv) {
+    dnnl_deconvolution_desc_t dd;
+    OD_TRY(dnnl_deconvolution_forward_desc_init(&dd, dnnl_forward_inference,
+                                                dnnl_deconvolution_direct, src, &wmd, &bmd,
+                                                dst, strides, pad, pad));
+    OD_TRY(dnnl_primitive_desc_create(pd, &dd, attr, dev->eng, NULL));
+  } else {
+    dnnl_convolution_desc_t cd;
+    OD_TRY(dnnl_post_ops_create(&po));
+    OD_TRY(dnnl_post_ops_append_eltwise(po, 1.0f, dnnl_eltwise_relu, 0.0f, 0.0f));
+    OD_TRY(dnnl_primitive_attr_set_post_ops(attr, po));
+    OD_TRY(dnnl_convolution_forward_desc_init(&cd, dnnl_forward_inference,
+                                              dnnl_convolution_direct, src, &wmd, &bmd, dst,
+                                              strides, pad, pad));
+    OD_TRY(dnnl_primitive_desc_create(pd, &cd, attr, dev->eng, NULL));
+  }
+fail:
+  if (po) dnnl_post_ops_destroy(po);
+  if (attr) dnnl_primitive_attr_destroy(attr);
+  return rc;
+}
+
+/* Reorders src_mem into a new memory of layout md (allocated by oneDNN). */
+static int od_reorder_new(od_dev *dev, dnnl_memory_t src_mem, const dnnl_memory_desc_t *md,
+                          dnnl_memory_t *out) {
+  int rc = HF_OK;
+  const dnnl_memory_desc_t *smd;
+  dnnl_primitive_desc_t pd = NULL;
+  dnnl_primitive_t prim = NULL;
+  *out = NULL;
+  OD_TRY(dnnl_memory_get_memory_desc(src_mem, &smd));
+  OD_TRY(dnnl_memory_create(out, md, dev->eng, DNNL_MEMORY_ALLOCATE));
+  OD_TRY(dnnl_reorder_primitive_desc_create(&pd, smd, dev->eng, md, dev->eng, NULL));
+  OD_TRY(dnnl_primitive_create(&prim, pd));
+  dnnl_exec_arg_t args[2] = {{DNNL_ARG_FROM, src_mem}, {DNNL_ARG_TO, *out}};
+  OD_TRY(dnnl_primitive_execute(prim, dev->stream, 2, args));
+  OD_TRY(dnnl_stream_wait(dev->stream));
+fail:
+  if (prim) dnnl_primitive_destroy(prim);
+  if (pd) dnnl_primitive_desc_destroy(pd);
+  if (rc && *out) {
+    dnnl_memory_destroy(*out);
+    *out = NULL;
+  }
+  return rc;
+}
+
+/* The weights of one layer in the layout md: the model's copy when it
+ * matches (or when the model has none yet and keeps this one), else a new
+ * memory the caller owns (*owned = 1). */
+static int od_weights_for(od_model *m, int deconv, int i, const dnnl_memory_desc_t *md,
+                          dnnl_memory_t *out, int *owned) {
+  int rc = HF_OK;
+  const hf_net_config *c = &m->w->cfg;
+  dnnl_memory_t *slot = deconv ? &m->dec_w[i] : &m->enc_w[i];
+  dnnl_memory_t user = NULL;
+  *owned = 0;
+  if (*slot) {
+    const dnnl_memory_desc_t *have;
+    OD_TRY(dnnl_memory_get_memory_desc(*slot, &have));
+    if (dnnl_memory_desc_equal(have, md)) {
+      *out = *slot;
+      return HF_OK;
+    }
+  }
+  /* PyTorch layouts: Conv2d [out][in][kh][kw] is oihw; ConvTranspose2d
+   * [in][out][kh][kw] is iohw in oneDNN's (out, in) dimension order. */
+  int cin = deconv ? hf_dec_in(c, i) : hf_enc_in(c, i);
+  int cout = deconv ? hf_dec_out(c, i) : hf_enc_out(c, i);
+  int k = deconv ? 4 : 3;
+  dnnl_dims_t wd = {cout, cin, k, k};
+  dnnl_memory_desc_t umd;
+  OD_TRY(dnnl_memory_desc_init_by_tag(&umd, 4, wd, dnnl_f32, deconv ? dnnl_iohw : dnnl_oihw));
+  OD_TRY(dnnl_memory_create(&user, &umd, m->dev->eng, deconv ? m->w->dec_w[i] : m->w->enc_w[i]));
+  OD_RC(od_reorder_new(m->dev, user, md, out));
+  if (!*slot)
+    *slot = *out;
+  else
+    *owned = 1;
+fail:
+  if (user) dnnl_memory_destroy(user);
+  return rc;
+}
+
+/* ---- plans ---------------------------------------------------------------- */
+
+static void od_plan_free(od_plan *p) {
+  if (!p) return;
+  for (int s = 0; s < p->nsteps; s++) dnnl_primitive_destroy(p->steps[s].prim);
+  for (int k = 0; k < p->nmems; k++) dnnl_memory_destroy(p->mems[k]);
+  free(p->in);
+  free(p->out);
+  free(p->ping[0]);
+  free(p->ping[1]);
+  for (int i = 0; i < HF_MAX_LEVELS; i++) free(p->cat[i]);
+  free(p->scratch);
+  free(p);
+}
+
+/* Allocates n bytes, 64-byte aligned, counted in the plan's size. */
+static int od_alloc_bytes(od_plan *p, size_t n, void **buf) {
+  size_t r = (n + 63) & ~(size_t)63;
+  if (r < n) return HF_ERANGE;
+  *buf = aligned_alloc(64, r ? r : 64);
+  if (!*buf) return HF_ENOMEM;
+  p->bytes += r;
+  return HF_OK;
+}
+
+/* Allocates a buffer of md's size. */
+static int od_alloc(od_plan *p, const dnnl_memory_desc_t *md, void **buf) {
+  return od_alloc_bytes(p, dnnl_memory_desc_get_size(md), buf);
+}
+
+/* A memory object over buf, owned by the plan. */
+static int od_mem(od_plan *p, od_dev *dev, const dnnl_memory_desc_t *md, void *buf,
+                  dnnl_memory_t *out) {
+  int rc = HF_OK;
+  if (p->nmems >= OD_MAX_MEMS) return HF_ERANGE;
+  OD_TRY(dnnl_memory_create(out, md, dev->eng, buf));
+  p->mems[p->nmems++] = *out;
+fail:
+  return rc;
+}
+
+static int od_add_step(od_plan *p, dnnl_primitive_t prim, int nargs, const dnnl_exec_arg_t *args) {
+  if (p->nsteps >= OD_MAX_STEPS) {
+    dnnl_primitive_destroy(prim);
+    return HF_ERANGE;
+  }
+  od_step *s = &p->steps[p->nsteps++];
+  s->prim = prim;
+  s->nargs = nargs;
+  memcpy(s->args, args, sizeof *args * nargs);
+  return HF_OK;
+}
+
+/* Deferred: the scratchpad is sized after every primitive exists, so steps
+ * record which argument slot to point at it. */
+typedef struct od_scratch_ref {
+  int step;
+  const dnnl_memory_desc_t *md;
+} od_scratch_ref;
+
+/* Adds a conv/deconv step from src_mem to dst_mem. */
+static int od_add_layer(od_model *m, od_plan *p, int deconv, int i, dnnl_memory_t src_mem,
+                        dnnl_memory_t dst_mem, size_t *scratch_bytes) {
+  int rc = HF_OK, owned = 0;
+  const hf_net_config *c = &m->w->cfg;
+  const dnnl_memory_desc_t *smd, *dmd;
+  dnnl_primitive_desc_t pd = NULL;
+  dnnl_primitive_t prim = NULL;
+  dnnl_memory_t wmem = NULL;
+  OD_TRY(dnnl_memory_get_memory_desc(src_mem, &smd));
+  OD_TRY(dnnl_memory_get_memory_desc(dst_mem, &dmd));
+  int cin = deconv ? hf_dec_in(c, i) : hf_enc_in(c, i);
+  int cout = deconv ? hf_dec_out(c, i) : hf_enc_out(c, i);
+  OD_RC(od_layer_pd(m->dev, deconv, smd, dmd, cin, cout, &pd));
+  const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
+  const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
+  if (!wmd) {
+    rc = od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
+    goto fail;
+  }
+  OD_RC(od_weights_for(m, deconv, i, wmd, &wmem, &owned));
+  if (owned && p->nmems >= OD_MAX_MEMS) {
+    rc = HF_ERANGE;
+    goto fail;
+  }
+  if (owned) p->mems[p->nmems++] = wmem, owned = 0;
+  size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
+  if (sb > *scratch_bytes) *scratch_bytes = sb;
+  OD_TRY(dnnl_primitive_create(&prim, pd));
+  dnnl_exec_arg_t args[5] = {
+    {DNNL_ARG_SRC, src_mem},
+    {DNNL_ARG_WEIGHTS, wmem},
+    {DNNL_ARG_BIAS, deconv ? m->dec_b[i] : m->enc_b[i]},
+    {DNNL_ARG_DST, dst_mem},
+    {DNNL_ARG_SCRATCHPAD, NULL}, /* set once the scratchpad exists */
+  };
+  rc = od_add_step(p, prim, 5, args);
+  prim = NULL;
+fail:
+  if (owned) dnnl_memory_destroy(wmem);
+  if (prim) dnnl_primitive_destroy(prim);
+  if (pd) dnnl_primitive_desc_destroy(pd);
+  return rc;
+}
+
+static int od_add_relu(od_plan *p, od_dev *dev, dnnl_memory_t mem) {
+  int rc = HF_OK;
+  const dnnl_memory_desc_t *md;
+  dnnl_eltwise_desc_t ed;
+  dnnl_primitive_desc_t pd = NULL;
+  dnnl_primitive_t prim = NULL;
+  OD_TRY(dnnl_memory_get_memory_desc(mem, &md));
+  OD_TRY(dnnl_eltwise_forward_desc_init(&ed, dnnl_forward_inference, dnnl_eltwise_relu, md,
+                                        0.0f, 0.0f));
+  OD_TRY(dnnl_primitive_desc_create(&pd, &ed, NULL, dev->eng, NULL));
+  OD_TRY(dnnl_primitive_create(&prim, pd));
+  dnnl_exec_arg_t args[2] = {{DNNL_ARG_SRC, mem}, {DNNL_ARG_DST, mem}};
+  rc = od_add_step(p, prim, 2, args);
+  prim = NULL;
+fail:
+  if (prim) dnnl_primitive_destroy(prim);
+  if (pd) dnnl_primitive_desc_destroy(pd);
+  return rc;
+}
+
+/* Adds a copy of dense `from` into channels [off, off + C) of the concat
+ * buffer described by cat_md over cat_buf. */
+static int od_add_copy(od_plan *p, od_dev *dev, dnnl_memory_t from,
+                       const dnnl_memory_desc_t *cat_md, void *cat_buf, int off) {
+  int rc = HF_OK;
+  const dnnl_memory_desc_t *fmd;
+  dnnl_memory_desc_t sub;
+  dnnl_memory_t to;
+  dnnl_primitive_desc_t pd = NULL;
+  dnnl_primitive_t prim = NULL;
+  OD_TRY(dnnl_memory_get_memory_desc(from, &fmd));
+  dnnl_dims_t offs = {0, off, 0, 0};
+  OD_TRY(dnnl_memory_desc_init_submemory(&sub, cat_md, fmd->dims, offs));
+  OD_RC(od_mem(p, dev, &sub, cat_buf, &to));
+  OD_TRY(dnnl_reorder_primitive_desc_create(&pd, fmd, dev->eng, &sub, dev->eng, NULL));
+  OD_TRY(dnnl_primitive_create(&prim, pd));
+  dnnl_exec_arg_t args[2] = {{DNNL_ARG_FROM, from}, {DNNL_ARG_TO, to}};
+  rc = od_add_step(p, prim, 2, args);
+  prim = NULL;
+fail:
+  if (prim) dnnl_primitive_destroy(prim);
+  if (pd) dnnl_primitive_desc_destroy(pd);
+  return rc;
+}
+
+/* Builds every primitive and buffer for batch frames of pw x ph. */
+static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out) {
+  const hf_net_config *c = &m->w->cfg;
+  od_dev *dev = m->dev;
+  int L = c->num_levels, rc = HF_OK;
+  size_t scratch_bytes = 0;
+  od_plan *p = calloc(1, sizeof *p);
+  if (!p) return HF_ENOMEM;
+  p->batch = batch, p->pw = pw, p->ph = ph;
+
+  dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS];
+  OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
+  OD_RC(od_nhwc(&out_md, batch, HF_OUT_CHANNELS, ph, pw));
+  OD_RC(od_alloc(p, &in_md, (void **)&p->in));
+  OD_RC(od_alloc(p, &out_md, (void **)&p->out));
+
+  /* The ping-pong buffers hold every encoder output and every decoder
+   * output but the last: the largest of those tensors. */
+  size_t ping_bytes = 0;
+  for (int i = 0; i < L; i++) {
+    dnnl_memory_desc_t md;
+    OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
+    size_t b = dnnl_memory_desc_get_size(&md);
+    if (b > ping_bytes) ping_bytes = b;
+    if (i > 0) {
+      OD_RC(od_nhwc(&md, batch, hf_dec_out(c, i), ph >> i, pw >> i));
+      b = dnnl_memory_desc_get_size(&md);
+      if (b > ping_bytes) ping_bytes = b;
+    }
+  }
+  for (int k = 0; k < 2; k++) OD_RC(od_alloc_bytes(p, ping_bytes, &p->ping[k]));
+  for (int i = 0; i < L - 1; i++) {
+    OD_RC(od_nhwc(&cat_md[i], batch, hf_dec_in(c, i), ph >> (i + 1), pw >> (i + 1)));
+    OD_RC(od_alloc(p, &cat_md[i], &p->cat[i]));
+  }
+
+  /* Encoder: enc{i} reads ping[(i+1)%2] (or the input) and writes ping[i%2];
+   * its output is also copied into the right half of cat{i}. */
+  dnnl_memory_t src, dst;
+  OD_RC(od_mem(p, dev, &in_md, p->in, &src));
+  for (int i = 0; i < L; i++) {
+    dnnl_memory_desc_t md;
+    OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
+    OD_RC(od_mem(p, dev, &md, p->ping[i % 2], &dst));
+    OD_RC(od_add_layer(m, p, 0, i, src, dst, &scratch_bytes));
+    if (i < L - 1) OD_RC(od_add_copy(p, dev, dst, &cat_md[i], p->cat[i], hf_enc_out(c, i)));
+    src = dst;
+  }
+  /* Decoder: dec{L-1} reads enc{L-1}'s output, the others their concat
+   * buffer; outputs go to the free ping buffer, get their ReLU, and are
+   * copied into the left half of the next concat buffer. */
+  for (int i = L - 1; i >= 0; i--) {
+    if (i < L - 1) OD_RC(od_mem(p, dev, &cat_md[i], p->cat[i], &src));
+    if (i == 0) {
+      OD_RC(od_mem(p, dev, &out_md, p->out, &dst));
+      OD_RC(od_add_layer(m, p, 1, i, src, dst, &scratch_bytes));
+      break;
+    }
+    dnnl_memory_desc_t md;
+    OD_RC(od_nhwc(&md, batch, hf_dec_out(c, i), ph >> i, pw >> i));
+    /* dec{L-1} must not overwrite its own input, ping[(L-1)%2]. */
+    OD_RC(od_mem(p, dev, &md, p->ping[L % 2], &dst));
+    OD_RC(od_add_layer(m, p, 1, i, src, dst, &scratch_bytes));
+    OD_RC(od_add_relu(p, dev, dst));
+    OD_RC(od_add_copy(p, dev, dst, &cat_md[i - 1], p->cat[i - 1], 0));
+  }
+
+  if (scratch_bytes) {
+    dnnl_memory_desc_t md;
+    dnnl_memory_t smem;
+    dnnl_dims_t d = {(dnnl_dim_t)scratch_bytes};
+    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
+    OD_RC(od_alloc(p, &md, &p->scratch));
+    OD_RC(od_mem(p, dev, &md, p->scratch, &smem));
+    for (int s = 0; s < p->nsteps; s++)
+      for (int a = 0; a < p->steps[s].nargs; a++)
+        if (p->steps[s].args[a].arg == DNNL_ARG_SCRATCHPAD) p->steps[s].args[a].memory = smem;
+  }
+  /* Primitives without a scratchpad need no argument for it. */
+  for (int s = 0; s < p->nsteps; s++) {
+    od_step *st = &p->steps[s];
+    if (st->nargs && st->args[st->nargs - 1].arg == DNNL_ARG_SCRATCHPAD &&
+        !st->args[st->nargs - 1].memory)
+      st->nargs--;
+  }
+  *out = p;
+  return HF_OK;
+fail:
+  od_plan_free(p);
+  return rc;
+}
+
+/* The plan for (batch, pw, ph): cached, or built in place of the least
+ * recently used one. */
+static int od_plan_get(od_model *m, int batch, int pw, int ph, od_plan **out) {
+  int victim = 0;
+  for (int k = 0; k < OD_PLAN_CACHE; k++) {
+    od_plan *p = m->plans[k];
+    if (p && p->batch == batch && p->pw == pw && p->ph == ph) {
+      p->stamp = ++m->clock;
+      *out = p;
+      return HF_OK;
+    }
+    if (!p || (m->plans[victim] && p->stamp < m->plans[victim]->stamp)) victim = k;
+  }
+  /* Free the victim first: a large plan's buffers can then be reused by
+   * the allocator for the new one. */
+  od_plan_free(m->plans[victim]);
+  m->plans[victim] = NULL;
+  int rc = od_plan_create(m, batch, pw, ph, &m->plans[victim]);
+  if (rc) return rc;
+  m->plans[victim]->stamp = ++m->clock;
+  *out = m->plans[victim];
+  return HF_OK;
+}
+
+/* ---- model ---------------------------------------------------------------- */
+
+static void od_model_destroy(void *impl) {
+  od_model *m = impl;
+  if (!m) return;
+  for (int k = 0; k < OD_PLAN_CACHE; k++) od_plan_free(m->plans[k]);
+  for (int i = 0; i < HF_MAX_LEVELS; i++) {
+    if (m->enc_w[i]) dnnl_memory_destroy(m->enc_w[i]);
+    if (m->dec_w[i]) dnnl_memory_destroy(m->dec_w[i]);
+    if (m->enc_b[i]) dnnl_memory_destroy(m->enc_b[i]);
+    if (m->dec_b[i]) dnnl_memory_destroy(m->dec_b[i]);
+  }
+  hf_weights_free(m->w);
+  free(m);
+}
+
+static int od_model_create(void *devp, const hf_weights *w, void **out) {
+  od_dev *dev = devp;
+  int rc;
+  od_model *m = calloc(1, sizeof *m);
+  if (!m) return HF_ENOMEM;
+  m->dev = dev;
+  OD_RC(hf_weights_alloc(&w->cfg, &m->w));
+  memcpy(m->w->storage, w->storage, w->num_params * sizeof(float));
+  memcpy(m->w->features, w->features, sizeof m->w->features);
+  const hf_net_config *c = &m->w->cfg;
+  for (int i = 0; i < c->num_levels; i++) {
+    dnnl_memory_desc_t md;
+    dnnl_dims_t d = {hf_enc_out(c, i)};
+    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_f32, dnnl_x));
+    OD_TRY(dnnl_memory_create(&m->enc_b[i], &md, dev->eng, m->w->enc_b[i]));
+    d[0] = hf_dec_out(c, i);
+    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_f32, dnnl_x));
+    OD_TRY(dnnl_memory_create(&m->dec_b[i], &md, dev->eng, m->w->dec_b[i]));
+  }
+  /* Reorder the weights now, into the formats oneDNN picks for a frame of
+   * 256 x 256 (or the alignment, if larger): the plan built here is kept,
+   * and plans of other sizes find the same formats in the model. */
+  int a = hf_net_align(c), side = a > 256 ? a : 256;
+  OD_RC(od_plan_get(m, 1, side, side, &(od_plan *){NULL}));
+  *out = m;
+  return HF_OK;
+fail:
+  od_model_destroy(m);
+  return rc;
+}
+
+static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
+  od_model *m = impl;
+  const hf_net_config *c = &m->w->cfg;
+  int a = hf_net_align(c), rc = HF_OK;
+  int pw = hf_round_up(io->width, a), ph = hf_round_up(io->height, a);
+  od_plan *p;
+  double t0 = hf_now_us();
+  OD_RC(od_plan_get(m, io->batch, pw, ph, &p));
+  hf_input_to_padded_f32(io, c->in_channels, pw, ph, p->in);
+  double t1 = hf_now_us();
+  for (int s = 0; s < p->nsteps; s++)
+    OD_TRY(dnnl_primitive_execute(p->steps[s].prim, m->dev->stream, p->steps[s].nargs,
+                                  p->steps[s].args));
+  OD_TRY(dnnl_stream_wait(m->dev->stream));
+  double t2 = hf_now_us();
+  hf_output_from_padded_f32(c, p->in, p->out, pw, ph, io);
+  t->input_us = t1 - t0;
+  t->infer_us = t2 - t1;
+  t->output_us = hf_now_us() - t2;
+fail:
+  return rc;
+}
+
+static const char *od_model_precision(void *impl) { return "fp32"; }
+
+const hf_backend_ops hf_backend_cpu_onednn = {
+  .name = "cpu",
+  .priority = 50,
+  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL,
+  .probe = od_probe,
+  .open = od_open,
+  .close = od_close,
+  .model_create = od_model_create,
+  .model_destroy = od_model_destroy,
+  .model_run = od_model_run,
+  .model_precision = od_model_precision,
+};

@@ -1,0 +1,238 @@
+/* The cpu backend (oneDNN) must compute what cpu-ref computes: every preset
+ * variant, odd sizes that need padding, batches, f32 and f16 io, and the
+ * same answer again after its plan cache has been reused and evicted. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "hfcore.h"
+
+/* Relative L2 error allowed for float32 results. Half-float output is
+ * rounded by both backends, and a value on a rounding boundary can land one
+ * half ulp (2^-11 relative) apart, so f16 output gets f16's resolution. */
+#define TOL_F32 1e-4
+#define TOL_F16 1e-3
+
+typedef struct fixture {
+  hf_backend *cpu, *ref;
+} fixture;
+
+static int setup(void **state) {
+  fixture *f = calloc(1, sizeof *f);
+  char why[256];
+  if (!f) return -1;
+  if (hf_backend_create("cpu", &f->cpu, why, sizeof why) != HF_OK) {
+    fprintf(stderr, "cpu backend unavailable: %s\n", why);
+    free(f);
+    return -1;
+  }
+  if (hf_backend_create("cpu-ref", &f->ref, why, sizeof why) != HF_OK) {
+    hf_backend_destroy(f->cpu);
+    free(f);
+    return -1;
+  }
+  *state = f;
+  return 0;
+}
+
+static int teardown(void **state) {
+  fixture *f = *state;
+  hf_backend_destroy(f->cpu);
+  hf_backend_destroy(f->ref);
+  free(f);
+  return 0;
+}
+
+static uint64_t rng_next(uint64_t *s) {
+  *s ^= *s << 13;
+  *s ^= *s >> 7;
+  *s ^= *s << 17;
+  return *s;
+}
+
+/* Feature-like inputs: colour, highlight, alpha, depth in [0, 1], tangents
+ * in [-1, 1], with some samples empty (all zero) as in real frames. */
+static float *random_input(const hf_net_config *c, int batch, int w, int h, uint64_t seed) {
+  size_t n = (size_t)batch * w * h * c->in_channels;
+  float *in = malloc(n * sizeof *in);
+  assert_non_null(in);
+  uint64_t s = seed * 2654435761u + 1;
+  for (size_t i = 0; i < n; i += HF_FEATURES_PER_SAMPLE) {
+    int empty = rng_next(&s) % 4 == 0;
+    for (int k = 0; k < HF_FEATURES_PER_SAMPLE; k++) {
+      float u = (float)(rng_next(&s) >> 11) / (float)(1ull << 53);
+      in[i + k] = empty ? 0.0f : (k >= 4 ? 2.0f * u - 1.0f : u);
+    }
+  }
+  return in;
+}
+
+static void to_f16(const float *src, size_t n, uint16_t *dst) {
+  for (size_t i = 0; i < n; i++) dst[i] = hf_f32_to_f16(src[i]);
+}
+
+static void as_f32(const void *src, hf_dtype t, size_t n, float *dst) {
+  for (size_t i = 0; i < n; i++)
+    dst[i] = t == HF_F32 ? ((const float *)src)[i] : hf_f16_to_f32(((const uint16_t *)src)[i]);
+}
+
+/* Runs model on a batch of w x h frames and returns the output as floats. */
+static float *run(hf_model *m, const float *in, int batch, int w, int h, hf_dtype in_t,
+                  hf_dtype out_t) {
+  const hf_net_config *c = hf_model_config(m);
+  size_t nin = (size_t)batch * w * h * c->in_channels, nout = (size_t)batch * w * h * 3;
+  void *inbuf = (void *)in;
+  uint16_t *in16 = NULL;
+  if (in_t == HF_F16) {
+    in16 = malloc(nin * sizeof *in16);
+    assert_non_null(in16);
+    to_f16(in, nin, in16);
+    inbuf = in16;
+  }
+  void *out = malloc(nout * (out_t == HF_F32 ? 4 : 2));
+  float *res = malloc(nout * sizeof *res);
+  assert_non_null(out);
+  assert_non_null(res);
+  hf_io io = {batch, w, h, inbuf, in_t, out, out_t};
+  hf_timing t = {-1, -1, -1};
+  assert_int_equal(hf_model_run(m, &io, &t), HF_OK);
+  assert_true(t.input_us >= 0 && t.infer_us >= 0 && t.output_us >= 0);
+  as_f32(out, out_t, nout, res);
+  free(out);
+  free(in16);
+  return res;
+}
+
+static double rel_l2(const float *a, const float *b, size_t n) {
+  double num = 0, den = 0;
+  for (size_t i = 0; i < n; i++) {
+    assert_false(isnan(a[i]));
+    assert_false(isnan(b[i]));
+    double d = (double)a[i] - b[i];
+    num += d * d;
+    den += (double)b[i] * b[i];
+  }
+  assert_true(den > 0);
+  return sqrt(num / den);
+}
+
+static void compare(fixture *f, const char *variant, int batch, int w, int h, hf_dtype in_t,
+                    hf_dtype out_t, uint64_t seed) {
+  hf_net_config cfg;
+  hf_weights *wt;
+  hf_model *mc, *mr;
+  assert_int_equal(hf_variant_preset(variant, &cfg), HF_OK);
+  assert_int_equal(hf_weights_init_random(&cfg, seed, &wt), HF_OK);
+  assert_int_equal(hf_model_create(f->cpu, wt, &mc), HF_OK);
+  assert_int_equal(hf_model_create(f->ref, wt, &mr), HF_OK);
+  assert_string_equal(hf_model_precision(mc), "fp32");
+  float *in = random_input(&cfg, batch, w, h, seed + 7);
+  float *a = run(mc, in, batch, w, h, in_t, out_t);
+  float *b = run(mr, in, batch, w, h, in_t, out_t);
+  double e = rel_l2(a, b, (size_t)batch * w * h * 3);
+  double tol = out_t == HF_F16 ? TOL_F16 : TOL_F32;
+  if (e >= tol)
+    fail_msg("%s %dx%d batch %d in %s out %s: rel L2 %.3g >= %.1g", variant, w, h, batch,
+             in_t == HF_F16 ? "f16" : "f32", out_t == HF_F16 ? "f16" : "f32", e, tol);
+  free(a);
+  free(b);
+  free(in);
+  hf_model_destroy(mc);
+  hf_model_destroy(mr);
+  hf_weights_free(wt);
+}
+
+/* Every preset at odd, aligned and tiny sizes. */
+static void test_presets_match_ref(void **state) {
+  static const int sizes[][2] = {{37, 23}, {64, 48}, {1, 1}};
+  int n = hf_variant_preset_count();
+  assert_true(n >= 7);
+  for (int v = 0; v < n; v++)
+    for (size_t s = 0; s < sizeof sizes / sizeof sizes[0]; s++)
+      compare(*state, hf_variant_preset_name(v), 1, sizes[s][0], sizes[s][1], HF_F32, HF_F32,
+              100 + v);
+}
+
+/* Batches of three, with every io dtype combination. */
+static void test_batch_and_dtypes(void **state) {
+  static const hf_dtype t[][2] = {{HF_F32, HF_F32}, {HF_F16, HF_F32}, {HF_F32, HF_F16},
+                                  {HF_F16, HF_F16}};
+  for (size_t k = 0; k < sizeof t / sizeof t[0]; k++) {
+    compare(*state, "Base", 3, 37, 23, t[k][0], t[k][1], 200 + k);
+    compare(*state, "Shallow", 3, 20, 9, t[k][0], t[k][1], 300 + k);
+  }
+  compare(*state, "Deep", 3, 33, 17, HF_F16, HF_F32, 400);
+}
+
+/* The same frame gives the same bytes on a reused plan, after other sizes
+ * and batches have gone through the cache and evicted it, and a batch's
+ * frames equal the frames run alone. */
+static void test_repeat_and_cache(void **state) {
+  fixture *f = *state;
+  hf_net_config cfg;
+  hf_weights *wt;
+  hf_model *m;
+  assert_int_equal(hf_variant_preset("Base", &cfg), HF_OK);
+  assert_int_equal(hf_weights_init_random(&cfg, 9, &wt), HF_OK);
+  assert_int_equal(hf_model_create(f->cpu, wt, &m), HF_OK);
+  const int w = 45, h = 30;
+  size_t nout = (size_t)w * h * 3;
+  float *in = random_input(&cfg, 2, w, h, 11);
+  float *first = run(m, in, 1, w, h, HF_F32, HF_F32);
+  float *again = run(m, in, 1, w, h, HF_F32, HF_F32);
+  assert_memory_equal(first, again, nout * sizeof(float));
+  free(again);
+  /* More distinct sizes than the cache holds. */
+  static const int other[][2] = {{8, 8}, {16, 24}, {40, 8}, {24, 40}, {72, 16}, {9, 70}};
+  for (size_t k = 0; k < sizeof other / sizeof other[0]; k++) {
+    float *o = run(m, in, 1, other[k][0], other[k][1], HF_F32, HF_F32);
+    free(o);
+  }
+  again = run(m, in, 1, w, h, HF_F32, HF_F32);
+  assert_memory_equal(first, again, nout * sizeof(float));
+  /* Frame 0 of a batch of two against frame 0 alone; frame 1 against the
+   * second frame run alone. oneDNN may split work differently for another
+   * batch size, so this one is compared with the tolerance, not bytes. */
+  float *pair = run(m, in, 2, w, h, HF_F32, HF_F32);
+  float *second = run(m, in + (size_t)w * h * cfg.in_channels, 1, w, h, HF_F32, HF_F32);
+  assert_true(rel_l2(pair, first, nout) < TOL_F32);
+  assert_true(rel_l2(pair + nout, second, nout) < TOL_F32);
+  assert_true(rel_l2(second, first, nout) > TOL_F32); /* different frames differ */
+  free(first);
+  free(again);
+  free(pair);
+  free(second);
+  free(in);
+  hf_model_destroy(m);
+  hf_weights_free(wt);
+}
+
+/* The registry lists "cpu", and "auto" prefers it over cpu-ref. */
+static void test_registry(void **state) {
+  const char *const *names = hf_backend_list();
+  int found = 0;
+  for (int i = 0; names[i]; i++) found |= !strcmp(names[i], "cpu");
+  assert_true(found);
+  hf_backend *b;
+  char why[512];
+  assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
+  assert_string_not_equal(hf_backend_name(b), "cpu-ref");
+  hf_backend_destroy(b);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_registry),
+    cmocka_unit_test(test_presets_match_ref),
+    cmocka_unit_test(test_batch_and_dtypes),
+    cmocka_unit_test(test_repeat_and_cache),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
