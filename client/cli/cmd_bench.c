@@ -1,8 +1,441 @@
-/* Placeholder until the bench command lands. */
+/* hairfilter bench: time backends and variants on random weights and
+ * feature-like inputs, print a Markdown table; with --torch, PyTorch on the
+ * same weights (bench/bench_torch.py) in the same table.
+ *
+ * Timing: per iteration the wall time of one hf_model_run of a batch
+ * (input conversion, network, output transforms), after warm-up; the table
+ * gives the median and 90th percentile over iterations divided by the batch.
+ * "net ms" is the median of the backend's own infer_us alone. */
+#include <errno.h>
+#include <getopt.h>
+#include <stdint.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "cli_common.h"
 #include "commands.h"
-int cmd_bench(int argc, char **argv) {
-  (void)argc; (void)argv;
-  fprintf(stderr, "hairfilter bench: not available in this build\n");
+
+#define BENCH_MAX_LIST 16
+#define BENCH_ROWS_MAX 1024
+#define BENCH_REF_SIDE 256 /* cpu-ref's default sizes stop here: it is loops */
+
+typedef struct bench_row {
+  char backend[24], variant[HF_NAME_MAX], precision[8];
+  int w, h, batch, iters;
+  double med_ms, p90_ms, net_ms; /* per frame; net_ms < 0 when unknown */
+  double dev_bytes;
+} bench_row;
+
+typedef struct bench_opts {
+  const char *backends[BENCH_MAX_LIST];
+  int nbackends;
+  char variants[BENCH_MAX_LIST][HF_NAME_MAX];
+  int nvariants;
+  int sizes[BENCH_MAX_LIST][2];
+  int nsizes, sizes_given;
+  int batches[BENCH_MAX_LIST];
+  int nbatches;
+  int iters, warmup, torch;
+  const char *torch_device;
+  uint64_t seed;
+} bench_opts;
+
+static bench_row rows[BENCH_ROWS_MAX];
+static int nrows;
+
+static void usage(FILE *f) {
+  fprintf(f,
+          "usage: hairfilter bench [--backend cpu,cpu-ref,cudnn|all] [--variants Base,...|all]\n"
+          "                        [--sizes 256x256,512x512,1024x1024] [--batch 1,4]\n"
+          "                        [--iters N] [--warmup N] [--seed N]\n"
+          "                        [--torch] [--torch-device cpu|cuda]\n"
+          "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
+          "table of ms per frame (median, p90 over iterations after warm-up), frames/s and\n"
+          "device memory. cpu-ref runs only sizes up to %dx%d unless --sizes is given.\n"
+          "--torch adds PyTorch rows (bench/bench_torch.py via /usr/bin/python3) on the same\n"
+          "weights. Defaults: every backend in this build, Base, the three sizes, batch 1,\n"
+          "20 iterations, 3 warm-up.\n",
+          BENCH_REF_SIDE, BENCH_REF_SIDE);
+}
+
+/* Splits a comma-separated list in place; returns the count or -1. */
+static int split(char *s, char **out, int max) {
+  int n = 0;
+  for (char *tok = strtok(s, ","); tok; tok = strtok(NULL, ",")) {
+    if (n == max) return -1;
+    out[n++] = tok;
+  }
+  return n;
+}
+
+static int parse_opts(int argc, char **argv, bench_opts *o) {
+  static const struct option longs[] = {
+    {"backend", required_argument, 0, 'b'}, {"variants", required_argument, 0, 'v'},
+    {"sizes", required_argument, 0, 's'},   {"batch", required_argument, 0, 'n'},
+    {"iters", required_argument, 0, 'i'},   {"warmup", required_argument, 0, 'w'},
+    {"seed", required_argument, 0, 'S'},    {"torch", no_argument, 0, 't'},
+    {"torch-device", required_argument, 0, 'd'}, {"help", no_argument, 0, 'h'},
+    {0, 0, 0, 0},
+  };
+  static char buf_b[512], buf_v[512], buf_s[512], buf_n[256];
+  const char *arg_b = "all", *arg_v = "Base", *arg_s = "256x256,512x512,1024x1024",
+             *arg_n = "1";
+  o->iters = 20;
+  o->warmup = 3;
+  o->seed = 1;
+  o->torch_device = "cpu";
+  int c;
+  optind = 1;
+  while ((c = getopt_long(argc, argv, "h", longs, NULL)) != -1) {
+    char *end;
+    switch (c) {
+    case 'b': arg_b = optarg; break;
+    case 'v': arg_v = optarg; break;
+    case 's': arg_s = optarg; o->sizes_given = 1; break;
+    case 'n': arg_n = optarg; break;
+    case 'i':
+    case 'w': {
+      long v = strtol(optarg, &end, 10);
+      if (*end || v < (c == 'i' ? 1 : 0) || v > 100000) {
+        fprintf(stderr, "hairfilter bench: bad --%s '%s'\n", c == 'i' ? "iters" : "warmup",
+                optarg);
+        return 2;
+      }
+      *(c == 'i' ? &o->iters : &o->warmup) = (int)v;
+      break;
+    }
+    case 'S': o->seed = strtoull(optarg, &end, 10); if (*end) return 2; break;
+    case 't': o->torch = 1; break;
+    case 'd':
+      if (strcmp(optarg, "cpu") && strcmp(optarg, "cuda")) {
+        fprintf(stderr, "hairfilter bench: --torch-device is cpu or cuda\n");
+        return 2;
+      }
+      o->torch_device = optarg;
+      break;
+    case 'h': usage(stdout); return 1;
+    default: usage(stderr); return 2;
+    }
+  }
+  if (optind < argc) {
+    fprintf(stderr, "hairfilter bench: unexpected argument '%s'\n", argv[optind]);
+    return 2;
+  }
+  char *items[BENCH_MAX_LIST];
+  int n;
+  /* Backends. */
+  snprintf(buf_b, sizeof buf_b, "%s", arg_b);
+  if (!strcmp(buf_b, "all")) {
+    const char *const *names = hf_backend_list();
+    for (int i = 0; names[i] && o->nbackends < BENCH_MAX_LIST; i++)
+      o->backends[o->nbackends++] = names[i];
+  } else {
+    if ((n = split(buf_b, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
+    for (int i = 0; i < n; i++) o->backends[o->nbackends++] = items[i];
+  }
+  /* Variants. */
+  snprintf(buf_v, sizeof buf_v, "%s", arg_v);
+  if (!strcmp(buf_v, "all")) {
+    for (int i = 0; i < hf_variant_preset_count() && o->nvariants < BENCH_MAX_LIST; i++)
+      snprintf(o->variants[o->nvariants++], HF_NAME_MAX, "%s", hf_variant_preset_name(i));
+  } else {
+    if ((n = split(buf_v, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
+    for (int i = 0; i < n; i++) {
+      hf_net_config cfg;
+      if (hf_variant_preset(items[i], &cfg)) {
+        fprintf(stderr, "hairfilter bench: unknown variant '%s'\n", items[i]);
+        return 2;
+      }
+      snprintf(o->variants[o->nvariants++], HF_NAME_MAX, "%s", cfg.name);
+    }
+  }
+  /* Sizes. */
+  snprintf(buf_s, sizeof buf_s, "%s", arg_s);
+  if ((n = split(buf_s, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
+  for (int i = 0; i < n; i++) {
+    int *wh = o->sizes[o->nsizes++];
+    if (cli_parse_size(items[i], &wh[0], &wh[1]) || wh[0] < 1 || wh[1] < 1 || wh[0] > 16384 ||
+        wh[1] > 16384) {
+      fprintf(stderr, "hairfilter bench: bad size '%s' (WxH, sides 1..16384)\n", items[i]);
+      return 2;
+    }
+  }
+  /* Batches. */
+  snprintf(buf_n, sizeof buf_n, "%s", arg_n);
+  if ((n = split(buf_n, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
+  for (int i = 0; i < n; i++) {
+    char *end;
+    long v = strtol(items[i], &end, 10);
+    if (*end || v < 1 || v > 256) {
+      fprintf(stderr, "hairfilter bench: bad batch '%s' (1..256)\n", items[i]);
+      return 2;
+    }
+    o->batches[o->nbatches++] = (int)v;
+  }
+  return 0;
+bad_list:
+  fprintf(stderr, "hairfilter bench: empty or too long list (at most %d items)\n",
+          BENCH_MAX_LIST);
   return 2;
+}
+
+static int cmp_double(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+/* Median (mean of the middle two for an even count) and the value at index
+ * floor(0.9 (n - 1)) of sorted v; bench_torch.py uses the same rules. */
+static double median(double *v, int n) {
+  qsort(v, n, sizeof *v, cmp_double);
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+static double p90(const double *sorted, int n) { return sorted[(int)(0.9 * (n - 1))]; }
+
+static bench_row *new_row(void) {
+  if (nrows == BENCH_ROWS_MAX) return NULL;
+  memset(&rows[nrows], 0, sizeof rows[nrows]);
+  return &rows[nrows++];
+}
+
+/* Feature-like input: colour, highlight, alpha, depth in [0, 1], tangents in
+ * [-1, 1]. Values matter for timing only through denormals and NaNs, which
+ * this avoids. */
+static void fill_input(float *in, size_t n, uint64_t seed) {
+  uint64_t s = seed * 0x9E3779B97F4A7C15ull + 1;
+  for (size_t i = 0; i < n; i++) {
+    s ^= s << 13, s ^= s >> 7, s ^= s << 17;
+    float u = (float)(s >> 40) / (float)(1u << 24);
+    in[i] = i % HF_FEATURES_PER_SAMPLE >= 4 ? 2 * u - 1 : u;
+  }
+}
+
+static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, int iters,
+                     int warmup, uint64_t seed) {
+  const hf_net_config *c = hf_model_config(m);
+  size_t px = (size_t)batch * w * h;
+  float *in = malloc(px * c->in_channels * sizeof(float));
+  float *out = malloc(px * 3 * sizeof(float));
+  double *wall = malloc(iters * sizeof(double)), *net = malloc(iters * sizeof(double));
+  int rc = HF_ENOMEM;
+  if (!in || !out || !wall || !net) goto out;
+  fill_input(in, px * c->in_channels, seed);
+  hf_io io = {batch, w, h, in, HF_F32, out, HF_F32};
+  hf_timing t;
+  for (int k = 0; k < warmup + iters; k++) {
+    struct timespec t0, t1;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    if ((rc = hf_model_run(m, &io, &t)) != 0) {
+      fprintf(stderr, "hairfilter bench: %s %s %dx%d batch %d: %s\n", backend, c->name, w, h,
+              batch, hf_strerror(rc));
+      goto out;
+    }
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    if (k >= warmup) {
+      wall[k - warmup] = (t1.tv_sec - t0.tv_sec) * 1e3 + (t1.tv_nsec - t0.tv_nsec) * 1e-6;
+      net[k - warmup] = t.infer_us * 1e-3;
+    }
+  }
+  bench_row *r = new_row();
+  if (!r) {
+    rc = HF_ERANGE;
+    goto out;
+  }
+  snprintf(r->backend, sizeof r->backend, "%s", backend);
+  snprintf(r->variant, sizeof r->variant, "%s", c->name);
+  snprintf(r->precision, sizeof r->precision, "%s", hf_model_precision(m));
+  r->w = w, r->h = h, r->batch = batch, r->iters = iters;
+  r->med_ms = median(wall, iters) / batch;
+  r->p90_ms = p90(wall, iters) / batch;
+  r->net_ms = median(net, iters) / batch;
+  r->dev_bytes = (double)hf_model_device_bytes(m);
+  fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", backend, c->name, w, h,
+          batch, r->med_ms);
+  rc = HF_OK;
+out:
+  free(in);
+  free(out);
+  free(wall);
+  free(net);
+  return rc;
+}
+
+/* Writes the random weights of every variant to dir/<variant>.safetensors. */
+static int write_weights(const bench_opts *o, const char *dir, char *paths, size_t len) {
+  size_t used = 0;
+  paths[0] = 0;
+  for (int v = 0; v < o->nvariants; v++) {
+    hf_net_config cfg;
+    hf_weights *w;
+    char path[512];
+    int rc = hf_variant_preset(o->variants[v], &cfg);
+    if (!rc) rc = hf_weights_init_random(&cfg, o->seed + v, &w);
+    if (rc) return rc;
+    /* '@' is fine in file names; the name only has to be unique. */
+    snprintf(path, sizeof path, "%s/%s.safetensors", dir, cfg.name);
+    rc = hf_weights_save(path, w);
+    hf_weights_free(w);
+    if (rc) return rc;
+    int k = snprintf(paths + used, len - used, " '%s'", path);
+    if (k < 0 || (size_t)k >= len - used) return HF_ERANGE;
+    used += k;
+  }
+  return 0;
+}
+
+/* Runs bench_torch.py and appends its ROW lines. */
+static int run_torch(const bench_opts *o) {
+  char dir[] = "/tmp/hairfilter-bench-XXXXXX", paths[4096], cmd[8192], list[1024];
+  if (!mkdtemp(dir)) {
+    fprintf(stderr, "hairfilter bench: mkdtemp: %s\n", strerror(errno));
+    return HF_EIO;
+  }
+  int rc = write_weights(o, dir, paths, sizeof paths);
+  if (rc) {
+    fprintf(stderr, "hairfilter bench: writing weights for PyTorch: %s\n", hf_strerror(rc));
+    goto out;
+  }
+  size_t used = 0;
+  for (int i = 0; i < o->nsizes; i++)
+    used += snprintf(list + used, sizeof list - used, "%s%dx%d", i ? "," : "", o->sizes[i][0],
+                     o->sizes[i][1]);
+  char batches[256];
+  used = 0;
+  for (int i = 0; i < o->nbatches; i++)
+    used += snprintf(batches + used, sizeof batches - used, "%s%d", i ? "," : "",
+                     o->batches[i]);
+  int k = snprintf(cmd, sizeof cmd,
+                   "/usr/bin/python3 '%s/bench/bench_torch.py' --sizes %s --batch %s "
+                   "--iters %d --warmup %d --device %s%s",
+                   cli_data_dir(), list, batches, o->iters, o->warmup, o->torch_device, paths);
+  if (k < 0 || (size_t)k >= sizeof cmd) {
+    rc = HF_ERANGE;
+    goto out;
+  }
+  fprintf(stderr, "hairfilter bench: %s\n", cmd);
+  FILE *p = popen(cmd, "r");
+  if (!p) {
+    fprintf(stderr, "hairfilter bench: cannot run /usr/bin/python3: %s\n", strerror(errno));
+    rc = HF_EIO;
+    goto out;
+  }
+  char line[512];
+  while (fgets(line, sizeof line, p)) {
+    bench_row r = {0};
+    double dev;
+    if (!strncmp(line, "INFO\t", 5)) {
+      fprintf(stderr, "  %s", line + 5);
+      continue;
+    }
+    if (sscanf(line, "ROW\t%23s\t%63s\t%dx%d\t%d\t%7s\t%lf\t%lf\t%*f\t%lf\t%d", r.backend,
+               r.variant, &r.w, &r.h, &r.batch, r.precision, &r.med_ms, &r.p90_ms, &dev,
+               &r.iters) != 10)
+      continue;
+    r.net_ms = -1;
+    r.dev_bytes = dev;
+    bench_row *slot = new_row();
+    if (!slot) break;
+    *slot = r;
+    fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", r.backend, r.variant,
+            r.w, r.h, r.batch, r.med_ms);
+  }
+  int st = pclose(p);
+  if (st != 0) {
+    fprintf(stderr, "hairfilter bench: bench_torch.py failed (status %d)\n", st);
+    rc = HF_EBACKEND;
+  }
+out:
+  /* Remove the temporary weights. */
+  for (int v = 0; v < o->nvariants; v++) {
+    char path[512];
+    hf_net_config cfg;
+    if (hf_variant_preset(o->variants[v], &cfg)) continue;
+    snprintf(path, sizeof path, "%s/%s.safetensors", dir, cfg.name);
+    unlink(path);
+  }
+  rmdir(dir);
+  return rc;
+}
+
+static void print_table(void) {
+  printf("| backend | variant | size | batch | precision | median ms/frame | p90 ms/frame "
+         "| net ms/frame | frames/s | device MiB | iters |\n");
+  printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|\n");
+  for (int i = 0; i < nrows; i++) {
+    bench_row *r = &rows[i];
+    char net[32] = "-";
+    if (r->net_ms >= 0) snprintf(net, sizeof net, "%.2f", r->net_ms);
+    printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d |\n", r->backend,
+           r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms, net,
+           r->med_ms > 0 ? 1e3 / r->med_ms : 0, r->dev_bytes / (1024.0 * 1024.0), r->iters);
+  }
+  /* The comparison the cpu backend is judged by. */
+  int first = 1;
+  for (int i = 0; i < nrows; i++) {
+    if (strcmp(rows[i].backend, "cpu")) continue;
+    for (int j = 0; j < nrows; j++) {
+      bench_row *t = &rows[j];
+      if (strncmp(t->backend, "torch-cpu", 9) || strcmp(t->variant, rows[i].variant) ||
+          t->w != rows[i].w || t->h != rows[i].h || t->batch != rows[i].batch)
+        continue;
+      printf("%s%s %dx%d batch %d: cpu is %.2fx as fast as %s\n", first ? "\n" : "",
+             rows[i].variant, t->w, t->h, t->batch, t->med_ms / rows[i].med_ms, t->backend);
+      first = 0;
+    }
+  }
+}
+
+int cmd_bench(int argc, char **argv) {
+  bench_opts o;
+  memset(&o, 0, sizeof o);
+  int rc = parse_opts(argc, argv, &o);
+  if (rc) return rc == 1 ? 0 : 2;
+  int failed = 0;
+  for (int b = 0; b < o.nbackends; b++) {
+    hf_backend *be;
+    char why[512];
+    rc = hf_backend_create(o.backends[b], &be, why, sizeof why);
+    if (rc) {
+      fprintf(stderr, "hairfilter bench: skipping %s: %s (%s)\n", o.backends[b],
+              why[0] ? why : "", hf_strerror(rc));
+      /* An explicitly named backend that cannot run is an error; "all"
+       * just lists what is compiled in. */
+      if (rc == HF_ENOTFOUND) failed = 1;
+      continue;
+    }
+    int is_ref = !strcmp(hf_backend_name(be), "cpu-ref");
+    for (int v = 0; v < o.nvariants; v++) {
+      hf_net_config cfg;
+      hf_weights *w = NULL;
+      hf_model *m = NULL;
+      if ((rc = hf_variant_preset(o.variants[v], &cfg)) != 0 ||
+          (rc = hf_weights_init_random(&cfg, o.seed + v, &w)) != 0 ||
+          (rc = hf_model_create(be, w, &m)) != 0) {
+        fprintf(stderr, "hairfilter bench: %s %s: %s\n", o.backends[b], o.variants[v],
+                hf_strerror(rc));
+        hf_weights_free(w);
+        failed = 1;
+        continue;
+      }
+      for (int s = 0; s < o.nsizes; s++) {
+        if (is_ref && !o.sizes_given &&
+            (o.sizes[s][0] > BENCH_REF_SIDE || o.sizes[s][1] > BENCH_REF_SIDE))
+          continue;
+        for (int n = 0; n < o.nbatches; n++)
+          if (bench_one(m, hf_backend_name(be), o.sizes[s][0], o.sizes[s][1], o.batches[n],
+                        o.iters, o.warmup, o.seed))
+            failed = 1;
+      }
+      hf_model_destroy(m);
+      hf_weights_free(w);
+    }
+    hf_backend_destroy(be);
+  }
+  if (o.torch && run_torch(&o)) failed = 1;
+  print_table();
+  return failed ? 1 : 0;
 }
