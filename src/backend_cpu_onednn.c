@@ -14,6 +14,11 @@
  *   - ReLU is a post-op of the convolutions but a separate in-place eltwise
  *     after the deconvolutions: fused into an fp32 deconvolution it made
  *     that primitive about ten times slower.
+ *   - dec0 (3 output channels) is not a deconvolution: oneDNN's took longer
+ *     than any other layer. It is a 1x1 convolution from each input pixel to
+ *     its 16 taps x 3 channels, then a pass summing the four taps that reach
+ *     each output pixel (od_taps_to_output); same multiply-adds, ~15x
+ *     faster at 512x512.
  *   - Weights are reordered once, at model_create, into the format oneDNN
  *     chooses (format_tag_any); a size whose primitives want another format
  *     gets a private copy in its plan.
@@ -38,6 +43,13 @@
 #define OD_MAX_STEPS (6 * HF_MAX_LEVELS)
 #define OD_MAX_MEMS (16 * HF_MAX_LEVELS)
 
+/* The kinds of layer primitives. dec0 has only three output channels, on
+ * which oneDNN 2.6's deconvolution runs at a fraction of its speed; it is
+ * computed instead as a 1x1 convolution to the 16 taps x 3 channels of each
+ * input pixel ("taps"), summed into the output by od_taps_to_output. */
+typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS } od_kind;
+#define OD_TAPS_CH (16 * HF_OUT_CHANNELS)
+
 typedef struct od_dev {
   dnnl_engine_t eng;
   dnnl_stream_t stream;
@@ -57,6 +69,7 @@ typedef struct od_plan {
   void *ping[2];                /* non-concat activations, alternating */
   void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
   void *scratch;                /* shared by every primitive (run in order) */
+  float *taps;                  /* dec0's taps [batch][ph/2][pw/2][16][3] */
   int nsteps;
   od_step steps[OD_MAX_STEPS];
   int nmems;
@@ -68,7 +81,8 @@ typedef struct od_model {
   od_dev *dev;
   hf_weights *w;                /* private copy, PyTorch layouts */
   /* Weights in oneDNN's chosen formats, NULL until known. */
-  dnnl_memory_t enc_w[HF_MAX_LEVELS], dec_w[HF_MAX_LEVELS];
+  dnnl_memory_t enc_w[HF_MAX_LEVELS], dec_w[HF_MAX_LEVELS], taps_w;
+  float *taps_user;             /* dec0's weights as [16 * 3][cin] (oihw 1x1) */
   dnnl_memory_t enc_b[HF_MAX_LEVELS], dec_b[HF_MAX_LEVELS];
   od_plan *plans[OD_PLAN_CACHE];
   uint64_t clock;
@@ -164,13 +178,14 @@ fail:
 /* Creates the convolution (3x3, stride 2, pad 1, fused ReLU) or
  * deconvolution (4x4, stride 2, pad 1, no post-op) primitive descriptor
  * between src and dst with weights and scratchpad formats left to oneDNN. */
-static int od_layer_pd(od_dev *dev, int deconv, const dnnl_memory_desc_t *src,
+static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
                        const dnnl_memory_desc_t *dst, int cin, int cout,
                        dnnl_primitive_desc_t *pd) {
-  int rc = HF_OK, k = deconv ? 4 : 3;
+  int rc = HF_OK, k = kind == OD_DEC ? 4 : kind == OD_ENC ? 3 : 1;
+  int deconv = kind == OD_DEC;
   dnnl_memory_desc_t wmd, bmd;
   dnnl_dims_t wd = {cout, cin, k, k}, bd = {cout};
-  dnnl_dims_t strides = {2, 2}, pad = {1, 1};
+  dnnl_dims_t strides = {2, 2}, pad = {1, 1}, one = {1, 1}, zero = {0, 0};
   dnnl_primitive_attr_t attr = NULL;
   dnnl_post_ops_t po = NULL;
   *pd = NULL;
@@ -184,6 +199,13 @@ static int od_layer_pd(od_dev *dev, int deconv, const dnnl_memory_desc_t *src,
                                                 dnnl_deconvolution_direct, src, &wmd, &bmd,
                                                 dst, strides, pad, pad));
     OD_TRY(dnnl_primitive_desc_create(pd, &dd, attr, dev->eng, NULL));
+  } else if (kind == OD_TAPS) {
+    /* No bias: it is added once per output pixel, not per tap. */
+    dnnl_convolution_desc_t cd;
+    OD_TRY(dnnl_convolution_forward_desc_init(&cd, dnnl_forward_inference,
+                                              dnnl_convolution_direct, src, &wmd, NULL, dst,
+                                              one, zero, zero));
+    OD_TRY(dnnl_primitive_desc_create(pd, &cd, attr, dev->eng, NULL));
   } else {
     dnnl_convolution_desc_t cd;
     OD_TRY(dnnl_post_ops_create(&po));
@@ -228,11 +250,11 @@ fail:
 /* The weights of one layer in the layout md: the model's copy when it
  * matches (or when the model has none yet and keeps this one), else a new
  * memory the caller owns (*owned = 1). */
-static int od_weights_for(od_model *m, int deconv, int i, const dnnl_memory_desc_t *md,
+static int od_weights_for(od_model *m, od_kind kind, int i, const dnnl_memory_desc_t *md,
                           dnnl_memory_t *out, int *owned) {
-  int rc = HF_OK;
+  int rc = HF_OK, deconv = kind == OD_DEC;
   const hf_net_config *c = &m->w->cfg;
-  dnnl_memory_t *slot = deconv ? &m->dec_w[i] : &m->enc_w[i];
+  dnnl_memory_t *slot = kind == OD_TAPS ? &m->taps_w : deconv ? &m->dec_w[i] : &m->enc_w[i];
   dnnl_memory_t user = NULL;
   *owned = 0;
   if (*slot) {
@@ -245,13 +267,14 @@ static int od_weights_for(od_model *m, int deconv, int i, const dnnl_memory_desc
   }
   /* PyTorch layouts: Conv2d [out][in][kh][kw] is oihw; ConvTranspose2d
    * [in][out][kh][kw] is iohw in oneDNN's (out, in) dimension order. */
-  int cin = deconv ? hf_dec_in(c, i) : hf_enc_in(c, i);
-  int cout = deconv ? hf_dec_out(c, i) : hf_enc_out(c, i);
-  int k = deconv ? 4 : 3;
+  int cin = kind == OD_ENC ? hf_enc_in(c, i) : hf_dec_in(c, i);
+  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i) : OD_TAPS_CH;
+  int k = kind == OD_DEC ? 4 : kind == OD_ENC ? 3 : 1;
   dnnl_dims_t wd = {cout, cin, k, k};
   dnnl_memory_desc_t umd;
+  float *host = kind == OD_TAPS ? m->taps_user : deconv ? m->w->dec_w[i] : m->w->enc_w[i];
   OD_TRY(dnnl_memory_desc_init_by_tag(&umd, 4, wd, dnnl_f32, deconv ? dnnl_iohw : dnnl_oihw));
-  OD_TRY(dnnl_memory_create(&user, &umd, m->dev->eng, deconv ? m->w->dec_w[i] : m->w->enc_w[i]));
+  OD_TRY(dnnl_memory_create(&user, &umd, m->dev->eng, host));
   OD_RC(od_reorder_new(m->dev, user, md, out));
   if (!*slot)
     *slot = *out;
@@ -260,6 +283,59 @@ static int od_weights_for(od_model *m, int deconv, int i, const dnnl_memory_desc
 fail:
   if (user) dnnl_memory_destroy(user);
   return rc;
+}
+
+/* ---- dec0 as taps ---------------------------------------------------------- */
+
+/* dec0's weights, PyTorch [cin][3][4][4], as a 1x1 convolution's
+ * [(ky * 4 + kx) * 3 + c][cin]: output channel t of the convolution at input
+ * pixel (y, x) is what tap (ky, kx) of channel c adds to output pixel
+ * (2y - 1 + ky, 2x - 1 + kx). */
+static int od_taps_weights(od_model *m) {
+  const hf_net_config *c = &m->w->cfg;
+  int cin = hf_dec_in(c, 0);
+  m->taps_user = malloc((size_t)OD_TAPS_CH * cin * sizeof(float));
+  if (!m->taps_user) return HF_ENOMEM;
+  const float *wt = m->w->dec_w[0];
+  for (int i = 0; i < cin; i++)
+    for (int o = 0; o < HF_OUT_CHANNELS; o++)
+      for (int k = 0; k < 16; k++)
+        m->taps_user[((size_t)k * HF_OUT_CHANNELS + o) * cin + i] =
+            wt[((size_t)i * HF_OUT_CHANNELS + o) * 16 + k];
+  return HF_OK;
+}
+
+/* Sums the taps into the raw output [batch][2h][2w][3] and adds the bias.
+ * Output row Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1;
+ * Y = 2m + 1 takes ky = 2 of row m and ky = 0 of row m + 1; columns alike. */
+static void od_taps_to_output(const float *taps, int batch, int h, int w, const float *bias,
+                              float *out) {
+  const int C = HF_OUT_CHANNELS, T = OD_TAPS_CH;
+  for (int n = 0; n < batch; n++)
+    for (int Y = 0; Y < 2 * h; Y++) {
+      int m = Y >> 1, py = Y & 1;
+      int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
+      int has_y1 = y1 >= 0 && y1 < h;
+      const float *r0 = taps + ((size_t)n * h + m) * w * T;
+      const float *r1 = taps + ((size_t)n * h + (has_y1 ? y1 : m)) * w * T;
+      float *o = out + ((size_t)n * 2 * h + Y) * 2 * w * C;
+      for (int X = 0; X < 2 * w; X++, o += C) {
+        int q = X >> 1, px = X & 1;
+        int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
+        int has_x1 = x1 >= 0 && x1 < w;
+        const float *a = r0 + (size_t)q * T + (ky0 * 4 + kx0) * C;
+        const float *b = r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C;
+        const float *cc = r1 + (size_t)q * T + (ky1 * 4 + kx0) * C;
+        const float *d = r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C;
+        for (int ch = 0; ch < C; ch++) {
+          float v = bias[ch] + a[ch];
+          if (has_x1) v += b[ch];
+          if (has_y1) v += cc[ch];
+          if (has_x1 && has_y1) v += d[ch];
+          o[ch] = v;
+        }
+      }
+    }
 }
 
 /* ---- plans ---------------------------------------------------------------- */
@@ -323,7 +399,7 @@ typedef struct od_scratch_ref {
 } od_scratch_ref;
 
 /* Adds a conv/deconv step from src_mem to dst_mem. */
-static int od_add_layer(od_model *m, od_plan *p, int deconv, int i, dnnl_memory_t src_mem,
+static int od_add_layer(od_model *m, od_plan *p, od_kind kind, int i, dnnl_memory_t src_mem,
                         dnnl_memory_t dst_mem, size_t *scratch_bytes) {
   int rc = HF_OK, owned = 0;
   const hf_net_config *c = &m->w->cfg;
@@ -333,16 +409,16 @@ static int od_add_layer(od_model *m, od_plan *p, int deconv, int i, dnnl_memory_
   dnnl_memory_t wmem = NULL;
   OD_TRY(dnnl_memory_get_memory_desc(src_mem, &smd));
   OD_TRY(dnnl_memory_get_memory_desc(dst_mem, &dmd));
-  int cin = deconv ? hf_dec_in(c, i) : hf_enc_in(c, i);
-  int cout = deconv ? hf_dec_out(c, i) : hf_enc_out(c, i);
-  OD_RC(od_layer_pd(m->dev, deconv, smd, dmd, cin, cout, &pd));
+  int cin = kind == OD_ENC ? hf_enc_in(c, i) : hf_dec_in(c, i);
+  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i) : OD_TAPS_CH;
+  OD_RC(od_layer_pd(m->dev, kind, smd, dmd, cin, cout, &pd));
   const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
   const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
   if (!wmd) {
     rc = od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
     goto fail;
   }
-  OD_RC(od_weights_for(m, deconv, i, wmd, &wmem, &owned));
+  OD_RC(od_weights_for(m, kind, i, wmd, &wmem, &owned));
   if (owned && p->nmems >= OD_MAX_MEMS) {
     rc = HF_ERANGE;
     goto fail;
@@ -354,11 +430,13 @@ static int od_add_layer(od_model *m, od_plan *p, int deconv, int i, dnnl_memory_
   dnnl_exec_arg_t args[5] = {
     {DNNL_ARG_SRC, src_mem},
     {DNNL_ARG_WEIGHTS, wmem},
-    {DNNL_ARG_BIAS, deconv ? m->dec_b[i] : m->enc_b[i]},
     {DNNL_ARG_DST, dst_mem},
     {DNNL_ARG_SCRATCHPAD, NULL}, /* set once the scratchpad exists */
+    {DNNL_ARG_BIAS, kind == OD_DEC ? m->dec_b[i] : m->enc_b[i]},
   };
-  rc = od_add_step(p, prim, 5, args);
+  /* The scratchpad stays at index 3 so that dropping it (below, when a
+   * primitive needs none) is a swap with the last argument. */
+  rc = od_add_step(p, prim, kind == OD_TAPS ? 4 : 5, args);
   prim = NULL;
 fail:
   if (owned) dnnl_memory_destroy(wmem);
@@ -428,9 +506,11 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   OD_RC(od_alloc(p, &in_md, (void **)&p->in));
   OD_RC(od_alloc(p, &out_md, (void **)&p->out));
 
-  /* The ping-pong buffers hold every encoder output and every decoder
-   * output but the last: the largest of those tensors. */
-  size_t ping_bytes = 0;
+  /* The ping-pong buffers hold every encoder output, every decoder output
+   * but the last, and dec0's taps: the largest of those tensors. */
+  dnnl_memory_desc_t taps_md;
+  OD_RC(od_nhwc(&taps_md, batch, OD_TAPS_CH, ph >> 1, pw >> 1));
+  size_t ping_bytes = dnnl_memory_desc_get_size(&taps_md);
   for (int i = 0; i < L; i++) {
     dnnl_memory_desc_t md;
     OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
@@ -456,7 +536,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     dnnl_memory_desc_t md;
     OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
     OD_RC(od_mem(p, dev, &md, p->ping[i % 2], &dst));
-    OD_RC(od_add_layer(m, p, 0, i, src, dst, &scratch_bytes));
+    OD_RC(od_add_layer(m, p, OD_ENC, i, src, dst, &scratch_bytes));
     if (i < L - 1) OD_RC(od_add_copy(p, dev, dst, &cat_md[i], p->cat[i], hf_enc_out(c, i)));
     src = dst;
   }
@@ -466,15 +546,18 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   for (int i = L - 1; i >= 0; i--) {
     if (i < L - 1) OD_RC(od_mem(p, dev, &cat_md[i], p->cat[i], &src));
     if (i == 0) {
-      OD_RC(od_mem(p, dev, &out_md, p->out, &dst));
-      OD_RC(od_add_layer(m, p, 1, i, src, dst, &scratch_bytes));
+      dnnl_memory_desc_t md;
+      OD_RC(od_nhwc(&md, batch, OD_TAPS_CH, ph >> 1, pw >> 1));
+      p->taps = p->ping[L % 2];
+      OD_RC(od_mem(p, dev, &md, p->taps, &dst));
+      OD_RC(od_add_layer(m, p, OD_TAPS, i, src, dst, &scratch_bytes));
       break;
     }
     dnnl_memory_desc_t md;
     OD_RC(od_nhwc(&md, batch, hf_dec_out(c, i), ph >> i, pw >> i));
     /* dec{L-1} must not overwrite its own input, ping[(L-1)%2]. */
     OD_RC(od_mem(p, dev, &md, p->ping[L % 2], &dst));
-    OD_RC(od_add_layer(m, p, 1, i, src, dst, &scratch_bytes));
+    OD_RC(od_add_layer(m, p, OD_DEC, i, src, dst, &scratch_bytes));
     OD_RC(od_add_relu(p, dev, dst));
     OD_RC(od_add_copy(p, dev, dst, &cat_md[i - 1], p->cat[i - 1], 0));
   }
@@ -493,9 +576,11 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   /* Primitives without a scratchpad need no argument for it. */
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
-    if (st->nargs && st->args[st->nargs - 1].arg == DNNL_ARG_SCRATCHPAD &&
-        !st->args[st->nargs - 1].memory)
-      st->nargs--;
+    for (int a = 0; a < st->nargs; a++)
+      if (st->args[a].arg == DNNL_ARG_SCRATCHPAD && !st->args[a].memory) {
+        st->args[a] = st->args[--st->nargs];
+        break;
+      }
   }
   *out = p;
   return HF_OK;
@@ -540,6 +625,8 @@ static void od_model_destroy(void *impl) {
     if (m->enc_b[i]) dnnl_memory_destroy(m->enc_b[i]);
     if (m->dec_b[i]) dnnl_memory_destroy(m->dec_b[i]);
   }
+  if (m->taps_w) dnnl_memory_destroy(m->taps_w);
+  free(m->taps_user);
   hf_weights_free(m->w);
   free(m);
 }
@@ -553,6 +640,7 @@ static int od_model_create(void *devp, const hf_weights *w, void **out) {
   OD_RC(hf_weights_alloc(&w->cfg, &m->w));
   memcpy(m->w->storage, w->storage, w->num_params * sizeof(float));
   memcpy(m->w->features, w->features, sizeof m->w->features);
+  OD_RC(od_taps_weights(m));
   const hf_net_config *c = &m->w->cfg;
   for (int i = 0; i < c->num_levels; i++) {
     dnnl_memory_desc_t md;
@@ -589,6 +677,7 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
     OD_TRY(dnnl_primitive_execute(p->steps[s].prim, m->dev->stream, p->steps[s].nargs,
                                   p->steps[s].args));
   OD_TRY(dnnl_stream_wait(m->dev->stream));
+  od_taps_to_output(p->taps, io->batch, ph >> 1, pw >> 1, m->w->dec_b[0], p->out);
   double t2 = hf_now_us();
   hf_output_from_padded_f32(c, p->in, p->out, pw, ph, io);
   t->input_us = t1 - t0;
