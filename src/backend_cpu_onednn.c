@@ -1,24 +1,27 @@
 /*
  * cpu: the network on oneDNN (2.x C API), float32, NHWC activations.
  *
- * Layout choices, measured on oneDNN 2.6 (docs/PERFORMANCE.md):
+ * Choices, measured on oneDNN 2.6 (docs/PERFORMANCE.md):
  *   - Every activation is dense NHWC. With NHWC, oneDNN picks its brgemm
- *     convolutions and jit deconvolutions; blocked layouts (nChw16c) made the
- *     deconvolutions slower and the 24- and 3-channel ends fell back to the
- *     reference kernels.
- *   - The decoder's concat(dec{i+1}, enc{i}) is a real buffer that both
- *     producers are copied into by reorders. Writing the producers in place
- *     through sub-memory descriptors would save the copies, but oneDNN 2.6
- *     only has reference (loop) kernels for strided destinations, tens of
- *     times slower than the copies.
- *   - ReLU is a post-op of the convolutions but a separate in-place eltwise
- *     after the deconvolutions: fused into an fp32 deconvolution it made
+ *     convolutions; blocked layouts (nChw16c) were slower for the
+ *     deconvolutions, and the 24- and 3-channel ends fell back to reference
+ *     (loop) kernels.
+ *   - Decoders are not oneDNN deconvolutions. oneDNN's stride-2 deconvolution
+ *     ran at two thirds of the rate of the equivalent 1x1 convolution below,
+ *     and at a small fraction of it for dec0's 3 output channels. A 4x4 stride-2 transposed convolution is
+ *     a 1x1 convolution from each input pixel to its 16 taps x cout products
+ *     (same multiply-adds), then a pass summing the four taps that reach each
+ *     output pixel, adding the bias and the ReLU (od_taps_run). That pass
+ *     writes straight into the left half of the next decoder's input, so
+ *     the concat costs one copy (of the encoder's half) instead of two.
+ *     HF_CPU_DECONV=1 selects the deconvolution path for comparison.
+ *   - The encoder's half of each concat buffer is a copy (a reorder):
+ *     writing it in place through a sub-memory descriptor would save the
+ *     copy, but oneDNN 2.6 has only reference kernels for strided
+ *     destinations, tens of times slower than the copy.
+ *   - ReLU is a post-op of the convolutions. On the deconvolution path it is
+ *     a separate in-place eltwise: fused into an fp32 deconvolution it made
  *     that primitive about ten times slower.
- *   - dec0 (3 output channels) is not a deconvolution: oneDNN's took longer
- *     than any other layer. It is a 1x1 convolution from each input pixel to
- *     its 16 taps x 3 channels, then a pass summing the four taps that reach
- *     each output pixel (od_taps_to_output); same multiply-adds, ~15x
- *     faster at 512x512.
  *   - Weights are reordered once, at model_create, into the format oneDNN
  *     chooses (format_tag_any); a size whose primitives want another format
  *     gets a private copy in its plan.
@@ -38,27 +41,34 @@
 #include "backend.h"
 
 #define OD_PLAN_CACHE 4
-/* Primitives per plan: per level a conv, a deconv, a ReLU and two copies,
- * plus slack. */
+/* Steps per plan: per level at most a conv, a deconv, a ReLU and two
+ * copies, plus slack. */
 #define OD_MAX_STEPS (6 * HF_MAX_LEVELS)
 #define OD_MAX_MEMS (16 * HF_MAX_LEVELS)
 
-/* The kinds of layer primitives. dec0 has only three output channels, on
- * which oneDNN 2.6's deconvolution runs at a fraction of its speed; it is
- * computed instead as a 1x1 convolution to the 16 taps x 3 channels of each
- * input pixel ("taps"), summed into the output by od_taps_to_output. */
+/* The kinds of layer primitives: an encoder convolution, a decoder as a
+ * oneDNN deconvolution, or a decoder's 1x1 convolution to its taps. */
 typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS } od_kind;
-#define OD_TAPS_CH (16 * HF_OUT_CHANNELS)
 
 typedef struct od_dev {
   dnnl_engine_t eng;
   dnnl_stream_t stream;
 } od_dev;
 
+/* A step is a oneDNN primitive, or (prim NULL) a tap-summing pass. */
+typedef struct od_taps_pass {
+  const float *taps;            /* [batch][h][w][16][cout] */
+  int h, w, cout, relu;
+  const float *bias;
+  float *out;                   /* pixel (n, Y, X) at ((n 2h + Y) 2w + X) * stride */
+  int stride;
+} od_taps_pass;
+
 typedef struct od_step {
   dnnl_primitive_t prim;
   int nargs;
   dnnl_exec_arg_t args[5];
+  od_taps_pass taps;
 } od_step;
 
 typedef struct od_plan {
@@ -70,7 +80,6 @@ typedef struct od_plan {
   void *ping[2];                /* non-concat activations, alternating */
   void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
   void *scratch;                /* shared by every primitive (run in order) */
-  float *taps;                  /* dec0's taps [batch][ph/2][pw/2][16][3] */
   int nsteps;
   od_step steps[OD_MAX_STEPS];
   int nmems;
@@ -82,8 +91,10 @@ typedef struct od_model {
   od_dev *dev;
   hf_weights *w;                /* private copy, PyTorch layouts */
   /* Weights in oneDNN's chosen formats, NULL until known. */
-  dnnl_memory_t enc_w[HF_MAX_LEVELS], dec_w[HF_MAX_LEVELS], taps_w;
-  float *taps_user;             /* dec0's weights as [16 * 3][cin] (oihw 1x1) */
+  dnnl_memory_t enc_w[HF_MAX_LEVELS], dec_w[HF_MAX_LEVELS], taps_w[HF_MAX_LEVELS];
+  /* Decoders computed as taps, and their weights as [16 * cout][cin]. */
+  int use_taps[HF_MAX_LEVELS];
+  float *taps_user[HF_MAX_LEVELS];
   dnnl_memory_t enc_b[HF_MAX_LEVELS], dec_b[HF_MAX_LEVELS];
   od_plan *plans[OD_PLAN_CACHE];
   uint64_t clock;
@@ -255,7 +266,7 @@ static int od_weights_for(od_model *m, od_kind kind, int i, const dnnl_memory_de
                           dnnl_memory_t *out, int *owned) {
   int rc = HF_OK, deconv = kind == OD_DEC;
   const hf_net_config *c = &m->w->cfg;
-  dnnl_memory_t *slot = kind == OD_TAPS ? &m->taps_w : deconv ? &m->dec_w[i] : &m->enc_w[i];
+  dnnl_memory_t *slot = kind == OD_TAPS ? &m->taps_w[i] : deconv ? &m->dec_w[i] : &m->enc_w[i];
   dnnl_memory_t user = NULL;
   *owned = 0;
   if (*slot) {
@@ -269,11 +280,12 @@ static int od_weights_for(od_model *m, od_kind kind, int i, const dnnl_memory_de
   /* PyTorch layouts: Conv2d [out][in][kh][kw] is oihw; ConvTranspose2d
    * [in][out][kh][kw] is iohw in oneDNN's (out, in) dimension order. */
   int cin = kind == OD_ENC ? hf_enc_in(c, i) : hf_dec_in(c, i);
-  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i) : OD_TAPS_CH;
+  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i)
+                                                : 16 * hf_dec_out(c, i);
   int k = kind == OD_DEC ? 4 : kind == OD_ENC ? 3 : 1;
   dnnl_dims_t wd = {cout, cin, k, k};
   dnnl_memory_desc_t umd;
-  float *host = kind == OD_TAPS ? m->taps_user : deconv ? m->w->dec_w[i] : m->w->enc_w[i];
+  float *host = kind == OD_TAPS ? m->taps_user[i] : deconv ? m->w->dec_w[i] : m->w->enc_w[i];
   OD_TRY(dnnl_memory_desc_init_by_tag(&umd, 4, wd, dnnl_f32, deconv ? dnnl_iohw : dnnl_oihw));
   OD_TRY(dnnl_memory_create(&user, &umd, m->dev->eng, host));
   OD_RC(od_reorder_new(m->dev, user, md, out));
@@ -286,41 +298,39 @@ fail:
   return rc;
 }
 
-/* ---- dec0 as taps ---------------------------------------------------------- */
+/* ---- decoders as taps ---------------------------------------------------- */
 
-/* dec0's weights, PyTorch [cin][3][4][4], as a 1x1 convolution's
- * [(ky * 4 + kx) * 3 + c][cin]: output channel t of the convolution at input
- * pixel (y, x) is what tap (ky, kx) of channel c adds to output pixel
+/* dec{i}'s weights, PyTorch [cin][cout][4][4], as a 1x1 convolution's
+ * [(ky * 4 + kx) * cout + o][cin]: output channel t of the convolution at
+ * input pixel (y, x) is what tap (ky, kx) of channel o adds to output pixel
  * (2y - 1 + ky, 2x - 1 + kx). */
-static int od_taps_weights(od_model *m) {
+static int od_taps_weights(od_model *m, int l) {
   const hf_net_config *c = &m->w->cfg;
-  int cin = hf_dec_in(c, 0);
-  m->taps_user = malloc((size_t)OD_TAPS_CH * cin * sizeof(float));
-  if (!m->taps_user) return HF_ENOMEM;
-  const float *wt = m->w->dec_w[0];
+  int cin = hf_dec_in(c, l), cout = hf_dec_out(c, l);
+  m->taps_user[l] = malloc((size_t)16 * cout * cin * sizeof(float));
+  if (!m->taps_user[l]) return HF_ENOMEM;
+  const float *wt = m->w->dec_w[l];
   for (int i = 0; i < cin; i++)
-    for (int o = 0; o < HF_OUT_CHANNELS; o++)
+    for (int o = 0; o < cout; o++)
       for (int k = 0; k < 16; k++)
-        m->taps_user[((size_t)k * HF_OUT_CHANNELS + o) * cin + i] =
-            wt[((size_t)i * HF_OUT_CHANNELS + o) * 16 + k];
+        m->taps_user[l][((size_t)k * cout + o) * cin + i] = wt[((size_t)i * cout + o) * 16 + k];
   return HF_OK;
 }
 
-/* Sums the taps into the raw output [batch][2h][2w][3] and adds the bias.
+/* Sums the taps into the output, adds the bias, applies the ReLU if asked.
  * Output row Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1;
  * Y = 2m + 1 takes ky = 2 of row m and ky = 0 of row m + 1; columns alike. */
-static void od_taps_to_output(const float *taps, int batch, int h, int w, const float *bias,
-                              float *out) {
-  const int C = HF_OUT_CHANNELS, T = OD_TAPS_CH;
+static void od_taps_run(const od_taps_pass *t, int batch) {
+  const int C = t->cout, T = 16 * t->cout, h = t->h, w = t->w;
   for (int n = 0; n < batch; n++)
     for (int Y = 0; Y < 2 * h; Y++) {
       int m = Y >> 1, py = Y & 1;
       int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
       int has_y1 = y1 >= 0 && y1 < h;
-      const float *r0 = taps + ((size_t)n * h + m) * w * T;
-      const float *r1 = taps + ((size_t)n * h + (has_y1 ? y1 : m)) * w * T;
-      float *o = out + ((size_t)n * 2 * h + Y) * 2 * w * C;
-      for (int X = 0; X < 2 * w; X++, o += C) {
+      const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
+      const float *r1 = t->taps + ((size_t)n * h + (has_y1 ? y1 : m)) * w * T;
+      float *o = t->out + ((size_t)n * 2 * h + Y) * 2 * w * t->stride;
+      for (int X = 0; X < 2 * w; X++, o += t->stride) {
         int q = X >> 1, px = X & 1;
         int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
         int has_x1 = x1 >= 0 && x1 < w;
@@ -328,13 +338,18 @@ static void od_taps_to_output(const float *taps, int batch, int h, int w, const 
         const float *b = r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C;
         const float *cc = r1 + (size_t)q * T + (ky1 * 4 + kx0) * C;
         const float *d = r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C;
-        for (int ch = 0; ch < C; ch++) {
-          float v = bias[ch] + a[ch];
-          if (has_x1) v += b[ch];
-          if (has_y1) v += cc[ch];
-          if (has_x1 && has_y1) v += d[ch];
-          o[ch] = v;
+        if (has_x1 && has_y1) {
+          for (int ch = 0; ch < C; ch++) o[ch] = t->bias[ch] + a[ch] + b[ch] + cc[ch] + d[ch];
+        } else {
+          for (int ch = 0; ch < C; ch++) {
+            float v = t->bias[ch] + a[ch];
+            if (has_x1) v += b[ch];
+            if (has_y1) v += cc[ch];
+            o[ch] = v;
+          }
         }
+        if (t->relu)
+          for (int ch = 0; ch < C; ch++) o[ch] = o[ch] < 0 ? 0 : o[ch];
       }
     }
 }
@@ -343,7 +358,8 @@ static void od_taps_to_output(const float *taps, int batch, int h, int w, const 
 
 static void od_plan_free(od_plan *p) {
   if (!p) return;
-  for (int s = 0; s < p->nsteps; s++) dnnl_primitive_destroy(p->steps[s].prim);
+  for (int s = 0; s < p->nsteps; s++)
+    if (p->steps[s].prim) dnnl_primitive_destroy(p->steps[s].prim);
   for (int k = 0; k < p->nmems; k++) dnnl_memory_destroy(p->mems[k]);
   free(p->in);
   free(p->out);
@@ -411,7 +427,8 @@ static int od_add_layer(od_model *m, od_plan *p, od_kind kind, int i, dnnl_memor
   OD_TRY(dnnl_memory_get_memory_desc(src_mem, &smd));
   OD_TRY(dnnl_memory_get_memory_desc(dst_mem, &dmd));
   int cin = kind == OD_ENC ? hf_enc_in(c, i) : hf_dec_in(c, i);
-  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i) : OD_TAPS_CH;
+  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i)
+                                                : 16 * hf_dec_out(c, i);
   OD_RC(od_layer_pd(m->dev, kind, smd, dmd, cin, cout, &pd));
   const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
   const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
@@ -508,12 +525,15 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   OD_RC(od_alloc(p, &out_md, (void **)&p->out));
 
   /* The ping-pong buffers hold every encoder output, every decoder output
-   * but the last, and dec0's taps: the largest of those tensors. */
-  dnnl_memory_desc_t taps_md;
-  OD_RC(od_nhwc(&taps_md, batch, OD_TAPS_CH, ph >> 1, pw >> 1));
-  size_t ping_bytes = dnnl_memory_desc_get_size(&taps_md);
+   * but the last, and the taps: the largest of those tensors. */
+  size_t ping_bytes = 0;
   for (int i = 0; i < L; i++) {
     dnnl_memory_desc_t md;
+    if (m->use_taps[i]) {
+      OD_RC(od_nhwc(&md, batch, 16 * hf_dec_out(c, i), ph >> (i + 1), pw >> (i + 1)));
+      size_t b = dnnl_memory_desc_get_size(&md);
+      if (b > ping_bytes) ping_bytes = b;
+    }
     OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
     size_t b = dnnl_memory_desc_get_size(&md);
     if (b > ping_bytes) ping_bytes = b;
@@ -543,21 +563,36 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     src = dst;
   }
   /* Decoder: dec{L-1} reads enc{L-1}'s output, the others their concat
-   * buffer; outputs go to the free ping buffer, get their ReLU, and are
-   * copied into the left half of the next concat buffer. */
+   * buffer. A deconvolution writes the free ping buffer, gets its ReLU and
+   * is copied into the left half of the next concat buffer; taps go to the
+   * free ping buffer and their pass writes that half (or the output)
+   * directly, ReLU included. */
   for (int i = L - 1; i >= 0; i--) {
     if (i < L - 1) OD_RC(od_mem(p, dev, &cat_md[i], p->cat[i], &src));
-    if (i == 0) {
-      dnnl_memory_desc_t md;
-      OD_RC(od_nhwc(&md, batch, OD_TAPS_CH, ph >> 1, pw >> 1));
-      p->taps = p->ping[L % 2];
-      OD_RC(od_mem(p, dev, &md, p->taps, &dst));
+    int cout = hf_dec_out(c, i);
+    dnnl_memory_desc_t md;
+    if (m->use_taps[i]) {
+      /* dec{L-1} must not overwrite its own input, ping[(L-1)%2]. */
+      OD_RC(od_nhwc(&md, batch, 16 * cout, ph >> (i + 1), pw >> (i + 1)));
+      OD_RC(od_mem(p, dev, &md, p->ping[L % 2], &dst));
       OD_RC(od_add_layer(m, p, OD_TAPS, i, src, dst, &scratch_bytes));
+      if (p->nsteps >= OD_MAX_STEPS) {
+        rc = HF_ERANGE;
+        goto fail;
+      }
+      od_step *st = &p->steps[p->nsteps++];
+      memset(st, 0, sizeof *st);
+      st->taps = (od_taps_pass){p->ping[L % 2], ph >> (i + 1), pw >> (i + 1), cout, i > 0,
+                                m->w->dec_b[i], i ? p->cat[i - 1] : p->out,
+                                i ? hf_dec_in(c, i - 1) : HF_OUT_CHANNELS};
+      continue;
+    }
+    if (i == 0) {
+      OD_RC(od_mem(p, dev, &out_md, p->out, &dst));
+      OD_RC(od_add_layer(m, p, OD_DEC, i, src, dst, &scratch_bytes));
       break;
     }
-    dnnl_memory_desc_t md;
-    OD_RC(od_nhwc(&md, batch, hf_dec_out(c, i), ph >> i, pw >> i));
-    /* dec{L-1} must not overwrite its own input, ping[(L-1)%2]. */
+    OD_RC(od_nhwc(&md, batch, cout, ph >> i, pw >> i));
     OD_RC(od_mem(p, dev, &md, p->ping[L % 2], &dst));
     OD_RC(od_add_layer(m, p, OD_DEC, i, src, dst, &scratch_bytes));
     OD_RC(od_add_relu(p, dev, dst));
@@ -617,6 +652,15 @@ static int od_plan_get(od_model *m, int batch, int pw, int ph, od_plan **out) {
 
 /* ---- model ---------------------------------------------------------------- */
 
+/* Which decoders run as taps (see the top of this file): all of them,
+ * unless HF_CPU_DECONV is set to a non-empty value, which keeps oneDNN's
+ * deconvolution for every decoder but dec0, to compare the two (tests and
+ * docs/PERFORMANCE.md do). */
+static int od_use_taps(int i) {
+  const char *e = getenv("HF_CPU_DECONV");
+  return i == 0 || !e || !*e;
+}
+
 static void od_model_destroy(void *impl) {
   od_model *m = impl;
   if (!m) return;
@@ -627,8 +671,10 @@ static void od_model_destroy(void *impl) {
     if (m->enc_b[i]) dnnl_memory_destroy(m->enc_b[i]);
     if (m->dec_b[i]) dnnl_memory_destroy(m->dec_b[i]);
   }
-  if (m->taps_w) dnnl_memory_destroy(m->taps_w);
-  free(m->taps_user);
+  for (int i = 0; i < HF_MAX_LEVELS; i++) {
+    if (m->taps_w[i]) dnnl_memory_destroy(m->taps_w[i]);
+    free(m->taps_user[i]);
+  }
   hf_weights_free(m->w);
   free(m);
 }
@@ -642,8 +688,11 @@ static int od_model_create(void *devp, const hf_weights *w, void **out) {
   OD_RC(hf_weights_alloc(&w->cfg, &m->w));
   memcpy(m->w->storage, w->storage, w->num_params * sizeof(float));
   memcpy(m->w->features, w->features, sizeof m->w->features);
-  OD_RC(od_taps_weights(m));
   const hf_net_config *c = &m->w->cfg;
+  for (int i = 0; i < c->num_levels; i++) {
+    m->use_taps[i] = od_use_taps(i);
+    if (m->use_taps[i]) OD_RC(od_taps_weights(m, i));
+  }
   for (int i = 0; i < c->num_levels; i++) {
     dnnl_memory_desc_t md;
     dnnl_dims_t d = {hf_enc_out(c, i)};
@@ -682,11 +731,16 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
     hf_input_to_padded_f32(io, c->in_channels, pw, ph, p->in);
   OD_TRY(dnnl_memory_set_data_handle(p->in_mem, (void *)in));
   double t1 = hf_now_us();
-  for (int s = 0; s < p->nsteps; s++)
-    OD_TRY(dnnl_primitive_execute(p->steps[s].prim, m->dev->stream, p->steps[s].nargs,
-                                  p->steps[s].args));
+  for (int s = 0; s < p->nsteps; s++) {
+    od_step *st = &p->steps[s];
+    if (st->prim) {
+      OD_TRY(dnnl_primitive_execute(st->prim, m->dev->stream, st->nargs, st->args));
+    } else {
+      OD_TRY(dnnl_stream_wait(m->dev->stream));
+      od_taps_run(&st->taps, io->batch);
+    }
+  }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
-  od_taps_to_output(p->taps, io->batch, ph >> 1, pw >> 1, m->w->dec_b[0], p->out);
   double t2 = hf_now_us();
   hf_output_from_padded_f32(c, in, p->out, pw, ph, io);
   t->input_us = t1 - t0;

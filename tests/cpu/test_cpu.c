@@ -214,6 +214,16 @@ static void test_repeat_and_cache(void **state) {
   hf_weights_free(wt);
 }
 
+/* The deconvolution path (HF_CPU_DECONV, read at model creation) computes
+ * the same network as the default taps path. */
+static void test_deconv_path_matches_ref(void **state) {
+  assert_int_equal(setenv("HF_CPU_DECONV", "1", 1), 0);
+  compare(*state, "Base", 1, 37, 23, HF_F32, HF_F32, 500);
+  compare(*state, "Deep", 2, 33, 17, HF_F32, HF_F32, 501);
+  compare(*state, "Shallow", 1, 64, 48, HF_F32, HF_F32, 502);
+  assert_int_equal(unsetenv("HF_CPU_DECONV"), 0);
+}
+
 /* The registry lists "cpu", and "auto" prefers it over cpu-ref. */
 static void test_registry(void **state) {
   const char *const *names = hf_backend_list();
@@ -233,6 +243,7 @@ int main(void) {
     cmocka_unit_test(test_presets_match_ref),
     cmocka_unit_test(test_batch_and_dtypes),
     cmocka_unit_test(test_repeat_and_cache),
+    cmocka_unit_test(test_deconv_path_matches_ref),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
