@@ -2,10 +2,11 @@
  * hfrender: the reference hair renderer (headless OpenGL 4.5 core through
  * OSMesa or EGL).
  *
- * It draws strands as 1-pixel lines into a 4x multisampled framebuffer with
- * stochastic transparency: each sample's coverage bit is set with probability
- * alpha = opacity * (strand width / pixel footprint), decided by a hashed
- * alpha value of the model-space position (stable from frame to frame). Per
+ * It draws strands as 1-pixel-wide quads into a 4x multisampled framebuffer
+ * with stochastic transparency: each sample's coverage bit is set with
+ * probability alpha = opacity * (strand width / pixel footprint), decided by
+ * a hashed alpha value of the model-space position and strand (stable from
+ * frame to frame). Per
  * sample it keeps the nearest surviving fragment's features, in the order and
  * under the names hfcore uses (S{k}.color, .highlight, .alpha, .depth,
  * .tangent.x, .tangent.y; protocol/FEATURES.md). Shading is the paper's
