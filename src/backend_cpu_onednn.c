@@ -15,10 +15,10 @@
  *     writes straight into the left half of the next decoder's input, so
  *     the concat costs one copy (of the encoder's half) instead of two.
  *     HF_CPU_DECONV=1 selects the deconvolution path for comparison.
- *   - The encoder's half of each concat buffer is a copy (a reorder):
- *     writing it in place through a sub-memory descriptor would save the
- *     copy, but oneDNN 2.6 has only reference kernels for strided
- *     destinations, tens of times slower than the copy.
+ *   - The encoder's half of each concat buffer is a copy: writing it in
+ *     place through a sub-memory descriptor would save the copy, but
+ *     oneDNN 2.6 has only reference kernels for strided destinations, tens
+ *     of times slower than the copy.
  *   - ReLU is a post-op of the convolutions. On the deconvolution path it is
  *     a separate in-place eltwise: fused into an fp32 deconvolution it made
  *     that primitive about ten times slower.
@@ -55,7 +55,10 @@ typedef struct od_dev {
   dnnl_stream_t stream;
 } od_dev;
 
-/* A step is a oneDNN primitive, or (prim NULL) a tap-summing pass. */
+/* A step is a oneDNN primitive, a tap-summing pass or a copy into a concat
+ * buffer. */
+typedef enum od_step_type { OD_STEP_PRIM, OD_STEP_TAPS, OD_STEP_COPY } od_step_type;
+
 typedef struct od_taps_pass {
   const float *taps;            /* [batch][h][w][16][cout] */
   int h, w, cout, relu;
@@ -64,11 +67,21 @@ typedef struct od_taps_pass {
   int stride;
 } od_taps_pass;
 
+/* Copies dense [npix][ch] into [npix][stride] (a concat buffer's half). */
+typedef struct od_copy_pass {
+  const float *src;
+  size_t npix;
+  int ch, stride;
+  float *dst;
+} od_copy_pass;
+
 typedef struct od_step {
+  od_step_type type;
   dnnl_primitive_t prim;
   int nargs;
   dnnl_exec_arg_t args[5];
   od_taps_pass taps;
+  od_copy_pass copy;
 } od_step;
 
 typedef struct od_plan {
@@ -359,7 +372,7 @@ static void od_taps_run(const od_taps_pass *t, int batch) {
 static void od_plan_free(od_plan *p) {
   if (!p) return;
   for (int s = 0; s < p->nsteps; s++)
-    if (p->steps[s].prim) dnnl_primitive_destroy(p->steps[s].prim);
+    if (p->steps[s].type == OD_STEP_PRIM) dnnl_primitive_destroy(p->steps[s].prim);
   for (int k = 0; k < p->nmems; k++) dnnl_memory_destroy(p->mems[k]);
   free(p->in);
   free(p->out);
@@ -402,6 +415,8 @@ static int od_add_step(od_plan *p, dnnl_primitive_t prim, int nargs, const dnnl_
     return HF_ERANGE;
   }
   od_step *s = &p->steps[p->nsteps++];
+  memset(s, 0, sizeof *s);
+  s->type = OD_STEP_PRIM;
   s->prim = prim;
   s->nargs = nargs;
   memcpy(s->args, args, sizeof *args * nargs);
@@ -483,29 +498,23 @@ fail:
   return rc;
 }
 
-/* Adds a copy of dense `from` into channels [off, off + C) of the concat
- * buffer described by cat_md over cat_buf. */
-static int od_add_copy(od_plan *p, od_dev *dev, dnnl_memory_t from,
-                       const dnnl_memory_desc_t *cat_md, void *cat_buf, int off) {
-  int rc = HF_OK;
-  const dnnl_memory_desc_t *fmd;
-  dnnl_memory_desc_t sub;
-  dnnl_memory_t to;
-  dnnl_primitive_desc_t pd = NULL;
-  dnnl_primitive_t prim = NULL;
-  OD_TRY(dnnl_memory_get_memory_desc(from, &fmd));
-  dnnl_dims_t offs = {0, off, 0, 0};
-  OD_TRY(dnnl_memory_desc_init_submemory(&sub, cat_md, fmd->dims, offs));
-  OD_RC(od_mem(p, dev, &sub, cat_buf, &to));
-  OD_TRY(dnnl_reorder_primitive_desc_create(&pd, fmd, dev->eng, &sub, dev->eng, NULL));
-  OD_TRY(dnnl_primitive_create(&prim, pd));
-  dnnl_exec_arg_t args[2] = {{DNNL_ARG_FROM, from}, {DNNL_ARG_TO, to}};
-  rc = od_add_step(p, prim, 2, args);
-  prim = NULL;
-fail:
-  if (prim) dnnl_primitive_destroy(prim);
-  if (pd) dnnl_primitive_desc_destroy(pd);
-  return rc;
+/* Adds a copy of dense [npix][ch] at src into channels [off, off + ch) of
+ * the concat buffer cat of stride channels. A plain loop, not a oneDNN
+ * reorder: it is memory-bound either way, and a single-threaded copy does
+ * not wait at a thread barrier when the cores are shared with other work. */
+static int od_add_copy(od_plan *p, const void *src, size_t npix, int ch, void *cat, int off,
+                       int stride) {
+  if (p->nsteps >= OD_MAX_STEPS) return HF_ERANGE;
+  od_step *st = &p->steps[p->nsteps++];
+  memset(st, 0, sizeof *st);
+  st->type = OD_STEP_COPY;
+  st->copy = (od_copy_pass){src, npix, ch, stride, (float *)cat + off};
+  return HF_OK;
+}
+
+static void od_copy_run(const od_copy_pass *c) {
+  for (size_t i = 0; i < c->npix; i++)
+    memcpy(c->dst + i * c->stride, c->src + i * c->ch, c->ch * sizeof(float));
 }
 
 /* Builds every primitive and buffer for batch frames of pw x ph. */
@@ -559,7 +568,9 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
     OD_RC(od_mem(p, dev, &md, p->ping[i % 2], &dst));
     OD_RC(od_add_layer(m, p, OD_ENC, i, src, dst, &scratch_bytes));
-    if (i < L - 1) OD_RC(od_add_copy(p, dev, dst, &cat_md[i], p->cat[i], hf_enc_out(c, i)));
+    if (i < L - 1)
+      OD_RC(od_add_copy(p, p->ping[i % 2], (size_t)batch * (ph >> (i + 1)) * (pw >> (i + 1)),
+                        hf_enc_out(c, i), p->cat[i], hf_enc_out(c, i), hf_dec_in(c, i)));
     src = dst;
   }
   /* Decoder: dec{L-1} reads enc{L-1}'s output, the others their concat
@@ -582,6 +593,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       }
       od_step *st = &p->steps[p->nsteps++];
       memset(st, 0, sizeof *st);
+      st->type = OD_STEP_TAPS;
       st->taps = (od_taps_pass){p->ping[L % 2], ph >> (i + 1), pw >> (i + 1), cout, i > 0,
                                 m->w->dec_b[i], i ? p->cat[i - 1] : p->out,
                                 i ? hf_dec_in(c, i - 1) : HF_OUT_CHANNELS};
@@ -596,7 +608,8 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     OD_RC(od_mem(p, dev, &md, p->ping[L % 2], &dst));
     OD_RC(od_add_layer(m, p, OD_DEC, i, src, dst, &scratch_bytes));
     OD_RC(od_add_relu(p, dev, dst));
-    OD_RC(od_add_copy(p, dev, dst, &cat_md[i - 1], p->cat[i - 1], 0));
+    OD_RC(od_add_copy(p, p->ping[L % 2], (size_t)batch * (ph >> i) * (pw >> i), cout,
+                      p->cat[i - 1], 0, hf_dec_in(c, i - 1)));
   }
 
   if (scratch_bytes) {
@@ -733,12 +746,15 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
-    if (st->prim) {
+    if (st->type == OD_STEP_PRIM) {
       OD_TRY(dnnl_primitive_execute(st->prim, m->dev->stream, st->nargs, st->args));
-    } else {
-      OD_TRY(dnnl_stream_wait(m->dev->stream));
-      od_taps_run(&st->taps, io->batch);
+      continue;
     }
+    OD_TRY(dnnl_stream_wait(m->dev->stream));
+    if (st->type == OD_STEP_TAPS)
+      od_taps_run(&st->taps, io->batch);
+    else
+      od_copy_run(&st->copy);
   }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();
