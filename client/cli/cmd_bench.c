@@ -22,11 +22,13 @@
 #define BENCH_MAX_LIST 16
 #define BENCH_ROWS_MAX 1024
 #define BENCH_REF_SIDE 256 /* cpu-ref's default sizes stop here: it is loops */
+#define BENCH_REF_ITERS 5  /* and it runs at most this many iterations */
 
 typedef struct bench_row {
   char backend[24], variant[HF_NAME_MAX], precision[8];
   int w, h, batch, iters;
-  double med_ms, p90_ms, net_ms; /* per frame; net_ms < 0 when unknown */
+  double med_ms, p90_ms;         /* per frame, wall time of hf_model_run */
+  double in_ms, net_ms, out_ms;  /* per frame, medians of hf_timing; < 0 unknown */
   double dev_bytes;
 } bench_row;
 
@@ -55,11 +57,12 @@ static void usage(FILE *f) {
           "                        [--torch] [--torch-device cpu|cuda]\n"
           "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
           "table of ms per frame (median, p90 over iterations after warm-up), frames/s and\n"
-          "device memory. cpu-ref runs only sizes up to %dx%d unless --sizes is given.\n"
+          "device memory. cpu-ref runs only sizes up to %dx%d unless --sizes is given,\n"
+          "and at most %d iterations after 1 warm-up.\n"
           "--torch adds PyTorch rows (bench/bench_torch.py via /usr/bin/python3) on the same\n"
           "weights. Defaults: every backend in this build, Base, the three sizes, batch 1,\n"
           "20 iterations, 3 warm-up.\n",
-          BENCH_REF_SIDE, BENCH_REF_SIDE);
+          BENCH_REF_SIDE, BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
 /* Splits a comma-separated list in place; returns the count or -1. */
@@ -221,8 +224,9 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   float *in = malloc(px * c->in_channels * sizeof(float));
   float *out = malloc(px * 3 * sizeof(float));
   double *wall = malloc(iters * sizeof(double)), *net = malloc(iters * sizeof(double));
+  double *tin = malloc(iters * sizeof(double)), *tout = malloc(iters * sizeof(double));
   int rc = HF_ENOMEM;
-  if (!in || !out || !wall || !net) goto out;
+  if (!in || !out || !wall || !net || !tin || !tout) goto out;
   fill_input(in, px * c->in_channels, seed);
   hf_io io = {batch, w, h, in, HF_F32, out, HF_F32};
   hf_timing t;
@@ -238,6 +242,8 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
     if (k >= warmup) {
       wall[k - warmup] = (t1.tv_sec - t0.tv_sec) * 1e3 + (t1.tv_nsec - t0.tv_nsec) * 1e-6;
       net[k - warmup] = t.infer_us * 1e-3;
+      tin[k - warmup] = t.input_us * 1e-3;
+      tout[k - warmup] = t.output_us * 1e-3;
     }
   }
   bench_row *r = new_row();
@@ -252,6 +258,8 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   r->med_ms = median(wall, iters) / batch;
   r->p90_ms = p90(wall, iters) / batch;
   r->net_ms = median(net, iters) / batch;
+  r->in_ms = median(tin, iters) / batch;
+  r->out_ms = median(tout, iters) / batch;
   r->dev_bytes = (double)hf_model_device_bytes(m);
   fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", backend, c->name, w, h,
           batch, r->med_ms);
@@ -261,6 +269,8 @@ out:
   free(out);
   free(wall);
   free(net);
+  free(tin);
+  free(tout);
   return rc;
 }
 
@@ -335,7 +345,7 @@ static int run_torch(const bench_opts *o) {
                r.variant, &r.w, &r.h, &r.batch, r.precision, &r.med_ms, &r.p90_ms, &dev,
                &r.iters) != 10)
       continue;
-    r.net_ms = -1;
+    r.in_ms = r.net_ms = r.out_ms = -1;
     r.dev_bytes = dev;
     bench_row *slot = new_row();
     if (!slot) break;
@@ -363,14 +373,15 @@ out:
 
 static void print_table(void) {
   printf("| backend | variant | size | batch | precision | median ms/frame | p90 ms/frame "
-         "| net ms/frame | frames/s | device MiB | iters |\n");
+         "| in / net / out ms | frames/s | device MiB | iters |\n");
   printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|\n");
   for (int i = 0; i < nrows; i++) {
     bench_row *r = &rows[i];
-    char net[32] = "-";
-    if (r->net_ms >= 0) snprintf(net, sizeof net, "%.2f", r->net_ms);
+    char parts[64] = "-";
+    if (r->net_ms >= 0)
+      snprintf(parts, sizeof parts, "%.2f / %.2f / %.2f", r->in_ms, r->net_ms, r->out_ms);
     printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d |\n", r->backend,
-           r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms, net,
+           r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms, parts,
            r->med_ms > 0 ? 1e3 / r->med_ms : 0, r->dev_bytes / (1024.0 * 1024.0), r->iters);
   }
   /* The comparison the cpu backend is judged by. */
@@ -427,7 +438,8 @@ int cmd_bench(int argc, char **argv) {
           continue;
         for (int n = 0; n < o.nbatches; n++)
           if (bench_one(m, hf_backend_name(be), o.sizes[s][0], o.sizes[s][1], o.batches[n],
-                        o.iters, o.warmup, o.seed))
+                        is_ref && o.iters > BENCH_REF_ITERS ? BENCH_REF_ITERS : o.iters,
+                        is_ref && o.warmup > 1 ? 1 : o.warmup, o.seed))
             failed = 1;
       }
       hf_model_destroy(m);
