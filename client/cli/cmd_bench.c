@@ -21,7 +21,7 @@
 
 #define BENCH_MAX_LIST 16
 #define BENCH_ROWS_MAX 1024
-#define BENCH_REF_SIDE 256 /* cpu-ref's default sizes stop here: it is loops */
+#define BENCH_REF_SIDE 256 /* cpu-ref's sizes stop here by default: it is loops */
 #define BENCH_REF_ITERS 5  /* and it runs at most this many iterations */
 
 typedef struct bench_row {
@@ -38,7 +38,7 @@ typedef struct bench_opts {
   char variants[BENCH_MAX_LIST][HF_NAME_MAX];
   int nvariants;
   int sizes[BENCH_MAX_LIST][2];
-  int nsizes, sizes_given;
+  int nsizes, ref_max_side;
   int batches[BENCH_MAX_LIST];
   int nbatches;
   int iters, warmup, torch;
@@ -53,16 +53,16 @@ static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilter bench [--backend cpu,cpu-ref,cudnn|all] [--variants Base,...|all]\n"
           "                        [--sizes 256x256,512x512,1024x1024] [--batch 1,4]\n"
-          "                        [--iters N] [--warmup N] [--seed N]\n"
+          "                        [--iters N] [--warmup N] [--seed N] [--ref-max-side N]\n"
           "                        [--torch] [--torch-device cpu|cuda]\n"
           "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
           "table of ms per frame (median, p90 over iterations after warm-up), frames/s and\n"
-          "device memory. cpu-ref runs only sizes up to %dx%d unless --sizes is given,\n"
-          "and at most %d iterations after 1 warm-up.\n"
+          "device memory. cpu-ref runs only sizes whose sides are at most --ref-max-side\n"
+          "(default %d), and at most %d iterations after 1 warm-up.\n"
           "--torch adds PyTorch rows (bench/bench_torch.py via /usr/bin/python3) on the same\n"
           "weights. Defaults: every backend in this build, Base, the three sizes, batch 1,\n"
           "20 iterations, 3 warm-up.\n",
-          BENCH_REF_SIDE, BENCH_REF_SIDE, BENCH_REF_ITERS);
+          BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
 /* Splits a comma-separated list in place; returns the count or -1. */
@@ -81,7 +81,8 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     {"sizes", required_argument, 0, 's'},   {"batch", required_argument, 0, 'n'},
     {"iters", required_argument, 0, 'i'},   {"warmup", required_argument, 0, 'w'},
     {"seed", required_argument, 0, 'S'},    {"torch", no_argument, 0, 't'},
-    {"torch-device", required_argument, 0, 'd'}, {"help", no_argument, 0, 'h'},
+    {"torch-device", required_argument, 0, 'd'}, {"ref-max-side", required_argument, 0, 'r'},
+    {"help", no_argument, 0, 'h'},
     {0, 0, 0, 0},
   };
   static char buf_b[512], buf_v[512], buf_s[512], buf_n[256];
@@ -91,6 +92,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
   o->warmup = 3;
   o->seed = 1;
   o->torch_device = "cpu";
+  o->ref_max_side = BENCH_REF_SIDE;
   int c;
   optind = 1;
   while ((c = getopt_long(argc, argv, "h", longs, NULL)) != -1) {
@@ -98,17 +100,18 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     switch (c) {
     case 'b': arg_b = optarg; break;
     case 'v': arg_v = optarg; break;
-    case 's': arg_s = optarg; o->sizes_given = 1; break;
+    case 's': arg_s = optarg; break;
     case 'n': arg_n = optarg; break;
     case 'i':
-    case 'w': {
+    case 'w':
+    case 'r': {
       long v = strtol(optarg, &end, 10);
-      if (*end || v < (c == 'i' ? 1 : 0) || v > 100000) {
-        fprintf(stderr, "hairfilter bench: bad --%s '%s'\n", c == 'i' ? "iters" : "warmup",
-                optarg);
+      const char *name = c == 'i' ? "iters" : c == 'w' ? "warmup" : "ref-max-side";
+      if (*end || v < (c == 'w' ? 0 : 1) || v > 100000) {
+        fprintf(stderr, "hairfilter bench: bad --%s '%s'\n", name, optarg);
         return 2;
       }
-      *(c == 'i' ? &o->iters : &o->warmup) = (int)v;
+      *(c == 'i' ? &o->iters : c == 'w' ? &o->warmup : &o->ref_max_side) = (int)v;
       break;
     }
     case 'S': o->seed = strtoull(optarg, &end, 10); if (*end) return 2; break;
@@ -433,8 +436,7 @@ int cmd_bench(int argc, char **argv) {
         continue;
       }
       for (int s = 0; s < o.nsizes; s++) {
-        if (is_ref && !o.sizes_given &&
-            (o.sizes[s][0] > BENCH_REF_SIDE || o.sizes[s][1] > BENCH_REF_SIDE))
+        if (is_ref && (o.sizes[s][0] > o.ref_max_side || o.sizes[s][1] > o.ref_max_side))
           continue;
         for (int n = 0; n < o.nbatches; n++)
           if (bench_one(m, hf_backend_name(be), o.sizes[s][0], o.sizes[s][1], o.batches[n],
