@@ -33,9 +33,9 @@ def parse_size(s):
     return int(w), int(h)
 
 
-def percentile(sorted_vals, q):
-    """Same rule as the C side: the value at index floor(q * (n - 1))."""
-    return sorted_vals[int(q * (len(sorted_vals) - 1))]
+def p90(sorted_vals):
+    """Nearest rank, as the C side: the value at index ceil(0.9 n) - 1."""
+    return sorted_vals[max(0, (9 * len(sorted_vals) + 9) // 10 - 1)]
 
 
 def feature_input(spp, batch, w, h, device, dtype, seed):
@@ -65,7 +65,7 @@ def emit(mode, variant, w, h, batch, precision, times, device_bytes, iters):
     med = times[len(times) // 2] if len(times) % 2 else \
         0.5 * (times[len(times) // 2 - 1] + times[len(times) // 2])
     med_ms = 1e3 * med / batch
-    p90_ms = 1e3 * percentile(times, 0.9) / batch
+    p90_ms = 1e3 * p90(times) / batch
     fps = 1e3 / med_ms if med_ms > 0 else 0.0
     print(f"ROW\t{mode}\t{variant}\t{w}x{h}\t{batch}\t{precision}\t{med_ms:.3f}\t"
           f"{p90_ms:.3f}\t{fps:.2f}\t{device_bytes}\t{iters}", flush=True)

@@ -11,7 +11,7 @@
  *     and at a small fraction of it for dec0's 3 output channels. A 4x4 stride-2 transposed convolution is
  *     a 1x1 convolution from each input pixel to its 16 taps x cout products
  *     (same multiply-adds), then a pass summing the four taps that reach each
- *     output pixel, adding the bias and the ReLU (od_taps_run). That pass
+ *     output pixel, adding the bias and the ReLU (od_taps_rows). That pass
  *     writes straight into the left half of the next decoder's input, so
  *     the concat costs one copy (of the encoder's half) instead of two.
  *     HF_CPU_DECONV=1 selects the deconvolution path for comparison.
@@ -28,13 +28,16 @@
  *
  * A plan holds the primitives and buffers of one (batch, padded size); plans
  * are cached per model (least recently used goes), so a run of a size seen
- * before allocates nothing.
+ * before allocates nothing. A model is run by one thread at a time (the
+ * server's worker owns its models); the cache is not locked.
  */
+#include <pthread.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <dnnl.h>
 
@@ -50,9 +53,12 @@
  * oneDNN deconvolution, or a decoder's 1x1 convolution to its taps. */
 typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS } od_kind;
 
+#define OD_MAX_THREADS 64
+
 typedef struct od_dev {
   dnnl_engine_t eng;
   dnnl_stream_t stream;
+  int threads;                  /* for the backend's own passes */
 } od_dev;
 
 /* A step is a oneDNN primitive, a tap-summing pass or a copy into a concat
@@ -97,7 +103,6 @@ typedef struct od_plan {
   od_step steps[OD_MAX_STEPS];
   int nmems;
   dnnl_memory_t mems[OD_MAX_MEMS];
-  size_t bytes;
 } od_plan;
 
 typedef struct od_model {
@@ -167,6 +172,12 @@ static int od_open(void **out, char *why, size_t whylen) {
   if (!d) return HF_ENOMEM;
   OD_TRY(dnnl_engine_create(&d->eng, dnnl_cpu, 0));
   OD_TRY(dnnl_stream_create(&d->stream, d->eng, dnnl_stream_default_flags));
+  /* As many threads as oneDNN's OpenMP would use: the online cores, or
+   * OMP_NUM_THREADS when that is set lower. */
+  long n = sysconf(_SC_NPROCESSORS_ONLN);
+  const char *omp = getenv("OMP_NUM_THREADS");
+  if (omp && atol(omp) > 0 && atol(omp) < n) n = atol(omp);
+  d->threads = n < 1 ? 1 : n > OD_MAX_THREADS ? OD_MAX_THREADS : (int)n;
   *out = d;
   return HF_OK;
 fail:
@@ -333,38 +344,39 @@ static int od_taps_weights(od_model *m, int l) {
 /* Sums the taps into the output, adds the bias, applies the ReLU if asked.
  * Output row Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1;
  * Y = 2m + 1 takes ky = 2 of row m and ky = 0 of row m + 1; columns alike. */
-static void od_taps_run(const od_taps_pass *t, int batch) {
+static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
   const int C = t->cout, T = 16 * t->cout, h = t->h, w = t->w;
-  for (int n = 0; n < batch; n++)
-    for (int Y = 0; Y < 2 * h; Y++) {
-      int m = Y >> 1, py = Y & 1;
-      int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
-      int has_y1 = y1 >= 0 && y1 < h;
-      const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
-      const float *r1 = t->taps + ((size_t)n * h + (has_y1 ? y1 : m)) * w * T;
-      float *o = t->out + ((size_t)n * 2 * h + Y) * 2 * w * t->stride;
-      for (int X = 0; X < 2 * w; X++, o += t->stride) {
-        int q = X >> 1, px = X & 1;
-        int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
-        int has_x1 = x1 >= 0 && x1 < w;
-        const float *a = r0 + (size_t)q * T + (ky0 * 4 + kx0) * C;
-        const float *b = r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C;
-        const float *cc = r1 + (size_t)q * T + (ky1 * 4 + kx0) * C;
-        const float *d = r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C;
-        if (has_x1 && has_y1) {
-          for (int ch = 0; ch < C; ch++) o[ch] = t->bias[ch] + a[ch] + b[ch] + cc[ch] + d[ch];
-        } else {
-          for (int ch = 0; ch < C; ch++) {
-            float v = t->bias[ch] + a[ch];
-            if (has_x1) v += b[ch];
-            if (has_y1) v += cc[ch];
-            o[ch] = v;
-          }
+  for (size_t row = row0; row < row1; row++) {
+    int n = (int)(row / (2 * h)), Y = (int)(row % (2 * h));
+    int m = Y >> 1, py = Y & 1;
+    int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
+    int has_y1 = y1 >= 0 && y1 < h;
+    const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
+    const float *r1 = t->taps + ((size_t)n * h + (has_y1 ? y1 : m)) * w * T;
+    float *o = t->out + ((size_t)n * 2 * h + Y) * 2 * w * t->stride;
+    for (int X = 0; X < 2 * w; X++, o += t->stride) {
+      int q = X >> 1, px = X & 1;
+      int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
+      int has_x1 = x1 >= 0 && x1 < w;
+      if (!has_x1) x1 = q; /* keeps b and d inside the row; not read */
+      const float *a = r0 + (size_t)q * T + (ky0 * 4 + kx0) * C;
+      const float *b = r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C;
+      const float *cc = r1 + (size_t)q * T + (ky1 * 4 + kx0) * C;
+      const float *d = r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C;
+      if (has_x1 && has_y1) {
+        for (int ch = 0; ch < C; ch++) o[ch] = t->bias[ch] + a[ch] + b[ch] + cc[ch] + d[ch];
+      } else {
+        for (int ch = 0; ch < C; ch++) {
+          float v = t->bias[ch] + a[ch];
+          if (has_x1) v += b[ch];
+          if (has_y1) v += cc[ch];
+          o[ch] = v;
         }
-        if (t->relu)
-          for (int ch = 0; ch < C; ch++) o[ch] = o[ch] < 0 ? 0 : o[ch];
       }
+      if (t->relu)
+        for (int ch = 0; ch < C; ch++) o[ch] = o[ch] < 0 ? 0 : o[ch];
     }
+  }
 }
 
 /* ---- plans ---------------------------------------------------------------- */
@@ -383,19 +395,18 @@ static void od_plan_free(od_plan *p) {
   free(p);
 }
 
-/* Allocates n bytes, 64-byte aligned, counted in the plan's size. */
-static int od_alloc_bytes(od_plan *p, size_t n, void **buf) {
+/* Allocates n bytes, 64-byte aligned. */
+static int od_alloc_bytes(size_t n, void **buf) {
   size_t r = (n + 63) & ~(size_t)63;
   if (r < n) return HF_ERANGE;
   *buf = aligned_alloc(64, r ? r : 64);
   if (!*buf) return HF_ENOMEM;
-  p->bytes += r;
   return HF_OK;
 }
 
 /* Allocates a buffer of md's size. */
-static int od_alloc(od_plan *p, const dnnl_memory_desc_t *md, void **buf) {
-  return od_alloc_bytes(p, dnnl_memory_desc_get_size(md), buf);
+static int od_alloc(const dnnl_memory_desc_t *md, void **buf) {
+  return od_alloc_bytes(dnnl_memory_desc_get_size(md), buf);
 }
 
 /* A memory object over buf, owned by the plan. */
@@ -512,9 +523,54 @@ static int od_add_copy(od_plan *p, const void *src, size_t npix, int ch, void *c
   return HF_OK;
 }
 
-static void od_copy_run(const od_copy_pass *c) {
-  for (size_t i = 0; i < c->npix; i++)
+static void od_copy_pixels(const od_copy_pass *c, size_t i0, size_t i1) {
+  for (size_t i = i0; i < i1; i++)
     memcpy(c->dst + i * c->stride, c->src + i * c->ch, c->ch * sizeof(float));
+}
+
+/* The backend's own passes are split over the machine's cores like the
+ * oneDNN primitives around them: a range of rows (taps) or pixels (copy) per
+ * thread, threads started per pass (tens of microseconds against passes of
+ * milliseconds) so that nothing waits between runs. */
+typedef struct od_job {
+  const od_step *st;
+  size_t begin, end;
+} od_job;
+
+static void od_job_run(const od_job *j) {
+  if (j->st->type == OD_STEP_TAPS)
+    od_taps_rows(&j->st->taps, j->begin, j->end);
+  else
+    od_copy_pixels(&j->st->copy, j->begin, j->end);
+}
+
+static void *od_job_thread(void *arg) {
+  od_job_run(arg);
+  return NULL;
+}
+
+static void od_pass_run(const od_step *st, int batch, int nthreads) {
+  size_t total = st->type == OD_STEP_TAPS ? (size_t)batch * 2 * st->taps.h : st->copy.npix;
+  /* Below this much work a thread costs more than it saves. */
+  size_t per_row = st->type == OD_STEP_TAPS ? (size_t)2 * st->taps.w * st->taps.cout
+                                             : (size_t)st->copy.ch;
+  if (total * per_row < (size_t)1 << 16) nthreads = 1;
+  if ((size_t)nthreads > total) nthreads = (int)total;
+  od_job jobs[OD_MAX_THREADS];
+  pthread_t th[OD_MAX_THREADS];
+  int started[OD_MAX_THREADS] = {0};
+  for (int k = 0; k < nthreads; k++)
+    jobs[k] = (od_job){st, total * k / nthreads, total * (k + 1) / nthreads};
+  for (int k = 1; k < nthreads; k++)
+    started[k] = pthread_create(&th[k], NULL, od_job_thread, &jobs[k]) == 0;
+  od_job_run(&jobs[0]);
+  /* A thread that could not start has its share done here. */
+  for (int k = 1; k < nthreads; k++) {
+    if (started[k])
+      pthread_join(th[k], NULL);
+    else
+      od_job_run(&jobs[k]);
+  }
 }
 
 /* Builds every primitive and buffer for batch frames of pw x ph. */
@@ -530,8 +586,8 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS];
   OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
   OD_RC(od_nhwc(&out_md, batch, HF_OUT_CHANNELS, ph, pw));
-  OD_RC(od_alloc(p, &in_md, (void **)&p->in));
-  OD_RC(od_alloc(p, &out_md, (void **)&p->out));
+  OD_RC(od_alloc(&in_md, (void **)&p->in));
+  OD_RC(od_alloc(&out_md, (void **)&p->out));
 
   /* The ping-pong buffers hold every encoder output, every decoder output
    * but the last, and the taps: the largest of those tensors. */
@@ -552,10 +608,10 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       if (b > ping_bytes) ping_bytes = b;
     }
   }
-  for (int k = 0; k < 2; k++) OD_RC(od_alloc_bytes(p, ping_bytes, &p->ping[k]));
+  for (int k = 0; k < 2; k++) OD_RC(od_alloc_bytes(ping_bytes, &p->ping[k]));
   for (int i = 0; i < L - 1; i++) {
     OD_RC(od_nhwc(&cat_md[i], batch, hf_dec_in(c, i), ph >> (i + 1), pw >> (i + 1)));
-    OD_RC(od_alloc(p, &cat_md[i], &p->cat[i]));
+    OD_RC(od_alloc(&cat_md[i], &p->cat[i]));
   }
 
   /* Encoder: enc{i} reads ping[(i+1)%2] (or the input) and writes ping[i%2];
@@ -617,7 +673,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     dnnl_memory_t smem;
     dnnl_dims_t d = {(dnnl_dim_t)scratch_bytes};
     OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
-    OD_RC(od_alloc(p, &md, &p->scratch));
+    OD_RC(od_alloc(&md, &p->scratch));
     OD_RC(od_mem(p, dev, &md, p->scratch, &smem));
     for (int s = 0; s < p->nsteps; s++)
       for (int a = 0; a < p->steps[s].nargs; a++)
@@ -751,10 +807,7 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
       continue;
     }
     OD_TRY(dnnl_stream_wait(m->dev->stream));
-    if (st->type == OD_STEP_TAPS)
-      od_taps_run(&st->taps, io->batch);
-    else
-      od_copy_run(&st->copy);
+    od_pass_run(st, io->batch, m->dev->threads);
   }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();

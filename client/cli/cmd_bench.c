@@ -194,13 +194,17 @@ static int cmp_double(const void *a, const void *b) {
   return (x > y) - (x < y);
 }
 
-/* Median (mean of the middle two for an even count) and the value at index
- * floor(0.9 (n - 1)) of sorted v; bench_torch.py uses the same rules. */
+/* Median (mean of the middle two for an even count) and the 90th percentile
+ * by nearest rank (the value at index ceil(0.9 n) - 1 of sorted v);
+ * bench_torch.py uses the same rules. */
 static double median(double *v, int n) {
   qsort(v, n, sizeof *v, cmp_double);
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
-static double p90(const double *sorted, int n) { return sorted[(int)(0.9 * (n - 1))]; }
+static double p90(const double *sorted, int n) {
+  int k = (9 * n + 9) / 10 - 1; /* ceil(0.9 n) - 1 in integers */
+  return sorted[k < 0 ? 0 : k];
+}
 
 static bench_row *new_row(void) {
   if (nrows == BENCH_ROWS_MAX) return NULL;

@@ -169,6 +169,9 @@ static void test_batch_and_dtypes(void **state) {
     compare(*state, "Shallow", 3, 20, 9, t[k][0], t[k][1], 300 + k);
   }
   compare(*state, "Deep", 3, 33, 17, HF_F16, HF_F32, 400);
+  /* Large enough that the tap sums and concat copies are split over
+   * threads (they stay on one thread below ~64K values). */
+  compare(*state, "Base", 2, 150, 100, HF_F32, HF_F32, 401);
 }
 
 /* The same frame gives the same bytes on a reused plan, after other sizes
