@@ -32,7 +32,6 @@
  * server's worker owns its models); the cache is not locked.
  */
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -211,9 +210,11 @@ fail:
   return rc;
 }
 
-/* Creates the convolution (3x3, stride 2, pad 1, fused ReLU) or
- * deconvolution (4x4, stride 2, pad 1, no post-op) primitive descriptor
- * between src and dst with weights and scratchpad formats left to oneDNN. */
+/* Creates the primitive descriptor of one layer between src and dst, with
+ * weights and scratchpad formats left to oneDNN: OD_ENC a 3x3 stride-2
+ * pad-1 convolution with fused ReLU; OD_DEC a 4x4 stride-2 pad-1
+ * deconvolution (its ReLU is a separate primitive); OD_TAPS a 1x1
+ * convolution without bias or ReLU (the tap pass adds them). */
 static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
                        const dnnl_memory_desc_t *dst, int cin, int cout,
                        dnnl_primitive_desc_t *pd) {
