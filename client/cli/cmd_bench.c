@@ -34,7 +34,7 @@ typedef struct bench_row {
 
 typedef struct bench_opts {
   const char *backends[BENCH_MAX_LIST];
-  int nbackends;
+  int nbackends, backends_all;
   char variants[BENCH_MAX_LIST][HF_NAME_MAX];
   int nvariants;
   int sizes[BENCH_MAX_LIST][2];
@@ -136,6 +136,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
   /* Backends. */
   snprintf(buf_b, sizeof buf_b, "%s", arg_b);
   if (!strcmp(buf_b, "all")) {
+    o->backends_all = 1;
     const char *const *names = hf_backend_list();
     for (int i = 0; names[i] && o->nbackends < BENCH_MAX_LIST; i++)
       o->backends[o->nbackends++] = names[i];
@@ -422,7 +423,7 @@ int cmd_bench(int argc, char **argv) {
               why[0] ? why : "", hf_strerror(rc));
       /* An explicitly named backend that cannot run is an error; "all"
        * just lists what is compiled in. */
-      if (rc == HF_ENOTFOUND) failed = 1;
+      if (!o.backends_all) failed = 1;
       continue;
     }
     int is_ref = !strcmp(hf_backend_name(be), "cpu-ref");
