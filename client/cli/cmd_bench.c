@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -362,8 +363,10 @@ static int run_torch(const bench_opts *o) {
             r.w, r.h, r.batch, r.med_ms);
   }
   int st = pclose(p);
-  if (st != 0) {
-    fprintf(stderr, "hairfilter bench: bench_torch.py failed (status %d)\n", st);
+  if (st == -1 || !WIFEXITED(st) || WEXITSTATUS(st) != 0) {
+    fprintf(stderr, "hairfilter bench: bench_torch.py failed (%s %d)\n",
+            st != -1 && WIFEXITED(st) ? "exit status" : "wait status",
+            st != -1 && WIFEXITED(st) ? WEXITSTATUS(st) : st);
     rc = HF_EBACKEND;
   }
 out:
