@@ -1,4 +1,8 @@
-/* Error codes to text. */
+/* Error codes to text, and error messages for callers. */
+#include <stdarg.h>
+#include <stdio.h>
+
+#include "errors.h"
 #include "hfcore.h"
 
 const char *hf_strerror(int err) {
@@ -15,4 +19,14 @@ const char *hf_strerror(int err) {
   case HF_ENOTFOUND:    return "not found";
   default:              return "unknown error";
   }
+}
+
+int hf_fail_msg(char *err, size_t errlen, int rc, const char *fmt, ...) {
+  if (err && errlen) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+  }
+  return rc;
 }

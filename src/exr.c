@@ -9,19 +9,12 @@
 #include <openexr.h>
 
 #include "hfcore.h"
+#include "errors.h"
 
 /* Refuse images over this many samples before allocating (2^31 bytes). */
 #define EXR_MAX_FLOATS ((size_t)1 << 29)
 
-static int fail(char *err, size_t errlen, int rc, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return rc;
-}
+#define fail hf_fail_msg
 
 /* Silence the library's own stderr messages: errors are reported to the
  * caller through err instead. */

@@ -15,21 +15,14 @@
 #include <cjson/cJSON.h>
 
 #include "weights.h"
+#include "errors.h"
 
 /* A header larger than this is certainly hostile: ours are a few KB. */
 #define HEADER_MAX (16u << 20)
 /* Largest weights file we agree to read (Large is ~3 MB). */
 #define FILE_MAX ((size_t)1 << 31)
 
-static int fail(char *err, size_t errlen, int rc, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return rc;
-}
+#define fail hf_fail_msg
 
 static int json_int(const cJSON *obj, const char *key, int lo, int hi, int *out) {
   const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
