@@ -103,13 +103,35 @@ def raw_shuffle(net, x):
     return y
 
 
-def forward(net, x, deconv="shuffle", bf16=False):
+def clamp_st(x, lo=None, hi=None):
+    """clamp() in value, identity in gradient (straight-through). The exact
+    clamps of the output transforms pass no gradient where the raw output is
+    out of range, so a channel pushed below zero early in training (the
+    highlight, which is zero on most pixels) stays dead for good; with this
+    the loss still sees the clamped value the backends compute, but a raw
+    output on the wrong side is pulled back whenever the target needs it."""
+    return x + (torch.clamp(x, lo, hi) - x).detach()
+
+
+def finish(net, raw, x, straight_through):
+    """The output transforms of the net's architecture on raw output `raw`
+    of input x: exact, or with straight-through clamps for training."""
+    clamp = clamp_st if straight_through else torch.clamp
+    if net.arch == "residual":
+        base = hfnet.residual_base(x, net.cfg["spp"])
+        return torch.cat([base[:, 0:1] + raw[:, 0:1],
+                          clamp(base[:, 1:2] + raw[:, 1:2], 0, None),
+                          clamp(base[:, 2:3] + raw[:, 2:3], 0, 1)], 1)
+    c = raw[:, 0:1]
+    return torch.cat([c ** 3 / 32 + c / 5 + 1, clamp(raw[:, 1:2], 0, None),
+                      clamp(raw[:, 2:3], 0, 1)], 1)
+
+
+def forward(net, x, deconv="shuffle", bf16=False, straight_through=False):
     """Output-transformed prediction for NCHW x (sides multiples of 2^L)."""
-    if deconv == "transpose" and not bf16:
-        return net(x)
     with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-        y = raw_shuffle(net, x)
-    return hfnet.output_transform(y.float())
+        y = net.raw(x) if deconv == "transpose" and not bf16 else raw_shuffle(net, x)
+    return finish(net, y.float(), x, straight_through)
 
 
 # ---- helpers ---------------------------------------------------------------------
@@ -228,7 +250,8 @@ def benchmark(args):
 def parse_args(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", help="dataset directory (manifest.json + EXRs)")
+    ap.add_argument("--data", help="dataset directory (manifest.json + EXRs); several "
+                    "separated by commas are trained on together")
     ap.add_argument("--variant", default="Base", help="Table 1 variant name")
     ap.add_argument("--out", required=True, help="run directory (checkpoint, log)")
     ap.add_argument("--steps", type=int, default=10000, help="total optimizer steps")
@@ -254,6 +277,12 @@ def parse_args(argv):
     ap.add_argument("--bf16", action="store_true",
                     help="bf16 autocast, deconvs as conv + pixel shuffle (fastest on a CPU "
                     "with AVX512-BF16; weights and optimizer stay fp32)")
+    ap.add_argument("--exact-clamps", dest="straight_through", action="store_false",
+                    help="train through the exact output clamps (no gradient where the raw "
+                    "output is out of range) instead of straight-through ones")
+    ap.add_argument("--init", metavar="WEIGHTS",
+                    help="start from these weights (safetensors of the same variant) "
+                    "instead of a random initialisation: fine-tuning")
     ap.add_argument("--resume", action="store_true", help="continue RUN/checkpoint.pt")
     ap.add_argument("--stop-at", type=int, default=0,
                     help="checkpoint and stop at this step (the run stays resumable)")
@@ -285,8 +314,8 @@ def main(argv=None):
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles",
                   "schedule", "lr_floor",
-                  "val_fraction", "seed", "deconv", "bf16"):
-            setattr(args, k, saved[k])
+                  "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
+            setattr(args, k, saved.get(k, getattr(args, k)))
     cfg = hfnet.variant_config(args.variant)
     torch.manual_seed(args.seed)
     np_rng = np.random.default_rng(args.seed)
@@ -294,6 +323,13 @@ def main(argv=None):
     net = hfnet.HairNet(cfg)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step, history, elapsed, ema = 0, [], 0.0, None
+    if args.init and not ckpt:
+        icfg, state = hfnet.load_safetensors(args.init)
+        if icfg["levels"] != cfg["levels"] or icfg.get("arch", "unet") != cfg["arch"] \
+                or icfg["in_channels"] != cfg["in_channels"]:
+            sys.exit(f"train.py: --init {args.init} is {icfg['name']}, not {cfg['name']}")
+        net.load_state_dict(state)
+        print(f"initialised from {args.init}", file=sys.stderr)
     if ckpt:
         net.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
@@ -305,7 +341,7 @@ def main(argv=None):
     if step < args.steps:
         if not args.data:
             sys.exit("train.py: --data is required to train")
-        entries = dataset.read_manifest(args.data)
+        entries = [e for d in args.data.split(",") if d for e in dataset.read_manifest(d)]
         styles = dataset.parse_styles(args.styles)
         if styles:
             entries = [e for e in entries if e["style"] in styles]
@@ -334,7 +370,8 @@ def main(argv=None):
                     g["lr"] = args.lr * f
             x, y = train_set.batch(np_rng, args.crop, args.batch)
             x, y = torch.from_numpy(x), torch.from_numpy(y)
-            loss = hair_loss(forward(net, x, *mode), y, args.grad_weight)
+            loss = hair_loss(forward(net, x, *mode, straight_through=args.straight_through),
+                             y, args.grad_weight)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -367,12 +404,14 @@ def main(argv=None):
         prog.close()
         elapsed += time.time() - t_start
         with open(os.path.join(args.out, "summary.json"), "w") as f:
-            json.dump(dict(variant=cfg["name"], steps=step, data=os.path.abspath(args.data),
+            json.dump(dict(variant=cfg["name"], steps=step,
+                           data=[os.path.abspath(d) for d in args.data.split(",") if d],
                            styles=args.styles, train_frames=len(train_e),
                            val_frames=len(val_e), batch=args.batch, crop=args.crop,
                            lr=args.lr, schedule=args.schedule, lr_floor=args.lr_floor,
                            grad_weight=args.grad_weight, seed=args.seed,
-                           deconv=args.deconv, bf16=args.bf16, train_seconds=elapsed,
+                           deconv=args.deconv, bf16=args.bf16, init=args.init,
+                           straight_through=args.straight_through, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)
         print(f"{cfg['name']}: step {step}, loss {ema if ema is not None else float('nan'):.6f}, validation "
               f"{val if val is not None else float('nan'):.6f}, "

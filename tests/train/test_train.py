@@ -125,6 +125,30 @@ class Recipe(unittest.TestCase):
         rel = float((a - b).norm() / a.norm())
         self.assertLess(rel, 2e-2)
 
+    def test_straight_through_clamps_revive_a_dead_channel(self):
+        """A highlight output pushed below zero (dead under the exact clamp,
+        the failure the straight-through clamps exist for) must get a
+        gradient back towards the target; values stay those of the exact
+        transforms, for both architectures."""
+        torch.manual_seed(0)
+        for variant in ("Shallow", "Residual"):
+            net = hfnet.HairNet(hfnet.variant_config(variant))
+            x = torch.rand(1, net.cfg["in_channels"], 16, 16)
+            with torch.no_grad():
+                net.dec0.bias[1] = -50.0
+            y = torch.zeros(1, 3, 16, 16)
+            y[:, 1], y[:, 2] = 0.5, 1.0            # highlight wanted everywhere
+            grads = {}
+            for st in (False, True):
+                net.zero_grad()
+                out = train.forward(net, x, "transpose", False, straight_through=st)
+                self.assertTrue(torch.equal(out, net(x)))
+                self.assertEqual(float(out[:, 1].max()), 0.0)
+                train.hair_loss(out, y).backward()
+                grads[st] = float(net.dec0.bias.grad[1])
+            self.assertEqual(grads[False], 0.0, variant)
+            self.assertLess(grads[True], 0.0, variant)   # descent raises the bias
+
     def test_loss_is_the_papers(self):
         """Premultiplied MSE plus gradient MSE, checked on a hand example."""
         p = torch.zeros(1, 3, 2, 2)
