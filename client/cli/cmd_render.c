@@ -31,6 +31,7 @@ static void usage(FILE *f) {
     "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
     "         --size WxH --strands N --gt-ss S --st LIST --opaque N --quiet\n"
+    "         --extended (style parameters, density and distance over wide ranges)\n"
     "other:   --platform osmesa|egl|auto   --out PATH\n");
 }
 
@@ -128,6 +129,7 @@ static int parse_args(int argc, char **argv, opts *o) {
     if (!strcmp(a, "--spec-half")) { o->view.spec_half_vector = 1; continue; }
     if (!strcmp(a, "--half")) { o->half = 1; continue; }
     if (!strcmp(a, "--quiet")) { o->quiet = 1; continue; }
+    if (!strcmp(a, "--extended")) { o->ds.extended = 1; continue; }
     NEED_VALUE;
     if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--hair")) o->hair_path = v;
@@ -424,6 +426,7 @@ static int run_dataset(opts *o) {
   memcpy(d->st_spp, o->outputs.st_spp, sizeof d->st_spp);
   d->opaque_samples = o->outputs.opaque_samples;
   if (o->ov.strands) d->strands = o->ov.strands;
+  else if (d->extended) d->strands = 0;   /* density is one of the varied parameters */
   if (o->ov.segments) d->segments = o->ov.segments;
   d->shadow_size = o->view.shadow_size;
   d->half = o->half;

@@ -238,6 +238,7 @@ typedef struct hfr_dataset_opts {
   int shadow_size;
   uint64_t seed;
   int half;                     /* EXR in float16 */
+  int extended;                 /* style parameters over wide ranges (hr_dataset.c) */
   int progress;                 /* progress bar with ETA on stderr */
   const char *platform;
 } hfr_dataset_opts;

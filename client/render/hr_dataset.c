@@ -95,6 +95,31 @@ static cJSON *frame_entry(const char *file, const hfr_style_params *sp, const hf
   return e;
 }
 
+/* The extended set: each frame's style parameters drawn over wide ranges
+ * instead of around the style's defaults, so that a network trained on a
+ * few generators sees the curl radii and periods, densities, strand widths,
+ * lengths, clumping and opacities of styles it is never trained on (a wavy
+ * strand with a 0.09 period and 0.035 radius is as tight as a coil). The
+ * ranges cover every style default in hr_hair_gen.c with room to spare. */
+static void extend_style(hfr_style_params *sp, hr_rng *g, const hfr_dataset_opts *o) {
+  sp->length = hr_rng_range(g, 0.7f, 3.0f);
+  if (sp->style != HFR_STYLE_STRAIGHT) {
+    sp->curl_period = hr_rng_range(g, 0.07f, 0.9f);
+    /* Radius relative to period: tight coils have small radii. */
+    sp->curl_radius = sp->curl_period * hr_rng_range(g, 0.1f, 0.45f);
+    /* A wave is drawn with about 6 segments per period, at most 128 per
+     * strand: tight waves get the short lengths of coily hair. */
+    sp->length = fminf(sp->length, 128.0f * sp->curl_period / 6.0f);
+    if (o->segments <= 0)
+      sp->segments = (int)fminf(128.0f, fmaxf(24.0f, ceilf(6.0f * sp->length / sp->curl_period)));
+  }
+  sp->clumping = hr_rng_range(g, 0.0f, 0.7f);
+  sp->frizz = hr_rng_range(g, 0.0f, 0.05f);
+  sp->thickness = 0.0008f * hr_rng_range(g, 0.5f, 2.0f);
+  sp->opacity = hr_rng_range(g, 0.3f, 1.0f);
+  if (o->strands <= 0) sp->strands = (int)hr_rng_range(g, 8000.0f, 40000.0f);
+}
+
 static int write_manifest(const char *dir, cJSON *doc) {
   char path[4096], tmp[4200];
   snprintf(path, sizeof path, "%s/manifest.json", dir);
@@ -144,6 +169,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   cJSON_AddItemToObject(doc, "spp_list", int_list(o->spp_list, o->n_spp));
   cJSON_AddItemToObject(doc, "st", int_list(o->st_spp, o->n_st));
   cJSON_AddNumberToObject(doc, "seed", (double)o->seed);
+  cJSON_AddBoolToObject(doc, "extended", o->extended != 0);
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
 
   const int total = o->n_styles * o->count;
@@ -165,12 +191,16 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       sp.curl_radius *= hr_rng_range(&g, 0.8f, 1.2f);
       sp.thickness *= hr_rng_range(&g, 0.8f, 1.25f);
       sp.opacity = fminf(1.0f, sp.opacity * hr_rng_range(&g, 0.85f, 1.2f));
+      if (o->extended) extend_style(&sp, &g, o);
       hfr_view v;
       hfr_view_defaults(&v);
       v.width = o->width;
       v.height = o->height;
       v.shadow_size = o->shadow_size;
       hfr_view_randomize(&v, seed);
+      /* Closer and farther than the standard views: strand width on screen
+       * and pixel coverage vary with distance as much as with thickness. */
+      if (o->extended) v.cam_distance = hr_rng_range(&g, 1.8f, 6.0f);
       hfr_outputs out = {0};
       out.spp = spp;
       out.gt_supersample = o->gt_supersample;
