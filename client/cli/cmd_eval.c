@@ -34,11 +34,15 @@ static void usage(FILE *f) {
           "                       [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "                       [--input-spp N] [--max-frames N]\n"
           "                       [--grid OUT.png] [--grid-rows N] [--grid-crop N]\n"
+          "                       [--temporal] [--temporal-png OUT.png]\n"
           "                       DIR|FRAME.exr ...\n"
           "Compares, on hair pixels (gt.alpha > 0) of the composited image, the networks,\n"
           "the input's sample average, stochastic transparency st{1,2,4,8,16,64} and opaque\n"
           "MSAA with the ground truth; prints a Markdown table (docs/QUALITY.md).\n"
-          "The grid has one row per frame: input average, each network, ST 16 spp, truth.\n");
+          "The grid has one row per frame: input average, each network, ST 16 spp, truth.\n"
+          "--temporal: the frames (in file-name order) are one camera sequence; also prints\n"
+          "each method's mean frame-to-frame change beside the ground truth's (flicker);\n"
+          "--temporal-png draws |frame t+1 - frame t| of the middle pair, x4, per method.\n");
 }
 
 /* ---- frame list -------------------------------------------------------- */
@@ -205,7 +209,47 @@ typedef struct method {
   int frames;                   /* frames this method was scored on */
   double mse, psnr, ssim, col, hl, alpha;
   int psnr_inf;
+  /* --temporal: the previous frame's composite and the summed change. */
+  float *prev;
+  int has_prev, pairs;
+  double change;
 } method;
+
+/* ---- temporal stability ------------------------------------------------------ */
+
+/* Mean over pixels that are hair in either frame (ground-truth alpha > 0)
+ * and the 3 channels of |b - a|: how much the image moves from one frame to
+ * the next. The ground truth's own value is the motion of the scene; what a
+ * method adds on top of it is flicker. */
+static double frame_change(const float *a, const float *b, const uint8_t *ma,
+                           const uint8_t *mb, size_t npx) {
+  double sum = 0;
+  size_t n = 0;
+  for (size_t p = 0; p < npx; p++) {
+    if (!ma[p] && !mb[p]) continue;
+    for (int c = 0; c < 3; c++) sum += fabsf(b[3 * p + c] - a[3 * p + c]);
+    n++;
+  }
+  return n ? sum / (3.0 * n) : 0;
+}
+
+/* Records this frame's composite for method m: adds the change from its
+ * previous frame, keeps the frame for the next one, and fills diff (when
+ * not NULL) with |now - previous| x gain for the figure. */
+static int temporal_step(method *m, const float *rgb, const uint8_t *mask, const uint8_t *pmask,
+                         size_t npx, float *diff, float gain) {
+  if (m->has_prev) {
+    m->change += frame_change(m->prev, rgb, pmask, mask, npx);
+    m->pairs++;
+    if (diff)
+      for (size_t i = 0; i < npx * 3; i++) diff[i] = fminf(1.f, gain * fabsf(rgb[i] - m->prev[i]));
+  } else if (!m->prev && !(m->prev = malloc(npx * 3 * sizeof(float)))) {
+    return HF_ENOMEM;
+  }
+  memcpy(m->prev, rgb, npx * 3 * sizeof(float));
+  m->has_prev = 1;
+  return 0;
+}
 
 /* The stochastic-transparency estimate of the input's first spp samples:
  * alpha = covered fraction, color/highlight = mean over covered samples. */
@@ -322,9 +366,23 @@ static void print_table(method *ms, int nm, int frames, size_t hair_px, const lo
   }
 }
 
+static void print_temporal(method *ms, int nm, const method *truth) {
+  printf("\nTemporal stability: mean |frame t+1 - frame t| of the composite over hair "
+         "pixels (either frame), %d frame pairs\n\n", truth->pairs);
+  printf("| method | mean frame-to-frame change | x ground truth |\n|---|---:|---:|\n");
+  double t = truth->pairs ? truth->change / truth->pairs : 0;
+  for (int i = 0; i < nm; i++) {
+    if (!ms[i].pairs) continue;
+    double v = ms[i].change / ms[i].pairs;
+    printf("| %s | %.5f | %.2f |\n", ms[i].label, v, t > 0 ? v / t : 0);
+  }
+  printf("| ground truth | %.5f | 1.00 |\n", t);
+}
+
 int cmd_eval(int argc, char **argv) {
   const char *weights_arg = NULL, *backend_name = "auto", *styles = NULL, *grid_path = NULL;
-  int input_spp = 4, max_frames = 0, grid_rows = 4, grid_crop = 192;
+  const char *temporal_png = NULL;
+  int input_spp = 4, max_frames = 0, grid_rows = 4, grid_crop = 192, temporal = 0;
   look lk;
   memcpy(lk.hair, CLI_HAIR_DEFAULT, sizeof lk.hair);
   memcpy(lk.light, CLI_LIGHT_DEFAULT, sizeof lk.light);
@@ -336,6 +394,7 @@ int cmd_eval(int argc, char **argv) {
     {"input-spp", required_argument, 0, 'n'}, {"max-frames", required_argument, 0, 'm'},
     {"grid", required_argument, 0, 'g'},      {"grid-rows", required_argument, 0, 'r'},
     {"grid-crop", required_argument, 0, 'c'}, {"help", no_argument, 0, 'h'},
+    {"temporal", no_argument, 0, 't'},        {"temporal-png", required_argument, 0, 'T'},
     {0, 0, 0, 0}};
   int c;
   optind = 1;
@@ -352,6 +411,8 @@ int cmd_eval(int argc, char **argv) {
     case 'g': grid_path = optarg; break;
     case 'r': grid_rows = atoi(optarg); if (grid_rows < 1 || grid_rows > 64) goto bad; break;
     case 'c': grid_crop = atoi(optarg); if (grid_crop < 8 || grid_crop > 4096) goto bad; break;
+    case 't': temporal = 1; break;
+    case 'T': temporal = 1; temporal_png = optarg; break;
     case 'h': usage(stdout); return 0;
     default: goto bad;
     }
@@ -364,10 +425,12 @@ int cmd_eval(int argc, char **argv) {
   hf_model *models[MAX_MODELS] = {0};
   method ms[MAX_METHODS];
   memset(ms, 0, sizeof ms);
-  grid g = {0};
+  grid g = {0}, tg = {0};
+  method truth = {0};
   hf_image img = {0};
-  float *res = NULL, *gt = NULL, *rgb = NULL, *gt_rgb = NULL, *in = NULL;
-  uint8_t *mask = NULL;
+  float *res = NULL, *gt = NULL, *rgb = NULL, *gt_rgb = NULL, *in = NULL, *diff = NULL;
+  uint8_t *mask = NULL, *pmask = NULL;
+  int seq_w = 0, seq_h = 0, diff_pair = -1;
   char err[512];
 
   for (int i = optind; i < argc; i++)
@@ -423,6 +486,17 @@ int cmd_eval(int argc, char **argv) {
     g.tile = grid_crop;
     g.gap = 4;
   }
+  if (temporal_png) {
+    /* The change between the middle two frames of the sequence. */
+    int wanted = 0;
+    for (int fi = 0; fi < frames.n; fi++) wanted += style_wanted(styles, frames.v[fi].style);
+    if (max_frames && wanted > max_frames) wanted = max_frames;
+    diff_pair = wanted / 2;
+    tg.rows = 1;
+    tg.cols = 3 + nmodels;
+    tg.tile = grid_crop;
+    tg.gap = 4;
+  }
 
   int scored = 0;
   size_t hair_px = 0;
@@ -436,14 +510,25 @@ int cmd_eval(int argc, char **argv) {
     }
     int w = img.width, h = img.height, spp = hf_features_spp(&img);
     size_t npx = (size_t)w * h;
-    free(res); free(gt); free(rgb); free(gt_rgb); free(mask); free(in);
+    if (temporal && scored && (w != seq_w || h != seq_h)) {
+      fprintf(stderr, "hairfilter eval: --temporal: %s is %dx%d, the sequence %dx%d\n",
+              fr->path, w, h, seq_w, seq_h);
+      rc = HF_EINVAL;
+      goto out;
+    }
+    seq_w = w, seq_h = h;
+    uint8_t *keep = pmask;
+    pmask = mask;   /* the previous frame's hair pixels, for --temporal */
+    mask = keep;
+    free(res); free(gt); free(rgb); free(gt_rgb); free(mask); free(in); free(diff);
     res = malloc(npx * 3 * sizeof(float));
     gt = malloc(npx * 3 * sizeof(float));
     rgb = malloc(npx * 3 * sizeof(float));
     gt_rgb = malloc(npx * 3 * sizeof(float));
     in = malloc(npx * HF_MAX_SPP * HF_FEATURES_PER_SAMPLE * sizeof(float));
+    diff = malloc(npx * 3 * sizeof(float));
     mask = malloc(npx);
-    if (!res || !gt || !rgb || !gt_rgb || !in || !mask) { rc = HF_ENOMEM; goto out; }
+    if (!res || !gt || !rgb || !gt_rgb || !in || !diff || !mask) { rc = HF_ENOMEM; goto out; }
     if (gather(&img, "gt", gt)) {
       fprintf(stderr, "hairfilter eval: %s: no gt.color/gt.highlight/gt.alpha\n", fr->path);
       rc = HF_EFORMAT;
@@ -470,7 +555,15 @@ int cmd_eval(int argc, char **argv) {
       if (!g.rgb) { rc = HF_ENOMEM; goto out; }
       for (size_t i = 0; i < (size_t)grid_width(&g) * grid_height(&g) * 3; i++) g.rgb[i] = 1.f;
     }
-    int col = 0;
+    int col = 0, tcol = 0;
+    int tfig = temporal_png && scored == diff_pair && scored > 0;
+    if (tfig && !tg.rgb) {
+      int side = w > h ? w : h;
+      if (side < tg.tile) tg.tile = side;
+      tg.rgb = malloc((size_t)grid_width(&tg) * grid_height(&tg) * 3 * sizeof(float));
+      if (!tg.rgb) { rc = HF_ENOMEM; goto out; }
+      for (size_t i = 0; i < (size_t)grid_width(&tg) * grid_height(&tg) * 3; i++) tg.rgb[i] = 1.f;
+    }
     for (int mi = 0; mi < nm; mi++) {
       method *m = &ms[mi];
       if (m->kind == M_INPUT) {
@@ -495,12 +588,25 @@ int cmd_eval(int argc, char **argv) {
       }
       composite(&lk, res, w, h, rgb);
       if ((rc = score(m, res, gt, rgb, gt_rgb, w, h, mask)) != 0) goto out;
-      if (grow >= 0 && (m->kind != M_CHANNELS || !strcmp(m->prefix, "st16")))
-        grid_put(&g, grow, col++, rgb, w, h);
+      int in_grid = m->kind != M_CHANNELS || !strcmp(m->prefix, "st16");
+      if (grow >= 0 && in_grid) grid_put(&g, grow, col++, rgb, w, h);
+      if (temporal) {
+        if ((rc = temporal_step(m, rgb, mask, pmask, npx, tfig && in_grid ? diff : NULL, 4.f)))
+          goto out;
+        if (tfig && in_grid) grid_put(&tg, 0, tcol++, diff, w, h);
+      }
     }
     if (grow >= 0) {
       grid_put(&g, grow, g.cols - 1, gt_rgb, w, h);
       g.filled = grow + 1;
+    }
+    if (temporal) {
+      if ((rc = temporal_step(&truth, gt_rgb, mask, pmask, npx, tfig ? diff : NULL, 4.f)))
+        goto out;
+      if (tfig) {
+        grid_put(&tg, 0, tg.cols - 1, diff, w, h);
+        tg.filled = 1;
+      }
     }
     hair_px += nhair;
     scored++;
@@ -514,6 +620,20 @@ int cmd_eval(int argc, char **argv) {
     goto out;
   }
   print_table(ms, nm, scored, hair_px, &lk, styles);
+  if (temporal) print_temporal(ms, nm, &truth);
+  if (temporal_png) {
+    if (!tg.filled) {
+      fprintf(stderr, "hairfilter eval: --temporal-png needs at least two frames\n");
+      rc = HF_EINVAL;
+      goto out;
+    }
+    if ((rc = hf_png_write_rgb(temporal_png, tg.rgb, grid_width(&tg), grid_height(&tg))) != 0) {
+      fprintf(stderr, "hairfilter eval: writing %s: %s\n", temporal_png, hf_strerror(rc));
+      goto out;
+    }
+    fprintf(stderr, "eval: %s: |frame %d - frame %d| x4; columns as the grid's\n", temporal_png,
+            diff_pair, diff_pair - 1);
+  }
   if (g.rgb) {
     g.rows = g.filled;   /* fewer frames than rows: drop the empty rows */
     if ((rc = hf_png_write_rgb(grid_path, g.rgb, grid_width(&g), grid_height(&g))) != 0) {
@@ -531,6 +651,8 @@ out:
   hf_image_free(&img);
   list_free(&frames);
   free(res); free(gt); free(rgb); free(gt_rgb); free(in); free(mask); free(g.rgb);
+  free(pmask); free(diff); free(tg.rgb); free(truth.prev);
+  for (int i = 0; i < nm; i++) free(ms[i].prev);
   return rc ? 1 : 0;
 bad:
   usage(stderr);
