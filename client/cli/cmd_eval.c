@@ -558,6 +558,8 @@ int cmd_eval(int argc, char **argv) {
     int col = 0, tcol = 0;
     int tfig = temporal_png && scored == diff_pair && scored > 0;
     if (tfig && !tg.rgb) {
+      /* Columns as the grid's, less ST 16 spp where the sequence lacks it. */
+      tg.cols = 2 + nmodels + (hf_image_channel(&img, "st16.color") >= 0);
       int side = w > h ? w : h;
       if (side < tg.tile) tg.tile = side;
       tg.rgb = malloc((size_t)grid_width(&tg) * grid_height(&tg) * 3 * sizeof(float));
