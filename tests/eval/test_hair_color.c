@@ -8,7 +8,10 @@
  * margin in MSE and SSIM; a network that had learned one colour (or a
  * composite that baked one in) would fail for the others.
  *
- *   test_hair_color WEIGHTS.safetensors */
+ *   test_hair_color WEIGHTS.safetensors [FIGURE.png]
+ *
+ * With FIGURE.png it also draws one row per colour: the 4-sample average,
+ * the network, the ground truth (docs/quality_hair_colors.png). */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -27,7 +30,17 @@
 #define W 128
 #define H 128
 
-static const char *weights_path;
+static const char *weights_path, *figure_path;
+
+#define GAP 4
+#define FIG_W (3 * W + 4 * GAP)
+
+/* Tile col of row in the figure (white gaps between tiles). */
+static void put_tile(float *fig, int row, int col, const float *rgb) {
+  for (int y = 0; y < H; y++)
+    memcpy(fig + ((size_t)(GAP + row * (H + GAP) + y) * FIG_W + GAP + col * (W + GAP)) * 3,
+           rgb + (size_t)y * W * 3, (size_t)W * 3 * sizeof(float));
+}
 
 static const struct {
   const char *name;
@@ -64,7 +77,7 @@ static void test_every_color(void **state) {
   hfr_frame f;
   hfr_frame_defaults(&f, W, H);
   hfr_style_defaults(HFR_STYLE_WAVY, &f.style);
-  f.style.strands = 8000;
+  f.style.strands = 20000;
   f.style.seed = 11;
   f.view.shadow_size = 512;
   f.view.cam_yaw_deg = 150;
@@ -112,7 +125,15 @@ static void test_every_color(void **state) {
   assert_true(hair > npx / 10);   /* the view shows plenty of hair */
 
   const float light[3] = {1, 1, 1}, bg[3] = {0.18f, 0.2f, 0.24f};
-  for (size_t i = 0; i < sizeof COLORS / sizeof COLORS[0]; i++) {
+  const int ncol = (int)(sizeof COLORS / sizeof COLORS[0]);
+  const size_t fig_h = (size_t)ncol * (H + GAP) + GAP;
+  float *fig = NULL;
+  if (figure_path) {
+    fig = malloc(fig_h * FIG_W * 3 * sizeof(float));
+    assert_non_null(fig);
+    for (size_t i = 0; i < fig_h * FIG_W * 3; i++) fig[i] = 1.f;
+  }
+  for (int i = 0; i < ncol; i++) {
     hf_composite(net, W, H, COLORS[i].rgb, light, bg, rgb_net);
     hf_composite(avg, W, H, COLORS[i].rgb, light, bg, rgb_avg);
     hf_composite(gt, W, H, COLORS[i].rgb, light, bg, rgb_gt);
@@ -127,6 +148,17 @@ static void test_every_color(void **state) {
     /* At least 1 dB better and a higher SSIM, for every colour. */
     assert_true(mse_net < mse_avg * 0.79);
     assert_true(ssim_net > ssim_avg);
+    if (fig) {
+      put_tile(fig, i, 0, rgb_avg);
+      put_tile(fig, i, 1, rgb_net);
+      put_tile(fig, i, 2, rgb_gt);
+    }
+  }
+  if (fig) {
+    assert_int_equal(hf_png_write_rgb(figure_path, fig, FIG_W, (int)fig_h), HF_OK);
+    print_message("figure %s: rows %d colours; columns 4-sample average, network, truth\n",
+                  figure_path, ncol);
+    free(fig);
   }
   free(in), free(net), free(avg), free(gt), free(rgb_net), free(rgb_avg), free(rgb_gt);
   free(mask);
@@ -136,11 +168,12 @@ static void test_every_color(void **state) {
 }
 
 int main(int argc, char **argv) {
-  if (argc != 2) {
-    fprintf(stderr, "usage: test_hair_color WEIGHTS.safetensors\n");
+  if (argc != 2 && argc != 3) {
+    fprintf(stderr, "usage: test_hair_color WEIGHTS.safetensors [FIGURE.png]\n");
     return 2;
   }
   weights_path = argv[1];
+  figure_path = argc == 3 ? argv[2] : NULL;
   const struct CMUnitTest tests[] = {cmocka_unit_test(test_every_color)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
