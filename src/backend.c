@@ -177,13 +177,15 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
 
 void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
                                int pw, int ph, const hf_io *io) {
-  for (int n = 0; n < io->batch; n++)
+  for (int n = 0; n < io->batch; n++) {
+    hf_input_view view = {in + (size_t)n * ph * pw * cfg->in_channels, io->width, io->height,
+                          pw, cfg->in_channels};
     for (int y = 0; y < io->height; y++)
       for (int x = 0; x < io->width; x++) {
         size_t px = ((size_t)n * ph + y) * pw + x;
         float v[3];
         memcpy(v, src + px * 3, sizeof v);
-        hf_output_finish(cfg, in + px * cfg->in_channels, v);
+        hf_output_finish(cfg, &view, x, y, v);
         size_t o = (((size_t)n * io->height + y) * io->width + x) * 3;
         if (io->out_dtype == HF_F32) {
           memcpy((float *)io->out + o, v, sizeof v);
@@ -192,4 +194,5 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
           for (int c = 0; c < 3; c++) d[c] = hf_f32_to_f16(v[c]);
         }
       }
+  }
 }

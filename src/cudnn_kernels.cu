@@ -4,6 +4,7 @@
 #include <cuda_fp16.h>
 
 #include "cudnn_kernels.h"
+#include "hfcore.h"  // HF_RESIDUAL_RADIUS
 
 namespace {
 
@@ -52,21 +53,28 @@ __global__ void output_kernel(const __half *src, int src_stride, const __half *i
     const float a = __half2float(p[2]);
     float out[3];
     if (in) {
-      // Residual architecture: raw output plus the pixel's stochastic-
-      // transparency estimate (hf_residual_base in net_config.c).
-      const __half *s = in + px * in_stride;
+      // Residual architecture: raw output plus the stochastic-transparency
+      // estimate over the window around the pixel, cut to the frame
+      // (hf_residual_base in net_config.c).
+      const int y0 = max(y - HF_RESIDUAL_RADIUS, 0), y1 = min(y + HF_RESIDUAL_RADIUS, h - 1);
+      const int x0 = max(x - HF_RESIDUAL_RADIUS, 0), x1 = min(x + HF_RESIDUAL_RADIUS, w - 1);
       float cnt = 0.0f, col = 0.0f, hsum = 0.0f;
-      for (int k = 0; k < spp; k++, s += 6)
-        if (__half2float(s[2]) > 0.0f) {
-          cnt += 1.0f;
-          col += __half2float(s[0]);
-          hsum += __half2float(s[1]);
+      for (int yy = y0; yy <= y1; yy++)
+        for (int xx = x0; xx <= x1; xx++) {
+          const __half *s = in + ((n * ph + yy) * pw + xx) * in_stride;
+          for (int k = 0; k < spp; k++, s += 6)
+            if (__half2float(s[2]) > 0.0f) {
+              cnt += 1.0f;
+              col += __half2float(s[0]);
+              hsum += __half2float(s[1]);
+            }
         }
+      const float samples = (float)((y1 - y0 + 1) * (x1 - x0 + 1) * spp);
       const float bc = cnt > 0.0f ? col / cnt : 1.0f;
       const float bh = cnt > 0.0f ? hsum / cnt : 0.0f;
       out[0] = bc + c;
       out[1] = fmaxf(bh + hl, 0.0f);
-      out[2] = fminf(fmaxf(cnt / spp + a, 0.0f), 1.0f);
+      out[2] = fminf(fmaxf(cnt / samples + a, 0.0f), 1.0f);
     } else {
       // The paper's transforms (section 3.3.2), computed in FP32.
       out[0] = c * c * c / 32.0f + c / 5.0f + 1.0f;

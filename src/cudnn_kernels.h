@@ -19,7 +19,7 @@ cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int w, int h, 
 
 /* src: FP16 [batch][ph][pw][src_stride], raw network output in channels
  * 0..2 (color, highlight, alpha). Applies the output transforms (or, when
- * in is not NULL, adds the residual base of the FP16 network input in,
+ * in is not NULL, adds the residual base, hf_residual_base, over the FP16 network input in,
  * [batch][ph][pw][in_stride] with spp samples: HF_ARCH_RESIDUAL), crops to
  * w x h and writes [batch][h][w][3] as FP32 (dst_f16 == 0) or FP16. */
 cudaError_t hf_cuk_output(const void *src, int src_stride, const void *in, int in_stride,

@@ -66,10 +66,11 @@ extern const char *const HF_OUTPUT_NAMES[HF_OUT_CHANNELS];
 enum { HF_OUT_COLOR = 0, HF_OUT_HIGHLIGHT = 1, HF_OUT_ALPHA = 2 };
 
 /* Architectures. HF_ARCH_UNET is the paper's network. HF_ARCH_RESIDUAL is the
- * same U-Net whose raw output is a residual added to the per-pixel
- * stochastic-transparency estimate read off the samples (hf_residual_base),
- * so coverage and colour come from the samples and the network learns the
- * correction, not a prior (protocol/FEATURES.md, "Residual architecture"). */
+ * same U-Net whose raw output is a residual added to the stochastic-
+ * transparency estimate read off the samples of a small window around the
+ * pixel (hf_residual_base), so coverage and colour come from the samples and
+ * the network learns the correction, not a prior (protocol/FEATURES.md,
+ * "Residual architecture"). */
 typedef enum hf_arch { HF_ARCH_UNET = 0, HF_ARCH_RESIDUAL = 1 } hf_arch;
 
 typedef struct hf_net_config {
@@ -178,14 +179,32 @@ void hf_output_transform(float *rgb3);
 /* Name of an architecture ("unet", "residual"), and back (HF_ENOTFOUND). */
 const char *hf_arch_name(int arch);
 int hf_arch_from_name(const char *name);
-/* Residual base of one pixel from its spp*6 input features: the
- * stochastic-transparency estimate (mean colour and highlight of the covered
- * samples, fraction of covered samples as alpha). */
-void hf_residual_base(const float *pixel_in, int spp, float base[3]);
-/* Final output of one pixel from the raw network output v, in place: the
+/* The stochastic-transparency estimate of one pixel from its spp*6 input
+ * features: mean colour and highlight of the covered samples (colour 1,
+ * highlight 0 when none is), fraction of covered samples as alpha. */
+void hf_st_estimate(const float *pixel_in, int spp, float est[3]);
+
+/* Network input of a frame in a buffer that may be padded: pixel (x, y) at
+ * data + (y * pitch + x) * stride; only 0 <= x < width, 0 <= y < height are
+ * part of the frame. */
+typedef struct hf_input_view {
+  const float *data;
+  int width, height, pitch, stride;
+} hf_input_view;
+
+/* Half side of the residual base's window: 2 = 5x5 pixels. */
+#define HF_RESIDUAL_RADIUS 2
+
+/* Residual base of pixel (x, y): the stochastic-transparency estimate over
+ * the samples of the (2R+1)^2 window around it, cut to the frame: covered
+ * fraction of those samples as alpha, mean colour and highlight of the
+ * covered ones. Averaging 25 pixels' samples removes most of the noise of
+ * 4; what the window blurs is what the network has to put back. */
+void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base[3]);
+/* Final output of pixel (x, y) from its raw network output v, in place: the
  * output transforms for HF_ARCH_UNET, base + residual for HF_ARCH_RESIDUAL
- * (pixel_in is read only then). */
-void hf_output_finish(const hf_net_config *cfg, const float *pixel_in, float *v);
+ * (in is read only then and may be NULL otherwise). */
+void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, int y, float *v);
 
 /* ---- half floats -------------------------------------------------------- */
 

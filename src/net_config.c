@@ -121,7 +121,7 @@ int hf_arch_from_name(const char *name) {
  * blended alpha and the covered samples' mean estimates the blended colour
  * (Enderton et al. 2011). A pixel with no covered sample gets colour 1, the
  * neutral value of the paper's colour transform. */
-void hf_residual_base(const float *px, int spp, float base[3]) {
+void hf_st_estimate(const float *px, int spp, float est[3]) {
   float n = 0, col = 0, hl = 0;
   for (int k = 0; k < spp; k++) {
     const float *s = px + k * HF_FEATURES_PER_SAMPLE;
@@ -131,18 +131,39 @@ void hf_residual_base(const float *px, int spp, float base[3]) {
       hl += s[1];
     }
   }
-  base[HF_OUT_COLOR] = n > 0 ? col / n : 1.0f;
-  base[HF_OUT_HIGHLIGHT] = n > 0 ? hl / n : 0.0f;
-  base[HF_OUT_ALPHA] = n / (float)spp;
+  est[HF_OUT_COLOR] = n > 0 ? col / n : 1.0f;
+  est[HF_OUT_HIGHLIGHT] = n > 0 ? hl / n : 0.0f;
+  est[HF_OUT_ALPHA] = n / (float)spp;
 }
 
-void hf_output_finish(const hf_net_config *cfg, const float *px, float *v) {
+void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base[3]) {
+  const int r = HF_RESIDUAL_RADIUS;
+  int y0 = y - r < 0 ? 0 : y - r, y1 = y + r >= in->height ? in->height - 1 : y + r;
+  int x0 = x - r < 0 ? 0 : x - r, x1 = x + r >= in->width ? in->width - 1 : x + r;
+  float n = 0, col = 0, hl = 0;
+  for (int yy = y0; yy <= y1; yy++)
+    for (int xx = x0; xx <= x1; xx++) {
+      const float *s = in->data + ((size_t)yy * in->pitch + xx) * in->stride;
+      for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
+        if (s[2] > 0.0f) {
+          n += 1.0f;
+          col += s[0];
+          hl += s[1];
+        }
+    }
+  int samples = (y1 - y0 + 1) * (x1 - x0 + 1) * spp;
+  base[HF_OUT_COLOR] = n > 0 ? col / n : 1.0f;
+  base[HF_OUT_HIGHLIGHT] = n > 0 ? hl / n : 0.0f;
+  base[HF_OUT_ALPHA] = n / (float)samples;
+}
+
+void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, int y, float *v) {
   if (cfg->arch != HF_ARCH_RESIDUAL) {
     hf_output_transform(v);
     return;
   }
   float b[3];
-  hf_residual_base(px, cfg->spp, b);
+  hf_residual_base(in, cfg->spp, x, y, b);
   v[HF_OUT_COLOR] += b[HF_OUT_COLOR];
   float h = v[HF_OUT_HIGHLIGHT] + b[HF_OUT_HIGHLIGHT];
   v[HF_OUT_HIGHLIGHT] = h > 0.0f ? h : 0.0f;

@@ -54,19 +54,31 @@ def output_transform(x):
     return torch.cat([color, highlight, alpha], dim=1)
 
 
+RESIDUAL_RADIUS = 2   # HF_RESIDUAL_RADIUS: the base's window is 5x5
+
+
+def _box_sum(z, r=RESIDUAL_RADIUS):
+    """Sum over the (2r+1)^2 window around each pixel, cut to the frame."""
+    k = torch.ones(1, 1, 2 * r + 1, 2 * r + 1, dtype=z.dtype)
+    n, c, h, w = z.shape
+    return F.conv2d(z.reshape(n * c, 1, h, w), k, padding=r).reshape(n, c, h, w)
+
+
 def residual_base(x, spp):
-    """Per-pixel stochastic-transparency estimate from NCHW features: mean
-    colour and highlight of covered samples (alpha > 0), covered fraction as
-    alpha; colour 1 where no sample is covered (src/net_config.c)."""
+    """Stochastic-transparency estimate over the 5x5 window around each pixel
+    of NCHW features x (the frame, unpadded): covered fraction of the
+    window's samples as alpha, mean colour and highlight of the covered ones
+    (colour 1 where none is); src/net_config.c hf_residual_base."""
     n, _, h, w = x.shape
     s = x.view(n, spp, len(FEATURES), h, w)
     cov = (s[:, :, 2] > 0).to(x.dtype)
-    cnt = cov.sum(dim=1, keepdim=True)
+    cnt = _box_sum(cov.sum(1, keepdim=True))
+    col = _box_sum((s[:, :, 0] * cov).sum(1, keepdim=True))
+    hl = _box_sum((s[:, :, 1] * cov).sum(1, keepdim=True))
+    samples = _box_sum(x.new_ones(1, 1, h, w)) * spp
     safe = torch.clamp(cnt, min=1)
-    color = torch.where(cnt > 0, (s[:, :, 0] * cov).sum(1, keepdim=True) / safe,
-                        torch.ones_like(cnt))
-    highlight = (s[:, :, 1] * cov).sum(1, keepdim=True) / safe
-    return torch.cat([color, highlight, cnt / spp], dim=1)
+    color = torch.where(cnt > 0, col / safe, torch.ones_like(cnt))
+    return torch.cat([color, hl / safe, cnt / samples], dim=1)
 
 
 def residual_finish(raw, base):
@@ -120,14 +132,10 @@ class HairNet(nn.Module):
         h, w = x.shape[-2:]
         a = self.align
         ph, pw = (-h) % a, (-w) % a
-        if ph or pw:
-            x = F.pad(x, (0, pw, 0, ph))
-        raw = self.raw(x)
+        raw = self.raw(F.pad(x, (0, pw, 0, ph)) if ph or pw else x)[..., :h, :w]
         if self.arch == "residual":
-            out = residual_finish(raw, residual_base(x, self.cfg["spp"]))
-        else:
-            out = output_transform(raw)
-        return out[..., :h, :w]
+            return residual_finish(raw, residual_base(x, self.cfg["spp"]))
+        return output_transform(raw)
 
 
 # ---- safetensors ----------------------------------------------------------

@@ -236,7 +236,7 @@ int cmd_demo(int argc, char **argv) {
   /* Input panel: what stochastic transparency alone shows at this spp. */
   float *est = malloc(npx * 3 * sizeof(float));
   if (!est) goto done;
-  for (size_t p = 0; p < npx; p++) hf_residual_base(in + p * w->cfg.in_channels, w->cfg.spp, est + p * 3);
+  for (size_t p = 0; p < npx; p++) hf_st_estimate(in + p * w->cfg.in_channels, w->cfg.spp, est + p * 3);
   hf_composite(est, o.width, o.height, f.view.hair_color, f.view.light_color, f.view.background,
                panels[0]);
   free(est);

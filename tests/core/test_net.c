@@ -38,31 +38,55 @@ static void test_table1_presets(void **state) {
   assert_int_equal(c.levels[2], 128);
 }
 
-/* The residual base is the stochastic-transparency estimate of the pixel. */
+/* The per-pixel estimate, and the residual base: the same estimate over the
+ * samples of the 5x5 window around a pixel, cut to the frame. */
 static void test_residual_base(void **state) {
   float px[24] = {0};
   /* samples 0 and 2 covered: colour 0.5 / 1.5, highlight 0.2 / 0.4 */
   px[0] = 0.5f, px[1] = 0.2f, px[2] = 0.3f;
   px[12] = 1.5f, px[13] = 0.4f, px[14] = 0.9f;
   float b[3];
-  hf_residual_base(px, 4, b);
+  hf_st_estimate(px, 4, b);
   assert_float_equal(b[HF_OUT_COLOR], 1.0f, 1e-6);
   assert_float_equal(b[HF_OUT_HIGHLIGHT], 0.3f, 1e-6);
   assert_float_equal(b[HF_OUT_ALPHA], 0.5f, 1e-6);
   float empty[24] = {0};
-  hf_residual_base(empty, 4, b);
+  hf_st_estimate(empty, 4, b);
   assert_float_equal(b[HF_OUT_COLOR], 1.0f, 0);
   assert_float_equal(b[HF_OUT_ALPHA], 0.0f, 0);
+
+  /* A 7x6 frame in a buffer 8 pixels wide with 26 floats per pixel (padded
+   * channels); one covered sample (colour 2, highlight 0.5) at (3, 2), and
+   * garbage in the padding column x = 7 that must never be read. */
+  enum { FW = 7, FH = 6, PITCH = 8, STRIDE = 26 };
+  static float buf[FH * PITCH * STRIDE];
+  memset(buf, 0, sizeof buf);
+  float *s = buf + ((size_t)2 * PITCH + 3) * STRIDE + 6;   /* sample 1 */
+  s[0] = 2.0f, s[1] = 0.5f, s[2] = 0.7f;
+  for (int y = 0; y < FH; y++) buf[((size_t)y * PITCH + 7) * STRIDE + 2] = 1.0f;
+  hf_input_view v = {buf, FW, FH, PITCH, STRIDE};
+  hf_residual_base(&v, 4, 3, 2, b);            /* full 5x5 window: 100 samples */
+  assert_float_equal(b[HF_OUT_COLOR], 2.0f, 0);
+  assert_float_equal(b[HF_OUT_HIGHLIGHT], 0.5f, 0);
+  assert_float_equal(b[HF_OUT_ALPHA], 1.0f / 100, 1e-7);
+  hf_residual_base(&v, 4, 5, 4, b);            /* cut at x <= 6, y <= 5: 4x4 = 64 samples */
+  assert_float_equal(b[HF_OUT_ALPHA], 1.0f / 64, 1e-7);
+  hf_residual_base(&v, 4, 0, 0, b);            /* (3, 2) is 3 columns away: outside */
+  assert_float_equal(b[HF_OUT_ALPHA], 0.0f, 0);
+  assert_float_equal(b[HF_OUT_COLOR], 1.0f, 0);
+  hf_residual_base(&v, 4, 6, 0, b);            /* padding column x = 7 not counted */
+  assert_float_equal(b[HF_OUT_ALPHA], 0.0f, 0);
+
   hf_net_config c;
   hf_variant_preset("Residual", &c);
-  float v[3] = {0.25f, -1.0f, 0.75f};
-  hf_output_finish(&c, px, v);
-  assert_float_equal(v[HF_OUT_COLOR], 1.25f, 1e-6);
-  assert_float_equal(v[HF_OUT_HIGHLIGHT], 0.0f, 0);   /* clamped */
-  assert_float_equal(v[HF_OUT_ALPHA], 1.0f, 0);       /* clamped */
+  float o[3] = {0.25f, -1.0f, 0.75f};
+  hf_output_finish(&c, &v, 3, 2, o);
+  assert_float_equal(o[HF_OUT_COLOR], 2.25f, 1e-6);
+  assert_float_equal(o[HF_OUT_HIGHLIGHT], 0.0f, 0);        /* clamped */
+  assert_float_equal(o[HF_OUT_ALPHA], 0.76f, 1e-6);
   hf_variant_preset("Base", &c);
   float u[3] = {0.0f, 0.5f, 0.5f};
-  hf_output_finish(&c, NULL, u); /* the paper's transforms; input unused */
+  hf_output_finish(&c, NULL, 0, 0, u); /* the paper's transforms; input unused */
   assert_float_equal(u[HF_OUT_COLOR], 1.0f, 1e-6);
 }
 

@@ -272,14 +272,17 @@ static void emulate_vs_cpu_ref(const hf_net_config *cfg, int deconv, int batch, 
                cfg->in_channels * sizeof(float));
   for (int j = 0; j < lo.nlayers; j++) emu_layer(bufs, batch, &lo.layers[j], w16, b32);
   /* The output kernel: transforms (or residual) + crop. */
-  for (int n = 0; n < batch; n++)
+  for (int n = 0; n < batch; n++) {
+    hf_input_view view = {bufs[HF_CL_BUF_IN] + (size_t)n * ph * pw * lo.cin_pad, width, height,
+                          pw, lo.cin_pad};
     for (int y = 0; y < height; y++)
       for (int x = 0; x < width; x++) {
         float *o = got + (((size_t)n * height + y) * width + x) * 3;
         size_t px = ((size_t)n * ph + y) * pw + x;
         memcpy(o, bufs[HF_CL_BUF_OUT] + px * HF_CL_OUT_CH, 12);
-        hf_output_finish(cfg, bufs[HF_CL_BUF_IN] + px * lo.cin_pad, o);
+        hf_output_finish(cfg, &view, x, y, o);
       }
+  }
 
   hf_backend *b;
   char why[256];
