@@ -199,7 +199,7 @@ static int style_wanted(const char *styles, const char *style) {
 
 /* ---- methods ------------------------------------------------------------- */
 
-enum { M_INPUT, M_MODEL, M_CHANNELS };
+enum { M_INPUT, M_INPUT_POOL, M_MODEL, M_CHANNELS };
 
 typedef struct method {
   int kind;
@@ -276,6 +276,16 @@ static void input_average(const hf_image *img, int spp, float *res) {
     res[3 * p + 1] = cov ? (float)(hl / cov) : 0.f;
     res[3 * p + 2] = (float)cov / spp;
   }
+}
+
+/* The same estimate pooled over the 5x5 window of each pixel: the base the
+ * Residual architecture corrects (hf_residual_base), shown on its own. */
+static void input_pooled(const hf_image *img, int spp, float *in, float *res) {
+  hf_features_from_image(img, spp, in);
+  hf_input_view v = {in, img->width, img->height, img->width, spp * HF_FEATURES_PER_SAMPLE};
+  for (int y = 0; y < img->height; y++)
+    for (int x = 0; x < img->width; x++)
+      hf_residual_base(&v, spp, x, y, res + ((size_t)y * img->width + x) * 3);
 }
 
 /* Copies channels prefix.color/.highlight/.alpha into res; HF_ENOTFOUND when
@@ -439,6 +449,8 @@ int cmd_eval(int argc, char **argv) {
   /* Methods: the input average, each network, each baseline. */
   ms[nm].kind = M_INPUT;
   snprintf(ms[nm++].label, sizeof ms[0].label, "input (mean of %d samples)", input_spp);
+  ms[nm].kind = M_INPUT_POOL;
+  snprintf(ms[nm++].label, sizeof ms[0].label, "input pooled over 5x5 pixels (Residual's base)");
   if (weights_arg) {
     if ((rc = cli_open_backend(backend_name, &backend)) != 0) goto out;
     char *list = strdup(weights_arg);
@@ -570,6 +582,8 @@ int cmd_eval(int argc, char **argv) {
       method *m = &ms[mi];
       if (m->kind == M_INPUT) {
         input_average(&img, input_spp < spp ? input_spp : spp, res);
+      } else if (m->kind == M_INPUT_POOL) {
+        input_pooled(&img, input_spp < spp ? input_spp : spp, in, res);
       } else if (m->kind == M_MODEL) {
         const hf_net_config *cfg = hf_model_config(models[m->model]);
         if (spp < cfg->spp) {
@@ -590,7 +604,7 @@ int cmd_eval(int argc, char **argv) {
       }
       composite(&lk, res, w, h, rgb);
       if ((rc = score(m, res, gt, rgb, gt_rgb, w, h, mask)) != 0) goto out;
-      int in_grid = m->kind != M_CHANNELS || !strcmp(m->prefix, "st16");
+      int in_grid = m->kind == M_INPUT || m->kind == M_MODEL || !strcmp(m->prefix, "st16");
       if (grow >= 0 && in_grid) grid_put(&g, grow, col++, rgb, w, h);
       if (temporal) {
         if ((rc = temporal_step(m, rgb, mask, pmask, npx, tfig && in_grid ? diff : NULL, 4.f)))
