@@ -201,6 +201,13 @@ typedef struct hf_input_view {
  * covered ones. Averaging 25 pixels' samples removes most of the noise of
  * 4; what the window blurs is what the network has to put back. */
 void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base[3]);
+/* hf_residual_base of every pixel of the frame into base ([height][width][3]),
+ * by separable window sums; tmp is scratch of the same size. HF_EINVAL for
+ * an empty frame. */
+int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float *tmp);
+/* Adds a residual base to the raw output v in place, with the clamps of the
+ * Residual architecture. */
+void hf_residual_apply(const float base[3], float *v);
 /* Final output of pixel (x, y) from its raw network output v, in place: the
  * output transforms for HF_ARCH_UNET, base + residual for HF_ARCH_RESIDUAL
  * (in is read only then and may be NULL otherwise). */

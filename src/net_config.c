@@ -157,6 +157,59 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
   base[HF_OUT_ALPHA] = n / (float)samples;
 }
 
+int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float *tmp) {
+  const int w = in->width, h = in->height, r = HF_RESIDUAL_RADIUS;
+  if (w < 1 || h < 1 || spp < 1) return HF_EINVAL;
+  /* Per-pixel sums (covered count, colour, highlight) into base... */
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      const float *s = in->data + ((size_t)y * in->pitch + x) * in->stride;
+      float n = 0, col = 0, hl = 0;
+      for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
+        if (s[2] > 0.0f) {
+          n += 1.0f;
+          col += s[0];
+          hl += s[1];
+        }
+      float *o = base + ((size_t)y * w + x) * 3;
+      o[0] = n, o[1] = col, o[2] = hl;
+    }
+  /* ...summed along rows into tmp, then along columns back into base: the
+   * window sums in O(25) less work per pixel than hf_residual_base. */
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      int x0 = x - r < 0 ? 0 : x - r, x1 = x + r >= w ? w - 1 : x + r;
+      float acc[3] = {0, 0, 0};
+      for (int xx = x0; xx <= x1; xx++)
+        for (int c = 0; c < 3; c++) acc[c] += base[((size_t)y * w + xx) * 3 + c];
+      memcpy(tmp + ((size_t)y * w + x) * 3, acc, sizeof acc);
+    }
+  for (int y = 0; y < h; y++) {
+    int y0 = y - r < 0 ? 0 : y - r, y1 = y + r >= h ? h - 1 : y + r;
+    for (int x = 0; x < w; x++) {
+      int x0 = x - r < 0 ? 0 : x - r, x1 = x + r >= w ? w - 1 : x + r;
+      float acc[3] = {0, 0, 0};
+      for (int yy = y0; yy <= y1; yy++)
+        for (int c = 0; c < 3; c++) acc[c] += tmp[((size_t)yy * w + x) * 3 + c];
+      float samples = (float)((y1 - y0 + 1) * (x1 - x0 + 1) * spp);
+      float *o = base + ((size_t)y * w + x) * 3;
+      o[HF_OUT_COLOR] = acc[0] > 0 ? acc[1] / acc[0] : 1.0f;
+      o[HF_OUT_HIGHLIGHT] = acc[0] > 0 ? acc[2] / acc[0] : 0.0f;
+      o[HF_OUT_ALPHA] = acc[0] / samples;
+    }
+  }
+  return HF_OK;
+}
+
+void hf_residual_apply(const float base[3], float *v) {
+  const float *b = base;
+  v[HF_OUT_COLOR] += b[HF_OUT_COLOR];
+  float h = v[HF_OUT_HIGHLIGHT] + b[HF_OUT_HIGHLIGHT];
+  v[HF_OUT_HIGHLIGHT] = h > 0.0f ? h : 0.0f;
+  float a = v[HF_OUT_ALPHA] + b[HF_OUT_ALPHA];
+  v[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
+}
+
 void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, int y, float *v) {
   if (cfg->arch != HF_ARCH_RESIDUAL) {
     hf_output_transform(v);
@@ -164,9 +217,5 @@ void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, 
   }
   float b[3];
   hf_residual_base(in, cfg->spp, x, y, b);
-  v[HF_OUT_COLOR] += b[HF_OUT_COLOR];
-  float h = v[HF_OUT_HIGHLIGHT] + b[HF_OUT_HIGHLIGHT];
-  v[HF_OUT_HIGHLIGHT] = h > 0.0f ? h : 0.0f;
-  float a = v[HF_OUT_ALPHA] + b[HF_OUT_ALPHA];
-  v[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
+  hf_residual_apply(b, v);
 }

@@ -77,6 +77,25 @@ static void test_residual_base(void **state) {
   hf_residual_base(&v, 4, 6, 0, b);            /* padding column x = 7 not counted */
   assert_float_equal(b[HF_OUT_ALPHA], 0.0f, 0);
 
+  /* The whole-frame version (separable sums) gives the same values, on
+   * random samples with half of them covered. */
+  srand(5);
+  for (size_t i = 0; i < sizeof buf / sizeof buf[0]; i++)
+    buf[i] = (i % STRIDE) % 6 == 2 ? (float)(rand() % 2) * 0.5f : (float)rand() / RAND_MAX;
+  float frame[FH * FW * 3], tmp[FH * FW * 3];
+  assert_int_equal(hf_residual_base_frame(&v, 4, frame, tmp), HF_OK);
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < FW; x++) {
+      hf_residual_base(&v, 4, x, y, b);
+      for (int k = 0; k < 3; k++)
+        assert_float_equal(frame[(y * FW + x) * 3 + k], b[k], 1e-5f * (1 + fabsf(b[k])));
+    }
+  hf_input_view none = {buf, 0, FH, PITCH, STRIDE};
+  assert_int_equal(hf_residual_base_frame(&none, 4, frame, tmp), HF_EINVAL);
+  /* Back to the single covered sample at (3, 2). */
+  memset(buf, 0, sizeof buf);
+  s[0] = 2.0f, s[1] = 0.5f, s[2] = 0.7f;
+
   hf_net_config c;
   hf_variant_preset("Residual", &c);
   float o[3] = {0.25f, -1.0f, 0.75f};
