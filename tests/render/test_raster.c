@@ -13,6 +13,8 @@
 
 #include <cmocka.h>
 
+#include <cjson/cJSON.h>
+
 #include "hr_internal.h"
 #include "hr_shaders.h"
 
@@ -378,6 +380,67 @@ static void test_dataset_mode(void **state) {
   rmdir(dir);
 }
 
+/* --extended: every frame's parameters inside the documented wide ranges,
+ * and not all alike. */
+static void test_dataset_extended(void **state) {
+  (void)state;
+  char dir[256];
+  snprintf(dir, sizeof dir, "/tmp/hf_test_extended_%d", (int)getpid());
+  hfr_dataset_opts o;
+  hfr_dataset_defaults(&o);
+  o.out_dir = dir;
+  o.styles[0] = HFR_STYLE_WAVY;
+  o.n_styles = 1;
+  o.count = 4;
+  o.width = o.height = 16;
+  o.strands = 200;
+  o.shadow_size = 64;
+  o.gt_supersample = 1;
+  o.extended = 1;
+  o.progress = 0;
+  o.platform = "osmesa";
+  char err[512] = "", path[512];
+  int rc = hfr_dataset_run(&o, err, sizeof err);
+  if (rc != HF_OK) fail_msg("dataset: %s", err);
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  char *text = slurp(path);
+  cJSON *doc = cJSON_Parse(text);
+  free(text);
+  assert_non_null(doc);
+  assert_true(cJSON_IsTrue(cJSON_GetObjectItem(doc, "extended")));
+  cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
+  assert_int_equal(cJSON_GetArraySize(frames), 4);
+  double first_period = -1;
+  int differ = 0;
+  cJSON_ArrayForEach(f, frames) {
+    cJSON *h = cJSON_GetObjectItem(f, "hair");
+    double period = cJSON_GetObjectItem(h, "curl_period")->valuedouble;
+    double radius = cJSON_GetObjectItem(h, "curl_radius")->valuedouble;
+    double length = cJSON_GetObjectItem(h, "length")->valuedouble;
+    double opacity = cJSON_GetObjectItem(h, "opacity")->valuedouble;
+    int segments = cJSON_GetObjectItem(h, "segments")->valueint;
+    double dist = cJSON_GetObjectItem(cJSON_GetObjectItem(f, "camera"), "distance")->valuedouble;
+    assert_true(period >= 0.07 && period <= 0.9);
+    assert_true(radius >= 0.1 * period - 1e-6 && radius <= 0.45 * period + 1e-6);
+    assert_true(length >= 0.7 - 1e-6 && length <= 3.0 + 1e-6);
+    assert_true(length <= 128 * period / 6 + 1e-5);
+    assert_true(opacity >= 0.3 - 1e-6 && opacity <= 1.0);
+    assert_true(segments >= 24 && segments <= 128);
+    assert_true(dist >= 1.8 - 1e-6 && dist <= 6.0 + 1e-6);
+    assert_int_equal(cJSON_GetObjectItem(h, "strands")->valueint, 200);   /* --strands wins */
+    if (first_period < 0) first_period = period;
+    else differ |= period != first_period;
+    char exr[600];
+    snprintf(exr, sizeof exr, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
+    remove(exr);
+  }
+  assert_true(differ);
+  cJSON_Delete(doc);
+  remove(path);
+  rmdir(dir);
+}
+
 /* The one-call API other commands use, on a model from a .hair file. */
 static void test_render_frame_from_file(void **state) {
   (void)state;
@@ -460,6 +523,7 @@ int main(void) {
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_frame_ranges),
     cmocka_unit_test(test_dataset_mode),
+    cmocka_unit_test(test_dataset_extended),
     cmocka_unit_test(test_render_frame_from_file),
     cmocka_unit_test(test_egl),
   };
