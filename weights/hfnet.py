@@ -59,7 +59,7 @@ RESIDUAL_RADIUS = 2   # HF_RESIDUAL_RADIUS: the base's window is 5x5
 
 def _box_sum(z, r=RESIDUAL_RADIUS):
     """Sum over the (2r+1)^2 window around each pixel, cut to the frame."""
-    k = torch.ones(1, 1, 2 * r + 1, 2 * r + 1, dtype=z.dtype)
+    k = torch.ones(1, 1, 2 * r + 1, 2 * r + 1, dtype=z.dtype, device=z.device)
     n, c, h, w = z.shape
     return F.conv2d(z.reshape(n * c, 1, h, w), k, padding=r).reshape(n, c, h, w)
 

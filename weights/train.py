@@ -18,6 +18,10 @@ highlight*alpha, alpha) + grad_weight * MSE of their finite differences in x
 and y; Adam. Everything random derives from --seed, and the checkpoint
 (RUN/checkpoint.pt: model, optimizer, step, every RNG state) lets a run stop
 and resume with the same result as an uninterrupted one.
+
+--device auto trains on CUDA when PyTorch sees a GPU (bf16 autocast and the
+same conv + pixel-shuffle form there), else on the CPU; a checkpoint resumes
+on either.
 """
 import argparse
 import json
@@ -74,7 +78,7 @@ def deconv_as_conv_weight(wt):
     cin, cout = wt.shape[:2]
     padded = torch.cat([wt, wt.new_zeros(cin, cout, 1, 4)], 2)
     padded = torch.cat([padded, padded.new_zeros(cin, cout, 5, 1)], 3)  # index 4 = zero
-    idx = torch.tensor([[k if k >= 0 else 4 for k in row] for row in _KIDX])
+    idx = torch.tensor([[k if k >= 0 else 4 for k in row] for row in _KIDX], device=wt.device)
     # w3[cin][cout][ry][rx][dy][dx] = padded[cin][cout][idx[ry][dy]][idx[rx][dx]]
     w = padded[:, :, idx[:, :, None, None], idx[None, None, :, :]]   # [cin][cout][ry][dy][rx][dx]
     w = w.permute(1, 2, 4, 0, 3, 5)                                     # [cout][ry][rx][cin][dy][dx]
@@ -129,7 +133,7 @@ def finish(net, raw, x, straight_through):
 
 def forward(net, x, deconv="shuffle", bf16=False, straight_through=False):
     """Output-transformed prediction for NCHW x (sides multiples of 2^L)."""
-    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+    with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=bf16):
         y = net.raw(x) if deconv == "transpose" and not bf16 else raw_shuffle(net, x)
     return finish(net, y.float(), x, straight_through)
 
@@ -192,7 +196,7 @@ def save_checkpoint(path, **state):
 
 
 @torch.no_grad()
-def validate(net, frames, spp, grad_weight, mode, max_side=256):
+def validate(net, frames, spp, grad_weight, mode, device, max_side=256):
     """Mean loss over the held-out frames (first spp samples, no
     augmentation; frames larger than max_side are centre-cropped)."""
     if not frames:
@@ -207,6 +211,7 @@ def validate(net, frames, spp, grad_weight, mode, max_side=256):
         y = t[y0:y0 + ch, x0:x0 + cw]
         x = torch.from_numpy(np.ascontiguousarray(x.astype(np.float32).transpose(2, 0, 1)))[None]
         y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
+        x, y = x.to(device), y.to(device)
         total += float(hair_loss(forward(net, x, *mode), y, grad_weight))
     net.train()
     return total / len(frames)
@@ -220,15 +225,25 @@ def export(net, path, dtype):
 
 # ---- main ------------------------------------------------------------------------
 
+def pick_device(name):
+    """auto: the GPU when PyTorch sees one, else the CPU."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        sys.exit("train.py: --device cuda: PyTorch sees no CUDA device")
+    return torch.device(name)
+
+
 def benchmark(args):
     """ms per training step (forward, loss, backward, Adam) of each way of
     computing the network, on random data of the run's batch and crop."""
     cfg = hfnet.variant_config(args.variant)
     torch.manual_seed(args.seed)
-    net = hfnet.HairNet(cfg)
+    device = pick_device(args.device)
+    net = hfnet.HairNet(cfg).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    x = torch.rand(args.batch, cfg["in_channels"], args.crop, args.crop)
-    y = torch.rand(args.batch, 3, args.crop, args.crop)
+    x = torch.rand(args.batch, cfg["in_channels"], args.crop, args.crop, device=device)
+    y = torch.rand(args.batch, 3, args.crop, args.crop, device=device)
     print(f"| {cfg['name']}, batch {args.batch}, {args.crop}x{args.crop}, "
           f"{args.threads} threads | ms/step |\n|---|---:|")
     for label, mode in (("ConvTranspose2d, fp32", ("transpose", False)),
@@ -241,6 +256,8 @@ def benchmark(args):
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+            if device.type == "cuda":
+                torch.cuda.synchronize()
             if i:  # the first step warms up oneDNN's primitive caches
                 times.append(time.perf_counter() - t)
         print(f"| {label} | {1000 * float(np.median(times)):.0f} |")
@@ -271,6 +288,9 @@ def parse_args(argv):
     ap.add_argument("--ckpt-every", type=int, default=500)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                    help="auto: CUDA when PyTorch sees a GPU, else the CPU (a run resumes "
+                    "on any device)")
     ap.add_argument("--deconv", default="transpose", choices=["transpose", "shuffle"],
                     help="fp32 transposed convs with ConvTranspose2d or as conv + pixel "
                     "shuffle; same parameters either way")
@@ -308,7 +328,7 @@ def main(argv=None):
     if args.resume:
         if not os.path.exists(ckpt_path):
             sys.exit(f"train.py: --resume: no {ckpt_path}")
-        ckpt = torch.load(ckpt_path)
+        ckpt = torch.load(ckpt_path, map_location="cpu")
         saved = ckpt["args"]
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
@@ -320,7 +340,8 @@ def main(argv=None):
     torch.manual_seed(args.seed)
     np_rng = np.random.default_rng(args.seed)
     random.seed(args.seed)
-    net = hfnet.HairNet(cfg)
+    device = pick_device(args.device)
+    net = hfnet.HairNet(cfg).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step, history, elapsed, ema = 0, [], 0.0, None
     if args.init and not ckpt:
@@ -354,7 +375,7 @@ def main(argv=None):
         print(f"{cfg['name']}: {len(train_e)} training / {len(val_e)} validation frames "
               f"({', '.join(sorted(set(e['style'] for e in entries)))}), "
               f"{(train_set.nbytes() + (val_set.nbytes() if val_set else 0)) / 2**20:.0f} MiB, "
-              f"loaded in {time.time() - t0:.1f} s", file=sys.stderr)
+              f"loaded in {time.time() - t0:.1f} s; training on {device}", file=sys.stderr)
 
         mode = (args.deconv, args.bf16)
         net.train()
@@ -369,7 +390,7 @@ def main(argv=None):
                 for g in opt.param_groups:
                     g["lr"] = args.lr * f
             x, y = train_set.batch(np_rng, args.crop, args.batch)
-            x, y = torch.from_numpy(x), torch.from_numpy(y)
+            x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
             loss = hair_loss(forward(net, x, *mode, straight_through=args.straight_through),
                              y, args.grad_weight)
             opt.zero_grad(set_to_none=True)
@@ -384,7 +405,7 @@ def main(argv=None):
             out_of_time = args.time_limit and time.time() - t_start > args.time_limit
             last = step == stop or out_of_time
             if step % args.val_every == 0 or last:
-                val = validate(net, val_set, cfg["spp"], args.grad_weight, mode)
+                val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
                            time=elapsed + time.time() - t_start)

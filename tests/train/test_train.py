@@ -41,7 +41,9 @@ SIZE = 64
 
 def run_train(*argv):
     """weights/train.py in a subprocess, as a user runs it."""
-    cmd = [sys.executable, os.path.join(WEIGHTS, "train.py"), "--threads", "1", *argv]
+    # On the CPU wherever it runs: the resume test needs bit-reproducible steps.
+    cmd = [sys.executable, os.path.join(WEIGHTS, "train.py"), "--threads", "1",
+           "--device", "cpu", *argv]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise AssertionError(f"{' '.join(cmd)} failed:\n{r.stderr}")
