@@ -46,11 +46,12 @@ def variant_config(name):
     raise KeyError(f"unknown variant {name!r}; known: {', '.join(VARIANTS)}")
 
 
-def output_transform(x):
-    """Per-channel output transforms of the paper (section 3.3.2)."""
+def output_transform(x, clamp=torch.clamp):
+    """Per-channel output transforms of the paper (section 3.3.2). clamp:
+    torch.clamp, or the straight-through one train.py trains with."""
     color = x[:, 0:1] ** 3 / 32 + x[:, 0:1] / 5 + 1
-    highlight = torch.clamp(x[:, 1:2], min=0)
-    alpha = torch.clamp(x[:, 2:3], 0, 1)
+    highlight = clamp(x[:, 1:2], 0, None)
+    alpha = clamp(x[:, 2:3], 0, 1)
     return torch.cat([color, highlight, alpha], dim=1)
 
 
@@ -81,10 +82,10 @@ def residual_base(x, spp):
     return torch.cat([color, hl / safe, cnt / samples], dim=1)
 
 
-def residual_finish(raw, base):
+def residual_finish(raw, base, clamp=torch.clamp):
     color = base[:, 0:1] + raw[:, 0:1]
-    highlight = torch.clamp(base[:, 1:2] + raw[:, 1:2], min=0)
-    alpha = torch.clamp(base[:, 2:3] + raw[:, 2:3], 0, 1)
+    highlight = clamp(base[:, 1:2] + raw[:, 1:2], 0, None)
+    alpha = clamp(base[:, 2:3] + raw[:, 2:3], 0, 1)
     return torch.cat([color, highlight, alpha], dim=1)
 
 
@@ -133,9 +134,14 @@ class HairNet(nn.Module):
         a = self.align
         ph, pw = (-h) % a, (-w) % a
         raw = self.raw(F.pad(x, (0, pw, 0, ph)) if ph or pw else x)[..., :h, :w]
+        return self.finish(raw, x)
+
+    def finish(self, raw, x, clamp=torch.clamp):
+        """The architecture's output stage on raw output raw of the unpadded
+        input x (same size)."""
         if self.arch == "residual":
-            return residual_finish(raw, residual_base(x, self.cfg["spp"]))
-        return output_transform(raw)
+            return residual_finish(raw, residual_base(x, self.cfg["spp"]), clamp)
+        return output_transform(raw, clamp)
 
 
 # ---- safetensors ----------------------------------------------------------

@@ -117,25 +117,11 @@ def clamp_st(x, lo=None, hi=None):
     return x + (torch.clamp(x, lo, hi) - x).detach()
 
 
-def finish(net, raw, x, straight_through):
-    """The output transforms of the net's architecture on raw output `raw`
-    of input x: exact, or with straight-through clamps for training."""
-    clamp = clamp_st if straight_through else torch.clamp
-    if net.arch == "residual":
-        base = hfnet.residual_base(x, net.cfg["spp"])
-        return torch.cat([base[:, 0:1] + raw[:, 0:1],
-                          clamp(base[:, 1:2] + raw[:, 1:2], 0, None),
-                          clamp(base[:, 2:3] + raw[:, 2:3], 0, 1)], 1)
-    c = raw[:, 0:1]
-    return torch.cat([c ** 3 / 32 + c / 5 + 1, clamp(raw[:, 1:2], 0, None),
-                      clamp(raw[:, 2:3], 0, 1)], 1)
-
-
 def forward(net, x, deconv="shuffle", bf16=False, straight_through=False):
     """Output-transformed prediction for NCHW x (sides multiples of 2^L)."""
     with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=bf16):
         y = net.raw(x) if deconv == "transpose" and not bf16 else raw_shuffle(net, x)
-    return finish(net, y.float(), x, straight_through)
+    return net.finish(y.float(), x, clamp_st if straight_through else torch.clamp)
 
 
 # ---- helpers ---------------------------------------------------------------------

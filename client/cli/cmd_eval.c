@@ -251,41 +251,23 @@ static int temporal_step(method *m, const float *rgb, const uint8_t *mask, const
   return 0;
 }
 
-/* The stochastic-transparency estimate of the input's first spp samples:
- * alpha = covered fraction, color/highlight = mean over covered samples. */
-static void input_average(const hf_image *img, int spp, float *res) {
+/* The stochastic-transparency estimate of the input's first spp samples
+ * (hf_st_estimate): alpha = covered fraction, color/highlight = mean over
+ * covered samples. in receives the frame's features. */
+static void input_average(const hf_image *img, int spp, float *in, float *res) {
+  hf_features_from_image(img, spp, in);
   size_t n = (size_t)img->width * img->height;
-  int idx[HF_MAX_SPP][3];
-  for (int k = 0; k < spp; k++)
-    for (int f = 0; f < 3; f++) {
-      char name[48];
-      snprintf(name, sizeof name, "S%d.%s", k, HF_FEATURE_NAMES[f]);
-      idx[k][f] = hf_image_channel(img, name);
-    }
-  for (size_t p = 0; p < n; p++) {
-    const float *px = img->data + p * img->channels;
-    double col = 0, hl = 0;
-    int cov = 0;
-    for (int k = 0; k < spp; k++) {
-      if (px[idx[k][2]] <= 0) continue;   /* no fragment survived: background */
-      col += px[idx[k][0]];
-      hl += px[idx[k][1]];
-      cov++;
-    }
-    res[3 * p + 0] = cov ? (float)(col / cov) : 0.f;
-    res[3 * p + 1] = cov ? (float)(hl / cov) : 0.f;
-    res[3 * p + 2] = (float)cov / spp;
-  }
+  for (size_t p = 0; p < n; p++)
+    hf_st_estimate(in + p * spp * HF_FEATURES_PER_SAMPLE, spp, res + 3 * p);
 }
 
 /* The same estimate pooled over the 5x5 window of each pixel: the base the
- * Residual architecture corrects (hf_residual_base), shown on its own. */
-static void input_pooled(const hf_image *img, int spp, float *in, float *res) {
+ * Residual architecture corrects (hf_residual_base_frame), shown on its own.
+ * tmp: scratch of the size of res. */
+static void input_pooled(const hf_image *img, int spp, float *in, float *res, float *tmp) {
   hf_features_from_image(img, spp, in);
   hf_input_view v = {in, img->width, img->height, img->width, spp * HF_FEATURES_PER_SAMPLE};
-  for (int y = 0; y < img->height; y++)
-    for (int x = 0; x < img->width; x++)
-      hf_residual_base(&v, spp, x, y, res + ((size_t)y * img->width + x) * 3);
+  hf_residual_base_frame(&v, spp, res, tmp);
 }
 
 /* Copies channels prefix.color/.highlight/.alpha into res; HF_ENOTFOUND when
@@ -581,9 +563,10 @@ int cmd_eval(int argc, char **argv) {
     for (int mi = 0; mi < nm; mi++) {
       method *m = &ms[mi];
       if (m->kind == M_INPUT) {
-        input_average(&img, input_spp < spp ? input_spp : spp, res);
+        input_average(&img, input_spp < spp ? input_spp : spp, in, res);
       } else if (m->kind == M_INPUT_POOL) {
-        input_pooled(&img, input_spp < spp ? input_spp : spp, in, res);
+        /* rgb is free until this method's composite below: the scratch. */
+        input_pooled(&img, input_spp < spp ? input_spp : spp, in, res, rgb);
       } else if (m->kind == M_MODEL) {
         const hf_net_config *cfg = hf_model_config(models[m->model]);
         if (spp < cfg->spp) {

@@ -53,21 +53,6 @@ static const struct {
     {"white", {0.95f, 0.95f, 0.95f}},
 };
 
-/* The input's own estimate: mean colour and highlight of the covered
- * samples, covered fraction as alpha (as `hairfilter eval` defines it). */
-static void sample_average(const float *in, int spp, size_t npx, float *res) {
-  for (size_t p = 0; p < npx; p++) {
-    const float *s = in + p * spp * HF_FEATURES_PER_SAMPLE;
-    double c = 0, h = 0;
-    int n = 0;
-    for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
-      if (s[2] > 0) c += s[0], h += s[1], n++;
-    res[3 * p] = n ? (float)(c / n) : 0;
-    res[3 * p + 1] = n ? (float)(h / n) : 0;
-    res[3 * p + 2] = (float)n / spp;
-  }
-}
-
 static void clamp01(float *v, size_t n) {
   for (size_t i = 0; i < n; i++) v[i] = fminf(1.f, fmaxf(0.f, v[i]));
 }
@@ -109,7 +94,9 @@ static void test_every_color(void **state) {
   hf_io io = {.batch = 1, .width = W, .height = H, .in = in, .in_dtype = HF_F32,
               .out = net, .out_dtype = HF_F32};
   assert_int_equal(hf_model_run(m, &io, NULL), HF_OK);
-  sample_average(in, spp, npx, avg);
+  /* The input's own estimate, as `hairfilter eval` defines it. */
+  for (size_t p = 0; p < npx; p++)
+    hf_st_estimate(in + p * spp * HF_FEATURES_PER_SAMPLE, spp, avg + 3 * p);
   int gi[3];
   for (int c = 0; c < 3; c++) {
     char name[32];
