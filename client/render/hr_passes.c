@@ -71,7 +71,8 @@ static void draw_head(hfr_renderer *r, const hr_camera *cam, const hfr_view *v, 
 }
 
 /* One instance per pair of consecutive points; the vertex shader expands
- * each into a quad one pixel wide and culls pairs that span two strands. */
+ * each into a quad max(1, strand width) pixels wide and culls pairs that
+ * span two strands. */
 static void draw_hair(hfr_renderer *r) {
   hrgl.BindVertexArray(r->hair_vao);
   hrgl.DrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, (GLsizei)(r->points - 1));

@@ -5,9 +5,10 @@
 #define GLSL_VERSION "#version 450 core\n"
 
 /* Hair: one instance per segment, four vertices each, expanded here into
- * a quad exactly one pixel wide (rather than GL lines, whose multisampled
- * rasterisation on llvmpipe loses short segments, and rather than a
- * geometry shader, which costs llvmpipe about twice the time). Attributes
+ * a quad one pixel wide, or as wide as the strand where that is wider
+ * (rather than GL lines, whose multisampled rasterisation on llvmpipe loses
+ * short segments, and rather than a geometry shader, which costs llvmpipe
+ * about twice the time). Attributes
  * 0-4 are the segment's first point, 5-9 its second; the instance that
  * would join two strands is culled. Every point carries its strand id (a
  * float, exact below 2^24): the hash includes it so that strands sharing a
@@ -55,8 +56,12 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "  vec2 s0 = c0.xy / c0.w * u_viewport * 0.5, s1 = c1.xy / c1.w * u_viewport * 0.5;\n"
 "  vec2 d = s1 - s0;\n"
 "  d = length(d) > 1e-6 ? normalize(d) : vec2(1.0, 0.0);\n"
-"  /* Half a pixel each side, in NDC. */\n"
-"  vec2 off = vec2(-d.y, d.x) / u_viewport * ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
+"  /* Half the quad's width each side, in NDC: one pixel for a strand\n"
+"   * narrower than a pixel (its width is in alpha), the strand's own width\n"
+"   * for a wider one (alpha is then the opacity alone), so the covered area\n"
+"   * is the strand's at every width. */\n"
+"  vec2 off = vec2(-d.y, d.x) / u_viewport * max(px, 1.0) *\n"
+"             ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
 "  vec4 c = second ? c1 : c0;\n"
 "  gl_Position = vec4(c.xy + off * c.w, c.zw);\n"
 "}\n";

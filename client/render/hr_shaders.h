@@ -3,7 +3,7 @@
 #define HR_SHADERS_H
 
 /* Hair vertex shader, shared by every hair pass: one instance per segment,
- * expanded into a quad one pixel wide. */
+ * expanded into a quad max(1, strand width) pixels wide. */
 extern const char hr_glsl_hair_vs[];
 /* Stochastic-transparency features into the MS attachments. */
 extern const char hr_glsl_st_fs[];

@@ -16,6 +16,7 @@
 #include <cjson/cJSON.h>
 
 #include "hr_internal.h"
+#include "hr_math.h"
 #include "hr_shaders.h"
 
 #define W 64
@@ -39,7 +40,8 @@ static int teardown(void **state) {
 }
 
 /* Parallel horizontal strands in the z = 0 plane, far enough apart not to
- * overlap, and so thick that alpha = opacity exactly. */
+ * overlap. flat_view makes them just over one pixel wide, so that alpha =
+ * opacity exactly and each is drawn as a quad of about one pixel. */
 static void synthetic(hfr_hair *h, float opacity) {
   const int strands = 12, seg = 8;
   memset(h, 0, sizeof *h);
@@ -63,12 +65,24 @@ static void synthetic(hfr_hair *h, float opacity) {
     }
 }
 
-static void flat_view(hfr_view *v) {
+/* Thickness scale that makes a strand of model thickness 1 in the z = 0
+ * plane px pixels wide: the camera looks straight at the plane, so every
+ * point of it is at view depth = the camera distance. */
+static float scale_for_pixels(hfr_renderer *r, const hfr_view *v, float px) {
+  hr_camera cam;
+  hr_camera_from_view(r, v, &cam);
+  return px * hr_len(cam.eye) / cam.px_per_unit;
+}
+
+static void flat_view_on(hfr_renderer *r, hfr_view *v) {
   hfr_view_defaults(v);
   v->width = W, v->height = H;
   v->cam_yaw_deg = 0, v->cam_pitch_deg = 0;
   v->shadow_size = 0;
+  v->thickness_scale = scale_for_pixels(r, v, 1.03f);
 }
+
+static void flat_view(hfr_view *v) { flat_view_on(R, v); }
 
 static void pass(const hfr_view *v, uint32_t seed, int opaque, float *out) {
   hr_camera cam, light;
@@ -164,6 +178,53 @@ static void test_mask_deterministic(void **state) {
   free(a);
   free(b);
   free(c);
+  hfr_hair_free(&h);
+}
+
+/* Covered area at every strand width: a strand narrower than a pixel is a
+ * one-pixel quad with its width in alpha, a wider one a quad as wide as
+ * itself with alpha = opacity. The ground truth (subsample quads under the
+ * same rule) and 64-sample stochastic transparency must then agree on the
+ * frame's coverage, and the area must grow with the width beyond a pixel
+ * (it stalled at one pixel, and at one subsample in the truth, before). */
+static void test_wide_strands_area(void **state) {
+  (void)state;
+  hfr_hair h;
+  synthetic(&h, 1.0f);
+  /* Tilted, so that a strand crosses pixel and subsample rows at every
+   * phase (a horizontal quad 1.2 subsamples wide covers one or two rows of
+   * subsample centres along its whole length, whichever its height gives). */
+  for (uint32_t p = 0; p < h.points; p++) h.pos[3 * p + 1] += 0.07f * h.pos[3 * p];
+  char err[512] = "";
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_OK);
+  const float widths[] = {0.3f, 0.8f, 1.6f, 3.0f};
+  double area[4];
+  for (int i = 0; i < 4; i++) {
+    hfr_view v;
+    flat_view(&v);
+    v.thickness_scale = scale_for_pixels(R, &v, widths[i]);
+    hfr_outputs o = {0};
+    o.spp = 4, o.gt_supersample = 4, o.n_st = 1, o.st_spp[0] = 64, o.seed = 3;
+    hf_image img;
+    int rc = hfr_render(R, &v, &o, &img, NULL, err, sizeof err);
+    if (rc != HF_OK) fail_msg("render: %s", err);
+    int ga = hf_image_channel(&img, "gt.alpha"), sa = hf_image_channel(&img, "st64.alpha");
+    assert_true(ga >= 0 && sa >= 0);
+    double gt = 0, st = 0;
+    for (size_t p = 0; p < (size_t)W * H; p++) {
+      gt += img.data[p * img.channels + ga];
+      st += img.data[p * img.channels + sa];
+    }
+    print_message("strand width %.1f px: coverage gt %.1f px, st64 %.1f px\n", widths[i], gt, st);
+    assert_true(fabs(gt - st) < 0.03 * gt);
+    area[i] = gt;
+    hf_image_free(&img);
+  }
+  /* 12 strands across most of the frame: the area follows the width. */
+  for (int i = 1; i < 4; i++) {
+    double ratio = area[i] / area[0], want = widths[i] / widths[0];
+    assert_true(ratio > 0.9 * want && ratio < 1.1 * want);
+  }
   hfr_hair_free(&h);
 }
 
@@ -498,7 +559,7 @@ static void test_egl(void **state) {
   synthetic(&h, 0.5f);
   assert_int_equal(hfr_renderer_set_hair(r, &h, 0, err, sizeof err), HF_OK);
   hfr_view v;
-  flat_view(&v);
+  flat_view_on(r, &v);
   hfr_outputs o = {0};
   o.spp = 4;
   o.seed = 1;
@@ -519,6 +580,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_hashed_alpha_binomial),
     cmocka_unit_test(test_mask_deterministic),
+    cmocka_unit_test(test_wide_strands_area),
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_frame_ranges),
