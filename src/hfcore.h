@@ -103,6 +103,41 @@ int hf_dec_out(const hf_net_config *cfg, int i);
 /* Multiply-accumulates of one forward pass at w x h (after padding). */
 double hf_net_macs(const hf_net_config *cfg, int w, int h);
 
+/* ---- input statistics: types (functions below) -------------------------- */
+
+/* Per-frame statistics of a network input that say which regime the frame
+ * is in (protocol/FEATURES.md, "Input statistics", is the definition). A
+ * pixel's covered samples are those with alpha > 0; a hair pixel has at
+ * least one. */
+enum {
+  HF_STAT_STRAND_ALPHA_P50 = 0, /* median over hair pixels of hf_pixel_strand_alpha */
+  HF_STAT_STRAND_ALPHA_P90,     /* its 90th percentile */
+  HF_STAT_FULL_COVERAGE,        /* hair pixels with all spp samples covered / hair pixels */
+  HF_STAT_HAIR_FRACTION,        /* hair pixels / pixels */
+  HF_STAT_LONG_SIDE,            /* max(width, height), pixels */
+  HF_STAT_COUNT
+};
+
+/* Version of those definitions, recorded with every range. */
+#define HF_INPUT_STATS_DEFINITION 1
+
+typedef struct hf_input_stats {
+  int width, height, spp;
+  uint64_t hair_pixels;         /* pixels with at least one covered sample */
+  uint64_t full_pixels;         /* pixels with all spp samples covered */
+  double value[HF_STAT_COUNT];  /* by HF_STAT_*; NAN where undefined (no hair pixel) */
+} hf_input_stats;
+
+/* The range [lo, hi] of each statistic over a variant's training frames,
+ * from the weights' `input_range` metadata (weights/FORMAT.md). */
+typedef struct hf_input_range {
+  int present;                  /* 0: the weights carry no (usable) range */
+  int spp;                      /* the statistics were computed at this spp */
+  int frames;                   /* training frames measured */
+  unsigned has;                 /* bit k: statistic k has a range */
+  double lo[HF_STAT_COUNT], hi[HF_STAT_COUNT];
+} hf_input_range;
+
 /* ---- weights ------------------------------------------------------------ */
 
 /* Host-side float32 weights in PyTorch layouts:
@@ -115,6 +150,7 @@ typedef struct hf_weights {
   float *enc_w[HF_MAX_LEVELS], *enc_b[HF_MAX_LEVELS];
   float *dec_w[HF_MAX_LEVELS], *dec_b[HF_MAX_LEVELS];
   size_t num_params;
+  hf_input_range input_range;   /* from the metadata; .present 0 without one */
   void *storage;                /* one allocation behind every array */
 } hf_weights;
 
@@ -124,7 +160,8 @@ typedef struct hf_weights {
 int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen);
 int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out,
                         char *err, size_t errlen);
-/* Writes float32 safetensors with the metadata of w->cfg. */
+/* Writes float32 safetensors with the metadata of w->cfg (and w->input_range
+ * when present). */
 int hf_weights_save(const char *path, const hf_weights *w);
 /* Allocates zeroed weights for cfg. */
 int hf_weights_alloc(const hf_net_config *cfg, hf_weights **out);
@@ -201,9 +238,16 @@ typedef struct hf_input_view {
  * covered ones. Averaging 25 pixels' samples removes most of the noise of
  * 4; what the window blurs is what the network has to put back. */
 void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base[3]);
-/* hf_residual_base of every pixel of the frame into base ([height][width][3]),
- * by separable window sums; tmp is scratch of the same size. HF_EINVAL for
- * an empty frame. */
+/* The stochastic-transparency estimate of every pixel of the frame pooled
+ * over the (2 radius + 1)^2 window around it, cut to the frame (as
+ * hf_residual_base, whose window has radius HF_RESIDUAL_RADIUS), into base
+ * ([height][width][3]), by separable window sums; tmp is scratch of the
+ * same size. radius 0 is hf_st_estimate per pixel. HF_EINVAL for an empty
+ * frame or a negative radius. */
+int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
+                             float *tmp);
+/* hf_residual_base of every pixel: hf_pooled_estimate_frame with radius
+ * HF_RESIDUAL_RADIUS. */
 int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float *tmp);
 /* Adds a residual base to the raw output v in place, with the clamps of the
  * Residual architecture. */
@@ -212,6 +256,49 @@ void hf_residual_apply(const float base[3], float *v);
  * output transforms for HF_ARCH_UNET, base + residual for HF_ARCH_RESIDUAL
  * (in is read only then and may be NULL otherwise). */
 void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, int y, float *v);
+
+/* ---- input statistics --------------------------------------------------- */
+
+/* Number of covered samples (alpha > 0) of one pixel's spp*6 features. */
+int hf_pixel_covered(const float *pixel_in, int spp);
+/* Strand width in pixels as one pixel sees it: the mean alpha of its covered
+ * samples (each covered sample's alpha is the strand's share of the pixel,
+ * FEATURES.md), summed in sample order in float; in (0, 1] for valid input,
+ * 0 when no sample is covered. */
+float hf_pixel_strand_alpha(const float *pixel_in, int spp);
+
+/* The statistics of one frame, in one pass reading only the samples' alpha:
+ * in is [height][width][spp*6] of dtype (f32, or f16 as uint16_t), dense
+ * NHWC as the network reads it. The percentiles are nearest-rank (the
+ * ceil(p n)-th smallest of the n hair pixels' values) on a histogram of 128
+ * bins per octave between 2^-16 and 1, reported as the lower edge of the
+ * bin (at most 0.8% below the exact value; exact for values with at most 8
+ * significant bits, such as 0.25 or 0.375; 0 below 2^-16, 1 from 1 up).
+ * HF_EINVAL for a bad argument (*out is zeroed). weights/input_stats.py
+ * computes the same values. */
+int hf_input_stats_compute(const void *in, hf_dtype dtype, int width, int height, int spp,
+                           hf_input_stats *out);
+/* Name of statistic HF_STAT_* ("strand_alpha_p50", ...; "unknown"), and
+ * back (HF_ENOTFOUND). The names are the metadata's keys. */
+const char *hf_input_stat_name(int stat);
+int hf_input_stat_from_name(const char *name);
+
+/* Parses `input_range` metadata (JSON text, weights/FORMAT.md) of a variant
+ * that reads spp samples. A range whose "definition" is not
+ * HF_INPUT_STATS_DEFINITION is left unused (HF_OK, present 0); a malformed
+ * one is HF_EFORMAT with the reason in err. */
+int hf_input_range_parse(const char *json, int spp, hf_input_range *out, char *err,
+                         size_t errlen);
+/* The range as metadata JSON text (malloc'd; NULL when not present). */
+char *hf_input_range_to_json(const hf_input_range *r);
+/* Bit k set for each statistic k outside its range; 0 when r is not
+ * present, when the frame has no hair pixel (nothing to filter) and for
+ * statistics without a range or undefined on this frame. */
+unsigned hf_input_range_check(const hf_input_range *r, const hf_input_stats *s);
+/* "strand_alpha_p50 0.2305 (trained 0.0146..0.0193), ..." for the
+ * statistics in mask, into buf (always terminated; HF_ERANGE if cut). */
+int hf_input_range_describe(const hf_input_range *r, const hf_input_stats *s, unsigned mask,
+                            char *buf, size_t len);
 
 /* ---- half floats -------------------------------------------------------- */
 

@@ -157,9 +157,10 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
   base[HF_OUT_ALPHA] = n / (float)samples;
 }
 
-int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float *tmp) {
-  const int w = in->width, h = in->height, r = HF_RESIDUAL_RADIUS;
-  if (w < 1 || h < 1 || spp < 1) return HF_EINVAL;
+int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
+                             float *tmp) {
+  const int w = in->width, h = in->height, r = radius;
+  if (w < 1 || h < 1 || spp < 1 || r < 0) return HF_EINVAL;
   /* Per-pixel sums (covered count, colour, highlight) into base... */
   for (int y = 0; y < h; y++)
     for (int x = 0; x < w; x++) {
@@ -175,7 +176,7 @@ int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float 
       o[0] = n, o[1] = col, o[2] = hl;
     }
   /* ...summed along rows into tmp, then along columns back into base: the
-   * window sums in O(25) less work per pixel than hf_residual_base. */
+   * window sums with 2 (2r+1) additions per pixel instead of (2r+1)^2. */
   for (int y = 0; y < h; y++)
     for (int x = 0; x < w; x++) {
       int x0 = x - r < 0 ? 0 : x - r, x1 = x + r >= w ? w - 1 : x + r;
@@ -199,6 +200,10 @@ int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float 
     }
   }
   return HF_OK;
+}
+
+int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float *tmp) {
+  return hf_pooled_estimate_frame(in, spp, HF_RESIDUAL_RADIUS, base, tmp);
 }
 
 void hf_residual_apply(const float base[3], float *v) {

@@ -5,7 +5,9 @@
  * Layout: u64 little-endian header length N, N bytes of JSON, raw tensor
  * data. The JSON maps tensor names to {dtype, shape, data_offsets} (offsets
  * relative to the data start) and may hold "__metadata__", a map of strings,
- * whose "hairfilter" entry is itself JSON describing the network. */
+ * whose "hairfilter" entry is itself JSON describing the network, and whose
+ * optional "input_range" entry is JSON giving the range of input statistics
+ * the network was trained on (input_range.c). */
 #include <errno.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -206,6 +208,17 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   }
   rc = parse_metadata(hf->valuestring, &tmp, err, errlen);
   if (rc) goto out;
+  /* Optional: the input statistics the variant was trained on. */
+  const cJSON *range = cJSON_GetObjectItemCaseSensitive(meta, "input_range");
+  if (range) {
+    char why[160] = "";
+    if (!cJSON_IsString(range))
+      rc = fail(err, errlen, HF_EFORMAT, "metadata 'input_range' must be a JSON string");
+    else if ((rc = hf_input_range_parse(range->valuestring, tmp.cfg.spp, &tmp.input_range, why,
+                                        sizeof why)) != 0)
+      fail(err, errlen, rc, "metadata: %s", why);
+    if (rc) goto out;
+  }
   hf_weights *w;
   rc = hf_weights_alloc(&tmp.cfg, &w);
   if (rc) {
@@ -213,6 +226,7 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
     goto out;
   }
   memcpy(w->features, tmp.features, sizeof w->features);
+  w->input_range = tmp.input_range;
   hf_tensor_spec specs[HF_TENSORS_MAX];
   int n = hf_weights_specs(w, specs);
   /* Unknown tensors mean the file describes another network. */

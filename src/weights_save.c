@@ -31,11 +31,15 @@ int hf_weights_save(const char *path, const hf_weights *w) {
   hf_tensor_spec specs[HF_TENSORS_MAX];
   int n = hf_weights_specs(&copy, specs);
   int rc = HF_ENOMEM;
-  char *header = NULL, *meta = metadata_json(w);
+  char *header = NULL, *meta = metadata_json(w), *range = NULL;
   cJSON *root = cJSON_CreateObject();
   if (!meta || !root) goto out;
   cJSON *md = cJSON_AddObjectToObject(root, "__metadata__");
   cJSON_AddStringToObject(md, "hairfilter", meta);
+  if (w->input_range.present) {
+    if (!(range = hf_input_range_to_json(&w->input_range))) goto out;
+    cJSON_AddStringToObject(md, "input_range", range);
+  }
   size_t off = 0;
   for (int k = 0; k < n; k++) {
     cJSON *t = cJSON_AddObjectToObject(root, specs[k].name);
@@ -66,6 +70,7 @@ int hf_weights_save(const char *path, const hf_weights *w) {
 out:
   free(header);
   free(meta);
+  free(range);
   cJSON_Delete(root);
   return rc;
 }

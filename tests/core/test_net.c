@@ -92,6 +92,31 @@ static void test_residual_base(void **state) {
     }
   hf_input_view none = {buf, 0, FH, PITCH, STRIDE};
   assert_int_equal(hf_residual_base_frame(&none, 4, frame, tmp), HF_EINVAL);
+  /* Other windows: radius 0 is the per-pixel estimate, radius 1 pools the
+   * 3x3 window cut to the frame (checked against a direct pool of it). */
+  assert_int_equal(hf_pooled_estimate_frame(&v, 4, 0, frame, tmp), HF_OK);
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < FW; x++) {
+      hf_st_estimate(buf + ((size_t)y * PITCH + x) * STRIDE, 4, b);
+      for (int k = 0; k < 3; k++) assert_float_equal(frame[(y * FW + x) * 3 + k], b[k], 1e-6f);
+    }
+  assert_int_equal(hf_pooled_estimate_frame(&v, 4, 1, frame, tmp), HF_OK);
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < FW; x++) {
+      float n = 0, col = 0, hl = 0, all = 0;
+      for (int yy = y - 1; yy <= y + 1; yy++)
+        for (int xx = x - 1; xx <= x + 1; xx++) {
+          if (xx < 0 || yy < 0 || xx >= FW || yy >= FH) continue;
+          const float *px = buf + ((size_t)yy * PITCH + xx) * STRIDE;
+          for (int k = 0; k < 4; k++, all++)
+            if (px[6 * k + 2] > 0) n++, col += px[6 * k], hl += px[6 * k + 1];
+        }
+      const float *o = frame + (y * FW + x) * 3;
+      assert_float_equal(o[HF_OUT_ALPHA], n / all, 1e-6f);
+      assert_float_equal(o[HF_OUT_COLOR], n ? col / n : 1.0f, 1e-5f);
+      assert_float_equal(o[HF_OUT_HIGHLIGHT], n ? hl / n : 0.0f, 1e-5f);
+    }
+  assert_int_equal(hf_pooled_estimate_frame(&v, 4, -1, frame, tmp), HF_EINVAL);
   /* Back to the single covered sample at (3, 2). */
   memset(buf, 0, sizeof buf);
   s[0] = 2.0f, s[1] = 0.5f, s[2] = 0.7f;
