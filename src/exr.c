@@ -160,3 +160,30 @@ out:
   if (exr_finish(&ctx) && rc == HF_OK) rc = HF_EIO;
   return rc;
 }
+
+int hf_exr_display_size(const char *path, int *width, int *height, char *err, size_t errlen) {
+  if (!path || !width || !height) return fail(err, errlen, HF_EINVAL, "null argument");
+  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+  init.error_handler_fn = quiet_handler;
+  init.flags |= EXR_CONTEXT_FLAG_SILENT_HEADER_PARSE;
+  exr_context_t ctx = NULL;
+  exr_result_t r = exr_start_read(&ctx, path, &init);
+  if (r != EXR_ERR_SUCCESS)
+    return fail(err, errlen, HF_EIO, "%s: %s", path, exr_get_error_code_as_string(r));
+  exr_attr_box2i_t dw;
+  int rc = HF_OK;
+  if ((r = exr_get_display_window(ctx, 0, &dw)) != EXR_ERR_SUCCESS) {
+    rc = fail(err, errlen, HF_EFORMAT, "%s: %s", path, exr_get_error_code_as_string(r));
+  } else {
+    int64_t w = (int64_t)dw.max.x - dw.min.x + 1, h = (int64_t)dw.max.y - dw.min.y + 1;
+    if (w < 1 || h < 1 || w > INT32_MAX || h > INT32_MAX) {
+      rc = fail(err, errlen, HF_ERANGE, "%s: display window %lldx%lld", path, (long long)w,
+                (long long)h);
+    } else {
+      *width = (int)w;
+      *height = (int)h;
+    }
+  }
+  exr_finish(&ctx);
+  return rc;
+}

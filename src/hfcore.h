@@ -321,6 +321,9 @@ int hf_image_channel(const hf_image *img, const char *name);
 
 /* Reads every channel of a scanline EXR as float32; err gets the reason. */
 int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen);
+/* Size of an EXR's display window (the whole image a crop was cut from;
+ * equal to the data window's size for an uncropped file), header only. */
+int hf_exr_display_size(const char *path, int *width, int *height, char *err, size_t errlen);
 /* Writes an EXR with the image's channel names; half selects 16-bit
  * storage, else float32. ZIP compression. */
 int hf_exr_write(const char *path, const hf_image *img, int half);

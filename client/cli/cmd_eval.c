@@ -6,7 +6,9 @@
  * in-process, each baseline present), the result is composited with one
  * fixed hair colour, light and background, and compared with the composited
  * ground truth on the hair pixels (gt.alpha > 0). docs/QUALITY.md defines the
- * metrics. */
+ * metrics. The same scores are also grouped by regime (eval_strata.h): hair
+ * pixels by strand width in pixels and by coverage, frames by their median
+ * of those and by resolution. */
 #define _POSIX_C_SOURCE 200809L
 #include <cjson/cJSON.h>
 #include <dirent.h>
@@ -20,6 +22,7 @@
 #include "cli_common.h"
 #include "commands.h"
 #include "eval_metrics.h"
+#include "eval_strata.h"
 
 #define MAX_MODELS 16
 #define MAX_METHODS (MAX_MODELS + 16)
@@ -34,11 +37,15 @@ static void usage(FILE *f) {
           "                       [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "                       [--input-spp N] [--max-frames N]\n"
           "                       [--grid OUT.png] [--grid-rows N] [--grid-crop N]\n"
-          "                       [--temporal] [--temporal-png OUT.png]\n"
+          "                       [--temporal] [--temporal-png OUT.png] [--json OUT.json]\n"
           "                       DIR|FRAME.exr ...\n"
           "Compares, on hair pixels (gt.alpha > 0) of the composited image, the networks,\n"
-          "the input's sample average, stochastic transparency st{1,2,4,8,16,64} and opaque\n"
-          "MSAA with the ground truth; prints a Markdown table (docs/QUALITY.md).\n"
+          "the input's sample average and its 3x3 and 5x5 pools, stochastic transparency\n"
+          "st{1,2,4,8,16,64} and opaque MSAA with the ground truth; prints a Markdown table\n"
+          "(docs/QUALITY.md), then one per regime grouping: hair pixels by strand width in\n"
+          "pixels and by coverage, frames by those and by resolution. --json writes every\n"
+          "number, per bucket and per frame. Frames outside the input range a weights file\n"
+          "was trained on (its input_range metadata) are named on stderr.\n"
           "The grid has one row per frame: input average, each network, ST 16 spp, truth.\n"
           "--temporal: the frames (in file-name order) are one camera sequence; also prints\n"
           "each method's mean frame-to-frame change beside the ground truth's (flicker);\n"
@@ -50,6 +57,7 @@ static void usage(FILE *f) {
 typedef struct frame_ref {
   char *path;
   char style[32];
+  int full_w, full_h;           /* manifest full_width/full_height; 0: none */
 } frame_ref;
 
 typedef struct frame_list {
@@ -57,7 +65,8 @@ typedef struct frame_list {
   int n, cap;
 } frame_list;
 
-static int list_push(frame_list *l, const char *path, const char *style) {
+static int list_push(frame_list *l, const char *path, const char *style, int full_w,
+                     int full_h) {
   if (l->n == l->cap) {
     int cap = l->cap ? 2 * l->cap : 64;
     frame_ref *v = realloc(l->v, cap * sizeof *v);
@@ -68,6 +77,8 @@ static int list_push(frame_list *l, const char *path, const char *style) {
   frame_ref *f = &l->v[l->n];
   if (!(f->path = strdup(path))) return HF_ENOMEM;
   snprintf(f->style, sizeof f->style, "%s", style);
+  f->full_w = full_w;
+  f->full_h = full_h;
   l->n++;
   return 0;
 }
@@ -106,10 +117,13 @@ static char *read_text(const char *path) {
   return buf;
 }
 
-/* Style of base name `name` according to DIR/manifest.json, if any. The
- * manifest lists frames under "frames" (or "images", "renders", "items"),
- * each an object with "file" (or "path", "exr", "name") and "style". */
-static int manifest_style(const cJSON *doc, const char *name, char *out, size_t len) {
+/* Style of base name `name` according to DIR/manifest.json, if any, and the
+ * frame's full size when it is a crop ("full_width", "full_height"; left
+ * alone when absent). The manifest lists frames under "frames" (or
+ * "images", "renders", "items"), each an object with "file" (or "path",
+ * "exr", "name") and "style". */
+static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t len,
+                          int *full_w, int *full_h) {
   static const char *lists[] = {"frames", "images", "renders", "items", "files"};
   static const char *files[] = {"file", "path", "exr", "name"};
   const cJSON *arr = cJSON_IsArray(doc) ? doc : NULL;
@@ -128,6 +142,13 @@ static int manifest_style(const cJSON *doc, const char *name, char *out, size_t 
     if (!fname) continue;
     const char *b = strrchr(fname, '/');
     if (strcmp(b ? b + 1 : fname, name)) continue;
+    const cJSON *fw = cJSON_GetObjectItemCaseSensitive(it, "full_width");
+    const cJSON *fh = cJSON_GetObjectItemCaseSensitive(it, "full_height");
+    if (cJSON_IsNumber(fw) && cJSON_IsNumber(fh) && fw->valuedouble >= 1 &&
+        fh->valuedouble >= 1 && fw->valuedouble <= 1 << 20 && fh->valuedouble <= 1 << 20) {
+      *full_w = (int)fw->valuedouble;
+      *full_h = (int)fh->valuedouble;
+    }
     const cJSON *st = cJSON_GetObjectItemCaseSensitive(it, "style");
     if (!cJSON_IsString(st)) return HF_ENOTFOUND;
     snprintf(out, len, "%s", st->valuestring);
@@ -157,7 +178,7 @@ static int add_path(frame_list *l, const char *path) {
   char style[32];
   if (!S_ISDIR(st.st_mode)) {
     style_from_name(path, style, sizeof style);
-    return list_push(l, path, style);
+    return list_push(l, path, style, 0, 0);
   }
   char mpath[4096];
   snprintf(mpath, sizeof mpath, "%s/manifest.json", path);
@@ -175,9 +196,10 @@ static int add_path(frame_list *l, const char *path) {
     if (!ends_with(e->d_name, ".exr")) continue;
     char full[4096];
     snprintf(full, sizeof full, "%s/%s", path, e->d_name);
-    if (!doc || manifest_style(doc, e->d_name, style, sizeof style))
+    int fw = 0, fh = 0;
+    if (!doc || manifest_entry(doc, e->d_name, style, sizeof style, &fw, &fh))
       style_from_name(e->d_name, style, sizeof style);
-    rc = list_push(l, full, style);
+    rc = list_push(l, full, style, fw, fh);
   }
   closedir(d);
   cJSON_Delete(doc);
@@ -205,6 +227,7 @@ typedef struct method {
   int kind;
   char label[128];
   char prefix[16];              /* M_CHANNELS: "st4", "opaque" */
+  int radius;                   /* M_INPUT_POOL: half side of the window */
   int model;                    /* M_MODEL: index into models */
   int frames;                   /* frames this method was scored on */
   double mse, psnr, ssim, col, hl, alpha;
@@ -261,13 +284,15 @@ static void input_average(const hf_image *img, int spp, float *in, float *res) {
     hf_st_estimate(in + p * spp * HF_FEATURES_PER_SAMPLE, spp, res + 3 * p);
 }
 
-/* The same estimate pooled over the 5x5 window of each pixel: the base the
- * Residual architecture corrects (hf_residual_base_frame), shown on its own.
- * tmp: scratch of the size of res. */
-static void input_pooled(const hf_image *img, int spp, float *in, float *res, float *tmp) {
+/* The same estimate pooled over the (2 radius + 1)^2 window of each pixel
+ * (hf_pooled_estimate_frame): the best fixed filter of the samples without
+ * a network; radius 2 is the base the Residual architecture corrects. tmp:
+ * scratch of the size of res. */
+static void input_pooled(const hf_image *img, int spp, int radius, float *in, float *res,
+                         float *tmp) {
   hf_features_from_image(img, spp, in);
   hf_input_view v = {in, img->width, img->height, img->width, spp * HF_FEATURES_PER_SAMPLE};
-  hf_residual_base_frame(&v, spp, res, tmp);
+  hf_pooled_estimate_frame(&v, spp, radius, res, tmp);
 }
 
 /* Copies channels prefix.color/.highlight/.alpha into res; HF_ENOTFOUND when
@@ -295,20 +320,137 @@ static void composite(const look *lk, const float *res, int w, int h, float *rgb
   for (size_t i = 0; i < (size_t)w * h * 3; i++) rgb[i] = fminf(1.f, fmaxf(0.f, rgb[i]));
 }
 
-static int score(method *m, const float *res, const float *gt, const float *rgb,
-                 const float *gt_rgb, int w, int h, const uint8_t *mask) {
-  double mse = eval_mse(rgb, gt_rgb, w, h, 3, mask, NULL);
-  double ssim = eval_ssim(rgb, gt_rgb, w, h, 3, mask);
-  if (ssim < -1.5) return (int)ssim;
-  double psnr = eval_psnr(mse, 1.0);
-  m->mse += mse;
-  if (isinf(psnr)) m->psnr_inf++;
-  else m->psnr += psnr;
-  m->ssim += ssim;
-  m->col += eval_channel_mse(res, 3, 0, 2, gt, 3, 0, 2, w, h, mask);
-  m->hl += eval_channel_mse(res, 3, 1, 2, gt, 3, 1, 2, w, h, mask);
-  m->alpha += eval_channel_mse(res, 3, 2, -1, gt, 3, 2, -1, w, h, mask);
+/* Scores method m's result on a frame: the frame's values into the main
+ * table's sums and fs, and every hair pixel into the regime tables. smap:
+ * scratch [h][w] for the SSIM map. */
+static int score(method *m, int mi, eval_strata *strata, const eval_regime *rg,
+                 const float *res, const float *gt, const float *rgb, const float *gt_rgb,
+                 int w, int h, const uint8_t *mask, double *smap, eval_frame_score *fs) {
+  if (eval_ssim_mean_map(rgb, gt_rgb, w, h, 3, smap)) return HF_ENOMEM;
+  fs->mse = eval_mse(rgb, gt_rgb, w, h, 3, mask, NULL);
+  fs->ssim = eval_masked_mean(smap, (size_t)w * h, mask, 1.0);
+  fs->psnr = eval_psnr(fs->mse, 1.0);
+  fs->col = eval_channel_mse(res, 3, 0, 2, gt, 3, 0, 2, w, h, mask);
+  fs->hl = eval_channel_mse(res, 3, 1, 2, gt, 3, 1, 2, w, h, mask);
+  fs->alpha = eval_channel_mse(res, 3, 2, -1, gt, 3, 2, -1, w, h, mask);
+  m->mse += fs->mse;
+  if (isinf(fs->psnr)) m->psnr_inf++;
+  else m->psnr += fs->psnr;
+  m->ssim += fs->ssim;
+  m->col += fs->col;
+  m->hl += fs->hl;
+  m->alpha += fs->alpha;
   m->frames++;
+  eval_strata_add(strata, mi, rg, rgb, gt_rgb, res, gt, smap, fs);
+  return 0;
+}
+
+static cJSON *score_json(const method *m, const eval_frame_score *fs) {
+  cJSON *o = cJSON_CreateObject();
+  if (!o) return NULL;
+  cJSON_AddStringToObject(o, "method", m->label);
+  cJSON_AddItemToObject(o, "psnr", eval_json_number(fs->psnr));
+  cJSON_AddItemToObject(o, "ssim", eval_json_number(fs->ssim));
+  cJSON_AddItemToObject(o, "mse", eval_json_number(fs->mse));
+  cJSON_AddItemToObject(o, "color_alpha_mse", eval_json_number(fs->col));
+  cJSON_AddItemToObject(o, "highlight_alpha_mse", eval_json_number(fs->hl));
+  cJSON_AddItemToObject(o, "alpha_mse", eval_json_number(fs->alpha));
+  return o;
+}
+
+/* Warns when the frame's input statistics are outside the range a model
+ * was trained on (the weights' input_range metadata): 1 when they are, 0
+ * when not or when the weights record no range, a negative HF_E* code on
+ * failure. Adds the details to flags (a JSON array) when not NULL. */
+static int check_range(const hf_input_range *r, const char *label, const char *path,
+                       const float *in, int w, int h, int spp, cJSON *flags) {
+  if (!r->present) return 0;
+  hf_input_stats st;
+  int rc = hf_input_stats_compute(in, HF_F32, w, h, spp, &st);
+  if (rc) return rc;
+  unsigned bad = hf_input_range_check(r, &st);
+  if (!bad) return 0;
+  char why[512];
+  hf_input_range_describe(r, &st, bad, why, sizeof why);
+  fprintf(stderr, "\r\x1b[Khairfilter eval: warning: %s is outside the input range %s was "
+          "trained on: %s\n", path, label, why);
+  if (flags) {
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddItemToArray(flags, o);
+    cJSON_AddStringToObject(o, "method", label);
+    cJSON *stats = cJSON_AddObjectToObject(o, "statistics");
+    for (int k = 0; stats && k < HF_STAT_COUNT; k++) {
+      if (!(bad & (1u << k))) continue;
+      cJSON *v = cJSON_AddObjectToObject(stats, hf_input_stat_name(k));
+      cJSON_AddItemToObject(v, "value", eval_json_number(st.value[k]));
+      double tr[2] = {r->lo[k], r->hi[k]};
+      cJSON_AddItemToObject(v, "trained", cJSON_CreateDoubleArray(tr, 2));
+    }
+  }
+  return 1;
+}
+
+static const char *kind_name(int kind) {
+  switch (kind) {
+  case M_INPUT: return "input";
+  case M_INPUT_POOL: return "pool";
+  case M_MODEL: return "network";
+  default: return "baseline";
+  }
+}
+
+/* The --json document: every number of the tables, per bucket, plus the
+ * per-frame rows collected while scoring. */
+static int write_json(const char *path, const method *ms, int nm, const eval_strata *strata,
+                      cJSON *rows, const hf_input_range *ranges, const int *flagged, int frames,
+                      size_t hair_px, const look *lk, const char *styles, int input_spp) {
+  cJSON *doc = cJSON_CreateObject();
+  if (!doc) return HF_ENOMEM;
+  cJSON_AddStringToObject(doc, "format", "hairfilter-eval");
+  cJSON_AddNumberToObject(doc, "version", 1);
+  cJSON_AddNumberToObject(doc, "frames", frames);
+  cJSON_AddNumberToObject(doc, "hair_pixels", (double)hair_px);
+  cJSON_AddNumberToObject(doc, "input_spp", input_spp);
+  if (styles && *styles) cJSON_AddStringToObject(doc, "styles", styles);
+  cJSON *look_o = cJSON_AddObjectToObject(doc, "look");
+  if (look_o) {
+    cJSON_AddItemToObject(look_o, "hair", cJSON_CreateFloatArray(lk->hair, 3));
+    cJSON_AddItemToObject(look_o, "light", cJSON_CreateFloatArray(lk->light, 3));
+    cJSON_AddItemToObject(look_o, "background", cJSON_CreateFloatArray(lk->bg, 3));
+  }
+  cJSON_AddItemToObject(doc, "groupings", eval_strata_groupings_json(strata));
+  cJSON *arr = cJSON_AddArrayToObject(doc, "methods");
+  for (int i = 0; arr && i < nm; i++) {
+    if (!ms[i].frames) continue;
+    cJSON *o = eval_strata_method_json(strata, i);
+    if (!o) break;
+    cJSON_AddItemToArray(arr, o);
+    cJSON_AddStringToObject(o, "method", ms[i].label);
+    cJSON_AddStringToObject(o, "kind", kind_name(ms[i].kind));
+    if (ms[i].kind == M_CHANNELS) cJSON_AddStringToObject(o, "channels", ms[i].prefix);
+    if (ms[i].kind == M_INPUT_POOL) cJSON_AddNumberToObject(o, "window", 2 * ms[i].radius + 1);
+    if (ms[i].kind == M_MODEL) {
+      char *text = hf_input_range_to_json(&ranges[ms[i].model]);
+      cJSON *r = text ? cJSON_Parse(text) : cJSON_CreateNull();
+      free(text);
+      cJSON_AddItemToObject(o, "input_range", r);
+      cJSON_AddNumberToObject(o, "frames_out_of_range", flagged[ms[i].model]);
+    }
+  }
+  /* A reference: rows stay the caller's. */
+  cJSON_AddItemReferenceToObject(doc, "frame_rows", rows);
+  char *text = cJSON_Print(doc);
+  cJSON_Delete(doc);
+  if (!text) return HF_ENOMEM;
+  FILE *f = fopen(path, "w");
+  int ok = f && fputs(text, f) >= 0 && fputc('\n', f) != EOF;
+  if (f && fclose(f)) ok = 0;
+  free(text);
+  if (!ok) {
+    fprintf(stderr, "hairfilter eval: writing %s failed\n", path);
+    return HF_EIO;
+  }
+  fprintf(stderr, "eval: %s: %d frames, %d methods\n", path, frames, nm);
   return 0;
 }
 
@@ -373,7 +515,7 @@ static void print_temporal(method *ms, int nm, const method *truth) {
 
 int cmd_eval(int argc, char **argv) {
   const char *weights_arg = NULL, *backend_name = "auto", *styles = NULL, *grid_path = NULL;
-  const char *temporal_png = NULL;
+  const char *temporal_png = NULL, *json_path = NULL;
   int input_spp = 4, max_frames = 0, grid_rows = 4, grid_crop = 192, temporal = 0;
   look lk;
   memcpy(lk.hair, CLI_HAIR_DEFAULT, sizeof lk.hair);
@@ -387,7 +529,7 @@ int cmd_eval(int argc, char **argv) {
     {"grid", required_argument, 0, 'g'},      {"grid-rows", required_argument, 0, 'r'},
     {"grid-crop", required_argument, 0, 'c'}, {"help", no_argument, 0, 'h'},
     {"temporal", no_argument, 0, 't'},        {"temporal-png", required_argument, 0, 'T'},
-    {0, 0, 0, 0}};
+    {"json", required_argument, 0, 'J'},      {0, 0, 0, 0}};
   int c;
   optind = 1;
   while ((c = getopt_long(argc, argv, "w:b:h", opts, NULL)) != -1) {
@@ -405,6 +547,7 @@ int cmd_eval(int argc, char **argv) {
     case 'c': grid_crop = atoi(optarg); if (grid_crop < 8 || grid_crop > 4096) goto bad; break;
     case 't': temporal = 1; break;
     case 'T': temporal = 1; temporal_png = optarg; break;
+    case 'J': json_path = optarg; break;
     case 'h': usage(stdout); return 0;
     default: goto bad;
     }
@@ -415,6 +558,8 @@ int cmd_eval(int argc, char **argv) {
   frame_list frames = {0};
   hf_backend *backend = NULL;
   hf_model *models[MAX_MODELS] = {0};
+  hf_input_range ranges[MAX_MODELS];        /* each model's trained input range */
+  int flagged[MAX_MODELS] = {0};            /* frames outside it */
   method ms[MAX_METHODS];
   memset(ms, 0, sizeof ms);
   grid g = {0}, tg = {0};
@@ -422,8 +567,14 @@ int cmd_eval(int argc, char **argv) {
   hf_image img = {0};
   float *res = NULL, *gt = NULL, *rgb = NULL, *gt_rgb = NULL, *in = NULL, *diff = NULL;
   uint8_t *mask = NULL, *pmask = NULL;
+  double *smap = NULL;
   int seq_w = 0, seq_h = 0, diff_pair = -1;
   char err[512];
+  eval_strata *strata = NULL;
+  eval_regime rg = {0};
+  eval_frame_score fs;
+  cJSON *rows = cJSON_CreateArray(), *row = NULL;   /* per-frame JSON rows */
+  if (!rows) return 1;
 
   for (int i = optind; i < argc; i++)
     if ((rc = add_path(&frames, argv[i])) != 0) goto out;
@@ -432,6 +583,10 @@ int cmd_eval(int argc, char **argv) {
   ms[nm].kind = M_INPUT;
   snprintf(ms[nm++].label, sizeof ms[0].label, "input (mean of %d samples)", input_spp);
   ms[nm].kind = M_INPUT_POOL;
+  ms[nm].radius = 1;
+  snprintf(ms[nm++].label, sizeof ms[0].label, "input pooled over 3x3 pixels");
+  ms[nm].kind = M_INPUT_POOL;
+  ms[nm].radius = HF_RESIDUAL_RADIUS;
   snprintf(ms[nm++].label, sizeof ms[0].label, "input pooled over 5x5 pixels (Residual's base)");
   if (weights_arg) {
     if ((rc = cli_open_backend(backend_name, &backend)) != 0) goto out;
@@ -456,6 +611,7 @@ int cmd_eval(int argc, char **argv) {
         break;
       }
       const char *base = strrchr(tok, '/');
+      ranges[nmodels] = w->input_range;
       ms[nm].kind = M_MODEL;
       ms[nm].model = nmodels++;
       snprintf(ms[nm++].label, sizeof ms[0].label, "ours %s (%s)", w->cfg.name,
@@ -473,6 +629,7 @@ int cmd_eval(int argc, char **argv) {
   ms[nm].kind = M_CHANNELS;
   snprintf(ms[nm].prefix, sizeof ms[0].prefix, "opaque");
   snprintf(ms[nm++].label, sizeof ms[0].label, "opaque MSAA (no transparency)");
+  if ((rc = eval_strata_create(nm, &strata)) != 0) goto out;
 
   if (grid_path) {
     g.rows = grid_rows;
@@ -514,7 +671,8 @@ int cmd_eval(int argc, char **argv) {
     uint8_t *keep = pmask;
     pmask = mask;   /* the previous frame's hair pixels, for --temporal */
     mask = keep;
-    free(res); free(gt); free(rgb); free(gt_rgb); free(mask); free(in); free(diff);
+    free(res); free(gt); free(rgb); free(gt_rgb); free(mask); free(in); free(diff); free(smap);
+    smap = malloc(npx * sizeof(double));
     res = malloc(npx * 3 * sizeof(float));
     gt = malloc(npx * 3 * sizeof(float));
     rgb = malloc(npx * 3 * sizeof(float));
@@ -522,7 +680,10 @@ int cmd_eval(int argc, char **argv) {
     in = malloc(npx * HF_MAX_SPP * HF_FEATURES_PER_SAMPLE * sizeof(float));
     diff = malloc(npx * 3 * sizeof(float));
     mask = malloc(npx);
-    if (!res || !gt || !rgb || !gt_rgb || !in || !diff || !mask) { rc = HF_ENOMEM; goto out; }
+    if (!res || !gt || !rgb || !gt_rgb || !in || !diff || !mask || !smap) {
+      rc = HF_ENOMEM;
+      goto out;
+    }
     if (gather(&img, "gt", gt)) {
       fprintf(stderr, "hairfilter eval: %s: no gt.color/gt.highlight/gt.alpha\n", fr->path);
       rc = HF_EFORMAT;
@@ -540,6 +701,21 @@ int cmd_eval(int argc, char **argv) {
       goto out;
     }
     composite(&lk, gt, w, h, gt_rgb);
+    /* The frame's regime, from the samples the input rows read. */
+    int full_w = fr->full_w, full_h = fr->full_h;
+    if (!full_w && hf_exr_display_size(fr->path, &full_w, &full_h, NULL, 0)) full_w = full_h = 0;
+    int ispp = input_spp < spp ? input_spp : spp;
+    eval_regime_free(&rg);
+    hf_features_from_image(&img, ispp, in);
+    if ((rc = eval_regime_compute(&rg, in, ispp, gt, mask, w, h, full_w, full_h)) != 0) goto out;
+    if (json_path) {
+      if (!(row = eval_regime_json(&rg))) { rc = HF_ENOMEM; goto out; }
+      cJSON_AddItemToArray(rows, row);
+      cJSON_AddStringToObject(row, "file", fr->path);
+      cJSON_AddStringToObject(row, "style", fr->style);
+    }
+    cJSON *row_scores = json_path ? cJSON_AddArrayToObject(row, "methods") : NULL;
+    cJSON *row_flags = json_path ? cJSON_AddArrayToObject(row, "out_of_range") : NULL;
     int grow = g.rows && scored < g.rows ? scored : -1;
     if (grow >= 0 && !g.rgb) {
       /* Tiles are the first frame's size, up to the crop: no wasted space. */
@@ -566,7 +742,7 @@ int cmd_eval(int argc, char **argv) {
         input_average(&img, input_spp < spp ? input_spp : spp, in, res);
       } else if (m->kind == M_INPUT_POOL) {
         /* rgb is free until this method's composite below: the scratch. */
-        input_pooled(&img, input_spp < spp ? input_spp : spp, in, res, rgb);
+        input_pooled(&img, input_spp < spp ? input_spp : spp, m->radius, in, res, rgb);
       } else if (m->kind == M_MODEL) {
         const hf_net_config *cfg = hf_model_config(models[m->model]);
         if (spp < cfg->spp) {
@@ -575,6 +751,13 @@ int cmd_eval(int argc, char **argv) {
           continue;
         }
         if ((rc = hf_features_from_image(&img, cfg->spp, in)) < 0) goto out;
+        int out_of_range = check_range(&ranges[m->model], m->label, fr->path, in, w, h,
+                                       cfg->spp, row_flags);
+        if (out_of_range < 0) {
+          rc = out_of_range;
+          goto out;
+        }
+        flagged[m->model] += out_of_range;
         hf_io io = {.batch = 1, .width = w, .height = h, .in = in, .in_dtype = HF_F32,
                     .out = res, .out_dtype = HF_F32};
         if ((rc = hf_model_run(models[m->model], &io, NULL)) != 0) {
@@ -586,7 +769,9 @@ int cmd_eval(int argc, char **argv) {
         continue;   /* this frame has no such baseline */
       }
       composite(&lk, res, w, h, rgb);
-      if ((rc = score(m, res, gt, rgb, gt_rgb, w, h, mask)) != 0) goto out;
+      if ((rc = score(m, mi, strata, &rg, res, gt, rgb, gt_rgb, w, h, mask, smap, &fs)) != 0)
+        goto out;
+      if (row_scores) cJSON_AddItemToArray(row_scores, score_json(m, &fs));
       int in_grid = m->kind == M_INPUT || m->kind == M_MODEL || !strcmp(m->prefix, "st16");
       if (grow >= 0 && in_grid) grid_put(&g, grow, col++, rgb, w, h);
       if (temporal) {
@@ -607,6 +792,7 @@ int cmd_eval(int argc, char **argv) {
         tg.filled = 1;
       }
     }
+    eval_strata_frame_done(strata, &rg);
     hair_px += nhair;
     scored++;
     fprintf(stderr, "\reval: %d frames (%s)\x1b[K", scored, fr->path);
@@ -619,7 +805,22 @@ int cmd_eval(int argc, char **argv) {
     goto out;
   }
   print_table(ms, nm, scored, hair_px, &lk, styles);
+  {
+    const char *labels[MAX_METHODS];
+    for (int i = 0; i < nm; i++) labels[i] = ms[i].label;
+    eval_strata_print(strata, labels, stdout);
+  }
+  fflush(stdout);   /* the tables first, then what stderr says about them */
+  for (int i = 0; i < nm; i++)
+    if (ms[i].kind == M_MODEL && flagged[ms[i].model])
+      fprintf(stderr, "hairfilter eval: warning: %d of %d frames are outside the input range %s "
+              "was trained on (its scores there may not hold)\n", flagged[ms[i].model], scored,
+              ms[i].label);
   if (temporal) print_temporal(ms, nm, &truth);
+  if (json_path &&
+      (rc = write_json(json_path, ms, nm, strata, rows, ranges, flagged, scored, hair_px, &lk,
+                       styles, input_spp)) != 0)
+    goto out;
   if (temporal_png) {
     if (!tg.filled) {
       fprintf(stderr, "hairfilter eval: --temporal-png needs at least two frames\n");
@@ -650,7 +851,10 @@ out:
   hf_image_free(&img);
   list_free(&frames);
   free(res); free(gt); free(rgb); free(gt_rgb); free(in); free(mask); free(g.rgb);
-  free(pmask); free(diff); free(tg.rgb); free(truth.prev);
+  free(pmask); free(diff); free(tg.rgb); free(truth.prev); free(smap);
+  eval_regime_free(&rg);
+  eval_strata_free(strata);
+  cJSON_Delete(rows);
   for (int i = 0; i < nm; i++) free(ms[i].prev);
   return rc ? 1 : 0;
 bad:

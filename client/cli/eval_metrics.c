@@ -97,33 +97,43 @@ int eval_ssim_map(const float *a, const float *b, int w, int h, int c, int ch, d
   return 0;
 }
 
-double eval_ssim(const float *a, const float *b, int w, int h, int c, const uint8_t *mask) {
+int eval_ssim_mean_map(const float *a, const float *b, int w, int h, int c, double *acc) {
   size_t n = (size_t)w * h;
   double *map = malloc(n * sizeof(double));
-  double *acc = calloc(n, sizeof(double));
-  if (!map || !acc) {
-    free(map);
-    free(acc);
-    return HF_ENOMEM;
-  }
+  if (!map) return HF_ENOMEM;
+  for (size_t p = 0; p < n; p++) acc[p] = 0;
   for (int ch = 0; ch < c; ch++) {
     if (eval_ssim_map(a, b, w, h, c, ch, map)) {
       free(map);
-      free(acc);
       return HF_ENOMEM;
     }
     for (size_t p = 0; p < n; p++) acc[p] += map[p] / c;
   }
+  free(map);
+  return 0;
+}
+
+double eval_masked_mean(const double *v, size_t n, const uint8_t *mask, double empty) {
   double s = 0;
   size_t cnt = 0;
   for (size_t p = 0; p < n; p++) {
     if (mask && !mask[p]) continue;
-    s += acc[p];
+    s += v[p];
     cnt++;
   }
-  free(map);
+  return cnt ? s / cnt : empty;
+}
+
+double eval_ssim(const float *a, const float *b, int w, int h, int c, const uint8_t *mask) {
+  size_t n = (size_t)w * h;
+  double *acc = malloc(n * sizeof(double));
+  if (!acc || eval_ssim_mean_map(a, b, w, h, c, acc)) {
+    free(acc);
+    return HF_ENOMEM;
+  }
+  double s = eval_masked_mean(acc, n, mask, 1.0);
   free(acc);
-  return cnt ? s / cnt : 1.0;
+  return s;
 }
 
 double eval_channel_mse(const float *a, int sa, int ca, int wa, const float *b, int sb, int cb,

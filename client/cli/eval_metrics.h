@@ -32,6 +32,13 @@ void eval_ssim_kernel(double k[2 * EVAL_SSIM_RADIUS + 1]);
  * HF_ENOMEM. */
 int eval_ssim_map(const float *a, const float *b, int w, int h, int c, int ch, double *map);
 
+/* SSIM averaged over all c channels at every pixel, into acc [h][w]. 0 or
+ * HF_ENOMEM. */
+int eval_ssim_mean_map(const float *a, const float *b, int w, int h, int c, double *acc);
+/* Mean of v over the masked entries of n (mask NULL: all), or empty when
+ * none is. */
+double eval_masked_mean(const double *v, size_t n, const uint8_t *mask, double empty);
+
 /* Mean over the masked pixels of the SSIM averaged over all c channels
  * (mask NULL: every pixel). Negative HF_E* code on failure; 1 for identical
  * images. */

@@ -8,7 +8,28 @@
  * 0.8 -> 0.6 on the hair pixels. With the default look (hair colour mean
  * 0.27333, light 1) the composite moves by alpha * 0.2 * 0.27333 per
  * channel: 0.03280 for the truth and st4 (alpha 0.6), 0.01640 for st16
- * (alpha 0.3). */
+ * (alpha 0.3).
+ *
+ * DIR/strata/ holds three 56x8 frames for the regime tables, built of 8-pixel
+ * column regions whose bucket membership is known exactly:
+ *
+ *   region  gt alpha           input samples               strand width
+ *   R0      0 (no hair)        none                        -
+ *   R1      0.2 (sparse)       1 of 4 covered, alpha 0.02  <0.03
+ *   R2      0.6 (medium)       2 of 4, alpha 0.05          0.03-0.1
+ *   R3      0.6 (medium)       4 of 4, alpha 0.2           0.1-0.3
+ *   R4      1   (dense)        4 of 4, alpha 0.5           0.3-0.7
+ *   R5      1   (dense)        4 of 4, alpha 0.9           >=0.7
+ *   R6      0.2 (sparse)       none                        none
+ *
+ * a.exr holds R0-R6 (256 bucket: 56 pixels wide, no full size given),
+ * b.exr only R4 and R5 (the manifest says it was cut from 512x512), c.exr
+ * only R1 and R6 (its EXR display window is 1024x768). Colour 0.8 and
+ * highlight 0.1 everywhere; st4.* is the truth, st16.* the truth with half
+ * its alpha: with the default look its composite is off by (a/2) (0.28,
+ * 0.10, -0.044) per pixel, so its MSE is (a/2)^2 0.090336 / 3.
+ * small_narrow.safetensors is small.safetensors with an input range whose
+ * strand_alpha_p50 is [0.015, 0.025]: only c.exr (median 0.02) is inside. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -57,6 +78,96 @@ static int write_frame(const char *path, float gt_color) {
   return rc;
 }
 
+/* ---- regime frames ---------------------------------------------------------- */
+
+#define SW 56
+#define SH 8
+
+static const struct { float gt_alpha; int covered; float alpha; } REGION[7] = {
+  {0, 0, 0}, {0.2f, 1, 0.02f}, {0.6f, 2, 0.05f}, {0.6f, 4, 0.2f},
+  {1, 4, 0.5f}, {1, 4, 0.9f}, {0.2f, 0, 0}};
+
+/* Writes a regime frame holding the regions whose bit is set in `regions`. */
+static int write_strata_frame(const char *path, unsigned regions) {
+  static const char *groups[] = {"gt", "st4", "st16"};
+  const int spp = 4, nfeat = spp * HF_FEATURES_PER_SAMPLE;
+  hf_image img = {0};
+  if (hf_image_alloc(&img, SW, SH, nfeat + 9)) return 1;
+  for (int k = 0; k < spp; k++)
+    for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
+      snprintf(img.names[k * 6 + f], 32, "S%d.%s", k, HF_FEATURE_NAMES[f]);
+  for (int g = 0; g < 3; g++)
+    for (int f = 0; f < 3; f++)
+      snprintf(img.names[nfeat + 3 * g + f], 32, "%s.%s", groups[g], HF_OUTPUT_NAMES[f]);
+  memset(img.data, 0, (size_t)SW * SH * img.channels * sizeof(float));
+  for (int y = 0; y < SH; y++)
+    for (int x = 0; x < SW; x++) {
+      int r = x / 8;
+      if (!(regions & (1u << r))) continue;
+      float *px = img.data + ((size_t)y * SW + x) * img.channels;
+      for (int k = 0; k < REGION[r].covered; k++) {
+        float *f = px + 6 * k;
+        f[0] = 0.8f, f[1] = 0.1f, f[2] = REGION[r].alpha, f[3] = 0.5f, f[4] = 0.6f, f[5] = -0.8f;
+      }
+      float gt[3] = {REGION[r].gt_alpha > 0 ? 0.8f : 0, REGION[r].gt_alpha > 0 ? 0.1f : 0,
+                     REGION[r].gt_alpha};
+      for (int g = 0; g < 3; g++) memcpy(px + nfeat + 3 * g, gt, sizeof gt);
+      px[nfeat + 8] *= 0.5f;
+    }
+  int rc = hf_exr_write(path, &img, 0);
+  hf_image_free(&img);
+  if (rc) fprintf(stderr, "make_eval_frame: %s: %s\n", path, hf_strerror(rc));
+  return rc;
+}
+
+/* Makes the file a crop of a w x h image: rewrites its displayWindow
+ * attribute (a box2i: four little-endian int32 after the name, the type
+ * "box2i" and the size 16) in place. hf_exr_write always writes the data
+ * window as the display window; the header is not compressed and keeps
+ * its length, so nothing else moves. */
+static int set_display_window(const char *path, int w, int h) {
+  FILE *f = fopen(path, "r+b");
+  if (!f) return 1;
+  unsigned char head[4096];
+  size_t n = fread(head, 1, sizeof head, f);
+  static const char key[] = "displayWindow\0box2i\0\x10\0\0\0";
+  size_t klen = sizeof key - 1;
+  int rc = 1;
+  for (size_t i = 0; i + klen + 16 <= n; i++) {
+    if (memcmp(head + i, key, klen)) continue;
+    int32_t box[4] = {0, 0, w - 1, h - 1};
+    unsigned char le[16];
+    for (int k = 0; k < 16; k++) le[k] = (unsigned char)((uint32_t)box[k / 4] >> (8 * (k % 4)));
+    rc = fseek(f, (long)(i + klen), SEEK_SET) || fwrite(le, 1, 16, f) != 16;
+    break;
+  }
+  if (fclose(f)) rc = 1;
+  if (rc) fprintf(stderr, "make_eval_frame: %s: no displayWindow to rewrite\n", path);
+  return rc;
+}
+
+static int write_strata(const char *dir) {
+  char path[4096];
+  snprintf(path, sizeof path, "%s/strata", dir);
+  mkdir(path, 0777);
+  snprintf(path, sizeof path, "%s/strata/a.exr", dir);
+  if (write_strata_frame(path, 0x7f)) return 1;
+  snprintf(path, sizeof path, "%s/strata/b.exr", dir);
+  if (write_strata_frame(path, (1u << 4) | (1u << 5))) return 1;
+  snprintf(path, sizeof path, "%s/strata/c.exr", dir);
+  if (write_strata_frame(path, (1u << 1) | (1u << 6)) || set_display_window(path, 1024, 768))
+    return 1;
+  snprintf(path, sizeof path, "%s/strata/manifest.json", dir);
+  FILE *f = fopen(path, "w");
+  if (!f) return 1;
+  fprintf(f, "{\"format\": \"hairfilter-dataset\", \"version\": 1, \"frames\": [\n"
+             "  {\"file\": \"a.exr\", \"style\": \"strata\"},\n"
+             "  {\"file\": \"b.exr\", \"style\": \"strata\", \"full_width\": 512, "
+             "\"full_height\": 512},\n"
+             "  {\"file\": \"c.exr\", \"style\": \"strata\"}]}\n");
+  return fclose(f) ? 1 : 0;
+}
+
 int main(int argc, char **argv) {
   if (argc != 2) {
     fprintf(stderr, "usage: make_eval_frame DIR\n");
@@ -78,6 +189,12 @@ int main(int argc, char **argv) {
   if (hf_variant_preset("Small", &cfg) || hf_weights_init_random(&cfg, 7, &w)) return 1;
   snprintf(path, sizeof path, "%s/small.safetensors", argv[1]);
   rc = hf_weights_save(path, w);
+  if (!rc) {
+    static const char narrow[] =
+      "{\"definition\": 1, \"spp\": 4, \"frames\": 3, \"strand_alpha_p50\": [0.015, 0.025]}";
+    snprintf(path, sizeof path, "%s/small_narrow.safetensors", argv[1]);
+    rc = hf_input_range_parse(narrow, 4, &w->input_range, NULL, 0) || hf_weights_save(path, w);
+  }
   hf_weights_free(w);
-  return rc ? 1 : 0;
+  return rc || write_strata(argv[1]) ? 1 : 0;
 }

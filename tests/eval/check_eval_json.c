@@ -1,0 +1,198 @@
+/* Checks the --json output of `hairfilter eval` on the regime frames of
+ * make_eval_frame (DIR/strata, see there for the regions):
+ *
+ *   check_eval_json OUT.json
+ *
+ * Bucket membership (pixels and frames), the full sizes from the manifest
+ * and from the EXR display window, the input statistics of every frame,
+ * stochastic transparency at 4 spp (the truth: infinite PSNR, SSIM 1 in
+ * every bucket), at 16 spp (half the alpha: PSNR known in closed form in
+ * every bucket), and the frames flagged outside the narrow trained range. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cjson/cJSON.h>
+
+static int failures;
+
+#define CHECK(cond, ...)                        \
+  do {                                          \
+    if (!(cond)) {                              \
+      fprintf(stderr, "check_eval_json: ");     \
+      fprintf(stderr, __VA_ARGS__);             \
+      fprintf(stderr, "\n");                    \
+      failures++;                               \
+    }                                           \
+  } while (0)
+
+static const cJSON *at(const cJSON *o, const char *key) {
+  return cJSON_GetObjectItemCaseSensitive(o, key);
+}
+
+static double num(const cJSON *o, const char *key) {
+  const cJSON *v = at(o, key);
+  return cJSON_IsNumber(v) ? v->valuedouble : NAN;
+}
+
+static const cJSON *find(const cJSON *arr, const char *key, const char *value) {
+  const cJSON *it;
+  cJSON_ArrayForEach(it, arr) {
+    const cJSON *v = at(it, key);
+    if (cJSON_IsString(v) && strstr(v->valuestring, value)) return it;
+  }
+  return NULL;
+}
+
+/* Composite MSE of st16 on a pixel of ground-truth alpha a (default look,
+ * colour 0.8, highlight 0.1): the alpha is halved, so each channel is off
+ * by (a/2)(L (H c + h) - B) = (a/2)(0.28, 0.10, -0.044). */
+static double st16_mse(double a) { return a * a / 4 * (0.28 * 0.28 + 0.01 + 0.044 * 0.044) / 3; }
+
+static double psnr(double mse) { return 10 * log10(1 / mse); }
+
+int main(int argc, char **argv) {
+  if (argc != 2) {
+    fprintf(stderr, "usage: check_eval_json OUT.json\n");
+    return 2;
+  }
+  FILE *f = fopen(argv[1], "rb");
+  if (!f) {
+    perror(argv[1]);
+    return 1;
+  }
+  static char text[1 << 20];
+  size_t n = fread(text, 1, sizeof text - 1, f);
+  fclose(f);
+  text[n] = 0;
+  cJSON *doc = cJSON_Parse(text);
+  if (!doc) {
+    fprintf(stderr, "check_eval_json: %s is not JSON\n", argv[1]);
+    return 1;
+  }
+  CHECK(num(doc, "frames") == 3, "frames %g", num(doc, "frames"));
+  CHECK(num(doc, "hair_pixels") == 640, "hair pixels %g", num(doc, "hair_pixels"));
+
+  /* Bucket membership: pixels (frames holding them). */
+  static const struct { const char *key; int n; double px[6], fr[6]; } want[] = {
+    {"strand_width_pixels", 6, {128, 128, 64, 64, 128, 128}, {2, 2, 1, 1, 2, 2}},
+    {"coverage_pixels", 3, {256, 128, 256}, {2, 1, 2}},
+    {"strand_width_frames", 6, {0, 128, 0, 384, 128, 0}, {0, 1, 0, 1, 1, 0}},
+    {"coverage_frames", 3, {128, 384, 128}, {1, 1, 1}},
+    {"resolution_frames", 3, {384, 128, 128}, {1, 1, 1}},
+  };
+  const cJSON *groupings = at(doc, "groupings");
+  for (size_t t = 0; t < sizeof want / sizeof want[0]; t++) {
+    const cJSON *g = find(groupings, "key", want[t].key);
+    CHECK(g, "no grouping %s", want[t].key);
+    if (!g) continue;
+    const cJSON *bs = at(g, "buckets");
+    CHECK(cJSON_GetArraySize(bs) == want[t].n, "%s: %d buckets", want[t].key,
+          cJSON_GetArraySize(bs));
+    for (int b = 0; b < want[t].n; b++) {
+      const cJSON *o = cJSON_GetArrayItem(bs, b);
+      CHECK(num(o, "pixels") == want[t].px[b] && num(o, "frames") == want[t].fr[b],
+            "%s bucket %d: %g pixels, %g frames", want[t].key, b, num(o, "pixels"),
+            num(o, "frames"));
+    }
+  }
+
+  const cJSON *methods = at(doc, "methods");
+  /* st4 is the truth everywhere. */
+  const cJSON *st4 = find(methods, "method", "stochastic transparency 4 spp");
+  CHECK(st4, "no st4 row");
+  for (size_t t = 0; st4 && t < sizeof want / sizeof want[0]; t++) {
+    const cJSON *o;
+    cJSON_ArrayForEach(o, at(st4, want[t].key)) {
+      if (num(o, "pixels") == 0) continue;
+      CHECK(cJSON_IsNull(at(o, "psnr")) && num(o, "ssim") == 1.0 && num(o, "mse") == 0,
+            "st4 %s %s: not the truth", want[t].key, at(o, "bucket")->valuestring);
+    }
+  }
+  /* st16: by ground-truth alpha of the bucket's pixels. Width buckets: none
+   * and <0.03 are sparse (0.2) regions, 0.03-0.1 and 0.1-0.3 medium (0.6),
+   * 0.3-0.7 and >=0.7 dense (1). Frames: a holds 128 pixels of each alpha,
+   * b only dense, c only sparse. */
+  double sp = st16_mse(0.2), md = st16_mse(0.6), dn = st16_mse(1.0), fa = (sp + md + dn) / 3;
+  static const struct { const char *key; int b; int frames; double which; } w16[] = {
+    {"strand_width_pixels", 0, 0, 0.2}, {"strand_width_pixels", 1, 0, 0.2},
+    {"strand_width_pixels", 2, 0, 0.6}, {"strand_width_pixels", 3, 0, 0.6},
+    {"strand_width_pixels", 4, 0, 1.0}, {"strand_width_pixels", 5, 0, 1.0},
+    {"coverage_pixels", 0, 0, 0.2},     {"coverage_pixels", 1, 0, 0.6},
+    {"coverage_pixels", 2, 0, 1.0},     {"resolution_frames", 0, 1, -1},
+    {"resolution_frames", 1, 1, 1.0},   {"resolution_frames", 2, 1, 0.2},
+    {"strand_width_frames", 1, 1, 0.2}, {"strand_width_frames", 3, 1, -1},
+    {"strand_width_frames", 4, 1, 1.0}, {"coverage_frames", 0, 1, 0.2},
+    {"coverage_frames", 1, 1, -1},      {"coverage_frames", 2, 1, 1.0},
+  };
+  const cJSON *st16 = find(methods, "method", "stochastic transparency 16 spp");
+  CHECK(st16, "no st16 row");
+  for (size_t i = 0; st16 && i < sizeof w16 / sizeof w16[0]; i++) {
+    double mse = w16[i].which < 0 ? fa : st16_mse(w16[i].which);
+    const cJSON *o = cJSON_GetArrayItem(at(st16, w16[i].key), w16[i].b);
+    CHECK(fabs(num(o, "mse") - mse) < 1e-4 * mse && fabs(num(o, "psnr") - psnr(mse)) < 1e-3,
+          "st16 %s bucket %d: mse %.9g psnr %.6f, want %.9g %.6f", w16[i].key, w16[i].b,
+          num(o, "mse"), num(o, "psnr"), mse, psnr(mse));
+  }
+  (void)sp, (void)md, (void)dn;
+  /* The 3x3 and 5x5 pools are there, with their windows. */
+  CHECK(num(find(methods, "method", "pooled over 3x3"), "window") == 3, "no 3x3 pool");
+  CHECK(num(find(methods, "method", "pooled over 5x5"), "window") == 5, "no 5x5 pool");
+
+  /* The network stamped with a narrow range: a and b are outside it. */
+  const cJSON *net = find(methods, "kind", "network");
+  CHECK(net && num(net, "frames_out_of_range") == 2, "network: frames out of range %g",
+        net ? num(net, "frames_out_of_range") : NAN);
+  CHECK(net && num(at(net, "input_range"), "frames") == 3, "network: input_range missing");
+
+  /* Frame rows: sizes, statistics, buckets, flags. */
+  const cJSON *rows = at(doc, "frame_rows");
+  CHECK(cJSON_GetArraySize(rows) == 3, "%d frame rows", cJSON_GetArraySize(rows));
+  static const struct {
+    const char *file;
+    double full_w, full_h, p50, p90, full, hair, flags;
+    const char *width, *cover, *res;
+  } fr[] = {
+    /* a: widths 64 x (.02 .05 .2 .5 .9): median .2, p90 (288th) .9 (bin edges
+     * .19921875, .8984375); R3-R5 fully covered: 192 of 320; 320 of 448 pixels */
+    {"a.exr", 56, 8, 0.19921875, 0.8984375, 0.6, 320.0 / 448, 1, "0.1-0.3", "medium 0.3-0.9",
+     "256 (<384)"},
+    {"b.exr", 512, 512, 0.5, 0.8984375, 1.0, 128.0 / 448, 1, "0.3-0.7", "dense >=0.9",
+     "512 (384-767)"},
+    {"c.exr", 1024, 768, 0.0198974609375, 0.0198974609375, 0.0, 64.0 / 448, 0, "<0.03",
+     "sparse <0.3", "1024+ (>=768)"},
+  };
+  for (size_t i = 0; i < 3; i++) {
+    const cJSON *row = find(rows, "file", fr[i].file);
+    CHECK(row, "no row for %s", fr[i].file);
+    if (!row) continue;
+    const cJSON *st = at(row, "input_stats"), *bk = at(row, "buckets");
+    CHECK(num(row, "full_width") == fr[i].full_w && num(row, "full_height") == fr[i].full_h,
+          "%s: full size %gx%g", fr[i].file, num(row, "full_width"), num(row, "full_height"));
+    CHECK(num(st, "strand_alpha_p50") == fr[i].p50 && num(st, "strand_alpha_p90") == fr[i].p90 &&
+              num(st, "full_coverage") == fr[i].full && num(st, "hair_fraction") == fr[i].hair &&
+              num(st, "long_side") == 56,
+          "%s: input statistics %.10g %.10g %.10g %.10g", fr[i].file, num(st, "strand_alpha_p50"),
+          num(st, "strand_alpha_p90"), num(st, "full_coverage"), num(st, "hair_fraction"));
+    CHECK(!strcmp(at(bk, "strand_width_frames")->valuestring, fr[i].width) &&
+              !strcmp(at(bk, "coverage_frames")->valuestring, fr[i].cover) &&
+              !strcmp(at(bk, "resolution_frames")->valuestring, fr[i].res),
+          "%s: buckets", fr[i].file);
+    const cJSON *flags = at(row, "out_of_range");
+    CHECK(cJSON_GetArraySize(flags) == fr[i].flags, "%s: %d flags", fr[i].file,
+          cJSON_GetArraySize(flags));
+    if (fr[i].flags) {
+      const cJSON *v = at(at(cJSON_GetArrayItem(flags, 0), "statistics"), "strand_alpha_p50");
+      const cJSON *tr = at(v, "trained");
+      CHECK(num(v, "value") == fr[i].p50 && cJSON_GetArrayItem(tr, 0)->valuedouble == 0.015 &&
+                cJSON_GetArrayItem(tr, 1)->valuedouble == 0.025,
+            "%s: flag details", fr[i].file);
+    }
+    CHECK(cJSON_GetArraySize(at(row, "methods")) == 6, "%s: %d method rows", fr[i].file,
+          cJSON_GetArraySize(at(row, "methods")));
+  }
+  cJSON_Delete(doc);
+  if (!failures) printf("check_eval_json: all checks passed\n");
+  return failures ? 1 : 0;
+}
