@@ -44,3 +44,19 @@ int cli_write_preview(const char *path, const float *result, int w, int h, const
   free(rgb);
   return rc;
 }
+
+int cli_input_range_check(const hf_input_range *r, const void *in, hf_dtype dtype, int w, int h,
+                          int spp, hf_input_stats *st) {
+  memset(st, 0, sizeof *st);
+  if (!r->present) return 0;
+  int rc = hf_input_stats_compute(in, dtype, w, h, spp, st);
+  return rc ? rc : (int)hf_input_range_check(r, st);
+}
+
+void cli_warn_input_range(const char *prog, const char *frame, const char *variant,
+                          const hf_input_range *r, const hf_input_stats *st, unsigned mask) {
+  char why[512];
+  hf_input_range_describe(r, st, mask, why, sizeof why);
+  fprintf(stderr, "%s: warning: %s is outside the input range %s was trained on: %s\n", prog,
+          frame, variant, why);
+}

@@ -17,6 +17,17 @@ int cli_open_backend(const char *name, hf_backend **out);
 int cli_write_preview(const char *path, const float *result, int w, int h, const float hair[3],
                       const float light[3], const float bg[3]);
 
+/* The frame's input statistics (hf_input_stats_compute of in, [h][w][spp*6]
+ * of dtype) into *st, checked against a trained range: the mask of the
+ * statistics outside it (bit HF_STAT_*; 0 inside or when r has no range), or
+ * a negative HF_E* code. */
+int cli_input_range_check(const hf_input_range *r, const void *in, hf_dtype dtype, int w, int h,
+                          int spp, hf_input_stats *st);
+/* "PROG: warning: FRAME is outside the input range VARIANT was trained on:
+ * strand_alpha_p50 0.23 (trained 0.015..0.019), ..." on stderr. */
+void cli_warn_input_range(const char *prog, const char *frame, const char *variant,
+                          const hf_input_range *r, const hf_input_stats *st, unsigned mask);
+
 /* Default colours of previews: brown hair, white light, grey-blue background. */
 extern const float CLI_HAIR_DEFAULT[3], CLI_LIGHT_DEFAULT[3], CLI_BG_DEFAULT[3];
 

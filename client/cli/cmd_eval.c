@@ -364,23 +364,18 @@ static cJSON *score_json(const method *m, const eval_frame_score *fs) {
  * failure. Adds the details to flags (a JSON array) when not NULL. */
 static int check_range(const hf_input_range *r, const char *label, const char *path,
                        const float *in, int w, int h, int spp, cJSON *flags) {
-  if (!r->present) return 0;
   hf_input_stats st;
-  int rc = hf_input_stats_compute(in, HF_F32, w, h, spp, &st);
-  if (rc) return rc;
-  unsigned bad = hf_input_range_check(r, &st);
-  if (!bad) return 0;
-  char why[512];
-  hf_input_range_describe(r, &st, bad, why, sizeof why);
-  fprintf(stderr, "\r\x1b[Khairfilter eval: warning: %s is outside the input range %s was "
-          "trained on: %s\n", path, label, why);
+  int bad = cli_input_range_check(r, in, HF_F32, w, h, spp, &st);
+  if (bad <= 0) return bad;
+  fprintf(stderr, "\r\x1b[K");   /* over the progress line */
+  cli_warn_input_range("hairfilter eval", path, label, r, &st, (unsigned)bad);
   if (flags) {
     cJSON *o = cJSON_CreateObject();
     cJSON_AddItemToArray(flags, o);
     cJSON_AddStringToObject(o, "method", label);
     cJSON *stats = cJSON_AddObjectToObject(o, "statistics");
     for (int k = 0; stats && k < HF_STAT_COUNT; k++) {
-      if (!(bad & (1u << k))) continue;
+      if (!(bad & (1 << k))) continue;
       cJSON *v = cJSON_AddObjectToObject(stats, hf_input_stat_name(k));
       cJSON_AddItemToObject(v, "value", eval_json_number(st.value[k]));
       double tr[2] = {r->lo[k], r->hi[k]};

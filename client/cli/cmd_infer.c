@@ -59,6 +59,10 @@ int cli_infer_file(const char *weights, const char *in_path, const char *backend
     fprintf(stderr, "hairfilter: %s: missing feature channels\n", in_path);
     goto out;
   }
+  hf_input_stats st;
+  int bad = cli_input_range_check(&w->input_range, in, HF_F32, feat.width, feat.height,
+                                  w->cfg.spp, &st);
+  if (bad > 0) cli_warn_input_range("hairfilter", in_path, w->cfg.name, &w->input_range, &st, bad);
   if ((rc = cli_open_backend(backend, &b)) != 0) goto out;
   if ((rc = hf_model_create(b, w, &m)) != 0) {
     fprintf(stderr, "hairfilter: preparing %s on %s: %s\n", w->cfg.name, hf_backend_name(b),
