@@ -1,5 +1,5 @@
 /*
- * hfproto.c: encoders and decoders of protocol v1 (PROTOCOL.md).
+ * hfproto.c: encoders and decoders of protocol versions 1 and 2 (PROTOCOL.md).
  *
  * Decoding goes through a bounds-checked reader: every get either succeeds
  * or latches an error, and callers check the latch once at the end. That
@@ -50,8 +50,9 @@ const char *hfp_code_name(int code) {
 
 int hfp_negotiate(uint16_t client_min, uint16_t client_max) {
   if (client_min > client_max) return -HFP_E_VERSION;
-  if (client_min <= HFP_VERSION && HFP_VERSION <= client_max) return HFP_VERSION;
-  return -HFP_E_VERSION;
+  int lo = client_min > HFP_VERSION_MIN ? client_min : HFP_VERSION_MIN;
+  int hi = client_max < HFP_VERSION ? client_max : HFP_VERSION;
+  return lo <= hi ? hi : -HFP_E_VERSION;
 }
 
 int hfp_hist_bucket(uint64_t us) {
@@ -167,6 +168,12 @@ static float rd_f32(rd *r) {
   memcpy(&f, &u, 4);
   return f;
 }
+static double rd_f64(rd *r) {
+  uint64_t u = rd_u64(r);
+  double d;
+  memcpy(&d, &u, 8);
+  return d;
+}
 
 /* Names and tokens are printable ASCII without spaces; messages may hold
  * spaces. Rejecting control bytes here means no peer ever logs a terminal
@@ -244,6 +251,11 @@ static void wr_f32(wr *w, float f) {
   memcpy(&u, &f, 4);
   wr_u32(w, u);
 }
+static void wr_f64(wr *w, double d) {
+  uint64_t u;
+  memcpy(&u, &d, 8);
+  wr_u64(w, u);
+}
 static void wr_bytes(wr *w, const void *s, size_t n) {
   uint8_t *p = wr_take(w, n);
   if (p && n) memcpy(p, s, n);
@@ -317,7 +329,8 @@ int hfp_encode_hello_ok(uint8_t *buf, size_t cap, const hfp_hello_ok *m) {
   wr w;
   wr_begin(&w, buf, cap);
   size_t nn = checked_text(&w, m->server_name, HFP_NAME_MAX, 0, 0);
-  if (!w.err && (m->version < 1 || m->max_spp < 1 || m->max_spp > HFP_MAX_SPP ||
+  if (!w.err && (m->version < HFP_VERSION_MIN || m->version > HFP_VERSION || m->max_spp < 1 ||
+                 m->max_spp > HFP_MAX_SPP ||
                  m->max_width < 1 || m->max_height < 1 ||
                  m->max_width > HFP_MAX_SIDE || m->max_height > HFP_MAX_SIDE ||
                  m->max_inflight < 1 || m->max_batch < 1 ||
@@ -355,7 +368,7 @@ int hfp_decode_hello_ok(const uint8_t *payload, size_t len, hfp_hello_ok *m) {
   rd_text(&r, nn, HFP_NAME_MAX, 0, 0, m->server_name);
   int rc = rd_end(&r);
   if (rc) return rc;
-  if (m->version != HFP_VERSION) return -HFP_E_VERSION;
+  if (m->version < HFP_VERSION_MIN || m->version > HFP_VERSION) return -HFP_E_VERSION;
   if (m->max_spp < 1 || m->max_spp > HFP_MAX_SPP || m->max_width < 1 ||
       m->max_height < 1 || m->max_width > HFP_MAX_SIDE ||
       m->max_height > HFP_MAX_SIDE || m->max_inflight < 1 || m->max_batch < 1 ||
@@ -394,16 +407,39 @@ static int variant_ok(const hfp_variant *v) {
   return 1;
 }
 
-size_t hfp_frame_size_variants(const hfp_variant *v, int count) {
+/* Version 2's range block of one variant: a count, then (statistic, low,
+ * high) triples with distinct statistics and finite low <= high. */
+#define RANGE_BYTES (1 + 8 + 8)
+
+static int ranges_ok(const hfp_variant *v) {
+  if (v->num_ranges > HFP_MAX_STATS) return 0;
+  for (int k = 0; k < v->num_ranges; k++) {
+    if (!isfinite(v->ranges[k].lo) || !isfinite(v->ranges[k].hi) ||
+        v->ranges[k].lo > v->ranges[k].hi)
+      return 0;
+    for (int j = 0; j < k; j++)
+      if (v->ranges[j].stat == v->ranges[k].stat) return 0;
+  }
+  return 1;
+}
+
+size_t hfp_frame_size_variants_v(const hfp_variant *v, int count, int version) {
   size_t n = HFP_HEADER_SIZE + 2;
-  for (int i = 0; i < count; i++)
+  for (int i = 0; i < count; i++) {
     n += 3 + strnlen(v[i].name, HFP_NAME_MAX + 1) +
          strnlen(v[i].backend, HFP_NAME_MAX + 1) +
          strnlen(v[i].precision, HFP_NAME_MAX + 1) + 4 + 4 * (size_t)v[i].num_levels;
+    if (version >= 2) n += 1 + RANGE_BYTES * (size_t)v[i].num_ranges;
+  }
   return n;
 }
 
-int hfp_encode_variants(uint8_t *buf, size_t cap, const hfp_variant *v, int count) {
+size_t hfp_frame_size_variants(const hfp_variant *v, int count) {
+  return hfp_frame_size_variants_v(v, count, 1);
+}
+
+int hfp_encode_variants_v(uint8_t *buf, size_t cap, const hfp_variant *v, int count,
+                          int version) {
   wr w;
   wr_begin(&w, buf, cap);
   if (count < 0 || count > HFP_MAX_VARIANTS) w.err = -HFP_E_INVALID;
@@ -417,7 +453,21 @@ int hfp_encode_variants(uint8_t *buf, size_t cap, const hfp_variant *v, int coun
     wr_u16(&w, v[i].num_levels);
     for (int l = 0; l < v[i].num_levels && !w.err; l++) wr_u32(&w, v[i].levels[l]);
   }
+  /* Version 2: every variant's input range, after the last entry. */
+  for (int i = 0; version >= 2 && i < count && !w.err; i++) {
+    if (!ranges_ok(&v[i])) w.err = -HFP_E_INVALID;
+    wr_u8(&w, v[i].num_ranges);
+    for (int k = 0; k < v[i].num_ranges && !w.err; k++) {
+      wr_u8(&w, v[i].ranges[k].stat);
+      wr_f64(&w, v[i].ranges[k].lo);
+      wr_f64(&w, v[i].ranges[k].hi);
+    }
+  }
   return wr_finish(&w, HFP_VARIANTS, 0, 0);
+}
+
+int hfp_encode_variants(uint8_t *buf, size_t cap, const hfp_variant *v, int count) {
+  return hfp_encode_variants_v(buf, cap, v, count, 1);
 }
 
 int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,
@@ -441,6 +491,21 @@ int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,
     for (int l = 0; l < e->num_levels; l++) e->levels[l] = rd_u32(&r);
     if (r.err) return r.err;
     if (!variant_ok(e)) return -HFP_E_INVALID;
+  }
+  /* Bytes after the last entry: version 2's ranges, one block per entry. */
+  int v2 = r.off < r.len;
+  for (int i = 0; v2 && i < n; i++) {
+    hfp_variant *e = &v[i];
+    e->num_ranges = rd_u8(&r);
+    if (r.err) return r.err;
+    if (e->num_ranges > HFP_MAX_STATS) return -HFP_E_INVALID;
+    for (int k = 0; k < e->num_ranges; k++) {
+      e->ranges[k].stat = rd_u8(&r);
+      e->ranges[k].lo = rd_f64(&r);
+      e->ranges[k].hi = rd_f64(&r);
+    }
+    if (r.err) return r.err;
+    if (!ranges_ok(e)) return -HFP_E_INVALID;
   }
   int rc = rd_end(&r);
   if (rc) return rc;
@@ -565,7 +630,8 @@ int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m) {
 
 static int result_sizes(const hfp_result *m, uint64_t *data_len, uint64_t *rgba_len) {
   *data_len = *rgba_len = 0;
-  if (m->flags & ~(HFP_FILTER_COMPOSITE | HFP_FILTER_SHM)) return -HFP_E_INVALID;
+  if (m->flags & ~(HFP_FILTER_COMPOSITE | HFP_FILTER_SHM | HFP_RESULT_OUT_OF_RANGE))
+    return -HFP_E_INVALID;
   if (m->status != HFP_OK) {
     if (m->status >= HFP_E_COUNT || m->width || m->height || m->flags)
       return -HFP_E_INVALID;
@@ -680,14 +746,20 @@ int hfp_decode_error(const uint8_t *payload, size_t len, hfp_error *m) {
 
 #define VSTATS_FIXED (7 * 8 + 2 * HFP_HIST_BUCKETS * 8)
 
-size_t hfp_frame_size_stats(const hfp_stats *m) {
+size_t hfp_frame_size_stats_v(const hfp_stats *m, int version) {
   size_t n = HFP_HEADER_SIZE + 40;
   for (int i = 0; i < m->num_variants && i < HFP_MAX_VARIANTS; i++)
     n += 1 + strnlen(m->variants[i].name, HFP_NAME_MAX + 1) + VSTATS_FIXED;
+  if (version >= 2) {
+    int nv = m->num_variants < HFP_MAX_VARIANTS ? m->num_variants : HFP_MAX_VARIANTS;
+    n += 2 + (size_t)nv * HFP_STATS_COUNTERS * 8;
+  }
   return n;
 }
 
-int hfp_encode_stats(uint8_t *buf, size_t cap, const hfp_stats *m) {
+size_t hfp_frame_size_stats(const hfp_stats *m) { return hfp_frame_size_stats_v(m, 1); }
+
+int hfp_encode_stats_v(uint8_t *buf, size_t cap, const hfp_stats *m, int version) {
   wr w;
   wr_begin(&w, buf, cap);
   if (m->num_variants > HFP_MAX_VARIANTS) w.err = -HFP_E_INVALID;
@@ -712,7 +784,16 @@ int hfp_encode_stats(uint8_t *buf, size_t cap, const hfp_stats *m) {
     for (int b = 0; b < HFP_HIST_BUCKETS; b++) wr_u64(&w, v->hist_total[b]);
     for (int b = 0; b < HFP_HIST_BUCKETS; b++) wr_u64(&w, v->hist_infer[b]);
   }
+  /* Version 2: the counters a version-1 entry has no room for. */
+  if (version >= 2 && !w.err) {
+    wr_u16(&w, HFP_STATS_COUNTERS);
+    for (int i = 0; i < m->num_variants; i++) wr_u64(&w, m->variants[i].out_of_range);
+  }
   return wr_finish(&w, HFP_STATS_REPLY, 0, 0);
+}
+
+int hfp_encode_stats(uint8_t *buf, size_t cap, const hfp_stats *m) {
+  return hfp_encode_stats_v(buf, cap, m, 1);
 }
 
 int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
@@ -744,6 +825,17 @@ int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
     for (int b = 0; b < HFP_HIST_BUCKETS; b++) v->hist_total[b] = rd_u64(&r);
     for (int b = 0; b < HFP_HIST_BUCKETS; b++) v->hist_infer[b] = rd_u64(&r);
     if (r.err) break;
+  }
+  /* Bytes after the last entry: version 2's counters. A newer peer may send
+   * more per variant than we know; the known ones come first. */
+  if (!r.err && r.off < r.len) {
+    uint16_t nc = rd_u16(&r);
+    if (!r.err && (nc < 1 || nc > 64)) r.err = -HFP_E_INVALID;
+    for (int i = 0; i < m->num_variants && !r.err; i++)
+      for (int k = 0; k < nc; k++) {
+        uint64_t c = rd_u64(&r);
+        if (k == 0) m->variants[i].out_of_range = c;
+      }
   }
   int rc = rd_end(&r);
   if (rc) m->num_variants = 0;

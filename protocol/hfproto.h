@@ -1,6 +1,9 @@
 /*
- * hfproto: the hairfilter wire protocol, version 1 (see PROTOCOL.md, which is
- * normative; this header follows it).
+ * hfproto: the hairfilter wire protocol, versions 1 and 2 (see PROTOCOL.md,
+ * which is normative; this header follows it). Version 2 is version 1 plus
+ * the input-range report: RESULT flag HFP_RESULT_OUT_OF_RANGE, each
+ * variant's trained input range after VARIANTS, and per-variant counters
+ * after STATS_REPLY. A peer that negotiated version 1 never sees them.
  *
  * A pure codec: it turns message structs into bytes and bytes into structs.
  * It does no I/O and never allocates, so every length it reads from the wire
@@ -28,7 +31,8 @@ extern "C" {
 #endif
 
 #define HFP_MAGIC          0x31504648u  /* "HFP1" in byte order */
-#define HFP_VERSION        1            /* the only version this codec speaks */
+#define HFP_VERSION        2            /* the newest version this codec speaks */
+#define HFP_VERSION_MIN    1            /* the oldest */
 #define HFP_HEADER_SIZE    16
 
 #define HFP_NAME_MAX       64     /* client, server, variant, backend names */
@@ -41,6 +45,8 @@ extern "C" {
 #define HFP_FEATURES       6      /* features per sample */
 #define HFP_OUTPUTS        3      /* color, highlight, alpha */
 #define HFP_HIST_BUCKETS   24     /* latency histogram buckets */
+#define HFP_MAX_STATS      16     /* input statistics a variant's range may name */
+#define HFP_STATS_COUNTERS 1      /* per-variant counters after STATS_REPLY (v2) */
 
 /* ---- error codes (stable; wire values are the positive numbers) -------- */
 
@@ -90,6 +96,9 @@ enum { HFP_F32 = 0, HFP_F16 = 1 };
 #define HFP_FILTER_COMPOSITE 0x0001u  /* also return composited RGBA */
 #define HFP_FILTER_SHM       0x0002u  /* tensors in a shared segment, not the frame */
 #define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM)
+
+/* RESULT flags beyond the FILTER's (version 2 only). */
+#define HFP_RESULT_OUT_OF_RANGE 0x08u  /* the input is outside the variant's trained range */
 
 /* HELLO_OK server flags. */
 #define HFP_SERVER_AUTH_REQUIRED 0x0001u  /* this listener checked a token */
@@ -142,6 +151,13 @@ typedef struct hfp_variant {
   uint16_t spp;
   uint16_t num_levels;
   uint32_t levels[HFP_MAX_LEVELS];
+  /* Version 2: the range of input statistics the variant was trained on,
+   * by statistic number (PROTOCOL.md, "Input range"); none when 0. */
+  uint8_t num_ranges;
+  struct {
+    uint8_t stat;
+    double lo, hi;
+  } ranges[HFP_MAX_STATS];
 } hfp_variant;
 
 typedef struct hfp_filter {
@@ -170,7 +186,8 @@ typedef struct hfp_timing {
 typedef struct hfp_result {
   uint16_t status;       /* HFP_OK, or an HFP_E_* code and no data */
   uint8_t dtype;
-  uint8_t flags;         /* HFP_FILTER_COMPOSITE when rgba follows */
+  uint8_t flags;         /* HFP_FILTER_COMPOSITE when rgba follows, HFP_FILTER_SHM,
+                            HFP_RESULT_OUT_OF_RANGE (version 2) */
   uint32_t width, height;
   uint32_t batch;        /* frames inferred together with this one */
   hfp_timing timing;
@@ -195,6 +212,7 @@ typedef struct hfp_variant_stats {
   uint64_t sum_queue_us, sum_infer_us, sum_total_us;
   uint64_t hist_total[HFP_HIST_BUCKETS];
   uint64_t hist_infer[HFP_HIST_BUCKETS];
+  uint64_t out_of_range;      /* version 2: successful requests flagged out of range */
 } hfp_variant_stats;
 
 typedef struct hfp_stats {
@@ -235,6 +253,14 @@ int hfp_encode_error(uint8_t *buf, size_t cap, uint32_t request_id, const hfp_er
 int hfp_encode_stats(uint8_t *buf, size_t cap, const hfp_stats *m);
 size_t hfp_frame_size_variants(const hfp_variant *v, int count);
 size_t hfp_frame_size_stats(const hfp_stats *m);
+/* The same for a connection that speaks `version`: from version 2 on,
+ * VARIANTS carries the input ranges and STATS_REPLY the extra counters.
+ * (The functions above are these at version 1.) */
+int hfp_encode_variants_v(uint8_t *buf, size_t cap, const hfp_variant *v, int count,
+                          int version);
+int hfp_encode_stats_v(uint8_t *buf, size_t cap, const hfp_stats *m, int version);
+size_t hfp_frame_size_variants_v(const hfp_variant *v, int count, int version);
+size_t hfp_frame_size_stats_v(const hfp_stats *m, int version);
 
 /* FILTER and RESULT carry tensors that senders write straight from their
  * own buffers: the *_head encoders write the header (whose length counts the
@@ -253,7 +279,9 @@ int hfp_encode_result_head(uint8_t *buf, size_t cap, uint32_t request_id,
 /* Decoders read a payload (the bytes after the header) of exactly len bytes:
  * a frame with trailing or missing bytes is HFP_E_LENGTH, and a field out of
  * its domain HFP_E_INVALID (or HFP_E_VERSION, HFP_E_UNSUPPORTED). Pointers
- * in the output point into payload. */
+ * in the output point into payload. They read either version: the
+ * version-2 blocks of VARIANTS and STATS_REPLY are recognised by the bytes
+ * after the last entry (none: version 1, no ranges, counters 0). */
 int hfp_decode_hello(const uint8_t *payload, size_t len, hfp_hello *m);
 int hfp_decode_hello_ok(const uint8_t *payload, size_t len, hfp_hello_ok *m);
 int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,

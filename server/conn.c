@@ -213,6 +213,7 @@ static void account(hfd_server *s, hfd_job *j) {
     return;
   }
   st->requests_ok++;
+  st->out_of_range += j->out_of_range != 0;
   if (j->batch_leader) st->batches++;
   st->sum_queue_us += j->timing.queue_us;
   st->sum_infer_us += j->timing.infer_us;
@@ -255,6 +256,8 @@ static void deliver(hfd_server *s, hfd_job *j) {
       r.flags |= HFP_FILTER_SHM;
       r.data_len = r.rgba_len = 0;
     }
+    /* A version-1 peer knows no such flag: it is only counted for it. */
+    if (j->out_of_range && c->version >= 2) r.flags |= HFP_RESULT_OUT_OF_RANGE;
   }
   uint64_t total;
   int n = hfp_encode_result_head(j->head, sizeof j->head, j->request_id, &r, &total);
@@ -314,9 +317,10 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   hfd_server *s = c->srv;
   hfp_hello h;
   int rc = hfp_decode_hello(p, len, &h);
-  if (rc == -HFP_E_VERSION || (!rc && hfp_negotiate(h.min_version, h.max_version) < 0)) {
-    send_error(c, 0, HFP_E_VERSION, 1, "client speaks versions %u..%u, server speaks %d",
-               h.min_version, h.max_version, HFP_VERSION);
+  int version = rc ? -HFP_E_VERSION : hfp_negotiate(h.min_version, h.max_version);
+  if (rc == -HFP_E_VERSION || (!rc && version < 0)) {
+    send_error(c, 0, HFP_E_VERSION, 1, "client speaks versions %u..%u, server speaks %d..%d",
+               h.min_version, h.max_version, HFP_VERSION_MIN, HFP_VERSION);
     return;
   }
   if (rc) {
@@ -338,9 +342,10 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   }
   snprintf(c->client_name, sizeof c->client_name, "%s", h.client_name);
   c->hello_done = 1;
+  c->version = version;
   hfp_hello_ok ok;
   memset(&ok, 0, sizeof ok);
-  ok.version = HFP_VERSION;
+  ok.version = (uint16_t)version;
   ok.server_flags = (c->listener->auth_required ? HFP_SERVER_AUTH_REQUIRED : 0) |
                     (c->is_ipc ? HFP_SERVER_SHM : 0);
   ok.max_width = (uint32_t)s->cfg->max_width;
@@ -377,14 +382,20 @@ static void reply_variants(hfd_conn *c) {
     v[i].spp = (uint16_t)sv->cfg.spp;
     v[i].num_levels = (uint16_t)sv->cfg.num_levels;
     for (int l = 0; l < sv->cfg.num_levels; l++) v[i].levels[l] = (uint32_t)sv->cfg.levels[l];
+    for (int k = 0; sv->range.present && k < HF_STAT_COUNT && k < HFP_MAX_STATS; k++) {
+      if (!(sv->range.has & (1u << k))) continue;
+      v[i].ranges[v[i].num_ranges].stat = (uint8_t)k;
+      v[i].ranges[v[i].num_ranges].lo = sv->range.lo[k];
+      v[i].ranges[v[i].num_ranges++].hi = sv->range.hi[k];
+    }
   }
-  size_t need = hfp_frame_size_variants(v, s->num_variants);
+  size_t need = hfp_frame_size_variants_v(v, s->num_variants, c->version);
   uint8_t *frame = malloc(need);
   if (!frame) {
     send_error(c, 0, HFP_E_INTERNAL, 0, "out of memory");
     return;
   }
-  int n = hfp_encode_variants(frame, need, v, s->num_variants);
+  int n = hfp_encode_variants_v(frame, need, v, s->num_variants, c->version);
   if (n < 0)
     send_error(c, 0, HFP_E_INTERNAL, 0, "cannot encode VARIANTS: %s", hfp_strerror(n));
   else
@@ -395,13 +406,13 @@ static void reply_variants(hfd_conn *c) {
 static void reply_stats(hfd_conn *c) {
   static hfp_stats st;  /* 30 KiB; the loop is single-threaded */
   hfd_fill_stats(c->srv, &st);
-  size_t need = hfp_frame_size_stats(&st);
+  size_t need = hfp_frame_size_stats_v(&st, c->version);
   uint8_t *frame = malloc(need);
   if (!frame) {
     send_error(c, 0, HFP_E_INTERNAL, 0, "out of memory");
     return;
   }
-  int n = hfp_encode_stats(frame, need, &st);
+  int n = hfp_encode_stats_v(frame, need, &st, c->version);
   if (n < 0)
     send_error(c, 0, HFP_E_INTERNAL, 0, "cannot encode STATS_REPLY: %s", hfp_strerror(n));
   else

@@ -1,5 +1,5 @@
 /*
- * hairfilterd: serves hair filtering over protocol v1 (protocol/PROTOCOL.md)
+ * hairfilterd: serves hair filtering over protocol v1 and v2 (protocol/PROTOCOL.md)
  * on Unix sockets and TCP. This file holds startup (options, variants,
  * listeners), shutdown (drain on SIGINT/SIGTERM) and the STATS snapshot;
  * conn.c reads and answers requests and worker.c runs the network.
@@ -78,6 +78,7 @@ static int add_variant(hfd_server *s, const char *path) {
   snprintf(v->name, sizeof v->name, "%s", w->cfg.name);
   snprintf(v->stats.name, sizeof v->stats.name, "%s", w->cfg.name);
   v->cfg = w->cfg;
+  v->range = w->input_range;
   v->weights = w;
   return 0;
 }
@@ -398,7 +399,7 @@ int main(int argc, char **argv) {
   s->cfg = &cfg;
   s->loop = uv_default_loop();
   s->t_start = hfd_now_us();
-  hfd_log("starting %s (protocol v%d)", cfg.name, HFP_VERSION);
+  hfd_log("starting %s (protocol v%d..v%d)", cfg.name, HFP_VERSION_MIN, HFP_VERSION);
 
   for (int i = 0; i < cfg.num_weights; i++)
     if (add_variant(s, cfg.weights[i])) return 1;

@@ -68,6 +68,7 @@ typedef struct hfd_variant {
   hf_model *model;               /* worker thread only */
   hf_net_config cfg;
   char precision[16];
+  hf_input_range range;          /* trained input range; .present 0: none */
   hfp_variant_stats stats;       /* loop thread only */
 } hfd_variant;
 
@@ -105,6 +106,7 @@ typedef struct hfd_job {
   uint32_t batch;
   int batch_leader;              /* counts the backend run in the stats */
   int status;                    /* HFP_OK or an HFP_E_* code */
+  int out_of_range;              /* input outside the variant's trained range */
   hfd_seg *seg;                  /* tensors live in this segment, or NULL */
   uint8_t head[HFP_RESULT_HEAD_MAX];
   uv_write_t wreq;
@@ -193,6 +195,7 @@ typedef struct hfd_conn {
   char peer[80];
   char client_name[HFP_NAME_MAX + 1];
   int hello_done;
+  int version;                   /* protocol version negotiated in the HELLO */
   int closing;                   /* uv_close called or pending */
   int fatal_sent;                /* reading stopped, closing after the write */
   int handle_closed;

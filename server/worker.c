@@ -79,6 +79,17 @@ static void run_batch(hfd_worker *w, hfd_job **batch, int nb) {
   }
   size_t in_bytes = (size_t)j0->req.data_len;
   size_t px = (size_t)j0->req.width * j0->req.height;
+  /* Is each input inside the range the variant was trained on? One pass
+   * over the samples' alpha (hf_input_stats_compute), counted as input
+   * time; variants whose weights record no range skip it. */
+  for (int i = 0; v->range.present && i < nb; i++) {
+    hf_input_stats st;
+    hfd_job *j = batch[i];
+    j->out_of_range =
+        !hf_input_stats_compute(j->input, (hf_dtype)j->req.in_dtype, (int)j->req.width,
+                                (int)j->req.height, v->cfg.spp, &st) &&
+        hf_input_range_check(&v->range, &st) != 0;
+  }
   int composite = 0;
   for (int i = 0; i < nb; i++) composite |= batch[i]->rgba != NULL;
   /* Fast path: one frame whose output goes straight to its buffer. Else

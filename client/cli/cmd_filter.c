@@ -49,7 +49,15 @@ static int list_variants(hfc_client *c) {
   for (int k = 0; k < n && k < 64; k++) {
     printf("  %-16s %2d spp  levels ", vs[k].name, vs[k].spp);
     for (int l = 0; l < vs[k].num_levels; l++) printf("%s%d", l ? "," : "", vs[k].levels[l]);
-    printf("  %s %s\n", vs[k].backend, vs[k].precision);
+    printf("  %s %s", vs[k].backend, vs[k].precision);
+    /* The input statistics it was trained on (protocol v2 servers). */
+    for (int s = 0, first = 1; s < HFC_MAX_STATS; s++)
+      if (vs[k].range_mask & (1u << s)) {
+        printf("%s%s %.4g..%.4g", first ? "  trained on " : ", ", hf_input_stat_name(s),
+               vs[k].range_lo[s], vs[k].range_hi[s]);
+        first = 0;
+      }
+    printf("\n");
   }
   return 0;
 }
@@ -77,8 +85,8 @@ static int print_stats(hfc_client *c) {
   printf("uptime %.1f s, connections %d open / %llu total, queue %d/%d, protocol errors %llu\n",
          st->uptime_us / 1e6, st->connections_open, (unsigned long long)st->connections_total,
          st->queue_depth, st->queue_capacity, (unsigned long long)st->protocol_errors);
-  printf("  %-16s %9s %7s %8s %8s %7s %9s %9s %9s %9s\n", "variant", "ok", "failed",
-         "rejected", "batches", "frm/bat", "queue", "infer", "total", "p99<=");
+  printf("  %-16s %9s %7s %8s %8s %7s %9s %9s %9s %9s %8s\n", "variant", "ok", "failed",
+         "rejected", "batches", "frm/bat", "queue", "infer", "total", "p99<=", "outside");
   for (int i = 0; i < st->num_variants; i++) {
     const hfc_variant_stats *v = &st->variants[i];
     double n = v->requests_ok ? (double)v->requests_ok : 1;
@@ -89,12 +97,14 @@ static int print_stats(hfc_client *c) {
            v->batches ? (double)v->requests_ok / (double)v->batches : 0.0,
            v->sum_queue_us / n / 1e3, v->sum_infer_us / n / 1e3, v->sum_total_us / n / 1e3);
     if (p99 < 0)
-      printf("%9s\n", "overflow");
+      printf("%9s", "overflow");
     else
-      printf("%7.2fms\n", p99);
+      printf("%7.2fms", p99);
+    printf(" %8llu\n", (unsigned long long)v->out_of_range);
   }
   printf("  (queue/infer/total: means over successful requests; p99<=: bound from the "
-         "total-latency histogram)\n");
+         "total-latency histogram;\n   outside: frames outside the variant's trained input "
+         "range, protocol v2 servers)\n");
   free(st);
   return 0;
 }
@@ -225,6 +235,29 @@ int cmd_filter(int argc, char **argv) {
     for (size_t i = npx * 3; i-- > 0;) ((float *)out)[i] = hf_f16_to_f32(((uint16_t *)out)[i]);
     if (rgba)
       for (size_t i = npx * 4; i-- > 0;) ((float *)rgba)[i] = hf_f16_to_f32(((uint16_t *)rgba)[i]);
+  }
+  if (t.out_of_range) {
+    /* The server judged the frame; its statistics and the range, from the
+     * same definitions (hf_input_stats), say why. The input is still as
+     * sent (f16 or f32) until here. */
+    hf_input_range r;
+    memset(&r, 0, sizeof r);
+    r.present = 1;
+    r.spp = v->spp;
+    for (int s = 0; s < HFC_MAX_STATS && s < HF_STAT_COUNT; s++)
+      if (v->range_mask & (1u << s)) {
+        r.has |= 1u << s;
+        r.lo[s] = v->range_lo[s];
+        r.hi[s] = v->range_hi[s];
+      }
+    hf_input_stats st;
+    int bad = cli_input_range_check(&r, in, f16 ? HF_F16 : HF_F32, feat.width, feat.height,
+                                    v->spp, &st);
+    if (bad > 0)
+      cli_warn_input_range("hairfilter", in_path, v->name, &r, &st, (unsigned)bad);
+    else
+      fprintf(stderr, "hairfilter: warning: %s is outside the input range %s was trained on "
+              "(the server says so)\n", in_path, v->name);
   }
   printf("%s %dx%d via %s (%s, %s, batch %d)\n", v->name, feat.width, feat.height, server,
          v->backend, v->precision, t.batch);

@@ -1,5 +1,6 @@
 /*
- * libhairfilter: one connection to hairfilterd, spoken in protocol v1.
+ * libhairfilter: one connection to hairfilterd, in protocol v2 (v1 with a
+ * server that speaks only v1).
  *
  * The socket is non-blocking and every wait goes through poll() with the
  * client's timeout, so a dead or stuck server costs a timeout, never a hang.
@@ -256,6 +257,7 @@ static int pump(hfc_client *c, int first_timeout_ms) {
     t->server_us = (double)r.timing.total_us;
     t->batch = (int)r.batch;
     t->via_shm = p->shm;
+    t->out_of_range = (r.flags & HFP_RESULT_OUT_OF_RANGE) != 0;
     if (r.status != HFP_OK) {
       finish(c, p, -(int)r.status);
       return 0;
@@ -425,7 +427,8 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
   if (o.timeout_ms == 0) o.timeout_ms = 30000;
   hfp_hello hello;
   memset(&hello, 0, sizeof hello);
-  hello.min_version = hello.max_version = HFP_VERSION;
+  hello.min_version = HFP_VERSION_MIN;
+  hello.max_version = HFP_VERSION;
   if (strlen(o.client_name) > HFP_NAME_MAX || (o.token && strlen(o.token) > HFP_TOKEN_MAX))
     return HFC_E_ARG;
   strcpy(hello.client_name, o.client_name);
@@ -536,6 +539,13 @@ int hfc_list_variants(hfc_client *c, hfc_variant *out, int max, int *count) {
     out[i].spp = v[i].spp;
     out[i].num_levels = v[i].num_levels;
     for (int l = 0; l < v[i].num_levels; l++) out[i].levels[l] = (int)v[i].levels[l];
+    for (int k = 0; k < v[i].num_ranges; k++) {
+      int stat = v[i].ranges[k].stat;
+      if (stat >= HFC_MAX_STATS) continue;   /* one this library does not know */
+      out[i].range_mask |= 1u << stat;
+      out[i].range_lo[stat] = v[i].ranges[k].lo;
+      out[i].range_hi[stat] = v[i].ranges[k].hi;
+    }
   }
   free(v);
   return 0;
@@ -582,6 +592,7 @@ int hfc_get_stats(hfc_client *c, hfc_stats *out) {
     d->sum_total_us = s->sum_total_us;
     memcpy(d->hist_total, s->hist_total, sizeof d->hist_total);
     memcpy(d->hist_infer, s->hist_infer, sizeof d->hist_infer);
+    d->out_of_range = s->out_of_range;
   }
   free(st);
   return 0;

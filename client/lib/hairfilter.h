@@ -1,5 +1,5 @@
 /*
- * libhairfilter: the client side of hairfilterd (protocol v1).
+ * libhairfilter: the client side of hairfilterd (protocol v1 and v2).
  *
  *   hfc_client *c;
  *   if (hfc_connect("unix:/run/hairfilterd/hairfilterd.sock", NULL, &c)) ...
@@ -94,6 +94,8 @@ int hfc_fd(const hfc_client *c);
 
 /* ---- variants ----------------------------------------------------------- */
 
+#define HFC_MAX_STATS 16
+
 typedef struct hfc_variant {
   char name[65];
   char backend[65];          /* "cudnn", "cpu", "cpu-ref" */
@@ -101,6 +103,12 @@ typedef struct hfc_variant {
   int spp;
   int num_levels;
   int levels[8];             /* channels per U-Net level */
+  /* The range [lo, hi] of each input statistic the variant was trained on
+   * (protocol/FEATURES.md, "Input statistics"; statistic k is bit k):
+   * frames outside it come back with hfc_timing.out_of_range set. 0: the
+   * weights record none, or the server speaks protocol version 1. */
+  unsigned range_mask;
+  double range_lo[HFC_MAX_STATS], range_hi[HFC_MAX_STATS];
 } hfc_variant;
 
 /* Fills up to max entries; *count is the number the server has. */
@@ -127,14 +135,18 @@ typedef struct hfc_request {
   void *user;                /* returned in the completion */
 } hfc_request;
 
-/* Microseconds. The server's parts (queue, input, infer, output) add up to
- * at most server_us; total_us is what the caller waited, so total_us -
- * server_us is transfer both ways plus client work. */
+/* What the server said about a result besides its tensors. Microseconds:
+ * the server's parts (queue, input, infer, output) add up to at most
+ * server_us; total_us is what the caller waited, so total_us - server_us is
+ * transfer both ways plus client work. */
 typedef struct hfc_timing {
   double queue_us, input_us, infer_us, output_us, server_us;
   double total_us;
   int batch;                 /* frames the server ran together with this one */
   int via_shm;               /* 1: the tensors went through shared memory */
+  int out_of_range;          /* 1: the input is outside the range the variant was
+                                trained on (hfc_variant.range_*): the result may
+                                not be good (always 0 from version-1 servers) */
 } hfc_timing;
 
 /* Synchronous: sends r and waits for its result. timing may be NULL. */
@@ -184,6 +196,7 @@ typedef struct hfc_variant_stats {
   uint64_t requests_ok, requests_failed, rejected, batches;
   uint64_t sum_queue_us, sum_infer_us, sum_total_us;
   uint64_t hist_total[HFC_HIST_BUCKETS], hist_infer[HFC_HIST_BUCKETS];
+  uint64_t out_of_range;     /* successful requests flagged out of range (v2) */
 } hfc_variant_stats;
 
 typedef struct hfc_stats {

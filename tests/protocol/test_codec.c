@@ -103,8 +103,8 @@ static void test_hello(void **state) {
   assert_int_equal(hfp_encode_hello(buf, 10, &m), -HFP_E_NOSPACE);
   /* negotiation */
   assert_int_equal(hfp_negotiate(1, 1), 1);
-  assert_int_equal(hfp_negotiate(1, 9), 1);
-  assert_int_equal(hfp_negotiate(2, 9), -HFP_E_VERSION);
+  assert_int_equal(hfp_negotiate(1, 9), HFP_VERSION);
+  assert_int_equal(hfp_negotiate(HFP_VERSION + 1, 9), -HFP_E_VERSION);
   assert_int_equal(hfp_negotiate(0, 0), -HFP_E_VERSION);
 }
 
@@ -138,7 +138,7 @@ static void test_hello_ok(void **state) {
     assert_int_equal(hfp_decode_hello_ok(p, len, &d), -HFP_E_LENGTH);
   uint8_t c[256];
   memcpy(c, p, h.length);
-  hfp_put_u16(c, 2);  /* a version this codec does not speak */
+  hfp_put_u16(c, HFP_VERSION + 1);  /* a version this codec does not speak */
   assert_int_equal(hfp_decode_hello_ok(c, h.length, &d), -HFP_E_VERSION);
   memcpy(c, p, h.length);
   hfp_put_u16(c + 12, 0);  /* max_spp */
@@ -500,6 +500,143 @@ static void test_stats(void **state) {
   assert_int_equal(hfp_encode_stats(buf, sizeof buf, &m), -HFP_E_INVALID);
 }
 
+/* Version 2 (PROTOCOL.md, "Version 2"): negotiation, the RESULT flag, the
+ * ranges after VARIANTS and the counters after STATS_REPLY; version-1
+ * encodings stay byte for byte what they were, and decode with none. */
+static void test_version2(void **state) {
+  (void)state;
+  assert_int_equal(hfp_negotiate(1, 1), 1);
+  assert_int_equal(hfp_negotiate(1, 2), 2);
+  assert_int_equal(hfp_negotiate(2, 2), 2);
+  assert_int_equal(hfp_negotiate(1, 9), 2);
+  assert_int_equal(hfp_negotiate(3, 4), -HFP_E_VERSION);
+  assert_int_equal(hfp_negotiate(2, 1), -HFP_E_VERSION);
+
+  hfp_hello_ok ok = {2, 0, 64, 64, 4, 8, 3, 2, 16, 1 << 20, "srv"}, okd;
+  int n = hfp_encode_hello_ok(buf, sizeof buf, &ok);
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_HELLO_OK, &h);
+  assert_int_equal(hfp_decode_hello_ok(p, h.length, &okd), 0);
+  assert_int_equal(okd.version, 2);
+  ok.version = 3;
+  assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &ok), -HFP_E_INVALID);
+
+  /* RESULT: bit 3 says the input is out of range; bit 2 is not ours. */
+  float data[2 * 1 * 3] = {0};
+  hfp_result r = {0, HFP_F32, HFP_RESULT_OUT_OF_RANGE, 2, 1, 1, {1, 2, 3, 4, 10},
+                  data, sizeof data, NULL, 0}, rd;
+  uint64_t total;
+  n = hfp_encode_result_head(buf, sizeof buf, 9, &r, &total);
+  assert_true(n > 0);
+  memcpy(buf + n, data, sizeof data);
+  p = split(buf, (int)total, HFP_RESULT, &h);
+  assert_int_equal(hfp_decode_result(p, h.length, &rd), 0);
+  assert_int_equal(rd.flags, HFP_RESULT_OUT_OF_RANGE);
+  r.flags = 0x04;
+  assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 9, &r, &total), -HFP_E_INVALID);
+  r.flags = HFP_RESULT_OUT_OF_RANGE;
+  r.status = HFP_E_INTERNAL;   /* a failed request carries no flags */
+  r.width = r.height = r.batch = 0;
+  r.data = NULL;
+  r.data_len = 0;
+  assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 9, &r, &total), -HFP_E_INVALID);
+
+  /* VARIANTS with ranges. */
+  hfp_variant v[2], d[HFP_MAX_VARIANTS];
+  memset(v, 0, sizeof v);
+  for (int i = 0; i < 2; i++) {
+    snprintf(v[i].name, sizeof v[i].name, "V%d", i);
+    strcpy(v[i].backend, "cpu");
+    strcpy(v[i].precision, "fp32");
+    v[i].spp = 4;
+    v[i].num_levels = 1;
+    v[i].levels[0] = 8;
+  }
+  v[1].num_ranges = 2;
+  v[1].ranges[0].stat = 0, v[1].ranges[0].lo = 0.015, v[1].ranges[0].hi = 0.0190001;
+  v[1].ranges[1].stat = 4, v[1].ranges[1].lo = 256, v[1].ranges[1].hi = 1024;
+  int n1 = hfp_encode_variants(buf, sizeof buf, v, 2);
+  static uint8_t v1[1024];
+  memcpy(v1, buf, (size_t)n1);
+  int n2 = hfp_encode_variants_v(buf, sizeof buf, v, 2, 2);
+  assert_int_equal((size_t)n2, hfp_frame_size_variants_v(v, 2, 2));
+  /* 1 byte for V0's empty block, 1 + 2 x 17 for V1's */
+  assert_int_equal(n2, n1 + 1 + 1 + 2 * 17);
+  assert_memory_equal(buf + HFP_HEADER_SIZE, v1 + HFP_HEADER_SIZE, (size_t)n1 - HFP_HEADER_SIZE);
+  p = split(buf, n2, HFP_VARIANTS, &h);
+  int count = 0;
+  assert_int_equal(hfp_decode_variants(p, h.length, d, HFP_MAX_VARIANTS, &count), 0);
+  assert_int_equal(count, 2);
+  assert_memory_equal(&d[0], &v[0], sizeof v[0]);
+  assert_int_equal(d[1].num_ranges, 2);
+  assert_true(d[1].ranges[0].stat == 0 && d[1].ranges[0].lo == 0.015 &&
+              d[1].ranges[0].hi == 0.0190001);
+  assert_true(d[1].ranges[1].stat == 4 && d[1].ranges[1].hi == 1024);
+  for (uint32_t len = (uint32_t)n1 - HFP_HEADER_SIZE + 1; len < h.length; len++)
+    assert_int_equal(hfp_decode_variants(p, len, d, HFP_MAX_VARIANTS, &count), -HFP_E_LENGTH);
+  /* the version-1 frame decodes with no ranges */
+  p = split(v1, n1, HFP_VARIANTS, &h);
+  assert_int_equal(hfp_decode_variants(p, h.length, d, HFP_MAX_VARIANTS, &count), 0);
+  assert_int_equal(d[1].num_ranges, 0);
+  /* bad ranges are refused both ways */
+  static uint8_t c[1024];
+  n2 = hfp_encode_variants_v(buf, sizeof buf, v, 2, 2);
+  size_t last = (size_t)n2 - 17;            /* V1's second triple */
+  memcpy(c, buf, (size_t)n2);
+  c[last] = 0;                              /* the same statistic twice */
+  assert_int_equal(hfp_decode_variants(c + HFP_HEADER_SIZE, (size_t)n2 - HFP_HEADER_SIZE, d,
+                                       HFP_MAX_VARIANTS, &count), -HFP_E_INVALID);
+  memcpy(c, buf, (size_t)n2);
+  memset(c + last + 1, 0xff, 8);            /* low is NaN */
+  assert_int_equal(hfp_decode_variants(c + HFP_HEADER_SIZE, (size_t)n2 - HFP_HEADER_SIZE, d,
+                                       HFP_MAX_VARIANTS, &count), -HFP_E_INVALID);
+  memcpy(c, buf, (size_t)n2);
+  c[n1 + 1] = HFP_MAX_STATS + 1;            /* V1's count */
+  assert_int_equal(hfp_decode_variants(c + HFP_HEADER_SIZE, (size_t)n2 - HFP_HEADER_SIZE, d,
+                                       HFP_MAX_VARIANTS, &count), -HFP_E_INVALID);
+  v[1].ranges[1].lo = 2000;                 /* low > high */
+  assert_int_equal(hfp_encode_variants_v(buf, sizeof buf, v, 2, 2), -HFP_E_INVALID);
+  v[1].ranges[1].lo = 256;
+  v[1].ranges[1].stat = 0;
+  assert_int_equal(hfp_encode_variants_v(buf, sizeof buf, v, 2, 2), -HFP_E_INVALID);
+
+  /* STATS_REPLY: the out-of-range counter after the entries. */
+  static hfp_stats m, sd;
+  memset(&m, 0, sizeof m);
+  m.num_variants = 2;
+  strcpy(m.variants[0].name, "A");
+  strcpy(m.variants[1].name, "B");
+  m.variants[0].requests_ok = 5;
+  m.variants[1].out_of_range = 7;
+  n1 = hfp_encode_stats(buf, sizeof buf, &m);
+  memcpy(v1, buf, (size_t)n1);
+  n2 = hfp_encode_stats_v(buf, sizeof buf, &m, 2);
+  assert_int_equal((size_t)n2, hfp_frame_size_stats_v(&m, 2));
+  assert_int_equal(n2, n1 + 2 + 2 * 8);
+  p = split(buf, n2, HFP_STATS_REPLY, &h);
+  assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
+  assert_memory_equal(&sd, &m, sizeof m);
+  for (uint32_t len = (uint32_t)n1 - HFP_HEADER_SIZE + 1; len < h.length; len++)
+    assert_int_not_equal(hfp_decode_stats(p, len, &sd), 0);
+  p = split(v1, n1, HFP_STATS_REPLY, &h);   /* version 1: counted, not sent */
+  assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
+  assert_true(sd.variants[1].out_of_range == 0 && sd.variants[0].requests_ok == 5);
+  /* A newer peer's three counters: the first is ours, the rest skipped. */
+  memcpy(c, v1, (size_t)n1);
+  size_t off = (size_t)n1;
+  hfp_put_u16(c + off, 3), off += 2;
+  for (int i = 0; i < 2; i++)
+    for (int k = 0; k < 3; k++, off += 8) {
+      hfp_put_u32(c + off, (uint32_t)(10 * i + k + 1));
+      hfp_put_u32(c + off + 4, 0);
+    }
+  assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, off - HFP_HEADER_SIZE, &sd), 0);
+  assert_true(sd.variants[0].out_of_range == 1 && sd.variants[1].out_of_range == 11);
+  hfp_put_u16(c + n1, 0);                   /* no counters: not a valid block */
+  assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, (size_t)n1 + 2 - HFP_HEADER_SIZE, &sd),
+                   -HFP_E_INVALID);
+}
+
 static void test_filter_shm(void **state) {
   (void)state;
   hfp_filter m = sample_filter(NULL, 8, 4, 2), d;
@@ -633,6 +770,7 @@ int main(void) {
     cmocka_unit_test(test_result),  cmocka_unit_test(test_error),
     cmocka_unit_test(test_stats),   cmocka_unit_test(test_histogram),
     cmocka_unit_test(test_filter_shm), cmocka_unit_test(test_shm_messages),
+    cmocka_unit_test(test_version2),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -103,7 +103,7 @@ static void test_variants(void **state) {
   (void)state;
   hfc_client *c = connect_unix();
   const hfc_server_info *i = hfc_info(c);
-  assert_int_equal(i->version, 1);
+  assert_int_equal(i->version, HFP_VERSION);
   assert_int_equal(i->max_width, 512);
   assert_int_equal(i->max_height, 512);
   assert_int_equal(i->max_spp, 4);
@@ -408,8 +408,8 @@ static void test_bad_requests_keep_connection(void **state) {
   uint8_t hello[64];
   hfp_hello m = {1, 1, "future", ""};
   int n = hfp_encode_hello(hello, sizeof hello, &m);
-  hfp_put_u16(hello + HFP_HEADER_SIZE, 2);
-  hfp_put_u16(hello + HFP_HEADER_SIZE + 2, 3);
+  hfp_put_u16(hello + HFP_HEADER_SIZE, HFP_VERSION + 1);
+  hfp_put_u16(hello + HFP_HEADER_SIZE + 2, HFP_VERSION + 2);
   expect_fatal(fd, hello, (size_t)n, HFP_E_VERSION);
   close(fd);
   /* a response type sent as a request: fatal */
