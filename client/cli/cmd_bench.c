@@ -5,7 +5,11 @@
  * Timing: per iteration the wall time of one hf_model_run of a batch
  * (input conversion, network, output transforms), after warm-up; the table
  * gives the median and 90th percentile over iterations divided by the batch.
- * "net ms" is the median of the backend's own infer_us alone. */
+ * "net ms" is the median of the backend's own infer_us alone.
+ *
+ * --input-stats adds a table of what judging a frame's input against a
+ * trained range costs (hf_input_stats_compute, as hairfilterd runs it per
+ * frame), beside a memcpy of the same frame: the cheapest pass over it. */
 #include <errno.h>
 #include <getopt.h>
 #include <stdint.h>
@@ -42,7 +46,7 @@ typedef struct bench_opts {
   int nsizes, ref_max_side;
   int batches[BENCH_MAX_LIST];
   int nbatches;
-  int iters, warmup, torch;
+  int iters, warmup, torch, input_stats;
   const char *torch_device;
   uint64_t seed;
 } bench_opts;
@@ -55,13 +59,15 @@ static void usage(FILE *f) {
           "usage: hairfilter bench [--backend cpu,cpu-ref,cudnn|all] [--variants Base,...|all]\n"
           "                        [--sizes 256x256,512x512,1024x1024] [--batch 1,4]\n"
           "                        [--iters N] [--warmup N] [--seed N] [--ref-max-side N]\n"
-          "                        [--torch] [--torch-device cpu|cuda]\n"
+          "                        [--torch] [--torch-device cpu|cuda] [--input-stats]\n"
           "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
           "table of ms per frame (median, p90 over iterations after warm-up), frames/s and\n"
           "device memory. cpu-ref runs only sizes whose sides are at most --ref-max-side\n"
           "(default %d), and at most %d iterations after 1 warm-up.\n"
           "--torch adds PyTorch rows (bench/bench_torch.py via /usr/bin/python3) on the same\n"
-          "weights. Defaults: every backend in this build, Base, the three sizes, batch 1,\n"
+          "weights. --input-stats adds what the per-frame input statistics cost at each size\n"
+          "(4 spp, f32 and f16, half the samples covered) beside a memcpy of the frame.\n"
+          "Defaults: every backend in this build, Base, the three sizes, batch 1,\n"
           "20 iterations, 3 warm-up.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
@@ -83,7 +89,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     {"iters", required_argument, 0, 'i'},   {"warmup", required_argument, 0, 'w'},
     {"seed", required_argument, 0, 'S'},    {"torch", no_argument, 0, 't'},
     {"torch-device", required_argument, 0, 'd'}, {"ref-max-side", required_argument, 0, 'r'},
-    {"help", no_argument, 0, 'h'},
+    {"help", no_argument, 0, 'h'},          {"input-stats", no_argument, 0, 'I'},
     {0, 0, 0, 0},
   };
   static char buf_b[512], buf_v[512], buf_s[512], buf_n[256];
@@ -117,6 +123,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     }
     case 'S': o->seed = strtoull(optarg, &end, 10); if (*end) return 2; break;
     case 't': o->torch = 1; break;
+    case 'I': o->input_stats = 1; break;
     case 'd':
       if (strcmp(optarg, "cpu") && strcmp(optarg, "cuda")) {
         fprintf(stderr, "hairfilter bench: --torch-device is cpu or cuda\n");
@@ -224,6 +231,67 @@ static void fill_input(float *in, size_t n, uint64_t seed) {
     float u = (float)(s >> 40) / (float)(1u << 24);
     in[i] = i % HF_FEATURES_PER_SAMPLE >= 4 ? 2 * u - 1 : u;
   }
+}
+
+static double clock_ms(clockid_t id) {
+  struct timespec t;
+  clock_gettime(id, &t);
+  return t.tv_sec * 1e3 + t.tv_nsec / 1e6;
+}
+
+/* hf_input_stats_compute on a 4-spp frame of each size, f32 and f16, with
+ * every sample covered or not at random (the worst case for a branch on
+ * coverage), against memcpy of the same bytes: median and p90 of iters, in
+ * wall time and in this thread's CPU time (which other jobs on the machine
+ * do not inflate). */
+static int bench_input_stats(const bench_opts *o) {
+  printf("\n| size | input | input statistics ms, wall median / p90 | thread CPU median | "
+         "memcpy of the frame ms, wall / CPU median | statistics / memcpy (CPU) | iters |\n"
+         "|---|---|---:|---:|---:|---:|---:|\n");
+  const int spp = 4, ch = spp * HF_FEATURES_PER_SAMPLE;
+  for (int s = 0; s < o->nsizes; s++) {
+    int w = o->sizes[s][0], h = o->sizes[s][1];
+    size_t n = (size_t)w * h * ch;
+    float *in = malloc(n * sizeof(float)), *copy = malloc(n * sizeof(float));
+    uint16_t *in16 = malloc(n * sizeof(uint16_t));
+    double *t = malloc(4 * (size_t)o->iters * sizeof(double));
+    if (!in || !copy || !in16 || !t) {
+      free(in), free(copy), free(in16), free(t);
+      return HF_ENOMEM;
+    }
+    fill_input(in, n, o->seed);
+    uint64_t r = o->seed;
+    for (size_t p = 0; p < n; p += HF_FEATURES_PER_SAMPLE) {
+      r ^= r << 13, r ^= r >> 7, r ^= r << 17;
+      if (r & 1) memset(in + p, 0, HF_FEATURES_PER_SAMPLE * sizeof(float));
+    }
+    for (size_t i = 0; i < n; i++) in16[i] = hf_f32_to_f16(in[i]);
+    memcpy(copy, in, n * sizeof(float));   /* its pages are mapped before timing */
+    for (int d = 0; d < 2; d++) {
+      const void *src = d ? (const void *)in16 : in;
+      size_t bytes = n * (d ? 2 : 4);
+      double *sw = t, *sc = t + o->iters, *cw = t + 2 * o->iters, *cc = t + 3 * o->iters;
+      hf_input_stats st;
+      volatile double sink = 0;
+      for (int i = -o->warmup; i < o->iters; i++) {
+        double w0 = clock_ms(CLOCK_MONOTONIC), c0 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        hf_input_stats_compute(src, d ? HF_F16 : HF_F32, w, h, spp, &st);
+        double w1 = clock_ms(CLOCK_MONOTONIC), c1 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        memcpy(copy, src, bytes);
+        double w2 = clock_ms(CLOCK_MONOTONIC), c2 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        sink += st.value[HF_STAT_HAIR_FRACTION] + ((const float *)copy)[i & 1023];
+        if (i >= 0) sw[i] = w1 - w0, sc[i] = c1 - c0, cw[i] = w2 - w1, cc[i] = c2 - c1;
+      }
+      (void)sink;
+      double mw = median(sw, o->iters), pw = p90(sw, o->iters), mc = median(sc, o->iters);
+      double kw = median(cw, o->iters), kc = median(cc, o->iters);
+      printf("| %dx%d | %d spp %s, %.0f MiB | %.2f / %.2f | %.2f | %.2f / %.2f | %.2f | %d |\n",
+             w, h, spp, d ? "f16" : "f32", bytes / 1048576.0, mw, pw, mc, kw, kc,
+             kc > 0 ? mc / kc : 0, o->iters);
+    }
+    free(in), free(copy), free(in16), free(t);
+  }
+  return 0;
 }
 
 static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, int iters,
@@ -459,5 +527,6 @@ int cmd_bench(int argc, char **argv) {
   }
   if (o.torch && run_torch(&o)) failed = 1;
   print_table();
+  if (o.input_stats && bench_input_stats(&o)) failed = 1;
   return failed ? 1 : 0;
 }

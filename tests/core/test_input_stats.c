@@ -153,6 +153,27 @@ static void test_bin_edges(void **state) {
   assert_int_equal(s.hair_pixels, 0);
 }
 
+/* The half-float path reads alpha straight from binary16: for every one of
+ * the 65536 halves, a pixel of it (one sample, or two with a fixed 0.5
+ * beside it) gives the same statistics as the frame widened to float
+ * first: coverage of zeros, negatives, NaNs and infinity, subnormals. */
+static void test_f16_matches_widened(void **state) {
+  for (int spp = 1; spp <= 2; spp++)
+    for (uint32_t h = 0; h < 65536; h++) {
+      uint16_t px16[2 * F] = {0};
+      float px32[2 * F] = {0};
+      px16[2] = (uint16_t)h;
+      px16[F + 2] = hf_f32_to_f16(0.5f);
+      for (int i = 0; i < 2 * F; i++) px32[i] = hf_f16_to_f32(px16[i]);
+      hf_input_stats a, b;
+      assert_int_equal(hf_input_stats_compute(px16, HF_F16, 1, 1, spp, &a), HF_OK);
+      assert_int_equal(hf_input_stats_compute(px32, HF_F32, 1, 1, spp, &b), HF_OK);
+      if (a.hair_pixels != b.hair_pixels || a.full_pixels != b.full_pixels ||
+          memcmp(a.value, b.value, sizeof a.value))
+        fail_msg("half 0x%04x at %d spp: f16 and f32 paths differ", h, spp);
+    }
+}
+
 static void test_no_hair_and_bad_args(void **state) {
   float *in = calloc(6 * 4 * F, sizeof(float));
   hf_input_stats s;
@@ -302,6 +323,7 @@ int main(void) {
     cmocka_unit_test(test_spp_one),
     cmocka_unit_test(test_percentiles_nearest_rank),
     cmocka_unit_test(test_bin_edges),
+    cmocka_unit_test(test_f16_matches_widened),
     cmocka_unit_test(test_no_hair_and_bad_args),
     cmocka_unit_test(test_names),
     cmocka_unit_test(test_range_parse_and_check),
