@@ -24,6 +24,8 @@ import re
 import numpy as np
 import OpenImageIO as oiio
 
+import input_stats
+
 FEATURES = ["color", "highlight", "alpha", "depth", "tangent.x", "tangent.y"]
 TARGETS = ["color", "highlight", "alpha"]
 TANGENT_X, TANGENT_Y = 4, 5
@@ -186,19 +188,22 @@ def augment(feat, tgt, rng, flips=True, rotations=True, permute=True):
 
 
 class FrameSet:
-    """Frames held in memory (float16) for crop sampling."""
+    """Frames held in memory (float16) for crop sampling, and the input
+    statistics of each (weights/input_stats.py) at the variant's spp, measured
+    on the file's values before they are rounded to float16."""
 
     def __init__(self, entries, spp, log=None):
         """Keeps every sample a file holds, so that variants reading fewer
         samples than the files hold train on random subsets of them."""
         self.entries = entries
-        self.feats, self.tgts = [], []
+        self.feats, self.tgts, self.stats = [], [], []
         for i, e in enumerate(entries):
-            f, t = load_frame(e["file"])
+            f, t = load_frame(e["file"], dtype=np.float32)
             if f.shape[2] < spp:
                 raise DatasetError(f"{e['file']}: {f.shape[2]} samples per pixel, {spp} needed")
-            self.feats.append(f)
-            self.tgts.append(t)
+            self.stats.append(input_stats.frame_stats(f, spp))
+            self.feats.append(f.astype(np.float16))
+            self.tgts.append(t.astype(np.float16))
             if log:
                 log(f"loading {i + 1}/{len(entries)}")
         self.spp = spp

@@ -149,10 +149,11 @@ class HairNet(nn.Module):
 _DTYPES = {"F32": (np.float32, 4), "F16": (np.float16, 2)}
 
 
-def save_safetensors(path, cfg, state_dict, dtype="F32"):
-    """Writes state_dict with the hairfilter metadata (weights/FORMAT.md)."""
+def save_safetensors(path, cfg, state_dict, dtype="F32", metadata=None):
+    """Writes state_dict with the hairfilter metadata (weights/FORMAT.md);
+    metadata: more string entries, e.g. {"input_range": json_text}."""
     np_dtype, size = _DTYPES[dtype]
-    header = {"__metadata__": {"hairfilter": json.dumps(cfg)}}
+    header = {"__metadata__": {"hairfilter": json.dumps(cfg), **(metadata or {})}}
     blobs, off = [], 0
     for name, t in state_dict.items():
         a = t.detach().cpu().numpy().astype(np_dtype)
@@ -168,6 +169,13 @@ def save_safetensors(path, cfg, state_dict, dtype="F32"):
         f.write(h)
         for b in blobs:
             f.write(b)
+
+
+def load_metadata(path):
+    """The header's __metadata__ map (strings) of a safetensors file."""
+    with open(path, "rb") as f:
+        (n,) = struct.unpack("<Q", f.read(8))
+        return json.loads(f.read(n)).get("__metadata__", {})
 
 
 def load_safetensors(path):

@@ -39,6 +39,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import dataset  # noqa: E402
 import hfnet  # noqa: E402
+import input_stats  # noqa: E402
+import stamp_range  # noqa: E402
 
 CKPT = "checkpoint.pt"
 
@@ -203,10 +205,15 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256):
     return total / len(frames)
 
 
-def export(net, path, dtype):
+def export(net, path, dtype, input_range=None):
+    """Writes the weights; input_range (weights/input_stats.py) becomes the
+    `input_range` metadata that hairfilterd checks frames against."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    hfnet.save_safetensors(path, net.cfg, net.state_dict(), dtype=dtype)
-    print(f"exported {net.cfg['name']} to {path} ({dtype})", file=sys.stderr)
+    meta = {"input_range": input_stats.input_range_json(input_range)} if input_range else None
+    hfnet.save_safetensors(path, net.cfg, net.state_dict(), dtype=dtype, metadata=meta)
+    print(f"exported {net.cfg['name']} to {path} ({dtype}"
+          f"{', input range of %d frames' % input_range['frames'] if input_range else ''})",
+          file=sys.stderr)
 
 
 # ---- main ------------------------------------------------------------------------
@@ -330,6 +337,7 @@ def main(argv=None):
     net = hfnet.HairNet(cfg).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step, history, elapsed, ema = 0, [], 0.0, None
+    train_set = None
     if args.init and not ckpt:
         icfg, state = hfnet.load_safetensors(args.init)
         if icfg["levels"] != cfg["levels"] or icfg.get("arch", "unet") != cfg["arch"] \
@@ -427,7 +435,18 @@ def main(argv=None):
         print(f"{cfg['name']}: already at step {step} >= --steps {args.steps}", file=sys.stderr)
 
     if args.export:
-        export(net, args.export, args.export_dtype)
+        # The range of the frames trained on: measured while loading them, or
+        # (a finished run resumed only to export) read again from --data.
+        if train_set is not None:
+            rng = input_stats.input_range(train_set.stats, cfg["spp"])
+        elif args.data:
+            rng = stamp_range.range_of_frames(
+                stamp_range.training_frames(args.data, args.styles, args.val_fraction),
+                cfg["spp"])
+        else:
+            rng = None
+            print("train.py: no --data: exported without an input range", file=sys.stderr)
+        export(net, args.export, args.export_dtype, rng)
     return 0
 
 

@@ -1,0 +1,205 @@
+#!/usr/bin/python3
+"""The input statistics in Python (weights/input_stats.py) against the C
+ones (src/input_stats.c, through input_stats_dump), the weights stamped by
+weights/stamp_range.py and by train.py --export as the C loader reads them.
+
+    test_input_stats.py --dump BUILD/tests/train/input_stats_dump --work DIR
+
+Exits 77 (skipped) without numpy or OpenImageIO; the train.py case also
+needs torch and is skipped alone without it.
+"""
+import argparse
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import unittest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+WEIGHTS = os.path.join(HERE, "..", "..", "weights")
+sys.path.insert(0, WEIGHTS)
+
+try:
+    import numpy as np
+    import OpenImageIO  # noqa: F401
+except ImportError as e:  # pragma: no cover - depends on the machine
+    print(f"train.input_stats skipped: {e} (install python3-numpy python3-openimageio)")
+    sys.exit(77)
+
+import dataset  # noqa: E402
+import input_stats  # noqa: E402
+import stamp_range  # noqa: E402
+import synth_dataset  # noqa: E402
+
+ARGS = None
+
+
+def dump(*argv):
+    r = subprocess.run([ARGS.dump, *argv], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise AssertionError(f"input_stats_dump {' '.join(argv)}: {r.stderr}")
+    return json.loads(r.stdout)
+
+
+def features(alphas):
+    """[h][w][spp][6] with the given alphas ([h][w][spp]); covered samples
+    get plausible other features, uncovered ones all zeros."""
+    a = np.asarray(alphas, np.float32)
+    f = np.zeros(a.shape + (6,), np.float32)
+    cov = a > 0
+    f[..., 0] = np.where(cov, 0.7, 0)
+    f[..., 1] = np.where(cov, 0.1, 0)
+    f[..., 2] = np.where(cov | np.isnan(a) | (a < 0), a, 0)   # keep the odd values
+    f[..., 3] = np.where(cov, 0.5, 0)
+    return f
+
+
+def write_features(path, feat, half=False):
+    h, w, spp, _ = feat.shape
+    names = [f"S{k}.{n}" for k in range(spp) for n in dataset.FEATURES]
+    dataset.write_exr(path, names, feat.reshape(h, w, -1), half=half)
+
+
+def same(py, c):
+    for k in ["hair_pixels", "full_pixels"] + input_stats.STATS:
+        a, b = py[k], c[k]
+        if b is None:
+            if not math.isnan(a):
+                return f"{k}: python {a!r}, C null"
+        elif a != b:
+            return f"{k}: python {a!r}, C {b!r}"
+    return None
+
+
+class Stats(unittest.TestCase):
+    def test_known_frame(self):
+        """The constructed frame of tests/core/test_input_stats.c."""
+        rows = [[0, 0, 0, 0], [.25, 0, 0, 0], [.5, .5, .5, .5], [.125, .375, 0, 0],
+                [1, 1, 1, 1], [.75, .25, .5, 0], [0, 0, 0, 0], [.0625, 0, 0, 0]]
+        feat = features(np.array(rows).reshape(2, 4, 4))
+        s = input_stats.frame_stats(feat)
+        self.assertEqual((s["hair_pixels"], s["full_pixels"]), (6, 2))
+        self.assertEqual(s["strand_alpha_p50"], 0.25)
+        self.assertEqual(s["strand_alpha_p90"], 1.0)
+        self.assertEqual(s["full_coverage"], 2 / 6)
+        self.assertEqual(s["hair_fraction"], 0.75)
+        self.assertEqual(s["long_side"], 4.0)
+        self.assertEqual(input_stats.frame_stats(feat.reshape(2, 4, 24))["strand_alpha_p50"], 0.25)
+        s1 = input_stats.frame_stats(feat, spp=1)   # first samples only
+        self.assertEqual((s1["hair_pixels"], s1["full_coverage"]), (6, 1.0))
+        empty = input_stats.frame_stats(np.zeros((3, 5, 4, 6), np.float32))
+        self.assertEqual(empty["hair_fraction"], 0.0)
+        self.assertTrue(math.isnan(empty["strand_alpha_p50"]))
+        self.assertEqual(input_stats.frame_stats(features([[[0.3]]]))["strand_alpha_p50"],
+                         0.298828125)
+
+    def test_equal_to_c(self):
+        """Bit for bit on rendered-like frames and on frames of odd alphas
+        (NaN, negative, infinite, subnormal, tiny, above 1, every spp), in
+        float32 and half EXR files."""
+        rng = np.random.default_rng(3)
+        frames = []
+        for style in ("straight", "curly"):
+            names, img = synth_dataset.render_frame(style, 48, 40, 4, [], 11)
+            idx = [names.index(f"S{k}.{f}") for k in range(4) for f in dataset.FEATURES]
+            frames.append(img[..., idx].reshape(40, 48, 4, 6))
+        for spp in (1, 2, 4, 16):
+            a = rng.uniform(0, 1, (33, 29, spp)).astype(np.float32) ** 3
+            a[rng.random(a.shape) < 0.5] = 0
+            odd = rng.random(a.shape)
+            a[odd < 0.01] = np.nan
+            a[(odd >= 0.01) & (odd < 0.02)] = -0.5
+            a[(odd >= 0.02) & (odd < 0.03)] = np.inf
+            a[(odd >= 0.03) & (odd < 0.04)] = 1e-41      # float32 subnormal
+            a[(odd >= 0.04) & (odd < 0.05)] = 3e-6       # below 2^-16
+            a[(odd >= 0.05) & (odd < 0.06)] = 1.7
+            frames.append(features(a))
+        for i, feat in enumerate(frames):
+            for half in (False, True):
+                path = os.path.join(ARGS.work, f"frame{i}{'h' if half else ''}.exr")
+                write_features(path, feat, half)
+                names, data = dataset.read_exr(path)   # what C reads, as float32
+                spp = feat.shape[2]
+                back = dataset.pick_channels(
+                    names, data, [f"S{k}.{f}" for k in range(spp) for f in dataset.FEATURES])
+                back = back.reshape(feat.shape[0], feat.shape[1], spp, 6)
+                for s in sorted({1, spp}):
+                    py = input_stats.frame_stats(back, s)
+                    c = dump("stats", path, str(s))
+                    diff = same(py, c)
+                    self.assertIsNone(diff, f"{path} at {s} spp: {diff}")
+
+
+class Stamp(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.data = os.path.join(ARGS.work, "data")
+        synth_dataset.main(["--out", cls.data, "--styles", "straight,wavy", "--count", "4",
+                            "--size", "48x48", "--spp", "4", "--st", "", "--seed", "2"])
+
+    def test_stamp_range(self):
+        w = os.path.join(ARGS.work, "small.safetensors")
+        subprocess.run([ARGS.dump, "weights", w], check=True)
+        self.assertIsNone(dump("range", w))
+        before = open(w, "rb").read()
+        r = subprocess.run([sys.executable, os.path.join(WEIGHTS, "stamp_range.py"), w,
+                            "--data", self.data, "--quiet"], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        # The same training split as train.py: 8 frames, 1 held out.
+        train = stamp_range.training_frames(self.data, "", 0.1)
+        self.assertEqual(len(train), 7)
+        stats = [input_stats.frame_stats(dataset.load_frame(e["file"], 4, np.float32)[0], 4)
+                 for e in train]
+        want = input_stats.input_range(stats, 4)
+        got = dump("range", w)
+        self.assertEqual(got, want)   # the C loader reads back every bit
+        self.assertEqual(got["frames"], 7)
+        self.assertTrue(got["strand_alpha_p50"][0] <= got["strand_alpha_p50"][1])
+        # Tensors untouched: the file ends with the same bytes.
+        after = open(w, "rb").read()
+        tail = len(before) - 8 - int.from_bytes(before[:8], "little")
+        self.assertEqual(after[-tail:], before[-tail:])
+        # Training frames are inside; a frame of opaque, wide strands is not.
+        self.assertEqual(dump("check", w, train[0]["file"]), 0)
+        wide = os.path.join(ARGS.work, "wide.exr")
+        write_features(wide, features(np.ones((16, 16, 4), np.float32)))
+        mask = dump("check", w, wide)
+        self.assertTrue(mask & (1 << input_stats.STATS.index("strand_alpha_p50")), mask)
+        self.assertTrue(mask & (1 << input_stats.STATS.index("full_coverage")), mask)
+
+    def test_train_export(self):
+        try:
+            import torch  # noqa: F401
+        except ImportError:
+            self.skipTest("no torch")
+        out = os.path.join(ARGS.work, "run")
+        exp = os.path.join(ARGS.work, "trained.safetensors")
+        r = subprocess.run([sys.executable, os.path.join(WEIGHTS, "train.py"), "--data", self.data,
+                            "--variant", "Small", "--out", out, "--steps", "2", "--batch", "2",
+                            "--crop", "32", "--threads", "1", "--device", "cpu", "--val-every", "2",
+                            "--export", exp], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        got = dump("range", exp)
+        self.assertEqual(got["frames"], 7)
+        self.assertEqual(got["spp"], 4)
+        train = stamp_range.training_frames(self.data, "straight,wavy", 0.1)
+        stats = [input_stats.frame_stats(dataset.load_frame(e["file"], 4, np.float32)[0], 4)
+                 for e in train]
+        self.assertEqual(got, input_stats.input_range(stats, 4))
+
+
+def main():
+    global ARGS
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--dump", required=True)
+    ap.add_argument("--work", required=True)
+    ARGS, rest = ap.parse_known_args()
+    shutil.rmtree(ARGS.work, ignore_errors=True)
+    os.makedirs(ARGS.work)
+    unittest.main(argv=[sys.argv[0]] + rest, verbosity=2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,109 @@
+#!/usr/bin/python3
+"""Records in a weights file the range of input statistics it was trained on
+(its `input_range` metadata, weights/FORMAT.md), measured on dataset frames:
+
+    /usr/bin/python3 weights/stamp_range.py weights/base.safetensors \
+        --data data/train --styles straight,wavy
+
+Pass the --data, --styles and --val-fraction of the training run: the range
+is taken over the same training frames train.py trained on (its split holds
+out the validation frames; --val-fraction 0 takes every frame). The frames'
+first `spp` samples are measured, spp being the variant's. Only the header
+is rewritten (tensor bytes are copied unchanged); --out writes a copy.
+train.py --export stamps its exports this way by itself. hairfilterd and
+`hairfilter filter|infer|eval` then say when a frame is outside the range.
+"""
+import argparse
+import json
+import os
+import struct
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import dataset  # noqa: E402
+import input_stats  # noqa: E402
+
+
+def read_safetensors_header(path):
+    """(header dict, tensor bytes) of a safetensors file."""
+    with open(path, "rb") as f:
+        data = f.read()
+    if len(data) < 8:
+        raise ValueError(f"{path}: too short for a safetensors file")
+    (n,) = struct.unpack("<Q", data[:8])
+    if n > len(data) - 8:
+        raise ValueError(f"{path}: header length {n} exceeds the file")
+    return json.loads(data[8:8 + n]), data[8 + n:]
+
+
+def write_safetensors_header(path, header, body):
+    """The header padded with spaces to 8 bytes (as hfnet.save_safetensors)."""
+    h = json.dumps(header, separators=(",", ":")).encode()
+    h += b" " * ((-len(h)) % 8)
+    tmp = path + ".tmp"
+    with open(tmp, "wb") as f:
+        f.write(struct.pack("<Q", len(h)))
+        f.write(h)
+        f.write(body)
+    os.replace(tmp, path)
+
+
+def training_frames(data, styles="", val_fraction=0.1):
+    """The entries train.py trains on: every frame of the comma-separated
+    dataset directories, of the given styles, less its validation split."""
+    entries = [e for d in data.split(",") if d for e in dataset.read_manifest(d)]
+    wanted = dataset.parse_styles(styles)
+    if wanted:
+        entries = [e for e in entries if e["style"] in wanted]
+    if not entries:
+        raise dataset.DatasetError(f"no frames of styles {styles!r} in {data}")
+    train, _ = dataset.split_frames(entries, val_fraction)
+    return train
+
+
+def range_of_frames(entries, spp, log=None):
+    stats = []
+    for i, e in enumerate(entries):
+        feat, _ = dataset.load_frame(e["file"], spp=spp, dtype="float32")
+        stats.append(input_stats.frame_stats(feat, spp))
+        if log:
+            log(f"{i + 1}/{len(entries)} {os.path.basename(e['file'])}")
+    return input_stats.input_range(stats, spp)
+
+
+def stamp(path, rng, out=None):
+    header, body = read_safetensors_header(path)
+    meta = header.setdefault("__metadata__", {})
+    meta["input_range"] = input_stats.input_range_json(rng)
+    write_safetensors_header(out or path, header, body)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("weights", help="safetensors file to stamp")
+    ap.add_argument("--data", required=True, help="dataset directories, comma-separated")
+    ap.add_argument("--styles", default="", help="only these styles (default: all)")
+    ap.add_argument("--val-fraction", type=float, default=0.1,
+                    help="train.py's validation split, left out (default 0.1)")
+    ap.add_argument("--out", help="write a stamped copy here instead")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    header, _ = read_safetensors_header(args.weights)
+    try:
+        cfg = json.loads(header["__metadata__"]["hairfilter"])
+    except (KeyError, TypeError, ValueError):
+        sys.exit(f"stamp_range.py: {args.weights}: no hairfilter metadata")
+    entries = training_frames(args.data, args.styles, args.val_fraction)
+    log = None if args.quiet else (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr))
+    rng = range_of_frames(entries, int(cfg["spp"]), log)
+    if log:
+        print(file=sys.stderr)
+    stamp(args.weights, rng, args.out)
+    print(f"{args.out or args.weights}: {cfg['name']}, input_range over {rng['frames']} frames: "
+          + ", ".join(f"{k} {v[0]:.4g}..{v[1]:.4g}" for k, v in rng.items()
+                      if isinstance(v, list)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
