@@ -229,9 +229,6 @@ typedef struct method {
   char prefix[16];              /* M_CHANNELS: "st4", "opaque" */
   int radius;                   /* M_INPUT_POOL: half side of the window */
   int model;                    /* M_MODEL: index into models */
-  int frames;                   /* frames this method was scored on */
-  double mse, psnr, ssim, col, hl, alpha;
-  int psnr_inf;
   /* --temporal: the previous frame's composite and the summed change. */
   float *prev;
   int has_prev, pairs;
@@ -320,10 +317,10 @@ static void composite(const look *lk, const float *res, int w, int h, float *rgb
   for (size_t i = 0; i < (size_t)w * h * 3; i++) rgb[i] = fminf(1.f, fmaxf(0.f, rgb[i]));
 }
 
-/* Scores method m's result on a frame: the frame's values into the main
- * table's sums and fs, and every hair pixel into the regime tables. smap:
- * scratch [h][w] for the SSIM map. */
-static int score(method *m, int mi, eval_strata *strata, const eval_regime *rg,
+/* Scores method mi's result on a frame: the frame's values into fs, and
+ * they and every hair pixel into the sums behind the main table and the
+ * regime tables. smap: scratch [h][w] for the SSIM map. */
+static int score(int mi, eval_strata *strata, const eval_regime *rg,
                  const float *res, const float *gt, const float *rgb, const float *gt_rgb,
                  int w, int h, const uint8_t *mask, double *smap, eval_frame_score *fs) {
   if (eval_ssim_mean_map(rgb, gt_rgb, w, h, 3, smap)) return HF_ENOMEM;
@@ -333,14 +330,6 @@ static int score(method *m, int mi, eval_strata *strata, const eval_regime *rg,
   fs->col = eval_channel_mse(res, 3, 0, 2, gt, 3, 0, 2, w, h, mask);
   fs->hl = eval_channel_mse(res, 3, 1, 2, gt, 3, 1, 2, w, h, mask);
   fs->alpha = eval_channel_mse(res, 3, 2, -1, gt, 3, 2, -1, w, h, mask);
-  m->mse += fs->mse;
-  if (isinf(fs->psnr)) m->psnr_inf++;
-  else m->psnr += fs->psnr;
-  m->ssim += fs->ssim;
-  m->col += fs->col;
-  m->hl += fs->hl;
-  m->alpha += fs->alpha;
-  m->frames++;
   eval_strata_add(strata, mi, rg, rgb, gt_rgb, res, gt, smap, fs);
   return 0;
 }
@@ -349,12 +338,7 @@ static cJSON *score_json(const method *m, const eval_frame_score *fs) {
   cJSON *o = cJSON_CreateObject();
   if (!o) return NULL;
   cJSON_AddStringToObject(o, "method", m->label);
-  cJSON_AddItemToObject(o, "psnr", eval_json_number(fs->psnr));
-  cJSON_AddItemToObject(o, "ssim", eval_json_number(fs->ssim));
-  cJSON_AddItemToObject(o, "mse", eval_json_number(fs->mse));
-  cJSON_AddItemToObject(o, "color_alpha_mse", eval_json_number(fs->col));
-  cJSON_AddItemToObject(o, "highlight_alpha_mse", eval_json_number(fs->hl));
-  cJSON_AddItemToObject(o, "alpha_mse", eval_json_number(fs->alpha));
+  eval_json_scores(o, fs);
   return o;
 }
 
@@ -416,7 +400,8 @@ static int write_json(const char *path, const method *ms, int nm, const eval_str
   cJSON_AddItemToObject(doc, "groupings", eval_strata_groupings_json(strata));
   cJSON *arr = cJSON_AddArrayToObject(doc, "methods");
   for (int i = 0; arr && i < nm; i++) {
-    if (!ms[i].frames) continue;
+    eval_frame_score mean;
+    if (!eval_strata_mean(strata, i, &mean)) continue;
     cJSON *o = eval_strata_method_json(strata, i);
     if (!o) break;
     cJSON_AddItemToArray(arr, o);
@@ -473,8 +458,8 @@ static void grid_put(grid *g, int row, int col, const float *rgb, int w, int h) 
 
 /* ---- command ----------------------------------------------------------------- */
 
-static void print_table(method *ms, int nm, int frames, size_t hair_px, const look *lk,
-                        const char *styles) {
+static void print_table(const method *ms, int nm, const eval_strata *strata, int frames,
+                        size_t hair_px, const look *lk, const char *styles) {
   printf("Frames: %d%s%s%s, hair pixels: %zu; composite: hair %.3g,%.3g,%.3g, light "
          "%.3g,%.3g,%.3g, background %.3g,%.3g,%.3g\n\n",
          frames, styles && *styles ? " (styles " : "", styles && *styles ? styles : "",
@@ -484,14 +469,14 @@ static void print_table(method *ms, int nm, int frames, size_t hair_px, const lo
          "alpha MSE |\n");
   printf("|---|---:|---:|---:|---:|---:|---:|---:|\n");
   for (int i = 0; i < nm; i++) {
-    method *m = &ms[i];
-    if (!m->frames) continue;
-    double n = m->frames;
+    eval_frame_score v;
+    int n = eval_strata_mean(strata, i, &v);
+    if (!n) continue;
     char psnr[32];
-    if (m->psnr_inf) snprintf(psnr, sizeof psnr, "inf");
-    else snprintf(psnr, sizeof psnr, "%.2f", m->psnr / n);
-    printf("| %s | %d | %s | %.4f | %.5f | %.2e | %.2e | %.2e |\n", m->label, m->frames, psnr,
-           m->ssim / n, m->mse / n, m->col / n, m->hl / n, m->alpha / n);
+    if (isinf(v.psnr)) snprintf(psnr, sizeof psnr, "inf");
+    else snprintf(psnr, sizeof psnr, "%.2f", v.psnr);
+    printf("| %s | %d | %s | %.4f | %.5f | %.2e | %.2e | %.2e |\n", ms[i].label, n, psnr,
+           v.ssim, v.mse, v.col, v.hl, v.alpha);
   }
 }
 
@@ -764,7 +749,7 @@ int cmd_eval(int argc, char **argv) {
         continue;   /* this frame has no such baseline */
       }
       composite(&lk, res, w, h, rgb);
-      if ((rc = score(m, mi, strata, &rg, res, gt, rgb, gt_rgb, w, h, mask, smap, &fs)) != 0)
+      if ((rc = score(mi, strata, &rg, res, gt, rgb, gt_rgb, w, h, mask, smap, &fs)) != 0)
         goto out;
       if (row_scores) cJSON_AddItemToArray(row_scores, score_json(m, &fs));
       int in_grid = m->kind == M_INPUT || m->kind == M_MODEL || !strcmp(m->prefix, "st16");
@@ -799,7 +784,7 @@ int cmd_eval(int argc, char **argv) {
     rc = HF_ENOTFOUND;
     goto out;
   }
-  print_table(ms, nm, scored, hair_px, &lk, styles);
+  print_table(ms, nm, strata, scored, hair_px, &lk, styles);
   {
     const char *labels[MAX_METHODS];
     for (int i = 0; i < nm; i++) labels[i] = ms[i].label;

@@ -238,9 +238,7 @@ void eval_strata_frame_done(eval_strata *s, const eval_regime *r) {
 
 /* ---- reports ---------------------------------------------------------------- */
 
-typedef struct metrics {
-  double psnr, ssim, mse, col, hl, alpha;
-} metrics;
+typedef eval_frame_score metrics;
 
 /* Pooled over pixels (pixel tables), or the mean over frames. */
 static int metrics_of(const sums *d, int over_frames, metrics *out) {
@@ -293,8 +291,22 @@ void eval_strata_print(const eval_strata *s, const char *const *labels, FILE *f)
   }
 }
 
+int eval_strata_mean(const eval_strata *s, int m, eval_frame_score *mean) {
+  const sums *d = slot(s, m, -1, 0);
+  return metrics_of(d, 1, mean) ? d->frames : 0;
+}
+
 cJSON *eval_json_number(double v) {
   return isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull();
+}
+
+void eval_json_scores(cJSON *o, const eval_frame_score *v) {
+  cJSON_AddItemToObject(o, "psnr", eval_json_number(v->psnr));
+  cJSON_AddItemToObject(o, "ssim", eval_json_number(v->ssim));
+  cJSON_AddItemToObject(o, "mse", eval_json_number(v->mse));
+  cJSON_AddItemToObject(o, "color_alpha_mse", eval_json_number(v->col));
+  cJSON_AddItemToObject(o, "highlight_alpha_mse", eval_json_number(v->hl));
+  cJSON_AddItemToObject(o, "alpha_mse", eval_json_number(v->alpha));
 }
 
 static cJSON *sums_json(const sums *d, int over_frames, const char *bucket) {
@@ -303,15 +315,10 @@ static cJSON *sums_json(const sums *d, int over_frames, const char *bucket) {
   if (bucket) cJSON_AddStringToObject(o, "bucket", bucket);
   cJSON_AddNumberToObject(o, "pixels", (double)d->pixels);
   cJSON_AddNumberToObject(o, "frames", d->frames);
-  metrics v;
-  int have = metrics_of(d, over_frames, &v);
-  cJSON_AddItemToObject(o, "psnr", have ? eval_json_number(v.psnr) : cJSON_CreateNull());
-  cJSON_AddItemToObject(o, "ssim", have ? eval_json_number(v.ssim) : cJSON_CreateNull());
-  cJSON_AddItemToObject(o, "mse", have ? eval_json_number(v.mse) : cJSON_CreateNull());
-  cJSON_AddItemToObject(o, "color_alpha_mse", have ? eval_json_number(v.col) : cJSON_CreateNull());
-  cJSON_AddItemToObject(o, "highlight_alpha_mse",
-                        have ? eval_json_number(v.hl) : cJSON_CreateNull());
-  cJSON_AddItemToObject(o, "alpha_mse", have ? eval_json_number(v.alpha) : cJSON_CreateNull());
+  /* An empty bucket: every value null. */
+  metrics v = {NAN, NAN, NAN, NAN, NAN, NAN};
+  metrics_of(d, over_frames, &v);
+  eval_json_scores(o, &v);
   return o;
 }
 

@@ -67,6 +67,13 @@ void eval_strata_free(eval_strata *s);
 void eval_strata_add(eval_strata *s, int m, const eval_regime *r, const float *rgb,
                      const float *gt_rgb, const float *res, const float *gt,
                      const double *ssim_map, const eval_frame_score *fs);
+/* Method m's per-frame values averaged over the frames it was scored on
+ * (the main table's row; psnr is INFINITY when a frame's is), and the
+ * number of those frames (0: none, *mean untouched). */
+int eval_strata_mean(const eval_strata *s, int m, eval_frame_score *mean);
+/* Adds psnr (null when infinite), ssim, mse, color_alpha_mse,
+ * highlight_alpha_mse and alpha_mse to a JSON object. */
+void eval_json_scores(cJSON *o, const eval_frame_score *v);
 /* Counts the frame in its buckets (once per frame, after its methods). */
 void eval_strata_frame_done(eval_strata *s, const eval_regime *r);
 

@@ -40,16 +40,25 @@
 #define W 48
 #define H 40
 
-static int write_frame(const char *path, float gt_color) {
+/* A w x h frame of 4 feature samples, then gt.*, st4.* and st16.*, zeroed. */
+static int alloc_frame(hf_image *img, int w, int h) {
   static const char *groups[] = {"gt", "st4", "st16"};
   const int spp = 4, nfeat = spp * HF_FEATURES_PER_SAMPLE;
-  hf_image img = {0};
-  if (hf_image_alloc(&img, W, H, nfeat + 9)) return 1;
+  if (hf_image_alloc(img, w, h, nfeat + 9)) return 1;
   for (int k = 0; k < spp; k++)
     for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
-      snprintf(img.names[k * 6 + f], 32, "S%d.%s", k, HF_FEATURE_NAMES[f]);
+      snprintf(img->names[k * 6 + f], 32, "S%d.%s", k, HF_FEATURE_NAMES[f]);
   for (int g = 0; g < 3; g++)
-    for (int f = 0; f < 3; f++) snprintf(img.names[nfeat + 3 * g + f], 32, "%s.%s", groups[g], HF_OUTPUT_NAMES[f]);
+    for (int f = 0; f < 3; f++)
+      snprintf(img->names[nfeat + 3 * g + f], 32, "%s.%s", groups[g], HF_OUTPUT_NAMES[f]);
+  memset(img->data, 0, (size_t)w * h * img->channels * sizeof(float));
+  return 0;
+}
+
+static int write_frame(const char *path, float gt_color) {
+  const int spp = 4, nfeat = spp * HF_FEATURES_PER_SAMPLE;
+  hf_image img = {0};
+  if (alloc_frame(&img, W, H)) return 1;
   uint32_t s = 12345;
   for (int y = 0; y < H; y++)
     for (int x = 0; x < W; x++) {
@@ -89,17 +98,9 @@ static const struct { float gt_alpha; int covered; float alpha; } REGION[7] = {
 
 /* Writes a regime frame holding the regions whose bit is set in `regions`. */
 static int write_strata_frame(const char *path, unsigned regions) {
-  static const char *groups[] = {"gt", "st4", "st16"};
-  const int spp = 4, nfeat = spp * HF_FEATURES_PER_SAMPLE;
+  const int nfeat = 4 * HF_FEATURES_PER_SAMPLE;
   hf_image img = {0};
-  if (hf_image_alloc(&img, SW, SH, nfeat + 9)) return 1;
-  for (int k = 0; k < spp; k++)
-    for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
-      snprintf(img.names[k * 6 + f], 32, "S%d.%s", k, HF_FEATURE_NAMES[f]);
-  for (int g = 0; g < 3; g++)
-    for (int f = 0; f < 3; f++)
-      snprintf(img.names[nfeat + 3 * g + f], 32, "%s.%s", groups[g], HF_OUTPUT_NAMES[f]);
-  memset(img.data, 0, (size_t)SW * SH * img.channels * sizeof(float));
+  if (alloc_frame(&img, SW, SH)) return 1;
   for (int y = 0; y < SH; y++)
     for (int x = 0; x < SW; x++) {
       int r = x / 8;

@@ -376,3 +376,30 @@ int raw_closed(int fd, int timeout_ms) {
   /* Unread bytes at the server turn its close into a reset. */
   return r == 0 || (r < 0 && errno == ECONNRESET);
 }
+
+int harness_stop(harness *h, server *s) {
+  int rc = server_stop(s, 20000);
+  if (rc != 0) server_dump_log(s);
+  harness_free(h);
+  return rc == 0 ? 0 : -1;
+}
+
+hfc_client *client_connect(const server *s, const char *name) {
+  hfc_client *c = NULL;
+  hfc_options o = {name, NULL, 20000};
+  int rc = hfc_connect(s->unix_url, &o, &c);
+  if (rc) fprintf(stderr, "connect %s: %s\n", s->unix_url, hfc_strerror(rc));
+  return c;
+}
+
+int read_text_file(const char *path, char *buf, size_t cap) {
+  FILE *f = fopen(path, "r");
+  if (!f || !cap) {
+    if (f) fclose(f);
+    return -1;
+  }
+  size_t n = fread(buf, 1, cap - 1, f);
+  fclose(f);
+  buf[n] = 0;
+  return 0;
+}

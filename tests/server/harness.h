@@ -52,6 +52,13 @@ int server_alive(const server *s);
 /* 1 when the log contains needle. */
 int server_log_has(const server *s, const char *needle);
 void server_dump_log(const server *s);
+/* server_stop (dumping the log if it did not exit cleanly) and harness_free:
+ * a cmocka group teardown's body; 0 when the server exited with status 0. */
+int harness_stop(harness *h, server *s);
+/* A libhairfilter connection to the server's Unix socket, or NULL (printed). */
+hfc_client *client_connect(const server *s, const char *name);
+/* A file's first cap - 1 bytes as a string in buf; -1 if unreadable. */
+int read_text_file(const char *path, char *buf, size_t cap);
 
 /* Deterministic features in plausible ranges. */
 float *make_features(int w, int h, int spp, uint32_t seed);

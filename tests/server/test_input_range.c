@@ -66,16 +66,12 @@ static int setup(void **state) {
 
 static int teardown(void **state) {
   (void)state;
-  int rc = server_stop(&S, 20000);
-  if (rc != 0) server_dump_log(&S);
-  harness_free(&H);
-  return rc == 0 ? 0 : -1;
+  return harness_stop(&H, &S);
 }
 
 static hfc_client *connect_unix(void) {
-  hfc_client *c = NULL;
-  hfc_options o = {"test-range", NULL, 20000};
-  assert_int_equal(hfc_connect(S.unix_url, &o, &c), 0);
+  hfc_client *c = client_connect(&S, "test-range");
+  assert_non_null(c);
   assert_int_equal(hfc_info(c)->version, 2);
   return c;
 }
@@ -236,12 +232,8 @@ static void test_cli_warning(void **state) {
     snprintf(cmd, sizeof cmd, "'%s' filter --server '%s' --variant Narrow --in '%s' --out '%s' "
              "%s > '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, feat, res, f ? "" : "--f16", txt);
     assert_int_equal(system(cmd), 0);
-    FILE *fp = fopen(txt, "r");
-    assert_non_null(fp);
     char text[4096];
-    size_t n = fread(text, 1, sizeof text - 1, fp);
-    fclose(fp);
-    text[n] = 0;
+    assert_int_equal(read_text_file(txt, text, sizeof text), 0);
     const char *want = "is outside the input range Narrow was trained on: strand_alpha_p50 0.5 "
                        "(trained 0.2..0.3)";
     if (f == 0 && !strstr(text, want)) fail_msg("no warning in:\n%s", text);
@@ -253,12 +245,8 @@ static void test_cli_warning(void **state) {
   snprintf(cmd, sizeof cmd, "'%s' filter --server '%s' --list --stats > '%s' 2>&1",
            HAIRFILTER_CLI_PATH, S.unix_url, txt);
   assert_int_equal(system(cmd), 0);
-  FILE *fp = fopen(txt, "r");
-  assert_non_null(fp);
   char text[8192];
-  size_t n = fread(text, 1, sizeof text - 1, fp);
-  fclose(fp);
-  text[n] = 0;
+  assert_int_equal(read_text_file(txt, text, sizeof text), 0);
   if (!strstr(text, "trained on strand_alpha_p50 0.2..0.3, hair_fraction 0.5..1"))
     fail_msg("no range in --list:\n%s", text);
   if (!strstr(text, "outside")) fail_msg("no out-of-range column in --stats:\n%s", text);
