@@ -295,7 +295,7 @@ char *hf_input_range_to_json(const hf_input_range *r);
  * present, when the frame has no hair pixel (nothing to filter) and for
  * statistics without a range or undefined on this frame. */
 unsigned hf_input_range_check(const hf_input_range *r, const hf_input_stats *s);
-/* "strand_alpha_p50 0.2305 (trained 0.0146..0.0193), ..." for the
+/* "strand_alpha_p50 VALUE (trained LOW..HIGH), ..." (%.4g) for the
  * statistics in mask, into buf (always terminated; HF_ERANGE if cut). */
 int hf_input_range_describe(const hf_input_range *r, const hf_input_stats *s, unsigned mask,
                             char *buf, size_t len);

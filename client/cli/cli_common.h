@@ -24,7 +24,7 @@ int cli_write_preview(const char *path, const float *result, int w, int h, const
 int cli_input_range_check(const hf_input_range *r, const void *in, hf_dtype dtype, int w, int h,
                           int spp, hf_input_stats *st);
 /* "PROG: warning: FRAME is outside the input range VARIANT was trained on:
- * strand_alpha_p50 0.23 (trained 0.015..0.019), ..." on stderr. */
+ * STAT VALUE (trained LOW..HIGH), ..." on stderr (hf_input_range_describe). */
 void cli_warn_input_range(const char *prog, const char *frame, const char *variant,
                           const hf_input_range *r, const hf_input_stats *st, unsigned mask);
 
