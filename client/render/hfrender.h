@@ -76,6 +76,84 @@ uint64_t hfr_hair_total_segments(const hfr_hair *hair);
 /* Centre and radius of a sphere enclosing every point. */
 void hfr_hair_bounds(const hfr_hair *hair, float centre[3], float *radius);
 
+/* ---- strand widths (hr_hair_width.c) ------------------------------------- */
+
+/* What Cem Yuksel's reference writer (cyHairFile) stores as the header
+ * thickness when the author set none. */
+#define HFR_HAIR_UNSET_THICKNESS 1.0f
+/* Plausible strand diameters, relative to the model's bounding radius R
+ * (human hair on a 10-30 cm head is 1e-4 to 2e-3 R; artist assets go a few
+ * times thicker), and the diameter used when the header's is not. */
+#define HFR_WIDTH_MIN_REL 1e-6f
+#define HFR_WIDTH_MAX_REL 0.02f
+#define HFR_WIDTH_FALLBACK_REL 5e-4f
+
+/* The diameter (model units) drawn where hair has no per-point thickness:
+ * the header thickness when finite, positive and within [HFR_WIDTH_MIN_REL,
+ * HFR_WIDTH_MAX_REL] * radius, except HFR_HAIR_UNSET_THICKNESS when that is
+ * above radius / 1000 (the writer's unset value, taken as unset unless the
+ * model is in units so small that 1.0 is plausible); otherwise
+ * HFR_WIDTH_FALLBACK_REL * radius. radius: hfr_hair_bounds' radius. *why is
+ * set to NULL, or to a static reason when the fallback was taken. */
+float hfr_hair_default_thickness(const hfr_hair *hair, float radius, const char **why);
+/* Checks a loaded model's widths against its size. Without per-point
+ * thickness the header thickness is replaced in place by
+ * hfr_hair_default_thickness; per-point widths are kept. Writes a one-line
+ * warning into warn (empty when none) and returns 1 when it has one, else 0. */
+int hfr_hair_check_widths(hfr_hair *hair, char *warn, size_t warnlen);
+
+/* ---- conventions of loaded models (hr_hair_orient.c) ---------------------- */
+
+/* The axis of a model that points up. The renderer's frame is y up, the face
+ * (or front) towards +z, one unit about 10 cm (the procedural head). */
+typedef enum hfr_axis {
+  HFR_AXIS_Y = 0, HFR_AXIS_Z, HFR_AXIS_X, HFR_AXIS_NEG_Y, HFR_AXIS_NEG_Z, HFR_AXIS_NEG_X,
+  HFR_AXIS_COUNT
+} hfr_axis;
+
+/* "y", "+y", "z", "-z", ... (case-insensitive); HF_ENOTFOUND otherwise. */
+int hfr_axis_from_name(const char *name, hfr_axis *out);
+const char *hfr_axis_name(hfr_axis a);
+/* Renderer units per model unit for a unit name: m 10, dm 1, cm 0.1,
+ * mm 0.01, in 0.254, ft 3.048 ("units" or "" 1: the model's own).
+ * HF_ENOTFOUND for an unknown name. */
+int hfr_units_scale(const char *name, float *scale);
+/* Rotates the model so that its up axis becomes +y, by the rotation that
+ * takes a z-up model's -y (its front, as in Blender) to +z
+ * ((x, y, z) -> (x, z, -y)); the others: x up (x, y, z) -> (-y, x, z), -y up
+ * (x, -y, -z), -z up (x, -z, y), -x up (y, -x, z). Then multiplies positions
+ * and thickness (per-point and header) by scale (> 0, finite). */
+int hfr_hair_orient(hfr_hair *hair, hfr_axis up, float scale);
+
+/* ---- guide interpolation (hr_hair_children.c) ----------------------------- */
+
+/* Children grown around guide strands, as DCC tools do with the guides a
+ * groom ships: each child takes a root at a random offset from its guide
+ * within the local guide spacing (the distance to the nearest other guide
+ * root), in the plane of the guide's and its two nearest neighbours' roots
+ * (across the guide's first segment where those are in a line), and its shape is
+ * the guides around it (the guide and its two nearest neighbours, weighted
+ * by inverse root distance, each resampled at the same fraction of its
+ * length), pulled towards the guide's own shape by clumping towards the tip,
+ * with some length variation and frizz. */
+typedef struct hfr_children_params {
+  int children;                 /* children per guide, 0..10000 */
+  int keep_guides;              /* the guides are strands of the result too */
+  float spread;                 /* root offset radius in local guide spacings (0.5) */
+  float clumping;               /* 0..1: tips pulled to the guide's shape (0.3) */
+  float frizz;                  /* random walk at the tip, in guide spacings (0.3) */
+  float length_jitter;          /* child length x [1 - j, 1] (0.15) */
+  float width_spread;           /* per guide group: width x s^u, u uniform in [-1, 1]; 0/1 none */
+  uint64_t seed;
+} hfr_children_params;
+
+void hfr_children_defaults(hfr_children_params *p);
+/* out = (keep_guides ? guides : none) + children per guide, strands in guide
+ * order (guide g's children follow it). Thickness and transparency follow
+ * the guide's profile (or its defaults). Limits: HFR_MAX_STRANDS,
+ * HFR_MAX_POINTS (HF_ERANGE); HF_EINVAL for bad parameters. */
+int hfr_hair_interpolate(const hfr_hair *guides, const hfr_children_params *p, hfr_hair *out);
+
 /* ---- procedural hairstyles --------------------------------------------- */
 
 typedef enum hfr_style {
@@ -83,15 +161,22 @@ typedef enum hfr_style {
   HFR_STYLE_WAVY,
   HFR_STYLE_CURLY,
   HFR_STYLE_COILY,              /* tight coils grown outwards: an afro */
-  HFR_STYLE_PONYTAIL,
+  HFR_STYLE_PONYTAIL,            /* long hair tied at the back */
+  HFR_STYLE_SPIKY,              /* a short spiky cut: stiff strands standing out, gelled clumps */
+  HFR_STYLE_FUR,                /* an animal's fur: short dense strands lying along the body */
   HFR_STYLE_COUNT
 } hfr_style;
 
 /* The procedural head: an ellipsoid at the origin with these semi-axes. */
 #define HFR_HEAD_RADII {0.78f, 1.0f, 0.95f}
 
-/* Styles grow on a head of radius ~1 (an ellipsoid, y up, face towards +z);
- * lengths are in those units (1 ~ 10 cm). */
+/* The body a fur style grows on: an ellipsoid at the origin (a torso along z). */
+#define HFR_FUR_BODY_RADII {0.75f, 0.65f, 1.5f}
+
+/* Styles grow on a head of radius ~1 (an ellipsoid, y up, face towards +z),
+ * fur on HFR_FUR_BODY_RADII; lengths are in those units (1 ~ 10 cm). Spiky
+ * and fur are grown as real grooms are: guides, then children interpolated
+ * around them (hfr_hair_interpolate), strands / (children + 1) guides. */
 typedef struct hfr_style_params {
   hfr_style style;
   uint64_t seed;
@@ -104,6 +189,8 @@ typedef struct hfr_style_params {
   float curl_period;            /* wave length / curl or coil pitch */
   float thickness;              /* strand diameter */
   float opacity;                /* strand opacity (1 - transparency) */
+  float width_spread;           /* per clump: diameter x s^u, u uniform in [-1, 1]; 0/1 none */
+  int children;                 /* spiky, fur: children per guide (>= 0) */
 } hfr_style_params;
 
 const char *hfr_style_name(hfr_style s);
@@ -113,6 +200,45 @@ int hfr_style_from_name(const char *name, hfr_style *out);
 int hfr_style_defaults(hfr_style s, hfr_style_params *p);
 /* Builds the hairstyle; same parameters give the same model. */
 int hfr_hair_generate(const hfr_style_params *p, hfr_hair *out);
+
+/* ---- occluders (hr_occluder.c, hr_mesh_io.c) ------------------------------ */
+
+/* What the hair grows on: drawn opaque, it hides the hair behind it in the
+ * view and in the shadow map, and shows (diffusely shaded) in the background
+ * layer, never in the features. A triangle soup: 3 vertices per triangle,
+ * each [6] floats (position, unit normal). */
+typedef struct hfr_mesh {
+  uint32_t vertices;
+  float *v;                     /* [vertices][6] */
+} hfr_mesh;
+
+#define HFR_MESH_MAX_TRIANGLES 4000000u
+
+/* An ellipsoid: centre, orthonormal axes (rows) and semi-axes along them. */
+typedef struct hfr_ellipsoid {
+  float centre[3], axes[3][3], radii[3];
+} hfr_ellipsoid;
+
+void hfr_mesh_free(hfr_mesh *m);
+/* A lat-long tessellation of e (slices around, stacks pole to pole). */
+int hfr_mesh_ellipsoid(const hfr_ellipsoid *e, int slices, int stacks, hfr_mesh *out);
+/* The body a style grows on (head or fur body), slightly inside it so that
+ * it never hides a root. */
+void hfr_style_body(hfr_style s, hfr_ellipsoid *e);
+/* An ellipsoid under the roots (first points) of a model: an algebraic
+ * least-squares fit in the frame of the roots' principal axes (a scalp), or,
+ * where that fails or does not lie under the hair (a flat patch of fur), a
+ * flat ellipsoid below the roots' mean plane on the side away from the hair;
+ * then shrunk about its centre until 98% of the roots are on or outside it.
+ * HF_EINVAL for a model with fewer than 4 strands. */
+int hfr_ellipsoid_fit_roots(const hfr_hair *hair, hfr_ellipsoid *out);
+/* Reads a triangle mesh (Wavefront OBJ, PLY, glTF, FBX, STL, ... through
+ * the Open Asset Import Library); polygons are triangulated, smooth normals
+ * made where the file has none. HF_EUNSUPPORTED when this build has no
+ * Assimp; HF_ERANGE above HFR_MESH_MAX_TRIANGLES; err says why. */
+int hfr_mesh_load(const char *path, hfr_mesh *out, char *err, size_t errlen);
+/* hfr_hair_orient for a mesh (normals are rotated only). */
+int hfr_mesh_orient(hfr_mesh *m, hfr_axis up, float scale);
 
 /* ---- view: camera, light, shading --------------------------------------- */
 
@@ -137,8 +263,13 @@ typedef struct hfr_view {
   float shadow_bias;
   float thickness_scale;        /* multiplies every strand's thickness */
   /* Composite only (not in the features): hair albedo, light colour and
-   * background, linear RGB. */
-  float hair_color[3], light_color[3], background[3];
+   * background, linear RGB; the occluder's diffuse albedo in the background
+   * layer. */
+  float hair_color[3], light_color[3], background[3], occluder_color[3];
+  /* A window of the width x height frame (x, y from the top left, w, h in
+   * pixels; w = 0: the whole frame). It costs a w x h render and gives the
+   * same pixels as that window of the whole frame (hr_glsl_hair_vs). */
+  int crop_x, crop_y, crop_w, crop_h;
 } hfr_view;
 
 void hfr_view_defaults(hfr_view *v);
@@ -155,15 +286,35 @@ void hfr_view_randomize(hfr_view *v, uint64_t seed);
  *   S{k}.color .highlight .alpha .depth .tangent.x .tangent.y, k < spp
  *   gt.color gt.highlight gt.alpha                    when gt_supersample
  *   st{N}.color .highlight .alpha for each N in st_spp
- *   opaque.color .highlight .alpha                    when opaque_samples */
+ *   opaque.color .highlight .alpha                    when opaque_samples
+ *   background.R .G .B .A                             when background_layer:
+ *     the occluder, diffusely lit, premultiplied by its coverage A (0 where
+ *     there is none); composites put the hair over it (hfr_composite_result) */
 typedef struct hfr_outputs {
   int spp;                      /* feature samples per pixel, 0..HF_MAX_SPP */
   int gt_supersample;           /* ground truth s x s per pixel; 0 = none */
   int st_spp[HFR_MAX_BASELINES];/* stochastic-transparency baselines */
   int n_st;
   int opaque_samples;           /* opaque MSAA baseline (multiple of 4); 0 = none */
+  int background_layer;         /* the occluder layer (background.*) */
   uint32_t seed;                /* hash seed of the stochastic samples */
 } hfr_outputs;
+
+/* What the network will see in a frame, measured on the first 4x pass
+ * (samples 0-3 of the features, or of the ST baselines when spp is 0) and
+ * on the model: the regime a frame belongs to. */
+typedef struct hfr_frame_stats {
+  int valid;                    /* 0 when no stochastic pass was rendered */
+  double alpha_p10, alpha_p50, alpha_p90; /* alpha of covered samples */
+  double sample_coverage;       /* covered samples / all samples */
+  double hair_pixels;           /* pixels with a covered sample / all pixels */
+  double full_pixels;           /* of the hair pixels: all 4 samples covered */
+  double gt_opaque;             /* of the hair pixels: gt.alpha >= 0.99 (-1: no gt) */
+  /* Strand diameter in pixels (thickness x scale x pixels per unit at the
+   * point's depth) over the model's points inside the (cropped) view. */
+  double width_px_p10, width_px_p50, width_px_p90;
+  uint64_t points_in_view;
+} hfr_frame_stats;
 
 typedef struct hfr_stats {
   double shadow_ms, features_ms, gt_ms, baselines_ms;
@@ -172,6 +323,7 @@ typedef struct hfr_stats {
   uint32_t gt_max_depth;        /* longest per-subsample fragment list */
   uint64_t gt_truncated;        /* subsamples sorted in more than one round */
   int gt_host_resolve;          /* lists too deep for the GPU resolve: blended on the host */
+  hfr_frame_stats frame;        /* the frame's regime */
 } hfr_stats;
 
 typedef struct hfr_renderer hfr_renderer;
@@ -188,6 +340,14 @@ const char *hfr_renderer_gl_name(const hfr_renderer *r);
  * shows in the features. */
 int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *hair, int head, char *err,
                           size_t errlen);
+/* Replaces the occluder (after hfr_renderer_set_hair; NULL or an empty mesh
+ * for none). enclose: grow the bounding sphere the camera frames to
+ * contain it (a head sticking out of short hair); otherwise only the hair
+ * is framed (a whole body under a groom). */
+int hfr_renderer_set_occluder(hfr_renderer *r, const hfr_mesh *m, int enclose, char *err,
+                              size_t errlen);
+/* Bounding sphere the camera and light orbit (hair, and an enclosed occluder). */
+void hfr_renderer_bounds(const hfr_renderer *r, float centre[3], float *radius);
 /* Renders what o asks for into *out (allocated here; hf_image_free it).
  * stats may be NULL. */
 int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_image *out,
@@ -195,6 +355,32 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
 
 /* The number of channels hfr_render produces for o. */
 int hfr_outputs_channels(const hfr_outputs *o);
+/* One line of a frame's statistics (for logs): "covered-sample alpha p10 ...". */
+void hfr_frame_stats_format(const hfr_frame_stats *s, char *buf, size_t len);
+
+/* ---- loaded models as they come (hr_asset.c) ----------------------------- */
+
+/* How to take a .hair file: its conventions, widths, children, occluder. */
+typedef struct hfr_asset_opts {
+  hfr_axis up;                  /* the file's up axis */
+  float scale;                  /* renderer units per file unit (hfr_units_scale); 0 = 1 */
+  float thickness;              /* > 0: every strand this diameter, in the file's units */
+  hfr_children_params children; /* children.children = 0: the strands as they are */
+  /* "fit" (NULL, "", "auto": the default) an ellipsoid under the roots,
+   * "none", or a mesh file (hfr_mesh_load) in the file's conventions. */
+  const char *occluder;
+} hfr_asset_opts;
+
+void hfr_asset_defaults(hfr_asset_opts *o);
+/* 1 when o's occluder is fitted (framed with the hair), 0 for a mesh file or
+ * none (the camera frames the hair alone). */
+int hfr_asset_fitted(const hfr_asset_opts *o);
+/* Loads a .hair file as o says: widths checked (hfr_hair_check_widths, the
+ * warning into warn), --thickness applied, oriented and scaled, the
+ * occluder made (fitted on the guides' roots, or loaded and oriented the
+ * same way; *occ empty for none), then children grown. */
+int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hfr_mesh *occ,
+                   char *warn, size_t warnlen, char *err, size_t errlen);
 
 /* ---- one call ------------------------------------------------------------- */
 
@@ -203,6 +389,7 @@ int hfr_outputs_channels(const hfr_outputs *o);
  * command); loops should keep an hfr_renderer instead. */
 typedef struct hfr_frame {
   const char *hair_path;        /* a .hair file, or NULL for style */
+  hfr_asset_opts asset;         /* how to take hair_path */
   hfr_style_params style;
   hfr_view view;
   hfr_outputs outputs;
@@ -210,17 +397,19 @@ typedef struct hfr_frame {
 } hfr_frame;
 
 /* Fills f with: straight style defaults (seed 1), default view at
- * width x height, 4 spp features, 4x4 ground truth, no baselines. */
+ * width x height, 4 spp features, 4x4 ground truth, no baselines, no
+ * background layer, default asset options. */
 void hfr_frame_defaults(hfr_frame *f, int width, int height);
 int hfr_render_frame(const hfr_frame *f, hf_image *out, hfr_stats *stats, char *err,
                      size_t errlen);
 
 /* ---- datasets ------------------------------------------------------------- */
 
-/* Training pairs (paper 3.3.3): for each style, count frames with their own
- * hair seed, jittered style parameters and a randomised view; each frame is
- * one EXR ({style}_{i:04d}.exr: features at the largest spp, gt.*, any
- * baselines) and an entry in DIR/manifest.json recording everything used. */
+/* Training pairs (paper 3.3.3): for each style (and .hair file), count
+ * frames with their own hair seed, jittered style parameters and a
+ * randomised view; each frame is one EXR ({style}_{i:04d}.exr: features at
+ * the largest spp, gt.*, any baselines) and an entry in DIR/manifest.json
+ * recording everything used and the frame's statistics (hfr_frame_stats). */
 typedef struct hfr_dataset_opts {
   const char *out_dir;
   hfr_style styles[HFR_STYLE_COUNT];
@@ -239,6 +428,18 @@ typedef struct hfr_dataset_opts {
   uint64_t seed;
   int half;                     /* EXR in float16 */
   int extended;                 /* style parameters over wide ranges (hr_dataset.c) */
+  /* Regimes (hr_dataset_regimes.c): per frame and per clump, strand width in
+   * pixels, density, virtual frame size (the output is a width x height
+   * crop of a frame_min..frame_max square frame), camera, light, shadows,
+   * curl and frizz, drawn over what engines render. */
+  int regimes;
+  int frame_min, frame_max;
+  /* .hair files drawn as styles (frames {basename}_{i:04d}.exr), each taken
+   * as asset says; children.seed is varied per frame. */
+  const char *const *hair_files;
+  int n_hair_files;
+  hfr_asset_opts asset;
+  int background_layer;         /* background.* channels in every frame */
   int progress;                 /* progress bar with ETA on stderr */
   const char *platform;
 } hfr_dataset_opts;
@@ -246,9 +447,19 @@ typedef struct hfr_dataset_opts {
 void hfr_dataset_defaults(hfr_dataset_opts *o);
 int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen);
 
+/* Composite of a result res [h][w][3] (colour factor, highlight, alpha)
+ * into rgb [h][w][3], linear: hf_composite's formula, over frame's
+ * background layer (background.R/G/B/A: rgb += (1 - alpha) * (layer.RGB +
+ * (1 - layer.A) * bg)) when frame is not NULL, of this size and has one,
+ * else over bg alone. */
+int hfr_composite_result(const float *res, int width, int height, const hf_image *frame,
+                         const float hair[3], const float light[3], const float bg[3],
+                         float *rgb);
+
 /* Composite of three channels named prefix.color/.highlight/.alpha of img
  * ("gt", "st4", "opaque"; "" for a result image with bare names) with the
- * view's colours into rgb [h][w][3]. */
+ * view's colours into rgb [h][w][3], over img's background layer where it
+ * has one (hfr_composite_result). */
 int hfr_composite_channels(const hf_image *img, const char *prefix, const hfr_view *v,
                            float *rgb);
 

@@ -25,9 +25,11 @@ void hfr_view_defaults(hfr_view *v) {
   v->shadow_bias = 0.01f;
   v->thickness_scale = 1;
   const float hair[3] = {0.32f, 0.17f, 0.08f}, light[3] = {1, 1, 1}, bg[3] = {0.55f, 0.6f, 0.65f};
+  const float skin[3] = {0.56f, 0.36f, 0.27f};
   memcpy(v->hair_color, hair, sizeof hair);
   memcpy(v->light_color, light, sizeof light);
   memcpy(v->background, bg, sizeof bg);
+  memcpy(v->occluder_color, skin, sizeof skin);
 }
 
 void hfr_view_randomize(hfr_view *v, uint64_t seed) {
@@ -51,11 +53,18 @@ void hfr_view_randomize(hfr_view *v, uint64_t seed) {
   v->light_color[0] = 1 + warm, v->light_color[1] = 1, v->light_color[2] = 1 - warm;
   float b = hr_rng_range(&g, 0.1f, 0.8f);
   for (int k = 0; k < 3; k++) v->background[k] = b * hr_rng_range(&g, 0.85f, 1.15f);
+  /* Skin, light to dark (linear albedo), from its own stream so that the
+   * draws above stay those of earlier versions. */
+  hr_rng gs = {seed ^ 0x3c6ef372fe94f82bull};
+  static const float skins[][3] = {{0.61f, 0.42f, 0.33f}, {0.56f, 0.36f, 0.27f},
+                                   {0.39f, 0.24f, 0.16f}, {0.2f, 0.12f, 0.08f}};
+  const float *sk = skins[hr_rng_next(&gs) % (sizeof skins / sizeof skins[0])];
+  for (int k = 0; k < 3; k++) v->occluder_color[k] = sk[k];
 }
 
 int hfr_outputs_channels(const hfr_outputs *o) {
   return o->spp * HF_FEATURES_PER_SAMPLE + (o->gt_supersample > 0 ? 3 : 0) + 3 * o->n_st +
-         (o->opaque_samples > 0 ? 3 : 0);
+         (o->opaque_samples > 0 ? 3 : 0) + (o->background_layer ? 4 : 0);
 }
 
 static int bad(char *err, size_t errlen, const char *msg) {
@@ -72,6 +81,11 @@ static int validate(const hfr_view *v, const hfr_outputs *o, char *err, size_t e
     return bad(err, errlen, "point light must be outside the hair (distance > 1.1)");
   if (v->shadow_size < 0 || v->shadow_size > 8192 || !(v->thickness_scale > 0))
     return bad(err, errlen, "shadow size 0..8192 and a positive thickness scale");
+  if (v->crop_w != 0 &&
+      (v->crop_w < 1 || v->crop_h < 1 || v->crop_x < 0 || v->crop_y < 0 ||
+       v->crop_x > v->width - v->crop_w || v->crop_y > v->height - v->crop_h))
+    return bad(err, errlen, "the crop window must lie inside the frame (x, y >= 0, "
+                            "x + w <= width, y + h <= height)");
   if (o->spp < 0 || o->spp > HF_MAX_SPP) return bad(err, errlen, "spp must be 0..16");
   if (o->gt_supersample < 0 || o->gt_supersample > 8)
     return bad(err, errlen, "ground-truth supersampling must be 0..8");
@@ -85,16 +99,15 @@ static int validate(const hfr_view *v, const hfr_outputs *o, char *err, size_t e
   return HF_OK;
 }
 
-/* Sub-pixel offset of pass p (none for the first): the R2 sequence. */
-static void pass_jitter(int p, int w, int h, float *jx, float *jy) {
+/* Sub-pixel offset of pass p in pixels (none for the first): the R2
+ * sequence. */
+static void pass_jitter(int p, float *jx, float *jy) {
   if (p == 0) {
     *jx = *jy = 0;
     return;
   }
-  double x = fmod(0.5 + p * 0.7548776662466927, 1.0) - 0.5;
-  double y = fmod(0.5 + p * 0.5698402909980532, 1.0) - 0.5;
-  *jx = (float)(2 * x / w);
-  *jy = (float)(2 * y / h);
+  *jx = (float)(fmod(0.5 + p * 0.7548776662466927, 1.0) - 0.5);
+  *jy = (float)(fmod(0.5 + p * 0.5698402909980532, 1.0) - 0.5);
 }
 
 /* Pass p's hash seed. */
@@ -141,7 +154,9 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   if (rc != HF_OK) return rc;
   if (!r->has_hair) return bad(err, errlen, "no hair model set");
   if ((rc = hr_renderer_bind(r)) != HF_OK) return rc;
-  const int W = v->width, H = v->height, S = 4;
+  int W, H;
+  hr_view_target(v, &W, &H);
+  const int S = 4;
   const size_t px = (size_t)W * H;
   if ((rc = hf_image_alloc(out, W, H, hfr_outputs_channels(o))) != HF_OK) return rc;
   stats->segments = r->segments;
@@ -165,6 +180,9 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   }
   if (o->opaque_samples > 0)
     for (int f = 0; f < 3; f++) set_name(out, c_opaque + f, "opaque", HF_OUTPUT_NAMES[f]);
+  int c_bg = c_opaque + (o->opaque_samples > 0 ? 3 : 0);
+  if (o->background_layer)
+    for (int f = 0; f < 4; f++) set_name(out, c_bg + f, "background", (const char *[]){"R", "G", "B", "A"}[f]);
 
   hr_camera cam, light;
   hr_camera_from_view(r, v, &cam);
@@ -182,16 +200,28 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   int passes = (need + S - 1) / S;
   float *pass = malloc(sizeof(float) * 6 * S * px);
   float *acc = calloc((size_t)3 * px * (o->n_st + 1), sizeof(float));
+  unsigned char *hairpx = NULL; /* pixels with a covered sample in the first pass */
   if (!pass || !acc) rc = HF_ENOMEM;
+  if (rc == HF_OK && passes == 0) hr_frame_stats(r, v, &cam, NULL, W, H, &stats->frame);
+  stats->frame.gt_opaque = -1;
   for (int p = 0; rc == HF_OK && p < passes; p++) {
     float jx, jy;
-    pass_jitter(p, W, H, &jx, &jy);
+    pass_jitter(p, &jx, &jy);
     t0 = hr_now_ms();
     rc = hr_pass_ms(r, v, &cam, &light, pass_seed(o->seed, p), jx, jy, 0, pass, err, errlen);
     double dt = hr_now_ms() - t0;
     if (rc != HF_OK) break;
     if (p * S < o->spp) stats->features_ms += dt;
     else stats->baselines_ms += dt;
+    if (p == 0) {
+      hr_frame_stats(r, v, &cam, pass, W, H, &stats->frame);
+      hairpx = malloc(px);
+      for (size_t i = 0; hairpx && i < px; i++) {
+        int any = 0;
+        for (int s = 0; s < S; s++) any |= pass[(i * S + s) * 6 + 2] > 0;
+        hairpx[i] = (unsigned char)any;
+      }
+    }
     for (int s = 0; s < S && p * S + s < o->spp; s++) {
       int k = p * S + s;
       for (size_t i = 0; i < px; i++)
@@ -210,7 +240,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
     t0 = hr_now_ms();
     for (int p = 0; rc == HF_OK && p < o->opaque_samples / S; p++) {
       float jx, jy;
-      pass_jitter(p, W, H, &jx, &jy);
+      pass_jitter(p, &jx, &jy);
       rc = hr_pass_ms(r, v, &cam, &light, 0, jx, jy, 1, pass, err, errlen);
       if (rc == HF_OK) accumulate(pass, px, S, 0, S, oacc);
     }
@@ -226,10 +256,31 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
     if (rc == HF_OK)
       for (size_t i = 0; i < px; i++) memcpy(out->data + i * out->channels + c_gt, gt + 3 * i,
                                              3 * sizeof(float));
+    if (rc == HF_OK && hairpx) {
+      /* Of the hair pixels, those the ground truth makes opaque. */
+      size_t hair = 0, opaque = 0;
+      for (size_t i = 0; i < px; i++) {
+        hair += hairpx[i];
+        opaque += hairpx[i] && gt[3 * i + 2] >= 0.99f;
+      }
+      stats->frame.gt_opaque = hair ? (double)opaque / hair : 0;
+    }
     free(gt);
+  }
+  if (rc == HF_OK && o->background_layer) {
+    float *bg = malloc(sizeof(float) * 2 * px);
+    if (!bg) rc = HF_ENOMEM;
+    if (rc == HF_OK) rc = hr_pass_background(r, v, &cam, &light, bg, err, errlen);
+    for (size_t i = 0; rc == HF_OK && i < px; i++) {
+      float *d = out->data + i * out->channels + c_bg;
+      for (int k = 0; k < 3; k++) d[k] = bg[2 * i] * v->occluder_color[k] * v->light_color[k];
+      d[3] = bg[2 * i + 1];
+    }
+    free(bg);
   }
   free(pass);
   free(acc);
+  free(hairpx);
   if (rc != HF_OK) hf_image_free(out);
   return rc;
 }
@@ -238,6 +289,7 @@ void hfr_frame_defaults(hfr_frame *f, int width, int height) {
   memset(f, 0, sizeof *f);
   hfr_style_defaults(HFR_STYLE_STRAIGHT, &f->style);
   hfr_view_defaults(&f->view);
+  hfr_asset_defaults(&f->asset);
   f->view.width = width;
   f->view.height = height;
   f->outputs.spp = 4;
@@ -249,19 +301,58 @@ int hfr_render_frame(const hfr_frame *f, hf_image *out, hfr_stats *stats, char *
                      size_t errlen) {
   if (!f || !out) return HF_EINVAL;
   hfr_hair hair;
-  int rc = f->hair_path ? hfr_hair_load(f->hair_path, &hair, err, errlen)
-                        : hfr_hair_generate(&f->style, &hair);
-  if (rc != HF_OK) {
-    if (!f->hair_path && err) snprintf(err, errlen, "bad style parameters");
-    return rc;
+  hfr_mesh occ = {0};
+  int rc;
+  if (f->hair_path) {
+    rc = hfr_asset_load(f->hair_path, &f->asset, &hair, &occ, NULL, 0, err, errlen);
+  } else {
+    rc = hfr_hair_generate(&f->style, &hair);
+    if (rc != HF_OK && err) snprintf(err, errlen, "bad style parameters");
+    hfr_ellipsoid body;
+    hfr_style_body(f->style.style, &body);
+    if (rc == HF_OK) rc = hfr_mesh_ellipsoid(&body, 48, 24, &occ);
   }
+  if (rc != HF_OK) return rc;
   hfr_renderer *r = NULL;
   rc = hfr_renderer_create(f->platform, &r, err, errlen);
   if (rc == HF_OK) rc = hfr_renderer_set_hair(r, &hair, f->hair_path == NULL, err, errlen);
+  /* A style's body other than the head (fur) replaces it. */
+  if (rc == HF_OK && !f->hair_path && f->style.style == HFR_STYLE_FUR)
+    rc = hfr_renderer_set_occluder(r, &occ, 1, err, errlen);
+  if (rc == HF_OK && f->hair_path)
+    rc = hfr_renderer_set_occluder(r, &occ, hfr_asset_fitted(&f->asset), err, errlen);
   if (rc == HF_OK) rc = hfr_render(r, &f->view, &f->outputs, out, stats, err, errlen);
   hfr_renderer_destroy(r);
   hfr_hair_free(&hair);
+  hfr_mesh_free(&occ);
   return rc;
+}
+
+int hfr_composite_result(const float *res, int width, int height, const hf_image *frame,
+                         const float hair[3], const float light[3], const float bg[3],
+                         float *rgb) {
+  if (!res || !hair || !light || !bg || !rgb || width < 1 || height < 1) return HF_EINVAL;
+  int ch[4] = {-1, -1, -1, -1};
+  if (frame && frame->width == width && frame->height == height)
+    for (int k = 0; k < 4; k++) {
+      char name[32];
+      snprintf(name, sizeof name, "background.%c", "RGBA"[k]);
+      ch[k] = hf_image_channel(frame, name);
+    }
+  if (ch[0] < 0 || ch[1] < 0 || ch[2] < 0 || ch[3] < 0) {
+    hf_composite(res, width, height, hair, light, bg, rgb);
+    return HF_OK;
+  }
+  /* The hair over the layer, the layer over the background. */
+  const float black[3] = {0, 0, 0};
+  hf_composite(res, width, height, hair, light, black, rgb);
+  size_t px = (size_t)width * height;
+  for (size_t i = 0; i < px; i++) {
+    const float *l = frame->data + i * frame->channels;
+    float a = res[3 * i + 2], la = l[ch[3]];
+    for (int k = 0; k < 3; k++) rgb[3 * i + k] += (1 - a) * (l[ch[k]] + (1 - la) * bg[k]);
+  }
+  return HF_OK;
 }
 
 int hfr_composite_channels(const hf_image *img, const char *prefix, const hfr_view *v,
@@ -279,7 +370,8 @@ int hfr_composite_channels(const hf_image *img, const char *prefix, const hfr_vi
   if (!res) return HF_ENOMEM;
   for (size_t i = 0; i < px; i++)
     for (int f = 0; f < 3; f++) res[3 * i + f] = img->data[i * img->channels + ch[f]];
-  hf_composite(res, img->width, img->height, v->hair_color, v->light_color, v->background, rgb);
+  int rc = hfr_composite_result(res, img->width, img->height, img, v->hair_color,
+                                v->light_color, v->background, rgb);
   free(res);
-  return HF_OK;
+  return rc;
 }

@@ -21,6 +21,7 @@
   X(PFNGLCOLORMASKPROC, ColorMask)                                            \
   X(PFNGLFINISHPROC, Finish)                                                  \
   X(PFNGLREADPIXELSPROC, ReadPixels)                                          \
+  X(PFNGLBLITFRAMEBUFFERPROC, BlitFramebuffer)                                \
   X(PFNGLREADBUFFERPROC, ReadBuffer)                                          \
   X(PFNGLPIXELSTOREIPROC, PixelStorei)                                        \
   X(PFNGLDRAWBUFFERSPROC, DrawBuffers)                                        \

@@ -15,7 +15,12 @@
  *      the tip, then frizz (a smoothed random walk growing to the tip) and a
  *      last push out of the head.
  * The ponytail's base curve runs over the scalp to a tie point at the back
- * of the head and hangs from there. */
+ * of the head and hangs from there. Spiky and fur are grown from guides
+ * (hr_hair_guides.c), then frizzed the same way.
+ *
+ * width_spread gives each clump (the strands that follow one guide) its own
+ * diameter factor, so that a frame holds strand groups of different widths
+ * as real grooms do. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -24,9 +29,10 @@
 
 #include "hfrender.h"
 #include "hr_math.h"
+#include "hr_style.h"
 
 static const char *const style_names[HFR_STYLE_COUNT] = {"straight", "wavy", "curly", "coily",
-                                                         "ponytail"};
+                                                         "ponytail", "spiky", "fur"};
 
 const char *hfr_style_name(hfr_style s) {
   return (unsigned)s < HFR_STYLE_COUNT ? style_names[s] : "unknown";
@@ -41,6 +47,10 @@ int hfr_style_from_name(const char *name, hfr_style *out) {
     }
   if (!strcasecmp(name, "afro")) {
     *out = HFR_STYLE_COILY;
+    return HF_OK;
+  }
+  if (!strcasecmp(name, "long-tied")) {
+    *out = HFR_STYLE_PONYTAIL;
     return HF_OK;
   }
   return HF_ENOTFOUND;
@@ -75,6 +85,20 @@ int hfr_style_defaults(hfr_style s, hfr_style_params *p) {
     p->segments = 40, p->length = 3.2f, p->curl_radius = 0.03f, p->curl_period = 0.8f;
     p->clumping = 0.2f;
     break;
+  case HFR_STYLE_SPIKY:
+    /* Guides 4-5 cm long; gelled: children meet their guide at the tip. */
+    p->segments = 12, p->length = 0.45f, p->clumping = 0.8f, p->frizz = 0.004f;
+    p->children = 15;
+    p->thickness = 0.0009f;
+    break;
+  case HFR_STYLE_FUR:
+    /* 1.5 cm fur, dense: 60 000 strands on a torso. */
+    p->strands = 60000;
+    p->segments = 8, p->length = 0.15f, p->clumping = 0.3f, p->frizz = 0.003f;
+    p->children = 15;
+    p->thickness = 0.0006f;
+    p->opacity = 0.85f;
+    break;
   default:
     return HF_EINVAL;
   }
@@ -84,7 +108,7 @@ int hfr_style_defaults(hfr_style s, hfr_style_params *p) {
 static const float head_r[3] = HFR_HEAD_RADII;
 
 /* A uniformly distributed point of the scalp and its outward normal. */
-static void scalp_root(hr_rng *g, float p[3], float n[3]) {
+void hr_scalp_root(hr_rng *g, float p[3], float n[3]) {
   for (;;) {
     float d[3] = {hr_rng_normal(g), hr_rng_normal(g), hr_rng_normal(g)};
     if (hr_len(d) < 1e-6f) continue;
@@ -101,11 +125,10 @@ static void scalp_root(hr_rng *g, float p[3], float n[3]) {
   }
 }
 
-/* Pushes p radially out of the head grown by (1 + shell). */
-static void push_out(float p[3], float shell) {
+void hr_push_out_of(const float radii[3], float p[3], float shell) {
   float q = 0;
   for (int k = 0; k < 3; k++) {
-    float t = p[k] / (head_r[k] * (1 + shell));
+    float t = p[k] / (radii[k] * (1 + shell));
     q += t * t;
   }
   if (q < 1 && q > 1e-12f) {
@@ -113,6 +136,9 @@ static void push_out(float p[3], float shell) {
     for (int k = 0; k < 3; k++) p[k] *= s;
   }
 }
+
+/* Pushes p radially out of the head grown by (1 + shell). */
+static void push_out(float p[3], float shell) { hr_push_out_of(head_r, p, shell); }
 
 /* Step 2: the base curve of one strand, n + 1 points into c. */
 static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3],
@@ -221,16 +247,56 @@ static void add_curl(const hfr_style_params *sp, hr_rng *g, const float nrm[3], 
   free(base);
 }
 
+/* A clump's diameter factor: spread^u, u uniform in [-1, 1], from the clump's
+ * own stream. */
+float hr_clump_width(const hfr_style_params *sp, uint64_t clump) {
+  if (!(sp->width_spread > 1)) return 1;
+  hr_rng g = {sp->seed * 0x94d049bb133111ebull + clump * 0x9e3779b97f4a7c15ull + 13};
+  return powf(sp->width_spread, hr_rng_range(&g, -1, 1));
+}
+
+/* Frizz (a smoothed random walk growing to the tip) of every strand, each
+ * from its own stream, then a last push out of the body. */
+void hr_frizz(const hfr_style_params *sp, const float body[3], hfr_hair *h) {
+  size_t base = 0;
+  for (uint32_t s = 0; s < h->strands; s++) {
+    uint32_t n = hfr_hair_strand_segments(h, s);
+    hr_rng g = {sp->seed * 0x2545f4914f6cdd1dull + (uint64_t)s * 0x9e3779b97f4a7c15ull + 7};
+    float *c = h->pos + 3 * base;
+    float walk[3] = {0, 0, 0};
+    for (uint32_t i = 1; i <= n; i++) {
+      float t = (float)i / n;
+      for (int k = 0; k < 3; k++) {
+        walk[k] = 0.75f * walk[k] + 0.25f * hr_rng_normal(&g);
+        c[3 * i + k] += sp->frizz * t * sqrtf(t) * walk[k] * 2.0f;
+      }
+      hr_push_out_of(body, c + 3 * i, 0.005f);
+    }
+    base += n + 1;
+  }
+}
+
 int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
   if (!sp || !out) return HF_EINVAL;
   memset(out, 0, sizeof *out);
   if ((unsigned)sp->style >= HFR_STYLE_COUNT || sp->strands < 1 || sp->segments < 8 ||
       sp->segments > 1024 || !(sp->length > 0) || !(sp->thickness > 0) ||
       !(sp->opacity > 0 && sp->opacity <= 1) || sp->clumping < 0 || sp->clumping > 1 ||
-      sp->frizz < 0 || sp->curl_radius < 0 || sp->curl_period < 0)
+      sp->frizz < 0 || sp->curl_radius < 0 || sp->curl_period < 0 ||
+      !(sp->width_spread >= 0 && sp->width_spread <= 100) || sp->children < 0 ||
+      sp->children > 10000)
     return HF_EINVAL;
   uint64_t points = (uint64_t)sp->strands * (sp->segments + 1);
   if ((uint64_t)sp->strands > HFR_MAX_STRANDS || points > HFR_MAX_POINTS) return HF_ERANGE;
+  if (sp->style == HFR_STYLE_SPIKY || sp->style == HFR_STYLE_FUR) {
+    int rc = hr_generate_from_guides(sp, out);
+    if (rc != HF_OK) return rc;
+    hfr_ellipsoid body;
+    hfr_style_body(sp->style, &body);
+    const float r[3] = {body.radii[0] / 0.99f, body.radii[1] / 0.99f, body.radii[2] / 0.99f};
+    hr_frizz(sp, r, out);
+    return HF_OK;
+  }
   int n = sp->segments;
   out->strands = (uint32_t)sp->strands;
   out->points = (uint32_t)points;
@@ -253,7 +319,7 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
     hr_rng g = {sp->seed * 0x9e3779b97f4a7c15ull + (uint64_t)s * 0xd1b54a32d192ed03ull + 1};
     float nrm[3];
     float *c = out->pos + 3 * (size_t)s * (n + 1);
-    scalp_root(&g, roots + 3 * s, nrm);
+    hr_scalp_root(&g, roots + 3 * s, nrm);
     float len = sp->length * hr_rng_range(&g, 0.85f, 1.1f);
     float shell = hr_rng_range(&g, 0.01f, sp->style == HFR_STYLE_COILY ? 0.05f : 0.12f);
     grow_base(sp, &g, roots + 3 * s, nrm, len, shell, c);
@@ -272,7 +338,8 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
   int guides = sp->strands / 80;
   if (guides < 1) guides = 1;
   if (guides > 2000) guides = 2000;
-  if (sp->clumping > 0 && sp->strands > guides) {
+  int widths = sp->width_spread > 1;
+  if ((sp->clumping > 0 || widths) && sp->strands > guides) {
     size_t one = sizeof(float) * 3 * (n + 1);
     float *gcopy = malloc(one * guides);
     if (!gcopy) {
@@ -281,16 +348,23 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
       return HF_ENOMEM;
     }
     memcpy(gcopy, out->pos, one * guides);
-    for (int s = guides; s < sp->strands; s++) {
+    for (int s = 0; s < sp->strands; s++) {
       const float *r = roots + 3 * s;
-      int best = 0;
-      float bd = INFINITY;
-      for (int q = 0; q < guides; q++) {
-        const float *rq = roots + 3 * q;
-        float d[3] = {r[0] - rq[0], r[1] - rq[1], r[2] - rq[2]};
-        float dd = hr_dot(d, d);
-        if (dd < bd) bd = dd, best = q;
+      int best = s;
+      if (s >= guides) {
+        float bd = INFINITY;
+        for (int q = 0; q < guides; q++) {
+          const float *rq = roots + 3 * q;
+          float d[3] = {r[0] - rq[0], r[1] - rq[1], r[2] - rq[2]};
+          float dd = hr_dot(d, d);
+          if (dd < bd) bd = dd, best = q;
+        }
       }
+      if (widths) {
+        float f = hr_clump_width(sp, (uint64_t)best);
+        for (int i = 0; i <= n; i++) out->thickness[(size_t)s * (n + 1) + i] *= f;
+      }
+      if (s < guides || !(sp->clumping > 0)) continue;
       const float *gp = gcopy + 3 * (size_t)best * (n + 1);
       float *c = out->pos + 3 * (size_t)s * (n + 1);
       for (int i = 1; i <= n; i++) {
@@ -304,19 +378,6 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
     free(gcopy);
   }
   free(roots);
-
-  for (int s = 0; s < sp->strands; s++) {
-    hr_rng g = {sp->seed * 0x2545f4914f6cdd1dull + (uint64_t)s * 0x9e3779b97f4a7c15ull + 7};
-    float *c = out->pos + 3 * (size_t)s * (n + 1);
-    float walk[3] = {0, 0, 0};
-    for (int i = 1; i <= n; i++) {
-      float t = (float)i / n;
-      for (int k = 0; k < 3; k++) {
-        walk[k] = 0.75f * walk[k] + 0.25f * hr_rng_normal(&g);
-        c[3 * i + k] += sp->frizz * t * sqrtf(t) * walk[k] * 2.0f;
-      }
-      push_out(c + 3 * i, 0.005f);
-    }
-  }
+  hr_frizz(sp, head_r, out);
   return HF_OK;
 }

@@ -29,6 +29,8 @@ typedef struct hr_camera {
   float depth_near, depth_far;  /* depth feature 0..1 over this range */
   float px_per_unit;            /* at eye distance 1 (perspective) */
   int ortho;
+  /* The whole frame (pixels) and the window drawn (GL origin: bottom left). */
+  int frame_w, frame_h, win_x, win_y, win_w, win_h;
 } hr_camera;
 
 struct hfr_renderer {
@@ -36,13 +38,18 @@ struct hfr_renderer {
   hr_gl_table gl;               /* entry points of ctx */
   char gl_renderer[128];        /* GL_RENDERER and GL_VERSION */
   int gl_loaded;
-  hr_program st, shadow, abuf, head, resolve_ms, resolve_abuf;
+  hr_program st, shadow, abuf, head, occluder, resolve_ms, resolve_abuf;
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
   uint32_t points;              /* instances drawn: points - 1 */
   GLsizei head_vertices;
-  int has_hair, has_head;
+  int has_hair, has_head;       /* has_head: an occluder is set */
   uint64_t segments;
-  float centre[3], radius;      /* bounding sphere of hair (and head) */
+  float centre[3], radius;      /* bounding sphere of hair (and an enclosed occluder) */
+  float hair_centre[3], hair_radius; /* of the hair alone */
+  /* Position and diameter of up to HR_STAT_POINTS points of the model, evenly
+   * picked, for the strand widths of hfr_frame_stats. */
+  float *stat_pts;              /* [n_stat][4] */
+  uint32_t n_stat;
   GLuint shadow_tex, shadow_fbo;
   int shadow_size;
   int ms_samples;               /* samples the MS framebuffer really has */
@@ -51,8 +58,16 @@ struct hfr_renderer {
 /* Makes r's context current and its entry points the ones hrgl calls. */
 int hr_renderer_bind(hfr_renderer *r);
 
-/* Camera of the view (jitter excluded) at width x height. */
+#define HR_STAT_POINTS (1u << 20)
+
+/* Camera of the view (jitter excluded) at width x height, drawing the
+ * view's crop window. */
 void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);
+/* The viewport that draws cam's window of its whole frame into a target of
+ * the window's size (an offset viewport: see hr_glsl_hair_vs). */
+void hr_set_viewport(const hr_camera *cam);
+/* Size of what v renders: its crop, or the whole frame. */
+void hr_view_target(const hfr_view *v, int *w, int *h);
 /* Light camera for the shadow map. */
 void hr_camera_light(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);
 
@@ -73,6 +88,20 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
  * blended on the host into cpu_gt (tests). */
 int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
                float *gt, float *cpu_gt, hfr_stats *stats, char *err, size_t errlen);
+
+/* The occluder, diffusely lit, at the camera's window with 4x MSAA:
+ * out [h][w][2] (diffuse factor premultiplied by coverage, coverage), rows
+ * top first. */
+int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
+                       const hr_camera *light, float *out, char *err, size_t errlen);
+
+/* The frame statistics of one 4x pass ([h][w][4][6]) and of the model's
+ * points in cam's window. */
+void hr_frame_stats(const hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
+                    const float *pass, int w, int h, hfr_frame_stats *fs);
+
+/* Rotation and scale of hfr_hair_orient on n points of stride floats. */
+void hr_orient_points(float *p, size_t n, size_t stride, hfr_axis up, float scale);
 
 /* Host sort-and-blend of A-buffer lists (heads: ss_w x ss_h, nodes: 5
  * 32-bit words each: c, h, a, d, next) into [h][w][3] rows bottom first. */

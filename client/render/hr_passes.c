@@ -48,10 +48,12 @@ static void draw_fullscreen(hfr_renderer *r, const hr_program *p, int w, int h) 
   hrgl.DrawArrays(GL_TRIANGLES, 0, 3);
 }
 
+/* jx, jy: the pass's sub-pixel offset in pixels. */
 static void set_geometry(const hr_program *p, const hr_camera *cam, const hfr_view *v,
                          float jx, float jy) {
   hr_set_m4(p, "u_view", cam->view);
   hr_set_m4(p, "u_proj", cam->proj);
+  hr_set_2f(p, "u_frame", (float)cam->frame_w, (float)cam->frame_h);
   hr_set_2f(p, "u_jitter", jx, jy);
   hr_set_f(p, "u_px_per_unit", cam->px_per_unit);
   hr_set_i(p, "u_ortho", cam->ortho);
@@ -136,7 +138,7 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
     r->shadow_size = v->shadow_size;
   }
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, r->shadow_fbo);
-  hrgl.Viewport(0, 0, r->shadow_size, r->shadow_size);
+  hr_set_viewport(light);
   const float one = 1.0f;
   hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
   hrgl.Enable(GL_DEPTH_TEST);
@@ -145,7 +147,6 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
   draw_head(r, light, v, 0, 0, 1);
   hrgl.UseProgram(r->shadow.id);
   set_geometry(&r->shadow, light, v, 0, 0);
-  hr_set_2f(&r->shadow, "u_viewport", (float)r->shadow_size, (float)r->shadow_size);
   hr_set_u(&r->shadow, "u_seed", seed);
   hr_set_f(&r->shadow, "u_hash_scale", 1.0f);
   draw_hair(r);
@@ -156,7 +157,7 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
 int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                const hr_camera *light, uint32_t seed, float jx, float jy, int opaque,
                float *out, char *err, size_t errlen) {
-  const int W = v->width, H = v->height, S = 4;
+  const int W = cam->win_w, H = cam->win_h, S = 4;
   GLuint tex[3], fbo[2] = {0, 0}, rtex = 0;
   tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, W, H, S);
   tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RG32F, W, H, S);
@@ -189,7 +190,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hrgl.ClearBufferfv(GL_COLOR, 0, c0);
     hrgl.ClearBufferfv(GL_COLOR, 1, c1);
     hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
-    hrgl.Viewport(0, 0, W, H);
+    hr_set_viewport(cam);
     hrgl.Enable(GL_MULTISAMPLE);
     hrgl.Enable(GL_DEPTH_TEST);
     hrgl.DepthFunc(GL_LESS);
@@ -202,7 +203,6 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hr_bind_shading(r, &r->st, v, cam, light, seed);
     hr_set_i(&r->st, "u_opaque", opaque);
     hr_set_i(&r->st, "u_samples", S);
-    hr_set_2f(&r->st, "u_viewport", (float)W, (float)H);
     draw_hair(r);
     hrgl.Disable(GL_DEPTH_TEST);
 
@@ -247,6 +247,75 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
   hrgl.DeleteFramebuffers(2, fbo);
   hrgl.DeleteTextures(3, tex);
   if (rtex) hrgl.DeleteTextures(1, &rtex);
+  return rc;
+}
+
+int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
+                       const hr_camera *light, float *out, char *err, size_t errlen) {
+  const int W = cam->win_w, H = cam->win_h;
+  GLuint tex[3], fbo[2] = {0, 0};
+  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, W, H, 4);
+  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, W, H, 4);
+  tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
+  hrgl.GenFramebuffers(2, fbo);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[0], 0);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[1], 0);
+  const GLenum b0 = GL_COLOR_ATTACHMENT0;
+  hrgl.DrawBuffers(1, &b0);
+  int rc = fbo_complete("background", err, errlen);
+  float *tmp = NULL;
+  if (rc == HF_OK) {
+    const float zero[4] = {0, 0, 0, 0}, one = 1.0f;
+    hrgl.ClearBufferfv(GL_COLOR, 0, zero);
+    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+    hr_set_viewport(cam);
+    hrgl.Enable(GL_MULTISAMPLE);
+    hrgl.Enable(GL_DEPTH_TEST);
+    hrgl.DepthFunc(GL_LESS);
+    hrgl.DepthMask(GL_TRUE);
+    if (r->has_head) {
+      hrgl.UseProgram(r->occluder.id);
+      set_geometry(&r->occluder, cam, v, 0, 0);
+      hr_bind_shading(r, &r->occluder, v, cam, light, 0);
+      hr_set_f(&r->occluder, "u_normal_offset", 0.02f * r->radius);
+      hrgl.BindVertexArray(r->head_vao);
+      hrgl.DrawArrays(GL_TRIANGLES, 0, r->head_vertices);
+    }
+    hrgl.Disable(GL_DEPTH_TEST);
+    /* Resolve: the average of the 4 samples, premultiplied by coverage. */
+    hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
+    hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, tex[2], 0);
+    hrgl.DrawBuffers(1, &b0);
+    rc = fbo_complete("background resolve", err, errlen);
+  }
+  if (rc == HF_OK) {
+    hrgl.BindFramebuffer(GL_READ_FRAMEBUFFER, fbo[0]);
+    hrgl.BindFramebuffer(GL_DRAW_FRAMEBUFFER, fbo[1]);
+    hrgl.BlitFramebuffer(0, 0, W, H, 0, 0, W, H, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+    hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
+    tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
+    if (!tmp) rc = HF_ENOMEM;
+  }
+  if (rc == HF_OK) {
+    hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
+    hrgl.PixelStorei(GL_PACK_ALIGNMENT, 4);
+    hrgl.ReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, tmp);
+    rc = hr_gl_check("background pass", err, errlen);
+  }
+  if (rc == HF_OK)
+    for (int y = 0; y < H; y++)
+      for (int x = 0; x < W; x++) {
+        const float *s = tmp + 4 * ((size_t)y * W + x);
+        float *o = out + 2 * ((size_t)(H - 1 - y) * W + x);
+        o[0] = s[0], o[1] = s[3];
+      }
+  free(tmp);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
+  hrgl.DeleteFramebuffers(2, fbo);
+  hrgl.DeleteTextures(3, tex);
   return rc;
 }
 
@@ -318,17 +387,24 @@ static void flip_rows(const float *src, float *dst, int w, int h, int ch) {
 
 int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss, float *gt,
                float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
-  const int W = v->width, H = v->height, SW = W * ss, SH = H * ss;
-  GLint maxtex = 0;
+  int W, H;
+  hr_view_target(v, &W, &H);
+  const int SW = W * ss, SH = H * ss;
+  GLint maxtex = 0, maxvp[2] = {0, 0};
   hrgl.GetIntegerv(GL_MAX_TEXTURE_SIZE, &maxtex);
-  if (ss < 1 || SW > maxtex || SH > maxtex) {
-    if (err) snprintf(err, errlen, "supersampled size %dx%d above GL_MAX_TEXTURE_SIZE %d", SW,
-                      SH, (int)maxtex);
+  hrgl.GetIntegerv(GL_MAX_VIEWPORT_DIMS, maxvp);
+  if (ss < 1 || SW > maxtex || SH > maxtex || v->width * ss > maxvp[0] ||
+      v->height * ss > maxvp[1]) {
+    if (err) snprintf(err, errlen, "supersampled size %dx%d (frame %dx%d) above the GL limits "
+                      "(texture %d, viewport %dx%d)", SW, SH, v->width * ss, v->height * ss,
+                      (int)maxtex, (int)maxvp[0], (int)maxvp[1]);
     return HF_ERANGE;
   }
+  /* The same frame and window, ss times finer. */
   hfr_view sv = *v;
-  sv.width = SW;
-  sv.height = SH;
+  sv.width = v->width * ss;
+  sv.height = v->height * ss;
+  sv.crop_x *= ss, sv.crop_y *= ss, sv.crop_w *= ss, sv.crop_h *= ss;
   hr_camera cam;
   hr_camera_from_view(r, &sv, &cam);
 
@@ -366,7 +442,7 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hrgl.BindBufferBase(GL_ATOMIC_COUNTER_BUFFER, 0, bufs[2]);
 
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
-    hrgl.Viewport(0, 0, SW, SH);
+    hr_set_viewport(&cam);
     const float one = 1.0f;
     hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
     hrgl.Enable(GL_DEPTH_TEST);
@@ -377,7 +453,6 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hrgl.UseProgram(r->abuf.id);
     set_geometry(&r->abuf, &cam, &sv, 0, 0);
     hr_bind_shading(r, &r->abuf, &sv, &cam, light, 0);
-    hr_set_2f(&r->abuf, "u_viewport", (float)SW, (float)SH);
     hr_set_u(&r->abuf, "u_capacity", capacity);
     hr_set_i(&r->abuf, "u_width", SW);
     draw_hair(r);

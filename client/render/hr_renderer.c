@@ -28,8 +28,8 @@ int hr_renderer_bind(hfr_renderer *r) {
 void hfr_renderer_destroy(hfr_renderer *r) {
   if (!r) return;
   if (r->ctx && hr_renderer_bind(r) == HF_OK) {
-    hr_program *progs[] = {&r->st, &r->shadow, &r->abuf, &r->head, &r->resolve_ms,
-                           &r->resolve_abuf};
+    hr_program *progs[] = {&r->st,         &r->shadow,     &r->abuf,        &r->head,
+                           &r->occluder,   &r->resolve_ms, &r->resolve_abuf};
     for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) hr_program_free(progs[i]);
     GLuint vaos[] = {r->hair_vao, r->head_vao, r->empty_vao};
     GLuint bufs[] = {r->hair_vbo, r->head_vbo};
@@ -39,42 +39,64 @@ void hfr_renderer_destroy(hfr_renderer *r) {
     if (r->shadow_fbo) hrgl.DeleteFramebuffers(1, &r->shadow_fbo);
   }
   hr_context_destroy(r->ctx);
+  free(r->stat_pts);
   free(r);
 }
 
-/* A lat-long ellipsoid, slightly inside HFR_HEAD_RADII so that it never
- * hides a root. */
-static int build_head(hfr_renderer *r) {
-  const int slices = 48, stacks = 24;
-  const float rad[3] = HFR_HEAD_RADII;
-  size_t n = (size_t)slices * stacks * 6;
-  float *v = malloc(n * 3 * sizeof(float));
-  if (!v) return HF_ENOMEM;
-  size_t k = 0;
-  for (int i = 0; i < stacks; i++)
-    for (int j = 0; j < slices; j++) {
-      float th[2] = {HR_PI * i / stacks, HR_PI * (i + 1) / stacks};
-      float ph[2] = {2 * HR_PI * j / slices, 2 * HR_PI * (j + 1) / slices};
-      int quad[6][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 0}, {1, 1}, {0, 1}};
-      for (int q = 0; q < 6; q++) {
-        float t = th[quad[q][0]], p = ph[quad[q][1]];
-        v[3 * k + 0] = 0.99f * rad[0] * sinf(t) * sinf(p);
-        v[3 * k + 1] = 0.99f * rad[1] * cosf(t);
-        v[3 * k + 2] = 0.99f * rad[2] * sinf(t) * cosf(p);
-        k++;
-      }
-    }
-  hrgl.GenVertexArrays(1, &r->head_vao);
-  hrgl.GenBuffers(1, &r->head_vbo);
+/* Uploads the occluder's triangles (position, normal), or none. */
+static int upload_occluder(hfr_renderer *r, const hfr_mesh *m) {
+  r->has_head = 0;
+  r->head_vertices = 0;
+  if (!m || !m->vertices) return HF_OK;
+  if (m->vertices > 3 * HFR_MESH_MAX_TRIANGLES || !m->v) return HF_ERANGE;
+  if (!r->head_vao) {
+    hrgl.GenVertexArrays(1, &r->head_vao);
+    hrgl.GenBuffers(1, &r->head_vbo);
+  }
   hrgl.BindVertexArray(r->head_vao);
   hrgl.BindBuffer(GL_ARRAY_BUFFER, r->head_vbo);
-  hrgl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(n * 3 * sizeof(float)), v, GL_STATIC_DRAW);
-  hrgl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), (void *)0);
+  hrgl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)((size_t)m->vertices * 6 * sizeof(float)), m->v,
+                  GL_STATIC_DRAW);
+  hrgl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)0);
   hrgl.EnableVertexAttribArray(0);
+  hrgl.VertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float),
+                           (void *)(3 * sizeof(float)));
+  hrgl.EnableVertexAttribArray(1);
   hrgl.BindVertexArray(0);
-  free(v);
-  r->head_vertices = (GLsizei)n;
+  r->head_vertices = (GLsizei)m->vertices;
+  r->has_head = 1;
   return HF_OK;
+}
+
+/* Grows the sphere (centre, *radius) just enough to contain q. */
+static void grow_sphere(float centre[3], float *radius, const float q[3]) {
+  float d[3] = {q[0] - centre[0], q[1] - centre[1], q[2] - centre[2]};
+  float l = hr_len(d);
+  if (l <= *radius) return;
+  float nr = 0.5f * (*radius + l);
+  for (int c = 0; c < 3; c++) centre[c] += d[c] / l * (nr - *radius);
+  *radius = nr;
+}
+
+void hfr_renderer_bounds(const hfr_renderer *r, float centre[3], float *radius) {
+  memcpy(centre, r->centre, 3 * sizeof(float));
+  *radius = r->radius;
+}
+
+int hfr_renderer_set_occluder(hfr_renderer *r, const hfr_mesh *m, int enclose, char *err,
+                              size_t errlen) {
+  if (!r || !r->has_hair) return HF_EINVAL;
+  int rc = hr_renderer_bind(r);
+  if (rc != HF_OK) return rc;
+  memcpy(r->centre, r->hair_centre, sizeof r->centre);
+  r->radius = r->hair_radius;
+  if ((rc = upload_occluder(r, m)) != HF_OK) {
+    if (err) snprintf(err, errlen, "occluder of %u vertices: too large", m->vertices);
+    return rc;
+  }
+  if (m && enclose)
+    for (uint32_t i = 0; i < m->vertices; i++) grow_sphere(r->centre, &r->radius, m->v + 6 * (size_t)i);
+  return hr_gl_check("occluder upload", err, errlen);
 }
 
 int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, size_t errlen) {
@@ -103,6 +125,7 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
     {&r->shadow, hr_glsl_hair_vs, NULL, hr_glsl_shadow_fs},
     {&r->abuf, hr_glsl_hair_vs, NULL, hr_glsl_abuf_fs},
     {&r->head, hr_glsl_head_vs, NULL, hr_glsl_head_fs},
+    {&r->occluder, hr_glsl_head_vs, NULL, hr_glsl_occluder_fs},
     {&r->resolve_ms, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_ms_fs},
     {&r->resolve_abuf, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_abuf_fs},
   };
@@ -114,7 +137,7 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
     }
   }
   hrgl.GenVertexArrays(1, &r->empty_vao);
-  if ((rc = build_head(r)) != HF_OK || (rc = hr_gl_check("renderer setup", err, errlen))) {
+  if ((rc = hr_gl_check("renderer setup", err, errlen))) {
     hfr_renderer_destroy(r);
     return rc;
   }
@@ -145,8 +168,8 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
   if (!v) return HF_ENOMEM;
   float centre[3], radius;
   hfr_hair_bounds(h, centre, &radius);
-  float def_thick = h->default_thickness;
-  if (!(def_thick > 0) || !isfinite(def_thick)) def_thick = radius * 5e-4f;
+  /* The same fallback the loader documents and warns about. */
+  float def_thick = hfr_hair_default_thickness(h, radius, NULL);
   float def_opac = 1 - h->default_transparency;
   if (!(def_opac > 0 && def_opac <= 1)) def_opac = 0.8f;
 
@@ -189,32 +212,53 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
       hrgl.EnableVertexAttribArray(loc);
     }
   hrgl.BindVertexArray(0);
+  /* Evenly picked points for the strand-width statistics. */
+  uint32_t pick = h->points / HR_STAT_POINTS + 1, n_stat = (h->points + pick - 1) / pick;
+  float *sp = realloc(r->stat_pts, sizeof(float) * 4 * n_stat);
+  if (!sp) {
+    free(v);
+    return HF_ENOMEM;
+  }
+  r->stat_pts = sp;
+  r->n_stat = n_stat;
+  for (uint32_t k = 0; k < n_stat; k++)
+    memcpy(sp + 4 * k, v + (size_t)k * pick * VERTEX_FLOATS, 3 * sizeof(float)),
+        sp[4 * k + 3] = v[(size_t)k * pick * VERTEX_FLOATS + 6];
   free(v);
   r->points = h->points;
   r->segments = hfr_hair_total_segments(h);
   r->has_hair = 1;
-  r->has_head = head != 0;
-  if (r->has_head) {
+  memcpy(r->hair_centre, centre, sizeof centre);
+  r->hair_radius = radius;
+  hfr_mesh head_mesh = {0};
+  if (head) {
+    hfr_ellipsoid e;
+    hfr_style_body(HFR_STYLE_STRAIGHT, &e);
+    if ((rc = hfr_mesh_ellipsoid(&e, 48, 24, &head_mesh)) != HF_OK) return rc;
     /* Enclose the head too: it can stick out of short hair. */
     const float hr_[3] = HFR_HEAD_RADII;
-    for (int k = 0; k < 3; k++) {
+    for (int k = 0; k < 3; k++)
       for (int sgn = -1; sgn <= 1; sgn += 2) {
         float q[3] = {0, 0, 0};
         q[k] = sgn * hr_[k];
-        float d[3] = {q[0] - centre[0], q[1] - centre[1], q[2] - centre[2]};
-        float l = hr_len(d);
-        if (l > radius) {
-          /* Grow the sphere just enough to contain q. */
-          float nr = 0.5f * (radius + l);
-          for (int c = 0; c < 3; c++) centre[c] += d[c] / l * (nr - radius);
-          radius = nr;
-        }
+        grow_sphere(centre, &radius, q);
       }
-    }
   }
+  rc = upload_occluder(r, head ? &head_mesh : NULL);
+  hfr_mesh_free(&head_mesh);
+  if (rc != HF_OK) return rc;
   memcpy(r->centre, centre, sizeof centre);
   r->radius = radius;
   return hr_gl_check("hair upload", err, errlen);
+}
+
+void hr_view_target(const hfr_view *v, int *w, int *h) {
+  *w = v->crop_w > 0 ? v->crop_w : v->width;
+  *h = v->crop_w > 0 ? v->crop_h : v->height;
+}
+
+void hr_set_viewport(const hr_camera *cam) {
+  hrgl.Viewport(-cam->win_x, -cam->win_y, cam->frame_w, cam->frame_h);
 }
 
 void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *cam) {
@@ -230,6 +274,10 @@ void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *ca
   cam->depth_far = dist + r->radius;
   cam->px_per_unit = cam->proj[5] * v->height * 0.5f;
   cam->ortho = 0;
+  cam->frame_w = v->width, cam->frame_h = v->height;
+  hr_view_target(v, &cam->win_w, &cam->win_h);
+  cam->win_x = v->crop_w > 0 ? v->crop_x : 0;
+  cam->win_y = v->crop_w > 0 ? v->height - v->crop_y - v->crop_h : 0;
 }
 
 void hr_camera_light(const hfr_renderer *r, const hfr_view *v, hr_camera *cam) {
@@ -253,4 +301,6 @@ void hr_camera_light(const hfr_renderer *r, const hfr_view *v, hr_camera *cam) {
   cam->depth_near = n;
   cam->depth_far = f;
   cam->px_per_unit = cam->proj[5] * size * 0.5f;
+  cam->frame_w = cam->frame_h = cam->win_w = cam->win_h = size;
+  cam->win_x = cam->win_y = 0;
 }

@@ -4,6 +4,24 @@
 
 #define GLSL_VERSION "#version 450 core\n"
 
+/* Window coordinates, snapped, for every pass (hair and occluder): a
+ * vertex's position in pixels of the whole (virtual) u_frame, plus the
+ * pass's sub-pixel jitter and any quad offset, snapped to 1/256 pixel,
+ * turned back into clip coordinates. A crop is drawn with exactly these clip
+ * coordinates and a viewport moved by the crop's origin (hr_set_viewport), so
+ * the rasteriser sees the same snapped positions less an integer offset, and
+ * its own 1/256-pixel snapping (llvmpipe's, and most GPUs') lands on the
+ * same grid point in both: a crop covers exactly the samples the same window
+ * of the whole frame does, at the cost of a crop-sized render. */
+#define SNAP_GLSL                                                                        \
+"uniform vec2 u_frame;           /* the whole frame in pixels */\n"                      \
+"uniform vec2 u_jitter;          /* sub-pixel offset of this pass, pixels */\n"        \
+"vec2 to_window(vec4 c) { return (c.xy / c.w * 0.5 + 0.5) * u_frame + u_jitter; }\n"  \
+"vec4 from_window(vec2 win, vec4 c) {\n"                                                \
+"  win = floor(win * 256.0 + 0.5) / 256.0;\n"                                           \
+"  return vec4((win / u_frame * 2.0 - 1.0) * c.w, c.zw);\n"                             \
+"}\n"
+
 /* Hair: one instance per segment, four vertices each, expanded here into
  * a quad one pixel wide, or as wide as the strand where that is wider
  * (rather than GL lines, whose multisampled rasterisation on llvmpipe loses
@@ -26,8 +44,7 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "layout(location = 9) in float a_strand1;\n"
 "uniform mat4 u_view;\n"
 "uniform mat4 u_proj;\n"
-"uniform vec2 u_jitter;          /* NDC offset of this pass */\n"
-"uniform vec2 u_viewport;        /* target size in pixels */\n"
+SNAP_GLSL
 "uniform float u_px_per_unit;    /* pixels per model unit at eye distance 1 */\n"
 "uniform int u_ortho;\n"
 "uniform float u_thick_scale;\n"
@@ -35,8 +52,6 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "void main() {\n"
 "  vec4 e0 = u_view * vec4(a_pos0, 1.0), e1 = u_view * vec4(a_pos1, 1.0);\n"
 "  vec4 c0 = u_proj * e0, c1 = u_proj * e1;\n"
-"  c0.xy += u_jitter * c0.w;\n"
-"  c1.xy += u_jitter * c1.w;\n"
 "  bool second = gl_VertexID >= 2;\n"
 "  vo.obj = second ? a_pos1 : a_pos0;\n"
 "  vo.wtan = second ? a_tan1 : a_tan0;\n"
@@ -53,18 +68,40 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);   /* outside the clip volume: culled */\n"
 "    return;\n"
 "  }\n"
-"  vec2 s0 = c0.xy / c0.w * u_viewport * 0.5, s1 = c1.xy / c1.w * u_viewport * 0.5;\n"
+"  vec2 s0 = to_window(c0), s1 = to_window(c1);\n"
 "  vec2 d = s1 - s0;\n"
 "  d = length(d) > 1e-6 ? normalize(d) : vec2(1.0, 0.0);\n"
-"  /* Half the quad's width each side, in NDC: one pixel for a strand\n"
-"   * narrower than a pixel (its width is in alpha), the strand's own width\n"
-"   * for a wider one (alpha is then the opacity alone), so the covered area\n"
-"   * is the strand's at every width. */\n"
-"  vec2 off = vec2(-d.y, d.x) / u_viewport * max(px, 1.0) *\n"
-"             ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
-"  vec4 c = second ? c1 : c0;\n"
-"  gl_Position = vec4(c.xy + off * c.w, c.zw);\n"
+"  /* Half the quad's width each side, in pixels: one pixel in all for a\n"
+"   * strand narrower than a pixel (its width is in alpha), the strand's own\n"
+"   * width for a wider one (alpha is then the opacity alone), so the covered\n"
+"   * area is the strand's at every width. */\n"
+"  vec2 off = vec2(-d.y, d.x) * 0.5 * max(px, 1.0) * ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
+"  gl_Position = from_window((second ? s1 : s0) + off, second ? c1 : c0);\n"
 "}\n";
+
+/* The light and the stochastic shadow map lookup (hair and occluder). */
+#define FS_LIGHT                                                                \
+"uniform vec3 u_light;          /* position, or direction towards the light */\n" \
+"uniform int u_light_directional;\n"                                            \
+"uniform int u_shadow_on;\n"                                                    \
+"uniform sampler2DShadow u_shadow;\n"                                           \
+"uniform mat4 u_light_view, u_light_vp;\n"                                      \
+"uniform float u_shadow_near, u_shadow_far, u_shadow_bias, u_shadow_texel;\n"   \
+"float shadow_visibility(vec3 p) {\n"                                           \
+"  if (u_shadow_on == 0) return 1.0;\n"                                         \
+"  vec4 c = u_light_vp * vec4(p, 1.0);\n"                                       \
+"  vec2 uv = c.xy / c.w * 0.5 + 0.5;\n"                                         \
+"  if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;\n" \
+"  float d = -(u_light_view * vec4(p, 1.0)).z;\n"                               \
+"  float ref = (d - u_shadow_near) / (u_shadow_far - u_shadow_near) - u_shadow_bias;\n" \
+"  /* Four bilinear comparisons half a texel apart: a 3x3-texel PCF footprint\n" \
+"   * that smooths the 1-sample stochastic map. */\n"                          \
+"  float s = 0.0;\n"                                                            \
+"  for (int y = 0; y < 2; y++)\n"                                               \
+"    for (int x = 0; x < 2; x++)\n"                                             \
+"      s += texture(u_shadow, vec3(uv + (vec2(x, y) - 0.5) * u_shadow_texel, ref));\n" \
+"  return s * 0.25;\n"                                                          \
+"}\n"
 
 /* Shared fragment code: hash, hashed alpha threshold, shading, shadows. */
 #define FS_COMMON                                                               \
@@ -72,15 +109,10 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "uniform uint u_seed;\n"                                                        \
 "uniform float u_hash_scale;\n"                                                 \
 "uniform float u_depth_near, u_depth_far;\n"                                    \
-"uniform vec3 u_light;          /* position, or direction towards the light */\n" \
-"uniform int u_light_directional;\n"                                            \
+FS_LIGHT                                                                        \
 "uniform vec3 u_eye;\n"                                                         \
 "uniform float u_alpha_r, u_alpha_trt, u_ambient;\n"                            \
 "uniform int u_spec_half;\n"                                                    \
-"uniform int u_shadow_on;\n"                                                    \
-"uniform sampler2DShadow u_shadow;\n"                                           \
-"uniform mat4 u_light_view, u_light_vp;\n"                                      \
-"uniform float u_shadow_near, u_shadow_far, u_shadow_bias, u_shadow_texel;\n"   \
 "uvec3 pcg3d(uvec3 v) {\n"                                                      \
 "  v = v * 1664525u + 1013904223u;\n"                                           \
 "  v.x += v.y * v.z; v.y += v.z * v.x; v.z += v.x * v.y;\n"                     \
@@ -120,21 +152,6 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "float hash_log2_scale() {\n"                                                   \
 "  float m = max(length(dFdx(vi.obj)), length(dFdy(vi.obj)));\n"                \
 "  return log2(1.0 / (u_hash_scale * max(m, 1e-12)));\n"                        \
-"}\n"                                                                           \
-"float shadow_visibility(vec3 p) {\n"                                           \
-"  if (u_shadow_on == 0) return 1.0;\n"                                         \
-"  vec4 c = u_light_vp * vec4(p, 1.0);\n"                                       \
-"  vec2 uv = c.xy / c.w * 0.5 + 0.5;\n"                                         \
-"  if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;\n" \
-"  float d = -(u_light_view * vec4(p, 1.0)).z;\n"                               \
-"  float ref = (d - u_shadow_near) / (u_shadow_far - u_shadow_near) - u_shadow_bias;\n" \
-"  /* Four bilinear comparisons half a texel apart: a 3x3-texel PCF footprint\n" \
-"   * that smooths the 1-sample stochastic map. */\n"                          \
-"  float s = 0.0;\n"                                                            \
-"  for (int y = 0; y < 2; y++)\n"                                               \
-"    for (int x = 0; x < 2; x++)\n"                                             \
-"      s += texture(u_shadow, vec3(uv + (vec2(x, y) - 0.5) * u_shadow_texel, ref));\n" \
-"  return s * 0.25;\n"                                                          \
 "}\n"                                                                           \
 "/* Fig. 3 of the paper: colour factor F_d + F_TRT (+ ambient), highlight F_R. */\n" \
 "void shade(out float color, out float highlight) {\n"                          \
@@ -218,17 +235,21 @@ const char hr_glsl_abuf_fs[] = GLSL_VERSION FS_COMMON
 "  nodes[i].next = atomicExchange(heads[p.y * u_width + p.x], i);\n"
 "}\n";
 
+/* The occluder: position and normal per vertex, snapped like the hair. */
 const char hr_glsl_head_vs[] = GLSL_VERSION
 "layout(location = 0) in vec3 a_pos;\n"
+"layout(location = 1) in vec3 a_nrm;\n"
 "uniform mat4 u_view, u_proj;\n"
-"uniform vec2 u_jitter;\n"
+SNAP_GLSL
 "out float v_vdist;\n"
+"out vec3 v_pos, v_nrm;\n"
 "void main() {\n"
 "  vec4 e = u_view * vec4(a_pos, 1.0);\n"
 "  vec4 c = u_proj * e;\n"
-"  c.xy += u_jitter * c.w;\n"
-"  gl_Position = c;\n"
+"  gl_Position = c.w > 0.0 ? from_window(to_window(c), c) : c;\n"
 "  v_vdist = -e.z;\n"
+"  v_pos = a_pos;\n"
+"  v_nrm = a_nrm;\n"
 "}\n";
 
 /* In the shadow pass depth is the same linear measure the hair writes. */
@@ -240,6 +261,24 @@ const char hr_glsl_head_fs[] = GLSL_VERSION
 "  gl_FragDepth = u_linear_depth != 0\n"
 "      ? clamp((v_vdist - u_depth_near) / (u_depth_far - u_depth_near), 0.0, 1.0)\n"
 "      : gl_FragCoord.z;\n"
+"}\n";
+
+/* The occluder in the background layer: diffuse (a fifth ambient), lit by
+ * the hair's light and shadowed by the hair through the shadow map (looked
+ * up a little off the surface, so the occluder does not shadow itself);
+ * coverage in alpha. The host multiplies by albedo and light colour. */
+const char hr_glsl_occluder_fs[] = GLSL_VERSION
+FS_LIGHT
+"in float v_vdist;\n"
+"in vec3 v_pos, v_nrm;\n"
+"uniform float u_normal_offset;\n"
+"out vec4 o;\n"
+"void main() {\n"
+"  vec3 n = length(v_nrm) > 0.0 ? normalize(v_nrm) : vec3(0.0, 1.0, 0.0);\n"
+"  vec3 L = u_light_directional != 0 ? normalize(u_light) : normalize(u_light - v_pos);\n"
+"  float ndl = max(dot(n, L), 0.0);\n"
+"  float vis = ndl > 0.0 ? shadow_visibility(v_pos + n * u_normal_offset) : 0.0;\n"
+"  o = vec4(0.2 + 0.8 * ndl * vis, 0.0, 0.0, 1.0);\n"
 "}\n";
 
 /* One triangle that covers the framebuffer without being clipped: the

@@ -11,9 +11,11 @@ extern const char hr_glsl_st_fs[];
 extern const char hr_glsl_shadow_fs[];
 /* A-buffer insertion. */
 extern const char hr_glsl_abuf_fs[];
-/* Head: an opaque occluder. */
+/* The occluder: opaque depth (head_fs), and its diffuse shading in the
+ * background layer (occluder_fs). */
 extern const char hr_glsl_head_vs[];
 extern const char hr_glsl_head_fs[];
+extern const char hr_glsl_occluder_fs[];
 /* Full-viewport triangle and the two resolve passes. */
 extern const char hr_glsl_fullscreen_vs[];
 extern const char hr_glsl_resolve_ms_fs[];

@@ -8,7 +8,7 @@ packages=(
   libcjson-dev libopenexr-dev libpng-dev libuv1-dev libcmocka-dev
   libdnnl-dev libosmesa6-dev
   python3 python3-numpy python3-torch libopenblas0-openmp python3-openimageio
-  libegl-dev
+  libegl-dev libassimp-dev
 )
 
 missing=()

@@ -180,24 +180,36 @@ static void test_styles(void **state) {
     hfr_style_params p;
     hfr_style_defaults((hfr_style)s, &p);
     assert_true(p.strands >= 50000);
-    assert_int_equal(a.strands, 300);
-    assert_int_equal(a.points, 300u * (p.segments + 1));
+    /* Guide styles: 300 / (children + 1) guides, each with its children. */
+    uint32_t strands = p.children ? 300u / (p.children + 1) * (p.children + 1) : 300u;
+    assert_int_equal(a.strands, strands);
+    assert_int_equal(a.points, strands * (p.segments + 1));
+    /* The body the style grows on (0.99 of it: the occluder). */
+    hfr_ellipsoid body;
+    hfr_style_body((hfr_style)s, &body);
+    float br[3], minr = 1e9f;
+    for (int k = 0; k < 3; k++) br[k] = body.radii[k] / 0.99f, minr = fminf(minr, br[k]);
+    if (s < HFR_STYLE_SPIKY) assert_memory_equal(head_r, br, sizeof br);
     float lo = 1e9f, hi = 0;
     for (uint32_t i = 0; i < a.points; i++) {
       float q = 0;
       for (int k = 0; k < 3; k++) {
         float x = a.pos[3 * i + k];
         assert_true(isfinite(x));
-        q += (x / head_r[k]) * (x / head_r[k]);
+        q += (x / br[k]) * (x / br[k]);
       }
       q = sqrtf(q);
-      /* Roots on the scalp, nothing inside the head. */
+      /* Roots on the scalp (skin), nothing inside the body. */
       if (i % (p.segments + 1) == 0) assert_true(fabsf(q - 1) < 1e-3f);
       if (q < lo) lo = q;
       if (q > hi) hi = q;
     }
     assert_true(lo > 0.999f);
-    assert_true(hi > 1.2f); /* the hair leaves the scalp */
+    assert_true(hi > 1 + 0.4f * p.length / minr); /* the hair leaves the scalp */
+    /* Widths and opacities as asked, tapering. */
+    assert_non_null(a.thickness);
+    for (uint32_t i = 0; i < a.points; i++)
+      assert_true(a.thickness[i] > 0.2f * p.thickness && a.thickness[i] <= p.thickness * 1.0001f);
     hfr_hair_free(&a);
     hfr_hair_free(&b);
     hfr_hair_free(&c);

@@ -1,0 +1,79 @@
+/* Loaded models as they come (hfrender.h, hfr_asset_load): a .hair file in
+ * its own conventions, with guides rather than every strand, and nothing
+ * for the hair to grow on. The order matters: widths are judged in the
+ * file's units (the reference writer's unset 1.0 must be seen before any
+ * scaling), the occluder is fitted on the guides' roots (children are
+ * offset from them), and children are grown last, in the renderer's
+ * frame. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+
+#include "hfrender.h"
+
+void hfr_asset_defaults(hfr_asset_opts *o) {
+  memset(o, 0, sizeof *o);
+  o->up = HFR_AXIS_Y;
+  o->scale = 1;
+  hfr_children_defaults(&o->children);
+  o->children.children = 0;
+}
+
+int hfr_asset_fitted(const hfr_asset_opts *o) {
+  return !o->occluder || !*o->occluder || !strcasecmp(o->occluder, "fit") ||
+         !strcasecmp(o->occluder, "auto");
+}
+
+int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hfr_mesh *occ,
+                   char *warn, size_t warnlen, char *err, size_t errlen) {
+  if (!path || !o || !hair || !occ) return HF_EINVAL;
+  memset(occ, 0, sizeof *occ);
+  if (warn && warnlen) warn[0] = 0;
+  float scale = o->scale > 0 ? o->scale : 1;
+  int rc = hfr_hair_load(path, hair, err, errlen);
+  if (rc != HF_OK) return rc;
+  if (o->thickness > 0) {
+    /* The user's diameter, for every strand. */
+    free(hair->thickness);
+    hair->thickness = NULL;
+    hair->default_thickness = o->thickness;
+  } else {
+    hfr_hair_check_widths(hair, warn, warnlen);
+  }
+  if ((rc = hfr_hair_orient(hair, o->up, scale)) != HF_OK) {
+    if (err) snprintf(err, errlen, "bad up axis or scale");
+    goto fail;
+  }
+  const char *kind = o->occluder;
+  if (hfr_asset_fitted(o)) {
+    hfr_ellipsoid e;
+    if (hair->strands >= 4 && hfr_ellipsoid_fit_roots(hair, &e) == HF_OK)
+      rc = hfr_mesh_ellipsoid(&e, 64, 32, occ);
+    /* Fewer than 4 roots: nothing to fit, no occluder. */
+  } else if (strcasecmp(kind, "none")) {
+    rc = hfr_mesh_load(kind, occ, err, errlen);
+    if (rc == HF_OK) rc = hfr_mesh_orient(occ, o->up, scale);
+  }
+  if (rc != HF_OK) {
+    if (err && !*err) snprintf(err, errlen, "occluder: %s", hf_strerror(rc));
+    goto fail;
+  }
+  if (o->children.children > 0) {
+    hfr_hair grown;
+    rc = hfr_hair_interpolate(hair, &o->children, &grown);
+    if (rc != HF_OK) {
+      if (err)
+        snprintf(err, errlen, "children: %s (%u guides x %d children)", hf_strerror(rc),
+                 hair->strands, o->children.children);
+      goto fail;
+    }
+    hfr_hair_free(hair);
+    *hair = grown;
+  }
+  return HF_OK;
+fail:
+  hfr_hair_free(hair);
+  hfr_mesh_free(occ);
+  return rc;
+}

@@ -1,0 +1,259 @@
+/* Occluders: triangle meshes, ellipsoids and the ellipsoid fitted under a
+ * loaded model's roots.
+ *
+ * A .hair file has strands only; what they grow on (a scalp, a body) is
+ * missing, so without an occluder the hair behind the head shows through
+ * it. Roots are the first point of each strand and lie on that surface, so
+ * an ellipsoid fitted to them stands in for it. The fit is a 3x3 symmetric
+ * eigenproblem (the roots' principal axes, cyclic Jacobi) and a 6x6 linear
+ * least-squares solve (Gaussian elimination): a few lines each, part of the
+ * renderer's geometry like hr_math.c, and no linear-algebra library is a
+ * dependency of the project. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hfrender.h"
+#include "hr_internal.h"
+#include "hr_math.h"
+
+void hfr_mesh_free(hfr_mesh *m) {
+  if (!m) return;
+  free(m->v);
+  memset(m, 0, sizeof *m);
+}
+
+/* Point and normal of e at polar angle th (from axis 1) and azimuth ph. */
+static void ellipsoid_at(const hfr_ellipsoid *e, float th, float ph, float *o) {
+  float s[3] = {sinf(th) * sinf(ph), cosf(th), sinf(th) * cosf(ph)};
+  float n[3] = {0, 0, 0};
+  for (int k = 0; k < 3; k++) o[k] = e->centre[k];
+  for (int a = 0; a < 3; a++)
+    for (int k = 0; k < 3; k++) {
+      o[k] += e->radii[a] * s[a] * e->axes[a][k];
+      n[k] += s[a] / fmaxf(e->radii[a], 1e-30f) * e->axes[a][k];
+    }
+  hr_normalize(n);
+  memcpy(o + 3, n, sizeof n);
+}
+
+int hfr_mesh_ellipsoid(const hfr_ellipsoid *e, int slices, int stacks, hfr_mesh *out) {
+  if (!e || !out || slices < 3 || stacks < 2 || slices > 4096 || stacks > 4096) return HF_EINVAL;
+  memset(out, 0, sizeof *out);
+  size_t n = (size_t)slices * stacks * 6;
+  out->v = malloc(n * 6 * sizeof(float));
+  if (!out->v) return HF_ENOMEM;
+  size_t k = 0;
+  for (int i = 0; i < stacks; i++)
+    for (int j = 0; j < slices; j++) {
+      float th[2] = {HR_PI * i / stacks, HR_PI * (i + 1) / stacks};
+      float ph[2] = {2 * HR_PI * j / slices, 2 * HR_PI * (j + 1) / slices};
+      static const int quad[6][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 0}, {1, 1}, {0, 1}};
+      for (int q = 0; q < 6; q++) ellipsoid_at(e, th[quad[q][0]], ph[quad[q][1]], out->v + 6 * k++);
+    }
+  out->vertices = (uint32_t)n;
+  return HF_OK;
+}
+
+int hfr_mesh_orient(hfr_mesh *m, hfr_axis up, float scale) {
+  if (!m || (unsigned)up >= HFR_AXIS_COUNT || !isfinite(scale) || !(scale > 0)) return HF_EINVAL;
+  hr_orient_points(m->v, m->vertices, 6, up, scale);
+  hr_orient_points(m->v + 3, m->vertices, 6, up, 1);
+  return HF_OK;
+}
+
+/* ---- the fit -------------------------------------------------------------- */
+
+/* Eigenvectors (columns of v) and eigenvalues (d) of the symmetric a, by
+ * cyclic Jacobi rotations; sorted by decreasing eigenvalue. */
+static void eigen_sym3(const double a_in[3][3], double d[3], double v[3][3]) {
+  double a[3][3];
+  memcpy(a, a_in, sizeof a);
+  for (int i = 0; i < 3; i++)
+    for (int j = 0; j < 3; j++) v[i][j] = i == j;
+  for (int sweep = 0; sweep < 50; sweep++) {
+    double off = fabs(a[0][1]) + fabs(a[0][2]) + fabs(a[1][2]);
+    if (off < 1e-300) break;
+    for (int p = 0; p < 2; p++)
+      for (int q = p + 1; q < 3; q++) {
+        if (fabs(a[p][q]) < 1e-300) continue;
+        double th = 0.5 * (a[q][q] - a[p][p]) / a[p][q];
+        double t = (th >= 0 ? 1 : -1) / (fabs(th) + sqrt(th * th + 1));
+        double c = 1 / sqrt(t * t + 1), s = t * c;
+        for (int k = 0; k < 3; k++) { /* a <- a J */
+          double akp = a[k][p], akq = a[k][q];
+          a[k][p] = c * akp - s * akq;
+          a[k][q] = s * akp + c * akq;
+        }
+        for (int k = 0; k < 3; k++) { /* a <- J^T a */
+          double apk = a[p][k], aqk = a[q][k];
+          a[p][k] = c * apk - s * aqk;
+          a[q][k] = s * apk + c * aqk;
+        }
+        for (int k = 0; k < 3; k++) {
+          double vkp = v[k][p], vkq = v[k][q];
+          v[k][p] = c * vkp - s * vkq;
+          v[k][q] = s * vkp + c * vkq;
+        }
+      }
+  }
+  for (int i = 0; i < 3; i++) d[i] = a[i][i];
+  for (int i = 0; i < 2; i++)
+    for (int j = i + 1; j < 3; j++)
+      if (d[j] > d[i]) {
+        double t = d[i];
+        d[i] = d[j], d[j] = t;
+        for (int k = 0; k < 3; k++) t = v[k][i], v[k][i] = v[k][j], v[k][j] = t;
+      }
+}
+
+/* Solves m x = b (n x n, n <= 6) by Gaussian elimination with partial
+ * pivoting; 0 when singular. */
+static int solve(double m[6][6], double b[6], int n, double x[6]) {
+  for (int c = 0; c < n; c++) {
+    int p = c;
+    for (int r = c + 1; r < n; r++)
+      if (fabs(m[r][c]) > fabs(m[p][c])) p = r;
+    if (fabs(m[p][c]) < 1e-12 * (fabs(m[0][0]) + 1e-300)) return 0;
+    for (int k = 0; k < n; k++) {
+      double t = m[c][k];
+      m[c][k] = m[p][k], m[p][k] = t;
+    }
+    double t = b[c];
+    b[c] = b[p], b[p] = t;
+    for (int r = c + 1; r < n; r++) {
+      double f = m[r][c] / m[c][c];
+      for (int k = c; k < n; k++) m[r][k] -= f * m[c][k];
+      b[r] -= f * b[c];
+    }
+  }
+  for (int r = n - 1; r >= 0; r--) {
+    double s = b[r];
+    for (int k = r + 1; k < n; k++) s -= m[r][k] * x[k];
+    x[r] = s / m[r][r];
+  }
+  return 1;
+}
+
+static int cmp_float(const void *a, const void *b) {
+  float x = *(const float *)a, y = *(const float *)b;
+  return (x > y) - (x < y);
+}
+
+int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
+  if (!h || !out || !h->pos || h->strands < 4) return HF_EINVAL;
+  const uint32_t N = h->strands;
+  float *u = malloc(sizeof(float) * 3 * N), *q = malloc(sizeof(float) * N);
+  if (!u || !q) {
+    free(u), free(q);
+    return HF_ENOMEM;
+  }
+  /* Roots, their mean and covariance, and the mean growth direction. */
+  double mean[3] = {0, 0, 0}, grow[3] = {0, 0, 0};
+  size_t base = 0;
+  for (uint32_t s = 0; s < N; s++) {
+    uint32_t n = hfr_hair_strand_segments(h, s);
+    const float *p = h->pos + 3 * base;
+    for (int k = 0; k < 3; k++) {
+      u[3 * s + k] = p[k];
+      mean[k] += p[k];
+      grow[k] += p[3 * n + k] - p[k];
+    }
+    base += n + 1;
+  }
+  for (int k = 0; k < 3; k++) mean[k] /= N;
+  double cov[3][3] = {{0}};
+  for (uint32_t s = 0; s < N; s++)
+    for (int i = 0; i < 3; i++)
+      for (int j = 0; j < 3; j++)
+        cov[i][j] += (u[3 * s + i] - mean[i]) * (u[3 * s + j] - mean[j]) / N;
+  double lam[3], V[3][3];
+  eigen_sym3(cov, lam, V);
+  /* Roots in the principal frame. */
+  double ext = 0;
+  for (uint32_t s = 0; s < N; s++) {
+    double r[3] = {u[3 * s] - mean[0], u[3 * s + 1] - mean[1], u[3 * s + 2] - mean[2]};
+    for (int a = 0; a < 3; a++) {
+      double c = r[0] * V[0][a] + r[1] * V[1][a] + r[2] * V[2][a];
+      u[3 * s + a] = (float)c;
+      if (fabs(c) > ext) ext = fabs(c);
+    }
+  }
+  if (!(ext > 0)) ext = 1;
+  /* Algebraic fit a x^2 + b y^2 + c z^2 + d x + e y + f z = 1, in units of
+   * ext for conditioning. */
+  double M[6][6] = {{0}}, B[6] = {0}, X[6];
+  for (uint32_t s = 0; s < N; s++) {
+    double x = u[3 * s] / ext, y = u[3 * s + 1] / ext, z = u[3 * s + 2] / ext;
+    double phi[6] = {x * x, y * y, z * z, x, y, z};
+    for (int i = 0; i < 6; i++) {
+      B[i] += phi[i];
+      for (int j = 0; j < 6; j++) M[i][j] += phi[i] * phi[j];
+    }
+  }
+  double c[3] = {0, 0, 0}, rad[3] = {0, 0, 0};
+  int ok = solve(M, B, 6, X) && X[0] > 0 && X[1] > 0 && X[2] > 0;
+  if (ok) {
+    double G = 1;
+    for (int a = 0; a < 3; a++) {
+      c[a] = -X[3 + a] / (2 * X[a]);
+      G += X[3 + a] * X[3 + a] / (4 * X[a]);
+    }
+    for (int a = 0; a < 3; a++) {
+      rad[a] = sqrt(G / X[a]);
+      c[a] *= ext, rad[a] *= ext;
+      /* An ellipsoid far larger than the roots, or centred far from them,
+       * is the fit of a nearly flat patch: not a body. */
+      if (!isfinite(rad[a]) || rad[a] > 3 * ext || fabs(c[a]) > 2 * ext) ok = 0;
+    }
+  }
+  /* Under the hair: strands grow away from the centre. */
+  if (ok) {
+    double out_dot = 0;
+    base = 0;
+    for (uint32_t s = 0; s < N; s++) {
+      uint32_t n = hfr_hair_strand_segments(h, s);
+      const float *p = h->pos + 3 * base;
+      double rel[3], g[3];
+      for (int k = 0; k < 3; k++) rel[k] = p[k] - mean[k], g[k] = p[3 * n + k] - p[k];
+      double rc[3] = {0, 0, 0};
+      for (int k = 0; k < 3; k++) rc[k] = rel[k] - (c[0] * V[k][0] + c[1] * V[k][1] + c[2] * V[k][2]);
+      out_dot += rc[0] * g[0] + rc[1] * g[1] + rc[2] * g[2] > 0 ? 1 : -1;
+      base += n + 1;
+    }
+    if (out_dot < 0.5 * N) ok = 0;
+  }
+  if (!ok) {
+    /* A flat ellipsoid under the roots' mean plane, on the side away from
+     * the hair, as wide as the roots spread. */
+    double nrm_dot = grow[0] * V[0][2] + grow[1] * V[1][2] + grow[2] * V[2][2];
+    double sgn = nrm_dot >= 0 ? 1 : -1;
+    rad[0] = 2 * sqrt(fmax(lam[0], 0));
+    rad[1] = 2 * sqrt(fmax(lam[1], 0));
+    rad[2] = fmax(2 * sqrt(fmax(lam[2], 0)), 0.1 * 0.5 * (rad[0] + rad[1]));
+    c[0] = c[1] = 0;
+    c[2] = -sgn * rad[2];
+  }
+  /* Shrink about the centre until 98% of the roots are on or outside. */
+  for (uint32_t s = 0; s < N; s++) {
+    double d2 = 0;
+    for (int a = 0; a < 3; a++) {
+      double t = (u[3 * s + a] - c[a]) / fmax(rad[a], 1e-30);
+      d2 += t * t;
+    }
+    q[s] = (float)sqrt(d2);
+  }
+  qsort(q, N, sizeof *q, cmp_float);
+  double p2 = q[(size_t)(0.02 * (N - 1))];
+  double shrink = 0.99 * fmin(1.0, p2);
+  for (int a = 0; a < 3; a++) {
+    out->radii[a] = (float)(rad[a] * shrink);
+    for (int k = 0; k < 3; k++) out->axes[a][k] = (float)V[k][a];
+  }
+  for (int k = 0; k < 3; k++)
+    out->centre[k] = (float)(mean[k] + c[0] * V[k][0] + c[1] * V[k][1] + c[2] * V[k][2]);
+  free(u), free(q);
+  for (int a = 0; a < 3; a++)
+    if (!isfinite(out->radii[a]) || !(out->radii[a] > 0)) return HF_ERANGE;
+  return HF_OK;
+}

@@ -1,0 +1,21 @@
+/* Internals shared by the style generators (hr_hair_gen.c, hr_hair_guides.c). */
+#ifndef HR_STYLE_H
+#define HR_STYLE_H
+
+#include "hfrender.h"
+#include "hr_math.h"
+
+/* A uniformly distributed point of the scalp (HFR_HEAD_RADII above the
+ * hairline) and its outward normal. */
+void hr_scalp_root(hr_rng *g, float p[3], float n[3]);
+/* Pushes p radially out of the ellipsoid of these semi-axes at the origin
+ * grown by (1 + shell). */
+void hr_push_out_of(const float radii[3], float p[3], float shell);
+/* Diameter factor of clump (guide) number clump: sp->width_spread^u. */
+float hr_clump_width(const hfr_style_params *sp, uint64_t clump);
+/* Frizz of every strand of h, then a push out of the body (semi-axes). */
+void hr_frizz(const hfr_style_params *sp, const float body[3], hfr_hair *h);
+/* Spiky and fur: guides, then hfr_hair_interpolate (no frizz yet). */
+int hr_generate_from_guides(const hfr_style_params *sp, hfr_hair *out);
+
+#endif
