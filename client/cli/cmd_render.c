@@ -4,10 +4,12 @@
  *   render fig6    [model] [view] --out F.png      (the paper's Fig. 6)
  *   render dataset --styles a,b --count N --size WxH --spp 1,2,4 --seed S --out DIR
  *   render hair    [model] --out F.hair            (export a procedural style) */
+#include <dirent.h>
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "commands.h"
 #include "hfrender.h"
@@ -16,11 +18,17 @@ static void usage(FILE *f) {
   fprintf(f,
     "usage: hairfilter render <frame|fig6|dataset|hair> [options]\n"
     "\n"
-    "model:   --style straight|wavy|curly|coily|ponytail (default straight)\n"
+    "model:   --style straight|wavy|curly|coily|ponytail|spiky|fur (default straight)\n"
     "         --hair FILE.hair (instead of a style)   --hair-seed N\n"
     "         --strands N --segments N --length L --clumping C --frizz F\n"
     "         --curl-radius R --curl-period P --thickness T --opacity O\n"
+    "         --width-spread S (per clump width x S^u, u in [-1,1]) --children N (spiky, fur)\n"
+    ".hair:   --up y|z|x|-y|-z|-x (the file's up axis)  --units m|dm|cm|mm|in|ft  --scale S\n"
+    "         --thickness T (diameter in the file's units, replaces the file's widths)\n"
+    "         --children N (grow N children per guide) --child-spread F --child-clumping C\n"
+    "         --occluder fit|none|MESH (fit: ellipsoid under the roots; MESH: OBJ, PLY, ...)\n"
     "view:    --size WxH (256x256)  --cam-distance D --cam-yaw DEG --cam-pitch DEG --fov DEG\n"
+    "         --crop X,Y,W,H (render only this window of the WxH frame, at its cost)\n"
     "         --light-yaw DEG --light-pitch DEG --light-distance D --directional\n"
     "         --alpha-r DEG --alpha-trt DEG --ambient A --spec-half\n"
     "         --shadow-size N (0: off) --shadow-bias B --thickness-scale S\n"
@@ -29,9 +37,14 @@ static void usage(FILE *f) {
     "outputs: --spp N (4) --gt-ss S (4; 0: none) --st 1,2,4,... --opaque N (multiple of 4)\n"
     "         --seed N (hash seed of the stochastic samples)\n"
     "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites)\n"
+    "         --no-background (leave out the occluder layer background.R/G/B/A)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
     "         --size WxH --strands N --gt-ss S --st LIST --opaque N --quiet\n"
     "         --extended (style parameters, density and distance over wide ranges)\n"
+    "         --regimes (widths, density, zoom, crops, camera, light, shadows per frame and\n"
+    "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
+    "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
+    "           --occluder apply to them)\n"
     "other:   --platform osmesa|egl|auto   --out PATH\n");
 }
 
@@ -45,8 +58,12 @@ typedef struct {
   hfr_dataset_opts ds;
   int st_set;
   /* Overrides applied after a --style resets the parameters. */
-  struct { int strands, segments; float length, clumping, frizz, cr, cp, thick, opac; int seed_set;
-           uint64_t seed; } ov;
+  struct { int strands, segments; float length, clumping, frizz, cr, cp, thick, opac, wspread;
+           int seed_set, children_set, children; uint64_t seed; } ov;
+  hfr_asset_opts asset;
+  int no_background;
+  char *hair_files[256];
+  int n_hair_files;
   int random_view;
   uint64_t random_seed;
   int random_keep_size;
@@ -81,6 +98,59 @@ static int parse_float(const char *s, float *f) {
   errno = 0;
   *f = strtof(s, &end);
   return end != s && !*end && !errno ? 0 : -1;
+}
+
+/* --hair-files: a comma-separated list, or a directory's *.hair files in
+ * name order (so that a dataset is the same on every machine). */
+static int name_cmp(const void *a, const void *b) {
+  return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+static int add_hair_file(opts *o, const char *path) {
+  int max = (int)(sizeof o->hair_files / sizeof o->hair_files[0]);
+  if (o->n_hair_files == max) {
+    fprintf(stderr, "hairfilter render: more than %d --hair-files\n", max);
+    return -1;
+  }
+  o->hair_files[o->n_hair_files] = strdup(path);
+  if (!o->hair_files[o->n_hair_files]) return -1;
+  o->n_hair_files++;
+  return 0;
+}
+
+static int collect_hair_files(const char *v, opts *o) {
+  struct stat st;
+  if (stat(v, &st) == 0 && S_ISDIR(st.st_mode)) {
+    DIR *d = opendir(v);
+    if (!d) {
+      fprintf(stderr, "hairfilter render: %s: %s\n", v, strerror(errno));
+      return -1;
+    }
+    int first = o->n_hair_files;
+    struct dirent *e;
+    while ((e = readdir(d))) {
+      size_t l = strlen(e->d_name);
+      if (l < 6 || strcmp(e->d_name + l - 5, ".hair")) continue;
+      char path[4096];
+      snprintf(path, sizeof path, "%s/%s", v, e->d_name);
+      if (add_hair_file(o, path)) {
+        closedir(d);
+        return -1;
+      }
+    }
+    closedir(d);
+    qsort(o->hair_files + first, (size_t)(o->n_hair_files - first), sizeof(char *), name_cmp);
+    if (o->n_hair_files == first) {
+      fprintf(stderr, "hairfilter render: no .hair files in %s\n", v);
+      return -1;
+    }
+    return 0;
+  }
+  char buf[8192];
+  snprintf(buf, sizeof buf, "%s", v);
+  for (char *t = strtok(buf, ","); t; t = strtok(NULL, ","))
+    if (add_hair_file(o, t)) return -1;
+  return 0;
 }
 
 static int parse_args(int argc, char **argv, opts *o) {
@@ -125,16 +195,47 @@ static int parse_args(int argc, char **argv, opts *o) {
     FLOAT_OPT("--ambient", o->view.ambient)
     FLOAT_OPT("--shadow-bias", o->view.shadow_bias)
     FLOAT_OPT("--thickness-scale", o->view.thickness_scale)
+    FLOAT_OPT("--width-spread", o->ov.wspread)
+    FLOAT_OPT("--scale", o->asset.scale)
+    FLOAT_OPT("--child-spread", o->asset.children.spread)
+    FLOAT_OPT("--child-clumping", o->asset.children.clumping)
     if (!strcmp(a, "--directional")) { o->view.light_directional = 1; continue; }
     if (!strcmp(a, "--spec-half")) { o->view.spec_half_vector = 1; continue; }
     if (!strcmp(a, "--half")) { o->half = 1; continue; }
     if (!strcmp(a, "--quiet")) { o->quiet = 1; continue; }
     if (!strcmp(a, "--extended")) { o->ds.extended = 1; continue; }
+    if (!strcmp(a, "--regimes")) { o->ds.regimes = 1; continue; }
+    if (!strcmp(a, "--no-background")) { o->no_background = 1; continue; }
     NEED_VALUE;
     if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--hair")) o->hair_path = v;
     else if (!strcmp(a, "--png")) o->png = v;
     else if (!strcmp(a, "--platform")) o->platform = v;
+    else if (!strcmp(a, "--occluder")) o->asset.occluder = v;
+    else if (!strcmp(a, "--up") || !strcmp(a, "--up-axis")) {
+      if (hfr_axis_from_name(v, &o->asset.up)) {
+        fprintf(stderr, "hairfilter render: %s wants y, z, x, -y, -z or -x, not '%s'\n", a, v);
+        return -1;
+      }
+    } else if (!strcmp(a, "--units")) {
+      if (hfr_units_scale(v, &o->asset.scale)) {
+        fprintf(stderr, "hairfilter render: --units wants m, dm, cm, mm, in or ft, not '%s'\n", v);
+        return -1;
+      }
+    } else if (!strcmp(a, "--crop")) {
+      if (sscanf(v, "%d,%d,%d,%d", &o->view.crop_x, &o->view.crop_y, &o->view.crop_w,
+                 &o->view.crop_h) != 4 || o->view.crop_w < 1 || o->view.crop_h < 1) {
+        fprintf(stderr, "hairfilter render: --crop wants X,Y,W,H in pixels of the --size frame\n");
+        return -1;
+      }
+    } else if (!strcmp(a, "--frame-sizes")) {
+      if (sscanf(v, "%d,%d", &o->ds.frame_min, &o->ds.frame_max) != 2) {
+        fprintf(stderr, "hairfilter render: --frame-sizes wants MIN,MAX\n");
+        return -1;
+      }
+    } else if (!strcmp(a, "--hair-files")) {
+      if (collect_hair_files(v, o)) return -1;
+    }
     else if (!strcmp(a, "--style")) {
       hfr_style s;
       if (hfr_style_from_name(v, &s)) {
@@ -194,6 +295,7 @@ static int parse_args(int argc, char **argv, opts *o) {
       if (!strcmp(a, "--strands")) o->ov.strands = (int)n;
       else if (!strcmp(a, "--segments")) o->ov.segments = (int)n;
       else if (!strcmp(a, "--hair-seed")) o->ov.seed_set = 1, o->ov.seed = (uint64_t)n;
+      else if (!strcmp(a, "--children")) o->ov.children_set = 1, o->ov.children = (int)n;
       else if (!strcmp(a, "--shadow-size")) o->view.shadow_size = (int)n;
       else if (!strcmp(a, "--gt-ss")) o->outputs.gt_supersample = (int)n;
       else if (!strcmp(a, "--opaque")) o->outputs.opaque_samples = (int)n;
@@ -218,24 +320,46 @@ static int parse_args(int argc, char **argv, opts *o) {
   if (o->ov.thick) s->thickness = o->ov.thick;
   if (o->ov.opac) s->opacity = o->ov.opac;
   if (o->ov.seed_set) s->seed = o->ov.seed;
+  if (o->ov.wspread) s->width_spread = o->ov.wspread;
+  if (o->ov.children_set) s->children = o->ov.children, o->asset.children.children = o->ov.children;
+  if (o->ov.thick) o->asset.thickness = o->ov.thick;
+  if (o->ov.seed_set) o->asset.children.seed = o->ov.seed;
   if (o->random_view) hfr_view_randomize(&o->view, o->random_seed);
   return 0;
 }
 
-static int load_model(const opts *o, hfr_hair *hair) {
-  char err[256] = "";
-  int rc = o->hair_path ? hfr_hair_load(o->hair_path, hair, err, sizeof err)
-                        : hfr_hair_generate(&o->style, hair);
+/* The model and what it grows on: a .hair file as --up, --units, --children
+ * and --occluder say (warnings about its widths printed), or a style and
+ * its body. */
+static int load_model(const opts *o, hfr_hair *hair, hfr_mesh *occ) {
+  char err[512] = "", warn[512] = "";
+  int rc;
+  memset(occ, 0, sizeof *occ);
+  if (o->hair_path) {
+    rc = hfr_asset_load(o->hair_path, &o->asset, hair, occ, warn, sizeof warn, err, sizeof err);
+    if (*warn) fprintf(stderr, "hairfilter render: warning: %s: %s\n", o->hair_path, warn);
+  } else {
+    rc = hfr_hair_generate(&o->style, hair);
+    hfr_ellipsoid body;
+    hfr_style_body(o->style.style, &body);
+    if (rc == HF_OK && (rc = hfr_mesh_ellipsoid(&body, 48, 24, occ)) != HF_OK)
+      hfr_hair_free(hair);
+  }
   if (rc != HF_OK)
     fprintf(stderr, "hairfilter render: %s: %s\n",
             o->hair_path ? o->hair_path : "style", *err ? err : "bad style parameters");
   return rc;
 }
 
-static int open_renderer(const opts *o, const hfr_hair *hair, hfr_renderer **r) {
+static int open_renderer(const opts *o, const hfr_hair *hair, const hfr_mesh *occ,
+                         hfr_renderer **r) {
   char err[512] = "";
   int rc = hfr_renderer_create(o->platform, r, err, sizeof err);
-  if (rc == HF_OK) rc = hfr_renderer_set_hair(*r, hair, o->hair_path == NULL, err, sizeof err);
+  int head = o->hair_path == NULL && o->style.style != HFR_STYLE_FUR;
+  if (rc == HF_OK) rc = hfr_renderer_set_hair(*r, hair, head, err, sizeof err);
+  if (rc == HF_OK && !head)
+    rc = hfr_renderer_set_occluder(*r, occ, o->hair_path ? hfr_asset_fitted(&o->asset) : 1, err,
+                                   sizeof err);
   if (rc != HF_OK) {
     fprintf(stderr, "hairfilter render: %s (%s)\n", err, hf_strerror(rc));
     hfr_renderer_destroy(*r);
@@ -255,6 +379,9 @@ static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_v
           st->features_ms, st->baselines_ms, st->gt_ms, (unsigned long long)st->gt_fragments,
           st->gt_max_depth, (unsigned long long)st->gt_truncated,
           st->gt_host_resolve ? ", blended on the host" : "");
+  char line[512];
+  hfr_frame_stats_format(&st->frame, line, sizeof line);
+  fprintf(stderr, "regime: %s\n", line);
 }
 
 static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
@@ -271,11 +398,11 @@ static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
 /* Adds composite.<prefix>.R/G/B for every result triple in img (the
  * ground truth and each baseline), with the view's colours. */
 static int add_composites(hf_image *img, const hfr_outputs *out, const hfr_view *v) {
-  char prefixes[2 + HFR_MAX_BASELINES][16];
+  char prefixes[2 + HFR_MAX_BASELINES][24];
   int n = 0;
-  if (out->gt_supersample) snprintf(prefixes[n++], 16, "gt");
-  for (int i = 0; i < out->n_st; i++) snprintf(prefixes[n++], 16, "st%d", out->st_spp[i]);
-  if (out->opaque_samples) snprintf(prefixes[n++], 16, "opaque");
+  if (out->gt_supersample) snprintf(prefixes[n++], 24, "gt");
+  for (int i = 0; i < out->n_st; i++) snprintf(prefixes[n++], 24, "st%d", out->st_spp[i]);
+  if (out->opaque_samples) snprintf(prefixes[n++], 24, "opaque");
   if (!n) return HF_OK;
   hf_image big;
   size_t px = (size_t)img->width * img->height;
@@ -294,7 +421,7 @@ static int add_composites(hf_image *img, const hfr_outputs *out, const hfr_view 
     rc = hfr_composite_channels(img, prefixes[t], v, rgb);
     int c0 = img->channels + 3 * t;
     for (int k = 0; k < 3; k++)
-      snprintf(big.names[c0 + k], sizeof big.names[c0 + k], "composite.%s.%c", prefixes[t],
+      snprintf(big.names[c0 + k], sizeof big.names[c0 + k], "composite.%.16s.%c", prefixes[t],
                "RGB"[k]);
     for (size_t i = 0; rc == HF_OK && i < px; i++)
       memcpy(big.data + i * big.channels + c0, rgb + 3 * i, 3 * sizeof(float));
@@ -315,17 +442,24 @@ static int run_frame(opts *o) {
     return 2;
   }
   hfr_hair hair;
+  hfr_mesh occ;
   hfr_renderer *r = NULL;
-  if (load_model(o, &hair) != HF_OK) return 1;
-  if (open_renderer(o, &hair, &r) != HF_OK) {
+  if (load_model(o, &hair, &occ) != HF_OK) return 1;
+  if (open_renderer(o, &hair, &occ, &r) != HF_OK) {
     hfr_hair_free(&hair);
+    hfr_mesh_free(&occ);
     return 1;
   }
   hf_image img;
   hfr_stats st;
   char err[512] = "";
+  o->outputs.background_layer = !o->no_background;
   int rc = hfr_render(r, &o->view, &o->outputs, &img, &st, err, sizeof err);
   if (rc == HF_OK) {
+    if (o->view.crop_w > 0 && !o->quiet)
+      fprintf(stderr, "crop: window (%d,%d) %dx%d of a %dx%d frame (rows from the top)\n",
+              o->view.crop_x, o->view.crop_y, o->view.crop_w, o->view.crop_h, o->view.width,
+              o->view.height);
     if (!o->quiet) print_stats(r, &hair, &o->view, &st);
     if (o->out && (rc = add_composites(&img, &o->outputs, &o->view)) != HF_OK)
       fprintf(stderr, "hairfilter render: composites: %s\n", hf_strerror(rc));
@@ -353,6 +487,7 @@ static int run_frame(opts *o) {
   }
   hfr_renderer_destroy(r);
   hfr_hair_free(&hair);
+  hfr_mesh_free(&occ);
   return rc == HF_OK ? 0 : 1;
 }
 
@@ -370,11 +505,14 @@ static int run_fig6(opts *o) {
   o->outputs.spp = 0;
   if (!o->outputs.opaque_samples) o->outputs.opaque_samples = 16;
   if (!o->outputs.gt_supersample) o->outputs.gt_supersample = 4;
+  o->outputs.background_layer = !o->no_background;
   hfr_hair hair;
+  hfr_mesh occ;
   hfr_renderer *r = NULL;
-  if (load_model(o, &hair) != HF_OK) return 1;
-  if (open_renderer(o, &hair, &r) != HF_OK) {
+  if (load_model(o, &hair, &occ) != HF_OK) return 1;
+  if (open_renderer(o, &hair, &occ, &r) != HF_OK) {
     hfr_hair_free(&hair);
+    hfr_mesh_free(&occ);
     return 1;
   }
   hf_image img;
@@ -409,6 +547,7 @@ static int run_fig6(opts *o) {
   }
   hfr_renderer_destroy(r);
   hfr_hair_free(&hair);
+  hfr_mesh_free(&occ);
   return rc == HF_OK ? 0 : 1;
 }
 
@@ -430,6 +569,11 @@ static int run_dataset(opts *o) {
   if (o->ov.segments) d->segments = o->ov.segments;
   d->shadow_size = o->view.shadow_size;
   d->half = o->half;
+  d->background_layer = !o->no_background;
+  d->asset = o->asset;
+  d->hair_files = (const char *const *)o->hair_files;
+  d->n_hair_files = o->n_hair_files;
+  if (o->ov.wspread) d->width_spread = o->ov.wspread;
   d->progress = !o->quiet;
   d->platform = o->platform;
   char err[512] = "";
@@ -444,7 +588,9 @@ static int run_hair(opts *o) {
     return 2;
   }
   hfr_hair hair;
-  if (load_model(o, &hair) != HF_OK) return 1;
+  hfr_mesh occ;
+  if (load_model(o, &hair, &occ) != HF_OK) return 1;
+  hfr_mesh_free(&occ);
   int rc = hfr_hair_save(o->out, &hair);
   if (rc != HF_OK) fprintf(stderr, "hairfilter render: %s: %s\n", o->out, hf_strerror(rc));
   else if (!o->quiet)
@@ -467,12 +613,18 @@ int cmd_render(int argc, char **argv) {
   o.outputs.gt_supersample = 4;
   o.outputs.seed = 1;
   hfr_dataset_defaults(&o.ds);
-  if (parse_args(argc, argv, &o)) return 2;
-  if (!strcmp(o.cmd, "frame")) return run_frame(&o);
-  if (!strcmp(o.cmd, "fig6")) return run_fig6(&o);
-  if (!strcmp(o.cmd, "dataset")) return run_dataset(&o);
-  if (!strcmp(o.cmd, "hair")) return run_hair(&o);
-  fprintf(stderr, "hairfilter render: unknown mode '%s'\n", o.cmd);
-  usage(stderr);
-  return 2;
+  hfr_asset_defaults(&o.asset);
+  int rc = 2;
+  if (parse_args(argc, argv, &o)) goto done;
+  if (!strcmp(o.cmd, "frame")) rc = run_frame(&o);
+  else if (!strcmp(o.cmd, "fig6")) rc = run_fig6(&o);
+  else if (!strcmp(o.cmd, "dataset")) rc = run_dataset(&o);
+  else if (!strcmp(o.cmd, "hair")) rc = run_hair(&o);
+  else {
+    fprintf(stderr, "hairfilter render: unknown mode '%s'\n", o.cmd);
+    usage(stderr);
+  }
+done:
+  for (int i = 0; i < o.n_hair_files; i++) free(o.hair_files[i]);
+  return rc;
 }

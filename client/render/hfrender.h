@@ -439,6 +439,7 @@ typedef struct hfr_dataset_opts {
   const char *const *hair_files;
   int n_hair_files;
   hfr_asset_opts asset;
+  float width_spread;           /* per-clump width spread of every style frame (0: none) */
   int background_layer;         /* background.* channels in every frame */
   int progress;                 /* progress bar with ETA on stderr */
   const char *platform;

@@ -8,6 +8,7 @@
 
 #include <cjson/cJSON.h>
 
+#include "hr_dataset.h"
 #include "hr_internal.h"
 #include "hr_math.h"
 
@@ -25,6 +26,7 @@ void hfr_dataset_defaults(hfr_dataset_opts *o) {
   o->shadow_size = 1024;
   o->seed = 1;
   o->progress = 1;
+  hfr_asset_defaults(&o->asset);
 }
 
 static void progress(int done, int total, double start_ms) {
@@ -45,16 +47,41 @@ static cJSON *vec3(const float v[3]) {
 
 static cJSON *int_list(const int *v, int n) { return cJSON_CreateIntArray(v, n); }
 
+static void add_stats(cJSON *e, const hfr_frame_stats *f) {
+  cJSON *s = cJSON_AddObjectToObject(e, "stats");
+  if (f->valid) {
+    double a[3] = {f->alpha_p10, f->alpha_p50, f->alpha_p90};
+    cJSON_AddItemToObject(s, "covered_alpha_p10_p50_p90", cJSON_CreateDoubleArray(a, 3));
+    cJSON_AddNumberToObject(s, "sample_coverage", f->sample_coverage);
+    cJSON_AddNumberToObject(s, "hair_pixels", f->hair_pixels);
+    cJSON_AddNumberToObject(s, "full_pixels", f->full_pixels);
+  }
+  if (f->gt_opaque >= 0) cJSON_AddNumberToObject(s, "gt_opaque", f->gt_opaque);
+  double w[3] = {f->width_px_p10, f->width_px_p50, f->width_px_p90};
+  cJSON_AddItemToObject(s, "width_px_p10_p50_p90", cJSON_CreateDoubleArray(w, 3));
+  cJSON_AddNumberToObject(s, "points_in_view", (double)f->points_in_view);
+}
+
 /* Everything that went into a frame, for the manifest. */
-static cJSON *frame_entry(const char *file, const hfr_style_params *sp, const hfr_view *v,
-                          const hfr_outputs *out, const hfr_dataset_opts *o, uint64_t seed,
-                          const hfr_hair *hair, const hfr_stats *st, double ms) {
+static cJSON *frame_entry(const char *file, const char *source, const hfr_style_params *sp,
+                          const hfr_view *v, const hfr_outputs *out, const hfr_dataset_opts *o,
+                          uint64_t seed, const hfr_hair *hair, const hfr_stats *st, double ms,
+                          const char *hair_file, const hfr_children_params *cp,
+                          const hr_regime *rg, const hfr_mesh *occ) {
+  int W, H;
+  hr_view_target(v, &W, &H);
   cJSON *e = cJSON_CreateObject();
   cJSON_AddStringToObject(e, "file", file);
-  cJSON_AddStringToObject(e, "style", hfr_style_name(sp->style));
+  cJSON_AddStringToObject(e, "style", source);
   cJSON_AddNumberToObject(e, "seed", (double)seed);
-  cJSON_AddNumberToObject(e, "width", v->width);
-  cJSON_AddNumberToObject(e, "height", v->height);
+  cJSON_AddNumberToObject(e, "width", W);
+  cJSON_AddNumberToObject(e, "height", H);
+  /* A crop of a larger frame: EXR's data window inside its display window. */
+  cJSON *fr = cJSON_AddObjectToObject(e, "frame");
+  cJSON_AddNumberToObject(fr, "width", v->width);
+  cJSON_AddNumberToObject(fr, "height", v->height);
+  int crop[4] = {v->crop_w > 0 ? v->crop_x : 0, v->crop_w > 0 ? v->crop_y : 0, W, H};
+  cJSON_AddItemToObject(fr, "crop_x_y_w_h", int_list(crop, 4));
   cJSON_AddNumberToObject(e, "spp", out->spp);
   cJSON_AddItemToObject(e, "spp_list", int_list(o->spp_list, o->n_spp));
   cJSON_AddNumberToObject(e, "gt_supersample", out->gt_supersample);
@@ -70,24 +97,53 @@ static cJSON *frame_entry(const char *file, const hfr_style_params *sp, const hf
   cJSON_AddNumberToObject(li, "pitch_deg", v->light_pitch_deg);
   cJSON_AddNumberToObject(li, "distance", v->light_distance);
   cJSON_AddNumberToObject(li, "shadow_size", v->shadow_size);
+  cJSON_AddNumberToObject(li, "shadow_bias", v->shadow_bias);
   cJSON *sh = cJSON_AddObjectToObject(e, "shading");
   cJSON_AddNumberToObject(sh, "alpha_r_deg", v->alpha_r_deg);
   cJSON_AddNumberToObject(sh, "alpha_trt_deg", v->alpha_trt_deg);
   cJSON_AddNumberToObject(sh, "ambient", v->ambient);
+  cJSON_AddNumberToObject(sh, "thickness_scale", v->thickness_scale);
   cJSON_AddItemToObject(sh, "hair_color", vec3(v->hair_color));
   cJSON_AddItemToObject(sh, "light_color", vec3(v->light_color));
   cJSON_AddItemToObject(sh, "background", vec3(v->background));
+  cJSON_AddItemToObject(sh, "occluder_color", vec3(v->occluder_color));
   cJSON *h = cJSON_AddObjectToObject(e, "hair");
-  cJSON_AddNumberToObject(h, "seed", (double)sp->seed);
-  cJSON_AddNumberToObject(h, "strands", sp->strands);
-  cJSON_AddNumberToObject(h, "segments", sp->segments);
-  cJSON_AddNumberToObject(h, "length", sp->length);
-  cJSON_AddNumberToObject(h, "clumping", sp->clumping);
-  cJSON_AddNumberToObject(h, "frizz", sp->frizz);
-  cJSON_AddNumberToObject(h, "curl_radius", sp->curl_radius);
-  cJSON_AddNumberToObject(h, "curl_period", sp->curl_period);
-  cJSON_AddNumberToObject(h, "thickness", sp->thickness);
-  cJSON_AddNumberToObject(h, "opacity", sp->opacity);
+  if (hair_file) {
+    cJSON_AddStringToObject(h, "file", hair_file);
+    cJSON_AddStringToObject(h, "up", hfr_axis_name(o->asset.up));
+    cJSON_AddNumberToObject(h, "scale", o->asset.scale > 0 ? o->asset.scale : 1);
+    cJSON_AddNumberToObject(h, "children", cp->children);
+    cJSON_AddNumberToObject(h, "children_seed", (double)cp->seed);
+    cJSON_AddNumberToObject(h, "child_spread", cp->spread);
+    cJSON_AddNumberToObject(h, "child_clumping", cp->clumping);
+    if (o->asset.thickness > 0) cJSON_AddNumberToObject(h, "thickness", o->asset.thickness);
+  } else {
+    cJSON_AddNumberToObject(h, "seed", (double)sp->seed);
+    cJSON_AddNumberToObject(h, "strands", sp->strands);
+    cJSON_AddNumberToObject(h, "segments", sp->segments);
+    cJSON_AddNumberToObject(h, "length", sp->length);
+    cJSON_AddNumberToObject(h, "clumping", sp->clumping);
+    cJSON_AddNumberToObject(h, "frizz", sp->frizz);
+    cJSON_AddNumberToObject(h, "curl_radius", sp->curl_radius);
+    cJSON_AddNumberToObject(h, "curl_period", sp->curl_period);
+    cJSON_AddNumberToObject(h, "thickness", sp->thickness);
+    cJSON_AddNumberToObject(h, "opacity", sp->opacity);
+    cJSON_AddNumberToObject(h, "width_spread", sp->width_spread);
+    cJSON_AddNumberToObject(h, "children", sp->children);
+  }
+  cJSON_AddStringToObject(e, "occluder", !occ || !occ->vertices ? "none"
+                                         : hair_file ? (hfr_asset_fitted(&o->asset) ? "fit"
+                                                                                   : o->asset.occluder)
+                                                     : (sp->style == HFR_STYLE_FUR ? "fur body"
+                                                                                   : "head"));
+  if (o->regimes) {
+    cJSON *rj = cJSON_AddObjectToObject(e, "regime");
+    cJSON_AddNumberToObject(rj, "frame_size", rg->frame_size);
+    cJSON_AddNumberToObject(rj, "target_width_px", rg->target_width_px);
+    cJSON_AddNumberToObject(rj, "typical_thickness", rg->typical_thickness);
+    cJSON_AddNumberToObject(rj, "clump_width_spread", rg->clump_width_spread);
+  }
+  add_stats(e, &st->frame);
   cJSON_AddNumberToObject(e, "strand_count", hair->strands);
   cJSON_AddNumberToObject(e, "segment_count", (double)hfr_hair_total_segments(hair));
   cJSON_AddNumberToObject(e, "gt_fragments", (double)st->gt_fragments);
@@ -138,9 +194,33 @@ static int write_manifest(const char *dir, cJSON *doc) {
   return rc;
 }
 
+/* A .hair file drawn as a style: its guides (as loaded: widths checked,
+ * oriented) and its occluder, loaded once. */
+typedef struct ds_model {
+  hfr_hair guides;
+  hfr_mesh occ;
+  char name[64];
+} ds_model;
+
+/* "dir/Long Tied.hair" -> "Long_Tied". */
+static void base_name(const char *path, char *out, size_t n) {
+  const char *b = strrchr(path, '/');
+  b = b ? b + 1 : path;
+  size_t k = 0;
+  for (; *b && k + 1 < n; b++) {
+    if (!strcmp(b, ".hair")) break;
+    char c = *b;
+    out[k++] = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                       c == '-' || c == '.'
+                   ? c : '_';
+  }
+  out[k] = 0;
+}
+
 int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
-  if (!o || !o->out_dir || o->n_styles < 1 || o->count < 1 || o->n_spp < 1) {
-    if (err) snprintf(err, errlen, "need an output directory, styles, a count and spp");
+  if (!o || !o->out_dir || (o->n_styles < 1 && o->n_hair_files < 1) || o->count < 1 ||
+      o->n_spp < 1 || o->n_styles < 0 || o->n_hair_files < 0) {
+    if (err) snprintf(err, errlen, "need an output directory, styles or .hair files, a count and spp");
     return HF_EINVAL;
   }
   int spp = 0;
@@ -151,13 +231,35 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     }
     if (o->spp_list[i] > spp) spp = o->spp_list[i];
   }
+  if (o->regimes && (o->frame_min < 0 || o->frame_max < 0 || o->frame_max > 8192 ||
+                     (o->frame_min && o->frame_max && o->frame_min > o->frame_max))) {
+    if (err) snprintf(err, errlen, "frame sizes must be MIN <= MAX <= 8192");
+    return HF_EINVAL;
+  }
   if (mkdir(o->out_dir, 0777) != 0 && errno != EEXIST) {
     if (err) snprintf(err, errlen, "%s: %s", o->out_dir, strerror(errno));
     return HF_EIO;
   }
+  ds_model *models = calloc(o->n_hair_files ? (size_t)o->n_hair_files : 1, sizeof *models);
+  if (!models) return HF_ENOMEM;
+  int rc = HF_OK;
+  hfr_asset_opts guides_only = o->asset;
+  guides_only.children.children = 0;
+  for (int f = 0; rc == HF_OK && f < o->n_hair_files; f++) {
+    char warn[512] = "";
+    rc = hfr_asset_load(o->hair_files[f], &guides_only, &models[f].guides, &models[f].occ, warn,
+                        sizeof warn, err, errlen);
+    if (*warn && o->progress) fprintf(stderr, "warning: %s: %s\n", o->hair_files[f], warn);
+    base_name(o->hair_files[f], models[f].name, sizeof models[f].name);
+  }
   hfr_renderer *r = NULL;
-  int rc = hfr_renderer_create(o->platform, &r, err, errlen);
-  if (rc != HF_OK) return rc;
+  if (rc == HF_OK) rc = hfr_renderer_create(o->platform, &r, err, errlen);
+  if (rc != HF_OK) {
+    for (int f = 0; f < o->n_hair_files; f++)
+      hfr_hair_free(&models[f].guides), hfr_mesh_free(&models[f].occ);
+    free(models);
+    return rc;
+  }
 
   cJSON *doc = cJSON_CreateObject();
   cJSON_AddStringToObject(doc, "format", "hairfilter-dataset");
@@ -170,28 +272,40 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   cJSON_AddItemToObject(doc, "st", int_list(o->st_spp, o->n_st));
   cJSON_AddNumberToObject(doc, "seed", (double)o->seed);
   cJSON_AddBoolToObject(doc, "extended", o->extended != 0);
+  cJSON_AddBoolToObject(doc, "regimes", o->regimes != 0);
+  if (o->regimes) {
+    int fs[2] = {o->frame_min > 0 ? o->frame_min : 256, o->frame_max > 0 ? o->frame_max : 1024};
+    cJSON_AddItemToObject(doc, "frame_sizes", int_list(fs, 2));
+  }
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
 
-  const int total = o->n_styles * o->count;
+  const int sources = o->n_styles + o->n_hair_files, total = sources * o->count;
   double start = hr_now_ms();
   int done = 0;
-  for (int si = 0; rc == HF_OK && si < o->n_styles; si++)
+  for (int si = 0; rc == HF_OK && si < sources; si++)
     for (int i = 0; rc == HF_OK && i < o->count; i++) {
+      const int fi = si - o->n_styles; /* >= 0: a .hair file */
       uint64_t seed = o->seed * 1000003ull + (uint64_t)si * 10007ull + (uint64_t)i;
       hr_rng g = {seed * 0x9e3779b97f4a7c15ull + 3};
       hfr_style_params sp;
-      hfr_style_defaults(o->styles[si], &sp);
+      hfr_style_defaults(fi < 0 ? o->styles[si] : HFR_STYLE_STRAIGHT, &sp);
       sp.seed = seed;
-      if (o->strands > 0) sp.strands = o->strands;
-      if (o->segments > 0) sp.segments = o->segments;
-      /* Some variety within a style. */
-      sp.length *= hr_rng_range(&g, 0.8f, 1.2f);
-      sp.clumping = fminf(1.0f, sp.clumping * hr_rng_range(&g, 0.5f, 1.5f));
-      sp.frizz *= hr_rng_range(&g, 0.5f, 1.5f);
-      sp.curl_radius *= hr_rng_range(&g, 0.8f, 1.2f);
-      sp.thickness *= hr_rng_range(&g, 0.8f, 1.25f);
-      sp.opacity = fminf(1.0f, sp.opacity * hr_rng_range(&g, 0.85f, 1.2f));
-      if (o->extended) extend_style(&sp, &g, o);
+      hr_regime rg;
+      memset(&rg, 0, sizeof rg);
+      if (fi < 0) {
+        if (o->strands > 0) sp.strands = o->strands;
+        if (o->segments > 0) sp.segments = o->segments;
+        /* Some variety within a style. */
+        sp.length *= hr_rng_range(&g, 0.8f, 1.2f);
+        sp.clumping = fminf(1.0f, sp.clumping * hr_rng_range(&g, 0.5f, 1.5f));
+        sp.frizz *= hr_rng_range(&g, 0.5f, 1.5f);
+        sp.curl_radius *= hr_rng_range(&g, 0.8f, 1.2f);
+        sp.thickness *= hr_rng_range(&g, 0.8f, 1.25f);
+        sp.opacity = fminf(1.0f, sp.opacity * hr_rng_range(&g, 0.85f, 1.2f));
+        if (o->extended) extend_style(&sp, &g, o);
+        if (o->width_spread > 0) sp.width_spread = o->width_spread;
+        if (o->regimes) hr_regime_style(&g, o, &sp, &rg);
+      }
       hfr_view v;
       hfr_view_defaults(&v);
       v.width = o->width;
@@ -207,29 +321,59 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       out.n_st = o->n_st;
       memcpy(out.st_spp, o->st_spp, sizeof out.st_spp);
       out.opaque_samples = o->opaque_samples;
+      out.background_layer = o->background_layer;
       out.seed = (uint32_t)(seed * 2654435761u);
 
       double t0 = hr_now_ms();
       hfr_hair hair;
       hf_image img = {0};
       hfr_stats st;
-      rc = hfr_hair_generate(&sp, &hair);
+      hfr_mesh body = {0};
+      const hfr_mesh *occ = &body;
+      hfr_children_params cp = o->asset.children;
+      cp.seed = seed;
+      if (fi < 0) {
+        rc = hfr_hair_generate(&sp, &hair);
+        if (rc != HF_OK && err) snprintf(err, errlen, "style generation failed");
+        hfr_ellipsoid e;
+        hfr_style_body(sp.style, &e);
+        if (rc == HF_OK) rc = hfr_mesh_ellipsoid(&e, 48, 24, &body);
+      } else if (cp.children > 0) {
+        rc = hfr_hair_interpolate(&models[fi].guides, &cp, &hair);
+        if (rc != HF_OK && err) snprintf(err, errlen, "%s: children: %s", o->hair_files[fi],
+                                         hf_strerror(rc));
+        occ = &models[fi].occ;
+      } else {
+        /* The guides as they are: a copy the loop can free. */
+        hfr_children_params keep;
+        hfr_children_defaults(&keep);
+        keep.children = 0;
+        rc = hfr_hair_interpolate(&models[fi].guides, &keep, &hair);
+        occ = &models[fi].occ;
+      }
       if (rc != HF_OK) {
-        if (err) snprintf(err, errlen, "style generation failed");
+        hfr_mesh_free(&body);
         break;
       }
-      rc = hfr_renderer_set_hair(r, &hair, 1, err, errlen);
+      int head = fi < 0 && sp.style != HFR_STYLE_FUR;
+      rc = hfr_renderer_set_hair(r, &hair, head, err, errlen);
+      if (rc == HF_OK && !head)
+        rc = hfr_renderer_set_occluder(r, occ, fi < 0 || hfr_asset_fitted(&o->asset), err, errlen);
+      if (rc == HF_OK && o->regimes) hr_regime_view(&g, o, r, &hair, &v, &rg);
       if (rc == HF_OK) rc = hfr_render(r, &v, &out, &img, &st, err, errlen);
-      char file[64], path[4200];
-      snprintf(file, sizeof file, "%s_%04d.exr", hfr_style_name(sp.style), i);
+      char file[128], path[4200];
+      snprintf(file, sizeof file, "%s_%04d.exr", fi < 0 ? hfr_style_name(sp.style) : models[fi].name,
+               i);
       snprintf(path, sizeof path, "%s/%s", o->out_dir, file);
       if (rc == HF_OK) {
         rc = hf_exr_write(path, &img, o->half);
         if (rc != HF_OK && err) snprintf(err, errlen, "%s: %s", path, hf_strerror(rc));
       }
       if (rc == HF_OK) {
-        cJSON_AddItemToArray(frames, frame_entry(file, &sp, &v, &out, o, seed, &hair, &st,
-                                                 hr_now_ms() - t0));
+        cJSON_AddItemToArray(
+            frames, frame_entry(file, fi < 0 ? hfr_style_name(sp.style) : models[fi].name, &sp,
+                                &v, &out, o, seed, &hair, &st, hr_now_ms() - t0,
+                                fi < 0 ? NULL : o->hair_files[fi], &cp, &rg, occ));
         /* Rewritten after every frame: an interrupted run keeps a valid
          * manifest of the frames it finished. */
         rc = write_manifest(o->out_dir, doc);
@@ -237,11 +381,15 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       }
       hf_image_free(&img);
       hfr_hair_free(&hair);
+      hfr_mesh_free(&body);
       done++;
       if (o->progress) progress(done, total, start);
     }
   if (o->progress) fprintf(stderr, "\n");
   cJSON_Delete(doc);
   hfr_renderer_destroy(r);
+  for (int f = 0; f < o->n_hair_files; f++)
+    hfr_hair_free(&models[f].guides), hfr_mesh_free(&models[f].occ);
+  free(models);
   return rc;
 }

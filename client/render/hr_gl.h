@@ -16,6 +16,7 @@
   X(PFNGLDISABLEPROC, Disable)                                                \
   X(PFNGLBLENDFUNCPROC, BlendFunc)                                            \
   X(PFNGLVIEWPORTPROC, Viewport)                                              \
+  X(PFNGLSCISSORPROC, Scissor)                                                \
   X(PFNGLDEPTHFUNCPROC, DepthFunc)                                            \
   X(PFNGLDEPTHMASKPROC, DepthMask)                                            \
   X(PFNGLCOLORMASKPROC, ColorMask)                                            \
@@ -72,6 +73,7 @@
   X(PFNGLUNIFORM1UIPROC, Uniform1ui)                                          \
   X(PFNGLUNIFORM1FPROC, Uniform1f)                                            \
   X(PFNGLUNIFORM2FPROC, Uniform2f)                                            \
+  X(PFNGLUNIFORM2IPROC, Uniform2i)                                            \
   X(PFNGLUNIFORM3FVPROC, Uniform3fv)                                          \
   X(PFNGLUNIFORMMATRIX4FVPROC, UniformMatrix4fv)
 

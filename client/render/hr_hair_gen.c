@@ -92,11 +92,11 @@ int hfr_style_defaults(hfr_style s, hfr_style_params *p) {
     p->thickness = 0.0009f;
     break;
   case HFR_STYLE_FUR:
-    /* 1.5 cm fur, dense: 60 000 strands on a torso. */
+    /* 2 cm fur, dense: 60 000 strands cover a torso. */
     p->strands = 60000;
-    p->segments = 8, p->length = 0.15f, p->clumping = 0.3f, p->frizz = 0.003f;
+    p->segments = 8, p->length = 0.2f, p->clumping = 0.3f, p->frizz = 0.003f;
     p->children = 15;
-    p->thickness = 0.0006f;
+    p->thickness = 0.0018f;   /* artist fur: thick enough to cover the body */
     p->opacity = 0.85f;
     break;
   default:

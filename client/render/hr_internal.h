@@ -19,6 +19,7 @@ void hr_set_i(const hr_program *p, const char *name, int v);
 void hr_set_u(const hr_program *p, const char *name, unsigned v);
 void hr_set_f(const hr_program *p, const char *name, float v);
 void hr_set_2f(const hr_program *p, const char *name, float x, float y);
+void hr_set_2i(const hr_program *p, const char *name, int x, int y);
 void hr_set_3f(const hr_program *p, const char *name, const float v[3]);
 void hr_set_m4(const hr_program *p, const char *name, const float m[16]);
 
@@ -63,9 +64,14 @@ int hr_renderer_bind(hfr_renderer *r);
 /* Camera of the view (jitter excluded) at width x height, drawing the
  * view's crop window. */
 void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);
-/* The viewport that draws cam's window of its whole frame into a target of
- * the window's size (an offset viewport: see hr_glsl_hair_vs). */
+/* The viewport of cam's whole frame, and a scissor to its window: a crop
+ * is drawn into a target of the whole frame's size where only the window is
+ * rasterised, cleared and read, so that every sample sees exactly the window
+ * coordinates and interpolants of the whole frame (bit-exact crops) while
+ * the fragment work is the window's. Resolves and reads take the window's
+ * origin (win_x, win_y); hr_scissor_off ends it. */
 void hr_set_viewport(const hr_camera *cam);
+void hr_scissor_off(void);
 /* Size of what v renders: its crop, or the whole frame. */
 void hr_view_target(const hfr_view *v, int *w, int *h);
 /* Light camera for the shadow map. */

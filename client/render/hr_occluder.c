@@ -4,9 +4,10 @@
  * A .hair file has strands only; what they grow on (a scalp, a body) is
  * missing, so without an occluder the hair behind the head shows through
  * it. Roots are the first point of each strand and lie on that surface, so
- * an ellipsoid fitted to them stands in for it. The fit is a 3x3 symmetric
- * eigenproblem (the roots' principal axes, cyclic Jacobi) and a 6x6 linear
- * least-squares solve (Gaussian elimination): a few lines each, part of the
+ * an ellipsoid fitted to them stands in for it. The fit is a 9x9 linear
+ * least-squares solve (Gaussian elimination) for the quadric through the
+ * roots and 3x3 symmetric eigenproblems (its axes, the roots' principal
+ * axes; cyclic Jacobi): a few lines each, part of the
  * renderer's geometry like hr_math.c, and no linear-algebra library is a
  * dependency of the project. */
 #include <math.h>
@@ -107,9 +108,9 @@ static void eigen_sym3(const double a_in[3][3], double d[3], double v[3][3]) {
       }
 }
 
-/* Solves m x = b (n x n, n <= 6) by Gaussian elimination with partial
+/* Solves m x = b (n x n, n <= 9) by Gaussian elimination with partial
  * pivoting; 0 when singular. */
-static int solve(double m[6][6], double b[6], int n, double x[6]) {
+static int solve(double m[9][9], double b[9], int n, double x[9]) {
   for (int c = 0; c < n; c++) {
     int p = c;
     for (int r = c + 1; r < n; r++)
@@ -148,7 +149,7 @@ int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
     free(u), free(q);
     return HF_ENOMEM;
   }
-  /* Roots, their mean and covariance, and the mean growth direction. */
+  /* Roots, their mean, and the mean direction strands leave them in. */
   double mean[3] = {0, 0, 0}, grow[3] = {0, 0, 0};
   size_t base = 0;
   for (uint32_t s = 0; s < N; s++) {
@@ -157,54 +158,57 @@ int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
     for (int k = 0; k < 3; k++) {
       u[3 * s + k] = p[k];
       mean[k] += p[k];
-      grow[k] += p[3 * n + k] - p[k];
+      grow[k] += p[3 + k] - p[k];
     }
     base += n + 1;
   }
   for (int k = 0; k < 3; k++) mean[k] /= N;
-  double cov[3][3] = {{0}};
-  for (uint32_t s = 0; s < N; s++)
-    for (int i = 0; i < 3; i++)
-      for (int j = 0; j < 3; j++)
-        cov[i][j] += (u[3 * s + i] - mean[i]) * (u[3 * s + j] - mean[j]) / N;
-  double lam[3], V[3][3];
-  eigen_sym3(cov, lam, V);
-  /* Roots in the principal frame. */
+  /* Roots relative to their mean, in units of their extent. */
   double ext = 0;
-  for (uint32_t s = 0; s < N; s++) {
-    double r[3] = {u[3 * s] - mean[0], u[3 * s + 1] - mean[1], u[3 * s + 2] - mean[2]};
-    for (int a = 0; a < 3; a++) {
-      double c = r[0] * V[0][a] + r[1] * V[1][a] + r[2] * V[2][a];
-      u[3 * s + a] = (float)c;
-      if (fabs(c) > ext) ext = fabs(c);
+  for (uint32_t s = 0; s < N; s++)
+    for (int k = 0; k < 3; k++) {
+      u[3 * s + k] = (float)(u[3 * s + k] - mean[k]);
+      ext = fmax(ext, fabs(u[3 * s + k]));
     }
-  }
   if (!(ext > 0)) ext = 1;
-  /* Algebraic fit a x^2 + b y^2 + c z^2 + d x + e y + f z = 1, in units of
-   * ext for conditioning. */
-  double M[6][6] = {{0}}, B[6] = {0}, X[6];
+  /* The quadric x^T A x + b^T x = 1 through the roots, least squares:
+   * a xx + b yy + c zz + d xy + e xz + f yz + g x + h y + i z = 1. */
+  double M[9][9] = {{0}}, B[9] = {0}, X[9];
   for (uint32_t s = 0; s < N; s++) {
     double x = u[3 * s] / ext, y = u[3 * s + 1] / ext, z = u[3 * s + 2] / ext;
-    double phi[6] = {x * x, y * y, z * z, x, y, z};
-    for (int i = 0; i < 6; i++) {
+    double phi[9] = {x * x, y * y, z * z, x * y, x * z, y * z, x, y, z};
+    for (int i = 0; i < 9; i++) {
       B[i] += phi[i];
-      for (int j = 0; j < 6; j++) M[i][j] += phi[i] * phi[j];
+      for (int j = 0; j < 9; j++) M[i][j] += phi[i] * phi[j];
     }
   }
-  double c[3] = {0, 0, 0}, rad[3] = {0, 0, 0};
-  int ok = solve(M, B, 6, X) && X[0] > 0 && X[1] > 0 && X[2] > 0;
+  double c[3] = {0, 0, 0}, rad[3] = {0, 0, 0}, E[3][3];
+  int ok = solve(M, B, 9, X);
   if (ok) {
-    double G = 1;
-    for (int a = 0; a < 3; a++) {
-      c[a] = -X[3 + a] / (2 * X[a]);
-      G += X[3 + a] * X[3 + a] / (4 * X[a]);
-    }
-    for (int a = 0; a < 3; a++) {
-      rad[a] = sqrt(G / X[a]);
-      c[a] *= ext, rad[a] *= ext;
-      /* An ellipsoid far larger than the roots, or centred far from them,
-       * is the fit of a nearly flat patch: not a body. */
-      if (!isfinite(rad[a]) || rad[a] > 3 * ext || fabs(c[a]) > 2 * ext) ok = 0;
+    double A[3][3] = {{X[0], X[3] / 2, X[4] / 2}, {X[3] / 2, X[1], X[5] / 2},
+                      {X[4] / 2, X[5] / 2, X[2]}};
+    double lamA[3];
+    eigen_sym3(A, lamA, E);
+    ok = lamA[2] > 0;
+    if (ok) {
+      /* Centre: A c = -b / 2, through the eigenbasis. */
+      double G = 1;
+      for (int a = 0; a < 3; a++) {
+        double bd = X[6] * E[0][a] + X[7] * E[1][a] + X[8] * E[2][a];
+        double ca = -bd / (2 * lamA[a]);
+        for (int k = 0; k < 3; k++) c[k] += ca * E[k][a];
+        G += lamA[a] * ca * ca;
+      }
+      for (int a = 0; a < 3; a++) {
+        rad[a] = sqrt(G / lamA[a]) * ext;
+        /* An ellipsoid far larger than the roots, or centred far from them,
+         * is the fit of a nearly flat patch: not a body. */
+        if (!isfinite(rad[a]) || rad[a] > 3 * ext) ok = 0;
+      }
+      for (int k = 0; k < 3; k++) {
+        c[k] *= ext;
+        if (!(fabs(c[k]) < 2 * ext)) ok = 0;
+      }
     }
   }
   /* Under the hair: strands grow away from the centre. */
@@ -214,31 +218,39 @@ int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
     for (uint32_t s = 0; s < N; s++) {
       uint32_t n = hfr_hair_strand_segments(h, s);
       const float *p = h->pos + 3 * base;
-      double rel[3], g[3];
-      for (int k = 0; k < 3; k++) rel[k] = p[k] - mean[k], g[k] = p[3 * n + k] - p[k];
-      double rc[3] = {0, 0, 0};
-      for (int k = 0; k < 3; k++) rc[k] = rel[k] - (c[0] * V[k][0] + c[1] * V[k][1] + c[2] * V[k][2]);
-      out_dot += rc[0] * g[0] + rc[1] * g[1] + rc[2] * g[2] > 0 ? 1 : -1;
+      double d = 0;
+      /* The first segment: strands leave the skin outwards, then may fall. */
+      for (int k = 0; k < 3; k++) d += (u[3 * s + k] - c[k]) * (p[3 + k] - p[k]);
+      out_dot += d > 0 ? 1 : -1;
       base += n + 1;
     }
     if (out_dot < 0.5 * N) ok = 0;
   }
   if (!ok) {
     /* A flat ellipsoid under the roots' mean plane, on the side away from
-     * the hair, as wide as the roots spread. */
-    double nrm_dot = grow[0] * V[0][2] + grow[1] * V[1][2] + grow[2] * V[2][2];
+     * the hair, as wide as the roots spread: the principal axes. */
+    double cov[3][3] = {{0}}, lam[3];
+    for (uint32_t s = 0; s < N; s++)
+      for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) cov[i][j] += (double)u[3 * s + i] * u[3 * s + j] / N;
+    eigen_sym3(cov, lam, E);
+    double nrm_dot = grow[0] * E[0][2] + grow[1] * E[1][2] + grow[2] * E[2][2];
     double sgn = nrm_dot >= 0 ? 1 : -1;
     rad[0] = 2 * sqrt(fmax(lam[0], 0));
     rad[1] = 2 * sqrt(fmax(lam[1], 0));
     rad[2] = fmax(2 * sqrt(fmax(lam[2], 0)), 0.1 * 0.5 * (rad[0] + rad[1]));
-    c[0] = c[1] = 0;
-    c[2] = -sgn * rad[2];
+    for (int k = 0; k < 3; k++) c[k] = -sgn * rad[2] * E[k][2];
+  }
+  /* Roots in the ellipsoid's frame. */
+  for (uint32_t s = 0; s < N; s++) {
+    double r[3] = {u[3 * s] - c[0], u[3 * s + 1] - c[1], u[3 * s + 2] - c[2]};
+    for (int a = 0; a < 3; a++) u[3 * s + a] = (float)(r[0] * E[0][a] + r[1] * E[1][a] + r[2] * E[2][a]);
   }
   /* Shrink about the centre until 98% of the roots are on or outside. */
   for (uint32_t s = 0; s < N; s++) {
     double d2 = 0;
     for (int a = 0; a < 3; a++) {
-      double t = (u[3 * s + a] - c[a]) / fmax(rad[a], 1e-30);
+      double t = u[3 * s + a] / fmax(rad[a], 1e-30);
       d2 += t * t;
     }
     q[s] = (float)sqrt(d2);
@@ -248,10 +260,9 @@ int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
   double shrink = 0.99 * fmin(1.0, p2);
   for (int a = 0; a < 3; a++) {
     out->radii[a] = (float)(rad[a] * shrink);
-    for (int k = 0; k < 3; k++) out->axes[a][k] = (float)V[k][a];
+    for (int k = 0; k < 3; k++) out->axes[a][k] = (float)E[k][a];
   }
-  for (int k = 0; k < 3; k++)
-    out->centre[k] = (float)(mean[k] + c[0] * V[k][0] + c[1] * V[k][1] + c[2] * V[k][2]);
+  for (int k = 0; k < 3; k++) out->centre[k] = (float)(mean[k] + c[k]);
   free(u), free(q);
   for (int a = 0; a < 3; a++)
     if (!isfinite(out->radii[a]) || !(out->radii[a] > 0)) return HF_ERANGE;

@@ -53,8 +53,8 @@ static void set_geometry(const hr_program *p, const hr_camera *cam, const hfr_vi
                          float jx, float jy) {
   hr_set_m4(p, "u_view", cam->view);
   hr_set_m4(p, "u_proj", cam->proj);
-  hr_set_2f(p, "u_frame", (float)cam->frame_w, (float)cam->frame_h);
-  hr_set_2f(p, "u_jitter", jx, jy);
+  hr_set_2f(p, "u_viewport", (float)cam->frame_w, (float)cam->frame_h);
+  hr_set_2f(p, "u_jitter", 2 * jx / cam->frame_w, 2 * jy / cam->frame_h);
   hr_set_f(p, "u_px_per_unit", cam->px_per_unit);
   hr_set_i(p, "u_ortho", cam->ortho);
   hr_set_f(p, "u_thick_scale", v->thickness_scale);
@@ -157,11 +157,11 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
 int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                const hr_camera *light, uint32_t seed, float jx, float jy, int opaque,
                float *out, char *err, size_t errlen) {
-  const int W = cam->win_w, H = cam->win_h, S = 4;
+  const int W = cam->win_w, H = cam->win_h, S = 4, FW = cam->frame_w, FH = cam->frame_h;
   GLuint tex[3], fbo[2] = {0, 0}, rtex = 0;
-  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, W, H, S);
-  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RG32F, W, H, S);
-  tex[2] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, W, H, S);
+  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, FW, FH, S);
+  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RG32F, FW, FH, S);
+  tex[2] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, FW, FH, S);
   hrgl.GenFramebuffers(2, fbo);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
@@ -187,10 +187,10 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     /* Samples no fragment covers keep all six features 0
      * (protocol/FEATURES.md); the depth test uses its own attachment. */
     const float c0[4] = {0, 0, 0, 0}, c1[4] = {0, 0, 0, 0}, one = 1.0f;
+    hr_set_viewport(cam);
     hrgl.ClearBufferfv(GL_COLOR, 0, c0);
     hrgl.ClearBufferfv(GL_COLOR, 1, c1);
     hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
-    hr_set_viewport(cam);
     hrgl.Enable(GL_MULTISAMPLE);
     hrgl.Enable(GL_DEPTH_TEST);
     hrgl.DepthFunc(GL_LESS);
@@ -205,6 +205,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hr_set_i(&r->st, "u_samples", S);
     draw_hair(r);
     hrgl.Disable(GL_DEPTH_TEST);
+    hr_scissor_off();
 
     /* Resolve: a (3W) x (H * S) RG32F target, texel (3x + j, S y + s). */
     rtex = make_tex(GL_TEXTURE_2D, GL_RG32F, 3 * W, H * S, 0);
@@ -222,6 +223,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hr_set_i(&r->resolve_ms, "u_f0", 1);
     hr_set_i(&r->resolve_ms, "u_f1", 2);
     hr_set_i(&r->resolve_ms, "u_samples", S);
+    hr_set_2i(&r->resolve_ms, "u_origin", cam->win_x, cam->win_y);
     draw_fullscreen(r, &r->resolve_ms, 3 * W, H * S);
     tmp = malloc(sizeof(float) * 6 * (size_t)W * H * S);
     if (!tmp) rc = HF_ENOMEM;
@@ -252,10 +254,10 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
 
 int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                        const hr_camera *light, float *out, char *err, size_t errlen) {
-  const int W = cam->win_w, H = cam->win_h;
+  const int W = cam->win_w, H = cam->win_h, FW = cam->frame_w, FH = cam->frame_h;
   GLuint tex[3], fbo[2] = {0, 0};
-  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, W, H, 4);
-  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, W, H, 4);
+  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, FW, FH, 4);
+  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, FW, FH, 4);
   tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
   hrgl.GenFramebuffers(2, fbo);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
@@ -269,9 +271,9 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
   float *tmp = NULL;
   if (rc == HF_OK) {
     const float zero[4] = {0, 0, 0, 0}, one = 1.0f;
+    hr_set_viewport(cam);
     hrgl.ClearBufferfv(GL_COLOR, 0, zero);
     hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
-    hr_set_viewport(cam);
     hrgl.Enable(GL_MULTISAMPLE);
     hrgl.Enable(GL_DEPTH_TEST);
     hrgl.DepthFunc(GL_LESS);
@@ -285,6 +287,7 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
       hrgl.DrawArrays(GL_TRIANGLES, 0, r->head_vertices);
     }
     hrgl.Disable(GL_DEPTH_TEST);
+    hr_scissor_off();
     /* Resolve: the average of the 4 samples, premultiplied by coverage. */
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
     hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, tex[2], 0);
@@ -294,7 +297,8 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
   if (rc == HF_OK) {
     hrgl.BindFramebuffer(GL_READ_FRAMEBUFFER, fbo[0]);
     hrgl.BindFramebuffer(GL_DRAW_FRAMEBUFFER, fbo[1]);
-    hrgl.BlitFramebuffer(0, 0, W, H, 0, 0, W, H, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+    hrgl.BlitFramebuffer(cam->win_x, cam->win_y, cam->win_x + W, cam->win_y + H, 0, 0, W, H,
+                         GL_COLOR_BUFFER_BIT, GL_NEAREST);
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
     tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
     if (!tmp) rc = HF_ENOMEM;
@@ -389,12 +393,11 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
                float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
   int W, H;
   hr_view_target(v, &W, &H);
-  const int SW = W * ss, SH = H * ss;
+  const int SW = W * ss, SH = H * ss, FSW = v->width * ss, FSH = v->height * ss;
   GLint maxtex = 0, maxvp[2] = {0, 0};
   hrgl.GetIntegerv(GL_MAX_TEXTURE_SIZE, &maxtex);
   hrgl.GetIntegerv(GL_MAX_VIEWPORT_DIMS, maxvp);
-  if (ss < 1 || SW > maxtex || SH > maxtex || v->width * ss > maxvp[0] ||
-      v->height * ss > maxvp[1]) {
+  if (ss < 1 || FSW > maxtex || FSH > maxtex || FSW > maxvp[0] || FSH > maxvp[1]) {
     if (err) snprintf(err, errlen, "supersampled size %dx%d (frame %dx%d) above the GL limits "
                       "(texture %d, viewport %dx%d)", SW, SH, v->width * ss, v->height * ss,
                       (int)maxtex, (int)maxvp[0], (int)maxvp[1]);
@@ -412,7 +415,7 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
   GLuint depth = 0, rtex = 0, fbo[2] = {0, 0};
   hrgl.GenBuffers(4, bufs);
   hrgl.GenFramebuffers(2, fbo);
-  depth = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, SW, SH, 0);
+  depth = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, FSW, FSH, 0);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, depth, 0);
   GLenum none = GL_NONE;
@@ -420,7 +423,7 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
   int rc = fbo_complete("A-buffer", err, errlen);
 
   hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
-  hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)sizeof(uint32_t) * SW * SH, NULL,
+  hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)sizeof(uint32_t) * FSW * FSH, NULL,
                   GL_DYNAMIC_COPY);
   uint64_t want = (uint64_t)SW * SH * 2;
   uint32_t capacity = want < ABUF_MIN_NODES ? ABUF_MIN_NODES
@@ -454,10 +457,11 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     set_geometry(&r->abuf, &cam, &sv, 0, 0);
     hr_bind_shading(r, &r->abuf, &sv, &cam, light, 0);
     hr_set_u(&r->abuf, "u_capacity", capacity);
-    hr_set_i(&r->abuf, "u_width", SW);
+    hr_set_i(&r->abuf, "u_width", FSW);
     draw_hair(r);
     hrgl.DepthMask(GL_TRUE);
     hrgl.Disable(GL_DEPTH_TEST);
+    hr_scissor_off();
     hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_ATOMIC_COUNTER_BARRIER_BIT |
                        GL_BUFFER_UPDATE_BARRIER_BIT);
     hrgl.BindBuffer(GL_ATOMIC_COUNTER_BUFFER, bufs[2]);
@@ -479,7 +483,10 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
     hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, sizeof zero3, zero3, GL_DYNAMIC_COPY);
     hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, bufs[3]);
-    rtex = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
+    /* Whole 16x16 blocks: llvmpipe blends the lists of partially covered
+     * 4x4 blocks wrongly (draw_fullscreen), so the target is grown to whole
+     * blocks and only W x H is read back. */
+    rtex = make_tex(GL_TEXTURE_2D, GL_RGBA32F, (W + 15) & ~15, (H + 15) & ~15, 0);
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
     hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, rtex, 0);
     GLenum b0 = GL_COLOR_ATTACHMENT0;
@@ -493,14 +500,16 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hrgl.ClearBufferfv(GL_COLOR, 0, zero4);
     hrgl.UseProgram(r->resolve_abuf.id);
     hr_set_i(&r->resolve_abuf, "u_ss", ss);
-    hr_set_i(&r->resolve_abuf, "u_width", SW);
+    hr_set_i(&r->resolve_abuf, "u_width", FSW);
+    hr_set_2i(&r->resolve_abuf, "u_origin", cam.win_x / ss, cam.win_y / ss);
+    hr_set_2i(&r->resolve_abuf, "u_frame", v->width, v->height);
     hr_set_u(&r->resolve_abuf, "u_capacity", capacity);
     /* One draw per subsample, summed (see hr_glsl_resolve_abuf_fs). */
     hrgl.Enable(GL_BLEND);
     hrgl.BlendFunc(GL_ONE, GL_ONE);
     for (int sub = 0; sub < ss * ss; sub++) {
       hr_set_i(&r->resolve_abuf, "u_sub", sub);
-      draw_fullscreen(r, &r->resolve_abuf, W, H);
+      draw_fullscreen(r, &r->resolve_abuf, (W + 15) & ~15, (H + 15) & ~15);
     }
     hrgl.Disable(GL_BLEND);
     hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
@@ -539,9 +548,12 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     float *cpu = malloc(sizeof(float) * 3 * (size_t)W * H);
     if (!heads || !nodes || !cpu) rc = HF_ENOMEM;
     if (rc == HF_OK) {
+      /* The window's rows of the whole frame's list heads. */
       hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
-      hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, sizeof(uint32_t) * (size_t)SW * SH,
-                            heads);
+      for (int y = 0; y < SH; y++)
+        hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER,
+                              (GLintptr)(sizeof(uint32_t) * ((size_t)(cam.win_y + y) * FSW + cam.win_x)),
+                              (GLsizeiptr)(sizeof(uint32_t) * SW), heads + (size_t)y * SW);
       hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[1]);
       if (count)
         hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0,

@@ -84,6 +84,10 @@ void hr_set_2f(const hr_program *p, const char *name, float x, float y) {
   GLint l = hrgl.GetUniformLocation(p->id, name);
   if (l >= 0) hrgl.Uniform2f(l, x, y);
 }
+void hr_set_2i(const hr_program *p, const char *name, int x, int y) {
+  GLint l = hrgl.GetUniformLocation(p->id, name);
+  if (l >= 0) hrgl.Uniform2i(l, x, y);
+}
 void hr_set_3f(const hr_program *p, const char *name, const float v[3]) {
   GLint l = hrgl.GetUniformLocation(p->id, name);
   if (l >= 0) hrgl.Uniform3fv(l, 1, v);

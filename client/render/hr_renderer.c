@@ -258,8 +258,25 @@ void hr_view_target(const hfr_view *v, int *w, int *h) {
 }
 
 void hr_set_viewport(const hr_camera *cam) {
-  hrgl.Viewport(-cam->win_x, -cam->win_y, cam->frame_w, cam->frame_h);
+  hrgl.Viewport(0, 0, cam->frame_w, cam->frame_h);
+  if (cam->win_w == cam->frame_w && cam->win_h == cam->frame_h) {
+    hrgl.Disable(GL_SCISSOR_TEST);
+  } else {
+    /* Grown to whole 16x16-pixel blocks: llvmpipe shades 4x4 blocks, and
+     * those the scissor cuts lose some of their A-buffer insertions (the
+     * same fault as a clipped full-screen triangle, see draw_fullscreen);
+     * whole blocks are shaded as in the whole frame. Only the window is
+     * read back. */
+    int x0 = cam->win_x & ~15, y0 = cam->win_y & ~15;
+    int x1 = (cam->win_x + cam->win_w + 15) & ~15, y1 = (cam->win_y + cam->win_h + 15) & ~15;
+    if (x1 > cam->frame_w) x1 = cam->frame_w;
+    if (y1 > cam->frame_h) y1 = cam->frame_h;
+    hrgl.Enable(GL_SCISSOR_TEST);
+    hrgl.Scissor(x0, y0, x1 - x0, y1 - y0);
+  }
 }
+
+void hr_scissor_off(void) { hrgl.Disable(GL_SCISSOR_TEST); }
 
 void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *cam) {
   float d[3];

@@ -4,24 +4,6 @@
 
 #define GLSL_VERSION "#version 450 core\n"
 
-/* Window coordinates, snapped, for every pass (hair and occluder): a
- * vertex's position in pixels of the whole (virtual) u_frame, plus the
- * pass's sub-pixel jitter and any quad offset, snapped to 1/256 pixel,
- * turned back into clip coordinates. A crop is drawn with exactly these clip
- * coordinates and a viewport moved by the crop's origin (hr_set_viewport), so
- * the rasteriser sees the same snapped positions less an integer offset, and
- * its own 1/256-pixel snapping (llvmpipe's, and most GPUs') lands on the
- * same grid point in both: a crop covers exactly the samples the same window
- * of the whole frame does, at the cost of a crop-sized render. */
-#define SNAP_GLSL                                                                        \
-"uniform vec2 u_frame;           /* the whole frame in pixels */\n"                      \
-"uniform vec2 u_jitter;          /* sub-pixel offset of this pass, pixels */\n"        \
-"vec2 to_window(vec4 c) { return (c.xy / c.w * 0.5 + 0.5) * u_frame + u_jitter; }\n"  \
-"vec4 from_window(vec2 win, vec4 c) {\n"                                                \
-"  win = floor(win * 256.0 + 0.5) / 256.0;\n"                                           \
-"  return vec4((win / u_frame * 2.0 - 1.0) * c.w, c.zw);\n"                             \
-"}\n"
-
 /* Hair: one instance per segment, four vertices each, expanded here into
  * a quad one pixel wide, or as wide as the strand where that is wider
  * (rather than GL lines, whose multisampled rasterisation on llvmpipe loses
@@ -44,7 +26,8 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "layout(location = 9) in float a_strand1;\n"
 "uniform mat4 u_view;\n"
 "uniform mat4 u_proj;\n"
-SNAP_GLSL
+"uniform vec2 u_jitter;          /* NDC offset of this pass */\n"
+"uniform vec2 u_viewport;        /* the whole frame in pixels */\n"
 "uniform float u_px_per_unit;    /* pixels per model unit at eye distance 1 */\n"
 "uniform int u_ortho;\n"
 "uniform float u_thick_scale;\n"
@@ -52,6 +35,8 @@ SNAP_GLSL
 "void main() {\n"
 "  vec4 e0 = u_view * vec4(a_pos0, 1.0), e1 = u_view * vec4(a_pos1, 1.0);\n"
 "  vec4 c0 = u_proj * e0, c1 = u_proj * e1;\n"
+"  c0.xy += u_jitter * c0.w;\n"
+"  c1.xy += u_jitter * c1.w;\n"
 "  bool second = gl_VertexID >= 2;\n"
 "  vo.obj = second ? a_pos1 : a_pos0;\n"
 "  vo.wtan = second ? a_tan1 : a_tan0;\n"
@@ -68,15 +53,17 @@ SNAP_GLSL
 "    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);   /* outside the clip volume: culled */\n"
 "    return;\n"
 "  }\n"
-"  vec2 s0 = to_window(c0), s1 = to_window(c1);\n"
+"  vec2 s0 = c0.xy / c0.w * u_viewport * 0.5, s1 = c1.xy / c1.w * u_viewport * 0.5;\n"
 "  vec2 d = s1 - s0;\n"
 "  d = length(d) > 1e-6 ? normalize(d) : vec2(1.0, 0.0);\n"
-"  /* Half the quad's width each side, in pixels: one pixel in all for a\n"
-"   * strand narrower than a pixel (its width is in alpha), the strand's own\n"
-"   * width for a wider one (alpha is then the opacity alone), so the covered\n"
-"   * area is the strand's at every width. */\n"
-"  vec2 off = vec2(-d.y, d.x) * 0.5 * max(px, 1.0) * ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
-"  gl_Position = from_window((second ? s1 : s0) + off, second ? c1 : c0);\n"
+"  /* Half the quad's width each side, in NDC: one pixel for a strand\n"
+"   * narrower than a pixel (its width is in alpha), the strand's own width\n"
+"   * for a wider one (alpha is then the opacity alone), so the covered area\n"
+"   * is the strand's at every width. */\n"
+"  vec2 off = vec2(-d.y, d.x) / u_viewport * max(px, 1.0) *\n"
+"             ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
+"  vec4 c = second ? c1 : c0;\n"
+"  gl_Position = vec4(c.xy + off * c.w, c.zw);\n"
 "}\n";
 
 /* The light and the stochastic shadow map lookup (hair and occluder). */
@@ -235,18 +222,19 @@ const char hr_glsl_abuf_fs[] = GLSL_VERSION FS_COMMON
 "  nodes[i].next = atomicExchange(heads[p.y * u_width + p.x], i);\n"
 "}\n";
 
-/* The occluder: position and normal per vertex, snapped like the hair. */
+/* The occluder: position and normal per vertex. */
 const char hr_glsl_head_vs[] = GLSL_VERSION
 "layout(location = 0) in vec3 a_pos;\n"
 "layout(location = 1) in vec3 a_nrm;\n"
 "uniform mat4 u_view, u_proj;\n"
-SNAP_GLSL
+"uniform vec2 u_jitter;\n"
 "out float v_vdist;\n"
 "out vec3 v_pos, v_nrm;\n"
 "void main() {\n"
 "  vec4 e = u_view * vec4(a_pos, 1.0);\n"
 "  vec4 c = u_proj * e;\n"
-"  gl_Position = c.w > 0.0 ? from_window(to_window(c), c) : c;\n"
+"  c.xy += u_jitter * c.w;\n"
+"  gl_Position = c;\n"
 "  v_vdist = -e.z;\n"
 "  v_pos = a_pos;\n"
 "  v_nrm = a_nrm;\n"
@@ -300,13 +288,14 @@ const char hr_glsl_fullscreen_vs[] = GLSL_VERSION
 const char hr_glsl_resolve_ms_fs[] = GLSL_VERSION
 "uniform sampler2DMS u_f0, u_f1;\n"
 "uniform int u_samples;\n"
+"uniform ivec2 u_origin;   /* the window's origin in the frame */\n"
 "out vec2 o;\n"
 "void main() {\n"
 "  ivec2 p = ivec2(gl_FragCoord.xy);\n"
 "  int x = p.x / 3, j = p.x - 3 * x;\n"
 "  int y = p.y / u_samples, s = p.y - u_samples * y;\n"
-"  vec4 a = texelFetch(u_f0, ivec2(x, y), s);\n"
-"  vec4 b = texelFetch(u_f1, ivec2(x, y), s);\n"
+"  vec4 a = texelFetch(u_f0, ivec2(x, y) + u_origin, s);\n"
+"  vec4 b = texelFetch(u_f1, ivec2(x, y) + u_origin, s);\n"
 "  o = j == 0 ? a.xy : (j == 1 ? a.zw : b.xy);\n"
 "}\n";
 
@@ -335,12 +324,15 @@ const char hr_glsl_resolve_abuf_fs[] = GLSL_VERSION
 "layout(std430, binding = 2) buffer Stats { uint max_depth; uint truncated; uint overflow; };\n"
 "uniform int u_ss;\n"
 "uniform int u_sub;        /* subsample sy * u_ss + sx */\n"
-"uniform int u_width;      /* supersampled width */\n"
+"uniform int u_width;      /* supersampled width of the whole frame */\n"
+"uniform ivec2 u_origin;   /* the window's origin in the frame, pixels */\n"
+"uniform ivec2 u_frame;    /* the frame's size, pixels */\n"
 "uniform uint u_capacity;\n"
 "out vec4 o;\n"
 "bool before(float da, uint ia, float db, uint ib) { return da < db || (da == db && ia < ib); }\n"
 "void main() {\n"
-"  ivec2 p = ivec2(gl_FragCoord.xy);\n"
+"  ivec2 p = ivec2(gl_FragCoord.xy) + u_origin;\n"
+"  if (p.x >= u_frame.x || p.y >= u_frame.y) { o = vec4(0.0); return; }  /* block padding */\n"
 "  int sy = u_sub / u_ss, sx = u_sub - sy * u_ss;\n"
 "  uint idx[K];\n"
 "  float dep[K];\n"

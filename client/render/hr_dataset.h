@@ -1,0 +1,27 @@
+/* Internals of dataset mode (hr_dataset.c, hr_dataset_regimes.c). */
+#ifndef HR_DATASET_H
+#define HR_DATASET_H
+
+#include "hfrender.h"
+#include "hr_math.h"
+
+/* What a regimes frame drew beyond its style parameters and view. */
+typedef struct hr_regime {
+  int frame_size;               /* the virtual square frame the output is a crop of */
+  float target_width_px;        /* strand width drawn, at the bounding sphere's centre */
+  float typical_thickness;      /* the model's median diameter it was scaled from */
+  float clump_width_spread;     /* per clump width x s^u, u in [-1, 1] */
+} hr_regime;
+
+/* Draws a frame's style parameters (before the model is generated). */
+void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
+                     hr_regime *rg);
+/* Draws the view: frame size, camera, light, shadows, the thickness scale
+ * that gives the drawn width in pixels, and the crop (o->width x o->height)
+ * centred on the hair. r holds h (hfr_renderer_set_hair) already. */
+void hr_regime_view(hr_rng *g, const hfr_dataset_opts *o, hfr_renderer *r, const hfr_hair *h,
+                    hfr_view *v, hr_regime *rg);
+/* Median strand diameter of a model (model units). */
+float hr_typical_thickness(const hfr_hair *h);
+
+#endif

@@ -1,0 +1,345 @@
+/* Loaded models as they come (no GL): header thickness fallback and width
+ * warnings (the field case and models of other sizes and units), up axes
+ * and units, guide interpolation, the ellipsoid fitted under the roots,
+ * occluder meshes from files. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "hfrender.h"
+
+static void tmp_path(char *buf, size_t n, const char *name) {
+  snprintf(buf, n, "/tmp/hf_test_assets_%d_%s", (int)getpid(), name);
+}
+
+static hfr_hair small_style(hfr_style s, int strands) {
+  hfr_style_params p;
+  assert_int_equal(hfr_style_defaults(s, &p), HF_OK);
+  p.strands = strands;
+  p.seed = 21;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+  return h;
+}
+
+/* The reference writer's file: points only, header thickness 1.0. The
+ * fallback is 1/2000 of the bounding radius, with a warning. */
+static void test_field_case_thickness(void **state) {
+  (void)state;
+  hfr_hair h;
+  char err[256] = "", warn[512] = "";
+  assert_int_equal(hfr_hair_load(HF_TEST_DATA "/hair-default-header.hair", &h, err, sizeof err),
+                   HF_OK);
+  assert_null(h.thickness);
+  assert_true(h.default_thickness == 1.0f);
+  float c[3], r;
+  hfr_hair_bounds(&h, c, &r);
+  const char *why = NULL;
+  float t = hfr_hair_default_thickness(&h, r, &why);
+  assert_non_null(why);
+  assert_true(fabsf(t - r / 2000) < 1e-6f * r);
+  assert_int_equal(hfr_hair_check_widths(&h, warn, sizeof warn), 1);
+  print_message("warning: %s\n", warn);
+  assert_non_null(strstr(warn, "header thickness 1.0"));
+  assert_true(fabsf(h.default_thickness - r / 2000) < 1e-6f * r);
+  /* Checked once, the value stands. */
+  assert_int_equal(hfr_hair_check_widths(&h, warn, sizeof warn), 0);
+  assert_string_equal(warn, "");
+  hfr_hair_free(&h);
+}
+
+/* Models of other sizes and units, written as the reference writer does:
+ * the same fallback relative to their size; a plausible header is kept;
+ * implausible per-point widths are reported and kept. */
+static void test_widths_across_units(void **state) {
+  (void)state;
+  const float scales[] = {0.1f /* m */, 1, 10 /* cm */, 100 /* mm */, 1000};
+  for (size_t i = 0; i < sizeof scales / sizeof scales[0]; i++) {
+    hfr_hair h = small_style(HFR_STYLE_WAVY, 200);
+    for (size_t k = 0; k < 3 * (size_t)h.points; k++) h.pos[k] *= scales[i];
+    free(h.thickness);
+    h.thickness = NULL;
+    h.default_thickness = HFR_HAIR_UNSET_THICKNESS;
+    char path[256], err[256], warn[512];
+    tmp_path(path, sizeof path, "units.hair");
+    assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+    hfr_hair_free(&h);
+    assert_int_equal(hfr_hair_load(path, &h, err, sizeof err), HF_OK);
+    remove(path);
+    float c[3], r;
+    hfr_hair_bounds(&h, c, &r);
+    int warned = hfr_hair_check_widths(&h, warn, sizeof warn);
+    print_message("scale %g: radius %g, drawn %g (%s)\n", scales[i], r, h.default_thickness,
+                  warned ? "warned" : "kept");
+    /* 1.0 is taken as unset wherever it is above radius / 1000. */
+    if (r > 1000) {
+      assert_int_equal(warned, 0);
+      assert_true(h.default_thickness == 1.0f);
+    } else {
+      assert_int_equal(warned, 1);
+      assert_true(fabsf(h.default_thickness / r - HFR_WIDTH_FALLBACK_REL) < 1e-7f);
+    }
+    /* A plausible header thickness (80 um on this head) is kept. */
+    h.default_thickness = 0.0008f * scales[i];
+    assert_int_equal(hfr_hair_check_widths(&h, warn, sizeof warn), 0);
+    assert_true(h.default_thickness == 0.0008f * scales[i]);
+    /* Absurd ones are not: a tenth of the model, or zero. */
+    h.default_thickness = 0.1f * r;
+    assert_int_equal(hfr_hair_check_widths(&h, warn, sizeof warn), 1);
+    assert_true(fabsf(h.default_thickness / r - HFR_WIDTH_FALLBACK_REL) < 1e-7f);
+    h.default_thickness = 0;
+    assert_int_equal(hfr_hair_check_widths(&h, warn, sizeof warn), 1);
+    hfr_hair_free(&h);
+  }
+  /* Per-point widths: reported when implausible, never changed. */
+  hfr_hair h = small_style(HFR_STYLE_STRAIGHT, 100);
+  char warn[512];
+  assert_int_equal(hfr_hair_check_widths(&h, warn, sizeof warn), 0);
+  h.thickness[5] = 1.0f; /* 1/3 of this model's radius */
+  assert_int_equal(hfr_hair_check_widths(&h, warn, sizeof warn), 1);
+  print_message("per point: %s\n", warn);
+  assert_non_null(strstr(warn, "1 of"));
+  assert_true(h.thickness[5] == 1.0f);
+  hfr_hair_free(&h);
+}
+
+static void test_axes_and_units(void **state) {
+  (void)state;
+  hfr_axis a;
+  assert_int_equal(hfr_axis_from_name("Z", &a), HF_OK);
+  assert_int_equal(a, HFR_AXIS_Z);
+  assert_int_equal(hfr_axis_from_name("+y", &a), HF_OK);
+  assert_int_equal(a, HFR_AXIS_Y);
+  assert_int_equal(hfr_axis_from_name("-x", &a), HF_OK);
+  assert_int_equal(a, HFR_AXIS_NEG_X);
+  assert_int_equal(hfr_axis_from_name("w", &a), HF_ENOTFOUND);
+  float s;
+  assert_int_equal(hfr_units_scale("cm", &s), HF_OK);
+  assert_true(s == 0.1f);
+  assert_int_equal(hfr_units_scale("m", &s), HF_OK);
+  assert_true(s == 10);
+  assert_int_equal(hfr_units_scale("furlong", &s), HF_ENOTFOUND);
+  /* Every up axis goes to +y; z-up's front (-y) goes to +z; the scale
+   * applies to positions and widths. */
+  const float up[HFR_AXIS_COUNT][3] = {{0, 1, 0}, {0, 0, 1}, {1, 0, 0},
+                                       {0, -1, 0}, {0, 0, -1}, {-1, 0, 0}};
+  for (int k = 0; k < HFR_AXIS_COUNT; k++) {
+    hfr_hair h = {0};
+    h.strands = 1, h.points = 3, h.default_segments = 2;
+    float pos[9] = {up[k][0], up[k][1], up[k][2], 0, -1, 0, 0, 0, 0}, th[3] = {1, 2, 3};
+    if (k == HFR_AXIS_Y || k == HFR_AXIS_NEG_Y) pos[3] = 0, pos[4] = 0, pos[5] = -1;
+    h.pos = pos, h.thickness = th, h.default_thickness = 1;
+    assert_int_equal(hfr_hair_orient(&h, (hfr_axis)k, 2), HF_OK);
+    assert_true(fabsf(pos[0]) < 1e-6f && fabsf(pos[1] - 2) < 1e-6f && fabsf(pos[2]) < 1e-6f);
+    if (k == HFR_AXIS_Z) assert_true(fabsf(pos[5] - 2) < 1e-6f); /* front to +z */
+    assert_true(th[2] == 6 && h.default_thickness == 2);
+    assert_int_equal(hfr_hair_orient(&h, (hfr_axis)k, 0), HF_EINVAL);
+  }
+}
+
+/* Children: count, roots within the local guide spacing of their guide,
+ * spread over it, the same for a seed, different for another. */
+static void test_children(void **state) {
+  (void)state;
+  hfr_hair g = small_style(HFR_STYLE_CURLY, 120);
+  hfr_children_params p;
+  hfr_children_defaults(&p);
+  p.children = 9;
+  hfr_hair a, b, c;
+  assert_int_equal(hfr_hair_interpolate(&g, &p, &a), HF_OK);
+  assert_int_equal(hfr_hair_interpolate(&g, &p, &b), HF_OK);
+  p.seed = 2;
+  assert_int_equal(hfr_hair_interpolate(&g, &p, &c), HF_OK);
+  assert_int_equal(a.strands, 120 * 10);
+  assert_int_equal(a.points, 10 * g.points);
+  assert_memory_equal(a.pos, b.pos, 12 * (size_t)a.points);
+  assert_true(memcmp(a.pos, c.pos, 12 * (size_t)a.points) != 0);
+  const uint32_t n1 = g.default_segments + 1;
+  double far = 0, sum = 0;
+  int counted = 0;
+  for (uint32_t s = 0; s < g.strands; s++) {
+    const float *gr = g.pos + 3 * (size_t)s * n1;
+    /* The nearest other guide root: the local spacing. */
+    float spacing = INFINITY;
+    for (uint32_t q = 0; q < g.strands; q++) {
+      if (q == s) continue;
+      const float *o = g.pos + 3 * (size_t)q * n1;
+      float d = sqrtf((o[0] - gr[0]) * (o[0] - gr[0]) + (o[1] - gr[1]) * (o[1] - gr[1]) +
+                      (o[2] - gr[2]) * (o[2] - gr[2]));
+      if (d < spacing) spacing = d;
+    }
+    const float *ga = a.pos + 3 * (size_t)(s * 10) * n1;
+    assert_memory_equal(ga, gr, 12 * (size_t)n1); /* the guide is kept as it is */
+    for (int ch = 1; ch < 10; ch++) {
+      const float *cr = a.pos + 3 * (size_t)(s * 10 + ch) * n1;
+      float d = sqrtf((cr[0] - gr[0]) * (cr[0] - gr[0]) + (cr[1] - gr[1]) * (cr[1] - gr[1]) +
+                      (cr[2] - gr[2]) * (cr[2] - gr[2]));
+      assert_true(d <= p.spread * spacing * 1.0001f + 1e-6f);
+      far = fmax(far, d / spacing);
+      sum += d / spacing, counted++;
+      for (uint32_t i = 0; i < 3 * n1; i++) assert_true(isfinite(cr[i]));
+    }
+  }
+  print_message("child root offsets: mean %.3f, max %.3f guide spacings\n", sum / counted, far);
+  /* Uniform over a disc of radius 0.5: mean 1/3, reaching near the edge. */
+  assert_true(sum / counted > 0.25 && sum / counted < 0.42);
+  assert_true(far > 0.45);
+  /* Limits. */
+  p.children = 100000;
+  assert_int_equal(hfr_hair_interpolate(&g, &p, &c), HF_EINVAL);
+  hfr_hair_free(&a);
+  hfr_hair_free(&b);
+  hfr_hair_free(&c);
+  hfr_hair_free(&g);
+}
+
+/* The ellipsoid fitted under a scalp's roots is the head; under a flat
+ * patch it lies below the patch on the side away from the hair. Both leave
+ * 98% of the roots on or outside. */
+static void test_fit_roots(void **state) {
+  (void)state;
+  hfr_hair h = small_style(HFR_STYLE_STRAIGHT, 3000);
+  hfr_ellipsoid e;
+  assert_int_equal(hfr_ellipsoid_fit_roots(&h, &e), HF_OK);
+  const float head[3] = HFR_HEAD_RADII;
+  /* Its semi-axes, matched to the head's by direction. */
+  for (int a = 0; a < 3; a++) {
+    int k = 0;
+    for (int j = 1; j < 3; j++)
+      if (fabsf(e.axes[a][j]) > fabsf(e.axes[a][k])) k = j;
+    print_message("axis %d (model %c): %.3f (head %.3f)\n", a, "xyz"[k], e.radii[a], head[k]);
+    assert_true(fabsf(e.axes[a][k]) > 0.95f);
+    assert_true(fabsf(e.radii[a] - head[k]) < 0.1f * head[k]);
+  }
+  for (int k = 0; k < 3; k++) assert_true(fabsf(e.centre[k]) < 0.1f);
+  hfr_hair_free(&h);
+
+  /* A patch in y = 0 with strands growing up. */
+  hfr_hair p = {0};
+  p.strands = 400, p.points = 800, p.default_segments = 1;
+  p.pos = malloc(12 * 800);
+  assert_non_null(p.pos);
+  for (int s = 0; s < 400; s++) {
+    float *q = p.pos + 6 * s;
+    q[0] = (float)(s % 20) / 19 - 0.5f, q[1] = 0, q[2] = (float)(s / 20) / 19 - 0.5f;
+    q[3] = q[0], q[4] = 0.1f, q[5] = q[2];
+  }
+  assert_int_equal(hfr_ellipsoid_fit_roots(&p, &e), HF_OK);
+  print_message("patch: centre %.3f %.3f %.3f\n", e.centre[0], e.centre[1], e.centre[2]);
+  assert_true(e.centre[1] < 0);
+  int outside = 0;
+  for (int s = 0; s < 400; s++) {
+    const float *q = p.pos + 6 * s;
+    float d2 = 0;
+    for (int a = 0; a < 3; a++) {
+      float t = 0;
+      for (int k = 0; k < 3; k++) t += (q[k] - e.centre[k]) * e.axes[a][k];
+      d2 += (t / e.radii[a]) * (t / e.radii[a]);
+    }
+    outside += d2 >= 1;
+  }
+  assert_true(outside >= 0.98 * 400);
+  hfr_mesh m;
+  assert_int_equal(hfr_mesh_ellipsoid(&e, 16, 8, &m), HF_OK);
+  assert_int_equal(m.vertices, 16 * 8 * 6);
+  hfr_mesh_free(&m);
+  p.strands = 3;
+  assert_int_equal(hfr_ellipsoid_fit_roots(&p, &e), HF_EINVAL);
+  hfr_hair_free(&p);
+}
+
+/* A small OBJ: a quad (two triangles after triangulation) and a triangle;
+ * normals made where it has none. Bad files are refused with a reason. */
+static void test_mesh_file(void **state) {
+  (void)state;
+  char path[256], err[512] = "";
+  tmp_path(path, sizeof path, "occ.obj");
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  fputs("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\n", f);
+  fclose(f);
+  hfr_mesh m;
+  int rc = hfr_mesh_load(path, &m, err, sizeof err);
+  if (rc == HF_EUNSUPPORTED) {
+    remove(path);
+    print_message("no mesh reader in this build: %s\n", err);
+    skip();
+  }
+  assert_int_equal(rc, HF_OK);
+  assert_int_equal(m.vertices, 9);
+  for (uint32_t i = 0; i < m.vertices; i++) {
+    const float *v = m.v + 6 * i;
+    float l = sqrtf(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]);
+    assert_true(fabsf(l - 1) < 1e-4f);
+  }
+  assert_int_equal(hfr_mesh_orient(&m, HFR_AXIS_Z, 10), HF_OK);
+  hfr_mesh_free(&m);
+  f = fopen(path, "w");
+  assert_non_null(f);
+  fputs("v 0 0 0\nv 1 0 0\nl 1 2\n", f); /* lines only */
+  fclose(f);
+  assert_true(hfr_mesh_load(path, &m, err, sizeof err) < 0);
+  print_message("lines only: %s\n", err);
+  assert_true(strlen(err) > 0);
+  remove(path);
+  assert_true(hfr_mesh_load("/nonexistent/head.obj", &m, err, sizeof err) < 0);
+}
+
+/* hfr_asset_load: the width check comes before the units (1.0 in
+ * centimetres is still the writer's unset value), children come last. */
+static void test_asset_load(void **state) {
+  (void)state;
+  hfr_asset_opts o;
+  hfr_asset_defaults(&o);
+  o.up = HFR_AXIS_Y, o.scale = 0.1f; /* the field case is in centimetres */
+  o.children.children = 3;
+  hfr_hair h;
+  hfr_mesh occ;
+  char err[256] = "", warn[512] = "";
+  assert_int_equal(hfr_asset_load(HF_TEST_DATA "/hair-default-header.hair", &o, &h, &occ, warn,
+                                  sizeof warn, err, sizeof err), HF_OK);
+  assert_true(strlen(warn) > 0);
+  assert_int_equal(h.strands, 1500 * 4);
+  float c[3], r;
+  hfr_hair_bounds(&h, c, &r);
+  assert_true(r > 1.5f && r < 2.5f); /* 19 cm */
+  assert_non_null(h.thickness);
+  assert_true(h.thickness[0] > 0.3f * r / 2000 && h.thickness[0] < 2 * r / 2000);
+  assert_true(occ.vertices > 0);
+  hfr_hair_free(&h);
+  hfr_mesh_free(&occ);
+  o.occluder = "none";
+  o.thickness = 0.008f; /* 80 um in centimetres: no warning */
+  o.children.children = 0;
+  assert_int_equal(hfr_asset_load(HF_TEST_DATA "/hair-default-header.hair", &o, &h, &occ, warn,
+                                  sizeof warn, err, sizeof err), HF_OK);
+  assert_string_equal(warn, "");
+  assert_int_equal(occ.vertices, 0);
+  assert_true(fabsf(h.default_thickness - 0.0008f) < 1e-9f);
+  hfr_hair_free(&h);
+  o.occluder = "/nonexistent/head.obj";
+  assert_true(hfr_asset_load(HF_TEST_DATA "/hair-default-header.hair", &o, &h, &occ, warn,
+                             sizeof warn, err, sizeof err) < 0);
+  assert_true(strlen(err) > 0);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_field_case_thickness),
+    cmocka_unit_test(test_widths_across_units),
+    cmocka_unit_test(test_axes_and_units),
+    cmocka_unit_test(test_children),
+    cmocka_unit_test(test_fit_roots),
+    cmocka_unit_test(test_mesh_file),
+    cmocka_unit_test(test_asset_load),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

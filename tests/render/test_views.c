@@ -1,0 +1,413 @@
+/* Real conditions on a headless context: crops of a larger frame, occluders
+ * (fitted, meshes, the background layer), loaded models in other
+ * conventions framed, frame statistics, and dataset regimes with .hair files
+ * as styles. Small frames and few strands: seconds. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include <cjson/cJSON.h>
+
+#include "hr_internal.h"
+#include "hr_math.h"
+
+static hfr_renderer *R;
+
+static int setup(void **state) {
+  (void)state;
+  char err[512] = "";
+  int rc = hfr_renderer_create("osmesa", &R, err, sizeof err);
+  if (rc != HF_OK) fprintf(stderr, "renderer: %s\n", err);
+  return rc == HF_OK ? 0 : -1;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  hfr_renderer_destroy(R);
+  return 0;
+}
+
+static hfr_hair style(hfr_style s, int strands) {
+  hfr_style_params p;
+  hfr_style_defaults(s, &p);
+  p.strands = strands;
+  p.seed = 9;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+  return h;
+}
+
+static void render(const hfr_view *v, const hfr_outputs *o, hf_image *img, hfr_stats *st) {
+  char err[512] = "";
+  int rc = hfr_render(R, v, o, img, st, err, sizeof err);
+  if (rc != HF_OK) fail_msg("render: %s", err);
+}
+
+/* A window of a frame, rendered on its own, holds the same samples and
+ * ground truth as that window of the whole frame. */
+static void test_crop_equals_window(void **state) {
+  (void)state;
+  hfr_hair h = style(HFR_STYLE_WAVY, 1500);
+  char err[256];
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 1, err, sizeof err), HF_OK);
+  hfr_view v;
+  hfr_view_defaults(&v);
+  v.width = 96, v.height = 80;
+  v.shadow_size = 128;
+  v.cam_distance = 2.2f;
+  v.thickness_scale = 6; /* denser coverage: more samples to compare */
+  hfr_outputs o = {0};
+  o.spp = 8; /* two passes: the second one jittered */
+  o.gt_supersample = 2;
+  o.background_layer = 1;
+  o.seed = 3;
+  hf_image full, crop;
+  render(&v, &o, &full, NULL);
+  const int windows[][4] = {{20, 12, 40, 48}, {27, 30, 33, 17}, {63, 50, 33, 30}};
+  for (int w = 0; w < 3; w++) {
+    hfr_view c = v;
+    c.crop_x = windows[w][0], c.crop_y = windows[w][1];
+    c.crop_w = windows[w][2], c.crop_h = windows[w][3];
+    render(&c, &o, &crop, NULL);
+    assert_int_equal(crop.width, c.crop_w);
+    assert_int_equal(crop.height, c.crop_h);
+    assert_int_equal(crop.channels, full.channels);
+    double maxd = 0;
+    size_t differ = 0, covered = 0;
+    for (int y = 0; y < c.crop_h; y++)
+      for (int x = 0; x < c.crop_w; x++) {
+        const float *a = crop.data + ((size_t)y * crop.width + x) * crop.channels;
+        const float *b = full.data + ((size_t)(y + c.crop_y) * full.width + x + c.crop_x) *
+                                         full.channels;
+        for (int k = 0; k < crop.channels; k++) {
+          double d = fabs(a[k] - b[k]);
+          maxd = d > maxd ? d : maxd;
+          differ += d > 1e-6;
+          if (d > 1e-6 && differ < 8)
+            print_message("  (%d,%d) %s: crop %g full %g\n", x, y, crop.names[k], a[k], b[k]);
+        }
+        covered += a[2] > 0;
+      }
+    print_message("window %d,%d %dx%d: %zu covered first samples, max |crop - full| %.2e, "
+                  "%zu values above 1e-6\n", c.crop_x, c.crop_y, c.crop_w, c.crop_h, covered,
+                  maxd, differ);
+    assert_true(covered > 20);
+    assert_true(maxd <= 1e-6);
+    hf_image_free(&crop);
+  }
+  /* Outside the frame: refused. */
+  hfr_view bad = v;
+  bad.crop_x = 80, bad.crop_y = 0, bad.crop_w = 32, bad.crop_h = 8;
+  assert_int_equal(hfr_render(R, &bad, &o, &crop, NULL, err, sizeof err), HF_EINVAL);
+  hf_image_free(&full);
+  hfr_hair_free(&h);
+}
+
+/* Parallel strands in the plane z = -0.5 behind a quad occluder at z = 0
+ * that covers x < 0: behind it no sample is covered and the ground truth is
+ * empty; beside it the strands show. The layer has the occluder. */
+static void test_occluder_hides(void **state) {
+  (void)state;
+  const int strands = 40, seg = 8;
+  hfr_hair h = {0};
+  h.strands = strands;
+  h.points = strands * (seg + 1);
+  h.default_segments = seg;
+  h.default_thickness = 0.01f;
+  h.pos = malloc(12 * (size_t)h.points);
+  assert_non_null(h.pos);
+  for (int s = 0; s < strands; s++)
+    for (int i = 0; i <= seg; i++) {
+      float *p = h.pos + 3 * ((size_t)s * (seg + 1) + i);
+      p[0] = -1 + 2.0f * i / seg, p[1] = -1 + 2.0f * s / (strands - 1), p[2] = -0.5f;
+    }
+  char err[256];
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_OK);
+  float quad[6][6] = {{-3, -3, 0, 0, 0, 1}, {0, -3, 0, 0, 0, 1}, {0, 3, 0, 0, 0, 1},
+                      {-3, -3, 0, 0, 0, 1}, {0, 3, 0, 0, 0, 1}, {-3, 3, 0, 0, 0, 1}};
+  hfr_mesh m = {6, &quad[0][0]};
+  assert_int_equal(hfr_renderer_set_occluder(R, &m, 0, err, sizeof err), HF_OK);
+  hfr_view v;
+  hfr_view_defaults(&v);
+  v.width = v.height = 64;
+  v.cam_yaw_deg = 0, v.cam_pitch_deg = 0;
+  v.light_yaw_deg = 0, v.light_pitch_deg = 0;
+  v.shadow_size = 0;
+  hfr_outputs o = {0};
+  o.spp = 4, o.gt_supersample = 2, o.background_layer = 1, o.seed = 1;
+  hf_image img;
+  render(&v, &o, &img, NULL);
+  int ga = hf_image_channel(&img, "gt.alpha"), la = hf_image_channel(&img, "background.A");
+  assert_true(ga >= 0 && la >= 0);
+  double left = 0, right = 0, left_bg = 0, right_bg = 0;
+  size_t left_s = 0, right_s = 0;
+  for (int y = 8; y < 56; y++)
+    for (int x = 4; x < 60; x++) {
+      if (x >= 29 && x <= 34) continue; /* the occluder's edge */
+      const float *p = img.data + ((size_t)y * 64 + x) * img.channels;
+      size_t k = 0;
+      for (int s = 0; s < 4; s++) k += p[6 * s + 2] > 0;
+      if (x < 32) left += p[ga], left_s += k, left_bg += p[la];
+      else right += p[ga], right_s += k, right_bg += p[la];
+    }
+  print_message("gt alpha behind the occluder %.3f, beside %.3f; samples %zu / %zu\n", left,
+                right, left_s, right_s);
+  assert_true(left == 0 && left_s == 0);
+  assert_true(right > 10 && right_s > 100);
+  assert_true(left_bg > 0.99 * 48 * 25 && right_bg == 0);
+  /* The composite shows the occluder where the hair does not cover it. */
+  float *rgb = malloc(sizeof(float) * 3 * 64 * 64), *plain = malloc(sizeof(float) * 3 * 64 * 64);
+  assert_non_null(rgb);
+  assert_non_null(plain);
+  assert_int_equal(hfr_composite_channels(&img, "gt", &v, rgb), HF_OK);
+  float *res = calloc(3 * 64 * 64, sizeof(float));
+  assert_non_null(res);
+  hf_composite(res, 64, 64, v.hair_color, v.light_color, v.background, plain);
+  const float *l = img.data + ((size_t)32 * 64 + 10) * img.channels;
+  assert_true(fabsf(rgb[3 * (32 * 64 + 10)] - l[la - 3]) < 1e-5f); /* R of the layer */
+  assert_true(fabsf(rgb[3 * (32 * 64 + 10)] - plain[3 * (32 * 64 + 10)]) > 1e-3f);
+  free(res);
+  free(rgb);
+  free(plain);
+  hf_image_free(&img);
+  hfr_hair_free(&h);
+}
+
+/* A style saved z-up in centimetres and loaded back with --up z --units cm
+ * is framed like the original: same bounding sphere, all of it in view. */
+static void test_conventions_framing(void **state) {
+  (void)state;
+  hfr_hair h = style(HFR_STYLE_STRAIGHT, 800);
+  float c0[3], r0;
+  hfr_hair_bounds(&h, c0, &r0);
+  /* To z-up centimetres: y-up (x, y, z) -> z-up (x, -z, y), x10. */
+  for (uint32_t i = 0; i < h.points; i++) {
+    float *p = h.pos + 3 * (size_t)i, y = p[1], z = p[2];
+    p[0] *= 10, p[1] = -10 * z, p[2] = 10 * y;
+  }
+  for (uint32_t i = 0; i < h.points; i++) h.thickness[i] *= 10;
+  h.default_thickness *= 10;
+  char path[256];
+  snprintf(path, sizeof path, "/tmp/hf_test_views_%d.hair", (int)getpid());
+  assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+  hfr_hair_free(&h);
+  hfr_asset_opts ao;
+  hfr_asset_defaults(&ao);
+  assert_int_equal(hfr_axis_from_name("z", &ao.up), HF_OK);
+  assert_int_equal(hfr_units_scale("cm", &ao.scale), HF_OK);
+  hfr_mesh occ;
+  char err[256] = "", warn[256] = "";
+  assert_int_equal(hfr_asset_load(path, &ao, &h, &occ, warn, sizeof warn, err, sizeof err), HF_OK);
+  remove(path);
+  assert_string_equal(warn, "");
+  float c1[3], r1;
+  hfr_hair_bounds(&h, c1, &r1);
+  for (int k = 0; k < 3; k++) assert_true(fabsf(c1[k] - c0[k]) < 1e-4f * r0);
+  assert_true(fabsf(r1 - r0) < 1e-4f * r0);
+  assert_true(occ.vertices > 0);
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_OK);
+  assert_int_equal(hfr_renderer_set_occluder(R, &occ, 1, err, sizeof err), HF_OK);
+  hfr_view v;
+  hfr_view_defaults(&v);
+  v.width = v.height = 64;
+  v.shadow_size = 0;
+  /* The bounding sphere's extreme points project inside the frame. */
+  float centre[3], radius;
+  hfr_renderer_bounds(R, centre, &radius);
+  hr_camera cam;
+  hr_camera_from_view(R, &v, &cam);
+  for (int k = 0; k < 6; k++) {
+    float p[4] = {centre[0], centre[1], centre[2], 1};
+    p[k / 2] += (k & 1 ? -1 : 1) * radius;
+    float e[4] = {0}, c[4] = {0};
+    for (int i = 0; i < 4; i++)
+      for (int j = 0; j < 4; j++) e[i] += cam.view[4 * j + i] * p[j];
+    for (int i = 0; i < 4; i++)
+      for (int j = 0; j < 4; j++) c[i] += cam.proj[4 * j + i] * e[j];
+    assert_true(c[3] > 0 && fabsf(c[0] / c[3]) < 1 && fabsf(c[1] / c[3]) < 1);
+  }
+  hfr_outputs o = {0};
+  o.spp = 4, o.seed = 2;
+  hf_image img;
+  hfr_stats st;
+  render(&v, &o, &img, &st);
+  print_message("z-up cm model: %.3f of the pixels hair\n", st.frame.hair_pixels);
+  assert_true(st.frame.hair_pixels > 0.03);
+  hf_image_free(&img);
+  hfr_mesh_free(&occ);
+  hfr_hair_free(&h);
+}
+
+/* Frame statistics: inside their ranges, and they follow the strand width. */
+static void test_frame_stats(void **state) {
+  (void)state;
+  hfr_hair h = style(HFR_STYLE_STRAIGHT, 2000);
+  char err[256];
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 1, err, sizeof err), HF_OK);
+  hfr_view v;
+  hfr_view_defaults(&v);
+  v.width = v.height = 64;
+  v.shadow_size = 0;
+  hfr_outputs o = {0};
+  o.spp = 4, o.gt_supersample = 2, o.seed = 4;
+  hfr_frame_stats fs[3];
+  const float scales[3] = {1, 8, 200};
+  for (int i = 0; i < 3; i++) {
+    v.thickness_scale = scales[i];
+    hf_image img;
+    hfr_stats st;
+    render(&v, &o, &img, &st);
+    fs[i] = st.frame;
+    char line[512];
+    hfr_frame_stats_format(&fs[i], line, sizeof line);
+    print_message("scale %g: %s\n", scales[i], line);
+    assert_true(fs[i].valid);
+    assert_true(fs[i].alpha_p10 > 0 && fs[i].alpha_p10 <= fs[i].alpha_p50 &&
+                fs[i].alpha_p50 <= fs[i].alpha_p90 && fs[i].alpha_p90 <= 1);
+    assert_true(fs[i].hair_pixels > 0 && fs[i].hair_pixels <= 1);
+    assert_true(fs[i].full_pixels >= 0 && fs[i].full_pixels <= 1);
+    assert_true(fs[i].gt_opaque >= 0 && fs[i].gt_opaque <= 1);
+    assert_true(fs[i].points_in_view > 1000);
+    hf_image_free(&img);
+  }
+  /* Width in pixels scales with the thickness; alpha follows it below a
+   * pixel and is the opacity (<= 0.8 here) above. */
+  assert_true(fabs(fs[1].width_px_p50 / fs[0].width_px_p50 - 8) < 0.01 * 8);
+  assert_true(fs[1].alpha_p50 > 4 * fs[0].alpha_p50);
+  assert_true(fs[2].alpha_p50 > 0.7 && fs[2].alpha_p90 <= 0.8 + 1e-6);
+  assert_true(fs[2].full_pixels > fs[0].full_pixels);
+  assert_true(fs[2].gt_opaque > fs[0].gt_opaque);
+  hfr_hair_free(&h);
+}
+
+static char *slurp(const char *path) {
+  FILE *f = fopen(path, "rb");
+  assert_non_null(f);
+  fseek(f, 0, SEEK_END);
+  long n = ftell(f);
+  fseek(f, 0, SEEK_SET);
+  char *t = malloc((size_t)n + 1);
+  assert_non_null(t);
+  assert_int_equal(fread(t, 1, (size_t)n, f), (size_t)n);
+  t[n] = 0;
+  fclose(f);
+  return t;
+}
+
+/* Regimes over two styles and a .hair file (z-up, cm, guides grown into
+ * children): every frame's draws inside their ranges and varied, the crop in
+ * its frame, statistics and the layer recorded, the file's conventions too. */
+static void test_dataset_regimes(void **state) {
+  (void)state;
+  char dir[256], hair[300];
+  snprintf(dir, sizeof dir, "/tmp/hf_test_regimes_%d", (int)getpid());
+  snprintf(hair, sizeof hair, "%s.hair", dir);
+  hfr_hair g = style(HFR_STYLE_SPIKY, 1600);
+  /* Its guides only, z-up centimetres. */
+  hfr_style_params p;
+  hfr_style_defaults(HFR_STYLE_SPIKY, &p);
+  p.strands = 40, p.children = 0, p.seed = 5;
+  hfr_hair_free(&g);
+  assert_int_equal(hfr_hair_generate(&p, &g), HF_OK);
+  for (uint32_t i = 0; i < g.points; i++) {
+    float *q = g.pos + 3 * (size_t)i, y = q[1], z = q[2];
+    q[0] *= 10, q[1] = -10 * z, q[2] = 10 * y;
+  }
+  free(g.thickness);
+  g.thickness = NULL;
+  g.default_thickness = HFR_HAIR_UNSET_THICKNESS; /* as the reference writer leaves it */
+  assert_int_equal(hfr_hair_save(hair, &g), HF_OK);
+  hfr_hair_free(&g);
+
+  hfr_dataset_opts o;
+  hfr_dataset_defaults(&o);
+  o.out_dir = dir;
+  o.styles[0] = HFR_STYLE_FUR, o.styles[1] = HFR_STYLE_PONYTAIL;
+  o.n_styles = 2;
+  const char *files[] = {hair};
+  o.hair_files = files, o.n_hair_files = 1;
+  o.asset.up = HFR_AXIS_Z, o.asset.scale = 0.1f, o.asset.children.children = 5;
+  o.count = 2;
+  o.width = o.height = 24;
+  o.strands = 300;
+  o.regimes = 1, o.frame_min = 32, o.frame_max = 64;
+  o.gt_supersample = 1;
+  o.background_layer = 1;
+  o.progress = 0;
+  o.platform = "osmesa";
+  char err[512] = "", path[600];
+  int rc = hfr_dataset_run(&o, err, sizeof err);
+  if (rc != HF_OK) fail_msg("dataset: %s", err);
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  char *text = slurp(path);
+  cJSON *doc = cJSON_Parse(text);
+  free(text);
+  assert_non_null(doc);
+  assert_true(cJSON_IsTrue(cJSON_GetObjectItem(doc, "regimes")));
+  cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
+  assert_int_equal(cJSON_GetArraySize(frames), 6);
+  double wmin = 1e9, wmax = 0;
+  int files_seen = 0;
+  cJSON_ArrayForEach(f, frames) {
+    cJSON *fr = cJSON_GetObjectItem(f, "frame"), *rg = cJSON_GetObjectItem(f, "regime");
+    cJSON *st = cJSON_GetObjectItem(f, "stats"), *h = cJSON_GetObjectItem(f, "hair");
+    assert_non_null(fr);
+    assert_non_null(rg);
+    assert_non_null(st);
+    int fw = cJSON_GetObjectItem(fr, "width")->valueint;
+    cJSON *crop = cJSON_GetObjectItem(fr, "crop_x_y_w_h");
+    int cx = cJSON_GetArrayItem(crop, 0)->valueint, cy = cJSON_GetArrayItem(crop, 1)->valueint;
+    assert_true(fw >= 32 && fw <= 64);
+    assert_int_equal(cJSON_GetArrayItem(crop, 2)->valueint, 24);
+    assert_true(cx >= 0 && cy >= 0 && cx + 24 <= fw && cy + 24 <= fw);
+    double tw = cJSON_GetObjectItem(rg, "target_width_px")->valuedouble;
+    assert_true(tw >= 0.004 - 1e-6 && tw <= 4 + 1e-6);
+    wmin = fmin(wmin, tw), wmax = fmax(wmax, tw);
+    cJSON *wpx = cJSON_GetObjectItem(st, "width_px_p10_p50_p90");
+    assert_true(cJSON_GetArrayItem(wpx, 1)->valuedouble > 0);
+    assert_non_null(cJSON_GetObjectItem(cJSON_GetObjectItem(f, "light"), "shadow_bias"));
+    if (cJSON_GetObjectItem(h, "file")) {
+      files_seen++;
+      assert_string_equal(cJSON_GetObjectItem(h, "up")->valuestring, "z");
+      assert_int_equal(cJSON_GetObjectItem(h, "children")->valueint, 5);
+      assert_int_equal(cJSON_GetObjectItem(f, "strand_count")->valueint, 40 * 6);
+      assert_string_equal(cJSON_GetObjectItem(f, "occluder")->valuestring, "fit");
+    } else {
+      assert_true(cJSON_GetObjectItem(h, "width_spread")->valuedouble >= 1);
+    }
+    snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
+    hf_image img;
+    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
+    assert_int_equal(img.width, 24);
+    assert_true(hf_image_channel(&img, "background.A") >= 0);
+    hf_image_free(&img);
+    remove(path);
+  }
+  assert_int_equal(files_seen, 2);
+  assert_true(wmax > wmin);
+  cJSON_Delete(doc);
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  remove(path);
+  rmdir(dir);
+  remove(hair);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_crop_equals_window),
+    cmocka_unit_test(test_occluder_hides),
+    cmocka_unit_test(test_conventions_framing),
+    cmocka_unit_test(test_frame_stats),
+    cmocka_unit_test(test_dataset_regimes),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
