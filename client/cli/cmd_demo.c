@@ -213,6 +213,7 @@ int cmd_demo(int argc, char **argv) {
   }
   f.style.seed = o.seed;
   f.outputs.spp = w->cfg.spp;
+  f.outputs.background_layer = 1; /* the head under the hair, not a hole */
   hf_image img = {0};
   hfr_stats st;
   int rc = 1;
@@ -237,11 +238,11 @@ int cmd_demo(int argc, char **argv) {
   float *est = malloc(npx * 3 * sizeof(float));
   if (!est) goto done;
   for (size_t p = 0; p < npx; p++) hf_st_estimate(in + p * w->cfg.in_channels, w->cfg.spp, est + p * 3);
-  hf_composite(est, o.width, o.height, f.view.hair_color, f.view.light_color, f.view.background,
-               panels[0]);
+  hfr_composite_result(est, o.width, o.height, &img, f.view.hair_color, f.view.light_color,
+                       f.view.background, panels[0]);
   free(est);
-  hf_composite(out, o.width, o.height, f.view.hair_color, f.view.light_color, f.view.background,
-               panels[1]);
+  hfr_composite_result(out, o.width, o.height, &img, f.view.hair_color, f.view.light_color,
+                       f.view.background, panels[1]);
   if (hfr_composite_channels(&img, "gt", &f.view, panels[2])) goto done;
 
   /* Scores on hair pixels (ground-truth alpha > 0), as docs/QUALITY.md. */

@@ -23,6 +23,7 @@
 #include "commands.h"
 #include "eval_metrics.h"
 #include "eval_strata.h"
+#include "hfrender.h"
 
 #define MAX_MODELS 16
 #define MAX_METHODS (MAX_MODELS + 16)
@@ -311,9 +312,12 @@ typedef struct look {
   float hair[3], light[3], bg[3];
 } look;
 
-/* Composite, clamped to [0, 1] as a display shows it. */
-static void composite(const look *lk, const float *res, int w, int h, float *rgb) {
-  hf_composite(res, w, h, lk->hair, lk->light, lk->bg, rgb);
+/* Composite, clamped to [0, 1] as a display shows it; over the frame's
+ * background layer (the head or body the hair grows on, background.*) where
+ * the frame has one, as hfr_composite_result. */
+static void composite(const look *lk, const hf_image *frame, const float *res, int w, int h,
+                      float *rgb) {
+  hfr_composite_result(res, w, h, frame, lk->hair, lk->light, lk->bg, rgb);
   for (size_t i = 0; i < (size_t)w * h * 3; i++) rgb[i] = fminf(1.f, fmaxf(0.f, rgb[i]));
 }
 
@@ -680,7 +684,7 @@ int cmd_eval(int argc, char **argv) {
       rc = HF_EFORMAT;
       goto out;
     }
-    composite(&lk, gt, w, h, gt_rgb);
+    composite(&lk, &img, gt, w, h, gt_rgb);
     /* The frame's regime, from the samples the input rows read. */
     int full_w = fr->full_w, full_h = fr->full_h;
     if (!full_w && hf_exr_display_size(fr->path, &full_w, &full_h, NULL, 0)) full_w = full_h = 0;
@@ -748,7 +752,7 @@ int cmd_eval(int argc, char **argv) {
       } else if (gather(&img, m->prefix, res)) {
         continue;   /* this frame has no such baseline */
       }
-      composite(&lk, res, w, h, rgb);
+      composite(&lk, &img, res, w, h, rgb);
       if ((rc = score(mi, strata, &rg, res, gt, rgb, gt_rgb, w, h, mask, smap, &fs)) != 0)
         goto out;
       if (row_scores) cJSON_AddItemToArray(row_scores, score_json(m, &fs));

@@ -61,7 +61,7 @@ typedef struct {
   struct { int strands, segments; float length, clumping, frizz, cr, cp, thick, opac, wspread;
            int seed_set, children_set, children; uint64_t seed; } ov;
   hfr_asset_opts asset;
-  int no_background;
+  int no_background, styles_set;
   char *hair_files[256];
   int n_hair_files;
   int random_view;
@@ -248,6 +248,7 @@ static int parse_args(int argc, char **argv, opts *o) {
       char buf[256];
       snprintf(buf, sizeof buf, "%s", v);
       o->ds.n_styles = 0;
+      o->styles_set = 1;
       for (char *t = strtok(buf, ","); t; t = strtok(NULL, ",")) {
         if (o->ds.n_styles == HFR_STYLE_COUNT || hfr_style_from_name(t, &o->ds.styles[o->ds.n_styles])) {
           fprintf(stderr, "hairfilter render: bad style list '%s'\n", v);
@@ -565,7 +566,7 @@ static int run_dataset(opts *o) {
   memcpy(d->st_spp, o->outputs.st_spp, sizeof d->st_spp);
   d->opaque_samples = o->outputs.opaque_samples;
   if (o->ov.strands) d->strands = o->ov.strands;
-  else if (d->extended) d->strands = 0;   /* density is one of the varied parameters */
+  else if (d->extended || d->regimes) d->strands = 0; /* density is one of the varied parameters */
   if (o->ov.segments) d->segments = o->ov.segments;
   d->shadow_size = o->view.shadow_size;
   d->half = o->half;
@@ -573,6 +574,7 @@ static int run_dataset(opts *o) {
   d->asset = o->asset;
   d->hair_files = (const char *const *)o->hair_files;
   d->n_hair_files = o->n_hair_files;
+  if (o->n_hair_files && !o->styles_set) d->n_styles = 0; /* the files alone */
   if (o->ov.wspread) d->width_spread = o->ov.wspread;
   d->progress = !o->quiet;
   d->platform = o->platform;
