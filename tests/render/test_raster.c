@@ -18,6 +18,7 @@
 #include "hr_internal.h"
 #include "hr_math.h"
 #include "hr_shaders.h"
+#include "test_common.h"
 
 #define W 64
 #define H 64
@@ -371,21 +372,6 @@ static void test_frame_ranges(void **state) {
   hf_image_free(&img);
 }
 
-static char *slurp(const char *path) {
-  FILE *f = fopen(path, "rb");
-  assert_non_null(f);
-  assert_int_equal(fseek(f, 0, SEEK_END), 0);
-  long n = ftell(f);
-  assert_true(n > 0 && n < (1 << 24));
-  rewind(f);
-  char *b = malloc((size_t)n + 1);
-  assert_non_null(b);
-  assert_int_equal(fread(b, 1, (size_t)n, f), (size_t)n);
-  b[n] = 0;
-  fclose(f);
-  return b;
-}
-
 /* Dataset mode: EXRs with features and targets, and a manifest that
  * records each frame's parameters. */
 static void test_dataset_mode(void **state) {
@@ -460,15 +446,9 @@ static void test_dataset_extended(void **state) {
   o.extended = 1;
   o.progress = 0;
   o.platform = "osmesa";
-  char err[512] = "", path[512];
-  int rc = hfr_dataset_run(&o, err, sizeof err);
-  if (rc != HF_OK) fail_msg("dataset: %s", err);
-  assert_int_equal(hr_renderer_bind(R), HF_OK);
+  char path[512];
+  cJSON *doc = run_dataset(&o, R);
   snprintf(path, sizeof path, "%s/manifest.json", dir);
-  char *text = slurp(path);
-  cJSON *doc = cJSON_Parse(text);
-  free(text);
-  assert_non_null(doc);
   assert_true(cJSON_IsTrue(cJSON_GetObjectItem(doc, "extended")));
   cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
   assert_int_equal(cJSON_GetArraySize(frames), 4);

@@ -18,6 +18,7 @@
 
 #include "hr_internal.h"
 #include "hr_math.h"
+#include "test_common.h"
 
 static hfr_renderer *R;
 
@@ -288,20 +289,6 @@ static void test_frame_stats(void **state) {
   hfr_hair_free(&h);
 }
 
-static char *slurp(const char *path) {
-  FILE *f = fopen(path, "rb");
-  assert_non_null(f);
-  fseek(f, 0, SEEK_END);
-  long n = ftell(f);
-  fseek(f, 0, SEEK_SET);
-  char *t = malloc((size_t)n + 1);
-  assert_non_null(t);
-  assert_int_equal(fread(t, 1, (size_t)n, f), (size_t)n);
-  t[n] = 0;
-  fclose(f);
-  return t;
-}
-
 /* Regimes over two styles and a .hair file (z-up, cm, guides grown into
  * children): every frame's draws inside their ranges and varied, the crop in
  * its frame, statistics and the layer recorded, the file's conventions too. */
@@ -344,14 +331,7 @@ static void test_dataset_regimes(void **state) {
   o.progress = 0;
   o.platform = "osmesa";
   char err[512] = "", path[600];
-  int rc = hfr_dataset_run(&o, err, sizeof err);
-  if (rc != HF_OK) fail_msg("dataset: %s", err);
-  assert_int_equal(hr_renderer_bind(R), HF_OK);
-  snprintf(path, sizeof path, "%s/manifest.json", dir);
-  char *text = slurp(path);
-  cJSON *doc = cJSON_Parse(text);
-  free(text);
-  assert_non_null(doc);
+  cJSON *doc = run_dataset(&o, R);
   assert_true(cJSON_IsTrue(cJSON_GetObjectItem(doc, "regimes")));
   cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
   assert_int_equal(cJSON_GetArraySize(frames), 6);
