@@ -9,6 +9,23 @@
 
 #include "hr_internal.h"
 
+/* The suite's renderer (OSMesa), made by setup, destroyed by teardown. */
+static hfr_renderer *R;
+
+static int setup(void **state) {
+  (void)state;
+  char err[512] = "";
+  int rc = hfr_renderer_create("osmesa", &R, err, sizeof err);
+  if (rc != HF_OK) fprintf(stderr, "renderer: %s\n", err);
+  return rc == HF_OK ? 0 : -1;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  hfr_renderer_destroy(R);
+  return 0;
+}
+
 /* The whole file, NUL-terminated (freed by the caller). */
 static char *slurp(const char *path) {
   FILE *f = fopen(path, "rb");

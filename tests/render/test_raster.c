@@ -24,21 +24,6 @@
 #define H 64
 #define S 4
 
-static hfr_renderer *R;
-
-static int setup(void **state) {
-  (void)state;
-  char err[512] = "";
-  int rc = hfr_renderer_create("osmesa", &R, err, sizeof err);
-  if (rc != HF_OK) fprintf(stderr, "renderer: %s\n", err);
-  return rc == HF_OK ? 0 : -1;
-}
-
-static int teardown(void **state) {
-  (void)state;
-  hfr_renderer_destroy(R);
-  return 0;
-}
 
 /* Parallel horizontal strands in the z = 0 plane, far enough apart not to
  * overlap. flat_view makes them just over one pixel wide, so that alpha =

@@ -20,21 +20,6 @@
 #include "hr_math.h"
 #include "test_common.h"
 
-static hfr_renderer *R;
-
-static int setup(void **state) {
-  (void)state;
-  char err[512] = "";
-  int rc = hfr_renderer_create("osmesa", &R, err, sizeof err);
-  if (rc != HF_OK) fprintf(stderr, "renderer: %s\n", err);
-  return rc == HF_OK ? 0 : -1;
-}
-
-static int teardown(void **state) {
-  (void)state;
-  hfr_renderer_destroy(R);
-  return 0;
-}
 
 static hfr_hair style(hfr_style s, int strands) {
   hfr_style_params p;
