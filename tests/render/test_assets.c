@@ -192,12 +192,12 @@ static void test_children(void **state) {
   /* Uniform over a disc of radius 0.5: mean 1/3, reaching near the edge. */
   assert_true(sum / counted > 0.25 && sum / counted < 0.42);
   assert_true(far > 0.45);
-  /* Limits. */
-  p.children = 100000;
-  assert_int_equal(hfr_hair_interpolate(&g, &p, &c), HF_EINVAL);
   hfr_hair_free(&a);
   hfr_hair_free(&b);
   hfr_hair_free(&c);
+  /* Limits. */
+  p.children = 100000;
+  assert_int_equal(hfr_hair_interpolate(&g, &p, &c), HF_EINVAL);
   hfr_hair_free(&g);
 }
 
