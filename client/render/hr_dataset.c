@@ -82,6 +82,9 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
   cJSON_AddNumberToObject(fr, "height", v->height);
   int crop[4] = {v->crop_w > 0 ? v->crop_x : 0, v->crop_w > 0 ? v->crop_y : 0, W, H};
   cJSON_AddItemToObject(fr, "crop_x_y_w_h", int_list(crop, 4));
+  /* The names hairfilter eval reads a crop's whole frame by. */
+  cJSON_AddNumberToObject(e, "full_width", v->width);
+  cJSON_AddNumberToObject(e, "full_height", v->height);
   cJSON_AddNumberToObject(e, "spp", out->spp);
   cJSON_AddItemToObject(e, "spp_list", int_list(o->spp_list, o->n_spp));
   cJSON_AddNumberToObject(e, "gt_supersample", out->gt_supersample);

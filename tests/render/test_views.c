@@ -332,6 +332,8 @@ static void test_dataset_regimes(void **state) {
     cJSON *crop = cJSON_GetObjectItem(fr, "crop_x_y_w_h");
     int cx = cJSON_GetArrayItem(crop, 0)->valueint, cy = cJSON_GetArrayItem(crop, 1)->valueint;
     assert_true(fw >= 32 && fw <= 64);
+    assert_int_equal(cJSON_GetObjectItem(f, "full_width")->valueint, fw);
+    assert_int_equal(cJSON_GetObjectItem(f, "full_height")->valueint, fw);
     assert_int_equal(cJSON_GetArrayItem(crop, 2)->valueint, 24);
     assert_true(cx >= 0 && cy >= 0 && cx + 24 <= fw && cy + 24 <= fw);
     double tw = cJSON_GetObjectItem(rg, "target_width_px")->valuedouble;
