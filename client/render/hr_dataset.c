@@ -285,8 +285,11 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   const int sources = o->n_styles + o->n_hair_files, total = sources * o->count;
   double start = hr_now_ms();
   int done = 0;
-  for (int si = 0; rc == HF_OK && si < sources; si++)
-    for (int i = 0; rc == HF_OK && i < o->count; i++) {
+  /* Round robin over the sources (frame i of every style, then frame i + 1):
+   * a run stopped early still holds every style in equal measure. A frame's
+   * seed depends only on (si, i), never on the order. */
+  for (int i = 0; rc == HF_OK && i < o->count; i++)
+    for (int si = 0; rc == HF_OK && si < sources; si++) {
       const int fi = si - o->n_styles; /* >= 0: a .hair file */
       uint64_t seed = o->seed * 1000003ull + (uint64_t)si * 10007ull + (uint64_t)i;
       hr_rng g = {seed * 0x9e3779b97f4a7c15ull + 3};
