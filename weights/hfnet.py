@@ -31,18 +31,31 @@ VARIANTS = {
     # Beyond the paper: Base's shape, output = per-pixel stochastic
     # transparency estimate + the network's residual.
     "Residual":  dict(spp=4, levels=[32, 64, 128], arch="residual"),
+    # Beyond the paper: Base's shape; dec0 predicts a per-pixel kernel over
+    # the (2r+1)^2 pixels around each pixel, applied to their samples, plus
+    # a small correction (kernel_finish).
+    "Kernel":    dict(spp=4, levels=[32, 64, 128], arch="kernel", kernel_radius=3, kernel_hidden=16),
 }
 TABLE1 = ["Base", "Base@1spp", "Base@2spp", "Large", "Small", "Shallow", "Deep"]
+
+
+def kernel_taps(radius):
+    return (2 * radius + 1) ** 2
 
 
 def variant_config(name):
     """Metadata dict of a Table 1 variant, as stored in the weights file."""
     for key, v in VARIANTS.items():
         if key.lower() == name.lower():
-            return dict(name=key, arch=v.get("arch", "unet"), spp=v["spp"],
-                        in_channels=v["spp"] * len(FEATURES),
-                        levels=list(v["levels"]), out_channels=len(OUTPUTS),
-                        features=list(FEATURES))
+            cfg = dict(name=key, arch=v.get("arch", "unet"), spp=v["spp"],
+                       in_channels=v["spp"] * len(FEATURES),
+                       levels=list(v["levels"]), out_channels=len(OUTPUTS),
+                       features=list(FEATURES))
+            if cfg["arch"] == "kernel":
+                cfg["kernel_radius"] = v["kernel_radius"]
+                cfg["kernel_hidden"] = v.get("kernel_hidden", 0)
+                cfg["out_channels"] = kernel_taps(v["kernel_radius"]) + len(OUTPUTS)
+            return cfg
     raise KeyError(f"unknown variant {name!r}; known: {', '.join(VARIANTS)}")
 
 
@@ -89,12 +102,78 @@ def residual_finish(raw, base, clamp=torch.clamp):
     return torch.cat([color, highlight, alpha], dim=1)
 
 
+def pixel_sums(x, spp):
+    """Per pixel: covered-sample count n, sum of their colour, sum of their
+    highlight, NCHW [n][3][h][w] (the unnormalised stochastic-transparency
+    estimate of each pixel)."""
+    n, _, h, w = x.shape
+    s = x.view(n, spp, len(FEATURES), h, w)
+    cov = (s[:, :, 2] > 0).to(x.dtype)
+    return torch.stack([cov.sum(1), (s[:, :, 0] * cov).sum(1), (s[:, :, 1] * cov).sum(1)], 1)
+
+
+def _taps(radius):
+    """Offsets (dy, dx) of the taps in row-major order (tap t = (dy + r) *
+    (2r + 1) + dx + r), as the C backends number them."""
+    return [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+
+
+def _shifted(z, radius, dy, dx):
+    """z[..., y + dy, x + dx] for every (y, x) of the frame, 0 outside; z is
+    zero-padded by radius on each side."""
+    h, w = z.shape[-2] - 2 * radius, z.shape[-1] - 2 * radius
+    return z[..., radius + dy:radius + dy + h, radius + dx:radius + dx + w]
+
+
+def kernel_weights(logits, radius):
+    """Softmax over the (2r+1)^2 taps of each pixel, taps outside the frame
+    left out (the frame is cut, never padded): a list of taps tensors
+    [n][h][w]. Computed tap by tap on whole planes (a softmax over dim 1 of
+    an NCHW tensor strides through memory and dominates a training step)."""
+    n, taps, h, w = logits.shape
+    ones = F.pad(logits.new_ones(n, h, w, dtype=torch.float32), (radius,) * 4)
+    ls = [l.float() for l in logits.unbind(1)]
+    inside = [_shifted(ones, radius, dy, dx) for dy, dx in _taps(radius)]
+    m = ls[0].detach()
+    for l in ls[1:]:
+        m = torch.maximum(m, l.detach())
+    e = [torch.exp(l - m) * i for l, i in zip(ls, inside)]
+    den = e[0]
+    for et in e[1:]:
+        den = den + et
+    return [et / den for et in e]
+
+
+def kernel_finish(raw, x, spp, radius, clamp=torch.clamp):
+    """Output stage of the kernel architecture. raw: [n][taps + 3][h][w]
+    (kernel logits, then colour, highlight and alpha corrections), x the
+    unpadded NCHW features. With w the softmax weights of pixel p's taps q and
+    (n_q, C_q, H_q) the sums of pixel_sums:
+        alpha = sum w n_q / spp,  colour = sum w C_q / sum w n_q (1 if 0),
+        highlight = sum w H_q / sum w n_q (0 if 0),
+    then the corrections are added and the ranges clamped as Residual's."""
+    taps = kernel_taps(radius)
+    wts = kernel_weights(raw[:, :taps], radius)
+    sums = F.pad(pixel_sums(x, spp), (radius,) * 4)
+    agg = 0
+    for wt, (dy, dx) in zip(wts, _taps(radius)):
+        agg = agg + wt[:, None] * _shifted(sums, radius, dy, dx)
+    cnt = agg[:, 0:1]
+    ok = cnt > 1e-12
+    safe = torch.where(ok, cnt, torch.ones_like(cnt))
+    color = torch.where(ok, agg[:, 1:2] / safe, torch.ones_like(cnt))
+    hl = torch.where(ok, agg[:, 2:3] / safe, torch.zeros_like(cnt))
+    corr = raw[:, taps:taps + 3]
+    return torch.cat([color + corr[:, 0:1], clamp(hl + corr[:, 1:2], 0, None),
+                      clamp(cnt / spp + corr[:, 2:3], 0, 1)], dim=1)
+
+
 class HairNet(nn.Module):
     def __init__(self, cfg):
         super().__init__()
         self.cfg = dict(cfg)
         self.arch = cfg.get("arch", "unet")
-        if self.arch not in ("unet", "residual"):
+        if self.arch not in ("unet", "residual", "kernel"):
             raise ValueError(f"unknown arch {self.arch!r}")
         lv = cfg["levels"]
         L = len(lv)
@@ -102,10 +181,16 @@ class HairNet(nn.Module):
         for i in range(L):
             cin = cfg["in_channels"] if i == 0 else lv[i - 1]
             self.add_module(f"enc{i}", nn.Conv2d(cin, lv[i], 3, stride=2, padding=1))
+        # kernel_hidden > 0: dec0 gives that many channels (ReLU) and a 1x1
+        # convolution "head" over them and the input features gives the
+        # output channels, so every pixel's kernel also sees its own samples.
+        self.hidden = cfg.get("kernel_hidden", 0) if self.arch == "kernel" else 0
         for i in range(L):
             cin = lv[i] if i == L - 1 else 2 * lv[i]
-            cout = cfg["out_channels"] if i == 0 else lv[i - 1]
+            cout = (self.hidden or cfg["out_channels"]) if i == 0 else lv[i - 1]
             self.add_module(f"dec{i}", nn.ConvTranspose2d(cin, cout, 4, stride=2, padding=1))
+        if self.hidden:
+            self.head = nn.Conv2d(self.hidden + cfg["in_channels"], cfg["out_channels"], 1)
 
     @property
     def align(self):
@@ -114,7 +199,7 @@ class HairNet(nn.Module):
     def raw(self, x):
         """The network without output transforms; x is NCHW, sides multiples
         of 2^L."""
-        enc = []
+        inp, enc = x, []
         for i in range(self.levels):
             x = F.relu(getattr(self, f"enc{i}")(x))
             enc.append(x)
@@ -125,7 +210,13 @@ class HairNet(nn.Module):
             y = getattr(self, f"dec{i}")(y)
             if i > 0:
                 y = F.relu(y)
-        return y
+        return self.apply_head(y, inp)
+
+    def apply_head(self, y, inp):
+        """The kernel architecture's 1x1 head on ReLU(dec0) and the input."""
+        if not self.hidden:
+            return y
+        return self.head(torch.cat([F.relu(y), inp.to(y.dtype)], dim=1))
 
     def forward(self, x):
         """NCHW input of any size: zero-padded right/bottom to a multiple of
@@ -141,6 +232,8 @@ class HairNet(nn.Module):
         input x (same size)."""
         if self.arch == "residual":
             return residual_finish(raw, residual_base(x, self.cfg["spp"]), clamp)
+        if self.arch == "kernel":
+            return kernel_finish(raw, x, self.cfg["spp"], self.cfg["kernel_radius"], clamp)
         return output_transform(raw, clamp)
 
 

@@ -92,7 +92,7 @@ def raw_shuffle(net, x):
     Same function and parameters (the weights stay in ConvTranspose2d
     layout); it runs under bf16 autocast, where torch 1.13 has no
     ConvTranspose2d. Timings: `train.py --benchmark`, docs/QUALITY.md."""
-    enc = []
+    inp, enc = x, []
     for i in range(net.levels):
         x = F.relu(getattr(net, f"enc{i}")(x))
         enc.append(x)
@@ -106,7 +106,7 @@ def raw_shuffle(net, x):
         y = F.pixel_shuffle(F.conv2d(y, w, b, padding=1), 2)
         if i > 0:
             y = F.relu(y)
-    return y
+    return net.apply_head(y, inp)
 
 
 def clamp_st(x, lo=None, hi=None):
@@ -230,7 +230,7 @@ def pick_device(name):
 def benchmark(args):
     """ms per training step (forward, loss, backward, Adam) of each way of
     computing the network, on random data of the run's batch and crop."""
-    cfg = hfnet.variant_config(args.variant)
+    cfg = make_config(args)
     torch.manual_seed(args.seed)
     device = pick_device(args.device)
     net = hfnet.HairNet(cfg).to(device)
@@ -303,9 +303,27 @@ def parse_args(argv):
                     help="checkpoint and stop after this many seconds of this invocation")
     ap.add_argument("--benchmark", type=int, default=0, metavar="N",
                     help="only time N steps of each forward variant (median ms/step)")
+    ap.add_argument("--kernel-radius", type=int, default=0,
+                    help="Kernel variant: half side of the per-pixel kernel (default: the "
+                    "variant's)")
+    ap.add_argument("--kernel-hidden", type=int, default=-1,
+                    help="Kernel variant: channels of dec0 before the 1x1 head (0: dec0 "
+                    "gives the kernel directly; default: the variant's)")
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
     return ap.parse_args(argv)
+
+
+def make_config(args):
+    """The variant's configuration with the run's kernel overrides."""
+    cfg = hfnet.variant_config(args.variant)
+    if cfg["arch"] == "kernel":
+        if getattr(args, "kernel_radius", 0) > 0:
+            cfg["kernel_radius"] = args.kernel_radius
+            cfg["out_channels"] = hfnet.kernel_taps(args.kernel_radius) + len(hfnet.OUTPUTS)
+        if getattr(args, "kernel_hidden", -1) >= 0:
+            cfg["kernel_hidden"] = args.kernel_hidden
+    return cfg
 
 
 def main(argv=None):
@@ -326,10 +344,11 @@ def main(argv=None):
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles",
+                  "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
             setattr(args, k, saved.get(k, getattr(args, k)))
-    cfg = hfnet.variant_config(args.variant)
+    cfg = make_config(args)
     torch.manual_seed(args.seed)
     np_rng = np.random.default_rng(args.seed)
     random.seed(args.seed)
