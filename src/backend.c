@@ -64,10 +64,11 @@ int hf_backend_create(const char *name, hf_backend **out, char *why, size_t whyl
     int rc = open_backend(order[i], out, reason, sizeof reason);
     if (rc == HF_OK) {
       if (why && whylen) {
+        const char *sep = reason[0] ? ": " : "";
         if (skipped[0])
-          snprintf(why, whylen, "backend %s (%s)", order[i]->name, skipped);
+          snprintf(why, whylen, "backend %s%s%s (%s)", order[i]->name, sep, reason, skipped);
         else
-          snprintf(why, whylen, "backend %s (best available)", order[i]->name);
+          snprintf(why, whylen, "backend %s%s%s (best available)", order[i]->name, sep, reason);
       }
       return HF_OK;
     }
@@ -109,6 +110,8 @@ int hf_model_create(hf_backend *b, const hf_weights *w, hf_model **out) {
 
 void hf_model_destroy(hf_model *m) {
   if (!m) return;
+  /* Runs still pending finish first: their buffers belong to the caller. */
+  while (m->npending) hf_model_wait(m, NULL);
   m->backend->ops->model_destroy(m->impl);
   free(m);
 }
@@ -119,19 +122,84 @@ const hf_net_config *hf_model_config(const hf_model *m) { return m ? &m->cfg : N
 #define HF_MAX_SIDE 16384
 #define HF_MAX_PIXELS ((int64_t)1 << 28)
 
-int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing) {
-  if (!m || !io || !io->in || !io->out) return HF_EINVAL;
-  if (io->batch < 1 || io->width < 1 || io->height < 1) return HF_EINVAL;
-  if (io->width > HF_MAX_SIDE || io->height > HF_MAX_SIDE ||
-      (int64_t)io->batch * io->width * io->height > HF_MAX_PIXELS)
+static int check_shape(int batch, int width, int height) {
+  if (batch < 1 || width < 1 || height < 1) return HF_EINVAL;
+  if (width > HF_MAX_SIDE || height > HF_MAX_SIDE ||
+      (int64_t)batch * width * height > HF_MAX_PIXELS)
     return HF_ERANGE;
+  return HF_OK;
+}
+
+static int check_io(const hf_io *io) {
+  if (!io || !io->in || !io->out) return HF_EINVAL;
+  int rc = check_shape(io->batch, io->width, io->height);
+  if (rc) return rc;
   if ((io->in_dtype != HF_F32 && io->in_dtype != HF_F16) ||
       (io->out_dtype != HF_F32 && io->out_dtype != HF_F16))
     return HF_EINVAL;
+  return HF_OK;
+}
+
+int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing) {
+  if (!m) return HF_EINVAL;
+  int rc = check_io(io);
+  if (rc) return rc;
+  if (m->npending) return HF_EINVAL;   /* wait for the pending runs first */
   hf_timing t = {0, 0, 0};
-  int rc = m->backend->ops->model_run(m->impl, io, &t);
+  rc = m->backend->ops->model_run(m->impl, io, &t);
   if (timing) *timing = t;
   return rc;
+}
+
+int hf_model_prepare(hf_model *m, int batch, int width, int height) {
+  if (!m) return HF_EINVAL;
+  int rc = check_shape(batch, width, height);
+  if (rc) return rc;
+  return m->backend->ops->model_prepare
+             ? m->backend->ops->model_prepare(m->impl, batch, width, height)
+             : HF_OK;
+}
+
+int hf_model_submit(hf_model *m, const hf_io *io) {
+  if (!m) return HF_EINVAL;
+  int rc = check_io(io);
+  if (rc) return rc;
+  if (m->npending == HF_MAX_PENDING) return HF_ERANGE;
+  const int slot = (m->head + m->npending) % HF_MAX_PENDING;
+  const hf_backend_ops *ops = m->backend->ops;
+  if (ops->model_submit) {
+    /* A failure to start leaves nothing pending; a failure of the run
+     * itself is the wait's to report. */
+    if ((rc = ops->model_submit(m->impl, io)) != 0) return rc;
+    m->pending[slot].rc = HF_OK;
+  } else {
+    hf_timing t = {0, 0, 0};
+    m->pending[slot].rc = ops->model_run(m->impl, io, &t);
+    m->pending[slot].t = t;
+  }
+  m->npending++;
+  return HF_OK;
+}
+
+int hf_model_wait(hf_model *m, hf_timing *timing) {
+  if (!m || !m->npending) return HF_EINVAL;
+  const int slot = m->head;
+  m->head = (m->head + 1) % HF_MAX_PENDING;
+  m->npending--;
+  hf_timing t = m->pending[slot].t;
+  int rc = m->pending[slot].rc;
+  if (m->backend->ops->model_wait) rc = m->backend->ops->model_wait(m->impl, &t);
+  if (timing) *timing = t;
+  return rc;
+}
+
+int hf_backend_host_register(hf_backend *b, void *ptr, size_t bytes) {
+  if (!b || !ptr || !bytes) return HF_EINVAL;
+  return b->ops->host_register ? b->ops->host_register(b->dev, ptr, bytes) : HF_OK;
+}
+
+void hf_backend_host_unregister(hf_backend *b, void *ptr) {
+  if (b && ptr && b->ops->host_unregister) b->ops->host_unregister(b->dev, ptr);
 }
 
 const char *hf_model_precision(const hf_model *m) {

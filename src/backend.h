@@ -35,6 +35,16 @@ typedef struct hf_backend_ops {
   /* Device memory held by the model (weights, activations, workspace);
    * NULL means 0 (host-only backends). */
   size_t (*model_device_bytes)(void *model);
+  /* Optional (NULL: nothing to do): build what a shape needs ahead of its
+   * first run (hf_model_prepare). */
+  int (*model_prepare)(void *model, int batch, int width, int height);
+  /* Optional, both or neither: asynchronous runs (hf_model_submit/wait).
+   * Without them the common code runs io inside submit. */
+  int (*model_submit)(void *model, const hf_io *io);
+  int (*model_wait)(void *model, hf_timing *timing);
+  /* Optional: host memory that will hold tensors (hf_backend_host_register). */
+  int (*host_register)(void *dev, void *ptr, size_t bytes);
+  void (*host_unregister)(void *dev, void *ptr);
 } hf_backend_ops;
 
 extern const hf_backend_ops hf_backend_cpu_ref;
@@ -54,6 +64,13 @@ struct hf_model {
   hf_backend *backend;
   hf_net_config cfg;
   void *impl;
+  /* Runs pending through hf_model_submit, oldest first; results kept here
+   * for backends that run inside submit. */
+  int npending, head;
+  struct {
+    int rc;
+    hf_timing t;
+  } pending[HF_MAX_PENDING];
 };
 
 /* Shared helpers for CPU backends. */

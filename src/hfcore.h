@@ -206,6 +206,39 @@ void hf_model_destroy(hf_model *m);
 const hf_net_config *hf_model_config(const hf_model *m);
 /* Runs the network on io; timing may be NULL. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
+/* Builds whatever the backend needs to run batch frames of width x height
+ * (the cudnn backend: activation buffers, tuned engines and the CUDA graph
+ * of that shape; seconds), so the first request of that shape pays
+ * nothing. The model keeps it for its life. HF_OK at once for backends that
+ * prepare nothing; the arguments are checked like hf_model_run's. */
+int hf_model_prepare(hf_model *m, int batch, int width, int height);
+
+/* Runs pending on one model at most. */
+#define HF_MAX_PENDING 2
+
+/* Starts a run of io and returns before it finishes, so the caller can
+ * bring the next frame while the device works on this one: the cudnn
+ * backend uploads frame n+1 while it computes frame n. io's buffers must
+ * stay valid and unchanged until the matching hf_model_wait returns. At
+ * most HF_MAX_PENDING runs may be pending (HF_ERANGE beyond); backends
+ * that cannot overlap run io inside hf_model_submit. One thread at a time
+ * may drive a model's submit/wait; hf_model_run must not be mixed in while
+ * runs are pending. Errors of the run itself are returned by the wait. */
+int hf_model_submit(hf_model *m, const hf_io *io);
+/* Waits for the oldest pending run and returns its status; timing (may be
+ * NULL) gets its hf_timing. HF_EINVAL when no run is pending. */
+int hf_model_wait(hf_model *m, hf_timing *timing);
+
+/* Tells a backend that [ptr, ptr + bytes) will hold request tensors for a
+ * while (a shared-memory segment). The cudnn backend pins it once
+ * (cudaHostRegister), and then copies requests whose tensors lie inside it
+ * by DMA, with no staging copy. HF_OK when the memory was registered or the
+ * backend has no use for it; HF_EBACKEND when pinning failed (requests from
+ * it still work, through staging). Safe from any thread. Unregister before
+ * the memory is unmapped, with no run pending on it. */
+int hf_backend_host_register(hf_backend *b, void *ptr, size_t bytes);
+void hf_backend_host_unregister(hf_backend *b, void *ptr);
+
 /* The precision the backend computes in ("fp32", "fp16"). */
 const char *hf_model_precision(const hf_model *m);
 /* Device memory the model holds, in bytes (0 for host backends). */
@@ -304,6 +337,10 @@ int hf_input_range_describe(const hf_input_range *r, const hf_input_stats *s, un
 
 uint16_t hf_f32_to_f16(float f);
 float hf_f16_to_f32(uint16_t h);
+/* n values at once, bit for bit as hf_f32_to_f16 for every non-NaN input
+ * (NaNs stay NaNs); with the processor's F16C conversion when it has one
+ * (8 values per instruction). src and dst must not overlap. */
+void hf_f32_to_f16_array(const float *src, uint16_t *dst, size_t n);
 
 /* ---- images ------------------------------------------------------------- */
 

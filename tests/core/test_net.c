@@ -207,6 +207,91 @@ static void test_half_roundtrip(void **state) {
   assert_int_equal(hf_f32_to_f16(5.96e-8f), 0x0001);        /* smallest subnormal */
 }
 
+/* The array conversion agrees bit for bit with the scalar one: every half
+ * value, the midpoints between neighbours (ties to even), values just
+ * either side of them, subnormals, overflow; lengths that leave a tail. */
+static void test_half_array(void **state) {
+  enum { N = 3 * 0x10000 + 7 };
+  float *src = malloc(N * sizeof *src);
+  uint16_t *got = malloc(N * sizeof *got);
+  assert_non_null(src);
+  assert_non_null(got);
+  size_t n = 0;
+  for (uint32_t h = 0; h < 0x10000; h++) {
+    if ((h & 0x7c00) == 0x7c00) continue; /* inf and NaN: below */
+    const float a = hf_f16_to_f32((uint16_t)h), b = hf_f16_to_f32((uint16_t)(h + 1));
+    src[n++] = a;
+    if ((h & 0x7fff) < 0x7bff) {
+      src[n++] = 0.5f * (a + b);                      /* exact midpoint */
+      src[n++] = nextafterf(0.5f * (a + b), a);
+    }
+  }
+  const float extra[] = {1e6f, -1e6f, 65520.0f, 65519.0f, 5.96e-8f, 2.9e-8f, 3.0e-8f, 1e-30f,
+                         -0.0f, INFINITY, -INFINITY};
+  for (size_t i = 0; i < sizeof extra / sizeof extra[0]; i++) src[n++] = extra[i];
+  assert_true(n <= N);
+  for (size_t len = n; len + 8 > n; len--) {  /* every tail length 0..7 */
+    hf_f32_to_f16_array(src, got, len);
+    for (size_t i = 0; i < len; i++) {
+      if (got[i] != hf_f32_to_f16(src[i])) fail_msg("value %zu (%a): 0x%04x, want 0x%04x", i,
+                                                    (double)src[i], got[i], hf_f32_to_f16(src[i]));
+    }
+  }
+  const float nan = NAN;
+  hf_f32_to_f16_array(&nan, got, 1);
+  assert_true((got[0] & 0x7c00) == 0x7c00 && (got[0] & 0x3ff));
+  free(src);
+  free(got);
+}
+
+/* Backends without asynchronous runs get them from the common code:
+ * submit runs the frame, wait hands back its result in order; prepare is
+ * accepted; misuse is refused. */
+static void test_submit_wait_prepare(void **state) {
+  hf_net_config c;
+  hf_variant_preset("Shallow", &c);
+  hf_weights *w;
+  assert_int_equal(hf_weights_init_random(&c, 9, &w), HF_OK);
+  hf_backend *b;
+  assert_int_equal(hf_backend_create("cpu-ref", &b, NULL, 0), HF_OK);
+  assert_int_equal(hf_backend_host_register(b, w, 16), HF_OK);  /* nothing to pin */
+  hf_backend_host_unregister(b, w);
+  hf_model *m;
+  assert_int_equal(hf_model_create(b, w, &m), HF_OK);
+  assert_int_equal(hf_model_prepare(m, 2, 9, 7), HF_OK);
+  assert_int_equal(hf_model_prepare(m, 0, 9, 7), HF_EINVAL);
+  assert_int_equal(hf_model_prepare(m, 1, 100000, 7), HF_ERANGE);
+  enum { W = 9, H = 7, C = 24 };
+  float in[2][W * H * C], want[2][W * H * 3], got[2][W * H * 3];
+  srand(5);
+  for (int f = 0; f < 2; f++)
+    for (int i = 0; i < W * H * C; i++) in[f][i] = (float)rand() / RAND_MAX;
+  for (int f = 0; f < 2; f++) {
+    hf_io io = {1, W, H, in[f], HF_F32, want[f], HF_F32};
+    assert_int_equal(hf_model_run(m, &io, NULL), HF_OK);
+  }
+  hf_timing t;
+  assert_int_equal(hf_model_wait(m, &t), HF_EINVAL);   /* nothing pending */
+  hf_io io0 = {1, W, H, in[0], HF_F32, got[0], HF_F32}, io1 = io0;
+  io1.in = in[1];
+  io1.out = got[1];
+  assert_int_equal(hf_model_submit(m, &io0), HF_OK);
+  assert_int_equal(hf_model_submit(m, &io1), HF_OK);
+  assert_int_equal(hf_model_submit(m, &io1), HF_ERANGE);   /* HF_MAX_PENDING */
+  assert_int_equal(hf_model_run(m, &io1, NULL), HF_EINVAL); /* not while pending */
+  assert_int_equal(hf_model_wait(m, &t), HF_OK);
+  assert_memory_equal(got[0], want[0], sizeof want[0]);
+  assert_int_equal(hf_model_wait(m, &t), HF_OK);
+  assert_memory_equal(got[1], want[1], sizeof want[1]);
+  io0.width = 0;
+  assert_int_equal(hf_model_submit(m, &io0), HF_EINVAL);
+  io0.width = W;
+  assert_int_equal(hf_model_submit(m, &io0), HF_OK);   /* destroy waits for it */
+  hf_model_destroy(m);
+  hf_backend_destroy(b);
+  hf_weights_free(w);
+}
+
 static void test_backend_selection(void **state) {
   hf_backend *b;
   char why[512];
@@ -286,6 +371,7 @@ int main(void) {
     cmocka_unit_test(test_residual_base),
     cmocka_unit_test(test_validate_rejects), cmocka_unit_test(test_output_transform),
     cmocka_unit_test(test_half_roundtrip),   cmocka_unit_test(test_backend_selection),
+    cmocka_unit_test(test_half_array),       cmocka_unit_test(test_submit_wait_prepare),
     cmocka_unit_test(test_run_rejects_bad_io), cmocka_unit_test(test_pad_and_crop),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
