@@ -1,23 +1,38 @@
 /*
  * The cudnn backend: the network on an NVIDIA GPU in FP16 NHWC with FP32
- * accumulation, through cuDNN 9's graph API.
+ * accumulation, through cuDNN 9's graph API (docs/GPU.md).
  *
- * A model holds the packed weights on the device, its own cuDNN handle and
- * stream (so two models never share a stream), and a small cache of plans,
- * one per (batch, padded width, padded height). A plan is everything a
- * request of that shape needs, made once: activation buffers laid out by
- * cudnn_layout.h, one execution plan per layer chosen by timing the
- * heuristics' candidates, one workspace, pinned host staging buffers, and a
- * CUDA graph of the whole forward pass. A request then costs two host
- * copies into and out of pinned memory, two async transfers, two small
- * kernels and one graph launch; nothing is allocated.
+ * A model holds the packed weights on the device, its own cuDNN handle,
+ * three streams (upload, compute, download), two request slots and a cache
+ * of plans, one per (batch, padded width, padded height). A plan is
+ * everything a request of that shape needs, made once: activation buffers
+ * laid out by cudnn_layout.h, each layer in the form and with the engines
+ * that timed fastest, one workspace, and a CUDA graph of the whole forward
+ * pass.
  *
- * Environment (for diagnosis): HF_CUDNN_VERBOSE=1 logs plan choices,
- * HF_CUDNN_NO_GRAPH=1 runs the layers eagerly instead of replaying the CUDA
- * graph, HF_CUDNN_NO_FUSION=1 skips the fused bias+ReLU graphs,
- * HF_CUDNN_DECONV=shuffle computes transposed convs as conv + pixel shuffle
- * instead of cuDNN's data gradient, HF_CUDA_DEVICE picks the device
- * (default 0).
+ * A request (hf_model_submit) uploads its input on the upload stream: by
+ * DMA straight from the caller's memory when that memory was registered
+ * (hf_backend_host_register: shared-memory segments), else through a ring
+ * of pinned chunks, converting FP32 to FP16 on the way so half the bytes
+ * cross the bus. The compute stream waits for the upload, pads and converts
+ * the input, replays the graph and runs the output stage; the download
+ * stream brings the result back (again directly, or through pinned chunks
+ * copied out as they land). With two slots, frame n+1 uploads while frame
+ * n computes. hf_model_run is submit + wait.
+ *
+ * Environment (diagnosis and tuning; docs/GPU.md lists them):
+ *   HF_CUDNN_VERBOSE=1      log engines, notes, finalize times, forms, plans
+ *   HF_CUDNN_DECONV=LIST    decoder forms to try: auto (d2s,phase,bwd-data),
+ *                           or any of bwd-data, d2s, phase, shuffle
+ *   HF_CUDNN_DENSE=1        skip strided views: every conv on dense copies
+ *   HF_CUDNN_NO_FUSION=1    skip the fused bias+ReLU graphs
+ *   HF_CUDNN_NO_GRAPH=1     run layers eagerly instead of a CUDA graph
+ *   HF_CUDNN_CANDIDATES=N   engine configs finalized and timed per graph (4)
+ *   HF_CUDNN_RTC=N          of which run-time compiled (NVRTC), at most (1)
+ *   HF_CUDNN_PLANS=N        plans kept besides prepared ones (8, LRU)
+ *   HF_CUDNN_STAGE_MB=N     pinned staging chunk (4 MiB; 4 for input, 2 out)
+ *   HF_CUDNN_NO_REGISTER=1  never pin caller memory (staging only)
+ *   HF_CUDA_DEVICE=N        the device (0)
  */
 #include <pthread.h>
 #include <stdint.h>
@@ -34,27 +49,88 @@
 #include "cudnn_layout.h"
 #include "cudnn_util.h"
 
-#define MAX_PLANS 4
+#define MAX_PLANS 32          /* prepared + cached, hard limit */
+#define RING_IN 4
+#define RING_OUT 2
+#define TUNE_REPS 5
+
+/* ---- options --------------------------------------------------------------- */
 
 static int env_flag(const char *name) {
   const char *v = getenv(name);
   return v && v[0] && strcmp(v, "0") != 0;
 }
 
-static int env_deconv(void) {
-  const char *v = getenv("HF_CUDNN_DECONV");
-  return v && !strcmp(v, "shuffle") ? HF_CL_DECONV_SHUFFLE : HF_CL_DECONV_BWD_DATA;
+static int env_int(const char *name, int def, int lo, int hi) {
+  const char *v = getenv(name);
+  if (!v || !v[0]) return def;
+  char *end;
+  long n = strtol(v, &end, 10);
+  if (*end || n < lo || n > hi) {
+    fprintf(stderr, "hfcore cudnn: %s=%s ignored (want %d..%d); using %d\n", name, v, lo, hi,
+            def);
+    return def;
+  }
+  return (int)n;
 }
 
-static int env_device(void) {
-  const char *v = getenv("HF_CUDA_DEVICE");
-  return v && v[0] ? atoi(v) : 0;
+typedef struct cudnn_opts {
+  int no_graph, no_fusion, dense, no_register;
+  unsigned dec_forms;           /* mask of 1 << HF_CL_FORM_* tried for decoders */
+  int candidates, rtc, plans;
+  size_t stage_bytes;
+} cudnn_opts;
+
+#define DEFAULT_DEC_FORMS \
+  (1u << HF_CL_FORM_D2S | 1u << HF_CL_FORM_PHASE | 1u << HF_CL_FORM_BWD_DATA)
+
+static int parse_forms(const char *v, unsigned *mask) {
+  if (!v || !v[0] || !strcmp(v, "auto")) {
+    *mask = DEFAULT_DEC_FORMS;
+    return HF_OK;
+  }
+  char buf[128];
+  snprintf(buf, sizeof buf, "%s", v);
+  *mask = 0;
+  for (char *save, *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+    int f = hf_cl_form_from_name(tok);
+    if (f < 0 || f == HF_CL_FORM_FWD)
+      return hf_cudnn_report(HF_EINVAL,
+                             "HF_CUDNN_DECONV: '%s' is not a decoder form (auto, bwd-data, d2s, "
+                             "phase, shuffle)", tok);
+    *mask |= 1u << f;
+  }
+  return *mask ? HF_OK : HF_EINVAL;
 }
+
+static int read_opts(cudnn_opts *o) {
+  memset(o, 0, sizeof *o);
+  o->no_graph = env_flag("HF_CUDNN_NO_GRAPH");
+  o->no_fusion = env_flag("HF_CUDNN_NO_FUSION");
+  o->dense = env_flag("HF_CUDNN_DENSE");
+  o->no_register = env_flag("HF_CUDNN_NO_REGISTER");
+  o->candidates = env_int("HF_CUDNN_CANDIDATES", 4, 1, HF_CG_MAX_CAND);
+  o->rtc = env_int("HF_CUDNN_RTC", 1, 0, HF_CG_MAX_CAND);
+  o->plans = env_int("HF_CUDNN_PLANS", 8, 1, MAX_PLANS);
+  o->stage_bytes = (size_t)env_int("HF_CUDNN_STAGE_MB", 4, 1, 256) << 20;
+  return parse_forms(getenv("HF_CUDNN_DECONV"), &o->dec_forms);
+}
+
+static int env_device(void) { return env_int("HF_CUDA_DEVICE", 0, 0, 1024); }
 
 /* ---- probe / open ------------------------------------------------------- */
 
+/* Host memory registered for DMA (hf_backend_host_register). */
+typedef struct host_range {
+  uintptr_t lo, hi;
+} host_range;
+
 typedef struct cudnn_dev {
   int device;
+  int no_register;
+  pthread_mutex_t lock;
+  host_range *ranges;
+  int nranges, cap;
 } cudnn_dev;
 
 static int cudnn_probe(char *why, size_t whylen) {
@@ -83,7 +159,7 @@ static int cudnn_probe(char *why, size_t whylen) {
              prop.name, prop.major, prop.minor);
     return HF_EUNAVAILABLE;
   }
-  size_t ver = cudnnGetVersion();
+  const size_t ver = cudnnGetVersion();
   if (ver / 10000 != CUDNN_MAJOR) {
     snprintf(why, whylen, "cuDNN %zu.%zu.%zu at run time, built for %d.x", ver / 10000,
              ver / 100 % 100, ver % 100, CUDNN_MAJOR);
@@ -103,64 +179,192 @@ static int cudnn_probe(char *why, size_t whylen) {
     return HF_EUNAVAILABLE;
   }
   cudnnDestroy(h);
+  /* What runs, for the log: the versions found at run time may differ
+   * from the headers this was built with. */
+  int rt = 0, drv = 0;
+  cudaRuntimeGetVersion(&rt);
+  cudaDriverGetVersion(&drv);
+  snprintf(why, whylen,
+           "%s (device %d, sm_%d%d, %d SMs), cuDNN %zu.%zu.%zu at run time (built with "
+           "%d.%d.%d), CUDA runtime %d.%d, driver supports CUDA %d.%d",
+           prop.name, dev, prop.major, prop.minor, prop.multiProcessorCount, ver / 10000,
+           ver / 100 % 100, ver % 100, CUDNN_MAJOR, CUDNN_MINOR, CUDNN_PATCHLEVEL, rt / 1000,
+           rt % 1000 / 10, drv / 1000, drv % 1000 / 10);
+  if (hf_cudnn_verbose()) fprintf(stderr, "hfcore cudnn: %s\n", why);
   return HF_OK;
 }
 
 static int cudnn_open(void **devp, char *why, size_t whylen) {
   cudnn_dev *d = calloc(1, sizeof *d);
   if (!d) return HF_ENOMEM;
+  if (pthread_mutex_init(&d->lock, NULL)) {
+    free(d);
+    return HF_ENOMEM;
+  }
   d->device = env_device();
+  d->no_register = env_flag("HF_CUDNN_NO_REGISTER");
   *devp = d;
   return HF_OK;
 }
 
-static void cudnn_close(void *dev) { free(dev); }
+static void cudnn_close(void *dev) {
+  cudnn_dev *d = dev;
+  if (!d) return;
+  cudaSetDevice(d->device);
+  for (int i = 0; i < d->nranges; i++) cudaHostUnregister((void *)d->ranges[i].lo);
+  free(d->ranges);
+  pthread_mutex_destroy(&d->lock);
+  free(d);
+}
+
+static int cudnn_host_register(void *dev, void *ptr, size_t bytes) {
+  cudnn_dev *d = dev;
+  if (d->no_register) return HF_OK;
+  int rc;
+  pthread_mutex_lock(&d->lock);
+  if (d->nranges == d->cap) {
+    int cap = d->cap ? 2 * d->cap : 16;
+    host_range *r = realloc(d->ranges, (size_t)cap * sizeof *r);
+    if (!r) {
+      pthread_mutex_unlock(&d->lock);
+      return HF_ENOMEM;
+    }
+    d->ranges = r;
+    d->cap = cap;
+  }
+  /* The calling thread (hairfilterd's loop) may not have the device
+   * current yet; the primary context is shared with the worker's. */
+  HF_CU_TRY(cudaSetDevice(d->device));
+  HF_CU_TRY(cudaHostRegister(ptr, bytes, cudaHostRegisterDefault));
+  d->ranges[d->nranges].lo = (uintptr_t)ptr;
+  d->ranges[d->nranges].hi = (uintptr_t)ptr + bytes;
+  d->nranges++;
+  rc = HF_OK;
+fail:
+  if (rc) cudaGetLastError();
+  pthread_mutex_unlock(&d->lock);
+  return rc;
+}
+
+static void cudnn_host_unregister(void *dev, void *ptr) {
+  cudnn_dev *d = dev;
+  pthread_mutex_lock(&d->lock);
+  for (int i = 0; i < d->nranges; i++)
+    if (d->ranges[i].lo == (uintptr_t)ptr) {
+      cudaSetDevice(d->device);
+      cudaError_t e = cudaHostUnregister(ptr);
+      if (e != cudaSuccess) hf_cu_report(e, "cudaHostUnregister", __FILE__, __LINE__);
+      d->ranges[i] = d->ranges[--d->nranges];
+      break;
+    }
+  pthread_mutex_unlock(&d->lock);
+}
+
+static int is_registered(cudnn_dev *d, const void *ptr, size_t bytes) {
+  const uintptr_t lo = (uintptr_t)ptr, hi = lo + bytes;
+  int found = 0;
+  pthread_mutex_lock(&d->lock);
+  for (int i = 0; i < d->nranges && !found; i++)
+    found = lo >= d->ranges[i].lo && hi <= d->ranges[i].hi && hi >= lo;
+  pthread_mutex_unlock(&d->lock);
+  return found;
+}
 
 /* ---- plans ------------------------------------------------------------- */
 
-/* One layer as it runs: the cuDNN op, plus copies through dense scratch
- * tensors when no engine accepted its strided skip views, plus the bias
- * kernel when no engine fused the epilogue, plus the pixel shuffle of a
- * SHUFFLE decoder (whose op always writes a dense scratch). */
+/* One cuDNN convolution as it runs: on the layer's views, or on dense
+ * copies when no engine accepted the views. */
+typedef struct conv_run {
+  hf_cl_conv cv;
+  hf_cg_op op;
+  int dense;
+  void *x, *y;                  /* what the op reads and writes */
+  void *scratch_in, *scratch_out;
+} conv_run;
+
+/* One layer in its chosen form. */
 typedef struct step {
   const hf_cl_layer *ly;
-  hf_cg_op op;
-  void *x, *y;              /* what the op reads and writes */
-  int y_c, y_stride;        /* channels and pixel stride the op writes */
-  void *in_ptr, *out_ptr;   /* the layer's real views */
-  void *scratch_in, *scratch_out;
-  size_t npix_in, npix_out;
+  hf_cl_form f;
+  conv_run cr[HF_CL_MAX_CONVS];
+  void *scratch;                /* the form's depth-to-space input */
+  size_t bytes;                 /* device bytes of the step's own tensors */
+  float time_ms;                /* the whole layer, as tuned */
 } step;
 
 typedef struct plan {
   int batch, pw, ph;
+  int pinned;                   /* made by hf_model_prepare: never evicted */
+  int inflight;                 /* submitted runs not yet waited for */
   uint64_t last_used;
   hf_cl_layout lo;
   void *buf[HF_CL_MAX_BUFS];
   step steps[HF_CL_MAX_LAYERS];
   void *ws;
-  int64_t ws_bytes;
-  void *d_in_raw, *d_out_raw;   /* the request's own dtype and size */
-  void *h_in, *h_out;           /* pinned staging */
-  size_t in_raw_bytes, out_raw_bytes;
+  size_t ws_bytes;
   cudaGraphExec_t gexec;
   size_t device_bytes;
+  double build_ms, graphs_ms, tune_ms;
+  int graphs;                   /* cuDNN graphs built, the ones given up included */
 } plan;
 
-typedef struct cudnn_model {
+/* One request in flight. Events, in stream order:
+ *   upload:   IN0 [copies] IN1
+ *   compute:  (waits IN1) C0 input kernel CONSUMED C1 network C2 output C3
+ *   download: (waits C3) O0 [copies] O1 */
+enum { EV_IN0, EV_IN1, EV_C0, EV_CONSUMED, EV_C1, EV_C2, EV_C3, EV_O0, EV_O1, EV_COUNT };
+
+typedef struct slot {
+  int busy, used;
+  int rc;                       /* a failure after the run started */
+  plan *p;
+  hf_io io;
+  void *d_in, *d_out;           /* the request's own tensors on the device */
+  size_t d_in_cap, d_out_cap;
+  int in_f16;                   /* d_in holds FP16 (staged) or the caller's dtype */
+  int out_staged;               /* download through the ring (in wait) */
+  size_t in_bytes, out_bytes;
+  double host_in_us, host_out_us;
+  cudaEvent_t ev[EV_COUNT];
+} slot;
+
+typedef struct ring {
+  int n;
+  void *buf[RING_IN];
+  cudaEvent_t ev[RING_IN];
+  int pending[RING_IN];
+  int next;
+} ring;
+
+/* The unsupported-graph memory of a model: (layer, form, conv, dense,
+ * fused) combinations no engine took, so later plans do not ask again
+ * (a fused data gradient costs seconds of heuristics to refuse). */
+#define UNSUP_BIT(conv, dense, fused) (1u << (((conv) * 2 + (dense)) * 2 + (fused)))
+
+typedef struct cudnn_model cudnn_model;
+typedef cudaError_t (*output_stage_fn)(const cudnn_model *m, const plan *p, const slot *s);
+
+struct cudnn_model {
+  cudnn_dev *dev;
   int device;
-  int deconv;                   /* HF_CL_DECONV_* */
+  cudnn_opts opts;
   hf_net_config cfg;
+  output_stage_fn output;
+  const char *output_name;
   cudnnHandle_t dnn;
-  cudaStream_t stream;
-  cudaEvent_t ev[4];
+  cudaStream_t s_comp, s_h2d, s_d2h;
   hf_cl_layout wlo;             /* filter shapes (size-independent part) */
   void *d_w16, *d_b16, *d_b32;
   size_t weight_bytes;
   plan *plans[MAX_PLANS];
   uint64_t tick;
+  unsigned unsup[HF_CL_MAX_LAYERS][HF_CL_NFORMS];
+  slot slots[HF_MAX_PENDING];
+  int head, npending;
+  ring rin, rout;
+  size_t io_bytes;              /* device bytes of the slots' tensors */
   pthread_mutex_t lock;
-} cudnn_model;
+};
 
 static int dmalloc(void **p, size_t bytes, size_t *acct) {
   int rc;
@@ -173,113 +377,191 @@ fail:
   return rc;
 }
 
+static void conv_run_free(conv_run *cr) {
+  hf_cg_op_destroy(&cr->op);
+  cudaFree(cr->scratch_in);
+  cudaFree(cr->scratch_out);
+  cr->scratch_in = cr->scratch_out = NULL;
+}
+
+static void step_free(step *st) {
+  for (int c = 0; c < st->f.nconv; c++) conv_run_free(&st->cr[c]);
+  cudaFree(st->scratch);
+  memset(st, 0, sizeof *st);
+}
+
 static void plan_destroy(plan *p) {
   if (!p) return;
   if (p->gexec) cudaGraphExecDestroy(p->gexec);
-  for (int j = 0; j < p->lo.nlayers; j++) {
-    hf_cg_op_destroy(&p->steps[j].op);
-    cudaFree(p->steps[j].scratch_in);
-    cudaFree(p->steps[j].scratch_out);
-  }
+  for (int j = 0; j < p->lo.nlayers; j++) step_free(&p->steps[j]);
   for (int b = 0; b < HF_CL_MAX_BUFS; b++) cudaFree(p->buf[b]);
   cudaFree(p->ws);
-  cudaFree(p->d_in_raw);
-  cudaFree(p->d_out_raw);
-  cudaFreeHost(p->h_in);
-  cudaFreeHost(p->h_out);
   free(p);
 }
 
-static void *view_ptr(const plan *p, const hf_cl_view *v) {
-  return (uint16_t *)p->buf[v->buf] + v->ch_off;
+/* The device address of a view's first element; SCRATCH is the step's. */
+static uint16_t *view_ptr(const plan *p, const step *st, const hf_cl_view *v) {
+  uint16_t *base = v->buf == HF_CL_BUF_SCRATCH ? st->scratch : p->buf[v->buf];
+  return base + hf_cl_view_offset(v);
 }
 
-static int is_dense(const hf_cl_view *v) { return v->ch_off == 0 && v->pix_stride == v->c; }
+static hf_cuk_view kview(void *base, const hf_cl_view *v) {
+  int64_t s[4];
+  hf_cl_view_strides(v, s);
+  hf_cuk_view k = {base, s[0], s[2], s[3], v->c, v->h, v->w};
+  return k;
+}
 
-/* Finds an engine for one layer, from the cheapest form down: fused on the
- * real strided views, unfused on them, then both again on dense scratch
- * copies. */
-static int step_build(cudnn_model *m, plan *p, int j) {
-  step *st = &p->steps[j];
-  const hf_cl_layer *ly = &p->lo.layers[j];
-  const int shuffle = ly->kind == HF_CL_CONV_SHUFFLE;
-  st->ly = ly;
-  st->in_ptr = view_ptr(p, &ly->in);
-  st->out_ptr = view_ptr(p, &ly->out);
-  st->npix_in = (size_t)p->batch * ly->in.h * ly->in.w;
-  st->npix_out = (size_t)p->batch * ly->out.h * ly->out.w;
-  /* What the cuDNN op writes: the layer's output view, or for SHUFFLE the
-   * 4*C channels at the input resolution. */
-  hf_cl_view opout = ly->out;
-  if (shuffle) {
-    opout.buf = -1;
-    opout.ch_off = 0;
-    opout.c = opout.pix_stride = ly->k;
-    opout.h = ly->in.h;
-    opout.w = ly->in.w;
-  }
-  const int strided = !is_dense(&ly->in) || !is_dense(&opout);
-  const int no_fusion = env_flag("HF_CUDNN_NO_FUSION");
-  char why[512] = "";
+static hf_cuk_view kview_dense(void *base, const hf_cl_view *v) {
+  hf_cl_view d = hf_cl_view_packed(v->buf, v->c, v->h, v->w);
+  return kview(base, &d);
+}
+
+static hf_cg_target target_of(const cudnn_model *m) {
+  hf_cg_target t = {m->dnn, NULL, m->opts.candidates, m->opts.rtc};
+  return t;
+}
+
+/* Finds an engine for conv c of a step: fused on the real views, unfused on
+ * them, then both again on dense copies (unless the views are dense, or
+ * HF_CUDNN_DENSE asks for dense copies only). */
+static int conv_build(cudnn_model *m, plan *p, int j, step *st, int c, char *why, size_t whylen) {
+  conv_run *cr = &st->cr[c];
+  cr->cv = st->f.conv[c];
+  const int views_dense = hf_cl_view_dense(&cr->cv.x) && hf_cl_view_dense(&cr->cv.y);
+  unsigned *unsup = &m->unsup[j][st->f.form];
+  char name[48];
+  snprintf(name, sizeof name, "%s/%s/%d", st->ly->name, hf_cl_form_name(st->f.form), c);
+  const hf_cg_target t = target_of(m);
   int rc = HF_EUNSUPPORTED;
-  for (int dense = 0; dense <= 1; dense++) {
-    if (dense && !strided) break;
-    hf_cl_view in = ly->in, out = opout;
-    if (dense) {
-      in.ch_off = out.ch_off = 0;
-      in.pix_stride = in.c;
-      out.pix_stride = out.c;
-    }
-    for (int fused = no_fusion ? 0 : 1; fused >= 0; fused--) {
-      rc = hf_cg_op_build(m->dnn, ly, p->batch, &in, &out, fused, &st->op, why, sizeof why);
+  for (int dense = m->opts.dense && !views_dense ? 1 : 0; dense <= 1; dense++) {
+    if (dense && views_dense) break;
+    for (int fused = m->opts.no_fusion ? 0 : 1; fused >= 0; fused--) {
+      if (*unsup & UNSUP_BIT(c, dense, fused)) continue;
+      rc = hf_cg_op_build(&t, name, &cr->cv, p->batch, dense, fused, &cr->op, why, whylen);
+      p->graphs++;
+      p->graphs_ms += cr->op.build_ms;
       if (rc == HF_OK) break;
       if (rc != HF_EUNSUPPORTED) return rc;
+      *unsup |= UNSUP_BIT(c, dense, fused);
+      /* No engine config offered at all: the op pattern, not the strides,
+       * is what no engine takes, so dense copies would not help. */
+      if (fused && !dense && cr->op.heur_configs == 0) *unsup |= UNSUP_BIT(c, 1, 1);
     }
     if (rc != HF_OK) continue;
-    size_t acct = 0;
-    st->x = st->in_ptr;
-    st->y = st->out_ptr;
-    st->y_c = out.c;
-    st->y_stride = out.pix_stride;
-    if (dense && !is_dense(&ly->in)) {
-      if ((rc = dmalloc(&st->scratch_in, st->npix_in * in.c * 2, &acct))) return rc;
-      st->x = st->scratch_in;
+    cr->dense = dense;
+    cr->x = view_ptr(p, st, &cr->cv.x);
+    cr->y = view_ptr(p, st, &cr->cv.y);
+    size_t bytes;
+    if (dense && !hf_cl_view_dense(&cr->cv.x)) {
+      if ((rc = hf_size_mul((size_t)p->batch * cr->cv.x.h * cr->cv.x.w, cr->cv.x.c * 2, &bytes)) ||
+          (rc = dmalloc(&cr->scratch_in, bytes, &st->bytes)))
+        return rc;
+      cr->x = cr->scratch_in;
     }
-    if (shuffle || (dense && !is_dense(&ly->out))) {
-      const size_t npix = shuffle ? st->npix_in : st->npix_out;
-      if ((rc = dmalloc(&st->scratch_out, npix * out.c * 2, &acct))) return rc;
-      st->y = st->scratch_out;
-      st->y_stride = out.c;
+    if (dense && !hf_cl_view_dense(&cr->cv.y)) {
+      if ((rc = hf_size_mul((size_t)p->batch * cr->cv.y.h * cr->cv.y.w, cr->cv.y.c * 2, &bytes)) ||
+          (rc = dmalloc(&cr->scratch_out, bytes, &st->bytes)))
+        return rc;
+      cr->y = cr->scratch_out;
     }
-    p->device_bytes += acct;
-    if (hf_cudnn_verbose())
-      fprintf(stderr, "hfcore cudnn: %s: %s%s, %s views\n", ly->name,
-              st->op.fused ? "fused bias+activation" : "separate bias kernel",
-              shuffle ? ", pixel shuffle" : "", dense ? "dense scratch" : "direct");
     return HF_OK;
   }
-  return hf_cudnn_report(HF_EBACKEND, "%s: no cuDNN engine for this layer: %s", ly->name, why);
+  return rc;
 }
 
-/* Enqueues one layer on the model's stream. */
+/* Builds layer j in the given form: scratch, then every conv. */
+static int step_build(cudnn_model *m, plan *p, int j, int form, step *st) {
+  memset(st, 0, sizeof *st);
+  st->ly = &p->lo.layers[j];
+  int rc = hf_cl_layer_form(&p->lo, st->ly, form, &st->f);
+  if (rc) return rc;
+  if (st->f.d2s) {
+    size_t bytes;
+    const hf_cl_view *v = &st->f.scratch;
+    if ((rc = hf_size_mul((size_t)p->batch * v->h * v->w, (size_t)v->c * 2, &bytes)) ||
+        (rc = dmalloc(&st->scratch, bytes, &st->bytes)))
+      goto fail;
+    HF_CU_TRY(hf_cuk_fill(st->scratch, bytes / 2, 0x5eed0000u + j, m->s_comp));
+  }
+  char why[512] = "";
+  for (int c = 0; c < st->f.nconv; c++) {
+    rc = conv_build(m, p, j, st, c, why, sizeof why);
+    if (rc == HF_EUNSUPPORTED) {
+      if (hf_cudnn_verbose())
+        fprintf(stderr, "hfcore cudnn: %s: form %s: no engine for conv %d: %s\n", st->ly->name,
+                hf_cl_form_name(form), c, why);
+      goto fail;
+    }
+    if (rc) goto fail;
+  }
+  return HF_OK;
+fail:
+  step_free(st);
+  return rc;
+}
+
+static int64_t step_workspace(const step *st) {
+  int64_t ws = 0;
+  for (int c = 0; c < st->f.nconv; c++) {
+    int64_t w = hf_cg_op_max_workspace(&st->cr[c].op);
+    if (w > ws) ws = w;
+  }
+  return ws;
+}
+
+static int step_bind(cudnn_model *m, plan *p, step *st) {
+  for (int c = 0; c < st->f.nconv; c++) {
+    conv_run *cr = &st->cr[c];
+    int rc = hf_cg_op_bind(&cr->op, cr->x, (uint16_t *)m->d_w16 + cr->cv.w_off, cr->y,
+                           cr->op.fused ? (uint16_t *)m->d_b16 + cr->cv.b_off : NULL, p->ws);
+    if (rc) return rc;
+  }
+  return HF_OK;
+}
+
+/* Makes the plan's workspace at least bytes; every step bound so far is
+ * bound again to the new one. */
+static int ensure_workspace(cudnn_model *m, plan *p, size_t bytes, int bound_steps) {
+  int rc;
+  if (bytes <= p->ws_bytes && p->ws) return HF_OK;
+  HF_CU_TRY(cudaStreamSynchronize(m->s_comp));
+  if (p->ws) {
+    cudaFree(p->ws);
+    p->device_bytes -= p->ws_bytes;
+    p->ws = NULL;
+  }
+  p->ws_bytes = 0;
+  HF_TRY(dmalloc(&p->ws, bytes, &p->device_bytes));
+  p->ws_bytes = bytes;
+  for (int j = 0; j < bound_steps; j++) HF_TRY(step_bind(m, p, &p->steps[j]));
+  return HF_OK;
+fail:
+  return rc;
+}
+
+/* Enqueues one layer on the compute stream. */
 static int step_enqueue(cudnn_model *m, const plan *p, const step *st) {
   int rc;
-  const hf_cl_layer *ly = st->ly;
-  if (st->scratch_in)
-    HF_CU_TRY(hf_cuk_copy_channels(st->scratch_in, ly->in.c, st->in_ptr, ly->in.pix_stride,
-                                   st->npix_in, ly->in.c, m->stream));
-  HF_TRY(hf_cg_op_exec(m->dnn, &st->op));
-  const int shuffle = ly->kind == HF_CL_CONV_SHUFFLE;
-  if (!st->op.fused)
-    HF_CU_TRY(hf_cuk_bias_act(st->y, shuffle ? st->npix_in : st->npix_out, st->y_c,
-                              st->y_stride, (const float *)m->d_b32 + ly->b_off, ly->relu,
-                              m->stream));
-  if (shuffle)
-    HF_CU_TRY(hf_cuk_pixel_shuffle(st->out_ptr, ly->out.pix_stride, st->scratch_out, p->batch,
-                                   ly->in.h, ly->in.w, ly->out.c, m->stream));
-  else if (st->scratch_out)
-    HF_CU_TRY(hf_cuk_copy_channels(st->out_ptr, ly->out.pix_stride, st->scratch_out, ly->out.c,
-                                   st->npix_out, ly->out.c, m->stream));
+  for (int c = 0; c < st->f.nconv; c++) {
+    const conv_run *cr = &st->cr[c];
+    const hf_cl_conv *cv = &cr->cv;
+    if (cr->scratch_in)
+      HF_CU_TRY(hf_cuk_copy(kview_dense(cr->scratch_in, &cv->x),
+                            kview(view_ptr(p, st, &cv->x), &cv->x), p->batch, m->s_comp));
+    HF_TRY(hf_cg_op_exec(m->dnn, &cr->op));
+    if (!cr->op.fused) {
+      hf_cuk_view y = cr->dense ? kview_dense(cr->y, &cv->y) : kview(cr->y, &cv->y);
+      HF_CU_TRY(hf_cuk_bias_act(y, p->batch, (const float *)m->d_b32 + cv->b_off, cv->relu,
+                                m->s_comp));
+    }
+    if (cr->scratch_out)
+      HF_CU_TRY(hf_cuk_copy(kview(view_ptr(p, st, &cv->y), &cv->y),
+                            kview_dense(cr->scratch_out, &cv->y), p->batch, m->s_comp));
+  }
+  if (st->f.d2s && !st->f.out_in_scratch)
+    HF_CU_TRY(hf_cuk_depth_to_space(kview(view_ptr(p, st, &st->f.out), &st->f.out), st->scratch,
+                                    p->batch, st->f.d2s == HF_CL_D2S_OFFSET, m->s_comp));
   return HF_OK;
 fail:
   return rc;
@@ -293,14 +575,102 @@ static int forward_enqueue(cudnn_model *m, const plan *p) {
   return HF_OK;
 }
 
+/* Times a built step, TUNE_REPS runs after one untimed. A failing step
+ * (an engine that fails at execute) is HF_EUNSUPPORTED, its CUDA error
+ * cleared. */
+static int step_time(cudnn_model *m, const plan *p, step *st, cudaEvent_t e0, cudaEvent_t e1) {
+  int rc = step_enqueue(m, p, st);
+  cudaError_t e = rc ? cudaSuccess : cudaEventRecord(e0, m->s_comp);
+  for (int r = 0; !rc && e == cudaSuccess && r < TUNE_REPS; r++) rc = step_enqueue(m, p, st);
+  if (!rc && e == cudaSuccess) e = cudaEventRecord(e1, m->s_comp);
+  if (!rc && e == cudaSuccess) e = cudaEventSynchronize(e1);
+  float ms = 0;
+  if (!rc && e == cudaSuccess) e = cudaEventElapsedTime(&ms, e0, e1);
+  if (!rc && e == cudaSuccess) {
+    st->time_ms = ms / TUNE_REPS;
+    return HF_OK;
+  }
+  fprintf(stderr, "hfcore cudnn: %s: form %s failed when run, skipped: %s\n", st->ly->name,
+          hf_cl_form_name(st->f.form), e != cudaSuccess ? cudaGetErrorString(e)
+                                                         : hf_cudnn_last_error());
+  return hf_cg_clear_cuda_error(m->s_comp) ? HF_EBACKEND : HF_EUNSUPPORTED;
+}
+
+static void log_step(const cudnn_model *m, const plan *p, const step *st) {
+  for (int c = 0; c < st->f.nconv; c++) {
+    const conv_run *cr = &st->cr[c];
+    char d[256];
+    hf_cg_cand_describe(&cr->op.cand[0], d, sizeof d);
+    fprintf(stderr,
+            "hfcore cudnn: plan %s %dx%dx%d: %s: form %s, %.4f ms; conv %d: %s, %s, %s\n",
+            m->cfg.name, p->batch, p->pw, p->ph, st->ly->name, hf_cl_form_name(st->f.form),
+            st->time_ms, c, cr->op.fused ? "fused bias+act" : "bias kernel",
+            cr->dense ? "dense copies" : "direct views", d);
+  }
+}
+
+/* Builds layer j in each form allowed, tunes the engines of each, times
+ * each whole, keeps the fastest. */
+static int layer_choose(cudnn_model *m, plan *p, int j, cudaEvent_t e0, cudaEvent_t e1) {
+  const hf_cl_layer *ly = &p->lo.layers[j];
+  const unsigned forms = ly->dec ? m->opts.dec_forms : 1u << HF_CL_FORM_FWD;
+  step best, cand;
+  int have = 0, rc = HF_OK;
+  memset(&best, 0, sizeof best);
+  for (int form = 0; form < HF_CL_NFORMS; form++) {
+    if (!(forms & 1u << form)) continue;
+    rc = step_build(m, p, j, form, &cand);
+    if (rc == HF_EUNSUPPORTED) continue;
+    if (rc) goto fail;
+    const double t0 = hf_now_us();
+    if ((rc = ensure_workspace(m, p, (size_t)step_workspace(&cand), j)) ||
+        (rc = step_bind(m, p, &cand)))
+      goto fail_cand;
+    for (int c = 0; c < cand.f.nconv && !rc; c++) {
+      char name[48];
+      snprintf(name, sizeof name, "%s/%s/%d", ly->name, hf_cl_form_name(form), c);
+      rc = hf_cg_op_tune(m->dnn, &cand.cr[c].op, m->s_comp, name);
+    }
+    if (rc == HF_OK) rc = step_time(m, p, &cand, e0, e1);
+    p->tune_ms += (hf_now_us() - t0) / 1e3;
+    if (rc == HF_EBACKEND && !hf_cg_clear_cuda_error(m->s_comp)) rc = HF_EUNSUPPORTED;
+    if (rc == HF_EUNSUPPORTED) {   /* no engine of this form runs: next form */
+      step_free(&cand);
+      continue;
+    }
+    if (rc) goto fail_cand;
+    if (hf_cudnn_verbose())
+      fprintf(stderr, "hfcore cudnn: %s: form %s: %.4f ms\n", ly->name, hf_cl_form_name(form),
+              cand.time_ms);
+    if (!have || cand.time_ms < best.time_ms) {
+      if (have) step_free(&best);
+      best = cand;
+      have = 1;
+    } else {
+      step_free(&cand);
+    }
+  }
+  if (!have)
+    return hf_cudnn_report(HF_EBACKEND, "%s: no form of this layer has a cuDNN engine that runs"
+                           " (%s)", ly->name, hf_cudnn_last_error());
+  p->steps[j] = best;
+  p->device_bytes += best.bytes;
+  return HF_OK;
+fail_cand:
+  step_free(&cand);
+fail:
+  if (have) step_free(&best);
+  return rc;
+}
+
 /* Records the forward pass into a CUDA graph. Any failure leaves the plan
  * running eagerly, which is slower but equally correct. */
 static void plan_capture(cudnn_model *m, plan *p) {
   cudaGraph_t g = NULL;
-  cudaError_t e = cudaStreamBeginCapture(m->stream, cudaStreamCaptureModeThreadLocal);
+  cudaError_t e = cudaStreamBeginCapture(m->s_comp, cudaStreamCaptureModeThreadLocal);
   if (e != cudaSuccess) goto fail;
   int rc = forward_enqueue(m, p);
-  e = cudaStreamEndCapture(m->stream, &g);
+  e = cudaStreamEndCapture(m->s_comp, &g);
   if (rc || e != cudaSuccess || !g) goto fail;
   e = cudaGraphInstantiate(&p->gexec, g, 0);
   if (e != cudaSuccess) {
@@ -310,8 +680,8 @@ static void plan_capture(cudnn_model *m, plan *p) {
   cudaGraphDestroy(g);
   g = NULL;
   /* Replay once now so a graph that cannot run is found at plan time. */
-  if ((e = cudaGraphLaunch(p->gexec, m->stream)) == cudaSuccess &&
-      (e = cudaStreamSynchronize(m->stream)) == cudaSuccess)
+  if ((e = cudaGraphLaunch(p->gexec, m->s_comp)) == cudaSuccess &&
+      (e = cudaStreamSynchronize(m->s_comp)) == cudaSuccess)
     return;
 fail:
   fprintf(stderr, "hfcore cudnn: CUDA graph capture failed (%s); running layers eagerly\n",
@@ -324,71 +694,58 @@ fail:
 
 static int plan_create(cudnn_model *m, int batch, int pw, int ph, plan **out) {
   int rc;
+  cudaEvent_t e0 = NULL, e1 = NULL;
+  const double t0 = hf_now_us();
   plan *p = calloc(1, sizeof *p);
   if (!p) return HF_ENOMEM;
   p->batch = batch;
   p->pw = pw;
   p->ph = ph;
-  HF_TRY(hf_cl_layout_init(&m->cfg, batch, pw, ph, m->deconv, &p->lo));
+  HF_TRY(hf_cl_layout_init(&m->cfg, batch, pw, ph, &p->lo));
+  HF_CU_TRY(cudaEventCreate(&e0));
+  HF_CU_TRY(cudaEventCreate(&e1));
 
   for (int b = 0; b < p->lo.nbufs; b++) {
     size_t bytes;
     HF_TRY(hf_size_mul(p->lo.buf_elems[b], 2, &bytes));
     HF_TRY(dmalloc(&p->buf[b], bytes, &p->device_bytes));
-    /* Zeros so padded channels never hold NaN bit patterns. */
-    HF_CU_TRY(cudaMemsetAsync(p->buf[b], 0, bytes, m->stream));
+    /* Engines and forms are timed on plausible values, not zeros; every
+     * element a run reads is written by that run first. */
+    HF_CU_TRY(hf_cuk_fill(p->buf[b], p->lo.buf_elems[b], 0x5eed0100u + b, m->s_comp));
   }
-  /* Raw request buffers, sized for the largest frame of this padded size
-   * in FP32, so any dtype and any crop fits. */
-  size_t pix;
-  HF_TRY(hf_size_mul((size_t)batch * pw, (size_t)ph, &pix));
-  HF_TRY(hf_size_mul(pix, (size_t)m->cfg.in_channels * sizeof(float), &p->in_raw_bytes));
-  HF_TRY(hf_size_mul(pix, (size_t)HF_OUT_CHANNELS * sizeof(float), &p->out_raw_bytes));
-  HF_TRY(dmalloc(&p->d_in_raw, p->in_raw_bytes, &p->device_bytes));
-  HF_TRY(dmalloc(&p->d_out_raw, p->out_raw_bytes, &p->device_bytes));
-  HF_CU_TRY(cudaHostAlloc(&p->h_in, p->in_raw_bytes, cudaHostAllocDefault));
-  HF_CU_TRY(cudaHostAlloc(&p->h_out, p->out_raw_bytes, cudaHostAllocDefault));
-
-  for (int j = 0; j < p->lo.nlayers; j++) HF_TRY(step_build(m, p, j));
-
-  p->ws_bytes = 0;
-  for (int j = 0; j < p->lo.nlayers; j++) {
-    int64_t ws = hf_cg_op_max_workspace(&p->steps[j].op);
-    if (ws > p->ws_bytes) p->ws_bytes = ws;
-  }
-  if (p->ws_bytes > 0) HF_TRY(dmalloc(&p->ws, (size_t)p->ws_bytes, &p->device_bytes));
-
-  for (int j = 0; j < p->lo.nlayers; j++) {
-    step *st = &p->steps[j];
-    const hf_cl_layer *ly = st->ly;
-    HF_TRY(hf_cg_op_bind(&st->op, st->x, (uint16_t *)m->d_w16 + ly->w_off, st->y,
-                         st->op.fused ? (uint16_t *)m->d_b16 + ly->b_off : NULL, p->ws));
-  }
-  /* Time each layer's candidates on the plan's own buffers (their contents
-   * do not change which engine is fastest) and keep the fastest. */
-  HF_CU_TRY(cudaStreamSynchronize(m->stream));
-  for (int j = 0; j < p->lo.nlayers; j++)
-    HF_TRY(hf_cg_op_tune(m->dnn, &p->steps[j].op, m->stream, p->steps[j].ly->name));
+  for (int j = 0; j < p->lo.nlayers; j++) HF_TRY(layer_choose(m, p, j, e0, e1));
+  /* The workspace may have grown after the first layers were bound. */
+  for (int j = 0; j < p->lo.nlayers; j++) HF_TRY(step_bind(m, p, &p->steps[j]));
   /* One eager pass end to end, then the graph. */
   HF_TRY(forward_enqueue(m, p));
-  HF_CU_TRY(cudaStreamSynchronize(m->stream));
-  if (!env_flag("HF_CUDNN_NO_GRAPH")) plan_capture(m, p);
-  if (hf_cudnn_verbose())
+  HF_CU_TRY(cudaStreamSynchronize(m->s_comp));
+  if (!m->opts.no_graph) plan_capture(m, p);
+  p->build_ms = (hf_now_us() - t0) / 1e3;
+  if (hf_cudnn_verbose()) {
+    for (int j = 0; j < p->lo.nlayers; j++) log_step(m, p, &p->steps[j]);
     fprintf(stderr,
-            "hfcore cudnn: plan %s batch %d %dx%d: %zu device bytes, workspace %lld, %s\n",
-            m->cfg.name, batch, pw, ph, p->device_bytes, (long long)p->ws_bytes,
-            p->gexec ? "CUDA graph" : "eager");
+            "hfcore cudnn: plan %s %dx%dx%d: built in %.1f ms (%d cuDNN graphs %.1f ms, tuning "
+            "%.1f ms), %zu device bytes, workspace %zu, %s\n",
+            m->cfg.name, batch, pw, ph, p->build_ms, p->graphs, p->graphs_ms, p->tune_ms,
+            p->device_bytes, p->ws_bytes, p->gexec ? "CUDA graph" : "eager");
+  }
+  cudaEventDestroy(e0);
+  cudaEventDestroy(e1);
   *out = p;
   return HF_OK;
 fail:
+  if (e0) cudaEventDestroy(e0);
+  if (e1) cudaEventDestroy(e1);
+  cudaStreamSynchronize(m->s_comp);
   plan_destroy(p);
   return rc;
 }
 
-/* The plan for a shape, made on first use; the least recently used one
- * makes room when the cache is full. */
-static int plan_get(cudnn_model *m, int batch, int pw, int ph, plan **out) {
-  int free_slot = -1, lru = 0;
+/* The plan for a shape, made on first use. Plans made by prepare stay;
+ * of the others at most opts.plans are kept, the least recently used one
+ * making room (never one a pending run still uses). */
+static int plan_get(cudnn_model *m, int batch, int pw, int ph, int pin, plan **out) {
+  int free_slot = -1, lru = -1, cached = 0;
   for (int i = 0; i < MAX_PLANS; i++) {
     plan *p = m->plans[i];
     if (!p) {
@@ -397,46 +754,118 @@ static int plan_get(cudnn_model *m, int batch, int pw, int ph, plan **out) {
     }
     if (p->batch == batch && p->pw == pw && p->ph == ph) {
       p->last_used = ++m->tick;
+      p->pinned |= pin;
       *out = p;
       return HF_OK;
     }
-    if (m->plans[lru] && p->last_used < m->plans[lru]->last_used) lru = i;
+    if (p->pinned) continue;
+    cached++;
+    if (!p->inflight && (lru < 0 || p->last_used < m->plans[lru]->last_used)) lru = i;
   }
-  if (free_slot < 0) {
-    free_slot = lru;
+  if ((cached >= m->opts.plans || free_slot < 0) && lru >= 0) {
+    if (hf_cudnn_verbose())
+      fprintf(stderr, "hfcore cudnn: plan %dx%dx%d evicted\n", m->plans[lru]->batch,
+              m->plans[lru]->pw, m->plans[lru]->ph);
     plan_destroy(m->plans[lru]);
     m->plans[lru] = NULL;
+    if (free_slot < 0) free_slot = lru;
   }
+  if (free_slot < 0)
+    return hf_cudnn_report(HF_ERANGE, "%d plans prepared or in use: no room for %dx%dx%d",
+                           MAX_PLANS, batch, pw, ph);
   plan *p = NULL;
   int rc = plan_create(m, batch, pw, ph, &p);
   if (rc) return rc;
+  p->pinned = pin;
   p->last_used = ++m->tick;
   m->plans[free_slot] = p;
   *out = p;
   return HF_OK;
 }
 
+/* ---- output stages: one per architecture ---------------------------------- */
+
+static hf_cuk_raw raw_output(const plan *p) {
+  const step *dec0 = &p->steps[p->lo.nlayers - 1];
+  hf_cuk_raw r;
+  r.at = hf_cl_raw_output(&dec0->f);
+  r.data = r.at.buf == HF_CL_BUF_SCRATCH ? dec0->scratch : p->buf[r.at.buf];
+  return r;
+}
+
+static cudaError_t output_unet(const cudnn_model *m, const plan *p, const slot *s) {
+  return hf_cuk_output_unet(raw_output(p), s->io.batch, s->io.width, s->io.height, s->d_out,
+                            s->io.out_dtype == HF_F16, m->s_comp);
+}
+
+static cudaError_t output_residual(const cudnn_model *m, const plan *p, const slot *s) {
+  return hf_cuk_output_residual(raw_output(p), p->buf[HF_CL_BUF_IN], p->lo.cin_pad, p->pw,
+                                p->ph, m->cfg.spp, s->io.batch, s->io.width, s->io.height,
+                                s->d_out, s->io.out_dtype == HF_F16, m->s_comp);
+}
+
+static const struct {
+  int arch;
+  const char *name;
+  output_stage_fn fn;
+} output_stages[] = {
+  {HF_ARCH_UNET, "unet transforms", output_unet},
+  {HF_ARCH_RESIDUAL, "residual base", output_residual},
+};
+
 /* ---- model --------------------------------------------------------------- */
+
+static void ring_free(ring *r) {
+  for (int i = 0; i < r->n; i++) {
+    if (r->ev[i]) cudaEventDestroy(r->ev[i]);
+    cudaFreeHost(r->buf[i]);
+  }
+  memset(r, 0, sizeof *r);
+}
+
+static int ring_init(ring *r, int n, size_t bytes) {
+  int rc;
+  memset(r, 0, sizeof *r);
+  r->n = n;
+  for (int i = 0; i < n; i++) {
+    HF_CU_TRY(cudaHostAlloc(&r->buf[i], bytes, cudaHostAllocDefault));
+    HF_CU_TRY(cudaEventCreateWithFlags(&r->ev[i], cudaEventDisableTiming));
+  }
+  return HF_OK;
+fail:
+  return rc;
+}
 
 static void cudnn_model_destroy(void *impl) {
   cudnn_model *m = impl;
   if (!m) return;
   cudaSetDevice(m->device);
-  if (m->stream) cudaStreamSynchronize(m->stream);
+  if (m->s_comp) cudaStreamSynchronize(m->s_comp);
+  if (m->s_h2d) cudaStreamSynchronize(m->s_h2d);
+  if (m->s_d2h) cudaStreamSynchronize(m->s_d2h);
   for (int i = 0; i < MAX_PLANS; i++) plan_destroy(m->plans[i]);
+  for (int i = 0; i < HF_MAX_PENDING; i++) {
+    slot *s = &m->slots[i];
+    cudaFree(s->d_in);
+    cudaFree(s->d_out);
+    for (int k = 0; k < EV_COUNT; k++)
+      if (s->ev[k]) cudaEventDestroy(s->ev[k]);
+  }
+  ring_free(&m->rin);
+  ring_free(&m->rout);
   cudaFree(m->d_w16);
   cudaFree(m->d_b16);
   cudaFree(m->d_b32);
-  for (int i = 0; i < 4; i++)
-    if (m->ev[i]) cudaEventDestroy(m->ev[i]);
   if (m->dnn) cudnnDestroy(m->dnn);
-  if (m->stream) cudaStreamDestroy(m->stream);
+  if (m->s_comp) cudaStreamDestroy(m->s_comp);
+  if (m->s_h2d) cudaStreamDestroy(m->s_h2d);
+  if (m->s_d2h) cudaStreamDestroy(m->s_d2h);
   pthread_mutex_destroy(&m->lock);
   free(m);
 }
 
 static int cudnn_model_create(void *dev, const hf_weights *w, void **out) {
-  const cudnn_dev *d = dev;
+  cudnn_dev *d = dev;
   int rc;
   uint16_t *w16 = NULL, *b16 = NULL;
   float *b32 = NULL;
@@ -446,18 +875,34 @@ static int cudnn_model_create(void *dev, const hf_weights *w, void **out) {
     free(m);
     return HF_ENOMEM;
   }
+  m->dev = d;
   m->device = d->device;
-  m->deconv = env_deconv();
   m->cfg = w->cfg;
+  HF_TRY(read_opts(&m->opts));
+  for (size_t i = 0; i < sizeof output_stages / sizeof output_stages[0]; i++)
+    if (output_stages[i].arch == m->cfg.arch) {
+      m->output = output_stages[i].fn;
+      m->output_name = output_stages[i].name;
+    }
+  if (!m->output) {
+    rc = hf_cudnn_report(HF_EUNSUPPORTED, "architecture %s has no output stage on the GPU",
+                         hf_arch_name(m->cfg.arch));
+    goto fail;
+  }
   HF_CU_TRY(cudaSetDevice(m->device));
-  HF_CU_TRY(cudaStreamCreateWithFlags(&m->stream, cudaStreamNonBlocking));
-  for (int i = 0; i < 4; i++) HF_CU_TRY(cudaEventCreate(&m->ev[i]));
+  HF_CU_TRY(cudaStreamCreateWithFlags(&m->s_comp, cudaStreamNonBlocking));
+  HF_CU_TRY(cudaStreamCreateWithFlags(&m->s_h2d, cudaStreamNonBlocking));
+  HF_CU_TRY(cudaStreamCreateWithFlags(&m->s_d2h, cudaStreamNonBlocking));
+  for (int i = 0; i < HF_MAX_PENDING; i++)
+    for (int k = 0; k < EV_COUNT; k++) HF_CU_TRY(cudaEventCreate(&m->slots[i].ev[k]));
   HF_DNN_TRY(cudnnCreate(&m->dnn));
-  HF_DNN_TRY(cudnnSetStream(m->dnn, m->stream));
+  HF_DNN_TRY(cudnnSetStream(m->dnn, m->s_comp));
+  HF_TRY(ring_init(&m->rin, RING_IN, m->opts.stage_bytes));
+  HF_TRY(ring_init(&m->rout, RING_OUT, m->opts.stage_bytes));
 
   /* Filter shapes do not depend on the frame size: lay out the smallest. */
   const int a = hf_net_align(&m->cfg);
-  HF_TRY(hf_cl_layout_init(&m->cfg, 1, a, a, m->deconv, &m->wlo));
+  HF_TRY(hf_cl_layout_init(&m->cfg, 1, a, a, &m->wlo));
   w16 = malloc(m->wlo.w_elems * sizeof *w16);
   b16 = malloc(m->wlo.b_elems * sizeof *b16);
   b32 = malloc(m->wlo.b_elems * sizeof *b32);
@@ -476,6 +921,9 @@ static int cudnn_model_create(void *dev, const hf_weights *w, void **out) {
   free(w16);
   free(b16);
   free(b32);
+  if (hf_cudnn_verbose())
+    fprintf(stderr, "hfcore cudnn: model %s: output stage %s, %zu weight bytes\n", m->cfg.name,
+            m->output_name, m->weight_bytes);
   *out = m;
   return HF_OK;
 fail:
@@ -486,78 +934,237 @@ fail:
   return rc;
 }
 
-static int elapsed_us(cudaEvent_t a, cudaEvent_t b, double *us) {
+static int cudnn_model_prepare(void *impl, int batch, int width, int height) {
+  cudnn_model *m = impl;
+  const int a = hf_net_align(&m->cfg);
+  plan *p;
+  pthread_mutex_lock(&m->lock);
+  int rc = cudaSetDevice(m->device) == cudaSuccess ? HF_OK : HF_EBACKEND;
+  if (!rc) rc = plan_get(m, batch, hf_round_up(width, a), hf_round_up(height, a), 1, &p);
+  pthread_mutex_unlock(&m->lock);
+  return rc;
+}
+
+/* ---- requests ------------------------------------------------------------- */
+
+static int grow(void **p, size_t *cap, size_t need, size_t *acct) {
+  if (*cap >= need) return HF_OK;
+  if (*p) {
+    cudaFree(*p);
+    *acct -= *cap;
+  }
+  *cap = 0;
+  int rc = dmalloc(p, need, acct);
+  if (rc == HF_OK) *cap = need;
+  return rc;
+}
+
+/* Uploads the request's input: DMA from registered memory, else through the
+ * pinned ring, FP32 converted to FP16 on the host as it goes. */
+static int upload(cudnn_model *m, slot *s) {
   int rc;
-  float ms = 0;
-  HF_CU_TRY(cudaEventElapsedTime(&ms, a, b));
-  *us = ms * 1000.0;
+  const hf_io *io = &s->io;
+  const size_t n = (size_t)io->batch * io->width * io->height * m->cfg.in_channels;
+  const size_t es = io->in_dtype == HF_F16 ? 2 : 4;
+  const int direct = is_registered(m->dev, io->in, n * es);
+  s->in_f16 = direct ? io->in_dtype == HF_F16 : 1;
+  s->in_bytes = n * (s->in_f16 ? 2 : 4);
+  HF_TRY(grow(&s->d_in, &s->d_in_cap, s->in_bytes, &m->io_bytes));
+  /* The last input kernel that read this slot's tensor must be done. */
+  if (s->used) HF_CU_TRY(cudaStreamWaitEvent(m->s_h2d, s->ev[EV_CONSUMED], 0));
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_IN0], m->s_h2d));
+  const double t0 = hf_now_us();
+  if (direct) {
+    HF_CU_TRY(cudaMemcpyAsync(s->d_in, io->in, s->in_bytes, cudaMemcpyHostToDevice, m->s_h2d));
+  } else {
+    ring *r = &m->rin;
+    const size_t chunk = m->opts.stage_bytes / 2;   /* FP16 elements per chunk */
+    for (size_t off = 0; off < n; off += chunk) {
+      const size_t len = n - off < chunk ? n - off : chunk;
+      const int k = r->next;
+      r->next = (k + 1) % r->n;
+      if (r->pending[k]) HF_CU_TRY(cudaEventSynchronize(r->ev[k]));
+      r->pending[k] = 0;
+      if (io->in_dtype == HF_F16)
+        memcpy(r->buf[k], (const uint16_t *)io->in + off, len * 2);
+      else
+        hf_f32_to_f16_array((const float *)io->in + off, r->buf[k], len);
+      HF_CU_TRY(cudaMemcpyAsync((uint16_t *)s->d_in + off, r->buf[k], len * 2,
+                                cudaMemcpyHostToDevice, m->s_h2d));
+      HF_CU_TRY(cudaEventRecord(r->ev[k], m->s_h2d));
+      r->pending[k] = 1;
+    }
+  }
+  s->host_in_us = hf_now_us() - t0;
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_IN1], m->s_h2d));
   return HF_OK;
 fail:
   return rc;
 }
 
-static int run_locked(cudnn_model *m, const hf_io *io, hf_timing *t) {
+/* Input kernel, network, output stage, on the compute stream. */
+static int compute(cudnn_model *m, slot *s) {
   int rc;
-  const int a = hf_net_align(&m->cfg);
-  const int pw = hf_round_up(io->width, a), ph = hf_round_up(io->height, a);
-  plan *p = NULL;
-  HF_CU_TRY(cudaSetDevice(m->device));
-  HF_TRY(plan_get(m, io->batch, pw, ph, &p));
-
-  const size_t in_es = io->in_dtype == HF_F16 ? 2 : 4;
-  const size_t out_es = io->out_dtype == HF_F16 ? 2 : 4;
-  const size_t pix = (size_t)io->batch * io->width * io->height;
-  const size_t in_bytes = pix * m->cfg.in_channels * in_es;
-  const size_t out_bytes = pix * HF_OUT_CHANNELS * out_es;
-  if (in_bytes > p->in_raw_bytes || out_bytes > p->out_raw_bytes)
-    return hf_cudnn_report(HF_ERANGE, "request larger than its plan");
-
-  /* Input: host copy into pinned memory, async upload, pad + convert. */
-  double h0 = hf_now_us();
-  memcpy(p->h_in, io->in, in_bytes);
-  double host_in = hf_now_us() - h0;
-  HF_CU_TRY(cudaEventRecord(m->ev[0], m->stream));
-  HF_CU_TRY(cudaMemcpyAsync(p->d_in_raw, p->h_in, in_bytes, cudaMemcpyHostToDevice, m->stream));
-  HF_CU_TRY(hf_cuk_input(p->d_in_raw, io->in_dtype == HF_F16, io->batch, io->width, io->height,
-                         m->cfg.in_channels, p->buf[HF_CL_BUF_IN], pw, ph, p->lo.cin_pad,
-                         m->stream));
-  HF_CU_TRY(cudaEventRecord(m->ev[1], m->stream));
-  /* The network. */
+  const plan *p = s->p;
+  const hf_io *io = &s->io;
+  HF_CU_TRY(cudaStreamWaitEvent(m->s_comp, s->ev[EV_IN1], 0));
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_C0], m->s_comp));
+  HF_CU_TRY(hf_cuk_input(s->d_in, s->in_f16, io->batch, io->width, io->height,
+                         m->cfg.in_channels, p->buf[HF_CL_BUF_IN], p->pw, p->ph, p->lo.cin_pad,
+                         m->s_comp));
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_CONSUMED], m->s_comp));
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_C1], m->s_comp));
   if (p->gexec)
-    HF_CU_TRY(cudaGraphLaunch(p->gexec, m->stream));
+    HF_CU_TRY(cudaGraphLaunch(p->gexec, m->s_comp));
   else
     HF_TRY(forward_enqueue(m, p));
-  HF_CU_TRY(cudaEventRecord(m->ev[2], m->stream));
-  /* Output: transforms + crop + dtype in one kernel, async download. */
-  const int residual = m->cfg.arch == HF_ARCH_RESIDUAL;
-  HF_CU_TRY(hf_cuk_output(p->buf[HF_CL_BUF_OUT], HF_CL_OUT_CH,
-                          residual ? p->buf[HF_CL_BUF_IN] : NULL, p->lo.cin_pad, m->cfg.spp, pw,
-                          ph, io->batch, io->width, io->height, p->d_out_raw,
-                          io->out_dtype == HF_F16, m->stream));
-  HF_CU_TRY(cudaMemcpyAsync(p->h_out, p->d_out_raw, out_bytes, cudaMemcpyDeviceToHost,
-                            m->stream));
-  HF_CU_TRY(cudaEventRecord(m->ev[3], m->stream));
-  HF_CU_TRY(cudaEventSynchronize(m->ev[3]));
-  h0 = hf_now_us();
-  memcpy(io->out, p->h_out, out_bytes);
-  double host_out = hf_now_us() - h0;
-
-  double gin = 0, gnet = 0, gout = 0;
-  HF_TRY(elapsed_us(m->ev[0], m->ev[1], &gin));
-  HF_TRY(elapsed_us(m->ev[1], m->ev[2], &gnet));
-  HF_TRY(elapsed_us(m->ev[2], m->ev[3], &gout));
-  t->input_us = host_in + gin;
-  t->infer_us = gnet;
-  t->output_us = gout + host_out;
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_C2], m->s_comp));
+  /* The slot's output tensor must have been downloaded from last time. */
+  if (s->used) HF_CU_TRY(cudaStreamWaitEvent(m->s_comp, s->ev[EV_O1], 0));
+  HF_CU_TRY(m->output(m, p, s));
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_C3], m->s_comp));
   return HF_OK;
 fail:
+  return rc;
+}
+
+/* Downloads the result: DMA into registered memory (enqueued at submit),
+ * else through the pinned ring, each chunk copied out as it lands (at
+ * wait). */
+static int download(cudnn_model *m, slot *s, int at_wait) {
+  int rc;
+  if (!at_wait) {
+    s->out_staged = !is_registered(m->dev, s->io.out, s->out_bytes);
+    if (s->out_staged) return HF_OK;
+  } else if (!s->out_staged) {
+    return HF_OK;
+  }
+  HF_CU_TRY(cudaStreamWaitEvent(m->s_d2h, s->ev[EV_C3], 0));
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_O0], m->s_d2h));
+  const double t0 = hf_now_us();
+  if (!s->out_staged) {
+    HF_CU_TRY(cudaMemcpyAsync(s->io.out, s->d_out, s->out_bytes, cudaMemcpyDeviceToHost,
+                              m->s_d2h));
+  } else {
+    ring *r = &m->rout;
+    const size_t chunk = m->opts.stage_bytes, total = s->out_bytes;
+    const size_t nchunks = (total + chunk - 1) / chunk;
+    size_t issued = 0, done = 0;
+    while (done < nchunks) {
+      while (issued < nchunks && issued - done < (size_t)r->n) {
+        const int k = (int)(issued % (size_t)r->n);
+        const size_t off = issued * chunk, len = total - off < chunk ? total - off : chunk;
+        HF_CU_TRY(cudaMemcpyAsync(r->buf[k], (uint8_t *)s->d_out + off, len,
+                                  cudaMemcpyDeviceToHost, m->s_d2h));
+        HF_CU_TRY(cudaEventRecord(r->ev[k], m->s_d2h));
+        issued++;
+      }
+      const int k = (int)(done % (size_t)r->n);
+      const size_t off = done * chunk, len = total - off < chunk ? total - off : chunk;
+      HF_CU_TRY(cudaEventSynchronize(r->ev[k]));
+      memcpy((uint8_t *)s->io.out + off, r->buf[k], len);
+      done++;
+    }
+  }
+  HF_CU_TRY(cudaEventRecord(s->ev[EV_O1], m->s_d2h));
+  s->host_out_us = at_wait ? hf_now_us() - t0 : 0;
+  return HF_OK;
+fail:
+  return rc;
+}
+
+static int submit_locked(cudnn_model *m, const hf_io *io) {
+  int rc;
+  if (m->npending == HF_MAX_PENDING) return HF_ERANGE;
+  slot *s = &m->slots[(m->head + m->npending) % HF_MAX_PENDING];
+  HF_CU_TRY(cudaSetDevice(m->device));
+  const int a = hf_net_align(&m->cfg);
+  plan *p;
+  HF_TRY(plan_get(m, io->batch, hf_round_up(io->width, a), hf_round_up(io->height, a), 0, &p));
+  s->p = p;
+  s->io = *io;
+  s->rc = HF_OK;
+  s->host_in_us = s->host_out_us = 0;
+  const size_t pix = (size_t)io->batch * io->width * io->height;
+  s->out_bytes = pix * HF_OUT_CHANNELS * (io->out_dtype == HF_F16 ? 2 : 4);
+  HF_TRY(grow(&s->d_out, &s->d_out_cap, s->out_bytes, &m->io_bytes));
+  /* From here on the slot is pending: a failure is the wait's to report,
+   * after the streams are drained. */
+  p->inflight++;
+  s->busy = 1;
+  m->npending++;
+  if ((rc = upload(m, s)) || (rc = compute(m, s)) || (rc = download(m, s, 0))) s->rc = rc;
+  s->used = !s->rc;
+  return HF_OK;
+fail:
+  return rc;
+}
+
+static int elapsed_us(cudaEvent_t a, cudaEvent_t b, double *us) {
+  float ms = 0;
+  cudaError_t e = cudaEventElapsedTime(&ms, a, b);
+  if (e != cudaSuccess) return hf_cu_report(e, "cudaEventElapsedTime", __FILE__, __LINE__);
+  *us = ms * 1000.0;
+  return HF_OK;
+}
+
+static int wait_locked(cudnn_model *m, hf_timing *t) {
+  int rc;
+  if (!m->npending) return HF_EINVAL;
+  slot *s = &m->slots[m->head];
+  m->head = (m->head + 1) % HF_MAX_PENDING;
+  m->npending--;
+  s->busy = 0;
+  s->p->inflight--;
+  HF_CU_TRY(cudaSetDevice(m->device));
+  if (s->rc) {
+    rc = s->rc;
+    goto fail;
+  }
+  HF_TRY(download(m, s, 1));
+  HF_CU_TRY(cudaEventSynchronize(s->ev[EV_O1]));
+  double dma_in = 0, kin = 0, net = 0, out = 0, dma_out = 0;
+  HF_TRY(elapsed_us(s->ev[EV_IN0], s->ev[EV_IN1], &dma_in));
+  HF_TRY(elapsed_us(s->ev[EV_C0], s->ev[EV_C1], &kin));
+  HF_TRY(elapsed_us(s->ev[EV_C1], s->ev[EV_C2], &net));
+  HF_TRY(elapsed_us(s->ev[EV_C2], s->ev[EV_C3], &out));
+  HF_TRY(elapsed_us(s->ev[EV_O0], s->ev[EV_O1], &dma_out));
+  /* Staging overlaps the upload: the longer of the two is the input's. */
+  t->input_us = (s->host_in_us > dma_in ? s->host_in_us : dma_in) + kin;
+  t->infer_us = net;
+  t->output_us = out + (s->host_out_us > dma_out ? s->host_out_us : dma_out);
+  return HF_OK;
+fail:
+  /* Leave no half-finished work behind for the next request. */
+  cudaStreamSynchronize(m->s_h2d);
+  cudaStreamSynchronize(m->s_comp);
+  cudaStreamSynchronize(m->s_d2h);
+  hf_cg_clear_cuda_error(m->s_comp);
+  s->used = 0;
+  return rc;
+}
+
+static int cudnn_model_submit(void *impl, const hf_io *io) {
+  cudnn_model *m = impl;
+  pthread_mutex_lock(&m->lock);
+  int rc = submit_locked(m, io);
+  pthread_mutex_unlock(&m->lock);
+  return rc;
+}
+
+static int cudnn_model_wait(void *impl, hf_timing *t) {
+  cudnn_model *m = impl;
+  pthread_mutex_lock(&m->lock);
+  int rc = wait_locked(m, t);
+  pthread_mutex_unlock(&m->lock);
   return rc;
 }
 
 static int cudnn_model_run(void *impl, const hf_io *io, hf_timing *t) {
   cudnn_model *m = impl;
   pthread_mutex_lock(&m->lock);
-  int rc = run_locked(m, io, t);
+  int rc = submit_locked(m, io);
+  if (rc == HF_OK) rc = wait_locked(m, t);
   pthread_mutex_unlock(&m->lock);
   return rc;
 }
@@ -570,7 +1177,7 @@ static const char *cudnn_model_precision(void *impl) {
 static size_t cudnn_model_device_bytes(void *impl) {
   cudnn_model *m = impl;
   pthread_mutex_lock(&m->lock);
-  size_t n = m->weight_bytes;
+  size_t n = m->weight_bytes + m->io_bytes;
   for (int i = 0; i < MAX_PLANS; i++)
     if (m->plans[i]) n += m->plans[i]->device_bytes;
   pthread_mutex_unlock(&m->lock);
@@ -589,4 +1196,9 @@ const hf_backend_ops hf_backend_cudnn = {
   .model_run = cudnn_model_run,
   .model_precision = cudnn_model_precision,
   .model_device_bytes = cudnn_model_device_bytes,
+  .model_prepare = cudnn_model_prepare,
+  .model_submit = cudnn_model_submit,
+  .model_wait = cudnn_model_wait,
+  .host_register = cudnn_host_register,
+  .host_unregister = cudnn_host_unregister,
 };

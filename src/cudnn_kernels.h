@@ -1,47 +1,86 @@
 /*
  * The small CUDA kernels around the cuDNN convolutions (internal to src/).
  * Each launches on the given stream and returns the launch status; none
- * synchronises. Device pointers to FP16 data are passed as void *.
+ * synchronises. FP16 data is passed as void *.
+ *
+ * All are memory-bound. Each thread moves several elements (up to 8 FP16
+ * = 16 bytes, the widest access a thread makes; fewer when a channel count,
+ * stride or offset does not allow it), and the grid is (pixels of a row,
+ * rows, frames), so no thread divides 64-bit numbers: a thread finds its
+ * pixel with one 32-bit division by a small count.
  */
 #ifndef HF_CUDNN_KERNELS_H
 #define HF_CUDNN_KERNELS_H
 
+#include <stdint.h>
+
 #include <cuda_runtime_api.h>
+
+#include "cudnn_layout.h"
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
+/* FP16 pixels: element (n, y, x, k) of the view at base + n*sn + y*sy +
+ * x*sx + k (strides in elements), 0 <= k < c, 0 <= y < h, 0 <= x < w. */
+typedef struct hf_cuk_view {
+  void *base;
+  long long sn, sy, sx;
+  int c, h, w;
+} hf_cuk_view;
+
 /* src: [batch][h][w][cin] of FP32 (src_f16 == 0) or FP16; dst: FP16
- * [batch][ph][pw][cpad], zeros right of w, below h and in channels >= cin. */
+ * [batch][ph][pw][cpad], zeros right of w, below h and in channels >= cin.
+ * cpad is a multiple of 8. */
 cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int w, int h, int cin,
                          void *dst, int pw, int ph, int cpad, cudaStream_t stream);
 
-/* src: FP16 [batch][ph][pw][src_stride], raw network output in channels
- * 0..2 (color, highlight, alpha). Applies the output transforms (or, when
- * in is not NULL, adds the residual base, hf_residual_base, over the FP16 network input in,
- * [batch][ph][pw][in_stride] with spp samples: HF_ARCH_RESIDUAL), crops to
- * w x h and writes [batch][h][w][3] as FP32 (dst_f16 == 0) or FP16. */
-cudaError_t hf_cuk_output(const void *src, int src_stride, const void *in, int in_stride,
-                          int spp, int pw, int ph, int batch, int w, int h, void *dst,
-                          int dst_f16, cudaStream_t stream);
+/* y = y + bias[k] (FP32), then ReLU when relu, over batch frames of y. For
+ * convolutions no cuDNN engine would fuse with their epilogue. */
+cudaError_t hf_cuk_bias_act(hf_cuk_view y, int batch, const float *bias, int relu,
+                            cudaStream_t stream);
 
-/* y: FP16 pixels with c channels each, pixel stride pix_stride, npix of
- * them: y = (y + bias) then ReLU when relu. For convolutions no cuDNN
- * engine would fuse with their epilogue. */
-cudaError_t hf_cuk_bias_act(void *y, size_t npix, int c, int pix_stride, const float *bias,
-                            int relu, cudaStream_t stream);
+/* Copies batch frames of src into dst (same c, h, w). For convolutions
+ * whose views no engine accepts: they run on dense copies. */
+cudaError_t hf_cuk_copy(hf_cuk_view dst, hf_cuk_view src, int batch, cudaStream_t stream);
 
-/* Copies c channels of npix FP16 pixels between two pixel strides. For
- * layers whose strided (skip-buffer) views no engine accepts. */
-cudaError_t hf_cuk_copy_channels(void *dst, int dst_stride, const void *src, int src_stride,
-                                 size_t npix, int c, cudaStream_t stream);
+/* Depth-to-space by 2 into dst ([batch][2h][2w], c = co channels; h, w of
+ * dst are 2h, 2w): src is dense FP16 [batch][h+offset][w+offset][4*co];
+ * dst pixel (2m+dy, 2n+dx), channel k, is src channel (2dy+dx)*co + k of
+ * pixel (m + dy*offset, n + dx*offset). offset 0: the SHUFFLE form,
+ * offset 1: the D2S form (cudnn_layout.h). */
+cudaError_t hf_cuk_depth_to_space(hf_cuk_view dst, const void *src, int batch, int offset,
+                                  cudaStream_t stream);
 
-/* Depth-to-space by 2: src is dense FP16 [batch][h][w][4*c]; channel
- * (2dy+dx)*c + k of pixel (y, x) goes to channel k of pixel (2y+dy, 2x+dx)
- * of dst, [batch][2h][2w] with pixel stride dst_stride. */
-cudaError_t hf_cuk_pixel_shuffle(void *dst, int dst_stride, const void *src, int batch, int h,
-                                 int w, int c, cudaStream_t stream);
+/* Pseudo-random FP16 values in [-1, 1) from seed into n elements: engines
+ * and forms are timed on these, not on zeros. */
+cudaError_t hf_cuk_fill(void *dst, size_t n, uint32_t seed, cudaStream_t stream);
+
+/* ---- output stages: one kernel per output form ------------------------- */
+
+/* The raw network output (color, highlight, alpha) as the last decoder
+ * left it: hf_cl_raw (cudnn_layout.h) says where pixel (x, y) is. */
+typedef struct hf_cuk_raw {
+  const void *data;             /* FP16 */
+  hf_cl_raw at;
+} hf_cuk_raw;
+
+/* HF_ARCH_UNET: the paper's transforms (alpha clamp, color x^3/32+x/5+1,
+ * highlight max(0, x)) of the raw output of frame pixels w x h, written as
+ * [batch][h][w][3] FP32 (dst_f16 == 0) or FP16. */
+cudaError_t hf_cuk_output_unet(hf_cuk_raw raw, int batch, int w, int h, void *dst, int dst_f16,
+                               cudaStream_t stream);
+
+/* HF_ARCH_RESIDUAL: raw output plus the residual base (hf_residual_base:
+ * the stochastic-transparency estimate over the samples of the
+ * (2*HF_RESIDUAL_RADIUS+1)^2 window around the pixel, cut to the frame),
+ * read from the FP16 network input in ([batch][ph][pw][in_stride], spp
+ * samples of 6 features). Each block sums its tile's windows from shared
+ * memory by separable sums: every input pixel is read once per tile. */
+cudaError_t hf_cuk_output_residual(hf_cuk_raw raw, const void *in, int in_stride, int pw, int ph,
+                                   int spp, int batch, int w, int h, void *dst, int dst_f16,
+                                   cudaStream_t stream);
 
 #ifdef __cplusplus
 }

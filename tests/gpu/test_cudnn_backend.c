@@ -16,6 +16,7 @@
 
 #include <cuda_runtime_api.h>
 
+#include "cudnn_graph.h"
 #include "hfcore.h"
 
 static char no_gpu_reason[256];   /* "" when a device is present */
@@ -113,6 +114,7 @@ static int teardown(void **state) {
 /* One variant at one size and batch: relative L2 against cpu-ref < 1e-2. */
 static void compare(ctx *c, const hf_net_config *cfg, hf_model *gm, hf_model *rm, int batch,
                     int width, int height) {
+
   const size_t npx = (size_t)batch * width * height;
   float *in = malloc(npx * cfg->in_channels * sizeof(float));
   float *want = malloc(npx * 3 * sizeof(float)), *got = malloc(npx * 3 * sizeof(float));
@@ -132,12 +134,19 @@ static void compare(ctx *c, const hf_net_config *cfg, hf_model *gm, hf_model *rm
   assert_true(t.infer_us > 0);
   assert_true(t.input_us > 0);
   assert_true(t.output_us > 0);
-  /* A second run replays the cached plan (CUDA graph) bit for bit. */
+  /* A second run replays the cached plan (CUDA graph). The backend passes
+   * over engines noted nondeterministic, so this is expected to be bit for
+   * bit; the assertion allows what an unnoted one could change, far below
+   * the accuracy bar, and the line says which it was. */
   float *again = malloc(npx * 3 * sizeof(float));
   assert_non_null(again);
   io.out = again;
   assert_int_equal(hf_model_run(gm, &io, NULL), HF_OK);
-  assert_memory_equal(again, got, npx * 3 * sizeof(float));
+  const int same = !memcmp(again, got, npx * 3 * sizeof(float));
+  const double rerun = rel_l2(again, got, npx * 3);
+  printf("  %-10s second run: %s (relative L2 %.1e)\n", cfg->name,
+         same ? "bit-identical" : "differs", rerun);
+  assert_true(rerun < 1e-4);
   free(again);
   free(in);
   free(want);
@@ -182,7 +191,10 @@ static void test_f16_io_and_plan_eviction(void **state) {
   assert_int_equal(hf_variant_preset("Base", &cfg), HF_OK);
   assert_int_equal(hf_weights_init_random(&cfg, 5, &w), HF_OK);
   hf_model *gm, *rm;
-  assert_int_equal(hf_model_create(c->gpu, w, &gm), HF_OK);
+  assert_int_equal(setenv("HF_CUDNN_PLANS", "2", 1), 0);   /* fewer than the shapes below */
+  int rc = hf_model_create(c->gpu, w, &gm);
+  unsetenv("HF_CUDNN_PLANS");
+  assert_int_equal(rc, HF_OK);
   assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
   static const int sizes[][2] = {{8, 8}, {17, 9}, {33, 31}, {64, 8}, {7, 70}, {17, 9}, {8, 8}};
   for (size_t s = 0; s < sizeof sizes / sizeof sizes[0]; s++) {
@@ -216,29 +228,168 @@ static void test_f16_io_and_plan_eviction(void **state) {
   hf_weights_free(w);
 }
 
-/* The conv + pixel-shuffle form of the transposed convs (an option, see
- * docs/GPU.md) gives the same network. */
-static void test_shuffle_deconv(void **state) {
+/* Each decoder form alone (HF_CUDNN_DECONV), and the diagnostic switches
+ * (dense copies only, no fusion, no CUDA graph), give the same network. */
+static void test_forms_and_switches(void **state) {
   REQUIRE_GPU();
   ctx *c = *state;
-  static const char *variants[] = {"Base", "Deep"};
-  for (size_t v = 0; v < sizeof variants / sizeof variants[0]; v++) {
-    hf_net_config cfg;
-    hf_weights *w;
-    assert_int_equal(hf_variant_preset(variants[v], &cfg), HF_OK);
-    assert_int_equal(hf_weights_init_random(&cfg, 77, &w), HF_OK);
-    hf_model *gm, *rm;
-    assert_int_equal(setenv("HF_CUDNN_DECONV", "shuffle", 1), 0);
-    int rc = hf_model_create(c->gpu, w, &gm);
-    unsetenv("HF_CUDNN_DECONV");
-    assert_int_equal(rc, HF_OK);
-    assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
-    compare(c, &cfg, gm, rm, 1, 37, 23);
-    compare(c, &cfg, gm, rm, 4, 129, 65);
-    hf_model_destroy(gm);
-    hf_model_destroy(rm);
-    hf_weights_free(w);
+  static const struct { const char *var, *val; } cases[] = {
+      {"HF_CUDNN_DECONV", "bwd-data"}, {"HF_CUDNN_DECONV", "d2s"},
+      {"HF_CUDNN_DECONV", "phase"},    {"HF_CUDNN_DECONV", "shuffle"},
+      {"HF_CUDNN_DENSE", "1"},         {"HF_CUDNN_NO_FUSION", "1"},
+      {"HF_CUDNN_NO_GRAPH", "1"},
+  };
+  static const char *variants[] = {"Base", "Deep", "Residual"};
+  for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++)
+    for (size_t v = 0; v < sizeof variants / sizeof variants[0]; v++) {
+      hf_net_config cfg;
+      hf_weights *w;
+      assert_int_equal(hf_variant_preset(variants[v], &cfg), HF_OK);
+      assert_int_equal(hf_weights_init_random(&cfg, 77 + v, &w), HF_OK);
+      hf_model *gm, *rm;
+      printf("  %s=%s\n", cases[k].var, cases[k].val);
+      assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
+      assert_int_equal(setenv(cases[k].var, cases[k].val, 1), 0);
+      int rc = hf_model_create(c->gpu, w, &gm);
+      if (rc == HF_OK) {
+        compare(c, &cfg, gm, rm, 1, 37, 23);
+        compare(c, &cfg, gm, rm, 2, 129, 65);
+      }
+      unsetenv(cases[k].var);
+      assert_int_equal(rc, HF_OK);
+      hf_model_destroy(gm);
+      hf_model_destroy(rm);
+      hf_weights_free(w);
+    }
+}
+
+/* Frames submitted two at a time (upload of one while the other computes),
+ * alternating sizes so consecutive runs use different plans, from plain and
+ * from registered (pinned) memory, FP32 and FP16: each matches cpu-ref. */
+static void test_pipelined_and_registered(void **state) {
+  REQUIRE_GPU();
+  ctx *c = *state;
+  hf_net_config cfg;
+  hf_weights *w;
+  assert_int_equal(hf_variant_preset("Base", &cfg), HF_OK);
+  assert_int_equal(hf_weights_init_random(&cfg, 11, &w), HF_OK);
+  hf_model *gm, *rm;
+  assert_int_equal(hf_model_create(c->gpu, w, &gm), HF_OK);
+  assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
+  enum { FRAMES = 6 };
+  static const int sizes[2][2] = {{61, 35}, {200, 120}};
+  const size_t cin = cfg.in_channels, maxpx = 200 * 120;
+  /* One arena for every frame's tensors, registered once, like a
+   * hairfilterd shared-memory segment. */
+  const size_t per_in = maxpx * cin * 4, per_out = maxpx * 3 * 4;
+  const size_t arena_bytes = (FRAMES * (per_in + per_out) + 4095) / 4096 * 4096;
+  uint8_t *arena = aligned_alloc(4096, arena_bytes);
+  float *want = malloc(per_out);
+  assert_non_null(arena);
+  assert_non_null(want);
+  for (int reg = 0; reg <= 1; reg++) {
+    if (reg) assert_int_equal(hf_backend_host_register(c->gpu, arena, arena_bytes), HF_OK);
+    for (int f16 = 0; f16 <= 1; f16++) {
+      hf_io io[FRAMES];
+      for (int f = 0; f < FRAMES; f++) {
+        const int W = sizes[f % 2][0], H = sizes[f % 2][1];
+        void *in = arena + f * per_in, *out = arena + FRAMES * per_in + f * per_out;
+        for (size_t i = 0; i < (size_t)W * H * cin; i++) {
+          const float v = frand();
+          if (f16) ((uint16_t *)in)[i] = hf_f32_to_f16(v);
+          else ((float *)in)[i] = v;
+        }
+        memset(out, 0xff, per_out);   /* NaN: every element must be written */
+        io[f] = (hf_io){1, W, H, in, f16 ? HF_F16 : HF_F32, out, f16 ? HF_F16 : HF_F32};
+      }
+      /* Keep two in flight: submit f+1 before waiting for f. */
+      assert_int_equal(hf_model_submit(gm, &io[0]), HF_OK);
+      for (int f = 0; f < FRAMES; f++) {
+        if (f + 1 < FRAMES) assert_int_equal(hf_model_submit(gm, &io[f + 1]), HF_OK);
+        hf_timing t;
+        assert_int_equal(hf_model_wait(gm, &t), HF_OK);
+        assert_true(t.infer_us > 0);
+      }
+      for (int f = 0; f < FRAMES; f++) {
+        const size_t n = (size_t)io[f].width * io[f].height;
+        float *in32 = malloc(n * cin * 4), *got = malloc(n * 3 * 4);
+        assert_non_null(in32);
+        assert_non_null(got);
+        for (size_t i = 0; i < n * cin; i++)
+          in32[i] = f16 ? hf_f16_to_f32(((const uint16_t *)io[f].in)[i]) : ((const float *)io[f].in)[i];
+        for (size_t i = 0; i < n * 3; i++)
+          got[i] = f16 ? hf_f16_to_f32(((const uint16_t *)io[f].out)[i]) : ((const float *)io[f].out)[i];
+        hf_io ref = {1, io[f].width, io[f].height, in32, HF_F32, want, HF_F32};
+        assert_int_equal(hf_model_run(rm, &ref, NULL), HF_OK);
+        const double rel = rel_l2(got, want, n * 3);
+        printf("  pipelined %s %s frame %d %dx%d: rel L2 %.2e\n", reg ? "registered" : "staged",
+               f16 ? "f16" : "f32", f, io[f].width, io[f].height, rel);
+        assert_true(rel < 1e-2);
+        free(in32);
+        free(got);
+      }
+    }
+    if (reg) hf_backend_host_unregister(c->gpu, arena);
   }
+  free(arena);
+  free(want);
+  hf_model_destroy(gm);
+  hf_model_destroy(rm);
+  hf_weights_free(w);
+}
+
+/* hf_model_prepare builds the plan ahead: the first run of that shape then
+ * allocates nothing, and prepared plans survive eviction of the others. */
+static void test_prepare(void **state) {
+  REQUIRE_GPU();
+  ctx *c = *state;
+  hf_net_config cfg;
+  hf_weights *w;
+  assert_int_equal(hf_variant_preset("Small", &cfg), HF_OK);
+  assert_int_equal(hf_weights_init_random(&cfg, 3, &w), HF_OK);
+  hf_model *gm, *rm;
+  assert_int_equal(setenv("HF_CUDNN_PLANS", "1", 1), 0);
+  int rc = hf_model_create(c->gpu, w, &gm);
+  unsetenv("HF_CUDNN_PLANS");
+  assert_int_equal(rc, HF_OK);
+  assert_int_equal(hf_model_create(c->ref, w, &rm), HF_OK);
+  const size_t before = hf_model_device_bytes(gm);
+  assert_int_equal(hf_model_prepare(gm, 2, 100, 60), HF_OK);
+  const size_t prepared = hf_model_device_bytes(gm);
+  assert_true(prepared > before);
+  compare(c, &cfg, gm, rm, 2, 100, 60);   /* same plan: 100x60 pads to 104x64 */
+  const size_t after_first = hf_model_device_bytes(gm);
+  /* Other shapes come and go (one cached plan), the prepared one stays. */
+  compare(c, &cfg, gm, rm, 1, 40, 40);
+  compare(c, &cfg, gm, rm, 1, 48, 16);
+  compare(c, &cfg, gm, rm, 2, 97, 57);    /* the prepared shape again */
+  printf("  device bytes: %zu weights, %zu prepared, %zu after its first run\n", before, prepared,
+         after_first);
+  hf_model_destroy(gm);
+  hf_model_destroy(rm);
+  hf_weights_free(w);
+}
+
+/* test_cudnn_backend devprop FILE: cuDNN's description of this machine's
+ * device (CUDNN_ATTR_DEVICEPROP_JSON_REPRESENTATION), the input of the
+ * deviceless descriptor test (tests/data/cudnn/). */
+static int dump_devprop(const char *path) {
+  if (no_gpu_reason[0]) {
+    printf("SKIP: no CUDA device: %s\n", no_gpu_reason);
+    return 77;
+  }
+  cudnnHandle_t h;
+  char json[8192];
+  if (cudnnCreate(&h) != CUDNN_STATUS_SUCCESS) return 1;
+  int rc = hf_cg_devprop_json(h, json, sizeof json);
+  cudnnDestroy(h);
+  FILE *f = rc ? NULL : fopen(path, "w");
+  if (!f || fputs(json, f) < 0 || fclose(f)) {
+    fprintf(stderr, "devprop: %s\n", rc ? hf_strerror(rc) : path);
+    return 1;
+  }
+  printf("%s\n", json);
+  return 0;
 }
 
 /* test_cudnn_backend fallback: the availability and fallback checks, which
@@ -259,10 +410,13 @@ int main(int argc, char **argv) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_presets_vs_cpu_ref, setup, teardown),
         cmocka_unit_test_setup_teardown(test_f16_io_and_plan_eviction, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_shuffle_deconv, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_forms_and_switches, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_pipelined_and_registered, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_prepare, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
   }
-  fprintf(stderr, "usage: test_cudnn_backend fallback|device\n");
+  if (argc == 3 && !strcmp(argv[1], "devprop")) return dump_devprop(argv[2]);
+  fprintf(stderr, "usage: test_cudnn_backend fallback|device|devprop FILE.json\n");
   return 2;
 }
