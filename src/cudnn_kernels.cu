@@ -1,149 +1,35 @@
 // The small CUDA kernels around the cuDNN convolutions: see cudnn_kernels.h.
+// Each __global__ kernel hands its thread's grid position to the function
+// in cudnn_kernels_body.cuh that does the work (which the host tests run
+// too); the launchers pick the access width and the grid.
 #include <stdint.h>
-#include <string.h>
 
 #include <cuda_fp16.h>
 
 #include "cudnn_kernels.h"
-#include "hfcore.h"  // HF_RESIDUAL_RADIUS
+#include "cudnn_kernels_body.cuh"
+
+using namespace hf_kb;
 
 namespace {
 
-constexpr int kMaxThreads = 256;
-
-// U FP16 elements moved as one access: 16, 8, 4 or 2 bytes.
-template <int U> struct Access;
-template <> struct Access<8> { using T = uint4; };
-template <> struct Access<4> { using T = uint2; };
-template <> struct Access<2> { using T = unsigned int; };
-template <> struct Access<1> { using T = unsigned short; };
-
-template <int U> union Pack {
-  typename Access<U>::T v;
-  __half h[U];
-};
-
-template <int U> __device__ __forceinline__ Pack<U> load(const __half *p) {
-  Pack<U> r;
-  r.v = *reinterpret_cast<const typename Access<U>::T *>(p);
-  return r;
-}
-template <int U> __device__ __forceinline__ void store(__half *p, const Pack<U> &r) {
-  *reinterpret_cast<typename Access<U>::T *>(p) = r.v;
-}
-
-// Grid of (units of a row, rows, frames): a block of up to kMaxThreads
-// threads along the row, as few idle threads as a short row allows.
-struct Launch {
-  dim3 grid, block;
-};
-
-cudaError_t launch_shape(long long units, long long rows, long long frames, Launch *l) {
-  if (units < 1 || rows < 1 || frames < 1) return cudaErrorInvalidValue;
-  if (rows > 65535 || frames > 65535 || units > (long long)INT32_MAX) return cudaErrorInvalidValue;
-  int threads = units >= kMaxThreads ? kMaxThreads : (int)((units + 31) / 32 * 32);
-  l->block = dim3(threads);
-  l->grid = dim3((unsigned)((units + threads - 1) / threads), (unsigned)rows, (unsigned)frames);
-  return cudaSuccess;
-}
-
-// The widest access (8, 4, 2 or 1 elements) that every element offset the
-// kernel makes is a multiple of.
-int unit_for(long long c, long long a, long long b, long long d, const void *ptr) {
-  int u = 8;
-  const uintptr_t p = (uintptr_t)ptr;
-  while (u > 1 && (c % u || a % u || b % u || d % u || p % (2u * u))) u /= 2;
-  return u;
-}
-int unit_for_view(const hf_cuk_view &v) { return unit_for(v.c, v.sn, v.sy, v.sx, v.base); }
-
-// ---- input ------------------------------------------------------------------
-
-// One thread writes 8 channels (16 bytes) of one padded pixel. PAIRS: cin
-// is even, so channel pairs never straddle a pixel and load as one access.
 template <bool F16, bool PAIRS>
 __global__ void input_kernel(const void *src, int w, int h, int cin, __half *dst, int pw, int ph,
                              int cpad) {
-  const int groups = cpad >> 3;
-  const int u = blockIdx.x * blockDim.x + threadIdx.x;
-  if (u >= pw * groups) return;
-  const int y = blockIdx.y, n = blockIdx.z;
-  const int x = u / groups, c0 = (u - x * groups) << 3;
-  Pack<8> out;
-#pragma unroll
-  for (int k = 0; k < 8; k++) out.h[k] = __float2half(0.0f);
-  if (x < w && y < h && c0 < cin) {
-    const size_t s = (((size_t)n * h + y) * w + x) * cin + c0;
-    if (PAIRS) {
-#pragma unroll
-      for (int k = 0; k < 8; k += 2) {
-        if (c0 + k >= cin) break;
-        if (F16) {
-          const __half2 v = *reinterpret_cast<const __half2 *>((const __half *)src + s + k);
-          out.h[k] = __low2half(v);
-          out.h[k + 1] = __high2half(v);
-        } else {
-          const float2 v = *reinterpret_cast<const float2 *>((const float *)src + s + k);
-          out.h[k] = __float2half_rn(v.x);
-          out.h[k + 1] = __float2half_rn(v.y);
-        }
-      }
-    } else {
-#pragma unroll
-      for (int k = 0; k < 8; k++) {
-        if (c0 + k >= cin) break;
-        out.h[k] = F16 ? ((const __half *)src)[s + k] : __float2half_rn(((const float *)src)[s + k]);
-      }
-    }
-  }
-  store<8>(dst + (((size_t)n * ph + y) * pw + x) * cpad + c0, out);
+  input_unit<F16, PAIRS>(src, w, h, cin, dst, pw, ph, cpad, blockIdx.x * blockDim.x + threadIdx.x,
+                         blockIdx.y, blockIdx.z);
 }
 
-// ---- bias + activation, copies, depth-to-space -------------------------------
-
-template <int U>
-__global__ void bias_act_kernel(hf_cuk_view y, const float *bias, int relu) {
-  const int cu = y.c / U;
-  const int u = blockIdx.x * blockDim.x + threadIdx.x;
-  if (u >= y.w * cu) return;
-  const int x = u / cu, k = (u - x * cu) * U;
-  __half *p = (__half *)y.base + blockIdx.z * y.sn + blockIdx.y * y.sy + x * y.sx + k;
-  Pack<U> v = load<U>(p);
-#pragma unroll
-  for (int i = 0; i < U; i++) {
-    float f = __half2float(v.h[i]) + bias[k + i];
-    v.h[i] = __float2half_rn(relu ? fmaxf(f, 0.0f) : f);
-  }
-  store<U>(p, v);
+template <int U> __global__ void bias_act_kernel(hf_cuk_view y, const float *bias, int relu) {
+  bias_act_unit<U>(y, bias, relu, blockIdx.x * blockDim.x + threadIdx.x, blockIdx.y, blockIdx.z);
 }
 
-template <int U>
-__global__ void copy_kernel(hf_cuk_view dst, hf_cuk_view src) {
-  const int cu = dst.c / U;
-  const int u = blockIdx.x * blockDim.x + threadIdx.x;
-  if (u >= dst.w * cu) return;
-  const int x = u / cu, k = (u - x * cu) * U;
-  const __half *s =
-      (const __half *)src.base + blockIdx.z * src.sn + blockIdx.y * src.sy + x * src.sx + k;
-  __half *d = (__half *)dst.base + blockIdx.z * dst.sn + blockIdx.y * dst.sy + x * dst.sx + k;
-  store<U>(d, load<U>(s));
+template <int U> __global__ void copy_kernel(hf_cuk_view dst, hf_cuk_view src) {
+  copy_unit<U>(dst, src, blockIdx.x * blockDim.x + threadIdx.x, blockIdx.y, blockIdx.z);
 }
 
-// By destination pixel (coalesced writes along the row): its phase picks
-// the source pixel and channel block.
-template <int U>
-__global__ void d2s_kernel(hf_cuk_view dst, const __half *src, int offset) {
-  const int cu = dst.c / U;
-  const int u = blockIdx.x * blockDim.x + threadIdx.x;
-  if (u >= dst.w * cu) return;
-  const int X = u / cu, k = (u - X * cu) * U;
-  const int Y = blockIdx.y, n = blockIdx.z;
-  const int dy = Y & 1, dx = X & 1;
-  const int sh = (dst.h >> 1) + offset, sw = (dst.w >> 1) + offset, sc = 4 * dst.c;
-  const int sy = (Y >> 1) + dy * offset, sx = (X >> 1) + dx * offset;
-  const __half *s = src + (((size_t)n * sh + sy) * sw + sx) * sc + (2 * dy + dx) * dst.c + k;
-  __half *d = (__half *)dst.base + n * dst.sn + Y * dst.sy + X * dst.sx + k;
-  store<U>(d, load<U>(s));
+template <int U> __global__ void d2s_kernel(hf_cuk_view dst, const __half *src, int offset) {
+  d2s_unit<U>(dst, src, offset, blockIdx.x * blockDim.x + threadIdx.x, blockIdx.y, blockIdx.z);
 }
 
 __global__ void fill_kernel(__half *dst, size_t n, uint32_t seed) {
@@ -159,107 +45,24 @@ __global__ void fill_kernel(__half *dst, size_t n, uint32_t seed) {
   }
 }
 
-// ---- output stages ------------------------------------------------------------
-
-// The raw output of frame pixel (x, y) of frame n (hf_cl_raw).
-__device__ __forceinline__ const __half *raw_pixel(const hf_cuk_raw &r, int n, int y, int x) {
-  const __half *base = (const __half *)r.data;
-  if (r.at.div == 1)
-    return base + (((size_t)n * r.at.rows + y) * r.at.cols + x) * r.at.pix_stride;
-  const int dy = y & 1, dx = x & 1;
-  const int ry = (y >> 1) + dy * r.at.offset, rx = (x >> 1) + dx * r.at.offset;
-  return base + (((size_t)n * r.at.rows + ry) * r.at.cols + rx) * r.at.pix_stride +
-         (2 * dy + dx) * r.at.co;
-}
-
-__device__ __forceinline__ void store3(void *dst, int dst_f16, size_t i, float a, float b,
-                                       float c) {
-  if (dst_f16) {
-    __half *d = (__half *)dst + i * 3;
-    d[0] = __float2half_rn(a);
-    d[1] = __float2half_rn(b);
-    d[2] = __float2half_rn(c);
-  } else {
-    float *d = (float *)dst + i * 3;
-    d[0] = a;
-    d[1] = b;
-    d[2] = c;
-  }
-}
-
-// The paper's transforms (section 3.3.2), computed in FP32.
 __global__ void output_unet_kernel(hf_cuk_raw raw, int w, int h, void *dst, int dst_f16) {
-  const int x = blockIdx.x * blockDim.x + threadIdx.x;
-  if (x >= w) return;
-  const int y = blockIdx.y, n = blockIdx.z;
-  const __half *p = raw_pixel(raw, n, y, x);
-  const float c = __half2float(p[0]), hl = __half2float(p[1]), a = __half2float(p[2]);
-  store3(dst, dst_f16, ((size_t)n * h + y) * w + x, c * c * c / 32.0f + c / 5.0f + 1.0f,
-         fmaxf(hl, 0.0f), fminf(fmaxf(a, 0.0f), 1.0f));
+  output_unet_px(raw, w, h, dst, dst_f16, blockIdx.x * blockDim.x + threadIdx.x, blockIdx.y,
+                 blockIdx.z);
 }
 
-constexpr int kTileX = 32, kTileY = 8, kR = HF_RESIDUAL_RADIUS;
-
-// One block finishes a kTileX x kTileY tile. Each input pixel of the tile
-// and its halo is reduced once to (covered samples, their colour sum,
-// their highlight sum) in shared memory; rows are then summed over the
-// window's width, and the thread's pixel over its height.
 __global__ void __launch_bounds__(kTileX * kTileY)
 output_residual_kernel(hf_cuk_raw raw, const __half *in, int in_stride, int pw, int ph, int spp,
                        int w, int h, void *dst, int dst_f16) {
-  constexpr int SW = kTileX + 2 * kR, SH = kTileY + 2 * kR;
-  __shared__ float3 px[SH][SW];
-  __shared__ float3 rows[SH][kTileX];
-  const int n = blockIdx.z;
-  const int gx0 = blockIdx.x * kTileX - kR, gy0 = blockIdx.y * kTileY - kR;
+  __shared__ float3 px[kHaloH][kHaloW];
+  __shared__ float3 rows[kHaloH][kTileX];
   const int tid = threadIdx.y * kTileX + threadIdx.x;
-  for (int i = tid; i < SW * SH; i += kTileX * kTileY) {
-    const int ly = i / SW, lx = i - ly * SW;
-    const int gy = gy0 + ly, gx = gx0 + lx;
-    float cnt = 0.0f, col = 0.0f, hsum = 0.0f;
-    if (gx >= 0 && gx < w && gy >= 0 && gy < h) {
-      const __half *s = in + (((size_t)n * ph + gy) * pw + gx) * in_stride;
-      for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
-        if (__half2float(s[2]) > 0.0f) {
-          cnt += 1.0f;
-          col += __half2float(s[0]);
-          hsum += __half2float(s[1]);
-        }
-    }
-    px[ly][lx] = make_float3(cnt, col, hsum);
-  }
+  residual_load(px, in, in_stride, pw, ph, spp, w, h, blockIdx.x, blockIdx.y, blockIdx.z, tid,
+                kTileX * kTileY);
   __syncthreads();
-  for (int i = tid; i < SH * kTileX; i += kTileX * kTileY) {
-    const int ly = i / kTileX, lx = i - ly * kTileX;
-    float3 a = make_float3(0.0f, 0.0f, 0.0f);
-#pragma unroll
-    for (int d = 0; d <= 2 * kR; d++) {
-      a.x += px[ly][lx + d].x;
-      a.y += px[ly][lx + d].y;
-      a.z += px[ly][lx + d].z;
-    }
-    rows[ly][lx] = a;
-  }
+  residual_rows(px, rows, tid, kTileX * kTileY);
   __syncthreads();
-  const int x = blockIdx.x * kTileX + threadIdx.x, y = blockIdx.y * kTileY + threadIdx.y;
-  if (x >= w || y >= h) return;
-  float3 a = make_float3(0.0f, 0.0f, 0.0f);
-#pragma unroll
-  for (int d = 0; d <= 2 * kR; d++) {
-    a.x += rows[threadIdx.y + d][threadIdx.x].x;
-    a.y += rows[threadIdx.y + d][threadIdx.x].y;
-    a.z += rows[threadIdx.y + d][threadIdx.x].z;
-  }
-  // The window cut to the frame, as hf_residual_base counts it.
-  const int wy = min(y + kR, h - 1) - max(y - kR, 0) + 1;
-  const int wx = min(x + kR, w - 1) - max(x - kR, 0) + 1;
-  const float samples = (float)(wy * wx * spp);
-  const float bc = a.x > 0.0f ? a.y / a.x : 1.0f;
-  const float bh = a.x > 0.0f ? a.z / a.x : 0.0f;
-  const __half *p = raw_pixel(raw, n, y, x);
-  store3(dst, dst_f16, ((size_t)n * h + y) * w + x, bc + __half2float(p[0]),
-         fmaxf(bh + __half2float(p[1]), 0.0f),
-         fminf(fmaxf(a.x / samples + __half2float(p[2]), 0.0f), 1.0f));
+  residual_finish(rows, raw, spp, w, h, dst, dst_f16, blockIdx.x, blockIdx.y, blockIdx.z,
+                  threadIdx.x, threadIdx.y);
 }
 
 }  // namespace

@@ -1,0 +1,252 @@
+// What each thread of the cudnn backend's small kernels does (internal to
+// src/), as __host__ __device__ functions of the thread's grid position:
+// cudnn_kernels.cu wraps them in __global__ kernels, and
+// tests/gpu/test_cudnn_kernels.cu runs the very same functions over the same
+// grid on the CPU, so the index arithmetic is checked without a GPU.
+//
+// Grids are (units of a row, rows, frames); a unit is U FP16 elements moved
+// as one access (16, 8, 4 or 2 bytes). No thread divides 64-bit numbers.
+#ifndef HF_CUDNN_KERNELS_BODY_CUH
+#define HF_CUDNN_KERNELS_BODY_CUH
+
+#include <stdint.h>
+
+#include <cuda_fp16.h>
+#include <vector_types.h>
+
+#include "cudnn_kernels.h"
+#include "hfcore.h"  // HF_RESIDUAL_RADIUS, HF_FEATURES_PER_SAMPLE
+
+#define HF_HD __host__ __device__ __forceinline__
+
+namespace hf_kb {
+
+constexpr int kMaxThreads = 256;
+
+template <int U> struct Access;
+template <> struct Access<8> { using T = uint4; };
+template <> struct Access<4> { using T = uint2; };
+template <> struct Access<2> { using T = unsigned int; };
+template <> struct Access<1> { using T = unsigned short; };
+
+template <int U> union Pack {
+  typename Access<U>::T v;
+  __half h[U];
+};
+
+template <int U> HF_HD Pack<U> load(const __half *p) {
+  Pack<U> r;
+  r.v = *reinterpret_cast<const typename Access<U>::T *>(p);
+  return r;
+}
+template <int U> HF_HD void store(__half *p, const Pack<U> &r) {
+  *reinterpret_cast<typename Access<U>::T *>(p) = r.v;
+}
+
+// The launch of a (units, rows, frames) grid: blocks of up to kMaxThreads
+// threads along a row, as few idle ones as a short row allows.
+struct Launch {
+  dim3 grid, block;
+};
+
+inline cudaError_t launch_shape(long long units, long long rows, long long frames, Launch *l) {
+  if (units < 1 || rows < 1 || frames < 1) return cudaErrorInvalidValue;
+  if (rows > 65535 || frames > 65535 || units > (long long)INT32_MAX) return cudaErrorInvalidValue;
+  int threads = units >= kMaxThreads ? kMaxThreads : (int)((units + 31) / 32 * 32);
+  l->block = dim3(threads);
+  l->grid = dim3((unsigned)((units + threads - 1) / threads), (unsigned)rows, (unsigned)frames);
+  return cudaSuccess;
+}
+
+// The widest unit (8, 4, 2 or 1 elements) that every element offset a
+// kernel makes (c, the strides, the base address) is a multiple of.
+inline int unit_for(long long c, long long a, long long b, long long d, const void *ptr) {
+  int u = 8;
+  const uintptr_t p = (uintptr_t)ptr;
+  while (u > 1 && (c % u || a % u || b % u || d % u || p % (2u * u))) u /= 2;
+  return u;
+}
+inline int unit_for_view(const hf_cuk_view &v) { return unit_for(v.c, v.sn, v.sy, v.sx, v.base); }
+
+// ---- input: 8 channels (16 bytes) of one padded pixel per thread ----------
+// PAIRS: cin is even, so channel pairs never straddle a pixel and load as
+// one access.
+template <bool F16, bool PAIRS>
+HF_HD void input_unit(const void *src, int w, int h, int cin, __half *dst, int pw, int ph, int cpad,
+                      int u, int y, int n) {
+  const int groups = cpad >> 3;
+  if (u >= pw * groups) return;
+  const int x = u / groups, c0 = (u - x * groups) << 3;
+  Pack<8> out;
+  for (int k = 0; k < 8; k++) out.h[k] = __float2half(0.0f);
+  if (x < w && y < h && c0 < cin) {
+    const size_t s = (((size_t)n * h + y) * w + x) * cin + c0;
+    // Fixed trip counts and no early exit, so the loops unroll and out
+    // stays in registers.
+    if (PAIRS) {
+      for (int k = 0; k < 8; k += 2) {
+        if (c0 + k >= cin) continue;
+        if (F16) {
+          const __half2 v = *reinterpret_cast<const __half2 *>((const __half *)src + s + k);
+          out.h[k] = __low2half(v);
+          out.h[k + 1] = __high2half(v);
+        } else {
+          const float2 v = *reinterpret_cast<const float2 *>((const float *)src + s + k);
+          out.h[k] = __float2half_rn(v.x);
+          out.h[k + 1] = __float2half_rn(v.y);
+        }
+      }
+    } else {
+      for (int k = 0; k < 8; k++) {
+        if (c0 + k >= cin) continue;
+        out.h[k] = F16 ? ((const __half *)src)[s + k] : __float2half_rn(((const float *)src)[s + k]);
+      }
+    }
+  }
+  store<8>(dst + (((size_t)n * ph + y) * pw + x) * cpad + c0, out);
+}
+
+// ---- bias + activation, copies, depth-to-space: U channels per thread ----
+template <int U>
+HF_HD void bias_act_unit(const hf_cuk_view &y, const float *bias, int relu, int u, int row, int n) {
+  const int cu = y.c / U;
+  if (u >= y.w * cu) return;
+  const int x = u / cu, k = (u - x * cu) * U;
+  __half *p = (__half *)y.base + n * y.sn + row * y.sy + x * y.sx + k;
+  Pack<U> v = load<U>(p);
+  for (int i = 0; i < U; i++) {
+    const float f = __half2float(v.h[i]) + bias[k + i];
+    v.h[i] = __float2half_rn(relu ? fmaxf(f, 0.0f) : f);
+  }
+  store<U>(p, v);
+}
+
+template <int U>
+HF_HD void copy_unit(const hf_cuk_view &dst, const hf_cuk_view &src, int u, int row, int n) {
+  const int cu = dst.c / U;
+  if (u >= dst.w * cu) return;
+  const int x = u / cu, k = (u - x * cu) * U;
+  const __half *s = (const __half *)src.base + n * src.sn + row * src.sy + x * src.sx + k;
+  __half *d = (__half *)dst.base + n * dst.sn + row * dst.sy + x * dst.sx + k;
+  store<U>(d, load<U>(s));
+}
+
+// By destination pixel (coalesced writes along the row): its phase picks
+// the source pixel and channel block (cudnn_layout.h, D2S and SHUFFLE).
+template <int U>
+HF_HD void d2s_unit(const hf_cuk_view &dst, const __half *src, int offset, int u, int Y, int n) {
+  const int cu = dst.c / U;
+  if (u >= dst.w * cu) return;
+  const int X = u / cu, k = (u - X * cu) * U;
+  const int dy = Y & 1, dx = X & 1;
+  const int sh = (dst.h >> 1) + offset, sw = (dst.w >> 1) + offset, sc = 4 * dst.c;
+  const int sy = (Y >> 1) + dy * offset, sx = (X >> 1) + dx * offset;
+  const __half *s = src + (((size_t)n * sh + sy) * sw + sx) * sc + (2 * dy + dx) * dst.c + k;
+  __half *d = (__half *)dst.base + n * dst.sn + Y * dst.sy + X * dst.sx + k;
+  store<U>(d, load<U>(s));
+}
+
+// ---- output stages ---------------------------------------------------------
+
+// The raw output of frame pixel (x, y) of frame n (hf_cl_raw).
+HF_HD const __half *raw_pixel(const hf_cuk_raw &r, int n, int y, int x) {
+  const __half *base = (const __half *)r.data;
+  if (r.at.div == 1)
+    return base + (((size_t)n * r.at.rows + y) * r.at.cols + x) * r.at.pix_stride;
+  const int dy = y & 1, dx = x & 1;
+  const int ry = (y >> 1) + dy * r.at.offset, rx = (x >> 1) + dx * r.at.offset;
+  return base + (((size_t)n * r.at.rows + ry) * r.at.cols + rx) * r.at.pix_stride +
+         (2 * dy + dx) * r.at.co;
+}
+
+HF_HD void store3(void *dst, int dst_f16, size_t i, float a, float b, float c) {
+  if (dst_f16) {
+    __half *d = (__half *)dst + i * 3;
+    d[0] = __float2half_rn(a);
+    d[1] = __float2half_rn(b);
+    d[2] = __float2half_rn(c);
+  } else {
+    float *d = (float *)dst + i * 3;
+    d[0] = a;
+    d[1] = b;
+    d[2] = c;
+  }
+}
+
+// HF_ARCH_UNET: the paper's transforms (section 3.3.2), in FP32. One pixel
+// per thread.
+HF_HD void output_unet_px(const hf_cuk_raw &raw, int w, int h, void *dst, int dst_f16, int x,
+                          int y, int n) {
+  if (x >= w) return;
+  const __half *p = raw_pixel(raw, n, y, x);
+  const float c = __half2float(p[0]), hl = __half2float(p[1]), a = __half2float(p[2]);
+  store3(dst, dst_f16, ((size_t)n * h + y) * w + x, c * c * c / 32.0f + c / 5.0f + 1.0f,
+         fmaxf(hl, 0.0f), fminf(fmaxf(a, 0.0f), 1.0f));
+}
+
+// HF_ARCH_RESIDUAL, one block per kTileX x kTileY tile, in three phases
+// separated by a barrier: (1) each input pixel of the tile and its halo is
+// reduced once to (covered samples, their colour sum, their highlight sum)
+// in shared memory; (2) rows are summed over the window's width; (3) each
+// thread sums its pixel's column of row sums and finishes the pixel.
+constexpr int kTileX = 32, kTileY = 8, kR = HF_RESIDUAL_RADIUS;
+constexpr int kHaloW = kTileX + 2 * kR, kHaloH = kTileY + 2 * kR;
+
+HF_HD void residual_load(float3 (*px)[kHaloW], const __half *in, int in_stride, int pw, int ph,
+                         int spp, int w, int h, int bx, int by, int n, int tid, int nthreads) {
+  const int gx0 = bx * kTileX - kR, gy0 = by * kTileY - kR;
+  for (int i = tid; i < kHaloW * kHaloH; i += nthreads) {
+    const int ly = i / kHaloW, lx = i - ly * kHaloW;
+    const int gy = gy0 + ly, gx = gx0 + lx;
+    float cnt = 0.0f, col = 0.0f, hsum = 0.0f;
+    if (gx >= 0 && gx < w && gy >= 0 && gy < h) {
+      const __half *s = in + (((size_t)n * ph + gy) * pw + gx) * in_stride;
+      for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
+        if (__half2float(s[2]) > 0.0f) {
+          cnt += 1.0f;
+          col += __half2float(s[0]);
+          hsum += __half2float(s[1]);
+        }
+    }
+    px[ly][lx] = make_float3(cnt, col, hsum);
+  }
+}
+
+HF_HD void residual_rows(float3 (*px)[kHaloW], float3 (*rows)[kTileX], int tid, int nthreads) {
+  for (int i = tid; i < kHaloH * kTileX; i += nthreads) {
+    const int ly = i / kTileX, lx = i - ly * kTileX;
+    float3 a = make_float3(0.0f, 0.0f, 0.0f);
+    for (int d = 0; d <= 2 * kR; d++) {
+      a.x += px[ly][lx + d].x;
+      a.y += px[ly][lx + d].y;
+      a.z += px[ly][lx + d].z;
+    }
+    rows[ly][lx] = a;
+  }
+}
+
+HF_HD void residual_finish(float3 (*rows)[kTileX], const hf_cuk_raw &raw, int spp, int w, int h,
+                           void *dst, int dst_f16, int bx, int by, int n, int tx, int ty) {
+  const int x = bx * kTileX + tx, y = by * kTileY + ty;
+  if (x >= w || y >= h) return;
+  float3 a = make_float3(0.0f, 0.0f, 0.0f);
+  for (int d = 0; d <= 2 * kR; d++) {
+    a.x += rows[ty + d][tx].x;
+    a.y += rows[ty + d][tx].y;
+    a.z += rows[ty + d][tx].z;
+  }
+  // The window cut to the frame, as hf_residual_base counts it.
+  const int wy = min(y + kR, h - 1) - max(y - kR, 0) + 1;
+  const int wx = min(x + kR, w - 1) - max(x - kR, 0) + 1;
+  const float samples = (float)(wy * wx * spp);
+  const float bc = a.x > 0.0f ? a.y / a.x : 1.0f;
+  const float bh = a.x > 0.0f ? a.z / a.x : 0.0f;
+  const __half *p = raw_pixel(raw, n, y, x);
+  store3(dst, dst_f16, ((size_t)n * h + y) * w + x, bc + __half2float(p[0]),
+         fmaxf(bh + __half2float(p[1]), 0.0f),
+         fminf(fmaxf(a.x / samples + __half2float(p[2]), 0.0f), 1.0f));
+}
+
+}  // namespace hf_kb
+
+#endif  // HF_CUDNN_KERNELS_BODY_CUH

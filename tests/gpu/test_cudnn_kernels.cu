@@ -1,0 +1,349 @@
+// The cudnn backend's element-wise kernels, checked without a GPU: the
+// per-thread functions of src/cudnn_kernels_body.cuh (the code the device
+// kernels run) are run here on the CPU over the same grids, with the same
+// access widths the launchers pick for the same (256-byte aligned) buffers,
+// and their results compared with the definitions: the input padding and
+// FP16 conversion, bias + ReLU, view copies, depth-to-space with and
+// without the one-pixel offset, and both output stages against hfcore's
+// hf_output_transform and hf_residual_base. Exit status 1 on any mismatch.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cudnn_kernels_body.cuh"
+
+using namespace hf_kb;
+
+static int failures;
+
+#define CHECK(cond, ...)              \
+  do {                                \
+    if (!(cond)) {                    \
+      if (failures++ < 20) {          \
+        printf("FAIL: " __VA_ARGS__); \
+        printf("\n");                 \
+      }                               \
+    }                                 \
+  } while (0)
+
+static uint64_t rng = 0x243F6A8885A308D3ull;
+static float frand(void) {  // [0, 1)
+  rng ^= rng << 13;
+  rng ^= rng >> 7;
+  rng ^= rng << 17;
+  return (float)(rng >> 40) / (float)(1 << 24);
+}
+
+// cudaMalloc's alignment, so the launchers' width choice is the device's.
+static void *dalloc(size_t bytes) {
+  void *p = aligned_alloc(256, (bytes + 255) / 256 * 256);
+  if (!p) abort();
+  return p;
+}
+
+static float h2f(__half h) { return __half2float(h); }
+
+// Runs body(unit, row, frame) for every thread of the launch, as the GPU
+// would (in any order: no body depends on another's result).
+template <class F> static void run_grid(const Launch &l, F body) {
+  for (unsigned n = 0; n < l.grid.z; n++)
+    for (unsigned y = 0; y < l.grid.y; y++)
+      for (unsigned b = 0; b < l.grid.x; b++)
+        for (unsigned t = 0; t < l.block.x; t++) body((int)(b * l.block.x + t), (int)y, (int)n);
+}
+
+static Launch shape(long long units, long long rows, long long frames) {
+  Launch l;
+  if (launch_shape(units, rows, frames, &l) != cudaSuccess) abort();
+  return l;
+}
+
+// ---- input -------------------------------------------------------------------
+
+static void test_input(int cin, int f16) {
+  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, cpad = (cin + 7) / 8 * 8;
+  const size_t n_src = (size_t)batch * w * h * cin, n_dst = (size_t)batch * ph * pw * cpad;
+  void *src = dalloc(n_src * 4);
+  __half *dst = (__half *)dalloc(n_dst * 2);
+  for (size_t i = 0; i < n_src; i++) {
+    const float v = 4 * frand() - 2;
+    if (f16) ((__half *)src)[i] = __float2half_rn(v);
+    else ((float *)src)[i] = v;
+  }
+  memset((void *)dst, 0x7f, n_dst * 2);  // not zeros: every element must be written
+  const Launch l = shape((long long)pw * (cpad / 8), ph, batch);
+  const bool pairs = cin % 2 == 0;
+  run_grid(l, [&](int u, int y, int n) {
+    if (f16 && pairs) input_unit<true, true>(src, w, h, cin, dst, pw, ph, cpad, u, y, n);
+    else if (f16) input_unit<true, false>(src, w, h, cin, dst, pw, ph, cpad, u, y, n);
+    else if (pairs) input_unit<false, true>(src, w, h, cin, dst, pw, ph, cpad, u, y, n);
+    else input_unit<false, false>(src, w, h, cin, dst, pw, ph, cpad, u, y, n);
+  });
+  int bad = 0;
+  for (int n = 0; n < batch; n++)
+    for (int y = 0; y < ph; y++)
+      for (int x = 0; x < pw; x++)
+        for (int c = 0; c < cpad; c++) {
+          const uint16_t got = hf_f32_to_f16(h2f(dst[(((size_t)n * ph + y) * pw + x) * cpad + c]));
+          float want = 0;
+          if (x < w && y < h && c < cin) {
+            const size_t s = (((size_t)n * h + y) * w + x) * cin + c;
+            want = f16 ? h2f(((__half *)src)[s]) : ((float *)src)[s];
+          }
+          bad += got != hf_f32_to_f16(want);
+        }
+  CHECK(!bad, "input cin %d %s: %d elements wrong", cin, f16 ? "f16" : "f32", bad);
+  printf("  input      cin %2d %s %dx%d -> %dx%dx%d: %s\n", cin, f16 ? "f16" : "f32", w, h, pw, ph,
+         cpad, bad ? "WRONG" : "exact");
+  free(src);
+  free(dst);
+}
+
+// ---- views: bias + ReLU, copies, depth-to-space -------------------------------
+
+// A view of a buffer of bh x bw pixels, pix_stride elements each: c
+// channels from ch_off, pixel (y, x) at buffer pixel (y0 + step*y, x0 + step*x).
+static hf_cuk_view make_view(__half *buf, int bh, int bw, int pix_stride, int ch_off, int c,
+                             int h, int w, int y0, int x0, int step) {
+  hf_cuk_view v;
+  v.base = buf + ch_off + ((size_t)y0 * bw + x0) * pix_stride;
+  v.sn = (long long)bh * bw * pix_stride;
+  v.sy = (long long)step * bw * pix_stride;
+  v.sx = (long long)step * pix_stride;
+  v.c = c;
+  v.h = h;
+  v.w = w;
+  return v;
+}
+
+static __half *at(const hf_cuk_view &v, int n, int y, int x, int k) {
+  return (__half *)v.base + n * v.sn + y * v.sy + x * v.sx + k;
+}
+
+static void fill(__half *p, size_t n) {
+  for (size_t i = 0; i < n; i++) p[i] = __float2half_rn(4 * frand() - 2);
+}
+
+static void test_bias_act(const char *what, int bh, int bw, int ps, int ch_off, int c, int y0,
+                          int x0, int step, int want_unit) {
+  const int batch = 2, h = (bh - y0 + step - 1) / step, w = (bw - x0 + step - 1) / step;
+  const size_t n = (size_t)batch * bh * bw * ps;
+  __half *buf = (__half *)dalloc(n * 2), *ref = (__half *)malloc(n * 2);
+  float *bias = (float *)dalloc(c * 4);
+  fill(buf, n);
+  memcpy(ref, buf, n * 2);
+  for (int k = 0; k < c; k++) bias[k] = frand() - 0.5f;
+  const hf_cuk_view v = make_view(buf, bh, bw, ps, ch_off, c, h, w, y0, x0, step);
+  const hf_cuk_view rv = make_view(ref, bh, bw, ps, ch_off, c, h, w, y0, x0, step);
+  const int u = unit_for_view(v);
+  CHECK(u == want_unit, "bias_act %s: access of %d elements, want %d", what, u, want_unit);
+  run_grid(shape((long long)w * (c / u), h, batch), [&](int uu, int y, int nn) {
+    switch (u) {
+    case 8: bias_act_unit<8>(v, bias, 1, uu, y, nn); break;
+    case 4: bias_act_unit<4>(v, bias, 1, uu, y, nn); break;
+    case 2: bias_act_unit<2>(v, bias, 1, uu, y, nn); break;
+    default: bias_act_unit<1>(v, bias, 1, uu, y, nn); break;
+    }
+  });
+  for (int nn = 0; nn < batch; nn++)
+    for (int y = 0; y < h; y++)
+      for (int x = 0; x < w; x++)
+        for (int k = 0; k < c; k++) {
+          __half *e = at(rv, nn, y, x, k);
+          *e = __float2half_rn(fmaxf(h2f(*e) + bias[k], 0.0f));
+        }
+  CHECK(!memcmp(buf, ref, n * 2), "bias_act %s: differs from the definition", what);
+  printf("  bias_act   %-28s %d-element accesses: %s\n", what, u,
+         memcmp(buf, ref, n * 2) ? "WRONG" : "exact");
+  free(buf);
+  free(ref);
+  free(bias);
+}
+
+static void test_copy(void) {
+  // The second half of a skip buffer (32 of 64 channels) to a dense
+  // tensor and back into a fresh buffer: the dense-copy fallback.
+  const int batch = 2, h = 11, w = 13, c = 32;
+  const size_t nb = (size_t)batch * h * w * 64, nd = (size_t)batch * h * w * c;
+  __half *skip = (__half *)dalloc(nb * 2), *dense = (__half *)dalloc(nd * 2),
+         *back = (__half *)dalloc(nb * 2);
+  fill(skip, nb);
+  memset(back, 0, nb * 2);
+  const hf_cuk_view sv = make_view(skip, h, w, 64, 32, c, h, w, 0, 0, 1);
+  const hf_cuk_view dv = make_view(dense, h, w, c, 0, c, h, w, 0, 0, 1);
+  const hf_cuk_view bv = make_view(back, h, w, 64, 32, c, h, w, 0, 0, 1);
+  const int u = unit_for_view(sv) < unit_for_view(dv) ? unit_for_view(sv) : unit_for_view(dv);
+  CHECK(u == 8, "copy: %d-element accesses, want 8", u);
+  run_grid(shape((long long)w * (c / 8), h, batch),
+           [&](int uu, int y, int n) { copy_unit<8>(dv, sv, uu, y, n); });
+  run_grid(shape((long long)w * (c / 8), h, batch),
+           [&](int uu, int y, int n) { copy_unit<8>(bv, dv, uu, y, n); });
+  int bad = 0;
+  for (size_t p = 0; p < (size_t)batch * h * w; p++)
+    for (int k = 0; k < 64; k++) {
+      const uint16_t *a = (const uint16_t *)skip + p * 64 + k, *b = (const uint16_t *)back + p * 64 + k;
+      bad += k < 32 ? *b != 0 : *a != *b;
+    }
+  CHECK(!bad, "copy: %d elements wrong", bad);
+  printf("  copy       strided -> dense -> strided, %d-element accesses: %s\n", u,
+         bad ? "WRONG" : "exact");
+  free(skip);
+  free(dense);
+  free(back);
+}
+
+static void test_d2s(int offset, int co, int ps, int ch_off) {
+  const int batch = 2, h = 12, w = 16, sh = h + offset, sw = w + offset;
+  const size_t ns = (size_t)batch * sh * sw * 4 * co, nd = (size_t)batch * 2 * h * 2 * w * ps;
+  __half *src = (__half *)dalloc(ns * 2), *dst = (__half *)dalloc(nd * 2);
+  fill(src, ns);
+  memset(dst, 0, nd * 2);
+  const hf_cuk_view v = make_view(dst, 2 * h, 2 * w, ps, ch_off, co, 2 * h, 2 * w, 0, 0, 1);
+  const int a = unit_for_view(v), b = unit_for(4 * co, co, 0, 0, src), u = a < b ? a : b;
+  run_grid(shape((long long)v.w * (co / u), v.h, batch), [&](int uu, int y, int n) {
+    switch (u) {
+    case 8: d2s_unit<8>(v, src, offset, uu, y, n); break;
+    case 4: d2s_unit<4>(v, src, offset, uu, y, n); break;
+    case 2: d2s_unit<2>(v, src, offset, uu, y, n); break;
+    default: d2s_unit<1>(v, src, offset, uu, y, n); break;
+    }
+  });
+  int bad = 0;
+  for (int n = 0; n < batch; n++)
+    for (int Y = 0; Y < 2 * h; Y++)
+      for (int X = 0; X < 2 * w; X++)
+        for (int k = 0; k < ps; k++) {
+          const int dy = Y % 2, dx = X % 2;
+          const uint16_t got = *(const uint16_t *)((dst + (((size_t)n * 2 * h + Y) * 2 * w + X) * ps + k));
+          uint16_t want = 0;
+          if (k >= ch_off && k < ch_off + co)
+            want = *(const uint16_t *)(src + (((size_t)n * sh + Y / 2 + dy * offset) * sw + X / 2 +
+                                              dx * offset) * 4 * co + (2 * dy + dx) * co + k - ch_off);
+          bad += got != want;
+        }
+  CHECK(!bad, "depth-to-space offset %d co %d: %d wrong", offset, co, bad);
+  printf("  d2s        offset %d, %2d channels into %2d (from %2d): %d-element accesses: %s\n",
+         offset, co, ps, ch_off, u, bad ? "WRONG" : "exact");
+  free(src);
+  free(dst);
+}
+
+// ---- output stages -----------------------------------------------------------
+
+static double rel_diff(double a, double b) { return fabs(a - b) / (fabs(b) > 1 ? fabs(b) : 1); }
+
+static void test_output(int residual, int d2s, int dst_f16) {
+  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4, cpad = 24;
+  // Raw output: dec0's OUT buffer (8 channels) or a D2S dec0 scratch
+  // ((ph/2+1) x (pw/2+1) pixels of 4 phases x 3 channels).
+  hf_cuk_raw raw;
+  memset(&raw, 0, sizeof raw);
+  raw.at.buf = d2s ? HF_CL_BUF_SCRATCH : HF_CL_BUF_OUT;
+  raw.at.pix_stride = d2s ? 12 : 8;
+  raw.at.rows = d2s ? ph / 2 + 1 : ph;
+  raw.at.cols = d2s ? pw / 2 + 1 : pw;
+  raw.at.div = d2s ? 2 : 1;
+  raw.at.offset = d2s ? 1 : 0;
+  raw.at.co = d2s ? 3 : 8;
+  const size_t nraw = (size_t)batch * raw.at.rows * raw.at.cols * raw.at.pix_stride;
+  __half *rbuf = (__half *)dalloc(nraw * 2);
+  fill(rbuf, nraw);
+  raw.data = rbuf;
+  // The FP16 network input: samples covered (alpha > 0) or not (all zero).
+  const size_t nin = (size_t)batch * ph * pw * cpad;
+  __half *in = (__half *)dalloc(nin * 2);
+  float *in32 = (float *)malloc(nin * 4);
+  for (size_t p = 0; p < (size_t)batch * ph * pw; p++)
+    for (int s = 0; s < spp; s++) {
+      const int covered = frand() < 0.6f;
+      for (int f = 0; f < 6; f++) {
+        const float v = covered ? (f == 2 ? 0.05f + 0.95f * frand() : frand()) : 0.0f;
+        in[p * cpad + s * 6 + f] = __float2half_rn(v);
+      }
+    }
+  for (size_t i = 0; i < nin; i++) in32[i] = h2f(in[i]);
+  const size_t nout = (size_t)batch * h * w * 3;
+  void *out = dalloc(nout * 4);
+  memset(out, 0xff, nout * 4);
+  if (!residual) {
+    run_grid(shape(w, h, batch),
+             [&](int x, int y, int n) { output_unet_px(raw, w, h, out, dst_f16, x, y, n); });
+  } else {
+    // One block per tile: the three phases, each by every thread, in order.
+    static float3 px[kHaloH][kHaloW], rows[kHaloH][kTileX];
+    for (int n = 0; n < batch; n++)
+      for (int by = 0; by < (h + kTileY - 1) / kTileY; by++)
+        for (int bx = 0; bx < (w + kTileX - 1) / kTileX; bx++) {
+          for (int t = 0; t < kTileX * kTileY; t++)
+            residual_load(px, in, cpad, pw, ph, spp, w, h, bx, by, n, t, kTileX * kTileY);
+          for (int t = 0; t < kTileX * kTileY; t++) residual_rows(px, rows, t, kTileX * kTileY);
+          for (int ty = 0; ty < kTileY; ty++)
+            for (int tx = 0; tx < kTileX; tx++)
+              residual_finish(rows, raw, spp, w, h, out, dst_f16, bx, by, n, tx, ty);
+        }
+  }
+  hf_net_config cfg;
+  hf_variant_preset(residual ? "Residual" : "Base", &cfg);
+  double worst = 0;
+  for (int n = 0; n < batch; n++) {
+    hf_input_view view = {in32 + (size_t)n * ph * pw * cpad, w, h, pw, cpad};
+    for (int y = 0; y < h; y++)
+      for (int x = 0; x < w; x++) {
+        const __half *r = raw_pixel(raw, n, y, x);
+        // Where the raw output is, spelled out: the phase's pixel and block.
+        const __half *r2 = d2s ? rbuf + (((size_t)n * raw.at.rows + y / 2 + y % 2) * raw.at.cols +
+                                         x / 2 + x % 2) * 12 + (2 * (y % 2) + x % 2) * 3
+                               : rbuf + (((size_t)n * ph + y) * pw + x) * 8;
+        CHECK(r == r2, "raw pixel (%d, %d) of frame %d at the wrong place", x, y, n);
+        float v[3] = {h2f(r2[0]), h2f(r2[1]), h2f(r2[2])};
+        hf_output_finish(&cfg, &view, x, y, v);
+        for (int k = 0; k < 3; k++) {
+          const size_t i = (((size_t)n * h + y) * w + x) * 3 + k;
+          const float got = dst_f16 ? h2f(((__half *)out)[i]) : ((float *)out)[i];
+          const float want = dst_f16 ? h2f(__float2half_rn(v[k])) : v[k];
+          const double d = rel_diff(got, want);
+          if (d > worst) worst = d;
+        }
+      }
+  }
+  // FP32 sums in another order (the window) and FP16 rounding of the result.
+  const double tol = dst_f16 ? 1e-3 : 1e-5;
+  CHECK(worst <= tol, "output %s%s %s: worst relative difference %.2e", residual ? "residual" : "unet",
+        d2s ? " (D2S phases)" : "", dst_f16 ? "f16" : "f32", worst);
+  printf("  output     %-8s raw %-10s -> %s: worst relative difference %.1e\n",
+         residual ? "residual" : "unet", d2s ? "D2S phases" : "OUT buffer", dst_f16 ? "f16" : "f32",
+         worst);
+  free(rbuf);
+  free(in);
+  free(in32);
+  free(out);
+}
+
+int main(void) {
+  printf("element-wise kernels of the cudnn backend, run on the CPU\n");
+  for (int f16 = 0; f16 <= 1; f16++) {
+    test_input(24, f16);
+    test_input(6, f16);
+    test_input(5, f16);  // odd: the element-by-element path
+  }
+  // Half of a skip buffer; a PHASE dec0 view (4 channels, step 2, odd
+  // column offset: 8-byte aligned); a dense 12-channel tensor.
+  test_bias_act("skip half (32 of 64)", 12, 17, 64, 32, 32, 0, 0, 1, 8);
+  test_bias_act("phase view (4, step 2, x0 1)", 12, 18, 4, 0, 4, 0, 1, 2, 4);
+  test_bias_act("dense 12 channels", 9, 7, 12, 0, 12, 0, 0, 1, 4);
+  test_copy();
+  test_d2s(1, 32, 64, 0);   // D2S into the first half of a skip buffer
+  test_d2s(0, 32, 64, 0);   // SHUFFLE
+  test_d2s(1, 3, 3, 0);     // 3 channels: single-element accesses
+  test_d2s(0, 8, 8, 0);
+  for (int residual = 0; residual <= 1; residual++)
+    for (int d2s = 0; d2s <= 1; d2s++)
+      for (int f16 = 0; f16 <= 1; f16++) test_output(residual, d2s, f16);
+  if (failures) {
+    printf("%d check(s) failed\n", failures);
+    return 1;
+  }
+  printf("PASSED\n");
+  return 0;
+}
