@@ -5,6 +5,21 @@
 
 #include "commands.h"
 
+#ifndef HF_HAVE_RENDERER
+/* render and demo draw hair with client/render, which this build leaves
+ * out (cmake -DHF_RENDERER=OFF, the build that travels to GPU machines). */
+static int cmd_no_renderer(int argc, char **argv) {
+  (void)argc;
+  fprintf(stderr,
+          "hairfilter %s: this hairfilter was built without the renderer "
+          "(-DHF_RENDERER=OFF); use a build with it\n",
+          argv[0]);
+  return 2;
+}
+#define cmd_demo cmd_no_renderer
+#define cmd_render cmd_no_renderer
+#endif
+
 static const struct {
   const char *name;
   int (*fn)(int, char **);
