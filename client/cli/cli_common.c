@@ -1,6 +1,8 @@
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "cli_common.h"
 
@@ -19,9 +21,44 @@ int cli_parse_size(const char *s, int *w, int *h) {
   return 0;
 }
 
+/* A directory holds the bundled data when it has the network's Python
+ * definition beside the weights (what bench --torch and demo read). */
+static int is_data_dir(const char *dir) {
+  char path[PATH_MAX];
+  int n = snprintf(path, sizeof path, "%s/weights/hfnet.py", dir);
+  return n > 0 && (size_t)n < sizeof path && access(path, R_OK) == 0;
+}
+
 const char *cli_data_dir(void) {
+  static char found[PATH_MAX];
   const char *env = getenv("HAIRFILTER_DATA");
-  return env && *env ? env : HF_SOURCE_DIR;
+  if (env && *env) return env;
+  if (found[0]) return found;
+  /* Beside the executable: build/hairfilter in a checkout, bin/hairfilter
+   * in a copy of the tree carried to another machine, or an installed
+   * bin/ with ../share/hairfilter. The source tree this was built from
+   * comes last: on another machine it does not exist. */
+  char exe[PATH_MAX];
+  ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+  if (n > 0) {
+    exe[n] = 0;
+    char *slash;
+    for (int up = 0; up < 4 && (slash = strrchr(exe, '/')) != NULL; up++) {
+      *slash = 0;
+      if (!exe[0]) break;
+      if (is_data_dir(exe)) {
+        snprintf(found, sizeof found, "%s", exe);
+        return found;
+      }
+      char share[PATH_MAX];
+      if (snprintf(share, sizeof share, "%s/share/hairfilter", exe) < (int)sizeof share &&
+          is_data_dir(share)) {
+        snprintf(found, sizeof found, "%s", share);
+        return found;
+      }
+    }
+  }
+  return HF_SOURCE_DIR;
 }
 
 int cli_open_backend(const char *name, hf_backend **out) {

@@ -8,8 +8,11 @@
 int cli_parse_rgb(const char *s, float rgb[3]);
 /* Parses "WxH"; 0 on success. */
 int cli_parse_size(const char *s, int *w, int *h);
-/* Where bundled data (weights/, examples) lives: $HAIRFILTER_DATA, else the
- * source tree this binary was built from. */
+/* Where bundled data (weights/, bench/) lives: $HAIRFILTER_DATA; else the
+ * first directory holding weights/hfnet.py among the executable's own
+ * directory and its parents (a checkout's build/, a carried or installed
+ * bin/, with share/hairfilter looked at too); else the source tree this
+ * binary was built from. */
 const char *cli_data_dir(void);
 /* Creates the backend by name and prints one line saying which and why. */
 int cli_open_backend(const char *name, hf_backend **out);

@@ -5,7 +5,10 @@
  * Timing: per iteration the wall time of one hf_model_run of a batch
  * (input conversion, network, output transforms), after warm-up; the table
  * gives the median and 90th percentile over iterations divided by the batch.
- * "net ms" is the median of the backend's own infer_us alone.
+ * "net ms" is the median of the backend's own infer_us alone. With
+ * --pipeline, batches are submitted two at a time (hf_model_submit: the
+ * next one uploads while this one computes) and an iteration is the time
+ * between two consecutive completions, i.e. throughput.
  *
  * --input-stats adds a table of what judging a frame's input against a
  * trained range costs (hf_input_stats_compute, as hairfilterd runs it per
@@ -46,8 +49,9 @@ typedef struct bench_opts {
   int nsizes, ref_max_side;
   int batches[BENCH_MAX_LIST];
   int nbatches;
-  int iters, warmup, torch, input_stats;
-  const char *torch_device;
+  int iters, warmup, torch, input_stats, pipeline;
+  hf_dtype io_dtype;
+  const char *torch_device, *python;
   uint64_t seed;
 } bench_opts;
 
@@ -59,16 +63,21 @@ static void usage(FILE *f) {
           "usage: hairfilter bench [--backend cpu,cpu-ref,cudnn|all] [--variants Base,...|all]\n"
           "                        [--sizes 256x256,512x512,1024x1024] [--batch 1,4]\n"
           "                        [--iters N] [--warmup N] [--seed N] [--ref-max-side N]\n"
-          "                        [--torch] [--torch-device cpu|cuda] [--input-stats]\n"
+          "                        [--io f32|f16] [--pipeline] [--input-stats]\n"
+          "                        [--torch] [--torch-device cpu|cuda] [--python PATH]\n"
           "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
           "table of ms per frame (median, p90 over iterations after warm-up), frames/s and\n"
           "device memory. cpu-ref runs only sizes whose sides are at most --ref-max-side\n"
           "(default %d), and at most %d iterations after 1 warm-up.\n"
-          "--torch adds PyTorch rows (bench/bench_torch.py via /usr/bin/python3) on the same\n"
-          "weights. --input-stats adds what the per-frame input statistics cost at each size\n"
-          "(4 spp, f32 and f16, half the samples covered) beside a memcpy of the frame.\n"
-          "Defaults: every backend in this build, Base, the three sizes, batch 1,\n"
-          "20 iterations, 3 warm-up.\n",
+          "--io f16 sends and receives FP16 tensors (default f32). --pipeline keeps two\n"
+          "batches in flight (hf_model_submit/wait) and times completions: throughput.\n"
+          "--torch adds PyTorch rows (bench/bench_torch.py, found under the data directory:\n"
+          "$HAIRFILTER_DATA, else beside this executable) on the same weights, run by\n"
+          "--python, else $HAIRFILTER_PYTHON, else the first of python3 on PATH and\n"
+          "/usr/bin/python3 that imports torch. --input-stats adds what the per-frame input\n"
+          "statistics cost at each size (4 spp, f32 and f16, half the samples covered)\n"
+          "beside a memcpy of the frame. Defaults: every backend in this build, Base, the\n"
+          "three sizes, batch 1, 20 iterations, 3 warm-up.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
@@ -89,7 +98,9 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     {"iters", required_argument, 0, 'i'},   {"warmup", required_argument, 0, 'w'},
     {"seed", required_argument, 0, 'S'},    {"torch", no_argument, 0, 't'},
     {"torch-device", required_argument, 0, 'd'}, {"ref-max-side", required_argument, 0, 'r'},
-    {"help", no_argument, 0, 'h'},          {"input-stats", no_argument, 0, 'I'},
+    {"python", required_argument, 0, 'p'},  {"io", required_argument, 0, 'o'},
+    {"pipeline", no_argument, 0, 'P'},      {"input-stats", no_argument, 0, 'I'},
+    {"help", no_argument, 0, 'h'},
     {0, 0, 0, 0},
   };
   static char buf_b[512], buf_v[512], buf_s[512], buf_n[256];
@@ -124,6 +135,15 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     case 'S': o->seed = strtoull(optarg, &end, 10); if (*end) return 2; break;
     case 't': o->torch = 1; break;
     case 'I': o->input_stats = 1; break;
+    case 'p': o->python = optarg; break;
+    case 'P': o->pipeline = 1; break;
+    case 'o':
+      if (strcmp(optarg, "f32") && strcmp(optarg, "f16")) {
+        fprintf(stderr, "hairfilter bench: --io is f32 or f16\n");
+        return 2;
+      }
+      o->io_dtype = !strcmp(optarg, "f16") ? HF_F16 : HF_F32;
+      break;
     case 'd':
       if (strcmp(optarg, "cpu") && strcmp(optarg, "cuda")) {
         fprintf(stderr, "hairfilter bench: --torch-device is cpu or cuda\n");
@@ -294,41 +314,61 @@ static int bench_input_stats(const bench_opts *o) {
   return 0;
 }
 
+static double now_ms(void) { return clock_ms(CLOCK_MONOTONIC); }
+
 static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, int iters,
-                     int warmup, uint64_t seed) {
+                     int warmup, uint64_t seed, hf_dtype dt, int pipeline) {
   const hf_net_config *c = hf_model_config(m);
-  size_t px = (size_t)batch * w * h;
-  float *in = malloc(px * c->in_channels * sizeof(float));
-  float *out = malloc(px * 3 * sizeof(float));
+  const size_t px = (size_t)batch * w * h, es = dt == HF_F16 ? 2 : 4;
+  const size_t nin = px * c->in_channels;
+  /* Two sets of buffers: with --pipeline one batch is in flight while the
+   * next is submitted. */
+  void *in[2] = {malloc(nin * es), malloc(nin * es)};
+  void *out[2] = {malloc(px * 3 * es), malloc(px * 3 * es)};
+  float *tmp = malloc(nin * sizeof(float));
   double *wall = malloc(iters * sizeof(double)), *net = malloc(iters * sizeof(double));
   double *tin = malloc(iters * sizeof(double)), *tout = malloc(iters * sizeof(double));
-  int rc = HF_ENOMEM;
-  if (!in || !out || !wall || !net || !tin || !tout) goto out;
-  fill_input(in, px * c->in_channels, seed);
-  hf_io io = {batch, w, h, in, HF_F32, out, HF_F32};
+  int rc = HF_ENOMEM, pending = 0;
+  if (!in[0] || !in[1] || !out[0] || !out[1] || !tmp || !wall || !net || !tin || !tout) goto out;
+  fill_input(tmp, nin, seed);
+  for (int b = 0; b < 2; b++) {
+    if (dt == HF_F16) hf_f32_to_f16_array(tmp, in[b], nin);
+    else memcpy(in[b], tmp, nin * sizeof(float));
+  }
+  hf_io io[2] = {{batch, w, h, in[0], dt, out[0], dt}, {batch, w, h, in[1], dt, out[1], dt}};
   hf_timing t;
+  double last = now_ms();
+  if (pipeline && (rc = hf_model_submit(m, &io[0])) != 0) goto fail;
+  pending = pipeline;
   for (int k = 0; k < warmup + iters; k++) {
-    struct timespec t0, t1;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
-    if ((rc = hf_model_run(m, &io, &t)) != 0) {
-      fprintf(stderr, "hairfilter bench: %s %s %dx%d batch %d: %s\n", backend, c->name, w, h,
-              batch, hf_strerror(rc));
-      goto out;
+    const double t0 = now_ms();
+    if (pipeline) {
+      /* Submit the next batch before waiting for this one. */
+      if (k + 1 < warmup + iters) {
+        if ((rc = hf_model_submit(m, &io[(k + 1) % 2])) != 0) goto fail;
+        pending++;
+      }
+      pending--;
+      if ((rc = hf_model_wait(m, &t)) != 0) goto fail;
+    } else if ((rc = hf_model_run(m, &io[0], &t)) != 0) {
+      goto fail;
     }
-    clock_gettime(CLOCK_MONOTONIC, &t1);
+    const double t1 = now_ms();
     if (k >= warmup) {
-      wall[k - warmup] = (t1.tv_sec - t0.tv_sec) * 1e3 + (t1.tv_nsec - t0.tv_nsec) * 1e-6;
+      wall[k - warmup] = pipeline ? t1 - last : t1 - t0;
       net[k - warmup] = t.infer_us * 1e-3;
       tin[k - warmup] = t.input_us * 1e-3;
       tout[k - warmup] = t.output_us * 1e-3;
     }
+    last = t1;
   }
   bench_row *r = new_row();
   if (!r) {
     rc = HF_ERANGE;
     goto out;
   }
-  snprintf(r->backend, sizeof r->backend, "%s", backend);
+  snprintf(r->backend, sizeof r->backend, "%s%s%s", backend, dt == HF_F16 ? "-f16io" : "",
+           pipeline ? "-pipe" : "");
   snprintf(r->variant, sizeof r->variant, "%s", c->name);
   snprintf(r->precision, sizeof r->precision, "%s", hf_model_precision(m));
   r->w = w, r->h = h, r->batch = batch, r->iters = iters;
@@ -341,9 +381,17 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", backend, c->name, w, h,
           batch, r->med_ms);
   rc = HF_OK;
+  goto out;
+fail:
+  fprintf(stderr, "hairfilter bench: %s %s %dx%d batch %d: %s\n", backend, c->name, w, h, batch,
+          hf_strerror(rc));
 out:
-  free(in);
-  free(out);
+  while (pending-- > 0) hf_model_wait(m, NULL);
+  free(in[0]);
+  free(in[1]);
+  free(out[0]);
+  free(out[1]);
+  free(tmp);
   free(wall);
   free(net);
   free(tin);
@@ -374,9 +422,58 @@ static int write_weights(const bench_opts *o, const char *dir, char *paths, size
   return 0;
 }
 
+/* Whether a path can go inside single quotes on a shell command line. */
+static int shell_safe(const char *s) { return s && *s && !strchr(s, '\''); }
+
+/* The Python that runs bench_torch.py: --python, $HAIRFILTER_PYTHON, else
+ * the first candidate that imports torch (a GPU machine's PyTorch often
+ * lives in another Python than Debian's /usr/bin/python3). */
+static const char *find_python(const bench_opts *o, char *why, size_t whylen) {
+  const char *env = getenv("HAIRFILTER_PYTHON");
+  if (o->python) {
+    snprintf(why, whylen, "--python");
+    return o->python;
+  }
+  if (env && *env) {
+    snprintf(why, whylen, "$HAIRFILTER_PYTHON");
+    return env;
+  }
+  static const char *const candidates[] = {"python3", "/usr/bin/python3"};
+  for (size_t i = 0; i < sizeof candidates / sizeof candidates[0]; i++) {
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "'%s' -c 'import torch' >/dev/null 2>&1", candidates[i]);
+    int st = system(cmd);
+    if (st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 0) {
+      snprintf(why, whylen, "the first of python3 on PATH, /usr/bin/python3 that imports torch");
+      return candidates[i];
+    }
+  }
+  snprintf(why, whylen, "none of python3 on PATH, /usr/bin/python3 imports torch; give --python");
+  return NULL;
+}
+
 /* Runs bench_torch.py and appends its ROW lines. */
 static int run_torch(const bench_opts *o) {
   char dir[] = "/tmp/hairfilter-bench-XXXXXX", paths[4096], cmd[8192], list[1024];
+  char script[4096], how[160];
+  const char *python = find_python(o, how, sizeof how);
+  if (!python) {
+    fprintf(stderr, "hairfilter bench: --torch: %s\n", how);
+    return HF_ENOTFOUND;
+  }
+  snprintf(script, sizeof script, "%s/bench/bench_torch.py", cli_data_dir());
+  if (access(script, R_OK) != 0) {
+    fprintf(stderr,
+            "hairfilter bench: --torch: cannot read %s (%s); set HAIRFILTER_DATA to the "
+            "directory holding bench/ and weights/\n",
+            script, strerror(errno));
+    return HF_ENOTFOUND;
+  }
+  if (!shell_safe(python) || !shell_safe(script)) {
+    fprintf(stderr, "hairfilter bench: --torch: paths with a ' are not supported\n");
+    return HF_EINVAL;
+  }
+  fprintf(stderr, "hairfilter bench: PyTorch: %s through %s (%s)\n", script, python, how);
   if (!mkdtemp(dir)) {
     fprintf(stderr, "hairfilter bench: mkdtemp: %s\n", strerror(errno));
     return HF_EIO;
@@ -396,9 +493,8 @@ static int run_torch(const bench_opts *o) {
     used += snprintf(batches + used, sizeof batches - used, "%s%d", i ? "," : "",
                      o->batches[i]);
   int k = snprintf(cmd, sizeof cmd,
-                   "/usr/bin/python3 '%s/bench/bench_torch.py' --sizes %s --batch %s "
-                   "--iters %d --warmup %d --device %s%s",
-                   cli_data_dir(), list, batches, o->iters, o->warmup, o->torch_device, paths);
+                   "'%s' '%s' --sizes %s --batch %s --iters %d --warmup %d --device %s%s", python,
+                   script, list, batches, o->iters, o->warmup, o->torch_device, paths);
   if (k < 0 || (size_t)k >= sizeof cmd) {
     rc = HF_ERANGE;
     goto out;
@@ -406,7 +502,7 @@ static int run_torch(const bench_opts *o) {
   fprintf(stderr, "hairfilter bench: %s\n", cmd);
   FILE *p = popen(cmd, "r");
   if (!p) {
-    fprintf(stderr, "hairfilter bench: cannot run /usr/bin/python3: %s\n", strerror(errno));
+    fprintf(stderr, "hairfilter bench: cannot run %s: %s\n", python, strerror(errno));
     rc = HF_EIO;
     goto out;
   }
@@ -432,9 +528,11 @@ static int run_torch(const bench_opts *o) {
   }
   int st = pclose(p);
   if (st == -1 || !WIFEXITED(st) || WEXITSTATUS(st) != 0) {
-    fprintf(stderr, "hairfilter bench: bench_torch.py failed (%s %d)\n",
+    fprintf(stderr, "hairfilter bench: bench_torch.py failed (%s %d)%s%s\n",
             st != -1 && WIFEXITED(st) ? "exit status" : "wait status",
-            st != -1 && WIFEXITED(st) ? WEXITSTATUS(st) : st);
+            st != -1 && WIFEXITED(st) ? WEXITSTATUS(st) : st,
+            st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 127 ? ": could not run " : "",
+            st != -1 && WIFEXITED(st) && WEXITSTATUS(st) == 127 ? python : "");
     rc = HF_EBACKEND;
   }
 out:
@@ -517,7 +615,7 @@ int cmd_bench(int argc, char **argv) {
         for (int n = 0; n < o.nbatches; n++)
           if (bench_one(m, hf_backend_name(be), o.sizes[s][0], o.sizes[s][1], o.batches[n],
                         is_ref && o.iters > BENCH_REF_ITERS ? BENCH_REF_ITERS : o.iters,
-                        is_ref && o.warmup > 1 ? 1 : o.warmup, o.seed))
+                        is_ref && o.warmup > 1 ? 1 : o.warmup, o.seed, o.io_dtype, o.pipeline))
             failed = 1;
       }
       hf_model_destroy(m);
