@@ -33,6 +33,11 @@ static void usage(FILE *f) {
           "  --stall-timeout-ms N     close a connection silent this long mid-frame or before\n"
           "                           HELLO (default 30000; 0: never)\n"
           "  --ready-file PATH        write the listening URLs here once serving\n"
+          "  --warm WxH[xN][,...]     before serving, build every variant's plan for these\n"
+          "                           frame sizes and batches (default batch 1); a GPU backend\n"
+          "                           otherwise builds one on the first request of a shape\n"
+          "  --pipeline-depth N       backend runs in flight: 2 (default) uploads the next\n"
+          "                           frame while one computes, 1 runs one at a time\n"
           "  --name NAME              server name in HELLO_OK (default hairfilterd)\n"
           "  --verbose                log connections too\n");
 }
@@ -73,6 +78,44 @@ static int read_token(const char *path, char *dst) {
   return 0;
 }
 
+/* --warm WxH[xN][,WxH[xN]...], checked against --max-size and --max-batch
+ * (so give those first). */
+static int parse_warm(const char *list, hfd_config *cfg) {
+  char buf[1024];
+  if (strlen(list) >= sizeof buf) {
+    fprintf(stderr, "hairfilterd: --warm list too long\n");
+    return -1;
+  }
+  strcpy(buf, list);
+  char *save = NULL;
+  for (char *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+    int w, h, n = 1;
+    char tail;
+    int got = sscanf(tok, "%dx%dx%d%c", &w, &h, &n, &tail);
+    if ((got != 2 && got != 3) || w < 1 || h < 1 || w > cfg->max_width || h > cfg->max_height ||
+        n < 1 || n > cfg->max_batch) {
+      fprintf(stderr,
+              "hairfilterd: --warm wants WxH or WxHxBATCH within --max-size %dx%d and "
+              "--max-batch %d, not '%s'\n",
+              cfg->max_width, cfg->max_height, cfg->max_batch, tok);
+      return -1;
+    }
+    if (cfg->num_warm == HFD_MAX_WARM) {
+      fprintf(stderr, "hairfilterd: at most %d --warm shapes\n", HFD_MAX_WARM);
+      return -1;
+    }
+    cfg->warm[cfg->num_warm].width = w;
+    cfg->warm[cfg->num_warm].height = h;
+    cfg->warm[cfg->num_warm].batch = n;
+    cfg->num_warm++;
+  }
+  if (!cfg->num_warm) {
+    fprintf(stderr, "hairfilterd: --warm needs at least one WxH\n");
+    return -1;
+  }
+  return 0;
+}
+
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   memset(cfg, 0, sizeof *cfg);
   cfg->backend = "auto";
@@ -87,7 +130,9 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   cfg->drain_timeout_ms = 10000;
   cfg->stall_timeout_ms = 30000;
   cfg->name = "hairfilterd";
+  cfg->pipeline_depth = 2;
   const char *token_file = NULL;
+  const char *warm = NULL;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
     const char *val = i + 1 < argc ? argv[i + 1] : NULL;
@@ -180,6 +225,13 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       NEED_VAL;
       if (parse_int(a, val, 0, 3600000, &v)) return -1;
       cfg->stall_timeout_ms = (int)v;
+    } else if (!strcmp(a, "--warm")) {
+      NEED_VAL;
+      warm = val;
+    } else if (!strcmp(a, "--pipeline-depth")) {
+      NEED_VAL;
+      if (parse_int(a, val, 1, 2, &v)) return -1;
+      cfg->pipeline_depth = (int)v;
     } else if (!strcmp(a, "--ready-file")) {
       NEED_VAL;
       cfg->ready_file = val;
@@ -210,6 +262,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
     fprintf(stderr, "hairfilterd: no variants: give --weights FILE or --weights-dir DIR\n");
     return -1;
   }
+  if (warm && parse_warm(warm, cfg)) return -1;
   if (token_file) {
     if (read_token(token_file, cfg->token)) return -1;
   } else {

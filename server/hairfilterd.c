@@ -411,6 +411,8 @@ int main(int argc, char **argv) {
   w->num_variants = s->num_variants;
   w->max_batch = cfg.max_batch;
   w->max_delay_us = cfg.max_queue_delay_us;
+  w->pipeline_depth = cfg.pipeline_depth;
+  w->cfg = &cfg;
   w->q_cap = cfg.queue_size;
   w->async = &s->async;
   int rc = uv_async_init(s->loop, &s->async, hfd_on_async);

@@ -21,6 +21,7 @@
 #include "hfproto.h"
 
 #define HFD_MAX_LISTENERS 8
+#define HFD_MAX_WARM      16
 #define HFD_MAX_VARIANTS  HFP_MAX_VARIANTS
 
 /* ---- logging ----------------------------------------------------------- */
@@ -56,6 +57,12 @@ typedef struct hfd_config {
   char token[HFP_TOKEN_MAX + 1];
   const char *ready_file;
   const char *name;
+  /* Shapes whose plans every variant builds before serving (--warm). */
+  struct {
+    int width, height, batch;
+  } warm[HFD_MAX_WARM];
+  int num_warm;
+  int pipeline_depth;            /* backend runs pending at once: 1 or 2 */
 } hfd_config;
 
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg);
@@ -89,6 +96,7 @@ typedef struct hfd_seg {
   uint64_t size;
   int refs;                      /* jobs using it */
   int dropped;                   /* no longer reachable by id */
+  int registered;                /* pinned by the backend (hf_backend_host_register) */
 } hfd_seg;
 
 typedef struct hfd_job {
@@ -131,6 +139,8 @@ typedef struct hfd_worker {
   int num_variants;
   int max_batch;
   double max_delay_us;
+  int pipeline_depth;
+  const hfd_config *cfg;         /* for the warm shapes */
   uv_async_t *async;
   /* worker-private */
   hf_backend *backend;

@@ -52,12 +52,27 @@ int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *
   g->addr = addr;
   g->size = bytes;
   s->shm_held += bytes;
+  /* A GPU backend pins the segment once, so requests in it are copied by
+   * DMA with no staging copy; if it cannot, they are staged (slower, same
+   * results), which is said once. */
+  if (s->worker.backend) {
+    int rc = hf_backend_host_register(s->worker.backend, addr, (size_t)bytes);
+    g->registered = rc == HF_OK;
+    static int warned;
+    if (rc && !warned) {
+      warned = 1;
+      hfd_log("warning: %s could not pin a shared-memory segment (%s); requests in segments "
+              "are staged", hf_backend_name(s->worker.backend), hf_strerror(rc));
+    }
+  }
   *out = g;
   *fd = f;
   return 0;
 }
 
 static void seg_free(hfd_server *s, hfd_seg *g) {
+  /* No job uses the segment any more (refs == 0): no transfer is pending. */
+  if (g->registered) hf_backend_host_unregister(s->worker.backend, g->addr);
   if (munmap(g->addr, (size_t)g->size) != 0)
     hfd_log("error: munmap of a %llu-byte segment: %s", (unsigned long long)g->size,
             strerror(errno));

@@ -5,6 +5,14 @@
  * max_delay_us for partners, like Triton's dynamic batcher) and hands the
  * finished jobs back to the loop thread through uv_async_send.
  *
+ * With pipeline_depth 2, a batch that goes straight from its request's
+ * buffers to its reply's (one frame, no composite) is submitted
+ * (hf_model_submit) and left pending while the next batch is formed and
+ * submitted, so a GPU backend uploads frame n+1 while it computes frame n;
+ * the pending batch is then waited for and completed, always before the
+ * newer one. Batches that need the worker's scratch buffers run one at a
+ * time as before.
+ *
  * GPU libraries tie handles and streams to the thread that made them, so
  * the backend is created here, not in main().
  */
@@ -68,14 +76,29 @@ static int finish_from_f32(hfd_worker *w, hfd_job *j, const float *res) {
   return 0;
 }
 
-static void run_batch(hfd_worker *w, hfd_job **batch, int nb) {
-  hfd_job *j0 = batch[0];
-  hfd_variant *v = &w->variants[j0->variant];
-  double t0 = hfd_now_us();
+/* One batch from its start to its completion. */
+typedef struct run {
+  hfd_job **jobs;
+  int nb;
+  int direct;                    /* request buffers in, reply buffer out */
+  int rc;
+  double t0, t1, t2;             /* started, submitted, backend finished */
+  hf_timing t;
+} run;
+
+/* Gathers the batch's inputs and makes its hf_io. Fast path: one frame
+ * whose output goes straight to its buffer. Else inputs are gathered into
+ * one tensor and the run has float32 output, converted per job: that is
+ * also where the composite is made. */
+static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
+  hfd_job *j0 = r->jobs[0];
+  const hfd_variant *v = &w->variants[j0->variant];
+  const int nb = r->nb;
+  r->t0 = hfd_now_us();
   for (int i = 0; i < nb; i++) {
-    batch[i]->t_started = t0;
-    batch[i]->batch = (uint32_t)nb;
-    batch[i]->batch_leader = i == 0;
+    r->jobs[i]->t_started = r->t0;
+    r->jobs[i]->batch = (uint32_t)nb;
+    r->jobs[i]->batch_leader = i == 0;
   }
   size_t in_bytes = (size_t)j0->req.data_len;
   size_t px = (size_t)j0->req.width * j0->req.height;
@@ -84,63 +107,66 @@ static void run_batch(hfd_worker *w, hfd_job **batch, int nb) {
    * time; variants whose weights record no range skip it. */
   for (int i = 0; v->range.present && i < nb; i++) {
     hf_input_stats st;
-    hfd_job *j = batch[i];
+    hfd_job *j = r->jobs[i];
     j->out_of_range =
         !hf_input_stats_compute(j->input, (hf_dtype)j->req.in_dtype, (int)j->req.width,
                                 (int)j->req.height, v->cfg.spp, &st) &&
         hf_input_range_check(&v->range, &st) != 0;
   }
   int composite = 0;
-  for (int i = 0; i < nb; i++) composite |= batch[i]->rgba != NULL;
-  /* Fast path: one frame whose output goes straight to its buffer. Else
-   * gather inputs into one tensor and run with float32 output, converting
-   * per job: that is also where the composite is made. */
-  int direct = nb == 1 && !composite;
+  for (int i = 0; i < nb; i++) composite |= r->jobs[i]->rgba != NULL;
+  r->direct = nb == 1 && !composite;
   const void *in = j0->input;
-  int rc = 0;
   if (nb > 1) {
-    if (ensure(&w->scratch_in, &w->scratch_in_cap, in_bytes * nb)) {
-      rc = HF_ENOMEM;
-      goto done;
-    }
+    if (ensure(&w->scratch_in, &w->scratch_in_cap, in_bytes * nb)) return HF_ENOMEM;
     for (int i = 0; i < nb; i++)
-      memcpy((uint8_t *)w->scratch_in + in_bytes * i, batch[i]->input, in_bytes);
+      memcpy((uint8_t *)w->scratch_in + in_bytes * i, r->jobs[i]->input, in_bytes);
     in = w->scratch_in;
   }
-  if (!direct && ensure(&w->scratch_out, &w->scratch_out_cap, px * 3 * sizeof(float) * nb)) {
-    rc = HF_ENOMEM;
-    goto done;
-  }
-  double t1 = hfd_now_us();
-  hf_io io = {nb, (int)j0->req.width, (int)j0->req.height, in, (hf_dtype)j0->req.in_dtype,
-              direct ? j0->out : w->scratch_out, direct ? (hf_dtype)j0->req.out_dtype : HF_F32};
-  hf_timing t = {0, 0, 0};
-  rc = hf_model_run(v->model, &io, &t);
-  double t2 = hfd_now_us();
-  if (rc) goto done;
-  if (!direct)
+  if (!r->direct && ensure(&w->scratch_out, &w->scratch_out_cap, px * 3 * sizeof(float) * nb))
+    return HF_ENOMEM;
+  *io = (hf_io){nb, (int)j0->req.width, (int)j0->req.height, in, (hf_dtype)j0->req.in_dtype,
+                r->direct ? j0->out : w->scratch_out,
+                r->direct ? (hf_dtype)j0->req.out_dtype : HF_F32};
+  r->t1 = hfd_now_us();
+  return HF_OK;
+}
+
+/* The backend is done with the batch (r->rc, r->t): outputs, timings,
+ * status. */
+static void finish_run(hfd_worker *w, run *r) {
+  hfd_job *j0 = r->jobs[0];
+  hfd_variant *v = &w->variants[j0->variant];
+  const int nb = r->nb;
+  size_t px = (size_t)j0->req.width * j0->req.height;
+  int rc = r->rc;
+  if (!rc && !r->direct)
     for (int i = 0; i < nb && !rc; i++)
-      if (finish_from_f32(w, batch[i], (const float *)w->scratch_out + px * 3 * i))
+      if (finish_from_f32(w, r->jobs[i], (const float *)w->scratch_out + px * 3 * i))
         rc = HF_ENOMEM;
   double t3 = hfd_now_us();
+  if (!rc)
+    for (int i = 0; i < nb; i++) {
+      hfp_timing *tm = &r->jobs[i]->timing;
+      tm->input_us = us((r->t1 - r->t0) + r->t.input_us);
+      tm->infer_us = us(r->t.infer_us);
+      /* What the backend did not attribute to input or inference is output
+       * work (transforms, crop, download), plus our own conversion. A
+       * pipelined run's backend time includes the wait behind the run
+       * before it, which is queueing, not output: left out. */
+      double rest = (r->t2 - r->t1) - r->t.input_us - r->t.infer_us;
+      if (w->pipeline_depth > 1 && r->direct) rest = r->t.output_us;
+      tm->output_us = us((rest > 0 ? rest : 0) + (t3 - r->t2));
+    }
   for (int i = 0; i < nb; i++) {
-    hfp_timing *tm = &batch[i]->timing;
-    tm->input_us = us((t1 - t0) + t.input_us);
-    tm->infer_us = us(t.infer_us);
-    /* What the backend did not attribute to input or inference is output
-     * work (transforms, crop, download), plus our own conversion. */
-    double rest = (t2 - t1) - t.input_us - t.infer_us;
-    tm->output_us = us((rest > 0 ? rest : 0) + (t3 - t2));
-  }
-done:
-  for (int i = 0; i < nb; i++) {
-    batch[i]->status = rc ? HFP_E_INTERNAL : HFP_OK;
-    batch[i]->t_done = hfd_now_us();
+    r->jobs[i]->status = rc ? HFP_E_INTERNAL : HFP_OK;
+    r->jobs[i]->t_done = hfd_now_us();
   }
   if (rc)
     hfd_log("error: variant %s: inference of %d frame(s) %ux%u failed: %s", v->name, nb,
             j0->req.width, j0->req.height, hf_strerror(rc));
 }
+
 
 static void complete(hfd_worker *w, hfd_job **batch, int nb) {
   pthread_mutex_lock(&w->mu);
@@ -209,6 +235,21 @@ static int init_models(hfd_worker *w) {
     snprintf(v->precision, sizeof v->precision, "%s", hf_model_precision(v->model));
     hf_weights_free(v->weights);
     v->weights = NULL;
+    /* Plans for the configured shapes now, so no request waits for one. */
+    for (int k = 0; w->cfg && k < w->cfg->num_warm; k++) {
+      const int ww = w->cfg->warm[k].width, hh = w->cfg->warm[k].height,
+                nb = w->cfg->warm[k].batch;
+      const double t0 = hfd_now_us();
+      rc = hf_model_prepare(v->model, nb, ww, hh);
+      if (rc) {
+        snprintf(w->init_msg, sizeof w->init_msg,
+                 "variant %s: preparing %dx%d batch %d on %s failed: %s", v->name, ww, hh, nb,
+                 hf_backend_name(w->backend), hf_strerror(rc));
+        return rc;
+      }
+      hfd_log("variant %s: %dx%d batch %d prepared in %.2f s", v->name, ww, hh, nb,
+              (hfd_now_us() - t0) / 1e6);
+    }
   }
   return 0;
 }
@@ -225,6 +266,17 @@ static void release_models(hfd_worker *w) {
   free(w->scratch_rgb);
 }
 
+static void complete(hfd_worker *w, hfd_job **batch, int nb);
+
+/* Waits for the pending run (submitted earlier) and completes its jobs. */
+static void finish_pending(hfd_worker *w, run *p) {
+  p->rc = hf_model_wait(w->variants[p->jobs[0]->variant].model, &p->t);
+  p->t2 = hfd_now_us();
+  finish_run(w, p);
+  complete(w, p->jobs, p->nb);
+  p->nb = 0;
+}
+
 static void *worker_main(void *arg) {
   hfd_worker *w = arg;
   int rc = init_models(w);
@@ -237,14 +289,25 @@ static void *worker_main(void *arg) {
     release_models(w);
     return NULL;
   }
-  hfd_job **batch = calloc((size_t)w->max_batch, sizeof *batch);
-  if (!batch) {
+  /* Two batch tables: the one being formed, and the pending one. */
+  hfd_job **tables = calloc((size_t)w->max_batch * 2, sizeof *tables);
+  if (!tables) {
     hfd_log("error: worker: out of memory for the batch table");
     abort();
   }
+  run cur = {tables, 0, 0, 0, 0, 0, 0, {0, 0, 0}};
+  run pend = {tables + w->max_batch, 0, 0, 0, 0, 0, 0, {0, 0, 0}};
+  hfd_job **batch = cur.jobs;
   pthread_mutex_lock(&w->mu);
   for (;;) {
-    while (!w->q_head && !w->stop) pthread_cond_wait(&w->cv, &w->mu);
+    while (!w->q_head && !w->stop && !pend.nb) pthread_cond_wait(&w->cv, &w->mu);
+    if (!w->q_head && pend.nb) {
+      /* Nothing to overlap with: finish the pending batch now. */
+      pthread_mutex_unlock(&w->mu);
+      finish_pending(w, &pend);
+      pthread_mutex_lock(&w->mu);
+      continue;
+    }
     if (!w->q_head) break;  /* stop requested and nothing left */
     hfd_job *j0 = w->q_head;
     w->q_head = j0->next;
@@ -260,7 +323,8 @@ static void *worker_main(void *arg) {
         batch[nb++] = j;
         continue;
       }
-      if (w->stop || hfd_now_us() >= deadline) break;
+      /* A pending batch is not kept waiting for partners of this one. */
+      if (w->stop || pend.nb || hfd_now_us() >= deadline) break;
       struct timespec ts;
       deadline_ts(deadline, &ts);
       int wr = pthread_cond_timedwait(&w->cv, &w->mu, &ts);
@@ -269,21 +333,49 @@ static void *worker_main(void *arg) {
     int cancelled = w->cancel;
     w->busy = 1;
     pthread_mutex_unlock(&w->mu);
+    cur.nb = nb;
     if (cancelled) {
+      if (pend.nb) finish_pending(w, &pend);
       for (int i = 0; i < nb; i++) {
         batch[i]->status = HFP_E_SHUTTING_DOWN;
         batch[i]->t_started = batch[i]->t_done = hfd_now_us();
         batch[i]->batch = 0;
       }
+      complete(w, batch, nb);
     } else {
-      run_batch(w, batch, nb);
+      hf_io io;
+      cur.t = (hf_timing){0, 0, 0};
+      cur.rc = prepare_run(w, &cur, &io);
+      if (!cur.rc && cur.direct && w->pipeline_depth > 1) {
+        /* Submit this one, then finish the one before it: the upload of
+         * this frame overlaps that one's compute. */
+        hf_model *m = w->variants[batch[0]->variant].model;
+        cur.rc = hf_model_submit(m, &io);
+        if (pend.nb) finish_pending(w, &pend);
+        if (cur.rc) {
+          cur.t2 = hfd_now_us();
+          finish_run(w, &cur);
+          complete(w, batch, nb);
+        } else {
+          run t = pend;   /* this batch is now the pending one */
+          pend = cur;
+          cur = t;
+          batch = cur.jobs;
+        }
+      } else {
+        if (pend.nb) finish_pending(w, &pend);
+        if (!cur.rc) cur.rc = hf_model_run(w->variants[batch[0]->variant].model, &io, &cur.t);
+        cur.t2 = hfd_now_us();
+        finish_run(w, &cur);
+        complete(w, batch, nb);
+      }
     }
-    complete(w, batch, nb);
     pthread_mutex_lock(&w->mu);
-    w->busy = 0;
+    w->busy = pend.nb > 0;
   }
   pthread_mutex_unlock(&w->mu);
-  free(batch);
+  if (pend.nb) finish_pending(w, &pend);
+  free(tables);
   release_models(w);
   return NULL;
 }

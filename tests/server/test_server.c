@@ -553,6 +553,43 @@ static void test_sigterm_drains(void **state) {
   free(in);
 }
 
+/* --warm prepares every variant for the given shapes before the server
+ * says it is ready (cpu-ref prepares nothing, but the path and the log are
+ * the daemon's); --pipeline-depth 1 serves one run at a time; shapes
+ * beyond --max-size or --max-batch are refused at startup. */
+static void test_warm_and_pipeline_depth(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-batch", "2", "--warm", "64x48,32x32x2", "--pipeline-depth", "1",
+                        NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"warm", NULL, 20000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  const ref_variant *v = harness_variant(&H, "Small");
+  float *in = make_features(64, 48, v->cfg.spp, 5);
+  static float got[64 * 48 * 3], want[64 * 48 * 3];
+  hfc_request r = {.variant = "Small", .width = 64, .height = 48, .spp = v->cfg.spp,
+                   .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = got};
+  hfc_timing t;
+  assert_int_equal(hfc_filter(c, &r, &t), 0);
+  assert_int_equal(reference(v, 64, 48, in, HF_F32, want, HF_F32), 0);
+  assert_memory_equal(got, want, sizeof got);
+  hfc_close(c);
+  free(in);
+  assert_int_equal(server_stop(&d, 20000), 0);
+  assert_true(server_log_has(&d, "variant Small: 64x48 batch 1 prepared in"));
+  assert_true(server_log_has(&d, "variant Small: 32x32 batch 2 prepared in"));
+  static const char *const bad[][2] = {{"--warm", "64x48x3"},        /* > --max-batch 2 */
+                                       {"--warm", "9000x10"},        /* > --max-size */
+                                       {"--warm", "64x"},
+                                       {"--pipeline-depth", "3"}};
+  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    const char *a[] = {"--max-batch", "2", "--max-size", "4096x4096", bad[i][0], bad[i][1], NULL};
+    assert_int_not_equal(server_start(&H, &d, a), 0);
+  }
+}
+
 /* With no drain time, queued requests are failed with SHUTTING_DOWN (a
  * RESULT status), never dropped, and the exit status is still 0. */
 static void test_sigterm_no_drain_time(void **state) {
@@ -1092,6 +1129,7 @@ int main(void) {
     cmocka_unit_test(test_stats),
     cmocka_unit_test(test_busy_when_queue_full),
     cmocka_unit_test(test_sigterm_drains),
+    cmocka_unit_test(test_warm_and_pipeline_depth),
     cmocka_unit_test(test_sigterm_no_drain_time),
     cmocka_unit_test(test_stalled_peer_is_closed),
   };
