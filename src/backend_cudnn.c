@@ -336,10 +336,52 @@ typedef struct ring {
   int next;
 } ring;
 
-/* The unsupported-graph memory of a model: (layer, form, conv, dense,
- * fused) combinations no engine took, so later plans do not ask again
- * (a fused data gradient costs seconds of heuristics to refuse). */
-#define UNSUP_BIT(conv, dense, fused) (1u << (((conv) * 2 + (dense)) * 2 + (fused)))
+/* Graphs the heuristics offered no engine for at all, so no later plan,
+ * of any model in the process, asks again: refusing a fused data gradient
+ * costs cuDNN's heuristics one to three seconds on sm_90. That is the op
+ * pattern's doing, not the frame size's, so the key is the convolution's
+ * geometry without batch, size or strides (dense copies would not help
+ * either), for one device. */
+typedef struct refusal {
+  int device, bwd_data, fused, k, c, r, s, stride, relu;
+  int pad_pre[2], pad_post[2];
+} refusal;
+
+#define MAX_REFUSALS 256
+static refusal refusals[MAX_REFUSALS];
+static int nrefusals;
+static pthread_mutex_t refusals_lock = PTHREAD_MUTEX_INITIALIZER;
+
+static refusal refusal_of(int device, const hf_cl_conv *cv, int fused) {
+  refusal r;
+  memset(&r, 0, sizeof r);   /* padding too: compared with memcmp */
+  r.device = device;
+  r.bwd_data = cv->bwd_data;
+  r.fused = fused;
+  r.k = cv->k;
+  r.c = cv->c;
+  r.r = cv->r;
+  r.s = cv->s;
+  r.stride = cv->stride;
+  r.relu = cv->relu;
+  memcpy(r.pad_pre, cv->pad_pre, sizeof r.pad_pre);
+  memcpy(r.pad_post, cv->pad_post, sizeof r.pad_post);
+  return r;
+}
+
+static int refused(const refusal *r) {
+  int found = 0;
+  pthread_mutex_lock(&refusals_lock);
+  for (int i = 0; i < nrefusals && !found; i++) found = !memcmp(&refusals[i], r, sizeof *r);
+  pthread_mutex_unlock(&refusals_lock);
+  return found;
+}
+
+static void remember_refusal(const refusal *r) {
+  pthread_mutex_lock(&refusals_lock);
+  if (nrefusals < MAX_REFUSALS) refusals[nrefusals++] = *r;
+  pthread_mutex_unlock(&refusals_lock);
+}
 
 typedef struct cudnn_model cudnn_model;
 typedef cudaError_t (*output_stage_fn)(const cudnn_model *m, const plan *p, const slot *s);
@@ -358,7 +400,6 @@ struct cudnn_model {
   size_t weight_bytes;
   plan *plans[MAX_PLANS];
   uint64_t tick;
-  unsigned unsup[HF_CL_MAX_LAYERS][HF_CL_NFORMS];
   slot slots[HF_MAX_PENDING];
   int head, npending;
   ring rin, rout;
@@ -429,7 +470,6 @@ static int conv_build(cudnn_model *m, plan *p, int j, step *st, int c, char *why
   conv_run *cr = &st->cr[c];
   cr->cv = st->f.conv[c];
   const int views_dense = hf_cl_view_dense(&cr->cv.x) && hf_cl_view_dense(&cr->cv.y);
-  unsigned *unsup = &m->unsup[j][st->f.form];
   char name[48];
   snprintf(name, sizeof name, "%s/%s/%d", st->ly->name, hf_cl_form_name(st->f.form), c);
   const hf_cg_target t = target_of(m);
@@ -437,36 +477,42 @@ static int conv_build(cudnn_model *m, plan *p, int j, step *st, int c, char *why
   for (int dense = m->opts.dense && !views_dense ? 1 : 0; dense <= 1; dense++) {
     if (dense && views_dense) break;
     for (int fused = m->opts.no_fusion ? 0 : 1; fused >= 0; fused--) {
-      if (*unsup & UNSUP_BIT(c, dense, fused)) continue;
+      const refusal key = refusal_of(m->device, &cr->cv, fused);
+      if (refused(&key)) continue;
       rc = hf_cg_op_build(&t, name, &cr->cv, p->batch, dense, fused, &cr->op, why, whylen);
       p->graphs++;
       p->graphs_ms += cr->op.build_ms;
       if (rc == HF_OK) break;
       if (rc != HF_EUNSUPPORTED) return rc;
-      *unsup |= UNSUP_BIT(c, dense, fused);
-      /* No engine config offered at all: the op pattern, not the strides,
-       * is what no engine takes, so dense copies would not help. */
-      if (fused && !dense && cr->op.heur_configs == 0) *unsup |= UNSUP_BIT(c, 1, 1);
+      /* Remembered only when no engine config was offered at all (see
+       * refusal): configs that failed to finalize may do better at another
+       * size. */
+      if (cr->op.heur_configs == 0) remember_refusal(&key);
     }
     if (rc != HF_OK) continue;
     cr->dense = dense;
     cr->x = view_ptr(p, st, &cr->cv.x);
     cr->y = view_ptr(p, st, &cr->cv.y);
     size_t bytes;
+    /* Dense copies, filled like every other tensor the tuning reads. */
     if (dense && !hf_cl_view_dense(&cr->cv.x)) {
       if ((rc = hf_size_mul((size_t)p->batch * cr->cv.x.h * cr->cv.x.w, cr->cv.x.c * 2, &bytes)) ||
           (rc = dmalloc(&cr->scratch_in, bytes, &st->bytes)))
         return rc;
+      HF_CU_TRY(hf_cuk_fill(cr->scratch_in, bytes / 2, 0x5eed0200u + j, m->s_comp));
       cr->x = cr->scratch_in;
     }
     if (dense && !hf_cl_view_dense(&cr->cv.y)) {
       if ((rc = hf_size_mul((size_t)p->batch * cr->cv.y.h * cr->cv.y.w, cr->cv.y.c * 2, &bytes)) ||
           (rc = dmalloc(&cr->scratch_out, bytes, &st->bytes)))
         return rc;
+      HF_CU_TRY(hf_cuk_fill(cr->scratch_out, bytes / 2, 0x5eed0300u + j, m->s_comp));
       cr->y = cr->scratch_out;
     }
     return HF_OK;
   }
+  return rc;
+fail:
   return rc;
 }
 
