@@ -57,6 +57,8 @@ static void test_availability(void **state) {
     assert_non_null(strstr(why, "cudnn unavailable"));
   } else {
     assert_int_equal(rc, HF_OK);
+    printf("  cudnn: %s\n", why);   /* the device and the cuDNN found at run time */
+    assert_non_null(strstr(why, "cuDNN"));
     assert_string_equal(hf_backend_name(b), "cudnn");
     hf_backend_destroy(b);
     assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
