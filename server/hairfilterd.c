@@ -346,6 +346,12 @@ void hfd_maybe_finish(hfd_server *s) {
   close_handle((uv_handle_t *)&s->async);
   close_handle((uv_handle_t *)&s->sigint);
   close_handle((uv_handle_t *)&s->sigterm);
+  /* Closing the watchers restored the default action, which would turn a
+   * second SIGTERM in the last moments of a clean shutdown into death by
+   * signal (exit status 143): ignore them instead, the server is already
+   * stopping. */
+  signal(SIGINT, SIG_IGN);
+  signal(SIGTERM, SIG_IGN);
   close_handle((uv_handle_t *)&s->drain_timer);
   close_handle((uv_handle_t *)&s->sweep_timer);
 }

@@ -5,13 +5,15 @@
  * max_delay_us for partners, like Triton's dynamic batcher) and hands the
  * finished jobs back to the loop thread through uv_async_send.
  *
- * With pipeline_depth 2, a batch that goes straight from its request's
+ * With pipeline_depth 2 and a backend that overlaps runs
+ * (hf_model_overlaps), a batch that goes straight from its request's
  * buffers to its reply's (one frame, no composite) is submitted
  * (hf_model_submit) and left pending while the next batch is formed and
  * submitted, so a GPU backend uploads frame n+1 while it computes frame n;
  * the pending batch is then waited for and completed, always before the
- * newer one. Batches that need the worker's scratch buffers run one at a
- * time as before.
+ * newer one. Batches that need the worker's scratch buffers, and backends
+ * that compute inside submit (where a pending batch would only wait), run
+ * one at a time as before.
  *
  * GPU libraries tie handles and streams to the thread that made them, so
  * the backend is created here, not in main().
@@ -155,7 +157,7 @@ static void finish_run(hfd_worker *w, run *r) {
        * pipelined run's backend time includes the wait behind the run
        * before it, which is queueing, not output: left out. */
       double rest = (r->t2 - r->t1) - r->t.input_us - r->t.infer_us;
-      if (w->pipeline_depth > 1 && r->direct) rest = r->t.output_us;
+      if (w->pipeline_depth > 1 && r->direct && hf_model_overlaps(v->model)) rest = r->t.output_us;
       tm->output_us = us((rest > 0 ? rest : 0) + (t3 - r->t2));
     }
   for (int i = 0; i < nb; i++) {
@@ -346,10 +348,10 @@ static void *worker_main(void *arg) {
       hf_io io;
       cur.t = (hf_timing){0, 0, 0};
       cur.rc = prepare_run(w, &cur, &io);
-      if (!cur.rc && cur.direct && w->pipeline_depth > 1) {
+      hf_model *m = w->variants[batch[0]->variant].model;
+      if (!cur.rc && cur.direct && w->pipeline_depth > 1 && hf_model_overlaps(m)) {
         /* Submit this one, then finish the one before it: the upload of
          * this frame overlaps that one's compute. */
-        hf_model *m = w->variants[batch[0]->variant].model;
         cur.rc = hf_model_submit(m, &io);
         if (pend.nb) finish_pending(w, &pend);
         if (cur.rc) {
@@ -364,7 +366,7 @@ static void *worker_main(void *arg) {
         }
       } else {
         if (pend.nb) finish_pending(w, &pend);
-        if (!cur.rc) cur.rc = hf_model_run(w->variants[batch[0]->variant].model, &io, &cur.t);
+        if (!cur.rc) cur.rc = hf_model_run(m, &io, &cur.t);
         cur.t2 = hfd_now_us();
         finish_run(w, &cur);
         complete(w, batch, nb);

@@ -193,6 +193,8 @@ int hf_model_wait(hf_model *m, hf_timing *timing) {
   return rc;
 }
 
+int hf_model_overlaps(const hf_model *m) { return m && m->backend->ops->model_submit != NULL; }
+
 int hf_backend_host_register(hf_backend *b, void *ptr, size_t bytes) {
   if (!b || !ptr || !bytes) return HF_EINVAL;
   return b->ops->host_register ? b->ops->host_register(b->dev, ptr, bytes) : HF_OK;

@@ -228,6 +228,10 @@ int hf_model_submit(hf_model *m, const hf_io *io);
 /* Waits for the oldest pending run and returns its status; timing (may be
  * NULL) gets its hf_timing. HF_EINVAL when no run is pending. */
 int hf_model_wait(hf_model *m, hf_timing *timing);
+/* 1 when hf_model_submit returns before the run ends, so keeping a second
+ * run pending overlaps work (the cudnn backend); 0 when submit runs the
+ * frame itself (the CPU backends), where a pending run only waits. */
+int hf_model_overlaps(const hf_model *m);
 
 /* Tells a backend that [ptr, ptr + bytes) will hold request tensors for a
  * while (a shared-memory segment). The cudnn backend pins it once
