@@ -463,6 +463,22 @@ static hf_cg_target target_of(const cudnn_model *m) {
   return t;
 }
 
+/* A dense FP16 tensor of v's shape for the plan's batch, owned by the step
+ * (its bytes counted there), filled with random values: engines and forms
+ * are timed on plausible values, and every element a run reads is written
+ * by that run first. */
+static int dense_tensor(cudnn_model *m, const plan *p, step *st, const hf_cl_view *v,
+                        uint32_t seed, void **out) {
+  int rc;
+  size_t bytes;
+  HF_TRY(hf_size_mul((size_t)p->batch * v->h * v->w, (size_t)v->c * 2, &bytes));
+  HF_TRY(dmalloc(out, bytes, &st->bytes));
+  HF_CU_TRY(hf_cuk_fill(*out, bytes / 2, seed, m->s_comp));
+  return HF_OK;
+fail:
+  return rc;
+}
+
 /* Finds an engine for conv c of a step: fused on the real views, unfused on
  * them, then both again on dense copies (unless the views are dense, or
  * HF_CUDNN_DENSE asks for dense copies only). */
@@ -493,26 +509,16 @@ static int conv_build(cudnn_model *m, plan *p, int j, step *st, int c, char *why
     cr->dense = dense;
     cr->x = view_ptr(p, st, &cr->cv.x);
     cr->y = view_ptr(p, st, &cr->cv.y);
-    size_t bytes;
-    /* Dense copies, filled like every other tensor the tuning reads. */
     if (dense && !hf_cl_view_dense(&cr->cv.x)) {
-      if ((rc = hf_size_mul((size_t)p->batch * cr->cv.x.h * cr->cv.x.w, cr->cv.x.c * 2, &bytes)) ||
-          (rc = dmalloc(&cr->scratch_in, bytes, &st->bytes)))
-        return rc;
-      HF_CU_TRY(hf_cuk_fill(cr->scratch_in, bytes / 2, 0x5eed0200u + j, m->s_comp));
+      if ((rc = dense_tensor(m, p, st, &cr->cv.x, 0x5eed0200u + j, &cr->scratch_in))) return rc;
       cr->x = cr->scratch_in;
     }
     if (dense && !hf_cl_view_dense(&cr->cv.y)) {
-      if ((rc = hf_size_mul((size_t)p->batch * cr->cv.y.h * cr->cv.y.w, cr->cv.y.c * 2, &bytes)) ||
-          (rc = dmalloc(&cr->scratch_out, bytes, &st->bytes)))
-        return rc;
-      HF_CU_TRY(hf_cuk_fill(cr->scratch_out, bytes / 2, 0x5eed0300u + j, m->s_comp));
+      if ((rc = dense_tensor(m, p, st, &cr->cv.y, 0x5eed0300u + j, &cr->scratch_out))) return rc;
       cr->y = cr->scratch_out;
     }
     return HF_OK;
   }
-  return rc;
-fail:
   return rc;
 }
 
@@ -522,14 +528,8 @@ static int step_build(cudnn_model *m, plan *p, int j, int form, step *st) {
   st->ly = &p->lo.layers[j];
   int rc = hf_cl_layer_form(&p->lo, st->ly, form, &st->f);
   if (rc) return rc;
-  if (st->f.d2s) {
-    size_t bytes;
-    const hf_cl_view *v = &st->f.scratch;
-    if ((rc = hf_size_mul((size_t)p->batch * v->h * v->w, (size_t)v->c * 2, &bytes)) ||
-        (rc = dmalloc(&st->scratch, bytes, &st->bytes)))
-      goto fail;
-    HF_CU_TRY(hf_cuk_fill(st->scratch, bytes / 2, 0x5eed0000u + j, m->s_comp));
-  }
+  if (st->f.d2s && (rc = dense_tensor(m, p, st, &st->f.scratch, 0x5eed0000u + j, &st->scratch)))
+    goto fail;
   char why[512] = "";
   for (int c = 0; c < st->f.nconv; c++) {
     rc = conv_build(m, p, j, st, c, why, sizeof why);
