@@ -17,10 +17,11 @@ B=${BUILD:-build-gpu}
 C=.gpu-carry
 LIMIT_MB=${LIMIT_MB:-24}
 
+mkdir -p "$B"
 cmake -S . -B "$B" -DCMAKE_BUILD_TYPE=Release -DCMAKE_CUDA_ARCHITECTURES="${ARCH:-90}" \
-      -DHF_WITH_ONEDNN=OFF -DHF_RENDERER=OFF -DHF_BUILD_TESTS=ON > "$B.configure.log" 2>&1 ||
-  { cat "$B.configure.log"; exit 1; }
-grep -q "cudnn backend is built" "$B.configure.log" ||
+      -DHF_WITH_ONEDNN=OFF -DHF_RENDERER=OFF -DHF_BUILD_TESTS=ON > "$B/configure.log" 2>&1 ||
+  { cat "$B/configure.log"; exit 1; }
+grep -q "cudnn backend is built" "$B/configure.log" ||
   { echo "pack.sh: CMake found no CUDA/cuDNN: the cudnn backend would be missing" >&2; exit 1; }
 nice -n 10 cmake --build "$B" -j"${JOBS:-2}" --target hairfilter hairfilterd hairfilter-load \
   test_cudnn_backend test_cudnn_graph test_cudnn_layout test_cudnn_kernels
