@@ -6,8 +6,9 @@
 #include "commands.h"
 
 #ifndef HF_HAVE_RENDERER
-/* render and demo draw hair with client/render, which this build leaves
- * out (cmake -DHF_RENDERER=OFF, the build that travels to GPU machines). */
+/* render and demo draw hair with client/render, and eval composites through
+ * it, which this build leaves out (cmake -DHF_RENDERER=OFF, the build that
+ * travels to GPU machines). */
 static int cmd_no_renderer(int argc, char **argv) {
   (void)argc;
   fprintf(stderr,
@@ -18,6 +19,7 @@ static int cmd_no_renderer(int argc, char **argv) {
 }
 #define cmd_demo cmd_no_renderer
 #define cmd_render cmd_no_renderer
+#define cmd_eval cmd_no_renderer
 #endif
 
 static const struct {
