@@ -8,12 +8,15 @@
 
 int hf_features_spp(const hf_image *img) {
   if (!img) return HF_EINVAL;
+  /* No upper limit here: a file with more samples than any network reads
+   * is filtered on its first spp (protocol/FEATURES.md); a channel per
+   * feature bounds the count by the image's channels. */
   int spp = 0;
   char name[32];
   for (;;) {
     snprintf(name, sizeof name, "S%d.%s", spp, HF_FEATURE_NAMES[0]);
     if (hf_image_channel(img, name) < 0) break;
-    if (++spp > HF_MAX_SPP) return HF_ERANGE;
+    spp++;
   }
   return spp ? spp : HF_ENOTFOUND;
 }

@@ -348,31 +348,68 @@ void hf_f32_to_f16_array(const float *src, uint16_t *dst, size_t n);
 
 /* ---- images ------------------------------------------------------------- */
 
-/* A float image with named channels, interleaved (pixel-major). */
+/* A float image with named channels, interleaved (pixel-major).
+ *
+ * Where the pixels sit follows OpenEXR's windows: the data window is the
+ * width x height pixels starting at (origin_x, origin_y) in image space
+ * (y down), and the display window is the frame they belong to, e.g. a crop
+ * of a 1920x1080 render holds its pixels at their place in the full frame.
+ * display_width == 0 means the display window is the data window. A zeroed
+ * image (hf_image_alloc) has origin (0, 0) and no display window of its own. */
 typedef struct hf_image {
   int width, height, channels;
   char (*names)[32];            /* channels names */
   float *data;                  /* [height][width][channels] */
+  int origin_x, origin_y;       /* data window's top-left pixel */
+  int display_x, display_y;     /* display window's top-left pixel */
+  int display_width, display_height; /* 0: same as the data window */
 } hf_image;
 
 int hf_image_alloc(hf_image *img, int width, int height, int channels);
 void hf_image_free(hf_image *img);
 /* Index of a channel by name, or HF_ENOTFOUND. */
 int hf_image_channel(const hf_image *img, const char *name);
+/* Copies the data window origin and display window of src into dst (whose
+ * pixels must be the same width x height): a result keeps its input's place. */
+void hf_image_copy_windows(hf_image *dst, const hf_image *src);
 
-/* Reads every channel of a scanline EXR as float32; err gets the reason. */
+/* Reads every channel of one part of an EXR file (scanline or tiled; of a
+ * tiled file its full-resolution level) as float32, with its data window
+ * and display window. The part is chosen by `part`: NULL to choose
+ * automatically, else a part index ("0", "1", ...) or a part name. The
+ * automatic choice is the only part of a single-part file, else the one part
+ * holding channel `channel` (e.g. "S0.color"); when none or several do, or
+ * channel is NULL, the file is refused with a list of its parts.
+ * Errors (err gets one line naming the file, the part or channel, and what
+ * to do): HF_EIO unreadable or truncated / incomplete file, HF_EFORMAT
+ * corrupt, HF_EUNSUPPORTED compression this build's OpenEXR cannot decode,
+ * deep or subsampled data, HF_ERANGE more pixels x channels than 2^29 values,
+ * HF_ENOTFOUND no such part or no part with `channel`. */
+int hf_exr_read_part(const char *path, const char *part, const char *channel, hf_image *img,
+                     char *err, size_t errlen);
+/* hf_exr_read_part(path, NULL, NULL, ...): a single-part file, any layout. */
 int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen);
 /* Size of an EXR's display window (the whole image a crop was cut from;
- * equal to the data window's size for an uncropped file), header only. */
+ * equal to the data window's size for an uncropped file), header only, of
+ * its first part. */
 int hf_exr_display_size(const char *path, int *width, int *height, char *err, size_t errlen);
-/* Writes an EXR with the image's channel names; half selects 16-bit
- * storage, else float32. ZIP compression. */
+/* Writes a single-part scanline EXR with the image's channel names, data
+ * window and display window; half selects 16-bit storage, else float32.
+ * ZIP compression, with every chunk that does not shrink stored raw (the
+ * layout rule OpenEXRCore 3.1 breaks, upstream issue 2306), and the file is
+ * read back and compared bit for bit before this returns: HF_OK means the
+ * file holds exactly img's values (rounded to half with half). Errors:
+ * HF_EINVAL bad image or channel names, HF_ENOMEM, HF_EIO the file could not
+ * be written or did not read back as written. */
 int hf_exr_write(const char *path, const hf_image *img, int half);
 
 /* Feature EXR <-> network input. Channels are S{k}.color, S{k}.highlight,
  * S{k}.alpha, S{k}.depth, S{k}.tangent.x, S{k}.tangent.y (protocol/FEATURES.md).
- * hf_features_from_image fills in (width*height*spp*6 floats, NHWC) and
- * returns the spp found (or a negative error). */
+ * hf_features_spp counts the samples (consecutive S{k}.color from S0; may be
+ * more than HF_MAX_SPP, of which a network reads the first spp) or returns
+ * HF_ENOTFOUND. hf_features_from_image fills in (width*height*spp*6 floats,
+ * NHWC) with the first spp samples and returns spp, or HF_ENOTFOUND when a
+ * channel is missing. */
 int hf_features_spp(const hf_image *img);
 int hf_features_from_image(const hf_image *img, int spp, float *in);
 int hf_features_to_image(const float *in, int width, int height, int spp, hf_image *img);

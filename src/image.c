@@ -36,6 +36,16 @@ int hf_image_channel(const hf_image *img, const char *name) {
   return HF_ENOTFOUND;
 }
 
+void hf_image_copy_windows(hf_image *dst, const hf_image *src) {
+  if (!dst || !src) return;
+  dst->origin_x = src->origin_x;
+  dst->origin_y = src->origin_y;
+  dst->display_x = src->display_x;
+  dst->display_y = src->display_y;
+  dst->display_width = src->display_width;
+  dst->display_height = src->display_height;
+}
+
 void hf_composite(const float *res, int width, int height, const float hair[3],
                   const float light[3], const float bg[3], float *rgb) {
   size_t n = (size_t)width * height;

@@ -1,0 +1,29 @@
+/* Internal to src/: what the EXR reader and writer share. */
+#ifndef HF_EXR_INTERNAL_H
+#define HF_EXR_INTERNAL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <openexr.h>
+
+/* The library's last error message of a context, kept by hf_exr_on_error
+ * (install it as error_handler_fn with user_data pointing here): the
+ * library's own words ("found corrupt leader: packed size 20658, file size
+ * 31774") are the detail our one-line errors end with. */
+typedef struct hf_exr_msg {
+  char text[256];
+} hf_exr_msg;
+void hf_exr_on_error(exr_const_context_t ctx, exr_result_t code, const char *msg);
+
+/* Decodes the full-resolution pixels of a flat part (scanline or tiled) of
+ * an open file into dst, [h][w][nch] elements of type (EXR_PIXEL_FLOAT or
+ * EXR_PIXEL_HALF) where w x h is the data window: the file's channel c goes
+ * to element slot[c] of a pixel, or nowhere when slot[c] < 0. file_size
+ * lets a chunk that ends past the end of the file be named for what it is.
+ * On failure err says what (naming path and label, the part). */
+int hf_exr_decode_part(exr_const_context_t ctx, int part, const char *path, const char *label,
+                       uint64_t file_size, const int *slot, int nch, exr_pixel_type_t type,
+                       void *dst, char *err, size_t errlen);
+
+#endif

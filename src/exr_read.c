@@ -1,0 +1,454 @@
+/* EXR reading on OpenEXR's C API (OpenEXRCore): scanline and tiled parts of
+ * single- and multi-part files, with their data and display windows.
+ * Channels are addressed by name: the library keeps them sorted, so callers
+ * never rely on file order.
+ *
+ * Files come from other tools, so every failure says what is wrong in the
+ * user's terms and what to do: a compression this build's OpenEXR cannot
+ * decode (DWAA/DWAB before OpenEXR 3.2) is named with a conversion command,
+ * a file cut short is called truncated, a multi-part file without an
+ * obvious part lists its parts. */
+#define _XOPEN_SOURCE 700
+#include <errno.h>
+#include <fcntl.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "hfcore.h"
+#include "errors.h"
+#include "exr_internal.h"
+
+/* Refuse images over this many samples before allocating (2^31 bytes). */
+#define EXR_MAX_FLOATS ((size_t)1 << 29)
+
+#define fail hf_fail_msg
+
+void hf_exr_on_error(exr_const_context_t ctx, exr_result_t code, const char *msg) {
+  void *ud = NULL;
+  (void)code;
+  if (exr_get_user_data(ctx, &ud) == EXR_ERR_SUCCESS && ud && msg)
+    snprintf(((hf_exr_msg *)ud)->text, sizeof ((hf_exr_msg *)ud)->text, "%s", msg);
+}
+
+static const char *compression_name(exr_compression_t c) {
+  static const char *const names[] = {"no", "RLE", "ZIPS", "ZIP", "PIZ",
+                                      "PXR24", "B44", "B44A", "DWAA", "DWAB"};
+  return (unsigned)c < sizeof names / sizeof names[0] ? names[c] : "an unknown";
+}
+
+/* " (library: ...)" when the library said something, for the end of a message. */
+static const char *detail(const hf_exr_msg *m, char *buf, size_t len) {
+  if (!m || !m->text[0]) return "";
+  snprintf(buf, len, " (OpenEXR: %s)", m->text);
+  return buf;
+}
+
+/* ---- decoding a part ------------------------------------------------------- */
+
+typedef struct chunk_pos {
+  int x, y, w, h;     /* pixels it covers, in image space */
+  int tiled, tx, ty;  /* tile indices when tiled */
+} chunk_pos;
+
+static void chunk_name(const chunk_pos *p, char *buf, size_t len) {
+  if (p->tiled)
+    snprintf(buf, len, "tile (%d, %d) at pixel (%d, %d)", p->tx, p->ty, p->x, p->y);
+  else
+    snprintf(buf, len, "scanlines %d-%d", p->y, p->y + p->h - 1);
+}
+
+/* ---- files cut short ---------------------------------------------------------- */
+
+/* A second reader of the same file that does not know its size, so the
+ * library reads on where the first one stopped at the end of the file; the
+ * reads it asks for say whether the file was cut short. (OpenEXR has no
+ * "truncated" error: it reports a chunk table, a chunk leader or a chunk
+ * that does not fit the file like any other corruption.) */
+typedef struct probe {
+  hf_exr_msg msg;   /* first: hf_exr_on_error writes here */
+  int fd;
+  uint64_t size;
+  int past_end;     /* the library asked for bytes past the end of the file */
+} probe;
+
+static int64_t probe_read(exr_const_context_t ctx, void *ud, void *buf, uint64_t sz,
+                          uint64_t off, exr_stream_error_func_ptr_t error_cb) {
+  probe *p = ud;
+  (void)ctx;
+  (void)error_cb;
+  if (off + sz > p->size) p->past_end = 1;
+  ssize_t n = pread(p->fd, buf, (size_t)sz, (off_t)off);
+  return n < 0 ? -1 : (int64_t)n;
+}
+
+/* 1 when the header (c NULL) or chunk c of part needs bytes past the end of
+ * a file of size bytes. */
+static int cut_short(const char *path, int part, const chunk_pos *c, uint64_t size) {
+  probe p = {{""}, open(path, O_RDONLY), size, 0};
+  if (p.fd < 0) return 0;
+  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+  init.error_handler_fn = hf_exr_on_error;
+  init.user_data = &p;
+  init.read_fn = probe_read;
+  exr_context_t ctx = NULL;
+  if (exr_start_read(&ctx, path, &init) == EXR_ERR_SUCCESS && c) {
+    exr_chunk_info_t ci;
+    memset(&ci, 0, sizeof ci);
+    exr_result_t r = c->tiled ? exr_read_tile_chunk_info(ctx, part, c->tx, c->ty, 0, 0, &ci)
+                              : exr_read_scanline_chunk_info(ctx, part, c->y, &ci);
+    if (r == EXR_ERR_SUCCESS && ci.data_offset + ci.packed_size > size) p.past_end = 1;
+  }
+  exr_finish(&ctx);
+  close(p.fd);
+  return p.past_end;
+}
+
+static int chunk_failed(exr_const_context_t ctx, int part, const char *path, const char *label,
+                        const chunk_pos *p, exr_result_t r, const exr_chunk_info_t *ci,
+                        uint64_t file_size, char *err, size_t errlen) {
+  void *ud = NULL;
+  exr_get_user_data(ctx, &ud);
+  char what[96], more[300];
+  chunk_name(p, what, sizeof what);
+  const char *d = detail(ud, more, sizeof more);
+  if (r == EXR_ERR_FEATURE_NOT_IMPLEMENTED) {
+    exr_compression_t c = EXR_COMPRESSION_NONE;
+    exr_get_compression(ctx, part, &c);
+    int maj = 0, min = 0, pat = 0;
+    exr_get_library_version(&maj, &min, &pat, NULL);
+    return fail(err, errlen, HF_EUNSUPPORTED,
+                "%s%s: %s compression cannot be decoded by this build's OpenEXR %d.%d.%d; "
+                "convert the file to ZIP first, e.g. oiiotool %s --compression zip -o "
+                "converted.exr (Debian package openimageio-tools)",
+                path, label, compression_name(c), maj, min, pat, path);
+  }
+  if (r == EXR_ERR_READ_IO || (ci->data_offset && ci->data_offset + ci->packed_size > file_size) ||
+      cut_short(path, part, p, file_size))
+    return fail(err, errlen, HF_EIO,
+                "%s%s: truncated / incomplete file: the data of %s is missing (the file ends "
+                "at byte %llu); write or copy the file again",
+                path, label, what, (unsigned long long)file_size);
+  return fail(err, errlen, HF_EFORMAT, "%s%s: %s cannot be read: %s%s; the file is damaged, "
+              "write it again", path, label, what, exr_get_error_code_as_string(r), d);
+}
+
+static exr_result_t decode_chunk(exr_const_context_t ctx, int part, const exr_chunk_info_t *ci,
+                                 const chunk_pos *p, const exr_attr_box2i_t *dw,
+                                 const int *slot, int nch, exr_pixel_type_t type, void *dst) {
+  size_t esz = type == EXR_PIXEL_HALF ? 2 : 4;
+  size_t w = (size_t)((int64_t)dw->max.x - dw->min.x + 1);
+  exr_decode_pipeline_t dec = EXR_DECODE_PIPELINE_INITIALIZER;
+  exr_result_t r = exr_decoding_initialize(ctx, part, ci, &dec);
+  if (r) return r;
+  for (int c = 0; c < dec.channel_count; c++) {
+    exr_coding_channel_info_t *ch = &dec.channels[c];
+    if (slot[c] < 0) {
+      ch->decode_to_ptr = NULL; /* skipped */
+      continue;
+    }
+    size_t px = (size_t)(p->y - dw->min.y) * w + (size_t)(p->x - dw->min.x);
+    ch->decode_to_ptr = (uint8_t *)dst + (px * (size_t)nch + (size_t)slot[c]) * esz;
+    ch->user_pixel_stride = (int32_t)(esz * (size_t)nch);
+    ch->user_line_stride = (int32_t)(esz * (size_t)nch * w);
+    ch->user_data_type = (uint16_t)type;
+    ch->user_bytes_per_element = (int16_t)esz;
+  }
+  if ((r = exr_decoding_choose_default_routines(ctx, part, &dec)) == EXR_ERR_SUCCESS)
+    r = exr_decoding_run(ctx, part, &dec);
+  exr_decoding_destroy(ctx, &dec);
+  return r;
+}
+
+int hf_exr_decode_part(exr_const_context_t ctx, int part, const char *path, const char *label,
+                       uint64_t file_size, const int *slot, int nch, exr_pixel_type_t type,
+                       void *dst, char *err, size_t errlen) {
+  exr_storage_t storage;
+  exr_attr_box2i_t dw;
+  exr_result_t r;
+  if ((r = exr_get_storage(ctx, part, &storage)) || (r = exr_get_data_window(ctx, part, &dw)))
+    return fail(err, errlen, HF_EFORMAT, "%s%s: %s", path, label,
+                exr_get_error_code_as_string(r));
+  int w = (int)((int64_t)dw.max.x - dw.min.x + 1), h = (int)((int64_t)dw.max.y - dw.min.y + 1);
+  if (storage == EXR_STORAGE_SCANLINE) {
+    int32_t spc;
+    if ((r = exr_get_scanlines_per_chunk(ctx, part, &spc)) || spc < 1)
+      return fail(err, errlen, HF_EFORMAT, "%s%s: %s", path, label,
+                  exr_get_error_code_as_string(r ? r : EXR_ERR_INVALID_ATTR));
+    /* Chunks start at multiples of spc from the data window's top. */
+    for (int64_t y = dw.min.y; y <= dw.max.y; y += spc) {
+      exr_chunk_info_t ci;
+      memset(&ci, 0, sizeof ci);
+      chunk_pos p = {dw.min.x, (int)y, w, (int)(dw.max.y - y + 1 < spc ? dw.max.y - y + 1 : spc),
+                     0, 0, 0};
+      r = exr_read_scanline_chunk_info(ctx, part, (int)y, &ci);
+      if (!r && ci.data_offset + ci.packed_size > file_size) r = EXR_ERR_READ_IO;
+      if (!r) r = decode_chunk(ctx, part, &ci, &p, &dw, slot, nch, type, dst);
+      if (r)
+        return chunk_failed(ctx, part, path, label, &p, r, &ci, file_size, err, errlen);
+    }
+    return HF_OK;
+  }
+  if (storage != EXR_STORAGE_TILED)
+    return fail(err, errlen, HF_EUNSUPPORTED, "%s%s: deep data cannot be read", path, label);
+  /* Tiled: the full-resolution level (0, 0) of any level mode, tile by tile. */
+  uint32_t tw, th;
+  exr_tile_level_mode_t lm;
+  exr_tile_round_mode_t rm;
+  if ((r = exr_get_tile_descriptor(ctx, part, &tw, &th, &lm, &rm)) || tw < 1 || th < 1)
+    return fail(err, errlen, HF_EFORMAT, "%s%s: tile description: %s", path, label,
+                exr_get_error_code_as_string(r ? r : EXR_ERR_INVALID_ATTR));
+  int ntx = (int)(((int64_t)w + tw - 1) / tw), nty = (int)(((int64_t)h + th - 1) / th);
+  for (int ty = 0; ty < nty; ty++)
+    for (int tx = 0; tx < ntx; tx++) {
+      exr_chunk_info_t ci;
+      memset(&ci, 0, sizeof ci);
+      chunk_pos p = {dw.min.x + tx * (int)tw, dw.min.y + ty * (int)th, 0, 0, 1, tx, ty};
+      p.w = w - tx * (int)tw < (int)tw ? w - tx * (int)tw : (int)tw;
+      p.h = h - ty * (int)th < (int)th ? h - ty * (int)th : (int)th;
+      r = exr_read_tile_chunk_info(ctx, part, tx, ty, 0, 0, &ci);
+      if (!r && ci.data_offset + ci.packed_size > file_size) r = EXR_ERR_READ_IO;
+      if (!r && (ci.width != p.w || ci.height != p.h)) r = EXR_ERR_CORRUPT_CHUNK;
+      if (!r) r = decode_chunk(ctx, part, &ci, &p, &dw, slot, nch, type, dst);
+      if (r)
+        return chunk_failed(ctx, part, path, label, &p, r, &ci, file_size, err, errlen);
+    }
+  return HF_OK;
+}
+
+/* ---- choosing a part --------------------------------------------------------- */
+
+static int part_has_channel(exr_const_context_t ctx, int part, const char *channel) {
+  const exr_attr_chlist_t *chl;
+  if (!channel || exr_get_channels(ctx, part, &chl)) return 0;
+  for (int c = 0; c < chl->num_channels; c++)
+    if (!strcmp(chl->entries[c].name.str, channel)) return 1;
+  return 0;
+}
+
+/* ", part 2 \"beauty\"" for messages about a part of a multi-part file. */
+static void part_label(exr_const_context_t ctx, int part, int nparts, char *buf, size_t len) {
+  const char *name = NULL;
+  buf[0] = 0;
+  if (nparts <= 1) return;
+  if (exr_get_name(ctx, part, &name) == EXR_ERR_SUCCESS && name && name[0])
+    snprintf(buf, len, ", part %d \"%s\"", part, name);
+  else
+    snprintf(buf, len, ", part %d", part);
+}
+
+/* "0 \"rgba\" (4 channels), 1 \"features\" (24 channels, tiled)" into buf. */
+static void list_parts(exr_const_context_t ctx, int nparts, char *buf, size_t len) {
+  size_t used = 0;
+  buf[0] = 0;
+  for (int i = 0; i < nparts && used + 1 < len; i++) {
+    const char *name = NULL;
+    const exr_attr_chlist_t *chl = NULL;
+    exr_storage_t st = EXR_STORAGE_SCANLINE;
+    exr_get_name(ctx, i, &name);
+    exr_get_channels(ctx, i, &chl);
+    exr_get_storage(ctx, i, &st);
+    int n = snprintf(buf + used, len - used, "%s%d%s%s%s (%d channels%s)", i ? ", " : "", i,
+                     name ? " \"" : "", name ? name : "", name ? "\"" : "",
+                     chl ? chl->num_channels : 0,
+                     st == EXR_STORAGE_TILED ? ", tiled"
+                     : st == EXR_STORAGE_DEEP_SCANLINE || st == EXR_STORAGE_DEEP_TILED ? ", deep"
+                                                                                      : "");
+    if (n < 0) break;
+    used += (size_t)n;
+  }
+}
+
+static int choose_part(exr_const_context_t ctx, const char *path, int nparts, const char *part,
+                       const char *channel, int *out, char *err, size_t errlen) {
+  char parts[700];
+  if (part) {
+    char *end;
+    errno = 0;
+    long idx = strtol(part, &end, 10);
+    if (part[0] >= '0' && part[0] <= '9' && !*end && !errno) {
+      if (idx < nparts) {
+        *out = (int)idx;
+        return HF_OK;
+      }
+    } else {
+      for (int i = 0; i < nparts; i++) {
+        const char *name = NULL;
+        if (exr_get_name(ctx, i, &name) == EXR_ERR_SUCCESS && name && !strcmp(name, part)) {
+          *out = i;
+          return HF_OK;
+        }
+      }
+    }
+    list_parts(ctx, nparts, parts, sizeof parts);
+    return fail(err, errlen, HF_ENOTFOUND, "%s has no part \"%s\"; its %d part%s: %s", path,
+                part, nparts, nparts == 1 ? " is" : "s are", parts);
+  }
+  if (nparts == 1) {
+    *out = 0;
+    return HF_OK;
+  }
+  int found = -1, count = 0;
+  for (int i = 0; i < nparts; i++)
+    if (part_has_channel(ctx, i, channel)) found = i, count++;
+  if (count == 1) {
+    *out = found;
+    return HF_OK;
+  }
+  list_parts(ctx, nparts, parts, sizeof parts);
+  if (!channel)
+    return fail(err, errlen, HF_ENOTFOUND, "%s has %d parts: %s; choose one with --part N|NAME",
+                path, nparts, parts);
+  return fail(err, errlen, HF_ENOTFOUND, "%s has %d parts, %s with channel %s: %s; choose one "
+              "with --part N|NAME", path, nparts, count ? "several" : "none", channel, parts);
+}
+
+/* ---- reading ------------------------------------------------------------------ */
+
+/* Why exr_start_read refused a file, in the user's terms. */
+static int open_failed(const char *path, uint64_t size, exr_result_t r, const hf_exr_msg *msg,
+                       char *err, size_t errlen) {
+  char more[300];
+  const char *d = detail(msg, more, sizeof more);
+  unsigned char magic[4] = {0};
+  FILE *f = fopen(path, "rb");
+  size_t got = f ? fread(magic, 1, 4, f) : 0;
+  if (f) fclose(f);
+  if (r == EXR_ERR_FILE_ACCESS || !f)
+    return fail(err, errlen, HF_EIO, "%s: cannot open%s", path, d);
+  if (got < 4 || magic[0] != 0x76 || magic[1] != 0x2f || magic[2] != 0x31 || magic[3] != 0x01)
+    return fail(err, errlen, HF_EFORMAT, "%s: not an OpenEXR file", path);
+  if (cut_short(path, 0, NULL, size))
+    return fail(err, errlen, HF_EIO, "%s: truncated / incomplete file: it ends inside its "
+                "header (%llu bytes); write or copy the file again", path,
+                (unsigned long long)size);
+  return fail(err, errlen, HF_EFORMAT, "%s: the EXR header cannot be read: %s%s; the file is "
+              "damaged, write it again", path, exr_get_error_code_as_string(r), d);
+}
+
+int hf_exr_read_part(const char *path, const char *part, const char *channel, hf_image *img,
+                     char *err, size_t errlen) {
+  if (!path || !img) return fail(err, errlen, HF_EINVAL, "null argument");
+  memset(img, 0, sizeof *img);
+  struct stat st;
+  if (stat(path, &st) != 0) return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
+  if (!S_ISREG(st.st_mode)) return fail(err, errlen, HF_EIO, "%s: not a regular file", path);
+  hf_exr_msg msg = {""};
+  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+  init.error_handler_fn = hf_exr_on_error;
+  init.user_data = &msg;
+  exr_context_t ctx = NULL;
+  exr_result_t r = exr_start_read(&ctx, path, &init);
+  if (r != EXR_ERR_SUCCESS) {
+    exr_finish(&ctx);
+    return open_failed(path, (uint64_t)st.st_size, r, &msg, err, errlen);
+  }
+  int rc, nparts = 0, pi = 0;
+  char label[128];
+  if ((r = exr_get_count(ctx, &nparts)) || nparts < 1) {
+    rc = fail(err, errlen, HF_EFORMAT, "%s: no image part", path);
+    goto out;
+  }
+  if ((rc = choose_part(ctx, path, nparts, part, channel, &pi, err, errlen)) != HF_OK) goto out;
+  part_label(ctx, pi, nparts, label, sizeof label);
+  exr_storage_t storage;
+  exr_attr_box2i_t dw, disp;
+  const exr_attr_chlist_t *chl;
+  if ((r = exr_get_storage(ctx, pi, &storage)) || (r = exr_get_data_window(ctx, pi, &dw)) ||
+      (r = exr_get_display_window(ctx, pi, &disp)) || (r = exr_get_channels(ctx, pi, &chl))) {
+    rc = fail(err, errlen, HF_EFORMAT, "%s%s: %s", path, label, exr_get_error_code_as_string(r));
+    goto out;
+  }
+  if (storage == EXR_STORAGE_DEEP_SCANLINE || storage == EXR_STORAGE_DEEP_TILED) {
+    rc = fail(err, errlen, HF_EUNSUPPORTED, "%s%s: deep data (several samples per pixel of "
+              "varying count) is not read; flatten it first, e.g. oiiotool %s --flatten -o "
+              "flat.exr", path, label, path);
+    goto out;
+  }
+  int64_t w = (int64_t)dw.max.x - dw.min.x + 1, h = (int64_t)dw.max.y - dw.min.y + 1;
+  int nch = chl->num_channels;
+  if (w < 1 || h < 1 || nch < 1 || nch > HF_MAX_CHANNELS ||
+      (size_t)(w * h) > EXR_MAX_FLOATS / (size_t)nch) {
+    rc = fail(err, errlen, HF_ERANGE, "%s%s: %lldx%lld pixels with %d channels is more than "
+              "this reader takes (%zu values, %d channels); split the file", path, label,
+              (long long)w, (long long)h, nch, EXR_MAX_FLOATS, HF_MAX_CHANNELS);
+    goto out;
+  }
+  for (int c = 0; c < nch; c++)
+    if (chl->entries[c].x_sampling != 1 || chl->entries[c].y_sampling != 1) {
+      rc = fail(err, errlen, HF_EUNSUPPORTED, "%s%s: channel %s is subsampled (%dx%d); "
+                "only full-resolution channels are read", path, label,
+                chl->entries[c].name.str, chl->entries[c].x_sampling,
+                chl->entries[c].y_sampling);
+      goto out;
+    }
+  if ((rc = hf_image_alloc(img, (int)w, (int)h, nch)) != 0) {
+    fail(err, errlen, rc, "%s%s: %s", path, label, hf_strerror(rc));
+    goto out;
+  }
+  int *slot = malloc(sizeof *slot * (size_t)nch);
+  if (!slot) {
+    rc = fail(err, errlen, HF_ENOMEM, "%s: out of memory", path);
+    goto fail_img;
+  }
+  for (int c = 0; c < nch; c++) {
+    snprintf(img->names[c], sizeof img->names[c], "%s", chl->entries[c].name.str);
+    slot[c] = c;
+  }
+  img->origin_x = dw.min.x;
+  img->origin_y = dw.min.y;
+  int64_t dispw = (int64_t)disp.max.x - disp.min.x + 1, disph = (int64_t)disp.max.y - disp.min.y + 1;
+  if ((disp.min.x != dw.min.x || disp.min.y != dw.min.y || dispw != w || disph != h) &&
+      dispw >= 1 && disph >= 1 && dispw <= INT32_MAX && disph <= INT32_MAX) {
+    img->display_x = disp.min.x;
+    img->display_y = disp.min.y;
+    img->display_width = (int)dispw;
+    img->display_height = (int)disph;
+  }
+  rc = hf_exr_decode_part(ctx, pi, path, label, (uint64_t)st.st_size, slot, nch,
+                          EXR_PIXEL_FLOAT, img->data, err, errlen);
+  free(slot);
+  if (rc == HF_OK) goto out;
+fail_img:
+  hf_image_free(img);
+out:
+  exr_finish(&ctx);
+  return rc;
+}
+
+int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen) {
+  return hf_exr_read_part(path, NULL, NULL, img, err, errlen);
+}
+
+int hf_exr_display_size(const char *path, int *width, int *height, char *err, size_t errlen) {
+  if (!path || !width || !height) return fail(err, errlen, HF_EINVAL, "null argument");
+  hf_exr_msg msg = {""};
+  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+  init.error_handler_fn = hf_exr_on_error;
+  init.user_data = &msg;
+  init.flags |= EXR_CONTEXT_FLAG_SILENT_HEADER_PARSE;
+  exr_context_t ctx = NULL;
+  exr_result_t r = exr_start_read(&ctx, path, &init);
+  if (r != EXR_ERR_SUCCESS) {
+    exr_finish(&ctx);
+    return fail(err, errlen, HF_EIO, "%s: %s", path, exr_get_error_code_as_string(r));
+  }
+  exr_attr_box2i_t dw;
+  int rc = HF_OK;
+  if ((r = exr_get_display_window(ctx, 0, &dw)) != EXR_ERR_SUCCESS) {
+    rc = fail(err, errlen, HF_EFORMAT, "%s: %s", path, exr_get_error_code_as_string(r));
+  } else {
+    int64_t w = (int64_t)dw.max.x - dw.min.x + 1, h = (int64_t)dw.max.y - dw.min.y + 1;
+    if (w < 1 || h < 1 || w > INT32_MAX || h > INT32_MAX) {
+      rc = fail(err, errlen, HF_ERANGE, "%s: display window %lldx%lld", path, (long long)w,
+                (long long)h);
+    } else {
+      *width = (int)w;
+      *height = (int)h;
+    }
+  }
+  exr_finish(&ctx);
+  return rc;
+}
