@@ -113,6 +113,7 @@ void hf_model_destroy(hf_model *m) {
   /* Runs still pending finish first: their buffers belong to the caller. */
   while (m->npending) hf_model_wait(m, NULL);
   m->backend->ops->model_destroy(m->impl);
+  for (int i = 0; i < HF_MAX_PENDING; i++) free(m->sanitised[i].buf);
   free(m);
 }
 
@@ -140,13 +141,86 @@ static int check_io(const hf_io *io) {
   return HF_OK;
 }
 
+/* ---- out-of-contract values (protocol/FEATURES.md), for every backend ---- */
+
+/* The sanitised copy of an input is kept in its slot for reuse up to this
+ * size (a 1024x1024 frame of 4 samples in float32 is 96 MiB); larger ones
+ * are released after their run rather than held. */
+#define HF_SANITISED_KEEP ((size_t)128 << 20)
+
+/* Checks every frame of io and, only when one needs it, sanitises a copy
+ * in the buffer of pending slot `slot` (kept: a fresh buffer costs a page
+ * fault per 4 KiB on first write, more than the copy). *run is the io the
+ * backend sees; rep, when not NULL, gets [io->batch] reports. */
+static int sanitise_input(hf_model *m, int slot, const hf_io *io, hf_io *run,
+                          hf_input_report *rep) {
+  size_t esz = io->in_dtype == HF_F16 ? 2 : 4;
+  size_t frame = (size_t)io->width * io->height * m->cfg.in_channels * esz;
+  hf_input_report one;
+  uint64_t bad = 0;
+  for (int n = 0; n < io->batch; n++) {
+    hf_input_report *r = rep ? &rep[n] : &one;
+    hf_features_check((const uint8_t *)io->in + n * frame, io->in_dtype, io->width, io->height,
+                      m->cfg.spp, r);
+    bad += r->samples;
+  }
+  *run = *io;
+  if (!bad) return HF_OK;
+  size_t need = frame * (size_t)io->batch;
+  if (m->sanitised[slot].cap < need) {
+    free(m->sanitised[slot].buf);
+    m->sanitised[slot].buf = malloc(need);
+    m->sanitised[slot].cap = m->sanitised[slot].buf ? need : 0;
+    if (!m->sanitised[slot].buf) return HF_ENOMEM;
+  }
+  uint8_t *copy = m->sanitised[slot].buf;
+  memcpy(copy, io->in, need);
+  for (int n = 0; n < io->batch; n++)
+    if (!rep || rep[n].samples)
+      hf_features_sanitise(copy + n * frame, io->in_dtype, io->width, io->height, m->cfg.spp,
+                           rep ? &rep[n] : &one);
+  run->in = copy;
+  return HF_OK;
+}
+
+/* After a run of io: the output guard on every frame (when it succeeded),
+ * and the slot's buffer released when it is larger than HF_SANITISED_KEEP. */
+static void finish_output(hf_model *m, int slot, const hf_io *io, hf_input_report *rep, int rc) {
+  if (rc == HF_OK) {
+    size_t px = (size_t)io->width * io->height;
+    size_t oes = io->out_dtype == HF_F16 ? 2 : 4;
+    for (int n = 0; n < io->batch; n++) {
+      uint64_t fixed = hf_output_guard((uint8_t *)io->out + n * px * 3 * oes, io->out_dtype, px);
+      if (rep) rep[n].outputs = fixed;
+    }
+  }
+  if (m->sanitised[slot].cap > HF_SANITISED_KEEP) {
+    free(m->sanitised[slot].buf);
+    m->sanitised[slot].buf = NULL;
+    m->sanitised[slot].cap = 0;
+  }
+}
+
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing) {
+  return hf_model_run_report(m, io, timing, NULL);
+}
+
+int hf_model_run_report(hf_model *m, const hf_io *io, hf_timing *timing,
+                        hf_input_report *rep) {
   if (!m) return HF_EINVAL;
   int rc = check_io(io);
   if (rc) return rc;
   if (m->npending) return HF_EINVAL;   /* wait for the pending runs first */
+  double t0 = hf_now_us();
+  hf_io run;
+  if ((rc = sanitise_input(m, 0, io, &run, rep)) != 0) return rc;
+  double t1 = hf_now_us();
   hf_timing t = {0, 0, 0};
-  rc = m->backend->ops->model_run(m->impl, io, &t);
+  rc = m->backend->ops->model_run(m->impl, &run, &t);
+  double t2 = hf_now_us();
+  finish_output(m, 0, io, rep, rc);
+  t.input_us += t1 - t0;
+  t.output_us += hf_now_us() - t2;
   if (timing) *timing = t;
   return rc;
 }
@@ -160,21 +234,34 @@ int hf_model_prepare(hf_model *m, int batch, int width, int height) {
              : HF_OK;
 }
 
-int hf_model_submit(hf_model *m, const hf_io *io) {
+int hf_model_submit(hf_model *m, const hf_io *io) { return hf_model_submit_report(m, io, NULL); }
+
+int hf_model_submit_report(hf_model *m, const hf_io *io, hf_input_report *rep) {
   if (!m) return HF_EINVAL;
   int rc = check_io(io);
   if (rc) return rc;
   if (m->npending == HF_MAX_PENDING) return HF_ERANGE;
   const int slot = (m->head + m->npending) % HF_MAX_PENDING;
   const hf_backend_ops *ops = m->backend->ops;
+  /* The slot's sanitised copy, if any, stays until the wait: the backend
+   * may read it until then. */
+  double t0 = hf_now_us();
+  hf_io run;
+  if ((rc = sanitise_input(m, slot, io, &run, rep)) != 0) return rc;
+  m->pending[slot].io = *io;
+  m->pending[slot].report = rep;
+  m->pending[slot].input_us = hf_now_us() - t0;
   if (ops->model_submit) {
     /* A failure to start leaves nothing pending; a failure of the run
      * itself is the wait's to report. */
-    if ((rc = ops->model_submit(m->impl, io)) != 0) return rc;
+    if ((rc = ops->model_submit(m->impl, &run)) != 0) {
+      finish_output(m, slot, io, NULL, rc);
+      return rc;
+    }
     m->pending[slot].rc = HF_OK;
   } else {
     hf_timing t = {0, 0, 0};
-    m->pending[slot].rc = ops->model_run(m->impl, io, &t);
+    m->pending[slot].rc = ops->model_run(m->impl, &run, &t);
     m->pending[slot].t = t;
   }
   m->npending++;
@@ -189,6 +276,10 @@ int hf_model_wait(hf_model *m, hf_timing *timing) {
   hf_timing t = m->pending[slot].t;
   int rc = m->pending[slot].rc;
   if (m->backend->ops->model_wait) rc = m->backend->ops->model_wait(m->impl, &t);
+  double t2 = hf_now_us();
+  finish_output(m, slot, &m->pending[slot].io, m->pending[slot].report, rc);
+  t.input_us += m->pending[slot].input_us;
+  t.output_us += hf_now_us() - t2;
   if (timing) *timing = t;
   return rc;
 }

@@ -65,12 +65,21 @@ struct hf_model {
   hf_net_config cfg;
   void *impl;
   /* Runs pending through hf_model_submit, oldest first; results kept here
-   * for backends that run inside submit. */
+   * for backends that run inside submit, and what the output guard needs. */
   int npending, head;
   struct {
     int rc;
     hf_timing t;
+    hf_io io;                  /* the caller's */
+    hf_input_report *report;   /* the caller's, or NULL */
+    double input_us;           /* the out-of-contract check at submit */
   } pending[HF_MAX_PENDING];
+  /* Per slot (hf_model_run uses slot 0), the sanitised copy of an input
+   * that needed one, kept for the next (backend.c, HF_SANITISED_KEEP). */
+  struct {
+    void *buf;
+    size_t cap;
+  } sanitised[HF_MAX_PENDING];
 };
 
 /* Shared helpers for CPU backends. */

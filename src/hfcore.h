@@ -180,6 +180,48 @@ typedef struct hf_timing {
   double output_us;   /* transforms, crop, download */
 } hf_timing;
 
+/* Out-of-contract values (protocol/FEATURES.md, "Out-of-contract values"):
+ * the bounds finite features are clamped into are [0, HF_FEATURE_LIGHT_MAX]
+ * for color and highlight, (0, 1] for alpha, [0, 1] for depth, [-1, 1] for
+ * the tangent; outputs are kept in color [-HF_OUTPUT_MAX, HF_OUTPUT_MAX],
+ * highlight [0, HF_OUTPUT_MAX], alpha [0, 1] (HF_OUTPUT_MAX: the largest
+ * binary16, so either output dtype holds every result). */
+#define HF_FEATURE_LIGHT_MAX 64.0f
+#define HF_OUTPUT_MAX        65504.0f
+
+/* What was wrong with the first sanitised sample of a frame. */
+enum {
+  HF_SANITISED_NONFINITE = 1, /* a feature is NaN or infinite: made uncovered */
+  HF_SANITISED_UNCOVERED = 2, /* alpha <= 0 with other features non-zero: made uncovered */
+  HF_SANITISED_CLAMPED = 3    /* a finite feature outside its range: clamped */
+};
+
+/* What sanitising found in one frame: the number of samples changed, and
+ * the first one in memory order (pixel x, y of the frame, sample, feature
+ * index into HF_FEATURE_NAMES, its value before, kind HF_SANITISED_*; x, y,
+ * sample and feature are -1 when samples is 0), plus output values repaired
+ * by hf_model_run's output guard. */
+typedef struct hf_input_report {
+  uint64_t samples;
+  int x, y, sample, feature, kind;
+  float value;
+  uint64_t outputs;
+} hf_input_report;
+
+/* Counts the out-of-contract samples of one frame ([height][width][spp*6]
+ * of dtype) without changing it. */
+void hf_features_check(const void *in, hf_dtype dtype, int width, int height, int spp,
+                       hf_input_report *report);
+/* Applies the rule to one frame in place: a sample with a non-finite
+ * feature, or with alpha <= 0 and another feature non-zero, becomes all 0
+ * (uncovered); finite features outside their range are clamped into it. */
+void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int spp,
+                          hf_input_report *report);
+/* Keeps pixels outputs ([pixels][3] of dtype) in their ranges: NaN becomes
+ * the channel's neutral value (color 1, highlight 0, alpha 0), anything else
+ * is clamped. Returns the number of pixels changed. */
+uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels);
+
 /* One batch of frames of the same size. in: [batch][h][w][in_channels],
  * out: [batch][h][w][3], both NHWC, dense, of the given dtypes. */
 typedef struct hf_io {
@@ -204,8 +246,18 @@ const char *const *hf_backend_list(void);
 int hf_model_create(hf_backend *b, const hf_weights *w, hf_model **out);
 void hf_model_destroy(hf_model *m);
 const hf_net_config *hf_model_config(const hf_model *m);
-/* Runs the network on io; timing may be NULL. */
+/* Runs the network on io; timing may be NULL. Every backend sees the input
+ * after hf_features_sanitise (on a copy the model keeps for reuse up to 128
+ * MiB: io->in is never written) and its output goes through
+ * hf_output_guard, so results are finite and inside their documented ranges
+ * whatever the input; hf_model_submit/hf_model_wait do the same. The check
+ * is attributed to timing->input_us, the guard to output_us. HF_ENOMEM when
+ * a frame needs sanitising and there is no memory for the copy. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
+/* hf_model_run that also says what it changed: report, when not NULL, is
+ * [io->batch], one hf_input_report per frame. */
+int hf_model_run_report(hf_model *m, const hf_io *io, hf_timing *timing,
+                        hf_input_report *report);
 /* Builds whatever the backend needs to run batch frames of width x height
  * (the cudnn backend: activation buffers, tuned engines and the CUDA graph
  * of that shape; seconds), so the first request of that shape pays
@@ -225,6 +277,10 @@ int hf_model_prepare(hf_model *m, int batch, int width, int height);
  * may drive a model's submit/wait; hf_model_run must not be mixed in while
  * runs are pending. Errors of the run itself are returned by the wait. */
 int hf_model_submit(hf_model *m, const hf_io *io);
+/* hf_model_submit that also says what was sanitised: report, when not NULL,
+ * is [io->batch] and must stay valid until the matching hf_model_wait,
+ * which fills in the output guard's counts. */
+int hf_model_submit_report(hf_model *m, const hf_io *io, hf_input_report *report);
 /* Waits for the oldest pending run and returns its status; timing (may be
  * NULL) gets its hf_timing. HF_EINVAL when no run is pending. */
 int hf_model_wait(hf_model *m, hf_timing *timing);

@@ -1,0 +1,252 @@
+/* Out-of-contract input and output values (protocol/FEATURES.md,
+ * "Out-of-contract values"). hf_model_run applies this to every frame of
+ * every backend, so what a bad sample does to a result is defined once:
+ *
+ *   - a sample with a non-finite feature (NaN, +-Inf), or with alpha <= 0
+ *     but some other feature non-zero, is uncovered: all six features 0;
+ *   - a finite feature outside its range is clamped into it: color and
+ *     highlight [0, HF_FEATURE_LIGHT_MAX], alpha (0, 1], depth [0, 1],
+ *     tangent.x and tangent.y [-1, 1];
+ *   - an output value outside its range is clamped into it, NaN replaced by
+ *     the channel's neutral value (color 1, highlight 0, alpha 0).
+ *
+ * The bounds keep every backend's arithmetic finite: HF_FEATURE_LIGHT_MAX
+ * (64) times 216 first-layer taps of weights below 1 stays under binary16's
+ * 65504, and the later layers scale with it. Checking is one pass over the
+ * input that only reads; the input is copied and changed only when a sample
+ * needs it. */
+#include <math.h>
+#include <string.h>
+
+#include "hfcore.h"
+
+/* ---- float32 --------------------------------------------------------------- */
+
+/* Ranges by feature index (HF_FEATURE_NAMES order). */
+static const float LO[HF_FEATURES_PER_SAMPLE] = {0.0f, 0.0f, 0.0f, 0.0f, -1.0f, -1.0f};
+static const float HI[HF_FEATURES_PER_SAMPLE] = {HF_FEATURE_LIGHT_MAX, HF_FEATURE_LIGHT_MAX,
+                                                 1.0f, 1.0f, 1.0f, 1.0f};
+
+/* In contract: covered with every feature in range, or uncovered (all 0).
+ * Comparisons are false for NaN, so NaN is never in range. Branch-free:
+ * covered and uncovered samples alternate unpredictably. */
+static inline int ok_f32(const float *s) {
+  const float m = HF_FEATURE_LIGHT_MAX;
+  float c = s[0], h = s[1], a = s[2], d = s[3], x = s[4], y = s[5];
+  int in = (a > 0.0f) & (a <= 1.0f) & (c >= 0.0f) & (c <= m) & (h >= 0.0f) & (h <= m) &
+           (d >= 0.0f) & (d <= 1.0f) & (x >= -1.0f) & (x <= 1.0f) & (y >= -1.0f) & (y <= 1.0f);
+  int zero = (c == 0.0f) & (h == 0.0f) & (a == 0.0f) & (d == 0.0f) & (x == 0.0f) & (y == 0.0f);
+  return in | zero;
+}
+
+/* The rule on one sample of six floats; says what was wrong in kind, feature. */
+static void fix_f32(float *s, int *kind, int *feature) {
+  for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
+    if (!isfinite(s[f])) {
+      *kind = HF_SANITISED_NONFINITE, *feature = f;
+      memset(s, 0, HF_FEATURES_PER_SAMPLE * sizeof *s);
+      return;
+    }
+  if (s[2] <= 0.0f) {
+    *kind = HF_SANITISED_UNCOVERED, *feature = 2;
+    memset(s, 0, HF_FEATURES_PER_SAMPLE * sizeof *s);
+    return;
+  }
+  *kind = HF_SANITISED_CLAMPED, *feature = -1;
+  for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
+    if (s[f] < LO[f] || s[f] > HI[f]) {
+      if (*feature < 0) *feature = f;
+      s[f] = s[f] < LO[f] ? LO[f] : HI[f];
+    }
+}
+
+/* ---- binary16 ----------------------------------------------------------------- */
+
+/* Orders halves as integers: key(a) < key(b) iff a < b for non-NaN a, b
+ * (-0 just below +0); NaNs land outside [key(-Inf), key(+Inf)]. */
+static inline uint16_t key16(uint16_t h) {
+  return (uint16_t)((h & 0x8000u) ? ~(unsigned)h : (unsigned)h | 0x8000u);
+}
+#define K_NEG_ZERO 0x7fffu            /* key16(0x8000): a lower bound 0 takes -0 */
+#define K_POS_ZERO 0x8000u            /* key16(0x0000) */
+#define K_NEG_ONE  0x43ffu            /* key16(0xbc00) */
+#define K_ONE      0xbc00u            /* key16(0x3c00) */
+#define K_LIGHT    0xd400u            /* key16(0x5400) = 64.0 */
+
+static inline int ok_f16(const uint16_t *s) {
+  unsigned c = key16(s[0]), h = key16(s[1]), a = key16(s[2]), d = key16(s[3]);
+  unsigned x = key16(s[4]), y = key16(s[5]);
+  int in = (a > K_POS_ZERO) & (a <= K_ONE) & (c >= K_NEG_ZERO) & (c <= K_LIGHT) &
+           (h >= K_NEG_ZERO) & (h <= K_LIGHT) & (d >= K_NEG_ZERO) & (d <= K_ONE) &
+           (x >= K_NEG_ONE) & (x <= K_ONE) & (y >= K_NEG_ONE) & (y <= K_ONE);
+  int zero = ((s[0] | s[1] | s[2] | s[3] | s[4] | s[5]) & 0x7fffu) == 0;
+  return in | zero;
+}
+
+/* ---- frames -------------------------------------------------------------------- */
+
+/* The whole-frame check runs before every backend pass, also in front of a
+ * GPU whose upload of a 1024x1024 frame takes ~1.6 ms, so it has to run at
+ * memory speed. Scalar code per sample (ok_f32) does not vectorize (six
+ * interleaved features) and took 8.5x as long as a memcpy of the frame on
+ * the development machine; these loops take about as long as the memcpy.
+ * They use GCC/Clang vector extensions on groups of four samples (24
+ * values): six vectors of four floats, or three of eight halves, whose
+ * lanes hold the features in a fixed pattern. The predicate is ok_f32's,
+ * rewritten per lane: every value in its range (alpha's lower bound 0
+ * included), and a non-zero value only in a sample whose alpha is > 0. */
+typedef float v4f __attribute__((vector_size(16)));
+typedef int32_t v4i __attribute__((vector_size(16)));
+typedef uint16_t v8u __attribute__((vector_size(16)));
+typedef int16_t v8s __attribute__((vector_size(16)));
+
+/* Number of in-contract groups of four samples from in, at most groups. */
+static size_t good_groups_f32(const float *in, size_t groups) {
+  const float m = HF_FEATURE_LIGHT_MAX;
+  /* Lanes: c0 h0 a0 d0 | x0 y0 c1 h1 | a1 d1 x1 y1 | c2 h2 a2 d2 | x2 y2 c3 h3 | a3 d3 x3 y3 */
+  const v4f lo[6] = {{0, 0, 0, 0}, {-1, -1, 0, 0}, {0, 0, -1, -1},
+                     {0, 0, 0, 0}, {-1, -1, 0, 0}, {0, 0, -1, -1}};
+  const v4f hi[6] = {{m, m, 1, 1}, {1, 1, m, m}, {1, 1, 1, 1},
+                     {m, m, 1, 1}, {1, 1, m, m}, {1, 1, 1, 1}};
+  const v4f zero = {0, 0, 0, 0};
+  size_t g;
+  for (g = 0; g < groups; g++) {
+    v4f v[6];
+    memcpy(v, in + g * 4 * HF_FEATURES_PER_SAMPLE, sizeof v);
+    float a0 = v[0][2], a1 = v[2][0], a2 = v[3][2], a3 = v[5][0];
+    const v4f alpha[6] = {{a0, a0, a0, a0}, {a0, a0, a1, a1}, {a1, a1, a1, a1},
+                          {a2, a2, a2, a2}, {a2, a2, a3, a3}, {a3, a3, a3, a3}};
+    v4i bad = {0, 0, 0, 0};
+    for (int i = 0; i < 6; i++)
+      bad |= ~((v[i] >= lo[i]) & (v[i] <= hi[i])) | ((v[i] != zero) & ~(alpha[i] > zero));
+    if (bad[0] | bad[1] | bad[2] | bad[3]) break;
+  }
+  return g;
+}
+
+static size_t good_groups_f16(const uint16_t *in, size_t groups) {
+  const uint16_t Z = K_NEG_ZERO, N = K_NEG_ONE, L = K_LIGHT, O = K_ONE;
+  /* Lanes: c0 h0 a0 d0 x0 y0 c1 h1 | a1 d1 x1 y1 c2 h2 a2 d2 | x2 y2 c3 h3 a3 d3 x3 y3 */
+  const v8u lo[3] = {{Z, Z, Z, Z, N, N, Z, Z}, {Z, Z, N, N, Z, Z, Z, Z}, {N, N, Z, Z, Z, Z, N, N}};
+  const v8u hi[3] = {{L, L, O, O, O, O, L, L}, {O, O, O, O, L, L, O, O}, {O, O, L, L, O, O, O, O}};
+  const v8u sign = {0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u};
+  const v8u magn = ~sign, pos_zero = sign;
+  size_t g;
+  for (g = 0; g < groups; g++) {
+    v8u v[3];
+    memcpy(v, in + g * 4 * HF_FEATURES_PER_SAMPLE, sizeof v);
+    uint16_t a0 = v[0][2], a1 = v[1][0], a2 = v[1][6], a3 = v[2][4];
+    const v8u alpha[3] = {{a0, a0, a0, a0, a0, a0, a1, a1}, {a1, a1, a1, a1, a2, a2, a2, a2},
+                          {a2, a2, a3, a3, a3, a3, a3, a3}};
+    v8s bad = {0, 0, 0, 0, 0, 0, 0, 0};
+    for (int i = 0; i < 3; i++) {
+      /* key16 per lane: flip every bit of negatives, the sign bit of the rest. */
+      v8u k = v[i] ^ ((v8u)((v8s)v[i] >> 15) | sign);
+      v8u ka = alpha[i] ^ ((v8u)((v8s)alpha[i] >> 15) | sign);
+      bad |= ~((k >= lo[i]) & (k <= hi[i])) | (((v[i] & magn) != 0) & ~(ka > pos_zero));
+    }
+    v8s none = {0, 0, 0, 0, 0, 0, 0, 0};
+    if (__builtin_memcmp(&bad, &none, sizeof bad)) break;
+  }
+  return g;
+}
+
+/* The first out-of-contract sample at or after i, or n: groups of four by
+ * vector, the rest (and the group that stopped the vector loop) by ok_*. */
+#define NEXT_BAD(NAME, T, OK, GROUPS)                                            \
+  static size_t NAME(const T *in, size_t i, size_t n) {                          \
+    for (;;) {                                                                   \
+      for (; i < n && (i % 4 || n - i < 4); i++)                                 \
+        if (!OK(in + i * HF_FEATURES_PER_SAMPLE)) return i;                      \
+      if (i >= n) return n;                                                      \
+      i += 4 * GROUPS(in + i * HF_FEATURES_PER_SAMPLE, (n - i) / 4);             \
+      if (n - i < 4) continue;                                                   \
+      for (size_t end = i + 4; i < end; i++)                                     \
+        if (!OK(in + i * HF_FEATURES_PER_SAMPLE)) return i;                      \
+    }                                                                            \
+  }
+NEXT_BAD(next_bad_f32, float, ok_f32, good_groups_f32)
+NEXT_BAD(next_bad_f16, uint16_t, ok_f16, good_groups_f16)
+
+static void scan(void *in, hf_dtype dtype, int width, int height, int spp, int fix,
+                 hf_input_report *r) {
+  memset(r, 0, sizeof *r);
+  r->x = r->y = r->sample = r->feature = -1;
+  size_t n = (size_t)width * height * spp;
+  for (size_t i = 0;; i++) {
+    i = dtype == HF_F32 ? next_bad_f32(in, i, n) : next_bad_f16(in, i, n);
+    if (i >= n) break;
+    float v[HF_FEATURES_PER_SAMPLE], before[HF_FEATURES_PER_SAMPLE];
+    float *s32 = (float *)in + i * HF_FEATURES_PER_SAMPLE;
+    uint16_t *s16 = (uint16_t *)in + i * HF_FEATURES_PER_SAMPLE;
+    for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
+      before[f] = v[f] = dtype == HF_F32 ? s32[f] : hf_f16_to_f32(s16[f]);
+    int kind = 0, feature = 0;
+    /* Every bound is exact in binary16, so fixing through float32 is exact. */
+    fix_f32(v, &kind, &feature);
+    if (fix)
+      for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++) {
+        if (dtype == HF_F32) s32[f] = v[f];
+        else s16[f] = hf_f32_to_f16(v[f]);
+      }
+    if (!r->samples++) {
+      size_t px = i / (size_t)spp;
+      r->x = (int)(px % (size_t)width);
+      r->y = (int)(px / (size_t)width);
+      r->sample = (int)(i % (size_t)spp);
+      r->feature = feature;
+      r->kind = kind;
+      r->value = before[feature];
+    }
+  }
+}
+
+void hf_features_check(const void *in, hf_dtype dtype, int width, int height, int spp,
+                       hf_input_report *report) {
+  scan((void *)in, dtype, width, height, spp, 0, report);
+}
+
+void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int spp,
+                          hf_input_report *report) {
+  scan(in, dtype, width, height, spp, 1, report);
+}
+
+/* ---- outputs ---------------------------------------------------------------------- */
+
+#define F16_MAX_BITS 0x7bffu  /* 65504 */
+#define F16_ONE_BITS 0x3c00u
+
+uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels) {
+  uint64_t fixed = 0;
+  if (dtype == HF_F32) {
+    float *o = out;
+    for (size_t i = 0; i < pixels * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
+      float c = o[i], h = o[i + 1], a = o[i + 2];
+      if ((c >= -HF_OUTPUT_MAX) & (c <= HF_OUTPUT_MAX) & (h >= 0.0f) & (h <= HF_OUTPUT_MAX) &
+          (a >= 0.0f) & (a <= 1.0f))
+        continue;
+      fixed++;
+      o[i] = isnan(c) ? 1.0f : fminf(fmaxf(c, -HF_OUTPUT_MAX), HF_OUTPUT_MAX);
+      o[i + 1] = isnan(h) ? 0.0f : fminf(fmaxf(h, 0.0f), HF_OUTPUT_MAX);
+      o[i + 2] = isnan(a) ? 0.0f : fminf(fmaxf(a, 0.0f), 1.0f);
+    }
+    return fixed;
+  }
+  uint16_t *o = out;
+  for (size_t i = 0; i < pixels * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
+    uint16_t c = o[i], h = o[i + 1], a = o[i + 2];
+    uint16_t kc = key16(c), kh = key16(h), ka = key16(a);
+    if ((kc >= key16(0x8000u | F16_MAX_BITS)) & (kc <= key16(F16_MAX_BITS)) &
+        (kh >= K_NEG_ZERO) & (kh <= key16(F16_MAX_BITS)) & (ka >= K_NEG_ZERO) & (ka <= K_ONE))
+      continue;
+    fixed++;
+    int nan_c = (c & 0x7fffu) > 0x7c00u, nan_h = (h & 0x7fffu) > 0x7c00u;
+    int nan_a = (a & 0x7fffu) > 0x7c00u;
+    o[i] = nan_c ? F16_ONE_BITS
+         : kc < key16(0x8000u | F16_MAX_BITS) ? (uint16_t)(0x8000u | F16_MAX_BITS)
+         : kc > key16(F16_MAX_BITS) ? (uint16_t)F16_MAX_BITS : c;
+    o[i + 1] = nan_h || kh < K_NEG_ZERO ? 0 : kh > key16(F16_MAX_BITS) ? F16_MAX_BITS : h;
+    o[i + 2] = nan_a || ka < K_NEG_ZERO ? 0 : ka > K_ONE ? F16_ONE_BITS : a;
+  }
+  return fixed;
+}
