@@ -630,7 +630,8 @@ int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m) {
 
 static int result_sizes(const hfp_result *m, uint64_t *data_len, uint64_t *rgba_len) {
   *data_len = *rgba_len = 0;
-  if (m->flags & ~(HFP_FILTER_COMPOSITE | HFP_FILTER_SHM | HFP_RESULT_OUT_OF_RANGE))
+  if (m->flags & ~(HFP_FILTER_COMPOSITE | HFP_FILTER_SHM | HFP_RESULT_INPUT_SANITISED |
+                   HFP_RESULT_OUT_OF_RANGE))
     return -HFP_E_INVALID;
   if (m->status != HFP_OK) {
     if (m->status >= HFP_E_COUNT || m->width || m->height || m->flags)
@@ -787,7 +788,10 @@ int hfp_encode_stats_v(uint8_t *buf, size_t cap, const hfp_stats *m, int version
   /* Version 2: the counters a version-1 entry has no room for. */
   if (version >= 2 && !w.err) {
     wr_u16(&w, HFP_STATS_COUNTERS);
-    for (int i = 0; i < m->num_variants; i++) wr_u64(&w, m->variants[i].out_of_range);
+    for (int i = 0; i < m->num_variants; i++) {
+      wr_u64(&w, m->variants[i].out_of_range);
+      wr_u64(&w, m->variants[i].frames_sanitised);
+    }
   }
   return wr_finish(&w, HFP_STATS_REPLY, 0, 0);
 }
@@ -835,6 +839,7 @@ int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
       for (int k = 0; k < nc; k++) {
         uint64_t c = rd_u64(&r);
         if (k == 0) m->variants[i].out_of_range = c;
+        if (k == 1) m->variants[i].frames_sanitised = c;
       }
   }
   int rc = rd_end(&r);

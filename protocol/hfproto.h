@@ -1,9 +1,10 @@
 /*
  * hfproto: the hairfilter wire protocol, versions 1 and 2 (see PROTOCOL.md,
  * which is normative; this header follows it). Version 2 is version 1 plus
- * the input-range report: RESULT flag HFP_RESULT_OUT_OF_RANGE, each
- * variant's trained input range after VARIANTS, and per-variant counters
- * after STATS_REPLY. A peer that negotiated version 1 never sees them.
+ * the input-range report and the input-sanitised flag: RESULT flags
+ * HFP_RESULT_INPUT_SANITISED and HFP_RESULT_OUT_OF_RANGE, each variant's
+ * trained input range after VARIANTS, and per-variant counters after
+ * STATS_REPLY. A peer that negotiated version 1 never sees them.
  *
  * A pure codec: it turns message structs into bytes and bytes into structs.
  * It does no I/O and never allocates, so every length it reads from the wire
@@ -46,7 +47,7 @@ extern "C" {
 #define HFP_OUTPUTS        3      /* color, highlight, alpha */
 #define HFP_HIST_BUCKETS   24     /* latency histogram buckets */
 #define HFP_MAX_STATS      16     /* input statistics a variant's range may name */
-#define HFP_STATS_COUNTERS 1      /* per-variant counters after STATS_REPLY (v2) */
+#define HFP_STATS_COUNTERS 2      /* per-variant counters after STATS_REPLY (v2) */
 
 /* ---- error codes (stable; wire values are the positive numbers) -------- */
 
@@ -98,6 +99,8 @@ enum { HFP_F32 = 0, HFP_F16 = 1 };
 #define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM)
 
 /* RESULT flags beyond the FILTER's (version 2 only). */
+#define HFP_RESULT_INPUT_SANITISED 0x04u  /* some samples were non-finite or out of
+                                             range and were sanitised (FEATURES.md) */
 #define HFP_RESULT_OUT_OF_RANGE 0x08u  /* the input is outside the variant's trained range */
 
 /* HELLO_OK server flags. */
@@ -187,7 +190,8 @@ typedef struct hfp_result {
   uint16_t status;       /* HFP_OK, or an HFP_E_* code and no data */
   uint8_t dtype;
   uint8_t flags;         /* HFP_FILTER_COMPOSITE when rgba follows, HFP_FILTER_SHM,
-                            HFP_RESULT_OUT_OF_RANGE (version 2) */
+                            HFP_RESULT_INPUT_SANITISED, HFP_RESULT_OUT_OF_RANGE
+                            (version 2) */
   uint32_t width, height;
   uint32_t batch;        /* frames inferred together with this one */
   hfp_timing timing;
@@ -213,6 +217,8 @@ typedef struct hfp_variant_stats {
   uint64_t hist_total[HFP_HIST_BUCKETS];
   uint64_t hist_infer[HFP_HIST_BUCKETS];
   uint64_t out_of_range;      /* version 2: successful requests flagged out of range */
+  uint64_t frames_sanitised;  /* version 2: successful requests whose input was
+                                 sanitised (HFP_RESULT_INPUT_SANITISED) */
 } hfp_variant_stats;
 
 typedef struct hfp_stats {

@@ -214,6 +214,7 @@ static void account(hfd_server *s, hfd_job *j) {
   }
   st->requests_ok++;
   st->out_of_range += j->out_of_range != 0;
+  st->frames_sanitised += j->sanitised != 0;
   if (j->batch_leader) st->batches++;
   st->sum_queue_us += j->timing.queue_us;
   st->sum_infer_us += j->timing.infer_us;
@@ -256,8 +257,9 @@ static void deliver(hfd_server *s, hfd_job *j) {
       r.flags |= HFP_FILTER_SHM;
       r.data_len = r.rgba_len = 0;
     }
-    /* A version-1 peer knows no such flag: it is only counted for it. */
+    /* A version-1 peer knows no such flags: they are only counted for it. */
     if (j->out_of_range && c->version >= 2) r.flags |= HFP_RESULT_OUT_OF_RANGE;
+    if (j->sanitised && c->version >= 2) r.flags |= HFP_RESULT_INPUT_SANITISED;
   }
   uint64_t total;
   int n = hfp_encode_result_head(j->head, sizeof j->head, j->request_id, &r, &total);

@@ -113,6 +113,7 @@ typedef struct hfd_job {
   hfp_timing timing;
   uint32_t batch;
   int batch_leader;              /* counts the backend run in the stats */
+  uint64_t sanitised;            /* samples hf_model_run sanitised (FEATURES.md) */
   int status;                    /* HFP_OK or an HFP_E_* code */
   int out_of_range;              /* input outside the variant's trained range */
   hfd_seg *seg;                  /* tensors live in this segment, or NULL */

@@ -86,6 +86,7 @@ typedef struct run {
   int rc;
   double t0, t1, t2;             /* started, submitted, backend finished */
   hf_timing t;
+  hf_input_report *reports;      /* [max batch]: what the backend run sanitised */
 } run;
 
 /* Gathers the batch's inputs and makes its hf_io. Fast path: one frame
@@ -142,6 +143,7 @@ static void finish_run(hfd_worker *w, run *r) {
   const int nb = r->nb;
   size_t px = (size_t)j0->req.width * j0->req.height;
   int rc = r->rc;
+  for (int i = 0; i < nb && !rc; i++) r->jobs[i]->sanitised = r->reports[i].samples;
   if (!rc && !r->direct)
     for (int i = 0; i < nb && !rc; i++)
       if (finish_from_f32(w, r->jobs[i], (const float *)w->scratch_out + px * 3 * i))
@@ -293,12 +295,13 @@ static void *worker_main(void *arg) {
   }
   /* Two batch tables: the one being formed, and the pending one. */
   hfd_job **tables = calloc((size_t)w->max_batch * 2, sizeof *tables);
-  if (!tables) {
+  hf_input_report *reports = calloc((size_t)w->max_batch * 2, sizeof *reports);
+  if (!tables || !reports) {
     hfd_log("error: worker: out of memory for the batch table");
     abort();
   }
-  run cur = {tables, 0, 0, 0, 0, 0, 0, {0, 0, 0}};
-  run pend = {tables + w->max_batch, 0, 0, 0, 0, 0, 0, {0, 0, 0}};
+  run cur = {tables, 0, 0, 0, 0, 0, 0, {0, 0, 0}, reports};
+  run pend = {tables + w->max_batch, 0, 0, 0, 0, 0, 0, {0, 0, 0}, reports + w->max_batch};
   hfd_job **batch = cur.jobs;
   pthread_mutex_lock(&w->mu);
   for (;;) {
@@ -352,7 +355,7 @@ static void *worker_main(void *arg) {
       if (!cur.rc && cur.direct && w->pipeline_depth > 1 && hf_model_overlaps(m)) {
         /* Submit this one, then finish the one before it: the upload of
          * this frame overlaps that one's compute. */
-        cur.rc = hf_model_submit(m, &io);
+        cur.rc = hf_model_submit_report(m, &io, cur.reports);
         if (pend.nb) finish_pending(w, &pend);
         if (cur.rc) {
           cur.t2 = hfd_now_us();
@@ -366,7 +369,7 @@ static void *worker_main(void *arg) {
         }
       } else {
         if (pend.nb) finish_pending(w, &pend);
-        if (!cur.rc) cur.rc = hf_model_run(m, &io, &cur.t);
+        if (!cur.rc) cur.rc = hf_model_run_report(m, &io, &cur.t, cur.reports);
         cur.t2 = hfd_now_us();
         finish_run(w, &cur);
         complete(w, batch, nb);
@@ -378,6 +381,7 @@ static void *worker_main(void *arg) {
   pthread_mutex_unlock(&w->mu);
   if (pend.nb) finish_pending(w, &pend);
   free(tables);
+  free(reports);
   release_models(w);
   return NULL;
 }

@@ -258,6 +258,7 @@ static int pump(hfc_client *c, int first_timeout_ms) {
     t->batch = (int)r.batch;
     t->via_shm = p->shm;
     t->out_of_range = (r.flags & HFP_RESULT_OUT_OF_RANGE) != 0;
+    t->input_sanitised = (r.flags & HFP_RESULT_INPUT_SANITISED) != 0;
     if (r.status != HFP_OK) {
       finish(c, p, -(int)r.status);
       return 0;
@@ -593,6 +594,7 @@ int hfc_get_stats(hfc_client *c, hfc_stats *out) {
     memcpy(d->hist_total, s->hist_total, sizeof d->hist_total);
     memcpy(d->hist_infer, s->hist_infer, sizeof d->hist_infer);
     d->out_of_range = s->out_of_range;
+    d->frames_sanitised = s->frames_sanitised;
   }
   free(st);
   return 0;

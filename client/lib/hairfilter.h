@@ -147,6 +147,11 @@ typedef struct hfc_timing {
   int out_of_range;          /* 1: the input is outside the range the variant was
                                 trained on (hfc_variant.range_*): the result may
                                 not be good (always 0 from version-1 servers) */
+  int input_sanitised;       /* 1: some samples were non-finite or out of range and
+                                the server sanitised them (protocol/FEATURES.md,
+                                "Out-of-contract values"; hf_features_check on the
+                                features says which); always 0 from version-1
+                                servers */
 } hfc_timing;
 
 /* Synchronous: sends r and waits for its result. timing may be NULL. */
@@ -197,6 +202,7 @@ typedef struct hfc_variant_stats {
   uint64_t sum_queue_us, sum_infer_us, sum_total_us;
   uint64_t hist_total[HFC_HIST_BUCKETS], hist_infer[HFC_HIST_BUCKETS];
   uint64_t out_of_range;     /* successful requests flagged out of range (v2) */
+  uint64_t frames_sanitised; /* successful requests whose input was sanitised (v2) */
 } hfc_variant_stats;
 
 typedef struct hfc_stats {

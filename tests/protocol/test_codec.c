@@ -521,7 +521,8 @@ static void test_version2(void **state) {
   ok.version = 3;
   assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &ok), -HFP_E_INVALID);
 
-  /* RESULT: bit 3 says the input is out of range; bit 2 is not ours. */
+  /* RESULT: bit 3 says the input is out of range, bit 2 that it was
+   * sanitised; bits 4..7 are no one's. */
   float data[2 * 1 * 3] = {0};
   hfp_result r = {0, HFP_F32, HFP_RESULT_OUT_OF_RANGE, 2, 1, 1, {1, 2, 3, 4, 10},
                   data, sizeof data, NULL, 0}, rd;
@@ -532,13 +533,26 @@ static void test_version2(void **state) {
   p = split(buf, (int)total, HFP_RESULT, &h);
   assert_int_equal(hfp_decode_result(p, h.length, &rd), 0);
   assert_int_equal(rd.flags, HFP_RESULT_OUT_OF_RANGE);
-  r.flags = 0x04;
+  r.flags = HFP_RESULT_INPUT_SANITISED | HFP_RESULT_OUT_OF_RANGE;
+  n = hfp_encode_result_head(buf, sizeof buf, 9, &r, &total);
+  assert_true(n > 0);
+  memcpy(buf + n, data, sizeof data);
+  p = split(buf, (int)total, HFP_RESULT, &h);
+  assert_int_equal(hfp_decode_result(p, h.length, &rd), 0);
+  assert_int_equal(rd.flags, HFP_RESULT_INPUT_SANITISED | HFP_RESULT_OUT_OF_RANGE);
+  static uint8_t cr[256];
+  memcpy(cr, p, h.length);
+  cr[3] = 0x10;  /* an unknown bit */
+  assert_int_equal(hfp_decode_result(cr, h.length, &rd), -HFP_E_INVALID);
+  r.flags = 0x10;
   assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 9, &r, &total), -HFP_E_INVALID);
   r.flags = HFP_RESULT_OUT_OF_RANGE;
   r.status = HFP_E_INTERNAL;   /* a failed request carries no flags */
   r.width = r.height = r.batch = 0;
   r.data = NULL;
   r.data_len = 0;
+  assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 9, &r, &total), -HFP_E_INVALID);
+  r.flags = HFP_RESULT_INPUT_SANITISED;
   assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 9, &r, &total), -HFP_E_INVALID);
 
   /* VARIANTS with ranges. */
@@ -600,7 +614,7 @@ static void test_version2(void **state) {
   v[1].ranges[1].stat = 0;
   assert_int_equal(hfp_encode_variants_v(buf, sizeof buf, v, 2, 2), -HFP_E_INVALID);
 
-  /* STATS_REPLY: the out-of-range counter after the entries. */
+  /* STATS_REPLY: the out-of-range and sanitised counters after the entries. */
   static hfp_stats m, sd;
   memset(&m, 0, sizeof m);
   m.num_variants = 2;
@@ -608,11 +622,13 @@ static void test_version2(void **state) {
   strcpy(m.variants[1].name, "B");
   m.variants[0].requests_ok = 5;
   m.variants[1].out_of_range = 7;
+  m.variants[0].frames_sanitised = 3;
+  m.variants[1].frames_sanitised = 1ull << 40;
   n1 = hfp_encode_stats(buf, sizeof buf, &m);
   memcpy(v1, buf, (size_t)n1);
   n2 = hfp_encode_stats_v(buf, sizeof buf, &m, 2);
   assert_int_equal((size_t)n2, hfp_frame_size_stats_v(&m, 2));
-  assert_int_equal(n2, n1 + 2 + 2 * 8);
+  assert_int_equal(n2, n1 + 2 + 2 * HFP_STATS_COUNTERS * 8);
   p = split(buf, n2, HFP_STATS_REPLY, &h);
   assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
   assert_memory_equal(&sd, &m, sizeof m);
@@ -621,7 +637,8 @@ static void test_version2(void **state) {
   p = split(v1, n1, HFP_STATS_REPLY, &h);   /* version 1: counted, not sent */
   assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
   assert_true(sd.variants[1].out_of_range == 0 && sd.variants[0].requests_ok == 5);
-  /* A newer peer's three counters: the first is ours, the rest skipped. */
+  assert_true(sd.variants[0].frames_sanitised == 0 && sd.variants[1].frames_sanitised == 0);
+  /* A newer peer's three counters: the first two are ours, the rest skipped. */
   memcpy(c, v1, (size_t)n1);
   size_t off = (size_t)n1;
   hfp_put_u16(c + off, 3), off += 2;
@@ -632,6 +649,7 @@ static void test_version2(void **state) {
     }
   assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, off - HFP_HEADER_SIZE, &sd), 0);
   assert_true(sd.variants[0].out_of_range == 1 && sd.variants[1].out_of_range == 11);
+  assert_true(sd.variants[0].frames_sanitised == 2 && sd.variants[1].frames_sanitised == 12);
   hfp_put_u16(c + n1, 0);                   /* no counters: not a valid block */
   assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, (size_t)n1 + 2 - HFP_HEADER_SIZE, &sd),
                    -HFP_E_INVALID);
