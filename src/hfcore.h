@@ -155,8 +155,10 @@ typedef struct hf_weights {
 } hf_weights;
 
 /* Loads a safetensors file (see weights/FORMAT.md). Every length and offset
- * in the file is checked before use; on failure *out is NULL and err (when
- * not NULL) holds a one-line reason. */
+ * in the file is checked before use, a key named twice in one JSON object is
+ * refused, and "__metadata__" must be an object of strings; on failure *out
+ * is NULL (HF_EFORMAT, HF_EUNSUPPORTED, HF_EIO, HF_ENOMEM, HF_ERANGE) and err
+ * (when not NULL) holds a one-line reason. */
 int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen);
 int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out,
                         char *err, size_t errlen);

@@ -9,6 +9,7 @@
 #include <cjson/cJSON.h>
 
 #include "errors.h"
+#include "json_check.h"
 #include "hfcore.h"
 
 #define fail hf_fail_msg
@@ -21,6 +22,12 @@ int hf_input_range_parse(const char *json, int spp, hf_input_range *out, char *e
   int rc = HF_OK;
   if (!cJSON_IsObject(m)) {
     rc = fail(err, errlen, HF_EFORMAT, "input_range is not a JSON object");
+    goto out;
+  }
+  const char *where = "", *dup = hf_json_duplicate(m, &where);
+  if (dup) {
+    rc = fail(err, errlen, HF_EFORMAT, "input_range: duplicate key '%.64s'%s%.64s%s: each name "
+              "may appear once", dup, where[0] ? " in '" : "", where, where[0] ? "'" : "");
     goto out;
   }
   const cJSON *def = cJSON_GetObjectItemCaseSensitive(m, "definition");

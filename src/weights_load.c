@@ -16,6 +16,7 @@
 
 #include <cjson/cJSON.h>
 
+#include "json_check.h"
 #include "weights.h"
 #include "errors.h"
 
@@ -43,6 +44,13 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
     return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not a JSON object");
   }
   int rc = HF_OK;
+  const char *where = "", *dup = hf_json_duplicate(m, &where);
+  if (dup) {
+    rc = fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter': duplicate key '%.64s'%s%.64s%s: "
+              "each name may appear once", dup, where[0] ? " in '" : "", where,
+              where[0] ? "'" : "");
+    goto out;
+  }
   hf_net_config *c = &w->cfg;
   memset(c, 0, sizeof *c);
   const cJSON *name = cJSON_GetObjectItemCaseSensitive(m, "name");
@@ -200,7 +208,27 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   int rc;
   hf_weights tmp;
   memset(&tmp, 0, sizeof tmp);
+  const char *where = "", *dup = hf_json_duplicate(root, &where);
+  if (dup) {
+    rc = fail(err, errlen, HF_EFORMAT, "header: duplicate key '%.64s'%s%.64s%s: each name may "
+              "appear once (readers disagree on which one counts)", dup,
+              where[0] ? " in '" : "", where, where[0] ? "'" : "");
+    goto out;
+  }
+  /* safetensors: "__metadata__" is optional and, when present, an object
+   * whose values are all strings. */
   const cJSON *meta = cJSON_GetObjectItemCaseSensitive(root, "__metadata__");
+  if (meta && !cJSON_IsObject(meta)) {
+    rc = fail(err, errlen, HF_EFORMAT, "header: '__metadata__' is %s, but safetensors wants an "
+              "object of string values", hf_json_kind(meta));
+    goto out;
+  }
+  for (const cJSON *it = meta ? meta->child : NULL; it; it = it->next)
+    if (!cJSON_IsString(it)) {
+      rc = fail(err, errlen, HF_EFORMAT, "header: '__metadata__.%.64s' is %s, but safetensors "
+                "metadata values are strings", it->string, hf_json_kind(it));
+      goto out;
+    }
   const cJSON *hf = meta ? cJSON_GetObjectItemCaseSensitive(meta, "hairfilter") : NULL;
   if (!cJSON_IsString(hf)) {
     rc = fail(err, errlen, HF_EFORMAT, "no '__metadata__.hairfilter' entry");
@@ -281,7 +309,7 @@ int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen
     rc = fail(err, errlen, HF_EIO, "%s: short read", path);
     goto out;
   }
-  char inner[200] = "";
+  char inner[400] = "";
   rc = hf_weights_load_mem(buf, (size_t)size, out, inner, sizeof inner);
   if (rc) fail(err, errlen, rc, "%s: %s", path, inner);
 out:

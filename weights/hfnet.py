@@ -12,6 +12,8 @@ a model trained here exports directly to the C backends and vice versa.
 import json
 import struct
 
+import safetensors_header
+
 import numpy as np
 import torch
 import torch.nn as nn
@@ -265,22 +267,20 @@ def save_safetensors(path, cfg, state_dict, dtype="F32", metadata=None):
 
 
 def load_metadata(path):
-    """The header's __metadata__ map (strings) of a safetensors file."""
-    with open(path, "rb") as f:
-        (n,) = struct.unpack("<Q", f.read(8))
-        return json.loads(f.read(n)).get("__metadata__", {})
+    """The header's __metadata__ map (strings) of a safetensors file, checked
+    as safetensors_header.read_header checks it."""
+    return safetensors_header.read_header(path)[0].get("__metadata__", {})
 
 
 def load_safetensors(path):
     """Returns (cfg, state_dict of float32 tensors)."""
-    with open(path, "rb") as f:
-        data = f.read()
-    (n,) = struct.unpack("<Q", data[:8])
-    if n > len(data) - 8:
-        raise ValueError(f"{path}: header length {n} exceeds file size")
-    header = json.loads(data[8:8 + n])
-    cfg = json.loads(header.pop("__metadata__")["hairfilter"])
-    base = 8 + n
+    header, data, base = safetensors_header.read_header(path)
+    if "hairfilter" not in header.get("__metadata__", {}):
+        raise ValueError(f"{path}: no '__metadata__.hairfilter' entry")
+    try:
+        cfg = json.loads(header.pop("__metadata__")["hairfilter"], object_pairs_hook=safetensors_header.unique_keys)
+    except ValueError as e:
+        raise ValueError(f"{path}: metadata 'hairfilter': {e}") from None
     sd = {}
     for name, t in header.items():
         np_dtype, _ = _DTYPES[t["dtype"]]

@@ -22,18 +22,14 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import dataset  # noqa: E402
 import input_stats  # noqa: E402
+import safetensors_header  # noqa: E402
 
 
 def read_safetensors_header(path):
-    """(header dict, tensor bytes) of a safetensors file."""
-    with open(path, "rb") as f:
-        data = f.read()
-    if len(data) < 8:
-        raise ValueError(f"{path}: too short for a safetensors file")
-    (n,) = struct.unpack("<Q", data[:8])
-    if n > len(data) - 8:
-        raise ValueError(f"{path}: header length {n} exceeds the file")
-    return json.loads(data[8:8 + n]), data[8 + n:]
+    """(header dict, tensor bytes) of a safetensors file, refused as the C
+    loader refuses it (duplicate keys, __metadata__ not of strings)."""
+    header, data, base = safetensors_header.read_header(path)
+    return header, data[base:]
 
 
 def write_safetensors_header(path, header, body):
@@ -90,7 +86,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     header, _ = read_safetensors_header(args.weights)
     try:
-        cfg = json.loads(header["__metadata__"]["hairfilter"])
+        cfg = json.loads(header["__metadata__"]["hairfilter"],
+                         object_pairs_hook=safetensors_header.unique_keys)
     except (KeyError, TypeError, ValueError):
         sys.exit(f"stamp_range.py: {args.weights}: no hairfilter metadata")
     entries = training_frames(args.data, args.styles, args.val_fraction)

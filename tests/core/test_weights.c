@@ -74,7 +74,7 @@ static blob with_header_edit(const blob *b, const char *from, const char *to) {
 
 static void expect_reject(const blob *b, int want_rc, const char *want_in_msg) {
   hf_weights *w = (hf_weights *)0x1;
-  char err[256] = "";
+  char err[512] = "";
   int rc = hf_weights_load_mem(b->data, b->len, &w, err, sizeof err);
   if (want_rc) assert_int_equal(rc, want_rc);
   else assert_true(rc < 0);
@@ -198,6 +198,72 @@ static void test_bad_dtype_and_tensor_set(void **state) {
   free(b.data);
 }
 
+/* A name twice in one JSON object, at any level, is refused: cJSON would
+ * read the first and Python's json the last, two different networks. */
+static void test_duplicate_keys(void **state) {
+  blob b = valid_file(NULL);
+  blob t = with_header_edit(&b, "\"enc0.bias\":", "\"enc0.bias\":{},\"enc0.bias\":");
+  expect_reject(&t, HF_EFORMAT, "duplicate key 'enc0.bias'");
+  free(t.data);
+  blob d = with_header_edit(&b, "\"dtype\":\"F32\"", "\"dtype\":\"F32\",\"dtype\":\"F16\"");
+  expect_reject(&d, HF_EFORMAT, "duplicate key 'dtype' in 'enc0.weight'");
+  free(d.data);
+  blob m = with_header_edit(&b, "{\"__metadata__\":",
+                            "{\"__metadata__\":{\"hairfilter\":\"{}\"},\"__metadata__\":");
+  expect_reject(&m, HF_EFORMAT, "duplicate key '__metadata__'");
+  free(m.data);
+  blob k = with_header_edit(&b, "\"__metadata__\":{", "\"__metadata__\":{\"x\":\"1\",\"x\":\"2\",");
+  expect_reject(&k, HF_EFORMAT, "duplicate key 'x' in '__metadata__'");
+  free(k.data);
+  blob h = with_header_edit(&b, "\\\"spp\\\":4", "\\\"spp\\\":4,\\\"spp\\\":1");
+  expect_reject(&h, HF_EFORMAT, "metadata 'hairfilter': duplicate key 'spp'");
+  free(h.data);
+  blob r = with_header_edit(&b, "\"__metadata__\":{",
+                            "\"__metadata__\":{\"input_range\":\"{\\\"definition\\\":1,"
+                            "\\\"definition\\\":2}\",");
+  expect_reject(&r, HF_EFORMAT, "input_range: duplicate key 'definition'");
+  free(r.data);
+  /* Many names, the repeated one last: found, and quickly (sorted, not
+   * pairwise). */
+  size_t n = 200000, cap = n * 16 + 64, used = 0;
+  char *many = malloc(cap);
+  used += (size_t)snprintf(many, cap, "\"__metadata__\":{");
+  for (size_t i = 0; i < n; i++) used += (size_t)snprintf(many + used, cap - used, "\"k%zu\":\"\",", i);
+  snprintf(many + used, cap - used, "\"k7\":\"\",");
+  blob g = with_header_edit(&b, "\"__metadata__\":{", many);
+  expect_reject(&g, HF_EFORMAT, "duplicate key 'k7' in '__metadata__'");
+  free(g.data);
+  free(many);
+  /* The field case: __metadata__ twice, first unet, then residual. */
+  char path[512];
+  snprintf(path, sizeof path, "%s/field/weights-duplicate-metadata.safetensors", HF_TEST_DATA);
+  blob f = read_all(path);
+  expect_reject(&f, HF_EFORMAT, "duplicate key '__metadata__'");
+  hf_weights *w = (hf_weights *)0x1;
+  char err[512];
+  assert_int_equal(hf_weights_load(path, &w, err, sizeof err), HF_EFORMAT);
+  assert_null(w);
+  assert_non_null(strstr(err, "weights-duplicate-metadata.safetensors"));
+  free(f.data);
+  free(b.data);
+}
+
+/* safetensors: "__metadata__" is an object whose values are strings. */
+static void test_metadata_types(void **state) {
+  blob b = valid_file(NULL);
+  blob n = with_header_edit(&b, "\"__metadata__\":{", "\"__metadata__\":{\"epoch\":3,");
+  expect_reject(&n, HF_EFORMAT, "'__metadata__.epoch' is a number, but safetensors metadata "
+                                "values are strings");
+  free(n.data);
+  blob o = with_header_edit(&b, "\"__metadata__\":{", "\"__metadata__\":{\"more\":{},");
+  expect_reject(&o, HF_EFORMAT, "'__metadata__.more' is an object");
+  free(o.data);
+  blob a = with_header_edit(&b, "{\"__metadata__\":{", "{\"__metadata__\":[],\"x\":{");
+  expect_reject(&a, HF_EFORMAT, "'__metadata__' is an array, but safetensors wants an object");
+  free(a.data);
+  free(b.data);
+}
+
 static void test_missing_file(void **state) {
   hf_weights *w;
   char err[256] = "";
@@ -246,7 +312,8 @@ int main(void) {
     cmocka_unit_test(test_huge_header_length),  cmocka_unit_test(test_offsets_past_end),
     cmocka_unit_test(test_wrong_shapes),        cmocka_unit_test(test_bad_json),
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
-    cmocka_unit_test(test_header_fuzz),
+    cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_duplicate_keys),
+    cmocka_unit_test(test_metadata_types),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

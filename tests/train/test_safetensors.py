@@ -1,0 +1,124 @@
+#!/usr/bin/python3
+"""The safetensors header checks of weights/hfnet.py and of the C loader,
+on the same files: duplicate keys at any level and "__metadata__" of the
+wrong type are refused by both, with the key named.
+
+    test_safetensors.py --roundtrip BUILD/tests/train/weights_roundtrip --work DIR
+
+Exits 77 (skipped) when torch or numpy is missing.
+"""
+import argparse
+import os
+import struct
+import subprocess
+import sys
+import unittest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "..", "weights"))
+FIELD = os.path.join(HERE, "..", "data", "field")
+
+try:
+    import numpy  # noqa: F401
+    import torch  # noqa: F401
+except ImportError as e:  # pragma: no cover - depends on the machine
+    print(f"train.safetensors skipped: {e} (install python3-torch python3-numpy)")
+    sys.exit(77)
+
+import hfnet  # noqa: E402
+
+ARGS = None
+
+
+def c_loader(path):
+    """(exit status, stderr) of the C loader on path."""
+    r = subprocess.run([ARGS.roundtrip, path, path + ".out"], capture_output=True, text=True)
+    return r.returncode, r.stderr
+
+
+class Header(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        os.makedirs(ARGS.work, exist_ok=True)
+        cls.valid = os.path.join(ARGS.work, "small.safetensors")
+        cfg = hfnet.variant_config("Small")
+        torch.manual_seed(3)
+        hfnet.save_safetensors(cls.valid, cfg, hfnet.HairNet(cfg).state_dict())
+        with open(cls.valid, "rb") as f:
+            data = f.read()
+        (n,) = struct.unpack("<Q", data[:8])
+        cls.header, cls.rest = data[8:8 + n].decode(), data[8 + n:]
+
+    def edited(self, name, old, new):
+        """The valid file with the header's first old replaced by new."""
+        self.assertIn(old, self.header)
+        h = self.header.replace(old, new, 1).encode()
+        path = os.path.join(ARGS.work, name)
+        with open(path, "wb") as f:
+            f.write(struct.pack("<Q", len(h)) + h + self.rest)
+        return path
+
+    def refused(self, path, words):
+        """Both readers refuse path, naming every word of words."""
+        with self.assertRaises(ValueError) as e:
+            hfnet.load_safetensors(path)
+        for w in words:
+            self.assertIn(w, str(e.exception))
+        rc, err = c_loader(path)
+        self.assertEqual(rc, 1, err)
+        for w in words:
+            self.assertIn(w, err)
+
+    def test_valid_loads_in_both(self):
+        cfg, sd = hfnet.load_safetensors(self.valid)
+        self.assertEqual(cfg["name"], "Small")
+        self.assertEqual(c_loader(self.valid)[0], 0)
+
+    def test_field_case_duplicate_metadata(self):
+        self.refused(os.path.join(FIELD, "weights-duplicate-metadata.safetensors"),
+                     ["duplicate key '__metadata__'"])
+
+    def test_duplicate_metadata_generated(self):
+        meta = self.header[:self.header.index(',"enc0.weight"')]
+        other = meta.replace('\\"unet\\"', '\\"residual\\"').replace('{"__metadata__"', '"__metadata__"')
+        # '{"__metadata__":{...},"__metadata__":{...residual...},"enc0.weight":...'
+        self.refused(self.edited("dup_meta.safetensors", ',"enc0.weight"', "," + other + ',"enc0.weight"'),
+                     ["duplicate key '__metadata__'"])
+
+    def test_duplicate_tensor(self):
+        start = self.header.index('"enc0.bias"')
+        end = self.header.index("}", start) + 1
+        entry = self.header[start:end]
+        self.refused(self.edited("dup_tensor.safetensors", entry, entry + "," + entry),
+                     ["duplicate key 'enc0.bias'"])
+
+    def test_duplicate_inside_tensor(self):
+        self.refused(self.edited("dup_dtype.safetensors", '"dtype":"F32"', '"dtype":"F32","dtype":"F16"'),
+                     ["duplicate key 'dtype'"])
+
+    def test_duplicate_inside_hairfilter(self):
+        self.refused(self.edited("dup_levels.safetensors", '\\"spp\\": 4', '\\"spp\\": 4, \\"spp\\": 1'),
+                     ["hairfilter", "duplicate key 'spp'"])
+
+    def test_metadata_wrong_types(self):
+        path = self.edited("meta_number.safetensors", '"__metadata__":{', '"__metadata__":{"epoch":3,')
+        self.refused(path, ["'__metadata__.epoch'", "string"])
+        path = self.edited("meta_array.safetensors", '"__metadata__":{', '"__metadata__":{"tags":["a"],')
+        self.refused(path, ["'__metadata__.tags'"])
+        meta_end = self.header.index(',"enc0.weight"')
+        whole = self.header[len('{"__metadata__":'):meta_end]
+        path = self.edited("meta_string.safetensors", '"__metadata__":' + whole, '"__metadata__":"x"')
+        self.refused(path, ["'__metadata__'", "object"])
+
+
+def main():
+    global ARGS
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--roundtrip", required=True)
+    ap.add_argument("--work", required=True)
+    ARGS, rest = ap.parse_known_args()
+    unittest.main(argv=[sys.argv[0]] + rest, verbosity=2)
+
+
+if __name__ == "__main__":
+    main()

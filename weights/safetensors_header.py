@@ -1,0 +1,48 @@
+"""The header of a safetensors file (weights/FORMAT.md), read as the C
+loader (src/weights_load.c) reads it: without torch, so every script that
+reads or rewrites weights files checks them the same way."""
+import json
+import struct
+
+
+def unique_keys(pairs):
+    """object_pairs_hook for json: a name twice in one object is an error.
+    JSON allows it and readers disagree on which one counts (json keeps the
+    last, the C loader's cJSON finds the first), so such a file would be two
+    different networks."""
+    seen = set()
+    for key, _ in pairs:
+        if key in seen:
+            raise ValueError(f"duplicate key {key!r}: each name may appear once "
+                             "(readers disagree on which one counts)")
+        seen.add(key)
+    return dict(pairs)
+
+
+def read_header(path):
+    """The safetensors header of path as (header dict, file bytes, data
+    start), checked as the C loader (src/weights_load.c) checks it: no
+    duplicate keys at any level, and "__metadata__", when present, an object
+    of string values. Raises ValueError naming the file and what is wrong."""
+    with open(path, "rb") as f:
+        data = f.read()
+    if len(data) < 8:
+        raise ValueError(f"{path}: file too short ({len(data)} bytes)")
+    (n,) = struct.unpack("<Q", data[:8])
+    if n > len(data) - 8:
+        raise ValueError(f"{path}: header length {n} exceeds file size")
+    try:
+        header = json.loads(data[8:8 + n], object_pairs_hook=unique_keys)
+    except ValueError as e:
+        raise ValueError(f"{path}: header: {e}") from None
+    if not isinstance(header, dict):
+        raise ValueError(f"{path}: header is not a JSON object")
+    meta = header.get("__metadata__", {})
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: header: '__metadata__' is {type(meta).__name__}, but "
+                         "safetensors wants an object of string values")
+    for k, v in meta.items():
+        if not isinstance(v, str):
+            raise ValueError(f"{path}: header: '__metadata__.{k}' is {type(v).__name__}, "
+                             "but safetensors metadata values are strings")
+    return header, data, 8 + n
