@@ -1,3 +1,4 @@
+#include <inttypes.h>
 #include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -96,4 +97,74 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
   hf_input_range_describe(r, st, mask, why, sizeof why);
   fprintf(stderr, "%s: warning: %s is outside the input range %s was trained on: %s\n", prog,
           frame, variant, why);
+}
+
+int cli_read_features(const char *path, const char *part, int spp, const char *variant,
+                      hf_image *img, float **in) {
+  char err[512];
+  *in = NULL;
+  int rc = hf_exr_read_part(path, part, "S0.color", img, err, sizeof err);
+  if (rc) {
+    fprintf(stderr, "hairfilter: %s\n", err);
+    return rc;
+  }
+  int have = hf_features_spp(img);
+  if (have < 0) {
+    fprintf(stderr, "hairfilter: %s: no channel S0.color: not a feature file "
+            "(protocol/FEATURES.md names the channels)\n", path);
+    rc = HF_EFORMAT;
+    goto fail;
+  }
+  if (have < spp) {
+    fprintf(stderr, "hairfilter: %s has %d sample%s per pixel (S0.color..S%d.color), "
+            "variant %s needs %d\n", path, have, have == 1 ? "" : "s", have - 1, variant, spp);
+    rc = HF_EFORMAT;
+    goto fail;
+  }
+  for (int k = 0; k < spp; k++)
+    for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++) {
+      char name[32];
+      snprintf(name, sizeof name, "S%d.%s", k, HF_FEATURE_NAMES[f]);
+      if (hf_image_channel(img, name) < 0) {
+        fprintf(stderr, "hairfilter: %s: no channel %s: sample %d lacks its %s feature "
+                "(protocol/FEATURES.md)\n", path, name, k, HF_FEATURE_NAMES[f]);
+        rc = HF_EFORMAT;
+        goto fail;
+      }
+    }
+  if (!(*in = malloc((size_t)img->width * img->height * spp * HF_FEATURES_PER_SAMPLE *
+                     sizeof(float)))) {
+    fprintf(stderr, "hairfilter: %s: out of memory for a %dx%d frame\n", path, img->width,
+            img->height);
+    rc = HF_ENOMEM;
+    goto fail;
+  }
+  hf_features_from_image(img, spp, *in);
+  return HF_OK;
+fail:
+  hf_image_free(img);
+  return rc;
+}
+
+void cli_warn_sanitised(const char *path, const hf_image *img, const hf_input_report *r) {
+  if (r->samples) {
+    char ch[40], what[120];
+    snprintf(ch, sizeof ch, "S%d.%s", r->sample, HF_FEATURE_NAMES[r->feature]);
+    if (r->kind == HF_SANITISED_NONFINITE)
+      snprintf(what, sizeof what, "%s = %g is not finite: the sample counts as uncovered", ch,
+               r->value);
+    else if (r->kind == HF_SANITISED_UNCOVERED)
+      snprintf(what, sizeof what, "%s = %g but other features are not 0: the sample counts "
+               "as uncovered", ch, r->value);
+    else
+      snprintf(what, sizeof what, "%s = %g is out of range: clamped", ch, r->value);
+    fprintf(stderr, "hairfilter: warning: %s: %" PRIu64 " sample%s sanitised (protocol/"
+            "FEATURES.md, \"Out-of-contract values\"), the first at pixel (%d, %d): %s\n",
+            path, r->samples, r->samples == 1 ? "" : "s", img->origin_x + r->x,
+            img->origin_y + r->y, what);
+  }
+  if (r->outputs)
+    fprintf(stderr, "hairfilter: warning: %s: %" PRIu64 " result pixel%s out of range, "
+            "clamped (protocol/FEATURES.md, \"Out-of-contract values\")\n", path, r->outputs,
+            r->outputs == 1 ? "" : "s");
 }

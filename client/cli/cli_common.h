@@ -30,6 +30,20 @@ int cli_input_range_check(const hf_input_range *r, const void *in, hf_dtype dtyp
  * STAT VALUE (trained LOW..HIGH), ..." on stderr (hf_input_range_describe). */
 void cli_warn_input_range(const char *prog, const char *frame, const char *variant,
                           const hf_input_range *r, const hf_input_stats *st, unsigned mask);
+/* Reads a feature EXR for a network of spp samples per pixel: the part
+ * (NULL: the one with S0.color, else --part's N or NAME), and its first spp
+ * samples as network input (*in, malloc'd, [h][w][spp*6] float32, NHWC).
+ * Files with more samples are read on their first spp (protocol/FEATURES.md).
+ * variant names the network in messages. On failure prints one line naming
+ * the file, the part or channel and what to do, and returns a negative HF_E*
+ * code with img and *in released. */
+int cli_read_features(const char *path, const char *part, int spp, const char *variant,
+                      hf_image *img, float **in);
+/* Prints one warning when hf_model_run_report sanitised a frame's input or
+ * repaired its output: how many samples, and the first one by pixel (in the
+ * file's coordinates: img's data window origin added), sample and channel.
+ * Nothing when r changed nothing. */
+void cli_warn_sanitised(const char *path, const hf_image *img, const hf_input_report *r);
 
 /* Default colours of previews: brown hair, white light, grey-blue background. */
 extern const float CLI_HAIR_DEFAULT[3], CLI_LIGHT_DEFAULT[3], CLI_BG_DEFAULT[3];

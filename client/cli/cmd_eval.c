@@ -272,11 +272,19 @@ static int temporal_step(method *m, const float *rgb, const uint8_t *mask, const
   return 0;
 }
 
+/* The frame's first spp samples into in, sanitised as hf_model_run does
+ * (protocol/FEATURES.md), so the baselines see what the networks see. */
+static void input_features(const hf_image *img, int spp, float *in, hf_input_report *rep) {
+  hf_features_from_image(img, spp, in);
+  hf_features_sanitise(in, HF_F32, img->width, img->height, spp, rep);
+}
+
 /* The stochastic-transparency estimate of the input's first spp samples
  * (hf_st_estimate): alpha = covered fraction, color/highlight = mean over
  * covered samples. in receives the frame's features. */
-static void input_average(const hf_image *img, int spp, float *in, float *res) {
-  hf_features_from_image(img, spp, in);
+static void input_average(const hf_image *img, int spp, float *in, float *res,
+                          hf_input_report *rep) {
+  input_features(img, spp, in, rep);
   size_t n = (size_t)img->width * img->height;
   for (size_t p = 0; p < n; p++)
     hf_st_estimate(in + p * spp * HF_FEATURES_PER_SAMPLE, spp, res + 3 * p);
@@ -287,8 +295,8 @@ static void input_average(const hf_image *img, int spp, float *in, float *res) {
  * a network; radius 2 is the base the Residual architecture corrects. tmp:
  * scratch of the size of res. */
 static void input_pooled(const hf_image *img, int spp, int radius, float *in, float *res,
-                         float *tmp) {
-  hf_features_from_image(img, spp, in);
+                         float *tmp, hf_input_report *rep) {
+  input_features(img, spp, in, rep);
   hf_input_view v = {in, img->width, img->height, img->width, spp * HF_FEATURES_PER_SAMPLE};
   hf_pooled_estimate_frame(&v, spp, radius, res, tmp);
 }
@@ -639,7 +647,7 @@ int cmd_eval(int argc, char **argv) {
     frame_ref *fr = &frames.v[fi];
     if (!style_wanted(styles, fr->style)) continue;
     hf_image_free(&img);
-    if ((rc = hf_exr_read(fr->path, &img, err, sizeof err)) != 0) {
+    if ((rc = hf_exr_read_part(fr->path, NULL, "S0.color", &img, err, sizeof err)) != 0) {
       fprintf(stderr, "hairfilter eval: %s\n", err);
       goto out;
     }
@@ -720,13 +728,15 @@ int cmd_eval(int argc, char **argv) {
       if (!tg.rgb) { rc = HF_ENOMEM; goto out; }
       for (size_t i = 0; i < (size_t)grid_width(&tg) * grid_height(&tg) * 3; i++) tg.rgb[i] = 1.f;
     }
+    int warned = 0;   /* one warning per frame about out-of-contract input */
     for (int mi = 0; mi < nm; mi++) {
       method *m = &ms[mi];
+      hf_input_report rep = {0};
       if (m->kind == M_INPUT) {
-        input_average(&img, input_spp < spp ? input_spp : spp, in, res);
+        input_average(&img, input_spp < spp ? input_spp : spp, in, res, &rep);
       } else if (m->kind == M_INPUT_POOL) {
         /* rgb is free until this method's composite below: the scratch. */
-        input_pooled(&img, input_spp < spp ? input_spp : spp, m->radius, in, res, rgb);
+        input_pooled(&img, input_spp < spp ? input_spp : spp, m->radius, in, res, rgb, &rep);
       } else if (m->kind == M_MODEL) {
         const hf_net_config *cfg = hf_model_config(models[m->model]);
         if (spp < cfg->spp) {
@@ -744,13 +754,17 @@ int cmd_eval(int argc, char **argv) {
         flagged[m->model] += out_of_range;
         hf_io io = {.batch = 1, .width = w, .height = h, .in = in, .in_dtype = HF_F32,
                     .out = res, .out_dtype = HF_F32};
-        if ((rc = hf_model_run(models[m->model], &io, NULL)) != 0) {
+        if ((rc = hf_model_run_report(models[m->model], &io, NULL, &rep)) != 0) {
           fprintf(stderr, "hairfilter eval: %s on %s: %s\n", cfg->name, fr->path,
                   hf_strerror(rc));
           goto out;
         }
       } else if (gather(&img, m->prefix, res)) {
         continue;   /* this frame has no such baseline */
+      }
+      if (!warned && (rep.samples || rep.outputs)) {
+        cli_warn_sanitised(fr->path, &img, &rep);
+        warned = 1;
       }
       composite(&lk, &img, res, w, h, rgb);
       if ((rc = score(mi, strata, &rg, res, gt, rgb, gt_rgb, w, h, mask, smap, &fs)) != 0)

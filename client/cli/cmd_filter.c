@@ -12,14 +12,16 @@
 static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilter filter --server URL --in FEATURES.exr --out RESULT.exr\n"
-          "                         [--variant NAME] [--png PREVIEW.png] [--f16]\n"
+          "                         [--variant NAME] [--part N|NAME] [--png PREVIEW.png] [--f16]\n"
           "                         [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "                         [--token TOKEN] [--timeout-ms N]\n"
           "       hairfilter filter --server URL --list     (variants and limits)\n"
           "       hairfilter filter --server URL --stats    (counters and latency)\n"
           "URL is unix:PATH or tcp:HOST:PORT. The token defaults to $HAIRFILTER_TOKEN.\n"
           "--variant may be left out when the server has only one. --f16 sends and\n"
-          "receives half floats. The PNG is composited by the server.\n");
+          "receives half floats. The PNG is composited by the server. The result keeps the\n"
+          "input's data window and display window; --part picks the part of a multi-part\n"
+          "file (default: the one with S0.color).\n");
 }
 
 static void print_timing(const hfc_timing *t) {
@@ -102,6 +104,11 @@ static int print_stats(hfc_client *c) {
       printf("%7.2fms", p99);
     printf(" %8llu\n", (unsigned long long)v->out_of_range);
   }
+  for (int i = 0; i < st->num_variants; i++)
+    if (st->variants[i].frames_sanitised)
+      printf("  %s: %llu frame(s) with non-finite or out-of-range input, sanitised "
+             "(protocol/FEATURES.md)\n", st->variants[i].name,
+             (unsigned long long)st->variants[i].frames_sanitised);
   printf("  (queue/infer/total: means over successful requests; p99<=: bound from the "
          "total-latency histogram;\n   outside: frames outside the variant's trained input "
          "range, protocol v2 servers)\n");
@@ -111,6 +118,7 @@ static int print_stats(hfc_client *c) {
 
 int cmd_filter(int argc, char **argv) {
   const char *server = NULL, *variant = NULL, *in_path = NULL, *out_path = NULL, *png = NULL;
+  const char *part = NULL;
   const char *token = getenv("HAIRFILTER_TOKEN");
   int f16 = 0, timeout_ms = 0, list = 0, stats = 0;
   float hair[3], light[3], bg[3];
@@ -125,7 +133,7 @@ int cmd_filter(int argc, char **argv) {
     {"background", required_argument, 0, 'B'}, {"token", required_argument, 0, 'T'},
     {"timeout-ms", required_argument, 0, 't'}, {"help", no_argument, 0, 'h'},
     {"list", no_argument, 0, 'l'},         {"stats", no_argument, 0, 'S'},
-    {0, 0, 0, 0}};
+    {"part", required_argument, 0, 'P'},   {0, 0, 0, 0}};
   int opt;
   optind = 1;
   while ((opt = getopt_long(argc, argv, "s:V:i:o:p:h", opts, NULL)) != -1) {
@@ -135,6 +143,7 @@ int cmd_filter(int argc, char **argv) {
     case 'i': in_path = optarg; break;
     case 'o': out_path = optarg; break;
     case 'p': png = optarg; break;
+    case 'P': part = optarg; break;
     case 'F': f16 = 1; break;
     case 'l': list = 1; break;
     case 'S': stats = 1; break;
@@ -167,7 +176,6 @@ int cmd_filter(int argc, char **argv) {
   hf_image feat = {0}, res = {0};
   void *in = NULL, *out = NULL, *rgba = NULL;
   float *rgb = NULL;
-  char err[512];
   hfc_options o = {"hairfilter-cli", token, timeout_ms};
   if ((rc = hfc_connect(server, &o, &c)) != 0) {
     fprintf(stderr, "hairfilter: %s: %s\n", server, hfc_strerror(rc));
@@ -188,29 +196,15 @@ int cmd_filter(int argc, char **argv) {
     fprintf(stderr, "\n");
     goto out;
   }
-  if ((rc = hf_exr_read(in_path, &feat, err, sizeof err)) != 0) {
-    fprintf(stderr, "hairfilter: %s\n", err);
-    goto out;
-  }
-  int spp = hf_features_spp(&feat);
-  if (spp < v->spp) {
-    fprintf(stderr, "hairfilter: %s has %d samples per pixel, variant %s needs %d\n", in_path,
-            spp < 0 ? 0 : spp, v->name, v->spp);
-    goto out;
-  }
+  float *in32;
+  if (cli_read_features(in_path, part, v->spp, v->name, &feat, &in32) != 0) goto out;
+  in = in32;
   size_t npx = (size_t)feat.width * feat.height;
   size_t nin = npx * (size_t)v->spp * HF_FEATURES_PER_SAMPLE;
-  float *in32 = malloc(nin * sizeof(float));
   out = malloc(npx * 3 * sizeof(float));
   rgba = png ? malloc(npx * 4 * sizeof(float)) : NULL;
-  if (!in32 || !out || (png && !rgba)) {
-    free(in32);
+  if (!out || (png && !rgba)) {
     fprintf(stderr, "hairfilter: out of memory for a %dx%d frame\n", feat.width, feat.height);
-    goto out;
-  }
-  in = in32;
-  if ((rc = hf_features_from_image(&feat, v->spp, in32)) < 0) {
-    fprintf(stderr, "hairfilter: %s: missing feature channels\n", in_path);
     goto out;
   }
   if (f16) {
@@ -259,11 +253,18 @@ int cmd_filter(int argc, char **argv) {
       fprintf(stderr, "hairfilter: warning: %s is outside the input range %s was trained on "
               "(the server says so)\n", in_path, v->name);
   }
+  if (t.input_sanitised) {
+    /* The server says that it sanitised; the same check here says where. */
+    hf_input_report rep;
+    hf_features_check(in, f16 ? HF_F16 : HF_F32, feat.width, feat.height, v->spp, &rep);
+    cli_warn_sanitised(in_path, &feat, &rep);
+  }
   printf("%s %dx%d via %s (%s, %s, batch %d)\n", v->name, feat.width, feat.height, server,
          v->backend, v->precision, t.batch);
   print_timing(&t);
-  if ((rc = hf_result_to_image(out, feat.width, feat.height, &res)) != 0 ||
-      (rc = hf_exr_write(out_path, &res, 0)) != 0) {
+  if ((rc = hf_result_to_image(out, feat.width, feat.height, &res)) == 0)
+    hf_image_copy_windows(&res, &feat);
+  if (rc != 0 || (rc = hf_exr_write(out_path, &res, 0)) != 0) {
     fprintf(stderr, "hairfilter: writing %s: %s\n", out_path, hf_strerror(rc));
     goto out;
   }

@@ -10,15 +10,18 @@
 static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilter infer --weights W.safetensors --in FEATURES.exr --out RESULT.exr\n"
-          "                        [--backend auto|cpu|cpu-ref|cudnn] [--png PREVIEW.png]\n"
+          "                        [--part N|NAME] [--backend auto|cpu|cpu-ref|cudnn]\n"
+          "                        [--png PREVIEW.png]\n"
           "                        [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
-          "Reads S{k}.<feature> channels, writes color/highlight/alpha (protocol/FEATURES.md).\n");
+          "Reads S{k}.<feature> channels, writes color/highlight/alpha (protocol/FEATURES.md)\n"
+          "with the input's data window and display window. --part picks the part of a\n"
+          "multi-part file (default: the one with S0.color).\n");
 }
 
-/* Runs one frame through weights on backend; result is [h][w][3]. Shared
- * with the demo command. */
-int cli_infer_file(const char *weights, const char *in_path, const char *backend,
-                   hf_image *result_img, int verbose) {
+/* Runs one frame through weights on backend; result_img gets [h][w][3] with
+ * the features' data window and display window. */
+static int infer_file(const char *weights, const char *in_path, const char *part,
+                      const char *backend, hf_image *result_img) {
   char err[512];
   hf_weights *w = NULL;
   hf_backend *b = NULL;
@@ -30,33 +33,9 @@ int cli_infer_file(const char *weights, const char *in_path, const char *backend
     fprintf(stderr, "hairfilter: %s\n", err);
     return rc;
   }
-  if ((rc = hf_exr_read(in_path, &feat, err, sizeof err)) != 0) {
-    fprintf(stderr, "hairfilter: %s\n", err);
-    goto out;
-  }
-  int spp = hf_features_spp(&feat);
-  if (spp < 0) {
-    fprintf(stderr, "hairfilter: %s: no S0.color channel: not a feature file\n", in_path);
-    rc = spp;
-    goto out;
-  }
-  if (spp < w->cfg.spp) {
-    fprintf(stderr, "hairfilter: %s has %d samples per pixel, variant %s needs %d\n", in_path,
-            spp, w->cfg.name, w->cfg.spp);
-    rc = HF_EFORMAT;
-    goto out;
-  }
-  /* A file with more samples than the variant reads is filtered on its
-   * first spp samples (e.g. a 4 spp render through Base@1spp). */
-  size_t npx = (size_t)feat.width * feat.height;
-  in = malloc(npx * w->cfg.in_channels * sizeof(float));
-  out = malloc(npx * 3 * sizeof(float));
-  if (!in || !out) {
+  if ((rc = cli_read_features(in_path, part, w->cfg.spp, w->cfg.name, &feat, &in)) != 0) goto out;
+  if (!(out = malloc((size_t)feat.width * feat.height * 3 * sizeof(float)))) {
     rc = HF_ENOMEM;
-    goto out;
-  }
-  if ((rc = hf_features_from_image(&feat, w->cfg.spp, in)) < 0) {
-    fprintf(stderr, "hairfilter: %s: missing feature channels\n", in_path);
     goto out;
   }
   hf_input_stats st;
@@ -72,15 +51,17 @@ int cli_infer_file(const char *weights, const char *in_path, const char *backend
   hf_io io = {.batch = 1, .width = feat.width, .height = feat.height,
               .in = in, .in_dtype = HF_F32, .out = out, .out_dtype = HF_F32};
   hf_timing t;
-  if ((rc = hf_model_run(m, &io, &t)) != 0) {
+  hf_input_report rep;
+  if ((rc = hf_model_run_report(m, &io, &t, &rep)) != 0) {
     fprintf(stderr, "hairfilter: inference failed: %s\n", hf_strerror(rc));
     goto out;
   }
-  if (verbose)
-    printf("%s %dx%d on %s (%s): input %.3f ms, infer %.3f ms, output %.3f ms\n", w->cfg.name,
-           feat.width, feat.height, hf_backend_name(b), hf_model_precision(m), t.input_us / 1e3,
-           t.infer_us / 1e3, t.output_us / 1e3);
-  rc = hf_result_to_image(out, feat.width, feat.height, result_img);
+  cli_warn_sanitised(in_path, &feat, &rep);
+  printf("%s %dx%d on %s (%s): input %.3f ms, infer %.3f ms, output %.3f ms\n", w->cfg.name,
+         feat.width, feat.height, hf_backend_name(b), hf_model_precision(m), t.input_us / 1e3,
+         t.infer_us / 1e3, t.output_us / 1e3);
+  if ((rc = hf_result_to_image(out, feat.width, feat.height, result_img)) == HF_OK)
+    hf_image_copy_windows(result_img, &feat);
 out:
   hf_model_destroy(m);
   hf_backend_destroy(b);
@@ -93,6 +74,7 @@ out:
 
 int cmd_infer(int argc, char **argv) {
   const char *weights = NULL, *in = NULL, *out = NULL, *png = NULL, *backend = "auto";
+  const char *part = NULL;
   float hair[3], light[3], bg[3];
   memcpy(hair, CLI_HAIR_DEFAULT, sizeof hair);
   memcpy(light, CLI_LIGHT_DEFAULT, sizeof light);
@@ -102,7 +84,8 @@ int cmd_infer(int argc, char **argv) {
     {"out", required_argument, 0, 'o'},     {"backend", required_argument, 0, 'b'},
     {"png", required_argument, 0, 'p'},     {"hair", required_argument, 0, 'H'},
     {"light", required_argument, 0, 'L'},   {"background", required_argument, 0, 'B'},
-    {"help", no_argument, 0, 'h'},          {0, 0, 0, 0}};
+    {"part", required_argument, 0, 'P'},    {"help", no_argument, 0, 'h'},
+    {0, 0, 0, 0}};
   int c;
   optind = 1;
   while ((c = getopt_long(argc, argv, "w:i:o:b:p:h", opts, NULL)) != -1) {
@@ -112,6 +95,7 @@ int cmd_infer(int argc, char **argv) {
     case 'o': out = optarg; break;
     case 'b': backend = optarg; break;
     case 'p': png = optarg; break;
+    case 'P': part = optarg; break;
     case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
     case 'L': if (cli_parse_rgb(optarg, light)) goto bad; break;
     case 'B': if (cli_parse_rgb(optarg, bg)) goto bad; break;
@@ -121,7 +105,7 @@ int cmd_infer(int argc, char **argv) {
   }
   if (!weights || !in || !out || optind != argc) goto bad;
   hf_image res = {0};
-  int rc = cli_infer_file(weights, in, backend, &res, 1);
+  int rc = infer_file(weights, in, part, backend, &res);
   if (rc) return 1;
   if ((rc = hf_exr_write(out, &res, 0)) != 0) {
     fprintf(stderr, "hairfilter: writing %s: %s\n", out, hf_strerror(rc));

@@ -201,10 +201,53 @@ static void test_stats(void **state) {
   hfc_close(c);
 }
 
+/* hairfilter filter on a cropped feature file with a NaN sample: one
+ * warning naming the pixel in the file's coordinates, and a result with the
+ * file's data window and display window. */
+static void test_cli_filter(void **state) {
+  (void)state;
+  int spp = harness_variant(&H, "Small")->cfg.spp;
+  float *in = frame(spp, 90, 2);
+  hf_image img = {0};
+  assert_int_equal(hf_features_to_image(in, W, HH, spp, &img), 0);
+  img.origin_x = 300;
+  img.origin_y = 100;
+  img.display_width = 1920;
+  img.display_height = 1080;
+  char feat[300], res[300], outtxt[300], cmd[2000];
+  snprintf(feat, sizeof feat, "%s/nan_features.exr", H.dir);
+  snprintf(res, sizeof res, "%s/nan_result.exr", H.dir);
+  snprintf(outtxt, sizeof outtxt, "%s/nan_out.txt", H.dir);
+  assert_int_equal(hf_exr_write(feat, &img, 0), 0);
+  hf_image_free(&img);
+  for (int f16 = 0; f16 < 2; f16++) {
+    snprintf(cmd, sizeof cmd, "'%s' filter --server '%s' --variant Small --in '%s' --out '%s' %s"
+             "> '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, feat, res, f16 ? "--f16 " : "",
+             outtxt);
+    assert_int_equal(system(cmd), 0);
+    char text[4096];
+    assert_int_equal(read_text_file(outtxt, text, sizeof text), 0);
+    if (!strstr(text, "nan_features.exr: 1 sample sanitised") ||
+        !strstr(text, "the first at pixel (305, 107): S1.color = nan is not finite"))
+      fail_msg("unexpected output:\n%s", text);
+    char err[256];
+    hf_image out = {0};
+    assert_int_equal(hf_exr_read(res, &out, err, sizeof err), 0);
+    assert_int_equal(out.origin_x, 300);
+    assert_int_equal(out.origin_y, 100);
+    assert_int_equal(out.display_width, 1920);
+    assert_int_equal(out.display_height, 1080);
+    for (int i = 0; i < W * HH * 3; i++) assert_true(isfinite(out.data[i]));
+    hf_image_free(&out);
+  }
+  free(in);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_flag_and_result), cmocka_unit_test(test_batched),
     cmocka_unit_test(test_versions),        cmocka_unit_test(test_stats),
+    cmocka_unit_test(test_cli_filter),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

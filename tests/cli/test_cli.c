@@ -1,0 +1,253 @@
+/* The hairfilter CLI on files from other tools and out-of-contract input,
+ * as a user runs it: hairfilter infer on the field cases (tests/data/field)
+ * and on generated files of the same kinds, hairfilter eval on a frame
+ * with a NaN sample. Checks the exit status, the one-line messages and what
+ * the result EXR holds. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <cmocka.h>
+
+#include "exr_parts.h"
+#include "hfcore.h"
+
+static char tmpdir[] = "/tmp/hf_test_cli_XXXXXX";
+static char text[16384];  /* what the last command printed */
+
+static const char *field(const char *name) {
+  static char path[4][512];
+  static int k;
+  char *p = path[k++ % 4];
+  snprintf(p, sizeof path[0], "%s/field/%s", HF_TEST_DATA, name);
+  return p;
+}
+
+static const char *tmp(const char *name) {
+  static char path[4][300];
+  static int k;
+  char *p = path[k++ % 4];
+  snprintf(p, sizeof path[0], "%s/%s", tmpdir, name);
+  return p;
+}
+
+/* Runs the CLI with args (a shell fragment); returns its exit status and
+ * leaves stdout and stderr in text. */
+static int cli(const char *fmt, ...) {
+  char args[3000], cmd[4000];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(args, sizeof args, fmt, ap);
+  va_end(ap);
+  snprintf(cmd, sizeof cmd, "'%s' %s > '%s/out.txt' 2>&1", HAIRFILTER_CLI_PATH, args, tmpdir);
+  int rc = system(cmd);
+  snprintf(cmd, sizeof cmd, "%s/out.txt", tmpdir);
+  FILE *f = fopen(cmd, "r");
+  size_t n = f ? fread(text, 1, sizeof text - 1, f) : 0;
+  if (f) fclose(f);
+  text[n] = 0;
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+#define BASE HF_SOURCE_DIR "/weights/base.safetensors"
+
+static void expect_text(const char *needle) {
+  if (!strstr(text, needle)) fail_msg("output lacks '%s':\n%s", needle, text);
+}
+
+static void read_result(const char *path, hf_image *img) {
+  char err[512];
+  assert_int_equal(hf_exr_read(path, img, err, sizeof err), HF_OK);
+  assert_int_equal(img->channels, 3);
+  for (size_t i = 0; i < (size_t)img->width * img->height * 3; i++)
+    assert_true(isfinite(img->data[i]));
+}
+
+static void test_inf_sample(void **state) {
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       field("features-one-inf-sample.exr"), tmp("inf.exr")), 0);
+  expect_text("warning: ");
+  expect_text("features-one-inf-sample.exr: 1 sample sanitised");
+  expect_text("the first at pixel (40, 40): S1.highlight = inf is not finite");
+  hf_image img;
+  read_result(tmp("inf.exr"), &img);
+  hf_image_free(&img);
+  /* A clean frame: no warning. */
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       field("frame-64x64.exr"), tmp("clean.exr")), 0);
+  assert_null(strstr(text, "warning"));
+}
+
+static void test_tall_frame(void **state) {
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       field("exr-1x1024.exr"), tmp("tall.exr")), 0);
+  hf_image img;
+  read_result(tmp("tall.exr"), &img);
+  assert_int_equal(img.width, 1);
+  assert_int_equal(img.height, 1024);
+  int a = hf_image_channel(&img, "alpha");
+  for (int p = 0; p < 1024; p++) assert_true(img.data[p * 3 + a] >= 0 && img.data[p * 3 + a] <= 1);
+  hf_image_free(&img);
+}
+
+static void test_crop_windows(void **state) {
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --png %s", BASE,
+                       field("exr-crop-datawindow.exr"), tmp("crop.exr"), tmp("crop.png")), 0);
+  hf_image img;
+  read_result(tmp("crop.exr"), &img);
+  assert_int_equal(img.width, 64);
+  assert_int_equal(img.origin_x, 30);
+  assert_int_equal(img.origin_y, 40);
+  assert_int_equal(img.display_x, 0);
+  assert_int_equal(img.display_y, 0);
+  assert_int_equal(img.display_width, 501);
+  assert_int_equal(img.display_height, 401);
+  hf_image_free(&img);
+}
+
+static void test_tiled_and_parts(void **state) {
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       field("exr-tiled.exr"), tmp("tiled.exr")), 0);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       field("frame-64x64.exr"), tmp("plain.exr")), 0);
+  hf_image a, b;
+  read_result(tmp("tiled.exr"), &a);
+  read_result(tmp("plain.exr"), &b);
+  assert_memory_equal(a.data, b.data, 64 * 64 * 3 * sizeof(float));
+  hf_image_free(&b);
+
+  /* A two-part file: a beauty part, then the features (tiled, offset);
+   * the automatic choice and --part agree with the plain file. */
+  hf_image feat;
+  char err[512];
+  assert_int_equal(hf_exr_read(field("frame-64x64.exr"), &feat, err, sizeof err), HF_OK);
+  const char *names[64];
+  for (int c = 0; c < feat.channels; c++) names[c] = feat.names[c];
+  static const char *const rgb[] = {"R", "G", "B"};
+  part_spec parts[2] = {
+    {"beauty", 0, 0, 0, 0, 0, 0, 64, 64, 3, rgb, EXR_COMPRESSION_ZIP, 0.0f, NULL},
+    {"features", 1, 16, 16, 0, 100, 200, 64, 64, feat.channels, names, EXR_COMPRESSION_PIZ,
+     0.0f, feat.data},
+  };
+  write_parts(tmp("two.exr"), parts, 2);
+  static const char *const choose[] = {"", "--part 1", "--part features"};
+  for (int k = 0; k < 3; k++) {
+    assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s %s", BASE,
+                         tmp("two.exr"), tmp("part.exr"), choose[k]), 0);
+    read_result(tmp("part.exr"), &b);
+    assert_memory_equal(a.data, b.data, 64 * 64 * 3 * sizeof(float));
+    assert_int_equal(b.origin_x, 100);
+    assert_int_equal(b.origin_y, 200);
+    hf_image_free(&b);
+  }
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --part beauty",
+                       BASE, tmp("two.exr"), tmp("x.exr")), 1);
+  expect_text("no channel S0.color: not a feature file");
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --part 2", BASE,
+                       tmp("two.exr"), tmp("x.exr")), 1);
+  expect_text("has no part \"2\"; its 2 parts are: 0 \"beauty\" (3 channels), 1 \"features\" "
+              "(24 channels, tiled)");
+  hf_image_free(&feat);
+  hf_image_free(&a);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --part 1", BASE,
+                       field("frame-64x64.exr"), tmp("x.exr")), 1);
+  expect_text("has no part \"1\"; its 1 part is: 0");
+}
+
+static void test_refusals(void **state) {
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       field("exr-dwaa.exr"), tmp("x.exr")), 1);
+  expect_text("exr-dwaa.exr: DWAA compression cannot be decoded");
+  expect_text("oiiotool");
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       field("exr-truncated.exr"), tmp("x.exr")), 1);
+  expect_text("exr-truncated.exr: truncated / incomplete file");
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s",
+                       field("weights-duplicate-metadata.safetensors"), field("frame-64x64.exr"),
+                       tmp("x.exr")), 1);
+  expect_text("duplicate key '__metadata__'");
+  /* A result file is not a feature file. */
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       tmp("plain.exr"), tmp("x.exr")), 1);
+  expect_text("no channel S0.color: not a feature file");
+}
+
+/* A file with fewer samples than the variant reads, and one with a feature
+ * channel missing: the message names the channel. */
+static void test_missing_samples(void **state) {
+  float in[4 * 4 * 12] = {0};
+  hf_image img;
+  assert_int_equal(hf_features_to_image(in, 4, 4, 2, &img), HF_OK);
+  assert_int_equal(hf_exr_write(tmp("two.exr"), &img, 0), HF_OK);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       tmp("two.exr"), tmp("x.exr")), 1);
+  expect_text("has 2 samples per pixel (S0.color..S1.color), variant Base needs 4");
+  hf_image_free(&img);
+  float in4[4 * 4 * 24] = {0};
+  assert_int_equal(hf_features_to_image(in4, 4, 4, 4, &img), HF_OK);
+  strcpy(img.names[3 * 6 + 3], "S3.dpeth");
+  assert_int_equal(hf_exr_write(tmp("typo.exr"), &img, 0), HF_OK);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       tmp("typo.exr"), tmp("x.exr")), 1);
+  expect_text("no channel S3.depth: sample 3 lacks its depth feature");
+  hf_image_free(&img);
+}
+
+/* hairfilter eval on a frame with a NaN sample: one warning for the frame,
+ * whichever methods see it, and finite scores. */
+static void test_eval_warning(void **state) {
+#ifndef HF_TEST_EVAL
+  skip();  /* built without the renderer: no eval command */
+#endif
+  hf_image feat, frame;
+  char err[512];
+  assert_int_equal(hf_exr_read(field("frame-64x64.exr"), &feat, err, sizeof err), HF_OK);
+  assert_int_equal(hf_image_alloc(&frame, 64, 64, feat.channels + 3), HF_OK);
+  for (int c = 0; c < feat.channels; c++) strcpy(frame.names[c], feat.names[c]);
+  strcpy(frame.names[feat.channels], "gt.color");
+  strcpy(frame.names[feat.channels + 1], "gt.highlight");
+  strcpy(frame.names[feat.channels + 2], "gt.alpha");
+  float *in = malloc(64 * 64 * 24 * sizeof(float));
+  assert_int_equal(hf_features_from_image(&feat, 4, in), 4);
+  for (int p = 0; p < 64 * 64; p++) {
+    memcpy(frame.data + (size_t)p * frame.channels, feat.data + (size_t)p * feat.channels,
+           feat.channels * sizeof(float));
+    hf_st_estimate(in + p * 24, 4, frame.data + (size_t)p * frame.channels + feat.channels);
+  }
+  int ch = hf_image_channel(&frame, "S2.depth");
+  frame.data[((size_t)9 * 64 + 33) * frame.channels + ch] = NAN;
+  assert_int_equal(hf_exr_write(tmp("evalnan.exr"), &frame, 0), HF_OK);
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, tmp("evalnan.exr")), 0);
+  expect_text("evalnan.exr: 1 sample sanitised");
+  expect_text("the first at pixel (33, 9): S2.depth = nan is not finite");
+  int warnings = 0;
+  for (const char *t = text; (t = strstr(t, "warning: ")) != NULL; t++) warnings++;
+  assert_int_equal(warnings, 1);
+  assert_null(strstr(text, "| nan"));
+  expect_text("| ours Base");
+  free(in);
+  hf_image_free(&frame);
+  hf_image_free(&feat);
+}
+
+static int setup(void **state) { return mkdtemp(tmpdir) ? 0 : -1; }
+static int teardown(void **state) {
+  char cmd[300];
+  snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
+  return system(cmd);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_inf_sample),      cmocka_unit_test(test_tall_frame),
+    cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
+    cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
+    cmocka_unit_test(test_eval_warning),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
