@@ -87,17 +87,16 @@ static inline int ok_f16(const uint16_t *s) {
 
 /* The whole-frame check runs before every backend pass, also in front of a
  * GPU whose upload of a 1024x1024 frame takes ~1.6 ms, so it has to run at
- * memory speed. Scalar code per sample (ok_f32) does not vectorize (six
- * interleaved features) and took 8.5x as long as a memcpy of the frame on
- * the development machine; these loops take about as long as the memcpy.
- * They use GCC/Clang vector extensions on groups of four samples (24
- * values): six vectors of four floats, or three of eight halves, whose
- * lanes hold the features in a fixed pattern. The predicate is ok_f32's,
- * rewritten per lane: every value in its range (alpha's lower bound 0
- * included), and a non-zero value only in a sample whose alpha is > 0. */
+ * about the speed of a copy of the frame (`hairfilter bench-io` measures
+ * both; docs/PERFORMANCE.md). Scalar code per sample (ok_f32) does not
+ * vectorize: the six features interleave. These loops use GCC/Clang vector
+ * extensions on groups of four samples (24 values): six vectors of four
+ * floats, or three of eight halves, whose lanes hold the features in a
+ * fixed pattern. The predicate is ok_f32's, rewritten per lane: every value
+ * in its range (alpha's lower bound 0 included), and a non-zero value only
+ * in a sample whose alpha is > 0. */
 typedef float v4f __attribute__((vector_size(16)));
 typedef int32_t v4i __attribute__((vector_size(16)));
-typedef uint16_t v8u __attribute__((vector_size(16)));
 typedef int16_t v8s __attribute__((vector_size(16)));
 
 /* Number of in-contract groups of four samples from in, at most groups. */
@@ -125,28 +124,32 @@ static size_t good_groups_f32(const float *in, size_t groups) {
 }
 
 static size_t good_groups_f16(const uint16_t *in, size_t groups) {
-  const uint16_t Z = K_NEG_ZERO, N = K_NEG_ONE, L = K_LIGHT, O = K_ONE;
+  /* key16 less 0x8000, as signed lanes: SSE2 compares signed 16-bit lanes
+   * in one instruction, unsigned ones in three. */
+  const int16_t Z = (int16_t)((int)K_NEG_ZERO - 0x8000), N = (int16_t)((int)K_NEG_ONE - 0x8000),
+                L = (int16_t)((int)K_LIGHT - 0x8000), O = (int16_t)((int)K_ONE - 0x8000);
   /* Lanes: c0 h0 a0 d0 x0 y0 c1 h1 | a1 d1 x1 y1 c2 h2 a2 d2 | x2 y2 c3 h3 a3 d3 x3 y3 */
-  const v8u lo[3] = {{Z, Z, Z, Z, N, N, Z, Z}, {Z, Z, N, N, Z, Z, Z, Z}, {N, N, Z, Z, Z, Z, N, N}};
-  const v8u hi[3] = {{L, L, O, O, O, O, L, L}, {O, O, O, O, L, L, O, O}, {O, O, L, L, O, O, O, O}};
-  const v8u sign = {0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u, 0x8000u};
-  const v8u magn = ~sign, pos_zero = sign;
+  const v8s lo[3] = {{Z, Z, Z, Z, N, N, Z, Z}, {Z, Z, N, N, Z, Z, Z, Z}, {N, N, Z, Z, Z, Z, N, N}};
+  const v8s hi[3] = {{L, L, O, O, O, O, L, L}, {O, O, O, O, L, L, O, O}, {O, O, L, L, O, O, O, O}};
+  const v8s magn = {0x7fff, 0x7fff, 0x7fff, 0x7fff, 0x7fff, 0x7fff, 0x7fff, 0x7fff};
+  const v8s zero = {0, 0, 0, 0, 0, 0, 0, 0};
   size_t g;
   for (g = 0; g < groups; g++) {
-    v8u v[3];
+    v8s v[3];
     memcpy(v, in + g * 4 * HF_FEATURES_PER_SAMPLE, sizeof v);
-    uint16_t a0 = v[0][2], a1 = v[1][0], a2 = v[1][6], a3 = v[2][4];
-    const v8u alpha[3] = {{a0, a0, a0, a0, a0, a0, a1, a1}, {a1, a1, a1, a1, a2, a2, a2, a2},
+    int16_t a0 = v[0][2], a1 = v[1][0], a2 = v[1][6], a3 = v[2][4];
+    const v8s alpha[3] = {{a0, a0, a0, a0, a0, a0, a1, a1}, {a1, a1, a1, a1, a2, a2, a2, a2},
                           {a2, a2, a3, a3, a3, a3, a3, a3}};
-    v8s bad = {0, 0, 0, 0, 0, 0, 0, 0};
+    v8s bad = zero;
     for (int i = 0; i < 3; i++) {
-      /* key16 per lane: flip every bit of negatives, the sign bit of the rest. */
-      v8u k = v[i] ^ ((v8u)((v8s)v[i] >> 15) | sign);
-      v8u ka = alpha[i] ^ ((v8u)((v8s)alpha[i] >> 15) | sign);
-      bad |= ~((k >= lo[i]) & (k <= hi[i])) | (((v[i] & magn) != 0) & ~(ka > pos_zero));
+      /* Per lane: negatives (sign set) become -magnitude - 1, so -0 sorts
+       * just below +0; NaNs land outside [key(-Inf), key(+Inf)]. */
+      v8s k = v[i] ^ ((v[i] >> 15) & magn);
+      /* Covered: alpha's bits as a signed number > 0, i.e. alpha > +0 (a
+       * NaN alpha fails its own range check). */
+      bad |= ~((k >= lo[i]) & (k <= hi[i])) | (((v[i] & magn) != zero) & ~(alpha[i] > zero));
     }
-    v8s none = {0, 0, 0, 0, 0, 0, 0, 0};
-    if (__builtin_memcmp(&bad, &none, sizeof bad)) break;
+    if (__builtin_memcmp(&bad, &zero, sizeof bad)) break;
   }
   return g;
 }

@@ -12,7 +12,10 @@
  *
  * --input-stats adds a table of what judging a frame's input against a
  * trained range costs (hf_input_stats_compute, as hairfilterd runs it per
- * frame), beside a memcpy of the same frame: the cheapest pass over it. */
+ * frame), beside a memcpy of the same frame: the cheapest pass over it;
+ * --input-check the same for the out-of-contract check hf_model_run makes
+ * on every frame (hf_features_check); --exr what hf_exr_write costs with
+ * its read-back comparison, beside hf_exr_read. */
 #include <errno.h>
 #include <getopt.h>
 #include <stdint.h>
@@ -49,7 +52,7 @@ typedef struct bench_opts {
   int nsizes, ref_max_side;
   int batches[BENCH_MAX_LIST];
   int nbatches;
-  int iters, warmup, torch, input_stats, pipeline;
+  int iters, warmup, torch, input_stats, input_check, exr, pipeline;
   hf_dtype io_dtype;
   const char *torch_device, *python;
   uint64_t seed;
@@ -65,6 +68,7 @@ static void usage(FILE *f) {
           "                        [--iters N] [--warmup N] [--seed N] [--ref-max-side N]\n"
           "                        [--io f32|f16] [--pipeline] [--input-stats]\n"
           "                        [--torch] [--torch-device cpu|cuda] [--python PATH]\n"
+          "                        [--input-check] [--exr]\n"
           "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
           "table of ms per frame (median, p90 over iterations after warm-up), frames/s and\n"
           "device memory. cpu-ref runs only sizes whose sides are at most --ref-max-side\n"
@@ -76,7 +80,9 @@ static void usage(FILE *f) {
           "--python, else $HAIRFILTER_PYTHON, else the first of python3 on PATH and\n"
           "/usr/bin/python3 that imports torch. --input-stats adds what the per-frame input\n"
           "statistics cost at each size (4 spp, f32 and f16, half the samples covered)\n"
-          "beside a memcpy of the frame. Defaults: every backend in this build, Base, the\n"
+          "beside a memcpy of the frame; --input-check the same for the out-of-contract\n"
+          "check of hf_model_run; --exr EXR writing (with its read-back check) beside\n"
+          "reading, at each size. Defaults: every backend in this build, Base, the\n"
           "three sizes, batch 1, 20 iterations, 3 warm-up.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
@@ -101,6 +107,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     {"python", required_argument, 0, 'p'},  {"io", required_argument, 0, 'o'},
     {"pipeline", no_argument, 0, 'P'},      {"input-stats", no_argument, 0, 'I'},
     {"help", no_argument, 0, 'h'},
+    {"input-check", no_argument, 0, 'C'},   {"exr", no_argument, 0, 'E'},
     {0, 0, 0, 0},
   };
   static char buf_b[512], buf_v[512], buf_s[512], buf_n[256];
@@ -144,6 +151,8 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
       }
       o->io_dtype = !strcmp(optarg, "f16") ? HF_F16 : HF_F32;
       break;
+    case 'C': o->input_check = 1; break;
+    case 'E': o->exr = 1; break;
     case 'd':
       if (strcmp(optarg, "cpu") && strcmp(optarg, "cuda")) {
         fprintf(stderr, "hairfilter bench: --torch-device is cpu or cuda\n");
@@ -241,15 +250,17 @@ static bench_row *new_row(void) {
   return &rows[nrows++];
 }
 
-/* Feature-like input: colour, highlight, alpha, depth in [0, 1], tangents in
- * [-1, 1]. Values matter for timing only through denormals and NaNs, which
- * this avoids. */
+/* Feature-like input: colour, highlight, depth in [0, 1], alpha in (0, 1],
+ * tangents in [-1, 1]. Values matter for timing only through denormals and
+ * NaNs, which this avoids, and through out-of-contract samples (an alpha of
+ * 0 under other features), which hf_model_run would sanitise on a copy. */
 static void fill_input(float *in, size_t n, uint64_t seed) {
   uint64_t s = seed * 0x9E3779B97F4A7C15ull + 1;
   for (size_t i = 0; i < n; i++) {
     s ^= s << 13, s ^= s >> 7, s ^= s << 17;
-    float u = (float)(s >> 40) / (float)(1u << 24);
-    in[i] = i % HF_FEATURES_PER_SAMPLE >= 4 ? 2 * u - 1 : u;
+    int f = (int)(i % HF_FEATURES_PER_SAMPLE);
+    float u = (float)((s >> 40) + (f == 2)) / (float)(1u << 24);
+    in[i] = f >= 4 ? 2 * u - 1 : u;
   }
 }
 
@@ -259,15 +270,37 @@ static double clock_ms(clockid_t id) {
   return t.tv_sec * 1e3 + t.tv_nsec / 1e6;
 }
 
-/* hf_input_stats_compute on a 4-spp frame of each size, f32 and f16, with
- * every sample covered or not at random (the worst case for a branch on
- * coverage), against memcpy of the same bytes: median and p90 of iters, in
- * wall time and in this thread's CPU time (which other jobs on the machine
- * do not inflate). */
-static int bench_input_stats(const bench_opts *o) {
-  printf("\n| size | input | input statistics ms, wall median / p90 | thread CPU median | "
-         "memcpy of the frame ms, wall / CPU median | statistics / memcpy (CPU) | iters |\n"
-         "|---|---|---:|---:|---:|---:|---:|\n");
+/* A pass over a whole input frame that runs before the network: the input
+ * statistics (hairfilterd, for variants with a trained range) and the
+ * out-of-contract check (hf_model_run, always). */
+typedef struct frame_pass {
+  const char *title;   /* table column: "input statistics" */
+  const char *short_name;
+  void (*run)(const void *in, hf_dtype dtype, int w, int h, int spp);
+} frame_pass;
+
+static void run_input_stats(const void *in, hf_dtype dtype, int w, int h, int spp) {
+  hf_input_stats st;
+  hf_input_stats_compute(in, dtype, w, h, spp, &st);
+}
+
+static void run_input_check(const void *in, hf_dtype dtype, int w, int h, int spp) {
+  hf_input_report r;
+  hf_features_check(in, dtype, w, h, spp, &r);
+}
+
+static const frame_pass PASS_STATS = {"input statistics", "statistics", run_input_stats};
+static const frame_pass PASS_CHECK = {"out-of-contract check", "check", run_input_check};
+
+/* pass on a 4-spp frame of each size, f32 and f16, with every sample
+ * covered or not at random (the worst case for a branch on coverage),
+ * against memcpy of the same bytes: median and p90 of iters, in wall time
+ * and in this thread's CPU time (which other jobs on the machine do not
+ * inflate). */
+static int bench_frame_pass(const bench_opts *o, const frame_pass *pass) {
+  printf("\n| size | input | %s ms, wall median / p90 | thread CPU median | "
+         "memcpy of the frame ms, wall / CPU median | %s / memcpy (CPU) | iters |\n"
+         "|---|---|---:|---:|---:|---:|---:|\n", pass->title, pass->short_name);
   const int spp = 4, ch = spp * HF_FEATURES_PER_SAMPLE;
   for (int s = 0; s < o->nsizes; s++) {
     int w = o->sizes[s][0], h = o->sizes[s][1];
@@ -291,15 +324,14 @@ static int bench_input_stats(const bench_opts *o) {
       const void *src = d ? (const void *)in16 : in;
       size_t bytes = n * (d ? 2 : 4);
       double *sw = t, *sc = t + o->iters, *cw = t + 2 * o->iters, *cc = t + 3 * o->iters;
-      hf_input_stats st;
       volatile double sink = 0;
       for (int i = -o->warmup; i < o->iters; i++) {
         double w0 = clock_ms(CLOCK_MONOTONIC), c0 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
-        hf_input_stats_compute(src, d ? HF_F16 : HF_F32, w, h, spp, &st);
+        pass->run(src, d ? HF_F16 : HF_F32, w, h, spp);
         double w1 = clock_ms(CLOCK_MONOTONIC), c1 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
         memcpy(copy, src, bytes);
         double w2 = clock_ms(CLOCK_MONOTONIC), c2 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
-        sink += st.value[HF_STAT_HAIR_FRACTION] + ((const float *)copy)[i & 1023];
+        sink += ((const float *)copy)[i & 1023];
         if (i >= 0) sw[i] = w1 - w0, sc[i] = c1 - c0, cw[i] = w2 - w1, cc[i] = c2 - c1;
       }
       (void)sink;
@@ -315,6 +347,61 @@ static int bench_input_stats(const bench_opts *o) {
 }
 
 static double now_ms(void) { return clock_ms(CLOCK_MONOTONIC); }
+
+/* hf_exr_write (whose read-back comparison is part of it) beside
+ * hf_exr_read of the same file: a 4-spp feature frame of each size, float
+ * and half storage; wall and thread-CPU medians of iters. */
+static int bench_exr(const bench_opts *o) {
+  printf("\n| size | storage | MiB raw | write (with read-back) ms, wall / CPU median | "
+         "read ms, wall / CPU median | read / write (CPU) | iters |\n"
+         "|---|---|---:|---:|---:|---:|---:|\n");
+  char path[64];
+  snprintf(path, sizeof path, "/tmp/hairfilter-bench-%d.exr", (int)getpid());
+  const int spp = 4, ch = spp * HF_FEATURES_PER_SAMPLE;
+  int rc = 0;
+  for (int s = 0; s < o->nsizes && !rc; s++) {
+    int w = o->sizes[s][0], h = o->sizes[s][1];
+    float *in = malloc((size_t)w * h * ch * sizeof(float));
+    double *t = malloc(4 * (size_t)o->iters * sizeof(double));
+    hf_image img = {0};
+    if (!in || !t) {
+      free(in), free(t);
+      return HF_ENOMEM;
+    }
+    fill_input(in, (size_t)w * h * ch, o->seed);
+    if ((rc = hf_features_to_image(in, w, h, spp, &img)) != 0) break;
+    for (int half = 0; half < 2 && !rc; half++) {
+      double *ww = t, *wc = t + o->iters, *rw = t + 2 * o->iters, *rcpu = t + 3 * o->iters;
+      for (int i = -o->warmup; i < o->iters && !rc; i++) {
+        hf_image back;
+        char err[512];
+        double w0 = clock_ms(CLOCK_MONOTONIC), c0 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        if ((rc = hf_exr_write(path, &img, half)) != 0) {
+          fprintf(stderr, "hairfilter bench: writing %s: %s\n", path, hf_strerror(rc));
+          break;
+        }
+        double w1 = clock_ms(CLOCK_MONOTONIC), c1 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        if ((rc = hf_exr_read(path, &back, err, sizeof err)) != 0) {
+          fprintf(stderr, "hairfilter bench: %s\n", err);
+          break;
+        }
+        double w2 = clock_ms(CLOCK_MONOTONIC), c2 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        hf_image_free(&back);
+        if (i >= 0) ww[i] = w1 - w0, wc[i] = c1 - c0, rw[i] = w2 - w1, rcpu[i] = c2 - c1;
+      }
+      if (rc) break;
+      double a = median(ww, o->iters), b = median(wc, o->iters);
+      double c = median(rw, o->iters), d = median(rcpu, o->iters);
+      printf("| %dx%d | %s | %.0f | %.1f / %.1f | %.1f / %.1f | %.2f | %d |\n", w, h,
+             half ? "half" : "float", (double)w * h * ch * (half ? 2 : 4) / 1048576.0, a, b,
+             c, d, b > 0 ? d / b : 0, o->iters);
+    }
+    hf_image_free(&img);
+    free(in), free(t);
+  }
+  unlink(path);
+  return rc;
+}
 
 static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, int iters,
                      int warmup, uint64_t seed, hf_dtype dt, int pipeline) {
@@ -625,6 +712,8 @@ int cmd_bench(int argc, char **argv) {
   }
   if (o.torch && run_torch(&o)) failed = 1;
   print_table();
-  if (o.input_stats && bench_input_stats(&o)) failed = 1;
+  if (o.input_stats && bench_frame_pass(&o, &PASS_STATS)) failed = 1;
+  if (o.input_check && bench_frame_pass(&o, &PASS_CHECK)) failed = 1;
+  if (o.exr && bench_exr(&o)) failed = 1;
   return failed ? 1 : 0;
 }
