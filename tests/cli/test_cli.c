@@ -15,26 +15,10 @@
 #include <cmocka.h>
 
 #include "exr_parts.h"
+#include "test_paths.h"
 #include "hfcore.h"
 
-static char tmpdir[] = "/tmp/hf_test_cli_XXXXXX";
 static char text[16384];  /* what the last command printed */
-
-static const char *field(const char *name) {
-  static char path[4][512];
-  static int k;
-  char *p = path[k++ % 4];
-  snprintf(p, sizeof path[0], "%s/field/%s", HF_TEST_DATA, name);
-  return p;
-}
-
-static const char *tmp(const char *name) {
-  static char path[4][300];
-  static int k;
-  char *p = path[k++ % 4];
-  snprintf(p, sizeof path[0], "%s/%s", tmpdir, name);
-  return p;
-}
 
 /* Runs the CLI with args (a shell fragment); returns its exit status and
  * leaves stdout and stderr in text. */
@@ -44,10 +28,9 @@ static int cli(const char *fmt, ...) {
   va_start(ap, fmt);
   vsnprintf(args, sizeof args, fmt, ap);
   va_end(ap);
-  snprintf(cmd, sizeof cmd, "'%s' %s > '%s/out.txt' 2>&1", HAIRFILTER_CLI_PATH, args, tmpdir);
+  snprintf(cmd, sizeof cmd, "'%s' %s > '%s' 2>&1", HAIRFILTER_CLI_PATH, args, test_tmp("out.txt"));
   int rc = system(cmd);
-  snprintf(cmd, sizeof cmd, "%s/out.txt", tmpdir);
-  FILE *f = fopen(cmd, "r");
+  FILE *f = fopen(test_tmp("out.txt"), "r");
   size_t n = f ? fread(text, 1, sizeof text - 1, f) : 0;
   if (f) fclose(f);
   text[n] = 0;
@@ -70,24 +53,24 @@ static void read_result(const char *path, hf_image *img) {
 
 static void test_inf_sample(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       field("features-one-inf-sample.exr"), tmp("inf.exr")), 0);
+                       test_field("features-one-inf-sample.exr"), test_tmp("inf.exr")), 0);
   expect_text("warning: ");
   expect_text("features-one-inf-sample.exr: 1 sample sanitised");
   expect_text("the first at pixel (40, 40): S1.highlight = inf is not finite");
   hf_image img;
-  read_result(tmp("inf.exr"), &img);
+  read_result(test_tmp("inf.exr"), &img);
   hf_image_free(&img);
   /* A clean frame: no warning. */
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       field("frame-64x64.exr"), tmp("clean.exr")), 0);
+                       test_field("frame-64x64.exr"), test_tmp("clean.exr")), 0);
   assert_null(strstr(text, "warning"));
 }
 
 static void test_tall_frame(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       field("exr-1x1024.exr"), tmp("tall.exr")), 0);
+                       test_field("exr-1x1024.exr"), test_tmp("tall.exr")), 0);
   hf_image img;
-  read_result(tmp("tall.exr"), &img);
+  read_result(test_tmp("tall.exr"), &img);
   assert_int_equal(img.width, 1);
   assert_int_equal(img.height, 1024);
   int a = hf_image_channel(&img, "alpha");
@@ -97,9 +80,9 @@ static void test_tall_frame(void **state) {
 
 static void test_crop_windows(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --png %s", BASE,
-                       field("exr-crop-datawindow.exr"), tmp("crop.exr"), tmp("crop.png")), 0);
+                       test_field("exr-crop-datawindow.exr"), test_tmp("crop.exr"), test_tmp("crop.png")), 0);
   hf_image img;
-  read_result(tmp("crop.exr"), &img);
+  read_result(test_tmp("crop.exr"), &img);
   assert_int_equal(img.width, 64);
   assert_int_equal(img.origin_x, 30);
   assert_int_equal(img.origin_y, 40);
@@ -112,12 +95,12 @@ static void test_crop_windows(void **state) {
 
 static void test_tiled_and_parts(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       field("exr-tiled.exr"), tmp("tiled.exr")), 0);
+                       test_field("exr-tiled.exr"), test_tmp("tiled.exr")), 0);
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       field("frame-64x64.exr"), tmp("plain.exr")), 0);
+                       test_field("frame-64x64.exr"), test_tmp("plain.exr")), 0);
   hf_image a, b;
-  read_result(tmp("tiled.exr"), &a);
-  read_result(tmp("plain.exr"), &b);
+  read_result(test_tmp("tiled.exr"), &a);
+  read_result(test_tmp("plain.exr"), &b);
   assert_memory_equal(a.data, b.data, 64 * 64 * 3 * sizeof(float));
   hf_image_free(&b);
 
@@ -125,7 +108,7 @@ static void test_tiled_and_parts(void **state) {
    * the automatic choice and --part agree with the plain file. */
   hf_image feat;
   char err[512];
-  assert_int_equal(hf_exr_read(field("frame-64x64.exr"), &feat, err, sizeof err), HF_OK);
+  assert_int_equal(hf_exr_read(test_field("frame-64x64.exr"), &feat, err, sizeof err), HF_OK);
   const char *names[64];
   for (int c = 0; c < feat.channels; c++) names[c] = feat.names[c];
   static const char *const rgb[] = {"R", "G", "B"};
@@ -134,46 +117,46 @@ static void test_tiled_and_parts(void **state) {
     {"features", 1, 16, 16, 0, 100, 200, 64, 64, feat.channels, names, EXR_COMPRESSION_PIZ,
      0.0f, feat.data},
   };
-  write_parts(tmp("two.exr"), parts, 2);
+  write_parts(test_tmp("two.exr"), parts, 2);
   static const char *const choose[] = {"", "--part 1", "--part features"};
   for (int k = 0; k < 3; k++) {
     assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s %s", BASE,
-                         tmp("two.exr"), tmp("part.exr"), choose[k]), 0);
-    read_result(tmp("part.exr"), &b);
+                         test_tmp("two.exr"), test_tmp("part.exr"), choose[k]), 0);
+    read_result(test_tmp("part.exr"), &b);
     assert_memory_equal(a.data, b.data, 64 * 64 * 3 * sizeof(float));
     assert_int_equal(b.origin_x, 100);
     assert_int_equal(b.origin_y, 200);
     hf_image_free(&b);
   }
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --part beauty",
-                       BASE, tmp("two.exr"), tmp("x.exr")), 1);
+                       BASE, test_tmp("two.exr"), test_tmp("x.exr")), 1);
   expect_text("no channel S0.color: not a feature file");
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --part 2", BASE,
-                       tmp("two.exr"), tmp("x.exr")), 1);
+                       test_tmp("two.exr"), test_tmp("x.exr")), 1);
   expect_text("has no part \"2\"; its 2 parts are: 0 \"beauty\" (3 channels), 1 \"features\" "
               "(24 channels, tiled)");
   hf_image_free(&feat);
   hf_image_free(&a);
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --part 1", BASE,
-                       field("frame-64x64.exr"), tmp("x.exr")), 1);
+                       test_field("frame-64x64.exr"), test_tmp("x.exr")), 1);
   expect_text("has no part \"1\"; its 1 part is: 0");
 }
 
 static void test_refusals(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       field("exr-dwaa.exr"), tmp("x.exr")), 1);
+                       test_field("exr-dwaa.exr"), test_tmp("x.exr")), 1);
   expect_text("exr-dwaa.exr: DWAA compression cannot be decoded");
   expect_text("oiiotool");
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       field("exr-truncated.exr"), tmp("x.exr")), 1);
+                       test_field("exr-truncated.exr"), test_tmp("x.exr")), 1);
   expect_text("exr-truncated.exr: truncated / incomplete file");
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s",
-                       field("weights-duplicate-metadata.safetensors"), field("frame-64x64.exr"),
-                       tmp("x.exr")), 1);
+                       test_field("weights-duplicate-metadata.safetensors"), test_field("frame-64x64.exr"),
+                       test_tmp("x.exr")), 1);
   expect_text("duplicate key '__metadata__'");
   /* A result file is not a feature file. */
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       tmp("plain.exr"), tmp("x.exr")), 1);
+                       test_tmp("plain.exr"), test_tmp("x.exr")), 1);
   expect_text("no channel S0.color: not a feature file");
 }
 
@@ -183,17 +166,17 @@ static void test_missing_samples(void **state) {
   float in[4 * 4 * 12] = {0};
   hf_image img;
   assert_int_equal(hf_features_to_image(in, 4, 4, 2, &img), HF_OK);
-  assert_int_equal(hf_exr_write(tmp("two.exr"), &img, 0), HF_OK);
+  assert_int_equal(hf_exr_write(test_tmp("two.exr"), &img, 0), HF_OK);
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       tmp("two.exr"), tmp("x.exr")), 1);
+                       test_tmp("two.exr"), test_tmp("x.exr")), 1);
   expect_text("has 2 samples per pixel (S0.color..S1.color), variant Base needs 4");
   hf_image_free(&img);
   float in4[4 * 4 * 24] = {0};
   assert_int_equal(hf_features_to_image(in4, 4, 4, 4, &img), HF_OK);
   strcpy(img.names[3 * 6 + 3], "S3.dpeth");
-  assert_int_equal(hf_exr_write(tmp("typo.exr"), &img, 0), HF_OK);
+  assert_int_equal(hf_exr_write(test_tmp("typo.exr"), &img, 0), HF_OK);
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
-                       tmp("typo.exr"), tmp("x.exr")), 1);
+                       test_tmp("typo.exr"), test_tmp("x.exr")), 1);
   expect_text("no channel S3.depth: sample 3 lacks its depth feature");
   hf_image_free(&img);
 }
@@ -206,7 +189,7 @@ static void test_eval_warning(void **state) {
 #endif
   hf_image feat, frame;
   char err[512];
-  assert_int_equal(hf_exr_read(field("frame-64x64.exr"), &feat, err, sizeof err), HF_OK);
+  assert_int_equal(hf_exr_read(test_field("frame-64x64.exr"), &feat, err, sizeof err), HF_OK);
   assert_int_equal(hf_image_alloc(&frame, 64, 64, feat.channels + 3), HF_OK);
   for (int c = 0; c < feat.channels; c++) strcpy(frame.names[c], feat.names[c]);
   strcpy(frame.names[feat.channels], "gt.color");
@@ -221,8 +204,8 @@ static void test_eval_warning(void **state) {
   }
   int ch = hf_image_channel(&frame, "S2.depth");
   frame.data[((size_t)9 * 64 + 33) * frame.channels + ch] = NAN;
-  assert_int_equal(hf_exr_write(tmp("evalnan.exr"), &frame, 0), HF_OK);
-  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, tmp("evalnan.exr")), 0);
+  assert_int_equal(hf_exr_write(test_tmp("evalnan.exr"), &frame, 0), HF_OK);
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, test_tmp("evalnan.exr")), 0);
   expect_text("evalnan.exr: 1 sample sanitised");
   expect_text("the first at pixel (33, 9): S2.depth = nan is not finite");
   int warnings = 0;
@@ -235,12 +218,8 @@ static void test_eval_warning(void **state) {
   hf_image_free(&feat);
 }
 
-static int setup(void **state) { return mkdtemp(tmpdir) ? 0 : -1; }
-static int teardown(void **state) {
-  char cmd[300];
-  snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
-  return system(cmd);
-}
+static int setup(void **state) { return test_tmp_create("hf_test_cli"); }
+static int teardown(void **state) { return test_tmp_remove(); }
 
 int main(void) {
   const struct CMUnitTest tests[] = {

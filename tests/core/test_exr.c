@@ -17,25 +17,8 @@
 #include <openexr.h>
 
 #include "exr_parts.h"
+#include "test_paths.h"
 #include "hfcore.h"
-
-static char tmpdir[] = "/tmp/hf_test_exr_XXXXXX";
-
-static char *tmp_path(const char *name) {
-  static char path[8][300];
-  static int k;
-  char *p = path[k++ % 8];
-  snprintf(p, sizeof path[0], "%s/%s", tmpdir, name);
-  return p;
-}
-
-static const char *field(const char *name) {
-  static char path[4][512];
-  static int k;
-  char *p = path[k++ % 4];
-  snprintf(p, sizeof path[0], "%s/field/%s", HF_TEST_DATA, name);
-  return p;
-}
 
 static uint64_t rng = 0x9e3779b97f4a7c15ull;
 static uint32_t next(void) {
@@ -72,7 +55,7 @@ static int roundtrip(int w, int h, int nch, int kind, int half) {
   for (int c = 0; c < nch; c++) snprintf(img.names[c], 32, "c%02d", c);
   size_t n = (size_t)w * h * nch;
   for (size_t i = 0; i < n; i++) img.data[i] = value(kind, i, nch);
-  char *path = tmp_path("rt.exr");
+  const char *path = test_tmp("rt.exr");
   int ok = hf_exr_write(path, &img, half) == HF_OK;
   hf_image back;
   char err[512];
@@ -121,7 +104,7 @@ static void test_result_of_tall_frame(void **state) {
   /* What hairfilter infer writes for the field case: a 1x1024 result. */
   hf_image feat;
   char err[512];
-  assert_int_equal(hf_exr_read(field("exr-1x1024.exr"), &feat, err, sizeof err), HF_OK);
+  assert_int_equal(hf_exr_read(test_field("exr-1x1024.exr"), &feat, err, sizeof err), HF_OK);
   assert_int_equal(feat.width, 1);
   assert_int_equal(feat.height, 1024);
   assert_int_equal(hf_features_spp(&feat), 4);
@@ -130,7 +113,7 @@ static void test_result_of_tall_frame(void **state) {
   for (int p = 0; p < 1024; p++) hf_st_estimate(in + p * 24, 4, out + p * 3);
   hf_image res;
   assert_int_equal(hf_result_to_image(out, 1, 1024, &res), HF_OK);
-  char *path = tmp_path("tall.exr");
+  const char *path = test_tmp("tall.exr");
   assert_int_equal(hf_exr_write(path, &res, 0), HF_OK);
   hf_image back;
   assert_int_equal(hf_exr_read(path, &back, err, sizeof err), HF_OK);
@@ -159,7 +142,7 @@ static void test_windows(void **state) {
   img.display_y = 0;
   img.display_width = 501;
   img.display_height = 401;
-  char *path = tmp_path("win.exr");
+  const char *path = test_tmp("win.exr");
   assert_int_equal(hf_exr_write(path, &img, 1), HF_OK);
   assert_int_equal(hf_exr_read(path, &back, err, sizeof err), HF_OK);
   assert_int_equal(back.origin_x, -7);
@@ -178,7 +161,7 @@ static void test_windows(void **state) {
   hf_image_free(&back);
   hf_image_free(&img);
   /* The field case: a half PIZ crop of a 501x401 frame. */
-  assert_int_equal(hf_exr_read(field("exr-crop-datawindow.exr"), &img, err, sizeof err), HF_OK);
+  assert_int_equal(hf_exr_read(test_field("exr-crop-datawindow.exr"), &img, err, sizeof err), HF_OK);
   assert_int_equal(img.width, 64);
   assert_int_equal(img.height, 64);
   assert_int_equal(img.origin_x, 30);
@@ -235,7 +218,7 @@ static void test_tiled(void **state) {
   for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
     part_spec p = {"tiles", 1, cases[i].tw, cases[i].th, cases[i].mip, (int)i * 3 - 4, 7,
                    cases[i].w, cases[i].h, 6, FEAT6, cases[i].comp, 0.5f, NULL};
-    char *path = tmp_path("tiled.exr");
+    const char *path = test_tmp("tiled.exr");
     write_parts(path, &p, 1);
     hf_image img;
     assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
@@ -244,8 +227,8 @@ static void test_tiled(void **state) {
   }
   /* The field case holds frame-64x64.exr as 32x32 tiles. */
   hf_image tiled, plain;
-  assert_int_equal(hf_exr_read(field("exr-tiled.exr"), &tiled, err, sizeof err), HF_OK);
-  assert_int_equal(hf_exr_read(field("frame-64x64.exr"), &plain, err, sizeof err), HF_OK);
+  assert_int_equal(hf_exr_read(test_field("exr-tiled.exr"), &tiled, err, sizeof err), HF_OK);
+  assert_int_equal(hf_exr_read(test_field("frame-64x64.exr"), &plain, err, sizeof err), HF_OK);
   assert_int_equal(tiled.channels, plain.channels);
   assert_int_equal(hf_features_spp(&tiled), 4);
   float *a = malloc(64 * 64 * 24 * sizeof(float)), *b = malloc(64 * 64 * 24 * sizeof(float));
@@ -263,7 +246,8 @@ static void test_multipart(void **state) {
     {"features", 1, 8, 8, 0, 5, -3, 19, 11, 6, FEAT6, EXR_COMPRESSION_PIZ, 2.0f, NULL},
     {"depth", 0, 0, 0, 0, 0, 0, 20, 10, 1, Z, EXR_COMPRESSION_NONE, 3.0f, NULL},
   };
-  char *path = tmp_path("multi.exr"), err[1024];
+  const char *path = test_tmp("multi.exr");
+  char err[1024];
   write_parts(path, parts, 3);
   hf_image img;
   /* Automatic: the one part with the channel asked for. */
@@ -329,7 +313,7 @@ static void copy_prefix(const char *from, const char *to, long n) {
 static void test_truncated(void **state) {
   char err[512];
   hf_image img;
-  assert_int_equal(hf_exr_read(field("exr-truncated.exr"), &img, err, sizeof err), HF_EIO);
+  assert_int_equal(hf_exr_read(test_field("exr-truncated.exr"), &img, err, sizeof err), HF_EIO);
   assert_non_null(strstr(err, "exr-truncated.exr"));
   assert_non_null(strstr(err, "truncated / incomplete file"));
   assert_null(img.data);
@@ -339,7 +323,7 @@ static void test_truncated(void **state) {
   part_spec tile = {"t", 1, 16, 16, 0, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_ZIP, 0.25f, NULL};
   part_spec *specs[2] = {&scan, &tile};
   for (int s = 0; s < 2; s++) {
-    char *full = tmp_path("full.exr"), *cut = tmp_path("cut.exr");
+    const char *full = test_tmp("full.exr"), *cut = test_tmp("cut.exr");
     write_parts(full, specs[s], 1);
     long n = file_size(full);
     for (int pct = 1; pct < 100; pct += 7) {
@@ -384,7 +368,7 @@ static void set_compression(const char *path, int value) {
 static void test_undecodable_compression(void **state) {
   char err[512];
   hf_image img;
-  int rc = hf_exr_read(field("exr-dwaa.exr"), &img, err, sizeof err);
+  int rc = hf_exr_read(test_field("exr-dwaa.exr"), &img, err, sizeof err);
   if (rc == HF_OK) {  /* an OpenEXR that decodes DWAA: nothing to refuse */
     hf_image_free(&img);
     return;
@@ -395,7 +379,7 @@ static void test_undecodable_compression(void **state) {
   assert_non_null(strstr(err, "--compression zip"));
   /* DWAB as well (a file that says so: the library stops at the name). */
   part_spec p = {"d", 0, 0, 0, 0, 0, 0, 12, 40, 6, FEAT6, EXR_COMPRESSION_ZIP, 0.5f, NULL};
-  char *path = tmp_path("dwab.exr");
+  const char *path = test_tmp("dwab.exr");
   write_parts(path, &p, 1);
   set_compression(path, EXR_COMPRESSION_DWAB);
   assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EUNSUPPORTED);
@@ -405,7 +389,8 @@ static void test_undecodable_compression(void **state) {
 static void test_subsampled_refused(void **state) {
   exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
   exr_context_t ctx;
-  char *path = tmp_path("sub.exr"), err[512];
+  const char *path = test_tmp("sub.exr");
+  char err[512];
   int idx;
   assert_int_equal(exr_start_write(&ctx, path, EXR_WRITE_FILE_DIRECTLY, &init), 0);
   assert_int_equal(exr_add_part(ctx, "main", EXR_STORAGE_SCANLINE, &idx), 0);
@@ -425,14 +410,15 @@ static void test_subsampled_refused(void **state) {
 }
 
 static void test_not_exr(void **state) {
-  char err[512], *path = tmp_path("junk.exr");
+  char err[512];
+  const char *path = test_tmp("junk.exr");
   FILE *f = fopen(path, "wb");
   fputs("P6\n1 1\n255\n...", f);
   fclose(f);
   hf_image img;
   assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
   assert_non_null(strstr(err, "not an OpenEXR file"));
-  assert_int_equal(hf_exr_read(tmp_path("missing.exr"), &img, err, sizeof err), HF_EIO);
+  assert_int_equal(hf_exr_read(test_tmp("missing.exr"), &img, err, sizeof err), HF_EIO);
   assert_non_null(strstr(err, "No such file"));
 }
 
@@ -444,7 +430,8 @@ static void test_many_samples(void **state) {
   float *in = malloc(n * sizeof(float)), got[3 * 2 * 4 * 6];
   for (size_t i = 0; i < n; i++) in[i] = (float)i;
   hf_image img, back;
-  char err[512], *path = tmp_path("many.exr");
+  char err[512];
+  const char *path = test_tmp("many.exr");
   assert_int_equal(hf_image_alloc(&img, w, h, spp * 6), HF_OK);
   for (int k = 0; k < spp; k++)
     for (int f = 0; f < 6; f++) snprintf(img.names[k * 6 + f], 32, "S%d.%s", k, HF_FEATURE_NAMES[f]);
@@ -460,12 +447,8 @@ static void test_many_samples(void **state) {
   free(in);
 }
 
-static int setup(void **state) { return mkdtemp(tmpdir) ? 0 : -1; }
-static int teardown(void **state) {
-  char cmd[300];
-  snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
-  return system(cmd);
-}
+static int setup(void **state) { return test_tmp_create("hf_test_exr"); }
+static int teardown(void **state) { return test_tmp_remove(); }
 
 int main(void) {
   const struct CMUnitTest tests[] = {

@@ -16,6 +16,7 @@
 #include <cmocka.h>
 
 #include "hfcore.h"
+#include "test_paths.h"
 
 static uint64_t rng = 0x2545f4914f6cdd1dull;
 static uint32_t next(void) {
@@ -241,10 +242,9 @@ typedef struct frame {
 } frame;
 
 static frame load_field(const char *name, int spp) {
-  char path[512], err[512];
-  snprintf(path, sizeof path, "%s/field/%s", HF_TEST_DATA, name);
+  char err[512];
   hf_image img;
-  assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
+  assert_int_equal(hf_exr_read(test_field(name), &img, err, sizeof err), HF_OK);
   frame f = {img.width, img.height, spp, malloc(sizeof(float) * img.width * img.height * spp * 6)};
   assert_int_equal(hf_features_from_image(&img, spp, f.in), spp);
   hf_image_free(&img);
