@@ -149,8 +149,7 @@ typedef struct hfc_timing {
                                 not be good (always 0 from version-1 servers) */
   int input_sanitised;       /* 1: some samples were non-finite or out of range and
                                 the server sanitised them (protocol/FEATURES.md,
-                                "Out-of-contract values"; hf_features_check on the
-                                features says which); always 0 from version-1
+                                "Out-of-contract values"); always 0 from version-1
                                 servers */
 } hfc_timing;
 
