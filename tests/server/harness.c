@@ -328,10 +328,13 @@ int raw_read(int fd, hfp_header *h, uint8_t **payload) {
   return 0;
 }
 
-int raw_hello(int fd, const char *token) {
+int raw_hello(int fd, const char *token) { return raw_hello_versions(fd, token, 1, 1); }
+
+int raw_hello_versions(int fd, const char *token, int lo, int hi) {
   hfp_hello m;
   memset(&m, 0, sizeof m);
-  m.min_version = m.max_version = 1;
+  m.min_version = (uint16_t)lo;
+  m.max_version = (uint16_t)hi;
   strcpy(m.client_name, "raw-test");
   if (token) snprintf(m.token, sizeof m.token, "%s", token);
   uint8_t b[512];

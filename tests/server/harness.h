@@ -71,6 +71,8 @@ int raw_connect(const char *url);
 int raw_send(int fd, const void *buf, size_t n);
 /* Sends HELLO and reads HELLO_OK; 0 on success. */
 int raw_hello(int fd, const char *token);
+/* The same offering protocol versions lo..hi (raw_hello offers 1 only). */
+int raw_hello_versions(int fd, const char *token, int lo, int hi);
 /* Reads one frame: payload (malloc'd) in *payload. 0, or -1 on EOF/timeout. */
 int raw_read(int fd, hfp_header *h, uint8_t **payload);
 /* The same, also taking a descriptor passed with the frame (-1 if none). */

@@ -113,24 +113,6 @@ static void test_batched(void **state) {
   hfc_close(c);
 }
 
-/* HELLO offering versions lo..hi on a raw socket; 0 on HELLO_OK. */
-static int hello_versions(int fd, int lo, int hi) {
-  hfp_hello m;
-  memset(&m, 0, sizeof m);
-  m.min_version = (uint16_t)lo;
-  m.max_version = (uint16_t)hi;
-  strcpy(m.client_name, "raw-test");
-  uint8_t b[512];
-  int n = hfp_encode_hello(b, sizeof b, &m);
-  if (n < 0 || raw_send(fd, b, (size_t)n)) return -1;
-  hfp_header h;
-  uint8_t *p;
-  if (raw_read(fd, &h, &p)) return -1;
-  int ok = h.type == HFP_HELLO_OK;
-  free(p);
-  return ok ? 0 : -1;
-}
-
 /* A raw FILTER of frame(seed, bad) on fd: the RESULT's flags byte. */
 static int raw_flags(int fd, int spp, uint32_t seed, int bad) {
   float *in = frame(spp, seed, bad);
@@ -161,7 +143,7 @@ static void test_versions(void **state) {
   for (int version = 1; version <= 2; version++) {
     int fd = raw_connect(S.unix_url);
     assert_true(fd >= 0);
-    assert_int_equal(hello_versions(fd, 1, version), 0);
+    assert_int_equal(raw_hello_versions(fd, NULL, 1, version), 0);
     assert_int_equal(raw_flags(fd, spp, 80, 0), 0);
     assert_int_equal(raw_flags(fd, spp, 80, 2), version >= 2 ? HFP_RESULT_INPUT_SANITISED : 0);
     uint8_t b[64];
