@@ -81,14 +81,17 @@ int hfd_limits_derive(hfd_server *s) {
    * longer side) that fits. Every limit grows with the frame, so fitting is
    * monotone in k and a bisection finds the edge. */
   uint32_t m = w0 > h0 ? w0 : h0, lo = 0, hi = m, w, h;   /* lo fits (0: none), hi not */
-  char ignored[400];
+  char hi_why[400];
   while (hi - lo > 1) {
     uint32_t mid = lo + (hi - lo) / 2;
     scaled(w0, h0, mid, m, &w, &h);
-    if (frame_fits(s, w, h, ignored, sizeof ignored))
+    if (frame_fits(s, w, h, hi_why, sizeof hi_why)) {
       lo = mid;
-    else
+    } else {
       hi = mid;
+      /* The limit that stops the size just above the one announced. */
+      memcpy(why, hi_why, sizeof why);
+    }
   }
   if (lo == 0) {
     hfd_log("error: no frame can be served: %s", why);
