@@ -54,9 +54,12 @@ uint64_t hfd_worker_run_bytes(const hfd_worker *w, int variant, uint32_t width,
                             batch);
   if (!net) return UINT64_MAX;
   /* run_batch's own buffers: the gathered inputs of a batch, the float32
-   * results of a batch or a composite, and the composite's RGB. */
+   * results of a batch or a composite, and the composite's RGB. A frame's
+   * slot in the gather buffer is counted even when it runs alone, so that
+   * n frames never need more than n times what one frame was charged and
+   * batches form under the memory bound (take_compatible). */
   uint64_t px = (uint64_t)width * height, f32_out = px * 3 * sizeof(float);
-  return net + (batch > 1 ? in_bytes * (uint64_t)batch : 0) + f32_out * (uint64_t)batch + f32_out;
+  return net + (in_bytes + f32_out) * (uint64_t)batch + f32_out;
 }
 
 static size_t worker_cached(const hfd_worker *w) {

@@ -290,8 +290,44 @@ static void test_inference_memory_in_budget(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* Batching still happens under the memory bound: frames whose gathered
+ * inputs are megabytes are run together when they were charged enough for
+ * it, which each frame is (its slot in a batch is part of its charge). */
+static void test_batches_form_within_budget(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-memory-mb", "512", "--max-batch", "4", "--max-queue-delay-us",
+                        "500000", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"batch", NULL, 60000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  enum { N = 4, W = 256, HH = 256 };
+  float *in = make_features(W, HH, 4, 3);
+  float *out[N];
+  for (int i = 0; i < N; i++) {
+    out[i] = malloc((size_t)W * HH * 3 * sizeof(float));
+    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = 4, .in_dtype = HFC_F32,
+                     .features = in, .out_dtype = HFC_F32, .result = out[i]};
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  }
+  int max_batch = 0;
+  for (int k = 0; k < N; k++) {
+    hfc_completion done;
+    assert_int_equal(hfc_wait(c, 60000, &done), 0);
+    assert_int_equal(done.status, 0);
+    if (done.timing.batch > max_batch) max_batch = done.timing.batch;
+  }
+  assert_true(max_batch > 1);
+  for (int i = 0; i < N; i++) free(out[i]);
+  free(in);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_batches_form_within_budget),
     cmocka_unit_test(test_announced_maximum_is_admitted),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
