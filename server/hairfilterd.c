@@ -304,9 +304,13 @@ static int write_ready_file(hfd_server *s) {
   return 0;
 }
 
-/* The files that say this daemon is there: removed when it starts to stop
- * and again on every way out of main, so no exit path leaves them. */
+/* The files that say this daemon is there: removed when it starts to stop,
+ * or on the way out of main when it did not get that far, so no exit path
+ * leaves them. Only once: by the time a drained daemon exits, a new one may
+ * have made the same paths. */
 static void remove_files(hfd_server *s) {
+  if (s->files_removed) return;
+  s->files_removed = 1;
   for (int i = 0; i < s->num_listeners; i++)
     if (s->listeners[i].unix_path[0]) unlink(s->listeners[i].unix_path);
   if (s->ready_written && s->cfg->ready_file) unlink(s->cfg->ready_file);

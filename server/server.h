@@ -283,7 +283,8 @@ struct hfd_server {
   int draining, stopped;
   int hurry;                     /* a second signal: no more waiting */
   int ready_written;             /* the ready file is ours to remove */
-  int signals_closed;
+  int files_removed;             /* socket files and ready file gone */
+  int signals_closed;            /* the stop is complete */
   double t_start;
   char backend_desc[512];
 };
