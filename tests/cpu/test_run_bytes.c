@@ -6,9 +6,8 @@
  * estimates (docs/SERVER.md, "Memory"), so an estimate that is low is a bug.
  *
  * Peak RSS is read from /proc/self/status (VmHWM) after resetting it
- * through /proc/self/clear_refs (Linux >= 4.0). Under AddressSanitizer,
- * whose quarantine keeps freed memory resident, only the plan sizes are
- * checked. */
+ * (tests/common/proc_memory.h). Under AddressSanitizer, whose quarantine
+ * keeps freed memory resident, only the plan sizes are checked. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -21,37 +20,8 @@
 #include <string.h>
 
 #include "hfcore.h"
+#include "proc_memory.h"
 
-#if defined(__SANITIZE_ADDRESS__)
-#define UNDER_ASAN 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define UNDER_ASAN 1
-#endif
-#endif
-#ifndef UNDER_ASAN
-#define UNDER_ASAN 0
-#endif
-
-/* kB of a /proc/self/status line ("VmHWM", "VmRSS"), or -1. */
-static long status_kb(const char *key) {
-  FILE *f = fopen("/proc/self/status", "r");
-  if (!f) return -1;
-  char line[256];
-  long v = -1;
-  size_t n = strlen(key);
-  while (fgets(line, sizeof line, f))
-    if (!strncmp(line, key, n) && line[n] == ':') v = atol(line + n + 1);
-  fclose(f);
-  return v;
-}
-
-static int reset_peak(void) {
-  FILE *f = fopen("/proc/self/clear_refs", "w");
-  if (!f) return -1;
-  int ok = fputs("5", f) >= 0;
-  return fclose(f) == 0 && ok ? 0 : -1;
-}
 
 typedef struct run_case {
   const char *variant;
@@ -62,7 +32,7 @@ static void check_backend(const char *backend, const run_case *cases, int ncases
   hf_backend *b = NULL;
   char why[256];
   assert_int_equal(hf_backend_create(backend, &b, why, sizeof why), 0);
-  int rss_ok = !UNDER_ASAN && reset_peak() == 0 && status_kb("VmHWM") > 0;
+  int rss_ok = !UNDER_ASAN && proc_reset_peak(0) == 0 && proc_status_kb(0, "VmHWM") > 0;
   if (!rss_ok) fprintf(stderr, "%s: peak RSS not checked (%s)\n", backend,
                        UNDER_ASAN ? "AddressSanitizer keeps freed memory" : "no clear_refs");
   for (int k = 0; k < ncases; k++) {
@@ -92,13 +62,13 @@ static void check_backend(const char *backend, const run_case *cases, int ncases
     assert_true(est > 0);
     long rss0 = 0;
     if (rss_ok) {
-      assert_int_equal(reset_peak(), 0);
-      rss0 = status_kb("VmRSS");
+      assert_int_equal(proc_reset_peak(0), 0);
+      rss0 = proc_status_kb(0, "VmRSS");
     }
     hf_io io = {rc->batch, rc->w, rc->h, in, HF_F32, out, HF_F32};
     assert_int_equal(hf_model_run(m, &io, NULL), 0);
     size_t cached = hf_model_cached_bytes(m);
-    long grew_kb = rss_ok ? status_kb("VmHWM") - rss0 : 0;
+    long grew_kb = rss_ok ? proc_status_kb(0, "VmHWM") - rss0 : 0;
     printf("%-8s %-9s %4dx%-4d batch %d: estimate %8.2f MiB, peak RSS grew %8.2f MiB, "
            "plan kept %8.2f MiB\n", backend, rc->variant, rc->w, rc->h, rc->batch,
            est / 1048576.0, grew_kb / 1024.0, cached / 1048576.0);
@@ -109,7 +79,7 @@ static void check_backend(const char *backend, const run_case *cases, int ncases
     assert_int_equal(hf_model_cached_bytes(m), 0);
     malloc_trim(0);
     if (rss_ok) {
-      long after = status_kb("VmRSS");
+      long after = proc_status_kb(0, "VmRSS");
       /* Within 2 MiB of before: allocator bookkeeping, not the plan. */
       assert_true(after - rss0 < 2048);
     }

@@ -247,28 +247,6 @@ int daemon_run(const char *const *args, const char *token_env, int timeout_ms, c
   return status;
 }
 
-long proc_status_kb(pid_t pid, const char *key) {
-  char path[64], line[256];
-  snprintf(path, sizeof path, "/proc/%d/status", (int)pid);
-  FILE *f = fopen(path, "r");
-  if (!f) return -1;
-  long v = -1;
-  size_t n = strlen(key);
-  while (fgets(line, sizeof line, f))
-    if (!strncmp(line, key, n) && line[n] == ':') v = atol(line + n + 1);
-  fclose(f);
-  return v;
-}
-
-int proc_reset_peak(pid_t pid) {
-  char path[64];
-  snprintf(path, sizeof path, "/proc/%d/clear_refs", (int)pid);
-  FILE *f = fopen(path, "w");
-  if (!f) return -1;
-  int ok = fputs("5", f) >= 0;
-  return fclose(f) == 0 && ok ? 0 : -1;
-}
-
 float *make_features(int w, int h, int spp, uint32_t seed) {
   size_t n = (size_t)w * h * spp * HF_FEATURES_PER_SAMPLE;
   float *f = malloc(n * sizeof *f);

@@ -54,10 +54,7 @@ int server_start_ex(const harness *h, server *s, const char *const *extra,
  * timeout_ms; its stderr goes to out. Returns the exit status, or -1. */
 int daemon_run(const char *const *args, const char *token_env, int timeout_ms, char *out,
                size_t outlen);
-/* A /proc/PID/status value in kB ("VmRSS", "VmHWM"), or -1. */
-long proc_status_kb(pid_t pid, const char *key);
-/* Resets the peak RSS (VmHWM) of pid; 0 or -1. */
-int proc_reset_peak(pid_t pid);
+
 /* SIGTERM, then waits up to timeout_ms; returns the exit status, or -1 if it
  * had to be killed. */
 int server_stop(server *s, int timeout_ms);
