@@ -120,7 +120,7 @@ static void test_hello(void **state) {
   assert_int_equal(hfp_negotiate(HFP_VERSION + 1, 9), -HFP_E_VERSION);
   assert_int_equal(hfp_negotiate(0, 0), -HFP_E_VERSION);
   assert_int_equal(hfp_negotiate(0, 1), 1);
-  assert_int_equal(hfp_negotiate(0, 65535), 1);
+  assert_int_equal(hfp_negotiate(0, 65535), HFP_VERSION);
   assert_int_equal(hfp_negotiate(3, 2), -HFP_E_VERSION);
 }
 

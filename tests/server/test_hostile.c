@@ -143,14 +143,20 @@ static void test_nothing_before_hello(void **state) {
   assert_true(server_alive(&S));
 }
 
-/* Item: version ranges. 0..1 holds 1; ranges without 1 are VERSION. */
+/* Item: version ranges. The highest version in common: 0..1 holds 1,
+ * 0..65535 the newest; ranges with none in common are VERSION. */
 static void test_hello_versions(void **state) {
   (void)state;
   static const struct {
     uint16_t lo, hi;
-    int code;
-  } cases[] = {{0, 1, 0}, {1, 1, 0}, {1, 65535, 0}, {0, 65535, 0},
-               {2, 3, HFP_E_VERSION}, {3, 2, HFP_E_VERSION}, {0, 0, HFP_E_VERSION}};
+    int code, version;
+  } cases[] = {{0, 1, 0, 1},
+               {1, 1, 0, 1},
+               {1, 65535, 0, HFP_VERSION},
+               {0, 65535, 0, HFP_VERSION},
+               {HFP_VERSION + 1, HFP_VERSION + 2, HFP_E_VERSION, 0},
+               {3, 2, HFP_E_VERSION, 0},
+               {0, 0, HFP_E_VERSION, 0}};
   for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
     uint8_t b[512];
     size_t n = raw_hello_frame(b, sizeof b, cases[k].lo, cases[k].hi, TEST_TOKEN);
@@ -166,7 +172,7 @@ static void test_hello_versions(void **state) {
     if (h.type != HFP_HELLO_OK) fail_msg("%u..%u: no HELLO_OK", cases[k].lo, cases[k].hi);
     hfp_hello_ok ok;
     assert_int_equal(hfp_decode_hello_ok(p, h.length, &ok), 0);
-    assert_int_equal(ok.version, 1);
+    assert_int_equal(ok.version, cases[k].version);
     free(p);
     close(fd);
   }
