@@ -36,10 +36,7 @@ static int setup(void **state) {
 
 static int teardown(void **state) {
   (void)state;
-  int rc = server_stop(&S, 20000);
-  if (rc != 0) server_dump_log(&S);
-  harness_free(&H);
-  return rc == 0 ? 0 : -1;
+  return harness_stop(&H, &S);
 }
 
 static double now_ms(void) {

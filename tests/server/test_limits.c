@@ -73,6 +73,43 @@ static int filter_once(int fd, uint32_t id, const char *variant, int w, int h, i
   return hd.type;
 }
 
+/* Sends n Small frames of w x h at once on c and waits for them all:
+ * counts those served and those refused BUSY (anything else fails), and
+ * the largest batch a served one ran in. */
+typedef struct burst {
+  int served, busy, max_batch;
+} burst;
+
+static burst send_burst(hfc_client *c, int w, int h, int n) {
+  burst b = {0, 0, 0};
+  float *in = make_features(w, h, 4, 12);
+  float **out = calloc((size_t)n, sizeof *out);
+  assert_non_null(in);
+  assert_non_null(out);
+  for (int i = 0; i < n; i++) {
+    out[i] = malloc((size_t)w * h * 3 * sizeof(float));
+    hfc_request r = {.variant = "Small", .width = w, .height = h, .spp = 4, .in_dtype = HFC_F32,
+                     .features = in, .out_dtype = HFC_F32, .result = out[i]};
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  }
+  for (int k = 0; k < n; k++) {
+    hfc_completion done;
+    assert_int_equal(hfc_wait(c, 60000, &done), 0);
+    if (done.status == 0) {
+      b.served++;
+      if (done.timing.batch > b.max_batch) b.max_batch = done.timing.batch;
+    } else if (done.status == HFC_E_BUSY) {
+      b.busy++;
+    } else {
+      fail_msg("frame %d: %s (%s)", k, hfc_strerror(done.status), hfc_last_message(c));
+    }
+  }
+  for (int i = 0; i < n; i++) free(out[i]);
+  free(out);
+  free(in);
+  return b;
+}
+
 /* Item: HELLO_OK announces a size a frame can meet. With a 1 MiB frame
  * limit and 4 MiB of memory, 4096x4096 is lowered; a frame of every
  * variant at exactly the announced size (f32, composite: the largest) is
@@ -235,26 +272,8 @@ static void test_inference_memory_in_budget(void **state) {
   assert_int_equal(hfc_filter(c, &sr, NULL), 0);
   int rss_ok = !UNDER_ASAN && proc_reset_peak(d.pid) == 0;
   long rss0 = proc_status_kb(d.pid, "VmRSS");
-  enum { N = 4 };
-  float *in = make_features(W, HH, 4, 12);
-  float *out[N];
-  for (int i = 0; i < N; i++) {
-    out[i] = malloc((size_t)W * HH * 3 * sizeof(float));
-    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = 4, .in_dtype = HFC_F32,
-                     .features = in, .out_dtype = HFC_F32, .result = out[i]};
-    assert_int_equal(hfc_submit(c, &r, NULL), 0);
-  }
-  int served = 0, busy = 0;
-  for (int k = 0; k < N; k++) {
-    hfc_completion done;
-    assert_int_equal(hfc_wait(c, 60000, &done), 0);
-    if (done.status == 0)
-      served++;
-    else if (done.status == HFC_E_BUSY)
-      busy++;
-    else
-      fail_msg("frame %d: %s (%s)", k, hfc_strerror(done.status), hfc_last_message(c));
-  }
+  burst b = send_burst(c, W, HH, 4);
+  int served = b.served, busy = b.busy;
   long hwm = proc_status_kb(d.pid, "VmHWM");
   /* The plans and buffers of the large frames are freed; a small frame
    * (whose plan may stay) shows the daemon still serves. */
@@ -274,8 +293,6 @@ static void test_inference_memory_in_budget(void **state) {
     printf("peak RSS not checked: %s\n",
            UNDER_ASAN ? "AddressSanitizer keeps freed memory" : "cannot reset it");
   }
-  for (int i = 0; i < N; i++) free(out[i]);
-  free(in);
   hfc_close(c);
   assert_int_equal(server_stop(&d, 20000), 0);
 }
@@ -292,25 +309,9 @@ static void test_batches_form_within_budget(void **state) {
   hfc_client *c = NULL;
   hfc_options o = {"batch", NULL, 60000};
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
-  enum { N = 4, W = 256, HH = 256 };
-  float *in = make_features(W, HH, 4, 3);
-  float *out[N];
-  for (int i = 0; i < N; i++) {
-    out[i] = malloc((size_t)W * HH * 3 * sizeof(float));
-    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = 4, .in_dtype = HFC_F32,
-                     .features = in, .out_dtype = HFC_F32, .result = out[i]};
-    assert_int_equal(hfc_submit(c, &r, NULL), 0);
-  }
-  int max_batch = 0;
-  for (int k = 0; k < N; k++) {
-    hfc_completion done;
-    assert_int_equal(hfc_wait(c, 60000, &done), 0);
-    assert_int_equal(done.status, 0);
-    if (done.timing.batch > max_batch) max_batch = done.timing.batch;
-  }
-  assert_true(max_batch > 1);
-  for (int i = 0; i < N; i++) free(out[i]);
-  free(in);
+  burst b = send_burst(c, 256, 256, 4);
+  assert_int_equal(b.served, 4);
+  assert_true(b.max_batch > 1);
   hfc_close(c);
   assert_int_equal(server_stop(&d, 20000), 0);
 }
