@@ -53,8 +53,9 @@ uint64_t hfd_worker_run_bytes(const hfd_worker *w, int variant, uint32_t width,
   size_t net = hf_run_bytes(w->backend, &w->variants[variant].cfg, (int)width, (int)height,
                             batch);
   if (!net) return UINT64_MAX;
-  /* run_batch's own buffers: the gathered inputs of a batch, the float32
-   * results of a batch or a composite, and the composite's RGB. A frame's
+  /* prepare_run's and finish_run's own buffers: the gathered inputs of a
+   * batch, the float32 results of a batch or a composite, and the
+   * composite's RGB. A frame's
    * slot in the gather buffer is counted even when it runs alone, so that
    * n frames never need more than n times what one frame was charged and
    * batches form under the memory bound (take_compatible). */
