@@ -300,7 +300,7 @@ int hfp_encode_hello(uint8_t *buf, size_t cap, const hfp_hello *m) {
   wr_begin(&w, buf, cap);
   size_t nn = checked_text(&w, m->client_name, HFP_NAME_MAX, 0, 0);
   size_t tn = checked_text(&w, m->token, HFP_TOKEN_MAX, 0, 1);
-  if (!w.err && (m->min_version < 1 || m->min_version > m->max_version))
+  if (!w.err && (m->max_version < 1 || m->min_version > m->max_version))
     w.err = -HFP_E_INVALID;
   wr_u16(&w, m->min_version);
   wr_u16(&w, m->max_version);
@@ -321,7 +321,9 @@ int hfp_decode_hello(const uint8_t *payload, size_t len, hfp_hello *m) {
   rd_text(&r, tn, HFP_TOKEN_MAX, 0, 1, m->token);
   int rc = rd_end(&r);
   if (rc) return rc;
-  if (m->min_version < 1 || m->min_version > m->max_version) return -HFP_E_VERSION;
+  /* An empty range, or one below version 1, holds no version at all. Which
+   * versions are in common is hfp_negotiate's to say: [0, 1] holds 1. */
+  if (m->max_version < 1 || m->min_version > m->max_version) return -HFP_E_VERSION;
   return 0;
 }
 

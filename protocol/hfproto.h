@@ -317,8 +317,29 @@ int hfp_decode_shm_destroy(const uint8_t *payload, size_t len, uint32_t *segment
 int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes);
 
 /* Version negotiation: the highest version both sides speak, or
- * HFP_E_VERSION. */
+ * HFP_E_VERSION (also for an empty range, client_min > client_max). */
 int hfp_negotiate(uint16_t client_min, uint16_t client_max);
+
+/* ---- addresses (PROTOCOL.md, "Addresses") ------------------------------- */
+
+enum { HFP_URL_UNIX = 1, HFP_URL_TCP = 2 };
+#define HFP_URL_LISTEN 0x1   /* port 0 allowed: "any free port" when binding */
+
+typedef struct hfp_url {
+  int kind;                /* HFP_URL_UNIX or HFP_URL_TCP */
+  char path[108];          /* unix: the socket path (sockaddr_un's limit) */
+  char host[256];          /* tcp: name or address, IPv6 without brackets;
+                              "127.0.0.1" for tcp:PORT */
+  uint16_t port;           /* tcp: 1..65535 (0 only with HFP_URL_LISTEN) */
+} hfp_url;
+
+/* Parses "unix:PATH", "tcp:HOST:PORT", "tcp:[IPV6]:PORT" or "tcp:PORT".
+ * Returns 0, or -HFP_E_INVALID with why (when not NULL) naming the URL and
+ * what is wrong with it: an empty or over-long path, a host with characters
+ * no name or address has, an IPv6 address without brackets, a port that is
+ * not plain decimal digits or is outside 1..65535. Resolving the host is the
+ * caller's business. Pure: no I/O, no allocation. */
+int hfp_url_parse(const char *url, int flags, hfp_url *out, char *why, size_t whylen);
 
 /* Little-endian helpers (exposed for the tensor converters of the peers). */
 static inline void hfp_put_u16(uint8_t *p, uint16_t v) {

@@ -15,6 +15,12 @@
  * reading, so the connection gets a fatal ERROR and is closed. Anything
  * wrong inside a well-framed FILTER gets a non-fatal ERROR with its request
  * id, the rest of the frame is skipped, and the connection goes on.
+ *
+ * Nothing but HELLO is read before the handshake is complete, and a HELLO
+ * that is not one is a fatal PROTOCOL error: an unauthenticated peer gets
+ * no STATS, no VARIANTS, no buffers. Memory is charged as it is used: a
+ * FILTER's tensor as its bytes arrive, its result buffers and what running
+ * it takes when it is admitted (docs/SERVER.md, "Memory").
  */
 #define _POSIX_C_SOURCE 200809L
 #include <stdio.h>
@@ -24,8 +30,8 @@
 
 #include "server.h"
 
-static void conn_close(hfd_conn *c);
 static void read_next(hfd_conn *c);
+static void conn_idle_check(hfd_conn *c);
 static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf);
 static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
 
@@ -37,6 +43,20 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
 #define WRITES_HIGH 256
 #define WRITES_LOW 64
 
+/* A FILTER's tensor is read (and charged) in pieces of at most this many
+ * bytes, so the memory received ahead of its charge is bounded. */
+#define RECV_CHUNK ((size_t)1 << 20)
+
+/* A connection before its HELLO counts against --max-handshakes; this ends
+ * that, once. */
+static void handshake_over(hfd_conn *c) {
+  if (!c->handshaking) return;
+  c->handshaking = 0;
+  c->srv->num_handshaking--;
+}
+
+static int mid_frame(const hfd_conn *c) { return c->rstate != RD_HEADER || c->got > 0; }
+
 /* uv_read_stop cannot fail for a stream that is open (it returns 0), but
  * say so if that ever changes. */
 static void read_stop(hfd_conn *c) {
@@ -46,19 +66,28 @@ static void read_stop(hfd_conn *c) {
 
 static void wrote_one(hfd_conn *c) {
   c->writes_pending--;
-  if (c->read_paused && c->writes_pending <= WRITES_LOW && !c->closing && !c->fatal_sent) {
+  if (c->read_paused && c->writes_pending <= WRITES_LOW && !c->closing && !c->fatal_sent &&
+      !c->eof && !c->shutting) {
     int rc = uv_read_start(&c->h.stream, on_alloc, on_read);
     if (rc < 0) {
       hfd_log("error: conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
-      conn_close(c);
+      hfd_conn_close(c);
       return;
     }
     c->read_paused = 0;
-    c->t_last_read = hfd_now_us();
+    c->t_last_read = c->t_window = hfd_now_us();
+    c->window_bytes = 0;
   }
 }
 
-static void writing_one(hfd_conn *c) {
+/* A reply of bytes was handed to libuv. */
+static void writing_one(hfd_conn *c, uint64_t bytes) {
+  if (c->writes_pending == 0) {
+    /* Nothing was waiting: the peer's reading is timed from now. */
+    c->t_write = hfd_now_us();
+    c->written_seen = c->bytes_queued;
+  }
+  c->bytes_queued += bytes;
   c->writes_pending++;
   if (!c->read_paused && c->writes_pending >= WRITES_HIGH && !c->fatal_sent) {
     read_stop(c);
@@ -112,7 +141,7 @@ static void on_ctl_written(uv_write_t *req, int status) {
   wrote_one(c);
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: write failed: %s", (unsigned long long)c->id, uv_strerror(status));
-  if (w->close_after || status < 0) conn_close(c);
+  if (w->close_after || status < 0) hfd_conn_close(c);
   free(w);
   conn_release(c);
 }
@@ -124,7 +153,7 @@ static void send_ctl(hfd_conn *c, const uint8_t *frame, size_t len, int close_af
   if (!w) {
     hfd_log("error: conn %llu: out of memory for a reply; closing it",
             (unsigned long long)c->id);
-    conn_close(c);
+    hfd_conn_close(c);
     return;
   }
   w->c = c;
@@ -136,10 +165,10 @@ static void send_ctl(hfd_conn *c, const uint8_t *frame, size_t len, int close_af
   if (rc < 0) {
     hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
     free(w);
-    conn_close(c);
+    hfd_conn_close(c);
     return;
   }
-  writing_one(c);
+  writing_one(c, len);
 }
 
 /* Sends an ERROR. Fatal errors stop reading; the connection closes once
@@ -168,11 +197,12 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
   int n = hfp_encode_error(frame, sizeof frame, request_id, &e);
   if (n < 0) {
     hfd_log("error: cannot encode an ERROR: %s", hfp_strerror(n));
-    conn_close(c);
+    hfd_conn_close(c);
     return;
   }
   if (fatal) {
     c->fatal_sent = 1;
+    handshake_over(c);
     read_stop(c);
   }
   send_ctl(c, frame, (size_t)n, fatal);
@@ -193,6 +223,10 @@ static void job_free(hfd_server *s, hfd_job *j) {
   free(j);
 }
 
+static void account(hfd_server *s, hfd_job *j);
+
+/* Statistics count a reply once it is written: a frame whose peer left
+ * before its RESULT went out was computed, not served. */
 static void on_result_written(uv_write_t *req, int status) {
   hfd_job *j = req->data;
   hfd_conn *c = j->conn;
@@ -201,7 +235,12 @@ static void on_result_written(uv_write_t *req, int status) {
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: result write failed: %s", (unsigned long long)c->id,
               uv_strerror(status));
-  if (status < 0) conn_close(c);
+  if (status < 0) {
+    s->replies_lost++;
+    hfd_conn_close(c);
+  } else {
+    account(s, j);
+  }
   job_free(s, j);
   conn_release(c);
 }
@@ -233,8 +272,12 @@ static void deliver(hfd_server *s, hfd_job *j) {
   j->timing.queue_us = j->t_started > j->t_received ? (uint64_t)(j->t_started - j->t_received) : 0;
   j->timing.total_us = now > j->t_received ? (uint64_t)(now - j->t_received) : 0;
   if (j->status != HFP_OK) j->timing.input_us = j->timing.infer_us = j->timing.output_us = 0;
-  account(s, j);
+  /* What running it took is no longer needed. */
+  s->mem_held -= j->infer_bytes;
+  j->bytes_held -= j->infer_bytes;
+  j->infer_bytes = 0;
   if (c->closing) {
+    s->replies_lost++;
     job_free(s, j);
     conn_release(c);
     return;
@@ -266,13 +309,15 @@ static void deliver(hfd_server *s, hfd_job *j) {
   if (n < 0) {
     hfd_log("error: conn %llu request %u: cannot encode RESULT: %s", (unsigned long long)c->id,
             j->request_id, hfp_strerror(n));
+    s->replies_lost++;
     job_free(s, j);
-    conn_close(c);
+    hfd_conn_close(c);
     conn_release(c);
     return;
   }
   uv_buf_t bufs[3];
   unsigned nbufs = 0;
+  uint64_t bytes = (uint64_t)n + r.data_len + r.rgba_len;
   bufs[nbufs++] = uv_buf_init((char *)j->head, (unsigned)n);
   if (r.data_len) bufs[nbufs++] = uv_buf_init(j->out, (unsigned)r.data_len);
   if (r.rgba_len) bufs[nbufs++] = uv_buf_init(j->rgba, (unsigned)r.rgba_len);
@@ -288,12 +333,16 @@ static void deliver(hfd_server *s, hfd_job *j) {
   int rc = uv_write(&j->wreq, &c->h.stream, bufs, nbufs, on_result_written);
   if (rc < 0) {
     hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
+    s->replies_lost++;
     job_free(s, j);
-    conn_close(c);
+    hfd_conn_close(c);
     conn_release(c);
     return;
   }
-  writing_one(c);
+  writing_one(c, bytes);
+  /* A peer that has shut down its side is closed once its last reply is
+   * out (PROTOCOL.md, "Transport"). */
+  conn_idle_check(c);
 }
 
 void hfd_on_async(uv_async_t *a) {
@@ -321,12 +370,16 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   int rc = hfp_decode_hello(p, len, &h);
   int version = rc ? -HFP_E_VERSION : hfp_negotiate(h.min_version, h.max_version);
   if (rc == -HFP_E_VERSION || (!rc && version < 0)) {
+    s->protocol_errors++;
     send_error(c, 0, HFP_E_VERSION, 1, "client speaks versions %u..%u, server speaks %d..%d",
                h.min_version, h.max_version, HFP_VERSION_MIN, HFP_VERSION);
     return;
   }
   if (rc) {
-    send_error(c, 0, -rc, 1, "malformed HELLO");
+    /* Whatever the codec found (a length that disagrees with its fields,
+     * a bad name), a HELLO that is not one is a PROTOCOL error. */
+    s->protocol_errors++;
+    send_error(c, 0, HFP_E_PROTOCOL, 1, "malformed HELLO: %s", hfp_strerror(rc));
     return;
   }
   if (c->listener->auth_required) {
@@ -338,6 +391,7 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
     for (size_t i = 0; i < HFP_TOKEN_MAX; i++)
       diff |= (unsigned)((i < wl ? want[i] : 0) ^ (i < gl ? h.token[i] : 0));
     if (diff || !wl) {
+      s->protocol_errors++;
       send_error(c, 0, HFP_E_UNAUTHORIZED, 1, "%s", gl ? "wrong token" : "this listener needs a token");
       return;
     }
@@ -345,13 +399,16 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   snprintf(c->client_name, sizeof c->client_name, "%s", h.client_name);
   c->hello_done = 1;
   c->version = version;
+  handshake_over(c);
   hfp_hello_ok ok;
   memset(&ok, 0, sizeof ok);
   ok.version = (uint16_t)version;
   ok.server_flags = (c->listener->auth_required ? HFP_SERVER_AUTH_REQUIRED : 0) |
                     (c->is_ipc ? HFP_SERVER_SHM : 0);
-  ok.max_width = (uint32_t)s->cfg->max_width;
-  ok.max_height = (uint32_t)s->cfg->max_height;
+  /* The largest frame every limit lets through (limits.c), not just
+   * --max-size. */
+  ok.max_width = (uint32_t)s->max_width;
+  ok.max_height = (uint32_t)s->max_height;
   int max_spp = 1;
   for (int i = 0; i < s->num_variants; i++)
     if (s->variants[i].cfg.spp > max_spp) max_spp = s->variants[i].cfg.spp;
@@ -444,11 +501,12 @@ static void reject(hfd_conn *c, int variant, int code, uint64_t left, const char
     c->srv->variants[variant].stats.rejected++;
   else
     c->srv->protocol_errors++;
-  send_error(c, c->hdr.request_id, code, 0, "%s", msg);
+  send_error(c, c->hdr.type == HFP_FILTER ? c->hdr.request_id : 0, code, 0, "%s", msg);
   discard_rest(c, left);
 }
 
 static void filter_admit(hfd_conn *c);
+static void on_control(hfd_conn *c);
 
 static hfd_seg *find_seg(hfd_conn *c, uint32_t id) {
   for (hfd_seg *g = c->segs; g; g = g->next)
@@ -489,11 +547,22 @@ static void filter_shm(hfd_conn *c, int v, const hfp_filter *f) {
   filter_admit(c);
 }
 
+static uint64_t mem_committed(hfd_server *s) {
+  return s->mem_held + atomic_load(&s->worker.cached_bytes);
+}
+
+/* 1 when more bytes can be charged within --max-memory-mb. */
+static int mem_fits(hfd_server *s, uint64_t more) {
+  uint64_t used = mem_committed(s), cap = s->cfg->max_memory_bytes;
+  return used <= cap && more <= cap - used;
+}
+
 /* The FILTER head is in ctl[]: check it against the server and, when it
- * passes, allocate the job that the tensor will be read into. */
+ * passes, make the job that the tensor will be read into. Nothing is charged
+ * yet but what has arrived: a peer that announces a large frame and sends
+ * it slowly holds only what it sent (docs/SERVER.md, "Memory"). */
 static void filter_head(hfd_conn *c, size_t have) {
   hfd_server *s = c->srv;
-  const hfd_config *cfg = s->cfg;
   uint32_t len = c->hdr.length;
   hfp_filter f;
   size_t head_len = 0;
@@ -512,6 +581,7 @@ static void filter_head(hfd_conn *c, size_t have) {
     return;
   }
   int v = find_variant(s, f.variant);
+  uint64_t need = 0;
   if (c->hdr.request_id == 0) {
     reject(c, v, HFP_E_INVALID, left, "request id 0 is reserved");
   } else if (v < 0) {
@@ -521,25 +591,32 @@ static void filter_head(hfd_conn *c, size_t have) {
   } else if (f.spp != s->variants[v].cfg.spp) {
     reject(c, v, HFP_E_INVALID, left, "variant %s takes %d spp, request has %u", f.variant,
            s->variants[v].cfg.spp, f.spp);
-  } else if (f.width > (uint32_t)cfg->max_width || f.height > (uint32_t)cfg->max_height) {
+  } else if (f.width > (uint32_t)s->max_width || f.height > (uint32_t)s->max_height) {
     reject(c, v, HFP_E_TOO_LARGE, left, "%ux%u is over the limit of %dx%d", f.width, f.height,
-           cfg->max_width, cfg->max_height);
+           s->max_width, s->max_height);
+  } else if ((need = hfd_frame_bytes(s, v, &f)) > s->frame_budget) {
+    /* Within the announced size this cannot happen (limits.c); kept so
+     * that no frame is ever admitted that the budget cannot hold. */
+    reject(c, v, HFP_E_TOO_LARGE, left, "%ux%u needs %llu MiB, over the %llu MiB one frame may use",
+           f.width, f.height, (unsigned long long)(need >> 20),
+           (unsigned long long)(s->frame_budget >> 20));
   } else if (s->draining) {
     reject(c, v, HFP_E_SHUTTING_DOWN, left, "server is shutting down");
+  } else if (!mem_fits(s, need)) {
+    /* Refused now rather than after the upload: it would not fit. */
+    reject(c, v, HFP_E_BUSY, left, "request memory full (%llu of %llu MiB in use)",
+           (unsigned long long)(mem_committed(s) >> 20),
+           (unsigned long long)(s->cfg->max_memory_bytes >> 20));
   } else if (f.flags & HFP_FILTER_SHM) {
     filter_shm(c, v, &f);
   } else {
     uint64_t out_len = 0, rgba_len = 0;
     hfp_output_bytes(f.width, f.height, HFP_OUTPUTS, f.out_dtype, &out_len);
     if (f.flags & HFP_FILTER_COMPOSITE) hfp_output_bytes(f.width, f.height, 4, f.out_dtype, &rgba_len);
-    uint64_t bytes = f.data_len + out_len + rgba_len;
-    if (s->mem_held + bytes > cfg->max_memory_bytes) {
-      reject(c, v, HFP_E_BUSY, left, "request buffers full (%llu MiB held)",
-             (unsigned long long)(s->mem_held >> 20));
-      return;
-    }
     hfd_job *j = calloc(1, sizeof *j);
     void *in = NULL;
+    /* Address space only: pages become memory as the tensor lands in them,
+     * and are charged then (on_read). */
     if (!j || posix_memalign(&in, 64, (size_t)f.data_len ? (size_t)f.data_len : 64)) {
       free(j);
       reject(c, v, HFP_E_BUSY, left, "out of memory for a %llu-byte frame",
@@ -554,8 +631,6 @@ static void filter_head(hfd_conn *c, size_t have) {
     j->input = in;
     j->out_len = out_len;
     j->rgba_len = rgba_len;
-    j->bytes_held = bytes;
-    s->mem_held += bytes;
     c->job = j;
     c->rstate = RD_FILTER_DATA;
     c->want = (size_t)f.data_len;
@@ -563,7 +638,8 @@ static void filter_head(hfd_conn *c, size_t have) {
   }
 }
 
-/* The FILTER's tensor is in: admit it to the queue or say why not. */
+/* The FILTER's tensor is in: charge its result buffers and what running it
+ * takes, and admit it to the queue, or say why not. */
 static void filter_admit(hfd_conn *c) {
   hfd_server *s = c->srv;
   hfd_job *j = c->job;
@@ -571,13 +647,22 @@ static void filter_admit(hfd_conn *c) {
   j->t_received = hfd_now_us();
   int code = 0;
   const char *why = NULL;
+  uint64_t run = hfd_worker_run_bytes(&s->worker, j->variant, j->req.width, j->req.height, 1,
+                                      j->req.data_len);
+  uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);
   if (s->draining) {
     code = HFP_E_SHUTTING_DOWN;
     why = "server is shutting down";
   } else if (c->inflight >= s->cfg->max_inflight) {
     code = HFP_E_BUSY;
     why = "too many requests in flight on this connection";
+  } else if (run == UINT64_MAX || !mem_fits(s, more)) {
+    code = HFP_E_BUSY;
+    why = "request memory full";
   } else {
+    s->mem_held += more;
+    j->bytes_held += more;
+    j->infer_bytes = run;
     if (!j->seg) {
       j->out = malloc((size_t)j->out_len);
       j->rgba = j->rgba_len ? malloc((size_t)j->rgba_len) : NULL;
@@ -601,35 +686,45 @@ static void filter_admit(hfd_conn *c) {
   read_next(c);
 }
 
-/* A whole header is in hbuf. */
+/* A whole header is in hbuf. Request ids in ERRORs (PROTOCOL.md,
+ * "Errors"): a FILTER's own for errors about it, 0 for everything else. */
 static void on_header(hfd_conn *c) {
   hfd_server *s = c->srv;
   uint32_t max = s->cfg->max_frame_bytes > UINT32_MAX ? UINT32_MAX
                                                        : (uint32_t)s->cfg->max_frame_bytes;
   int rc = hfp_header_decode(c->hbuf, max, &c->hdr);
-  if (rc == -HFP_E_TOO_LARGE) {
+  const hfp_header *h = &c->hdr;
+  if (rc == -HFP_E_TOO_LARGE && c->hello_done) {
     s->protocol_errors++;
-    send_error(c, c->hdr.request_id, HFP_E_TOO_LARGE, 1,
-               "frame of %u bytes is over the limit of %llu", c->hdr.length,
+    send_error(c, h->type == HFP_FILTER ? h->request_id : 0, HFP_E_TOO_LARGE, 1,
+               "frame of %u bytes is over the limit of %llu", h->length,
                (unsigned long long)s->cfg->max_frame_bytes);
     return;
   }
-  if (rc) {
+  if (rc && rc != -HFP_E_TOO_LARGE) {
     s->protocol_errors++;
     send_error(c, 0, HFP_E_PROTOCOL, 1, "bad frame header (magic, type or flags)");
     return;
   }
-  const hfp_header *h = &c->hdr;
-  if (!c->hello_done && h->type != HFP_HELLO) {
-    s->protocol_errors++;
-    send_error(c, h->request_id, HFP_E_PROTOCOL, 1, "HELLO must come first");
-    return;
+  /* Before the handshake, the only frame read is a HELLO of a HELLO's
+   * size: nothing else is served, decoded or buffered. */
+  if (!c->hello_done) {
+    if (h->type != HFP_HELLO) {
+      s->protocol_errors++;
+      send_error(c, 0, HFP_E_PROTOCOL, 1, "HELLO must come first");
+      return;
+    }
+    if (h->length < 8 || h->length > 8 + HFP_NAME_MAX + HFP_TOKEN_MAX) {
+      s->protocol_errors++;
+      send_error(c, 0, HFP_E_PROTOCOL, 1, "malformed HELLO: %u payload bytes", h->length);
+      return;
+    }
   }
   switch (h->type) {
     case HFP_HELLO:
-      if (c->hello_done || h->length > 8 + HFP_NAME_MAX + HFP_TOKEN_MAX) {
+      if (c->hello_done) {
         s->protocol_errors++;
-        send_error(c, 0, HFP_E_PROTOCOL, 1, c->hello_done ? "second HELLO" : "HELLO too long");
+        send_error(c, 0, HFP_E_PROTOCOL, 1, "second HELLO");
         return;
       }
       break;
@@ -649,7 +744,7 @@ static void on_header(hfd_conn *c) {
     case HFP_STATS:
       if (h->length != 0) {
         s->protocol_errors++;
-        send_error(c, h->request_id, HFP_E_LENGTH, 1, "this request has no payload");
+        send_error(c, 0, HFP_E_LENGTH, 1, "this request has no payload");
         return;
       }
       break;
@@ -664,20 +759,13 @@ static void on_header(hfd_conn *c) {
       return;
     default:
       s->protocol_errors++;
-      send_error(c, h->request_id, HFP_E_PROTOCOL, 1, "message type %u is not a request", h->type);
+      send_error(c, 0, HFP_E_PROTOCOL, 1, "message type %u is not a request", h->type);
       return;
   }
   c->rstate = RD_CONTROL;
   c->want = h->length;
   c->got = 0;
-  if (c->want == 0) {
-    /* Complete already. */
-    if (h->type == HFP_LIST_VARIANTS)
-      reply_variants(c);
-    else
-      reply_stats(c);
-    if (!c->fatal_sent) read_next(c);
-  }
+  if (c->want == 0) on_control(c);   /* complete already */
 }
 
 typedef struct fd_write {
@@ -695,7 +783,7 @@ static void on_fd_written(uv_write_t *req, int status) {
   wrote_one(c);
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: segment send failed: %s", (unsigned long long)c->id, uv_strerror(status));
-  if (status < 0) conn_close(c);
+  if (status < 0) hfd_conn_close(c);
   /* Our copy of the fd goes; the mapping and the client's copy stay. */
   w->fdpipe.data = w;
   uv_close((uv_handle_t *)&w->fdpipe, on_fdpipe_closed);
@@ -751,7 +839,7 @@ static void shm_create(hfd_conn *c) {
     send_error(c, 0, HFP_E_INTERNAL, 0, "cannot pass the segment: %s", uv_strerror(rc));
     return;
   }
-  writing_one(c);
+  writing_one(c, (uint64_t)n);
   g->next = c->segs;
   c->segs = g;
   c->num_segs++;
@@ -777,12 +865,21 @@ static void shm_destroy(hfd_conn *c) {
 }
 
 static void on_control(hfd_conn *c) {
+  if (!c->hello_done && c->hdr.type != HFP_HELLO) {
+    /* on_header lets nothing else through; this says so once more where
+     * the replies are made. */
+    c->srv->protocol_errors++;
+    send_error(c, 0, HFP_E_PROTOCOL, 1, "HELLO must come first");
+    return;
+  }
   switch (c->hdr.type) {
     case HFP_HELLO: reply_hello(c, c->ctl, c->want); break;
+    case HFP_LIST_VARIANTS: reply_variants(c); break;
+    case HFP_STATS: reply_stats(c); break;
     case HFP_SHM_CREATE: shm_create(c); break;
     case HFP_SHM_DESTROY: shm_destroy(c); break;
   }
-  if (!c->fatal_sent) read_next(c);
+  if (!c->fatal_sent && !c->closing) read_next(c);
 }
 
 static void read_next(hfd_conn *c) {
@@ -807,7 +904,7 @@ static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
       return;
     case RD_FILTER_DATA:
       left = c->want - c->got;
-      if (left > (1u << 30)) left = 1u << 30;
+      if (left > RECV_CHUNK) left = RECV_CHUNK;
       *buf = uv_buf_init((char *)c->job->input + c->got, (unsigned)left);
       return;
     case RD_DISCARD:
@@ -817,35 +914,86 @@ static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
   }
 }
 
-static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
-  hfd_conn *c = stream->data;
-  (void)buf;
-  if (nread == 0) return;
-  if (nread < 0) {
-    if (nread != UV_EOF)
-      hfd_debug("conn %llu: read: %s", (unsigned long long)c->id, uv_strerror((int)nread));
-    if ((c->rstate != RD_HEADER || c->got) && log_allowed())
+/* The peer shut down its sending side (PROTOCOL.md, "Transport"): what it
+ * was in the middle of sending is dropped, what was admitted is still
+ * answered, and the connection closes once the last reply is out. */
+static void on_eof(hfd_conn *c) {
+  if (mid_frame(c) && !c->fatal_sent) {
+    if (log_allowed())
       hfd_log("conn %llu (%s%s%s): peer left in the middle of a frame", (unsigned long long)c->id,
               c->peer, c->client_name[0] ? " " : "", c->client_name);
-    conn_close(c);
+    if (c->job) {
+      job_free(c->srv, c->job);
+      c->job = NULL;
+    }
+  }
+  c->eof = 1;
+  handshake_over(c);
+  read_next(c);
+  if (c->fatal_sent) return;   /* closing after its ERROR anyway */
+  conn_idle_check(c);
+}
+
+static void conn_idle_check(hfd_conn *c) {
+  if (c->eof && c->inflight == 0 && !c->closing && !c->shutting) hfd_conn_shutdown(c);
+}
+
+static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
+  hfd_conn *c = stream->data;
+  hfd_server *s = c->srv;
+  (void)buf;
+  if (nread == 0) return;
+  if (nread == UV_EOF) {
+    on_eof(c);
+    return;
+  }
+  if (nread < 0) {
+    hfd_debug("conn %llu: read: %s", (unsigned long long)c->id, uv_strerror((int)nread));
+    if (mid_frame(c) && log_allowed())
+      hfd_log("conn %llu (%s%s%s): peer left in the middle of a frame", (unsigned long long)c->id,
+              c->peer, c->client_name[0] ? " " : "", c->client_name);
+    hfd_conn_close(c);
     return;
   }
   if (c->fatal_sent || c->closing) return;
   if (c->is_ipc && uv_pipe_pending_count(&c->h.pipe) > 0) {
     /* Descriptors only go from server to client; libuv closes the queued
      * ones with the connection. */
-    c->srv->protocol_errors++;
+    s->protocol_errors++;
     send_error(c, 0, HFP_E_PROTOCOL, 1, "clients may not send file descriptors");
     return;
   }
-  c->t_last_read = hfd_now_us();
+  double now = hfd_now_us();
   size_t n = (size_t)nread;
+  if (!mid_frame(c)) {
+    /* A frame starts: its receive rate is measured from here. */
+    c->t_window = now;
+    c->window_bytes = 0;
+  }
+  c->t_last_read = now;
+  c->window_bytes += n;
   if (c->rstate == RD_DISCARD) {
     c->discard_left -= n;
     if (c->discard_left == 0) read_next(c);
     return;
   }
   c->got += n;
+  if (c->rstate == RD_FILTER_DATA) {
+    /* The tensor is charged as it arrives. Past the budget, the frame is
+     * refused here, before more of it comes. */
+    hfd_job *j = c->job;
+    s->mem_held += n;
+    j->bytes_held += n;
+    if (!mem_fits(s, 0)) {
+      int v = j->variant;
+      uint64_t left = (uint64_t)c->want - c->got;
+      c->job = NULL;
+      job_free(s, j);
+      reject(c, v, HFP_E_BUSY, left, "request memory full (%llu MiB) while receiving the frame",
+             (unsigned long long)(s->cfg->max_memory_bytes >> 20));
+      return;
+    }
+  }
   if (c->got < c->want) return;
   switch (c->rstate) {
     case RD_HEADER: on_header(c); break;
@@ -868,11 +1016,13 @@ static void on_closed(uv_handle_t *h) {
   c->handle_closed = 1;
   hfd_debug("conn %llu (%s): closed", (unsigned long long)c->id, c->peer);
   conn_release(c);
+  hfd_maybe_finish(s);
 }
 
-static void conn_close(hfd_conn *c) {
+void hfd_conn_close(hfd_conn *c) {
   if (c->closing) return;
   c->closing = 1;
+  handshake_over(c);
   if (c->job) {
     /* A FILTER was half received: drop it, nothing else is affected. */
     job_free(c->srv, c->job);
@@ -892,42 +1042,96 @@ static void on_shutdown(uv_shutdown_t *req, int status) {
   (void)status;
   free(req);
   c->writes_pending--;
-  conn_close(c);
+  hfd_conn_close(c);
   conn_release(c);
 }
 
-/* Drain: flush what is written, then close. */
+/* Flushes what is written, then closes. */
 void hfd_conn_shutdown(hfd_conn *c) {
-  if (c->closing) return;
+  if (c->closing || c->shutting) return;
+  c->shutting = 1;
   read_stop(c);
+  handshake_over(c);
   uv_shutdown_t *req = malloc(sizeof *req);
   if (!req) {
-    conn_close(c);
+    hfd_conn_close(c);
     return;
   }
   req->data = c;
   if (uv_shutdown(req, &c->h.stream, on_shutdown) < 0) {
     free(req);
-    conn_close(c);
+    hfd_conn_close(c);
     return;
   }
   c->writes_pending++;
 }
 
+/* Deadlines, checked a few times per timeout (hairfilterd.c starts the
+ * timer): a peer that has not completed its HELLO within the handshake
+ * timeout, one silent for the stall timeout in the middle of a frame, one
+ * whose frame arrives slower than the minimum rate over a stall-timeout
+ * window, and one that has not read any of its waiting replies for the
+ * stall timeout. Trickling a byte now and then holds a slot no longer than
+ * these allow. */
 void hfd_sweep_stalled(hfd_server *s) {
-  int ms = s->cfg->stall_timeout_ms;
-  if (ms <= 0) return;
-  double now = hfd_now_us();
+  const hfd_config *cfg = s->cfg;
+  double now = hfd_now_us(), stall_us = cfg->stall_timeout_ms * 1e3;
   for (hfd_conn *c = s->conns, *next; c; c = next) {
     next = c->next;
-    if (c->closing || c->fatal_sent) continue;
-    int mid_frame = c->rstate != RD_HEADER || c->got > 0;
-    if ((mid_frame || !c->hello_done) && now - c->t_last_read > ms * 1e3) {
+    if (c->closing) continue;
+    /* Replies waiting: has the peer read any of them lately? */
+    if (c->writes_pending && stall_us > 0) {
+      uint64_t written = c->bytes_queued - (uint64_t)uv_stream_get_write_queue_size(&c->h.stream);
+      if (written != c->written_seen) {
+        c->written_seen = written;
+        c->t_write = now;
+      } else if (now - c->t_write > stall_us) {
+        if (log_allowed())
+          hfd_log("conn %llu (%s%s%s): replies unread for %d ms; closing", (unsigned long long)c->id,
+                  c->peer, c->client_name[0] ? " " : "", c->client_name, cfg->stall_timeout_ms);
+        hfd_conn_close(c);
+        continue;
+      }
+    }
+    if (c->fatal_sent || c->shutting || c->eof) continue;
+    if (!c->hello_done && cfg->handshake_timeout_ms > 0 &&
+        now - c->t_accept > cfg->handshake_timeout_ms * 1e3) {
       s->protocol_errors++;
-      send_error(c, mid_frame ? c->hdr.request_id : 0, HFP_E_PROTOCOL, 1,
-                 "no data for %d ms %s", ms, mid_frame ? "in the middle of a frame" : "before HELLO");
+      send_error(c, 0, HFP_E_PROTOCOL, 1, "no complete HELLO within %d ms",
+                 cfg->handshake_timeout_ms);
+      continue;
+    }
+    /* While reading is paused for unread replies, the peer is not late.
+     * Before HELLO the handshake deadline is the bound, when there is one. */
+    if (!mid_frame(c) || c->read_paused || stall_us <= 0) continue;
+    if (!c->hello_done && cfg->handshake_timeout_ms > 0) continue;
+    uint32_t id = c->rstate != RD_HEADER && c->hdr.type == HFP_FILTER ? c->hdr.request_id : 0;
+    if (now - c->t_last_read > stall_us) {
+      s->protocol_errors++;
+      send_error(c, id, HFP_E_PROTOCOL, 1, "no data for %d ms in the middle of a frame",
+                 cfg->stall_timeout_ms);
+    } else if (now - c->t_window >= stall_us) {
+      double rate = c->window_bytes / ((now - c->t_window) / 1e6);
+      if (cfg->min_recv_rate && rate < (double)cfg->min_recv_rate) {
+        s->protocol_errors++;
+        send_error(c, id, HFP_E_PROTOCOL, 1,
+                   "frame arriving at %.0f bytes/s, under the minimum of %llu KiB/s", rate,
+                   (unsigned long long)(cfg->min_recv_rate >> 10));
+      } else {
+        c->t_window = now;
+        c->window_bytes = 0;
+      }
     }
   }
+}
+
+/* The oldest connection still before its HELLO. */
+static hfd_conn *oldest_handshake(hfd_server *s) {
+  hfd_conn *old = NULL;
+  for (hfd_conn *c = s->conns; c; c = c->next)
+    if (c->handshaking && !c->closing && !c->fatal_sent && (!old || c->t_accept < old->t_accept))
+      old = c;
+  return old;
 }
 
 void hfd_on_connection(uv_stream_t *server, int status) {
@@ -960,10 +1164,11 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   s->conns = c;
   s->num_conns++;
   s->conns_total++;
+  c->t_accept = c->t_last_read = c->t_window = hfd_now_us();
   rc = uv_accept(server, &c->h.stream);
   if (rc < 0) {
     hfd_log("error: accept on %s: %s", l->url, uv_strerror(rc));
-    conn_close(c);
+    hfd_conn_close(c);
     return;
   }
   if (l->is_tcp) {
@@ -987,16 +1192,27 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     snprintf(c->peer, sizeof c->peer, "unix");
   }
   hfd_debug("conn %llu (%s): accepted on %s", (unsigned long long)c->id, c->peer, l->url);
-  c->t_last_read = hfd_now_us();
   read_next(c);
   if (s->num_conns > s->cfg->max_connections) {
     s->protocol_errors++;
     send_error(c, 0, HFP_E_BUSY, 1, "connection limit (%d) reached", s->cfg->max_connections);
     return;
   }
+  c->handshaking = 1;
+  s->num_handshaking++;
+  if (s->num_handshaking > s->cfg->max_handshakes) {
+    /* Connections that have not said HELLO have their own small limit, so
+     * that they cannot take every slot. A real client says HELLO at once;
+     * the one that has waited longest is the likeliest not to, and goes. */
+    hfd_conn *old = oldest_handshake(s);
+    s->protocol_errors++;
+    send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
+               s->cfg->max_handshakes);
+    if (old == c) return;
+  }
   rc = uv_read_start(&c->h.stream, on_alloc, on_read);
   if (rc < 0) {
     hfd_log("error: conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
-    conn_close(c);
+    hfd_conn_close(c);
   }
 }

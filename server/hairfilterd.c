@@ -4,10 +4,12 @@
  * listeners), shutdown (drain on SIGINT/SIGTERM) and the STATS snapshot;
  * conn.c reads and answers requests and worker.c runs the network.
  */
-#define _POSIX_C_SOURCE 200809L
+#define _GNU_SOURCE
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <malloc.h>
+#include <pthread.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -176,16 +178,15 @@ static int clear_stale_socket(const char *path) {
   return 0;
 }
 
-static int open_listener(hfd_server *s, const char *url) {
+static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
   hfd_listener *l = &s->listeners[s->num_listeners];
   memset(l, 0, sizeof *l);
   l->srv = s;
   int rc;
-  if (!strncmp(url, "unix:", 5)) {
-    const char *path = url + 5;
-    if (!*path || strlen(path) >= sizeof l->unix_path ||
-        strlen(path) >= sizeof(((struct sockaddr_un *)0)->sun_path)) {
-      hfd_log("error: --listen %s: socket path empty or too long", url);
+  if (u->kind == HFP_URL_UNIX) {
+    const char *path = u->path;
+    if (strlen(path) >= sizeof l->unix_path) {
+      hfd_log("error: --listen %s: socket path too long", url);
       return -1;
     }
     if (clear_stale_socket(path)) return -1;
@@ -197,37 +198,13 @@ static int open_listener(hfd_server *s, const char *url) {
     }
     snprintf(l->unix_path, sizeof l->unix_path, "%s", path);
     snprintf(l->url, sizeof l->url, "unix:%s", path);
-  } else if (!strncmp(url, "tcp:", 4)) {
-    const char *rest = url + 4;
-    char host[128] = "127.0.0.1";
-    const char *port_s = rest;
-    const char *colon = strrchr(rest, ':');
-    if (colon) {
-      size_t hl = (size_t)(colon - rest);
-      if (hl == 0 || hl >= sizeof host) {
-        hfd_log("error: --listen %s: bad host", url);
-        return -1;
-      }
-      if (rest[0] == '[' && rest[hl - 1] == ']') {
-        memcpy(host, rest + 1, hl - 2);
-        host[hl - 2] = 0;
-      } else {
-        memcpy(host, rest, hl);
-        host[hl] = 0;
-      }
-      port_s = colon + 1;
-    }
-    if (!strcmp(host, "localhost")) strcpy(host, "127.0.0.1");
-    char *end;
-    long port = strtol(port_s, &end, 10);
-    if (!*port_s || *end || port < 0 || port > 65535) {
-      hfd_log("error: --listen %s: bad port", url);
-      return -1;
-    }
+  } else {
+    /* Numeric addresses only: a listener's address is not looked up. */
+    const char *host = strcmp(u->host, "localhost") ? u->host : "127.0.0.1";
     struct sockaddr_storage ss;
     memset(&ss, 0, sizeof ss);
-    if (uv_ip4_addr(host, (int)port, (struct sockaddr_in *)&ss) != 0 &&
-        uv_ip6_addr(host, (int)port, (struct sockaddr_in6 *)&ss) != 0) {
+    if (uv_ip4_addr(host, u->port, (struct sockaddr_in *)&ss) != 0 &&
+        uv_ip6_addr(host, u->port, (struct sockaddr_in6 *)&ss) != 0) {
       hfd_log("error: --listen %s: host must be a numeric address or localhost", url);
       return -1;
     }
@@ -252,9 +229,6 @@ static int open_listener(hfd_server *s, const char *url) {
       uv_close(&l->h.handle, NULL);
       return -1;
     }
-  } else {
-    hfd_log("error: --listen %s: want unix:PATH or tcp:HOST:PORT", url);
-    return -1;
   }
   l->h.handle.data = l;
   if ((rc = uv_listen(&l->h.stream, 511, hfd_on_connection)) < 0) {
@@ -292,22 +266,54 @@ static int open_listener(hfd_server *s, const char *url) {
   return 0;
 }
 
+/* Writes the ready file whole, then renames it into place, so a reader
+ * never sees half of it. The temporary file is made with O_CREAT | O_EXCL |
+ * O_NOFOLLOW under a random name in the target's directory (mkostemp): a
+ * symlink planted there, or at any name an attacker can guess, is never
+ * written through. rename replaces a symlink at the target itself rather
+ * than following it. */
 static int write_ready_file(hfd_server *s) {
   const char *path = s->cfg->ready_file;
   char tmp[4200];
-  if ((size_t)snprintf(tmp, sizeof tmp, "%s.tmp", path) >= sizeof tmp) return -1;
-  FILE *f = fopen(tmp, "w");
+  if ((size_t)snprintf(tmp, sizeof tmp, "%s.XXXXXX", path) >= sizeof tmp) {
+    hfd_log("error: --ready-file %s: path too long", path);
+    return -1;
+  }
+  int fd = mkostemp(tmp, O_CLOEXEC | O_NOFOLLOW);
+  if (fd < 0) {
+    hfd_log("error: --ready-file %s: cannot create a temporary file beside it: %s", path,
+            strerror(errno));
+    return -1;
+  }
+  /* mkostemp makes it 0600; a ready file is for others to read. */
+  mode_t um = umask(0);
+  umask(um);
+  FILE *f = fchmod(fd, 0666 & ~um) == 0 ? fdopen(fd, "w") : NULL;
   if (!f) {
     hfd_log("error: --ready-file %s: %s", tmp, strerror(errno));
+    close(fd);
+    unlink(tmp);
     return -1;
   }
   for (int i = 0; i < s->num_listeners; i++) fprintf(f, "%s\n", s->listeners[i].url);
-  /* Written whole, then renamed: a reader never sees half a file. */
   if (fclose(f) != 0 || rename(tmp, path) != 0) {
     hfd_log("error: --ready-file %s: %s", path, strerror(errno));
+    unlink(tmp);
     return -1;
   }
   return 0;
+}
+
+/* The files that say this daemon is there: removed when it starts to stop,
+ * or on the way out of main when it did not get that far, so no exit path
+ * leaves them. Only once: by the time a drained daemon exits, a new one may
+ * have made the same paths. */
+static void remove_files(hfd_server *s) {
+  if (s->files_removed) return;
+  s->files_removed = 1;
+  for (int i = 0; i < s->num_listeners; i++)
+    if (s->listeners[i].unix_path[0]) unlink(s->listeners[i].unix_path);
+  if (s->ready_written && s->cfg->ready_file) unlink(s->cfg->ready_file);
 }
 
 /* ---- stats ----------------------------------------------------------------- */
@@ -330,30 +336,78 @@ static void close_handle(uv_handle_t *h) {
   if (!uv_is_closing(h)) uv_close(h, NULL);
 }
 
-/* Called whenever something finished: once draining and nothing admitted
- * is left unanswered, flush and close every connection, stop the worker and
- * close the remaining handles, which lets uv_run return. */
-void hfd_maybe_finish(hfd_server *s) {
-  if (!s->draining || s->stopped || s->jobs_outstanding) return;
-  s->stopped = 1;
-  /* Nothing is queued or running (every admitted job was answered), so the
-   * worker exits at once. */
-  hfd_worker_stop(&s->worker);
+static void close_all_connections(hfd_server *s) {
   for (hfd_conn *c = s->conns, *next; c; c = next) {
     next = c->next;
-    hfd_conn_shutdown(c);
+    hfd_conn_close(c);
   }
-  close_handle((uv_handle_t *)&s->async);
-  close_handle((uv_handle_t *)&s->sigint);
-  close_handle((uv_handle_t *)&s->sigterm);
-  /* Closing the watchers restored the default action, which would turn a
-   * second SIGTERM in the last moments of a clean shutdown into death by
-   * signal (exit status 143): ignore them instead, the server is already
-   * stopping. */
-  signal(SIGINT, SIG_IGN);
-  signal(SIGTERM, SIG_IGN);
-  close_handle((uv_handle_t *)&s->drain_timer);
-  close_handle((uv_handle_t *)&s->sweep_timer);
+}
+
+static void on_flush_timeout(uv_timer_t *t) {
+  hfd_server *s = t->data;
+  hfd_log("flush timeout: closing %d connection(s) whose peers left replies unread",
+          s->num_conns);
+  close_all_connections(s);
+}
+
+/* Called whenever something finished. Draining ends in three steps:
+ *  1. every admitted frame answered: the worker stops, and each connection
+ *     is shut down once its replies are written (uv_shutdown);
+ *  2. peers that do not read their replies get --flush-timeout-ms, then
+ *     their connections are closed with the replies unsent;
+ *  3. no connection left: the signal handlers and timers close, which lets
+ *     uv_run return.
+ * The signal handlers stay until step 3, so a second SIGTERM or SIGINT
+ * while peers are flushed shortens the wait instead of killing the process
+ * with the default action. */
+void hfd_maybe_finish(hfd_server *s) {
+  if (!s->draining) return;
+  if (!s->stopped) {
+    if (s->jobs_outstanding) return;
+    s->stopped = 1;
+    /* Nothing is queued or running (every admitted job was answered), so
+     * the worker exits at once. */
+    hfd_worker_stop(&s->worker);
+    close_handle((uv_handle_t *)&s->async);
+    close_handle((uv_handle_t *)&s->drain_timer);
+    close_handle((uv_handle_t *)&s->sweep_timer);
+    for (hfd_conn *c = s->conns, *next; c; c = next) {
+      next = c->next;
+      hfd_conn_shutdown(c);
+    }
+    if (s->num_conns && (s->hurry || s->cfg->flush_timeout_ms == 0)) {
+      close_all_connections(s);
+    } else if (s->num_conns) {
+      int rc = uv_timer_start(&s->flush_timer, on_flush_timeout,
+                              (uint64_t)s->cfg->flush_timeout_ms, 0);
+      if (rc < 0) {
+        hfd_log("error: flush timer: %s; closing connections now", uv_strerror(rc));
+        close_all_connections(s);
+      }
+    }
+  }
+  if (s->num_conns == 0 && !s->signals_closed) {
+    s->signals_closed = 1;
+    /* Closing the last uv_signal_t restores the default action; block the
+     * signals first (the worker and its threads already block them) and
+     * ignore them after, so none can kill the process on its way out. */
+    sigset_t set;
+    sigemptyset(&set);
+    sigaddset(&set, SIGINT);
+    sigaddset(&set, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &set, NULL);
+    close_handle((uv_handle_t *)&s->sigint);
+    close_handle((uv_handle_t *)&s->sigterm);
+    close_handle((uv_handle_t *)&s->flush_timer);
+  }
+}
+
+static void ignore_stop_signals(void) {
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = SIG_IGN;
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
 }
 
 static void on_sweep(uv_timer_t *t) { hfd_sweep_stalled(t->data); }
@@ -367,18 +421,25 @@ static void on_drain_timeout(uv_timer_t *t) {
 
 static void on_signal(uv_signal_t *h, int signum) {
   hfd_server *s = h->data;
+  const char *name = signum == SIGINT ? "SIGINT" : "SIGTERM";
   if (s->draining) {
-    hfd_log("second %s: failing queued requests now", signum == SIGINT ? "SIGINT" : "SIGTERM");
-    hfd_worker_cancel(&s->worker);
+    if (s->hurry) return;
+    s->hurry = 1;
+    if (s->stopped) {
+      hfd_log("second %s: closing %d connection(s) without waiting for their replies to be read",
+              name, s->num_conns);
+      close_all_connections(s);
+    } else {
+      hfd_log("second %s: failing queued requests now; connections close once answered", name);
+      hfd_worker_cancel(&s->worker);
+    }
     return;
   }
   s->draining = 1;
-  hfd_log("%s: draining %d request(s), no new work accepted",
-          signum == SIGINT ? "SIGINT" : "SIGTERM", s->jobs_outstanding);
-  for (int i = 0; i < s->num_listeners; i++) {
-    close_handle(&s->listeners[i].h.handle);
-    if (s->listeners[i].unix_path[0]) unlink(s->listeners[i].unix_path);
-  }
+  hfd_log("%s: draining %d request(s), no new work accepted", name, s->jobs_outstanding);
+  for (int i = 0; i < s->num_listeners; i++) close_handle(&s->listeners[i].h.handle);
+  /* Not ready any more: clients find no socket and no ready file. */
+  remove_files(s);
   if (s->cfg->drain_timeout_ms == 0) {
     hfd_worker_cancel(&s->worker);
   } else {
@@ -400,6 +461,11 @@ int main(int argc, char **argv) {
   if (prc) return prc > 0 ? 0 : 2;
   /* A peer that vanishes must not kill us with SIGPIPE; libuv reports EPIPE. */
   signal(SIGPIPE, SIG_IGN);
+  /* Frames, results and plans of a megabyte or more are mapped and unmapped
+   * on their own, so that what an oversized frame needed goes back to the
+   * system when it is freed. glibc's default threshold rises with every
+   * such block freed (up to 32 MiB) and would keep them in the heap. */
+  if (!mallopt(M_MMAP_THRESHOLD, 1 << 20)) hfd_log("error: mallopt(M_MMAP_THRESHOLD) failed");
 
   hfd_server *s = &srv;
   s->cfg = &cfg;
@@ -421,6 +487,10 @@ int main(int argc, char **argv) {
   w->cfg = &cfg;
   w->q_cap = cfg.queue_size;
   w->async = &s->async;
+  /* Plans and scratch kept between runs may use a quarter of the memory
+   * budget; one frame may use the rest (docs/SERVER.md, "Memory"). */
+  w->cache_cap = cfg.max_memory_bytes / 4;
+  s->frame_budget = cfg.max_memory_bytes - w->cache_cap;
   int rc = uv_async_init(s->loop, &s->async, hfd_on_async);
   if (rc < 0) {
     hfd_log("error: uv_async_init: %s", uv_strerror(rc));
@@ -442,22 +512,29 @@ int main(int argc, char **argv) {
     hfd_log("variant %s: %d spp, levels %s, %s on %s", v->name, v->cfg.spp, levels, v->precision,
             hf_backend_name(w->backend));
   }
+  if (hfd_limits_derive(s)) return 1;
 
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
       (rc = uv_timer_init(s->loop, &s->drain_timer)) < 0 ||
+      (rc = uv_timer_init(s->loop, &s->flush_timer)) < 0 ||
       (rc = uv_timer_init(s->loop, &s->sweep_timer)) < 0) {
     hfd_log("error: libuv init: %s", uv_strerror(rc));
     return 1;
   }
   s->sigint.data = s->sigterm.data = s->drain_timer.data = s->sweep_timer.data = s;
-  if (cfg.stall_timeout_ms > 0) {
-    /* Checked a few times per timeout period: a stalled peer is cut off
-     * within 1.5x the timeout. */
-    uint64_t every = (uint64_t)(cfg.stall_timeout_ms / 2 > 1000 ? 1000 : cfg.stall_timeout_ms / 2);
+  s->flush_timer.data = s;
+  int shortest = 0;
+  if (cfg.stall_timeout_ms > 0) shortest = cfg.stall_timeout_ms;
+  if (cfg.handshake_timeout_ms > 0 && (!shortest || cfg.handshake_timeout_ms < shortest))
+    shortest = cfg.handshake_timeout_ms;
+  if (shortest) {
+    /* Checked four times per (shortest) timeout, at least once a second:
+     * a late peer is cut off within 1.25x its timeout. */
+    uint64_t every = (uint64_t)(shortest / 4 > 1000 ? 1000 : shortest / 4);
     if (every < 1) every = 1;
     if ((rc = uv_timer_start(&s->sweep_timer, on_sweep, every, every)) < 0) {
-      hfd_log("error: stall timer: %s", uv_strerror(rc));
+      hfd_log("error: sweep timer: %s", uv_strerror(rc));
       return 1;
     }
   }
@@ -467,27 +544,35 @@ int main(int argc, char **argv) {
     return 1;
   }
   for (int i = 0; i < cfg.num_listen; i++)
-    if (open_listener(s, cfg.listen[i])) {
-      for (int k = 0; k < s->num_listeners; k++)
-        if (s->listeners[k].unix_path[0]) unlink(s->listeners[k].unix_path);
+    if (open_listener(s, cfg.listen[i], &cfg.listen_url[i])) {
+      remove_files(s);
       return 1;
     }
   hfd_log("serving: %d variant(s), max batch %d, queue %d, max in-flight %d per connection, "
-          "max %dx%d", s->num_variants, cfg.max_batch, cfg.queue_size, cfg.max_inflight,
-          cfg.max_width, cfg.max_height);
-  if (cfg.ready_file && write_ready_file(s)) return 1;
+          "max %dx%d, memory %llu MiB", s->num_variants, cfg.max_batch, cfg.queue_size,
+          cfg.max_inflight, s->max_width, s->max_height,
+          (unsigned long long)(cfg.max_memory_bytes >> 20));
+  if (cfg.ready_file) {
+    if (write_ready_file(s)) {
+      remove_files(s);
+      return 1;
+    }
+    s->ready_written = 1;
+  }
 
   rc = uv_run(s->loop, UV_RUN_DEFAULT);
+  ignore_stop_signals();
   if (rc != 0) hfd_log("error: event loop ended with %d active handle(s)", rc);
   rc = uv_loop_close(s->loop);
   if (rc < 0) hfd_log("error: uv_loop_close: %s", uv_strerror(rc));
-  if (cfg.ready_file) unlink(cfg.ready_file);
+  remove_files(s);
   uint64_t ok = 0, failed = 0;
   for (int i = 0; i < s->num_variants; i++) {
     ok += s->variants[i].stats.requests_ok;
     failed += s->variants[i].stats.requests_failed;
   }
-  hfd_log("stopped: %llu request(s) served, %llu failed, %llu connection(s) in all",
-          (unsigned long long)ok, (unsigned long long)failed, (unsigned long long)s->conns_total);
+  hfd_log("stopped: %llu request(s) served, %llu failed, %llu answer(s) not delivered (peer gone), "
+          "%llu connection(s) in all", (unsigned long long)ok, (unsigned long long)failed,
+          (unsigned long long)s->replies_lost, (unsigned long long)s->conns_total);
   return 0;
 }

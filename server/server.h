@@ -13,6 +13,7 @@
 
 #include <pthread.h>
 #include <stdarg.h>
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <uv.h>
@@ -37,6 +38,7 @@ extern int hfd_verbose;
 
 typedef struct hfd_config {
   const char *listen[HFD_MAX_LISTENERS];
+  hfp_url listen_url[HFD_MAX_LISTENERS];   /* parsed at option time */
   int num_listen;
   const char *weights[HFD_MAX_VARIANTS];
   int num_weights;
@@ -48,11 +50,15 @@ typedef struct hfd_config {
   int max_inflight;              /* per connection */
   int max_width, max_height;
   int max_connections;
+  int max_handshakes;            /* connections that have not said HELLO */
   uint64_t max_frame_bytes;      /* largest payload read */
-  uint64_t max_memory_bytes;     /* request buffers held at once */
+  uint64_t max_memory_bytes;     /* request buffers + inference memory */
   uint64_t max_shm_bytes;        /* shared segments held at once; 0: no SHM */
-  int drain_timeout_ms;
-  int stall_timeout_ms;          /* mid-frame or pre-HELLO silence; 0: none */
+  int drain_timeout_ms;          /* queued work after SIGTERM */
+  int flush_timeout_ms;          /* then, replies still unread by peers */
+  int handshake_timeout_ms;      /* accept -> HELLO complete; 0: none */
+  int stall_timeout_ms;          /* mid-frame silence, rate window; 0: none */
+  uint64_t min_recv_rate;        /* bytes/s a frame must arrive at; 0: none */
   int no_auth;
   char token[HFP_TOKEN_MAX + 1];
   const char *ready_file;
@@ -108,7 +114,9 @@ typedef struct hfd_job {
   void *input;                   /* features, 64-byte aligned */
   void *out;                     /* [h][w][3] of req.out_dtype */
   void *rgba;                    /* [h][w][4] of req.out_dtype, or NULL */
-  uint64_t out_len, rgba_len, bytes_held;
+  uint64_t out_len, rgba_len;
+  uint64_t bytes_held;           /* charged to the server's memory budget */
+  uint64_t infer_bytes;          /* of which reserved for running it */
   double t_received, t_started, t_done;
   hfp_timing timing;
   uint32_t batch;
@@ -143,6 +151,10 @@ typedef struct hfd_worker {
   int pipeline_depth;
   const hfd_config *cfg;         /* for the warm shapes */
   uv_async_t *async;
+  uint64_t cache_cap;            /* plans and scratch kept between runs */
+  /* Host memory kept between runs (backend plans, the worker's scratch):
+   * written by the worker, read by the loop thread when it admits a frame. */
+  _Atomic uint64_t cached_bytes;
   /* worker-private */
   hf_backend *backend;
   void *scratch_in, *scratch_out;
@@ -163,6 +175,13 @@ int hfd_worker_queue_depth(hfd_worker *w);
 void hfd_worker_cancel(hfd_worker *w);
 /* Asks the thread to exit once the queue is empty, and joins it. */
 void hfd_worker_stop(hfd_worker *w);
+/* Host memory the worker needs to run batch frames of variant at width x
+ * height whose features are in_bytes each: the backend's hf_run_bytes plus
+ * the worker's own batch and conversion buffers. UINT64_MAX when the
+ * backend cannot run that size. Pure; callable from either thread once the
+ * worker has started. */
+uint64_t hfd_worker_run_bytes(const hfd_worker *w, int variant, uint32_t width,
+                              uint32_t height, int batch, uint64_t in_bytes);
 
 double hfd_now_us(void);
 
@@ -207,6 +226,9 @@ typedef struct hfd_conn {
   char client_name[HFP_NAME_MAX + 1];
   int hello_done;
   int version;                   /* protocol version negotiated in the HELLO */
+  int handshaking;               /* counted in num_handshaking */
+  int eof;                       /* the peer shut down its sending side */
+  int shutting;                  /* uv_shutdown sent: flushing, then closing */
   int closing;                   /* uv_close called or pending */
   int fatal_sent;                /* reading stopped, closing after the write */
   int handle_closed;
@@ -217,7 +239,13 @@ typedef struct hfd_conn {
   hfd_seg *segs;
   int num_segs;
   uint32_t next_seg_id;
+  double t_accept;               /* for the handshake deadline */
   double t_last_read;            /* for the stall sweep */
+  double t_window;               /* start of the current receive-rate window */
+  uint64_t window_bytes;         /* received in it */
+  uint64_t bytes_queued;         /* handed to uv_write, all replies */
+  uint64_t written_seen;         /* of those, written to the socket at t_write */
+  double t_write;                /* last time a reply byte left */
 
   enum hfd_read_state rstate;
   hfp_header hdr;
@@ -240,15 +268,24 @@ struct hfd_server {
   uv_async_t async;
   uv_signal_t sigint, sigterm;
   uv_timer_t drain_timer;
+  uv_timer_t flush_timer;        /* bounds the wait for peers to read replies */
   uv_timer_t sweep_timer;        /* closes stalled connections */
   hfd_conn *conns;
   int num_conns;
+  int num_handshaking;           /* connections before their HELLO */
+  int max_width, max_height;     /* --max-size, lowered to what a frame can meet */
   uint64_t conns_total, next_conn_id;
   uint64_t protocol_errors;
-  uint64_t mem_held;             /* bytes of request/response buffers */
+  uint64_t mem_held;             /* bytes charged: buffers and inference */
+  uint64_t frame_budget;         /* the most one frame may need */
   uint64_t shm_held;             /* bytes of shared segments */
+  uint64_t replies_lost;         /* computed, but the peer had gone */
   int jobs_outstanding;          /* admitted, not yet answered */
   int draining, stopped;
+  int hurry;                     /* a second signal: no more waiting */
+  int ready_written;             /* the ready file is ours to remove */
+  int files_removed;             /* socket files and ready file gone */
+  int signals_closed;            /* the stop is complete */
   double t_start;
   char backend_desc[512];
 };
@@ -257,9 +294,20 @@ struct hfd_server {
 void hfd_on_connection(uv_stream_t *listener, int status);
 void hfd_on_async(uv_async_t *a);
 void hfd_conn_shutdown(hfd_conn *c);
-/* Fails connections silent for longer than the stall timeout in the middle
- * of a frame or before their HELLO. */
+void hfd_conn_close(hfd_conn *c);
+/* Closes connections past their handshake deadline, silent or too slow in
+ * the middle of a frame, or whose peer has stopped reading its replies. */
 void hfd_sweep_stalled(hfd_server *s);
+/* limits.c */
+/* Host memory a frame is charged while the server holds it: its features
+ * (unless in a shared segment), result and composite buffers, and what
+ * running it takes (hfd_worker_run_bytes). UINT64_MAX when it cannot run. */
+uint64_t hfd_frame_bytes(const hfd_server *s, int variant, const hfp_filter *f);
+/* Lowers --max-size to the largest W x H (same aspect) at which a frame of
+ * every loaded variant, f32 in and out with a composite, fits both the
+ * frame limit and the memory one frame may use; logs why it was lowered.
+ * -1 when not even 1x1 fits (the budget is too small to serve anything). */
+int hfd_limits_derive(hfd_server *s);
 /* shm.c */
 /* Makes a sealed, mapped segment of bytes; *fd is its memfd, which the
  * caller sends to the peer and then closes. */

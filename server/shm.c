@@ -22,7 +22,15 @@ int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *
                    size_t whylen) {
   *out = NULL;
   *fd = -1;
-  if (bytes > s->cfg->max_shm_bytes || s->shm_held + bytes > s->cfg->max_shm_bytes) {
+  /* Larger than the whole budget: no retry can succeed. Larger than what
+   * is left of it: it may, once other segments are released. */
+  if (bytes > s->cfg->max_shm_bytes) {
+    snprintf(why, whylen, "a segment of %llu bytes is larger than the whole shared-memory "
+             "budget (--max-shm-mb %llu)", (unsigned long long)bytes,
+             (unsigned long long)(s->cfg->max_shm_bytes >> 20));
+    return HFP_E_TOO_LARGE;
+  }
+  if (s->shm_held + bytes > s->cfg->max_shm_bytes) {
     snprintf(why, whylen, "shared memory full (%llu of %llu MiB held)",
              (unsigned long long)(s->shm_held >> 20),
              (unsigned long long)(s->cfg->max_shm_bytes >> 20));

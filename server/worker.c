@@ -18,8 +18,10 @@
  * GPU libraries tie handles and streams to the thread that made them, so
  * the backend is created here, not in main().
  */
-#define _POSIX_C_SOURCE 200809L
+#define _GNU_SOURCE
 #include <errno.h>
+#include <malloc.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -44,6 +46,55 @@ static int ensure(void **buf, size_t *cap, size_t need) {
   *buf = p;
   *cap = need;
   return 0;
+}
+
+uint64_t hfd_worker_run_bytes(const hfd_worker *w, int variant, uint32_t width,
+                              uint32_t height, int batch, uint64_t in_bytes) {
+  size_t net = hf_run_bytes(w->backend, &w->variants[variant].cfg, (int)width, (int)height,
+                            batch);
+  if (!net) return UINT64_MAX;
+  /* prepare_run's and finish_run's own buffers: the gathered inputs of a
+   * batch, the float32 results of a batch or a composite, and the
+   * composite's RGB. A frame's
+   * slot in the gather buffer is counted even when it runs alone, so that
+   * n frames never need more than n times what one frame was charged and
+   * batches form under the memory bound (take_compatible). */
+  uint64_t px = (uint64_t)width * height, f32_out = px * 3 * sizeof(float);
+  return net + (in_bytes + f32_out) * (uint64_t)batch + f32_out;
+}
+
+static size_t worker_cached(const hfd_worker *w) {
+  size_t n = w->scratch_in_cap + w->scratch_out_cap + w->scratch_rgb_cap;
+  for (int i = 0; i < w->num_variants; i++) n += hf_model_cached_bytes(w->variants[i].model);
+  return n;
+}
+
+/* After a run: what the backends and this worker keep for the next run of
+ * the same size may stay while it is within cache_cap (it counts against
+ * --max-memory-mb all the same); beyond it, the run was oversized, and what
+ * it needed goes back to the system: the worker's scratch, then the largest
+ * plans of the model that ran, then of the others, then the heap's free
+ * pages. */
+static void worker_trim(hfd_worker *w, int ran) {
+  size_t n = worker_cached(w);
+  if (n > w->cache_cap) {
+    free(w->scratch_in);
+    free(w->scratch_out);
+    free(w->scratch_rgb);
+    w->scratch_in = w->scratch_out = NULL;
+    w->scratch_rgb = NULL;
+    w->scratch_in_cap = w->scratch_out_cap = w->scratch_rgb_cap = 0;
+    size_t others = 0;
+    for (int i = 0; i < w->num_variants; i++)
+      if (i != ran) others += hf_model_cached_bytes(w->variants[i].model);
+    if (ran >= 0)
+      hf_model_trim(w->variants[ran].model, others < w->cache_cap ? w->cache_cap - others : 0);
+    for (int i = 0; i < w->num_variants && worker_cached(w) > w->cache_cap; i++)
+      if (i != ran) hf_model_trim(w->variants[i].model, 0);
+    malloc_trim(0);
+    n = worker_cached(w);
+  }
+  atomic_store(&w->cached_bytes, (uint64_t)n);
 }
 
 static int compatible(const hfd_job *a, const hfd_job *b) {
@@ -190,11 +241,16 @@ static void complete(hfd_worker *w, hfd_job **batch, int nb) {
   if (rc < 0) hfd_log("error: worker: uv_async_send: %s", uv_strerror(rc));
 }
 
-/* Removes and returns the first queued job compatible with j0 (mu held). */
-static hfd_job *take_compatible(hfd_worker *w, const hfd_job *j0) {
+/* Removes and returns the first queued job compatible with j0 (mu held),
+ * when running it in the batch (nb jobs so far, which reserved reserved
+ * bytes for running) needs no more than the batch's jobs reserved. */
+static hfd_job *take_compatible(hfd_worker *w, const hfd_job *j0, int nb, uint64_t reserved) {
   hfd_job *prev = NULL;
   for (hfd_job *j = w->q_head; j; prev = j, j = j->next) {
     if (!compatible(j, j0)) continue;
+    if (hfd_worker_run_bytes(w, j0->variant, j0->req.width, j0->req.height, nb + 1,
+                             j0->req.data_len) > reserved + j->infer_bytes)
+      return NULL;
     if (prev)
       prev->next = j->next;
     else
@@ -283,7 +339,15 @@ static void finish_pending(hfd_worker *w, run *p) {
 
 static void *worker_main(void *arg) {
   hfd_worker *w = arg;
+  /* Signals are the loop thread's (libuv's handlers run there); threads
+   * this one starts (a backend's pool) inherit the mask. */
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGINT);
+  sigaddset(&set, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &set, NULL);
   int rc = init_models(w);
+  if (!rc) worker_trim(w, -1);
   pthread_mutex_lock(&w->mu);
   w->init_rc = rc;
   w->ready = 1;
@@ -321,10 +385,12 @@ static void *worker_main(void *arg) {
     j0->next = NULL;
     int nb = 1;
     batch[0] = j0;
+    uint64_t reserved = j0->infer_bytes;
     double deadline = j0->t_received + w->max_delay_us;
     while (nb < w->max_batch && !w->cancel) {
-      hfd_job *j = take_compatible(w, j0);
+      hfd_job *j = take_compatible(w, j0, nb, reserved);
       if (j) {
+        reserved += j->infer_bytes;
         batch[nb++] = j;
         continue;
       }
@@ -372,6 +438,9 @@ static void *worker_main(void *arg) {
         if (!cur.rc) cur.rc = hf_model_run_report(m, &io, &cur.t, cur.reports);
         cur.t2 = hfd_now_us();
         finish_run(w, &cur);
+        /* Nothing is pending on any model: what this run kept may be
+         * trimmed before its frames' memory is released. */
+        worker_trim(w, j0->variant);
         complete(w, batch, nb);
       }
     }

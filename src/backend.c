@@ -305,7 +305,37 @@ size_t hf_model_device_bytes(const hf_model *m) {
   return m->backend->ops->model_device_bytes(m->impl);
 }
 
+/* The same range hf_model_run accepts, so an estimate exists for every frame
+ * that can run. */
+static int run_size_ok(int width, int height, int batch) {
+  return batch >= 1 && width >= 1 && height >= 1 && width <= HF_MAX_SIDE &&
+         height <= HF_MAX_SIDE && (int64_t)batch * width * height <= HF_MAX_PIXELS;
+}
+
+size_t hf_run_bytes(const hf_backend *b, const hf_net_config *cfg, int width, int height,
+                    int batch) {
+  if (!b || !cfg || !b->ops->run_bytes || !run_size_ok(width, height, batch) ||
+      hf_net_config_validate(cfg))
+    return 0;
+  int a = hf_net_align(cfg);
+  return b->ops->run_bytes(cfg, batch, hf_round_up(width, a), hf_round_up(height, a));
+}
+
+size_t hf_model_cached_bytes(const hf_model *m) {
+  if (!m || !m->backend->ops->model_cached_bytes) return 0;
+  return m->backend->ops->model_cached_bytes(m->impl);
+}
+
+void hf_model_trim(hf_model *m, size_t keep) {
+  if (m && m->backend->ops->model_trim) m->backend->ops->model_trim(m->impl, keep);
+}
+
 /* ---- helpers shared by the CPU backends ---------------------------------- */
+
+size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height) {
+  if (cfg->arch != HF_ARCH_RESIDUAL) return 0;
+  return 2 * (size_t)width * height * 3 * sizeof(float);
+}
 
 double hf_now_us(void) {
   struct timespec ts;

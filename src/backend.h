@@ -45,6 +45,15 @@ typedef struct hf_backend_ops {
   /* Optional: host memory that will hold tensors (hf_backend_host_register). */
   int (*host_register)(void *dev, void *ptr, size_t bytes);
   void (*host_unregister)(void *dev, void *ptr);
+  /* Host memory one run of batch frames of padded size pw x ph allocates or
+   * keeps (hf_run_bytes): an upper bound computed from cfg alone, callable
+   * from any thread. */
+  size_t (*run_bytes)(const hf_net_config *cfg, int batch, int pw, int ph);
+  /* Host memory the model keeps between runs (cached plans); NULL: none. */
+  size_t (*model_cached_bytes)(void *model);
+  /* Frees cached plans, largest first, until at most keep bytes remain;
+   * NULL when nothing is cached. */
+  void (*model_trim)(void *model, size_t keep);
 } hf_backend_ops;
 
 extern const hf_backend_ops hf_backend_cpu_ref;
@@ -93,6 +102,9 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
  * in io->out's dtype. */
 void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
                                int pw, int ph, const hf_io *io);
+/* Host memory hf_output_from_padded_f32 allocates for io's frames (the
+ * Residual base of a frame, and its scratch). */
+size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height);
 /* Rounds n up to a multiple of a (a power of two). */
 static inline int hf_round_up(int n, int a) { return (n + a - 1) & ~(a - 1); }
 /* Monotonic clock in microseconds. */

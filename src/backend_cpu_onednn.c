@@ -92,6 +92,8 @@ typedef struct od_step {
 typedef struct od_plan {
   int batch, pw, ph;
   uint64_t stamp;               /* last use, for eviction */
+  size_t bytes;                 /* host memory of its buffers and weight copies */
+  size_t scratch_bytes;         /* of which the primitives' scratchpad */
   float *in;                    /* padded input [batch][ph][pw][cin] */
   dnnl_memory_t in_mem;         /* enc0's source: in, or the caller's frames */
   float *out;                   /* raw output [batch][ph][pw][3] */
@@ -468,7 +470,10 @@ static int od_add_layer(od_model *m, od_plan *p, od_kind kind, int i, dnnl_memor
     rc = HF_ERANGE;
     goto fail;
   }
-  if (owned) p->mems[p->nmems++] = wmem, owned = 0;
+  if (owned) {
+    p->bytes += dnnl_memory_desc_get_size(wmd);
+    p->mems[p->nmems++] = wmem, owned = 0;
+  }
   size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
   if (sb > *scratch_bytes) *scratch_bytes = sb;
   OD_TRY(dnnl_primitive_create(&prim, pd));
@@ -589,6 +594,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   OD_RC(od_nhwc(&out_md, batch, HF_OUT_CHANNELS, ph, pw));
   OD_RC(od_alloc(&in_md, (void **)&p->in));
   OD_RC(od_alloc(&out_md, (void **)&p->out));
+  p->bytes += dnnl_memory_desc_get_size(&in_md) + dnnl_memory_desc_get_size(&out_md);
 
   /* The ping-pong buffers hold every encoder output, every decoder output
    * but the last, and the taps: the largest of those tensors. */
@@ -610,9 +616,11 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     }
   }
   for (int k = 0; k < 2; k++) OD_RC(od_alloc_bytes(ping_bytes, &p->ping[k]));
+  p->bytes += 2 * ping_bytes;
   for (int i = 0; i < L - 1; i++) {
     OD_RC(od_nhwc(&cat_md[i], batch, hf_dec_in(c, i), ph >> (i + 1), pw >> (i + 1)));
     OD_RC(od_alloc(&cat_md[i], &p->cat[i]));
+    p->bytes += dnnl_memory_desc_get_size(&cat_md[i]);
   }
 
   /* Encoder: enc{i} reads ping[(i+1)%2] (or the input) and writes ping[i%2];
@@ -675,6 +683,8 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     dnnl_dims_t d = {(dnnl_dim_t)scratch_bytes};
     OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
     OD_RC(od_alloc(&md, &p->scratch));
+    p->bytes += scratch_bytes;
+    p->scratch_bytes = scratch_bytes;
     OD_RC(od_mem(p, dev, &md, p->scratch, &smem));
     for (int s = 0; s < p->nsteps; s++)
       for (int a = 0; a < p->steps[s].nargs; a++)
@@ -822,6 +832,61 @@ fail:
 
 static const char *od_model_precision(void *impl) { return "fp32"; }
 
+/* ---- memory ---------------------------------------------------------------- */
+
+/* Scratchpad allowance of a plan: oneDNN sizes the scratchpad only once the
+ * primitives exist, so the estimate cannot know it. On this project's
+ * development machine (AVX2) every plan's scratchpad was 12 KiB
+ * (tests/cpu checks the whole estimate against the plans it builds); a
+ * reference (im2col) kernel on another ISA can need a column buffer, which
+ * a quarter of the largest activation plus 1 MiB allows for. */
+static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + ((size_t)1 << 20); }
+
+/* What od_plan_create allocates for (batch, pw, ph), from the same sizes:
+ * padded input and output, two ping-pong buffers of the largest activation
+ * (taps included), the concat buffers, the scratchpad, and private weight
+ * copies (at most one of every weight). Each buffer is rounded as
+ * od_alloc_bytes rounds it, plus a page of allocator overhead. */
+static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
+  const size_t f = sizeof(float), page = 4096;
+  int L = c->num_levels;
+  size_t px = (size_t)batch * pw * ph, total = 0;
+  size_t ping = 0, weights = 0;
+  for (int i = 0; i < L; i++) {
+    size_t q = (size_t)batch * (pw >> (i + 1)) * (ph >> (i + 1));
+    size_t t[3] = {od_use_taps(i) ? q * 16 * hf_dec_out(c, i) * f : 0, q * hf_enc_out(c, i) * f,
+                   i > 0 ? 4 * q * hf_dec_out(c, i) * f : 0};
+    for (int k = 0; k < 3; k++)
+      if (t[k] > ping) ping = t[k];
+    if (i < L - 1) total += q * hf_dec_in(c, i) * f + 64 + page;
+    weights += ((size_t)hf_enc_out(c, i) * hf_enc_in(c, i) * 9 +
+                (size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16) * f + 64 + page;
+  }
+  total += px * c->in_channels * f + px * 3 * f + 2 * (64 + page);
+  total += 2 * (ping + 64 + page);
+  total += od_scratch_allowance(ping) + weights;
+  return total + hf_output_extra_bytes(c, pw, ph);
+}
+
+static size_t od_model_cached_bytes(void *impl) {
+  od_model *m = impl;
+  size_t n = 0;
+  for (int k = 0; k < OD_PLAN_CACHE; k++)
+    if (m->plans[k]) n += m->plans[k]->bytes;
+  return n;
+}
+
+static void od_model_trim(void *impl, size_t keep) {
+  od_model *m = impl;
+  while (od_model_cached_bytes(m) > keep) {
+    int big = -1;
+    for (int k = 0; k < OD_PLAN_CACHE; k++)
+      if (m->plans[k] && (big < 0 || m->plans[k]->bytes > m->plans[big]->bytes)) big = k;
+    od_plan_free(m->plans[big]);
+    m->plans[big] = NULL;
+  }
+}
+
 const hf_backend_ops hf_backend_cpu_onednn = {
   .name = "cpu",
   .priority = 50,
@@ -833,4 +898,7 @@ const hf_backend_ops hf_backend_cpu_onednn = {
   .model_destroy = od_model_destroy,
   .model_run = od_model_run,
   .model_precision = od_model_precision,
+  .run_bytes = od_run_bytes,
+  .model_cached_bytes = od_model_cached_bytes,
+  .model_trim = od_model_trim,
 };

@@ -1230,6 +1230,17 @@ static size_t cudnn_model_device_bytes(void *impl) {
   return n;
 }
 
+/* Host memory a run takes beyond the model: none. Frames go to the device
+ * by DMA from registered memory or through the model's fixed ring of pinned
+ * chunks, made with the model; plans are device memory, reported by
+ * model_device_bytes and bounded by the GPU, not by a host budget. A page
+ * stands for the bookkeeping. Nothing is kept on the host per size, so
+ * there is no model_cached_bytes or model_trim. */
+static size_t cudnn_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
+  (void)c, (void)batch, (void)pw, (void)ph;
+  return 4096;
+}
+
 const hf_backend_ops hf_backend_cudnn = {
   .name = "cudnn",
   .priority = 100,
@@ -1247,4 +1258,5 @@ const hf_backend_ops hf_backend_cudnn = {
   .model_wait = cudnn_model_wait,
   .host_register = cudnn_host_register,
   .host_unregister = cudnn_host_unregister,
+  .run_bytes = cudnn_run_bytes,
 };

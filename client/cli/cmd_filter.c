@@ -157,6 +157,11 @@ int cmd_filter(int argc, char **argv) {
     }
   }
   if (!server || optind != argc) goto bad;
+  char why[300];
+  if (hfc_check_url(server, why, sizeof why)) {
+    fprintf(stderr, "hairfilter: --server: %s\n", why);
+    return 2;
+  }
   if (list || stats) {
     hfc_client *c = NULL;
     hfc_options o = {"hairfilter-cli", token, timeout_ms};

@@ -75,7 +75,7 @@ static const struct {
   const char *msg;
 } local_errors[] = {
   {HFC_E_ARG, "bad argument"},
-  {HFC_E_URL, "bad server URL (want unix:PATH or tcp:HOST:PORT)"},
+  {HFC_E_URL, "bad server URL (want unix:PATH, tcp:HOST:PORT or tcp:PORT)"},
   {HFC_E_CONNECT, "cannot connect to the server"},
   {HFC_E_IO, "connection failed"},
   {HFC_E_TIMEOUT, "timed out waiting for the server"},
@@ -362,13 +362,14 @@ static int control(hfc_client *c, const uint8_t *frame, size_t len, int reply_ty
 /* ---- connect -------------------------------------------------------------- */
 
 static int open_socket(const char *url, int timeout_ms) {
-  if (!strncmp(url, "unix:", 5)) {
+  hfp_url u;
+  if (hfp_url_parse(url, 0, &u, NULL, 0)) return HFC_E_URL;
+  if (u.kind == HFP_URL_UNIX) {
     struct sockaddr_un sun;
-    const char *path = url + 5;
-    if (!*path || strlen(path) >= sizeof sun.sun_path) return HFC_E_URL;
     memset(&sun, 0, sizeof sun);
     sun.sun_family = AF_UNIX;
-    memcpy(sun.sun_path, path, strlen(path) + 1);
+    _Static_assert(sizeof u.path <= sizeof sun.sun_path, "hfp_url path fits sun_path");
+    memcpy(sun.sun_path, u.path, sizeof u.path);
     int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
     if (fd < 0) return HFC_E_CONNECT;
     if (connect(fd, (struct sockaddr *)&sun, sizeof sun) != 0) {
@@ -377,24 +378,14 @@ static int open_socket(const char *url, int timeout_ms) {
     }
     return fd;
   }
-  if (strncmp(url, "tcp:", 4)) return HFC_E_URL;
-  const char *rest = url + 4;
-  const char *colon = strrchr(rest, ':');
-  if (!colon || colon == rest || !colon[1]) return HFC_E_URL;
-  char host[256];
-  size_t hl = (size_t)(colon - rest);
-  if (hl >= sizeof host) return HFC_E_URL;
-  if (rest[0] == '[' && hl >= 2 && rest[hl - 1] == ']') {
-    memcpy(host, rest + 1, hl - 2);
-    host[hl - 2] = 0;
-  } else {
-    memcpy(host, rest, hl);
-    host[hl] = 0;
-  }
+  char port[8];
+  snprintf(port, sizeof port, "%u", (unsigned)u.port);
+  const char *host = u.host;
   struct addrinfo hints, *res = NULL;
   memset(&hints, 0, sizeof hints);
   hints.ai_socktype = SOCK_STREAM;
-  if (getaddrinfo(host, colon + 1, &hints, &res) != 0 || !res) return HFC_E_CONNECT;
+  hints.ai_flags = AI_NUMERICSERV;
+  if (getaddrinfo(host, port, &hints, &res) != 0 || !res) return HFC_E_CONNECT;
   int fd = -1;
   for (struct addrinfo *ai = res; ai; ai = ai->ai_next) {
     fd = socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
@@ -417,6 +408,11 @@ static int open_socket(const char *url, int timeout_ms) {
   }
   freeaddrinfo(res);
   return fd >= 0 ? fd : HFC_E_CONNECT;
+}
+
+int hfc_check_url(const char *url, char *why, size_t whylen) {
+  hfp_url u;
+  return hfp_url_parse(url, 0, &u, why, whylen) ? HFC_E_URL : 0;
 }
 
 int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {

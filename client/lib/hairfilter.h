@@ -45,7 +45,7 @@ extern "C" {
 #define HFC_E_INVALID        -11
 /* local */
 #define HFC_E_ARG            -100 /* bad argument */
-#define HFC_E_URL            -101 /* not unix:PATH or tcp:HOST:PORT */
+#define HFC_E_URL            -101 /* not unix:PATH, tcp:HOST:PORT or tcp:PORT */
 #define HFC_E_CONNECT        -102 /* could not connect */
 #define HFC_E_IO             -103 /* the connection failed */
 #define HFC_E_TIMEOUT        -104 /* no answer within the timeout */
@@ -66,9 +66,15 @@ typedef struct hfc_options {
   int timeout_ms;            /* per blocking step; 0: 30000; < 0: no limit */
 } hfc_options;
 
-/* url: "unix:/path/to.sock", "tcp:HOST:PORT" or "tcp:[v6addr]:PORT".
- * opt may be NULL. Performs the HELLO handshake. */
+/* url: "unix:/path/to.sock", "tcp:HOST:PORT", "tcp:[v6addr]:PORT" or
+ * "tcp:PORT" (127.0.0.1), the grammar of protocol/PROTOCOL.md ("Addresses");
+ * HOST may be a name. opt may be NULL. Performs the HELLO handshake.
+ * HFC_E_URL for a URL outside the grammar (hfc_check_url says why). */
 int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out);
+/* Checks url without connecting: 0, or HFC_E_URL with why (when not NULL)
+ * naming the URL and what is wrong with it, e.g. "bad URL 'tcp:h:70000':
+ * port 70000 is outside 1..65535". */
+int hfc_check_url(const char *url, char *why, size_t whylen);
 /* Closes the connection; requests still in flight are abandoned. */
 void hfc_close(hfc_client *c);
 

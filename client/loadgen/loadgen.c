@@ -231,6 +231,11 @@ int main(int argc, char **argv) {
     usage(stderr);
     return 2;
   }
+  char why[300];
+  if (hfc_check_url(o.server, why, sizeof why)) {
+    fprintf(stderr, "hairfilter-load: --server: %s\n", why);
+    return 2;
+  }
   /* Look the variant up once, for its spp and to fail early. */
   hfc_client *c;
   hfc_options co = {"hairfilter-load", o.token, 30000};

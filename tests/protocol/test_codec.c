@@ -95,7 +95,20 @@ static void test_hello(void **state) {
   memcpy(longer, p, h.length);
   hfp_put_u16(longer, 4);
   assert_int_equal(hfp_decode_hello(longer, h.length, &d), -HFP_E_VERSION);
+  /* a range that starts below version 1 still holds it: 0..1 gets 1 */
+  memcpy(longer, p, h.length);
+  hfp_put_u16(longer, 0);
+  hfp_put_u16(longer + 2, 1);
+  assert_int_equal(hfp_decode_hello(longer, h.length, &d), 0);
+  assert_int_equal(hfp_negotiate(d.min_version, d.max_version), 1);
+  hfp_hello zero_one = {0, 1, "old-client", ""};
+  assert_true(hfp_encode_hello(buf, sizeof buf, &zero_one) > 0);
+  /* ...but 0..0 holds no version at all */
+  hfp_put_u16(longer + 2, 0);
+  assert_int_equal(hfp_decode_hello(longer, h.length, &d), -HFP_E_VERSION);
   /* the encoder refuses what the decoder would */
+  hfp_hello none = {0, 0, "x", ""};
+  assert_int_equal(hfp_encode_hello(buf, sizeof buf, &none), -HFP_E_INVALID);
   hfp_hello bad = {2, 1, "x", ""};
   assert_int_equal(hfp_encode_hello(buf, sizeof buf, &bad), -HFP_E_INVALID);
   hfp_hello spaced = {1, 1, "has space", ""};
@@ -106,6 +119,76 @@ static void test_hello(void **state) {
   assert_int_equal(hfp_negotiate(1, 9), HFP_VERSION);
   assert_int_equal(hfp_negotiate(HFP_VERSION + 1, 9), -HFP_E_VERSION);
   assert_int_equal(hfp_negotiate(0, 0), -HFP_E_VERSION);
+  assert_int_equal(hfp_negotiate(0, 1), 1);
+  assert_int_equal(hfp_negotiate(0, 65535), HFP_VERSION);
+  assert_int_equal(hfp_negotiate(3, 2), -HFP_E_VERSION);
+}
+
+/* One URL grammar for both sides (PROTOCOL.md, "Addresses"). */
+static void test_url(void **state) {
+  (void)state;
+  hfp_url u;
+  char why[256];
+  assert_int_equal(hfp_url_parse("unix:/run/hf.sock", 0, &u, why, sizeof why), 0);
+  assert_int_equal(u.kind, HFP_URL_UNIX);
+  assert_string_equal(u.path, "/run/hf.sock");
+  assert_int_equal(hfp_url_parse("tcp:10.1.2.3:7070", 0, &u, why, sizeof why), 0);
+  assert_int_equal(u.kind, HFP_URL_TCP);
+  assert_string_equal(u.host, "10.1.2.3");
+  assert_int_equal(u.port, 7070);
+  assert_int_equal(hfp_url_parse("tcp:gpu-box.local:1", 0, &u, why, sizeof why), 0);
+  assert_string_equal(u.host, "gpu-box.local");
+  assert_int_equal(u.port, 1);
+  assert_int_equal(hfp_url_parse("tcp:65535", 0, &u, why, sizeof why), 0);
+  assert_string_equal(u.host, "127.0.0.1");
+  assert_int_equal(u.port, 65535);
+  assert_int_equal(hfp_url_parse("tcp:[::1]:7070", 0, &u, why, sizeof why), 0);
+  assert_string_equal(u.host, "::1");
+  assert_int_equal(u.port, 7070);
+  assert_int_equal(hfp_url_parse("tcp:[fe80::1%eth0]:80", 0, &u, why, sizeof why), 0);
+  assert_string_equal(u.host, "fe80::1%eth0");
+  /* port 0 only where it means "any free port" */
+  assert_int_equal(hfp_url_parse("tcp:127.0.0.1:0", HFP_URL_LISTEN, &u, why, sizeof why), 0);
+  assert_int_equal(u.port, 0);
+  static const struct {
+    const char *url, *says;
+  } bad[] = {
+    {"tcp:127.0.0.1:0", "port 0 is outside 1..65535"},
+    {"tcp:127.0.0.1:65536", "port 65536 is outside 1..65535"},
+    {"tcp:127.0.0.1:99999999999999999999", "is outside 1..65535"},
+    {"tcp:70000", "port 70000 is outside 1..65535"},
+    {"tcp:127.0.0.1:80x", "port '80x' is not a decimal number"},
+    {"tcp:127.0.0.1:-1", "port '-1' is not a decimal number"},
+    {"tcp:127.0.0.1:+80", "port '+80' is not a decimal number"},
+    {"tcp:127.0.0.1: 80", "is not a decimal number"},
+    {"tcp:127.0.0.1:80 ", "is not a decimal number"},
+    {"tcp:127.0.0.1:", "no port"},
+    {"tcp:", "no port"},
+    {"tcp::80", "empty host"},
+    {"tcp:::1:80", "brackets"},
+    {"tcp:[::1]80", "want [ADDRESS]:PORT"},
+    {"tcp:[::1", "without ']'"},
+    {"tcp:[]:80", "empty IPv6 address"},
+    {"tcp:[::g]:80", "'g' in an IPv6 address"},
+    {"tcp:host name:80", "' ' in the host name"},
+    {"tcp:nohostport", "is not a decimal number"},
+    {"unix:", "empty socket path"},
+    {"http://x", "want unix:PATH"},
+    {"", "want unix:PATH"},
+  };
+  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    int rc = hfp_url_parse(bad[i].url, HFP_URL_LISTEN * (i > 0), &u, why, sizeof why);
+    if (rc != -HFP_E_INVALID || !strstr(why, bad[i].says) || !strstr(why, "bad URL '"))
+      fail_msg("'%s': rc %d, '%s' (want '%s')", bad[i].url, rc, why, bad[i].says);
+  }
+  char path[200];
+  memset(path, 'a', sizeof path);
+  memcpy(path, "unix:", 5);
+  path[sizeof path - 1] = 0;
+  assert_int_equal(hfp_url_parse(path, 0, &u, why, sizeof why), -HFP_E_INVALID);
+  assert_non_null(strstr(why, "socket path longer than"));
+  /* why may be NULL */
+  assert_int_equal(hfp_url_parse("tcp:1:2:3", 0, &u, NULL, 0), -HFP_E_INVALID);
 }
 
 static hfp_hello_ok sample_hello_ok(void) {
@@ -782,7 +865,7 @@ static void test_histogram(void **state) {
 
 int main(void) {
   const struct CMUnitTest tests[] = {
-    cmocka_unit_test(test_header),  cmocka_unit_test(test_hello),
+    cmocka_unit_test(test_header),  cmocka_unit_test(test_hello), cmocka_unit_test(test_url),
     cmocka_unit_test(test_hello_ok), cmocka_unit_test(test_empty),
     cmocka_unit_test(test_variants), cmocka_unit_test(test_filter),
     cmocka_unit_test(test_result),  cmocka_unit_test(test_error),

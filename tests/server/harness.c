@@ -104,13 +104,21 @@ int server_log_has(const server *s, const char *needle) {
 }
 
 int server_start(const harness *h, server *s, const char *const *extra) {
+  return server_start_ex(h, s, extra, NULL, NULL);
+}
+
+int server_start_ex(const harness *h, server *s, const char *const *extra,
+                    const char *ready_path, const char *token_env) {
   static int serial;
   memset(s, 0, sizeof *s);
   serial++;
   char sock[200];
   snprintf(sock, sizeof sock, "%s/s%d.sock", h->dir, serial);
   snprintf(s->log, sizeof s->log, "%s/server%d.log", h->dir, serial);
-  snprintf(s->ready, sizeof s->ready, "%s/ready%d", h->dir, serial);
+  if (ready_path)
+    snprintf(s->ready, sizeof s->ready, "%s", ready_path);
+  else
+    snprintf(s->ready, sizeof s->ready, "%s/ready%d", h->dir, serial);
   char listen_unix[220];
   snprintf(listen_unix, sizeof listen_unix, "unix:%s", sock);
   const char *argv[64];
@@ -137,7 +145,7 @@ int server_start(const harness *h, server *s, const char *const *extra) {
       dup2(fd, 1);
       close(fd);
     }
-    setenv("HAIRFILTERD_TOKEN", TEST_TOKEN, 1);
+    setenv("HAIRFILTERD_TOKEN", token_env ? token_env : TEST_TOKEN, 1);
     execv(argv[0], (char *const *)argv);
     _exit(127);
   }
@@ -198,6 +206,47 @@ int server_stop(server *s, int timeout_ms) {
   return -1;
 }
 
+int daemon_run(const char *const *args, const char *token_env, int timeout_ms, char *out,
+               size_t outlen) {
+  char log[] = "/tmp/hfd-run-XXXXXX";
+  int lfd = mkstemp(log);
+  if (lfd < 0) return -1;
+  const char *argv[64];
+  int n = 0;
+  argv[n++] = HAIRFILTERD_PATH;
+  for (int i = 0; args[i] && n < 63; i++) argv[n++] = args[i];
+  argv[n] = NULL;
+  pid_t pid = fork();
+  if (pid < 0) return -1;
+  if (pid == 0) {
+    dup2(lfd, 2);
+    dup2(lfd, 1);
+    if (token_env)
+      setenv("HAIRFILTERD_TOKEN", token_env, 1);
+    else
+      unsetenv("HAIRFILTERD_TOKEN");
+    execv(argv[0], (char *const *)argv);
+    _exit(127);
+  }
+  int status = -1, st;
+  for (int waited = 0; waited < timeout_ms; waited += 10) {
+    if (waitpid(pid, &st, WNOHANG) == pid) {
+      status = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+      break;
+    }
+    sleep_ms(10);
+  }
+  if (status < 0) {
+    kill(pid, SIGKILL);
+    waitpid(pid, NULL, 0);
+  }
+  ssize_t r = pread(lfd, out, outlen - 1, 0);
+  out[r > 0 ? r : 0] = 0;
+  close(lfd);
+  unlink(log);
+  return status;
+}
+
 float *make_features(int w, int h, int spp, uint32_t seed) {
   size_t n = (size_t)w * h * spp * HF_FEATURES_PER_SAMPLE;
   float *f = malloc(n * sizeof *f);
@@ -222,24 +271,24 @@ int reference(const ref_variant *v, int w, int h, const void *in, int in_dtype, 
 
 int raw_connect(const char *url) {
   int fd = -1;
-  if (!strncmp(url, "unix:", 5)) {
+  hfp_url u;
+  if (hfp_url_parse(url, 0, &u, NULL, 0)) return -1;
+  if (u.kind == HFP_URL_UNIX) {
     struct sockaddr_un sun;
     memset(&sun, 0, sizeof sun);
     sun.sun_family = AF_UNIX;
-    snprintf(sun.sun_path, sizeof sun.sun_path, "%s", url + 5);
+    snprintf(sun.sun_path, sizeof sun.sun_path, "%s", u.path);
     fd = socket(AF_UNIX, SOCK_STREAM, 0);
     if (fd < 0 || connect(fd, (struct sockaddr *)&sun, sizeof sun)) {
       if (fd >= 0) close(fd);
       return -1;
     }
   } else {
-    char host[128];
-    const char *rest = url + 4, *colon = strrchr(rest, ':');
-    if (!colon) return -1;
-    snprintf(host, sizeof host, "%.*s", (int)(colon - rest), rest);
+    char port[8];
+    snprintf(port, sizeof port, "%u", (unsigned)u.port);
     struct addrinfo hints = {0}, *res;
     hints.ai_socktype = SOCK_STREAM;
-    if (getaddrinfo(host, colon + 1, &hints, &res)) return -1;
+    if (getaddrinfo(u.host, port, &hints, &res)) return -1;
     fd = socket(res->ai_family, SOCK_STREAM, 0);
     if (fd < 0 || connect(fd, res->ai_addr, res->ai_addrlen)) {
       if (fd >= 0) close(fd);
@@ -405,4 +454,28 @@ int read_text_file(const char *path, char *buf, size_t cap) {
   fclose(f);
   buf[n] = 0;
   return 0;
+}
+
+int raw_read_error(int fd, hfp_header *h, hfp_error *e) {
+  uint8_t *p;
+  if (raw_read(fd, h, &p)) return -1;
+  int rc = h->type == HFP_ERROR && hfp_decode_error(p, h->length, e) == 0 ? 0 : -1;
+  free(p);
+  return rc;
+}
+
+size_t raw_hello_frame(uint8_t *buf, size_t cap, uint16_t min_version, uint16_t max_version,
+                       const char *token) {
+  hfp_hello m;
+  memset(&m, 0, sizeof m);
+  m.min_version = 1;
+  m.max_version = 1;
+  strcpy(m.client_name, "raw-test");
+  if (token) snprintf(m.token, sizeof m.token, "%s", token);
+  int n = hfp_encode_hello(buf, cap, &m);
+  if (n < 0) return 0;
+  /* The versions are written as given, whatever the encoder would allow. */
+  hfp_put_u16(buf + HFP_HEADER_SIZE, min_version);
+  hfp_put_u16(buf + HFP_HEADER_SIZE + 2, max_version);
+  return (size_t)n;
 }

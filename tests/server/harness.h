@@ -45,6 +45,16 @@ const ref_variant *harness_variant(const harness *h, const char *name);
  * harness weights on cpu-ref, plus extra arguments (NULL-terminated).
  * Waits for its ready file; returns 0 or -1 (and prints its log). */
 int server_start(const harness *h, server *s, const char *const *extra);
+/* The same, with the ready file at ready_path (NULL: one in the temp dir)
+ * and $HAIRFILTERD_TOKEN set to token_env (NULL: TEST_TOKEN). */
+int server_start_ex(const harness *h, server *s, const char *const *extra,
+                    const char *ready_path, const char *token_env);
+/* Runs hairfilterd with exactly args (NULL-terminated, argv[0] added) and
+ * $HAIRFILTERD_TOKEN = token_env (NULL: unset) until it exits, at most
+ * timeout_ms; its stderr goes to out. Returns the exit status, or -1. */
+int daemon_run(const char *const *args, const char *token_env, int timeout_ms, char *out,
+               size_t outlen);
+
 /* SIGTERM, then waits up to timeout_ms; returns the exit status, or -1 if it
  * had to be killed. */
 int server_stop(server *s, int timeout_ms);
@@ -82,5 +92,12 @@ uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, con
                     size_t *len);
 /* 1 when the peer has closed (recv returns 0 within timeout_ms). */
 int raw_closed(int fd, int timeout_ms);
+/* Reads one frame that must be an ERROR: 0 with *h and *e filled, -1 for
+ * anything else (EOF, another type, a bad ERROR). */
+int raw_read_error(int fd, hfp_header *h, hfp_error *e);
+/* A HELLO frame with the given versions, name and token (NULL: none) into
+ * buf; returns its size. */
+size_t raw_hello_frame(uint8_t *buf, size_t cap, uint16_t min_version, uint16_t max_version,
+                       const char *token);
 
 #endif

@@ -632,12 +632,13 @@ static void test_sigterm_no_drain_time(void **state) {
   free(in);
 }
 
-/* A peer that stops in the middle of a frame, or never says HELLO, is cut
- * off after the stall timeout instead of holding its buffers forever. */
+/* A peer that stops in the middle of a frame is cut off after the stall
+ * timeout, and one that never says HELLO after the handshake timeout,
+ * instead of holding their buffers and slots forever. */
 static void test_stalled_peer_is_closed(void **state) {
   (void)state;
   server d;
-  const char *args[] = {"--stall-timeout-ms", "300", NULL};
+  const char *args[] = {"--stall-timeout-ms", "300", "--handshake-timeout-ms", "300", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   float *in = make_features(32, 32, 2, 1);
   size_t len;
@@ -659,9 +660,9 @@ static void test_stalled_peer_is_closed(void **state) {
   assert_int_equal(e.fatal, 1);
   free(p);
   assert_true(raw_closed(fd, 5000));
-  assert_int_equal(raw_read(silent, &h, &p), 0);
-  assert_int_equal(h.type, HFP_ERROR);
-  free(p);
+  assert_int_equal(raw_read_error(silent, &h, &e), 0);
+  assert_int_equal(e.code, HFP_E_PROTOCOL);
+  assert_non_null(strstr(e.message, "no complete HELLO within 300 ms"));
   assert_true(raw_closed(silent, 5000));
   close(fd);
   close(silent);
@@ -733,6 +734,17 @@ static void test_cli_filter(void **state) {
            "> '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, feat, res, outtxt);
   rc = system(cmd);
   assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 1);
+  /* a bad URL is a usage error (status 2) that names it */
+  snprintf(cmd, sizeof cmd, "'%s' filter --server tcp:127.0.0.1:70000 --list > '%s' 2>&1",
+           HAIRFILTER_CLI_PATH, outtxt);
+  rc = system(cmd);
+  assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 2);
+  f = fopen(outtxt, "r");
+  assert_non_null(f);
+  n = fread(text, 1, sizeof text - 1, f);
+  fclose(f);
+  text[n] = 0;
+  assert_non_null(strstr(text, "port 70000 is outside 1..65535"));
   free(in);
 }
 
@@ -744,6 +756,16 @@ static void test_client_errors(void **state) {
   assert_int_equal(hfc_connect("http://x", NULL, &c), HFC_E_URL);
   assert_int_equal(hfc_connect("tcp:nohostport", NULL, &c), HFC_E_URL);
   assert_int_equal(hfc_connect("unix:", NULL, &c), HFC_E_URL);
+  /* a port outside 1..65535 or with trailing junk is a bad URL, never
+   * another port (70000 would be 4464 in 16 bits) */
+  assert_int_equal(hfc_connect("tcp:127.0.0.1:70000", NULL, &c), HFC_E_URL);
+  assert_int_equal(hfc_connect("tcp:127.0.0.1:0", NULL, &c), HFC_E_URL);
+  assert_int_equal(hfc_connect("tcp:127.0.0.1:80x", NULL, &c), HFC_E_URL);
+  char why[300];
+  assert_int_equal(hfc_check_url("tcp:127.0.0.1:70000", why, sizeof why), HFC_E_URL);
+  assert_string_equal(why, "bad URL 'tcp:127.0.0.1:70000': port 70000 is outside 1..65535");
+  assert_int_equal(hfc_check_url(S.tcp_url, why, sizeof why), 0);
+  assert_int_equal(hfc_check_url("tcp:[::1]:7070", why, sizeof why), 0);
   char path[300];
   snprintf(path, sizeof path, "unix:%s/nobody.sock", H.dir);
   assert_int_equal(hfc_connect(path, NULL, &c), HFC_E_CONNECT);
@@ -1008,10 +1030,11 @@ static void test_shared_memory(void **state) {
   free(out);
   assert_int_equal(hfc_shm_free(c, mem), 0);
   assert_int_equal(hfc_shm_free(c, mem), HFC_E_ARG);
-  /* more than the server's shared-memory budget */
+  /* more than the server's whole shared-memory budget: no retry can help */
   void *huge;
-  assert_int_equal(hfc_shm_alloc(c, (size_t)2048 << 20, &huge), HFC_E_BUSY);
+  assert_int_equal(hfc_shm_alloc(c, (size_t)2048 << 20, &huge), HFC_E_TOO_LARGE);
   assert_null(huge);
+  assert_non_null(strstr(hfc_last_message(c), "--max-shm-mb 1024"));
   filter_and_compare(c, "Tiny", 8, 8, 0, 3);   /* and the connection is fine */
   hfc_close(c);
   free(want);

@@ -1,0 +1,328 @@
+/* The daemon's limits agree with one another and with what it announces
+ * (PROTOCOL.md, "Handshake", "Flow control"; docs/SERVER.md, "Memory"):
+ * a frame at exactly the announced maximum is served and one pixel more is
+ * TOO_LARGE; a shared segment larger than the whole budget is TOO_LARGE,
+ * one that does not fit now is BUSY; memory is charged as a frame arrives,
+ * so frames only announced cannot crowd out a small one; and inference
+ * memory is inside --max-memory-mb and given back after an oversized frame
+ * (the daemon's peak and resident memory, from /proc). */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "harness.h"
+#include "proc_memory.h"
+
+static harness H;
+
+static int setup(void **state) {
+  (void)state;
+  return harness_init(&H);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  harness_free(&H);
+  return 0;
+}
+
+/* Sends one FILTER of variant at w x h (with a composite when rgba) on fd
+ * and returns the reply's type; *code gets an ERROR's code, and the RESULT
+ * is compared with the in-process reference. */
+static int filter_once(int fd, uint32_t id, const char *variant, int w, int h, int rgba,
+                       int *code) {
+  const ref_variant *v = harness_variant(&H, variant);
+  int spp = v->cfg.spp;
+  float *in = make_features(w, h, spp, id);
+  size_t len;
+  uint8_t *f = raw_filter(id, variant, w, h, spp, in, &len);
+  assert_non_null(f);
+  if (rgba) hfp_put_u16(f + HFP_HEADER_SIZE + 2, HFP_FILTER_COMPOSITE);
+  assert_int_equal(raw_send(fd, f, len), 0);
+  hfp_header hd;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd, &hd, &p), 0);
+  assert_int_equal(hd.request_id, id);
+  *code = 0;
+  if (hd.type == HFP_ERROR) {
+    hfp_error e;
+    assert_int_equal(hfp_decode_error(p, hd.length, &e), 0);
+    *code = (int)e.code;
+    assert_int_equal(e.fatal, 0);
+  } else {
+    assert_int_equal(hd.type, HFP_RESULT);
+    hfp_result r;
+    assert_int_equal(hfp_decode_result(p, hd.length, &r), 0);
+    assert_int_equal(r.status, 0);
+    size_t n = (size_t)w * h * 3;
+    float *want = malloc(n * sizeof *want);
+    assert_int_equal(reference(v, w, h, in, HF_F32, want, HF_F32), 0);
+    assert_memory_equal(r.data, want, n * sizeof *want);
+    free(want);
+  }
+  free(p);
+  free(f);
+  free(in);
+  return hd.type;
+}
+
+/* Sends n Small frames of w x h at once on c and waits for them all:
+ * counts those served and those refused BUSY (anything else fails), and
+ * the largest batch a served one ran in. */
+typedef struct burst {
+  int served, busy, max_batch;
+} burst;
+
+static burst send_burst(hfc_client *c, int w, int h, int n) {
+  burst b = {0, 0, 0};
+  float *in = make_features(w, h, 4, 12);
+  float **out = calloc((size_t)n, sizeof *out);
+  assert_non_null(in);
+  assert_non_null(out);
+  for (int i = 0; i < n; i++) {
+    out[i] = malloc((size_t)w * h * 3 * sizeof(float));
+    hfc_request r = {.variant = "Small", .width = w, .height = h, .spp = 4, .in_dtype = HFC_F32,
+                     .features = in, .out_dtype = HFC_F32, .result = out[i]};
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  }
+  for (int k = 0; k < n; k++) {
+    hfc_completion done;
+    assert_int_equal(hfc_wait(c, 60000, &done), 0);
+    if (done.status == 0) {
+      b.served++;
+      if (done.timing.batch > b.max_batch) b.max_batch = done.timing.batch;
+    } else if (done.status == HFC_E_BUSY) {
+      b.busy++;
+    } else {
+      fail_msg("frame %d: %s (%s)", k, hfc_strerror(done.status), hfc_last_message(c));
+    }
+  }
+  for (int i = 0; i < n; i++) free(out[i]);
+  free(out);
+  free(in);
+  return b;
+}
+
+/* Item: HELLO_OK announces a size a frame can meet. With a 1 MiB frame
+ * limit and 4 MiB of memory, 4096x4096 is lowered; a frame of every
+ * variant at exactly the announced size (f32, composite: the largest) is
+ * served, and a pixel more is refused as TOO_LARGE, non-fatal. */
+static void test_announced_maximum_is_admitted(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-size", "4096x4096", "--max-frame-mb", "1", "--max-memory-mb",
+                        "4", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"limits", NULL, 20000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  const hfc_server_info *i = hfc_info(c);
+  int W = i->max_width, HH = i->max_height;
+  printf("announced %dx%d, max_frame_bytes %llu\n", W, HH,
+         (unsigned long long)i->max_frame_bytes);
+  assert_true(W > 16 && W < 4096);
+  assert_int_equal(W, HH);   /* the configured aspect */
+  assert_int_equal(i->max_frame_bytes, 1u << 20);
+  assert_true(server_log_has(&d, "max size lowered from 4096x4096"));
+  /* the announced size fits the announced payload limit */
+  uint64_t feat;
+  assert_int_equal(hfp_features_bytes((uint32_t)W, (uint32_t)HH, (uint32_t)i->max_spp, HFP_F32,
+                                      &feat), 0);
+  assert_true(HFP_FILTER_FIXED + 5 + feat <= i->max_frame_bytes);
+  hfc_close(c);
+
+  int fd = raw_connect(d.unix_url);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  int code;
+  const char *names[] = {"Small", "Tiny", "Mono"};
+  uint32_t id = 1;
+  for (int k = 0; k < 3; k++) {
+    if (filter_once(fd, id++, names[k], W, HH, 1, &code) != HFP_RESULT)
+      fail_msg("%s at the announced %dx%d: %s", names[k], W, HH, hfp_code_name(code));
+  }
+  assert_int_equal(filter_once(fd, id++, "Small", W + 1, HH, 0, &code), HFP_ERROR);
+  assert_int_equal(code, HFP_E_TOO_LARGE);
+  assert_int_equal(filter_once(fd, id++, "Mono", W, HH + 1, 0, &code), HFP_ERROR);
+  assert_int_equal(code, HFP_E_TOO_LARGE);
+  /* still the same connection */
+  assert_int_equal(filter_once(fd, id++, "Tiny", 8, 8, 0, &code), HFP_RESULT);
+  close(fd);
+  assert_int_equal(server_stop(&d, 20000), 0);
+
+}
+
+/* Item: a shared segment larger than the whole budget is TOO_LARGE (no
+ * retry helps); one larger than what is left is BUSY (a retry may). */
+static void test_segment_too_large_vs_busy(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-shm-mb", "1", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"shm", NULL, 20000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  void *a = NULL, *b = NULL;
+  assert_int_equal(hfc_shm_alloc(c, 768 << 10, &a), 0);
+  assert_int_equal(hfc_shm_alloc(c, 768 << 10, &b), HFC_E_BUSY);
+  assert_int_equal(hfc_shm_alloc(c, (1 << 20) + 1, &b), HFC_E_TOO_LARGE);
+  assert_non_null(strstr(hfc_last_message(c), "larger than the whole shared-memory budget"));
+  assert_int_equal(hfc_shm_free(c, a), 0);
+  /* what was BUSY now fits */
+  assert_int_equal(hfc_shm_alloc(c, 768 << 10, &b), 0);
+  assert_int_equal(hfc_shm_free(c, b), 0);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
+/* Item: six connections that announce the largest frame and send only its
+ * first bytes hold only those bytes: an 8x8 frame from someone else is
+ * served. When all six then send the rest, the budget still holds: some
+ * are refused BUSY (while receiving), the others served. */
+static void test_memory_charged_as_received(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-memory-mb", "8", "--max-size", "4096x4096", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"probe", NULL, 20000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  int W = hfc_info(c)->max_width, HH = hfc_info(c)->max_height;
+  enum { M = 6 };
+  float *in = make_features(W, HH, 4, 9);
+  size_t len;
+  uint8_t *f = raw_filter(1, "Small", W, HH, 4, in, &len);
+  int fd[M];
+  for (int i = 0; i < M; i++) {
+    fd[i] = raw_connect(d.unix_url);
+    assert_int_equal(raw_hello(fd[i], NULL), 0);
+    hfp_put_u32(f + 8, (uint32_t)i + 1);
+    assert_int_equal(raw_send(fd[i], f, 4096), 0);
+  }
+  usleep(100000);
+  float small_in[8 * 8 * 24], small_out[8 * 8 * 3];
+  memset(small_in, 0, sizeof small_in);
+  hfc_request r = {.variant = "Small", .width = 8, .height = 8, .spp = 4, .in_dtype = HFC_F32,
+                   .features = small_in, .out_dtype = HFC_F32, .result = small_out};
+  int rc = hfc_filter(c, &r, NULL);
+  if (rc) fail_msg("8x8 frame beside six announced ones: %s (%s)", hfc_strerror(rc),
+                   hfc_last_message(c));
+  hfc_close(c);
+  int served = 0, busy = 0;
+  /* A frame refused while it arrives is read to its end and dropped, so
+   * every send completes. */
+  for (int i = 0; i < M; i++) assert_int_equal(raw_send(fd[i], f + 4096, len - 4096), 0);
+  for (int i = 0; i < M; i++) {
+    hfp_header h;
+    uint8_t *p;
+    assert_int_equal(raw_read(fd[i], &h, &p), 0);
+    assert_int_equal(h.request_id, (uint32_t)i + 1);
+    if (h.type == HFP_RESULT) {
+      served++;
+    } else {
+      hfp_error e;
+      assert_int_equal(h.type, HFP_ERROR);
+      assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+      assert_int_equal(e.code, HFP_E_BUSY);
+      assert_int_equal(e.fatal, 0);
+      busy++;
+    }
+    free(p);
+    close(fd[i]);
+  }
+  printf("six %dx%d frames in 8 MiB: %d served, %d BUSY\n", W, HH, served, busy);
+  assert_true(served >= 1);
+  assert_true(busy >= 1);
+  free(f);
+  free(in);
+  assert_true(server_alive(&d));
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
+/* Item: inference memory is inside --max-memory-mb. Four frames at the
+ * announced maximum sent at once: the daemon's peak resident memory grows
+ * by no more than the budget (those that do not fit are BUSY), and once
+ * they are answered what they needed is given back. On the cpu backend
+ * when built (its plans are what could stay), else cpu-ref. */
+static void test_inference_memory_in_budget(void **state) {
+  (void)state;
+  server d;
+#ifdef HF_HAVE_ONEDNN
+  const char *backend = "cpu";
+#else
+  const char *backend = "cpu-ref";
+#endif
+  const char *args[] = {"--max-memory-mb", "48", "--max-size", "4096x4096", "--backend",
+                        backend, "--max-batch", "4", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"memory", NULL, 60000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  int W = hfc_info(c)->max_width, HH = hfc_info(c)->max_height;
+  /* Warm up on a small frame: threads started, small plans made. */
+  float small_in[8 * 8 * 24] = {0}, small_out[8 * 8 * 3];
+  hfc_request sr = {.variant = "Small", .width = 8, .height = 8, .spp = 4, .in_dtype = HFC_F32,
+                    .features = small_in, .out_dtype = HFC_F32, .result = small_out};
+  assert_int_equal(hfc_filter(c, &sr, NULL), 0);
+  int rss_ok = !UNDER_ASAN && proc_reset_peak(d.pid) == 0;
+  long rss0 = proc_status_kb(d.pid, "VmRSS");
+  burst b = send_burst(c, W, HH, 4);
+  int served = b.served, busy = b.busy;
+  long hwm = proc_status_kb(d.pid, "VmHWM");
+  /* The plans and buffers of the large frames are freed; a small frame
+   * (whose plan may stay) shows the daemon still serves. */
+  assert_int_equal(hfc_filter(c, &sr, NULL), 0);
+  long rss1 = proc_status_kb(d.pid, "VmRSS");
+  printf("%s, %dx%d frames, --max-memory-mb 48: %d served, %d BUSY; RSS %.1f MiB before, "
+         "peak +%.1f MiB, %.1f MiB after\n", backend, W, HH, served, busy, rss0 / 1024.0,
+         (hwm - rss0) / 1024.0, rss1 / 1024.0);
+  assert_true(served >= 1);
+  if (rss_ok) {
+    /* Inside the budget (the 8x8 frame's plan and connection buffers are in
+     * the 2 MiB). */
+    assert_true(hwm - rss0 <= 48 * 1024 + 2048);
+    /* Given back: within 4 MiB of where it started. */
+    assert_true(rss1 - rss0 <= 4096);
+  } else {
+    printf("peak RSS not checked: %s\n",
+           UNDER_ASAN ? "AddressSanitizer keeps freed memory" : "cannot reset it");
+  }
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
+/* Batching still happens under the memory bound: frames whose gathered
+ * inputs are megabytes are run together when they were charged enough for
+ * it, which each frame is (its slot in a batch is part of its charge). */
+static void test_batches_form_within_budget(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-memory-mb", "512", "--max-batch", "4", "--max-queue-delay-us",
+                        "500000", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = {"batch", NULL, 60000};
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  burst b = send_burst(c, 256, 256, 4);
+  assert_int_equal(b.served, 4);
+  assert_true(b.max_batch > 1);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_batches_form_within_budget),
+    cmocka_unit_test(test_announced_maximum_is_admitted),
+    cmocka_unit_test(test_segment_too_large_vs_busy),
+    cmocka_unit_test(test_memory_charged_as_received),
+    cmocka_unit_test(test_inference_memory_in_budget),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
