@@ -318,16 +318,40 @@ size_t hf_run_bytes(const hf_backend *b, const hf_net_config *cfg, int width, in
       hf_net_config_validate(cfg))
     return 0;
   int a = hf_net_align(cfg);
-  return b->ops->run_bytes(cfg, batch, hf_round_up(width, a), hf_round_up(height, a));
+  /* Plus the sanitised copy of an input that needs one (float32 at most). */
+  size_t sanitised = (size_t)batch * width * height * cfg->in_channels * sizeof(float);
+  return b->ops->run_bytes(cfg, batch, hf_round_up(width, a), hf_round_up(height, a)) +
+         sanitised;
+}
+
+static size_t sanitised_bytes(const hf_model *m) {
+  size_t n = 0;
+  for (int i = 0; i < HF_MAX_PENDING; i++) n += m->sanitised[i].cap;
+  return n;
 }
 
 size_t hf_model_cached_bytes(const hf_model *m) {
-  if (!m || !m->backend->ops->model_cached_bytes) return 0;
-  return m->backend->ops->model_cached_bytes(m->impl);
+  if (!m) return 0;
+  size_t n = sanitised_bytes(m);
+  if (m->backend->ops->model_cached_bytes) n += m->backend->ops->model_cached_bytes(m->impl);
+  return n;
 }
 
 void hf_model_trim(hf_model *m, size_t keep) {
-  if (m && m->backend->ops->model_trim) m->backend->ops->model_trim(m->impl, keep);
+  if (!m) return;
+  /* The sanitised copies go first: they are rebuilt from the input anyway
+   * (not while a submitted run may still read one). */
+  size_t kept = sanitised_bytes(m);
+  if (kept > keep && m->npending == 0) {
+    for (int i = 0; i < HF_MAX_PENDING; i++) {
+      free(m->sanitised[i].buf);
+      m->sanitised[i].buf = NULL;
+      m->sanitised[i].cap = 0;
+    }
+    kept = 0;
+  }
+  if (m->backend->ops->model_trim)
+    m->backend->ops->model_trim(m->impl, keep > kept ? keep - kept : 0);
 }
 
 /* ---- helpers shared by the CPU backends ---------------------------------- */

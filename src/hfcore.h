@@ -308,7 +308,9 @@ size_t hf_model_device_bytes(const hf_model *m);
 /* Host memory, in bytes, that one hf_model_run of batch frames of width x
  * height on backend b allocates, or builds and keeps for later runs of that
  * size: padded copies of the input and output, activations, the backend
- * library's scratchpad and staging buffers. An upper bound, checked against
+ * library's scratchpad and staging buffers, and the sanitised copy of an
+ * input that breaks the feature contract (protocol/FEATURES.md). An upper
+ * bound, checked against
  * the allocations by tests/cpu; not the model's weights (fixed once made),
  * nor a GPU backend's device memory (hf_model_device_bytes). Computed from
  * cfg alone, so it may be called from any thread while models run, and
@@ -317,10 +319,12 @@ size_t hf_model_device_bytes(const hf_model *m);
 size_t hf_run_bytes(const hf_backend *b, const hf_net_config *cfg, int width, int height,
                     int batch);
 /* Host memory the model keeps between runs: the plans of the sizes it has
- * run, so that a size seen before allocates nothing (0 for cpu-ref). Not
+ * run, so that a size seen before allocates nothing (none for cpu-ref), and
+ * the buffers kept for sanitised copies of inputs. Not
  * thread-safe against hf_model_run on the same model. */
 size_t hf_model_cached_bytes(const hf_model *m);
-/* Frees cached plans, largest first, until at most keep bytes remain; keep
+/* Frees the sanitised-copy buffers (unless a submitted run is pending),
+ * then cached plans, largest first, until at most keep bytes remain; keep
  * 0 frees them all. The next run of a freed size builds its plan again. Not
  * thread-safe against hf_model_run on the same model. */
 void hf_model_trim(hf_model *m, size_t keep);
