@@ -392,10 +392,12 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
 
 void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
                                int pw, int ph, const hf_io *io) {
-  /* The Residual base of a whole frame at once (separable sums); without the
-   * memory for it, pixel by pixel (same values, 25x the work). */
+  /* The Residual base or the Kernel output of a whole frame at once
+   * (separable sums; per-pixel sums made once); without the memory for it,
+   * pixel by pixel (same values, more work). */
   float *base = NULL, *tmp = NULL;
-  if (cfg->arch == HF_ARCH_RESIDUAL) {
+  const int kernel = cfg->arch == HF_ARCH_KERNEL, raw_ch = cfg->out_channels;
+  if (cfg->arch == HF_ARCH_RESIDUAL || kernel) {
     base = malloc((size_t)io->width * io->height * 3 * sizeof(float));
     tmp = malloc((size_t)io->width * io->height * 3 * sizeof(float));
     if (!base || !tmp) free(base), free(tmp), base = tmp = NULL;
@@ -403,17 +405,25 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
   for (int n = 0; n < io->batch; n++) {
     hf_input_view view = {in + (size_t)n * ph * pw * cfg->in_channels, io->width, io->height,
                           pw, cfg->in_channels};
-    if (base) hf_residual_base_frame(&view, cfg->spp, base, tmp);
+    const float *raw = src + (size_t)n * ph * pw * raw_ch;
+    if (base && kernel)
+      hf_kernel_output_frame(&view, cfg->spp, cfg->kernel_radius, raw, pw, raw_ch, base, tmp);
+    else if (base)
+      hf_residual_base_frame(&view, cfg->spp, base, tmp);
     for (int y = 0; y < io->height; y++)
       for (int x = 0; x < io->width; x++) {
-        size_t px = ((size_t)n * ph + y) * pw + x;
-        float v[3];
-        memcpy(v, src + px * 3, sizeof v);
-        if (base) hf_residual_apply(base + ((size_t)y * io->width + x) * 3, v);
-        else hf_output_finish(cfg, &view, x, y, v);
+        size_t px = (size_t)y * pw + x;
+        float v[HF_MAX_RAW_CHANNELS];
+        if (base && kernel) {
+          memcpy(v, base + ((size_t)y * io->width + x) * 3, 3 * sizeof(float));
+        } else {
+          memcpy(v, raw + px * raw_ch, raw_ch * sizeof(float));
+          if (base) hf_residual_apply(base + ((size_t)y * io->width + x) * 3, v);
+          else hf_output_finish(cfg, &view, x, y, v);
+        }
         size_t o = (((size_t)n * io->height + y) * io->width + x) * 3;
         if (io->out_dtype == HF_F32) {
-          memcpy((float *)io->out + o, v, sizeof v);
+          memcpy((float *)io->out + o, v, 3 * sizeof(float));
         } else {
           uint16_t *d = (uint16_t *)io->out + o;
           for (int c = 0; c < 3; c++) d[c] = hf_f32_to_f16(v[c]);

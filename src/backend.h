@@ -96,10 +96,10 @@ struct hf_model {
 /* Converts io->in to dense float32 NHWC, zero-padded to (pw, ph) per frame:
  * dst is [batch][ph][pw][cin]. */
 void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst);
-/* Finishes the raw network output src ([batch][ph][pw][3]) with
- * hf_output_finish (which reads the padded input in, [batch][ph][pw][cin],
- * for the residual architecture), crops to io->width x io->height and stores
- * in io->out's dtype. */
+/* Finishes the raw network output src ([batch][ph][pw][cfg->out_channels])
+ * with hf_output_finish's values (which read the padded input in,
+ * [batch][ph][pw][cin], for the residual and kernel architectures), crops
+ * to io->width x io->height and stores in io->out's dtype. */
 void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
                                int pw, int ph, const hf_io *io);
 /* Host memory hf_output_from_padded_f32 allocates for io's frames (the

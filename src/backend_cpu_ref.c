@@ -83,6 +83,17 @@ static void deconv4x4_s2(const float *in, int h, int w, int cin, const float *wt
       }
 }
 
+/* 1x1 convolution: in [n][cin] -> out [n][cout], weights [cout][cin]. */
+static void conv1x1(const float *in, size_t n, int cin, const float *wt, const float *bias,
+                    int cout, float *out) {
+  for (size_t p = 0; p < n; p++)
+    for (int o = 0; o < cout; o++) {
+      float acc = bias[o];
+      for (int i = 0; i < cin; i++) acc += in[p * cin + i] * wt[(size_t)o * cin + i];
+      out[p * cout + o] = acc;
+    }
+}
+
 /* Concatenates a [n][ca] and b [n][cb] along channels into out [n][ca+cb]. */
 static void concat(const float *a, int ca, const float *b, int cb, size_t n, float *out) {
   for (size_t p = 0; p < n; p++) {
@@ -96,6 +107,9 @@ static int forward(const hf_weights *w, const float *input, int pw, int ph, floa
   int L = c->num_levels, rc = HF_ENOMEM;
   float *enc[HF_MAX_LEVELS] = {0};
   float *cur = NULL, *cat = NULL;
+  /* With a head, dec0 writes its hidden channels (ReLU) and the head, a 1x1
+   * convolution over them and the input, writes the result. */
+  const int head = hf_head_in(c);
   for (int i = 0; i < L; i++) {
     size_t n = (size_t)(pw >> (i + 1)) * (ph >> (i + 1)) * hf_enc_out(c, i);
     if (!(enc[i] = malloc(n * sizeof(float) + 1))) goto out;
@@ -111,12 +125,20 @@ static int forward(const hf_weights *w, const float *input, int pw, int ph, floa
       concat(cur, c->levels[i], enc[i], c->levels[i], (size_t)h * wd, cat);
       din = cat;
     }
-    float *o = i ? malloc((size_t)(2 * h) * (2 * wd) * hf_dec_out(c, i) * sizeof(float)) : result;
+    float *o = i || head ? malloc((size_t)(2 * h) * (2 * wd) * hf_dec_out(c, i) * sizeof(float))
+                         : result;
     if (!o) goto out;
     deconv4x4_s2(din, h, wd, hf_dec_in(c, i), w->dec_w[i], w->dec_b[i], hf_dec_out(c, i),
-                 i != 0, o);
+                 i != 0 || head, o);
     free(cur);
-    cur = i ? o : NULL;
+    cur = o != result ? o : NULL;
+  }
+  if (head) {
+    size_t npx = (size_t)pw * ph;
+    free(cat);
+    if (!(cat = malloc(npx * head * sizeof(float)))) goto out;
+    concat(cur, c->kernel_hidden, input, c->in_channels, npx, cat);
+    conv1x1(cat, npx, head, w->head_w, w->head_b, c->out_channels, result);
   }
   rc = HF_OK;
 out:
@@ -131,7 +153,8 @@ static int ref_model_run(void *p, const hf_io *io, hf_timing *t) {
   const hf_net_config *c = &m->w->cfg;
   int a = hf_net_align(c);
   int pw = hf_round_up(io->width, a), ph = hf_round_up(io->height, a);
-  size_t in_frame = (size_t)pw * ph * c->in_channels, out_frame = (size_t)pw * ph * 3;
+  size_t in_frame = (size_t)pw * ph * c->in_channels;
+  size_t out_frame = (size_t)pw * ph * c->out_channels;
   double t0 = hf_now_us();
   float *in = malloc(in_frame * io->batch * sizeof(float));
   float *out = malloc(out_frame * io->batch * sizeof(float));
@@ -176,7 +199,7 @@ static size_t ref_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
 const hf_backend_ops hf_backend_cpu_ref = {
   .name = "cpu-ref",
   .priority = 10,
-  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL,
+  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL | 1u << HF_ARCH_KERNEL,
   .probe = ref_probe,
   .model_create = ref_model_create,
   .model_destroy = ref_model_destroy,

@@ -16,6 +16,13 @@
  *                       output c_{i-1} channels with ReLU, or 3 for dec0
  *                       with no ReLU but the output transforms.
  *
+ * The architectures beyond the paper change only the end: HF_ARCH_RESIDUAL
+ * adds dec0's 3 channels to an estimate read off the samples; HF_ARCH_KERNEL
+ * has dec0 output the kernel's taps + 3 channels, or kernel_hidden channels
+ * with ReLU followed by the 1x1 head over them and the network input, and
+ * reads the output off the samples of the pixels around each pixel with the
+ * kernel those channels give (hf_net_config).
+ *
  * Tensors in memory are NHWC, float32 unless a function says otherwise.
  * Input channels are sample-major: sample k's six features occupy channels
  * 6k..6k+5 in the order of HF_FEATURE_NAMES. Output channels are
@@ -70,22 +77,50 @@ enum { HF_OUT_COLOR = 0, HF_OUT_HIGHLIGHT = 1, HF_OUT_ALPHA = 2 };
  * transparency estimate read off the samples of a small window around the
  * pixel (hf_residual_base), so coverage and colour come from the samples and
  * the network learns the correction, not a prior (protocol/FEATURES.md,
- * "Residual architecture"). */
-typedef enum hf_arch { HF_ARCH_UNET = 0, HF_ARCH_RESIDUAL = 1 } hf_arch;
+ * "Residual architecture"). HF_ARCH_KERNEL (beyond the paper;
+ * protocol/FEATURES.md, "Kernel architecture") is the same U-Net whose raw
+ * output is, per pixel, the logits of a softmax kernel over the
+ * (2r+1)^2 pixels around it and three corrections: the result is the
+ * stochastic-transparency estimate of those pixels' samples weighted by the
+ * kernel, plus the corrections (hf_kernel_output_frame). */
+typedef enum hf_arch { HF_ARCH_UNET = 0, HF_ARCH_RESIDUAL = 1, HF_ARCH_KERNEL = 2 } hf_arch;
+
+#define HF_KERNEL_MAX_RADIUS 4  /* kernels of up to 9x9 pixels */
+#define HF_KERNEL_MAX_HIDDEN 64
+/* Most raw output channels of any network: the 9x9 kernel's taps + 3. */
+#define HF_MAX_RAW_CHANNELS  ((2 * HF_KERNEL_MAX_RADIUS + 1) * (2 * HF_KERNEL_MAX_RADIUS + 1) + HF_OUT_CHANNELS)
 
 typedef struct hf_net_config {
   char name[HF_NAME_MAX];
   int spp;                      /* samples per pixel, 1..HF_MAX_SPP */
   int in_channels;              /* spp * HF_FEATURES_PER_SAMPLE */
-  int out_channels;             /* HF_OUT_CHANNELS */
+  int out_channels;             /* raw output channels: HF_OUT_CHANNELS, or
+                                 * hf_kernel_taps(kernel_radius) + HF_OUT_CHANNELS
+                                 * for HF_ARCH_KERNEL */
   int num_levels;               /* L */
   int levels[HF_MAX_LEVELS];    /* c_0 .. c_{L-1} */
   int arch;                     /* hf_arch */
+  /* HF_ARCH_KERNEL only, 0 for the others (beyond the paper;
+   * protocol/FEATURES.md, "Kernel architecture"):
+   *   kernel_radius r, 1..HF_KERNEL_MAX_RADIUS: pixel (x, y)'s kernel covers
+   *     the pixels x-r..x+r, y-r..y+r (taps (2r+1)^2, row-major: tap
+   *     t = (dy+r)(2r+1) + dx+r is the pixel (x+dx, y+dy)); raw channels
+   *     0..taps-1 are its logits, taps..taps+2 the colour, highlight and
+   *     alpha corrections.
+   *   kernel_hidden h, 0..HF_KERNEL_MAX_HIDDEN: 0, dec0 outputs the
+   *     out_channels raw channels; h > 0, dec0 outputs h channels with ReLU
+   *     and a 1x1 convolution, the head (hf_weights.head_w, head_b), maps
+   *     concat(ReLU(dec0) (h channels), the network input (in_channels,
+   *     zero in the padding)) to the out_channels raw channels, so each
+   *     pixel's kernel also sees its own samples at full resolution. */
+  int kernel_radius;
+  int kernel_hidden;
 } hf_net_config;
 
 /* The seven variants of the paper's Table 1, by name ("Base", "Base@1spp",
- * "Base@2spp", "Large", "Small", "Shallow", "Deep"), and "Residual" (Base's
- * shape with HF_ARCH_RESIDUAL), case-insensitive. */
+ * "Base@2spp", "Large", "Small", "Shallow", "Deep"), "Residual" (Base's
+ * shape with HF_ARCH_RESIDUAL) and "Kernel" (Base's shape with
+ * HF_ARCH_KERNEL, kernel_radius 3, kernel_hidden 16), case-insensitive. */
 int hf_variant_preset(const char *name, hf_net_config *out);
 /* Number of presets and the i-th preset's name, for listings. */
 int hf_variant_preset_count(void);
@@ -100,7 +135,14 @@ int hf_enc_in(const hf_net_config *cfg, int i);
 int hf_enc_out(const hf_net_config *cfg, int i);
 int hf_dec_in(const hf_net_config *cfg, int i);
 int hf_dec_out(const hf_net_config *cfg, int i);
-/* Multiply-accumulates of one forward pass at w x h (after padding). */
+/* Taps of a kernel of half side radius: (2 radius + 1)^2. */
+int hf_kernel_taps(int radius);
+/* Input channels of the head, kernel_hidden + in_channels; 0 for a network
+ * without one (every architecture but HF_ARCH_KERNEL with kernel_hidden > 0). */
+int hf_head_in(const hf_net_config *cfg);
+/* Multiply-accumulates of one forward pass at w x h (after padding): the
+ * convolutions, the head, and for HF_ARCH_KERNEL 4 per tap and pixel in the
+ * output stage (the weight's normalisation and its three weighted sums). */
 double hf_net_macs(const hf_net_config *cfg, int w, int h);
 
 /* ---- input statistics: types (functions below) -------------------------- */
@@ -143,12 +185,15 @@ typedef struct hf_input_range {
 /* Host-side float32 weights in PyTorch layouts:
  *   enc_w[i]: [out][in][3][3]   (Conv2d)
  *   dec_w[i]: [in][out][4][4]   (ConvTranspose2d)
- *   enc_b[i], dec_b[i]: [out]                                           */
+ *   enc_b[i], dec_b[i]: [out]
+ *   head_w: [out_channels][kernel_hidden + in_channels][1][1] (Conv2d),
+ *   head_b: [out_channels]; NULL without a head (hf_head_in() == 0)     */
 typedef struct hf_weights {
   hf_net_config cfg;
   char features[HF_FEATURES_PER_SAMPLE][32];
   float *enc_w[HF_MAX_LEVELS], *enc_b[HF_MAX_LEVELS];
   float *dec_w[HF_MAX_LEVELS], *dec_b[HF_MAX_LEVELS];
+  float *head_w, *head_b;
   size_t num_params;
   hf_input_range input_range;   /* from the metadata; .present 0 without one */
   void *storage;                /* one allocation behind every array */
@@ -331,7 +376,8 @@ void hf_model_trim(hf_model *m, size_t keep);
 
 /* The paper's output transforms on one raw network output triple. */
 void hf_output_transform(float *rgb3);
-/* Name of an architecture ("unet", "residual"), and back (HF_ENOTFOUND). */
+/* Name of an architecture ("unet", "residual", "kernel"), and back
+ * (HF_ENOTFOUND). */
 const char *hf_arch_name(int arch);
 int hf_arch_from_name(const char *name);
 /* The stochastic-transparency estimate of one pixel from its spp*6 input
@@ -370,10 +416,41 @@ int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float 
 /* Adds a residual base to the raw output v in place, with the clamps of the
  * Residual architecture. */
 void hf_residual_apply(const float base[3], float *v);
-/* Final output of pixel (x, y) from its raw network output v, in place: the
- * output transforms for HF_ARCH_UNET, base + residual for HF_ARCH_RESIDUAL
- * (in is read only then and may be NULL otherwise). */
+/* Final output of pixel (x, y) from its raw network output v (the
+ * cfg->out_channels values of the pixel), in place in v[0..2]: the output
+ * transforms for HF_ARCH_UNET, base + residual for HF_ARCH_RESIDUAL, the
+ * kernel's estimate plus the corrections for HF_ARCH_KERNEL (the latter two
+ * read in, which may be NULL for HF_ARCH_UNET). Per pixel, for tests and
+ * fallbacks; hf_residual_base_frame and hf_kernel_output_frame do frames. */
 void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, int y, float *v);
+
+/* Per-pixel sums of rows y0..y1-1 of the frame into those rows of sums
+ * ([height][width][3] for the whole frame): the number of covered samples
+ * (alpha > 0), the sum of their colour and the sum of their highlight, the
+ * stochastic-transparency estimate before its division. */
+void hf_pixel_sums_rows(const hf_input_view *in, int spp, int y0, int y1, float *sums);
+/* The output stage of HF_ARCH_KERNEL (beyond the paper; protocol/FEATURES.md,
+ * "Kernel architecture"; weights/hfnet.py kernel_finish is its twin) for a
+ * frame of in->width x in->height pixels. raw holds the network's raw output
+ * for the frame: pixel (x, y)'s hf_kernel_taps(radius) + 3 channels at
+ * raw + (y * raw_pitch + x) * raw_stride. For each pixel, w_t is the softmax
+ * of its logits over the taps inside the frame (taps outside are left out;
+ * the frame is cut, never padded) and (N, C, H) = sum_t w_t (n, C, H) of the
+ * tap's pixel (hf_pixel_sums_rows); then
+ *   colour    = C / N (1 when N <= 1e-12) + c0,
+ *   highlight = max(0, H / N (0 when N <= 1e-12) + c1),
+ *   alpha     = min(1, max(0, N / spp + c2))
+ * with c the three raw channels after the logits. out: [height][width][3];
+ * sums: scratch of the same size. HF_EINVAL for an empty frame or a radius
+ * outside 0..HF_KERNEL_MAX_RADIUS. */
+int hf_kernel_output_frame(const hf_input_view *in, int spp, int radius, const float *raw,
+                           int raw_pitch, int raw_stride, float *out, float *sums);
+/* The same on rows y0..y1-1 of a width x height frame, from sums already
+ * made for rows y0 - radius .. y1 - 1 + radius (those inside the frame), for
+ * backends that split the frame over threads; radius as above (unchecked). */
+void hf_kernel_output_rows(int width, int height, int spp, int radius, const float *sums,
+                           const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
+                           float *out);
 
 /* ---- input statistics --------------------------------------------------- */
 

@@ -1,5 +1,6 @@
 /* Network variants (the paper's Table 1) and the channel arithmetic every
  * backend shares. */
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 #include <strings.h>
@@ -17,16 +18,21 @@ static const struct {
   int num_levels;
   int levels[HF_MAX_LEVELS];
   int arch;
+  int kernel_radius, kernel_hidden;
 } presets[] = {
-  {"Base",      4, 3, {32, 64, 128}, HF_ARCH_UNET},
-  {"Base@1spp", 1, 3, {32, 64, 128}, HF_ARCH_UNET},
-  {"Base@2spp", 2, 3, {32, 64, 128}, HF_ARCH_UNET},
-  {"Large",     4, 3, {64, 128, 256}, HF_ARCH_UNET},
-  {"Small",     4, 3, {16, 32, 64}, HF_ARCH_UNET},
-  {"Shallow",   4, 2, {32, 64}, HF_ARCH_UNET},
-  {"Deep",      4, 4, {32, 64, 128, 256}, HF_ARCH_UNET},
+  {"Base",      4, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0},
+  {"Base@1spp", 1, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0},
+  {"Base@2spp", 2, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0},
+  {"Large",     4, 3, {64, 128, 256}, HF_ARCH_UNET, 0, 0},
+  {"Small",     4, 3, {16, 32, 64}, HF_ARCH_UNET, 0, 0},
+  {"Shallow",   4, 2, {32, 64}, HF_ARCH_UNET, 0, 0},
+  {"Deep",      4, 4, {32, 64, 128, 256}, HF_ARCH_UNET, 0, 0},
   /* Beyond the paper: Base's cost, residual on the samples' own estimate. */
-  {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL},
+  {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL, 0, 0},
+  /* Beyond the paper: Base's U-Net, the output read off the samples of the
+   * 7x7 pixels around each pixel with a learned kernel; a 16-channel dec0
+   * and the head over it and the input. */
+  {"Kernel",    4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 16},
 };
 #define NPRESETS ((int)(sizeof presets / sizeof presets[0]))
 
@@ -48,6 +54,9 @@ int hf_variant_preset(const char *name, hf_net_config *out) {
     out->num_levels = presets[i].num_levels;
     memcpy(out->levels, presets[i].levels, sizeof out->levels);
     out->arch = presets[i].arch;
+    out->kernel_radius = presets[i].kernel_radius;
+    out->kernel_hidden = presets[i].kernel_hidden;
+    if (out->arch == HF_ARCH_KERNEL) out->out_channels += hf_kernel_taps(out->kernel_radius);
     return HF_OK;
   }
   return HF_ENOTFOUND;
@@ -57,12 +66,21 @@ int hf_net_config_validate(const hf_net_config *cfg) {
   if (!cfg) return HF_EINVAL;
   if (cfg->spp < 1 || cfg->spp > HF_MAX_SPP) return HF_ERANGE;
   if (cfg->in_channels != cfg->spp * HF_FEATURES_PER_SAMPLE) return HF_EFORMAT;
-  if (cfg->out_channels != HF_OUT_CHANNELS) return HF_EFORMAT;
   if (cfg->num_levels < 1 || cfg->num_levels > HF_MAX_LEVELS) return HF_ERANGE;
   for (int i = 0; i < cfg->num_levels; i++)
     if (cfg->levels[i] < 1 || cfg->levels[i] > HF_MAX_CHANNELS) return HF_ERANGE;
   if (memchr(cfg->name, 0, sizeof cfg->name) == NULL) return HF_EFORMAT;
-  if (cfg->arch != HF_ARCH_UNET && cfg->arch != HF_ARCH_RESIDUAL) return HF_EUNSUPPORTED;
+  if (cfg->arch != HF_ARCH_UNET && cfg->arch != HF_ARCH_RESIDUAL && cfg->arch != HF_ARCH_KERNEL)
+    return HF_EUNSUPPORTED;
+  if (cfg->arch != HF_ARCH_KERNEL) {
+    /* The kernel's fields describe nothing here: set, they are a mistake. */
+    if (cfg->kernel_radius || cfg->kernel_hidden) return HF_EFORMAT;
+    return cfg->out_channels == HF_OUT_CHANNELS ? HF_OK : HF_EFORMAT;
+  }
+  if (cfg->kernel_radius < 1 || cfg->kernel_radius > HF_KERNEL_MAX_RADIUS) return HF_ERANGE;
+  if (cfg->kernel_hidden < 0 || cfg->kernel_hidden > HF_KERNEL_MAX_HIDDEN) return HF_ERANGE;
+  if (cfg->out_channels != hf_kernel_taps(cfg->kernel_radius) + HF_OUT_CHANNELS)
+    return HF_EFORMAT;
   return HF_OK;
 }
 
@@ -81,7 +99,15 @@ int hf_dec_in(const hf_net_config *cfg, int i) {
 }
 
 int hf_dec_out(const hf_net_config *cfg, int i) {
-  return i == 0 ? cfg->out_channels : cfg->levels[i - 1];
+  if (i > 0) return cfg->levels[i - 1];
+  return hf_head_in(cfg) ? cfg->kernel_hidden : cfg->out_channels;
+}
+
+int hf_kernel_taps(int radius) { return (2 * radius + 1) * (2 * radius + 1); }
+
+int hf_head_in(const hf_net_config *cfg) {
+  return cfg->arch == HF_ARCH_KERNEL && cfg->kernel_hidden > 0
+             ? cfg->kernel_hidden + cfg->in_channels : 0;
 }
 
 double hf_net_macs(const hf_net_config *cfg, int w, int h) {
@@ -94,6 +120,9 @@ double hf_net_macs(const hf_net_config *cfg, int w, int h) {
      * 4x4xout, i.e. 4 taps per output pixel at high res */
     macs += lo * 16.0 * hf_dec_in(cfg, i) * hf_dec_out(cfg, i);
   }
+  double px = (double)w * h;
+  macs += px * hf_head_in(cfg) * (hf_head_in(cfg) ? cfg->out_channels : 0);
+  if (cfg->arch == HF_ARCH_KERNEL) macs += px * 4.0 * hf_kernel_taps(cfg->kernel_radius);
   return macs;
 }
 
@@ -106,12 +135,16 @@ void hf_output_transform(float *v) {
 }
 
 const char *hf_arch_name(int arch) {
-  return arch == HF_ARCH_UNET ? "unet" : arch == HF_ARCH_RESIDUAL ? "residual" : "unknown";
+  return arch == HF_ARCH_UNET       ? "unet"
+         : arch == HF_ARCH_RESIDUAL ? "residual"
+         : arch == HF_ARCH_KERNEL   ? "kernel"
+                                    : "unknown";
 }
 
 int hf_arch_from_name(const char *name) {
   if (name && !strcmp(name, "unet")) return HF_ARCH_UNET;
   if (name && !strcmp(name, "residual")) return HF_ARCH_RESIDUAL;
+  if (name && !strcmp(name, "kernel")) return HF_ARCH_KERNEL;
   return HF_ENOTFOUND;
 }
 
@@ -157,13 +190,9 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
   base[HF_OUT_ALPHA] = n / (float)samples;
 }
 
-int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
-                             float *tmp) {
-  const int w = in->width, h = in->height, r = radius;
-  if (w < 1 || h < 1 || spp < 1 || r < 0) return HF_EINVAL;
-  /* Per-pixel sums (covered count, colour, highlight) into base... */
-  for (int y = 0; y < h; y++)
-    for (int x = 0; x < w; x++) {
+void hf_pixel_sums_rows(const hf_input_view *in, int spp, int y0, int y1, float *sums) {
+  for (int y = y0; y < y1; y++)
+    for (int x = 0; x < in->width; x++) {
       const float *s = in->data + ((size_t)y * in->pitch + x) * in->stride;
       float n = 0, col = 0, hl = 0;
       for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
@@ -172,9 +201,17 @@ int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float
           col += s[0];
           hl += s[1];
         }
-      float *o = base + ((size_t)y * w + x) * 3;
+      float *o = sums + ((size_t)y * in->width + x) * 3;
       o[0] = n, o[1] = col, o[2] = hl;
     }
+}
+
+int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
+                             float *tmp) {
+  const int w = in->width, h = in->height, r = radius;
+  if (w < 1 || h < 1 || spp < 1 || r < 0) return HF_EINVAL;
+  /* Per-pixel sums (covered count, colour, highlight) into base... */
+  hf_pixel_sums_rows(in, spp, 0, h, base);
   /* ...summed along rows into tmp, then along columns back into base: the
    * window sums with 2 (2r+1) additions per pixel instead of (2r+1)^2. */
   for (int y = 0; y < h; y++)
@@ -215,7 +252,89 @@ void hf_residual_apply(const float base[3], float *v) {
   v[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
 }
 
+/* The Kernel architecture's output of one pixel. raw: its taps + 3 raw
+ * channels; sums: the per-pixel sums of the pixel itself, pitch floats per
+ * row, 3 per pixel; the taps inside the frame are dy in dy0..dy1, dx in
+ * dx0..dx1 (-r..r cut to the frame). Follows weights/hfnet.py
+ * kernel_weights and kernel_finish step by step: the softmax's weights
+ * e_t / den, then the weighted sums in tap order. */
+static void kernel_pixel(const float *raw, int spp, int r, const float *sums, ptrdiff_t pitch,
+                         int dy0, int dy1, int dx0, int dx1, float out[3]) {
+  const int side = 2 * r + 1, taps = side * side;
+  /* The maximum over the taps inside the frame keeps every exponent <= 0
+   * and the largest 1, so den >= 1: no overflow, no division by 0. */
+  float m = -INFINITY;
+  for (int dy = dy0; dy <= dy1; dy++)
+    for (int dx = dx0; dx <= dx1; dx++) m = fmaxf(m, raw[(dy + r) * side + dx + r]);
+  float e[HF_MAX_RAW_CHANNELS], den = 0;
+  for (int dy = dy0; dy <= dy1; dy++)
+    for (int dx = dx0; dx <= dx1; dx++) {
+      int t = (dy + r) * side + dx + r;
+      e[t] = expf(raw[t] - m);
+      den += e[t];
+    }
+  float n = 0, col = 0, hl = 0;
+  for (int dy = dy0; dy <= dy1; dy++)
+    for (int dx = dx0; dx <= dx1; dx++) {
+      float wt = e[(dy + r) * side + dx + r] / den;
+      const float *q = sums + dy * pitch + dx * 3;
+      n += wt * q[0];
+      col += wt * q[1];
+      hl += wt * q[2];
+    }
+  const float *c = raw + taps;
+  int ok = n > 1e-12f;
+  float h = (ok ? hl / n : 0.0f) + c[1], a = n / (float)spp + c[2];
+  out[HF_OUT_COLOR] = (ok ? col / n : 1.0f) + c[0];
+  out[HF_OUT_HIGHLIGHT] = h > 0.0f ? h : 0.0f;
+  out[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
+}
+
+void hf_kernel_output_rows(int width, int height, int spp, int radius, const float *sums,
+                           const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
+                           float *out) {
+  const int r = radius;
+  const ptrdiff_t pitch = (ptrdiff_t)width * 3;
+  for (int y = y0; y < y1; y++) {
+    int dy0 = y - r < 0 ? -y : -r, dy1 = y + r >= height ? height - 1 - y : r;
+    for (int x = 0; x < width; x++) {
+      int dx0 = x - r < 0 ? -x : -r, dx1 = x + r >= width ? width - 1 - x : r;
+      kernel_pixel(raw + ((size_t)y * raw_pitch + x) * raw_stride, spp, r,
+                   sums + (size_t)y * pitch + (size_t)x * 3, pitch, dy0, dy1, dx0, dx1,
+                   out + ((size_t)y * width + x) * 3);
+    }
+  }
+}
+
+int hf_kernel_output_frame(const hf_input_view *in, int spp, int radius, const float *raw,
+                           int raw_pitch, int raw_stride, float *out, float *sums) {
+  if (in->width < 1 || in->height < 1 || spp < 1 || radius < 0 ||
+      radius > HF_KERNEL_MAX_RADIUS)
+    return HF_EINVAL;
+  hf_pixel_sums_rows(in, spp, 0, in->height, sums);
+  hf_kernel_output_rows(in->width, in->height, spp, radius, sums, raw, raw_pitch, raw_stride, 0,
+                        in->height, out);
+  return HF_OK;
+}
+
 void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, int y, float *v) {
+  if (cfg->arch == HF_ARCH_KERNEL) {
+    /* The sums of the (2r+1)^2 pixels around (x, y) alone, in a window of
+     * the same geometry as a frame's. */
+    const int r = cfg->kernel_radius, side = 2 * r + 1;
+    float sums[(2 * HF_KERNEL_MAX_RADIUS + 1) * (2 * HF_KERNEL_MAX_RADIUS + 1) * 3];
+    int dy0 = y - r < 0 ? -y : -r, dy1 = y + r >= in->height ? in->height - 1 - y : r;
+    int dx0 = x - r < 0 ? -x : -r, dx1 = x + r >= in->width ? in->width - 1 - x : r;
+    for (int dy = dy0; dy <= dy1; dy++) {
+      hf_input_view row = {in->data + ((size_t)(y + dy) * in->pitch + x + dx0) * in->stride,
+                           dx1 - dx0 + 1, 1, in->pitch, in->stride};
+      hf_pixel_sums_rows(&row, cfg->spp, 0, 1, sums + ((dy + r) * side + dx0 + r) * 3);
+    }
+    float o[3];
+    kernel_pixel(v, cfg->spp, r, sums + (r * side + r) * 3, side * 3, dy0, dy1, dx0, dx1, o);
+    memcpy(v, o, sizeof o);
+    return;
+  }
   if (cfg->arch != HF_ARCH_RESIDUAL) {
     hf_output_transform(v);
     return;

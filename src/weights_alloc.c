@@ -22,6 +22,13 @@ int hf_weights_specs(hf_weights *w, hf_tensor_spec *s) {
     s[n] = (hf_tensor_spec){.ndim = 1, .shape = {dout}, .slot = &w->dec_b[i]};
     snprintf(s[n++].name, sizeof s[0].name, "dec%d.bias", i);
   }
+  if (hf_head_in(c)) {
+    s[n] = (hf_tensor_spec){.ndim = 4, .shape = {c->out_channels, hf_head_in(c), 1, 1},
+                            .slot = &w->head_w};
+    snprintf(s[n++].name, sizeof s[0].name, "head.weight");
+    s[n] = (hf_tensor_spec){.ndim = 1, .shape = {c->out_channels}, .slot = &w->head_b};
+    snprintf(s[n++].name, sizeof s[0].name, "head.bias");
+  }
   for (int k = 0; k < n; k++) {
     s[k].numel = 1;
     for (int d = 0; d < s[k].ndim; d++) s[k].numel *= (size_t)s[k].shape[d];
@@ -95,6 +102,12 @@ int hf_weights_init_random(const hf_net_config *cfg, uint64_t seed, hf_weights *
     float bd = 1.0f / sqrtf((float)(dout * 16));
     for (size_t k = 0; k < (size_t)di * dout * 16; k++) w->dec_w[i][k] = uniform(&s, bd);
     for (int k = 0; k < dout; k++) w->dec_b[i][k] = uniform(&s, bd);
+  }
+  if (hf_head_in(cfg)) {
+    int hi = hf_head_in(cfg), ho = cfg->out_channels;
+    float bh = 1.0f / sqrtf((float)hi);
+    for (size_t k = 0; k < (size_t)ho * hi; k++) w->head_w[k] = uniform(&s, bh);
+    for (int k = 0; k < ho; k++) w->head_b[k] = uniform(&s, bh);
   }
   return HF_OK;
 }

@@ -68,14 +68,14 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
   if (arch) {
     int a = cJSON_IsString(arch) ? hf_arch_from_name(arch->valuestring) : HF_ENOTFOUND;
     if (a < 0) {
-      rc = fail(err, errlen, HF_EUNSUPPORTED, "metadata: unsupported 'arch' (want unet or residual)");
+      rc = fail(err, errlen, HF_EUNSUPPORTED, "metadata: unsupported 'arch' (want unet, residual or kernel)");
       goto out;
     }
     c->arch = a;
   }
   if (json_int(m, "spp", 1, HF_MAX_SPP, &c->spp) ||
       json_int(m, "in_channels", 1, HF_MAX_SPP * HF_FEATURES_PER_SAMPLE, &c->in_channels) ||
-      json_int(m, "out_channels", 1, 64, &c->out_channels)) {
+      json_int(m, "out_channels", 1, HF_MAX_RAW_CHANNELS, &c->out_channels)) {
     rc = fail(err, errlen, HF_EFORMAT,
               "metadata: 'spp', 'in_channels' or 'out_channels' missing or out of range");
     goto out;
@@ -85,7 +85,35 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
               c->in_channels, c->spp, HF_FEATURES_PER_SAMPLE);
     goto out;
   }
-  if (c->out_channels != HF_OUT_CHANNELS) {
+  const cJSON *radius = cJSON_GetObjectItemCaseSensitive(m, "kernel_radius");
+  const cJSON *hidden = cJSON_GetObjectItemCaseSensitive(m, "kernel_hidden");
+  if (c->arch != HF_ARCH_KERNEL && (radius || hidden)) {
+    rc = fail(err, errlen, HF_EFORMAT,
+              "metadata: 'kernel_radius' and 'kernel_hidden' are for arch kernel only, not %s",
+              hf_arch_name(c->arch));
+    goto out;
+  }
+  if (c->arch == HF_ARCH_KERNEL) {
+    if (json_int(m, "kernel_radius", 1, HF_KERNEL_MAX_RADIUS, &c->kernel_radius)) {
+      rc = fail(err, errlen, HF_EFORMAT,
+                "metadata: 'kernel_radius' missing or not an integer in 1..%d (arch kernel)",
+                HF_KERNEL_MAX_RADIUS);
+      goto out;
+    }
+    /* Optional, as in weights/hfnet.py: 0, no head. */
+    if (hidden && json_int(m, "kernel_hidden", 0, HF_KERNEL_MAX_HIDDEN, &c->kernel_hidden)) {
+      rc = fail(err, errlen, HF_EFORMAT, "metadata: 'kernel_hidden' is not an integer in 0..%d",
+                HF_KERNEL_MAX_HIDDEN);
+      goto out;
+    }
+    int want = hf_kernel_taps(c->kernel_radius) + HF_OUT_CHANNELS;
+    if (c->out_channels != want) {
+      rc = fail(err, errlen, HF_EFORMAT,
+                "metadata: out_channels must be %d (kernel_radius %d: %d taps + %d)", want,
+                c->kernel_radius, hf_kernel_taps(c->kernel_radius), HF_OUT_CHANNELS);
+      goto out;
+    }
+  } else if (c->out_channels != HF_OUT_CHANNELS) {
     rc = fail(err, errlen, HF_EFORMAT, "metadata: out_channels must be %d", HF_OUT_CHANNELS);
     goto out;
   }

@@ -18,6 +18,10 @@ static char *metadata_json(const hf_weights *w) {
   cJSON_AddNumberToObject(m, "in_channels", c->in_channels);
   cJSON_AddItemToObject(m, "levels", cJSON_CreateIntArray(c->levels, c->num_levels));
   cJSON_AddNumberToObject(m, "out_channels", c->out_channels);
+  if (c->arch == HF_ARCH_KERNEL) {
+    cJSON_AddNumberToObject(m, "kernel_radius", c->kernel_radius);
+    cJSON_AddNumberToObject(m, "kernel_hidden", c->kernel_hidden);
+  }
   cJSON_AddItemToObject(m, "features",
                         cJSON_CreateStringArray(HF_FEATURE_NAMES, HF_FEATURES_PER_SAMPLE));
   char *s = cJSON_PrintUnformatted(m);

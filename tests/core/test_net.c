@@ -16,7 +16,7 @@ static void test_table1_presets(void **state) {
     {"Base@2spp", 2, 3, {32, 64, 128}}, {"Large", 4, 3, {64, 128, 256}},
     {"Small", 4, 3, {16, 32, 64}},     {"Shallow", 4, 2, {32, 64}},
     {"Deep", 4, 4, {32, 64, 128, 256}}};
-  assert_int_equal(hf_variant_preset_count(), 8); /* Table 1 + Residual */
+  assert_int_equal(hf_variant_preset_count(), 9); /* Table 1 + Residual + Kernel */
   for (size_t k = 0; k < sizeof want / sizeof want[0]; k++) {
     hf_net_config c;
     assert_int_equal(hf_variant_preset(want[k].name, &c), HF_OK);
@@ -36,6 +36,20 @@ static void test_table1_presets(void **state) {
   assert_int_equal(c.arch, HF_ARCH_RESIDUAL);
   assert_int_equal(c.spp, 4);
   assert_int_equal(c.levels[2], 128);
+  assert_int_equal(c.kernel_radius, 0);
+  assert_int_equal(hf_variant_preset("kernel", &c), HF_OK);
+  assert_string_equal(c.name, "Kernel");
+  assert_int_equal(c.arch, HF_ARCH_KERNEL);
+  assert_int_equal(c.spp, 4);
+  assert_int_equal(c.num_levels, 3);
+  assert_int_equal(c.levels[0], 32);
+  assert_int_equal(c.kernel_radius, 3);
+  assert_int_equal(c.kernel_hidden, 16);
+  assert_int_equal(c.out_channels, 49 + 3);
+  assert_int_equal(hf_net_config_validate(&c), HF_OK);
+  assert_string_equal(hf_arch_name(HF_ARCH_KERNEL), "kernel");
+  assert_int_equal(hf_arch_from_name("kernel"), HF_ARCH_KERNEL);
+  assert_int_equal(hf_arch_from_name("Kernel"), HF_ENOTFOUND);
 }
 
 /* The per-pixel estimate, and the residual base: the same estimate over the
@@ -134,6 +148,106 @@ static void test_residual_base(void **state) {
   assert_float_equal(u[HF_OUT_COLOR], 1.0f, 1e-6);
 }
 
+/* The Kernel architecture's output stage on frames whose result is known in
+ * closed form: equal logits give the box mean of the samples cut to the
+ * frame (the pooled estimate), one dominant logit gives that neighbour's own
+ * estimate, and taps outside the frame never count, whatever their logits. */
+static void test_kernel_output(void **state) {
+  enum { FW = 9, FH = 7, PITCH = 11, SPP = 4, STRIDE = SPP * 6, R = 2, TAPS = 25 };
+  enum { RAW = TAPS + 3, RAW_STRIDE = RAW + 1 }; /* one unread channel per pixel */
+  static float buf[FH * PITCH * STRIDE], raw[FH * PITCH * RAW_STRIDE];
+  static float out[FH * FW * 3], sums[FH * FW * 3], want[FH * FW * 3], tmp[FH * FW * 3];
+  /* Random samples, 40% uncovered (all zeros); the three left columns
+   * empty, so that pixel column 0 sees no covered sample within 2 pixels;
+   * the padding columns x >= FW covered and bright, never to be read. */
+  srand(17);
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < PITCH; x++)
+      for (int k = 0; k < SPP; k++) {
+        float *sm = buf + ((size_t)y * PITCH + x) * STRIDE + 6 * k;
+        int covered = x >= FW || (x >= 3 && rand() % 5 >= 2);
+        for (int f = 0; f < 6; f++) sm[f] = covered ? (float)rand() / RAND_MAX : 0.0f;
+        if (covered) sm[2] = 0.05f + sm[2] * 0.95f;
+        if (x >= FW) sm[0] = 100.0f;
+      }
+  hf_input_view v = {buf, FW, FH, PITCH, STRIDE};
+  hf_net_config c;
+  assert_int_equal(hf_variant_preset("Kernel", &c), HF_OK);
+  c.kernel_radius = R, c.kernel_hidden = 0, c.out_channels = RAW;
+  assert_int_equal(hf_net_config_validate(&c), HF_OK);
+
+  /* Equal logits (a different constant per pixel), no corrections: the box
+   * mean over the window cut to the frame. */
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < PITCH; x++)
+      for (int t = 0; t < RAW_STRIDE; t++)
+        raw[((size_t)y * PITCH + x) * RAW_STRIDE + t] =
+            t < TAPS ? 0.5f * (float)(x + 3 * y) : t == RAW ? NAN : 0.0f;
+  assert_int_equal(hf_kernel_output_frame(&v, SPP, R, raw, PITCH, RAW_STRIDE, out, sums), HF_OK);
+  assert_int_equal(hf_pooled_estimate_frame(&v, SPP, R, want, tmp), HF_OK);
+  for (int i = 0; i < FH * FW * 3; i++)
+    assert_float_equal(out[i], want[i], 2e-6f * (1 + fabsf(want[i])));
+  /* Column 0 sees only empty samples: colour 1, highlight 0, alpha 0. */
+  for (int y = 0; y < FH; y++) {
+    assert_float_equal(out[(y * FW) * 3 + HF_OUT_COLOR], 1.0f, 0);
+    assert_float_equal(out[(y * FW) * 3 + HF_OUT_HIGHLIGHT], 0.0f, 0);
+    assert_float_equal(out[(y * FW) * 3 + HF_OUT_ALPHA], 0.0f, 0);
+  }
+  /* The bottom-right corner by hand: its window cut to 3x3 pixels. */
+  float n = 0, col = 0, hl = 0;
+  for (int y = FH - 3; y < FH; y++)
+    for (int x = FW - 3; x < FW; x++)
+      for (int k = 0; k < SPP; k++) {
+        const float *sm = buf + ((size_t)y * PITCH + x) * STRIDE + 6 * k;
+        if (sm[2] > 0) n++, col += sm[0], hl += sm[1];
+      }
+  const float *o = out + ((FH - 1) * FW + FW - 1) * 3;
+  assert_true(n > 0);
+  assert_float_equal(o[HF_OUT_ALPHA], n / (9 * SPP), 1e-6f);
+  assert_float_equal(o[HF_OUT_COLOR], col / n, 1e-5f);
+  assert_float_equal(o[HF_OUT_HIGHLIGHT], hl / n, 1e-5f);
+
+  /* One dominant logit, tap (dx, dy) = (2, -1), of 200 (exp(200) overflows
+   * a float: the softmax must subtract the maximum); the taps outside the
+   * frame get 1e30, and must still count for nothing. Corrections 0.25 on
+   * colour, -5 on highlight (clamped to 0) and 0.5 on alpha (clamped to 1). */
+  const int DX = 2, DY = -1, TD = (DY + R) * (2 * R + 1) + DX + R;
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < FW; x++) {
+      float *rp = raw + ((size_t)y * PITCH + x) * RAW_STRIDE;
+      for (int t = 0; t < TAPS; t++) {
+        int dx = t % (2 * R + 1) - R, dy = t / (2 * R + 1) - R;
+        int inside = x + dx >= 0 && x + dx < FW && y + dy >= 0 && y + dy < FH;
+        rp[t] = !inside ? 1e30f : t == TD ? 200.0f : 0.0f;
+      }
+      rp[TAPS] = 0.25f, rp[TAPS + 1] = -5.0f, rp[TAPS + 2] = 0.5f;
+    }
+  assert_int_equal(hf_kernel_output_frame(&v, SPP, R, raw, PITCH, RAW_STRIDE, out, sums), HF_OK);
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < FW; x++) {
+      float e[3];
+      const float *got = out + (y * FW + x) * 3;
+      if (x + DX < FW && y + DY >= 0)
+        hf_st_estimate(buf + ((size_t)(y + DY) * PITCH + x + DX) * STRIDE, SPP, e);
+      else /* the dominant tap is outside: equal weights on the others */
+        memcpy(e, want + (y * FW + x) * 3, sizeof e);
+      assert_float_equal(got[HF_OUT_COLOR], e[HF_OUT_COLOR] + 0.25f, 1e-5f);
+      assert_float_equal(got[HF_OUT_HIGHLIGHT], 0.0f, 0);
+      float a = e[HF_OUT_ALPHA] + 0.5f;
+      assert_float_equal(got[HF_OUT_ALPHA], a > 1 ? 1.0f : a, 1e-6f);
+      /* Pixel by pixel (hf_output_finish) gives the same bits. */
+      float px[RAW];
+      memcpy(px, raw + ((size_t)y * PITCH + x) * RAW_STRIDE, sizeof px);
+      hf_output_finish(&c, &v, x, y, px);
+      assert_memory_equal(px, got, 3 * sizeof(float));
+    }
+  hf_input_view empty = {buf, 0, FH, PITCH, STRIDE};
+  assert_int_equal(hf_kernel_output_frame(&empty, SPP, R, raw, PITCH, RAW_STRIDE, out, sums),
+                   HF_EINVAL);
+  assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_KERNEL_MAX_RADIUS + 1, raw, PITCH,
+                                          RAW_STRIDE, out, sums), HF_EINVAL);
+}
+
 static void test_wiring(void **state) {
   hf_net_config c;
   hf_variant_preset("Base", &c);
@@ -153,6 +267,23 @@ static void test_wiring(void **state) {
   double want = 16.0 * 9 * 24 * 32 + 4.0 * 9 * 32 * 64 + 9.0 * 64 * 128 + 16.0 * 16 * 64 * 3 +
                 4.0 * 16 * 128 * 32 + 16.0 * 128 * 64;
   assert_true(fabs(hf_net_macs(&c, 8, 8) - want) < 1e-6);
+  /* Kernel: dec0 gives 16 hidden channels, the head 16 + 24 -> 49 + 3, and
+   * the output stage 4 per tap and pixel. */
+  hf_variant_preset("Kernel", &c);
+  assert_int_equal(hf_dec_in(&c, 0), 64);
+  assert_int_equal(hf_dec_out(&c, 0), 16);
+  assert_int_equal(hf_dec_out(&c, 1), 32);
+  assert_int_equal(hf_head_in(&c), 40);
+  assert_int_equal(hf_kernel_taps(c.kernel_radius), 49);
+  want += 16.0 * 16 * 64 * (16 - 3) + 64.0 * 40 * 52 + 64.0 * 4 * 49;
+  assert_true(fabs(hf_net_macs(&c, 8, 8) - want) < 1e-6);
+  /* Without a head dec0 gives the raw channels itself. */
+  c.kernel_radius = 2, c.kernel_hidden = 0, c.out_channels = 25 + 3;
+  assert_int_equal(hf_net_config_validate(&c), HF_OK);
+  assert_int_equal(hf_dec_out(&c, 0), 28);
+  assert_int_equal(hf_head_in(&c), 0);
+  hf_variant_preset("Residual", &c);
+  assert_int_equal(hf_head_in(&c), 0);
 }
 
 static void test_validate_rejects(void **state) {
@@ -179,6 +310,26 @@ static void test_validate_rejects(void **state) {
   bad = c;
   bad.arch = 9;
   assert_int_equal(hf_net_config_validate(&bad), HF_EUNSUPPORTED);
+  bad = c;
+  bad.kernel_radius = 3; /* only for the kernel architecture */
+  assert_int_equal(hf_net_config_validate(&bad), HF_EFORMAT);
+  hf_variant_preset("Kernel", &c);
+  bad = c;
+  bad.kernel_radius = 0;
+  assert_int_equal(hf_net_config_validate(&bad), HF_ERANGE);
+  bad.kernel_radius = HF_KERNEL_MAX_RADIUS + 1;
+  assert_int_equal(hf_net_config_validate(&bad), HF_ERANGE);
+  bad = c;
+  bad.kernel_hidden = -1;
+  assert_int_equal(hf_net_config_validate(&bad), HF_ERANGE);
+  bad.kernel_hidden = HF_KERNEL_MAX_HIDDEN + 1;
+  assert_int_equal(hf_net_config_validate(&bad), HF_ERANGE);
+  bad = c;
+  bad.kernel_radius = 2; /* out_channels no longer taps + 3 */
+  assert_int_equal(hf_net_config_validate(&bad), HF_EFORMAT);
+  bad = c;
+  bad.out_channels = 3;
+  assert_int_equal(hf_net_config_validate(&bad), HF_EFORMAT);
 }
 
 static void test_output_transform(void **state) {
@@ -369,7 +520,7 @@ static void test_pad_and_crop(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_table1_presets),   cmocka_unit_test(test_wiring),
-    cmocka_unit_test(test_residual_base),
+    cmocka_unit_test(test_residual_base),    cmocka_unit_test(test_kernel_output),
     cmocka_unit_test(test_validate_rejects), cmocka_unit_test(test_output_transform),
     cmocka_unit_test(test_half_roundtrip),   cmocka_unit_test(test_backend_selection),
     cmocka_unit_test(test_half_array),       cmocka_unit_test(test_submit_wait_prepare),

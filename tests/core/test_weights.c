@@ -264,6 +264,74 @@ static void test_metadata_types(void **state) {
   free(b.data);
 }
 
+/* A Kernel file (the preset: radius 3, a 16-channel head) and one without
+ * a head (radius 2) read back bit for bit; the kernel's metadata keys and
+ * head tensors are checked like the rest. */
+static void test_kernel_arch(void **state) {
+  hf_net_config c;
+  assert_int_equal(hf_variant_preset("Kernel", &c), HF_OK);
+  hf_weights *w, *r;
+  assert_int_equal(hf_weights_init_random(&c, 5, &w), HF_OK);
+  assert_non_null(w->head_w);
+  char path[256], err[256];
+  snprintf(path, sizeof path, "%s/kernel.safetensors", tmpdir);
+  assert_int_equal(hf_weights_save(path, w), HF_OK);
+  assert_int_equal(hf_weights_load(path, &r, err, sizeof err), HF_OK);
+  assert_int_equal(r->cfg.arch, HF_ARCH_KERNEL);
+  assert_int_equal(r->cfg.kernel_radius, 3);
+  assert_int_equal(r->cfg.kernel_hidden, 16);
+  assert_int_equal(r->cfg.out_channels, 52);
+  assert_int_equal(r->num_params, w->num_params);
+  assert_memory_equal(r->storage, w->storage, w->num_params * sizeof(float));
+  assert_memory_equal(r->head_w, w->head_w, 52 * 40 * sizeof(float));
+  assert_memory_equal(r->head_b, w->head_b, 52 * sizeof(float));
+  hf_weights_free(r);
+  blob b = read_all(path);
+  /* The head is optional in the metadata, not in the tensors: without
+   * kernel_hidden the file's head tensors are extra. */
+  blob h0 = with_header_edit(&b, ",\\\"kernel_hidden\\\":16", "");
+  expect_reject(&h0, HF_EFORMAT, "tensors");
+  free(h0.data);
+  static const struct { const char *from, *to, *msg; } edits[] = {
+    {"\\\"kernel_radius\\\":3", "\\\"kernel_radius\\\":5", "kernel_radius"},
+    {"\\\"kernel_radius\\\":3", "\\\"kernel_radius\\\":2.5", "kernel_radius"},
+    {"\\\"kernel_radius\\\":3", "\\\"kernel_radios\\\":3", "kernel_radius"},
+    {"\\\"kernel_hidden\\\":16", "\\\"kernel_hidden\\\":65", "kernel_hidden"},
+    {"\\\"kernel_hidden\\\":16", "\\\"kernel_hidden\\\":\\\"16\\\"", "kernel_hidden"},
+    {"\\\"out_channels\\\":52", "\\\"out_channels\\\":3", "out_channels must be 52"},
+    {"\\\"arch\\\":\\\"kernel\\\"", "\\\"arch\\\":\\\"residual\\\"", "arch kernel only"},
+    {"\\\"kernel_hidden\\\":16", "\\\"kernel_hidden\\\":8", "dec0.weight"},
+    {"\"head.weight\"", "\"head.weights\"", "head.weight"},
+    {"\"shape\":[52,40,1,1]", "\"shape\":[52,40,1]", "head.weight"},
+  };
+  for (size_t k = 0; k < sizeof edits / sizeof edits[0]; k++) {
+    blob e = with_header_edit(&b, edits[k].from, edits[k].to);
+    expect_reject(&e, HF_EFORMAT, edits[k].msg);
+    free(e.data);
+  }
+  free(b.data);
+  hf_weights_free(w);
+
+  c.kernel_radius = 2, c.kernel_hidden = 0, c.out_channels = 25 + 3;
+  assert_int_equal(hf_weights_init_random(&c, 6, &w), HF_OK);
+  assert_null(w->head_w);
+  assert_int_equal(hf_weights_save(path, w), HF_OK);
+  assert_int_equal(hf_weights_load(path, &r, err, sizeof err), HF_OK);
+  assert_int_equal(r->cfg.kernel_radius, 2);
+  assert_int_equal(r->cfg.kernel_hidden, 0);
+  assert_null(r->head_w);
+  assert_int_equal(r->num_params, w->num_params);
+  assert_memory_equal(r->storage, w->storage, w->num_params * sizeof(float));
+  hf_weights_free(r);
+  hf_weights_free(w);
+  /* The kernel's keys on another architecture are a contradiction. */
+  b = valid_file(NULL);
+  blob u = with_header_edit(&b, "\\\"spp\\\"", "\\\"kernel_radius\\\":1,\\\"spp\\\"");
+  expect_reject(&u, HF_EFORMAT, "arch kernel only");
+  free(u.data);
+  free(b.data);
+}
+
 static void test_missing_file(void **state) {
   hf_weights *w;
   char err[256] = "";
@@ -313,7 +381,7 @@ int main(void) {
     cmocka_unit_test(test_wrong_shapes),        cmocka_unit_test(test_bad_json),
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
     cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_duplicate_keys),
-    cmocka_unit_test(test_metadata_types),
+    cmocka_unit_test(test_metadata_types),       cmocka_unit_test(test_kernel_arch),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
