@@ -105,6 +105,18 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
 /* Host memory hf_output_from_padded_f32 allocates for io's frames (the
  * Residual base of a frame, and its scratch). */
 size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height);
+/* The Kernel architecture's output stage across each row's pixels
+ * (cpu_kernel_output.c), the values of hf_kernel_output_rows up to
+ * rounding: hf_cpu_kernel_sums writes the per-pixel sums of rows y0..y1-1 as
+ * three planes (planes: [3][in->height][in->width], covered count, colour,
+ * highlight); hf_cpu_kernel_rows reads them for rows y0-radius..y1-1+radius
+ * and writes rows y0..y1-1 of out ([height][width][3]), with scratch of
+ * hf_cpu_kernel_scratch(width, radius) floats. */
+size_t hf_cpu_kernel_scratch(int width, int radius);
+void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int y0, int y1, float *planes);
+void hf_cpu_kernel_rows(int width, int height, int spp, int radius, const float *planes,
+                        const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
+                        float *out, float *scratch);
 /* Rounds n up to a multiple of a (a power of two). */
 static inline int hf_round_up(int n, int a) { return (n + a - 1) & ~(a - 1); }
 /* Monotonic clock in microseconds. */

@@ -44,13 +44,17 @@
 
 #define OD_PLAN_CACHE 4
 /* Steps per plan: per level at most a conv, a deconv, a ReLU and two
- * copies, plus slack. */
+ * copies, plus slack (the head's two steps). */
 #define OD_MAX_STEPS (6 * HF_MAX_LEVELS)
 #define OD_MAX_MEMS (16 * HF_MAX_LEVELS)
 
 /* The kinds of layer primitives: an encoder convolution, a decoder as a
- * oneDNN deconvolution, or a decoder's 1x1 convolution to its taps. */
-typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS } od_kind;
+ * oneDNN deconvolution, a decoder's 1x1 convolution to its taps, or the
+ * Kernel architecture's head (a 1x1 convolution): over the concatenation of
+ * dec0's hidden channels and the input (OD_HEAD), or over each alone, the
+ * input's part with the bias, the hidden part summed onto it (OD_HEAD_IN,
+ * OD_HEAD_HID). */
+typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID } od_kind;
 
 #define OD_MAX_THREADS 64
 
@@ -96,7 +100,13 @@ typedef struct od_plan {
   size_t scratch_bytes;         /* of which the primitives' scratchpad */
   float *in;                    /* padded input [batch][ph][pw][cin] */
   dnnl_memory_t in_mem;         /* enc0's source: in, or the caller's frames */
-  float *out;                   /* raw output [batch][ph][pw][3] */
+  float *out;                   /* raw output [batch][ph][pw][out_channels] */
+  float *head_in;               /* the head's input: concat(ReLU(dec0), input) for
+                                 * OD_HEAD, ReLU(dec0) alone for OD_HEAD_HID */
+  int in_copy_step;             /* the step copying the input into head_in, or -1 */
+  float *sums;                  /* Kernel output stage: per-pixel sums and the */
+  float *fin;                   /* f32 result, [batch][ph][pw][3] each, and */
+  float *kscratch;              /* each thread's scratch (hf_cpu_kernel_scratch) */
   void *ping[2];                /* non-concat activations, alternating */
   void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
   void *scratch;                /* shared by every primitive (run in order) */
@@ -115,6 +125,12 @@ typedef struct od_model {
   int use_taps[HF_MAX_LEVELS];
   float *taps_user[HF_MAX_LEVELS];
   dnnl_memory_t enc_b[HF_MAX_LEVELS], dec_b[HF_MAX_LEVELS];
+  /* The head (HF_ARCH_KERNEL with kernel_hidden > 0): one convolution over
+   * the concatenation, or two summed (head_split: the weights' input and
+   * hidden columns, [out][cin] and [out][hidden]); by od_kind - OD_HEAD. */
+  int head_sum;
+  dnnl_memory_t head_w[3], head_b;
+  float *head_split[3];
   od_plan *plans[OD_PLAN_CACHE];
   uint64_t clock;
 } od_model;
@@ -216,7 +232,9 @@ fail:
  * weights and scratchpad formats left to oneDNN: OD_ENC a 3x3 stride-2
  * pad-1 convolution with fused ReLU; OD_DEC a 4x4 stride-2 pad-1
  * deconvolution (its ReLU is a separate primitive); OD_TAPS a 1x1
- * convolution without bias or ReLU (the tap pass adds them). */
+ * convolution without bias or ReLU (the tap pass adds them); OD_HEAD and
+ * OD_HEAD_IN 1x1 convolutions with bias, OD_HEAD_HID one without, adding
+ * its result to what dst holds (a sum post-op). */
 static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
                        const dnnl_memory_desc_t *dst, int cin, int cout,
                        dnnl_primitive_desc_t *pd) {
@@ -238,12 +256,18 @@ static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
                                                 dnnl_deconvolution_direct, src, &wmd, &bmd,
                                                 dst, strides, pad, pad));
     OD_TRY(dnnl_primitive_desc_create(pd, &dd, attr, dev->eng, NULL));
-  } else if (kind == OD_TAPS) {
-    /* No bias: it is added once per output pixel, not per tap. */
+  } else if (kind != OD_ENC) {
+    /* Taps: no bias, it is added once per output pixel, not per tap. */
     dnnl_convolution_desc_t cd;
+    int bias = kind == OD_HEAD || kind == OD_HEAD_IN;
+    if (kind == OD_HEAD_HID) {
+      OD_TRY(dnnl_post_ops_create(&po));
+      OD_TRY(dnnl_post_ops_append_sum(po, 1.0f));
+      OD_TRY(dnnl_primitive_attr_set_post_ops(attr, po));
+    }
     OD_TRY(dnnl_convolution_forward_desc_init(&cd, dnnl_forward_inference,
-                                              dnnl_convolution_direct, src, &wmd, NULL, dst,
-                                              one, zero, zero));
+                                              dnnl_convolution_direct, src, &wmd,
+                                              bias ? &bmd : NULL, dst, one, zero, zero));
     OD_TRY(dnnl_primitive_desc_create(pd, &cd, attr, dev->eng, NULL));
   } else {
     dnnl_convolution_desc_t cd;
@@ -286,14 +310,27 @@ fail:
   return rc;
 }
 
+/* Input and output channels of layer i of a kind (the head's: i is 0). */
+static void od_layer_dims(const hf_net_config *c, od_kind kind, int i, int *cin, int *cout) {
+  switch (kind) {
+  case OD_ENC: *cin = hf_enc_in(c, i), *cout = hf_enc_out(c, i); break;
+  case OD_DEC: *cin = hf_dec_in(c, i), *cout = hf_dec_out(c, i); break;
+  case OD_TAPS: *cin = hf_dec_in(c, i), *cout = 16 * hf_dec_out(c, i); break;
+  case OD_HEAD: *cin = hf_head_in(c), *cout = c->out_channels; break;
+  case OD_HEAD_IN: *cin = c->in_channels, *cout = c->out_channels; break;
+  case OD_HEAD_HID: *cin = c->kernel_hidden, *cout = c->out_channels; break;
+  }
+}
+
 /* The weights of one layer in the layout md: the model's copy when it
  * matches (or when the model has none yet and keeps this one), else a new
  * memory the caller owns (*owned = 1). */
 static int od_weights_for(od_model *m, od_kind kind, int i, const dnnl_memory_desc_t *md,
                           dnnl_memory_t *out, int *owned) {
-  int rc = HF_OK, deconv = kind == OD_DEC;
+  int rc = HF_OK, deconv = kind == OD_DEC, head = kind >= OD_HEAD;
   const hf_net_config *c = &m->w->cfg;
-  dnnl_memory_t *slot = kind == OD_TAPS ? &m->taps_w[i] : deconv ? &m->dec_w[i] : &m->enc_w[i];
+  dnnl_memory_t *slot = head ? &m->head_w[kind - OD_HEAD]
+                        : kind == OD_TAPS ? &m->taps_w[i] : deconv ? &m->dec_w[i] : &m->enc_w[i];
   dnnl_memory_t user = NULL;
   *owned = 0;
   if (*slot) {
@@ -306,13 +343,13 @@ static int od_weights_for(od_model *m, od_kind kind, int i, const dnnl_memory_de
   }
   /* PyTorch layouts: Conv2d [out][in][kh][kw] is oihw; ConvTranspose2d
    * [in][out][kh][kw] is iohw in oneDNN's (out, in) dimension order. */
-  int cin = kind == OD_ENC ? hf_enc_in(c, i) : hf_dec_in(c, i);
-  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i)
-                                                : 16 * hf_dec_out(c, i);
-  int k = kind == OD_DEC ? 4 : kind == OD_ENC ? 3 : 1;
+  int cin, cout, k = kind == OD_DEC ? 4 : kind == OD_ENC ? 3 : 1;
+  od_layer_dims(c, kind, i, &cin, &cout);
   dnnl_dims_t wd = {cout, cin, k, k};
   dnnl_memory_desc_t umd;
-  float *host = kind == OD_TAPS ? m->taps_user[i] : deconv ? m->w->dec_w[i] : m->w->enc_w[i];
+  float *host = kind == OD_HEAD ? m->w->head_w
+                : head          ? m->head_split[kind - OD_HEAD]
+                : kind == OD_TAPS ? m->taps_user[i] : deconv ? m->w->dec_w[i] : m->w->enc_w[i];
   OD_TRY(dnnl_memory_desc_init_by_tag(&umd, 4, wd, dnnl_f32, deconv ? dnnl_iohw : dnnl_oihw));
   OD_TRY(dnnl_memory_create(&user, &umd, m->dev->eng, host));
   OD_RC(od_reorder_new(m->dev, user, md, out));
@@ -394,6 +431,10 @@ static void od_plan_free(od_plan *p) {
   free(p->ping[0]);
   free(p->ping[1]);
   for (int i = 0; i < HF_MAX_LEVELS; i++) free(p->cat[i]);
+  free(p->head_in);
+  free(p->sums);
+  free(p->fin);
+  free(p->kscratch);
   free(p->scratch);
   free(p);
 }
@@ -455,9 +496,8 @@ static int od_add_layer(od_model *m, od_plan *p, od_kind kind, int i, dnnl_memor
   dnnl_memory_t wmem = NULL;
   OD_TRY(dnnl_memory_get_memory_desc(src_mem, &smd));
   OD_TRY(dnnl_memory_get_memory_desc(dst_mem, &dmd));
-  int cin = kind == OD_ENC ? hf_enc_in(c, i) : hf_dec_in(c, i);
-  int cout = kind == OD_ENC ? hf_enc_out(c, i) : kind == OD_DEC ? hf_dec_out(c, i)
-                                                : 16 * hf_dec_out(c, i);
+  int cin, cout;
+  od_layer_dims(c, kind, i, &cin, &cout);
   OD_RC(od_layer_pd(m->dev, kind, smd, dmd, cin, cout, &pd));
   const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
   const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
@@ -482,11 +522,11 @@ static int od_add_layer(od_model *m, od_plan *p, od_kind kind, int i, dnnl_memor
     {DNNL_ARG_WEIGHTS, wmem},
     {DNNL_ARG_DST, dst_mem},
     {DNNL_ARG_SCRATCHPAD, NULL}, /* set once the scratchpad exists */
-    {DNNL_ARG_BIAS, kind == OD_DEC ? m->dec_b[i] : m->enc_b[i]},
+    {DNNL_ARG_BIAS, kind >= OD_HEAD ? m->head_b : kind == OD_DEC ? m->dec_b[i] : m->enc_b[i]},
   };
   /* The scratchpad stays at index 3 so that dropping it (below, when a
    * primitive needs none) is a swap with the last argument. */
-  rc = od_add_step(p, prim, kind == OD_TAPS ? 4 : 5, args);
+  rc = od_add_step(p, prim, kind == OD_TAPS || kind == OD_HEAD_HID ? 4 : 5, args);
   prim = NULL;
 fail:
   if (owned) dnnl_memory_destroy(wmem);
@@ -535,48 +575,118 @@ static void od_copy_pixels(const od_copy_pass *c, size_t i0, size_t i1) {
 }
 
 /* The backend's own passes are split over the machine's cores like the
- * oneDNN primitives around them: a range of rows (taps) or pixels (copy) per
- * thread, threads started per pass (tens of microseconds against passes of
- * milliseconds) so that nothing waits between runs. */
+ * oneDNN primitives around them: a range of rows (taps, output stage) or
+ * pixels (copy) per thread, threads started per pass (tens of microseconds
+ * against passes of milliseconds) so that nothing waits between runs. */
+typedef void (*od_range_fn)(const void *ctx, int job, size_t begin, size_t end);
+
 typedef struct od_job {
-  const od_step *st;
+  od_range_fn fn;
+  const void *ctx;
+  int job;                      /* 0 .. threads - 1, for per-thread scratch */
   size_t begin, end;
 } od_job;
 
-static void od_job_run(const od_job *j) {
-  if (j->st->type == OD_STEP_TAPS)
-    od_taps_rows(&j->st->taps, j->begin, j->end);
-  else
-    od_copy_pixels(&j->st->copy, j->begin, j->end);
-}
-
 static void *od_job_thread(void *arg) {
-  od_job_run(arg);
+  const od_job *j = arg;
+  j->fn(j->ctx, j->job, j->begin, j->end);
   return NULL;
 }
 
-static void od_pass_run(const od_step *st, int batch, int nthreads) {
-  size_t total = st->type == OD_STEP_TAPS ? (size_t)batch * 2 * st->taps.h : st->copy.npix;
+/* fn over items [0, total) of per_item values of work each, split over up
+ * to nthreads threads. */
+static void od_parallel(od_range_fn fn, const void *ctx, size_t total, size_t per_item,
+                        int nthreads) {
   /* Below this much work a thread costs more than it saves. */
-  size_t per_row = st->type == OD_STEP_TAPS ? (size_t)2 * st->taps.w * st->taps.cout
-                                             : (size_t)st->copy.ch;
-  if (total * per_row < (size_t)1 << 16) nthreads = 1;
+  if (total * per_item < (size_t)1 << 16) nthreads = 1;
   if ((size_t)nthreads > total) nthreads = (int)total;
+  if (nthreads < 1) return;
   od_job jobs[OD_MAX_THREADS];
   pthread_t th[OD_MAX_THREADS];
   int started[OD_MAX_THREADS] = {0};
   for (int k = 0; k < nthreads; k++)
-    jobs[k] = (od_job){st, total * k / nthreads, total * (k + 1) / nthreads};
+    jobs[k] = (od_job){fn, ctx, k, total * k / nthreads, total * (k + 1) / nthreads};
   for (int k = 1; k < nthreads; k++)
     started[k] = pthread_create(&th[k], NULL, od_job_thread, &jobs[k]) == 0;
-  od_job_run(&jobs[0]);
+  od_job_thread(&jobs[0]);
   /* A thread that could not start has its share done here. */
   for (int k = 1; k < nthreads; k++) {
     if (started[k])
       pthread_join(th[k], NULL);
     else
-      od_job_run(&jobs[k]);
+      od_job_thread(&jobs[k]);
   }
+}
+
+static void od_step_range(const void *ctx, int job, size_t begin, size_t end) {
+  const od_step *st = ctx;
+  if (st->type == OD_STEP_TAPS)
+    od_taps_rows(&st->taps, begin, end);
+  else
+    od_copy_pixels(&st->copy, begin, end);
+}
+
+static void od_pass_run(const od_step *st, int batch, int nthreads) {
+  size_t total = st->type == OD_STEP_TAPS ? (size_t)batch * 2 * st->taps.h : st->copy.npix;
+  size_t per_row = st->type == OD_STEP_TAPS ? (size_t)2 * st->taps.w * st->taps.cout
+                                             : (size_t)st->copy.ch;
+  od_parallel(od_step_range, st, total, per_row, nthreads);
+}
+
+/* ---- the Kernel architecture's output stage ------------------------------- */
+
+/* One run's output stage: hf_cpu_kernel_sums then hf_cpu_kernel_rows on
+ * the frames' rows, split over threads between the two (the taps of a row
+ * read the sums of the rows around it), the result written to the caller's
+ * f32 frames or through fin to its f16 ones. */
+typedef struct od_kernel_out {
+  const hf_net_config *cfg;
+  const float *in;              /* padded input [batch][ph][pw][cin] */
+  const float *raw;             /* raw output [batch][ph][pw][out_channels] */
+  int pw, ph;
+  float *sums, *fin;            /* [batch][3][height][width], [batch][height][width][3] */
+  float *scratch;               /* per thread, scratch_floats each */
+  size_t scratch_floats;
+  const hf_io *io;
+} od_kernel_out;
+
+static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
+  const od_kernel_out *k = ctx;
+  const int w = k->io->width, h = k->io->height, cin = k->cfg->in_channels;
+  for (size_t r = r0; r < r1;) {
+    size_t n = r / h;
+    int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
+    hf_input_view v = {k->in + n * k->ph * k->pw * cin, w, h, k->pw, cin};
+    hf_cpu_kernel_sums(&v, k->cfg->spp, y0, y1, k->sums + n * h * w * 3);
+    r += (size_t)(y1 - y0);
+  }
+}
+
+static void od_kernel_rows(const void *ctx, int job, size_t r0, size_t r1) {
+  const od_kernel_out *k = ctx;
+  const int w = k->io->width, h = k->io->height, ch = k->cfg->out_channels;
+  const int f16 = k->io->out_dtype == HF_F16;
+  for (size_t r = r0; r < r1;) {
+    size_t n = r / h, frame = n * h * w * 3;
+    int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
+    float *out = f16 ? k->fin + frame : (float *)k->io->out + frame;
+    hf_cpu_kernel_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, k->sums + frame,
+                       k->raw + n * k->ph * k->pw * ch, k->pw, ch, y0, y1, out,
+                       k->scratch + (size_t)job * k->scratch_floats);
+    if (f16) {
+      uint16_t *d = (uint16_t *)k->io->out + frame;
+      for (size_t i = (size_t)y0 * w * 3; i < (size_t)y1 * w * 3; i++)
+        d[i] = hf_f32_to_f16(out[i]);
+    }
+    r += (size_t)(y1 - y0);
+  }
+}
+
+static void od_kernel_output(const od_kernel_out *k, int nthreads) {
+  size_t rows = (size_t)k->io->batch * k->io->height, w = (size_t)k->io->width;
+  od_parallel(od_kernel_sums, k, rows, w * k->cfg->in_channels, nthreads);
+  od_parallel(od_kernel_rows, k, rows, w * 4 * hf_kernel_taps(k->cfg->kernel_radius),
+              nthreads);
 }
 
 /* Builds every primitive and buffer for batch frames of pw x ph. */
@@ -588,13 +698,30 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   od_plan *p = calloc(1, sizeof *p);
   if (!p) return HF_ENOMEM;
   p->batch = batch, p->pw = pw, p->ph = ph;
+  p->in_copy_step = -1;
 
-  dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS];
+  dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS], head_md;
   OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
-  OD_RC(od_nhwc(&out_md, batch, HF_OUT_CHANNELS, ph, pw));
+  OD_RC(od_nhwc(&out_md, batch, c->out_channels, ph, pw));
   OD_RC(od_alloc(&in_md, (void **)&p->in));
   OD_RC(od_alloc(&out_md, (void **)&p->out));
   p->bytes += dnnl_memory_desc_get_size(&in_md) + dnnl_memory_desc_get_size(&out_md);
+  /* The head reads dec0's hidden channels, after them the input's when it
+   * is one convolution over their concatenation. */
+  const int head = hf_head_in(c), head_ch = m->head_sum ? c->kernel_hidden : head;
+  if (head) {
+    OD_RC(od_nhwc(&head_md, batch, head_ch, ph, pw));
+    OD_RC(od_alloc(&head_md, (void **)&p->head_in));
+  }
+  if (c->arch == HF_ARCH_KERNEL) {
+    dnnl_memory_desc_t md;
+    OD_RC(od_nhwc(&md, batch, 3, ph, pw));
+    OD_RC(od_alloc(&md, (void **)&p->sums));
+    OD_RC(od_alloc(&md, (void **)&p->fin));
+    size_t n = hf_cpu_kernel_scratch(pw, c->kernel_radius) * dev->threads;
+    if (n > SIZE_MAX / sizeof(float)) OD_RC(HF_ERANGE);
+    OD_RC(od_alloc_bytes(n * sizeof(float), (void **)&p->kscratch));
+  }
 
   /* The ping-pong buffers hold every encoder output, every decoder output
    * but the last, and the taps: the largest of those tensors. */
@@ -659,9 +786,10 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       od_step *st = &p->steps[p->nsteps++];
       memset(st, 0, sizeof *st);
       st->type = OD_STEP_TAPS;
-      st->taps = (od_taps_pass){p->ping[L % 2], ph >> (i + 1), pw >> (i + 1), cout, i > 0,
-                                m->w->dec_b[i], i ? p->cat[i - 1] : p->out,
-                                i ? hf_dec_in(c, i - 1) : HF_OUT_CHANNELS};
+      st->taps = (od_taps_pass){p->ping[L % 2], ph >> (i + 1), pw >> (i + 1), cout,
+                                i > 0 || head, m->w->dec_b[i],
+                                i ? p->cat[i - 1] : head ? p->head_in : p->out,
+                                i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels};
       continue;
     }
     if (i == 0) {
@@ -675,6 +803,22 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     OD_RC(od_add_relu(p, dev, dst));
     OD_RC(od_add_copy(p, p->ping[L % 2], (size_t)batch * (ph >> i) * (pw >> i), cout,
                       p->cat[i - 1], 0, hf_dec_in(c, i - 1)));
+  }
+  /* The head, after dec0's pass wrote the hidden channels: one convolution
+   * over them and a copy of the input (whose source od_model_run sets), or
+   * the input's part with the bias and the hidden part summed onto it. */
+  if (head) {
+    OD_RC(od_mem(p, dev, &head_md, p->head_in, &src));
+    OD_RC(od_mem(p, dev, &out_md, p->out, &dst));
+    if (m->head_sum) {
+      OD_RC(od_add_layer(m, p, OD_HEAD_IN, 0, p->in_mem, dst, &scratch_bytes));
+      OD_RC(od_add_layer(m, p, OD_HEAD_HID, 0, src, dst, &scratch_bytes));
+    } else {
+      p->in_copy_step = p->nsteps;
+      OD_RC(od_add_copy(p, p->in, (size_t)batch * ph * pw, c->in_channels, p->head_in,
+                        c->kernel_hidden, head));
+      OD_RC(od_add_layer(m, p, OD_HEAD, 0, src, dst, &scratch_bytes));
+    }
   }
 
   if (scratch_bytes) {
@@ -741,10 +885,42 @@ static int od_use_taps(int i) {
   return i == 0 || !e || !*e;
 }
 
+/* How the head is computed (see od_kind): one convolution over the
+ * concatenation, which was a few percent faster at 1024 x 1024 than two
+ * convolutions summed (docs/PERFORMANCE.md), unless HF_CPU_HEAD is "sum",
+ * to compare the two. */
+static int od_head_sum(void) {
+  const char *e = getenv("HF_CPU_HEAD");
+  return e && !strcmp(e, "sum");
+}
+
+/* The head's weights [out][hidden + cin] split into the input's columns
+ * (head_split[OD_HEAD_IN - OD_HEAD], [out][cin]) and the hidden channels'
+ * (head_split[OD_HEAD_HID - OD_HEAD], [out][hidden]). */
+static int od_head_split(od_model *m) {
+  const hf_net_config *c = &m->w->cfg;
+  int hid = c->kernel_hidden, cin = c->in_channels, hin = hf_head_in(c), out = c->out_channels;
+  float *a = malloc((size_t)out * cin * sizeof(float));
+  float *b = malloc((size_t)out * hid * sizeof(float));
+  m->head_split[OD_HEAD_IN - OD_HEAD] = a;
+  m->head_split[OD_HEAD_HID - OD_HEAD] = b;
+  if (!a || !b) return HF_ENOMEM;
+  for (int o = 0; o < out; o++) {
+    memcpy(b + (size_t)o * hid, m->w->head_w + (size_t)o * hin, hid * sizeof(float));
+    memcpy(a + (size_t)o * cin, m->w->head_w + (size_t)o * hin + hid, cin * sizeof(float));
+  }
+  return HF_OK;
+}
+
 static void od_model_destroy(void *impl) {
   od_model *m = impl;
   if (!m) return;
   for (int k = 0; k < OD_PLAN_CACHE; k++) od_plan_free(m->plans[k]);
+  for (int k = 0; k < 3; k++) {
+    if (m->head_w[k]) dnnl_memory_destroy(m->head_w[k]);
+    free(m->head_split[k]);
+  }
+  if (m->head_b) dnnl_memory_destroy(m->head_b);
   for (int i = 0; i < HF_MAX_LEVELS; i++) {
     if (m->enc_w[i]) dnnl_memory_destroy(m->enc_w[i]);
     if (m->dec_w[i]) dnnl_memory_destroy(m->dec_w[i]);
@@ -782,6 +958,14 @@ static int od_model_create(void *devp, const hf_weights *w, void **out) {
     OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_f32, dnnl_x));
     OD_TRY(dnnl_memory_create(&m->dec_b[i], &md, dev->eng, m->w->dec_b[i]));
   }
+  if (hf_head_in(c)) {
+    dnnl_memory_desc_t md;
+    dnnl_dims_t d = {c->out_channels};
+    m->head_sum = od_head_sum();
+    if (m->head_sum) OD_RC(od_head_split(m));
+    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_f32, dnnl_x));
+    OD_TRY(dnnl_memory_create(&m->head_b, &md, dev->eng, m->w->head_b));
+  }
   /* Reorder the weights now, into the formats oneDNN picks for a frame of
    * 256 x 256 (or the alignment, if larger): the plan built here is kept,
    * and plans of other sizes find the same formats in the model. */
@@ -810,6 +994,7 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
   else
     hf_input_to_padded_f32(io, c->in_channels, pw, ph, p->in);
   OD_TRY(dnnl_memory_set_data_handle(p->in_mem, (void *)in));
+  if (p->in_copy_step >= 0) p->steps[p->in_copy_step].copy.src = in;
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
@@ -822,7 +1007,13 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
   }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();
-  hf_output_from_padded_f32(c, in, p->out, pw, ph, io);
+  if (c->arch == HF_ARCH_KERNEL) {
+    od_kernel_out k = {c, in, p->out, pw, ph, p->sums, p->fin, p->kscratch,
+                       hf_cpu_kernel_scratch(pw, c->kernel_radius), io};
+    od_kernel_output(&k, m->dev->threads);
+  } else {
+    hf_output_from_padded_f32(c, in, p->out, pw, ph, io);
+  }
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
   t->output_us = hf_now_us() - t2;
@@ -890,7 +1081,7 @@ static void od_model_trim(void *impl, size_t keep) {
 const hf_backend_ops hf_backend_cpu_onednn = {
   .name = "cpu",
   .priority = 50,
-  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL,
+  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL | 1u << HF_ARCH_KERNEL,
   .probe = od_probe,
   .open = od_open,
   .close = od_close,

@@ -123,12 +123,11 @@ static double rel_l2(const float *a, const float *b, size_t n) {
   return sqrt(num / den);
 }
 
-static void compare(fixture *f, const char *variant, int batch, int w, int h, hf_dtype in_t,
-                    hf_dtype out_t, uint64_t seed) {
-  hf_net_config cfg;
+static void compare_cfg(fixture *f, hf_net_config cfg, int batch, int w, int h, hf_dtype in_t,
+                        hf_dtype out_t, uint64_t seed) {
+  const char *variant = cfg.name;
   hf_weights *wt;
   hf_model *mc, *mr;
-  assert_int_equal(hf_variant_preset(variant, &cfg), HF_OK);
   assert_int_equal(hf_weights_init_random(&cfg, seed, &wt), HF_OK);
   assert_int_equal(hf_model_create(f->cpu, wt, &mc), HF_OK);
   assert_int_equal(hf_model_create(f->ref, wt, &mr), HF_OK);
@@ -147,6 +146,13 @@ static void compare(fixture *f, const char *variant, int batch, int w, int h, hf
   hf_model_destroy(mc);
   hf_model_destroy(mr);
   hf_weights_free(wt);
+}
+
+static void compare(fixture *f, const char *variant, int batch, int w, int h, hf_dtype in_t,
+                    hf_dtype out_t, uint64_t seed) {
+  hf_net_config cfg;
+  assert_int_equal(hf_variant_preset(variant, &cfg), HF_OK);
+  compare_cfg(f, cfg, batch, w, h, in_t, out_t, seed);
 }
 
 /* Every preset at odd, aligned and tiny sizes. */
@@ -172,6 +178,32 @@ static void test_batch_and_dtypes(void **state) {
   /* Large enough that the tap sums and concat copies are split over
    * threads (they stay on one thread below ~64K values). */
   compare(*state, "Base", 2, 150, 100, HF_F32, HF_F32, 401);
+}
+
+/* The Kernel architecture beyond its preset: without a head, with the
+ * smallest and largest kernels and heads, the head as two convolutions
+ * summed (HF_CPU_HEAD=sum, read at model creation), every io
+ * dtype, and frames large enough that the output stage is split over
+ * threads, across the frames of a batch. */
+static void test_kernel_configs(void **state) {
+  hf_net_config cfg;
+  assert_int_equal(hf_variant_preset("Kernel", &cfg), HF_OK);
+  static const struct { int r, hidden; } k[] = {{2, 0}, {1, 1}, {4, 64}, {3, 16}};
+  for (size_t i = 0; i < sizeof k / sizeof k[0]; i++) {
+    cfg.kernel_radius = k[i].r, cfg.kernel_hidden = k[i].hidden;
+    cfg.out_channels = hf_kernel_taps(k[i].r) + 3;
+    snprintf(cfg.name, sizeof cfg.name, "Kernel r%d h%d", k[i].r, k[i].hidden);
+    compare_cfg(*state, cfg, 2, 21, 13, HF_F32, HF_F32, 600 + i);
+  }
+  compare(*state, "Kernel", 3, 37, 23, HF_F16, HF_F32, 610);
+  compare(*state, "Kernel", 2, 37, 23, HF_F32, HF_F16, 611);
+  compare(*state, "Kernel", 2, 150, 100, HF_F32, HF_F32, 612);
+  compare(*state, "Kernel", 2, 64, 48, HF_F32, HF_F32, 613); /* aligned: read in place */
+  assert_int_equal(setenv("HF_CPU_HEAD", "sum", 1), 0);
+  compare(*state, "Kernel", 2, 37, 23, HF_F32, HF_F32, 614);
+  compare(*state, "Kernel", 1, 64, 48, HF_F32, HF_F32, 615);
+  compare(*state, "Kernel", 2, 150, 100, HF_F16, HF_F16, 616);
+  assert_int_equal(unsetenv("HF_CPU_HEAD"), 0);
 }
 
 /* The same frame gives the same bytes on a reused plan, after other sizes
@@ -245,6 +277,7 @@ int main(void) {
     cmocka_unit_test(test_registry),
     cmocka_unit_test(test_presets_match_ref),
     cmocka_unit_test(test_batch_and_dtypes),
+    cmocka_unit_test(test_kernel_configs),
     cmocka_unit_test(test_repeat_and_cache),
     cmocka_unit_test(test_deconv_path_matches_ref),
   };
