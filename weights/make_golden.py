@@ -22,7 +22,25 @@ CASES = [  # variant, width, height: odd sizes exercise pad-and-crop
     ("Deep", 64, 48), ("Deep", 45, 31),
     ("Base@1spp", 64, 48), ("Base@1spp", 19, 41),
     ("Residual", 64, 48), ("Residual", 27, 35),
+    ("Kernel", 64, 48), ("Kernel", 37, 23),
+    ("Kernel_r2h0", 64, 48), ("Kernel_r2h0", 37, 23),
 ]
+
+# Configurations that are not presets: a name, the preset it varies, and
+# what it changes. Kernel_r2h0: a 5x5 kernel given by dec0 directly (no head).
+CONFIGS = {
+    "Kernel_r2h0": ("Kernel", dict(kernel_radius=2, kernel_hidden=0,
+                                   out_channels=hfnet.kernel_taps(2) + len(hfnet.OUTPUTS))),
+}
+
+
+def case_config(name):
+    if name not in CONFIGS:
+        return hfnet.variant_config(name)
+    preset, changes = CONFIGS[name]
+    cfg = hfnet.variant_config(preset)
+    cfg.update(changes, name=name)
+    return cfg
 
 
 def write_exr(path, names, nhwc):
@@ -37,7 +55,7 @@ def write_exr(path, names, nhwc):
     out.close()
 
 
-def random_features(rng, h, w, spp):
+def random_features(rng, h, w, spp, covered=0.7):
     """Plausible feature ranges (protocol/FEATURES.md), not just noise in
     [0, 1): about 30% of samples uncovered (all features 0), alpha in
     (0, 1], tangents in [-1, 1]."""
@@ -47,7 +65,20 @@ def random_features(rng, h, w, spp):
     f[..., 2] = rng.uniform(0.01, 1, (h, w, spp))
     f[..., 3] = rng.uniform(0, 1, (h, w, spp))
     f[..., 4:6] = rng.uniform(-1, 1, (h, w, spp, 2))
-    f *= (rng.uniform(size=(h, w, spp, 1)) < 0.7)
+    f *= (rng.uniform(size=(h, w, spp, 1)) < covered)
+    return f.reshape(h, w, spp * 6)
+
+
+def kernel_features(rng, h, w, spp):
+    """random_features with hair-free regions the kernel architecture has to
+    handle: a band along the left edge wider than any kernel (pixels whose
+    every tap is empty: colour 1, highlight 0 before the corrections), an
+    empty block inside the frame, and a fully covered one."""
+    f = random_features(rng, h, w, spp).reshape(h, w, spp, 6)
+    f[:, :5] = 0
+    f[h // 3:h // 3 + 9, w // 2:w // 2 + 9] = 0
+    y, x = 2 * h // 3, w // 4
+    f[y:y + 4, x:x + 4] = random_features(rng, 4, 4, spp, covered=1.1).reshape(4, 4, spp, 6)
     return f.reshape(h, w, spp * 6)
 
 
@@ -61,7 +92,7 @@ def main():
     rng = np.random.default_rng(args.seed)
     nets = {}
     for k, (variant, w, h) in enumerate(CASES):
-        cfg = hfnet.variant_config(variant)
+        cfg = case_config(variant)
         vstem = variant.replace("@", "_")
         if variant not in nets:
             # One weights file per variant, stored as F16 to keep the
@@ -78,7 +109,7 @@ def main():
         net = nets[variant]
         stem = f"{vstem}_{w}x{h}"
         spp = cfg["spp"]
-        feat = random_features(rng, h, w, spp)
+        feat = (kernel_features if cfg["arch"] == "kernel" else random_features)(rng, h, w, spp)
         names = [f"S{s}.{n}" for s in range(spp) for n in hfnet.FEATURES]
         write_exr(os.path.join(args.out, stem + ".features.exr"), names, feat)
         with torch.no_grad():

@@ -18,6 +18,8 @@ static const struct { const char *weights, *stem; } cases[] = {
   {"Deep", "Deep_64x48"},           {"Deep", "Deep_45x31"},
   {"Base_1spp", "Base_1spp_64x48"}, {"Base_1spp", "Base_1spp_19x41"},
   {"Residual", "Residual_64x48"},   {"Residual", "Residual_27x35"},
+  {"Kernel", "Kernel_64x48"},       {"Kernel", "Kernel_37x23"},
+  {"Kernel_r2h0", "Kernel_r2h0_64x48"}, {"Kernel_r2h0", "Kernel_r2h0_37x23"},
 };
 
 static int backend_in_build(const char *name) {
