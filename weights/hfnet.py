@@ -135,11 +135,17 @@ def kernel_weights(logits, radius):
     n, taps, h, w = logits.shape
     ones = F.pad(logits.new_ones(n, h, w, dtype=torch.float32), (radius,) * 4)
     ls = [l.float() for l in logits.unbind(1)]
-    inside = [_shifted(ones, radius, dy, dx) for dy, dx in _taps(radius)]
-    m = ls[0].detach()
-    for l in ls[1:]:
-        m = torch.maximum(m, l.detach())
-    e = [torch.exp(l - m) * i for l, i in zip(ls, inside)]
+    inside = [_shifted(ones, radius, dy, dx) > 0 for dy, dx in _taps(radius)]
+    # The maximum over the taps inside the frame (the centre always is), as
+    # src/net_config.c: a larger logit outside the frame would otherwise
+    # underflow every weight inside it (0 / 0), and an exponent taken
+    # outside could overflow (inf * 0).
+    low = torch.tensor(float("-inf"), device=logits.device)
+    m = None
+    for l, i in zip(ls, inside):
+        v = torch.where(i, l.detach(), low)
+        m = v if m is None else torch.maximum(m, v)
+    e = [torch.exp(torch.where(i, l - m, low)) for l, i in zip(ls, inside)]
     den = e[0]
     for et in e[1:]:
         den = den + et

@@ -110,12 +110,51 @@ class Recipe(unittest.TestCase):
 
     def test_deconv_rewrite_is_exact(self):
         torch.manual_seed(0)
-        for name in ("Base", "Shallow", "Deep"):
+        for name in ("Base", "Shallow", "Deep", "Kernel"):
             net = hfnet.HairNet(hfnet.variant_config(name))
             x = torch.randn(2, net.cfg["in_channels"], 32, 48)
             with torch.no_grad():
                 a, b = net.raw(x), train.raw_shuffle(net, x)
             self.assertLess(float((a - b).abs().max()), 1e-5, name)
+
+    def test_kernel_softmax_leaves_the_outside_out(self):
+        """Taps outside the frame count for nothing whatever their logits: a
+        huge one must neither change the result nor make it NaN (it would
+        underflow every weight inside the frame were it the maximum)."""
+        torch.manual_seed(2)
+        x = torch.rand(1, 24, 9, 7) * (torch.rand(1, 24, 9, 7) > 0.3)
+        raw = torch.randn(1, 25 + 3, 9, 7, requires_grad=True)
+        y = hfnet.kernel_finish(raw, x, 4, 2)
+        y.sum().backward()
+        self.assertTrue(bool(torch.isfinite(raw.grad).all()))
+        big = raw.detach().clone()
+        big[:, 0, 0, :] = 1e4        # tap (-2, -2): outside for row 0
+        big[:, 24, :, 6] = 1e4       # tap (2, 2): outside for column 6
+        y2 = hfnet.kernel_finish(big, x, 4, 2)
+        self.assertTrue(bool(torch.isfinite(y2).all()))
+        self.assertTrue(torch.equal(y2, y.detach()))
+
+    def test_kernel_export_roundtrips(self):
+        """A Kernel network (head and metadata keys) and one without a head
+        go through the C loader and writer bit-exactly."""
+        for radius, hidden in ((3, 16), (2, 0)):
+            cfg = hfnet.variant_config("Kernel")
+            cfg.update(kernel_radius=radius, kernel_hidden=hidden,
+                       out_channels=hfnet.kernel_taps(radius) + 3)
+            torch.manual_seed(radius)
+            net = hfnet.HairNet(cfg)
+            self.assertEqual(hasattr(net, "head"), hidden > 0)
+            exp = os.path.join(self.work, f"kernel{radius}.safetensors")
+            back = os.path.join(self.work, f"kernel{radius}_back.safetensors")
+            hfnet.save_safetensors(exp, cfg, net.state_dict())
+            subprocess.run([ARGS.roundtrip, exp, back], check=True, capture_output=True)
+            cfg_b, sd_b = hfnet.load_safetensors(back)
+            for k in ("arch", "kernel_radius", "kernel_hidden", "out_channels"):
+                self.assertEqual(cfg_b[k], cfg[k], k)
+            sd_a = net.state_dict()
+            self.assertEqual(sorted(sd_a), sorted(sd_b))
+            for k in sd_a:
+                self.assertTrue(torch.equal(sd_a[k], sd_b[k]), k)
 
     def test_bf16_path_is_close(self):
         torch.manual_seed(1)
