@@ -1,0 +1,120 @@
+/* hairfilterd serves the Kernel architecture with no change of its own: it
+ * loads any weights file through the core. A Kernel weights file (the
+ * preset's shape, random weights) beside the harness's variants is listed
+ * and filters frames, f32 and f16, over the socket and shared memory,
+ * to exactly the bytes in-process cpu-ref gives. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "harness.h"
+
+static harness H;
+static server S;
+static hf_model *kernel_ref;   /* cpu-ref, in process, on the same weights */
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H)) return -1;
+  /* Kept out of the harness's weights directory so the other suites'
+   * servers do not see it. */
+  char dir[256], path[300];
+  snprintf(dir, sizeof dir, "%s/kernel", H.dir);
+  if (mkdir(dir, 0700)) return -1;
+  snprintf(path, sizeof path, "%s/Kernel.safetensors", dir);
+  hf_net_config cfg;
+  hf_weights *w = NULL;
+  if (hf_variant_preset("Kernel", &cfg) || hf_weights_init_random(&cfg, 31, &w)) return -1;
+  int rc = hf_weights_save(path, w) || hf_model_create(H.backend, w, &kernel_ref);
+  hf_weights_free(w);
+  if (rc) return -1;
+  const char *const extra[] = {"--weights", path, NULL};
+  return server_start(&H, &S, extra);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  hf_model_destroy(kernel_ref);
+  return harness_stop(&H, &S);
+}
+
+/* Features with hair-free stretches: the make_features frame with every
+ * sample of the left 8 columns and every third sample elsewhere uncovered. */
+static float *kernel_frame(int w, int h, uint32_t seed) {
+  float *in = make_features(w, h, 4, seed);
+  assert_non_null(in);
+  for (int p = 0; p < w * h; p++)
+    for (int k = 0; k < 4; k++)
+      if (p % w < 8 || (p + k) % 3 == 0) memset(in + ((size_t)p * 4 + k) * 6, 0, 6 * sizeof(float));
+  return in;
+}
+
+/* One frame through the daemon (into shm when not NULL) against cpu-ref. */
+static void filter_and_compare(hfc_client *c, int w, int h, int f16, uint8_t *shm) {
+  size_t n_in = (size_t)w * h * 4 * 6, n_out = (size_t)w * h * 3, es = f16 ? 2 : 4;
+  float *in = kernel_frame(w, h, (uint32_t)(w * 31 + h + f16));
+  uint8_t *send = shm ? shm : malloc(n_in * es);
+  uint8_t *got = shm ? shm + n_in * es : malloc(n_out * es), *want = malloc(n_out * es);
+  assert_non_null(send);
+  assert_non_null(got);
+  assert_non_null(want);
+  for (size_t i = 0; i < n_in; i++) {
+    if (f16) ((uint16_t *)send)[i] = hf_f32_to_f16(in[i]);
+    else ((float *)send)[i] = in[i];
+  }
+  memset(got, 0xcd, n_out * es);
+  hfc_request r = {.variant = "Kernel", .width = w, .height = h, .spp = 4,
+                   .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
+                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got};
+  hfc_timing t;
+  int rc = hfc_filter(c, &r, &t);
+  if (rc) fprintf(stderr, "filter Kernel %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
+                  hfc_last_message(c));
+  assert_int_equal(rc, 0);
+  assert_int_equal(t.via_shm, shm != NULL);
+  hf_io io = {1, w, h, send, f16 ? HF_F16 : HF_F32, want, f16 ? HF_F16 : HF_F32};
+  assert_int_equal(hf_model_run(kernel_ref, &io, NULL), HF_OK);
+  assert_memory_equal(got, want, n_out * es);
+  free(in);
+  if (!shm) free(send), free(got);
+  free(want);
+}
+
+static void test_kernel_listed_and_filtered(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "test-kernel");
+  assert_non_null(c);
+  hfc_variant v[8];
+  int n = 0, found = 0;
+  assert_int_equal(hfc_list_variants(c, v, 8, &n), 0);
+  for (int i = 0; i < n && i < 8; i++)
+    if (!strcmp(v[i].name, "Kernel")) {
+      found = 1;
+      assert_int_equal(v[i].spp, 4);
+      assert_string_equal(v[i].backend, "cpu-ref");
+    }
+  assert_true(found);
+  filter_and_compare(c, 37, 23, 0, NULL);
+  filter_and_compare(c, 64, 48, 1, NULL);
+  filter_and_compare(c, 9, 5, 0, NULL); /* smaller than the 7x7 kernel's reach */
+  assert_int_equal(hfc_info(c)->shm, 1); /* a Unix socket */
+  uint8_t *mem;
+  assert_int_equal(hfc_shm_alloc(c, (size_t)40 * 30 * (24 + 3) * 4, (void **)&mem), 0);
+  filter_and_compare(c, 40, 30, 0, mem);
+  assert_int_equal(hfc_shm_free(c, mem), 0);
+  hfc_close(c);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_kernel_listed_and_filtered),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
