@@ -397,6 +397,7 @@ struct cudnn_model {
   cudaStream_t s_comp, s_h2d, s_d2h;
   hf_cl_layout wlo;             /* filter shapes (size-independent part) */
   void *d_w16, *d_b16, *d_b32;
+  float *d_head;                /* HF_ARCH_KERNEL's head: FP32 weights, then bias */
   size_t weight_bytes;
   plan *plans[MAX_PLANS];
   uint64_t tick;
@@ -850,6 +851,18 @@ static cudaError_t output_residual(const cudnn_model *m, const plan *p, const sl
                                 s->d_out, s->io.out_dtype == HF_F16, m->s_comp);
 }
 
+static cudaError_t output_kernel(const cudnn_model *m, const plan *p, const slot *s) {
+  const hf_net_config *c = &m->cfg;
+  hf_cuk_head head = {NULL, NULL, c->kernel_hidden, c->in_channels};
+  if (m->d_head) {
+    head.w = m->d_head;
+    head.b = m->d_head + (size_t)c->out_channels * hf_head_in(c);
+  }
+  return hf_cuk_output_kernel(raw_output(p), head, p->buf[HF_CL_BUF_IN], p->lo.cin_pad, p->pw,
+                              p->ph, c->spp, c->kernel_radius, s->io.batch, s->io.width,
+                              s->io.height, s->d_out, s->io.out_dtype == HF_F16, m->s_comp);
+}
+
 static const struct {
   int arch;
   const char *name;
@@ -857,6 +870,7 @@ static const struct {
 } output_stages[] = {
   {HF_ARCH_UNET, "unet transforms", output_unet},
   {HF_ARCH_RESIDUAL, "residual base", output_residual},
+  {HF_ARCH_KERNEL, "kernel taps", output_kernel},
 };
 
 /* ---- model --------------------------------------------------------------- */
@@ -902,6 +916,7 @@ static void cudnn_model_destroy(void *impl) {
   cudaFree(m->d_w16);
   cudaFree(m->d_b16);
   cudaFree(m->d_b32);
+  cudaFree(m->d_head);
   if (m->dnn) cudnnDestroy(m->dnn);
   if (m->s_comp) cudaStreamDestroy(m->s_comp);
   if (m->s_h2d) cudaStreamDestroy(m->s_h2d);
@@ -967,6 +982,17 @@ static int cudnn_model_create(void *dev, const hf_weights *w, void **out) {
   free(w16);
   free(b16);
   free(b32);
+  w16 = b16 = NULL;
+  b32 = NULL;
+  if (hf_head_in(&m->cfg)) {
+    /* The head as it is: the output stage reads it in FP32 (2 KiB to 54 KiB). */
+    const size_t nw = (size_t)m->cfg.out_channels * hf_head_in(&m->cfg);
+    const size_t bytes = (nw + m->cfg.out_channels) * sizeof(float);
+    HF_TRY(dmalloc((void **)&m->d_head, bytes, &m->weight_bytes));
+    HF_CU_TRY(cudaMemcpy(m->d_head, w->head_w, nw * sizeof(float), cudaMemcpyHostToDevice));
+    HF_CU_TRY(cudaMemcpy(m->d_head + nw, w->head_b, m->cfg.out_channels * sizeof(float),
+                         cudaMemcpyHostToDevice));
+  }
   if (hf_cudnn_verbose())
     fprintf(stderr, "hfcore cudnn: model %s: output stage %s, %zu weight bytes\n", m->cfg.name,
             m->output_name, m->weight_bytes);
@@ -1244,7 +1270,7 @@ static size_t cudnn_run_bytes(const hf_net_config *c, int batch, int pw, int ph)
 const hf_backend_ops hf_backend_cudnn = {
   .name = "cudnn",
   .priority = 100,
-  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL,
+  .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL | 1u << HF_ARCH_KERNEL,
   .probe = cudnn_probe,
   .open = cudnn_open,
   .close = cudnn_close,

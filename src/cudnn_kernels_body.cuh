@@ -15,7 +15,7 @@
 #include <vector_types.h>
 
 #include "cudnn_kernels.h"
-#include "hfcore.h"  // HF_RESIDUAL_RADIUS, HF_FEATURES_PER_SAMPLE
+#include "hfcore.h"  // HF_RESIDUAL_RADIUS, HF_KERNEL_MAX_*, HF_FEATURES_PER_SAMPLE
 
 #define HF_HD __host__ __device__ __forceinline__
 
@@ -192,11 +192,20 @@ HF_HD void output_unet_px(const hf_cuk_raw &raw, int w, int h, void *dst, int ds
 constexpr int kTileX = 32, kTileY = 8, kR = HF_RESIDUAL_RADIUS;
 constexpr int kHaloW = kTileX + 2 * kR, kHaloH = kTileY + 2 * kR;
 
-HF_HD void residual_load(float3 (*px)[kHaloW], const __half *in, int in_stride, int pw, int ph,
-                         int spp, int w, int h, int bx, int by, int n, int tid, int nthreads) {
-  const int gx0 = bx * kTileX - kR, gy0 = by * kTileY - kR;
-  for (int i = tid; i < kHaloW * kHaloH; i += nthreads) {
-    const int ly = i / kHaloW, lx = i - ly * kHaloW;
+// A tile and a halo of R pixels around it.
+template <int R> struct Halo {
+  static constexpr int W = kTileX + 2 * R, H = kTileY + 2 * R;
+};
+
+// Per-pixel sums (covered samples, their colour sum, their highlight sum)
+// of a tile and its halo of R pixels, zero outside the frame.
+template <int R>
+HF_HD void sums_load(float3 (*px)[Halo<R>::W], const __half *in, int in_stride, int pw, int ph,
+                     int spp, int w, int h, int bx, int by, int n, int tid, int nthreads) {
+  constexpr int HW = Halo<R>::W, HH = Halo<R>::H;
+  const int gx0 = bx * kTileX - R, gy0 = by * kTileY - R;
+  for (int i = tid; i < HW * HH; i += nthreads) {
+    const int ly = i / HW, lx = i - ly * HW;
     const int gy = gy0 + ly, gx = gx0 + lx;
     float cnt = 0.0f, col = 0.0f, hsum = 0.0f;
     if (gx >= 0 && gx < w && gy >= 0 && gy < h) {
@@ -210,6 +219,11 @@ HF_HD void residual_load(float3 (*px)[kHaloW], const __half *in, int in_stride, 
     }
     px[ly][lx] = make_float3(cnt, col, hsum);
   }
+}
+
+HF_HD void residual_load(float3 (*px)[kHaloW], const __half *in, int in_stride, int pw, int ph,
+                         int spp, int w, int h, int bx, int by, int n, int tid, int nthreads) {
+  sums_load<kR>(px, in, in_stride, pw, ph, spp, w, h, bx, by, n, tid, nthreads);
 }
 
 HF_HD void residual_rows(float3 (*px)[kHaloW], float3 (*rows)[kTileX], int tid, int nthreads) {
@@ -245,6 +259,70 @@ HF_HD void residual_finish(float3 (*rows)[kTileX], const hf_cuk_raw &raw, int sp
   store3(dst, dst_f16, ((size_t)n * h + y) * w + x, bc + __half2float(p[0]),
          fmaxf(bh + __half2float(p[1]), 0.0f),
          fminf(fmaxf(a.x / samples + __half2float(p[2]), 0.0f), 1.0f));
+}
+
+// HF_ARCH_KERNEL, one block per kTileX x kTileY tile: (1) sums_load of the
+// tile and a halo of the largest radius; (2) each thread its pixel
+// (hf_kernel_output_frame's values).
+constexpr int kKR = HF_KERNEL_MAX_RADIUS;
+constexpr int kKHaloW = Halo<kKR>::W, kKHaloH = Halo<kKR>::H;
+constexpr int kMaxFeat = HF_KERNEL_MAX_HIDDEN + HF_MAX_SPP * HF_FEATURES_PER_SAMPLE;
+
+// Raw channel o of a pixel: dec0's, or the head's dot product over feat
+// (ReLU(dec0)'s hidden channels, then the input's).
+HF_HD float kernel_channel(const __half *rp, const hf_cuk_head &hd, const float *feat, int o) {
+  if (!hd.w) return __half2float(rp[o]);
+  const int nfeat = hd.hidden + hd.cin;
+  const float *wr = hd.w + (size_t)o * nfeat;
+  float a = hd.b[o];
+  for (int j = 0; j < nfeat; j++) a += wr[j] * feat[j];
+  return a;
+}
+
+HF_HD void kernel_finish(const float3 (*px)[kKHaloW], const hf_cuk_raw &raw,
+                         const hf_cuk_head &hd, const __half *in, int in_stride, int pw, int ph,
+                         int spp, int radius, int w, int h, void *dst, int dst_f16, int bx,
+                         int by, int n, int tx, int ty) {
+  const int x = bx * kTileX + tx, y = by * kTileY + ty;
+  if (x >= w || y >= h) return;
+  const __half *rp = raw_pixel(raw, n, y, x);
+  float feat[kMaxFeat];
+  if (hd.w) {
+    const __half *ip = in + (((size_t)n * ph + y) * pw + x) * in_stride;
+    for (int j = 0; j < hd.hidden; j++) feat[j] = __half2float(rp[j]);
+    for (int j = 0; j < hd.cin; j++) feat[hd.hidden + j] = __half2float(ip[j]);
+  }
+  const int side = 2 * radius + 1, taps = side * side;
+  const int dy0 = max(-radius, -y), dy1 = min(radius, h - 1 - y);
+  const int dx0 = max(-radius, -x), dx1 = min(radius, w - 1 - x);
+  // An online softmax over the taps inside the frame: the sums are kept
+  // relative to the largest logit so far and rescaled when a larger comes.
+  float m = -INFINITY, den = 0.0f, an = 0.0f, ac = 0.0f, ah = 0.0f;
+  for (int dy = dy0; dy <= dy1; dy++)
+    for (int dx = dx0; dx <= dx1; dx++) {
+      const float l = kernel_channel(rp, hd, feat, (dy + radius) * side + dx + radius);
+      if (l > m) {
+        const float s = expf(m - l);  // 0 for the first tap
+        den *= s;
+        an *= s;
+        ac *= s;
+        ah *= s;
+        m = l;
+      }
+      const float e = expf(l - m);
+      const float3 q = px[ty + kKR + dy][tx + kKR + dx];
+      den += e;
+      an += e * q.x;
+      ac += e * q.y;
+      ah += e * q.z;
+    }
+  const float c0 = kernel_channel(rp, hd, feat, taps), c1 = kernel_channel(rp, hd, feat, taps + 1);
+  const float c2 = kernel_channel(rp, hd, feat, taps + 2);
+  // The weights are e / den: N = an / den, and C / N = ac / an.
+  const float nn = an / den;
+  const bool ok = nn > 1e-12f;
+  store3(dst, dst_f16, ((size_t)n * h + y) * w + x, (ok ? ac / an : 1.0f) + c0,
+         fmaxf((ok ? ah / an : 0.0f) + c1, 0.0f), fminf(fmaxf(nn / (float)spp + c2, 0.0f), 1.0f));
 }
 
 }  // namespace hf_kb

@@ -48,9 +48,10 @@ int hf_cl_view_dense(const hf_cl_view *v) {
          v->bh == v->h && v->bw == v->w;
 }
 
-/* Output channels per phase of a decoder in each form (dec0: 3 real). */
+/* Output channels per phase of a decoder in each form (dec0 of 3 real
+ * channels: as few as each form allows; more, as every other decoder). */
 static int dec_co(const hf_cl_layer *ly, int form) {
-  if (ly->level > 0) return ly->out.c;
+  if (ly->level > 0 || ly->out_real > HF_OUT_CHANNELS) return ly->out.c;
   switch (form) {
   case HF_CL_FORM_D2S: return 3;
   case HF_CL_FORM_PHASE: return 4;
@@ -70,6 +71,7 @@ int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl
   lo->pw = pw;
   lo->ph = ph;
   lo->cin_pad = hf_cl_pad8(cfg->in_channels);
+  lo->out_ch = hf_dec_out(cfg, 0) > HF_OUT_CHANNELS ? hf_cl_pad8(hf_dec_out(cfg, 0)) : HF_CL_OUT_CH;
   lo->nbufs = HF_CL_BUF_SKIP0 + (L - 1);
 
   int cp[HF_MAX_LEVELS];
@@ -88,7 +90,7 @@ int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl
     lo->buf_elems[b] = (size_t)(npix) * (size_t)(ch);               \
   } while (0)
   SET_BUF(HF_CL_BUF_IN, pix, lo->cin_pad);
-  SET_BUF(HF_CL_BUF_OUT, pix, HF_CL_OUT_CH);
+  SET_BUF(HF_CL_BUF_OUT, pix, lo->out_ch);
   SET_BUF(HF_CL_BUF_DEEP, pix >> (2 * L), cp[L - 1]);
   for (int i = 0; i + 1 < L; i++) SET_BUF(HF_CL_BUF_SKIP0 + i, pix >> (2 * (i + 1)), 2 * cp[i]);
 #undef SET_BUF
@@ -120,7 +122,7 @@ int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl
     int hout = ph >> i, wout = pw >> i;
     ly->dec = 1;
     ly->level = i;
-    ly->relu = i > 0;
+    ly->relu = i > 0 || hf_head_in(cfg) > 0;   /* the head reads ReLU(dec0) */
     if (i == L - 1) {
       ly->in = view(HF_CL_BUF_DEEP, 0, cp[i], cp[i], hin, win);
       ly->in_split = ly->in_split_pad = cfg->levels[i];
@@ -130,7 +132,7 @@ int hf_cl_layout_init(const hf_net_config *cfg, int batch, int pw, int ph, hf_cl
       ly->in_split_pad = cp[i];
     }
     ly->out = i > 0 ? view(HF_CL_BUF_SKIP0 + i - 1, 0, 2 * cp[i - 1], cp[i - 1], hout, wout)
-                    : view(HF_CL_BUF_OUT, 0, HF_CL_OUT_CH, HF_CL_OUT_CH, hout, wout);
+                    : view(HF_CL_BUF_OUT, 0, lo->out_ch, lo->out_ch, hout, wout);
     ly->in_real = hf_dec_in(cfg, i);
     ly->out_real = hf_dec_out(cfg, i);
   }

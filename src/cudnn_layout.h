@@ -15,7 +15,8 @@
  *   HF_CL_BUF_SKIP0+i  i = 0..L-2: [dec{i+1} out | enc{i} out],
  *                      ph/2^(i+1) x pw/2^(i+1), 2*pad8(c_i)
  *   HF_CL_BUF_DEEP     enc{L-1} out, ph/2^L x pw/2^L, pad8(c_{L-1})
- *   HF_CL_BUF_OUT      dec0 out, ph x pw, up to 8 channels (3 used)
+ *   HF_CL_BUF_OUT      dec0 out, ph x pw, out_ch channels: up to 8 (3 used),
+ *                      or dec0's channels padded to 8 for HF_ARCH_KERNEL
  * A form may add a dense scratch tensor of its own (HF_CL_BUF_SCRATCH).
  *
  * Encoders are forward convolutions. A decoder, a 4x4 stride-2 pad-1
@@ -47,7 +48,12 @@
  * dec0 writes the 3 output channels, padded to 8 for BWD_DATA and SHUFFLE,
  * to 4 per phase for PHASE (a 4-channel OUT buffer), and to 3 per phase for
  * D2S, whose conv output the output stage reads directly (no depth-to-space
- * pass, hf_cl_raw).
+ * pass, hf_cl_raw). The Kernel architecture's dec0 has more channels (the
+ * kernel's taps + 3, or kernel_hidden before the head): they are padded to
+ * 8 in every form, like the other decoders', and D2S's output is read from
+ * the scratch too; its ReLU, when a head follows, is the layer's. The head
+ * itself is not a layer here: the output stage computes it per pixel
+ * (cudnn_kernels.h).
  */
 #ifndef HF_CUDNN_LAYOUT_H
 #define HF_CUDNN_LAYOUT_H
@@ -58,7 +64,7 @@
 #include "hfcore.h"
 
 #define HF_CL_ALIGN_CH 8
-#define HF_CL_OUT_CH   8          /* the OUT buffer's channels per pixel, at most */
+#define HF_CL_OUT_CH   8          /* the OUT buffer's channels per pixel for 3 outputs */
 #define HF_CL_MAX_LAYERS (2 * HF_MAX_LEVELS)
 #define HF_CL_MAX_CONVS 4         /* cuDNN convolutions in one layer form */
 
@@ -133,7 +139,7 @@ typedef struct hf_cl_layer {
   int dec;                      /* 0 encoder, 1 decoder */
   int level;
   int relu;                     /* ReLU after the bias (all but dec0) */
-  hf_cl_view in, out;           /* out: for dec0 the 8-channel OUT view */
+  hf_cl_view in, out;           /* out: for dec0 the OUT view (out_ch channels) */
   /* Real (unpadded) channel counts and how real input channels map to
    * padded ones: real input j < in_split goes to j, j >= in_split goes to
    * in_split_pad + (j - in_split). in_split == in_real means no split. */
@@ -160,6 +166,7 @@ typedef struct hf_cl_form {
 typedef struct hf_cl_layout {
   int batch, pw, ph;
   int cin_pad;
+  int out_ch;                   /* the OUT buffer's channels per pixel */
   int nlayers;                  /* 2L: enc0..enc{L-1}, dec{L-1}..dec0 */
   hf_cl_layer layers[HF_CL_MAX_LAYERS];
   int nbufs;

@@ -4,8 +4,9 @@
 // access widths the launchers pick for the same (256-byte aligned) buffers,
 // and their results compared with the definitions: the input padding and
 // FP16 conversion, bias + ReLU, view copies, depth-to-space with and
-// without the one-pixel offset, and both output stages against hfcore's
-// hf_output_transform and hf_residual_base. Exit status 1 on any mismatch.
+// without the one-pixel offset, and the output stages against hfcore's
+// hf_output_transform, hf_residual_base and hf_output_finish (the Kernel
+// architecture, head included). Exit status 1 on any mismatch.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -320,6 +321,113 @@ static void test_output(int residual, int d2s, int dst_f16) {
   free(out);
 }
 
+// HF_ARCH_KERNEL: the raw output in dec0's OUT buffer or D2S phases (the
+// taps + 3 channels, or the hidden ones a head reads with the input),
+// against hf_output_finish of the same values (the head's dot products
+// summed in the same order on the CPU).
+static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16) {
+  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4, cin = 24, cpad = 24;
+  hf_net_config cfg;
+  hf_variant_preset("Kernel", &cfg);
+  cfg.kernel_radius = radius;
+  cfg.kernel_hidden = hidden;
+  cfg.out_channels = hf_kernel_taps(radius) + 3;
+  const int oc = hidden ? hidden : cfg.out_channels, co = (oc + 7) / 8 * 8;
+  hf_cuk_raw raw;
+  memset(&raw, 0, sizeof raw);
+  raw.at.buf = d2s ? HF_CL_BUF_SCRATCH : HF_CL_BUF_OUT;
+  raw.at.pix_stride = d2s ? 4 * co : co;
+  raw.at.rows = d2s ? ph / 2 + 1 : ph;
+  raw.at.cols = d2s ? pw / 2 + 1 : pw;
+  raw.at.div = d2s ? 2 : 1;
+  raw.at.offset = d2s ? 1 : 0;
+  raw.at.co = co;
+  const size_t nraw = (size_t)batch * raw.at.rows * raw.at.cols * raw.at.pix_stride;
+  __half *rbuf = (__half *)dalloc(nraw * 2);
+  fill(rbuf, nraw);
+  if (hidden)  // after dec0's ReLU
+    for (size_t i = 0; i < nraw; i++) rbuf[i] = __float2half_rn(fabsf(h2f(rbuf[i])));
+  raw.data = rbuf;
+  const int nfeat = hidden + cin;
+  float *hw = (float *)malloc((size_t)cfg.out_channels * nfeat * 4), *hb = (float *)malloc(84 * 4);
+  for (int i = 0; i < cfg.out_channels * nfeat; i++) hw[i] = (2 * frand() - 1) / 4;
+  for (int i = 0; i < cfg.out_channels; i++) hb[i] = 2 * frand() - 1;
+  hf_cuk_head head = {hidden ? hw : NULL, hidden ? hb : NULL, hidden, cin};
+  // The FP16 network input: samples covered (alpha > 0) or not (all zero),
+  // the left 5 columns of frame 0 empty (pixels with no covered sample in
+  // reach, for radius <= 4).
+  const size_t nin = (size_t)batch * ph * pw * cpad;
+  __half *in = (__half *)dalloc(nin * 2);
+  float *in32 = (float *)malloc(nin * 4);
+  for (size_t p = 0; p < (size_t)batch * ph * pw; p++)
+    for (int s = 0; s < spp; s++) {
+      const int covered = frand() < 0.6f && (p >= (size_t)ph * pw || p % pw >= 5);
+      for (int f = 0; f < 6; f++) {
+        const float v = covered ? (f == 2 ? 0.05f + 0.95f * frand() : frand()) : 0.0f;
+        in[p * cpad + s * 6 + f] = __float2half_rn(v);
+      }
+    }
+  for (size_t i = 0; i < nin; i++) in32[i] = h2f(in[i]);
+  const size_t nout = (size_t)batch * h * w * 3;
+  void *out = dalloc(nout * 4);
+  memset(out, 0xff, nout * 4);
+  // One block per tile: the sums by every thread, then each thread's pixel.
+  static float3 px[kKHaloH][kKHaloW];
+  for (int n = 0; n < batch; n++)
+    for (int by = 0; by < (h + kTileY - 1) / kTileY; by++)
+      for (int bx = 0; bx < (w + kTileX - 1) / kTileX; bx++) {
+        for (int t = 0; t < kTileX * kTileY; t++)
+          sums_load<kKR>(px, in, cpad, pw, ph, spp, w, h, bx, by, n, t, kTileX * kTileY);
+        for (int ty = 0; ty < kTileY; ty++)
+          for (int tx = 0; tx < kTileX; tx++)
+            kernel_finish(px, raw, head, in, cpad, pw, ph, spp, radius, w, h, out, dst_f16, bx, by,
+                          n, tx, ty);
+      }
+  double worst = 0;
+  int colour_one = 0;
+  for (int n = 0; n < batch; n++) {
+    hf_input_view view = {in32 + (size_t)n * ph * pw * cpad, w, h, pw, cpad};
+    for (int y = 0; y < h; y++)
+      for (int x = 0; x < w; x++) {
+        const __half *r = raw_pixel(raw, n, y, x);
+        const float *ip = in32 + (((size_t)n * ph + y) * pw + x) * cpad;
+        float v[HF_MAX_RAW_CHANNELS];
+        for (int o = 0; o < cfg.out_channels; o++) {
+          if (!hidden) {
+            v[o] = h2f(r[o]);
+            continue;
+          }
+          v[o] = hb[o];
+          for (int j = 0; j < nfeat; j++)
+            v[o] += hw[(size_t)o * nfeat + j] * (j < hidden ? h2f(r[j]) : ip[j - hidden]);
+        }
+        hf_output_finish(&cfg, &view, x, y, v);
+        if (n == 0 && x + radius < 5) colour_one++;
+        for (int k = 0; k < 3; k++) {
+          const size_t i = (((size_t)n * h + y) * w + x) * 3 + k;
+          const float got = dst_f16 ? h2f(((__half *)out)[i]) : ((float *)out)[i];
+          const float want = dst_f16 ? h2f(__float2half_rn(v[k])) : v[k];
+          const double d = rel_diff(got, want);
+          if (!(d <= worst)) worst = d;  // NaN too
+        }
+      }
+  }
+  // An online softmax against the two-pass one: FP32 sums in another
+  // order, and FP16 rounding of the result.
+  const double tol = dst_f16 ? 1e-3 : 2e-5;
+  CHECK(colour_one > 0, "no pixel without a covered sample in reach");
+  CHECK(worst <= tol, "output kernel r%d h%d%s %s: worst relative difference %.2e", radius, hidden,
+        d2s ? " (D2S phases)" : "", dst_f16 ? "f16" : "f32", worst);
+  printf("  output     kernel r%d h%-2d raw %-10s -> %s: worst relative difference %.1e\n", radius,
+         hidden, d2s ? "D2S phases" : "OUT buffer", dst_f16 ? "f16" : "f32", worst);
+  free(rbuf);
+  free(in);
+  free(in32);
+  free(out);
+  free(hw);
+  free(hb);
+}
+
 int main(void) {
   printf("element-wise kernels of the cudnn backend, run on the CPU\n");
   for (int f16 = 0; f16 <= 1; f16++) {
@@ -340,6 +448,12 @@ int main(void) {
   for (int residual = 0; residual <= 1; residual++)
     for (int d2s = 0; d2s <= 1; d2s++)
       for (int f16 = 0; f16 <= 1; f16++) test_output(residual, d2s, f16);
+  test_output_kernel(3, 16, 0, 0);
+  test_output_kernel(3, 16, 1, 1);
+  test_output_kernel(2, 0, 1, 0);
+  test_output_kernel(2, 0, 0, 1);
+  test_output_kernel(1, 5, 1, 0);
+  test_output_kernel(4, 64, 0, 0);
   if (failures) {
     printf("%d check(s) failed\n", failures);
     return 1;

@@ -401,16 +401,30 @@ static void emulate_vs_cpu_ref(const hf_net_config *cfg, int dec_form, int batch
     assert_int_equal(hf_cl_layer_form(&lo, ly, form, &f), HF_OK);
     emu_layer(bufs, batch, &f, w16, b32);
   }
-  /* The output stage: f is dec0's form. */
+  /* The output stage: f is dec0's form. The Kernel architecture's head is
+   * part of it (hf_cuk_output_kernel): the FP32 1x1 convolution over dec0's
+   * hidden channels, already through the layer's ReLU, and the input. */
   const hf_cl_raw raw = hf_cl_raw_output(&f);
+  const int head = hf_head_in(cfg), hidden = cfg->kernel_hidden;
   for (int n = 0; n < batch; n++) {
     hf_input_view view = {bufs[HF_CL_BUF_IN] + (size_t)n * ph * pw * lo.cin_pad, width, height,
                           pw, lo.cin_pad};
     for (int y = 0; y < height; y++)
       for (int x = 0; x < width; x++) {
-        float *o = got + (((size_t)n * height + y) * width + x) * 3;
-        memcpy(o, raw_px(bufs, &raw, n, y, x), 12);
-        hf_output_finish(cfg, &view, x, y, o);
+        float v[HF_MAX_RAW_CHANNELS];
+        const float *rp = raw_px(bufs, &raw, n, y, x);
+        const float *ip = view.data + ((size_t)y * pw + x) * lo.cin_pad;
+        for (int o = 0; o < cfg->out_channels; o++) {
+          if (!head) {
+            v[o] = rp[o];
+            continue;
+          }
+          const float *wr = w->head_w + (size_t)o * head;
+          v[o] = w->head_b[o];
+          for (int j = 0; j < head; j++) v[o] += wr[j] * (j < hidden ? rp[j] : ip[j - hidden]);
+        }
+        hf_output_finish(cfg, &view, x, y, v);
+        memcpy(got + (((size_t)n * height + y) * width + x) * 3, v, 12);
       }
   }
 
@@ -467,6 +481,34 @@ static void test_emulation_odd_channels(void **state) {
   emulate_vs_cpu_ref(&cfg, MIXED, 2, 5, 3);
 }
 
+/* The Kernel architecture's dec0 has more than 3 channels: padded to 8 in
+ * every form, with the head's ReLU when it has one. A 5x5 kernel without a
+ * head (28 raw channels), an odd hidden count and the largest kernel, on
+ * the odd-channel network. */
+static void test_emulation_kernel(void **state) {
+  (void)state;
+  static const struct { int r, hidden; } k[] = {{2, 0}, {1, 5}, {4, 64}};
+  for (size_t i = 0; i < sizeof k / sizeof k[0]; i++) {
+    hf_net_config cfg = odd_config();
+    cfg.arch = HF_ARCH_KERNEL;
+    cfg.kernel_radius = k[i].r;
+    cfg.kernel_hidden = k[i].hidden;
+    cfg.out_channels = hf_kernel_taps(k[i].r) + 3;
+    snprintf(cfg.name, sizeof cfg.name, "odd r%d h%d", k[i].r, k[i].hidden);
+    hf_cl_layout lo;
+    assert_int_equal(hf_cl_layout_init(&cfg, 1, 8, 8, &lo), HF_OK);
+    const hf_cl_layer *dec0 = &lo.layers[lo.nlayers - 1];
+    assert_int_equal(lo.out_ch, hf_cl_pad8(hf_dec_out(&cfg, 0)));
+    assert_int_equal(dec0->out.c, lo.out_ch);
+    assert_int_equal(dec0->out_real, k[i].hidden ? k[i].hidden : hf_kernel_taps(k[i].r) + 3);
+    assert_int_equal(dec0->relu, k[i].hidden > 0);
+    emulate_vs_cpu_ref(&cfg, HF_CL_FORM_BWD_DATA, 1, 13, 9);
+    emulate_vs_cpu_ref(&cfg, HF_CL_FORM_D2S, 2, 13, 9);
+    emulate_vs_cpu_ref(&cfg, HF_CL_FORM_PHASE, 1, 13, 9);
+    emulate_vs_cpu_ref(&cfg, HF_CL_FORM_SHUFFLE, 1, 13, 9);
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_base_views),
@@ -475,6 +517,7 @@ int main(void) {
       cmocka_unit_test(test_pack_odd_channels),
       cmocka_unit_test(test_emulation_presets),
       cmocka_unit_test(test_emulation_odd_channels),
+      cmocka_unit_test(test_emulation_kernel),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
