@@ -22,6 +22,13 @@
  *   - ReLU is a post-op of the convolutions. On the deconvolution path it is
  *     a separate in-place eltwise: fused into an fp32 deconvolution it made
  *     that primitive about ten times slower.
+ *   - The Kernel architecture's head is one 1x1 convolution over a buffer
+ *     that dec0's tap pass fills with the hidden channels (ReLU included)
+ *     and a copy fills with the input; HF_CPU_HEAD=sum computes it as two
+ *     convolutions summed (no copy) for comparison. Its output stage runs
+ *     on the backend's threads, rows split between them, with the
+ *     row-vectorised code of cpu_kernel_output.c; HF_CPU_KERNEL_REF=1 uses
+ *     net_config.c's reference rows instead, for comparison.
  *   - Weights are reordered once, at model_create, into the format oneDNN
  *     chooses (format_tag_any); a size whose primitives want another format
  *     gets a private copy in its plan.
@@ -129,6 +136,7 @@ typedef struct od_model {
    * the concatenation, or two summed (head_split: the weights' input and
    * hidden columns, [out][cin] and [out][hidden]); by od_kind - OD_HEAD. */
   int head_sum;
+  int kernel_ref;               /* HF_CPU_KERNEL_REF: the reference output stage */
   dnnl_memory_t head_w[3], head_b;
   float *head_split[3];
   od_plan *plans[OD_PLAN_CACHE];
@@ -647,6 +655,7 @@ typedef struct od_kernel_out {
   float *sums, *fin;            /* [batch][3][height][width], [batch][height][width][3] */
   float *scratch;               /* per thread, scratch_floats each */
   size_t scratch_floats;
+  int ref;                      /* the reference's rows instead (HF_CPU_KERNEL_REF) */
   const hf_io *io;
 } od_kernel_out;
 
@@ -657,7 +666,10 @@ static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
     size_t n = r / h;
     int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
     hf_input_view v = {k->in + n * k->ph * k->pw * cin, w, h, k->pw, cin};
-    hf_cpu_kernel_sums(&v, k->cfg->spp, y0, y1, k->sums + n * h * w * 3);
+    if (k->ref)
+      hf_pixel_sums_rows(&v, k->cfg->spp, y0, y1, k->sums + n * h * w * 3);
+    else
+      hf_cpu_kernel_sums(&v, k->cfg->spp, y0, y1, k->sums + n * h * w * 3);
     r += (size_t)(y1 - y0);
   }
 }
@@ -670,9 +682,13 @@ static void od_kernel_rows(const void *ctx, int job, size_t r0, size_t r1) {
     size_t n = r / h, frame = n * h * w * 3;
     int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
     float *out = f16 ? k->fin + frame : (float *)k->io->out + frame;
-    hf_cpu_kernel_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, k->sums + frame,
-                       k->raw + n * k->ph * k->pw * ch, k->pw, ch, y0, y1, out,
-                       k->scratch + (size_t)job * k->scratch_floats);
+    const float *raw = k->raw + n * k->ph * k->pw * ch;
+    if (k->ref)
+      hf_kernel_output_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, k->sums + frame, raw,
+                            k->pw, ch, y0, y1, out);
+    else
+      hf_cpu_kernel_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, k->sums + frame, raw, k->pw,
+                         ch, y0, y1, out, k->scratch + (size_t)job * k->scratch_floats);
     if (f16) {
       uint16_t *d = (uint16_t *)k->io->out + frame;
       for (size_t i = (size_t)y0 * w * 3; i < (size_t)y1 * w * 3; i++)
@@ -958,6 +974,8 @@ static int od_model_create(void *devp, const hf_weights *w, void **out) {
     OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_f32, dnnl_x));
     OD_TRY(dnnl_memory_create(&m->dec_b[i], &md, dev->eng, m->w->dec_b[i]));
   }
+  const char *ref = getenv("HF_CPU_KERNEL_REF");
+  m->kernel_ref = ref && *ref && strcmp(ref, "0");
   if (hf_head_in(c)) {
     dnnl_memory_desc_t md;
     dnnl_dims_t d = {c->out_channels};
@@ -1009,7 +1027,7 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
   double t2 = hf_now_us();
   if (c->arch == HF_ARCH_KERNEL) {
     od_kernel_out k = {c, in, p->out, pw, ph, p->sums, p->fin, p->kscratch,
-                       hf_cpu_kernel_scratch(pw, c->kernel_radius), io};
+                       hf_cpu_kernel_scratch(pw, c->kernel_radius), m->kernel_ref, io};
     od_kernel_output(&k, m->dev->threads);
   } else {
     hf_output_from_padded_f32(c, in, p->out, pw, ph, io);

@@ -3,11 +3,12 @@
  * time across the row's pixels so that the compiler vectorises every loop.
  *
  * Why not the reference: it works pixel by pixel, 49 scalar expf calls and
- * three short dot products per pixel for the 7x7 kernel, about 3x the time
- * of this file's rows (docs/PERFORMANCE.md). Why not oneDNN's softmax: it
- * wants the logits dense (without the three corrections between pixels),
- * which costs a copy, and then one more pass over its result for the
- * weighted sums; on its own it took about as long as this whole stage.
+ * short dot products per pixel for the 7x7 kernel, several times the time
+ * of this file's rows (docs/PERFORMANCE.md, HF_CPU_KERNEL_REF). Why not
+ * oneDNN's softmax: it wants the logits dense, without the three
+ * corrections between pixels (a strided tensor gets its reference
+ * implementation), which costs a copy, and the weighted sums need one more
+ * pass over its result.
  *
  * A row's logits are transposed into planes, one per tap, so that every
  * step below is the same operation on consecutive pixels: the maximum over

@@ -204,6 +204,10 @@ static void test_kernel_configs(void **state) {
   compare(*state, "Kernel", 1, 64, 48, HF_F32, HF_F32, 615);
   compare(*state, "Kernel", 2, 150, 100, HF_F16, HF_F16, 616);
   assert_int_equal(unsetenv("HF_CPU_HEAD"), 0);
+  /* The reference output stage on the backend's threads, for comparison. */
+  assert_int_equal(setenv("HF_CPU_KERNEL_REF", "1", 1), 0);
+  compare(*state, "Kernel", 2, 150, 100, HF_F32, HF_F16, 617);
+  assert_int_equal(unsetenv("HF_CPU_KERNEL_REF"), 0);
 }
 
 /* The same frame gives the same bytes on a reused plan, after other sizes
