@@ -357,7 +357,7 @@ void hf_model_trim(hf_model *m, size_t keep) {
 /* ---- helpers shared by the CPU backends ---------------------------------- */
 
 size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height) {
-  if (cfg->arch != HF_ARCH_RESIDUAL) return 0;
+  if (cfg->arch != HF_ARCH_RESIDUAL && cfg->arch != HF_ARCH_KERNEL) return 0;
   return 2 * (size_t)width * height * 3 * sizeof(float);
 }
 

@@ -103,7 +103,7 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
 void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
                                int pw, int ph, const hf_io *io);
 /* Host memory hf_output_from_padded_f32 allocates for io's frames (the
- * Residual base of a frame, and its scratch). */
+ * Residual base or the Kernel output of a frame, and its scratch). */
 size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height);
 /* The Kernel architecture's output stage across each row's pixels
  * (cpu_kernel_output.c), the values of hf_kernel_output_rows up to

@@ -191,18 +191,22 @@ static int od_probe(char *why, size_t whylen) {
   return HF_OK;
 }
 
+/* As many threads as oneDNN's OpenMP would use: the online cores, or
+ * OMP_NUM_THREADS when that is set lower. */
+static int od_thread_count(void) {
+  long n = sysconf(_SC_NPROCESSORS_ONLN);
+  const char *omp = getenv("OMP_NUM_THREADS");
+  if (omp && atol(omp) > 0 && atol(omp) < n) n = atol(omp);
+  return n < 1 ? 1 : n > OD_MAX_THREADS ? OD_MAX_THREADS : (int)n;
+}
+
 static int od_open(void **out, char *why, size_t whylen) {
   int rc;
   od_dev *d = calloc(1, sizeof *d);
   if (!d) return HF_ENOMEM;
   OD_TRY(dnnl_engine_create(&d->eng, dnnl_cpu, 0));
   OD_TRY(dnnl_stream_create(&d->stream, d->eng, dnnl_stream_default_flags));
-  /* As many threads as oneDNN's OpenMP would use: the online cores, or
-   * OMP_NUM_THREADS when that is set lower. */
-  long n = sysconf(_SC_NPROCESSORS_ONLN);
-  const char *omp = getenv("OMP_NUM_THREADS");
-  if (omp && atol(omp) > 0 && atol(omp) < n) n = atol(omp);
-  d->threads = n < 1 ? 1 : n > OD_MAX_THREADS ? OD_MAX_THREADS : (int)n;
+  d->threads = od_thread_count();
   *out = d;
   return HF_OK;
 fail:
@@ -728,6 +732,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   if (head) {
     OD_RC(od_nhwc(&head_md, batch, head_ch, ph, pw));
     OD_RC(od_alloc(&head_md, (void **)&p->head_in));
+    p->bytes += dnnl_memory_desc_get_size(&head_md);
   }
   if (c->arch == HF_ARCH_KERNEL) {
     dnnl_memory_desc_t md;
@@ -737,6 +742,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     size_t n = hf_cpu_kernel_scratch(pw, c->kernel_radius) * dev->threads;
     if (n > SIZE_MAX / sizeof(float)) OD_RC(HF_ERANGE);
     OD_RC(od_alloc_bytes(n * sizeof(float), (void **)&p->kscratch));
+    p->bytes += 2 * dnnl_memory_desc_get_size(&md) + n * sizeof(float);
   }
 
   /* The ping-pong buffers hold every encoder output, every decoder output
@@ -1053,9 +1059,10 @@ static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + 
 
 /* What od_plan_create allocates for (batch, pw, ph), from the same sizes:
  * padded input and output, two ping-pong buffers of the largest activation
- * (taps included), the concat buffers, the scratchpad, and private weight
- * copies (at most one of every weight). Each buffer is rounded as
- * od_alloc_bytes rounds it, plus a page of allocator overhead. */
+ * (taps included), the concat buffers, the scratchpad, private weight
+ * copies (at most one of every weight), and the Kernel architecture's head
+ * input, output-stage sums, result and per-thread scratch. Each buffer is
+ * rounded as od_alloc_bytes rounds it, plus a page of allocator overhead. */
 static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   const size_t f = sizeof(float), page = 4096;
   int L = c->num_levels;
@@ -1071,7 +1078,15 @@ static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
     weights += ((size_t)hf_enc_out(c, i) * hf_enc_in(c, i) * 9 +
                 (size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16) * f + 64 + page;
   }
-  total += px * c->in_channels * f + px * 3 * f + 2 * (64 + page);
+  total += px * c->in_channels * f + px * c->out_channels * f + 2 * (64 + page);
+  if (hf_head_in(c)) {
+    /* The larger of the head's two forms: the concatenation. */
+    total += px * hf_head_in(c) * f + 64 + page;
+    weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
+  }
+  if (c->arch == HF_ARCH_KERNEL)
+    total += 2 * (px * 3 * f + 64 + page) +
+             hf_cpu_kernel_scratch(pw, c->kernel_radius) * od_thread_count() * f + 64 + page;
   total += 2 * (ping + 64 + page);
   total += od_scratch_allowance(ping) + weights;
   return total + hf_output_extra_bytes(c, pw, ph);

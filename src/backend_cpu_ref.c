@@ -178,7 +178,7 @@ out:
 
 /* What ref_model_run allocates, from the same sizes: the padded input and
  * output of the batch, every encoder output, every decoder's concat input
- * and output, and the output stage's buffers. That is the sum of every
+ * and output, the head's concatenation, and the output stage's buffers. That is the sum of every
  * allocation of a run, not the most alive at once: the heap may not reuse
  * a freed block for a larger one, so resident memory can exceed the live
  * peak, never the sum (the frames of a batch run one after another in the
@@ -186,13 +186,15 @@ out:
  * allocator's own bookkeeping. Nothing is kept between runs. */
 static size_t ref_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   const size_t f = sizeof(float), page = 4096;
-  size_t total = ((size_t)pw * ph * c->in_channels + (size_t)pw * ph * 3) * f * batch + 2 * page;
+  const size_t px = (size_t)pw * ph;
+  size_t total = (px * c->in_channels + px * c->out_channels) * f * batch + 2 * page;
   for (int i = 0; i < c->num_levels; i++) {
     size_t hw = (size_t)(pw >> (i + 1)) * (ph >> (i + 1));
     total += hw * hf_enc_out(c, i) * f + 1 + page;
     if (i < c->num_levels - 1) total += hw * hf_dec_in(c, i) * f + page;
-    if (i > 0) total += 4 * hw * hf_dec_out(c, i) * f + page;
+    if (i > 0 || hf_head_in(c)) total += 4 * hw * hf_dec_out(c, i) * f + page;
   }
+  if (hf_head_in(c)) total += px * hf_head_in(c) * f + page; /* the head's concatenation */
   return total + hf_output_extra_bytes(c, pw, ph) + 2 * page + ((size_t)64 << 10);
 }
 

@@ -107,6 +107,7 @@ static void test_cpu_ref(void **state) {
     {"Small", 192, 128, 1},
     {"Base", 128, 72, 2},
     {"Residual", 96, 96, 1},
+    {"Kernel", 96, 64, 2},
     {"Deep", 64, 48, 1},
   };
   check_backend("cpu-ref", cases, (int)(sizeof cases / sizeof cases[0]));
@@ -119,6 +120,7 @@ static void test_cpu(void **state) {
     {"Small", 512, 384, 1},
     {"Base", 300, 200, 2},
     {"Residual", 256, 256, 1},
+    {"Kernel", 384, 256, 2},
     {"Deep", 160, 96, 1},
     {"Large", 8, 8, 1},
   };
