@@ -44,16 +44,10 @@ void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int y0, int y1, float 
   const size_t plane = (size_t)in->width * in->height;
   for (int y = y0; y < y1; y++)
     for (int x = 0; x < in->width; x++) {
-      const float *s = in->data + ((size_t)y * in->pitch + x) * in->stride;
-      float n = 0, col = 0, hl = 0;
-      for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
-        if (s[2] > 0.0f) {
-          n += 1.0f;
-          col += s[0];
-          hl += s[1];
-        }
+      float s[3];
+      hf_pixel_sums(in->data + ((size_t)y * in->pitch + x) * in->stride, spp, s);
       size_t i = (size_t)y * in->width + x;
-      planes[i] = n, planes[plane + i] = col, planes[2 * plane + i] = hl;
+      planes[i] = s[0], planes[plane + i] = s[1], planes[2 * plane + i] = s[2];
     }
 }
 

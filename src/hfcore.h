@@ -380,6 +380,10 @@ void hf_output_transform(float *rgb3);
  * (HF_ENOTFOUND). */
 const char *hf_arch_name(int arch);
 int hf_arch_from_name(const char *name);
+/* The covered samples' count (alpha > 0), colour sum and highlight sum of
+ * one pixel's spp*6 input features: the stochastic-transparency estimate
+ * before its division. */
+void hf_pixel_sums(const float *pixel_in, int spp, float sums[3]);
 /* The stochastic-transparency estimate of one pixel from its spp*6 input
  * features: mean colour and highlight of the covered samples (colour 1,
  * highlight 0 when none is), fraction of covered samples as alpha. */

@@ -154,7 +154,7 @@ int hf_arch_from_name(const char *name) {
  * blended alpha and the covered samples' mean estimates the blended colour
  * (Enderton et al. 2011). A pixel with no covered sample gets colour 1, the
  * neutral value of the paper's colour transform. */
-void hf_st_estimate(const float *px, int spp, float est[3]) {
+void hf_pixel_sums(const float *px, int spp, float sums[3]) {
   float n = 0, col = 0, hl = 0;
   for (int k = 0; k < spp; k++) {
     const float *s = px + k * HF_FEATURES_PER_SAMPLE;
@@ -164,8 +164,15 @@ void hf_st_estimate(const float *px, int spp, float est[3]) {
       hl += s[1];
     }
   }
-  est[HF_OUT_COLOR] = n > 0 ? col / n : 1.0f;
-  est[HF_OUT_HIGHLIGHT] = n > 0 ? hl / n : 0.0f;
+  sums[0] = n, sums[1] = col, sums[2] = hl;
+}
+
+void hf_st_estimate(const float *px, int spp, float est[3]) {
+  float s[3];
+  hf_pixel_sums(px, spp, s);
+  const float n = s[0];
+  est[HF_OUT_COLOR] = n > 0 ? s[1] / n : 1.0f;
+  est[HF_OUT_HIGHLIGHT] = n > 0 ? s[2] / n : 0.0f;
   est[HF_OUT_ALPHA] = n / (float)spp;
 }
 
@@ -192,18 +199,9 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
 
 void hf_pixel_sums_rows(const hf_input_view *in, int spp, int y0, int y1, float *sums) {
   for (int y = y0; y < y1; y++)
-    for (int x = 0; x < in->width; x++) {
-      const float *s = in->data + ((size_t)y * in->pitch + x) * in->stride;
-      float n = 0, col = 0, hl = 0;
-      for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
-        if (s[2] > 0.0f) {
-          n += 1.0f;
-          col += s[0];
-          hl += s[1];
-        }
-      float *o = sums + ((size_t)y * in->width + x) * 3;
-      o[0] = n, o[1] = col, o[2] = hl;
-    }
+    for (int x = 0; x < in->width; x++)
+      hf_pixel_sums(in->data + ((size_t)y * in->pitch + x) * in->stride, spp,
+                    sums + ((size_t)y * in->width + x) * 3);
 }
 
 int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,

@@ -234,36 +234,53 @@ static void test_d2s(int offset, int co, int ps, int ch_off) {
 
 static double rel_diff(double a, double b) { return fabs(a - b) / (fabs(b) > 1 ? fabs(b) : 1); }
 
-static void test_output(int residual, int d2s, int dst_f16) {
-  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4, cpad = 24;
-  // Raw output: dec0's OUT buffer (8 channels) or a D2S dec0 scratch
-  // ((ph/2+1) x (pw/2+1) pixels of 4 phases x 3 channels).
+// Random raw output of batch frames of ph x pw: dec0's OUT buffer (co
+// channels), or a D2S dec0 scratch ((ph/2+1) x (pw/2+1) pixels of 4 phases
+// x co channels). *buf is the data (free it).
+static hf_cuk_raw random_raw(int d2s, int co, int batch, int pw, int ph, __half **buf) {
   hf_cuk_raw raw;
   memset(&raw, 0, sizeof raw);
   raw.at.buf = d2s ? HF_CL_BUF_SCRATCH : HF_CL_BUF_OUT;
-  raw.at.pix_stride = d2s ? 12 : 8;
+  raw.at.pix_stride = d2s ? 4 * co : co;
   raw.at.rows = d2s ? ph / 2 + 1 : ph;
   raw.at.cols = d2s ? pw / 2 + 1 : pw;
   raw.at.div = d2s ? 2 : 1;
   raw.at.offset = d2s ? 1 : 0;
-  raw.at.co = d2s ? 3 : 8;
+  raw.at.co = co;
   const size_t nraw = (size_t)batch * raw.at.rows * raw.at.cols * raw.at.pix_stride;
-  __half *rbuf = (__half *)dalloc(nraw * 2);
-  fill(rbuf, nraw);
-  raw.data = rbuf;
-  // The FP16 network input: samples covered (alpha > 0) or not (all zero).
+  *buf = (__half *)dalloc(nraw * 2);
+  fill(*buf, nraw);
+  raw.data = *buf;
+  return raw;
+}
+
+// The FP16 network input of batch frames of ph x pw (cpad channels, spp
+// samples): samples covered (alpha > 0) or not (all zero), none covered in
+// the left empty_cols columns of frame 0. *in32 is the same in FP32.
+static __half *random_input(int batch, int pw, int ph, int spp, int cpad, int empty_cols,
+                            float **in32) {
   const size_t nin = (size_t)batch * ph * pw * cpad;
   __half *in = (__half *)dalloc(nin * 2);
-  float *in32 = (float *)malloc(nin * 4);
+  *in32 = (float *)malloc(nin * 4);
   for (size_t p = 0; p < (size_t)batch * ph * pw; p++)
     for (int s = 0; s < spp; s++) {
-      const int covered = frand() < 0.6f;
+      const int covered = frand() < 0.6f && (p >= (size_t)ph * pw || (int)(p % pw) >= empty_cols);
       for (int f = 0; f < 6; f++) {
         const float v = covered ? (f == 2 ? 0.05f + 0.95f * frand() : frand()) : 0.0f;
         in[p * cpad + s * 6 + f] = __float2half_rn(v);
       }
     }
-  for (size_t i = 0; i < nin; i++) in32[i] = h2f(in[i]);
+  for (size_t i = 0; i < nin; i++) (*in32)[i] = h2f(in[i]);
+  return in;
+}
+
+static void test_output(int residual, int d2s, int dst_f16) {
+  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4, cpad = 24;
+  // Raw output: the OUT buffer's 8 channels, or D2S phases of 3.
+  __half *rbuf;
+  const hf_cuk_raw raw = random_raw(d2s, d2s ? 3 : 8, batch, pw, ph, &rbuf);
+  float *in32;
+  __half *in = random_input(batch, pw, ph, spp, cpad, 0, &in32);
   const size_t nout = (size_t)batch * h * w * 3;
   void *out = dalloc(nout * 4);
   memset(out, 0xff, nout * 4);
@@ -333,41 +350,20 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16) {
   cfg.kernel_hidden = hidden;
   cfg.out_channels = hf_kernel_taps(radius) + 3;
   const int oc = hidden ? hidden : cfg.out_channels, co = (oc + 7) / 8 * 8;
-  hf_cuk_raw raw;
-  memset(&raw, 0, sizeof raw);
-  raw.at.buf = d2s ? HF_CL_BUF_SCRATCH : HF_CL_BUF_OUT;
-  raw.at.pix_stride = d2s ? 4 * co : co;
-  raw.at.rows = d2s ? ph / 2 + 1 : ph;
-  raw.at.cols = d2s ? pw / 2 + 1 : pw;
-  raw.at.div = d2s ? 2 : 1;
-  raw.at.offset = d2s ? 1 : 0;
-  raw.at.co = co;
+  __half *rbuf;
+  const hf_cuk_raw raw = random_raw(d2s, co, batch, pw, ph, &rbuf);
   const size_t nraw = (size_t)batch * raw.at.rows * raw.at.cols * raw.at.pix_stride;
-  __half *rbuf = (__half *)dalloc(nraw * 2);
-  fill(rbuf, nraw);
   if (hidden)  // after dec0's ReLU
     for (size_t i = 0; i < nraw; i++) rbuf[i] = __float2half_rn(fabsf(h2f(rbuf[i])));
-  raw.data = rbuf;
   const int nfeat = hidden + cin;
   float *hw = (float *)malloc((size_t)cfg.out_channels * nfeat * 4), *hb = (float *)malloc(84 * 4);
   for (int i = 0; i < cfg.out_channels * nfeat; i++) hw[i] = (2 * frand() - 1) / 4;
   for (int i = 0; i < cfg.out_channels; i++) hb[i] = 2 * frand() - 1;
   hf_cuk_head head = {hidden ? hw : NULL, hidden ? hb : NULL, hidden, cin};
-  // The FP16 network input: samples covered (alpha > 0) or not (all zero),
-  // the left 5 columns of frame 0 empty (pixels with no covered sample in
-  // reach, for radius <= 4).
-  const size_t nin = (size_t)batch * ph * pw * cpad;
-  __half *in = (__half *)dalloc(nin * 2);
-  float *in32 = (float *)malloc(nin * 4);
-  for (size_t p = 0; p < (size_t)batch * ph * pw; p++)
-    for (int s = 0; s < spp; s++) {
-      const int covered = frand() < 0.6f && (p >= (size_t)ph * pw || p % pw >= 5);
-      for (int f = 0; f < 6; f++) {
-        const float v = covered ? (f == 2 ? 0.05f + 0.95f * frand() : frand()) : 0.0f;
-        in[p * cpad + s * 6 + f] = __float2half_rn(v);
-      }
-    }
-  for (size_t i = 0; i < nin; i++) in32[i] = h2f(in[i]);
+  // The left 5 columns of frame 0 empty: pixels with no covered sample in
+  // reach, for radius <= 4.
+  float *in32;
+  __half *in = random_input(batch, pw, ph, spp, cpad, 5, &in32);
   const size_t nout = (size_t)batch * h * w * 3;
   void *out = dalloc(nout * 4);
   memset(out, 0xff, nout * 4);
