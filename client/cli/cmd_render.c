@@ -45,6 +45,8 @@ static void usage(FILE *f) {
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
     "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
     "           --occluder apply to them)\n"
+    "         a frame too dense for the A-buffer is left out (manifest \"skipped\") and the\n"
+    "         run goes on; --max-fragments N lowers that limit (default and most 67108864)\n"
     "other:   --platform osmesa|egl|auto   --out PATH\n");
 }
 
@@ -302,6 +304,13 @@ static int parse_args(int argc, char **argv, opts *o) {
       else if (!strcmp(a, "--opaque")) o->outputs.opaque_samples = (int)n;
       else if (!strcmp(a, "--seed")) o->outputs.seed = (uint32_t)n, o->ds.seed = (uint64_t)n;
       else if (!strcmp(a, "--count")) o->ds.count = (int)n;
+      else if (!strcmp(a, "--max-fragments")) {
+        if (n > HFR_MAX_FRAGMENTS) {
+          fprintf(stderr, "hairfilter render: --max-fragments is at most %u\n", HFR_MAX_FRAGMENTS);
+          return -1;
+        }
+        o->outputs.max_fragments = (uint32_t)n, o->ds.max_fragments = (uint32_t)n;
+      }
       else if (!strcmp(a, "--random-view")) o->random_view = 1, o->random_seed = (uint64_t)n;
       else {
         fprintf(stderr, "hairfilter render: unknown option %s\n", a);

@@ -298,7 +298,13 @@ typedef struct hfr_outputs {
   int opaque_samples;           /* opaque MSAA baseline (multiple of 4); 0 = none */
   int background_layer;         /* the occluder layer (background.*) */
   uint32_t seed;                /* hash seed of the stochastic samples */
+  /* Most A-buffer fragments the ground truth may store (each 20 bytes of
+   * GL memory): 0 or anything above HFR_MAX_FRAGMENTS means that limit. A
+   * frame that needs more fails with HF_ERANGE. */
+  uint32_t max_fragments;
 } hfr_outputs;
+
+#define HFR_MAX_FRAGMENTS (1u << 26)
 
 /* What the network will see in a frame, measured on the first 4x pass
  * (samples 0-3 of the features, or of the ST baselines when spp is 0) and
@@ -428,6 +434,7 @@ typedef struct hfr_dataset_opts {
   uint64_t seed;
   int half;                     /* EXR in float16 */
   int extended;                 /* style parameters over wide ranges (hr_dataset.c) */
+  uint32_t max_fragments;       /* hfr_outputs.max_fragments of every frame */
   /* Regimes (hr_dataset_regimes.c): per frame and per clump, strand width in
    * pixels, density, virtual frame size (the output is a width x height
    * crop of a frame_min..frame_max square frame), camera, light, shadows,

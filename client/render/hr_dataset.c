@@ -281,6 +281,8 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     cJSON_AddItemToObject(doc, "frame_sizes", int_list(fs, 2));
   }
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
+  cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");
+  int n_skipped = 0;
 
   const int sources = o->n_styles + o->n_hair_files, total = sources * o->count;
   double start = hr_now_ms();
@@ -329,6 +331,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       out.opaque_samples = o->opaque_samples;
       out.background_layer = o->background_layer;
       out.seed = (uint32_t)(seed * 2654435761u);
+      out.max_fragments = o->max_fragments;
 
       double t0 = hr_now_ms();
       hfr_hair hair;
@@ -371,11 +374,26 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       snprintf(file, sizeof file, "%s_%04d.exr", fi < 0 ? hfr_style_name(sp.style) : models[fi].name,
                i);
       snprintf(path, sizeof path, "%s/%s", o->out_dir, file);
-      if (rc == HF_OK) {
+      int left_out = rc == HF_ERANGE;
+      if (left_out) {
+        /* A draw too dense for the ground truth's A-buffer: the frame is
+         * left out (named in the manifest's "skipped" list) and the run goes
+         * on, rather than losing every frame after it. */
+        fprintf(stderr, "%shairfilter render dataset: %s left out: %s\n", o->progress ? "\n" : "",
+                file, err ? err : "too many fragments");
+        cJSON *sk = cJSON_CreateObject();
+        cJSON_AddStringToObject(sk, "file", file);
+        cJSON_AddStringToObject(sk, "reason", err ? err : "too many fragments");
+        cJSON_AddItemToArray(skipped, sk);
+        rc = write_manifest(o->out_dir, doc);
+        if (rc != HF_OK && err) snprintf(err, errlen, "cannot write %s/manifest.json", o->out_dir);
+        n_skipped++;
+      }
+      if (rc == HF_OK && !left_out) {
         rc = hf_exr_write(path, &img, o->half);
         if (rc != HF_OK && err) snprintf(err, errlen, "%s: %s", path, hf_strerror(rc));
       }
-      if (rc == HF_OK) {
+      if (rc == HF_OK && !left_out) {
         cJSON_AddItemToArray(
             frames, frame_entry(file, fi < 0 ? hfr_style_name(sp.style) : models[fi].name, &sp,
                                 &v, &out, o, seed, &hair, &st, hr_now_ms() - t0,
@@ -392,6 +410,11 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       if (o->progress) progress(done, total, start);
     }
   if (o->progress) fprintf(stderr, "\n");
+  if (rc == HF_OK && n_skipped == total) {
+    if (err) snprintf(err, errlen, "every frame was left out (too dense for the A-buffer): "
+                      "lower --strands, --size or --gt-ss");
+    rc = HF_ERANGE;
+  }
   cJSON_Delete(doc);
   hfr_renderer_destroy(r);
   for (int f = 0; f < o->n_hair_files; f++)

@@ -154,6 +154,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   if (rc != HF_OK) return rc;
   if (!r->has_hair) return bad(err, errlen, "no hair model set");
   if ((rc = hr_renderer_bind(r)) != HF_OK) return rc;
+  r->max_fragments = o->max_fragments;
   int W, H;
   hr_view_target(v, &W, &H);
   const int S = 4;

@@ -42,6 +42,7 @@ struct hfr_renderer {
   hr_program st, shadow, abuf, head, occluder, resolve_ms, resolve_abuf;
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
   uint32_t points;              /* instances drawn: points - 1 */
+  uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */
   GLsizei head_vertices;
   int has_hair, has_head;       /* has_head: an occluder is set */
   uint64_t segments;

@@ -10,7 +10,6 @@
 #include "hr_shaders.h"
 
 #define ABUF_MIN_NODES (1u << 20)
-#define ABUF_MAX_NODES (1u << 26) /* 1.3 GB of nodes */
 #define NODE_WORDS 5
 
 static GLuint make_tex(GLenum target, GLenum fmt, int w, int h, int samples) {
@@ -425,9 +424,12 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
   hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
   hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)sizeof(uint32_t) * FSW * FSH, NULL,
                   GL_DYNAMIC_COPY);
+  /* HFR_MAX_FRAGMENTS: 1.3 GB of nodes at most. */
+  const uint32_t max_nodes = r->max_fragments > 0 && r->max_fragments < HFR_MAX_FRAGMENTS
+                                 ? r->max_fragments : HFR_MAX_FRAGMENTS;
   uint64_t want = (uint64_t)SW * SH * 2;
   uint32_t capacity = want < ABUF_MIN_NODES ? ABUF_MIN_NODES
-                      : want > ABUF_MAX_NODES ? ABUF_MAX_NODES : (uint32_t)want;
+                      : want > max_nodes ? max_nodes : (uint32_t)want;
   uint32_t count = 0;
   double t0 = hr_now_ms();
   for (int attempt = 0; rc == HF_OK && attempt < 2; attempt++) {
@@ -467,15 +469,16 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hrgl.BindBuffer(GL_ATOMIC_COUNTER_BUFFER, bufs[2]);
     hrgl.GetBufferSubData(GL_ATOMIC_COUNTER_BUFFER, 0, 4, &count);
     rc = hr_gl_check("A-buffer pass", err, errlen);
-    if (rc != HF_OK || count <= capacity) break;
-    if (count > ABUF_MAX_NODES) {
+    if (rc != HF_OK) break;
+    if (count > max_nodes) {
       if (err) snprintf(err, errlen, "%u A-buffer fragments, more than the %u supported: "
-                        "lower the supersampling, size or strand count", count, ABUF_MAX_NODES);
+                        "lower the supersampling, size or strand count", count, max_nodes);
       rc = HF_ERANGE;
       break;
     }
+    if (count <= capacity) break;
     /* Too small: grow to what was counted and draw again. */
-    capacity = count + count / 16 > ABUF_MAX_NODES ? ABUF_MAX_NODES : count + count / 16;
+    capacity = count + count / 16 > max_nodes ? max_nodes : count + count / 16;
   }
 
   if (rc == HF_OK) {

@@ -414,6 +414,74 @@ static void test_dataset_mode(void **state) {
 
 /* --extended: every frame's parameters inside the documented wide ranges,
  * and not all alike. */
+/* A frame too dense for the ground truth's A-buffer is left out, named in
+ * the manifest's "skipped" list, and the run goes on with the next frame;
+ * a run that leaves out every frame fails. The limit is lowered between the
+ * fragment counts of the run's own frames so that some cross it. */
+static void test_dataset_skips_dense_frames(void **state) {
+  (void)state;
+  char dir[256];
+  snprintf(dir, sizeof dir, "/tmp/hf_test_dataset_skip_%d", (int)getpid());
+  hfr_dataset_opts o;
+  hfr_dataset_defaults(&o);
+  o.out_dir = dir;
+  o.styles[0] = HFR_STYLE_STRAIGHT;
+  o.styles[1] = HFR_STYLE_CURLY;
+  o.n_styles = 2;
+  o.count = 2;
+  o.width = 16, o.height = 16;
+  o.strands = 1500;
+  o.shadow_size = 0;
+  o.progress = 0;
+  o.platform = "osmesa";
+  char err[512] = "", path[512];
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_OK);
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
+  /* The four frames' fragment counts, in manifest order. */
+  int counts[4], lo = 0x7fffffff, hi = 0;
+  char *text = slurp(path);
+  const char *k = text;
+  for (int i = 0; i < 4; i++) {
+    k = strstr(k, "\"gt_fragments\":");
+    assert_non_null(k);
+    k += strlen("\"gt_fragments\":");
+    counts[i] = atoi(k);
+    lo = counts[i] < lo ? counts[i] : lo;
+    hi = counts[i] > hi ? counts[i] : hi;
+  }
+  free(text);
+  print_message("fragments per frame: %d %d %d %d\n", counts[0], counts[1], counts[2], counts[3]);
+  assert_true(lo < hi);
+  o.max_fragments = (uint32_t)lo;
+  assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_OK);
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
+  text = slurp(path);
+  char *sk = strstr(text, "\"skipped\"");
+  assert_non_null(sk);
+  /* Every frame over the limit is in the skipped list, the others in frames. */
+  int skipped = 0;
+  for (const char *q = sk; (q = strstr(q, "\"reason\"")) != NULL; q++) skipped++;
+  int over = 0;
+  for (int i = 0; i < 4; i++) over += counts[i] > lo;
+  assert_int_equal(skipped, over);
+  assert_true(skipped >= 1 && skipped <= 3);
+  free(text);
+  o.max_fragments = 1;
+  assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_ERANGE);
+  assert_int_equal(hr_renderer_bind(R), HF_OK);
+  assert_non_null(strstr(err, "every frame was left out"));
+  const char *files[] = {"straight_0000.exr", "curly_0000.exr", "straight_0001.exr",
+                         "curly_0001.exr"};
+  for (int i = 0; i < 4; i++) {
+    char f[512];
+    snprintf(f, sizeof f, "%s/%s", dir, files[i]);
+    remove(f);
+  }
+  remove(path);
+  rmdir(dir);
+}
+
 static void test_dataset_extended(void **state) {
   (void)state;
   char dir[256];
@@ -550,6 +618,7 @@ int main(void) {
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_frame_ranges),
     cmocka_unit_test(test_dataset_mode),
+    cmocka_unit_test(test_dataset_skips_dense_frames),
     cmocka_unit_test(test_dataset_extended),
     cmocka_unit_test(test_render_frame_from_file),
     cmocka_unit_test(test_egl),
