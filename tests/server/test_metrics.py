@@ -40,8 +40,14 @@ def promtool(text):
 
 def main():
     w = workdir()
+    # The config file's keys lose to the command line's: its listener (in a
+    # directory that does not exist) is replaced by the flag's, its queue
+    # size by --queue-size (checked below as hairfilterd_queue_capacity 2).
+    conf = os.path.join(w, "hairfilterd.conf")
+    with open(conf, "w") as f:
+        f.write("listen = unix:/nonexistent-dir/hf.sock\nqueue-size = 99\nmax-batch = 7\n")
     d = Daemon(HAIRFILTERD, [
-        "--config", "none", "--listen", "unix:%s/s.sock" % w, "--http", "tcp:127.0.0.1:0",
+        "--config", conf, "--listen", "unix:%s/s.sock" % w, "--http", "tcp:127.0.0.1:0",
         "--weights", os.path.join(WEIGHTS, "small.safetensors"),
         "--weights", os.path.join(WEIGHTS, "shallow.safetensors"),
         "--backend", "cpu-ref", "--queue-size", "2", "--max-inflight", "8",
