@@ -89,6 +89,13 @@ static void family(FILE *f, const char *name, const char *type, const char *help
   fprintf(f, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
 }
 
+/* A family of one unlabelled integer sample. */
+static void scalar(FILE *f, const char *name, const char *type, const char *help,
+                   unsigned long long v) {
+  family(f, name, type, help);
+  fprintf(f, "%s %llu\n", name, v);
+}
+
 static void lower(char *dst, size_t cap, const char *src) {
   size_t i = 0;
   for (; src[i] && i + 1 < cap; i++) dst[i] = (char)tolower((unsigned char)src[i]);
@@ -223,10 +230,10 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
   fputs("hairfilterd_backend_info{backend=\"", f);
   label(f, backend);
   fputs("\"} 1\n", f);
-  family(f, "hairfilterd_ready", "gauge", "1 when /readyz answers 200.");
-  fprintf(f, "hairfilterd_ready %d\n", ready);
-  family(f, "hairfilterd_draining", "gauge", "1 after SIGTERM or SIGINT, while finishing work.");
-  fprintf(f, "hairfilterd_draining %d\n", s->draining);
+  scalar(f, "hairfilterd_ready", "gauge", "1 when /readyz answers 200.",
+         ready);
+  scalar(f, "hairfilterd_draining", "gauge", "1 after SIGTERM or SIGINT, while finishing work.",
+         s->draining);
 
   family(f, "hairfilterd_variant_info", "gauge",
          "Always 1 for each variant served; its backend, precision, samples per pixel, U-Net "
@@ -260,11 +267,10 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
          "Device (GPU) memory each variant's model holds; 0 on CPU backends.");
   PER_VARIANT(f, s, "hairfilterd_model_device_memory_bytes", "%llu",
               (unsigned long long)v->model->device_bytes);
-  family(f, "hairfilterd_model_cache_memory_bytes", "gauge",
+  scalar(f, "hairfilterd_model_cache_memory_bytes", "gauge",
          "Host memory the backend keeps between runs (plans, scratch), all models together; "
-         "counted in the request memory limit.");
-  fprintf(f, "hairfilterd_model_cache_memory_bytes %llu\n",
-          (unsigned long long)atomic_load(&s->worker.cached_bytes));
+         "counted in the request memory limit.",
+         atomic_load(&s->worker.cached_bytes));
 
   family(f, "hairfilterd_requests_total", "counter",
          "FILTER requests answered, by variant (empty: none could be found) and status; class "
@@ -307,42 +313,39 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
   PER_VARIANT(f, s, "hairfilterd_frames_sanitised_total", "%llu",
               (unsigned long long)v->stats.frames_sanitised);
 
-  family(f, "hairfilterd_queue_depth", "gauge", "Admitted frames waiting for the worker.");
-  fprintf(f, "hairfilterd_queue_depth %d\n", hfd_worker_queue_depth(&s->worker));
-  family(f, "hairfilterd_queue_capacity", "gauge", "--queue-size.");
-  fprintf(f, "hairfilterd_queue_capacity %d\n", s->cfg->queue_size);
-  family(f, "hairfilterd_requests_in_flight", "gauge",
-         "Requests admitted and not yet answered (queued or running).");
-  fprintf(f, "hairfilterd_requests_in_flight %d\n", s->jobs_outstanding);
-  family(f, "hairfilterd_connections", "gauge", "Open connections.");
-  fprintf(f, "hairfilterd_connections %d\n", s->num_conns);
-  family(f, "hairfilterd_connections_handshaking", "gauge",
-         "Open connections that have not completed their HELLO.");
-  fprintf(f, "hairfilterd_connections_handshaking %d\n", s->num_handshaking);
-  family(f, "hairfilterd_connections_total", "counter", "Connections accepted.");
-  fprintf(f, "hairfilterd_connections_total %llu\n", (unsigned long long)s->conns_total);
-  family(f, "hairfilterd_protocol_errors_total", "counter",
-         "ERROR replies not tied to a variant: malformed frames, failed handshakes, deadlines.");
-  fprintf(f, "hairfilterd_protocol_errors_total %llu\n", (unsigned long long)s->protocol_errors);
-  family(f, "hairfilterd_replies_lost_total", "counter",
-         "Results computed whose client had gone before they could be written.");
-  fprintf(f, "hairfilterd_replies_lost_total %llu\n", (unsigned long long)s->replies_lost);
-  family(f, "hairfilterd_request_memory_bytes", "gauge",
-         "Host memory charged to requests: features, results, inference (--max-memory-mb).");
-  fprintf(f, "hairfilterd_request_memory_bytes %llu\n", (unsigned long long)s->mem_held);
-  family(f, "hairfilterd_request_memory_limit_bytes", "gauge", "--max-memory-mb in bytes.");
-  fprintf(f, "hairfilterd_request_memory_limit_bytes %llu\n",
-          (unsigned long long)s->cfg->max_memory_bytes);
-  family(f, "hairfilterd_shared_memory_bytes", "gauge",
-         "Shared-memory segments held for Unix-socket clients.");
-  fprintf(f, "hairfilterd_shared_memory_bytes %llu\n", (unsigned long long)s->shm_held);
-  family(f, "hairfilterd_shared_memory_limit_bytes", "gauge", "--max-shm-mb in bytes.");
-  fprintf(f, "hairfilterd_shared_memory_limit_bytes %llu\n",
-          (unsigned long long)s->cfg->max_shm_bytes);
-  family(f, "hairfilterd_max_frame_pixels", "gauge",
-         "Largest frame announced in HELLO_OK (--max-size as lowered to fit the limits).");
-  fprintf(f, "hairfilterd_max_frame_pixels %llu\n",
-          (unsigned long long)s->max_width * (unsigned long long)s->max_height);
+  scalar(f, "hairfilterd_queue_depth", "gauge", "Admitted frames waiting for the worker.",
+         hfd_worker_queue_depth(&s->worker));
+  scalar(f, "hairfilterd_queue_capacity", "gauge", "--queue-size.",
+         s->cfg->queue_size);
+  scalar(f, "hairfilterd_requests_in_flight", "gauge",
+         "Requests admitted and not yet answered (queued or running).",
+         s->jobs_outstanding);
+  scalar(f, "hairfilterd_connections", "gauge", "Open connections.",
+         s->num_conns);
+  scalar(f, "hairfilterd_connections_handshaking", "gauge",
+         "Open connections that have not completed their HELLO.",
+         s->num_handshaking);
+  scalar(f, "hairfilterd_connections_total", "counter", "Connections accepted.",
+         s->conns_total);
+  scalar(f, "hairfilterd_protocol_errors_total", "counter",
+         "ERROR replies not tied to a variant: malformed frames, failed handshakes, deadlines.",
+         s->protocol_errors);
+  scalar(f, "hairfilterd_replies_lost_total", "counter",
+         "Results computed whose client had gone before they could be written.",
+         s->replies_lost);
+  scalar(f, "hairfilterd_request_memory_bytes", "gauge",
+         "Host memory charged to requests: features, results, inference (--max-memory-mb).",
+         s->mem_held);
+  scalar(f, "hairfilterd_request_memory_limit_bytes", "gauge", "--max-memory-mb in bytes.",
+         s->cfg->max_memory_bytes);
+  scalar(f, "hairfilterd_shared_memory_bytes", "gauge",
+         "Shared-memory segments held for Unix-socket clients.",
+         s->shm_held);
+  scalar(f, "hairfilterd_shared_memory_limit_bytes", "gauge", "--max-shm-mb in bytes.",
+         s->cfg->max_shm_bytes);
+  scalar(f, "hairfilterd_max_frame_pixels", "gauge",
+         "Largest frame announced in HELLO_OK (--max-size as lowered to fit the limits).",
+         (unsigned long long)s->max_width * (unsigned long long)s->max_height);
 
   family(f, "hairfilterd_reloads_total", "counter",
          "SIGHUP reloads, by result (failed: at least one file did not load).");
@@ -354,9 +357,9 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
           (unsigned long long)s->loads_ok);
   fprintf(f, "hairfilterd_model_loads_total{result=\"failed\"} %llu\n",
           (unsigned long long)s->loads_failed);
-  family(f, "hairfilterd_weights_files_unserved", "gauge",
-         "Configured weights files that serve no variant (their load failed).");
-  fprintf(f, "hairfilterd_weights_files_unserved %d\n", s->missing);
+  scalar(f, "hairfilterd_weights_files_unserved", "gauge",
+         "Configured weights files that serve no variant (their load failed).",
+         s->missing);
 
   process_metrics(f, s);
   if (fclose(f) != 0) {
@@ -375,7 +378,7 @@ void hfd_metrics_log(hfd_server *s) {
              (unsigned long long)s->conns_total, hfd_worker_queue_depth(&s->worker),
              s->cfg->queue_size, s->jobs_outstanding, s->mem_held / 1048576.0,
              s->shm_held / 1048576.0, (unsigned long long)s->protocol_errors,
-             (unsigned long long)(s->reloads_ok + s->reloads_failed));
+             s->reloads_ok + s->reloads_failed);
   for (int i = 0; i < s->num_variants; i++) {
     const hfd_variant *v = &s->variants[i];
     if (!v->model) continue;

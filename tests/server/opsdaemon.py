@@ -7,12 +7,31 @@ import shutil
 import signal
 import struct
 import subprocess
+import sys
 import tempfile
 import time
 import urllib.error
 import urllib.request
 
 from prometheus_client.parser import text_string_to_metric_families
+
+
+failures = []
+
+
+def check(cond, what):
+    """Records a failed check (the test goes on, to report them all)."""
+    if not cond:
+        failures.append(what)
+        print("FAIL:", what)
+
+
+def finish():
+    """Exits 1 when a check failed."""
+    if failures:
+        print("%d check(s) failed" % len(failures))
+        sys.exit(1)
+    print("all checks passed")
 
 
 class Daemon:

@@ -20,18 +20,10 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from opsdaemon import Daemon, cleanup, load_result, run_load, sample, workdir  # noqa: E402
+from opsdaemon import (Daemon, check, cleanup, failures, finish, load_result,  # noqa: E402
+                       run_load, sample, workdir)
 
 HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
-failures = []
-
-
-def check(cond, what):
-    if not cond:
-        failures.append(what)
-        print("FAIL:", what)
-
-
 def promtool(text):
     p = subprocess.run(["promtool", "check", "metrics"], input=text, capture_output=True,
                        text=True)
@@ -188,7 +180,4 @@ def run(d):
 
 
 main()
-if failures:
-    print("%d check(s) failed" % len(failures))
-    sys.exit(1)
-print("all checks passed")
+finish()

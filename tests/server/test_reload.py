@@ -14,19 +14,10 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from opsdaemon import (Daemon, cleanup, load_result, run_load, sample,  # noqa: E402
-                       set_weights_name, workdir)
+from opsdaemon import (Daemon, check, cleanup, failures, finish, load_result,  # noqa: E402
+                       run_load, sample, set_weights_name, workdir)
 
 HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
-failures = []
-
-
-def check(cond, what):
-    if not cond:
-        failures.append(what)
-        print("FAIL:", what)
-
-
 def write_conf(path, w, extra=""):
     with open(path, "w") as f:
         f.write("; hairfilterd.conf for the reload test\n"
@@ -159,7 +150,4 @@ def run(d, w, conf):
 
 
 main()
-if failures:
-    print("%d check(s) failed" % len(failures))
-    sys.exit(1)
-print("all checks passed")
+finish()
