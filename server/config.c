@@ -258,7 +258,8 @@ typedef struct file_args {
 } file_args;
 
 static int truthy(const char *v, int *out) {
-  static const char *const yes[] = {"1", "yes", "true", "on"}, *const no[] = {"0", "no", "false", "off"};
+  static const char *const yes[] = {"1", "yes", "true", "on"};
+  static const char *const no[] = {"0", "no", "false", "off"};
   for (int i = 0; i < 4; i++) {
     if (!strcasecmp(v, yes[i])) return *out = 1, 0;
     if (!strcasecmp(v, no[i])) return *out = 0, 0;

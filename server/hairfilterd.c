@@ -258,16 +258,17 @@ int hfd_ready(const hfd_server *s, char *why, size_t whylen) {
   for (int i = 0; i < s->num_variants; i++) serving += s->variants[i].model != NULL;
   double stalled;
   why[0] = 0;
-  if (!s->load_started || !s->worker.backend)
-    snprintf(why, whylen, "loading");
-  else if (s->draining)
+  if (s->draining)
     snprintf(why, whylen, "draining");
+  else if (!s->load_started || !s->worker.backend)
+    snprintf(why, whylen, "loading");
   else if (!serving)
     snprintf(why, whylen, "no variant is served");
   else if (s->missing)
     snprintf(why, whylen, "%d configured weights file(s) serve no variant; first: %s",
              s->missing, s->missing_why);
-  else if (hfd_worker_stalled((hfd_worker *)&s->worker, s->cfg->watchdog_ms * 1e3, &stalled))
+  else if (!s->stopped &&
+           hfd_worker_stalled((hfd_worker *)&s->worker, s->cfg->watchdog_ms * 1e3, &stalled))
     snprintf(why, whylen, "inference worker made no progress for %.1f s", stalled / 1e6);
   return why[0] == 0;
 }
@@ -312,7 +313,6 @@ void hfd_maybe_finish(hfd_server *s) {
     hfd_worker_stop(&s->worker);
     hfd_models_after_stop(s);
     close_handle((uv_handle_t *)&s->async);
-    close_handle((uv_handle_t *)&s->beat_timer);
     close_handle((uv_handle_t *)&s->drain_timer);
     close_handle((uv_handle_t *)&s->sweep_timer);
     for (hfd_conn *c = s->conns, *next; c; c = next) {
@@ -347,6 +347,7 @@ void hfd_maybe_finish(hfd_server *s) {
     close_handle((uv_handle_t *)&s->sighup);
     close_handle((uv_handle_t *)&s->sigusr1);
     close_handle((uv_handle_t *)&s->flush_timer);
+    close_handle((uv_handle_t *)&s->beat_timer);
     hfd_http_loop_closing(s);
   }
 }

@@ -314,7 +314,7 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
               (unsigned long long)v->stats.frames_sanitised);
 
   scalar(f, "hairfilterd_queue_depth", "gauge", "Admitted frames waiting for the worker.",
-         hfd_worker_queue_depth(&s->worker));
+         s->stopped ? 0 : hfd_worker_queue_depth(&s->worker));
   scalar(f, "hairfilterd_queue_capacity", "gauge", "--queue-size.",
          s->cfg->queue_size);
   scalar(f, "hairfilterd_requests_in_flight", "gauge",
@@ -375,7 +375,8 @@ void hfd_metrics_log(hfd_server *s) {
   hfd_notice("statistics: uptime=%.1fs connections=%d connections_total=%llu queue=%d/%d "
              "in_flight=%d memory_mib=%.1f shm_mib=%.1f protocol_errors=%llu reloads=%llu",
              (hfd_now_us() - s->t_start) / 1e6, s->num_conns,
-             (unsigned long long)s->conns_total, hfd_worker_queue_depth(&s->worker),
+             (unsigned long long)s->conns_total,
+             s->stopped ? 0 : hfd_worker_queue_depth(&s->worker),
              s->cfg->queue_size, s->jobs_outstanding, s->mem_held / 1048576.0,
              s->shm_held / 1048576.0, (unsigned long long)s->protocol_errors,
              s->reloads_ok + s->reloads_failed);

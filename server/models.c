@@ -414,7 +414,7 @@ static void finish_reload(hfd_server *s) {
   else
     s->reloads_ok++;
   hfd_limits_derive(s);
-  hfd_notify_ready(s);
+  if (!s->draining) hfd_notify_ready(s);
   if (s->reload.again && !s->draining) {
     s->reload.again = 0;
     hfd_models_reload(s);
