@@ -379,7 +379,7 @@ void hfd_metrics_log(hfd_server *s) {
              s->stopped ? 0 : hfd_worker_queue_depth(&s->worker),
              s->cfg->queue_size, s->jobs_outstanding, s->mem_held / 1048576.0,
              s->shm_held / 1048576.0, (unsigned long long)s->protocol_errors,
-             s->reloads_ok + s->reloads_failed);
+             (unsigned long long)(s->reloads_ok + s->reloads_failed));
   for (int i = 0; i < s->num_variants; i++) {
     const hfd_variant *v = &s->variants[i];
     if (!v->model) continue;
