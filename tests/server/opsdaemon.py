@@ -137,6 +137,19 @@ def load_result(proc, timeout=120):
     return json.loads(out)
 
 
+def run_then_stop(d, w, body):
+    """Runs body(), then stops the daemon (which must exit 0), prints its log
+    when a check failed, and removes the work directory w."""
+    try:
+        body()
+    finally:
+        rc = d.stop()
+        check(rc == 0, "daemon exited %s" % rc)
+        if failures:
+            print(d.log_text())
+        cleanup(w)
+
+
 def workdir():
     d = tempfile.mkdtemp(prefix="hfops-")
     os.chmod(d, 0o755)

@@ -20,7 +20,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from opsdaemon import (Daemon, check, cleanup, failures, finish, load_result,  # noqa: E402
+from opsdaemon import (Daemon, check, finish, load_result, run_then_stop,  # noqa: E402
                        run_load, sample, workdir)
 
 HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
@@ -44,14 +44,7 @@ def main():
         "--weights", os.path.join(WEIGHTS, "shallow.safetensors"),
         "--backend", "cpu-ref", "--queue-size", "2", "--max-inflight", "8",
         "--max-size", "64x64", "--max-batch", "2"], w)
-    try:
-        run(d)
-    finally:
-        rc = d.stop()
-        check(rc == 0, "daemon exited %s" % rc)
-        if failures:
-            print(d.log_text())
-        cleanup(w)
+    run_then_stop(d, w, lambda: run(d))
 
 
 def run(d):

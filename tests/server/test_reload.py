@@ -14,7 +14,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from opsdaemon import (Daemon, check, cleanup, failures, finish, load_result,  # noqa: E402
+from opsdaemon import (Daemon, check, finish, load_result, run_then_stop,  # noqa: E402
                        run_load, sample, set_weights_name, workdir)
 
 HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
@@ -60,14 +60,7 @@ def main():
     conf = os.path.join(w, "hairfilterd.conf")
     write_conf(conf, w)
     d = Daemon(HAIRFILTERD, ["--config", conf], w)
-    try:
-        run(d, w, conf)
-    finally:
-        rc = d.stop()
-        check(rc == 0, "daemon exited %s" % rc)
-        if failures:
-            print(d.log_text())
-        cleanup(w)
+    run_then_stop(d, w, lambda: run(d, w, conf))
 
 
 def run(d, w, conf):
