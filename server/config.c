@@ -1,23 +1,33 @@
-/* Command-line options of hairfilterd (docs/SERVER.md lists them). Parsed
- * with getopt_long, so both "--opt VALUE" and "--opt=VALUE" work. */
+/* Options of hairfilterd (docs/SERVER.md lists them), from the config file
+ * and the command line. Parsed with getopt_long, so both "--opt VALUE" and
+ * "--opt=VALUE" work. The config file is read with inih (libinih, Debian's
+ * libinih-dev): "key = value" lines whose keys are the long options without
+ * their dashes; each line becomes "--key=value" ahead of the command line,
+ * so the same parser checks both and the command line wins. */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <getopt.h>
+#include <ini.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "server.h"
 
 static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilterd --listen URL [--listen URL ...]\n"
-          "                   (--weights FILE.safetensors ... | --weights-dir DIR)\n"
+          "                   (--weights [NAME=]FILE.safetensors ... | --weights-dir DIR)\n"
           "                   [options]\n"
           "\n"
+          "  --config FILE            key = value lines with the keys of these options\n"
+          "                           (default " HFD_DEFAULT_CONFIG " when it\n"
+          "                           exists; none: read none); the command line wins\n"
           "  --listen unix:PATH | tcp:HOST:PORT | tcp:[IPV6]:PORT | tcp:PORT\n"
           "                           (repeatable; tcp:PORT is loopback; port 0: any free)\n"
-          "  --weights FILE           load one variant (repeatable)\n"
+          "  --weights [NAME=]FILE    load one variant (repeatable), named NAME or as its\n"
+          "                           metadata says\n"
           "  --weights-dir DIR        load every *.safetensors in DIR\n"
           "  --backend NAME           auto | cpu | cpu-ref | cudnn (default auto)\n"
           "  --max-batch N            frames per backend run (default 4)\n"
@@ -50,7 +60,14 @@ static void usage(FILE *f) {
           "  --pipeline-depth N       backend runs in flight: 2 (default) uploads the next\n"
           "                           frame while one computes, 1 runs one at a time\n"
           "  --name NAME              server name in HELLO_OK (default hairfilterd)\n"
-          "  --verbose                log connections too\n");
+          "  --http tcp:HOST:PORT     /metrics (Prometheus), /healthz and /readyz here\n"
+          "  --watchdog-ms N          unhealthy when the worker or the event loop makes no\n"
+          "                           progress for this long (default 60000)\n"
+          "  --log-level LEVEL        error | warning | notice | info (default) | debug\n"
+          "  --verbose                --log-level debug: log connections too\n"
+          "\n"
+          "SIGHUP reads the config file and the weights again; SIGUSR1 logs the statistics;\n"
+          "SIGTERM and SIGINT drain and stop.\n");
 }
 
 static int parse_int(const char *opt, const char *s, long lo, long hi, long *out) {
@@ -102,6 +119,30 @@ static int read_token(const char *path, char *dst) {
   return token_take(path, buf, n, dst);
 }
 
+static char *own(hfd_config *cfg, char *s);
+
+/* --weights [NAME=]FILE: NAME overrides the name in the file's metadata,
+ * so that two files whose metadata say the same (a retrained Small beside
+ * the bundled one) can be served side by side. What comes before the first
+ * '=' is a name only when it could be one (printable, no space, no '/');
+ * else the whole value is a path. */
+static int weights_entry(hfd_config *cfg, const char *val) {
+  const char *eq = strchr(val, '=');
+  const char *name = NULL, *path = val;
+  if (eq && eq > val && eq[1]) {
+    size_t n = (size_t)(eq - val);
+    int ok = n <= HFP_NAME_MAX;
+    for (size_t i = 0; ok && i < n; i++) ok = val[i] > 0x20 && val[i] < 0x7f && val[i] != '/';
+    if (ok) {
+      if (!(name = own(cfg, strndup(val, n)))) return -1;
+      path = eq + 1;
+    }
+  }
+  cfg->weights_name[cfg->num_weights] = name;
+  cfg->weights[cfg->num_weights++] = path;
+  return 0;
+}
+
 /* --warm WxH[xN][,WxH[xN]...], checked against --max-size and --max-batch
  * (so give those first). */
 static int parse_warm(const char *list, hfd_config *cfg) {
@@ -145,40 +186,160 @@ enum {
   OPT_QUEUE_SIZE, OPT_MAX_INFLIGHT, OPT_MAX_SIZE, OPT_MAX_FRAME, OPT_MAX_MEMORY, OPT_MAX_SHM,
   OPT_MAX_CONNECTIONS, OPT_MAX_HANDSHAKES, OPT_TOKEN_FILE, OPT_NO_AUTH, OPT_DRAIN,
   OPT_FLUSH, OPT_HANDSHAKE, OPT_STALL, OPT_MIN_RATE, OPT_READY, OPT_NAME, OPT_WARM,
-  OPT_PIPELINE
+  OPT_PIPELINE, OPT_HTTP, OPT_WATCHDOG, OPT_LOG_LEVEL, OPT_CONFIG
 };
 
+static const struct option opts[] = {
+  {"listen", required_argument, 0, OPT_LISTEN},
+  {"weights", required_argument, 0, OPT_WEIGHTS},
+  {"weights-dir", required_argument, 0, OPT_WEIGHTS_DIR},
+  {"backend", required_argument, 0, OPT_BACKEND},
+  {"max-batch", required_argument, 0, OPT_MAX_BATCH},
+  {"max-queue-delay-us", required_argument, 0, OPT_QUEUE_DELAY},
+  {"queue-size", required_argument, 0, OPT_QUEUE_SIZE},
+  {"max-inflight", required_argument, 0, OPT_MAX_INFLIGHT},
+  {"max-size", required_argument, 0, OPT_MAX_SIZE},
+  {"max-frame-mb", required_argument, 0, OPT_MAX_FRAME},
+  {"max-memory-mb", required_argument, 0, OPT_MAX_MEMORY},
+  {"max-shm-mb", required_argument, 0, OPT_MAX_SHM},
+  {"max-connections", required_argument, 0, OPT_MAX_CONNECTIONS},
+  {"max-handshakes", required_argument, 0, OPT_MAX_HANDSHAKES},
+  {"auth-token-file", required_argument, 0, OPT_TOKEN_FILE},
+  {"no-auth", no_argument, 0, OPT_NO_AUTH},
+  {"drain-timeout-ms", required_argument, 0, OPT_DRAIN},
+  {"flush-timeout-ms", required_argument, 0, OPT_FLUSH},
+  {"handshake-timeout-ms", required_argument, 0, OPT_HANDSHAKE},
+  {"stall-timeout-ms", required_argument, 0, OPT_STALL},
+  {"min-recv-rate", required_argument, 0, OPT_MIN_RATE},
+  {"ready-file", required_argument, 0, OPT_READY},
+  {"warm", required_argument, 0, OPT_WARM},
+  {"pipeline-depth", required_argument, 0, OPT_PIPELINE},
+  {"name", required_argument, 0, OPT_NAME},
+  {"http", required_argument, 0, OPT_HTTP},
+  {"watchdog-ms", required_argument, 0, OPT_WATCHDOG},
+  {"log-level", required_argument, 0, OPT_LOG_LEVEL},
+  {"config", required_argument, 0, OPT_CONFIG},
+  {"verbose", no_argument, 0, 'v'},
+  {"help", no_argument, 0, 'h'},
+  {0, 0, 0, 0},
+};
+
+/* ---- the config file ------------------------------------------------------ */
+
+static char *own(hfd_config *cfg, char *s) {
+  if (!s) return NULL;
+  if (cfg->num_owned == cfg->cap_owned) {
+    int cap = cfg->cap_owned ? cfg->cap_owned * 2 : 32;
+    char **p = realloc(cfg->owned, (size_t)cap * sizeof *p);
+    if (!p) {
+      free(s);
+      return NULL;
+    }
+    cfg->owned = p;
+    cfg->cap_owned = cap;
+  }
+  return cfg->owned[cfg->num_owned++] = s;
+}
+
+void hfd_config_free(hfd_config *cfg) {
+  for (int i = 0; i < cfg->num_owned; i++) free(cfg->owned[i]);
+  free(cfg->owned);
+  cfg->owned = NULL;
+  cfg->num_owned = cfg->cap_owned = 0;
+}
+
+typedef struct file_args {
+  hfd_config *cfg;
+  const char *path;
+  char **argv;                   /* "--key=value", owned by cfg */
+  int argc, cap;
+  int bad;                       /* a line was refused: why */
+  char why[300];
+} file_args;
+
+static int truthy(const char *v, int *out) {
+  static const char *const yes[] = {"1", "yes", "true", "on"};
+  static const char *const no[] = {"0", "no", "false", "off"};
+  for (int i = 0; i < 4; i++) {
+    if (!strcasecmp(v, yes[i])) return *out = 1, 0;
+    if (!strcasecmp(v, no[i])) return *out = 0, 0;
+  }
+  return -1;
+}
+
+/* inih calls this for every "key = value" line, in order (a key may come
+ * more than once: --listen, --weights). Returning 0 makes ini_parse report
+ * the line; why says what was wrong with it. */
+static int on_ini(void *user, const char *section, const char *key, const char *value) {
+  file_args *fa = user;
+  if (fa->bad) return 0;
+  if (section[0]) {
+    snprintf(fa->why, sizeof fa->why, "no sections ([%s]): keys are the options' names", section);
+    fa->bad = 1;
+    return 0;
+  }
+  const struct option *o = NULL;
+  for (const struct option *p = opts; p->name; p++)
+    if (!strcmp(p->name, key)) o = p;
+  if (!o || !strcmp(key, "config") || !strcmp(key, "help")) {
+    snprintf(fa->why, sizeof fa->why, "unknown key '%s' (keys are the long options without "
+             "their dashes; see hairfilterd --help)", key);
+    fa->bad = 1;
+    return 0;
+  }
+  char *arg = NULL;
+  if (o->has_arg == no_argument) {
+    int on;
+    if (truthy(value, &on)) {
+      snprintf(fa->why, sizeof fa->why, "%s wants yes or no, not '%s'", key, value);
+      fa->bad = 1;
+      return 0;
+    }
+    if (!on) return 1;
+    if (asprintf(&arg, "--%s", key) < 0) arg = NULL;
+  } else if (asprintf(&arg, "--%s=%s", key, value) < 0) {
+    arg = NULL;
+  }
+  if (fa->argc + 2 >= fa->cap) {
+    int cap = fa->cap ? fa->cap * 2 : 32;
+    char **p = realloc(fa->argv, (size_t)cap * sizeof *p);
+    if (!p) {
+      free(arg);
+      snprintf(fa->why, sizeof fa->why, "out of memory");
+      fa->bad = 1;
+      return 0;
+    }
+    fa->argv = p;
+    fa->cap = cap;
+  }
+  if (!(fa->argv[fa->argc] = own(fa->cfg, arg))) {
+    snprintf(fa->why, sizeof fa->why, "out of memory");
+    fa->bad = 1;
+    return 0;
+  }
+  fa->argc++;
+  return 1;
+}
+
+/* --config FILE or --config=FILE anywhere on the command line (the last
+ * wins), else the default path. NULL for "none". */
+static const char *config_path(int argc, char **argv, int *explicit) {
+  const char *path = HFD_DEFAULT_CONFIG;
+  *explicit = 0;
+  for (int i = 1; i < argc; i++) {
+    if (!strcmp(argv[i], "--")) break;
+    if (!strcmp(argv[i], "--config") && i + 1 < argc) {
+      path = argv[++i];
+      *explicit = 1;
+    } else if (!strncmp(argv[i], "--config=", 9)) {
+      path = argv[i] + 9;
+      *explicit = 1;
+    }
+  }
+  return strcmp(path, "none") ? path : NULL;
+}
+
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
-  static const struct option opts[] = {
-    {"listen", required_argument, 0, OPT_LISTEN},
-    {"weights", required_argument, 0, OPT_WEIGHTS},
-    {"weights-dir", required_argument, 0, OPT_WEIGHTS_DIR},
-    {"backend", required_argument, 0, OPT_BACKEND},
-    {"max-batch", required_argument, 0, OPT_MAX_BATCH},
-    {"max-queue-delay-us", required_argument, 0, OPT_QUEUE_DELAY},
-    {"queue-size", required_argument, 0, OPT_QUEUE_SIZE},
-    {"max-inflight", required_argument, 0, OPT_MAX_INFLIGHT},
-    {"max-size", required_argument, 0, OPT_MAX_SIZE},
-    {"max-frame-mb", required_argument, 0, OPT_MAX_FRAME},
-    {"max-memory-mb", required_argument, 0, OPT_MAX_MEMORY},
-    {"max-shm-mb", required_argument, 0, OPT_MAX_SHM},
-    {"max-connections", required_argument, 0, OPT_MAX_CONNECTIONS},
-    {"max-handshakes", required_argument, 0, OPT_MAX_HANDSHAKES},
-    {"auth-token-file", required_argument, 0, OPT_TOKEN_FILE},
-    {"no-auth", no_argument, 0, OPT_NO_AUTH},
-    {"drain-timeout-ms", required_argument, 0, OPT_DRAIN},
-    {"flush-timeout-ms", required_argument, 0, OPT_FLUSH},
-    {"handshake-timeout-ms", required_argument, 0, OPT_HANDSHAKE},
-    {"stall-timeout-ms", required_argument, 0, OPT_STALL},
-    {"min-recv-rate", required_argument, 0, OPT_MIN_RATE},
-    {"ready-file", required_argument, 0, OPT_READY},
-    {"warm", required_argument, 0, OPT_WARM},
-    {"pipeline-depth", required_argument, 0, OPT_PIPELINE},
-    {"name", required_argument, 0, OPT_NAME},
-    {"verbose", no_argument, 0, 'v'},
-    {"help", no_argument, 0, 'h'},
-    {0, 0, 0, 0},
-  };
   memset(cfg, 0, sizeof *cfg);
   cfg->backend = "auto";
   cfg->max_batch = 4;
@@ -197,32 +358,109 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   cfg->min_recv_rate = 64 << 10;
   cfg->name = "hairfilterd";
   cfg->pipeline_depth = 2;
+  cfg->watchdog_ms = 60000;
+  cfg->log_level = HFD_LOG_INFO;
   const char *token_file = NULL, *warm = NULL;
+
+  /* The file's lines first, then the command line, through one parser. */
+  int explicit;
+  const char *path = config_path(argc, argv, &explicit);
+  file_args fa = {cfg, path, NULL, 0, 0, 0, ""};
+  struct stat st;
+  if (path && (explicit || stat(path, &st) == 0)) {
+    int rc = ini_parse(path, on_ini, &fa);
+    if (rc < 0)
+      fprintf(stderr, "hairfilterd: cannot read config file %s: %s\n", path,
+              rc == -1 ? strerror(errno) : "out of memory");
+    else if (rc > 0)
+      fprintf(stderr, "hairfilterd: %s:%d: %s\n", path, rc,
+              fa.bad ? fa.why : "not a 'key = value' line");
+    if (rc) {
+      free(fa.argv);
+      return -1;
+    }
+    cfg->config_path = path;
+  }
+  int nall = 1 + fa.argc + argc;
+  char **all = calloc((size_t)nall + 1, sizeof *all);
+  if (!all) {
+    free(fa.argv);
+    return -1;
+  }
+  all[0] = argv[0];
+  for (int i = 0; i < fa.argc; i++) all[1 + i] = fa.argv[i];
+  for (int i = 1; i < argc; i++) all[fa.argc + i] = argv[i];
+  nall = 1 + fa.argc + argc - 1;
+  free(fa.argv);
+  /* A repeatable key on the command line replaces the file's list. */
+  int listen_from_file = 0, weights_from_file = 0;
+  int rc = 0;
   optind = 1;
   opterr = 0;
   for (;;) {
-    int idx = -1, o = getopt_long(argc, argv, ":hv", opts, &idx);
+    int idx = -1, o = getopt_long(nall, all, ":hv", opts, &idx);
     if (o == -1) break;
+    /* Arguments up to index fa.argc came from the file. */
+    int from_file = optind - 1 <= fa.argc;
     const char *name = idx >= 0 ? opts[idx].name : "";
     const char *val = optarg;
     long v;
+    if (o == OPT_LISTEN && !from_file && listen_from_file) {
+      cfg->num_listen = 0;
+      listen_from_file = 0;
+    }
+    if (o == OPT_WEIGHTS && !from_file && weights_from_file) {
+      cfg->num_weights = 0;
+      weights_from_file = 0;
+    }
+    if (o == OPT_LISTEN && from_file) listen_from_file = 1;
+    if (o == OPT_WEIGHTS && from_file) weights_from_file = 1;
     switch (o) {
       case 'h':
         usage(stdout);
-        return 1;
+        rc = 1;
+        goto out;
       case 'v':
-        hfd_verbose = 1;
+        cfg->log_level = HFD_LOG_DEBUG;
         break;
+      case OPT_CONFIG: break;  /* read above */
+      case OPT_HTTP: {
+        char why[300];
+        if (hfp_url_parse(val, HFP_URL_LISTEN, &cfg->http_url, why, sizeof why) ||
+            cfg->http_url.kind != HFP_URL_TCP) {
+          fprintf(stderr, "hairfilterd: --http wants tcp:HOST:PORT%s%s\n",
+                  cfg->http_url.kind == HFP_URL_UNIX ? "" : ": ",
+                  cfg->http_url.kind == HFP_URL_UNIX ? "" : why);
+          rc = -1;
+          goto out;
+        }
+        cfg->http = val;
+        break;
+      }
+      case OPT_WATCHDOG:
+        if (parse_int(name, val, 1000, 3600000, &v)) goto fail;
+        cfg->watchdog_ms = (int)v;
+        break;
+      case OPT_LOG_LEVEL: {
+        int l = hfd_log_level_parse(val);
+        if (l < 0) {
+          fprintf(stderr, "hairfilterd: --log-level wants error, warning, notice, info or "
+                  "debug, not '%s'\n", val);
+          goto fail;
+        }
+        cfg->log_level = l;
+        break;
+      }
       case OPT_LISTEN: {
         if (cfg->num_listen == HFD_MAX_LISTENERS) {
           fprintf(stderr, "hairfilterd: at most %d --listen\n", HFD_MAX_LISTENERS);
-          return -1;
+          goto fail;
         }
         char why[300];
         if (hfp_url_parse(val, HFP_URL_LISTEN, &cfg->listen_url[cfg->num_listen], why,
                           sizeof why)) {
           fprintf(stderr, "hairfilterd: --listen: %s\n", why);
-          return -1;
+          goto fail;
         }
         cfg->listen[cfg->num_listen++] = val;
         break;
@@ -230,26 +468,26 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_WEIGHTS:
         if (cfg->num_weights == HFD_MAX_VARIANTS) {
           fprintf(stderr, "hairfilterd: at most %d --weights\n", HFD_MAX_VARIANTS);
-          return -1;
+          goto fail;
         }
-        cfg->weights[cfg->num_weights++] = val;
+        if (weights_entry(cfg, val)) goto fail;
         break;
       case OPT_WEIGHTS_DIR: cfg->weights_dir = val; break;
       case OPT_BACKEND: cfg->backend = val; break;
       case OPT_MAX_BATCH:
-        if (parse_int(name, val, 1, 256, &v)) return -1;
+        if (parse_int(name, val, 1, 256, &v)) goto fail;
         cfg->max_batch = (int)v;
         break;
       case OPT_QUEUE_DELAY:
-        if (parse_int(name, val, 0, 10000000, &v)) return -1;
+        if (parse_int(name, val, 0, 10000000, &v)) goto fail;
         cfg->max_queue_delay_us = (int)v;
         break;
       case OPT_QUEUE_SIZE:
-        if (parse_int(name, val, 1, 65536, &v)) return -1;
+        if (parse_int(name, val, 1, 65536, &v)) goto fail;
         cfg->queue_size = (int)v;
         break;
       case OPT_MAX_INFLIGHT:
-        if (parse_int(name, val, 1, 65535, &v)) return -1;
+        if (parse_int(name, val, 1, 65535, &v)) goto fail;
         cfg->max_inflight = (int)v;
         break;
       case OPT_MAX_SIZE: {
@@ -259,58 +497,58 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
             w > HFP_MAX_SIDE || h > HFP_MAX_SIDE) {
           fprintf(stderr, "hairfilterd: --max-size wants WxH within 1..%d, not '%s'\n",
                   HFP_MAX_SIDE, val);
-          return -1;
+          goto fail;
         }
         cfg->max_width = w;
         cfg->max_height = h;
         break;
       }
       case OPT_MAX_FRAME:
-        if (parse_int(name, val, 1, 4095, &v)) return -1;
+        if (parse_int(name, val, 1, 4095, &v)) goto fail;
         cfg->max_frame_bytes = (uint64_t)v << 20;
         break;
       case OPT_MAX_MEMORY:
-        if (parse_int(name, val, 1, 1 << 30, &v)) return -1;
+        if (parse_int(name, val, 1, 1 << 30, &v)) goto fail;
         cfg->max_memory_bytes = (uint64_t)v << 20;
         break;
       case OPT_MAX_SHM:
-        if (parse_int(name, val, 0, 1 << 30, &v)) return -1;
+        if (parse_int(name, val, 0, 1 << 30, &v)) goto fail;
         cfg->max_shm_bytes = (uint64_t)v << 20;
         break;
       case OPT_MAX_CONNECTIONS:
-        if (parse_int(name, val, 1, 1000000, &v)) return -1;
+        if (parse_int(name, val, 1, 1000000, &v)) goto fail;
         cfg->max_connections = (int)v;
         break;
       case OPT_MAX_HANDSHAKES:
-        if (parse_int(name, val, 1, 1000000, &v)) return -1;
+        if (parse_int(name, val, 1, 1000000, &v)) goto fail;
         cfg->max_handshakes = (int)v;
         break;
       case OPT_TOKEN_FILE: token_file = val; break;
       case OPT_NO_AUTH: cfg->no_auth = 1; break;
       case OPT_DRAIN:
-        if (parse_int(name, val, 0, 3600000, &v)) return -1;
+        if (parse_int(name, val, 0, 3600000, &v)) goto fail;
         cfg->drain_timeout_ms = (int)v;
         break;
       case OPT_FLUSH:
-        if (parse_int(name, val, 0, 3600000, &v)) return -1;
+        if (parse_int(name, val, 0, 3600000, &v)) goto fail;
         cfg->flush_timeout_ms = (int)v;
         break;
       case OPT_HANDSHAKE:
-        if (parse_int(name, val, 0, 3600000, &v)) return -1;
+        if (parse_int(name, val, 0, 3600000, &v)) goto fail;
         cfg->handshake_timeout_ms = (int)v;
         break;
       case OPT_STALL:
-        if (parse_int(name, val, 0, 3600000, &v)) return -1;
+        if (parse_int(name, val, 0, 3600000, &v)) goto fail;
         cfg->stall_timeout_ms = (int)v;
         break;
       case OPT_MIN_RATE:
-        if (parse_int(name, val, 0, 1 << 20, &v)) return -1;
+        if (parse_int(name, val, 0, 1 << 20, &v)) goto fail;
         cfg->min_recv_rate = (uint64_t)v << 10;
         break;
       case OPT_READY: cfg->ready_file = val; break;
       case OPT_WARM: warm = val; break;
       case OPT_PIPELINE:
-        if (parse_int(name, val, 1, 2, &v)) return -1;
+        if (parse_int(name, val, 1, 2, &v)) goto fail;
         cfg->pipeline_depth = (int)v;
         break;
       case OPT_NAME: {
@@ -320,39 +558,44 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         if (!ok) {
           fprintf(stderr, "hairfilterd: --name must be 1..%d printable characters\n",
                   HFP_NAME_MAX);
-          return -1;
+          goto fail;
         }
         cfg->name = val;
         break;
       }
       case ':':
-        fprintf(stderr, "hairfilterd: %s needs a value\n", argv[optind - 1]);
-        return -1;
+        fprintf(stderr, "hairfilterd: %s needs a value\n", all[optind - 1]);
+        goto fail;
       default:
-        fprintf(stderr, "hairfilterd: unknown option '%s'\n", argv[optind - 1]);
+        fprintf(stderr, "hairfilterd: unknown option '%s'\n", all[optind - 1]);
         usage(stderr);
-        return -1;
+        goto fail;
     }
   }
-  if (optind < argc) {
-    fprintf(stderr, "hairfilterd: unexpected argument '%s'\n", argv[optind]);
+  if (optind < nall) {
+    fprintf(stderr, "hairfilterd: unexpected argument '%s'\n", all[optind]);
     usage(stderr);
-    return -1;
+    goto fail;
   }
   if (!cfg->num_listen) {
     fprintf(stderr, "hairfilterd: nothing to listen on: give --listen unix:PATH or tcp:HOST:PORT\n");
-    return -1;
+    goto fail;
   }
   if (!cfg->num_weights && !cfg->weights_dir) {
     fprintf(stderr, "hairfilterd: no variants: give --weights FILE or --weights-dir DIR\n");
-    return -1;
+    goto fail;
   }
-  if (warm && parse_warm(warm, cfg)) return -1;
+  if (warm && parse_warm(warm, cfg)) goto fail;
   if (token_file) {
-    if (read_token(token_file, cfg->token)) return -1;
+    if (read_token(token_file, cfg->token)) goto fail;
   } else {
     const char *env = getenv("HAIRFILTERD_TOKEN");
-    if (env && token_take("$HAIRFILTERD_TOKEN", env, strlen(env), cfg->token)) return -1;
+    if (env && token_take("$HAIRFILTERD_TOKEN", env, strlen(env), cfg->token)) goto fail;
   }
-  return 0;
+  goto out;
+fail:
+  rc = -1;
+out:
+  free(all);
+  return rc;
 }

@@ -61,7 +61,7 @@ static int mid_frame(const hfd_conn *c) { return c->rstate != RD_HEADER || c->go
  * say so if that ever changes. */
 static void read_stop(hfd_conn *c) {
   int rc = uv_read_stop(&c->h.stream);
-  if (rc < 0) hfd_log("error: conn %llu: read stop: %s", (unsigned long long)c->id, uv_strerror(rc));
+  if (rc < 0) hfd_err("conn %llu: read stop: %s", (unsigned long long)c->id, uv_strerror(rc));
 }
 
 static void wrote_one(hfd_conn *c) {
@@ -70,7 +70,7 @@ static void wrote_one(hfd_conn *c) {
       !c->eof && !c->shutting) {
     int rc = uv_read_start(&c->h.stream, on_alloc, on_read);
     if (rc < 0) {
-      hfd_log("error: conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
+      hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
       hfd_conn_close(c);
       return;
     }
@@ -93,6 +93,17 @@ static void writing_one(hfd_conn *c, uint64_t bytes) {
     read_stop(c);
     c->read_paused = 1;
   }
+}
+
+/* " conn=N peer=P client=NAME" for a log line about c. */
+static const char *conn_kv(const hfd_conn *c, char *buf, size_t cap) {
+  char id[24];
+  snprintf(id, sizeof id, "%llu", (unsigned long long)c->id);
+  buf[0] = 0;
+  hfd_kv(buf, cap, "conn", id);
+  hfd_kv(buf, cap, "peer", c->peer);
+  if (c->client_name[0]) hfd_kv(buf, cap, "client", c->client_name);
+  return buf;
 }
 
 /* Error lines are rate-limited (a peer can make errors as fast as it can
@@ -151,7 +162,7 @@ static void send_ctl(hfd_conn *c, const uint8_t *frame, size_t len, int close_af
   if (c->closing) return;
   ctl_write *w = malloc(sizeof *w + len);
   if (!w) {
-    hfd_log("error: conn %llu: out of memory for a reply; closing it",
+    hfd_err("conn %llu: out of memory for a reply; closing it",
             (unsigned long long)c->id);
     hfd_conn_close(c);
     return;
@@ -189,14 +200,16 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
    * the wire are already checked, but be sure). */
   for (char *p = e.message; *p; p++)
     if (*p < 0x20 || *p > 0x7e) *p = '?';
-  if (code != HFP_E_BUSY && log_allowed())
-    hfd_log("error: conn %llu (%s%s%s) request %u: %s: %s%s", (unsigned long long)c->id,
-            c->peer, c->client_name[0] ? " " : "", c->client_name, request_id,
-            hfp_code_name(code), e.message, fatal ? "; closing the connection" : "");
+  if (code != HFP_E_BUSY && log_allowed()) {
+    char kv[300];
+    hfd_err("%s: %s%s%s request=%u code=%s", hfp_code_name(code), e.message,
+            fatal ? "; closing the connection" : "", conn_kv(c, kv, sizeof kv), request_id,
+            hfp_code_name(code));
+  }
   uint8_t frame[HFP_HEADER_SIZE + 8 + HFP_MESSAGE_MAX];
   int n = hfp_encode_error(frame, sizeof frame, request_id, &e);
   if (n < 0) {
-    hfd_log("error: cannot encode an ERROR: %s", hfp_strerror(n));
+    hfd_err("cannot encode an ERROR: %s", hfp_strerror(n));
     hfd_conn_close(c);
     return;
   }
@@ -212,6 +225,7 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
 
 static void job_free(hfd_server *s, hfd_job *j) {
   s->mem_held -= j->bytes_held;
+  if (j->model) hfd_model_unref(s, j->model);
   if (j->seg) {
     /* The tensors are the client's, in the segment. */
     hfd_seg_unref(s, j->seg);
@@ -247,6 +261,8 @@ static void on_result_written(uv_write_t *req, int status) {
 
 static void account(hfd_server *s, hfd_job *j) {
   hfp_variant_stats *st = &s->variants[j->variant].stats;
+  hfd_metrics_count(s, j->variant, j->status);
+  if (j->status == HFP_OK) hfd_metrics_observe(s, j);
   if (j->status != HFP_OK) {
     st->requests_failed++;
     return;
@@ -268,6 +284,9 @@ static void deliver(hfd_server *s, hfd_job *j) {
   hfd_conn *c = j->conn;
   c->inflight--;
   s->jobs_outstanding--;
+  /* The worker is done with the model: a replaced one may go now. */
+  hfd_model_unref(s, j->model);
+  j->model = NULL;
   double now = hfd_now_us();
   j->timing.queue_us = j->t_started > j->t_received ? (uint64_t)(j->t_started - j->t_received) : 0;
   j->timing.total_us = now > j->t_received ? (uint64_t)(now - j->t_received) : 0;
@@ -307,7 +326,7 @@ static void deliver(hfd_server *s, hfd_job *j) {
   uint64_t total;
   int n = hfp_encode_result_head(j->head, sizeof j->head, j->request_id, &r, &total);
   if (n < 0) {
-    hfd_log("error: conn %llu request %u: cannot encode RESULT: %s", (unsigned long long)c->id,
+    hfd_err("conn %llu request %u: cannot encode RESULT: %s", (unsigned long long)c->id,
             j->request_id, hfp_strerror(n));
     s->replies_lost++;
     job_free(s, j);
@@ -347,6 +366,11 @@ static void deliver(hfd_server *s, hfd_job *j) {
 
 void hfd_on_async(uv_async_t *a) {
   hfd_server *s = a->data;
+  /* Loads a reload waits for, then answers. */
+  for (hfd_ctl *c = hfd_worker_take_ctl(&s->worker, 0), *next; c; c = next) {
+    next = c->next;
+    hfd_models_on_loaded(s, c);
+  }
   hfd_job *j = hfd_worker_take_done(&s->worker);
   while (j) {
     hfd_job *next = j->next;
@@ -357,12 +381,6 @@ void hfd_on_async(uv_async_t *a) {
 }
 
 /* ---- requests ------------------------------------------------------------ */
-
-static int find_variant(hfd_server *s, const char *name) {
-  for (int i = 0; i < s->num_variants; i++)
-    if (!strcmp(s->variants[i].name, name)) return i;
-  return -1;
-}
 
 static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   hfd_server *s = c->srv;
@@ -411,7 +429,8 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   ok.max_height = (uint32_t)s->max_height;
   int max_spp = 1;
   for (int i = 0; i < s->num_variants; i++)
-    if (s->variants[i].cfg.spp > max_spp) max_spp = s->variants[i].cfg.spp;
+    if (s->variants[i].model && s->variants[i].model->cfg.spp > max_spp)
+      max_spp = s->variants[i].model->cfg.spp;
   ok.max_spp = (uint16_t)max_spp;
   ok.max_inflight = (uint16_t)s->cfg->max_inflight;
   ok.dtypes = HFP_DTYPE_MASK_ALL;
@@ -425,7 +444,8 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
     send_error(c, 0, HFP_E_INTERNAL, 1, "cannot encode HELLO_OK");
     return;
   }
-  hfd_debug("conn %llu (%s): hello from %s", (unsigned long long)c->id, c->peer, c->client_name);
+  char kv[300];
+  hfd_debug("hello%s version=%d", conn_kv(c, kv, sizeof kv), version);
   send_ctl(c, frame, (size_t)n, 0);
 }
 
@@ -433,8 +453,11 @@ static void reply_variants(hfd_conn *c) {
   hfd_server *s = c->srv;
   hfp_variant v[HFD_MAX_VARIANTS];
   memset(v, 0, sizeof v);
-  for (int i = 0; i < s->num_variants; i++) {
-    const hfd_variant *sv = &s->variants[i];
+  int n = 0;
+  for (int k = 0; k < s->num_variants; k++) {
+    const hfd_model *sv = s->variants[k].model;
+    if (!sv) continue;  /* removed */
+    int i = n++;
     snprintf(v[i].name, sizeof v[i].name, "%s", sv->name);
     snprintf(v[i].backend, sizeof v[i].backend, "%s", hf_backend_name(s->worker.backend));
     snprintf(v[i].precision, sizeof v[i].precision, "%s", sv->precision);
@@ -448,17 +471,17 @@ static void reply_variants(hfd_conn *c) {
       v[i].ranges[v[i].num_ranges++].hi = sv->range.hi[k];
     }
   }
-  size_t need = hfp_frame_size_variants_v(v, s->num_variants, c->version);
+  size_t need = hfp_frame_size_variants_v(v, n, c->version);
   uint8_t *frame = malloc(need);
   if (!frame) {
     send_error(c, 0, HFP_E_INTERNAL, 0, "out of memory");
     return;
   }
-  int n = hfp_encode_variants_v(frame, need, v, s->num_variants, c->version);
-  if (n < 0)
-    send_error(c, 0, HFP_E_INTERNAL, 0, "cannot encode VARIANTS: %s", hfp_strerror(n));
+  int len = hfp_encode_variants_v(frame, need, v, n, c->version);
+  if (len < 0)
+    send_error(c, 0, HFP_E_INTERNAL, 0, "cannot encode VARIANTS: %s", hfp_strerror(len));
   else
-    send_ctl(c, frame, (size_t)n, 0);
+    send_ctl(c, frame, (size_t)len, 0);
   free(frame);
 }
 
@@ -501,6 +524,7 @@ static void reject(hfd_conn *c, int variant, int code, uint64_t left, const char
     c->srv->variants[variant].stats.rejected++;
   else
     c->srv->protocol_errors++;
+  if (variant >= 0 || c->hdr.type == HFP_FILTER) hfd_metrics_count(c->srv, variant, code);
   send_error(c, c->hdr.type == HFP_FILTER ? c->hdr.request_id : 0, code, 0, "%s", msg);
   discard_rest(c, left);
 }
@@ -536,6 +560,8 @@ static void filter_shm(hfd_conn *c, int v, const hfp_filter *f) {
   j->conn = c;
   j->request_id = c->hdr.request_id;
   j->variant = v;
+  j->model = c->srv->variants[v].model;
+  j->model->refs++;
   j->req = *f;
   j->seg = g;
   g->refs++;
@@ -580,7 +606,7 @@ static void filter_head(hfd_conn *c, size_t have) {
     reject(c, -1, -rc, left, "malformed FILTER: %s", hfp_strerror(rc));
     return;
   }
-  int v = find_variant(s, f.variant);
+  int v = hfd_variant_find(s, f.variant);
   uint64_t need = 0;
   if (c->hdr.request_id == 0) {
     reject(c, v, HFP_E_INVALID, left, "request id 0 is reserved");
@@ -588,9 +614,9 @@ static void filter_head(hfd_conn *c, size_t have) {
     reject(c, -1, HFP_E_UNKNOWN_VARIANT, left, "unknown variant '%s'", f.variant);
   } else if ((f.flags & HFP_FILTER_SHM) && !c->is_ipc) {
     reject(c, v, HFP_E_UNSUPPORTED, left, "shared memory needs a Unix socket");
-  } else if (f.spp != s->variants[v].cfg.spp) {
+  } else if (f.spp != s->variants[v].model->cfg.spp) {
     reject(c, v, HFP_E_INVALID, left, "variant %s takes %d spp, request has %u", f.variant,
-           s->variants[v].cfg.spp, f.spp);
+           s->variants[v].model->cfg.spp, f.spp);
   } else if (f.width > (uint32_t)s->max_width || f.height > (uint32_t)s->max_height) {
     reject(c, v, HFP_E_TOO_LARGE, left, "%ux%u is over the limit of %dx%d", f.width, f.height,
            s->max_width, s->max_height);
@@ -626,6 +652,10 @@ static void filter_head(hfd_conn *c, size_t have) {
     j->conn = c;
     j->request_id = c->hdr.request_id;
     j->variant = v;
+    /* The version that checked the frame runs it, whatever a reload does
+     * meanwhile. */
+    j->model = s->variants[v].model;
+    j->model->refs++;
     j->req = f;
     j->req.data = in;
     j->input = in;
@@ -647,8 +677,8 @@ static void filter_admit(hfd_conn *c) {
   j->t_received = hfd_now_us();
   int code = 0;
   const char *why = NULL;
-  uint64_t run = hfd_worker_run_bytes(&s->worker, j->variant, j->req.width, j->req.height, 1,
-                                      j->req.data_len);
+  uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
+                                      1, j->req.data_len);
   uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);
   if (s->draining) {
     code = HFP_E_SHUTTING_DOWN;
@@ -677,6 +707,7 @@ static void filter_admit(hfd_conn *c) {
   }
   if (code) {
     s->variants[j->variant].stats.rejected++;
+    hfd_metrics_count(s, j->variant, code);
     send_error(c, j->request_id, code, 0, "%s", why);
     job_free(s, j);
   } else {
@@ -920,8 +951,10 @@ static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
 static void on_eof(hfd_conn *c) {
   if (mid_frame(c) && !c->fatal_sent) {
     if (log_allowed())
-      hfd_log("conn %llu (%s%s%s): peer left in the middle of a frame", (unsigned long long)c->id,
-              c->peer, c->client_name[0] ? " " : "", c->client_name);
+      {
+        char kv[300];
+        hfd_log("peer left in the middle of a frame%s", conn_kv(c, kv, sizeof kv));
+      }
     if (c->job) {
       job_free(c->srv, c->job);
       c->job = NULL;
@@ -950,8 +983,10 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
   if (nread < 0) {
     hfd_debug("conn %llu: read: %s", (unsigned long long)c->id, uv_strerror((int)nread));
     if (mid_frame(c) && log_allowed())
-      hfd_log("conn %llu (%s%s%s): peer left in the middle of a frame", (unsigned long long)c->id,
-              c->peer, c->client_name[0] ? " " : "", c->client_name);
+      {
+        char kv[300];
+        hfd_log("peer left in the middle of a frame%s", conn_kv(c, kv, sizeof kv));
+      }
     hfd_conn_close(c);
     return;
   }
@@ -1014,7 +1049,8 @@ static void on_closed(uv_handle_t *h) {
   if (c->next) c->next->prev = c->prev;
   s->num_conns--;
   c->handle_closed = 1;
-  hfd_debug("conn %llu (%s): closed", (unsigned long long)c->id, c->peer);
+  char kv[300];
+  hfd_debug("connection closed%s", conn_kv(c, kv, sizeof kv));
   conn_release(c);
   hfd_maybe_finish(s);
 }
@@ -1087,8 +1123,11 @@ void hfd_sweep_stalled(hfd_server *s) {
         c->t_write = now;
       } else if (now - c->t_write > stall_us) {
         if (log_allowed())
-          hfd_log("conn %llu (%s%s%s): replies unread for %d ms; closing", (unsigned long long)c->id,
-                  c->peer, c->client_name[0] ? " " : "", c->client_name, cfg->stall_timeout_ms);
+          {
+          char kv[300];
+          hfd_log("replies unread for %d ms; closing%s", cfg->stall_timeout_ms,
+                  conn_kv(c, kv, sizeof kv));
+        }
         hfd_conn_close(c);
         continue;
       }
@@ -1138,12 +1177,12 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   hfd_listener *l = server->data;
   hfd_server *s = l->srv;
   if (status < 0) {
-    hfd_log("error: accept on %s: %s", l->url, uv_strerror(status));
+    hfd_err("accept on %s: %s", l->url, uv_strerror(status));
     return;
   }
   hfd_conn *c = calloc(1, sizeof *c);
   if (!c) {
-    hfd_log("error: out of memory for a connection on %s", l->url);
+    hfd_err("out of memory for a connection on %s", l->url);
     return;
   }
   c->srv = s;
@@ -1153,7 +1192,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   int rc = l->is_tcp ? uv_tcp_init(s->loop, &c->h.tcp)
                      : uv_pipe_init(s->loop, &c->h.pipe, c->is_ipc);
   if (rc < 0) {
-    hfd_log("error: %s: handle init: %s", l->url, uv_strerror(rc));
+    hfd_err("%s: handle init: %s", l->url, uv_strerror(rc));
     free(c);
     return;
   }
@@ -1167,7 +1206,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   c->t_accept = c->t_last_read = c->t_window = hfd_now_us();
   rc = uv_accept(server, &c->h.stream);
   if (rc < 0) {
-    hfd_log("error: accept on %s: %s", l->url, uv_strerror(rc));
+    hfd_err("accept on %s: %s", l->url, uv_strerror(rc));
     hfd_conn_close(c);
     return;
   }
@@ -1187,11 +1226,14 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     if (!c->peer[0]) snprintf(c->peer, sizeof c->peer, "tcp");
     /* Replies are written whole; Nagle would only delay their last segment. */
     rc = uv_tcp_nodelay(&c->h.tcp, 1);
-    if (rc < 0) hfd_log("error: conn %llu: TCP_NODELAY: %s", (unsigned long long)c->id, uv_strerror(rc));
+    if (rc < 0) hfd_err("conn %llu: TCP_NODELAY: %s", (unsigned long long)c->id, uv_strerror(rc));
   } else {
     snprintf(c->peer, sizeof c->peer, "unix");
   }
-  hfd_debug("conn %llu (%s): accepted on %s", (unsigned long long)c->id, c->peer, l->url);
+  char kv[300];
+  conn_kv(c, kv, sizeof kv);
+  hfd_kv(kv, sizeof kv, "listener", l->url);
+  hfd_debug("connection accepted%s", kv);
   read_next(c);
   if (s->num_conns > s->cfg->max_connections) {
     s->protocol_errors++;
@@ -1212,7 +1254,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   }
   rc = uv_read_start(&c->h.stream, on_alloc, on_read);
   if (rc < 0) {
-    hfd_log("error: conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
+    hfd_err("conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
     hfd_conn_close(c);
   }
 }

@@ -1,8 +1,10 @@
 /*
  * hairfilterd: serves hair filtering over protocol v1 and v2 (protocol/PROTOCOL.md)
- * on Unix sockets and TCP. This file holds startup (options, variants,
- * listeners), shutdown (drain on SIGINT/SIGTERM) and the STATS snapshot;
- * conn.c reads and answers requests and worker.c runs the network.
+ * on Unix sockets and TCP. This file holds startup (options, listeners),
+ * signals (drain on SIGINT/SIGTERM, reload on SIGHUP, statistics on
+ * SIGUSR1), readiness and the loop's heartbeat, and the STATS snapshot;
+ * conn.c reads and answers requests, worker.c runs the network, models.c
+ * keeps the variants, http.c and metrics.c serve the operator's endpoint.
  */
 #define _GNU_SOURCE
 #include <dirent.h>
@@ -17,126 +19,11 @@
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
+#include <systemd/sd-daemon.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "server.h"
-
-int hfd_verbose;
-
-void hfd_log(const char *fmt, ...) {
-  char msg[1024];
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(msg, sizeof msg, fmt, ap);
-  va_end(ap);
-  struct timespec ts;
-  clock_gettime(CLOCK_REALTIME, &ts);
-  struct tm tm;
-  gmtime_r(&ts.tv_sec, &tm);
-  char when[32];
-  strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%S", &tm);
-  /* One fprintf per line so lines from the two threads never interleave. */
-  fprintf(stderr, "%s.%03ldZ hairfilterd[%ld]: %s\n", when, ts.tv_nsec / 1000000L,
-          (long)getpid(), msg);
-}
-
-/* ---- variants ------------------------------------------------------------ */
-
-static int name_ok(const char *s) {
-  size_t n = strlen(s);
-  if (n < 1 || n > HFP_NAME_MAX) return 0;
-  for (size_t i = 0; i < n; i++)
-    if (s[i] <= 0x20 || s[i] > 0x7e) return 0;
-  return 1;
-}
-
-static int add_variant(hfd_server *s, const char *path) {
-  if (s->num_variants == HFD_MAX_VARIANTS) {
-    hfd_log("error: more than %d variants", HFD_MAX_VARIANTS);
-    return -1;
-  }
-  char err[256] = "";
-  hf_weights *w = NULL;
-  int rc = hf_weights_load(path, &w, err, sizeof err);
-  if (rc) {
-    hfd_log("error: %s: %s", path, err[0] ? err : hf_strerror(rc));
-    return -1;
-  }
-  if (!name_ok(w->cfg.name)) {
-    hfd_log("error: %s: variant name '%s' is not 1..%d printable characters without spaces",
-            path, w->cfg.name, HFP_NAME_MAX);
-    hf_weights_free(w);
-    return -1;
-  }
-  for (int i = 0; i < s->num_variants; i++)
-    if (!strcmp(s->variants[i].name, w->cfg.name)) {
-      hfd_log("error: %s: a variant named '%s' is already loaded", path, w->cfg.name);
-      hf_weights_free(w);
-      return -1;
-    }
-  hfd_variant *v = &s->variants[s->num_variants++];
-  memset(v, 0, sizeof *v);
-  snprintf(v->name, sizeof v->name, "%s", w->cfg.name);
-  snprintf(v->stats.name, sizeof v->stats.name, "%s", w->cfg.name);
-  v->cfg = w->cfg;
-  v->range = w->input_range;
-  v->weights = w;
-  return 0;
-}
-
-static int has_suffix(const char *s, const char *suf) {
-  size_t n = strlen(s), m = strlen(suf);
-  return n > m && !strcmp(s + n - m, suf);
-}
-
-static int cmp_names(const void *a, const void *b) {
-  return strcmp(*(char *const *)a, *(char *const *)b);
-}
-
-static int load_dir(hfd_server *s, const char *dir) {
-  DIR *d = opendir(dir);
-  if (!d) {
-    hfd_log("error: --weights-dir %s: %s", dir, strerror(errno));
-    return -1;
-  }
-  char *names[HFD_MAX_VARIANTS];
-  int n = 0, rc = 0;
-  struct dirent *e;
-  while ((e = readdir(d)) != NULL) {
-    if (e->d_name[0] == '.' || !has_suffix(e->d_name, ".safetensors")) continue;
-    if (n == HFD_MAX_VARIANTS) {
-      hfd_log("error: %s holds more than %d weight files", dir, HFD_MAX_VARIANTS);
-      rc = -1;
-      break;
-    }
-    if (!(names[n] = strdup(e->d_name))) {
-      rc = -1;
-      break;
-    }
-    n++;
-  }
-  closedir(d);
-  /* Sorted, so that the variant order (and VARIANTS replies) is stable. */
-  qsort(names, (size_t)n, sizeof *names, cmp_names);
-  for (int i = 0; i < n; i++) {
-    char path[4096];
-    if (!rc) {
-      if ((size_t)snprintf(path, sizeof path, "%s/%s", dir, names[i]) >= sizeof path) {
-        hfd_log("error: path too long in %s", dir);
-        rc = -1;
-      } else if (add_variant(s, path)) {
-        rc = -1;
-      }
-    }
-    free(names[i]);
-  }
-  if (!rc && n == 0) {
-    hfd_log("error: no *.safetensors in %s", dir);
-    rc = -1;
-  }
-  return rc;
-}
 
 /* ---- listeners ----------------------------------------------------------- */
 
@@ -156,7 +43,7 @@ static int clear_stale_socket(const char *path) {
   struct stat st;
   if (lstat(path, &st) != 0) return errno == ENOENT ? 0 : -1;
   if (!S_ISSOCK(st.st_mode)) {
-    hfd_log("error: %s exists and is not a socket", path);
+    hfd_err("%s exists and is not a socket", path);
     return -1;
   }
   int fd = socket(AF_UNIX, SOCK_STREAM, 0);
@@ -168,14 +55,44 @@ static int clear_stale_socket(const char *path) {
   int live = connect(fd, (struct sockaddr *)&sun, sizeof sun) == 0;
   close(fd);
   if (live) {
-    hfd_log("error: %s: another server is listening there", path);
+    hfd_err("%s: another server is listening there", path);
     return -1;
   }
   if (unlink(path) != 0) {
-    hfd_log("error: cannot remove stale socket %s: %s", path, strerror(errno));
+    hfd_err("cannot remove stale socket %s: %s", path, strerror(errno));
     return -1;
   }
   return 0;
+}
+
+/* A Unix socket that cannot be made: name the directory, who owns it, who
+ * we are, and the fix (the usual case: a directory made by root, or by the
+ * kubelet for a hostPath, meeting a daemon that runs as its own user). */
+static void explain_socket_dir(const char *url, const char *path, int rc) {
+  char dir[200];
+  snprintf(dir, sizeof dir, "%s", path);
+  char *slash = strrchr(dir, '/');
+  if (!slash)
+    snprintf(dir, sizeof dir, ".");
+  else if (slash == dir)
+    dir[1] = 0;
+  else
+    *slash = 0;
+  struct stat st;
+  if (stat(dir, &st) != 0) {
+    hfd_err("--listen %s: %s: the directory %s does not exist (%s); create it writable for "
+            "uid %ld (docs/SERVER.md, \"Socket directory\")", url, uv_strerror(rc), dir,
+            strerror(errno), (long)geteuid());
+    return;
+  }
+  hfd_err("--listen %s: %s: hairfilterd runs as uid %ld gid %ld and cannot create a socket in "
+          "%s (owner uid %ld gid %ld, mode %04o%s); make the directory writable for it, e.g. "
+          "install -d -o %ld -g %ld -m 0750 %s, systemd's RuntimeDirectory=, or a Kubernetes "
+          "emptyDir (docs/SERVER.md, \"Socket directory\"). No listener is opened: the daemon "
+          "stops rather than serve on some of its addresses", url, uv_strerror(rc),
+          (long)geteuid(), (long)getegid(), dir, (long)st.st_uid, (long)st.st_gid,
+          (unsigned)(st.st_mode & 07777), rc == UV_EROFS ? ", read-only file system" : "",
+          (long)geteuid(), (long)getegid(), dir);
 }
 
 static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
@@ -186,13 +103,16 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
   if (u->kind == HFP_URL_UNIX) {
     const char *path = u->path;
     if (strlen(path) >= sizeof l->unix_path) {
-      hfd_log("error: --listen %s: socket path too long", url);
+      hfd_err("--listen %s: socket path too long", url);
       return -1;
     }
     if (clear_stale_socket(path)) return -1;
     if ((rc = uv_pipe_init(s->loop, &l->h.pipe, 0)) < 0 ||
         (rc = uv_pipe_bind(&l->h.pipe, path)) < 0) {
-      hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+      if (rc == UV_EACCES || rc == UV_EPERM || rc == UV_ENOENT || rc == UV_EROFS)
+        explain_socket_dir(url, path, rc);
+      else
+        hfd_err("--listen %s: %s", url, uv_strerror(rc));
       if (rc != UV_EINVAL) uv_close(&l->h.handle, NULL);
       return -1;
     }
@@ -205,34 +125,34 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
     memset(&ss, 0, sizeof ss);
     if (uv_ip4_addr(host, u->port, (struct sockaddr_in *)&ss) != 0 &&
         uv_ip6_addr(host, u->port, (struct sockaddr_in6 *)&ss) != 0) {
-      hfd_log("error: --listen %s: host must be a numeric address or localhost", url);
+      hfd_err("--listen %s: host must be a numeric address or localhost", url);
       return -1;
     }
     l->is_tcp = 1;
     int loop_only = is_loopback((struct sockaddr *)&ss);
     if (s->cfg->no_auth && !loop_only) {
-      hfd_log("error: --listen %s: --no-auth is only allowed on loopback addresses", url);
+      hfd_err("--listen %s: --no-auth is only allowed on loopback addresses", url);
       return -1;
     }
     l->auth_required = !s->cfg->no_auth;
     if (l->auth_required && !s->cfg->token[0]) {
-      hfd_log("error: --listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), "
+      hfd_err("--listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), "
               "or --no-auth on loopback", url);
       return -1;
     }
     if ((rc = uv_tcp_init(s->loop, &l->h.tcp)) < 0) {
-      hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+      hfd_err("--listen %s: %s", url, uv_strerror(rc));
       return -1;
     }
     if ((rc = uv_tcp_bind(&l->h.tcp, (struct sockaddr *)&ss, 0)) < 0) {
-      hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+      hfd_err("--listen %s: %s", url, uv_strerror(rc));
       uv_close(&l->h.handle, NULL);
       return -1;
     }
   }
   l->h.handle.data = l;
   if ((rc = uv_listen(&l->h.stream, 511, hfd_on_connection)) < 0) {
-    hfd_log("error: --listen %s: %s", url, uv_strerror(rc));
+    hfd_err("--listen %s: %s", url, uv_strerror(rc));
     uv_close(&l->h.handle, NULL);
     if (l->unix_path[0]) unlink(l->unix_path);
     return -1;
@@ -243,7 +163,7 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
     int len = sizeof ss;
     char ip[64];
     if ((rc = uv_tcp_getsockname(&l->h.tcp, (struct sockaddr *)&ss, &len)) < 0) {
-      hfd_log("error: --listen %s: getsockname: %s", url, uv_strerror(rc));
+      hfd_err("--listen %s: getsockname: %s", url, uv_strerror(rc));
       uv_close(&l->h.handle, NULL);
       return -1;
     }
@@ -251,7 +171,7 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
     rc = v6 ? uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip)
             : uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip);
     if (rc < 0) {
-      hfd_log("error: --listen %s: address name: %s", url, uv_strerror(rc));
+      hfd_err("--listen %s: address name: %s", url, uv_strerror(rc));
       uv_close(&l->h.handle, NULL);
       return -1;
     }
@@ -272,16 +192,18 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
  * symlink planted there, or at any name an attacker can guess, is never
  * written through. rename replaces a symlink at the target itself rather
  * than following it. */
+static char http_url[300];
+
 static int write_ready_file(hfd_server *s) {
   const char *path = s->cfg->ready_file;
   char tmp[4200];
   if ((size_t)snprintf(tmp, sizeof tmp, "%s.XXXXXX", path) >= sizeof tmp) {
-    hfd_log("error: --ready-file %s: path too long", path);
+    hfd_err("--ready-file %s: path too long", path);
     return -1;
   }
   int fd = mkostemp(tmp, O_CLOEXEC | O_NOFOLLOW);
   if (fd < 0) {
-    hfd_log("error: --ready-file %s: cannot create a temporary file beside it: %s", path,
+    hfd_err("--ready-file %s: cannot create a temporary file beside it: %s", path,
             strerror(errno));
     return -1;
   }
@@ -290,14 +212,15 @@ static int write_ready_file(hfd_server *s) {
   umask(um);
   FILE *f = fchmod(fd, 0666 & ~um) == 0 ? fdopen(fd, "w") : NULL;
   if (!f) {
-    hfd_log("error: --ready-file %s: %s", tmp, strerror(errno));
+    hfd_err("--ready-file %s: %s", tmp, strerror(errno));
     close(fd);
     unlink(tmp);
     return -1;
   }
   for (int i = 0; i < s->num_listeners; i++) fprintf(f, "%s\n", s->listeners[i].url);
+  if (http_url[0]) fprintf(f, "%s\n", http_url);
   if (fclose(f) != 0 || rename(tmp, path) != 0) {
-    hfd_log("error: --ready-file %s: %s", path, strerror(errno));
+    hfd_err("--ready-file %s: %s", path, strerror(errno));
     unlink(tmp);
     return -1;
   }
@@ -326,8 +249,28 @@ void hfd_fill_stats(hfd_server *s, hfp_stats *st) {
   st->queue_depth = (uint32_t)hfd_worker_queue_depth(&s->worker);
   st->queue_capacity = (uint32_t)s->cfg->queue_size;
   st->protocol_errors = s->protocol_errors;
-  st->num_variants = (uint16_t)s->num_variants;
-  for (int i = 0; i < s->num_variants; i++) st->variants[i] = s->variants[i].stats;
+  for (int i = 0; i < s->num_variants; i++)
+    if (s->variants[i].model) st->variants[st->num_variants++] = s->variants[i].stats;
+}
+
+int hfd_ready(const hfd_server *s, char *why, size_t whylen) {
+  int serving = 0;
+  for (int i = 0; i < s->num_variants; i++) serving += s->variants[i].model != NULL;
+  double stalled;
+  why[0] = 0;
+  if (s->draining)
+    snprintf(why, whylen, "draining");
+  else if (!s->load_started || !s->worker.backend)
+    snprintf(why, whylen, "loading");
+  else if (!serving)
+    snprintf(why, whylen, "no variant is served");
+  else if (s->missing)
+    snprintf(why, whylen, "%d configured weights file(s) serve no variant; first: %s",
+             s->missing, s->missing_why);
+  else if (!s->stopped &&
+           hfd_worker_stalled((hfd_worker *)&s->worker, s->cfg->watchdog_ms * 1e3, &stalled))
+    snprintf(why, whylen, "inference worker made no progress for %.1f s", stalled / 1e6);
+  return why[0] == 0;
 }
 
 /* ---- shutdown ------------------------------------------------------------ */
@@ -368,6 +311,7 @@ void hfd_maybe_finish(hfd_server *s) {
     /* Nothing is queued or running (every admitted job was answered), so
      * the worker exits at once. */
     hfd_worker_stop(&s->worker);
+    hfd_models_after_stop(s);
     close_handle((uv_handle_t *)&s->async);
     close_handle((uv_handle_t *)&s->drain_timer);
     close_handle((uv_handle_t *)&s->sweep_timer);
@@ -381,7 +325,7 @@ void hfd_maybe_finish(hfd_server *s) {
       int rc = uv_timer_start(&s->flush_timer, on_flush_timeout,
                               (uint64_t)s->cfg->flush_timeout_ms, 0);
       if (rc < 0) {
-        hfd_log("error: flush timer: %s; closing connections now", uv_strerror(rc));
+        hfd_err("flush timer: %s; closing connections now", uv_strerror(rc));
         close_all_connections(s);
       }
     }
@@ -395,10 +339,16 @@ void hfd_maybe_finish(hfd_server *s) {
     sigemptyset(&set);
     sigaddset(&set, SIGINT);
     sigaddset(&set, SIGTERM);
+    sigaddset(&set, SIGHUP);
+    sigaddset(&set, SIGUSR1);
     pthread_sigmask(SIG_BLOCK, &set, NULL);
     close_handle((uv_handle_t *)&s->sigint);
     close_handle((uv_handle_t *)&s->sigterm);
+    close_handle((uv_handle_t *)&s->sighup);
+    close_handle((uv_handle_t *)&s->sigusr1);
     close_handle((uv_handle_t *)&s->flush_timer);
+    close_handle((uv_handle_t *)&s->beat_timer);
+    hfd_http_loop_closing(s);
   }
 }
 
@@ -408,6 +358,41 @@ static void ignore_stop_signals(void) {
   sa.sa_handler = SIG_IGN;
   sigaction(SIGINT, &sa, NULL);
   sigaction(SIGTERM, &sa, NULL);
+  sigaction(SIGHUP, &sa, NULL);
+  sigaction(SIGUSR1, &sa, NULL);
+}
+
+/* SIGHUP reloads (models.c); SIGUSR1 writes the statistics to the log. Both
+ * leave every connection and request as it is. */
+static void on_hup(uv_signal_t *h, int signum) {
+  (void)signum;
+  hfd_models_reload(h->data);
+}
+
+static void on_usr1(uv_signal_t *h, int signum) {
+  (void)signum;
+  hfd_metrics_log(h->data);
+}
+
+/* The loop's heartbeat: /healthz reads it from the HTTP thread, and
+ * systemd's watchdog is fed from here while the worker makes progress
+ * too, so a wedged loop or worker stops the pings and gets the daemon
+ * restarted. */
+static void on_beat(uv_timer_t *t) {
+  hfd_server *s = t->data;
+  atomic_store(&s->loop_beat_us, (uint64_t)hfd_now_us());
+  static int stall_logged;
+  double stalled;
+  if (hfd_worker_stalled(&s->worker, s->cfg->watchdog_ms * 1e3, &stalled)) {
+    if (!stall_logged)
+      hfd_err("inference worker made no progress for %.1f s (--watchdog-ms %d): unhealthy",
+              stalled / 1e6, s->cfg->watchdog_ms);
+    stall_logged = 1;
+    return;
+  }
+  if (stall_logged) hfd_notice("inference worker progressing again");
+  stall_logged = 0;
+  if (s->watchdog_usec) hfd_notify_watchdog();
 }
 
 static void on_sweep(uv_timer_t *t) { hfd_sweep_stalled(t->data); }
@@ -436,7 +421,8 @@ static void on_signal(uv_signal_t *h, int signum) {
     return;
   }
   s->draining = 1;
-  hfd_log("%s: draining %d request(s), no new work accepted", name, s->jobs_outstanding);
+  hfd_notify_stopping();
+  hfd_notice("%s: draining %d request(s), no new work accepted", name, s->jobs_outstanding);
   for (int i = 0; i < s->num_listeners; i++) close_handle(&s->listeners[i].h.handle);
   /* Not ready any more: clients find no socket and no ready file. */
   remove_files(s);
@@ -445,7 +431,7 @@ static void on_signal(uv_signal_t *h, int signum) {
   } else {
     int rc = uv_timer_start(&s->drain_timer, on_drain_timeout, (uint64_t)s->cfg->drain_timeout_ms, 0);
     if (rc < 0) {
-      hfd_log("error: drain timer: %s; failing queued requests now", uv_strerror(rc));
+      hfd_err("drain timer: %s; failing queued requests now", uv_strerror(rc));
       hfd_worker_cancel(&s->worker);
     }
   }
@@ -457,30 +443,35 @@ static void on_signal(uv_signal_t *h, int signum) {
 int main(int argc, char **argv) {
   static hfd_config cfg;
   static hfd_server srv;
+  hfd_log_init();
   int prc = hfd_config_parse(argc, argv, &cfg);
   if (prc) return prc > 0 ? 0 : 2;
+  hfd_log_level = cfg.log_level;
   /* A peer that vanishes must not kill us with SIGPIPE; libuv reports EPIPE. */
   signal(SIGPIPE, SIG_IGN);
   /* Frames, results and plans of a megabyte or more are mapped and unmapped
    * on their own, so that what an oversized frame needed goes back to the
    * system when it is freed. glibc's default threshold rises with every
    * such block freed (up to 32 MiB) and would keep them in the heap. */
-  if (!mallopt(M_MMAP_THRESHOLD, 1 << 20)) hfd_log("error: mallopt(M_MMAP_THRESHOLD) failed");
+  if (!mallopt(M_MMAP_THRESHOLD, 1 << 20)) hfd_err("mallopt(M_MMAP_THRESHOLD) failed");
 
   hfd_server *s = &srv;
   s->cfg = &cfg;
+  s->argc = argc;
+  s->argv = argv;
   s->loop = uv_default_loop();
   s->t_start = hfd_now_us();
-  hfd_log("starting %s (protocol v%d..v%d)", cfg.name, HFP_VERSION_MIN, HFP_VERSION);
-
-  for (int i = 0; i < cfg.num_weights; i++)
-    if (add_variant(s, cfg.weights[i])) return 1;
-  if (cfg.weights_dir && load_dir(s, cfg.weights_dir)) return 1;
+  struct timespec now;
+  clock_gettime(CLOCK_REALTIME, &now);
+  s->t_start_wall = (double)now.tv_sec + now.tv_nsec / 1e9;
+  atomic_store(&s->loop_beat_us, (uint64_t)s->t_start);
+  hfd_notice("starting %s %s (protocol v%d..v%d)%s%s", cfg.name, HFD_VERSION, HFP_VERSION_MIN,
+             HFP_VERSION, cfg.config_path ? ", config " : "",
+             cfg.config_path ? cfg.config_path : "");
+  if (sd_watchdog_enabled(0, &s->watchdog_usec) <= 0) s->watchdog_usec = 0;
 
   hfd_worker *w = &s->worker;
   w->backend_name = cfg.backend;
-  w->variants = s->variants;
-  w->num_variants = s->num_variants;
   w->max_batch = cfg.max_batch;
   w->max_delay_us = cfg.max_queue_delay_us;
   w->pipeline_depth = cfg.pipeline_depth;
@@ -493,36 +484,31 @@ int main(int argc, char **argv) {
   s->frame_budget = cfg.max_memory_bytes - w->cache_cap;
   int rc = uv_async_init(s->loop, &s->async, hfd_on_async);
   if (rc < 0) {
-    hfd_log("error: uv_async_init: %s", uv_strerror(rc));
+    hfd_err("uv_async_init: %s", uv_strerror(rc));
     return 1;
   }
   s->async.data = s;
   if (hfd_worker_start(w)) {
-    hfd_log("error: cannot start inference: %s", w->init_msg);
+    hfd_err("cannot start inference: %s", w->init_msg);
     return 1;
   }
   hfd_log("%s", w->init_msg);
-  for (int i = 0; i < s->num_variants; i++) {
-    const hfd_variant *v = &s->variants[i];
-    char levels[128] = "";
-    for (int l = 0; l < v->cfg.num_levels; l++) {
-      size_t used = strlen(levels);
-      snprintf(levels + used, sizeof levels - used, "%s%d", l ? "," : "", v->cfg.levels[l]);
-    }
-    hfd_log("variant %s: %d spp, levels %s, %s on %s", v->name, v->cfg.spp, levels, v->precision,
-            hf_backend_name(w->backend));
-  }
+  if (hfd_models_load_initial(s)) return 1;
   if (hfd_limits_derive(s)) return 1;
 
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
+      (rc = uv_signal_init(s->loop, &s->sighup)) < 0 ||
+      (rc = uv_signal_init(s->loop, &s->sigusr1)) < 0 ||
       (rc = uv_timer_init(s->loop, &s->drain_timer)) < 0 ||
       (rc = uv_timer_init(s->loop, &s->flush_timer)) < 0 ||
-      (rc = uv_timer_init(s->loop, &s->sweep_timer)) < 0) {
-    hfd_log("error: libuv init: %s", uv_strerror(rc));
+      (rc = uv_timer_init(s->loop, &s->sweep_timer)) < 0 ||
+      (rc = uv_timer_init(s->loop, &s->beat_timer)) < 0) {
+    hfd_err("libuv init: %s", uv_strerror(rc));
     return 1;
   }
   s->sigint.data = s->sigterm.data = s->drain_timer.data = s->sweep_timer.data = s;
+  s->sighup.data = s->sigusr1.data = s->beat_timer.data = s;
   s->flush_timer.data = s;
   int shortest = 0;
   if (cfg.stall_timeout_ms > 0) shortest = cfg.stall_timeout_ms;
@@ -534,24 +520,44 @@ int main(int argc, char **argv) {
     uint64_t every = (uint64_t)(shortest / 4 > 1000 ? 1000 : shortest / 4);
     if (every < 1) every = 1;
     if ((rc = uv_timer_start(&s->sweep_timer, on_sweep, every, every)) < 0) {
-      hfd_log("error: sweep timer: %s", uv_strerror(rc));
+      hfd_err("sweep timer: %s", uv_strerror(rc));
       return 1;
     }
   }
-  if ((rc = uv_signal_start(&s->sigint, on_signal, SIGINT)) < 0 ||
-      (rc = uv_signal_start(&s->sigterm, on_signal, SIGTERM)) < 0) {
-    hfd_log("error: signal handlers: %s", uv_strerror(rc));
+  /* The heartbeat beats four times per watchdog limit (at most once a
+   * second), and at least twice per systemd watchdog interval. */
+  uint64_t beat = (uint64_t)cfg.watchdog_ms / 4 < 1000 ? (uint64_t)cfg.watchdog_ms / 4 : 1000;
+  if (s->watchdog_usec && s->watchdog_usec / 2000 < beat) beat = s->watchdog_usec / 2000;
+  if (beat < 1) beat = 1;
+  if ((rc = uv_timer_start(&s->beat_timer, on_beat, beat, beat)) < 0) {
+    hfd_err("heartbeat timer: %s", uv_strerror(rc));
     return 1;
   }
+  if ((rc = uv_signal_start(&s->sigint, on_signal, SIGINT)) < 0 ||
+      (rc = uv_signal_start(&s->sigterm, on_signal, SIGTERM)) < 0 ||
+      (rc = uv_signal_start(&s->sighup, on_hup, SIGHUP)) < 0 ||
+      (rc = uv_signal_start(&s->sigusr1, on_usr1, SIGUSR1)) < 0) {
+    hfd_err("signal handlers: %s", uv_strerror(rc));
+    return 1;
+  }
+  /* Every listener or none: a daemon that cannot open one of them stops
+   * here, before it is ready, rather than serve on the others and leave
+   * the missing one unnoticed (docs/SERVER.md, "Socket directory"). */
   for (int i = 0; i < cfg.num_listen; i++)
     if (open_listener(s, cfg.listen[i], &cfg.listen_url[i])) {
       remove_files(s);
       return 1;
     }
-  hfd_log("serving: %d variant(s), max batch %d, queue %d, max in-flight %d per connection, "
-          "max %dx%d, memory %llu MiB", s->num_variants, cfg.max_batch, cfg.queue_size,
-          cfg.max_inflight, s->max_width, s->max_height,
-          (unsigned long long)(cfg.max_memory_bytes >> 20));
+  if (cfg.http && hfd_http_start(s, http_url, sizeof http_url)) {
+    remove_files(s);
+    return 1;
+  }
+  int serving = 0;
+  for (int i = 0; i < s->num_variants; i++) serving += s->variants[i].model != NULL;
+  hfd_notice("serving: %d variant(s), max batch %d, queue %d, max in-flight %d per connection, "
+             "max %dx%d, memory %llu MiB", serving, cfg.max_batch, cfg.queue_size,
+             cfg.max_inflight, s->max_width, s->max_height,
+             (unsigned long long)(cfg.max_memory_bytes >> 20));
   if (cfg.ready_file) {
     if (write_ready_file(s)) {
       remove_files(s);
@@ -559,20 +565,24 @@ int main(int argc, char **argv) {
     }
     s->ready_written = 1;
   }
+  hfd_notify_ready(s);
 
   rc = uv_run(s->loop, UV_RUN_DEFAULT);
   ignore_stop_signals();
-  if (rc != 0) hfd_log("error: event loop ended with %d active handle(s)", rc);
+  if (rc != 0) hfd_err("event loop ended with %d active handle(s)", rc);
   rc = uv_loop_close(s->loop);
-  if (rc < 0) hfd_log("error: uv_loop_close: %s", uv_strerror(rc));
+  if (rc < 0) hfd_err("uv_loop_close: %s", uv_strerror(rc));
+  hfd_http_stop(s);
   remove_files(s);
   uint64_t ok = 0, failed = 0;
   for (int i = 0; i < s->num_variants; i++) {
     ok += s->variants[i].stats.requests_ok;
     failed += s->variants[i].stats.requests_failed;
   }
-  hfd_log("stopped: %llu request(s) served, %llu failed, %llu answer(s) not delivered (peer gone), "
-          "%llu connection(s) in all", (unsigned long long)ok, (unsigned long long)failed,
-          (unsigned long long)s->replies_lost, (unsigned long long)s->conns_total);
+  hfd_notice("stopped: %llu request(s) served, %llu failed, %llu answer(s) not delivered (peer "
+             "gone), %llu connection(s) in all", (unsigned long long)ok,
+             (unsigned long long)failed, (unsigned long long)s->replies_lost,
+             (unsigned long long)s->conns_total);
+  hfd_config_free(&cfg);
   return 0;
 }

@@ -21,7 +21,8 @@ uint64_t hfd_frame_bytes(const hfd_server *s, int variant, const hfp_filter *f) 
       ((f->flags & HFP_FILTER_COMPOSITE) &&
        hfp_output_bytes(f->width, f->height, 4, f->out_dtype, &rgba)))
     return UINT64_MAX;
-  uint64_t run = hfd_worker_run_bytes(&s->worker, variant, f->width, f->height, 1, f->data_len);
+  uint64_t run = hfd_worker_run_bytes(&s->worker, &s->variants[variant].model->cfg, f->width,
+                                      f->height, 1, f->data_len);
   if (run == UINT64_MAX) return UINT64_MAX;
   /* A frame by reference reads and writes the client's segment. */
   if (f->flags & HFP_FILTER_SHM) return run;
@@ -32,7 +33,8 @@ uint64_t hfd_frame_bytes(const hfd_server *s, int variant, const hfp_filter *f) 
  * both ways, with a composite. *why says which limit it breaks. */
 static int frame_fits(const hfd_server *s, uint32_t w, uint32_t h, char *why, size_t whylen) {
   for (int v = 0; v < s->num_variants; v++) {
-    const hfd_variant *var = &s->variants[v];
+    const hfd_model *var = s->variants[v].model;
+    if (!var) continue;  /* removed */
     hfp_filter f = {.flags = HFP_FILTER_COMPOSITE, .width = w, .height = h,
                     .spp = (uint16_t)var->cfg.spp, .in_dtype = HFP_F32, .out_dtype = HFP_F32};
     if (hfp_features_bytes(w, h, f.spp, HFP_F32, &f.data_len)) return 0;
@@ -94,7 +96,7 @@ int hfd_limits_derive(hfd_server *s) {
     }
   }
   if (lo == 0) {
-    hfd_log("error: no frame can be served: %s", why);
+    hfd_err("no frame can be served: %s", why);
     return -1;
   }
   scaled(w0, h0, lo, m, &w, &h);

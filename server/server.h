@@ -25,22 +25,46 @@
 #define HFD_MAX_WARM      16
 #define HFD_MAX_VARIANTS  HFP_MAX_VARIANTS
 
-/* ---- logging ----------------------------------------------------------- */
+/* ---- logging (log.c) ---------------------------------------------------- */
 
-void hfd_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-extern int hfd_verbose;
-#define hfd_debug(...) \
-  do {                 \
-    if (hfd_verbose) hfd_log(__VA_ARGS__); \
-  } while (0)
+/* Levels are syslog priorities, so they reach journald as they are. */
+enum { HFD_LOG_ERR = 3, HFD_LOG_WARNING = 4, HFD_LOG_NOTICE = 5, HFD_LOG_INFO = 6,
+       HFD_LOG_DEBUG = 7 };
 
-/* ---- configuration ----------------------------------------------------- */
+/* One line at level: "error: " or "warning: " before the message for those
+ * two levels. On a terminal or file the line starts with the UTC time and
+ * "hairfilterd[pid]: "; when stderr is the journal ($JOURNAL_STREAM names
+ * it) with "<priority>" only, which journald turns into the entry's
+ * priority. Context travels as key=value fields after the message
+ * (hfd_kv quotes values that need it). Thread-safe: one write per line. */
+void hfd_logl(int level, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+#define hfd_err(...) hfd_logl(HFD_LOG_ERR, __VA_ARGS__)
+#define hfd_warn(...) hfd_logl(HFD_LOG_WARNING, __VA_ARGS__)
+#define hfd_notice(...) hfd_logl(HFD_LOG_NOTICE, __VA_ARGS__)
+#define hfd_log(...) hfd_logl(HFD_LOG_INFO, __VA_ARGS__)
+#define hfd_debug(...) hfd_logl(HFD_LOG_DEBUG, __VA_ARGS__)
+/* Lines above this level are dropped (--log-level; default info). */
+extern _Atomic int hfd_log_level;
+/* Parses error|warning|notice|info|debug; -1 for anything else. */
+int hfd_log_level_parse(const char *name);
+const char *hfd_log_level_name(int level);
+/* Checks stderr against $JOURNAL_STREAM; call once at start. */
+void hfd_log_init(void);
+/* Appends " key=value" to buf (of cap bytes, NUL-terminated), quoting the
+ * value ("...", with \" and \\) when it is empty or holds a space, a quote,
+ * '=' or a byte outside printable ASCII (shown as '?'). */
+void hfd_kv(char *buf, size_t cap, const char *key, const char *value);
+
+/* ---- configuration (config.c) -------------------------------------------- */
+
+#define HFD_DEFAULT_CONFIG "/etc/hairfilter/hairfilterd.conf"
 
 typedef struct hfd_config {
   const char *listen[HFD_MAX_LISTENERS];
   hfp_url listen_url[HFD_MAX_LISTENERS];   /* parsed at option time */
   int num_listen;
   const char *weights[HFD_MAX_VARIANTS];
+  const char *weights_name[HFD_MAX_VARIANTS]; /* --weights NAME=FILE, or NULL */
   int num_weights;
   const char *weights_dir;
   const char *backend;           /* auto | cpu | cpu-ref | cudnn */
@@ -63,26 +87,89 @@ typedef struct hfd_config {
   char token[HFP_TOKEN_MAX + 1];
   const char *ready_file;
   const char *name;
+  const char *http;              /* --http tcp:HOST:PORT, or NULL */
+  hfp_url http_url;
+  int watchdog_ms;               /* worker or loop without progress this long: unhealthy */
+  int log_level;                 /* HFD_LOG_* */
+  const char *config_path;       /* the file read, or NULL */
   /* Shapes whose plans every variant builds before serving (--warm). */
   struct {
     int width, height, batch;
   } warm[HFD_MAX_WARM];
   int num_warm;
   int pipeline_depth;            /* backend runs pending at once: 1 or 2 */
+  /* Strings read from the config file, owned by this config. */
+  char **owned;
+  int num_owned, cap_owned;
 } hfd_config;
 
+/* Reads the config file (--config FILE, else HFD_DEFAULT_CONFIG when it
+ * exists; "--config none" reads none), then the command line: flags win,
+ * and a repeatable flag (--listen, --weights) given on the command line
+ * replaces the file's entries of that key. Returns 0, 1 after --help, -1
+ * after an error it printed (naming the file and line, or the flag). */
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg);
+/* Frees what the config owns (the strings read from its file). */
+void hfd_config_free(hfd_config *cfg);
 
-/* ---- variants ---------------------------------------------------------- */
+/* ---- models and variants (models.c) ------------------------------------- */
 
-typedef struct hfd_variant {
-  char name[HFP_NAME_MAX + 1];
-  hf_weights *weights;           /* freed once the worker built the model */
+/* Which file a model was read from, as it was then: a file whose identity
+ * changed is read again on reload. */
+typedef struct hfd_file_id {
+  uint64_t dev, ino, size;
+  int64_t mtime_ns;
+} hfd_file_id;
+
+/* One loaded weights file. Immutable once built, so requests admitted for it
+ * finish on it even after a reload replaced it: jobs hold references
+ * (refs, loop thread), and the last one gone hands it to the worker to be
+ * destroyed there (GPU handles belong to that thread). */
+typedef struct hfd_model {
+  struct hfd_model *wnext;       /* the worker's list of built models */
+  int refs;                      /* loop thread: its variant's, one per job */
+  int slot;                      /* the variant (name) it serves, or -1 */
+  char name[HFP_NAME_MAX + 1];   /* the metadata's, or the override */
+  char override[HFP_NAME_MAX + 1]; /* --weights NAME=FILE, or "" */
+  char *path;
+  hfd_file_id file;
   hf_model *model;               /* worker thread only */
   hf_net_config cfg;
   char precision[16];
   hf_input_range range;          /* trained input range; .present 0: none */
+  uint64_t params;               /* number of weights */
+  uint64_t device_bytes;         /* hf_model_device_bytes once built */
+  double t_loaded;               /* hfd_now_us when built */
+} hfd_model;
+
+/* Latency histogram buckets (seconds, upper bounds): what an operator sets
+ * alerts on, from half a millisecond to half a minute; +Inf is implicit. */
+#define HFD_TIME_BUCKETS 15
+extern const double hfd_time_buckets_s[HFD_TIME_BUCKETS];
+/* Batch sizes: 1, 2, 4 .. 256 (--max-batch is at most 256). */
+#define HFD_BATCH_BUCKETS 9
+enum { HFD_T_QUEUE, HFD_T_INPUT, HFD_T_INFER, HFD_T_OUTPUT, HFD_T_TOTAL, HFD_T_COUNT };
+
+typedef struct hfd_hist {
+  uint64_t bucket[HFD_TIME_BUCKETS + 1];  /* per bucket (not cumulative); last: +Inf */
+  uint64_t count;
+  double sum;                    /* seconds, or frames for batches */
+} hfd_hist;
+
+/* Per-variant counters behind /metrics (loop thread only). */
+typedef struct hfd_variant_metrics {
+  uint64_t by_status[HFP_E_COUNT]; /* answers by status: [0] OK, else HFP_E_* */
+  hfd_hist time[HFD_T_COUNT];    /* of successful requests */
+  hfd_hist batch;                /* frames per backend run (first HFD_BATCH_BUCKETS + 1) */
+} hfd_variant_metrics;
+
+/* A name clients ask for. Its counters outlive the models that serve it. */
+typedef struct hfd_variant {
+  char name[HFP_NAME_MAX + 1];
+  hfd_model *model;              /* serving now; NULL: free, or removed and retiring */
+  int models;                    /* models of this name not yet unloaded */
   hfp_variant_stats stats;       /* loop thread only */
+  hfd_variant_metrics m;         /* loop thread only */
 } hfd_variant;
 
 /* ---- jobs and the worker --------------------------------------------- */
@@ -109,7 +196,8 @@ typedef struct hfd_job {
   struct hfd_job *next;
   struct hfd_conn *conn;
   uint32_t request_id;
-  int variant;
+  int variant;                   /* its slot in hfd_server.variants */
+  hfd_model *model;              /* the version it runs on (a reference) */
   hfp_filter req;                /* decoded head; req.data == input */
   void *input;                   /* features, 64-byte aligned */
   void *out;                     /* [h][w][3] of req.out_dtype */
@@ -129,6 +217,20 @@ typedef struct hfd_job {
   uv_write_t wreq;
 } hfd_job;
 
+/* Work for the worker other than frames: building a model from a weights
+ * file (which must happen on the thread that owns the backend) and
+ * destroying one. Done before the next batch is formed. */
+enum { HFD_CTL_LOAD = 1, HFD_CTL_UNLOAD };
+
+typedef struct hfd_ctl {
+  struct hfd_ctl *next;
+  int op;
+  hfd_model *model;              /* LOAD: path and override set; UNLOAD: the model */
+  int rc;                        /* LOAD: HF_OK or an error, why in msg */
+  int done;
+  char msg[512];
+} hfd_ctl;
+
 typedef struct hfd_worker {
   pthread_t thread;
   pthread_mutex_t mu;
@@ -136,6 +238,8 @@ typedef struct hfd_worker {
   hfd_job *q_head, *q_tail;
   int q_len, q_cap;
   hfd_job *done_head, *done_tail;
+  hfd_ctl *ctl_head, *ctl_tail;  /* loads and unloads to do */
+  hfd_ctl *ctl_done;             /* loads done, for the loop thread (LIFO) */
   int stop;                      /* finish what is queued, then exit */
   int cancel;                    /* fail what is queued, then exit */
   int busy;                      /* a batch is running */
@@ -144,8 +248,6 @@ typedef struct hfd_worker {
   char init_msg[512];
   /* set before start */
   const char *backend_name;
-  hfd_variant *variants;
-  int num_variants;
   int max_batch;
   double max_delay_us;
   int pipeline_depth;
@@ -155,32 +257,51 @@ typedef struct hfd_worker {
   /* Host memory kept between runs (backend plans, the worker's scratch):
    * written by the worker, read by the loop thread when it admits a frame. */
   _Atomic uint64_t cached_bytes;
+  /* Progress, for the watchdog (read by the HTTP thread and the loop):
+   * when the worker last finished something, and whether it is in the
+   * middle of something (a batch, a load) that should finish. */
+  _Atomic uint64_t progress_us;
+  _Atomic int working;
   /* worker-private */
   hf_backend *backend;
+  hfd_model *models;             /* every built model (hfd_model.wnext) */
   void *scratch_in, *scratch_out;
   size_t scratch_in_cap, scratch_out_cap;
   float *scratch_rgb;
   size_t scratch_rgb_cap;
 } hfd_worker;
 
-/* Starts the thread; it creates the backend and the models and reports
- * through init_rc / init_msg before hfd_worker_start returns. */
+/* Starts the thread; it creates the backend and reports through init_rc /
+ * init_msg before hfd_worker_start returns. Models are loaded with
+ * hfd_worker_control. */
 int hfd_worker_start(hfd_worker *w);
 /* 0 when queued, HFP_E_BUSY when the queue is full. */
 int hfd_worker_submit(hfd_worker *w, hfd_job *job);
 /* Takes every completed job (in completion order). */
 hfd_job *hfd_worker_take_done(hfd_worker *w);
+/* Queues a load or unload. An UNLOAD's ctl and model are freed by the
+ * worker; a LOAD comes back through hfd_worker_take_ctl (and uv_async). */
+void hfd_worker_control(hfd_worker *w, hfd_ctl *ctl);
+/* Takes every finished LOAD; with wait, blocks until there is one. */
+hfd_ctl *hfd_worker_take_ctl(hfd_worker *w, int wait);
 int hfd_worker_queue_depth(hfd_worker *w);
+/* Frees LOADs that were never applied, once the worker has stopped: the
+ * models of failed ones (built ones went with the worker). */
+void hfd_ctl_free_list(hfd_ctl *c);
 /* Fails every queued job with HFP_E_SHUTTING_DOWN. */
 void hfd_worker_cancel(hfd_worker *w);
-/* Asks the thread to exit once the queue is empty, and joins it. */
+/* Asks the thread to exit once the queue is empty, and joins it; models
+ * still built are destroyed there. */
 void hfd_worker_stop(hfd_worker *w);
-/* Host memory the worker needs to run batch frames of variant at width x
- * height whose features are in_bytes each: the backend's hf_run_bytes plus
- * the worker's own batch and conversion buffers. UINT64_MAX when the
- * backend cannot run that size. Pure; callable from either thread once the
- * worker has started. */
-uint64_t hfd_worker_run_bytes(const hfd_worker *w, int variant, uint32_t width,
+/* 1 when the worker has been in the middle of something for longer than
+ * limit_us without finishing it; *stalled_us says for how long. Any thread. */
+int hfd_worker_stalled(hfd_worker *w, double limit_us, double *stalled_us);
+/* Host memory the worker needs to run batch frames of a model with cfg at
+ * width x height whose features are in_bytes each: the backend's
+ * hf_run_bytes plus the worker's own batch and conversion buffers.
+ * UINT64_MAX when the backend cannot run that size. Pure; callable from
+ * either thread once the worker has started. */
+uint64_t hfd_worker_run_bytes(const hfd_worker *w, const hf_net_config *cfg, uint32_t width,
                               uint32_t height, int batch, uint64_t in_bytes);
 
 double hfd_now_us(void);
@@ -263,10 +384,13 @@ struct hfd_server {
   hfd_listener listeners[HFD_MAX_LISTENERS];
   int num_listeners;
   hfd_variant variants[HFD_MAX_VARIANTS];
-  int num_variants;
+  int num_variants;              /* slots used so far; serving: those with a model */
   hfd_worker worker;
   uv_async_t async;
   uv_signal_t sigint, sigterm;
+  uv_signal_t sighup;            /* reload (models.c) */
+  uv_signal_t sigusr1;           /* statistics to the log */
+  uv_timer_t beat_timer;         /* loop heartbeat, systemd watchdog */
   uv_timer_t drain_timer;
   uv_timer_t flush_timer;        /* bounds the wait for peers to read replies */
   uv_timer_t sweep_timer;        /* closes stalled connections */
@@ -287,7 +411,31 @@ struct hfd_server {
   int files_removed;             /* socket files and ready file gone */
   int signals_closed;            /* the stop is complete */
   double t_start;
+  double t_start_wall;           /* Unix time of the start, seconds */
   char backend_desc[512];
+  /* Requests refused before a variant was known (malformed, unknown
+   * variant), by status. */
+  uint64_t unrouted[HFP_E_COUNT];
+  /* Model repository (models.c). */
+  int argc;
+  char **argv;                   /* to read the configuration again */
+  struct {
+    int active;                  /* loads queued, not all back */
+    int again;                   /* another SIGHUP came meanwhile */
+    int pending;                 /* loads not yet back */
+    hfd_ctl *done;               /* loads back, to apply together */
+    hfd_model *remove[HFD_MAX_VARIANTS]; /* models whose file went away */
+    int num_remove;
+  } reload;
+  uint64_t reloads_ok, reloads_failed;
+  uint64_t loads_ok, loads_failed;
+  int missing;                   /* configured files that serve no variant */
+  char missing_why[300];         /* the first of them and why */
+  int load_started;              /* startup: every variant built, the backend up */
+  /* Liveness (http.c reads it from its own thread). */
+  _Atomic uint64_t loop_beat_us;
+  uint64_t watchdog_usec;        /* systemd's WatchdogSec, 0: none */
+  struct hfd_http *http;
 };
 
 /* conn.c */
@@ -316,8 +464,56 @@ int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *
 void hfd_seg_unref(hfd_server *s, hfd_seg *g);
 /* Drops the connection's reference (SHM_DESTROY or close). */
 void hfd_seg_drop(hfd_server *s, hfd_seg *g);
-/* server.c */
+/* hairfilterd.c */
 void hfd_maybe_finish(hfd_server *s);
 void hfd_fill_stats(hfd_server *s, hfp_stats *st);
+/* 1 when serving: the backend up, every configured file serving a variant,
+ * at least one variant, not draining; else 0 with why. Loop thread. */
+int hfd_ready(const hfd_server *s, char *why, size_t whylen);
+
+/* models.c */
+/* The slot serving name, or -1. */
+int hfd_variant_find(const hfd_server *s, const char *name);
+/* Loads what the configuration names, waiting for the worker: 0, or -1
+ * after logging why (any file that fails stops the start). */
+int hfd_models_load_initial(hfd_server *s);
+/* SIGHUP: reads the configuration and the weights directory again, loads
+ * new and changed files on the worker, and swaps them in when all are
+ * back; files gone are drained and unloaded. */
+void hfd_models_reload(hfd_server *s);
+/* A LOAD came back (from hfd_on_async). */
+void hfd_models_on_loaded(hfd_server *s, hfd_ctl *ctl);
+/* The worker has stopped (and freed every model it built): frees what a
+ * reload in flight was still waiting to apply. */
+void hfd_models_after_stop(hfd_server *s);
+/* A job or a variant lets go of a model; the last one unloads it. */
+void hfd_model_unref(hfd_server *s, hfd_model *m);
+
+/* metrics.c */
+/* Counts an answer (RESULT or refusal) for a variant slot, or for no variant
+ * (slot -1), by status. */
+void hfd_metrics_count(hfd_server *s, int slot, int status);
+/* Records a successful request's timings and, for the batch's first job,
+ * the batch size. */
+void hfd_metrics_observe(hfd_server *s, const hfd_job *j);
+/* Prometheus text exposition format 0.0.4 of everything /metrics shows,
+ * taken on the loop thread; *out is malloc'd, *len its length. */
+int hfd_metrics_render(hfd_server *s, char **out, size_t *len);
+/* The statistics as log lines (SIGUSR1). */
+void hfd_metrics_log(hfd_server *s);
+
+/* http.c: /metrics, /healthz, /readyz on libmicrohttpd's own thread. */
+/* Starts the endpoint on cfg->http; url gets "http://HOST:PORT". */
+int hfd_http_start(hfd_server *s, char *url, size_t urlcap);
+/* The loop is about to stop answering: requests for metrics get 503. */
+void hfd_http_loop_closing(hfd_server *s);
+void hfd_http_stop(hfd_server *s);
+
+/* notify.c: systemd (sd_notify); every call is a no-op outside systemd. */
+void hfd_notify_ready(hfd_server *s);
+void hfd_notify_reloading(void);
+void hfd_notify_stopping(void);
+void hfd_notify_status(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+void hfd_notify_watchdog(void);
 
 #endif /* HFD_SERVER_H */

@@ -69,7 +69,7 @@ int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *
     static int warned;
     if (rc && !warned) {
       warned = 1;
-      hfd_log("warning: %s could not pin a shared-memory segment (%s); requests in segments "
+      hfd_warn("%s could not pin a shared-memory segment (%s); requests in segments "
               "are staged", hf_backend_name(s->worker.backend), hf_strerror(rc));
     }
   }
@@ -82,7 +82,7 @@ static void seg_free(hfd_server *s, hfd_seg *g) {
   /* No job uses the segment any more (refs == 0): no transfer is pending. */
   if (g->registered) hf_backend_host_unregister(s->worker.backend, g->addr);
   if (munmap(g->addr, (size_t)g->size) != 0)
-    hfd_log("error: munmap of a %llu-byte segment: %s", (unsigned long long)g->size,
+    hfd_err("munmap of a %llu-byte segment: %s", (unsigned long long)g->size,
             strerror(errno));
   s->shm_held -= g->size;
   free(g);

@@ -16,7 +16,9 @@
  * one at a time as before.
  *
  * GPU libraries tie handles and streams to the thread that made them, so
- * the backend is created here, not in main().
+ * the backend is created here, not in main(), and so are the models: the
+ * loop thread queues loads and unloads (hfd_ctl), which are done between
+ * batches, before the next one is formed.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -25,6 +27,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 
 #include "server.h"
@@ -48,10 +51,9 @@ static int ensure(void **buf, size_t *cap, size_t need) {
   return 0;
 }
 
-uint64_t hfd_worker_run_bytes(const hfd_worker *w, int variant, uint32_t width,
+uint64_t hfd_worker_run_bytes(const hfd_worker *w, const hf_net_config *cfg, uint32_t width,
                               uint32_t height, int batch, uint64_t in_bytes) {
-  size_t net = hf_run_bytes(w->backend, &w->variants[variant].cfg, (int)width, (int)height,
-                            batch);
+  size_t net = hf_run_bytes(w->backend, cfg, (int)width, (int)height, batch);
   if (!net) return UINT64_MAX;
   /* prepare_run's and finish_run's own buffers: the gathered inputs of a
    * batch, the float32 results of a batch or a composite, and the
@@ -65,7 +67,7 @@ uint64_t hfd_worker_run_bytes(const hfd_worker *w, int variant, uint32_t width,
 
 static size_t worker_cached(const hfd_worker *w) {
   size_t n = w->scratch_in_cap + w->scratch_out_cap + w->scratch_rgb_cap;
-  for (int i = 0; i < w->num_variants; i++) n += hf_model_cached_bytes(w->variants[i].model);
+  for (const hfd_model *m = w->models; m; m = m->wnext) n += hf_model_cached_bytes(m->model);
   return n;
 }
 
@@ -75,7 +77,7 @@ static size_t worker_cached(const hfd_worker *w) {
  * it needed goes back to the system: the worker's scratch, then the largest
  * plans of the model that ran, then of the others, then the heap's free
  * pages. */
-static void worker_trim(hfd_worker *w, int ran) {
+static void worker_trim(hfd_worker *w, const hfd_model *ran) {
   size_t n = worker_cached(w);
   if (n > w->cache_cap) {
     free(w->scratch_in);
@@ -85,12 +87,12 @@ static void worker_trim(hfd_worker *w, int ran) {
     w->scratch_rgb = NULL;
     w->scratch_in_cap = w->scratch_out_cap = w->scratch_rgb_cap = 0;
     size_t others = 0;
-    for (int i = 0; i < w->num_variants; i++)
-      if (i != ran) others += hf_model_cached_bytes(w->variants[i].model);
-    if (ran >= 0)
-      hf_model_trim(w->variants[ran].model, others < w->cache_cap ? w->cache_cap - others : 0);
-    for (int i = 0; i < w->num_variants && worker_cached(w) > w->cache_cap; i++)
-      if (i != ran) hf_model_trim(w->variants[i].model, 0);
+    for (const hfd_model *m = w->models; m; m = m->wnext)
+      if (m != ran) others += hf_model_cached_bytes(m->model);
+    if (ran)
+      hf_model_trim(ran->model, others < w->cache_cap ? w->cache_cap - others : 0);
+    for (hfd_model *m = w->models; m && worker_cached(w) > w->cache_cap; m = m->wnext)
+      if (m != ran) hf_model_trim(m->model, 0);
     malloc_trim(0);
     n = worker_cached(w);
   }
@@ -98,7 +100,7 @@ static void worker_trim(hfd_worker *w, int ran) {
 }
 
 static int compatible(const hfd_job *a, const hfd_job *b) {
-  return a->variant == b->variant && a->req.width == b->req.width &&
+  return a->model == b->model && a->req.width == b->req.width &&
          a->req.height == b->req.height && a->req.in_dtype == b->req.in_dtype &&
          a->req.out_dtype == b->req.out_dtype;
 }
@@ -146,7 +148,7 @@ typedef struct run {
  * also where the composite is made. */
 static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   hfd_job *j0 = r->jobs[0];
-  const hfd_variant *v = &w->variants[j0->variant];
+  const hfd_model *v = j0->model;
   const int nb = r->nb;
   r->t0 = hfd_now_us();
   for (int i = 0; i < nb; i++) {
@@ -190,7 +192,7 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
  * status. */
 static void finish_run(hfd_worker *w, run *r) {
   hfd_job *j0 = r->jobs[0];
-  hfd_variant *v = &w->variants[j0->variant];
+  const hfd_model *v = j0->model;
   const int nb = r->nb;
   size_t px = (size_t)j0->req.width * j0->req.height;
   int rc = r->rc;
@@ -218,7 +220,7 @@ static void finish_run(hfd_worker *w, run *r) {
     r->jobs[i]->t_done = hfd_now_us();
   }
   if (rc)
-    hfd_log("error: variant %s: inference of %d frame(s) %ux%u failed: %s", v->name, nb,
+    hfd_err("variant %s: inference of %d frame(s) %ux%u failed: %s", v->name, nb,
             j0->req.width, j0->req.height, hf_strerror(rc));
 }
 
@@ -238,7 +240,7 @@ static void complete(hfd_worker *w, hfd_job **batch, int nb) {
    * it only fails for a closed handle, which cannot happen before stop
    * (the loop closes it after joining this thread). */
   int rc = uv_async_send(w->async);
-  if (rc < 0) hfd_log("error: worker: uv_async_send: %s", uv_strerror(rc));
+  if (rc < 0) hfd_err("worker: uv_async_send: %s", uv_strerror(rc));
 }
 
 /* Removes and returns the first queued job compatible with j0 (mu held),
@@ -248,7 +250,7 @@ static hfd_job *take_compatible(hfd_worker *w, const hfd_job *j0, int nb, uint64
   hfd_job *prev = NULL;
   for (hfd_job *j = w->q_head; j; prev = j, j = j->next) {
     if (!compatible(j, j0)) continue;
-    if (hfd_worker_run_bytes(w, j0->variant, j0->req.width, j0->req.height, nb + 1,
+    if (hfd_worker_run_bytes(w, &j0->model->cfg, j0->req.width, j0->req.height, nb + 1,
                              j0->req.data_len) > reserved + j->infer_bytes)
       return NULL;
     if (prev)
@@ -275,7 +277,9 @@ static void deadline_ts(double when_us, struct timespec *ts) {
   if (ts->tv_nsec < 0) ts->tv_nsec = 0;
 }
 
-static int init_models(hfd_worker *w) {
+static void progress(hfd_worker *w) { atomic_store(&w->progress_us, (uint64_t)hfd_now_us()); }
+
+static int init_backend(hfd_worker *w) {
   int rc = hf_backend_create(w->backend_name, &w->backend, w->init_msg, sizeof w->init_msg);
   if (rc) {
     if (!w->init_msg[0]) snprintf(w->init_msg, sizeof w->init_msg, "%s", hf_strerror(rc));
@@ -284,40 +288,121 @@ static int init_models(hfd_worker *w) {
   if (!w->init_msg[0])
     snprintf(w->init_msg, sizeof w->init_msg, "backend %s (as requested)",
              hf_backend_name(w->backend));
-  for (int i = 0; i < w->num_variants; i++) {
-    hfd_variant *v = &w->variants[i];
-    rc = hf_model_create(w->backend, v->weights, &v->model);
-    if (rc) {
-      snprintf(w->init_msg, sizeof w->init_msg, "variant %s: model creation on %s failed: %s",
-               v->name, hf_backend_name(w->backend), hf_strerror(rc));
-      return rc;
-    }
-    snprintf(v->precision, sizeof v->precision, "%s", hf_model_precision(v->model));
-    hf_weights_free(v->weights);
-    v->weights = NULL;
-    /* Plans for the configured shapes now, so no request waits for one. */
-    for (int k = 0; w->cfg && k < w->cfg->num_warm; k++) {
-      const int ww = w->cfg->warm[k].width, hh = w->cfg->warm[k].height,
-                nb = w->cfg->warm[k].batch;
-      const double t0 = hfd_now_us();
-      rc = hf_model_prepare(v->model, nb, ww, hh);
-      if (rc) {
-        snprintf(w->init_msg, sizeof w->init_msg,
-                 "variant %s: preparing %dx%d batch %d on %s failed: %s", v->name, ww, hh, nb,
-                 hf_backend_name(w->backend), hf_strerror(rc));
-        return rc;
-      }
-      hfd_log("variant %s: %dx%d batch %d prepared in %.2f s", v->name, ww, hh, nb,
-              (hfd_now_us() - t0) / 1e6);
-    }
-  }
   return 0;
 }
 
+static int name_ok(const char *s) {
+  size_t n = strlen(s);
+  if (n < 1 || n > HFP_NAME_MAX) return 0;
+  for (size_t i = 0; i < n; i++)
+    if (s[i] <= 0x20 || s[i] > 0x7e) return 0;
+  return 1;
+}
+
+/* Reads m->path, builds its model on the backend, and the plans of the
+ * --warm shapes. On failure, c->rc and c->msg say why and m is not kept. */
+static void do_load(hfd_worker *w, hfd_ctl *c) {
+  hfd_model *m = c->model;
+  struct stat st;
+  char err[256] = "";
+  hf_weights *wt = NULL;
+  /* The file as it is now: what the next reload compares against. */
+  if (stat(m->path, &st) == 0) {
+    m->file = (hfd_file_id){(uint64_t)st.st_dev, (uint64_t)st.st_ino, (uint64_t)st.st_size,
+                            (int64_t)st.st_mtim.tv_sec * 1000000000 + st.st_mtim.tv_nsec};
+  }
+  int rc = hf_weights_load(m->path, &wt, err, sizeof err);
+  if (rc) {
+    c->rc = rc;
+    snprintf(c->msg, sizeof c->msg, "%s", err[0] ? err : hf_strerror(rc));
+    return;
+  }
+  const char *name = m->override[0] ? m->override : wt->cfg.name;
+  if (!name_ok(name)) {
+    c->rc = HF_EFORMAT;
+    snprintf(c->msg, sizeof c->msg,
+             "variant name '%s' is not 1..%d printable characters without spaces", name,
+             HFP_NAME_MAX);
+    hf_weights_free(wt);
+    return;
+  }
+  snprintf(m->name, sizeof m->name, "%s", name);
+  m->cfg = wt->cfg;
+  m->range = wt->input_range;
+  m->params = wt->num_params;
+  rc = hf_model_create(w->backend, wt, &m->model);
+  hf_weights_free(wt);
+  if (rc) {
+    c->rc = rc;
+    snprintf(c->msg, sizeof c->msg, "model creation on %s failed: %s",
+             hf_backend_name(w->backend), hf_strerror(rc));
+    return;
+  }
+  snprintf(m->precision, sizeof m->precision, "%s", hf_model_precision(m->model));
+  m->device_bytes = hf_model_device_bytes(m->model);
+  /* Plans for the configured shapes now, so no request waits for one. */
+  for (int k = 0; w->cfg && k < w->cfg->num_warm; k++) {
+    const int ww = w->cfg->warm[k].width, hh = w->cfg->warm[k].height,
+              nb = w->cfg->warm[k].batch;
+    const double t0 = hfd_now_us();
+    rc = hf_model_prepare(m->model, nb, ww, hh);
+    progress(w);
+    if (rc) {
+      c->rc = rc;
+      snprintf(c->msg, sizeof c->msg, "preparing %dx%d batch %d on %s failed: %s", ww, hh, nb,
+               hf_backend_name(w->backend), hf_strerror(rc));
+      hf_model_destroy(m->model);
+      m->model = NULL;
+      return;
+    }
+    hfd_log("variant %s: %dx%d batch %d prepared in %.2f s", m->name, ww, hh, nb,
+            (hfd_now_us() - t0) / 1e6);
+  }
+  m->t_loaded = hfd_now_us();
+  m->wnext = w->models;
+  w->models = m;
+  worker_trim(w, NULL);
+  c->rc = 0;
+}
+
+static void do_unload(hfd_worker *w, hfd_model *m) {
+  for (hfd_model **pp = &w->models; *pp; pp = &(*pp)->wnext)
+    if (*pp == m) {
+      *pp = m->wnext;
+      break;
+    }
+  hf_model_destroy(m->model);
+  free(m->path);
+  free(m);
+  worker_trim(w, NULL);
+}
+
+/* Does one queued load or unload (mu not held). Loads go back to the loop
+ * thread; unloads are freed here. */
+static void do_ctl(hfd_worker *w, hfd_ctl *c) {
+  if (c->op == HFD_CTL_UNLOAD) {
+    do_unload(w, c->model);
+    free(c);
+    return;
+  }
+  do_load(w, c);
+  pthread_mutex_lock(&w->mu);
+  c->done = 1;
+  c->next = w->ctl_done;
+  w->ctl_done = c;
+  pthread_cond_broadcast(&w->cv);
+  pthread_mutex_unlock(&w->mu);
+  int rc = uv_async_send(w->async);
+  if (rc < 0) hfd_err("worker: uv_async_send: %s", uv_strerror(rc));
+}
+
 static void release_models(hfd_worker *w) {
-  for (int i = 0; i < w->num_variants; i++) {
-    hf_model_destroy(w->variants[i].model);
-    w->variants[i].model = NULL;
+  while (w->models) {
+    hfd_model *m = w->models;
+    w->models = m->wnext;
+    hf_model_destroy(m->model);
+    free(m->path);
+    free(m);
   }
   hf_backend_destroy(w->backend);
   w->backend = NULL;
@@ -330,7 +415,7 @@ static void complete(hfd_worker *w, hfd_job **batch, int nb);
 
 /* Waits for the pending run (submitted earlier) and completes its jobs. */
 static void finish_pending(hfd_worker *w, run *p) {
-  p->rc = hf_model_wait(w->variants[p->jobs[0]->variant].model, &p->t);
+  p->rc = hf_model_wait(p->jobs[0]->model->model, &p->t);
   p->t2 = hfd_now_us();
   finish_run(w, p);
   complete(w, p->jobs, p->nb);
@@ -346,8 +431,8 @@ static void *worker_main(void *arg) {
   sigaddset(&set, SIGINT);
   sigaddset(&set, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &set, NULL);
-  int rc = init_models(w);
-  if (!rc) worker_trim(w, -1);
+  int rc = init_backend(w);
+  progress(w);
   pthread_mutex_lock(&w->mu);
   w->init_rc = rc;
   w->ready = 1;
@@ -361,7 +446,7 @@ static void *worker_main(void *arg) {
   hfd_job **tables = calloc((size_t)w->max_batch * 2, sizeof *tables);
   hf_input_report *reports = calloc((size_t)w->max_batch * 2, sizeof *reports);
   if (!tables || !reports) {
-    hfd_log("error: worker: out of memory for the batch table");
+    hfd_err("worker: out of memory for the batch table");
     abort();
   }
   run cur = {tables, 0, 0, 0, 0, 0, 0, {0, 0, 0}, reports};
@@ -369,11 +454,31 @@ static void *worker_main(void *arg) {
   hfd_job **batch = cur.jobs;
   pthread_mutex_lock(&w->mu);
   for (;;) {
-    while (!w->q_head && !w->stop && !pend.nb) pthread_cond_wait(&w->cv, &w->mu);
+    while (!w->q_head && !w->ctl_head && !w->stop && !pend.nb) {
+      atomic_store(&w->working, 0);
+      pthread_cond_wait(&w->cv, &w->mu);
+    }
+    atomic_store(&w->working, 1);
+    if (w->ctl_head) {
+      /* Loads and unloads first: a model being replaced is let go of as
+       * soon as its last frame is answered, and a load does not wait
+       * behind a busy queue. The pending batch finishes before, so that no
+       * backend run is in flight while models come and go. */
+      hfd_ctl *c = w->ctl_head;
+      w->ctl_head = c->next;
+      if (!w->ctl_head) w->ctl_tail = NULL;
+      pthread_mutex_unlock(&w->mu);
+      if (pend.nb) finish_pending(w, &pend);
+      do_ctl(w, c);
+      progress(w);
+      pthread_mutex_lock(&w->mu);
+      continue;
+    }
     if (!w->q_head && pend.nb) {
       /* Nothing to overlap with: finish the pending batch now. */
       pthread_mutex_unlock(&w->mu);
       finish_pending(w, &pend);
+      progress(w);
       pthread_mutex_lock(&w->mu);
       continue;
     }
@@ -417,7 +522,7 @@ static void *worker_main(void *arg) {
       hf_io io;
       cur.t = (hf_timing){0, 0, 0};
       cur.rc = prepare_run(w, &cur, &io);
-      hf_model *m = w->variants[batch[0]->variant].model;
+      hf_model *m = batch[0]->model->model;
       if (!cur.rc && cur.direct && w->pipeline_depth > 1 && hf_model_overlaps(m)) {
         /* Submit this one, then finish the one before it: the upload of
          * this frame overlaps that one's compute. */
@@ -440,15 +545,17 @@ static void *worker_main(void *arg) {
         finish_run(w, &cur);
         /* Nothing is pending on any model: what this run kept may be
          * trimmed before its frames' memory is released. */
-        worker_trim(w, j0->variant);
+        worker_trim(w, j0->model);
         complete(w, batch, nb);
       }
     }
+    progress(w);
     pthread_mutex_lock(&w->mu);
     w->busy = pend.nb > 0;
   }
   pthread_mutex_unlock(&w->mu);
   if (pend.nb) finish_pending(w, &pend);
+  atomic_store(&w->working, 0);
   free(tables);
   free(reports);
   release_models(w);
@@ -504,6 +611,34 @@ hfd_job *hfd_worker_take_done(hfd_worker *w) {
   return j;
 }
 
+void hfd_worker_control(hfd_worker *w, hfd_ctl *ctl) {
+  pthread_mutex_lock(&w->mu);
+  ctl->next = NULL;
+  ctl->done = 0;
+  if (w->ctl_tail)
+    w->ctl_tail->next = ctl;
+  else
+    w->ctl_head = ctl;
+  w->ctl_tail = ctl;
+  pthread_cond_broadcast(&w->cv);
+  pthread_mutex_unlock(&w->mu);
+}
+
+hfd_ctl *hfd_worker_take_ctl(hfd_worker *w, int wait) {
+  pthread_mutex_lock(&w->mu);
+  while (wait && !w->ctl_done) pthread_cond_wait(&w->cv, &w->mu);
+  hfd_ctl *c = w->ctl_done;
+  w->ctl_done = NULL;
+  pthread_mutex_unlock(&w->mu);
+  return c;
+}
+
+int hfd_worker_stalled(hfd_worker *w, double limit_us, double *stalled_us) {
+  double since = hfd_now_us() - (double)atomic_load(&w->progress_us);
+  *stalled_us = since;
+  return atomic_load(&w->working) && since > limit_us;
+}
+
 int hfd_worker_queue_depth(hfd_worker *w) {
   pthread_mutex_lock(&w->mu);
   int n = w->q_len;
@@ -539,4 +674,15 @@ void hfd_worker_stop(hfd_worker *w) {
   pthread_join(w->thread, NULL);
   pthread_cond_destroy(&w->cv);
   pthread_mutex_destroy(&w->mu);
+}
+
+void hfd_ctl_free_list(hfd_ctl *c) {
+  for (hfd_ctl *next; c; c = next) {
+    next = c->next;
+    if (c->rc) {
+      free(c->model->path);
+      free(c->model);
+    }
+    free(c);
+  }
 }

@@ -6,9 +6,14 @@ set -euo pipefail
 packages=(
   build-essential cmake pkg-config git
   libcjson-dev libopenexr-dev libpng-dev libuv1-dev libcmocka-dev
+  libmicrohttpd-dev libsystemd-dev libinih-dev
   libdnnl-dev libosmesa6-dev
   python3 python3-numpy python3-torch libopenblas0-openmp python3-openimageio
   libegl-dev libassimp-dev
+  # hairfilterd's operator tests: promtool (the prometheus package, 19 MB)
+  # and the Python client's parser read /metrics; npm installs the pinned
+  # Kubernetes schema validator (deploy/kubernetes/validate).
+  prometheus python3-prometheus-client
 )
 
 missing=()
@@ -21,4 +26,21 @@ if [ ${#missing[@]} -gt 0 ]; then
   export DEBIAN_FRONTEND=noninteractive
   $SUDO apt-get update -qq
   $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+
+# The prometheus package is installed for promtool; its server is not
+# wanted on a development machine (where systemd runs it).
+if printf '%s\n' "${missing[@]}" | grep -qx prometheus && [ -d /run/systemd/system ]; then
+  ${SUDO:-} systemctl disable --now prometheus >/dev/null 2>&1 || true
+fi
+
+# The Kubernetes manifests' validator, at the versions package-lock.json pins.
+here=$(cd "$(dirname "$0")/../.." && pwd)
+if [ ! -d "$here/deploy/kubernetes/validate/node_modules/kubernetes-models" ]; then
+  if ! command -v npm >/dev/null; then
+    SUDO=""
+    [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    $SUDO apt-get install -y -qq --no-install-recommends nodejs npm
+  fi
+  npm ci --prefix "$here/deploy/kubernetes/validate" --no-audit --no-fund --loglevel=error
 fi

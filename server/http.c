@@ -1,0 +1,258 @@
+/*
+ * The operator's HTTP endpoint (--http tcp:HOST:PORT), on libmicrohttpd
+ * (Debian's libmicrohttpd-dev): HTTP parsing is that library's, and it runs
+ * on a thread of its own (MHD_USE_INTERNAL_POLLING_THREAD), so a slow
+ * scraper never delays a frame.
+ *
+ *   GET /metrics   Prometheus text format (metrics.c)
+ *   GET /healthz   200 while the event loop and the inference worker make
+ *                  progress, else 503 naming which one stalled and for how
+ *                  long (--watchdog-ms): the liveness probe
+ *   GET /readyz    200 while serving: the backend up, every configured
+ *                  weights file serving a variant, not draining; else 503
+ *                  with why: the readiness probe
+ *
+ * Threads: everything a request is about belongs to the loop thread. The
+ * HTTP thread never reads it; it asks the loop for an answer (uv_async_send,
+ * the one libuv call safe from another thread) and waits on a condition
+ * variable, at most a few seconds, for the loop to render it. The request,
+ * the answer and whether the loop still takes requests are guarded by one
+ * mutex. /healthz needs no answer from the loop, so that a wedged loop is
+ * reported rather than waited for: it reads two atomics, the loop's
+ * heartbeat (hairfilterd.c) and the worker's progress (worker.c).
+ */
+#define _GNU_SOURCE
+#include <microhttpd.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "server.h"
+
+#define ANSWER_TIMEOUT_MS 5000
+
+typedef struct hfd_http hfd_http;
+
+struct hfd_http {
+  hfd_server *s;
+  struct MHD_Daemon *d;
+  uv_async_t async;
+  pthread_mutex_t mu;
+  pthread_cond_t cv;
+  /* under mu */
+  uint64_t asked, answered;      /* generations of requests to the loop */
+  int want_metrics;              /* the pending request needs the text */
+  int loop_open;                 /* the loop still answers */
+  char *text;                    /* the last rendered /metrics */
+  size_t len;
+  int ready;
+  char why[300];
+};
+
+/* Loop thread: answers what the HTTP thread asked for. */
+static void on_async(uv_async_t *a) {
+  hfd_http *h = a->data;
+  pthread_mutex_lock(&h->mu);
+  uint64_t target = h->asked;
+  int want = h->want_metrics;
+  h->want_metrics = 0;
+  pthread_mutex_unlock(&h->mu);
+  char *text = NULL, why[300] = "";
+  size_t len = 0;
+  if (want && hfd_metrics_render(h->s, &text, &len)) text = NULL;
+  int ready = hfd_ready(h->s, why, sizeof why);
+  pthread_mutex_lock(&h->mu);
+  if (want) {
+    free(h->text);
+    h->text = text;
+    h->len = text ? len : 0;
+  }
+  h->ready = ready;
+  snprintf(h->why, sizeof h->why, "%s", why);
+  h->answered = target;
+  pthread_cond_broadcast(&h->cv);
+  pthread_mutex_unlock(&h->mu);
+}
+
+/* HTTP thread: asks the loop and waits for its answer (mu held). 0 when
+ * answered, -1 when the loop is stopping or did not answer in time. */
+static int ask_loop(hfd_http *h, int metrics) {
+  if (!h->loop_open) return -1;
+  uint64_t mine = ++h->asked;
+  h->want_metrics |= metrics;
+  /* Sent under mu: the loop closes the handle only after loop_open is 0,
+   * which it sets under mu too, so the handle is open here. */
+  if (uv_async_send(&h->async) < 0) return -1;
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  ts.tv_sec += ANSWER_TIMEOUT_MS / 1000;
+  while (h->answered < mine && h->loop_open)
+    if (pthread_cond_timedwait(&h->cv, &h->mu, &ts) != 0) break;
+  return h->answered >= mine ? 0 : -1;
+}
+
+static enum MHD_Result reply(struct MHD_Connection *conn, unsigned status, const char *type,
+                             char *body, size_t len) {
+  struct MHD_Response *r = MHD_create_response_from_buffer(len, body, MHD_RESPMEM_MUST_FREE);
+  if (!r) {
+    free(body);
+    return MHD_NO;
+  }
+  MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, type);
+  MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
+  enum MHD_Result rc = MHD_queue_response(conn, status, r);
+  MHD_destroy_response(r);
+  return rc;
+}
+
+static enum MHD_Result text_reply(struct MHD_Connection *conn, unsigned status,
+                                  const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static enum MHD_Result text_reply(struct MHD_Connection *conn, unsigned status,
+                                  const char *fmt, ...) {
+  char *body = NULL;
+  va_list ap;
+  va_start(ap, fmt);
+  int n = vasprintf(&body, fmt, ap);
+  va_end(ap);
+  if (n < 0) return MHD_NO;
+  return reply(conn, status, "text/plain; charset=utf-8", body, (size_t)n);
+}
+
+/* Why the daemon is not alive, or "" when it is (any thread). */
+static void liveness(hfd_server *s, char *why, size_t cap) {
+  double limit_us = s->cfg->watchdog_ms * 1e3, stalled;
+  double beat = hfd_now_us() - (double)atomic_load(&s->loop_beat_us);
+  why[0] = 0;
+  if (beat > limit_us)
+    snprintf(why, cap, "event loop made no progress for %.1f s (--watchdog-ms %d)", beat / 1e6,
+             s->cfg->watchdog_ms);
+  else if (hfd_worker_stalled(&s->worker, limit_us, &stalled))
+    snprintf(why, cap, "inference worker made no progress for %.1f s (--watchdog-ms %d)",
+             stalled / 1e6, s->cfg->watchdog_ms);
+}
+
+static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const char *url,
+                                  const char *method, const char *version,
+                                  const char *upload_data, size_t *upload_data_size,
+                                  void **req_cls) {
+  hfd_http *h = cls;
+  (void)version;
+  (void)upload_data;
+  (void)req_cls;
+  if (strcmp(method, MHD_HTTP_METHOD_GET) && strcmp(method, MHD_HTTP_METHOD_HEAD))
+    return text_reply(conn, MHD_HTTP_METHOD_NOT_ALLOWED, "only GET\n");
+  if (*upload_data_size) return text_reply(conn, MHD_HTTP_BAD_REQUEST, "no body expected\n");
+  if (!strcmp(url, "/healthz")) {
+    char why[300];
+    liveness(h->s, why, sizeof why);
+    return why[0] ? text_reply(conn, MHD_HTTP_SERVICE_UNAVAILABLE, "unhealthy: %s\n", why)
+                  : text_reply(conn, MHD_HTTP_OK, "ok\n");
+  }
+  int metrics = !strcmp(url, "/metrics");
+  if (!metrics && strcmp(url, "/readyz"))
+    return text_reply(conn, MHD_HTTP_NOT_FOUND, "not found: try /metrics, /healthz, /readyz\n");
+  pthread_mutex_lock(&h->mu);
+  int rc = ask_loop(h, metrics);
+  char *text = NULL, why[300];
+  size_t len = 0;
+  int ready = h->ready;
+  snprintf(why, sizeof why, "%s", h->why);
+  if (!rc && metrics && h->text) {
+    text = malloc(h->len);
+    if (text) memcpy(text, h->text, h->len);
+    len = h->len;
+  }
+  int open = h->loop_open;
+  pthread_mutex_unlock(&h->mu);
+  if (rc)
+    return text_reply(conn, MHD_HTTP_SERVICE_UNAVAILABLE, "%s\n",
+                      open ? "event loop did not answer in time" : "stopping");
+  if (!metrics)
+    return ready ? text_reply(conn, MHD_HTTP_OK, "ready\n")
+                 : text_reply(conn, MHD_HTTP_SERVICE_UNAVAILABLE, "not ready: %s\n", why);
+  if (!text) return text_reply(conn, MHD_HTTP_INTERNAL_SERVER_ERROR, "out of memory\n");
+  return reply(conn, MHD_HTTP_OK, "text/plain; version=0.0.4; charset=utf-8", text, len);
+}
+
+static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
+  (void)cls;
+  char msg[512];
+  vsnprintf(msg, sizeof msg, fmt, ap);
+  msg[strcspn(msg, "\n")] = 0;
+  hfd_warn("http: %s", msg);
+}
+
+int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
+  const hfp_url *u = &s->cfg->http_url;
+  const char *host = strcmp(u->host, "localhost") ? u->host : "127.0.0.1";
+  struct sockaddr_storage ss;
+  memset(&ss, 0, sizeof ss);
+  int v6 = 0;
+  if (uv_ip4_addr(host, u->port, (struct sockaddr_in *)&ss) != 0) {
+    if (uv_ip6_addr(host, u->port, (struct sockaddr_in6 *)&ss) != 0) {
+      hfd_err("--http %s: host must be a numeric address or localhost", s->cfg->http);
+      return -1;
+    }
+    v6 = 1;
+  }
+  hfd_http *h = calloc(1, sizeof *h);
+  if (!h) return -1;
+  h->s = s;
+  pthread_condattr_t ca;
+  if (pthread_mutex_init(&h->mu, NULL) || pthread_condattr_init(&ca) ||
+      pthread_condattr_setclock(&ca, CLOCK_MONOTONIC) || pthread_cond_init(&h->cv, &ca)) {
+    free(h);
+    return -1;
+  }
+  pthread_condattr_destroy(&ca);
+  int rc = uv_async_init(s->loop, &h->async, on_async);
+  if (rc < 0) {
+    hfd_err("--http: uv_async_init: %s", uv_strerror(rc));
+    free(h);
+    return -1;
+  }
+  h->async.data = h;
+  h->loop_open = 1;
+  s->http = h;
+  unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_ERROR_LOG |
+                   (v6 ? MHD_USE_IPv6 : 0);
+  h->d = MHD_start_daemon(flags, 0, NULL, NULL, on_request, h,
+                          MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL,
+                          MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&ss,
+                          MHD_OPTION_CONNECTION_LIMIT, (unsigned)32,
+                          MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)10,
+                          MHD_OPTION_END);
+  if (!h->d) {
+    hfd_err("--http %s: cannot listen there (address in use, or not this host's?)",
+            s->cfg->http);
+    return -1;
+  }
+  const union MHD_DaemonInfo *info = MHD_get_daemon_info(h->d, MHD_DAEMON_INFO_BIND_PORT);
+  unsigned port = info ? info->port : u->port;
+  snprintf(url, urlcap, v6 ? "http://[%s]:%u" : "http://%s:%u", host, port);
+  hfd_log("http on %s: /metrics /healthz /readyz", url);
+  return 0;
+}
+
+void hfd_http_loop_closing(hfd_server *s) {
+  hfd_http *h = s->http;
+  if (!h || !h->loop_open) return;
+  pthread_mutex_lock(&h->mu);
+  h->loop_open = 0;
+  pthread_cond_broadcast(&h->cv);
+  pthread_mutex_unlock(&h->mu);
+  uv_close((uv_handle_t *)&h->async, NULL);
+}
+
+void hfd_http_stop(hfd_server *s) {
+  hfd_http *h = s->http;
+  if (!h) return;
+  if (h->d) MHD_stop_daemon(h->d);
+  free(h->text);
+  pthread_cond_destroy(&h->cv);
+  pthread_mutex_destroy(&h->mu);
+  free(h);
+  s->http = NULL;
+}

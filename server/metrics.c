@@ -1,0 +1,400 @@
+/*
+ * What /metrics shows, in the Prometheus text exposition format (version
+ * 0.0.4, https://prometheus.io/docs/instrumenting/exposition_formats/).
+ *
+ * Counters are kept by the loop thread, which owns every request, as plain
+ * integers (no locks on the request path); the text is made on the loop
+ * thread too, when http.c asks for it, and handed to the HTTP thread as a
+ * finished buffer. Debian has no maintained C client library for
+ * Prometheus, and the format is a few lines per family, so it is written
+ * here; tests/server/test_metrics.py reads it back with Prometheus's own
+ * parsers (promtool and the Python client's).
+ *
+ * Requests are counted by variant and status once answered: a RESULT when
+ * it is written (as STATS counts it), a refusal when it is sent. `class`
+ * groups the statuses for alerts: ok, overload (BUSY: retry or add
+ * capacity), client_error (the request was wrong: INVALID, TOO_LARGE,
+ * UNKNOWN_VARIANT, ...), unavailable (SHUTTING_DOWN), server_error
+ * (INTERNAL). Latency histograms have fixed buckets from 0.5 ms to 30 s.
+ */
+#define _GNU_SOURCE
+#include <ctype.h>
+#include <dirent.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "server.h"
+
+#ifndef HFD_VERSION
+#error "HFD_VERSION must be defined (server/CMakeLists.txt)"
+#endif
+
+const double hfd_time_buckets_s[HFD_TIME_BUCKETS] = {0.0005, 0.001, 0.0025, 0.005, 0.01,
+                                                     0.025,  0.05,  0.1,    0.25,  0.5,
+                                                     1,      2.5,   5,      10,    30};
+
+static hfd_variant_metrics no_variant;   /* requests refused before a variant was known */
+
+void hfd_metrics_count(hfd_server *s, int slot, int status) {
+  if (status < 0) status = -status;
+  if (status >= HFP_E_COUNT) status = HFP_E_INTERNAL;
+  if (slot >= 0)
+    s->variants[slot].m.by_status[status]++;
+  else
+    s->unrouted[status]++;
+}
+
+static void observe_time(hfd_hist *h, uint64_t us) {
+  double v = (double)us / 1e6;
+  int b = 0;
+  while (b < HFD_TIME_BUCKETS && v > hfd_time_buckets_s[b]) b++;
+  h->bucket[b]++;
+  h->count++;
+  h->sum += v;
+}
+
+void hfd_metrics_observe(hfd_server *s, const hfd_job *j) {
+  hfd_variant_metrics *m = &s->variants[j->variant].m;
+  observe_time(&m->time[HFD_T_QUEUE], j->timing.queue_us);
+  observe_time(&m->time[HFD_T_INPUT], j->timing.input_us);
+  observe_time(&m->time[HFD_T_INFER], j->timing.infer_us);
+  observe_time(&m->time[HFD_T_OUTPUT], j->timing.output_us);
+  observe_time(&m->time[HFD_T_TOTAL], j->timing.total_us);
+  if (j->batch_leader) {
+    int b = 0;
+    while (b < HFD_BATCH_BUCKETS && j->batch > (1u << b)) b++;
+    m->batch.bucket[b]++;
+    m->batch.count++;
+    m->batch.sum += j->batch;
+  }
+}
+
+/* ---- text format ------------------------------------------------------ */
+
+/* A label value with \, " and newline escaped, as the format asks. */
+static void label(FILE *f, const char *v) {
+  for (; *v; v++) {
+    if (*v == '\\' || *v == '"')
+      fprintf(f, "\\%c", *v);
+    else if (*v == '\n')
+      fputs("\\n", f);
+    else
+      fputc(*v, f);
+  }
+}
+
+static void family(FILE *f, const char *name, const char *type, const char *help) {
+  fprintf(f, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
+}
+
+/* A family of one unlabelled integer sample. */
+static void scalar(FILE *f, const char *name, const char *type, const char *help,
+                   unsigned long long v) {
+  family(f, name, type, help);
+  fprintf(f, "%s %llu\n", name, v);
+}
+
+static void lower(char *dst, size_t cap, const char *src) {
+  size_t i = 0;
+  for (; src[i] && i + 1 < cap; i++) dst[i] = (char)tolower((unsigned char)src[i]);
+  dst[i] = 0;
+}
+
+static const char *status_class(int code) {
+  switch (code) {
+    case HFP_OK: return "ok";
+    case HFP_E_BUSY: return "overload";
+    case HFP_E_SHUTTING_DOWN: return "unavailable";
+    case HFP_E_INTERNAL: return "server_error";
+    default: return "client_error";
+  }
+}
+
+/* Statuses shown even at zero, so that rate() and alerts have a series
+ * from the start; others appear once they happen. */
+static int always_shown(int code) {
+  return code == HFP_OK || code == HFP_E_BUSY || code == HFP_E_INVALID ||
+         code == HFP_E_TOO_LARGE || code == HFP_E_INTERNAL;
+}
+
+static void requests(FILE *f, const char *variant, const hfd_variant_metrics *m, int unrouted,
+                     const uint64_t *counts) {
+  for (int code = 0; code < HFP_E_COUNT; code++) {
+    uint64_t n = counts ? counts[code] : m->by_status[code];
+    int shown = unrouted ? (n || code == HFP_E_UNKNOWN_VARIANT) : (n || always_shown(code));
+    if (!shown) continue;
+    char st[32];
+    lower(st, sizeof st, hfp_code_name(code));
+    fputs("hairfilterd_requests_total{variant=\"", f);
+    label(f, variant);
+    fprintf(f, "\",status=\"%s\",class=\"%s\"} %llu\n", st, status_class(code),
+            (unsigned long long)n);
+  }
+}
+
+static void histogram(FILE *f, const char *name, const char *variant, const hfd_hist *h,
+                      int batches) {
+  uint64_t cum = 0;
+  int nb = batches ? HFD_BATCH_BUCKETS : HFD_TIME_BUCKETS;
+  for (int b = 0; b <= nb; b++) {
+    cum += h->bucket[b];
+    fprintf(f, "%s_bucket{variant=\"", name);
+    label(f, variant);
+    if (b == nb)
+      fprintf(f, "\",le=\"+Inf\"} %llu\n", (unsigned long long)cum);
+    else if (batches)
+      fprintf(f, "\",le=\"%u\"} %llu\n", 1u << b, (unsigned long long)cum);
+    else
+      fprintf(f, "\",le=\"%g\"} %llu\n", hfd_time_buckets_s[b], (unsigned long long)cum);
+  }
+  fprintf(f, "%s_sum{variant=\"", name);
+  label(f, variant);
+  fprintf(f, "\"} %.9g\n", h->sum);
+  fprintf(f, "%s_count{variant=\"", name);
+  label(f, variant);
+  fprintf(f, "\"} %llu\n", (unsigned long long)h->count);
+}
+
+/* A gauge or counter with one sample per serving variant. */
+#define PER_VARIANT(f, s, metric, fmt, expr)                               \
+  do {                                                                     \
+    for (int i_ = 0; i_ < (s)->num_variants; i_++) {                       \
+      const hfd_variant *v = &(s)->variants[i_];                           \
+      if (!v->model) continue;                                             \
+      fprintf(f, "%s{variant=\"", metric);                                 \
+      label(f, v->name);                                                   \
+      fprintf(f, "\"} " fmt "\n", expr);                                   \
+    }                                                                      \
+  } while (0)
+
+/* Resident memory, CPU time and descriptors of this process, as every
+ * Prometheus client library reports them (process_*), from /proc. */
+static void process_metrics(FILE *f, const hfd_server *s) {
+  long page = sysconf(_SC_PAGESIZE), tick = sysconf(_SC_CLK_TCK);
+  FILE *p = fopen("/proc/self/statm", "r");
+  unsigned long long size = 0, rss = 0;
+  if (p) {
+    if (fscanf(p, "%llu %llu", &size, &rss) != 2) size = rss = 0;
+    fclose(p);
+  }
+  unsigned long long ut = 0, st = 0;
+  p = fopen("/proc/self/stat", "r");
+  if (p) {
+    char buf[1024];
+    size_t n = fread(buf, 1, sizeof buf - 1, p);
+    buf[n] = 0;
+    fclose(p);
+    /* Fields after the command name (in parentheses, which may hold
+     * spaces): state is field 3, utime 14, stime 15. */
+    const char *q = strrchr(buf, ')');
+    if (!q || sscanf(q + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu", &ut,
+                     &st) != 2)
+      ut = st = 0;
+  }
+  int fds = 0;
+  DIR *d = opendir("/proc/self/fd");
+  if (d) {
+    for (struct dirent *e; (e = readdir(d)) != NULL;) fds += e->d_name[0] != '.';
+    closedir(d);
+    fds--;  /* the one opendir holds */
+  }
+  family(f, "process_resident_memory_bytes", "gauge", "Resident memory size in bytes.");
+  fprintf(f, "process_resident_memory_bytes %llu\n", rss * (unsigned long long)page);
+  family(f, "process_virtual_memory_bytes", "gauge", "Virtual memory size in bytes.");
+  fprintf(f, "process_virtual_memory_bytes %llu\n", size * (unsigned long long)page);
+  family(f, "process_cpu_seconds_total", "counter", "User and system CPU time spent in seconds.");
+  fprintf(f, "process_cpu_seconds_total %.2f\n", (double)(ut + st) / (double)tick);
+  family(f, "process_open_fds", "gauge", "Number of open file descriptors.");
+  fprintf(f, "process_open_fds %d\n", fds);
+  family(f, "process_start_time_seconds", "gauge",
+         "Start time of the process since the Unix epoch in seconds.");
+  fprintf(f, "process_start_time_seconds %.3f\n", s->t_start_wall);
+}
+
+int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
+  char *buf = NULL;
+  size_t n = 0;
+  FILE *f = open_memstream(&buf, &n);
+  if (!f) return -1;
+  const char *backend = s->worker.backend ? hf_backend_name(s->worker.backend) : "";
+  char why[300];
+  int ready = hfd_ready(s, why, sizeof why);
+
+  family(f, "hairfilterd_build_info", "gauge",
+         "Always 1; the labels say which hairfilterd this is and the protocol versions it speaks.");
+  fprintf(f, "hairfilterd_build_info{version=\"%s\",protocol_min=\"%d\",protocol_max=\"%d\"} 1\n",
+          HFD_VERSION, HFP_VERSION_MIN, HFP_VERSION);
+  family(f, "hairfilterd_backend_info", "gauge", "Always 1; the backend that runs the models.");
+  fputs("hairfilterd_backend_info{backend=\"", f);
+  label(f, backend);
+  fputs("\"} 1\n", f);
+  scalar(f, "hairfilterd_ready", "gauge", "1 when /readyz answers 200.",
+         ready);
+  scalar(f, "hairfilterd_draining", "gauge", "1 after SIGTERM or SIGINT, while finishing work.",
+         s->draining);
+
+  family(f, "hairfilterd_variant_info", "gauge",
+         "Always 1 for each variant served; its backend, precision, samples per pixel, U-Net "
+         "levels and weights file.");
+  for (int i = 0; i < s->num_variants; i++) {
+    const hfd_model *m = s->variants[i].model;
+    if (!m) continue;
+    char levels[128] = "";
+    for (int l = 0; l < m->cfg.num_levels; l++) {
+      size_t used = strlen(levels);
+      snprintf(levels + used, sizeof levels - used, "%s%d", l ? "," : "", m->cfg.levels[l]);
+    }
+    fputs("hairfilterd_variant_info{variant=\"", f);
+    label(f, m->name);
+    fputs("\",backend=\"", f);
+    label(f, backend);
+    fputs("\",precision=\"", f);
+    label(f, m->precision);
+    fprintf(f, "\",spp=\"%d\",levels=\"%s\",file=\"", m->cfg.spp, levels);
+    label(f, m->path);
+    fputs("\"} 1\n", f);
+  }
+  family(f, "hairfilterd_variant_loaded_timestamp_seconds", "gauge",
+         "When the version of each variant now serving was loaded, since the Unix epoch.");
+  PER_VARIANT(f, s, "hairfilterd_variant_loaded_timestamp_seconds", "%.3f",
+              s->t_start_wall + (v->model->t_loaded - s->t_start) / 1e6);
+  family(f, "hairfilterd_model_parameters", "gauge", "Weights in each variant's network.");
+  PER_VARIANT(f, s, "hairfilterd_model_parameters", "%llu",
+              (unsigned long long)v->model->params);
+  family(f, "hairfilterd_model_device_memory_bytes", "gauge",
+         "Device (GPU) memory each variant's model holds; 0 on CPU backends.");
+  PER_VARIANT(f, s, "hairfilterd_model_device_memory_bytes", "%llu",
+              (unsigned long long)v->model->device_bytes);
+  scalar(f, "hairfilterd_model_cache_memory_bytes", "gauge",
+         "Host memory the backend keeps between runs (plans, scratch), all models together; "
+         "counted in the request memory limit.",
+         atomic_load(&s->worker.cached_bytes));
+
+  family(f, "hairfilterd_requests_total", "counter",
+         "FILTER requests answered, by variant (empty: none could be found) and status; class "
+         "is ok, overload (BUSY), client_error, unavailable (SHUTTING_DOWN) or server_error.");
+  for (int i = 0; i < s->num_variants; i++) {
+    const hfd_variant *v = &s->variants[i];
+    if (v->model) requests(f, v->name, &v->m, 0, NULL);
+  }
+  requests(f, "", &no_variant, 1, s->unrouted);
+
+  static const char *const hist_name[HFD_T_COUNT] = {
+    "hairfilterd_queue_duration_seconds", "hairfilterd_input_duration_seconds",
+    "hairfilterd_inference_duration_seconds", "hairfilterd_output_duration_seconds",
+    "hairfilterd_request_duration_seconds"};
+  static const char *const hist_help[HFD_T_COUNT] = {
+    "Time successful requests waited in the queue (admitted to taken by the worker).",
+    "Time spent on inputs: batch assembly, input statistics, upload, conversion, padding.",
+    "Time the network ran.",
+    "Time spent on outputs: transforms, crop, download, conversion, composite.",
+    "Server time of successful requests, frame received to reply handed to the socket."};
+  for (int t = 0; t < HFD_T_COUNT; t++) {
+    family(f, hist_name[t], "histogram", hist_help[t]);
+    for (int i = 0; i < s->num_variants; i++) {
+      const hfd_variant *v = &s->variants[i];
+      if (v->model) histogram(f, hist_name[t], v->name, &v->m.time[t], 0);
+    }
+  }
+  family(f, "hairfilterd_batch_size", "histogram", "Frames per backend run.");
+  for (int i = 0; i < s->num_variants; i++) {
+    const hfd_variant *v = &s->variants[i];
+    if (v->model) histogram(f, "hairfilterd_batch_size", v->name, &v->m.batch, 1);
+  }
+  family(f, "hairfilterd_frames_out_of_range_total", "counter",
+         "Successful requests whose input was outside the variant's trained range.");
+  PER_VARIANT(f, s, "hairfilterd_frames_out_of_range_total", "%llu",
+              (unsigned long long)v->stats.out_of_range);
+  family(f, "hairfilterd_frames_sanitised_total", "counter",
+         "Successful requests whose input held NaN, infinite or out-of-range samples, "
+         "sanitised before the network.");
+  PER_VARIANT(f, s, "hairfilterd_frames_sanitised_total", "%llu",
+              (unsigned long long)v->stats.frames_sanitised);
+
+  scalar(f, "hairfilterd_queue_depth", "gauge", "Admitted frames waiting for the worker.",
+         s->stopped ? 0 : hfd_worker_queue_depth(&s->worker));
+  scalar(f, "hairfilterd_queue_capacity", "gauge", "--queue-size.",
+         s->cfg->queue_size);
+  scalar(f, "hairfilterd_requests_in_flight", "gauge",
+         "Requests admitted and not yet answered (queued or running).",
+         s->jobs_outstanding);
+  scalar(f, "hairfilterd_connections", "gauge", "Open connections.",
+         s->num_conns);
+  scalar(f, "hairfilterd_connections_handshaking", "gauge",
+         "Open connections that have not completed their HELLO.",
+         s->num_handshaking);
+  scalar(f, "hairfilterd_connections_total", "counter", "Connections accepted.",
+         s->conns_total);
+  scalar(f, "hairfilterd_protocol_errors_total", "counter",
+         "ERROR replies not tied to a variant: malformed frames, failed handshakes, deadlines.",
+         s->protocol_errors);
+  scalar(f, "hairfilterd_replies_lost_total", "counter",
+         "Results computed whose client had gone before they could be written.",
+         s->replies_lost);
+  scalar(f, "hairfilterd_request_memory_bytes", "gauge",
+         "Host memory charged to requests: features, results, inference (--max-memory-mb).",
+         s->mem_held);
+  scalar(f, "hairfilterd_request_memory_limit_bytes", "gauge", "--max-memory-mb in bytes.",
+         s->cfg->max_memory_bytes);
+  scalar(f, "hairfilterd_shared_memory_bytes", "gauge",
+         "Shared-memory segments held for Unix-socket clients.",
+         s->shm_held);
+  scalar(f, "hairfilterd_shared_memory_limit_bytes", "gauge", "--max-shm-mb in bytes.",
+         s->cfg->max_shm_bytes);
+  scalar(f, "hairfilterd_max_frame_pixels", "gauge",
+         "Largest frame announced in HELLO_OK (--max-size as lowered to fit the limits).",
+         (unsigned long long)s->max_width * (unsigned long long)s->max_height);
+
+  family(f, "hairfilterd_reloads_total", "counter",
+         "SIGHUP reloads, by result (failed: at least one file did not load).");
+  fprintf(f, "hairfilterd_reloads_total{result=\"ok\"} %llu\n", (unsigned long long)s->reloads_ok);
+  fprintf(f, "hairfilterd_reloads_total{result=\"failed\"} %llu\n",
+          (unsigned long long)s->reloads_failed);
+  family(f, "hairfilterd_model_loads_total", "counter", "Weights files loaded, by result.");
+  fprintf(f, "hairfilterd_model_loads_total{result=\"ok\"} %llu\n",
+          (unsigned long long)s->loads_ok);
+  fprintf(f, "hairfilterd_model_loads_total{result=\"failed\"} %llu\n",
+          (unsigned long long)s->loads_failed);
+  scalar(f, "hairfilterd_weights_files_unserved", "gauge",
+         "Configured weights files that serve no variant (their load failed).",
+         s->missing);
+
+  process_metrics(f, s);
+  if (fclose(f) != 0) {
+    free(buf);
+    return -1;
+  }
+  *out = buf;
+  *len = n;
+  return 0;
+}
+
+void hfd_metrics_log(hfd_server *s) {
+  hfd_notice("statistics: uptime=%.1fs connections=%d connections_total=%llu queue=%d/%d "
+             "in_flight=%d memory_mib=%.1f shm_mib=%.1f protocol_errors=%llu reloads=%llu",
+             (hfd_now_us() - s->t_start) / 1e6, s->num_conns,
+             (unsigned long long)s->conns_total,
+             s->stopped ? 0 : hfd_worker_queue_depth(&s->worker),
+             s->cfg->queue_size, s->jobs_outstanding, s->mem_held / 1048576.0,
+             s->shm_held / 1048576.0, (unsigned long long)s->protocol_errors,
+             (unsigned long long)(s->reloads_ok + s->reloads_failed));
+  for (int i = 0; i < s->num_variants; i++) {
+    const hfd_variant *v = &s->variants[i];
+    if (!v->model) continue;
+    const hfd_hist *t = &v->m.time[HFD_T_TOTAL];
+    uint64_t errors = 0;
+    for (int c = 1; c < HFP_E_COUNT; c++)
+      if (c != HFP_E_BUSY) errors += v->m.by_status[c];
+    char kv[128] = "";
+    hfd_kv(kv, sizeof kv, "variant", v->name);
+    hfd_notice("statistics:%s ok=%llu busy=%llu errors=%llu batches=%llu mean_total_ms=%.3f "
+               "out_of_range=%llu sanitised=%llu", kv,
+               (unsigned long long)v->m.by_status[HFP_OK],
+               (unsigned long long)v->m.by_status[HFP_E_BUSY], (unsigned long long)errors,
+               (unsigned long long)v->m.batch.count, t->count ? t->sum / t->count * 1e3 : 0.0,
+               (unsigned long long)v->stats.out_of_range,
+               (unsigned long long)v->stats.frames_sanitised);
+  }
+}

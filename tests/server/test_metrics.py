@@ -1,0 +1,176 @@
+#!/usr/bin/env python3
+"""hairfilterd's /metrics, /healthz and /readyz under load.
+
+Load clients send a known number of requests of every kind (served, refused
+BUSY by a small queue, TOO_LARGE, INVALID spp, UNKNOWN_VARIANT) while this
+scrapes /metrics over and over. Every scrape is parsed by two of
+Prometheus's own parsers: promtool (Debian's prometheus package, the Go
+parser the server uses; `promtool check metrics` also lints names, types
+and help) and the Python client's text parser (Debian's
+python3-prometheus-client). Counters must never go down between scrapes,
+and once the load is done they must equal what the clients were answered,
+status by status. /readyz must say 503 while the daemon drains.
+
+usage: test_metrics.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR
+"""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from opsdaemon import (Daemon, check, finish, load_result, run_then_stop,  # noqa: E402
+                       run_load, sample, workdir)
+
+HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
+def promtool(text):
+    p = subprocess.run(["promtool", "check", "metrics"], input=text, capture_output=True,
+                       text=True)
+    return p.returncode, p.stdout + p.stderr
+
+
+def main():
+    w = workdir()
+    # The config file's keys lose to the command line's: its listener (in a
+    # directory that does not exist) is replaced by the flag's, its queue
+    # size by --queue-size (checked below as hairfilterd_queue_capacity 2).
+    conf = os.path.join(w, "hairfilterd.conf")
+    with open(conf, "w") as f:
+        f.write("listen = unix:/nonexistent-dir/hf.sock\nqueue-size = 99\nmax-batch = 7\n")
+    d = Daemon(HAIRFILTERD, [
+        "--config", conf, "--listen", "unix:%s/s.sock" % w, "--http", "tcp:127.0.0.1:0",
+        "--weights", os.path.join(WEIGHTS, "small.safetensors"),
+        "--weights", os.path.join(WEIGHTS, "shallow.safetensors"),
+        "--backend", "cpu-ref", "--queue-size", "2", "--max-inflight", "8",
+        "--max-size", "64x64", "--max-batch", "2"], w)
+    run_then_stop(d, w, lambda: run(d))
+
+
+def run(d):
+    unix = d.urls["unix"]
+    check(d.get("/healthz") == (200, "ok\n"), "/healthz is 200 at rest")
+    check(d.get("/readyz") == (200, "ready\n"), "/readyz is 200 at rest")
+    check(d.get("/nope")[0] == 404, "unknown path is 404")
+    samples, text = d.metrics()
+    check(sample(samples, "hairfilterd_build_info", version=os.environ["HF_VERSION"],
+                 protocol_min="1", protocol_max="2") == 1, "build_info with the version")
+    check(sample(samples, "hairfilterd_queue_capacity") == 2, "queue capacity 2")
+    rc, out = promtool(text)
+    check(rc == 0, "promtool check metrics at rest: " + out)
+
+    # The load: every kind of answer, concurrently. The served load runs
+    # until the scraper has scraped it a number of times.
+    stop = os.path.join(os.path.dirname(d.ready), "stop-load")
+    loads = {
+        "served": run_load(LOAD_CLIENT, unix, "Small", 4, "32x32", connections=3, inflight=4,
+                           until_file=stop),
+        "shallow": run_load(LOAD_CLIENT, unix, "Shallow", 4, "16x16", count=20),
+        "too_large": run_load(LOAD_CLIENT, unix, "Small", 4, "80x64", count=5),
+        "bad_spp": run_load(LOAD_CLIENT, unix, "Small", 2, "16x16", count=7),
+        "unknown": run_load(LOAD_CLIENT, unix, "Nope", 4, "16x16", count=3),
+    }
+    scrapes, lint = [], []
+    while len(scrapes) < 10:
+        s, t = d.metrics()
+        scrapes.append(s)
+        if len(lint) < 3:
+            lint.append(promtool(t))
+        time.sleep(0.05)
+    still = loads["served"].poll() is None
+    open(stop, "w").close()
+    results = {k: load_result(p) for k, p in loads.items()}
+    print({k: r["status"] for k, r in results.items()})
+    check(still, "the served load was still running at the last scrape")
+    for rc, out in lint:
+        check(rc == 0, "promtool check metrics under load: " + out)
+
+    # Counters never go down.
+    for a, b in zip(scrapes, scrapes[1:]):
+        for key, v in a.items():
+            name = key[0]
+            if (name.endswith("_total") or name.endswith("_count") or
+                    name.endswith("_bucket")) and key in b:
+                if b[key] < v:
+                    check(False, "%s went down: %s -> %s" % (key, v, b[key]))
+                    break
+
+    for k, r in results.items():
+        check(r["connection_errors"] == 0 and r["sent"] == r["answered"],
+              "%s: every request answered: %s" % (k, r))
+    served = results["served"]["status"]
+    check(served.get("BUSY", 0) > 0, "the small queue refused some requests BUSY: %s" % served)
+    check(served.get("OK", 0) > 0, "some requests were served: %s" % served)
+
+    s, text = d.metrics()
+    rc, out = promtool(text)
+    check(rc == 0, "promtool check metrics after load: " + out)
+
+    def req(variant, status):
+        return sample(s, "hairfilterd_requests_total", variant=variant, status=status,
+                      **{"class": {"ok": "ok", "busy": "overload"}.get(status, "client_error")})
+
+    small_ok = served.get("OK", 0)
+    small_busy = served.get("BUSY", 0) + results["too_large"]["status"].get("BUSY", 0) + \
+        results["bad_spp"]["status"].get("BUSY", 0)
+    check(req("Small", "ok") == small_ok, "Small ok %s == %s" % (req("Small", "ok"), small_ok))
+    check(req("Small", "busy") == small_busy,
+          "Small busy %s == %s" % (req("Small", "busy"), small_busy))
+    check(req("Small", "too_large") == results["too_large"]["status"].get("TOO_LARGE"),
+          "Small too_large %s == %s" % (req("Small", "too_large"), results["too_large"]))
+    check(req("Small", "invalid") == results["bad_spp"]["status"].get("INVALID"),
+          "Small invalid %s == %s" % (req("Small", "invalid"), results["bad_spp"]))
+    check(req("", "unknown_variant") == 3, "unknown variant counted without a variant: %s" %
+          req("", "unknown_variant"))
+    shallow = results["shallow"]["status"]
+    check(req("Shallow", "ok") == shallow.get("OK", 0) and
+          req("Shallow", "busy") == shallow.get("BUSY", 0),
+          "Shallow ok/busy %s/%s == %s" % (req("Shallow", "ok"), req("Shallow", "busy"), shallow))
+
+    # Histograms: one observation per served request; batch sizes add up to
+    # the frames served.
+    for h in ("queue", "input", "inference", "output", "request"):
+        name = "hairfilterd_%s_duration_seconds" % h
+        check(sample(s, name + "_count", variant="Small") == small_ok,
+              "%s count == %s" % (name, small_ok))
+        check(sample(s, name + "_bucket", variant="Small", le="+Inf") == small_ok,
+              "%s +Inf bucket == %s" % (name, small_ok))
+    check(sample(s, "hairfilterd_batch_size_sum", variant="Small") == small_ok,
+          "batch sizes add up to the frames served")
+    check(sample(s, "hairfilterd_request_duration_seconds_sum", variant="Small") > 0,
+          "request time sum > 0")
+    check(sample(s, "hairfilterd_queue_depth") == 0, "queue empty after the load")
+    check(sample(s, "hairfilterd_requests_in_flight") == 0, "nothing in flight after the load")
+    check(sample(s, "hairfilterd_connections_total") >= 7, "connections counted")
+    check(sample(s, "hairfilterd_variant_info", variant="Small", backend="cpu-ref",
+                 precision="fp32", spp="4", levels="16,32,64",
+                 file=os.path.join(WEIGHTS, "small.safetensors")) == 1, "variant_info of Small")
+    check(sample(s, "hairfilterd_backend_info", backend="cpu-ref") == 1, "backend_info")
+    check(sample(s, "hairfilterd_ready") == 1, "hairfilterd_ready 1")
+    check(sample(s, "process_resident_memory_bytes") > 0, "process RSS")
+
+    # Draining: readiness goes 503 while liveness stays 200. Frames of the
+    # largest size keep the worker busy for a while after SIGTERM.
+    slow = run_load(LOAD_CLIENT, unix, "Small", 4, "64x64", connections=2, inflight=1,
+                    count=40)
+    time.sleep(0.3)
+    d.signal(signal.SIGTERM)
+    seen = None
+    t_end = time.time() + 10
+    while time.time() < t_end and d.proc.poll() is None:
+        try:
+            st, body = d.get("/readyz", timeout=2)
+            hz = d.get("/healthz", timeout=2)
+        except OSError:
+            break
+        if st == 503:
+            seen = (st, body, hz)
+            break
+        time.sleep(0.01)
+    check(seen is not None and "draining" in seen[1] and seen[2][0] == 200,
+          "/readyz 503 'draining' and /healthz 200 while draining: %s" % (seen,))
+    slow.communicate(timeout=60)
+
+
+main()
+finish()

@@ -1,0 +1,146 @@
+#!/usr/bin/env python3
+"""SIGHUP reloads under load: variants added, replaced and removed with no
+request lost; a failed load keeps the old version serving and is counted;
+readiness goes 503 while a configured file serves nothing; SIGUSR1 logs
+the statistics and changes nothing. The daemon is configured through a
+config file (hairfilterd.conf), which the reload reads again.
+
+usage: test_reload.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR
+"""
+import os
+import shutil
+import signal
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from opsdaemon import (Daemon, check, finish, load_result, run_then_stop,  # noqa: E402
+                       run_load, sample, set_weights_name, workdir)
+
+HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
+def write_conf(path, w, extra=""):
+    with open(path, "w") as f:
+        f.write("; hairfilterd.conf for the reload test\n"
+                "listen = unix:%s/s.sock\n"
+                "http = tcp:127.0.0.1:0\n"
+                "weights-dir = %s/weights\n"
+                "backend = cpu-ref\n"
+                "queue-size = 256\n"
+                "max-inflight = 64\n" % (w, w) + extra)
+
+
+def served(d):
+    """{variant: (file, levels)} from /metrics."""
+    s, _ = d.metrics()
+    out = {}
+    for (name, labels), v in s.items():
+        if name == "hairfilterd_variant_info":
+            lab = dict(labels)
+            out[lab["variant"]] = (os.path.basename(lab["file"]), lab["levels"])
+    return out, s
+
+
+def reload_and_wait(d, before):
+    """SIGHUP, then waits until a reload more than before has finished."""
+    d.signal(signal.SIGHUP)
+    t_end = time.time() + 30
+    while time.time() < t_end:
+        _, s = served(d)
+        n = sum(v for (name, _), v in s.items() if name == "hairfilterd_reloads_total")
+        if n > before:
+            return n
+        time.sleep(0.02)
+    raise RuntimeError("reload did not finish")
+
+
+def main():
+    w = workdir()
+    os.mkdir(os.path.join(w, "weights"))
+    shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), os.path.join(w, "weights"))
+    conf = os.path.join(w, "hairfilterd.conf")
+    write_conf(conf, w)
+    d = Daemon(HAIRFILTERD, ["--config", conf], w)
+    run_then_stop(d, w, lambda: run(d, w, conf))
+
+
+def run(d, w, conf):
+    wd = os.path.join(w, "weights")
+    unix = d.urls["unix"]
+    v, _ = served(d)
+    check(v == {"Small": ("small.safetensors", "16,32,64")}, "at start: %s" % v)
+    stop = os.path.join(w, "stop-load")
+    # Two connections keep requests for Small in flight all through.
+    load = run_load(LOAD_CLIENT, unix, "Small", 4, "16x16", connections=2, inflight=4,
+                    until_file=stop)
+    time.sleep(0.3)
+    reloads = 0
+
+    # 1. Added: a retrained Small (same metadata name) served beside it
+    # under another name given in the config file.
+    shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), os.path.join(w, "retrained.safetensors"))
+    write_conf(conf, w, "weights = Small-retrained=%s/retrained.safetensors\n" % w)
+    reloads = reload_and_wait(d, reloads)
+    v, s = served(d)
+    check(set(v) == {"Small", "Small-retrained"}, "added Small-retrained: %s" % v)
+    retrained = run_load(LOAD_CLIENT, unix, "Small-retrained", 4, "16x16", count=10)
+    r = load_result(retrained)
+    check(r["status"] == {"OK": 10}, "Small-retrained serves: %s" % r)
+
+    # 2. Replaced: small.safetensors becomes another network that is also
+    # named Small (Shallow's weights, levels 32,64), renamed into place.
+    set_weights_name(os.path.join(WEIGHTS, "shallow.safetensors"),
+                     os.path.join(wd, "small.safetensors"), "Small")
+    reloads = reload_and_wait(d, reloads)
+    v, s = served(d)
+    check(v.get("Small") == ("small.safetensors", "32,64"), "Small replaced: %s" % v)
+
+    # 3. A failed replacement: the old version keeps serving, readiness stays.
+    with open(os.path.join(wd, "small.safetensors.tmp"), "wb") as f:
+        f.write(b"\x10\x00\x00\x00\x00\x00\x00\x00{not json at all}")
+    os.replace(os.path.join(wd, "small.safetensors.tmp"), os.path.join(wd, "small.safetensors"))
+    reloads = reload_and_wait(d, reloads)
+    v, s = served(d)
+    check(v.get("Small") == ("small.safetensors", "32,64"), "failed replacement keeps Small: %s" % v)
+    check(sample(s, "hairfilterd_reloads_total", result="failed") == 1, "failed reload counted")
+    check(sample(s, "hairfilterd_model_loads_total", result="failed") == 1, "failed load counted")
+    check(d.get("/readyz")[0] == 200, "still ready: the old version serves")
+    check("keeps serving the version loaded before" in d.log_text(), "failure logged")
+
+    # 4. A new file that fails: not ready, naming it; the rest serve.
+    shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), os.path.join(wd, "small.safetensors"))
+    with open(os.path.join(wd, "broken.safetensors"), "wb") as f:
+        f.write(b"\x00" * 7)
+    reloads = reload_and_wait(d, reloads)
+    st, body = d.get("/readyz")
+    check(st == 503 and "broken.safetensors" in body, "/readyz names the broken file: %s %s" % (st, body))
+    v, s = served(d)
+    check(v.get("Small") == ("small.safetensors", "16,32,64"), "Small back to its own weights: %s" % v)
+    check(sample(s, "hairfilterd_weights_files_unserved") == 1, "one file unserved")
+    os.unlink(os.path.join(wd, "broken.safetensors"))
+    reloads = reload_and_wait(d, reloads)
+    check(d.get("/readyz") == (200, "ready\n"), "ready again once the broken file is gone")
+
+    # 5. Removed: Small-retrained leaves the config.
+    write_conf(conf, w)
+    reloads = reload_and_wait(d, reloads)
+    v, s = served(d)
+    check(set(v) == {"Small"}, "Small-retrained removed: %s" % v)
+
+    # SIGUSR1: statistics in the log, nothing else.
+    d.signal(signal.SIGUSR1)
+    time.sleep(0.3)
+    check("statistics:" in d.log_text() and d.proc.poll() is None, "SIGUSR1 logs statistics")
+
+    open(stop, "w").close()
+    r = load_result(load)
+    print("load through the reloads:", r)
+    check(r["connection_errors"] == 0 and r["sent"] == r["answered"] and
+          r["status"] == {"OK": r["sent"]}, "no request lost or refused: %s" % r)
+    check(r["sent"] > 50, "the load ran: %s" % r)
+    _, s = served(d)
+    check(sample(s, "hairfilterd_requests_total", variant="Small", status="ok", **{"class": "ok"})
+          == r["sent"], "Small's counter went on through the replacements")
+
+
+main()
+finish()
