@@ -195,8 +195,14 @@ class FrameSet:
     def __init__(self, entries, spp, log=None):
         """Keeps every sample a file holds, so that variants reading fewer
         samples than the files hold train on random subsets of them."""
-        self.entries = entries
+        self.entries = []
         self.feats, self.tgts, self.stats = [], [], []
+        self.spp = spp
+        self.add(entries, log)
+
+    def add(self, entries, log=None):
+        """Loads more frames (a dataset that is still being rendered)."""
+        spp = self.spp
         for i, e in enumerate(entries):
             f, t = load_frame(e["file"], dtype=np.float32)
             if f.shape[2] < spp:
@@ -204,9 +210,9 @@ class FrameSet:
             self.stats.append(input_stats.frame_stats(f, spp))
             self.feats.append(f.astype(np.float16))
             self.tgts.append(t.astype(np.float16))
+            self.entries.append(e)
             if log:
                 log(f"loading {i + 1}/{len(entries)}")
-        self.spp = spp
 
     def __len__(self):
         return len(self.feats)

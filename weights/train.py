@@ -309,6 +309,10 @@ def parse_args(argv):
     ap.add_argument("--kernel-hidden", type=int, default=-1,
                     help="Kernel variant: channels of dec0 before the 1x1 head (0: dec0 "
                     "gives the kernel directly; default: the variant's)")
+    ap.add_argument("--reload-every", type=int, default=0, metavar="N",
+                    help="every N steps, add the frames that appeared in the --data "
+                    "directories since the start (a data set still being rendered) to the "
+                    "training set")
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
     return ap.parse_args(argv)
@@ -375,10 +379,13 @@ def main(argv=None):
     if step < args.steps:
         if not args.data:
             sys.exit("train.py: --data is required to train")
-        entries = [e for d in args.data.split(",") if d for e in dataset.read_manifest(d)]
         styles = dataset.parse_styles(args.styles)
-        if styles:
-            entries = [e for e in entries if e["style"] in styles]
+
+        def list_frames():
+            found = [e for d in args.data.split(",") if d for e in dataset.read_manifest(d)]
+            return [e for e in found if e["style"] in styles] if styles else found
+
+        entries = list_frames()
         if not entries:
             sys.exit(f"train.py: no frames of styles {args.styles} in {args.data}")
         train_e, val_e = dataset.split_frames(entries, args.val_fraction)
@@ -402,6 +409,16 @@ def main(argv=None):
                 f = args.lr_floor + (1 - args.lr_floor) * 0.5 * (1 + math.cos(math.pi * step / args.steps))
                 for g in opt.param_groups:
                     g["lr"] = args.lr * f
+            if args.reload_every and step % args.reload_every == 0 and step > 0:
+                # Frames rendered since the start join the training set (the
+                # validation frames stay those chosen at the start).
+                known = {e["file"] for e in train_set.entries}
+                known.update(e["file"] for e in val_e)
+                new = [e for e in list_frames() if e["file"] not in known]
+                if new:
+                    train_set.add(new)
+                    print(f"\n{len(new)} new frames: {len(train_set)} training frames",
+                          file=sys.stderr)
             x, y = train_set.batch(np_rng, args.crop, args.batch)
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
             loss = hair_loss(forward(net, x, *mode, straight_through=args.straight_through),
@@ -440,7 +457,7 @@ def main(argv=None):
         with open(os.path.join(args.out, "summary.json"), "w") as f:
             json.dump(dict(variant=cfg["name"], steps=step,
                            data=[os.path.abspath(d) for d in args.data.split(",") if d],
-                           styles=args.styles, train_frames=len(train_e),
+                           styles=args.styles, train_frames=len(train_set),
                            val_frames=len(val_e), batch=args.batch, crop=args.crop,
                            lr=args.lr, schedule=args.schedule, lr_floor=args.lr_floor,
                            grad_weight=args.grad_weight, seed=args.seed,
