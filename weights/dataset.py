@@ -157,6 +157,19 @@ def load_frame(path, spp=None, dtype=np.float16):
 
 # ---- augmentation ----------------------------------------------------------
 
+def entry_stats(entry, feat, spp):
+    """input_stats.frame_stats of a manifest entry's features [h][w][spp*6],
+    with long_side that of the whole frame when the entry is a crop (the
+    manifest's "full_width"/"full_height"): an engine sends the whole frame,
+    so that is the resolution the weights' input range must record, as
+    `hairfilter eval` reports it."""
+    st = input_stats.frame_stats(feat, spp)
+    full = max(int(entry.get("full_width") or 0), int(entry.get("full_height") or 0))
+    if full > st["long_side"]:
+        st["long_side"] = float(full)
+    return st
+
+
 def augment(feat, tgt, rng, flips=True, rotations=True, permute=True):
     """Random dihedral transform and sample-slot permutation of one crop.
 
@@ -207,7 +220,7 @@ class FrameSet:
             f, t = load_frame(e["file"], dtype=np.float32)
             if f.shape[2] < spp:
                 raise DatasetError(f"{e['file']}: {f.shape[2]} samples per pixel, {spp} needed")
-            self.stats.append(input_stats.frame_stats(f, spp))
+            self.stats.append(entry_stats(e, f, spp))
             self.feats.append(f.astype(np.float16))
             self.tgts.append(t.astype(np.float16))
             self.entries.append(e)

@@ -61,7 +61,7 @@ def range_of_frames(entries, spp, log=None):
     stats = []
     for i, e in enumerate(entries):
         feat, _ = dataset.load_frame(e["file"], spp=spp, dtype="float32")
-        stats.append(input_stats.frame_stats(feat, spp))
+        stats.append(dataset.entry_stats(e, feat, spp))
         if log:
             log(f"{i + 1}/{len(entries)} {os.path.basename(e['file'])}")
     return input_stats.input_range(stats, spp)
