@@ -169,6 +169,46 @@ class Stamp(unittest.TestCase):
         self.assertTrue(mask & (1 << input_stats.STATS.index("strand_alpha_p50")), mask)
         self.assertTrue(mask & (1 << input_stats.STATS.index("full_coverage")), mask)
 
+    def test_crop_counts_at_full_size(self):
+        # A crop of a 1024 frame: its range and its regime row say 1024.
+        crop = os.path.join(ARGS.work, "crop")
+        shutil.rmtree(crop, ignore_errors=True)
+        shutil.copytree(self.data, crop)
+        man = os.path.join(crop, "manifest.json")
+        with open(man) as f:
+            doc = json.load(f)
+        frames = doc["frames"]
+        frames[0]["full_width"], frames[0]["full_height"] = 1024, 768
+        with open(man, "w") as f:
+            json.dump(doc, f)
+        entries = dataset.read_manifest(crop)
+        e = next(x for x in entries if os.path.basename(x["file"]) == frames[0]["file"])
+        feat = dataset.load_frame(e["file"], 4, np.float32)[0]
+        self.assertEqual(dataset.entry_stats(e, feat, 4)["long_side"], 1024.0)
+        self.assertEqual(input_stats.frame_stats(feat, 4)["long_side"], 32.0)
+        rng = stamp_range.range_of_frames(entries, 4)
+        self.assertEqual(rng["long_side"], [32.0, 1024.0])
+        r = subprocess.run([sys.executable, os.path.join(WEIGHTS, "regime_table.py"),
+                            "train=" + crop, "plain=" + self.data],
+                           capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        rows = {}
+        for line in r.stdout.splitlines():
+            if line.startswith("| train |") or line.startswith("| plain |"):
+                rows.setdefault(line.split("|")[1].strip(), []).append(
+                    [c.strip() for c in line.strip("|").split("|")[1:]])
+        # Four tables per set; every frame table totals the 6 frames.
+        self.assertEqual(len(rows["train"]), 4, r.stdout)
+        for t in (0, 2, 3):
+            self.assertEqual(rows["train"][t][0], "6")
+            self.assertEqual(sum(int(c.split()[0]) for c in rows["train"][t][1:]), 6)
+        self.assertEqual(rows["train"][3][1:], ["5 (83%)", "0 (0%)", "1 (17%)"])
+        self.assertEqual(rows["plain"][3][1:], ["6 (100%)", "0 (0%)", "0 (0%)"])
+        # The pixel table counts hair pixels: its total is the frames' hair pixels.
+        hair = sum(int((input_stats.strand_alpha(
+            dataset.load_frame(x["file"], 4, np.float32)[0], 4)[1] > 0).sum()) for x in entries)
+        self.assertEqual(int(rows["train"][1][0]), hair)
+
     def test_train_export(self):
         try:
             import torch  # noqa: F401
