@@ -295,6 +295,9 @@ static int wr_finish(wr *w, int type, uint32_t request_id, uint64_t extra) {
 
 /* ---- HELLO / HELLO_OK ------------------------------------------------------ */
 
+static void wr_short_text(wr *w, const char *s, int allow_empty);
+static void rd_short_text(rd *r, char *dst, int allow_empty);
+
 int hfp_encode_hello(uint8_t *buf, size_t cap, const hfp_hello *m) {
   wr w;
   wr_begin(&w, buf, cap);
@@ -350,6 +353,9 @@ int hfp_encode_hello_ok(uint8_t *buf, size_t cap, const hfp_hello_ok *m) {
   wr_u64(&w, m->max_frame_bytes);
   wr_u16(&w, (uint16_t)nn);
   wr_bytes(&w, m->server_name, nn);
+  /* Version 2: the server's software version after the name (empty: not
+   * said). A version-1 peer gets exactly the version-1 frame. */
+  if (m->version >= 2) wr_short_text(&w, m->software_version, 1);
   return wr_finish(&w, HFP_HELLO_OK, 0, 0);
 }
 
@@ -368,6 +374,9 @@ int hfp_decode_hello_ok(const uint8_t *payload, size_t len, hfp_hello_ok *m) {
   m->max_frame_bytes = rd_u64(&r);
   uint16_t nn = rd_u16(&r);
   rd_text(&r, nn, HFP_NAME_MAX, 0, 0, m->server_name);
+  /* Bytes after the name: version 2's software version. A version-2 server
+   * that sends none is read as one that does not say. */
+  if (m->version >= 2 && !r.err && r.off < r.len) rd_short_text(&r, m->software_version, 1);
   int rc = rd_end(&r);
   if (rc) return rc;
   if (m->version < HFP_VERSION_MIN || m->version > HFP_VERSION) return -HFP_E_VERSION;

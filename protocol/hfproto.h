@@ -4,7 +4,8 @@
  * the input-range report and the input-sanitised flag: RESULT flags
  * HFP_RESULT_INPUT_SANITISED and HFP_RESULT_OUT_OF_RANGE, each variant's
  * trained input range after VARIANTS, and per-variant counters after
- * STATS_REPLY. A peer that negotiated version 1 never sees them.
+ * STATS_REPLY, and the server's software version after HELLO_OK. A peer
+ * that negotiated version 1 never sees them.
  *
  * A pure codec: it turns message structs into bytes and bytes into structs.
  * It does no I/O and never allocates, so every length it reads from the wire
@@ -145,6 +146,9 @@ typedef struct hfp_hello_ok {
   uint32_t queue_size;
   uint64_t max_frame_bytes;           /* largest payload the server reads */
   char server_name[HFP_NAME_MAX + 1];
+  /* Version 2: the server's software version ("0.1.0"); empty when the
+   * server does not say, and always on version 1 (not on the wire). */
+  char software_version[HFP_NAME_MAX + 1];
 } hfp_hello_ok;
 
 typedef struct hfp_variant {
@@ -253,6 +257,8 @@ int hfp_output_bytes(uint32_t width, uint32_t height, uint32_t channels,
  * hfp_frame_size_* says how large buf must be. */
 int hfp_encode_hello(uint8_t *buf, size_t cap, const hfp_hello *m);
 int hfp_encode_hello_ok(uint8_t *buf, size_t cap, const hfp_hello_ok *m);
+/* The largest HELLO_OK frame (both names at their limit, version 2). */
+#define HFP_HELLO_OK_MAX (HFP_HEADER_SIZE + 38 + HFP_NAME_MAX + 1 + HFP_NAME_MAX)
 int hfp_encode_empty(uint8_t *buf, size_t cap, int type, uint32_t request_id);
 int hfp_encode_variants(uint8_t *buf, size_t cap, const hfp_variant *v, int count);
 int hfp_encode_error(uint8_t *buf, size_t cap, uint32_t request_id, const hfp_error *m);

@@ -233,6 +233,55 @@ static void test_hello_ok(void **state) {
   assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &m), -HFP_E_INVALID);
 }
 
+/* Version 2 appends the server's software version to HELLO_OK; a
+ * version-1 peer gets the version-1 frame, byte for byte. */
+static void test_hello_ok_software(void **state) {
+  (void)state;
+  hfp_hello_ok m = sample_hello_ok(), d;
+  strcpy(m.software_version, "0.1.0");
+  m.version = 1;
+  int n1 = hfp_encode_hello_ok(buf, sizeof buf, &m);
+  hfp_header h;
+  const uint8_t *p = split(buf, n1, HFP_HELLO_OK, &h);
+  assert_int_equal(hfp_decode_hello_ok(p, h.length, &d), 0);
+  assert_string_equal(d.software_version, "");   /* not on a version-1 wire */
+  uint8_t c[256];
+  memcpy(c, p, h.length);
+  c[h.length] = 0;                      /* a version-1 frame with a byte more */
+  assert_int_equal(hfp_decode_hello_ok(c, h.length + 1, &d), -HFP_E_LENGTH);
+
+  m.version = 2;
+  int n2 = hfp_encode_hello_ok(buf, sizeof buf, &m);
+  assert_int_equal(n2, n1 + 1 + 5);
+  p = split(buf, n2, HFP_HELLO_OK, &h);
+  assert_int_equal(hfp_decode_hello_ok(p, h.length, &d), 0);
+  assert_string_equal(d.software_version, "0.1.0");
+  assert_string_equal(d.server_name, m.server_name);
+  for (uint32_t len = h.length - 6 + 1; len < h.length; len++)
+    assert_int_equal(hfp_decode_hello_ok(p, len, &d), -HFP_E_LENGTH);
+  /* A version-2 server that says nothing after its name is read as one
+   * that does not give its version. */
+  assert_int_equal(hfp_decode_hello_ok(p, h.length - 6, &d), 0);
+  assert_string_equal(d.software_version, "");
+  memcpy(c, p, h.length);
+  c[h.length - 3] = ' ';                /* no spaces in a version */
+  assert_int_equal(hfp_decode_hello_ok(c, h.length, &d), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  c[h.length - 6] = 65;                 /* over 64 bytes */
+  assert_int_equal(hfp_decode_hello_ok(c, h.length, &d), -HFP_E_INVALID);
+  /* An empty one is a length byte of 0. */
+  m.software_version[0] = 0;
+  assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &m), n1 + 1);
+  strcpy(m.software_version, "0.1 beta");
+  assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &m), -HFP_E_INVALID);
+  /* The largest frame fits HFP_HELLO_OK_MAX. */
+  memset(m.server_name, 'n', HFP_NAME_MAX);
+  m.server_name[HFP_NAME_MAX] = 0;
+  memset(m.software_version, 'v', HFP_NAME_MAX);
+  m.software_version[HFP_NAME_MAX] = 0;
+  assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &m), HFP_HELLO_OK_MAX);
+}
+
 static void test_empty(void **state) {
   (void)state;
   hfp_header h;
@@ -595,12 +644,13 @@ static void test_version2(void **state) {
   assert_int_equal(hfp_negotiate(3, 4), -HFP_E_VERSION);
   assert_int_equal(hfp_negotiate(2, 1), -HFP_E_VERSION);
 
-  hfp_hello_ok ok = {2, 0, 64, 64, 4, 8, 3, 2, 16, 1 << 20, "srv"}, okd;
+  hfp_hello_ok ok = {2, 0, 64, 64, 4, 8, 3, 2, 16, 1 << 20, "srv", "0.1.0"}, okd;
   int n = hfp_encode_hello_ok(buf, sizeof buf, &ok);
   hfp_header h;
   const uint8_t *p = split(buf, n, HFP_HELLO_OK, &h);
   assert_int_equal(hfp_decode_hello_ok(p, h.length, &okd), 0);
   assert_int_equal(okd.version, 2);
+  assert_string_equal(okd.software_version, "0.1.0");
   ok.version = 3;
   assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &ok), -HFP_E_INVALID);
 
@@ -866,7 +916,8 @@ static void test_histogram(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_header),  cmocka_unit_test(test_hello), cmocka_unit_test(test_url),
-    cmocka_unit_test(test_hello_ok), cmocka_unit_test(test_empty),
+    cmocka_unit_test(test_hello_ok), cmocka_unit_test(test_hello_ok_software),
+    cmocka_unit_test(test_empty),
     cmocka_unit_test(test_variants), cmocka_unit_test(test_filter),
     cmocka_unit_test(test_result),  cmocka_unit_test(test_error),
     cmocka_unit_test(test_stats),   cmocka_unit_test(test_histogram),
