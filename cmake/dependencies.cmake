@@ -3,8 +3,6 @@
 pkg_check_modules(CJSON REQUIRED IMPORTED_TARGET libcjson)
 pkg_check_modules(OPENEXR REQUIRED IMPORTED_TARGET OpenEXR)
 pkg_check_modules(PNG REQUIRED IMPORTED_TARGET libpng)
-find_package(Threads REQUIRED)
-find_library(MATH_LIB m)
 
 # OpenEXRCore (the C API, openexr.h) is a separate library in OpenEXR 3.
 find_library(OPENEXRCORE_LIB NAMES OpenEXRCore-3_1 OpenEXRCore REQUIRED)

@@ -13,6 +13,8 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include <hairfilter/hairfilter_version.h>
+
 #include "server.h"
 
 static void usage(FILE *f) {
@@ -65,6 +67,7 @@ static void usage(FILE *f) {
           "                           progress for this long (default 60000)\n"
           "  --log-level LEVEL        error | warning | notice | info (default) | debug\n"
           "  --verbose                --log-level debug: log connections too\n"
+          "  --version                print the version and exit\n"
           "\n"
           "SIGHUP reads the config file and the weights again; SIGUSR1 logs the statistics;\n"
           "SIGTERM and SIGINT drain and stop.\n");
@@ -221,6 +224,7 @@ static const struct option opts[] = {
   {"config", required_argument, 0, OPT_CONFIG},
   {"verbose", no_argument, 0, 'v'},
   {"help", no_argument, 0, 'h'},
+  {"version", no_argument, 0, 'V'},
   {0, 0, 0, 0},
 };
 
@@ -281,7 +285,8 @@ static int on_ini(void *user, const char *section, const char *key, const char *
   const struct option *o = NULL;
   for (const struct option *p = opts; p->name; p++)
     if (!strcmp(p->name, key)) o = p;
-  if (!o || !strcmp(key, "config") || !strcmp(key, "help")) {
+  if (!o || !strcmp(key, "config") || !strcmp(key, "help") ||
+      !strcmp(key, "version")) {
     snprintf(fa->why, sizeof fa->why, "unknown key '%s' (keys are the long options without "
              "their dashes; see hairfilterd --help)", key);
     fa->bad = 1;
@@ -418,6 +423,11 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
     switch (o) {
       case 'h':
         usage(stdout);
+        rc = 1;
+        goto out;
+      case 'V':
+        printf("hairfilterd %s (protocol v%d..v%d)\n", HAIRFILTER_VERSION_STRING, HFP_VERSION_MIN,
+               HFP_VERSION);
         rc = 1;
         goto out;
       case 'v':

@@ -28,6 +28,8 @@
 #include <string.h>
 #include <unistd.h>
 
+#include <hairfilter/hairfilter_version.h>
+
 #include "server.h"
 
 static void read_next(hfd_conn *c);
@@ -438,7 +440,9 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   ok.queue_size = (uint32_t)s->cfg->queue_size;
   ok.max_frame_bytes = s->cfg->max_frame_bytes;
   snprintf(ok.server_name, sizeof ok.server_name, "%s", s->cfg->name);
-  uint8_t frame[HFP_HEADER_SIZE + 64 + HFP_NAME_MAX];
+  /* Version 2 peers learn the server's release (version 1 ones never see it). */
+  snprintf(ok.software_version, sizeof ok.software_version, "%s", HAIRFILTER_VERSION_STRING);
+  uint8_t frame[HFP_HELLO_OK_MAX];
   int n = hfp_encode_hello_ok(frame, sizeof frame, &ok);
   if (n < 0) {
     send_error(c, 0, HFP_E_INTERNAL, 1, "cannot encode HELLO_OK");

@@ -23,6 +23,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <hairfilter/hairfilter_version.h>
+
 #include "server.h"
 
 /* ---- listeners ----------------------------------------------------------- */
@@ -465,7 +467,7 @@ int main(int argc, char **argv) {
   clock_gettime(CLOCK_REALTIME, &now);
   s->t_start_wall = (double)now.tv_sec + now.tv_nsec / 1e9;
   atomic_store(&s->loop_beat_us, (uint64_t)s->t_start);
-  hfd_notice("starting %s %s (protocol v%d..v%d)%s%s", cfg.name, HFD_VERSION, HFP_VERSION_MIN,
+  hfd_notice("starting %s %s (protocol v%d..v%d)%s%s", cfg.name, HAIRFILTER_VERSION_STRING, HFP_VERSION_MIN,
              HFP_VERSION, cfg.config_path ? ", config " : "",
              cfg.config_path ? cfg.config_path : "");
   if (sd_watchdog_enabled(0, &s->watchdog_usec) <= 0) s->watchdog_usec = 0;

@@ -25,11 +25,9 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "server.h"
+#include <hairfilter/hairfilter_version.h>
 
-#ifndef HFD_VERSION
-#error "HFD_VERSION must be defined (server/CMakeLists.txt)"
-#endif
+#include "server.h"
 
 const double hfd_time_buckets_s[HFD_TIME_BUCKETS] = {0.0005, 0.001, 0.0025, 0.005, 0.01,
                                                      0.025,  0.05,  0.1,    0.25,  0.5,
@@ -225,7 +223,7 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
   family(f, "hairfilterd_build_info", "gauge",
          "Always 1; the labels say which hairfilterd this is and the protocol versions it speaks.");
   fprintf(f, "hairfilterd_build_info{version=\"%s\",protocol_min=\"%d\",protocol_max=\"%d\"} 1\n",
-          HFD_VERSION, HFP_VERSION_MIN, HFP_VERSION);
+          HAIRFILTER_VERSION_STRING, HFP_VERSION_MIN, HFP_VERSION);
   family(f, "hairfilterd_backend_info", "gauge", "Always 1; the backend that runs the models.");
   fputs("hairfilterd_backend_info{backend=\"", f);
   label(f, backend);

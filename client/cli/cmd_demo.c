@@ -22,7 +22,7 @@
 #include "cli_common.h"
 #include "commands.h"
 #include "eval_metrics.h"
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
 #include "hfrender.h"
 
 typedef struct demo_opts {
@@ -104,9 +104,16 @@ static int filter_via_daemon(const demo_opts *o, const hf_net_config *cfg, const
     hfc_client *c = NULL;
     int crc = hfc_connect(url, NULL, &c);
     if (crc == HFC_OK) {
-      hfc_request r = {.variant = cfg->name, .width = o->width, .height = o->height,
-                       .spp = cfg->spp, .in_dtype = HFC_F32, .features = in,
-                       .out_dtype = HFC_F32, .result = out};
+      hfc_request r;
+      hfc_request_init(&r);
+      r.variant = cfg->name;
+      r.width = o->width;
+      r.height = o->height;
+      r.spp = cfg->spp;
+      r.features = in;
+      r.features_bytes = hfc_features_bytes(o->width, o->height, cfg->spp, HFC_F32);
+      r.result = out;
+      r.result_bytes = hfc_output_bytes(o->width, o->height, 3, HFC_F32);
       hfc_timing t;
       crc = hfc_filter(c, &r, &t);
       if (crc == HFC_OK) {
@@ -118,9 +125,9 @@ static int filter_via_daemon(const demo_opts *o, const hf_net_config *cfg, const
       }
       hfc_close(c);
     }
+    /* This thread's message: the client is closed by now. */
     if (crc != HFC_OK)
-      fprintf(stderr, "hairfilter demo: %s (%s)\n", hfc_strerror(crc),
-                      c ? hfc_last_message(c) : "");
+      fprintf(stderr, "hairfilter demo: %s (%s)\n", hfc_strerror(crc), hfc_last_message(NULL));
     if (stop_daemon(pid) != 0) rc = -1;
   }
   char path[PATH_MAX + 16];

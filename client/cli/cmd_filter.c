@@ -4,10 +4,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 
 #include "cli_common.h"
 #include "commands.h"
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
 
 static void usage(FILE *f) {
   fprintf(f,
@@ -17,7 +18,8 @@ static void usage(FILE *f) {
           "                         [--token TOKEN] [--timeout-ms N]\n"
           "       hairfilter filter --server URL --list     (variants and limits)\n"
           "       hairfilter filter --server URL --stats    (counters and latency)\n"
-          "URL is unix:PATH or tcp:HOST:PORT. The token defaults to $HAIRFILTER_TOKEN.\n"
+          "URL is unix:PATH or tcp:HOST:PORT, or several of them separated by commas\n"
+          "(tried in order, and failed over to). The token defaults to $HAIRFILTER_TOKEN.\n"
           "--variant may be left out when the server has only one. --f16 sends and\n"
           "receives half floats. The PNG is composited by the server. The result keeps the\n"
           "input's data window and display window; --part picks the part of a multi-part\n"
@@ -37,15 +39,17 @@ static void print_timing(const hfc_timing *t) {
 
 static int list_variants(hfc_client *c) {
   const hfc_server_info *i = hfc_info(c);
-  printf("%s, protocol v%d: max %dx%d, %d spp, %d in flight per connection, batch %d, "
+  printf("%s%s%s, protocol v%d: max %dx%d, %d spp, %d in flight per connection, batch %d, "
          "queue %d, frames up to %llu MiB%s\n",
-         i->name, i->version, i->max_width, i->max_height, i->max_spp, i->max_inflight,
+         i->name, i->software_version[0] ? " " : "", i->software_version, i->version,
+         i->max_width, i->max_height, i->max_spp, i->max_inflight,
          i->max_batch, i->queue_size, (unsigned long long)(i->max_frame_bytes >> 20),
          i->auth_required ? ", token checked" : "");
   hfc_variant vs[64];
   int n = 0, rc = hfc_list_variants(c, vs, 64, &n);
   if (rc) {
-    fprintf(stderr, "hairfilter: listing variants: %s\n", hfc_strerror(rc));
+    fprintf(stderr, "hairfilter: listing variants: %s (%s)\n", hfc_strerror(rc),
+            hfc_last_message(c));
     return 1;
   }
   for (int k = 0; k < n && k < 64; k++) {
@@ -80,7 +84,7 @@ static int print_stats(hfc_client *c) {
   if (!st) return 1;
   int rc = hfc_get_stats(c, st);
   if (rc) {
-    fprintf(stderr, "hairfilter: stats: %s\n", hfc_strerror(rc));
+    fprintf(stderr, "hairfilter: stats: %s (%s)\n", hfc_strerror(rc), hfc_last_message(c));
     free(st);
     return 1;
   }
@@ -162,12 +166,16 @@ int cmd_filter(int argc, char **argv) {
     fprintf(stderr, "hairfilter: --server: %s\n", why);
     return 2;
   }
+  hfc_options o;
+  hfc_options_init(&o);
+  o.client_name = "hairfilter-cli";
+  o.token = token;
+  o.timeout_ms = timeout_ms;
   if (list || stats) {
     hfc_client *c = NULL;
-    hfc_options o = {"hairfilter-cli", token, timeout_ms};
     int rc = hfc_connect(server, &o, &c);
     if (rc) {
-      fprintf(stderr, "hairfilter: %s: %s\n", server, hfc_strerror(rc));
+      fprintf(stderr, "hairfilter: %s: %s: %s\n", server, hfc_strerror(rc), hfc_last_message(NULL));
       return 1;
     }
     int ret = (list && list_variants(c)) || (stats && print_stats(c));
@@ -181,20 +189,24 @@ int cmd_filter(int argc, char **argv) {
   hf_image feat = {0}, res = {0};
   void *in = NULL, *out = NULL, *rgba = NULL;
   float *rgb = NULL;
-  hfc_options o = {"hairfilter-cli", token, timeout_ms};
   if ((rc = hfc_connect(server, &o, &c)) != 0) {
-    fprintf(stderr, "hairfilter: %s: %s\n", server, hfc_strerror(rc));
+    fprintf(stderr, "hairfilter: %s: %s: %s\n", server, hfc_strerror(rc), hfc_last_message(NULL));
     return 1;
   }
   hfc_variant vs[64];
   int nv = 0;
   if ((rc = hfc_list_variants(c, vs, 64, &nv)) != 0) {
-    fprintf(stderr, "hairfilter: listing variants: %s\n", hfc_strerror(rc));
+    fprintf(stderr, "hairfilter: listing variants: %s (%s)\n", hfc_strerror(rc),
+            hfc_last_message(c));
     goto out;
   }
+  /* Names are matched as the library matches them: exactly, else without
+   * regard to case. */
   const hfc_variant *v = NULL;
   for (int i = 0; i < nv && i < 64; i++)
     if (variant ? !strcmp(vs[i].name, variant) : nv == 1) v = &vs[i];
+  for (int i = 0; i < nv && i < 64 && variant && !v; i++)
+    if (!strcasecmp(vs[i].name, variant)) v = &vs[i];
   if (!v) {
     fprintf(stderr, "hairfilter: %s; the server has:", variant ? "no such variant" : "name a --variant");
     for (int i = 0; i < nv && i < 64; i++) fprintf(stderr, " %s", vs[i].name);
@@ -217,9 +229,19 @@ int cmd_filter(int argc, char **argv) {
     uint16_t *h = (uint16_t *)in32;
     for (size_t i = 0; i < nin; i++) h[i] = hf_f32_to_f16(in32[i]);
   }
-  hfc_request r = {.variant = v->name, .width = feat.width, .height = feat.height,
-                   .spp = v->spp, .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = in,
-                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = out, .rgba = rgba};
+  hfc_request r;
+  hfc_request_init(&r);
+  r.variant = v->name;
+  r.width = feat.width;
+  r.height = feat.height;
+  r.spp = v->spp;
+  r.in_dtype = r.out_dtype = f16 ? HFC_F16 : HFC_F32;
+  r.features = in;
+  r.features_bytes = nin * sizeof(float);
+  r.result = out;
+  r.result_bytes = npx * 3 * sizeof(float);
+  r.rgba = rgba;
+  r.rgba_bytes = rgba ? npx * 4 * sizeof(float) : 0;
   memcpy(r.hair, hair, sizeof hair);
   memcpy(r.light, light, sizeof light);
   memcpy(r.background, bg, sizeof bg);

@@ -3,6 +3,8 @@
 #include <stdio.h>
 #include <string.h>
 
+#include <hairfilter/hairfilter.h>
+
 #include "commands.h"
 
 #ifndef HF_HAVE_RENDERER
@@ -36,7 +38,8 @@ static const struct {
 };
 
 static void usage(FILE *f) {
-  fprintf(f, "usage: hairfilter <command> [options]   (hairfilter <command> --help)\n\n");
+  fprintf(f, "usage: hairfilter <command> [options]   (hairfilter <command> --help)\n"
+             "       hairfilter --version\n\n");
   for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
     fprintf(f, "  %-7s %s\n", commands[i].name, commands[i].help);
 }
@@ -45,6 +48,12 @@ int main(int argc, char **argv) {
   if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
     usage(argc < 2 ? stderr : stdout);
     return argc < 2 ? 2 : 0;
+  }
+  if (!strcmp(argv[1], "--version")) {
+    /* The library's own version too: it is linked statically here, but an
+     * engine may load another. */
+    printf("hairfilter %s (libhairfilter %s)\n", HAIRFILTER_VERSION_STRING, hfc_version());
+    return 0;
   }
   for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
     if (!strcmp(argv[1], commands[i].name))

@@ -17,7 +17,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
 
 typedef struct opts {
   const char *server, *variant, *token;
@@ -89,10 +89,15 @@ static void *run(void *arg) {
   worker *w = arg;
   const opts *o = w->o;
   hfc_client *c = NULL;
-  hfc_options co = {"hairfilter-load", o->token, 30000};
+  hfc_options co;
+  hfc_options_init(&co);
+  co.client_name = "hairfilter-load";
+  co.token = o->token;
+  co.timeout_ms = 30000;
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
-    fprintf(stderr, "hairfilter-load: %s: %s\n", o->server, hfc_strerror(rc));
+    fprintf(stderr, "hairfilter-load: %s: %s: %s\n", o->server, hfc_strerror(rc),
+            hfc_last_message(NULL));
     w->fatal = 1;
     return NULL;
   }
@@ -134,9 +139,16 @@ static void *run(void *arg) {
   }
   /* Each in-flight slot owns an output buffer; the slot index rides in
    * the request's user pointer. */
-  hfc_request r = {.variant = o->variant, .width = o->width, .height = o->height, .spp = w->spp,
-                   .in_dtype = o->f16 ? HFC_F16 : HFC_F32, .features = in,
-                   .out_dtype = o->f16 ? HFC_F16 : HFC_F32};
+  hfc_request r;
+  hfc_request_init(&r);
+  r.variant = o->variant;
+  r.width = o->width;
+  r.height = o->height;
+  r.spp = w->spp;
+  r.in_dtype = r.out_dtype = o->f16 ? HFC_F16 : HFC_F32;
+  r.features = in;
+  r.features_bytes = nin * es;
+  r.result_bytes = px * 3 * es;
   int pending = 0;
   for (int s = 0; s < k; s++) {
     r.result = out + px * 3 * es * (size_t)s;
@@ -195,6 +207,10 @@ int main(int argc, char **argv) {
       usage(stdout);
       return 0;
     }
+    if (!strcmp(a, "--version")) {
+      printf("hairfilter-load %s (libhairfilter %s)\n", HAIRFILTER_VERSION_STRING, hfc_version());
+      return 0;
+    }
     if (!strcmp(a, "--f16")) {
       o.f16 = 1;
       continue;
@@ -238,10 +254,15 @@ int main(int argc, char **argv) {
   }
   /* Look the variant up once, for its spp and to fail early. */
   hfc_client *c;
-  hfc_options co = {"hairfilter-load", o.token, 30000};
+  hfc_options co;
+  hfc_options_init(&co);
+  co.client_name = "hairfilter-load";
+  co.token = o.token;
+  co.timeout_ms = 30000;
   int rc = hfc_connect(o.server, &co, &c);
   if (rc) {
-    fprintf(stderr, "hairfilter-load: %s: %s\n", o.server, hfc_strerror(rc));
+    fprintf(stderr, "hairfilter-load: %s: %s: %s\n", o.server, hfc_strerror(rc),
+            hfc_last_message(NULL));
     return 1;
   }
   hfc_variant vs[64];

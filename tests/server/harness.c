@@ -436,11 +436,29 @@ int harness_stop(harness *h, server *s) {
   return rc == 0 ? 0 : -1;
 }
 
+hfc_options test_options(const char *name, const char *token, int timeout_ms) {
+  hfc_options o;
+  hfc_options_init(&o);
+  o.client_name = name;
+  o.token = token;
+  o.timeout_ms = timeout_ms;
+  return o;
+}
+
+hfc_request test_request_sized(hfc_request r) {
+  if (!r.features_bytes)
+    r.features_bytes = hfc_features_bytes(r.width, r.height, r.spp, r.in_dtype);
+  if (!r.result_bytes) r.result_bytes = hfc_output_bytes(r.width, r.height, 3, r.out_dtype);
+  if (r.rgba && !r.rgba_bytes) r.rgba_bytes = hfc_output_bytes(r.width, r.height, 4, r.out_dtype);
+  return r;
+}
+
 hfc_client *client_connect(const server *s, const char *name) {
   hfc_client *c = NULL;
-  hfc_options o = {name, NULL, 20000};
+  hfc_options o = test_options(name, NULL, 20000);
   int rc = hfc_connect(s->unix_url, &o, &c);
-  if (rc) fprintf(stderr, "connect %s: %s\n", s->unix_url, hfc_strerror(rc));
+  if (rc)
+    fprintf(stderr, "connect %s: %s: %s\n", s->unix_url, hfc_strerror(rc), hfc_last_message(NULL));
   return c;
 }
 

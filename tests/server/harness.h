@@ -8,7 +8,7 @@
 #include <stdint.h>
 #include <sys/types.h>
 
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
 #include "hfcore.h"
 #include "hfproto.h"
 
@@ -65,6 +65,14 @@ void server_dump_log(const server *s);
 /* server_stop (dumping the log if it did not exit cleanly) and harness_free:
  * a cmocka group teardown's body; 0 when the server exited with status 0. */
 int harness_stop(harness *h, server *s);
+/* Client options: name, token (NULL: none), timeout; the rest defaults. */
+hfc_options test_options(const char *name, const char *token, int timeout_ms);
+/* A request from designated initialisers, with struct_size set and every
+ * buffer size left at 0 set to what its dimensions need (the tests' buffers
+ * are exactly that large):
+ *   hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = 8, ...); */
+#define TEST_REQUEST(...) test_request_sized((hfc_request){.struct_size = sizeof(hfc_request), __VA_ARGS__})
+hfc_request test_request_sized(hfc_request r);
 /* A libhairfilter connection to the server's Unix socket, or NULL (printed). */
 hfc_client *client_connect(const server *s, const char *name);
 /* A file's first cap - 1 bytes as a string in buf; -1 if unreadable. */

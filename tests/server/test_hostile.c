@@ -49,7 +49,7 @@ static void sleep_ms(int ms) { usleep((useconds_t)ms * 1000); }
 
 static uint64_t ok_count(const char *variant) {
   hfc_client *c = NULL;
-  hfc_options o = {"stats", NULL, 20000};
+  hfc_options o = test_options("stats", NULL, 20000);
   assert_int_equal(hfc_connect(S.unix_url, &o, &c), 0);
   hfc_stats st;
   assert_int_equal(hfc_get_stats(c, &st), 0);
@@ -298,11 +298,11 @@ static void test_unsent_answers_not_counted(void **state) {
   /* A frame of another size is not batched with them and, the worker
    * being first in first out, is answered after they were computed. */
   hfc_client *c = NULL;
-  hfc_options o = {"probe", NULL, 30000};
+  hfc_options o = test_options("probe", NULL, 30000);
   assert_int_equal(hfc_connect(S.unix_url, &o, &c), 0);
   float out[8 * 4 * 3], *pin = make_features(8, 4, 4, 2);
-  hfc_request r = {.variant = "Small", .width = 8, .height = 4, .spp = 4, .in_dtype = HFC_F32,
-                   .features = pin, .out_dtype = HFC_F32, .result = out};
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = 8, .height = 4, .spp = 4, .in_dtype = HFC_F32,
+                   .features = pin, .out_dtype = HFC_F32, .result = out);
   assert_int_equal(hfc_filter(c, &r, NULL), 0);
   hfc_close(c);
   assert_int_equal(ok_count("Small") - before, 1);
@@ -369,11 +369,11 @@ static void test_trickled_frame_is_cut_off(void **state) {
   close(fd);
   /* the same frame sent at once is served */
   hfc_client *c = NULL;
-  hfc_options o = {"fast", NULL, 20000};
+  hfc_options o = test_options("fast", NULL, 20000);
   assert_int_equal(hfc_connect(S.unix_url, &o, &c), 0);
   static float out[128 * 128 * 3];
-  hfc_request r = {.variant = "Tiny", .width = 128, .height = 128, .spp = 2,
-                   .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = out};
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = 128, .height = 128, .spp = 2,
+                   .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = out);
   assert_int_equal(hfc_filter(c, &r, NULL), 0);
   hfc_close(c);
   free(f);
@@ -405,11 +405,11 @@ static void test_handshake_limit(void **state) {
     assert_true(raw_closed(fd[i], 5000));
   }
   hfc_client *c = NULL;
-  hfc_options o = {"legit", TEST_TOKEN, 20000};
+  hfc_options o = test_options("legit", TEST_TOKEN, 20000);
   assert_int_equal(hfc_connect(L.tcp_url, &o, &c), 0);
   float in[8 * 8 * 12] = {0}, out[8 * 8 * 3];
-  hfc_request r = {.variant = "Tiny", .width = 8, .height = 8, .spp = 2, .in_dtype = HFC_F32,
-                   .features = in, .out_dtype = HFC_F32, .result = out};
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = 8, .height = 8, .spp = 2, .in_dtype = HFC_F32,
+                   .features = in, .out_dtype = HFC_F32, .result = out);
   assert_int_equal(hfc_filter(c, &r, NULL), 0);
   hfc_close(c);
   /* ...which cost the next oldest its slot */

@@ -86,9 +86,9 @@ static int filter_flag(hfc_client *c, const char *variant, const float *in, int 
     if (f16) ((uint16_t *)feat)[i] = hf_f32_to_f16(in[i]);
     else ((float *)feat)[i] = in[i];
   }
-  hfc_request r = {.variant = variant, .width = W, .height = HH, .spp = SPP,
+  hfc_request r = TEST_REQUEST(.variant = variant, .width = W, .height = HH, .spp = SPP,
                    .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = feat,
-                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = out};
+                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = out);
   hfc_timing t;
   assert_int_equal(hfc_filter(c, &r, &t), 0);
   assert_int_equal(t.via_shm, shm != NULL);
@@ -159,9 +159,9 @@ static void test_flag_and_count(void **state) {
   uint32_t ids[4];
   for (int i = 0; i < 4; i++) {
     outs[i] = malloc((size_t)W * HH * 3 * 4);
-    hfc_request r = {.variant = "Narrow", .width = W, .height = HH, .spp = SPP,
+    hfc_request r = TEST_REQUEST(.variant = "Narrow", .width = W, .height = HH, .spp = SPP,
                      .in_dtype = HFC_F32, .features = i % 2 ? outside : inside,
-                     .out_dtype = HFC_F32, .result = outs[i]};
+                     .out_dtype = HFC_F32, .result = outs[i]);
     assert_int_equal(hfc_submit(c, &r, &ids[i]), 0);
   }
   for (int i = 0; i < 4; i++) {

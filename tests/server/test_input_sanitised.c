@@ -57,8 +57,8 @@ static void test_flag_and_result(void **state) {
   float got[W * HH * 3], want[W * HH * 3];
   for (int bad = 0; bad < 3; bad++) {
     float *in = frame(spp, 40 + bad, bad);
-    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = spp,
-                     .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = got};
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = spp,
+                     .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = got);
     hfc_timing t;
     assert_int_equal(hfc_filter(c, &r, &t), 0);
     assert_int_equal(t.input_sanitised, bad != 0);
@@ -73,8 +73,8 @@ static void test_flag_and_result(void **state) {
   float *in = frame(spp, 50, 1);
   uint16_t *in16 = malloc(nin * 2), out16[W * HH * 3];
   for (size_t i = 0; i < nin; i++) in16[i] = hf_f32_to_f16(in[i]);
-  hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = spp,
-                   .in_dtype = HFC_F16, .features = in16, .out_dtype = HFC_F16, .result = out16};
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = spp,
+                   .in_dtype = HFC_F16, .features = in16, .out_dtype = HFC_F16, .result = out16);
   hfc_timing t;
   assert_int_equal(hfc_filter(c, &r, &t), 0);
   assert_int_equal(t.input_sanitised, 1);
@@ -97,9 +97,9 @@ static void test_batched(void **state) {
   uint32_t id[N];
   for (int i = 0; i < N; i++) {
     in[i] = frame(spp, 60 + i, i % 3 == 1 ? 1 : 0);
-    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = spp,
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = spp,
                      .in_dtype = HFC_F32, .features = in[i], .out_dtype = HFC_F32,
-                     .result = out[i], .user = (void *)(intptr_t)i};
+                     .result = out[i], .user = (void *)(intptr_t)i);
     assert_int_equal(hfc_submit(c, &r, &id[i]), 0);
   }
   for (int k = 0; k < N; k++) {

@@ -136,7 +136,7 @@ static void test_token_rules(void **state) {
   server d;
   assert_int_equal(server_start_ex(&H, &d, NULL, NULL, TEST_TOKEN "\n"), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"token", TEST_TOKEN, 20000};
+  hfc_options o = test_options("token", TEST_TOKEN, 20000);
   assert_int_equal(hfc_connect(d.tcp_url, &o, &c), 0);
   hfc_close(c);
   assert_int_equal(server_stop(&d, 20000), 0);

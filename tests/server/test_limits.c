@@ -88,8 +88,8 @@ static burst send_burst(hfc_client *c, int w, int h, int n) {
   assert_non_null(out);
   for (int i = 0; i < n; i++) {
     out[i] = malloc((size_t)w * h * 3 * sizeof(float));
-    hfc_request r = {.variant = "Small", .width = w, .height = h, .spp = 4, .in_dtype = HFC_F32,
-                     .features = in, .out_dtype = HFC_F32, .result = out[i]};
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = w, .height = h, .spp = 4, .in_dtype = HFC_F32,
+                     .features = in, .out_dtype = HFC_F32, .result = out[i]);
     assert_int_equal(hfc_submit(c, &r, NULL), 0);
   }
   for (int k = 0; k < n; k++) {
@@ -121,7 +121,7 @@ static void test_announced_maximum_is_admitted(void **state) {
                         "4", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"limits", NULL, 20000};
+  hfc_options o = test_options("limits", NULL, 20000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   const hfc_server_info *i = hfc_info(c);
   int W = i->max_width, HH = i->max_height;
@@ -166,7 +166,7 @@ static void test_segment_too_large_vs_busy(void **state) {
   const char *args[] = {"--max-shm-mb", "1", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"shm", NULL, 20000};
+  hfc_options o = test_options("shm", NULL, 20000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   void *a = NULL, *b = NULL;
   assert_int_equal(hfc_shm_alloc(c, 768 << 10, &a), 0);
@@ -191,7 +191,7 @@ static void test_memory_charged_as_received(void **state) {
   const char *args[] = {"--max-memory-mb", "8", "--max-size", "4096x4096", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"probe", NULL, 20000};
+  hfc_options o = test_options("probe", NULL, 20000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   int W = hfc_info(c)->max_width, HH = hfc_info(c)->max_height;
   enum { M = 6 };
@@ -208,8 +208,8 @@ static void test_memory_charged_as_received(void **state) {
   usleep(100000);
   float small_in[8 * 8 * 24], small_out[8 * 8 * 3];
   memset(small_in, 0, sizeof small_in);
-  hfc_request r = {.variant = "Small", .width = 8, .height = 8, .spp = 4, .in_dtype = HFC_F32,
-                   .features = small_in, .out_dtype = HFC_F32, .result = small_out};
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = 8, .height = 8, .spp = 4, .in_dtype = HFC_F32,
+                   .features = small_in, .out_dtype = HFC_F32, .result = small_out);
   int rc = hfc_filter(c, &r, NULL);
   if (rc) fail_msg("8x8 frame beside six announced ones: %s (%s)", hfc_strerror(rc),
                    hfc_last_message(c));
@@ -262,13 +262,13 @@ static void test_inference_memory_in_budget(void **state) {
                         backend, "--max-batch", "4", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"memory", NULL, 60000};
+  hfc_options o = test_options("memory", NULL, 60000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   int W = hfc_info(c)->max_width, HH = hfc_info(c)->max_height;
   /* Warm up on a small frame: threads started, small plans made. */
   float small_in[8 * 8 * 24] = {0}, small_out[8 * 8 * 3];
-  hfc_request sr = {.variant = "Small", .width = 8, .height = 8, .spp = 4, .in_dtype = HFC_F32,
-                    .features = small_in, .out_dtype = HFC_F32, .result = small_out};
+  hfc_request sr = TEST_REQUEST(.variant = "Small", .width = 8, .height = 8, .spp = 4, .in_dtype = HFC_F32,
+                    .features = small_in, .out_dtype = HFC_F32, .result = small_out);
   assert_int_equal(hfc_filter(c, &sr, NULL), 0);
   int rss_ok = !UNDER_ASAN && proc_reset_peak(d.pid) == 0;
   long rss0 = proc_status_kb(d.pid, "VmRSS");
@@ -307,7 +307,7 @@ static void test_batches_form_within_budget(void **state) {
                         "500000", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"batch", NULL, 60000};
+  hfc_options o = test_options("batch", NULL, 60000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   burst b = send_burst(c, 256, 256, 4);
   assert_int_equal(b.served, 4);

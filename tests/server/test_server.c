@@ -44,7 +44,7 @@ static int teardown(void **state) {
 
 static hfc_client *connect_unix(void) {
   hfc_client *c = NULL;
-  hfc_options o = {"test", NULL, 20000};
+  hfc_options o = test_options("test", NULL, 20000);
   int rc = hfc_connect(S.unix_url, &o, &c);
   if (rc) fprintf(stderr, "connect %s: %s\n", S.unix_url, hfc_strerror(rc));
   assert_int_equal(rc, 0);
@@ -82,9 +82,9 @@ static void filter_and_compare(hfc_client *c, const char *variant, int w, int h,
   assert_non_null(got);
   assert_non_null(want);
   memset(got, 0xcd, n_out * es);
-  hfc_request r = {.variant = variant, .width = w, .height = h, .spp = spp,
+  hfc_request r = TEST_REQUEST(.variant = variant, .width = w, .height = h, .spp = spp,
                    .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
-                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got};
+                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got);
   hfc_timing t;
   int rc = hfc_filter(c, &r, &t);
   if (rc) fprintf(stderr, "filter %s %dx%d: %s (%s)\n", variant, w, h, hfc_strerror(rc),
@@ -145,7 +145,7 @@ static void test_filter_sizes_unix(void **state) {
 static void test_filter_tcp_auth(void **state) {
   (void)state;
   hfc_client *c = NULL;
-  hfc_options o = {"test-tcp", TEST_TOKEN, 20000};
+  hfc_options o = test_options("test-tcp", TEST_TOKEN, 20000);
   assert_int_equal(hfc_connect(S.tcp_url, &o, &c), 0);
   assert_int_equal(hfc_info(c)->auth_required, 1);
   filter_and_compare(c, "Tiny", 40, 24, 0, 7);
@@ -153,9 +153,9 @@ static void test_filter_tcp_auth(void **state) {
   filter_and_compare(c, "Small", 17, 3, 1, 9);
   hfc_close(c);
   /* wrong token, and none */
-  hfc_options bad = {"test-tcp", "wrong", 20000};
+  hfc_options bad = test_options("test-tcp", "wrong", 20000);
   assert_int_equal(hfc_connect(S.tcp_url, &bad, &c), HFC_E_UNAUTHORIZED);
-  hfc_options none = {"test-tcp", NULL, 20000};
+  hfc_options none = test_options("test-tcp", NULL, 20000);
   assert_int_equal(hfc_connect(S.tcp_url, &none, &c), HFC_E_UNAUTHORIZED);
   assert_true(server_alive(&S));
 }
@@ -167,10 +167,10 @@ static void test_composite(void **state) {
   enum { W = 24, HH = 20 };
   float *in = make_features(W, HH, v->cfg.spp, 5);
   float got[W * HH * 3], rgba[W * HH * 4], want[W * HH * 3], rgb[W * HH * 3];
-  hfc_request r = {.variant = "Tiny", .width = W, .height = HH, .spp = v->cfg.spp,
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HH, .spp = v->cfg.spp,
                    .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = got,
                    .rgba = rgba, .hair = {0.3f, 0.2f, 0.1f}, .light = {1, 0.9f, 0.8f},
-                   .background = {0.1f, 0.2f, 0.4f}};
+                   .background = {0.1f, 0.2f, 0.4f});
   hfc_timing t;
   assert_int_equal(hfc_filter(c, &r, &t), 0);
   assert_int_equal(reference(v, W, HH, in, HF_F32, want, HF_F32), 0);
@@ -196,9 +196,9 @@ static void test_pipelined_32(void **state) {
   int seen[N] = {0};
   for (int i = 0; i < N; i++) {
     in[i] = make_features(W, HH, v->cfg.spp, 100 + (uint32_t)i);
-    hfc_request r = {.variant = "Tiny", .width = W, .height = HH, .spp = v->cfg.spp,
+    hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HH, .spp = v->cfg.spp,
                      .in_dtype = HFC_F32, .features = in[i], .out_dtype = HFC_F32,
-                     .result = out[i], .user = (void *)(intptr_t)i};
+                     .result = out[i], .user = (void *)(intptr_t)i);
     assert_int_equal(hfc_submit(c, &r, &ids[i]), 0);
   }
   assert_int_equal(hfc_pending(c), N);
@@ -467,16 +467,16 @@ static void test_busy_when_queue_full(void **state) {
   const char *args[] = {"--queue-size", "1", "--max-batch", "1", NULL};
   assert_int_equal(server_start(&H, &b, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"busy", NULL, 20000};
+  hfc_options o = test_options("busy", NULL, 20000);
   assert_int_equal(hfc_connect(b.unix_url, &o, &c), 0);
   enum { N = 8, W = 160, HH = 160 };
   const ref_variant *v = harness_variant(&H, "Small");
   float *in = make_features(W, HH, v->cfg.spp, 11);
   static float out[N][W * HH * 3];
   for (int i = 0; i < N; i++) {
-    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
                      .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
-                     .result = out[i], .user = (void *)(intptr_t)i};
+                     .result = out[i], .user = (void *)(intptr_t)i);
     assert_int_equal(hfc_submit(c, &r, NULL), 0);
   }
   int ok = 0, busy = 0;
@@ -519,16 +519,16 @@ static void test_sigterm_drains(void **state) {
   const char *args[] = {"--max-batch", "1", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"drain", NULL, 20000};
+  hfc_options o = test_options("drain", NULL, 20000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   enum { N = 6, W = 96, HH = 96 };
   const ref_variant *v = harness_variant(&H, "Small");
   float *in = make_features(W, HH, v->cfg.spp, 21);
   static float out[N][W * HH * 3];
   for (int i = 0; i < N; i++) {
-    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
                      .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
-                     .result = out[i]};
+                     .result = out[i]);
     assert_int_equal(hfc_submit(c, &r, NULL), 0);
   }
   /* Wait until the first answer is in, so every frame has been received. */
@@ -564,13 +564,13 @@ static void test_warm_and_pipeline_depth(void **state) {
                         NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"warm", NULL, 20000};
+  hfc_options o = test_options("warm", NULL, 20000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   const ref_variant *v = harness_variant(&H, "Small");
   float *in = make_features(64, 48, v->cfg.spp, 5);
   static float got[64 * 48 * 3], want[64 * 48 * 3];
-  hfc_request r = {.variant = "Small", .width = 64, .height = 48, .spp = v->cfg.spp,
-                   .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = got};
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = 64, .height = 48, .spp = v->cfg.spp,
+                   .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = got);
   hfc_timing t;
   assert_int_equal(hfc_filter(c, &r, &t), 0);
   assert_int_equal(reference(v, 64, 48, in, HF_F32, want, HF_F32), 0);
@@ -598,16 +598,16 @@ static void test_sigterm_no_drain_time(void **state) {
   const char *args[] = {"--max-batch", "1", "--drain-timeout-ms", "0", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL;
-  hfc_options o = {"drain0", NULL, 20000};
+  hfc_options o = test_options("drain0", NULL, 20000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   enum { N = 6, W = 128, HH = 128 };
   const ref_variant *v = harness_variant(&H, "Small");
   float *in = make_features(W, HH, v->cfg.spp, 22);
   static float out[N][W * HH * 3];
   for (int i = 0; i < N; i++) {
-    hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
                      .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
-                     .result = out[i]};
+                     .result = out[i]);
     assert_int_equal(hfc_submit(c, &r, NULL), 0);
   }
   hfc_completion first;
@@ -668,12 +668,12 @@ static void test_stalled_peer_is_closed(void **state) {
   close(silent);
   /* an idle connection between frames is left alone */
   hfc_client *c = NULL;
-  hfc_options o = {"idle", NULL, 20000};
+  hfc_options o = test_options("idle", NULL, 20000);
   assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
   usleep(700000);
   float out[32 * 32 * 3];
-  hfc_request r = {.variant = "Tiny", .width = 32, .height = 32, .spp = 2, .in_dtype = HFC_F32,
-                   .features = in, .out_dtype = HFC_F32, .result = out};
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = 32, .height = 32, .spp = 2, .in_dtype = HFC_F32,
+                   .features = in, .out_dtype = HFC_F32, .result = out);
   assert_int_equal(hfc_filter(c, &r, NULL), 0);
   hfc_close(c);
   free(f);
@@ -782,7 +782,7 @@ static void test_client_errors(void **state) {
   assert_int_equal(listen(lfd, 4), 0);
   char url[320];
   snprintf(url, sizeof url, "unix:%s", path);
-  hfc_options quick = {"mute", NULL, 200};
+  hfc_options quick = test_options("mute", NULL, 200);
   assert_int_equal(hfc_connect(url, &quick, &c), HFC_E_TIMEOUT);
   close(lfd);
   for (int e = -11; e <= 0; e++) assert_non_null(hfc_strerror(e));
@@ -792,8 +792,8 @@ static void test_client_errors(void **state) {
   c = connect_unix();
   float in[4 * 4 * 12], out[4 * 4 * 3];
   memset(in, 0, sizeof in);
-  hfc_request r = {.variant = "Tiny", .width = 4, .height = 4, .spp = 2, .in_dtype = HFC_F32,
-                   .features = in, .out_dtype = HFC_F32, .result = out};
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = 4, .height = 4, .spp = 2, .in_dtype = HFC_F32,
+                   .features = in, .out_dtype = HFC_F32, .result = out);
   hfc_request bad = r;
   bad.width = 0;
   assert_int_equal(hfc_submit(c, &bad, NULL), HFC_E_ARG);
@@ -980,10 +980,10 @@ static void test_shared_memory(void **state) {
   /* one synchronous frame with a composite */
   float *in = make_features(W, HH, v->cfg.spp, 31);
   memcpy(mem, in, in_b);
-  hfc_request r = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
                    .in_dtype = HFC_F32, .features = mem, .out_dtype = HFC_F32,
                    .result = mem + in_b, .rgba = mem + in_b + out_b,
-                   .hair = {0.4f, 0.3f, 0.2f}, .light = {1, 1, 1}, .background = {0, 0, 0.5f}};
+                   .hair = {0.4f, 0.3f, 0.2f}, .light = {1, 1, 1}, .background = {0, 0, 0.5f});
   hfc_timing t;
   assert_int_equal(hfc_filter(c, &r, &t), 0);
   assert_int_equal(t.via_shm, 1);
@@ -1002,9 +1002,9 @@ static void test_shared_memory(void **state) {
     float *fi = make_features(W, HH, v->cfg.spp, 40 + (uint32_t)i);
     memcpy(mem + per * i, fi, in_b);
     free(fi);
-    hfc_request ri = {.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
+    hfc_request ri = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = v->cfg.spp,
                       .in_dtype = HFC_F32, .features = mem + per * i, .out_dtype = HFC_F32,
-                      .result = mem + per * i + in_b, .user = (void *)(intptr_t)i};
+                      .result = mem + per * i + in_b, .user = (void *)(intptr_t)i);
     assert_int_equal(hfc_submit(c, &ri, NULL), 0);
   }
   /* a segment in use cannot be freed */
@@ -1041,7 +1041,7 @@ static void test_shared_memory(void **state) {
   free(rgb);
 
   /* TCP cannot pass descriptors */
-  hfc_options o = {"tcp-shm", TEST_TOKEN, 20000};
+  hfc_options o = test_options("tcp-shm", TEST_TOKEN, 20000);
   assert_int_equal(hfc_connect(S.tcp_url, &o, &c), 0);
   assert_int_equal(hfc_info(c)->shm, 0);
   void *m2;

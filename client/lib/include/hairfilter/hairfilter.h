@@ -1,22 +1,37 @@
 /*
- * libhairfilter: the client side of hairfilterd (protocol v1 and v2).
+ * libhairfilter: the client side of hairfilterd (protocol versions 1 and 2,
+ * protocol/PROTOCOL.md). C99 and C++ (hairfilter.hpp wraps it in RAII).
  *
  *   hfc_client *c;
  *   if (hfc_connect("unix:/run/hairfilterd/hairfilterd.sock", NULL, &c)) ...
- *   hfc_request r = {.variant = "Base", .width = w, .height = h, .spp = 4,
- *                    .features = in, .result = out};
+ *   hfc_request r;
+ *   hfc_request_init(&r);
+ *   r.variant = "Base"; r.width = w; r.height = h; r.spp = 4;
+ *   r.features = in;  r.features_bytes = in_bytes;
+ *   r.result = out;   r.result_bytes = out_bytes;
  *   hfc_timing t;
  *   int rc = hfc_filter(c, &r, &t);    // or hfc_submit() + hfc_wait()
  *
  * Buffers belong to the caller: features are sent from where they are and
- * results are received straight into the caller's arrays. A client is a
- * single connection and is not thread-safe: use one per thread, or guard it.
- * Every blocking call gives up after the timeout of hfc_options (default
- * 30 s), so nothing here hangs on a dead server.
+ * results are received straight into the caller's arrays, whose sizes the
+ * request gives so that a short buffer is refused, never overrun. A client
+ * is not thread-safe: use one per thread, or guard it. Every blocking call
+ * gives up after the timeout of hfc_options (default 30 s), so nothing here
+ * hangs on a dead server.
  *
- * Errors are negative HFC_E* codes; those the server sent keep the wire
+ * Errors are negative HFC_E_* codes; those the server sent keep the wire
  * code's number (HFC_E_BUSY == -HFP_E_BUSY, see protocol/PROTOCOL.md).
- * hfc_strerror() names them, hfc_last_message() gives the server's words.
+ * hfc_strerror() names the code; hfc_last_message() says what exactly went
+ * wrong: the field of a bad argument, the endpoint and the system's reason
+ * of a failed connect, the server's own words.
+ *
+ * ABI: the shared library's SONAME is libhairfilter.so.<major> from 1.0 on
+ * and libhairfilter.so.0.<minor> before (every 0.x minor version may change
+ * the ABI; CHANGELOG.md says what changed). The structs the caller fills
+ * (hfc_options, hfc_request) start with struct_size, so fields can be
+ * appended to them within a SONAME; hfc_options_init() and
+ * hfc_request_init() set it. The structs the library fills change only
+ * with a new SONAME.
  */
 #ifndef HAIRFILTER_H
 #define HAIRFILTER_H
@@ -24,9 +39,25 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include <hairfilter/hairfilter_version.h>
+
+/* Only the hfc_* functions are exported from libhairfilter.so. */
+#if defined(HFC_BUILDING) && defined(__GNUC__)
+#define HFC_API __attribute__((visibility("default")))
+#else
+#define HFC_API
+#endif
+
 #ifdef __cplusplus
 extern "C" {
 #endif
+
+/* ---- version ----------------------------------------------------------- */
+
+/* The version of the library loaded at run time, "MAJOR.MINOR.PATCH"
+ * (HAIRFILTER_VERSION_STRING of its build; the headers' own version is
+ * HAIRFILTER_VERSION_STRING). Never NULL. */
+HFC_API const char *hfc_version(void);
 
 /* ---- errors ---------------------------------------------------------------- */
 
@@ -44,9 +75,9 @@ extern "C" {
 #define HFC_E_SHUTTING_DOWN  -10
 #define HFC_E_INVALID        -11
 /* local */
-#define HFC_E_ARG            -100 /* bad argument */
-#define HFC_E_URL            -101 /* not unix:PATH, tcp:HOST:PORT or tcp:PORT */
-#define HFC_E_CONNECT        -102 /* could not connect */
+#define HFC_E_ARG            -100 /* bad argument: hfc_last_message names the field */
+#define HFC_E_URL            -101 /* not unix:PATH, tcp:HOST:PORT or tcp:PORT (or a list of them) */
+#define HFC_E_CONNECT        -102 /* could not connect: errno and hfc_last_message say why */
 #define HFC_E_IO             -103 /* the connection failed */
 #define HFC_E_TIMEOUT        -104 /* no answer within the timeout */
 #define HFC_E_CLOSED         -105 /* the server closed the connection */
@@ -54,34 +85,89 @@ extern "C" {
 #define HFC_E_INFLIGHT       -107 /* as many requests pending as the server allows */
 #define HFC_E_NOPENDING      -108 /* hfc_wait with nothing in flight */
 
-const char *hfc_strerror(int err);
-
-/* ---- connection -------------------------------------------------------- */
+/* The code's meaning in a few words ("server busy: ..."); never NULL. */
+HFC_API const char *hfc_strerror(int err);
 
 typedef struct hfc_client hfc_client;
 
+/* What went wrong in the last call that failed: with c, the last call on c;
+ * with c NULL, the last call in this thread on any client or none (so a
+ * failed hfc_connect, which returns no client, explains itself). "" after
+ * a call that succeeded: every call clears it first. Valid until the next
+ * call on c (c NULL: in this thread). Examples:
+ *   hfc_request.features_bytes is 1000: a 64x48 frame of 4 spp in f32 needs 294912
+ *   unix:/run/hairfilterd/hairfilterd.sock: connect: Permission denied (...)
+ *   unknown variant 'Bsae': this server has Base, Small, Large */
+HFC_API const char *hfc_last_message(const hfc_client *c);
+
+/* ---- connection -------------------------------------------------------- */
+
+/* Failover when the URL lists several endpoints (hfc_options.failover). */
+#define HFC_FAILOVER_LOST  0x1u  /* a connection lost, closed, timed out or shutting
+                                    down: move to the next endpoint, resend its frames */
+#define HFC_FAILOVER_BUSY  0x2u  /* a frame answered BUSY: send it to the next endpoint
+                                    and move there */
+#define HFC_FAILOVER_NEVER 0x100u /* neither: a lost connection fails its frames */
+
 typedef struct hfc_options {
-  const char *client_name;   /* shown in the server's logs; default "libhairfilter" */
-  const char *token;         /* auth token (TCP); NULL: none */
+  size_t struct_size;        /* sizeof(hfc_options), set by hfc_options_init() */
+  const char *client_name;   /* shown in the server's logs; NULL: "libhairfilter"; 1..64
+                                printable ASCII characters without spaces */
+  const char *token;         /* auth token (TCP); NULL: none; up to 256 characters */
   int timeout_ms;            /* per blocking step; 0: 30000; < 0: no limit */
+  /* The retry policy, for a URL that lists several endpoints:
+   * hfc_connect tries them in order; once connected, what failover allows
+   * moves the client to the next endpoint that answers. */
+  int connect_rounds;        /* passes over the whole list before giving up; 0: 1 */
+  int retry_delay_ms;        /* pause between passes, milliseconds; 0: 100 */
+  int max_resends;           /* times one frame may be sent again on another
+                                connection; 0: 2; < 0: never */
+  unsigned failover;         /* HFC_FAILOVER_* bits; 0: LOST | BUSY */
 } hfc_options;
 
-/* url: "unix:/path/to.sock", "tcp:HOST:PORT", "tcp:[v6addr]:PORT" or
- * "tcp:PORT" (127.0.0.1), the grammar of protocol/PROTOCOL.md ("Addresses");
- * HOST may be a name. opt may be NULL. Performs the HELLO handshake.
- * HFC_E_URL for a URL outside the grammar (hfc_check_url says why). */
-int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out);
-/* Checks url without connecting: 0, or HFC_E_URL with why (when not NULL)
- * naming the URL and what is wrong with it, e.g. "bad URL 'tcp:h:70000':
- * port 70000 is outside 1..65535". */
-int hfc_check_url(const char *url, char *why, size_t whylen);
-/* Closes the connection; requests still in flight are abandoned. */
-void hfc_close(hfc_client *c);
+/* Options of this header's size with every field at its default (zero),
+ * C and C++ alike:
+ *   hfc_options o;
+ *   hfc_options_init(&o);
+ *   o.client_name = "my-engine"; */
+static inline void hfc_options_init(hfc_options *o) {
+  /* Byte by byte rather than memset, so the header needs no <string.h>;
+   * an aggregate initialiser would warn under -Wextra in C and C++. */
+  unsigned char *p = (unsigned char *)o;
+  size_t i;
+  for (i = 0; i < sizeof *o; i++) p[i] = 0;
+  o->struct_size = sizeof *o;
+}
 
-/* What the server said about itself in the handshake. */
+/* Connects and performs the HELLO handshake. opt may be NULL (defaults).
+ *
+ * url is one endpoint or a comma-separated list of up to 8 of them, each in
+ * the grammar of protocol/PROTOCOL.md ("Addresses"): "unix:/path/to.sock",
+ * "tcp:HOST:PORT", "tcp:[v6addr]:PORT" or "tcp:PORT" (127.0.0.1); HOST may
+ * be a name. With a list, endpoints that cannot be reached, close, or refuse
+ * the handshake with BUSY or SHUTTING_DOWN are passed over (the retry policy
+ * of hfc_options), and later calls fail over as hfc_options.failover says.
+ * A single URL never fails over: after a connection error every pending
+ * request completes with that error, and a new hfc_connect is needed.
+ *
+ * Returns 0 with *out set, or: HFC_E_URL (hfc_check_url says why), HFC_E_ARG
+ * (hfc_last_message(NULL) names the option), HFC_E_CONNECT with errno set
+ * to the last endpoint's connect error (ENOENT, ECONNREFUSED, EACCES, ...),
+ * or the handshake's error (HFC_E_UNAUTHORIZED, HFC_E_VERSION, HFC_E_BUSY,
+ * ...). hfc_last_message(NULL) then names every endpoint and its reason. */
+HFC_API int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out);
+/* Checks url (one endpoint or a list) without connecting: 0, or HFC_E_URL
+ * with why (when not NULL) naming the URL and what is wrong with it, e.g.
+ * "bad URL 'tcp:h:70000': port 70000 is outside 1..65535". */
+HFC_API int hfc_check_url(const char *url, char *why, size_t whylen);
+/* Closes the connections and unmaps shared segments; requests still in
+ * flight are abandoned. NULL is allowed. */
+HFC_API void hfc_close(hfc_client *c);
+
+/* What the server in use said about itself in the handshake. */
 typedef struct hfc_server_info {
   char name[65];
-  int version;
+  int version;               /* protocol version of this connection */
   int max_width, max_height, max_spp;
   int max_inflight;          /* per connection */
   int max_batch, queue_size;
@@ -89,14 +175,19 @@ typedef struct hfc_server_info {
   int f16, f32;              /* dtypes accepted */
   int shm;                   /* hfc_shm_alloc works on this connection */
   uint64_t max_frame_bytes;
+  char software_version[65]; /* the server's version ("0.1.0"); "" from servers
+                                that do not say (protocol version 1) */
 } hfc_server_info;
 
-const hfc_server_info *hfc_info(const hfc_client *c);
-/* The server's message with the last error, or "" (valid until the next
- * call on c). */
-const char *hfc_last_message(const hfc_client *c);
-/* The socket, to poll for readability before hfc_wait(c, 0, ...). */
-int hfc_fd(const hfc_client *c);
+/* The server in use; after a failover, the new one. */
+HFC_API const hfc_server_info *hfc_info(const hfc_client *c);
+/* The endpoint in use, as written in the URL ("unix:/a"). */
+HFC_API const char *hfc_endpoint(const hfc_client *c);
+/* A descriptor that polls readable when a reply is waiting (on any of the
+ * client's connections), for an engine's own event loop; then call
+ * hfc_wait(c, 0, ...). Stays the same across failovers. Not the socket:
+ * use it only to poll. */
+HFC_API int hfc_fd(const hfc_client *c);
 
 /* ---- variants ----------------------------------------------------------- */
 
@@ -117,8 +208,8 @@ typedef struct hfc_variant {
   double range_lo[HFC_MAX_STATS], range_hi[HFC_MAX_STATS];
 } hfc_variant;
 
-/* Fills up to max entries; *count is the number the server has. */
-int hfc_list_variants(hfc_client *c, hfc_variant *out, int max, int *count);
+/* Fills up to max entries; *count is the number the server has (0..64). */
+HFC_API int hfc_list_variants(hfc_client *c, hfc_variant *out, int max, int *count);
 
 /* ---- filtering --------------------------------------------------------- */
 
@@ -128,23 +219,48 @@ typedef enum hfc_dtype { HFC_F32 = 0, HFC_F16 = 1 } hfc_dtype;
  * in protocol/FEATURES.md order (sample-major: color, highlight, alpha,
  * depth, tangent.x, tangent.y), result [height][width][3] (color,
  * highlight, alpha), rgba [height][width][4] composited over the
- * background, alpha = hair coverage. f16 is IEEE binary16 as uint16_t. */
+ * background, alpha = hair coverage. f16 is IEEE binary16 as uint16_t.
+ * Each buffer's size in bytes goes beside it; a buffer smaller than its
+ * tensor (hfc_features_bytes, hfc_output_bytes) is refused with HFC_E_ARG
+ * before anything is sent. */
 typedef struct hfc_request {
-  const char *variant;
-  int width, height, spp;
+  size_t struct_size;        /* sizeof(hfc_request), set by hfc_request_init() */
+  const char *variant;       /* a loaded variant; case does not matter ("base" is Base) */
+  int width, height;         /* pixels, 1..65535 (the server's limit may be lower) */
+  int spp;                   /* samples per pixel, 1..16: the variant's */
   hfc_dtype in_dtype;
   const void *features;
+  size_t features_bytes;     /* bytes at features: at least width*height*spp*6*dtype size */
   hfc_dtype out_dtype;
   void *result;
+  size_t result_bytes;       /* bytes at result: at least width*height*3*dtype size */
   void *rgba;                /* NULL: no composite */
-  float hair[3], light[3], background[3];   /* linear RGB, for rgba */
+  size_t rgba_bytes;         /* bytes at rgba: at least width*height*4*dtype size */
+  float hair[3], light[3], background[3];   /* linear RGB, finite, for rgba */
   void *user;                /* returned in the completion */
 } hfc_request;
+
+/* A request of this header's size with every field zero (NULL buffers,
+ * f32, no composite); then set what the frame needs. */
+static inline void hfc_request_init(hfc_request *r) {
+  unsigned char *p = (unsigned char *)r;
+  size_t i;
+  for (i = 0; i < sizeof *r; i++) p[i] = 0;
+  r->struct_size = sizeof *r;
+}
+
+/* Bytes of a features tensor of width x height pixels, spp samples of 6
+ * features each, in dtype; 0 when a dimension is outside its range. */
+HFC_API size_t hfc_features_bytes(int width, int height, int spp, hfc_dtype dtype);
+/* Bytes of an output tensor with channels per pixel: 3 for result, 4 for
+ * rgba; 0 when a dimension is outside its range. */
+HFC_API size_t hfc_output_bytes(int width, int height, int channels, hfc_dtype dtype);
 
 /* What the server said about a result besides its tensors. Microseconds:
  * the server's parts (queue, input, infer, output) add up to at most
  * server_us; total_us is what the caller waited, so total_us - server_us is
- * transfer both ways plus client work. */
+ * transfer both ways plus client work (and, after a failover, the time on
+ * the connection that was lost). */
 typedef struct hfc_timing {
   double queue_us, input_us, infer_us, output_us, server_us;
   double total_us;
@@ -157,15 +273,18 @@ typedef struct hfc_timing {
                                 the server sanitised them (protocol/FEATURES.md,
                                 "Out-of-contract values"); always 0 from version-1
                                 servers */
+  int resends;               /* times the frame was sent again after a failover */
 } hfc_timing;
 
 /* Synchronous: sends r and waits for its result. timing may be NULL. */
-int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
+HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
 
 /* Asynchronous: sends r and returns at once with its id. r's buffers (not r
  * itself) must stay valid until its completion comes out of hfc_wait. At
- * most hfc_info(c)->max_inflight may be pending (HFC_E_INFLIGHT). */
-int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id);
+ * most hfc_info(c)->max_inflight may be pending (HFC_E_INFLIGHT). The first
+ * request naming a variant on a connection lists the server's variants
+ * once, to match the name and to say which there are when it is unknown. */
+HFC_API int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id);
 
 typedef struct hfc_completion {
   uint32_t id;
@@ -178,9 +297,9 @@ typedef struct hfc_completion {
  * next completion, in whatever order the server finishes them. Returns 0
  * with *done filled, HFC_E_TIMEOUT, HFC_E_NOPENDING, or a connection error
  * (then every pending request completes with that error on later calls). */
-int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done);
+HFC_API int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done);
 /* Requests submitted and not yet returned by hfc_wait. */
-int hfc_pending(const hfc_client *c);
+HFC_API int hfc_pending(const hfc_client *c);
 
 /* ---- shared memory ------------------------------------------------------- */
 
@@ -188,14 +307,16 @@ int hfc_pending(const hfc_client *c);
  * shared with the server, put features, result and rgba of a request in
  * the same segment, and hfc_filter / hfc_submit send only a reference;
  * the server reads the features and writes the results in place. Requests
- * whose buffers are elsewhere go through the socket as usual. At most 16
- * segments per client; *mem is page-aligned. The server may refuse
- * (HFC_E_BUSY when its shared-memory budget is spent, HFC_E_UNSUPPORTED on
- * TCP or when disabled). While a request is pending, do not write its
- * features or read its results. */
-int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem);
+ * whose buffers are elsewhere go through the socket as usual, and so do
+ * those in a segment of a connection lost in a failover (the memory stays
+ * mapped until hfc_shm_free). At most 16 segments per client; *mem is
+ * page-aligned. The server may refuse (HFC_E_BUSY when its shared-memory
+ * budget is spent, HFC_E_TOO_LARGE over all of it, HFC_E_UNSUPPORTED on TCP
+ * or when disabled). While a request is pending, do not write its features
+ * or read its results. */
+HFC_API int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem);
 /* Releases a segment from hfc_shm_alloc; no request on it may be pending. */
-int hfc_shm_free(hfc_client *c, void *mem);
+HFC_API int hfc_shm_free(hfc_client *c, void *mem);
 
 /* ---- statistics -------------------------------------------------------- */
 
@@ -217,7 +338,8 @@ typedef struct hfc_stats {
   hfc_variant_stats variants[64];
 } hfc_stats;
 
-int hfc_get_stats(hfc_client *c, hfc_stats *out);
+/* The counters of the server in use. */
+HFC_API int hfc_get_stats(hfc_client *c, hfc_stats *out);
 
 #ifdef __cplusplus
 }

@@ -1,0 +1,193 @@
+/*
+ * client_internal.h: what the files of libhairfilter share. Nothing here is
+ * exported (the library is built with -fvisibility=hidden; only the HFC_API
+ * functions of hairfilter.h are).
+ *
+ * A client holds a list of endpoints and up to MAX_CONNS connections: the
+ * one in use ("active"), and connections it left after a BUSY failover,
+ * which it half-closed and still reads until their last reply ("draining").
+ * Requests live in client-wide slots; each remembers its buffers, so that a
+ * frame whose connection is lost can be sent again on the next one.
+ */
+#ifndef HFC_CLIENT_INTERNAL_H
+#define HFC_CLIENT_INTERNAL_H
+
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "hairfilter.h"
+#include "hfproto.h"
+
+#define MAX_ENDPOINTS 8
+#define MAX_CONNS 4             /* the active one and up to 3 draining */
+#define MAX_SEGS 16
+#define CTL_MAX (64 * 1024)     /* largest control reply (VARIANTS, STATS) */
+#define MSG_MAX 1024            /* hfc_last_message, endpoint lists included */
+
+typedef struct endpoint {
+  char url[320];                /* as written in the list */
+  hfp_url addr;
+} endpoint;
+
+typedef struct conn {
+  int fd;                       /* -1: the slot is free */
+  int endpoint;                 /* index in hfc_client.eps */
+  uint64_t serial;              /* never reused: segments name their connection by it */
+  int draining;                 /* half-closed: replies still read, nothing sent */
+  int inflight;                 /* FILTERs sent on it and not yet answered */
+  int rx_fd;                    /* a descriptor that came with a frame, or -1 */
+  char why[320];                /* what ended it, when more than a code says */
+  hfc_server_info info;
+  /* The server's variants, listed once to match names (request.c). */
+  hfc_variant *variants;
+  int nvariants, variants_known;
+} conn;
+
+typedef struct segment {
+  uint32_t id;
+  uint8_t *addr;
+  size_t size;
+  uint64_t conn_serial;         /* the connection that made it; 0 once it is gone */
+} segment;
+
+enum { P_FREE = 0, P_SENT, P_QUEUED, P_DONE };
+
+/* One request, from hfc_submit until hfc_wait returns it. */
+typedef struct pending {
+  int state;
+  uint32_t id;                  /* the caller's (hfc_submit), for good */
+  uint32_t wire_id;             /* on the connection it was last sent on */
+  int conn;                     /* index in hfc_client.conns while P_SENT */
+  uint64_t seq;                 /* completion order */
+  uint64_t order;               /* submission order, for resending */
+  /* the frame, to send it again after a failover */
+  char variant[HFP_NAME_MAX + 1];
+  uint32_t width, height;
+  uint16_t spp;
+  uint8_t in_dtype, out_dtype;
+  float hair[3], light[3], bg[3];
+  const void *features;
+  uint64_t features_len;
+  void *result, *rgba;
+  int shm;                      /* the last send went by reference */
+  int resends;
+  double t_submit;
+  hfc_completion comp;
+  char *msg;                    /* why it failed, for hfc_last_message (malloc'd) */
+} pending;
+
+struct hfc_client {
+  endpoint eps[MAX_ENDPOINTS];
+  int neps;
+  /* the options, defaults filled in */
+  char client_name[HFP_NAME_MAX + 1];
+  char token[HFP_TOKEN_MAX + 1];
+  int timeout_ms, connect_rounds, retry_delay_ms, max_resends;
+  unsigned failover;
+
+  conn conns[MAX_CONNS];
+  int active;                   /* index of the connection in use, or -1 */
+  int last_ep;                  /* endpoint of the connection lost last */
+  int broken;                   /* without one: the error that ended the last */
+  hfc_server_info info_last;    /* hfc_info when there is no connection */
+  uint64_t next_serial;
+  int epfd;                     /* hfc_fd: every connection's socket */
+
+  pending *p;
+  int np;                       /* slots */
+  int npending;                 /* submitted, not yet returned by hfc_wait */
+  uint32_t next_id;
+  uint64_t next_seq, next_order;
+
+  segment segs[MAX_SEGS];
+  int nsegs;
+
+  /* the control reply being waited for */
+  int ctl_type, ctl_conn, ctl_done, ctl_status;
+  uint8_t *ctl;
+  size_t ctl_len;
+
+  char msg[MSG_MAX];
+};
+
+/* ---- errors.c ------------------------------------------------------------ */
+
+/* Clears the message of c (may be NULL) and of this thread: every public
+ * call starts with it. */
+void hfci_begin(hfc_client *c);
+/* Sets the message of c (may be NULL) and of this thread. */
+void hfci_msg(hfc_client *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* HFC_E_ARG with a message naming the field. */
+int hfci_arg(hfc_client *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+/* ---- endpoints.c ----------------------------------------------------------- */
+
+/* Splits and parses a comma-separated list; HFC_E_URL with why. */
+int hfci_parse_endpoints(const char *url, endpoint *eps, int *neps, char *why, size_t whylen);
+/* Opens, handshakes and makes active a connection to the first endpoint
+ * from `start` on (wrapping) that takes one, over the retry policy's
+ * rounds. 0, or the last endpoint's error with a message naming each. */
+int hfci_connect_next(hfc_client *c, int start);
+/* The same, for leaving endpoint `leave` (tried last of all: never). */
+int hfci_connect_other(hfc_client *c, int leave);
+/* Closes connection k and frees its slot (no failover: see hfci_conn_lost). */
+void hfci_conn_close(hfc_client *c, int k);
+/* Whether err moves the client to another endpoint: lost = 1 for a
+ * connection that failed with it, 0 for a request answered with it. */
+int hfci_can_failover(const hfc_client *c, int err, int lost);
+
+/* ---- client.c -------------------------------------------------------------- */
+
+/* Sends a then b (bn may be 0) on fd, waiting up to timeout_ms whenever the
+ * socket is full. 0, or HFC_E_CLOSED / HFC_E_IO / HFC_E_TIMEOUT. */
+int hfci_send_fd(int fd, int timeout_ms, const void *a, size_t an, const void *b, size_t bn);
+/* Reads one frame from any connection (waiting up to timeout_ms for one to
+ * start) and dispatches it. 0 when something happened (a frame, or a
+ * connection lost and dealt with), HFC_E_TIMEOUT, or the error that left
+ * the client without a connection. */
+int hfci_pump(hfc_client *c, int timeout_ms);
+/* Connection k failed with err: its requests go to the next endpoint when
+ * the policy allows, else complete with err. */
+void hfci_conn_lost(hfc_client *c, int k, int err);
+/* Sends queued requests while the active connection has room, and closes
+ * draining connections that have nothing left to answer. */
+void hfci_progress(hfc_client *c);
+/* Sends a control request on the active connection and waits for its
+ * reply (payload in c->ctl, to be freed by the caller). Sent again on the
+ * next connection when the active one fails over meanwhile. */
+int hfci_control(hfc_client *c, const uint8_t *frame, size_t len, int reply_type);
+/* An active connection, connecting anew when a list's endpoints were all
+ * lost earlier: its index, or the error. */
+int hfci_need_conn(hfc_client *c);
+/* p is complete with status; why (may be NULL) is what hfc_last_message
+ * says when the completion is returned. */
+void hfci_finish(hfc_client *c, pending *p, int status, const char *why);
+/* The completion of p to the caller, its message set; the slot is free. */
+void hfci_release(hfc_client *c, pending *p, hfc_completion *done);
+
+/* ---- queries.c --------------------------------------------------------------- */
+
+/* LIST_VARIANTS into out (up to max); *count is the server's number. */
+int hfci_list(hfc_client *c, hfc_variant *out, int max, int *count);
+
+/* ---- request.c -------------------------------------------------------------- */
+
+/* Sends p on the active connection (by reference when its tensors lie in one
+ * of that connection's segments). 0, or the connection's error. */
+int hfci_send_request(hfc_client *c, pending *p);
+/* Whether p, failed with err (lost as for hfci_can_failover), may be sent
+ * again on another connection. */
+int hfci_can_resend(const hfc_client *c, const pending *p, int err, int lost);
+
+/* ---- shm.c ------------------------------------------------------------------ */
+
+/* When every tensor of p lies in one segment of the active connection, fills
+ * f's references and returns that segment; else NULL (the socket path). */
+const segment *hfci_shm_place(const hfc_client *c, hfp_filter *f, const pending *p);
+/* Segments of connection serial s become the caller's memory alone. */
+void hfci_shm_orphan(hfc_client *c, uint64_t serial);
+/* Unmaps every segment (hfc_close). */
+void hfci_shm_release_all(hfc_client *c);
+
+#endif /* HFC_CLIENT_INTERNAL_H */

@@ -1,0 +1,464 @@
+/*
+ * endpoints.c: the endpoint list of a client, connecting to one of them
+ * (socket, HELLO handshake) and moving on to the next when one cannot be
+ * used.
+ *
+ * Each address is parsed by hfp_url_parse, so a list accepts and refuses
+ * exactly what the daemon's --listen does; the list itself is only commas
+ * between addresses. A failed connect keeps the system's reason: errno is
+ * left set for the caller, and the message names the endpoint, the reason
+ * and, for the usual mistakes, what to check.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <errno.h>
+#include <fcntl.h>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/epoll.h>
+#include <sys/socket.h>
+#include <sys/un.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "client_internal.h"
+
+int hfci_parse_endpoints(const char *url, endpoint *eps, int *neps, char *why, size_t whylen) {
+  *neps = 0;
+  if (why && whylen) why[0] = 0;
+  if (!url) {
+    if (why && whylen) snprintf(why, whylen, "no URL");
+    return HFC_E_URL;
+  }
+  const char *s = url;
+  for (int i = 0;; i++) {
+    const char *comma = strchr(s, ',');
+    size_t n = comma ? (size_t)(comma - s) : strlen(s);
+    if (i == MAX_ENDPOINTS) {
+      if (why && whylen)
+        snprintf(why, whylen, "bad URL list '%.120s': more than %d endpoints", url, MAX_ENDPOINTS);
+      return HFC_E_URL;
+    }
+    if (n == 0 || n >= sizeof eps[i].url) {
+      if (why && whylen)
+        snprintf(why, whylen, "bad URL list '%.120s': endpoint %d is %s", url, i + 1,
+                 n ? "too long" : "empty");
+      return HFC_E_URL;
+    }
+    memcpy(eps[i].url, s, n);
+    eps[i].url[n] = 0;
+    if (hfp_url_parse(eps[i].url, 0, &eps[i].addr, why, whylen)) return HFC_E_URL;
+    *neps = i + 1;
+    if (!comma) return 0;
+    s = comma + 1;
+  }
+}
+
+int hfc_check_url(const char *url, char *why, size_t whylen) {
+  endpoint eps[MAX_ENDPOINTS];
+  int n;
+  return hfci_parse_endpoints(url, eps, &n, why, whylen);
+}
+
+/* ---- one connection ------------------------------------------------------- */
+
+static int wait_fd(int fd, short events, int timeout_ms) {
+  struct pollfd pfd = {fd, events, 0};
+  for (;;) {
+    int n = poll(&pfd, 1, timeout_ms);
+    if (n > 0) return 0;
+    if (n == 0) return HFC_E_TIMEOUT;
+    if (errno != EINTR) return HFC_E_IO;
+  }
+}
+
+/* What to check after the usual connect failures. */
+static const char *connect_hint(int kind, int err) {
+  if (kind == HFP_URL_UNIX && (err == EACCES || err == EPERM))
+    return " (the socket's permissions refuse this user: is it in the server's group, "
+           "e.g. hairfilter?)";
+  if (kind == HFP_URL_UNIX && err == ENOENT) return " (no socket there: is hairfilterd running?)";
+  if (err == ECONNREFUSED) return " (nothing listens there: is hairfilterd running?)";
+  return "";
+}
+
+/* Opens a socket connected to e: the descriptor, or HFC_E_CONNECT with
+ * *err the system's reason (0 when it is in why: a name that does not
+ * resolve) and why filled. */
+static int open_socket(const endpoint *e, int timeout_ms, int *err, char *why, size_t whylen) {
+  const hfp_url *u = &e->addr;
+  *err = 0;
+  if (u->kind == HFP_URL_UNIX) {
+    struct sockaddr_un sun;
+    memset(&sun, 0, sizeof sun);
+    sun.sun_family = AF_UNIX;
+    _Static_assert(sizeof u->path <= sizeof sun.sun_path, "hfp_url path fits sun_path");
+    memcpy(sun.sun_path, u->path, sizeof u->path);
+    int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    if (fd >= 0 && connect(fd, (struct sockaddr *)&sun, sizeof sun) == 0) return fd;
+    *err = errno;
+    if (fd >= 0) close(fd);
+    snprintf(why, whylen, "connect: %s%s", strerror(*err), connect_hint(u->kind, *err));
+    return HFC_E_CONNECT;
+  }
+  char port[8];
+  snprintf(port, sizeof port, "%u", (unsigned)u->port);
+  struct addrinfo hints, *res = NULL;
+  memset(&hints, 0, sizeof hints);
+  hints.ai_socktype = SOCK_STREAM;
+  hints.ai_flags = AI_NUMERICSERV;
+  int gai = getaddrinfo(u->host, port, &hints, &res);
+  if (gai != 0 || !res) {
+    *err = gai == EAI_SYSTEM ? errno : 0;
+    snprintf(why, whylen, "cannot resolve '%s': %s", u->host,
+             gai == EAI_SYSTEM ? strerror(*err) : gai_strerror(gai));
+    return HFC_E_CONNECT;
+  }
+  int fd = -1;
+  for (struct addrinfo *ai = res; ai; ai = ai->ai_next) {
+    fd = socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
+    if (fd < 0) {
+      *err = errno;
+      continue;
+    }
+    int rc = connect(fd, ai->ai_addr, ai->ai_addrlen);
+    if (rc != 0 && errno == EINPROGRESS) {
+      int so = 0;
+      socklen_t sl = sizeof so;
+      int w = wait_fd(fd, POLLOUT, timeout_ms);
+      if (w == 0 && getsockopt(fd, SOL_SOCKET, SO_ERROR, &so, &sl) == 0 && so == 0)
+        rc = 0;
+      else
+        errno = w == HFC_E_TIMEOUT ? ETIMEDOUT : so ? so : errno;
+    }
+    if (rc == 0) {
+      int one = 1;
+      setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+      break;
+    }
+    *err = errno;
+    close(fd);
+    fd = -1;
+  }
+  freeaddrinfo(res);
+  if (fd >= 0) return fd;
+  snprintf(why, whylen, "connect: %s%s", strerror(*err), connect_hint(u->kind, *err));
+  return HFC_E_CONNECT;
+}
+
+/* Reads exactly n bytes of a handshake reply on fd within the timeout. */
+static int recv_plain(int fd, void *buf, size_t n, int timeout_ms) {
+  uint8_t *p = buf;
+  while (n) {
+    ssize_t r = recv(fd, p, n, 0);
+    if (r > 0) {
+      p += r;
+      n -= (size_t)r;
+      continue;
+    }
+    if (r == 0) return HFC_E_CLOSED;
+    if (errno == EINTR) continue;
+    if (errno != EAGAIN && errno != EWOULDBLOCK) return errno == ECONNRESET ? HFC_E_CLOSED : HFC_E_IO;
+    int rc = wait_fd(fd, POLLIN, timeout_ms);
+    if (rc) return rc;
+  }
+  return 0;
+}
+
+/* HELLO on a fresh socket and its answer: 0 with ok filled, or the error
+ * with why filled. */
+static int handshake(hfc_client *c, int fd, hfp_hello_ok *ok, char *why, size_t whylen) {
+  hfp_hello hello;
+  memset(&hello, 0, sizeof hello);
+  hello.min_version = HFP_VERSION_MIN;
+  hello.max_version = HFP_VERSION;
+  strcpy(hello.client_name, c->client_name);
+  strcpy(hello.token, c->token);
+  uint8_t frame[HFP_HEADER_SIZE + 8 + HFP_NAME_MAX + HFP_TOKEN_MAX];
+  int n = hfp_encode_hello(frame, sizeof frame, &hello);
+  if (n < 0) {
+    snprintf(why, whylen, "cannot encode HELLO");
+    return HFC_E_ARG;
+  }
+  int rc = hfci_send_fd(fd, c->timeout_ms, frame, (size_t)n, NULL, 0);
+  uint8_t hb[HFP_HEADER_SIZE];
+  if (!rc) rc = recv_plain(fd, hb, sizeof hb, c->timeout_ms);
+  if (rc) {
+    snprintf(why, whylen, "handshake: %s", hfc_strerror(rc));
+    return rc;
+  }
+  hfp_header h;
+  if (hfp_header_decode(hb, CTL_MAX, &h) ||
+      (h.type != HFP_HELLO_OK && h.type != HFP_ERROR)) {
+    snprintf(why, whylen, "handshake: not a hairfilterd reply");
+    return HFC_E_PROTOCOL;
+  }
+  uint8_t *payload = malloc(h.length ? h.length : 1);
+  if (!payload) return HFC_E_NOMEM;
+  rc = recv_plain(fd, payload, h.length, c->timeout_ms);
+  if (rc) {
+    free(payload);
+    snprintf(why, whylen, "handshake: %s", hfc_strerror(rc));
+    return rc;
+  }
+  if (h.type == HFP_ERROR) {
+    hfp_error e;
+    rc = hfp_decode_error(payload, h.length, &e);
+    free(payload);
+    if (rc) {
+      snprintf(why, whylen, "handshake: malformed ERROR");
+      return HFC_E_PROTOCOL;
+    }
+    snprintf(why, whylen, "%s: %s", hfp_code_name((int)e.code), e.message);
+    return e.code < HFP_E_COUNT ? -(int)e.code : HFC_E_INTERNAL;
+  }
+  rc = hfp_decode_hello_ok(payload, h.length, ok);
+  free(payload);
+  if (rc) {
+    snprintf(why, whylen, "handshake: malformed HELLO_OK (%s)", hfp_strerror(rc));
+    return rc == -HFP_E_VERSION ? HFC_E_VERSION : HFC_E_PROTOCOL;
+  }
+  return 0;
+}
+
+static void fill_info(hfc_server_info *i, const hfp_hello_ok *ok) {
+  memset(i, 0, sizeof *i);
+  snprintf(i->name, sizeof i->name, "%s", ok->server_name);
+  snprintf(i->software_version, sizeof i->software_version, "%s", ok->software_version);
+  i->version = ok->version;
+  i->max_width = (int)ok->max_width;
+  i->max_height = (int)ok->max_height;
+  i->max_spp = ok->max_spp;
+  i->max_inflight = ok->max_inflight;
+  i->max_batch = (int)ok->max_batch;
+  i->queue_size = (int)ok->queue_size;
+  i->auth_required = (ok->server_flags & HFP_SERVER_AUTH_REQUIRED) != 0;
+  i->f32 = (ok->dtypes >> HFP_F32) & 1;
+  i->f16 = (ok->dtypes >> HFP_F16) & 1;
+  i->shm = (ok->server_flags & HFP_SERVER_SHM) != 0;
+  i->max_frame_bytes = ok->max_frame_bytes;
+}
+
+/* Connects to endpoint e and handshakes: the index of its connection slot,
+ * or an error with why and *err (errno of a failed connect) filled. */
+static int open_conn(hfc_client *c, int e, int *err, char *why, size_t whylen) {
+  int k = -1;
+  for (int i = 0; i < MAX_CONNS && k < 0; i++)
+    if (c->conns[i].fd < 0) k = i;
+  *err = 0;
+  if (k < 0) {
+    snprintf(why, whylen, "%d connections still draining", MAX_CONNS);
+    return HFC_E_BUSY;
+  }
+  int fd = open_socket(&c->eps[e], c->timeout_ms, err, why, whylen);
+  if (fd < 0) return fd;
+  int fl = fcntl(fd, F_GETFL);
+  if (fl < 0 || fcntl(fd, F_SETFL, fl | O_NONBLOCK) < 0) {
+    *err = errno;
+    close(fd);
+    snprintf(why, whylen, "fcntl: %s", strerror(*err));
+    return HFC_E_IO;
+  }
+  hfp_hello_ok ok;
+  int rc = handshake(c, fd, &ok, why, whylen);
+  if (rc) {
+    close(fd);
+    return rc;
+  }
+  struct epoll_event ev;
+  memset(&ev, 0, sizeof ev);
+  ev.events = EPOLLIN;
+  ev.data.fd = fd;
+  if (epoll_ctl(c->epfd, EPOLL_CTL_ADD, fd, &ev) != 0) {
+    *err = errno;
+    close(fd);
+    snprintf(why, whylen, "epoll_ctl: %s", strerror(*err));
+    return HFC_E_IO;
+  }
+  conn *x = &c->conns[k];
+  memset(x, 0, sizeof *x);
+  x->fd = fd;
+  x->rx_fd = -1;
+  x->endpoint = e;
+  x->serial = ++c->next_serial;
+  fill_info(&x->info, &ok);
+  return k;
+}
+
+static void sleep_ms(int ms) {
+  struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+  while (nanosleep(&ts, &ts) != 0 && errno == EINTR) {
+  }
+}
+
+static int connect_from(hfc_client *c, int start, int skip) {
+  char all[MSG_MAX] = "", why[400];
+  size_t used = 0;
+  int rc = HFC_E_CONNECT, err = 0;
+  for (int round = 0; round < c->connect_rounds; round++) {
+    if (round) sleep_ms(c->retry_delay_ms);
+    for (int i = 0; i < c->neps; i++) {
+      int e = (start + i) % c->neps;
+      if (e == skip) continue;
+      why[0] = 0;
+      int k = open_conn(c, e, &err, why, sizeof why);
+      if (k >= 0) {
+        c->active = k;
+        c->broken = 0;
+        c->info_last = c->conns[k].info;
+        return 0;
+      }
+      rc = k;
+      /* Every endpoint's reason, each once: the rounds repeat them. */
+      if (round == 0 && used < sizeof all) {
+        int n = snprintf(all + used, sizeof all - used, "%s%s: %s", used ? "; " : "",
+                         c->eps[e].url, why);
+        if (n > 0) used += (size_t)n;
+      }
+    }
+  }
+  if (!used) snprintf(all, sizeof all, "no other endpoint to try");
+  else if (c->connect_rounds > 1 && used < sizeof all)
+    snprintf(all + used, sizeof all - used, " (%d rounds, %d ms apart)", c->connect_rounds,
+             c->retry_delay_ms);
+  hfci_msg(c, "%s", all);
+  /* errno is what the last connect failed with (0: it did not get that far). */
+  errno = err;
+  return rc;
+}
+
+int hfci_connect_next(hfc_client *c, int start) { return connect_from(c, start, -1); }
+
+int hfci_connect_other(hfc_client *c, int leave) { return connect_from(c, leave + 1, leave); }
+
+void hfci_conn_close(hfc_client *c, int k) {
+  conn *x = &c->conns[k];
+  if (x->fd < 0) return;
+  epoll_ctl(c->epfd, EPOLL_CTL_DEL, x->fd, NULL);
+  close(x->fd);
+  if (x->rx_fd >= 0) close(x->rx_fd);
+  free(x->variants);
+  hfci_shm_orphan(c, x->serial);
+  memset(x, 0, sizeof *x);
+  x->fd = -1;
+  x->rx_fd = -1;
+  if (c->active == k) c->active = -1;
+}
+
+int hfci_can_failover(const hfc_client *c, int err, int lost) {
+  if (c->neps < 2 || (c->failover & HFC_FAILOVER_NEVER)) return 0;
+  if (!lost) {
+    /* A request's own answer: the server is full, or leaving. */
+    if (err == HFC_E_BUSY) return (c->failover & HFC_FAILOVER_BUSY) != 0;
+    return err == HFC_E_SHUTTING_DOWN && (c->failover & HFC_FAILOVER_LOST);
+  }
+  if (!(c->failover & HFC_FAILOVER_LOST)) return 0;
+  /* The connection went away, or the server is leaving or full; errors
+   * about what this client sent (a token, a version, a frame too long)
+   * would meet the next server too. */
+  switch (err) {
+    case HFC_E_CLOSED: case HFC_E_IO: case HFC_E_TIMEOUT: case HFC_E_PROTOCOL:
+    case HFC_E_SHUTTING_DOWN: case HFC_E_BUSY: case HFC_E_INTERNAL:
+      return 1;
+    default:
+      return 0;
+  }
+}
+
+/* ---- the public side -------------------------------------------------------- */
+
+static int set_options(hfc_client *c, const hfc_options *opt) {
+  hfc_options o;
+  hfc_options_init(&o);
+  if (opt) {
+    if (opt->struct_size == 0)
+      return hfci_arg(c, "hfc_options.struct_size is 0: initialise the options with "
+                         "hfc_options_init()");
+    if (opt->struct_size < sizeof o)
+      return hfci_arg(c, "hfc_options.struct_size is %zu, smaller than this library's %zu: "
+                         "initialise the options with hfc_options_init()",
+                      opt->struct_size, sizeof o);
+    memcpy(&o, opt, sizeof o);
+  }
+  const char *name = o.client_name ? o.client_name : "libhairfilter";
+  size_t nl = strlen(name), tl = o.token ? strlen(o.token) : 0;
+  if (nl < 1 || nl > HFP_NAME_MAX)
+    return hfci_arg(c, "hfc_options.client_name is %zu bytes: want 1..%d", nl, HFP_NAME_MAX);
+  for (size_t i = 0; i < nl; i++)
+    if (name[i] <= 0x20 || name[i] > 0x7e)
+      return hfci_arg(c, "hfc_options.client_name has byte 0x%02x at %zu: want printable "
+                         "ASCII without spaces", (unsigned char)name[i], i);
+  if (tl > HFP_TOKEN_MAX)
+    return hfci_arg(c, "hfc_options.token is %zu bytes: at most %d", tl, HFP_TOKEN_MAX);
+  for (size_t i = 0; i < tl; i++)
+    if (o.token[i] <= 0x20 || o.token[i] > 0x7e)
+      return hfci_arg(c, "hfc_options.token has a byte outside printable ASCII without "
+                         "spaces at %zu", i);
+  if (o.connect_rounds < 0 || o.retry_delay_ms < 0)
+    return hfci_arg(c, "hfc_options.%s is negative", o.connect_rounds < 0 ? "connect_rounds"
+                                                                          : "retry_delay_ms");
+  memcpy(c->client_name, name, nl + 1);
+  if (tl) memcpy(c->token, o.token, tl + 1);
+  c->timeout_ms = o.timeout_ms == 0 ? 30000 : o.timeout_ms;
+  c->connect_rounds = o.connect_rounds ? o.connect_rounds : 1;
+  c->retry_delay_ms = o.retry_delay_ms ? o.retry_delay_ms : 100;
+  c->max_resends = o.max_resends == 0 ? 2 : o.max_resends < 0 ? 0 : o.max_resends;
+  c->failover = o.failover ? o.failover : HFC_FAILOVER_LOST | HFC_FAILOVER_BUSY;
+  return 0;
+}
+
+int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
+  hfci_begin(NULL);
+  if (!out) return hfci_arg(NULL, "hfc_connect: out is NULL");
+  *out = NULL;
+  if (!url) return hfci_arg(NULL, "hfc_connect: url is NULL");
+  hfc_client *c = calloc(1, sizeof *c);
+  if (!c) return HFC_E_NOMEM;
+  c->epfd = -1;
+  c->active = -1;
+  for (int k = 0; k < MAX_CONNS; k++) c->conns[k].fd = c->conns[k].rx_fd = -1;
+  char why[400];
+  int rc = hfci_parse_endpoints(url, c->eps, &c->neps, why, sizeof why);
+  if (rc) hfci_msg(NULL, "%s", why);
+  if (!rc) rc = set_options(c, opt);
+  if (!rc && (c->epfd = epoll_create1(EPOLL_CLOEXEC)) < 0) {
+    hfci_msg(NULL, "epoll_create1: %s", strerror(errno));
+    rc = HFC_E_IO;
+  }
+  if (!rc) rc = hfci_connect_next(c, 0);
+  if (rc) {
+    /* The message (this thread's copy) and errno outlive the client. */
+    hfc_close(c);
+    return rc;
+  }
+  c->msg[0] = 0;
+  c->next_id = 1;
+  *out = c;
+  return 0;
+}
+
+void hfc_close(hfc_client *c) {
+  if (!c) return;
+  int saved = errno;
+  for (int k = 0; k < MAX_CONNS; k++) hfci_conn_close(c, k);
+  hfci_shm_release_all(c);
+  if (c->epfd >= 0) close(c->epfd);
+  free(c->ctl);
+  free(c->p);
+  free(c);
+  errno = saved;
+}
+
+const hfc_server_info *hfc_info(const hfc_client *c) {
+  return c->active >= 0 ? &c->conns[c->active].info : &c->info_last;
+}
+
+const char *hfc_endpoint(const hfc_client *c) {
+  return c->active >= 0 ? c->eps[c->conns[c->active].endpoint].url : "";
+}
+
+int hfc_fd(const hfc_client *c) { return c->epfd; }

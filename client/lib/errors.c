@@ -1,0 +1,66 @@
+/*
+ * errors.c: libhairfilter's error names, its messages and its version.
+ *
+ * Each call clears the message first and sets it when it fails, in the
+ * client and in a thread-local copy: hfc_connect has no client to keep a
+ * message in when it fails, and an engine that logs from the thread that
+ * made the call can read it there with hfc_last_message(NULL).
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "client_internal.h"
+
+const char *hfc_version(void) { return HAIRFILTER_VERSION_STRING; }
+
+static const struct {
+  int code;
+  const char *msg;
+} local_errors[] = {
+  {HFC_E_ARG, "bad argument"},
+  {HFC_E_URL, "bad server URL (want unix:PATH, tcp:HOST:PORT or tcp:PORT)"},
+  {HFC_E_CONNECT, "cannot connect to the server"},
+  {HFC_E_IO, "connection failed"},
+  {HFC_E_TIMEOUT, "timed out waiting for the server"},
+  {HFC_E_CLOSED, "server closed the connection"},
+  {HFC_E_NOMEM, "out of memory"},
+  {HFC_E_INFLIGHT, "too many requests in flight on this connection"},
+  {HFC_E_NOPENDING, "no request in flight"},
+};
+
+const char *hfc_strerror(int err) {
+  if (err == 0) return "ok";
+  if (err < 0 && err > -HFP_E_COUNT) return hfp_strerror(err);
+  for (size_t i = 0; i < sizeof local_errors / sizeof local_errors[0]; i++)
+    if (local_errors[i].code == err) return local_errors[i].msg;
+  return "unknown error";
+}
+
+static _Thread_local char thread_msg[MSG_MAX];
+
+void hfci_begin(hfc_client *c) {
+  thread_msg[0] = 0;
+  if (c) c->msg[0] = 0;
+}
+
+static void set_msg(hfc_client *c, const char *fmt, va_list ap) {
+  vsnprintf(thread_msg, sizeof thread_msg, fmt, ap);
+  if (c) memcpy(c->msg, thread_msg, sizeof c->msg);
+}
+
+void hfci_msg(hfc_client *c, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  set_msg(c, fmt, ap);
+  va_end(ap);
+}
+
+int hfci_arg(hfc_client *c, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  set_msg(c, fmt, ap);
+  va_end(ap);
+  return HFC_E_ARG;
+}
+
+const char *hfc_last_message(const hfc_client *c) { return c ? c->msg : thread_msg; }

@@ -1,0 +1,378 @@
+/*
+ * request.c: hfc_submit, hfc_wait and hfc_filter: a request checked field by
+ * field, its variant matched, and sent.
+ *
+ * Every check names the field and the value it wants, and comes before
+ * anything is sent: above all the buffer sizes, so that a features buffer
+ * shorter than its frame is refused instead of read past its end.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <time.h>
+
+#include "client_internal.h"
+
+static double now_us(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec / 1e3;
+}
+
+size_t hfc_features_bytes(int width, int height, int spp, hfc_dtype dtype) {
+  uint64_t n;
+  if (width < 1 || height < 1 || spp < 1 ||
+      hfp_features_bytes((uint32_t)width, (uint32_t)height, (uint32_t)spp, (int)dtype, &n))
+    return 0;
+  return (size_t)n;
+}
+
+size_t hfc_output_bytes(int width, int height, int channels, hfc_dtype dtype) {
+  uint64_t n;
+  if (width < 1 || height < 1 ||
+      hfp_output_bytes((uint32_t)width, (uint32_t)height, (uint32_t)channels, (int)dtype, &n))
+    return 0;
+  return (size_t)n;
+}
+
+static const char *dtype_name(int d) { return d == HFC_F16 ? "f16" : "f32"; }
+
+static int finite3(const float *v) { return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]); }
+
+/* Checks r field by field: 0, or HFC_E_ARG with the field named. */
+static int check_request(hfc_client *c, const hfc_request *r) {
+  if (!r) return hfci_arg(c, "the request is NULL");
+  if (r->struct_size == 0)
+    return hfci_arg(c, "hfc_request.struct_size is 0: initialise the request with "
+                       "hfc_request_init()");
+  if (r->struct_size < sizeof(hfc_request))
+    return hfci_arg(c, "hfc_request.struct_size is %zu, smaller than this library's %zu: "
+                       "initialise the request with hfc_request_init()",
+                    r->struct_size, sizeof(hfc_request));
+  if (!r->variant || !r->variant[0])
+    return hfci_arg(c, "hfc_request.variant is %s: name a variant (hfc_list_variants)",
+                    r->variant ? "empty" : "NULL");
+  if (strlen(r->variant) > HFP_NAME_MAX)
+    return hfci_arg(c, "hfc_request.variant is longer than %d bytes", HFP_NAME_MAX);
+  if (r->width < 1 || r->width > HFP_MAX_SIDE)
+    return hfci_arg(c, "hfc_request.width is %d: want 1..%d", r->width, HFP_MAX_SIDE);
+  if (r->height < 1 || r->height > HFP_MAX_SIDE)
+    return hfci_arg(c, "hfc_request.height is %d: want 1..%d", r->height, HFP_MAX_SIDE);
+  if (r->spp < 1 || r->spp > HFP_MAX_SPP)
+    return hfci_arg(c, "hfc_request.spp is %d: want 1..%d, the variant's", r->spp, HFP_MAX_SPP);
+  if (r->in_dtype != HFC_F32 && r->in_dtype != HFC_F16)
+    return hfci_arg(c, "hfc_request.in_dtype is %d: want HFC_F32 or HFC_F16", (int)r->in_dtype);
+  if (r->out_dtype != HFC_F32 && r->out_dtype != HFC_F16)
+    return hfci_arg(c, "hfc_request.out_dtype is %d: want HFC_F32 or HFC_F16", (int)r->out_dtype);
+  size_t in = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
+  size_t out = hfc_output_bytes(r->width, r->height, 3, r->out_dtype);
+  size_t rgba = hfc_output_bytes(r->width, r->height, 4, r->out_dtype);
+  if (!r->features) return hfci_arg(c, "hfc_request.features is NULL");
+  if (r->features_bytes < in)
+    return hfci_arg(c, "hfc_request.features_bytes is %zu: a %dx%d frame of %d spp in %s needs "
+                       "%zu ([height][width][spp*6])", r->features_bytes, r->width, r->height,
+                    r->spp, dtype_name(r->in_dtype), in);
+  if (!r->result) return hfci_arg(c, "hfc_request.result is NULL");
+  if (r->result_bytes < out)
+    return hfci_arg(c, "hfc_request.result_bytes is %zu: a %dx%d result in %s needs %zu "
+                       "([height][width][3])", r->result_bytes, r->width, r->height,
+                    dtype_name(r->out_dtype), out);
+  if (r->rgba && r->rgba_bytes < rgba)
+    return hfci_arg(c, "hfc_request.rgba_bytes is %zu: a %dx%d composite in %s needs %zu "
+                       "([height][width][4])", r->rgba_bytes, r->width, r->height,
+                    dtype_name(r->out_dtype), rgba);
+  if (!finite3(r->hair) || !finite3(r->light) || !finite3(r->background))
+    return hfci_arg(c, "hfc_request.%s has a value that is not finite",
+                    !finite3(r->hair) ? "hair" : !finite3(r->light) ? "light" : "background");
+  return 0;
+}
+
+/* ---- variant names ---------------------------------------------------------- */
+
+/* Lists the variants of the active connection into its cache. */
+static int load_variants(hfc_client *c) {
+  hfc_variant *v = malloc(sizeof *v * HFP_MAX_VARIANTS);
+  if (!v) return HFC_E_NOMEM;
+  int n = 0;
+  int rc = hfci_list(c, v, HFP_MAX_VARIANTS, &n);
+  if (rc || c->active < 0) {
+    free(v);
+    return rc ? rc : HFC_E_CLOSED;
+  }
+  conn *x = &c->conns[c->active];
+  free(x->variants);
+  x->variants = v;
+  x->nvariants = n < HFP_MAX_VARIANTS ? n : HFP_MAX_VARIANTS;
+  x->variants_known = 1;
+  return 0;
+}
+
+/* The name of the active connection's variant that `name` means: itself,
+ * or the one variant it matches without regard to case. Variants are
+ * listed once per connection, and again when a name is not among them. */
+static int resolve_variant(hfc_client *c, const char *name, char out[HFP_NAME_MAX + 1]) {
+  int listed = 0;
+  for (;;) {
+    if (c->active < 0) return HFC_E_CLOSED;
+    conn *x = &c->conns[c->active];
+    if (!x->variants_known) {
+      int rc = load_variants(c);
+      if (rc) return rc;
+      listed = 1;
+      continue;
+    }
+    const char *match = NULL;
+    int nmatch = 0;
+    for (int i = 0; i < x->nvariants; i++) {
+      if (!strcmp(x->variants[i].name, name)) {
+        strcpy(out, name);
+        return 0;
+      }
+      if (!strcasecmp(x->variants[i].name, name)) {
+        match = x->variants[i].name;
+        nmatch++;
+      }
+    }
+    if (nmatch == 1) {
+      strcpy(out, match);
+      return 0;
+    }
+    if (!listed) {
+      /* Listed before this call: the server may have loaded it since. */
+      x->variants_known = 0;
+      continue;
+    }
+    char names[600] = "";
+    size_t used = 0;
+    for (int i = 0; i < x->nvariants && used < sizeof names; i++) {
+      int n = snprintf(names + used, sizeof names - used, "%s%s", i ? ", " : "",
+                       x->variants[i].name);
+      if (n > 0) used += (size_t)n;
+    }
+    if (nmatch > 1)
+      hfci_msg(c, "variant '%s' matches %d of this server's variants but none exactly: %s",
+               name, nmatch, names);
+    else
+      hfci_msg(c, "unknown variant '%s': this server has %s", name,
+               x->nvariants ? names : "none");
+    return HFC_E_UNKNOWN_VARIANT;
+  }
+}
+
+/* ---- sending ------------------------------------------------------------------ */
+
+int hfci_can_resend(const hfc_client *c, const pending *p, int err, int lost) {
+  return p->resends < c->max_resends && hfci_can_failover(c, err, lost);
+}
+
+static int id_in_use(const hfc_client *c, uint32_t id, int wire) {
+  for (int i = 0; i < c->np; i++)
+    if (c->p[i].state != P_FREE && (wire ? c->p[i].wire_id : c->p[i].id) == id) return 1;
+  return 0;
+}
+
+/* A request id for the wire or the caller: never 0 (reserved), never one
+ * still in use. */
+static uint32_t new_id(hfc_client *c, int wire) {
+  uint32_t id;
+  do {
+    id = c->next_id++;
+  } while (id == 0 || id_in_use(c, id, wire));
+  return id;
+}
+
+/* The FILTER head of p for the active connection: its size, or a local
+ * error; *seg is the segment it refers to, or NULL. */
+static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
+                       uint8_t head[HFP_FILTER_HEAD_MAX], const segment **seg) {
+  hfp_filter f;
+  memset(&f, 0, sizeof f);
+  strcpy(f.variant, p->variant);
+  f.flags = p->rgba ? HFP_FILTER_COMPOSITE : 0;
+  f.width = p->width;
+  f.height = p->height;
+  f.spp = p->spp;
+  f.in_dtype = p->in_dtype;
+  f.out_dtype = p->out_dtype;
+  memcpy(f.hair, p->hair, sizeof f.hair);
+  memcpy(f.light, p->light, sizeof f.light);
+  memcpy(f.bg, p->bg, sizeof f.bg);
+  f.data = p->features;
+  f.data_len = p->features_len;
+  *seg = hfci_shm_place(c, &f, p);
+  if (*seg) {
+    f.flags |= HFP_FILTER_SHM;
+    f.shm_segment = (*seg)->id;
+  }
+  uint64_t total;
+  int n = hfp_encode_filter_head(head, HFP_FILTER_HEAD_MAX, wire_id, &f, &total);
+  if (n < 0) return n == -HFP_E_TOO_LARGE ? HFC_E_TOO_LARGE : HFC_E_ARG;
+  return n;
+}
+
+int hfci_send_request(hfc_client *c, pending *p) {
+  int k = c->active;
+  conn *x = &c->conns[k];
+  uint8_t head[HFP_FILTER_HEAD_MAX];
+  const segment *g;
+  uint32_t wire = new_id(c, 1);
+  int n = filter_head(c, p, wire, head, &g);
+  if (n < 0) {
+    /* It was encoded once at submission: only a different server's
+     * segment placement could change it, and that falls back to the socket. */
+    hfci_finish(c, p, n, "the request cannot be encoded");
+    return 0;
+  }
+  p->wire_id = wire;
+  p->conn = k;
+  p->shm = g != NULL;
+  p->state = P_SENT;
+  x->inflight++;
+  /* On failure part of a frame may be out: the connection cannot be trusted
+   * any more, and the caller ends it (hfci_conn_lost, which resends p). */
+  return hfci_send_fd(x->fd, c->timeout_ms, head, (size_t)n, g ? NULL : p->features,
+                      g ? 0 : (size_t)p->features_len);
+}
+
+/* Grows the slots to at least n. */
+static int grow(hfc_client *c, int n) {
+  if (c->np >= n) return 0;
+  pending *q = realloc(c->p, sizeof *q * (size_t)n);
+  if (!q) return HFC_E_NOMEM;
+  memset(q + c->np, 0, sizeof *q * (size_t)(n - c->np));
+  c->p = q;
+  c->np = n;
+  return 0;
+}
+
+static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) {
+  hfci_begin(c);
+  if (!c) return hfci_arg(NULL, "hfc_submit: the client is NULL");
+  int rc = check_request(c, r);
+  if (rc) return rc;
+  int k = hfci_need_conn(c);
+  if (k < 0) return k;
+  char variant[HFP_NAME_MAX + 1];
+  if ((rc = resolve_variant(c, r->variant, variant))) return rc;
+  if ((k = hfci_need_conn(c)) < 0) return k;
+  const conn *x = &c->conns[c->active];
+  if (c->npending >= x->info.max_inflight) {
+    hfci_msg(c, "%d requests pending, as many as %s allows on a connection: collect some "
+                "with hfc_wait", c->npending, c->eps[x->endpoint].url);
+    return HFC_E_INFLIGHT;
+  }
+  if ((rc = grow(c, x->info.max_inflight > c->npending + 1 ? x->info.max_inflight
+                                                           : c->npending + 1)))
+    return rc;
+  pending *p = NULL;
+  for (int i = 0; i < c->np && !p; i++)
+    if (c->p[i].state == P_FREE) {
+      p = &c->p[i];
+      *slot = i;
+    }
+  if (!p) return HFC_E_NOMEM;   /* grow made one: cannot happen */
+  memset(p, 0, sizeof *p);
+  strcpy(p->variant, variant);
+  p->width = (uint32_t)r->width;
+  p->height = (uint32_t)r->height;
+  p->spp = (uint16_t)r->spp;
+  p->in_dtype = (uint8_t)r->in_dtype;
+  p->out_dtype = (uint8_t)r->out_dtype;
+  memcpy(p->hair, r->hair, sizeof p->hair);
+  memcpy(p->light, r->light, sizeof p->light);
+  memcpy(p->bg, r->background, sizeof p->bg);
+  p->features = r->features;
+  p->features_len = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
+  p->result = r->result;
+  p->rgba = r->rgba;
+  /* Whatever the codec refuses is refused now, before the slot is taken. */
+  uint8_t head[HFP_FILTER_HEAD_MAX];
+  const segment *g;
+  int n = filter_head(c, p, 1, head, &g);
+  if (n < 0) {
+    hfci_msg(c, "the request cannot be encoded: %s", hfc_strerror(n));
+    return n;
+  }
+  p->id = new_id(c, 0);
+  p->comp.user = r->user;
+  p->order = c->next_order++;
+  p->t_submit = now_us();
+  p->state = P_QUEUED;
+  c->npending++;
+  if (id) *id = p->id;
+  /* Sent now when the window has room; a failure is the completion's. */
+  hfci_progress(c);
+  return 0;
+}
+
+int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id) {
+  int slot;
+  return submit(c, r, id, &slot);
+}
+
+int hfc_pending(const hfc_client *c) { return c->npending; }
+
+static pending *first_done(hfc_client *c) {
+  pending *best = NULL;
+  for (int i = 0; i < c->np; i++)
+    if (c->p[i].state == P_DONE && (!best || c->p[i].seq < best->seq)) best = &c->p[i];
+  return best;
+}
+
+int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
+  hfci_begin(c);
+  if (!c || !done) return hfci_arg(c, "hfc_wait: %s is NULL", c ? "done" : "the client");
+  if (timeout_ms < 0) timeout_ms = c->timeout_ms;
+  double deadline = now_us() + (double)timeout_ms * 1e3;
+  for (;;) {
+    pending *p = first_done(c);
+    if (p) {
+      /* The message is the completion's (hfc_last_message). */
+      hfci_release(c, p, done);
+      return 0;
+    }
+    if (c->npending == 0) return c->broken && c->active < 0 ? c->broken : HFC_E_NOPENDING;
+    int left = timeout_ms < 0 ? -1 : (int)((deadline - now_us()) / 1e3);
+    if (left < 0 && timeout_ms >= 0) left = 0;
+    int rc = hfci_pump(c, left);
+    hfci_progress(c);
+    if (rc == HFC_E_TIMEOUT && !first_done(c)) return rc;
+    if (rc && rc != HFC_E_TIMEOUT && !first_done(c)) {
+      /* No connection left and nothing could complete: fail what waits. */
+      for (int i = 0; i < c->np; i++)
+        if (c->p[i].state == P_SENT || c->p[i].state == P_QUEUED)
+          hfci_finish(c, &c->p[i], rc, c->msg);
+    }
+  }
+}
+
+int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing) {
+  uint32_t id;
+  int slot;
+  int rc = submit(c, r, &id, &slot);
+  if (rc) return rc;
+  /* The slot stays this request's until released below (slots only grow in
+   * hfc_submit, so the index holds). */
+  while (c->p[slot].state != P_DONE) {
+    rc = hfci_pump(c, c->timeout_ms);
+    pending *p = &c->p[slot];
+    if (rc == HFC_E_TIMEOUT) {
+      /* Nothing at all for a whole timeout: the server is stuck. */
+      int k = p->state == P_SENT ? p->conn : c->active;
+      if (k >= 0)
+        hfci_conn_lost(c, k, rc);
+      else
+        hfci_finish(c, p, rc, "no answer within the timeout");
+    } else if (rc && p->state != P_DONE) {
+      hfci_finish(c, p, rc, c->msg);
+    }
+    hfci_progress(c);
+  }
+  hfc_completion comp;
+  hfci_release(c, &c->p[slot], &comp);
+  if (timing) *timing = comp.timing;
+  return comp.status;
+}

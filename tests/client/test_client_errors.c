@@ -1,0 +1,395 @@
+/* libhairfilter's errors against a real hairfilterd: buffer sizes refused
+ * before anything is read (run under AddressSanitizer in .ci/run, which
+ * would report the over-read of a short features buffer), messages that name
+ * the field and are cleared by every call, errno kept for connect failures,
+ * unknown variants answered with the loaded names, names matched without
+ * regard to case, versions. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <errno.h>
+#include <math.h>
+#include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "harness.h"
+
+static harness H;
+static server S;
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H)) return -1;
+  return server_start(&H, &S, NULL);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  return harness_stop(&H, &S);
+}
+
+/* A Tiny (2 spp) request of w x h on exactly sized heap buffers. */
+typedef struct frame {
+  hfc_request r;
+  float *in, *out;
+} frame;
+
+static void frame_make(frame *f, int w, int h, size_t in_bytes, size_t out_bytes) {
+  f->in = make_features(w, h, 2, 7);
+  assert_non_null(f->in);
+  if (in_bytes < hfc_features_bytes(w, h, 2, HFC_F32)) {
+    /* A buffer really this short, so that reading past it is an error
+     * AddressSanitizer reports. */
+    float *shortbuf = malloc(in_bytes);
+    assert_non_null(shortbuf);
+    memcpy(shortbuf, f->in, in_bytes);
+    free(f->in);
+    f->in = shortbuf;
+  }
+  f->out = malloc(out_bytes);
+  assert_non_null(f->out);
+  hfc_request_init(&f->r);
+  f->r.variant = "Tiny";
+  f->r.width = w;
+  f->r.height = h;
+  f->r.spp = 2;
+  f->r.features = f->in;
+  f->r.features_bytes = in_bytes;
+  f->r.result = f->out;
+  f->r.result_bytes = out_bytes;
+}
+
+static void frame_free(frame *f) {
+  free(f->in);
+  free(f->out);
+}
+
+static void expect_reference(const frame *f) {
+  const ref_variant *v = harness_variant(&H, "Tiny");
+  size_t n = (size_t)f->r.width * f->r.height * 3;
+  float *want = malloc(n * sizeof *want);
+  assert_non_null(want);
+  assert_int_equal(reference(v, f->r.width, f->r.height, f->in, HFP_F32, want, HFP_F32), 0);
+  assert_memory_equal(f->out, want, n * sizeof *want);
+  free(want);
+}
+
+/* A features buffer one sample short of the frame is refused, naming the
+ * field and both sizes, before a byte is read; the client stays usable. */
+static void test_short_buffers_refused(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "short");
+  assert_non_null(c);
+  const int w = 16, h = 12;
+  size_t need_in = hfc_features_bytes(w, h, 2, HFC_F32);
+  size_t need_out = hfc_output_bytes(w, h, 3, HFC_F32);
+  assert_int_equal(need_in, (size_t)w * h * 12 * 4);
+  assert_int_equal(need_out, (size_t)w * h * 3 * 4);
+
+  frame f;
+  frame_make(&f, w, h, need_in - 6 * sizeof(float), need_out);
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_E_ARG);
+  const char *m = hfc_last_message(c);
+  assert_non_null(strstr(m, "hfc_request.features_bytes"));
+  char want[64];
+  snprintf(want, sizeof want, "needs %zu", need_in);
+  assert_non_null(strstr(m, want));
+  assert_int_equal(hfc_submit(c, &f.r, NULL), HFC_E_ARG);
+  assert_int_equal(hfc_pending(c), 0);
+  frame_free(&f);
+
+  /* A result buffer one pixel short: refused, nothing written past it. */
+  frame_make(&f, w, h, need_in, need_out - 3 * sizeof(float));
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(c), "hfc_request.result_bytes"));
+  /* and the composite's */
+  f.r.result_bytes = need_out + 3 * sizeof(float);
+  float rgba[4];
+  f.r.rgba = rgba;
+  f.r.rgba_bytes = sizeof rgba;
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(c), "hfc_request.rgba_bytes"));
+  frame_free(&f);
+
+  /* Sizes at least as large work, and the connection was never touched. */
+  frame_make(&f, w, h, need_in, need_out);
+  f.r.features_bytes = need_in + 100;
+  assert_int_equal(hfc_filter(c, &f.r, NULL), 0);
+  assert_string_equal(hfc_last_message(c), "");
+  expect_reference(&f);
+  frame_free(&f);
+  hfc_close(c);
+}
+
+/* Every bad field is named in the message. */
+static void test_fields_named(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "fields");
+  assert_non_null(c);
+  frame f;
+  frame_make(&f, 4, 4, hfc_features_bytes(4, 4, 2, HFC_F32), hfc_output_bytes(4, 4, 3, HFC_F32));
+  struct {
+    const char *field;
+    hfc_request r;
+  } bad[10];
+  int n = 0;
+  bad[n].field = "hfc_request.struct_size";
+  bad[n].r = f.r;
+  bad[n++].r.struct_size = 0;
+  bad[n].field = "hfc_request.variant";
+  bad[n].r = f.r;
+  bad[n++].r.variant = NULL;
+  bad[n].field = "hfc_request.width";
+  bad[n].r = f.r;
+  bad[n++].r.width = 0;
+  bad[n].field = "hfc_request.height";
+  bad[n].r = f.r;
+  bad[n++].r.height = 70000;
+  bad[n].field = "hfc_request.spp";
+  bad[n].r = f.r;
+  bad[n++].r.spp = 17;
+  bad[n].field = "hfc_request.in_dtype";
+  bad[n].r = f.r;
+  bad[n++].r.in_dtype = (hfc_dtype)5;
+  bad[n].field = "hfc_request.features";
+  bad[n].r = f.r;
+  bad[n++].r.features = NULL;
+  bad[n].field = "hfc_request.result";
+  bad[n].r = f.r;
+  bad[n++].r.result = NULL;
+  bad[n].field = "hfc_request.light";
+  bad[n].r = f.r;
+  bad[n++].r.light[1] = INFINITY;
+  for (int i = 0; i < n; i++) {
+    assert_int_equal(hfc_filter(c, &bad[i].r, NULL), HFC_E_ARG);
+    if (!strstr(hfc_last_message(c), bad[i].field))
+      fail_msg("case %d: '%s' does not name %s", i, hfc_last_message(c), bad[i].field);
+  }
+  /* Options too, with the message in this thread since there is no client. */
+  hfc_options o;
+  hfc_options_init(&o);
+  o.client_name = "has space";
+  hfc_client *d = NULL;
+  assert_int_equal(hfc_connect(S.unix_url, &o, &d), HFC_E_ARG);
+  assert_null(d);
+  assert_non_null(strstr(hfc_last_message(NULL), "hfc_options.client_name"));
+  o.client_name = NULL;
+  o.struct_size = 0;
+  assert_int_equal(hfc_connect(S.unix_url, &o, &d), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(NULL), "hfc_options.struct_size"));
+  frame_free(&f);
+  hfc_close(c);
+}
+
+/* The message of one call never survives into the next. */
+static void test_message_cleared(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "cleared");
+  assert_non_null(c);
+  frame f;
+  frame_make(&f, 4, 4, hfc_features_bytes(4, 4, 2, HFC_F32), hfc_output_bytes(4, 4, 3, HFC_F32));
+  f.r.variant = "Nope";
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_E_UNKNOWN_VARIANT);
+  assert_non_null(strstr(hfc_last_message(c), "Nope"));
+  /* A bad argument next: its own message, not the server's last words. */
+  f.r.variant = "Tiny";
+  f.r.width = 0;
+  assert_int_equal(hfc_submit(c, &f.r, NULL), HFC_E_ARG);
+  assert_null(strstr(hfc_last_message(c), "Nope"));
+  assert_non_null(strstr(hfc_last_message(c), "hfc_request.width"));
+  /* Then a call that succeeds leaves none, here and in the thread's copy. */
+  f.r.width = 4;
+  assert_int_equal(hfc_filter(c, &f.r, NULL), 0);
+  assert_string_equal(hfc_last_message(c), "");
+  assert_string_equal(hfc_last_message(NULL), "");
+  hfc_variant vs[8];
+  int nv;
+  f.r.variant = "Nope";
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_E_UNKNOWN_VARIANT);
+  assert_int_equal(hfc_list_variants(c, vs, 8, &nv), 0);
+  assert_string_equal(hfc_last_message(c), "");
+  frame_free(&f);
+  hfc_close(c);
+}
+
+/* An unknown variant is answered with the names the server has; a name
+ * that differs only in case is that variant. */
+static void test_variant_names(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "names");
+  assert_non_null(c);
+  frame f;
+  frame_make(&f, 8, 6, hfc_features_bytes(8, 6, 2, HFC_F32), hfc_output_bytes(8, 6, 3, HFC_F32));
+  f.r.variant = "Tinny";
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_E_UNKNOWN_VARIANT);
+  const char *m = hfc_last_message(c);
+  assert_non_null(strstr(m, "Tinny"));
+  assert_non_null(strstr(m, "Tiny"));
+  assert_non_null(strstr(m, "Small"));
+  assert_non_null(strstr(m, "Mono"));
+  const char *names[] = {"tiny", "TINY", "tInY"};
+  for (int i = 0; i < 3; i++) {
+    f.r.variant = names[i];
+    memset(f.out, 0, hfc_output_bytes(8, 6, 3, HFC_F32));
+    assert_int_equal(hfc_filter(c, &f.r, NULL), 0);
+    expect_reference(&f);
+  }
+  frame_free(&f);
+  hfc_close(c);
+}
+
+/* A failed connect leaves errno and a message naming the endpoint and the
+ * reason: a missing socket and a refused one read differently, and both
+ * differently from a socket this user may not open. */
+static void test_connect_errno(void **state) {
+  (void)state;
+  char url[300];
+  hfc_client *c = NULL;
+  snprintf(url, sizeof url, "unix:%s/none.sock", H.dir);
+  errno = 0;
+  assert_int_equal(hfc_connect(url, NULL, &c), HFC_E_CONNECT);
+  assert_int_equal(errno, ENOENT);
+  assert_null(c);
+  assert_non_null(strstr(hfc_last_message(NULL), url));
+  assert_non_null(strstr(hfc_last_message(NULL), strerror(ENOENT)));
+
+  /* A socket file nobody listens on. */
+  char path[256];
+  snprintf(path, sizeof path, "%s/dead.sock", H.dir);
+  int lfd = socket(AF_UNIX, SOCK_STREAM, 0);
+  struct sockaddr_un sun;
+  memset(&sun, 0, sizeof sun);
+  sun.sun_family = AF_UNIX;
+  assert_true(strlen(path) < sizeof sun.sun_path);
+  memcpy(sun.sun_path, path, strlen(path) + 1);
+  assert_int_equal(bind(lfd, (struct sockaddr *)&sun, sizeof sun), 0);
+  close(lfd);
+  snprintf(url, sizeof url, "unix:%s", path);
+  assert_int_equal(hfc_connect(url, NULL, &c), HFC_E_CONNECT);
+  assert_int_equal(errno, ECONNREFUSED);
+  assert_non_null(strstr(hfc_last_message(NULL), strerror(ECONNREFUSED)));
+  unlink(path);
+
+  /* The daemon's own socket, for a user who may not open it. As root (who
+   * may open anything) the check runs in a child that becomes nobody; the
+   * harness folder is private to its owner. */
+  pid_t pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    if (geteuid() == 0) {
+      if (setgid(65534) || setuid(65534)) _exit(3);
+    } else {
+      const char *p = S.unix_url + 5;
+      if (chmod(p, 0)) _exit(3);
+    }
+    hfc_client *d = NULL;
+    int rc = hfc_connect(S.unix_url, NULL, &d);
+    int e = errno;
+    const char *msg = hfc_last_message(NULL);
+    if (geteuid() != 0) chmod(S.unix_url + 5, 0660);
+    if (rc != HFC_E_CONNECT) _exit(4);
+    if (e != EACCES) _exit(5);
+    if (!strstr(msg, strerror(EACCES)) || !strstr(msg, "group")) _exit(6);
+    _exit(0);
+  }
+  int st;
+  assert_int_equal(waitpid(pid, &st, 0), pid);
+  assert_true(WIFEXITED(st));
+  assert_int_equal(WEXITSTATUS(st), 0);
+
+  /* A list: every endpoint named, with its reason. */
+  snprintf(url, sizeof url, "unix:%s/a.sock,tcp:127.0.0.1:1", H.dir);
+  assert_int_equal(hfc_connect(url, NULL, &c), HFC_E_CONNECT);
+  assert_non_null(strstr(hfc_last_message(NULL), "a.sock: connect: "));
+  assert_non_null(strstr(hfc_last_message(NULL), "tcp:127.0.0.1:1: connect: "));
+  assert_int_equal(errno, ECONNREFUSED);   /* the last endpoint's */
+  assert_int_equal(hfc_check_url("unix:/a,,tcp:1", NULL, 0), HFC_E_URL);
+  char why[200];
+  assert_int_equal(hfc_check_url("unix:/a,tcp:h:99999", why, sizeof why), HFC_E_URL);
+  assert_non_null(strstr(why, "99999"));
+}
+
+/* Versions: the library's, the headers', and the server's in HELLO_OK (to
+ * version-2 peers; a version-1 peer gets the version-1 frame). */
+static void test_versions(void **state) {
+  (void)state;
+  assert_string_equal(hfc_version(), HAIRFILTER_VERSION_STRING);
+  char v[32];
+  snprintf(v, sizeof v, "%d.%d.%d", HAIRFILTER_VERSION_MAJOR, HAIRFILTER_VERSION_MINOR,
+           HAIRFILTER_VERSION_PATCH);
+  assert_string_equal(v, HAIRFILTER_VERSION_STRING);
+  assert_int_equal(HAIRFILTER_VERSION, HAIRFILTER_VERSION_OF(HAIRFILTER_VERSION_MAJOR,
+                                                            HAIRFILTER_VERSION_MINOR,
+                                                            HAIRFILTER_VERSION_PATCH));
+  hfc_client *c = client_connect(&S, "versions");
+  assert_non_null(c);
+  assert_int_equal(hfc_info(c)->version, 2);
+  assert_string_equal(hfc_info(c)->software_version, HAIRFILTER_VERSION_STRING);
+  assert_string_equal(hfc_endpoint(c), S.unix_url);
+  hfc_close(c);
+
+  for (int version = 1; version <= 2; version++) {
+    int fd = raw_connect(S.unix_url);
+    assert_true(fd >= 0);
+    uint8_t b[512];
+    size_t n = raw_hello_frame(b, sizeof b, (uint16_t)version, (uint16_t)version, NULL);
+    assert_int_equal(raw_send(fd, b, n), 0);
+    hfp_header h;
+    uint8_t *p;
+    assert_int_equal(raw_read(fd, &h, &p), 0);
+    assert_int_equal(h.type, HFP_HELLO_OK);
+    hfp_hello_ok ok;
+    assert_int_equal(hfp_decode_hello_ok(p, h.length, &ok), 0);
+    size_t v1_len = 38 + strlen(ok.server_name);
+    if (version == 1) {
+      assert_int_equal(h.length, v1_len);
+      assert_string_equal(ok.software_version, "");
+    } else {
+      assert_int_equal(h.length, v1_len + 1 + strlen(HAIRFILTER_VERSION_STRING));
+      assert_string_equal(ok.software_version, HAIRFILTER_VERSION_STRING);
+    }
+    free(p);
+    close(fd);
+  }
+}
+
+/* hfc_fd polls readable once a reply waits. */
+static void test_fd_polls(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "poll");
+  assert_non_null(c);
+  frame f;
+  frame_make(&f, 8, 8, hfc_features_bytes(8, 8, 2, HFC_F32), hfc_output_bytes(8, 8, 3, HFC_F32));
+  assert_int_equal(hfc_submit(c, &f.r, NULL), 0);
+  struct pollfd p = {hfc_fd(c), POLLIN, 0};
+  assert_int_equal(poll(&p, 1, 20000), 1);
+  hfc_completion d;
+  assert_int_equal(hfc_wait(c, 0, &d), 0);
+  assert_int_equal(d.status, 0);
+  expect_reference(&f);
+  frame_free(&f);
+  hfc_close(c);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_short_buffers_refused),
+    cmocka_unit_test(test_fields_named),
+    cmocka_unit_test(test_message_cleared),
+    cmocka_unit_test(test_variant_names),
+    cmocka_unit_test(test_connect_errno),
+    cmocka_unit_test(test_versions),
+    cmocka_unit_test(test_fd_polls),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
