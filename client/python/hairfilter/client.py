@@ -1,0 +1,465 @@
+"""A hairfilterd client in Python 3 and numpy: protocol version 2 (1 with a
+server that speaks only 1) over a Unix socket or TCP, with shared memory.
+
+    import numpy as np, hairfilter
+    with hairfilter.Client("unix:/run/hairfilterd/hairfilterd.sock") as hf:
+        done = hf.filter("Base", features)        # features: [h][w][spp*6] float32
+        done.result                               # [h][w][3]: color, highlight, alpha
+        done.timing.server_us
+
+Tensors are numpy arrays, NHWC and C-contiguous, float32 or float16
+(protocol/FEATURES.md). Results are received straight into their arrays; a
+request whose features, result (and rgba) all lie in one segment from
+Client.shared_memory() travels as a 32-byte reference, the segment's
+descriptor having come over the Unix socket (SCM_RIGHTS). Like the C
+library, a client is one connection, not thread-safe; several URLs separated
+by commas are tried in order when connecting (the C library also fails over
+mid-stream; this client does not).
+"""
+
+import array
+import mmap
+import os
+import socket
+import time
+from collections import namedtuple
+
+import numpy as np
+
+from . import protocol as P
+
+
+class Error(Exception):
+    """A call that failed. code is the protocol's name of the error ("BUSY",
+    "UNKNOWN_VARIANT", ...) or a local one: "CONNECT", "CLOSED", "TIMEOUT",
+    "IO", "ARG"; message says what exactly."""
+
+    def __init__(self, code, message):
+        super().__init__("%s: %s" % (code, message) if message else code)
+        self.code = code
+        self.message = message
+
+
+ServerInfo = namedtuple("ServerInfo", "name software_version version max_width max_height "
+                                      "max_spp max_inflight max_batch queue_size auth_required "
+                                      "f32 f16 shm max_frame_bytes")
+Timing = namedtuple("Timing", "queue_us input_us infer_us output_us server_us total_us batch "
+                              "via_shm out_of_range input_sanitised")
+Timing.__doc__ = ("Microseconds: the server's parts and total (server_us), and what the caller "
+                  "waited (total_us); flags as in hfc_timing.")
+
+
+class Completion:
+    """One request's outcome: status "OK" or an error code, message, the
+    result (and rgba) arrays, timing, and the user value of submit()."""
+
+    __slots__ = ("id", "status", "message", "result", "rgba", "timing", "user")
+
+    def __init__(self, id_, status, message, result, rgba, timing, user):
+        self.id, self.status, self.message = id_, status, message
+        self.result, self.rgba, self.timing, self.user = result, rgba, timing, user
+
+    def __repr__(self):
+        return "Completion(id=%d, status=%s)" % (self.id, self.status)
+
+
+_DTYPES = {np.dtype(np.float32): P.F32, np.dtype(np.float16): P.F16}
+
+
+class Segment:
+    """Memory shared with the server (Client.shared_memory). array() gives
+    numpy views into it; requests whose tensors are all views of one segment
+    go by reference. close() releases it (the client's close does too)."""
+
+    def __init__(self, client, seg_id, mm, size):
+        self._client, self.id, self._mm, self.size = client, seg_id, mm, size
+        self.base = np.frombuffer(mm, dtype=np.uint8).__array_interface__["data"][0]
+
+    def array(self, shape, dtype=np.float32, offset=0):
+        """A view of shape and dtype at byte offset (a multiple of the
+        element size, so that the server accepts it)."""
+        a = np.ndarray(shape, dtype=dtype, buffer=self._mm, offset=offset)
+        return a
+
+    def place(self, a):
+        """The byte offset of array a in this segment, or None."""
+        if a is None or not a.flags.c_contiguous:
+            return None
+        off = a.__array_interface__["data"][0] - self.base
+        if 0 <= off and off + a.nbytes <= self.size:
+            return off
+        return None
+
+    def close(self):
+        if self._mm is None:
+            return
+        self._client._shm_destroy(self)
+        try:
+            self._mm.close()
+        except BufferError:
+            pass   # views of it are still alive: the mapping goes with the last
+        self._mm = None
+
+
+class _Pending:
+    __slots__ = ("id", "variant", "result", "rgba", "user", "t0", "shm")
+
+    def __init__(self, id_, variant, result, rgba, user, shm):
+        self.id, self.variant, self.result, self.rgba = id_, variant, result, rgba
+        self.user, self.t0, self.shm = user, time.monotonic(), shm
+
+
+class Client:
+    """One connection to hairfilterd. url: "unix:PATH", "tcp:HOST:PORT",
+    "tcp:[IPV6]:PORT", "tcp:PORT", or several separated by commas (the first
+    that answers is used). timeout: seconds per blocking step (None: none).
+    Raises Error ("CONNECT" with the reason of every endpoint, or the
+    handshake's error: "UNAUTHORIZED", "VERSION", "BUSY", ...)."""
+
+    def __init__(self, url, client_name="hairfilter-python", token=None, timeout=30.0):
+        self.timeout = timeout
+        self._sock = None
+        self._pending = {}
+        self._done = []
+        self._next_id = 1
+        self._segments = []
+        self._variants = None
+        self._fds = []
+        self._broken = None
+        reasons = []
+        for ep in url.split(","):
+            try:
+                addr = P.parse_url(ep)
+            except ValueError as e:
+                raise Error("URL", str(e))
+            try:
+                self._open(addr, client_name, token or "")
+                self.endpoint = ep
+                return
+            except Error as e:
+                reasons.append("%s: %s" % (ep, e))
+                self._close_socket()
+        raise Error(reasons and "CONNECT" or "URL", "; ".join(reasons))
+
+    # ---- connection ---------------------------------------------------------------
+
+    def _open(self, addr, client_name, token):
+        try:
+            if addr.kind == "unix":
+                s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                s.settimeout(self.timeout)
+                s.connect(addr.path)
+            else:
+                s = socket.create_connection((addr.host, addr.port), timeout=self.timeout)
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError as e:
+            raise Error("CONNECT", "connect: %s" % (e.strerror or e))
+        self._sock = s
+        self._unix = addr.kind == "unix"
+        self._send(P.encode_hello(client_name, token))
+        type_, _, length = self._read_header(self.timeout)
+        payload = self._read_payload(length)
+        if type_ == P.ERROR:
+            code, _, msg = P.decode_error(payload)
+            raise Error(P.code_name(code), msg)
+        if type_ != P.HELLO_OK:
+            raise Error("PROTOCOL", "handshake answered with message type %d" % type_)
+        ok = P.decode_hello_ok(payload)
+        self.info = ServerInfo(ok.server_name, ok.software_version, ok.version, ok.max_width,
+                               ok.max_height, ok.max_spp, ok.max_inflight, ok.max_batch,
+                               ok.queue_size, bool(ok.server_flags & P.SERVER_AUTH_REQUIRED),
+                               bool(ok.dtypes & 1), bool(ok.dtypes & 2),
+                               bool(ok.server_flags & P.SERVER_SHM), ok.max_frame_bytes)
+
+    def _close_socket(self):
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def close(self):
+        """Releases the segments and closes; pending requests are abandoned."""
+        for seg in list(self._segments):
+            seg.close()
+        self._close_socket()
+        for fd in self._fds:
+            os.close(fd)
+        self._fds = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def _fail(self, code, message):
+        """The connection is unusable: every later call raises this."""
+        self._broken = Error(code, message)
+        self._close_socket()
+        raise self._broken
+
+    def _check(self):
+        if self._broken is not None:
+            raise self._broken
+        if self._sock is None:
+            raise Error("CLOSED", "the client is closed")
+
+    # ---- bytes in and out -------------------------------------------------------
+
+    def _send(self, *parts):
+        try:
+            for p in parts:
+                self._sock.sendall(p)
+        except socket.timeout:
+            self._fail("TIMEOUT", "sending took longer than the timeout")
+        except OSError as e:
+            self._fail("CLOSED" if isinstance(e, (BrokenPipeError, ConnectionResetError))
+                       else "IO", "send: %s" % (e.strerror or e))
+
+    def _recv_into(self, view, first_timeout=None):
+        """Fills the writable memoryview. The first byte may take
+        first_timeout seconds (None: the client's timeout, and running out
+        of it ends the connection; 0: what is there now), the rest the
+        client's timeout. Descriptors that come along (SHM_CREATED's) are
+        kept in self._fds."""
+        got = 0
+        self._sock.settimeout(self.timeout if first_timeout is None else first_timeout)
+        try:
+            while got < len(view):
+                n, anc, _, _ = self._sock.recvmsg_into([view[got:]], socket.CMSG_SPACE(4 * 4))
+                for level, type_, data in anc:
+                    if level == socket.SOL_SOCKET and type_ == socket.SCM_RIGHTS:
+                        fds = array.array("i")
+                        fds.frombytes(data[:len(data) - len(data) % fds.itemsize])
+                        self._fds.extend(fds)
+                if n == 0:
+                    self._fail("CLOSED", "the server closed the connection")
+                if got == 0:
+                    self._sock.settimeout(self.timeout)
+                got += n
+        except (socket.timeout, BlockingIOError):
+            if got == 0 and first_timeout is not None:
+                raise Error("TIMEOUT", "no reply within %.3f s" % first_timeout)
+            self._fail("TIMEOUT", "no reply within the timeout")
+        except OSError as e:
+            self._fail("CLOSED" if isinstance(e, ConnectionResetError) else "IO",
+                       "receive: %s" % (e.strerror or e))
+        finally:
+            if self._sock is not None:
+                self._sock.settimeout(self.timeout)
+
+    def _read_header(self, first_timeout):
+        b = bytearray(P.HEADER_SIZE)
+        self._recv_into(memoryview(b), first_timeout)
+        try:
+            return P.decode_header(bytes(b))
+        except P.ProtocolError as e:
+            self._fail("PROTOCOL", str(e))
+
+    def _read_payload(self, length):
+        if length > 64 << 10:
+            self._fail("PROTOCOL", "a reply of %d bytes" % length)
+        b = bytearray(length)
+        self._recv_into(memoryview(b))
+        return bytes(b)
+
+    # ---- control requests ------------------------------------------------------------
+
+    def _control(self, frame_bytes, reply_type):
+        """Sends a control request; results that arrive meanwhile are kept."""
+        self._check()
+        self._send(frame_bytes)
+        while True:
+            got = self._read_one(self.timeout, want=reply_type)
+            if got is not None:
+                return got
+
+    def variants(self):
+        """The loaded variants (protocol.Variant: name, backend, precision,
+        spp, levels, ranges)."""
+        payload = self._control(P.frame(P.LIST_VARIANTS), P.VARIANTS)
+        self._variants = P.decode_variants(payload)
+        return list(self._variants)
+
+    def stats(self):
+        """The server's counters (protocol.Stats)."""
+        return P.decode_stats(self._control(P.frame(P.STATS), P.STATS_REPLY))
+
+    def shared_memory(self, nbytes):
+        """A segment of nbytes shared with the server (Unix sockets)."""
+        self._check()
+        if not self.info.shm:
+            raise Error("UNSUPPORTED", "%s offers no shared memory" % self.endpoint)
+        for fd in self._fds:
+            os.close(fd)
+        self._fds = []
+        seg_id, size = P.decode_shm_created(self._control(P.encode_shm_create(nbytes),
+                                                          P.SHM_CREATED))
+        if size != nbytes or not self._fds:
+            self._fail("PROTOCOL", "SHM_CREATED without its descriptor or of another size")
+        fd = self._fds.pop(0)
+        try:
+            mm = mmap.mmap(fd, nbytes, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+        finally:
+            os.close(fd)
+        seg = Segment(self, seg_id, mm, nbytes)
+        self._segments.append(seg)
+        return seg
+
+    def _shm_destroy(self, seg):
+        if seg in self._segments:
+            self._segments.remove(seg)
+        if any(p.shm is seg for p in self._pending.values()):
+            raise Error("ARG", "a request pending on this segment still uses it")
+        if self._sock is not None and self._broken is None:
+            self._send(P.encode_shm_destroy(seg.id))
+
+    # ---- filtering -------------------------------------------------------------------
+
+    def _variant_name(self, name):
+        """The loaded variant name means: itself, or the one it matches
+        without regard to case (as libhairfilter matches)."""
+        for attempt in range(2):
+            if self._variants is None or attempt:
+                self.variants()
+            names = [v.name for v in self._variants]
+            if name in names:
+                return name
+            close = [n for n in names if n.lower() == name.lower()]
+            if len(close) == 1:
+                return close[0]
+        raise Error("UNKNOWN_VARIANT", "unknown variant '%s': this server has %s"
+                    % (name, ", ".join(names) or "none"))
+
+    def submit(self, variant, features, out_dtype=None, result=None, composite=False,
+               rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None):
+        """Sends one frame and returns its id at once; wait() gives its
+        Completion. features: [h][w][spp*6] float32 or float16, C-contiguous.
+        result / rgba: arrays to receive into ([h][w][3], [h][w][4] of
+        out_dtype, by default the features' dtype), made when None. The
+        arrays must stay untouched until the completion."""
+        self._check()
+        f = features
+        if not isinstance(f, np.ndarray) or f.ndim != 3 or f.dtype not in _DTYPES:
+            raise Error("ARG", "features: want a [height][width][spp*6] float32 or float16 "
+                               "array")
+        if not f.flags.c_contiguous:
+            raise Error("ARG", "features: not C-contiguous (np.ascontiguousarray)")
+        h, w, ch = f.shape
+        if ch % P.FEATURES or not 1 <= ch // P.FEATURES <= P.MAX_SPP:
+            raise Error("ARG", "features: %d channels per pixel, want spp*6 with spp 1..16" % ch)
+        spp = ch // P.FEATURES
+        odt = np.dtype(out_dtype) if out_dtype is not None else f.dtype
+        if odt not in _DTYPES:
+            raise Error("ARG", "out_dtype: want float32 or float16")
+
+        def out_array(a, channels, what):
+            if a is None:
+                return np.empty((h, w, channels), dtype=odt)
+            if a.shape != (h, w, channels) or a.dtype != odt or not a.flags.c_contiguous:
+                raise Error("ARG", "%s: want a C-contiguous %s array of shape %s"
+                            % (what, odt, (h, w, channels)))
+            return a
+        result = out_array(result, P.OUTPUTS, "result")
+        composite = composite or rgba is not None
+        rgba = out_array(rgba, 4, "rgba") if composite else None
+        name = self._variant_name(variant)
+        if len(self._pending) >= self.info.max_inflight:
+            raise Error("INFLIGHT", "%d requests pending, as many as the server allows"
+                        % len(self._pending))
+        seg, ref = None, None
+        for s in self._segments:
+            offs = (s.place(f), s.place(result), s.place(rgba) if composite else 0)
+            if None not in offs:
+                seg, ref = s, (s.id,) + offs
+                break
+        rid = self._next_id
+        self._next_id = self._next_id % 0xFFFFFFFF + 1
+        head = P.encode_filter_head(rid, name, w, h, spp, _DTYPES[f.dtype], _DTYPES[odt],
+                                    composite, tuple(map(float, hair)),
+                                    tuple(map(float, light)), tuple(map(float, background)),
+                                    shm=ref)
+        self._pending[rid] = _Pending(rid, name, result, rgba, user, seg)
+        if ref:
+            self._send(head)
+        else:
+            self._send(head, memoryview(f).cast("B"))
+        return rid
+
+    def _read_one(self, first_timeout, want=None):
+        """Reads one frame: a control reply of type want (its payload is
+        returned), or a RESULT / ERROR for a request (kept as a completion)."""
+        type_, rid, length = self._read_header(first_timeout)
+        if type_ == P.RESULT:
+            p = self._pending.get(rid)
+            head = bytearray(P.RESULT_FIXED.size)
+            if p is None or length < len(head):
+                self._fail("PROTOCOL", "a RESULT for no request (id %d)" % rid)
+            self._recv_into(memoryview(head))
+            try:
+                r = P.decode_result_head(bytes(head), length)
+            except P.ProtocolError as e:
+                self._fail("PROTOCOL", str(e))
+            status = "OK" if r.status == 0 else P.code_name(r.status)
+            if r.status == 0:
+                shm = bool(r.flags & P.FILTER_SHM)
+                if (r.width, r.height) != p.result.shape[1::-1] or shm != (p.shm is not None):
+                    self._fail("PROTOCOL", "a RESULT that does not match its request")
+                if not shm:
+                    self._recv_into(memoryview(p.result).cast("B"))
+                    if p.rgba is not None:
+                        self._recv_into(memoryview(p.rgba).cast("B"))
+            t = Timing(r.queue_us, r.input_us, r.infer_us, r.output_us, r.total_us,
+                       (time.monotonic() - p.t0) * 1e6, r.batch, p.shm is not None,
+                       bool(r.flags & P.RESULT_OUT_OF_RANGE),
+                       bool(r.flags & P.RESULT_INPUT_SANITISED))
+            self._done.append(Completion(rid, status, "", p.result, p.rgba, t, p.user))
+            del self._pending[rid]
+            return None
+        payload = self._read_payload(length)
+        if type_ == P.ERROR:
+            code, fatal, msg = P.decode_error(payload)
+            p = self._pending.pop(rid, None) if rid else None
+            if p is not None:
+                t = Timing(0, 0, 0, 0, 0, (time.monotonic() - p.t0) * 1e6, 0, False, False, False)
+                if code == P.E_UNKNOWN_VARIANT:
+                    self._variants = None   # the server's set changed: list again
+                self._done.append(Completion(rid, P.code_name(code), msg, None, None, t, p.user))
+            elif want is not None and rid == 0:
+                if fatal:
+                    self._fail(P.code_name(code), msg)
+                raise Error(P.code_name(code), msg)
+            if fatal:
+                self._fail(P.code_name(code), msg)
+            return None
+        if type_ == want:
+            return payload
+        self._fail("PROTOCOL", "an unexpected message (type %d)" % type_)
+
+    def wait(self, timeout=None):
+        """The next completion, in the order the server finishes them.
+        timeout: seconds (None: the client's); Error("TIMEOUT") when none
+        came, Error("NOPENDING") with nothing in flight."""
+        while not self._done:
+            self._check()
+            if not self._pending:
+                raise Error("NOPENDING", "no request in flight")
+            self._read_one(self.timeout if timeout is None else timeout)
+        return self._done.pop(0)
+
+    @property
+    def pending(self):
+        """Requests submitted and not yet returned by wait()."""
+        return len(self._pending) + len(self._done)
+
+    def filter(self, variant, features, **kw):
+        """submit() and wait for that frame; raises Error unless it succeeded."""
+        rid = self.submit(variant, features, **kw)
+        while True:
+            for i, c in enumerate(self._done):
+                if c.id == rid:
+                    del self._done[i]
+                    if c.status != "OK":
+                        raise Error(c.status, c.message)
+                    return c
+            self._check()
+            self._read_one(self.timeout)
