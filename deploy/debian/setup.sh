@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Installs everything hairfilter needs to build, test, render and train on
-# Debian 12. Idempotent; run as root (or with sudo).
+# Debian 12 (dpkg-dev and file: cpack -G DEB). Idempotent; run as root
+# (or with sudo).
 set -euo pipefail
 
 packages=(
-  build-essential cmake pkg-config git
+  build-essential cmake pkg-config git dpkg-dev file
   libcjson-dev libopenexr-dev libpng-dev libuv1-dev libcmocka-dev
   libmicrohttpd-dev libsystemd-dev libinih-dev
   libdnnl-dev libosmesa6-dev
