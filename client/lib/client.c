@@ -33,7 +33,7 @@ static double now_us(void) {
   return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec / 1e3;
 }
 
-static int wait_fd(int fd, short events, int timeout_ms) {
+int hfci_wait_fd(int fd, short events, int timeout_ms) {
   struct pollfd pfd = {fd, events, 0};
   for (;;) {
     int n = poll(&pfd, 1, timeout_ms);
@@ -57,7 +57,7 @@ int hfci_send_fd(int fd, int timeout_ms, const void *a, size_t an, const void *b
       if (errno == EINTR) continue;
       if (errno != EAGAIN && errno != EWOULDBLOCK)
         return errno == EPIPE || errno == ECONNRESET ? HFC_E_CLOSED : HFC_E_IO;
-      int rc = wait_fd(fd, POLLOUT, timeout_ms);
+      int rc = hfci_wait_fd(fd, POLLOUT, timeout_ms);
       if (rc) return rc;
       continue;
     }
@@ -75,12 +75,11 @@ int hfci_send_fd(int fd, int timeout_ms, const void *a, size_t an, const void *b
   return 0;
 }
 
-/* Reads exactly n bytes from connection x within the client's timeout.
- * recvmsg, not recv: a segment's descriptor rides with SHM_CREATED, and any
- * other that arrives must be closed, not leaked. */
-static int recv_all(hfc_client *c, conn *x, void *buf, size_t n) {
+int hfci_recv_fd(int fd, int *rx_fd, void *buf, size_t n, int timeout_ms) {
   uint8_t *p = buf;
   while (n) {
+    /* recvmsg, not recv: a segment's descriptor rides with SHM_CREATED,
+     * and any other that arrives must be closed, not leaked. */
     struct iovec iov = {p, n};
     union {
       struct cmsghdr align;
@@ -92,18 +91,18 @@ static int recv_all(hfc_client *c, conn *x, void *buf, size_t n) {
     mh.msg_iovlen = 1;
     mh.msg_control = cm.buf;
     mh.msg_controllen = sizeof cm.buf;
-    ssize_t r = recvmsg(x->fd, &mh, MSG_CMSG_CLOEXEC);
+    ssize_t r = recvmsg(fd, &mh, MSG_CMSG_CLOEXEC);
     if (r >= 0 && mh.msg_controllen) {
       for (struct cmsghdr *h = CMSG_FIRSTHDR(&mh); h; h = CMSG_NXTHDR(&mh, h)) {
         if (h->cmsg_level != SOL_SOCKET || h->cmsg_type != SCM_RIGHTS) continue;
         size_t nfd = (h->cmsg_len - CMSG_LEN(0)) / sizeof(int);
         for (size_t k = 0; k < nfd; k++) {
-          int fd;
-          memcpy(&fd, CMSG_DATA(h) + k * sizeof(int), sizeof fd);
-          if (x->rx_fd < 0)
-            x->rx_fd = fd;
+          int got;
+          memcpy(&got, CMSG_DATA(h) + k * sizeof(int), sizeof got);
+          if (rx_fd && *rx_fd < 0)
+            *rx_fd = got;
           else
-            close(fd);
+            close(got);
         }
       }
     }
@@ -115,10 +114,14 @@ static int recv_all(hfc_client *c, conn *x, void *buf, size_t n) {
     if (r == 0) return HFC_E_CLOSED;
     if (errno == EINTR) continue;
     if (errno != EAGAIN && errno != EWOULDBLOCK) return errno == ECONNRESET ? HFC_E_CLOSED : HFC_E_IO;
-    int rc = wait_fd(x->fd, POLLIN, c->timeout_ms);
+    int rc = hfci_wait_fd(fd, POLLIN, timeout_ms);
     if (rc) return rc;
   }
   return 0;
+}
+
+static int recv_all(hfc_client *c, conn *x, void *buf, size_t n) {
+  return hfci_recv_fd(x->fd, &x->rx_fd, buf, n, c->timeout_ms);
 }
 
 /* ---- requests --------------------------------------------------------------- */

@@ -139,6 +139,13 @@ int hfci_can_failover(const hfc_client *c, int err, int lost);
 
 /* ---- client.c -------------------------------------------------------------- */
 
+/* poll() for events on fd: 0, HFC_E_TIMEOUT or HFC_E_IO. */
+int hfci_wait_fd(int fd, short events, int timeout_ms);
+/* Reads exactly n bytes from fd, waiting up to timeout_ms whenever none
+ * come; a descriptor passed with them goes to *rx_fd when that is -1, any
+ * other is closed (rx_fd may be NULL). 0, or HFC_E_CLOSED / HFC_E_IO /
+ * HFC_E_TIMEOUT. */
+int hfci_recv_fd(int fd, int *rx_fd, void *buf, size_t n, int timeout_ms);
 /* Sends a then b (bn may be 0) on fd, waiting up to timeout_ms whenever the
  * socket is full. 0, or HFC_E_CLOSED / HFC_E_IO / HFC_E_TIMEOUT. */
 int hfci_send_fd(int fd, int timeout_ms, const void *a, size_t an, const void *b, size_t bn);

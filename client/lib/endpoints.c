@@ -66,16 +66,6 @@ int hfc_check_url(const char *url, char *why, size_t whylen) {
 
 /* ---- one connection ------------------------------------------------------- */
 
-static int wait_fd(int fd, short events, int timeout_ms) {
-  struct pollfd pfd = {fd, events, 0};
-  for (;;) {
-    int n = poll(&pfd, 1, timeout_ms);
-    if (n > 0) return 0;
-    if (n == 0) return HFC_E_TIMEOUT;
-    if (errno != EINTR) return HFC_E_IO;
-  }
-}
-
 /* What to check after the usual connect failures. */
 static const char *connect_hint(int kind, int err) {
   if (kind == HFP_URL_UNIX && (err == EACCES || err == EPERM))
@@ -129,7 +119,7 @@ static int open_socket(const endpoint *e, int timeout_ms, int *err, char *why, s
     if (rc != 0 && errno == EINPROGRESS) {
       int so = 0;
       socklen_t sl = sizeof so;
-      int w = wait_fd(fd, POLLOUT, timeout_ms);
+      int w = hfci_wait_fd(fd, POLLOUT, timeout_ms);
       if (w == 0 && getsockopt(fd, SOL_SOCKET, SO_ERROR, &so, &sl) == 0 && so == 0)
         rc = 0;
       else
@@ -150,25 +140,6 @@ static int open_socket(const endpoint *e, int timeout_ms, int *err, char *why, s
   return HFC_E_CONNECT;
 }
 
-/* Reads exactly n bytes of a handshake reply on fd within the timeout. */
-static int recv_plain(int fd, void *buf, size_t n, int timeout_ms) {
-  uint8_t *p = buf;
-  while (n) {
-    ssize_t r = recv(fd, p, n, 0);
-    if (r > 0) {
-      p += r;
-      n -= (size_t)r;
-      continue;
-    }
-    if (r == 0) return HFC_E_CLOSED;
-    if (errno == EINTR) continue;
-    if (errno != EAGAIN && errno != EWOULDBLOCK) return errno == ECONNRESET ? HFC_E_CLOSED : HFC_E_IO;
-    int rc = wait_fd(fd, POLLIN, timeout_ms);
-    if (rc) return rc;
-  }
-  return 0;
-}
-
 /* HELLO on a fresh socket and its answer: 0 with ok filled, or the error
  * with why filled. */
 static int handshake(hfc_client *c, int fd, hfp_hello_ok *ok, char *why, size_t whylen) {
@@ -186,7 +157,7 @@ static int handshake(hfc_client *c, int fd, hfp_hello_ok *ok, char *why, size_t 
   }
   int rc = hfci_send_fd(fd, c->timeout_ms, frame, (size_t)n, NULL, 0);
   uint8_t hb[HFP_HEADER_SIZE];
-  if (!rc) rc = recv_plain(fd, hb, sizeof hb, c->timeout_ms);
+  if (!rc) rc = hfci_recv_fd(fd, NULL, hb, sizeof hb, c->timeout_ms);
   if (rc) {
     snprintf(why, whylen, "handshake: %s", hfc_strerror(rc));
     return rc;
@@ -199,7 +170,7 @@ static int handshake(hfc_client *c, int fd, hfp_hello_ok *ok, char *why, size_t 
   }
   uint8_t *payload = malloc(h.length ? h.length : 1);
   if (!payload) return HFC_E_NOMEM;
-  rc = recv_plain(fd, payload, h.length, c->timeout_ms);
+  rc = hfci_recv_fd(fd, NULL, payload, h.length, c->timeout_ms);
   if (rc) {
     free(payload);
     snprintf(why, whylen, "handshake: %s", hfc_strerror(rc));

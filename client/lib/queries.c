@@ -11,13 +11,12 @@ int hfci_list(hfc_client *c, hfc_variant *out, int max, int *count) {
   uint8_t frame[HFP_HEADER_SIZE];
   int n = hfp_encode_empty(frame, sizeof frame, HFP_LIST_VARIANTS, 0);
   if (n < 0) return HFC_E_ARG;
-  int rc = hfci_control(c, frame, (size_t)n, HFP_VARIANTS);
-  if (rc) return rc;
   hfp_variant *v = malloc(sizeof *v * HFP_MAX_VARIANTS);
-  if (!v) {
-    free(c->ctl);
-    c->ctl = NULL;
-    return HFC_E_NOMEM;
+  if (!v) return HFC_E_NOMEM;
+  int rc = hfci_control(c, frame, (size_t)n, HFP_VARIANTS);
+  if (rc) {
+    free(v);
+    return rc;
   }
   int got = 0;
   rc = hfp_decode_variants(c->ctl, c->ctl_len, v, HFP_MAX_VARIANTS, &got);
@@ -65,13 +64,12 @@ int hfc_get_stats(hfc_client *c, hfc_stats *out) {
   uint8_t frame[HFP_HEADER_SIZE];
   int n = hfp_encode_empty(frame, sizeof frame, HFP_STATS, 0);
   if (n < 0) return HFC_E_ARG;
-  int rc = hfci_control(c, frame, (size_t)n, HFP_STATS_REPLY);
-  if (rc) return rc;
   hfp_stats *st = malloc(sizeof *st);
-  if (!st) {
-    free(c->ctl);
-    c->ctl = NULL;
-    return HFC_E_NOMEM;
+  if (!st) return HFC_E_NOMEM;
+  int rc = hfci_control(c, frame, (size_t)n, HFP_STATS_REPLY);
+  if (rc) {
+    free(st);
+    return rc;
   }
   rc = hfp_decode_stats(c->ctl, c->ctl_len, st);
   free(c->ctl);
