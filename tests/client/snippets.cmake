@@ -2,7 +2,8 @@
 # in order, as one C99 file and as one C++11 file, the ```cpp blocks as
 # C++11 and C++17, each with -Wall -Wextra -Werror -pedantic, against the
 # tree's headers and static library. Run by ctest:
-#   cmake -DREADME=... -DCC=... -DCXX=... -DINCLUDES="a|b" -DLIB=... -DWORK=... -P snippets.cmake
+#   cmake -DREADME=... -DCC=... -DCXX=... -DINCLUDES="a|b" -DLIB=... [-DFLAGS=...] -DWORK=...
+#         -P snippets.cmake
 file(READ ${README} text)
 file(MAKE_DIRECTORY ${WORK})
 # Semicolons would split CMake lists: they travel as a placeholder.
@@ -50,8 +51,10 @@ foreach(d IN LISTS INCLUDES)
   list(APPEND inc -I${d})
 endforeach()
 set(warn -Wall -Wextra -Werror -pedantic -Wno-unused-function)
+separate_arguments(flags UNIX_COMMAND "${FLAGS}")
 function(build name compiler std src)
-  execute_process(COMMAND ${compiler} ${std} ${warn} ${inc} ${src} ${LIB} -o ${WORK}/${name}
+  execute_process(COMMAND ${compiler} ${std} ${warn} ${flags} ${inc} ${src} ${LIB}
+                          -o ${WORK}/${name}
                   RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
   if(rc)
     message(FATAL_ERROR "snippets: ${name} (${std}) does not build:\n${out}")
