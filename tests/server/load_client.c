@@ -22,7 +22,8 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
+
 #include "hfproto.h"
 
 typedef struct opts {
@@ -49,7 +50,12 @@ static void *run(void *arg) {
   conn_run *r = arg;
   const opts *o = r->o;
   hfc_client *c = NULL;
-  hfc_options co = {"load_client", getenv("HAIRFILTER_TOKEN"), 60000};
+  hfc_options co;
+  hfc_options_init(&co);
+  co.client_name = "load_client";
+  co.token = getenv("HAIRFILTER_TOKEN");
+  co.timeout_ms = 60000;
+  co.failover = HFC_FAILOVER_NEVER;  /* BUSY is counted, not sent again */
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
     fprintf(stderr, "load_client: %s: %s\n", o->server, hfc_strerror(rc));
@@ -67,8 +73,17 @@ static void *run(void *arg) {
     x = x * 1664525u + 1013904223u;
     in[i] = (float)(x >> 8) / 16777216.0f;
   }
-  hfc_request q = {.variant = o->variant, .width = o->width, .height = o->height,
-                   .spp = o->spp, .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32};
+  hfc_request q;
+  hfc_request_init(&q);
+  q.variant = o->variant;
+  q.width = o->width;
+  q.height = o->height;
+  q.spp = o->spp;
+  q.in_dtype = HFC_F32;
+  q.features = in;
+  q.features_bytes = nin * sizeof *in;
+  q.out_dtype = HFC_F32;
+  q.result_bytes = px * 3 * sizeof *out;
   int pending = 0;
   for (int s = 0; s < o->inflight && !stop_now(r); s++) {
     q.result = out + px * 3 * (size_t)s;

@@ -70,9 +70,9 @@ static void filter_and_compare(hfc_client *c, int w, int h, int f16, uint8_t *sh
     else ((float *)send)[i] = in[i];
   }
   memset(got, 0xcd, n_out * es);
-  hfc_request r = {.variant = "Kernel", .width = w, .height = h, .spp = 4,
-                   .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
-                   .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got};
+  hfc_request r = TEST_REQUEST(.variant = "Kernel", .width = w, .height = h, .spp = 4,
+                                .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
+                                .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got);
   hfc_timing t;
   int rc = hfc_filter(c, &r, &t);
   if (rc) fprintf(stderr, "filter Kernel %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
