@@ -112,7 +112,10 @@ static int load_variants(hfc_client *c) {
 
 /* The name of the active connection's variant that `name` means: itself,
  * or the one variant it matches without regard to case. Variants are
- * listed once per connection, and again when a name is not among them. */
+ * listed once per connection, and again when a name is not among them.
+ * A name still unknown is sent as it is: the server answers
+ * UNKNOWN_VARIANT for that frame alone (and counts it in its statistics),
+ * and read_frame adds the names listed here to its message. */
 static int resolve_variant(hfc_client *c, const char *name, char out[HFP_NAME_MAX + 1]) {
   int listed = 0;
   for (;;) {
@@ -124,41 +127,25 @@ static int resolve_variant(hfc_client *c, const char *name, char out[HFP_NAME_MA
       listed = 1;
       continue;
     }
+    int exact = 0, nmatch = 0;
     const char *match = NULL;
-    int nmatch = 0;
-    for (int i = 0; i < x->nvariants; i++) {
-      if (!strcmp(x->variants[i].name, name)) {
-        strcpy(out, name);
-        return 0;
-      }
+    for (int i = 0; i < x->nvariants && !exact; i++) exact = !strcmp(x->variants[i].name, name);
+    for (int i = 0; i < x->nvariants && !exact; i++)
       if (!strcasecmp(x->variants[i].name, name)) {
         match = x->variants[i].name;
         nmatch++;
       }
-    }
-    if (nmatch == 1) {
+    if (!exact && nmatch == 1) {
       strcpy(out, match);
       return 0;
     }
-    if (!listed) {
+    if (!exact && !listed) {
       /* Listed before this call: the server may have loaded it since. */
       x->variants_known = 0;
       continue;
     }
-    char names[600] = "";
-    size_t used = 0;
-    for (int i = 0; i < x->nvariants && used < sizeof names; i++) {
-      int n = snprintf(names + used, sizeof names - used, "%s%s", i ? ", " : "",
-                       x->variants[i].name);
-      if (n > 0) used += (size_t)n;
-    }
-    if (nmatch > 1)
-      hfci_msg(c, "variant '%s' matches %d of this server's variants but none exactly: %s",
-               name, nmatch, names);
-    else
-      hfci_msg(c, "unknown variant '%s': this server has %s", name,
-               x->nvariants ? names : "none");
-    return HFC_E_UNKNOWN_VARIANT;
+    strcpy(out, name);
+    return 0;
   }
 }
 

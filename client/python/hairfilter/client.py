@@ -317,7 +317,10 @@ class Client:
 
     def _variant_name(self, name):
         """The loaded variant name means: itself, or the one it matches
-        without regard to case (as libhairfilter matches)."""
+        without regard to case (as libhairfilter matches). A name still
+        unknown is sent as it is: the server answers UNKNOWN_VARIANT for
+        that frame (and counts it), and the completion's message adds the
+        names listed here."""
         for attempt in range(2):
             if self._variants is None or attempt:
                 self.variants()
@@ -327,8 +330,7 @@ class Client:
             close = [n for n in names if n.lower() == name.lower()]
             if len(close) == 1:
                 return close[0]
-        raise Error("UNKNOWN_VARIANT", "unknown variant '%s': this server has %s"
-                    % (name, ", ".join(names) or "none"))
+        return name
 
     def submit(self, variant, features, out_dtype=None, result=None, composite=False,
                rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None):
@@ -422,6 +424,8 @@ class Client:
             if p is not None:
                 t = Timing(0, 0, 0, 0, 0, (time.monotonic() - p.t0) * 1e6, 0, False, False, False)
                 if code == P.E_UNKNOWN_VARIANT:
+                    names = [v.name for v in self._variants or ()]
+                    msg = "%s: this server has %s" % (msg, ", ".join(names) or "none")
                     self._variants = None   # the server's set changed: list again
                 self._done.append(Completion(rid, P.code_name(code), msg, None, None, t, p.user))
             elif want is not None and rid == 0:

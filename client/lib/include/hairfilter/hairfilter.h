@@ -283,7 +283,9 @@ HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
  * itself) must stay valid until its completion comes out of hfc_wait. At
  * most hfc_info(c)->max_inflight may be pending (HFC_E_INFLIGHT). The first
  * request naming a variant on a connection lists the server's variants
- * once, to match the name and to say which there are when it is unknown. */
+ * once, to match the name without regard to case; a name the server does
+ * not have is still sent, and its completion is HFC_E_UNKNOWN_VARIANT with
+ * the listed names in hfc_last_message. */
 HFC_API int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id);
 
 typedef struct hfc_completion {
