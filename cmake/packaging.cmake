@@ -9,12 +9,15 @@
 #   share/hairfilter/weights/  the bundled variants, their cards, hfnet.py
 #   share/hairfilter/bench/    bench_torch.py (hairfilter bench --torch)
 #   lib/systemd/system/        hairfilterd.service, paths set for the prefix
+#   share/hairfilter/          hairfilterd.conf, the example config (same paths)
 #   lib/python3/dist-packages/ the Python client (client/python)
-#   share/doc/hairfilter/      LICENSE, CHANGELOG.md, README.md, copyright
+#   share/doc/hairfilter/      LICENSE, CHANGELOG.md, README.md, copyright,
+#                              SERVER.md
 #
 # Every file refers to the prefix relatively (the CMake package, the
-# pkg-config file) or is written at install time (the service unit), so
-# `cmake --install build --prefix DIR` gives a working tree anywhere.
+# pkg-config file) or is written at install time (the service unit and its
+# config file), so `cmake --install build --prefix DIR` gives a working tree
+# anywhere.
 include(CMakePackageConfigHelpers)
 
 set(HF_CMAKE_DIR ${CMAKE_INSTALL_LIBDIR}/cmake/hairfilter)
@@ -54,26 +57,35 @@ install(FILES LICENSE CHANGELOG.md README.md cmake/debian/copyright
         DESTINATION ${CMAKE_INSTALL_DOCDIR})
 
 if(NOT HF_CLIENT_ONLY)
-  # The service unit of deploy/systemd, its /usr/local paths replaced with
-  # the prefix's at install time (--prefix and cpack's /usr included).
-  set(HF_UNIT_SRC ${PROJECT_SOURCE_DIR}/deploy/systemd/hairfilterd.service)
-  set(HF_UNIT_TMP ${PROJECT_BINARY_DIR}/install-unit/hairfilterd.service)
+  # The service unit and the example config file of deploy/systemd, their
+  # /usr/local paths replaced with the prefix's at install time (--prefix and
+  # cpack's /usr included). The config goes beside the weights; the DEB's
+  # postinst copies it to /etc/hairfilter, where the unit reads it, when no
+  # config is there yet (an operator's file is never overwritten).
+  set(HF_DEPLOY_TMP ${PROJECT_BINARY_DIR}/install-unit)
   install(CODE "
-    file(READ \"${HF_UNIT_SRC}\" unit)
     set(bindir \"${CMAKE_INSTALL_BINDIR}\")
-    set(datadir \"${CMAKE_INSTALL_DATADIR}\")
+    set(datadir \"${CMAKE_INSTALL_DATAROOTDIR}\")
     if(NOT IS_ABSOLUTE \"\${bindir}\")
       set(bindir \"\${CMAKE_INSTALL_PREFIX}/\${bindir}\")
     endif()
     if(NOT IS_ABSOLUTE \"\${datadir}\")
       set(datadir \"\${CMAKE_INSTALL_PREFIX}/\${datadir}\")
     endif()
-    string(REPLACE \"/usr/local/bin/\" \"\${bindir}/\" unit \"\${unit}\")
-    string(REPLACE \"/usr/local/share/hairfilter\" \"\${datadir}/hairfilter\" unit \"\${unit}\")
-    file(WRITE \"${HF_UNIT_TMP}\" \"\${unit}\")
+    foreach(f hairfilterd.service hairfilterd.conf)
+      file(READ \"${PROJECT_SOURCE_DIR}/deploy/systemd/\${f}\" text)
+      string(REPLACE \"/usr/local/bin/\" \"\${bindir}/\" text \"\${text}\")
+      string(REPLACE \"/usr/local/share/\" \"\${datadir}/\" text \"\${text}\")
+      file(WRITE \"${HF_DEPLOY_TMP}/\${f}\" \"\${text}\")
+    endforeach()
     file(INSTALL DESTINATION \"\${CMAKE_INSTALL_PREFIX}/lib/systemd/system\"
          TYPE FILE PERMISSIONS OWNER_READ OWNER_WRITE GROUP_READ WORLD_READ
-         FILES \"${HF_UNIT_TMP}\")")
+         FILES \"${HF_DEPLOY_TMP}/hairfilterd.service\")
+    file(INSTALL DESTINATION \"\${datadir}/hairfilter\"
+         TYPE FILE PERMISSIONS OWNER_READ OWNER_WRITE GROUP_READ WORLD_READ
+         FILES \"${HF_DEPLOY_TMP}/hairfilterd.conf\")")
+  # The unit's Documentation= page.
+  install(FILES docs/SERVER.md DESTINATION ${CMAKE_INSTALL_DOCDIR})
 endif()
 
 # ---- the DEB --------------------------------------------------------------

@@ -32,12 +32,19 @@ export CMAKE_PREFIX_PATH= PKG_CONFIG_PATH=
 unset CPATH C_INCLUDE_PATH CPLUS_INCLUDE_PATH LIBRARY_PATH LD_LIBRARY_PATH || true
 cflags="-Wall -Wextra -Werror -pedantic $san"
 
-# Starts PREFIX/bin/hairfilterd on PREFIX's Small weights; sets $url.
+# Starts BIN on the Small weights of WEIGHTS_DIR, or with --config CONF
+# (the installed example config: its weights folder, a free HTTP port);
+# sets $url.
 start_daemon() {
-  local bin=$1 weights=$2
+  local bin=$1 weights=$2 conf=${3:-} args
   rm -f "$work/d.sock" "$work/ready"
-  "$bin" --listen "unix:$work/d.sock" --weights "$weights/small.safetensors" \
-         --backend cpu-ref --ready-file "$work/ready" > "$work/daemon.log" 2>&1 &
+  if [ -n "$conf" ]; then
+    args=(--config "$conf" --http tcp:127.0.0.1:0)
+  else
+    args=(--config none --weights "$weights/small.safetensors")
+  fi
+  "$bin" "${args[@]}" --listen "unix:$work/d.sock" --backend cpu-ref \
+         --ready-file "$work/ready" > "$work/daemon.log" 2>&1 &
   daemon_pid=$!
   for _ in $(seq 1 1500); do
     [ -s "$work/ready" ] && break
@@ -136,8 +143,8 @@ prefix)
            share/hairfilter/weights/base.safetensors share/hairfilter/weights/base.md \
            share/hairfilter/weights/hfnet.py share/hairfilter/bench/bench_torch.py \
            share/doc/hairfilter/LICENSE share/doc/hairfilter/CHANGELOG.md \
-           lib/systemd/system/hairfilterd.service \
-           lib/python3/dist-packages/hairfilter/__init__.py \
+           lib/systemd/system/hairfilterd.service share/hairfilter/hairfilterd.conf \
+           share/doc/hairfilter/SERVER.md lib/python3/dist-packages/hairfilter/__init__.py \
            lib/python3/dist-packages/hairfilter/_version.py; do
     [ -e "$prefix/$f" ] || fail "missing $f"
   done
@@ -153,10 +160,11 @@ prefix)
   [ -e "$libdir/$soname" ] || fail "no $soname"
   check_symbols "$libdir/libhairfilter.so" shared
   check_symbols "$libdir/libhairfilter.a" static
-  grep -q "^ExecStart=$prefix/bin/hairfilterd" "$prefix/lib/systemd/system/hairfilterd.service" ||
+  grep -q "^ExecStart=$prefix/bin/hairfilterd --config /etc/hairfilter/hairfilterd.conf$" \
+      "$prefix/lib/systemd/system/hairfilterd.service" ||
       fail "the unit does not start $prefix/bin/hairfilterd"
-  grep -q -- "--weights-dir $prefix/share/hairfilter/weights" \
-      "$prefix/lib/systemd/system/hairfilterd.service" || fail "the unit's weights"
+  grep -q "^weights-dir = $prefix/share/hairfilter/weights$" \
+      "$prefix/share/hairfilter/hairfilterd.conf" || fail "the config's weights"
   step "--version"
   for b in hairfilter hairfilterd hairfilter-load; do
     out=$("$prefix/bin/$b" --version) || fail "$b --version"
@@ -165,8 +173,8 @@ prefix)
   done
 
   build_engines "$prefix" prefix yes
-  step "engines through the installed daemon"
-  start_daemon "$prefix/bin/hairfilterd" "$prefix/share/hairfilter/weights"
+  step "engines through the installed daemon, on the installed config"
+  start_daemon "$prefix/bin/hairfilterd" "" "$prefix/share/hairfilter/hairfilterd.conf"
   run_engines "${engines[@]}"
   if "$python" -c 'import numpy' 2>/dev/null; then
     step "the installed Python client"
@@ -225,6 +233,7 @@ deb)
   for f in ./usr/bin/hairfilterd ./usr/bin/hairfilter ./usr/bin/hairfilter-load \
            ./usr/include/hairfilter/hairfilter.h ./usr/share/hairfilter/weights/base.safetensors \
            ./usr/lib/systemd/system/hairfilterd.service ./usr/share/doc/hairfilter/copyright \
+           ./usr/share/hairfilter/hairfilterd.conf \
            ./usr/lib/python3/dist-packages/hairfilter/client.py; do
     grep -q " $f$" "$work/contents.txt" || fail "the DEB lacks $f"
   done
@@ -234,6 +243,11 @@ deb)
   dpkg-deb -x "$deb" "$root"
   grep -q "^ExecStart=/usr/bin/hairfilterd" "$root/usr/lib/systemd/system/hairfilterd.service" ||
       fail "the unit does not start /usr/bin/hairfilterd"
+  grep -q "^weights-dir = /usr/share/hairfilter/weights$" \
+      "$root/usr/share/hairfilter/hairfilterd.conf" || fail "the config's weights"
+  dpkg-deb -e "$deb" "$work/control"
+  grep -q "/usr/share/hairfilter/hairfilterd.conf" "$work/control/postinst" ||
+      fail "the postinst does not put the config in /etc/hairfilter"
   for b in hairfilter hairfilterd hairfilter-load; do
     "$root/usr/bin/$b" --version | grep -q "^$b $version" || fail "$b --version"
   done
