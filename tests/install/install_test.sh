@@ -9,8 +9,9 @@
 #   client-only  -DHF_CLIENT_ONLY=ON configures with a C compiler only (no
 #                C++, pkg-config, CUDA or image libraries probed), builds,
 #                installs, and the C engine builds against it.
-#   deb          cpack -G DEB: the package's control data and files, then its
-#                contents extracted and run (daemon, engine, --version).
+#   deb          cpack -G DEB: the package's control data and files, apt's
+#                simulated install (apt-get install -s), then its contents
+#                extracted and run (daemon, engine, --version).
 #
 #   install_test.sh MODE BUILD_DIR SOURCE_DIR WORK_DIR CC CXX "SANITIZE_FLAGS" PYTHON
 #
@@ -238,6 +239,18 @@ deb)
     grep -q " $f$" "$work/contents.txt" || fail "the DEB lacks $f"
   done
   grep -q "libhairfilter.so.0" "$work/contents.txt" || fail "the DEB lacks the shared library"
+  for s in postinst prerm postrm; do
+    dpkg-deb --ctrl-tarfile "$deb" | tar -xO "./$s" | sh -n || fail "$s is not valid sh"
+  done
+  # apt's own check that `apt install ./hairfilter_*.deb` would go through on
+  # this machine (every dependency found), changing nothing (-s).
+  if command -v apt-get >/dev/null; then
+    step "apt-get install -s $deb"
+    apt-get install -s "$deb" > "$work/apt.txt" 2>&1 || { cat "$work/apt.txt"; fail "apt-get -s"; }
+    grep -q "^Inst hairfilter (${version//./\\.} " "$work/apt.txt" ||
+        { cat "$work/apt.txt"; fail "apt would not install the package"; }
+    grep "^Inst " "$work/apt.txt" | sed 's/^/   /'
+  fi
   step "the DEB's files, extracted and run"
   root=$work/root
   dpkg-deb -x "$deb" "$root"
