@@ -327,12 +327,18 @@ static int on_ini(void *user, const char *section, const char *key, const char *
 }
 
 /* --config FILE or --config=FILE anywhere on the command line (the last
- * wins), else the default path. NULL for "none". */
+ * wins), else the default path. NULL for "none", and for --help and
+ * --version, which answer whatever state the config file is in (an
+ * operator asks for the version when something is wrong). */
 static const char *config_path(int argc, char **argv, int *explicit) {
   const char *path = HFD_DEFAULT_CONFIG;
   *explicit = 0;
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--")) break;
+    if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h") || !strcmp(argv[i], "--version")) {
+      *explicit = 0;
+      return NULL;
+    }
     if (!strcmp(argv[i], "--config") && i + 1 < argc) {
       path = argv[++i];
       *explicit = 1;

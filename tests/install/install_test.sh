@@ -172,6 +172,13 @@ prefix)
     echo "   $out"
     case $out in "$b $version "*) ;; *) fail "$b --version: $out";; esac
   done
+  # The daemon answers --version whatever state its config file is in.
+  echo "no such key = 1" > "$work/broken.conf"
+  if "$prefix/bin/hairfilterd" --config "$work/broken.conf" > /dev/null 2>&1; then
+    fail "hairfilterd took a broken config file"
+  fi
+  "$prefix/bin/hairfilterd" --config "$work/broken.conf" --version | grep -q "^hairfilterd $version " ||
+      fail "hairfilterd --version with a broken config file"
 
   build_engines "$prefix" prefix yes
   step "engines through the installed daemon, on the installed config"
