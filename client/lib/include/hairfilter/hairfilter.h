@@ -125,17 +125,22 @@ typedef struct hfc_options {
   unsigned failover;         /* HFC_FAILOVER_* bits; 0: LOST | BUSY */
 } hfc_options;
 
+/* Sets size bytes at s to zero, for hfc_options_init and hfc_request_init.
+ * Byte by byte rather than memset, so the header needs no <string.h>; an
+ * aggregate initialiser would warn under -Wextra in C and C++. */
+static inline void hfc_struct_clear(void *s, size_t size) {
+  unsigned char *p = (unsigned char *)s;
+  size_t i;
+  for (i = 0; i < size; i++) p[i] = 0;
+}
+
 /* Options of this header's size with every field at its default (zero),
  * C and C++ alike:
  *   hfc_options o;
  *   hfc_options_init(&o);
  *   o.client_name = "my-engine"; */
 static inline void hfc_options_init(hfc_options *o) {
-  /* Byte by byte rather than memset, so the header needs no <string.h>;
-   * an aggregate initialiser would warn under -Wextra in C and C++. */
-  unsigned char *p = (unsigned char *)o;
-  size_t i;
-  for (i = 0; i < sizeof *o; i++) p[i] = 0;
+  hfc_struct_clear(o, sizeof *o);
   o->struct_size = sizeof *o;
 }
 
@@ -243,9 +248,7 @@ typedef struct hfc_request {
 /* A request of this header's size with every field zero (NULL buffers,
  * f32, no composite); then set what the frame needs. */
 static inline void hfc_request_init(hfc_request *r) {
-  unsigned char *p = (unsigned char *)r;
-  size_t i;
-  for (i = 0; i < sizeof *r; i++) p[i] = 0;
+  hfc_struct_clear(r, sizeof *r);
   r->struct_size = sizeof *r;
 }
 
