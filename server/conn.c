@@ -765,13 +765,15 @@ static void on_header(hfd_conn *c) {
       break;
     case HFP_SHM_CREATE:
     case HFP_SHM_DESTROY:
-      if (!c->is_ipc) {
-        reject(c, -1, HFP_E_UNSUPPORTED, h->length, "shared memory needs a Unix socket");
-        return;
-      }
+      /* A malformed control message is fatal wherever it arrives; only a
+       * well-formed one is refused for the transport (PROTOCOL.md, "Errors"). */
       if (h->length != (h->type == HFP_SHM_CREATE ? 8u : 4u)) {
         s->protocol_errors++;
         send_error(c, 0, HFP_E_LENGTH, 1, "malformed shared-memory request");
+        return;
+      }
+      if (!c->is_ipc) {
+        reject(c, -1, HFP_E_UNSUPPORTED, h->length, "shared memory needs a Unix socket");
         return;
       }
       break;
