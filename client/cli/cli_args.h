@@ -1,0 +1,30 @@
+/* Strict parsing of option values for the CLI subcommands: the whole
+ * argument must be the value, inside its range, and a unit the parser does
+ * not know is refused, never dropped (so `--seconds 1x` is an error, not 1
+ * second). Each function prints one line naming the command, the option
+ * and the value on failure and returns -1; 0 on success. */
+#ifndef HF_CLI_ARGS_H
+#define HF_CLI_ARGS_H
+
+/* An integer in lo..hi. */
+int cli_arg_long(const char *cmd, const char *opt, const char *s, long lo, long hi, long *out);
+/* A finite number in lo..hi. */
+int cli_arg_double(const char *cmd, const char *opt, const char *s, double lo, double hi,
+                   double *out);
+/* A duration: a number followed by a unit (h, m or min, s, ms, us), or a
+ * plain number, which counts in units of plain_unit_s seconds (1 for an
+ * option given in seconds, 1e-3 for one in milliseconds). Result in seconds,
+ * in lo_s..hi_s. */
+int cli_arg_duration(const char *cmd, const char *opt, const char *s, double plain_unit_s,
+                     double lo_s, double hi_s, double *seconds);
+/* A range start[:end[:step]] of numbers in lo..hi (integers when integer is
+ * set): end defaults to start, step to 1; start <= end, step > 0. */
+int cli_arg_range(const char *cmd, const char *opt, const char *s, double lo, double hi,
+                  int integer, double out[3]);
+/* The error for what getopt_long (with opterr 0 and a ':' optstring)
+ * refused: an unknown option or one missing its value, named: the short
+ * option optopt when it is not 0, else argv[optind - 1]. */
+void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt_now,
+                        int missing_value);
+
+#endif
