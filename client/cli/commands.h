@@ -8,5 +8,6 @@ int cmd_bench(int argc, char **argv);   /* backend benchmark table */
 int cmd_filter(int argc, char **argv);  /* filter through hairfilterd */
 int cmd_render(int argc, char **argv);  /* OSMesa hair renderer */
 int cmd_eval(int argc, char **argv);    /* quality evaluation */
+int cmd_conformance(int argc, char **argv); /* protocol conformance suite */
 
 #endif

@@ -35,13 +35,14 @@ static const struct {
   {"render", cmd_render, "render hair with OSMesa: features, ground truth, baselines, datasets"},
   {"bench",  cmd_bench,  "benchmark backends and variants"},
   {"eval",   cmd_eval,   "evaluate filtering quality against ground truth"},
+  {"conformance", cmd_conformance, "check a server (or libhairfilter) against PROTOCOL.md: --server URL"},
 };
 
 static void usage(FILE *f) {
   fprintf(f, "usage: hairfilter <command> [options]   (hairfilter <command> --help)\n"
              "       hairfilter --version\n\n");
   for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
-    fprintf(f, "  %-7s %s\n", commands[i].name, commands[i].help);
+    fprintf(f, "  %-12s %s\n", commands[i].name, commands[i].help);
 }
 
 int main(int argc, char **argv) {

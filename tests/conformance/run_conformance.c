@@ -1,0 +1,104 @@
+/* ctest driver of the conformance suite: a fresh hairfilterd (the server
+ * tests' harness: random weights on cpu-ref, plus a variant whose weights
+ * record a trained range), with deadlines short enough for the stall cases
+ * to see them, and `hairfilter conformance` run against its Unix socket or
+ * its TCP listener (with the token). Passes when the command exits 0 with
+ * at least 200 cases passed, and the daemon exits cleanly afterwards.
+ *
+ *   run_conformance unix|tcp */
+#define _POSIX_C_SOURCE 200809L
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "harness.h"
+
+#ifndef HAIRFILTER_CLI_PATH
+#error "HAIRFILTER_CLI_PATH must name the hairfilter CLI"
+#endif
+
+enum { MIN_PASSED = 200 };
+
+/* "Narrow": Small's shape, its weights saying it was trained on frames of
+ * median strand alpha 0.2..0.3, so the out-of-range cases have a range to
+ * leave. */
+static int narrow_weights(const harness *h, char *path, size_t cap) {
+  char dir[256];
+  snprintf(dir, sizeof dir, "%s/narrow", h->dir);
+  if (mkdir(dir, 0700)) return -1;
+  snprintf(path, cap, "%s/Narrow.safetensors", dir);
+  hf_net_config cfg;
+  hf_weights *w = NULL;
+  if (hf_variant_preset("Small", &cfg)) return -1;
+  snprintf(cfg.name, sizeof cfg.name, "Narrow");
+  if (hf_weights_init_random(&cfg, 77, &w)) return -1;
+  int rc = hf_input_range_parse("{\"definition\": 1, \"spp\": 4, \"frames\": 20, "
+                                "\"strand_alpha_p50\": [0.2, 0.3]}",
+                                4, &w->input_range, NULL, 0) ||
+           hf_weights_save(path, w);
+  hf_weights_free(w);
+  return rc ? -1 : 0;
+}
+
+int main(int argc, char **argv) {
+  if (argc != 2 || (strcmp(argv[1], "unix") && strcmp(argv[1], "tcp"))) {
+    fprintf(stderr, "usage: run_conformance unix|tcp\n");
+    return 2;
+  }
+  int tcp = !strcmp(argv[1], "tcp");
+  harness h;
+  server s;
+  char narrow[320];
+  if (harness_init(&h) || narrow_weights(&h, narrow, sizeof narrow)) {
+    fprintf(stderr, "run_conformance: cannot make the weights\n");
+    return 1;
+  }
+  const char *const extra[] = {"--weights", narrow, "--handshake-timeout-ms", "500",
+                               "--stall-timeout-ms", "500", "--max-handshakes", "8",
+                               "--max-inflight", "4", "--max-size", "64x64", "--max-frame-mb", "1",
+                               "--max-batch", "4", "--max-queue-delay-us", "1000", NULL};
+  if (server_start(&h, &s, extra)) {
+    harness_free(&h);
+    return 1;
+  }
+  char out[256];
+  snprintf(out, sizeof out, "%s/conformance.out", h.dir);
+  const char *url = tcp ? s.tcp_url : s.unix_url;
+  pid_t pid = fork();
+  if (pid == 0) {
+    FILE *f = freopen(out, "w", stdout);
+    (void)f;
+    execl(HAIRFILTER_CLI_PATH, "hairfilter", "conformance", "--server", url, "--token", TEST_TOKEN,
+          "--stall", "800ms", "--timeout", "20s", (char *)NULL);
+    _exit(127);
+  }
+  int st = 0;
+  waitpid(pid, &st, 0);
+  int rc = WIFEXITED(st) ? WEXITSTATUS(st) : 128;
+  /* Show the whole report, and find the summary line in it. */
+  int cases = 0, passed = 0, failed = -1, skipped = 0;
+  FILE *f = fopen(out, "r");
+  char line[1024];
+  while (f && fgets(line, sizeof line, f)) {
+    fputs(line, stdout);
+    sscanf(line, "conformance: %d cases, %d passed, %d failed, %d skipped", &cases, &passed, &failed,
+           &skipped);
+  }
+  if (f) fclose(f);
+  int ok = rc == 0 && failed == 0 && passed >= MIN_PASSED;
+  if (!ok)
+    fprintf(stderr, "run_conformance %s: exit status %d, %d passed (at least %d wanted), %d failed\n",
+            argv[1], rc, passed, MIN_PASSED, failed);
+  if (server_stop(&s, 20000) != 0) {
+    fprintf(stderr, "run_conformance: hairfilterd did not exit cleanly after the suite\n");
+    server_dump_log(&s);
+    ok = 0;
+  } else if (!ok) {
+    server_dump_log(&s);
+  }
+  harness_free(&h);
+  return ok ? 0 : 1;
+}
