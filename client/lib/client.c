@@ -233,6 +233,13 @@ static int read_frame(hfc_client *c, int k) {
       return HFC_E_PROTOCOL;
     }
     x->inflight--;
+    /* Version 1 has no flag bits 2 and 3 (PROTOCOL.md, "Version 2"). */
+    if (x->info.version < 2 &&
+        (r.flags & (HFP_RESULT_INPUT_SANITISED | HFP_RESULT_OUT_OF_RANGE))) {
+      snprintf(x->why, sizeof x->why, "RESULT flags 0x%02x on a version-1 connection", r.flags);
+      x->inflight++;   /* not this request's fault: it may be sent again elsewhere */
+      return HFC_E_PROTOCOL;
+    }
     hfc_timing *t = &p->comp.timing;
     t->queue_us = (double)r.timing.queue_us;
     t->input_us = (double)r.timing.input_us;
