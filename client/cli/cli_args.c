@@ -112,8 +112,14 @@ int cli_arg_range(const char *cmd, const char *opt, const char *s, double lo, do
 
 void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt_now,
                         int missing_value) {
-  char shortopt[3] = {'-', (char)optopt_now, 0};
-  const char *o = optopt_now ? shortopt : argv[optind_now - 1];
+  /* A long option is argv[optind - 1] as written (up to any '='); a short
+   * one is optopt. */
+  const char *arg = optind_now > 0 ? argv[optind_now - 1] : "";
+  char o[80];
+  if (!strncmp(arg, "--", 2))
+    snprintf(o, sizeof o, "%.*s", (int)strcspn(arg, "="), arg);
+  else
+    snprintf(o, sizeof o, "-%c", optopt_now > 32 && optopt_now < 127 ? optopt_now : '?');
   if (missing_value)
     fprintf(stderr, "hairfilter %s: option '%s' needs a value\n", cmd, o);
   else

@@ -22,8 +22,8 @@ int cli_arg_duration(const char *cmd, const char *opt, const char *s, double pla
 int cli_arg_range(const char *cmd, const char *opt, const char *s, double lo, double hi,
                   int integer, double out[3]);
 /* The error for what getopt_long (with opterr 0 and a ':' optstring)
- * refused: an unknown option or one missing its value, named: the short
- * option optopt when it is not 0, else argv[optind - 1]. */
+ * refused: an unknown option or one missing its value, named as written:
+ * argv[optind - 1] for a long option, optopt for a short one. */
 void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt_now,
                         int missing_value);
 
