@@ -9,5 +9,6 @@ int cmd_filter(int argc, char **argv);  /* filter through hairfilterd */
 int cmd_render(int argc, char **argv);  /* OSMesa hair renderer */
 int cmd_eval(int argc, char **argv);    /* quality evaluation */
 int cmd_conformance(int argc, char **argv); /* protocol conformance suite */
+int cmd_load(int argc, char **argv);    /* load sweeps (hairfilter load) */
 
 #endif

@@ -36,6 +36,7 @@ static const struct {
   {"bench",  cmd_bench,  "benchmark backends and variants"},
   {"eval",   cmd_eval,   "evaluate filtering quality against ground truth"},
   {"conformance", cmd_conformance, "check a server (or libhairfilter) against PROTOCOL.md: --server URL"},
+  {"load",   cmd_load,   "load a server: latency and throughput sweeps, open or closed loop"},
 };
 
 static void usage(FILE *f) {

@@ -44,15 +44,18 @@ def find_row(rows, backend, size, batch):
 
 
 def load_report(text):
-    """hairfilter-load's header, throughput line and percentile table."""
+    """hairfilter load's header, throughput line and percentile table
+    (p50, p90, p99, p99.9, max per field)."""
     if not text:
         return None, {}
     lines = [l for l in text.splitlines() if l.strip()]
     pct = {}
     for l in lines:
-        m = re.match(r"\s+(\w+)\s+([0-9.]+)\s+([0-9.]+)\s+([0-9.]+)\s+([0-9.]+)\s+([0-9.]+)$", l)
+        # p50 p90 p95 p99 p99.9 max (before p95 was added: p50 p90 p99 p99.9 max)
+        m = re.match(r"\s+(\w+)((?:\s+[0-9.]+){5,6})$", l)
         if m:
-            pct[m.group(1)] = [float(m.group(i)) for i in range(2, 7)]
+            v = [float(x) for x in m.group(2).split()]
+            pct[m.group(1)] = v if len(v) == 5 else v[:2] + v[3:]
     return lines, pct
 
 
@@ -138,7 +141,7 @@ def main():
         lines, pct = load_report(read(logdir, os.path.basename(f)))
         loads[name] = pct
         head = next((l for l in lines or [] if " via " in l), "")
-        m = re.search(r"\(([^)]*)\): (\d+) connection\(s\) x (\d+) in flight", head)
+        m = re.search(r"\(([^)]*)\): (?:closed loop, )?(\d+) connection\(s\) x (\d+) in flight", head)
         tp = next((re.search(r"throughput ([0-9.]+)", l).group(1) for l in lines or []
                    if "throughput" in l), "?")
         if "total" not in pct:

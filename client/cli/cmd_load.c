@@ -1,0 +1,825 @@
+/*
+ * hairfilter load: drives hairfilterd,
+ * or any server of protocol/PROTOCOL.md, and measures latency against
+ * throughput, after NVIDIA's perf_analyzer:
+ *
+ *   closed loop  --concurrency-range start:end:step  requests kept in flight
+ *   open loop    --request-rate-range start:end:step frames/s offered, at
+ *                constant or Poisson arrivals (--request-distribution)
+ *
+ * Each point of the sweep warms up, then measures windows of --window
+ * seconds until the client p50 and p99 and the throughput of the last three
+ * agree within --stability-percentage of their mean (or --max-trials is
+ * reached), and reports those three merged: client percentiles from a
+ * streaming histogram (load_hist.h, bounded memory), the server's RESULT
+ * breakdown (queue, input, infer, output), BUSY and errors, and the
+ * server's STATS differenced over the point.
+ *
+ * One thread per connection, since an hfc_client is single-threaded. In the
+ * open loop each connection offers rate/connections frames/s; a request's
+ * latency counts from when it was due, not from when a free slot let it go,
+ * so a server that falls behind shows it (no coordinated omission).
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <errno.h>
+#include <getopt.h>
+#include <math.h>
+#include <poll.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "cli_args.h"
+#include "cli_common.h"
+#include "commands.h"
+#include "hairfilter.h"
+#include "load.h"
+
+typedef struct opts {
+  const char *server, *variant, *token, *input, *part, *json, *csv, *plot;
+  int width, height, f16, shm, composite, quiet, verbose;
+  int connections;               /* 0: per mode default */
+  int inflight;                  /* per connection, legacy closed-loop form */
+  double conc[3], rate[3];       /* ranges; conc[0] 0 / rate[0] 0: not given */
+  int poisson;
+  double window_s, warmup_s, stability;
+  double drain_s;                /* how long requests may take to be answered after a point */
+  int max_trials, trials;        /* trials > 0: exactly that many windows */
+} opts;
+
+enum { PHASE_WARMUP, PHASE_MEASURE, PHASE_STOP };
+
+/* Shared by the workers of one point and the main thread. */
+typedef struct shared {
+  const opts *o;
+  int spp;
+  const void *features;          /* one frame, in the input dtype */
+  size_t in_bytes, out_bytes, rgba_bytes;
+  int open_loop;
+  double rate_per_conn;
+  atomic_int phase;
+  pthread_mutex_t mu;
+  load_window *cur;              /* under mu */
+  atomic_uint_fast64_t sent, answered, delayed;
+  atomic_int lost;
+  double t_stop;                 /* when the point stopped sending */
+} shared;
+
+typedef struct worker {
+  pthread_t thread;
+  shared *sh;
+  int index, nconn;
+  int inflight;                  /* closed loop: requests kept in flight */
+  int max_inflight;              /* the server's per-connection limit */
+  uint64_t seed;
+  int failed;
+} worker;
+
+static double now_s(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
+}
+
+static void sleep_s(double s) {
+  if (s <= 0) return;
+  struct timespec ts = {(time_t)s, (long)((s - floor(s)) * 1e9)};
+  while (nanosleep(&ts, &ts) && errno == EINTR) {
+  }
+}
+
+/* Options of every connection the tool makes. */
+static hfc_options client_options(const char *name, const char *token) {
+  hfc_options co;
+  hfc_options_init(&co);
+  co.client_name = name;
+  co.token = token;
+  co.timeout_ms = 30000;
+  return co;
+}
+
+/* ---- recording ------------------------------------------------------------- */
+
+static void record(shared *sh, const hfc_completion *d, double started) {
+  /* Local failures (a closed connection, a timeout) are not answers. */
+  if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->answered, 1);
+  if (atomic_load(&sh->phase) != PHASE_MEASURE) return;
+  double t = now_s();
+  pthread_mutex_lock(&sh->mu);
+  load_window *w = sh->cur;
+  if (d->status == HFC_E_BUSY) {
+    w->busy++;
+  } else if (d->status) {
+    w->errors++;
+  } else {
+    w->ok++;
+    w->batch_sum += (uint64_t)d->timing.batch;
+    const hfc_timing *tm = &d->timing;
+    double v[LF_COUNT] = {(t - started) * 1e6, tm->server_us, tm->queue_us,
+                          tm->input_us,        tm->infer_us,  tm->output_us};
+    for (int k = 0; k < LF_COUNT; k++) lh_record(&w->h[k], v[k] > 0 ? (uint64_t)(v[k] + 0.5) : 0);
+  }
+  pthread_mutex_unlock(&sh->mu);
+}
+
+/* xorshift64*, for Poisson gaps: each connection its own stream. */
+static double uniform01(uint64_t *s) {
+  *s ^= *s >> 12;
+  *s ^= *s << 25;
+  *s ^= *s >> 27;
+  return (double)((*s * 2685821657736338717ull) >> 11) / 9007199254740992.0;
+}
+
+/* ---- one connection ----------------------------------------------------------- */
+
+typedef struct slot {
+  int busy;
+  double started;                /* when the request was due */
+  void *out, *rgba;
+} slot;
+
+static void *run(void *arg) {
+  worker *w = arg;
+  shared *sh = w->sh;
+  const opts *o = sh->o;
+  hfc_client *c = NULL;
+  hfc_options co = client_options("hairfilter-load", o->token);
+  int rc = hfc_connect(o->server, &co, &c);
+  if (rc) {
+    fprintf(stderr, "hairfilter load: connection %d: %s: %s\n", w->index, o->server,
+            hfc_strerror(rc));
+    w->failed = 1;
+    atomic_fetch_add(&sh->lost, 1);
+    return NULL;
+  }
+  int k = sh->open_loop ? w->max_inflight : w->inflight;
+  slot *slots = calloc((size_t)k, sizeof *slots);
+  size_t per = sh->out_bytes + sh->rgba_bytes;
+  uint8_t *mem = NULL, *heap = NULL;
+  const void *in = sh->features;
+  if (slots && o->shm) {
+    /* One segment: the features once, then a result (and composite) per slot. */
+    rc = hfc_shm_alloc(c, sh->in_bytes + per * (size_t)k, (void **)&mem);
+    if (rc) {
+      fprintf(stderr, "hairfilter load: connection %d: shared memory: %s (%s)\n", w->index,
+              hfc_strerror(rc), hfc_last_message(c));
+      w->failed = 1;
+    } else {
+      memcpy(mem, sh->features, sh->in_bytes);
+      in = mem;
+    }
+  } else if (slots) {
+    heap = malloc(per * (size_t)k);
+  }
+  uint8_t *outs = mem ? mem + sh->in_bytes : heap;
+  if (!slots || (!mem && !heap) || w->failed) {
+    if (!w->failed) fprintf(stderr, "hairfilter load: out of memory\n");
+    w->failed = 1;
+    atomic_fetch_add(&sh->lost, 1);
+    free(slots);
+    free(heap);
+    hfc_close(c);
+    return NULL;
+  }
+  for (int i = 0; i < k; i++) {
+    slots[i].out = outs + per * (size_t)i;
+    slots[i].rgba = o->composite ? outs + per * (size_t)i + sh->out_bytes : NULL;
+  }
+  hfc_request r;
+  hfc_request_init(&r);
+  r.variant = o->variant;
+  r.width = o->width;
+  r.height = o->height;
+  r.spp = sh->spp;
+  r.in_dtype = r.out_dtype = o->f16 ? HFC_F16 : HFC_F32;
+  r.features = in;
+  r.features_bytes = sh->in_bytes;
+  r.result_bytes = sh->out_bytes;
+  r.rgba_bytes = o->composite ? sh->rgba_bytes : 0;
+  const float hair[3] = {0.45f, 0.25f, 0.12f}, light[3] = {1, 1, 1}, bg[3] = {0.18f, 0.2f, 0.24f};
+  memcpy(r.hair, hair, sizeof hair);
+  memcpy(r.light, light, sizeof light);
+  memcpy(r.background, bg, sizeof bg);
+  int pending = 0;
+  /* Open loop: due times of requests no slot was free for (bounded). */
+  enum { BACKLOG = 4096 };
+  double *backlog = sh->open_loop ? malloc(sizeof(double) * BACKLOG) : NULL;
+  int bl_head = 0, bl_len = 0;
+  double t_next = now_s();
+  if (sh->open_loop) {
+    /* Connections interleave evenly in the constant schedule. */
+    t_next += o->poisson ? -log(1 - uniform01(&w->seed)) / sh->rate_per_conn
+                         : (double)w->index / (sh->rate_per_conn * w->nconn);
+  }
+  int err = 0;
+  for (;;) {
+    int stopping = atomic_load(&sh->phase) == PHASE_STOP;
+    if (stopping && pending == 0) break;
+    if (stopping && now_s() - sh->t_stop > o->drain_s) {
+      fprintf(stderr, "\nhairfilter load: connection %d: %d request(s) unanswered %.0f s after "
+                      "the end\n", w->index, pending, o->drain_s);
+      break;
+    }
+    /* Submit what is due. */
+    if (!stopping && !sh->open_loop && pending < k) {
+      for (int i = 0; i < k && pending < k; i++) {
+        if (slots[i].busy) continue;
+        slots[i].started = now_s();
+        r.result = slots[i].out;
+        r.rgba = slots[i].rgba;
+        r.user = &slots[i];
+        if ((err = hfc_submit(c, &r, NULL)) != 0) break;
+        slots[i].busy = 1;
+        pending++;
+        atomic_fetch_add(&sh->sent, 1);
+      }
+    } else if (!stopping && sh->open_loop) {
+      double now = now_s();
+      while (t_next <= now) {
+        /* Due with every slot taken: it waits for one (and its latency
+         * counts from now on). */
+        if (pending + bl_len >= k) atomic_fetch_add(&sh->delayed, 1);
+        if (bl_len < BACKLOG)
+          backlog[(bl_head + bl_len++) % BACKLOG] = t_next;
+        t_next += o->poisson ? -log(1 - uniform01(&w->seed)) / sh->rate_per_conn
+                             : 1.0 / sh->rate_per_conn;
+      }
+      while (bl_len && pending < k) {
+        int i = 0;
+        while (slots[i].busy) i++;
+        double due = backlog[bl_head];
+        bl_head = (bl_head + 1) % BACKLOG;
+        bl_len--;
+        slots[i].started = due;
+        r.result = slots[i].out;
+        r.rgba = slots[i].rgba;
+        r.user = &slots[i];
+        if ((err = hfc_submit(c, &r, NULL)) != 0) break;
+        slots[i].busy = 1;
+        pending++;
+        atomic_fetch_add(&sh->sent, 1);
+      }
+    }
+    if (err) break;
+    /* Collect completions: block until one comes, the next is due, or (to
+     * notice a stop) 100 ms pass. */
+    int wait_ms = 100;
+    if (sh->open_loop && !stopping) {
+      double dt = t_next - now_s();
+      if (bl_len && pending < k) dt = 0;
+      wait_ms = dt <= 0 ? 0 : dt < 0.1 ? (int)ceil(dt * 1e3) : 100;
+    }
+    if (pending == 0) {
+      if (wait_ms) sleep_s(wait_ms / 1e3);
+      continue;
+    }
+    hfc_completion d;
+    int wr = hfc_wait(c, wait_ms, &d);
+    if (wr == HFC_E_TIMEOUT) continue;
+    if (wr) {
+      err = wr;
+      break;
+    }
+    slot *s = d.user;
+    s->busy = 0;
+    pending--;
+    record(sh, &d, s->started);
+  }
+  if (err) {
+    /* What was pending is lost with the connection; the main thread counts
+     * it as unanswered. */
+    fprintf(stderr, "\nhairfilter load: connection %d failed: %s (%s)\n", w->index,
+            hfc_strerror(err), hfc_last_message(c));
+    atomic_fetch_add(&sh->lost, 1);
+    w->failed = 1;
+  }
+  if (mem && !err) hfc_shm_free(c, mem);
+  hfc_close(c);
+  free(backlog);
+  free(heap);
+  free(slots);
+  return NULL;
+}
+
+/* ---- the server's statistics ----------------------------------------------------- */
+
+static int stats_of(const opts *o, hfc_variant_stats *out) {
+  hfc_client *c = NULL;
+  hfc_options co = client_options("hairfilter-load-stats", o->token);
+  if (hfc_connect(o->server, &co, &c)) return -1;
+  hfc_stats *st = malloc(sizeof *st);
+  int rc = st ? hfc_get_stats(c, st) : -1, found = -1;
+  for (int i = 0; !rc && i < st->num_variants; i++)
+    if (!strcmp(st->variants[i].name, o->variant)) {
+      *out = st->variants[i];
+      found = 0;
+    }
+  free(st);
+  hfc_close(c);
+  return found;
+}
+
+static double hist_pct_ms(const uint64_t *h, double p) {
+  uint64_t n = 0, seen = 0;
+  for (int i = 0; i < HFC_HIST_BUCKETS; i++) n += h[i];
+  if (!n) return 0;
+  uint64_t rank = (uint64_t)ceil(p / 100 * (double)n);
+  for (int i = 0; i < HFC_HIST_BUCKETS; i++) {
+    seen += h[i];
+    if (seen >= rank && seen) return i == HFC_HIST_BUCKETS - 1 ? INFINITY : (double)(32ull << i) / 1e3;
+  }
+  return 0;
+}
+
+static void stats_delta(const hfc_variant_stats *a, const hfc_variant_stats *b, load_stats *s) {
+  memset(s, 0, sizeof *s);
+  s->valid = 1;
+  s->ok = b->requests_ok - a->requests_ok;
+  s->failed = b->requests_failed - a->requests_failed;
+  s->rejected = b->rejected - a->rejected;
+  s->batches = b->batches - a->batches;
+  if (s->ok) {
+    s->mean_queue_ms = (double)(b->sum_queue_us - a->sum_queue_us) / (double)s->ok / 1e3;
+    s->mean_infer_ms = (double)(b->sum_infer_us - a->sum_infer_us) / (double)s->ok / 1e3;
+    s->mean_total_ms = (double)(b->sum_total_us - a->sum_total_us) / (double)s->ok / 1e3;
+  }
+  uint64_t h[HFC_HIST_BUCKETS];
+  for (int i = 0; i < HFC_HIST_BUCKETS; i++) h[i] = b->hist_total[i] - a->hist_total[i];
+  s->p50_total_ms = hist_pct_ms(h, 50);
+  s->p99_total_ms = hist_pct_ms(h, 99);
+}
+
+/* ---- one point of the sweep ----------------------------------------------------- */
+
+static int isatty_err;
+
+static void progress(const load_point *p, int trial, double elapsed, const load_window *w,
+                     const opts *o) {
+  if (!isatty_err || o->quiet) return;
+  char what[64];
+  if (p->open_loop)
+    snprintf(what, sizeof what, "rate %g/s", p->rate);
+  else
+    snprintf(what, sizeof what, "concurrency %d", p->concurrency);
+  fprintf(stderr, "\r\033[K%s  window %d  %.1f/%.1f s  %llu frames  %.1f frames/s  p50 %.2f ms  "
+                  "p99 %.2f ms  busy %llu  errors %llu",
+          what, trial, elapsed, o->window_s, (unsigned long long)w->ok,
+          elapsed > 0 ? (double)w->ok / elapsed : 0.0, lh_percentile(&w->h[LF_CLIENT], 50) / 1e3,
+          lh_percentile(&w->h[LF_CLIENT], 99) / 1e3, (unsigned long long)w->busy,
+          (unsigned long long)w->errors);
+  fflush(stderr);
+}
+
+static int within(const double *v, int n, double pct) {
+  double mean = 0;
+  for (int i = 0; i < n; i++) mean += v[i];
+  mean /= n;
+  for (int i = 0; i < n; i++)
+    if (fabs(v[i] - mean) > pct / 100 * fabs(mean)) return 0;
+  return 1;
+}
+
+enum { STABLE_OVER = 3 };   /* windows that must agree (as perf_analyzer) */
+
+static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p) {
+  int n = p->connections;
+  worker *ws = calloc((size_t)n, sizeof *ws);
+  load_window *win = calloc(STABLE_OVER + 1, sizeof *win);   /* a ring, and the current */
+  if (!ws || !win) {
+    free(ws);
+    free(win);
+    fprintf(stderr, "hairfilter load: out of memory\n");
+    return -1;
+  }
+  atomic_store(&sh->phase, PHASE_WARMUP);
+  atomic_store(&sh->sent, 0);
+  atomic_store(&sh->answered, 0);
+  atomic_store(&sh->delayed, 0);
+  atomic_store(&sh->lost, 0);
+  sh->open_loop = p->open_loop;
+  sh->rate_per_conn = p->open_loop ? p->rate / n : 0;
+  sh->cur = &win[STABLE_OVER];
+  for (int i = 0; i < n; i++) {
+    ws[i].sh = sh;
+    ws[i].index = i;
+    ws[i].nconn = n;
+    ws[i].max_inflight = max_inflight;
+    ws[i].inflight = p->concurrency / n + (i < p->concurrency % n);
+    ws[i].seed = 0x9e3779b97f4a7c15ull * (uint64_t)(i + 1) + (uint64_t)(p->rate * 1000);
+    if (pthread_create(&ws[i].thread, NULL, run, &ws[i])) {
+      fprintf(stderr, "hairfilter load: cannot start a thread\n");
+      atomic_store(&sh->phase, PHASE_STOP);
+      for (int j = 0; j < i; j++) pthread_join(ws[j].thread, NULL);
+      free(ws);
+      free(win);
+      return -1;
+    }
+  }
+  sleep_s(o->warmup_s);
+  hfc_variant_stats before, after;
+  int have_before = stats_of(o, &before) == 0;
+  pthread_mutex_lock(&sh->mu);
+  memset(sh->cur, 0, sizeof *sh->cur);
+  atomic_store(&sh->phase, PHASE_MEASURE);
+  pthread_mutex_unlock(&sh->mu);
+  uint64_t sent0 = atomic_load(&sh->sent);
+  int trials = o->trials ? o->trials : o->max_trials;
+  for (int t = 1; t <= trials; t++) {
+    double t0 = now_s();
+    while (now_s() - t0 < o->window_s) {
+      double left = o->window_s - (now_s() - t0);
+      sleep_s(left < 0.25 ? left : 0.25);
+      pthread_mutex_lock(&sh->mu);
+      progress(p, t, now_s() - t0, sh->cur, o);
+      pthread_mutex_unlock(&sh->mu);
+      if (atomic_load(&sh->lost) == n) break;
+    }
+    /* Close the window: it joins the ring of the last STABLE_OVER. */
+    pthread_mutex_lock(&sh->mu);
+    load_window *done = &win[(t - 1) % STABLE_OVER];
+    memcpy(done, sh->cur, sizeof *done);
+    done->seconds = now_s() - t0;
+    memset(sh->cur, 0, sizeof *sh->cur);
+    pthread_mutex_unlock(&sh->mu);
+    p->trials = t;
+    if (t <= 64) {
+      p->window_throughput[t - 1] = (double)done->ok / done->seconds;
+      p->window_p50[t - 1] = lh_percentile(&done->h[LF_CLIENT], 50);
+      p->window_p99[t - 1] = lh_percentile(&done->h[LF_CLIENT], 99);
+    }
+    if (o->verbose) {
+      if (isatty_err && !o->quiet) fprintf(stderr, "\r\033[K");
+      fprintf(stderr, "  window %d: %.2f s, %llu frames, %.2f frames/s, p50 %.3f ms, p99 %.3f ms, "
+                      "busy %llu, errors %llu\n",
+              t, done->seconds, (unsigned long long)done->ok, (double)done->ok / done->seconds,
+              lh_percentile(&done->h[LF_CLIENT], 50) / 1e3,
+              lh_percentile(&done->h[LF_CLIENT], 99) / 1e3, (unsigned long long)done->busy,
+              (unsigned long long)done->errors);
+    }
+    if (atomic_load(&sh->lost) == n) break;
+    if (!o->trials && t >= STABLE_OVER && t <= 64) {
+      const double *tp = p->window_throughput + t - STABLE_OVER;
+      const double *p50 = p->window_p50 + t - STABLE_OVER, *p99 = p->window_p99 + t - STABLE_OVER;
+      if (tp[0] > 0 && within(tp, STABLE_OVER, o->stability) &&
+          within(p50, STABLE_OVER, o->stability) && within(p99, STABLE_OVER, o->stability)) {
+        p->stable = 1;
+        break;
+      }
+    }
+  }
+  if (isatty_err && !o->quiet) fprintf(stderr, "\r\033[K");
+  /* The result: the last (up to) STABLE_OVER windows merged. */
+  p->used = p->trials < STABLE_OVER ? p->trials : STABLE_OVER;
+  memset(&p->result, 0, sizeof p->result);
+  for (int i = 0; i < p->used; i++) {
+    const load_window *src = &win[(p->trials - 1 - i) % STABLE_OVER];
+    for (int k = 0; k < LF_COUNT; k++) lh_merge(&p->result.h[k], &src->h[k]);
+    p->result.ok += src->ok;
+    p->result.busy += src->busy;
+    p->result.errors += src->errors;
+    p->result.batch_sum += src->batch_sum;
+    p->result.seconds += src->seconds;
+  }
+  if (o->trials) p->stable = -1;   /* not asked */
+  /* Stop sending; every request sent must still be answered. */
+  sh->t_stop = now_s();
+  atomic_store(&sh->phase, PHASE_STOP);
+  if (have_before && stats_of(o, &after) == 0) stats_delta(&before, &after, &p->stats);
+  for (int i = 0; i < n; i++) pthread_join(ws[i].thread, NULL);
+  p->sent = atomic_load(&sh->sent) - sent0;
+  p->delayed = atomic_load(&sh->delayed);
+  p->lost_connections = atomic_load(&sh->lost);
+  uint64_t sent_all = atomic_load(&sh->sent), answered_all = atomic_load(&sh->answered);
+  p->unanswered = sent_all > answered_all ? sent_all - answered_all : 0;
+  p->answered = p->sent > p->unanswered ? p->sent - p->unanswered : 0;
+  free(ws);
+  free(win);
+  return p->lost_connections == n ? -1 : 0;
+}
+
+/* ---- options ------------------------------------------------------------------------- */
+
+static void usage(FILE *f) {
+  fprintf(f,
+          "usage: hairfilter load --server URL --variant NAME [options]\n"
+          "\n"
+          "Drives a server with frames and measures latency against throughput.\n"
+          "  --server URL                    unix:PATH, tcp:HOST:PORT or tcp:PORT\n"
+          "  --token T                       TCP token (default $HAIRFILTER_TOKEN)\n"
+          "  --variant NAME                  a variant the server lists\n"
+          "  --size WxH                      random frames of this size (default 256x256)\n"
+          "  --input FILE.exr [--part P]     or a real feature EXR (its size; its spp must be\n"
+          "                                  the variant's or more)\n"
+          "  --f16                           f16 features and results (default f32)\n"
+          "  --composite                     ask for the composited RGBA too\n"
+          "  --shm                           tensors in shared memory (Unix sockets)\n"
+          "closed loop (default):\n"
+          "  --concurrency-range S[:E[:STEP]] requests kept in flight, swept (default 1)\n"
+          "  --connections N                 connections they are spread over (default: one\n"
+          "                                  per request; open loop: 4)\n"
+          "  --inflight K                    with --connections N and no range: N x K in flight\n"
+          "open loop:\n"
+          "  --request-rate-range S[:E[:STEP]] frames/s offered, swept\n"
+          "  --request-distribution constant|poisson   arrivals (default constant)\n"
+          "measurement:\n"
+          "  --window DUR                    one measurement window (default 5s)\n"
+          "  --stability-percentage P        the last 3 windows' throughput, p50 and p99 within\n"
+          "                                  P %% of their mean make a point stable (default 10)\n"
+          "  --max-trials N                  windows before giving up on stability (default 10)\n"
+          "  --trials N                      exactly N windows, no stability check (a soak)\n"
+          "  --seconds DUR                   one window of DUR, no repetition (--trials 1)\n"
+          "  --warmup DUR                    before each point (default 1s)\n"
+          "output:\n"
+          "  --json FILE, --csv FILE         every point ('-' for stdout)\n"
+          "  --plot FILE.png                 latency against throughput over the sweep (gnuplot)\n"
+          "  --verbose                       each window's figures; --quiet: no progress line\n"
+          "Durations take a unit (us, ms, s, m, h); a plain number is seconds.\n");
+}
+
+static int parse(int argc, char **argv, opts *o) {
+  static const struct option lo[] = {
+    {"server", required_argument, 0, 1},          {"variant", required_argument, 0, 2},
+    {"token", required_argument, 0, 3},           {"size", required_argument, 0, 4},
+    {"input", required_argument, 0, 5},           {"part", required_argument, 0, 6},
+    {"f16", no_argument, 0, 7},                   {"composite", no_argument, 0, 8},
+    {"shm", no_argument, 0, 9},                   {"concurrency-range", required_argument, 0, 10},
+    {"connections", required_argument, 0, 11},    {"inflight", required_argument, 0, 12},
+    {"request-rate-range", required_argument, 0, 13},
+    {"request-distribution", required_argument, 0, 14},
+    {"window", required_argument, 0, 15},         {"stability-percentage", required_argument, 0, 16},
+    {"max-trials", required_argument, 0, 17},     {"trials", required_argument, 0, 18},
+    {"seconds", required_argument, 0, 19},        {"warmup", required_argument, 0, 20},
+    {"json", required_argument, 0, 21},           {"csv", required_argument, 0, 22},
+    {"plot", required_argument, 0, 23},           {"verbose", no_argument, 0, 24},
+    {"quiet", no_argument, 0, 25},                {"help", no_argument, 0, 'h'},
+    {0, 0, 0, 0},
+  };
+  const char *cmd = "load";
+  long v;
+  int size_given = 0;
+  opterr = 0;
+  optind = 1;
+  int ch, li = 0;
+  while ((ch = getopt_long(argc, argv, ":h", lo, &li)) != -1) {
+    /* Every option but -h is long: messages name it as it is spelt. */
+    char opt[64];
+    snprintf(opt, sizeof opt, "--%s", ch > 0 && ch < 'h' ? lo[li].name : "");
+    switch (ch) {
+      case 1: o->server = optarg; break;
+      case 2: o->variant = optarg; break;
+      case 3: o->token = optarg; break;
+      case 4:
+        if (cli_parse_size(optarg, &o->width, &o->height) || o->width > 65535 || o->height > 65535) {
+          fprintf(stderr, "hairfilter load: --size: '%s' is not WxH (1..65535 each)\n", optarg);
+          return -1;
+        }
+        size_given = 1;
+        break;
+      case 5: o->input = optarg; break;
+      case 6: o->part = optarg; break;
+      case 7: o->f16 = 1; break;
+      case 8: o->composite = 1; break;
+      case 9: o->shm = 1; break;
+      case 10: if (cli_arg_range(cmd, opt, optarg, 1, 65535, 1, o->conc)) return -1; break;
+      case 11: if (cli_arg_long(cmd, opt, optarg, 1, 1024, &v)) return -1; o->connections = (int)v; break;
+      case 12: if (cli_arg_long(cmd, opt, optarg, 1, 65535, &v)) return -1; o->inflight = (int)v; break;
+      case 13: if (cli_arg_range(cmd, opt, optarg, 1e-3, 1e6, 0, o->rate)) return -1; break;
+      case 14:
+        if (!strcmp(optarg, "constant")) o->poisson = 0;
+        else if (!strcmp(optarg, "poisson")) o->poisson = 1;
+        else {
+          fprintf(stderr, "hairfilter load: --request-distribution: '%s' is neither constant nor poisson\n",
+                  optarg);
+          return -1;
+        }
+        break;
+      case 15: if (cli_arg_duration(cmd, opt, optarg, 1, 0.01, 86400, &o->window_s)) return -1; break;
+      case 16: if (cli_arg_double(cmd, opt, optarg, 0, 100, &o->stability)) return -1; break;
+      case 17: if (cli_arg_long(cmd, opt, optarg, STABLE_OVER, 64, &v)) return -1; o->max_trials = (int)v; break;
+      case 18: if (cli_arg_long(cmd, opt, optarg, 1, 100000, &v)) return -1; o->trials = (int)v; break;
+      case 19:
+        if (cli_arg_duration(cmd, opt, optarg, 1, 0.01, 86400, &o->window_s)) return -1;
+        o->trials = 1;
+        break;
+      case 20: if (cli_arg_duration(cmd, opt, optarg, 1, 0, 3600, &o->warmup_s)) return -1; break;
+      case 21: o->json = optarg; break;
+      case 22: o->csv = optarg; break;
+      case 23: o->plot = optarg; break;
+      case 24: o->verbose = 1; break;
+      case 25: o->quiet = 1; break;
+      case 'h': usage(stdout); return 1;
+      case ':': cli_arg_bad_option(cmd, argv, optind, optopt, 1); return -1;
+      default: cli_arg_bad_option(cmd, argv, optind, optopt, 0); return -1;
+    }
+  }
+  if (optind < argc) {
+    fprintf(stderr, "hairfilter load: unexpected argument '%s'\n", argv[optind]);
+    return -1;
+  }
+  if (!o->server || !o->variant) {
+    fprintf(stderr, "hairfilter load: give --server URL and --variant NAME (see --help)\n");
+    return -1;
+  }
+  if (o->conc[0] && o->rate[0]) {
+    fprintf(stderr, "hairfilter load: --concurrency-range (closed loop) and --request-rate-range "
+                    "(open loop) exclude each other\n");
+    return -1;
+  }
+  if (o->input && size_given) {
+    fprintf(stderr, "hairfilter load: --size and --input exclude each other (the EXR has its size)\n");
+    return -1;
+  }
+  if (o->inflight && (o->conc[0] || o->rate[0])) {
+    fprintf(stderr, "hairfilter load: --inflight goes with --connections alone; with a range, "
+                    "--concurrency-range says how many are in flight\n");
+    return -1;
+  }
+  if (o->part && !o->input) {
+    fprintf(stderr, "hairfilter load: --part needs --input\n");
+    return -1;
+  }
+  return 0;
+}
+
+/* The frame every request sends: the EXR's features, or random ones in the
+ * ranges of FEATURES.md, in the input dtype. */
+static void *make_frame(opts *o, int spp, size_t *bytes) {
+  float *in = NULL;
+  if (o->input) {
+    hf_image img;
+    if (cli_read_features(o->input, o->part, spp, o->variant, &img, &in)) return NULL;
+    o->width = img.width;
+    o->height = img.height;
+    hf_image_free(&img);
+  }
+  size_t n = (size_t)o->width * o->height * (size_t)spp * 6;
+  if (!o->input) {
+    in = malloc(n * sizeof *in);
+    if (!in) return NULL;
+    uint32_t x = 12345;
+    for (size_t i = 0; i < n; i++) {
+      x = x * 1664525u + 1013904223u;
+      float u = (float)(x >> 8) / 16777216.0f;
+      in[i] = i % 6 >= 4 ? 2 * u - 1 : u;
+    }
+  }
+  if (!o->f16) {
+    *bytes = n * sizeof(float);
+    return in;
+  }
+  uint16_t *h = malloc(n * sizeof *h);
+  if (h) hf_f32_to_f16_array(in, h, n);
+  free(in);
+  *bytes = n * sizeof(uint16_t);
+  return h;
+}
+
+int cmd_load(int argc, char **argv) {
+  opts o = {.token = getenv("HAIRFILTER_TOKEN"), .width = 256, .height = 256, .window_s = 5,
+            .warmup_s = 1, .stability = 10, .max_trials = 10, .drain_s = 60};
+  int prc = parse(argc, argv, &o);
+  if (prc) return prc > 0 ? 0 : 2;
+  if (o.token && !*o.token) o.token = NULL;
+  isatty_err = isatty(2);
+  char why[300];
+  if (hfc_check_url(o.server, why, sizeof why)) {
+    fprintf(stderr, "hairfilter load: --server: %s\n", why);
+    return 2;
+  }
+  if (o.plot && !load_have_gnuplot()) {
+    fprintf(stderr, "hairfilter load: --plot needs gnuplot on PATH (Debian: apt-get install "
+                    "gnuplot-nox)\n");
+    return 2;
+  }
+  /* Look the server and the variant up once. */
+  hfc_client *c;
+  hfc_options co = client_options("hairfilter-load", o.token);
+  int rc = hfc_connect(o.server, &co, &c);
+  if (rc) {
+    fprintf(stderr, "hairfilter load: %s: %s\n", o.server, hfc_strerror(rc));
+    return 1;
+  }
+  hfc_variant *vs = calloc(64, sizeof *vs);
+  int nv = 0, spp = 0;
+  char backend[65] = "?", precision[65] = "?";
+  if (!vs || (rc = hfc_list_variants(c, vs, 64, &nv)) != 0) {
+    fprintf(stderr, "hairfilter load: listing variants: %s\n", hfc_strerror(rc));
+    free(vs);
+    hfc_close(c);
+    return 1;
+  }
+  for (int i = 0; i < nv && i < 64; i++)
+    if (!strcmp(vs[i].name, o.variant)) {
+      spp = vs[i].spp;
+      snprintf(backend, sizeof backend, "%s", vs[i].backend);
+      snprintf(precision, sizeof precision, "%s", vs[i].precision);
+    }
+  free(vs);
+  hfc_server_info info = *hfc_info(c);
+  hfc_close(c);
+  if (!spp) {
+    fprintf(stderr, "hairfilter load: the server has no variant '%s' (hairfilter filter --list "
+                    "shows them)\n", o.variant);
+    return 1;
+  }
+  if (o.shm && !info.shm) {
+    fprintf(stderr, "hairfilter load: --shm: this connection offers no shared memory (a Unix "
+                    "socket to a server with it enabled is needed)\n");
+    return 2;
+  }
+  if (o.f16 && !info.f16) {
+    fprintf(stderr, "hairfilter load: --f16: the server does not take f16\n");
+    return 2;
+  }
+  size_t in_bytes;
+  void *frame = make_frame(&o, spp, &in_bytes);
+  if (!frame) {
+    if (!o.input) fprintf(stderr, "hairfilter load: out of memory for a %dx%d frame\n", o.width, o.height);
+    return 1;
+  }
+  if (o.width > info.max_width || o.height > info.max_height) {
+    fprintf(stderr, "hairfilter load: %dx%d is over the server's limit of %dx%d\n", o.width,
+            o.height, info.max_width, info.max_height);
+    free(frame);
+    return 2;
+  }
+
+  /* The points of the sweep. */
+  int open = o.rate[0] > 0;
+  double *range = open ? o.rate : o.conc;
+  if (!open && !o.conc[0]) {
+    /* No range: --connections N x --inflight K, or one request in flight;
+     * --inflight alone keeps its requests on one connection. */
+    int conns = o.connections ? o.connections : 1;
+    o.conc[0] = o.conc[1] = conns * (o.inflight ? o.inflight : 1);
+    o.conc[2] = 1;
+    if (!o.connections) o.connections = o.inflight ? 1 : (int)o.conc[0];
+  }
+  int npoints = (int)floor((range[1] - range[0]) / range[2] + 1e-9) + 1;
+  if (npoints > 1000) {
+    fprintf(stderr, "hairfilter load: %d points in the sweep; at most 1000\n", npoints);
+    free(frame);
+    return 2;
+  }
+  load_point *points = calloc((size_t)npoints, sizeof *points);
+  if (!points) {
+    free(frame);
+    return 1;
+  }
+  load_run run_info = {o.server, o.variant, o.input, backend, precision, o.width, o.height, spp,
+                       o.f16, o.shm, o.composite, o.poisson ? "poisson" : "constant",
+                       o.window_s, o.warmup_s, o.stability, points, 0};
+  shared sh = {.o = &o, .spp = spp, .features = frame, .in_bytes = in_bytes};
+  size_t es = o.f16 ? 2 : 4;
+  sh.out_bytes = (size_t)o.width * o.height * 3 * es;
+  sh.rgba_bytes = o.composite ? (size_t)o.width * o.height * 4 * es : 0;
+  pthread_mutex_init(&sh.mu, NULL);
+  sh.cur = NULL;
+  int status = 0;
+  for (int i = 0; i < npoints; i++) {
+    load_point *p = &points[i];
+    p->open_loop = open;
+    if (open) {
+      p->rate = range[0] + i * range[2];
+      p->connections = o.connections ? o.connections : 4;
+    } else {
+      p->concurrency = (int)(range[0] + i * range[2]);
+      p->connections = o.connections ? o.connections : p->concurrency;
+      if (p->connections > p->concurrency) p->connections = p->concurrency;
+      int per = (p->concurrency + p->connections - 1) / p->connections;
+      if (per > info.max_inflight) {
+        fprintf(stderr, "hairfilter load: concurrency %d over %d connection(s) is %d in flight "
+                        "each, over the server's limit of %d (give more --connections)\n",
+                p->concurrency, p->connections, per, info.max_inflight);
+        status = 2;
+        break;
+      }
+    }
+    if (run_point(&o, &sh, info.max_inflight, p)) {
+      fprintf(stderr, "hairfilter load: every connection failed; stopping the sweep\n");
+      status = 1;
+      run_info.npoints = i + 1;
+      load_print_point(stdout, &run_info, p);
+      break;
+    }
+    run_info.npoints = i + 1;
+    load_print_point(stdout, &run_info, p);
+    if (p->unanswered || p->lost_connections) status = 1;
+  }
+  if (run_info.npoints > 1) load_print_summary(stdout, &run_info);
+  if (run_info.npoints && o.csv && load_write_csv(o.csv, &run_info)) status = 1;
+  if (run_info.npoints && o.json && load_write_json(o.json, &run_info)) status = 1;
+  if (run_info.npoints && o.plot && load_write_plot(o.plot, &run_info)) status = 1;
+  int measured = 0;
+  for (int i = 0; i < run_info.npoints; i++) measured += points[i].result.ok > 0;
+  if (!status && !measured) status = 1;
+  pthread_mutex_destroy(&sh.mu);
+  free(points);
+  free(frame);
+  return status;
+}

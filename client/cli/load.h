@@ -1,0 +1,70 @@
+/* hairfilter load: shared between the measuring (cmd_load.c) and the
+ * reporting (load_report.c) halves. */
+#ifndef HF_CLI_LOAD_H
+#define HF_CLI_LOAD_H
+
+#include <stdint.h>
+#include <stdio.h>
+
+#include "load_hist.h"
+
+/* Latency fields recorded per completion: the client's own round trip (from
+ * the request's scheduled start), then the server's RESULT timing. */
+enum { LF_CLIENT, LF_SERVER, LF_QUEUE, LF_INPUT, LF_INFER, LF_OUTPUT, LF_COUNT };
+extern const char *const load_field_names[LF_COUNT];
+
+/* What one measurement window (or several merged) saw. */
+typedef struct load_window {
+  lh_hist h[LF_COUNT];
+  uint64_t ok, busy, errors;     /* completions by outcome */
+  uint64_t batch_sum;            /* sum of RESULT batch sizes, for the mean */
+  double seconds;                /* how long it lasted */
+} load_window;
+
+/* The server's own STATS for the variant, differenced over a point (all
+ * clients of the server, not only ours). */
+typedef struct load_stats {
+  int valid;
+  uint64_t ok, failed, rejected, batches;
+  double mean_queue_ms, mean_infer_ms, mean_total_ms;
+  double p50_total_ms, p99_total_ms;   /* from STATS' power-of-two buckets: upper bounds */
+} load_stats;
+
+/* One point of a sweep. */
+typedef struct load_point {
+  int open_loop;
+  int concurrency;               /* closed loop: requests kept in flight */
+  double rate;                   /* open loop: frames/s offered */
+  int connections;
+  int trials;                    /* windows measured */
+  int used;                      /* of which merged into the result (the last ones) */
+  int stable;
+  load_window result;            /* the merged windows */
+  double window_throughput[64];  /* each window's frames/s (up to 64 kept) */
+  double window_p50[64], window_p99[64];
+  uint64_t sent, answered, delayed, unanswered;
+  int lost_connections;
+  load_stats stats;
+} load_point;
+
+typedef struct load_run {
+  const char *server, *variant, *input, *backend, *precision;
+  int width, height, spp, f16, shm, composite;
+  const char *distribution;
+  double window_s, warmup_s;
+  double stability;              /* percent */
+  load_point *points;
+  int npoints;
+} load_run;
+
+/* Writers of the report: the text table of one point, the sweep's summary,
+ * CSV, JSON (cJSON) and a latency-versus-throughput PNG through gnuplot.
+ * Return 0, or -1 with a message printed. */
+void load_print_point(FILE *f, const load_run *r, const load_point *p);
+void load_print_summary(FILE *f, const load_run *r);
+int load_write_csv(const char *path, const load_run *r);
+int load_write_json(const char *path, const load_run *r);
+int load_have_gnuplot(void);
+int load_write_plot(const char *path, const load_run *r);
+
+#endif

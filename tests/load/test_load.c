@@ -1,0 +1,263 @@
+/* hairfilter load end to end against a fresh hairfilterd: options are
+ * parsed strictly (a unit it does not know, a bad range or an unknown
+ * option is refused, naming it), closed-loop and open-loop sweeps report
+ * every point with ordered percentiles and no request unanswered, the
+ * open loop offers the rate it was asked for, Unix, TCP and shared memory
+ * and f16 all run, a real feature EXR is sent, CSV and JSON carry every
+ * point. `test_load plot` draws the
+ * plot (skips without gnuplot). */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <cjson/cJSON.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+
+#include "harness.h"
+
+#ifndef HAIRFILTER_CLI_PATH
+#error "HAIRFILTER_CLI_PATH must name the hairfilter CLI"
+#endif
+
+static harness H;
+static server S;
+static char out_path[300], csv_path[300], json_path[300], png_path[300];
+static char text[65536];
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H)) return -1;
+  snprintf(out_path, sizeof out_path, "%s/load.out", H.dir);
+  snprintf(csv_path, sizeof csv_path, "%s/load.csv", H.dir);
+  snprintf(json_path, sizeof json_path, "%s/load.json", H.dir);
+  snprintf(png_path, sizeof png_path, "%s/load.png", H.dir);
+  return server_start(&H, &S, NULL);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  return harness_stop(&H, &S);
+}
+
+/* Runs `hairfilter load ARGS` (or the program prog), its output in text;
+ * returns its exit status. */
+static int load_prog(const char *prog, const char *args) {
+  char cmd[2048];
+  snprintf(cmd, sizeof cmd, "'%s' %s %s > '%s' 2>&1", prog, strcmp(prog, HAIRFILTER_CLI_PATH) ? "" : "load",
+           args, out_path);
+  int rc = system(cmd);
+  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+static int load(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static int load(const char *fmt, ...) {
+  char args[1600];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(args, sizeof args, fmt, ap);
+  va_end(ap);
+  return load_prog(HAIRFILTER_CLI_PATH, args);
+}
+
+static void expect_refused(const char *args, const char *says) {
+  int rc = load("--server %s --variant Tiny %s", S.unix_url, args);
+  if (rc != 2 || !strstr(text, says))
+    fail_msg("'hairfilter load ... %s': status %d, wanted 2 and a message with '%s'; got:\n%s", args,
+             rc, says, text);
+}
+
+static void test_strict_options(void **state) {
+  (void)state;
+  expect_refused("--seconds 1x", "--seconds: unknown unit 'x' in '1x'");
+  expect_refused("--window 5 s", "unexpected argument 's'");
+  expect_refused("--window 2parsecs", "--window: unknown unit 'parsecs'");
+  expect_refused("--warmup -1", "--warmup");
+  expect_refused("--bogus 3", "unknown option '--bogus'");
+  expect_refused("--window", "option '--window' needs a value");
+  expect_refused("--concurrency-range 4:2", "--concurrency-range: '4:2'");
+  expect_refused("--concurrency-range 1:4:0", "step > 0");
+  expect_refused("--concurrency-range 1.5", "--concurrency-range: '1.5' is not start[:end[:step]] of integers");
+  expect_refused("--concurrency-range 1:2x", "--concurrency-range: '1:2x'");
+  expect_refused("--request-rate-range 5 --concurrency-range 2", "exclude each other");
+  expect_refused("--request-distribution gaussian", "'gaussian' is neither constant nor poisson");
+  expect_refused("--connections 0", "--connections: 0 is outside 1..1024");
+  expect_refused("--connections 2k", "--connections: '2k' is not an integer");
+  expect_refused("--stability-percentage 1e999", "--stability-percentage: '1e999' is not a number");
+  expect_refused("--max-trials 2", "--max-trials: 2 is outside 3..64");
+  expect_refused("--size 0x4", "--size: '0x4'");
+  /* A unit it knows is taken as that unit: 0.5s, 700ms and a plain 0.5
+   * (seconds). */
+  for (int i = 0; i < 3; i++) {
+    static const char *const d[] = {"0.5s", "700ms", "0.5"};
+    int rc = load("--server %s --variant Tiny --size 8x8 --seconds %s --warmup 0 --quiet",
+                  S.unix_url, d[i]);
+    if (rc) fail_msg("--seconds %s: status %d:\n%s", d[i], rc, text);
+    char want[64];
+    snprintf(want, sizeof want, "1 window(s) of %.1f s", i == 1 ? 0.7 : 0.5);
+    if (!strstr(text, want)) fail_msg("--seconds %s: no '%s' in:\n%s", d[i], want, text);
+  }
+}
+
+/* Every percentile row of the report is in order: p50 <= ... <= max. */
+static void check_rows(void) {
+  const char *p = text;
+  int rows = 0;
+  while ((p = strstr(p, "\n  total"))) {
+    double v[6];
+    assert_int_equal(sscanf(p, "\n  total %lf %lf %lf %lf %lf %lf", &v[0], &v[1], &v[2], &v[3],
+                            &v[4], &v[5]), 6);
+    for (int i = 1; i < 6; i++) assert_true(v[i] >= v[i - 1]);
+    assert_true(v[0] > 0);
+    rows++;
+    p++;
+  }
+  assert_true(rows > 0);
+}
+
+static cJSON *read_json(void) {
+  static char buf[1 << 20];
+  assert_int_equal(read_text_file(json_path, buf, sizeof buf), 0);
+  cJSON *doc = cJSON_Parse(buf);
+  assert_non_null(doc);
+  return doc;
+}
+
+static double num(const cJSON *o, const char *key) {
+  const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, key);
+  if (!cJSON_IsNumber(v)) fail_msg("no number '%s' in the JSON", key);
+  return v->valuedouble;
+}
+
+static void test_closed_sweep(void **state) {
+  (void)state;
+  int rc = load("--server %s --variant Tiny --size 16x16 --concurrency-range 1:3:2 --window 0.4s "
+                "--warmup 0.2s --max-trials 3 --stability-percentage 100 --csv %s --json %s --quiet",
+                S.unix_url, csv_path, json_path);
+  if (rc) fail_msg("status %d:\n%s", rc, text);
+  check_rows();
+  assert_non_null(strstr(text, "closed-loop sweep"));
+  assert_non_null(strstr(text, "unanswered 0"));
+  assert_null(strstr(text, "CONNECTIONS LOST"));
+  /* stability 100 %: three windows are always within it */
+  assert_non_null(strstr(text, "(stable)"));
+  cJSON *doc = read_json();
+  const cJSON *pts = cJSON_GetObjectItemCaseSensitive(doc, "points");
+  assert_int_equal(cJSON_GetArraySize(pts), 2);
+  for (int i = 0; i < 2; i++) {
+    const cJSON *p = cJSON_GetArrayItem(pts, i);
+    assert_true(num(p, "concurrency") == (i ? 3 : 1));
+    assert_true(num(p, "frames") > 0);
+    assert_true(num(p, "unanswered") == 0);
+    assert_true(num(p, "throughput") > 0);
+    const cJSON *lat = cJSON_GetObjectItemCaseSensitive(p, "latency_ms");
+    const cJSON *total = cJSON_GetObjectItemCaseSensitive(lat, "total");
+    const cJSON *infer = cJSON_GetObjectItemCaseSensitive(lat, "infer");
+    assert_true(num(total, "p50") <= num(total, "p95") && num(total, "p95") <= num(total, "p99"));
+    /* the client waits at least what the server says it spent */
+    assert_true(num(total, "p50") >= num(infer, "p50"));
+    const cJSON *st = cJSON_GetObjectItemCaseSensitive(p, "server_stats");
+    assert_non_null(st);
+    assert_true(num(st, "ok") >= num(p, "frames"));
+  }
+  cJSON_Delete(doc);
+  /* CSV: a header and a row per point, as many columns each. */
+  assert_int_equal(read_text_file(csv_path, text, sizeof text), 0);
+  int lines = 0, commas[3] = {0};
+  for (const char *c = text; *c; c++) {
+    if (*c == ',' && lines < 3) commas[lines]++;
+    if (*c == '\n') lines++;
+  }
+  assert_int_equal(lines, 3);
+  assert_int_equal(commas[1], commas[0]);
+  assert_int_equal(commas[2], commas[0]);
+  assert_non_null(strstr(text, "closed,3,"));
+}
+
+/* The open loop offers what it is asked: 80 frames/s in constant and
+ * Poisson arrivals come out at that rate (frames a small server keeps up
+ * with). */
+static void test_open_loop(void **state) {
+  (void)state;
+  for (int poisson = 0; poisson < 2; poisson++) {
+    int rc = load("--server %s --variant Tiny --size 8x8 --request-rate-range 80 "
+                  "--request-distribution %s --window 1s --warmup 0.2s --trials 2 --json %s --quiet",
+                  S.unix_url, poisson ? "poisson" : "constant", json_path);
+    if (rc) fail_msg("status %d:\n%s", rc, text);
+    check_rows();
+    cJSON *doc = read_json();
+    const cJSON *p = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(doc, "points"), 0);
+    double tp = num(p, "throughput");
+    /* Poisson over 2 s: 160 arrivals expected, sd 12.6; allow 4 sd. */
+    double tol = poisson ? 0.32 : 0.15;
+    if (tp < 80 * (1 - tol) || tp > 80 * (1 + tol))
+      fail_msg("%s arrivals at 80/s came out at %.1f frames/s", poisson ? "Poisson" : "constant", tp);
+    assert_true(num(p, "unanswered") == 0);
+    cJSON_Delete(doc);
+  }
+}
+
+/* Every transport and dtype, the composite, a real EXR, and the old name. */
+static void test_transports(void **state) {
+  (void)state;
+  struct {
+    const char *url, *extra, *says;
+  } runs[] = {
+    {S.unix_url, "--shm", "+ shared memory"},
+    {S.unix_url, "--shm --f16 --composite", "f16 via"},
+    {S.tcp_url, "--token " TEST_TOKEN, "via tcp:"},
+    {S.tcp_url, "--token " TEST_TOKEN " --f16 --connections 2 --inflight 2", "2 connection(s) x 2 in flight"},
+  };
+  for (size_t i = 0; i < sizeof runs / sizeof runs[0]; i++) {
+    int rc = load("--server %s --variant Tiny --size 12x10 %s --seconds 0.5 --warmup 0.1 --quiet",
+                  runs[i].url, runs[i].extra);
+    if (rc || !strstr(text, runs[i].says)) fail_msg("%s: status %d:\n%s", runs[i].extra, rc, text);
+    check_rows();
+  }
+  /* A real feature EXR (4 spp; Small takes 4), its size taken from the file. */
+  int rc = load("--server %s --variant Small --input %s/field/frame-64x64.exr --seconds 1 --warmup 0 "
+                "--quiet", S.unix_url, HF_TEST_DATA);
+  if (rc || !strstr(text, "Small 64x64 f32")) fail_msg("--input: status %d:\n%s", rc, text);
+  check_rows();
+  /* TCP without the token: a clear failure, not a hang. */
+  rc = load("--server %s --variant Tiny --seconds 0.2", S.tcp_url);
+  assert_int_equal(rc, 1);
+  assert_non_null(strstr(text, "unauthorized"));
+}
+
+static void test_plot(void **state) {
+  (void)state;
+  int rc = load("--server %s --variant Tiny --size 8x8 --concurrency-range 1:2 --window 0.3s "
+                "--warmup 0.1s --trials 1 --plot %s --quiet", S.unix_url, png_path);
+  if (rc) fail_msg("status %d:\n%s", rc, text);
+  FILE *f = fopen(png_path, "rb");
+  assert_non_null(f);
+  unsigned char sig[8] = {0};
+  assert_int_equal(fread(sig, 1, 8, f), 8);
+  fclose(f);
+  static const unsigned char png[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  assert_memory_equal(sig, png, 8);
+}
+
+int main(int argc, char **argv) {
+  if (argc > 1 && !strcmp(argv[1], "plot")) {
+    if (system("gnuplot --version > /dev/null 2>&1") != 0) {
+      printf("SKIP: gnuplot is not installed (deploy/debian/setup.sh installs gnuplot-nox)\n");
+      return 77;
+    }
+    const struct CMUnitTest plot[] = {cmocka_unit_test(test_plot)};
+    return cmocka_run_group_tests(plot, setup, teardown);
+  }
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_strict_options),
+    cmocka_unit_test(test_closed_sweep),
+    cmocka_unit_test(test_open_loop),
+    cmocka_unit_test(test_transports),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
