@@ -59,6 +59,7 @@ float hf_f16_to_f32(uint16_t h) {
  * instruction with the same round-to-nearest-even; the scalar loop above is
  * the fallback and the reference. */
 #if defined(__x86_64__) && defined(__GNUC__)
+#include <cpuid.h>
 #include <immintrin.h>
 
 __attribute__((target("avx,f16c"))) static void f32_to_f16_f16c(const float *src, uint16_t *dst,
@@ -72,11 +73,15 @@ __attribute__((target("avx,f16c"))) static void f32_to_f16_f16c(const float *src
   for (; i < n; i++) dst[i] = hf_f32_to_f16(src[i]);
 }
 
+/* F16C from CPUID (leaf 1, ECX) rather than __builtin_cpu_supports("f16c"),
+ * which clang 14 (the fuzz targets' compiler) does not know; it needs AVX,
+ * whose check covers the OS saving the YMM registers. */
 static int have_f16c(void) {
   static int cached = -1;
   if (cached < 0) {
+    unsigned a, b, c, d;
     __builtin_cpu_init();
-    cached = __builtin_cpu_supports("f16c") && __builtin_cpu_supports("avx");
+    cached = __builtin_cpu_supports("avx") && __get_cpuid(1, &a, &b, &c, &d) && (c & bit_F16C);
   }
   return cached;
 }
