@@ -31,7 +31,9 @@ static int json_int(const cJSON *obj, const char *key, int lo, int hi, int *out)
   const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
   if (!cJSON_IsNumber(v)) return HF_EFORMAT;
   double d = v->valuedouble;
-  if (d != (double)(int)d || d < lo || d > hi) return HF_ERANGE;
+  /* The range first: converting a double outside int's range (1e100 in a
+   * file) is undefined behaviour. */
+  if (!(d >= lo && d <= hi) || d != (double)(int)d) return HF_ERANGE;
   *out = (int)d;
   return HF_OK;
 }

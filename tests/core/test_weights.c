@@ -177,6 +177,16 @@ static void test_bad_json(void **state) {
   blob s = with_header_edit(&b, "\\\"spp\\\":4", "\\\"spp\\\":3");
   expect_reject(&s, HF_EFORMAT, "in_channels");
   free(s.data);
+  /* Counts far outside int (fuzz regression tests/fuzz/regressions/weights):
+   * refused, never converted (that was undefined behaviour). */
+  static const char *const huge[] = {"1e100", "-1e100", "4294967297", "2.5"};
+  for (int i = 0; i < 4; i++) {
+    char to[64];
+    snprintf(to, sizeof to, "\\\"spp\\\":%s", huge[i]);
+    blob h = with_header_edit(&b, "\\\"spp\\\":4", to);
+    expect_reject(&h, HF_EFORMAT, "'spp', 'in_channels' or 'out_channels' missing or out of range");
+    free(h.data);
+  }
   blob a = with_header_edit(&b, "\\\"arch\\\":\\\"unet\\\"", "\\\"arch\\\":\\\"gan\\\"");
   expect_reject(&a, HF_EUNSUPPORTED, "arch");
   free(a.data);
