@@ -15,6 +15,8 @@ packages=(
   # and the Python client's parser read /metrics; npm installs the pinned
   # Kubernetes schema validator (deploy/kubernetes/validate).
   prometheus python3-prometheus-client
+  # the fuzz targets (clang, libFuzzer) and hairfilter load's plot.
+  clang libclang-rt-14-dev gnuplot-nox
 )
 
 missing=()
