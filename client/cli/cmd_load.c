@@ -143,6 +143,21 @@ typedef struct slot {
   void *out, *rgba;
 } slot;
 
+/* Sends r into slot s, its latency counted from started. */
+static int submit(hfc_client *c, hfc_request *r, slot *s, double started, shared *sh,
+                  int *pending) {
+  s->started = started;
+  r->result = s->out;
+  r->rgba = s->rgba;
+  r->user = s;
+  int err = hfc_submit(c, r, NULL);
+  if (err) return err;
+  s->busy = 1;
+  (*pending)++;
+  atomic_fetch_add(&sh->sent, 1);
+  return 0;
+}
+
 static void *run(void *arg) {
   worker *w = arg;
   shared *sh = w->sh;
@@ -226,18 +241,9 @@ static void *run(void *arg) {
       break;
     }
     /* Submit what is due. */
-    if (!stopping && !sh->open_loop && pending < k) {
-      for (int i = 0; i < k && pending < k; i++) {
-        if (slots[i].busy) continue;
-        slots[i].started = now_s();
-        r.result = slots[i].out;
-        r.rgba = slots[i].rgba;
-        r.user = &slots[i];
-        if ((err = hfc_submit(c, &r, NULL)) != 0) break;
-        slots[i].busy = 1;
-        pending++;
-        atomic_fetch_add(&sh->sent, 1);
-      }
+    if (!stopping && !sh->open_loop) {
+      for (int i = 0; i < k && pending < k && !err; i++)
+        if (!slots[i].busy) err = submit(c, &r, &slots[i], now_s(), sh, &pending);
     } else if (!stopping && sh->open_loop) {
       double now = now_s();
       while (t_next <= now) {
@@ -249,20 +255,13 @@ static void *run(void *arg) {
         t_next += o->poisson ? -log(1 - uniform01(&w->seed)) / sh->rate_per_conn
                              : 1.0 / sh->rate_per_conn;
       }
-      while (bl_len && pending < k) {
+      while (bl_len && pending < k && !err) {
         int i = 0;
         while (slots[i].busy) i++;
         double due = backlog[bl_head];
         bl_head = (bl_head + 1) % BACKLOG;
         bl_len--;
-        slots[i].started = due;
-        r.result = slots[i].out;
-        r.rgba = slots[i].rgba;
-        r.user = &slots[i];
-        if ((err = hfc_submit(c, &r, NULL)) != 0) break;
-        slots[i].busy = 1;
-        pending++;
-        atomic_fetch_add(&sh->sent, 1);
+        err = submit(c, &r, &slots[i], due, sh, &pending);
       }
     }
     if (err) break;
