@@ -192,11 +192,8 @@ static int control_order(cf_test *t, intptr_t with_filters) {
       char d[400];
       CF_CHECK(t, r.h.request_id >= 50 && r.h.request_id < 50 + N, "unexpected %s",
                cf_describe(&r, d, sizeof d));
-      if (r.h.type == HFP_ERROR) {
-        hfp_error e;
-        CF_CHECK(t, hfp_decode_error(r.p, r.h.length, &e) == 0 && e.code == HFP_E_BUSY,
-                 "unexpected %s", d);
-      }
+      int busy = cf_busy(t, &r, NULL);
+      if (busy < 0) return busy;
       results++;
       continue;
     }

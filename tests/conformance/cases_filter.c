@@ -116,15 +116,10 @@ static int max_size(cf_test *t, intptr_t whole) {
     cf_frame r;
     int rc = cf_read(t, fd, t->o->timeout_ms, &r);
     CF_CHECK(t, rc == CF_GOT, "no reply to a frame of the announced size");
-    if (r.h.type == HFP_ERROR) {
-      hfp_error e;
-      char d[400];
-      CF_CHECK(t, hfp_decode_error(r.p, r.h.length, &e) == 0 && e.code == HFP_E_BUSY && !e.fatal,
-               "a %ux%u f32 COMPOSITE frame for %s got %s (only BUSY is allowed)", f.width,
-               f.height, f.variant, cf_describe(&r, d, sizeof d));
-      continue;
-    }
-    CF_TRY(cf_check_result(t, &r, &f, t->srv->version, NULL, NULL, NULL));
+    /* Only BUSY may refuse it. */
+    int busy = cf_busy(t, &r, NULL);
+    if (busy < 0) return busy;
+    if (!busy) CF_TRY(cf_check_result(t, &r, &f, t->srv->version, NULL, NULL, NULL));
   }
   return 0;
 }
@@ -160,20 +155,15 @@ static int same_values(cf_test *t, intptr_t n) {
     CF_TRY(cf_send(t, fd, b, len));
   }
   float *first = NULL;
-  int got = 0, busy = 0;
+  int got = 0;
   size_t px = (size_t)f.width * f.height;
   for (int i = 0; i < k; i++) {
     cf_frame r;
     int rc = cf_read(t, fd, t->o->timeout_ms, &r);
     CF_CHECK(t, rc == CF_GOT, "%d of %d replies came", i, k);
-    if (r.h.type == HFP_ERROR) {
-      hfp_error e;
-      char d[400];
-      CF_CHECK(t, hfp_decode_error(r.p, r.h.length, &e) == 0 && e.code == HFP_E_BUSY && !e.fatal,
-               "a pipelined FILTER got %s", cf_describe(&r, d, sizeof d));
-      busy++;
-      continue;
-    }
+    int b = cf_busy(t, &r, NULL);
+    if (b < 0) return b;
+    if (b) continue;
     cf_filter fi = f;
     fi.id = r.h.request_id;
     CF_CHECK(t, fi.id >= 500 && fi.id < 500 + (uint32_t)k, "RESULT for id %u, never sent", fi.id);
@@ -187,7 +177,6 @@ static int same_values(cf_test *t, intptr_t n) {
     got++;
   }
   CF_CHECK(t, got >= 1, "every one of %d frames was refused BUSY", k);
-  (void)busy;
   return 0;
 }
 
@@ -414,14 +403,9 @@ static int duplicate_id(cf_test *t, intptr_t arg) {
     char d[400];
     CF_CHECK(t, r.h.request_id == 800, "a reply carries id %u: %s", r.h.request_id,
              cf_describe(&r, d, sizeof d));
-    if (r.h.type == HFP_RESULT) {
-      CF_TRY(cf_check_result(t, &r, &f, t->srv->version, NULL, NULL, NULL));
-    } else {
-      hfp_error e;
-      CF_CHECK(t, r.h.type == HFP_ERROR && hfp_decode_error(r.p, r.h.length, &e) == 0 &&
-                      e.code == HFP_E_BUSY && !e.fatal,
-               "got %s", d);
-    }
+    int busy = cf_busy(t, &r, NULL);
+    if (busy < 0) return busy;
+    if (!busy) CF_TRY(cf_check_result(t, &r, &f, t->srv->version, NULL, NULL, NULL));
   }
   CF_TRY(cf_expect_quiet(t, fd));
   return cf_still_serves(t, fd);
@@ -448,7 +432,7 @@ static int inflight_limit(cf_test *t, intptr_t factor) {
   CF_TRY(connect_v(t, &fd));
   CF_TRY(cf_send(t, fd, all, n * (size_t)k));
   uint8_t *seen = cf_alloc(t, (size_t)k);
-  int results = 0, busy = 0;
+  int results = 0;
   for (int i = 0; i < k; i++) {
     cf_frame r;
     int rc = cf_read(t, fd, t->o->timeout_ms, &r);
@@ -459,17 +443,13 @@ static int inflight_limit(cf_test *t, intptr_t factor) {
              cf_describe(&r, d, sizeof d));
     CF_CHECK(t, !seen[id - 1000], "a second reply for id %u: %s", id, cf_describe(&r, d, sizeof d));
     seen[id - 1000] = 1;
-    if (r.h.type == HFP_RESULT) {
+    int b = cf_busy(t, &r, NULL);
+    if (b < 0) return b;
+    if (!b) {
       cf_filter fi = f;
       fi.id = id;
       CF_TRY(cf_check_result(t, &r, &fi, t->srv->version, NULL, NULL, NULL));
       results++;
-    } else {
-      hfp_error e;
-      CF_CHECK(t, r.h.type == HFP_ERROR && hfp_decode_error(r.p, r.h.length, &e) == 0 &&
-                      e.code == HFP_E_BUSY && !e.fatal,
-               "wanted RESULT or a non-fatal BUSY, got %s", d);
-      busy++;
     }
   }
   CF_CHECK(t, results >= 1, "all %d frames were refused", k);
@@ -500,11 +480,10 @@ static int window(cf_test *t, intptr_t rounds) {
     cf_frame r;
     int rc = cf_read(t, fd, t->o->timeout_ms, &r);
     CF_CHECK(t, rc == CF_GOT, "%d of %d replies came", got, total);
-    if (r.h.type == HFP_ERROR) {
-      hfp_error e;
-      char d[400];
-      CF_CHECK(t, hfp_decode_error(r.p, r.h.length, &e) == 0 && e.code == HFP_E_BUSY && !e.fatal,
-               "got %s", cf_describe(&r, d, sizeof d));
+    hfp_error e;
+    int busy = cf_busy(t, &r, &e);
+    if (busy < 0) return busy;
+    if (busy) {
       CF_CHECK(t, !strstr(e.message, "in flight"),
                "a FILTER within max_inflight %d was refused for the in-flight limit: %s", k, e.message);
     } else {
@@ -598,13 +577,9 @@ static int mixed(cf_test *t, intptr_t how) {
     CF_CHECK(t, rc == CF_GOT, "%d of %d replies came", i, k);
     uint32_t id = r.h.request_id;
     CF_CHECK(t, id >= 1200 && id < 1200 + (uint32_t)k, "a reply for id %u, never sent", id);
-    if (r.h.type == HFP_ERROR) {
-      hfp_error e;
-      char d[400];
-      CF_CHECK(t, hfp_decode_error(r.p, r.h.length, &e) == 0 && e.code == HFP_E_BUSY && !e.fatal,
-               "got %s", cf_describe(&r, d, sizeof d));
-      continue;
-    }
+    int busy = cf_busy(t, &r, NULL);
+    if (busy < 0) return busy;
+    if (busy) continue;
     cf_filter f = fs[(id - 1200) % (uint32_t)n];
     f.id = id;
     float *res;

@@ -107,6 +107,10 @@ int cf_connect(cf_test *t, int *fd);
 /* Connects and completes a HELLO offering lo..hi with the suite's token. */
 int cf_connect_hello(cf_test *t, int lo, int hi, int *fd, hfp_hello_ok *ok);
 int cf_send(cf_test *t, int fd, const void *buf, size_t n);
+/* Sends n bytes, with a descriptor attached (SCM_RIGHTS) when passed >= 0,
+ * within timeout_ms: 0, the bytes left unsent when the peer read nothing
+ * in time, or -1 with errno. */
+int cf_send_raw(int fd, const void *buf, size_t n, int passed, int timeout_ms);
 /* Sends buf with a descriptor attached (SCM_RIGHTS). */
 int cf_send_with_fd(cf_test *t, int fd, const void *buf, size_t n, int passed);
 void cf_shutdown_wr(int fd);
@@ -124,6 +128,10 @@ int cf_expect_error(cf_test *t, int fd, int code, int fatal, uint32_t id);
 int cf_expect_eof(cf_test *t, int fd);
 /* Nothing may arrive for quiet_ms, and the connection stays open. */
 int cf_expect_quiet(cf_test *t, int fd);
+/* A reply to a FILTER under load: 1 for a non-fatal BUSY (e filled when
+ * not NULL), 0 for anything but an ERROR, CF_FAIL (recorded) for any other
+ * ERROR. */
+int cf_busy(cf_test *t, const cf_frame *r, hfp_error *e);
 /* The connection still serves: LIST_VARIANTS gets VARIANTS. */
 int cf_still_serves(cf_test *t, int fd);
 /* A description of a frame for messages ("ERROR BUSY (fatal) id 3: ..."). */

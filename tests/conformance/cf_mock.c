@@ -81,40 +81,10 @@ int mk_read(mock *m, hfp_header *h, uint8_t **p) {
   return 1;
 }
 
+/* The client may have gone (its own business): a failed send ends the
+ * script's reply, nothing more. */
 static int send_msg(mock *m, const void *b, size_t n, int fd) {
-  const uint8_t *p = b;
-  while (n) {
-    struct iovec iov = {(void *)p, n};
-    struct msghdr mh;
-    union {
-      struct cmsghdr align;
-      char c[CMSG_SPACE(sizeof(int))];
-    } cm;
-    memset(&mh, 0, sizeof mh);
-    mh.msg_iov = &iov;
-    mh.msg_iovlen = 1;
-    if (fd >= 0) {
-      memset(&cm, 0, sizeof cm);
-      mh.msg_control = cm.c;
-      mh.msg_controllen = sizeof cm.c;
-      struct cmsghdr *c = CMSG_FIRSTHDR(&mh);
-      c->cmsg_level = SOL_SOCKET;
-      c->cmsg_type = SCM_RIGHTS;
-      c->cmsg_len = CMSG_LEN(sizeof(int));
-      memcpy(CMSG_DATA(c), &fd, sizeof fd);
-    }
-    ssize_t w = sendmsg(m->fd, &mh, MSG_NOSIGNAL);
-    if (w < 0 && errno == EINTR) continue;
-    if (w < 0 && errno == EAGAIN) {
-      if (wait_for(m->fd, POLLOUT, m->timeout_ms)) return -1;
-      continue;
-    }
-    if (w <= 0) return -1;   /* the client has gone: its own business */
-    p += w;
-    n -= (size_t)w;
-    fd = -1;
-  }
-  return 0;
+  return cf_send_raw(m->fd, b, n, fd, m->timeout_ms) ? -1 : 0;
 }
 
 int mk_send(mock *m, const void *b, size_t n) { return send_msg(m, b, n, -1); }

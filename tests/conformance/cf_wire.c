@@ -199,9 +199,9 @@ int cf_connect_hello(cf_test *t, int lo, int hi, int *fd, hfp_hello_ok *ok) {
 
 /* ---- sending --------------------------------------------------------------- */
 
-static int send_msg(cf_test *t, int fd, const void *buf, size_t n, int passed) {
+int cf_send_raw(int fd, const void *buf, size_t n, int passed, int timeout_ms) {
   const uint8_t *p = buf;
-  double deadline = cf_now_ms() + t->o->timeout_ms;
+  double deadline = cf_now_ms() + timeout_ms;
   while (n) {
     struct iovec iov = {(void *)p, n};
     struct msghdr mh;
@@ -233,13 +233,22 @@ static int send_msg(cf_test *t, int fd, const void *buf, size_t n, int passed) {
     if (w < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
       int left = (int)(deadline - cf_now_ms());
       struct pollfd pf = {fd, POLLOUT, 0};
-      if (left <= 0 || poll(&pf, 1, left) <= 0)
-        return cf_fail(t, "the server read nothing for %d ms (%zu bytes not sent)",
-                       t->o->timeout_ms, n);
+      if (left <= 0 || poll(&pf, 1, left) <= 0) {
+        errno = ETIMEDOUT;
+        return (int)(n < INT32_MAX ? n : INT32_MAX);
+      }
       continue;
     }
-    return cf_fail(t, "send: %s (%zu bytes not sent)", strerror(errno), n);
+    return -1;
   }
+  return 0;
+}
+
+static int send_msg(cf_test *t, int fd, const void *buf, size_t n, int passed) {
+  int left = cf_send_raw(fd, buf, n, passed, t->o->timeout_ms);
+  if (left > 0)
+    return cf_fail(t, "the server read nothing for %d ms (%d bytes not sent)", t->o->timeout_ms, left);
+  if (left < 0) return cf_fail(t, "send: %s", strerror(errno));
   return 0;
 }
 
@@ -438,6 +447,15 @@ int cf_expect_quiet(cf_test *t, int fd) {
   if (rc == CF_EOF) return cf_fail(t, "wanted no reply, the server closed the connection");
   if (rc == CF_GOT) return cf_fail(t, "wanted no reply, got %s", cf_describe(&f, d, sizeof d));
   return CF_FAIL;
+}
+
+int cf_busy(cf_test *t, const cf_frame *r, hfp_error *e) {
+  if (r->h.type != HFP_ERROR) return 0;
+  hfp_error tmp;
+  char d[400];
+  if (!e) e = &tmp;
+  if (hfp_decode_error(r->p, r->h.length, e) == 0 && e->code == HFP_E_BUSY && !e->fatal) return 1;
+  return cf_fail(t, "wanted a RESULT or a non-fatal BUSY, got %s", cf_describe(r, d, sizeof d));
 }
 
 int cf_still_serves(cf_test *t, int fd) {
