@@ -98,13 +98,16 @@ static int create_refused(cf_test *t, intptr_t how) {
   return cf_still_serves(t, fd);
 }
 
-static int create_length(cf_test *t, intptr_t len) {
+/* SHM_CREATE or SHM_DESTROY (arg: type | length << 8) whose payload has
+ * the wrong length: a fatal LENGTH, whatever the transport. */
+static int control_length(cf_test *t, intptr_t arg) {
+  int type = (int)(arg & 0xff), len = (int)(arg >> 8);
   int fd;
   CF_TRY(connect_v(t, &fd));
   uint8_t b[32];
   memset(b, 0, sizeof b);
-  cf_header(b, HFP_SHM_CREATE, 0, 0, (uint32_t)len);
-  b[16] = 64;
+  cf_header(b, type, 0, 0, (uint32_t)len);
+  b[16] = 1;
   CF_TRY(cf_send(t, fd, b, HFP_HEADER_SIZE + (size_t)len));
   return cf_expect_error(t, fd, HFP_E_LENGTH, 1, 0);
 }
@@ -288,17 +291,6 @@ static int destroy(cf_test *t, intptr_t how) {
   return 0;
 }
 
-static int destroy_length(cf_test *t, intptr_t len) {
-  int fd;
-  CF_TRY(connect_v(t, &fd));
-  uint8_t b[32];
-  memset(b, 0, sizeof b);
-  cf_header(b, HFP_SHM_DESTROY, 0, 0, (uint32_t)len);
-  b[16] = 1;
-  CF_TRY(cf_send(t, fd, b, HFP_HEADER_SIZE + (size_t)len));
-  return cf_expect_error(t, fd, HFP_E_LENGTH, 1, 0);
-}
-
 /* A client never sends descriptors: fatal PROTOCOL. */
 static int client_fd(cf_test *t, intptr_t arg) {
   (void)arg;
@@ -343,9 +335,9 @@ const cf_case cf_cases_shm[] = {
   {"shm.create.zero_bytes", "SHM_CREATE of 0 bytes is a non-fatal INVALID with id 0", UX, create_refused, C_ZERO},
   {"shm.create.u64_max", "a segment over the whole budget is a non-fatal TOO_LARGE with id 0", UX, create_refused, C_HUGE},
   {"shm.create.two_to_63", "a segment over the whole budget is a non-fatal TOO_LARGE with id 0", UX, create_refused, C_U63},
-  {"shm.create.length_7", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH", CF_NEED_UNIX, create_length, 7},
-  {"shm.create.length_9", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH", CF_NEED_UNIX, create_length, 9},
-  {"shm.create.length_0", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH", CF_NEED_UNIX, create_length, 0},
+  {"shm.create.length_7", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH, on any transport", 0, control_length, HFP_SHM_CREATE | 7 << 8},
+  {"shm.create.length_9", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH, on any transport", 0, control_length, HFP_SHM_CREATE | 9 << 8},
+  {"shm.create.length_0", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH, on any transport", 0, control_length, HFP_SHM_CREATE | 0 << 8},
   {"shm.create.seventeenth", "the 17th segment of a connection is BUSY; after a release one more fits", UX, seventeenth, 0},
   {"shm.filter.f32", "a FILTER by reference: RESULT flag bit 1, 56 bytes, the socket path's values", UX, by_reference, 0},
   {"shm.filter.f16", "a FILTER by reference in f16", UX, by_reference, 3},
@@ -373,14 +365,12 @@ const cf_case cf_cases_shm[] = {
   {"shm.destroy.twice", "a segment destroyed twice: the second is INVALID", UX, destroy, D_TWICE},
   {"shm.destroy.no_reply", "SHM_DESTROY of a known segment has no reply", UX, destroy, D_SILENT},
   {"shm.destroy.while_running", "frames running on a destroyed segment finish first", UX, destroy, D_RUNNING},
-  {"shm.destroy.length_3", "SHM_DESTROY with a payload of the wrong length is a fatal LENGTH", CF_NEED_UNIX, destroy_length, 3},
-  {"shm.destroy.length_5", "SHM_DESTROY with a payload of the wrong length is a fatal LENGTH", CF_NEED_UNIX, destroy_length, 5},
+  {"shm.destroy.length_3", "SHM_DESTROY with a payload of the wrong length is a fatal LENGTH, on any transport", 0, control_length, HFP_SHM_DESTROY | 3 << 8},
+  {"shm.destroy.length_5", "SHM_DESTROY with a payload of the wrong length is a fatal LENGTH, on any transport", 0, control_length, HFP_SHM_DESTROY | 5 << 8},
   {"shm.client_sends_fd", "a client that sends a descriptor gets a fatal PROTOCOL", CF_NEED_UNIX, client_fd, 0},
   {"shm.tcp.create", "SHM_CREATE on TCP is a non-fatal UNSUPPORTED with id 0", CF_NEED_TCP, unsupported, U_CREATE},
   {"shm.tcp.destroy", "SHM_DESTROY on TCP is a non-fatal UNSUPPORTED with id 0", CF_NEED_TCP, unsupported, U_DESTROY},
   {"shm.tcp.filter", "a FILTER with SHM on TCP is a non-fatal UNSUPPORTED with its id", CF_NEED_TCP, unsupported, U_FILTER},
-  {"shm.tcp.create_length", "SHM_CREATE with the wrong length is a fatal LENGTH on TCP too", CF_NEED_TCP, create_length, 9},
-  {"shm.tcp.destroy_length", "SHM_DESTROY with the wrong length is a fatal LENGTH on TCP too", CF_NEED_TCP, destroy_length, 5},
   {"shm.disabled.create", "where HELLO_OK clears bit 1, SHM_CREATE is UNSUPPORTED", CF_NEED_UNIX | CF_NEED_NO_SHM, unsupported, U_CREATE},
   {"shm.disabled.filter", "where HELLO_OK clears bit 1, a FILTER with SHM is UNSUPPORTED", CF_NEED_UNIX | CF_NEED_NO_SHM, unsupported, U_FILTER},
   {NULL, NULL, 0, NULL, 0},
