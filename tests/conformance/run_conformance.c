@@ -10,7 +10,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -22,27 +21,6 @@
 
 enum { MIN_PASSED = 200 };
 
-/* "Narrow": Small's shape, its weights saying it was trained on frames of
- * median strand alpha 0.2..0.3, so the out-of-range cases have a range to
- * leave. */
-static int narrow_weights(const harness *h, char *path, size_t cap) {
-  char dir[256];
-  snprintf(dir, sizeof dir, "%s/narrow", h->dir);
-  if (mkdir(dir, 0700)) return -1;
-  snprintf(path, cap, "%s/Narrow.safetensors", dir);
-  hf_net_config cfg;
-  hf_weights *w = NULL;
-  if (hf_variant_preset("Small", &cfg)) return -1;
-  snprintf(cfg.name, sizeof cfg.name, "Narrow");
-  if (hf_weights_init_random(&cfg, 77, &w)) return -1;
-  int rc = hf_input_range_parse("{\"definition\": 1, \"spp\": 4, \"frames\": 20, "
-                                "\"strand_alpha_p50\": [0.2, 0.3]}",
-                                4, &w->input_range, NULL, 0) ||
-           hf_weights_save(path, w);
-  hf_weights_free(w);
-  return rc ? -1 : 0;
-}
-
 int main(int argc, char **argv) {
   if (argc != 2 || (strcmp(argv[1], "unix") && strcmp(argv[1], "tcp"))) {
     fprintf(stderr, "usage: run_conformance unix|tcp\n");
@@ -52,7 +30,13 @@ int main(int argc, char **argv) {
   harness h;
   server s;
   char narrow[320];
-  if (harness_init(&h) || narrow_weights(&h, narrow, sizeof narrow)) {
+  /* "Narrow" records a trained range (median strand alpha 0.2..0.3), so
+   * the out-of-range cases have a range to leave. */
+  if (harness_init(&h) ||
+      harness_narrow_weights(&h,
+                             "{\"definition\": 1, \"spp\": 4, \"frames\": 20, "
+                             "\"strand_alpha_p50\": [0.2, 0.3]}",
+                             narrow, sizeof narrow)) {
     fprintf(stderr, "run_conformance: cannot make the weights\n");
     return 1;
   }

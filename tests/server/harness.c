@@ -78,6 +78,22 @@ void harness_free(harness *h) {
   if (system(cmd) != 0) fprintf(stderr, "harness: could not remove %s\n", h->dir);
 }
 
+int harness_narrow_weights(const harness *h, const char *range_json, char *path, size_t cap) {
+  char dir[256];
+  snprintf(dir, sizeof dir, "%s/narrow", h->dir);
+  if (mkdir(dir, 0700)) return -1;
+  snprintf(path, cap, "%s/Narrow.safetensors", dir);
+  hf_net_config cfg;
+  hf_weights *w = NULL;
+  if (hf_variant_preset("Small", &cfg)) return -1;
+  snprintf(cfg.name, sizeof cfg.name, "Narrow");
+  if (hf_weights_init_random(&cfg, 77, &w)) return -1;
+  int rc = hf_input_range_parse(range_json, 4, &w->input_range, NULL, 0) ||
+           hf_weights_save(path, w);
+  hf_weights_free(w);
+  return rc ? -1 : 0;
+}
+
 const ref_variant *harness_variant(const harness *h, const char *name) {
   for (int i = 0; i < h->nv; i++)
     if (!strcmp(h->v[i].cfg.name, name)) return &h->v[i];

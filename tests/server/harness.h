@@ -40,6 +40,12 @@ typedef struct server {
 int harness_init(harness *h);
 void harness_free(harness *h);
 const ref_variant *harness_variant(const harness *h, const char *name);
+/* "Narrow": Small's shape with random weights (seed 77) whose metadata
+ * records the trained range range_json (hf_input_range_parse's JSON, spp
+ * 4), written to <dir>/narrow/Narrow.safetensors, out of the weights
+ * directory so the other servers do not see it. Its path goes to path;
+ * returns 0 or -1. */
+int harness_narrow_weights(const harness *h, const char *range_json, char *path, size_t cap);
 
 /* Starts hairfilterd on a fresh Unix socket and a loopback port 0 with the
  * harness weights on cpu-ref, plus extra arguments (NULL-terminated).

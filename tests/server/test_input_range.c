@@ -14,7 +14,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -41,24 +40,13 @@ static float *frame_of_alpha(float a) {
 static int setup(void **state) {
   (void)state;
   if (harness_init(&H)) return -1;
-  /* "Narrow": Small's shape, trained (so its metadata says) on frames whose
-   * median strand alpha was 0.2..0.3. Kept out of the harness's weights
-   * directory so the other suites' servers do not see it. */
-  char dir[256];
-  snprintf(dir, sizeof dir, "%s/narrow", H.dir);
-  if (mkdir(dir, 0700)) return -1;
-  snprintf(narrow_path, sizeof narrow_path, "%s/Narrow.safetensors", dir);
-  hf_net_config cfg;
-  hf_weights *w = NULL;
-  if (hf_variant_preset("Small", &cfg)) return -1;
-  snprintf(cfg.name, sizeof cfg.name, "Narrow");
-  if (hf_weights_init_random(&cfg, 77, &w)) return -1;
-  int rc = hf_input_range_parse("{\"definition\": 1, \"spp\": 4, \"frames\": 20, "
-                                "\"strand_alpha_p50\": [0.2, 0.3], \"hair_fraction\": [0.5, 1]}",
-                                4, &w->input_range, NULL, 0) ||
-           hf_weights_save(narrow_path, w);
-  hf_weights_free(w);
-  if (rc) return -1;
+  /* Trained (so its metadata says) on frames whose median strand alpha was
+   * 0.2..0.3. */
+  if (harness_narrow_weights(&H,
+                             "{\"definition\": 1, \"spp\": 4, \"frames\": 20, "
+                             "\"strand_alpha_p50\": [0.2, 0.3], \"hair_fraction\": [0.5, 1]}",
+                             narrow_path, sizeof narrow_path))
+    return -1;
   const char *const extra[] = {"--weights", narrow_path, "--max-batch", "4",
                                "--max-queue-delay-us", "2000", NULL};
   return server_start(&H, &S, extra);
