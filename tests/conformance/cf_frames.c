@@ -71,17 +71,24 @@ static void sample(const cf_filter *f, uint64_t i, uint32_t *x, float s[6]) {
   }
 }
 
+/* dst may sit anywhere in a frame (after a variant name of any length), so
+ * values are copied in, never stored through a float or uint16_t pointer. */
 void cf_fill_features(const cf_filter *f, void *dst) {
   uint64_t samples = (uint64_t)f->width * f->height * (uint64_t)f->spp;
   uint32_t x = f->seed * 2654435761u + 12345u;
+  uint8_t *d = dst;
   for (uint64_t i = 0; i < samples; i++) {
     float s[6];
     sample(f, i, &x, s);
     for (int k = 0; k < 6; k++) {
-      if (f->in_dtype == HFP_F16)
-        ((uint16_t *)dst)[i * 6 + (uint64_t)k] = hf_f32_to_f16(s[k]);
-      else
-        ((float *)dst)[i * 6 + (uint64_t)k] = s[k];
+      if (f->in_dtype == HFP_F16) {
+        uint16_t h = hf_f32_to_f16(s[k]);
+        memcpy(d, &h, sizeof h);
+        d += sizeof h;
+      } else {
+        memcpy(d, &s[k], sizeof s[k]);
+        d += sizeof s[k];
+      }
     }
   }
 }
