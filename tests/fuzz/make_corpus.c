@@ -104,17 +104,22 @@ static void protocol(void) {
 }
 
 static void weights(void) {
-  /* Tiny networks of each architecture, with and without a trained range. */
+  /* Tiny networks of each architecture (Kernel with and without its head),
+   * with and without a trained range. */
   static const struct {
     const char *file;
     int spp, arch, L, levels[3];
     const char *range;
+    int kernel_radius, kernel_hidden;
   } w[] = {
-    {"unet_1level", 1, HF_ARCH_UNET, 1, {4}, NULL},
-    {"unet_2level", 2, HF_ARCH_UNET, 2, {4, 8}, NULL},
-    {"residual", 1, HF_ARCH_RESIDUAL, 2, {4, 4}, NULL},
+    {"unet_1level", 1, HF_ARCH_UNET, 1, {4}, NULL, 0, 0},
+    {"unet_2level", 2, HF_ARCH_UNET, 2, {4, 8}, NULL, 0, 0},
+    {"residual", 1, HF_ARCH_RESIDUAL, 2, {4, 4}, NULL, 0, 0},
     {"with_range", 4, HF_ARCH_UNET, 1, {2},
-     "{\"definition\": 1, \"spp\": 4, \"frames\": 3, \"strand_alpha_p50\": [0.1, 0.2]}"},
+     "{\"definition\": 1, \"spp\": 4, \"frames\": 3, \"strand_alpha_p50\": [0.1, 0.2]}",
+     0, 0},
+    {"kernel_head", 1, HF_ARCH_KERNEL, 1, {4}, NULL, 1, 4},
+    {"kernel_no_head", 1, HF_ARCH_KERNEL, 1, {4}, NULL, 1, 0},
   };
   char tmp[] = "/tmp/make_corpus_XXXXXX";
   int fd = mkstemp(tmp);
@@ -125,9 +130,11 @@ static void weights(void) {
     snprintf(c.name, sizeof c.name, "Fuzz%zu", i);
     c.spp = w[i].spp;
     c.in_channels = c.spp * HF_FEATURES_PER_SAMPLE;
-    c.out_channels = HF_OUT_CHANNELS;
     c.num_levels = w[i].L;
     c.arch = w[i].arch;
+    c.kernel_radius = w[i].kernel_radius;
+    c.kernel_hidden = w[i].kernel_hidden;
+    c.out_channels = HF_OUT_CHANNELS + (c.arch == HF_ARCH_KERNEL ? hf_kernel_taps(c.kernel_radius) : 0);
     for (int l = 0; l < c.num_levels; l++) c.levels[l] = w[i].levels[l];
     hf_weights *wt;
     if (hf_net_config_validate(&c) || hf_weights_init_random(&c, 7 + i, &wt)) exit(1);
