@@ -18,7 +18,9 @@
  * One thread per connection, since an hfc_client is single-threaded. In the
  * open loop each connection offers rate/connections frames/s; a request's
  * latency counts from when it was due, not from when a free slot let it go,
- * so a server that falls behind shows it (no coordinated omission).
+ * so a server that falls behind shows it (no coordinated omission). In the
+ * closed loop a request refused BUSY is counted and its slot rests 10 ms
+ * before it sends again, so that a refusing server is not spun against.
  */
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
@@ -137,9 +139,14 @@ static double uniform01(uint64_t *s) {
 
 /* ---- one connection ----------------------------------------------------------- */
 
+/* A closed-loop request refused BUSY goes again after this long, so that a
+ * refusing server is not spun against (that would take the CPU it needs). */
+#define BUSY_BACKOFF_S 0.01
+
 typedef struct slot {
   int busy;
   double started;                /* when the request was due */
+  double not_before;             /* closed loop, after a BUSY: not sent again before */
   void *out, *rgba;
 } slot;
 
@@ -178,8 +185,14 @@ static void *run(void *arg) {
   uint8_t *mem = NULL, *heap = NULL;
   const void *in = sh->features;
   if (slots && o->shm) {
-    /* One segment: the features once, then a result (and composite) per slot. */
-    rc = hfc_shm_alloc(c, sh->in_bytes + per * (size_t)k, (void **)&mem);
+    /* One segment: the features once, then a result (and composite) per
+     * slot. In the open loop, where k is only the most the server allows in
+     * flight, fewer slots are taken when the server's shared memory cannot
+     * hold them all (BUSY: not now; TOO_LARGE: not within its budget). */
+    while (((rc = hfc_shm_alloc(c, sh->in_bytes + per * (size_t)k, (void **)&mem)) == HFC_E_BUSY ||
+            rc == HFC_E_TOO_LARGE) &&
+           sh->open_loop && k > 1)
+      k /= 2;
     if (rc) {
       fprintf(stderr, "hairfilter load: connection %d: shared memory: %s (%s)\n", w->index,
               hfc_strerror(rc), hfc_last_message(c));
@@ -242,8 +255,10 @@ static void *run(void *arg) {
     }
     /* Submit what is due. */
     if (!stopping && !sh->open_loop) {
+      double now = now_s();
       for (int i = 0; i < k && pending < k && !err; i++)
-        if (!slots[i].busy) err = submit(c, &r, &slots[i], now_s(), sh, &pending);
+        if (!slots[i].busy && slots[i].not_before <= now)
+          err = submit(c, &r, &slots[i], now_s(), sh, &pending);
     } else if (!stopping && sh->open_loop) {
       double now = now_s();
       while (t_next <= now) {
@@ -273,6 +288,13 @@ static void *run(void *arg) {
       if (bl_len && pending < k) dt = 0;
       wait_ms = dt <= 0 ? 0 : dt < 0.1 ? (int)ceil(dt * 1e3) : 100;
     }
+    if (!sh->open_loop && !stopping && pending < k) {
+      /* Slots resting after a BUSY: wake when the first may go again. */
+      double now = now_s(), first = now + 0.1;
+      for (int i = 0; i < k; i++)
+        if (!slots[i].busy && slots[i].not_before < first) first = slots[i].not_before;
+      wait_ms = first <= now ? 0 : (int)ceil((first - now) * 1e3);
+    }
     if (pending == 0) {
       if (wait_ms) sleep_s(wait_ms / 1e3);
       continue;
@@ -287,6 +309,7 @@ static void *run(void *arg) {
     slot *s = d.user;
     s->busy = 0;
     pending--;
+    if (d.status == HFC_E_BUSY) s->not_before = now_s() + BUSY_BACKOFF_S;
     record(sh, &d, s->started);
   }
   if (err) {

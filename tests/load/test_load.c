@@ -4,7 +4,9 @@
  * every point with ordered percentiles and no request unanswered, the
  * open loop offers the rate it was asked for, Unix, TCP and shared memory
  * and f16 all run, a real feature EXR is sent, CSV and JSON carry every
- * point. `test_load plot` draws the
+ * point, and against a server that refuses, BUSY is not spun against and
+ * shared memory too small for every open-loop slot takes fewer.
+ * `test_load plot` draws the
  * plot (skips without gnuplot). */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -230,6 +232,45 @@ static void test_transports(void **state) {
   assert_non_null(strstr(text, "unauthorized"));
 }
 
+/* Against a server that refuses: a closed-loop request refused BUSY is
+ * sent again only after a pause (BUSY_BACKOFF_S, 10 ms), so a window of 1 s
+ * at concurrency 6 sees at most about 600 refusals, not the tens of
+ * thousands of a client that spins; and an open loop over shared memory
+ * whose slots the server's segment budget cannot hold takes fewer slots
+ * instead of failing. */
+static void test_refusing_server(void **state) {
+  (void)state;
+  server s2;
+  const char *const extra[] = {"--queue-size", "1", "--max-batch", "1", "--max-shm-mb", "3", NULL};
+  assert_int_equal(server_start(&H, &s2, extra), 0);
+  char why[sizeof text + 200] = "";
+  /* By reference, so that a refusal is quick to get. */
+  int rc = load("--server %s --variant Small --size 64x64 --shm --concurrency-range 6 --window 1s "
+                "--warmup 0.2s --trials 1 --quiet", s2.unix_url);
+  unsigned long long frames = 0, busy = 0;
+  const char *p = strstr(text, "  frames ");
+  if (rc || !p || sscanf(p, "  frames %llu throughput %*f frames/s busy %llu", &frames, &busy) != 2)
+    snprintf(why, sizeof why, "closed loop against a refusing server: status %d:\n%s", rc, text);
+  else if (busy < 1 || busy > 1000)
+    snprintf(why, sizeof why, "%llu BUSY in a 1 s window at concurrency 6 (wanted 1..1000):\n%s",
+             busy, text);
+  else
+    print_message("closed loop over shared memory at concurrency 6 against a queue of 1: "
+                  "%llu frames, %llu BUSY\n", frames, busy);
+  /* Small 128x128: 1.5 MiB of features, 192 KiB of results a slot; 32
+   * slots are 7.5 MiB, over the 3 MiB budget. */
+  if (!why[0]) {
+    rc = load("--server %s --variant Small --size 128x128 --shm --request-rate-range 20 "
+              "--connections 1 --window 0.5s --warmup 0.1s --trials 1 --quiet", s2.unix_url);
+    if (rc || !strstr(text, "frames ") || strstr(text, "frames 0 "))
+      snprintf(why, sizeof why, "open loop over shared memory with a 3 MiB budget: status %d:\n%s",
+               rc, text);
+  }
+  int stopped = server_stop(&s2, 10000);
+  if (why[0]) fail_msg("%s", why);
+  assert_int_equal(stopped, 0);
+}
+
 static void test_plot(void **state) {
   (void)state;
   int rc = load("--server %s --variant Tiny --size 8x8 --concurrency-range 1:2 --window 0.3s "
@@ -258,6 +299,7 @@ int main(int argc, char **argv) {
     cmocka_unit_test(test_closed_sweep),
     cmocka_unit_test(test_open_loop),
     cmocka_unit_test(test_transports),
+    cmocka_unit_test(test_refusing_server),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
