@@ -180,6 +180,11 @@ static void *run(void *arg) {
     return NULL;
   }
   int k = sh->open_loop ? w->max_inflight : w->inflight;
+  /* Open loop over shared memory: the connections share one connection's
+   * limit, so that the first to connect do not take the whole segment
+   * budget (a late request waits for a slot; its latency still counts from
+   * when it was due). */
+  if (sh->open_loop && o->shm && w->nconn > 1) k = k / w->nconn > 1 ? k / w->nconn : 1;
   slot *slots = calloc((size_t)k, sizeof *slots);
   size_t per = sh->out_bytes + sh->rgba_bytes;
   uint8_t *mem = NULL, *heap = NULL;
