@@ -17,12 +17,14 @@
 #
 # Each point: measurement windows (SWEEP_WINDOW, default 2s at 256x256,
 # 4s above) until the last three agree within 10 % or SWEEP_TRIALS (4)
-# windows. Writes OUT_DIR/<size>-<transport>-<loop>.{txt,csv} and one PNG
-# per size (client p50 and p99 against throughput, a panel per loop, a
-# line per transport), and prints the sweep tables with the machine and the date.
+# windows. SWEEP_TRANSPORTS (default "unix tcp shm") runs fewer. Writes
+# OUT_DIR/<size>-<transport>-<loop>.{txt,csv} and one PNG per size (client
+# p50 and p99 against throughput, a panel per loop, a line per transport
+# whose CSV is in OUT_DIR), and prints the sweep tables with the machine
+# and the date.
 set -euo pipefail
 if [ $# -lt 2 ]; then
-  sed -n '2,22p' "$0" >&2
+  sed -n '2,24p' "$0" >&2
   exit 2
 fi
 build=$1 out=$2
@@ -58,7 +60,7 @@ column() { awk -F, -v n="$2" 'NR == 1 {for (i = 1; i <= NF; i++) if ($i == n) c 
 
 for size in "${sizes[@]}"; do
   window=${SWEEP_WINDOW:-$([ "$size" = 256x256 ] && echo 2s || echo 4s)}
-  for transport in unix tcp shm; do
+  for transport in ${SWEEP_TRANSPORTS:-unix tcp shm}; do
     case $transport in
       unix) url=unix:$work/s.sock extra=() ;;
       tcp) url=$tcp extra=() ;;
@@ -74,7 +76,8 @@ for size in "${sizes[@]}"; do
     sed -n '/sweep (client latency/,$p' "$base-closed.txt"
     sat=$(column "$base-closed.csv" throughput | sort -g | tail -1)
     q=$(echo "$sat / 4" | bc -l)
-    range=$(printf '%.2f:%.2f:%.2f' "$q" "$(echo "$q * 5" | bc -l)" "$q")
+    # The end a little past 5 q, so that rounding keeps the fifth point.
+    range=$(printf '%.2f:%.2f:%.2f' "$q" "$(echo "$q * 5.01" | bc -l)" "$q")
     echo
     echo "\$ hairfilter load ${common[*]} --request-rate-range $range --request-distribution poisson"
     "$build/hairfilter" load "${common[@]}" --request-rate-range "$range" \
@@ -89,6 +92,7 @@ for size in "${sizes[@]}"; do
       for transport in unix tcp shm; do
         f=$out/$size-$transport-$loop.csv
         colour=$((colour + 1))
+        [ -f "$f" ] || continue
         paste -d' ' <(column "$f" throughput) <(column "$f" total_p50_ms) \
           <(column "$f" total_p99_ms) > "$work/$transport-$loop.dat"
         plot="$plot${plot:+, }'$work/$transport-$loop.dat' using 1:3 with linespoints lc $colour pt 7 title '$transport p99'"
