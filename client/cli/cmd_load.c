@@ -39,7 +39,7 @@
 #include "cli_args.h"
 #include "cli_common.h"
 #include "commands.h"
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
 #include "load.h"
 
 typedef struct opts {
