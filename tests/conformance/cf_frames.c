@@ -16,7 +16,7 @@
 #include <unistd.h>
 
 #include "cf_internal.h"
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
 #include "hfcore.h"
 
 /* ---- FILTER ----------------------------------------------------------------- */
@@ -278,10 +278,34 @@ int cf_shm_create(cf_test *t, int fd, uint64_t bytes, uint32_t *segment, uint8_t
 
 /* ---- the ordinary client ------------------------------------------------------- */
 
+hfc_options cf_client_options(const char *name, const char *token, int timeout_ms) {
+  hfc_options o;
+  hfc_options_init(&o);
+  o.client_name = name;
+  o.token = token;
+  o.timeout_ms = timeout_ms;
+  return o;
+}
+
+hfc_request cf_client_request(const cf_filter *f, const void *in, void *out, size_t out_bytes) {
+  hfc_request r;
+  hfc_request_init(&r);
+  r.variant = f->variant;
+  r.width = (int)f->width;
+  r.height = (int)f->height;
+  r.spp = f->spp;
+  r.in_dtype = r.out_dtype = HFC_F32;
+  r.features = in;
+  r.features_bytes = (size_t)cf_features_bytes(f);
+  r.result = out;
+  r.result_bytes = out_bytes;
+  return r;
+}
+
 int cf_health(cf_test *t) {
   const cf_server *s = t->srv;
   hfc_client *c = NULL;
-  hfc_options o = {"conformance-check", t->o->token, t->o->timeout_ms};
+  hfc_options o = cf_client_options("conformance-check", t->o->token, t->o->timeout_ms);
   int rc = hfc_connect(t->o->server, &o, &c);
   if (rc) return cf_fail(t, "libhairfilter cannot connect: %s", hfc_strerror(rc));
   cf_filter f = {0};
@@ -295,9 +319,7 @@ int cf_health(cf_test *t) {
     return cf_fail(t, "out of memory");
   }
   cf_fill_features(&f, in);
-  hfc_request r = {.variant = f.variant, .width = (int)f.width, .height = (int)f.height,
-                   .spp = f.spp, .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
-                   .result = out};
+  hfc_request r = cf_client_request(&f, in, out, s->reference_len);
   rc = hfc_filter(c, &r, NULL);
   int same = !rc && s->reference && !memcmp(out, s->reference, s->reference_len);
   char msg[300];

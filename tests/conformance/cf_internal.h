@@ -14,6 +14,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include <hairfilter/hairfilter.h>
+
 #include "conformance.h"
 #include "hfproto.h"
 
@@ -179,6 +181,12 @@ typedef struct cf_filter {
   uint32_t segment;
   uint64_t shm_in, shm_out, shm_rgba;
 } cf_filter;
+
+/* libhairfilter's options: name, token (NULL: none), timeout_ms. */
+hfc_options cf_client_options(const char *name, const char *token, int timeout_ms);
+/* The ordinary frame f (f32 in and out) as a libhairfilter request, from in
+ * (cf_features_bytes(f)) into out (out_bytes). */
+hfc_request cf_client_request(const cf_filter *f, const void *in, void *out, size_t out_bytes);
 
 /* Fills the fields left 0 (variant, size, spp, colours) with ordinary ones. */
 void cf_filter_defaults(const cf_test *t, cf_filter *f);

@@ -114,6 +114,18 @@ int mk_hello(mock *m) {
 
 /* ---- replies ------------------------------------------------------------------ */
 
+uint32_t mk_tag(const void *features, int dtype) {
+  float v;
+  if (dtype == HFP_F16) {
+    uint16_t h;
+    memcpy(&h, features, 2);
+    v = hf_f16_to_f32(h);
+  } else {
+    memcpy(&v, features, 4);
+  }
+  return v >= 0 && v < 65536 ? (uint32_t)v : 0;
+}
+
 void mk_values(uint32_t id, size_t p, float v[3]) {
   v[0] = 1.0f + (float)(id % 97) / 64.0f + (float)(p % 13) / 1024.0f;
   v[1] = (float)(p % 5) / 8.0f;
@@ -129,12 +141,12 @@ static void put(uint8_t *dst, int dtype, size_t i, float v) {
   }
 }
 
-/* Result (and composite) of f for request id into res / rgba. */
-static void fill_result(uint32_t id, const hfp_filter *f, uint8_t *res, uint8_t *rgba) {
+/* Result (and composite) of f, whose features carry tag, into res / rgba. */
+static void fill_result(uint32_t tag, const hfp_filter *f, uint8_t *res, uint8_t *rgba) {
   size_t px = (size_t)f->width * f->height;
   for (size_t p = 0; p < px; p++) {
     float v[3];
-    mk_values(id, p, v);
+    mk_values(tag, p, v);
     for (int k = 0; k < 3; k++) put(res, f->out_dtype, 3 * p + (size_t)k, v[k]);
     if (!rgba) continue;
     for (int k = 0; k < 3; k++)
@@ -170,7 +182,7 @@ uint8_t *mk_result(mock *m, uint32_t id, const uint8_t *payload, size_t len, siz
       mk_fail(m, "the client's FILTER refers to segment %u, unknown or too small", f.shm_segment);
       return NULL;
     }
-    fill_result(id, &f, seg + f.shm_out, rl ? seg + f.shm_rgba : NULL);
+    fill_result(mk_tag(seg + f.shm_in, f.in_dtype), &f, seg + f.shm_out, rl ? seg + f.shm_rgba : NULL);
     dl = rl = 0;
   }
   r.data_len = dl;
@@ -184,7 +196,7 @@ uint8_t *mk_result(mock *m, uint32_t id, const uint8_t *payload, size_t len, siz
     mk_fail(m, "mock: cannot encode RESULT: %s", hfp_strerror(hn));
     return NULL;
   }
-  if (!seg) fill_result(id, &f, b + hn, rl ? b + hn + dl : NULL);
+  if (!seg) fill_result(mk_tag(f.data, f.in_dtype), &f, b + hn, rl ? b + hn + dl : NULL);
   *n = (size_t)total;
   return b;
 }
@@ -359,7 +371,7 @@ int mk_start(cf_test *t, mock *m) {
   snprintf(m->url, sizeof m->url, "unix:%s", m->path);
   m->fd = -1;
   if (!m->timeout_ms) m->timeout_ms = 5000;
-  hfp_hello_ok d = {0, 0, 256, 256, MK_SPP, 8, HFP_DTYPE_MASK_ALL, 4, 64, 1 << 24, "mock"};
+  hfp_hello_ok d = {0, 0, 256, 256, MK_SPP, 8, HFP_DTYPE_MASK_ALL, 4, 64, 1 << 24, "mock", ""};
   if (!m->ok.max_width) {
     uint16_t v = m->ok.version, fl = m->ok.server_flags;
     uint16_t inflight = m->ok.max_inflight;

@@ -75,9 +75,16 @@ uint8_t *mk_variants(mock *m, int version, size_t *n);
 uint8_t *mk_stats(mock *m, int version, size_t *n);
 size_t mk_error(uint8_t *buf, uint32_t id, int code, int fatal, const char *msg);
 
-/* The values the well-behaved server puts in a RESULT for request id:
- * color, highlight, alpha of pixel p, and the composite. */
-void mk_values(uint32_t id, size_t p, float v[3]);
+/* The values the well-behaved server puts in a RESULT for a frame whose
+ * features carry tag: color, highlight, alpha of pixel p, and the
+ * composite. The tag is the frame's first feature value (mk_tag), which the
+ * client suite makes different for every request, so a result delivered to
+ * the wrong request shows; request ids are no use for that, as a client
+ * may number its requests one way and the wire another. */
+void mk_values(uint32_t tag, size_t p, float v[3]);
+/* The tag of features in dtype (HFP_F32 or HFP_F16): the first value as an
+ * integer, 0 when it is not one of 0..65535. */
+uint32_t mk_tag(const void *features, int dtype);
 
 /* Variants of the well-behaved server. */
 #define MK_VARIANT "Mock"

@@ -14,7 +14,7 @@
 #include <unistd.h>
 
 #include "cf_internal.h"
-#include "hairfilter.h"
+#include <hairfilter/hairfilter.h>
 
 static const cf_case *const server_tables[] = {cf_cases_handshake, cf_cases_frame,
                                                cf_cases_filter,    cf_cases_control,
@@ -131,7 +131,7 @@ static int probe(const cf_options *o, cf_server *s, char *why, size_t whylen) {
   s->reference_len = (size_t)s->pw * s->ph * 3 * sizeof(float);
   s->reference = malloc(s->reference_len);
   hfc_client *c = NULL;
-  hfc_options co = {"conformance-probe", o->token, o->timeout_ms};
+  hfc_options co = cf_client_options("conformance-probe", o->token, o->timeout_ms);
   rc = hfc_connect(o->server, &co, &c);
   if (!rc) {
     cf_filter pf = {0};
@@ -142,8 +142,7 @@ static int probe(const cf_options *o, cf_server *s, char *why, size_t whylen) {
     void *in = malloc((size_t)cf_features_bytes(&pf));
     if (in && s->reference) {
       cf_fill_features(&pf, in);
-      hfc_request r = {.variant = pf.variant, .width = (int)pf.width, .height = (int)pf.height,
-                       .spp = pf.spp, .features = in, .result = s->reference};
+      hfc_request r = cf_client_request(&pf, in, s->reference, s->reference_len);
       rc = hfc_filter(c, &r, NULL);
     } else {
       rc = HFC_E_NOMEM;
