@@ -45,7 +45,7 @@ static void protocol(void) {
   frame("hello", hfp_encode_hello(b, sizeof b, &hello), b);
   hfp_hello hello1 = {1, 1, "old-engine", ""};
   frame("hello_v1", hfp_encode_hello(b, sizeof b, &hello1), b);
-  hfp_hello_ok ok = {2, 3, 1768, 1768, 4, 32, 3, 4, 64, 1u << 30, "hairfilterd"};
+  hfp_hello_ok ok = {2, 3, 1768, 1768, 4, 32, 3, 4, 64, 1u << 30, "hairfilterd", "0.1.0"};
   frame("hello_ok", hfp_encode_hello_ok(b, sizeof b, &ok), b);
   frame("list_variants", hfp_encode_empty(b, sizeof b, HFP_LIST_VARIANTS, 0), b);
   frame("stats", hfp_encode_empty(b, sizeof b, HFP_STATS, 0), b);
