@@ -222,6 +222,38 @@ static const uint16_t version_ranges[][2] = {
   {3, 3}, {3, 65535}, {2, 1}, {0, 0}, {65535, 65535}, {65535, 0},
 };
 
+/* What follows the server name in HELLO_OK: nothing on version 1 (its
+ * frame byte for byte); on version 2 the software block, software_len
+ * (0..64) and that many printable bytes without spaces (or no block, from
+ * a server that does not say). */
+static int hello_ok_tail(cf_test *t, intptr_t version) {
+  uint8_t b[HFP_HEADER_SIZE + 8 + HFP_NAME_MAX + HFP_TOKEN_MAX];
+  size_t n = cf_hello_frame(b, sizeof b, (int)version, (int)version, "conformance", t->o->token);
+  int fd;
+  CF_TRY(cf_connect(t, &fd));
+  CF_TRY(cf_send(t, fd, b, n));
+  cf_frame f;
+  CF_TRY(cf_expect(t, fd, HFP_HELLO_OK, &f));
+  CF_CHECK(t, f.h.length >= 38, "HELLO_OK of %u bytes, shorter than its fixed fields", f.h.length);
+  size_t name_end = 38 + (size_t)hfp_get_u16(f.p + 36);
+  CF_CHECK(t, f.h.length >= name_end, "HELLO_OK ends inside its server name");
+  size_t tail = f.h.length - name_end;
+  if (version == 1) {
+    CF_CHECK(t, tail == 0, "a version-1 HELLO_OK has %zu bytes after the server name", tail);
+    return cf_still_serves(t, fd);
+  }
+  if (tail) {
+    size_t sw = f.p[name_end];
+    CF_CHECK(t, sw <= 64 && tail == 1 + sw,
+             "HELLO_OK's software block says %zu bytes and %zu follow the name", sw, tail);
+    for (size_t i = 0; i < sw; i++) {
+      uint8_t ch = f.p[name_end + 1 + i];
+      CF_CHECK(t, ch > 0x20 && ch < 0x7f, "byte %zu of the software version is 0x%02x", i, ch);
+    }
+  }
+  return cf_still_serves(t, fd);
+}
+
 static int version_range(cf_test *t, intptr_t i) {
   int lo = version_ranges[i][0], hi = version_ranges[i][1];
   int want = lo <= hi ? expected_version(t->srv, lo, hi) : 0;
@@ -644,6 +676,8 @@ const cf_case cf_cases_handshake[] = {
   VR(11, 0, 0),
   VR(12, 65535, 65535),
   VR(13, 65535, 0),
+  {"version.v1.hello_ok", "a version-1 HELLO_OK ends with the server name", 0, hello_ok_tail, 1},
+  {"version.v2.software_version", "a version-2 HELLO_OK's software block: 0..64 printable bytes without spaces", CF_NEED_V2, hello_ok_tail, 2},
   {"version.v1.variants", "a version-1 connection gets VARIANTS without the range blocks", 0, reply_at_version, 1},
   {"version.v2.variants", "a version-2 connection gets VARIANTS with one range block per entry", CF_NEED_V2, reply_at_version, 2},
   {"version.v1.stats", "a version-1 connection gets STATS_REPLY without the counters", 0, reply_at_version, 1 | 1 << 8},
