@@ -60,10 +60,11 @@ static void test_inf_sample(void **state) {
   hf_image img;
   read_result(test_tmp("inf.exr"), &img);
   hf_image_free(&img);
-  /* A clean frame: no warning. */
+  /* A clean frame: nothing sanitised (a 64x64 frame is still outside the
+   * resolutions Base was trained on, which is another warning). */
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_field("frame-64x64.exr"), test_tmp("clean.exr")), 0);
-  assert_null(strstr(text, "warning"));
+  assert_null(strstr(text, "sanitised"));
 }
 
 static void test_tall_frame(void **state) {
@@ -208,8 +209,9 @@ static void test_eval_warning(void **state) {
   assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, test_tmp("evalnan.exr")), 0);
   expect_text("evalnan.exr: 1 sample sanitised");
   expect_text("the first at pixel (33, 9): S2.depth = nan is not finite");
+  /* One sanitising warning, whichever methods see the frame. */
   int warnings = 0;
-  for (const char *t = text; (t = strstr(t, "warning: ")) != NULL; t++) warnings++;
+  for (const char *t = text; (t = strstr(t, "sanitised")) != NULL; t++) warnings++;
   assert_int_equal(warnings, 1);
   assert_null(strstr(text, "| nan"));
   expect_text("| ours Base");
