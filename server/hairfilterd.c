@@ -82,9 +82,11 @@ static void explain_socket_dir(const char *url, const char *path, int rc) {
     *slash = 0;
   struct stat st;
   if (stat(dir, &st) != 0) {
-    hfd_err("--listen %s: %s: the directory %s does not exist (%s); create it writable for "
-            "uid %ld (docs/SERVER.md, \"Socket directory\")", url, uv_strerror(rc), dir,
-            strerror(errno), (long)geteuid());
+    /* libuv's code here (often EACCES) would blame permissions for what
+     * is a missing directory: name only what stat found. */
+    hfd_err("--listen %s: the directory %s does not exist (%s); create it writable for "
+            "uid %ld (docs/SERVER.md, \"Socket directory\")", url, dir, strerror(errno),
+            (long)geteuid());
     return;
   }
   hfd_err("--listen %s: %s: hairfilterd runs as uid %ld gid %ld and cannot create a socket in "

@@ -77,6 +77,14 @@ static void test_bad_listen_urls(void **state) {
     if (st != 2 || !strstr(out, bad[k].says) || !strstr(out, bad[k].url))
       fail_msg("--listen %s: status %d, said: %s", bad[k].url, st, out);
   }
+  /* A socket in a directory that is not there: said as that, not as a
+   * permission problem. */
+  const char *nodir[] = {"--listen", "unix:/nonexistent-hairfilter-dir/s.sock", "--weights-dir",
+                         H.weights_dir, NULL};
+  int st = daemon_run(nodir, NULL, 10000, out, sizeof out);
+  if (st == 0 || !strstr(out, "the directory /nonexistent-hairfilter-dir does not exist") ||
+      strstr(out, "permission denied"))
+    fail_msg("--listen in a missing directory: status %d, said: %s", st, out);
   /* --opt=value (as in deploy/kubernetes) and a token from the
    * environment; the ready file lists the resolved URL */
   server d;
