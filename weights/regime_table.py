@@ -25,8 +25,10 @@ sys.path.insert(0, HERE)
 import dataset  # noqa: E402
 import input_stats  # noqa: E402
 
-# The buckets of hairfilter eval (client/cli/cmd_eval.c).
-WIDTH_EDGES = [0.03, 0.1, 0.3, 0.7]
+# The buckets of hairfilter eval (client/cli/eval_strata.c): the strand-width
+# edges 0.03, 0.1, 0.3 and 0.7 rounded down to the bins of the input
+# statistics, so that a frame lands in the bucket eval puts it in.
+WIDTH_EDGES = [245.0 / 8192, 51.0 / 512, 153.0 / 512, 179.0 / 256]
 WIDTH_NAMES = ["<0.03", "0.03-0.1", "0.1-0.3", "0.3-0.7", ">=0.7"]
 FULL_EDGES = [0.1, 0.5, 0.9]
 FULL_NAMES = ["<0.1", "0.1-0.5", "0.5-0.9", ">=0.9"]
