@@ -99,6 +99,18 @@ class Daemon:
                 samples[(s.name, frozenset(s.labels.items()))] = s.value
         return samples, text
 
+    def settled_metrics(self, want, timeout=10):
+        """metrics() once every (name, labels, value) in want is reached, or
+        after timeout seconds. A reply is counted in its write's completion,
+        which the server's loop may run just after the client has read the
+        reply, so counters read right after a load can lag by the last few."""
+        t_end = time.time() + timeout
+        while True:
+            samples, text = self.metrics()
+            if all(sample(samples, n, **l) == v for n, l, v in want) or time.time() > t_end:
+                return samples, text
+            time.sleep(0.05)
+
 
 def sample(samples, name, **labels):
     return samples.get((name, frozenset(labels.items())))

@@ -102,7 +102,11 @@ def run(d):
     check(served.get("BUSY", 0) > 0, "the small queue refused some requests BUSY: %s" % served)
     check(served.get("OK", 0) > 0, "some requests were served: %s" % served)
 
-    s, text = d.metrics()
+    ok = {"class": "ok", "status": "ok"}
+    s, text = d.settled_metrics([
+        ("hairfilterd_requests_total", dict(variant="Small", **ok), served.get("OK", 0)),
+        ("hairfilterd_requests_total", dict(variant="Shallow", **ok),
+         results["shallow"]["status"].get("OK", 0))])
     rc, out = promtool(text)
     check(rc == 0, "promtool check metrics after load: " + out)
 
