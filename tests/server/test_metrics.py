@@ -45,6 +45,12 @@ def main():
         "--backend", "cpu-ref", "--queue-size", "2", "--max-inflight", "8",
         "--max-size", "64x64", "--max-batch", "2"], w)
     run_then_stop(d, w, lambda: run(d))
+    w = workdir()
+    d = Daemon(HAIRFILTERD, [
+        "--listen", "unix:%s/s.sock" % w, "--http", "tcp:127.0.0.1:0",
+        "--weights", os.path.join(WEIGHTS, "small.safetensors"), "--backend", "cpu-ref",
+        "--queue-size", "8", "--max-size", "512x512"], w)
+    run_then_stop(d, w, lambda: drain(d))
 
 
 def run(d):
@@ -153,10 +159,13 @@ def run(d):
     check(sample(s, "hairfilterd_ready") == 1, "hairfilterd_ready 1")
     check(sample(s, "process_resident_memory_bytes") > 0, "process RSS")
 
-    # Draining: readiness goes 503 while liveness stays 200. Frames of the
-    # largest size keep the worker busy for a while after SIGTERM.
-    slow = run_load(LOAD_CLIENT, unix, "Small", 4, "64x64", connections=2, inflight=1,
-                    count=40)
+
+def drain(d):
+    """Draining: readiness goes 503 while liveness stays 200. Frames of
+    512x512 on cpu-ref keep the worker busy for a while after SIGTERM (the
+    first daemon's 64x64 frames could all be done before a poll saw it)."""
+    slow = run_load(LOAD_CLIENT, d.urls["unix"], "Small", 4, "512x512", connections=2,
+                    inflight=4, count=40)
     time.sleep(0.3)
     d.signal(signal.SIGTERM)
     seen = None
@@ -173,7 +182,7 @@ def run(d):
         time.sleep(0.01)
     check(seen is not None and "draining" in seen[1] and seen[2][0] == 200,
           "/readyz 503 'draining' and /healthz 200 while draining: %s" % (seen,))
-    slow.communicate(timeout=60)
+    slow.communicate(timeout=120)
 
 
 main()
