@@ -166,7 +166,12 @@ def drain(d):
     first daemon's 64x64 frames could all be done before a poll saw it)."""
     slow = run_load(LOAD_CLIENT, d.urls["unix"], "Small", 4, "512x512", connections=2,
                     inflight=4, count=40)
-    time.sleep(0.3)
+    # SIGTERM once frames are in the server, so that there is a drain to see.
+    t_end = time.time() + 30
+    while time.time() < t_end:
+        if (sample(d.metrics()[0], "hairfilterd_requests_in_flight") or 0) > 0:
+            break
+        time.sleep(0.01)
     d.signal(signal.SIGTERM)
     seen = None
     t_end = time.time() + 10
