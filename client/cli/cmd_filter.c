@@ -10,6 +10,11 @@
 #include "commands.h"
 #include <hairfilter/hairfilter.h>
 
+/* The variant README and `hairfilter demo` use (weights/kernel.safetensors):
+ * a server loaded from the bundled weights directory has several, and an
+ * engine that just wants a filtered frame should not have to pick one. */
+#define FILTER_DEFAULT_VARIANT "Kernel"
+
 static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilter filter --server URL --in FEATURES.exr --out RESULT.exr\n"
@@ -20,7 +25,8 @@ static void usage(FILE *f) {
           "       hairfilter filter --server URL --stats    (counters and latency)\n"
           "URL is unix:PATH or tcp:HOST:PORT, or several of them separated by commas\n"
           "(tried in order, and failed over to). The token defaults to $HAIRFILTER_TOKEN.\n"
-          "--variant may be left out when the server has only one. --f16 sends and\n"
+          "--variant defaults to the server's only variant, else to " FILTER_DEFAULT_VARIANT " (the bundled\n"
+          "default) when the server has it. --f16 sends and\n"
           "receives half floats. The PNG is composited by the server. The result keeps the\n"
           "input's data window and display window; --part picks the part of a multi-part\n"
           "file (default: the one with S0.color).\n");
@@ -207,8 +213,11 @@ int cmd_filter(int argc, char **argv) {
     if (variant ? !strcmp(vs[i].name, variant) : nv == 1) v = &vs[i];
   for (int i = 0; i < nv && i < 64 && variant && !v; i++)
     if (!strcasecmp(vs[i].name, variant)) v = &vs[i];
+  for (int i = 0; i < nv && i < 64 && !variant && !v; i++)
+    if (!strcmp(vs[i].name, FILTER_DEFAULT_VARIANT)) v = &vs[i];
   if (!v) {
-    fprintf(stderr, "hairfilter: %s; the server has:", variant ? "no such variant" : "name a --variant");
+    fprintf(stderr, "hairfilter: %s; the server has:", variant ? "no such variant"
+                                                : "name a --variant (it has no " FILTER_DEFAULT_VARIANT ")");
     for (int i = 0; i < nv && i < 64; i++) fprintf(stderr, " %s", vs[i].name);
     fprintf(stderr, "\n");
     goto out;
