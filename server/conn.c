@@ -1141,6 +1141,10 @@ void hfd_sweep_stalled(hfd_server *s) {
         continue;
       }
     }
+    if (hfd_tls_overdue(c, now)) {
+      hfd_conn_close(c);
+      continue;
+    }
     if (c->fatal_sent || c->shutting || c->eof) continue;
     if (!c->hello_done && cfg->handshake_timeout_ms > 0 &&
         now - c->t_accept > cfg->handshake_timeout_ms * 1e3) {

@@ -509,6 +509,11 @@ static void pump(hfd_conn *c) {
       if (subject[0]) hfd_kv(kv, sizeof kv, "client_cert", subject);
       hfd_debug("TLS established%s", kv);
     }
+    /* The handshake read on while the connection did not want bytes. */
+    if (!t->reading && t->raw_reading) {
+      uv_read_stop(&c->h.stream);
+      t->raw_reading = 0;
+    }
   }
   while (t->reading && !c->closing && !t->eof) {
     uv_buf_t b;
@@ -659,9 +664,10 @@ int hfd_io_write(hfd_conn *c, uv_write_t *req, const uv_buf_t *bufs, unsigned nb
                  uv_write_cb cb) {
   struct hfd_tls_conn *t = c->tls;
   if (!t) return uv_write(req, &c->h.stream, bufs, nbufs, cb);
-  /* Before the handshake there is no session to answer in: a deadline or
-   * a limit that closes such a connection just closes it. */
-  if (!t->established || t->failed) return UV_ENOTCONN;
+  /* Before the handshake is done the write waits for it (a limit's fatal
+   * ERROR reaches a peer that is still negotiating); hfd_tls_overdue
+   * closes a connection whose handshake never comes. */
+  if (t->failed) return UV_ENOTCONN;
   if (nbufs > 3 || t->shutdown_req) return UV_EINVAL;
   tls_wreq *w = calloc(1, sizeof *w);
   if (!w) return UV_ENOMEM;
@@ -684,11 +690,18 @@ int hfd_io_write(hfd_conn *c, uv_write_t *req, const uv_buf_t *bufs, unsigned nb
 int hfd_io_shutdown(hfd_conn *c, uv_shutdown_t *req, uv_shutdown_cb cb) {
   struct hfd_tls_conn *t = c->tls;
   if (!t) return uv_shutdown(req, &c->h.stream, cb);
-  if (!t->established || t->failed) return UV_ENOTCONN;
+  if (t->failed) return UV_ENOTCONN;
   t->shutdown_req = req;
   t->shutdown_cb = cb;
   flush_queue(c);
   return 0;
+}
+
+int hfd_tls_overdue(const hfd_conn *c, double now_us) {
+  const struct hfd_tls_conn *t = c->tls;
+  if (!t || t->established || !c->fatal_sent) return 0;
+  int limit_ms = c->srv->cfg->handshake_timeout_ms > 0 ? c->srv->cfg->handshake_timeout_ms : 10000;
+  return now_us - c->t_accept > limit_ms * 1e3;
 }
 
 size_t hfd_io_write_queue_size(const hfd_conn *c) {

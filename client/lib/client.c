@@ -349,7 +349,15 @@ static int read_frame(hfc_client *c, int k) {
   return HFC_E_PROTOCOL;
 }
 
+static int pump_once(hfc_client *c, int timeout_ms);
+
 int hfci_pump(hfc_client *c, int timeout_ms) {
+  int rc = pump_once(c, timeout_ms);
+  hfci_tls_signal(c);
+  return rc;
+}
+
+static int pump_once(hfc_client *c, int timeout_ms) {
   struct pollfd pf[MAX_CONNS];
   int idx[MAX_CONNS], n = 0;
   for (int k = 0; k < MAX_CONNS; k++)

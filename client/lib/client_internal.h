@@ -95,6 +95,7 @@ struct hfc_client {
   uint64_t next_serial;
   int epfd;                     /* hfc_fd: every connection's socket */
   void *tls_ctx;                /* SSL_CTX * when an endpoint is tls: (tls.c) */
+  int tls_evfd;                 /* in epfd: readable while OpenSSL holds decrypted bytes */
   char tls_server_name[256];    /* hfc_options.tls_server_name, or "" */
   int tls_no_verify_host;
 
@@ -189,6 +190,11 @@ void hfci_release(hfc_client *c, pending *p, hfc_completion *done);
  * with why naming the option and OpenSSL's reason. */
 int hfci_tls_setup(hfc_client *c, const hfc_options *o, char *why, size_t whylen);
 void hfci_tls_free(hfc_client *c);
+/* With TLS: an eventfd in c->epfd that hfci_tls_signal keeps readable while
+ * a connection's decrypted bytes wait in OpenSSL, so that hfc_fd polls
+ * readable for them too. 0, or HFC_E_IO with why. */
+int hfci_tls_poll_setup(hfc_client *c, char *why, size_t whylen);
+void hfci_tls_signal(hfc_client *c);
 /* TLS handshake on the connected socket fd to u (certificate and host name
  * checked): 0 with *ssl set, or HFC_E_TLS / HFC_E_TIMEOUT with
  * hfci_tls_why() saying what failed and what to check. */

@@ -409,6 +409,7 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
   hfc_client *c = calloc(1, sizeof *c);
   if (!c) return HFC_E_NOMEM;
   c->epfd = -1;
+  c->tls_evfd = -1;
   c->active = -1;
   for (int k = 0; k < MAX_CONNS; k++) c->conns[k].fd = c->conns[k].rx_fd = -1;
   char why[400];
@@ -426,6 +427,7 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
     hfci_msg(NULL, "epoll_create1: %s", strerror(errno));
     rc = HFC_E_IO;
   }
+  if (!rc && (rc = hfci_tls_poll_setup(c, why, sizeof why))) hfci_msg(NULL, "%s", why);
   if (!rc) rc = hfci_connect_next(c, 0);
   if (rc) {
     /* The message (this thread's copy) and errno outlive the client. */
@@ -444,6 +446,7 @@ void hfc_close(hfc_client *c) {
   for (int k = 0; k < MAX_CONNS; k++) hfci_conn_close(c, k);
   hfci_shm_release_all(c);
   if (c->epfd >= 0) close(c->epfd);
+  if (c->tls_evfd >= 0) close(c->tls_evfd);
   hfci_tls_free(c);
   free(c->ctl);
   free(c->p);

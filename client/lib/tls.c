@@ -17,6 +17,9 @@
 #include <poll.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/epoll.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
 
 #include <openssl/err.h>
 #include <openssl/ssl.h>
@@ -153,6 +156,35 @@ int hfci_tls_setup(hfc_client *c, const hfc_options *o, char *why, size_t whylen
   }
   c->tls_no_verify_host = o->tls_no_verify_host != 0;
   return 0;
+}
+
+int hfci_tls_poll_setup(hfc_client *c, char *why, size_t whylen) {
+  if (!c->tls_ctx) return 0;
+  c->tls_evfd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+  struct epoll_event ev;
+  memset(&ev, 0, sizeof ev);
+  ev.events = EPOLLIN;
+  ev.data.fd = c->tls_evfd;
+  if (c->tls_evfd < 0 || epoll_ctl(c->epfd, EPOLL_CTL_ADD, c->tls_evfd, &ev) != 0) {
+    snprintf(why, whylen, "eventfd for hfc_fd: %s", strerror(errno));
+    return HFC_E_IO;
+  }
+  return 0;
+}
+
+void hfci_tls_signal(hfc_client *c) {
+  if (c->tls_evfd < 0) return;
+  uint64_t v;
+  /* Cleared, then set again while any connection has bytes waiting. */
+  while (read(c->tls_evfd, &v, sizeof v) < 0 && errno == EINTR) {
+  }
+  for (int k = 0; k < MAX_CONNS; k++)
+    if (c->conns[k].fd >= 0 && hfci_tls_pending(c->conns[k].ssl)) {
+      v = 1;
+      while (write(c->tls_evfd, &v, sizeof v) < 0 && errno == EINTR) {
+      }
+      return;
+    }
 }
 
 void hfci_tls_free(hfc_client *c) {

@@ -11,6 +11,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <poll.h>
 #include <signal.h>
 #include <sys/stat.h>
 #include <stdio.h>
@@ -137,6 +138,29 @@ static void test_tls_equals_tcp(void **state) {
     assert_int_equal(filter_frame(c, tls), 0);
     assert_memory_equal(plain, tls, n * sizeof(float));
   }
+  /* hfc_fd polls readable for replies over TLS, and then each is had
+   * without waiting. */
+  float *outs = malloc(3 * n * sizeof(float));
+  float *in = make_features(64, 48, 4, 17);
+  for (int k = 0; k < 3; k++) {
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = 64, .height = 48, .spp = 4,
+                                 .features = in, .result = outs + k * n);
+    uint32_t id;
+    assert_int_equal(hfc_submit(c, &r, &id), 0);
+  }
+  for (int got = 0; got < 3;) {
+    struct pollfd p = {hfc_fd(c), POLLIN, 0};
+    assert_int_equal(poll(&p, 1, 10000), 1);
+    hfc_completion d;
+    while (got < 3 && (rc = hfc_wait(c, 0, &d)) == 0) {
+      assert_int_equal(d.status, 0);
+      got++;
+    }
+    if (got < 3) assert_int_equal(rc, HFC_E_TIMEOUT);
+  }
+  for (int k = 0; k < 3; k++) assert_memory_equal(plain, outs + k * n, n * sizeof(float));
+  free(in);
+  free(outs);
   hfc_close(c);
   /* And the mutual-TLS server, without a token. */
   tls_url(&M, 0, url, sizeof url);

@@ -209,9 +209,8 @@ HFC_API const char *hfc_endpoint(const hfc_client *c);
 /* A descriptor that polls readable when a reply is waiting (on any of the
  * client's connections), for an engine's own event loop; then call
  * hfc_wait(c, 0, ...). Stays the same across failovers. Not the socket:
- * use it only to poll. Over TLS one wake-up may bring several replies, of
- * which OpenSSL holds the later ones where poll() cannot see them: call
- * hfc_wait(c, 0, ...) until it returns HFC_E_TIMEOUT before polling again. */
+ * use it only to poll (over TLS it also polls readable while OpenSSL holds
+ * a decrypted reply that the socket no longer shows). */
 HFC_API int hfc_fd(const hfc_client *c);
 
 /* ---- variants ----------------------------------------------------------- */
