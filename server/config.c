@@ -476,7 +476,8 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_HTTP: {
         char why[300];
         if (hfp_url_parse(val, HFP_URL_LISTEN, &cfg->http_url, why, sizeof why) ||
-            cfg->http_url.kind != HFP_URL_TCP) {
+            cfg->http_url.kind != HFP_URL_TCP || cfg->http_url.tls) {
+          if (cfg->http_url.tls) snprintf(why, sizeof why, "it serves plain HTTP, not TLS");
           fprintf(stderr, "hairfilterd: --http wants tcp:HOST:PORT%s%s\n",
                   cfg->http_url.kind == HFP_URL_UNIX ? "" : ": ",
                   cfg->http_url.kind == HFP_URL_UNIX ? "" : why);

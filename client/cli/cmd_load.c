@@ -542,7 +542,9 @@ static void usage(FILE *f) {
           "Drives a server with frames and measures latency against throughput.\n"
           "  --server URL                    unix:PATH, tcp:HOST:PORT, tls:HOST:PORT or tcp:PORT\n"
           "  --token T                       TCP token (default $HAIRFILTER_TOKEN)\n"
-          CLI_TLS_USAGE
+          "  --tls-ca FILE                   tls: URLs: PEM CA certificates the server's must\n"
+          "                                  chain to (default: the system's)\n"
+          "  --tls-cert FILE --tls-key FILE  client certificate and key (mutual TLS)\n"
           "  --variant NAME                  a variant the server lists\n"
           "  --size WxH                      random frames of this size (default 256x256)\n"
           "  --input FILE.exr [--part P]     or a real feature EXR (its size; its spp must be\n"

@@ -245,42 +245,12 @@ int hfci_tls_connect(hfc_client *c, int fd, const hfp_url *u, void **out) {
   return 0;
 }
 
-int hfci_tls_send(void *s, int fd, int timeout_ms, const void *a, size_t an, const void *b,
-                  size_t bn) {
-  SSL *ssl = s;
-  const uint8_t *p[2] = {a, b};
-  size_t left[2] = {an, bn};
-  for (int i = 0; i < 2; i++) {
-    while (left[i]) {
-      int chunk = left[i] > (1u << 30) ? 1 << 30 : (int)left[i];
-      int r = SSL_write(ssl, p[i], chunk);
-      if (r > 0) {
-        p[i] += r;
-        left[i] -= (size_t)r;
-        continue;
-      }
-      int e = SSL_get_error(ssl, r);
-      if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
-        int w = tls_wait(fd, e, timeout_ms);
-        if (w) return w;
-        continue;
-      }
-      if (e == SSL_ERROR_SYSCALL && ERR_peek_error() == 0) {
-        ERR_clear_error();
-        return errno == EPIPE || errno == ECONNRESET || errno == 0 ? HFC_E_CLOSED : HFC_E_IO;
-      }
-      return tls_fail(ssl, "write");
-    }
-  }
-  return 0;
-}
-
-int hfci_tls_recv(void *s, int fd, void *buf, size_t n, int timeout_ms) {
-  SSL *ssl = s;
-  uint8_t *p = buf;
+/* Moves n bytes through ssl, writing from p or reading into it, waiting
+ * on fd for what OpenSSL asks for, up to timeout_ms each time. */
+static int transfer(SSL *ssl, int fd, int writing, uint8_t *p, size_t n, int timeout_ms) {
   while (n) {
     int chunk = n > (1u << 30) ? 1 << 30 : (int)n;
-    int r = SSL_read(ssl, p, chunk);
+    int r = writing ? SSL_write(ssl, p, chunk) : SSL_read(ssl, p, chunk);
     if (r > 0) {
       p += r;
       n -= (size_t)r;
@@ -294,12 +264,25 @@ int hfci_tls_recv(void *s, int fd, void *buf, size_t n, int timeout_ms) {
     }
     if (e == SSL_ERROR_ZERO_RETURN) return HFC_E_CLOSED;
     if (e == SSL_ERROR_SYSCALL && ERR_peek_error() == 0) {
+      /* EOF or a reset without close_notify. */
       ERR_clear_error();
-      return errno == ECONNRESET || errno == 0 ? HFC_E_CLOSED : HFC_E_IO;
+      return errno == EPIPE || errno == ECONNRESET || errno == 0 ? HFC_E_CLOSED : HFC_E_IO;
     }
-    return tls_fail(ssl, "read");
+    return tls_fail(ssl, writing ? "write" : "read");
   }
   return 0;
+}
+
+int hfci_tls_send(void *s, int fd, int timeout_ms, const void *a, size_t an, const void *b,
+                  size_t bn) {
+  /* SSL_MODE_ACCEPT_MOVING_WRITE_BUFFER and partial writes: the pointer
+   * may move on between retries. */
+  int rc = transfer(s, fd, 1, (uint8_t *)a, an, timeout_ms);
+  return rc ? rc : transfer(s, fd, 1, (uint8_t *)b, bn, timeout_ms);
+}
+
+int hfci_tls_recv(void *s, int fd, void *buf, size_t n, int timeout_ms) {
+  return transfer(s, fd, 0, buf, n, timeout_ms);
 }
 
 int hfci_tls_pending(void *s) { return s && SSL_pending((SSL *)s) > 0; }
