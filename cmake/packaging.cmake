@@ -123,6 +123,9 @@ set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)
 set(CPACK_DEBIAN_PACKAGE_GENERATE_SHLIBS ON)
 set(CPACK_DEBIAN_PACKAGE_DEPENDS "passwd")
 set(CPACK_DEBIAN_PACKAGE_RECOMMENDS "python3, python3-numpy")
+# libssl3 (TLS) comes in through dpkg-shlibdeps; an engine that links the
+# static libhairfilter.a needs OpenSSL's development files too.
+set(CPACK_DEBIAN_PACKAGE_SUGGESTS "libssl-dev")
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA ${PROJECT_SOURCE_DIR}/cmake/debian/postinst
     ${PROJECT_SOURCE_DIR}/cmake/debian/prerm ${PROJECT_SOURCE_DIR}/cmake/debian/postrm
     ${PROJECT_SOURCE_DIR}/cmake/debian/triggers)

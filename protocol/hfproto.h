@@ -333,13 +333,15 @@ enum { HFP_URL_UNIX = 1, HFP_URL_TCP = 2 };
 
 typedef struct hfp_url {
   int kind;                /* HFP_URL_UNIX or HFP_URL_TCP */
+  int tls;                 /* tcp: 1 for "tls:...", TLS over that TCP connection */
   char path[108];          /* unix: the socket path (sockaddr_un's limit) */
   char host[256];          /* tcp: name or address, IPv6 without brackets;
                               "127.0.0.1" for tcp:PORT */
   uint16_t port;           /* tcp: 1..65535 (0 only with HFP_URL_LISTEN) */
 } hfp_url;
 
-/* Parses "unix:PATH", "tcp:HOST:PORT", "tcp:[IPV6]:PORT" or "tcp:PORT".
+/* Parses "unix:PATH", "tcp:HOST:PORT", "tcp:[IPV6]:PORT" or "tcp:PORT", and
+ * the same TCP forms with "tls:" (kind HFP_URL_TCP, tls 1).
  * Returns 0, or -HFP_E_INVALID with why (when not NULL) naming the URL and
  * what is wrong with it: an empty or over-long path, a host with characters
  * no name or address has, an IPv6 address without brackets, a port that is

@@ -58,10 +58,15 @@ int hfp_url_parse(const char *url, int flags, hfp_url *out, char *why, size_t wh
     memcpy(out->path, path, n + 1);
     return 0;
   }
-  if (strncmp(url, "tcp:", 4))
-    return bad(why, whylen, url, "want unix:PATH, tcp:HOST:PORT or tcp:PORT");
+  /* tls: is TCP with TLS on top: the same host and port grammar. */
+  int tls = !strncmp(url, "tls:", 4);
+  if (strncmp(url, "tcp:", 4) && !tls)
+    return bad(why, whylen, url, "want unix:PATH, tcp:HOST:PORT, tls:HOST:PORT or tcp:PORT");
   const char *rest = url + 4, *port_s;
   out->kind = HFP_URL_TCP;
+  out->tls = tls;
+  if (rest[0] == '/' && rest[1] == '/')
+    return bad(why, whylen, url, "no '//' after '%.3s:': write %.3s:HOST:PORT", url, url);
   if (rest[0] == '[') {
     const char *close = strchr(rest, ']');
     if (!close) return bad(why, whylen, url, "'[' without ']' around the IPv6 address");

@@ -26,8 +26,9 @@ static void usage(FILE *f) {
           "  --config FILE            key = value lines with the keys of these options\n"
           "                           (default " HFD_DEFAULT_CONFIG " when it\n"
           "                           exists; none: read none); the command line wins\n"
-          "  --listen unix:PATH | tcp:HOST:PORT | tcp:[IPV6]:PORT | tcp:PORT\n"
-          "                           (repeatable; tcp:PORT is loopback; port 0: any free)\n"
+          "  --listen unix:PATH | tcp:HOST:PORT | tcp:[IPV6]:PORT | tcp:PORT | tls:HOST:PORT\n"
+          "                           (repeatable; tcp:PORT is loopback; port 0: any free;\n"
+          "                           tls: is TCP with TLS, tls:[IPV6]:PORT and tls:PORT too)\n"
           "  --weights [NAME=]FILE    load one variant (repeatable), named NAME or as its\n"
           "                           metadata says\n"
           "  --weights-dir DIR        load every *.safetensors in DIR\n"
@@ -46,6 +47,11 @@ static void usage(FILE *f) {
           "                           1024; 0: no shared memory)\n"
           "  --auth-token-file FILE   token TCP clients must send (or $HAIRFILTERD_TOKEN)\n"
           "  --no-auth                accept TCP clients without a token (loopback only)\n"
+          "  --tls-cert FILE          PEM certificate chain of tls: listeners (server first)\n"
+          "  --tls-key FILE           PEM private key of that certificate\n"
+          "  --tls-client-ca FILE     mutual TLS: clients need a certificate this CA signed\n"
+          "  --tls-client-cert-auth   with --tls-client-ca: on tls: listeners the verified\n"
+          "                           client certificate replaces the token\n"
           "  --drain-timeout-ms N     on SIGTERM, how long queued work may finish (default 10000)\n"
           "  --flush-timeout-ms N     then, how long peers have to read their replies\n"
           "                           (default 5000)\n"
@@ -184,12 +190,35 @@ static int parse_warm(const char *list, hfd_config *cfg) {
   return 0;
 }
 
+/* The TLS options agree with each other and with the listeners. */
+static int tls_check(const hfd_config *cfg) {
+  int tls = 0;
+  for (int i = 0; i < cfg->num_listen; i++)
+    tls |= cfg->listen_url[i].kind == HFP_URL_TCP && cfg->listen_url[i].tls;
+  if (tls && (!cfg->tls_cert || !cfg->tls_key)) {
+    fprintf(stderr, "hairfilterd: a tls: listener needs --tls-cert FILE and --tls-key FILE "
+            "(docs/SERVER.md, \"TLS\")\n");
+    return -1;
+  }
+  if ((cfg->tls_cert != NULL) != (cfg->tls_key != NULL)) {
+    fprintf(stderr, "hairfilterd: --tls-cert and --tls-key go together\n");
+    return -1;
+  }
+  if (cfg->tls_client_cert_auth && !cfg->tls_client_ca) {
+    fprintf(stderr, "hairfilterd: --tls-client-cert-auth needs --tls-client-ca FILE (the CA "
+            "whose client certificates replace the token)\n");
+    return -1;
+  }
+  return 0;
+}
+
 enum {
   OPT_LISTEN = 256, OPT_WEIGHTS, OPT_WEIGHTS_DIR, OPT_BACKEND, OPT_MAX_BATCH, OPT_QUEUE_DELAY,
   OPT_QUEUE_SIZE, OPT_MAX_INFLIGHT, OPT_MAX_SIZE, OPT_MAX_FRAME, OPT_MAX_MEMORY, OPT_MAX_SHM,
   OPT_MAX_CONNECTIONS, OPT_MAX_HANDSHAKES, OPT_TOKEN_FILE, OPT_NO_AUTH, OPT_DRAIN,
   OPT_FLUSH, OPT_HANDSHAKE, OPT_STALL, OPT_MIN_RATE, OPT_READY, OPT_NAME, OPT_WARM,
-  OPT_PIPELINE, OPT_HTTP, OPT_WATCHDOG, OPT_LOG_LEVEL, OPT_CONFIG
+  OPT_PIPELINE, OPT_HTTP, OPT_WATCHDOG, OPT_LOG_LEVEL, OPT_CONFIG, OPT_TLS_CERT, OPT_TLS_KEY,
+  OPT_TLS_CLIENT_CA, OPT_TLS_CLIENT_CERT_AUTH
 };
 
 static const struct option opts[] = {
@@ -209,6 +238,10 @@ static const struct option opts[] = {
   {"max-handshakes", required_argument, 0, OPT_MAX_HANDSHAKES},
   {"auth-token-file", required_argument, 0, OPT_TOKEN_FILE},
   {"no-auth", no_argument, 0, OPT_NO_AUTH},
+  {"tls-cert", required_argument, 0, OPT_TLS_CERT},
+  {"tls-key", required_argument, 0, OPT_TLS_KEY},
+  {"tls-client-ca", required_argument, 0, OPT_TLS_CLIENT_CA},
+  {"tls-client-cert-auth", no_argument, 0, OPT_TLS_CLIENT_CERT_AUTH},
   {"drain-timeout-ms", required_argument, 0, OPT_DRAIN},
   {"flush-timeout-ms", required_argument, 0, OPT_FLUSH},
   {"handshake-timeout-ms", required_argument, 0, OPT_HANDSHAKE},
@@ -443,7 +476,8 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_HTTP: {
         char why[300];
         if (hfp_url_parse(val, HFP_URL_LISTEN, &cfg->http_url, why, sizeof why) ||
-            cfg->http_url.kind != HFP_URL_TCP) {
+            cfg->http_url.kind != HFP_URL_TCP || cfg->http_url.tls) {
+          if (cfg->http_url.tls) snprintf(why, sizeof why, "it serves plain HTTP, not TLS");
           fprintf(stderr, "hairfilterd: --http wants tcp:HOST:PORT%s%s\n",
                   cfg->http_url.kind == HFP_URL_UNIX ? "" : ": ",
                   cfg->http_url.kind == HFP_URL_UNIX ? "" : why);
@@ -541,6 +575,10 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         break;
       case OPT_TOKEN_FILE: token_file = val; break;
       case OPT_NO_AUTH: cfg->no_auth = 1; break;
+      case OPT_TLS_CERT: cfg->tls_cert = val; break;
+      case OPT_TLS_KEY: cfg->tls_key = val; break;
+      case OPT_TLS_CLIENT_CA: cfg->tls_client_ca = val; break;
+      case OPT_TLS_CLIENT_CERT_AUTH: cfg->tls_client_cert_auth = 1; break;
       case OPT_DRAIN:
         if (parse_int(name, val, 0, 3600000, &v)) goto fail;
         cfg->drain_timeout_ms = (int)v;
@@ -602,6 +640,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
     goto fail;
   }
   if (warm && parse_warm(warm, cfg)) goto fail;
+  if (tls_check(cfg)) goto fail;
   if (token_file) {
     if (read_token(token_file, cfg->token)) goto fail;
   } else {

@@ -62,7 +62,7 @@ static int mid_frame(const hfd_conn *c) { return c->rstate != RD_HEADER || c->go
 /* uv_read_stop cannot fail for a stream that is open (it returns 0), but
  * say so if that ever changes. */
 static void read_stop(hfd_conn *c) {
-  int rc = uv_read_stop(&c->h.stream);
+  int rc = hfd_io_read_stop(c);
   if (rc < 0) hfd_err("conn %llu: read stop: %s", (unsigned long long)c->id, uv_strerror(rc));
 }
 
@@ -70,7 +70,7 @@ static void wrote_one(hfd_conn *c) {
   c->writes_pending--;
   if (c->read_paused && c->writes_pending <= WRITES_LOW && !c->closing && !c->fatal_sent &&
       !c->eof && !c->shutting) {
-    int rc = uv_read_start(&c->h.stream, on_alloc, on_read);
+    int rc = hfd_io_read_start(c, on_alloc, on_read);
     if (rc < 0) {
       hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
       hfd_conn_close(c);
@@ -144,6 +144,7 @@ static void conn_release(hfd_conn *c) {
    * (queued jobs, pending writes) still points at it. */
   if (!c->handle_closed || c->inflight || c->writes_pending) return;
   hfd_server *s = c->srv;
+  hfd_tls_conn_free(c);
   free(c);
   hfd_maybe_finish(s);
 }
@@ -174,7 +175,7 @@ static void send_ctl(hfd_conn *c, const uint8_t *frame, size_t len, int close_af
   w->len = len;
   memcpy(w->data, frame, len);
   uv_buf_t b = uv_buf_init((char *)w->data, (unsigned)len);
-  int rc = uv_write(&w->req, &c->h.stream, &b, 1, on_ctl_written);
+  int rc = hfd_io_write(c, &w->req, &b, 1, on_ctl_written);
   if (rc < 0) {
     hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
     free(w);
@@ -351,7 +352,7 @@ static void deliver(hfd_server *s, hfd_job *j) {
     j->bytes_held -= j->req.data_len;
   }
   j->wreq.data = j;
-  int rc = uv_write(&j->wreq, &c->h.stream, bufs, nbufs, on_result_written);
+  int rc = hfd_io_write(c, &j->wreq, bufs, nbufs, on_result_written);
   if (rc < 0) {
     hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
     s->replies_lost++;
@@ -1054,6 +1055,8 @@ static void on_closed(uv_handle_t *h) {
     s->conns = c->next;
   if (c->next) c->next->prev = c->prev;
   s->num_conns--;
+  /* Writes TLS still held complete now, before the release below. */
+  hfd_tls_conn_closing(c);
   c->handle_closed = 1;
   char kv[300];
   hfd_debug("connection closed%s", conn_kv(c, kv, sizeof kv));
@@ -1100,7 +1103,7 @@ void hfd_conn_shutdown(hfd_conn *c) {
     return;
   }
   req->data = c;
-  if (uv_shutdown(req, &c->h.stream, on_shutdown) < 0) {
+  if (hfd_io_shutdown(c, req, on_shutdown) < 0) {
     free(req);
     hfd_conn_close(c);
     return;
@@ -1123,7 +1126,7 @@ void hfd_sweep_stalled(hfd_server *s) {
     if (c->closing) continue;
     /* Replies waiting: has the peer read any of them lately? */
     if (c->writes_pending && stall_us > 0) {
-      uint64_t written = c->bytes_queued - (uint64_t)uv_stream_get_write_queue_size(&c->h.stream);
+      uint64_t written = c->bytes_queued - (uint64_t)hfd_io_write_queue_size(c);
       if (written != c->written_seen) {
         c->written_seen = written;
         c->t_write = now;
@@ -1137,6 +1140,10 @@ void hfd_sweep_stalled(hfd_server *s) {
         hfd_conn_close(c);
         continue;
       }
+    }
+    if (hfd_tls_overdue(c, now)) {
+      hfd_conn_close(c);
+      continue;
     }
     if (c->fatal_sent || c->shutting || c->eof) continue;
     if (!c->hello_done && cfg->handshake_timeout_ms > 0 &&
@@ -1216,6 +1223,11 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     hfd_conn_close(c);
     return;
   }
+  if (l->is_tls && (rc = hfd_tls_conn_start(c)) < 0) {
+    hfd_err("conn %llu: TLS session: %s", (unsigned long long)c->id, uv_strerror(rc));
+    hfd_conn_close(c);
+    return;
+  }
   if (l->is_tcp) {
     struct sockaddr_storage ss;
     int len = sizeof ss;
@@ -1258,7 +1270,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
                s->cfg->max_handshakes);
     if (old == c) return;
   }
-  rc = uv_read_start(&c->h.stream, on_alloc, on_read);
+  rc = hfd_io_read_start(c, on_alloc, on_read);
   if (rc < 0) {
     hfd_err("conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
     hfd_conn_close(c);

@@ -133,17 +133,25 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
       return -1;
     }
     l->is_tcp = 1;
+    l->is_tls = u->tls;
     int loop_only = is_loopback((struct sockaddr *)&ss);
     if (s->cfg->no_auth && !loop_only) {
       hfd_err("--listen %s: --no-auth is only allowed on loopback addresses", url);
       return -1;
     }
-    l->auth_required = !s->cfg->no_auth;
+    /* A verified client certificate replaces the token only where it is
+     * asked for, and only on TLS listeners (mutual TLS). */
+    l->auth_required = !s->cfg->no_auth && !(l->is_tls && s->cfg->tls_client_cert_auth);
     if (l->auth_required && !s->cfg->token[0]) {
       hfd_err("--listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), "
-              "or --no-auth on loopback", url);
+              "or --no-auth on loopback%s", url,
+              l->is_tls ? ", or --tls-client-ca with --tls-client-cert-auth" : "");
       return -1;
     }
+    if (!l->is_tls && !loop_only)
+      hfd_warn("--listen %s: plain TCP on a non-loopback address: the token and every frame "
+               "cross the network unencrypted; serve remote clients on tls:HOST:PORT "
+               "(docs/SERVER.md, \"TLS\")", url);
     if ((rc = uv_tcp_init(s->loop, &l->h.tcp)) < 0) {
       hfd_err("--listen %s: %s", url, uv_strerror(rc));
       return -1;
@@ -179,14 +187,18 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
       uv_close(&l->h.handle, NULL);
       return -1;
     }
-    snprintf(l->url, sizeof l->url, v6 ? "tcp:[%s]:%d" : "tcp:%s:%d", ip,
+    snprintf(l->url, sizeof l->url, v6 ? "%s:[%s]:%d" : "%s:%s:%d", l->is_tls ? "tls" : "tcp", ip,
              ntohs(v6 ? ((struct sockaddr_in6 *)&ss)->sin6_port
                       : ((struct sockaddr_in *)&ss)->sin_port));
   }
   s->num_listeners++;
-  hfd_log("listening on %s%s", l->url, l->is_tcp ? (l->auth_required ? " (token required)"
-                                                                       : " (no auth, loopback)")
-                                                 : "");
+  hfd_log("listening on %s%s%s", l->url,
+          l->is_tls ? (s->cfg->tls_client_ca ? " (TLS, client certificate required)" : " (TLS)")
+                    : "",
+          !l->is_tcp ? ""
+          : l->auth_required ? " (token required)"
+          : l->is_tls && s->cfg->tls_client_cert_auth ? " (client certificate replaces the token)"
+                                                      : " (no auth, loopback)");
   return 0;
 }
 
@@ -352,6 +364,7 @@ void hfd_maybe_finish(hfd_server *s) {
     close_handle((uv_handle_t *)&s->sigusr1);
     close_handle((uv_handle_t *)&s->flush_timer);
     close_handle((uv_handle_t *)&s->beat_timer);
+    hfd_tls_stop(s);
     hfd_http_loop_closing(s);
   }
 }
@@ -547,6 +560,10 @@ int main(int argc, char **argv) {
   /* Every listener or none: a daemon that cannot open one of them stops
    * here, before it is ready, rather than serve on the others and leave
    * the missing one unnoticed (docs/SERVER.md, "Socket directory"). */
+  if (hfd_tls_init(s)) {
+    remove_files(s);
+    return 1;
+  }
   for (int i = 0; i < cfg.num_listen; i++)
     if (open_listener(s, cfg.listen[i], &cfg.listen_url[i])) {
       remove_files(s);
@@ -577,6 +594,7 @@ int main(int argc, char **argv) {
   rc = uv_loop_close(s->loop);
   if (rc < 0) hfd_err("uv_loop_close: %s", uv_strerror(rc));
   hfd_http_stop(s);
+  hfd_tls_free(s);
   remove_files(s);
   uint64_t ok = 0, failed = 0;
   for (int i = 0; i < s->num_variants; i++) {

@@ -438,7 +438,8 @@ static void take_reloadable(hfd_server *s, hfd_config *n) {
       (c->http == NULL) != (n->http == NULL) || (c->http && strcmp(c->http, n->http)) ||
       c->pipeline_depth != n->pipeline_depth || c->num_warm != n->num_warm)
     hfd_warn("reload: listeners, backend, batching, queue, memory, --http and --warm take "
-             "effect at the next start; weights, names, the token and the log level now");
+             "effect at the next start; weights, names, the token, TLS certificates and the log "
+             "level now");
   for (int i = 0; i < c->num_listen && i < n->num_listen; i++)
     if (strcmp(c->listen[i], n->listen[i]))
       hfd_warn("reload: --listen %s takes effect at the next start", n->listen[i]);
@@ -451,6 +452,11 @@ static void take_reloadable(hfd_server *s, hfd_config *n) {
     memcpy(c->token, n->token, sizeof c->token);
     hfd_notice("reload: the token changed; new TCP connections need the new one");
   }
+  /* Certificates are read again: a renewed one serves new connections. */
+  c->tls_cert = n->tls_cert;
+  c->tls_key = n->tls_key;
+  c->tls_client_ca = n->tls_client_ca;
+  hfd_tls_reload(s, n);
   if (c->log_level != n->log_level) {
     c->log_level = n->log_level;
     hfd_log_level = n->log_level;

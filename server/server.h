@@ -85,6 +85,11 @@ typedef struct hfd_config {
   uint64_t min_recv_rate;        /* bytes/s a frame must arrive at; 0: none */
   int no_auth;
   char token[HFP_TOKEN_MAX + 1];
+  /* TLS listeners (tls.c): PEM files, read at start and on SIGHUP. */
+  const char *tls_cert;          /* certificate chain, the server's first */
+  const char *tls_key;           /* its private key */
+  const char *tls_client_ca;     /* mutual TLS: clients need a certificate it signed */
+  int tls_client_cert_auth;      /* on TLS listeners, that certificate replaces the token */
   const char *ready_file;
   const char *name;
   const char *http;              /* --http tcp:HOST:PORT, or NULL */
@@ -319,6 +324,7 @@ typedef struct hfd_listener {
   } h;
   hfd_server *srv;
   int is_tcp;
+  int is_tls;                    /* tls:HOST:PORT (tls.c) */
   int auth_required;
   char url[256];                 /* as resolved (the real port) */
   char unix_path[200];
@@ -357,6 +363,7 @@ typedef struct hfd_conn {
   int writes_pending;
   int read_paused;               /* too many replies unread by the peer */
   int is_ipc;                    /* a Unix socket that can pass segments */
+  struct hfd_tls_conn *tls;      /* on a TLS listener: its session (tls.c) */
   hfd_seg *segs;
   int num_segs;
   uint32_t next_seg_id;
@@ -436,6 +443,7 @@ struct hfd_server {
   _Atomic uint64_t loop_beat_us;
   uint64_t watchdog_usec;        /* systemd's WatchdogSec, 0: none */
   struct hfd_http *http;
+  struct hfd_tls *tls;           /* the TLS context, when a listener speaks TLS */
 };
 
 /* conn.c */
@@ -446,6 +454,35 @@ void hfd_conn_close(hfd_conn *c);
 /* Closes connections past their handshake deadline, silent or too slow in
  * the middle of a frame, or whose peer has stopped reading its replies. */
 void hfd_sweep_stalled(hfd_server *s);
+/* tls.c: TLS on TCP listeners, OpenSSL through memory BIOs. */
+/* Builds the context from --tls-cert, --tls-key and --tls-client-ca when a
+ * listener is tls:; 0, or -1 after logging which file failed and why. */
+int hfd_tls_init(hfd_server *s);
+/* SIGHUP: builds a context from the new configuration's files and swaps it
+ * in for new connections; on any failure the one before keeps serving
+ * (logged). */
+void hfd_tls_reload(hfd_server *s, const hfd_config *n);
+/* Closes the loop handle (drain's last step); hfd_tls_free after uv_run. */
+void hfd_tls_stop(hfd_server *s);
+void hfd_tls_free(hfd_server *s);
+/* A connection accepted on a TLS listener gets its session: 0 or a UV_E*. */
+int hfd_tls_conn_start(hfd_conn *c);
+/* Its handle closed: writes still queued complete with UV_ECANCELED. */
+void hfd_tls_conn_closing(hfd_conn *c);
+void hfd_tls_conn_free(hfd_conn *c);
+/* The stream calls of conn.c: libuv's own on a plain connection, through
+ * TLS on a TLS one (same callbacks, same guarantees). */
+int hfd_io_read_start(hfd_conn *c, uv_alloc_cb alloc_cb, uv_read_cb read_cb);
+int hfd_io_read_stop(hfd_conn *c);
+int hfd_io_write(hfd_conn *c, uv_write_t *req, const uv_buf_t *bufs, unsigned nbufs,
+                 uv_write_cb cb);
+int hfd_io_shutdown(hfd_conn *c, uv_shutdown_t *req, uv_shutdown_cb cb);
+/* 1 when c was answered with a fatal ERROR before its TLS handshake was
+ * done, and the handshake has not come within the handshake deadline (10 s
+ * without one): the ERROR can never be sent, so the sweep closes it. */
+int hfd_tls_overdue(const hfd_conn *c, double now_us);
+/* Reply bytes handed over and not yet written to the socket. */
+size_t hfd_io_write_queue_size(const hfd_conn *c);
 /* limits.c */
 /* Host memory a frame is charged while the server holds it: its features
  * (unless in a shared segment), result and composite buffers, and what

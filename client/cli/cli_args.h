@@ -27,4 +27,13 @@ int cli_arg_range(const char *cmd, const char *opt, const char *s, double lo, do
 void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt_now,
                         int missing_value);
 
+/* The TLS options of every command that connects (tls:HOST:PORT URLs):
+ * getopt codes and their usage lines. */
+enum { CLI_TLS_CA = 0x1001, CLI_TLS_CERT, CLI_TLS_KEY };
+#define CLI_TLS_USAGE                                                                  \
+  "  --tls-ca FILE    tls: URLs: PEM CA certificates the server's must chain to\n"     \
+  "                   (default: the system's); its host name is checked too\n"        \
+  "  --tls-cert FILE  client certificate for mutual TLS (PEM)\n"                     \
+  "  --tls-key FILE   its private key (PEM; default: in --tls-cert's file)\n"
+
 #endif

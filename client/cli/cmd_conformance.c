@@ -25,8 +25,9 @@ static void usage(FILE *f) {
           "exits 0 when none failed, 1 when some did, 2 when the server cannot be\n"
           "probed. It assumes nothing of the server beyond HELLO_OK and VARIANTS.\n"
           "\n"
-          "  --server URL     unix:PATH, tcp:HOST:PORT or tcp:PORT\n"
+          "  --server URL     unix:PATH, tcp:HOST:PORT, tls:HOST:PORT or tcp:PORT\n"
           "  --token T        the TCP listener's token (default $HAIRFILTER_TOKEN)\n"
+          CLI_TLS_USAGE
           "  --case PATTERN   only cases whose name matches (shell pattern, e.g. 'shm.*')\n"
           "  --timeout DUR    longest wait for a reply the server owes (default 10s)\n"
           "  --quiet DUR      how long 'no reply' is watched for (default 300ms)\n"
@@ -43,7 +44,9 @@ int cmd_conformance(int argc, char **argv) {
     {"list", no_argument, 0, 'l'},         {"check-doc", required_argument, 0, 'd'},
     {"timeout", required_argument, 0, 't'}, {"quiet", required_argument, 0, 'q'},
     {"stall", required_argument, 0, 'S'},  {"verbose", no_argument, 0, 'v'},
-    {"help", no_argument, 0, 'h'},         {0, 0, 0, 0},
+    {"help", no_argument, 0, 'h'},         {"tls-ca", required_argument, 0, CLI_TLS_CA},
+    {"tls-cert", required_argument, 0, CLI_TLS_CERT}, {"tls-key", required_argument, 0, CLI_TLS_KEY},
+    {0, 0, 0, 0},
   };
   cf_options o = {0};
   o.token = getenv("HAIRFILTER_TOKEN");
@@ -57,6 +60,9 @@ int cmd_conformance(int argc, char **argv) {
     switch (ch) {
       case 's': o.server = optarg; break;
       case 'k': o.token = optarg; break;
+      case CLI_TLS_CA: o.tls_ca = optarg; break;
+      case CLI_TLS_CERT: o.tls_cert = optarg; break;
+      case CLI_TLS_KEY: o.tls_key = optarg; break;
       case 'c': client = 1; break;
       case 'p': o.pattern = optarg; break;
       case 'l': list = 1; break;

@@ -6,6 +6,7 @@
 #include <string.h>
 #include <strings.h>
 
+#include "cli_args.h"
 #include "cli_common.h"
 #include "commands.h"
 #include <hairfilter/hairfilter.h>
@@ -21,9 +22,10 @@ static void usage(FILE *f) {
           "                         [--variant NAME] [--part N|NAME] [--png PREVIEW.png] [--f16]\n"
           "                         [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "                         [--token TOKEN] [--timeout-ms N]\n"
+          "                         [--tls-ca FILE] [--tls-cert FILE --tls-key FILE]\n"
           "       hairfilter filter --server URL --list     (variants and limits)\n"
           "       hairfilter filter --server URL --stats    (counters and latency)\n"
-          "URL is unix:PATH or tcp:HOST:PORT, or several of them separated by commas\n"
+          "URL is unix:PATH, tcp:HOST:PORT or tls:HOST:PORT, or several of them separated by commas\n"
           "(tried in order, and failed over to). The token defaults to $HAIRFILTER_TOKEN.\n"
           "--variant defaults to the server's only variant, else to " FILTER_DEFAULT_VARIANT " (the bundled\n"
           "default) when the server has it. --f16 sends and\n"
@@ -143,7 +145,10 @@ int cmd_filter(int argc, char **argv) {
     {"background", required_argument, 0, 'B'}, {"token", required_argument, 0, 'T'},
     {"timeout-ms", required_argument, 0, 't'}, {"help", no_argument, 0, 'h'},
     {"list", no_argument, 0, 'l'},         {"stats", no_argument, 0, 'S'},
-    {"part", required_argument, 0, 'P'},   {0, 0, 0, 0}};
+    {"part", required_argument, 0, 'P'},   {"tls-ca", required_argument, 0, CLI_TLS_CA},
+    {"tls-cert", required_argument, 0, CLI_TLS_CERT}, {"tls-key", required_argument, 0, CLI_TLS_KEY},
+    {0, 0, 0, 0}};
+  const char *tls_ca = NULL, *tls_cert = NULL, *tls_key = NULL;
   int opt;
   optind = 1;
   while ((opt = getopt_long(argc, argv, "s:V:i:o:p:h", opts, NULL)) != -1) {
@@ -158,6 +163,9 @@ int cmd_filter(int argc, char **argv) {
     case 'l': list = 1; break;
     case 'S': stats = 1; break;
     case 'T': token = optarg; break;
+    case CLI_TLS_CA: tls_ca = optarg; break;
+    case CLI_TLS_CERT: tls_cert = optarg; break;
+    case CLI_TLS_KEY: tls_key = optarg; break;
     case 't': timeout_ms = atoi(optarg); break;
     case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
     case 'L': if (cli_parse_rgb(optarg, light)) goto bad; break;
@@ -177,6 +185,9 @@ int cmd_filter(int argc, char **argv) {
   o.client_name = "hairfilter-cli";
   o.token = token;
   o.timeout_ms = timeout_ms;
+  o.tls_ca_file = tls_ca;
+  o.tls_cert_file = tls_cert;
+  o.tls_key_file = tls_key;
   if (list || stats) {
     hfc_client *c = NULL;
     int rc = hfc_connect(server, &o, &c);

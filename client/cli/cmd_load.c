@@ -44,6 +44,7 @@
 
 typedef struct opts {
   const char *server, *variant, *token, *input, *part, *json, *csv, *plot;
+  const char *tls_ca, *tls_cert, *tls_key;
   int width, height, f16, shm, composite, quiet, verbose;
   int connections;               /* 0: per mode default */
   int inflight;                  /* per connection, legacy closed-loop form */
@@ -96,11 +97,14 @@ static void sleep_s(double s) {
 }
 
 /* Options of every connection the tool makes. */
-static hfc_options client_options(const char *name, const char *token) {
+static hfc_options client_options(const char *name, const opts *o) {
   hfc_options co;
   hfc_options_init(&co);
   co.client_name = name;
-  co.token = token;
+  co.token = o->token;
+  co.tls_ca_file = o->tls_ca;
+  co.tls_cert_file = o->tls_cert;
+  co.tls_key_file = o->tls_key;
   co.timeout_ms = 30000;
   return co;
 }
@@ -170,7 +174,7 @@ static void *run(void *arg) {
   shared *sh = w->sh;
   const opts *o = sh->o;
   hfc_client *c = NULL;
-  hfc_options co = client_options("hairfilter-load", o->token);
+  hfc_options co = client_options("hairfilter-load", o);
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
     fprintf(stderr, "hairfilter load: connection %d: %s: %s\n", w->index, o->server,
@@ -337,7 +341,7 @@ static void *run(void *arg) {
 
 static int stats_of(const opts *o, hfc_variant_stats *out) {
   hfc_client *c = NULL;
-  hfc_options co = client_options("hairfilter-load-stats", o->token);
+  hfc_options co = client_options("hairfilter-load-stats", o);
   if (hfc_connect(o->server, &co, &c)) return -1;
   hfc_stats *st = malloc(sizeof *st);
   int rc = st ? hfc_get_stats(c, st) : -1, found = -1;
@@ -536,8 +540,11 @@ static void usage(FILE *f) {
           "usage: hairfilter load --server URL --variant NAME [options]\n"
           "\n"
           "Drives a server with frames and measures latency against throughput.\n"
-          "  --server URL                    unix:PATH, tcp:HOST:PORT or tcp:PORT\n"
+          "  --server URL                    unix:PATH, tcp:HOST:PORT, tls:HOST:PORT or tcp:PORT\n"
           "  --token T                       TCP token (default $HAIRFILTER_TOKEN)\n"
+          "  --tls-ca FILE                   tls: URLs: PEM CA certificates the server's must\n"
+          "                                  chain to (default: the system's)\n"
+          "  --tls-cert FILE --tls-key FILE  client certificate and key (mutual TLS)\n"
           "  --variant NAME                  a variant the server lists\n"
           "  --size WxH                      random frames of this size (default 256x256)\n"
           "  --input FILE.exr [--part P]     or a real feature EXR (its size; its spp must be\n"
@@ -584,6 +591,8 @@ static int parse(int argc, char **argv, opts *o) {
     {"json", required_argument, 0, 21},           {"csv", required_argument, 0, 22},
     {"plot", required_argument, 0, 23},           {"verbose", no_argument, 0, 24},
     {"quiet", no_argument, 0, 25},                {"help", no_argument, 0, 'h'},
+    {"tls-ca", required_argument, 0, CLI_TLS_CA}, {"tls-cert", required_argument, 0, CLI_TLS_CERT},
+    {"tls-key", required_argument, 0, CLI_TLS_KEY},
     {0, 0, 0, 0},
   };
   const char *cmd = "load";
@@ -600,6 +609,9 @@ static int parse(int argc, char **argv, opts *o) {
       case 1: o->server = optarg; break;
       case 2: o->variant = optarg; break;
       case 3: o->token = optarg; break;
+      case CLI_TLS_CA: o->tls_ca = optarg; break;
+      case CLI_TLS_CERT: o->tls_cert = optarg; break;
+      case CLI_TLS_KEY: o->tls_key = optarg; break;
       case 4:
         if (cli_parse_size(optarg, &o->width, &o->height) || o->width > 65535 || o->height > 65535) {
           fprintf(stderr, "hairfilter load: --size: '%s' is not WxH (1..65535 each)\n", optarg);
@@ -725,7 +737,7 @@ int cmd_load(int argc, char **argv) {
   }
   /* Look the server and the variant up once. */
   hfc_client *c;
-  hfc_options co = client_options("hairfilter-load", o.token);
+  hfc_options co = client_options("hairfilter-load", &o);
   int rc = hfc_connect(o.server, &co, &c);
   if (rc) {
     fprintf(stderr, "hairfilter load: %s: %s\n", o.server, hfc_strerror(rc));

@@ -120,8 +120,21 @@ int hfci_recv_fd(int fd, int *rx_fd, void *buf, size_t n, int timeout_ms) {
   return 0;
 }
 
+int hfci_send_io(int fd, void *ssl, int timeout_ms, const void *a, size_t an, const void *b,
+                 size_t bn) {
+  return ssl ? hfci_tls_send(ssl, fd, timeout_ms, a, an, b, bn)
+             : hfci_send_fd(fd, timeout_ms, a, an, b, bn);
+}
+
+int hfci_recv_io(int fd, void *ssl, int *rx_fd, void *buf, size_t n, int timeout_ms) {
+  return ssl ? hfci_tls_recv(ssl, fd, buf, n, timeout_ms)
+             : hfci_recv_fd(fd, rx_fd, buf, n, timeout_ms);
+}
+
 static int recv_all(hfc_client *c, conn *x, void *buf, size_t n) {
-  return hfci_recv_fd(x->fd, &x->rx_fd, buf, n, c->timeout_ms);
+  int rc = hfci_recv_io(x->fd, x->ssl, &x->rx_fd, buf, n, c->timeout_ms);
+  if (rc == HFC_E_TLS) snprintf(x->why, sizeof x->why, "%s", hfci_tls_why());
+  return rc;
 }
 
 /* ---- requests --------------------------------------------------------------- */
@@ -173,7 +186,8 @@ static int switch_away(hfc_client *c, int k) {
    * and its half-close tells the server to answer what it has and close. */
   hfci_shm_orphan(c, x->serial);
   x->draining = 1;
-  if (shutdown(x->fd, SHUT_WR) != 0) hfci_conn_lost(c, k, HFC_E_IO);
+  if (x->ssl ? hfci_tls_shutdown_wr(x->ssl) != 0 : shutdown(x->fd, SHUT_WR) != 0)
+    hfci_conn_lost(c, k, HFC_E_IO);
   return 0;
 }
 
@@ -335,7 +349,15 @@ static int read_frame(hfc_client *c, int k) {
   return HFC_E_PROTOCOL;
 }
 
+static int pump_once(hfc_client *c, int timeout_ms);
+
 int hfci_pump(hfc_client *c, int timeout_ms) {
+  int rc = pump_once(c, timeout_ms);
+  hfci_tls_signal(c);
+  return rc;
+}
+
+static int pump_once(hfc_client *c, int timeout_ms) {
   struct pollfd pf[MAX_CONNS];
   int idx[MAX_CONNS], n = 0;
   for (int k = 0; k < MAX_CONNS; k++)
@@ -346,6 +368,13 @@ int hfci_pump(hfc_client *c, int timeout_ms) {
       idx[n++] = k;
     }
   if (!n) return c->broken ? c->broken : HFC_E_CLOSED;
+  /* A frame OpenSSL has already decrypted is not on the socket. */
+  for (int i = 0; i < n; i++)
+    if (hfci_tls_pending(c->conns[idx[i]].ssl)) {
+      int rc = read_frame(c, idx[i]);
+      if (rc) hfci_conn_lost(c, idx[i], rc);
+      return 0;
+    }
   int r;
   do {
     r = poll(pf, (nfds_t)n, timeout_ms);
@@ -463,7 +492,7 @@ int hfci_control(hfc_client *c, const uint8_t *frame, size_t len, int reply_type
     c->ctl_done = 0;
     c->ctl_status = 0;
     c->ctl = NULL;
-    int rc = hfci_send_fd(c->conns[k].fd, c->timeout_ms, frame, len, NULL, 0);
+    int rc = hfci_send_io(c->conns[k].fd, c->conns[k].ssl, c->timeout_ms, frame, len, NULL, 0);
     if (rc) hfci_conn_lost(c, k, rc);   /* marks the control request done with rc */
     while (!c->ctl_done) {
       rc = hfci_pump(c, c->timeout_ms);

@@ -32,6 +32,7 @@ typedef struct endpoint {
 
 typedef struct conn {
   int fd;                       /* -1: the slot is free */
+  void *ssl;                    /* SSL * on a tls: endpoint, else NULL (tls.c) */
   int endpoint;                 /* index in hfc_client.eps */
   uint64_t serial;              /* never reused: segments name their connection by it */
   int draining;                 /* half-closed: replies still read, nothing sent */
@@ -93,6 +94,10 @@ struct hfc_client {
   hfc_server_info info_last;    /* hfc_info when there is no connection */
   uint64_t next_serial;
   int epfd;                     /* hfc_fd: every connection's socket */
+  void *tls_ctx;                /* SSL_CTX * when an endpoint is tls: (tls.c) */
+  int tls_evfd;                 /* in epfd: readable while OpenSSL holds decrypted bytes */
+  char tls_server_name[256];    /* hfc_options.tls_server_name, or "" */
+  int tls_no_verify_host;
 
   pending *p;
   int np;                       /* slots */
@@ -149,6 +154,11 @@ int hfci_recv_fd(int fd, int *rx_fd, void *buf, size_t n, int timeout_ms);
 /* Sends a then b (bn may be 0) on fd, waiting up to timeout_ms whenever the
  * socket is full. 0, or HFC_E_CLOSED / HFC_E_IO / HFC_E_TIMEOUT. */
 int hfci_send_fd(int fd, int timeout_ms, const void *a, size_t an, const void *b, size_t bn);
+/* The same through TLS when ssl is not NULL (no descriptors travel then):
+ * the calls every frame goes through. */
+int hfci_send_io(int fd, void *ssl, int timeout_ms, const void *a, size_t an, const void *b,
+                 size_t bn);
+int hfci_recv_io(int fd, void *ssl, int *rx_fd, void *buf, size_t n, int timeout_ms);
 /* Reads one frame from any connection (waiting up to timeout_ms for one to
  * start) and dispatches it. 0 when something happened (a frame, or a
  * connection lost and dealt with), HFC_E_TIMEOUT, or the error that left
@@ -172,6 +182,33 @@ int hfci_need_conn(hfc_client *c);
 void hfci_finish(hfc_client *c, pending *p, int status, const char *why);
 /* The completion of p to the caller, its message set; the slot is free. */
 void hfci_release(hfc_client *c, pending *p, hfc_completion *done);
+
+/* ---- tls.c ------------------------------------------------------------------- */
+
+/* The TLS context of a client whose list has a tls: endpoint, from the
+ * options' CA file, client certificate and key: 0, or HFC_E_ARG / HFC_E_NOMEM
+ * with why naming the option and OpenSSL's reason. */
+int hfci_tls_setup(hfc_client *c, const hfc_options *o, char *why, size_t whylen);
+void hfci_tls_free(hfc_client *c);
+/* With TLS: an eventfd in c->epfd that hfci_tls_signal keeps readable while
+ * a connection's decrypted bytes wait in OpenSSL, so that hfc_fd polls
+ * readable for them too. 0, or HFC_E_IO with why. */
+int hfci_tls_poll_setup(hfc_client *c, char *why, size_t whylen);
+void hfci_tls_signal(hfc_client *c);
+/* TLS handshake on the connected socket fd to u (certificate and host name
+ * checked): 0 with *ssl set, or HFC_E_TLS / HFC_E_TIMEOUT with
+ * hfci_tls_why() saying what failed and what to check. */
+int hfci_tls_connect(hfc_client *c, int fd, const hfp_url *u, void **ssl);
+int hfci_tls_send(void *ssl, int fd, int timeout_ms, const void *a, size_t an, const void *b,
+                  size_t bn);
+int hfci_tls_recv(void *ssl, int fd, void *buf, size_t n, int timeout_ms);
+/* Decrypted bytes waiting in OpenSSL, which poll() on the socket cannot see. */
+int hfci_tls_pending(void *ssl);
+/* Sends close_notify, TLS's half-close. */
+int hfci_tls_shutdown_wr(void *ssl);
+void hfci_tls_close(void *ssl);
+/* This thread's explanation of the last TLS failure. */
+const char *hfci_tls_why(void);
 
 /* ---- queries.c --------------------------------------------------------------- */
 

@@ -142,7 +142,8 @@ static int open_socket(const endpoint *e, int timeout_ms, int *err, char *why, s
 
 /* HELLO on a fresh socket and its answer: 0 with ok filled, or the error
  * with why filled. */
-static int handshake(hfc_client *c, int fd, hfp_hello_ok *ok, char *why, size_t whylen) {
+static int handshake(hfc_client *c, int fd, void *ssl, hfp_hello_ok *ok, char *why,
+                     size_t whylen) {
   hfp_hello hello;
   memset(&hello, 0, sizeof hello);
   hello.min_version = HFP_VERSION_MIN;
@@ -155,11 +156,13 @@ static int handshake(hfc_client *c, int fd, hfp_hello_ok *ok, char *why, size_t 
     snprintf(why, whylen, "cannot encode HELLO");
     return HFC_E_ARG;
   }
-  int rc = hfci_send_fd(fd, c->timeout_ms, frame, (size_t)n, NULL, 0);
+  int rc = hfci_send_io(fd, ssl, c->timeout_ms, frame, (size_t)n, NULL, 0);
   uint8_t hb[HFP_HEADER_SIZE];
-  if (!rc) rc = hfci_recv_fd(fd, NULL, hb, sizeof hb, c->timeout_ms);
+  if (!rc) rc = hfci_recv_io(fd, ssl, NULL, hb, sizeof hb, c->timeout_ms);
   if (rc) {
-    snprintf(why, whylen, "handshake: %s", hfc_strerror(rc));
+    /* Under TLS 1.3 a server refuses a client certificate after the
+     * client's side of the handshake is done: its alert comes here. */
+    snprintf(why, whylen, "handshake: %s", rc == HFC_E_TLS ? hfci_tls_why() : hfc_strerror(rc));
     return rc;
   }
   hfp_header h;
@@ -170,10 +173,10 @@ static int handshake(hfc_client *c, int fd, hfp_hello_ok *ok, char *why, size_t 
   }
   uint8_t *payload = malloc(h.length ? h.length : 1);
   if (!payload) return HFC_E_NOMEM;
-  rc = hfci_recv_fd(fd, NULL, payload, h.length, c->timeout_ms);
+  rc = hfci_recv_io(fd, ssl, NULL, payload, h.length, c->timeout_ms);
   if (rc) {
     free(payload);
-    snprintf(why, whylen, "handshake: %s", hfc_strerror(rc));
+    snprintf(why, whylen, "handshake: %s", rc == HFC_E_TLS ? hfci_tls_why() : hfc_strerror(rc));
     return rc;
   }
   if (h.type == HFP_ERROR) {
@@ -234,9 +237,19 @@ static int open_conn(hfc_client *c, int e, int *err, char *why, size_t whylen) {
     snprintf(why, whylen, "fcntl: %s", strerror(*err));
     return HFC_E_IO;
   }
+  void *ssl = NULL;
+  if (c->eps[e].addr.tls) {
+    int rc = hfci_tls_connect(c, fd, &c->eps[e].addr, &ssl);
+    if (rc) {
+      close(fd);
+      snprintf(why, whylen, "%s", hfci_tls_why());
+      return rc;
+    }
+  }
   hfp_hello_ok ok;
-  int rc = handshake(c, fd, &ok, why, whylen);
+  int rc = handshake(c, fd, ssl, &ok, why, whylen);
   if (rc) {
+    if (ssl) hfci_tls_close(ssl);
     close(fd);
     return rc;
   }
@@ -246,6 +259,7 @@ static int open_conn(hfc_client *c, int e, int *err, char *why, size_t whylen) {
   ev.data.fd = fd;
   if (epoll_ctl(c->epfd, EPOLL_CTL_ADD, fd, &ev) != 0) {
     *err = errno;
+    if (ssl) hfci_tls_close(ssl);
     close(fd);
     snprintf(why, whylen, "epoll_ctl: %s", strerror(*err));
     return HFC_E_IO;
@@ -253,6 +267,7 @@ static int open_conn(hfc_client *c, int e, int *err, char *why, size_t whylen) {
   conn *x = &c->conns[k];
   memset(x, 0, sizeof *x);
   x->fd = fd;
+  x->ssl = ssl;
   x->rx_fd = -1;
   x->endpoint = e;
   x->serial = ++c->next_serial;
@@ -310,6 +325,7 @@ void hfci_conn_close(hfc_client *c, int k) {
   conn *x = &c->conns[k];
   if (x->fd < 0) return;
   epoll_ctl(c->epfd, EPOLL_CTL_DEL, x->fd, NULL);
+  if (x->ssl) hfci_tls_close(x->ssl);
   close(x->fd);
   if (x->rx_fd >= 0) close(x->rx_fd);
   free(x->variants);
@@ -349,11 +365,14 @@ static int set_options(hfc_client *c, const hfc_options *opt) {
     if (opt->struct_size == 0)
       return hfci_arg(c, "hfc_options.struct_size is 0: initialise the options with "
                          "hfc_options_init()");
-    if (opt->struct_size < sizeof o)
-      return hfci_arg(c, "hfc_options.struct_size is %zu, smaller than this library's %zu: "
+    /* Fields are appended within a SONAME: options of an older header
+     * (0.1.0 ended before the TLS fields) keep the defaults of the rest. */
+    size_t oldest = offsetof(hfc_options, tls_ca_file);
+    if (opt->struct_size < oldest)
+      return hfci_arg(c, "hfc_options.struct_size is %zu, smaller than any version's %zu: "
                          "initialise the options with hfc_options_init()",
-                      opt->struct_size, sizeof o);
-    memcpy(&o, opt, sizeof o);
+                      opt->struct_size, oldest);
+    memcpy(&o, opt, opt->struct_size < sizeof o ? opt->struct_size : sizeof o);
   }
   const char *name = o.client_name ? o.client_name : "libhairfilter";
   size_t nl = strlen(name), tl = o.token ? strlen(o.token) : 0;
@@ -390,16 +409,25 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
   hfc_client *c = calloc(1, sizeof *c);
   if (!c) return HFC_E_NOMEM;
   c->epfd = -1;
+  c->tls_evfd = -1;
   c->active = -1;
   for (int k = 0; k < MAX_CONNS; k++) c->conns[k].fd = c->conns[k].rx_fd = -1;
   char why[400];
   int rc = hfci_parse_endpoints(url, c->eps, &c->neps, why, sizeof why);
   if (rc) hfci_msg(NULL, "%s", why);
   if (!rc) rc = set_options(c, opt);
+  if (!rc) {
+    hfc_options o;
+    hfc_options_init(&o);
+    if (opt) memcpy(&o, opt, opt->struct_size < sizeof o ? opt->struct_size : sizeof o);
+    o.struct_size = sizeof o;
+    if ((rc = hfci_tls_setup(c, &o, why, sizeof why))) hfci_msg(NULL, "%s", why);
+  }
   if (!rc && (c->epfd = epoll_create1(EPOLL_CLOEXEC)) < 0) {
     hfci_msg(NULL, "epoll_create1: %s", strerror(errno));
     rc = HFC_E_IO;
   }
+  if (!rc && (rc = hfci_tls_poll_setup(c, why, sizeof why))) hfci_msg(NULL, "%s", why);
   if (!rc) rc = hfci_connect_next(c, 0);
   if (rc) {
     /* The message (this thread's copy) and errno outlive the client. */
@@ -418,6 +446,8 @@ void hfc_close(hfc_client *c) {
   for (int k = 0; k < MAX_CONNS; k++) hfci_conn_close(c, k);
   hfci_shm_release_all(c);
   if (c->epfd >= 0) close(c->epfd);
+  if (c->tls_evfd >= 0) close(c->tls_evfd);
+  hfci_tls_free(c);
   free(c->ctl);
   free(c->p);
   free(c);

@@ -26,6 +26,7 @@ static const struct {
   {HFC_E_NOMEM, "out of memory"},
   {HFC_E_INFLIGHT, "too many requests in flight on this connection"},
   {HFC_E_NOPENDING, "no request in flight"},
+  {HFC_E_TLS, "TLS handshake or certificate refused"},
 };
 
 const char *hfc_strerror(int err) {

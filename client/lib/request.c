@@ -220,7 +220,7 @@ int hfci_send_request(hfc_client *c, pending *p) {
   x->inflight++;
   /* On failure part of a frame may be out: the connection cannot be trusted
    * any more, and the caller ends it (hfci_conn_lost, which resends p). */
-  return hfci_send_fd(x->fd, c->timeout_ms, head, (size_t)n, g ? NULL : p->features,
+  return hfci_send_io(x->fd, x->ssl, c->timeout_ms, head, (size_t)n, g ? NULL : p->features,
                       g ? 0 : (size_t)p->features_len);
 }
 

@@ -97,7 +97,7 @@ int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem) {
   if (addr == MAP_FAILED) {
     uint8_t d[HFP_HEADER_SIZE + 4];
     int dn = hfp_encode_shm_destroy(d, sizeof d, id);
-    if (dn > 0 && !x->draining && (rc = hfci_send_fd(x->fd, c->timeout_ms, d, (size_t)dn, NULL, 0)))
+    if (dn > 0 && !x->draining && (rc = hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)dn, NULL, 0)))
       hfci_conn_lost(c, c->ctl_conn, rc);
     hfci_msg(c, "mmap of a %zu-byte segment failed", bytes);
     return HFC_E_NOMEM;
@@ -138,7 +138,7 @@ int hfc_shm_free(hfc_client *c, void *mem) {
       if (x->fd < 0 || x->serial != g.conn_serial || x->draining || !g.conn_serial) continue;
       uint8_t d[HFP_HEADER_SIZE + 4];
       int n = hfp_encode_shm_destroy(d, sizeof d, g.id);
-      int rc = n < 0 ? HFC_E_ARG : hfci_send_fd(x->fd, c->timeout_ms, d, (size_t)n, NULL, 0);
+      int rc = n < 0 ? HFC_E_ARG : hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)n, NULL, 0);
       if (rc) hfci_conn_lost(c, k, rc);
       return rc;
     }

@@ -21,6 +21,7 @@
 
 typedef struct opts {
   const char *server, *variant, *token;
+  const char *tls_ca, *tls_cert, *tls_key;   /* tls: URLs */
   int width, height, connections, inflight, f16, shm;
   double seconds, warmup;
 } opts;
@@ -52,9 +53,12 @@ static void usage(FILE *f) {
           "usage: hairfilter-load --server URL --variant NAME [--size WxH] [--connections N]\n"
           "                       [--inflight K] [--seconds S] [--warmup S] [--f16]\n"
           "                       [--token TOKEN] [--shm]\n"
+          "                       [--tls-ca FILE] [--tls-cert FILE --tls-key FILE]\n"
           "--shm puts every frame in memory shared with the server (Unix sockets).\n"
           "Defaults: --size 640x480 --connections 1 --inflight 1 --seconds 10 --warmup 1.\n"
-          "The token defaults to $HAIRFILTER_TOKEN.\n");
+          "The token defaults to $HAIRFILTER_TOKEN. --tls-ca names the CA that signed a\n"
+          "tls: server's certificate (default: the system's); --tls-cert and --tls-key a\n"
+          "client certificate for mutual TLS.\n");
 }
 
 static int record(worker *w, const hfc_completion *d) {
@@ -93,6 +97,9 @@ static void *run(void *arg) {
   hfc_options_init(&co);
   co.client_name = "hairfilter-load";
   co.token = o->token;
+  co.tls_ca_file = o->tls_ca;
+  co.tls_cert_file = o->tls_cert;
+  co.tls_key_file = o->tls_key;
   co.timeout_ms = 30000;
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
@@ -227,6 +234,9 @@ int main(int argc, char **argv) {
     if (!strcmp(a, "--server")) o.server = v;
     else if (!strcmp(a, "--variant")) o.variant = v;
     else if (!strcmp(a, "--token")) o.token = v;
+    else if (!strcmp(a, "--tls-ca")) o.tls_ca = v;
+    else if (!strcmp(a, "--tls-cert")) o.tls_cert = v;
+    else if (!strcmp(a, "--tls-key")) o.tls_key = v;
     else if (!strcmp(a, "--size")) {
       char tail;
       if (sscanf(v, "%dx%d%c", &o.width, &o.height, &tail) != 2 || o.width < 1 || o.height < 1) {
@@ -258,6 +268,9 @@ int main(int argc, char **argv) {
   hfc_options_init(&co);
   co.client_name = "hairfilter-load";
   co.token = o.token;
+  co.tls_ca_file = o.tls_ca;
+  co.tls_cert_file = o.tls_cert;
+  co.tls_key_file = o.tls_key;
   co.timeout_ms = 30000;
   int rc = hfc_connect(o.server, &co, &c);
   if (rc) {

@@ -8,6 +8,9 @@ packages=(
   build-essential cmake pkg-config git dpkg-dev file
   libcjson-dev libopenexr-dev libpng-dev libuv1-dev libcmocka-dev
   libmicrohttpd-dev libsystemd-dev libinih-dev
+  # TLS listeners and tls: URLs (OpenSSL); the openssl command makes
+  # certificates (docs/SERVER.md, "TLS").
+  libssl-dev openssl
   libdnnl-dev libosmesa6-dev
   python3 python3-numpy python3-torch libopenblas0-openmp python3-openimageio
   libegl-dev libassimp-dev

@@ -2,7 +2,7 @@
  * that another client (test_python_client.py) can compare its results with
  * the C library's byte for byte.
  *
- *   filter_raw URL VARIANT WIDTH HEIGHT SPP f32|f16 IN OUT [shm] [rgba RGBA]
+ *   filter_raw URL VARIANT WIDTH HEIGHT SPP f32|f16 IN OUT [shm] [rgba RGBA] [ca CA.pem]
  *
  * IN holds the features [HEIGHT][WIDTH][SPP*6] in the dtype given; OUT gets
  * the result [HEIGHT][WIDTH][3] in the same dtype, RGBA the composite
@@ -45,16 +45,19 @@ int main(int argc, char **argv) {
   hfc_dtype dt = strcmp(argv[6], "f16") ? HFC_F32 : HFC_F16;
   int shm = 0;
   const char *rgba_path = NULL;
+  hfc_options o;
+  hfc_options_init(&o);
   for (int i = 9; i < argc; i++) {
     if (!strcmp(argv[i], "shm")) shm = 1;
     if (!strcmp(argv[i], "rgba") && i + 1 < argc) rgba_path = argv[++i];
+    if (!strcmp(argv[i], "ca") && i + 1 < argc) o.tls_ca_file = argv[++i];
   }
   size_t in_b = hfc_features_bytes(w, h, spp, dt), out_b = hfc_output_bytes(w, h, 3, dt);
   size_t rgba_b = rgba_path ? hfc_output_bytes(w, h, 4, dt) : 0;
   void *in = slurp(argv[7], in_b);
   if (!in) return 1;
   hfc_client *c;
-  int rc = hfc_connect(argv[1], NULL, &c);
+  int rc = hfc_connect(argv[1], &o, &c);
   if (rc) {
     fprintf(stderr, "filter_raw: %s: %s\n", hfc_strerror(rc), hfc_last_message(NULL));
     return 1;

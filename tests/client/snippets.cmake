@@ -52,6 +52,8 @@ foreach(d IN LISTS INCLUDES)
 endforeach()
 set(warn -Wall -Wextra -Werror -pedantic -Wno-unused-function)
 separate_arguments(flags UNIX_COMMAND "${FLAGS}")
+# The static library and what it links (OpenSSL), "|"-separated.
+string(REPLACE "|" ";" LIB "${LIB}")
 function(build name compiler std src)
   execute_process(COMMAND ${compiler} ${std} ${warn} ${flags} ${inc} ${src} ${LIB}
                           -o ${WORK}/${name}

@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """The Python client (client/python) against a real hairfilterd: connect,
-variants, filter over the Unix socket, TCP and shared memory, pipelined
+variants, filter over the Unix socket, TCP, TLS and shared memory, pipelined
 submit/wait, statistics and errors; every result equal, byte for byte, to
 what the C library (tests/client/filter_raw.c) gets for the same frame.
 
   test_python_client.py --daemon build/hairfilterd --filter-raw build/.../filter_raw
                         --weights DIR --version 0.1.0 --work DIR
+                        --make-certs build/tests/server/make_test_certs
 
 Exit status 77 (a skip) without numpy.
 """
@@ -30,7 +31,8 @@ from hairfilter import protocol as P
 ARGS = None
 BASE1 = "Base@1spp"   # weights/base_1spp.safetensors
 DAEMON = None
-UNIX = TCP = None
+UNIX = TCP = TLS = None
+CERTS = None
 
 
 def features(h, w, spp, seed, dtype=np.float32):
@@ -42,7 +44,7 @@ def features(h, w, spp, seed, dtype=np.float32):
     return np.ascontiguousarray(f.reshape(h, w, spp * 6).astype(dtype))
 
 
-def c_filter(url, variant, f, shm=False, rgba=False):
+def c_filter(url, variant, f, shm=False, rgba=False, ca=None):
     """The C library's result (and composite) of frame f, as bytes."""
     h, w, ch = f.shape
     dt = "f16" if f.dtype == np.float16 else "f32"
@@ -55,6 +57,8 @@ def c_filter(url, variant, f, shm=False, rgba=False):
         cmd.append("shm")
     if rgba:
         cmd += ["rgba", drgba]
+    if ca:
+        cmd += ["ca", ca]
     subprocess.run(cmd, check=True)
     with open(dst, "rb") as fh:
         out = fh.read()
@@ -65,8 +69,11 @@ def c_filter(url, variant, f, shm=False, rgba=False):
 
 
 def setUpModule():
-    global DAEMON, UNIX, TCP
+    global DAEMON, UNIX, TCP, TLS, CERTS
     os.makedirs(ARGS.work, exist_ok=True)
+    CERTS = os.path.join(ARGS.work, "certs")
+    os.makedirs(CERTS, exist_ok=True)
+    subprocess.run([ARGS.make_certs, CERTS], check=True)
     ready = os.path.join(ARGS.work, "ready")
     sock = os.path.join(ARGS.work, "d.sock")
     for p in (ready, sock):
@@ -75,6 +82,8 @@ def setUpModule():
     log = open(os.path.join(ARGS.work, "daemon.log"), "w")
     DAEMON = subprocess.Popen(
         [ARGS.daemon, "--listen", "unix:" + sock, "--listen", "tcp:127.0.0.1:0", "--no-auth",
+         "--listen", "tls:127.0.0.1:0", "--tls-cert", os.path.join(CERTS, "server.pem"),
+         "--tls-key", os.path.join(CERTS, "server.key"),
          "--weights", os.path.join(ARGS.weights, "small.safetensors"),
          "--weights", os.path.join(ARGS.weights, "base_1spp.safetensors"),
          "--backend", "cpu-ref", "--ready-file", ready], stdout=log, stderr=log)
@@ -83,6 +92,8 @@ def setUpModule():
             urls = open(ready).read().split()
             UNIX = [u for u in urls if u.startswith("unix:")][0]
             TCP = [u for u in urls if u.startswith("tcp:")][0]
+            # The certificate names localhost only.
+            TLS = "tls:localhost:" + [u for u in urls if u.startswith("tls:")][0].rsplit(":", 1)[1]
             return
         if DAEMON.poll() is not None:
             break
@@ -127,6 +138,27 @@ class PythonClient(unittest.TestCase):
             self.assertGreater(t.total_us, 0)
         with hairfilter.Client(TCP) as hf:
             self.assertEqual(hf.filter("Small", f).result.tobytes(), want)
+        ca = os.path.join(CERTS, "ca.pem")
+        with hairfilter.Client(TLS, tls_ca=ca) as hf:
+            self.assertEqual(hf.filter("Small", f).result.tobytes(), want)
+        self.assertEqual(c_filter(TLS, "Small", f, ca=ca), want)
+
+    def test_tls_refusals(self):
+        """A CA that did not sign the server's certificate, a host name it
+        does not carry, a plain client on the TLS port: each named."""
+        other = os.path.join(CERTS, "other-ca.pem")
+        with self.assertRaises(hairfilter.Error) as e:
+            hairfilter.Client(TLS, tls_ca=other)
+        self.assertIn("unable to get local issuer certificate", str(e.exception))
+        ca = os.path.join(CERTS, "ca.pem")
+        with self.assertRaises(hairfilter.Error) as e:
+            hairfilter.Client(TLS, tls_ca=ca, tls_server_name="render-99.farm")
+        self.assertIn("Hostname mismatch", str(e.exception))
+        with self.assertRaises(hairfilter.Error) as e:
+            hairfilter.Client("tcp:" + TLS[4:])
+        self.assertIn("this listener speaks TLS", str(e.exception))
+        with hairfilter.Client(TLS, tls_ca=ca) as hf:
+            self.assertEqual(hf.filter("Small", features(8, 8, 4, 3)).status, "OK")
 
     def test_f16_and_composite_equal_c(self):
         f = features(17, 23, 1, 2, np.float16)
@@ -232,6 +264,10 @@ class PythonClient(unittest.TestCase):
                 P.parse_url(bad)
         self.assertEqual(P.parse_url("tcp:[::1]:7070"), P.Address("tcp", None, "::1", 7070))
         self.assertEqual(P.parse_url("tcp:7070").host, "127.0.0.1")
+        self.assertEqual(P.parse_url("tls:render-07:7443"),
+                         P.Address("tls", None, "render-07", 7443))
+        with self.assertRaises(ValueError):
+            P.parse_url("tls://render-07:7443")
 
 
 def main():
@@ -242,6 +278,7 @@ def main():
     ap.add_argument("--weights", required=True)
     ap.add_argument("--version", required=True)
     ap.add_argument("--work", required=True)
+    ap.add_argument("--make-certs", required=True)
     ARGS, rest = ap.parse_known_args()
     shutil.rmtree(ARGS.work, ignore_errors=True)
     unittest.main(argv=[sys.argv[0]] + rest, verbosity=2)

@@ -306,8 +306,13 @@ int cf_health(cf_test *t) {
   const cf_server *s = t->srv;
   hfc_client *c = NULL;
   hfc_options o = cf_client_options("conformance-check", t->o->token, t->o->timeout_ms);
+  o.tls_ca_file = t->o->tls_ca;
+  o.tls_cert_file = t->o->tls_cert;
+  o.tls_key_file = t->o->tls_key;
   int rc = hfc_connect(t->o->server, &o, &c);
-  if (rc) return cf_fail(t, "libhairfilter cannot connect: %s", hfc_strerror(rc));
+  if (rc)
+    return cf_fail(t, "libhairfilter cannot connect: %s: %s", hfc_strerror(rc),
+                   hfc_last_message(NULL));
   cf_filter f = {0};
   cf_filter_defaults(t, &f);
   size_t in_bytes = (size_t)cf_features_bytes(&f);

@@ -106,6 +106,9 @@ typedef struct cf_frame {
 enum { CF_GOT = 1, CF_EOF = 0, CF_TIMEOUT = -2 };
 
 int cf_connect(cf_test *t, int *fd);
+/* A tls: URL's connected TCP socket tcp wrapped (cf_tls.c): the descriptor
+ * a case uses as it would the socket, or -1 with why (tcp is closed). */
+int cf_tls_wrap(const cf_options *o, const hfp_url *u, int tcp, char *why, size_t whylen);
 /* Connects and completes a HELLO offering lo..hi with the suite's token. */
 int cf_connect_hello(cf_test *t, int lo, int hi, int *fd, hfp_hello_ok *ok);
 int cf_send(cf_test *t, int fd, const void *buf, size_t n);

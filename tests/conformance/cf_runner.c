@@ -132,6 +132,9 @@ static int probe(const cf_options *o, cf_server *s, char *why, size_t whylen) {
   s->reference = malloc(s->reference_len);
   hfc_client *c = NULL;
   hfc_options co = cf_client_options("conformance-probe", o->token, o->timeout_ms);
+  co.tls_ca_file = o->tls_ca;
+  co.tls_cert_file = o->tls_cert;
+  co.tls_key_file = o->tls_key;
   rc = hfc_connect(o->server, &co, &c);
   if (!rc) {
     cf_filter pf = {0};

@@ -93,7 +93,8 @@ void cf_close(cf_test *t, int fd) {
 
 /* ---- connecting ---------------------------------------------------------- */
 
-static int open_url(const char *url, int timeout_ms, char *why, size_t whylen) {
+static int open_url(const cf_options *o, const char *url, int timeout_ms, char *why,
+                    size_t whylen) {
   hfp_url u;
   if (hfp_url_parse(url, 0, &u, why, whylen)) return -1;
   int fd = -1;
@@ -143,6 +144,7 @@ static int open_url(const char *url, int timeout_ms, char *why, size_t whylen) {
     if (fd < 0) return -1;
     int one = 1;
     setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    if (u.tls && (fd = cf_tls_wrap(o, &u, fd, why, whylen)) < 0) return -1;
   }
   /* Non-blocking: every wait is a poll with a deadline. */
   int fl = fcntl(fd, F_GETFL);
@@ -156,7 +158,7 @@ static int open_url(const char *url, int timeout_ms, char *why, size_t whylen) {
 
 int cf_connect(cf_test *t, int *fd) {
   char why[300];
-  int s = open_url(t->o->server, t->o->timeout_ms, why, sizeof why);
+  int s = open_url(t->o, t->o->server, t->o->timeout_ms, why, sizeof why);
   if (s < 0) return cf_fail(t, "%s", why);
   if (cf_keep_fd(t, s) < 0) return cf_fail(t, "too many sockets in one case");
   *fd = s;

@@ -29,6 +29,9 @@ extern "C" {
 typedef struct cf_options {
   const char *server;      /* URL of the server under test (server suite) */
   const char *token;       /* its TCP token, or NULL */
+  const char *tls_ca;      /* tls: URLs: CA file of the server's certificate; NULL: the system's */
+  const char *tls_cert;    /* client certificate and key for mutual TLS, or NULL */
+  const char *tls_key;
   const char *pattern;     /* run only cases matching this fnmatch pattern; NULL: all */
   int timeout_ms;          /* longest wait for a reply the server owes; 0: 10000 */
   int quiet_ms;            /* how long "no reply" is watched for; 0: 300 */

@@ -2,18 +2,21 @@
  * tests' harness: random weights on cpu-ref, plus a variant whose weights
  * record a trained range), with deadlines short enough for the stall cases
  * to see them, and `hairfilter conformance` run against its Unix socket or
- * its TCP listener (with the token). Passes when the command exits 0 with
+ * its TCP listener (with the token), or its TLS listener (with the token,
+ * certificates made by test_certs.c). Passes when the command exits 0 with
  * at least 200 cases passed, and the daemon exits cleanly afterwards.
  *
- *   run_conformance unix|tcp */
+ *   run_conformance unix|tcp|tls */
 #define _POSIX_C_SOURCE 200809L
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include "harness.h"
+#include "test_certs.h"
 
 #ifndef HAIRFILTER_CLI_PATH
 #error "HAIRFILTER_CLI_PATH must name the hairfilter CLI"
@@ -22,11 +25,11 @@
 enum { MIN_PASSED = 200 };
 
 int main(int argc, char **argv) {
-  if (argc != 2 || (strcmp(argv[1], "unix") && strcmp(argv[1], "tcp"))) {
-    fprintf(stderr, "usage: run_conformance unix|tcp\n");
+  if (argc != 2 || (strcmp(argv[1], "unix") && strcmp(argv[1], "tcp") && strcmp(argv[1], "tls"))) {
+    fprintf(stderr, "usage: run_conformance unix|tcp|tls\n");
     return 2;
   }
-  int tcp = !strcmp(argv[1], "tcp");
+  int tcp = !strcmp(argv[1], "tcp"), tls = !strcmp(argv[1], "tls");
   harness h;
   server s;
   char narrow[320];
@@ -40,23 +43,40 @@ int main(int argc, char **argv) {
     fprintf(stderr, "run_conformance: cannot make the weights\n");
     return 1;
   }
+  char certs[200], cert[256], key[256], ca[256];
+  snprintf(certs, sizeof certs, "%s/certs", h.dir);
+  snprintf(cert, sizeof cert, "%s/server.pem", certs);
+  snprintf(key, sizeof key, "%s/server.key", certs);
+  snprintf(ca, sizeof ca, "%s/ca.pem", certs);
+  if (tls && (mkdir(certs, 0700) || test_certs_make(certs))) {
+    fprintf(stderr, "run_conformance: cannot make the certificates\n");
+    harness_free(&h);
+    return 1;
+  }
   const char *const extra[] = {"--weights", narrow, "--handshake-timeout-ms", "500",
                                "--stall-timeout-ms", "500", "--max-handshakes", "8",
                                "--max-inflight", "4", "--max-size", "64x64", "--max-frame-mb", "1",
-                               "--max-batch", "4", "--max-queue-delay-us", "1000", NULL};
+                               "--max-batch", "4", "--max-queue-delay-us", "1000",
+                               tls ? "--listen" : NULL, "tls:127.0.0.1:0", "--tls-cert", cert,
+                               "--tls-key", key, NULL};
   if (server_start(&h, &s, extra)) {
     harness_free(&h);
     return 1;
   }
   char out[256];
   snprintf(out, sizeof out, "%s/conformance.out", h.dir);
-  const char *url = tcp ? s.tcp_url : s.unix_url;
+  /* The certificate names localhost. */
+  char tls_url[300];
+  const char *port = strrchr(s.tls_url, ':');
+  snprintf(tls_url, sizeof tls_url, "tls:localhost%s", port ? port : "");
+  const char *url = tls ? tls_url : tcp ? s.tcp_url : s.unix_url;
   pid_t pid = fork();
   if (pid == 0) {
     FILE *f = freopen(out, "w", stdout);
     (void)f;
     execl(HAIRFILTER_CLI_PATH, "hairfilter", "conformance", "--server", url, "--token", TEST_TOKEN,
-          "--stall", "800ms", "--timeout", "20s", (char *)NULL);
+          "--stall", "800ms", "--timeout", "20s", tls ? "--tls-ca" : (char *)NULL, ca,
+          (char *)NULL);
     _exit(127);
   }
   int st = 0;

@@ -147,6 +147,19 @@ static void test_url(void **state) {
   assert_int_equal(u.port, 7070);
   assert_int_equal(hfp_url_parse("tcp:[fe80::1%eth0]:80", 0, &u, why, sizeof why), 0);
   assert_string_equal(u.host, "fe80::1%eth0");
+  assert_int_equal(u.tls, 0);
+  /* tls: is TCP with the same grammar, and TLS on top */
+  assert_int_equal(hfp_url_parse("tls:render-07.farm:7443", 0, &u, why, sizeof why), 0);
+  assert_int_equal(u.kind, HFP_URL_TCP);
+  assert_int_equal(u.tls, 1);
+  assert_string_equal(u.host, "render-07.farm");
+  assert_int_equal(u.port, 7443);
+  assert_int_equal(hfp_url_parse("tls:[::1]:7443", 0, &u, why, sizeof why), 0);
+  assert_int_equal(u.tls, 1);
+  assert_string_equal(u.host, "::1");
+  assert_int_equal(hfp_url_parse("tls:7443", 0, &u, why, sizeof why), 0);
+  assert_string_equal(u.host, "127.0.0.1");
+  assert_int_equal(u.tls, 1);
   /* port 0 only where it means "any free port" */
   assert_int_equal(hfp_url_parse("tcp:127.0.0.1:0", HFP_URL_LISTEN, &u, why, sizeof why), 0);
   assert_int_equal(u.port, 0);
@@ -173,6 +186,11 @@ static void test_url(void **state) {
     {"tcp:host name:80", "' ' in the host name"},
     {"tcp:nohostport", "is not a decimal number"},
     {"unix:", "empty socket path"},
+    {"tls:127.0.0.1:65536", "port 65536 is outside 1..65535"},
+    {"tls:host name:80", "' ' in the host name"},
+    {"tls://host:7443", "no '//' after 'tls:': write tls:HOST:PORT"},
+    {"tcp://host:7070", "no '//' after 'tcp:': write tcp:HOST:PORT"},
+    {"tls:", "no port"},
     {"http://x", "want unix:PATH"},
     {"", "want unix:PATH"},
   };

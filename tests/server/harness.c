@@ -176,6 +176,7 @@ int server_start_ex(const harness *h, server *s, const char *const *extra,
         line[strcspn(line, "\n")] = 0;
         if (!strncmp(line, "unix:", 5)) snprintf(s->unix_url, sizeof s->unix_url, "%s", line);
         if (!strncmp(line, "tcp:", 4)) snprintf(s->tcp_url, sizeof s->tcp_url, "%s", line);
+        if (!strncmp(line, "tls:", 4)) snprintf(s->tls_url, sizeof s->tls_url, "%s", line);
       }
       fclose(f);
       if (s->unix_url[0] && s->tcp_url[0]) return 0;

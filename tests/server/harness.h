@@ -33,6 +33,7 @@ typedef struct server {
   char log[256];
   char unix_url[256];
   char tcp_url[256];
+  char tls_url[256];           /* when a tls: listener was among the extra arguments */
   char ready[256];
 } server;
 

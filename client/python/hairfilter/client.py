@@ -21,6 +21,7 @@ import array
 import mmap
 import os
 import socket
+import ssl
 import time
 from collections import namedtuple
 
@@ -112,12 +113,19 @@ class _Pending:
 class Client:
     """One connection to hairfilterd. url: "unix:PATH", "tcp:HOST:PORT",
     "tcp:[IPV6]:PORT", "tcp:PORT", or several separated by commas (the first
-    that answers is used). timeout: seconds per blocking step (None: none).
+    that answers is used); "tls:HOST:PORT" (and tls:[IPV6]:PORT, tls:PORT) is
+    TCP with TLS through the standard ssl module: the server's certificate
+    must chain to tls_ca (a PEM file; None: the system's CAs) and name HOST
+    (or tls_server_name); tls_cert and tls_key are a client certificate for
+    mutual TLS. timeout: seconds per blocking step (None: none).
     Raises Error ("CONNECT" with the reason of every endpoint, or the
-    handshake's error: "UNAUTHORIZED", "VERSION", "BUSY", ...)."""
+    handshake's error: "UNAUTHORIZED", "VERSION", "BUSY", ...; a refused
+    certificate says why, as libhairfilter does)."""
 
-    def __init__(self, url, client_name="hairfilter-python", token=None, timeout=30.0):
+    def __init__(self, url, client_name="hairfilter-python", token=None, timeout=30.0,
+                 tls_ca=None, tls_cert=None, tls_key=None, tls_server_name=None):
         self.timeout = timeout
+        self._tls = (tls_ca, tls_cert, tls_key, tls_server_name)
         self._sock = None
         self._pending = {}
         self._done = []
@@ -154,6 +162,8 @@ class Client:
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         except OSError as e:
             raise Error("CONNECT", "connect: %s" % (e.strerror or e))
+        if addr.kind == "tls":
+            s = self._wrap_tls(s, addr.host)
         self._sock = s
         self._unix = addr.kind == "unix"
         self._send(P.encode_hello(client_name, token))
@@ -170,6 +180,28 @@ class Client:
                                ok.queue_size, bool(ok.server_flags & P.SERVER_AUTH_REQUIRED),
                                bool(ok.dtypes & 1), bool(ok.dtypes & 2),
                                bool(ok.server_flags & P.SERVER_SHM), ok.max_frame_bytes)
+
+    def _wrap_tls(self, s, host):
+        """The TLS session on the connected socket s, the certificate and the
+        host name checked (ssl.create_default_context: TLS 1.2 at least)."""
+        ca, cert, key, name = self._tls
+        try:
+            ctx = ssl.create_default_context(cafile=ca)
+            ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+            if cert:
+                ctx.load_cert_chain(cert, key)
+        except (OSError, ssl.SSLError) as e:
+            s.close()
+            raise Error("ARG", "TLS files (tls_ca %s, tls_cert %s, tls_key %s): %s"
+                        % (ca, cert, key, e))
+        try:
+            return ctx.wrap_socket(s, server_hostname=name or host)
+        except ssl.SSLCertVerificationError as e:
+            s.close()
+            raise Error("TLS", "server certificate refused: %s" % e.verify_message)
+        except (ssl.SSLError, OSError) as e:
+            s.close()
+            raise Error("TLS", "TLS handshake: %s" % (getattr(e, "reason", None) or e))
 
     def _close_socket(self):
         if self._sock is not None:
@@ -225,7 +257,12 @@ class Client:
         self._sock.settimeout(self.timeout if first_timeout is None else first_timeout)
         try:
             while got < len(view):
-                n, anc, _, _ = self._sock.recvmsg_into([view[got:]], socket.CMSG_SPACE(4 * 4))
+                if self._unix:
+                    n, anc, _, _ = self._sock.recvmsg_into([view[got:]],
+                                                           socket.CMSG_SPACE(4 * 4))
+                else:
+                    # SSL sockets have no recvmsg; nothing but bytes comes over TCP.
+                    n, anc = self._sock.recv_into(view[got:]), ()
                 for level, type_, data in anc:
                     if level == socket.SOL_SOCKET and type_ == socket.SCM_RIGHTS:
                         fds = array.array("i")
@@ -240,6 +277,8 @@ class Client:
             if got == 0 and first_timeout is not None:
                 raise Error("TIMEOUT", "no reply within %.3f s" % first_timeout)
             self._fail("TIMEOUT", "no reply within the timeout")
+        except ssl.SSLError as e:
+            self._fail("TLS", "receive: %s" % (e.reason or e))
         except OSError as e:
             self._fail("CLOSED" if isinstance(e, ConnectionResetError) else "IO",
                        "receive: %s" % (e.strerror or e))

@@ -327,15 +327,16 @@ def encode_shm_destroy(segment):
 
 # ---- addresses (PROTOCOL.md, "Addresses") ----------------------------------------
 
-Address = namedtuple("Address", "kind path host port")   # kind "unix" or "tcp"
+Address = namedtuple("Address", "kind path host port")   # kind "unix", "tcp" or "tls"
 
 _HOST_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-._")
 _V6_CHARS = set("0123456789abcdefABCDEF:.")
 
 
 def parse_url(url):
-    """unix:PATH, tcp:HOST:PORT, tcp:[IPV6]:PORT or tcp:PORT, as hfp_url_parse
-    reads them; ValueError naming the URL and what is wrong."""
+    """unix:PATH, tcp:HOST:PORT, tcp:[IPV6]:PORT or tcp:PORT, and the same with
+    tls: (TCP with TLS), as hfp_url_parse reads them; ValueError naming the
+    URL and what is wrong."""
     def bad(why):
         return ValueError("bad URL '%.120s': %s" % (url, why))
     if url.startswith("unix:"):
@@ -345,9 +346,12 @@ def parse_url(url):
         if len(path.encode()) > 107:
             raise bad("socket path longer than 107 bytes")
         return Address("unix", path, None, None)
-    if not url.startswith("tcp:"):
-        raise bad("want unix:PATH, tcp:HOST:PORT or tcp:PORT")
+    kind = url[:3]
+    if not url.startswith("tcp:") and not url.startswith("tls:"):
+        raise bad("want unix:PATH, tcp:HOST:PORT, tls:HOST:PORT or tcp:PORT")
     rest = url[4:]
+    if rest.startswith("//"):
+        raise bad("no '//' after '%s:': write %s:HOST:PORT" % (kind, kind))
     if rest.startswith("["):
         close = rest.find("]")
         if close < 0:
@@ -378,4 +382,4 @@ def parse_url(url):
     port = int(port_s)
     if not 1 <= port <= 65535:
         raise bad("port %s is outside 1..65535" % port_s)
-    return Address("tcp", None, host, port)
+    return Address(kind, None, host, port)

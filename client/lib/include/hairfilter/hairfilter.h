@@ -84,6 +84,10 @@ HFC_API const char *hfc_version(void);
 #define HFC_E_NOMEM          -106
 #define HFC_E_INFLIGHT       -107 /* as many requests pending as the server allows */
 #define HFC_E_NOPENDING      -108 /* hfc_wait with nothing in flight */
+#define HFC_E_TLS            -109 /* TLS failed: a certificate refused (expired, another CA,
+                                     another host name), a client certificate missing or
+                                     refused, a peer that does not speak TLS;
+                                     hfc_last_message names it */
 
 /* The code's meaning in a few words ("server busy: ..."); never NULL. */
 HFC_API const char *hfc_strerror(int err);
@@ -123,6 +127,18 @@ typedef struct hfc_options {
   int max_resends;           /* times one frame may be sent again on another
                                 connection; 0: 2; < 0: never */
   unsigned failover;         /* HFC_FAILOVER_* bits; 0: LOST | BUSY */
+  /* TLS, for tls:HOST:PORT endpoints (appended after 0.1.0). The server's
+   * certificate must chain to a CA of tls_ca_file and name the URL's host
+   * (or tls_server_name) in its subjectAltName; TLS 1.2 at least. */
+  const char *tls_ca_file;   /* PEM file of trusted CA certificates; NULL: the system's
+                                (/etc/ssl/certs) */
+  const char *tls_cert_file; /* PEM client certificate (chain) for mutual TLS; NULL: none */
+  const char *tls_key_file;  /* its PEM private key; NULL: in tls_cert_file */
+  const char *tls_server_name; /* name the server's certificate must carry; NULL: the
+                                  URL's host */
+  int tls_no_verify_host;    /* 1: accept any name on a certificate the CA signed (a
+                                test set-up only: anyone the CA certified could
+                                pose as the server) */
 } hfc_options;
 
 /* Sets size bytes at s to zero, for hfc_options_init and hfc_request_init.
@@ -149,7 +165,9 @@ static inline void hfc_options_init(hfc_options *o) {
  * url is one endpoint or a comma-separated list of up to 8 of them, each in
  * the grammar of protocol/PROTOCOL.md ("Addresses"): "unix:/path/to.sock",
  * "tcp:HOST:PORT", "tcp:[v6addr]:PORT" or "tcp:PORT" (127.0.0.1); HOST may
- * be a name. With a list, endpoints that cannot be reached, close, or refuse
+ * be a name. "tls:HOST:PORT" (and tls:[v6addr]:PORT, tls:PORT) is TCP with
+ * TLS: the certificate and host name are checked as hfc_options says, and a
+ * refusal is HFC_E_TLS with hfc_last_message naming the problem. With a list, endpoints that cannot be reached, close, or refuse
  * the handshake with BUSY or SHUTTING_DOWN are passed over (the retry policy
  * of hfc_options), and later calls fail over as hfc_options.failover says.
  * A single URL never fails over: after a connection error every pending
@@ -191,7 +209,8 @@ HFC_API const char *hfc_endpoint(const hfc_client *c);
 /* A descriptor that polls readable when a reply is waiting (on any of the
  * client's connections), for an engine's own event loop; then call
  * hfc_wait(c, 0, ...). Stays the same across failovers. Not the socket:
- * use it only to poll. */
+ * use it only to poll (over TLS it also polls readable while OpenSSL holds
+ * a decrypted reply that the socket no longer shows). */
 HFC_API int hfc_fd(const hfc_client *c);
 
 /* ---- variants ----------------------------------------------------------- */

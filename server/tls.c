@@ -1,0 +1,710 @@
+/*
+ * tls.c: TLS on TCP listeners (--listen tls:HOST:PORT), with OpenSSL
+ * (Debian's libssl-dev) driven through memory BIOs, so that the one loop
+ * thread never blocks on it: ciphertext comes from libuv into the read BIO,
+ * plaintext goes to the connection's read state machine exactly as a plain
+ * socket's bytes would (conn.c's alloc and read callbacks), and what OpenSSL
+ * writes into the write BIO leaves with uv_write.
+ *
+ * conn.c calls the hfd_io_* functions instead of libuv's stream calls; for
+ * a plain connection they are those calls, for a TLS one they go through
+ * here. What conn.c relies on is kept:
+ *  - a write's callback runs once its last byte has been handed to the
+ *    socket (or with an error when the connection closes first), so its
+ *    buffers stay valid until then and are encrypted a piece at a time as
+ *    the socket drains (a 100 MB RESULT is never encrypted whole);
+ *  - reading stops when asked, and resumes with what OpenSSL had already
+ *    decrypted (from an idle handle, not from inside the caller);
+ *  - a shutdown sends close_notify after the last queued write, then shuts
+ *    the socket down.
+ *
+ * Certificates (--tls-cert, --tls-key, --tls-client-ca) are read at start
+ * and again on SIGHUP: a new SSL_CTX is built and swapped in when it loads
+ * whole, else the one before keeps serving. Connections keep the context
+ * they were accepted with (OpenSSL counts the references).
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <openssl/err.h>
+#include <openssl/ssl.h>
+#include <openssl/x509.h>
+
+#include "server.h"
+
+/* Plaintext encrypted per uv_write, and ciphertext writes in flight at
+ * once: enough to keep a fast link busy, little memory per connection. */
+#define TLS_CHUNK ((size_t)256 << 10)
+#define TLS_WRITES_IN_FLIGHT 2
+/* Ciphertext read from the socket at a time. */
+#define TLS_RBUF ((size_t)64 << 10)
+
+struct hfd_tls {
+  SSL_CTX *ctx;
+  uv_idle_t idle;                /* resumes reading what OpenSSL has buffered */
+  int idle_ready;
+  hfd_conn *resume;              /* connections waiting for the idle handle */
+};
+
+/* A write conn.c asked for: its buffers, encrypted as the socket drains. */
+typedef struct tls_wreq {
+  struct tls_wreq *next;
+  uv_write_t *req;
+  uv_write_cb cb;
+  uv_buf_t bufs[3];
+  unsigned nbufs, cur;           /* the buffer being encrypted */
+  size_t off;                    /* within it */
+} tls_wreq;
+
+/* One uv_write of ciphertext, and the writes it completes. */
+typedef struct tls_raw {
+  uv_write_t req;
+  hfd_conn *c;
+  tls_wreq *done;                /* their last byte is in this write */
+  size_t plain;                  /* plaintext bytes it carries */
+  size_t len;
+  int close_after;
+  char data[];
+} tls_raw;
+
+struct hfd_tls_conn {
+  SSL *ssl;
+  BIO *rbio, *wbio;              /* owned by ssl */
+  uv_alloc_cb user_alloc;
+  uv_read_cb user_read;
+  int reading;                   /* conn.c wants bytes */
+  int raw_reading;               /* uv_read_start on the socket */
+  int established;
+  int failed;                    /* handshake failed: closing after the alert */
+  int eof;                       /* close_notify or EOF delivered */
+  hfd_conn *resume_next;
+  int in_resume;
+  tls_wreq *q_head, *q_tail;     /* not yet wholly encrypted */
+  tls_wreq *encrypted;           /* wholly encrypted, waiting for the next raw write */
+  int raw_in_flight;
+  size_t plain_unsent;           /* plaintext queued and not yet written */
+  uv_shutdown_t *shutdown_req;   /* deferred until the queue is out */
+  uv_shutdown_cb shutdown_cb;
+  char rbuf[TLS_RBUF];
+};
+
+/* ---- errors -------------------------------------------------------------- */
+
+/* OpenSSL's error queue as one line (and cleared), for the log. */
+static const char *ssl_errors(char *buf, size_t cap) {
+  size_t used = 0;
+  buf[0] = 0;
+  unsigned long e;
+  while ((e = ERR_get_error()) != 0) {
+    char one[256];
+    ERR_error_string_n(e, one, sizeof one);
+    int n = snprintf(buf + used, cap - used, "%s%s", used ? "; " : "", one);
+    if (n < 0 || (size_t)n >= cap - used) break;
+    used += (size_t)n;
+  }
+  if (!buf[0]) snprintf(buf, cap, "no detail from OpenSSL");
+  return buf;
+}
+
+/* ---- contexts -------------------------------------------------------------- */
+
+/* A server context from cfg's files: NULL with why when any of them does
+ * not load (missing, not PEM, a key that is not the certificate's). */
+static SSL_CTX *ctx_build(const hfd_config *cfg, char *why, size_t whylen) {
+  char err[512];
+  SSL_CTX *ctx = SSL_CTX_new(TLS_server_method());
+  if (!ctx) {
+    snprintf(why, whylen, "SSL_CTX_new: %s", ssl_errors(err, sizeof err));
+    return NULL;
+  }
+  /* TLS 1.2 at least (1.3 is preferred by the handshake); no
+   * renegotiation, which a memory-BIO server need not support and which
+   * has been a source of attacks; no compression (CRIME). */
+  SSL_CTX_set_min_proto_version(ctx, TLS1_2_VERSION);
+  SSL_CTX_set_options(ctx, SSL_OP_NO_RENEGOTIATION | SSL_OP_NO_COMPRESSION |
+                               SSL_OP_CIPHER_SERVER_PREFERENCE);
+  SSL_CTX_set_mode(ctx, SSL_MODE_RELEASE_BUFFERS);
+  if (SSL_CTX_use_certificate_chain_file(ctx, cfg->tls_cert) != 1) {
+    snprintf(why, whylen, "--tls-cert %s: %s", cfg->tls_cert, ssl_errors(err, sizeof err));
+    goto fail;
+  }
+  if (SSL_CTX_use_PrivateKey_file(ctx, cfg->tls_key, SSL_FILETYPE_PEM) != 1) {
+    int mismatch = ERR_GET_REASON(ERR_peek_last_error()) == X509_R_KEY_VALUES_MISMATCH;
+    snprintf(why, whylen, "--tls-key %s%s: %s", cfg->tls_key,
+             mismatch ? " is not the key of --tls-cert" : "", ssl_errors(err, sizeof err));
+    if (mismatch) snprintf(why + strlen(why), whylen - strlen(why), " (%s)", cfg->tls_cert);
+    goto fail;
+  }
+  if (SSL_CTX_check_private_key(ctx) != 1) {
+    snprintf(why, whylen, "--tls-key %s is not the key of --tls-cert %s: %s", cfg->tls_key,
+             cfg->tls_cert, ssl_errors(err, sizeof err));
+    goto fail;
+  }
+  if (cfg->tls_client_ca) {
+    /* Mutual TLS: a client without a certificate this CA signed fails the
+     * handshake. */
+    STACK_OF(X509_NAME) *names = SSL_load_client_CA_file(cfg->tls_client_ca);
+    if (!names || SSL_CTX_load_verify_locations(ctx, cfg->tls_client_ca, NULL) != 1) {
+      if (names) sk_X509_NAME_pop_free(names, X509_NAME_free);
+      snprintf(why, whylen, "--tls-client-ca %s: %s", cfg->tls_client_ca,
+               ssl_errors(err, sizeof err));
+      goto fail;
+    }
+    SSL_CTX_set_client_CA_list(ctx, names);
+    SSL_CTX_set_verify(ctx, SSL_VERIFY_PEER | SSL_VERIFY_FAIL_IF_NO_PEER_CERT, NULL);
+  }
+  return ctx;
+fail:
+  SSL_CTX_free(ctx);
+  return NULL;
+}
+
+/* "subject CN=..., valid until ..." of the context's certificate. */
+static void ctx_describe(SSL_CTX *ctx, char *buf, size_t cap) {
+  X509 *x = SSL_CTX_get0_certificate(ctx);
+  buf[0] = 0;
+  if (!x) return;
+  char subject[256] = "?", until[64] = "?";
+  X509_NAME_oneline(X509_get_subject_name(x), subject, sizeof subject);
+  BIO *b = BIO_new(BIO_s_mem());
+  if (b && ASN1_TIME_print(b, X509_get0_notAfter(x)) == 1) {
+    int n = BIO_read(b, until, (int)sizeof until - 1);
+    until[n > 0 ? n : 0] = 0;
+  }
+  BIO_free(b);
+  snprintf(buf, cap, "certificate %s, valid until %s", subject, until);
+  if (X509_cmp_current_time(X509_get0_notAfter(x)) < 0)
+    snprintf(buf + strlen(buf), cap - strlen(buf), " (EXPIRED: clients will refuse it)");
+}
+
+static int wants_tls(const hfd_config *cfg) {
+  for (int i = 0; i < cfg->num_listen; i++)
+    if (cfg->listen_url[i].kind == HFP_URL_TCP && cfg->listen_url[i].tls) return 1;
+  return 0;
+}
+
+static void on_idle(uv_idle_t *h);
+
+int hfd_tls_init(hfd_server *s) {
+  const hfd_config *cfg = s->cfg;
+  if (!wants_tls(cfg)) return 0;
+  struct hfd_tls *t = calloc(1, sizeof *t);
+  if (!t) {
+    hfd_err("out of memory for TLS");
+    return -1;
+  }
+  char why[1024];
+  t->ctx = ctx_build(cfg, why, sizeof why);
+  if (!t->ctx) {
+    hfd_err("TLS: %s", why);
+    free(t);
+    return -1;
+  }
+  int rc = uv_idle_init(s->loop, &t->idle);
+  if (rc < 0) {
+    hfd_err("TLS: uv_idle_init: %s", uv_strerror(rc));
+    SSL_CTX_free(t->ctx);
+    free(t);
+    return -1;
+  }
+  t->idle.data = s;
+  t->idle_ready = 1;
+  s->tls = t;
+  char desc[400];
+  ctx_describe(t->ctx, desc, sizeof desc);
+  hfd_log("TLS: %s%s%s", desc, cfg->tls_client_ca ? "; client certificates from " : "",
+          cfg->tls_client_ca ? cfg->tls_client_ca : "");
+  return 0;
+}
+
+void hfd_tls_reload(hfd_server *s, const hfd_config *n) {
+  struct hfd_tls *t = s->tls;
+  if (!t) return;
+  if (!n->tls_cert || !n->tls_key) {
+    hfd_err("reload: TLS: the configuration no longer names --tls-cert and --tls-key; the "
+            "certificate loaded before keeps serving");
+    return;
+  }
+  char why[1024];
+  SSL_CTX *ctx = ctx_build(n, why, sizeof why);
+  if (!ctx) {
+    hfd_err("reload: TLS: %s; the certificate loaded before keeps serving", why);
+    return;
+  }
+  /* Connections hold their own reference to the context they began with. */
+  SSL_CTX_free(t->ctx);
+  t->ctx = ctx;
+  char desc[400];
+  ctx_describe(ctx, desc, sizeof desc);
+  hfd_notice("reload: TLS: %s; new connections use it", desc);
+}
+
+void hfd_tls_stop(hfd_server *s) {
+  struct hfd_tls *t = s->tls;
+  if (t && t->idle_ready && !uv_is_closing((uv_handle_t *)&t->idle))
+    uv_close((uv_handle_t *)&t->idle, NULL);
+}
+
+void hfd_tls_free(hfd_server *s) {
+  struct hfd_tls *t = s->tls;
+  if (!t) return;
+  SSL_CTX_free(t->ctx);
+  free(t);
+  s->tls = NULL;
+}
+
+/* ---- writing ciphertext --------------------------------------------------- */
+
+static void pump(hfd_conn *c);
+static void flush_queue(hfd_conn *c);
+
+static void complete_list(tls_wreq *w, int status) {
+  while (w) {
+    tls_wreq *next = w->next;
+    uv_write_t *req = w->req;
+    uv_write_cb cb = w->cb;
+    free(w);
+    cb(req, status);
+    w = next;
+  }
+}
+
+static void on_raw_written(uv_write_t *req, int status) {
+  tls_raw *r = (tls_raw *)req;
+  hfd_conn *c = r->c;
+  struct hfd_tls_conn *t = c->tls;
+  t->raw_in_flight--;
+  t->plain_unsent -= r->plain;
+  tls_wreq *done = r->done;
+  int close_after = r->close_after;
+  free(r);
+  /* conn.c's callbacks may close the connection; c itself stays until
+   * on_closed (its handle is not closed before this returns). */
+  complete_list(done, status);
+  if (status < 0) {
+    if (status != UV_ECANCELED)
+      hfd_debug("conn %llu: TLS write failed: %s", (unsigned long long)c->id,
+                uv_strerror(status));
+    hfd_conn_close(c);
+    return;
+  }
+  if (close_after) {
+    hfd_conn_close(c);
+    return;
+  }
+  flush_queue(c);
+}
+
+/* Hands what OpenSSL has written into the write BIO to the socket, with
+ * the writes it completes. */
+static int send_out(hfd_conn *c, tls_wreq *done, size_t plain, int close_after) {
+  struct hfd_tls_conn *t = c->tls;
+  size_t len = (size_t)BIO_ctrl_pending(t->wbio);
+  if (!len && !done && !close_after) return 0;
+  tls_raw *r = malloc(sizeof *r + (len ? len : 1));
+  if (!r) {
+    hfd_err("conn %llu: out of memory for TLS output; closing it", (unsigned long long)c->id);
+    complete_list(done, UV_ENOMEM);
+    hfd_conn_close(c);
+    return -1;
+  }
+  r->c = c;
+  r->done = done;
+  r->plain = plain;
+  r->close_after = close_after;
+  r->len = len;
+  if (len && BIO_read(t->wbio, r->data, (int)len) != (int)len) {
+    hfd_err("conn %llu: TLS write BIO short read; closing it", (unsigned long long)c->id);
+    free(r);
+    complete_list(done, UV_EIO);
+    hfd_conn_close(c);
+    return -1;
+  }
+  uv_buf_t b = uv_buf_init(r->data, (unsigned)len);
+  int rc = uv_write(&r->req, &c->h.stream, &b, 1, on_raw_written);
+  if (rc < 0) {
+    hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
+    free(r);
+    complete_list(done, rc);
+    hfd_conn_close(c);
+    return -1;
+  }
+  t->raw_in_flight++;
+  return 0;
+}
+
+/* Encrypts queued writes, a chunk per uv_write, while fewer than
+ * TLS_WRITES_IN_FLIGHT are on their way; then a deferred shutdown. */
+static void flush_queue(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (c->closing || !t->established) return;
+  while (t->q_head && t->raw_in_flight < TLS_WRITES_IN_FLIGHT) {
+    size_t plain = 0;
+    tls_wreq *done = NULL, **done_tail = &done;
+    while (t->q_head && plain < TLS_CHUNK) {
+      tls_wreq *w = t->q_head;
+      if (w->cur < w->nbufs) {
+        uv_buf_t *b = &w->bufs[w->cur];
+        size_t n = b->len - w->off;
+        if (n > TLS_CHUNK - plain) n = TLS_CHUNK - plain;
+        if (n > 0) {
+          /* A memory BIO never blocks, so SSL_write takes it all. */
+          int r = SSL_write(t->ssl, b->base + w->off, (int)n);
+          if (r <= 0) {
+            char err[512];
+            hfd_err("conn %llu: TLS encrypt: %s; closing it", (unsigned long long)c->id,
+                    ssl_errors(err, sizeof err));
+            hfd_conn_close(c);
+            complete_list(done, UV_EIO);
+            return;
+          }
+          w->off += (size_t)r;
+          plain += (size_t)r;
+        }
+        if (w->off == b->len) {
+          w->cur++;
+          w->off = 0;
+        }
+        continue;
+      }
+      t->q_head = w->next;
+      if (!t->q_head) t->q_tail = NULL;
+      w->next = NULL;
+      *done_tail = w;
+      done_tail = &w->next;
+    }
+    if (send_out(c, done, plain, 0)) return;
+  }
+  if (!t->q_head && t->shutdown_req && !c->closing) {
+    uv_shutdown_t *req = t->shutdown_req;
+    uv_shutdown_cb cb = t->shutdown_cb;
+    t->shutdown_req = NULL;
+    SSL_shutdown(t->ssl);   /* close_notify into the write BIO */
+    ERR_clear_error();
+    if (send_out(c, NULL, 0, 0)) {
+      cb(req, UV_ECANCELED);
+      return;
+    }
+    int rc = uv_shutdown(req, &c->h.stream, cb);
+    if (rc < 0) cb(req, rc);
+  }
+}
+
+/* ---- reading plaintext ---------------------------------------------------- */
+
+static void resume_later(hfd_conn *c) {
+  struct hfd_tls *st = c->srv->tls;
+  struct hfd_tls_conn *t = c->tls;
+  if (t->in_resume || !st->idle_ready || uv_is_closing((uv_handle_t *)&st->idle)) return;
+  t->in_resume = 1;
+  t->resume_next = st->resume;
+  st->resume = c;
+  int rc = uv_idle_start(&st->idle, on_idle);
+  if (rc < 0) hfd_err("TLS: uv_idle_start: %s", uv_strerror(rc));
+}
+
+static void resume_forget(hfd_conn *c) {
+  struct hfd_tls *st = c->srv->tls;
+  struct hfd_tls_conn *t = c->tls;
+  if (!t->in_resume) return;
+  for (hfd_conn **p = &st->resume; *p; p = &(*p)->tls->resume_next)
+    if (*p == c) {
+      *p = t->resume_next;
+      break;
+    }
+  t->in_resume = 0;
+}
+
+static void on_idle(uv_idle_t *h) {
+  hfd_server *s = h->data;
+  struct hfd_tls *st = s->tls;
+  hfd_conn *list = st->resume;
+  st->resume = NULL;
+  uv_idle_stop(h);
+  while (list) {
+    hfd_conn *c = list;
+    list = c->tls->resume_next;
+    c->tls->in_resume = 0;
+    pump(c);
+  }
+}
+
+/* The peer's certificate in a line, for the log. */
+static void peer_subject(SSL *ssl, char *buf, size_t cap) {
+  X509 *x = SSL_get0_peer_certificate(ssl);
+  buf[0] = 0;
+  if (x) X509_NAME_oneline(X509_get_subject_name(x), buf, (int)cap);
+}
+
+static void handshake_failed(hfd_conn *c, int ret) {
+  struct hfd_tls_conn *t = c->tls;
+  char err[512], kv[300];
+  int e = SSL_get_error(t->ssl, ret);
+  const char *what = e == SSL_ERROR_SSL ? ssl_errors(err, sizeof err) : "connection error";
+  long v = SSL_get_verify_result(t->ssl);
+  c->srv->protocol_errors++;
+  hfd_err("TLS handshake failed: %s%s%s; closing the connection%s", what,
+          v != X509_V_OK ? "; client certificate: " : "",
+          v != X509_V_OK ? X509_verify_cert_error_string(v) : "",
+          (snprintf(kv, sizeof kv, " conn=%llu peer=%s", (unsigned long long)c->id, c->peer),
+           kv));
+  ERR_clear_error();
+  t->failed = 1;
+  if (t->raw_reading) uv_read_stop(&c->h.stream);
+  t->raw_reading = 0;
+  /* The alert OpenSSL wrote goes out, then the connection closes. */
+  send_out(c, NULL, 0, 1);
+}
+
+/* A plain-protocol HELLO on a TLS port: answered in the clear, so the
+ * client can say what is wrong instead of a TLS error it cannot explain. */
+static int plain_hello(hfd_conn *c, const char *data, size_t n) {
+  static const uint8_t magic[4] = {0x48, 0x46, 0x50, 0x31};   /* "HFP1" */
+  if (n < 4 || memcmp(data, magic, 4)) return 0;
+  hfp_error e;
+  memset(&e, 0, sizeof e);
+  e.code = HFP_E_PROTOCOL;
+  e.fatal = 1;
+  snprintf(e.message, sizeof e.message,
+           "this listener speaks TLS: connect with tls:HOST:PORT (and the CA's certificate)");
+  uint8_t frame[HFP_HEADER_SIZE + 8 + HFP_MESSAGE_MAX];
+  int len = hfp_encode_error(frame, sizeof frame, 0, &e);
+  c->srv->protocol_errors++;
+  char kv[120];
+  snprintf(kv, sizeof kv, " conn=%llu peer=%s", (unsigned long long)c->id, c->peer);
+  hfd_err("PROTOCOL: a plain-text HELLO on TLS listener %s; closing the connection%s",
+          c->listener->url, kv);
+  struct hfd_tls_conn *t = c->tls;
+  t->failed = 1;
+  if (t->raw_reading) uv_read_stop(&c->h.stream);
+  t->raw_reading = 0;
+  if (len > 0) BIO_write(t->wbio, frame, len);
+  send_out(c, NULL, 0, 1);
+  return 1;
+}
+
+static void pump(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (c->closing || t->failed) return;
+  if (!t->established) {
+    int r = SSL_do_handshake(t->ssl);
+    if (r != 1) {
+      int e = SSL_get_error(t->ssl, r);
+      if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
+        send_out(c, NULL, 0, 0);
+        return;
+      }
+      handshake_failed(c, r);
+      return;
+    }
+    t->established = 1;
+    if (hfd_log_level >= HFD_LOG_DEBUG) {
+      char subject[256], kv[300];
+      peer_subject(t->ssl, subject, sizeof subject);
+      snprintf(kv, sizeof kv, " conn=%llu", (unsigned long long)c->id);
+      hfd_kv(kv, sizeof kv, "tls", SSL_get_version(t->ssl));
+      hfd_kv(kv, sizeof kv, "cipher", SSL_get_cipher_name(t->ssl));
+      if (subject[0]) hfd_kv(kv, sizeof kv, "client_cert", subject);
+      hfd_debug("TLS established%s", kv);
+    }
+    /* The handshake read on while the connection did not want bytes. */
+    if (!t->reading && t->raw_reading) {
+      uv_read_stop(&c->h.stream);
+      t->raw_reading = 0;
+    }
+  }
+  while (t->reading && !c->closing && !t->eof) {
+    uv_buf_t b;
+    t->user_alloc(&c->h.handle, 65536, &b);
+    if (!b.len) break;
+    int r = SSL_read(t->ssl, b.base, (int)b.len);
+    if (r > 0) {
+      t->user_read(&c->h.stream, r, &b);
+      continue;
+    }
+    int e = SSL_get_error(t->ssl, r);
+    if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) break;
+    if (e == SSL_ERROR_ZERO_RETURN) {
+      /* close_notify: the peer's half-close (PROTOCOL.md, "Transport"). */
+      t->eof = 1;
+      t->user_read(&c->h.stream, UV_EOF, &b);
+      break;
+    }
+    char err[512];
+    hfd_debug("conn %llu: TLS read: %s", (unsigned long long)c->id, ssl_errors(err, sizeof err));
+    t->eof = 1;
+    t->user_read(&c->h.stream, UV_EPROTO, &b);
+    break;
+  }
+  /* A session ticket or a key update may have been written. */
+  if (!c->closing && !t->failed) {
+    send_out(c, NULL, 0, 0);
+    flush_queue(c);
+  }
+}
+
+static void raw_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
+  hfd_conn *c = h->data;
+  (void)suggested;
+  *buf = uv_buf_init(c->tls->rbuf, (unsigned)sizeof c->tls->rbuf);
+}
+
+static void raw_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
+  hfd_conn *c = stream->data;
+  struct hfd_tls_conn *t = c->tls;
+  if (nread == 0 || c->closing || t->failed) return;
+  if (nread < 0) {
+    if (t->raw_reading) uv_read_stop(&c->h.stream);
+    t->raw_reading = 0;
+    if (!t->established) {
+      hfd_debug("conn %llu: peer left during the TLS handshake: %s", (unsigned long long)c->id,
+                uv_strerror((int)nread));
+      hfd_conn_close(c);
+      return;
+    }
+    if (t->eof) return;
+    /* EOF without close_notify is a half-close all the same: nothing the
+     * peer sent is taken for more than it was. */
+    t->eof = 1;
+    uv_buf_t b = uv_buf_init(NULL, 0);
+    t->user_read(&c->h.stream, nread, &b);
+    return;
+  }
+  if (!t->established && BIO_ctrl_pending(t->rbio) == 0 && SSL_get_state(t->ssl) == TLS_ST_BEFORE &&
+      plain_hello(c, buf->base, (size_t)nread))
+    return;
+  if (BIO_write(t->rbio, buf->base, (int)nread) != (int)nread) {
+    hfd_err("conn %llu: TLS read BIO refused data; closing it", (unsigned long long)c->id);
+    hfd_conn_close(c);
+    return;
+  }
+  pump(c);
+}
+
+/* ---- connections ------------------------------------------------------------ */
+
+int hfd_tls_conn_start(hfd_conn *c) {
+  struct hfd_tls *st = c->srv->tls;
+  struct hfd_tls_conn *t = calloc(1, sizeof *t);
+  if (!t) return UV_ENOMEM;
+  t->ssl = SSL_new(st->ctx);
+  t->rbio = BIO_new(BIO_s_mem());
+  t->wbio = BIO_new(BIO_s_mem());
+  if (!t->ssl || !t->rbio || !t->wbio) {
+    SSL_free(t->ssl);
+    BIO_free(t->rbio);
+    BIO_free(t->wbio);
+    free(t);
+    ERR_clear_error();
+    return UV_ENOMEM;
+  }
+  /* An empty read BIO says "retry", not EOF. */
+  BIO_set_mem_eof_return(t->rbio, -1);
+  SSL_set_bio(t->ssl, t->rbio, t->wbio);
+  SSL_set_accept_state(t->ssl);
+  c->tls = t;
+  return 0;
+}
+
+void hfd_tls_conn_closing(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (!t) return;
+  resume_forget(c);
+  tls_wreq *q = t->q_head, *e = t->encrypted;
+  t->q_head = t->q_tail = t->encrypted = NULL;
+  if (t->shutdown_req) {
+    uv_shutdown_t *req = t->shutdown_req;
+    t->shutdown_req = NULL;
+    t->shutdown_cb(req, UV_ECANCELED);
+  }
+  complete_list(e, UV_ECANCELED);
+  complete_list(q, UV_ECANCELED);
+}
+
+void hfd_tls_conn_free(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (!t) return;
+  SSL_free(t->ssl);   /* and its BIOs */
+  free(t);
+  c->tls = NULL;
+}
+
+/* ---- the stream calls conn.c makes ---------------------------------------- */
+
+int hfd_io_read_start(hfd_conn *c, uv_alloc_cb alloc_cb, uv_read_cb read_cb) {
+  struct hfd_tls_conn *t = c->tls;
+  if (!t) return uv_read_start(&c->h.stream, alloc_cb, read_cb);
+  t->user_alloc = alloc_cb;
+  t->user_read = read_cb;
+  t->reading = 1;
+  if (!t->raw_reading && !t->eof && !t->failed) {
+    int rc = uv_read_start(&c->h.stream, raw_alloc, raw_read);
+    if (rc < 0) return rc;
+    t->raw_reading = 1;
+  }
+  /* Bytes OpenSSL already holds would wait for more from the socket. */
+  if (t->established && (SSL_pending(t->ssl) > 0 || BIO_ctrl_pending(t->rbio) > 0))
+    resume_later(c);
+  return 0;
+}
+
+int hfd_io_read_stop(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (!t) return uv_read_stop(&c->h.stream);
+  t->reading = 0;
+  resume_forget(c);
+  if (!t->raw_reading || !t->established) return 0;   /* the handshake reads on */
+  t->raw_reading = 0;
+  return uv_read_stop(&c->h.stream);
+}
+
+int hfd_io_write(hfd_conn *c, uv_write_t *req, const uv_buf_t *bufs, unsigned nbufs,
+                 uv_write_cb cb) {
+  struct hfd_tls_conn *t = c->tls;
+  if (!t) return uv_write(req, &c->h.stream, bufs, nbufs, cb);
+  /* Before the handshake is done the write waits for it (a limit's fatal
+   * ERROR reaches a peer that is still negotiating); hfd_tls_overdue
+   * closes a connection whose handshake never comes. */
+  if (t->failed) return UV_ENOTCONN;
+  if (nbufs > 3 || t->shutdown_req) return UV_EINVAL;
+  tls_wreq *w = calloc(1, sizeof *w);
+  if (!w) return UV_ENOMEM;
+  w->req = req;
+  w->cb = cb;
+  w->nbufs = nbufs;
+  for (unsigned i = 0; i < nbufs; i++) {
+    w->bufs[i] = bufs[i];
+    t->plain_unsent += bufs[i].len;
+  }
+  if (t->q_tail)
+    t->q_tail->next = w;
+  else
+    t->q_head = w;
+  t->q_tail = w;
+  flush_queue(c);
+  return 0;
+}
+
+int hfd_io_shutdown(hfd_conn *c, uv_shutdown_t *req, uv_shutdown_cb cb) {
+  struct hfd_tls_conn *t = c->tls;
+  if (!t) return uv_shutdown(req, &c->h.stream, cb);
+  if (t->failed) return UV_ENOTCONN;
+  t->shutdown_req = req;
+  t->shutdown_cb = cb;
+  flush_queue(c);
+  return 0;
+}
+
+int hfd_tls_overdue(const hfd_conn *c, double now_us) {
+  const struct hfd_tls_conn *t = c->tls;
+  if (!t || t->established || !c->fatal_sent) return 0;
+  int limit_ms = c->srv->cfg->handshake_timeout_ms > 0 ? c->srv->cfg->handshake_timeout_ms : 10000;
+  return now_us - c->t_accept > limit_ms * 1e3;
+}
+
+size_t hfd_io_write_queue_size(const hfd_conn *c) {
+  if (!c->tls) return uv_stream_get_write_queue_size(&c->h.stream);
+  return c->tls->plain_unsent;
+}

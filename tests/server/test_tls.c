@@ -1,0 +1,366 @@
+/* hairfilterd's TLS listeners with libhairfilter's tls: URLs (docs/SERVER.md,
+ * "TLS"), certificates made in the test (test_certs.h): a frame filtered
+ * over TLS is byte for byte the one filtered over plain TCP; a wrong CA, an
+ * expired certificate (swapped in by SIGHUP), a wrong host name, a missing
+ * or foreign client certificate under mutual TLS, a plain-text client on a
+ * TLS port and a TLS client on a plain port each get an error naming the
+ * problem, and the daemon serves the next client all the same. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <poll.h>
+#include <signal.h>
+#include <sys/stat.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "harness.h"
+#include "test_certs.h"
+
+static harness H;
+static server S;      /* tls: listener with a token, and the harness's plain ones */
+static server M;      /* mutual TLS: the client certificate replaces the token */
+static char cert_dir[200];
+
+static void path_of(char *buf, size_t cap, const char *file) {
+  snprintf(buf, cap, "%s/%s", cert_dir, file);
+}
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H)) return -1;
+  snprintf(cert_dir, sizeof cert_dir, "%s/certs", H.dir);
+  if (mkdir(cert_dir, 0700) || test_certs_make(cert_dir)) return -1;
+  /* The served certificate is a copy, so the expired one can be put in
+   * its place for a reload. */
+  char cert[256], key[256], ca[256];
+  path_of(cert, sizeof cert, "served.pem");
+  path_of(key, sizeof key, "served.key");
+  path_of(ca, sizeof ca, "ca.pem");
+  char cmd[1024];
+  snprintf(cmd, sizeof cmd, "cp %s/server.pem %s && cp %s/server.key %s", cert_dir, cert,
+           cert_dir, key);
+  if (system(cmd) != 0) return -1;
+  const char *extra[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
+                         "--listen", "tcp:0.0.0.0:0", "--verbose", NULL};
+  if (server_start(&H, &S, extra) || !S.tls_url[0]) return -1;
+  const char *mextra[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
+                          "--tls-client-ca", ca, "--tls-client-cert-auth", NULL};
+  return server_start(&H, &M, mextra) || !M.tls_url[0] ? -1 : 0;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  int bad = server_stop(&M, 20000) != 0;
+  return harness_stop(&H, &S) || bad;
+}
+
+/* "tls:localhost:PORT" for a server's tls: listener (its certificate names
+ * localhost only); with numeric, "tls:127.0.0.1:PORT". */
+static void tls_url(const server *s, int numeric, char *buf, size_t cap) {
+  const char *port = strrchr(s->tls_url, ':');
+  snprintf(buf, cap, "tls:%s%s", numeric ? "127.0.0.1" : "localhost", port);
+}
+
+typedef struct tls_opts {
+  const char *ca, *cert, *key, *token, *server_name;
+} tls_opts;
+
+/* Connects with the certificate files of cert_dir named in t; the return
+ * code, the message in msg. */
+static int tls_connect(const char *url, const tls_opts *t, hfc_client **c, char *msg,
+                       size_t cap) {
+  char ca[256], cert[256], key[256];
+  hfc_options o = test_options("tls-test", t->token, 10000);
+  if (t->ca) path_of(ca, sizeof ca, t->ca), o.tls_ca_file = ca;
+  if (t->cert) path_of(cert, sizeof cert, t->cert), o.tls_cert_file = cert;
+  if (t->key) path_of(key, sizeof key, t->key), o.tls_key_file = key;
+  o.tls_server_name = t->server_name;
+  *c = NULL;
+  int rc = hfc_connect(url, &o, c);
+  snprintf(msg, cap, "%s", hfc_last_message(NULL));
+  return rc;
+}
+
+/* Filters the harness's frame (Small, 64x48, 4 spp) on c into out. */
+static int filter_frame(hfc_client *c, float *out) {
+  int w = 64, h = 48, spp = 4;
+  float *in = make_features(w, h, spp, 17);
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = w, .height = h, .spp = spp,
+                               .features = in, .result = out);
+  hfc_timing t;
+  int rc = hfc_filter(c, &r, &t);
+  free(in);
+  return rc;
+}
+
+/* The server still filters for a good TLS client after what came before. */
+static void still_serves(const server *s, const tls_opts *good) {
+  char url[300], msg[600];
+  tls_url(s, 0, url, sizeof url);
+  hfc_client *c;
+  int rc = tls_connect(url, good, &c, msg, sizeof msg);
+  if (rc) fail_msg("a good client after that: %s (%s)", hfc_strerror(rc), msg);
+  float *out = malloc(64 * 48 * 3 * sizeof(float));
+  assert_int_equal(filter_frame(c, out), 0);
+  free(out);
+  hfc_close(c);
+}
+
+static const tls_opts GOOD = {.ca = "ca.pem", .token = TEST_TOKEN};
+static const tls_opts MUTUAL = {.ca = "ca.pem", .cert = "client.pem", .key = "client.key"};
+
+/* Item: the same frame over TLS and over plain TCP gives the same bytes. */
+static void test_tls_equals_tcp(void **state) {
+  (void)state;
+  size_t n = 64 * 48 * 3;
+  float *plain = malloc(n * sizeof(float)), *tls = malloc(n * sizeof(float));
+  hfc_options o = test_options("tcp-test", TEST_TOKEN, 10000);
+  hfc_client *c;
+  assert_int_equal(hfc_connect(S.tcp_url, &o, &c), 0);
+  assert_int_equal(filter_frame(c, plain), 0);
+  hfc_close(c);
+  char url[300], msg[600];
+  tls_url(&S, 0, url, sizeof url);
+  int rc = tls_connect(url, &GOOD, &c, msg, sizeof msg);
+  if (rc) fail_msg("%s: %s (%s)", url, hfc_strerror(rc), msg);
+  assert_int_equal(hfc_info(c)->auth_required, 1);
+  memset(tls, 0xff, n * sizeof(float));
+  assert_int_equal(filter_frame(c, tls), 0);
+  /* Several in flight at once: replies arrive in records of their own. */
+  for (int k = 0; k < 3; k++) {
+    memset(tls, 0xff, n * sizeof(float));
+    assert_int_equal(filter_frame(c, tls), 0);
+    assert_memory_equal(plain, tls, n * sizeof(float));
+  }
+  /* hfc_fd polls readable for replies over TLS, and then each is had
+   * without waiting. */
+  float *outs = malloc(3 * n * sizeof(float));
+  float *in = make_features(64, 48, 4, 17);
+  for (int k = 0; k < 3; k++) {
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = 64, .height = 48, .spp = 4,
+                                 .features = in, .result = outs + k * n);
+    uint32_t id;
+    assert_int_equal(hfc_submit(c, &r, &id), 0);
+  }
+  for (int got = 0; got < 3;) {
+    struct pollfd p = {hfc_fd(c), POLLIN, 0};
+    assert_int_equal(poll(&p, 1, 10000), 1);
+    hfc_completion d;
+    while (got < 3 && (rc = hfc_wait(c, 0, &d)) == 0) {
+      assert_int_equal(d.status, 0);
+      got++;
+    }
+    if (got < 3) assert_int_equal(rc, HFC_E_TIMEOUT);
+  }
+  for (int k = 0; k < 3; k++) assert_memory_equal(plain, outs + k * n, n * sizeof(float));
+  free(in);
+  free(outs);
+  hfc_close(c);
+  /* And the mutual-TLS server, without a token. */
+  tls_url(&M, 0, url, sizeof url);
+  rc = tls_connect(url, &MUTUAL, &c, msg, sizeof msg);
+  if (rc) fail_msg("%s with a client certificate: %s (%s)", url, hfc_strerror(rc), msg);
+  assert_int_equal(hfc_info(c)->auth_required, 0);
+  memset(tls, 0xff, n * sizeof(float));
+  assert_int_equal(filter_frame(c, tls), 0);
+  assert_memory_equal(plain, tls, n * sizeof(float));
+  hfc_close(c);
+  free(plain);
+  free(tls);
+  /* The loud warning about plain TCP on a non-loopback address. */
+  assert_true(server_log_has(&S, "plain TCP on a non-loopback address"));
+}
+
+/* One refused client: rc and words of its message, then the server goes on. */
+static void refused(const server *s, const char *url, const tls_opts *t, int want_rc,
+                    const char *says, const char *also, const tls_opts *good) {
+  char msg[600];
+  hfc_client *c;
+  int rc = tls_connect(url, t, &c, msg, sizeof msg);
+  if (rc != want_rc || !strstr(msg, says) || (also && !strstr(msg, also)))
+    fail_msg("%s: got %s '%s', wanted %s with '%s'", url, hfc_strerror(rc), msg,
+             hfc_strerror(want_rc), says);
+  hfc_close(c);
+  assert_true(server_alive(s));
+  still_serves(s, good);
+}
+
+/* Item: a server certificate from another CA, one for another host name,
+ * a wrong token over TLS. */
+static void test_server_certificate_refused(void **state) {
+  (void)state;
+  char url[300], num[300];
+  tls_url(&S, 0, url, sizeof url);
+  tls_url(&S, 1, num, sizeof num);
+  tls_opts other = GOOD;
+  other.ca = "other-ca.pem";
+  refused(&S, url, &other, HFC_E_TLS, "unable to get local issuer certificate", "tls_ca_file",
+          &GOOD);
+  /* 127.0.0.1 is not in the certificate (DNS:localhost only). */
+  refused(&S, num, &GOOD, HFC_E_TLS, "IP address mismatch", "does not name the URL's host",
+          &GOOD);
+  tls_opts name = GOOD;
+  name.server_name = "render-99.farm";
+  refused(&S, url, &name, HFC_E_TLS, "hostname mismatch", NULL, &GOOD);
+  /* The token still applies over TLS. */
+  tls_opts token = GOOD;
+  token.token = "not-the-token";
+  refused(&S, url, &token, HFC_E_UNAUTHORIZED, "wrong token", NULL, &GOOD);
+  /* A host name the certificate does have, given for a numeric URL. */
+  name.server_name = "localhost";
+  char msg[600];
+  hfc_client *c;
+  int rc = tls_connect(num, &name, &c, msg, sizeof msg);
+  if (rc) fail_msg("%s as localhost: %s (%s)", num, hfc_strerror(rc), msg);
+  hfc_close(c);
+}
+
+/* Item: mutual TLS: no client certificate, one from another CA. */
+static void test_client_certificate_refused(void **state) {
+  (void)state;
+  char url[300];
+  tls_url(&M, 0, url, sizeof url);
+  tls_opts none = {.ca = "ca.pem", .token = TEST_TOKEN};
+  refused(&M, url, &none, HFC_E_TLS, "certificate required", "requires a client certificate",
+          &MUTUAL);
+  tls_opts foreign = {.ca = "ca.pem", .cert = "client-other.pem", .key = "client-other.key"};
+  refused(&M, url, &foreign, HFC_E_TLS, "unknown ca", "does not trust this client certificate",
+          &MUTUAL);
+  assert_true(server_log_has(&M, "TLS handshake failed"));
+  /* A key that is not the certificate's is the caller's mistake, said so. */
+  tls_opts wrong_key = {.ca = "ca.pem", .cert = "client.pem", .key = "client-other.key"};
+  char msg[600];
+  hfc_client *c;
+  assert_int_equal(tls_connect(url, &wrong_key, &c, msg, sizeof msg), HFC_E_ARG);
+  assert_non_null(strstr(msg, "tls_key_file"));
+}
+
+/* Item: the wrong protocol on either port. */
+static void test_wrong_protocol(void **state) {
+  (void)state;
+  /* A plain client on the TLS port hears why, in its own protocol. */
+  char plain[800], msg[600];
+  snprintf(plain, sizeof plain, "tcp:%s", S.tls_url + 4);
+  hfc_options o = test_options("plain", TEST_TOKEN, 10000);
+  hfc_client *c = NULL;
+  int rc = hfc_connect(plain, &o, &c);
+  snprintf(msg, sizeof msg, "%s", hfc_last_message(NULL));
+  if (rc != HFC_E_PROTOCOL || !strstr(msg, "this listener speaks TLS"))
+    fail_msg("%s: %s '%s'", plain, hfc_strerror(rc), msg);
+  assert_true(server_log_has(&S, "plain-text HELLO on TLS listener"));
+  still_serves(&S, &GOOD);
+  /* Raw bytes that are neither: the handshake fails, the daemon goes on. */
+  int fd = raw_connect(plain);
+  assert_true(fd >= 0);
+  raw_send(fd, "GET / HTTP/1.0\r\n\r\n", 18);
+  assert_true(raw_closed(fd, 5000));
+  close(fd);
+  still_serves(&S, &GOOD);
+  /* A TLS client on the plain port. */
+  char tls[800];
+  snprintf(tls, sizeof tls, "tls:%s", S.tcp_url + 4);
+  tls_opts t = GOOD;
+  t.server_name = "localhost";
+  rc = tls_connect(tls, &t, &c, msg, sizeof msg);
+  if (rc != HFC_E_TLS || !strstr(msg, "plain tcp: listener"))
+    fail_msg("%s: %s '%s'", tls, hfc_strerror(rc), msg);
+  still_serves(&S, &GOOD);
+}
+
+/* Item: SIGHUP reads the certificate again: an expired one put in its place
+ * is refused by clients (the daemon's log says it is expired), the renewed
+ * one serves again, and a connection made before keeps working. */
+static void test_reload_certificate(void **state) {
+  (void)state;
+  char url[300], msg[600];
+  tls_url(&S, 0, url, sizeof url);
+  hfc_client *before;
+  assert_int_equal(tls_connect(url, &GOOD, &before, msg, sizeof msg), 0);
+  char cmd[1024];
+  snprintf(cmd, sizeof cmd, "cp %s/expired.pem %s/served.pem && cp %s/expired.key %s/served.key",
+           cert_dir, cert_dir, cert_dir, cert_dir);
+  assert_int_equal(system(cmd), 0);
+  kill(S.pid, SIGHUP);
+  for (int i = 0; i < 500 && !server_log_has(&S, "EXPIRED"); i++) usleep(10000);
+  assert_true(server_log_has(&S, "reload: TLS: certificate"));
+  hfc_client *c;
+  int rc = tls_connect(url, &GOOD, &c, msg, sizeof msg);
+  if (rc != HFC_E_TLS || !strstr(msg, "certificate has expired") || !strstr(msg, "renewed"))
+    fail_msg("expired: %s '%s'", hfc_strerror(rc), msg);
+  float *out = malloc(64 * 48 * 3 * sizeof(float));
+  assert_int_equal(filter_frame(before, out), 0);
+  hfc_close(before);
+  /* A key that does not match keeps the one loaded before. */
+  snprintf(cmd, sizeof cmd, "cp %s/server.pem %s/served.pem", cert_dir, cert_dir);
+  assert_int_equal(system(cmd), 0);
+  kill(S.pid, SIGHUP);
+  for (int i = 0; i < 500 && !server_log_has(&S, "keeps serving"); i++) usleep(10000);
+  assert_true(server_log_has(&S, "the certificate loaded before keeps serving"));
+  snprintf(cmd, sizeof cmd, "cp %s/server.key %s/served.key", cert_dir, cert_dir);
+  assert_int_equal(system(cmd), 0);
+  kill(S.pid, SIGHUP);
+  int ok = 0;
+  for (int i = 0; i < 500 && !ok; i++) {
+    usleep(10000);
+    ok = tls_connect(url, &GOOD, &c, msg, sizeof msg) == 0;
+    if (!ok) hfc_close(c);
+  }
+  if (!ok) fail_msg("the renewed certificate does not serve: %s", msg);
+  assert_int_equal(filter_frame(c, out), 0);
+  hfc_close(c);
+  free(out);
+}
+
+/* Item: the TLS options are checked at start, naming what is wrong. */
+static void test_start_options(void **state) {
+  (void)state;
+  char cert[256], key[256], other_key[256], out[4096];
+  path_of(cert, sizeof cert, "server.pem");
+  path_of(key, sizeof key, "server.key");
+  path_of(other_key, sizeof other_key, "client.key");
+  struct {
+    const char *args[12];
+    int status;
+    const char *says;
+  } cases[] = {
+    {{"--listen", "tls:127.0.0.1:0", "--weights-dir", H.weights_dir, NULL}, 2,
+     "needs --tls-cert FILE and --tls-key FILE"},
+    {{"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--weights-dir", H.weights_dir, NULL},
+     2, "needs --tls-cert FILE and --tls-key FILE"},
+    {{"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
+      "--tls-client-cert-auth", "--weights-dir", H.weights_dir, NULL},
+     2, "--tls-client-cert-auth needs --tls-client-ca"},
+    {{"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", other_key,
+      "--weights-dir", H.weights_dir, "--backend", "cpu-ref", NULL},
+     1, "is not the key of --tls-cert"},
+    {{"--listen", "tls:127.0.0.1:0", "--tls-cert", "/nonexistent.pem", "--tls-key", key,
+      "--weights-dir", H.weights_dir, "--backend", "cpu-ref", NULL},
+     1, "--tls-cert /nonexistent.pem"},
+    {{"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key, "--weights-dir",
+      H.weights_dir, "--backend", "cpu-ref", NULL},
+     1, "TCP needs a token"},
+  };
+  for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+    int st = daemon_run(cases[k].args, NULL, 20000, out, sizeof out);
+    if (st != cases[k].status || !strstr(out, cases[k].says))
+      fail_msg("case %zu: status %d, said: %s", k, st, out);
+  }
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_tls_equals_tcp),
+    cmocka_unit_test(test_server_certificate_refused),
+    cmocka_unit_test(test_client_certificate_refused),
+    cmocka_unit_test(test_wrong_protocol),
+    cmocka_unit_test(test_reload_certificate),
+    cmocka_unit_test(test_start_options),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
