@@ -116,7 +116,8 @@ static void store(void *dst, int dtype, size_t i, float v) {
  * its dtype and, when asked, the composited RGBA (alpha = hair alpha). */
 static int finish_from_f32(hfd_worker *w, hfd_job *j, const float *res) {
   size_t n = (size_t)j->req.width * j->req.height;
-  for (size_t i = 0; i < n * 3; i++) store(j->out, j->req.out_dtype, i, res[i]);
+  if (j->req.out_dtype == HFP_F16) hf_f32_to_f16_array(res, j->out, n * 3);
+  else memcpy(j->out, res, n * 3 * sizeof(float));
   if (!j->rgba) return 0;
   void *rgb = w->scratch_rgb;
   if (ensure(&rgb, &w->scratch_rgb_cap, n * 3 * sizeof(float))) return -1;
