@@ -485,6 +485,7 @@ int main(int argc, char **argv) {
   /* Plans and scratch kept between runs may use a quarter of the memory
    * budget; one frame may use the rest (docs/SERVER.md, "Memory"). */
   w->cache_cap = cfg.max_memory_bytes / 4;
+  w->pool_idle = &s->rpool.idle_bytes;
   s->frame_budget = cfg.max_memory_bytes - w->cache_cap;
   int rc = uv_async_init(s->loop, &s->async, hfd_on_async);
   if (rc < 0) {
@@ -499,6 +500,20 @@ int main(int argc, char **argv) {
   hfd_log("%s", w->init_msg);
   if (hfd_models_load_initial(s)) return 1;
   if (hfd_limits_derive(s)) return 1;
+  /* Receive buffers for the --warm shapes (float32 frames of the most
+   * samples any variant takes), faulted in before the first frame, within
+   * the memory kept between runs (recv_pool.c). */
+  int spp = 0;
+  for (int i = 0; i < s->num_variants; i++)
+    if (s->variants[i].model && s->variants[i].model->cfg.spp > spp)
+      spp = s->variants[i].model->cfg.spp;
+  for (int i = 0; i < cfg.num_warm; i++) {
+    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * spp *
+                   HF_FEATURES_PER_SAMPLE * sizeof(float);
+    if (hfd_rpool_prefault(&s->rpool, bytes, w->cache_cap - atomic_load(&w->cached_bytes)))
+      hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",
+              cfg.warm[i].width, cfg.warm[i].height);
+  }
 
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
@@ -587,6 +602,7 @@ int main(int argc, char **argv) {
              "gone), %llu connection(s) in all", (unsigned long long)ok,
              (unsigned long long)failed, (unsigned long long)s->replies_lost,
              (unsigned long long)s->conns_total);
+  hfd_rpool_free(&s->rpool);
   hfd_config_free(&cfg);
   return 0;
 }
