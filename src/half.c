@@ -83,9 +83,26 @@ static void f16_to_f32_scalar(const uint16_t *src, float *dst, size_t n) {
 #include <immintrin.h>
 #define HF_HALF_X86 1
 
+/* Frames far larger than the caches are written with non-temporal stores:
+ * no read of the destination's lines before they are overwritten (a third
+ * less memory traffic for f16 -> f32, whose destination is twice the
+ * source). */
+#define HALF_STREAM_MIN ((size_t)1 << 18)
+
 __attribute__((target("avx,f16c"))) static void f32_to_f16_f16c(const float *src, uint16_t *dst,
                                                                 size_t n) {
   size_t i = 0;
+  if (n >= HALF_STREAM_MIN) {
+    for (; i < n && ((uintptr_t)(dst + i) & 15); i++) dst[i] = hf_f32_to_f16(src[i]);
+    for (; i + 16 <= n; i += 16) {
+      __m256 a = _mm256_loadu_ps(src + i), b = _mm256_loadu_ps(src + i + 8);
+      _mm_stream_si128((__m128i *)(dst + i),
+                       _mm256_cvtps_ph(a, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+      _mm_stream_si128((__m128i *)(dst + i + 8),
+                       _mm256_cvtps_ph(b, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+    }
+    _mm_sfence();
+  }
   for (; i + 16 <= n; i += 16) {
     __m256 a = _mm256_loadu_ps(src + i), b = _mm256_loadu_ps(src + i + 8);
     _mm_storeu_si128((__m128i *)(dst + i),
@@ -103,6 +120,16 @@ __attribute__((target("avx,f16c"))) static void f32_to_f16_f16c(const float *src
 __attribute__((target("avx,f16c"))) static void f16_to_f32_f16c(const uint16_t *src, float *dst,
                                                                 size_t n) {
   size_t i = 0;
+  if (n >= HALF_STREAM_MIN) {
+    for (; i < n && ((uintptr_t)(dst + i) & 31); i++) dst[i] = hf_f16_to_f32(src[i]);
+    for (; i + 16 <= n; i += 16) {
+      __m128i a = _mm_loadu_si128((const __m128i *)(src + i));
+      __m128i b = _mm_loadu_si128((const __m128i *)(src + i + 8));
+      _mm256_stream_ps(dst + i, _mm256_cvtph_ps(a));
+      _mm256_stream_ps(dst + i + 8, _mm256_cvtph_ps(b));
+    }
+    _mm_sfence();
+  }
   for (; i + 16 <= n; i += 16) {
     __m128i a = _mm_loadu_si128((const __m128i *)(src + i));
     __m128i b = _mm_loadu_si128((const __m128i *)(src + i + 8));
