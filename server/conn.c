@@ -232,9 +232,9 @@ static void job_free(hfd_server *s, hfd_job *j) {
     /* The tensors are the client's, in the segment. */
     hfd_seg_unref(s, j->seg);
   } else {
-    hfd_input_free(s, j->input);
-    free(j->out);
-    free(j->rgba);
+    hfd_rbuf_release(s, j->input);
+    hfd_rbuf_release(s, j->out);
+    hfd_rbuf_release(s, j->rgba);
   }
   free(j);
 }
@@ -345,7 +345,7 @@ static void deliver(hfd_server *s, hfd_job *j) {
   /* The input tensor is no longer needed; give its memory back now rather
    * than when the (possibly slow) client has read the reply. */
   if (!j->seg) {
-    hfd_input_free(s, j->input);
+    hfd_rbuf_release(s, j->input);
     j->input = NULL;
     s->mem_held -= j->req.data_len;
     j->bytes_held -= j->req.data_len;
@@ -703,8 +703,8 @@ static void filter_admit(hfd_conn *c) {
     j->bytes_held += more;
     j->infer_bytes = run;
     if (!j->seg) {
-      j->out = malloc((size_t)j->out_len);
-      j->rgba = j->rgba_len ? malloc((size_t)j->rgba_len) : NULL;
+      j->out = hfd_rbuf_result(s, j->out_len);
+      j->rgba = j->rgba_len ? hfd_rbuf_result(s, j->rgba_len) : NULL;
     }
     if (!j->out || (j->rgba_len && !j->rgba)) {
       code = HFP_E_BUSY;

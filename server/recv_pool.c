@@ -1,13 +1,14 @@
 /*
  * Receive buffers kept for reuse (docs/SERVER.md, "Memory").
  *
- * A socket request's tensor is read into memory allocated for it. Above
- * glibc's mmap threshold every such allocation is a fresh mapping whose
- * pages fault in one by one as the socket's bytes land in them (24,577
- * faults for a 1024x1024 frame of 4 spp, and a copy at 1.5 GB/s instead of
- * the 7-25 GB/s of memory already touched). The pool keeps the mappings of
- * answered frames, faulted in, and hands them to the next frames of the
- * same or a slightly smaller size, so a frame is copied once into warm
+ * A socket request's tensor is read into memory allocated for it, and its
+ * result is written into more. Above glibc's mmap threshold every such
+ * allocation is a fresh mapping whose pages fault in one by one as the
+ * bytes land in them (24,577 faults for a 1024x1024 frame of 4 spp, and a
+ * copy at 1.5 GB/s instead of the 7-25 GB/s of memory already touched).
+ * The pool keeps the mappings of answered frames, faulted in, and hands
+ * them to the next frames of the same or a somewhat smaller size, so a
+ * frame is copied once into warm memory and its result written into warm
  * memory. Mappings are made in 2 MiB steps (transparent huge pages where
  * the kernel gives them: fewer faults and TLB misses), so frames of nearby
  * sizes share them.
@@ -183,7 +184,13 @@ void hfd_rpool_free(hfd_rpool *p) {
   p->lent_uncharged = 0;
 }
 
-void hfd_input_free(hfd_server *s, void *addr) {
+void hfd_rbuf_release(hfd_server *s, void *addr) {
   uint64_t kept = atomic_load(&s->worker.cached_bytes);
   hfd_rpool_give(&s->rpool, addr, kept, s->worker.cache_cap);
+}
+
+void *hfd_rbuf_result(hfd_server *s, uint64_t bytes) {
+  void *p = hfd_rpool_take(&s->rpool, (size_t)bytes);
+  hfd_rpool_charge(&s->rpool, p, bytes); /* charged in full at admission */
+  return p;
 }

@@ -359,8 +359,11 @@ uint64_t hfd_rpool_shrink(hfd_rpool *p, uint64_t want);
  * of that size is kept or it would not fit cache_cap: -1). */
 int hfd_rpool_prefault(hfd_rpool *p, size_t bytes, uint64_t cache_cap);
 void hfd_rpool_free(hfd_rpool *p);
-/* Gives a socket frame's input buffer back to s's pool. */
-void hfd_input_free(hfd_server *s, void *addr);
+/* A socket frame's result buffer of bytes from s's pool, charged in full
+ * (the caller has charged them to mem_held); NULL when out of memory. */
+void *hfd_rbuf_result(hfd_server *s, uint64_t bytes);
+/* Gives a socket frame's input or result buffer back to s's pool. */
+void hfd_rbuf_release(hfd_server *s, void *addr);
 
 typedef struct hfd_listener {
   union {
