@@ -254,7 +254,11 @@ void hfd_fill_stats(hfd_server *s, hfp_stats *st) {
   st->queue_capacity = (uint32_t)s->cfg->queue_size;
   st->protocol_errors = s->protocol_errors;
   for (int i = 0; i < s->num_variants; i++)
-    if (s->variants[i].model) st->variants[st->num_variants++] = s->variants[i].stats;
+    if (s->variants[i].model) {
+      hfp_variant_stats *v = &st->variants[st->num_variants++];
+      *v = s->variants[i].stats;
+      v->cache_bytes = atomic_load(&s->variants[i].model->cache_bytes);
+    }
 }
 
 int hfd_ready(const hfd_server *s, char *why, size_t whylen) {
