@@ -11,10 +11,11 @@
 # enter the transport), --max-batch 1 and --warm SIZES, then runs
 # BUILD_DIR/hf-transport-bench over SIZES (default 256x256,1024x1024) with
 # ITERS frames each (default 10), which prints its table with the command,
-# the CPU model and the date.
+# the CPU model and the date. HAIRFILTERD names another daemon binary (an
+# older build, for a before/after).
 set -euo pipefail
 if [ $# -lt 1 ]; then
-  sed -n '2,15p' "$0" >&2
+  sed -n '2,17p' "$0" >&2
   exit 2
 fi
 build=$1
@@ -33,7 +34,9 @@ trap cleanup EXIT
 
 echo "\$ $0 $build $weights $variant $sizes $iters -- ${opts[*]}"
 echo "load average $(cut -d' ' -f1-3 /proc/loadavg)"
-OMP_WAIT_POLICY=passive "$build/hairfilterd" --listen "unix:$work/s.sock" --listen tcp:127.0.0.1:0 \
+daemon=${HAIRFILTERD:-$build/hairfilterd}
+echo "daemon: $daemon"
+OMP_WAIT_POLICY=passive "$daemon" --listen "unix:$work/s.sock" --listen tcp:127.0.0.1:0 \
   --no-auth --weights "$weights" --backend cpu --max-batch 1 --warm "$sizes" \
   --ready-file "$work/ready" "${opts[@]}" 2> "$work/daemon.log" &
 pid=$!

@@ -6,8 +6,8 @@
  *   hf-transport-bench UNIX_URL TCP_URL VARIANT SIZE[,SIZE...] ITERS
  *
  * For each size, over the Unix socket, loopback TCP and shared memory (on
- * the Unix socket), in float32 and float16, ITERS frames one at a time
- * after one warm-up frame:
+ * the Unix socket), ITERS frames in float32 and ITERS in float16 one at a
+ * time, alternating, after one warm-up frame of each:
  *   end to end  what a caller holding float32 features waits for: the
  *               conversion to float16 (f16 rows), hfc_filter, the result
  *               widened back to float32 (f16 rows);
@@ -24,7 +24,7 @@
  * same way (no protocol, no daemon): what any socket transport of the
  * frame costs on this machine.
  *
- * Medians over the ITERS frames. Prints the table with the command, the
+ * Medians over the ITERS frames, and their f16 / f32 ratios. Prints the table with the command, the
  * CPU model (lscpu's "Model name", from /proc/cpuinfo) and the date.
  */
 #define _GNU_SOURCE
@@ -128,70 +128,85 @@ typedef struct result {
   double e2e, conv, transport, server, input, infer, output;
 } result;
 
-/* ITERS frames of w x h through c; shm: the tensors in a segment. */
-static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h, int f16, int shm,
-                      int iters, const float *feat32, result *res) {
+/* ITERS frames of w x h through c in float32 and as many in float16,
+ * alternating (so both meet the same machine: the cores here are shared);
+ * shm: the tensors in segments. res[0] float32, res[1] float16. */
+static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h, int shm,
+                      int iters, const float *feat32, result res[2]) {
   size_t nin = (size_t)w * h * spp * 6, nout = (size_t)w * h * 3;
-  size_t es = f16 ? 2 : 4, in_b = nin * es, out_b = nout * es;
-  void *seg = NULL, *in = NULL, *out = NULL;
+  void *seg[2] = {NULL, NULL}, *in[2] = {NULL, NULL}, *out[2] = {NULL, NULL};
+  size_t in_b[2], out_b[2];
   float *res32 = malloc(nout * sizeof(float));
-  double *t[7];
-  for (int k = 0; k < 7; k++) t[k] = calloc((size_t)iters, sizeof(double));
+  double *t[2][7];
   int rc = -1;
-  for (int k = 0; k < 7; k++)
-    if (!t[k]) goto out;
+  for (int d = 0; d < 2; d++)
+    for (int k = 0; k < 7; k++) t[d][k] = calloc((size_t)iters, sizeof(double));
+  for (int d = 0; d < 2; d++)
+    for (int k = 0; k < 7; k++)
+      if (!t[d][k]) goto out;
   if (!res32) goto out;
-  if (shm) {
-    if ((rc = hfc_shm_alloc(c, in_b + out_b, &seg)) != 0) {
-      fprintf(stderr, "hfc_shm_alloc: %s (%s)\n", hfc_strerror(rc), hfc_last_message(c));
-      goto out;
+  for (int d = 0; d < 2; d++) {
+    size_t es = d ? 2 : 4;
+    in_b[d] = nin * es, out_b[d] = nout * es;
+    if (shm) {
+      if ((rc = hfc_shm_alloc(c, in_b[d] + out_b[d], &seg[d])) != 0) {
+        fprintf(stderr, "hfc_shm_alloc: %s (%s)\n", hfc_strerror(rc), hfc_last_message(c));
+        goto out;
+      }
+      in[d] = seg[d], out[d] = (uint8_t *)seg[d] + in_b[d];
+    } else {
+      in[d] = malloc(in_b[d]), out[d] = malloc(out_b[d]);
+      if (!in[d] || !out[d]) goto out;
     }
-    in = seg, out = (uint8_t *)seg + in_b;
-  } else {
-    in = malloc(in_b), out = malloc(out_b);
-    if (!in || !out) goto out;
   }
   /* float32 frames are where the caller has them (in the segment, for
    * shared memory: an engine renders into it); float16 ones are
    * converted from the caller's float32 each time, inside the timing. */
-  if (!f16) memcpy(in, feat32, in_b);
-  for (int i = 0; i <= iters; i++) {
-    hfc_request r;
-    hfc_request_init(&r);
-    r.variant = variant, r.width = w, r.height = h, r.spp = spp;
-    r.in_dtype = r.out_dtype = f16 ? HFC_F16 : HFC_F32;
-    r.features = in, r.features_bytes = in_b, r.result = out, r.result_bytes = out_b;
-    hfc_timing tm;
-    double t0 = now_us(), conv = 0;
-    if (f16) hf_f32_to_f16_array(feat32, in, nin);
-    double t1 = now_us();
-    if ((rc = hfc_filter(c, &r, &tm)) != 0) {
-      fprintf(stderr, "hfc_filter %dx%d: %s (%s)\n", w, h, hfc_strerror(rc), hfc_last_message(c));
-      goto out;
+  memcpy(in[0], feat32, in_b[0]);
+  for (int i = 0; i <= iters; i++) /* the first of each is the warm-up */
+    for (int d = 0; d < 2; d++) {
+      hfc_request r;
+      hfc_request_init(&r);
+      r.variant = variant, r.width = w, r.height = h, r.spp = spp;
+      r.in_dtype = r.out_dtype = d ? HFC_F16 : HFC_F32;
+      r.features = in[d], r.features_bytes = in_b[d];
+      r.result = out[d], r.result_bytes = out_b[d];
+      hfc_timing tm;
+      double t0 = now_us();
+      if (d) hf_f32_to_f16_array(feat32, in[d], nin);
+      double t1 = now_us();
+      if ((rc = hfc_filter(c, &r, &tm)) != 0) {
+        fprintf(stderr, "hfc_filter %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
+                hfc_last_message(c));
+        goto out;
+      }
+      double t2 = now_us();
+      if (d) hf_f16_to_f32_array(out[d], res32, nout);
+      double t3 = now_us();
+      if (!i) continue;
+      t[d][0][i - 1] = t3 - t0;
+      t[d][1][i - 1] = (t1 - t0) + (t3 - t2);
+      t[d][2][i - 1] = tm.total_us - tm.server_us;
+      t[d][3][i - 1] = tm.server_us;
+      t[d][4][i - 1] = tm.input_us;
+      t[d][5][i - 1] = tm.infer_us;
+      t[d][6][i - 1] = tm.output_us;
     }
-    double t2 = now_us();
-    if (f16) hf_f16_to_f32_array(out, res32, nout);
-    double t3 = now_us();
-    conv = (t1 - t0) + (t3 - t2);
-    if (!i) continue;
-    t[0][i - 1] = t3 - t0;
-    t[1][i - 1] = conv;
-    t[2][i - 1] = tm.total_us - tm.server_us;
-    t[3][i - 1] = tm.server_us;
-    t[4][i - 1] = tm.input_us;
-    t[5][i - 1] = tm.infer_us;
-    t[6][i - 1] = tm.output_us;
+  for (int d = 0; d < 2; d++) {
+    result *q = &res[d];
+    q->e2e = median(t[d][0], iters), q->conv = median(t[d][1], iters);
+    q->transport = median(t[d][2], iters), q->server = median(t[d][3], iters);
+    q->input = median(t[d][4], iters), q->infer = median(t[d][5], iters);
+    q->output = median(t[d][6], iters);
   }
-  res->e2e = median(t[0], iters), res->conv = median(t[1], iters);
-  res->transport = median(t[2], iters), res->server = median(t[3], iters);
-  res->input = median(t[4], iters), res->infer = median(t[5], iters);
-  res->output = median(t[6], iters);
   rc = 0;
 out:
-  if (seg) hfc_shm_free(c, seg);
-  else free(in), free(out);
+  for (int d = 0; d < 2; d++) {
+    if (seg[d]) hfc_shm_free(c, seg[d]);
+    else free(in[d]), free(out[d]);
+    for (int k = 0; k < 7; k++) free(t[d][k]);
+  }
   free(res32);
-  for (int k = 0; k < 7; k++) free(t[k]);
   return rc;
 }
 
@@ -318,15 +333,20 @@ int main(int argc, char **argv) {
       feat[i] = (float)(r >> 8) / 16777216.0f; /* in [0, 1): inside every feature's range */
     }
     static const char *path[3] = {"unix", "tcp", "shm"};
-    for (int p = 0; p < 3; p++)
-      for (int f16 = 0; f16 < 2; f16++) {
-        result res = {0, 0, 0, 0, 0, 0, 0};
-        if (run_frames(c[p == 1], variant, spp, w, h, f16, p == 2, iters, feat, &res)) return 1;
+    for (int p = 0; p < 3; p++) {
+      result res[2];
+      memset(res, 0, sizeof res);
+      if (run_frames(c[p == 1], variant, spp, w, h, p == 2, iters, feat, res)) return 1;
+      for (int d = 0; d < 2; d++)
         printf("| %dx%d | %s | %s | %.2f | %.2f | %.2f | %.2f | %.2f / %.2f / %.2f |\n", w, h,
-               path[p], f16 ? "f16" : "f32", res.e2e / 1e3, res.conv / 1e3, res.transport / 1e3,
-               res.server / 1e3, res.input / 1e3, res.infer / 1e3, res.output / 1e3);
-        fflush(stdout);
-      }
+               path[p], d ? "f16" : "f32", res[d].e2e / 1e3, res[d].conv / 1e3,
+               res[d].transport / 1e3, res[d].server / 1e3, res[d].input / 1e3,
+               res[d].infer / 1e3, res[d].output / 1e3);
+      printf("| %dx%d | %s | f16 / f32 | %.2fx | | %.2fx | %.2fx | |\n", w, h, path[p],
+             res[1].e2e / res[0].e2e, res[1].transport / res[0].transport,
+             res[1].server / res[0].server);
+      fflush(stdout);
+    }
     double fl = socket_floor(nin * 4 + 64, (size_t)w * h * 3 * 4, iters);
     printf("| %dx%d | socket floor (socket pair, warm buffers) | f32 | - | - | %.2f | - | - |\n", w,
            h, fl / 1e3);
