@@ -18,14 +18,15 @@
  *               stages.
  * First the conversions alone, the features of each size both ways: the
  * scalar reference, the vector code on one thread, the array functions.
- * Then, after the daemon's rows of a size, the socket floor of the same bytes: a FILTER's worth of float32
- * features written into one end of a Unix socket pair and read by another
- * thread into memory it has used before, and the result's bytes back the
- * same way (no protocol, no daemon): what any socket transport of the
- * frame costs on this machine.
+ * Then, after the daemon's rows of a size, the socket floor of the same
+ * bytes: a FILTER's worth of float32 features written into one end of a
+ * Unix socket pair and read by another thread into memory it has used
+ * before, and the result's bytes back the same way (no protocol, no
+ * daemon): what any socket transport of the frame costs on this machine.
  *
- * Medians over the ITERS frames, and their f16 / f32 ratios. Prints the table with the command, the
- * CPU model (lscpu's "Model name", from /proc/cpuinfo) and the date.
+ * Medians over the ITERS frames, and their f16 / f32 ratios. Prints the
+ * tables with the command, the CPU model (lscpu's "Model name", from
+ * /proc/cpuinfo) and the date.
  */
 #define _GNU_SOURCE
 #include <pthread.h>
@@ -316,7 +317,8 @@ int main(int argc, char **argv) {
   }
   printf("\n");
   printf("| size | path | dtype | end to end ms | client conversion ms | transport ms | "
-         "server ms | server input / infer / output ms |\n|---|---|---|---:|---:|---:|---:|---:|\n");
+         "server ms | server input / infer / output ms |\n"
+         "|---|---|---|---:|---:|---:|---:|---:|\n");
   char *sizes = strdup(argv[4]), *save = NULL;
   for (char *s = strtok_r(sizes, ",", &save); s; s = strtok_r(NULL, ",", &save)) {
     int w, h;

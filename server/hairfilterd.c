@@ -504,21 +504,6 @@ int main(int argc, char **argv) {
   hfd_log("%s", w->init_msg);
   if (hfd_models_load_initial(s)) return 1;
   if (hfd_limits_derive(s)) return 1;
-  /* Receive buffers for the --warm shapes (float32 frames of the most
-   * samples any variant takes), faulted in before the first frame, within
-   * the memory kept between runs (recv_pool.c). */
-  int spp = 0;
-  for (int i = 0; i < s->num_variants; i++)
-    if (s->variants[i].model && s->variants[i].model->cfg.spp > spp)
-      spp = s->variants[i].model->cfg.spp;
-  for (int i = 0; i < cfg.num_warm; i++) {
-    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * spp *
-                   HF_FEATURES_PER_SAMPLE * sizeof(float);
-    if (hfd_rpool_prefault(&s->rpool, bytes, w->cache_cap - atomic_load(&w->cached_bytes)))
-      hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",
-              cfg.warm[i].width, cfg.warm[i].height);
-  }
-
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sighup)) < 0 ||
@@ -581,9 +566,27 @@ int main(int argc, char **argv) {
              "max %dx%d, memory %llu MiB", serving, cfg.max_batch, cfg.queue_size,
              cfg.max_inflight, s->max_width, s->max_height,
              (unsigned long long)(cfg.max_memory_bytes >> 20));
+  /* Receive buffers for the --warm shapes (float32 frames of the most
+   * samples any variant takes), faulted in before the first frame, within
+   * the memory kept between runs (recv_pool.c). */
+  int spp = 0;
+  for (int i = 0; i < s->num_variants; i++)
+    if (s->variants[i].model && s->variants[i].model->cfg.spp > spp)
+      spp = s->variants[i].model->cfg.spp;
+  uint64_t plans = atomic_load(&w->cached_bytes);
+  uint64_t room = plans < w->cache_cap ? w->cache_cap - plans : 0;
+  for (int i = 0; i < cfg.num_warm; i++) {
+    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * spp *
+                   HF_FEATURES_PER_SAMPLE * sizeof(float);
+    if (hfd_rpool_prefault(&s->rpool, bytes, room))
+      hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",
+              cfg.warm[i].width, cfg.warm[i].height);
+  }
+
   if (cfg.ready_file) {
     if (write_ready_file(s)) {
       remove_files(s);
+      hfd_rpool_free(&s->rpool);
       return 1;
     }
     s->ready_written = 1;

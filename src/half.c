@@ -260,9 +260,13 @@ static void half_split(const void *src, void *dst, size_t n, int to_f16) {
   }
 }
 
-void hf_f32_to_f16_serial(const float *src, uint16_t *dst, size_t n) { run_f32_to_f16(src, dst, n); }
+void hf_f32_to_f16_serial(const float *src, uint16_t *dst, size_t n) {
+  run_f32_to_f16(src, dst, n);
+}
 
-void hf_f16_to_f32_serial(const uint16_t *src, float *dst, size_t n) { run_f16_to_f32(src, dst, n); }
+void hf_f16_to_f32_serial(const uint16_t *src, float *dst, size_t n) {
+  run_f16_to_f32(src, dst, n);
+}
 
 void hf_f32_to_f16_array(const float *src, uint16_t *dst, size_t n) {
   if (n >= 2 * HALF_PER_THREAD) half_split(src, dst, n, 1);

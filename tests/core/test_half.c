@@ -95,7 +95,9 @@ static void test_reference_values(void **state) {
       assert_int_equal(hf_f32_to_f16(f), h | 0x200);
       continue;
     }
-    double want = e == 0 ? ldexp((double)m, -24) : e == 31 ? INFINITY : ldexp(1024.0 + m, (int)e - 25);
+    double want = e == 0    ? ldexp((double)m, -24)
+                  : e == 31 ? INFINITY
+                            : ldexp(1024.0 + m, (int)e - 25);
     assert_true((double)f == (s ? -want : want));
     assert_int_equal(hf_f32_to_f16(f), h);
   }

@@ -328,9 +328,9 @@ static long long stats_cache_bytes(const char *url, int *variants) {
 /* Item: the daemon's working memory as a whole (request and result
  * buffers, inference, the backend's plans and the receive buffers kept for
  * reuse) stays inside --max-memory-mb under a mixed load: every variant,
- * seven sizes from 40x24 to the largest the budget admits, float32 and float16, four frames in
- * flight, three rounds so that plans and buffers are kept, reused and
- * evicted. The peak resident memory grows by no more than the limit over
+ * seven sizes from 40x24 to the largest the budget admits, float32 and
+ * float16, four frames in flight, three rounds so that plans and buffers
+ * are kept, reused and evicted. The peak resident memory grows by no more than the limit over
  * where it was once the models were loaded; what the variants keep between
  * runs, as STATS reports it, is within the quarter of the limit set aside
  * for it. */
@@ -410,8 +410,8 @@ static void test_mixed_load_within_budget(void **state) {
   int nvar = 0;
   long long cached = stats_cache_bytes(d.unix_url, &nvar);
   printf("%s, %d frames of %d variants x %d sizes up to %dx%d, f32 and f16, %d in flight, "
-         "--max-memory-mb %d: %d BUSY; RSS %.1f MiB with the models loaded, peak +%.1f MiB; kept between runs "
-         "%.1f MiB\n", backend, sent, H.nv, nsizes, W, HH, INFLIGHT, LIMIT_MB, busy, rss0 / 1024.0,
+         "--max-memory-mb %d: %d BUSY; RSS %.1f MiB with the models loaded, peak +%.1f MiB; "
+         "kept between runs %.1f MiB\n", backend, sent, H.nv, nsizes, W, HH, INFLIGHT, LIMIT_MB, busy, rss0 / 1024.0,
          (hwm - rss0) / 1024.0, cached / 1048576.0);
   assert_int_equal(nvar, H.nv);
   assert_true(cached >= 0 && cached <= (long long)LIMIT_MB * 1048576 / 4);
