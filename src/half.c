@@ -235,10 +235,11 @@ static int half_threads(size_t n) {
   return want < 1 ? 1 : want < (size_t)c ? (int)want : c;
 }
 
-/* Splits n values into equal parts (multiples of 16, so every part but the
- * last runs whole vectors), one per thread; the caller's thread converts
- * the first. A thread that cannot be started leaves its part to the
- * caller, so the result never depends on threads. */
+/* Splits n values into parts of a multiple of 16 values (so every part
+ * but the last runs whole vectors), one per thread, the last taking what
+ * is left; the caller's thread converts the first. A thread that cannot be
+ * started leaves its part to the caller, so the result never depends on
+ * threads. */
 static void half_split(const void *src, void *dst, size_t n, int to_f16) {
   int nt = half_threads(n);
   const size_t in_es = to_f16 ? sizeof(float) : sizeof(uint16_t);
@@ -248,7 +249,7 @@ static void half_split(const void *src, void *dst, size_t n, int to_f16) {
   int started[HALF_MAX_THREADS] = {0};
   size_t part = ((n / nt) + 15) & ~(size_t)15;
   for (int t = 0; t < nt; t++) {
-    size_t b = part * t < n ? part * t : n, e = b + part < n ? b + part : n;
+    size_t b = part * t < n ? part * t : n, e = b + part < n && t < nt - 1 ? b + part : n;
     jobs[t] = (half_job){(const char *)src + b * in_es, (char *)dst + b * out_es, e - b, to_f16};
   }
   for (int t = 1; t < nt; t++)

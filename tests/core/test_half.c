@@ -41,11 +41,12 @@ static float from_bits(uint32_t x) {
 static void check_f16_to_f32(const uint16_t *src, size_t n) {
   float *got = malloc(n * sizeof *got);
   assert_non_null(got);
+  memset(got, 0x5a, n * sizeof *got); /* a value left unwritten shows */
   hf_f16_to_f32_array(src, got, n);
   for (size_t i = 0; i < n; i++)
     if (bits(got[i]) != bits(hf_f16_to_f32(src[i])))
-      fail_msg("%s: half 0x%04x -> 0x%08x, want 0x%08x", hf_half_impl(), src[i], bits(got[i]),
-               bits(hf_f16_to_f32(src[i])));
+      fail_msg("%s: value %zu of %zu, half 0x%04x -> 0x%08x, want 0x%08x", hf_half_impl(), i, n,
+               src[i], bits(got[i]), bits(hf_f16_to_f32(src[i])));
   if (n <= 0x10000) { /* the single-thread entry point, on the smaller sets */
     memset(got, 0, n * sizeof *got);
     hf_f16_to_f32_serial(src, got, n);
@@ -57,11 +58,12 @@ static void check_f16_to_f32(const uint16_t *src, size_t n) {
 static void check_f32_to_f16(const float *src, size_t n) {
   uint16_t *got = malloc(n * sizeof *got);
   assert_non_null(got);
+  memset(got, 0x5a, n * sizeof *got);
   hf_f32_to_f16_array(src, got, n);
   for (size_t i = 0; i < n; i++)
     if (got[i] != hf_f32_to_f16(src[i]))
-      fail_msg("%s: float 0x%08x (%a) -> 0x%04x, want 0x%04x", hf_half_impl(), bits(src[i]),
-               (double)src[i], got[i], hf_f32_to_f16(src[i]));
+      fail_msg("%s: value %zu of %zu, float 0x%08x (%a) -> 0x%04x, want 0x%04x", hf_half_impl(),
+               i, n, bits(src[i]), (double)src[i], got[i], hf_f32_to_f16(src[i]));
   if (n <= 0x10000) {
     memset(got, 0, n * sizeof *got);
     hf_f32_to_f16_serial(src, got, n);
@@ -186,8 +188,8 @@ static void test_f32_to_f16(void **state) {
   free(v);
 }
 
-/* A frame large enough to be split between threads (4 M values,
- * and an odd length), with every part agreeing with the reference. */
+/* Frames large enough to be split between threads (4 M values and
+ * 3 M + 1), every value written and agreeing with the reference. */
 static void test_threaded_frames(void **state) {
   (void)state;
   const size_t n = ((size_t)4 << 20) + 13;
@@ -204,6 +206,10 @@ static void test_threaded_frames(void **state) {
   BOTH_IMPLS({
     check_f16_to_f32(h, n);
     check_f32_to_f16(f, n);
+    /* A length whose halves round down below it: the last part must take
+     * the rest. */
+    check_f16_to_f32(h, ((size_t)3 << 20) + 1);
+    check_f32_to_f16(f, ((size_t)3 << 20) + 1);
   });
   free(f);
   free(h);
