@@ -802,6 +802,7 @@ int hfp_encode_stats_v(uint8_t *buf, size_t cap, const hfp_stats *m, int version
     for (int i = 0; i < m->num_variants; i++) {
       wr_u64(&w, m->variants[i].out_of_range);
       wr_u64(&w, m->variants[i].frames_sanitised);
+      wr_u64(&w, m->variants[i].cache_bytes);
     }
   }
   return wr_finish(&w, HFP_STATS_REPLY, 0, 0);
@@ -851,6 +852,7 @@ int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
         uint64_t c = rd_u64(&r);
         if (k == 0) m->variants[i].out_of_range = c;
         if (k == 1) m->variants[i].frames_sanitised = c;
+        if (k == 2) m->variants[i].cache_bytes = c;
       }
   }
   int rc = rd_end(&r);

@@ -48,7 +48,7 @@ extern "C" {
 #define HFP_OUTPUTS        3      /* color, highlight, alpha */
 #define HFP_HIST_BUCKETS   24     /* latency histogram buckets */
 #define HFP_MAX_STATS      16     /* input statistics a variant's range may name */
-#define HFP_STATS_COUNTERS 2      /* per-variant counters after STATS_REPLY (v2) */
+#define HFP_STATS_COUNTERS 3      /* per-variant counters after STATS_REPLY (v2) */
 
 /* ---- error codes (stable; wire values are the positive numbers) -------- */
 
@@ -223,6 +223,8 @@ typedef struct hfp_variant_stats {
   uint64_t out_of_range;      /* version 2: successful requests flagged out of range */
   uint64_t frames_sanitised;  /* version 2: successful requests whose input was
                                  sanitised (HFP_RESULT_INPUT_SANITISED) */
+  uint64_t cache_bytes;       /* version 2: host memory, bytes, the variant's model
+                                 keeps between runs (plans); a gauge */
 } hfp_variant_stats;
 
 typedef struct hfp_stats {

@@ -233,9 +233,9 @@ static void job_free(hfd_server *s, hfd_job *j) {
     /* The tensors are the client's, in the segment. */
     hfd_seg_unref(s, j->seg);
   } else {
-    free(j->input);
-    free(j->out);
-    free(j->rgba);
+    hfd_rbuf_release(s, j->input);
+    hfd_rbuf_release(s, j->out);
+    hfd_rbuf_release(s, j->rgba);
   }
   free(j);
 }
@@ -346,7 +346,7 @@ static void deliver(hfd_server *s, hfd_job *j) {
   /* The input tensor is no longer needed; give its memory back now rather
    * than when the (possibly slow) client has read the reply. */
   if (!j->seg) {
-    free(j->input);
+    hfd_rbuf_release(s, j->input);
     j->input = NULL;
     s->mem_held -= j->req.data_len;
     j->bytes_held -= j->req.data_len;
@@ -579,12 +579,17 @@ static void filter_shm(hfd_conn *c, int v, const hfp_filter *f) {
 }
 
 static uint64_t mem_committed(hfd_server *s) {
-  return s->mem_held + atomic_load(&s->worker.cached_bytes);
+  return s->mem_held + atomic_load(&s->worker.cached_bytes) + hfd_rpool_reserve(&s->rpool);
 }
 
-/* 1 when more bytes can be charged within --max-memory-mb. */
+/* 1 when more bytes can be charged within --max-memory-mb; idle receive
+ * buffers make way first. */
 static int mem_fits(hfd_server *s, uint64_t more) {
   uint64_t used = mem_committed(s), cap = s->cfg->max_memory_bytes;
+  if (used > cap || more > cap - used) {
+    hfd_rpool_shrink(&s->rpool, used + more - cap);
+    used = mem_committed(s);
+  }
   return used <= cap && more <= cap - used;
 }
 
@@ -645,10 +650,10 @@ static void filter_head(hfd_conn *c, size_t have) {
     hfp_output_bytes(f.width, f.height, HFP_OUTPUTS, f.out_dtype, &out_len);
     if (f.flags & HFP_FILTER_COMPOSITE) hfp_output_bytes(f.width, f.height, 4, f.out_dtype, &rgba_len);
     hfd_job *j = calloc(1, sizeof *j);
-    void *in = NULL;
-    /* Address space only: pages become memory as the tensor lands in them,
-     * and are charged then (on_read). */
-    if (!j || posix_memalign(&in, 64, (size_t)f.data_len ? (size_t)f.data_len : 64)) {
+    /* A kept buffer (recv_pool.c) or address space only: either way it is
+     * charged as the tensor lands in it (on_read). */
+    void *in = j ? hfd_rpool_take(&s->rpool, (size_t)f.data_len) : NULL;
+    if (!in) {
       free(j);
       reject(c, v, HFP_E_BUSY, left, "out of memory for a %llu-byte frame",
              (unsigned long long)f.data_len);
@@ -699,8 +704,8 @@ static void filter_admit(hfd_conn *c) {
     j->bytes_held += more;
     j->infer_bytes = run;
     if (!j->seg) {
-      j->out = malloc((size_t)j->out_len);
-      j->rgba = j->rgba_len ? malloc((size_t)j->rgba_len) : NULL;
+      j->out = hfd_rbuf_result(s, j->out_len);
+      j->rgba = j->rgba_len ? hfd_rbuf_result(s, j->rgba_len) : NULL;
     }
     if (!j->out || (j->rgba_len && !j->rgba)) {
       code = HFP_E_BUSY;
@@ -1026,6 +1031,7 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     hfd_job *j = c->job;
     s->mem_held += n;
     j->bytes_held += n;
+    hfd_rpool_charge(&s->rpool, j->input, n);
     if (!mem_fits(s, 0)) {
       int v = j->variant;
       uint64_t left = (uint64_t)c->want - c->got;

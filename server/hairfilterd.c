@@ -266,7 +266,11 @@ void hfd_fill_stats(hfd_server *s, hfp_stats *st) {
   st->queue_capacity = (uint32_t)s->cfg->queue_size;
   st->protocol_errors = s->protocol_errors;
   for (int i = 0; i < s->num_variants; i++)
-    if (s->variants[i].model) st->variants[st->num_variants++] = s->variants[i].stats;
+    if (s->variants[i].model) {
+      hfp_variant_stats *v = &st->variants[st->num_variants++];
+      *v = s->variants[i].stats;
+      v->cache_bytes = atomic_load(&s->variants[i].model->cache_bytes);
+    }
 }
 
 int hfd_ready(const hfd_server *s, char *why, size_t whylen) {
@@ -498,6 +502,7 @@ int main(int argc, char **argv) {
   /* Plans and scratch kept between runs may use a quarter of the memory
    * budget; one frame may use the rest (docs/SERVER.md, "Memory"). */
   w->cache_cap = cfg.max_memory_bytes / 4;
+  w->pool_idle = &s->rpool.idle_bytes;
   s->frame_budget = cfg.max_memory_bytes - w->cache_cap;
   int rc = uv_async_init(s->loop, &s->async, hfd_on_async);
   if (rc < 0) {
@@ -512,7 +517,6 @@ int main(int argc, char **argv) {
   hfd_log("%s", w->init_msg);
   if (hfd_models_load_initial(s)) return 1;
   if (hfd_limits_derive(s)) return 1;
-
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sighup)) < 0 ||
@@ -579,9 +583,27 @@ int main(int argc, char **argv) {
              "max %dx%d, memory %llu MiB", serving, cfg.max_batch, cfg.queue_size,
              cfg.max_inflight, s->max_width, s->max_height,
              (unsigned long long)(cfg.max_memory_bytes >> 20));
+  /* Receive buffers for the --warm shapes (float32 frames of the most
+   * samples any variant takes), faulted in before the first frame, within
+   * the memory kept between runs (recv_pool.c). */
+  int spp = 0;
+  for (int i = 0; i < s->num_variants; i++)
+    if (s->variants[i].model && s->variants[i].model->cfg.spp > spp)
+      spp = s->variants[i].model->cfg.spp;
+  uint64_t plans = atomic_load(&w->cached_bytes);
+  uint64_t room = plans < w->cache_cap ? w->cache_cap - plans : 0;
+  for (int i = 0; i < cfg.num_warm; i++) {
+    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * spp *
+                   HF_FEATURES_PER_SAMPLE * sizeof(float);
+    if (hfd_rpool_prefault(&s->rpool, bytes, room))
+      hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",
+              cfg.warm[i].width, cfg.warm[i].height);
+  }
+
   if (cfg.ready_file) {
     if (write_ready_file(s)) {
       remove_files(s);
+      hfd_rpool_free(&s->rpool);
       return 1;
     }
     s->ready_written = 1;
@@ -605,6 +627,7 @@ int main(int argc, char **argv) {
              "gone), %llu connection(s) in all", (unsigned long long)ok,
              (unsigned long long)failed, (unsigned long long)s->replies_lost,
              (unsigned long long)s->conns_total);
+  hfd_rpool_free(&s->rpool);
   hfd_config_free(&cfg);
   return 0;
 }

@@ -269,6 +269,22 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
          "Host memory the backend keeps between runs (plans, scratch), all models together; "
          "counted in the request memory limit.",
          atomic_load(&s->worker.cached_bytes));
+  family(f, "hairfilterd_variant_cache_memory_bytes", "gauge",
+         "Host memory each variant's model keeps between runs (plans); in "
+         "hairfilterd_model_cache_memory_bytes.");
+  PER_VARIANT(f, s, "hairfilterd_variant_cache_memory_bytes", "%llu",
+              (unsigned long long)atomic_load(&v->model->cache_bytes));
+  scalar(f, "hairfilterd_receive_buffer_bytes", "gauge",
+         "Receive and result buffers mapped for socket frames, lent or kept idle for reuse.",
+         s->rpool.mapped_bytes);
+  scalar(f, "hairfilterd_receive_buffer_idle_bytes", "gauge",
+         "Receive buffers kept idle for reuse; counted in the request memory limit, and within "
+         "the quarter of it kept between runs together with the plans.",
+         atomic_load(&s->rpool.idle_bytes));
+  scalar(f, "hairfilterd_receive_buffer_reuses_total", "counter",
+         "Socket frames whose buffer was one kept from an earlier frame.", s->rpool.hits);
+  scalar(f, "hairfilterd_receive_buffer_maps_total", "counter",
+         "Socket frames whose buffer had to be mapped afresh.", s->rpool.misses);
 
   family(f, "hairfilterd_requests_total", "counter",
          "FILTER requests answered, by variant (empty: none could be found) and status; class "

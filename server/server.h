@@ -145,6 +145,10 @@ typedef struct hfd_model {
   uint64_t params;               /* number of weights */
   uint64_t device_bytes;         /* hf_model_device_bytes once built */
   double t_loaded;               /* hfd_now_us when built */
+  uint64_t last_run;             /* worker thread: its clock at the last run */
+  /* Host memory its backend model keeps between runs (plans): written by
+   * the worker, read for STATS and /metrics. */
+  _Atomic uint64_t cache_bytes;
 } hfd_model;
 
 /* Latency histogram buckets (seconds, upper bounds): what an operator sets
@@ -258,7 +262,9 @@ typedef struct hfd_worker {
   int pipeline_depth;
   const hfd_config *cfg;         /* for the warm shapes */
   uv_async_t *async;
-  uint64_t cache_cap;            /* plans and scratch kept between runs */
+  uint64_t cache_cap;            /* plans, scratch and idle receive buffers kept */
+  const _Atomic uint64_t *pool_idle; /* idle receive buffers' bytes (recv_pool.c) */
+  uint64_t run_clock;            /* worker thread: counts runs, for hfd_model.last_run */
   /* Host memory kept between runs (backend plans, the worker's scratch):
    * written by the worker, read by the loop thread when it admits a frame. */
   _Atomic uint64_t cached_bytes;
@@ -314,6 +320,55 @@ double hfd_now_us(void);
 /* ---- listeners and connections ----------------------------------------- */
 
 typedef struct hfd_server hfd_server;
+
+/* Receive buffers kept for reuse (recv_pool.c). */
+#define HFD_RPOOL_MIN ((size_t)1 << 20) /* smaller frames: malloc */
+
+typedef struct hfd_rbuf {
+  struct hfd_rbuf *next;
+  void *addr;
+  size_t cap;                    /* bytes mapped */
+  uint64_t charged;              /* lent: bytes its frame has been charged */
+  uint64_t last_use;             /* idle: when it came back (pool clock) */
+  int lent;
+} hfd_rbuf;
+
+typedef struct hfd_rpool {
+  hfd_rbuf *bufs;
+  _Atomic uint64_t idle_bytes;   /* kept, not lent; the worker reads it */
+  uint64_t lent_uncharged;       /* of lent buffers, not charged to a frame */
+  uint64_t mapped_bytes;         /* every buffer, idle or lent */
+  uint64_t clock;
+  uint64_t hits, misses, evicted;
+} hfd_rpool;
+
+/* A buffer of at least bytes, 64-byte aligned: an idle pooled one, a new
+ * mapping (from HFD_RPOOL_MIN up), or malloc's; NULL when out of memory.
+ * Its bytes count in hfd_rpool_reserve until hfd_rpool_charge says a frame
+ * has been charged for them. */
+void *hfd_rpool_take(hfd_rpool *p, size_t bytes);
+/* n more bytes of addr's buffer are charged to its frame (mem_held). */
+void hfd_rpool_charge(hfd_rpool *p, const void *addr, uint64_t n);
+/* Gives back addr (from hfd_rpool_take; NULL: nothing): kept idle while
+ * idle buffers plus cache_bytes (the backends' cached plans) fit
+ * cache_cap, least recently used idle buffers unmapped to make room, else
+ * unmapped (or freed). */
+void hfd_rpool_give(hfd_rpool *p, void *addr, uint64_t cache_bytes, uint64_t cache_cap);
+/* Bytes resident for the pool and charged to no frame: idle buffers and
+ * the uncharged part of lent ones. Counted in the committed memory. */
+uint64_t hfd_rpool_reserve(const hfd_rpool *p);
+/* Unmaps idle buffers, least recently used first, until want bytes are
+ * freed or none is left; returns the bytes freed. */
+uint64_t hfd_rpool_shrink(hfd_rpool *p, uint64_t want);
+/* Maps and faults in one idle buffer for frames of bytes (none when one
+ * of that size is kept or it would not fit cache_cap: -1). */
+int hfd_rpool_prefault(hfd_rpool *p, size_t bytes, uint64_t cache_cap);
+void hfd_rpool_free(hfd_rpool *p);
+/* A socket frame's result buffer of bytes from s's pool, charged in full
+ * (the caller has charged them to mem_held); NULL when out of memory. */
+void *hfd_rbuf_result(hfd_server *s, uint64_t bytes);
+/* Gives a socket frame's input or result buffer back to s's pool. */
+void hfd_rbuf_release(hfd_server *s, void *addr);
 
 typedef struct hfd_listener {
   union {
@@ -408,6 +463,7 @@ struct hfd_server {
   uint64_t conns_total, next_conn_id;
   uint64_t protocol_errors;
   uint64_t mem_held;             /* bytes charged: buffers and inference */
+  hfd_rpool rpool;               /* receive buffers kept for reuse */
   uint64_t frame_budget;         /* the most one frame may need */
   uint64_t shm_held;             /* bytes of shared segments */
   uint64_t replies_lost;         /* computed, but the peer had gone */

@@ -72,30 +72,44 @@ static size_t worker_cached(const hfd_worker *w) {
 }
 
 /* After a run: what the backends and this worker keep for the next run of
- * the same size may stay while it is within cache_cap (it counts against
- * --max-memory-mb all the same); beyond it, the run was oversized, and what
- * it needed goes back to the system: the worker's scratch, then the largest
- * plans of the model that ran, then of the others, then the heap's free
- * pages. */
-static void worker_trim(hfd_worker *w, const hfd_model *ran) {
+ * the same size may stay while it is within cache_cap, less the receive
+ * buffers kept idle (recv_pool.c: the two share it, and it counts against
+ * --max-memory-mb all the same); beyond it, what is kept goes back to the
+ * system: the worker's scratch; the largest plans of the model that ran
+ * when they alone are over (an oversized frame's); then every plan of the
+ * other models, least recently run first; then the rest of the ran model's
+ * largest plans; then the heap's free pages. Each model's share is
+ * published for STATS and /metrics. */
+static void worker_trim(hfd_worker *w, hfd_model *ran) {
+  uint64_t idle = w->pool_idle ? atomic_load(w->pool_idle) : 0;
+  size_t cap = idle < w->cache_cap ? (size_t)(w->cache_cap - idle) : 0;
   size_t n = worker_cached(w);
-  if (n > w->cache_cap) {
+  if (ran) ran->last_run = ++w->run_clock;
+  if (n > cap) {
     free(w->scratch_in);
     free(w->scratch_out);
     free(w->scratch_rgb);
     w->scratch_in = w->scratch_out = NULL;
     w->scratch_rgb = NULL;
     w->scratch_in_cap = w->scratch_out_cap = w->scratch_rgb_cap = 0;
-    size_t others = 0;
-    for (const hfd_model *m = w->models; m; m = m->wnext)
-      if (m != ran) others += hf_model_cached_bytes(m->model);
-    if (ran)
-      hf_model_trim(ran->model, others < w->cache_cap ? w->cache_cap - others : 0);
-    for (hfd_model *m = w->models; m && worker_cached(w) > w->cache_cap; m = m->wnext)
-      if (m != ran) hf_model_trim(m->model, 0);
+    if (ran) hf_model_trim(ran->model, cap);
+    while (worker_cached(w) > cap) {
+      hfd_model *lru = NULL;
+      for (hfd_model *m = w->models; m; m = m->wnext)
+        if (m != ran && hf_model_cached_bytes(m->model) && (!lru || m->last_run < lru->last_run))
+          lru = m;
+      if (!lru) break;
+      hf_model_trim(lru->model, 0);
+    }
+    if (ran && (n = worker_cached(w)) > cap) {
+      size_t mine = hf_model_cached_bytes(ran->model), others = n - mine;
+      hf_model_trim(ran->model, others < cap ? cap - others : 0);
+    }
     malloc_trim(0);
     n = worker_cached(w);
   }
+  for (hfd_model *m = w->models; m; m = m->wnext)
+    atomic_store(&m->cache_bytes, (uint64_t)hf_model_cached_bytes(m->model));
   atomic_store(&w->cached_bytes, (uint64_t)n);
 }
 
@@ -116,7 +130,8 @@ static void store(void *dst, int dtype, size_t i, float v) {
  * its dtype and, when asked, the composited RGBA (alpha = hair alpha). */
 static int finish_from_f32(hfd_worker *w, hfd_job *j, const float *res) {
   size_t n = (size_t)j->req.width * j->req.height;
-  for (size_t i = 0; i < n * 3; i++) store(j->out, j->req.out_dtype, i, res[i]);
+  if (j->req.out_dtype == HFP_F16) hf_f32_to_f16_array(res, j->out, n * 3);
+  else memcpy(j->out, res, n * 3 * sizeof(float));
   if (!j->rgba) return 0;
   void *rgb = w->scratch_rgb;
   if (ensure(&rgb, &w->scratch_rgb_cap, n * 3 * sizeof(float))) return -1;

@@ -357,8 +357,10 @@ void hf_model_trim(hf_model *m, size_t keep) {
 /* ---- helpers shared by the CPU backends ---------------------------------- */
 
 size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height) {
-  if (cfg->arch != HF_ARCH_RESIDUAL && cfg->arch != HF_ARCH_KERNEL) return 0;
-  return 2 * (size_t)width * height * 3 * sizeof(float);
+  /* A row of float results for an f16 output, and the whole-frame base. */
+  size_t row = (size_t)width * 3 * sizeof(float);
+  if (cfg->arch != HF_ARCH_RESIDUAL && cfg->arch != HF_ARCH_KERNEL) return row;
+  return row + 2 * (size_t)width * height * 3 * sizeof(float);
 }
 
 double hf_now_us(void) {
@@ -371,7 +373,14 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
   size_t frame_in = (size_t)io->width * io->height * cin;
   for (int n = 0; n < io->batch; n++) {
     float *d = dst + (size_t)n * pw * ph * cin;
-    for (int y = 0; y < ph; y++) {
+    int y0 = 0;
+    if (io->in_dtype == HF_F16 && pw == io->width) {
+      /* Rows already dense: the whole frame in one conversion, which
+       * spreads a large frame over threads. */
+      hf_f16_to_f32_array((const uint16_t *)io->in + n * frame_in, d, frame_in);
+      y0 = io->height;
+    }
+    for (int y = y0; y < ph; y++) {
       float *row = d + (size_t)y * pw * cin;
       if (y >= io->height) {
         memset(row, 0, sizeof(float) * pw * cin);
@@ -383,7 +392,7 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
         memcpy(row, (const float *)io->in + src0, cnt * sizeof(float));
       } else {
         const uint16_t *s = (const uint16_t *)io->in + src0;
-        for (size_t k = 0; k < cnt; k++) row[k] = hf_f16_to_f32(s[k]);
+        hf_f16_to_f32_array(s, row, cnt);
       }
       memset(row + cnt, 0, sizeof(float) * (size_t)(pw - io->width) * cin);
     }
@@ -395,13 +404,16 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
   /* The Residual base or the Kernel output of a whole frame at once
    * (separable sums; per-pixel sums made once); without the memory for it,
    * pixel by pixel (same values, more work). */
-  float *base = NULL, *tmp = NULL;
+  float *base = NULL, *tmp = NULL, *row = NULL;
   const int kernel = cfg->arch == HF_ARCH_KERNEL, raw_ch = cfg->out_channels;
   if (cfg->arch == HF_ARCH_RESIDUAL || kernel) {
     base = malloc((size_t)io->width * io->height * 3 * sizeof(float));
     tmp = malloc((size_t)io->width * io->height * 3 * sizeof(float));
     if (!base || !tmp) free(base), free(tmp), base = tmp = NULL;
   }
+  /* An f16 result is gathered a row at a time in float and converted per
+   * row (hf_f32_to_f16_array); without the row's memory, value by value. */
+  if (io->out_dtype == HF_F16) row = malloc((size_t)io->width * 3 * sizeof(float));
   for (int n = 0; n < io->batch; n++) {
     hf_input_view view = {in + (size_t)n * ph * pw * cfg->in_channels, io->width, io->height,
                           pw, cfg->in_channels};
@@ -410,7 +422,7 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
       hf_kernel_output_frame(&view, cfg->spp, cfg->kernel_radius, raw, pw, raw_ch, base, tmp);
     else if (base)
       hf_residual_base_frame(&view, cfg->spp, base, tmp);
-    for (int y = 0; y < io->height; y++)
+    for (int y = 0; y < io->height; y++) {
       for (int x = 0; x < io->width; x++) {
         size_t px = (size_t)y * pw + x;
         float v[HF_MAX_RAW_CHANNELS];
@@ -424,12 +436,19 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
         size_t o = (((size_t)n * io->height + y) * io->width + x) * 3;
         if (io->out_dtype == HF_F32) {
           memcpy((float *)io->out + o, v, 3 * sizeof(float));
+        } else if (row) {
+          memcpy(row + (size_t)x * 3, v, 3 * sizeof(float));
         } else {
           uint16_t *d = (uint16_t *)io->out + o;
           for (int c = 0; c < 3; c++) d[c] = hf_f32_to_f16(v[c]);
         }
       }
+      if (row)
+        hf_f32_to_f16_array(row, (uint16_t *)io->out + ((size_t)n * io->height + y) * io->width * 3,
+                            (size_t)io->width * 3);
+    }
   }
   free(base);
   free(tmp);
+  free(row);
 }

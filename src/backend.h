@@ -102,8 +102,9 @@ void hf_input_to_padded_f32(const hf_io *io, int cin, int pw, int ph, float *dst
  * to io->width x io->height and stores in io->out's dtype. */
 void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const float *src,
                                int pw, int ph, const hf_io *io);
-/* Host memory hf_output_from_padded_f32 allocates for io's frames (the
- * Residual base or the Kernel output of a frame, and its scratch). */
+/* Host memory hf_output_from_padded_f32 allocates for io's frames (a row
+ * of an f16 result in float, the Residual base or the Kernel output of a
+ * frame, and its scratch). */
 size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height);
 /* The Kernel architecture's output stage across each row's pixels
  * (cpu_kernel_output.c), the values of hf_kernel_output_rows up to

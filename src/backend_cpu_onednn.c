@@ -693,11 +693,10 @@ static void od_kernel_rows(const void *ctx, int job, size_t r0, size_t r1) {
     else
       hf_cpu_kernel_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, k->sums + frame, raw, k->pw,
                          ch, y0, y1, out, k->scratch + (size_t)job * k->scratch_floats);
-    if (f16) {
-      uint16_t *d = (uint16_t *)k->io->out + frame;
-      for (size_t i = (size_t)y0 * w * 3; i < (size_t)y1 * w * 3; i++)
-        d[i] = hf_f32_to_f16(out[i]);
-    }
+    if (f16)
+      hf_f32_to_f16_serial(out + (size_t)y0 * w * 3,
+                           (uint16_t *)k->io->out + frame + (size_t)y0 * w * 3,
+                           (size_t)(y1 - y0) * w * 3);
     r += (size_t)(y1 - y0);
   }
 }

@@ -127,7 +127,7 @@ int hf_exr_write(const char *path, const hf_image *img, int half) {
       rc = HF_ENOMEM;
       goto out;
     }
-    for (size_t i = 0; i < n; i++) tmp[i] = hf_f32_to_f16(img->data[i]);
+    hf_f32_to_f16_array(img->data, tmp, n);
   }
   for (int y = 0; y < h; y += spc) {
     exr_chunk_info_t ci;

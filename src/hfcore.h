@@ -501,12 +501,32 @@ int hf_input_range_describe(const hf_input_range *r, const hf_input_stats *s, un
 
 /* ---- half floats -------------------------------------------------------- */
 
+/* One value, IEEE 754 binary32 <-> binary16, round to nearest even; the
+ * reference the array functions follow bit for bit. Overflow gives
+ * infinity, values under half the smallest subnormal give zero (signed).
+ * A NaN keeps its sign and the top bits of its payload and is made quiet
+ * (IEEE 754-2008 5.4.2), in both directions. */
 uint16_t hf_f32_to_f16(float f);
 float hf_f16_to_f32(uint16_t h);
-/* n values at once, bit for bit as hf_f32_to_f16 for every non-NaN input
- * (NaNs stay NaNs); with the processor's F16C conversion when it has one
- * (8 values per instruction). src and dst must not overlap. */
+/* n values at once, bit for bit as hf_f32_to_f16 / hf_f16_to_f32 for every
+ * input, NaNs included: with the processor's F16C conversion when it has
+ * one (8 values per instruction, chosen at run time), else the scalar
+ * functions; from 1 M values on, split between up to one thread per online
+ * CPU (16 at most). src and dst must not overlap. Never fails. */
 void hf_f32_to_f16_array(const float *src, uint16_t *dst, size_t n);
+void hf_f16_to_f32_array(const uint16_t *src, float *dst, size_t n);
+/* As the array functions, on the calling thread alone: for code that
+ * already splits a frame between its own threads. */
+void hf_f32_to_f16_serial(const float *src, uint16_t *dst, size_t n);
+void hf_f16_to_f32_serial(const uint16_t *src, float *dst, size_t n);
+/* The array functions' implementation: "f16c" or "scalar". */
+const char *hf_half_impl(void);
+/* on = 0 makes the array functions use the scalar code, 1 the vector code
+ * where the processor has it (the default), -1 changes nothing (for tests
+ * and benchmarks that compare the two). Returns whether the vector code was
+ * in use before the call. Not meant to be called while another thread
+ * converts. */
+int hf_half_use_simd(int on);
 
 /* ---- images ------------------------------------------------------------- */
 

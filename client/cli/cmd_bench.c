@@ -318,7 +318,7 @@ static int bench_frame_pass(const bench_opts *o, const frame_pass *pass) {
       r ^= r << 13, r ^= r >> 7, r ^= r << 17;
       if (r & 1) memset(in + p, 0, HF_FEATURES_PER_SAMPLE * sizeof(float));
     }
-    for (size_t i = 0; i < n; i++) in16[i] = hf_f32_to_f16(in[i]);
+    hf_f32_to_f16_array(in, in16, n);
     memcpy(copy, in, n * sizeof(float));   /* its pages are mapped before timing */
     for (int d = 0; d < 2; d++) {
       const void *src = d ? (const void *)in16 : in;

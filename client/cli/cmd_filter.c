@@ -204,7 +204,7 @@ int cmd_filter(int argc, char **argv) {
   int ret = 1, rc;
   hfc_client *c = NULL;
   hf_image feat = {0}, res = {0};
-  void *in = NULL, *out = NULL, *rgba = NULL;
+  void *in = NULL, *out = NULL, *rgba = NULL, *out16 = NULL, *rgba16 = NULL;
   float *rgb = NULL;
   if ((rc = hfc_connect(server, &o, &c)) != 0) {
     fprintf(stderr, "hairfilter: %s: %s: %s\n", server, hfc_strerror(rc), hfc_last_message(NULL));
@@ -245,9 +245,20 @@ int cmd_filter(int argc, char **argv) {
     goto out;
   }
   if (f16) {
-    /* Halves the bytes on the wire; converted in place, front to back. */
-    uint16_t *h = (uint16_t *)in32;
-    for (size_t i = 0; i < nin; i++) h[i] = hf_f32_to_f16(in32[i]);
+    /* Halves the bytes on the wire. Halves get buffers of their own: the
+     * array conversion may split a frame between threads, so it never
+     * converts in place. */
+    void *h = malloc(nin * sizeof(uint16_t));
+    out16 = malloc(npx * 3 * sizeof(uint16_t));
+    rgba16 = png ? malloc(npx * 4 * sizeof(uint16_t)) : NULL;
+    if (!h || !out16 || (png && !rgba16)) {
+      free(h);
+      fprintf(stderr, "hairfilter: out of memory for a %dx%d frame\n", feat.width, feat.height);
+      goto out;
+    }
+    hf_f32_to_f16_array(in32, h, nin);
+    free(in);
+    in = h;
   }
   hfc_request r;
   hfc_request_init(&r);
@@ -256,12 +267,13 @@ int cmd_filter(int argc, char **argv) {
   r.height = feat.height;
   r.spp = v->spp;
   r.in_dtype = r.out_dtype = f16 ? HFC_F16 : HFC_F32;
+  const size_t es = f16 ? sizeof(uint16_t) : sizeof(float);
   r.features = in;
-  r.features_bytes = nin * sizeof(float);
-  r.result = out;
-  r.result_bytes = npx * 3 * sizeof(float);
-  r.rgba = rgba;
-  r.rgba_bytes = rgba ? npx * 4 * sizeof(float) : 0;
+  r.features_bytes = nin * es;
+  r.result = f16 ? out16 : out;
+  r.result_bytes = npx * 3 * es;
+  r.rgba = f16 ? rgba16 : rgba;
+  r.rgba_bytes = rgba ? npx * 4 * es : 0;
   memcpy(r.hair, hair, sizeof hair);
   memcpy(r.light, light, sizeof light);
   memcpy(r.background, bg, sizeof bg);
@@ -272,10 +284,8 @@ int cmd_filter(int argc, char **argv) {
     goto out;
   }
   if (f16) {
-    /* Widen back to float, back to front so nothing is overwritten early. */
-    for (size_t i = npx * 3; i-- > 0;) ((float *)out)[i] = hf_f16_to_f32(((uint16_t *)out)[i]);
-    if (rgba)
-      for (size_t i = npx * 4; i-- > 0;) ((float *)rgba)[i] = hf_f16_to_f32(((uint16_t *)rgba)[i]);
+    hf_f16_to_f32_array(out16, out, npx * 3);
+    if (rgba) hf_f16_to_f32_array(rgba16, rgba, npx * 4);
   }
   if (t.out_of_range) {
     /* The server judged the frame; its statistics and the range, from the
@@ -333,6 +343,8 @@ out:
   free(in);
   free(out);
   free(rgba);
+  free(out16);
+  free(rgba16);
   free(rgb);
   return ret;
 bad:

@@ -958,15 +958,15 @@ static int stats_handler(mock *m, const hfp_header *h, const uint8_t *p) {
   uint8_t *q = b + HFP_HEADER_SIZE;
   switch (m->arg) {
     case SV_MORE_COUNTERS: {
-      /* counters 3: the two known, then one more (a later version's). */
-      uint8_t *tail = b + n - 2 - 16;
-      hfp_put_u16(tail, 3);
+      /* The known counters, then one more (a later version's). */
+      uint8_t *tail = b + n - 2 - 8 * HFP_STATS_COUNTERS;
+      hfp_put_u16(tail, HFP_STATS_COUNTERS + 1);
       memset(b + n, 0x11, 8);
       n += 8;
       cf_set_length(b, (uint32_t)(n - HFP_HEADER_SIZE));
       break;
     }
-    case SV_ZERO_COUNTERS: hfp_put_u16(b + n - 18, 0); break;
+    case SV_ZERO_COUNTERS: hfp_put_u16(b + n - 2 - 8 * HFP_STATS_COUNTERS, 0); break;
     case SV_BUCKETS_23: hfp_put_u16(q + 38, 23); break;
     case SV_VARIANTS_65: hfp_put_u16(q + 36, 65); break;
   }

@@ -775,6 +775,7 @@ static void test_version2(void **state) {
   m.variants[1].out_of_range = 7;
   m.variants[0].frames_sanitised = 3;
   m.variants[1].frames_sanitised = 1ull << 40;
+  m.variants[0].cache_bytes = 123456789;
   n1 = hfp_encode_stats(buf, sizeof buf, &m);
   memcpy(v1, buf, (size_t)n1);
   n2 = hfp_encode_stats_v(buf, sizeof buf, &m, 2);
@@ -789,18 +790,20 @@ static void test_version2(void **state) {
   assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
   assert_true(sd.variants[1].out_of_range == 0 && sd.variants[0].requests_ok == 5);
   assert_true(sd.variants[0].frames_sanitised == 0 && sd.variants[1].frames_sanitised == 0);
-  /* A newer peer's three counters: the first two are ours, the rest skipped. */
+  assert_true(sd.variants[0].cache_bytes == 0 && sd.variants[1].cache_bytes == 0);
+  /* A newer peer's four counters: the first three are ours, the rest skipped. */
   memcpy(c, v1, (size_t)n1);
   size_t off = (size_t)n1;
-  hfp_put_u16(c + off, 3), off += 2;
+  hfp_put_u16(c + off, 4), off += 2;
   for (int i = 0; i < 2; i++)
-    for (int k = 0; k < 3; k++, off += 8) {
+    for (int k = 0; k < 4; k++, off += 8) {
       hfp_put_u32(c + off, (uint32_t)(10 * i + k + 1));
       hfp_put_u32(c + off + 4, 0);
     }
   assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, off - HFP_HEADER_SIZE, &sd), 0);
   assert_true(sd.variants[0].out_of_range == 1 && sd.variants[1].out_of_range == 11);
   assert_true(sd.variants[0].frames_sanitised == 2 && sd.variants[1].frames_sanitised == 12);
+  assert_true(sd.variants[0].cache_bytes == 3 && sd.variants[1].cache_bytes == 13);
   hfp_put_u16(c + n1, 0);                   /* no counters: not a valid block */
   assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, (size_t)n1 + 2 - HFP_HEADER_SIZE, &sd),
                    -HFP_E_INVALID);

@@ -5,7 +5,8 @@
  * one that does not fit now is BUSY; memory is charged as a frame arrives,
  * so frames only announced cannot crowd out a small one; and inference
  * memory is inside --max-memory-mb and given back after an oversized frame
- * (the daemon's peak and resident memory, from /proc). */
+ * (the daemon's peak and resident memory, from /proc), and so is all its
+ * working memory under a mixed load of every variant and many sizes. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -297,6 +298,134 @@ static void test_inference_memory_in_budget(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* The per-variant cache_bytes of a version-2 STATS_REPLY from the daemon
+ * at url, summed; -1 on any error. */
+static long long stats_cache_bytes(const char *url, int *variants) {
+  int fd = raw_connect(url);
+  if (fd < 0 || raw_hello_versions(fd, NULL, 1, 2)) return -1;
+  uint8_t b[HFP_HEADER_SIZE];
+  hfp_header st = {HFP_STATS, 0, 0, 0};
+  hfp_header_encode(&st, b);
+  hfp_header h;
+  uint8_t *p = NULL;
+  long long sum = -1;
+  static hfp_stats m;
+  if (!raw_send(fd, b, sizeof b) && !raw_read(fd, &h, &p) && h.type == HFP_STATS_REPLY &&
+      !hfp_decode_stats(p, h.length, &m)) {
+    sum = 0;
+    for (int i = 0; i < m.num_variants; i++) {
+      printf("  STATS %s: cache_bytes %.1f MiB, %llu served\n", m.variants[i].name,
+             m.variants[i].cache_bytes / 1048576.0, (unsigned long long)m.variants[i].requests_ok);
+      sum += (long long)m.variants[i].cache_bytes;
+    }
+    *variants = m.num_variants;
+  }
+  free(p);
+  close(fd);
+  return sum;
+}
+
+/* Item: the daemon's working memory as a whole (request and result
+ * buffers, inference, the backend's plans and the receive buffers kept for
+ * reuse) stays inside --max-memory-mb under a mixed load: every variant,
+ * seven sizes from 40x24 to the largest the budget admits, float32 and
+ * float16, four frames in flight, three rounds so that plans and buffers
+ * are kept, reused and evicted. The peak resident memory grows by no more than the limit over
+ * where it was once the models were loaded; what the variants keep between
+ * runs, as STATS reports it, is within the quarter of the limit set aside
+ * for it. */
+static void test_mixed_load_within_budget(void **state) {
+  (void)state;
+  server d;
+#ifdef HF_HAVE_ONEDNN
+  const char *backend = "cpu";
+#else
+  const char *backend = "cpu-ref";
+#endif
+  enum { LIMIT_MB = 64, INFLIGHT = 4 };
+  char limit[16];
+  snprintf(limit, sizeof limit, "%d", LIMIT_MB);
+  const char *args[] = {"--max-memory-mb", limit, "--max-size", "1024x1024", "--backend",
+                        backend, "--max-batch", "4", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = test_options("mixed", NULL, 60000);
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  int rss_ok = !UNDER_ASAN && proc_reset_peak(d.pid) == 0;
+  long rss0 = proc_status_kb(d.pid, "VmRSS");
+  /* Up to the largest frame the daemon admits in this budget (it lowers
+   * --max-size to that and announces it), and odd shapes below it. */
+  const int W = hfc_info(c)->max_width, HH = hfc_info(c)->max_height;
+  const int sizes[][2] = {{40, 24},        {W / 4, HH / 4}, {W / 2, HH / 2},     {W, HH},
+                          {W * 2 / 3, HH / 3}, {W / 5, HH}, {W / 3 + 7, HH / 2 + 3}};
+  const int nsizes = (int)(sizeof sizes / sizeof sizes[0]);
+  int busy = 0, sent = 0, pending = 0;
+  /* The frames in flight: their id and buffers (completions may come in
+   * another order than the frames went, batches taking later frames). */
+  struct {
+    uint32_t id;
+    void *in, *out;
+  } fl[INFLIGHT];
+  memset(fl, 0, sizeof fl);
+  for (int round = 0; round <= 3; round++)
+    for (int si = 0; si < nsizes; si++)
+      for (int vi = 0; vi < H.nv; vi++) {
+        const int last = round == 3;
+        if (pending == INFLIGHT || (last && pending)) {
+          hfc_completion done;
+          assert_int_equal(hfc_wait(c, 60000, &done), 0);
+          pending--;
+          if (done.status == HFC_E_BUSY) busy++;
+          else if (done.status) fail_msg("frame %u: %s", done.id, hfc_strerror(done.status));
+          for (int k = 0; k < INFLIGHT; k++)
+            if (fl[k].in && fl[k].id == done.id) {
+              free(fl[k].in), free(fl[k].out);
+              fl[k].in = fl[k].out = NULL;
+            }
+        }
+        if (last) continue; /* the fourth pass only collects */
+        int slot = 0;
+        while (fl[slot].in) slot++;
+        const int w = sizes[si][0], h = sizes[si][1], spp = H.v[vi].cfg.spp;
+        const int f16 = (round + si + vi) & 1;
+        float *feat = make_features(w, h, spp, (uint32_t)sent);
+        size_t nin = (size_t)w * h * spp * HF_FEATURES_PER_SAMPLE;
+        if (f16) {
+          fl[slot].in = malloc(nin * sizeof(uint16_t));
+          hf_f32_to_f16_array(feat, fl[slot].in, nin);
+          free(feat);
+        } else {
+          fl[slot].in = feat;
+        }
+        fl[slot].out = malloc((size_t)w * h * 3 * sizeof(float));
+        hfc_request r = TEST_REQUEST(.variant = H.v[vi].cfg.name, .width = w, .height = h,
+                                     .spp = spp, .in_dtype = f16 ? HFC_F16 : HFC_F32,
+                                     .features = fl[slot].in, .out_dtype = f16 ? HFC_F16 : HFC_F32,
+                                     .result = fl[slot].out);
+        assert_int_equal(hfc_submit(c, &r, &fl[slot].id), 0);
+        sent++, pending++;
+      }
+  assert_int_equal(pending, 0);
+  long hwm = proc_status_kb(d.pid, "VmHWM");
+  int nvar = 0;
+  long long cached = stats_cache_bytes(d.unix_url, &nvar);
+  printf("%s, %d frames of %d variants x %d sizes up to %dx%d, f32 and f16, %d in flight, "
+         "--max-memory-mb %d: %d BUSY; RSS %.1f MiB with the models loaded, peak +%.1f MiB; "
+         "kept between runs %.1f MiB\n", backend, sent, H.nv, nsizes, W, HH, INFLIGHT, LIMIT_MB, busy, rss0 / 1024.0,
+         (hwm - rss0) / 1024.0, cached / 1048576.0);
+  assert_int_equal(nvar, H.nv);
+  assert_true(cached >= 0 && cached <= (long long)LIMIT_MB * 1048576 / 4);
+  assert_true(busy < sent / 2);
+  if (rss_ok)
+    assert_true(hwm - rss0 <= LIMIT_MB * 1024);
+  else
+    printf("peak RSS not checked: %s\n",
+           UNDER_ASAN ? "AddressSanitizer keeps freed memory" : "cannot reset it");
+  hfc_close(c);
+  assert_true(server_alive(&d));
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 /* Batching still happens under the memory bound: frames whose gathered
  * inputs are megabytes are run together when they were charged enough for
  * it, which each frame is (its slot in a batch is part of its charge). */
@@ -323,6 +452,7 @@ int main(void) {
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
     cmocka_unit_test(test_inference_memory_in_budget),
+    cmocka_unit_test(test_mixed_load_within_budget),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -1,0 +1,361 @@
+/*
+ * Transport of frames through hairfilterd against the socket floor, and
+ * float16 against float32 end to end, side by side in one run
+ * (docs/PERFORMANCE.md, "Transport and float16").
+ *
+ *   hf-transport-bench UNIX_URL TCP_URL VARIANT SIZE[,SIZE...] ITERS
+ *
+ * For each size, over the Unix socket, loopback TCP and shared memory (on
+ * the Unix socket), ITERS frames in float32 and ITERS in float16 one at a
+ * time, alternating, after one warm-up frame of each:
+ *   end to end  what a caller holding float32 features waits for: the
+ *               conversion to float16 (f16 rows), hfc_filter, the result
+ *               widened back to float32 (f16 rows);
+ *   transport   the client's total less the server's (from the frame's
+ *               last byte in to its result out): the bytes on the wire
+ *               and the client library's own work;
+ *   server      the server's total, and its input, network and output
+ *               stages.
+ * First the conversions alone, the features of each size both ways: the
+ * scalar reference, the vector code on one thread, the array functions.
+ * Then, after the daemon's rows of a size, the socket floor of the same
+ * bytes: a FILTER's worth of float32 features written into one end of a
+ * Unix socket pair and read by another thread into memory it has used
+ * before, and the result's bytes back the same way (no protocol, no
+ * daemon): what any socket transport of the frame costs on this machine.
+ *
+ * Medians over the ITERS frames, and their f16 / f32 ratios. Prints the
+ * tables with the command, the CPU model (lscpu's "Model name", from
+ * /proc/cpuinfo) and the date.
+ */
+#define _GNU_SOURCE
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <hairfilter/hairfilter.h>
+
+#include "hfcore.h"
+
+static double now_us(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return ts.tv_sec * 1e6 + ts.tv_nsec / 1e3;
+}
+
+static int cmp_d(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return x < y ? -1 : x > y;
+}
+
+static double median(double *v, int n) {
+  qsort(v, (size_t)n, sizeof *v, cmp_d);
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/* ---- the socket floor --------------------------------------------------- */
+
+typedef struct floor_run {
+  int fd;
+  uint8_t *buf;
+  size_t in_bytes, out_bytes;
+  int iters;
+} floor_run;
+
+static int read_all(int fd, uint8_t *p, size_t n) {
+  while (n) {
+    ssize_t r = read(fd, p, n);
+    if (r <= 0) return -1;
+    p += r, n -= (size_t)r;
+  }
+  return 0;
+}
+
+static int write_all(int fd, const uint8_t *p, size_t n) {
+  while (n) {
+    ssize_t r = write(fd, p, n);
+    if (r <= 0) return -1;
+    p += r, n -= (size_t)r;
+  }
+  return 0;
+}
+
+/* The far end: reads a request into its warm buffer, writes the reply. */
+static void *floor_peer(void *arg) {
+  floor_run *f = arg;
+  for (int i = 0; i <= f->iters; i++)
+    if (read_all(f->fd, f->buf, f->in_bytes) || write_all(f->fd, f->buf, f->out_bytes)) break;
+  return NULL;
+}
+
+/* Median microseconds of in_bytes one way and out_bytes back through a
+ * Unix socket pair, each read into memory already touched; -1 on error. */
+static double socket_floor(size_t in_bytes, size_t out_bytes, int iters) {
+  int sv[2];
+  if (socketpair(AF_UNIX, SOCK_STREAM, 0, sv)) return -1;
+  uint8_t *src = malloc(in_bytes), *peer = malloc(in_bytes > out_bytes ? in_bytes : out_bytes),
+          *back = malloc(out_bytes);
+  double *t = calloc((size_t)iters, sizeof *t), r = -1;
+  if (!src || !peer || !back || !t) goto out;
+  memset(src, 1, in_bytes);
+  memset(peer, 2, in_bytes > out_bytes ? in_bytes : out_bytes);
+  memset(back, 3, out_bytes);
+  floor_run f = {sv[1], peer, in_bytes, out_bytes, iters};
+  pthread_t th;
+  if (pthread_create(&th, NULL, floor_peer, &f)) goto out;
+  int ok = 1;
+  for (int i = 0; i <= iters && ok; i++) { /* the first is the warm-up */
+    double t0 = now_us();
+    ok = !write_all(sv[0], src, in_bytes) && !read_all(sv[0], back, out_bytes);
+    if (i) t[i - 1] = now_us() - t0;
+  }
+  shutdown(sv[0], SHUT_RDWR);
+  pthread_join(th, NULL);
+  if (ok) r = median(t, iters);
+out:
+  close(sv[0]);
+  close(sv[1]);
+  free(src), free(peer), free(back), free(t);
+  return r;
+}
+
+/* ---- through the daemon ------------------------------------------------- */
+
+typedef struct result {
+  double e2e, conv, transport, server, input, infer, output;
+} result;
+
+/* ITERS frames of w x h through c in float32 and as many in float16,
+ * alternating (so both meet the same machine: the cores here are shared);
+ * shm: the tensors in segments. res[0] float32, res[1] float16. */
+static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h, int shm,
+                      int iters, const float *feat32, result res[2]) {
+  size_t nin = (size_t)w * h * spp * 6, nout = (size_t)w * h * 3;
+  void *seg[2] = {NULL, NULL}, *in[2] = {NULL, NULL}, *out[2] = {NULL, NULL};
+  size_t in_b[2], out_b[2];
+  float *res32 = malloc(nout * sizeof(float));
+  double *t[2][7];
+  int rc = -1;
+  for (int d = 0; d < 2; d++)
+    for (int k = 0; k < 7; k++) t[d][k] = calloc((size_t)iters, sizeof(double));
+  for (int d = 0; d < 2; d++)
+    for (int k = 0; k < 7; k++)
+      if (!t[d][k]) goto out;
+  if (!res32) goto out;
+  for (int d = 0; d < 2; d++) {
+    size_t es = d ? 2 : 4;
+    in_b[d] = nin * es, out_b[d] = nout * es;
+    if (shm) {
+      if ((rc = hfc_shm_alloc(c, in_b[d] + out_b[d], &seg[d])) != 0) {
+        fprintf(stderr, "hfc_shm_alloc: %s (%s)\n", hfc_strerror(rc), hfc_last_message(c));
+        goto out;
+      }
+      in[d] = seg[d], out[d] = (uint8_t *)seg[d] + in_b[d];
+    } else {
+      in[d] = malloc(in_b[d]), out[d] = malloc(out_b[d]);
+      if (!in[d] || !out[d]) goto out;
+    }
+  }
+  /* float32 frames are where the caller has them (in the segment, for
+   * shared memory: an engine renders into it); float16 ones are
+   * converted from the caller's float32 each time, inside the timing. */
+  memcpy(in[0], feat32, in_b[0]);
+  for (int i = 0; i <= iters; i++) /* the first of each is the warm-up */
+    for (int d = 0; d < 2; d++) {
+      hfc_request r;
+      hfc_request_init(&r);
+      r.variant = variant, r.width = w, r.height = h, r.spp = spp;
+      r.in_dtype = r.out_dtype = d ? HFC_F16 : HFC_F32;
+      r.features = in[d], r.features_bytes = in_b[d];
+      r.result = out[d], r.result_bytes = out_b[d];
+      hfc_timing tm;
+      double t0 = now_us();
+      if (d) hf_f32_to_f16_array(feat32, in[d], nin);
+      double t1 = now_us();
+      if ((rc = hfc_filter(c, &r, &tm)) != 0) {
+        fprintf(stderr, "hfc_filter %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
+                hfc_last_message(c));
+        goto out;
+      }
+      double t2 = now_us();
+      if (d) hf_f16_to_f32_array(out[d], res32, nout);
+      double t3 = now_us();
+      if (!i) continue;
+      t[d][0][i - 1] = t3 - t0;
+      t[d][1][i - 1] = (t1 - t0) + (t3 - t2);
+      t[d][2][i - 1] = tm.total_us - tm.server_us;
+      t[d][3][i - 1] = tm.server_us;
+      t[d][4][i - 1] = tm.input_us;
+      t[d][5][i - 1] = tm.infer_us;
+      t[d][6][i - 1] = tm.output_us;
+    }
+  for (int d = 0; d < 2; d++) {
+    result *q = &res[d];
+    q->e2e = median(t[d][0], iters), q->conv = median(t[d][1], iters);
+    q->transport = median(t[d][2], iters), q->server = median(t[d][3], iters);
+    q->input = median(t[d][4], iters), q->infer = median(t[d][5], iters);
+    q->output = median(t[d][6], iters);
+  }
+  rc = 0;
+out:
+  for (int d = 0; d < 2; d++) {
+    if (seg[d]) hfc_shm_free(c, seg[d]);
+    else free(in[d]), free(out[d]);
+    for (int k = 0; k < 7; k++) free(t[d][k]);
+  }
+  free(res32);
+  return rc;
+}
+
+/* ---- the conversions alone --------------------------------------------- */
+
+/* Median ms of converting n values each way with the scalar reference
+ * loop, the vector code on one thread, and the array functions (vector,
+ * split between threads). */
+static void conversion_table(const float *f32, size_t n, const char *what, int iters) {
+  uint16_t *h = malloc(n * sizeof *h);
+  float *back = malloc(n * sizeof *back), *t = calloc((size_t)iters, sizeof *t);
+  double *d = calloc((size_t)iters, sizeof *d);
+  if (!h || !back || !t || !d) goto out;
+  hf_f32_to_f16_array(f32, h, n);
+  hf_f16_to_f32_array(h, back, n); /* every page touched before timing */
+  static const char *impl[3] = {"scalar reference, 1 thread", "vector, 1 thread",
+                                "vector, threads (hf_*_array)"};
+  for (int m = 0; m < 3; m++) {
+    int had = hf_half_use_simd(m > 0);
+    double med[2];
+    for (int dir = 0; dir < 2; dir++) {
+      for (int i = 0; i < iters; i++) {
+        double t0 = now_us();
+        if (m == 2 && dir == 0) hf_f32_to_f16_array(f32, h, n);
+        else if (m == 2) hf_f16_to_f32_array(h, back, n);
+        else if (dir == 0) hf_f32_to_f16_serial(f32, h, n);
+        else hf_f16_to_f32_serial(h, back, n);
+        d[i] = now_us() - t0;
+      }
+      med[dir] = median(d, iters);
+    }
+    hf_half_use_simd(had);
+    printf("| %s | %s | %.2f | %.2f |\n", what, impl[m], med[0] / 1e3, med[1] / 1e3);
+  }
+out:
+  free(h), free(back), free(t), free(d);
+}
+
+static void cpu_model(char *buf, size_t len) {
+  snprintf(buf, len, "unknown CPU");
+  FILE *f = fopen("/proc/cpuinfo", "r");
+  char line[512];
+  while (f && fgets(line, sizeof line, f))
+    if (!strncmp(line, "model name", 10) && strchr(line, ':')) {
+      snprintf(buf, len, "%s", strchr(line, ':') + 2);
+      buf[strcspn(buf, "\n")] = 0;
+      break;
+    }
+  if (f) fclose(f);
+}
+
+int main(int argc, char **argv) {
+  if (argc != 6) {
+    fprintf(stderr, "usage: %s UNIX_URL TCP_URL VARIANT SIZE[,SIZE...] ITERS\n", argv[0]);
+    return 2;
+  }
+  const char *urls[2] = {argv[1], argv[2]}, *variant = argv[3];
+  int iters = atoi(argv[5]);
+  if (iters < 1) {
+    fprintf(stderr, "ITERS must be at least 1\n");
+    return 2;
+  }
+  char model[256], date[64];
+  cpu_model(model, sizeof model);
+  time_t now = time(NULL);
+  strftime(date, sizeof date, "%Y-%m-%d %H:%M UTC", gmtime(&now));
+  printf("$");
+  for (int i = 0; i < argc; i++) printf(" %s", argv[i]);
+  printf("\n%s, %ld cores, %s; half conversion: %s\n\n", model, sysconf(_SC_NPROCESSORS_ONLN), date,
+         hf_half_impl());
+  hfc_client *c[2] = {NULL, NULL};
+  hfc_options o;
+  hfc_options_init(&o);
+  o.timeout_ms = 120000;
+  for (int k = 0; k < 2; k++) {
+    int rc = hfc_connect(urls[k], &o, &c[k]);
+    if (rc) {
+      fprintf(stderr, "connect %s: %s (%s)\n", urls[k], hfc_strerror(rc), hfc_last_message(c[k]));
+      return 1;
+    }
+  }
+  hfc_variant vs[64];
+  int nv = 0, spp = 0;
+  if (hfc_list_variants(c[0], vs, 64, &nv)) return 1;
+  for (int i = 0; i < nv && i < 64; i++)
+    if (!strcmp(vs[i].name, variant)) spp = vs[i].spp;
+  if (!spp) {
+    fprintf(stderr, "the daemon has no variant %s\n", variant);
+    return 1;
+  }
+  printf("| frame | conversion | f32 -> f16 ms | f16 -> f32 ms |\n|---|---|---:|---:|\n");
+  {
+    char *list = strdup(argv[4]), *sv = NULL;
+    for (char *s = strtok_r(list, ",", &sv); s; s = strtok_r(NULL, ",", &sv)) {
+      int w, h;
+      if (sscanf(s, "%dx%d", &w, &h) != 2 || w < 1 || h < 1) continue;
+      size_t n = (size_t)w * h * spp * 6;
+      float *f = malloc(n * sizeof *f);
+      if (!f) return 1;
+      for (size_t i = 0; i < n; i++) f[i] = (float)(i % 4093) / 4093.0f;
+      char what[96];
+      snprintf(what, sizeof what, "%dx%d features (%zu values)", w, h, n);
+      conversion_table(f, n, what, iters);
+      free(f);
+    }
+    free(list);
+  }
+  printf("\n");
+  printf("| size | path | dtype | end to end ms | client conversion ms | transport ms | "
+         "server ms | server input / infer / output ms |\n"
+         "|---|---|---|---:|---:|---:|---:|---:|\n");
+  char *sizes = strdup(argv[4]), *save = NULL;
+  for (char *s = strtok_r(sizes, ",", &save); s; s = strtok_r(NULL, ",", &save)) {
+    int w, h;
+    if (sscanf(s, "%dx%d", &w, &h) != 2 || w < 1 || h < 1) {
+      fprintf(stderr, "bad size %s\n", s);
+      return 2;
+    }
+    size_t nin = (size_t)w * h * spp * 6;
+    float *feat = malloc(nin * sizeof *feat);
+    if (!feat) return 1;
+    uint32_t r = 7;
+    for (size_t i = 0; i < nin; i++) {
+      r ^= r << 13, r ^= r >> 17, r ^= r << 5;
+      feat[i] = (float)(r >> 8) / 16777216.0f; /* in [0, 1): inside every feature's range */
+    }
+    static const char *path[3] = {"unix", "tcp", "shm"};
+    for (int p = 0; p < 3; p++) {
+      result res[2];
+      memset(res, 0, sizeof res);
+      if (run_frames(c[p == 1], variant, spp, w, h, p == 2, iters, feat, res)) return 1;
+      for (int d = 0; d < 2; d++)
+        printf("| %dx%d | %s | %s | %.2f | %.2f | %.2f | %.2f | %.2f / %.2f / %.2f |\n", w, h,
+               path[p], d ? "f16" : "f32", res[d].e2e / 1e3, res[d].conv / 1e3,
+               res[d].transport / 1e3, res[d].server / 1e3, res[d].input / 1e3,
+               res[d].infer / 1e3, res[d].output / 1e3);
+      printf("| %dx%d | %s | f16 / f32 | %.2fx | | %.2fx | %.2fx | |\n", w, h, path[p],
+             res[1].e2e / res[0].e2e, res[1].transport / res[0].transport,
+             res[1].server / res[0].server);
+      fflush(stdout);
+    }
+    double fl = socket_floor(nin * 4 + 64, (size_t)w * h * 3 * 4, iters);
+    printf("| %dx%d | socket floor (socket pair, warm buffers) | f32 | - | - | %.2f | - | - |\n", w,
+           h, fl / 1e3);
+    free(feat);
+  }
+  free(sizes);
+  hfc_close(c[0]);
+  hfc_close(c[1]);
+  return 0;
+}
