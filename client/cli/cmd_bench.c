@@ -15,7 +15,12 @@
  * frame), beside a memcpy of the same frame: the cheapest pass over it;
  * --input-check the same for the out-of-contract check hf_model_run makes
  * on every frame (hf_features_check); --exr what hf_exr_write costs with
- * its read-back comparison, beside hf_exr_read. */
+ * its read-back comparison, beside hf_exr_read.
+ *
+ * Before the table it prints the CPU (model, vector flags) and the fp32
+ * peak it measures before and after the runs (bench_peak.h); CPU rows say
+ * how many GFLOP/s a frame's multiply-adds (hf_net_macs at the padded size)
+ * came to, and what fraction of that peak. */
 #include <errno.h>
 #include <getopt.h>
 #include <stdint.h>
@@ -27,6 +32,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_peak.h"
 #include "cli_common.h"
 #include "commands.h"
 
@@ -83,7 +89,10 @@ static void usage(FILE *f) {
           "beside a memcpy of the frame; --input-check the same for the out-of-contract\n"
           "check of hf_model_run; --exr EXR writing (with its read-back check) beside\n"
           "reading, at each size. Defaults: every backend in this build, Base, the\n"
-          "three sizes, batch 1, 20 iterations, 3 warm-up.\n",
+          "three sizes, batch 1, 20 iterations, 3 warm-up.\n"
+          "Before the table: the CPU's model and vector flags, and its fp32 peak measured\n"
+          "before and after the runs (an FMA loop on one thread, per second of its CPU time,\n"
+          "times the threads); each CPU row gives its GFLOP/s (hf_net_macs) and %% of that.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
@@ -226,6 +235,9 @@ bad_list:
           BENCH_MAX_LIST);
   return 2;
 }
+
+/* n rounded up to a multiple of a (a power of two), as the backends pad. */
+static int round_up(int n, int a) { return (n + a - 1) & ~(a - 1); }
 
 static int cmp_double(const void *a, const void *b) {
   double x = *(const double *)a, y = *(const double *)b;
@@ -635,18 +647,75 @@ out:
   return rc;
 }
 
-static void print_table(void) {
+/* The machine: the CPU and its fp32 peak, measured before and after the
+ * runs (the larger one-thread rate is the peak: other work on the machine
+ * only ever slows a run down). */
+typedef struct bench_machine {
+  bench_cpu cpu;
+  bench_peak before, after;
+  int measured;                 /* peaks: 0 none, 1 before, 2 both */
+  double peak_gflops;
+} bench_machine;
+
+static void measure_peak(bench_machine *mc, bench_peak *p) {
+  if (bench_peak_measure(bench_cpu_threads(), p)) {
+    fprintf(stderr, "hairfilter bench: measuring the fp32 peak: %s\n", strerror(errno));
+    return;
+  }
+  mc->measured++;
+  if (p->peak_gflops > mc->peak_gflops) mc->peak_gflops = p->peak_gflops;
+}
+
+static void print_machine(const bench_machine *mc) {
+  const bench_cpu *c = &mc->cpu;
+  printf("CPU: %s (family %d, model %d), %d online CPUs; vector flags: %s\n", c->model, c->family,
+         c->model_id, c->online, c->flags[0] ? c->flags : "none of those looked for");
+  if (!mc->measured) {
+    printf("fp32 peak: not measured\n\n");
+    return;
+  }
+  const bench_peak *b = &mc->before, *a = mc->measured > 1 ? &mc->after : &mc->before;
+  const bench_peak *best = a->peak_gflops > b->peak_gflops ? a : b;
+  printf("fp32 peak: %.1f GFLOP/s = %.1f GFLOP/s of one core x %d threads. Method: %s %s loop, "
+         "%d lanes x %d independent accumulators, on one thread alone, per second of its CPU "
+         "time, best of %d runs of %.1f ms, before the runs (%.1f) and after (%.1f); all %d "
+         "threads at once, per second of wall time, gave %.1f before and %.1f after (what the "
+         "machine's other load left)\n\n",
+         mc->peak_gflops, best->core_gflops, best->threads, best->isa,
+         best->fma ? "fused multiply-add" : "multiply and add", best->lanes, BENCH_PEAK_CHAINS,
+         best->runs, best->run_ms, b->core_gflops, a->core_gflops, best->threads,
+         b->all_gflops, a->all_gflops);
+}
+
+/* Whether a row ran on this machine's CPU (its GFLOP/s compare with the
+ * CPU's peak). */
+static int cpu_row(const bench_row *r) {
+  return strncmp(r->backend, "cudnn", 5) && !strstr(r->backend, "cuda");
+}
+
+static void print_table(const bench_machine *mc) {
+  print_machine(mc);
   printf("| backend | variant | size | batch | precision | median ms/frame | p90 ms/frame "
-         "| in / net / out ms | frames/s | device MiB | iters |\n");
-  printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|\n");
+         "| in / net / out ms | frames/s | device MiB | iters | GFLOP/s | %% of fp32 peak |\n");
+  printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
   for (int i = 0; i < nrows; i++) {
     bench_row *r = &rows[i];
-    char parts[64] = "-";
+    char parts[64] = "-", rate[32] = "-", share[32] = "-";
     if (r->net_ms >= 0)
       snprintf(parts, sizeof parts, "%.2f / %.2f / %.2f", r->in_ms, r->net_ms, r->out_ms);
-    printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d |\n", r->backend,
-           r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms, parts,
-           r->med_ms > 0 ? 1e3 / r->med_ms : 0, r->dev_bytes / (1024.0 * 1024.0), r->iters);
+    hf_net_config cfg;
+    if (r->med_ms > 0 && hf_variant_preset(r->variant, &cfg) == 0) {
+      int a = hf_net_align(&cfg);
+      double g = 2 * hf_net_macs(&cfg, round_up(r->w, a), round_up(r->h, a)) /
+                 (r->med_ms * 1e-3) / 1e9;
+      snprintf(rate, sizeof rate, "%.1f", g);
+      if (cpu_row(r) && mc->peak_gflops > 0)
+        snprintf(share, sizeof share, "%.1f", 100 * g / mc->peak_gflops);
+    }
+    printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d | %s | %s |\n",
+           r->backend, r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms,
+           parts, r->med_ms > 0 ? 1e3 / r->med_ms : 0, r->dev_bytes / (1024.0 * 1024.0),
+           r->iters, rate, share);
   }
   /* The comparison the cpu backend is judged by. */
   int first = 1;
@@ -670,6 +739,10 @@ int cmd_bench(int argc, char **argv) {
   int rc = parse_opts(argc, argv, &o);
   if (rc) return rc == 1 ? 0 : 2;
   int failed = 0;
+  bench_machine mc;
+  memset(&mc, 0, sizeof mc);
+  bench_cpu_describe(&mc.cpu);
+  measure_peak(&mc, &mc.before);
   for (int b = 0; b < o.nbackends; b++) {
     hf_backend *be;
     char why[512];
@@ -711,7 +784,8 @@ int cmd_bench(int argc, char **argv) {
     hf_backend_destroy(be);
   }
   if (o.torch && run_torch(&o)) failed = 1;
-  print_table();
+  if (mc.measured) measure_peak(&mc, &mc.after);
+  print_table(&mc);
   if (o.input_stats && bench_frame_pass(&o, &PASS_STATS)) failed = 1;
   if (o.input_check && bench_frame_pass(&o, &PASS_CHECK)) failed = 1;
   if (o.exr && bench_exr(&o)) failed = 1;
