@@ -20,7 +20,10 @@
  * Before the table it prints the CPU (model, vector flags) and the fp32
  * peak it measures before and after the runs (bench_peak.h); CPU rows say
  * how many GFLOP/s a frame's multiply-adds (hf_net_macs at the padded size)
- * came to, and what fraction of that peak. */
+ * came to, and what fraction of that peak; and the process's CPU time per
+ * frame (every thread's, hf_model_run's alone: the median over iterations),
+ * with the flops per CPU second as a fraction of one core's peak: what the
+ * code does with the cores it gets, whatever other work on the machine took. */
 #include <errno.h>
 #include <getopt.h>
 #include <stdint.h>
@@ -46,6 +49,7 @@ typedef struct bench_row {
   int w, h, batch, iters;
   double med_ms, p90_ms;         /* per frame, wall time of hf_model_run */
   double in_ms, net_ms, out_ms;  /* per frame, medians of hf_timing; < 0 unknown */
+  double cpu_ms;                 /* per frame, median of the process's CPU time; < 0 unknown */
   double dev_bytes;
 } bench_row;
 
@@ -92,7 +96,8 @@ static void usage(FILE *f) {
           "three sizes, batch 1, 20 iterations, 3 warm-up.\n"
           "Before the table: the CPU's model and vector flags, and its fp32 peak measured\n"
           "before and after the runs (an FMA loop on one thread, per second of its CPU time,\n"
-          "times the threads); each CPU row gives its GFLOP/s (hf_net_macs) and %% of that.\n",
+          "times the threads); each CPU row gives its GFLOP/s (hf_net_macs) and %% of that,\n"
+          "its CPU ms per frame (all threads) and its flops per CPU second as %% of one core's.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
@@ -427,8 +432,10 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   float *tmp = malloc(nin * sizeof(float));
   double *wall = malloc(iters * sizeof(double)), *net = malloc(iters * sizeof(double));
   double *tin = malloc(iters * sizeof(double)), *tout = malloc(iters * sizeof(double));
+  double *cpu = malloc(iters * sizeof(double));
   int rc = HF_ENOMEM, pending = 0;
-  if (!in[0] || !in[1] || !out[0] || !out[1] || !tmp || !wall || !net || !tin || !tout) goto out;
+  if (!in[0] || !in[1] || !out[0] || !out[1] || !tmp || !wall || !net || !tin || !tout || !cpu)
+    goto out;
   fill_input(tmp, nin, seed);
   for (int b = 0; b < 2; b++) {
     if (dt == HF_F16) hf_f32_to_f16_array(tmp, in[b], nin);
@@ -439,8 +446,9 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   double last = now_ms();
   if (pipeline && (rc = hf_model_submit(m, &io[0])) != 0) goto fail;
   pending = pipeline;
+  double last_cpu = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
   for (int k = 0; k < warmup + iters; k++) {
-    const double t0 = now_ms();
+    const double t0 = now_ms(), c0 = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
     if (pipeline) {
       /* Submit the next batch before waiting for this one. */
       if (k + 1 < warmup + iters) {
@@ -452,14 +460,15 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
     } else if ((rc = hf_model_run(m, &io[0], &t)) != 0) {
       goto fail;
     }
-    const double t1 = now_ms();
+    const double t1 = now_ms(), c1 = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
     if (k >= warmup) {
       wall[k - warmup] = pipeline ? t1 - last : t1 - t0;
+      cpu[k - warmup] = pipeline ? c1 - last_cpu : c1 - c0;
       net[k - warmup] = t.infer_us * 1e-3;
       tin[k - warmup] = t.input_us * 1e-3;
       tout[k - warmup] = t.output_us * 1e-3;
     }
-    last = t1;
+    last = t1, last_cpu = c1;
   }
   bench_row *r = new_row();
   if (!r) {
@@ -476,6 +485,7 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   r->net_ms = median(net, iters) / batch;
   r->in_ms = median(tin, iters) / batch;
   r->out_ms = median(tout, iters) / batch;
+  r->cpu_ms = median(cpu, iters) / batch;
   r->dev_bytes = (double)hf_model_device_bytes(m);
   fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", backend, c->name, w, h,
           batch, r->med_ms);
@@ -495,6 +505,7 @@ out:
   free(net);
   free(tin);
   free(tout);
+  free(cpu);
   return rc;
 }
 
@@ -617,7 +628,7 @@ static int run_torch(const bench_opts *o) {
                r.variant, &r.w, &r.h, &r.batch, r.precision, &r.med_ms, &r.p90_ms, &dev,
                &r.iters) != 10)
       continue;
-    r.in_ms = r.net_ms = r.out_ms = -1;
+    r.in_ms = r.net_ms = r.out_ms = r.cpu_ms = -1;
     r.dev_bytes = dev;
     bench_row *slot = new_row();
     if (!slot) break;
@@ -654,6 +665,7 @@ typedef struct bench_machine {
   bench_cpu cpu;
   bench_peak before, after;
   int measured;                 /* peaks: 0 none, 1 before, 2 both */
+  int threads;                  /* the peak's */
   double peak_gflops;
 } bench_machine;
 
@@ -663,7 +675,7 @@ static void measure_peak(bench_machine *mc, bench_peak *p) {
     return;
   }
   mc->measured++;
-  if (p->peak_gflops > mc->peak_gflops) mc->peak_gflops = p->peak_gflops;
+  if (p->peak_gflops > mc->peak_gflops) mc->peak_gflops = p->peak_gflops, mc->threads = p->threads;
 }
 
 static void print_machine(const bench_machine *mc) {
@@ -696,11 +708,12 @@ static int cpu_row(const bench_row *r) {
 static void print_table(const bench_machine *mc) {
   print_machine(mc);
   printf("| backend | variant | size | batch | precision | median ms/frame | p90 ms/frame "
-         "| in / net / out ms | frames/s | device MiB | iters | GFLOP/s | %% of fp32 peak |\n");
-  printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+         "| in / net / out ms | frames/s | device MiB | iters | GFLOP/s | %% of fp32 peak "
+         "| CPU ms/frame | %% of one core's peak per CPU second |\n");
+  printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
   for (int i = 0; i < nrows; i++) {
     bench_row *r = &rows[i];
-    char parts[64] = "-", rate[32] = "-", share[32] = "-";
+    char parts[64] = "-", rate[32] = "-", share[32] = "-", cpu[32] = "-", per_cpu[32] = "-";
     if (r->net_ms >= 0)
       snprintf(parts, sizeof parts, "%.2f / %.2f / %.2f", r->in_ms, r->net_ms, r->out_ms);
     hf_net_config cfg;
@@ -711,11 +724,17 @@ static void print_table(const bench_machine *mc) {
       snprintf(rate, sizeof rate, "%.1f", g);
       if (cpu_row(r) && mc->peak_gflops > 0)
         snprintf(share, sizeof share, "%.1f", 100 * g / mc->peak_gflops);
+      if (cpu_row(r) && r->cpu_ms > 0) {
+        snprintf(cpu, sizeof cpu, "%.2f", r->cpu_ms);
+        if (mc->peak_gflops > 0)
+          snprintf(per_cpu, sizeof per_cpu, "%.1f",
+                   100 * g * r->med_ms / r->cpu_ms / (mc->peak_gflops / mc->threads));
+      }
     }
-    printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d | %s | %s |\n",
+    printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d | %s | %s | %s | %s |\n",
            r->backend, r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms,
            parts, r->med_ms > 0 ? 1e3 / r->med_ms : 0, r->dev_bytes / (1024.0 * 1024.0),
-           r->iters, rate, share);
+           r->iters, rate, share, cpu, per_cpu);
   }
   /* The comparison the cpu backend is judged by. */
   int first = 1;
