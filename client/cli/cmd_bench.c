@@ -624,11 +624,12 @@ static int run_torch(const bench_opts *o) {
       fprintf(stderr, "  %s", line + 5);
       continue;
     }
-    if (sscanf(line, "ROW\t%23s\t%63s\t%dx%d\t%d\t%7s\t%lf\t%lf\t%*f\t%lf\t%d", r.backend,
+    r.cpu_ms = -1; /* a last field: an older bench_torch.py has none */
+    if (sscanf(line, "ROW\t%23s\t%63s\t%dx%d\t%d\t%7s\t%lf\t%lf\t%*f\t%lf\t%d\t%lf", r.backend,
                r.variant, &r.w, &r.h, &r.batch, r.precision, &r.med_ms, &r.p90_ms, &dev,
-               &r.iters) != 10)
+               &r.iters, &r.cpu_ms) < 10)
       continue;
-    r.in_ms = r.net_ms = r.out_ms = r.cpu_ms = -1;
+    r.in_ms = r.net_ms = r.out_ms = -1;
     r.dev_bytes = dev;
     bench_row *slot = new_row();
     if (!slot) break;
@@ -745,8 +746,11 @@ static void print_table(const bench_machine *mc) {
       if (strncmp(t->backend, "torch-cpu", 9) || strcmp(t->variant, rows[i].variant) ||
           t->w != rows[i].w || t->h != rows[i].h || t->batch != rows[i].batch)
         continue;
-      printf("%s%s %dx%d batch %d: cpu is %.2fx as fast as %s\n", first ? "\n" : "",
+      printf("%s%s %dx%d batch %d: cpu is %.2fx as fast as %s", first ? "\n" : "",
              rows[i].variant, t->w, t->h, t->batch, t->med_ms / rows[i].med_ms, t->backend);
+      if (t->cpu_ms > 0 && rows[i].cpu_ms > 0)
+        printf(" and takes %.2fx less CPU time per frame", t->cpu_ms / rows[i].cpu_ms);
+      printf("\n");
       first = 0;
     }
   }
