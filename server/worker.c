@@ -281,10 +281,10 @@ static void progress(hfd_worker *w) { atomic_store(&w->progress_us, (uint64_t)hf
 
 /* Frames per backend run when --max-batch is not given. 1 on the CPU
  * backends: on the cpu backend a batch of frames took as long per frame as
- * the frames one by one, or longer (docs/PERFORMANCE.md, "Batching"), so
- * waiting for partners only added latency and memory. 4 on cudnn, as
- * before: not measured yet (no GPU where the CPU's was). At least the
- * largest --warm batch, which asks for batches of that size. */
+ * the frames one by one, or longer (docs/PERFORMANCE.md, "Batching on the
+ * CPU"), so waiting for partners only added latency and memory. 4 on
+ * cudnn, as before: not measured yet (no GPU where the CPU's was). At least
+ * the largest --warm batch, which asks for batches of that size. */
 static int default_max_batch(const hf_backend *b, const hfd_config *cfg) {
   int n = strcmp(hf_backend_name(b), "cudnn") ? 1 : 4;
   for (int k = 0; cfg && k < cfg->num_warm; k++)
