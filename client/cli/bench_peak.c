@@ -92,48 +92,36 @@ int bench_cpu_threads(void) {
 #define BP_REP(S) S(0) S(1) S(2) S(3) S(4) S(5) S(6) S(7) S(8) S(9) S(10) S(11)
 
 #ifdef BP_X86
-__attribute__((target("avx512f"))) static float bp_avx512(long iters) {
-  __m512 a[BENCH_PEAK_CHAINS], x = _mm512_set1_ps(BP_X), y = _mm512_set1_ps(BP_Y);
-  for (int k = 0; k < BENCH_PEAK_CHAINS; k++) a[k] = _mm512_set1_ps((float)k);
-  for (long i = 0; i < iters; i++) {
-#define BP_S(k) a[k] = _mm512_fmadd_ps(a[k], x, y);
-    BP_REP(BP_S)
-#undef BP_S
+/* One loop per vector width: NAME(iters) on vectors of type T (LANES
+ * floats), SET1 broadcasting, BP_STEP_OP(acc, x, y) (defined before each)
+ * one multiply-add, ADD and STORE to sum the accumulators. */
+#define BP_LOOP(NAME, TARGET, T, LANES, SET1, ADD, STORE)                     \
+  TARGET static float NAME(long iters) {                                     \
+    T a[BENCH_PEAK_CHAINS], x = SET1(BP_X), y = SET1(BP_Y);                  \
+    for (int k = 0; k < BENCH_PEAK_CHAINS; k++) a[k] = SET1((float)k);       \
+    for (long i = 0; i < iters; i++) {                                       \
+      BP_REP(BP_STEP)                                                        \
+    }                                                                        \
+    T s = a[0];                                                              \
+    for (int k = 1; k < BENCH_PEAK_CHAINS; k++) s = ADD(s, a[k]);            \
+    float v[LANES], sum = 0;                                                 \
+    STORE(v, s);                                                             \
+    for (int l = 0; l < LANES; l++) sum += v[l];                             \
+    return sum;                                                              \
   }
-  __m512 s = a[0];
-  for (int k = 1; k < BENCH_PEAK_CHAINS; k++) s = _mm512_add_ps(s, a[k]);
-  return _mm512_reduce_add_ps(s);
-}
+#define BP_STEP(k) a[k] = BP_STEP_OP(a[k], x, y);
 
-__attribute__((target("avx2,fma"))) static float bp_avx2(long iters) {
-  __m256 a[BENCH_PEAK_CHAINS], x = _mm256_set1_ps(BP_X), y = _mm256_set1_ps(BP_Y);
-  for (int k = 0; k < BENCH_PEAK_CHAINS; k++) a[k] = _mm256_set1_ps((float)k);
-  for (long i = 0; i < iters; i++) {
-#define BP_S(k) a[k] = _mm256_fmadd_ps(a[k], x, y);
-    BP_REP(BP_S)
-#undef BP_S
-  }
-  __m256 s = a[0];
-  for (int k = 1; k < BENCH_PEAK_CHAINS; k++) s = _mm256_add_ps(s, a[k]);
-  float v[8];
-  _mm256_storeu_ps(v, s);
-  return v[0] + v[1] + v[2] + v[3] + v[4] + v[5] + v[6] + v[7];
-}
-
-static float bp_sse2(long iters) {
-  __m128 a[BENCH_PEAK_CHAINS], x = _mm_set1_ps(BP_X), y = _mm_set1_ps(BP_Y);
-  for (int k = 0; k < BENCH_PEAK_CHAINS; k++) a[k] = _mm_set1_ps((float)k);
-  for (long i = 0; i < iters; i++) {
-#define BP_S(k) a[k] = _mm_add_ps(_mm_mul_ps(a[k], x), y);
-    BP_REP(BP_S)
-#undef BP_S
-  }
-  __m128 s = a[0];
-  for (int k = 1; k < BENCH_PEAK_CHAINS; k++) s = _mm_add_ps(s, a[k]);
-  float v[4];
-  _mm_storeu_ps(v, s);
-  return v[0] + v[1] + v[2] + v[3];
-}
+#define BP_STEP_OP(a, x, y) _mm512_fmadd_ps(a, x, y)
+BP_LOOP(bp_avx512, __attribute__((target("avx512f"))), __m512, 16, _mm512_set1_ps,
+        _mm512_add_ps, _mm512_storeu_ps)
+#undef BP_STEP_OP
+#define BP_STEP_OP(a, x, y) _mm256_fmadd_ps(a, x, y)
+BP_LOOP(bp_avx2, __attribute__((target("avx2,fma"))), __m256, 8, _mm256_set1_ps,
+        _mm256_add_ps, _mm256_storeu_ps)
+#undef BP_STEP_OP
+#define BP_STEP_OP(a, x, y) _mm_add_ps(_mm_mul_ps(a, x), y)
+BP_LOOP(bp_sse2, , __m128, 4, _mm_set1_ps, _mm_add_ps, _mm_storeu_ps)
+#undef BP_STEP_OP
 #else
 /* Elsewhere: plain C on 4-float groups, which the compiler vectorises for
  * the target's base vector unit. */
