@@ -14,7 +14,9 @@ On CUDA, fp16 channels_last with cudnn.benchmark, eager ("torch-cuda") and
 replayed as a CUDA graph ("torch-cuda-graph").
 
 Output line format (all on one line, tab-separated):
-  ROW mode variant WxH batch precision median_ms p90_ms fps device_bytes iters
+  ROW mode variant WxH batch precision median_ms p90_ms fps device_bytes iters cpu_ms
+cpu_ms: the median of the process's CPU time per forward pass (every
+thread's, time.process_time), divided by the batch.
 """
 import argparse
 import os
@@ -49,26 +51,34 @@ def feature_input(spp, batch, w, h, device, dtype, seed):
 
 
 def time_loop(fn, iters, warmup, sync):
+    """Sorted wall times of iters calls after warmup ones, and the median
+    of their process CPU times."""
     for _ in range(warmup):
         fn()
     sync()
-    times = []
+    times, cpu = [], []
     for _ in range(iters):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
         sync()
         times.append(time.perf_counter() - t0)
-    return sorted(times)
+        cpu.append(time.process_time() - c0)
+    return sorted(times), median(sorted(cpu))
 
 
-def emit(mode, variant, w, h, batch, precision, times, device_bytes, iters):
-    med = times[len(times) // 2] if len(times) % 2 else \
-        0.5 * (times[len(times) // 2 - 1] + times[len(times) // 2])
-    med_ms = 1e3 * med / batch
+def median(sorted_vals):
+    n = len(sorted_vals)
+    return sorted_vals[n // 2] if n % 2 else 0.5 * (sorted_vals[n // 2 - 1] + sorted_vals[n // 2])
+
+
+def emit(mode, variant, w, h, batch, precision, timed, device_bytes, iters):
+    times, cpu = timed
+    med_ms = 1e3 * median(times) / batch
     p90_ms = 1e3 * p90(times) / batch
     fps = 1e3 / med_ms if med_ms > 0 else 0.0
     print(f"ROW\t{mode}\t{variant}\t{w}x{h}\t{batch}\t{precision}\t{med_ms:.3f}\t"
-          f"{p90_ms:.3f}\t{fps:.2f}\t{device_bytes}\t{iters}", flush=True)
+          f"{p90_ms:.3f}\t{fps:.2f}\t{device_bytes}\t{iters}\t{1e3 * cpu / batch:.3f}",
+          flush=True)
 
 
 def bench_cpu(net, cfg, sizes, batches, iters, warmup):

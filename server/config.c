@@ -33,7 +33,8 @@ static void usage(FILE *f) {
           "                           metadata says\n"
           "  --weights-dir DIR        load every *.safetensors in DIR\n"
           "  --backend NAME           auto | cpu | cpu-ref | cudnn (default auto)\n"
-          "  --max-batch N            frames per backend run (default 4)\n"
+          "  --max-batch N            frames per backend run (default 1 on the CPU\n"
+          "                           backends, 4 on cudnn)\n"
           "  --max-queue-delay-us N   how long a frame waits for batch partners (default 0)\n"
           "  --queue-size N           admitted frames waiting for the worker (default 64)\n"
           "  --max-inflight N         requests in flight per connection (default 32)\n"
@@ -166,12 +167,14 @@ static int parse_warm(const char *list, hfd_config *cfg) {
     int w, h, n = 1;
     char tail;
     int got = sscanf(tok, "%dx%dx%d%c", &w, &h, &n, &tail);
+    /* Without --max-batch, the default grows to the largest warm batch. */
+    int max_batch = cfg->max_batch ? cfg->max_batch : 256;
     if ((got != 2 && got != 3) || w < 1 || h < 1 || w > cfg->max_width || h > cfg->max_height ||
-        n < 1 || n > cfg->max_batch) {
+        n < 1 || n > max_batch) {
       fprintf(stderr,
               "hairfilterd: --warm wants WxH or WxHxBATCH within --max-size %dx%d and "
               "--max-batch %d, not '%s'\n",
-              cfg->max_width, cfg->max_height, cfg->max_batch, tok);
+              cfg->max_width, cfg->max_height, max_batch, tok);
       return -1;
     }
     if (cfg->num_warm == HFD_MAX_WARM) {
@@ -386,7 +389,7 @@ static const char *config_path(int argc, char **argv, int *explicit) {
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   memset(cfg, 0, sizeof *cfg);
   cfg->backend = "auto";
-  cfg->max_batch = 4;
+  cfg->max_batch = 0; /* by backend: default_max_batch in worker.c */
   cfg->queue_size = 64;
   cfg->max_inflight = 32;
   cfg->max_width = cfg->max_height = 4096;

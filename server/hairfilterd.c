@@ -514,6 +514,7 @@ int main(int argc, char **argv) {
     hfd_err("cannot start inference: %s", w->init_msg);
     return 1;
   }
+  cfg.max_batch = w->max_batch; /* the backend's default, unless given */
   hfd_log("%s", w->init_msg);
   if (hfd_models_load_initial(s)) return 1;
   if (hfd_limits_derive(s)) return 1;

@@ -433,7 +433,7 @@ void hfd_models_on_loaded(hfd_server *s, hfd_ctl *c) {
 static void take_reloadable(hfd_server *s, hfd_config *n) {
   hfd_config *c = s->cfg;
   if (strcmp(c->backend, n->backend) || c->num_listen != n->num_listen ||
-      c->max_batch != n->max_batch || c->queue_size != n->queue_size ||
+      (n->max_batch && c->max_batch != n->max_batch) || c->queue_size != n->queue_size ||
       c->max_memory_bytes != n->max_memory_bytes || c->max_shm_bytes != n->max_shm_bytes ||
       (c->http == NULL) != (n->http == NULL) || (c->http && strcmp(c->http, n->http)) ||
       c->pipeline_depth != n->pipeline_depth || c->num_warm != n->num_warm)

@@ -68,7 +68,8 @@ typedef struct hfd_config {
   int num_weights;
   const char *weights_dir;
   const char *backend;           /* auto | cpu | cpu-ref | cudnn */
-  int max_batch;                 /* frames per backend run */
+  int max_batch;                 /* frames per backend run; 0 until the backend is
+                                  * known, when not given (hfd_worker_start) */
   int max_queue_delay_us;        /* how long a batch may wait for partners */
   int queue_size;                /* admitted, not yet running */
   int max_inflight;              /* per connection */

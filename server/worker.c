@@ -294,12 +294,26 @@ static void deadline_ts(double when_us, struct timespec *ts) {
 
 static void progress(hfd_worker *w) { atomic_store(&w->progress_us, (uint64_t)hfd_now_us()); }
 
+/* Frames per backend run when --max-batch is not given. 1 on the CPU
+ * backends: on the cpu backend a batch of frames took as long per frame as
+ * the frames one by one, or longer (docs/PERFORMANCE.md, "Batching on the
+ * CPU"), so waiting for partners only added latency and memory. 4 on
+ * cudnn, as before: not measured yet (no GPU where the CPU's was). At least
+ * the largest --warm batch, which asks for batches of that size. */
+static int default_max_batch(const hf_backend *b, const hfd_config *cfg) {
+  int n = strcmp(hf_backend_name(b), "cudnn") ? 1 : 4;
+  for (int k = 0; cfg && k < cfg->num_warm; k++)
+    if (cfg->warm[k].batch > n) n = cfg->warm[k].batch;
+  return n;
+}
+
 static int init_backend(hfd_worker *w) {
   int rc = hf_backend_create(w->backend_name, &w->backend, w->init_msg, sizeof w->init_msg);
   if (rc) {
     if (!w->init_msg[0]) snprintf(w->init_msg, sizeof w->init_msg, "%s", hf_strerror(rc));
     return rc;
   }
+  if (w->max_batch < 1) w->max_batch = default_max_batch(w->backend, w->cfg);
   if (!w->init_msg[0])
     snprintf(w->init_msg, sizeof w->init_msg, "backend %s (as requested)",
              hf_backend_name(w->backend));

@@ -12,23 +12,26 @@
  *     a 1x1 convolution from each input pixel to its 16 taps x cout products
  *     (same multiply-adds), then a pass summing the four taps that reach each
  *     output pixel, adding the bias and the ReLU (od_taps_rows). That pass
- *     writes straight into the left half of the next decoder's input, so
- *     the concat costs one copy (of the encoder's half) instead of two.
- *     HF_CPU_DECONV=1 selects the deconvolution path for comparison.
- *   - The encoder's half of each concat buffer is a copy: writing it in
- *     place through a sub-memory descriptor would save the copy, but
- *     oneDNN 2.6 has only reference kernels for strided destinations, tens
- *     of times slower than the copy.
+ *     writes the next decoder's input whole, a row at a time: its left half
+ *     from the taps, its right half copied from the encoder's output, which
+ *     keeps a buffer of its own until then. So the concat costs no pass of
+ *     its own. HF_CPU_DECONV=1 selects the deconvolution path for
+ *     comparison (there the concat is two copies).
+ *   - The encoder's half is copied, not written in place by the encoder
+ *     through a sub-memory descriptor: oneDNN 2.6 has only reference kernels
+ *     for strided destinations, tens of times slower than the copy.
  *   - ReLU is a post-op of the convolutions. On the deconvolution path it is
  *     a separate in-place eltwise: fused into an fp32 deconvolution it made
  *     that primitive about ten times slower.
  *   - The Kernel architecture's head is one 1x1 convolution over a buffer
  *     that dec0's tap pass fills with the hidden channels (ReLU included)
- *     and a copy fills with the input; HF_CPU_HEAD=sum computes it as two
+ *     and, in the same pass, the input; HF_CPU_HEAD=sum computes it as two
  *     convolutions summed (no copy) for comparison. Its output stage runs
- *     on the backend's threads, rows split between them, with the
- *     row-vectorised code of cpu_kernel_output.c; HF_CPU_KERNEL_REF=1 uses
- *     net_config.c's reference rows instead, for comparison.
+ *     with the row-vectorised code of cpu_kernel_output.c;
+ *     HF_CPU_KERNEL_REF=1 uses net_config.c's reference rows instead, for
+ *     comparison.
+ *   - The backend's own passes (taps, output stage) run on the OpenMP
+ *     threads oneDNN runs on, rows split between them (od_parallel).
  *   - Weights are reordered once, at model_create, into the format oneDNN
  *     chooses (format_tag_any); a size whose primitives want another format
  *     gets a private copy in its plan.
@@ -38,6 +41,7 @@
  * before allocates nothing. A model is run by one thread at a time (the
  * server's worker owns its models); the cache is not locked.
  */
+#include <omp.h>
 #include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -64,23 +68,32 @@
 typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID } od_kind;
 
 #define OD_MAX_THREADS 64
+#define OD_RANGES_PER_THREAD 8
 
 typedef struct od_dev {
   dnnl_engine_t eng;
   dnnl_stream_t stream;
   int threads;                  /* for the backend's own passes */
+  int start_threads;            /* HF_CPU_PASS_THREADS=start (od_parallel) */
 } od_dev;
 
 /* A step is a oneDNN primitive, a tap-summing pass or a copy into a concat
  * buffer. */
 typedef enum od_step_type { OD_STEP_PRIM, OD_STEP_TAPS, OD_STEP_COPY } od_step_type;
 
+/* A decoder's tap pass. Its output pixel holds the cout summed channels,
+ * then, when skip is set, the skip_ch channels of the same pixel of skip:
+ * the encoder's half of a concat buffer, or the input beside the Kernel
+ * head's hidden channels, copied in the same pass. */
 typedef struct od_taps_pass {
   const float *taps;            /* [batch][h][w][16][cout] */
   int h, w, cout, relu;
   const float *bias;
+  const float *zeros;           /* cout zeros, the taps outside the input */
   float *out;                   /* pixel (n, Y, X) at ((n 2h + Y) 2w + X) * stride */
   int stride;
+  const float *skip;            /* [batch][2h][2w][skip_ch], or NULL */
+  int skip_ch;
 } od_taps_pass;
 
 /* Copies dense [npix][ch] into [npix][stride] (a concat buffer's half). */
@@ -110,11 +123,13 @@ typedef struct od_plan {
   float *out;                   /* raw output [batch][ph][pw][out_channels] */
   float *head_in;               /* the head's input: concat(ReLU(dec0), input) for
                                  * OD_HEAD, ReLU(dec0) alone for OD_HEAD_HID */
-  int in_copy_step;             /* the step copying the input into head_in, or -1 */
+  int in_skip_step;             /* the step copying the input into head_in, or -1 */
   float *sums;                  /* Kernel output stage: per-pixel sums and the */
   float *fin;                   /* f32 result, [batch][ph][pw][3] each, and */
   float *kscratch;              /* each thread's scratch (hf_cpu_kernel_scratch) */
-  void *ping[2];                /* non-concat activations, alternating */
+  void *enc[HF_MAX_LEVELS];     /* encoder outputs, kept for their concat */
+  void *taps;                   /* a decoder's taps (or deconvolution output) */
+  float *zeros;                 /* the largest decoder's cout zeros */
   void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
   void *scratch;                /* shared by every primitive (run in order) */
   int nsteps;
@@ -207,6 +222,8 @@ static int od_open(void **out, char *why, size_t whylen) {
   OD_TRY(dnnl_engine_create(&d->eng, dnnl_cpu, 0));
   OD_TRY(dnnl_stream_create(&d->stream, d->eng, dnnl_stream_default_flags));
   d->threads = od_thread_count();
+  const char *e = getenv("HF_CPU_PASS_THREADS");
+  d->start_threads = e && !strcmp(e, "start");
   *out = d;
   return HF_OK;
 fail:
@@ -393,42 +410,67 @@ static int od_taps_weights(od_model *m, int l) {
   return HF_OK;
 }
 
-/* Sums the taps into the output, adds the bias, applies the ReLU if asked.
- * Output row Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1;
- * Y = 2m + 1 takes ky = 2 of row m and ky = 0 of row m + 1; columns alike. */
-static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
-  const int C = t->cout, T = 16 * t->cout, h = t->h, w = t->w;
-  for (size_t row = row0; row < row1; row++) {
-    int n = (int)(row / (2 * h)), Y = (int)(row % (2 * h));
-    int m = Y >> 1, py = Y & 1;
-    int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
-    int has_y1 = y1 >= 0 && y1 < h;
-    const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
-    const float *r1 = t->taps + ((size_t)n * h + (has_y1 ? y1 : m)) * w * T;
-    float *o = t->out + ((size_t)n * 2 * h + Y) * 2 * w * t->stride;
-    for (int X = 0; X < 2 * w; X++, o += t->stride) {
-      int q = X >> 1, px = X & 1;
-      int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
-      int has_x1 = x1 >= 0 && x1 < w;
-      if (!has_x1) x1 = q; /* keeps b and d inside the row; not read */
-      const float *a = r0 + (size_t)q * T + (ky0 * 4 + kx0) * C;
-      const float *b = r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C;
-      const float *cc = r1 + (size_t)q * T + (ky1 * 4 + kx0) * C;
-      const float *d = r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C;
-      if (has_x1 && has_y1) {
-        for (int ch = 0; ch < C; ch++) o[ch] = t->bias[ch] + a[ch] + b[ch] + cc[ch] + d[ch];
-      } else {
-        for (int ch = 0; ch < C; ch++) {
-          float v = t->bias[ch] + a[ch];
-          if (has_x1) v += b[ch];
-          if (has_y1) v += cc[ch];
-          o[ch] = v;
-        }
-      }
-      if (t->relu)
-        for (int ch = 0; ch < C; ch++) o[ch] = o[ch] < 0 ? 0 : o[ch];
+/* The widest vector unit the CPU has, chosen when the program loads (GCC's
+ * function multiversioning): the build targets any x86-64, and dec1's tap
+ * pass at 512 x 512 took 4.1 ms of CPU with AVX-512 against 5.5 ms with
+ * SSE2 (docs/PERFORMANCE.md). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define OD_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define OD_CLONES
+#endif
+
+/* o = ReLU(bias + a + b + c + d), the terms added in that order. */
+static inline void od_sum4(float *restrict o, const float *restrict a, const float *restrict b,
+                           const float *restrict c, const float *restrict d,
+                           const float *restrict bias, int n, int relu) {
+  if (relu) {
+#pragma omp simd
+    for (int ch = 0; ch < n; ch++) {
+      float v = bias[ch] + a[ch] + b[ch] + c[ch] + d[ch];
+      o[ch] = v < 0 ? 0 : v;
+    }
+  } else {
+#pragma omp simd
+    for (int ch = 0; ch < n; ch++) o[ch] = bias[ch] + a[ch] + b[ch] + c[ch] + d[ch];
+  }
+}
+
+/* Sums the taps into output row Y of frame n, adds the bias, applies the
+ * ReLU if asked, and copies the skip channels beside them. Output row
+ * Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1; Y = 2m + 1
+ * takes ky = 2 of row m and ky = 0 of row m + 1; columns alike. A tap outside
+ * the input reads zeros, so that every pixel is the same four-term sum. */
+OD_CLONES static void od_taps_row(const od_taps_pass *t, int n, int Y) {
+  const int C = t->cout, T = 16 * t->cout, h = t->h, w = t->w, E = t->skip_ch;
+  const int m = Y >> 1, py = Y & 1;
+  const int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
+  const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
+  const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
+  const size_t row = (size_t)n * 2 * h + Y;
+  float *o = t->out + row * 2 * w * t->stride;
+  const float *sk = t->skip ? t->skip + row * 2 * w * E : NULL;
+  for (int X = 0; X < 2 * w; X++, o += t->stride) {
+    const int q = X >> 1, px = X & 1;
+    const int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
+    const int has_x1 = x1 >= 0 && x1 < w;
+    const float *a = r0 + (size_t)q * T + (ky0 * 4 + kx0) * C;
+    const float *b = has_x1 ? r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C : t->zeros;
+    const float *c = r1 ? r1 + (size_t)q * T + (ky1 * 4 + kx0) * C : t->zeros;
+    const float *d = r1 && has_x1 ? r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C : t->zeros;
+    od_sum4(o, a, b, c, d, t->bias, C, t->relu);
+    if (sk) {
+      const float *restrict s = sk + (size_t)X * E;
+      float *restrict e = o + C;
+#pragma omp simd
+      for (int k = 0; k < E; k++) e[k] = s[k];
     }
   }
+}
+
+static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
+  for (size_t row = row0; row < row1; row++)
+    od_taps_row(t, (int)(row / (2 * t->h)), (int)(row % (2 * t->h)));
 }
 
 /* ---- plans ---------------------------------------------------------------- */
@@ -440,9 +482,9 @@ static void od_plan_free(od_plan *p) {
   for (int k = 0; k < p->nmems; k++) dnnl_memory_destroy(p->mems[k]);
   free(p->in);
   free(p->out);
-  free(p->ping[0]);
-  free(p->ping[1]);
-  for (int i = 0; i < HF_MAX_LEVELS; i++) free(p->cat[i]);
+  free(p->taps);
+  free(p->zeros);
+  for (int i = 0; i < HF_MAX_LEVELS; i++) free(p->cat[i]), free(p->enc[i]);
   free(p->head_in);
   free(p->sums);
   free(p->fin);
@@ -587,9 +629,14 @@ static void od_copy_pixels(const od_copy_pass *c, size_t i0, size_t i1) {
 }
 
 /* The backend's own passes are split over the machine's cores like the
- * oneDNN primitives around them: a range of rows (taps, output stage) or
- * pixels (copy) per thread, threads started per pass (tens of microseconds
- * against passes of milliseconds) so that nothing waits between runs. */
+ * oneDNN primitives around them, in ranges of rows (taps, output stage) or
+ * pixels (copy). They run on OpenMP's threads, the ones oneDNN runs its
+ * primitives on (the same libgomp): kept alive between passes and runs,
+ * asleep between them under OMP_WAIT_POLICY=passive, instead of a thread
+ * started per pass (HF_CPU_PASS_THREADS=start, kept for comparison:
+ * docs/PERFORMANCE.md). Each thread takes the next of a few ranges per
+ * thread as it finishes one, so that a thread whose core is shared with
+ * other work does less of the pass instead of holding up the others. */
 typedef void (*od_range_fn)(const void *ctx, int job, size_t begin, size_t end);
 
 typedef struct od_job {
@@ -605,14 +652,8 @@ static void *od_job_thread(void *arg) {
   return NULL;
 }
 
-/* fn over items [0, total) of per_item values of work each, split over up
- * to nthreads threads. */
-static void od_parallel(od_range_fn fn, const void *ctx, size_t total, size_t per_item,
-                        int nthreads) {
-  /* Below this much work a thread costs more than it saves. */
-  if (total * per_item < (size_t)1 << 16) nthreads = 1;
-  if ((size_t)nthreads > total) nthreads = (int)total;
-  if (nthreads < 1) return;
+/* fn over [0, total) split over nthreads threads started for it. */
+static void od_parallel_start(od_range_fn fn, const void *ctx, size_t total, int nthreads) {
   od_job jobs[OD_MAX_THREADS];
   pthread_t th[OD_MAX_THREADS];
   int started[OD_MAX_THREADS] = {0};
@@ -630,6 +671,35 @@ static void od_parallel(od_range_fn fn, const void *ctx, size_t total, size_t pe
   }
 }
 
+/* fn over items [0, total) of per_item values of work each, split into
+ * ranges taken in turn by up to dev->threads threads; job is the thread's
+ * number (0 .. dev->threads - 1), for per-thread scratch. */
+static void od_parallel(od_range_fn fn, const void *ctx, size_t total, size_t per_item,
+                        const od_dev *dev) {
+  int nthreads = dev->threads;
+  /* Below this much work a thread costs more than it saves. */
+  if (total * per_item < (size_t)1 << 16) nthreads = 1;
+  if ((size_t)nthreads > total) nthreads = (int)total;
+  if (nthreads < 1) return;
+  if (nthreads == 1) {
+    fn(ctx, 0, 0, total);
+    return;
+  }
+  if (dev->start_threads) {
+    od_parallel_start(fn, ctx, total, nthreads);
+    return;
+  }
+  /* Up to OD_RANGES_PER_THREAD ranges per thread, each of at least 2^14
+   * values of work, so that taking one costs little beside doing it. */
+  size_t ranges = (size_t)nthreads * OD_RANGES_PER_THREAD;
+  if (ranges > total) ranges = total;
+  if (ranges > total * per_item >> 14) ranges = total * per_item >> 14;
+  if (ranges < (size_t)nthreads) ranges = nthreads;
+#pragma omp parallel for num_threads(nthreads) schedule(dynamic, 1)
+  for (size_t r = 0; r < ranges; r++)
+    fn(ctx, omp_get_thread_num(), total * r / ranges, total * (r + 1) / ranges);
+}
+
 static void od_step_range(const void *ctx, int job, size_t begin, size_t end) {
   const od_step *st = ctx;
   if (st->type == OD_STEP_TAPS)
@@ -638,25 +708,31 @@ static void od_step_range(const void *ctx, int job, size_t begin, size_t end) {
     od_copy_pixels(&st->copy, begin, end);
 }
 
-static void od_pass_run(const od_step *st, int batch, int nthreads) {
+static void od_pass_run(const od_step *st, int batch, const od_dev *dev) {
   size_t total = st->type == OD_STEP_TAPS ? (size_t)batch * 2 * st->taps.h : st->copy.npix;
   size_t per_row = st->type == OD_STEP_TAPS ? (size_t)2 * st->taps.w * st->taps.cout
                                              : (size_t)st->copy.ch;
-  od_parallel(od_step_range, st, total, per_row, nthreads);
+  od_parallel(od_step_range, st, total, per_row, dev);
 }
 
-/* ---- the Kernel architecture's output stage ------------------------------- */
+/* ---- the output stage ------------------------------------------------------ */
 
-/* One run's output stage: hf_cpu_kernel_sums then hf_cpu_kernel_rows on
- * the frames' rows, split over threads between the two (the taps of a row
- * read the sums of the rows around it), the result written to the caller's
- * f32 frames or through fin to its f16 ones. */
+/* One run's output stage, the values of hf_output_from_padded_f32 (what
+ * cpu-ref runs) with the frames' rows split over the threads. The Kernel
+ * architecture: hf_cpu_kernel_sums then hf_cpu_kernel_rows, split between
+ * the two (the taps of a row read the sums of the rows around it), the
+ * result written to the caller's f32 frames or through fin to its f16 ones.
+ * The others: hf_output_finish's values a row at a time (for Residual,
+ * after each frame's base was made into sums), through a row of the
+ * thread's scratch for f16. */
 typedef struct od_kernel_out {
   const hf_net_config *cfg;
   const float *in;              /* padded input [batch][ph][pw][cin] */
   const float *raw;             /* raw output [batch][ph][pw][out_channels] */
   int pw, ph;
-  float *sums, *fin;            /* [batch][3][height][width], [batch][height][width][3] */
+  float *sums, *fin;            /* Kernel: [batch][3][height][width], [batch][height][width][3];
+                                 * Residual: each frame's base [batch][height][width][3], and
+                                 * a frame's scratch */
   float *scratch;               /* per thread, scratch_floats each */
   size_t scratch_floats;
   int ref;                      /* the reference's rows instead (HF_CPU_KERNEL_REF) */
@@ -701,11 +777,60 @@ static void od_kernel_rows(const void *ctx, int job, size_t r0, size_t r1) {
   }
 }
 
-static void od_kernel_output(const od_kernel_out *k, int nthreads) {
+/* Rows of the U-Net and Residual architectures: raw values through
+ * hf_output_transform, or onto the Residual base (hf_residual_apply). */
+static void od_output_rows(const void *ctx, int job, size_t r0, size_t r1) {
+  const od_kernel_out *k = ctx;
+  const int w = k->io->width, h = k->io->height, ch = k->cfg->out_channels;
+  const int f16 = k->io->out_dtype == HF_F16, residual = k->cfg->arch == HF_ARCH_RESIDUAL;
+  for (size_t r = r0; r < r1; r++) {
+    const size_t n = r / h, y = r % h, o = r * w * 3;
+    const float *raw = k->raw + (n * k->ph + y) * k->pw * ch;
+    const float *base = residual ? k->sums + o : NULL;
+    float *out = f16 ? k->scratch + (size_t)job * k->scratch_floats : (float *)k->io->out + o;
+    if (!residual && ch == 3) {
+      /* Dense triples: the row in one copy, transformed in place. */
+      memcpy(out, raw, (size_t)w * 3 * sizeof(float));
+      for (int x = 0; x < w; x++) hf_output_transform(out + (size_t)x * 3);
+    } else {
+      for (int x = 0; x < w; x++, raw += ch) {
+        float v[HF_MAX_RAW_CHANNELS];
+        memcpy(v, raw, ch * sizeof(float));
+        if (residual)
+          hf_residual_apply(base + (size_t)x * 3, v);
+        else
+          hf_output_transform(v);
+        memcpy(out + (size_t)x * 3, v, 3 * sizeof(float));
+      }
+    }
+    if (f16) hf_f32_to_f16_array(out, (uint16_t *)k->io->out + o, (size_t)w * 3);
+  }
+}
+
+static void od_output(const od_kernel_out *k, const od_dev *dev) {
+  const hf_net_config *c = k->cfg;
   size_t rows = (size_t)k->io->batch * k->io->height, w = (size_t)k->io->width;
-  od_parallel(od_kernel_sums, k, rows, w * k->cfg->in_channels, nthreads);
-  od_parallel(od_kernel_rows, k, rows, w * 4 * hf_kernel_taps(k->cfg->kernel_radius),
-              nthreads);
+  if (c->arch == HF_ARCH_KERNEL) {
+    od_parallel(od_kernel_sums, k, rows, w * c->in_channels, dev);
+    od_parallel(od_kernel_rows, k, rows, w * 4 * hf_kernel_taps(c->kernel_radius), dev);
+    return;
+  }
+  if (c->arch == HF_ARCH_RESIDUAL)
+    for (int n = 0; n < k->io->batch; n++) {
+      hf_input_view v = {k->in + (size_t)n * k->ph * k->pw * c->in_channels, k->io->width,
+                         k->io->height, k->pw, c->in_channels};
+      hf_residual_base_frame(&v, c->spp, k->sums + (size_t)n * k->io->height * w * 3, k->fin);
+    }
+  od_parallel(od_output_rows, k, rows, w * c->out_channels, dev);
+}
+
+/* Floats of each thread's scratch in the output stage: the Kernel rows',
+ * or a row of results for an f16 output. */
+static size_t od_thread_scratch(const hf_net_config *c, int pw) {
+  size_t row = (size_t)pw * 3;
+  if (c->arch != HF_ARCH_KERNEL) return row;
+  size_t k = hf_cpu_kernel_scratch(pw, c->kernel_radius);
+  return k > row ? k : row;
 }
 
 /* Builds every primitive and buffer for batch frames of pw x ph. */
@@ -717,7 +842,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   od_plan *p = calloc(1, sizeof *p);
   if (!p) return HF_ENOMEM;
   p->batch = batch, p->pw = pw, p->ph = ph;
-  p->in_copy_step = -1;
+  p->in_skip_step = -1;
 
   dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS], head_md;
   OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
@@ -733,84 +858,90 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     OD_RC(od_alloc(&head_md, (void **)&p->head_in));
     p->bytes += dnnl_memory_desc_get_size(&head_md);
   }
-  if (c->arch == HF_ARCH_KERNEL) {
+  if (c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL) {
     dnnl_memory_desc_t md;
     OD_RC(od_nhwc(&md, batch, 3, ph, pw));
     OD_RC(od_alloc(&md, (void **)&p->sums));
     OD_RC(od_alloc(&md, (void **)&p->fin));
-    size_t n = hf_cpu_kernel_scratch(pw, c->kernel_radius) * dev->threads;
-    if (n > SIZE_MAX / sizeof(float)) OD_RC(HF_ERANGE);
-    OD_RC(od_alloc_bytes(n * sizeof(float), (void **)&p->kscratch));
-    p->bytes += 2 * dnnl_memory_desc_get_size(&md) + n * sizeof(float);
+    p->bytes += 2 * dnnl_memory_desc_get_size(&md);
   }
+  size_t nscratch = od_thread_scratch(c, pw) * dev->threads;
+  if (nscratch > SIZE_MAX / sizeof(float)) OD_RC(HF_ERANGE);
+  OD_RC(od_alloc_bytes(nscratch * sizeof(float), (void **)&p->kscratch));
+  p->bytes += nscratch * sizeof(float);
 
-  /* The ping-pong buffers hold every encoder output, every decoder output
-   * but the last, and the taps: the largest of those tensors. */
-  size_t ping_bytes = 0;
+  /* Each encoder output has its own buffer, read by the next encoder and
+   * by the tap pass that fills the concat buffer of its level; one buffer
+   * holds each decoder's taps in turn (or, on the HF_CPU_DECONV path, its
+   * output), the largest of those tensors. */
+  size_t taps_bytes = 0;
+  int max_cout = 1;
   for (int i = 0; i < L; i++) {
     dnnl_memory_desc_t md;
-    if (m->use_taps[i]) {
+    if (hf_dec_out(c, i) > max_cout) max_cout = hf_dec_out(c, i);
+    if (m->use_taps[i])
       OD_RC(od_nhwc(&md, batch, 16 * hf_dec_out(c, i), ph >> (i + 1), pw >> (i + 1)));
-      size_t b = dnnl_memory_desc_get_size(&md);
-      if (b > ping_bytes) ping_bytes = b;
-    }
-    OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
-    size_t b = dnnl_memory_desc_get_size(&md);
-    if (b > ping_bytes) ping_bytes = b;
-    if (i > 0) {
+    else
       OD_RC(od_nhwc(&md, batch, hf_dec_out(c, i), ph >> i, pw >> i));
-      b = dnnl_memory_desc_get_size(&md);
-      if (b > ping_bytes) ping_bytes = b;
-    }
+    size_t b = dnnl_memory_desc_get_size(&md);
+    if (b > taps_bytes) taps_bytes = b;
+    OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
+    OD_RC(od_alloc(&md, &p->enc[i]));
+    p->bytes += dnnl_memory_desc_get_size(&md);
   }
-  for (int k = 0; k < 2; k++) OD_RC(od_alloc_bytes(ping_bytes, &p->ping[k]));
-  p->bytes += 2 * ping_bytes;
+  OD_RC(od_alloc_bytes(taps_bytes, &p->taps));
+  p->bytes += taps_bytes;
+  p->zeros = calloc(max_cout, sizeof(float));
+  if (!p->zeros) OD_RC(HF_ENOMEM);
+  p->bytes += max_cout * sizeof(float);
   for (int i = 0; i < L - 1; i++) {
     OD_RC(od_nhwc(&cat_md[i], batch, hf_dec_in(c, i), ph >> (i + 1), pw >> (i + 1)));
     OD_RC(od_alloc(&cat_md[i], &p->cat[i]));
     p->bytes += dnnl_memory_desc_get_size(&cat_md[i]);
   }
 
-  /* Encoder: enc{i} reads ping[(i+1)%2] (or the input) and writes ping[i%2];
-   * its output is also copied into the right half of cat{i}. */
+  /* Encoder: enc{i} reads enc{i-1}'s output (or the input). */
   dnnl_memory_t src, dst;
   OD_RC(od_mem(p, dev, &in_md, p->in, &src));
   p->in_mem = src;
   for (int i = 0; i < L; i++) {
     dnnl_memory_desc_t md;
     OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
-    OD_RC(od_mem(p, dev, &md, p->ping[i % 2], &dst));
+    OD_RC(od_mem(p, dev, &md, p->enc[i], &dst));
     OD_RC(od_add_layer(m, p, OD_ENC, i, src, dst, &scratch_bytes));
-    if (i < L - 1)
-      OD_RC(od_add_copy(p, p->ping[i % 2], (size_t)batch * (ph >> (i + 1)) * (pw >> (i + 1)),
-                        hf_enc_out(c, i), p->cat[i], hf_enc_out(c, i), hf_dec_in(c, i)));
     src = dst;
   }
   /* Decoder: dec{L-1} reads enc{L-1}'s output, the others their concat
-   * buffer. A deconvolution writes the free ping buffer, gets its ReLU and
-   * is copied into the left half of the next concat buffer; taps go to the
-   * free ping buffer and their pass writes that half (or the output)
-   * directly, ReLU included. */
+   * buffer. Taps go to the taps buffer, and their pass writes the whole
+   * next concat buffer: the decoder's half (ReLU included) and a copy of
+   * the encoder's (or the output, or the head's input). A deconvolution
+   * writes the taps buffer, gets its ReLU, and is copied into the left half
+   * of the next concat buffer, the encoder's output into the right half. */
   for (int i = L - 1; i >= 0; i--) {
     if (i < L - 1) OD_RC(od_mem(p, dev, &cat_md[i], p->cat[i], &src));
     int cout = hf_dec_out(c, i);
     dnnl_memory_desc_t md;
     if (m->use_taps[i]) {
-      /* dec{L-1} must not overwrite its own input, ping[(L-1)%2]. */
       OD_RC(od_nhwc(&md, batch, 16 * cout, ph >> (i + 1), pw >> (i + 1)));
-      OD_RC(od_mem(p, dev, &md, p->ping[L % 2], &dst));
+      OD_RC(od_mem(p, dev, &md, p->taps, &dst));
       OD_RC(od_add_layer(m, p, OD_TAPS, i, src, dst, &scratch_bytes));
       if (p->nsteps >= OD_MAX_STEPS) {
         rc = HF_ERANGE;
         goto fail;
       }
+      /* dec0's pass also copies the input beside the head's hidden
+       * channels, from where od_model_run finds it. */
+      const int head_cat = i == 0 && head && !m->head_sum;
+      if (head_cat) p->in_skip_step = p->nsteps;
       od_step *st = &p->steps[p->nsteps++];
       memset(st, 0, sizeof *st);
       st->type = OD_STEP_TAPS;
-      st->taps = (od_taps_pass){p->ping[L % 2], ph >> (i + 1), pw >> (i + 1), cout,
-                                i > 0 || head, m->w->dec_b[i],
+      st->taps = (od_taps_pass){p->taps, ph >> (i + 1), pw >> (i + 1), cout,
+                                i > 0 || head, m->w->dec_b[i], p->zeros,
                                 i ? p->cat[i - 1] : head ? p->head_in : p->out,
-                                i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels};
+                                i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
+                                i ? p->enc[i - 1] : head_cat ? p->in : NULL,
+                                i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0};
       continue;
     }
     if (i == 0) {
@@ -819,15 +950,17 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       break;
     }
     OD_RC(od_nhwc(&md, batch, cout, ph >> i, pw >> i));
-    OD_RC(od_mem(p, dev, &md, p->ping[L % 2], &dst));
+    OD_RC(od_mem(p, dev, &md, p->taps, &dst));
     OD_RC(od_add_layer(m, p, OD_DEC, i, src, dst, &scratch_bytes));
     OD_RC(od_add_relu(p, dev, dst));
-    OD_RC(od_add_copy(p, p->ping[L % 2], (size_t)batch * (ph >> i) * (pw >> i), cout,
-                      p->cat[i - 1], 0, hf_dec_in(c, i - 1)));
+    size_t npix = (size_t)batch * (ph >> i) * (pw >> i);
+    OD_RC(od_add_copy(p, p->taps, npix, cout, p->cat[i - 1], 0, hf_dec_in(c, i - 1)));
+    OD_RC(od_add_copy(p, p->enc[i - 1], npix, hf_enc_out(c, i - 1), p->cat[i - 1], cout,
+                      hf_dec_in(c, i - 1)));
   }
-  /* The head, after dec0's pass wrote the hidden channels: one convolution
-   * over them and a copy of the input (whose source od_model_run sets), or
-   * the input's part with the bias and the hidden part summed onto it. */
+  /* The head, after dec0's pass wrote its input: one convolution over the
+   * hidden channels and the input, or the input's part with the bias and
+   * the hidden part summed onto it. */
   if (head) {
     OD_RC(od_mem(p, dev, &head_md, p->head_in, &src));
     OD_RC(od_mem(p, dev, &out_md, p->out, &dst));
@@ -835,9 +968,6 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       OD_RC(od_add_layer(m, p, OD_HEAD_IN, 0, p->in_mem, dst, &scratch_bytes));
       OD_RC(od_add_layer(m, p, OD_HEAD_HID, 0, src, dst, &scratch_bytes));
     } else {
-      p->in_copy_step = p->nsteps;
-      OD_RC(od_add_copy(p, p->in, (size_t)batch * ph * pw, c->in_channels, p->head_in,
-                        c->kernel_hidden, head));
       OD_RC(od_add_layer(m, p, OD_HEAD, 0, src, dst, &scratch_bytes));
     }
   }
@@ -1017,7 +1147,7 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
   else
     hf_input_to_padded_f32(io, c->in_channels, pw, ph, p->in);
   OD_TRY(dnnl_memory_set_data_handle(p->in_mem, (void *)in));
-  if (p->in_copy_step >= 0) p->steps[p->in_copy_step].copy.src = in;
+  if (p->in_skip_step >= 0) p->steps[p->in_skip_step].taps.skip = in;
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
@@ -1026,17 +1156,13 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
       continue;
     }
     OD_TRY(dnnl_stream_wait(m->dev->stream));
-    od_pass_run(st, io->batch, m->dev->threads);
+    od_pass_run(st, io->batch, m->dev);
   }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();
-  if (c->arch == HF_ARCH_KERNEL) {
-    od_kernel_out k = {c, in, p->out, pw, ph, p->sums, p->fin, p->kscratch,
-                       hf_cpu_kernel_scratch(pw, c->kernel_radius), m->kernel_ref, io};
-    od_kernel_output(&k, m->dev->threads);
-  } else {
-    hf_output_from_padded_f32(c, in, p->out, pw, ph, io);
-  }
+  od_kernel_out k = {c, in, p->out, pw, ph, p->sums, p->fin, p->kscratch,
+                     od_thread_scratch(c, pw), m->kernel_ref, io};
+  od_output(&k, m->dev);
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
   t->output_us = hf_now_us() - t2;
@@ -1057,38 +1183,40 @@ static const char *od_model_precision(void *impl) { return "fp32"; }
 static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + ((size_t)1 << 20); }
 
 /* What od_plan_create allocates for (batch, pw, ph), from the same sizes:
- * padded input and output, two ping-pong buffers of the largest activation
- * (taps included), the concat buffers, the scratchpad, private weight
- * copies (at most one of every weight), and the Kernel architecture's head
- * input, output-stage sums, result and per-thread scratch. Each buffer is
+ * padded input and output, every encoder's output, one buffer of the
+ * largest decoder's taps (or deconvolution output) and the zeros beside
+ * it, the concat buffers, the scratchpad, private weight copies (at most
+ * one of every weight), the Kernel architecture's head input, and the
+ * output stage's sums, result and per-thread scratch. Each buffer is
  * rounded as od_alloc_bytes rounds it, plus a page of allocator overhead. */
 static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   const size_t f = sizeof(float), page = 4096;
-  int L = c->num_levels;
+  int L = c->num_levels, max_cout = 1;
   size_t px = (size_t)batch * pw * ph, total = 0;
-  size_t ping = 0, weights = 0;
+  size_t taps = 0, largest = 0, weights = 0;
   for (int i = 0; i < L; i++) {
     size_t q = (size_t)batch * (pw >> (i + 1)) * (ph >> (i + 1));
-    size_t t[3] = {od_use_taps(i) ? q * 16 * hf_dec_out(c, i) * f : 0, q * hf_enc_out(c, i) * f,
-                   i > 0 ? 4 * q * hf_dec_out(c, i) * f : 0};
-    for (int k = 0; k < 3; k++)
-      if (t[k] > ping) ping = t[k];
+    size_t t = (od_use_taps(i) ? 16 : 4) * q * hf_dec_out(c, i) * f, e = q * hf_enc_out(c, i) * f;
+    if (t > taps) taps = t;
+    if (e > largest) largest = e;
+    if (hf_dec_out(c, i) > max_cout) max_cout = hf_dec_out(c, i);
+    total += e + 64 + page;
     if (i < L - 1) total += q * hf_dec_in(c, i) * f + 64 + page;
     weights += ((size_t)hf_enc_out(c, i) * hf_enc_in(c, i) * 9 +
                 (size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16) * f + 64 + page;
   }
+  if (taps > largest) largest = taps;
+  total += taps + (size_t)max_cout * f + 2 * (64 + page);
   total += px * c->in_channels * f + px * c->out_channels * f + 2 * (64 + page);
   if (hf_head_in(c)) {
     /* The larger of the head's two forms: the concatenation. */
     total += px * hf_head_in(c) * f + 64 + page;
     weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
   }
-  if (c->arch == HF_ARCH_KERNEL)
-    total += 2 * (px * 3 * f + 64 + page) +
-             hf_cpu_kernel_scratch(pw, c->kernel_radius) * od_thread_count() * f + 64 + page;
-  total += 2 * (ping + 64 + page);
-  total += od_scratch_allowance(ping) + weights;
-  return total + hf_output_extra_bytes(c, pw, ph);
+  if (c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL)
+    total += 2 * (px * 3 * f + 64 + page);
+  total += od_thread_scratch(c, pw) * od_thread_count() * f + 64 + page;
+  return total + od_scratch_allowance(largest) + weights;
 }
 
 static size_t od_model_cached_bytes(void *impl) {

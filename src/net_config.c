@@ -126,14 +126,6 @@ double hf_net_macs(const hf_net_config *cfg, int w, int h) {
   return macs;
 }
 
-void hf_output_transform(float *v) {
-  float c = v[HF_OUT_COLOR];
-  v[HF_OUT_COLOR] = c * c * c / 32.0f + c / 5.0f + 1.0f;
-  v[HF_OUT_HIGHLIGHT] = v[HF_OUT_HIGHLIGHT] > 0.0f ? v[HF_OUT_HIGHLIGHT] : 0.0f;
-  float a = v[HF_OUT_ALPHA];
-  v[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
-}
-
 const char *hf_arch_name(int arch) {
   return arch == HF_ARCH_UNET       ? "unet"
          : arch == HF_ARCH_RESIDUAL ? "residual"

@@ -15,7 +15,15 @@
  * frame), beside a memcpy of the same frame: the cheapest pass over it;
  * --input-check the same for the out-of-contract check hf_model_run makes
  * on every frame (hf_features_check); --exr what hf_exr_write costs with
- * its read-back comparison, beside hf_exr_read. */
+ * its read-back comparison, beside hf_exr_read.
+ *
+ * Before the table it prints the CPU (model, vector flags) and the fp32
+ * peak it measures before and after the runs (bench_peak.h); CPU rows say
+ * how many GFLOP/s a frame's multiply-adds (hf_net_macs at the padded size)
+ * came to, and what fraction of that peak; and the process's CPU time per
+ * frame (every thread's, hf_model_run's alone: the median over iterations),
+ * with the flops per CPU second as a fraction of one core's peak: what the
+ * code does with the cores it gets, whatever other work on the machine took. */
 #include <errno.h>
 #include <getopt.h>
 #include <stdint.h>
@@ -27,6 +35,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_peak.h"
 #include "cli_common.h"
 #include "commands.h"
 
@@ -40,6 +49,7 @@ typedef struct bench_row {
   int w, h, batch, iters;
   double med_ms, p90_ms;         /* per frame, wall time of hf_model_run */
   double in_ms, net_ms, out_ms;  /* per frame, medians of hf_timing; < 0 unknown */
+  double cpu_ms;                 /* per frame, median of the process's CPU time; < 0 unknown */
   double dev_bytes;
 } bench_row;
 
@@ -83,7 +93,11 @@ static void usage(FILE *f) {
           "beside a memcpy of the frame; --input-check the same for the out-of-contract\n"
           "check of hf_model_run; --exr EXR writing (with its read-back check) beside\n"
           "reading, at each size. Defaults: every backend in this build, Base, the\n"
-          "three sizes, batch 1, 20 iterations, 3 warm-up.\n",
+          "three sizes, batch 1, 20 iterations, 3 warm-up.\n"
+          "Before the table: the CPU's model and vector flags, and its fp32 peak measured\n"
+          "before and after the runs (an FMA loop on one thread, per second of its CPU time,\n"
+          "times the threads); each CPU row gives its GFLOP/s (hf_net_macs) and %% of that,\n"
+          "its CPU ms per frame (all threads) and its flops per CPU second as %% of one core's.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
@@ -226,6 +240,9 @@ bad_list:
           BENCH_MAX_LIST);
   return 2;
 }
+
+/* n rounded up to a multiple of a (a power of two), as the backends pad. */
+static int round_up(int n, int a) { return (n + a - 1) & ~(a - 1); }
 
 static int cmp_double(const void *a, const void *b) {
   double x = *(const double *)a, y = *(const double *)b;
@@ -415,8 +432,10 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   float *tmp = malloc(nin * sizeof(float));
   double *wall = malloc(iters * sizeof(double)), *net = malloc(iters * sizeof(double));
   double *tin = malloc(iters * sizeof(double)), *tout = malloc(iters * sizeof(double));
+  double *cpu = malloc(iters * sizeof(double));
   int rc = HF_ENOMEM, pending = 0;
-  if (!in[0] || !in[1] || !out[0] || !out[1] || !tmp || !wall || !net || !tin || !tout) goto out;
+  if (!in[0] || !in[1] || !out[0] || !out[1] || !tmp || !wall || !net || !tin || !tout || !cpu)
+    goto out;
   fill_input(tmp, nin, seed);
   for (int b = 0; b < 2; b++) {
     if (dt == HF_F16) hf_f32_to_f16_array(tmp, in[b], nin);
@@ -427,8 +446,9 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   double last = now_ms();
   if (pipeline && (rc = hf_model_submit(m, &io[0])) != 0) goto fail;
   pending = pipeline;
+  double last_cpu = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
   for (int k = 0; k < warmup + iters; k++) {
-    const double t0 = now_ms();
+    const double t0 = now_ms(), c0 = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
     if (pipeline) {
       /* Submit the next batch before waiting for this one. */
       if (k + 1 < warmup + iters) {
@@ -440,14 +460,15 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
     } else if ((rc = hf_model_run(m, &io[0], &t)) != 0) {
       goto fail;
     }
-    const double t1 = now_ms();
+    const double t1 = now_ms(), c1 = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
     if (k >= warmup) {
       wall[k - warmup] = pipeline ? t1 - last : t1 - t0;
+      cpu[k - warmup] = pipeline ? c1 - last_cpu : c1 - c0;
       net[k - warmup] = t.infer_us * 1e-3;
       tin[k - warmup] = t.input_us * 1e-3;
       tout[k - warmup] = t.output_us * 1e-3;
     }
-    last = t1;
+    last = t1, last_cpu = c1;
   }
   bench_row *r = new_row();
   if (!r) {
@@ -464,6 +485,7 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   r->net_ms = median(net, iters) / batch;
   r->in_ms = median(tin, iters) / batch;
   r->out_ms = median(tout, iters) / batch;
+  r->cpu_ms = median(cpu, iters) / batch;
   r->dev_bytes = (double)hf_model_device_bytes(m);
   fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", backend, c->name, w, h,
           batch, r->med_ms);
@@ -483,6 +505,7 @@ out:
   free(net);
   free(tin);
   free(tout);
+  free(cpu);
   return rc;
 }
 
@@ -601,9 +624,10 @@ static int run_torch(const bench_opts *o) {
       fprintf(stderr, "  %s", line + 5);
       continue;
     }
-    if (sscanf(line, "ROW\t%23s\t%63s\t%dx%d\t%d\t%7s\t%lf\t%lf\t%*f\t%lf\t%d", r.backend,
+    r.cpu_ms = -1; /* a last field: an older bench_torch.py has none */
+    if (sscanf(line, "ROW\t%23s\t%63s\t%dx%d\t%d\t%7s\t%lf\t%lf\t%*f\t%lf\t%d\t%lf", r.backend,
                r.variant, &r.w, &r.h, &r.batch, r.precision, &r.med_ms, &r.p90_ms, &dev,
-               &r.iters) != 10)
+               &r.iters, &r.cpu_ms) < 10)
       continue;
     r.in_ms = r.net_ms = r.out_ms = -1;
     r.dev_bytes = dev;
@@ -635,18 +659,83 @@ out:
   return rc;
 }
 
-static void print_table(void) {
+/* The machine: the CPU and its fp32 peak, measured before and after the
+ * runs (the larger one-thread rate is the peak: other work on the machine
+ * only ever slows a run down). */
+typedef struct bench_machine {
+  bench_cpu cpu;
+  bench_peak before, after;
+  int measured;                 /* peaks: 0 none, 1 before, 2 both */
+  int threads;                  /* the peak's */
+  double peak_gflops;
+} bench_machine;
+
+static void measure_peak(bench_machine *mc, bench_peak *p) {
+  if (bench_peak_measure(bench_cpu_threads(), p)) {
+    fprintf(stderr, "hairfilter bench: measuring the fp32 peak: %s\n", strerror(errno));
+    return;
+  }
+  mc->measured++;
+  if (p->peak_gflops > mc->peak_gflops) mc->peak_gflops = p->peak_gflops, mc->threads = p->threads;
+}
+
+static void print_machine(const bench_machine *mc) {
+  const bench_cpu *c = &mc->cpu;
+  printf("CPU: %s (family %d, model %d), %d online CPUs; vector flags: %s\n", c->model, c->family,
+         c->model_id, c->online, c->flags[0] ? c->flags : "none of those looked for");
+  if (!mc->measured) {
+    printf("fp32 peak: not measured\n\n");
+    return;
+  }
+  const bench_peak *b = &mc->before, *a = mc->measured > 1 ? &mc->after : &mc->before;
+  const bench_peak *best = a->peak_gflops > b->peak_gflops ? a : b;
+  printf("fp32 peak: %.1f GFLOP/s = %.1f GFLOP/s of one core x %d threads. Method: %s %s loop, "
+         "%d lanes x %d independent accumulators, on one thread alone, per second of its CPU "
+         "time, best of %d runs of %.1f ms, before the runs (%.1f) and after (%.1f); all %d "
+         "threads at once, per second of wall time, gave %.1f before and %.1f after (what the "
+         "machine's other load left)\n\n",
+         mc->peak_gflops, best->core_gflops, best->threads, best->isa,
+         best->fma ? "fused multiply-add" : "multiply and add", best->lanes, BENCH_PEAK_CHAINS,
+         best->runs, best->run_ms, b->core_gflops, a->core_gflops, best->threads,
+         b->all_gflops, a->all_gflops);
+}
+
+/* Whether a row ran on this machine's CPU (its GFLOP/s compare with the
+ * CPU's peak). */
+static int cpu_row(const bench_row *r) {
+  return strncmp(r->backend, "cudnn", 5) && !strstr(r->backend, "cuda");
+}
+
+static void print_table(const bench_machine *mc) {
+  print_machine(mc);
   printf("| backend | variant | size | batch | precision | median ms/frame | p90 ms/frame "
-         "| in / net / out ms | frames/s | device MiB | iters |\n");
-  printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|\n");
+         "| in / net / out ms | frames/s | device MiB | iters | GFLOP/s | %% of fp32 peak "
+         "| CPU ms/frame | %% of one core's peak per CPU second |\n");
+  printf("|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
   for (int i = 0; i < nrows; i++) {
     bench_row *r = &rows[i];
-    char parts[64] = "-";
+    char parts[64] = "-", rate[32] = "-", share[32] = "-", cpu[32] = "-", per_cpu[32] = "-";
     if (r->net_ms >= 0)
       snprintf(parts, sizeof parts, "%.2f / %.2f / %.2f", r->in_ms, r->net_ms, r->out_ms);
-    printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d |\n", r->backend,
-           r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms, parts,
-           r->med_ms > 0 ? 1e3 / r->med_ms : 0, r->dev_bytes / (1024.0 * 1024.0), r->iters);
+    hf_net_config cfg;
+    if (r->med_ms > 0 && hf_variant_preset(r->variant, &cfg) == 0) {
+      int a = hf_net_align(&cfg);
+      double g = 2 * hf_net_macs(&cfg, round_up(r->w, a), round_up(r->h, a)) /
+                 (r->med_ms * 1e-3) / 1e9;
+      snprintf(rate, sizeof rate, "%.1f", g);
+      if (cpu_row(r) && mc->peak_gflops > 0)
+        snprintf(share, sizeof share, "%.1f", 100 * g / mc->peak_gflops);
+      if (cpu_row(r) && r->cpu_ms > 0) {
+        snprintf(cpu, sizeof cpu, "%.2f", r->cpu_ms);
+        if (mc->peak_gflops > 0)
+          snprintf(per_cpu, sizeof per_cpu, "%.1f",
+                   100 * g * r->med_ms / r->cpu_ms / (mc->peak_gflops / mc->threads));
+      }
+    }
+    printf("| %s | %s | %dx%d | %d | %s | %.2f | %.2f | %s | %.1f | %.1f | %d | %s | %s | %s | %s |\n",
+           r->backend, r->variant, r->w, r->h, r->batch, r->precision, r->med_ms, r->p90_ms,
+           parts, r->med_ms > 0 ? 1e3 / r->med_ms : 0, r->dev_bytes / (1024.0 * 1024.0),
+           r->iters, rate, share, cpu, per_cpu);
   }
   /* The comparison the cpu backend is judged by. */
   int first = 1;
@@ -657,8 +746,11 @@ static void print_table(void) {
       if (strncmp(t->backend, "torch-cpu", 9) || strcmp(t->variant, rows[i].variant) ||
           t->w != rows[i].w || t->h != rows[i].h || t->batch != rows[i].batch)
         continue;
-      printf("%s%s %dx%d batch %d: cpu is %.2fx as fast as %s\n", first ? "\n" : "",
+      printf("%s%s %dx%d batch %d: cpu is %.2fx as fast as %s", first ? "\n" : "",
              rows[i].variant, t->w, t->h, t->batch, t->med_ms / rows[i].med_ms, t->backend);
+      if (t->cpu_ms > 0 && rows[i].cpu_ms > 0)
+        printf(" and takes %.2fx less CPU time per frame", t->cpu_ms / rows[i].cpu_ms);
+      printf("\n");
       first = 0;
     }
   }
@@ -670,6 +762,10 @@ int cmd_bench(int argc, char **argv) {
   int rc = parse_opts(argc, argv, &o);
   if (rc) return rc == 1 ? 0 : 2;
   int failed = 0;
+  bench_machine mc;
+  memset(&mc, 0, sizeof mc);
+  bench_cpu_describe(&mc.cpu);
+  measure_peak(&mc, &mc.before);
   for (int b = 0; b < o.nbackends; b++) {
     hf_backend *be;
     char why[512];
@@ -711,7 +807,8 @@ int cmd_bench(int argc, char **argv) {
     hf_backend_destroy(be);
   }
   if (o.torch && run_torch(&o)) failed = 1;
-  print_table();
+  if (mc.measured) measure_peak(&mc, &mc.after);
+  print_table(&mc);
   if (o.input_stats && bench_frame_pass(&o, &PASS_STATS)) failed = 1;
   if (o.input_check && bench_frame_pass(&o, &PASS_CHECK)) failed = 1;
   if (o.exr && bench_exr(&o)) failed = 1;

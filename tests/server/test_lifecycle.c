@@ -101,6 +101,31 @@ static void test_bad_listen_urls(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* Item: without --max-batch, a CPU backend runs frames one at a time
+ * (HELLO_OK says max_batch 1), unless --warm asks for larger batches. */
+static void test_default_max_batch(void **state) {
+  (void)state;
+  static const struct {
+    const char *warm;
+    int want;
+  } cases[] = {{NULL, 1}, {"32x32x3,32x32", 3}};
+  for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+    server d;
+    char listen[300], url[300];
+    snprintf(listen, sizeof listen, "--listen=unix:%s/mb.sock", H.dir);
+    snprintf(url, sizeof url, "unix:%s/mb.sock", H.dir);
+    const char *args[] = {listen, cases[k].warm ? "--warm" : NULL, cases[k].warm, NULL};
+    assert_int_equal(server_start(&H, &d, args), 0);
+    hfc_client *c = NULL;
+    assert_int_equal(hfc_connect(url, NULL, &c), 0);
+    if (hfc_info(c)->max_batch != cases[k].want)
+      fail_msg("--warm %s: max_batch %d, not %d", cases[k].warm ? cases[k].warm : "(none)",
+               hfc_info(c)->max_batch, cases[k].want);
+    hfc_close(c);
+    assert_int_equal(server_stop(&d, 20000), 0);
+  }
+}
+
 /* Item: a token from $HAIRFILTERD_TOKEN follows the rules of one from a
  * file: same refusals, same messages; a trailing newline (a Kubernetes
  * secret's) is dropped in both. */
@@ -286,6 +311,7 @@ static void test_failed_start_leaves_nothing(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_bad_listen_urls),
+    cmocka_unit_test(test_default_max_batch),
     cmocka_unit_test(test_token_rules),
     cmocka_unit_test(test_ready_file_symlinks),
     cmocka_unit_test(test_sigterm_with_unread_replies),
