@@ -803,7 +803,7 @@ static void od_output_rows(const void *ctx, int job, size_t r0, size_t r1) {
         memcpy(out + (size_t)x * 3, v, 3 * sizeof(float));
       }
     }
-    if (f16) hf_f32_to_f16_array(out, (uint16_t *)k->io->out + o, (size_t)w * 3);
+    if (f16) hf_f32_to_f16_serial(out, (uint16_t *)k->io->out + o, (size_t)w * 3);
   }
 }
 
