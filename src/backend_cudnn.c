@@ -22,7 +22,7 @@
  *
  * Environment (diagnosis and tuning; docs/GPU.md lists them):
  *   HF_CUDNN_VERBOSE=1      log engines, notes, finalize times, forms, plans
- *   HF_CUDNN_DECONV=LIST    decoder forms to try: auto (d2s,phase,bwd-data),
+ *   HF_CUDNN_DECONV=LIST    decoder forms to try: auto (d2s,phase),
  *                           or any of bwd-data, d2s, phase, shuffle
  *   HF_CUDNN_DENSE=1        skip strided views: every conv on dense copies
  *   HF_CUDNN_NO_FUSION=1    skip the fused bias+ReLU graphs
@@ -81,8 +81,11 @@ typedef struct cudnn_opts {
   size_t stage_bytes;
 } cudnn_opts;
 
-#define DEFAULT_DEC_FORMS \
-  (1u << HF_CL_FORM_D2S | 1u << HF_CL_FORM_PHASE | 1u << HF_CL_FORM_BWD_DATA)
+/* bwd-data is not tried by default: on an H200 (cuDNN 9.19, docs/GPU.md,
+ * "The first GPU run") d2s beat it on every decoder by 4-57x, and building
+ * its fused data-gradient graphs took 2.7 s of a 3.6 s plan (run-time
+ * compiled engines) for a form never kept. HF_CUDNN_DECONV still offers it. */
+#define DEFAULT_DEC_FORMS (1u << HF_CL_FORM_D2S | 1u << HF_CL_FORM_PHASE)
 
 static int parse_forms(const char *v, unsigned *mask) {
   if (!v || !v[0] || !strcmp(v, "auto")) {
