@@ -14,6 +14,7 @@
 #include <poll.h>
 #include <signal.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -376,6 +377,60 @@ static void test_start_options(void **state) {
   }
 }
 
+/* Runs the hairfilter CLI with args (shell words) and the token in the
+ * environment: its exit status, stdout and stderr in out. */
+static int run_cli(const char *args, const char *token, char *out, size_t cap) {
+  char log[300], cmd[2048];
+  snprintf(log, sizeof log, "%s/cli.txt", H.dir);
+  snprintf(cmd, sizeof cmd, "HAIRFILTER_TOKEN='%s' '%s' %s > '%s' 2>&1", token,
+           HAIRFILTER_CLI_PATH, args, log);
+  int rc = system(cmd);
+  out[0] = 0;
+  FILE *f = fopen(log, "r");
+  if (f) {
+    size_t n = fread(out, 1, cap - 1, f);
+    out[n] = 0;
+    fclose(f);
+  }
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+/* Item: the CLI's TLS options: --tls-server-name, certificate and key
+ * together, messages that name the options and say each thing once. */
+static void test_cli(void **state) {
+  (void)state;
+  char num[300], args[1500], out[4096], ca[256], cert[256];
+  tls_url(&S, 1, num, sizeof num);
+  path_of(ca, sizeof ca, "ca.pem");
+  path_of(cert, sizeof cert, "client.pem");
+  snprintf(args, sizeof args, "filter --server %s --tls-ca '%s' --tls-server-name localhost --list",
+           num, ca);
+  int st = run_cli(args, TEST_TOKEN, out, sizeof out);
+  if (st != 0 || !strstr(out, "Small")) fail_msg("--tls-server-name: status %d: %s", st, out);
+  /* Without it: the names the certificate has, and the option to use. */
+  snprintf(args, sizeof args, "filter --server %s --tls-ca '%s' --list", num, ca);
+  st = run_cli(args, TEST_TOKEN, out, sizeof out);
+  char *first = strstr(out, num), *tls = strstr(out, "TLS handshake");
+  if (st != 1 || !strstr(out, "names DNS:localhost") || !strstr(out, "--tls-server-name NAME") ||
+      !first || strstr(first + 1, num) || !tls || strstr(tls + 1, "TLS handshake"))
+    fail_msg("name mismatch: status %d: %s", st, out);
+  /* A wrong token: where the CLI takes it from. */
+  snprintf(args, sizeof args, "filter --server %s --tls-ca '%s' --tls-server-name localhost --list",
+           num, ca);
+  st = run_cli(args, "not-the-token", out, sizeof out);
+  if (st != 1 || !strstr(out, "UNAUTHORIZED") || !strstr(out, "--token TOKEN or $HAIRFILTER_TOKEN"))
+    fail_msg("wrong token: status %d: %s", st, out);
+  /* Half a client certificate is refused before connecting. */
+  const char *cmds[] = {"filter --list", "load --variant Small", "conformance"};
+  for (int k = 0; k < 3; k++) {
+    snprintf(args, sizeof args, "%s --server %s --tls-ca '%s' --tls-cert '%s'", cmds[k], num, ca,
+             cert);
+    st = run_cli(args, TEST_TOKEN, out, sizeof out);
+    if (st != 2 || !strstr(out, "give --tls-cert and --tls-key together"))
+      fail_msg("%s with --tls-cert alone: status %d: %s", cmds[k], st, out);
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_tls_equals_tcp),
@@ -384,6 +439,7 @@ int main(void) {
     cmocka_unit_test(test_wrong_protocol),
     cmocka_unit_test(test_reload_certificate),
     cmocka_unit_test(test_start_options),
+    cmocka_unit_test(test_cli),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
