@@ -744,6 +744,17 @@ static void on_header(hfd_conn *c) {
   }
   if (rc && rc != -HFP_E_TOO_LARGE) {
     s->protocol_errors++;
+    /* A TLS record (handshake type 0x16, version 3.x: RFC 8446, 5.1) opens
+     * a ClientHello. The ERROR below is no text to that client, but its
+     * bytes make the client's TLS library report a wrong record version,
+     * which libhairfilter explains as a plain listener. */
+    if (!c->hello_done && c->listener->is_tcp && c->hbuf[0] == 0x16 && c->hbuf[1] == 0x03 &&
+        c->hbuf[2] <= 0x04) {
+      send_error(c, 0, HFP_E_PROTOCOL, 1,
+                 "a TLS client on a plain tcp: listener (%s): the client must use a tcp: URL, "
+                 "or the server listen on tls:HOST:PORT", c->listener->url);
+      return;
+    }
     send_error(c, 0, HFP_E_PROTOCOL, 1, "bad frame header (magic, type or flags)");
     return;
   }

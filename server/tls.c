@@ -438,16 +438,56 @@ static void peer_subject(SSL *ssl, char *buf, size_t cap) {
   if (x) X509_NAME_oneline(X509_get_subject_name(x), buf, (int)cap);
 }
 
+/* Which side refused, in words, from OpenSSL's last error: an alert the
+ * client sent (its reason is SSL_AD_REASON_OFFSET + the alert), or this
+ * server's verification of the client's certificate. NULL: neither. */
+static const char *refusal(SSL *ssl, unsigned long e, char *buf, size_t cap) {
+  int reason = ERR_GET_LIB(e) == ERR_LIB_SSL ? ERR_GET_REASON(e) : 0;
+  long v = SSL_get_verify_result(ssl);
+  if (reason > SSL_AD_REASON_OFFSET && reason < SSL_AD_REASON_OFFSET + 256) {
+    int alert = reason - SSL_AD_REASON_OFFSET;
+    switch (alert) {
+      case SSL_AD_BAD_CERTIFICATE:
+      case SSL_AD_UNSUPPORTED_CERTIFICATE:
+      case SSL_AD_CERTIFICATE_REVOKED:
+      case SSL_AD_CERTIFICATE_EXPIRED:
+      case SSL_AD_CERTIFICATE_UNKNOWN:
+      case SSL_AD_UNKNOWN_CA:
+      case SSL_AD_CERTIFICATE_REQUIRED:
+        snprintf(buf, cap, "the client refused this server's certificate: %s (is the client "
+                 "given the CA that signed --tls-cert, and does the certificate name the host "
+                 "it connects to?)", SSL_alert_desc_string_long(alert));
+        break;
+      default:
+        snprintf(buf, cap, "the client ended the handshake with the alert: %s",
+                 SSL_alert_desc_string_long(alert));
+        break;
+    }
+    return buf;
+  }
+  if (reason == SSL_R_PEER_DID_NOT_RETURN_A_CERTIFICATE) {
+    snprintf(buf, cap, "this server refused the client's certificate: the client sent no "
+             "certificate (--tls-client-ca requires one)");
+    return buf;
+  }
+  if (v != X509_V_OK) {
+    snprintf(buf, cap, "this server refused the client's certificate: %s",
+             X509_verify_cert_error_string(v));
+    return buf;
+  }
+  return NULL;
+}
+
 static void handshake_failed(hfd_conn *c, int ret) {
   struct hfd_tls_conn *t = c->tls;
-  char err[512], kv[300];
+  char err[512], kv[300], who[400];
   int e = SSL_get_error(t->ssl, ret);
+  const char *why = e == SSL_ERROR_SSL ? refusal(t->ssl, ERR_peek_last_error(), who, sizeof who)
+                                       : NULL;
   const char *what = e == SSL_ERROR_SSL ? ssl_errors(err, sizeof err) : "connection error";
-  long v = SSL_get_verify_result(t->ssl);
   c->srv->protocol_errors++;
-  hfd_err("TLS handshake failed: %s%s%s; closing the connection%s", what,
-          v != X509_V_OK ? "; client certificate: " : "",
-          v != X509_V_OK ? X509_verify_cert_error_string(v) : "",
+  hfd_err("TLS handshake failed: %s%s%s; closing the connection%s", why ? why : what,
+          why ? "; OpenSSL: " : "", why ? what : "",
           (snprintf(kv, sizeof kv, " conn=%llu peer=%s", (unsigned long long)c->id, c->peer),
            kv));
   ERR_clear_error();

@@ -125,3 +125,10 @@ void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt
   else
     fprintf(stderr, "hairfilter %s: unknown option '%s' (see hairfilter %s --help)\n", cmd, o, cmd);
 }
+
+int cli_tls_pair(const char *cmd, const char *cert, const char *key) {
+  if (!cert == !key) return 0;
+  fprintf(stderr, "hairfilter %s: give --tls-cert and --tls-key together (a client certificate "
+          "and its private key; %s is missing)\n", cmd, cert ? "--tls-key" : "--tls-cert");
+  return -1;
+}

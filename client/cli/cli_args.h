@@ -29,11 +29,16 @@ void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt
 
 /* The TLS options of every command that connects (tls:HOST:PORT URLs):
  * getopt codes and their usage lines. */
-enum { CLI_TLS_CA = 0x1001, CLI_TLS_CERT, CLI_TLS_KEY };
+enum { CLI_TLS_CA = 0x1001, CLI_TLS_CERT, CLI_TLS_KEY, CLI_TLS_SERVER_NAME };
 #define CLI_TLS_USAGE                                                                  \
   "  --tls-ca FILE    tls: URLs: PEM CA certificates the server's must chain to\n"     \
   "                   (default: the system's); its host name is checked too\n"        \
-  "  --tls-cert FILE  client certificate for mutual TLS (PEM)\n"                     \
-  "  --tls-key FILE   its private key (PEM; default: in --tls-cert's file)\n"
+  "  --tls-server-name NAME  the name the server's certificate must carry\n"          \
+  "                   (default: the URL's host)\n"                                     \
+  "  --tls-cert FILE  client certificate for mutual TLS (PEM), with --tls-key\n"       \
+  "  --tls-key FILE   its private key (PEM)\n"
+/* 0, or -1 after saying so when only one of --tls-cert and --tls-key is
+ * given (cmd as in the messages above: "filter", "load", ...). */
+int cli_tls_pair(const char *cmd, const char *cert, const char *key);
 
 #endif

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include "cli_common.h"
+#include <hairfilter/hairfilter.h>
 
 const float CLI_HAIR_DEFAULT[3] = {0.45f, 0.25f, 0.12f};
 const float CLI_LIGHT_DEFAULT[3] = {1.0f, 1.0f, 1.0f};
@@ -167,4 +168,14 @@ void cli_warn_sanitised(const char *path, const hf_image *img, const hf_input_re
     fprintf(stderr, "hairfilter: warning: %s: %" PRIu64 " result pixel%s out of range, "
             "clamped (protocol/FEATURES.md, \"Out-of-contract values\")\n", path, r->outputs,
             r->outputs == 1 ? "" : "s");
+}
+
+void cli_connect_failed(const char *prog, int rc) {
+  const char *m = hfc_last_message(NULL);
+  /* The message starts with the endpoint (or names the option); the code's
+   * words would only repeat it. */
+  fprintf(stderr, "%s: %s\n", prog, m[0] ? m : hfc_strerror(rc));
+  if (rc == HFC_E_UNAUTHORIZED)
+    fprintf(stderr, "%s: give the server's token with --token TOKEN or $HAIRFILTER_TOKEN\n",
+            prog);
 }

@@ -6,6 +6,10 @@
 
 /* Parses "r,g,b" into three floats; 0 on success. */
 int cli_parse_rgb(const char *s, float rgb[3]);
+/* Prints why hfc_connect failed with rc: the library's message (which
+ * names each endpoint and what to check), then, for a refused token, where
+ * the CLI takes it from. prog: "hairfilter filter", ... */
+void cli_connect_failed(const char *prog, int rc);
 /* Parses "WxH"; 0 on success. */
 int cli_parse_size(const char *s, int *w, int *h);
 /* Where bundled data (weights/, bench/) lives: $HAIRFILTER_DATA; else the

@@ -46,6 +46,7 @@ int cmd_conformance(int argc, char **argv) {
     {"stall", required_argument, 0, 'S'},  {"verbose", no_argument, 0, 'v'},
     {"help", no_argument, 0, 'h'},         {"tls-ca", required_argument, 0, CLI_TLS_CA},
     {"tls-cert", required_argument, 0, CLI_TLS_CERT}, {"tls-key", required_argument, 0, CLI_TLS_KEY},
+    {"tls-server-name", required_argument, 0, CLI_TLS_SERVER_NAME},
     {0, 0, 0, 0},
   };
   cf_options o = {0};
@@ -63,6 +64,7 @@ int cmd_conformance(int argc, char **argv) {
       case CLI_TLS_CA: o.tls_ca = optarg; break;
       case CLI_TLS_CERT: o.tls_cert = optarg; break;
       case CLI_TLS_KEY: o.tls_key = optarg; break;
+      case CLI_TLS_SERVER_NAME: o.tls_server_name = optarg; break;
       case 'c': client = 1; break;
       case 'p': o.pattern = optarg; break;
       case 'l': list = 1; break;
@@ -86,6 +88,7 @@ int cmd_conformance(int argc, char **argv) {
     fprintf(stderr, "hairfilter conformance: unexpected argument '%s'\n", argv[optind]);
     return 2;
   }
+  if (cli_tls_pair("conformance", o.tls_cert, o.tls_key)) return 2;
   if (doc) return cf_check_doc(doc, stdout) == 0 ? 0 : 1;
   if (list) {
     cf_list(stdout, client);

@@ -22,7 +22,8 @@ static void usage(FILE *f) {
           "                         [--variant NAME] [--part N|NAME] [--png PREVIEW.png] [--f16]\n"
           "                         [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "                         [--token TOKEN] [--timeout-ms N]\n"
-          "                         [--tls-ca FILE] [--tls-cert FILE --tls-key FILE]\n"
+          "                         [--tls-ca FILE] [--tls-server-name NAME]\n"
+          "                         [--tls-cert FILE --tls-key FILE]\n"
           "       hairfilter filter --server URL --list     (variants and limits)\n"
           "       hairfilter filter --server URL --stats    (counters and latency)\n"
           "URL is unix:PATH, tcp:HOST:PORT or tls:HOST:PORT, or several of them separated by commas\n"
@@ -147,8 +148,9 @@ int cmd_filter(int argc, char **argv) {
     {"list", no_argument, 0, 'l'},         {"stats", no_argument, 0, 'S'},
     {"part", required_argument, 0, 'P'},   {"tls-ca", required_argument, 0, CLI_TLS_CA},
     {"tls-cert", required_argument, 0, CLI_TLS_CERT}, {"tls-key", required_argument, 0, CLI_TLS_KEY},
+    {"tls-server-name", required_argument, 0, CLI_TLS_SERVER_NAME},
     {0, 0, 0, 0}};
-  const char *tls_ca = NULL, *tls_cert = NULL, *tls_key = NULL;
+  const char *tls_ca = NULL, *tls_cert = NULL, *tls_key = NULL, *tls_server_name = NULL;
   int opt;
   optind = 1;
   while ((opt = getopt_long(argc, argv, "s:V:i:o:p:h", opts, NULL)) != -1) {
@@ -166,6 +168,7 @@ int cmd_filter(int argc, char **argv) {
     case CLI_TLS_CA: tls_ca = optarg; break;
     case CLI_TLS_CERT: tls_cert = optarg; break;
     case CLI_TLS_KEY: tls_key = optarg; break;
+    case CLI_TLS_SERVER_NAME: tls_server_name = optarg; break;
     case 't': timeout_ms = atoi(optarg); break;
     case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
     case 'L': if (cli_parse_rgb(optarg, light)) goto bad; break;
@@ -175,6 +178,7 @@ int cmd_filter(int argc, char **argv) {
     }
   }
   if (!server || optind != argc) goto bad;
+  if (cli_tls_pair("filter", tls_cert, tls_key)) return 2;
   char why[300];
   if (hfc_check_url(server, why, sizeof why)) {
     fprintf(stderr, "hairfilter: --server: %s\n", why);
@@ -188,11 +192,12 @@ int cmd_filter(int argc, char **argv) {
   o.tls_ca_file = tls_ca;
   o.tls_cert_file = tls_cert;
   o.tls_key_file = tls_key;
+  o.tls_server_name = tls_server_name;
   if (list || stats) {
     hfc_client *c = NULL;
     int rc = hfc_connect(server, &o, &c);
     if (rc) {
-      fprintf(stderr, "hairfilter: %s: %s: %s\n", server, hfc_strerror(rc), hfc_last_message(NULL));
+      cli_connect_failed("hairfilter", rc);
       return 1;
     }
     int ret = (list && list_variants(c)) || (stats && print_stats(c));
@@ -207,7 +212,7 @@ int cmd_filter(int argc, char **argv) {
   void *in = NULL, *out = NULL, *rgba = NULL, *out16 = NULL, *rgba16 = NULL;
   float *rgb = NULL;
   if ((rc = hfc_connect(server, &o, &c)) != 0) {
-    fprintf(stderr, "hairfilter: %s: %s: %s\n", server, hfc_strerror(rc), hfc_last_message(NULL));
+    cli_connect_failed("hairfilter", rc);
     return 1;
   }
   hfc_variant vs[64];
@@ -227,8 +232,11 @@ int cmd_filter(int argc, char **argv) {
   for (int i = 0; i < nv && i < 64 && !variant && !v; i++)
     if (!strcmp(vs[i].name, FILTER_DEFAULT_VARIANT)) v = &vs[i];
   if (!v) {
-    fprintf(stderr, "hairfilter: %s; the server has:", variant ? "no such variant"
-                                                : "name a --variant (it has no " FILTER_DEFAULT_VARIANT ")");
+    if (variant)
+      fprintf(stderr, "hairfilter: no such variant \"%s\"; the server has:", variant);
+    else
+      fprintf(stderr, "hairfilter: name a --variant (it has no " FILTER_DEFAULT_VARIANT
+              "); the server has:");
     for (int i = 0; i < nv && i < 64; i++) fprintf(stderr, " %s", vs[i].name);
     fprintf(stderr, "\n");
     goto out;

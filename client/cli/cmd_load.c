@@ -44,7 +44,7 @@
 
 typedef struct opts {
   const char *server, *variant, *token, *input, *part, *json, *csv, *plot;
-  const char *tls_ca, *tls_cert, *tls_key;
+  const char *tls_ca, *tls_cert, *tls_key, *tls_server_name;
   int width, height, f16, shm, composite, quiet, verbose;
   int connections;               /* 0: per mode default */
   int inflight;                  /* per connection, legacy closed-loop form */
@@ -105,6 +105,7 @@ static hfc_options client_options(const char *name, const opts *o) {
   co.tls_ca_file = o->tls_ca;
   co.tls_cert_file = o->tls_cert;
   co.tls_key_file = o->tls_key;
+  co.tls_server_name = o->tls_server_name;
   co.timeout_ms = 30000;
   return co;
 }
@@ -544,7 +545,9 @@ static void usage(FILE *f) {
           "  --token T                       TCP token (default $HAIRFILTER_TOKEN)\n"
           "  --tls-ca FILE                   tls: URLs: PEM CA certificates the server's must\n"
           "                                  chain to (default: the system's)\n"
-          "  --tls-cert FILE --tls-key FILE  client certificate and key (mutual TLS)\n"
+          "  --tls-server-name NAME          the name the server's certificate must carry\n"
+          "                                  (default: the URL's host)\n"
+          "  --tls-cert FILE --tls-key FILE  client certificate and key (mutual TLS), together\n"
           "  --variant NAME                  a variant the server lists\n"
           "  --size WxH                      random frames of this size (default 256x256)\n"
           "  --input FILE.exr [--part P]     or a real feature EXR (its size; its spp must be\n"
@@ -593,6 +596,7 @@ static int parse(int argc, char **argv, opts *o) {
     {"quiet", no_argument, 0, 25},                {"help", no_argument, 0, 'h'},
     {"tls-ca", required_argument, 0, CLI_TLS_CA}, {"tls-cert", required_argument, 0, CLI_TLS_CERT},
     {"tls-key", required_argument, 0, CLI_TLS_KEY},
+    {"tls-server-name", required_argument, 0, CLI_TLS_SERVER_NAME},
     {0, 0, 0, 0},
   };
   const char *cmd = "load";
@@ -612,6 +616,7 @@ static int parse(int argc, char **argv, opts *o) {
       case CLI_TLS_CA: o->tls_ca = optarg; break;
       case CLI_TLS_CERT: o->tls_cert = optarg; break;
       case CLI_TLS_KEY: o->tls_key = optarg; break;
+      case CLI_TLS_SERVER_NAME: o->tls_server_name = optarg; break;
       case 4:
         if (cli_parse_size(optarg, &o->width, &o->height) || o->width > 65535 || o->height > 65535) {
           fprintf(stderr, "hairfilter load: --size: '%s' is not WxH (1..65535 each)\n", optarg);
@@ -669,6 +674,7 @@ static int parse(int argc, char **argv, opts *o) {
                     "(open loop) exclude each other\n");
     return -1;
   }
+  if (cli_tls_pair(cmd, o->tls_cert, o->tls_key)) return -1;
   if (o->input && size_given) {
     fprintf(stderr, "hairfilter load: --size and --input exclude each other (the EXR has its size)\n");
     return -1;
@@ -740,7 +746,7 @@ int cmd_load(int argc, char **argv) {
   hfc_options co = client_options("hairfilter-load", &o);
   int rc = hfc_connect(o.server, &co, &c);
   if (rc) {
-    fprintf(stderr, "hairfilter load: %s: %s\n", o.server, hfc_strerror(rc));
+    cli_connect_failed("hairfilter load", rc);
     return 1;
   }
   hfc_variant *vs = calloc(64, sizeof *vs);

@@ -97,6 +97,7 @@ struct hfc_client {
   void *tls_ctx;                /* SSL_CTX * when an endpoint is tls: (tls.c) */
   int tls_evfd;                 /* in epfd: readable while OpenSSL holds decrypted bytes */
   char tls_server_name[256];    /* hfc_options.tls_server_name, or "" */
+  char *tls_ca_file;            /* a copy of hfc_options.tls_ca_file; NULL: the system's CAs */
   int tls_no_verify_host;
 
   pending *p;

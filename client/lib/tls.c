@@ -16,6 +16,7 @@
 #include <errno.h>
 #include <poll.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/epoll.h>
 #include <sys/eventfd.h>
@@ -37,7 +38,7 @@ static const char *reason_hint(int reason) {
   switch (reason) {
     case SSL_R_TLSV13_ALERT_CERTIFICATE_REQUIRED:
       return " (the server requires a client certificate: give one with its key, "
-             "hfc_options.tls_cert_file / --tls-cert)";
+             "hfc_options.tls_cert_file and tls_key_file / --tls-cert and --tls-key)";
     case SSL_R_SSLV3_ALERT_HANDSHAKE_FAILURE:
       return " (the server refused the handshake: does it require a client certificate?)";
     case SSL_R_TLSV1_ALERT_UNKNOWN_CA:
@@ -50,14 +51,52 @@ static const char *reason_hint(int reason) {
     case SSL_R_PACKET_LENGTH_TOO_LONG:
       return " (the server did not answer in TLS: is it a plain tcp: listener? then use a "
              "tcp: URL)";
+    case SSL_R_UNEXPECTED_EOF_WHILE_READING:
+      return " (the server closed the connection during the TLS handshake: is it a plain "
+             "tcp: listener? then use a tcp: URL)";
     default:
       return "";
   }
 }
 
+/* The DNS and IP names of the server's certificate (its subjectAltName),
+ * as "DNS:a, IP:b", into buf; "" when there is none to read. After a
+ * refused certificate OpenSSL still holds the chain the server sent. */
+static void peer_names(SSL *ssl, char *buf, size_t cap) {
+  buf[0] = 0;
+  STACK_OF(X509) *chain = SSL_get_peer_cert_chain(ssl);
+  X509 *leaf = chain && sk_X509_num(chain) > 0 ? sk_X509_value(chain, 0) : NULL;
+  GENERAL_NAMES *g = leaf ? X509_get_ext_d2i(leaf, NID_subject_alt_name, NULL, NULL) : NULL;
+  size_t used = 0;
+  for (int i = 0; g && i < sk_GENERAL_NAME_num(g); i++) {
+    const GENERAL_NAME *n = sk_GENERAL_NAME_value(g, i);
+    char one[INET6_ADDRSTRLEN + 80];
+    if (n->type == GEN_DNS) {
+      snprintf(one, sizeof one, "DNS:%.*s", ASN1_STRING_length(n->d.dNSName) > 64 ? 64 :
+               ASN1_STRING_length(n->d.dNSName), (const char *)ASN1_STRING_get0_data(n->d.dNSName));
+    } else if (n->type == GEN_IPADD) {
+      int len = ASN1_STRING_length(n->d.iPAddress);
+      char ip[INET6_ADDRSTRLEN];
+      if ((len != 4 && len != 16) ||
+          !inet_ntop(len == 4 ? AF_INET : AF_INET6, ASN1_STRING_get0_data(n->d.iPAddress), ip,
+                     sizeof ip))
+        continue;
+      snprintf(one, sizeof one, "IP:%s", ip);
+    } else {
+      continue;
+    }
+    int k = snprintf(buf + used, cap - used, "%s%s", used ? ", " : "", one);
+    if (k < 0 || (size_t)k >= cap - used) break;
+    used += (size_t)k;
+  }
+  GENERAL_NAMES_free(g);
+}
+
 /* Sets tls_why from OpenSSL's error queue (cleared) and, after a failed
  * handshake, the verification result. Returns HFC_E_TLS. */
 static int tls_fail(SSL *ssl, const char *what) {
+  const hfc_client *c = ssl ? SSL_get_app_data(ssl) : NULL;
+  char hint[300];
   long v = ssl ? SSL_get_verify_result(ssl) : X509_V_OK;
   unsigned long e = ERR_peek_last_error();
   char reason[256] = "";
@@ -65,26 +104,35 @@ static int tls_fail(SSL *ssl, const char *what) {
   const char *r = e ? ERR_reason_error_string(e) : NULL;
   ERR_clear_error();
   if (v != X509_V_OK && ssl) {
-    const char *hint = "";
+    hint[0] = 0;
     switch (v) {
       case X509_V_ERR_CERT_HAS_EXPIRED:
-        hint = " (the server's certificate must be renewed)";
+        snprintf(hint, sizeof hint, " (the server's certificate must be renewed)");
         break;
       case X509_V_ERR_CERT_NOT_YET_VALID:
-        hint = " (check the clocks of both machines)";
+        snprintf(hint, sizeof hint, " (check the clocks of both machines)");
         break;
       case X509_V_ERR_HOSTNAME_MISMATCH:
-      case X509_V_ERR_IP_ADDRESS_MISMATCH:
-        hint = " (the certificate does not name the URL's host: connect with a name in its "
-               "subjectAltName, or set hfc_options.tls_server_name)";
+      case X509_V_ERR_IP_ADDRESS_MISMATCH: {
+        char names[200];
+        peer_names(ssl, names, sizeof names);
+        snprintf(hint, sizeof hint, " (the certificate names %s: connect with %s, or set "
+                 "hfc_options.tls_server_name / --tls-server-name NAME)",
+                 names[0] ? names : "other hosts", names[0] ? "one of them" : "a name it has");
         break;
+      }
       case X509_V_ERR_UNABLE_TO_GET_ISSUER_CERT_LOCALLY:
       case X509_V_ERR_UNABLE_TO_GET_ISSUER_CERT:
       case X509_V_ERR_SELF_SIGNED_CERT_IN_CHAIN:
       case X509_V_ERR_DEPTH_ZERO_SELF_SIGNED_CERT:
       case X509_V_ERR_UNABLE_TO_VERIFY_LEAF_SIGNATURE:
-        hint = " (the server's certificate is not signed by a CA of hfc_options.tls_ca_file / "
-               "--tls-ca)";
+        if (c && c->tls_ca_file)
+          snprintf(hint, sizeof hint, " (the server's certificate is not signed by a CA of "
+                   "hfc_options.tls_ca_file / --tls-ca %.200s)", c->tls_ca_file);
+        else
+          snprintf(hint, sizeof hint, " (the server's certificate is not signed by a CA of "
+                   "the system's CA store, used as no CA file was given: give the CA that "
+                   "signed it, hfc_options.tls_ca_file / --tls-ca FILE)");
         break;
       default: break;
     }
@@ -101,6 +149,13 @@ static int tls_fail(SSL *ssl, const char *what) {
 int hfci_tls_setup(hfc_client *c, const hfc_options *o, char *why, size_t whylen) {
   int any = 0;
   for (int i = 0; i < c->neps; i++) any |= c->eps[i].addr.tls;
+  /* Refused even without a tls: endpoint: the caller meant something else. */
+  if (!o->tls_cert_file != !o->tls_key_file) {
+    snprintf(why, whylen, "hfc_options.tls_cert_file and tls_key_file (--tls-cert and "
+             "--tls-key) go together: give both, a client certificate and its private key, "
+             "or neither");
+    return HFC_E_ARG;
+  }
   if (!any) return 0;
   SSL_CTX *ctx = SSL_CTX_new(TLS_client_method());
   if (!ctx) {
@@ -117,8 +172,12 @@ int hfci_tls_setup(hfc_client *c, const hfc_options *o, char *why, size_t whylen
     if (SSL_CTX_load_verify_locations(ctx, o->tls_ca_file, NULL) != 1) {
       ERR_error_string_n(ERR_get_error(), err, sizeof err);
       ERR_clear_error();
-      snprintf(why, whylen, "hfc_options.tls_ca_file %s: %s", o->tls_ca_file, err);
+      snprintf(why, whylen, "hfc_options.tls_ca_file (--tls-ca) %s: %s", o->tls_ca_file, err);
       return HFC_E_ARG;
+    }
+    if (!(c->tls_ca_file = strdup(o->tls_ca_file))) {
+      snprintf(why, whylen, "out of memory");
+      return HFC_E_NOMEM;
     }
   } else if (SSL_CTX_set_default_verify_paths(ctx) != 1) {
     ERR_clear_error();
@@ -126,24 +185,22 @@ int hfci_tls_setup(hfc_client *c, const hfc_options *o, char *why, size_t whylen
     return HFC_E_ARG;
   }
   if (o->tls_cert_file) {
-    const char *key = o->tls_key_file ? o->tls_key_file : o->tls_cert_file;
+    const char *key = o->tls_key_file;
     if (SSL_CTX_use_certificate_chain_file(ctx, o->tls_cert_file) != 1) {
       ERR_error_string_n(ERR_get_error(), err, sizeof err);
       ERR_clear_error();
-      snprintf(why, whylen, "hfc_options.tls_cert_file %s: %s", o->tls_cert_file, err);
+      snprintf(why, whylen, "hfc_options.tls_cert_file (--tls-cert) %s: %s", o->tls_cert_file,
+               err);
       return HFC_E_ARG;
     }
     if (SSL_CTX_use_PrivateKey_file(ctx, key, SSL_FILETYPE_PEM) != 1 ||
         SSL_CTX_check_private_key(ctx) != 1) {
       ERR_error_string_n(ERR_get_error(), err, sizeof err);
       ERR_clear_error();
-      snprintf(why, whylen, "hfc_options.tls_key_file %s: %s (is it the certificate's key?)",
-               key, err);
+      snprintf(why, whylen, "hfc_options.tls_key_file (--tls-key) %s: %s (is it the "
+               "certificate's key?)", key, err);
       return HFC_E_ARG;
     }
-  } else if (o->tls_key_file) {
-    snprintf(why, whylen, "hfc_options.tls_key_file is set without tls_cert_file");
-    return HFC_E_ARG;
   }
   if (o->tls_server_name) {
     size_t n = strlen(o->tls_server_name);
@@ -190,6 +247,8 @@ void hfci_tls_signal(hfc_client *c) {
 void hfci_tls_free(hfc_client *c) {
   SSL_CTX_free(c->tls_ctx);
   c->tls_ctx = NULL;
+  free(c->tls_ca_file);
+  c->tls_ca_file = NULL;
 }
 
 /* Waits for what OpenSSL asked for (err of SSL_get_error). */
@@ -205,6 +264,7 @@ int hfci_tls_connect(hfc_client *c, int fd, const hfp_url *u, void **out) {
     SSL_free(ssl);
     return tls_fail(NULL, "setup");
   }
+  SSL_set_app_data(ssl, c);   /* for tls_fail's hints */
   const char *name = c->tls_server_name[0] ? c->tls_server_name : u->host;
   unsigned char ip[16];
   int is_ip = inet_pton(AF_INET, name, ip) == 1 || inet_pton(AF_INET6, name, ip) == 1;
@@ -232,8 +292,9 @@ int hfci_tls_connect(hfc_client *c, int fd, const hfp_url *u, void **out) {
       continue;
     }
     if (e == SSL_ERROR_SYSCALL && ERR_peek_error() == 0) {
-      snprintf(tls_why, sizeof tls_why, "TLS handshake: the server closed the connection%s",
-               errno ? "" : " (is it a TLS listener? a plain tcp: one answers in the clear)");
+      snprintf(tls_why, sizeof tls_why, "TLS handshake: the server closed the connection "
+               "(%s%s: is it a plain tcp: listener? then use a tcp: URL)",
+               errno ? "" : "at once", errno ? strerror(errno) : "");
       SSL_free(ssl);
       return HFC_E_TLS;
     }

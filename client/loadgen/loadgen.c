@@ -21,7 +21,7 @@
 
 typedef struct opts {
   const char *server, *variant, *token;
-  const char *tls_ca, *tls_cert, *tls_key;   /* tls: URLs */
+  const char *tls_ca, *tls_cert, *tls_key, *tls_server_name;   /* tls: URLs */
   int width, height, connections, inflight, f16, shm;
   double seconds, warmup;
 } opts;
@@ -53,11 +53,13 @@ static void usage(FILE *f) {
           "usage: hairfilter-load --server URL --variant NAME [--size WxH] [--connections N]\n"
           "                       [--inflight K] [--seconds S] [--warmup S] [--f16]\n"
           "                       [--token TOKEN] [--shm]\n"
-          "                       [--tls-ca FILE] [--tls-cert FILE --tls-key FILE]\n"
+          "                       [--tls-ca FILE] [--tls-server-name NAME]\n"
+          "                       [--tls-cert FILE --tls-key FILE]\n"
           "--shm puts every frame in memory shared with the server (Unix sockets).\n"
           "Defaults: --size 640x480 --connections 1 --inflight 1 --seconds 10 --warmup 1.\n"
           "The token defaults to $HAIRFILTER_TOKEN. --tls-ca names the CA that signed a\n"
-          "tls: server's certificate (default: the system's); --tls-cert and --tls-key a\n"
+          "tls: server's certificate (default: the system's), --tls-server-name the name\n"
+          "it must carry (default: the URL's host); --tls-cert and --tls-key, together, a\n"
           "client certificate for mutual TLS.\n");
 }
 
@@ -100,11 +102,12 @@ static void *run(void *arg) {
   co.tls_ca_file = o->tls_ca;
   co.tls_cert_file = o->tls_cert;
   co.tls_key_file = o->tls_key;
+  co.tls_server_name = o->tls_server_name;
   co.timeout_ms = 30000;
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
-    fprintf(stderr, "hairfilter-load: %s: %s: %s\n", o->server, hfc_strerror(rc),
-            hfc_last_message(NULL));
+    const char *m = hfc_last_message(NULL);
+    fprintf(stderr, "hairfilter-load: %s\n", m[0] ? m : hfc_strerror(rc));
     w->fatal = 1;
     return NULL;
   }
@@ -237,6 +240,7 @@ int main(int argc, char **argv) {
     else if (!strcmp(a, "--tls-ca")) o.tls_ca = v;
     else if (!strcmp(a, "--tls-cert")) o.tls_cert = v;
     else if (!strcmp(a, "--tls-key")) o.tls_key = v;
+    else if (!strcmp(a, "--tls-server-name")) o.tls_server_name = v;
     else if (!strcmp(a, "--size")) {
       char tail;
       if (sscanf(v, "%dx%d%c", &o.width, &o.height, &tail) != 2 || o.width < 1 || o.height < 1) {
@@ -257,6 +261,11 @@ int main(int argc, char **argv) {
     usage(stderr);
     return 2;
   }
+  if (!o.tls_cert != !o.tls_key) {
+    fprintf(stderr, "hairfilter-load: give --tls-cert and --tls-key together (a client "
+            "certificate and its private key)\n");
+    return 2;
+  }
   char why[300];
   if (hfc_check_url(o.server, why, sizeof why)) {
     fprintf(stderr, "hairfilter-load: --server: %s\n", why);
@@ -271,11 +280,14 @@ int main(int argc, char **argv) {
   co.tls_ca_file = o.tls_ca;
   co.tls_cert_file = o.tls_cert;
   co.tls_key_file = o.tls_key;
+  co.tls_server_name = o.tls_server_name;
   co.timeout_ms = 30000;
   int rc = hfc_connect(o.server, &co, &c);
   if (rc) {
-    fprintf(stderr, "hairfilter-load: %s: %s: %s\n", o.server, hfc_strerror(rc),
-            hfc_last_message(NULL));
+    const char *m = hfc_last_message(NULL);
+    fprintf(stderr, "hairfilter-load: %s\n", m[0] ? m : hfc_strerror(rc));
+    if (rc == HFC_E_UNAUTHORIZED)
+      fprintf(stderr, "hairfilter-load: give the server's token with --token TOKEN\n");
     return 1;
   }
   hfc_variant vs[64];

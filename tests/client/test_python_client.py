@@ -68,37 +68,48 @@ def c_filter(url, variant, f, shm=False, rgba=False, ca=None):
     return out
 
 
+def start_daemon(name, args, env=None):
+    """hairfilterd with args and a ready file: the process and its URLs."""
+    ready = os.path.join(ARGS.work, name + ".ready")
+    if os.path.exists(ready):
+        os.unlink(ready)
+    with open(os.path.join(ARGS.work, name + ".log"), "w") as log:
+        proc = subprocess.Popen([ARGS.daemon] + args + ["--backend", "cpu-ref", "--ready-file",
+                                                        ready], stdout=log, stderr=log, env=env)
+    for _ in range(3000):
+        if os.path.exists(ready):
+            with open(ready) as fh:
+                return proc, fh.read().split()
+        if proc.poll() is not None:
+            break
+        time.sleep(0.01)
+    raise RuntimeError("hairfilterd did not start: see %s/%s.log" % (ARGS.work, name))
+
+
+def tls_localhost(urls):
+    """The tls: URL of urls as tls:localhost:PORT (the certificate names
+    localhost only)."""
+    return "tls:localhost:" + [u for u in urls if u.startswith("tls:")][0].rsplit(":", 1)[1]
+
+
 def setUpModule():
     global DAEMON, UNIX, TCP, TLS, CERTS
     os.makedirs(ARGS.work, exist_ok=True)
     CERTS = os.path.join(ARGS.work, "certs")
     os.makedirs(CERTS, exist_ok=True)
     subprocess.run([ARGS.make_certs, CERTS], check=True)
-    ready = os.path.join(ARGS.work, "ready")
     sock = os.path.join(ARGS.work, "d.sock")
-    for p in (ready, sock):
-        if os.path.exists(p):
-            os.unlink(p)
-    log = open(os.path.join(ARGS.work, "daemon.log"), "w")
-    DAEMON = subprocess.Popen(
-        [ARGS.daemon, "--listen", "unix:" + sock, "--listen", "tcp:127.0.0.1:0", "--no-auth",
-         "--listen", "tls:127.0.0.1:0", "--tls-cert", os.path.join(CERTS, "server.pem"),
-         "--tls-key", os.path.join(CERTS, "server.key"),
-         "--weights", os.path.join(ARGS.weights, "small.safetensors"),
-         "--weights", os.path.join(ARGS.weights, "base_1spp.safetensors"),
-         "--backend", "cpu-ref", "--ready-file", ready], stdout=log, stderr=log)
-    for _ in range(3000):
-        if os.path.exists(ready):
-            urls = open(ready).read().split()
-            UNIX = [u for u in urls if u.startswith("unix:")][0]
-            TCP = [u for u in urls if u.startswith("tcp:")][0]
-            # The certificate names localhost only.
-            TLS = "tls:localhost:" + [u for u in urls if u.startswith("tls:")][0].rsplit(":", 1)[1]
-            return
-        if DAEMON.poll() is not None:
-            break
-        time.sleep(0.01)
-    raise RuntimeError("hairfilterd did not start: see %s/daemon.log" % ARGS.work)
+    if os.path.exists(sock):
+        os.unlink(sock)
+    DAEMON, urls = start_daemon("daemon", [
+        "--listen", "unix:" + sock, "--listen", "tcp:127.0.0.1:0", "--no-auth",
+        "--listen", "tls:127.0.0.1:0", "--tls-cert", os.path.join(CERTS, "server.pem"),
+        "--tls-key", os.path.join(CERTS, "server.key"),
+        "--weights", os.path.join(ARGS.weights, "small.safetensors"),
+        "--weights", os.path.join(ARGS.weights, "base_1spp.safetensors")])
+    UNIX = [u for u in urls if u.startswith("unix:")][0]
+    TCP = [u for u in urls if u.startswith("tcp:")][0]
+    TLS = tls_localhost(urls)
 
 
 def tearDownModule():
@@ -143,22 +154,89 @@ class PythonClient(unittest.TestCase):
             self.assertEqual(hf.filter("Small", f).result.tobytes(), want)
         self.assertEqual(c_filter(TLS, "Small", f, ca=ca), want)
 
+    def refused(self, code, says, *args, **kw):
+        """Client(*args, **kw) raises Error(code) whose message has each of says."""
+        with self.assertRaises(hairfilter.Error) as e:
+            hairfilter.Client(*args, **kw)
+        self.assertEqual(e.exception.code, code, str(e.exception))
+        for words in says:
+            self.assertIn(words, e.exception.message)
+        return e.exception
+
     def test_tls_refusals(self):
-        """A CA that did not sign the server's certificate, a host name it
-        does not carry, a plain client on the TLS port: each named."""
+        """A CA that did not sign the server's certificate (a file, or the
+        system's store), a host name or address it does not carry, a plain
+        client on the TLS port, a TLS client on the plain one: each named,
+        with the handshake's code (also after another endpoint failed)."""
         other = os.path.join(CERTS, "other-ca.pem")
-        with self.assertRaises(hairfilter.Error) as e:
-            hairfilter.Client(TLS, tls_ca=other)
-        self.assertIn("unable to get local issuer certificate", str(e.exception))
         ca = os.path.join(CERTS, "ca.pem")
-        with self.assertRaises(hairfilter.Error) as e:
-            hairfilter.Client(TLS, tls_ca=ca, tls_server_name="render-99.farm")
-        self.assertIn("Hostname mismatch", str(e.exception))
-        with self.assertRaises(hairfilter.Error) as e:
-            hairfilter.Client("tcp:" + TLS[4:])
-        self.assertIn("this listener speaks TLS", str(e.exception))
+        self.refused("TLS", ["unable to get local issuer certificate",
+                             "not signed by a CA of tls_ca " + other], TLS, tls_ca=other)
+        self.refused("TLS", ["system's CA store", "tls_ca="], TLS)
+        missing = "unix:" + os.path.join(ARGS.work, "missing.sock")
+        e = self.refused("TLS", ["No such file", "not signed by a CA"], missing + "," + TLS,
+                         tls_ca=other)
+        self.assertEqual(e.message.count("TLS handshake"), 1)
+        self.refused("TLS", ["Hostname mismatch", "names DNS:localhost", "tls_server_name"],
+                     TLS, tls_ca=ca, tls_server_name="render-99.farm")
+        self.refused("TLS", ["IP address mismatch", "names DNS:localhost"],
+                     "tls:127.0.0.1:" + TLS.rsplit(":", 1)[1], tls_ca=ca)
+        self.refused("PROTOCOL", ["this listener speaks TLS"], "tcp:" + TLS[4:])
+        self.refused("TLS", ["plain tcp: listener"], "tls:" + TCP[4:], tls_ca=ca,
+                     tls_server_name="localhost")
         with hairfilter.Client(TLS, tls_ca=ca) as hf:
             self.assertEqual(hf.filter("Small", features(8, 8, 4, 3)).status, "OK")
+
+    def test_tls_files(self):
+        """TLS files that cannot be used are named before connecting."""
+        ca = os.path.join(CERTS, "ca.pem")
+        cert, key = os.path.join(CERTS, "client.pem"), os.path.join(CERTS, "client.key")
+        other_key = os.path.join(CERTS, "client-other.key")
+        self.refused("ARG", ["tls_ca /nonexistent.pem", "No such file"], TLS,
+                     tls_ca="/nonexistent.pem")
+        self.refused("ARG", ["tls_ca " + key, "no PEM certificate"], TLS, tls_ca=key)
+        self.refused("ARG", ["give tls_cert and tls_key together"], TLS, tls_ca=ca,
+                     tls_cert=cert)
+        self.refused("ARG", ["give tls_cert and tls_key together"], TLS, tls_ca=ca,
+                     tls_key=key)
+        self.refused("ARG", ["tls_cert " + key], TLS, tls_ca=ca, tls_cert=key, tls_key=key)
+        self.refused("ARG", ["tls_key " + cert, "no PEM private key"], TLS, tls_ca=ca,
+                     tls_cert=cert, tls_key=cert)
+        self.refused("ARG", ["tls_key %s is not the private key of tls_cert" % other_key],
+                     TLS, tls_ca=ca, tls_cert=cert, tls_key=other_key)
+
+    def test_mutual_tls(self):
+        """Under mutual TLS: a client certificate serves without a token; none,
+        or one from another CA, is refused with the server's reason; a plain
+        client without the token gets the handshake's UNAUTHORIZED."""
+        c = lambda name: os.path.join(CERTS, name)
+        env = dict(os.environ, HAIRFILTERD_TOKEN="py-mutual-token")
+        proc, urls = start_daemon("mutual", [
+            "--listen", "tls:127.0.0.1:0", "--listen", "tcp:127.0.0.1:0",
+            "--tls-cert", c("server.pem"), "--tls-key", c("server.key"),
+            "--tls-client-ca", c("ca.pem"), "--tls-client-cert-auth",
+            "--weights", os.path.join(ARGS.weights, "small.safetensors")], env)
+        try:
+            tls = tls_localhost(urls)
+            tcp = [u for u in urls if u.startswith("tcp:")][0]
+            with hairfilter.Client(tls, tls_ca=c("ca.pem"), tls_cert=c("client.pem"),
+                                   tls_key=c("client.key")) as hf:
+                self.assertEqual(hf.filter("Small", features(8, 8, 4, 6)).status, "OK")
+            self.refused("TLS", ["certificate required", "requires a client certificate",
+                                 "tls_cert="], tls, tls_ca=c("ca.pem"))
+            self.refused("TLS", ["unknown ca", "does not trust this client certificate"], tls,
+                         tls_ca=c("ca.pem"), tls_cert=c("client-other.pem"),
+                         tls_key=c("client-other.key"))
+            self.refused("UNAUTHORIZED", [tcp], tcp)
+            self.refused("UNAUTHORIZED", ["No such file"],
+                         "unix:" + os.path.join(ARGS.work, "missing.sock") + "," + tcp)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+        with open(os.path.join(ARGS.work, "mutual.log")) as fh:
+            log = fh.read()
+        self.assertIn("the client sent no certificate", log)
+        self.assertIn("this server refused the client's certificate", log)
 
     def test_f16_and_composite_equal_c(self):
         f = features(17, 23, 1, 2, np.float16)

@@ -309,6 +309,7 @@ int cf_health(cf_test *t) {
   o.tls_ca_file = t->o->tls_ca;
   o.tls_cert_file = t->o->tls_cert;
   o.tls_key_file = t->o->tls_key;
+  o.tls_server_name = t->o->tls_server_name;
   int rc = hfc_connect(t->o->server, &o, &c);
   if (rc)
     return cf_fail(t, "libhairfilter cannot connect: %s: %s", hfc_strerror(rc),

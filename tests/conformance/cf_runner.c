@@ -135,6 +135,7 @@ static int probe(const cf_options *o, cf_server *s, char *why, size_t whylen) {
   co.tls_ca_file = o->tls_ca;
   co.tls_cert_file = o->tls_cert;
   co.tls_key_file = o->tls_key;
+  co.tls_server_name = o->tls_server_name;
   rc = hfc_connect(o->server, &co, &c);
   if (!rc) {
     cf_filter pf = {0};

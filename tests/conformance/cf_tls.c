@@ -135,19 +135,20 @@ int cf_tls_wrap(const cf_options *o, const hfp_url *u, int tcp, char *why, size_
                      : SSL_CTX_set_default_verify_paths(ctx);
   if (ok == 1 && o->tls_cert)
     ok = SSL_CTX_use_certificate_chain_file(ctx, o->tls_cert) == 1 &&
-         SSL_CTX_use_PrivateKey_file(ctx, o->tls_key ? o->tls_key : o->tls_cert,
-                                     SSL_FILETYPE_PEM) == 1;
+         SSL_CTX_use_PrivateKey_file(ctx, o->tls_key, SSL_FILETYPE_PEM) == 1;
   SSL *ssl = ok == 1 ? SSL_new(ctx) : NULL;
   SSL_CTX_free(ctx);   /* the session keeps its own reference */
+  const char *name = o->tls_server_name ? o->tls_server_name : u->host;
   unsigned char ip[16];
-  int is_ip = inet_pton(AF_INET, u->host, ip) == 1 || inet_pton(AF_INET6, u->host, ip) == 1;
+  int is_ip = inet_pton(AF_INET, name, ip) == 1 || inet_pton(AF_INET6, name, ip) == 1;
   if (!ssl || SSL_set_fd(ssl, tcp) != 1 ||
-      (is_ip ? X509_VERIFY_PARAM_set1_ip_asc(SSL_get0_param(ssl), u->host)
-             : SSL_set1_host(ssl, u->host) && SSL_set_tlsext_host_name(ssl, u->host)) != 1) {
+      (is_ip ? X509_VERIFY_PARAM_set1_ip_asc(SSL_get0_param(ssl), name)
+             : SSL_set1_host(ssl, name) && SSL_set_tlsext_host_name(ssl, name)) != 1) {
     char err[256];
     ERR_error_string_n(ERR_get_error(), err, sizeof err);
     ERR_clear_error();
-    snprintf(why, whylen, "TLS set-up (--tls-ca, --tls-cert, --tls-key): %s", err);
+    snprintf(why, whylen, "TLS set-up (--tls-ca, --tls-cert, --tls-key, --tls-server-name): %s",
+             err);
     SSL_free(ssl);
     close(tcp);
     return -1;

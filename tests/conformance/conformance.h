@@ -32,6 +32,7 @@ typedef struct cf_options {
   const char *tls_ca;      /* tls: URLs: CA file of the server's certificate; NULL: the system's */
   const char *tls_cert;    /* client certificate and key for mutual TLS, or NULL */
   const char *tls_key;
+  const char *tls_server_name; /* the name the server's certificate must carry; NULL: the host */
   const char *pattern;     /* run only cases matching this fnmatch pattern; NULL: all */
   int timeout_ms;          /* longest wait for a reply the server owes; 0: 10000 */
   int quiet_ms;            /* how long "no reply" is watched for; 0: 300 */

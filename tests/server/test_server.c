@@ -734,6 +734,13 @@ static void test_cli_filter(void **state) {
            "> '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, feat, res, outtxt);
   rc = system(cmd);
   assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 1);
+  f = fopen(outtxt, "r");
+  assert_non_null(f);
+  n = fread(text, 1, sizeof text - 1, f);
+  fclose(f);
+  text[n] = 0;
+  if (!strstr(text, "no such variant \"Nope\"; the server has:") || !strstr(text, "Small"))
+    fail_msg("an unknown variant: %s", text);
   /* a bad URL is a usage error (status 2) that names it */
   snprintf(cmd, sizeof cmd, "'%s' filter --server tcp:127.0.0.1:70000 --list > '%s' 2>&1",
            HAIRFILTER_CLI_PATH, outtxt);

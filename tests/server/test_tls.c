@@ -14,6 +14,7 @@
 #include <poll.h>
 #include <signal.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -200,22 +201,33 @@ static void test_server_certificate_refused(void **state) {
   tls_url(&S, 1, num, sizeof num);
   tls_opts other = GOOD;
   other.ca = "other-ca.pem";
-  refused(&S, url, &other, HFC_E_TLS, "unable to get local issuer certificate", "tls_ca_file",
-          &GOOD);
-  /* 127.0.0.1 is not in the certificate (DNS:localhost only). */
-  refused(&S, num, &GOOD, HFC_E_TLS, "IP address mismatch", "does not name the URL's host",
+  refused(&S, url, &other, HFC_E_TLS, "unable to get local issuer certificate",
+          "--tls-ca", &GOOD);
+  /* The server hears the client's alert, and says whose refusal it was. */
+  assert_true(server_log_has(&S, "the client refused this server's certificate: unknown CA"));
+  /* No CA file: the system's store was used, and the hint says so. */
+  tls_opts system = GOOD;
+  system.ca = NULL;
+  refused(&S, url, &system, HFC_E_TLS, "the system's CA store", "--tls-ca FILE", &GOOD);
+  /* 127.0.0.1 is not in the certificate (DNS:localhost only): the names it
+   * has are listed, and the handshake is named once. */
+  refused(&S, num, &GOOD, HFC_E_TLS, "IP address mismatch", "the certificate names DNS:localhost",
           &GOOD);
   tls_opts name = GOOD;
   name.server_name = "render-99.farm";
-  refused(&S, url, &name, HFC_E_TLS, "hostname mismatch", NULL, &GOOD);
+  refused(&S, url, &name, HFC_E_TLS, "hostname mismatch", "--tls-server-name", &GOOD);
+  char msg[600];
+  hfc_client *c;
+  tls_connect(url, &name, &c, msg, sizeof msg);
+  char *first = strstr(msg, "TLS handshake");
+  if (!first || strstr(first + 1, "TLS handshake") || strstr(strstr(msg, url) + 1, url))
+    fail_msg("the URL and 'TLS handshake' once each: '%s'", msg);
   /* The token still applies over TLS. */
   tls_opts token = GOOD;
   token.token = "not-the-token";
   refused(&S, url, &token, HFC_E_UNAUTHORIZED, "wrong token", NULL, &GOOD);
   /* A host name the certificate does have, given for a numeric URL. */
   name.server_name = "localhost";
-  char msg[600];
-  hfc_client *c;
   int rc = tls_connect(num, &name, &c, msg, sizeof msg);
   if (rc) fail_msg("%s as localhost: %s (%s)", num, hfc_strerror(rc), msg);
   hfc_close(c);
@@ -233,12 +245,23 @@ static void test_client_certificate_refused(void **state) {
   refused(&M, url, &foreign, HFC_E_TLS, "unknown ca", "does not trust this client certificate",
           &MUTUAL);
   assert_true(server_log_has(&M, "TLS handshake failed"));
+  assert_true(server_log_has(&M, "this server refused the client's certificate: the client sent "
+                                 "no certificate"));
+  assert_true(server_log_has(&M, "this server refused the client's certificate: unable to get "
+                                 "local issuer certificate"));
   /* A key that is not the certificate's is the caller's mistake, said so. */
   tls_opts wrong_key = {.ca = "ca.pem", .cert = "client.pem", .key = "client-other.key"};
   char msg[600];
   hfc_client *c;
   assert_int_equal(tls_connect(url, &wrong_key, &c, msg, sizeof msg), HFC_E_ARG);
   assert_non_null(strstr(msg, "tls_key_file"));
+  /* A certificate without its key, or the reverse, is refused before
+   * connecting, naming both. */
+  tls_opts halves[] = {{.ca = "ca.pem", .cert = "client.pem"}, {.ca = "ca.pem", .key = "client.key"}};
+  for (int k = 0; k < 2; k++) {
+    assert_int_equal(tls_connect(url, &halves[k], &c, msg, sizeof msg), HFC_E_ARG);
+    if (!strstr(msg, "tls_cert_file and tls_key_file")) fail_msg("half a pair: '%s'", msg);
+  }
 }
 
 /* Item: the wrong protocol on either port. */
@@ -270,6 +293,7 @@ static void test_wrong_protocol(void **state) {
   rc = tls_connect(tls, &t, &c, msg, sizeof msg);
   if (rc != HFC_E_TLS || !strstr(msg, "plain tcp: listener"))
     fail_msg("%s: %s '%s'", tls, hfc_strerror(rc), msg);
+  assert_true(server_log_has(&S, "a TLS client on a plain tcp: listener"));
   still_serves(&S, &GOOD);
 }
 
@@ -353,6 +377,60 @@ static void test_start_options(void **state) {
   }
 }
 
+/* Runs the hairfilter CLI with args (shell words) and the token in the
+ * environment: its exit status, stdout and stderr in out. */
+static int run_cli(const char *args, const char *token, char *out, size_t cap) {
+  char log[300], cmd[2048];
+  snprintf(log, sizeof log, "%s/cli.txt", H.dir);
+  snprintf(cmd, sizeof cmd, "HAIRFILTER_TOKEN='%s' '%s' %s > '%s' 2>&1", token,
+           HAIRFILTER_CLI_PATH, args, log);
+  int rc = system(cmd);
+  out[0] = 0;
+  FILE *f = fopen(log, "r");
+  if (f) {
+    size_t n = fread(out, 1, cap - 1, f);
+    out[n] = 0;
+    fclose(f);
+  }
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+/* Item: the CLI's TLS options: --tls-server-name, certificate and key
+ * together, messages that name the options and say each thing once. */
+static void test_cli(void **state) {
+  (void)state;
+  char num[300], args[1500], out[4096], ca[256], cert[256];
+  tls_url(&S, 1, num, sizeof num);
+  path_of(ca, sizeof ca, "ca.pem");
+  path_of(cert, sizeof cert, "client.pem");
+  snprintf(args, sizeof args, "filter --server %s --tls-ca '%s' --tls-server-name localhost --list",
+           num, ca);
+  int st = run_cli(args, TEST_TOKEN, out, sizeof out);
+  if (st != 0 || !strstr(out, "Small")) fail_msg("--tls-server-name: status %d: %s", st, out);
+  /* Without it: the names the certificate has, and the option to use. */
+  snprintf(args, sizeof args, "filter --server %s --tls-ca '%s' --list", num, ca);
+  st = run_cli(args, TEST_TOKEN, out, sizeof out);
+  char *first = strstr(out, num), *tls = strstr(out, "TLS handshake");
+  if (st != 1 || !strstr(out, "names DNS:localhost") || !strstr(out, "--tls-server-name NAME") ||
+      !first || strstr(first + 1, num) || !tls || strstr(tls + 1, "TLS handshake"))
+    fail_msg("name mismatch: status %d: %s", st, out);
+  /* A wrong token: where the CLI takes it from. */
+  snprintf(args, sizeof args, "filter --server %s --tls-ca '%s' --tls-server-name localhost --list",
+           num, ca);
+  st = run_cli(args, "not-the-token", out, sizeof out);
+  if (st != 1 || !strstr(out, "UNAUTHORIZED") || !strstr(out, "--token TOKEN or $HAIRFILTER_TOKEN"))
+    fail_msg("wrong token: status %d: %s", st, out);
+  /* Half a client certificate is refused before connecting. */
+  const char *cmds[] = {"filter --list", "load --variant Small", "conformance"};
+  for (int k = 0; k < 3; k++) {
+    snprintf(args, sizeof args, "%s --server %s --tls-ca '%s' --tls-cert '%s'", cmds[k], num, ca,
+             cert);
+    st = run_cli(args, TEST_TOKEN, out, sizeof out);
+    if (st != 2 || !strstr(out, "give --tls-cert and --tls-key together"))
+      fail_msg("%s with --tls-cert alone: status %d: %s", cmds[k], st, out);
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_tls_equals_tcp),
@@ -361,6 +439,7 @@ int main(void) {
     cmocka_unit_test(test_wrong_protocol),
     cmocka_unit_test(test_reload_certificate),
     cmocka_unit_test(test_start_options),
+    cmocka_unit_test(test_cli),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

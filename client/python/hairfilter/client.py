@@ -30,10 +30,47 @@ import numpy as np
 from . import protocol as P
 
 
+# X509 verification results (x509_vfy.h) and what to check for them, as
+# libhairfilter says it (client/lib/tls.c).
+_NOT_SIGNED = (2, 18, 19, 20, 21)   # issuer unknown, self-signed, leaf unverifiable
+_MISMATCH = (62, 64)                # host name, IP address
+_VERIFY_HINTS = {10: " (the server's certificate must be renewed)",
+                 9: " (check the clocks of both machines)"}
+# OpenSSL's reason codes seen in a handshake, and their hints.
+_REASON_HINTS = {
+    "TLSV13_ALERT_CERTIFICATE_REQUIRED":
+        " (the server requires a client certificate: give one with its key, tls_cert= and "
+        "tls_key=)",
+    "SSLV3_ALERT_HANDSHAKE_FAILURE":
+        " (the server refused the handshake: does it require a client certificate?)",
+    "TLSV1_ALERT_UNKNOWN_CA":
+        " (the server does not trust this client certificate: is it signed by the CA of "
+        "the server's --tls-client-ca?)",
+    "SSLV3_ALERT_CERTIFICATE_EXPIRED": " (the server says this client certificate has expired)",
+    "WRONG_VERSION_NUMBER":
+        " (the server did not answer in TLS: is it a plain tcp: listener? then use a tcp: URL)",
+    "UNEXPECTED_EOF_WHILE_READING":
+        " (the server closed the connection during the TLS handshake: is it a plain tcp: "
+        "listener? then use a tcp: URL)",
+}
+_REASON_HINTS["SSLV3_ALERT_BAD_CERTIFICATE"] = _REASON_HINTS["TLSV1_ALERT_UNKNOWN_CA"]
+_REASON_HINTS["PACKET_LENGTH_TOO_LONG"] = _REASON_HINTS["WRONG_VERSION_NUMBER"]
+
+
+def _ssl_reason(e):
+    """OpenSSL's reason of e in its own words ("tlsv1 alert unknown ca"),
+    with what to check for the usual ones."""
+    reason = getattr(e, "reason", None)
+    if not reason:
+        return str(getattr(e, "strerror", None) or e)
+    return reason.lower().replace("_", " ") + _REASON_HINTS.get(reason, "")
+
+
 class Error(Exception):
     """A call that failed. code is the protocol's name of the error ("BUSY",
-    "UNKNOWN_VARIANT", ...) or a local one: "CONNECT", "CLOSED", "TIMEOUT",
-    "IO", "ARG"; message says what exactly."""
+    "UNKNOWN_VARIANT", ...) or a local one: "URL", "CONNECT", "TLS", "CLOSED",
+    "TIMEOUT", "IO", "ARG", "PROTOCOL", "INFLIGHT", "NOPENDING", "UNSUPPORTED";
+    message says what exactly."""
 
     def __init__(self, code, message):
         super().__init__("%s: %s" % (code, message) if message else code)
@@ -117,10 +154,13 @@ class Client:
     TCP with TLS through the standard ssl module: the server's certificate
     must chain to tls_ca (a PEM file; None: the system's CAs) and name HOST
     (or tls_server_name); tls_cert and tls_key are a client certificate for
-    mutual TLS. timeout: seconds per blocking step (None: none).
-    Raises Error ("CONNECT" with the reason of every endpoint, or the
-    handshake's error: "UNAUTHORIZED", "VERSION", "BUSY", ...; a refused
-    certificate says why, as libhairfilter does)."""
+    mutual TLS, given together. timeout: seconds per blocking step (None:
+    none). Raises Error with, as libhairfilter, the code of the last
+    endpoint tried ("CONNECT", "TLS", or the handshake's error:
+    "UNAUTHORIZED", "VERSION", "BUSY", ...) and the reason of every
+    endpoint (a refused certificate says why and what to check), or "ARG"
+    before connecting for TLS files that cannot be used (naming tls_ca,
+    tls_cert or tls_key)."""
 
     def __init__(self, url, client_name="hairfilter-python", token=None, timeout=30.0,
                  tls_ca=None, tls_cert=None, tls_key=None, tls_server_name=None):
@@ -134,36 +174,49 @@ class Client:
         self._variants = None
         self._fds = []
         self._broken = None
-        reasons = []
+        addrs = []
         for ep in url.split(","):
             try:
-                addr = P.parse_url(ep)
+                addrs.append((ep, P.parse_url(ep)))
             except ValueError as e:
                 raise Error("URL", str(e))
+        self._ssl = None
+        if any(a.kind == "tls" for _, a in addrs):
+            self._ssl = self._tls_context(check_hostname=True)
+        # As libhairfilter: the code is the last endpoint's, the message
+        # every endpoint's reason.
+        code, reasons = "URL", []
+        for ep, addr in addrs:
             try:
                 self._open(addr, client_name, token or "")
                 self.endpoint = ep
                 return
             except Error as e:
+                code = e.code
                 reasons.append("%s: %s" % (ep, e))
                 self._close_socket()
-        raise Error(reasons and "CONNECT" or "URL", "; ".join(reasons))
+        raise Error(code, "; ".join(reasons))
 
     # ---- connection ---------------------------------------------------------------
 
     def _open(self, addr, client_name, token):
+        self._broken = None   # what an endpoint tried before left
         try:
             if addr.kind == "unix":
                 s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
                 s.settimeout(self.timeout)
-                s.connect(addr.path)
+                try:
+                    s.connect(addr.path)
+                except OSError:
+                    s.close()
+                    raise
             else:
                 s = socket.create_connection((addr.host, addr.port), timeout=self.timeout)
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         except OSError as e:
             raise Error("CONNECT", "connect: %s" % (e.strerror or e))
         if addr.kind == "tls":
-            s = self._wrap_tls(s, addr.host)
+            s = self._wrap_tls(s, addr)
         self._sock = s
         self._unix = addr.kind == "unix"
         self._send(P.encode_hello(client_name, token))
@@ -181,27 +234,91 @@ class Client:
                                bool(ok.dtypes & 1), bool(ok.dtypes & 2),
                                bool(ok.server_flags & P.SERVER_SHM), ok.max_frame_bytes)
 
-    def _wrap_tls(self, s, host):
-        """The TLS session on the connected socket s, the certificate and the
-        host name checked (ssl.create_default_context: TLS 1.2 at least)."""
-        ca, cert, key, name = self._tls
+    def _tls_context(self, check_hostname):
+        """The ssl context of the TLS arguments (TLS 1.2 at least), each file
+        checked on its own so that a bad one is named: Error("ARG")."""
+        ca, cert, key, _ = self._tls
+        if bool(cert) != bool(key):
+            raise Error("ARG", "give tls_cert and tls_key together (tls_cert %s, tls_key %s): "
+                               "a client certificate goes with its private key" % (cert, key))
+        for what, path, marker in (("tls_ca", ca, b"CERTIFICATE-----"),
+                                   ("tls_cert", cert, b"CERTIFICATE-----"),
+                                   ("tls_key", key, b"PRIVATE KEY-----")):
+            if path is None:
+                continue
+            try:
+                with open(path, "rb") as fh:
+                    text = fh.read()
+            except OSError as e:
+                raise Error("ARG", "%s %s: %s" % (what, path, e.strerror or e))
+            if marker not in text:
+                raise Error("ARG", "%s %s: no PEM %s in the file" % (what, path, marker[:-5]
+                                                                     .decode().lower()))
         try:
             ctx = ssl.create_default_context(cafile=ca)
-            ctx.minimum_version = ssl.TLSVersion.TLSv1_2
-            if cert:
-                ctx.load_cert_chain(cert, key)
         except (OSError, ssl.SSLError) as e:
-            s.close()
-            raise Error("ARG", "TLS files (tls_ca %s, tls_cert %s, tls_key %s): %s"
-                        % (ca, cert, key, e))
+            raise Error("ARG", "tls_ca %s: %s" % (ca or "(the system's CA store)",
+                                                   _ssl_reason(e)))
+        ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+        ctx.check_hostname = check_hostname
+        if cert:
+            try:
+                ctx.load_cert_chain(cert, key)
+            except (OSError, ssl.SSLError) as e:
+                # A certificate that parses (as a CA list) leaves the key at fault.
+                try:
+                    ssl.create_default_context(cafile=cert)
+                except (OSError, ssl.SSLError):
+                    raise Error("ARG", "tls_cert %s: %s" % (cert, _ssl_reason(e)))
+                if getattr(e, "reason", None) == "KEY_VALUES_MISMATCH":
+                    raise Error("ARG", "tls_key %s is not the private key of tls_cert %s"
+                                % (key, cert))
+                raise Error("ARG", "tls_key %s: %s" % (key, _ssl_reason(e)))
+        return ctx
+
+    def _wrap_tls(self, s, addr):
+        """The TLS session on the connected socket s, the certificate and the
+        host name checked. A refusal says why, in libhairfilter's words."""
+        ca, cert, key, name = self._tls
         try:
-            return ctx.wrap_socket(s, server_hostname=name or host)
+            return self._ssl.wrap_socket(s, server_hostname=name or addr.host)
         except ssl.SSLCertVerificationError as e:
             s.close()
-            raise Error("TLS", "server certificate refused: %s" % e.verify_message)
+            msg = "TLS handshake: server certificate refused: %s" % e.verify_message
+            if e.verify_code in _NOT_SIGNED:
+                msg += (" (the server's certificate is not signed by a CA of tls_ca %s)" % ca
+                        if ca else " (the server's certificate is not signed by a CA of the "
+                        "system's CA store, used as no tls_ca was given: pass tls_ca=, the "
+                        "PEM file of the CA that signed it)")
+            elif e.verify_code in _MISMATCH:
+                names = self._peer_names(addr, name or addr.host)
+                msg += (" (the certificate names %s: connect with one of them, or set "
+                        "tls_server_name)" % ", ".join(names) if names else
+                        " (the certificate does not name the URL's host: connect with a name "
+                        "in its subjectAltName, or set tls_server_name)")
+            elif e.verify_code in _VERIFY_HINTS:
+                msg += _VERIFY_HINTS[e.verify_code]
+            raise Error("TLS", msg)
         except (ssl.SSLError, OSError) as e:
             s.close()
-            raise Error("TLS", "TLS handshake: %s" % (getattr(e, "reason", None) or e))
+            if isinstance(e, socket.timeout):
+                raise Error("TIMEOUT", "TLS handshake: no answer within the timeout")
+            raise Error("TLS", "TLS handshake: %s" % _ssl_reason(e))
+
+    def _peer_names(self, addr, sni):
+        """The DNS and IP names of the server's certificate, had from a second
+        handshake that checks the chain but not the host name; [] when that
+        fails too."""
+        try:
+            ctx = self._tls_context(check_hostname=False)
+            with socket.create_connection((addr.host, addr.port),
+                                          timeout=min(self.timeout or 5, 5)) as raw:
+                with ctx.wrap_socket(raw, server_hostname=sni) as t:
+                    cert = t.getpeercert()
+        except (Error, OSError):
+            return []
+        return ["%s:%s" % ("IP" if k == "IP Address" else k, v)
+                for k, v in cert.get("subjectAltName", ()) if k in ("DNS", "IP Address")]
 
     def _close_socket(self):
         if self._sock is not None:
@@ -243,6 +360,8 @@ class Client:
                 self._sock.sendall(p)
         except socket.timeout:
             self._fail("TIMEOUT", "sending took longer than the timeout")
+        except ssl.SSLError as e:
+            self._fail("TLS", "TLS write: %s" % _ssl_reason(e))
         except OSError as e:
             self._fail("CLOSED" if isinstance(e, (BrokenPipeError, ConnectionResetError))
                        else "IO", "send: %s" % (e.strerror or e))
@@ -278,7 +397,8 @@ class Client:
                 raise Error("TIMEOUT", "no reply within %.3f s" % first_timeout)
             self._fail("TIMEOUT", "no reply within the timeout")
         except ssl.SSLError as e:
-            self._fail("TLS", "receive: %s" % (e.reason or e))
+            # Under TLS 1.3 a refused client certificate is heard here.
+            self._fail("TLS", "TLS read: %s" % _ssl_reason(e))
         except OSError as e:
             self._fail("CLOSED" if isinstance(e, ConnectionResetError) else "IO",
                        "receive: %s" % (e.strerror or e))

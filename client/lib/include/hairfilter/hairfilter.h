@@ -133,7 +133,7 @@ typedef struct hfc_options {
   const char *tls_ca_file;   /* PEM file of trusted CA certificates; NULL: the system's
                                 (/etc/ssl/certs) */
   const char *tls_cert_file; /* PEM client certificate (chain) for mutual TLS; NULL: none */
-  const char *tls_key_file;  /* its PEM private key; NULL: in tls_cert_file */
+  const char *tls_key_file;  /* its PEM private key: both or neither (else HFC_E_ARG) */
   const char *tls_server_name; /* name the server's certificate must carry; NULL: the
                                   URL's host */
   int tls_no_verify_host;    /* 1: accept any name on a certificate the CA signed (a
