@@ -22,13 +22,7 @@ if [ $# -lt 5 ]; then
 fi
 build=$1 weights=$2 limit=$3 seconds=$4
 shift 4
-work=$(mktemp -d)
-pid=
-cleanup() {
-  [ -n "$pid" ] && kill -TERM "$pid" 2> /dev/null && wait "$pid" 2> /dev/null
-  rm -rf "$work"
-}
-trap cleanup EXIT
+. "$(dirname "$0")/common.sh"
 kb() { awk -v k="$1:" '$1 == k {print $2}' "/proc/$2/status"; }
 sizes=(128x128 256x256 384x256 512x512 640x360 768x432)
 
@@ -43,11 +37,7 @@ for d in "$@"; do
   OMP_WAIT_POLICY=passive "$d" --listen "unix:$sock" --weights-dir "$weights" --backend cpu \
     --max-memory-mb "$limit" --ready-file "$ready" 2> "$work/daemon.log" &
   pid=$!
-  for _ in $(seq 1200); do [ -s "$ready" ] && break; sleep 0.1; done
-  if [ ! -s "$ready" ]; then
-    cat "$work/daemon.log" >&2
-    exit 1
-  fi
+  bench_wait_ready "$ready" "$work/daemon.log" || exit 1
   "$build/hairfilter" filter --server "unix:$sock" --list > "$work/list.txt" 2>&1 || true
   mapfile -t variants < <(awk 'NR > 1 && NF {print $1}' "$work/list.txt")
   start=$(kb VmRSS $pid)

@@ -23,13 +23,7 @@ fi
 build=$1 conc=$2 seconds=$3
 weights=${4:-weights/base.safetensors} variant=${5:-Base} size=${6:-256x256}
 transport=${7:-unix}
-work=$(mktemp -d)
-pid=
-cleanup() {
-  [ -n "$pid" ] && kill -TERM "$pid" 2> /dev/null && wait "$pid" 2> /dev/null
-  rm -rf "$work"
-}
-trap cleanup EXIT
+. "$(dirname "$0")/common.sh"
 rss_kb() { awk '$1 == "VmRSS:" {print $2}' "/proc/$pid/status"; }
 
 echo "\$ $0 $*"
@@ -37,11 +31,7 @@ echo "$(lscpu | sed -n 's/^Model name: *//p'), $(nproc) cores, $(date -u '+%Y-%m
 OMP_WAIT_POLICY=passive "$build/hairfilterd" --listen "unix:$work/s.sock" --weights "$weights" \
   --backend cpu --ready-file "$work/ready" 2> "$work/daemon.log" &
 pid=$!
-for _ in $(seq 600); do [ -s "$work/ready" ] && break; sleep 0.1; done
-if [ ! -s "$work/ready" ]; then
-  cat "$work/daemon.log" >&2
-  exit 1
-fi
+bench_wait_ready "$work/ready" "$work/daemon.log" 600 || exit 1
 extra=()
 [ "$transport" = shm ] && extra=(--shm)
 common=(--server "unix:$work/s.sock" --variant "$variant" --size "$size" "${extra[@]}")

@@ -34,13 +34,7 @@ sizes=("$@")
 [ ${#sizes[@]} -gt 0 ] || sizes=(256x256 1024x1024)
 trials=${SWEEP_TRIALS:-4}
 mkdir -p "$out"
-work=$(mktemp -d)
-pid=
-cleanup() {
-  [ -n "$pid" ] && kill -TERM "$pid" 2> /dev/null && wait "$pid" 2> /dev/null
-  rm -rf "$work"
-}
-trap cleanup EXIT
+. "$(dirname "$0")/common.sh"
 
 echo "\$ $0 $build $out $weights $variant ${sizes[*]}"
 echo "$(lscpu | sed -n 's/^Model name: *//p'), $(nproc) cores, $(date -u '+%Y-%m-%d %H:%M UTC'), load average $(cut -d' ' -f1-3 /proc/loadavg)"
@@ -48,11 +42,7 @@ echo "$(lscpu | sed -n 's/^Model name: *//p'), $(nproc) cores, $(date -u '+%Y-%m
 OMP_WAIT_POLICY=passive "$build/hairfilterd" --listen "unix:$work/s.sock" --listen tcp:127.0.0.1:0 \
   --no-auth --weights "$weights" --backend cpu --ready-file "$work/ready" 2> "$work/daemon.log" &
 pid=$!
-for _ in $(seq 600); do [ -s "$work/ready" ] && break; sleep 0.1; done
-if [ ! -s "$work/ready" ]; then
-  cat "$work/daemon.log" >&2
-  exit 1
-fi
+bench_wait_ready "$work/ready" "$work/daemon.log" 600 || exit 1
 tcp=$(grep -m1 '^tcp:' "$work/ready")
 
 # Column NAME of a CSV, one value a line.

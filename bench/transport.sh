@@ -24,13 +24,7 @@ sizes=${4:-256x256,1024x1024} iters=${5:-10}
 shift $(($# < 5 ? $# : 5))
 [ "${1:-}" = "--" ] && shift
 opts=("$@")
-work=$(mktemp -d)
-pid=
-cleanup() {
-  [ -n "$pid" ] && kill -TERM "$pid" 2> /dev/null && wait "$pid" 2> /dev/null
-  rm -rf "$work"
-}
-trap cleanup EXIT
+. "$(dirname "$0")/common.sh"
 
 echo "\$ $0 $build $weights $variant $sizes $iters -- ${opts[*]}"
 echo "load average $(cut -d' ' -f1-3 /proc/loadavg)"
@@ -40,10 +34,6 @@ OMP_WAIT_POLICY=passive "$daemon" --listen "unix:$work/s.sock" --listen tcp:127.
   --no-auth --weights "$weights" --backend cpu --max-batch 1 --warm "$sizes" \
   --ready-file "$work/ready" "${opts[@]}" 2> "$work/daemon.log" &
 pid=$!
-for _ in $(seq 1200); do [ -s "$work/ready" ] && break; sleep 0.1; done
-if [ ! -s "$work/ready" ]; then
-  cat "$work/daemon.log" >&2
-  exit 1
-fi
+bench_wait_ready "$work/ready" "$work/daemon.log" 1200 || exit 1
 tcp=$(grep -m1 '^tcp:' "$work/ready")
 OMP_WAIT_POLICY=passive "$build/hf-transport-bench" "unix:$work/s.sock" "$tcp" "$variant" "$sizes" "$iters"
