@@ -126,6 +126,16 @@ void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt
     fprintf(stderr, "hairfilter %s: unknown option '%s' (see hairfilter %s --help)\n", cmd, o, cmd);
 }
 
+int cli_tls_option(int ch, const char *arg, cli_tls *t) {
+  switch (ch) {
+    case CLI_TLS_CA: t->ca = arg; return 1;
+    case CLI_TLS_CERT: t->cert = arg; return 1;
+    case CLI_TLS_KEY: t->key = arg; return 1;
+    case CLI_TLS_SERVER_NAME: t->server_name = arg; return 1;
+    default: return 0;
+  }
+}
+
 int cli_tls_pair(const char *cmd, const char *cert, const char *key) {
   if (!cert == !key) return 0;
   fprintf(stderr, "hairfilter %s: give --tls-cert and --tls-key together (a client certificate "

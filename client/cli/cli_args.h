@@ -37,6 +37,19 @@ enum { CLI_TLS_CA = 0x1001, CLI_TLS_CERT, CLI_TLS_KEY, CLI_TLS_SERVER_NAME };
   "                   (default: the URL's host)\n"                                     \
   "  --tls-cert FILE  client certificate for mutual TLS (PEM), with --tls-key\n"       \
   "  --tls-key FILE   its private key (PEM)\n"
+/* Their long options, for a command's getopt_long table (needs <getopt.h>). */
+#define CLI_TLS_LONG_OPTIONS                                                   \
+  {"tls-ca", required_argument, 0, CLI_TLS_CA},                                \
+  {"tls-cert", required_argument, 0, CLI_TLS_CERT},                            \
+  {"tls-key", required_argument, 0, CLI_TLS_KEY},                              \
+  {"tls-server-name", required_argument, 0, CLI_TLS_SERVER_NAME}
+/* Their values (file paths and a host name, NULL when not given). */
+typedef struct cli_tls {
+  const char *ca, *cert, *key, *server_name;
+} cli_tls;
+/* 1 when the getopt code ch is one of the TLS options (arg stored in t),
+ * else 0. */
+int cli_tls_option(int ch, const char *arg, cli_tls *t);
 /* 0, or -1 after saying so when only one of --tls-cert and --tls-key is
  * given (cmd as in the messages above: "filter", "load", ...). */
 int cli_tls_pair(const char *cmd, const char *cert, const char *key);

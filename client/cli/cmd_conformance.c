@@ -44,14 +44,13 @@ int cmd_conformance(int argc, char **argv) {
     {"list", no_argument, 0, 'l'},         {"check-doc", required_argument, 0, 'd'},
     {"timeout", required_argument, 0, 't'}, {"quiet", required_argument, 0, 'q'},
     {"stall", required_argument, 0, 'S'},  {"verbose", no_argument, 0, 'v'},
-    {"help", no_argument, 0, 'h'},         {"tls-ca", required_argument, 0, CLI_TLS_CA},
-    {"tls-cert", required_argument, 0, CLI_TLS_CERT}, {"tls-key", required_argument, 0, CLI_TLS_KEY},
-    {"tls-server-name", required_argument, 0, CLI_TLS_SERVER_NAME},
+    {"help", no_argument, 0, 'h'},         CLI_TLS_LONG_OPTIONS,
     {0, 0, 0, 0},
   };
   cf_options o = {0};
   o.token = getenv("HAIRFILTER_TOKEN");
   int client = 0, list = 0;
+  cli_tls tls = {0};
   const char *doc = NULL;
   double secs;
   opterr = 0;
@@ -61,10 +60,6 @@ int cmd_conformance(int argc, char **argv) {
     switch (ch) {
       case 's': o.server = optarg; break;
       case 'k': o.token = optarg; break;
-      case CLI_TLS_CA: o.tls_ca = optarg; break;
-      case CLI_TLS_CERT: o.tls_cert = optarg; break;
-      case CLI_TLS_KEY: o.tls_key = optarg; break;
-      case CLI_TLS_SERVER_NAME: o.tls_server_name = optarg; break;
       case 'c': client = 1; break;
       case 'p': o.pattern = optarg; break;
       case 'l': list = 1; break;
@@ -81,14 +76,21 @@ int cmd_conformance(int argc, char **argv) {
         break;
       case 'h': usage(stdout); return 0;
       case ':': cli_arg_bad_option("conformance", argv, optind, optopt, 1); return 2;
-      default: cli_arg_bad_option("conformance", argv, optind, optopt, 0); return 2;
+      default:
+        if (cli_tls_option(ch, optarg, &tls)) break;
+        cli_arg_bad_option("conformance", argv, optind, optopt, 0);
+        return 2;
     }
   }
   if (optind < argc) {
     fprintf(stderr, "hairfilter conformance: unexpected argument '%s'\n", argv[optind]);
     return 2;
   }
-  if (cli_tls_pair("conformance", o.tls_cert, o.tls_key)) return 2;
+  if (cli_tls_pair("conformance", tls.cert, tls.key)) return 2;
+  o.tls_ca = tls.ca;
+  o.tls_cert = tls.cert;
+  o.tls_key = tls.key;
+  o.tls_server_name = tls.server_name;
   if (doc) return cf_check_doc(doc, stdout) == 0 ? 0 : 1;
   if (list) {
     cf_list(stdout, client);

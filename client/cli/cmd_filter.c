@@ -146,11 +146,9 @@ int cmd_filter(int argc, char **argv) {
     {"background", required_argument, 0, 'B'}, {"token", required_argument, 0, 'T'},
     {"timeout-ms", required_argument, 0, 't'}, {"help", no_argument, 0, 'h'},
     {"list", no_argument, 0, 'l'},         {"stats", no_argument, 0, 'S'},
-    {"part", required_argument, 0, 'P'},   {"tls-ca", required_argument, 0, CLI_TLS_CA},
-    {"tls-cert", required_argument, 0, CLI_TLS_CERT}, {"tls-key", required_argument, 0, CLI_TLS_KEY},
-    {"tls-server-name", required_argument, 0, CLI_TLS_SERVER_NAME},
+    {"part", required_argument, 0, 'P'},   CLI_TLS_LONG_OPTIONS,
     {0, 0, 0, 0}};
-  const char *tls_ca = NULL, *tls_cert = NULL, *tls_key = NULL, *tls_server_name = NULL;
+  cli_tls tls = {0};
   int opt;
   optind = 1;
   while ((opt = getopt_long(argc, argv, "s:V:i:o:p:h", opts, NULL)) != -1) {
@@ -165,20 +163,17 @@ int cmd_filter(int argc, char **argv) {
     case 'l': list = 1; break;
     case 'S': stats = 1; break;
     case 'T': token = optarg; break;
-    case CLI_TLS_CA: tls_ca = optarg; break;
-    case CLI_TLS_CERT: tls_cert = optarg; break;
-    case CLI_TLS_KEY: tls_key = optarg; break;
-    case CLI_TLS_SERVER_NAME: tls_server_name = optarg; break;
     case 't': timeout_ms = atoi(optarg); break;
     case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
     case 'L': if (cli_parse_rgb(optarg, light)) goto bad; break;
     case 'B': if (cli_parse_rgb(optarg, bg)) goto bad; break;
     case 'h': usage(stdout); return 0;
-    default: goto bad;
+    default:
+      if (!cli_tls_option(opt, optarg, &tls)) goto bad;
     }
   }
   if (!server || optind != argc) goto bad;
-  if (cli_tls_pair("filter", tls_cert, tls_key)) return 2;
+  if (cli_tls_pair("filter", tls.cert, tls.key)) return 2;
   char why[300];
   if (hfc_check_url(server, why, sizeof why)) {
     fprintf(stderr, "hairfilter: --server: %s\n", why);
@@ -189,10 +184,10 @@ int cmd_filter(int argc, char **argv) {
   o.client_name = "hairfilter-cli";
   o.token = token;
   o.timeout_ms = timeout_ms;
-  o.tls_ca_file = tls_ca;
-  o.tls_cert_file = tls_cert;
-  o.tls_key_file = tls_key;
-  o.tls_server_name = tls_server_name;
+  o.tls_ca_file = tls.ca;
+  o.tls_cert_file = tls.cert;
+  o.tls_key_file = tls.key;
+  o.tls_server_name = tls.server_name;
   if (list || stats) {
     hfc_client *c = NULL;
     int rc = hfc_connect(server, &o, &c);

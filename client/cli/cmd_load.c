@@ -44,7 +44,7 @@
 
 typedef struct opts {
   const char *server, *variant, *token, *input, *part, *json, *csv, *plot;
-  const char *tls_ca, *tls_cert, *tls_key, *tls_server_name;
+  cli_tls tls;
   int width, height, f16, shm, composite, quiet, verbose;
   int connections;               /* 0: per mode default */
   int inflight;                  /* per connection, legacy closed-loop form */
@@ -102,10 +102,10 @@ static hfc_options client_options(const char *name, const opts *o) {
   hfc_options_init(&co);
   co.client_name = name;
   co.token = o->token;
-  co.tls_ca_file = o->tls_ca;
-  co.tls_cert_file = o->tls_cert;
-  co.tls_key_file = o->tls_key;
-  co.tls_server_name = o->tls_server_name;
+  co.tls_ca_file = o->tls.ca;
+  co.tls_cert_file = o->tls.cert;
+  co.tls_key_file = o->tls.key;
+  co.tls_server_name = o->tls.server_name;
   co.timeout_ms = 30000;
   return co;
 }
@@ -239,10 +239,9 @@ static void *run(void *arg) {
   r.features_bytes = sh->in_bytes;
   r.result_bytes = sh->out_bytes;
   r.rgba_bytes = o->composite ? sh->rgba_bytes : 0;
-  const float hair[3] = {0.45f, 0.25f, 0.12f}, light[3] = {1, 1, 1}, bg[3] = {0.18f, 0.2f, 0.24f};
-  memcpy(r.hair, hair, sizeof hair);
-  memcpy(r.light, light, sizeof light);
-  memcpy(r.background, bg, sizeof bg);
+  memcpy(r.hair, CLI_HAIR_DEFAULT, sizeof r.hair);
+  memcpy(r.light, CLI_LIGHT_DEFAULT, sizeof r.light);
+  memcpy(r.background, CLI_BG_DEFAULT, sizeof r.background);
   int pending = 0;
   /* Open loop: due times of requests no slot was free for (bounded). */
   enum { BACKLOG = 4096 };
@@ -594,9 +593,7 @@ static int parse(int argc, char **argv, opts *o) {
     {"json", required_argument, 0, 21},           {"csv", required_argument, 0, 22},
     {"plot", required_argument, 0, 23},           {"verbose", no_argument, 0, 24},
     {"quiet", no_argument, 0, 25},                {"help", no_argument, 0, 'h'},
-    {"tls-ca", required_argument, 0, CLI_TLS_CA}, {"tls-cert", required_argument, 0, CLI_TLS_CERT},
-    {"tls-key", required_argument, 0, CLI_TLS_KEY},
-    {"tls-server-name", required_argument, 0, CLI_TLS_SERVER_NAME},
+    CLI_TLS_LONG_OPTIONS,
     {0, 0, 0, 0},
   };
   const char *cmd = "load";
@@ -613,10 +610,6 @@ static int parse(int argc, char **argv, opts *o) {
       case 1: o->server = optarg; break;
       case 2: o->variant = optarg; break;
       case 3: o->token = optarg; break;
-      case CLI_TLS_CA: o->tls_ca = optarg; break;
-      case CLI_TLS_CERT: o->tls_cert = optarg; break;
-      case CLI_TLS_KEY: o->tls_key = optarg; break;
-      case CLI_TLS_SERVER_NAME: o->tls_server_name = optarg; break;
       case 4:
         if (cli_parse_size(optarg, &o->width, &o->height) || o->width > 65535 || o->height > 65535) {
           fprintf(stderr, "hairfilter load: --size: '%s' is not WxH (1..65535 each)\n", optarg);
@@ -658,7 +651,10 @@ static int parse(int argc, char **argv, opts *o) {
       case 25: o->quiet = 1; break;
       case 'h': usage(stdout); return 1;
       case ':': cli_arg_bad_option(cmd, argv, optind, optopt, 1); return -1;
-      default: cli_arg_bad_option(cmd, argv, optind, optopt, 0); return -1;
+      default:
+        if (cli_tls_option(ch, optarg, &o->tls)) break;
+        cli_arg_bad_option(cmd, argv, optind, optopt, 0);
+        return -1;
     }
   }
   if (optind < argc) {
@@ -674,7 +670,7 @@ static int parse(int argc, char **argv, opts *o) {
                     "(open loop) exclude each other\n");
     return -1;
   }
-  if (cli_tls_pair(cmd, o->tls_cert, o->tls_key)) return -1;
+  if (cli_tls_pair(cmd, o->tls.cert, o->tls.key)) return -1;
   if (o->input && size_given) {
     fprintf(stderr, "hairfilter load: --size and --input exclude each other (the EXR has its size)\n");
     return -1;
