@@ -176,6 +176,24 @@ def kernel_finish(raw, x, spp, radius, clamp=torch.clamp):
                       clamp(cnt / spp + corr[:, 2:3], 0, 1)], dim=1)
 
 
+def widen_kernel_hidden(state, hidden, fresh):
+    """Kernel weights with kernel_hidden `hidden` (> 0) widened to the shapes of
+    fresh (a state_dict of the wider net, randomly initialised), computing the
+    same function: the new dec0 channels keep fresh's random weights and the
+    head gives them zero weight, so training grows them from there (function-
+    preserving widening, Chen, Goodfellow & Shlens, "Net2Net", ICLR 2016)."""
+    out = dict(state)
+    w, b = fresh["dec0.weight"].clone(), fresh["dec0.bias"].clone()
+    w[:, :hidden] = state["dec0.weight"]          # ConvTranspose2d: [cin][cout][k][k]
+    b[:hidden] = state["dec0.bias"]
+    hw = torch.zeros_like(fresh["head.weight"])   # [out][hidden + in][1][1]
+    wide = w.shape[1]
+    hw[:, :hidden] = state["head.weight"][:, :hidden]
+    hw[:, wide:] = state["head.weight"][:, hidden:]
+    out.update({"dec0.weight": w, "dec0.bias": b, "head.weight": hw})
+    return out
+
+
 class HairNet(nn.Module):
     def __init__(self, cfg):
         super().__init__()

@@ -366,6 +366,16 @@ def main(argv=None):
         if icfg["levels"] != cfg["levels"] or icfg.get("arch", "unet") != cfg["arch"] \
                 or icfg["in_channels"] != cfg["in_channels"]:
             sys.exit(f"train.py: --init {args.init} is {icfg['name']}, not {cfg['name']}")
+        ih = icfg.get("kernel_hidden", 0)
+        if cfg["arch"] == "kernel" and (icfg.get("kernel_radius") != cfg.get("kernel_radius")
+                                        or ih > cfg.get("kernel_hidden", 0)):
+            sys.exit(f"train.py: --init {args.init} has kernel_radius {icfg.get('kernel_radius')}"
+                     f" and kernel_hidden {ih}; this run needs the same radius and at least"
+                     f" as many hidden channels")
+        if cfg["arch"] == "kernel" and ih < cfg.get("kernel_hidden", 0):
+            state = hfnet.widen_kernel_hidden(state, ih, net.state_dict())
+            print(f"widened kernel_hidden {ih} -> {cfg['kernel_hidden']} (same function)",
+                  file=sys.stderr)
         net.load_state_dict(state)
         print(f"initialised from {args.init}", file=sys.stderr)
     if ckpt:

@@ -134,6 +134,25 @@ class Recipe(unittest.TestCase):
         self.assertTrue(bool(torch.isfinite(y2).all()))
         self.assertTrue(torch.equal(y2, y.detach()))
 
+    def test_widening_kernel_hidden_keeps_the_function(self):
+        """--init of a Kernel net into one with more hidden channels: the
+        wider net computes what the narrower did, and the new channels are
+        trainable (their head weights get gradient)."""
+        torch.manual_seed(4)
+        cfg = hfnet.variant_config("Kernel")
+        narrow = hfnet.HairNet(cfg)
+        wide_cfg = dict(cfg, kernel_hidden=cfg["kernel_hidden"] * 2)
+        wide = hfnet.HairNet(wide_cfg)
+        wide.load_state_dict(hfnet.widen_kernel_hidden(narrow.state_dict(), cfg["kernel_hidden"],
+                                                       wide.state_dict()))
+        x = torch.rand(2, cfg["in_channels"], 24, 40) * (torch.rand(2, 1, 24, 40) > 0.2)
+        with torch.no_grad():
+            a, b = narrow(x), wide(x)
+        self.assertLess(float((a - b).abs().max()), 1e-5)
+        wide(x).sum().backward()
+        new = wide.head.weight.grad[:, cfg["kernel_hidden"]:2 * cfg["kernel_hidden"]]
+        self.assertGreater(float(new.abs().sum()), 0.0)
+
     def test_kernel_export_roundtrips(self):
         """A Kernel network (head and metadata keys) and one without a head
         go through the C loader and writer bit-exactly."""
