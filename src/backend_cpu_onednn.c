@@ -75,11 +75,13 @@ typedef struct od_dev {
   dnnl_stream_t stream;
   int threads;                  /* for the backend's own passes */
   int start_threads;            /* HF_CPU_PASS_THREADS=start (od_parallel) */
+  size_t band_bytes;            /* HF_CPU_BAND_KB: a tap band's size, 0 for none */
+  dnnl_stream_t tstream[OD_MAX_THREADS]; /* each thread's, for banded taps */
 } od_dev;
 
 /* A step is a oneDNN primitive, a tap-summing pass or a copy into a concat
  * buffer. */
-typedef enum od_step_type { OD_STEP_PRIM, OD_STEP_TAPS, OD_STEP_COPY } od_step_type;
+typedef enum od_step_type { OD_STEP_PRIM, OD_STEP_TAPS, OD_STEP_COPY, OD_STEP_BAND } od_step_type;
 
 /* A decoder's tap pass. Its output pixel holds the cout summed channels,
  * then, when skip is set, the skip_ch channels of the same pixel of skip:
@@ -104,6 +106,27 @@ typedef struct od_copy_pass {
   float *dst;
 } od_copy_pass;
 
+/* A decoder's tap convolution and tap pass run band by band (OD_STEP_BAND):
+ * each thread takes the next band of bh input rows of a frame, computes
+ * their taps with a 1x1 convolution into a buffer of its own (small enough
+ * to stay in its core's cache), and sums them into the output rows that
+ * need no other band's taps. The two output rows at each seam between
+ * bands (and at a frame's top and bottom) take taps from both sides: each
+ * band leaves the terms of its first and last input rows in part, and a
+ * second pass adds the two sides' terms together. Same sums as the whole
+ * tap pass, in a different order only at the seams. */
+typedef struct od_band {
+  const float *src;             /* the decoder's input [batch][h][w][cin] */
+  int cin, bh, nb;              /* rows per band; bands per frame, the last
+                                 * of h - (nb - 1) bh rows */
+  dnnl_primitive_t prim[2];     /* bh rows; the last band's rows if fewer */
+  dnnl_memory_t wmem[2];
+  int owned[2];                 /* wmem[k] is a private copy */
+  dnnl_memory_t *src_mem, *dst_mem; /* per thread, [thread][2] */
+  float *part;                  /* [batch][nb][4][2w][cout]: terms of Y = 2a,
+                                 * 2a - 1, 2b - 1, 2b of a band of rows [a, b) */
+} od_band;
+
 typedef struct od_step {
   od_step_type type;
   dnnl_primitive_t prim;
@@ -111,6 +134,7 @@ typedef struct od_step {
   dnnl_exec_arg_t args[5];
   od_taps_pass taps;
   od_copy_pass copy;
+  od_band *band;
 } od_step;
 
 typedef struct od_plan {
@@ -132,6 +156,12 @@ typedef struct od_plan {
   float *zeros;                 /* the largest decoder's cout zeros */
   void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
   void *scratch;                /* shared by every primitive (run in order) */
+  float *tband;                 /* each thread's band taps, tband_floats each */
+  size_t tband_floats;
+  float *part;                  /* the seams' terms, for one level at a time */
+  void *tscratch;               /* each thread's scratchpad for band primitives */
+  dnnl_memory_t tscratch_mem[OD_MAX_THREADS];
+  int nthreads;                 /* threads the band memories were made for */
   int nsteps;
   od_step steps[OD_MAX_STEPS];
   int nmems;
@@ -215,6 +245,17 @@ static int od_thread_count(void) {
   return n < 1 ? 1 : n > OD_MAX_THREADS ? OD_MAX_THREADS : (int)n;
 }
 
+/* The bytes of one band's taps (HF_CPU_BAND_KB, in KiB; 0 runs each tap
+ * convolution whole, then its pass, for comparison). The default, 512 KiB,
+ * keeps a band in a core's L2 cache beside the band's input rows and
+ * output rows (docs/PERFORMANCE.md). */
+static size_t od_band_bytes(void) {
+  const char *e = getenv("HF_CPU_BAND_KB");
+  if (!e || !*e) return (size_t)512 << 10;
+  long kb = atol(e);
+  return kb > 0 ? (size_t)kb << 10 : 0;
+}
+
 static int od_open(void **out, char *why, size_t whylen) {
   int rc;
   od_dev *d = calloc(1, sizeof *d);
@@ -222,12 +263,18 @@ static int od_open(void **out, char *why, size_t whylen) {
   OD_TRY(dnnl_engine_create(&d->eng, dnnl_cpu, 0));
   OD_TRY(dnnl_stream_create(&d->stream, d->eng, dnnl_stream_default_flags));
   d->threads = od_thread_count();
+  for (int t = 0; t < d->threads; t++)
+    OD_TRY(dnnl_stream_create(&d->tstream[t], d->eng, dnnl_stream_default_flags));
   const char *e = getenv("HF_CPU_PASS_THREADS");
   d->start_threads = e && !strcmp(e, "start");
+  d->band_bytes = od_band_bytes();
   *out = d;
   return HF_OK;
 fail:
   if (why && whylen) snprintf(why, whylen, "oneDNN CPU engine could not be created");
+  for (int t = 0; t < OD_MAX_THREADS; t++)
+    if (d->tstream[t]) dnnl_stream_destroy(d->tstream[t]);
+  if (d->stream) dnnl_stream_destroy(d->stream);
   if (d->eng) dnnl_engine_destroy(d->eng);
   free(d);
   return rc;
@@ -236,6 +283,7 @@ fail:
 static void od_close(void *p) {
   od_dev *d = p;
   if (!d) return;
+  for (int t = 0; t < d->threads; t++) dnnl_stream_destroy(d->tstream[t]);
   dnnl_stream_destroy(d->stream);
   dnnl_engine_destroy(d->eng);
   free(d);
@@ -436,21 +484,18 @@ static inline void od_sum4(float *restrict o, const float *restrict a, const flo
   }
 }
 
-/* Sums the taps into output row Y of frame n, adds the bias, applies the
- * ReLU if asked, and copies the skip channels beside them. Output row
- * Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1; Y = 2m + 1
- * takes ky = 2 of row m and ky = 0 of row m + 1; columns alike. A tap outside
- * the input reads zeros, so that every pixel is the same four-term sum. */
-OD_CLONES static void od_taps_row(const od_taps_pass *t, int n, int Y) {
-  const int C = t->cout, T = 16 * t->cout, h = t->h, w = t->w, E = t->skip_ch;
-  const int m = Y >> 1, py = Y & 1;
-  const int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
-  const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
-  const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
-  const size_t row = (size_t)n * 2 * h + Y;
-  float *o = t->out + row * 2 * w * t->stride;
-  const float *sk = t->skip ? t->skip + row * 2 * w * E : NULL;
-  for (int X = 0; X < 2 * w; X++, o += t->stride) {
+/* One output row of a tap pass: pixel X of o (ostride floats apart) gets
+ * bias + taps ky0 of input row r0 + taps ky1 of input row r1, the ReLU if
+ * relu, then the skip channels of sk beside them (when sk is set). Output
+ * column X = 2q takes taps kx = 1 of input column q and kx = 3 of column
+ * q - 1; X = 2q + 1 takes kx = 2 of column q and kx = 0 of column q + 1. A
+ * tap outside the input (r1 NULL, or a column outside) reads zeros, so that
+ * every pixel is the same four-term sum. */
+OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
+                                   const float *r1, int ky1, float *o, int ostride,
+                                   const float *bias, int relu, const float *sk) {
+  const int C = t->cout, T = 16 * t->cout, w = t->w, E = t->skip_ch;
+  for (int X = 0; X < 2 * w; X++, o += ostride) {
     const int q = X >> 1, px = X & 1;
     const int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
     const int has_x1 = x1 >= 0 && x1 < w;
@@ -458,7 +503,7 @@ OD_CLONES static void od_taps_row(const od_taps_pass *t, int n, int Y) {
     const float *b = has_x1 ? r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C : t->zeros;
     const float *c = r1 ? r1 + (size_t)q * T + (ky1 * 4 + kx0) * C : t->zeros;
     const float *d = r1 && has_x1 ? r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C : t->zeros;
-    od_sum4(o, a, b, c, d, t->bias, C, t->relu);
+    od_sum4(o, a, b, c, d, bias, C, relu);
     if (sk) {
       const float *restrict s = sk + (size_t)X * E;
       float *restrict e = o + C;
@@ -468,6 +513,29 @@ OD_CLONES static void od_taps_row(const od_taps_pass *t, int n, int Y) {
   }
 }
 
+/* Output row Y of frame n of a tap pass, and the skip channels beside it. */
+static float *od_taps_out_row(const od_taps_pass *t, int n, int Y) {
+  return t->out + ((size_t)n * 2 * t->h + Y) * 2 * t->w * t->stride;
+}
+
+static const float *od_taps_skip_row(const od_taps_pass *t, int n, int Y) {
+  return t->skip ? t->skip + ((size_t)n * 2 * t->h + Y) * 2 * t->w * t->skip_ch : NULL;
+}
+
+/* Sums the taps into output row Y of frame n, adds the bias, applies the
+ * ReLU if asked, and copies the skip channels beside them. Output row
+ * Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1; Y = 2m + 1
+ * takes ky = 2 of row m and ky = 0 of row m + 1. */
+static void od_taps_row(const od_taps_pass *t, int n, int Y) {
+  const int T = 16 * t->cout, h = t->h, w = t->w;
+  const int m = Y >> 1, py = Y & 1;
+  const int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
+  const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
+  const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
+  od_taps_line(t, r0, ky0, r1, ky1, od_taps_out_row(t, n, Y), t->stride, t->bias, t->relu,
+               od_taps_skip_row(t, n, Y));
+}
+
 static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
   for (size_t row = row0; row < row1; row++)
     od_taps_row(t, (int)(row / (2 * t->h)), (int)(row % (2 * t->h)));
@@ -475,11 +543,33 @@ static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
 
 /* ---- plans ---------------------------------------------------------------- */
 
+static void od_band_free(od_band *b, int nthreads) {
+  if (!b) return;
+  for (int k = 0; k < 2; k++) {
+    if (b->prim[k]) dnnl_primitive_destroy(b->prim[k]);
+    if (b->owned[k]) dnnl_memory_destroy(b->wmem[k]);
+  }
+  for (int k = 0; k < 2 * nthreads; k++) {
+    if (b->src_mem && b->src_mem[k]) dnnl_memory_destroy(b->src_mem[k]);
+    if (b->dst_mem && b->dst_mem[k]) dnnl_memory_destroy(b->dst_mem[k]);
+  }
+  free(b->src_mem);
+  free(b->dst_mem);
+  free(b);
+}
+
 static void od_plan_free(od_plan *p) {
   if (!p) return;
-  for (int s = 0; s < p->nsteps; s++)
+  for (int s = 0; s < p->nsteps; s++) {
     if (p->steps[s].type == OD_STEP_PRIM) dnnl_primitive_destroy(p->steps[s].prim);
+    if (p->steps[s].type == OD_STEP_BAND) od_band_free(p->steps[s].band, p->nthreads);
+  }
   for (int k = 0; k < p->nmems; k++) dnnl_memory_destroy(p->mems[k]);
+  for (int t = 0; t < OD_MAX_THREADS; t++)
+    if (p->tscratch_mem[t]) dnnl_memory_destroy(p->tscratch_mem[t]);
+  free(p->tband);
+  free(p->part);
+  free(p->tscratch);
   free(p->in);
   free(p->out);
   free(p->taps);
@@ -715,6 +805,168 @@ static void od_pass_run(const od_step *st, int batch, const od_dev *dev) {
   od_parallel(od_step_range, st, total, per_row, dev);
 }
 
+/* ---- decoders' taps in bands (od_band) ------------------------------------- */
+
+/* Input rows per band of a decoder whose input is h x w with cout output
+ * channels: as many as fit dev->band_bytes of taps, at least 2 (a band then
+ * has rows of its own besides the seams'), at most h. */
+static int od_band_rows(size_t band_bytes, int h, int w, int cout) {
+  size_t row = (size_t)w * 16 * cout * sizeof(float), r = band_bytes / row;
+  if (r < 2) r = 2;
+  if (r > (size_t)h) r = (size_t)h;
+  return (int)r;
+}
+
+/* Adds dec{i}'s banded step: its 1x1 convolutions for a band of bh rows
+ * and for the last band's rows when fewer, each thread's memories over its
+ * band buffer (p->tband, allocated) and the seams' buffer (p->part). The
+ * largest scratchpad a band primitive needs goes to *tscratch_bytes. */
+static int od_add_band(od_model *m, od_plan *p, int i, const float *src,
+                       const od_taps_pass *pass, int bh, size_t *tscratch_bytes) {
+  od_dev *dev = m->dev;
+  const int h = pass->h, w = pass->w, cin = hf_dec_in(&m->w->cfg, i), T = 16 * pass->cout;
+  int rc = HF_OK;
+  if (p->nsteps >= OD_MAX_STEPS) return HF_ERANGE;
+  od_band *b = calloc(1, sizeof *b);
+  if (!b) return HF_ENOMEM;
+  od_step *st = &p->steps[p->nsteps++];
+  memset(st, 0, sizeof *st);
+  st->type = OD_STEP_BAND;
+  st->taps = *pass;
+  st->band = b;
+  b->src = src, b->cin = cin, b->bh = bh, b->nb = (h + bh - 1) / bh, b->part = p->part;
+  b->src_mem = calloc((size_t)2 * p->nthreads, sizeof *b->src_mem);
+  b->dst_mem = calloc((size_t)2 * p->nthreads, sizeof *b->dst_mem);
+  if (!b->src_mem || !b->dst_mem) return HF_ENOMEM;
+  const int rows[2] = {bh, h - (b->nb - 1) * bh};
+  for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
+    dnnl_memory_desc_t smd, dmd;
+    dnnl_primitive_desc_t pd = NULL;
+    OD_RC(od_nhwc(&smd, 1, cin, rows[k], w));
+    OD_RC(od_nhwc(&dmd, 1, T, rows[k], w));
+    OD_RC(od_layer_pd(dev, OD_TAPS, &smd, &dmd, cin, T, &pd));
+    const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
+    const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
+    size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
+    if (sb > *tscratch_bytes) *tscratch_bytes = sb;
+    rc = wmd ? od_weights_for(m, OD_TAPS, i, wmd, &b->wmem[k], &b->owned[k])
+             : od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
+    if (!rc && b->owned[k]) p->bytes += dnnl_memory_desc_get_size(wmd);
+    if (!rc) {
+      dnnl_status_t ds = dnnl_primitive_create(&b->prim[k], pd);
+      if (ds != dnnl_success) rc = od_report(ds, "dnnl_primitive_create(band)", __LINE__);
+    }
+    dnnl_primitive_desc_destroy(pd);
+    if (rc) goto fail;
+    for (int t = 0; t < p->nthreads; t++) {
+      OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, dev->eng, DNNL_MEMORY_NONE));
+      OD_TRY(dnnl_memory_create(&b->dst_mem[2 * t + k], &dmd, dev->eng,
+                                p->tband + (size_t)t * p->tband_floats));
+    }
+  }
+fail:
+  return rc;
+}
+
+/* Pixel X of output row o (t->stride floats apart) gets the bias, the seam
+ * terms pr0 and pr1 (pr1 NULL: none), the ReLU and the skip channels. */
+OD_CLONES static void od_taps_join(const od_taps_pass *t, const float *pr0, const float *pr1,
+                                   float *o, const float *sk) {
+  const int C = t->cout, E = t->skip_ch;
+  for (int X = 0; X < 2 * t->w; X++, o += t->stride) {
+    od_sum4(o, pr0 + (size_t)X * C, t->zeros, pr1 ? pr1 + (size_t)X * C : t->zeros, t->zeros,
+            t->bias, C, t->relu);
+    if (sk) {
+      const float *restrict s = sk + (size_t)X * E;
+      float *restrict e = o + C;
+#pragma omp simd
+      for (int k = 0; k < E; k++) e[k] = s[k];
+    }
+  }
+}
+
+/* Band k of frame n on thread t: input rows [a, b) to taps in the thread's
+ * buffer, output rows 2a + 1 .. 2b - 2 whole, and the band's seam terms:
+ * of row 2a from taps ky = 1 of row a, of 2a - 1 from ky = 0 of row a, of
+ * 2b - 1 from ky = 2 of row b - 1, of 2b from ky = 3 of row b - 1. */
+static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, int t, int n,
+                       int k) {
+  const od_band *b = st->band;
+  const od_taps_pass *tp = &st->taps;
+  const int h = tp->h, w = tp->w, C = tp->cout;
+  const size_t rowf = (size_t)w * 16 * C, prow = (size_t)2 * w * C;
+  const int a = k * b->bh, rows = k < b->nb - 1 ? b->bh : h - a, which = rows != b->bh;
+  dnnl_memory_t sm = b->src_mem[2 * t + which];
+  dnnl_status_t s =
+      dnnl_memory_set_data_handle(sm, (void *)(b->src + ((size_t)n * h + a) * w * b->cin));
+  if (s == dnnl_success) {
+    dnnl_exec_arg_t args[4] = {{DNNL_ARG_SRC, sm},
+                               {DNNL_ARG_WEIGHTS, b->wmem[which]},
+                               {DNNL_ARG_DST, b->dst_mem[2 * t + which]},
+                               {DNNL_ARG_SCRATCHPAD, p->tscratch_mem[t]}};
+    s = dnnl_primitive_execute(b->prim[which], dev->tstream[t], p->tscratch_mem[t] ? 4 : 3, args);
+  }
+  if (s == dnnl_success) s = dnnl_stream_wait(dev->tstream[t]);
+  if (s != dnnl_success) return od_report(s, "dnnl_primitive_execute(band)", __LINE__);
+  const float *tb = p->tband + (size_t)t * p->tband_floats, *last = tb + (rows - 1) * rowf;
+  for (int Y = 2 * a + 1; Y <= 2 * (a + rows) - 2; Y++) {
+    const int m = Y >> 1, py = Y & 1, y1 = py ? m + 1 : m - 1;
+    od_taps_line(tp, tb + (m - a) * rowf, py ? 2 : 1, tb + (y1 - a) * rowf, py ? 0 : 3,
+                 od_taps_out_row(tp, n, Y), tp->stride, tp->bias, tp->relu,
+                 od_taps_skip_row(tp, n, Y));
+  }
+  float *P = b->part + ((size_t)n * b->nb + k) * 4 * prow;
+  od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, NULL);
+  if (k > 0) od_taps_line(tp, tb, 0, NULL, 0, P + prow, C, tp->zeros, 0, NULL);
+  od_taps_line(tp, last, 2, NULL, 0, P + 2 * prow, C, tp->zeros, 0, NULL);
+  if (k < b->nb - 1) od_taps_line(tp, last, 3, NULL, 0, P + 3 * prow, C, tp->zeros, 0, NULL);
+  return HF_OK;
+}
+
+/* Seam k (0 .. nb) of frame n, at input row a = k bh (h for k = nb): output
+ * rows 2a from band k's terms and band k - 1's, and 2a - 1 from band k - 1's
+ * and band k's; a row outside the frame is skipped, a band outside adds
+ * nothing. */
+static void od_band_seam(const od_step *st, int n, int k) {
+  const od_band *b = st->band;
+  const od_taps_pass *tp = &st->taps;
+  const size_t prow = (size_t)2 * tp->w * tp->cout;
+  const int a = k < b->nb ? k * b->bh : tp->h;
+  const float *P = b->part + (size_t)n * b->nb * 4 * prow;
+  if (a < tp->h)
+    od_taps_join(tp, P + (size_t)k * 4 * prow, k > 0 ? P + ((size_t)(k - 1) * 4 + 3) * prow : NULL,
+                 od_taps_out_row(tp, n, 2 * a), od_taps_skip_row(tp, n, 2 * a));
+  if (a > 0)
+    od_taps_join(tp, P + ((size_t)(k - 1) * 4 + 2) * prow,
+                 k < b->nb ? P + ((size_t)k * 4 + 1) * prow : NULL,
+                 od_taps_out_row(tp, n, 2 * a - 1), od_taps_skip_row(tp, n, 2 * a - 1));
+}
+
+/* Runs a banded step: the bands taken in turn by the threads (a thread on a
+ * core shared with other work takes fewer), then the seams. oneDNN runs a
+ * primitive executed inside an OpenMP parallel region on the calling thread
+ * alone, so each band's convolution is one thread's. */
+static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_dev *dev) {
+  const od_band *b = st->band;
+  const int jobs = batch * b->nb, seams = batch * (b->nb + 1);
+  int nthreads = p->nthreads < jobs ? p->nthreads : jobs, rc = HF_OK;
+#pragma omp parallel num_threads(nthreads)
+  {
+    const int t = omp_get_thread_num();
+#pragma omp for schedule(dynamic, 1)
+    for (int j = 0; j < jobs; j++) {
+      int e = od_band_job(p, st, dev, t, j / b->nb, j % b->nb);
+      if (e) {
+#pragma omp atomic write
+        rc = e;
+      }
+    }
+#pragma omp for schedule(dynamic, 4)
+    for (int j = 0; j < seams; j++) od_band_seam(st, j / (b->nb + 1), j % (b->nb + 1));
+  }
+  return rc;
+}
+
 /* ---- the output stage ------------------------------------------------------ */
 
 /* One run's output stage, the values of hf_output_from_padded_f32 (what
@@ -874,23 +1126,42 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
    * by the tap pass that fills the concat buffer of its level; one buffer
    * holds each decoder's taps in turn (or, on the HF_CPU_DECONV path, its
    * output), the largest of those tensors. */
-  size_t taps_bytes = 0;
-  int max_cout = 1;
+  size_t taps_bytes = 0, part_floats = 0, tscratch_bytes = 0;
+  int max_cout = 1, bh[HF_MAX_LEVELS] = {0};
+  p->nthreads = dev->threads;
   for (int i = 0; i < L; i++) {
     dnnl_memory_desc_t md;
-    if (hf_dec_out(c, i) > max_cout) max_cout = hf_dec_out(c, i);
-    if (m->use_taps[i])
-      OD_RC(od_nhwc(&md, batch, 16 * hf_dec_out(c, i), ph >> (i + 1), pw >> (i + 1)));
-    else
-      OD_RC(od_nhwc(&md, batch, hf_dec_out(c, i), ph >> i, pw >> i));
-    size_t b = dnnl_memory_desc_get_size(&md);
-    if (b > taps_bytes) taps_bytes = b;
+    const int h = ph >> (i + 1), w = pw >> (i + 1), cout = hf_dec_out(c, i);
+    if (cout > max_cout) max_cout = cout;
+    if (m->use_taps[i] && dev->band_bytes) {
+      /* Banded: each thread's band of taps, and the seams' terms. */
+      bh[i] = od_band_rows(dev->band_bytes, h, w, cout);
+      size_t tb = (size_t)bh[i] * w * 16 * cout, nb = (size_t)(h + bh[i] - 1) / bh[i];
+      size_t pf = (size_t)batch * nb * 4 * 2 * w * cout;
+      if (tb > p->tband_floats) p->tband_floats = (tb + 15) & ~(size_t)15;
+      if (pf > part_floats) part_floats = pf;
+    } else {
+      if (m->use_taps[i])
+        OD_RC(od_nhwc(&md, batch, 16 * cout, h, w));
+      else
+        OD_RC(od_nhwc(&md, batch, cout, ph >> i, pw >> i));
+      size_t b = dnnl_memory_desc_get_size(&md);
+      if (b > taps_bytes) taps_bytes = b;
+    }
     OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
     OD_RC(od_alloc(&md, &p->enc[i]));
     p->bytes += dnnl_memory_desc_get_size(&md);
   }
-  OD_RC(od_alloc_bytes(taps_bytes, &p->taps));
-  p->bytes += taps_bytes;
+  if (taps_bytes) {
+    OD_RC(od_alloc_bytes(taps_bytes, &p->taps));
+    p->bytes += taps_bytes;
+  }
+  if (p->tband_floats) {
+    size_t n = p->tband_floats * p->nthreads * sizeof(float);
+    OD_RC(od_alloc_bytes(n, (void **)&p->tband));
+    OD_RC(od_alloc_bytes(part_floats * sizeof(float), (void **)&p->part));
+    p->bytes += n + part_floats * sizeof(float);
+  }
   p->zeros = calloc(max_cout, sizeof(float));
   if (!p->zeros) OD_RC(HF_ENOMEM);
   p->bytes += max_cout * sizeof(float);
@@ -922,6 +1193,21 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     int cout = hf_dec_out(c, i);
     dnnl_memory_desc_t md;
     if (m->use_taps[i]) {
+      /* dec0's pass also copies the input beside the head's hidden
+       * channels, from where od_model_run finds it. */
+      const int head_cat = i == 0 && head && !m->head_sum;
+      od_taps_pass pass = {p->taps, ph >> (i + 1), pw >> (i + 1), cout,
+                           i > 0 || head, m->w->dec_b[i], p->zeros,
+                           i ? p->cat[i - 1] : head ? p->head_in : p->out,
+                           i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
+                           i ? p->enc[i - 1] : head_cat ? p->in : NULL,
+                           i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0};
+      if (bh[i]) {
+        if (head_cat) p->in_skip_step = p->nsteps;
+        const float *from = i < L - 1 ? p->cat[i] : p->enc[L - 1];
+        OD_RC(od_add_band(m, p, i, from, &pass, bh[i], &tscratch_bytes));
+        continue;
+      }
       OD_RC(od_nhwc(&md, batch, 16 * cout, ph >> (i + 1), pw >> (i + 1)));
       OD_RC(od_mem(p, dev, &md, p->taps, &dst));
       OD_RC(od_add_layer(m, p, OD_TAPS, i, src, dst, &scratch_bytes));
@@ -929,19 +1215,11 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
         rc = HF_ERANGE;
         goto fail;
       }
-      /* dec0's pass also copies the input beside the head's hidden
-       * channels, from where od_model_run finds it. */
-      const int head_cat = i == 0 && head && !m->head_sum;
       if (head_cat) p->in_skip_step = p->nsteps;
       od_step *st = &p->steps[p->nsteps++];
       memset(st, 0, sizeof *st);
       st->type = OD_STEP_TAPS;
-      st->taps = (od_taps_pass){p->taps, ph >> (i + 1), pw >> (i + 1), cout,
-                                i > 0 || head, m->w->dec_b[i], p->zeros,
-                                i ? p->cat[i - 1] : head ? p->head_in : p->out,
-                                i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
-                                i ? p->enc[i - 1] : head_cat ? p->in : NULL,
-                                i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0};
+      st->taps = pass;
       continue;
     }
     if (i == 0) {
@@ -984,6 +1262,17 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     for (int s = 0; s < p->nsteps; s++)
       for (int a = 0; a < p->steps[s].nargs; a++)
         if (p->steps[s].args[a].arg == DNNL_ARG_SCRATCHPAD) p->steps[s].args[a].memory = smem;
+  }
+  if (tscratch_bytes) {
+    size_t each = (tscratch_bytes + 63) & ~(size_t)63;
+    dnnl_memory_desc_t md;
+    dnnl_dims_t d = {(dnnl_dim_t)tscratch_bytes};
+    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
+    OD_RC(od_alloc_bytes(each * p->nthreads, &p->tscratch));
+    p->bytes += each * p->nthreads;
+    for (int t = 0; t < p->nthreads; t++)
+      OD_TRY(dnnl_memory_create(&p->tscratch_mem[t], &md, dev->eng,
+                                (char *)p->tscratch + each * t));
   }
   /* Primitives without a scratchpad need no argument for it. */
   for (int s = 0; s < p->nsteps; s++) {
@@ -1156,7 +1445,10 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
       continue;
     }
     OD_TRY(dnnl_stream_wait(m->dev->stream));
-    od_pass_run(st, io->batch, m->dev);
+    if (st->type == OD_STEP_BAND)
+      OD_RC(od_band_run(p, st, io->batch, m->dev));
+    else
+      od_pass_run(st, io->batch, m->dev);
   }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();
