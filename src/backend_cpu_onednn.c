@@ -41,12 +41,14 @@
  * before allocates nothing. A model is run by one thread at a time (the
  * server's worker owns its models); the cache is not locked.
  */
+#define _GNU_SOURCE /* mremap */
 #include <omp.h>
 #include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <unistd.h>
 
 #include <dnnl.h>
@@ -70,7 +72,18 @@ typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID
 #define OD_MAX_THREADS 64
 #define OD_RANGES_PER_THREAD 8
 
+struct od_model;
+
+/* The device: oneDNN's engine and streams, and the activation arena that
+ * every plan of every model on it uses (od_arena_reserve): runs on one
+ * device take turns (lock), so N variants or sizes hold one set of
+ * activations, the largest, instead of N. */
 typedef struct od_dev {
+  pthread_mutex_t lock;         /* runs, plan changes and counts, one at a time */
+  char *arena;                  /* activations, mapped (od_arena_reserve) */
+  size_t arena_bytes;
+  struct od_model *arena_owner; /* the model whose cached bytes include it */
+  struct od_model *models;      /* every model on the device (od_model.next) */
   dnnl_engine_t eng;
   dnnl_stream_t stream;
   int threads;                  /* for the backend's own passes */
@@ -139,8 +152,10 @@ typedef struct od_step {
 
 typedef struct od_plan {
   int batch, pw, ph;
+  char *arena;                  /* the arena its buffers point into, and the */
+  size_t need;                  /* bytes of it they take (od_layout.total) */
   uint64_t stamp;               /* last use, for eviction */
-  size_t bytes;                 /* host memory of its buffers and weight copies */
+  size_t bytes;                 /* host memory of its own: weight copies, scratchpads */
   size_t scratch_bytes;         /* of which the primitives' scratchpad */
   float *in;                    /* padded input [batch][ph][pw][cin] */
   dnnl_memory_t in_mem;         /* enc0's source: in, or the caller's frames */
@@ -170,6 +185,7 @@ typedef struct od_plan {
 
 typedef struct od_model {
   od_dev *dev;
+  struct od_model *next;        /* in dev->models */
   hf_weights *w;                /* private copy, PyTorch layouts */
   /* Weights in oneDNN's chosen formats, NULL until known. */
   dnnl_memory_t enc_w[HF_MAX_LEVELS], dec_w[HF_MAX_LEVELS], taps_w[HF_MAX_LEVELS];
@@ -260,6 +276,10 @@ static int od_open(void **out, char *why, size_t whylen) {
   int rc;
   od_dev *d = calloc(1, sizeof *d);
   if (!d) return HF_ENOMEM;
+  if (pthread_mutex_init(&d->lock, NULL)) {
+    free(d);
+    return HF_ENOMEM;
+  }
   OD_TRY(dnnl_engine_create(&d->eng, dnnl_cpu, 0));
   OD_TRY(dnnl_stream_create(&d->stream, d->eng, dnnl_stream_default_flags));
   d->threads = od_thread_count();
@@ -276,6 +296,7 @@ fail:
     if (d->tstream[t]) dnnl_stream_destroy(d->tstream[t]);
   if (d->stream) dnnl_stream_destroy(d->stream);
   if (d->eng) dnnl_engine_destroy(d->eng);
+  pthread_mutex_destroy(&d->lock);
   free(d);
   return rc;
 }
@@ -286,6 +307,8 @@ static void od_close(void *p) {
   for (int t = 0; t < d->threads; t++) dnnl_stream_destroy(d->tstream[t]);
   dnnl_stream_destroy(d->stream);
   dnnl_engine_destroy(d->eng);
+  if (d->arena) munmap(d->arena, d->arena_bytes);
+  pthread_mutex_destroy(&d->lock);
   free(d);
 }
 
@@ -567,18 +590,9 @@ static void od_plan_free(od_plan *p) {
   for (int k = 0; k < p->nmems; k++) dnnl_memory_destroy(p->mems[k]);
   for (int t = 0; t < OD_MAX_THREADS; t++)
     if (p->tscratch_mem[t]) dnnl_memory_destroy(p->tscratch_mem[t]);
-  free(p->tband);
-  free(p->part);
+  /* Activations are the arena's. */
   free(p->tscratch);
-  free(p->in);
-  free(p->out);
-  free(p->taps);
   free(p->zeros);
-  for (int i = 0; i < HF_MAX_LEVELS; i++) free(p->cat[i]), free(p->enc[i]);
-  free(p->head_in);
-  free(p->sums);
-  free(p->fin);
-  free(p->kscratch);
   free(p->scratch);
   free(p);
 }
@@ -1085,6 +1099,145 @@ static size_t od_thread_scratch(const hf_net_config *c, int pw) {
   return k > row ? k : row;
 }
 
+/* ---- the activation arena ---------------------------------------------------- */
+
+/* Where a plan's activations lie in the device's arena: byte offsets, each
+ * 64-byte aligned, OD_NONE for a buffer the plan has no use for. Made from
+ * the configuration, the size, the threads and the band size alone, so
+ * that the plan and hf_run_bytes agree on it. */
+#define OD_NONE SIZE_MAX
+
+typedef struct od_layout {
+  size_t in, out, head_in, sums, fin, kscratch, taps, tband, part;
+  size_t enc[HF_MAX_LEVELS], cat[HF_MAX_LEVELS];
+  size_t tband_floats;          /* each thread's band buffer */
+  int bh[HF_MAX_LEVELS];        /* each decoder's band rows, 0 when whole */
+  int max_cout;
+  size_t total;
+} od_layout;
+
+/* The offset of the next bytes in the arena (OD_NONE for none); the total
+ * becomes SIZE_MAX, and stays so, when it would not fit a size_t. */
+static size_t od_take(od_layout *l, size_t bytes) {
+  if (!bytes) return OD_NONE;
+  size_t r = (bytes + 63) & ~(size_t)63, off = l->total;
+  if (r < bytes || off > SIZE_MAX - 64 - r) {
+    l->total = SIZE_MAX;
+    return OD_NONE;
+  }
+  l->total += r;
+  return off;
+}
+
+/* The float32 bytes of a [batch][h][w][ch] tensor, 0 when out of range. */
+static size_t od_tensor_bytes(int batch, int ch, int h, int w) {
+  return od_size_ok(batch, ch, h, w) ? (size_t)batch * ch * h * w * sizeof(float) : 0;
+}
+
+/* The layout of a plan for batch frames of pw x ph: padded input and raw
+ * output, the Kernel head's input (its larger, concatenated form when
+ * head_sum is 0), the output stage's sums, result and per-thread scratch,
+ * every encoder's output and decoder's concat input, one buffer for the
+ * whole-tensor decoders' taps (or deconvolution outputs), each thread's
+ * band of taps and the seams' terms of the banded ones. HF_ERANGE when a
+ * size does not fit. */
+static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_sum, int batch,
+                          int pw, int ph, int threads, size_t band_bytes, od_layout *l) {
+  const int L = c->num_levels, head = hf_head_in(c);
+  size_t taps = 0, tband = 0, part = 0;
+  memset(l, 0, sizeof *l);
+  l->max_cout = 1;
+  l->in = od_take(l, od_tensor_bytes(batch, c->in_channels, ph, pw));
+  l->out = od_take(l, od_tensor_bytes(batch, c->out_channels, ph, pw));
+  l->head_in = head ? od_take(l, od_tensor_bytes(batch, head_sum ? c->kernel_hidden : head, ph, pw))
+                    : OD_NONE;
+  const int sums = c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL;
+  l->sums = sums ? od_take(l, od_tensor_bytes(batch, 3, ph, pw)) : OD_NONE;
+  l->fin = sums ? od_take(l, od_tensor_bytes(batch, 3, ph, pw)) : OD_NONE;
+  size_t ks = od_thread_scratch(c, pw);
+  l->kscratch = ks <= SIZE_MAX / sizeof(float) / threads ? od_take(l, ks * threads * sizeof(float))
+                                                         : (l->total = SIZE_MAX, OD_NONE);
+  for (int i = 0; i < L; i++) {
+    const int h = ph >> (i + 1), w = pw >> (i + 1), cout = hf_dec_out(c, i);
+    if (cout > l->max_cout) l->max_cout = cout;
+    l->enc[i] = od_take(l, od_tensor_bytes(batch, hf_enc_out(c, i), h, w));
+    l->cat[i] = i < L - 1 ? od_take(l, od_tensor_bytes(batch, hf_dec_in(c, i), h, w)) : OD_NONE;
+    if (use_taps[i] && band_bytes) {
+      l->bh[i] = od_band_rows(band_bytes, h, w, cout);
+      size_t tb = od_tensor_bytes(1, 16 * cout, l->bh[i], w), nb = (h + l->bh[i] - 1) / l->bh[i];
+      size_t pb = od_tensor_bytes(batch, 8 * cout, (int)nb, w);
+      if (tb > tband) tband = tb;
+      if (pb > part) part = pb;
+    } else {
+      size_t b = use_taps[i] ? od_tensor_bytes(batch, 16 * cout, h, w)
+                             : od_tensor_bytes(batch, cout, ph >> i, pw >> i);
+      if (b > taps) taps = b;
+    }
+  }
+  l->taps = od_take(l, taps);
+  l->tband_floats = ((tband + 63) & ~(size_t)63) / sizeof(float);
+  l->tband = tband <= SIZE_MAX / 2 / threads ? od_take(l, l->tband_floats * sizeof(float) * threads)
+                                             : (l->total = SIZE_MAX, OD_NONE);
+  l->part = od_take(l, part);
+  return l->total == SIZE_MAX || l->in == OD_NONE || l->out == OD_NONE ? HF_ERANGE : HF_OK;
+}
+
+/* Buffer off of the arena a plan was laid out in, NULL for OD_NONE. */
+static void *od_at(char *arena, size_t off) { return off == OD_NONE ? NULL : arena + off; }
+
+/* A plan may run when its buffers lie in the arena as it is now. An arena
+ * mapped again at the same address serves: its contents are scratch. */
+static int od_plan_valid(const od_dev *d, const od_plan *p) {
+  return p->arena == d->arena && p->need <= d->arena_bytes;
+}
+
+/* Makes the arena at least need bytes: grown in place when the addresses
+ * after it are free (the plans laid out in it stay valid), else mapped
+ * anew (they are rebuilt when next used). Mapped directly, not with
+ * malloc, so that it can grow in place and give back its tail. */
+static int od_arena_reserve(od_dev *d, size_t need) {
+  const size_t page = 4096;
+  if (need > SIZE_MAX - page) return HF_ERANGE;
+  need = (need + page - 1) & ~(page - 1);
+  if (need <= d->arena_bytes) return HF_OK;
+  if (d->arena) {
+    void *q = mremap(d->arena, d->arena_bytes, need, 0);
+    if (q != MAP_FAILED) {
+      d->arena_bytes = need;
+      return HF_OK;
+    }
+    munmap(d->arena, d->arena_bytes);
+    d->arena = NULL, d->arena_bytes = 0;
+  }
+  void *q = mmap(NULL, need, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (q == MAP_FAILED) return HF_ENOMEM;
+  d->arena = q, d->arena_bytes = need;
+  return HF_OK;
+}
+
+/* After plans were freed: the arena shrinks to what the largest valid plan
+ * of any model needs (unmapped when none is left), and its bytes are
+ * counted by a model that has a valid plan, the current one if it still
+ * does. */
+static void od_arena_fit(od_dev *d) {
+  size_t need = 0;
+  struct od_model *owner = NULL;
+  for (struct od_model *m = d->models; m; m = m->next)
+    for (int k = 0; k < OD_PLAN_CACHE; k++) {
+      const od_plan *p = m->plans[k];
+      if (!p || !od_plan_valid(d, p)) continue;
+      if (p->need > need) need = p->need;
+      if (!owner || m == d->arena_owner) owner = m;
+    }
+  need = (need + 4095) & ~(size_t)4095;
+  if (need < d->arena_bytes) {
+    munmap(d->arena + need, d->arena_bytes - need);
+    d->arena_bytes = need;
+    if (!need) d->arena = NULL;
+  }
+  d->arena_owner = owner;
+}
+
 /* Builds every primitive and buffer for batch frames of pw x ph. */
 static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out) {
   const hf_net_config *c = &m->w->cfg;
@@ -1096,80 +1249,34 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   p->batch = batch, p->pw = pw, p->ph = ph;
   p->in_skip_step = -1;
 
-  dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS], head_md;
-  OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
-  OD_RC(od_nhwc(&out_md, batch, c->out_channels, ph, pw));
-  OD_RC(od_alloc(&in_md, (void **)&p->in));
-  OD_RC(od_alloc(&out_md, (void **)&p->out));
-  p->bytes += dnnl_memory_desc_get_size(&in_md) + dnnl_memory_desc_get_size(&out_md);
-  /* The head reads dec0's hidden channels, after them the input's when it
-   * is one convolution over their concatenation. */
-  const int head = hf_head_in(c), head_ch = m->head_sum ? c->kernel_hidden : head;
-  if (head) {
-    OD_RC(od_nhwc(&head_md, batch, head_ch, ph, pw));
-    OD_RC(od_alloc(&head_md, (void **)&p->head_in));
-    p->bytes += dnnl_memory_desc_get_size(&head_md);
-  }
-  if (c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL) {
-    dnnl_memory_desc_t md;
-    OD_RC(od_nhwc(&md, batch, 3, ph, pw));
-    OD_RC(od_alloc(&md, (void **)&p->sums));
-    OD_RC(od_alloc(&md, (void **)&p->fin));
-    p->bytes += 2 * dnnl_memory_desc_get_size(&md);
-  }
-  size_t nscratch = od_thread_scratch(c, pw) * dev->threads;
-  if (nscratch > SIZE_MAX / sizeof(float)) OD_RC(HF_ERANGE);
-  OD_RC(od_alloc_bytes(nscratch * sizeof(float), (void **)&p->kscratch));
-  p->bytes += nscratch * sizeof(float);
-
-  /* Each encoder output has its own buffer, read by the next encoder and
-   * by the tap pass that fills the concat buffer of its level; one buffer
-   * holds each decoder's taps in turn (or, on the HF_CPU_DECONV path, its
-   * output), the largest of those tensors. */
-  size_t taps_bytes = 0, part_floats = 0, tscratch_bytes = 0;
-  int max_cout = 1, bh[HF_MAX_LEVELS] = {0};
+  /* The activations, in the device's arena (grown to fit if need be). */
+  od_layout lay;
+  OD_RC(od_layout_make(c, m->use_taps, m->head_sum, batch, pw, ph, dev->threads, dev->band_bytes,
+                       &lay));
+  OD_RC(od_arena_reserve(dev, lay.total));
+  char *A = p->arena = dev->arena;
+  p->need = lay.total;
   p->nthreads = dev->threads;
-  for (int i = 0; i < L; i++) {
-    dnnl_memory_desc_t md;
-    const int h = ph >> (i + 1), w = pw >> (i + 1), cout = hf_dec_out(c, i);
-    if (cout > max_cout) max_cout = cout;
-    if (m->use_taps[i] && dev->band_bytes) {
-      /* Banded: each thread's band of taps, and the seams' terms. */
-      bh[i] = od_band_rows(dev->band_bytes, h, w, cout);
-      size_t tb = (size_t)bh[i] * w * 16 * cout, nb = (size_t)(h + bh[i] - 1) / bh[i];
-      size_t pf = (size_t)batch * nb * 4 * 2 * w * cout;
-      if (tb > p->tband_floats) p->tband_floats = (tb + 15) & ~(size_t)15;
-      if (pf > part_floats) part_floats = pf;
-    } else {
-      if (m->use_taps[i])
-        OD_RC(od_nhwc(&md, batch, 16 * cout, h, w));
-      else
-        OD_RC(od_nhwc(&md, batch, cout, ph >> i, pw >> i));
-      size_t b = dnnl_memory_desc_get_size(&md);
-      if (b > taps_bytes) taps_bytes = b;
-    }
-    OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
-    OD_RC(od_alloc(&md, &p->enc[i]));
-    p->bytes += dnnl_memory_desc_get_size(&md);
-  }
-  if (taps_bytes) {
-    OD_RC(od_alloc_bytes(taps_bytes, &p->taps));
-    p->bytes += taps_bytes;
-  }
-  if (p->tband_floats) {
-    size_t n = p->tband_floats * p->nthreads * sizeof(float);
-    OD_RC(od_alloc_bytes(n, (void **)&p->tband));
-    OD_RC(od_alloc_bytes(part_floats * sizeof(float), (void **)&p->part));
-    p->bytes += n + part_floats * sizeof(float);
-  }
+  p->in = od_at(A, lay.in), p->out = od_at(A, lay.out), p->head_in = od_at(A, lay.head_in);
+  p->sums = od_at(A, lay.sums), p->fin = od_at(A, lay.fin), p->kscratch = od_at(A, lay.kscratch);
+  p->taps = od_at(A, lay.taps), p->tband = od_at(A, lay.tband), p->part = od_at(A, lay.part);
+  p->tband_floats = lay.tband_floats;
+  for (int i = 0; i < L; i++) p->enc[i] = od_at(A, lay.enc[i]), p->cat[i] = od_at(A, lay.cat[i]);
+  const int *bh = lay.bh, max_cout = lay.max_cout;
+  size_t tscratch_bytes = 0;
   p->zeros = calloc(max_cout, sizeof(float));
   if (!p->zeros) OD_RC(HF_ENOMEM);
   p->bytes += max_cout * sizeof(float);
-  for (int i = 0; i < L - 1; i++) {
+
+  dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS], head_md;
+  OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
+  OD_RC(od_nhwc(&out_md, batch, c->out_channels, ph, pw));
+  /* The head reads dec0's hidden channels, after them the input's when it
+   * is one convolution over their concatenation. */
+  const int head = hf_head_in(c), head_ch = m->head_sum ? c->kernel_hidden : head;
+  if (head) OD_RC(od_nhwc(&head_md, batch, head_ch, ph, pw));
+  for (int i = 0; i < L - 1; i++)
     OD_RC(od_nhwc(&cat_md[i], batch, hf_dec_in(c, i), ph >> (i + 1), pw >> (i + 1)));
-    OD_RC(od_alloc(&cat_md[i], &p->cat[i]));
-    p->bytes += dnnl_memory_desc_get_size(&cat_md[i]);
-  }
 
   /* Encoder: enc{i} reads enc{i-1}'s output (or the input). */
   dnnl_memory_t src, dst;
@@ -1291,25 +1398,33 @@ fail:
 }
 
 /* The plan for (batch, pw, ph): cached, or built in place of the least
- * recently used one. */
+ * recently used one (or of the cached one, when the arena it was laid out
+ * in has moved). The device's lock is held. */
 static int od_plan_get(od_model *m, int batch, int pw, int ph, od_plan **out) {
   int victim = 0;
   for (int k = 0; k < OD_PLAN_CACHE; k++) {
     od_plan *p = m->plans[k];
     if (p && p->batch == batch && p->pw == pw && p->ph == ph) {
+      if (!od_plan_valid(m->dev, p)) {
+        victim = k;
+        break;
+      }
       p->stamp = ++m->clock;
       *out = p;
       return HF_OK;
     }
     if (!p || (m->plans[victim] && p->stamp < m->plans[victim]->stamp)) victim = k;
   }
-  /* Free the victim first: a large plan's buffers can then be reused by
-   * the allocator for the new one. */
   od_plan_free(m->plans[victim]);
   m->plans[victim] = NULL;
+  od_arena_fit(m->dev);
   int rc = od_plan_create(m, batch, pw, ph, &m->plans[victim]);
-  if (rc) return rc;
+  if (rc) {
+    od_arena_fit(m->dev);
+    return rc;
+  }
   m->plans[victim]->stamp = ++m->clock;
+  m->dev->arena_owner = m;
   *out = m->plans[victim];
   return HF_OK;
 }
@@ -1355,7 +1470,16 @@ static int od_head_split(od_model *m) {
 static void od_model_destroy(void *impl) {
   od_model *m = impl;
   if (!m) return;
-  for (int k = 0; k < OD_PLAN_CACHE; k++) od_plan_free(m->plans[k]);
+  od_dev *d = m->dev;
+  pthread_mutex_lock(&d->lock);
+  for (int k = 0; k < OD_PLAN_CACHE; k++) od_plan_free(m->plans[k]), m->plans[k] = NULL;
+  for (od_model **q = &d->models; *q; q = &(*q)->next)
+    if (*q == m) {
+      *q = m->next;
+      break;
+    }
+  od_arena_fit(d);
+  pthread_mutex_unlock(&d->lock);
   for (int k = 0; k < 3; k++) {
     if (m->head_w[k]) dnnl_memory_destroy(m->head_w[k]);
     free(m->head_split[k]);
@@ -1412,7 +1536,12 @@ static int od_model_create(void *devp, const hf_weights *w, void **out) {
    * 256 x 256 (or the alignment, if larger): the plan built here is kept,
    * and plans of other sizes find the same formats in the model. */
   int a = hf_net_align(c), side = a > 256 ? a : 256;
-  OD_RC(od_plan_get(m, 1, side, side, &(od_plan *){NULL}));
+  pthread_mutex_lock(&dev->lock);
+  m->next = dev->models;
+  dev->models = m;
+  rc = od_plan_get(m, 1, side, side, &(od_plan *){NULL});
+  pthread_mutex_unlock(&dev->lock);
+  if (rc) goto fail;
   *out = m;
   return HF_OK;
 fail:
@@ -1420,14 +1549,14 @@ fail:
   return rc;
 }
 
-static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
-  od_model *m = impl;
+static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   const hf_net_config *c = &m->w->cfg;
   int a = hf_net_align(c), rc = HF_OK;
   int pw = hf_round_up(io->width, a), ph = hf_round_up(io->height, a);
   od_plan *p;
   double t0 = hf_now_us();
   OD_RC(od_plan_get(m, io->batch, pw, ph, &p));
+  m->dev->arena_owner = m;
   /* Aligned float32 frames are read where they are; others are converted
    * and padded into the plan's buffer. oneDNN never writes a source. */
   const float *in = p->in;
@@ -1462,6 +1591,16 @@ fail:
   return rc;
 }
 
+/* Runs of the models of one device take turns: they share its arena (and
+ * would share its cores anyway). */
+static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
+  od_model *m = impl;
+  pthread_mutex_lock(&m->dev->lock);
+  int rc = od_model_run_locked(m, io, t);
+  pthread_mutex_unlock(&m->dev->lock);
+  return rc;
+}
+
 static const char *od_model_precision(void *impl) { return "fp32"; }
 
 /* ---- memory ---------------------------------------------------------------- */
@@ -1475,59 +1614,75 @@ static const char *od_model_precision(void *impl) { return "fp32"; }
 static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + ((size_t)1 << 20); }
 
 /* What od_plan_create allocates for (batch, pw, ph), from the same sizes:
- * padded input and output, every encoder's output, one buffer of the
- * largest decoder's taps (or deconvolution output) and the zeros beside
- * it, the concat buffers, the scratchpad, private weight copies (at most
- * one of every weight), the Kernel architecture's head input, and the
- * output stage's sums, result and per-thread scratch. Each buffer is
- * rounded as od_alloc_bytes rounds it, plus a page of allocator overhead. */
+ * the arena's share (od_layout_make: the activations, rounded to a page),
+ * the zeros beside the taps, the scratchpads (the primitives' shared one
+ * and each thread's for the band primitives) and private weight copies (at
+ * most one of every weight, two of a banded decoder's: its band's and its
+ * last band's). Each buffer outside the arena is rounded as od_alloc_bytes
+ * rounds it, plus a page of allocator overhead. An upper bound of what a
+ * run allocates whatever the arena holds already. */
 static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   const size_t f = sizeof(float), page = 4096;
-  int L = c->num_levels, max_cout = 1;
-  size_t px = (size_t)batch * pw * ph, total = 0;
-  size_t taps = 0, largest = 0, weights = 0;
-  for (int i = 0; i < L; i++) {
-    size_t q = (size_t)batch * (pw >> (i + 1)) * (ph >> (i + 1));
-    size_t t = (od_use_taps(i) ? 16 : 4) * q * hf_dec_out(c, i) * f, e = q * hf_enc_out(c, i) * f;
-    if (t > taps) taps = t;
+  int use_taps[HF_MAX_LEVELS] = {0}, threads = od_thread_count();
+  od_layout lay;
+  for (int i = 0; i < c->num_levels; i++) use_taps[i] = od_use_taps(i);
+  if (od_layout_make(c, use_taps, 0, batch, pw, ph, threads, od_band_bytes(), &lay)) return 0;
+  size_t largest = 0, weights = 0;
+  for (int i = 0; i < c->num_levels; i++) {
+    size_t e = od_tensor_bytes(batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1));
+    size_t t = od_tensor_bytes(batch, (use_taps[i] ? 16 : 4) * hf_dec_out(c, i), ph >> (i + 1),
+                               pw >> (i + 1));
     if (e > largest) largest = e;
-    if (hf_dec_out(c, i) > max_cout) max_cout = hf_dec_out(c, i);
-    total += e + 64 + page;
-    if (i < L - 1) total += q * hf_dec_in(c, i) * f + 64 + page;
-    weights += ((size_t)hf_enc_out(c, i) * hf_enc_in(c, i) * 9 +
-                (size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16) * f + 64 + page;
+    if (t > largest) largest = t;
+    weights += (size_t)hf_enc_out(c, i) * hf_enc_in(c, i) * 9 * f + 64 + page;
+    weights += 2 * ((size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16 * f + 64 + page);
   }
-  if (taps > largest) largest = taps;
-  total += taps + (size_t)max_cout * f + 2 * (64 + page);
-  total += px * c->in_channels * f + px * c->out_channels * f + 2 * (64 + page);
-  if (hf_head_in(c)) {
-    /* The larger of the head's two forms: the concatenation. */
-    total += px * hf_head_in(c) * f + 64 + page;
-    weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
-  }
-  if (c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL)
-    total += 2 * (px * 3 * f + 64 + page);
-  total += od_thread_scratch(c, pw) * od_thread_count() * f + 64 + page;
-  return total + od_scratch_allowance(largest) + weights;
+  if (hf_head_in(c)) weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
+  size_t own = (size_t)lay.max_cout * f + 64 + page;
+  own += od_scratch_allowance(largest) + 64 + page;
+  if (lay.tband != OD_NONE)
+    own += threads * od_scratch_allowance(lay.tband_floats * f) + 64 + page;
+  return lay.total + page + own + weights;
 }
 
-static size_t od_model_cached_bytes(void *impl) {
-  od_model *m = impl;
-  size_t n = 0;
+/* A model's count includes the arena when it is the model that last ran
+ * (or, once that one has no plan left, one that has a valid plan). */
+static size_t od_cached_locked(const od_model *m) {
+  size_t n = m->dev->arena_owner == m ? m->dev->arena_bytes : 0;
   for (int k = 0; k < OD_PLAN_CACHE; k++)
     if (m->plans[k]) n += m->plans[k]->bytes;
   return n;
 }
 
+static size_t od_model_cached_bytes(void *impl) {
+  od_model *m = impl;
+  pthread_mutex_lock(&m->dev->lock);
+  size_t n = od_cached_locked(m);
+  pthread_mutex_unlock(&m->dev->lock);
+  return n;
+}
+
+/* Frees the model's plans until it counts at most keep bytes: those laid
+ * out in an arena that moved first, then the largest. The arena shrinks to
+ * what the valid plans left need, and passes to a model that has one. */
 static void od_model_trim(void *impl, size_t keep) {
   od_model *m = impl;
-  while (od_model_cached_bytes(m) > keep) {
+  od_dev *d = m->dev;
+  pthread_mutex_lock(&d->lock);
+  while (od_cached_locked(m) > keep) {
     int big = -1;
-    for (int k = 0; k < OD_PLAN_CACHE; k++)
-      if (m->plans[k] && (big < 0 || m->plans[k]->bytes > m->plans[big]->bytes)) big = k;
+    for (int k = 0; k < OD_PLAN_CACHE; k++) {
+      const od_plan *p = m->plans[k], *b = big < 0 ? NULL : m->plans[big];
+      if (!p) continue;
+      int pv = od_plan_valid(d, p), bv = b && od_plan_valid(d, b);
+      if (!b || (bv && !pv) || (bv == pv && p->need + p->bytes > b->need + b->bytes)) big = k;
+    }
+    if (big < 0) break;
     od_plan_free(m->plans[big]);
     m->plans[big] = NULL;
+    od_arena_fit(d);
   }
+  pthread_mutex_unlock(&d->lock);
 }
 
 const hf_backend_ops hf_backend_cpu_onednn = {
