@@ -109,6 +109,8 @@ typedef struct od_taps_pass {
   int stride;
   const float *skip;            /* [batch][2h][2w][skip_ch], or NULL */
   int skip_ch;
+  int fin;                      /* the output transform too: out is the caller's
+                                 * frames (od_model_run_locked) */
 } od_taps_pass;
 
 /* Copies dense [npix][ch] into [npix][stride] (a concat buffer's half). */
@@ -163,6 +165,7 @@ typedef struct od_plan {
   float *head_in;               /* the head's input: concat(ReLU(dec0), input) for
                                  * OD_HEAD, ReLU(dec0) alone for OD_HEAD_HID */
   int in_skip_step;             /* the step copying the input into head_in, or -1 */
+  int out_step;                 /* dec0's tap pass when it writes the output, or -1 */
   float *sums;                  /* Kernel output stage: per-pixel sums and the */
   float *fin;                   /* f32 result, [batch][ph][pw][3] each, and */
   float *kscratch;              /* each thread's scratch (hf_cpu_kernel_scratch) */
@@ -509,14 +512,15 @@ static inline void od_sum4(float *restrict o, const float *restrict a, const flo
 
 /* One output row of a tap pass: pixel X of o (ostride floats apart) gets
  * bias + taps ky0 of input row r0 + taps ky1 of input row r1, the ReLU if
- * relu, then the skip channels of sk beside them (when sk is set). Output
+ * relu, hf_output_transform if fin, then the skip channels of sk beside
+ * them (when sk is set). Output
  * column X = 2q takes taps kx = 1 of input column q and kx = 3 of column
  * q - 1; X = 2q + 1 takes kx = 2 of column q and kx = 0 of column q + 1. A
  * tap outside the input (r1 NULL, or a column outside) reads zeros, so that
  * every pixel is the same four-term sum. */
 OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
                                    const float *r1, int ky1, float *o, int ostride,
-                                   const float *bias, int relu, const float *sk) {
+                                   const float *bias, int relu, int fin, const float *sk) {
   const int C = t->cout, T = 16 * t->cout, w = t->w, E = t->skip_ch;
   for (int X = 0; X < 2 * w; X++, o += ostride) {
     const int q = X >> 1, px = X & 1;
@@ -527,6 +531,7 @@ OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int k
     const float *c = r1 ? r1 + (size_t)q * T + (ky1 * 4 + kx0) * C : t->zeros;
     const float *d = r1 && has_x1 ? r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C : t->zeros;
     od_sum4(o, a, b, c, d, bias, C, relu);
+    if (fin) hf_output_transform(o);
     if (sk) {
       const float *restrict s = sk + (size_t)X * E;
       float *restrict e = o + C;
@@ -556,7 +561,7 @@ static void od_taps_row(const od_taps_pass *t, int n, int Y) {
   const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
   const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
   od_taps_line(t, r0, ky0, r1, ky1, od_taps_out_row(t, n, Y), t->stride, t->bias, t->relu,
-               od_taps_skip_row(t, n, Y));
+               t->fin, od_taps_skip_row(t, n, Y));
 }
 
 static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
@@ -890,6 +895,7 @@ OD_CLONES static void od_taps_join(const od_taps_pass *t, const float *pr0, cons
   for (int X = 0; X < 2 * t->w; X++, o += t->stride) {
     od_sum4(o, pr0 + (size_t)X * C, t->zeros, pr1 ? pr1 + (size_t)X * C : t->zeros, t->zeros,
             t->bias, C, t->relu);
+    if (t->fin) hf_output_transform(o);
     if (sk) {
       const float *restrict s = sk + (size_t)X * E;
       float *restrict e = o + C;
@@ -926,14 +932,14 @@ static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, i
   for (int Y = 2 * a + 1; Y <= 2 * (a + rows) - 2; Y++) {
     const int m = Y >> 1, py = Y & 1, y1 = py ? m + 1 : m - 1;
     od_taps_line(tp, tb + (m - a) * rowf, py ? 2 : 1, tb + (y1 - a) * rowf, py ? 0 : 3,
-                 od_taps_out_row(tp, n, Y), tp->stride, tp->bias, tp->relu,
+                 od_taps_out_row(tp, n, Y), tp->stride, tp->bias, tp->relu, tp->fin,
                  od_taps_skip_row(tp, n, Y));
   }
   float *P = b->part + ((size_t)n * b->nb + k) * 4 * prow;
-  od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, NULL);
-  if (k > 0) od_taps_line(tp, tb, 0, NULL, 0, P + prow, C, tp->zeros, 0, NULL);
-  od_taps_line(tp, last, 2, NULL, 0, P + 2 * prow, C, tp->zeros, 0, NULL);
-  if (k < b->nb - 1) od_taps_line(tp, last, 3, NULL, 0, P + 3 * prow, C, tp->zeros, 0, NULL);
+  od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, 0, NULL);
+  if (k > 0) od_taps_line(tp, tb, 0, NULL, 0, P + prow, C, tp->zeros, 0, 0, NULL);
+  od_taps_line(tp, last, 2, NULL, 0, P + 2 * prow, C, tp->zeros, 0, 0, NULL);
+  if (k < b->nb - 1) od_taps_line(tp, last, 3, NULL, 0, P + 3 * prow, C, tp->zeros, 0, 0, NULL);
   return HF_OK;
 }
 
@@ -1248,6 +1254,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   if (!p) return HF_ENOMEM;
   p->batch = batch, p->pw = pw, p->ph = ph;
   p->in_skip_step = -1;
+  p->out_step = -1;
 
   /* The activations, in the device's arena (grown to fit if need be). */
   od_layout lay;
@@ -1308,7 +1315,8 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
                            i ? p->cat[i - 1] : head ? p->head_in : p->out,
                            i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
                            i ? p->enc[i - 1] : head_cat ? p->in : NULL,
-                           i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0};
+                           i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0, 0};
+      if (i == 0 && !head) p->out_step = p->nsteps + (bh[i] ? 0 : 1);
       if (bh[i]) {
         if (head_cat) p->in_skip_step = p->nsteps;
         const float *from = i < L - 1 ? p->cat[i] : p->enc[L - 1];
@@ -1566,6 +1574,14 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
     hf_input_to_padded_f32(io, c->in_channels, pw, ph, p->in);
   OD_TRY(dnnl_memory_set_data_handle(p->in_mem, (void *)in));
   if (p->in_skip_step >= 0) p->steps[p->in_skip_step].taps.skip = in;
+  /* A U-Net's dec0 writes the caller's float32 frames, transformed, when
+   * no padding is cropped: the output stage then has nothing left to do. */
+  const int direct = p->out_step >= 0 && c->arch == HF_ARCH_UNET && c->out_channels == 3 &&
+                     io->out_dtype == HF_F32 && io->width == pw && io->height == ph;
+  if (p->out_step >= 0) {
+    p->steps[p->out_step].taps.out = direct ? (float *)io->out : p->out;
+    p->steps[p->out_step].taps.fin = direct;
+  }
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
@@ -1583,7 +1599,7 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   double t2 = hf_now_us();
   od_kernel_out k = {c, in, p->out, pw, ph, p->sums, p->fin, p->kscratch,
                      od_thread_scratch(c, pw), m->kernel_ref, io};
-  od_output(&k, m->dev);
+  if (!direct) od_output(&k, m->dev);
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
   t->output_us = hf_now_us() - t2;
