@@ -518,10 +518,10 @@ static inline void od_sum4(float *restrict o, const float *restrict a, const flo
  * q - 1; X = 2q + 1 takes kx = 2 of column q and kx = 0 of column q + 1. A
  * tap outside the input (r1 NULL, or a column outside) reads zeros, so that
  * every pixel is the same four-term sum. */
-OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
-                                   const float *r1, int ky1, float *o, int ostride,
-                                   const float *bias, int relu, int fin, const float *sk) {
-  const int C = t->cout, T = 16 * t->cout, w = t->w, E = t->skip_ch;
+static inline __attribute__((always_inline)) void
+od_taps_line_c(const od_taps_pass *t, const float *r0, int ky0, const float *r1, int ky1, float *o,
+               int ostride, const float *bias, int relu, int fin, const float *sk, const int C) {
+  const int T = 16 * C, w = t->w, E = t->skip_ch;
   for (int X = 0; X < 2 * w; X++, o += ostride) {
     const int q = X >> 1, px = X & 1;
     const int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
@@ -539,6 +539,18 @@ OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int k
       for (int k = 0; k < E; k++) e[k] = s[k];
     }
   }
+}
+
+/* od_taps_line_c, with the channel count a constant for dec0's three
+ * output channels: the sums unrolled rather than a loop of three per
+ * pixel. */
+OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
+                                   const float *r1, int ky1, float *o, int ostride,
+                                   const float *bias, int relu, int fin, const float *sk) {
+  if (t->cout == 3)
+    od_taps_line_c(t, r0, ky0, r1, ky1, o, ostride, bias, relu, fin, sk, 3);
+  else
+    od_taps_line_c(t, r0, ky0, r1, ky1, o, ostride, bias, relu, fin, sk, t->cout);
 }
 
 /* Output row Y of frame n of a tap pass, and the skip channels beside it. */
