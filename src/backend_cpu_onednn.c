@@ -30,16 +30,29 @@
  *     with the row-vectorised code of cpu_kernel_output.c;
  *     HF_CPU_KERNEL_REF=1 uses net_config.c's reference rows instead, for
  *     comparison.
+ *   - A decoder's tap convolution and its pass run band by band (od_band):
+ *     each thread computes the taps of a few input rows (512 KiB,
+ *     HF_CPU_BAND_KB) with a 1x1 convolution of its own and sums them while
+ *     they are in its cache, instead of the whole level's taps (32 MiB for
+ *     dec1 at 512 x 512) going to memory and back. HF_CPU_BAND_KB=0 keeps
+ *     the whole-tensor convolution and pass, for comparison.
+ *   - A U-Net's dec0 pass writes the caller's aligned float32 frames with
+ *     the output transform, so the output stage has nothing to do there.
  *   - The backend's own passes (taps, output stage) run on the OpenMP
  *     threads oneDNN runs on, rows split between them (od_parallel).
  *   - Weights are reordered once, at model_create, into the format oneDNN
  *     chooses (format_tag_any); a size whose primitives want another format
  *     gets a private copy in its plan.
  *
- * A plan holds the primitives and buffers of one (batch, padded size); plans
- * are cached per model (least recently used goes), so a run of a size seen
- * before allocates nothing. A model is run by one thread at a time (the
- * server's worker owns its models); the cache is not locked.
+ * A plan holds the primitives of one (batch, padded size) and its buffers'
+ * places (od_layout); plans are cached per model (least recently used
+ * goes), so a run of a size seen before allocates nothing. The activations
+ * themselves lie in one arena per device (od_dev), which every plan of
+ * every model on it uses: runs on a device take turns under its lock, so
+ * N variants and sizes keep the largest run's activations once, not N
+ * times. The arena counts in the cached bytes of the model that ran last
+ * (hf_model_cached_bytes, the daemon's STATS), shrinks with the plans that
+ * use it and is unmapped with the last of them.
  */
 #define _GNU_SOURCE /* mremap */
 #include <omp.h>
