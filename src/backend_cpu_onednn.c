@@ -134,25 +134,29 @@ typedef struct od_copy_pass {
   float *dst;
 } od_copy_pass;
 
-/* A decoder's tap convolution and tap pass run band by band (OD_STEP_BAND):
- * each thread takes the next band of bh input rows of a frame, computes
- * their taps with a 1x1 convolution into a buffer of its own (small enough
- * to stay in its core's cache), and sums them into the output rows that
- * need no other band's taps. The two output rows at each seam between
- * bands (and at a frame's top and bottom) take taps from both sides: each
- * band leaves the terms of its first and last input rows in part, and a
- * second pass adds the two sides' terms together. Same sums as the whole
- * tap pass, in a different order only at the seams. */
+/* A decoder's tap convolution and tap pass run band by band (OD_STEP_BAND).
+ * The frame's bands of bh input rows are dealt out in chunks of consecutive
+ * bands, a chunk to a thread as it comes free. For each band of its chunk
+ * the thread computes the band's taps with a 1x1 convolution into one of
+ * its two band buffers (small enough to stay in its core's cache) and sums
+ * them into every output row they complete, with the last input row of the
+ * band before, kept in the other buffer. The two output rows at a seam
+ * between chunks (and at a frame's top and bottom) take taps from both
+ * sides: each chunk leaves the terms of its first and last input rows in
+ * part, and a second pass adds the two sides' terms together. Same sums as
+ * the whole tap pass, in a different order only at those seams. */
 typedef struct od_band {
   const float *src;             /* the decoder's input [batch][h][w][cin] */
   int cin, bh, nb;              /* rows per band; bands per frame, the last
                                  * of h - (nb - 1) bh rows */
+  int chunk, nchunks;           /* bands per chunk; chunks per frame */
   dnnl_primitive_t prim[2];     /* bh rows; the last band's rows if fewer */
   dnnl_memory_t wmem[2];
   int owned[2];                 /* wmem[k] is a private copy */
-  dnnl_memory_t *src_mem, *dst_mem; /* per thread, [thread][2] */
-  float *part;                  /* [batch][nb][4][2w][cout]: terms of Y = 2a,
-                                 * 2a - 1, 2b - 1, 2b of a band of rows [a, b) */
+  dnnl_memory_t *src_mem;       /* [thread][prim] */
+  dnnl_memory_t *dst_mem;       /* [thread][prim][buffer] */
+  float *part;                  /* [batch][nchunks][4][2w][cout]: terms of Y =
+                                 * 2a, 2a - 1, 2b - 1, 2b of a chunk of rows [a, b) */
 } od_band;
 
 typedef struct od_step {
@@ -187,7 +191,7 @@ typedef struct od_plan {
   float *zeros;                 /* the largest decoder's cout zeros */
   void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
   void *scratch;                /* shared by every primitive (run in order) */
-  float *tband;                 /* each thread's band taps, tband_floats each */
+  float *tband;                 /* each thread's two band buffers, tband_floats each */
   size_t tband_floats;
   float *part;                  /* the seams' terms, for one level at a time */
   void *tscratch;               /* each thread's scratchpad for band primitives */
@@ -602,10 +606,10 @@ static void od_band_free(od_band *b, int nthreads) {
     if (b->prim[k]) dnnl_primitive_destroy(b->prim[k]);
     if (b->owned[k]) dnnl_memory_destroy(b->wmem[k]);
   }
-  for (int k = 0; k < 2 * nthreads; k++) {
+  for (int k = 0; k < 2 * nthreads; k++)
     if (b->src_mem && b->src_mem[k]) dnnl_memory_destroy(b->src_mem[k]);
+  for (int k = 0; k < 4 * nthreads; k++)
     if (b->dst_mem && b->dst_mem[k]) dnnl_memory_destroy(b->dst_mem[k]);
-  }
   free(b->src_mem);
   free(b->dst_mem);
   free(b);
@@ -861,6 +865,13 @@ static int od_band_rows(size_t band_bytes, int h, int w, int cout) {
   return (int)r;
 }
 
+/* Bands per chunk of a frame of nb bands: four chunks per thread, so that
+ * a thread slowed by other work on its core takes fewer of them. */
+static int od_band_chunk(int nb, int threads) {
+  int chunks = 4 * threads < nb ? 4 * threads : nb;
+  return (nb + chunks - 1) / chunks;
+}
+
 /* Adds dec{i}'s banded step: its 1x1 convolutions for a band of bh rows
  * and for the last band's rows when fewer, each thread's memories over its
  * band buffer (p->tband, allocated) and the seams' buffer (p->part). The
@@ -879,8 +890,9 @@ static int od_add_band(od_model *m, od_plan *p, int i, const float *src,
   st->taps = *pass;
   st->band = b;
   b->src = src, b->cin = cin, b->bh = bh, b->nb = (h + bh - 1) / bh, b->part = p->part;
+  b->chunk = od_band_chunk(b->nb, p->nthreads), b->nchunks = (b->nb + b->chunk - 1) / b->chunk;
   b->src_mem = calloc((size_t)2 * p->nthreads, sizeof *b->src_mem);
-  b->dst_mem = calloc((size_t)2 * p->nthreads, sizeof *b->dst_mem);
+  b->dst_mem = calloc((size_t)4 * p->nthreads, sizeof *b->dst_mem);
   if (!b->src_mem || !b->dst_mem) return HF_ENOMEM;
   const int rows[2] = {bh, h - (b->nb - 1) * bh};
   for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
@@ -904,8 +916,9 @@ static int od_add_band(od_model *m, od_plan *p, int i, const float *src,
     if (rc) goto fail;
     for (int t = 0; t < p->nthreads; t++) {
       OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, dev->eng, DNNL_MEMORY_NONE));
-      OD_TRY(dnnl_memory_create(&b->dst_mem[2 * t + k], &dmd, dev->eng,
-                                p->tband + (size_t)t * p->tband_floats));
+      for (int half = 0; half < 2; half++)
+        OD_TRY(dnnl_memory_create(&b->dst_mem[(2 * t + k) * 2 + half], &dmd, dev->eng,
+                                  p->tband + (size_t)(2 * t + half) * p->tband_floats));
     }
   }
 fail:
@@ -930,84 +943,99 @@ OD_CLONES static void od_taps_join(const od_taps_pass *t, const float *pr0, cons
   }
 }
 
-/* Band k of frame n on thread t: input rows [a, b) to taps in the thread's
- * buffer, output rows 2a + 1 .. 2b - 2 whole, and the band's seam terms:
- * of row 2a from taps ky = 1 of row a, of 2a - 1 from ky = 0 of row a, of
- * 2b - 1 from ky = 2 of row b - 1, of 2b from ky = 3 of row b - 1. */
+/* Chunk c of frame n on thread t. Band k of it, input rows [a, b): its taps
+ * into buffer (k - first) & 1 of the thread's, then output rows 2a - 1 ..
+ * 2b - 2 whole, with row a - 1 from the band before; the chunk's first band
+ * has none, and leaves the seam terms of row 2a (taps ky = 1 of row a) and
+ * 2a - 1 (ky = 0 of row a) instead, and its last band those of 2b - 1 (ky =
+ * 2 of row b - 1) and 2b (ky = 3 of row b - 1). */
 static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, int t, int n,
-                       int k) {
+                       int c) {
   const od_band *b = st->band;
   const od_taps_pass *tp = &st->taps;
   const int h = tp->h, w = tp->w, C = tp->cout;
   const size_t rowf = (size_t)w * 16 * C, prow = (size_t)2 * w * C;
-  const int a = k * b->bh, rows = k < b->nb - 1 ? b->bh : h - a, which = rows != b->bh;
-  dnnl_memory_t sm = b->src_mem[2 * t + which];
-  dnnl_status_t s =
-      dnnl_memory_set_data_handle(sm, (void *)(b->src + ((size_t)n * h + a) * w * b->cin));
-  if (s == dnnl_success) {
-    dnnl_exec_arg_t args[4] = {{DNNL_ARG_SRC, sm},
-                               {DNNL_ARG_WEIGHTS, b->wmem[which]},
-                               {DNNL_ARG_DST, b->dst_mem[2 * t + which]},
-                               {DNNL_ARG_SCRATCHPAD, p->tscratch_mem[t]}};
-    s = dnnl_primitive_execute(b->prim[which], dev->tstream[t], p->tscratch_mem[t] ? 4 : 3, args);
+  const int first = c * b->chunk, end = first + b->chunk < b->nb ? first + b->chunk : b->nb;
+  float *P = b->part + ((size_t)n * b->nchunks + c) * 4 * prow;
+  const float *prev = NULL;
+  for (int k = first; k < end; k++) {
+    const int a = k * b->bh, rows = k < b->nb - 1 ? b->bh : h - a, which = rows != b->bh;
+    const int half = (k - first) & 1;
+    dnnl_memory_t sm = b->src_mem[2 * t + which];
+    dnnl_status_t s =
+        dnnl_memory_set_data_handle(sm, (void *)(b->src + ((size_t)n * h + a) * w * b->cin));
+    if (s == dnnl_success) {
+      dnnl_exec_arg_t args[4] = {{DNNL_ARG_SRC, sm},
+                                 {DNNL_ARG_WEIGHTS, b->wmem[which]},
+                                 {DNNL_ARG_DST, b->dst_mem[(2 * t + which) * 2 + half]},
+                                 {DNNL_ARG_SCRATCHPAD, p->tscratch_mem[t]}};
+      s = dnnl_primitive_execute(b->prim[which], dev->tstream[t], p->tscratch_mem[t] ? 4 : 3,
+                                 args);
+    }
+    if (s == dnnl_success) s = dnnl_stream_wait(dev->tstream[t]);
+    if (s != dnnl_success) return od_report(s, "dnnl_primitive_execute(band)", __LINE__);
+    const float *tb = p->tband + (size_t)(2 * t + half) * p->tband_floats;
+    const float *last = tb + (rows - 1) * rowf;
+    for (int Y = prev ? 2 * a - 1 : 2 * a + 1; Y <= 2 * (a + rows) - 2; Y++) {
+      const int m = Y >> 1, py = Y & 1, y1 = py ? m + 1 : m - 1;
+      const float *r0 = m < a ? prev : tb + (m - a) * rowf;
+      const float *r1 = y1 < a ? prev : tb + (y1 - a) * rowf;
+      od_taps_line(tp, r0, py ? 2 : 1, r1, py ? 0 : 3, od_taps_out_row(tp, n, Y), tp->stride,
+                   tp->bias, tp->relu, tp->fin, od_taps_skip_row(tp, n, Y));
+    }
+    if (!prev) {
+      od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, 0, NULL);
+      if (k > 0) od_taps_line(tp, tb, 0, NULL, 0, P + prow, C, tp->zeros, 0, 0, NULL);
+    }
+    if (k == end - 1) {
+      od_taps_line(tp, last, 2, NULL, 0, P + 2 * prow, C, tp->zeros, 0, 0, NULL);
+      if (k < b->nb - 1) od_taps_line(tp, last, 3, NULL, 0, P + 3 * prow, C, tp->zeros, 0, 0, NULL);
+    }
+    prev = last;
   }
-  if (s == dnnl_success) s = dnnl_stream_wait(dev->tstream[t]);
-  if (s != dnnl_success) return od_report(s, "dnnl_primitive_execute(band)", __LINE__);
-  const float *tb = p->tband + (size_t)t * p->tband_floats, *last = tb + (rows - 1) * rowf;
-  for (int Y = 2 * a + 1; Y <= 2 * (a + rows) - 2; Y++) {
-    const int m = Y >> 1, py = Y & 1, y1 = py ? m + 1 : m - 1;
-    od_taps_line(tp, tb + (m - a) * rowf, py ? 2 : 1, tb + (y1 - a) * rowf, py ? 0 : 3,
-                 od_taps_out_row(tp, n, Y), tp->stride, tp->bias, tp->relu, tp->fin,
-                 od_taps_skip_row(tp, n, Y));
-  }
-  float *P = b->part + ((size_t)n * b->nb + k) * 4 * prow;
-  od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, 0, NULL);
-  if (k > 0) od_taps_line(tp, tb, 0, NULL, 0, P + prow, C, tp->zeros, 0, 0, NULL);
-  od_taps_line(tp, last, 2, NULL, 0, P + 2 * prow, C, tp->zeros, 0, 0, NULL);
-  if (k < b->nb - 1) od_taps_line(tp, last, 3, NULL, 0, P + 3 * prow, C, tp->zeros, 0, 0, NULL);
   return HF_OK;
 }
 
-/* Seam k (0 .. nb) of frame n, at input row a = k bh (h for k = nb): output
- * rows 2a from band k's terms and band k - 1's, and 2a - 1 from band k - 1's
- * and band k's; a row outside the frame is skipped, a band outside adds
- * nothing. */
-static void od_band_seam(const od_step *st, int n, int k) {
+/* Seam j (0 .. nchunks) of frame n, at the first input row a of chunk j (h
+ * for j = nchunks): output rows 2a from chunk j's terms and chunk j - 1's,
+ * and 2a - 1 from chunk j - 1's and chunk j's; a row outside the frame is
+ * skipped, a chunk outside adds nothing. */
+static void od_band_seam(const od_step *st, int n, int j) {
   const od_band *b = st->band;
   const od_taps_pass *tp = &st->taps;
   const size_t prow = (size_t)2 * tp->w * tp->cout;
-  const int a = k < b->nb ? k * b->bh : tp->h;
-  const float *P = b->part + (size_t)n * b->nb * 4 * prow;
+  const int a = j < b->nchunks ? j * b->chunk * b->bh : tp->h;
+  const float *P = b->part + (size_t)n * b->nchunks * 4 * prow;
   if (a < tp->h)
-    od_taps_join(tp, P + (size_t)k * 4 * prow, k > 0 ? P + ((size_t)(k - 1) * 4 + 3) * prow : NULL,
+    od_taps_join(tp, P + (size_t)j * 4 * prow, j > 0 ? P + ((size_t)(j - 1) * 4 + 3) * prow : NULL,
                  od_taps_out_row(tp, n, 2 * a), od_taps_skip_row(tp, n, 2 * a));
   if (a > 0)
-    od_taps_join(tp, P + ((size_t)(k - 1) * 4 + 2) * prow,
-                 k < b->nb ? P + ((size_t)k * 4 + 1) * prow : NULL,
+    od_taps_join(tp, P + ((size_t)(j - 1) * 4 + 2) * prow,
+                 j < b->nchunks ? P + ((size_t)j * 4 + 1) * prow : NULL,
                  od_taps_out_row(tp, n, 2 * a - 1), od_taps_skip_row(tp, n, 2 * a - 1));
 }
 
-/* Runs a banded step: the bands taken in turn by the threads (a thread on a
- * core shared with other work takes fewer), then the seams. oneDNN runs a
- * primitive executed inside an OpenMP parallel region on the calling thread
- * alone, so each band's convolution is one thread's. */
+/* Runs a banded step: the chunks taken in turn by the threads (a thread on
+ * a core shared with other work takes fewer), then the seams. oneDNN runs
+ * a primitive executed inside an OpenMP parallel region on the calling
+ * thread alone, so each band's convolution is one thread's. */
 static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_dev *dev) {
   const od_band *b = st->band;
-  const int jobs = batch * b->nb, seams = batch * (b->nb + 1);
+  const int jobs = batch * b->nchunks, seams = batch * (b->nchunks + 1);
   int nthreads = p->nthreads < jobs ? p->nthreads : jobs, rc = HF_OK;
 #pragma omp parallel num_threads(nthreads)
   {
     const int t = omp_get_thread_num();
 #pragma omp for schedule(dynamic, 1)
     for (int j = 0; j < jobs; j++) {
-      int e = od_band_job(p, st, dev, t, j / b->nb, j % b->nb);
+      int e = od_band_job(p, st, dev, t, j / b->nchunks, j % b->nchunks);
       if (e) {
 #pragma omp atomic write
         rc = e;
       }
     }
 #pragma omp for schedule(dynamic, 4)
-    for (int j = 0; j < seams; j++) od_band_seam(st, j / (b->nb + 1), j % (b->nb + 1));
+    for (int j = 0; j < seams; j++) od_band_seam(st, j / (b->nchunks + 1), j % (b->nchunks + 1));
   }
   return rc;
 }
@@ -1141,7 +1169,7 @@ static size_t od_thread_scratch(const hf_net_config *c, int pw) {
 typedef struct od_layout {
   size_t in, out, head_in, sums, fin, kscratch, taps, tband, part;
   size_t enc[HF_MAX_LEVELS], cat[HF_MAX_LEVELS];
-  size_t tband_floats;          /* each thread's band buffer */
+  size_t tband_floats;          /* each of a thread's two band buffers */
   int bh[HF_MAX_LEVELS];        /* each decoder's band rows, 0 when whole */
   int max_cout;
   size_t total;
@@ -1195,8 +1223,9 @@ static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_
     l->cat[i] = i < L - 1 ? od_take(l, od_tensor_bytes(batch, hf_dec_in(c, i), h, w)) : OD_NONE;
     if (use_taps[i] && band_bytes) {
       l->bh[i] = od_band_rows(band_bytes, h, w, cout);
-      size_t tb = od_tensor_bytes(1, 16 * cout, l->bh[i], w), nb = (h + l->bh[i] - 1) / l->bh[i];
-      size_t pb = od_tensor_bytes(batch, 8 * cout, (int)nb, w);
+      int nb = (h + l->bh[i] - 1) / l->bh[i], chunk = od_band_chunk(nb, threads);
+      size_t tb = od_tensor_bytes(1, 16 * cout, l->bh[i], w);
+      size_t pb = od_tensor_bytes(batch, 8 * cout, (nb + chunk - 1) / chunk, w);
       if (tb > tband) tband = tb;
       if (pb > part) part = pb;
     } else {
@@ -1207,8 +1236,9 @@ static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_
   }
   l->taps = od_take(l, taps);
   l->tband_floats = ((tband + 63) & ~(size_t)63) / sizeof(float);
-  l->tband = tband <= SIZE_MAX / 2 / threads ? od_take(l, l->tband_floats * sizeof(float) * threads)
-                                             : (l->total = SIZE_MAX, OD_NONE);
+  l->tband = tband <= SIZE_MAX / 4 / threads
+                ? od_take(l, l->tband_floats * sizeof(float) * 2 * threads)
+                : (l->total = SIZE_MAX, OD_NONE);
   l->part = od_take(l, part);
   return l->total == SIZE_MAX || l->in == OD_NONE || l->out == OD_NONE ? HF_ERANGE : HF_OK;
 }
