@@ -93,8 +93,8 @@ struct od_model;
  * activations, the largest, instead of N. */
 typedef struct od_dev {
   pthread_mutex_t lock;         /* runs, plan changes and counts, one at a time */
-  char *arena;                  /* activations, mapped (od_arena_reserve) */
-  size_t arena_bytes;
+  char *arena;                  /* activations (od_arena_reserve): arena_bytes */
+  size_t arena_bytes, arena_span; /* usable, of arena_span reserved */
   struct od_model *arena_owner; /* the model whose cached bytes include it */
   struct od_model *models;      /* every model on the device (od_model.next) */
   dnnl_engine_t eng;
@@ -327,7 +327,7 @@ static void od_close(void *p) {
   for (int t = 0; t < d->threads; t++) dnnl_stream_destroy(d->tstream[t]);
   dnnl_stream_destroy(d->stream);
   dnnl_engine_destroy(d->eng);
-  if (d->arena) munmap(d->arena, d->arena_bytes);
+  if (d->arena) munmap(d->arena, d->arena_span);
   pthread_mutex_destroy(&d->lock);
   free(d);
 }
@@ -1246,39 +1246,44 @@ static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_
 /* Buffer off of the arena a plan was laid out in, NULL for OD_NONE. */
 static void *od_at(char *arena, size_t off) { return off == OD_NONE ? NULL : arena + off; }
 
-/* A plan may run when its buffers lie in the arena as it is now. An arena
- * mapped again at the same address serves: its contents are scratch. */
-static int od_plan_valid(const od_dev *d, const od_plan *p) {
-  return p->arena == d->arena && p->need <= d->arena_bytes;
-}
+/* Address space reserved for the arena, which takes no memory until it is
+ * used: the arena grows and shrinks inside it without moving, so that the
+ * plans laid out in it stay valid whatever ran in between. */
+#define OD_ARENA_SPAN ((size_t)64 << 30)
 
-/* Makes the arena at least need bytes: grown in place when the addresses
- * after it are free (the plans laid out in it stay valid), else mapped
- * anew (they are rebuilt when next used). Mapped directly, not with
- * malloc, so that it can grow in place and give back its tail. */
+/* A plan may run when its buffers lie in the arena's reservation (after
+ * od_arena_reserve of its need). A reservation made again at the same
+ * address serves: the arena's contents are scratch. */
+static int od_plan_valid(const od_dev *d, const od_plan *p) { return p->arena == d->arena; }
+
+/* Makes at least need bytes of the arena usable: inside the reservation
+ * (made on first use, or anew when need exceeds it: the plans laid out in
+ * the old one are rebuilt when next used). Mapped directly, not with
+ * malloc, so that it can grow and give back its tail in place. */
 static int od_arena_reserve(od_dev *d, size_t need) {
   const size_t page = 4096;
   if (need > SIZE_MAX - page) return HF_ERANGE;
   need = (need + page - 1) & ~(page - 1);
   if (need <= d->arena_bytes) return HF_OK;
-  if (d->arena) {
-    void *q = mremap(d->arena, d->arena_bytes, need, 0);
-    if (q != MAP_FAILED) {
-      d->arena_bytes = need;
-      return HF_OK;
-    }
-    munmap(d->arena, d->arena_bytes);
-    d->arena = NULL, d->arena_bytes = 0;
+  if (!d->arena || need > d->arena_span) {
+    if (d->arena) munmap(d->arena, d->arena_span);
+    d->arena = NULL, d->arena_bytes = d->arena_span = 0;
+    size_t span = need > OD_ARENA_SPAN ? need : OD_ARENA_SPAN;
+    const int flags = MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE;
+    void *q = mmap(NULL, span, PROT_NONE, flags, -1, 0);
+    if (q == MAP_FAILED && span > need) q = mmap(NULL, span = need, PROT_NONE, flags, -1, 0);
+    if (q == MAP_FAILED) return HF_ENOMEM;
+    d->arena = q, d->arena_span = span;
   }
-  void *q = mmap(NULL, need, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-  if (q == MAP_FAILED) return HF_ENOMEM;
-  d->arena = q, d->arena_bytes = need;
+  if (mprotect(d->arena + d->arena_bytes, need - d->arena_bytes, PROT_READ | PROT_WRITE))
+    return HF_ENOMEM;
+  d->arena_bytes = need;
   return HF_OK;
 }
 
-/* After plans were freed: the arena shrinks to what the largest valid plan
- * of any model needs (unmapped when none is left), and its bytes are
- * counted by a model that has a valid plan, the current one if it still
+/* After plans were freed: the arena shrinks to what the largest plan left
+ * in it needs (its pages beyond go back to the system), and its bytes are
+ * counted by a model that has such a plan, the current one if it still
  * does. */
 static void od_arena_fit(od_dev *d) {
   size_t need = 0;
@@ -1292,9 +1297,9 @@ static void od_arena_fit(od_dev *d) {
     }
   need = (need + 4095) & ~(size_t)4095;
   if (need < d->arena_bytes) {
-    munmap(d->arena + need, d->arena_bytes - need);
-    d->arena_bytes = need;
-    if (!need) d->arena = NULL;
+    void *q = mmap(d->arena + need, d->arena_bytes - need, PROT_NONE,
+                   MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE | MAP_FIXED, -1, 0);
+    if (q != MAP_FAILED) d->arena_bytes = need;
   }
   d->arena_owner = owner;
 }
@@ -1460,9 +1465,10 @@ fail:
   return rc;
 }
 
-/* The plan for (batch, pw, ph): cached, or built in place of the least
- * recently used one (or of the cached one, when the arena it was laid out
- * in has moved). The device's lock is held. */
+/* The plan for (batch, pw, ph): cached (the arena grown to what it needs),
+ * or built in place of the least recently used one (or of the cached one,
+ * when the arena it was laid out in has moved). The device's lock is
+ * held. */
 static int od_plan_get(od_model *m, int batch, int pw, int ph, od_plan **out) {
   int victim = 0;
   for (int k = 0; k < OD_PLAN_CACHE; k++) {
@@ -1472,6 +1478,8 @@ static int od_plan_get(od_model *m, int batch, int pw, int ph, od_plan **out) {
         victim = k;
         break;
       }
+      int rc = od_arena_reserve(m->dev, p->need);
+      if (rc) return rc;
       p->stamp = ++m->clock;
       *out = p;
       return HF_OK;
