@@ -558,13 +558,39 @@ od_taps_line_c(const od_taps_pass *t, const float *r0, int ky0, const float *r1,
   }
 }
 
-/* od_taps_line_c, with the channel count a constant for dec0's three
- * output channels: the sums unrolled rather than a loop of three per
- * pixel. */
+/* od_taps_line_c for three dense output channels (dec0 of the U-Net and
+ * Residual architectures), two output pixels per input column q: X = 2q
+ * from taps kx = 1 of column q and kx = 3 of q - 1, X = 2q + 1 from kx = 2
+ * of q and kx = 0 of q + 1, the same terms added in the same order. A
+ * column outside reads zeros (t->zeros holds at least 12). */
+static inline __attribute__((always_inline)) void
+od_taps_line3(const od_taps_pass *t, const float *r0, int ky0, const float *r1, int ky1, float *o,
+              const float *bias, int relu, int fin) {
+  const int w = t->w;
+  const float *z = t->zeros;
+  for (int q = 0; q < w; q++, o += 6) {
+    const float *a = r0 + (size_t)q * 48 + ky0 * 12;
+    const float *al = q > 0 ? a - 48 : z, *ar = q < w - 1 ? a + 48 : z;
+    const float *b = r1 ? r1 + (size_t)q * 48 + ky1 * 12 : z;
+    const float *bl = r1 && q > 0 ? b - 48 : z, *br = r1 && q < w - 1 ? b + 48 : z;
+    for (int ch = 0; ch < 3; ch++) {
+      float e = bias[ch] + a[3 + ch] + al[9 + ch] + b[3 + ch] + bl[9 + ch];
+      float f = bias[ch] + a[6 + ch] + ar[ch] + b[6 + ch] + br[ch];
+      o[ch] = relu && e < 0 ? 0 : e;
+      o[3 + ch] = relu && f < 0 ? 0 : f;
+    }
+    if (fin) hf_output_transform(o), hf_output_transform(o + 3);
+  }
+}
+
+/* od_taps_line_c, with dec0's three dense output channels taken two pixels
+ * at a time (od_taps_line3), other counts by the channel loop. */
 OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
                                    const float *r1, int ky1, float *o, int ostride,
                                    const float *bias, int relu, int fin, const float *sk) {
-  if (t->cout == 3)
+  if (t->cout == 3 && ostride == 3 && !sk)
+    od_taps_line3(t, r0, ky0, r1, ky1, o, bias, relu, fin);
+  else if (t->cout == 3)
     od_taps_line_c(t, r0, ky0, r1, ky1, o, ostride, bias, relu, fin, sk, 3);
   else
     od_taps_line_c(t, r0, ky0, r1, ky1, o, ostride, bias, relu, fin, sk, t->cout);
@@ -1331,9 +1357,11 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   for (int i = 0; i < L; i++) p->enc[i] = od_at(A, lay.enc[i]), p->cat[i] = od_at(A, lay.cat[i]);
   const int *bh = lay.bh, max_cout = lay.max_cout;
   size_t tscratch_bytes = 0;
-  p->zeros = calloc(max_cout, sizeof(float));
+  /* At least a pixel of dec0's taps (12 floats) for od_taps_line3. */
+  const int nzeros = max_cout > 16 ? max_cout : 16;
+  p->zeros = calloc(nzeros, sizeof(float));
   if (!p->zeros) OD_RC(HF_ENOMEM);
-  p->bytes += max_cout * sizeof(float);
+  p->bytes += nzeros * sizeof(float);
 
   dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS], head_md;
   OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
@@ -1717,7 +1745,7 @@ static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
     weights += 2 * ((size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16 * f + 64 + page);
   }
   if (hf_head_in(c)) weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
-  size_t own = (size_t)lay.max_cout * f + 64 + page;
+  size_t own = (size_t)(lay.max_cout > 16 ? lay.max_cout : 16) * f + 64 + page;
   own += od_scratch_allowance(largest) + 64 + page;
   if (lay.tband != OD_NONE)
     own += threads * od_scratch_allowance(lay.tband_floats * f) + 64 + page;
