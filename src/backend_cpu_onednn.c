@@ -30,23 +30,38 @@
  *     with the row-vectorised code of cpu_kernel_output.c;
  *     HF_CPU_KERNEL_REF=1 uses net_config.c's reference rows instead, for
  *     comparison.
+ *   - A decoder's tap convolution and its pass run band by band (od_band):
+ *     each thread computes the taps of a few input rows (512 KiB,
+ *     HF_CPU_BAND_KB) with a 1x1 convolution of its own and sums them while
+ *     they are in its cache, instead of the whole level's taps (32 MiB for
+ *     dec1 at 512 x 512) going to memory and back. HF_CPU_BAND_KB=0 keeps
+ *     the whole-tensor convolution and pass, for comparison.
+ *   - A U-Net's dec0 pass writes the caller's aligned float32 frames with
+ *     the output transform, so the output stage has nothing to do there.
  *   - The backend's own passes (taps, output stage) run on the OpenMP
  *     threads oneDNN runs on, rows split between them (od_parallel).
  *   - Weights are reordered once, at model_create, into the format oneDNN
  *     chooses (format_tag_any); a size whose primitives want another format
  *     gets a private copy in its plan.
  *
- * A plan holds the primitives and buffers of one (batch, padded size); plans
- * are cached per model (least recently used goes), so a run of a size seen
- * before allocates nothing. A model is run by one thread at a time (the
- * server's worker owns its models); the cache is not locked.
+ * A plan holds the primitives of one (batch, padded size) and its buffers'
+ * places (od_layout); plans are cached per model (least recently used
+ * goes), so a run of a size seen before allocates nothing. The activations
+ * themselves lie in one arena per device (od_dev), which every plan of
+ * every model on it uses: runs on a device take turns under its lock, so
+ * N variants and sizes keep the largest run's activations once, not N
+ * times. The arena counts in the cached bytes of the model that ran last
+ * (hf_model_cached_bytes, the daemon's STATS), shrinks with the plans that
+ * use it and is unmapped with the last of them.
  */
+#define _GNU_SOURCE /* mremap */
 #include <omp.h>
 #include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <unistd.h>
 
 #include <dnnl.h>
@@ -70,16 +85,29 @@ typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID
 #define OD_MAX_THREADS 64
 #define OD_RANGES_PER_THREAD 8
 
+struct od_model;
+
+/* The device: oneDNN's engine and streams, and the activation arena that
+ * every plan of every model on it uses (od_arena_reserve): runs on one
+ * device take turns (lock), so N variants or sizes hold one set of
+ * activations, the largest, instead of N. */
 typedef struct od_dev {
+  pthread_mutex_t lock;         /* runs, plan changes and counts, one at a time */
+  char *arena;                  /* activations (od_arena_reserve): arena_bytes */
+  size_t arena_bytes, arena_span; /* usable, of arena_span reserved */
+  struct od_model *arena_owner; /* the model whose cached bytes include it */
+  struct od_model *models;      /* every model on the device (od_model.next) */
   dnnl_engine_t eng;
   dnnl_stream_t stream;
   int threads;                  /* for the backend's own passes */
   int start_threads;            /* HF_CPU_PASS_THREADS=start (od_parallel) */
+  size_t band_bytes;            /* HF_CPU_BAND_KB: a tap band's size, 0 for none */
+  dnnl_stream_t tstream[OD_MAX_THREADS]; /* each thread's, for banded taps */
 } od_dev;
 
 /* A step is a oneDNN primitive, a tap-summing pass or a copy into a concat
  * buffer. */
-typedef enum od_step_type { OD_STEP_PRIM, OD_STEP_TAPS, OD_STEP_COPY } od_step_type;
+typedef enum od_step_type { OD_STEP_PRIM, OD_STEP_TAPS, OD_STEP_COPY, OD_STEP_BAND } od_step_type;
 
 /* A decoder's tap pass. Its output pixel holds the cout summed channels,
  * then, when skip is set, the skip_ch channels of the same pixel of skip:
@@ -94,6 +122,8 @@ typedef struct od_taps_pass {
   int stride;
   const float *skip;            /* [batch][2h][2w][skip_ch], or NULL */
   int skip_ch;
+  int fin;                      /* the output transform too: out is the caller's
+                                 * frames (od_model_run_locked) */
 } od_taps_pass;
 
 /* Copies dense [npix][ch] into [npix][stride] (a concat buffer's half). */
@@ -104,6 +134,31 @@ typedef struct od_copy_pass {
   float *dst;
 } od_copy_pass;
 
+/* A decoder's tap convolution and tap pass run band by band (OD_STEP_BAND).
+ * The frame's bands of bh input rows are dealt out in chunks of consecutive
+ * bands, a chunk to a thread as it comes free. For each band of its chunk
+ * the thread computes the band's taps with a 1x1 convolution into one of
+ * its two band buffers (small enough to stay in its core's cache) and sums
+ * them into every output row they complete, with the last input row of the
+ * band before, kept in the other buffer. The two output rows at a seam
+ * between chunks (and at a frame's top and bottom) take taps from both
+ * sides: each chunk leaves the terms of its first and last input rows in
+ * part, and a second pass adds the two sides' terms together. Same sums as
+ * the whole tap pass, in a different order only at those seams. */
+typedef struct od_band {
+  const float *src;             /* the decoder's input [batch][h][w][cin] */
+  int cin, bh, nb;              /* rows per band; bands per frame, the last
+                                 * of h - (nb - 1) bh rows */
+  int chunk, nchunks;           /* bands per chunk; chunks per frame */
+  dnnl_primitive_t prim[2];     /* bh rows; the last band's rows if fewer */
+  dnnl_memory_t wmem[2];
+  int owned[2];                 /* wmem[k] is a private copy */
+  dnnl_memory_t *src_mem;       /* [thread][prim] */
+  dnnl_memory_t *dst_mem;       /* [thread][prim][buffer] */
+  float *part;                  /* [batch][nchunks][4][2w][cout]: terms of Y =
+                                 * 2a, 2a - 1, 2b - 1, 2b of a chunk of rows [a, b) */
+} od_band;
+
 typedef struct od_step {
   od_step_type type;
   dnnl_primitive_t prim;
@@ -111,12 +166,15 @@ typedef struct od_step {
   dnnl_exec_arg_t args[5];
   od_taps_pass taps;
   od_copy_pass copy;
+  od_band *band;
 } od_step;
 
 typedef struct od_plan {
   int batch, pw, ph;
+  char *arena;                  /* the arena its buffers point into, and the */
+  size_t need;                  /* bytes of it they take (od_layout.total) */
   uint64_t stamp;               /* last use, for eviction */
-  size_t bytes;                 /* host memory of its buffers and weight copies */
+  size_t bytes;                 /* host memory of its own: weight copies, scratchpads */
   size_t scratch_bytes;         /* of which the primitives' scratchpad */
   float *in;                    /* padded input [batch][ph][pw][cin] */
   dnnl_memory_t in_mem;         /* enc0's source: in, or the caller's frames */
@@ -124,6 +182,7 @@ typedef struct od_plan {
   float *head_in;               /* the head's input: concat(ReLU(dec0), input) for
                                  * OD_HEAD, ReLU(dec0) alone for OD_HEAD_HID */
   int in_skip_step;             /* the step copying the input into head_in, or -1 */
+  int out_step;                 /* dec0's tap pass when it writes the output, or -1 */
   float *sums;                  /* Kernel output stage: per-pixel sums and the */
   float *fin;                   /* f32 result, [batch][ph][pw][3] each, and */
   float *kscratch;              /* each thread's scratch (hf_cpu_kernel_scratch) */
@@ -132,6 +191,12 @@ typedef struct od_plan {
   float *zeros;                 /* the largest decoder's cout zeros */
   void *cat[HF_MAX_LEVELS];     /* decoder inputs concat(dec{i+1}, enc{i}) */
   void *scratch;                /* shared by every primitive (run in order) */
+  float *tband;                 /* each thread's two band buffers, tband_floats each */
+  size_t tband_floats;
+  float *part;                  /* the seams' terms, for one level at a time */
+  void *tscratch;               /* each thread's scratchpad for band primitives */
+  dnnl_memory_t tscratch_mem[OD_MAX_THREADS];
+  int nthreads;                 /* threads the band memories were made for */
   int nsteps;
   od_step steps[OD_MAX_STEPS];
   int nmems;
@@ -140,6 +205,7 @@ typedef struct od_plan {
 
 typedef struct od_model {
   od_dev *dev;
+  struct od_model *next;        /* in dev->models */
   hf_weights *w;                /* private copy, PyTorch layouts */
   /* Weights in oneDNN's chosen formats, NULL until known. */
   dnnl_memory_t enc_w[HF_MAX_LEVELS], dec_w[HF_MAX_LEVELS], taps_w[HF_MAX_LEVELS];
@@ -215,20 +281,42 @@ static int od_thread_count(void) {
   return n < 1 ? 1 : n > OD_MAX_THREADS ? OD_MAX_THREADS : (int)n;
 }
 
+/* The bytes of one band's taps (HF_CPU_BAND_KB, in KiB; 0 runs each tap
+ * convolution whole, then its pass, for comparison). The default, 512 KiB,
+ * keeps a band in a core's L2 cache beside the band's input rows and
+ * output rows (docs/PERFORMANCE.md). */
+static size_t od_band_bytes(void) {
+  const char *e = getenv("HF_CPU_BAND_KB");
+  if (!e || !*e) return (size_t)512 << 10;
+  long kb = atol(e);
+  return kb > 0 ? (size_t)kb << 10 : 0;
+}
+
 static int od_open(void **out, char *why, size_t whylen) {
   int rc;
   od_dev *d = calloc(1, sizeof *d);
   if (!d) return HF_ENOMEM;
+  if (pthread_mutex_init(&d->lock, NULL)) {
+    free(d);
+    return HF_ENOMEM;
+  }
   OD_TRY(dnnl_engine_create(&d->eng, dnnl_cpu, 0));
   OD_TRY(dnnl_stream_create(&d->stream, d->eng, dnnl_stream_default_flags));
   d->threads = od_thread_count();
+  for (int t = 0; t < d->threads; t++)
+    OD_TRY(dnnl_stream_create(&d->tstream[t], d->eng, dnnl_stream_default_flags));
   const char *e = getenv("HF_CPU_PASS_THREADS");
   d->start_threads = e && !strcmp(e, "start");
+  d->band_bytes = od_band_bytes();
   *out = d;
   return HF_OK;
 fail:
   if (why && whylen) snprintf(why, whylen, "oneDNN CPU engine could not be created");
+  for (int t = 0; t < OD_MAX_THREADS; t++)
+    if (d->tstream[t]) dnnl_stream_destroy(d->tstream[t]);
+  if (d->stream) dnnl_stream_destroy(d->stream);
   if (d->eng) dnnl_engine_destroy(d->eng);
+  pthread_mutex_destroy(&d->lock);
   free(d);
   return rc;
 }
@@ -236,8 +324,11 @@ fail:
 static void od_close(void *p) {
   od_dev *d = p;
   if (!d) return;
+  for (int t = 0; t < d->threads; t++) dnnl_stream_destroy(d->tstream[t]);
   dnnl_stream_destroy(d->stream);
   dnnl_engine_destroy(d->eng);
+  if (d->arena) munmap(d->arena, d->arena_span);
+  pthread_mutex_destroy(&d->lock);
   free(d);
 }
 
@@ -436,21 +527,19 @@ static inline void od_sum4(float *restrict o, const float *restrict a, const flo
   }
 }
 
-/* Sums the taps into output row Y of frame n, adds the bias, applies the
- * ReLU if asked, and copies the skip channels beside them. Output row
- * Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1; Y = 2m + 1
- * takes ky = 2 of row m and ky = 0 of row m + 1; columns alike. A tap outside
- * the input reads zeros, so that every pixel is the same four-term sum. */
-OD_CLONES static void od_taps_row(const od_taps_pass *t, int n, int Y) {
-  const int C = t->cout, T = 16 * t->cout, h = t->h, w = t->w, E = t->skip_ch;
-  const int m = Y >> 1, py = Y & 1;
-  const int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
-  const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
-  const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
-  const size_t row = (size_t)n * 2 * h + Y;
-  float *o = t->out + row * 2 * w * t->stride;
-  const float *sk = t->skip ? t->skip + row * 2 * w * E : NULL;
-  for (int X = 0; X < 2 * w; X++, o += t->stride) {
+/* One output row of a tap pass: pixel X of o (ostride floats apart) gets
+ * bias + taps ky0 of input row r0 + taps ky1 of input row r1, the ReLU if
+ * relu, hf_output_transform if fin, then the skip channels of sk beside
+ * them (when sk is set). Output
+ * column X = 2q takes taps kx = 1 of input column q and kx = 3 of column
+ * q - 1; X = 2q + 1 takes kx = 2 of column q and kx = 0 of column q + 1. A
+ * tap outside the input (r1 NULL, or a column outside) reads zeros, so that
+ * every pixel is the same four-term sum. */
+static inline __attribute__((always_inline)) void
+od_taps_line_c(const od_taps_pass *t, const float *r0, int ky0, const float *r1, int ky1, float *o,
+               int ostride, const float *bias, int relu, int fin, const float *sk, const int C) {
+  const int T = 16 * C, w = t->w, E = t->skip_ch;
+  for (int X = 0; X < 2 * w; X++, o += ostride) {
     const int q = X >> 1, px = X & 1;
     const int kx0 = px ? 2 : 1, kx1 = px ? 0 : 3, x1 = px ? q + 1 : q - 1;
     const int has_x1 = x1 >= 0 && x1 < w;
@@ -458,7 +547,8 @@ OD_CLONES static void od_taps_row(const od_taps_pass *t, int n, int Y) {
     const float *b = has_x1 ? r0 + (size_t)x1 * T + (ky0 * 4 + kx1) * C : t->zeros;
     const float *c = r1 ? r1 + (size_t)q * T + (ky1 * 4 + kx0) * C : t->zeros;
     const float *d = r1 && has_x1 ? r1 + (size_t)x1 * T + (ky1 * 4 + kx1) * C : t->zeros;
-    od_sum4(o, a, b, c, d, t->bias, C, t->relu);
+    od_sum4(o, a, b, c, d, bias, C, relu);
+    if (fin) hf_output_transform(o);
     if (sk) {
       const float *restrict s = sk + (size_t)X * E;
       float *restrict e = o + C;
@@ -468,6 +558,67 @@ OD_CLONES static void od_taps_row(const od_taps_pass *t, int n, int Y) {
   }
 }
 
+/* od_taps_line_c for three dense output channels (dec0 of the U-Net and
+ * Residual architectures), two output pixels per input column q: X = 2q
+ * from taps kx = 1 of column q and kx = 3 of q - 1, X = 2q + 1 from kx = 2
+ * of q and kx = 0 of q + 1, the same terms added in the same order. A
+ * column outside reads zeros (t->zeros holds at least 12). */
+static inline __attribute__((always_inline)) void
+od_taps_line3(const od_taps_pass *t, const float *r0, int ky0, const float *r1, int ky1, float *o,
+              const float *bias, int relu, int fin) {
+  const int w = t->w;
+  const float *z = t->zeros;
+  for (int q = 0; q < w; q++, o += 6) {
+    const float *a = r0 + (size_t)q * 48 + ky0 * 12;
+    const float *al = q > 0 ? a - 48 : z, *ar = q < w - 1 ? a + 48 : z;
+    const float *b = r1 ? r1 + (size_t)q * 48 + ky1 * 12 : z;
+    const float *bl = r1 && q > 0 ? b - 48 : z, *br = r1 && q < w - 1 ? b + 48 : z;
+    for (int ch = 0; ch < 3; ch++) {
+      float e = bias[ch] + a[3 + ch] + al[9 + ch] + b[3 + ch] + bl[9 + ch];
+      float f = bias[ch] + a[6 + ch] + ar[ch] + b[6 + ch] + br[ch];
+      o[ch] = relu && e < 0 ? 0 : e;
+      o[3 + ch] = relu && f < 0 ? 0 : f;
+    }
+    if (fin) hf_output_transform(o), hf_output_transform(o + 3);
+  }
+}
+
+/* od_taps_line_c, with dec0's three dense output channels taken two pixels
+ * at a time (od_taps_line3), other counts by the channel loop. */
+OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
+                                   const float *r1, int ky1, float *o, int ostride,
+                                   const float *bias, int relu, int fin, const float *sk) {
+  if (t->cout == 3 && ostride == 3 && !sk)
+    od_taps_line3(t, r0, ky0, r1, ky1, o, bias, relu, fin);
+  else if (t->cout == 3)
+    od_taps_line_c(t, r0, ky0, r1, ky1, o, ostride, bias, relu, fin, sk, 3);
+  else
+    od_taps_line_c(t, r0, ky0, r1, ky1, o, ostride, bias, relu, fin, sk, t->cout);
+}
+
+/* Output row Y of frame n of a tap pass, and the skip channels beside it. */
+static float *od_taps_out_row(const od_taps_pass *t, int n, int Y) {
+  return t->out + ((size_t)n * 2 * t->h + Y) * 2 * t->w * t->stride;
+}
+
+static const float *od_taps_skip_row(const od_taps_pass *t, int n, int Y) {
+  return t->skip ? t->skip + ((size_t)n * 2 * t->h + Y) * 2 * t->w * t->skip_ch : NULL;
+}
+
+/* Sums the taps into output row Y of frame n, adds the bias, applies the
+ * ReLU if asked, and copies the skip channels beside them. Output row
+ * Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1; Y = 2m + 1
+ * takes ky = 2 of row m and ky = 0 of row m + 1. */
+static void od_taps_row(const od_taps_pass *t, int n, int Y) {
+  const int T = 16 * t->cout, h = t->h, w = t->w;
+  const int m = Y >> 1, py = Y & 1;
+  const int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
+  const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
+  const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
+  od_taps_line(t, r0, ky0, r1, ky1, od_taps_out_row(t, n, Y), t->stride, t->bias, t->relu,
+               t->fin, od_taps_skip_row(t, n, Y));
+}
+
 static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
   for (size_t row = row0; row < row1; row++)
     od_taps_row(t, (int)(row / (2 * t->h)), (int)(row % (2 * t->h)));
@@ -475,20 +626,33 @@ static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
 
 /* ---- plans ---------------------------------------------------------------- */
 
+static void od_band_free(od_band *b, int nthreads) {
+  if (!b) return;
+  for (int k = 0; k < 2; k++) {
+    if (b->prim[k]) dnnl_primitive_destroy(b->prim[k]);
+    if (b->owned[k]) dnnl_memory_destroy(b->wmem[k]);
+  }
+  for (int k = 0; k < 2 * nthreads; k++)
+    if (b->src_mem && b->src_mem[k]) dnnl_memory_destroy(b->src_mem[k]);
+  for (int k = 0; k < 4 * nthreads; k++)
+    if (b->dst_mem && b->dst_mem[k]) dnnl_memory_destroy(b->dst_mem[k]);
+  free(b->src_mem);
+  free(b->dst_mem);
+  free(b);
+}
+
 static void od_plan_free(od_plan *p) {
   if (!p) return;
-  for (int s = 0; s < p->nsteps; s++)
+  for (int s = 0; s < p->nsteps; s++) {
     if (p->steps[s].type == OD_STEP_PRIM) dnnl_primitive_destroy(p->steps[s].prim);
+    if (p->steps[s].type == OD_STEP_BAND) od_band_free(p->steps[s].band, p->nthreads);
+  }
   for (int k = 0; k < p->nmems; k++) dnnl_memory_destroy(p->mems[k]);
-  free(p->in);
-  free(p->out);
-  free(p->taps);
+  for (int t = 0; t < OD_MAX_THREADS; t++)
+    if (p->tscratch_mem[t]) dnnl_memory_destroy(p->tscratch_mem[t]);
+  /* Activations are the arena's. */
+  free(p->tscratch);
   free(p->zeros);
-  for (int i = 0; i < HF_MAX_LEVELS; i++) free(p->cat[i]), free(p->enc[i]);
-  free(p->head_in);
-  free(p->sums);
-  free(p->fin);
-  free(p->kscratch);
   free(p->scratch);
   free(p);
 }
@@ -715,6 +879,193 @@ static void od_pass_run(const od_step *st, int batch, const od_dev *dev) {
   od_parallel(od_step_range, st, total, per_row, dev);
 }
 
+/* ---- decoders' taps in bands (od_band) ------------------------------------- */
+
+/* Input rows per band of a decoder whose input is h x w with cout output
+ * channels: as many as fit dev->band_bytes of taps, at least 2 (a band then
+ * has rows of its own besides the seams'), at most h. */
+static int od_band_rows(size_t band_bytes, int h, int w, int cout) {
+  size_t row = (size_t)w * 16 * cout * sizeof(float), r = band_bytes / row;
+  if (r < 2) r = 2;
+  if (r > (size_t)h) r = (size_t)h;
+  return (int)r;
+}
+
+/* Bands per chunk of a frame of nb bands: four chunks per thread, so that
+ * a thread slowed by other work on its core takes fewer of them. */
+static int od_band_chunk(int nb, int threads) {
+  int chunks = 4 * threads < nb ? 4 * threads : nb;
+  return (nb + chunks - 1) / chunks;
+}
+
+/* Adds dec{i}'s banded step: its 1x1 convolutions for a band of bh rows
+ * and for the last band's rows when fewer, each thread's memories over its
+ * band buffer (p->tband, allocated) and the seams' buffer (p->part). The
+ * largest scratchpad a band primitive needs goes to *tscratch_bytes. */
+static int od_add_band(od_model *m, od_plan *p, int i, const float *src,
+                       const od_taps_pass *pass, int bh, size_t *tscratch_bytes) {
+  od_dev *dev = m->dev;
+  const int h = pass->h, w = pass->w, cin = hf_dec_in(&m->w->cfg, i), T = 16 * pass->cout;
+  int rc = HF_OK;
+  if (p->nsteps >= OD_MAX_STEPS) return HF_ERANGE;
+  od_band *b = calloc(1, sizeof *b);
+  if (!b) return HF_ENOMEM;
+  od_step *st = &p->steps[p->nsteps++];
+  memset(st, 0, sizeof *st);
+  st->type = OD_STEP_BAND;
+  st->taps = *pass;
+  st->band = b;
+  b->src = src, b->cin = cin, b->bh = bh, b->nb = (h + bh - 1) / bh, b->part = p->part;
+  b->chunk = od_band_chunk(b->nb, p->nthreads), b->nchunks = (b->nb + b->chunk - 1) / b->chunk;
+  b->src_mem = calloc((size_t)2 * p->nthreads, sizeof *b->src_mem);
+  b->dst_mem = calloc((size_t)4 * p->nthreads, sizeof *b->dst_mem);
+  if (!b->src_mem || !b->dst_mem) return HF_ENOMEM;
+  const int rows[2] = {bh, h - (b->nb - 1) * bh};
+  for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
+    dnnl_memory_desc_t smd, dmd;
+    dnnl_primitive_desc_t pd = NULL;
+    OD_RC(od_nhwc(&smd, 1, cin, rows[k], w));
+    OD_RC(od_nhwc(&dmd, 1, T, rows[k], w));
+    OD_RC(od_layer_pd(dev, OD_TAPS, &smd, &dmd, cin, T, &pd));
+    const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
+    const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
+    size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
+    if (sb > *tscratch_bytes) *tscratch_bytes = sb;
+    rc = wmd ? od_weights_for(m, OD_TAPS, i, wmd, &b->wmem[k], &b->owned[k])
+             : od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
+    if (!rc && b->owned[k]) p->bytes += dnnl_memory_desc_get_size(wmd);
+    if (!rc) {
+      dnnl_status_t ds = dnnl_primitive_create(&b->prim[k], pd);
+      if (ds != dnnl_success) rc = od_report(ds, "dnnl_primitive_create(band)", __LINE__);
+    }
+    dnnl_primitive_desc_destroy(pd);
+    if (rc) goto fail;
+    for (int t = 0; t < p->nthreads; t++) {
+      OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, dev->eng, DNNL_MEMORY_NONE));
+      for (int half = 0; half < 2; half++)
+        OD_TRY(dnnl_memory_create(&b->dst_mem[(2 * t + k) * 2 + half], &dmd, dev->eng,
+                                  p->tband + (size_t)(2 * t + half) * p->tband_floats));
+    }
+  }
+fail:
+  return rc;
+}
+
+/* Pixel X of output row o (t->stride floats apart) gets the bias, the seam
+ * terms pr0 and pr1 (pr1 NULL: none), the ReLU and the skip channels. */
+OD_CLONES static void od_taps_join(const od_taps_pass *t, const float *pr0, const float *pr1,
+                                   float *o, const float *sk) {
+  const int C = t->cout, E = t->skip_ch;
+  for (int X = 0; X < 2 * t->w; X++, o += t->stride) {
+    od_sum4(o, pr0 + (size_t)X * C, t->zeros, pr1 ? pr1 + (size_t)X * C : t->zeros, t->zeros,
+            t->bias, C, t->relu);
+    if (t->fin) hf_output_transform(o);
+    if (sk) {
+      const float *restrict s = sk + (size_t)X * E;
+      float *restrict e = o + C;
+#pragma omp simd
+      for (int k = 0; k < E; k++) e[k] = s[k];
+    }
+  }
+}
+
+/* Chunk c of frame n on thread t. Band k of it, input rows [a, b): its taps
+ * into buffer (k - first) & 1 of the thread's, then output rows 2a - 1 ..
+ * 2b - 2 whole, with row a - 1 from the band before; the chunk's first band
+ * has none, and leaves the seam terms of row 2a (taps ky = 1 of row a) and
+ * 2a - 1 (ky = 0 of row a) instead, and its last band those of 2b - 1 (ky =
+ * 2 of row b - 1) and 2b (ky = 3 of row b - 1). */
+static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, int t, int n,
+                       int c) {
+  const od_band *b = st->band;
+  const od_taps_pass *tp = &st->taps;
+  const int h = tp->h, w = tp->w, C = tp->cout;
+  const size_t rowf = (size_t)w * 16 * C, prow = (size_t)2 * w * C;
+  const int first = c * b->chunk, end = first + b->chunk < b->nb ? first + b->chunk : b->nb;
+  float *P = b->part + ((size_t)n * b->nchunks + c) * 4 * prow;
+  const float *prev = NULL;
+  for (int k = first; k < end; k++) {
+    const int a = k * b->bh, rows = k < b->nb - 1 ? b->bh : h - a, which = rows != b->bh;
+    const int half = (k - first) & 1;
+    dnnl_memory_t sm = b->src_mem[2 * t + which];
+    dnnl_status_t s =
+        dnnl_memory_set_data_handle(sm, (void *)(b->src + ((size_t)n * h + a) * w * b->cin));
+    if (s == dnnl_success) {
+      dnnl_exec_arg_t args[4] = {{DNNL_ARG_SRC, sm},
+                                 {DNNL_ARG_WEIGHTS, b->wmem[which]},
+                                 {DNNL_ARG_DST, b->dst_mem[(2 * t + which) * 2 + half]},
+                                 {DNNL_ARG_SCRATCHPAD, p->tscratch_mem[t]}};
+      s = dnnl_primitive_execute(b->prim[which], dev->tstream[t], p->tscratch_mem[t] ? 4 : 3,
+                                 args);
+    }
+    if (s == dnnl_success) s = dnnl_stream_wait(dev->tstream[t]);
+    if (s != dnnl_success) return od_report(s, "dnnl_primitive_execute(band)", __LINE__);
+    const float *tb = p->tband + (size_t)(2 * t + half) * p->tband_floats;
+    const float *last = tb + (rows - 1) * rowf;
+    for (int Y = prev ? 2 * a - 1 : 2 * a + 1; Y <= 2 * (a + rows) - 2; Y++) {
+      const int m = Y >> 1, py = Y & 1, y1 = py ? m + 1 : m - 1;
+      const float *r0 = m < a ? prev : tb + (m - a) * rowf;
+      const float *r1 = y1 < a ? prev : tb + (y1 - a) * rowf;
+      od_taps_line(tp, r0, py ? 2 : 1, r1, py ? 0 : 3, od_taps_out_row(tp, n, Y), tp->stride,
+                   tp->bias, tp->relu, tp->fin, od_taps_skip_row(tp, n, Y));
+    }
+    if (!prev) {
+      od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, 0, NULL);
+      if (k > 0) od_taps_line(tp, tb, 0, NULL, 0, P + prow, C, tp->zeros, 0, 0, NULL);
+    }
+    if (k == end - 1) {
+      od_taps_line(tp, last, 2, NULL, 0, P + 2 * prow, C, tp->zeros, 0, 0, NULL);
+      if (k < b->nb - 1) od_taps_line(tp, last, 3, NULL, 0, P + 3 * prow, C, tp->zeros, 0, 0, NULL);
+    }
+    prev = last;
+  }
+  return HF_OK;
+}
+
+/* Seam j (0 .. nchunks) of frame n, at the first input row a of chunk j (h
+ * for j = nchunks): output rows 2a from chunk j's terms and chunk j - 1's,
+ * and 2a - 1 from chunk j - 1's and chunk j's; a row outside the frame is
+ * skipped, a chunk outside adds nothing. */
+static void od_band_seam(const od_step *st, int n, int j) {
+  const od_band *b = st->band;
+  const od_taps_pass *tp = &st->taps;
+  const size_t prow = (size_t)2 * tp->w * tp->cout;
+  const int a = j < b->nchunks ? j * b->chunk * b->bh : tp->h;
+  const float *P = b->part + (size_t)n * b->nchunks * 4 * prow;
+  if (a < tp->h)
+    od_taps_join(tp, P + (size_t)j * 4 * prow, j > 0 ? P + ((size_t)(j - 1) * 4 + 3) * prow : NULL,
+                 od_taps_out_row(tp, n, 2 * a), od_taps_skip_row(tp, n, 2 * a));
+  if (a > 0)
+    od_taps_join(tp, P + ((size_t)(j - 1) * 4 + 2) * prow,
+                 j < b->nchunks ? P + ((size_t)j * 4 + 1) * prow : NULL,
+                 od_taps_out_row(tp, n, 2 * a - 1), od_taps_skip_row(tp, n, 2 * a - 1));
+}
+
+/* Runs a banded step: the chunks taken in turn by the threads (a thread on
+ * a core shared with other work takes fewer), then the seams. oneDNN runs
+ * a primitive executed inside an OpenMP parallel region on the calling
+ * thread alone, so each band's convolution is one thread's. */
+static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_dev *dev) {
+  const od_band *b = st->band;
+  const int jobs = batch * b->nchunks, seams = batch * (b->nchunks + 1);
+  int nthreads = p->nthreads < jobs ? p->nthreads : jobs, rc = HF_OK;
+#pragma omp parallel num_threads(nthreads)
+  {
+    const int t = omp_get_thread_num();
+#pragma omp for schedule(dynamic, 1)
+    for (int j = 0; j < jobs; j++) {
+      int e = od_band_job(p, st, dev, t, j / b->nchunks, j % b->nchunks);
+      if (e) {
+#pragma omp atomic write
+        rc = e;
+      }
+    }
+#pragma omp for schedule(dynamic, 4)
+    for (int j = 0; j < seams; j++) od_band_seam(st, j / (b->nchunks + 1), j % (b->nchunks + 1));
+  }
+  return rc;
+}
+
 /* ---- the output stage ------------------------------------------------------ */
 
 /* One run's output stage, the values of hf_output_from_padded_f32 (what
@@ -833,6 +1184,152 @@ static size_t od_thread_scratch(const hf_net_config *c, int pw) {
   return k > row ? k : row;
 }
 
+/* ---- the activation arena ---------------------------------------------------- */
+
+/* Where a plan's activations lie in the device's arena: byte offsets, each
+ * 64-byte aligned, OD_NONE for a buffer the plan has no use for. Made from
+ * the configuration, the size, the threads and the band size alone, so
+ * that the plan and hf_run_bytes agree on it. */
+#define OD_NONE SIZE_MAX
+
+typedef struct od_layout {
+  size_t in, out, head_in, sums, fin, kscratch, taps, tband, part;
+  size_t enc[HF_MAX_LEVELS], cat[HF_MAX_LEVELS];
+  size_t tband_floats;          /* each of a thread's two band buffers */
+  int bh[HF_MAX_LEVELS];        /* each decoder's band rows, 0 when whole */
+  int max_cout;
+  size_t total;
+} od_layout;
+
+/* The offset of the next bytes in the arena (OD_NONE for none); the total
+ * becomes SIZE_MAX, and stays so, when it would not fit a size_t. */
+static size_t od_take(od_layout *l, size_t bytes) {
+  if (!bytes) return OD_NONE;
+  size_t r = (bytes + 63) & ~(size_t)63, off = l->total;
+  if (r < bytes || off > SIZE_MAX - 64 - r) {
+    l->total = SIZE_MAX;
+    return OD_NONE;
+  }
+  l->total += r;
+  return off;
+}
+
+/* The float32 bytes of a [batch][h][w][ch] tensor, 0 when out of range. */
+static size_t od_tensor_bytes(int batch, int ch, int h, int w) {
+  return od_size_ok(batch, ch, h, w) ? (size_t)batch * ch * h * w * sizeof(float) : 0;
+}
+
+/* The layout of a plan for batch frames of pw x ph: padded input and raw
+ * output, the Kernel head's input (its larger, concatenated form when
+ * head_sum is 0), the output stage's sums, result and per-thread scratch,
+ * every encoder's output and decoder's concat input, one buffer for the
+ * whole-tensor decoders' taps (or deconvolution outputs), each thread's
+ * band of taps and the seams' terms of the banded ones. HF_ERANGE when a
+ * size does not fit. */
+static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_sum, int batch,
+                          int pw, int ph, int threads, size_t band_bytes, od_layout *l) {
+  const int L = c->num_levels, head = hf_head_in(c);
+  size_t taps = 0, tband = 0, part = 0;
+  memset(l, 0, sizeof *l);
+  l->max_cout = 1;
+  l->in = od_take(l, od_tensor_bytes(batch, c->in_channels, ph, pw));
+  l->out = od_take(l, od_tensor_bytes(batch, c->out_channels, ph, pw));
+  l->head_in = head ? od_take(l, od_tensor_bytes(batch, head_sum ? c->kernel_hidden : head, ph, pw))
+                    : OD_NONE;
+  const int sums = c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL;
+  l->sums = sums ? od_take(l, od_tensor_bytes(batch, 3, ph, pw)) : OD_NONE;
+  l->fin = sums ? od_take(l, od_tensor_bytes(batch, 3, ph, pw)) : OD_NONE;
+  size_t ks = od_thread_scratch(c, pw);
+  l->kscratch = ks <= SIZE_MAX / sizeof(float) / threads ? od_take(l, ks * threads * sizeof(float))
+                                                         : (l->total = SIZE_MAX, OD_NONE);
+  for (int i = 0; i < L; i++) {
+    const int h = ph >> (i + 1), w = pw >> (i + 1), cout = hf_dec_out(c, i);
+    if (cout > l->max_cout) l->max_cout = cout;
+    l->enc[i] = od_take(l, od_tensor_bytes(batch, hf_enc_out(c, i), h, w));
+    l->cat[i] = i < L - 1 ? od_take(l, od_tensor_bytes(batch, hf_dec_in(c, i), h, w)) : OD_NONE;
+    if (use_taps[i] && band_bytes) {
+      l->bh[i] = od_band_rows(band_bytes, h, w, cout);
+      int nb = (h + l->bh[i] - 1) / l->bh[i], chunk = od_band_chunk(nb, threads);
+      size_t tb = od_tensor_bytes(1, 16 * cout, l->bh[i], w);
+      size_t pb = od_tensor_bytes(batch, 8 * cout, (nb + chunk - 1) / chunk, w);
+      if (tb > tband) tband = tb;
+      if (pb > part) part = pb;
+    } else {
+      size_t b = use_taps[i] ? od_tensor_bytes(batch, 16 * cout, h, w)
+                             : od_tensor_bytes(batch, cout, ph >> i, pw >> i);
+      if (b > taps) taps = b;
+    }
+  }
+  l->taps = od_take(l, taps);
+  l->tband_floats = ((tband + 63) & ~(size_t)63) / sizeof(float);
+  l->tband = tband <= SIZE_MAX / 4 / threads
+                ? od_take(l, l->tband_floats * sizeof(float) * 2 * threads)
+                : (l->total = SIZE_MAX, OD_NONE);
+  l->part = od_take(l, part);
+  return l->total == SIZE_MAX || l->in == OD_NONE || l->out == OD_NONE ? HF_ERANGE : HF_OK;
+}
+
+/* Buffer off of the arena a plan was laid out in, NULL for OD_NONE. */
+static void *od_at(char *arena, size_t off) { return off == OD_NONE ? NULL : arena + off; }
+
+/* Address space reserved for the arena, which takes no memory until it is
+ * used: the arena grows and shrinks inside it without moving, so that the
+ * plans laid out in it stay valid whatever ran in between. */
+#define OD_ARENA_SPAN ((size_t)64 << 30)
+
+/* A plan may run when its buffers lie in the arena's reservation (after
+ * od_arena_reserve of its need). A reservation made again at the same
+ * address serves: the arena's contents are scratch. */
+static int od_plan_valid(const od_dev *d, const od_plan *p) { return p->arena == d->arena; }
+
+/* Makes at least need bytes of the arena usable: inside the reservation
+ * (made on first use, or anew when need exceeds it: the plans laid out in
+ * the old one are rebuilt when next used). Mapped directly, not with
+ * malloc, so that it can grow and give back its tail in place. */
+static int od_arena_reserve(od_dev *d, size_t need) {
+  const size_t page = 4096;
+  if (need > SIZE_MAX - page) return HF_ERANGE;
+  need = (need + page - 1) & ~(page - 1);
+  if (need <= d->arena_bytes) return HF_OK;
+  if (!d->arena || need > d->arena_span) {
+    if (d->arena) munmap(d->arena, d->arena_span);
+    d->arena = NULL, d->arena_bytes = d->arena_span = 0;
+    size_t span = need > OD_ARENA_SPAN ? need : OD_ARENA_SPAN;
+    const int flags = MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE;
+    void *q = mmap(NULL, span, PROT_NONE, flags, -1, 0);
+    if (q == MAP_FAILED && span > need) q = mmap(NULL, span = need, PROT_NONE, flags, -1, 0);
+    if (q == MAP_FAILED) return HF_ENOMEM;
+    d->arena = q, d->arena_span = span;
+  }
+  if (mprotect(d->arena + d->arena_bytes, need - d->arena_bytes, PROT_READ | PROT_WRITE))
+    return HF_ENOMEM;
+  d->arena_bytes = need;
+  return HF_OK;
+}
+
+/* After plans were freed: the arena shrinks to what the largest plan left
+ * in it needs (its pages beyond go back to the system), and its bytes are
+ * counted by a model that has such a plan, the current one if it still
+ * does. */
+static void od_arena_fit(od_dev *d) {
+  size_t need = 0;
+  struct od_model *owner = NULL;
+  for (struct od_model *m = d->models; m; m = m->next)
+    for (int k = 0; k < OD_PLAN_CACHE; k++) {
+      const od_plan *p = m->plans[k];
+      if (!p || !od_plan_valid(d, p)) continue;
+      if (p->need > need) need = p->need;
+      if (!owner || m == d->arena_owner) owner = m;
+    }
+  need = (need + 4095) & ~(size_t)4095;
+  if (need < d->arena_bytes) {
+    void *q = mmap(d->arena + need, d->arena_bytes - need, PROT_NONE,
+                   MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE | MAP_FIXED, -1, 0);
+    if (q != MAP_FAILED) d->arena_bytes = need;
+  }
+  d->arena_owner = owner;
+}
+
 /* Builds every primitive and buffer for batch frames of pw x ph. */
 static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out) {
   const hf_net_config *c = &m->w->cfg;
@@ -843,62 +1340,38 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   if (!p) return HF_ENOMEM;
   p->batch = batch, p->pw = pw, p->ph = ph;
   p->in_skip_step = -1;
+  p->out_step = -1;
+
+  /* The activations, in the device's arena (grown to fit if need be). */
+  od_layout lay;
+  OD_RC(od_layout_make(c, m->use_taps, m->head_sum, batch, pw, ph, dev->threads, dev->band_bytes,
+                       &lay));
+  OD_RC(od_arena_reserve(dev, lay.total));
+  char *A = p->arena = dev->arena;
+  p->need = lay.total;
+  p->nthreads = dev->threads;
+  p->in = od_at(A, lay.in), p->out = od_at(A, lay.out), p->head_in = od_at(A, lay.head_in);
+  p->sums = od_at(A, lay.sums), p->fin = od_at(A, lay.fin), p->kscratch = od_at(A, lay.kscratch);
+  p->taps = od_at(A, lay.taps), p->tband = od_at(A, lay.tband), p->part = od_at(A, lay.part);
+  p->tband_floats = lay.tband_floats;
+  for (int i = 0; i < L; i++) p->enc[i] = od_at(A, lay.enc[i]), p->cat[i] = od_at(A, lay.cat[i]);
+  const int *bh = lay.bh, max_cout = lay.max_cout;
+  size_t tscratch_bytes = 0;
+  /* At least a pixel of dec0's taps (12 floats) for od_taps_line3. */
+  const int nzeros = max_cout > 16 ? max_cout : 16;
+  p->zeros = calloc(nzeros, sizeof(float));
+  if (!p->zeros) OD_RC(HF_ENOMEM);
+  p->bytes += nzeros * sizeof(float);
 
   dnnl_memory_desc_t in_md, out_md, cat_md[HF_MAX_LEVELS], head_md;
   OD_RC(od_nhwc(&in_md, batch, c->in_channels, ph, pw));
   OD_RC(od_nhwc(&out_md, batch, c->out_channels, ph, pw));
-  OD_RC(od_alloc(&in_md, (void **)&p->in));
-  OD_RC(od_alloc(&out_md, (void **)&p->out));
-  p->bytes += dnnl_memory_desc_get_size(&in_md) + dnnl_memory_desc_get_size(&out_md);
   /* The head reads dec0's hidden channels, after them the input's when it
    * is one convolution over their concatenation. */
   const int head = hf_head_in(c), head_ch = m->head_sum ? c->kernel_hidden : head;
-  if (head) {
-    OD_RC(od_nhwc(&head_md, batch, head_ch, ph, pw));
-    OD_RC(od_alloc(&head_md, (void **)&p->head_in));
-    p->bytes += dnnl_memory_desc_get_size(&head_md);
-  }
-  if (c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL) {
-    dnnl_memory_desc_t md;
-    OD_RC(od_nhwc(&md, batch, 3, ph, pw));
-    OD_RC(od_alloc(&md, (void **)&p->sums));
-    OD_RC(od_alloc(&md, (void **)&p->fin));
-    p->bytes += 2 * dnnl_memory_desc_get_size(&md);
-  }
-  size_t nscratch = od_thread_scratch(c, pw) * dev->threads;
-  if (nscratch > SIZE_MAX / sizeof(float)) OD_RC(HF_ERANGE);
-  OD_RC(od_alloc_bytes(nscratch * sizeof(float), (void **)&p->kscratch));
-  p->bytes += nscratch * sizeof(float);
-
-  /* Each encoder output has its own buffer, read by the next encoder and
-   * by the tap pass that fills the concat buffer of its level; one buffer
-   * holds each decoder's taps in turn (or, on the HF_CPU_DECONV path, its
-   * output), the largest of those tensors. */
-  size_t taps_bytes = 0;
-  int max_cout = 1;
-  for (int i = 0; i < L; i++) {
-    dnnl_memory_desc_t md;
-    if (hf_dec_out(c, i) > max_cout) max_cout = hf_dec_out(c, i);
-    if (m->use_taps[i])
-      OD_RC(od_nhwc(&md, batch, 16 * hf_dec_out(c, i), ph >> (i + 1), pw >> (i + 1)));
-    else
-      OD_RC(od_nhwc(&md, batch, hf_dec_out(c, i), ph >> i, pw >> i));
-    size_t b = dnnl_memory_desc_get_size(&md);
-    if (b > taps_bytes) taps_bytes = b;
-    OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
-    OD_RC(od_alloc(&md, &p->enc[i]));
-    p->bytes += dnnl_memory_desc_get_size(&md);
-  }
-  OD_RC(od_alloc_bytes(taps_bytes, &p->taps));
-  p->bytes += taps_bytes;
-  p->zeros = calloc(max_cout, sizeof(float));
-  if (!p->zeros) OD_RC(HF_ENOMEM);
-  p->bytes += max_cout * sizeof(float);
-  for (int i = 0; i < L - 1; i++) {
+  if (head) OD_RC(od_nhwc(&head_md, batch, head_ch, ph, pw));
+  for (int i = 0; i < L - 1; i++)
     OD_RC(od_nhwc(&cat_md[i], batch, hf_dec_in(c, i), ph >> (i + 1), pw >> (i + 1)));
-    OD_RC(od_alloc(&cat_md[i], &p->cat[i]));
-    p->bytes += dnnl_memory_desc_get_size(&cat_md[i]);
-  }
 
   /* Encoder: enc{i} reads enc{i-1}'s output (or the input). */
   dnnl_memory_t src, dst;
@@ -922,6 +1395,22 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     int cout = hf_dec_out(c, i);
     dnnl_memory_desc_t md;
     if (m->use_taps[i]) {
+      /* dec0's pass also copies the input beside the head's hidden
+       * channels, from where od_model_run finds it. */
+      const int head_cat = i == 0 && head && !m->head_sum;
+      od_taps_pass pass = {p->taps, ph >> (i + 1), pw >> (i + 1), cout,
+                           i > 0 || head, m->w->dec_b[i], p->zeros,
+                           i ? p->cat[i - 1] : head ? p->head_in : p->out,
+                           i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
+                           i ? p->enc[i - 1] : head_cat ? p->in : NULL,
+                           i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0, 0};
+      if (i == 0 && !head) p->out_step = p->nsteps + (bh[i] ? 0 : 1);
+      if (bh[i]) {
+        if (head_cat) p->in_skip_step = p->nsteps;
+        const float *from = i < L - 1 ? p->cat[i] : p->enc[L - 1];
+        OD_RC(od_add_band(m, p, i, from, &pass, bh[i], &tscratch_bytes));
+        continue;
+      }
       OD_RC(od_nhwc(&md, batch, 16 * cout, ph >> (i + 1), pw >> (i + 1)));
       OD_RC(od_mem(p, dev, &md, p->taps, &dst));
       OD_RC(od_add_layer(m, p, OD_TAPS, i, src, dst, &scratch_bytes));
@@ -929,19 +1418,11 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
         rc = HF_ERANGE;
         goto fail;
       }
-      /* dec0's pass also copies the input beside the head's hidden
-       * channels, from where od_model_run finds it. */
-      const int head_cat = i == 0 && head && !m->head_sum;
       if (head_cat) p->in_skip_step = p->nsteps;
       od_step *st = &p->steps[p->nsteps++];
       memset(st, 0, sizeof *st);
       st->type = OD_STEP_TAPS;
-      st->taps = (od_taps_pass){p->taps, ph >> (i + 1), pw >> (i + 1), cout,
-                                i > 0 || head, m->w->dec_b[i], p->zeros,
-                                i ? p->cat[i - 1] : head ? p->head_in : p->out,
-                                i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
-                                i ? p->enc[i - 1] : head_cat ? p->in : NULL,
-                                i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0};
+      st->taps = pass;
       continue;
     }
     if (i == 0) {
@@ -985,6 +1466,17 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       for (int a = 0; a < p->steps[s].nargs; a++)
         if (p->steps[s].args[a].arg == DNNL_ARG_SCRATCHPAD) p->steps[s].args[a].memory = smem;
   }
+  if (tscratch_bytes) {
+    size_t each = (tscratch_bytes + 63) & ~(size_t)63;
+    dnnl_memory_desc_t md;
+    dnnl_dims_t d = {(dnnl_dim_t)tscratch_bytes};
+    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
+    OD_RC(od_alloc_bytes(each * p->nthreads, &p->tscratch));
+    p->bytes += each * p->nthreads;
+    for (int t = 0; t < p->nthreads; t++)
+      OD_TRY(dnnl_memory_create(&p->tscratch_mem[t], &md, dev->eng,
+                                (char *)p->tscratch + each * t));
+  }
   /* Primitives without a scratchpad need no argument for it. */
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
@@ -1001,26 +1493,37 @@ fail:
   return rc;
 }
 
-/* The plan for (batch, pw, ph): cached, or built in place of the least
- * recently used one. */
+/* The plan for (batch, pw, ph): cached (the arena grown to what it needs),
+ * or built in place of the least recently used one (or of the cached one,
+ * when the arena it was laid out in has moved). The device's lock is
+ * held. */
 static int od_plan_get(od_model *m, int batch, int pw, int ph, od_plan **out) {
   int victim = 0;
   for (int k = 0; k < OD_PLAN_CACHE; k++) {
     od_plan *p = m->plans[k];
     if (p && p->batch == batch && p->pw == pw && p->ph == ph) {
+      if (!od_plan_valid(m->dev, p)) {
+        victim = k;
+        break;
+      }
+      int rc = od_arena_reserve(m->dev, p->need);
+      if (rc) return rc;
       p->stamp = ++m->clock;
       *out = p;
       return HF_OK;
     }
     if (!p || (m->plans[victim] && p->stamp < m->plans[victim]->stamp)) victim = k;
   }
-  /* Free the victim first: a large plan's buffers can then be reused by
-   * the allocator for the new one. */
   od_plan_free(m->plans[victim]);
   m->plans[victim] = NULL;
+  od_arena_fit(m->dev);
   int rc = od_plan_create(m, batch, pw, ph, &m->plans[victim]);
-  if (rc) return rc;
+  if (rc) {
+    od_arena_fit(m->dev);
+    return rc;
+  }
   m->plans[victim]->stamp = ++m->clock;
+  m->dev->arena_owner = m;
   *out = m->plans[victim];
   return HF_OK;
 }
@@ -1066,7 +1569,16 @@ static int od_head_split(od_model *m) {
 static void od_model_destroy(void *impl) {
   od_model *m = impl;
   if (!m) return;
-  for (int k = 0; k < OD_PLAN_CACHE; k++) od_plan_free(m->plans[k]);
+  od_dev *d = m->dev;
+  pthread_mutex_lock(&d->lock);
+  for (int k = 0; k < OD_PLAN_CACHE; k++) od_plan_free(m->plans[k]), m->plans[k] = NULL;
+  for (od_model **q = &d->models; *q; q = &(*q)->next)
+    if (*q == m) {
+      *q = m->next;
+      break;
+    }
+  od_arena_fit(d);
+  pthread_mutex_unlock(&d->lock);
   for (int k = 0; k < 3; k++) {
     if (m->head_w[k]) dnnl_memory_destroy(m->head_w[k]);
     free(m->head_split[k]);
@@ -1123,7 +1635,12 @@ static int od_model_create(void *devp, const hf_weights *w, void **out) {
    * 256 x 256 (or the alignment, if larger): the plan built here is kept,
    * and plans of other sizes find the same formats in the model. */
   int a = hf_net_align(c), side = a > 256 ? a : 256;
-  OD_RC(od_plan_get(m, 1, side, side, &(od_plan *){NULL}));
+  pthread_mutex_lock(&dev->lock);
+  m->next = dev->models;
+  dev->models = m;
+  rc = od_plan_get(m, 1, side, side, &(od_plan *){NULL});
+  pthread_mutex_unlock(&dev->lock);
+  if (rc) goto fail;
   *out = m;
   return HF_OK;
 fail:
@@ -1131,14 +1648,14 @@ fail:
   return rc;
 }
 
-static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
-  od_model *m = impl;
+static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   const hf_net_config *c = &m->w->cfg;
   int a = hf_net_align(c), rc = HF_OK;
   int pw = hf_round_up(io->width, a), ph = hf_round_up(io->height, a);
   od_plan *p;
   double t0 = hf_now_us();
   OD_RC(od_plan_get(m, io->batch, pw, ph, &p));
+  m->dev->arena_owner = m;
   /* Aligned float32 frames are read where they are; others are converted
    * and padded into the plan's buffer. oneDNN never writes a source. */
   const float *in = p->in;
@@ -1148,6 +1665,14 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
     hf_input_to_padded_f32(io, c->in_channels, pw, ph, p->in);
   OD_TRY(dnnl_memory_set_data_handle(p->in_mem, (void *)in));
   if (p->in_skip_step >= 0) p->steps[p->in_skip_step].taps.skip = in;
+  /* A U-Net's dec0 writes the caller's float32 frames, transformed, when
+   * no padding is cropped: the output stage then has nothing left to do. */
+  const int direct = p->out_step >= 0 && c->arch == HF_ARCH_UNET && c->out_channels == 3 &&
+                     io->out_dtype == HF_F32 && io->width == pw && io->height == ph;
+  if (p->out_step >= 0) {
+    p->steps[p->out_step].taps.out = direct ? (float *)io->out : p->out;
+    p->steps[p->out_step].taps.fin = direct;
+  }
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
@@ -1156,17 +1681,30 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
       continue;
     }
     OD_TRY(dnnl_stream_wait(m->dev->stream));
-    od_pass_run(st, io->batch, m->dev);
+    if (st->type == OD_STEP_BAND)
+      OD_RC(od_band_run(p, st, io->batch, m->dev));
+    else
+      od_pass_run(st, io->batch, m->dev);
   }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();
   od_kernel_out k = {c, in, p->out, pw, ph, p->sums, p->fin, p->kscratch,
                      od_thread_scratch(c, pw), m->kernel_ref, io};
-  od_output(&k, m->dev);
+  if (!direct) od_output(&k, m->dev);
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
   t->output_us = hf_now_us() - t2;
 fail:
+  return rc;
+}
+
+/* Runs of the models of one device take turns: they share its arena (and
+ * would share its cores anyway). */
+static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
+  od_model *m = impl;
+  pthread_mutex_lock(&m->dev->lock);
+  int rc = od_model_run_locked(m, io, t);
+  pthread_mutex_unlock(&m->dev->lock);
   return rc;
 }
 
@@ -1183,59 +1721,75 @@ static const char *od_model_precision(void *impl) { return "fp32"; }
 static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + ((size_t)1 << 20); }
 
 /* What od_plan_create allocates for (batch, pw, ph), from the same sizes:
- * padded input and output, every encoder's output, one buffer of the
- * largest decoder's taps (or deconvolution output) and the zeros beside
- * it, the concat buffers, the scratchpad, private weight copies (at most
- * one of every weight), the Kernel architecture's head input, and the
- * output stage's sums, result and per-thread scratch. Each buffer is
- * rounded as od_alloc_bytes rounds it, plus a page of allocator overhead. */
+ * the arena's share (od_layout_make: the activations, rounded to a page),
+ * the zeros beside the taps, the scratchpads (the primitives' shared one
+ * and each thread's for the band primitives) and private weight copies (at
+ * most one of every weight, two of a banded decoder's: its band's and its
+ * last band's). Each buffer outside the arena is rounded as od_alloc_bytes
+ * rounds it, plus a page of allocator overhead. An upper bound of what a
+ * run allocates whatever the arena holds already. */
 static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   const size_t f = sizeof(float), page = 4096;
-  int L = c->num_levels, max_cout = 1;
-  size_t px = (size_t)batch * pw * ph, total = 0;
-  size_t taps = 0, largest = 0, weights = 0;
-  for (int i = 0; i < L; i++) {
-    size_t q = (size_t)batch * (pw >> (i + 1)) * (ph >> (i + 1));
-    size_t t = (od_use_taps(i) ? 16 : 4) * q * hf_dec_out(c, i) * f, e = q * hf_enc_out(c, i) * f;
-    if (t > taps) taps = t;
+  int use_taps[HF_MAX_LEVELS] = {0}, threads = od_thread_count();
+  od_layout lay;
+  for (int i = 0; i < c->num_levels; i++) use_taps[i] = od_use_taps(i);
+  if (od_layout_make(c, use_taps, 0, batch, pw, ph, threads, od_band_bytes(), &lay)) return 0;
+  size_t largest = 0, weights = 0;
+  for (int i = 0; i < c->num_levels; i++) {
+    size_t e = od_tensor_bytes(batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1));
+    size_t t = od_tensor_bytes(batch, (use_taps[i] ? 16 : 4) * hf_dec_out(c, i), ph >> (i + 1),
+                               pw >> (i + 1));
     if (e > largest) largest = e;
-    if (hf_dec_out(c, i) > max_cout) max_cout = hf_dec_out(c, i);
-    total += e + 64 + page;
-    if (i < L - 1) total += q * hf_dec_in(c, i) * f + 64 + page;
-    weights += ((size_t)hf_enc_out(c, i) * hf_enc_in(c, i) * 9 +
-                (size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16) * f + 64 + page;
+    if (t > largest) largest = t;
+    weights += (size_t)hf_enc_out(c, i) * hf_enc_in(c, i) * 9 * f + 64 + page;
+    weights += 2 * ((size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16 * f + 64 + page);
   }
-  if (taps > largest) largest = taps;
-  total += taps + (size_t)max_cout * f + 2 * (64 + page);
-  total += px * c->in_channels * f + px * c->out_channels * f + 2 * (64 + page);
-  if (hf_head_in(c)) {
-    /* The larger of the head's two forms: the concatenation. */
-    total += px * hf_head_in(c) * f + 64 + page;
-    weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
-  }
-  if (c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL)
-    total += 2 * (px * 3 * f + 64 + page);
-  total += od_thread_scratch(c, pw) * od_thread_count() * f + 64 + page;
-  return total + od_scratch_allowance(largest) + weights;
+  if (hf_head_in(c)) weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
+  size_t own = (size_t)(lay.max_cout > 16 ? lay.max_cout : 16) * f + 64 + page;
+  own += od_scratch_allowance(largest) + 64 + page;
+  if (lay.tband != OD_NONE)
+    own += threads * od_scratch_allowance(lay.tband_floats * f) + 64 + page;
+  return lay.total + page + own + weights;
 }
 
-static size_t od_model_cached_bytes(void *impl) {
-  od_model *m = impl;
-  size_t n = 0;
+/* A model's count includes the arena when it is the model that last ran
+ * (or, once that one has no plan left, one that has a valid plan). */
+static size_t od_cached_locked(const od_model *m) {
+  size_t n = m->dev->arena_owner == m ? m->dev->arena_bytes : 0;
   for (int k = 0; k < OD_PLAN_CACHE; k++)
     if (m->plans[k]) n += m->plans[k]->bytes;
   return n;
 }
 
+static size_t od_model_cached_bytes(void *impl) {
+  od_model *m = impl;
+  pthread_mutex_lock(&m->dev->lock);
+  size_t n = od_cached_locked(m);
+  pthread_mutex_unlock(&m->dev->lock);
+  return n;
+}
+
+/* Frees the model's plans until it counts at most keep bytes: those laid
+ * out in an arena that moved first, then the largest. The arena shrinks to
+ * what the valid plans left need, and passes to a model that has one. */
 static void od_model_trim(void *impl, size_t keep) {
   od_model *m = impl;
-  while (od_model_cached_bytes(m) > keep) {
+  od_dev *d = m->dev;
+  pthread_mutex_lock(&d->lock);
+  while (od_cached_locked(m) > keep) {
     int big = -1;
-    for (int k = 0; k < OD_PLAN_CACHE; k++)
-      if (m->plans[k] && (big < 0 || m->plans[k]->bytes > m->plans[big]->bytes)) big = k;
+    for (int k = 0; k < OD_PLAN_CACHE; k++) {
+      const od_plan *p = m->plans[k], *b = big < 0 ? NULL : m->plans[big];
+      if (!p) continue;
+      int pv = od_plan_valid(d, p), bv = b && od_plan_valid(d, b);
+      if (!b || (bv && !pv) || (bv == pv && p->need + p->bytes > b->need + b->bytes)) big = k;
+    }
+    if (big < 0) break;
     od_plan_free(m->plans[big]);
     m->plans[big] = NULL;
+    od_arena_fit(d);
   }
+  pthread_mutex_unlock(&d->lock);
 }
 
 const hf_backend_ops hf_backend_cpu_onednn = {

@@ -178,6 +178,9 @@ static void test_batch_and_dtypes(void **state) {
   /* Large enough that the tap sums and concat copies are split over
    * threads (they stay on one thread below ~64K values). */
   compare(*state, "Base", 2, 150, 100, HF_F32, HF_F32, 401);
+  /* Aligned float32 frames: dec0 writes the caller's output, transformed,
+   * over several bands and seams of every decoder. */
+  compare(*state, "Base", 2, 160, 96, HF_F32, HF_F32, 402);
 }
 
 /* The Kernel architecture beyond its preset: without a head, with the
