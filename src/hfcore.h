@@ -311,9 +311,13 @@ const hf_net_config *hf_model_config(const hf_model *m);
  * after hf_features_sanitise (on a copy the model keeps for reuse up to 128
  * MiB: io->in is never written) and its output goes through
  * hf_output_guard, so results are finite and inside their documented ranges
- * whatever the input; hf_model_submit/hf_model_wait do the same. The check
- * is attributed to timing->input_us, the guard to output_us. HF_ENOMEM when
- * a frame needs sanitising and there is no memory for the copy. */
+ * whatever the input; hf_model_submit/hf_model_wait do the same. A float16
+ * input for a backend that computes in float32 (the CPU backends), of a
+ * size that needs no padding and whose floats fit in those 128 MiB, is
+ * widened into that copy in the check's own pass (hf_features_widen). The
+ * check is attributed to timing->input_us, the guard to output_us.
+ * HF_ENOMEM when a frame needs sanitising or widening and there is no
+ * memory for the copy. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
 /* hf_model_run that also says what it changed: report, when not NULL, is
  * [io->batch], one hf_input_report per frame. */
@@ -563,7 +567,8 @@ float hf_f16_to_f32(uint16_t h);
  * input, NaNs included: with the processor's F16C conversion when it has
  * one (8 values per instruction, chosen at run time), else the scalar
  * functions; from 1 M values on, split between up to one thread per online
- * CPU (16 at most). src and dst must not overlap. Never fails. */
+ * CPU (16 at most), which take chunks of 64 Ki values in turn
+ * (hf_parallel_chunks). src and dst must not overlap. Never fails. */
 void hf_f32_to_f16_array(const float *src, uint16_t *dst, size_t n);
 void hf_f16_to_f32_array(const uint16_t *src, float *dst, size_t n);
 /* As the array functions, on the calling thread alone: for code that
@@ -594,9 +599,11 @@ typedef void (*hf_chunk_fn)(void *ctx, int worker, size_t begin, size_t end);
  * (worker 0) and a thread started for each other one. A worker's chunks
  * come in increasing order; worker (0 .. the returned count - 1) indexes
  * per-worker partial results, which the caller sets up for every worker
- * before the call (a worker whose thread cannot start takes no chunk, and
- * the others take its share, so the result never depends on threads).
- * Returns the number of workers, 0 when n is 0 (src/parallel.c). */
+ * before the call (a worker whose thread cannot start, or starts only
+ * after every chunk is taken, takes no chunk, and the others take its
+ * share, so the result never depends on threads). Returns when every chunk
+ * is done, with the number of workers: 0 when n is 0, 1 for a single
+ * chunk, else hf_parallel_workers(n, min_per_thread) (src/parallel.c). */
 int hf_parallel_chunks(size_t n, size_t chunk, size_t min_per_thread, hf_chunk_fn fn, void *ctx);
 /* The workers hf_parallel_chunks uses for n items: one per online CPU
  * (HF_PARALLEL_MAX at most), no more than n / min_per_thread, at least 1. */
