@@ -6,11 +6,15 @@
  *   hf-transport-bench UNIX_URL TCP_URL VARIANT SIZE[,SIZE...] ITERS
  *
  * For each size, over the Unix socket, loopback TCP and shared memory (on
- * the Unix socket), ITERS frames in float32 and ITERS in float16 one at a
- * time, alternating, after one warm-up frame of each:
- *   end to end  what a caller holding float32 features waits for: the
- *               conversion to float16 (f16 rows), hfc_filter, the result
- *               widened back to float32 (f16 rows);
+ * the Unix socket), ITERS frames of each of three callers one at a time,
+ * in turn, after one warm-up frame of each: a caller holding float32
+ * features that sends float32 ("f32"); one holding float32 that sends
+ * float16 ("f16, caller f32"); one whose features are float16 already, a
+ * renderer's half-float targets or a half EXR, that sends and keeps
+ * float16 ("f16, caller f16"):
+ *   end to end  what the caller waits for: for "f16, caller f32" the
+ *               conversion to float16, hfc_filter and the result widened
+ *               back to float32; for the others hfc_filter alone;
  *   transport   the client's total less the server's (from the frame's
  *               last byte in to its result out): the bytes on the wire
  *               and the client library's own work;
@@ -129,25 +133,29 @@ typedef struct result {
   double e2e, conv, transport, server, input, infer, output;
 } result;
 
-/* ITERS frames of w x h through c in float32 and as many in float16,
- * alternating (so both meet the same machine: the cores here are shared);
- * shm: the tensors in segments. res[0] float32, res[1] float16. */
+/* The callers of a run, in the order they take turns. */
+enum { CALLER_F32, CALLER_F32_SENDS_F16, CALLER_F16, NCALLERS };
+static const char *const CALLER_NAME[NCALLERS] = {"f32", "f16, caller f32", "f16, caller f16"};
+
+/* ITERS frames of w x h through c for each caller, in turn (so all meet
+ * the same machine: the cores here are shared); shm: the tensors in
+ * segments. res[caller]. */
 static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h, int shm,
-                      int iters, const float *feat32, result res[2]) {
+                      int iters, const float *feat32, result res[NCALLERS]) {
   size_t nin = (size_t)w * h * spp * 6, nout = (size_t)w * h * 3;
-  void *seg[2] = {NULL, NULL}, *in[2] = {NULL, NULL}, *out[2] = {NULL, NULL};
-  size_t in_b[2], out_b[2];
+  void *seg[NCALLERS] = {NULL}, *in[NCALLERS] = {NULL}, *out[NCALLERS] = {NULL};
+  size_t in_b[NCALLERS], out_b[NCALLERS];
   float *res32 = malloc(nout * sizeof(float));
-  double *t[2][7];
+  double *t[NCALLERS][7];
   int rc = -1;
-  for (int d = 0; d < 2; d++)
+  for (int d = 0; d < NCALLERS; d++)
     for (int k = 0; k < 7; k++) t[d][k] = calloc((size_t)iters, sizeof(double));
-  for (int d = 0; d < 2; d++)
+  for (int d = 0; d < NCALLERS; d++)
     for (int k = 0; k < 7; k++)
       if (!t[d][k]) goto out;
   if (!res32) goto out;
-  for (int d = 0; d < 2; d++) {
-    size_t es = d ? 2 : 4;
+  for (int d = 0; d < NCALLERS; d++) {
+    size_t es = d != CALLER_F32 ? 2 : 4;
     in_b[d] = nin * es, out_b[d] = nout * es;
     if (shm) {
       if ((rc = hfc_shm_alloc(c, in_b[d] + out_b[d], &seg[d])) != 0) {
@@ -160,21 +168,24 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
       if (!in[d] || !out[d]) goto out;
     }
   }
-  /* float32 frames are where the caller has them (in the segment, for
-   * shared memory: an engine renders into it); float16 ones are
-   * converted from the caller's float32 each time, inside the timing. */
-  memcpy(in[0], feat32, in_b[0]);
+  /* Features are where the caller has them (in the segment, for shared
+   * memory: an engine renders into it), float32 or float16; the caller
+   * holding float32 that sends float16 converts them each time, inside
+   * the timing. */
+  memcpy(in[CALLER_F32], feat32, in_b[CALLER_F32]);
+  hf_f32_to_f16_array(feat32, in[CALLER_F16], nin);
   for (int i = 0; i <= iters; i++) /* the first of each is the warm-up */
-    for (int d = 0; d < 2; d++) {
+    for (int d = 0; d < NCALLERS; d++) {
+      const int convert = d == CALLER_F32_SENDS_F16;
       hfc_request r;
       hfc_request_init(&r);
       r.variant = variant, r.width = w, r.height = h, r.spp = spp;
-      r.in_dtype = r.out_dtype = d ? HFC_F16 : HFC_F32;
+      r.in_dtype = r.out_dtype = d != CALLER_F32 ? HFC_F16 : HFC_F32;
       r.features = in[d], r.features_bytes = in_b[d];
       r.result = out[d], r.result_bytes = out_b[d];
       hfc_timing tm;
       double t0 = now_us();
-      if (d) hf_f32_to_f16_array(feat32, in[d], nin);
+      if (convert) hf_f32_to_f16_array(feat32, in[d], nin);
       double t1 = now_us();
       if ((rc = hfc_filter(c, &r, &tm)) != 0) {
         fprintf(stderr, "hfc_filter %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
@@ -182,7 +193,7 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
         goto out;
       }
       double t2 = now_us();
-      if (d) hf_f16_to_f32_array(out[d], res32, nout);
+      if (convert) hf_f16_to_f32_array(out[d], res32, nout);
       double t3 = now_us();
       if (!i) continue;
       t[d][0][i - 1] = t3 - t0;
@@ -193,7 +204,7 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
       t[d][5][i - 1] = tm.infer_us;
       t[d][6][i - 1] = tm.output_us;
     }
-  for (int d = 0; d < 2; d++) {
+  for (int d = 0; d < NCALLERS; d++) {
     result *q = &res[d];
     q->e2e = median(t[d][0], iters), q->conv = median(t[d][1], iters);
     q->transport = median(t[d][2], iters), q->server = median(t[d][3], iters);
@@ -202,7 +213,7 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
   }
   rc = 0;
 out:
-  for (int d = 0; d < 2; d++) {
+  for (int d = 0; d < NCALLERS; d++) {
     if (seg[d]) hfc_shm_free(c, seg[d]);
     else free(in[d]), free(out[d]);
     for (int k = 0; k < 7; k++) free(t[d][k]);
@@ -336,17 +347,19 @@ int main(int argc, char **argv) {
     }
     static const char *path[3] = {"unix", "tcp", "shm"};
     for (int p = 0; p < 3; p++) {
-      result res[2];
+      result res[NCALLERS];
       memset(res, 0, sizeof res);
       if (run_frames(c[p == 1], variant, spp, w, h, p == 2, iters, feat, res)) return 1;
-      for (int d = 0; d < 2; d++)
+      for (int d = 0; d < NCALLERS; d++)
         printf("| %dx%d | %s | %s | %.2f | %.2f | %.2f | %.2f | %.2f / %.2f / %.2f |\n", w, h,
-               path[p], d ? "f16" : "f32", res[d].e2e / 1e3, res[d].conv / 1e3,
+               path[p], CALLER_NAME[d], res[d].e2e / 1e3, res[d].conv / 1e3,
                res[d].transport / 1e3, res[d].server / 1e3, res[d].input / 1e3,
                res[d].infer / 1e3, res[d].output / 1e3);
-      printf("| %dx%d | %s | f16 / f32 | %.2fx | | %.2fx | %.2fx | |\n", w, h, path[p],
-             res[1].e2e / res[0].e2e, res[1].transport / res[0].transport,
-             res[1].server / res[0].server);
+      for (int d = CALLER_F32_SENDS_F16; d < NCALLERS; d++)
+        printf("| %dx%d | %s | %s / f32 | %.2fx | | %.2fx | %.2fx | %.2fx input |\n", w, h,
+               path[p], CALLER_NAME[d], res[d].e2e / res[0].e2e,
+               res[d].transport / res[0].transport, res[d].server / res[0].server,
+               res[d].input / res[0].input);
       fflush(stdout);
     }
     double fl = socket_floor(nin * 4 + 64, (size_t)w * h * 3 * 4, iters);

@@ -155,6 +155,7 @@ typedef struct run {
   double t0, t1, t2;             /* started, submitted, backend finished */
   hf_timing t;
   hf_input_report *reports;      /* [max batch]: what the backend run sanitised */
+  hf_input_stats *stats;         /* [max batch]: the inputs' statistics */
 } run;
 
 /* Gathers the batch's inputs and makes its hf_io. Fast path: one frame
@@ -163,7 +164,6 @@ typedef struct run {
  * also where the composite is made. */
 static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   hfd_job *j0 = r->jobs[0];
-  const hfd_model *v = j0->model;
   const int nb = r->nb;
   r->t0 = hfd_now_us();
   for (int i = 0; i < nb; i++) {
@@ -173,17 +173,6 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   }
   size_t in_bytes = (size_t)j0->req.data_len;
   size_t px = (size_t)j0->req.width * j0->req.height;
-  /* Is each input inside the range the variant was trained on? One pass
-   * over the samples' alpha (hf_input_stats_compute), counted as input
-   * time; variants whose weights record no range skip it. */
-  for (int i = 0; v->range.present && i < nb; i++) {
-    hf_input_stats st;
-    hfd_job *j = r->jobs[i];
-    j->out_of_range =
-        !hf_input_stats_compute(j->input, (hf_dtype)j->req.in_dtype, (int)j->req.width,
-                                (int)j->req.height, v->cfg.spp, &st) &&
-        hf_input_range_check(&v->range, &st) != 0;
-  }
   int composite = 0;
   for (int i = 0; i < nb; i++) composite |= r->jobs[i]->rgba != NULL;
   r->direct = nb == 1 && !composite;
@@ -203,6 +192,14 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   return HF_OK;
 }
 
+/* Is each input inside the range the variant was trained on? The run makes
+ * the inputs' statistics in its input pass (hf_model_run_stats; for an f16
+ * frame on a float32 backend, in the pass that widens it), so they count as
+ * input time; variants whose weights record no range skip them. */
+static hf_input_stats *range_stats(run *r) {
+  return r->jobs[0]->model->range.present ? r->stats : NULL;
+}
+
 /* The backend is done with the batch (r->rc, r->t): outputs, timings,
  * status. */
 static void finish_run(hfd_worker *w, run *r) {
@@ -211,7 +208,11 @@ static void finish_run(hfd_worker *w, run *r) {
   const int nb = r->nb;
   size_t px = (size_t)j0->req.width * j0->req.height;
   int rc = r->rc;
-  for (int i = 0; i < nb && !rc; i++) r->jobs[i]->sanitised = r->reports[i].samples;
+  for (int i = 0; i < nb && !rc; i++) {
+    r->jobs[i]->sanitised = r->reports[i].samples;
+    r->jobs[i]->out_of_range =
+        v->range.present && hf_input_range_check(&v->range, &r->stats[i]) != 0;
+  }
   if (!rc && !r->direct)
     for (int i = 0; i < nb && !rc; i++)
       if (finish_from_f32(w, r->jobs[i], (const float *)w->scratch_out + px * 3 * i))
@@ -474,12 +475,14 @@ static void *worker_main(void *arg) {
   /* Two batch tables: the one being formed, and the pending one. */
   hfd_job **tables = calloc((size_t)w->max_batch * 2, sizeof *tables);
   hf_input_report *reports = calloc((size_t)w->max_batch * 2, sizeof *reports);
-  if (!tables || !reports) {
+  hf_input_stats *stats = calloc((size_t)w->max_batch * 2, sizeof *stats);
+  if (!tables || !reports || !stats) {
     hfd_err("worker: out of memory for the batch table");
     abort();
   }
-  run cur = {tables, 0, 0, 0, 0, 0, 0, {0, 0, 0}, reports};
-  run pend = {tables + w->max_batch, 0, 0, 0, 0, 0, 0, {0, 0, 0}, reports + w->max_batch};
+  run cur = {tables, 0, 0, 0, 0, 0, 0, {0, 0, 0}, reports, stats};
+  run pend = {tables + w->max_batch, 0, 0, 0, 0, 0, 0, {0, 0, 0}, reports + w->max_batch,
+              stats + w->max_batch};
   hfd_job **batch = cur.jobs;
   pthread_mutex_lock(&w->mu);
   for (;;) {
@@ -555,7 +558,7 @@ static void *worker_main(void *arg) {
       if (!cur.rc && cur.direct && w->pipeline_depth > 1 && hf_model_overlaps(m)) {
         /* Submit this one, then finish the one before it: the upload of
          * this frame overlaps that one's compute. */
-        cur.rc = hf_model_submit_report(m, &io, cur.reports);
+        cur.rc = hf_model_submit_stats(m, &io, cur.reports, range_stats(&cur));
         if (pend.nb) finish_pending(w, &pend);
         if (cur.rc) {
           cur.t2 = hfd_now_us();
@@ -569,7 +572,7 @@ static void *worker_main(void *arg) {
         }
       } else {
         if (pend.nb) finish_pending(w, &pend);
-        if (!cur.rc) cur.rc = hf_model_run_report(m, &io, &cur.t, cur.reports);
+        if (!cur.rc) cur.rc = hf_model_run_stats(m, &io, &cur.t, cur.reports, range_stats(&cur));
         cur.t2 = hfd_now_us();
         finish_run(w, &cur);
         /* Nothing is pending on any model: what this run kept may be
@@ -587,6 +590,7 @@ static void *worker_main(void *arg) {
   atomic_store(&w->working, 0);
   free(tables);
   free(reports);
+  free(stats);
   release_models(w);
   return NULL;
 }

@@ -148,32 +148,72 @@ static int check_io(const hf_io *io) {
  * are released after their run rather than held. */
 #define HF_SANITISED_KEEP ((size_t)128 << 20)
 
+/* Makes the buffer of pending slot `slot` hold at least need bytes (kept:
+ * a fresh buffer costs a page fault per 4 KiB on first write, more than
+ * the copy). */
+static void *slot_buffer(hf_model *m, int slot, size_t need) {
+  if (m->sanitised[slot].cap < need) {
+    free(m->sanitised[slot].buf);
+    m->sanitised[slot].buf = malloc(need);
+    m->sanitised[slot].cap = m->sanitised[slot].buf ? need : 0;
+  }
+  return m->sanitised[slot].buf;
+}
+
+/* Whether an f16 input of io is widened to float32 here, in the check's
+ * pass, rather than by the backend after it: for backends that compute in
+ * float32 on the host, when the frame needs no padding (the backend then
+ * reads the floats where they are, as it reads an aligned float32 frame;
+ * a padded frame it converts straight into its padded buffer) and its
+ * floats fit in what a slot keeps between runs. */
+static int widen_here(const hf_model *m, const hf_io *io) {
+  int a = hf_net_align(&m->cfg);
+  size_t bytes = (size_t)io->batch * io->width * io->height * m->cfg.in_channels * sizeof(float);
+  return io->in_dtype == HF_F16 && !m->backend->ops->reads_f16 && io->width % a == 0 &&
+         io->height % a == 0 && bytes <= HF_SANITISED_KEEP;
+}
+
 /* Checks every frame of io and, only when one needs it, sanitises a copy
- * in the buffer of pending slot `slot` (kept: a fresh buffer costs a page
- * fault per 4 KiB on first write, more than the copy). *run is the io the
- * backend sees; rep, when not NULL, gets [io->batch] reports. */
+ * in the buffer of pending slot `slot`; or, for an f16 input that
+ * widen_here takes, widens it into that buffer with the rule applied on
+ * the way (hf_features_widen: what the backend would have widened from a
+ * sanitised copy). Makes stats ([io->batch]) when not NULL, in the same
+ * pass where there is one. *run is the io the backend sees; rep, when not NULL, gets
+ * [io->batch] reports. */
 static int sanitise_input(hf_model *m, int slot, const hf_io *io, hf_io *run,
-                          hf_input_report *rep) {
+                          hf_input_report *rep, hf_input_stats *stats) {
   size_t esz = io->in_dtype == HF_F16 ? 2 : 4;
-  size_t frame = (size_t)io->width * io->height * m->cfg.in_channels * esz;
+  size_t values = (size_t)io->width * io->height * m->cfg.in_channels;
+  size_t frame = values * esz;
   hf_input_report one;
+  *run = *io;
+  if (widen_here(m, io)) {
+    float *wide = slot_buffer(m, slot, values * sizeof(float) * (size_t)io->batch);
+    if (!wide) return HF_ENOMEM;
+    for (int n = 0; n < io->batch; n++) {
+      int rc = hf_features_widen((const uint16_t *)io->in + n * values, wide + n * values,
+                                 io->width, io->height, m->cfg.spp, rep ? &rep[n] : &one,
+                                 stats ? &stats[n] : NULL);
+      if (rc) return rc;
+    }
+    run->in = wide;
+    run->in_dtype = HF_F32;
+    return HF_OK;
+  }
   uint64_t bad = 0;
+  for (int n = 0; stats && n < io->batch; n++)
+    hf_input_stats_compute((const uint8_t *)io->in + n * frame, io->in_dtype, io->width,
+                           io->height, m->cfg.spp, &stats[n]);
   for (int n = 0; n < io->batch; n++) {
     hf_input_report *r = rep ? &rep[n] : &one;
     hf_features_check((const uint8_t *)io->in + n * frame, io->in_dtype, io->width, io->height,
                       m->cfg.spp, r);
     bad += r->samples;
   }
-  *run = *io;
   if (!bad) return HF_OK;
   size_t need = frame * (size_t)io->batch;
-  if (m->sanitised[slot].cap < need) {
-    free(m->sanitised[slot].buf);
-    m->sanitised[slot].buf = malloc(need);
-    m->sanitised[slot].cap = m->sanitised[slot].buf ? need : 0;
-    if (!m->sanitised[slot].buf) return HF_ENOMEM;
-  }
-  uint8_t *copy = m->sanitised[slot].buf;
+  uint8_t *copy = slot_buffer(m, slot, need);
+  if (!copy) return HF_ENOMEM;
   memcpy(copy, io->in, need);
   for (int n = 0; n < io->batch; n++)
     if (!rep || rep[n].samples)
@@ -207,13 +247,18 @@ int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing) {
 
 int hf_model_run_report(hf_model *m, const hf_io *io, hf_timing *timing,
                         hf_input_report *rep) {
+  return hf_model_run_stats(m, io, timing, rep, NULL);
+}
+
+int hf_model_run_stats(hf_model *m, const hf_io *io, hf_timing *timing, hf_input_report *rep,
+                       hf_input_stats *stats) {
   if (!m) return HF_EINVAL;
   int rc = check_io(io);
   if (rc) return rc;
   if (m->npending) return HF_EINVAL;   /* wait for the pending runs first */
   double t0 = hf_now_us();
   hf_io run;
-  if ((rc = sanitise_input(m, 0, io, &run, rep)) != 0) return rc;
+  if ((rc = sanitise_input(m, 0, io, &run, rep, stats)) != 0) return rc;
   double t1 = hf_now_us();
   hf_timing t = {0, 0, 0};
   rc = m->backend->ops->model_run(m->impl, &run, &t);
@@ -237,6 +282,11 @@ int hf_model_prepare(hf_model *m, int batch, int width, int height) {
 int hf_model_submit(hf_model *m, const hf_io *io) { return hf_model_submit_report(m, io, NULL); }
 
 int hf_model_submit_report(hf_model *m, const hf_io *io, hf_input_report *rep) {
+  return hf_model_submit_stats(m, io, rep, NULL);
+}
+
+int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
+                          hf_input_stats *stats) {
   if (!m) return HF_EINVAL;
   int rc = check_io(io);
   if (rc) return rc;
@@ -247,7 +297,7 @@ int hf_model_submit_report(hf_model *m, const hf_io *io, hf_input_report *rep) {
    * may read it until then. */
   double t0 = hf_now_us();
   hf_io run;
-  if ((rc = sanitise_input(m, slot, io, &run, rep)) != 0) return rc;
+  if ((rc = sanitise_input(m, slot, io, &run, rep, stats)) != 0) return rc;
   m->pending[slot].io = *io;
   m->pending[slot].report = rep;
   m->pending[slot].input_us = hf_now_us() - t0;

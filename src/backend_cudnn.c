@@ -1273,6 +1273,7 @@ static size_t cudnn_run_bytes(const hf_net_config *c, int batch, int pw, int ph)
 const hf_backend_ops hf_backend_cudnn = {
   .name = "cudnn",
   .priority = 100,
+  .reads_f16 = 1,
   .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL | 1u << HF_ARCH_KERNEL,
   .probe = cudnn_probe,
   .open = cudnn_open,

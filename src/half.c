@@ -6,11 +6,8 @@
  * runs everywhere), the scalar loop elsewhere, and a large frame split
  * between threads, since one core converts about 2-4 GB/s and a 1024x1024
  * frame of 4 spp is 25 M values. */
-#define _GNU_SOURCE
-#include <pthread.h>
 #include <stdatomic.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "hfcore.h"
 
@@ -74,6 +71,12 @@ static void f16_to_f32_scalar(const uint16_t *src, float *dst, size_t n) {
   for (size_t i = 0; i < n; i++) dst[i] = hf_f16_to_f32(src[i]);
 }
 
+/* Frames far larger than the caches are written with non-temporal stores:
+ * no read of the destination's lines before they are overwritten (a third
+ * less memory traffic for f16 -> f32, whose destination is twice the
+ * source). */
+#define HALF_STREAM_MIN ((size_t)1 << 18)
+
 /* x86-64 processors with F16C (Ivy Bridge and later, every AMD Zen)
  * convert 8 values per instruction, rounding to nearest even like the
  * scalar code (for NaN too: both keep the sign and the payload's top bits
@@ -83,16 +86,10 @@ static void f16_to_f32_scalar(const uint16_t *src, float *dst, size_t n) {
 #include <immintrin.h>
 #define HF_HALF_X86 1
 
-/* Frames far larger than the caches are written with non-temporal stores:
- * no read of the destination's lines before they are overwritten (a third
- * less memory traffic for f16 -> f32, whose destination is twice the
- * source). */
-#define HALF_STREAM_MIN ((size_t)1 << 18)
-
 __attribute__((target("avx,f16c"))) static void f32_to_f16_f16c(const float *src, uint16_t *dst,
-                                                                size_t n) {
+                                                                size_t n, int stream) {
   size_t i = 0;
-  if (n >= HALF_STREAM_MIN) {
+  if (stream) {
     for (; i < n && ((uintptr_t)(dst + i) & 15); i++) dst[i] = hf_f32_to_f16(src[i]);
     for (; i + 16 <= n; i += 16) {
       __m256 a = _mm256_loadu_ps(src + i), b = _mm256_loadu_ps(src + i + 8);
@@ -118,9 +115,9 @@ __attribute__((target("avx,f16c"))) static void f32_to_f16_f16c(const float *src
 }
 
 __attribute__((target("avx,f16c"))) static void f16_to_f32_f16c(const uint16_t *src, float *dst,
-                                                                size_t n) {
+                                                                size_t n, int stream) {
   size_t i = 0;
-  if (n >= HALF_STREAM_MIN) {
+  if (stream) {
     for (; i < n && ((uintptr_t)(dst + i) & 31); i++) dst[i] = hf_f16_to_f32(src[i]);
     for (; i + 16 <= n; i += 16) {
       __m128i a = _mm_loadu_si128((const __m128i *)(src + i));
@@ -179,23 +176,27 @@ int hf_half_use_simd(int on) {
 
 const char *hf_half_impl(void) { return simd() ? "f16c" : "scalar"; }
 
-static void run_f32_to_f16(const float *src, uint16_t *dst, size_t n) {
+/* stream: the frame is larger than the caches (HALF_STREAM_MIN values or
+ * more in all, whatever part of it this call converts). */
+static void run_f32_to_f16(const float *src, uint16_t *dst, size_t n, int stream) {
 #ifdef HF_HALF_X86
   if (simd()) {
-    f32_to_f16_f16c(src, dst, n);
+    f32_to_f16_f16c(src, dst, n, stream);
     return;
   }
 #endif
+  (void)stream;
   f32_to_f16_scalar(src, dst, n);
 }
 
-static void run_f16_to_f32(const uint16_t *src, float *dst, size_t n) {
+static void run_f16_to_f32(const uint16_t *src, float *dst, size_t n, int stream) {
 #ifdef HF_HALF_X86
   if (simd()) {
-    f16_to_f32_f16c(src, dst, n);
+    f16_to_f32_f16c(src, dst, n, stream);
     return;
   }
 #endif
+  (void)stream;
   f16_to_f32_scalar(src, dst, n);
 }
 
@@ -204,77 +205,50 @@ static void run_f16_to_f32(const uint16_t *src, float *dst, size_t n) {
 /* Below this many values per thread a thread's start (tens of
  * microseconds) costs more than its share saves. */
 #define HALF_PER_THREAD ((size_t)1 << 19)
-#define HALF_MAX_THREADS 16
+/* Values per chunk taken by a thread (hf_parallel_chunks): a multiple of 16
+ * (whole vectors, and chunks that start 64-byte aligned where the frame
+ * does), small enough that a thread descheduled on a shared machine holds
+ * up little of the frame. */
+#define HALF_CHUNK ((size_t)1 << 16)
 
 typedef struct half_job {
   const void *src;
   void *dst;
-  size_t n;
-  int to_f16;
+  int to_f16, stream;
 } half_job;
 
-static void half_job_run(const half_job *j) {
-  if (j->to_f16) run_f32_to_f16(j->src, j->dst, j->n);
-  else run_f16_to_f32(j->src, j->dst, j->n);
+static void half_chunk(void *arg, int worker, size_t b, size_t e) {
+  const half_job *j = arg;
+  (void)worker;
+  if (j->to_f16)
+    run_f32_to_f16((const float *)j->src + b, (uint16_t *)j->dst + b, e - b, j->stream);
+  else
+    run_f16_to_f32((const uint16_t *)j->src + b, (float *)j->dst + b, e - b, j->stream);
 }
 
-static void *half_thread(void *arg) {
-  half_job_run(arg);
-  return NULL;
-}
-
-static int half_threads(size_t n) {
-  static _Atomic int cpus = 0;
-  int c = atomic_load_explicit(&cpus, memory_order_relaxed);
-  if (!c) {
-    long v = sysconf(_SC_NPROCESSORS_ONLN);
-    c = v < 1 ? 1 : v > HALF_MAX_THREADS ? HALF_MAX_THREADS : (int)v;
-    atomic_store(&cpus, c);
-  }
-  size_t want = n / HALF_PER_THREAD;
-  return want < 1 ? 1 : want < (size_t)c ? (int)want : c;
-}
-
-/* Splits n values into parts of a multiple of 16 values (so every part
- * but the last runs whole vectors), one per thread, the last taking what
- * is left; the caller's thread converts the first. A thread that cannot be
- * started leaves its part to the caller, so the result never depends on
- * threads. */
 static void half_split(const void *src, void *dst, size_t n, int to_f16) {
-  int nt = half_threads(n);
-  const size_t in_es = to_f16 ? sizeof(float) : sizeof(uint16_t);
-  const size_t out_es = to_f16 ? sizeof(uint16_t) : sizeof(float);
-  half_job jobs[HALF_MAX_THREADS];
-  pthread_t tid[HALF_MAX_THREADS];
-  int started[HALF_MAX_THREADS] = {0};
-  size_t part = ((n / nt) + 15) & ~(size_t)15;
-  for (int t = 0; t < nt; t++) {
-    size_t b = part * t < n ? part * t : n, e = b + part < n && t < nt - 1 ? b + part : n;
-    jobs[t] = (half_job){(const char *)src + b * in_es, (char *)dst + b * out_es, e - b, to_f16};
-  }
-  for (int t = 1; t < nt; t++)
-    if (jobs[t].n) started[t] = pthread_create(&tid[t], NULL, half_thread, &jobs[t]) == 0;
-  half_job_run(&jobs[0]);
-  for (int t = 1; t < nt; t++) {
-    if (started[t]) pthread_join(tid[t], NULL);
-    else if (jobs[t].n) half_job_run(&jobs[t]);
-  }
+  half_job j = {src, dst, to_f16, n >= HALF_STREAM_MIN};
+  hf_parallel_chunks(n, HALF_CHUNK, HALF_PER_THREAD, half_chunk, &j);
 }
 
 void hf_f32_to_f16_serial(const float *src, uint16_t *dst, size_t n) {
-  run_f32_to_f16(src, dst, n);
+  run_f32_to_f16(src, dst, n, n >= HALF_STREAM_MIN);
 }
 
 void hf_f16_to_f32_serial(const uint16_t *src, float *dst, size_t n) {
-  run_f16_to_f32(src, dst, n);
+  run_f16_to_f32(src, dst, n, n >= HALF_STREAM_MIN);
+}
+
+void hf_f16_to_f32_stream(const uint16_t *src, float *dst, size_t n) {
+  run_f16_to_f32(src, dst, n, 1);
 }
 
 void hf_f32_to_f16_array(const float *src, uint16_t *dst, size_t n) {
   if (n >= 2 * HALF_PER_THREAD) half_split(src, dst, n, 1);
-  else run_f32_to_f16(src, dst, n);
+  else run_f32_to_f16(src, dst, n, n >= HALF_STREAM_MIN);
 }
 
 void hf_f16_to_f32_array(const uint16_t *src, float *dst, size_t n) {
   if (n >= 2 * HALF_PER_THREAD) half_split(src, dst, n, 0);
-  else run_f16_to_f32(src, dst, n);
+  else run_f16_to_f32(src, dst, n, n >= HALF_STREAM_MIN);
 }

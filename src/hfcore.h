@@ -264,6 +264,20 @@ void hf_features_check(const void *in, hf_dtype dtype, int width, int height, in
  * (uncovered); finite features outside their range are clamped into it. */
 void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int spp,
                           hf_input_report *report);
+/* A binary16 frame in ([height][width][spp*6]) widened to float32 in out
+ * (same shape) for a backend that computes in float32, with the rule
+ * applied on the way: out is hf_f16_to_f32 of what hf_features_sanitise
+ * makes of a copy of in, bit for bit, and report is what
+ * hf_features_check(in, HF_F16, ...) reports; stats, when not NULL, gets
+ * hf_input_stats_compute(in, HF_F16, ...)'s values. One pass over in
+ * instead of a check, a copy, a conversion and the statistics' pass:
+ * chunks of pixels whose halves stay in the cache from their conversion to
+ * their check, split between threads for large frames
+ * (hf_parallel_chunks). in is not written; in and out must not overlap.
+ * HF_ENOMEM (nothing written) when the statistics' counts (16 KiB per
+ * thread) cannot be allocated. */
+int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
+                      hf_input_report *report, hf_input_stats *stats);
 /* Keeps pixels outputs ([pixels][3] of dtype) in their ranges: NaN becomes
  * the channel's neutral value (color 1, highlight 0, alpha 0), anything else
  * is clamped. Returns the number of pixels changed. */
@@ -297,14 +311,25 @@ const hf_net_config *hf_model_config(const hf_model *m);
  * after hf_features_sanitise (on a copy the model keeps for reuse up to 128
  * MiB: io->in is never written) and its output goes through
  * hf_output_guard, so results are finite and inside their documented ranges
- * whatever the input; hf_model_submit/hf_model_wait do the same. The check
- * is attributed to timing->input_us, the guard to output_us. HF_ENOMEM when
- * a frame needs sanitising and there is no memory for the copy. */
+ * whatever the input; hf_model_submit/hf_model_wait do the same. A float16
+ * input for a backend that computes in float32 (the CPU backends), of a
+ * size that needs no padding and whose floats fit in those 128 MiB, is
+ * widened into that copy in the check's own pass (hf_features_widen). The
+ * check is attributed to timing->input_us, the guard to output_us.
+ * HF_ENOMEM when a frame needs sanitising or widening and there is no
+ * memory for the copy. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
 /* hf_model_run that also says what it changed: report, when not NULL, is
  * [io->batch], one hf_input_report per frame. */
 int hf_model_run_report(hf_model *m, const hf_io *io, hf_timing *timing,
                         hf_input_report *report);
+/* hf_model_run_report that also makes each frame's input statistics:
+ * stats, when not NULL, is [io->batch] and gets hf_input_stats_compute's
+ * values, made in the run's input pass (for an f16 frame on a backend that
+ * computes in float32, in the one pass that checks and widens it,
+ * hf_features_widen) and counted in timing->input_us. */
+int hf_model_run_stats(hf_model *m, const hf_io *io, hf_timing *timing, hf_input_report *report,
+                       hf_input_stats *stats);
 /* Builds whatever the backend needs to run batch frames of width x height
  * (the cudnn backend: activation buffers, tuned engines and the CUDA graph
  * of that shape; seconds), so the first request of that shape pays
@@ -328,6 +353,11 @@ int hf_model_submit(hf_model *m, const hf_io *io);
  * is [io->batch] and must stay valid until the matching hf_model_wait,
  * which fills in the output guard's counts. */
 int hf_model_submit_report(hf_model *m, const hf_io *io, hf_input_report *report);
+/* hf_model_submit_report that also makes the input statistics as
+ * hf_model_run_stats does: stats, when not NULL, is [io->batch] and is
+ * filled when this returns. */
+int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *report,
+                          hf_input_stats *stats);
 /* Waits for the oldest pending run and returns its status; timing (may be
  * NULL) gets its hf_timing. HF_EINVAL when no run is pending. */
 int hf_model_wait(hf_model *m, hf_timing *timing);
@@ -485,6 +515,23 @@ float hf_pixel_strand_alpha(const float *pixel_in, int spp);
  * computes the same values. */
 int hf_input_stats_compute(const void *in, hf_dtype dtype, int width, int height, int spp,
                            hf_input_stats *out);
+/* The counts behind hf_input_stats_compute, made part by part, for a pass
+ * that reads a frame for other reasons too and splits it between threads
+ * (hf_features_widen): init, then add pixels [p0, p1) of in (as for
+ * hf_input_stats_compute) in any order and any parts, merge the parts'
+ * accumulators, finish: the values hf_input_stats_compute gives for the
+ * whole frame, bit for bit (the counts are integers). */
+#define HF_INPUT_STATS_BINS 2050
+typedef struct hf_input_stats_acc {
+  uint64_t hair, full;
+  uint64_t hist[HF_INPUT_STATS_BINS];
+} hf_input_stats_acc;
+void hf_input_stats_acc_init(hf_input_stats_acc *a);
+void hf_input_stats_add(hf_input_stats_acc *a, const void *in, hf_dtype dtype, int spp,
+                        size_t p0, size_t p1);
+void hf_input_stats_merge(hf_input_stats_acc *a, const hf_input_stats_acc *b);
+void hf_input_stats_finish(const hf_input_stats_acc *a, int width, int height, int spp,
+                           hf_input_stats *out);
 /* Name of statistic HF_STAT_* ("strand_alpha_p50", ...; "unknown"), and
  * back (HF_ENOTFOUND). The names are the metadata's keys. */
 const char *hf_input_stat_name(int stat);
@@ -520,13 +567,18 @@ float hf_f16_to_f32(uint16_t h);
  * input, NaNs included: with the processor's F16C conversion when it has
  * one (8 values per instruction, chosen at run time), else the scalar
  * functions; from 1 M values on, split between up to one thread per online
- * CPU (16 at most). src and dst must not overlap. Never fails. */
+ * CPU (16 at most), which take chunks of 64 Ki values in turn
+ * (hf_parallel_chunks). src and dst must not overlap. Never fails. */
 void hf_f32_to_f16_array(const float *src, uint16_t *dst, size_t n);
 void hf_f16_to_f32_array(const uint16_t *src, float *dst, size_t n);
 /* As the array functions, on the calling thread alone: for code that
  * already splits a frame between its own threads. */
 void hf_f32_to_f16_serial(const float *src, uint16_t *dst, size_t n);
 void hf_f16_to_f32_serial(const uint16_t *src, float *dst, size_t n);
+/* hf_f16_to_f32_serial with non-temporal stores: for one part of a frame
+ * far larger than the caches, whose floats are not read back soon (they
+ * bypass the caches, and no line of dst is read before it is written). */
+void hf_f16_to_f32_stream(const uint16_t *src, float *dst, size_t n);
 /* The array functions' implementation: "f16c" or "scalar". */
 const char *hf_half_impl(void);
 /* on = 0 makes the array functions use the scalar code, 1 the vector code
@@ -535,6 +587,27 @@ const char *hf_half_impl(void);
  * in use before the call. Not meant to be called while another thread
  * converts. */
 int hf_half_use_simd(int on);
+
+/* ---- passes over a frame split between threads ---------------------------- */
+
+#define HF_PARALLEL_MAX 16
+/* One worker's part of a pass: items [begin, end). */
+typedef void (*hf_chunk_fn)(void *ctx, int worker, size_t begin, size_t end);
+/* Runs fn over items [0, n) in chunks of chunk items (the last one
+ * shorter; chunk 0: one chunk), taken in turn from a shared counter by up
+ * to hf_parallel_workers(n, min_per_thread) workers: the calling thread
+ * (worker 0) and a thread started for each other one. A worker's chunks
+ * come in increasing order; worker (0 .. the returned count - 1) indexes
+ * per-worker partial results, which the caller sets up for every worker
+ * before the call (a worker whose thread cannot start, or starts only
+ * after every chunk is taken, takes no chunk, and the others take its
+ * share, so the result never depends on threads). Returns when every chunk
+ * is done, with the number of workers: 0 when n is 0, 1 for a single
+ * chunk, else hf_parallel_workers(n, min_per_thread) (src/parallel.c). */
+int hf_parallel_chunks(size_t n, size_t chunk, size_t min_per_thread, hf_chunk_fn fn, void *ctx);
+/* The workers hf_parallel_chunks uses for n items: one per online CPU
+ * (HF_PARALLEL_MAX at most), no more than n / min_per_thread, at least 1. */
+int hf_parallel_workers(size_t n, size_t min_per_thread);
 
 /* ---- images ------------------------------------------------------------- */
 

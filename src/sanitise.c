@@ -16,6 +16,8 @@
  * input that only reads; the input is copied and changed only when a sample
  * needs it. */
 #include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "hfcore.h"
@@ -171,12 +173,18 @@ static size_t good_groups_f16(const uint16_t *in, size_t groups) {
 NEXT_BAD(next_bad_f32, float, ok_f32, good_groups_f32)
 NEXT_BAD(next_bad_f16, uint16_t, ok_f16, good_groups_f16)
 
-static void scan(void *in, hf_dtype dtype, int width, int height, int spp, int fix,
-                 hf_input_report *r) {
+static void report_init(hf_input_report *r) {
   memset(r, 0, sizeof *r);
   r->x = r->y = r->sample = r->feature = -1;
-  size_t n = (size_t)width * height * spp;
-  for (size_t i = 0;; i++) {
+}
+
+/* The rule over samples [i, n) of a frame of dtype, counted into r (the
+ * first bad sample located when r has none yet). fix: each bad sample is
+ * rewritten in place; wide, when not NULL, is the float32 copy of an f16
+ * in, whose bad samples get the fixed values instead. */
+static void scan_range(void *in, hf_dtype dtype, int width, int spp, size_t i, size_t n, int fix,
+                       float *wide, hf_input_report *r) {
+  for (;; i++) {
     i = dtype == HF_F32 ? next_bad_f32(in, i, n) : next_bad_f16(in, i, n);
     if (i >= n) break;
     float v[HF_FEATURES_PER_SAMPLE], before[HF_FEATURES_PER_SAMPLE];
@@ -185,9 +193,12 @@ static void scan(void *in, hf_dtype dtype, int width, int height, int spp, int f
     for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
       before[f] = v[f] = dtype == HF_F32 ? s32[f] : hf_f16_to_f32(s16[f]);
     int kind = 0, feature = 0;
-    /* Every bound is exact in binary16, so fixing through float32 is exact. */
+    /* Every bound is exact in binary16, so fixing through float32 is exact
+     * (and the fixed half widens back to the fixed float). */
     fix_f32(v, &kind, &feature);
-    if (fix)
+    if (wide)
+      memcpy(wide + i * HF_FEATURES_PER_SAMPLE, v, sizeof v);
+    else if (fix)
       for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++) {
         if (dtype == HF_F32) s32[f] = v[f];
         else s16[f] = hf_f32_to_f16(v[f]);
@@ -204,6 +215,12 @@ static void scan(void *in, hf_dtype dtype, int width, int height, int spp, int f
   }
 }
 
+static void scan(void *in, hf_dtype dtype, int width, int height, int spp, int fix,
+                 hf_input_report *r) {
+  report_init(r);
+  scan_range(in, dtype, width, spp, 0, (size_t)width * height * spp, fix, NULL, r);
+}
+
 void hf_features_check(const void *in, hf_dtype dtype, int width, int height, int spp,
                        hf_input_report *report) {
   scan((void *)in, dtype, width, height, spp, 0, report);
@@ -212,6 +229,77 @@ void hf_features_check(const void *in, hf_dtype dtype, int width, int height, in
 void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int spp,
                           hf_input_report *report) {
   scan(in, dtype, width, height, spp, 1, report);
+}
+
+/* ---- binary16 frames widened for a float32 backend ------------------------- */
+
+/* Samples per chunk of the widening pass: 2048 samples are 24 KiB of
+ * halves and 48 KiB of floats, so the halves stay in L1 from their
+ * conversion to their check and statistics. Chunks are whole pixels, a
+ * multiple of 4 of them (the check's groups of four samples stay whole). */
+#define WIDEN_CHUNK_SAMPLES 2048
+/* Samples per thread below which a thread costs more than it saves (the
+ * conversion's threshold, 2^19 values, in samples). */
+#define WIDEN_PER_THREAD (((size_t)1 << 19) / HF_FEATURES_PER_SAMPLE)
+/* From this many floats out (1 MiB) the frame does not stay in the caches:
+ * written with non-temporal stores (hf_f16_to_f32_stream). */
+#define WIDEN_STREAM_MIN ((size_t)1 << 18)
+
+typedef struct widen_run {
+  const uint16_t *in;
+  float *out;
+  int width, spp, stream;
+  hf_input_report rep[HF_PARALLEL_MAX];
+  hf_input_stats_acc *acc;       /* [workers], or NULL: no statistics */
+} widen_run;
+
+/* Pixels [b, e): widened, checked and fixed, counted. */
+static void widen_chunk(void *arg, int worker, size_t b, size_t e) {
+  widen_run *w = arg;
+  const size_t f = HF_FEATURES_PER_SAMPLE, s0 = b * w->spp, s1 = e * w->spp;
+  if (w->stream) hf_f16_to_f32_stream(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+  else hf_f16_to_f32_serial(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+  scan_range((void *)w->in, HF_F16, w->width, w->spp, s0, s1, 1, w->out, &w->rep[worker]);
+  if (w->acc) hf_input_stats_add(&w->acc[worker], w->in, HF_F16, w->spp, b, e);
+}
+
+int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
+                      hf_input_report *report, hf_input_stats *stats) {
+  size_t px = (size_t)width * height, n = px * spp;
+  size_t chunk = (WIDEN_CHUNK_SAMPLES / spp + 3) & ~(size_t)3;
+  size_t per_thread = (WIDEN_PER_THREAD + spp - 1) / spp;
+  widen_run w = {.in = in, .out = out, .width = width, .spp = spp,
+                 .stream = n * HF_FEATURES_PER_SAMPLE >= WIDEN_STREAM_MIN};
+  int nw = hf_parallel_workers(px, per_thread);
+  if (stats) {
+    /* A worker's own counts: no sharing of cache lines between threads. */
+    if (!(w.acc = malloc((size_t)nw * sizeof *w.acc))) return HF_ENOMEM;
+    for (int k = 0; k < nw; k++) hf_input_stats_acc_init(&w.acc[k]);
+  }
+  for (int k = 0; k < HF_PARALLEL_MAX; k++) report_init(&w.rep[k]);
+  nw = hf_parallel_chunks(px, chunk, per_thread, widen_chunk, &w);
+  /* Each worker's first bad sample is its lowest; the frame's is the lowest
+   * of those. */
+  report_init(report);
+  size_t first = SIZE_MAX;
+  for (int k = 0; k < nw; k++) {
+    const hf_input_report *r = &w.rep[k];
+    if (!r->samples) continue;
+    size_t i = ((size_t)r->y * width + r->x) * spp + r->sample;
+    if (i < first) {
+      uint64_t total = report->samples;
+      *report = *r;
+      report->samples = total;
+      first = i;
+    }
+    report->samples += r->samples;
+  }
+  if (stats) {
+    for (int k = 1; k < nw; k++) hf_input_stats_merge(&w.acc[0], &w.acc[k]);
+    hf_input_stats_finish(&w.acc[0], width, height, spp, stats);
+    free(w.acc);
+  }
+  return HF_OK;
 }
 
 /* ---- outputs ---------------------------------------------------------------------- */

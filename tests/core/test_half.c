@@ -4,7 +4,9 @@
  * subnormals, overflow, infinities and NaN payloads, and a stride through
  * all 2^32 float patterns; the scalar reference against the nearest half
  * computed in double; frames large enough to be split between threads;
- * both the vector and the scalar implementation. */
+ * both the vector and the scalar implementation; the chunks that threads
+ * take (hf_parallel_chunks): every item exactly once, each worker's chunks
+ * in order. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -224,11 +226,50 @@ static void test_impl_name(void **state) {
   assert_int_equal(hf_half_use_simd(-1), had);
 }
 
+typedef struct chunk_seen {
+  unsigned char *hits;          /* [n]: times each item was given */
+  size_t last_end[HF_PARALLEL_MAX];
+  int out_of_order, bad_worker;
+} chunk_seen;
+
+static void count_chunk(void *arg, int worker, size_t b, size_t e) {
+  chunk_seen *c = arg;
+  if (worker < 0 || worker >= HF_PARALLEL_MAX) {
+    c->bad_worker = 1;
+    return;
+  }
+  if (b < c->last_end[worker]) c->out_of_order = 1;
+  c->last_end[worker] = e;
+  for (size_t i = b; i < e; i++) c->hits[i]++;  /* items of one chunk: one worker */
+}
+
+static void test_parallel_chunks(void **state) {
+  static const size_t sizes[][3] = {{0, 16, 1}, {1, 16, 1}, {1000, 7, 10}, {1 << 20, 4096, 1000},
+                                    {(1 << 20) + 3, 1 << 16, 1 << 18}, {100, 0, 1}};
+  for (size_t k = 0; k < sizeof sizes / sizeof sizes[0]; k++) {
+    size_t n = sizes[k][0];
+    chunk_seen c;
+    memset(&c, 0, sizeof c);
+    c.hits = calloc(n + 1, 1);
+    assert_non_null(c.hits);
+    int nw = hf_parallel_chunks(n, sizes[k][1], sizes[k][2], count_chunk, &c);
+    /* One chunk (chunk 0 is one chunk) needs one worker. */
+    int one = sizes[k][1] == 0 || n <= sizes[k][1];
+    assert_int_equal(nw, !n ? 0 : one ? 1 : hf_parallel_workers(n, sizes[k][2]));
+    assert_true(nw <= HF_PARALLEL_MAX);
+    assert_false(c.out_of_order);
+    assert_false(c.bad_worker);
+    for (size_t i = 0; i < n; i++)
+      if (c.hits[i] != 1) fail_msg("item %zu of %zu given %d times", i, n, c.hits[i]);
+    free(c.hits);
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_every_half),      cmocka_unit_test(test_reference_values),
       cmocka_unit_test(test_f32_to_f16),      cmocka_unit_test(test_threaded_frames),
-      cmocka_unit_test(test_impl_name),
+      cmocka_unit_test(test_impl_name),       cmocka_unit_test(test_parallel_chunks),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -4,7 +4,9 @@
  * output guard; and hf_model_run on every CPU backend: a frame with a bad
  * sample gives finite results equal to those of the same frame with the
  * sample made what the rule says, the backends agree, and the caller's
- * input is never written. */
+ * input is never written; the widening of a binary16 frame for a float32
+ * backend (hf_features_widen) against the sanitised halves widened, and
+ * its input statistics against hf_input_stats_compute's. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -188,6 +190,56 @@ static void test_rule_each_position(void **state) {
         assert_true(hf_f16_to_f32(s16[(i / 6) * 6 + f]) == want);
       }
     }
+}
+
+/* hf_features_widen against its definition: the floats of the sanitised
+ * halves bit for bit, the report of hf_features_check, the input unchanged.
+ * plant: 0 for make_samples' mix (bad samples everywhere), else a clean
+ * frame with that many bad samples at random places, so that the first one
+ * may fall in any thread's chunks. */
+static void check_widen(int w, int h, int spp, int plant) {
+  size_t n = (size_t)w * h * spp;
+  float *s = make_samples(n), *got = malloc(n * 6 * sizeof(float)),
+        *want = malloc(n * 6 * sizeof(float));
+  uint16_t *h16 = malloc(n * 6 * sizeof *h16), *copy = malloc(n * 6 * sizeof *copy);
+  if (plant) {
+    for (size_t i = 0; i < n * 6; i++) s[i] = i % 6 == 4 ? -0.25f : 0.5f;
+    for (int k = 0; k < plant; k++) s[(n / 2 + next() % (n - n / 2)) * 6 + next() % 6] = 100.0f;
+  }
+  for (size_t i = 0; i < n * 6; i++) h16[i] = hf_f32_to_f16(s[i]);
+  memcpy(copy, h16, n * 6 * sizeof *copy);
+  hf_input_report c, r, sr;
+  hf_features_check(h16, HF_F16, w, h, spp, &c);
+  hf_features_sanitise(copy, HF_F16, w, h, spp, &sr);
+  for (size_t i = 0; i < n * 6; i++) want[i] = hf_f16_to_f32(copy[i]);
+  memcpy(copy, h16, n * 6 * sizeof *copy);
+  hf_input_stats st, want_st;
+  assert_int_equal(hf_input_stats_compute(h16, HF_F16, w, h, spp, &want_st), HF_OK);
+  assert_int_equal(hf_features_widen(h16, got, w, h, spp, &r, &st), HF_OK);
+  assert_memory_equal(got, want, n * 6 * sizeof(float));
+  assert_memory_equal(&st, &want_st, sizeof st);
+  memset(got, 0, n * 6 * sizeof(float));
+  assert_int_equal(hf_features_widen(h16, got, w, h, spp, &r, NULL), HF_OK);
+  assert_memory_equal(got, want, n * 6 * sizeof(float));
+  assert_memory_equal(&r, &c, sizeof r);
+  assert_int_equal(r.samples, sr.samples);
+  assert_true(!plant || (r.samples >= 1 && r.samples <= (uint64_t)plant));
+  assert_memory_equal(h16, copy, n * 6 * sizeof *copy);
+  free(s), free(got), free(want), free(h16), free(copy);
+}
+
+static void test_widen(void **state) {
+  static const int shapes[][3] = {{1, 1, 1}, {5, 3, 1}, {7, 5, 4}, {33, 9, 2}, {64, 64, 4}};
+  for (size_t i = 0; i < sizeof shapes / sizeof shapes[0]; i++) {
+    check_widen(shapes[i][0], shapes[i][1], shapes[i][2], 0);
+    check_widen(shapes[i][0], shapes[i][1], shapes[i][2], 3);
+  }
+  /* Large enough to be split between threads and written with
+   * non-temporal stores, and not a whole number of chunks. */
+  check_widen(517, 211, 4, 0);
+  check_widen(517, 211, 4, 1);
+  check_widen(517, 211, 4, 5);
+  check_widen(517, 211, 4, 1000);
 }
 
 static void test_report_kinds(void **state) {
@@ -474,7 +526,8 @@ static void test_backends(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_rule),         cmocka_unit_test(test_rule_each_position),
-    cmocka_unit_test(test_report_kinds), cmocka_unit_test(test_output_guard),
+    cmocka_unit_test(test_widen),        cmocka_unit_test(test_report_kinds),
+    cmocka_unit_test(test_output_guard),
     cmocka_unit_test(test_backends),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
