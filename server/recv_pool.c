@@ -92,10 +92,10 @@ static void prefault(uint8_t *a, size_t n) {
 
 /* A new mapping of cap bytes, faulted in when populate is set. Huge pages
  * are asked for before the first fault: pages faulted in small stay small
- * until khugepaged, scanning a few MiB every ten seconds, merges them, and
- * on a hypervisor with shadow page tables a copy into small pages ran at a
- * third of the speed (docs/PERFORMANCE.md, "Socket frames into reused
- * buffers"). */
+ * until khugepaged, scanning a few MiB every ten seconds, merges them. On
+ * the virtual machine of docs/PERFORMANCE.md ("Socket frames into reused
+ * buffers") a 1024x1024 frame in small pages took about four times as long
+ * in the input stage, which reads it, and up to twice as long to receive. */
 static hfd_rbuf *map_new(hfd_rpool *p, size_t cap, int populate) {
   hfd_rbuf *b = calloc(1, sizeof *b);
   if (!b) return NULL;
