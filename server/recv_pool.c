@@ -94,8 +94,8 @@ static void prefault(uint8_t *a, size_t n) {
  * are asked for before the first fault: pages faulted in small stay small
  * until khugepaged, scanning a few MiB every ten seconds, merges them. On
  * the virtual machine of docs/PERFORMANCE.md ("Socket frames into reused
- * buffers") a 1024x1024 frame in small pages took about four times as long
- * in the input stage, which reads it, and up to twice as long to receive. */
+ * buffers") a 1024x1024 frame took about twice as long to receive into
+ * small pages as into huge ones, frame by frame in the same minutes. */
 static hfd_rbuf *map_new(hfd_rpool *p, size_t cap, int populate) {
   hfd_rbuf *b = calloc(1, sizeof *b);
   if (!b) return NULL;
