@@ -22,11 +22,16 @@
  *               stages.
  * First the conversions alone, the features of each size both ways: the
  * scalar reference, the vector code on one thread, the array functions.
- * Then, after the daemon's rows of a size, the socket floor of the same
- * bytes: a FILTER's worth of float32 features written into one end of a
- * Unix socket pair and read by another thread into memory it has used
- * before, and the result's bytes back the same way (no protocol, no
- * daemon): what any socket transport of the frame costs on this machine.
+ * Between the Unix socket's frames, the socket floor of the same bytes: a
+ * FILTER's worth of float32 features written into one end of a Unix socket
+ * pair and read at the other into memory used before (of the kind the
+ * daemon receives into), and the result's bytes back the same way into
+ * memory used before (no protocol, no daemon): what any socket transport of
+ * the frame costs on this machine.
+ * Its far end is a thread of this process, or a process of its own (as
+ * hairfilterd is); one request and reply through each after every pair of
+ * frames, and the float32 frames' transport over each floor frame by
+ * frame.
  *
  * Medians over the ITERS frames, and their f16 / f32 ratios. Prints the
  * tables with the command, the CPU model (lscpu's "Model name", from
@@ -37,7 +42,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/socket.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -63,11 +70,22 @@ static double median(double *v, int n) {
 
 /* ---- the socket floor --------------------------------------------------- */
 
+/* A socket pair with a peer at the far end that reads a request of
+ * in_bytes into its own buffer, touched before the first, and writes
+ * out_bytes of it back: the same bytes, directions and socket buffer sizes
+ * (the kernel's defaults, which neither libhairfilter nor hairfilterd
+ * change) as a frame through the daemon, with no protocol, event loop or
+ * daemon. The peer is a thread of this process, or a process of its own:
+ * a client and hairfilterd are two processes, and a switch between two
+ * processes costs more than one between two threads of one (another
+ * address space; on this machine's hypervisor, much more). */
 typedef struct floor_run {
-  int fd;
-  uint8_t *buf;
+  int fd[2];
   size_t in_bytes, out_bytes;
-  int iters;
+  int process;
+  pthread_t th;
+  pid_t pid;
+  uint8_t *src, *back; /* this end's request and reply buffers */
 } floor_run;
 
 static int read_all(int fd, uint8_t *p, size_t n) {
@@ -88,43 +106,79 @@ static int write_all(int fd, const uint8_t *p, size_t n) {
   return 0;
 }
 
-/* The far end: reads a request into its warm buffer, writes the reply. */
-static void *floor_peer(void *arg) {
+/* The far end until the pair closes: mmap, madvise, memset, read and write
+ * only, so that it is safe in a child forked from this threaded process.
+ * Its buffer is memory of the kind hairfilterd receives into
+ * (server/recv_pool.c): 2 MiB aligned, huge pages asked for before it is
+ * touched. */
+static void floor_serve(int fd, size_t in_bytes, size_t out_bytes) {
+  const size_t step = (size_t)2 << 20;
+  size_t cap = ((in_bytes > out_bytes ? in_bytes : out_bytes) + step - 1) & ~(step - 1);
+  uint8_t *raw = mmap(NULL, cap + step, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (raw == MAP_FAILED) return;
+  uint8_t *buf = (uint8_t *)(((uintptr_t)raw + step - 1) & ~(uintptr_t)(step - 1));
+#ifdef MADV_HUGEPAGE
+  (void)madvise(buf, cap, MADV_HUGEPAGE);
+#endif
+  memset(buf, 2, cap);
+  while (!read_all(fd, buf, in_bytes) && !write_all(fd, buf, out_bytes)) {
+  }
+  munmap(raw, cap + step);
+}
+
+static void *floor_thread(void *arg) {
   floor_run *f = arg;
-  for (int i = 0; i <= f->iters; i++)
-    if (read_all(f->fd, f->buf, f->in_bytes) || write_all(f->fd, f->buf, f->out_bytes)) break;
+  floor_serve(f->fd[1], f->in_bytes, f->out_bytes);
   return NULL;
 }
 
-/* Median microseconds of in_bytes one way and out_bytes back through a
- * Unix socket pair, each read into memory already touched; -1 on error. */
-static double socket_floor(size_t in_bytes, size_t out_bytes, int iters) {
-  int sv[2];
-  if (socketpair(AF_UNIX, SOCK_STREAM, 0, sv)) return -1;
-  uint8_t *src = malloc(in_bytes), *peer = malloc(in_bytes > out_bytes ? in_bytes : out_bytes),
-          *back = malloc(out_bytes);
-  double *t = calloc((size_t)iters, sizeof *t), r = -1;
-  if (!src || !peer || !back || !t) goto out;
-  memset(src, 1, in_bytes);
-  memset(peer, 2, in_bytes > out_bytes ? in_bytes : out_bytes);
-  memset(back, 3, out_bytes);
-  floor_run f = {sv[1], peer, in_bytes, out_bytes, iters};
-  pthread_t th;
-  if (pthread_create(&th, NULL, floor_peer, &f)) goto out;
-  int ok = 1;
-  for (int i = 0; i <= iters && ok; i++) { /* the first is the warm-up */
-    double t0 = now_us();
-    ok = !write_all(sv[0], src, in_bytes) && !read_all(sv[0], back, out_bytes);
-    if (i) t[i - 1] = now_us() - t0;
+/* Starts the far end; 0, or -1 with nothing left open. */
+static int floor_open(floor_run *f, size_t in_bytes, size_t out_bytes, int process) {
+  memset(f, 0, sizeof *f);
+  f->in_bytes = in_bytes, f->out_bytes = out_bytes, f->process = process;
+  if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, f->fd)) return -1;
+  f->src = malloc(in_bytes), f->back = malloc(out_bytes);
+  if (!f->src || !f->back) goto fail;
+  memset(f->src, 1, in_bytes);
+  memset(f->back, 3, out_bytes);
+  if (process) {
+    fflush(stdout);
+    f->pid = fork();
+    if (f->pid < 0) goto fail;
+    if (f->pid == 0) {
+      close(f->fd[0]);
+      floor_serve(f->fd[1], in_bytes, out_bytes);
+      _exit(0);
+    }
+    close(f->fd[1]);
+    f->fd[1] = -1;
+  } else if (pthread_create(&f->th, NULL, floor_thread, f)) {
+    goto fail;
   }
-  shutdown(sv[0], SHUT_RDWR);
-  pthread_join(th, NULL);
-  if (ok) r = median(t, iters);
-out:
-  close(sv[0]);
-  close(sv[1]);
-  free(src), free(peer), free(back), free(t);
-  return r;
+  return 0;
+fail:
+  close(f->fd[0]), close(f->fd[1]);
+  free(f->src), free(f->back);
+  return -1;
+}
+
+/* Microseconds of one request and its reply; -1 on error. */
+static double floor_once(floor_run *f) {
+  double t0 = now_us();
+  if (write_all(f->fd[0], f->src, f->in_bytes) || read_all(f->fd[0], f->back, f->out_bytes))
+    return -1;
+  return now_us() - t0;
+}
+
+static void floor_close(floor_run *f) {
+  shutdown(f->fd[0], SHUT_RDWR);
+  if (f->process)
+    waitpid(f->pid, NULL, 0);
+  else
+    pthread_join(f->th, NULL);
+  close(f->fd[0]);
+  if (f->fd[1] >= 0) close(f->fd[1]);
+  free(f->src), free(f->back);
 }
 
 /* ---- through the daemon ------------------------------------------------- */
@@ -137,22 +191,37 @@ typedef struct result {
 enum { CALLER_F32, CALLER_F32_SENDS_F16, CALLER_F16, NCALLERS };
 static const char *const CALLER_NAME[NCALLERS] = {"f32", "f16, caller f32", "f16, caller f16"};
 
+#define NFLOORS 2 /* the socket floor with its far end a thread, a process */
+
+/* The floors measured between a path's frames, and the float32 frames'
+ * transport over each, frame by frame. */
+typedef struct floors {
+  floor_run run[NFLOORS];
+  double us[NFLOORS], ratio[NFLOORS]; /* medians */
+} floors;
+
 /* ITERS frames of w x h through c for each caller, in turn (so all meet
  * the same machine: the cores here are shared); shm: the tensors in
- * segments. res[caller]. */
+ * segments. res[caller]. fl: when not NULL, after each round of frames one
+ * request and reply through each socket floor, so that the floors meet the
+ * machine as the frames do. */
 static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h, int shm,
-                      int iters, const float *feat32, result res[NCALLERS]) {
+                      int iters, const float *feat32, result res[NCALLERS], floors *fl) {
   size_t nin = (size_t)w * h * spp * 6, nout = (size_t)w * h * 3;
   void *seg[NCALLERS] = {NULL}, *in[NCALLERS] = {NULL}, *out[NCALLERS] = {NULL};
   size_t in_b[NCALLERS], out_b[NCALLERS];
   float *res32 = malloc(nout * sizeof(float));
-  double *t[NCALLERS][7];
+  double *t[NCALLERS][7], *ft[NFLOORS], *fr[NFLOORS];
   int rc = -1;
   for (int d = 0; d < NCALLERS; d++)
     for (int k = 0; k < 7; k++) t[d][k] = calloc((size_t)iters, sizeof(double));
+  for (int k = 0; k < NFLOORS; k++)
+    ft[k] = calloc((size_t)iters, sizeof(double)), fr[k] = calloc((size_t)iters, sizeof(double));
   for (int d = 0; d < NCALLERS; d++)
     for (int k = 0; k < 7; k++)
       if (!t[d][k]) goto out;
+  for (int k = 0; k < NFLOORS; k++)
+    if (!ft[k] || !fr[k]) goto out;
   if (!res32) goto out;
   for (int d = 0; d < NCALLERS; d++) {
     size_t es = d != CALLER_F32 ? 2 : 4;
@@ -174,7 +243,7 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
    * the timing. */
   memcpy(in[CALLER_F32], feat32, in_b[CALLER_F32]);
   hf_f32_to_f16_array(feat32, in[CALLER_F16], nin);
-  for (int i = 0; i <= iters; i++) /* the first of each is the warm-up */
+  for (int i = 0; i <= iters; i++) { /* the first of each is the warm-up */
     for (int d = 0; d < NCALLERS; d++) {
       const int convert = d == CALLER_F32_SENDS_F16;
       hfc_request r;
@@ -204,6 +273,18 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
       t[d][5][i - 1] = tm.infer_us;
       t[d][6][i - 1] = tm.output_us;
     }
+    for (int k = 0; fl && k < NFLOORS; k++) {
+      double f = floor_once(&fl->run[k]);
+      if (f < 0) {
+        fprintf(stderr, "socket floor %dx%d: the pair failed\n", w, h);
+        rc = -1;
+        goto out;
+      }
+      if (!i) continue;
+      ft[k][i - 1] = f;
+      fr[k][i - 1] = t[CALLER_F32][2][i - 1] / f;
+    }
+  }
   for (int d = 0; d < NCALLERS; d++) {
     result *q = &res[d];
     q->e2e = median(t[d][0], iters), q->conv = median(t[d][1], iters);
@@ -211,6 +292,8 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
     q->input = median(t[d][4], iters), q->infer = median(t[d][5], iters);
     q->output = median(t[d][6], iters);
   }
+  for (int k = 0; fl && k < NFLOORS; k++)
+    fl->us[k] = median(ft[k], iters), fl->ratio[k] = median(fr[k], iters);
   rc = 0;
 out:
   for (int d = 0; d < NCALLERS; d++) {
@@ -218,6 +301,7 @@ out:
     else free(in[d]), free(out[d]);
     for (int k = 0; k < 7; k++) free(t[d][k]);
   }
+  for (int k = 0; k < NFLOORS; k++) free(ft[k]), free(fr[k]);
   free(res32);
   return rc;
 }
@@ -346,10 +430,17 @@ int main(int argc, char **argv) {
       feat[i] = (float)(r >> 8) / 16777216.0f; /* in [0, 1): inside every feature's range */
     }
     static const char *path[3] = {"unix", "tcp", "shm"};
+    floors fl;
+    for (int k = 0; k < NFLOORS; k++)
+      if (floor_open(&fl.run[k], nin * 4 + 64, (size_t)w * h * 3 * 4, k)) {
+        fprintf(stderr, "socket floor %dx%d: cannot start its far end\n", w, h);
+        return 1;
+      }
     for (int p = 0; p < 3; p++) {
       result res[NCALLERS];
       memset(res, 0, sizeof res);
-      if (run_frames(c[p == 1], variant, spp, w, h, p == 2, iters, feat, res)) return 1;
+      if (run_frames(c[p == 1], variant, spp, w, h, p == 2, iters, feat, res, p ? NULL : &fl))
+        return 1;
       for (int d = 0; d < NCALLERS; d++)
         printf("| %dx%d | %s | %s | %.2f | %.2f | %.2f | %.2f | %.2f / %.2f / %.2f |\n", w, h,
                path[p], CALLER_NAME[d], res[d].e2e / 1e3, res[d].conv / 1e3,
@@ -362,9 +453,14 @@ int main(int argc, char **argv) {
                res[d].input / res[0].input);
       fflush(stdout);
     }
-    double fl = socket_floor(nin * 4 + 64, (size_t)w * h * 3 * 4, iters);
-    printf("| %dx%d | socket floor (socket pair, warm buffers) | f32 | - | - | %.2f | - | - |\n", w,
-           h, fl / 1e3);
+    for (int k = 0; k < NFLOORS; k++) floor_close(&fl.run[k]);
+    static const char *far[NFLOORS] = {"a thread", "a process"};
+    for (int k = 0; k < NFLOORS; k++)
+      printf("| %dx%d | socket floor (socket pair, warm buffers, far end %s) | f32 | - | - | "
+             "%.2f | - | - |\n", w, h, far[k], fl.us[k] / 1e3);
+    for (int k = 0; k < NFLOORS; k++)
+      printf("| %dx%d | unix / socket floor (far end %s), frame by frame | f32 | | | %.2fx | | |\n",
+             w, h, far[k], fl.ratio[k]);
     free(feat);
   }
   free(sizes);

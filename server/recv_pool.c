@@ -65,19 +65,49 @@ static hfd_rbuf *lru_idle(hfd_rpool *p) {
   return v;
 }
 
-/* A new mapping of cap bytes, faulted in when populate is set. */
+/* cap bytes (a multiple of RPOOL_STEP) of address space starting on a
+ * RPOOL_STEP boundary, so that every 2 MiB of it can be one huge page; NULL
+ * when there is none. Over-mapped by a step and trimmed: mmap promises only
+ * page alignment. */
+static void *map_aligned(size_t cap) {
+  size_t len = cap + RPOOL_STEP;
+  if (len < cap) return NULL;
+  uint8_t *raw = mmap(NULL, len, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (raw == MAP_FAILED) return NULL;
+  uint8_t *a = (uint8_t *)(((uintptr_t)raw + RPOOL_STEP - 1) & ~(uintptr_t)(RPOOL_STEP - 1));
+  size_t head = (size_t)(a - raw), tail = len - head - cap;
+  if ((head && munmap(raw, head)) || (tail && munmap(a + cap, tail)))
+    hfd_err("receive pool: munmap: %s", strerror(errno));
+  return a;
+}
+
+/* Faults in every page of [a, a + n) writable now. */
+static void prefault(uint8_t *a, size_t n) {
+#ifdef MADV_POPULATE_WRITE
+  if (madvise(a, n, MADV_POPULATE_WRITE) == 0) return; /* Linux 5.14 and later */
+#endif
+  /* One store per small page (a huge page takes the first, the rest hit). */
+  for (size_t i = 0; i < n; i += 4096) ((volatile uint8_t *)a)[i] = 0;
+}
+
+/* A new mapping of cap bytes, faulted in when populate is set. Huge pages
+ * are asked for before the first fault: pages faulted in small stay small
+ * until khugepaged, scanning a few MiB every ten seconds, merges them. On
+ * the virtual machine of docs/PERFORMANCE.md ("Socket frames into reused
+ * buffers") a 1024x1024 frame took about twice as long to receive into
+ * small pages as into huge ones, frame by frame in the same minutes. */
 static hfd_rbuf *map_new(hfd_rpool *p, size_t cap, int populate) {
   hfd_rbuf *b = calloc(1, sizeof *b);
   if (!b) return NULL;
-  void *a = mmap(NULL, cap, PROT_READ | PROT_WRITE,
-                 MAP_PRIVATE | MAP_ANONYMOUS | (populate ? MAP_POPULATE : 0), -1, 0);
-  if (a == MAP_FAILED) {
+  uint8_t *a = map_aligned(cap);
+  if (!a) {
     free(b);
     return NULL;
   }
 #ifdef MADV_HUGEPAGE
   (void)madvise(a, cap, MADV_HUGEPAGE); /* a hint; without THP nothing changes */
 #endif
+  if (populate) prefault(a, cap);
   b->addr = a;
   b->cap = cap;
   b->next = p->bufs;
