@@ -297,6 +297,13 @@ class PythonClient(unittest.TestCase):
             self.assertEqual(e.exception.code, "NOPENDING")
             after = {v.name: v.requests_ok for v in hf.stats().variants}
             self.assertEqual(after["Small"] - before["Small"], 8)
+            # Every field where PROTOCOL.md puts it: each successful request
+            # is in both histograms once; the version-2 counters follow them.
+            small = {v.name: v for v in hf.stats().variants}["Small"]
+            self.assertEqual(sum(small.hist_total), small.requests_ok)
+            self.assertEqual(sum(small.hist_infer), small.requests_ok)
+            self.assertLessEqual(small.out_of_range + small.frames_sanitised, 2 * small.requests_ok)
+            self.assertIsInstance(small.cache_bytes, int)  # 0 on this server's cpu-ref backend
 
     def test_errors(self):
         f = features(8, 8, 4, 5)

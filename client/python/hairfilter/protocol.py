@@ -275,7 +275,7 @@ def decode_error(payload):
 
 VariantStats = namedtuple("VariantStats", "name requests_ok requests_failed rejected batches "
                                           "sum_queue_us sum_infer_us sum_total_us hist_total "
-                                          "hist_infer out_of_range frames_sanitised")
+                                          "hist_infer out_of_range frames_sanitised cache_bytes")
 Stats = namedtuple("Stats", "uptime_us connections_total connections_open queue_depth "
                             "queue_capacity protocol_errors variants")
 
@@ -291,7 +291,7 @@ def decode_stats(payload):
         counts = r.unpack("7Q")
         ht = r.unpack("%dQ" % nb)
         hi = r.unpack("%dQ" % nb)
-        rows.append([name, *counts, ht, hi, 0, 0])
+        rows.append([name, *counts, ht, hi, 0, 0, 0])
     # Version 2: per-variant counters after the last entry; known ones first.
     if r.left():
         (nc,) = r.unpack("H")
@@ -299,7 +299,7 @@ def decode_stats(payload):
             raise ProtocolError(E_INVALID, "%d counters" % nc)
         for row in rows:
             counters = r.unpack("%dQ" % nc)
-            row[9:11] = (list(counters) + [0, 0])[:2]
+            row[10:13] = (list(counters) + [0, 0, 0])[:3]
     r.end()
     return Stats(uptime, total, open_, depth, cap, perr, [VariantStats(*row) for row in rows])
 

@@ -353,6 +353,9 @@ typedef struct hfc_variant_stats {
   uint64_t hist_total[HFC_HIST_BUCKETS], hist_infer[HFC_HIST_BUCKETS];
   uint64_t out_of_range;     /* successful requests flagged out of range (v2) */
   uint64_t frames_sanitised; /* successful requests whose input was sanitised (v2) */
+  uint64_t cache_bytes;      /* host memory, bytes, the variant's model keeps between
+                                runs (plans, activations); a gauge that falls when the
+                                server gives memory back (v2; 0 from a version-1 server) */
 } hfc_variant_stats;
 
 typedef struct hfc_stats {
