@@ -31,7 +31,8 @@ static void usage(FILE *f) {
           "(tried in order, and failed over to). The token defaults to $HAIRFILTER_TOKEN.\n"
           "--variant defaults to the server's only variant, else to " FILTER_DEFAULT_VARIANT " (the bundled\n"
           "default) when the server has it. --f16 sends and\n"
-          "receives half floats. The PNG is composited by the server. The result keeps the\n"
+          "receives half floats (a file of HALF channels is sent as stored, FLOAT ones are\n"
+          "rounded to nearest even). The PNG is composited by the server. The result keeps the\n"
           "input's data window and display window; --part picks the part of a multi-part\n"
           "file (default: the one with S0.color).\n");
 }
