@@ -328,10 +328,15 @@ static int open_failed(const char *path, uint64_t size, exr_result_t r, const hf
               "damaged, write it again", path, exr_get_error_code_as_string(r), d);
 }
 
-int hf_exr_read_part(const char *path, const char *part, const char *channel, hf_image *img,
-                     char *err, size_t errlen) {
-  if (!path || !img) return fail(err, errlen, HF_EINVAL, "null argument");
-  memset(img, 0, sizeof *img);
+/* The channels' image (names, windows) and their values: into img->data as
+ * float32 when data is NULL, else into a buffer of dtype given back in
+ * *data, img->data staying NULL. */
+static int read_part(const char *path, const char *part, const char *channel, hf_image *img,
+                     hf_dtype dtype, void **data, char *err, size_t errlen) {
+  if (data) *data = NULL;
+  if (img) memset(img, 0, sizeof *img);
+  if (!path || !img || (data && dtype != HF_F32 && dtype != HF_F16))
+    return fail(err, errlen, HF_EINVAL, "null argument or unknown dtype");
   struct stat st;
   if (stat(path, &st) != 0) return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
   if (!S_ISREG(st.st_mode)) return fail(err, errlen, HF_EIO, "%s: not a regular file", path);
@@ -384,14 +389,39 @@ int hf_exr_read_part(const char *path, const char *part, const char *channel, hf
                 chl->entries[c].y_sampling);
       goto out;
     }
-  if ((rc = hf_image_alloc(img, (int)w, (int)h, nch)) != 0) {
-    fail(err, errlen, rc, "%s%s: %s", path, label, hf_strerror(rc));
-    goto out;
+  /* HALF channels go straight into halves when halves are asked for: the
+   * library widens them to float otherwise, and narrowing back would cost a
+   * second pass over the frame for the same bits. Any other channel type
+   * (FLOAT, UINT) is decoded as float and, for halves, converted once. */
+  int all_half = 1;
+  for (int c = 0; c < nch; c++)
+    if (chl->entries[c].pixel_type != EXR_PIXEL_HALF) all_half = 0;
+  exr_pixel_type_t type = data && dtype == HF_F16 && all_half ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT;
+  size_t nval = (size_t)(w * h) * (size_t)nch;
+  void *dst = NULL;
+  if (!data) {
+    if ((rc = hf_image_alloc(img, (int)w, (int)h, nch)) != 0) {
+      fail(err, errlen, rc, "%s%s: %s", path, label, hf_strerror(rc));
+      goto out;
+    }
+    dst = img->data;
+  } else {
+    img->names = calloc((size_t)nch, sizeof *img->names);
+    dst = malloc(nval * (type == EXR_PIXEL_HALF ? sizeof(uint16_t) : sizeof(float)));
+    if (!img->names || !dst) {
+      free(dst);
+      rc = fail(err, errlen, HF_ENOMEM, "%s%s: out of memory for %lldx%lld pixels with %d "
+                "channels", path, label, (long long)w, (long long)h, nch);
+      goto fail_img;
+    }
+    img->width = (int)w;
+    img->height = (int)h;
+    img->channels = nch;
   }
   int *slot = malloc(sizeof *slot * (size_t)nch);
   if (!slot) {
     rc = fail(err, errlen, HF_ENOMEM, "%s: out of memory", path);
-    goto fail_img;
+    goto fail_dst;
   }
   for (int c = 0; c < nch; c++) {
     snprintf(img->names[c], sizeof img->names[c], "%s", chl->entries[c].name.str);
@@ -407,15 +437,41 @@ int hf_exr_read_part(const char *path, const char *part, const char *channel, hf
     img->display_width = (int)dispw;
     img->display_height = (int)disph;
   }
-  rc = hf_exr_decode_part(ctx, pi, path, label, (uint64_t)st.st_size, slot, nch,
-                          EXR_PIXEL_FLOAT, img->data, err, errlen);
+  rc = hf_exr_decode_part(ctx, pi, path, label, (uint64_t)st.st_size, slot, nch, type, dst,
+                          err, errlen);
   free(slot);
-  if (rc == HF_OK) goto out;
+  if (rc != HF_OK) goto fail_dst;
+  if (data && dtype == HF_F16 && type == EXR_PIXEL_FLOAT) {
+    uint16_t *half = malloc(nval * sizeof *half);
+    if (!half) {
+      rc = fail(err, errlen, HF_ENOMEM, "%s%s: out of memory for %lldx%lld pixels with %d "
+                "channels", path, label, (long long)w, (long long)h, nch);
+      goto fail_dst;
+    }
+    hf_f32_to_f16_array(dst, half, nval);
+    free(dst);
+    dst = half;
+  }
+  if (data) *data = dst;
+  goto out;
+fail_dst:
+  if (data) free(dst);
 fail_img:
   hf_image_free(img);
 out:
   exr_finish(&ctx);
   return rc;
+}
+
+int hf_exr_read_part(const char *path, const char *part, const char *channel, hf_image *img,
+                     char *err, size_t errlen) {
+  return read_part(path, part, channel, img, HF_F32, NULL, err, errlen);
+}
+
+int hf_exr_read_part_as(const char *path, const char *part, const char *channel, hf_dtype dtype,
+                        hf_image *img, void **data, char *err, size_t errlen) {
+  if (!data) return fail(err, errlen, HF_EINVAL, "null argument");
+  return read_part(path, part, channel, img, dtype, data, err, errlen);
 }
 
 int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen) {

@@ -22,7 +22,14 @@ int hf_features_spp(const hf_image *img) {
 }
 
 int hf_features_from_image(const hf_image *img, int spp, float *in) {
-  if (!img || !in || spp < 1 || spp > HF_MAX_SPP) return HF_EINVAL;
+  if (!img) return HF_EINVAL;
+  return hf_features_from_data(img, img->data, HF_F32, spp, in);
+}
+
+int hf_features_from_data(const hf_image *img, const void *data, hf_dtype dtype, int spp,
+                          void *in) {
+  if (!img || !data || !in || spp < 1 || spp > HF_MAX_SPP || (dtype != HF_F32 && dtype != HF_F16))
+    return HF_EINVAL;
   int src[HF_MAX_SPP * HF_FEATURES_PER_SAMPLE];
   int cin = spp * HF_FEATURES_PER_SAMPLE;
   for (int k = 0; k < spp; k++)
@@ -32,9 +39,19 @@ int hf_features_from_image(const hf_image *img, int spp, float *in) {
       if ((src[k * HF_FEATURES_PER_SAMPLE + f] = hf_image_channel(img, name)) < 0)
         return HF_ENOTFOUND;
     }
-  size_t n = (size_t)img->width * img->height;
-  for (size_t p = 0; p < n; p++)
-    for (int c = 0; c < cin; c++) in[p * cin + c] = img->data[p * img->channels + src[c]];
+  size_t n = (size_t)img->width * img->height, nch = (size_t)img->channels;
+  /* A gather of bits: values are copied, never converted. */
+  if (dtype == HF_F16) {
+    const uint16_t *d = data;
+    uint16_t *o = in;
+    for (size_t p = 0; p < n; p++)
+      for (int c = 0; c < cin; c++) o[p * cin + c] = d[p * nch + src[c]];
+  } else {
+    const float *d = data;
+    float *o = in;
+    for (size_t p = 0; p < n; p++)
+      for (int c = 0; c < cin; c++) o[p * cin + c] = d[p * nch + src[c]];
+  }
   return spp;
 }
 

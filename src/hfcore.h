@@ -650,6 +650,20 @@ void hf_image_copy_windows(hf_image *dst, const hf_image *src);
  * HF_ENOTFOUND no such part or no part with `channel`. */
 int hf_exr_read_part(const char *path, const char *part, const char *channel, hf_image *img,
                      char *err, size_t errlen);
+/* hf_exr_read_part with the values in a buffer of their own, of dtype:
+ * *data (malloc'd, the caller frees it) gets [height][width][channels]
+ * values, float32 for HF_F32, IEEE 754 binary16 bits for HF_F16, channel c
+ * of a pixel being img->names[c]; img gets the size, the channel names and
+ * the windows, with img->data NULL. For HF_F16, a part whose channels are
+ * all HALF (the usual renderer output) is decoded straight into halves, its
+ * bits exactly as stored; any other part is decoded as float32 and
+ * converted once by hf_f32_to_f16_array (a HALF channel beside a FLOAT one
+ * keeps its value; a signalling NaN comes back quiet). For HF_F32, HALF
+ * channels are widened exactly, as by hf_exr_read_part. Errors: those of
+ * hf_exr_read_part, and HF_EINVAL for a NULL argument or another dtype;
+ * on failure img and *data are released (NULL). */
+int hf_exr_read_part_as(const char *path, const char *part, const char *channel, hf_dtype dtype,
+                        hf_image *img, void **data, char *err, size_t errlen);
 /* hf_exr_read_part(path, NULL, NULL, ...): a single-part file, any layout. */
 int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen);
 /* Size of an EXR's display window (the whole image a crop was cut from;
@@ -675,6 +689,13 @@ int hf_exr_write(const char *path, const hf_image *img, int half);
  * channel is missing. */
 int hf_features_spp(const hf_image *img);
 int hf_features_from_image(const hf_image *img, int spp, float *in);
+/* hf_features_from_image on values of dtype held apart from the image (as
+ * hf_exr_read_part_as gives them): data is [height][width][img->channels]
+ * of dtype, in gets width*height*spp*6 values of the same dtype (NHWC),
+ * copied bit for bit. Returns spp, HF_ENOTFOUND when a channel is missing,
+ * HF_EINVAL for a NULL argument, spp outside 1..HF_MAX_SPP or another dtype. */
+int hf_features_from_data(const hf_image *img, const void *data, hf_dtype dtype, int spp,
+                          void *in);
 int hf_features_to_image(const float *in, int width, int height, int spp, hf_image *img);
 /* Result channels "color", "highlight", "alpha". */
 int hf_result_to_image(const float *out, int width, int height, hf_image *img);

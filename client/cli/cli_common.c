@@ -101,10 +101,11 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
 }
 
 int cli_read_features(const char *path, const char *part, int spp, const char *variant,
-                      hf_image *img, float **in) {
+                      hf_dtype dtype, hf_image *img, void **in) {
   char err[512];
+  void *data = NULL;
   *in = NULL;
-  int rc = hf_exr_read_part(path, part, "S0.color", img, err, sizeof err);
+  int rc = hf_exr_read_part_as(path, part, "S0.color", dtype, img, &data, err, sizeof err);
   if (rc) {
     fprintf(stderr, "hairfilter: %s\n", err);
     return rc;
@@ -134,15 +135,17 @@ int cli_read_features(const char *path, const char *part, int spp, const char *v
       }
     }
   if (!(*in = malloc((size_t)img->width * img->height * spp * HF_FEATURES_PER_SAMPLE *
-                     sizeof(float)))) {
+                     (dtype == HF_F16 ? sizeof(uint16_t) : sizeof(float))))) {
     fprintf(stderr, "hairfilter: %s: out of memory for a %dx%d frame\n", path, img->width,
             img->height);
     rc = HF_ENOMEM;
     goto fail;
   }
-  hf_features_from_image(img, spp, *in);
+  hf_features_from_data(img, data, dtype, spp, *in);
+  free(data);
   return HF_OK;
 fail:
+  free(data);
   hf_image_free(img);
   return rc;
 }

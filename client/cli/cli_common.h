@@ -36,13 +36,15 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
                           const hf_input_range *r, const hf_input_stats *st, unsigned mask);
 /* Reads a feature EXR for a network of spp samples per pixel: the part
  * (NULL: the one with S0.color, else --part's N or NAME), and its first spp
- * samples as network input (*in, malloc'd, [h][w][spp*6] float32, NHWC).
+ * samples as network input (*in, malloc'd, [h][w][spp*6] of dtype, NHWC; a
+ * HALF file read as HF_F16 is never converted: hf_exr_read_part_as). img
+ * gets the size, channel names and windows, img->data stays NULL.
  * Files with more samples are read on their first spp (protocol/FEATURES.md).
  * variant names the network in messages. On failure prints one line naming
  * the file, the part or channel and what to do, and returns a negative HF_E*
  * code with img and *in released. */
 int cli_read_features(const char *path, const char *part, int spp, const char *variant,
-                      hf_image *img, float **in);
+                      hf_dtype dtype, hf_image *img, void **in);
 /* Prints one warning when hf_model_run_report sanitised a frame's input or
  * repaired its output: how many samples, and the first one by pixel (in the
  * file's coordinates: img's data window origin added), sample and channel.

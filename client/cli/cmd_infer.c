@@ -33,7 +33,10 @@ static int infer_file(const char *weights, const char *in_path, const char *part
     fprintf(stderr, "hairfilter: %s\n", err);
     return rc;
   }
-  if ((rc = cli_read_features(in_path, part, w->cfg.spp, w->cfg.name, &feat, &in)) != 0) goto out;
+  void *in_data = NULL;
+  rc = cli_read_features(in_path, part, w->cfg.spp, w->cfg.name, HF_F32, &feat, &in_data);
+  in = in_data;
+  if (rc != 0) goto out;
   if (!(out = malloc((size_t)feat.width * feat.height * 3 * sizeof(float)))) {
     rc = HF_ENOMEM;
     goto out;

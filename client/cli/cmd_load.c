@@ -693,13 +693,17 @@ static void *make_frame(opts *o, int spp, size_t *bytes) {
   float *in = NULL;
   if (o->input) {
     hf_image img;
-    if (cli_read_features(o->input, o->part, spp, o->variant, &img, &in)) return NULL;
+    void *data = NULL;
+    hf_dtype dt = o->f16 ? HF_F16 : HF_F32;
+    if (cli_read_features(o->input, o->part, spp, o->variant, dt, &img, &data)) return NULL;
     o->width = img.width;
     o->height = img.height;
     hf_image_free(&img);
+    *bytes = (size_t)o->width * o->height * (size_t)spp * 6 * (o->f16 ? 2 : 4);
+    return data;
   }
   size_t n = (size_t)o->width * o->height * (size_t)spp * 6;
-  if (!o->input) {
+  {
     in = malloc(n * sizeof *in);
     if (!in) return NULL;
     uint32_t x = 12345;

@@ -450,6 +450,85 @@ static void test_many_samples(void **state) {
 static int setup(void **state) { return test_tmp_create("hf_test_exr"); }
 static int teardown(void **state) { return test_tmp_remove(); }
 
+
+/* Read as halves, a HALF file gives its stored bits and a FLOAT file
+ * hf_f32_to_f16 of its values; read as float32, the halves widened. Every
+ * finite half pattern is stored once (65,536 less the infinities and NaNs,
+ * padded with zeros to 128 x 128 pixels of one sample's 6 features). The
+ * library sorts channels by name, so values are compared after the
+ * features are gathered back into the network's order. */
+static void test_read_as_halves(void **state) {
+  (void)state;
+  const int w = 128, h = 128, nch = HF_FEATURES_PER_SAMPLE;
+  const size_t n = (size_t)w * h * nch;
+  hf_image img;
+  assert_int_equal(hf_image_alloc(&img, w, h, nch), HF_OK);
+  for (int c = 0; c < nch; c++) snprintf(img.names[c], 32, "S0.%s", HF_FEATURE_NAMES[c]);
+  uint16_t *bits = calloc(n, sizeof *bits), *in16 = malloc(n * sizeof *in16);
+  float *in32 = malloc(n * sizeof *in32);
+  assert_true(bits && in16 && in32);
+  size_t k = 0;
+  for (uint32_t b = 0; b < 65536; b++)
+    if ((b & 0x7c00u) != 0x7c00u) bits[k++] = (uint16_t)b;
+  for (size_t i = 0; i < n; i++) img.data[i] = hf_f16_to_f32(bits[i]);
+  img.origin_x = -3;
+  img.origin_y = 5;
+  const char *path = test_tmp("halves.exr");
+  assert_int_equal(hf_exr_write(path, &img, 1), HF_OK);
+
+  char err[512];
+  hf_image got;
+  void *data = NULL;
+  assert_int_equal(hf_exr_read_part_as(path, NULL, NULL, HF_F16, &got, &data, err, sizeof err),
+                   HF_OK);
+  assert_null(got.data);
+  assert_int_equal(got.width, w);
+  assert_int_equal(got.height, h);
+  assert_int_equal(got.channels, nch);
+  assert_int_equal(got.origin_x, -3);
+  assert_int_equal(got.origin_y, 5);
+  assert_int_equal(hf_features_from_data(&got, data, HF_F16, 1, in16), 1);
+  assert_memory_equal(in16, bits, n * sizeof *bits);
+  free(data);
+  hf_image_free(&got);
+
+  assert_int_equal(hf_exr_read_part_as(path, NULL, NULL, HF_F32, &got, &data, err, sizeof err),
+                   HF_OK);
+  assert_int_equal(hf_features_from_data(&got, data, HF_F32, 1, in32), 1);
+  for (size_t i = 0; i < n; i++)
+    if (!same_bits(in32[i], hf_f16_to_f32(bits[i]))) fail_msg("value %zu: %a", i, (double)in32[i]);
+  free(data);
+  hf_image_free(&got);
+
+  /* FLOAT channels holding values between halves: one rounding, ours. */
+  for (size_t i = 0; i < n; i++) img.data[i] = value(i % 2 ? 0 : 2, i, nch);
+  assert_int_equal(hf_exr_write(path, &img, 0), HF_OK);
+  assert_int_equal(hf_exr_read_part_as(path, NULL, NULL, HF_F16, &got, &data, err, sizeof err),
+                   HF_OK);
+  assert_int_equal(hf_features_from_data(&got, data, HF_F16, 1, in16), 1);
+  for (size_t i = 0; i < n; i++)
+    if (in16[i] != hf_f32_to_f16(img.data[i]))
+      fail_msg("value %zu: 0x%04x for %a", i, in16[i], (double)img.data[i]);
+  assert_int_equal(hf_features_from_data(&got, data, HF_F16, 2, in16), HF_ENOTFOUND);
+  free(data);
+  hf_image_free(&got);
+
+  /* Errors release everything and name the file. */
+  data = (void *)1;
+  assert_int_equal(hf_exr_read_part_as(test_tmp("no-such.exr"), NULL, NULL, HF_F16, &got, &data,
+                                       err, sizeof err), HF_EIO);
+  assert_null(data);
+  assert_non_null(strstr(err, "no-such.exr"));
+  data = (void *)1;
+  assert_int_equal(hf_exr_read_part_as(path, NULL, NULL, (hf_dtype)7, &got, &data, err,
+                                       sizeof err), HF_EINVAL);
+  assert_null(data);
+  hf_image_free(&img);
+  free(bits);
+  free(in16);
+  free(in32);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_write_reads_back_exactly), cmocka_unit_test(test_result_of_tall_frame),
@@ -457,6 +536,7 @@ int main(void) {
     cmocka_unit_test(test_multipart),                cmocka_unit_test(test_truncated),
     cmocka_unit_test(test_undecodable_compression),  cmocka_unit_test(test_subsampled_refused),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
+    cmocka_unit_test(test_read_as_halves),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -227,11 +227,66 @@ static void test_cli_filter(void **state) {
   free(in);
 }
 
+/* hairfilter filter --f16 on a HALF feature file (sent as stored) and on
+ * a FLOAT file of the same values (read as float32, converted once): the
+ * same request, so the same result file, byte for byte, and the same
+ * warning for the NaN sample. */
+static int file_bytes(const char *path, char **buf, long *len) {
+  FILE *f = fopen(path, "rb");
+  if (!f) return -1;
+  fseek(f, 0, SEEK_END);
+  *len = ftell(f);
+  fseek(f, 0, SEEK_SET);
+  *buf = malloc((size_t)*len + 1);
+  int ok = *buf && fread(*buf, 1, (size_t)*len, f) == (size_t)*len;
+  fclose(f);
+  return ok ? 0 : -1;
+}
+
+static void test_cli_filter_half_file(void **state) {
+  (void)state;
+  int spp = harness_variant(&H, "Small")->cfg.spp;
+  float *in = frame(spp, 91, 2);
+  hf_image img = {0}, widened = {0};
+  assert_int_equal(hf_features_to_image(in, W, HH, spp, &img), 0);
+  char half[300], flt[300], res[2][300], outtxt[300], cmd[2000], err[256];
+  snprintf(half, sizeof half, "%s/half_features.exr", H.dir);
+  snprintf(flt, sizeof flt, "%s/float_features.exr", H.dir);
+  assert_int_equal(hf_exr_write(half, &img, 1), 0);
+  assert_int_equal(hf_exr_read(half, &widened, err, sizeof err), 0);
+  assert_int_equal(hf_exr_write(flt, &widened, 0), 0);
+  for (int k = 0; k < 2; k++) {
+    snprintf(res[k], sizeof res[k], "%s/half_result%d.exr", H.dir, k);
+    snprintf(outtxt, sizeof outtxt, "%s/half_out%d.txt", H.dir, k);
+    snprintf(cmd, sizeof cmd, "'%s' filter --server '%s' --variant Small --in '%s' --out '%s' "
+             "--f16 > '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, k ? flt : half, res[k],
+             outtxt);
+    assert_int_equal(system(cmd), 0);
+    char text[4096];
+    assert_int_equal(read_text_file(outtxt, text, sizeof text), 0);
+    if (!strstr(text, "1 sample sanitised") || !strstr(text, "read ") ||
+        !strstr(text, "into the request's f16"))
+      fail_msg("unexpected output:\n%s", text);
+  }
+  char *a = NULL, *b = NULL;
+  long na = 0, nb = 0;
+  assert_int_equal(file_bytes(res[0], &a, &na), 0);
+  assert_int_equal(file_bytes(res[1], &b, &nb), 0);
+  assert_true(na > 0);
+  assert_int_equal(na, nb);
+  assert_memory_equal(a, b, (size_t)na);
+  free(a);
+  free(b);
+  hf_image_free(&img);
+  hf_image_free(&widened);
+  free(in);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_flag_and_result), cmocka_unit_test(test_batched),
     cmocka_unit_test(test_versions),        cmocka_unit_test(test_stats),
-    cmocka_unit_test(test_cli_filter),
+    cmocka_unit_test(test_cli_filter),      cmocka_unit_test(test_cli_filter_half_file),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
