@@ -298,30 +298,24 @@ static void test_inference_memory_in_budget(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
-/* The per-variant cache_bytes of a version-2 STATS_REPLY from the daemon
- * at url, summed; -1 on any error. */
+/* The per-variant cache_bytes of the daemon at url (STATS, version 2,
+ * through hfc_get_stats), summed; -1 on any error. */
 static long long stats_cache_bytes(const char *url, int *variants) {
-  int fd = raw_connect(url);
-  if (fd < 0 || raw_hello_versions(fd, NULL, 1, 2)) return -1;
-  uint8_t b[HFP_HEADER_SIZE];
-  hfp_header st = {HFP_STATS, 0, 0, 0};
-  hfp_header_encode(&st, b);
-  hfp_header h;
-  uint8_t *p = NULL;
+  hfc_options o = test_options("limits-stats", NULL, 20000);
+  hfc_client *c = NULL;
+  if (hfc_connect(url, &o, &c)) return -1;
+  static hfc_stats st;
   long long sum = -1;
-  static hfp_stats m;
-  if (!raw_send(fd, b, sizeof b) && !raw_read(fd, &h, &p) && h.type == HFP_STATS_REPLY &&
-      !hfp_decode_stats(p, h.length, &m)) {
+  if (!hfc_get_stats(c, &st)) {
     sum = 0;
-    for (int i = 0; i < m.num_variants; i++) {
-      printf("  STATS %s: cache_bytes %.1f MiB, %llu served\n", m.variants[i].name,
-             m.variants[i].cache_bytes / 1048576.0, (unsigned long long)m.variants[i].requests_ok);
-      sum += (long long)m.variants[i].cache_bytes;
+    for (int i = 0; i < st.num_variants; i++) {
+      printf("  STATS %s: cache_bytes %.1f MiB, %llu served\n", st.variants[i].name,
+             st.variants[i].cache_bytes / 1048576.0, (unsigned long long)st.variants[i].requests_ok);
+      sum += (long long)st.variants[i].cache_bytes;
     }
-    *variants = m.num_variants;
+    *variants = st.num_variants;
   }
-  free(p);
-  close(fd);
+  hfc_close(c);
   return sum;
 }
 
