@@ -43,6 +43,7 @@ static void usage(FILE *f) {
     "         --extended (style parameters, density and distance over wide ranges)\n"
     "         --regimes (widths, density, zoom, crops, camera, light, shadows per frame and\n"
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
+    "           --width-px MIN,MAX (regimes: strand width in pixels, default 0.004,4)\n"
     "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
     "           --occluder apply to them)\n"
     "         a frame too dense for the A-buffer is left out (manifest \"skipped\") and the\n"
@@ -233,6 +234,11 @@ static int parse_args(int argc, char **argv, opts *o) {
     } else if (!strcmp(a, "--frame-sizes")) {
       if (sscanf(v, "%d,%d", &o->ds.frame_min, &o->ds.frame_max) != 2) {
         fprintf(stderr, "hairfilter render: --frame-sizes wants MIN,MAX\n");
+        return -1;
+      }
+    } else if (!strcmp(a, "--width-px")) {
+      if (sscanf(v, "%f,%f", &o->ds.width_px_min, &o->ds.width_px_max) != 2) {
+        fprintf(stderr, "hairfilter render: --width-px wants MIN,MAX (strand width in pixels)\n");
         return -1;
       }
     } else if (!strcmp(a, "--hair-files")) {

@@ -441,6 +441,11 @@ typedef struct hfr_dataset_opts {
    * curl and frizz, drawn over what engines render. */
   int regimes;
   int frame_min, frame_max;
+  /* Regimes: the strand width in pixels at the hair's centre is drawn
+   * log-uniformly from width_px_min..width_px_max (0, 0: 0.004..4, far
+   * sub-pixel to several pixels); a narrower range renders more frames of
+   * one regime (wide strands, say) without changing the others' draws. */
+  float width_px_min, width_px_max;
   /* .hair files drawn as styles (frames {basename}_{i:04d}.exr), each taken
    * as asset says; children.seed is varied per frame. */
   const char *const *hair_files;

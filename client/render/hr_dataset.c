@@ -239,6 +239,12 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     if (err) snprintf(err, errlen, "frame sizes must be MIN <= MAX <= 8192");
     return HF_EINVAL;
   }
+  if (o->regimes && (o->width_px_min || o->width_px_max) &&
+      !(o->width_px_min > 0 && o->width_px_min <= o->width_px_max && o->width_px_max <= 64)) {
+    if (err)
+      snprintf(err, errlen, "strand widths must be 0 < MIN <= MAX <= 64 pixels (--width-px)");
+    return HF_EINVAL;
+  }
   if (mkdir(o->out_dir, 0777) != 0 && errno != EEXIST) {
     if (err) snprintf(err, errlen, "%s: %s", o->out_dir, strerror(errno));
     return HF_EIO;
@@ -279,6 +285,11 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   if (o->regimes) {
     int fs[2] = {o->frame_min > 0 ? o->frame_min : 256, o->frame_max > 0 ? o->frame_max : 1024};
     cJSON_AddItemToObject(doc, "frame_sizes", int_list(fs, 2));
+    cJSON *wr = cJSON_AddArrayToObject(doc, "width_px_range");
+    cJSON_AddItemToArray(wr, cJSON_CreateNumber(o->width_px_min > 0 ? o->width_px_min
+                                                                    : HR_REGIME_WIDTH_PX_MIN));
+    cJSON_AddItemToArray(wr, cJSON_CreateNumber(o->width_px_max > 0 ? o->width_px_max
+                                                                    : HR_REGIME_WIDTH_PX_MAX));
   }
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
   cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");

@@ -5,6 +5,12 @@
 #include "hfrender.h"
 #include "hr_math.h"
 
+/* The strand widths in pixels regimes draw from unless asked otherwise:
+ * covered-sample alpha from about 0.005 (far sub-pixel) to opacity (wider
+ * than a pixel). */
+#define HR_REGIME_WIDTH_PX_MIN 0.004f
+#define HR_REGIME_WIDTH_PX_MAX 4.0f
+
 /* What a regimes frame drew beyond its style parameters and view. */
 typedef struct hr_regime {
   int frame_size;               /* the virtual square frame the output is a crop of */

@@ -96,8 +96,9 @@ void hr_regime_view(hr_rng *g, const hfr_dataset_opts *o, hfr_renderer *r, const
   v->shadow_bias = log_range(g, 0.002f, 0.05f);
   /* Strand width in pixels at the bounding sphere's centre: the model's
    * typical diameter scaled to a width drawn log-uniformly from far
-   * sub-pixel to several pixels. */
-  rg->target_width_px = log_range(g, 0.004f, 4.0f);
+   * sub-pixel to several pixels (or the range asked for). */
+  rg->target_width_px = log_range(g, o->width_px_min > 0 ? o->width_px_min : HR_REGIME_WIDTH_PX_MIN,
+                                  o->width_px_max > 0 ? o->width_px_max : HR_REGIME_WIDTH_PX_MAX);
   float centre[3], radius;
   hfr_renderer_bounds(r, centre, &radius);
   hr_camera cam;

@@ -368,6 +368,52 @@ static void test_dataset_regimes(void **state) {
   remove(hair);
 }
 
+/* --width-px narrows the regimes' strand width: every frame's drawn width
+ * lies in the range asked for, the manifest records it, and a range that
+ * is empty or not positive is refused with an error naming the option. */
+static void test_dataset_width_range(void **state) {
+  (void)state;
+  char dir[256], path[600], err[512] = "";
+  snprintf(dir, sizeof dir, "/tmp/hf_test_width_px_%d", (int)getpid());
+  hfr_dataset_opts o;
+  hfr_dataset_defaults(&o);
+  o.out_dir = dir;
+  o.styles[0] = HFR_STYLE_WAVY, o.styles[1] = HFR_STYLE_FUR;
+  o.n_styles = 2;
+  o.count = 3;
+  o.width = o.height = 16;
+  o.strands = 200;
+  o.regimes = 1, o.frame_min = 32, o.frame_max = 48;
+  o.width_px_min = 0.6f, o.width_px_max = 2.5f;
+  o.gt_supersample = 1;
+  o.progress = 0;
+  o.platform = "osmesa";
+  cJSON *doc = run_dataset(&o, R);
+  cJSON *wr = cJSON_GetObjectItem(doc, "width_px_range");
+  assert_int_equal(cJSON_GetArraySize(wr), 2);
+  assert_float_equal(cJSON_GetArrayItem(wr, 0)->valuedouble, 0.6, 1e-6);
+  assert_float_equal(cJSON_GetArrayItem(wr, 1)->valuedouble, 2.5, 1e-6);
+  cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
+  assert_int_equal(cJSON_GetArraySize(frames), 6);
+  cJSON_ArrayForEach(f, frames) {
+    double tw = cJSON_GetObjectItem(cJSON_GetObjectItem(f, "regime"), "target_width_px")->valuedouble;
+    if (!(tw >= 0.6 - 1e-6 && tw <= 2.5 + 1e-6)) fail_msg("drawn width %g px outside 0.6..2.5", tw);
+    snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
+    remove(path);
+  }
+  cJSON_Delete(doc);
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  remove(path);
+  rmdir(dir);
+  const float bad[][2] = {{2.0f, 1.0f}, {-1.0f, 1.0f}, {0.0f, 1.0f}, {1.0f, 100.0f}};
+  for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+    o.width_px_min = bad[k][0], o.width_px_max = bad[k][1];
+    err[0] = 0;
+    assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_EINVAL);
+    assert_non_null(strstr(err, "--width-px"));
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_crop_equals_window),
@@ -375,6 +421,7 @@ int main(void) {
     cmocka_unit_test(test_conventions_framing),
     cmocka_unit_test(test_frame_stats),
     cmocka_unit_test(test_dataset_regimes),
+    cmocka_unit_test(test_dataset_width_range),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
