@@ -274,6 +274,8 @@ void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int s
  * chunks of pixels whose halves stay in the cache from their conversion to
  * their check, split between threads for large frames
  * (hf_parallel_chunks). in is not written; in and out must not overlap.
+ * out may be NULL: the same pass without the floats (the report and the
+ * statistics only), for a backend that reads the halves itself.
  * HF_ENOMEM (nothing written) when the statistics' counts (16 KiB per
  * thread) cannot be allocated. */
 int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
