@@ -454,6 +454,12 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
  * frame or a negative radius. */
 int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
                              float *tmp);
+/* The second half of hf_pooled_estimate_frame, for a caller that made the
+ * per-pixel sums itself (hf_pixel_sums_rows, a row at a time): base holds
+ * them on entry ([height][width][3]) and the pooled estimate on return,
+ * the same values. */
+int hf_pooled_estimate_sums(int width, int height, int spp, int radius, float *base,
+                            float *tmp);
 /* hf_residual_base of every pixel: hf_pooled_estimate_frame with radius
  * HF_RESIDUAL_RADIUS. */
 int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float *tmp);
