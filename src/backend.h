@@ -20,10 +20,12 @@ typedef struct hf_backend_ops {
   /* Larger is preferred by "auto". */
   int priority;
   /* 1: model_run takes float16 inputs as they are (a GPU uploads the
-   * halves). 0: the backend computes from float32 in host memory, and the
-   * common code hands it an f16 input already widened to float32, made in
-   * the same pass as the out-of-contract check (hf_features_widen), where
-   * the frame's size allows (backend.c, sanitise_input). */
+   * halves; the cpu backend widens them a band at a time where its passes
+   * read the input), checked in one pass that only reads them. 0: the
+   * backend computes from float32 in host memory, and the common code
+   * hands it an f16 input already widened to float32, made in the same
+   * pass as the out-of-contract check (hf_features_widen), where the
+   * frame's size allows (backend.c, sanitise_input). */
   int reads_f16;
   /* Architectures implemented, as a mask of 1 << hf_arch; 0 means the
    * paper's U-Net only. hf_model_create refuses the others. */

@@ -314,10 +314,13 @@ const hf_net_config *hf_model_config(const hf_model *m);
  * MiB: io->in is never written) and its output goes through
  * hf_output_guard, so results are finite and inside their documented ranges
  * whatever the input; hf_model_submit/hf_model_wait do the same. A float16
- * input for a backend that computes in float32 (the CPU backends), of a
- * size that needs no padding and whose floats fit in those 128 MiB, is
- * widened into that copy in the check's own pass (hf_features_widen). The
- * check is attributed to timing->input_us, the guard to output_us.
+ * input is checked in one pass that only reads it (hf_features_widen
+ * without out), and read by the backend where it is: the cpu backend
+ * widens it a band at a time in the passes that read it. For cpu-ref,
+ * which computes from float32 frames, one of a size that needs no padding
+ * and whose floats fit in those 128 MiB is widened into that copy in the
+ * check's own pass instead. The check is attributed to timing->input_us,
+ * the guard to output_us.
  * HF_ENOMEM when a frame needs sanitising or widening and there is no
  * memory for the copy. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
@@ -327,9 +330,9 @@ int hf_model_run_report(hf_model *m, const hf_io *io, hf_timing *timing,
                         hf_input_report *report);
 /* hf_model_run_report that also makes each frame's input statistics:
  * stats, when not NULL, is [io->batch] and gets hf_input_stats_compute's
- * values, made in the run's input pass (for an f16 frame on a backend that
- * computes in float32, in the one pass that checks and widens it,
- * hf_features_widen) and counted in timing->input_us. */
+ * values, made in the run's input pass (for an f16 frame, in the one pass
+ * that checks it, and widens it for cpu-ref, hf_features_widen) and
+ * counted in timing->input_us. */
 int hf_model_run_stats(hf_model *m, const hf_io *io, hf_timing *timing, hf_input_report *report,
                        hf_input_stats *stats);
 /* Builds whatever the backend needs to run batch frames of width x height
