@@ -39,14 +39,16 @@
  *   - A U-Net's dec0 pass writes the caller's aligned float32 frames with
  *     the output transform, so the output stage has nothing to do there.
  *   - float16 frames are read where they are (reads_f16): every pass that
- *     reads the input widens it a row or a band at a time into a buffer of
- *     the thread's (od_input). enc0 runs band by band (od_enc_band): each
+ *     reads the input widens it a row or a band at a time into the
+ *     thread's part of the plan's padded-input buffer, which halves leave
+ *     unused otherwise (od_input). enc0 runs band by band (od_enc_band): each
  *     thread widens a band's input rows (2 MiB, four times HF_CPU_BAND_KB)
- *     and runs the band's convolution on them while they are in its cache, where
- *     widening the frame first wrote 100 MB of floats at 1024 x 1024 and
- *     4 spp for the convolution to read back. HF_CPU_BAND_KB=0 (and the
- *     head as two convolutions, HF_CPU_HEAD=sum, whose input part reads
- *     the whole input) widens the whole frame first, for comparison.
+ *     and runs the band's convolution on them while they are in its
+ *     cache, where widening the frame first wrote 100 MB of floats at
+ *     1024 x 1024 and 4 spp for the convolution to read back.
+ *     HF_CPU_BAND_KB=0 (and the head as two convolutions, HF_CPU_HEAD=sum,
+ *     whose input part reads the whole input) widens the whole frame
+ *     first, for comparison.
  *   - The backend's own passes (taps, output stage) run on the OpenMP
  *     threads oneDNN runs on, rows split between them (od_parallel).
  *   - Weights are reordered once, at model_create, into the format oneDNN
@@ -90,7 +92,9 @@
  * input's part with the bias, the hidden part summed onto it (OD_HEAD_IN,
  * OD_HEAD_HID); and enc0 over a band of rows (OD_ENC_BAND: the row above
  * the band is in its source, so no padding above or below). */
-typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID, OD_ENC_BAND } od_kind;
+typedef enum od_kind {
+  OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID, OD_ENC_BAND
+} od_kind;
 
 #define OD_MAX_THREADS 64
 #define OD_RANGES_PER_THREAD 8
@@ -163,8 +167,8 @@ typedef struct od_taps_pass {
   int fin;                      /* the output transform too: out is the caller's
                                  * frames (od_model_run_locked) */
   const od_input *skip_in;      /* instead of skip, the input in halves: a row
-                                 * widened into the thread's rows (below) */
-  float *rows;                  /* each thread's, rows_floats apart */
+                                 * widened into the thread's row (below) */
+  float *rows;                  /* each thread's row, rows_floats apart */
   size_t rows_floats;
 } od_taps_pass;
 
@@ -204,14 +208,16 @@ typedef struct od_band {
 /* enc0 over float16 frames, a band of bh output rows at a time
  * (od_enc_band_run): a thread widens the band's 2 bh + 1 input rows (the
  * row above included, zeros above and below the frame and beyond its
- * width) into its rows buffer and runs the band's convolution from there
- * into enc0's output. Each output pixel is the same sum of the same
+ * width) into its part of the plan's padded input buffer, which frames of
+ * halves leave unused (thread t's from row t (2 bh + 1)), and runs the
+ * band's convolution from there into enc0's output. Each output pixel is the same sum of the same
  * products as in the whole frame's convolution: the implicit padding above
  * the frame becomes a row of zeros, whose products (+0 or -0) leave the
  * sum as it is, and the left and right padding stays implicit. */
 typedef struct od_enc_band {
   int bh, nb;                   /* output rows per band; bands per frame, the
                                  * last of ph / 2 - (nb - 1) bh rows */
+  int nthreads;                 /* threads whose rows fit in the plan's in */
   dnnl_primitive_t prim[2];     /* bh rows; the last band's rows if fewer */
   dnnl_memory_t wmem[2];
   int owned[2];                 /* wmem[k] is a private copy */
@@ -240,9 +246,8 @@ typedef struct od_plan {
   dnnl_memory_t in_mem;         /* enc0's source: in, or the caller's frames */
   od_input input;               /* the run's input, as its readers see it */
   int enc0_step;                /* enc0's step: od_enc_band_run for halves */
-  od_enc_band *eband;           /* enc0 in bands, or NULL (HF_CPU_BAND_KB=0) */
-  float *rows;                  /* each thread's widened input rows: */
-  size_t rows_floats;           /* an enc0 band's, or one row */
+  int ebh;                      /* its band rows for halves, 0: none (od_layout) */
+  od_enc_band *eband;           /* made on the first frame of halves */
   float *out;                   /* raw output [batch][ph][pw][out_channels] */
   float *head_in;               /* the head's input: concat(ReLU(dec0), input) for
                                  * OD_HEAD, ReLU(dec0) alone for OD_HEAD_HID */
@@ -259,7 +264,8 @@ typedef struct od_plan {
   float *tband;                 /* each thread's two band buffers, tband_floats each */
   size_t tband_floats;
   float *part;                  /* the seams' terms, for one level at a time */
-  void *tscratch;               /* each thread's scratchpad for band primitives */
+  void *tscratch;               /* each thread's scratchpad for band primitives, */
+  size_t tscratch_each;         /* this many bytes apart */
   dnnl_memory_t tscratch_mem[OD_MAX_THREADS];
   int nthreads;                 /* threads the band memories were made for */
   int nsteps;
@@ -1168,16 +1174,42 @@ static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_
  * 2026-11-30). */
 #define OD_ENC_BAND_SCALE 4
 
-/* Output rows per band of enc0 over halves widened into a thread's buffer:
- * as many as keep the band's 2 bh + 1 input rows within OD_ENC_BAND_SCALE
- * times band_bytes, at least 1, at most ph / 2; 0 for none (band_bytes 0). */
-static int od_enc_band_rows(size_t band_bytes, int pw, int ph, int cin) {
-  if (!band_bytes) return 0;
+/* Output rows per band of enc0 over halves: as many as keep the band's
+ * 2 bh + 1 input rows within OD_ENC_BAND_SCALE times band_bytes, and every
+ * thread's band within the padded input's buffer (batch ph rows) where it
+ * fits, at least 1, at most ph / 2; 0 for none (band_bytes 0, or a buffer
+ * of fewer than the 3 rows of a band of one: the frame is widened whole). */
+static int od_enc_band_rows(size_t band_bytes, int batch, int pw, int ph, int cin, int threads) {
+  const size_t have = (size_t)batch * ph, per_thread = have / threads;
+  if (!band_bytes || have < 3) return 0;
   size_t row = (size_t)pw * cin * sizeof(float), rows = band_bytes / row * OD_ENC_BAND_SCALE;
   size_t bh = rows > 1 ? (rows - 1) / 2 : 1;
-  if (bh < 1) bh = 1;
+  if (per_thread >= 3 && bh > (per_thread - 1) / 2) bh = (per_thread - 1) / 2;
+  if (bh > (have - 1) / 2) bh = (have - 1) / 2;
   if (bh > (size_t)ph / 2) bh = (size_t)ph / 2;
-  return (int)bh;
+  return bh < 1 ? 1 : (int)bh;
+}
+
+/* Makes each thread's scratchpad for band primitives at least bytes: made
+ * anew, larger, when a primitive made later needs more. */
+static int od_tscratch_reserve(od_plan *p, od_dev *dev, size_t bytes) {
+  int rc = HF_OK;
+  if (bytes <= p->tscratch_each) return HF_OK;
+  size_t each = (bytes + 63) & ~(size_t)63;
+  void *buf;
+  dnnl_memory_desc_t md;
+  dnnl_dims_t d = {(dnnl_dim_t)each};
+  OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
+  OD_RC(od_alloc_bytes(each * p->nthreads, &buf));
+  for (int t = 0; t < p->nthreads; t++)
+    if (p->tscratch_mem[t]) dnnl_memory_destroy(p->tscratch_mem[t]), p->tscratch_mem[t] = NULL;
+  free(p->tscratch);
+  p->bytes = p->bytes - p->tscratch_each * p->nthreads + each * p->nthreads;
+  p->tscratch = buf, p->tscratch_each = each;
+  for (int t = 0; t < p->nthreads; t++)
+    OD_TRY(dnnl_memory_create(&p->tscratch_mem[t], &md, dev->eng, (char *)buf + each * t));
+fail:
+  return rc;
 }
 
 /* Builds p->eband for bands of bh output rows: the band's convolution and
@@ -1190,6 +1222,8 @@ static int od_add_enc_band(od_model *m, od_plan *p, int bh, size_t *tscratch_byt
   od_enc_band *b = p->eband = calloc(1, sizeof *b);
   if (!b) return HF_ENOMEM;
   b->bh = bh, b->nb = (oh + bh - 1) / bh;
+  b->nthreads = (int)((size_t)p->batch * p->ph / (2 * bh + 1));
+  if (b->nthreads > p->nthreads) b->nthreads = p->nthreads;
   b->src_mem = calloc((size_t)2 * p->nthreads, sizeof *b->src_mem);
   b->dst_mem = calloc((size_t)2 * p->nthreads, sizeof *b->dst_mem);
   if (!b->src_mem || !b->dst_mem) return HF_ENOMEM;
@@ -1213,9 +1247,9 @@ static int od_add_enc_band(od_model *m, od_plan *p, int bh, size_t *tscratch_byt
     }
     dnnl_primitive_desc_destroy(pd);
     if (rc) goto fail;
-    for (int t = 0; t < p->nthreads; t++) {
+    for (int t = 0; t < b->nthreads; t++) {
       OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, m->dev->eng,
-                                p->rows + (size_t)t * p->rows_floats));
+                                p->in + (size_t)t * (2 * bh + 1) * p->pw * cin));
       OD_TRY(dnnl_memory_create(&b->dst_mem[2 * t + k], &dmd, m->dev->eng, DNNL_MEMORY_NONE));
     }
   }
@@ -1234,11 +1268,10 @@ static int od_enc_band_job(const od_plan *p, const od_model *m, int t, int j) {
   const int n = j / b->nb, r0 = j % b->nb * b->bh;
   const int rows = r0 + b->bh <= oh ? b->bh : oh - r0, which = rows != b->bh;
   const size_t row = (size_t)p->pw * p->input.cin;
-  float *buf = p->rows + (size_t)t * p->rows_floats;
-  for (int i = 0; i < 2 * rows + 1; i++) {
-    const float *r = od_in_row(&p->input, n, 2 * r0 - 1 + i, buf + i * row);
-    if (r != buf + i * row) memcpy(buf + i * row, r, row * sizeof *r);
-  }
+  float *buf = p->in + (size_t)t * (2 * b->bh + 1) * row;
+  /* Halves: od_in_row widens each row into buf (float32 input never runs
+   * in bands, its frames are read whole). */
+  for (int i = 0; i < 2 * rows + 1; i++) od_in_row(&p->input, n, 2 * r0 - 1 + i, buf + i * row);
   dnnl_memory_t dst = b->dst_mem[2 * t + which];
   dnnl_status_t s =
       dnnl_memory_set_data_handle(dst, (float *)p->enc[0] + ((size_t)n * oh + r0) * ow * c0);
@@ -1255,11 +1288,26 @@ static int od_enc_band_job(const od_plan *p, const od_model *m, int t, int j) {
   return s == dnnl_success ? HF_OK : od_report(s, "dnnl_primitive_execute(enc band)", __LINE__);
 }
 
+/* Makes p->eband on the plan's first frame of halves, so that a plan that
+ * only ever sees float32 frames holds no memory for it (the primitives'
+ * code, weight copies). A failure leaves the plan to be built anew. */
+static int od_enc_band_prepare(od_model *m, od_plan *p) {
+  size_t tscratch = 0;
+  int rc = od_add_enc_band(m, p, p->ebh, &tscratch);
+  if (!rc) rc = od_tscratch_reserve(p, m->dev, tscratch);
+  if (rc) {
+    od_enc_band_free(p->eband, p->nthreads);
+    p->eband = NULL;
+    p->arena = NULL; /* od_plan_valid fails: od_plan_get builds it again */
+  }
+  return rc;
+}
+
 /* enc0 over p->input's halves: the frames' bands taken in turn by the
  * threads. */
 static int od_enc_band_run(const od_plan *p, const od_model *m, int batch) {
   const int jobs = batch * p->eband->nb;
-  int nthreads = p->nthreads < jobs ? p->nthreads : jobs, rc = HF_OK;
+  int nthreads = p->eband->nthreads < jobs ? p->eband->nthreads : jobs, rc = HF_OK;
 #pragma omp parallel for num_threads(nthreads) schedule(dynamic, 1)
   for (int j = 0; j < jobs; j++) {
     int e = od_enc_band_job(p, m, omp_get_thread_num(), j);
@@ -1294,7 +1342,7 @@ typedef struct od_kernel_out {
   int ref;                      /* the reference's rows instead (HF_CPU_KERNEL_REF) */
   const hf_io *io;
   float *rows;                  /* each thread's row of widened input, */
-  size_t rows_floats;           /* rows_floats apart */
+  size_t rows_floats;           /* rows_floats apart (in the plan's in) */
 } od_kernel_out;
 
 static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
@@ -1408,9 +1456,8 @@ static size_t od_thread_scratch(const hf_net_config *c, int pw) {
 #define OD_NONE SIZE_MAX
 
 typedef struct od_layout {
-  size_t in, out, head_in, sums, fin, kscratch, rows, taps, tband, part;
+  size_t in, out, head_in, sums, fin, kscratch, taps, tband, part;
   size_t enc[HF_MAX_LEVELS], cat[HF_MAX_LEVELS];
-  size_t rows_floats;           /* each thread's widened input rows */
   int ebh;                      /* enc0's band rows over halves, 0 when whole */
   size_t tband_floats;          /* each of a thread's two band buffers */
   int bh[HF_MAX_LEVELS];        /* each decoder's band rows, 0 when whole */
@@ -1439,8 +1486,7 @@ static size_t od_tensor_bytes(int batch, int ch, int h, int w) {
 /* The layout of a plan for batch frames of pw x ph: padded input and raw
  * output, the Kernel head's input (its larger, concatenated form when
  * head_sum is 0), the output stage's sums, result and per-thread scratch,
- * each thread's rows of input widened from halves (an enc0 band's, at
- * least one row), every encoder's output and decoder's concat input, one buffer for the
+ * every encoder's output and decoder's concat input, one buffer for the
  * whole-tensor decoders' taps (or deconvolution outputs), each thread's
  * band of taps and the seams' terms of the banded ones. HF_ERANGE when a
  * size does not fit. */
@@ -1460,11 +1506,7 @@ static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_
   size_t ks = od_thread_scratch(c, pw);
   l->kscratch = ks <= SIZE_MAX / sizeof(float) / threads ? od_take(l, ks * threads * sizeof(float))
                                                          : (l->total = SIZE_MAX, OD_NONE);
-  l->ebh = od_enc_band_rows(band_bytes, pw, ph, c->in_channels);
-  size_t rows = ((size_t)(2 * l->ebh + 1) * pw * c->in_channels + 15) & ~(size_t)15;
-  l->rows_floats = rows;
-  l->rows = rows <= SIZE_MAX / sizeof(float) / threads ? od_take(l, rows * threads * sizeof(float))
-                                                       : (l->total = SIZE_MAX, OD_NONE);
+  l->ebh = od_enc_band_rows(band_bytes, batch, pw, ph, c->in_channels, threads);
   for (int i = 0; i < L; i++) {
     const int h = ph >> (i + 1), w = pw >> (i + 1), cout = hf_dec_out(c, i);
     if (cout > l->max_cout) l->max_cout = cout;
@@ -1575,7 +1617,6 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   p->nthreads = dev->threads;
   p->in = od_at(A, lay.in), p->out = od_at(A, lay.out), p->head_in = od_at(A, lay.head_in);
   p->sums = od_at(A, lay.sums), p->fin = od_at(A, lay.fin), p->kscratch = od_at(A, lay.kscratch);
-  p->rows = od_at(A, lay.rows), p->rows_floats = lay.rows_floats;
   p->taps = od_at(A, lay.taps), p->tband = od_at(A, lay.tband), p->part = od_at(A, lay.part);
   p->tband_floats = lay.tband_floats;
   for (int i = 0; i < L; i++) p->enc[i] = od_at(A, lay.enc[i]), p->cat[i] = od_at(A, lay.cat[i]);
@@ -1609,9 +1650,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     OD_RC(od_add_layer(m, p, OD_ENC, i, src, dst, &scratch_bytes));
     src = dst;
   }
-  /* enc0 again, in bands, for frames of halves (after the whole frame's,
-   * whose weights' format the model keeps). */
-  if (lay.ebh) OD_RC(od_add_enc_band(m, p, lay.ebh, &tscratch_bytes));
+  p->ebh = lay.ebh;
   /* Decoder: dec{L-1} reads enc{L-1}'s output, the others their concat
    * buffer. Taps go to the taps buffer, and their pass writes the whole
    * next concat buffer: the decoder's half (ReLU included) and a copy of
@@ -1632,7 +1671,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
                            i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
                            i ? p->enc[i - 1] : head_cat ? p->in : NULL,
                            i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0, 0,
-                           NULL, p->rows, p->rows_floats};
+                           NULL, p->in, (size_t)pw * c->in_channels};
       if (i == 0 && !head) p->out_step = p->nsteps + (bh[i] ? 0 : 1);
       if (bh[i]) {
         if (head_cat) p->in_skip_step = p->nsteps;
@@ -1695,17 +1734,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       for (int a = 0; a < p->steps[s].nargs; a++)
         if (p->steps[s].args[a].arg == DNNL_ARG_SCRATCHPAD) p->steps[s].args[a].memory = smem;
   }
-  if (tscratch_bytes) {
-    size_t each = (tscratch_bytes + 63) & ~(size_t)63;
-    dnnl_memory_desc_t md;
-    dnnl_dims_t d = {(dnnl_dim_t)tscratch_bytes};
-    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
-    OD_RC(od_alloc_bytes(each * p->nthreads, &p->tscratch));
-    p->bytes += each * p->nthreads;
-    for (int t = 0; t < p->nthreads; t++)
-      OD_TRY(dnnl_memory_create(&p->tscratch_mem[t], &md, dev->eng,
-                                (char *)p->tscratch + each * t));
-  }
+  OD_RC(od_tscratch_reserve(p, dev, tscratch_bytes));
   /* Primitives without a scratchpad need no argument for it. */
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
@@ -1890,7 +1919,8 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
    * the head reads the whole input as one convolution, HF_CPU_HEAD=sum);
    * others are converted and padded into the plan's buffer. oneDNN never
    * writes a source. */
-  const int halves = io->in_dtype == HF_F16 && p->eband && !m->head_sum;
+  const int halves = io->in_dtype == HF_F16 && p->ebh && !m->head_sum;
+  if (halves && !p->eband) OD_RC(od_enc_band_prepare(m, p));
   const float *in = p->in;
   if (halves)
     in = NULL;
@@ -1932,7 +1962,8 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();
   od_kernel_out k = {c, &p->input, p->out, pw, ph, p->sums, p->fin, p->kscratch,
-                     od_thread_scratch(c, pw), m->kernel_ref, io, p->rows, p->rows_floats};
+                     od_thread_scratch(c, pw), m->kernel_ref, io, p->in,
+                     (size_t)pw * c->in_channels};
   if (!direct) od_output(&k, m->dev);
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
@@ -1968,9 +1999,10 @@ static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + 
  * the zeros beside the taps, the scratchpads (the primitives' shared one
  * and each thread's for the band primitives) and private weight copies (at
  * most one of every weight, two of a banded decoder's: its band's and its
- * last band's, two more of enc0's for its bands over halves). Each buffer outside the arena is rounded as od_alloc_bytes
- * rounds it, plus a page of allocator overhead. An upper bound of what a
- * run allocates whatever the arena holds already. */
+ * last band's, two more of enc0's for its bands over halves). Each buffer
+ * outside the arena is rounded as od_alloc_bytes rounds it, plus a page of
+ * allocator overhead. An upper bound of what a run allocates whatever the
+ * arena holds already. */
 static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   const size_t f = sizeof(float), page = 4096;
   int use_taps[HF_MAX_LEVELS] = {0}, threads = od_thread_count();
@@ -1991,10 +2023,10 @@ static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   if (lay.ebh) weights += 2 * ((size_t)hf_enc_out(c, 0) * hf_enc_in(c, 0) * 9 * f + 64 + page);
   size_t own = (size_t)(lay.max_cout > 16 ? lay.max_cout : 16) * f + 64 + page;
   own += od_scratch_allowance(largest) + 64 + page;
-  if (lay.tband != OD_NONE || lay.ebh) {
-    size_t band = lay.tband_floats > lay.rows_floats ? lay.tband_floats : lay.rows_floats;
-    own += threads * od_scratch_allowance(band * f) + 64 + page;
-  }
+  /* Each thread's scratchpad serves the enc0 bands too (12 KiB for them
+   * as for the decoders' bands on this project's machines). */
+  if (lay.tband != OD_NONE || lay.ebh)
+    own += threads * od_scratch_allowance(lay.tband_floats * f) + 64 + page;
   return lay.total + page + own + weights;
 }
 
