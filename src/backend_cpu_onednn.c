@@ -42,13 +42,13 @@
  *     reads the input widens it a row or a band at a time into the
  *     thread's part of the plan's padded-input buffer, which halves leave
  *     unused otherwise (od_input). enc0 runs band by band (od_enc_band): each
- *     thread widens a band's input rows (2 MiB, four times HF_CPU_BAND_KB)
- *     and runs the band's convolution on them while they are in its
+ *     thread widens a band's input rows (2 MiB, HF_CPU_ENC_BAND_KB) and
+ *     runs the band's convolution on them while they are in its
  *     cache, where widening the frame first wrote 100 MB of floats at
  *     1024 x 1024 and 4 spp for the convolution to read back.
- *     HF_CPU_BAND_KB=0 (and the head as two convolutions, HF_CPU_HEAD=sum,
- *     whose input part reads the whole input) widens the whole frame
- *     first, for comparison.
+ *     HF_CPU_ENC_BAND_KB=0 (and the head as two convolutions,
+ *     HF_CPU_HEAD=sum, whose input part reads the whole input) widens the
+ *     whole frame first, for comparison.
  *   - The backend's own passes (taps, output stage) run on the OpenMP
  *     threads oneDNN runs on, rows split between them (od_parallel).
  *   - Weights are reordered once, at model_create, into the format oneDNN
@@ -144,6 +144,7 @@ typedef struct od_dev {
   int threads;                  /* for the backend's own passes */
   int start_threads;            /* HF_CPU_PASS_THREADS=start (od_parallel) */
   size_t band_bytes;            /* HF_CPU_BAND_KB: a tap band's size, 0 for none */
+  size_t enc_band_bytes;        /* HF_CPU_ENC_BAND_KB: enc0's over halves, 0 for none */
   dnnl_stream_t tstream[OD_MAX_THREADS]; /* each thread's, for banded taps */
 } od_dev;
 
@@ -363,6 +364,20 @@ static size_t od_band_bytes(void) {
   return kb > 0 ? (size_t)kb << 10 : 0;
 }
 
+/* The bytes of the widened input rows of one of enc0's bands over halves
+ * (HF_CPU_ENC_BAND_KB, in KiB; 0 widens each frame of halves whole before
+ * enc0, for comparison). The default, four times a decoder band's (2 MiB
+ * with HF_CPU_BAND_KB's default; none when that is 0): each band's
+ * convolution costs a call of the primitive beyond its arithmetic, so
+ * fewer, larger bands than the decoders' (docs/PERFORMANCE.md, "float16
+ * read where it lies"). */
+static size_t od_enc_band_bytes(size_t band_bytes) {
+  const char *e = getenv("HF_CPU_ENC_BAND_KB");
+  if (!e || !*e) return band_bytes <= SIZE_MAX / 4 ? 4 * band_bytes : band_bytes;
+  long kb = atol(e);
+  return kb > 0 ? (size_t)kb << 10 : 0;
+}
+
 static int od_open(void **out, char *why, size_t whylen) {
   int rc;
   od_dev *d = calloc(1, sizeof *d);
@@ -379,6 +394,7 @@ static int od_open(void **out, char *why, size_t whylen) {
   const char *e = getenv("HF_CPU_PASS_THREADS");
   d->start_threads = e && !strcmp(e, "start");
   d->band_bytes = od_band_bytes();
+  d->enc_band_bytes = od_enc_band_bytes(d->band_bytes);
   *out = d;
   return HF_OK;
 fail:
@@ -1164,25 +1180,15 @@ static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_
 
 /* ---- enc0 over halves, in bands (od_enc_band) ------------------------------ */
 
-/* An enc0 band's widened input rows take up to this many times a
- * decoder band's bytes (HF_CPU_BAND_KB; 2 MiB by default). Each band's
- * convolution costs about 12 us beyond its arithmetic (a call of the
- * primitive): at 1024 x 1024, 4 spp, enc0 over halves took 16-17 ms in
- * bands of 512 KiB (two output rows), 14 ms of 1 MiB, 13 ms of 2 MiB (about
- * ten rows; the whole frame's convolution over floats 12.7 ms), no less with
- * larger bands (`hairfilter bench --io f16`, Kernel, AMD EPYC Zen 5,
- * 2026-11-30). */
-#define OD_ENC_BAND_SCALE 4
-
 /* Output rows per band of enc0 over halves: as many as keep the band's
- * 2 bh + 1 input rows within OD_ENC_BAND_SCALE times band_bytes, and every
+ * 2 bh + 1 input rows within band_bytes (od_enc_band_bytes), and every
  * thread's band within the padded input's buffer (batch ph rows) where it
  * fits, at least 1, at most ph / 2; 0 for none (band_bytes 0, or a buffer
  * of fewer than the 3 rows of a band of one: the frame is widened whole). */
 static int od_enc_band_rows(size_t band_bytes, int batch, int pw, int ph, int cin, int threads) {
   const size_t have = (size_t)batch * ph, per_thread = have / threads;
   if (!band_bytes || have < 3) return 0;
-  size_t row = (size_t)pw * cin * sizeof(float), rows = band_bytes / row * OD_ENC_BAND_SCALE;
+  size_t row = (size_t)pw * cin * sizeof(float), rows = band_bytes / row;
   size_t bh = rows > 1 ? (rows - 1) / 2 : 1;
   if (per_thread >= 3 && bh > (per_thread - 1) / 2) bh = (per_thread - 1) / 2;
   if (bh > (have - 1) / 2) bh = (have - 1) / 2;
@@ -1491,7 +1497,8 @@ static size_t od_tensor_bytes(int batch, int ch, int h, int w) {
  * band of taps and the seams' terms of the banded ones. HF_ERANGE when a
  * size does not fit. */
 static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_sum, int batch,
-                          int pw, int ph, int threads, size_t band_bytes, od_layout *l) {
+                          int pw, int ph, int threads, size_t band_bytes,
+                          size_t enc_band_bytes, od_layout *l) {
   const int L = c->num_levels, head = hf_head_in(c);
   size_t taps = 0, tband = 0, part = 0;
   memset(l, 0, sizeof *l);
@@ -1506,7 +1513,7 @@ static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_
   size_t ks = od_thread_scratch(c, pw);
   l->kscratch = ks <= SIZE_MAX / sizeof(float) / threads ? od_take(l, ks * threads * sizeof(float))
                                                          : (l->total = SIZE_MAX, OD_NONE);
-  l->ebh = od_enc_band_rows(band_bytes, batch, pw, ph, c->in_channels, threads);
+  l->ebh = od_enc_band_rows(enc_band_bytes, batch, pw, ph, c->in_channels, threads);
   for (int i = 0; i < L; i++) {
     const int h = ph >> (i + 1), w = pw >> (i + 1), cout = hf_dec_out(c, i);
     if (cout > l->max_cout) l->max_cout = cout;
@@ -1610,7 +1617,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   /* The activations, in the device's arena (grown to fit if need be). */
   od_layout lay;
   OD_RC(od_layout_make(c, m->use_taps, m->head_sum, batch, pw, ph, dev->threads, dev->band_bytes,
-                       &lay));
+                       dev->enc_band_bytes, &lay));
   OD_RC(od_arena_reserve(dev, lay.total));
   char *A = p->arena = dev->arena;
   p->need = lay.total;
@@ -2008,7 +2015,9 @@ static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   int use_taps[HF_MAX_LEVELS] = {0}, threads = od_thread_count();
   od_layout lay;
   for (int i = 0; i < c->num_levels; i++) use_taps[i] = od_use_taps(i);
-  if (od_layout_make(c, use_taps, 0, batch, pw, ph, threads, od_band_bytes(), &lay)) return 0;
+  size_t band = od_band_bytes();
+  if (od_layout_make(c, use_taps, 0, batch, pw, ph, threads, band, od_enc_band_bytes(band), &lay))
+    return 0;
   size_t largest = 0, weights = 0;
   for (int i = 0; i < c->num_levels; i++) {
     size_t e = od_tensor_bytes(batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1));
