@@ -721,33 +721,34 @@ static void od_taps_rows(const od_taps_pass *t, int thread, size_t row0, size_t 
 
 /* ---- plans ---------------------------------------------------------------- */
 
+/* What a banded step (od_band, od_enc_band) owns: its two primitives,
+ * their weights where private (owned), and nsrc and ndst memories (NULL
+ * entries, or arrays, where made only in part). */
+static void od_band_prims_free(dnnl_primitive_t *prim, dnnl_memory_t *wmem, const int *owned,
+                               dnnl_memory_t *src, int nsrc, dnnl_memory_t *dst, int ndst) {
+  for (int k = 0; k < 2; k++) {
+    if (prim[k]) dnnl_primitive_destroy(prim[k]);
+    if (owned[k]) dnnl_memory_destroy(wmem[k]);
+  }
+  for (int k = 0; src && k < nsrc; k++)
+    if (src[k]) dnnl_memory_destroy(src[k]);
+  for (int k = 0; dst && k < ndst; k++)
+    if (dst[k]) dnnl_memory_destroy(dst[k]);
+  free(src);
+  free(dst);
+}
+
 static void od_band_free(od_band *b, int nthreads) {
   if (!b) return;
-  for (int k = 0; k < 2; k++) {
-    if (b->prim[k]) dnnl_primitive_destroy(b->prim[k]);
-    if (b->owned[k]) dnnl_memory_destroy(b->wmem[k]);
-  }
-  for (int k = 0; k < 2 * nthreads; k++)
-    if (b->src_mem && b->src_mem[k]) dnnl_memory_destroy(b->src_mem[k]);
-  for (int k = 0; k < 4 * nthreads; k++)
-    if (b->dst_mem && b->dst_mem[k]) dnnl_memory_destroy(b->dst_mem[k]);
-  free(b->src_mem);
-  free(b->dst_mem);
+  od_band_prims_free(b->prim, b->wmem, b->owned, b->src_mem, 2 * nthreads, b->dst_mem,
+                     4 * nthreads);
   free(b);
 }
 
 static void od_enc_band_free(od_enc_band *b, int nthreads) {
   if (!b) return;
-  for (int k = 0; k < 2; k++) {
-    if (b->prim[k]) dnnl_primitive_destroy(b->prim[k]);
-    if (b->owned[k]) dnnl_memory_destroy(b->wmem[k]);
-  }
-  for (int k = 0; k < 2 * nthreads; k++) {
-    if (b->src_mem && b->src_mem[k]) dnnl_memory_destroy(b->src_mem[k]);
-    if (b->dst_mem && b->dst_mem[k]) dnnl_memory_destroy(b->dst_mem[k]);
-  }
-  free(b->src_mem);
-  free(b->dst_mem);
+  od_band_prims_free(b->prim, b->wmem, b->owned, b->src_mem, 2 * nthreads, b->dst_mem,
+                     2 * nthreads);
   free(b);
 }
 
@@ -1009,6 +1010,32 @@ static int od_band_chunk(int nb, int threads) {
   return (nb + chunks - 1) / chunks;
 }
 
+/* One primitive of a banded step: layer i of kind between a band's smd
+ * and dmd, into *prim, with the weights in the format it chooses (the
+ * model's, or a private copy counted in p->bytes: *owned); the size of its
+ * scratchpad raises *tscratch_bytes. */
+static int od_band_prim(od_model *m, od_plan *p, od_kind kind, int i,
+                        const dnnl_memory_desc_t *smd, const dnnl_memory_desc_t *dmd, int cin,
+                        int cout, dnnl_primitive_t *prim, dnnl_memory_t *wmem, int *owned,
+                        size_t *tscratch_bytes) {
+  dnnl_primitive_desc_t pd = NULL;
+  int rc = od_layer_pd(m->dev, kind, smd, dmd, cin, cout, &pd);
+  if (rc) return rc;
+  const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
+  const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
+  size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
+  if (sb > *tscratch_bytes) *tscratch_bytes = sb;
+  rc = wmd ? od_weights_for(m, kind, i, wmd, wmem, owned)
+           : od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
+  if (!rc && *owned) p->bytes += dnnl_memory_desc_get_size(wmd);
+  if (!rc) {
+    dnnl_status_t ds = dnnl_primitive_create(prim, pd);
+    if (ds != dnnl_success) rc = od_report(ds, "dnnl_primitive_create(band)", __LINE__);
+  }
+  dnnl_primitive_desc_destroy(pd);
+  return rc;
+}
+
 /* Adds dec{i}'s banded step: its 1x1 convolutions for a band of bh rows
  * and for the last band's rows when fewer, each thread's memories over its
  * band buffer (p->tband, allocated) and the seams' buffer (p->part). The
@@ -1034,23 +1061,10 @@ static int od_add_band(od_model *m, od_plan *p, int i, const float *src,
   const int rows[2] = {bh, h - (b->nb - 1) * bh};
   for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
     dnnl_memory_desc_t smd, dmd;
-    dnnl_primitive_desc_t pd = NULL;
     OD_RC(od_nhwc(&smd, 1, cin, rows[k], w));
     OD_RC(od_nhwc(&dmd, 1, T, rows[k], w));
-    OD_RC(od_layer_pd(dev, OD_TAPS, &smd, &dmd, cin, T, &pd));
-    const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
-    const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
-    size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
-    if (sb > *tscratch_bytes) *tscratch_bytes = sb;
-    rc = wmd ? od_weights_for(m, OD_TAPS, i, wmd, &b->wmem[k], &b->owned[k])
-             : od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
-    if (!rc && b->owned[k]) p->bytes += dnnl_memory_desc_get_size(wmd);
-    if (!rc) {
-      dnnl_status_t ds = dnnl_primitive_create(&b->prim[k], pd);
-      if (ds != dnnl_success) rc = od_report(ds, "dnnl_primitive_create(band)", __LINE__);
-    }
-    dnnl_primitive_desc_destroy(pd);
-    if (rc) goto fail;
+    OD_RC(od_band_prim(m, p, OD_TAPS, i, &smd, &dmd, cin, T, &b->prim[k], &b->wmem[k],
+                       &b->owned[k], tscratch_bytes));
     for (int t = 0; t < p->nthreads; t++) {
       OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, dev->eng, DNNL_MEMORY_NONE));
       for (int half = 0; half < 2; half++)
@@ -1236,23 +1250,10 @@ static int od_add_enc_band(od_model *m, od_plan *p, int bh, size_t *tscratch_byt
   const int rows[2] = {bh, oh - (b->nb - 1) * bh};
   for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
     dnnl_memory_desc_t smd, dmd;
-    dnnl_primitive_desc_t pd = NULL;
     OD_RC(od_nhwc(&smd, 1, cin, 2 * rows[k] + 1, p->pw));
     OD_RC(od_nhwc(&dmd, 1, c0, rows[k], ow));
-    OD_RC(od_layer_pd(m->dev, OD_ENC_BAND, &smd, &dmd, cin, c0, &pd));
-    const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
-    const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
-    size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
-    if (sb > *tscratch_bytes) *tscratch_bytes = sb;
-    rc = wmd ? od_weights_for(m, OD_ENC, 0, wmd, &b->wmem[k], &b->owned[k])
-             : od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
-    if (!rc && b->owned[k]) p->bytes += dnnl_memory_desc_get_size(wmd);
-    if (!rc) {
-      dnnl_status_t ds = dnnl_primitive_create(&b->prim[k], pd);
-      if (ds != dnnl_success) rc = od_report(ds, "dnnl_primitive_create(enc band)", __LINE__);
-    }
-    dnnl_primitive_desc_destroy(pd);
-    if (rc) goto fail;
+    OD_RC(od_band_prim(m, p, OD_ENC_BAND, 0, &smd, &dmd, cin, c0, &b->prim[k], &b->wmem[k],
+                       &b->owned[k], tscratch_bytes));
     for (int t = 0; t < b->nthreads; t++) {
       OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, m->dev->eng,
                                 p->in + (size_t)t * (2 * bh + 1) * p->pw * cin));
