@@ -194,8 +194,8 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
 
 /* Is each input inside the range the variant was trained on? The run makes
  * the inputs' statistics in its input pass (hf_model_run_stats; for an f16
- * frame on a float32 backend, in the pass that widens it), so they count as
- * input time; variants whose weights record no range skip them. */
+ * frame, in the one pass that checks it), so they count as input time;
+ * variants whose weights record no range skip them. */
 static hf_input_stats *range_stats(run *r) {
   return r->jobs[0]->model->range.present ? r->stats : NULL;
 }

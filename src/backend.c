@@ -161,11 +161,12 @@ static void *slot_buffer(hf_model *m, int slot, size_t need) {
 }
 
 /* Whether an f16 input of io is widened to float32 here, in the check's
- * pass, rather than by the backend after it: for backends that compute in
- * float32 on the host, when the frame needs no padding (the backend then
- * reads the floats where they are, as it reads an aligned float32 frame;
- * a padded frame it converts straight into its padded buffer) and its
- * floats fit in what a slot keeps between runs. */
+ * pass, rather than by the backend after it: for backends that compute
+ * from float32 frames on the host (cpu-ref; the cpu backend widens halves
+ * itself, a band at a time), when the frame needs no padding (the backend
+ * then reads the floats where they are, as it reads an aligned float32
+ * frame; a padded frame it converts straight into its padded buffer) and
+ * its floats fit in what a slot keeps between runs. */
 static int widen_here(const hf_model *m, const hf_io *io) {
   int a = hf_net_align(&m->cfg);
   size_t bytes = (size_t)io->batch * io->width * io->height * m->cfg.in_channels * sizeof(float);
@@ -174,12 +175,14 @@ static int widen_here(const hf_model *m, const hf_io *io) {
 }
 
 /* Checks every frame of io and, only when one needs it, sanitises a copy
- * in the buffer of pending slot `slot`; or, for an f16 input that
- * widen_here takes, widens it into that buffer with the rule applied on
- * the way (hf_features_widen: what the backend would have widened from a
- * sanitised copy). Makes stats ([io->batch]) when not NULL, in the same
- * pass where there is one. *run is the io the backend sees; rep, when not NULL, gets
- * [io->batch] reports. */
+ * in the buffer of pending slot `slot` (an f16 frame's copy stays f16: the
+ * fixed values are exact in binary16, so it widens to the floats of a
+ * sanitised float32 copy); or, for an f16 input that widen_here takes,
+ * widens it into that buffer with the rule applied on the way
+ * (hf_features_widen: what the backend would have widened from a sanitised
+ * copy). Makes stats ([io->batch]) when not NULL, in the same pass where
+ * there is one (every f16 frame). *run is the io the backend sees; rep,
+ * when not NULL, gets [io->batch] reports. */
 static int sanitise_input(hf_model *m, int slot, const hf_io *io, hf_io *run,
                           hf_input_report *rep, hf_input_stats *stats) {
   size_t esz = io->in_dtype == HF_F16 ? 2 : 4;
@@ -201,14 +204,26 @@ static int sanitise_input(hf_model *m, int slot, const hf_io *io, hf_io *run,
     return HF_OK;
   }
   uint64_t bad = 0;
-  for (int n = 0; stats && n < io->batch; n++)
-    hf_input_stats_compute((const uint8_t *)io->in + n * frame, io->in_dtype, io->width,
-                           io->height, m->cfg.spp, &stats[n]);
-  for (int n = 0; n < io->batch; n++) {
-    hf_input_report *r = rep ? &rep[n] : &one;
-    hf_features_check((const uint8_t *)io->in + n * frame, io->in_dtype, io->width, io->height,
-                      m->cfg.spp, r);
-    bad += r->samples;
+  if (io->in_dtype == HF_F16) {
+    /* Halves the backend reads itself: the check and the statistics in one
+     * pass that only reads them (hf_features_widen without out). */
+    for (int n = 0; n < io->batch; n++) {
+      hf_input_report *r = rep ? &rep[n] : &one;
+      int rc = hf_features_widen((const uint16_t *)io->in + n * values, NULL, io->width,
+                                 io->height, m->cfg.spp, r, stats ? &stats[n] : NULL);
+      if (rc) return rc;
+      bad += r->samples;
+    }
+  } else {
+    for (int n = 0; stats && n < io->batch; n++)
+      hf_input_stats_compute((const uint8_t *)io->in + n * frame, io->in_dtype, io->width,
+                             io->height, m->cfg.spp, &stats[n]);
+    for (int n = 0; n < io->batch; n++) {
+      hf_input_report *r = rep ? &rep[n] : &one;
+      hf_features_check((const uint8_t *)io->in + n * frame, io->in_dtype, io->width,
+                        io->height, m->cfg.spp, r);
+      bad += r->samples;
+    }
   }
   if (!bad) return HF_OK;
   size_t need = frame * (size_t)io->batch;

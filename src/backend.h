@@ -20,10 +20,12 @@ typedef struct hf_backend_ops {
   /* Larger is preferred by "auto". */
   int priority;
   /* 1: model_run takes float16 inputs as they are (a GPU uploads the
-   * halves). 0: the backend computes from float32 in host memory, and the
-   * common code hands it an f16 input already widened to float32, made in
-   * the same pass as the out-of-contract check (hf_features_widen), where
-   * the frame's size allows (backend.c, sanitise_input). */
+   * halves; the cpu backend widens them a band at a time where its passes
+   * read the input), checked in one pass that only reads them. 0: the
+   * backend computes from float32 in host memory, and the common code
+   * hands it an f16 input already widened to float32, made in the same
+   * pass as the out-of-contract check (hf_features_widen), where the
+   * frame's size allows (backend.c, sanitise_input). */
   int reads_f16;
   /* Architectures implemented, as a mask of 1 << hf_arch; 0 means the
    * paper's U-Net only. hf_model_create refuses the others. */
@@ -121,6 +123,11 @@ size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height);
  * hf_cpu_kernel_scratch(width, radius) floats. */
 size_t hf_cpu_kernel_scratch(int width, int radius);
 void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int y0, int y1, float *planes);
+/* The sums of one row of width pixels px (stride floats apart) into
+ * planes[x], planes[plane + x] and planes[2 plane + x]: hf_cpu_kernel_sums a
+ * row at a time, for a caller that has the row elsewhere. */
+void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, float *planes,
+                            size_t plane);
 void hf_cpu_kernel_rows(int width, int height, int spp, int radius, const float *planes,
                         const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
                         float *out, float *scratch);

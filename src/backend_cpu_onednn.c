@@ -38,6 +38,17 @@
  *     the whole-tensor convolution and pass, for comparison.
  *   - A U-Net's dec0 pass writes the caller's aligned float32 frames with
  *     the output transform, so the output stage has nothing to do there.
+ *   - float16 frames are read where they are (reads_f16): every pass that
+ *     reads the input widens it a row or a band at a time into the
+ *     thread's part of the plan's padded-input buffer, which halves leave
+ *     unused otherwise (od_input). enc0 runs band by band (od_enc_band): each
+ *     thread widens a band's input rows (2 MiB, HF_CPU_ENC_BAND_KB) and
+ *     runs the band's convolution on them while they are in its
+ *     cache, where widening the frame first wrote 100 MB of floats at
+ *     1024 x 1024 and 4 spp for the convolution to read back.
+ *     HF_CPU_ENC_BAND_KB=0 (and the head as two convolutions,
+ *     HF_CPU_HEAD=sum, whose input part reads the whole input) widens the
+ *     whole frame first, for comparison.
  *   - The backend's own passes (taps, output stage) run on the OpenMP
  *     threads oneDNN runs on, rows split between them (od_parallel).
  *   - Weights are reordered once, at model_create, into the format oneDNN
@@ -79,11 +90,42 @@
  * Kernel architecture's head (a 1x1 convolution): over the concatenation of
  * dec0's hidden channels and the input (OD_HEAD), or over each alone, the
  * input's part with the bias, the hidden part summed onto it (OD_HEAD_IN,
- * OD_HEAD_HID). */
-typedef enum od_kind { OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID } od_kind;
+ * OD_HEAD_HID); and enc0 over a band of rows (OD_ENC_BAND: the row above
+ * the band is in its source, so no padding above or below). */
+typedef enum od_kind {
+  OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID, OD_ENC_BAND
+} od_kind;
 
 #define OD_MAX_THREADS 64
 #define OD_RANGES_PER_THREAD 8
+
+/* The run's input as the passes that read it find it (enc0, the Kernel
+ * head's input channels, the Kernel and Residual output stages): float32
+ * frames of pw x ph pixels (f32: the plan's padded copy, or the caller's
+ * aligned frames where they are), or the caller's float16 frames of width
+ * x height (f16), widened a row at a time where a pass reads them
+ * (od_in_row), so that no float32 copy of the frame is written. */
+typedef struct od_input {
+  const float *f32;             /* [batch][ph][pw][cin], or NULL */
+  const uint16_t *f16;          /* [batch][height][width][cin], or NULL */
+  int width, height, pw, ph, cin;
+} od_input;
+
+/* Row y of frame n as pw pixels of floats: where it lies (f32), or widened
+ * into buf (pw * cin floats; hf_f16_to_f32_serial, the values of
+ * hf_f16_to_f32), zero beyond the frame's width; all zero for a row
+ * outside the frame (y < 0 or y >= height), as the padded copy has it. */
+static const float *od_in_row(const od_input *in, int n, int y, float *buf) {
+  const size_t row = (size_t)in->pw * in->cin, have = (size_t)in->width * in->cin;
+  if (y < 0 || y >= in->height) {
+    memset(buf, 0, row * sizeof *buf);
+    return buf;
+  }
+  if (in->f32) return in->f32 + ((size_t)n * in->ph + y) * row;
+  hf_f16_to_f32_serial(in->f16 + ((size_t)n * in->height + y) * have, buf, have);
+  memset(buf + have, 0, (row - have) * sizeof *buf);
+  return buf;
+}
 
 struct od_model;
 
@@ -102,6 +144,7 @@ typedef struct od_dev {
   int threads;                  /* for the backend's own passes */
   int start_threads;            /* HF_CPU_PASS_THREADS=start (od_parallel) */
   size_t band_bytes;            /* HF_CPU_BAND_KB: a tap band's size, 0 for none */
+  size_t enc_band_bytes;        /* HF_CPU_ENC_BAND_KB: enc0's over halves, 0 for none */
   dnnl_stream_t tstream[OD_MAX_THREADS]; /* each thread's, for banded taps */
 } od_dev;
 
@@ -124,6 +167,10 @@ typedef struct od_taps_pass {
   int skip_ch;
   int fin;                      /* the output transform too: out is the caller's
                                  * frames (od_model_run_locked) */
+  const od_input *skip_in;      /* instead of skip, the input in halves: a row
+                                 * widened into the thread's row (below) */
+  float *rows;                  /* each thread's row, rows_floats apart */
+  size_t rows_floats;
 } od_taps_pass;
 
 /* Copies dense [npix][ch] into [npix][stride] (a concat buffer's half). */
@@ -159,6 +206,26 @@ typedef struct od_band {
                                  * 2a, 2a - 1, 2b - 1, 2b of a chunk of rows [a, b) */
 } od_band;
 
+/* enc0 over float16 frames, a band of bh output rows at a time
+ * (od_enc_band_run): a thread widens the band's 2 bh + 1 input rows (the
+ * row above included, zeros above and below the frame and beyond its
+ * width) into its part of the plan's padded input buffer, which frames of
+ * halves leave unused (thread t's from row t (2 bh + 1)), and runs the
+ * band's convolution from there into enc0's output. Each output pixel is the same sum of the same
+ * products as in the whole frame's convolution: the implicit padding above
+ * the frame becomes a row of zeros, whose products (+0 or -0) leave the
+ * sum as it is, and the left and right padding stays implicit. */
+typedef struct od_enc_band {
+  int bh, nb;                   /* output rows per band; bands per frame, the
+                                 * last of ph / 2 - (nb - 1) bh rows */
+  int nthreads;                 /* threads whose rows fit in the plan's in */
+  dnnl_primitive_t prim[2];     /* bh rows; the last band's rows if fewer */
+  dnnl_memory_t wmem[2];
+  int owned[2];                 /* wmem[k] is a private copy */
+  dnnl_memory_t *src_mem;       /* [thread][prim], over the thread's rows */
+  dnnl_memory_t *dst_mem;       /* [thread][prim], set to the band's rows */
+} od_enc_band;
+
 typedef struct od_step {
   od_step_type type;
   dnnl_primitive_t prim;
@@ -178,6 +245,10 @@ typedef struct od_plan {
   size_t scratch_bytes;         /* of which the primitives' scratchpad */
   float *in;                    /* padded input [batch][ph][pw][cin] */
   dnnl_memory_t in_mem;         /* enc0's source: in, or the caller's frames */
+  od_input input;               /* the run's input, as its readers see it */
+  int enc0_step;                /* enc0's step: od_enc_band_run for halves */
+  int ebh;                      /* its band rows for halves, 0: none (od_layout) */
+  od_enc_band *eband;           /* made on the first frame of halves */
   float *out;                   /* raw output [batch][ph][pw][out_channels] */
   float *head_in;               /* the head's input: concat(ReLU(dec0), input) for
                                  * OD_HEAD, ReLU(dec0) alone for OD_HEAD_HID */
@@ -194,7 +265,8 @@ typedef struct od_plan {
   float *tband;                 /* each thread's two band buffers, tband_floats each */
   size_t tband_floats;
   float *part;                  /* the seams' terms, for one level at a time */
-  void *tscratch;               /* each thread's scratchpad for band primitives */
+  void *tscratch;               /* each thread's scratchpad for band primitives, */
+  size_t tscratch_each;         /* this many bytes apart */
   dnnl_memory_t tscratch_mem[OD_MAX_THREADS];
   int nthreads;                 /* threads the band memories were made for */
   int nsteps;
@@ -292,6 +364,20 @@ static size_t od_band_bytes(void) {
   return kb > 0 ? (size_t)kb << 10 : 0;
 }
 
+/* The bytes of the widened input rows of one of enc0's bands over halves
+ * (HF_CPU_ENC_BAND_KB, in KiB; 0 widens each frame of halves whole before
+ * enc0, for comparison). The default, four times a decoder band's (2 MiB
+ * with HF_CPU_BAND_KB's default; none when that is 0): each band's
+ * convolution costs a call of the primitive beyond its arithmetic, so
+ * fewer, larger bands than the decoders' (docs/PERFORMANCE.md, "float16
+ * read where it lies"). */
+static size_t od_enc_band_bytes(size_t band_bytes) {
+  const char *e = getenv("HF_CPU_ENC_BAND_KB");
+  if (!e || !*e) return band_bytes <= SIZE_MAX / 4 ? 4 * band_bytes : band_bytes;
+  long kb = atol(e);
+  return kb > 0 ? (size_t)kb << 10 : 0;
+}
+
 static int od_open(void **out, char *why, size_t whylen) {
   int rc;
   od_dev *d = calloc(1, sizeof *d);
@@ -308,6 +394,7 @@ static int od_open(void **out, char *why, size_t whylen) {
   const char *e = getenv("HF_CPU_PASS_THREADS");
   d->start_threads = e && !strcmp(e, "start");
   d->band_bytes = od_band_bytes();
+  d->enc_band_bytes = od_enc_band_bytes(d->band_bytes);
   *out = d;
   return HF_OK;
 fail:
@@ -350,7 +437,8 @@ fail:
 
 /* Creates the primitive descriptor of one layer between src and dst, with
  * weights and scratchpad formats left to oneDNN: OD_ENC a 3x3 stride-2
- * pad-1 convolution with fused ReLU; OD_DEC a 4x4 stride-2 pad-1
+ * pad-1 convolution with fused ReLU (OD_ENC_BAND the same, padded left and
+ * right only); OD_DEC a 4x4 stride-2 pad-1
  * deconvolution (its ReLU is a separate primitive); OD_TAPS a 1x1
  * convolution without bias or ReLU (the tap pass adds them); OD_HEAD and
  * OD_HEAD_IN 1x1 convolutions with bias, OD_HEAD_HID one without, adding
@@ -358,11 +446,13 @@ fail:
 static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
                        const dnnl_memory_desc_t *dst, int cin, int cout,
                        dnnl_primitive_desc_t *pd) {
-  int rc = HF_OK, k = kind == OD_DEC ? 4 : kind == OD_ENC ? 3 : 1;
+  const int enc = kind == OD_ENC || kind == OD_ENC_BAND;
+  int rc = HF_OK, k = kind == OD_DEC ? 4 : enc ? 3 : 1;
   int deconv = kind == OD_DEC;
   dnnl_memory_desc_t wmd, bmd;
   dnnl_dims_t wd = {cout, cin, k, k}, bd = {cout};
   dnnl_dims_t strides = {2, 2}, pad = {1, 1}, one = {1, 1}, zero = {0, 0};
+  dnnl_dims_t enc_pad = {kind == OD_ENC_BAND ? 0 : 1, 1};
   dnnl_primitive_attr_t attr = NULL;
   dnnl_post_ops_t po = NULL;
   *pd = NULL;
@@ -376,7 +466,7 @@ static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
                                                 dnnl_deconvolution_direct, src, &wmd, &bmd,
                                                 dst, strides, pad, pad));
     OD_TRY(dnnl_primitive_desc_create(pd, &dd, attr, dev->eng, NULL));
-  } else if (kind != OD_ENC) {
+  } else if (!enc) {
     /* Taps: no bias, it is added once per output pixel, not per tap. */
     dnnl_convolution_desc_t cd;
     int bias = kind == OD_HEAD || kind == OD_HEAD_IN;
@@ -396,7 +486,7 @@ static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
     OD_TRY(dnnl_primitive_attr_set_post_ops(attr, po));
     OD_TRY(dnnl_convolution_forward_desc_init(&cd, dnnl_forward_inference,
                                               dnnl_convolution_direct, src, &wmd, &bmd, dst,
-                                              strides, pad, pad));
+                                              strides, enc_pad, enc_pad));
     OD_TRY(dnnl_primitive_desc_create(pd, &cd, attr, dev->eng, NULL));
   }
 fail:
@@ -433,7 +523,8 @@ fail:
 /* Input and output channels of layer i of a kind (the head's: i is 0). */
 static void od_layer_dims(const hf_net_config *c, od_kind kind, int i, int *cin, int *cout) {
   switch (kind) {
-  case OD_ENC: *cin = hf_enc_in(c, i), *cout = hf_enc_out(c, i); break;
+  case OD_ENC:
+  case OD_ENC_BAND: *cin = hf_enc_in(c, i), *cout = hf_enc_out(c, i); break;
   case OD_DEC: *cin = hf_dec_in(c, i), *cout = hf_dec_out(c, i); break;
   case OD_TAPS: *cin = hf_dec_in(c, i), *cout = 16 * hf_dec_out(c, i); break;
   case OD_HEAD: *cin = hf_head_in(c), *cout = c->out_channels; break;
@@ -447,6 +538,7 @@ static void od_layer_dims(const hf_net_config *c, od_kind kind, int i, int *cin,
  * memory the caller owns (*owned = 1). */
 static int od_weights_for(od_model *m, od_kind kind, int i, const dnnl_memory_desc_t *md,
                           dnnl_memory_t *out, int *owned) {
+  if (kind == OD_ENC_BAND) kind = OD_ENC; /* the same weights */
   int rc = HF_OK, deconv = kind == OD_DEC, head = kind >= OD_HEAD;
   const hf_net_config *c = &m->w->cfg;
   dnnl_memory_t *slot = head ? &m->head_w[kind - OD_HEAD]
@@ -601,7 +693,10 @@ static float *od_taps_out_row(const od_taps_pass *t, int n, int Y) {
   return t->out + ((size_t)n * 2 * t->h + Y) * 2 * t->w * t->stride;
 }
 
-static const float *od_taps_skip_row(const od_taps_pass *t, int n, int Y) {
+/* The skip channels of output row Y of frame n on thread `thread`, whose
+ * rows buffer holds them when they are widened from halves. */
+static const float *od_taps_skip_row(const od_taps_pass *t, int n, int Y, int thread) {
+  if (t->skip_in) return od_in_row(t->skip_in, n, Y, t->rows + (size_t)thread * t->rows_floats);
   return t->skip ? t->skip + ((size_t)n * 2 * t->h + Y) * 2 * t->w * t->skip_ch : NULL;
 }
 
@@ -609,40 +704,57 @@ static const float *od_taps_skip_row(const od_taps_pass *t, int n, int Y) {
  * ReLU if asked, and copies the skip channels beside them. Output row
  * Y = 2m takes taps ky = 1 of input row m and ky = 3 of row m - 1; Y = 2m + 1
  * takes ky = 2 of row m and ky = 0 of row m + 1. */
-static void od_taps_row(const od_taps_pass *t, int n, int Y) {
+static void od_taps_row(const od_taps_pass *t, int n, int Y, int thread) {
   const int T = 16 * t->cout, h = t->h, w = t->w;
   const int m = Y >> 1, py = Y & 1;
   const int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
   const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
   const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
   od_taps_line(t, r0, ky0, r1, ky1, od_taps_out_row(t, n, Y), t->stride, t->bias, t->relu,
-               t->fin, od_taps_skip_row(t, n, Y));
+               t->fin, od_taps_skip_row(t, n, Y, thread));
 }
 
-static void od_taps_rows(const od_taps_pass *t, size_t row0, size_t row1) {
+static void od_taps_rows(const od_taps_pass *t, int thread, size_t row0, size_t row1) {
   for (size_t row = row0; row < row1; row++)
-    od_taps_row(t, (int)(row / (2 * t->h)), (int)(row % (2 * t->h)));
+    od_taps_row(t, (int)(row / (2 * t->h)), (int)(row % (2 * t->h)), thread);
 }
 
 /* ---- plans ---------------------------------------------------------------- */
 
+/* What a banded step (od_band, od_enc_band) owns: its two primitives,
+ * their weights where private (owned), and nsrc and ndst memories (NULL
+ * entries, or arrays, where made only in part). */
+static void od_band_prims_free(dnnl_primitive_t *prim, dnnl_memory_t *wmem, const int *owned,
+                               dnnl_memory_t *src, int nsrc, dnnl_memory_t *dst, int ndst) {
+  for (int k = 0; k < 2; k++) {
+    if (prim[k]) dnnl_primitive_destroy(prim[k]);
+    if (owned[k]) dnnl_memory_destroy(wmem[k]);
+  }
+  for (int k = 0; src && k < nsrc; k++)
+    if (src[k]) dnnl_memory_destroy(src[k]);
+  for (int k = 0; dst && k < ndst; k++)
+    if (dst[k]) dnnl_memory_destroy(dst[k]);
+  free(src);
+  free(dst);
+}
+
 static void od_band_free(od_band *b, int nthreads) {
   if (!b) return;
-  for (int k = 0; k < 2; k++) {
-    if (b->prim[k]) dnnl_primitive_destroy(b->prim[k]);
-    if (b->owned[k]) dnnl_memory_destroy(b->wmem[k]);
-  }
-  for (int k = 0; k < 2 * nthreads; k++)
-    if (b->src_mem && b->src_mem[k]) dnnl_memory_destroy(b->src_mem[k]);
-  for (int k = 0; k < 4 * nthreads; k++)
-    if (b->dst_mem && b->dst_mem[k]) dnnl_memory_destroy(b->dst_mem[k]);
-  free(b->src_mem);
-  free(b->dst_mem);
+  od_band_prims_free(b->prim, b->wmem, b->owned, b->src_mem, 2 * nthreads, b->dst_mem,
+                     4 * nthreads);
+  free(b);
+}
+
+static void od_enc_band_free(od_enc_band *b, int nthreads) {
+  if (!b) return;
+  od_band_prims_free(b->prim, b->wmem, b->owned, b->src_mem, 2 * nthreads, b->dst_mem,
+                     2 * nthreads);
   free(b);
 }
 
 static void od_plan_free(od_plan *p) {
   if (!p) return;
+  od_enc_band_free(p->eband, p->nthreads);
   for (int s = 0; s < p->nsteps; s++) {
     if (p->steps[s].type == OD_STEP_PRIM) dnnl_primitive_destroy(p->steps[s].prim);
     if (p->steps[s].type == OD_STEP_BAND) od_band_free(p->steps[s].band, p->nthreads);
@@ -867,7 +979,7 @@ static void od_parallel(od_range_fn fn, const void *ctx, size_t total, size_t pe
 static void od_step_range(const void *ctx, int job, size_t begin, size_t end) {
   const od_step *st = ctx;
   if (st->type == OD_STEP_TAPS)
-    od_taps_rows(&st->taps, begin, end);
+    od_taps_rows(&st->taps, job, begin, end);
   else
     od_copy_pixels(&st->copy, begin, end);
 }
@@ -898,6 +1010,32 @@ static int od_band_chunk(int nb, int threads) {
   return (nb + chunks - 1) / chunks;
 }
 
+/* One primitive of a banded step: layer i of kind between a band's smd
+ * and dmd, into *prim, with the weights in the format it chooses (the
+ * model's, or a private copy counted in p->bytes: *owned); the size of its
+ * scratchpad raises *tscratch_bytes. */
+static int od_band_prim(od_model *m, od_plan *p, od_kind kind, int i,
+                        const dnnl_memory_desc_t *smd, const dnnl_memory_desc_t *dmd, int cin,
+                        int cout, dnnl_primitive_t *prim, dnnl_memory_t *wmem, int *owned,
+                        size_t *tscratch_bytes) {
+  dnnl_primitive_desc_t pd = NULL;
+  int rc = od_layer_pd(m->dev, kind, smd, dmd, cin, cout, &pd);
+  if (rc) return rc;
+  const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
+  const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
+  size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
+  if (sb > *tscratch_bytes) *tscratch_bytes = sb;
+  rc = wmd ? od_weights_for(m, kind, i, wmd, wmem, owned)
+           : od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
+  if (!rc && *owned) p->bytes += dnnl_memory_desc_get_size(wmd);
+  if (!rc) {
+    dnnl_status_t ds = dnnl_primitive_create(prim, pd);
+    if (ds != dnnl_success) rc = od_report(ds, "dnnl_primitive_create(band)", __LINE__);
+  }
+  dnnl_primitive_desc_destroy(pd);
+  return rc;
+}
+
 /* Adds dec{i}'s banded step: its 1x1 convolutions for a band of bh rows
  * and for the last band's rows when fewer, each thread's memories over its
  * band buffer (p->tband, allocated) and the seams' buffer (p->part). The
@@ -923,23 +1061,10 @@ static int od_add_band(od_model *m, od_plan *p, int i, const float *src,
   const int rows[2] = {bh, h - (b->nb - 1) * bh};
   for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
     dnnl_memory_desc_t smd, dmd;
-    dnnl_primitive_desc_t pd = NULL;
     OD_RC(od_nhwc(&smd, 1, cin, rows[k], w));
     OD_RC(od_nhwc(&dmd, 1, T, rows[k], w));
-    OD_RC(od_layer_pd(dev, OD_TAPS, &smd, &dmd, cin, T, &pd));
-    const dnnl_memory_desc_t *wmd = dnnl_primitive_desc_query_md(pd, dnnl_query_weights_md, 0);
-    const dnnl_memory_desc_t *scr = dnnl_primitive_desc_query_md(pd, dnnl_query_scratchpad_md, 0);
-    size_t sb = scr ? dnnl_memory_desc_get_size(scr) : 0;
-    if (sb > *tscratch_bytes) *tscratch_bytes = sb;
-    rc = wmd ? od_weights_for(m, OD_TAPS, i, wmd, &b->wmem[k], &b->owned[k])
-             : od_report(dnnl_runtime_error, "dnnl_primitive_desc_query_md(weights)", __LINE__);
-    if (!rc && b->owned[k]) p->bytes += dnnl_memory_desc_get_size(wmd);
-    if (!rc) {
-      dnnl_status_t ds = dnnl_primitive_create(&b->prim[k], pd);
-      if (ds != dnnl_success) rc = od_report(ds, "dnnl_primitive_create(band)", __LINE__);
-    }
-    dnnl_primitive_desc_destroy(pd);
-    if (rc) goto fail;
+    OD_RC(od_band_prim(m, p, OD_TAPS, i, &smd, &dmd, cin, T, &b->prim[k], &b->wmem[k],
+                       &b->owned[k], tscratch_bytes));
     for (int t = 0; t < p->nthreads; t++) {
       OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, dev->eng, DNNL_MEMORY_NONE));
       for (int half = 0; half < 2; half++)
@@ -1007,7 +1132,7 @@ static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, i
       const float *r0 = m < a ? prev : tb + (m - a) * rowf;
       const float *r1 = y1 < a ? prev : tb + (y1 - a) * rowf;
       od_taps_line(tp, r0, py ? 2 : 1, r1, py ? 0 : 3, od_taps_out_row(tp, n, Y), tp->stride,
-                   tp->bias, tp->relu, tp->fin, od_taps_skip_row(tp, n, Y));
+                   tp->bias, tp->relu, tp->fin, od_taps_skip_row(tp, n, Y, t));
     }
     if (!prev) {
       od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, 0, NULL);
@@ -1026,7 +1151,7 @@ static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, i
  * for j = nchunks): output rows 2a from chunk j's terms and chunk j - 1's,
  * and 2a - 1 from chunk j - 1's and chunk j's; a row outside the frame is
  * skipped, a chunk outside adds nothing. */
-static void od_band_seam(const od_step *st, int n, int j) {
+static void od_band_seam(const od_step *st, int n, int j, int thread) {
   const od_band *b = st->band;
   const od_taps_pass *tp = &st->taps;
   const size_t prow = (size_t)2 * tp->w * tp->cout;
@@ -1034,11 +1159,11 @@ static void od_band_seam(const od_step *st, int n, int j) {
   const float *P = b->part + (size_t)n * b->nchunks * 4 * prow;
   if (a < tp->h)
     od_taps_join(tp, P + (size_t)j * 4 * prow, j > 0 ? P + ((size_t)(j - 1) * 4 + 3) * prow : NULL,
-                 od_taps_out_row(tp, n, 2 * a), od_taps_skip_row(tp, n, 2 * a));
+                 od_taps_out_row(tp, n, 2 * a), od_taps_skip_row(tp, n, 2 * a, thread));
   if (a > 0)
     od_taps_join(tp, P + ((size_t)(j - 1) * 4 + 2) * prow,
                  j < b->nchunks ? P + ((size_t)j * 4 + 1) * prow : NULL,
-                 od_taps_out_row(tp, n, 2 * a - 1), od_taps_skip_row(tp, n, 2 * a - 1));
+                 od_taps_out_row(tp, n, 2 * a - 1), od_taps_skip_row(tp, n, 2 * a - 1, thread));
 }
 
 /* Runs a banded step: the chunks taken in turn by the threads (a thread on
@@ -1061,7 +1186,142 @@ static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_
       }
     }
 #pragma omp for schedule(dynamic, 4)
-    for (int j = 0; j < seams; j++) od_band_seam(st, j / (b->nchunks + 1), j % (b->nchunks + 1));
+    for (int j = 0; j < seams; j++)
+      od_band_seam(st, j / (b->nchunks + 1), j % (b->nchunks + 1), t);
+  }
+  return rc;
+}
+
+/* ---- enc0 over halves, in bands (od_enc_band) ------------------------------ */
+
+/* Output rows per band of enc0 over halves: as many as keep the band's
+ * 2 bh + 1 input rows within band_bytes (od_enc_band_bytes), and every
+ * thread's band within the padded input's buffer (batch ph rows) where it
+ * fits, at least 1, at most ph / 2; 0 for none (band_bytes 0, or a buffer
+ * of fewer than the 3 rows of a band of one: the frame is widened whole). */
+static int od_enc_band_rows(size_t band_bytes, int batch, int pw, int ph, int cin, int threads) {
+  const size_t have = (size_t)batch * ph, per_thread = have / threads;
+  if (!band_bytes || have < 3) return 0;
+  size_t row = (size_t)pw * cin * sizeof(float), rows = band_bytes / row;
+  size_t bh = rows > 1 ? (rows - 1) / 2 : 1;
+  if (per_thread >= 3 && bh > (per_thread - 1) / 2) bh = (per_thread - 1) / 2;
+  if (bh > (have - 1) / 2) bh = (have - 1) / 2;
+  if (bh > (size_t)ph / 2) bh = (size_t)ph / 2;
+  return bh < 1 ? 1 : (int)bh;
+}
+
+/* Makes each thread's scratchpad for band primitives at least bytes: made
+ * anew, larger, when a primitive made later needs more. */
+static int od_tscratch_reserve(od_plan *p, od_dev *dev, size_t bytes) {
+  int rc = HF_OK;
+  if (bytes <= p->tscratch_each) return HF_OK;
+  size_t each = (bytes + 63) & ~(size_t)63;
+  void *buf;
+  dnnl_memory_desc_t md;
+  dnnl_dims_t d = {(dnnl_dim_t)each};
+  OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
+  OD_RC(od_alloc_bytes(each * p->nthreads, &buf));
+  for (int t = 0; t < p->nthreads; t++)
+    if (p->tscratch_mem[t]) dnnl_memory_destroy(p->tscratch_mem[t]), p->tscratch_mem[t] = NULL;
+  free(p->tscratch);
+  p->bytes = p->bytes - p->tscratch_each * p->nthreads + each * p->nthreads;
+  p->tscratch = buf, p->tscratch_each = each;
+  for (int t = 0; t < p->nthreads; t++)
+    OD_TRY(dnnl_memory_create(&p->tscratch_mem[t], &md, dev->eng, (char *)buf + each * t));
+fail:
+  return rc;
+}
+
+/* Builds p->eband for bands of bh output rows: the band's convolution and
+ * the last band's when it has fewer rows, and each thread's memories. The
+ * largest scratchpad a band primitive needs goes to *tscratch_bytes. */
+static int od_add_enc_band(od_model *m, od_plan *p, int bh, size_t *tscratch_bytes) {
+  const hf_net_config *c = &m->w->cfg;
+  const int cin = c->in_channels, c0 = hf_enc_out(c, 0), oh = p->ph / 2, ow = p->pw / 2;
+  int rc = HF_OK;
+  od_enc_band *b = p->eband = calloc(1, sizeof *b);
+  if (!b) return HF_ENOMEM;
+  b->bh = bh, b->nb = (oh + bh - 1) / bh;
+  b->nthreads = (int)((size_t)p->batch * p->ph / (2 * bh + 1));
+  if (b->nthreads > p->nthreads) b->nthreads = p->nthreads;
+  b->src_mem = calloc((size_t)2 * p->nthreads, sizeof *b->src_mem);
+  b->dst_mem = calloc((size_t)2 * p->nthreads, sizeof *b->dst_mem);
+  if (!b->src_mem || !b->dst_mem) return HF_ENOMEM;
+  const int rows[2] = {bh, oh - (b->nb - 1) * bh};
+  for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
+    dnnl_memory_desc_t smd, dmd;
+    OD_RC(od_nhwc(&smd, 1, cin, 2 * rows[k] + 1, p->pw));
+    OD_RC(od_nhwc(&dmd, 1, c0, rows[k], ow));
+    OD_RC(od_band_prim(m, p, OD_ENC_BAND, 0, &smd, &dmd, cin, c0, &b->prim[k], &b->wmem[k],
+                       &b->owned[k], tscratch_bytes));
+    for (int t = 0; t < b->nthreads; t++) {
+      OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, m->dev->eng,
+                                p->in + (size_t)t * (2 * bh + 1) * p->pw * cin));
+      OD_TRY(dnnl_memory_create(&b->dst_mem[2 * t + k], &dmd, m->dev->eng, DNNL_MEMORY_NONE));
+    }
+  }
+fail:
+  return rc;
+}
+
+/* Band j (frame j / nb, band j % nb) of enc0 over p->input's halves on
+ * thread t: its input rows widened into the thread's rows, then its
+ * convolution from there (on this thread alone: oneDNN runs a primitive
+ * executed inside an OpenMP parallel region on the calling thread) into
+ * the band's rows of enc0's output. */
+static int od_enc_band_job(const od_plan *p, const od_model *m, int t, int j) {
+  const od_enc_band *b = p->eband;
+  const int oh = p->ph / 2, ow = p->pw / 2, c0 = hf_enc_out(&m->w->cfg, 0);
+  const int n = j / b->nb, r0 = j % b->nb * b->bh;
+  const int rows = r0 + b->bh <= oh ? b->bh : oh - r0, which = rows != b->bh;
+  const size_t row = (size_t)p->pw * p->input.cin;
+  float *buf = p->in + (size_t)t * (2 * b->bh + 1) * row;
+  /* Halves: od_in_row widens each row into buf (float32 input never runs
+   * in bands, its frames are read whole). */
+  for (int i = 0; i < 2 * rows + 1; i++) od_in_row(&p->input, n, 2 * r0 - 1 + i, buf + i * row);
+  dnnl_memory_t dst = b->dst_mem[2 * t + which];
+  dnnl_status_t s =
+      dnnl_memory_set_data_handle(dst, (float *)p->enc[0] + ((size_t)n * oh + r0) * ow * c0);
+  if (s == dnnl_success) {
+    dnnl_exec_arg_t args[5] = {{DNNL_ARG_SRC, b->src_mem[2 * t + which]},
+                               {DNNL_ARG_WEIGHTS, b->wmem[which]},
+                               {DNNL_ARG_BIAS, m->enc_b[0]},
+                               {DNNL_ARG_DST, dst},
+                               {DNNL_ARG_SCRATCHPAD, p->tscratch_mem[t]}};
+    s = dnnl_primitive_execute(b->prim[which], m->dev->tstream[t], p->tscratch_mem[t] ? 5 : 4,
+                               args);
+  }
+  if (s == dnnl_success) s = dnnl_stream_wait(m->dev->tstream[t]);
+  return s == dnnl_success ? HF_OK : od_report(s, "dnnl_primitive_execute(enc band)", __LINE__);
+}
+
+/* Makes p->eband on the plan's first frame of halves, so that a plan that
+ * only ever sees float32 frames holds no memory for it (the primitives'
+ * code, weight copies). A failure leaves the plan to be built anew. */
+static int od_enc_band_prepare(od_model *m, od_plan *p) {
+  size_t tscratch = 0;
+  int rc = od_add_enc_band(m, p, p->ebh, &tscratch);
+  if (!rc) rc = od_tscratch_reserve(p, m->dev, tscratch);
+  if (rc) {
+    od_enc_band_free(p->eband, p->nthreads);
+    p->eband = NULL;
+    p->arena = NULL; /* od_plan_valid fails: od_plan_get builds it again */
+  }
+  return rc;
+}
+
+/* enc0 over p->input's halves: the frames' bands taken in turn by the
+ * threads. */
+static int od_enc_band_run(const od_plan *p, const od_model *m, int batch) {
+  const int jobs = batch * p->eband->nb;
+  int nthreads = p->eband->nthreads < jobs ? p->eband->nthreads : jobs, rc = HF_OK;
+#pragma omp parallel for num_threads(nthreads) schedule(dynamic, 1)
+  for (int j = 0; j < jobs; j++) {
+    int e = od_enc_band_job(p, m, omp_get_thread_num(), j);
+    if (e) {
+#pragma omp atomic write
+      rc = e;
+    }
   }
   return rc;
 }
@@ -1078,7 +1338,7 @@ static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_
  * thread's scratch for f16. */
 typedef struct od_kernel_out {
   const hf_net_config *cfg;
-  const float *in;              /* padded input [batch][ph][pw][cin] */
+  const od_input *in;           /* read a row at a time (od_in_row) */
   const float *raw;             /* raw output [batch][ph][pw][out_channels] */
   int pw, ph;
   float *sums, *fin;            /* Kernel: [batch][3][height][width], [batch][height][width][3];
@@ -1088,20 +1348,24 @@ typedef struct od_kernel_out {
   size_t scratch_floats;
   int ref;                      /* the reference's rows instead (HF_CPU_KERNEL_REF) */
   const hf_io *io;
+  float *rows;                  /* each thread's row of widened input, */
+  size_t rows_floats;           /* rows_floats apart (in the plan's in) */
 } od_kernel_out;
 
 static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
   const od_kernel_out *k = ctx;
   const int w = k->io->width, h = k->io->height, cin = k->cfg->in_channels;
-  for (size_t r = r0; r < r1;) {
-    size_t n = r / h;
-    int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
-    hf_input_view v = {k->in + n * k->ph * k->pw * cin, w, h, k->pw, cin};
-    if (k->ref)
-      hf_pixel_sums_rows(&v, k->cfg->spp, y0, y1, k->sums + n * h * w * 3);
-    else
-      hf_cpu_kernel_sums(&v, k->cfg->spp, y0, y1, k->sums + n * h * w * 3);
-    r += (size_t)(y1 - y0);
+  float *buf = k->rows + (size_t)job * k->rows_floats;
+  for (size_t r = r0; r < r1; r++) {
+    const size_t n = r / h, y = r % h;
+    const float *row = od_in_row(k->in, (int)n, (int)y, buf);
+    float *sums = k->sums + n * h * w * 3;
+    if (k->ref) {
+      hf_input_view v = {row, w, 1, k->pw, cin};
+      hf_pixel_sums_rows(&v, k->cfg->spp, 0, 1, sums + y * w * 3);
+    } else {
+      hf_cpu_kernel_sums_row(row, w, cin, k->cfg->spp, sums + y * w, (size_t)h * w);
+    }
   }
 }
 
@@ -1168,9 +1432,15 @@ static void od_output(const od_kernel_out *k, const od_dev *dev) {
   }
   if (c->arch == HF_ARCH_RESIDUAL)
     for (int n = 0; n < k->io->batch; n++) {
-      hf_input_view v = {k->in + (size_t)n * k->ph * k->pw * c->in_channels, k->io->width,
-                         k->io->height, k->pw, c->in_channels};
-      hf_residual_base_frame(&v, c->spp, k->sums + (size_t)n * k->io->height * w * 3, k->fin);
+      /* hf_residual_base_frame's values, its per-pixel sums made a row at
+       * a time from rows that may be widened from halves. */
+      const int h = k->io->height;
+      float *base = k->sums + (size_t)n * h * w * 3;
+      for (int y = 0; y < h; y++) {
+        hf_input_view v = {od_in_row(k->in, n, y, k->rows), (int)w, 1, k->pw, c->in_channels};
+        hf_pixel_sums_rows(&v, c->spp, 0, 1, base + (size_t)y * w * 3);
+      }
+      hf_pooled_estimate_sums((int)w, h, c->spp, HF_RESIDUAL_RADIUS, base, k->fin);
     }
   od_parallel(od_output_rows, k, rows, w * c->out_channels, dev);
 }
@@ -1195,6 +1465,7 @@ static size_t od_thread_scratch(const hf_net_config *c, int pw) {
 typedef struct od_layout {
   size_t in, out, head_in, sums, fin, kscratch, taps, tband, part;
   size_t enc[HF_MAX_LEVELS], cat[HF_MAX_LEVELS];
+  int ebh;                      /* enc0's band rows over halves, 0 when whole */
   size_t tband_floats;          /* each of a thread's two band buffers */
   int bh[HF_MAX_LEVELS];        /* each decoder's band rows, 0 when whole */
   int max_cout;
@@ -1227,7 +1498,8 @@ static size_t od_tensor_bytes(int batch, int ch, int h, int w) {
  * band of taps and the seams' terms of the banded ones. HF_ERANGE when a
  * size does not fit. */
 static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_sum, int batch,
-                          int pw, int ph, int threads, size_t band_bytes, od_layout *l) {
+                          int pw, int ph, int threads, size_t band_bytes,
+                          size_t enc_band_bytes, od_layout *l) {
   const int L = c->num_levels, head = hf_head_in(c);
   size_t taps = 0, tband = 0, part = 0;
   memset(l, 0, sizeof *l);
@@ -1242,6 +1514,7 @@ static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_
   size_t ks = od_thread_scratch(c, pw);
   l->kscratch = ks <= SIZE_MAX / sizeof(float) / threads ? od_take(l, ks * threads * sizeof(float))
                                                          : (l->total = SIZE_MAX, OD_NONE);
+  l->ebh = od_enc_band_rows(enc_band_bytes, batch, pw, ph, c->in_channels, threads);
   for (int i = 0; i < L; i++) {
     const int h = ph >> (i + 1), w = pw >> (i + 1), cout = hf_dec_out(c, i);
     if (cout > l->max_cout) l->max_cout = cout;
@@ -1345,7 +1618,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   /* The activations, in the device's arena (grown to fit if need be). */
   od_layout lay;
   OD_RC(od_layout_make(c, m->use_taps, m->head_sum, batch, pw, ph, dev->threads, dev->band_bytes,
-                       &lay));
+                       dev->enc_band_bytes, &lay));
   OD_RC(od_arena_reserve(dev, lay.total));
   char *A = p->arena = dev->arena;
   p->need = lay.total;
@@ -1377,6 +1650,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
   dnnl_memory_t src, dst;
   OD_RC(od_mem(p, dev, &in_md, p->in, &src));
   p->in_mem = src;
+  p->enc0_step = p->nsteps;
   for (int i = 0; i < L; i++) {
     dnnl_memory_desc_t md;
     OD_RC(od_nhwc(&md, batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1)));
@@ -1384,6 +1658,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
     OD_RC(od_add_layer(m, p, OD_ENC, i, src, dst, &scratch_bytes));
     src = dst;
   }
+  p->ebh = lay.ebh;
   /* Decoder: dec{L-1} reads enc{L-1}'s output, the others their concat
    * buffer. Taps go to the taps buffer, and their pass writes the whole
    * next concat buffer: the decoder's half (ReLU included) and a copy of
@@ -1403,7 +1678,8 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
                            i ? p->cat[i - 1] : head ? p->head_in : p->out,
                            i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
                            i ? p->enc[i - 1] : head_cat ? p->in : NULL,
-                           i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0, 0};
+                           i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0, 0,
+                           NULL, p->in, (size_t)pw * c->in_channels};
       if (i == 0 && !head) p->out_step = p->nsteps + (bh[i] ? 0 : 1);
       if (bh[i]) {
         if (head_cat) p->in_skip_step = p->nsteps;
@@ -1466,17 +1742,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
       for (int a = 0; a < p->steps[s].nargs; a++)
         if (p->steps[s].args[a].arg == DNNL_ARG_SCRATCHPAD) p->steps[s].args[a].memory = smem;
   }
-  if (tscratch_bytes) {
-    size_t each = (tscratch_bytes + 63) & ~(size_t)63;
-    dnnl_memory_desc_t md;
-    dnnl_dims_t d = {(dnnl_dim_t)tscratch_bytes};
-    OD_TRY(dnnl_memory_desc_init_by_tag(&md, 1, d, dnnl_u8, dnnl_x));
-    OD_RC(od_alloc_bytes(each * p->nthreads, &p->tscratch));
-    p->bytes += each * p->nthreads;
-    for (int t = 0; t < p->nthreads; t++)
-      OD_TRY(dnnl_memory_create(&p->tscratch_mem[t], &md, dev->eng,
-                                (char *)p->tscratch + each * t));
-  }
+  OD_RC(od_tscratch_reserve(p, dev, tscratch_bytes));
   /* Primitives without a scratchpad need no argument for it. */
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
@@ -1656,15 +1922,27 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   double t0 = hf_now_us();
   OD_RC(od_plan_get(m, io->batch, pw, ph, &p));
   m->dev->arena_owner = m;
-  /* Aligned float32 frames are read where they are; others are converted
-   * and padded into the plan's buffer. oneDNN never writes a source. */
+  /* Aligned float32 frames are read where they are, and so are halves,
+   * widened a band or a row at a time by the passes that read them (unless
+   * the head reads the whole input as one convolution, HF_CPU_HEAD=sum);
+   * others are converted and padded into the plan's buffer. oneDNN never
+   * writes a source. */
+  const int halves = io->in_dtype == HF_F16 && p->ebh && !m->head_sum;
+  if (halves && !p->eband) OD_RC(od_enc_band_prepare(m, p));
   const float *in = p->in;
-  if (io->in_dtype == HF_F32 && io->width == pw && io->height == ph)
+  if (halves)
+    in = NULL;
+  else if (io->in_dtype == HF_F32 && io->width == pw && io->height == ph)
     in = io->in;
   else
     hf_input_to_padded_f32(io, c->in_channels, pw, ph, p->in);
-  OD_TRY(dnnl_memory_set_data_handle(p->in_mem, (void *)in));
-  if (p->in_skip_step >= 0) p->steps[p->in_skip_step].taps.skip = in;
+  p->input = (od_input){in, halves ? io->in : NULL, io->width, io->height, pw, ph,
+                        c->in_channels};
+  if (in) OD_TRY(dnnl_memory_set_data_handle(p->in_mem, (void *)in));
+  if (p->in_skip_step >= 0) {
+    p->steps[p->in_skip_step].taps.skip = in;
+    p->steps[p->in_skip_step].taps.skip_in = halves ? &p->input : NULL;
+  }
   /* A U-Net's dec0 writes the caller's float32 frames, transformed, when
    * no padding is cropped: the output stage then has nothing left to do. */
   const int direct = p->out_step >= 0 && c->arch == HF_ARCH_UNET && c->out_channels == 3 &&
@@ -1676,20 +1954,24 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
-    if (st->type == OD_STEP_PRIM) {
+    const int enc_band = halves && s == p->enc0_step;
+    if (st->type == OD_STEP_PRIM && !enc_band) {
       OD_TRY(dnnl_primitive_execute(st->prim, m->dev->stream, st->nargs, st->args));
       continue;
     }
     OD_TRY(dnnl_stream_wait(m->dev->stream));
-    if (st->type == OD_STEP_BAND)
+    if (enc_band)
+      OD_RC(od_enc_band_run(p, m, io->batch));
+    else if (st->type == OD_STEP_BAND)
       OD_RC(od_band_run(p, st, io->batch, m->dev));
     else
       od_pass_run(st, io->batch, m->dev);
   }
   OD_TRY(dnnl_stream_wait(m->dev->stream));
   double t2 = hf_now_us();
-  od_kernel_out k = {c, in, p->out, pw, ph, p->sums, p->fin, p->kscratch,
-                     od_thread_scratch(c, pw), m->kernel_ref, io};
+  od_kernel_out k = {c, &p->input, p->out, pw, ph, p->sums, p->fin, p->kscratch,
+                     od_thread_scratch(c, pw), m->kernel_ref, io, p->in,
+                     (size_t)pw * c->in_channels};
   if (!direct) od_output(&k, m->dev);
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
@@ -1725,15 +2007,18 @@ static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + 
  * the zeros beside the taps, the scratchpads (the primitives' shared one
  * and each thread's for the band primitives) and private weight copies (at
  * most one of every weight, two of a banded decoder's: its band's and its
- * last band's). Each buffer outside the arena is rounded as od_alloc_bytes
- * rounds it, plus a page of allocator overhead. An upper bound of what a
- * run allocates whatever the arena holds already. */
+ * last band's, two more of enc0's for its bands over halves). Each buffer
+ * outside the arena is rounded as od_alloc_bytes rounds it, plus a page of
+ * allocator overhead. An upper bound of what a run allocates whatever the
+ * arena holds already. */
 static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
   const size_t f = sizeof(float), page = 4096;
   int use_taps[HF_MAX_LEVELS] = {0}, threads = od_thread_count();
   od_layout lay;
   for (int i = 0; i < c->num_levels; i++) use_taps[i] = od_use_taps(i);
-  if (od_layout_make(c, use_taps, 0, batch, pw, ph, threads, od_band_bytes(), &lay)) return 0;
+  size_t band = od_band_bytes();
+  if (od_layout_make(c, use_taps, 0, batch, pw, ph, threads, band, od_enc_band_bytes(band), &lay))
+    return 0;
   size_t largest = 0, weights = 0;
   for (int i = 0; i < c->num_levels; i++) {
     size_t e = od_tensor_bytes(batch, hf_enc_out(c, i), ph >> (i + 1), pw >> (i + 1));
@@ -1745,9 +2030,12 @@ static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
     weights += 2 * ((size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16 * f + 64 + page);
   }
   if (hf_head_in(c)) weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
+  if (lay.ebh) weights += 2 * ((size_t)hf_enc_out(c, 0) * hf_enc_in(c, 0) * 9 * f + 64 + page);
   size_t own = (size_t)(lay.max_cout > 16 ? lay.max_cout : 16) * f + 64 + page;
   own += od_scratch_allowance(largest) + 64 + page;
-  if (lay.tband != OD_NONE)
+  /* Each thread's scratchpad serves the enc0 bands too (12 KiB for them
+   * as for the decoders' bands on this project's machines). */
+  if (lay.tband != OD_NONE || lay.ebh)
     own += threads * od_scratch_allowance(lay.tband_floats * f) + 64 + page;
   return lay.total + page + own + weights;
 }
@@ -1795,6 +2083,7 @@ static void od_model_trim(void *impl, size_t keep) {
 const hf_backend_ops hf_backend_cpu_onednn = {
   .name = "cpu",
   .priority = 50,
+  .reads_f16 = 1,
   .archs = 1u << HF_ARCH_UNET | 1u << HF_ARCH_RESIDUAL | 1u << HF_ARCH_KERNEL,
   .probe = od_probe,
   .open = od_open,

@@ -274,6 +274,8 @@ void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int s
  * chunks of pixels whose halves stay in the cache from their conversion to
  * their check, split between threads for large frames
  * (hf_parallel_chunks). in is not written; in and out must not overlap.
+ * out may be NULL: the same pass without the floats (the report and the
+ * statistics only), for a backend that reads the halves itself.
  * HF_ENOMEM (nothing written) when the statistics' counts (16 KiB per
  * thread) cannot be allocated. */
 int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
@@ -312,10 +314,13 @@ const hf_net_config *hf_model_config(const hf_model *m);
  * MiB: io->in is never written) and its output goes through
  * hf_output_guard, so results are finite and inside their documented ranges
  * whatever the input; hf_model_submit/hf_model_wait do the same. A float16
- * input for a backend that computes in float32 (the CPU backends), of a
- * size that needs no padding and whose floats fit in those 128 MiB, is
- * widened into that copy in the check's own pass (hf_features_widen). The
- * check is attributed to timing->input_us, the guard to output_us.
+ * input is checked in one pass that only reads it (hf_features_widen
+ * without out), and read by the backend where it is: the cpu backend
+ * widens it a band at a time in the passes that read it. For cpu-ref,
+ * which computes from float32 frames, one of a size that needs no padding
+ * and whose floats fit in those 128 MiB is widened into that copy in the
+ * check's own pass instead. The check is attributed to timing->input_us,
+ * the guard to output_us.
  * HF_ENOMEM when a frame needs sanitising or widening and there is no
  * memory for the copy. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
@@ -325,9 +330,9 @@ int hf_model_run_report(hf_model *m, const hf_io *io, hf_timing *timing,
                         hf_input_report *report);
 /* hf_model_run_report that also makes each frame's input statistics:
  * stats, when not NULL, is [io->batch] and gets hf_input_stats_compute's
- * values, made in the run's input pass (for an f16 frame on a backend that
- * computes in float32, in the one pass that checks and widens it,
- * hf_features_widen) and counted in timing->input_us. */
+ * values, made in the run's input pass (for an f16 frame, in the one pass
+ * that checks it, and widens it for cpu-ref, hf_features_widen) and
+ * counted in timing->input_us. */
 int hf_model_run_stats(hf_model *m, const hf_io *io, hf_timing *timing, hf_input_report *report,
                        hf_input_stats *stats);
 /* Builds whatever the backend needs to run batch frames of width x height
@@ -452,6 +457,12 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
  * frame or a negative radius. */
 int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
                              float *tmp);
+/* The second half of hf_pooled_estimate_frame, for a caller that made the
+ * per-pixel sums itself (hf_pixel_sums_rows, a row at a time): base holds
+ * them on entry ([height][width][3]) and the pooled estimate on return,
+ * the same values. */
+int hf_pooled_estimate_sums(int width, int height, int spp, int radius, float *base,
+                            float *tmp);
 /* hf_residual_base of every pixel: hf_pooled_estimate_frame with radius
  * HF_RESIDUAL_RADIUS. */
 int hf_residual_base_frame(const hf_input_view *in, int spp, float *base, float *tmp);

@@ -198,12 +198,19 @@ void hf_pixel_sums_rows(const hf_input_view *in, int spp, int y0, int y1, float 
 
 int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
                              float *tmp) {
-  const int w = in->width, h = in->height, r = radius;
-  if (w < 1 || h < 1 || spp < 1 || r < 0) return HF_EINVAL;
+  if (in->width < 1 || in->height < 1 || spp < 1 || radius < 0) return HF_EINVAL;
   /* Per-pixel sums (covered count, colour, highlight) into base... */
-  hf_pixel_sums_rows(in, spp, 0, h, base);
-  /* ...summed along rows into tmp, then along columns back into base: the
-   * window sums with 2 (2r+1) additions per pixel instead of (2r+1)^2. */
+  hf_pixel_sums_rows(in, spp, 0, in->height, base);
+  return hf_pooled_estimate_sums(in->width, in->height, spp, radius, base, tmp);
+}
+
+int hf_pooled_estimate_sums(int width, int height, int spp, int radius, float *base,
+                            float *tmp) {
+  const int w = width, h = height, r = radius;
+  if (w < 1 || h < 1 || spp < 1 || r < 0) return HF_EINVAL;
+  /* The per-pixel sums summed along rows into tmp, then along columns back
+   * into base: the window sums with 2 (2r+1) additions per pixel instead of
+   * (2r+1)^2. */
   for (int y = 0; y < h; y++)
     for (int x = 0; x < w; x++) {
       int x0 = x - r < 0 ? 0 : x - r, x1 = x + r >= w ? w - 1 : x + r;

@@ -253,13 +253,19 @@ typedef struct widen_run {
   hf_input_stats_acc *acc;       /* [workers], or NULL: no statistics */
 } widen_run;
 
-/* Pixels [b, e): widened, checked and fixed, counted. */
+/* Pixels [b, e): widened (when there is an out), checked and fixed,
+ * counted. */
 static void widen_chunk(void *arg, int worker, size_t b, size_t e) {
   widen_run *w = arg;
   const size_t f = HF_FEATURES_PER_SAMPLE, s0 = b * w->spp, s1 = e * w->spp;
-  if (w->stream) hf_f16_to_f32_stream(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
-  else hf_f16_to_f32_serial(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
-  scan_range((void *)w->in, HF_F16, w->width, w->spp, s0, s1, 1, w->out, &w->rep[worker]);
+  if (!w->out) {
+    /* Only read: in is the caller's and stays as it is. */
+    scan_range((void *)w->in, HF_F16, w->width, w->spp, s0, s1, 0, NULL, &w->rep[worker]);
+  } else {
+    if (w->stream) hf_f16_to_f32_stream(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+    else hf_f16_to_f32_serial(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+    scan_range((void *)w->in, HF_F16, w->width, w->spp, s0, s1, 1, w->out, &w->rep[worker]);
+  }
   if (w->acc) hf_input_stats_add(&w->acc[worker], w->in, HF_F16, w->spp, b, e);
 }
 

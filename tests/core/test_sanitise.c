@@ -193,7 +193,8 @@ static void test_rule_each_position(void **state) {
 }
 
 /* hf_features_widen against its definition: the floats of the sanitised
- * halves bit for bit, the report of hf_features_check, the input unchanged.
+ * halves bit for bit, the report of hf_features_check, the input unchanged;
+ * without out, the same report and statistics.
  * plant: 0 for make_samples' mix (bad samples everywhere), else a clean
  * frame with that many bad samples at random places, so that the first one
  * may fall in any thread's chunks. */
@@ -224,6 +225,13 @@ static void check_widen(int w, int h, int spp, int plant) {
   assert_memory_equal(&r, &c, sizeof r);
   assert_int_equal(r.samples, sr.samples);
   assert_true(!plant || (r.samples >= 1 && r.samples <= (uint64_t)plant));
+  assert_memory_equal(h16, copy, n * 6 * sizeof *copy);
+  /* Without out: the same report and statistics, nothing written. */
+  memset(&r, 0x5a, sizeof r);
+  memset(&st, 0x5a, sizeof st);
+  assert_int_equal(hf_features_widen(h16, NULL, w, h, spp, &r, &st), HF_OK);
+  assert_memory_equal(&r, &c, sizeof r);
+  assert_memory_equal(&st, &want_st, sizeof st);
   assert_memory_equal(h16, copy, n * 6 * sizeof *copy);
   free(s), free(got), free(want), free(h16), free(copy);
 }
