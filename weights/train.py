@@ -65,6 +65,73 @@ def hair_loss(pred, target, grad_weight=1.0):
     return loss
 
 
+# The look `hairfilter eval` scores with (client/cli/cmd_eval.c): brown hair,
+# white light, a grey-blue background.
+EVAL_LOOK = ((0.45, 0.25, 0.12), (1.0, 1.0, 1.0), (0.18, 0.20, 0.24))
+
+
+def composite(y, hair, light, bg):
+    """What a viewer sees of NCHW (color, highlight, alpha) y: the paper's
+    composite (Fig. 3), rgb = alpha light (hair color + highlight) + (1 -
+    alpha) bg, clamped to [0, 1] as a display shows it (hf_composite, and
+    `hairfilter eval`'s images). hair, light, bg: [n][3][1][1]."""
+    col, hl, a = y[:, 0:1], y[:, 1:2], y[:, 2:3]
+    return torch.clamp(a * light * (hair * col + hl) + (1 - a) * bg, 0, 1)
+
+
+def random_looks(n, gen):
+    """n looks an engine might composite with, as [n][3][1][1] tensors
+    (hair, light, bg): hair colours from near-black through brown and red to
+    blonde and grey (a random point between two of seven tones, as albedo),
+    light of intensity 0.6-1.4 slightly tinted, background a random dark to
+    mid colour."""
+    tones = torch.tensor([[0.05, 0.04, 0.03], [0.20, 0.10, 0.05], [0.45, 0.25, 0.12],
+                          [0.55, 0.20, 0.08], [0.85, 0.65, 0.40], [0.95, 0.88, 0.70],
+                          [0.70, 0.70, 0.72]])
+    i = torch.randint(0, len(tones), (n,), generator=gen)
+    j = torch.randint(0, len(tones), (n,), generator=gen)
+    t = torch.rand(n, 1, generator=gen)
+    hair = tones[i] * (1 - t) + tones[j] * t
+    light = (0.6 + 0.8 * torch.rand(n, 1, generator=gen)) * (0.9 + 0.2 * torch.rand(n, 3, generator=gen))
+    bg = 0.5 * torch.rand(n, 3, generator=gen)
+    return tuple(v[:, :, None, None] for v in (hair, light, bg))
+
+
+def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1):
+    """The squared error of what a viewer sees: pred and target composited
+    with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
+    weighted by grad_weight, of their finite differences, as the paper's loss
+    does on premultiplied channels; plus paper_weight times the paper's loss,
+    which keeps every channel pinned where a look hides it (a dark hair
+    colour hides the colour factor). Where the paper's loss weighs the three
+    channels alike, a viewer sees the highlight at full strength and the
+    colour factor scaled by the hair colour, so this puts the effort where
+    the image's error is."""
+    p, q = composite(pred, *looks), composite(target, *looks)
+    loss = F.mse_loss(p, q)
+    if grad_weight:
+        dxp, dxq = p[..., :, 1:] - p[..., :, :-1], q[..., :, 1:] - q[..., :, :-1]
+        dyp, dyq = p[..., 1:, :] - p[..., :-1, :], q[..., 1:, :] - q[..., :-1, :]
+        loss = loss + grad_weight * (F.mse_loss(dxp, dxq) + F.mse_loss(dyp, dyq))
+    if paper_weight:
+        loss = loss + paper_weight * hair_loss(pred, target, grad_weight)
+    return loss
+
+
+def eval_looks(n, device):
+    return tuple(torch.tensor(v, device=device).view(1, 3, 1, 1).expand(n, 3, 1, 1)
+                 for v in EVAL_LOOK)
+
+
+def run_loss(kind, pred, target, grad_weight, looks=None):
+    """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
+    (look_loss with looks, EVAL_LOOK when None)."""
+    if kind == "look":
+        return look_loss(pred, target, looks if looks is not None
+                         else eval_looks(pred.shape[0], pred.device), grad_weight)
+    return hair_loss(pred, target, grad_weight)
+
+
 # ---- fast path -------------------------------------------------------------------
 
 # A 4x4 stride-2 pad-1 transposed convolution equals a 3x3 pad-1 convolution
@@ -184,9 +251,10 @@ def save_checkpoint(path, **state):
 
 
 @torch.no_grad()
-def validate(net, frames, spp, grad_weight, mode, device, max_side=256):
+def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper"):
     """Mean loss over the held-out frames (first spp samples, no
-    augmentation; frames larger than max_side are centre-cropped)."""
+    augmentation; frames larger than max_side are centre-cropped); the
+    look loss with the evaluation's look (EVAL_LOOK)."""
     if not frames:
         return None
     net.eval()
@@ -200,7 +268,7 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256):
         x = torch.from_numpy(np.ascontiguousarray(x.astype(np.float32).transpose(2, 0, 1)))[None]
         y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
         x, y = x.to(device), y.to(device)
-        total += float(hair_loss(forward(net, x, *mode), y, grad_weight))
+        total += float(run_loss(loss, forward(net, x, *mode), y, grad_weight))
     net.train()
     return total / len(frames)
 
@@ -274,6 +342,11 @@ def parse_args(argv):
     ap.add_argument("--lr-floor", type=float, default=0.05)
     ap.add_argument("--grad-weight", type=float, default=1.0,
                     help="weight of the image-gradient MSE term")
+    ap.add_argument("--loss", default="paper", choices=["paper", "look"],
+                    help="paper: the paper's MSE of premultiplied colour, highlight and "
+                    "alpha and of their gradients; look: the same on the composited image "
+                    "under a random hair colour, light and background per crop, plus a "
+                    "tenth of the paper's (train.py look_loss)")
     ap.add_argument("--styles", default="straight,wavy",
                     help="styles to train on (others are never loaded); '' = all")
     ap.add_argument("--val-fraction", type=float, default=0.1)
@@ -347,7 +420,7 @@ def main(argv=None):
         saved = ckpt["args"]
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
-        for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles",
+        for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
@@ -408,6 +481,11 @@ def main(argv=None):
               f"loaded in {time.time() - t0:.1f} s; training on {device}", file=sys.stderr)
 
         mode = (args.deconv, args.bf16)
+        # The looks' own generator (kept in the checkpoint, so that a resumed
+        # run draws the looks an uninterrupted one would).
+        look_gen = torch.Generator().manual_seed(args.seed + step)
+        if ckpt and "look_rng" in ckpt:
+            look_gen.set_state(ckpt["look_rng"])
         net.train()
         prog = Progress(args.steps, step)
         val = history[-1]["val"] if history else None
@@ -431,8 +509,10 @@ def main(argv=None):
                           file=sys.stderr)
             x, y = train_set.batch(np_rng, args.crop, args.batch)
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
-            loss = hair_loss(forward(net, x, *mode, straight_through=args.straight_through),
-                             y, args.grad_weight)
+            looks = random_looks(x.shape[0], look_gen) if args.loss == "look" else None
+            looks = tuple(v.to(device) for v in looks) if looks else None
+            loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
+                            y, args.grad_weight, looks)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -445,7 +525,8 @@ def main(argv=None):
             out_of_time = args.time_limit and time.time() - t_start > args.time_limit
             last = step == stop or out_of_time
             if step % args.val_every == 0 or last:
-                val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device)
+                val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device,
+                               loss=args.loss)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
                            time=elapsed + time.time() - t_start)
@@ -456,7 +537,8 @@ def main(argv=None):
             prog.update(step, ema, val, force=last)
             if step % args.ckpt_every == 0 or last:
                 save_checkpoint(ckpt_path, model=net.state_dict(), optimizer=opt.state_dict(),
-                                step=step, rng=rng_state(np_rng), args=vars(args),
+                                step=step, rng=rng_state(np_rng), look_rng=look_gen.get_state(),
+                                args=vars(args),
                                 history=history, elapsed=elapsed + time.time() - t_start, ema=ema,
                                 config=cfg)
             if out_of_time:
@@ -470,7 +552,7 @@ def main(argv=None):
                            styles=args.styles, train_frames=len(train_set),
                            val_frames=len(val_e), batch=args.batch, crop=args.crop,
                            lr=args.lr, schedule=args.schedule, lr_floor=args.lr_floor,
-                           grad_weight=args.grad_weight, seed=args.seed,
+                           grad_weight=args.grad_weight, loss=args.loss, seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)

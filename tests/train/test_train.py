@@ -223,6 +223,44 @@ class Recipe(unittest.TestCase):
         q2[0, 0, 1, 1] = 7.0           # color where alpha = 0 does not count
         self.assertAlmostEqual(float(train.hair_loss(p, q2, 1.0)), want, places=6)
 
+    def test_look_loss_is_what_a_viewer_sees(self):
+        """The look loss composites as hf_composite and `hairfilter eval` do
+        (clamped to [0, 1]) and weighs each channel as the image shows it."""
+        hair, light, bg = train.eval_looks(1, "cpu")
+        y = torch.tensor([1.5, 0.2, 0.5]).view(1, 3, 1, 1)
+        want = [min(1.0, 0.5 * (h * 1.5 + 0.2) + 0.5 * b)
+                for h, b in zip(train.EVAL_LOOK[0], train.EVAL_LOOK[2])]
+        got = train.composite(y, hair, light, bg).flatten().tolist()
+        for g, w in zip(got, want):
+            self.assertAlmostEqual(g, w, places=6)
+        bright = torch.tensor([1.0, 5.0, 1.0]).view(1, 3, 1, 1)
+        self.assertEqual(train.composite(bright, hair, light, bg).max().item(), 1.0)
+        # Alone (no paper term, no gradients), an error of 0.1 in the
+        # highlight of an opaque pixel costs 0.1^2 in every channel; the same
+        # error in the colour factor costs 0.1^2 times the hair colour's
+        # mean square, and nothing at all where alpha is 0.
+        t = torch.tensor([1.0, 0.1, 1.0]).view(1, 3, 1, 1)
+        looks = (hair, light, bg)
+        hl = train.look_loss(t + torch.tensor([0, 0.1, 0]).view(1, 3, 1, 1), t, looks, 0, 0)
+        col = train.look_loss(t + torch.tensor([0.1, 0, 0]).view(1, 3, 1, 1), t, looks, 0, 0)
+        self.assertAlmostEqual(float(hl), 0.01, places=6)
+        self.assertAlmostEqual(float(col), 0.01 * sum(h * h for h in train.EVAL_LOOK[0]) / 3,
+                               places=6)
+        clear = torch.tensor([1.0, 0.1, 0.0]).view(1, 3, 1, 1)
+        self.assertEqual(float(train.look_loss(clear + 0.3 * (torch.arange(3) < 2).view(1, 3, 1, 1),
+                                               clear, looks, 0, 0)), 0.0)
+        # The paper's term is added with its weight.
+        t = torch.rand(1, 3, 4, 4, generator=torch.Generator().manual_seed(5))
+        p = t + 0.1 * torch.rand(1, 3, 4, 4, generator=torch.Generator().manual_seed(6))
+        self.assertAlmostEqual(float(train.look_loss(p, t, looks, 1.0, 0.1)),
+                               float(train.look_loss(p, t, looks, 1.0, 0))
+                               + 0.1 * float(train.hair_loss(p, t, 1.0)), places=6)
+        # Random looks: hair colours inside [0, 1], one look per crop.
+        h, li, b = train.random_looks(64, torch.Generator().manual_seed(3))
+        self.assertEqual(tuple(h.shape), (64, 3, 1, 1))
+        self.assertTrue(bool((h >= 0).all() and (h <= 1).all() and (b >= 0).all()))
+        self.assertGreater(float(h.std(0).min()), 0.05)
+
     # -- training --------------------------------------------------------------
 
     def test_loss_falls_and_export_roundtrips(self):
@@ -278,9 +316,15 @@ class Recipe(unittest.TestCase):
             self.assertTrue(torch.equal(sd16[k], sd_a[k].half().float()), k)
 
     def test_resume_equals_uninterrupted(self):
+        self.resume_equals_uninterrupted("paper")
+
+    def test_resume_equals_uninterrupted_look_loss(self):
+        self.resume_equals_uninterrupted("look")
+
+    def resume_equals_uninterrupted(self, loss):
         common = ["--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
-                  "--val-every", "4", "--ckpt-every", "4", "--seed", "9"]
-        a, b = os.path.join(self.work, "ra"), os.path.join(self.work, "rb")
+                  "--val-every", "4", "--ckpt-every", "4", "--seed", "9", "--loss", loss]
+        a, b = os.path.join(self.work, "ra_" + loss), os.path.join(self.work, "rb_" + loss)
         run_train(*common, "--out", a, "--steps", "12", "--export", a + ".safetensors")
         run_train(*common, "--out", b, "--steps", "12", "--stop-at", "8")
         r = run_train("--out", b, "--resume", "--steps", "12", "--export", b + ".safetensors")
