@@ -56,7 +56,12 @@ def premultiply(y):
 
 def hair_loss(pred, target, grad_weight=1.0):
     """The paper's loss on NCHW (color, highlight, alpha) tensors."""
-    p, q = premultiply(pred), premultiply(target)
+    return mse_and_gradients(premultiply(pred), premultiply(target), grad_weight)
+
+
+def mse_and_gradients(p, q, grad_weight):
+    """MSE of NCHW p against q plus grad_weight times the MSE of their x and
+    y finite differences."""
     loss = F.mse_loss(p, q)
     if grad_weight:
         dxp, dxq = p[..., :, 1:] - p[..., :, :-1], q[..., :, 1:] - q[..., :, :-1]
@@ -107,12 +112,7 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1):
     channels alike, a viewer sees the highlight at full strength and the
     colour factor scaled by the hair colour, so this puts the effort where
     the image's error is."""
-    p, q = composite(pred, *looks), composite(target, *looks)
-    loss = F.mse_loss(p, q)
-    if grad_weight:
-        dxp, dxq = p[..., :, 1:] - p[..., :, :-1], q[..., :, 1:] - q[..., :, :-1]
-        dyp, dyq = p[..., 1:, :] - p[..., :-1, :], q[..., 1:, :] - q[..., :-1, :]
-        loss = loss + grad_weight * (F.mse_loss(dxp, dxq) + F.mse_loss(dyp, dyq))
+    loss = mse_and_gradients(composite(pred, *looks), composite(target, *looks), grad_weight)
     if paper_weight:
         loss = loss + paper_weight * hair_loss(pred, target, grad_weight)
     return loss
