@@ -280,9 +280,19 @@ void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int s
  * thread) cannot be allocated. */
 int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
                       hf_input_report *report, hf_input_stats *stats);
+/* hf_features_check's report and, when stats is not NULL,
+ * hf_input_stats_compute's values for one frame ([height][width][spp*6] of
+ * dtype, HF_F32 or HF_F16), in one pass that only reads it, split between
+ * threads for large frames as hf_features_widen is: what hf_model_run does
+ * to every frame before a backend sees it, at about the speed of a copy.
+ * HF_ENOMEM (report and stats unset) when the statistics' counts cannot be
+ * allocated. */
+int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int spp,
+                     hf_input_report *report, hf_input_stats *stats);
 /* Keeps pixels outputs ([pixels][3] of dtype) in their ranges: NaN becomes
  * the channel's neutral value (color 1, highlight 0, alpha 0), anything else
- * is clamped. Returns the number of pixels changed. */
+ * is clamped. Split between threads for large frames (hf_parallel_chunks).
+ * Returns the number of pixels changed. */
 uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels);
 
 /* One batch of frames of the same size. in: [batch][h][w][in_channels],

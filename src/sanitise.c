@@ -246,7 +246,8 @@ void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int s
 #define WIDEN_STREAM_MIN ((size_t)1 << 18)
 
 typedef struct widen_run {
-  const uint16_t *in;
+  const void *in;               /* [pixels][spp * 6] of dtype */
+  hf_dtype dtype;               /* HF_F32 only without out */
   float *out;
   int width, spp, stream;
   hf_input_report rep[HF_PARALLEL_MAX];
@@ -260,21 +261,26 @@ static void widen_chunk(void *arg, int worker, size_t b, size_t e) {
   const size_t f = HF_FEATURES_PER_SAMPLE, s0 = b * w->spp, s1 = e * w->spp;
   if (!w->out) {
     /* Only read: in is the caller's and stays as it is. */
-    scan_range((void *)w->in, HF_F16, w->width, w->spp, s0, s1, 0, NULL, &w->rep[worker]);
+    scan_range((void *)w->in, w->dtype, w->width, w->spp, s0, s1, 0, NULL, &w->rep[worker]);
   } else {
-    if (w->stream) hf_f16_to_f32_stream(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
-    else hf_f16_to_f32_serial(w->in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
-    scan_range((void *)w->in, HF_F16, w->width, w->spp, s0, s1, 1, w->out, &w->rep[worker]);
+    const uint16_t *in = w->in;
+    if (w->stream) hf_f16_to_f32_stream(in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+    else hf_f16_to_f32_serial(in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+    scan_range((void *)in, HF_F16, w->width, w->spp, s0, s1, 1, w->out, &w->rep[worker]);
   }
-  if (w->acc) hf_input_stats_add(&w->acc[worker], w->in, HF_F16, w->spp, b, e);
+  if (w->acc) hf_input_stats_add(&w->acc[worker], w->in, w->dtype, w->spp, b, e);
 }
 
-int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
-                      hf_input_report *report, hf_input_stats *stats) {
+/* The pass of hf_features_widen and hf_features_scan: a frame of dtype
+ * (HF_F16 when out is not NULL) in chunks of whole pixels split between
+ * threads, each worker with its own report and statistics, merged at the
+ * end. */
+static int widen_or_scan(const void *in, hf_dtype dtype, float *out, int width, int height,
+                         int spp, hf_input_report *report, hf_input_stats *stats) {
   size_t px = (size_t)width * height, n = px * spp;
   size_t chunk = (WIDEN_CHUNK_SAMPLES / spp + 3) & ~(size_t)3;
   size_t per_thread = (WIDEN_PER_THREAD + spp - 1) / spp;
-  widen_run w = {.in = in, .out = out, .width = width, .spp = spp,
+  widen_run w = {.in = in, .dtype = dtype, .out = out, .width = width, .spp = spp,
                  .stream = n * HF_FEATURES_PER_SAMPLE >= WIDEN_STREAM_MIN};
   int nw = hf_parallel_workers(px, per_thread);
   if (stats) {
@@ -308,16 +314,27 @@ int hf_features_widen(const uint16_t *in, float *out, int width, int height, int
   return HF_OK;
 }
 
+int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
+                      hf_input_report *report, hf_input_stats *stats) {
+  return widen_or_scan(in, HF_F16, out, width, height, spp, report, stats);
+}
+
+int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int spp,
+                     hf_input_report *report, hf_input_stats *stats) {
+  return widen_or_scan(in, dtype, NULL, width, height, spp, report, stats);
+}
+
 /* ---- outputs ---------------------------------------------------------------------- */
 
 #define F16_MAX_BITS 0x7bffu  /* 65504 */
 #define F16_ONE_BITS 0x3c00u
 
-uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels) {
+/* Pixels [p0, p1) of out kept in range; the number changed. */
+static uint64_t guard_range(void *out, hf_dtype dtype, size_t p0, size_t p1) {
   uint64_t fixed = 0;
   if (dtype == HF_F32) {
     float *o = out;
-    for (size_t i = 0; i < pixels * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
+    for (size_t i = p0 * HF_OUT_CHANNELS; i < p1 * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
       float c = o[i], h = o[i + 1], a = o[i + 2];
       if ((c >= -HF_OUTPUT_MAX) & (c <= HF_OUTPUT_MAX) & (h >= 0.0f) & (h <= HF_OUTPUT_MAX) &
           (a >= 0.0f) & (a <= 1.0f))
@@ -330,7 +347,7 @@ uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels) {
     return fixed;
   }
   uint16_t *o = out;
-  for (size_t i = 0; i < pixels * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
+  for (size_t i = p0 * HF_OUT_CHANNELS; i < p1 * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
     uint16_t c = o[i], h = o[i + 1], a = o[i + 2];
     uint16_t kc = key16(c), kh = key16(h), ka = key16(a);
     if ((kc >= key16(0x8000u | F16_MAX_BITS)) & (kc <= key16(F16_MAX_BITS)) &
@@ -345,5 +362,30 @@ uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels) {
     o[i + 1] = nan_h || kh < K_NEG_ZERO ? 0 : kh > key16(F16_MAX_BITS) ? F16_MAX_BITS : h;
     o[i + 2] = nan_a || ka < K_NEG_ZERO ? 0 : ka > K_ONE ? F16_ONE_BITS : a;
   }
+  return fixed;
+}
+
+/* Pixels per chunk of the threaded guard (48 KiB of floats), and per
+ * thread below which a thread costs more than it saves (the conversion's
+ * threshold, 2^19 values). */
+#define GUARD_CHUNK 4096
+#define GUARD_PER_THREAD (((size_t)1 << 19) / HF_OUT_CHANNELS)
+
+typedef struct guard_run {
+  void *out;
+  hf_dtype dtype;
+  uint64_t fixed[HF_PARALLEL_MAX];
+} guard_run;
+
+static void guard_chunk(void *arg, int worker, size_t b, size_t e) {
+  guard_run *g = arg;
+  g->fixed[worker] += guard_range(g->out, g->dtype, b, e);
+}
+
+uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels) {
+  guard_run g = {.out = out, .dtype = dtype};
+  int nw = hf_parallel_chunks(pixels, GUARD_CHUNK, GUARD_PER_THREAD, guard_chunk, &g);
+  uint64_t fixed = 0;
+  for (int k = 0; k < nw; k++) fixed += g.fixed[k];
   return fixed;
 }

@@ -13,8 +13,9 @@
  * --input-stats adds a table of what judging a frame's input against a
  * trained range costs (hf_input_stats_compute, as hairfilterd runs it per
  * frame), beside a memcpy of the same frame: the cheapest pass over it;
- * --input-check the same for the out-of-contract check hf_model_run makes
- * on every frame (hf_features_check); --exr what hf_exr_write costs with
+ * --input-check the same for the out-of-contract check (hf_features_check,
+ * one thread), then for both in the one threaded pass hf_model_run makes on
+ * every frame (hf_features_scan); --exr what hf_exr_write costs with
  * its read-back comparison, beside hf_exr_read.
  *
  * Before the table it prints the CPU (model, vector flags) and the fp32
@@ -91,7 +92,7 @@ static void usage(FILE *f) {
           "/usr/bin/python3 that imports torch. --input-stats adds what the per-frame input\n"
           "statistics cost at each size (4 spp, f32 and f16, half the samples covered)\n"
           "beside a memcpy of the frame; --input-check the same for the out-of-contract\n"
-          "check of hf_model_run; --exr EXR writing (with its read-back check) beside\n"
+          "check, then for both in hf_model_run's one threaded pass; --exr EXR writing (with its read-back check) beside\n"
           "reading, at each size. Defaults: every backend in this build, Base, the\n"
           "three sizes, batch 1, 20 iterations, 3 warm-up.\n"
           "Before the table: the CPU's model and vector flags, and its fp32 peak measured\n"
@@ -289,11 +290,13 @@ static double clock_ms(clockid_t id) {
 
 /* A pass over a whole input frame that runs before the network: the input
  * statistics (hairfilterd, for variants with a trained range) and the
- * out-of-contract check (hf_model_run, always). */
+ * out-of-contract check, each on one thread as defined; and both in the
+ * one threaded pass that hf_model_run makes (hf_features_scan). */
 typedef struct frame_pass {
   const char *title;   /* table column: "input statistics" */
   const char *short_name;
   void (*run)(const void *in, hf_dtype dtype, int w, int h, int spp);
+  int threaded;        /* CPU time of every thread of the process, not this one's */
 } frame_pass;
 
 static void run_input_stats(const void *in, hf_dtype dtype, int w, int h, int spp) {
@@ -306,8 +309,16 @@ static void run_input_check(const void *in, hf_dtype dtype, int w, int h, int sp
   hf_features_check(in, dtype, w, h, spp, &r);
 }
 
-static const frame_pass PASS_STATS = {"input statistics", "statistics", run_input_stats};
-static const frame_pass PASS_CHECK = {"out-of-contract check", "check", run_input_check};
+static void run_input_scan(const void *in, hf_dtype dtype, int w, int h, int spp) {
+  hf_input_report r;
+  hf_input_stats st;
+  hf_features_scan(in, dtype, w, h, spp, &r, &st);
+}
+
+static const frame_pass PASS_STATS = {"input statistics", "statistics", run_input_stats, 0};
+static const frame_pass PASS_CHECK = {"out-of-contract check", "check", run_input_check, 0};
+static const frame_pass PASS_SCAN = {"check and statistics in hf_model_run's threaded pass",
+                                     "pass", run_input_scan, 1};
 
 /* pass on a 4-spp frame of each size, f32 and f16, with every sample
  * covered or not at random (the worst case for a branch on coverage),
@@ -315,9 +326,11 @@ static const frame_pass PASS_CHECK = {"out-of-contract check", "check", run_inpu
  * and in this thread's CPU time (which other jobs on the machine do not
  * inflate). */
 static int bench_frame_pass(const bench_opts *o, const frame_pass *pass) {
-  printf("\n| size | input | %s ms, wall median / p90 | thread CPU median | "
+  printf("\n| size | input | %s ms, wall median / p90 | %s CPU median | "
          "memcpy of the frame ms, wall / CPU median | %s / memcpy (CPU) | iters |\n"
-         "|---|---|---:|---:|---:|---:|---:|\n", pass->title, pass->short_name);
+         "|---|---|---:|---:|---:|---:|---:|\n", pass->title,
+         pass->threaded ? "all threads'" : "thread", pass->short_name);
+  const clockid_t cpu = pass->threaded ? CLOCK_PROCESS_CPUTIME_ID : CLOCK_THREAD_CPUTIME_ID;
   const int spp = 4, ch = spp * HF_FEATURES_PER_SAMPLE;
   for (int s = 0; s < o->nsizes; s++) {
     int w = o->sizes[s][0], h = o->sizes[s][1];
@@ -343,11 +356,11 @@ static int bench_frame_pass(const bench_opts *o, const frame_pass *pass) {
       double *sw = t, *sc = t + o->iters, *cw = t + 2 * o->iters, *cc = t + 3 * o->iters;
       volatile double sink = 0;
       for (int i = -o->warmup; i < o->iters; i++) {
-        double w0 = clock_ms(CLOCK_MONOTONIC), c0 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        double w0 = clock_ms(CLOCK_MONOTONIC), c0 = clock_ms(cpu);
         pass->run(src, d ? HF_F16 : HF_F32, w, h, spp);
-        double w1 = clock_ms(CLOCK_MONOTONIC), c1 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        double w1 = clock_ms(CLOCK_MONOTONIC), c1 = clock_ms(cpu);
         memcpy(copy, src, bytes);
-        double w2 = clock_ms(CLOCK_MONOTONIC), c2 = clock_ms(CLOCK_THREAD_CPUTIME_ID);
+        double w2 = clock_ms(CLOCK_MONOTONIC), c2 = clock_ms(cpu);
         sink += ((const float *)copy)[i & 1023];
         if (i >= 0) sw[i] = w1 - w0, sc[i] = c1 - c0, cw[i] = w2 - w1, cc[i] = c2 - c1;
       }
@@ -811,6 +824,7 @@ int cmd_bench(int argc, char **argv) {
   print_table(&mc);
   if (o.input_stats && bench_frame_pass(&o, &PASS_STATS)) failed = 1;
   if (o.input_check && bench_frame_pass(&o, &PASS_CHECK)) failed = 1;
+  if (o.input_check && bench_frame_pass(&o, &PASS_SCAN)) failed = 1;
   if (o.exr && bench_exr(&o)) failed = 1;
   return failed ? 1 : 0;
 }

@@ -233,6 +233,26 @@ static void check_widen(int w, int h, int spp, int plant) {
   assert_memory_equal(&r, &c, sizeof r);
   assert_memory_equal(&st, &want_st, sizeof st);
   assert_memory_equal(h16, copy, n * 6 * sizeof *copy);
+  /* hf_features_scan: the same for halves; for floats, hf_features_check's
+   * report and hf_input_stats_compute's values, the floats unchanged. */
+  memset(&r, 0x5a, sizeof r);
+  memset(&st, 0x5a, sizeof st);
+  assert_int_equal(hf_features_scan(h16, HF_F16, w, h, spp, &r, &st), HF_OK);
+  assert_memory_equal(&r, &c, sizeof r);
+  assert_memory_equal(&st, &want_st, sizeof st);
+  memcpy(want, s, n * 6 * sizeof(float));
+  hf_features_check(s, HF_F32, w, h, spp, &c);
+  assert_int_equal(hf_input_stats_compute(s, HF_F32, w, h, spp, &want_st), HF_OK);
+  memset(&r, 0x5a, sizeof r);
+  memset(&st, 0x5a, sizeof st);
+  assert_int_equal(hf_features_scan(s, HF_F32, w, h, spp, &r, &st), HF_OK);
+  assert_memory_equal(&r, &c, sizeof r);
+  assert_memory_equal(&st, &want_st, sizeof st);
+  assert_true(!plant || (r.samples >= 1 && r.samples <= (uint64_t)plant));
+  memset(&r, 0x5a, sizeof r);
+  assert_int_equal(hf_features_scan(s, HF_F32, w, h, spp, &r, NULL), HF_OK);
+  assert_memory_equal(&r, &c, sizeof r);
+  assert_memory_equal(s, want, n * 6 * sizeof(float));
   free(s), free(got), free(want), free(h16), free(copy);
 }
 
@@ -292,6 +312,34 @@ static void test_output_guard(void **state) {
   /* In half, 1e6 and 1.0000001 are already Inf and 1. */
   assert_int_equal(hf_output_guard(h, HF_F16, 8), 4);
   for (int i = 0; i < 24; i++) assert_int_equal(h[i], hf_f32_to_f16(want[i]));
+}
+
+/* A frame large enough for the guard to be split between threads (and not
+ * a whole number of its chunks), out-of-range pixels planted anywhere:
+ * the same values and count as the guard one pixel at a time. */
+static void test_output_guard_split(void **state) {
+  const size_t px = 700001;
+  static const float bad[6] = {NAN, INFINITY, -1.0f, 2.0f, 1e6f, -1e6f};
+  float *o = malloc(px * 3 * sizeof *o), *want = malloc(px * 3 * sizeof *want);
+  uint16_t *h = malloc(px * 3 * sizeof *h), *hwant = malloc(px * 3 * sizeof *hwant);
+  assert_non_null(o), assert_non_null(want), assert_non_null(h), assert_non_null(hwant);
+  for (size_t i = 0; i < px * 3; i++) o[i] = (float)(i % 7) / 8.0f;
+  for (int k = 0; k < 200; k++) o[next() % (px * 3)] = bad[next() % 6];
+  o[0] = NAN, o[px * 3 - 1] = 3.0f;   /* the first and the last pixel */
+  for (size_t i = 0; i < px * 3; i++) h[i] = hf_f32_to_f16(o[i]);
+  memcpy(want, o, px * 3 * sizeof *o);
+  memcpy(hwant, h, px * 3 * sizeof *h);
+  uint64_t n32 = 0, n16 = 0;
+  for (size_t p = 0; p < px; p++) {
+    n32 += hf_output_guard(want + p * 3, HF_F32, 1);
+    n16 += hf_output_guard(hwant + p * 3, HF_F16, 1);
+  }
+  assert_true(n32 >= 2 && n32 <= 202);
+  assert_int_equal(hf_output_guard(o, HF_F32, px), n32);
+  assert_memory_equal(o, want, px * 3 * sizeof *o);
+  assert_int_equal(hf_output_guard(h, HF_F16, px), n16);
+  assert_memory_equal(h, hwant, px * 3 * sizeof *h);
+  free(o), free(want), free(h), free(hwant);
 }
 
 /* ---- through hf_model_run on every CPU backend ---------------------------------- */
@@ -535,7 +583,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_rule),         cmocka_unit_test(test_rule_each_position),
     cmocka_unit_test(test_widen),        cmocka_unit_test(test_report_kinds),
-    cmocka_unit_test(test_output_guard),
+    cmocka_unit_test(test_output_guard), cmocka_unit_test(test_output_guard_split),
     cmocka_unit_test(test_backends),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
