@@ -171,6 +171,11 @@ typedef struct od_taps_pass {
                                  * widened into the thread's row (below) */
   float *rows;                  /* each thread's row, rows_floats apart */
   size_t rows_floats;
+  uint16_t *out16;              /* with fin: the caller's float16 frames
+                                 * [batch][2h][2w][3] instead of out; a row is
+                                 * made in the thread's row16 and converted */
+  float *row16;                 /* each thread's, row16_floats apart (>= 6w) */
+  size_t row16_floats;
 } od_taps_pass;
 
 /* Copies dense [npix][ch] into [npix][stride] (a concat buffer's half). */
@@ -693,6 +698,19 @@ static float *od_taps_out_row(const od_taps_pass *t, int n, int Y) {
   return t->out + ((size_t)n * 2 * t->h + Y) * 2 * t->w * t->stride;
 }
 
+/* Where thread `thread` makes output row Y of frame n: the row itself, or
+ * for float16 frames its row buffer, converted by od_taps_row_done. */
+static float *od_taps_dst(const od_taps_pass *t, int n, int Y, int thread) {
+  return t->out16 ? t->row16 + (size_t)thread * t->row16_floats : od_taps_out_row(t, n, Y);
+}
+
+/* Row Y of frame n, made at dst by od_taps_dst, into the caller's float16
+ * frames (while it is still in the cache); nothing for float32. */
+static void od_taps_row_done(const od_taps_pass *t, int n, int Y, const float *dst) {
+  const size_t row = (size_t)2 * t->w * 3;
+  if (t->out16) hf_f32_to_f16_serial(dst, t->out16 + ((size_t)n * 2 * t->h + Y) * row, row);
+}
+
 /* The skip channels of output row Y of frame n on thread `thread`, whose
  * rows buffer holds them when they are widened from halves. */
 static const float *od_taps_skip_row(const od_taps_pass *t, int n, int Y, int thread) {
@@ -710,8 +728,10 @@ static void od_taps_row(const od_taps_pass *t, int n, int Y, int thread) {
   const int ky0 = py ? 2 : 1, ky1 = py ? 0 : 3, y1 = py ? m + 1 : m - 1;
   const float *r0 = t->taps + ((size_t)n * h + m) * w * T;
   const float *r1 = y1 >= 0 && y1 < h ? t->taps + ((size_t)n * h + y1) * w * T : NULL;
-  od_taps_line(t, r0, ky0, r1, ky1, od_taps_out_row(t, n, Y), t->stride, t->bias, t->relu,
-               t->fin, od_taps_skip_row(t, n, Y, thread));
+  float *dst = od_taps_dst(t, n, Y, thread);
+  od_taps_line(t, r0, ky0, r1, ky1, dst, t->stride, t->bias, t->relu, t->fin,
+               od_taps_skip_row(t, n, Y, thread));
+  od_taps_row_done(t, n, Y, dst);
 }
 
 static void od_taps_rows(const od_taps_pass *t, int thread, size_t row0, size_t row1) {
@@ -1131,8 +1151,10 @@ static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, i
       const int m = Y >> 1, py = Y & 1, y1 = py ? m + 1 : m - 1;
       const float *r0 = m < a ? prev : tb + (m - a) * rowf;
       const float *r1 = y1 < a ? prev : tb + (y1 - a) * rowf;
-      od_taps_line(tp, r0, py ? 2 : 1, r1, py ? 0 : 3, od_taps_out_row(tp, n, Y), tp->stride,
-                   tp->bias, tp->relu, tp->fin, od_taps_skip_row(tp, n, Y, t));
+      float *dst = od_taps_dst(tp, n, Y, t);
+      od_taps_line(tp, r0, py ? 2 : 1, r1, py ? 0 : 3, dst, tp->stride, tp->bias, tp->relu,
+                   tp->fin, od_taps_skip_row(tp, n, Y, t));
+      od_taps_row_done(tp, n, Y, dst);
     }
     if (!prev) {
       od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, 0, NULL);
@@ -1157,13 +1179,19 @@ static void od_band_seam(const od_step *st, int n, int j, int thread) {
   const size_t prow = (size_t)2 * tp->w * tp->cout;
   const int a = j < b->nchunks ? j * b->chunk * b->bh : tp->h;
   const float *P = b->part + (size_t)n * b->nchunks * 4 * prow;
-  if (a < tp->h)
+  if (a < tp->h) {
+    float *dst = od_taps_dst(tp, n, 2 * a, thread);
     od_taps_join(tp, P + (size_t)j * 4 * prow, j > 0 ? P + ((size_t)(j - 1) * 4 + 3) * prow : NULL,
-                 od_taps_out_row(tp, n, 2 * a), od_taps_skip_row(tp, n, 2 * a, thread));
-  if (a > 0)
+                 dst, od_taps_skip_row(tp, n, 2 * a, thread));
+    od_taps_row_done(tp, n, 2 * a, dst);
+  }
+  if (a > 0) {
+    float *dst = od_taps_dst(tp, n, 2 * a - 1, thread);
     od_taps_join(tp, P + ((size_t)(j - 1) * 4 + 2) * prow,
-                 j < b->nchunks ? P + ((size_t)j * 4 + 1) * prow : NULL,
-                 od_taps_out_row(tp, n, 2 * a - 1), od_taps_skip_row(tp, n, 2 * a - 1, thread));
+                 j < b->nchunks ? P + ((size_t)j * 4 + 1) * prow : NULL, dst,
+                 od_taps_skip_row(tp, n, 2 * a - 1, thread));
+    od_taps_row_done(tp, n, 2 * a - 1, dst);
+  }
 }
 
 /* Runs a banded step: the chunks taken in turn by the threads (a thread on
@@ -1679,7 +1707,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
                            i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
                            i ? p->enc[i - 1] : head_cat ? p->in : NULL,
                            i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0, 0,
-                           NULL, p->in, (size_t)pw * c->in_channels};
+                           NULL, p->in, (size_t)pw * c->in_channels, NULL, NULL, 0};
       if (i == 0 && !head) p->out_step = p->nsteps + (bh[i] ? 0 : 1);
       if (bh[i]) {
         if (head_cat) p->in_skip_step = p->nsteps;
@@ -1943,13 +1971,18 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
     p->steps[p->in_skip_step].taps.skip = in;
     p->steps[p->in_skip_step].taps.skip_in = halves ? &p->input : NULL;
   }
-  /* A U-Net's dec0 writes the caller's float32 frames, transformed, when
-   * no padding is cropped: the output stage then has nothing left to do. */
+  /* A U-Net's dec0 writes the caller's frames, transformed (and for
+   * float16 converted a row at a time), when no padding is cropped: the
+   * output stage then has nothing left to do. */
   const int direct = p->out_step >= 0 && c->arch == HF_ARCH_UNET && c->out_channels == 3 &&
-                     io->out_dtype == HF_F32 && io->width == pw && io->height == ph;
+                     io->width == pw && io->height == ph;
   if (p->out_step >= 0) {
-    p->steps[p->out_step].taps.out = direct ? (float *)io->out : p->out;
-    p->steps[p->out_step].taps.fin = direct;
+    od_taps_pass *tp = &p->steps[p->out_step].taps;
+    tp->out = direct && io->out_dtype == HF_F32 ? (float *)io->out : p->out;
+    tp->fin = direct;
+    tp->out16 = direct && io->out_dtype == HF_F16 ? (uint16_t *)io->out : NULL;
+    tp->row16 = p->kscratch;
+    tp->row16_floats = od_thread_scratch(c, pw);
   }
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {

@@ -181,6 +181,44 @@ static void test_batch_and_dtypes(void **state) {
   /* Aligned float32 frames: dec0 writes the caller's output, transformed,
    * over several bands and seams of every decoder. */
   compare(*state, "Base", 2, 160, 96, HF_F32, HF_F32, 402);
+  /* ... and its float16 frames, a row at a time through the thread's row. */
+  compare(*state, "Base", 2, 160, 96, HF_F32, HF_F16, 403);
+  compare(*state, "Base", 2, 160, 96, HF_F16, HF_F16, 404);
+}
+
+/* Where dec0 writes the caller's frames (aligned sizes; U-Net variants),
+ * float16 results are the float32 results rounded (hf_f32_to_f16), bit
+ * for bit: the same floats, converted a row at a time. Sizes with bands
+ * and seams in every decoder, and a batch. */
+static void test_direct_f16_output(void **state) {
+  fixture *f = *state;
+  static const struct { const char *v; int batch, w, h; } k[] = {
+      {"Base", 2, 160, 96}, {"Small", 1, 256, 64}, {"Deep", 1, 128, 128}};
+  for (size_t i = 0; i < sizeof k / sizeof k[0]; i++) {
+    hf_net_config cfg;
+    hf_weights *wt;
+    hf_model *m;
+    assert_int_equal(hf_variant_preset(k[i].v, &cfg), HF_OK);
+    assert_int_equal(hf_weights_init_random(&cfg, 700 + i, &wt), HF_OK);
+    assert_int_equal(hf_model_create(f->cpu, wt, &m), HF_OK);
+    size_t nout = (size_t)k[i].batch * k[i].w * k[i].h * 3;
+    float *in = random_input(&cfg, k[i].batch, k[i].w, k[i].h, 710 + i);
+    float *o32 = malloc(nout * sizeof *o32);
+    uint16_t *o16 = malloc(nout * sizeof *o16);
+    assert_non_null(o32), assert_non_null(o16);
+    hf_io io = {k[i].batch, k[i].w, k[i].h, in, HF_F32, o32, HF_F32};
+    hf_timing t;
+    assert_int_equal(hf_model_run(m, &io, &t), HF_OK);
+    io.out = o16, io.out_dtype = HF_F16;
+    assert_int_equal(hf_model_run(m, &io, &t), HF_OK);
+    for (size_t j = 0; j < nout; j++)
+      if (o16[j] != hf_f32_to_f16(o32[j]))
+        fail_msg("%s %dx%d: value %zu is %04x, hf_f32_to_f16(%.9g) = %04x", k[i].v, k[i].w,
+                 k[i].h, j, o16[j], o32[j], hf_f32_to_f16(o32[j]));
+    free(in), free(o32), free(o16);
+    hf_model_destroy(m);
+    hf_weights_free(wt);
+  }
 }
 
 /* The Kernel architecture beyond its preset: without a head, with the
@@ -284,6 +322,7 @@ int main(void) {
     cmocka_unit_test(test_registry),
     cmocka_unit_test(test_presets_match_ref),
     cmocka_unit_test(test_batch_and_dtypes),
+    cmocka_unit_test(test_direct_f16_output),
     cmocka_unit_test(test_kernel_configs),
     cmocka_unit_test(test_repeat_and_cache),
     cmocka_unit_test(test_deconv_path_matches_ref),
