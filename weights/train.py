@@ -102,7 +102,44 @@ def random_looks(n, gen):
     return tuple(v[:, :, None, None] for v in (hair, light, bg))
 
 
-def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1):
+# The SSIM `hairfilter eval` scores with (client/cli/eval_metrics.h): a
+# Gaussian window of radius 5 and sigma 1.5, C1 = 0.01^2, C2 = 0.03^2.
+SSIM_RADIUS, SSIM_SIGMA, SSIM_C1, SSIM_C2 = 5, 1.5, 0.01 ** 2, 0.03 ** 2
+
+
+def ssim_map(p, q):
+    """SSIM map of NCHW images p and q (values in [0, 1]), the mean over
+    channels: [n][h - 10][w - 10], the pixels whose whole window lies inside
+    (the evaluation renormalises the window at the border instead; a crop's
+    border pixels are left out here). The moments in float32."""
+    p, q = p.float(), q.float()
+    r = SSIM_RADIUS
+    k = torch.exp(-torch.arange(-r, r + 1, dtype=torch.float32, device=p.device) ** 2
+                  / (2 * SSIM_SIGMA ** 2))
+    k = k / k.sum()
+    c = p.shape[1]
+    kx, ky = k.view(1, 1, 1, -1).repeat(c, 1, 1, 1), k.view(1, 1, -1, 1).repeat(c, 1, 1, 1)
+
+    def blur(x):
+        return F.conv2d(F.conv2d(x, kx, groups=c), ky, groups=c)
+
+    mp, mq = blur(p), blur(q)
+    vp, vq, cov = blur(p * p) - mp * mp, blur(q * q) - mq * mq, blur(p * q) - mp * mq
+    s = ((2 * mp * mq + SSIM_C1) * (2 * cov + SSIM_C2)
+         / ((mp * mp + mq * mq + SSIM_C1) * (vp + vq + SSIM_C2)))
+    return s.mean(1)
+
+
+def hair_ssim_loss(p, q, alpha):
+    """1 - the mean SSIM of images p and q (NCHW) over the hair pixels (alpha
+    [n][1][h][w] of the target > 0) whose window lies inside, as `hairfilter
+    eval` scores SSIM on hair pixels; 0 for a crop without such pixels."""
+    r = SSIM_RADIUS
+    m = (alpha[:, 0, r:-r, r:-r] > 0).float()
+    return ((1 - ssim_map(p, q)) * m).sum() / m.sum().clamp(min=1)
+
+
+def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0):
     """The squared error of what a viewer sees: pred and target composited
     with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
     weighted by grad_weight, of their finite differences, as the paper's loss
@@ -111,8 +148,13 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1):
     colour hides the colour factor). Where the paper's loss weighs the three
     channels alike, a viewer sees the highlight at full strength and the
     colour factor scaled by the hair colour, so this puts the effort where
-    the image's error is."""
-    loss = mse_and_gradients(composite(pred, *looks), composite(target, *looks), grad_weight)
+    the image's error is. ssim_weight adds that times hair_ssim_loss of the
+    two images: the structure the evaluation's SSIM scores, which the MSE
+    lets a blur trade away."""
+    cp, ct = composite(pred, *looks), composite(target, *looks)
+    loss = mse_and_gradients(cp, ct, grad_weight)
+    if ssim_weight:
+        loss = loss + ssim_weight * hair_ssim_loss(cp, ct, target[:, 2:3])
     if paper_weight:
         loss = loss + paper_weight * hair_loss(pred, target, grad_weight)
     return loss
@@ -123,12 +165,13 @@ def eval_looks(n, device):
                  for v in EVAL_LOOK)
 
 
-def run_loss(kind, pred, target, grad_weight, looks=None):
+def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0):
     """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
-    (look_loss with looks, EVAL_LOOK when None)."""
+    (look_loss with looks, EVAL_LOOK when None, and ssim_weight)."""
     if kind == "look":
         return look_loss(pred, target, looks if looks is not None
-                         else eval_looks(pred.shape[0], pred.device), grad_weight)
+                         else eval_looks(pred.shape[0], pred.device), grad_weight,
+                         ssim_weight=ssim_weight)
     return hair_loss(pred, target, grad_weight)
 
 
@@ -251,7 +294,8 @@ def save_checkpoint(path, **state):
 
 
 @torch.no_grad()
-def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper"):
+def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper",
+             ssim_weight=0.0):
     """Mean loss over the held-out frames (first spp samples, no
     augmentation; frames larger than max_side are centre-cropped); the
     look loss with the evaluation's look (EVAL_LOOK)."""
@@ -268,7 +312,8 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
         x = torch.from_numpy(np.ascontiguousarray(x.astype(np.float32).transpose(2, 0, 1)))[None]
         y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
         x, y = x.to(device), y.to(device)
-        total += float(run_loss(loss, forward(net, x, *mode), y, grad_weight))
+        total += float(run_loss(loss, forward(net, x, *mode), y, grad_weight,
+                                ssim_weight=ssim_weight))
     net.train()
     return total / len(frames)
 
@@ -347,6 +392,10 @@ def parse_args(argv):
                     "alpha and of their gradients; look: the same on the composited image "
                     "under a random hair colour, light and background per crop, plus a "
                     "tenth of the paper's (train.py look_loss)")
+    ap.add_argument("--ssim-weight", type=float, default=0.0,
+                    help="--loss look: add this times 1 - the SSIM of the composited "
+                    "images over the target's hair pixels (the evaluation's window and "
+                    "constants; train.py hair_ssim_loss)")
     ap.add_argument("--styles", default="straight,wavy",
                     help="styles to train on (others are never loaded); '' = all")
     ap.add_argument("--val-fraction", type=float, default=0.1)
@@ -388,7 +437,10 @@ def parse_args(argv):
                     "training set")
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.ssim_weight and args.loss != "look":
+        ap.error("--ssim-weight needs --loss look (it scores the composited images)")
+    return args
 
 
 def make_config(args):
@@ -421,6 +473,7 @@ def main(argv=None):
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
+                  "ssim_weight",
                   "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
@@ -512,7 +565,7 @@ def main(argv=None):
             looks = random_looks(x.shape[0], look_gen) if args.loss == "look" else None
             looks = tuple(v.to(device) for v in looks) if looks else None
             loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
-                            y, args.grad_weight, looks)
+                            y, args.grad_weight, looks, args.ssim_weight)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -526,7 +579,7 @@ def main(argv=None):
             last = step == stop or out_of_time
             if step % args.val_every == 0 or last:
                 val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device,
-                               loss=args.loss)
+                               loss=args.loss, ssim_weight=args.ssim_weight)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
                            time=elapsed + time.time() - t_start)
@@ -552,7 +605,8 @@ def main(argv=None):
                            styles=args.styles, train_frames=len(train_set),
                            val_frames=len(val_e), batch=args.batch, crop=args.crop,
                            lr=args.lr, schedule=args.schedule, lr_floor=args.lr_floor,
-                           grad_weight=args.grad_weight, loss=args.loss, seed=args.seed,
+                           grad_weight=args.grad_weight, loss=args.loss,
+                           ssim_weight=args.ssim_weight, seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)

@@ -261,6 +261,48 @@ class Recipe(unittest.TestCase):
         self.assertTrue(bool((h >= 0).all() and (h <= 1).all() and (b >= 0).all()))
         self.assertGreater(float(h.std(0).min()), 0.05)
 
+    def test_ssim_term_is_the_evaluations_ssim(self):
+        """ssim_map is the evaluation's SSIM (Gaussian window of radius 5,
+        sigma 1.5, C1 = 0.01^2, C2 = 0.03^2) at pixels whose window lies
+        inside, computed here pixel by pixel; hair_ssim_loss averages 1 - it
+        over the target's hair pixels only."""
+        g = torch.Generator().manual_seed(11)
+        p, q = torch.rand(1, 3, 16, 14, generator=g), torch.rand(1, 3, 16, 14, generator=g)
+        q = 0.5 * p + 0.5 * q
+        got = train.ssim_map(p, q)
+        self.assertEqual(tuple(got.shape), (1, 6, 4))
+        k = np.exp(-np.arange(-5, 6) ** 2 / (2 * 1.5 ** 2))
+        w2 = np.outer(k, k) / np.outer(k, k).sum()
+        P, Q = p[0].double().numpy(), q[0].double().numpy()
+        for y, x in ((0, 0), (3, 2), (5, 3)):
+            vals = []
+            for c in range(3):
+                a, b = P[c, y:y + 11, x:x + 11], Q[c, y:y + 11, x:x + 11]
+                ma, mb = (w2 * a).sum(), (w2 * b).sum()
+                va, vb = (w2 * a * a).sum() - ma * ma, (w2 * b * b).sum() - mb * mb
+                cov = (w2 * a * b).sum() - ma * mb
+                vals.append((2 * ma * mb + 1e-4) * (2 * cov + 9e-4)
+                            / ((ma * ma + mb * mb + 1e-4) * (va + vb + 9e-4)))
+            self.assertAlmostEqual(float(got[0, y, x]), float(np.mean(vals)), places=5)
+        alpha = torch.zeros(1, 1, 16, 14)
+        self.assertEqual(float(train.hair_ssim_loss(p, q, alpha)), 0.0)   # no hair
+        self.assertAlmostEqual(float(train.hair_ssim_loss(p, p, alpha + 1)), 0.0, places=6)
+        alpha[0, 0, 5 + 3, 5 + 2] = 0.4                                   # one hair pixel
+        self.assertAlmostEqual(float(train.hair_ssim_loss(p, q, alpha)),
+                               1 - float(got[0, 3, 2]), places=6)
+        # In the look loss, with its weight; --ssim-weight needs --loss look.
+        t = torch.rand(2, 3, 16, 16, generator=g)
+        pr = torch.clamp(t + 0.2 * torch.rand(2, 3, 16, 16, generator=g), 0, 1)
+        looks = train.eval_looks(2, "cpu")
+        self.assertAlmostEqual(
+            float(train.look_loss(pr, t, looks, 1.0, 0.1, ssim_weight=0.5)),
+            float(train.look_loss(pr, t, looks, 1.0, 0.1))
+            + 0.5 * float(train.hair_ssim_loss(train.composite(pr, *looks),
+                                               train.composite(t, *looks), t[:, 2:3])),
+            places=6)
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", "--ssim-weight", "0.1"])
+
     # -- training --------------------------------------------------------------
 
     def test_loss_falls_and_export_roundtrips(self):
