@@ -15,6 +15,10 @@
 
 #include "hfcore.h"
 
+/* model_run_scan's answers besides HF_OK and the (negative) errors. */
+#define HF_RUN_DECLINED 1
+#define HF_RUN_UNCLEAN 2
+
 typedef struct hf_backend_ops {
   const char *name;
   /* Larger is preferred by "auto". */
@@ -39,6 +43,17 @@ typedef struct hf_backend_ops {
   int (*model_create)(void *dev, const hf_weights *w, void **model);
   void (*model_destroy)(void *model);
   int (*model_run)(void *model, const hf_io *io, hf_timing *timing);
+  /* Optional: model_run that also makes, in its own first read of the
+   * input, what backend.c's pass before model_run makes (sanitise_input):
+   * rep ([io->batch]) gets hf_features_scan's report of each frame and
+   * stats, when not NULL, its statistics, so that the frame is read from
+   * memory once. Besides HF_OK and the errors it answers HF_RUN_DECLINED
+   * (an io it does not scan itself: nothing read or written) and
+   * HF_RUN_UNCLEAN (a frame has out-of-contract samples, the reports say
+   * which: io->out is untouched), and backend.c then checks and sanitises
+   * the input itself and runs model_run. */
+  int (*model_run_scan)(void *model, const hf_io *io, hf_timing *timing, hf_input_report *rep,
+                        hf_input_stats *stats);
   const char *(*model_precision)(void *model);
   /* Device memory held by the model (weights, activations, workspace);
    * NULL means 0 (host-only backends). */

@@ -49,6 +49,15 @@
  *     HF_CPU_ENC_BAND_KB=0 (and the head as two convolutions,
  *     HF_CPU_HEAD=sum, whose input part reads the whole input) widens the
  *     whole frame first, for comparison.
+ *   - The out-of-contract check and the input statistics are made in
+ *     enc0's bands too (model_run_scan), each band's rows scanned just
+ *     before its convolution reads them, for halves and for aligned float32
+ *     frames (those read in place, by band primitives, a frame's first
+ *     band padded above): the frame comes from memory once, where the
+ *     common check's pass before the run read all of it (25 MB at 512 x
+ *     512 and 4 spp) only for enc0 to read it again. A frame with a bad
+ *     sample stops after enc0 (HF_RUN_UNCLEAN) and backend.c runs it again
+ *     on a sanitised copy.
  *   - The backend's own passes (taps, output stage) run on the OpenMP
  *     threads oneDNN runs on, rows split between them (od_parallel).
  *   - Weights are reordered once, at model_create, into the format oneDNN
@@ -91,9 +100,11 @@
  * dec0's hidden channels and the input (OD_HEAD), or over each alone, the
  * input's part with the bias, the hidden part summed onto it (OD_HEAD_IN,
  * OD_HEAD_HID); and enc0 over a band of rows (OD_ENC_BAND: the row above
- * the band is in its source, so no padding above or below). */
+ * the band is in its source, so no padding above or below; OD_ENC_BAND_TOP
+ * a frame's first band read where it lies, padded above as the whole
+ * frame's convolution is). */
 typedef enum od_kind {
-  OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID, OD_ENC_BAND
+  OD_ENC, OD_DEC, OD_TAPS, OD_HEAD, OD_HEAD_IN, OD_HEAD_HID, OD_ENC_BAND, OD_ENC_BAND_TOP
 } od_kind;
 
 #define OD_MAX_THREADS 64
@@ -211,23 +222,28 @@ typedef struct od_band {
                                  * 2a, 2a - 1, 2b - 1, 2b of a chunk of rows [a, b) */
 } od_band;
 
-/* enc0 over float16 frames, a band of bh output rows at a time
- * (od_enc_band_run): a thread widens the band's 2 bh + 1 input rows (the
- * row above included, zeros above and below the frame and beyond its
- * width) into its part of the plan's padded input buffer, which frames of
- * halves leave unused (thread t's from row t (2 bh + 1)), and runs the
- * band's convolution from there into enc0's output. Each output pixel is the same sum of the same
- * products as in the whole frame's convolution: the implicit padding above
- * the frame becomes a row of zeros, whose products (+0 or -0) leave the
- * sum as it is, and the left and right padding stays implicit. */
+/* enc0 a band of bh output rows at a time (od_enc_band_run), over float16
+ * frames or over aligned float32 frames that the run checks as it reads
+ * them (model_run_scan). Halves: a thread widens the band's 2 bh + 1 input
+ * rows (the row above included, zeros above and below the frame and beyond
+ * its width) into its part of the plan's padded input buffer, which frames
+ * of halves leave unused (thread t's from row t (2 bh + 1)), and runs the
+ * band's convolution from there into enc0's output. Floats: the band's
+ * convolution reads the caller's rows where they lie, a frame's first band
+ * with the primitive padded above (prim[2]), so nothing is copied. Each
+ * output pixel is the same sum of the same products as in the whole
+ * frame's convolution: the implicit padding above the frame becomes a row
+ * of zeros, whose products (+0 or -0) leave the sum as it is, and the left
+ * and right padding stays implicit. */
 typedef struct od_enc_band {
   int bh, nb;                   /* output rows per band; bands per frame, the
                                  * last of ph / 2 - (nb - 1) bh rows */
   int nthreads;                 /* threads whose rows fit in the plan's in */
-  dnnl_primitive_t prim[2];     /* bh rows; the last band's rows if fewer */
-  dnnl_memory_t wmem[2];
-  int owned[2];                 /* wmem[k] is a private copy */
-  dnnl_memory_t *src_mem;       /* [thread][prim], over the thread's rows */
+  dnnl_primitive_t prim[3];     /* bh rows; the last band's rows if fewer;
+                                 * a first band of bh rows padded above */
+  dnnl_memory_t wmem[3];
+  int owned[3];                 /* wmem[k] is a private copy */
+  dnnl_memory_t *src_mem;       /* [thread][prim], over the band's rows */
   dnnl_memory_t *dst_mem;       /* [thread][prim], set to the band's rows */
 } od_enc_band;
 
@@ -443,7 +459,7 @@ fail:
 /* Creates the primitive descriptor of one layer between src and dst, with
  * weights and scratchpad formats left to oneDNN: OD_ENC a 3x3 stride-2
  * pad-1 convolution with fused ReLU (OD_ENC_BAND the same, padded left and
- * right only); OD_DEC a 4x4 stride-2 pad-1
+ * right only, OD_ENC_BAND_TOP left, right and above); OD_DEC a 4x4 stride-2 pad-1
  * deconvolution (its ReLU is a separate primitive); OD_TAPS a 1x1
  * convolution without bias or ReLU (the tap pass adds them); OD_HEAD and
  * OD_HEAD_IN 1x1 convolutions with bias, OD_HEAD_HID one without, adding
@@ -451,13 +467,14 @@ fail:
 static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
                        const dnnl_memory_desc_t *dst, int cin, int cout,
                        dnnl_primitive_desc_t *pd) {
-  const int enc = kind == OD_ENC || kind == OD_ENC_BAND;
+  const int enc = kind == OD_ENC || kind == OD_ENC_BAND || kind == OD_ENC_BAND_TOP;
   int rc = HF_OK, k = kind == OD_DEC ? 4 : enc ? 3 : 1;
   int deconv = kind == OD_DEC;
   dnnl_memory_desc_t wmd, bmd;
   dnnl_dims_t wd = {cout, cin, k, k}, bd = {cout};
   dnnl_dims_t strides = {2, 2}, pad = {1, 1}, one = {1, 1}, zero = {0, 0};
   dnnl_dims_t enc_pad = {kind == OD_ENC_BAND ? 0 : 1, 1};
+  dnnl_dims_t enc_pad_r = {kind == OD_ENC_BAND || kind == OD_ENC_BAND_TOP ? 0 : 1, 1};
   dnnl_primitive_attr_t attr = NULL;
   dnnl_post_ops_t po = NULL;
   *pd = NULL;
@@ -491,7 +508,7 @@ static int od_layer_pd(od_dev *dev, od_kind kind, const dnnl_memory_desc_t *src,
     OD_TRY(dnnl_primitive_attr_set_post_ops(attr, po));
     OD_TRY(dnnl_convolution_forward_desc_init(&cd, dnnl_forward_inference,
                                               dnnl_convolution_direct, src, &wmd, &bmd, dst,
-                                              strides, enc_pad, enc_pad));
+                                              strides, enc_pad, enc_pad_r));
     OD_TRY(dnnl_primitive_desc_create(pd, &cd, attr, dev->eng, NULL));
   }
 fail:
@@ -529,7 +546,8 @@ fail:
 static void od_layer_dims(const hf_net_config *c, od_kind kind, int i, int *cin, int *cout) {
   switch (kind) {
   case OD_ENC:
-  case OD_ENC_BAND: *cin = hf_enc_in(c, i), *cout = hf_enc_out(c, i); break;
+  case OD_ENC_BAND:
+  case OD_ENC_BAND_TOP: *cin = hf_enc_in(c, i), *cout = hf_enc_out(c, i); break;
   case OD_DEC: *cin = hf_dec_in(c, i), *cout = hf_dec_out(c, i); break;
   case OD_TAPS: *cin = hf_dec_in(c, i), *cout = 16 * hf_dec_out(c, i); break;
   case OD_HEAD: *cin = hf_head_in(c), *cout = c->out_channels; break;
@@ -543,7 +561,7 @@ static void od_layer_dims(const hf_net_config *c, od_kind kind, int i, int *cin,
  * memory the caller owns (*owned = 1). */
 static int od_weights_for(od_model *m, od_kind kind, int i, const dnnl_memory_desc_t *md,
                           dnnl_memory_t *out, int *owned) {
-  if (kind == OD_ENC_BAND) kind = OD_ENC; /* the same weights */
+  if (kind == OD_ENC_BAND || kind == OD_ENC_BAND_TOP) kind = OD_ENC; /* the same weights */
   int rc = HF_OK, deconv = kind == OD_DEC, head = kind >= OD_HEAD;
   const hf_net_config *c = &m->w->cfg;
   dnnl_memory_t *slot = head ? &m->head_w[kind - OD_HEAD]
@@ -744,9 +762,10 @@ static void od_taps_rows(const od_taps_pass *t, int thread, size_t row0, size_t 
 /* What a banded step (od_band, od_enc_band) owns: its two primitives,
  * their weights where private (owned), and nsrc and ndst memories (NULL
  * entries, or arrays, where made only in part). */
-static void od_band_prims_free(dnnl_primitive_t *prim, dnnl_memory_t *wmem, const int *owned,
-                               dnnl_memory_t *src, int nsrc, dnnl_memory_t *dst, int ndst) {
-  for (int k = 0; k < 2; k++) {
+static void od_band_prims_free(int nprim, dnnl_primitive_t *prim, dnnl_memory_t *wmem,
+                               const int *owned, dnnl_memory_t *src, int nsrc, dnnl_memory_t *dst,
+                               int ndst) {
+  for (int k = 0; k < nprim; k++) {
     if (prim[k]) dnnl_primitive_destroy(prim[k]);
     if (owned[k]) dnnl_memory_destroy(wmem[k]);
   }
@@ -760,15 +779,15 @@ static void od_band_prims_free(dnnl_primitive_t *prim, dnnl_memory_t *wmem, cons
 
 static void od_band_free(od_band *b, int nthreads) {
   if (!b) return;
-  od_band_prims_free(b->prim, b->wmem, b->owned, b->src_mem, 2 * nthreads, b->dst_mem,
+  od_band_prims_free(2, b->prim, b->wmem, b->owned, b->src_mem, 2 * nthreads, b->dst_mem,
                      4 * nthreads);
   free(b);
 }
 
 static void od_enc_band_free(od_enc_band *b, int nthreads) {
   if (!b) return;
-  od_band_prims_free(b->prim, b->wmem, b->owned, b->src_mem, 2 * nthreads, b->dst_mem,
-                     2 * nthreads);
+  od_band_prims_free(3, b->prim, b->wmem, b->owned, b->src_mem, 3 * nthreads, b->dst_mem,
+                     3 * nthreads);
   free(b);
 }
 
@@ -1272,46 +1291,79 @@ static int od_add_enc_band(od_model *m, od_plan *p, int bh, size_t *tscratch_byt
   b->bh = bh, b->nb = (oh + bh - 1) / bh;
   b->nthreads = (int)((size_t)p->batch * p->ph / (2 * bh + 1));
   if (b->nthreads > p->nthreads) b->nthreads = p->nthreads;
-  b->src_mem = calloc((size_t)2 * p->nthreads, sizeof *b->src_mem);
-  b->dst_mem = calloc((size_t)2 * p->nthreads, sizeof *b->dst_mem);
+  b->src_mem = calloc((size_t)3 * p->nthreads, sizeof *b->src_mem);
+  b->dst_mem = calloc((size_t)3 * p->nthreads, sizeof *b->dst_mem);
   if (!b->src_mem || !b->dst_mem) return HF_ENOMEM;
-  const int rows[2] = {bh, oh - (b->nb - 1) * bh};
-  for (int k = 0; k < 2 && (k == 0 || rows[1] != bh); k++) {
+  /* A first band has bh rows: the frame's bands are bh rows but the last,
+   * and a frame of one band has bh = ph / 2. */
+  const int rows[3] = {bh, oh - (b->nb - 1) * bh, bh};
+  for (int k = 0; k < 3; k++) {
+    if (k == 1 && rows[1] == bh) continue;
     dnnl_memory_desc_t smd, dmd;
-    OD_RC(od_nhwc(&smd, 1, cin, 2 * rows[k] + 1, p->pw));
+    OD_RC(od_nhwc(&smd, 1, cin, 2 * rows[k] + (k < 2), p->pw));
     OD_RC(od_nhwc(&dmd, 1, c0, rows[k], ow));
-    OD_RC(od_band_prim(m, p, OD_ENC_BAND, 0, &smd, &dmd, cin, c0, &b->prim[k], &b->wmem[k],
-                       &b->owned[k], tscratch_bytes));
+    OD_RC(od_band_prim(m, p, k < 2 ? OD_ENC_BAND : OD_ENC_BAND_TOP, 0, &smd, &dmd, cin, c0,
+                       &b->prim[k], &b->wmem[k], &b->owned[k], tscratch_bytes));
     for (int t = 0; t < b->nthreads; t++) {
-      OD_TRY(dnnl_memory_create(&b->src_mem[2 * t + k], &smd, m->dev->eng,
-                                p->in + (size_t)t * (2 * bh + 1) * p->pw * cin));
-      OD_TRY(dnnl_memory_create(&b->dst_mem[2 * t + k], &dmd, m->dev->eng, DNNL_MEMORY_NONE));
+      OD_TRY(dnnl_memory_create(&b->src_mem[3 * t + k], &smd, m->dev->eng, DNNL_MEMORY_NONE));
+      OD_TRY(dnnl_memory_create(&b->dst_mem[3 * t + k], &dmd, m->dev->eng, DNNL_MEMORY_NONE));
     }
   }
 fail:
   return rc;
 }
 
-/* Band j (frame j / nb, band j % nb) of enc0 over p->input's halves on
- * thread t: its input rows widened into the thread's rows, then its
- * convolution from there (on this thread alone: oneDNN runs a primitive
- * executed inside an OpenMP parallel region on the calling thread) into
- * the band's rows of enc0's output. */
-static int od_enc_band_job(const od_plan *p, const od_model *m, int t, int j) {
+/* The out-of-contract check and the statistics of a run's input, made by
+ * enc0's bands as they read it (model_run_scan): each thread's part of
+ * each frame, part[n * nthreads + t]. */
+typedef struct od_scan {
+  hf_scan_part *part;
+  int nthreads;
+  const char *in;               /* the caller's frames */
+  hf_dtype dtype;
+  size_t frame_bytes;
+  int width, height, spp;
+} od_scan;
+
+/* Band j (frame j / nb, band j % nb) of enc0 on thread t: its input rows
+ * scanned into the thread's part when sc is not NULL (the rows the band
+ * owns, 2 r0 .. 2 r0 + 2 rows - 1, so each row of the frame once), then
+ * its convolution (on this thread alone: oneDNN runs a primitive executed
+ * inside an OpenMP parallel region on the calling thread) into the band's
+ * rows of enc0's output, from the thread's rows where halves are widened
+ * (and the first band's row above the frame is zero), else from the
+ * caller's aligned float32 rows where they lie, while the scan has them in
+ * the cache. */
+static int od_enc_band_job(const od_plan *p, const od_model *m, const od_scan *sc, int t, int j) {
   const od_enc_band *b = p->eband;
   const int oh = p->ph / 2, ow = p->pw / 2, c0 = hf_enc_out(&m->w->cfg, 0);
   const int n = j / b->nb, r0 = j % b->nb * b->bh;
-  const int rows = r0 + b->bh <= oh ? b->bh : oh - r0, which = rows != b->bh;
+  const int rows = r0 + b->bh <= oh ? b->bh : oh - r0;
   const size_t row = (size_t)p->pw * p->input.cin;
   float *buf = p->in + (size_t)t * (2 * b->bh + 1) * row;
-  /* Halves: od_in_row widens each row into buf (float32 input never runs
-   * in bands, its frames are read whole). */
-  for (int i = 0; i < 2 * rows + 1; i++) od_in_row(&p->input, n, 2 * r0 - 1 + i, buf + i * row);
-  dnnl_memory_t dst = b->dst_mem[2 * t + which];
-  dnnl_status_t s =
-      dnnl_memory_set_data_handle(dst, (float *)p->enc[0] + ((size_t)n * oh + r0) * ow * c0);
+  if (sc) {
+    int y0 = 2 * r0, y1 = 2 * r0 + 2 * rows;
+    if (y1 > sc->height) y1 = sc->height;
+    if (y0 < y1)
+      hf_scan_part_add(&sc->part[n * sc->nthreads + t], sc->in + n * sc->frame_bytes, sc->dtype,
+                       sc->width, sc->spp, (size_t)y0 * sc->width, (size_t)y1 * sc->width);
+  }
+  const float *src = buf;
+  int which = rows != b->bh;
+  if (!p->input.f32) {
+    for (int i = 0; i < 2 * rows + 1; i++) od_in_row(&p->input, n, 2 * r0 - 1 + i, buf + i * row);
+  } else if (r0 == 0) {
+    src = p->input.f32 + (size_t)n * p->ph * row;
+    which = 2;
+  } else {
+    src = p->input.f32 + ((size_t)n * p->ph + 2 * r0 - 1) * row;
+  }
+  dnnl_memory_t dst = b->dst_mem[3 * t + which], smem = b->src_mem[3 * t + which];
+  dnnl_status_t s = dnnl_memory_set_data_handle(smem, (void *)src);
+  if (s == dnnl_success)
+    s = dnnl_memory_set_data_handle(dst, (float *)p->enc[0] + ((size_t)n * oh + r0) * ow * c0);
   if (s == dnnl_success) {
-    dnnl_exec_arg_t args[5] = {{DNNL_ARG_SRC, b->src_mem[2 * t + which]},
+    dnnl_exec_arg_t args[5] = {{DNNL_ARG_SRC, smem},
                                {DNNL_ARG_WEIGHTS, b->wmem[which]},
                                {DNNL_ARG_BIAS, m->enc_b[0]},
                                {DNNL_ARG_DST, dst},
@@ -1338,14 +1390,14 @@ static int od_enc_band_prepare(od_model *m, od_plan *p) {
   return rc;
 }
 
-/* enc0 over p->input's halves: the frames' bands taken in turn by the
- * threads. */
-static int od_enc_band_run(const od_plan *p, const od_model *m, int batch) {
+/* enc0 in bands (over p->input's halves, or over aligned float32 frames
+ * that sc scans): the frames' bands taken in turn by the threads. */
+static int od_enc_band_run(const od_plan *p, const od_model *m, const od_scan *sc, int batch) {
   const int jobs = batch * p->eband->nb;
   int nthreads = p->eband->nthreads < jobs ? p->eband->nthreads : jobs, rc = HF_OK;
 #pragma omp parallel for num_threads(nthreads) schedule(dynamic, 1)
   for (int j = 0; j < jobs; j++) {
-    int e = od_enc_band_job(p, m, omp_get_thread_num(), j);
+    int e = od_enc_band_job(p, m, sc, omp_get_thread_num(), j);
     if (e) {
 #pragma omp atomic write
       rc = e;
@@ -1942,11 +1994,19 @@ fail:
   return rc;
 }
 
-static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
+/* Runs io; with rep (model_run_scan), also checks it and makes its
+ * statistics in enc0's bands, or declines (HF_RUN_DECLINED, before
+ * anything is read) when enc0 does not run in bands for io: a float32
+ * frame that needs padding, a plan without bands (HF_CPU_ENC_BAND_KB=0, a
+ * frame of fewer than 3 rows), HF_CPU_HEAD=sum. */
+static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t, hf_input_report *rep,
+                               hf_input_stats *stats) {
   const hf_net_config *c = &m->w->cfg;
   int a = hf_net_align(c), rc = HF_OK;
   int pw = hf_round_up(io->width, a), ph = hf_round_up(io->height, a);
   od_plan *p;
+  od_scan scan = {0}, *sc = NULL;
+  hf_input_stats_acc *acc = NULL;
   double t0 = hf_now_us();
   OD_RC(od_plan_get(m, io->batch, pw, ph, &p));
   m->dev->arena_owner = m;
@@ -1955,8 +2015,26 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
    * the head reads the whole input as one convolution, HF_CPU_HEAD=sum);
    * others are converted and padded into the plan's buffer. oneDNN never
    * writes a source. */
-  const int halves = io->in_dtype == HF_F16 && p->ebh && !m->head_sum;
-  if (halves && !p->eband) OD_RC(od_enc_band_prepare(m, p));
+  const int bands = p->ebh && !m->head_sum;
+  const int halves = io->in_dtype == HF_F16 && bands;
+  const int aligned = io->in_dtype == HF_F32 && io->width == pw && io->height == ph;
+  if (rep) {
+    if (!halves && !(aligned && bands)) return HF_RUN_DECLINED;
+    const int nt = p->nthreads, parts = io->batch * nt;
+    scan = (od_scan){calloc((size_t)parts, sizeof *scan.part), nt, io->in, io->in_dtype,
+                     (size_t)io->width * io->height * c->in_channels *
+                         (io->in_dtype == HF_F16 ? 2 : 4),
+                     io->width, io->height, c->spp};
+    if (stats) acc = malloc((size_t)parts * sizeof *acc);
+    if (!scan.part || (stats && !acc)) {
+      rc = HF_ENOMEM;
+      goto fail;
+    }
+    for (int k = 0; k < parts; k++) hf_scan_part_init(&scan.part[k], acc ? &acc[k] : NULL);
+    sc = &scan;
+  }
+  const int enc_bands = halves || sc;
+  if (enc_bands && !p->eband) OD_RC(od_enc_band_prepare(m, p));
   const float *in = p->in;
   if (halves)
     in = NULL;
@@ -1987,15 +2065,29 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
     od_step *st = &p->steps[s];
-    const int enc_band = halves && s == p->enc0_step;
+    const int enc_band = enc_bands && s == p->enc0_step;
     if (st->type == OD_STEP_PRIM && !enc_band) {
       OD_TRY(dnnl_primitive_execute(st->prim, m->dev->stream, st->nargs, st->args));
       continue;
     }
     OD_TRY(dnnl_stream_wait(m->dev->stream));
-    if (enc_band)
-      OD_RC(od_enc_band_run(p, m, io->batch));
-    else if (st->type == OD_STEP_BAND)
+    if (enc_band) {
+      OD_RC(od_enc_band_run(p, m, sc, io->batch));
+      if (sc) {
+        /* Every frame's input has been read: a bad sample stops the run
+         * before anything reaches the caller's output. */
+        uint64_t bad = 0;
+        for (int n = 0; n < io->batch; n++) {
+          hf_scan_parts_finish(&scan.part[n * scan.nthreads], scan.nthreads, io->width,
+                               io->height, c->spp, &rep[n], stats ? &stats[n] : NULL);
+          bad += rep[n].samples;
+        }
+        if (bad) {
+          rc = HF_RUN_UNCLEAN;
+          goto fail;
+        }
+      }
+    } else if (st->type == OD_STEP_BAND)
       OD_RC(od_band_run(p, st, io->batch, m->dev));
     else
       od_pass_run(st, io->batch, m->dev);
@@ -2010,6 +2102,8 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t) {
   t->infer_us = t2 - t1;
   t->output_us = hf_now_us() - t2;
 fail:
+  free(scan.part);
+  free(acc);
   return rc;
 }
 
@@ -2018,7 +2112,19 @@ fail:
 static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
   od_model *m = impl;
   pthread_mutex_lock(&m->dev->lock);
-  int rc = od_model_run_locked(m, io, t);
+  int rc = od_model_run_locked(m, io, t, NULL, NULL);
+  pthread_mutex_unlock(&m->dev->lock);
+  return rc;
+}
+
+/* od_model_run that checks the input and makes its statistics in enc0's
+ * bands, as it reads it (backend.h, model_run_scan): the frame is read from
+ * memory once instead of twice. */
+static int od_model_run_scan(void *impl, const hf_io *io, hf_timing *t, hf_input_report *rep,
+                             hf_input_stats *stats) {
+  od_model *m = impl;
+  pthread_mutex_lock(&m->dev->lock);
+  int rc = od_model_run_locked(m, io, t, rep, stats);
   pthread_mutex_unlock(&m->dev->lock);
   return rc;
 }
@@ -2040,7 +2146,7 @@ static size_t od_scratch_allowance(size_t ping_bytes) { return ping_bytes / 4 + 
  * the zeros beside the taps, the scratchpads (the primitives' shared one
  * and each thread's for the band primitives) and private weight copies (at
  * most one of every weight, two of a banded decoder's: its band's and its
- * last band's, two more of enc0's for its bands over halves). Each buffer
+ * last band's, three more of enc0's for its bands). Each buffer
  * outside the arena is rounded as od_alloc_bytes rounds it, plus a page of
  * allocator overhead. An upper bound of what a run allocates whatever the
  * arena holds already. */
@@ -2063,7 +2169,7 @@ static size_t od_run_bytes(const hf_net_config *c, int batch, int pw, int ph) {
     weights += 2 * ((size_t)hf_dec_in(c, i) * hf_dec_out(c, i) * 16 * f + 64 + page);
   }
   if (hf_head_in(c)) weights += (size_t)c->out_channels * hf_head_in(c) * f + 64 + page;
-  if (lay.ebh) weights += 2 * ((size_t)hf_enc_out(c, 0) * hf_enc_in(c, 0) * 9 * f + 64 + page);
+  if (lay.ebh) weights += 3 * ((size_t)hf_enc_out(c, 0) * hf_enc_in(c, 0) * 9 * f + 64 + page);
   size_t own = (size_t)(lay.max_cout > 16 ? lay.max_cout : 16) * f + 64 + page;
   own += od_scratch_allowance(largest) + 64 + page;
   /* Each thread's scratchpad serves the enc0 bands too (12 KiB for them
@@ -2124,6 +2230,7 @@ const hf_backend_ops hf_backend_cpu_onednn = {
   .model_create = od_model_create,
   .model_destroy = od_model_destroy,
   .model_run = od_model_run,
+  .model_run_scan = od_model_run_scan,
   .model_precision = od_model_precision,
   .run_bytes = od_run_bytes,
   .model_cached_bytes = od_model_cached_bytes,

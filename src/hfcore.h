@@ -289,6 +289,25 @@ int hf_features_widen(const uint16_t *in, float *out, int width, int height, int
  * allocated. */
 int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int spp,
                      hf_input_report *report, hf_input_stats *stats);
+/* hf_features_scan's report and statistics made part by part, for a pass
+ * that reads a frame anyway, in pieces and on several threads (the cpu
+ * backend's enc0 bands), so that the frame is read from memory once: each
+ * part is initialised (acc: its statistics' counts, or NULL for none), gets
+ * any pixel ranges [p0, p1) of the frame (in: the frame, [pixels][spp*6] of
+ * dtype, width pixels wide) in any order, and the parts are finished
+ * together into one report and, when stats is not NULL (every part then
+ * has an acc), the frame's statistics: the values hf_features_scan gives,
+ * bit for bit, whatever the split. Finishing merges every acc into
+ * parts[0]'s. */
+typedef struct hf_scan_part {
+  hf_input_report report;
+  struct hf_input_stats_acc *acc;
+} hf_scan_part;
+void hf_scan_part_init(hf_scan_part *s, struct hf_input_stats_acc *acc);
+void hf_scan_part_add(hf_scan_part *s, const void *in, hf_dtype dtype, int width, int spp,
+                      size_t p0, size_t p1);
+void hf_scan_parts_finish(hf_scan_part *parts, int nparts, int width, int height, int spp,
+                          hf_input_report *report, hf_input_stats *stats);
 /* Keeps pixels outputs ([pixels][3] of dtype) in their ranges: NaN becomes
  * the channel's neutral value (color 1, highlight 0, alpha 0), anything else
  * is clamped. Split between threads for large frames (hf_parallel_chunks).
@@ -330,7 +349,11 @@ const hf_net_config *hf_model_config(const hf_model *m);
  * which computes from float32 frames, one of a size that needs no padding
  * and whose floats fit in those 128 MiB is widened into that copy in the
  * check's own pass instead. The check is attributed to timing->input_us,
- * the guard to output_us.
+ * the guard to output_us; except where the cpu backend makes the check
+ * itself in enc0's bands, as the convolution reads the frame (float16
+ * frames, float32 frames of a size that needs no padding): it is then part
+ * of infer_us, and a frame found to need sanitising is run again through
+ * the check's pass and a sanitised copy, with the same results.
  * HF_ENOMEM when a frame needs sanitising or widening and there is no
  * memory for the copy. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
@@ -340,9 +363,9 @@ int hf_model_run_report(hf_model *m, const hf_io *io, hf_timing *timing,
                         hf_input_report *report);
 /* hf_model_run_report that also makes each frame's input statistics:
  * stats, when not NULL, is [io->batch] and gets hf_input_stats_compute's
- * values, made in the run's input pass (for an f16 frame, in the one pass
- * that checks it, and widens it for cpu-ref, hf_features_widen) and
- * counted in timing->input_us. */
+ * values, made in the pass that checks the input (for an f16 frame, the
+ * one that also widens it for cpu-ref, hf_features_widen; on the cpu
+ * backend, enc0's bands) and counted where the check is. */
 int hf_model_run_stats(hf_model *m, const hf_io *io, hf_timing *timing, hf_input_report *report,
                        hf_input_stats *stats);
 /* Builds whatever the backend needs to run batch frames of width x height

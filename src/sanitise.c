@@ -245,30 +245,77 @@ void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int s
  * written with non-temporal stores (hf_f16_to_f32_stream). */
 #define WIDEN_STREAM_MIN ((size_t)1 << 18)
 
+/* A worker's report and statistics, made part by part (hf_scan_part). */
+void hf_scan_part_init(hf_scan_part *s, hf_input_stats_acc *acc) {
+  report_init(&s->report);
+  s->acc = acc;
+  if (acc) hf_input_stats_acc_init(acc);
+}
+
+/* Adds r (of samples scanned in a frame width pixels wide) to into: the
+ * counts summed, the first bad sample the lowest of the two. */
+static void report_merge(hf_input_report *into, const hf_input_report *r, int width, int spp) {
+  if (!r->samples) return;
+  if (into->samples) {
+    size_t a = ((size_t)into->y * width + into->x) * spp + into->sample;
+    size_t b = ((size_t)r->y * width + r->x) * spp + r->sample;
+    if (a < b) {
+      into->samples += r->samples;
+      return;
+    }
+  }
+  uint64_t total = into->samples + r->samples;
+  uint64_t outputs = into->outputs;
+  *into = *r;
+  into->samples = total;
+  into->outputs = outputs;
+}
+
+void hf_scan_part_add(hf_scan_part *s, const void *in, hf_dtype dtype, int width, int spp,
+                      size_t p0, size_t p1) {
+  hf_input_report r;
+  report_init(&r);
+  scan_range((void *)in, dtype, width, spp, p0 * spp, p1 * spp, 0, NULL, &r);
+  report_merge(&s->report, &r, width, spp);
+  if (s->acc) hf_input_stats_add(s->acc, in, dtype, spp, p0, p1);
+}
+
+void hf_scan_parts_finish(hf_scan_part *parts, int nparts, int width, int height, int spp,
+                          hf_input_report *report, hf_input_stats *stats) {
+  report_init(report);
+  for (int k = 0; k < nparts; k++) report_merge(report, &parts[k].report, width, spp);
+  if (stats) {
+    for (int k = 1; k < nparts; k++) hf_input_stats_merge(parts[0].acc, parts[k].acc);
+    hf_input_stats_finish(parts[0].acc, width, height, spp, stats);
+  }
+}
+
 typedef struct widen_run {
   const void *in;               /* [pixels][spp * 6] of dtype */
   hf_dtype dtype;               /* HF_F32 only without out */
   float *out;
   int width, spp, stream;
-  hf_input_report rep[HF_PARALLEL_MAX];
-  hf_input_stats_acc *acc;       /* [workers], or NULL: no statistics */
+  hf_scan_part part[HF_PARALLEL_MAX];
 } widen_run;
 
 /* Pixels [b, e): widened (when there is an out), checked and fixed,
  * counted. */
 static void widen_chunk(void *arg, int worker, size_t b, size_t e) {
   widen_run *w = arg;
-  const size_t f = HF_FEATURES_PER_SAMPLE, s0 = b * w->spp, s1 = e * w->spp;
+  hf_scan_part *part = &w->part[worker];
   if (!w->out) {
     /* Only read: in is the caller's and stays as it is. */
-    scan_range((void *)w->in, w->dtype, w->width, w->spp, s0, s1, 0, NULL, &w->rep[worker]);
-  } else {
-    const uint16_t *in = w->in;
-    if (w->stream) hf_f16_to_f32_stream(in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
-    else hf_f16_to_f32_serial(in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
-    scan_range((void *)in, HF_F16, w->width, w->spp, s0, s1, 1, w->out, &w->rep[worker]);
+    hf_scan_part_add(part, w->in, w->dtype, w->width, w->spp, b, e);
+    return;
   }
-  if (w->acc) hf_input_stats_add(&w->acc[worker], w->in, w->dtype, w->spp, b, e);
+  const uint16_t *in = w->in;
+  const size_t f = HF_FEATURES_PER_SAMPLE, s0 = b * w->spp, s1 = e * w->spp;
+  if (w->stream) hf_f16_to_f32_stream(in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+  else hf_f16_to_f32_serial(in + s0 * f, w->out + s0 * f, (s1 - s0) * f);
+  /* A worker's chunks come in increasing order: its first bad sample is
+   * the first one scan_range finds. */
+  scan_range((void *)in, HF_F16, w->width, w->spp, s0, s1, 1, w->out, &part->report);
+  if (part->acc) hf_input_stats_add(part->acc, in, HF_F16, w->spp, b, e);
 }
 
 /* The pass of hf_features_widen and hf_features_scan: a frame of dtype
@@ -283,34 +330,14 @@ static int widen_or_scan(const void *in, hf_dtype dtype, float *out, int width, 
   widen_run w = {.in = in, .dtype = dtype, .out = out, .width = width, .spp = spp,
                  .stream = n * HF_FEATURES_PER_SAMPLE >= WIDEN_STREAM_MIN};
   int nw = hf_parallel_workers(px, per_thread);
-  if (stats) {
-    /* A worker's own counts: no sharing of cache lines between threads. */
-    if (!(w.acc = malloc((size_t)nw * sizeof *w.acc))) return HF_ENOMEM;
-    for (int k = 0; k < nw; k++) hf_input_stats_acc_init(&w.acc[k]);
-  }
-  for (int k = 0; k < HF_PARALLEL_MAX; k++) report_init(&w.rep[k]);
+  hf_input_stats_acc *acc = NULL;
+  /* A worker's own counts: no sharing of cache lines between threads. */
+  if (stats && !(acc = malloc((size_t)nw * sizeof *acc))) return HF_ENOMEM;
+  for (int k = 0; k < HF_PARALLEL_MAX; k++) hf_scan_part_init(&w.part[k], k < nw && acc ? &acc[k] : NULL);
   nw = hf_parallel_chunks(px, chunk, per_thread, widen_chunk, &w);
-  /* Each worker's first bad sample is its lowest; the frame's is the lowest
-   * of those. */
-  report_init(report);
-  size_t first = SIZE_MAX;
-  for (int k = 0; k < nw; k++) {
-    const hf_input_report *r = &w.rep[k];
-    if (!r->samples) continue;
-    size_t i = ((size_t)r->y * width + r->x) * spp + r->sample;
-    if (i < first) {
-      uint64_t total = report->samples;
-      *report = *r;
-      report->samples = total;
-      first = i;
-    }
-    report->samples += r->samples;
-  }
-  if (stats) {
-    for (int k = 1; k < nw; k++) hf_input_stats_merge(&w.acc[0], &w.acc[k]);
-    hf_input_stats_finish(&w.acc[0], width, height, spp, stats);
-    free(w.acc);
-  }
+  if (nw < 1) nw = 1; /* an empty frame: worker 0's empty counts */
+  hf_scan_parts_finish(w.part, nw, width, height, spp, report, stats);
+  free(acc);
   return HF_OK;
 }
 
