@@ -228,8 +228,9 @@ static int sanitise_input(hf_model *m, int slot, const hf_io *io, hf_io *run,
 
 /* After a run of io: the output guard on every frame (when it succeeded),
  * and the slot's buffer released when it is larger than HF_SANITISED_KEEP. */
-static void finish_output(hf_model *m, int slot, const hf_io *io, hf_input_report *rep, int rc) {
-  if (rc == HF_OK) {
+static void finish_output(hf_model *m, int slot, const hf_io *io, hf_input_report *rep, int rc,
+                          int guarded) {
+  if (rc == HF_OK && !guarded) {
     size_t px = (size_t)io->width * io->height;
     size_t oes = io->out_dtype == HF_F16 ? 2 : 4;
     for (int n = 0; n < io->batch; n++) {
@@ -258,10 +259,11 @@ static int run_scanning(hf_model *m, const hf_io *io, hf_timing *t, hf_input_rep
   const hf_backend_ops *ops = m->backend->ops;
   hf_input_report own[HF_SCAN_OWN_REPORTS];
   if (!ops->model_run_scan || (!rep && io->batch > HF_SCAN_OWN_REPORTS)) return HF_RUN_DECLINED;
-  int rc = ops->model_run_scan(m->impl, io, t, rep ? rep : own, stats);
+  int guarded = 0;
+  int rc = ops->model_run_scan(m->impl, io, t, rep ? rep : own, stats, &guarded);
   if (rc != HF_OK) return rc;
   double t0 = hf_now_us();
-  finish_output(m, 0, io, rep, rc);
+  finish_output(m, 0, io, rep, rc, guarded);
   t->output_us += hf_now_us() - t0;
   return HF_OK;
 }
@@ -294,7 +296,7 @@ int hf_model_run_stats(hf_model *m, const hf_io *io, hf_timing *timing, hf_input
   t = (hf_timing){0, 0, 0};
   rc = m->backend->ops->model_run(m->impl, &run, &t);
   double t2 = hf_now_us();
-  finish_output(m, 0, io, rep, rc);
+  finish_output(m, 0, io, rep, rc, 0);
   t.input_us += t1 - t0;
   t.output_us += hf_now_us() - t2;
   if (timing) *timing = t;
@@ -329,11 +331,13 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
      * and its time come at the wait. */
     hf_input_report own[HF_SCAN_OWN_REPORTS];
     hf_timing t = {0, 0, 0};
-    rc = ops->model_run_scan(m->impl, io, &t, rep ? rep : own, stats);
+    int guarded = 0;
+    rc = ops->model_run_scan(m->impl, io, &t, rep ? rep : own, stats, &guarded);
     if (rc <= 0) {
       m->pending[slot].io = *io;
       m->pending[slot].report = rep;
       m->pending[slot].input_us = 0;
+      m->pending[slot].guarded = guarded;
       m->pending[slot].rc = rc;
       m->pending[slot].t = t;
       m->npending++;
@@ -348,11 +352,12 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
   m->pending[slot].io = *io;
   m->pending[slot].report = rep;
   m->pending[slot].input_us = hf_now_us() - t0;
+  m->pending[slot].guarded = 0;
   if (ops->model_submit) {
     /* A failure to start leaves nothing pending; a failure of the run
      * itself is the wait's to report. */
     if ((rc = ops->model_submit(m->impl, &run)) != 0) {
-      finish_output(m, slot, io, NULL, rc);
+      finish_output(m, slot, io, NULL, rc, 0);
       return rc;
     }
     m->pending[slot].rc = HF_OK;
@@ -374,7 +379,8 @@ int hf_model_wait(hf_model *m, hf_timing *timing) {
   int rc = m->pending[slot].rc;
   if (m->backend->ops->model_wait) rc = m->backend->ops->model_wait(m->impl, &t);
   double t2 = hf_now_us();
-  finish_output(m, slot, &m->pending[slot].io, m->pending[slot].report, rc);
+  finish_output(m, slot, &m->pending[slot].io, m->pending[slot].report, rc,
+                m->pending[slot].guarded);
   t.input_us += m->pending[slot].input_us;
   t.output_us += hf_now_us() - t2;
   if (timing) *timing = t;

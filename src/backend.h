@@ -47,13 +47,16 @@ typedef struct hf_backend_ops {
    * input, what backend.c's pass before model_run makes (sanitise_input):
    * rep ([io->batch]) gets hf_features_scan's report of each frame and
    * stats, when not NULL, its statistics, so that the frame is read from
-   * memory once. Besides HF_OK and the errors it answers HF_RUN_DECLINED
+   * memory once; *guarded set to 1 when it also applied hf_output_guard
+   * to every output row as it made it (the counts in rep[n].outputs), so
+   * that backend.c does not read the output again. Besides HF_OK and the
+   * errors it answers HF_RUN_DECLINED
    * (an io it does not scan itself: nothing read or written) and
    * HF_RUN_UNCLEAN (a frame has out-of-contract samples, the reports say
    * which: io->out is untouched), and backend.c then checks and sanitises
    * the input itself and runs model_run. */
   int (*model_run_scan)(void *model, const hf_io *io, hf_timing *timing, hf_input_report *rep,
-                        hf_input_stats *stats);
+                        hf_input_stats *stats, int *guarded);
   const char *(*model_precision)(void *model);
   /* Device memory held by the model (weights, activations, workspace);
    * NULL means 0 (host-only backends). */
@@ -105,6 +108,7 @@ struct hf_model {
     hf_io io;                  /* the caller's */
     hf_input_report *report;   /* the caller's, or NULL */
     double input_us;           /* the out-of-contract check at submit */
+    int guarded;               /* the backend applied the output guard */
   } pending[HF_MAX_PENDING];
   /* Per slot (hf_model_run uses slot 0), the sanitised copy of an input
    * that needed one, kept for the next (backend.c, HF_SANITISED_KEEP). */

@@ -187,6 +187,10 @@ typedef struct od_taps_pass {
                                  * made in the thread's row16 and converted */
   float *row16;                 /* each thread's, row16_floats apart (>= 6w) */
   size_t row16_floats;
+  uint64_t *guarded;            /* with fin: hf_output_guard applied to each
+                                 * row as it is made, the pixels it changed
+                                 * counted in [thread][batch]; NULL: not */
+  int batch;
 } od_taps_pass;
 
 /* Copies dense [npix][ch] into [npix][stride] (a concat buffer's half). */
@@ -722,11 +726,17 @@ static float *od_taps_dst(const od_taps_pass *t, int n, int Y, int thread) {
   return t->out16 ? t->row16 + (size_t)thread * t->row16_floats : od_taps_out_row(t, n, Y);
 }
 
-/* Row Y of frame n, made at dst by od_taps_dst, into the caller's float16
- * frames (while it is still in the cache); nothing for float32. */
-static void od_taps_row_done(const od_taps_pass *t, int n, int Y, const float *dst) {
+/* Row Y of frame n, made at dst by od_taps_dst on thread `thread`, into the
+ * caller's float16 frames, and through the output guard where the run asks
+ * for it (while the row is still in the cache). */
+static void od_taps_row_done(const od_taps_pass *t, int n, int Y, float *dst, int thread) {
   const size_t row = (size_t)2 * t->w * 3;
-  if (t->out16) hf_f32_to_f16_serial(dst, t->out16 + ((size_t)n * 2 * t->h + Y) * row, row);
+  uint16_t *o16 = t->out16 ? t->out16 + ((size_t)n * 2 * t->h + Y) * row : NULL;
+  if (o16) hf_f32_to_f16_serial(dst, o16, row);
+  if (t->guarded)
+    t->guarded[(size_t)thread * t->batch + n] +=
+        o16 ? hf_output_guard_serial(o16, HF_F16, 2 * (size_t)t->w)
+            : hf_output_guard_serial(dst, HF_F32, 2 * (size_t)t->w);
 }
 
 /* The skip channels of output row Y of frame n on thread `thread`, whose
@@ -749,7 +759,7 @@ static void od_taps_row(const od_taps_pass *t, int n, int Y, int thread) {
   float *dst = od_taps_dst(t, n, Y, thread);
   od_taps_line(t, r0, ky0, r1, ky1, dst, t->stride, t->bias, t->relu, t->fin,
                od_taps_skip_row(t, n, Y, thread));
-  od_taps_row_done(t, n, Y, dst);
+  od_taps_row_done(t, n, Y, dst, thread);
 }
 
 static void od_taps_rows(const od_taps_pass *t, int thread, size_t row0, size_t row1) {
@@ -1173,7 +1183,7 @@ static int od_band_job(const od_plan *p, const od_step *st, const od_dev *dev, i
       float *dst = od_taps_dst(tp, n, Y, t);
       od_taps_line(tp, r0, py ? 2 : 1, r1, py ? 0 : 3, dst, tp->stride, tp->bias, tp->relu,
                    tp->fin, od_taps_skip_row(tp, n, Y, t));
-      od_taps_row_done(tp, n, Y, dst);
+      od_taps_row_done(tp, n, Y, dst, t);
     }
     if (!prev) {
       od_taps_line(tp, tb, 1, NULL, 0, P, C, tp->zeros, 0, 0, NULL);
@@ -1202,14 +1212,14 @@ static void od_band_seam(const od_step *st, int n, int j, int thread) {
     float *dst = od_taps_dst(tp, n, 2 * a, thread);
     od_taps_join(tp, P + (size_t)j * 4 * prow, j > 0 ? P + ((size_t)(j - 1) * 4 + 3) * prow : NULL,
                  dst, od_taps_skip_row(tp, n, 2 * a, thread));
-    od_taps_row_done(tp, n, 2 * a, dst);
+    od_taps_row_done(tp, n, 2 * a, dst, thread);
   }
   if (a > 0) {
     float *dst = od_taps_dst(tp, n, 2 * a - 1, thread);
     od_taps_join(tp, P + ((size_t)(j - 1) * 4 + 2) * prow,
                  j < b->nchunks ? P + ((size_t)j * 4 + 1) * prow : NULL, dst,
                  od_taps_skip_row(tp, n, 2 * a - 1, thread));
-    od_taps_row_done(tp, n, 2 * a - 1, dst);
+    od_taps_row_done(tp, n, 2 * a - 1, dst, thread);
   }
 }
 
@@ -1759,7 +1769,7 @@ static int od_plan_create(od_model *m, int batch, int pw, int ph, od_plan **out)
                            i ? hf_dec_in(c, i - 1) : head ? head_ch : c->out_channels,
                            i ? p->enc[i - 1] : head_cat ? p->in : NULL,
                            i ? hf_enc_out(c, i - 1) : head_cat ? c->in_channels : 0, 0,
-                           NULL, p->in, (size_t)pw * c->in_channels, NULL, NULL, 0};
+                           NULL, p->in, (size_t)pw * c->in_channels, NULL, NULL, 0, NULL, 0};
       if (i == 0 && !head) p->out_step = p->nsteps + (bh[i] ? 0 : 1);
       if (bh[i]) {
         if (head_cat) p->in_skip_step = p->nsteps;
@@ -1998,15 +2008,18 @@ fail:
  * statistics in enc0's bands, or declines (HF_RUN_DECLINED, before
  * anything is read) when enc0 does not run in bands for io: a float32
  * frame that needs padding, a plan without bands (HF_CPU_ENC_BAND_KB=0, a
- * frame of fewer than 3 rows), HF_CPU_HEAD=sum. */
+ * frame of fewer than 3 rows), HF_CPU_HEAD=sum. Where dec0 then writes the
+ * caller's frames itself, it applies the output guard to each row as it
+ * makes it (rep[n].outputs, *guarded = 1). */
 static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t, hf_input_report *rep,
-                               hf_input_stats *stats) {
+                               hf_input_stats *stats, int *guarded) {
   const hf_net_config *c = &m->w->cfg;
   int a = hf_net_align(c), rc = HF_OK;
   int pw = hf_round_up(io->width, a), ph = hf_round_up(io->height, a);
-  od_plan *p;
+  od_plan *p = NULL;
   od_scan scan = {0}, *sc = NULL;
   hf_input_stats_acc *acc = NULL;
+  uint64_t *fixed = NULL;
   double t0 = hf_now_us();
   OD_RC(od_plan_get(m, io->batch, pw, ph, &p));
   m->dev->arena_owner = m;
@@ -2061,6 +2074,16 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t, hf_in
     tp->out16 = direct && io->out_dtype == HF_F16 ? (uint16_t *)io->out : NULL;
     tp->row16 = p->kscratch;
     tp->row16_floats = od_thread_scratch(c, pw);
+    tp->guarded = NULL;
+    tp->batch = io->batch;
+    if (direct && sc) {
+      /* Counted per thread: no thread waits for another's row. */
+      if (!(fixed = calloc((size_t)OD_MAX_THREADS * io->batch, sizeof *fixed))) {
+        rc = HF_ENOMEM;
+        goto fail;
+      }
+      tp->guarded = fixed;
+    }
   }
   double t1 = hf_now_us();
   for (int s = 0; s < p->nsteps; s++) {
@@ -2098,10 +2121,19 @@ static int od_model_run_locked(od_model *m, const hf_io *io, hf_timing *t, hf_in
                      od_thread_scratch(c, pw), m->kernel_ref, io, p->in,
                      (size_t)pw * c->in_channels};
   if (!direct) od_output(&k, m->dev);
+  if (fixed) {
+    for (int n = 0; n < io->batch; n++) {
+      rep[n].outputs = 0;
+      for (int th = 0; th < OD_MAX_THREADS; th++) rep[n].outputs += fixed[(size_t)th * io->batch + n];
+    }
+    *guarded = 1;
+  }
   t->input_us = t1 - t0;
   t->infer_us = t2 - t1;
   t->output_us = hf_now_us() - t2;
 fail:
+  if (p && p->out_step >= 0) p->steps[p->out_step].taps.guarded = NULL;
+  free(fixed);
   free(scan.part);
   free(acc);
   return rc;
@@ -2112,7 +2144,7 @@ fail:
 static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
   od_model *m = impl;
   pthread_mutex_lock(&m->dev->lock);
-  int rc = od_model_run_locked(m, io, t, NULL, NULL);
+  int rc = od_model_run_locked(m, io, t, NULL, NULL, NULL);
   pthread_mutex_unlock(&m->dev->lock);
   return rc;
 }
@@ -2121,10 +2153,10 @@ static int od_model_run(void *impl, const hf_io *io, hf_timing *t) {
  * bands, as it reads it (backend.h, model_run_scan): the frame is read from
  * memory once instead of twice. */
 static int od_model_run_scan(void *impl, const hf_io *io, hf_timing *t, hf_input_report *rep,
-                             hf_input_stats *stats) {
+                             hf_input_stats *stats, int *guarded) {
   od_model *m = impl;
   pthread_mutex_lock(&m->dev->lock);
-  int rc = od_model_run_locked(m, io, t, rep, stats);
+  int rc = od_model_run_locked(m, io, t, rep, stats, guarded);
   pthread_mutex_unlock(&m->dev->lock);
   return rc;
 }

@@ -313,6 +313,10 @@ void hf_scan_parts_finish(hf_scan_part *parts, int nparts, int width, int height
  * is clamped. Split between threads for large frames (hf_parallel_chunks).
  * Returns the number of pixels changed. */
 uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels);
+/* hf_output_guard on the calling thread alone, for a backend that guards
+ * its output a row at a time while the row is in the cache (the cpu
+ * backend's dec0): the same values and count. */
+uint64_t hf_output_guard_serial(void *out, hf_dtype dtype, size_t pixels);
 
 /* One batch of frames of the same size. in: [batch][h][w][in_channels],
  * out: [batch][h][w][3], both NHWC, dense, of the given dtypes. */

@@ -392,6 +392,10 @@ static uint64_t guard_range(void *out, hf_dtype dtype, size_t p0, size_t p1) {
   return fixed;
 }
 
+uint64_t hf_output_guard_serial(void *out, hf_dtype dtype, size_t pixels) {
+  return guard_range(out, dtype, 0, pixels);
+}
+
 /* Pixels per chunk of the threaded guard (48 KiB of floats), and per
  * thread below which a thread costs more than it saves (the conversion's
  * threshold, 2^19 values). */

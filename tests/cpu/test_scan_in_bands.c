@@ -7,7 +7,9 @@
  * in any band of any frame; and the backend must answer its contract:
  * HF_OK for a clean frame it reads in bands, HF_RUN_UNCLEAN with nothing
  * written for a frame with bad samples, HF_RUN_DECLINED for a frame it
- * does not read in bands. ctest also runs this with the smallest bands
+ * does not read in bands; and where dec0 writes the caller's frames, the
+ * output guard applied to each row as it is made must give the values and
+ * counts of the guard's pass after the run. ctest also runs this with the smallest bands
  * (HF_CPU_BAND_KB=1: one output row of enc0 per band). */
 #include <math.h>
 #include <setjmp.h>
@@ -238,7 +240,9 @@ static void test_contract(void **state) {
 
   /* Clean aligned float32 frames: run, checked, counted. */
   hf_io io = {batch, W, H, in, HF_F32, out, HF_F32};
-  assert_int_equal(ops->model_run_scan(m->impl, &io, &t, rep, st), HF_OK);
+  int guarded = 0;
+  assert_int_equal(ops->model_run_scan(m->impl, &io, &t, rep, st, &guarded), HF_OK);
+  assert_int_equal(guarded, 1); /* Base at an aligned size: dec0 writes the frames */
   for (int n = 0; n < batch; n++) {
     const float *frame = in + (size_t)n * W * H * c->in_channels;
     assert_int_equal(rep[n].samples, 0);
@@ -251,7 +255,7 @@ static void test_contract(void **state) {
    * reports hf_features_check's, nothing written. */
   plant(in, c->spp, W, H, 1, W - 2, H - 1, 1, 0);
   memcpy(out, mark, nout * sizeof *out);
-  assert_int_equal(ops->model_run_scan(m->impl, &io, &t, rep, NULL), HF_RUN_UNCLEAN);
+  assert_int_equal(ops->model_run_scan(m->impl, &io, &t, rep, NULL, &guarded), HF_RUN_UNCLEAN);
   assert_memory_equal(out, mark, nout * sizeof *out);
   assert_int_equal(rep[0].samples, 0);
   hf_features_check(in + (size_t)W * H * c->in_channels, HF_F32, W, H, c->spp, &want);
@@ -264,14 +268,14 @@ static void test_contract(void **state) {
    * declined, nothing written. */
   hf_io padded = {1, 37, 23, in, HF_F32, out, HF_F32};
   memcpy(out, mark, nout * sizeof *out);
-  assert_int_equal(ops->model_run_scan(m->impl, &padded, &t, rep, NULL), HF_RUN_DECLINED);
-  assert_int_equal(ops->model_run_scan(mc->impl, &io, &t, rep, NULL), HF_RUN_DECLINED);
+  assert_int_equal(ops->model_run_scan(m->impl, &padded, &t, rep, NULL, &guarded), HF_RUN_DECLINED);
+  assert_int_equal(ops->model_run_scan(mc->impl, &io, &t, rep, NULL, &guarded), HF_RUN_DECLINED);
   assert_memory_equal(out, mark, nout * sizeof *out);
 
   /* Halves: run in bands at any size. */
   uint16_t *half = as_dtype(in, nin, HF_F16);
   hf_io hio = {1, 37, 23, half, HF_F16, out, HF_F32};
-  assert_int_equal(ops->model_run_scan(m->impl, &hio, &t, rep, NULL), HF_OK);
+  assert_int_equal(ops->model_run_scan(m->impl, &hio, &t, rep, NULL, &guarded), HF_OK);
   assert_int_equal(rep[0].samples, 0);
 
   free(half);
@@ -284,10 +288,85 @@ static void test_contract(void **state) {
   hf_weights_free(w2);
 }
 
+/* Weights whose colour output leaves its range on part of the frame: dec0
+ * guards each row as it writes the caller's frames (float32 and float16),
+ * with the values and counts of the guard's pass after the run. */
+static void test_guard_in_rows(void **state) {
+  hf_weights *wa, *wb;
+  hf_model *a, *b;
+  char path[1024], err[256];
+  snprintf(path, sizeof path, "%s/base.safetensors", HF_WEIGHTS_DIR);
+  if (hf_weights_load(path, &wa, err, sizeof err) != HF_OK) fail_msg("%s: %s", path, err);
+  if (hf_weights_load(path, &wb, err, sizeof err) != HF_OK) fail_msg("%s: %s", path, err);
+  const int batch = 2, W = 96, H = 72;
+  float *in = frames(wa->cfg.spp, batch, W, H, 31);
+  /* The raw colour of one pixel, from its transformed value c^3/32 + c/5 +
+   * 1 (increasing) by bisection; the bias moved so that the first frame's
+   * middle pixel's raw colour lands where the transform reaches
+   * HF_OUTPUT_MAX, which puts part of the frame beyond it. */
+  assert_int_equal(hf_model_create(common, wb, &b), HF_OK);
+  hf_input_report r0[2];
+  hf_input_stats s0[2];
+  float *o0 = run(b, in, HF_F32, batch, W, H, HF_F32, r0, s0);
+  float target = o0[((size_t)(H / 2) * W + W / 2) * 3 + HF_OUT_COLOR];
+  double lo = -1e3, hi = 1e3, top = 0;
+  for (int k = 0; k < 200; k++) {
+    double mid = (lo + hi) / 2;
+    if (mid * mid * mid / 32 + mid / 5 + 1 < target) lo = mid;
+    else hi = mid;
+  }
+  const double raw = lo;
+  lo = 0, hi = 1e3;
+  for (int k = 0; k < 200; k++) {
+    double mid = (lo + hi) / 2;
+    if (mid * mid * mid / 32 + mid / 5 + 1 < HF_OUTPUT_MAX) lo = mid;
+    else hi = mid;
+  }
+  top = lo;
+  free(o0);
+  hf_model_destroy(b);
+  wa->dec_b[0][HF_OUT_COLOR] += (float)(top - raw);
+  wb->dec_b[0][HF_OUT_COLOR] += (float)(top - raw);
+  assert_int_equal(hf_model_create(banded, wa, &a), HF_OK);
+  assert_int_equal(hf_model_create(common, wb, &b), HF_OK);
+  for (int d = 0; d < 2; d++) {
+    hf_dtype out_t = d ? HF_F16 : HF_F32;
+    hf_input_report ra[2], rb[2];
+    hf_input_stats sa[2], sb[2];
+    void *oa = run(a, in, HF_F32, batch, W, H, out_t, ra, sa);
+    void *ob = run(b, in, HF_F32, batch, W, H, out_t, rb, sb);
+    assert_memory_equal(oa, ob, (size_t)batch * W * H * 3 * (d ? 2 : 4));
+    same_reports(ra, rb, sa, sb, batch);
+    for (int n = 0; n < batch; n++) {
+      assert_true(ra[n].outputs > 0);
+      assert_true(ra[n].outputs < (uint64_t)W * H);
+    }
+    free(oa);
+    free(ob);
+  }
+  /* The run said it guarded, so backend.c does not read the output again. */
+  float *out = malloc((size_t)batch * W * H * 3 * sizeof *out);
+  assert_non_null(out);
+  hf_io io = {batch, W, H, in, HF_F32, out, HF_F32};
+  hf_input_report rep[2];
+  hf_timing t;
+  int guarded = 0;
+  assert_int_equal(a->backend->ops->model_run_scan(a->impl, &io, &t, rep, NULL, &guarded), HF_OK);
+  assert_int_equal(guarded, 1);
+  for (size_t i = 0; i < (size_t)batch * W * H * 3; i += 3) assert_true(out[i] <= HF_OUTPUT_MAX);
+  free(out);
+  free(in);
+  hf_model_destroy(a);
+  hf_model_destroy(b);
+  hf_weights_free(wa);
+  hf_weights_free(wb);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_contract),
     cmocka_unit_test(test_matches_common_path),
+    cmocka_unit_test(test_guard_in_rows),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
