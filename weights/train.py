@@ -136,7 +136,36 @@ def hair_ssim_loss(p, q, alpha):
     return ((1 - ssim_map(p, q)) * m).sum() / m.sum().clamp(min=1)
 
 
-def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0):
+# Periods of the lattice a window of lattice_loss spans, on each side, at
+# most: an error that does not repeat keeps 1/N^2 of its energy in the
+# average of N x N periods, a lattice all of it.
+LATTICE_WINDOW = 16
+
+
+def lattice_loss(p, q, period):
+    """The mean square of the part of the error p - q (NCHW) that repeats
+    with the given period in x and y (the dot lattice a U-Net's stride-2
+    transposed convolutions print, period 2^levels), measured in square
+    windows of N x N periods (N: LATTICE_WINDOW, or fewer when the image is
+    smaller): in each window the error at each of the period x period
+    phases is averaged over the window's periods, less the window's mean
+    error (a uniform offset is no lattice). Rows and columns beyond whole
+    windows are left out; 0 for an image smaller than one period."""
+    r = (p - q).float()
+    n, c, h, w = r.shape
+    k = min(LATTICE_WINDOW, h // period, w // period)
+    if k < 1:
+        return r.new_zeros(())
+    side = period * k
+    hh, ww = h // side * side, w // side * side
+    r = r[:, :, :hh, :ww].reshape(n, c, hh // side, k, period, ww // side, k, period)
+    m = r.mean(dim=(3, 6))
+    m = m - m.mean(dim=(3, 5), keepdim=True)
+    return (m * m).mean()
+
+
+def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0,
+              lattice=(0.0, 8)):
     """The squared error of what a viewer sees: pred and target composited
     with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
     weighted by grad_weight, of their finite differences, as the paper's loss
@@ -147,11 +176,15 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weigh
     colour factor scaled by the hair colour, so this puts the effort where
     the image's error is. ssim_weight adds that times hair_ssim_loss of the
     two images: the structure the evaluation's SSIM scores, which the MSE
-    lets a blur trade away."""
+    lets a blur trade away. lattice (weight, period) adds weight times
+    lattice_loss of the two images: the periodic part of the error, which
+    the MSE counts no more than any other error of the same energy."""
     cp, ct = composite(pred, *looks), composite(target, *looks)
     loss = mse_and_gradients(cp, ct, grad_weight)
     if ssim_weight:
         loss = loss + ssim_weight * hair_ssim_loss(cp, ct, target[:, 2:3])
+    if lattice[0]:
+        loss = loss + lattice[0] * lattice_loss(cp, ct, lattice[1])
     if paper_weight:
         loss = loss + paper_weight * hair_loss(pred, target, grad_weight)
     return loss
@@ -162,13 +195,13 @@ def eval_looks(n, device):
                  for v in EVAL_LOOK)
 
 
-def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0):
+def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0, lattice=(0.0, 8)):
     """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
-    (look_loss with looks, EVAL_LOOK when None, and ssim_weight)."""
+    (look_loss with looks, EVAL_LOOK when None, ssim_weight and lattice)."""
     if kind == "look":
         return look_loss(pred, target, looks if looks is not None
                          else eval_looks(pred.shape[0], pred.device), grad_weight,
-                         ssim_weight=ssim_weight)
+                         ssim_weight=ssim_weight, lattice=lattice)
     return hair_loss(pred, target, grad_weight)
 
 
@@ -292,7 +325,7 @@ def save_checkpoint(path, **state):
 
 @torch.no_grad()
 def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper",
-             ssim_weight=0.0):
+             ssim_weight=0.0, lattice=(0.0, 8)):
     """Mean loss over the held-out frames (first spp samples, no
     augmentation; frames larger than max_side are centre-cropped); the
     look loss with the evaluation's look (EVAL_LOOK)."""
@@ -310,7 +343,7 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
         y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
         x, y = x.to(device), y.to(device)
         total += float(run_loss(loss, forward(net, x, *mode), y, grad_weight,
-                                ssim_weight=ssim_weight))
+                                ssim_weight=ssim_weight, lattice=lattice))
     net.train()
     return total / len(frames)
 
@@ -393,6 +426,10 @@ def parse_args(argv):
                     help="--loss look: add this times 1 - the SSIM of the composited "
                     "images over the target's hair pixels (the evaluation's window and "
                     "constants; train.py hair_ssim_loss)")
+    ap.add_argument("--lattice-weight", type=float, default=0.0,
+                    help="--loss look: add this times the mean square of the error's part "
+                    "that repeats every 2^levels pixels (a U-Net's transposed-convolution "
+                    "lattice; train.py lattice_loss)")
     ap.add_argument("--styles", default="straight,wavy",
                     help="styles to train on (others are never loaded); '' = all")
     ap.add_argument("--val-fraction", type=float, default=0.1)
@@ -437,6 +474,8 @@ def parse_args(argv):
     args = ap.parse_args(argv)
     if args.ssim_weight and args.loss != "look":
         ap.error("--ssim-weight needs --loss look (it scores the composited images)")
+    if args.lattice_weight and args.loss != "look":
+        ap.error("--lattice-weight needs --loss look (it scores the composited images)")
     return args
 
 
@@ -470,12 +509,14 @@ def main(argv=None):
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
-                  "ssim_weight",
+                  "ssim_weight", "lattice_weight",
                   "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
             setattr(args, k, saved.get(k, getattr(args, k)))
     cfg = make_config(args)
+    # The period of a U-Net's lattice: its upsamplings' total stride.
+    lattice = (args.lattice_weight, 2 ** len(cfg["levels"]))
     torch.manual_seed(args.seed)
     np_rng = np.random.default_rng(args.seed)
     random.seed(args.seed)
@@ -562,7 +603,7 @@ def main(argv=None):
             looks = random_looks(x.shape[0], look_gen) if args.loss == "look" else None
             looks = tuple(v.to(device) for v in looks) if looks else None
             loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
-                            y, args.grad_weight, looks, args.ssim_weight)
+                            y, args.grad_weight, looks, args.ssim_weight, lattice)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -576,7 +617,8 @@ def main(argv=None):
             last = step == stop or out_of_time
             if step % args.val_every == 0 or last:
                 val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device,
-                               loss=args.loss, ssim_weight=args.ssim_weight)
+                               loss=args.loss, ssim_weight=args.ssim_weight,
+                               lattice=lattice)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
                            time=elapsed + time.time() - t_start)
@@ -603,7 +645,8 @@ def main(argv=None):
                            val_frames=len(val_e), batch=args.batch, crop=args.crop,
                            lr=args.lr, schedule=args.schedule, lr_floor=args.lr_floor,
                            grad_weight=args.grad_weight, loss=args.loss,
-                           ssim_weight=args.ssim_weight, seed=args.seed,
+                           ssim_weight=args.ssim_weight,
+                           lattice_weight=args.lattice_weight, seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)

@@ -303,6 +303,49 @@ class Recipe(unittest.TestCase):
         with self.assertRaises(SystemExit):
             train.parse_args(["--out", "x", "--ssim-weight", "0.1"])
 
+    def test_lattice_term_measures_the_periodic_error(self):
+        """lattice_loss is the mean square of the error's part that repeats
+        every `period` pixels: all of a tiled pattern's energy (less its
+        mean), nothing of a uniform offset, nothing of an error that
+        alternates from one period to the next, and for a frame of two
+        windows, the mean of the two."""
+        g = torch.Generator().manual_seed(5)
+        period, n = 8, train.LATTICE_WINDOW
+        q = torch.rand(1, 3, period * n, period * n, generator=g)
+        tile = torch.rand(1, 3, period, period, generator=g) - 0.5
+        lattice = tile.repeat(1, 1, n, n)
+        want = float(((tile - tile.mean(dim=(2, 3), keepdim=True)) ** 2).mean())
+        self.assertAlmostEqual(float(train.lattice_loss(q + lattice, q, period)), want, places=6)
+        self.assertAlmostEqual(float(train.lattice_loss(q + 0.3, q, period)), 0.0, places=6)
+        sign = torch.ones(n, n)
+        sign[1::2] = -1                                # period 2 * period in y
+        alternating = tile.repeat(1, 1, n, n) * sign.repeat_interleave(period, 0) \
+            .repeat_interleave(period, 1)
+        self.assertAlmostEqual(float(train.lattice_loss(q + alternating, q, period)), 0.0,
+                               places=6)
+        # Two windows side by side, the lattice in one only; a smaller image
+        # uses the periods it has; one smaller than a period has none.
+        wide = torch.cat([q + lattice, q], 3)
+        self.assertAlmostEqual(float(train.lattice_loss(wide, torch.cat([q, q], 3), period)),
+                               want / 2, places=6)
+        small = (q + lattice)[:, :, :4 * period, :4 * period]
+        self.assertAlmostEqual(float(train.lattice_loss(small, q[:, :, :4 * period, :4 * period],
+                                                        period)), want, places=6)
+        self.assertEqual(float(train.lattice_loss(q[:, :, :4, :4], q[:, :, :4, :4] + 1, period)),
+                         0.0)
+        # In the look loss, with its weight; --lattice-weight needs --loss look.
+        t = torch.rand(2, 3, 32, 32, generator=g)
+        pr = torch.clamp(t + 0.2 * torch.rand(2, 3, 32, 32, generator=g), 0, 1)
+        looks = train.eval_looks(2, "cpu")
+        self.assertAlmostEqual(
+            float(train.look_loss(pr, t, looks, 1.0, 0.1, lattice=(3.0, 8))),
+            float(train.look_loss(pr, t, looks, 1.0, 0.1))
+            + 3.0 * float(train.lattice_loss(train.composite(pr, *looks),
+                                             train.composite(t, *looks), 8)),
+            places=6)
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", "--lattice-weight", "1"])
+
     # -- training --------------------------------------------------------------
 
     def test_loss_falls_and_export_roundtrips(self):
