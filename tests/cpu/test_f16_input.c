@@ -20,10 +20,7 @@
 
 #include "hfcore.h"
 
-/* Every weights file in weights/ (tests/eval runs the same list). */
-static const char *const VARIANTS[] = {"base",    "base_1spp", "base_2spp", "large",   "small",
-                                       "shallow", "deep",      "residual",  "kernel"};
-#define NVARIANTS (sizeof VARIANTS / sizeof VARIANTS[0])
+#include "cpu_run.h"
 
 static hf_backend *cpu;
 
@@ -39,13 +36,6 @@ static int setup(void **state) {
 static int teardown(void **state) {
   hf_backend_destroy(cpu);
   return 0;
-}
-
-static uint64_t rng_next(uint64_t *s) {
-  *s ^= *s << 13;
-  *s ^= *s >> 7;
-  *s ^= *s << 17;
-  return *s;
 }
 
 /* Features as halves: colour and highlight in [0, 2), alpha in (0, 1] or
@@ -77,39 +67,6 @@ static uint16_t *frames_f16(int spp, int batch, int w, int h, uint64_t seed, int
     }
   }
   return in;
-}
-
-/* Runs io through m and returns the result, with its reports and input
- * statistics. */
-static void *run(hf_model *m, const void *in, hf_dtype in_t, int batch, int w, int h,
-                 hf_dtype out_t, hf_input_report *rep, hf_input_stats *stats) {
-  size_t nout = (size_t)batch * w * h * 3 * (out_t == HF_F32 ? 4 : 2);
-  void *out = malloc(nout);
-  assert_non_null(out);
-  memset(out, 0xa5, nout);
-  hf_io io = {batch, w, h, in, in_t, out, out_t};
-  hf_timing t;
-  assert_int_equal(hf_model_run_stats(m, &io, &t, rep, stats), HF_OK);
-  return out;
-}
-
-/* The same reports and statistics, field by field (value by its bits: a
- * NaN widened from a half is that NaN). */
-static void same_reports(const hf_input_report *a, const hf_input_report *b,
-                         const hf_input_stats *sa, const hf_input_stats *sb, int batch) {
-  for (int n = 0; n < batch; n++) {
-    assert_int_equal(a[n].samples, b[n].samples);
-    assert_int_equal(a[n].x, b[n].x);
-    assert_int_equal(a[n].y, b[n].y);
-    assert_int_equal(a[n].sample, b[n].sample);
-    assert_int_equal(a[n].feature, b[n].feature);
-    assert_int_equal(a[n].kind, b[n].kind);
-    assert_memory_equal(&a[n].value, &b[n].value, sizeof a[n].value);
-    assert_int_equal(a[n].outputs, b[n].outputs);
-    assert_int_equal(sa[n].hair_pixels, sb[n].hair_pixels);
-    assert_int_equal(sa[n].full_pixels, sb[n].full_pixels);
-    assert_memory_equal(sa[n].value, sb[n].value, sizeof sa[n].value);
-  }
 }
 
 /* Variant v on batch frames of w x h: the halves as they are against the
@@ -147,14 +104,7 @@ static uint64_t compare(hf_model *m, const char *variant, int batch, int w, int 
   return sanitised;
 }
 
-static hf_model *load(const char *variant, hf_weights **w) {
-  char path[1024], err[256];
-  snprintf(path, sizeof path, "%s/%s.safetensors", HF_WEIGHTS_DIR, variant);
-  if (hf_weights_load(path, w, err, sizeof err) != HF_OK) fail_msg("%s: %s", path, err);
-  hf_model *m;
-  assert_int_equal(hf_model_create(cpu, *w, &m), HF_OK);
-  return m;
-}
+static hf_model *load(const char *variant, hf_weights **w) { return load_variant(cpu, variant, w); }
 
 /* Every bundled variant: a size that needs padding (37x23), one that does
  * not (64x48: a multiple of 16, the deepest variant's alignment), a size

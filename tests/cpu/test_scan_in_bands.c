@@ -25,10 +25,7 @@
 #include "backend.h"
 #include "hfcore.h"
 
-/* Every weights file in weights/ (tests/eval runs the same list). */
-static const char *const VARIANTS[] = {"base",    "base_1spp", "base_2spp", "large",   "small",
-                                       "shallow", "deep",      "residual",  "kernel"};
-#define NVARIANTS (sizeof VARIANTS / sizeof VARIANTS[0])
+#include "cpu_run.h"
 
 static hf_backend *banded, *common;
 
@@ -57,13 +54,6 @@ static int teardown(void **state) {
   hf_backend_destroy(banded);
   hf_backend_destroy(common);
   return 0;
-}
-
-static uint64_t rng_next(uint64_t *s) {
-  *s ^= *s << 13;
-  *s ^= *s >> 7;
-  *s ^= *s << 17;
-  return *s;
 }
 
 /* Frames of in-contract features as float32: a quarter of the samples
@@ -98,15 +88,6 @@ static void plant(float *in, int spp, int w, int h, int n, int x, int y, int sam
   }
 }
 
-static hf_model *load(hf_backend *b, const char *variant, hf_weights **w) {
-  char path[1024], err[256];
-  snprintf(path, sizeof path, "%s/%s.safetensors", HF_WEIGHTS_DIR, variant);
-  if (hf_weights_load(path, w, err, sizeof err) != HF_OK) fail_msg("%s: %s", path, err);
-  hf_model *m;
-  assert_int_equal(hf_model_create(b, *w, &m), HF_OK);
-  return m;
-}
-
 /* in (float32) as dtype: the same values, as halves for HF_F16. */
 static void *as_dtype(const float *in, size_t n, hf_dtype dtype) {
   if (dtype == HF_F32) {
@@ -118,36 +99,6 @@ static void *as_dtype(const float *in, size_t n, hf_dtype dtype) {
   assert_non_null(h);
   for (size_t i = 0; i < n; i++) h[i] = hf_f32_to_f16(in[i]);
   return h;
-}
-
-/* One run through the public API: its output, reports and statistics. */
-static void *run(hf_model *m, const void *in, hf_dtype in_t, int batch, int w, int h,
-                 hf_dtype out_t, hf_input_report *rep, hf_input_stats *stats) {
-  size_t nout = (size_t)batch * w * h * 3 * (out_t == HF_F32 ? 4 : 2);
-  void *out = malloc(nout);
-  assert_non_null(out);
-  memset(out, 0xa5, nout);
-  hf_io io = {batch, w, h, in, in_t, out, out_t};
-  hf_timing t;
-  assert_int_equal(hf_model_run_stats(m, &io, &t, rep, stats), HF_OK);
-  return out;
-}
-
-static void same_reports(const hf_input_report *a, const hf_input_report *b,
-                         const hf_input_stats *sa, const hf_input_stats *sb, int batch) {
-  for (int n = 0; n < batch; n++) {
-    assert_int_equal(a[n].samples, b[n].samples);
-    assert_int_equal(a[n].x, b[n].x);
-    assert_int_equal(a[n].y, b[n].y);
-    assert_int_equal(a[n].sample, b[n].sample);
-    assert_int_equal(a[n].feature, b[n].feature);
-    assert_int_equal(a[n].kind, b[n].kind);
-    assert_memory_equal(&a[n].value, &b[n].value, sizeof a[n].value);
-    assert_int_equal(a[n].outputs, b[n].outputs);
-    assert_int_equal(sa[n].hair_pixels, sb[n].hair_pixels);
-    assert_int_equal(sa[n].full_pixels, sb[n].full_pixels);
-    assert_memory_equal(sa[n].value, sb[n].value, sizeof sa[n].value);
-  }
 }
 
 /* Where bad samples go, by case: none; the first pixel of the first frame;
@@ -177,7 +128,7 @@ static void plant_case(float *in, int spp, int batch, int w, int h, int which, u
  * equal. */
 static void compare_variant(const char *variant, int batch, int w, int h, uint64_t seed) {
   hf_weights *wa, *wb;
-  hf_model *a = load(banded, variant, &wa), *b = load(common, variant, &wb);
+  hf_model *a = load_variant(banded, variant, &wa), *b = load_variant(common, variant, &wb);
   const hf_net_config *c = hf_model_config(a);
   const size_t nin = (size_t)batch * w * h * c->in_channels;
   for (int which = 0; which < CASES; which++) {
@@ -223,7 +174,7 @@ static void test_matches_common_path(void **state) {
 /* The backend's answers, called directly: what backend.c relies on. */
 static void test_contract(void **state) {
   hf_weights *w, *w2;
-  hf_model *m = load(banded, "base", &w), *mc = load(common, "base", &w2);
+  hf_model *m = load_variant(banded, "base", &w), *mc = load_variant(common, "base", &w2);
   const hf_net_config *c = hf_model_config(m);
   const int batch = 2, W = 64, H = 48;
   const size_t nin = (size_t)batch * W * H * c->in_channels, nout = (size_t)batch * W * H * 3;
