@@ -155,7 +155,7 @@ typedef struct od_dev {
   int threads;                  /* for the backend's own passes */
   int start_threads;            /* HF_CPU_PASS_THREADS=start (od_parallel) */
   size_t band_bytes;            /* HF_CPU_BAND_KB: a tap band's size, 0 for none */
-  size_t enc_band_bytes;        /* HF_CPU_ENC_BAND_KB: enc0's over halves, 0 for none */
+  size_t enc_band_bytes;        /* HF_CPU_ENC_BAND_KB: enc0's bands, 0 for none */
   dnnl_stream_t tstream[OD_MAX_THREADS]; /* each thread's, for banded taps */
 } od_dev;
 
@@ -1249,9 +1249,9 @@ static int od_band_run(const od_plan *p, const od_step *st, int batch, const od_
   return rc;
 }
 
-/* ---- enc0 over halves, in bands (od_enc_band) ------------------------------ */
+/* ---- enc0 in bands (od_enc_band) ------------------------------------------ */
 
-/* Output rows per band of enc0 over halves: as many as keep the band's
+/* Output rows per band of enc0: as many as keep the band's
  * 2 bh + 1 input rows within band_bytes (od_enc_band_bytes), and every
  * thread's band within the padded input's buffer (batch ph rows) where it
  * fits, at least 1, at most ph / 2; 0 for none (band_bytes 0, or a buffer
@@ -1555,7 +1555,7 @@ static size_t od_thread_scratch(const hf_net_config *c, int pw) {
 typedef struct od_layout {
   size_t in, out, head_in, sums, fin, kscratch, taps, tband, part;
   size_t enc[HF_MAX_LEVELS], cat[HF_MAX_LEVELS];
-  int ebh;                      /* enc0's band rows over halves, 0 when whole */
+  int ebh;                      /* enc0's band rows, 0 when whole */
   size_t tband_floats;          /* each of a thread's two band buffers */
   int bh[HF_MAX_LEVELS];        /* each decoder's band rows, 0 when whole */
   int max_cout;
