@@ -46,7 +46,10 @@ static void usage(FILE *f) {
           "(docs/QUALITY.md), then one per regime grouping: hair pixels by strand width in\n"
           "pixels and by coverage, frames by those and by resolution. --json writes every\n"
           "number, per bucket and per frame. Frames outside the input range a weights file\n"
-          "was trained on (its input_range metadata) are named on stderr.\n"
+          "was trained on (its input_range metadata) are named on stderr. A last table\n"
+          "counts, per network, the frames where it is below its own input (the estimate\n"
+          "of the samples it reads) and below ST 16 spp in PSNR or SSIM; stderr names the\n"
+          "frames below the input.\n"
           "The grid has one row per frame: input average, each network, ST 16 spp, truth.\n"
           "--temporal: the frames (in file-name order) are one camera sequence; also prints\n"
           "each method's mean frame-to-frame change beside the ground truth's (flicker);\n"
@@ -234,7 +237,15 @@ typedef struct method {
   float *prev;
   int has_prev, pairs;
   double change;
+  /* M_MODEL: frames compared with a reference and, of them, those where
+   * the method is lower in PSNR, in SSIM, in either (below[k][0..2]).
+   * k = REF_OWN_INPUT: the stochastic-transparency estimate of the samples
+   * the network reads (its own input); REF_ST16: 16 spp. */
+  int compared[2], below[2][3];
+  cJSON *below_files;           /* names of the frames below its own input */
 } method;
+
+enum { REF_OWN_INPUT, REF_ST16 };
 
 /* ---- temporal stability ------------------------------------------------------ */
 
@@ -329,12 +340,12 @@ static void composite(const look *lk, const hf_image *frame, const float *res, i
   for (size_t i = 0; i < (size_t)w * h * 3; i++) rgb[i] = fminf(1.f, fmaxf(0.f, rgb[i]));
 }
 
-/* Scores method mi's result on a frame: the frame's values into fs, and
- * they and every hair pixel into the sums behind the main table and the
- * regime tables. smap: scratch [h][w] for the SSIM map. */
-static int score(int mi, eval_strata *strata, const eval_regime *rg,
-                 const float *res, const float *gt, const float *rgb, const float *gt_rgb,
-                 int w, int h, const uint8_t *mask, double *smap, eval_frame_score *fs) {
+/* A result's values on the hair pixels of a frame (the main table's
+ * per-frame values): the composite's MSE, PSNR and SSIM, the channels'
+ * errors. res / gt: [h][w][3] results; smap receives the SSIM map. */
+static int frame_score(const float *res, const float *gt, const float *rgb,
+                       const float *gt_rgb, int w, int h, const uint8_t *mask, double *smap,
+                       eval_frame_score *fs) {
   if (eval_ssim_mean_map(rgb, gt_rgb, w, h, 3, smap)) return HF_ENOMEM;
   fs->mse = eval_mse(rgb, gt_rgb, w, h, 3, mask, NULL);
   fs->ssim = eval_masked_mean(smap, (size_t)w * h, mask, 1.0);
@@ -342,8 +353,47 @@ static int score(int mi, eval_strata *strata, const eval_regime *rg,
   fs->col = eval_channel_mse(res, 3, 0, 2, gt, 3, 0, 2, w, h, mask);
   fs->hl = eval_channel_mse(res, 3, 1, 2, gt, 3, 1, 2, w, h, mask);
   fs->alpha = eval_channel_mse(res, 3, 2, -1, gt, 3, 2, -1, w, h, mask);
+  return 0;
+}
+
+/* Scores method mi's result on a frame: the frame's values into fs, and
+ * they and every hair pixel into the sums behind the main table and the
+ * regime tables. smap: scratch [h][w] for the SSIM map. */
+static int score(int mi, eval_strata *strata, const eval_regime *rg,
+                 const float *res, const float *gt, const float *rgb, const float *gt_rgb,
+                 int w, int h, const uint8_t *mask, double *smap, eval_frame_score *fs) {
+  if (frame_score(res, gt, rgb, gt_rgb, w, h, mask, smap, fs)) return HF_ENOMEM;
   eval_strata_add(strata, mi, rg, rgb, gt_rgb, res, gt, smap, fs);
   return 0;
+}
+
+/* Compares network m's score on a frame with a reference's (k: REF_OWN_INPUT
+ * or REF_ST16) and counts the frame as below it in PSNR, in SSIM, in either.
+ * A lower value by any margin counts: the bar is "never below". Marks the
+ * frame's JSON item (when not NULL) with below_own_input / below_st16.
+ * Returns 1 when below in either. */
+static int compare_ref(method *m, int k, const eval_frame_score *net,
+                       const eval_frame_score *ref, cJSON *item) {
+  int p = net->psnr < ref->psnr, s = net->ssim < ref->ssim;
+  m->compared[k]++;
+  m->below[k][0] += p;
+  m->below[k][1] += s;
+  m->below[k][2] += p || s;
+  if (item)
+    cJSON_AddBoolToObject(item, k == REF_OWN_INPUT ? "below_own_input" : "below_st16", p || s);
+  return p || s;
+}
+
+static cJSON *below_json(const method *m, int k) {
+  cJSON *o = cJSON_CreateObject();
+  if (!o) return NULL;
+  cJSON_AddNumberToObject(o, "frames", m->compared[k]);
+  cJSON_AddNumberToObject(o, "psnr", m->below[k][0]);
+  cJSON_AddNumberToObject(o, "ssim", m->below[k][1]);
+  cJSON_AddNumberToObject(o, "either", m->below[k][2]);
+  if (k == REF_OWN_INPUT && m->below_files)
+    cJSON_AddItemReferenceToObject(o, "files", m->below_files);
+  return o;
 }
 
 static cJSON *score_json(const method *m, const eval_frame_score *fs) {
@@ -427,6 +477,8 @@ static int write_json(const char *path, const method *ms, int nm, const eval_str
       free(text);
       cJSON_AddItemToObject(o, "input_range", r);
       cJSON_AddNumberToObject(o, "frames_out_of_range", flagged[ms[i].model]);
+      cJSON_AddItemToObject(o, "below_own_input", below_json(&ms[i], REF_OWN_INPUT));
+      cJSON_AddItemToObject(o, "below_st16", below_json(&ms[i], REF_ST16));
     }
   }
   /* A reference: rows stay the caller's. */
@@ -489,6 +541,27 @@ static void print_table(const method *ms, int nm, const eval_strata *strata, int
     else snprintf(psnr, sizeof psnr, "%.2f", v.psnr);
     printf("| %s | %d | %s | %.4f | %.5f | %.2e | %.2e | %.2e |\n", ms[i].label, n, psnr,
            v.ssim, v.mse, v.col, v.hl, v.alpha);
+  }
+}
+
+/* The networks' frames below their own input and below ST 16 spp: the
+ * per-frame bars of docs/QUALITY.md ("never below its own input"). */
+static void print_below(const method *ms, int nm) {
+  int any = 0;
+  for (int i = 0; i < nm; i++) any |= ms[i].kind == M_MODEL && ms[i].compared[REF_OWN_INPUT];
+  if (!any) return;
+  printf("\nFrames where a network is below a reference (lower PSNR or SSIM on the frame's "
+         "hair pixels; its own input: the stochastic-transparency estimate of the samples "
+         "it reads)\n\n");
+  printf("| method | frames | below its own input: PSNR / SSIM / either | frames with ST 16 "
+         "spp | below ST 16 spp: PSNR / SSIM / either |\n|---|---:|---:|---:|---:|\n");
+  for (int i = 0; i < nm; i++) {
+    const method *m = &ms[i];
+    if (m->kind != M_MODEL || !m->compared[REF_OWN_INPUT]) continue;
+    printf("| %s | %d | %d / %d / %d | %d | %d / %d / %d |\n", m->label,
+           m->compared[REF_OWN_INPUT], m->below[REF_OWN_INPUT][0], m->below[REF_OWN_INPUT][1],
+           m->below[REF_OWN_INPUT][2], m->compared[REF_ST16], m->below[REF_ST16][0],
+           m->below[REF_ST16][1], m->below[REF_ST16][2]);
   }
 }
 
@@ -565,6 +638,12 @@ int cmd_eval(int argc, char **argv) {
   eval_strata *strata = NULL;
   eval_regime rg = {0};
   eval_frame_score fs;
+  /* One frame's scores per method, and each network's own input's where
+   * it reads fewer samples than the input row (Base@1spp, Base@2spp). */
+  eval_frame_score frame_fs[MAX_METHODS], own_fs[MAX_METHODS];
+  int frame_has[MAX_METHODS];
+  cJSON *row_item[MAX_METHODS];
+  int st16 = -1;
   cJSON *rows = cJSON_CreateArray(), *row = NULL;   /* per-frame JSON rows */
   if (!rows) return 1;
 
@@ -616,6 +695,7 @@ int cmd_eval(int argc, char **argv) {
   for (int i = 0; i < N_ST; i++) {
     ms[nm].kind = M_CHANNELS;
     snprintf(ms[nm].prefix, sizeof ms[0].prefix, "st%d", ST_SPP[i]);
+    if (ST_SPP[i] == 16) st16 = nm;
     snprintf(ms[nm++].label, sizeof ms[0].label, "stochastic transparency %d spp", ST_SPP[i]);
   }
   ms[nm].kind = M_CHANNELS;
@@ -729,6 +809,7 @@ int cmd_eval(int argc, char **argv) {
       for (size_t i = 0; i < (size_t)grid_width(&tg) * grid_height(&tg) * 3; i++) tg.rgb[i] = 1.f;
     }
     int warned = 0;   /* one warning per frame about out-of-contract input */
+    memset(frame_has, 0, sizeof frame_has);
     for (int mi = 0; mi < nm; mi++) {
       method *m = &ms[mi];
       hf_input_report rep = {0};
@@ -743,6 +824,13 @@ int cmd_eval(int argc, char **argv) {
           fprintf(stderr, "hairfilter eval: %s has %d spp, %s needs %d: skipped for it\n",
                   fr->path, spp, cfg->name, cfg->spp);
           continue;
+        }
+        if (cfg->spp != ispp) {
+          /* Its own input: the estimate of the cfg->spp samples it reads. */
+          hf_input_report own_rep = {0};
+          input_average(&img, cfg->spp, in, res, &own_rep);
+          composite(&lk, &img, res, w, h, rgb);
+          if ((rc = frame_score(res, gt, rgb, gt_rgb, w, h, mask, smap, &own_fs[mi])) != 0) goto out;
         }
         if ((rc = hf_features_from_image(&img, cfg->spp, in)) < 0) goto out;
         int out_of_range = check_range(&ranges[m->model], m->label, fr->path, in, w, h,
@@ -769,7 +857,10 @@ int cmd_eval(int argc, char **argv) {
       composite(&lk, &img, res, w, h, rgb);
       if ((rc = score(mi, strata, &rg, res, gt, rgb, gt_rgb, w, h, mask, smap, &fs)) != 0)
         goto out;
-      if (row_scores) cJSON_AddItemToArray(row_scores, score_json(m, &fs));
+      row_item[mi] = row_scores ? score_json(m, &fs) : NULL;
+      if (row_item[mi]) cJSON_AddItemToArray(row_scores, row_item[mi]);
+      frame_fs[mi] = fs;
+      frame_has[mi] = 1;
       int in_grid = m->kind == M_INPUT || m->kind == M_MODEL || !strcmp(m->prefix, "st16");
       if (grow >= 0 && in_grid) grid_put(&g, grow, col++, rgb, w, h);
       if (temporal) {
@@ -777,6 +868,26 @@ int cmd_eval(int argc, char **argv) {
           goto out;
         if (tfig && in_grid) grid_put(&tg, 0, tcol++, diff, w, h);
       }
+    }
+    for (int mi = 0; mi < nm; mi++) {
+      method *m = &ms[mi];
+      if (m->kind != M_MODEL || !frame_has[mi]) continue;
+      int own_spp = hf_model_config(models[m->model])->spp;
+      /* ms[0] is the input row: the estimate of the first ispp samples. */
+      const eval_frame_score *own = own_spp == ispp ? &frame_fs[0] : &own_fs[mi];
+      if (row_item[mi]) {
+        cJSON *o = cJSON_AddObjectToObject(row_item[mi], "own_input");
+        if (o) eval_json_scores(o, own);
+      }
+      if (compare_ref(m, REF_OWN_INPUT, &frame_fs[mi], own, row_item[mi])) {
+        if (!m->below_files && !(m->below_files = cJSON_CreateArray())) {
+          rc = HF_ENOMEM;
+          goto out;
+        }
+        cJSON_AddItemToArray(m->below_files, cJSON_CreateString(fr->path));
+      }
+      if (st16 >= 0 && frame_has[st16])
+        compare_ref(m, REF_ST16, &frame_fs[mi], &frame_fs[st16], row_item[mi]);
     }
     if (grow >= 0) {
       grid_put(&g, grow, g.cols - 1, gt_rgb, w, h);
@@ -808,12 +919,21 @@ int cmd_eval(int argc, char **argv) {
     for (int i = 0; i < nm; i++) labels[i] = ms[i].label;
     eval_strata_print(strata, labels, stdout);
   }
+  print_below(ms, nm);
   fflush(stdout);   /* the tables first, then what stderr says about them */
   for (int i = 0; i < nm; i++)
     if (ms[i].kind == M_MODEL && flagged[ms[i].model])
       fprintf(stderr, "hairfilter eval: warning: %d of %d frames are outside the input range %s "
               "was trained on (its scores there may not hold)\n", flagged[ms[i].model], scored,
               ms[i].label);
+  for (int i = 0; i < nm; i++) {
+    const cJSON *f;
+    if (ms[i].kind != M_MODEL || !ms[i].below_files) continue;
+    fprintf(stderr, "eval: %s is below its own input (PSNR or SSIM) on %d of %d frames:",
+            ms[i].label, ms[i].below[REF_OWN_INPUT][2], ms[i].compared[REF_OWN_INPUT]);
+    cJSON_ArrayForEach(f, ms[i].below_files) fprintf(stderr, " %s", f->valuestring);
+    fprintf(stderr, "\n");
+  }
   if (temporal) print_temporal(ms, nm, &truth);
   if (json_path &&
       (rc = write_json(json_path, ms, nm, strata, rows, ranges, flagged, scored, hair_px, &lk,
@@ -853,7 +973,10 @@ out:
   eval_regime_free(&rg);
   eval_strata_free(strata);
   cJSON_Delete(rows);
-  for (int i = 0; i < nm; i++) free(ms[i].prev);
+  for (int i = 0; i < nm; i++) {
+    free(ms[i].prev);
+    cJSON_Delete(ms[i].below_files);
+  }
   return rc ? 1 : 0;
 bad:
   usage(stderr);

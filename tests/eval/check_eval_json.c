@@ -7,7 +7,8 @@
  * and from the EXR display window, the input statistics of every frame,
  * stochastic transparency at 4 spp (the truth: infinite PSNR, SSIM 1 in
  * every bucket), at 16 spp (half the alpha: PSNR known in closed form in
- * every bucket), and the frames flagged outside the narrow trained range. */
+ * every bucket), the frames flagged outside the narrow trained range, and
+ * the network's frames below its own input and below ST 16 spp. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -179,19 +180,90 @@ int main(int argc, char **argv) {
               !strcmp(at(bk, "coverage_frames")->valuestring, fr[i].cover) &&
               !strcmp(at(bk, "resolution_frames")->valuestring, fr[i].res),
           "%s: buckets", fr[i].file);
-    const cJSON *flags = at(row, "out_of_range");
-    CHECK(cJSON_GetArraySize(flags) == fr[i].flags, "%s: %d flags", fr[i].file,
-          cJSON_GetArraySize(flags));
-    if (fr[i].flags) {
-      const cJSON *v = at(at(cJSON_GetArrayItem(flags, 0), "statistics"), "strand_alpha_p50");
+    /* Small's flags (Base@1spp has its own range) */
+    const cJSON *flags = at(row, "out_of_range"), *fl, *small = NULL;
+    int nflags = 0;
+    cJSON_ArrayForEach(fl, flags) {
+      if (!strstr(at(fl, "method")->valuestring, "small_narrow")) continue;
+      small = fl;
+      nflags++;
+    }
+    CHECK(nflags == fr[i].flags, "%s: %d flags", fr[i].file, nflags);
+    if (fr[i].flags && small) {
+      const cJSON *v = at(at(small, "statistics"), "strand_alpha_p50");
       const cJSON *tr = at(v, "trained");
       CHECK(num(v, "value") == fr[i].p50 && cJSON_GetArrayItem(tr, 0)->valuedouble == 0.015 &&
                 cJSON_GetArrayItem(tr, 1)->valuedouble == 0.025,
             "%s: flag details", fr[i].file);
     }
-    CHECK(cJSON_GetArraySize(at(row, "methods")) == 6, "%s: %d method rows", fr[i].file,
+    CHECK(cJSON_GetArraySize(at(row, "methods")) == 7, "%s: %d method rows", fr[i].file,
           cJSON_GetArraySize(at(row, "methods")));
   }
+  /* Below its own input and below ST 16 spp, for each network (Small reads
+   * 4 samples, Base@1spp its first): the summary counts are those of its
+   * per-frame scores, each frame row says which, and a 4-sample network's
+   * own input is the input row. */
+  const cJSON *m;
+  int networks = 0;
+  cJSON_ArrayForEach(m, methods) {
+    const cJSON *label = at(m, "method");
+    if (!cJSON_IsString(at(m, "kind")) || strcmp(at(m, "kind")->valuestring, "network")) continue;
+    networks++;
+    int below[2][3] = {{0}}, compared[2] = {0}, listed = 0;
+    const cJSON *row;
+    cJSON_ArrayForEach(row, rows) {
+      const char *file = at(row, "file")->valuestring;
+      const cJSON *ms = at(row, "methods");
+      const cJSON *n = find(ms, "method", label->valuestring);
+      const cJSON *in = find(ms, "method", "input (mean of 4");
+      const cJSON *s16 = find(ms, "method", "stochastic transparency 16 spp");
+      const cJSON *own = n ? at(n, "own_input") : NULL;
+      CHECK(n && in && s16 && own, "%s: no %s, input, st16 or own input score", file,
+            label->valuestring);
+      if (!n || !in || !s16 || !own) continue;
+      if (strstr(label->valuestring, "Small"))
+        CHECK(num(own, "ssim") == num(in, "ssim") && num(own, "mse") == num(in, "mse"),
+              "%s: Small's own input is not the input row", file);
+      else if (num(in, "mse") > 0)   /* b: every sample is the truth */
+        CHECK(num(own, "mse") != num(in, "mse"), "%s: Base@1spp's own input is the 4-sample row",
+              file);
+      const cJSON *ref[2] = {own, s16};
+      const char *key[2] = {"below_own_input", "below_st16"};
+      for (int k = 0; k < 2; k++) {
+        /* psnr null: infinite (no error) */
+        double np = cJSON_IsNull(at(n, "psnr")) ? INFINITY : num(n, "psnr");
+        double rp = cJSON_IsNull(at(ref[k], "psnr")) ? INFINITY : num(ref[k], "psnr");
+        int p = np < rp, sl = num(n, "ssim") < num(ref[k], "ssim");
+        compared[k]++;
+        below[k][0] += p;
+        below[k][1] += sl;
+        below[k][2] += p || sl;
+        CHECK(cJSON_IsBool(at(n, key[k])) && cJSON_IsTrue(at(n, key[k])) == (p || sl),
+              "%s: %s of %s not %d", file, key[k], label->valuestring, p || sl);
+        if (k == 0 && (p || sl)) {
+          const cJSON *f, *files = at(at(m, "below_own_input"), "files");
+          int found = 0;
+          cJSON_ArrayForEach(f, files) found |= !strcmp(f->valuestring, file);
+          CHECK(found, "%s below the own input of %s but not listed", file, label->valuestring);
+          listed++;
+        }
+      }
+    }
+    for (int k = 0; k < 2; k++) {
+      const cJSON *o = at(m, k ? "below_st16" : "below_own_input");
+      CHECK(num(o, "frames") == compared[k] && num(o, "psnr") == below[k][0] &&
+                num(o, "ssim") == below[k][1] && num(o, "either") == below[k][2],
+            "%s %s: %g %g %g %g, from the rows %d %d %d %d", label->valuestring,
+            k ? "below_st16" : "below_own_input", num(o, "frames"), num(o, "psnr"),
+            num(o, "ssim"), num(o, "either"), compared[k], below[k][0], below[k][1],
+            below[k][2]);
+    }
+    CHECK(compared[0] == 3, "%s: %d frames compared", label->valuestring, compared[0]);
+    CHECK(cJSON_GetArraySize(at(at(m, "below_own_input"), "files")) == listed,
+          "%s: files listed %d, below %d", label->valuestring,
+          cJSON_GetArraySize(at(at(m, "below_own_input"), "files")), listed);
+  }
+  CHECK(networks == 2, "%d networks", networks);
   cJSON_Delete(doc);
   if (!failures) printf("check_eval_json: all checks passed\n");
   return failures ? 1 : 0;
