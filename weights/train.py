@@ -164,8 +164,48 @@ def lattice_loss(p, q, period):
     return (m * m).mean()
 
 
+def st_estimate(x, spp):
+    """The stochastic-transparency estimate of each pixel's own samples, NCHW
+    [n][3][h][w] from features x [n][spp*6][h][w]: covered fraction as alpha,
+    mean colour (1 where none is covered) and highlight of the covered ones;
+    src/net_config.c hf_st_estimate, the `input` row of `hairfilter eval`."""
+    s = hfnet.pixel_sums(x.float(), spp)
+    n = s[:, 0:1]
+    safe = n.clamp(min=1)
+    color = torch.where(n > 0, s[:, 1:2] / safe, torch.ones_like(n))
+    return torch.cat([color, s[:, 2:3] / safe, n / spp], 1)
+
+
+# The MSE floor of below_input_loss's PSNR ratio: 60 dB, so that a crop the
+# input already matches exactly gives a finite deficit.
+BELOW_INPUT_EPS = 1e-6
+
+
+def below_input_loss(cp, ct, ci, alpha):
+    """How far each crop's composite cp is below the composite of its own
+    input ci, both against the target's ct (NCHW images, alpha the target's
+    [n][1][h][w]), on the crop's hair pixels (alpha > 0), as `hairfilter
+    eval` counts a frame below its input: the PSNR deficit in dB over 10
+    plus the SSIM deficit, each only where positive (a hinge: a crop better
+    than its input costs nothing), averaged over the crops. 0 for a crop
+    without hair pixels. ci carries no gradient."""
+    m = (alpha > 0).float()
+    cnt = m.sum((1, 2, 3))
+    has = (cnt > 0).float()
+    cnt = cnt.clamp(min=1)
+    e_net = (((cp - ct) ** 2).mean(1, keepdim=True) * m).sum((1, 2, 3)) / cnt
+    e_in = (((ci - ct) ** 2).mean(1, keepdim=True) * m).sum((1, 2, 3)) / cnt
+    db = 10 * torch.log10((e_net + BELOW_INPUT_EPS) / (e_in + BELOW_INPUT_EPS))
+    r = SSIM_RADIUS
+    mi = m[:, 0, r:-r, r:-r]
+    ni = mi.sum((1, 2)).clamp(min=1)
+    s_net = (ssim_map(cp, ct) * mi).sum((1, 2)) / ni
+    s_in = (ssim_map(ci, ct) * mi).sum((1, 2)) / ni
+    return ((F.relu(db) / 10 + F.relu(s_in - s_net)) * has).mean()
+
+
 def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0,
-              lattice=(0.0, 8)):
+              lattice=(0.0, 8), below=(0.0, None, 4)):
     """The squared error of what a viewer sees: pred and target composited
     with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
     weighted by grad_weight, of their finite differences, as the paper's loss
@@ -178,13 +218,20 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weigh
     two images: the structure the evaluation's SSIM scores, which the MSE
     lets a blur trade away. lattice (weight, period) adds weight times
     lattice_loss of the two images: the periodic part of the error, which
-    the MSE counts no more than any other error of the same energy."""
+    the MSE counts no more than any other error of the same energy. below
+    (weight, features, spp) adds weight times below_input_loss against the
+    composite of st_estimate(features, spp): the crops where the network
+    does worse than the samples it reads."""
     cp, ct = composite(pred, *looks), composite(target, *looks)
     loss = mse_and_gradients(cp, ct, grad_weight)
     if ssim_weight:
         loss = loss + ssim_weight * hair_ssim_loss(cp, ct, target[:, 2:3])
     if lattice[0]:
         loss = loss + lattice[0] * lattice_loss(cp, ct, lattice[1])
+    if below[0]:
+        with torch.no_grad():
+            ci = composite(st_estimate(below[1], below[2]), *looks)
+        loss = loss + below[0] * below_input_loss(cp, ct, ci, target[:, 2:3])
     if paper_weight:
         loss = loss + paper_weight * hair_loss(pred, target, grad_weight)
     return loss
@@ -195,13 +242,15 @@ def eval_looks(n, device):
                  for v in EVAL_LOOK)
 
 
-def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0, lattice=(0.0, 8)):
+def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0, lattice=(0.0, 8),
+             below=(0.0, None, 4)):
     """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
-    (look_loss with looks, EVAL_LOOK when None, ssim_weight and lattice)."""
+    (look_loss with looks, EVAL_LOOK when None, ssim_weight, lattice and
+    below)."""
     if kind == "look":
         return look_loss(pred, target, looks if looks is not None
                          else eval_looks(pred.shape[0], pred.device), grad_weight,
-                         ssim_weight=ssim_weight, lattice=lattice)
+                         ssim_weight=ssim_weight, lattice=lattice, below=below)
     return hair_loss(pred, target, grad_weight)
 
 
@@ -325,7 +374,7 @@ def save_checkpoint(path, **state):
 
 @torch.no_grad()
 def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper",
-             ssim_weight=0.0, lattice=(0.0, 8)):
+             ssim_weight=0.0, lattice=(0.0, 8), below_weight=0.0):
     """Mean loss over the held-out frames (first spp samples, no
     augmentation; frames larger than max_side are centre-cropped); the
     look loss with the evaluation's look (EVAL_LOOK)."""
@@ -343,7 +392,8 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
         y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
         x, y = x.to(device), y.to(device)
         total += float(run_loss(loss, forward(net, x, *mode), y, grad_weight,
-                                ssim_weight=ssim_weight, lattice=lattice))
+                                ssim_weight=ssim_weight, lattice=lattice,
+                                below=(below_weight, x, spp)))
     net.train()
     return total / len(frames)
 
@@ -430,6 +480,11 @@ def parse_args(argv):
                     help="--loss look: add this times the mean square of the error's part "
                     "that repeats every 2^levels pixels (a U-Net's transposed-convolution "
                     "lattice; train.py lattice_loss)")
+    ap.add_argument("--below-input-weight", type=float, default=0.0,
+                    help="--loss look: add this times the crops' deficit against their own "
+                    "input (PSNR in dB / 10 plus SSIM, where the network is below the "
+                    "stochastic-transparency estimate of its samples; train.py "
+                    "below_input_loss)")
     ap.add_argument("--styles", default="straight,wavy",
                     help="styles to train on (others are never loaded); '' = all")
     ap.add_argument("--val-fraction", type=float, default=0.1)
@@ -476,6 +531,8 @@ def parse_args(argv):
         ap.error("--ssim-weight needs --loss look (it scores the composited images)")
     if args.lattice_weight and args.loss != "look":
         ap.error("--lattice-weight needs --loss look (it scores the composited images)")
+    if args.below_input_weight and args.loss != "look":
+        ap.error("--below-input-weight needs --loss look (it scores the composited images)")
     return args
 
 
@@ -509,7 +566,7 @@ def main(argv=None):
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
-                  "ssim_weight", "lattice_weight",
+                  "ssim_weight", "lattice_weight", "below_input_weight",
                   "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
@@ -603,7 +660,8 @@ def main(argv=None):
             looks = random_looks(x.shape[0], look_gen) if args.loss == "look" else None
             looks = tuple(v.to(device) for v in looks) if looks else None
             loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
-                            y, args.grad_weight, looks, args.ssim_weight, lattice)
+                            y, args.grad_weight, looks, args.ssim_weight, lattice,
+                            (args.below_input_weight, x, cfg["spp"]))
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -618,7 +676,7 @@ def main(argv=None):
             if step % args.val_every == 0 or last:
                 val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device,
                                loss=args.loss, ssim_weight=args.ssim_weight,
-                               lattice=lattice)
+                               lattice=lattice, below_weight=args.below_input_weight)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
                            time=elapsed + time.time() - t_start)
@@ -646,7 +704,8 @@ def main(argv=None):
                            lr=args.lr, schedule=args.schedule, lr_floor=args.lr_floor,
                            grad_weight=args.grad_weight, loss=args.loss,
                            ssim_weight=args.ssim_weight,
-                           lattice_weight=args.lattice_weight, seed=args.seed,
+                           lattice_weight=args.lattice_weight,
+                           below_input_weight=args.below_input_weight, seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)

@@ -346,6 +346,63 @@ class Recipe(unittest.TestCase):
         with self.assertRaises(SystemExit):
             train.parse_args(["--out", "x", "--lattice-weight", "1"])
 
+    def test_below_input_term_is_a_hinge_on_the_own_input(self):
+        """st_estimate is hf_st_estimate of each pixel's samples; the below
+        term is 0 where the network equals its input or beats it, and where
+        it is worse, its PSNR deficit in dB / 10 plus its SSIM deficit, with
+        a gradient; crops without hair count 0 in the mean."""
+        g = torch.Generator().manual_seed(9)
+        spp, h, w = 4, 24, 24
+        x = torch.rand(2, spp * 6, h, w, generator=g)
+        x[:, 2::6] = torch.where(x[:, 2::6] > 0.5, x[:, 2::6], torch.zeros_like(x[:, 2::6]))
+        est = train.st_estimate(x, spp)
+        px = x[0, :, 3, 7].view(spp, 6)
+        cov = px[:, 2] > 0
+        n = int(cov.sum())
+        self.assertAlmostEqual(float(est[0, 2, 3, 7]), n / spp, places=6)
+        if n:
+            self.assertAlmostEqual(float(est[0, 0, 3, 7]), float(px[cov, 0].mean()), places=5)
+            self.assertAlmostEqual(float(est[0, 1, 3, 7]), float(px[cov, 1].mean()), places=5)
+        t = torch.rand(2, 3, h, w, generator=g)
+        t[:, 2] = t[:, 2].clamp(min=0.05)
+        looks = train.eval_looks(2, "cpu")
+        ct, ci = train.composite(t, *looks), train.composite(est, *looks)
+        alpha = t[:, 2:3]
+        self.assertEqual(float(train.below_input_loss(ci, ct, ci, alpha)), 0.0)
+        self.assertEqual(float(train.below_input_loss(ct, ct, ci, alpha)), 0.0)
+        # Worse than the input: the deficit in dB / 10 and in SSIM.
+        worse = (ci + 0.3 * (ci - ct)).requires_grad_()
+        got = train.below_input_loss(worse, ct, ci, alpha)
+        eps = train.BELOW_INPUT_EPS
+        want = 0.0
+        for i in range(2):     # per crop, then the mean
+            e = lambda a: float(((a[i] - ct[i]) ** 2).mean())
+            s = lambda a: float(train.ssim_map(a[i:i + 1], ct[i:i + 1]).mean())
+            want += (max(0.0, np.log10((e(worse) + eps) / (e(ci) + eps)))
+                     + max(0.0, s(ci) - s(worse))) / 2
+        self.assertAlmostEqual(float(got), want, places=5)
+        self.assertGreater(float(got), 0.0)
+        got.backward()
+        self.assertGreater(float(worse.grad.abs().sum()), 0.0)
+        # A crop without hair counts 0 in the mean.
+        bald = alpha.clone()
+        bald[1] = 0
+        self.assertAlmostEqual(float(train.below_input_loss(worse.detach(), ct, ci, bald)),
+                               float(train.below_input_loss(worse.detach()[:1], ct[:1], ci[:1],
+                                                            alpha[:1])) / 2, places=5)
+        # In the look loss, with its weight; the option needs --loss look.
+        self.assertAlmostEqual(
+            float(train.look_loss(est, t, looks, 1.0, 0.1, below=(2.0, x, spp))),
+            float(train.look_loss(est, t, looks, 1.0, 0.1)), places=6)
+        self.assertAlmostEqual(
+            float(train.look_loss(worse.detach() * 0 + t * 0.5, t, looks, 1.0, 0.1,
+                                  below=(2.0, x, spp))),
+            float(train.look_loss(t * 0.5, t, looks, 1.0, 0.1))
+            + 2.0 * float(train.below_input_loss(train.composite(t * 0.5, *looks), ct, ci,
+                                                 alpha)), places=5)
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", "--below-input-weight", "1"])
+
     # -- training --------------------------------------------------------------
 
     def test_loss_falls_and_export_roundtrips(self):
