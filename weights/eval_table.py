@@ -1,0 +1,79 @@
+#!/usr/bin/python3
+"""One Markdown table of a `hairfilter eval --json` document, per frame:
+
+    eval_table.py OUT.json [--methods SUBSTR,SUBSTR,...] [--below]
+
+A row per method (all of them, or those whose label holds one of the
+--methods substrings, in that order), `PSNR / SSIM` overall and in every
+bucket of the three frame groupings (strand width, coverage, resolution),
+each column headed by its bucket and frame count (buckets without frames
+left out): the table the weights' cards and docs/QUALITY.md quote. --below adds, for each network, the frames
+where it is below its own input and below stochastic transparency at
+16 spp (PSNR / SSIM / either). Reads only what `hairfilter eval` wrote; it
+computes no score of its own.
+"""
+import argparse
+import json
+import sys
+
+FRAME_GROUPINGS = ("strand_width_frames", "coverage_frames", "resolution_frames")
+
+
+def cell(v):
+    """'PSNR / SSIM' of a bucket ('-' where it holds no frame)."""
+    if not v or not v.get("frames"):
+        return "-"
+    psnr = "inf" if v.get("psnr") is None else f"{v['psnr']:.2f}"
+    return f"{psnr} / {v['ssim']:.3f}"
+
+
+def pick(methods, wanted):
+    if not wanted:
+        return list(methods)
+    out = []
+    for w in wanted:
+        out += [m for m in methods if w in m["method"] and m not in out]
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("json", help="the document `hairfilter eval --json` wrote")
+    ap.add_argument("--methods", default="", help="comma-separated substrings of the labels")
+    ap.add_argument("--below", action="store_true",
+                    help="also the networks' frames below their own input and ST 16 spp")
+    args = ap.parse_args(argv)
+    with open(args.json) as f:
+        doc = json.load(f)
+    if doc.get("format") != "hairfilter-eval":
+        sys.exit(f"eval_table.py: {args.json} is not a hairfilter eval document")
+    groups = {g["key"]: g for g in doc["groupings"]}
+    # Buckets that hold no frame (strand width "none") are left out.
+    keep = {key: [i for i, b in enumerate(groups[key]["buckets"]) if b["frames"]]
+            for key in FRAME_GROUPINGS}
+    heads = [f"all {doc['frames']} frames"]
+    for key in FRAME_GROUPINGS:
+        heads += [f"{groups[key]['buckets'][i]['bucket']} ({groups[key]['buckets'][i]['frames']})"
+                  for i in keep[key]]
+    print("| method | " + " | ".join(heads) + " |")
+    print("|---|" + "---:|" * len(heads))
+    rows = pick(doc["methods"], [s for s in args.methods.split(",") if s])
+    for m in rows:
+        cells = [cell(m["overall"])]
+        for key in FRAME_GROUPINGS:
+            cells += [cell(m[key][i]) for i in keep[key]]
+        label = f"**{m['method']}**" if m["kind"] == "network" else m["method"]
+        print(f"| {label} | " + " | ".join(cells) + " |")
+    if args.below:
+        print("\n| network | below its own input (PSNR / SSIM / either) | below ST 16 spp "
+              "(PSNR / SSIM / either) |\n|---|---:|---:|")
+        for m in rows:
+            if m["kind"] != "network":
+                continue
+            a, b = m["below_own_input"], m["below_st16"]
+            print(f"| {m['method']} | {a['psnr']} / {a['ssim']} / {a['either']} of {a['frames']} "
+                  f"| {b['psnr']} / {b['ssim']} / {b['either']} of {b['frames']} |")
+
+
+if __name__ == "__main__":
+    main()
