@@ -7,10 +7,10 @@ A row per method (all of them, or those whose label holds one of the
 --methods substrings, in that order), `PSNR / SSIM` overall and in every
 bucket of the three frame groupings (strand width, coverage, resolution),
 each column headed by its bucket and frame count (buckets without frames
-left out): the table the weights' cards and docs/QUALITY.md quote. --below adds, for each network, the frames
-where it is below its own input and below stochastic transparency at
-16 spp (PSNR / SSIM / either). Reads only what `hairfilter eval` wrote; it
-computes no score of its own.
+left out): the table the weights' cards and docs/QUALITY.md quote.
+--below adds, for each network, the frames where it is below its own input
+and below stochastic transparency at 16 spp (PSNR / SSIM / either). Reads
+only what `hairfilter eval` wrote; it computes no score of its own.
 """
 import argparse
 import json

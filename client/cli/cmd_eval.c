@@ -830,7 +830,8 @@ int cmd_eval(int argc, char **argv) {
           hf_input_report own_rep = {0};
           input_average(&img, cfg->spp, in, res, &own_rep);
           composite(&lk, &img, res, w, h, rgb);
-          if ((rc = frame_score(res, gt, rgb, gt_rgb, w, h, mask, smap, &own_fs[mi])) != 0) goto out;
+          if ((rc = frame_score(res, gt, rgb, gt_rgb, w, h, mask, smap, &own_fs[mi])) != 0)
+            goto out;
         }
         if ((rc = hf_features_from_image(&img, cfg->spp, in)) < 0) goto out;
         int out_of_range = check_range(&ranges[m->model], m->label, fr->path, in, w, h,
