@@ -80,18 +80,20 @@ def _box_sum(z, r=RESIDUAL_RADIUS):
     return F.conv2d(z.reshape(n * c, 1, h, w), k, padding=r).reshape(n, c, h, w)
 
 
-def residual_base(x, spp):
-    """Stochastic-transparency estimate over the 5x5 window around each pixel
-    of NCHW features x (the frame, unpadded): covered fraction of the
-    window's samples as alpha, mean colour and highlight of the covered ones
-    (colour 1 where none is); src/net_config.c hf_residual_base."""
+def residual_base(x, spp, radius=RESIDUAL_RADIUS):
+    """Stochastic-transparency estimate over the (2 radius + 1)^2 window
+    around each pixel (5x5 by default; radius 0: each pixel's own samples,
+    src/net_config.c hf_st_estimate) of NCHW features x (the frame,
+    unpadded): covered fraction of the window's samples as alpha, mean
+    colour and highlight of the covered ones (colour 1 where none is);
+    src/net_config.c hf_residual_base."""
     n, _, h, w = x.shape
     s = x.view(n, spp, len(FEATURES), h, w)
     cov = (s[:, :, 2] > 0).to(x.dtype)
-    cnt = _box_sum(cov.sum(1, keepdim=True))
-    col = _box_sum((s[:, :, 0] * cov).sum(1, keepdim=True))
-    hl = _box_sum((s[:, :, 1] * cov).sum(1, keepdim=True))
-    samples = _box_sum(x.new_ones(1, 1, h, w)) * spp
+    cnt = _box_sum(cov.sum(1, keepdim=True), radius)
+    col = _box_sum((s[:, :, 0] * cov).sum(1, keepdim=True), radius)
+    hl = _box_sum((s[:, :, 1] * cov).sum(1, keepdim=True), radius)
+    samples = _box_sum(x.new_ones(1, 1, h, w), radius) * spp
     safe = torch.clamp(cnt, min=1)
     color = torch.where(cnt > 0, col / safe, torch.ones_like(cnt))
     return torch.cat([color, hl / safe, cnt / samples], dim=1)

@@ -166,14 +166,9 @@ def lattice_loss(p, q, period):
 
 def st_estimate(x, spp):
     """The stochastic-transparency estimate of each pixel's own samples, NCHW
-    [n][3][h][w] from features x [n][spp*6][h][w]: covered fraction as alpha,
-    mean colour (1 where none is covered) and highlight of the covered ones;
-    src/net_config.c hf_st_estimate, the `input` row of `hairfilter eval`."""
-    s = hfnet.pixel_sums(x.float(), spp)
-    n = s[:, 0:1]
-    safe = n.clamp(min=1)
-    color = torch.where(n > 0, s[:, 1:2] / safe, torch.ones_like(n))
-    return torch.cat([color, s[:, 2:3] / safe, n / spp], 1)
+    [n][3][h][w] from features x [n][spp*6][h][w] (hfnet.residual_base with
+    a window of one pixel): the `input` row of `hairfilter eval`."""
+    return hfnet.residual_base(x.float(), spp, radius=0)
 
 
 # The MSE floor of below_input_loss's PSNR ratio: 60 dB, so that a crop the
