@@ -8,7 +8,8 @@
  * ground truth on the hair pixels (gt.alpha > 0). docs/QUALITY.md defines the
  * metrics. The same scores are also grouped by regime (eval_strata.h): hair
  * pixels by strand width in pixels and by coverage, frames by their median
- * of those and by resolution. */
+ * of those and by resolution. A last table measures, per method, the lattice
+ * a decoder's transposed convolutions print into the error (eval_lattice.h). */
 #define _POSIX_C_SOURCE 200809L
 #include <cjson/cJSON.h>
 #include <dirent.h>
@@ -21,6 +22,7 @@
 
 #include "cli_common.h"
 #include "commands.h"
+#include "eval_lattice.h"
 #include "eval_metrics.h"
 #include "eval_strata.h"
 #include "hfrender.h"
@@ -49,7 +51,8 @@ static void usage(FILE *f) {
           "was trained on (its input_range metadata) are named on stderr. A last table\n"
           "counts, per network, the frames where it is below its own input (the estimate\n"
           "of the samples it reads) and below ST 16 spp in PSNR or SSIM; stderr names the\n"
-          "frames below the input.\n"
+          "frames below the input. A table after it measures the lattice in each method's\n"
+          "error: the pattern of period 2^levels a network's transposed convolutions print.\n"
           "The grid has one row per frame: input average, each network, ST 16 spp, truth.\n"
           "--temporal: the frames (in file-name order) are one camera sequence; also prints\n"
           "each method's mean frame-to-frame change beside the ground truth's (flicker);\n"
@@ -243,7 +246,17 @@ typedef struct method {
    * the network reads (its own input); REF_ST16: 16 spp. */
   int compared[2], below[2][3];
   cJSON *below_files;           /* names of the frames below its own input */
+  /* The lattice in its error (eval_lattice.h): the period measured (a
+   * network's 2^levels, LATTICE_REF_PERIOD for the rest), the frames it was
+   * measured on, the sum and largest of their peaks, the frame with the
+   * largest, and the frames at or above EVAL_LATTICE_VISIBLE. */
+  int lattice_period, lattice_frames, lattice_visible, lattice_max_frame;
+  double lattice_sum, lattice_max;
 } method;
+
+/* The period the input and the baselines are measured at: that of Base
+ * and Kernel (three levels). */
+#define LATTICE_REF_PERIOD 8
 
 enum { REF_OWN_INPUT, REF_ST16 };
 
@@ -444,7 +457,8 @@ static const char *kind_name(int kind) {
  * per-frame rows collected while scoring. */
 static int write_json(const char *path, const method *ms, int nm, const eval_strata *strata,
                       cJSON *rows, const hf_input_range *ranges, const int *flagged, int frames,
-                      size_t hair_px, const look *lk, const char *styles, int input_spp) {
+                      size_t hair_px, const look *lk, const char *styles, int input_spp,
+                      const frame_list *frame_refs) {
   cJSON *doc = cJSON_CreateObject();
   if (!doc) return HF_ENOMEM;
   cJSON_AddStringToObject(doc, "format", "hairfilter-eval");
@@ -471,6 +485,19 @@ static int write_json(const char *path, const method *ms, int nm, const eval_str
     cJSON_AddStringToObject(o, "kind", kind_name(ms[i].kind));
     if (ms[i].kind == M_CHANNELS) cJSON_AddStringToObject(o, "channels", ms[i].prefix);
     if (ms[i].kind == M_INPUT_POOL) cJSON_AddNumberToObject(o, "window", 2 * ms[i].radius + 1);
+    if (ms[i].lattice_frames) {
+      const method *m = &ms[i];
+      cJSON *l = cJSON_AddObjectToObject(o, "lattice");
+      if (l) {
+        cJSON_AddNumberToObject(l, "period", m->lattice_period);
+        cJSON_AddNumberToObject(l, "frames", m->lattice_frames);
+        cJSON_AddItemToObject(l, "mean", eval_json_number(m->lattice_sum / m->lattice_frames));
+        cJSON_AddItemToObject(l, "max", eval_json_number(m->lattice_max));
+        cJSON_AddStringToObject(l, "max_file", frame_refs->v[m->lattice_max_frame].path);
+        cJSON_AddNumberToObject(l, "visible_at", EVAL_LATTICE_VISIBLE);
+        cJSON_AddNumberToObject(l, "frames_visible", m->lattice_visible);
+      }
+    }
     if (ms[i].kind == M_MODEL) {
       char *text = hf_input_range_to_json(&ranges[ms[i].model]);
       cJSON *r = text ? cJSON_Parse(text) : cJSON_CreateNull();
@@ -562,6 +589,25 @@ static void print_below(const method *ms, int nm) {
            m->compared[REF_OWN_INPUT], m->below[REF_OWN_INPUT][0], m->below[REF_OWN_INPUT][1],
            m->below[REF_OWN_INPUT][2], m->compared[REF_ST16], m->below[REF_ST16][0],
            m->below[REF_ST16][1], m->below[REF_ST16][2]);
+  }
+}
+
+/* Each method's lattice peak (eval_lattice.h): mean and largest over the
+ * frames, the frame of the largest, and the frames where it stands out. */
+static void print_lattice(const method *ms, int nm, const frame_list *frames) {
+  printf("\nLattice in the error: the composited error folded onto P x P pixel phases, "
+         "its energy at period P over the mean at P - 1 and P + 1 (about 1: no pattern; "
+         ">= %.0f: a pattern of period P, the dots of a decoder's transposed "
+         "convolutions, stands out), per frame\n\n", EVAL_LATTICE_VISIBLE);
+  printf("| method | P | frames | mean | largest | frame of the largest | frames >= %.0f |\n"
+         "|---|---:|---:|---:|---:|---|---:|\n", EVAL_LATTICE_VISIBLE);
+  for (int i = 0; i < nm; i++) {
+    const method *m = &ms[i];
+    if (!m->lattice_frames) continue;
+    const char *f = frames->v[m->lattice_max_frame].path, *base = strrchr(f, '/');
+    printf("| %s | %d | %d | %.2f | %.2f | %s | %d |\n", m->label, m->lattice_period,
+           m->lattice_frames, m->lattice_sum / m->lattice_frames, m->lattice_max,
+           base ? base + 1 : f, m->lattice_visible);
   }
 }
 
@@ -860,6 +906,24 @@ int cmd_eval(int argc, char **argv) {
         goto out;
       row_item[mi] = row_scores ? score_json(m, &fs) : NULL;
       if (row_item[mi]) cJSON_AddItemToArray(row_scores, row_item[mi]);
+      m->lattice_period = m->kind == M_MODEL
+                              ? 1 << hf_model_config(models[m->model])->num_levels
+                              : LATTICE_REF_PERIOD;
+      double peak = eval_lattice_peak(rgb, gt_rgb, w, h, 3, m->lattice_period);
+      if (peak < 0) {
+        rc = (int)peak;
+        goto out;
+      }
+      if (!isnan(peak)) {   /* NaN: the frame is too small for the period */
+        if (!m->lattice_frames || peak > m->lattice_max) {
+          m->lattice_max = peak;
+          m->lattice_max_frame = fi;
+        }
+        m->lattice_sum += peak;
+        m->lattice_frames++;
+        m->lattice_visible += peak >= EVAL_LATTICE_VISIBLE;
+      }
+      if (row_item[mi]) cJSON_AddItemToObject(row_item[mi], "lattice_peak", eval_json_number(peak));
       frame_fs[mi] = fs;
       frame_has[mi] = 1;
       int in_grid = m->kind == M_INPUT || m->kind == M_MODEL || !strcmp(m->prefix, "st16");
@@ -921,6 +985,7 @@ int cmd_eval(int argc, char **argv) {
     eval_strata_print(strata, labels, stdout);
   }
   print_below(ms, nm);
+  print_lattice(ms, nm, &frames);
   fflush(stdout);   /* the tables first, then what stderr says about them */
   for (int i = 0; i < nm; i++)
     if (ms[i].kind == M_MODEL && flagged[ms[i].model])
@@ -938,7 +1003,7 @@ int cmd_eval(int argc, char **argv) {
   if (temporal) print_temporal(ms, nm, &truth);
   if (json_path &&
       (rc = write_json(json_path, ms, nm, strata, rows, ranges, flagged, scored, hair_px, &lk,
-                       styles, input_spp)) != 0)
+                       styles, input_spp, &frames)) != 0)
     goto out;
   if (temporal_png) {
     if (!tg.filled) {

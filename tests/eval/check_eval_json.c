@@ -2,13 +2,19 @@
  * make_eval_frame (DIR/strata, see there for the regions):
  *
  *   check_eval_json OUT.json
+ *   check_eval_json --lattice OUT.json
  *
  * Bucket membership (pixels and frames), the full sizes from the manifest
  * and from the EXR display window, the input statistics of every frame,
  * stochastic transparency at 4 spp (the truth: infinite PSNR, SSIM 1 in
  * every bucket), at 16 spp (half the alpha: PSNR known in closed form in
  * every bucket), the frames flagged outside the narrow trained range, and
- * the network's frames below its own input and below ST 16 spp. */
+ * the network's frames below its own input and below ST 16 spp; their
+ * frames are too small for the lattice measure, so no method has one.
+ *
+ * --lattice: the run on DIR/lattice/dots.exr, where st16 is the truth plus
+ * a dot lattice of period 8 and st4 the truth: st16's peak stands out,
+ * st4's is 0, and every method's summary is that of its frame values. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -53,14 +59,72 @@ static double st16_mse(double a) { return a * a / 4 * (0.28 * 0.28 + 0.01 + 0.04
 
 static double psnr(double mse) { return 10 * log10(1 / mse); }
 
+/* Each method's "lattice" summary against the lattice_peak of its
+ * per-frame scores (null: not measured): frames, mean, largest and its
+ * file, frames at or above visible_at. Returns how many methods have one. */
+static int check_lattice(const cJSON *methods, const cJSON *rows) {
+  const cJSON *m;
+  int with = 0;
+  cJSON_ArrayForEach(m, methods) {
+    const char *label = at(m, "method")->valuestring;
+    const cJSON *l = at(m, "lattice"), *row;
+    int frames = 0, visible = 0;
+    double sum = 0, max = -1;
+    const char *max_file = NULL;
+    cJSON_ArrayForEach(row, rows) {
+      const cJSON *item = find(at(row, "methods"), "method", label);
+      if (!item) continue;
+      const cJSON *v = at(item, "lattice_peak");
+      CHECK(v, "%s: %s has no lattice_peak", at(row, "file")->valuestring, label);
+      if (!cJSON_IsNumber(v)) continue;
+      frames++;
+      sum += v->valuedouble;
+      visible += v->valuedouble >= num(l, "visible_at");
+      if (v->valuedouble > max) {
+        max = v->valuedouble;
+        max_file = at(row, "file")->valuestring;
+      }
+    }
+    CHECK(!frames == !l, "%s: %d frames measured, lattice summary %s", label, frames,
+          l ? "present" : "absent");
+    if (!l || !frames) continue;
+    with++;
+    CHECK(num(l, "frames") == frames && fabs(num(l, "mean") - sum / frames) < 1e-9 &&
+              num(l, "max") == max && !strcmp(at(l, "max_file")->valuestring, max_file) &&
+              num(l, "frames_visible") == visible,
+          "%s: lattice %g frames, mean %g, max %g, %g visible; from the rows %d %g %g %d",
+          label, num(l, "frames"), num(l, "mean"), num(l, "max"), num(l, "frames_visible"),
+          frames, sum / frames, max, visible);
+  }
+  return with;
+}
+
+/* The --lattice run (one frame, lattice/dots.exr). */
+static void check_dots(const cJSON *doc) {
+  const cJSON *methods = at(doc, "methods");
+  CHECK(num(doc, "frames") == 1, "frames %g", num(doc, "frames"));
+  CHECK(check_lattice(methods, at(doc, "frame_rows")) >= 4, "fewer than 4 methods measured");
+  const cJSON *st4 = at(find(methods, "method", "stochastic transparency 4 spp"), "lattice");
+  const cJSON *st16 = at(find(methods, "method", "stochastic transparency 16 spp"), "lattice");
+  const cJSON *net = at(find(methods, "kind", "network"), "lattice");
+  CHECK(num(st4, "period") == 8 && num(st4, "max") == 0 && num(st4, "frames_visible") == 0,
+        "st4 (the truth): period %g, peak %g", num(st4, "period"), num(st4, "max"));
+  CHECK(num(st16, "max") >= 10 * num(st16, "visible_at") && num(st16, "frames_visible") == 1 &&
+            strstr(at(st16, "max_file")->valuestring, "dots.exr"),
+        "st16 (the dots): peak %g, %g visible", num(st16, "max"), num(st16, "frames_visible"));
+  CHECK(num(net, "period") == 8, "the network (3 levels): period %g", num(net, "period"));
+}
+
 int main(int argc, char **argv) {
-  if (argc != 2) {
-    fprintf(stderr, "usage: check_eval_json OUT.json\n");
+  int dots = argc == 3 && !strcmp(argv[1], "--lattice");
+  if (argc != 2 && !dots) {
+    fprintf(stderr, "usage: check_eval_json [--lattice] OUT.json\n");
     return 2;
   }
-  FILE *f = fopen(argv[1], "rb");
+  const char *path = argv[argc - 1];
+  FILE *f = fopen(path, "rb");
   if (!f) {
-    perror(argv[1]);
+    perror(path);
     return 1;
   }
   static char text[1 << 20];
@@ -69,8 +133,14 @@ int main(int argc, char **argv) {
   text[n] = 0;
   cJSON *doc = cJSON_Parse(text);
   if (!doc) {
-    fprintf(stderr, "check_eval_json: %s is not JSON\n", argv[1]);
+    fprintf(stderr, "check_eval_json: %s is not JSON\n", path);
     return 1;
+  }
+  if (dots) {
+    check_dots(doc);
+    cJSON_Delete(doc);
+    if (!failures) printf("check_eval_json: all checks passed\n");
+    return failures ? 1 : 0;
   }
   CHECK(num(doc, "frames") == 3, "frames %g", num(doc, "frames"));
   CHECK(num(doc, "hair_pixels") == 640, "hair pixels %g", num(doc, "hair_pixels"));
@@ -264,6 +334,7 @@ int main(int argc, char **argv) {
           cJSON_GetArraySize(at(at(m, "below_own_input"), "files")), listed);
   }
   CHECK(networks == 2, "%d networks", networks);
+  CHECK(check_lattice(methods, rows) == 0, "a lattice measured on frames too small for it");
   cJSON_Delete(doc);
   if (!failures) printf("check_eval_json: all checks passed\n");
   return failures ? 1 : 0;

@@ -28,6 +28,10 @@
  * highlight 0.1 everywhere; st4.* is the truth, st16.* the truth with half
  * its alpha: with the default look its composite is off by (a/2) (0.28,
  * 0.10, -0.044) per pixel, so its MSE is (a/2)^2 0.090336 / 3.
+ * DIR/lattice/dots.exr (64x64, hair everywhere) is for the lattice table:
+ * st4.* is the truth and st16.* the truth with colour factor 0.8 -> 1.0 on
+ * the pixels where x mod 8 = 3 and y mod 8 = 5, a dot lattice of period 8
+ * and nothing else.
  * small_narrow.safetensors is small.safetensors with an input range whose
  * strand_alpha_p50 is [0.015, 0.025]: only c.exr (median 0.02) is inside. */
 #include <stdio.h>
@@ -55,15 +59,17 @@ static int alloc_frame(hf_image *img, int w, int h) {
   return 0;
 }
 
-static int write_frame(const char *path, float gt_color) {
+/* The frame of straight_0000.exr (w x h, dots 0) or of lattice/dots.exr
+ * (dots 1: hair everywhere, st16 the truth plus the dot lattice). */
+static int write_frame_wh(const char *path, float gt_color, int w, int h, int dots) {
   const int spp = 4, nfeat = spp * HF_FEATURES_PER_SAMPLE;
   hf_image img = {0};
-  if (alloc_frame(&img, W, H)) return 1;
+  if (alloc_frame(&img, w, h)) return 1;
   uint32_t s = 12345;
-  for (int y = 0; y < H; y++)
-    for (int x = 0; x < W; x++) {
-      float *px = img.data + ((size_t)y * W + x) * img.channels;
-      int hair = (x + 2 * y) % 7 < 3;   /* diagonal strands */
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      float *px = img.data + ((size_t)y * w + x) * img.channels;
+      int hair = dots || (x + 2 * y) % 7 < 3;   /* diagonal strands */
       for (int k = 0; k < spp; k++) {
         s = s * 1664525u + 1013904223u;
         int cov = hair && (s >> 30) != 0;
@@ -79,12 +85,17 @@ static int write_frame(const char *path, float gt_color) {
       memcpy(px + nfeat, gt, sizeof gt);
       memcpy(px + nfeat + 3, gt, sizeof gt);
       memcpy(px + nfeat + 6, gt, sizeof gt);
-      px[nfeat + 8] *= 0.5f;
+      if (!dots) px[nfeat + 8] *= 0.5f;
+      else if (x % 8 == 3 && y % 8 == 5) px[nfeat + 6] = 1.0f;
     }
   int rc = hf_exr_write(path, &img, 0);
   hf_image_free(&img);
   if (rc) fprintf(stderr, "make_eval_frame: %s: %s\n", path, hf_strerror(rc));
   return rc;
+}
+
+static int write_frame(const char *path, float gt_color) {
+  return write_frame_wh(path, gt_color, W, H, 0);
 }
 
 /* ---- regime frames ---------------------------------------------------------- */
@@ -184,6 +195,10 @@ int main(int argc, char **argv) {
   if (write_frame(path, 0.8f)) return 1;
   snprintf(path, sizeof path, "%s/seq/straight_0001.exr", argv[1]);
   if (write_frame(path, 0.6f)) return 1;
+  snprintf(path, sizeof path, "%s/lattice", argv[1]);
+  mkdir(path, 0777);
+  snprintf(path, sizeof path, "%s/lattice/dots.exr", argv[1]);
+  if (write_frame_wh(path, 0.8f, 64, 64, 1)) return 1;
   int rc;
   hf_net_config cfg;
   hf_weights *w = NULL;
