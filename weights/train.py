@@ -171,6 +171,17 @@ def st_estimate(x, spp):
     return hfnet.residual_base(x.float(), spp, radius=0)
 
 
+def training_target(x, y, target, spp):
+    """What a run trains towards (--target): "truth", the frames' gt.*
+    channels y, or "input", the stochastic-transparency estimate of the
+    crop's own samples x (st_estimate), in y's dtype: a probe of how much
+    of its input a variant can pass through, for the bar "never below its
+    own input" (docs/QUALITY.md)."""
+    if target == "input":
+        return st_estimate(x, spp).to(y.dtype)
+    return y
+
+
 # The MSE floor of below_input_loss's PSNR ratio: 60 dB, so that a crop the
 # input already matches exactly gives a finite deficit.
 BELOW_INPUT_EPS = 1e-6
@@ -369,10 +380,10 @@ def save_checkpoint(path, **state):
 
 @torch.no_grad()
 def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper",
-             ssim_weight=0.0, lattice=(0.0, 8), below_weight=0.0):
+             ssim_weight=0.0, lattice=(0.0, 8), below_weight=0.0, target="truth"):
     """Mean loss over the held-out frames (first spp samples, no
-    augmentation; frames larger than max_side are centre-cropped); the
-    look loss with the evaluation's look (EVAL_LOOK)."""
+    augmentation; frames larger than max_side are centre-cropped) against
+    training_target; the look loss with the evaluation's look (EVAL_LOOK)."""
     if not frames:
         return None
     net.eval()
@@ -386,6 +397,7 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
         x = torch.from_numpy(np.ascontiguousarray(x.astype(np.float32).transpose(2, 0, 1)))[None]
         y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
         x, y = x.to(device), y.to(device)
+        y = training_target(x, y, target, spp)
         total += float(run_loss(loss, forward(net, x, *mode), y, grad_weight,
                                 ssim_weight=ssim_weight, lattice=lattice,
                                 below=(below_weight, x, spp)))
@@ -467,6 +479,10 @@ def parse_args(argv):
                     "alpha and of their gradients; look: the same on the composited image "
                     "under a random hair colour, light and background per crop, plus a "
                     "tenth of the paper's (train.py look_loss)")
+    ap.add_argument("--target", default="truth", choices=["truth", "input"],
+                    help="truth: the ground truth (gt.*); input: the stochastic-transparency "
+                    "estimate of each crop's own samples, to measure how much of its input "
+                    "a variant can pass through (train.py training_target)")
     ap.add_argument("--ssim-weight", type=float, default=0.0,
                     help="--loss look: add this times 1 - the SSIM of the composited "
                     "images over the target's hair pixels (the evaluation's window and "
@@ -561,7 +577,7 @@ def main(argv=None):
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
-                  "ssim_weight", "lattice_weight", "below_input_weight",
+                  "ssim_weight", "lattice_weight", "below_input_weight", "target",
                   "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
@@ -652,6 +668,7 @@ def main(argv=None):
                           file=sys.stderr)
             x, y = train_set.batch(np_rng, args.crop, args.batch)
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
+            y = training_target(x, y, args.target, cfg["spp"])
             looks = random_looks(x.shape[0], look_gen) if args.loss == "look" else None
             looks = tuple(v.to(device) for v in looks) if looks else None
             loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
@@ -671,7 +688,8 @@ def main(argv=None):
             if step % args.val_every == 0 or last:
                 val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device,
                                loss=args.loss, ssim_weight=args.ssim_weight,
-                               lattice=lattice, below_weight=args.below_input_weight)
+                               lattice=lattice, below_weight=args.below_input_weight,
+                               target=args.target)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
                            time=elapsed + time.time() - t_start)
@@ -700,7 +718,8 @@ def main(argv=None):
                            grad_weight=args.grad_weight, loss=args.loss,
                            ssim_weight=args.ssim_weight,
                            lattice_weight=args.lattice_weight,
-                           below_input_weight=args.below_input_weight, seed=args.seed,
+                           below_input_weight=args.below_input_weight, target=args.target,
+                           seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)

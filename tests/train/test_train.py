@@ -457,6 +457,33 @@ class Recipe(unittest.TestCase):
             self.assertTrue(torch.equal(sd16[k], sdb16[k]), k)
             self.assertTrue(torch.equal(sd16[k], sd_a[k].half().float()), k)
 
+    def test_target_input_trains_towards_the_own_input(self):
+        """--target input: the target is st_estimate of the crop's own
+        samples; a short run falls towards it, records it, and ends closer
+        to its input than to the truth."""
+        g = torch.Generator().manual_seed(4)
+        x, y = torch.rand(2, 24, 8, 8, generator=g), torch.rand(2, 3, 8, 8, generator=g)
+        self.assertTrue(torch.equal(train.training_target(x, y, "input", 4),
+                                    train.st_estimate(x, 4)))
+        self.assertIs(train.training_target(x, y, "truth", 4), y)
+        run = os.path.join(self.work, "target_input")
+        exp = run + ".safetensors"
+        run_train("--data", self.data, "--variant", "Small", "--out", run, "--steps", "40",
+                  "--batch", "4", "--crop", "48", "--lr", "3e-3", "--val-every", "10",
+                  "--target", "input", "--export", exp)
+        log = read_log(run)
+        self.assertLess(log[-1]["val"], 0.85 * log[0]["val"], log)
+        with open(os.path.join(run, "summary.json")) as f:
+            self.assertEqual(json.load(f)["target"], "input")
+        feat, tgt = dataset.load_frame(dataset.read_manifest(self.data)[0]["file"], spp=4,
+                                       dtype=np.float32)
+        xf = torch.from_numpy(feat.reshape(SIZE, SIZE, 24).transpose(2, 0, 1).copy())[None]
+        with torch.no_grad():
+            out = hfnet.load_model(exp).eval()(xf)
+        gt = torch.from_numpy(tgt.transpose(2, 0, 1).copy())[None]
+        to_input = float(((out - train.st_estimate(xf, 4)) ** 2).mean())
+        self.assertLess(to_input, float(((out - gt) ** 2).mean()))
+
     def test_resume_equals_uninterrupted(self):
         self.resume_equals_uninterrupted("paper")
 
