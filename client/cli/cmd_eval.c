@@ -48,7 +48,7 @@ static void usage(FILE *f) {
           "(docs/QUALITY.md), then one per regime grouping: hair pixels by strand width in\n"
           "pixels and by coverage, frames by those and by resolution. --json writes every\n"
           "number, per bucket and per frame. Frames outside the input range a weights file\n"
-          "was trained on (its input_range metadata) are named on stderr. A last table\n"
+          "was trained on (its input_range metadata) are named on stderr. A table then\n"
           "counts, per network, the frames where it is below its own input (the estimate\n"
           "of the samples it reads) and below ST 16 spp in PSNR or SSIM; stderr names the\n"
           "frames below the input. A table after it measures the lattice in each method's\n"
