@@ -594,6 +594,19 @@ static void print_below(const method *ms, int nm) {
   }
 }
 
+/* Counts frame fi's lattice peak into method m's summary; NaN (the frame
+ * is too small for the period) is left out. */
+static void lattice_add(method *m, double peak, int fi) {
+  if (isnan(peak)) return;
+  if (!m->lattice_frames || peak > m->lattice_max) {
+    m->lattice_max = peak;
+    m->lattice_max_frame = fi;
+  }
+  m->lattice_sum += peak;
+  m->lattice_frames++;
+  m->lattice_visible += peak >= EVAL_LATTICE_VISIBLE;
+}
+
 /* Each method's lattice peak (eval_lattice.h): mean and largest over the
  * frames, the frame of the largest, and the frames where it stands out. */
 static void print_lattice(const method *ms, int nm, const frame_list *frames) {
@@ -732,6 +745,7 @@ int cmd_eval(int argc, char **argv) {
       const char *base = strrchr(tok, '/');
       ranges[nmodels] = w->input_range;
       ms[nm].kind = M_MODEL;
+      ms[nm].lattice_period = 1 << w->cfg.num_levels;
       ms[nm].model = nmodels++;
       snprintf(ms[nm++].label, sizeof ms[0].label, "ours %s (%s)", w->cfg.name,
                base ? base + 1 : tok);
@@ -749,6 +763,8 @@ int cmd_eval(int argc, char **argv) {
   ms[nm].kind = M_CHANNELS;
   snprintf(ms[nm].prefix, sizeof ms[0].prefix, "opaque");
   snprintf(ms[nm++].label, sizeof ms[0].label, "opaque MSAA (no transparency)");
+  for (int i = 0; i < nm; i++)
+    if (!ms[i].lattice_period) ms[i].lattice_period = LATTICE_REF_PERIOD;
   if ((rc = eval_strata_create(nm, &strata)) != 0) goto out;
 
   if (grid_path) {
@@ -908,23 +924,12 @@ int cmd_eval(int argc, char **argv) {
         goto out;
       row_item[mi] = row_scores ? score_json(m, &fs) : NULL;
       if (row_item[mi]) cJSON_AddItemToArray(row_scores, row_item[mi]);
-      m->lattice_period = m->kind == M_MODEL
-                              ? 1 << hf_model_config(models[m->model])->num_levels
-                              : LATTICE_REF_PERIOD;
       double peak = eval_lattice_peak(rgb, gt_rgb, w, h, 3, m->lattice_period);
       if (peak < 0) {
         rc = (int)peak;
         goto out;
       }
-      if (!isnan(peak)) {   /* NaN: the frame is too small for the period */
-        if (!m->lattice_frames || peak > m->lattice_max) {
-          m->lattice_max = peak;
-          m->lattice_max_frame = fi;
-        }
-        m->lattice_sum += peak;
-        m->lattice_frames++;
-        m->lattice_visible += peak >= EVAL_LATTICE_VISIBLE;
-      }
+      lattice_add(m, peak, fi);
       if (row_item[mi]) cJSON_AddItemToObject(row_item[mi], "lattice_peak", eval_json_number(peak));
       frame_fs[mi] = fs;
       frame_has[mi] = 1;
