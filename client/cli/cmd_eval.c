@@ -9,7 +9,8 @@
  * metrics. The same scores are also grouped by regime (eval_strata.h): hair
  * pixels by strand width in pixels and by coverage, frames by their median
  * of those and by resolution. A last table measures, per method, the lattice
- * a decoder's transposed convolutions print into the error (eval_lattice.h). */
+ * a decoder's transposed convolutions print into the error, over whole
+ * frames and in windows (eval_lattice.h). */
 #define _POSIX_C_SOURCE 200809L
 #include <cjson/cJSON.h>
 #include <dirent.h>
@@ -53,8 +54,9 @@ static void usage(FILE *f) {
           "where it is below its own input (the estimate of the samples it reads) and\n"
           "below ST 16 spp in PSNR or SSIM; stderr names the frames below the input. A\n"
           "last table measures the lattice in each method's error: the pattern of period\n"
-          "2^levels a network's transposed convolutions print (docs/QUALITY.md, \"Lattice\n"
-          "in the error\").\n"
+          "2^levels a network's transposed convolutions print, over whole frames and in\n"
+          "windows of 8 periods, where its amplitude in display levels says whether it\n"
+          "can be seen (docs/QUALITY.md, \"Lattice in the error\").\n"
           "The grid has one row per frame: input average, each network, ST 16 spp, truth.\n"
           "--temporal: the frames (in file-name order) are one camera sequence; also prints\n"
           "each method's mean frame-to-frame change beside the ground truth's (flicker);\n"
@@ -232,6 +234,15 @@ static int style_wanted(const char *styles, const char *style) {
 
 enum { M_INPUT, M_INPUT_POOL, M_MODEL, M_CHANNELS };
 
+/* One lattice measure of a method over the frames (eval_lattice.h): the
+ * frames it was measured on, the sum and largest of their peaks, the frame
+ * with the largest (and, windowed, the window's top-left pixel), and the
+ * frames at or above the measure's threshold. */
+typedef struct lattice_summary {
+  int frames, visible, max_frame, max_x, max_y;
+  double sum, max;
+} lattice_summary;
+
 typedef struct method {
   int kind;
   char label[128];
@@ -248,12 +259,11 @@ typedef struct method {
    * the network reads (its own input); REF_ST16: 16 spp. */
   int compared[2], below[2][3];
   cJSON *below_files;           /* names of the frames below its own input */
-  /* The lattice in its error (eval_lattice.h): the period measured (a
-   * network's 2^levels, LATTICE_REF_PERIOD for the rest), the frames it was
-   * measured on, the sum and largest of their peaks, the frame with the
-   * largest, and the frames at or above EVAL_LATTICE_VISIBLE. */
-  int lattice_period, lattice_frames, lattice_visible, lattice_max_frame;
-  double lattice_sum, lattice_max;
+  /* The lattice in its error (eval_lattice.h) at this period (a network's
+   * 2^levels, LATTICE_REF_PERIOD for the rest): over whole frames and the
+   * largest over a frame's windows. */
+  int lattice_period;
+  lattice_summary lattice, lattice_window;
 } method;
 
 /* The period the input and the baselines are measured at: that of Base
@@ -455,6 +465,50 @@ static const char *kind_name(int kind) {
   }
 }
 
+/* Adds a frame's windowed lattice measure to o as "lattice_window":
+ * windows, peak and peak_at (the largest peak and its window's top-left
+ * pixel), amplitude (in levels of an 8-bit display) and at. */
+static void lattice_window_json(cJSON *o, const eval_lattice_window *lw) {
+  cJSON *l = cJSON_AddObjectToObject(o, "lattice_window");
+  if (!l) return;
+  int pat[2] = {lw->peak_x, lw->peak_y}, at[2] = {lw->x, lw->y};
+  cJSON_AddNumberToObject(l, "windows", lw->windows);
+  cJSON_AddItemToObject(l, "peak", eval_json_number(lw->peak));
+  cJSON_AddItemToObject(l, "peak_at", cJSON_CreateIntArray(pat, 2));
+  cJSON_AddItemToObject(l, "amplitude", eval_json_number(255 * lw->amplitude));
+  cJSON_AddItemToObject(l, "at", cJSON_CreateIntArray(at, 2));
+}
+
+/* A path's file name (after the last '/'). */
+static const char *file_base(const char *path) {
+  const char *b = strrchr(path, '/');
+  return b ? b + 1 : path;
+}
+
+/* Adds lattice summary ls as object `name` of o (nothing when no frame was
+ * measured): period, frames, mean, max, max_file (and, windowed, max_at:
+ * the window's top-left pixel), visible_at, frames_visible. */
+static void lattice_json(cJSON *o, const char *name, int period, const lattice_summary *ls,
+                         double visible, int windowed, const frame_list *frames) {
+  if (!ls->frames) return;
+  cJSON *l = cJSON_AddObjectToObject(o, name);
+  if (!l) return;
+  cJSON_AddNumberToObject(l, "period", period);
+  cJSON_AddNumberToObject(l, "frames", ls->frames);
+  cJSON_AddItemToObject(l, "mean", eval_json_number(ls->sum / ls->frames));
+  cJSON_AddItemToObject(l, "max", eval_json_number(ls->max));
+  cJSON_AddStringToObject(l, "max_file", frames->v[ls->max_frame].path);
+  if (windowed) {
+    int at[2] = {ls->max_x, ls->max_y};
+    cJSON_AddItemToObject(l, "max_at", cJSON_CreateIntArray(at, 2));
+    cJSON_AddNumberToObject(l, "window_periods", EVAL_LATTICE_WINDOW_PERIODS);
+    cJSON_AddNumberToObject(l, "window_hair", EVAL_LATTICE_WINDOW_HAIR);
+    cJSON_AddNumberToObject(l, "window_peak", EVAL_LATTICE_WINDOW_PEAK);
+  }
+  cJSON_AddNumberToObject(l, "visible_at", visible);
+  cJSON_AddNumberToObject(l, "frames_visible", ls->visible);
+}
+
 /* The --json document: every number of the tables, per bucket, plus the
  * per-frame rows collected while scoring. */
 static int write_json(const char *path, const method *ms, int nm, const eval_strata *strata,
@@ -487,19 +541,10 @@ static int write_json(const char *path, const method *ms, int nm, const eval_str
     cJSON_AddStringToObject(o, "kind", kind_name(ms[i].kind));
     if (ms[i].kind == M_CHANNELS) cJSON_AddStringToObject(o, "channels", ms[i].prefix);
     if (ms[i].kind == M_INPUT_POOL) cJSON_AddNumberToObject(o, "window", 2 * ms[i].radius + 1);
-    if (ms[i].lattice_frames) {
-      const method *m = &ms[i];
-      cJSON *l = cJSON_AddObjectToObject(o, "lattice");
-      if (l) {
-        cJSON_AddNumberToObject(l, "period", m->lattice_period);
-        cJSON_AddNumberToObject(l, "frames", m->lattice_frames);
-        cJSON_AddItemToObject(l, "mean", eval_json_number(m->lattice_sum / m->lattice_frames));
-        cJSON_AddItemToObject(l, "max", eval_json_number(m->lattice_max));
-        cJSON_AddStringToObject(l, "max_file", frame_refs->v[m->lattice_max_frame].path);
-        cJSON_AddNumberToObject(l, "visible_at", EVAL_LATTICE_VISIBLE);
-        cJSON_AddNumberToObject(l, "frames_visible", m->lattice_visible);
-      }
-    }
+    lattice_json(o, "lattice", ms[i].lattice_period, &ms[i].lattice, EVAL_LATTICE_VISIBLE, 0,
+                 frame_refs);
+    lattice_json(o, "lattice_window", ms[i].lattice_period, &ms[i].lattice_window,
+                 255 * EVAL_LATTICE_VISIBLE_AMPLITUDE, 1, frame_refs);
     if (ms[i].kind == M_MODEL) {
       char *text = hf_input_range_to_json(&ranges[ms[i].model]);
       cJSON *r = text ? cJSON_Parse(text) : cJSON_CreateNull();
@@ -594,17 +639,21 @@ static void print_below(const method *ms, int nm) {
   }
 }
 
-/* Counts frame fi's lattice peak into method m's summary; NaN (the frame
- * is too small for the period) is left out. */
-static void lattice_add(method *m, double peak, int fi) {
+/* Counts frame fi's lattice peak (found in the window at x, y) into the
+ * summary ls, a frame at or above visible as one where it stands out; NaN
+ * (the frame is too small for the period, or has no window with enough
+ * hair) is left out. */
+static void lattice_add(lattice_summary *ls, double peak, double visible, int fi, int x, int y) {
   if (isnan(peak)) return;
-  if (!m->lattice_frames || peak > m->lattice_max) {
-    m->lattice_max = peak;
-    m->lattice_max_frame = fi;
+  if (!ls->frames || peak > ls->max) {
+    ls->max = peak;
+    ls->max_frame = fi;
+    ls->max_x = x;
+    ls->max_y = y;
   }
-  m->lattice_sum += peak;
-  m->lattice_frames++;
-  m->lattice_visible += peak >= EVAL_LATTICE_VISIBLE;
+  ls->sum += peak;
+  ls->frames++;
+  ls->visible += peak >= visible;
 }
 
 /* Each method's lattice peak (eval_lattice.h): mean and largest over the
@@ -613,16 +662,31 @@ static void print_lattice(const method *ms, int nm, const frame_list *frames) {
   printf("\nLattice in the error: the composited error folded onto P x P pixel phases, "
          "its energy at period P over the mean at P - 1 and P + 1 (about 1: no pattern; "
          ">= %.0f: a pattern of period P, the dots of a decoder's transposed "
-         "convolutions, stands out), per frame\n\n", EVAL_LATTICE_VISIBLE);
-  printf("| method | P | frames | mean | largest | frame of the largest | frames >= %.0f |\n"
-         "|---|---:|---:|---:|---:|---|---:|\n", EVAL_LATTICE_VISIBLE);
+         "convolutions, stands out), per frame. Windowed, for a lattice in part of a "
+         "frame: in windows of %d P x %d P pixels at least %.0f%% hair, the amplitude "
+         "(RMS, in levels of an 8-bit display) of a pattern whose peak there is >= %.0f; "
+         "a frame shows a lattice where it is >= %.0f level\n\n",
+         EVAL_LATTICE_VISIBLE, EVAL_LATTICE_WINDOW_PERIODS, EVAL_LATTICE_WINDOW_PERIODS,
+         100 * EVAL_LATTICE_WINDOW_HAIR, EVAL_LATTICE_WINDOW_PEAK,
+         255 * EVAL_LATTICE_VISIBLE_AMPLITUDE);
+  printf("| method | P | frames | mean | largest | frame of the largest | frames >= %.0f "
+         "| windowed: frames | mean amplitude | largest | where (x, y) | frames >= %.0f |\n"
+         "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---|---:|\n",
+         EVAL_LATTICE_VISIBLE, 255 * EVAL_LATTICE_VISIBLE_AMPLITUDE);
   for (int i = 0; i < nm; i++) {
     const method *m = &ms[i];
-    if (!m->lattice_frames) continue;
-    const char *f = frames->v[m->lattice_max_frame].path, *base = strrchr(f, '/');
-    printf("| %s | %d | %d | %.2f | %.2f | %s | %d |\n", m->label, m->lattice_period,
-           m->lattice_frames, m->lattice_sum / m->lattice_frames, m->lattice_max,
-           base ? base + 1 : f, m->lattice_visible);
+    const lattice_summary *l = &m->lattice, *lw = &m->lattice_window;
+    if (!l->frames) continue;
+    printf("| %s | %d | %d | %.2f | %.2f | %s | %d ", m->label, m->lattice_period, l->frames,
+           l->sum / l->frames, l->max, file_base(frames->v[l->max_frame].path), l->visible);
+    if (lw->frames && lw->max > 0)
+      printf("| %d | %.2f | %.2f | %s (%d, %d) | %d |\n", lw->frames, lw->sum / lw->frames,
+             lw->max, file_base(frames->v[lw->max_frame].path), lw->max_x, lw->max_y,
+             lw->visible);
+    else if (lw->frames)
+      printf("| %d | 0 | 0 | - | 0 |\n", lw->frames);
+    else
+      printf("| 0 | - | - | - | 0 |\n");
   }
 }
 
@@ -925,12 +989,22 @@ int cmd_eval(int argc, char **argv) {
       row_item[mi] = row_scores ? score_json(m, &fs) : NULL;
       if (row_item[mi]) cJSON_AddItemToArray(row_scores, row_item[mi]);
       double peak = eval_lattice_peak(rgb, gt_rgb, w, h, 3, m->lattice_period);
-      if (peak < 0) {
-        rc = (int)peak;
+      eval_lattice_window lw;
+      int measured = peak < 0 ? (int)peak
+                              : eval_lattice_windows(rgb, gt_rgb, mask, w, h, 3,
+                                                     m->lattice_period, &lw);
+      if (measured < 0) {
+        rc = measured;
         goto out;
       }
-      lattice_add(m, peak, fi);
-      if (row_item[mi]) cJSON_AddItemToObject(row_item[mi], "lattice_peak", eval_json_number(peak));
+      lattice_add(&m->lattice, peak, EVAL_LATTICE_VISIBLE, fi, 0, 0);
+      /* Windowed: the amplitude in levels of an 8-bit display. */
+      lattice_add(&m->lattice_window, measured ? 255 * lw.amplitude : NAN,
+                  255 * EVAL_LATTICE_VISIBLE_AMPLITUDE, fi, lw.x, lw.y);
+      if (row_item[mi]) {
+        cJSON_AddItemToObject(row_item[mi], "lattice_peak", eval_json_number(peak));
+        if (measured) lattice_window_json(row_item[mi], &lw);
+      }
       frame_fs[mi] = fs;
       frame_has[mi] = 1;
       int in_grid = m->kind == M_INPUT || m->kind == M_MODEL || !strcmp(m->prefix, "st16");

@@ -14,7 +14,9 @@
  *
  * --lattice: the run on DIR/lattice/dots.exr, where st16 is the truth plus
  * a dot lattice of period 8 and st4 the truth: st16's peak stands out,
- * st4's is 0, and every method's summary is that of its frame values. */
+ * st4's is 0, the windowed measure finds st16's dots in the frame's one
+ * window with an amplitude over a level, and every method's summaries
+ * (whole-frame and windowed) are those of its frame values. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -59,23 +61,32 @@ static double st16_mse(double a) { return a * a / 4 * (0.28 * 0.28 + 0.01 + 0.04
 
 static double psnr(double mse) { return 10 * log10(1 / mse); }
 
-/* Each method's "lattice" summary against the lattice_peak of its
- * per-frame scores (null: not measured): frames, mean, largest and its
- * file, frames at or above visible_at. Returns how many methods have one. */
-static int check_lattice(const cJSON *methods, const cJSON *rows) {
+/* A frame's value of a lattice measure from its per-method item: the
+ * whole frame's lattice_peak, or the windowed amplitude in levels
+ * (lattice_window.amplitude); NULL when the item has none. */
+static const cJSON *lattice_value(const cJSON *item, int windowed) {
+  return windowed ? at(at(item, "lattice_window"), "amplitude") : at(item, "lattice_peak");
+}
+
+/* Each method's summary `name` ("lattice" or, windowed, "lattice_window")
+ * against the values of its per-frame scores (null or absent: not
+ * measured): frames, mean, largest and its file, frames at or above
+ * visible_at. Returns how many methods have one. */
+static int check_lattice_summary(const cJSON *methods, const cJSON *rows, const char *name,
+                                 int windowed) {
   const cJSON *m;
   int with = 0;
   cJSON_ArrayForEach(m, methods) {
     const char *label = at(m, "method")->valuestring;
-    const cJSON *l = at(m, "lattice"), *row;
+    const cJSON *l = at(m, name), *row;
     int frames = 0, visible = 0;
     double sum = 0, max = -1;
     const char *max_file = NULL;
     cJSON_ArrayForEach(row, rows) {
       const cJSON *item = find(at(row, "methods"), "method", label);
       if (!item) continue;
-      const cJSON *v = at(item, "lattice_peak");
-      CHECK(v, "%s: %s has no lattice_peak", at(row, "file")->valuestring, label);
+      const cJSON *v = lattice_value(item, windowed);
+      CHECK(v || windowed, "%s: %s has no lattice_peak", at(row, "file")->valuestring, label);
       if (!cJSON_IsNumber(v)) continue;
       frames++;
       sum += v->valuedouble;
@@ -85,18 +96,29 @@ static int check_lattice(const cJSON *methods, const cJSON *rows) {
         max_file = at(row, "file")->valuestring;
       }
     }
-    CHECK(!frames == !l, "%s: %d frames measured, lattice summary %s", label, frames,
+    CHECK(!frames == !l, "%s: %d frames measured, %s summary %s", label, frames, name,
           l ? "present" : "absent");
     if (!l || !frames) continue;
     with++;
     CHECK(num(l, "frames") == frames && fabs(num(l, "mean") - sum / frames) < 1e-9 &&
               num(l, "max") == max && !strcmp(at(l, "max_file")->valuestring, max_file) &&
               num(l, "frames_visible") == visible,
-          "%s: lattice %g frames, mean %g, max %g, %g visible; from the rows %d %g %g %d",
-          label, num(l, "frames"), num(l, "mean"), num(l, "max"), num(l, "frames_visible"),
-          frames, sum / frames, max, visible);
+          "%s: %s %g frames, mean %g, max %g, %g visible; from the rows %d %g %g %d",
+          label, name, num(l, "frames"), num(l, "mean"), num(l, "max"),
+          num(l, "frames_visible"), frames, sum / frames, max, visible);
   }
   return with;
+}
+
+/* Both lattice summaries of every method; returns how many methods have
+ * the whole-frame one, after checking that the same methods have the
+ * windowed one. */
+static int check_lattice(const cJSON *methods, const cJSON *rows) {
+  int whole = check_lattice_summary(methods, rows, "lattice", 0);
+  int windowed = check_lattice_summary(methods, rows, "lattice_window", 1);
+  CHECK(whole == windowed, "%d methods with a lattice summary, %d with a windowed one", whole,
+        windowed);
+  return whole;
 }
 
 /* The --lattice run (one frame, lattice/dots.exr). */
@@ -113,6 +135,24 @@ static void check_dots(const cJSON *doc) {
             strstr(at(st16, "max_file")->valuestring, "dots.exr"),
         "st16 (the dots): peak %g, %g visible", num(st16, "max"), num(st16, "frames_visible"));
   CHECK(num(net, "period") == 8, "the network (3 levels): period %g", num(net, "period"));
+  /* Windowed: the frame is one window (64 = 8 periods) of hair; st16's
+   * dots are one dot per period of 0.2 in colour factor, well over a
+   * level, and the truth has none. */
+  const cJSON *w4 = at(find(methods, "method", "stochastic transparency 4 spp"), "lattice_window");
+  const cJSON *w16 = at(find(methods, "method", "stochastic transparency 16 spp"), "lattice_window");
+  CHECK(num(w4, "frames") == 1 && num(w4, "max") == 0 && num(w4, "frames_visible") == 0,
+        "st4 (the truth), windowed: %g frames, amplitude %g", num(w4, "frames"), num(w4, "max"));
+  CHECK(num(w16, "frames") == 1 && num(w16, "max") >= num(w16, "visible_at") &&
+            num(w16, "frames_visible") == 1 && num(w16, "visible_at") == 1 &&
+            num(w16, "window_periods") == 8,
+        "st16 (the dots), windowed: amplitude %g levels, %g visible", num(w16, "max"),
+        num(w16, "frames_visible"));
+  const cJSON *row = cJSON_GetArrayItem(at(doc, "frame_rows"), 0);
+  const cJSON *r16 = at(find(at(row, "methods"), "method", "stochastic transparency 16 spp"),
+                        "lattice_window");
+  CHECK(num(r16, "windows") == 1 && num(r16, "peak") >= 10 * num(w16, "window_peak") &&
+            cJSON_GetArraySize(at(r16, "at")) == 2,
+        "st16's frame row: %g windows, peak %g", num(r16, "windows"), num(r16, "peak"));
 }
 
 int main(int argc, char **argv) {
