@@ -496,6 +496,10 @@ def parse_args(argv):
                     "input (PSNR in dB / 10 plus SSIM, where the network is below the "
                     "stochastic-transparency estimate of its samples; train.py "
                     "below_input_loss)")
+    ap.add_argument("--clip-grad-norm", type=float, default=0.0, metavar="C",
+                    help="scale each step's gradient down to global L2 norm C where it is "
+                    "larger (torch.nn.utils.clip_grad_norm_; 0: off). The log records each "
+                    "interval's median norm before clipping and the share of steps clipped")
     ap.add_argument("--styles", default="straight,wavy",
                     help="styles to train on (others are never loaded); '' = all")
     ap.add_argument("--val-fraction", type=float, default=0.1)
@@ -544,6 +548,8 @@ def parse_args(argv):
         ap.error("--lattice-weight needs --loss look (it scores the composited images)")
     if args.below_input_weight and args.loss != "look":
         ap.error("--below-input-weight needs --loss look (it scores the composited images)")
+    if args.clip_grad_norm < 0 or not math.isfinite(args.clip_grad_norm):
+        ap.error("--clip-grad-norm must be a finite norm >= 0 (0: no clipping)")
     return args
 
 
@@ -577,7 +583,7 @@ def main(argv=None):
         # The run's identity comes from the checkpoint; only the length,
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
-                  "ssim_weight", "lattice_weight", "below_input_weight", "target",
+                  "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
                   "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
@@ -648,7 +654,7 @@ def main(argv=None):
         net.train()
         prog = Progress(args.steps, step)
         val = history[-1]["val"] if history else None
-        window = []
+        window, norms = [], []
         t_start = time.time()
         stop = min(args.steps, args.stop_at) if args.stop_at > 0 else args.steps
         while step < stop:
@@ -676,6 +682,11 @@ def main(argv=None):
                             (args.below_input_weight, x, cfg["spp"]))
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            # The norm before clipping, recorded with or without a clip: a run
+            # that diverges shows its gradient spikes in the log.
+            gn = float(torch.nn.utils.clip_grad_norm_(
+                net.parameters(), args.clip_grad_norm if args.clip_grad_norm > 0 else math.inf))
+            norms.append(gn)
             opt.step()
             step += 1
             lv = float(loss)
@@ -692,8 +703,11 @@ def main(argv=None):
                                target=args.target)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
-                           time=elapsed + time.time() - t_start)
-                window = []
+                           time=elapsed + time.time() - t_start,
+                           grad_norm=float(np.median(norms)))
+                if args.clip_grad_norm > 0:
+                    rec["clipped"] = float(np.mean(np.array(norms) > args.clip_grad_norm))
+                window, norms = [], []
                 history.append(rec)
                 with open(log_path, "a") as f:
                     f.write(json.dumps(rec) + "\n")
@@ -719,6 +733,7 @@ def main(argv=None):
                            ssim_weight=args.ssim_weight,
                            lattice_weight=args.lattice_weight,
                            below_input_weight=args.below_input_weight, target=args.target,
+                           clip_grad_norm=args.clip_grad_norm,
                            seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through, train_seconds=elapsed,

@@ -484,6 +484,31 @@ class Recipe(unittest.TestCase):
         to_input = float(((out - train.st_estimate(xf, 4)) ** 2).mean())
         self.assertLess(to_input, float(((out - gt) ** 2).mean()))
 
+    def test_clip_grad_norm_is_recorded_and_applied(self):
+        """--clip-grad-norm: the log records each interval's median norm
+        before clipping and the share of steps clipped; a clip far under
+        the norms clips every step and changes the run; without it no
+        share is recorded; a negative or infinite clip is refused."""
+        common = ["--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
+                  "--val-every", "4", "--steps", "8", "--seed", "3"]
+        runs = {}
+        for name, extra in (("free", []), ("tight", ["--clip-grad-norm", "1e-6"])):
+            out = os.path.join(self.work, "clip_" + name)
+            run_train(*common, "--out", out, "--export", out + ".safetensors", *extra)
+            runs[name] = (read_log(out), hfnet.load_safetensors(out + ".safetensors")[1])
+            with open(os.path.join(out, "summary.json")) as f:
+                self.assertEqual(json.load(f)["clip_grad_norm"], float(extra[1]) if extra else 0)
+        free, tight = runs["free"][0], runs["tight"][0]
+        for rec in free + tight:
+            self.assertGreater(rec["grad_norm"], 1e-6, rec)
+        self.assertTrue(all("clipped" not in r for r in free), free)
+        self.assertEqual([r["clipped"] for r in tight], [1.0, 1.0], tight)
+        self.assertTrue(any(not torch.equal(runs["free"][1][k], runs["tight"][1][k])
+                            for k in runs["free"][1]))
+        for bad in ("-1", "inf"):
+            with self.assertRaises(SystemExit):
+                train.parse_args(["--out", "x", "--clip-grad-norm", bad])
+
     def test_resume_equals_uninterrupted(self):
         self.resume_equals_uninterrupted("paper")
 
