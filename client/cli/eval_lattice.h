@@ -11,7 +11,10 @@
  * variance at any P. The peak is that at P over the mean at P - 1 and
  * P + 1: noise, blur and smooth gradients spread evenly over neighbouring
  * periods (a peak near 1); a pattern of period P, or of any period that
- * divides P, lifts only P's. Images are interleaved [h][w][c] float. */
+ * divides P, lifts only P's. The windowed measure takes the same peak in
+ * windows of 8 periods, and where it finds a pattern, the pattern's
+ * amplitude in display levels: whether a viewer can see it. Images are
+ * interleaved [h][w][c] float. */
 #ifndef HF_EVAL_LATTICE_H
 #define HF_EVAL_LATTICE_H
 
