@@ -518,7 +518,11 @@ def parse_args(argv):
                     "with AVX512-BF16; weights and optimizer stay fp32)")
     ap.add_argument("--exact-clamps", dest="straight_through", action="store_false",
                     help="train through the exact output clamps (no gradient where the raw "
-                    "output is out of range) instead of straight-through ones")
+                    "output is out of range) instead of straight-through ones. The straight-"
+                    "through ones revive a dead output channel when training from scratch; "
+                    "for a fine-tune (--init) with --loss look use the exact ones: through the "
+                    "straight-through ones such fine-tunes of Small, Shallow and Large "
+                    "diverged (weights/small.md)")
     ap.add_argument("--init", metavar="WEIGHTS",
                     help="start from these weights (safetensors of the same variant) "
                     "instead of a random initialisation: fine-tuning")
