@@ -467,7 +467,8 @@ static const char *kind_name(int kind) {
 
 /* Adds a frame's windowed lattice measure to o as "lattice_window":
  * windows, peak and peak_at (the largest peak and its window's top-left
- * pixel), amplitude (in levels of an 8-bit display) and at. */
+ * pixel), amplitude (in levels of an 8-bit display) and at (its window;
+ * null where no window's peak found a pattern). */
 static void lattice_window_json(cJSON *o, const eval_lattice_window *lw) {
   cJSON *l = cJSON_AddObjectToObject(o, "lattice_window");
   if (!l) return;
@@ -476,7 +477,7 @@ static void lattice_window_json(cJSON *o, const eval_lattice_window *lw) {
   cJSON_AddItemToObject(l, "peak", eval_json_number(lw->peak));
   cJSON_AddItemToObject(l, "peak_at", cJSON_CreateIntArray(pat, 2));
   cJSON_AddItemToObject(l, "amplitude", eval_json_number(255 * lw->amplitude));
-  cJSON_AddItemToObject(l, "at", cJSON_CreateIntArray(at, 2));
+  cJSON_AddItemToObject(l, "at", lw->amplitude > 0 ? cJSON_CreateIntArray(at, 2) : cJSON_CreateNull());
 }
 
 /* A path's file name (after the last '/'). */
@@ -487,7 +488,8 @@ static const char *file_base(const char *path) {
 
 /* Adds lattice summary ls as object `name` of o (nothing when no frame was
  * measured): period, frames, mean, max, max_file (and, windowed, max_at:
- * the window's top-left pixel), visible_at, frames_visible. */
+ * the window's top-left pixel; both null where the windowed maximum is 0,
+ * no pattern on any frame), visible_at, frames_visible. */
 static void lattice_json(cJSON *o, const char *name, int period, const lattice_summary *ls,
                          double visible, int windowed, const frame_list *frames) {
   if (!ls->frames) return;
@@ -497,10 +499,12 @@ static void lattice_json(cJSON *o, const char *name, int period, const lattice_s
   cJSON_AddNumberToObject(l, "frames", ls->frames);
   cJSON_AddItemToObject(l, "mean", eval_json_number(ls->sum / ls->frames));
   cJSON_AddItemToObject(l, "max", eval_json_number(ls->max));
-  cJSON_AddStringToObject(l, "max_file", frames->v[ls->max_frame].path);
+  int none = windowed && !(ls->max > 0);
+  cJSON_AddItemToObject(l, "max_file", none ? cJSON_CreateNull()
+                                            : cJSON_CreateString(frames->v[ls->max_frame].path));
   if (windowed) {
     int at[2] = {ls->max_x, ls->max_y};
-    cJSON_AddItemToObject(l, "max_at", cJSON_CreateIntArray(at, 2));
+    cJSON_AddItemToObject(l, "max_at", none ? cJSON_CreateNull() : cJSON_CreateIntArray(at, 2));
     cJSON_AddNumberToObject(l, "window_periods", EVAL_LATTICE_WINDOW_PERIODS);
     cJSON_AddNumberToObject(l, "window_hair", EVAL_LATTICE_WINDOW_HAIR);
     cJSON_AddNumberToObject(l, "window_peak", EVAL_LATTICE_WINDOW_PEAK);
