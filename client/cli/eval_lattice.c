@@ -21,10 +21,10 @@ static double energy_strided(const float *a, const float *b, size_t stride, int 
   if (!sum) return HF_ENOMEM;
   for (int y = 0; y < hh; y++) {
     double *row = sum + (size_t)(y % p) * p * c;
-    const float *pa = a + (size_t)y * stride, *pb = b ? b + (size_t)y * stride : NULL;
+    const float *pa = a + (size_t)y * stride, *pb = b + (size_t)y * stride;
     for (int x = 0; x < ww; x++) {
       double *cell = row + (size_t)(x % p) * c;
-      for (int k = 0; k < c; k++) cell[k] += (double)pa[x * c + k] - (pb ? pb[x * c + k] : 0.f);
+      for (int k = 0; k < c; k++) cell[k] += (double)pa[x * c + k] - pb[x * c + k];
     }
   }
   double energy = 0;
