@@ -6,15 +6,17 @@
  *   hf-transport-bench UNIX_URL TCP_URL VARIANT SIZE[,SIZE...] ITERS
  *
  * For each size, over the Unix socket, loopback TCP and shared memory (on
- * the Unix socket), ITERS frames of each of three callers one at a time,
+ * the Unix socket), ITERS frames of each of four callers one at a time,
  * in turn, after one warm-up frame of each: a caller holding float32
  * features that sends float32 ("f32"); one holding float32 that sends
- * float16 ("f16, caller f32"); one whose features are float16 already, a
- * renderer's half-float targets or a half EXR, that sends and keeps
- * float16 ("f16, caller f16"):
+ * float16 and gets float16 ("f16, caller f32"); one holding float32 that
+ * sends float16 and asks for a float32 result ("f16 in, f32 out, caller
+ * f32"); one whose features are float16 already, a renderer's half-float
+ * targets or a half EXR, that sends and keeps float16 ("f16, caller f16"):
  *   end to end  what the caller waits for: for "f16, caller f32" the
  *               conversion to float16, hfc_filter and the result widened
- *               back to float32; for the others hfc_filter alone;
+ *               back to float32; for "f16 in, f32 out" the conversion and
+ *               hfc_filter; for the others hfc_filter alone;
  *   transport   the client's total less the server's (from the frame's
  *               last byte in to its result out): the bytes on the wire
  *               and the client library's own work;
@@ -188,8 +190,9 @@ typedef struct result {
 } result;
 
 /* The callers of a run, in the order they take turns. */
-enum { CALLER_F32, CALLER_F32_SENDS_F16, CALLER_F16, NCALLERS };
-static const char *const CALLER_NAME[NCALLERS] = {"f32", "f16, caller f32", "f16, caller f16"};
+enum { CALLER_F32, CALLER_F32_SENDS_F16, CALLER_F32_SENDS_F16_GETS_F32, CALLER_F16, NCALLERS };
+static const char *const CALLER_NAME[NCALLERS] = {"f32", "f16, caller f32",
+                                                  "f16 in, f32 out, caller f32", "f16, caller f16"};
 
 #define NFLOORS 2 /* the socket floor with its far end a thread, a process */
 
@@ -225,7 +228,7 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
   if (!res32) goto out;
   for (int d = 0; d < NCALLERS; d++) {
     size_t es = d != CALLER_F32 ? 2 : 4;
-    in_b[d] = nin * es, out_b[d] = nout * es;
+    in_b[d] = nin * es, out_b[d] = nout * (d == CALLER_F32_SENDS_F16_GETS_F32 ? 4 : es);
     if (shm) {
       if ((rc = hfc_shm_alloc(c, in_b[d] + out_b[d], &seg[d])) != 0) {
         fprintf(stderr, "hfc_shm_alloc: %s (%s)\n", hfc_strerror(rc), hfc_last_message(c));
@@ -245,11 +248,13 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
   hf_f32_to_f16_array(feat32, in[CALLER_F16], nin);
   for (int i = 0; i <= iters; i++) { /* the first of each is the warm-up */
     for (int d = 0; d < NCALLERS; d++) {
-      const int convert = d == CALLER_F32_SENDS_F16;
+      const int convert = d == CALLER_F32_SENDS_F16 || d == CALLER_F32_SENDS_F16_GETS_F32;
+      const int widen = d == CALLER_F32_SENDS_F16;
       hfc_request r;
       hfc_request_init(&r);
       r.variant = variant, r.width = w, r.height = h, r.spp = spp;
-      r.in_dtype = r.out_dtype = d != CALLER_F32 ? HFC_F16 : HFC_F32;
+      r.in_dtype = d != CALLER_F32 ? HFC_F16 : HFC_F32;
+      r.out_dtype = d == CALLER_F32 || d == CALLER_F32_SENDS_F16_GETS_F32 ? HFC_F32 : HFC_F16;
       r.features = in[d], r.features_bytes = in_b[d];
       r.result = out[d], r.result_bytes = out_b[d];
       hfc_timing tm;
@@ -262,7 +267,7 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
         goto out;
       }
       double t2 = now_us();
-      if (convert) hf_f16_to_f32_array(out[d], res32, nout);
+      if (widen) hf_f16_to_f32_array(out[d], res32, nout);
       double t3 = now_us();
       if (!i) continue;
       t[d][0][i - 1] = t3 - t0;
