@@ -193,6 +193,10 @@ typedef struct result {
 enum { CALLER_F32, CALLER_F32_SENDS_F16, CALLER_F32_SENDS_F16_GETS_F32, CALLER_F16, NCALLERS };
 static const char *const CALLER_NAME[NCALLERS] = {"f32", "f16, caller f32",
                                                   "f16 in, f32 out, caller f32", "f16, caller f16"};
+/* What each caller sends and asks back; all but CALLER_F16 hold float32,
+ * so they convert what they send or get as float16. */
+static const hfc_dtype CALLER_IN[NCALLERS] = {HFC_F32, HFC_F16, HFC_F16, HFC_F16};
+static const hfc_dtype CALLER_OUT[NCALLERS] = {HFC_F32, HFC_F16, HFC_F32, HFC_F16};
 
 #define NFLOORS 2 /* the socket floor with its far end a thread, a process */
 
@@ -227,8 +231,8 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
     if (!ft[k] || !fr[k]) goto out;
   if (!res32) goto out;
   for (int d = 0; d < NCALLERS; d++) {
-    size_t es = d != CALLER_F32 ? 2 : 4;
-    in_b[d] = nin * es, out_b[d] = nout * (d == CALLER_F32_SENDS_F16_GETS_F32 ? 4 : es);
+    in_b[d] = nin * (CALLER_IN[d] == HFC_F16 ? 2 : 4);
+    out_b[d] = nout * (CALLER_OUT[d] == HFC_F16 ? 2 : 4);
     if (shm) {
       if ((rc = hfc_shm_alloc(c, in_b[d] + out_b[d], &seg[d])) != 0) {
         fprintf(stderr, "hfc_shm_alloc: %s (%s)\n", hfc_strerror(rc), hfc_last_message(c));
@@ -248,13 +252,12 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
   hf_f32_to_f16_array(feat32, in[CALLER_F16], nin);
   for (int i = 0; i <= iters; i++) { /* the first of each is the warm-up */
     for (int d = 0; d < NCALLERS; d++) {
-      const int convert = d == CALLER_F32_SENDS_F16 || d == CALLER_F32_SENDS_F16_GETS_F32;
-      const int widen = d == CALLER_F32_SENDS_F16;
+      const int convert = d != CALLER_F16 && CALLER_IN[d] == HFC_F16;
+      const int widen = d != CALLER_F16 && CALLER_OUT[d] == HFC_F16;
       hfc_request r;
       hfc_request_init(&r);
       r.variant = variant, r.width = w, r.height = h, r.spp = spp;
-      r.in_dtype = d != CALLER_F32 ? HFC_F16 : HFC_F32;
-      r.out_dtype = d == CALLER_F32 || d == CALLER_F32_SENDS_F16_GETS_F32 ? HFC_F32 : HFC_F16;
+      r.in_dtype = CALLER_IN[d], r.out_dtype = CALLER_OUT[d];
       r.features = in[d], r.features_bytes = in_b[d];
       r.result = out[d], r.result_bytes = out_b[d];
       hfc_timing tm;
