@@ -153,6 +153,48 @@ class Recipe(unittest.TestCase):
         new = wide.head.weight.grad[:, cfg["kernel_hidden"]:2 * cfg["kernel_hidden"]]
         self.assertGreater(float(new.abs().sum()), 0.0)
 
+    def test_experimental_kernel_stages_start_as_the_kernel(self):
+        """weights/experiments/kernel_stages.py: either stage, from Kernel
+        weights with the second logits a copy of the first, computes what
+        the Kernel did; the frontback stage tags as front exactly the
+        samples that show the nearest fragment."""
+        sys.path.insert(0, os.path.join(WEIGHTS, "experiments"))
+        import kernel_stages
+        torch.manual_seed(5)
+        cfg = hfnet.variant_config("Kernel")
+        kernel = hfnet.HairNet(cfg)
+        x = torch.rand(2, cfg["in_channels"], 24, 40)
+        alpha = x[:, 2::6]
+        alpha[torch.rand_like(alpha) < 0.3] = 0
+        # Two samples of each pixel show the same fragment as the first.
+        s = x.view(2, 4, 6, 24, 40)
+        s[:, 1, :3] = s[:, 0, :3]
+        with torch.no_grad():
+            want = kernel(x)
+        try:
+            for stage in kernel_stages.STAGES:
+                kernel_stages.install(stage)
+                c2, st2 = kernel_stages.start_from_kernel(cfg, kernel.state_dict())
+                net = hfnet.HairNet(c2)
+                net.load_state_dict(st2)
+                with torch.no_grad():
+                    got = net(x)
+                self.assertLess(float((got - want).abs().max()), 1e-4, stage)
+        finally:
+            kernel_stages.uninstall()
+        sums = kernel_stages.front_back_sums(x, 4)
+        cov = s[:, :, 2] > 0
+        depth = torch.where(cov, s[:, :, 3], torch.full_like(s[:, :, 3], float("inf")))
+        near = depth.argmin(1)
+        for n, y, xx in ((0, 3, 5), (1, 10, 20), (0, 23, 39)):
+            k = int(near[n, y, xx])
+            front = [j for j in range(4) if cov[n, j, y, xx]
+                     and bool((s[n, j, :3, y, xx] == s[n, k, :3, y, xx]).all())]
+            self.assertEqual(float(sums[n, 3, y, xx]), len(front))
+            self.assertAlmostEqual(float(sums[n, 4, y, xx]),
+                                   float(sum(s[n, j, 0, y, xx] for j in front)), places=5)
+        self.assertEqual(hfnet.variant_config("Kernel")["out_channels"], cfg["out_channels"])
+
     def test_kernel_export_roundtrips(self):
         """A Kernel network (head and metadata keys) and one without a head
         go through the C loader and writer bit-exactly."""
