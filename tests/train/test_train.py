@@ -153,24 +153,35 @@ class Recipe(unittest.TestCase):
         new = wide.head.weight.grad[:, cfg["kernel_hidden"]:2 * cfg["kernel_hidden"]]
         self.assertGreater(float(new.abs().sum()), 0.0)
 
-    def test_experimental_kernel_stages_start_as_the_kernel(self):
-        """weights/experiments/kernel_stages.py: either stage, from Kernel
-        weights with the second logits a copy of the first, computes what
-        the Kernel did; the frontback stage tags as front exactly the
-        samples that show the nearest fragment."""
+    @staticmethod
+    def kernel_and_frame(seed, shared_fragment=False):
+        """(cfg, a random Kernel network, a 2x24x40 frame with 30% of its
+        samples uncovered, the network's result) for the experiments of
+        weights/experiments/, which that folder on sys.path lets tests
+        import; shared_fragment: sample 1 shows sample 0's fragment."""
         sys.path.insert(0, os.path.join(WEIGHTS, "experiments"))
-        import kernel_stages
-        torch.manual_seed(5)
+        torch.manual_seed(seed)
         cfg = hfnet.variant_config("Kernel")
         kernel = hfnet.HairNet(cfg)
         x = torch.rand(2, cfg["in_channels"], 24, 40)
         alpha = x[:, 2::6]
         alpha[torch.rand_like(alpha) < 0.3] = 0
-        # Two samples of each pixel show the same fragment as the first.
-        s = x.view(2, 4, 6, 24, 40)
-        s[:, 1, :3] = s[:, 0, :3]
+        if shared_fragment:
+            s = x.view(2, 4, 6, 24, 40)
+            s[:, 1, :3] = s[:, 0, :3]
         with torch.no_grad():
             want = kernel(x)
+        return cfg, kernel, x, want
+
+    def test_experimental_kernel_stages_start_as_the_kernel(self):
+        """weights/experiments/kernel_stages.py: either stage, from Kernel
+        weights with the second logits a copy of the first, computes what
+        the Kernel did; the frontback stage tags as front exactly the
+        samples that show the nearest fragment."""
+        # Two samples of each pixel show the same fragment as the first.
+        cfg, kernel, x, want = self.kernel_and_frame(5, shared_fragment=True)
+        import kernel_stages
+        s = x.view(2, 4, 6, 24, 40)
         try:
             for stage in kernel_stages.STAGES:
                 kernel_stages.install(stage)
@@ -194,6 +205,31 @@ class Recipe(unittest.TestCase):
             self.assertAlmostEqual(float(sums[n, 4, y, xx]),
                                    float(sum(s[n, j, 0, y, xx] for j in front)), places=5)
         self.assertEqual(hfnet.variant_config("Kernel")["out_channels"], cfg["out_channels"])
+
+    def test_experimental_fullres_branch_starts_as_the_kernel(self):
+        """weights/experiments/fullres_branch.py: Kernel weights with the
+        branch added compute what the Kernel did, the head's new columns
+        get a gradient (so training grows the branch), and uninstall gives
+        hfnet its plain network back."""
+        cfg, kernel, x, want = self.kernel_and_frame(6)
+        import fullres_branch
+        try:
+            fullres_branch.install(8)
+            self.assertEqual(hfnet.variant_config("Kernel")["fullres"], 8)
+            c2, st2 = fullres_branch.start_from_kernel(cfg, kernel.state_dict(), channels=8)
+            net = hfnet.HairNet(c2)
+            net.load_state_dict(st2)
+            self.assertEqual(tuple(net.full.weight.shape), (8, cfg["in_channels"], 3, 3))
+            with torch.no_grad():
+                got = net(x)
+            self.assertLess(float((got - want).abs().max()), 1e-5)
+            net(x).square().sum().backward()
+            new = net.head.weight.grad[:, cfg["kernel_hidden"] + cfg["in_channels"]:]
+            self.assertGreater(float(new.abs().sum()), 0.0)
+        finally:
+            fullres_branch.uninstall()
+        self.assertIs(hfnet.HairNet, fullres_branch._HairNet)
+        self.assertNotIn("fullres", hfnet.variant_config("Kernel"))
 
     def test_kernel_export_roundtrips(self):
         """A Kernel network (head and metadata keys) and one without a head

@@ -8,8 +8,8 @@ transparency 1 spp" and "2 spp" of its tables) with its own code.
 
 Each DIR (a dataset directory with manifest.json) is copied to OUT_ROOT/<its
 name> with every frame's channels, attributes and windows, plus the six new
-channels. --stage installs an output stage of kernel_stages.py for files
-that need one. Frames that already hold st1.* or st2.* are refused."""
+channels. --stage installs an output stage of kernel_stages.py, or
+(`fullres`) the branch of fullres_branch.py, for files that need one. Frames that already hold st1.* or st2.* are refused."""
 import argparse
 import os
 import shutil
@@ -23,19 +23,22 @@ import torch  # noqa: E402
 
 import dataset  # noqa: E402
 import hfnet  # noqa: E402
+import fullres_branch  # noqa: E402
 import kernel_stages  # noqa: E402
 
 
 def main(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--stage", choices=kernel_stages.STAGES)
+    ap.add_argument("--stage", choices=kernel_stages.STAGES + ("fullres",))
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("a")
     ap.add_argument("b")
     ap.add_argument("out_root")
     ap.add_argument("dirs", nargs="+")
     args = ap.parse_args(argv)
-    if args.stage:
+    if args.stage == "fullres":
+        fullres_branch.install()
+    elif args.stage:
         kernel_stages.install(args.stage)
     torch.set_num_threads(args.threads)
     nets = [hfnet.load_model(p).eval() for p in (args.a, args.b)]

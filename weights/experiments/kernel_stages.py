@@ -29,14 +29,14 @@ import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 
 import hfnet  # noqa: E402
+import patching  # noqa: E402
 
 STAGES = ("split", "frontback")
 # Weight of the front samples' colour where no back sample lies under the
 # second kernel: the back colour falls back to the front one.
 EPS = 1e-6
 
-_kernel_finish = hfnet.kernel_finish
-_variant_config = hfnet.variant_config
+_kernel_finish = patching.ORIGINAL["kernel_finish"]
 
 
 def front_back_sums(x, spp):
@@ -117,20 +117,11 @@ def install(stage):
             return _kernel_finish(raw, x, spp, radius, clamp)
         return stage_finish(raw, x, spp, radius, clamp)
 
-    def config(name):
-        cfg = _variant_config(name)
-        if cfg["arch"] == "kernel":
-            cfg["out_channels"] = 2 * hfnet.kernel_taps(cfg["kernel_radius"]) + 3
-        return cfg
-
-    hfnet.kernel_finish = finish
-    hfnet.variant_config = config
+    patching.install(lambda cfg: {"out_channels": 2 * hfnet.kernel_taps(cfg["kernel_radius"]) + 3},
+                     kernel_finish=finish)
 
 
-def uninstall():
-    """Gives hfnet back its own Kernel stage and configurations."""
-    hfnet.kernel_finish = _kernel_finish
-    hfnet.variant_config = _variant_config
+uninstall = patching.uninstall
 
 
 def start_from_kernel(cfg, state):
