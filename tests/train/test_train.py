@@ -206,6 +206,42 @@ class Recipe(unittest.TestCase):
                                    float(sum(s[n, j, 0, y, xx] for j in front)), places=5)
         self.assertEqual(hfnet.variant_config("Kernel")["out_channels"], cfg["out_channels"])
 
+    def test_experimental_aniso_kernel(self):
+        """weights/experiments/aniso_kernel.py: at a vanishing kappa the
+        stage computes what the Kernel did; a tap's penalty is its squared
+        distance from the line of the pixel's screen tangents (y down), half
+        its squared length where they point every way, and its squared
+        length where no sample is covered."""
+        cfg, kernel, x, want = self.kernel_and_frame(7)
+        import aniso_kernel
+        try:
+            aniso_kernel.install()
+            c2, st2 = aniso_kernel.start_from_kernel(cfg, kernel.state_dict(), kappa0=1e-9)
+            net = hfnet.HairNet(c2)
+            net.load_state_dict(st2)
+            with torch.no_grad():
+                got = net(x)
+            self.assertLess(float((got - want).abs().max()), 1e-5)
+        finally:
+            aniso_kernel.uninstall()
+        r, taps = 3, hfnet.kernel_taps(3)
+        f = torch.zeros(1, 4, 6, 1, 3)
+        f[0, :, 2] = 0.5                                    # every sample covered
+        # Pixel 0: view tangent (1, 1), on screen down-left to up-right.
+        f[0, :, 4, 0, 0], f[0, :, 5, 0, 0] = 0.6, 0.6
+        # Pixel 1: two samples along x, two along y.
+        f[0, :2, 4, 0, 1], f[0, 2:, 5, 0, 1] = 0.9, -0.9
+        f[0, :, 2, 0, 2] = 0                                # pixel 2: nothing covered
+        raw = torch.zeros(1, taps + 4, 1, 3)
+        raw[0, taps + 3] = 1e9                              # kappa = GAIN * 1e9
+        kappa = aniso_kernel.GAIN * 1e9
+        pen = -aniso_kernel.aniso_logits(raw, f.view(1, 24, 1, 3), 4, r)[0] / kappa
+        for t, (dy, dx) in enumerate(hfnet._taps(r)):
+            # Unit direction (1, -1) / sqrt(2) in (x, y-down).
+            self.assertAlmostEqual(float(pen[t, 0, 0]), (dx + dy) ** 2 / 2, places=4)
+            self.assertAlmostEqual(float(pen[t, 0, 1]), (dx * dx + dy * dy) / 2, places=4)
+            self.assertAlmostEqual(float(pen[t, 0, 2]), dx * dx + dy * dy, places=4)
+
     def test_experimental_fullres_branch_starts_as_the_kernel(self):
         """weights/experiments/fullres_branch.py: Kernel weights with the
         branch added compute what the Kernel did, the head's new columns

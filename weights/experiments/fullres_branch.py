@@ -93,23 +93,19 @@ def start_from_kernel(cfg, state, channels=CHANNELS, seed=1):
 def main(argv):
     if len(argv) < 2 or argv[0] not in ("init", "train"):
         sys.exit(__doc__)
+    args = list(argv[1:])
     if argv[0] == "init":
-        args = list(argv[1:])
         channels = CHANNELS
         if "--channels" in args:
             i = args.index("--channels")
             channels = int(args[i + 1])
             del args[i:i + 2]
-        src = args[1] if len(args) > 1 else os.path.join(os.path.dirname(__file__), "..",
-                                                          "kernel.safetensors")
-        cfg, state = start_from_kernel(*hfnet.load_safetensors(src), channels=channels)
-        hfnet.save_safetensors(args[0], cfg, state)
-        return 0
-    init = argv[argv.index("--init") + 1] if "--init" in argv else None
-    channels = hfnet.load_safetensors(init)[0].get("fullres", CHANNELS) if init else CHANNELS
+    else:
+        init = args[args.index("--init") + 1] if "--init" in args else None
+        channels = hfnet.load_safetensors(init)[0].get("fullres", CHANNELS) if init else CHANNELS
     install(channels)
-    import train
-    return train.main(argv[1:])
+    return patching.init_or_train(argv[0], args,
+                                  lambda cfg, state: start_from_kernel(cfg, state, channels=channels))
 
 
 if __name__ == "__main__":

@@ -140,14 +140,7 @@ def main(argv):
         sys.exit(__doc__)
     stage = argv[1]
     install(stage)
-    if argv[0] == "init":
-        src = argv[3] if len(argv) > 3 else os.path.join(os.path.dirname(__file__), "..",
-                                                          "kernel.safetensors")
-        cfg, state = start_from_kernel(*hfnet.load_safetensors(src))
-        hfnet.save_safetensors(argv[2], cfg, state)
-        return 0
-    import train
-    return train.main(argv[2:])
+    return patching.init_or_train(argv[0], argv[2:], start_from_kernel)
 
 
 if __name__ == "__main__":

@@ -35,3 +35,18 @@ def uninstall():
     """Gives hfnet back its own network, Kernel stage and configurations."""
     for name, value in ORIGINAL.items():
         setattr(hfnet, name, value)
+
+
+def init_or_train(command, args, start_from_kernel):
+    """The `init` and `train` commands of an experiment, its stage already
+    installed. init: args = OUT [KERNEL], writes start_from_kernel(cfg,
+    state) of KERNEL (default weights/kernel.safetensors) to OUT; train:
+    args are weights/train.py's. Returns the exit status."""
+    if command == "init":
+        src = args[1] if len(args) > 1 else os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                                         "..", "kernel.safetensors")
+        cfg, state = start_from_kernel(*hfnet.load_safetensors(src))
+        hfnet.save_safetensors(args[0], cfg, state)
+        return 0
+    import train
+    return train.main(args)
