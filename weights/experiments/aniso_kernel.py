@@ -156,7 +156,9 @@ def probe(weights, kappas, frames):
                                   torch.from_numpy(truth).permute(2, 0, 1)[None].float())[0].numpy()
             r = train.SSIM_RADIUS
             cells.append(f"{10 * math.log10(1 / mse):.2f} / {float(ssim[hair[r:-r, r:-r]].mean()):.3f}")
-        print(f"| {os.path.basename(path)} | " + " | ".join(cells) + " |", flush=True)
+        name = os.path.join(os.path.basename(os.path.dirname(os.path.abspath(path))),
+                            os.path.basename(path))
+        print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
 
 def main(argv):
