@@ -1,8 +1,8 @@
 """Kernel weights stretched along the strand, measured against the Kernel and
 not part of any backend (weights/kernel.md says what it scored).
 
-On dense hair of fine strands the Kernel's result is a blur with no
-direction (weights/kernel.md): the network can, but does not, give its
+On dense hair, where it is below 16 samples, the Kernel's result is a
+blur with no direction (weights/kernel.md): the network can, but does not, give its
 kernel a support along the strand. This stage gives the head one more
 output, kappa >= 0 per pixel, and subtracts from the logit of every tap
 kappa times the tap's squared distance from the strand through the pixel:
@@ -35,7 +35,8 @@ root:
 KAPPAS (comma-separated, 0: the Kernel itself) and prints, per frame, the
 PSNR and SSIM of the composite (train.EVAL_LOOK) against the truth's on
 the pixels with hair in the truth or a covered sample (SSIM: train.ssim_map,
-windows inside the frame; close to, not the same as, `hairfilter eval`'s).
+windows inside the frame; not `hairfilter eval`'s figures: compare
+within a row).
 
 `train` runs weights/train.py with the stage installed (--variant Kernel,
 --init the file of `init`); weights/experiments/eval_rows.py --stage aniso

@@ -16,8 +16,8 @@ columns move GAIN times as fast under Adam, whose steps are about lr in
 each weight whatever the gradient's scale: from zero at lr 3e-4 they would
 stay near zero over a fine-tune of a thousand steps.
 
-Its cost at 16 channels is about a fifth of the network's multiply-adds per
-pixel (24 x 9 x 16 for the convolution, 16 x 52 more in the head, against
+Its cost at 16 channels is about a quarter more of the network's
+multiply-adds per pixel (24 x 9 x 16 for the convolution, 16 x 52 more in the head, against
 about 18,000 for Kernel).
 
 Weights start from Kernel weights with the head's columns for the branch at
