@@ -249,11 +249,15 @@ class HairNet(nn.Module):
     def forward(self, x):
         """NCHW input of any size: zero-padded right/bottom to a multiple of
         2^L, output cropped back, output transforms applied."""
+        return self.finish(self.raw_any_size(x), x)
+
+    def raw_any_size(self, x):
+        """raw() of NCHW input of any size: zero-padded right/bottom to a
+        multiple of 2^L, cropped back to x's size."""
         h, w = x.shape[-2:]
         a = self.align
         ph, pw = (-h) % a, (-w) % a
-        raw = self.raw(F.pad(x, (0, pw, 0, ph)) if ph or pw else x)[..., :h, :w]
-        return self.finish(raw, x)
+        return self.raw(F.pad(x, (0, pw, 0, ph)) if ph or pw else x)[..., :h, :w]
 
     def finish(self, raw, x, clamp=torch.clamp):
         """The architecture's output stage on raw output raw of the unpadded

@@ -136,12 +136,12 @@ def probe(weights, kappas, frames):
         names, data = dataset.read_exr(path)
         feat, _ = dataset.load_frame(path, spp=net.cfg["spp"], dtype=np.float32)
         h, w = feat.shape[:2]
-        x = torch.from_numpy(np.ascontiguousarray(feat.reshape(h, w, -1).transpose(2, 0, 1)))[None]
-        truth = thick_pixels.composite(*(data[..., names.index(f"gt.{c}")] for c in dataset.TARGETS))
-        hair = (data[..., names.index("gt.alpha")] > 0) | (feat[..., 2].max(-1) > 0)
-        a = net.align
+        x = hfnet.nhwc_to_nchw(feat.reshape(1, h, w, -1))
+        gt = thick_pixels.planes(names, data, "gt")
+        truth = thick_pixels.composite(*gt)
+        hair = (gt[2] > 0) | (feat[..., 2].max(-1) > 0)
         with torch.no_grad():
-            raw = net.raw(F.pad(x, (0, (-w) % a, 0, (-h) % a)))[..., :h, :w]
+            raw = net.raw_any_size(x)
         cells = []
         for k in kappas:
             with torch.no_grad():

@@ -24,18 +24,15 @@ import thick_pixels  # noqa: E402
 def crop_row(path, results, size):
     """[size][size * len(results)][3] composites of one frame's crop."""
     names, data = dataset.read_exr(path)
-
-    def planes(prefix):
-        return [data[..., names.index(f"{prefix}.{c}")] for c in dataset.TARGETS]
-
-    alpha = planes("gt")[2]
+    alpha = thick_pixels.planes(names, data, "gt")[2]
     ys, xs = np.nonzero(alpha > 0.05)
     if not len(ys):
         sys.exit(f"crops.py: {path}: no hair pixels")
     h, w = alpha.shape
     y0 = min(max(0, int(np.median(ys)) - size // 2), max(0, h - size))
     x0 = min(max(0, int(np.median(xs)) - size // 2), max(0, w - size))
-    return np.concatenate([thick_pixels.composite(*planes(r))[y0:y0 + size, x0:x0 + size]
+    return np.concatenate([thick_pixels.composite(*thick_pixels.planes(names, data, r))
+                           [y0:y0 + size, x0:x0 + size]
                            for r in results], 1)
 
 

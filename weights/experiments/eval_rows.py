@@ -66,7 +66,7 @@ def main(argv):
             inp.close()
             feat, _ = dataset.load_frame(p, spp=nets[0].cfg["spp"], dtype=np.float32)
             h, w = feat.shape[:2]
-            x = torch.from_numpy(np.ascontiguousarray(feat.reshape(h, w, -1).transpose(2, 0, 1)))[None]
+            x = hfnet.nhwc_to_nchw(feat.reshape(1, h, w, -1))
             extra, new = [], []
             with torch.no_grad():
                 for k, net in ((1, nets[0]), (2, nets[1])):

@@ -32,6 +32,13 @@ def composite(c, h, a):
                    + (1 - a[..., None]) * BG, 0, 1)
 
 
+def planes(names, data, prefix):
+    """The (colour, highlight, alpha) planes of one result, channels
+    prefix.color, prefix.highlight, prefix.alpha of a frame read by
+    dataset.read_exr (names, data [h][w][c])."""
+    return [data[..., names.index(f"{prefix}.{c}")] for c in dataset.TARGETS]
+
+
 def layer_composite(samples):
     """(colour, highlight, alpha) of one pixel's samples [spp][4] (colour,
     highlight, alpha, depth), all covered: its distinct fragments (equal
@@ -74,13 +81,13 @@ def main(argv):
             continue
         nframes += 1
         ga = g("gt.alpha")
-        gt = composite(g("gt.color"), g("gt.highlight"), ga)
+        gt = composite(*planes(names, d, "gt"))
         classes = {f"full (alpha >= {FULL})": ga >= FULL, f"edge (0 < alpha < {FULL})": (ga > 0) & (ga < FULL)}
         allcov = n == spp
         if args.layers:
             classes["all samples covered"] = allcov
         for r in results:
-            e = ((composite(g(r + ".color"), g(r + ".highlight"), g(r + ".alpha")) - gt) ** 2).mean(-1)
+            e = ((composite(*planes(names, d, r)) - gt) ** 2).mean(-1)
             ea = (g(r + ".alpha") - ga) ** 2
             for cname, m in classes.items():
                 t = acc.setdefault((cname, r), [0.0, 0.0, 0])
