@@ -196,6 +196,47 @@ def widen_kernel_hidden(state, hidden, fresh):
     return out
 
 
+def equalise_phase_sums_(net):
+    """Projects every transposed convolution of net, in place, onto kernels
+    whose four output phases have equal tap sums.
+
+    A ConvTranspose2d(k=4, s=2, p=1) computes output pixel 2i+a (a = 0, 1)
+    from taps 1 and 3 (a = 0) or 0 and 2 (a = 1) of its kernel in each
+    direction, so its [cin][cout][4][4] kernel splits into four 2x2 phase
+    kernels. Where they sum to different values, a flat input comes out as
+    a pattern of period 2 (period 2^L after L levels): the lattice of
+    transposed convolutions (Odena, Dumoulin & Olah, "Deconvolution and
+    Checkerboard Artifacts", Distill 2016; Aitken et al., "Checkerboard
+    artifact free sub-pixel convolution", arXiv:1707.02937, 2017, make the
+    phases equal at initialisation). With equal sums for every (cin, cout)
+    pair a spatially constant input gives a constant output through the
+    whole U-Net (its encoders are ordinary convolutions, its ReLUs act per
+    pixel), so no lattice can form where the input is flat, while each
+    phase keeps its own 2x2 shape (13 of 16 degrees of freedom). This is
+    the smallest change in the L2 sense: each phase's four taps move by the
+    same amount, a quarter of that phase's sum minus the mean of the four.
+    Returns the largest change made to any tap (0 for a kernel already
+    equalised). The architecture and the weights format are unchanged."""
+    moved = 0.0
+    with torch.no_grad():
+        for m in net.modules():
+            if not isinstance(m, nn.ConvTranspose2d):
+                continue
+            w = m.weight
+            if tuple(w.shape[-2:]) != (4, 4) or m.stride != (2, 2) or m.padding != (1, 1):
+                raise ValueError(f"equalise_phase_sums_: a ConvTranspose2d of kernel "
+                                 f"{tuple(w.shape[-2:])}, stride {m.stride}, padding "
+                                 f"{m.padding}; only k=4, s=2, p=1 is the network's")
+            phases = [(a, b) for a in (0, 1) for b in (0, 1)]
+            sums = [w[..., a::2, b::2].sum((-2, -1)) for a, b in phases]
+            mean = torch.stack(sums).mean(0)
+            for (a, b), s in zip(phases, sums):
+                d = (s - mean) / 4
+                moved = max(moved, float(d.abs().max()))
+                w[..., a::2, b::2] -= d[..., None, None]
+    return moved
+
+
 class HairNet(nn.Module):
     def __init__(self, cfg):
         super().__init__()

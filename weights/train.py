@@ -523,6 +523,11 @@ def parse_args(argv):
                     "for a fine-tune (--init) with --loss look use the exact ones: through the "
                     "straight-through ones such fine-tunes of Small, Shallow and Large "
                     "diverged (weights/small.md)")
+    ap.add_argument("--equal-phase-sums", action="store_true",
+                    help="keep the four output phases of every transposed convolution at "
+                    "equal tap sums (hfnet.equalise_phase_sums_, applied to the start weights "
+                    "and after every step): a flat input then gives a flat output, so the "
+                    "transposed convolutions cannot paint a lattice there")
     ap.add_argument("--init", metavar="WEIGHTS",
                     help="start from these weights (safetensors of the same variant) "
                     "instead of a random initialisation: fine-tuning")
@@ -590,7 +595,8 @@ def main(argv=None):
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
                   "kernel_radius", "kernel_hidden",
                   "schedule", "lr_floor",
-                  "val_fraction", "seed", "deconv", "bf16", "straight_through", "init"):
+                  "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
+                  "equal_phase_sums"):
             setattr(args, k, saved.get(k, getattr(args, k)))
     cfg = make_config(args)
     # The period of a U-Net's lattice: its upsamplings' total stride.
@@ -627,6 +633,9 @@ def main(argv=None):
         ema = ckpt.get("ema")
         set_rng_state(np_rng, ckpt["rng"])
         print(f"resumed {cfg['name']} at step {step} from {ckpt_path}", file=sys.stderr)
+    if args.equal_phase_sums and not ckpt:
+        moved = hfnet.equalise_phase_sums_(net)
+        print(f"equal phase sums: start weights moved by at most {moved:.3g}", file=sys.stderr)
 
     if step < args.steps:
         if not args.data:
@@ -692,6 +701,8 @@ def main(argv=None):
                 net.parameters(), args.clip_grad_norm if args.clip_grad_norm > 0 else math.inf))
             norms.append(gn)
             opt.step()
+            if args.equal_phase_sums:
+                hfnet.equalise_phase_sums_(net)
             step += 1
             lv = float(loss)
             if not math.isfinite(lv):
@@ -740,7 +751,8 @@ def main(argv=None):
                            clip_grad_norm=args.clip_grad_norm,
                            seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
-                           straight_through=args.straight_through, train_seconds=elapsed,
+                           straight_through=args.straight_through,
+                           equal_phase_sums=args.equal_phase_sums, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)
         print(f"{cfg['name']}: step {step}, loss {ema if ema is not None else float('nan'):.6f}, validation "
               f"{val if val is not None else float('nan'):.6f}, "

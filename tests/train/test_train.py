@@ -117,6 +117,50 @@ class Recipe(unittest.TestCase):
                 a, b = net.raw(x), train.raw_shuffle(net, x)
             self.assertLess(float((a - b).abs().max()), 1e-5, name)
 
+    def test_equal_phase_sums_keep_a_flat_input_flat(self):
+        """hfnet.equalise_phase_sums_: a random U-Net paints a lattice on a
+        constant input; projected, its interior output is constant, each
+        phase of each kernel moved by one amount, and a second projection
+        moves nothing. --equal-phase-sums keeps trained weights there."""
+        torch.manual_seed(4)
+
+        def spread(net, x):
+            with torch.no_grad():
+                y = net.raw(x)[..., 16:48, 16:48]      # away from the zero padding
+            return float((y - y.mean((-2, -1), keepdim=True)).abs().max())
+
+        def phase_sums(w):
+            return torch.stack([w[..., a::2, b::2].sum((-2, -1)) for a in (0, 1) for b in (0, 1)])
+
+        for name in ("Shallow", "Base", "Kernel"):
+            net = hfnet.HairNet(hfnet.variant_config(name))
+            x = torch.rand(1, net.cfg["in_channels"], 1, 1).expand(1, -1, 64, 64).contiguous()
+            self.assertGreater(spread(net, x), 1e-3, name)
+            before = {k: v.clone() for k, v in net.state_dict().items()}
+            self.assertGreater(hfnet.equalise_phase_sums_(net), 1e-3, name)
+            self.assertLess(spread(net, x), 1e-5, name)
+            self.assertLess(hfnet.equalise_phase_sums_(net), 1e-6, name)
+            for k, v in net.state_dict().items():
+                if k.startswith("dec") and k.endswith("weight"):
+                    d = v - before[k]
+                    for a in (0, 1):
+                        for b in (0, 1):
+                            ph = d[..., a::2, b::2]
+                            self.assertLess(float((ph - ph[..., :1, :1]).abs().max()), 1e-6)
+                else:
+                    self.assertTrue(torch.equal(v, before[k]), k)
+        out = os.path.join(self.work, "phases")
+        run_train("--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
+                  "--val-every", "3", "--steps", "3", "--equal-phase-sums", "--out", out,
+                  "--export", out + ".safetensors")
+        _, state = hfnet.load_safetensors(out + ".safetensors")
+        for k, w in state.items():
+            if k.startswith("dec") and k.endswith("weight"):
+                s = phase_sums(w)
+                self.assertLess(float((s - s.mean(0)).abs().max()), 1e-5, k)
+        with open(os.path.join(out, "summary.json")) as f:
+            self.assertTrue(json.load(f)["equal_phase_sums"])
+
     def test_kernel_softmax_leaves_the_outside_out(self):
         """Taps outside the frame count for nothing whatever their logits: a
         huge one must neither change the result nor make it NaN (it would
