@@ -210,8 +210,9 @@ def equalise_phase_sums_(net):
     artifact free sub-pixel convolution", arXiv:1707.02937, 2017, make the
     phases equal at initialisation). With equal sums for every (cin, cout)
     pair a spatially constant input gives a constant output through the
-    whole U-Net (its encoders are ordinary convolutions, its ReLUs act per
-    pixel), so no lattice can form where the input is flat, while each
+    whole U-Net away from the zero-padded borders (its encoders are
+    ordinary convolutions, its ReLUs act per pixel), so no lattice can
+    form where the input is flat, while each
     phase keeps its own 2x2 shape (13 of 16 degrees of freedom). This is
     the smallest change in the L2 sense: each phase's four taps move by the
     same amount, a quarter of that phase's sum minus the mean of the four.
