@@ -211,14 +211,15 @@ def equalise_phase_sums_(net):
     phases equal at initialisation). With equal sums for every (cin, cout)
     pair a spatially constant input gives a constant output through the
     whole U-Net away from the zero-padded borders (its encoders are
-    ordinary convolutions, its ReLUs act per pixel), so no lattice can
-    form where the input is flat, while each
-    phase keeps its own 2x2 shape (13 of 16 degrees of freedom). This is
-    the smallest change in the L2 sense: each phase's four taps move by the
-    same amount, a quarter of that phase's sum minus the mean of the four.
-    Returns the largest change made to any tap (0 for a kernel already
-    equalised). The architecture and the weights format are unchanged."""
-    moved = 0.0
+    ordinary convolutions, its ReLUs act per pixel), so no lattice can form
+    where the input is flat, while each phase keeps its own 2x2 shape (13
+    of 16 degrees of freedom). This is the smallest change in the L2 sense:
+    each phase's four taps move by the same amount, a quarter of that
+    phase's sum minus the mean of the four. Returns the largest change made
+    to any tap (0 for a kernel already equalised). The architecture and the
+    weights format are unchanged. Called after every training step, so it
+    works on whole kernels and reads one number back from the device."""
+    moved = []
     with torch.no_grad():
         for m in net.modules():
             if not isinstance(m, nn.ConvTranspose2d):
@@ -228,14 +229,13 @@ def equalise_phase_sums_(net):
                 raise ValueError(f"equalise_phase_sums_: a ConvTranspose2d of kernel "
                                  f"{tuple(w.shape[-2:])}, stride {m.stride}, padding "
                                  f"{m.padding}; only k=4, s=2, p=1 is the network's")
-            phases = [(a, b) for a in (0, 1) for b in (0, 1)]
-            sums = [w[..., a::2, b::2].sum((-2, -1)) for a, b in phases]
-            mean = torch.stack(sums).mean(0)
-            for (a, b), s in zip(phases, sums):
-                d = (s - mean) / 4
-                moved = max(moved, float(d.abs().max()))
-                w[..., a::2, b::2] -= d[..., None, None]
-    return moved
+            # Tap t = 2 j + a: [cin][cout][jy][ay][jx][ax], phase (ay, ax).
+            taps = w.view(*w.shape[:2], 2, 2, 2, 2)
+            sums = taps.sum((2, 4))                                   # [cin][cout][ay][ax]
+            d = (sums - sums.mean((2, 3), keepdim=True)) / 4
+            taps -= d[:, :, None, :, None, :]
+            moved.append(d.abs().max())
+    return float(torch.stack(moved).max()) if moved else 0.0
 
 
 class HairNet(nn.Module):
