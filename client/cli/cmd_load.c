@@ -13,7 +13,11 @@
  * reached), and reports those three merged: client percentiles from a
  * streaming histogram (load_hist.h, bounded memory), the server's RESULT
  * breakdown (queue, input, infer, output), BUSY and errors, and the
- * server's STATS differenced over the point.
+ * server's STATS differenced over the point. The windows count only
+ * requests due after the first STATS was answered: one due before could
+ * be written, and counted in that STATS, while its reply still waits in
+ * the socket, and the server's difference would then miss a frame the
+ * client counts.
  *
  * One thread per connection, since an hfc_client is single-threaded. In the
  * open loop each connection offers rate/connections frames/s; a request's
@@ -71,6 +75,7 @@ typedef struct shared {
   atomic_uint_fast64_t sent, answered, delayed;
   atomic_int lost;
   double t_stop;                 /* when the point stopped sending */
+  double t_measure;              /* under mu: requests due from then on count */
 } shared;
 
 typedef struct worker {
@@ -118,6 +123,10 @@ static void record(shared *sh, const hfc_completion *d, double started) {
   if (atomic_load(&sh->phase) != PHASE_MEASURE) return;
   double t = now_s();
   pthread_mutex_lock(&sh->mu);
+  if (started < sh->t_measure) {   /* due before the first STATS: see the top */
+    pthread_mutex_unlock(&sh->mu);
+    return;
+  }
   load_window *w = sh->cur;
   if (d->status == HFC_E_BUSY) {
     w->busy++;
@@ -456,6 +465,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   int have_before = stats_of(o, &before) == 0;
   pthread_mutex_lock(&sh->mu);
   memset(sh->cur, 0, sizeof *sh->cur);
+  sh->t_measure = now_s();
   atomic_store(&sh->phase, PHASE_MEASURE);
   pthread_mutex_unlock(&sh->mu);
   uint64_t sent0 = atomic_load(&sh->sent);
