@@ -27,6 +27,16 @@
 
 #include "backend.h"
 
+/* The widest vector unit the CPU has, chosen when the program loads (GCC's
+ * function multiversioning), for the loops below: the build targets any
+ * x86-64, where they would run four lanes wide (docs/PERFORMANCE.md, "The
+ * Kernel output stage's vector width"). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define KO_CLONES __attribute__((target_clones("avx512f", "avx2", "default"), optimize("no-trapping-math")))
+#else
+#define KO_CLONES
+#endif
+
 /* Plane pitch for a row of width pixels: a multiple of 16 floats that is
  * not a multiple of 512, so that the taps' planes of one pixel do not all
  * fall in the same cache sets (a power-of-two pitch made the transpose
@@ -60,9 +70,15 @@ void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int y0, int y1, float 
  * nears the smallest normal float: Cephes' expf (S. L. Moshier, Cephes
  * Math Library 2.2, expf.c), e^x = 2^n e^r with |r| <= ln 2 / 2 and e^r a
  * degree-7 polynomial, within 2 ulp of expf. Written out so that it
- * vectorises; libm's expf is a call per value. */
+ * vectorises; libm's expf is a call per value. The two selections are
+ * bit masks, not conditional expressions: GCC if-converts those in the
+ * plain build but not in the multiversioned clones below, which then ran
+ * one value at a time. */
 static inline float od_exp(float x) {
-  float c = x < -87.0f ? -87.0f : x;
+  union { int32_t i; float f; } in = {.f = x}, lo = {.f = -87.0f}, out;
+  const int32_t below = -(int32_t)(x < -87.0f); /* all ones below -87, else 0 */
+  in.i = (in.i & ~below) | (lo.i & below);      /* max(x, -87) */
+  const float c = in.f;
   int n = (int)(c * 1.44269504088896341f - 0.5f); /* round(c / ln 2), c <= 0 */
   float fn = (float)n;
   float r = c - fn * 0.693359375f + fn * 2.12194440e-4f; /* c - n ln 2, in two parts */
@@ -74,7 +90,9 @@ static inline float od_exp(float x) {
   p = p * r + 5.0000001201e-1f;
   p = p * r * r + r + 1.0f;
   union { int32_t i; float f; } s = {.i = (n + 127) << 23}; /* 2^n, n >= -126 */
-  return x < -87.0f ? 0.0f : p * s.f;
+  out.f = p * s.f;
+  out.i &= ~below; /* 0 below -87 */
+  return out.f;
 }
 
 /* Tap (dx, dy) for pixels x0..x1-1 of a row: its logits l less their
@@ -82,10 +100,11 @@ static inline float od_exp(float x) {
  * neighbours' sums qn, qc, qh (already offset by the tap), into an, ac, ah.
  * Separate, with restrict parameters, so that GCC knows the planes apart
  * (it vectorises nothing while it has to check them at run time). */
-static void tap_accumulate(int x0, int x1, const float *restrict l, const float *restrict m,
+KO_CLONES static void tap_accumulate(int x0, int x1, const float *restrict l, const float *restrict m,
                            const float *restrict qn, const float *restrict qc,
                            const float *restrict qh, float *restrict den, float *restrict an,
                            float *restrict ac, float *restrict ah) {
+#pragma omp simd
   for (int x = x0; x < x1; x++) {
     float e = od_exp(l[x] - m[x]);
     den[x] += e;
@@ -95,7 +114,8 @@ static void tap_accumulate(int x0, int x1, const float *restrict l, const float 
   }
 }
 
-static void tap_max(int x0, int x1, const float *restrict l, float *restrict m) {
+KO_CLONES static void tap_max(int x0, int x1, const float *restrict l, float *restrict m) {
+#pragma omp simd
   for (int x = x0; x < x1; x++) m[x] = l[x] > m[x] ? l[x] : m[x];
 }
 

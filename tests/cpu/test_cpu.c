@@ -12,6 +12,7 @@
 
 #include <cmocka.h>
 
+#include "backend.h"
 #include "hfcore.h"
 
 /* Relative L2 error allowed for float32 results. Half-float output is
@@ -251,6 +252,50 @@ static void test_kernel_configs(void **state) {
   assert_int_equal(unsetenv("HF_CPU_KERNEL_REF"), 0);
 }
 
+/* The row-vectorised output stage (hf_cpu_kernel_rows, whose exponential
+ * runs in the widest vector unit the CPU has) against the reference
+ * (hf_kernel_output_rows) on logits whose spread around each pixel's
+ * maximum crosses the exponential's cut-off at -87: taps far below the
+ * maximum, just above and just below the cut-off, equal maxima, and pixels
+ * without a covered sample near them. A width that is no multiple of the
+ * vector width leaves a tail in every tap's loop. */
+static void test_kernel_rows_extreme_logits(void **state) {
+  (void)state;
+  enum { W = 37, H = 11, R = 3, SPP = 4, TAPS = (2 * R + 1) * (2 * R + 1), CH = TAPS + 3 };
+  static const float spread[] = {0.0f, -1e30f, -1000.0f, -87.5f, -87.0f, -86.99f, -50.0f,
+                                 -1.0f, -1e-3f, 0.0f, 20.0f, 88.0f};
+  static float raw[H * W * CH], planes[3 * H * W], sums[H * W * 3], got[H * W * 3],
+      want[H * W * 3];
+  float *scratch = malloc(hf_cpu_kernel_scratch(W, R) * sizeof(float));
+  assert_non_null(scratch);
+  uint32_t rng = 12345;
+  for (int i = 0; i < H * W; i++) {
+    rng = rng * 1664525u + 1013904223u;
+    /* A quarter of the pixels have no covered sample; the rest 1 to 4. */
+    float n = (float)(rng >> 30) + ((rng >> 12) & 1 ? 1.0f : 0.0f);
+    if (n > SPP) n = SPP;
+    float c = n * (float)((rng >> 8) & 255) / 255.0f, h = n * (float)((rng >> 16) & 63) / 16.0f;
+    planes[i] = sums[3 * i] = n;
+    planes[H * W + i] = sums[3 * i + 1] = c;
+    planes[2 * H * W + i] = sums[3 * i + 2] = h;
+    for (int k = 0; k < CH; k++) {
+      rng = rng * 1664525u + 1013904223u;
+      float v = k < TAPS ? spread[(rng >> 8) % (sizeof spread / sizeof spread[0])]
+                         : ((float)((rng >> 8) & 1023) / 512.0f - 1.0f) * 0.25f;
+      raw[(size_t)i * CH + k] = v;
+    }
+  }
+  hf_cpu_kernel_rows(W, H, SPP, R, planes, raw, W, CH, 0, H, got, scratch);
+  hf_kernel_output_rows(W, H, SPP, R, sums, raw, W, CH, 0, H, want);
+  for (int i = 0; i < H * W * 3; i++) {
+    assert_true(isfinite(got[i]));
+    if (fabsf(got[i] - want[i]) > 1e-5f * (1.0f + fabsf(want[i])))
+      fail_msg("output %d (pixel %d, channel %d): %.9g, reference %.9g", i, i / 3, i % 3,
+               got[i], want[i]);
+  }
+  free(scratch);
+}
+
 /* The same frame gives the same bytes on a reused plan, after other sizes
  * and batches have gone through the cache and evicted it, and a batch's
  * frames equal the frames run alone. */
@@ -324,6 +369,7 @@ int main(void) {
     cmocka_unit_test(test_batch_and_dtypes),
     cmocka_unit_test(test_direct_f16_output),
     cmocka_unit_test(test_kernel_configs),
+    cmocka_unit_test(test_kernel_rows_extreme_logits),
     cmocka_unit_test(test_repeat_and_cache),
     cmocka_unit_test(test_deconv_path_matches_ref),
   };
