@@ -132,6 +132,9 @@ def main():
     ap.add_argument("--iters", type=int, default=20)
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--labels", default="",
+                    help="comma-separated variant column of each weights file, in order "
+                    "(default: the variant name in the file)")
     ap.add_argument("--threads", type=int, default=os.cpu_count(),
                     help="CPU threads (default: every core)")
     a = ap.parse_args()
@@ -145,8 +148,13 @@ def main():
         return 3
     print(f"INFO\ttorch {torch.__version__}, {torch.get_num_threads()} threads, "
           f"device {a.device}", flush=True)
-    for path in a.weights:
+    labels = a.labels.split(",") if a.labels else []
+    if labels and len(labels) != len(a.weights):
+        ap.error(f"--labels has {len(labels)} labels for {len(a.weights)} weights files")
+    for i, path in enumerate(a.weights):
         cfg, sd = hfnet.load_safetensors(path)
+        if labels:
+            cfg["name"] = labels[i]
         net = hfnet.HairNet(cfg)
         net.load_state_dict(sd)
         net.eval()

@@ -52,6 +52,8 @@ typedef struct bench_row {
   double in_ms, net_ms, out_ms;  /* per frame, medians of hf_timing; < 0 unknown */
   double cpu_ms;                 /* per frame, median of the process's CPU time; < 0 unknown */
   double dev_bytes;
+  hf_net_config cfg;             /* the network timed (has_cfg), for its GFLOP/s */
+  int has_cfg;
 } bench_row;
 
 typedef struct bench_opts {
@@ -59,6 +61,8 @@ typedef struct bench_opts {
   int nbackends, backends_all;
   char variants[BENCH_MAX_LIST][HF_NAME_MAX];
   int nvariants;
+  const char *weights[BENCH_MAX_LIST]; /* --weights: trained files, timed as they are */
+  int nweights;
   int sizes[BENCH_MAX_LIST][2];
   int nsizes, ref_max_side;
   int batches[BENCH_MAX_LIST];
@@ -79,7 +83,7 @@ static void usage(FILE *f) {
           "                        [--iters N] [--warmup N] [--seed N] [--ref-max-side N]\n"
           "                        [--io f32|f16] [--pipeline] [--input-stats]\n"
           "                        [--torch] [--torch-device cpu|cuda] [--python PATH]\n"
-          "                        [--input-check] [--exr]\n"
+          "                        [--input-check] [--exr] [--weights FILE,...]\n"
           "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
           "table of ms per frame (median, p90 over iterations after warm-up), frames/s and\n"
           "device memory. cpu-ref runs only sizes whose sides are at most --ref-max-side\n"
@@ -98,7 +102,10 @@ static void usage(FILE *f) {
           "Before the table: the CPU's model and vector flags, and its fp32 peak measured\n"
           "before and after the runs (an FMA loop on one thread, per second of its CPU time,\n"
           "times the threads); each CPU row gives its GFLOP/s (hf_net_macs) and %% of that,\n"
-          "its CPU ms per frame (all threads) and its flops per CPU second as %% of one core's.\n",
+          "its CPU ms per frame (all threads) and its flops per CPU second as %% of one core's.\n"
+          "--weights times these safetensors files as they are (a trained variant whose shape\n"
+          "is no preset's, such as another kernel_hidden), in rows labelled NAME:FILE (the\n"
+          "file's variant name and base name); alone, without --variants, only them.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
@@ -123,11 +130,13 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     {"pipeline", no_argument, 0, 'P'},      {"input-stats", no_argument, 0, 'I'},
     {"help", no_argument, 0, 'h'},
     {"input-check", no_argument, 0, 'C'},   {"exr", no_argument, 0, 'E'},
+    {"weights", required_argument, 0, 'W'},
     {0, 0, 0, 0},
   };
-  static char buf_b[512], buf_v[512], buf_s[512], buf_n[256];
+  static char buf_b[512], buf_v[512], buf_s[512], buf_n[256], buf_w[4096];
   const char *arg_b = "all", *arg_v = "Base", *arg_s = "256x256,512x512,1024x1024",
-             *arg_n = "1";
+             *arg_n = "1", *arg_w = NULL;
+  int variants_given = 0;
   o->iters = 20;
   o->warmup = 3;
   o->seed = 1;
@@ -139,7 +148,8 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     char *end;
     switch (c) {
     case 'b': arg_b = optarg; break;
-    case 'v': arg_v = optarg; break;
+    case 'v': arg_v = optarg, variants_given = 1; break;
+    case 'W': arg_w = optarg; break;
     case 's': arg_s = optarg; break;
     case 'n': arg_n = optarg; break;
     case 'i':
@@ -196,9 +206,18 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     if ((n = split(buf_b, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
     for (int i = 0; i < n; i++) o->backends[o->nbackends++] = items[i];
   }
+  /* Weights files. */
+  if (arg_w) {
+    if (strlen(arg_w) >= sizeof buf_w) goto bad_list;
+    snprintf(buf_w, sizeof buf_w, "%s", arg_w);
+    if ((n = split(buf_w, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
+    for (int i = 0; i < n; i++) o->weights[o->nweights++] = items[i];
+  }
   /* Variants. */
   snprintf(buf_v, sizeof buf_v, "%s", arg_v);
-  if (!strcmp(buf_v, "all")) {
+  if (arg_w && !variants_given) {
+    /* --weights alone: only the files. */
+  } else if (!strcmp(buf_v, "all")) {
     for (int i = 0; i < hf_variant_preset_count() && o->nvariants < BENCH_MAX_LIST; i++)
       snprintf(o->variants[o->nvariants++], HF_NAME_MAX, "%s", hf_variant_preset_name(i));
   } else {
@@ -434,8 +453,11 @@ static int bench_exr(const bench_opts *o) {
   return rc;
 }
 
-static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, int iters,
-                     int warmup, uint64_t seed, hf_dtype dt, int pipeline) {
+/* Times model m on one size and batch, appending a row labelled label (the
+ * variant column). */
+static int bench_one(hf_model *m, const char *label, const char *backend, int w, int h,
+                     int batch, int iters, int warmup, uint64_t seed, hf_dtype dt,
+                     int pipeline) {
   const hf_net_config *c = hf_model_config(m);
   const size_t px = (size_t)batch * w * h, es = dt == HF_F16 ? 2 : 4;
   const size_t nin = px * c->in_channels;
@@ -491,7 +513,8 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   }
   snprintf(r->backend, sizeof r->backend, "%s%s%s", backend, dt == HF_F16 ? "-f16io" : "",
            pipeline ? "-pipe" : "");
-  snprintf(r->variant, sizeof r->variant, "%s", c->name);
+  snprintf(r->variant, sizeof r->variant, "%s", label);
+  r->cfg = *c, r->has_cfg = 1;
   snprintf(r->precision, sizeof r->precision, "%s", hf_model_precision(m));
   r->w = w, r->h = h, r->batch = batch, r->iters = iters;
   r->med_ms = median(wall, iters) / batch;
@@ -501,12 +524,12 @@ static int bench_one(hf_model *m, const char *backend, int w, int h, int batch, 
   r->out_ms = median(tout, iters) / batch;
   r->cpu_ms = median(cpu, iters) / batch;
   r->dev_bytes = (double)hf_model_device_bytes(m);
-  fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", backend, c->name, w, h,
+  fprintf(stderr, "  %-8s %-10s %5dx%-5d batch %-3d %9.2f ms/frame\n", backend, label, w, h,
           batch, r->med_ms);
   rc = HF_OK;
   goto out;
 fail:
-  fprintf(stderr, "hairfilter bench: %s %s %dx%d batch %d: %s\n", backend, c->name, w, h, batch,
+  fprintf(stderr, "hairfilter bench: %s %s %dx%d batch %d: %s\n", backend, label, w, h, batch,
           hf_strerror(rc));
 out:
   while (pending-- > 0) hf_model_wait(m, NULL);
@@ -523,7 +546,24 @@ out:
   return rc;
 }
 
-/* Writes the random weights of every variant to dir/<variant>.safetensors. */
+/* The variant column of a --weights file: the file's variant name and its
+ * base name, NAME:FILE, cut to len - 1 characters, with blanks, bars,
+ * commas and quotes made underscores (the column is one word in
+ * bench_torch.py's rows, an item of its --labels list and a Markdown
+ * table cell). */
+static void weights_label(const char *path, const char *name, char *out, size_t len) {
+  const char *base = strrchr(path, '/');
+  if (snprintf(out, len, "%s:%s", name, base ? base + 1 : path) >= (int)len)
+    out[len - 1] = 0; /* cut, as snprintf already did */
+  for (char *p = out; *p; p++)
+    if (*p == ' ' || *p == '\t' || *p == '|' || *p == ',' || *p == '\'') *p = '_';
+}
+
+/* Whether a path can go inside single quotes on a shell command line. */
+static int shell_safe(const char *s) { return s && *s && !strchr(s, '\''); }
+
+/* Writes the random weights of every variant to dir/<variant>.safetensors
+ * and lists their paths, then --weights' files, in paths. */
 static int write_weights(const bench_opts *o, const char *dir, char *paths, size_t len) {
   size_t used = 0;
   paths[0] = 0;
@@ -543,11 +583,39 @@ static int write_weights(const bench_opts *o, const char *dir, char *paths, size
     if (k < 0 || (size_t)k >= len - used) return HF_ERANGE;
     used += k;
   }
+  /* --weights files as they are, after the presets' random ones. */
+  for (int i = 0; i < o->nweights; i++) {
+    if (!shell_safe(o->weights[i])) return HF_EINVAL;
+    int k = snprintf(paths + used, len - used, " '%s'", o->weights[i]);
+    if (k < 0 || (size_t)k >= len - used) return HF_ERANGE;
+    used += k;
+  }
   return 0;
 }
 
-/* Whether a path can go inside single quotes on a shell command line. */
-static int shell_safe(const char *s) { return s && *s && !strchr(s, '\''); }
+/* bench_torch.py's --labels: the variant column of each weights file in
+ * write_weights' order (presets by name, files as weights_label). */
+static int torch_labels(const bench_opts *o, char *out, size_t len) {
+  size_t used = 0;
+  out[0] = 0;
+  for (int i = 0; i < o->nvariants + o->nweights; i++) {
+    char label[HF_NAME_MAX];
+    if (i < o->nvariants) {
+      snprintf(label, sizeof label, "%s", o->variants[i]);
+    } else {
+      const char *path = o->weights[i - o->nvariants];
+      char err[256];
+      hf_weights *w;
+      if (hf_weights_load(path, &w, err, sizeof err)) return HF_EINVAL;
+      weights_label(path, w->cfg.name, label, sizeof label);
+      hf_weights_free(w);
+    }
+    int k = snprintf(out + used, len - used, "%s%s", i ? "," : "", label);
+    if (k < 0 || (size_t)k >= len - used) return HF_ERANGE;
+    used += k;
+  }
+  return 0;
+}
 
 /* The Python that runs bench_torch.py: --python, $HAIRFILTER_PYTHON, else
  * the first candidate that imports torch (a GPU machine's PyTorch often
@@ -578,7 +646,8 @@ static const char *find_python(const bench_opts *o, char *why, size_t whylen) {
 
 /* Runs bench_torch.py and appends its ROW lines. */
 static int run_torch(const bench_opts *o) {
-  char dir[] = "/tmp/hairfilter-bench-XXXXXX", paths[4096], cmd[8192], list[1024];
+  char dir[] = "/tmp/hairfilter-bench-XXXXXX", paths[8192], cmd[16384], list[1024];
+  char labels[BENCH_MAX_LIST * 2 * HF_NAME_MAX];
   char script[4096], how[160];
   const char *python = find_python(o, how, sizeof how);
   if (!python) {
@@ -603,8 +672,10 @@ static int run_torch(const bench_opts *o) {
     return HF_EIO;
   }
   int rc = write_weights(o, dir, paths, sizeof paths);
+  if (!rc) rc = torch_labels(o, labels, sizeof labels);
   if (rc) {
-    fprintf(stderr, "hairfilter bench: writing weights for PyTorch: %s\n", hf_strerror(rc));
+    fprintf(stderr, "hairfilter bench: weights for PyTorch: %s%s\n", hf_strerror(rc),
+            rc == HF_EINVAL ? " (a --weights path with a ' or that does not load)" : "");
     goto out;
   }
   size_t used = 0;
@@ -617,8 +688,10 @@ static int run_torch(const bench_opts *o) {
     used += snprintf(batches + used, sizeof batches - used, "%s%d", i ? "," : "",
                      o->batches[i]);
   int k = snprintf(cmd, sizeof cmd,
-                   "'%s' '%s' --sizes %s --batch %s --iters %d --warmup %d --device %s%s", python,
-                   script, list, batches, o->iters, o->warmup, o->torch_device, paths);
+                   "'%s' '%s' --sizes %s --batch %s --iters %d --warmup %d --device %s "
+                   "--labels '%s'%s",
+                   python, script, list, batches, o->iters, o->warmup, o->torch_device, labels,
+                   paths);
   if (k < 0 || (size_t)k >= sizeof cmd) {
     rc = HF_ERANGE;
     goto out;
@@ -720,6 +793,21 @@ static int cpu_row(const bench_row *r) {
   return strncmp(r->backend, "cudnn", 5) && !strstr(r->backend, "cuda");
 }
 
+/* The network of row r: the one it timed, else (a PyTorch row) that of a
+ * row with the same label that has one, else the preset of that name. */
+static int row_config(const bench_row *r, hf_net_config *cfg) {
+  if (r->has_cfg) {
+    *cfg = r->cfg;
+    return 0;
+  }
+  for (int i = 0; i < nrows; i++)
+    if (rows[i].has_cfg && !strcmp(rows[i].variant, r->variant)) {
+      *cfg = rows[i].cfg;
+      return 0;
+    }
+  return hf_variant_preset(r->variant, cfg);
+}
+
 static void print_table(const bench_machine *mc) {
   print_machine(mc);
   printf("| backend | variant | size | batch | precision | median ms/frame | p90 ms/frame "
@@ -732,7 +820,7 @@ static void print_table(const bench_machine *mc) {
     if (r->net_ms >= 0)
       snprintf(parts, sizeof parts, "%.2f / %.2f / %.2f", r->in_ms, r->net_ms, r->out_ms);
     hf_net_config cfg;
-    if (r->med_ms > 0 && hf_variant_preset(r->variant, &cfg) == 0) {
+    if (r->med_ms > 0 && row_config(r, &cfg) == 0) {
       int a = hf_net_align(&cfg);
       double g = 2 * hf_net_macs(&cfg, round_up(r->w, a), round_up(r->h, a)) /
                  (r->med_ms * 1e-3) / 1e9;
@@ -770,6 +858,29 @@ static void print_table(const bench_machine *mc) {
   }
 }
 
+/* Times weights w on backend be at every size and batch of o, rows labelled
+ * label; nonzero if any failed. */
+static int bench_weights(const bench_opts *o, hf_backend *be, int is_ref, const hf_weights *w,
+                         const char *label) {
+  hf_model *m = NULL;
+  int rc = hf_model_create(be, w, &m), failed = 0;
+  if (rc) {
+    fprintf(stderr, "hairfilter bench: %s %s: %s\n", hf_backend_name(be), label, hf_strerror(rc));
+    return 1;
+  }
+  for (int s = 0; s < o->nsizes; s++) {
+    if (is_ref && (o->sizes[s][0] > o->ref_max_side || o->sizes[s][1] > o->ref_max_side))
+      continue;
+    for (int n = 0; n < o->nbatches; n++)
+      if (bench_one(m, label, hf_backend_name(be), o->sizes[s][0], o->sizes[s][1],
+                    o->batches[n], is_ref && o->iters > BENCH_REF_ITERS ? BENCH_REF_ITERS : o->iters,
+                    is_ref && o->warmup > 1 ? 1 : o->warmup, o->seed, o->io_dtype, o->pipeline))
+        failed = 1;
+  }
+  hf_model_destroy(m);
+  return failed;
+}
+
 int cmd_bench(int argc, char **argv) {
   bench_opts o;
   memset(&o, 0, sizeof o);
@@ -796,26 +907,26 @@ int cmd_bench(int argc, char **argv) {
     for (int v = 0; v < o.nvariants; v++) {
       hf_net_config cfg;
       hf_weights *w = NULL;
-      hf_model *m = NULL;
       if ((rc = hf_variant_preset(o.variants[v], &cfg)) != 0 ||
-          (rc = hf_weights_init_random(&cfg, o.seed + v, &w)) != 0 ||
-          (rc = hf_model_create(be, w, &m)) != 0) {
+          (rc = hf_weights_init_random(&cfg, o.seed + v, &w)) != 0) {
         fprintf(stderr, "hairfilter bench: %s %s: %s\n", o.backends[b], o.variants[v],
                 hf_strerror(rc));
-        hf_weights_free(w);
         failed = 1;
         continue;
       }
-      for (int s = 0; s < o.nsizes; s++) {
-        if (is_ref && (o.sizes[s][0] > o.ref_max_side || o.sizes[s][1] > o.ref_max_side))
-          continue;
-        for (int n = 0; n < o.nbatches; n++)
-          if (bench_one(m, hf_backend_name(be), o.sizes[s][0], o.sizes[s][1], o.batches[n],
-                        is_ref && o.iters > BENCH_REF_ITERS ? BENCH_REF_ITERS : o.iters,
-                        is_ref && o.warmup > 1 ? 1 : o.warmup, o.seed, o.io_dtype, o.pipeline))
-            failed = 1;
+      if (bench_weights(&o, be, is_ref, w, cfg.name)) failed = 1;
+      hf_weights_free(w);
+    }
+    for (int i = 0; i < o.nweights; i++) {
+      hf_weights *w = NULL;
+      char err[512], label[HF_NAME_MAX];
+      if ((rc = hf_weights_load(o.weights[i], &w, err, sizeof err)) != 0) {
+        fprintf(stderr, "hairfilter bench: --weights: %s\n", err[0] ? err : hf_strerror(rc));
+        failed = 1;
+        continue;
       }
-      hf_model_destroy(m);
+      weights_label(o.weights[i], w->cfg.name, label, sizeof label);
+      if (bench_weights(&o, be, is_ref, w, label)) failed = 1;
       hf_weights_free(w);
     }
     hf_backend_destroy(be);
