@@ -120,7 +120,7 @@ typedef struct hf_net_config {
 /* The seven variants of the paper's Table 1, by name ("Base", "Base@1spp",
  * "Base@2spp", "Large", "Small", "Shallow", "Deep"), "Residual" (Base's
  * shape with HF_ARCH_RESIDUAL) and "Kernel" (Base's shape with
- * HF_ARCH_KERNEL, kernel_radius 3, kernel_hidden 16), case-insensitive. */
+ * HF_ARCH_KERNEL, kernel_radius 3, kernel_hidden 32), case-insensitive. */
 int hf_variant_preset(const char *name, hf_net_config *out);
 /* Number of presets and the i-th preset's name, for listings. */
 int hf_variant_preset_count(void);

@@ -30,9 +30,10 @@ static const struct {
   /* Beyond the paper: Base's cost, residual on the samples' own estimate. */
   {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL, 0, 0},
   /* Beyond the paper: Base's U-Net, the output read off the samples of the
-   * 7x7 pixels around each pixel with a learned kernel; a 16-channel dec0
-   * and the head over it and the input. */
-  {"Kernel",    4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 16},
+   * 7x7 pixels around each pixel with a learned kernel; a 32-channel dec0
+   * and the head over it and the input (weights/kernel.md: 16 channels
+   * until 2026-12-02). */
+  {"Kernel",    4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32},
 };
 #define NPRESETS ((int)(sizeof presets / sizeof presets[0]))
 

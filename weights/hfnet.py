@@ -36,7 +36,7 @@ VARIANTS = {
     # Beyond the paper: Base's shape; dec0 predicts a per-pixel kernel over
     # the (2r+1)^2 pixels around each pixel, applied to their samples, plus
     # a small correction (kernel_finish).
-    "Kernel":    dict(spp=4, levels=[32, 64, 128], arch="kernel", kernel_radius=3, kernel_hidden=16),
+    "Kernel":    dict(spp=4, levels=[32, 64, 128], arch="kernel", kernel_radius=3, kernel_hidden=32),
 }
 TABLE1 = ["Base", "Base@1spp", "Base@2spp", "Large", "Small", "Shallow", "Deep"]
 

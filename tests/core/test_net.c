@@ -44,7 +44,7 @@ static void test_table1_presets(void **state) {
   assert_int_equal(c.num_levels, 3);
   assert_int_equal(c.levels[0], 32);
   assert_int_equal(c.kernel_radius, 3);
-  assert_int_equal(c.kernel_hidden, 16);
+  assert_int_equal(c.kernel_hidden, 32);
   assert_int_equal(c.out_channels, 49 + 3);
   assert_int_equal(hf_net_config_validate(&c), HF_OK);
   assert_string_equal(hf_arch_name(HF_ARCH_KERNEL), "kernel");
@@ -267,15 +267,15 @@ static void test_wiring(void **state) {
   double want = 16.0 * 9 * 24 * 32 + 4.0 * 9 * 32 * 64 + 9.0 * 64 * 128 + 16.0 * 16 * 64 * 3 +
                 4.0 * 16 * 128 * 32 + 16.0 * 128 * 64;
   assert_true(fabs(hf_net_macs(&c, 8, 8) - want) < 1e-6);
-  /* Kernel: dec0 gives 16 hidden channels, the head 16 + 24 -> 49 + 3, and
+  /* Kernel: dec0 gives 32 hidden channels, the head 32 + 24 -> 49 + 3, and
    * the output stage 4 per tap and pixel. */
   hf_variant_preset("Kernel", &c);
   assert_int_equal(hf_dec_in(&c, 0), 64);
-  assert_int_equal(hf_dec_out(&c, 0), 16);
+  assert_int_equal(hf_dec_out(&c, 0), 32);
   assert_int_equal(hf_dec_out(&c, 1), 32);
-  assert_int_equal(hf_head_in(&c), 40);
+  assert_int_equal(hf_head_in(&c), 56);
   assert_int_equal(hf_kernel_taps(c.kernel_radius), 49);
-  want += 16.0 * 16 * 64 * (16 - 3) + 64.0 * 40 * 52 + 64.0 * 4 * 49;
+  want += 16.0 * 16 * 64 * (32 - 3) + 64.0 * 56 * 52 + 64.0 * 4 * 49;
   assert_true(fabs(hf_net_macs(&c, 8, 8) - want) < 1e-6);
   /* Without a head dec0 gives the raw channels itself. */
   c.kernel_radius = 2, c.kernel_hidden = 0, c.out_channels = 25 + 3;

@@ -289,30 +289,30 @@ static void test_kernel_arch(void **state) {
   assert_int_equal(hf_weights_load(path, &r, err, sizeof err), HF_OK);
   assert_int_equal(r->cfg.arch, HF_ARCH_KERNEL);
   assert_int_equal(r->cfg.kernel_radius, 3);
-  assert_int_equal(r->cfg.kernel_hidden, 16);
+  assert_int_equal(r->cfg.kernel_hidden, 32);
   assert_int_equal(r->cfg.out_channels, 52);
   assert_int_equal(r->num_params, w->num_params);
   assert_memory_equal(r->storage, w->storage, w->num_params * sizeof(float));
-  assert_memory_equal(r->head_w, w->head_w, 52 * 40 * sizeof(float));
+  assert_memory_equal(r->head_w, w->head_w, 52 * 56 * sizeof(float));
   assert_memory_equal(r->head_b, w->head_b, 52 * sizeof(float));
   hf_weights_free(r);
   blob b = read_all(path);
   /* The head is optional in the metadata, not in the tensors: without
    * kernel_hidden the file's head tensors are extra. */
-  blob h0 = with_header_edit(&b, ",\\\"kernel_hidden\\\":16", "");
+  blob h0 = with_header_edit(&b, ",\\\"kernel_hidden\\\":32", "");
   expect_reject(&h0, HF_EFORMAT, "tensors");
   free(h0.data);
   static const struct { const char *from, *to, *msg; } edits[] = {
     {"\\\"kernel_radius\\\":3", "\\\"kernel_radius\\\":5", "kernel_radius"},
     {"\\\"kernel_radius\\\":3", "\\\"kernel_radius\\\":2.5", "kernel_radius"},
     {"\\\"kernel_radius\\\":3", "\\\"kernel_radios\\\":3", "kernel_radius"},
-    {"\\\"kernel_hidden\\\":16", "\\\"kernel_hidden\\\":65", "kernel_hidden"},
-    {"\\\"kernel_hidden\\\":16", "\\\"kernel_hidden\\\":\\\"16\\\"", "kernel_hidden"},
+    {"\\\"kernel_hidden\\\":32", "\\\"kernel_hidden\\\":65", "kernel_hidden"},
+    {"\\\"kernel_hidden\\\":32", "\\\"kernel_hidden\\\":\\\"32\\\"", "kernel_hidden"},
     {"\\\"out_channels\\\":52", "\\\"out_channels\\\":3", "out_channels must be 52"},
     {"\\\"arch\\\":\\\"kernel\\\"", "\\\"arch\\\":\\\"residual\\\"", "arch kernel only"},
-    {"\\\"kernel_hidden\\\":16", "\\\"kernel_hidden\\\":8", "dec0.weight"},
+    {"\\\"kernel_hidden\\\":32", "\\\"kernel_hidden\\\":8", "dec0.weight"},
     {"\"head.weight\"", "\"head.weights\"", "head.weight"},
-    {"\"shape\":[52,40,1,1]", "\"shape\":[52,40,1]", "head.weight"},
+    {"\"shape\":[52,56,1,1]", "\"shape\":[52,56,1]", "head.weight"},
   };
   for (size_t k = 0; k < sizeof edits / sizeof edits[0]; k++) {
     blob e = with_header_edit(&b, edits[k].from, edits[k].to);
