@@ -16,11 +16,7 @@
  * weighted sums of the per-pixel sums (planes too). Taps outside the frame
  * are not masked but skipped: a tap's offset (dx, dy) is outside for whole
  * rows (dy) or for the first or last |dx| pixels of a row (dx), so each
- * tap's loop runs over the pixels for which it is inside.
- *
- * Compiled with -fno-trapping-math (src/CMakeLists.txt): without it GCC
- * keeps the clamp in od_exp as a branch and vectorises nothing. No
- * floating-point trap is ever enabled, so the results are the same. */
+ * tap's loop runs over the pixels for which it is inside. */
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -32,7 +28,7 @@
  * x86-64, where they would run four lanes wide (docs/PERFORMANCE.md, "The
  * Kernel output stage's vector width"). */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define KO_CLONES __attribute__((target_clones("avx512f", "avx2", "default"), optimize("no-trapping-math")))
+#define KO_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define KO_CLONES
 #endif

@@ -105,7 +105,9 @@ static void usage(FILE *f) {
           "its CPU ms per frame (all threads) and its flops per CPU second as %% of one core's.\n"
           "--weights times these safetensors files as they are (a trained variant whose shape\n"
           "is no preset's, such as another kernel_hidden), in rows labelled NAME:FILE (the\n"
-          "file's variant name and base name); alone, without --variants, only them.\n",
+          "file's variant name and base name, #2 and on for a base name seen before);\n"
+          "alone, without --variants, only them. Commas separate the files, so a path\n"
+          "cannot hold one.\n",
           BENCH_REF_SIDE, BENCH_REF_ITERS);
 }
 
@@ -194,6 +196,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     return 2;
   }
   char *items[BENCH_MAX_LIST];
+  const char *list = "";        /* the option whose list is bad */
   int n;
   /* Backends. */
   snprintf(buf_b, sizeof buf_b, "%s", arg_b);
@@ -203,12 +206,20 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     for (int i = 0; names[i] && o->nbackends < BENCH_MAX_LIST; i++)
       o->backends[o->nbackends++] = names[i];
   } else {
-    if ((n = split(buf_b, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
+    if ((n = split(buf_b, items, BENCH_MAX_LIST)) <= 0) {
+      list = "--backend";
+      goto bad_list;
+    }
     for (int i = 0; i < n; i++) o->backends[o->nbackends++] = items[i];
   }
   /* Weights files. */
   if (arg_w) {
-    if (strlen(arg_w) >= sizeof buf_w) goto bad_list;
+    list = "--weights";
+    if (strlen(arg_w) >= sizeof buf_w) {
+      fprintf(stderr, "hairfilter bench: --weights: the list is longer than %zu characters\n",
+              sizeof buf_w - 1);
+      return 2;
+    }
     snprintf(buf_w, sizeof buf_w, "%s", arg_w);
     if ((n = split(buf_w, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
     for (int i = 0; i < n; i++) o->weights[o->nweights++] = items[i];
@@ -221,7 +232,10 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     for (int i = 0; i < hf_variant_preset_count() && o->nvariants < BENCH_MAX_LIST; i++)
       snprintf(o->variants[o->nvariants++], HF_NAME_MAX, "%s", hf_variant_preset_name(i));
   } else {
-    if ((n = split(buf_v, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
+    if ((n = split(buf_v, items, BENCH_MAX_LIST)) <= 0) {
+      list = "--variants";
+      goto bad_list;
+    }
     for (int i = 0; i < n; i++) {
       hf_net_config cfg;
       if (hf_variant_preset(items[i], &cfg)) {
@@ -233,6 +247,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
   }
   /* Sizes. */
   snprintf(buf_s, sizeof buf_s, "%s", arg_s);
+  list = "--sizes";
   if ((n = split(buf_s, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
   for (int i = 0; i < n; i++) {
     int *wh = o->sizes[o->nsizes++];
@@ -244,6 +259,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
   }
   /* Batches. */
   snprintf(buf_n, sizeof buf_n, "%s", arg_n);
+  list = "--batch";
   if ((n = split(buf_n, items, BENCH_MAX_LIST)) <= 0) goto bad_list;
   for (int i = 0; i < n; i++) {
     char *end;
@@ -256,7 +272,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
   }
   return 0;
 bad_list:
-  fprintf(stderr, "hairfilter bench: empty or too long list (at most %d items)\n",
+  fprintf(stderr, "hairfilter bench: %s: empty list, or more than %d items\n", list,
           BENCH_MAX_LIST);
   return 2;
 }
@@ -546,15 +562,28 @@ out:
   return rc;
 }
 
-/* The variant column of a --weights file: the file's variant name and its
- * base name, NAME:FILE, cut to len - 1 characters, with blanks, bars,
- * commas and quotes made underscores (the column is one word in
- * bench_torch.py's rows, an item of its --labels list and a Markdown
- * table cell). */
-static void weights_label(const char *path, const char *name, char *out, size_t len) {
-  const char *base = strrchr(path, '/');
-  if (snprintf(out, len, "%s:%s", name, base ? base + 1 : path) >= (int)len)
-    out[len - 1] = 0; /* cut, as snprintf already did */
+static const char *base_name(const char *path) {
+  const char *slash = strrchr(path, '/');
+  return slash ? slash + 1 : path;
+}
+
+/* The variant column of --weights file i (a name, the variant name in
+ * it): NAME:FILE with FILE its base name, and #K after it for the K-th
+ * file of that base name (old and new weights of one name side by side),
+ * cut to fit len, with blanks, bars, commas and quotes made underscores
+ * (the column is one word in bench_torch.py's rows, an item of its
+ * --labels list and a Markdown table cell). */
+static void weights_label(const bench_opts *o, int i, const char *name, char *out,
+                          size_t len) {
+  const char *base = base_name(o->weights[i]);
+  int same = 1;
+  for (int j = 0; j < i; j++) same += !strcmp(base_name(o->weights[j]), base);
+  char suffix[16] = "";
+  if (same > 1) snprintf(suffix, sizeof suffix, "#%d", same);
+  /* Room for the suffix: the name and file are cut before it. */
+  size_t room = len - strlen(suffix);
+  if (snprintf(out, room, "%s:%s", name, base) >= (int)room) out[room - 1] = 0;
+  strcat(out, suffix);
   for (char *p = out; *p; p++)
     if (*p == ' ' || *p == '\t' || *p == '|' || *p == ',' || *p == '\'') *p = '_';
 }
@@ -585,7 +614,11 @@ static int write_weights(const bench_opts *o, const char *dir, char *paths, size
   }
   /* --weights files as they are, after the presets' random ones. */
   for (int i = 0; i < o->nweights; i++) {
-    if (!shell_safe(o->weights[i])) return HF_EINVAL;
+    if (!shell_safe(o->weights[i])) {
+      fprintf(stderr, "hairfilter bench: --torch: %s: a path with a ' cannot go to PyTorch\n",
+              o->weights[i]);
+      return HF_EINVAL;
+    }
     int k = snprintf(paths + used, len - used, " '%s'", o->weights[i]);
     if (k < 0 || (size_t)k >= len - used) return HF_ERANGE;
     used += k;
@@ -606,8 +639,11 @@ static int torch_labels(const bench_opts *o, char *out, size_t len) {
       const char *path = o->weights[i - o->nvariants];
       char err[256];
       hf_weights *w;
-      if (hf_weights_load(path, &w, err, sizeof err)) return HF_EINVAL;
-      weights_label(path, w->cfg.name, label, sizeof label);
+      if (hf_weights_load(path, &w, err, sizeof err)) {
+        fprintf(stderr, "hairfilter bench: --torch: %s\n", err);
+        return HF_EINVAL;
+      }
+      weights_label(o, i - o->nvariants, w->cfg.name, label, sizeof label);
       hf_weights_free(w);
     }
     int k = snprintf(out + used, len - used, "%s%s", i ? "," : "", label);
@@ -674,8 +710,7 @@ static int run_torch(const bench_opts *o) {
   int rc = write_weights(o, dir, paths, sizeof paths);
   if (!rc) rc = torch_labels(o, labels, sizeof labels);
   if (rc) {
-    fprintf(stderr, "hairfilter bench: weights for PyTorch: %s%s\n", hf_strerror(rc),
-            rc == HF_EINVAL ? " (a --weights path with a ' or that does not load)" : "");
+    fprintf(stderr, "hairfilter bench: weights for PyTorch: %s\n", hf_strerror(rc));
     goto out;
   }
   size_t used = 0;
@@ -925,7 +960,7 @@ int cmd_bench(int argc, char **argv) {
         failed = 1;
         continue;
       }
-      weights_label(o.weights[i], w->cfg.name, label, sizeof label);
+      weights_label(&o, i, w->cfg.name, label, sizeof label);
       if (bench_weights(&o, be, is_ref, w, label)) failed = 1;
       hf_weights_free(w);
     }

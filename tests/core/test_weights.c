@@ -274,7 +274,7 @@ static void test_metadata_types(void **state) {
   free(b.data);
 }
 
-/* A Kernel file (the preset: radius 3, a 16-channel head) and one without
+/* A Kernel file (the preset: radius 3, a 32-channel head) and one without
  * a head (radius 2) read back bit for bit; the kernel's metadata keys and
  * head tensors are checked like the rest. */
 static void test_kernel_arch(void **state) {

@@ -254,16 +254,21 @@ static void test_kernel_configs(void **state) {
 
 /* The row-vectorised output stage (hf_cpu_kernel_rows, whose exponential
  * runs in the widest vector unit the CPU has) against the reference
- * (hf_kernel_output_rows) on logits whose spread around each pixel's
- * maximum crosses the exponential's cut-off at -87: taps far below the
- * maximum, just above and just below the cut-off, equal maxima, and pixels
- * without a covered sample near them. A width that is no multiple of the
- * vector width leaves a tail in every tap's loop. */
+ * (hf_kernel_output_rows). Each pixel's logits are a maximum M (0, 20 or
+ * 88) on one tap and M plus an offset on the others: offsets that weigh
+ * (-1e-3 to -15, and ties), offsets across the exponential's cut-off at
+ * -87 and far below it (down to -1e30). A block of pixels without a
+ * covered sample puts the whole kernel of the corner pixel on uncovered
+ * neighbours (colour 1, highlight 0, alpha from the corrections), and a
+ * width that is no multiple of the vector width leaves a tail in every
+ * tap's loop. */
 static void test_kernel_rows_extreme_logits(void **state) {
   (void)state;
   enum { W = 37, H = 11, R = 3, SPP = 4, TAPS = (2 * R + 1) * (2 * R + 1), CH = TAPS + 3 };
-  static const float spread[] = {0.0f, -1e30f, -1000.0f, -87.5f, -87.0f, -86.99f, -50.0f,
-                                 -1.0f, -1e-3f, 0.0f, 20.0f, 88.0f};
+  static const float maxima[] = {0.0f, 20.0f, 88.0f};
+  static const float offset[] = {0.0f,   -1e-3f,  -0.5f,  -1.0f,   -2.0f,   -5.0f,
+                                 -10.0f, -15.0f,  -50.0f, -86.99f, -87.0f,  -87.01f,
+                                 -87.5f, -100.0f, -1e4f,  -1e30f};
   static float raw[H * W * CH], planes[3 * H * W], sums[H * W * 3], got[H * W * 3],
       want[H * W * 3];
   float *scratch = malloc(hf_cpu_kernel_scratch(W, R) * sizeof(float));
@@ -271,17 +276,20 @@ static void test_kernel_rows_extreme_logits(void **state) {
   uint32_t rng = 12345;
   for (int i = 0; i < H * W; i++) {
     rng = rng * 1664525u + 1013904223u;
-    /* A quarter of the pixels have no covered sample; the rest 1 to 4. */
-    float n = (float)(rng >> 30) + ((rng >> 12) & 1 ? 1.0f : 0.0f);
-    if (n > SPP) n = SPP;
+    float n = (float)(rng >> 29) * 0.5f; /* 0 to 3.5 */
+    if (i % W < 6 && i / W < 6) n = 0.0f; /* the uncovered block */
     float c = n * (float)((rng >> 8) & 255) / 255.0f, h = n * (float)((rng >> 16) & 63) / 16.0f;
     planes[i] = sums[3 * i] = n;
     planes[H * W + i] = sums[3 * i + 1] = c;
     planes[2 * H * W + i] = sums[3 * i + 2] = h;
+    rng = rng * 1664525u + 1013904223u;
+    const float m = maxima[(rng >> 8) % 3];
+    const int top = (int)((rng >> 16) % TAPS);
     for (int k = 0; k < CH; k++) {
       rng = rng * 1664525u + 1013904223u;
-      float v = k < TAPS ? spread[(rng >> 8) % (sizeof spread / sizeof spread[0])]
-                         : ((float)((rng >> 8) & 1023) / 512.0f - 1.0f) * 0.25f;
+      float v = k == top  ? m
+                : k < TAPS ? m + offset[(rng >> 8) % (sizeof offset / sizeof offset[0])]
+                           : ((float)((rng >> 8) & 1023) / 512.0f - 1.0f) * 0.25f;
       raw[(size_t)i * CH + k] = v;
     }
   }
@@ -293,6 +301,10 @@ static void test_kernel_rows_extreme_logits(void **state) {
       fail_msg("output %d (pixel %d, channel %d): %.9g, reference %.9g", i, i / 3, i % 3,
                got[i], want[i]);
   }
+  /* The corner pixel saw no covered sample: colour 1 and highlight 0 before
+   * the corrections. */
+  assert_true(fabsf(got[HF_OUT_COLOR] - (1.0f + raw[TAPS])) < 1e-6f);
+  assert_true(fabsf(got[HF_OUT_HIGHLIGHT] - fmaxf(raw[TAPS + 1], 0.0f)) < 1e-6f);
   free(scratch);
 }
 
