@@ -15,6 +15,15 @@
 
 #include "hfcore.h"
 
+/* For the cpu backend's own hot loops: compiled for the widest vector unit
+ * the CPU has, chosen when the program loads (GCC's function
+ * multiversioning), since the build targets any x86-64 (SSE2). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define HF_CPU_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define HF_CPU_CLONES
+#endif
+
 /* model_run_scan's answers besides HF_OK and the (negative) errors. */
 #define HF_RUN_DECLINED 1
 #define HF_RUN_UNCLEAN 2

@@ -620,15 +620,8 @@ static int od_taps_weights(od_model *m, int l) {
   return HF_OK;
 }
 
-/* The widest vector unit the CPU has, chosen when the program loads (GCC's
- * function multiversioning): the build targets any x86-64, and dec1's tap
- * pass at 512 x 512 took 4.1 ms of CPU with AVX-512 against 5.5 ms with
- * SSE2 (docs/PERFORMANCE.md). */
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define OD_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
-#else
-#define OD_CLONES
-#endif
+/* The tap passes carry HF_CPU_CLONES (backend.h): dec1's at 512 x 512 took
+ * 4.1 ms of CPU with AVX-512 against 5.5 ms with SSE2 (docs/PERFORMANCE.md). */
 
 /* o = ReLU(bias + a + b + c + d), the terms added in that order. */
 static inline void od_sum4(float *restrict o, const float *restrict a, const float *restrict b,
@@ -704,7 +697,7 @@ od_taps_line3(const od_taps_pass *t, const float *r0, int ky0, const float *r1, 
 
 /* od_taps_line_c, with dec0's three dense output channels taken two pixels
  * at a time (od_taps_line3), other counts by the channel loop. */
-OD_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
+HF_CPU_CLONES static void od_taps_line(const od_taps_pass *t, const float *r0, int ky0,
                                    const float *r1, int ky1, float *o, int ostride,
                                    const float *bias, int relu, int fin, const float *sk) {
   if (t->cout == 3 && ostride == 3 && !sk)
@@ -1127,7 +1120,7 @@ fail:
 
 /* Pixel X of output row o (t->stride floats apart) gets the bias, the seam
  * terms pr0 and pr1 (pr1 NULL: none), the ReLU and the skip channels. */
-OD_CLONES static void od_taps_join(const od_taps_pass *t, const float *pr0, const float *pr1,
+HF_CPU_CLONES static void od_taps_join(const od_taps_pass *t, const float *pr0, const float *pr1,
                                    float *o, const float *sk) {
   const int C = t->cout, E = t->skip_ch;
   for (int X = 0; X < 2 * t->w; X++, o += t->stride) {

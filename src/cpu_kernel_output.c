@@ -23,15 +23,9 @@
 
 #include "backend.h"
 
-/* The widest vector unit the CPU has, chosen when the program loads (GCC's
- * function multiversioning), for the loops below: the build targets any
- * x86-64, where they would run four lanes wide (docs/PERFORMANCE.md, "The
- * Kernel output stage's vector width"). */
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define KO_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
-#else
-#define KO_CLONES
-#endif
+/* The per-tap loops carry HF_CPU_CLONES (backend.h): in the SSE2 build they
+ * ran four lanes wide (docs/PERFORMANCE.md, "The Kernel output stage's
+ * vector width"). */
 
 /* Plane pitch for a row of width pixels: a multiple of 16 floats that is
  * not a multiple of 512, so that the taps' planes of one pixel do not all
@@ -96,7 +90,7 @@ static inline float od_exp(float x) {
  * neighbours' sums qn, qc, qh (already offset by the tap), into an, ac, ah.
  * Separate, with restrict parameters, so that GCC knows the planes apart
  * (it vectorises nothing while it has to check them at run time). */
-KO_CLONES static void tap_accumulate(int x0, int x1, const float *restrict l, const float *restrict m,
+HF_CPU_CLONES static void tap_accumulate(int x0, int x1, const float *restrict l, const float *restrict m,
                            const float *restrict qn, const float *restrict qc,
                            const float *restrict qh, float *restrict den, float *restrict an,
                            float *restrict ac, float *restrict ah) {
@@ -110,7 +104,7 @@ KO_CLONES static void tap_accumulate(int x0, int x1, const float *restrict l, co
   }
 }
 
-KO_CLONES static void tap_max(int x0, int x1, const float *restrict l, float *restrict m) {
+HF_CPU_CLONES static void tap_max(int x0, int x1, const float *restrict l, float *restrict m) {
 #pragma omp simd
   for (int x = x0; x < x1; x++) m[x] = l[x] > m[x] ? l[x] : m[x];
 }

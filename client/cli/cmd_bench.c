@@ -63,6 +63,8 @@ typedef struct bench_opts {
   int nvariants;
   const char *weights[BENCH_MAX_LIST]; /* --weights: trained files, timed as they are */
   int nweights;
+  hf_weights *loaded[BENCH_MAX_LIST];  /* each file, loaded once (NULL: it did not load) */
+  char labels[BENCH_MAX_LIST][HF_NAME_MAX]; /* its variant column (weights_label) */
   int sizes[BENCH_MAX_LIST][2];
   int nsizes, ref_max_side;
   int batches[BENCH_MAX_LIST];
@@ -627,25 +629,13 @@ static int write_weights(const bench_opts *o, const char *dir, char *paths, size
 }
 
 /* bench_torch.py's --labels: the variant column of each weights file in
- * write_weights' order (presets by name, files as weights_label). */
+ * write_weights' order (presets by name, then the --weights files). */
 static int torch_labels(const bench_opts *o, char *out, size_t len) {
   size_t used = 0;
   out[0] = 0;
   for (int i = 0; i < o->nvariants + o->nweights; i++) {
-    char label[HF_NAME_MAX];
-    if (i < o->nvariants) {
-      snprintf(label, sizeof label, "%s", o->variants[i]);
-    } else {
-      const char *path = o->weights[i - o->nvariants];
-      char err[256];
-      hf_weights *w;
-      if (hf_weights_load(path, &w, err, sizeof err)) {
-        fprintf(stderr, "hairfilter bench: --torch: %s\n", err);
-        return HF_EINVAL;
-      }
-      weights_label(o, i - o->nvariants, w->cfg.name, label, sizeof label);
-      hf_weights_free(w);
-    }
+    if (i >= o->nvariants && !o->loaded[i - o->nvariants]) return HF_EINVAL; /* said once */
+    const char *label = i < o->nvariants ? o->variants[i] : o->labels[i - o->nvariants];
     int k = snprintf(out + used, len - used, "%s%s", i ? "," : "", label);
     if (k < 0 || (size_t)k >= len - used) return HF_ERANGE;
     used += k;
@@ -922,6 +912,17 @@ int cmd_bench(int argc, char **argv) {
   int rc = parse_opts(argc, argv, &o);
   if (rc) return rc == 1 ? 0 : 2;
   int failed = 0;
+  /* The --weights files, loaded once for every backend and PyTorch. */
+  for (int i = 0; i < o.nweights; i++) {
+    char err[512];
+    if ((rc = hf_weights_load(o.weights[i], &o.loaded[i], err, sizeof err)) != 0) {
+      fprintf(stderr, "hairfilter bench: --weights: %s\n", err[0] ? err : hf_strerror(rc));
+      o.loaded[i] = NULL;
+      failed = 1;
+      continue;
+    }
+    weights_label(&o, i, o.loaded[i]->cfg.name, o.labels[i], sizeof o.labels[i]);
+  }
   bench_machine mc;
   memset(&mc, 0, sizeof mc);
   bench_cpu_describe(&mc.cpu);
@@ -952,18 +953,8 @@ int cmd_bench(int argc, char **argv) {
       if (bench_weights(&o, be, is_ref, w, cfg.name)) failed = 1;
       hf_weights_free(w);
     }
-    for (int i = 0; i < o.nweights; i++) {
-      hf_weights *w = NULL;
-      char err[512], label[HF_NAME_MAX];
-      if ((rc = hf_weights_load(o.weights[i], &w, err, sizeof err)) != 0) {
-        fprintf(stderr, "hairfilter bench: --weights: %s\n", err[0] ? err : hf_strerror(rc));
-        failed = 1;
-        continue;
-      }
-      weights_label(&o, i, w->cfg.name, label, sizeof label);
-      if (bench_weights(&o, be, is_ref, w, label)) failed = 1;
-      hf_weights_free(w);
-    }
+    for (int i = 0; i < o.nweights; i++)
+      if (o.loaded[i] && bench_weights(&o, be, is_ref, o.loaded[i], o.labels[i])) failed = 1;
     hf_backend_destroy(be);
   }
   if (o.torch && run_torch(&o)) failed = 1;
@@ -973,5 +964,6 @@ int cmd_bench(int argc, char **argv) {
   if (o.input_check && bench_frame_pass(&o, &PASS_CHECK)) failed = 1;
   if (o.input_check && bench_frame_pass(&o, &PASS_SCAN)) failed = 1;
   if (o.exr && bench_exr(&o)) failed = 1;
+  for (int i = 0; i < o.nweights; i++) hf_weights_free(o.loaded[i]);
   return failed ? 1 : 0;
 }
