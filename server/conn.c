@@ -612,6 +612,15 @@ static void filter_head(hfd_conn *c, size_t have) {
     return;
   }
   uint64_t left = len - have;
+  /* SHM where the connection cannot have a segment is refused before
+   * anything else the frame holds: its reference means nothing here
+   * (PROTOCOL.md, "Which error a FILTER gets"). */
+  if (have >= 4 && (hfp_get_u16(c->ctl + 2) & HFP_FILTER_SHM) && !c->is_ipc) {
+    reject(c, rc ? -1 : hfd_variant_find(s, f.variant), HFP_E_UNSUPPORTED, left,
+           "shared memory needs a Unix socket%s",
+           s->cfg->max_shm_bytes > 0 ? "" : " and a server with --max-shm-mb over 0");
+    return;
+  }
   if (rc) {
     reject(c, -1, -rc, left, "malformed FILTER: %s", hfp_strerror(rc));
     return;
@@ -622,8 +631,6 @@ static void filter_head(hfd_conn *c, size_t have) {
     reject(c, v, HFP_E_INVALID, left, "request id 0 is reserved");
   } else if (v < 0) {
     reject(c, -1, HFP_E_UNKNOWN_VARIANT, left, "unknown variant '%s'", f.variant);
-  } else if ((f.flags & HFP_FILTER_SHM) && !c->is_ipc) {
-    reject(c, v, HFP_E_UNSUPPORTED, left, "shared memory needs a Unix socket");
   } else if (f.spp != s->variants[v].model->cfg.spp) {
     reject(c, v, HFP_E_INVALID, left, "variant %s takes %d spp, request has %u", f.variant,
            s->variants[v].model->cfg.spp, f.spp);
@@ -1014,9 +1021,12 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     return;
   }
   if (c->fatal_sent || c->closing) return;
-  if (c->is_ipc && uv_pipe_pending_count(&c->h.pipe) > 0) {
+  if (c->is_pipe && uv_pipe_pending_count(&c->h.pipe) > 0) {
     /* Descriptors only go from server to client; libuv closes the queued
-     * ones with the connection. */
+     * ones with the connection. Every Unix connection is read as an IPC
+     * pipe for this, also with shared memory disabled: otherwise the
+     * kernel would drop the descriptor unseen and the rule would hold only
+     * where segments are offered. */
     s->protocol_errors++;
     send_error(c, 0, HFP_E_PROTOCOL, 1, "clients may not send file descriptors");
     return;
@@ -1217,10 +1227,12 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   }
   c->srv = s;
   c->listener = l;
-  /* Unix connections are IPC pipes so that segment fds can be passed. */
-  c->is_ipc = !l->is_tcp && s->cfg->max_shm_bytes > 0;
+  /* Unix connections are IPC pipes so that segment fds can be passed, and
+   * so that a descriptor a client sends is seen and refused. */
+  c->is_pipe = !l->is_tcp;
+  c->is_ipc = c->is_pipe && s->cfg->max_shm_bytes > 0;
   int rc = l->is_tcp ? uv_tcp_init(s->loop, &c->h.tcp)
-                     : uv_pipe_init(s->loop, &c->h.pipe, c->is_ipc);
+                     : uv_pipe_init(s->loop, &c->h.pipe, c->is_pipe);
   if (rc < 0) {
     hfd_err("%s: handle init: %s", l->url, uv_strerror(rc));
     free(c);

@@ -750,7 +750,10 @@ int hf_result_to_image(const float *out, int width, int height, hf_image *img);
 
 /* Composite (paper Fig. 3, L_o = L_S (C_H (F_d + F_TRT) + F_R)):
  * rgb = alpha * light * (hair * color + highlight) + (1 - alpha) * bg.
- * out is [h][w][3] linear float. */
+ * out is [h][w][3] linear float. Evaluated in double precision and
+ * saturated to [-FLT_MAX, FLT_MAX], so finite colours of any magnitude give
+ * finite values (a FILTER's colours are only checked to be finite); a NaN
+ * in result3 gives 0. */
 void hf_composite(const float *result3, int width, int height, const float hair[3],
                   const float light[3], const float bg[3], float *rgb);
 /* 8-bit sRGB PNG of a linear [h][w][3] float image. */

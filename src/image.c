@@ -1,4 +1,5 @@
 /* Named-channel float images and compositing. */
+#include <float.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -50,9 +51,13 @@ void hf_composite(const float *res, int width, int height, const float hair[3],
                   const float light[3], const float bg[3], float *rgb) {
   size_t n = (size_t)width * height;
   for (size_t p = 0; p < n; p++) {
-    float col = res[3 * p + HF_OUT_COLOR], hl = res[3 * p + HF_OUT_HIGHLIGHT];
-    float a = res[3 * p + HF_OUT_ALPHA];
-    for (int c = 0; c < 3; c++)
-      rgb[3 * p + c] = a * light[c] * (hair[c] * col + hl) + (1.0f - a) * bg[c];
+    double col = res[3 * p + HF_OUT_COLOR], hl = res[3 * p + HF_OUT_HIGHLIGHT];
+    double a = res[3 * p + HF_OUT_ALPHA];
+    for (int c = 0; c < 3; c++) {
+      /* In double, finite float colours up to FLT_MAX cannot overflow
+       * (their products stay under 1e116); the float result saturates. */
+      double v = a * light[c] * (hair[c] * col + hl) + (1.0 - a) * bg[c];
+      rgb[3 * p + c] = v != v ? 0.0f : v > FLT_MAX ? FLT_MAX : v < -FLT_MAX ? -FLT_MAX : (float)v;
+    }
   }
 }

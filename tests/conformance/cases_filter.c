@@ -34,6 +34,21 @@ static int dtypes(cf_test *t, intptr_t arg) {
   return cf_filter_ok(t, fd, &f, t->srv->version, NULL, NULL);
 }
 
+/* Finite colours whose composite overflows float (a light of 3e38 on a hair
+ * colour of 3e38), and values over f16's range: every RGBA value comes back
+ * finite, the formula saturated at the dtype's largest value. */
+static int huge_colours(cf_test *t, intptr_t out) {
+  if (!(t->srv->hello.dtypes & (1u << out)))
+    return cf_skip(t, "the server does not offer %s", out ? "f16" : "f32");
+  int fd;
+  CF_TRY(connect_v(t, &fd));
+  cf_filter f = {.id = 130 + (uint32_t)out, .out_dtype = (int)out, .flags = HFP_FILTER_COMPOSITE,
+                 .hair = {3e38f, -3e38f, 1e5f}, .light = {3e38f, 3e38f, 1e5f},
+                 .bg = {3e38f, -3e38f, 1e5f}};
+  cf_filter_defaults(t, &f);
+  return cf_filter_ok(t, fd, &f, t->srv->version, NULL, NULL);
+}
+
 static int each_variant(cf_test *t, intptr_t arg) {
   (void)arg;
   int fd;
@@ -324,7 +339,9 @@ static int bad_field(cf_test *t, intptr_t which) {
       n = HFP_HEADER_SIZE + length;
       memset(b + CF_FILTER_NAME + vn, 0, HFP_SHM_REF_SIZE + 1);
       hfp_put_u32(b + CF_FILTER_NAME + vn, 1);
-      codes = CF_CODE(HFP_E_LENGTH);
+      /* Where this connection cannot have a segment, SHM itself is refused
+       * first (PROTOCOL.md, "Which error a FILTER gets"). */
+      codes = CF_CODE((s->hello.server_flags & HFP_SERVER_SHM) ? HFP_E_LENGTH : HFP_E_UNSUPPORTED);
       break;
     }
     case F_F16_WITH_F32_TENSOR:
@@ -602,6 +619,8 @@ const cf_case cf_cases_filter[] = {
   DT(0, 0, 1, "f32_f32_composite"),
   DT(1, 1, 1, "f16_f16_composite"),
   DT(0, 1, 1, "f32_f16_composite"),
+  {"filter.composite.huge_colours_f32", "finite colours whose composite overflows: RGBA finite, saturated at FLT_MAX", 0, huge_colours, 0},
+  {"filter.composite.huge_colours_f16", "colours over f16's range: RGBA finite, saturated at 65504", 0, huge_colours, 1},
   {"filter.each_variant", "every variant VARIANTS lists filters a frame", 0, each_variant, 0},
   {"filter.size.1x1", "a 1x1 frame is within 1..max", 0, sizes, SIZE_1X1},
   {"filter.size.odd", "odd sizes are served", 0, sizes, SIZE_ODD},
@@ -655,8 +674,8 @@ const cf_case cf_cases_filter[] = {
   BF(F_BELOW_FIXED, "length_below_fixed", "a payload shorter than the fixed fields is a non-fatal LENGTH"),
   BF(F_EMPTY, "length_zero", "an empty FILTER is a non-fatal LENGTH"),
   BF(F_OVERFLOW32, "length_overflow_32", "dimensions whose tensor overflows 32 bits are never admitted"),
-  BF(F_SHM_SHORT, "shm_reference_short", "with SHM, a reference cut short is LENGTH"),
-  BF(F_SHM_LONG, "shm_reference_long", "with SHM, bytes after the reference are LENGTH"),
+  BF(F_SHM_SHORT, "shm_reference_short", "with SHM, a reference cut short is LENGTH (UNSUPPORTED where SHM is not offered)"),
+  BF(F_SHM_LONG, "shm_reference_long", "with SHM, bytes after the reference are LENGTH (UNSUPPORTED where SHM is not offered)"),
   {"filter.early_refusal", "a refusal may come before the tensor; the rest is dropped, the next frame served", 0, early_refusal, 0},
   {"filter.refused_then_valid", "a refused FILTER and a valid one in one write: ERROR then RESULT", 0, refused_then_valid, 0},
   {"filter.duplicate_id", "a reused id is not checked: each FILTER gets exactly one reply", 0, duplicate_id, 0},

@@ -308,14 +308,18 @@ static int client_fd(cf_test *t, intptr_t arg) {
 
 /* ---- where shared memory is not offered ---------------------------------------- */
 
-enum { U_CREATE, U_DESTROY, U_FILTER };
+enum { U_CREATE, U_DESTROY, U_FILTER, U_FILTER_BAD_REF };
 
 static int unsupported(cf_test *t, intptr_t what) {
   int fd;
   CF_TRY(connect_v(t, &fd));
   uint8_t b[24];
-  if (what == U_FILTER) {
+  if (what == U_FILTER || what == U_FILTER_BAD_REF) {
+    /* A reference that would be INVALID where shared memory is offered
+     * (segment 0, rgba_offset without COMPOSITE, an unknown variant): the
+     * transport is checked first (PROTOCOL.md, "Which error a FILTER gets"). */
     cf_filter f = {.id = 95, .flags = HFP_FILTER_SHM, .segment = 1};
+    if (what == U_FILTER_BAD_REF) f.segment = 0, f.shm_rgba = 64, f.variant = "no-such-variant";
     cf_filter_defaults(t, &f);
     CF_TRY(send_frame(t, fd, &f));
     CF_TRY(cf_expect_error(t, fd, HFP_E_UNSUPPORTED, 0, 95));
@@ -373,5 +377,7 @@ const cf_case cf_cases_shm[] = {
   {"shm.tcp.filter", "a FILTER with SHM on TCP is a non-fatal UNSUPPORTED with its id", CF_NEED_TCP, unsupported, U_FILTER},
   {"shm.disabled.create", "where HELLO_OK clears bit 1, SHM_CREATE is UNSUPPORTED", CF_NEED_UNIX | CF_NEED_NO_SHM, unsupported, U_CREATE},
   {"shm.disabled.filter", "where HELLO_OK clears bit 1, a FILTER with SHM is UNSUPPORTED", CF_NEED_UNIX | CF_NEED_NO_SHM, unsupported, U_FILTER},
+  {"shm.tcp.filter_bad_reference", "a FILTER with SHM on TCP is UNSUPPORTED before its reference and variant are checked", CF_NEED_TCP, unsupported, U_FILTER_BAD_REF},
+  {"shm.disabled.filter_bad_reference", "where HELLO_OK clears bit 1, a FILTER with SHM is UNSUPPORTED before its reference is checked", CF_NEED_UNIX | CF_NEED_NO_SHM, unsupported, U_FILTER_BAD_REF},
   {NULL, NULL, 0, NULL, 0},
 };

@@ -5,8 +5,11 @@
  * its TCP listener (with the token), or its TLS listener (with the token,
  * certificates made by test_certs.c). Passes when the command exits 0 with
  * at least 200 cases passed, and the daemon exits cleanly afterwards.
+ * unix-noshm runs the shared-memory cases against a daemon started with
+ * shared memory disabled (--max-shm-mb 0), where every one must either pass
+ * or skip, and at least the cases for a server without it must pass.
  *
- *   run_conformance unix|tcp|tls */
+ *   run_conformance unix|tcp|tls|unix-noshm */
 #define _POSIX_C_SOURCE 200809L
 #include <stdio.h>
 #include <stdlib.h>
@@ -22,14 +25,17 @@
 #error "HAIRFILTER_CLI_PATH must name the hairfilter CLI"
 #endif
 
-enum { MIN_PASSED = 200 };
+enum { MIN_PASSED = 200, MIN_PASSED_NOSHM = 5 };
 
 int main(int argc, char **argv) {
-  if (argc != 2 || (strcmp(argv[1], "unix") && strcmp(argv[1], "tcp") && strcmp(argv[1], "tls"))) {
-    fprintf(stderr, "usage: run_conformance unix|tcp|tls\n");
+  if (argc != 2 || (strcmp(argv[1], "unix") && strcmp(argv[1], "tcp") && strcmp(argv[1], "tls") &&
+                    strcmp(argv[1], "unix-noshm"))) {
+    fprintf(stderr, "usage: run_conformance unix|tcp|tls|unix-noshm\n");
     return 2;
   }
   int tcp = !strcmp(argv[1], "tcp"), tls = !strcmp(argv[1], "tls");
+  int noshm = !strcmp(argv[1], "unix-noshm");
+  int min_passed = noshm ? MIN_PASSED_NOSHM : MIN_PASSED;
   harness h;
   server s;
   char narrow[320];
@@ -61,8 +67,9 @@ int main(int argc, char **argv) {
                                "--stall-timeout-ms", deadline, "--max-handshakes", "8",
                                "--max-inflight", "4", "--max-size", "64x64", "--max-frame-mb", "1",
                                "--max-batch", "4", "--max-queue-delay-us", "1000",
-                               tls ? "--listen" : NULL, "tls:127.0.0.1:0", "--tls-cert", cert,
-                               "--tls-key", key, NULL};
+                               tls ? "--listen" : noshm ? "--max-shm-mb" : NULL,
+                               tls ? "tls:127.0.0.1:0" : "0", "--tls-cert", cert, "--tls-key", key,
+                               NULL};
   if (server_start(&h, &s, extra)) {
     harness_free(&h);
     return 1;
@@ -78,9 +85,13 @@ int main(int argc, char **argv) {
   if (pid == 0) {
     FILE *f = freopen(out, "w", stdout);
     (void)f;
-    execl(HAIRFILTER_CLI_PATH, "hairfilter", "conformance", "--server", url, "--token", TEST_TOKEN,
-          "--stall", stall, "--timeout", "20s", tls ? "--tls-ca" : (char *)NULL, ca,
-          (char *)NULL);
+    if (noshm)
+      execl(HAIRFILTER_CLI_PATH, "hairfilter", "conformance", "--server", url, "--token", TEST_TOKEN,
+            "--stall", stall, "--timeout", "20s", "--case", "*shm*", (char *)NULL);
+    else
+      execl(HAIRFILTER_CLI_PATH, "hairfilter", "conformance", "--server", url, "--token", TEST_TOKEN,
+            "--stall", stall, "--timeout", "20s", tls ? "--tls-ca" : (char *)NULL, ca,
+            (char *)NULL);
     _exit(127);
   }
   int st = 0;
@@ -96,10 +107,10 @@ int main(int argc, char **argv) {
            &skipped);
   }
   if (f) fclose(f);
-  int ok = rc == 0 && failed == 0 && passed >= MIN_PASSED;
+  int ok = rc == 0 && failed == 0 && passed >= min_passed;
   if (!ok)
     fprintf(stderr, "run_conformance %s: exit status %d, %d passed (at least %d wanted), %d failed\n",
-            argv[1], rc, passed, MIN_PASSED, failed);
+            argv[1], rc, passed, min_passed, failed);
   if (server_stop(&s, 20000) != 0) {
     fprintf(stderr, "run_conformance: hairfilterd did not exit cleanly after the suite\n");
     server_dump_log(&s);

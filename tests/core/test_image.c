@@ -1,4 +1,5 @@
 /* EXR and PNG helpers, feature naming, compositing. */
+#include <float.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -87,6 +88,23 @@ static void test_composite(void **state) {
   assert_memory_equal(sig, "\x89PNG\r\n\x1a\n", 8);
 }
 
+/* Finite colours whose products overflow float saturate at FLT_MAX instead
+ * of giving infinities; values inside the range are the formula's. */
+static void test_composite_saturates(void **state) {
+  float res[9] = {1.0f, 0.5f, 1.0f, 0.5f, 0.0f, 0.25f, 0.0f, 0.0f, 0.0f};
+  float hair[3] = {3e38f, -3e38f, 1e-30f}, light[3] = {3e38f, 3e38f, 1e30f};
+  float bg[3] = {3e38f, -3e38f, 2.0f}, rgb[9];
+  hf_composite(res, 3, 1, hair, light, bg, rgb);
+  for (int i = 0; i < 9; i++) assert_true(isfinite(rgb[i]));
+  assert_true(rgb[0] == FLT_MAX);    /* 3e38 * (3e38 + 0.5) */
+  assert_true(rgb[1] == -FLT_MAX);   /* 3e38 * (-3e38 + 0.5) */
+  assert_float_equal(rgb[2], 1e30 * (1e-30 + 0.5), 1e24);   /* in range: the formula */
+  assert_true(rgb[3] == FLT_MAX);    /* 0.25 * 3e38 * 1.5e38 + 0.75 * 3e38 */
+  assert_true(rgb[6] == 3e38f);      /* transparent: the background itself */
+  assert_true(rgb[7] == -3e38f);
+  assert_float_equal(rgb[8], 2.0f, 0);
+}
+
 static int setup(void **state) { return mkdtemp(tmpdir) ? 0 : -1; }
 static int teardown(void **state) {
   char cmd[300];
@@ -98,6 +116,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_exr_roundtrip), cmocka_unit_test(test_exr_errors),
     cmocka_unit_test(test_features_missing_channel), cmocka_unit_test(test_composite),
+    cmocka_unit_test(test_composite_saturates),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
