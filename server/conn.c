@@ -614,11 +614,12 @@ static void filter_head(hfd_conn *c, size_t have) {
   uint64_t left = len - have;
   /* SHM where the connection cannot have a segment is refused before
    * anything else the frame holds: its reference means nothing here
-   * (PROTOCOL.md, "Which error a FILTER gets"). */
-  if (have >= 4 && (hfp_get_u16(c->ctl + 2) & HFP_FILTER_SHM) && !c->is_ipc) {
-    reject(c, rc ? -1 : hfd_variant_find(s, f.variant), HFP_E_UNSUPPORTED, left,
-           "shared memory needs a Unix socket%s",
-           s->cfg->max_shm_bytes > 0 ? "" : " and a server with --max-shm-mb over 0");
+   * (PROTOCOL.md, "Which error a FILTER gets"). The fixed fields are in
+   * ctl[] (on_header asked for them), whatever the codec made of them. */
+  if ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_SHM) && !c->is_ipc) {
+    reject(c, rc ? -1 : hfd_variant_find(s, f.variant), HFP_E_UNSUPPORTED, left, "%s",
+           c->is_pipe ? "shared memory is disabled on this server (--max-shm-mb 0)"
+                      : "shared memory needs a Unix socket");
     return;
   }
   if (rc) {

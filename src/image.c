@@ -54,8 +54,10 @@ void hf_composite(const float *res, int width, int height, const float hair[3],
     double col = res[3 * p + HF_OUT_COLOR], hl = res[3 * p + HF_OUT_HIGHLIGHT];
     double a = res[3 * p + HF_OUT_ALPHA];
     for (int c = 0; c < 3; c++) {
-      /* In double, finite float colours up to FLT_MAX cannot overflow
-       * (their products stay under 1e116); the float result saturates. */
+      /* In double, finite float colours up to FLT_MAX times result values
+       * in their documented ranges cannot overflow (three factors of at
+       * most ~3.4e38 and a result factor stay far under DBL_MAX); the
+       * float result saturates. */
       double v = a * light[c] * (hair[c] * col + hl) + (1.0 - a) * bg[c];
       rgb[3 * p + c] = v != v ? 0.0f : v > FLT_MAX ? FLT_MAX : v < -FLT_MAX ? -FLT_MAX : (float)v;
     }

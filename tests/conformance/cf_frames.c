@@ -208,8 +208,11 @@ int cf_check_result(cf_test *t, const cf_frame *fr, const cf_filter *f, int vers
       double want_v = (double)a * f->light[k] * ((double)f->hair[k] * c + h) +
                       (1.0 - a) * f->bg[k];
       want_v = want_v > lim ? lim : want_v < -lim ? -lim : want_v;
+      /* The rounding allowed scales with the terms' size, but no further
+       * than the limit: a saturated value must be the limit itself. */
       double mag = fabs((double)a * f->light[k] * ((double)f->hair[k] * fabs(c) + h)) +
                    fabs((1.0 - a) * f->bg[k]);
+      if (mag > lim) mag = lim;
       double tol = r.dtype == HFP_F16 ? 2e-3 * mag + 2e-3 : 1e-5 * mag + 1e-6;
       CF_CHECK(t, isfinite(got),
                "composite of pixel %zu channel %d is %g: it must be finite for finite colours "

@@ -25,7 +25,7 @@
 #error "HAIRFILTER_CLI_PATH must name the hairfilter CLI"
 #endif
 
-enum { MIN_PASSED = 200, MIN_PASSED_NOSHM = 5 };
+enum { MIN_PASSED = 200, MIN_PASSED_NOSHM = 12 };
 
 int main(int argc, char **argv) {
   if (argc != 2 || (strcmp(argv[1], "unix") && strcmp(argv[1], "tcp") && strcmp(argv[1], "tls") &&
