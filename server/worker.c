@@ -120,11 +120,13 @@ static int compatible(const hfd_job *a, const hfd_job *b) {
 }
 
 /* One composite value in the RGBA dtype. f16 saturates at its largest
- * finite value, 65504, as hf_composite does at FLT_MAX: a FILTER's colours
- * are any finite floats, and its outputs are always finite (PROTOCOL.md). */
+ * finite value (HF_OUTPUT_MAX), as hf_composite does at FLT_MAX: a FILTER's
+ * colours are any finite floats, and its outputs are always finite
+ * (PROTOCOL.md). */
 static void store(void *dst, int dtype, size_t i, float v) {
   if (dtype == HFP_F16)
-    ((uint16_t *)dst)[i] = hf_f32_to_f16(v > 65504.0f ? 65504.0f : v < -65504.0f ? -65504.0f : v);
+    ((uint16_t *)dst)[i] =
+        hf_f32_to_f16(v > HF_OUTPUT_MAX ? HF_OUTPUT_MAX : v < -HF_OUTPUT_MAX ? -HF_OUTPUT_MAX : v);
   else
     ((float *)dst)[i] = v;
 }

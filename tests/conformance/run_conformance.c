@@ -63,13 +63,20 @@ int main(int argc, char **argv) {
    * a sanitizer on a loaded 2-core machine took over 500 ms; the stall
    * cases stay silent longer than the deadlines either way. */
   const char *deadline = tls ? "2000" : "500", *stall = tls ? "2500ms" : "800ms";
-  const char *const extra[] = {"--weights", narrow, "--handshake-timeout-ms", deadline,
-                               "--stall-timeout-ms", deadline, "--max-handshakes", "8",
-                               "--max-inflight", "4", "--max-size", "64x64", "--max-frame-mb", "1",
-                               "--max-batch", "4", "--max-queue-delay-us", "1000",
-                               tls ? "--listen" : noshm ? "--max-shm-mb" : NULL,
-                               tls ? "tls:127.0.0.1:0" : "0", "--tls-cert", cert, "--tls-key", key,
-                               NULL};
+  const char *extra[32] = {"--weights", narrow, "--handshake-timeout-ms", deadline,
+                           "--stall-timeout-ms", deadline, "--max-handshakes", "8",
+                           "--max-inflight", "4", "--max-size", "64x64", "--max-frame-mb", "1",
+                           "--max-batch", "4", "--max-queue-delay-us", "1000"};
+  int ne = 18;
+  if (tls) {
+    const char *more[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key};
+    for (size_t i = 0; i < sizeof more / sizeof *more; i++) extra[ne++] = more[i];
+  }
+  if (noshm) {
+    extra[ne++] = "--max-shm-mb";
+    extra[ne++] = "0";
+  }
+  extra[ne] = NULL;
   if (server_start(&h, &s, extra)) {
     harness_free(&h);
     return 1;
@@ -85,13 +92,13 @@ int main(int argc, char **argv) {
   if (pid == 0) {
     FILE *f = freopen(out, "w", stdout);
     (void)f;
-    if (noshm)
-      execl(HAIRFILTER_CLI_PATH, "hairfilter", "conformance", "--server", url, "--token", TEST_TOKEN,
-            "--stall", stall, "--timeout", "20s", "--case", "*shm*", (char *)NULL);
-    else
-      execl(HAIRFILTER_CLI_PATH, "hairfilter", "conformance", "--server", url, "--token", TEST_TOKEN,
-            "--stall", stall, "--timeout", "20s", tls ? "--tls-ca" : (char *)NULL, ca,
-            (char *)NULL);
+    char *args[16] = {"hairfilter", "conformance", "--server", (char *)url, "--token", TEST_TOKEN,
+                      "--stall", (char *)stall, "--timeout", "20s"};
+    int na = 10;
+    if (tls) args[na++] = "--tls-ca", args[na++] = ca;
+    if (noshm) args[na++] = "--case", args[na++] = "*shm*";
+    args[na] = NULL;
+    execv(HAIRFILTER_CLI_PATH, args);
     _exit(127);
   }
   int st = 0;
