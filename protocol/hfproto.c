@@ -918,6 +918,12 @@ static int region_ok(uint64_t off, uint64_t n, uint64_t size, size_t es) {
   return off % es == 0 && off <= size && n <= size - off;
 }
 
+/* Whether [a, a + an) and [b, b + bn) share a byte; both lie inside one
+ * segment, so the sums do not wrap. */
+static int overlap(uint64_t a, uint64_t an, uint64_t b, uint64_t bn) {
+  return a < b + bn && b < a + an;
+}
+
 int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
   uint64_t in_len, out_len, rgba_len = 0;
   int rc = hfp_features_bytes(m->width, m->height, m->spp, m->in_dtype, &in_len);
@@ -928,6 +934,12 @@ int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
   if (!region_ok(m->shm_in, in_len, seg_bytes, hfp_dtype_size(m->in_dtype)) ||
       !region_ok(m->shm_out, out_len, seg_bytes, hfp_dtype_size(m->out_dtype)) ||
       (rgba_len && !region_ok(m->shm_rgba, rgba_len, seg_bytes, hfp_dtype_size(m->out_dtype))))
+    return -HFP_E_LENGTH;
+  /* Disjoint: a backend may still read the features (Kernel's output stage
+   * reads them again) while it writes the result, from several threads. */
+  if (overlap(m->shm_in, in_len, m->shm_out, out_len) ||
+      (rgba_len && (overlap(m->shm_in, in_len, m->shm_rgba, rgba_len) ||
+                    overlap(m->shm_out, out_len, m->shm_rgba, rgba_len))))
     return -HFP_E_LENGTH;
   return 0;
 }

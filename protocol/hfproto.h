@@ -303,7 +303,11 @@ int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,
 int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m);
 /* The fixed part of a FILTER alone (first HFP_FILTER_FIXED + variant bytes),
  * so a receiver can validate a request before reading its tensor.
- * data_len is set from the dimensions; data is NULL. */
+ * data_len is set from the dimensions; data is NULL. On an error, m->variant
+ * holds the name if it was read and well formed (the fault lies in a later
+ * field: flags, dtypes, colours, dimensions, lengths, the SHM reference),
+ * so the fault can be charged to the variant the request named; otherwise
+ * it is empty. */
 int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
                            hfp_filter *m, size_t *head_len);
 int hfp_decode_result(const uint8_t *payload, size_t len, hfp_result *m);
@@ -321,7 +325,8 @@ int hfp_decode_shm_created(const uint8_t *payload, size_t len, uint32_t *segment
 int hfp_encode_shm_destroy(uint8_t *buf, size_t cap, uint32_t segment);
 int hfp_decode_shm_destroy(const uint8_t *payload, size_t len, uint32_t *segment);
 /* Checks a FILTER's SHM reference against a segment of seg_bytes: every
- * region inside it and aligned to its element size. */
+ * region inside it, aligned to its element size and overlapping no other
+ * region of the request; -HFP_E_LENGTH if not. */
 int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes);
 
 /* Version negotiation: the highest version both sides speak, or

@@ -612,21 +612,26 @@ static void filter_head(hfd_conn *c, size_t have) {
     return;
   }
   uint64_t left = len - have;
+  /* A refusal counts in the `rejected` of the variant the FILTER names
+   * whenever its name could be read, the frame's other faults included;
+   * only one whose name is malformed or unknown is a protocol error
+   * (PROTOCOL.md, "Statistics"). The codec leaves the name empty unless it
+   * read it. */
+  int v = f.variant[0] ? hfd_variant_find(s, f.variant) : -1;
   /* SHM where the connection cannot have a segment is refused before
    * anything else the frame holds: its reference means nothing here
    * (PROTOCOL.md, "Which error a FILTER gets"). The fixed fields are in
    * ctl[] (on_header asked for them), whatever the codec made of them. */
   if ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_SHM) && !c->is_ipc) {
-    reject(c, rc ? -1 : hfd_variant_find(s, f.variant), HFP_E_UNSUPPORTED, left, "%s",
+    reject(c, v, HFP_E_UNSUPPORTED, left, "%s",
            c->is_pipe ? "shared memory is disabled on this server (--max-shm-mb 0)"
                       : "shared memory needs a Unix socket");
     return;
   }
   if (rc) {
-    reject(c, -1, -rc, left, "malformed FILTER: %s", hfp_strerror(rc));
+    reject(c, v, -rc, left, "malformed FILTER: %s", hfp_strerror(rc));
     return;
   }
-  int v = hfd_variant_find(s, f.variant);
   uint64_t need = 0;
   if (c->hdr.request_id == 0) {
     reject(c, v, HFP_E_INVALID, left, "request id 0 is reserved");

@@ -37,7 +37,7 @@ const segment *hfci_shm_place(const hfc_client *c, hfp_filter *f, const pending 
   f->shm_in = (uint64_t)((const uint8_t *)p->features - g->addr);
   f->shm_out = (uint64_t)((const uint8_t *)p->result - g->addr);
   f->shm_rgba = p->rgba ? (uint64_t)((const uint8_t *)p->rgba - g->addr) : 0;
-  if (hfp_shm_check(f, g->size)) return NULL;  /* misaligned: use the socket */
+  if (hfp_shm_check(f, g->size)) return NULL;  /* misaligned or overlapping: use the socket */
   return g;
 }
 

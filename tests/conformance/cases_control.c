@@ -5,6 +5,7 @@
  * the order of their requests.
  */
 #define _POSIX_C_SOURCE 200809L
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -113,7 +114,11 @@ static int stats_histograms(cf_test *t, intptr_t arg) {
   return 0;
 }
 
-enum { MOVE_OK, MOVE_REJECTED, MOVE_PROTOCOL };
+/* What stats_move does: a RESULT; an ERROR to a FILTER for the variant
+ * found against the server (spp), or in the frame's own fields (a NaN
+ * colour, an unknown dtype, a tensor a byte short); a bad header. */
+enum { MOVE_OK, MOVE_REJECTED, MOVE_REJECTED_COLOUR, MOVE_REJECTED_DTYPE, MOVE_REJECTED_LENGTH,
+       MOVE_PROTOCOL };
 
 /* The counters move with what we did (others may add to them too). */
 static int stats_move(cf_test *t, intptr_t what) {
@@ -125,14 +130,26 @@ static int stats_move(cf_test *t, intptr_t what) {
   cf_filter_defaults(t, &f);
   if (what == MOVE_OK) {
     CF_TRY(cf_filter_ok(t, fd, &f, t->srv->version, NULL, NULL));
-  } else if (what == MOVE_REJECTED) {
+  } else if (what != MOVE_PROTOCOL) {
     cf_filter g = f;
-    g.spp++;   /* not the variant's */
+    if (what == MOVE_REJECTED) g.spp++;   /* not the variant's */
     size_t n;
     uint8_t *fb = cf_filter_frame(t, &g, &n);
     CF_CHECK(t, fb, "out of memory");
+    int code = HFP_E_INVALID;
+    float nan = NAN;
+    if (what == MOVE_REJECTED_COLOUR) {
+      memcpy(fb + CF_FILTER_HAIR, &nan, 4);
+    } else if (what == MOVE_REJECTED_DTYPE) {
+      fb[CF_FILTER_IN_DTYPE] = 255;
+      code = HFP_E_UNSUPPORTED;
+    } else if (what == MOVE_REJECTED_LENGTH) {
+      n--;
+      cf_set_length(fb, (uint32_t)(n - HFP_HEADER_SIZE));
+      code = HFP_E_LENGTH;
+    }
     CF_TRY(cf_send(t, fd, fb, n));
-    CF_TRY(cf_expect_error(t, fd, HFP_E_INVALID, 0, 31));
+    CF_TRY(cf_expect_error(t, fd, code, 0, 31));
   } else {
     CF_TRY(cf_connect_hello(t, 1, HFP_VERSION, &other, NULL));
     uint8_t hb[HFP_HEADER_SIZE];
@@ -147,7 +164,7 @@ static int stats_move(cf_test *t, intptr_t what) {
   if (what == MOVE_OK) {
     CF_CHECK(t, vb->requests_ok > va->requests_ok, "requests_ok of %s stayed %llu after a RESULT",
              f.variant, (unsigned long long)vb->requests_ok);
-  } else if (what == MOVE_REJECTED) {
+  } else if (what != MOVE_PROTOCOL) {
     CF_CHECK(t, vb->rejected > va->rejected,
              "rejected of %s stayed %llu after an ERROR to a FILTER for it", f.variant,
              (unsigned long long)vb->rejected);
@@ -230,6 +247,9 @@ const cf_case cf_cases_control[] = {
   {"stats.histograms", "hist_total and hist_infer each count every successful request once; sums agree", 0, stats_histograms, 0},
   {"stats.counts_ok", "requests_ok grows with each RESULT", 0, stats_move, MOVE_OK},
   {"stats.counts_rejected", "rejected grows with each ERROR to a FILTER for the variant", 0, stats_move, MOVE_REJECTED},
+  {"stats.counts_rejected_colour", "rejected grows with an ERROR to a FILTER for the variant with a NaN colour", 0, stats_move, MOVE_REJECTED_COLOUR},
+  {"stats.counts_rejected_dtype", "rejected grows with an ERROR to a FILTER for the variant with an unknown dtype", 0, stats_move, MOVE_REJECTED_DTYPE},
+  {"stats.counts_rejected_length", "rejected grows with an ERROR to a FILTER for the variant a byte short", 0, stats_move, MOVE_REJECTED_LENGTH},
   {"stats.counts_protocol_errors", "protocol_errors grows with each error not tied to a variant", 0, stats_move, MOVE_PROTOCOL},
   {"transport.control_order", "replies to LIST_VARIANTS and STATS keep the order of the requests", 0, control_order, 0},
   {"transport.control_order_with_filters", "control replies keep their order among RESULTs in any order", 0, control_order, 1},

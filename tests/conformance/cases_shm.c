@@ -157,7 +157,7 @@ static int by_reference(cf_test *t, intptr_t arg) {
 enum {
   R_UNKNOWN, R_ZERO, R_RESERVED, R_IN_MISALIGNED, R_OUT_MISALIGNED, R_RGBA_MISALIGNED,
   R_IN_OUTSIDE, R_OUT_OUTSIDE, R_RGBA_OUTSIDE, R_IN_WRAP, R_OUT_WRAP, R_RGBA_WRAP,
-  R_RGBA_NO_COMPOSITE, R_IN_PAST_END, R_DESTROYED,
+  R_RGBA_NO_COMPOSITE, R_IN_PAST_END, R_DESTROYED, R_OUT_IS_IN, R_RGBA_OVERLAPS_OUT,
 };
 
 /* A reference that breaks one rule: the non-fatal code with the FILTER's
@@ -186,6 +186,8 @@ static int bad_reference(cf_test *t, intptr_t how) {
     case R_OUT_WRAP: g.shm_out = UINT64_MAX - 3; break;
     case R_RGBA_WRAP: g.shm_rgba = UINT64_MAX - 3; break;
     case R_IN_PAST_END: g.shm_in = s.bytes; break;
+    case R_OUT_IS_IN: g.shm_out = g.shm_in; break;
+    case R_RGBA_OVERLAPS_OUT: g.shm_rgba = g.shm_out + 4; break;
     case R_RGBA_NO_COMPOSITE: g.flags &= (uint16_t)~HFP_FILTER_COMPOSITE; code = HFP_E_INVALID; break;
     case R_DESTROYED: {
       uint8_t d[20];
@@ -354,6 +356,8 @@ const cf_case cf_cases_shm[] = {
   REF(R_OUT_MISALIGNED, "out_misaligned", "out_offset must be a multiple of the element size: LENGTH"),
   REF(R_RGBA_MISALIGNED, "rgba_misaligned", "rgba_offset must be a multiple of the element size: LENGTH"),
   REF(R_IN_OUTSIDE, "in_outside", "the features must lie inside the segment: LENGTH"),
+  REF(R_OUT_IS_IN, "out_is_in", "the result may not overwrite the features in place: LENGTH"),
+  REF(R_RGBA_OVERLAPS_OUT, "rgba_overlaps_out", "the composite may not share a byte with the result: LENGTH"),
   REF(R_OUT_OUTSIDE, "out_outside", "the result must lie inside the segment: LENGTH"),
   REF(R_RGBA_OUTSIDE, "rgba_outside", "the composite must lie inside the segment: LENGTH"),
   REF(R_IN_PAST_END, "in_at_end", "an offset at the segment's end holds nothing: LENGTH"),

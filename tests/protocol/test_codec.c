@@ -431,28 +431,31 @@ static void test_filter(void **state) {
   memcpy(c, p, h.length);
   assert_int_equal(hfp_decode_filter(c, h.length + 1, &d), -HFP_E_LENGTH);
 
-#define MUTATE(stmt, want)                                         \
+  /* Each fault's code, and the name as the decoder leaves it: read for a
+   * fault after it (so a server can charge the variant), empty otherwise. */
+#define MUTATE(stmt, want, name)                                   \
   do {                                                             \
     memcpy(c, p, h.length);                                        \
     stmt;                                                          \
     assert_int_equal(hfp_decode_filter(c, h.length, &d), (want)); \
+    assert_string_equal(d.variant, (name));                        \
   } while (0)
-  MUTATE(hfp_put_u16(c + 0, 0), -HFP_E_INVALID);                /* empty variant */
-  MUTATE(hfp_put_u16(c + 0, HFP_NAME_MAX + 1), -HFP_E_INVALID);
-  MUTATE(hfp_put_u16(c + 0, 5), -HFP_E_INVALID);     /* variant eats a data byte: 0.0f */
-  MUTATE(c[HFP_FILTER_FIXED] = 0x01, -HFP_E_INVALID); /* control char in name */
-  MUTATE(hfp_put_u16(c + 2, 0x0100), -HFP_E_UNSUPPORTED);      /* unknown flag */
-  MUTATE(hfp_put_u32(c + 4, 0), -HFP_E_INVALID);               /* width 0 */
-  MUTATE(hfp_put_u32(c + 8, HFP_MAX_SIDE + 1), -HFP_E_INVALID);
-  MUTATE(hfp_put_u32(c + 4, 4), -HFP_E_LENGTH);                /* dims vs payload */
-  MUTATE(hfp_put_u16(c + 12, 0), -HFP_E_INVALID);              /* spp 0 */
-  MUTATE(hfp_put_u16(c + 12, HFP_MAX_SPP + 1), -HFP_E_INVALID);
-  MUTATE(hfp_put_u16(c + 12, 1), -HFP_E_LENGTH);
-  MUTATE(c[14] = 2, -HFP_E_UNSUPPORTED);                       /* in dtype */
-  MUTATE(c[15] = 9, -HFP_E_UNSUPPORTED);                       /* out dtype */
-  MUTATE(c[14] = HFP_F16, -HFP_E_LENGTH);                      /* half the bytes */
-  MUTATE(hfp_put_u32(c + 16, 0x7fc00000u), -HFP_E_INVALID);    /* NaN colour */
-  MUTATE(hfp_put_u32(c + 48, 0x7f800000u), -HFP_E_INVALID);    /* inf background */
+  MUTATE(hfp_put_u16(c + 0, 0), -HFP_E_INVALID, "");                /* empty variant */
+  MUTATE(hfp_put_u16(c + 0, HFP_NAME_MAX + 1), -HFP_E_INVALID, "");
+  MUTATE(hfp_put_u16(c + 0, 5), -HFP_E_INVALID, "");     /* variant eats a data byte: 0.0f */
+  MUTATE(c[HFP_FILTER_FIXED] = 0x01, -HFP_E_INVALID, ""); /* control char in name */
+  MUTATE(hfp_put_u16(c + 2, 0x0100), -HFP_E_UNSUPPORTED, "Base");      /* unknown flag */
+  MUTATE(hfp_put_u32(c + 4, 0), -HFP_E_INVALID, "Base");               /* width 0 */
+  MUTATE(hfp_put_u32(c + 8, HFP_MAX_SIDE + 1), -HFP_E_INVALID, "Base");
+  MUTATE(hfp_put_u32(c + 4, 4), -HFP_E_LENGTH, "Base");                /* dims vs payload */
+  MUTATE(hfp_put_u16(c + 12, 0), -HFP_E_INVALID, "Base");              /* spp 0 */
+  MUTATE(hfp_put_u16(c + 12, HFP_MAX_SPP + 1), -HFP_E_INVALID, "Base");
+  MUTATE(hfp_put_u16(c + 12, 1), -HFP_E_LENGTH, "Base");
+  MUTATE(c[14] = 2, -HFP_E_UNSUPPORTED, "Base");                       /* in dtype */
+  MUTATE(c[15] = 9, -HFP_E_UNSUPPORTED, "Base");                       /* out dtype */
+  MUTATE(c[14] = HFP_F16, -HFP_E_LENGTH, "Base");                      /* half the bytes */
+  MUTATE(hfp_put_u32(c + 16, 0x7fc00000u), -HFP_E_INVALID, "Base");    /* NaN colour */
+  MUTATE(hfp_put_u32(c + 48, 0x7f800000u), -HFP_E_INVALID, "Base");    /* inf background */
 #undef MUTATE
 
   /* f16 in: half the bytes */
@@ -865,6 +868,26 @@ static void test_filter_shm(void **state) {
   assert_int_equal(hfp_shm_check(&d, UINT64_MAX), -HFP_E_LENGTH);
   d.shm_in = 2; /* f32 input not 4-aligned */
   assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+
+  /* regions may touch but not share a byte */
+  uint64_t in_len = 0, out_len = 0;
+  assert_int_equal(hfp_features_bytes(d.width, d.height, d.spp, d.in_dtype, &in_len), 0);
+  assert_int_equal(hfp_output_bytes(d.width, d.height, HFP_OUTPUTS, d.out_dtype, &out_len), 0);
+  d.shm_in = 0;
+  d.shm_out = in_len; /* right after the features */
+  d.shm_rgba = in_len + out_len;
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), 0);
+  d.shm_out = in_len - 2; /* its first element on the features' last */
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+  d.shm_out = 0; /* in place */
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+  d.shm_out = in_len;
+  d.shm_rgba = in_len + out_len - 2; /* the composite on the result's last element */
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+  d.shm_rgba = 0; /* the composite on the features */
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+  d.flags &= (uint16_t)~HFP_FILTER_COMPOSITE; /* no composite: its offset is not a region */
+  assert_int_equal(hfp_shm_check(&d, 1 << 20), 0);
 
   /* a RESULT for it carries no tensor */
   hfp_result r;

@@ -1047,6 +1047,17 @@ static void test_shared_memory(void **state) {
   assert_int_equal(hfc_filter(c, &r, &t), 0);
   assert_int_equal(t.via_shm, 0);
   free(out);
+  /* the result over its own features (regions overlap, which PROTOCOL.md
+   * refuses): the socket path, and the result is still the features' */
+  in = make_features(W, HH, v->cfg.spp, 32);
+  memcpy(mem, in, in_b);
+  r.features = mem;
+  r.result = mem;
+  assert_int_equal(hfc_filter(c, &r, &t), 0);
+  assert_int_equal(t.via_shm, 0);
+  assert_int_equal(reference(v, W, HH, in, HF_F32, want, HF_F32), 0);
+  assert_memory_equal(mem, want, out_b);
+  free(in);
   assert_int_equal(hfc_shm_free(c, mem), 0);
   assert_int_equal(hfc_shm_free(c, mem), HFC_E_ARG);
   /* more than the server's whole shared-memory budget: no retry can help */

@@ -329,9 +329,11 @@ HFC_API int hfc_pending(const hfc_client *c);
 
 /* On a Unix socket, frames can skip the socket: allocate buffers in memory
  * shared with the server, put features, result and rgba of a request in
- * the same segment, and hfc_filter / hfc_submit send only a reference;
- * the server reads the features and writes the results in place. Requests
- * whose buffers are elsewhere go through the socket as usual, and so do
+ * the same segment, not overlapping, and hfc_filter / hfc_submit send only
+ * a reference; the server reads the features and writes the results in
+ * place. Requests whose buffers are elsewhere, or overlap one another (a
+ * result written over its own features), go through the socket as usual,
+ * and so do
  * those in a segment of a connection lost in a failover (the memory stays
  * mapped until hfc_shm_free). At most 16 segments per client; *mem is
  * page-aligned. The server may refuse (HFC_E_BUSY when its shared-memory
