@@ -270,6 +270,13 @@ class PythonClient(unittest.TestCase):
             done = hf.filter("Small", fin)
             self.assertFalse(done.timing.via_shm)
             self.assertEqual(done.result.tobytes(), want)
+            # A result over its own features: regions may not overlap, so
+            # the socket path, and the result is the features'.
+            over = seg.array((32, 32, 3), np.float32, 0)
+            done = hf.filter("Small", fin, result=over)
+            self.assertFalse(done.timing.via_shm)
+            self.assertEqual(over.tobytes(), want)
+            fin[...] = f
             seg.close()
             # The connection is fine after the segment is gone.
             self.assertEqual(hf.filter("Small", f).result.tobytes(), want)

@@ -66,6 +66,13 @@ def _ssl_reason(e):
     return reason.lower().replace("_", " ") + _REASON_HINTS.get(reason, "")
 
 
+def _overlapping(offsets, arrays):
+    """Whether any two of the regions (offset, array.nbytes) share a byte:
+    PROTOCOL.md refuses such a reference, so the frame takes the socket."""
+    spans = sorted((o, o + a.nbytes) for o, a in zip(offsets, arrays))
+    return any(b0 < a1 for (_, a1), (b0, _) in zip(spans, spans[1:]))
+
+
 class Error(Exception):
     """A call that failed. code is the protocol's name of the error ("BUSY",
     "UNKNOWN_VARIANT", ...) or a local one: "URL", "CONNECT", "TLS", "CLOSED",
@@ -528,9 +535,10 @@ class Client:
             raise Error("INFLIGHT", "%d requests pending, as many as the server allows"
                         % len(self._pending))
         seg, ref = None, None
+        arrays = [f, result] + ([rgba] if composite else [])
         for s in self._segments:
             offs = (s.place(f), s.place(result), s.place(rgba) if composite else 0)
-            if None not in offs:
+            if None not in offs and not _overlapping(offs, arrays):
                 seg, ref = s, (s.id,) + offs
                 break
         rid = self._next_id
