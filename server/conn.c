@@ -553,7 +553,8 @@ static void filter_shm(hfd_conn *c, int v, const hfp_filter *f) {
   }
   int rc = hfp_shm_check(f, g->size);
   if (rc) {
-    reject(c, v, -rc, 0, "tensors outside segment %u (%llu bytes), misaligned or overlapping one another",
+    reject(c, v, -rc, 0,
+           "tensors outside segment %u (%llu bytes), misaligned or overlapping one another",
            f->shm_segment, (unsigned long long)g->size);
     return;
   }
