@@ -333,9 +333,8 @@ HFC_API int hfc_pending(const hfc_client *c);
  * a reference; the server reads the features and writes the results in
  * place. Requests whose buffers are elsewhere, or overlap one another (a
  * result written over its own features), go through the socket as usual,
- * and so do
- * those in a segment of a connection lost in a failover (the memory stays
- * mapped until hfc_shm_free). At most 16 segments per client; *mem is
+ * and so do those in a segment of a connection lost in a failover (the
+ * memory stays mapped until hfc_shm_free). At most 16 segments per client; *mem is
  * page-aligned. The server may refuse (HFC_E_BUSY when its shared-memory
  * budget is spent, HFC_E_TOO_LARGE over all of it, HFC_E_UNSUPPORTED on TCP
  * or when disabled). While a request is pending, do not write its features
