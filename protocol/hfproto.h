@@ -304,10 +304,12 @@ int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m);
 /* The fixed part of a FILTER alone (first HFP_FILTER_FIXED + variant bytes),
  * so a receiver can validate a request before reading its tensor.
  * data_len is set from the dimensions; data is NULL. On an error, m->variant
- * holds the name if it was read and well formed (the fault lies in a later
- * field: flags, dtypes, colours, dimensions, lengths, the SHM reference),
- * so the fault can be charged to the variant the request named; otherwise
- * it is empty. */
+ * holds the name if it was read and well formed: for a fault in the flags,
+ * dtypes, colours, dimensions, the tensor's length or the SHM reference's
+ * fields (segment 0, the reserved word, rgba_offset without COMPOSITE), so
+ * the fault can be charged to the variant the request named. It is empty
+ * for a fault in the name and when the name or the SHM reference runs past
+ * the payload (checked before the name is read). */
 int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
                            hfp_filter *m, size_t *head_len);
 int hfp_decode_result(const uint8_t *payload, size_t len, hfp_result *m);

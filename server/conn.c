@@ -614,8 +614,8 @@ static void filter_head(hfd_conn *c, size_t have) {
   }
   uint64_t left = len - have;
   /* A refusal counts in the `rejected` of the variant the FILTER names
-   * whenever its name could be read, the frame's other faults included;
-   * only one whose name is malformed or unknown is a protocol error
+   * whenever the codec read its name, the faults after the name included;
+   * one refused before (or naming no served variant) is a protocol error
    * (PROTOCOL.md, "Statistics"). The codec leaves the name empty unless it
    * read it. */
   int v = f.variant[0] ? hfd_variant_find(s, f.variant) : -1;
@@ -804,7 +804,9 @@ static void on_header(hfd_conn *c) {
         return;
       }
       if (!c->is_ipc) {
-        reject(c, -1, HFP_E_UNSUPPORTED, h->length, "shared memory needs a Unix socket");
+        reject(c, -1, HFP_E_UNSUPPORTED, h->length, "%s",
+               c->is_pipe ? "shared memory is disabled on this server (--max-shm-mb 0)"
+                          : "shared memory needs a Unix socket");
         return;
       }
       break;

@@ -417,10 +417,16 @@ void hfci_conn_lost(hfc_client *c, int k, int err) {
   for (int i = 0; i < c->np; i++) {
     pending *p = &c->p[i];
     if (p->state != P_SENT || p->conn != k) continue;
-    if (move && p->resends < c->max_resends)
+    if (move && p->resends < c->max_resends && !p->in_place) {
       requeue(p);
-    else
+    } else if (move && p->in_place) {
+      char in_place[MSG_MAX + 96];
+      snprintf(in_place, sizeof in_place,
+               "%s (not resent: its result may already have overwritten its features)", why);
+      hfci_finish(c, p, err, in_place);
+    } else {
       hfci_finish(c, p, err, why);
+    }
   }
   if (c->ctl_type && !c->ctl_done && c->ctl_conn == k) {
     c->ctl_done = 1;

@@ -72,6 +72,9 @@ typedef struct pending {
   uint64_t features_len;
   void *result, *rgba;
   int shm;                      /* the last send went by reference */
+  int in_place;                 /* result or rgba overlaps the features: a
+                                   failover cannot resend it (the result may
+                                   already have overwritten them) */
   int resends;
   double t_submit;
   hfc_completion comp;

@@ -235,6 +235,19 @@ static int grow(hfc_client *c, int n) {
   return 0;
 }
 
+/* Whether p's result or rgba shares a byte with its features (filtering in
+ * place). Such a frame may be sent through the socket, where its result
+ * arrives only after its features have gone, but never again after a
+ * failover: by then the result may have overwritten them. */
+static int overlaps_features(const pending *p) {
+  uint64_t out_len = 0, rgba_len = 0;
+  hfp_output_bytes(p->width, p->height, HFP_OUTPUTS, p->out_dtype, &out_len);
+  if (p->rgba) hfp_output_bytes(p->width, p->height, 4, p->out_dtype, &rgba_len);
+  uintptr_t f = (uintptr_t)p->features, r = (uintptr_t)p->result, a = (uintptr_t)p->rgba;
+  return (f < r + out_len && r < f + p->features_len) ||
+         (p->rgba && f < a + rgba_len && a < f + p->features_len);
+}
+
 static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) {
   hfci_begin(c);
   if (!c) return hfci_arg(NULL, "hfc_submit: the client is NULL");
@@ -275,6 +288,7 @@ static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) 
   p->features_len = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
   p->result = r->result;
   p->rgba = r->rgba;
+  p->in_place = overlaps_features(p);
   /* Whatever the codec refuses is refused now, before the slot is taken. */
   uint8_t head[HFP_FILTER_HEAD_MAX];
   const segment *g;

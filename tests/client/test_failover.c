@@ -225,6 +225,54 @@ static void test_killed_mid_stream(void **state) {
   assert_int_equal(server_stop(&b, 20000), 0);
 }
 
+/* Frames filtered in place (the result over the features) are not resent
+ * when their daemon dies: the result may already have overwritten the
+ * features. Frames beside them with their own result buffers are. */
+static void test_in_place_not_resent(void **state) {
+  (void)state;
+  server a, b;
+  assert_int_equal(server_start(&H, &a, NULL), 0);
+  assert_int_equal(server_start(&H, &b, NULL), 0);
+  hfc_client *c = connect_list(a.unix_url, b.unix_url, 0);
+  enum { N = 6 };
+  float *bufs[N];
+  for (int i = 0; i < N; i++) {
+    bufs[i] = malloc(in_bytes);
+    assert_non_null(bufs[i]);
+    memcpy(bufs[i], feat[i % NSEEDS], in_bytes);
+    int in_place = i % 2 == 0;
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = 4,
+                                 .features = bufs[i],
+                                 .result = in_place ? bufs[i] : malloc(out_bytes),
+                                 .user = (void *)(intptr_t)i);
+    assert_non_null(r.result);
+    assert_int_equal(hfc_submit(c, &r, NULL), 0);
+    if (!in_place) bufs[i] = r.result;   /* where its result lands */
+  }
+  kill(a.pid, SIGKILL);
+  int resent = 0, failed_in_place = 0;
+  for (int k = 0; k < N; k++) {
+    hfc_completion d;
+    assert_int_equal(hfc_wait(c, 20000, &d), 0);
+    int i = (int)(intptr_t)d.user;
+    if (i % 2 == 0) {
+      assert_int_equal(d.timing.resends, 0);
+      if (d.status == HFC_OK) assert_memory_equal(bufs[i], want[i % NSEEDS], out_bytes);
+      else failed_in_place++;
+    } else {
+      assert_int_equal(d.status, HFC_OK);
+      assert_memory_equal(bufs[i], want[i % NSEEDS], out_bytes);
+      resent += d.timing.resends > 0;
+    }
+  }
+  /* Some were in flight at the kill; the others came back before it. */
+  assert_true(failed_in_place + resent >= 1);
+  for (int i = 0; i < N; i++) free(bufs[i]);
+  assert_int_equal(reap(&a), 128 + SIGKILL);
+  hfc_close(c);
+  assert_int_equal(server_stop(&b, 20000), 0);
+}
+
 /* A daemon told to stop (SIGTERM) drains: what it admitted comes back from
  * it, and what it refuses (SHUTTING_DOWN) goes to the other. */
 static void test_draining_mid_stream(void **state) {
@@ -298,6 +346,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_unreachable_passed_over),
     cmocka_unit_test(test_killed_mid_stream),
+    cmocka_unit_test(test_in_place_not_resent),
     cmocka_unit_test(test_draining_mid_stream),
     cmocka_unit_test(test_busy_fails_over),
     cmocka_unit_test(test_shared_memory_failover),

@@ -837,21 +837,29 @@ static void test_filter_shm(void **state) {
   size_t head;
   assert_int_equal(hfp_decode_filter_head(p, HFP_FILTER_FIXED + 4, h.length, &d, &head),
                    -HFP_E_NOSPACE);
-  for (uint32_t len = 0; len < h.length; len++)
+  /* a reference cut short is found before the name is read: no name */
+  for (uint32_t len = 0; len < h.length; len++) {
     assert_int_equal(hfp_decode_filter(p, len, &d), -HFP_E_LENGTH);
+    assert_string_equal(d.variant, "");
+  }
   uint8_t c[256];
   memcpy(c, p, h.length);
   assert_int_equal(hfp_decode_filter(c, h.length + 1, &d), -HFP_E_LENGTH);
+  assert_string_equal(d.variant, "Base");
+  /* faults in the reference's fields come after the name: it is kept */
   size_t ref = HFP_FILTER_FIXED + 4;
   memcpy(c, p, h.length);
   hfp_put_u32(c + ref, 0); /* segment 0 */
   assert_int_equal(hfp_decode_filter(c, h.length, &d), -HFP_E_INVALID);
+  assert_string_equal(d.variant, "Base");
   memcpy(c, p, h.length);
   hfp_put_u32(c + ref + 4, 1); /* reserved */
   assert_int_equal(hfp_decode_filter(c, h.length, &d), -HFP_E_INVALID);
+  assert_string_equal(d.variant, "Base");
   memcpy(c, p, h.length);
   hfp_put_u16(c + 2, HFP_FILTER_SHM); /* rgba offset without COMPOSITE */
   assert_int_equal(hfp_decode_filter(c, h.length, &d), -HFP_E_INVALID);
+  assert_string_equal(d.variant, "Base");
   m.shm_segment = 0;
   assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 7, &m, &total), -HFP_E_INVALID);
 

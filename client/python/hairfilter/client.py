@@ -127,8 +127,10 @@ class Segment:
         return a
 
     def place(self, a):
-        """The byte offset of array a in this segment, or None."""
-        if a is None or not a.flags.c_contiguous:
+        """The byte offset of array a in this segment, or None (also for an
+        array not aligned to its element size, which PROTOCOL.md refuses:
+        the segment starts on a page, so its offset would not be either)."""
+        if a is None or not a.flags.c_contiguous or not a.flags.aligned:
             return None
         off = a.__array_interface__["data"][0] - self.base
         if 0 <= off and off + a.nbytes <= self.size:

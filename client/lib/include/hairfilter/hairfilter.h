@@ -108,7 +108,9 @@ HFC_API const char *hfc_last_message(const hfc_client *c);
 
 /* Failover when the URL lists several endpoints (hfc_options.failover). */
 #define HFC_FAILOVER_LOST  0x1u  /* a connection lost, closed, timed out or shutting
-                                    down: move to the next endpoint, resend its frames */
+                                    down: move to the next endpoint, resend its frames
+                                    (not those filtered in place, whose result overlaps
+                                    their features: they fail with the loss) */
 #define HFC_FAILOVER_BUSY  0x2u  /* a frame answered BUSY: send it to the next endpoint
                                     and move there */
 #define HFC_FAILOVER_NEVER 0x100u /* neither: a lost connection fails its frames */
@@ -332,13 +334,14 @@ HFC_API int hfc_pending(const hfc_client *c);
  * the same segment, not overlapping, and hfc_filter / hfc_submit send only
  * a reference; the server reads the features and writes the results in
  * place. Requests whose buffers are elsewhere, or overlap one another (a
- * result written over its own features), go through the socket as usual,
- * and so do those in a segment of a connection lost in a failover (the
- * memory stays mapped until hfc_shm_free). At most 16 segments per client; *mem is
- * page-aligned. The server may refuse (HFC_E_BUSY when its shared-memory
- * budget is spent, HFC_E_TOO_LARGE over all of it, HFC_E_UNSUPPORTED on TCP
- * or when disabled). While a request is pending, do not write its features
- * or read its results. */
+ * result written over its own features, never resent by a failover), go
+ * through the socket as usual, and so do those in a segment of a
+ * connection lost in a failover (the memory stays mapped until
+ * hfc_shm_free). At most 16 segments per client; *mem is page-aligned.
+ * The server may refuse (HFC_E_BUSY when its shared-memory budget is
+ * spent, HFC_E_TOO_LARGE over all of it, HFC_E_UNSUPPORTED on TCP or when
+ * disabled). While a request is pending, do not write its features or read
+ * its results. */
 HFC_API int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem);
 /* Releases a segment from hfc_shm_alloc; no request on it may be pending. */
 HFC_API int hfc_shm_free(hfc_client *c, void *mem);
