@@ -259,7 +259,7 @@ class PythonClient(unittest.TestCase):
         want = c_filter(UNIX, "Small", f)
         self.assertEqual(c_filter(UNIX, "Small", f, shm=True), want)
         with hairfilter.Client(UNIX) as hf:
-            seg = hf.shared_memory(f.nbytes + 32 * 32 * 3 * 4)
+            seg = hf.shared_memory(f.nbytes + 32 * 32 * 3 * 4 + 64)
             fin = seg.array(f.shape, np.float32, 0)
             fin[...] = f
             out = seg.array((32, 32, 3), np.float32, f.nbytes)
@@ -277,6 +277,13 @@ class PythonClient(unittest.TestCase):
             self.assertFalse(done.timing.via_shm)
             self.assertEqual(over.tobytes(), want)
             fin[...] = f
+            # A result at an odd byte offset (not aligned to float32): the
+            # server would refuse the reference, so the socket path.
+            odd = seg.array((32, 32, 3), np.float32, f.nbytes + 2)
+            self.assertFalse(odd.flags.aligned)
+            done = hf.filter("Small", fin, result=odd)
+            self.assertFalse(done.timing.via_shm)
+            self.assertEqual(odd.tobytes(), want)
             seg.close()
             # The connection is fine after the segment is gone.
             self.assertEqual(hf.filter("Small", f).result.tobytes(), want)
