@@ -235,19 +235,18 @@ static void test_in_place_not_resent(void **state) {
   assert_int_equal(server_start(&H, &b, NULL), 0);
   hfc_client *c = connect_list(a.unix_url, b.unix_url, 0);
   enum { N = 6 };
-  float *bufs[N];
+  float *feats[N], *results[N];   /* results[i] == feats[i]: in place */
   for (int i = 0; i < N; i++) {
-    bufs[i] = malloc(in_bytes);
-    assert_non_null(bufs[i]);
-    memcpy(bufs[i], feat[i % NSEEDS], in_bytes);
     int in_place = i % 2 == 0;
+    feats[i] = malloc(in_bytes);
+    results[i] = in_place ? feats[i] : malloc(out_bytes);
+    assert_non_null(feats[i]);
+    assert_non_null(results[i]);
+    memcpy(feats[i], feat[i % NSEEDS], in_bytes);
     hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = 4,
-                                 .features = bufs[i],
-                                 .result = in_place ? bufs[i] : malloc(out_bytes),
+                                 .features = feats[i], .result = results[i],
                                  .user = (void *)(intptr_t)i);
-    assert_non_null(r.result);
     assert_int_equal(hfc_submit(c, &r, NULL), 0);
-    if (!in_place) bufs[i] = r.result;   /* where its result lands */
   }
   kill(a.pid, SIGKILL);
   int resent = 0, failed_in_place = 0;
@@ -257,17 +256,20 @@ static void test_in_place_not_resent(void **state) {
     int i = (int)(intptr_t)d.user;
     if (i % 2 == 0) {
       assert_int_equal(d.timing.resends, 0);
-      if (d.status == HFC_OK) assert_memory_equal(bufs[i], want[i % NSEEDS], out_bytes);
+      if (d.status == HFC_OK) assert_memory_equal(results[i], want[i % NSEEDS], out_bytes);
       else failed_in_place++;
     } else {
       assert_int_equal(d.status, HFC_OK);
-      assert_memory_equal(bufs[i], want[i % NSEEDS], out_bytes);
+      assert_memory_equal(results[i], want[i % NSEEDS], out_bytes);
       resent += d.timing.resends > 0;
     }
   }
   /* Some were in flight at the kill; the others came back before it. */
   assert_true(failed_in_place + resent >= 1);
-  for (int i = 0; i < N; i++) free(bufs[i]);
+  for (int i = 0; i < N; i++) {
+    if (results[i] != feats[i]) free(results[i]);
+    free(feats[i]);
+  }
   assert_int_equal(reap(&a), 128 + SIGKILL);
   hfc_close(c);
   assert_int_equal(server_stop(&b, 20000), 0);
