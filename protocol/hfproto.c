@@ -918,10 +918,8 @@ static int region_ok(uint64_t off, uint64_t n, uint64_t size, size_t es) {
   return off % es == 0 && off <= size && n <= size - off;
 }
 
-/* Whether [a, a + an) and [b, b + bn) share a byte; both lie inside one
- * segment, so the sums do not wrap. */
-static int overlap(uint64_t a, uint64_t an, uint64_t b, uint64_t bn) {
-  return a < b + bn && b < a + an;
+int hfp_regions_overlap(uint64_t a, uint64_t an, uint64_t b, uint64_t bn) {
+  return an && bn && a < b + bn && b < a + an;
 }
 
 int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
@@ -937,9 +935,9 @@ int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
     return -HFP_E_LENGTH;
   /* Disjoint: a backend may still read the features (Kernel's output stage
    * reads them again) while it writes the result, from several threads. */
-  if (overlap(m->shm_in, in_len, m->shm_out, out_len) ||
-      (rgba_len && (overlap(m->shm_in, in_len, m->shm_rgba, rgba_len) ||
-                    overlap(m->shm_out, out_len, m->shm_rgba, rgba_len))))
+  if (hfp_regions_overlap(m->shm_in, in_len, m->shm_out, out_len) ||
+      (rgba_len && (hfp_regions_overlap(m->shm_in, in_len, m->shm_rgba, rgba_len) ||
+                    hfp_regions_overlap(m->shm_out, out_len, m->shm_rgba, rgba_len))))
     return -HFP_E_LENGTH;
   return 0;
 }

@@ -330,6 +330,10 @@ int hfp_decode_shm_destroy(const uint8_t *payload, size_t len, uint32_t *segment
  * region inside it, aligned to its element size and overlapping no other
  * region of the request; -HFP_E_LENGTH if not. */
 int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes);
+/* Whether the byte ranges [a, a + an) and [b, b + bn) share a byte (offsets
+ * in one segment, or addresses in one process); an empty range shares none.
+ * The caller keeps a + an and b + bn below 2^64, as ranges that exist do. */
+int hfp_regions_overlap(uint64_t a, uint64_t an, uint64_t b, uint64_t bn);
 
 /* Version negotiation: the highest version both sides speak, or
  * HFP_E_VERSION (also for an empty range, client_min > client_max). */

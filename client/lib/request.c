@@ -243,9 +243,9 @@ static int overlaps_features(const pending *p) {
   uint64_t out_len = 0, rgba_len = 0;
   hfp_output_bytes(p->width, p->height, HFP_OUTPUTS, p->out_dtype, &out_len);
   if (p->rgba) hfp_output_bytes(p->width, p->height, 4, p->out_dtype, &rgba_len);
-  uintptr_t f = (uintptr_t)p->features, r = (uintptr_t)p->result, a = (uintptr_t)p->rgba;
-  return (f < r + out_len && r < f + p->features_len) ||
-         (p->rgba && f < a + rgba_len && a < f + p->features_len);
+  uint64_t f = (uintptr_t)p->features, r = (uintptr_t)p->result, a = (uintptr_t)p->rgba;
+  return hfp_regions_overlap(f, p->features_len, r, out_len) ||
+         (p->rgba && hfp_regions_overlap(f, p->features_len, a, rgba_len));
 }
 
 static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) {

@@ -917,6 +917,18 @@ static void test_filter_shm(void **state) {
   assert_int_equal(hfp_encode_result_head(buf, sizeof buf, 7, &r, &total), -HFP_E_INVALID);
 }
 
+static void test_regions_overlap(void **state) {
+  (void)state;
+  assert_true(hfp_regions_overlap(0, 10, 9, 1));    /* one byte shared */
+  assert_false(hfp_regions_overlap(0, 10, 10, 5));  /* touching */
+  assert_false(hfp_regions_overlap(10, 5, 0, 10));
+  assert_true(hfp_regions_overlap(4, 2, 0, 10));    /* one inside the other */
+  assert_true(hfp_regions_overlap(0, 10, 4, 2));
+  assert_false(hfp_regions_overlap(0, 10, 5, 0));   /* empty ranges share nothing */
+  assert_false(hfp_regions_overlap(5, 0, 0, 10));
+  assert_true(hfp_regions_overlap(UINT64_MAX - 8, 8, UINT64_MAX - 1, 1));
+}
+
 static void test_shm_messages(void **state) {
   (void)state;
   hfp_header h;
@@ -973,7 +985,8 @@ int main(void) {
     cmocka_unit_test(test_variants), cmocka_unit_test(test_filter),
     cmocka_unit_test(test_result),  cmocka_unit_test(test_error),
     cmocka_unit_test(test_stats),   cmocka_unit_test(test_histogram),
-    cmocka_unit_test(test_filter_shm), cmocka_unit_test(test_shm_messages),
+    cmocka_unit_test(test_filter_shm), cmocka_unit_test(test_regions_overlap),
+    cmocka_unit_test(test_shm_messages),
     cmocka_unit_test(test_version2),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
