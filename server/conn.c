@@ -109,24 +109,11 @@ static const char *conn_kv(const hfd_conn *c, char *buf, size_t cap) {
 }
 
 /* Error lines are rate-limited (a peer can make errors as fast as it can
- * send bytes); what is dropped is counted and reported with the next line. */
+ * send bytes); what is dropped is counted and reported with the next line.
+ * The loop thread's own budget. */
 static int log_allowed(void) {
-  static double window_start;
-  static int in_window;
-  static unsigned long suppressed;
-  double now = hfd_now_us();
-  if (now - window_start > 1e6) {
-    if (suppressed) hfd_log("%lu error line(s) suppressed in the last interval", suppressed);
-    window_start = now;
-    in_window = 0;
-    suppressed = 0;
-  }
-  if (in_window < 20) {
-    in_window++;
-    return 1;
-  }
-  suppressed++;
-  return 0;
+  static hfd_rate lines;
+  return hfd_rate_allow(&lines, 20, "error");
 }
 
 /* ---- writes -------------------------------------------------------------- */

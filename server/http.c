@@ -12,6 +12,14 @@
  *                  weights file serving a variant, not draining; else 503
  *                  with why: the readiness probe
  *
+ * Slots: the endpoint keeps HTTP_SLOTS connections. A crowd of silent or
+ * trickling peers must not shut the liveness probe out (libmicrohttpd's own
+ * limit refuses the newest connection, and a byte a second keeps its idle
+ * timeout from firing), so when one more arrives the one that has waited
+ * longest for a complete request is shut down, as the protocol port does
+ * with handshakes (conn.c). libmicrohttpd's limit stays above ours, room to
+ * accept while the evicted ones close.
+ *
  * Threads: everything a request is about belongs to the loop thread. The
  * HTTP thread never reads it; it asks the loop for an answer (uv_async_send,
  * the one libuv call safe from another thread) and waits on a condition
@@ -23,17 +31,31 @@
  */
 #define _GNU_SOURCE
 #include <microhttpd.h>
+#include <errno.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 #include <time.h>
 
 #include "server.h"
 
 #define ANSWER_TIMEOUT_MS 5000
+#define HTTP_SLOTS 32            /* connections kept */
+#define HTTP_MHD_LIMIT 64        /* libmicrohttpd's hard limit */
+#define HTTP_IDLE_TIMEOUT_S 10   /* libmicrohttpd's idle timeout */
 
 typedef struct hfd_http hfd_http;
+
+/* One open connection, in hfd_http's list (HTTP thread only). */
+typedef struct http_conn {
+  struct http_conn *prev, *next;
+  int fd;
+  double waiting_since;          /* hfd_now_us: since then no complete request */
+  int answering;                 /* a request of it is being answered */
+  int evicted;                   /* shut down, not yet closed by libmicrohttpd */
+} http_conn;
 
 struct hfd_http {
   hfd_server *s;
@@ -49,6 +71,10 @@ struct hfd_http {
   size_t len;
   int ready;
   char why[300];
+  /* HTTP thread only */
+  http_conn *conns;              /* newest first */
+  int live;                      /* in conns and not evicted */
+  hfd_rate log_lines;            /* libmicrohttpd's warnings */
 };
 
 /* Loop thread: answers what the HTTP thread asked for. */
@@ -141,6 +167,9 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
   (void)version;
   (void)upload_data;
   (void)req_cls;
+  const union MHD_ConnectionInfo *ci =
+      MHD_get_connection_info(conn, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+  if (ci && ci->socket_context) ((http_conn *)ci->socket_context)->answering = 1;
   if (strcmp(method, MHD_HTTP_METHOD_GET) && strcmp(method, MHD_HTTP_METHOD_HEAD))
     return text_reply(conn, MHD_HTTP_METHOD_NOT_ALLOWED, "only GET\n");
   if (*upload_data_size) return text_reply(conn, MHD_HTTP_BAD_REQUEST, "no body expected\n");
@@ -176,12 +205,81 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
   return reply(conn, MHD_HTTP_OK, "text/plain; version=0.0.4; charset=utf-8", text, len);
 }
 
+/* libmicrohttpd's warnings; a peer can cause one per connection (refused
+ * at its limit, a malformed request), so they share a budget per second. */
 static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
-  (void)cls;
+  hfd_http *h = cls;
+  if (!hfd_rate_allow(&h->log_lines, 20, "http warning")) return;
   char msg[512];
   vsnprintf(msg, sizeof msg, fmt, ap);
   msg[strcspn(msg, "\n")] = 0;
   hfd_warn("http: %s", msg);
+}
+
+/* Shuts down the live connection, other than keep, that has waited longest
+ * for a complete request; libmicrohttpd then sees it end and closes it
+ * (its fd is never closed here, so it cannot be reused under it). */
+static void evict_longest_waiting(hfd_http *h, const http_conn *keep) {
+  http_conn *victim = NULL;
+  for (http_conn *c = h->conns; c; c = c->next)
+    if (c != keep && !c->evicted && !c->answering &&
+        (!victim || c->waiting_since <= victim->waiting_since))
+      victim = c;
+  if (!victim) return;
+  victim->evicted = 1;
+  h->live--;
+  if (shutdown(victim->fd, SHUT_RDWR) != 0 && errno != ENOTCONN) {
+    int e = errno;
+    if (hfd_rate_allow(&h->log_lines, 20, "http warning"))
+      hfd_warn("http: shutdown of a connection over the limit: %s", strerror(e));
+    return;
+  }
+  if (hfd_rate_allow(&h->log_lines, 20, "http warning"))
+    hfd_warn("http: %d connections, the limit: closed the one %.1f s without a complete "
+             "request", HTTP_SLOTS, (hfd_now_us() - victim->waiting_since) / 1e6);
+}
+
+/* Connections start and close (MHD_OPTION_NOTIFY_CONNECTION). */
+static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_context,
+                          enum MHD_ConnectionNotificationCode toe) {
+  hfd_http *h = cls;
+  if (toe == MHD_CONNECTION_NOTIFY_STARTED) {
+    const union MHD_ConnectionInfo *ci =
+        MHD_get_connection_info(conn, MHD_CONNECTION_INFO_CONNECTION_FD);
+    http_conn *c = ci ? calloc(1, sizeof *c) : NULL;
+    *socket_context = c;
+    if (!c) return;  /* untracked: never evicted, closed by the idle timeout */
+    c->fd = ci->connect_fd;
+    c->waiting_since = hfd_now_us();
+    c->next = h->conns;
+    if (h->conns) h->conns->prev = c;
+    h->conns = c;
+    if (++h->live > HTTP_SLOTS) evict_longest_waiting(h, c);
+    return;
+  }
+  http_conn *c = *socket_context;
+  if (!c) return;
+  if (c->prev) c->prev->next = c->next;
+  else h->conns = c->next;
+  if (c->next) c->next->prev = c->prev;
+  if (!c->evicted) h->live--;
+  free(c);
+  *socket_context = NULL;
+}
+
+/* A request was answered (MHD_OPTION_NOTIFY_COMPLETED): its connection
+ * waits for the next one from now. */
+static void on_completed(void *cls, struct MHD_Connection *conn, void **req_cls,
+                         enum MHD_RequestTerminationCode toe) {
+  (void)cls;
+  (void)req_cls;
+  (void)toe;
+  const union MHD_ConnectionInfo *ci =
+      MHD_get_connection_info(conn, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+  http_conn *c = ci ? ci->socket_context : NULL;
+  if (!c) return;
+  c->answering = 0;
+  c->waiting_since = hfd_now_us();
 }
 
 int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
@@ -219,10 +317,12 @@ int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
   unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_ERROR_LOG |
                    (v6 ? MHD_USE_IPv6 : 0);
   h->d = MHD_start_daemon(flags, 0, NULL, NULL, on_request, h,
-                          MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL,
+                          MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, h,
                           MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&ss,
-                          MHD_OPTION_CONNECTION_LIMIT, (unsigned)32,
-                          MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)10,
+                          MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_MHD_LIMIT,
+                          MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_IDLE_TIMEOUT_S,
+                          MHD_OPTION_NOTIFY_CONNECTION, on_connection, h,
+                          MHD_OPTION_NOTIFY_COMPLETED, on_completed, h,
                           MHD_OPTION_END);
   if (!h->d) {
     hfd_err("--http %s: cannot listen there (address in use, or not this host's?)",
@@ -250,6 +350,12 @@ void hfd_http_stop(hfd_server *s) {
   hfd_http *h = s->http;
   if (!h) return;
   if (h->d) MHD_stop_daemon(h->d);
+  /* Its thread has ended; anything it did not report closed goes here. */
+  while (h->conns) {
+    http_conn *c = h->conns;
+    h->conns = c->next;
+    free(c);
+  }
   free(h->text);
   pthread_cond_destroy(&h->cv);
   pthread_mutex_destroy(&h->mu);

@@ -72,6 +72,23 @@ void hfd_logl(int level, const char *fmt, ...) {
           (long)getpid(), tag, msg);
 }
 
+int hfd_rate_allow(hfd_rate *r, int per_second, const char *what) {
+  double now = hfd_now_us();
+  if (now - r->window_start > 1e6) {
+    if (r->suppressed)
+      hfd_log("%lu %s line(s) suppressed in the last interval", r->suppressed, what);
+    r->window_start = now;
+    r->in_window = 0;
+    r->suppressed = 0;
+  }
+  if (r->in_window < per_second) {
+    r->in_window++;
+    return 1;
+  }
+  r->suppressed++;
+  return 0;
+}
+
 void hfd_kv(char *buf, size_t cap, const char *key, const char *value) {
   size_t n = strlen(buf);
   int quote = !value[0];

@@ -345,7 +345,8 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
          "ERROR replies not tied to a variant: malformed frames, failed handshakes, deadlines.",
          s->protocol_errors);
   scalar(f, "hairfilterd_replies_lost_total", "counter",
-         "Results computed whose client had gone before they could be written.",
+         "Results computed and never delivered: the client had gone, or its connection was "
+         "closed with them unread.",
          s->replies_lost);
   scalar(f, "hairfilterd_request_memory_bytes", "gauge",
          "Host memory charged to requests: features, results, inference (--max-memory-mb).",

@@ -50,6 +50,17 @@ int hfd_log_level_parse(const char *name);
 const char *hfd_log_level_name(int level);
 /* Checks stderr against $JOURNAL_STREAM; call once at start. */
 void hfd_log_init(void);
+/* A budget of lines per second for lines a peer can cause as fast as it
+ * sends bytes. One hfd_rate per thread that uses it (not locked); zeroed to
+ * start. hfd_rate_allow says whether one more line fits in the current
+ * second; the first line of a new second is preceded by "N <what> line(s)
+ * suppressed in the last interval" when lines were dropped. */
+typedef struct hfd_rate {
+  double window_start;           /* hfd_now_us */
+  int in_window;
+  unsigned long suppressed;
+} hfd_rate;
+int hfd_rate_allow(hfd_rate *r, int per_second, const char *what);
 /* Appends " key=value" to buf (of cap bytes, NUL-terminated), quoting the
  * value ("...", with \" and \\) when it is empty or holds a space, a quote,
  * '=' or a byte outside printable ASCII (shown as '?'). */

@@ -15,9 +15,11 @@ usage: test_metrics.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR
 """
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
+import urllib.parse
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from opsdaemon import (Daemon, check, finish, load_result, run_then_stop,  # noqa: E402
@@ -51,6 +53,11 @@ def main():
         "--weights", os.path.join(WEIGHTS, "small.safetensors"), "--backend", "cpu-ref",
         "--queue-size", "8", "--max-size", "512x512"], w)
     run_then_stop(d, w, lambda: drain(d))
+    w = workdir()
+    d = Daemon(HAIRFILTERD, [
+        "--listen", "unix:%s/s.sock" % w, "--http", "tcp:127.0.0.1:0",
+        "--weights", os.path.join(WEIGHTS, "small.safetensors"), "--backend", "cpu-ref"], w)
+    run_then_stop(d, w, lambda: crowd(d))
 
 
 def run(d):
@@ -188,6 +195,57 @@ def drain(d):
     check(seen is not None and "draining" in seen[1] and seen[2][0] == 200,
           "/readyz 503 'draining' and /healthz 200 while draining: %s" % (seen,))
     slow.communicate(timeout=120)
+
+
+def crowd(d):
+    """Probes get through a crowd on the HTTP port: 40 connections that
+    trickle a request's headers a byte at a time (each byte restarts the
+    idle timeout), then 40 that say nothing. The endpoint keeps 32; the one
+    waiting longest for a complete request makes room for a new one."""
+    u = urllib.parse.urlsplit(d.urls["http"])
+    addr = (u.hostname, u.port)
+    slow = []
+    for _ in range(40):
+        s = socket.create_connection(addr)
+        s.sendall(b"GET /metrics HTTP/1.1\r\nHost: x\r\n")
+        slow.append(s)
+        time.sleep(0.005)
+    answered = 0
+    for _ in range(6):
+        for s in slow:
+            try:
+                s.send(b"X")
+            except OSError:
+                pass
+        try:
+            answered += d.get("/healthz", timeout=2) == (200, "ok\n")
+        except OSError:
+            pass
+        time.sleep(0.3)
+    check(answered == 6, "/healthz answered %d of 6 times among 40 trickling "
+          "connections" % answered)
+    # The oldest were closed to make room: they read the end of the stream.
+    closed = 0
+    for s in slow[:8]:
+        s.settimeout(2)
+        try:
+            closed += s.recv(1) == b""
+        except socket.timeout:
+            pass  # still open
+        except ConnectionError:
+            closed += 1
+    check(closed == 8, "%d of the 8 oldest trickling connections closed" % closed)
+    for s in slow:
+        s.close()
+    idle = [socket.create_connection(addr) for _ in range(40)]
+    try:
+        st = d.get("/healthz", timeout=2)
+    except OSError as e:
+        st = e
+    check(st == (200, "ok\n"), "/healthz among 40 silent connections: %s" % (st,))
+    for s in idle:
+        s.close()
+    check(d.get("/metrics")[0] == 200, "/metrics after the crowds")
 
 
 main()
