@@ -272,7 +272,7 @@ static void account(hfd_server *s, hfd_job *j) {
  * still open. */
 static void deliver(hfd_server *s, hfd_job *j) {
   hfd_conn *c = j->conn;
-  c->inflight--;
+  if (--c->inflight == 0) s->conns_with_frames--;
   s->jobs_outstanding--;
   /* The worker is done with the model: a replaced one may go now. */
   hfd_model_unref(s, j->model);
@@ -679,6 +679,20 @@ static void filter_head(hfd_conn *c, size_t have) {
   }
 }
 
+/* The most frames one connection may hold (admitted, not yet answered):
+ * with n connections holding frames, this one counted, its share is
+ * queue_size / (n + 1), at least 1. The +1 keeps room for a connection that
+ * holds none, so clients that resend the moment a slot frees (after every
+ * BUSY) cannot keep the queue full against one that sends a frame at a
+ * time; the queue is shared, not first come first served. With the defaults
+ * (queue 64, 32 in flight per connection) it only bites from two busy
+ * connections on. */
+static int queue_share(const hfd_server *s, const hfd_conn *c) {
+  int n = s->conns_with_frames + (c->inflight == 0);
+  int share = s->cfg->queue_size / (n + 1);
+  return share > 0 ? share : 1;
+}
+
 /* The FILTER's tensor is in: charge its result buffers and what running it
  * takes, and admit it to the queue, or say why not. */
 static void filter_admit(hfd_conn *c) {
@@ -697,6 +711,9 @@ static void filter_admit(hfd_conn *c) {
   } else if (c->inflight >= s->cfg->max_inflight) {
     code = HFP_E_BUSY;
     why = "too many requests in flight on this connection";
+  } else if (c->inflight >= queue_share(s, c)) {
+    code = HFP_E_BUSY;
+    why = "this connection holds its share of the queue";
   } else if (run == UINT64_MAX || !mem_fits(s, more)) {
     code = HFP_E_BUSY;
     why = "request memory full";
@@ -722,7 +739,7 @@ static void filter_admit(hfd_conn *c) {
     send_error(c, j->request_id, code, 0, "%s", why);
     job_free(s, j);
   } else {
-    c->inflight++;
+    if (c->inflight++ == 0) s->conns_with_frames++;
     s->jobs_outstanding++;
   }
   read_next(c);

@@ -481,6 +481,7 @@ struct hfd_server {
   uint64_t shm_held;             /* bytes of shared segments */
   uint64_t replies_lost;         /* computed, but the peer had gone */
   int jobs_outstanding;          /* admitted, not yet answered */
+  int conns_with_frames;         /* connections with inflight > 0 */
   int draining, stopped;
   int hurry;                     /* a second signal: no more waiting */
   int ready_written;             /* the ready file is ours to remove */

@@ -13,9 +13,12 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "harness.h"
@@ -109,6 +112,107 @@ static burst send_burst(hfc_client *c, int w, int h, int n) {
   free(out);
   free(in);
   return b;
+}
+
+/* A client that keeps its window of 4 full, resending the moment a reply
+ * (a RESULT or a BUSY) comes back, until *stop. */
+typedef struct hog {
+  const server *d;
+  atomic_int *stop;
+  int served, busy, failed;
+} hog;
+
+static void *hog_main(void *arg) {
+  hog *g = arg;
+  enum { W = 96, WINDOW = 4 };
+  hfc_client *c = client_connect(g->d, "hog");
+  float *in = make_features(W, W, 4, 5);
+  float *out = malloc((size_t)WINDOW * W * W * 3 * sizeof *out);
+  if (!c || !in || !out) {
+    g->failed = 1;
+  } else {
+    int pending = 0, slot_free[WINDOW] = {1, 1, 1, 1};
+    while (!atomic_load(g->stop) || pending) {
+      for (int k = 0; k < WINDOW && !atomic_load(g->stop); k++) {
+        if (!slot_free[k]) continue;
+        hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = W, .spp = 4,
+                                     .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
+                                     .result = out + (size_t)k * W * W * 3,
+                                     .user = (void *)(intptr_t)k);
+        if (hfc_submit(c, &r, NULL)) {
+          g->failed = 1;
+          atomic_store(g->stop, 1);
+          break;
+        }
+        slot_free[k] = 0;
+        pending++;
+      }
+      if (!pending) break;
+      hfc_completion done;
+      if (hfc_wait(c, 60000, &done)) {
+        g->failed = 1;
+        break;
+      }
+      slot_free[(intptr_t)done.user] = 1;
+      pending--;
+      if (done.status == 0) g->served++;
+      else if (done.status == HFC_E_BUSY) g->busy++;
+      else g->failed = 1;
+    }
+  }
+  if (c) hfc_close(c);
+  free(out);
+  free(in);
+  return NULL;
+}
+
+/* Item: the queue is shared (docs/SERVER.md, "Flow control"). Three
+ * connections keep their windows full, resending at once after every reply;
+ * with --queue-size 8 and 4 in flight each they could hold 12 frames, so
+ * first come first served would leave a client that sends one frame every
+ * 20 ms almost nothing but BUSY. Each holds at most its share, 8 / (n + 1),
+ * and the polite client finds room nearly every time. */
+static void test_queue_shared(void **state) {
+  (void)state;
+  const char *extra[] = {"--queue-size", "8", "--max-inflight", "4", "--max-batch", "1",
+                         NULL};
+  server d;
+  if (server_start(&H, &d, extra)) fail_msg("daemon did not start");
+  atomic_int stop = 0;
+  hog hogs[3];
+  pthread_t th[3];
+  for (int k = 0; k < 3; k++) {
+    hogs[k] = (hog){.d = &d, .stop = &stop};
+    assert_int_equal(pthread_create(&th[k], NULL, hog_main, &hogs[k]), 0);
+  }
+  usleep(300 * 1000);  /* the hogs fill the queue */
+  hfc_client *c = client_connect(&d, "polite");
+  assert_non_null(c);
+  enum { N = 20, W = 16 };
+  float *in = make_features(W, W, 4, 9), *out = malloc((size_t)W * W * 3 * sizeof *out);
+  int busy = 0, served = 0;
+  for (int i = 0; i < N; i++) {
+    hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = W, .spp = 4,
+                                 .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
+                                 .result = out);
+    int rc = hfc_filter(c, &r, NULL);
+    if (rc == HFC_E_BUSY) busy++;
+    else if (rc == 0) served++;
+    else fail_msg("polite frame %d: %s (%s)", i, hfc_strerror(rc), hfc_last_message(c));
+    usleep(20 * 1000);
+  }
+  atomic_store(&stop, 1);
+  for (int k = 0; k < 3; k++) pthread_join(th[k], NULL);
+  hfc_close(c);
+  free(in);
+  free(out);
+  int hog_busy = hogs[0].busy + hogs[1].busy + hogs[2].busy;
+  printf("polite client: %d served, %d BUSY of %d; hogs: %d, %d, %d served, %d BUSY\n", served,
+         busy, N, hogs[0].served, hogs[1].served, hogs[2].served, hog_busy);
+  for (int k = 0; k < 3; k++) assert_false(hogs[k].failed);
+  assert_true(hog_busy > 0);        /* the queue was contended */
+  assert_true(served >= N * 3 / 4);
+  assert_int_equal(server_stop(&d, 20000), 0);
 }
 
 /* Item: HELLO_OK announces a size a frame can meet. With a 1 MiB frame
@@ -475,6 +579,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_batches_form_within_budget),
     cmocka_unit_test(test_announced_maximum_is_admitted),
+    cmocka_unit_test(test_queue_shared),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
     cmocka_unit_test(test_inference_memory_in_budget),
