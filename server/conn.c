@@ -679,18 +679,22 @@ static void filter_head(hfd_conn *c, size_t have) {
   }
 }
 
-/* The most frames one connection may hold (admitted, not yet answered):
- * with n connections holding frames, this one counted, its share is
- * queue_size / (n + 1), at least 1. The +1 keeps room for a connection that
- * holds none, so clients that resend the moment a slot frees (after every
- * BUSY) cannot keep the queue full against one that sends a frame at a
- * time; the queue is shared, not first come first served. With the defaults
- * (queue 64, 32 in flight per connection) it only bites from two busy
- * connections on. */
-static int queue_share(const hfd_server *s, const hfd_conn *c) {
+/* Whether c must wait for its share of the queue: the last quarter of the
+ * queue (at least one place) goes only to connections holding fewer frames
+ * (admitted, not yet answered) than queue_size / n, n the connections
+ * holding frames with c counted, at least 1. So clients that resend the
+ * moment a slot frees (after every BUSY) fill the queue up to its last
+ * quarter only, and one that sends a frame at a time, holding none, finds
+ * room there; the queue is shared, not first come first served. The rule
+ * refuses nothing that is within its share: a connection alone may fill the
+ * whole queue, and connections that each stay within queue_size / n never
+ * meet it (the defaults: queue 64, 32 in flight per connection). */
+static int over_queue_share(hfd_server *s, const hfd_conn *c) {
+  int q = s->cfg->queue_size, reserve = q / 4 > 0 ? q / 4 : 1;
+  if (hfd_worker_queue_depth(&s->worker) + 1 <= q - reserve) return 0;
   int n = s->conns_with_frames + (c->inflight == 0);
-  int share = s->cfg->queue_size / (n + 1);
-  return share > 0 ? share : 1;
+  int share = q / n;
+  return c->inflight >= (share > 0 ? share : 1);
 }
 
 /* The FILTER's tensor is in: charge its result buffers and what running it
@@ -711,7 +715,7 @@ static void filter_admit(hfd_conn *c) {
   } else if (c->inflight >= s->cfg->max_inflight) {
     code = HFP_E_BUSY;
     why = "too many requests in flight on this connection";
-  } else if (c->inflight >= queue_share(s, c)) {
+  } else if (over_queue_share(s, c)) {
     code = HFP_E_BUSY;
     why = "this connection holds its share of the queue";
   } else if (run == UINT64_MAX || !mem_fits(s, more)) {

@@ -12,13 +12,14 @@
  *                  weights file serving a variant, not draining; else 503
  *                  with why: the readiness probe
  *
- * Slots: the endpoint keeps HTTP_SLOTS connections. A crowd of silent or
- * trickling peers must not shut the liveness probe out (libmicrohttpd's own
- * limit refuses the newest connection, and a byte a second keeps its idle
- * timeout from firing), so when one more arrives the one that has waited
- * longest for a complete request is shut down, as the protocol port does
- * with handshakes (conn.c). libmicrohttpd's limit stays above ours, room to
- * accept while the evicted ones close.
+ * Slots: the endpoint keeps HTTP_SLOTS connections. A crowd of silent,
+ * trickling or slowly reading peers must not shut the liveness probe out
+ * (libmicrohttpd's own limit refuses the newest connection, and a byte a
+ * second keeps its idle timeout from firing), so when one more arrives the
+ * oldest is shut down, as the protocol port does with handshakes (conn.c).
+ * Every reply closes its connection ("Connection: close"), so the oldest is
+ * the one that has waited longest for its answer. libmicrohttpd's limit
+ * stays above ours, room to accept while the evicted ones close.
  *
  * Threads: everything a request is about belongs to the loop thread. The
  * HTTP thread never reads it; it asks the loop for an answer (uv_async_send,
@@ -52,9 +53,9 @@ typedef struct hfd_http hfd_http;
 typedef struct http_conn {
   struct http_conn *prev, *next;
   int fd;
-  double waiting_since;          /* hfd_now_us: since then no complete request */
-  int answering;                 /* a request of it is being answered */
+  double since;                  /* hfd_now_us when accepted */
   int evicted;                   /* shut down, not yet closed by libmicrohttpd */
+  int stuck;                     /* its shutdown failed: not chosen again */
 } http_conn;
 
 struct hfd_http {
@@ -167,9 +168,6 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
   (void)version;
   (void)upload_data;
   (void)req_cls;
-  const union MHD_ConnectionInfo *ci =
-      MHD_get_connection_info(conn, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
-  if (ci && ci->socket_context) ((http_conn *)ci->socket_context)->answering = 1;
   if (strcmp(method, MHD_HTTP_METHOD_GET) && strcmp(method, MHD_HTTP_METHOD_HEAD))
     return text_reply(conn, MHD_HTTP_METHOD_NOT_ALLOWED, "only GET\n");
   if (*upload_data_size) return text_reply(conn, MHD_HTTP_BAD_REQUEST, "no body expected\n");
@@ -206,7 +204,10 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
 }
 
 /* libmicrohttpd's warnings; a peer can cause one per connection (refused
- * at its limit, a malformed request), so they share a budget per second. */
+ * at its limit, a malformed request), so they share a budget per second.
+ * libmicrohttpd calls this on its own thread, and on the caller's only in
+ * MHD_start_daemon before that thread exists or, rarely, in
+ * MHD_stop_daemon while it stops: at worst a line more or less. */
 static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
   hfd_http *h = cls;
   if (!hfd_rate_allow(&h->log_lines, 20, "http warning")) return;
@@ -216,27 +217,28 @@ static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
   hfd_warn("http: %s", msg);
 }
 
-/* Shuts down the live connection, other than keep, that has waited longest
- * for a complete request; libmicrohttpd then sees it end and closes it
- * (its fd is never closed here, so it cannot be reused under it). */
-static void evict_longest_waiting(hfd_http *h, const http_conn *keep) {
+/* Shuts down the oldest live connection other than keep; libmicrohttpd
+ * then sees it end and closes it (its fd is never closed here, and every
+ * callback runs on libmicrohttpd's one thread, so the fd cannot be reused
+ * under it). */
+static void evict_oldest(hfd_http *h, const http_conn *keep) {
   http_conn *victim = NULL;
   for (http_conn *c = h->conns; c; c = c->next)
-    if (c != keep && !c->evicted && !c->answering &&
-        (!victim || c->waiting_since <= victim->waiting_since))
+    if (c != keep && !c->evicted && !c->stuck && (!victim || c->since <= victim->since))
       victim = c;
   if (!victim) return;
-  victim->evicted = 1;
-  h->live--;
   if (shutdown(victim->fd, SHUT_RDWR) != 0 && errno != ENOTCONN) {
     int e = errno;
+    victim->stuck = 1;
     if (hfd_rate_allow(&h->log_lines, 20, "http warning"))
       hfd_warn("http: shutdown of a connection over the limit: %s", strerror(e));
     return;
   }
+  victim->evicted = 1;
+  h->live--;
   if (hfd_rate_allow(&h->log_lines, 20, "http warning"))
-    hfd_warn("http: %d connections, the limit: closed the one %.1f s without a complete "
-             "request", HTTP_SLOTS, (hfd_now_us() - victim->waiting_since) / 1e6);
+    hfd_warn("http: %d connections, the limit: closed the oldest, open %.1f s", HTTP_SLOTS,
+             (hfd_now_us() - victim->since) / 1e6);
 }
 
 /* Connections start and close (MHD_OPTION_NOTIFY_CONNECTION). */
@@ -250,11 +252,11 @@ static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_
     *socket_context = c;
     if (!c) return;  /* untracked: never evicted, closed by the idle timeout */
     c->fd = ci->connect_fd;
-    c->waiting_since = hfd_now_us();
+    c->since = hfd_now_us();
     c->next = h->conns;
     if (h->conns) h->conns->prev = c;
     h->conns = c;
-    if (++h->live > HTTP_SLOTS) evict_longest_waiting(h, c);
+    if (++h->live > HTTP_SLOTS) evict_oldest(h, c);
     return;
   }
   http_conn *c = *socket_context;
@@ -265,21 +267,6 @@ static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_
   if (!c->evicted) h->live--;
   free(c);
   *socket_context = NULL;
-}
-
-/* A request was answered (MHD_OPTION_NOTIFY_COMPLETED): its connection
- * waits for the next one from now. */
-static void on_completed(void *cls, struct MHD_Connection *conn, void **req_cls,
-                         enum MHD_RequestTerminationCode toe) {
-  (void)cls;
-  (void)req_cls;
-  (void)toe;
-  const union MHD_ConnectionInfo *ci =
-      MHD_get_connection_info(conn, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
-  http_conn *c = ci ? ci->socket_context : NULL;
-  if (!c) return;
-  c->answering = 0;
-  c->waiting_since = hfd_now_us();
 }
 
 int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
@@ -322,7 +309,6 @@ int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
                           MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_MHD_LIMIT,
                           MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_IDLE_TIMEOUT_S,
                           MHD_OPTION_NOTIFY_CONNECTION, on_connection, h,
-                          MHD_OPTION_NOTIFY_COMPLETED, on_completed, h,
                           MHD_OPTION_END);
   if (!h->d) {
     hfd_err("--http %s: cannot listen there (address in use, or not this host's?)",
@@ -349,13 +335,7 @@ void hfd_http_loop_closing(hfd_server *s) {
 void hfd_http_stop(hfd_server *s) {
   hfd_http *h = s->http;
   if (!h) return;
-  if (h->d) MHD_stop_daemon(h->d);
-  /* Its thread has ended; anything it did not report closed goes here. */
-  while (h->conns) {
-    http_conn *c = h->conns;
-    h->conns = c->next;
-    free(c);
-  }
+  if (h->d) MHD_stop_daemon(h->d);  /* reports every connection closed: h->conns is empty */
   free(h->text);
   pthread_cond_destroy(&h->cv);
   pthread_mutex_destroy(&h->mu);

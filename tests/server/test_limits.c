@@ -166,12 +166,61 @@ static void *hog_main(void *arg) {
   return NULL;
 }
 
-/* Item: the queue is shared (docs/SERVER.md, "Flow control"). Three
+/* Item: the queue's share refuses nothing within it (docs/SERVER.md,
+ * "Limits and backpressure"): a connection alone fills a queue of 4 with a
+ * window of 4, and two connections at the announced window of 4 fill a
+ * queue of 8 together, with no BUSY. */
+static void test_queue_share_within_window(void **state) {
+  (void)state;
+  enum { W = 64, WINDOW = 4, ROUNDS = 5 };
+  float *in = make_features(W, W, 4, 21);
+  float *out = malloc((size_t)2 * WINDOW * W * W * 3 * sizeof *out);
+  assert_non_null(in);
+  assert_non_null(out);
+  for (int clients = 1; clients <= 2; clients++) {
+    const char *queue = clients == 1 ? "4" : "8";
+    const char *extra[] = {"--queue-size", queue, "--max-inflight", "4", "--max-batch", "1",
+                           NULL};
+    server d;
+    if (server_start(&H, &d, extra)) fail_msg("daemon did not start");
+    hfc_client *c[2] = {NULL, NULL};
+    for (int k = 0; k < clients; k++) {
+      c[k] = client_connect(&d, "window");
+      assert_non_null(c[k]);
+      assert_int_equal((int)hfc_info(c[k])->max_inflight, WINDOW);
+    }
+    for (int round = 0; round < ROUNDS; round++) {
+      for (int i = 0; i < WINDOW; i++)
+        for (int k = 0; k < clients; k++) {
+          hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = W, .spp = 4,
+                                       .in_dtype = HFC_F32, .features = in,
+                                       .out_dtype = HFC_F32,
+                                       .result = out + (size_t)(k * WINDOW + i) * W * W * 3);
+          assert_int_equal(hfc_submit(c[k], &r, NULL), 0);
+        }
+      for (int k = 0; k < clients; k++)
+        for (int i = 0; i < WINDOW; i++) {
+          hfc_completion done;
+          assert_int_equal(hfc_wait(c[k], 60000, &done), 0);
+          if (done.status)
+            fail_msg("%d client(s), round %d: %s (%s)", clients, round,
+                     hfc_strerror(done.status), hfc_last_message(c[k]));
+        }
+    }
+    for (int k = 0; k < clients; k++) hfc_close(c[k]);
+    assert_int_equal(server_stop(&d, 20000), 0);
+  }
+  free(out);
+  free(in);
+}
+
+/* Item: the queue is shared (docs/SERVER.md, "Limits and backpressure"). Three
  * connections keep their windows full, resending at once after every reply;
  * with --queue-size 8 and 4 in flight each they could hold 12 frames, so
  * first come first served would leave a client that sends one frame every
- * 20 ms almost nothing but BUSY. Each holds at most its share, 8 / (n + 1),
- * and the polite client finds room nearly every time. */
+ * 20 ms almost nothing but BUSY. The queue's last quarter goes only to
+ * connections under their share (8 / n), and the polite client, holding
+ * none, finds room there. */
 static void test_queue_shared(void **state) {
   (void)state;
   const char *extra[] = {"--queue-size", "8", "--max-inflight", "4", "--max-batch", "1",
@@ -579,6 +628,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_batches_form_within_budget),
     cmocka_unit_test(test_announced_maximum_is_admitted),
+    cmocka_unit_test(test_queue_share_within_window),
     cmocka_unit_test(test_queue_shared),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),

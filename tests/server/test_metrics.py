@@ -200,8 +200,8 @@ def drain(d):
 def crowd(d):
     """Probes get through a crowd on the HTTP port: 40 connections that
     trickle a request's headers a byte at a time (each byte restarts the
-    idle timeout), then 40 that say nothing. The endpoint keeps 32; the one
-    waiting longest for a complete request makes room for a new one."""
+    idle timeout), then 40 that say nothing. The endpoint keeps 32; the
+    oldest makes room for a new one."""
     u = urllib.parse.urlsplit(d.urls["http"])
     addr = (u.hostname, u.port)
     slow = []
