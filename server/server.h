@@ -479,7 +479,7 @@ struct hfd_server {
   hfd_rpool rpool;               /* receive buffers kept for reuse */
   uint64_t frame_budget;         /* the most one frame may need */
   uint64_t shm_held;             /* bytes of shared segments */
-  uint64_t replies_lost;         /* computed, but the peer had gone */
+  uint64_t replies_lost;         /* computed, never delivered (peer gone or closed) */
   int jobs_outstanding;          /* admitted, not yet answered */
   int conns_with_frames;         /* connections with inflight > 0 */
   int draining, stopped;
