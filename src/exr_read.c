@@ -39,6 +39,26 @@ static const char *compression_name(exr_compression_t c) {
   return (unsigned)c < sizeof names / sizeof names[0] ? names[c] : "an unknown";
 }
 
+/* The name of a lossy compression that changed the part's values, or NULL:
+ * B44 and B44A quantise half channels (float ones are stored as they are),
+ * PXR24 rounds float channels to 24 bits (half ones are exact), DWAA and
+ * DWAB are lossy for both (OpenEXR's documentation of the compressions). */
+static const char *lossy_compression(exr_const_context_t ctx, int part,
+                                     const exr_attr_chlist_t *chl) {
+  exr_compression_t c = EXR_COMPRESSION_NONE;
+  if (exr_get_compression(ctx, part, &c) != EXR_ERR_SUCCESS) return NULL;
+  int half = 0, flt = 0;
+  for (int i = 0; i < chl->num_channels; i++) {
+    half |= chl->entries[i].pixel_type == EXR_PIXEL_HALF;
+    flt |= chl->entries[i].pixel_type == EXR_PIXEL_FLOAT;
+  }
+  if (((c == EXR_COMPRESSION_B44 || c == EXR_COMPRESSION_B44A) && half) ||
+      (c == EXR_COMPRESSION_PXR24 && flt) || c == EXR_COMPRESSION_DWAA ||
+      c == EXR_COMPRESSION_DWAB)
+    return compression_name(c);
+  return NULL;
+}
+
 /* " (library: ...)" when the library said something, for the end of a message. */
 static const char *detail(const hf_exr_msg *m, char *buf, size_t len) {
   if (!m || !m->text[0]) return "";
@@ -429,6 +449,7 @@ static int read_part(const char *path, const char *part, const char *channel, hf
   }
   img->origin_x = dw.min.x;
   img->origin_y = dw.min.y;
+  img->lossy = lossy_compression(ctx, pi, chl);
   int64_t dispw = (int64_t)disp.max.x - disp.min.x + 1, disph = (int64_t)disp.max.y - disp.min.y + 1;
   if ((disp.min.x != dw.min.x || disp.min.y != dw.min.y || dispw != w || disph != h) &&
       dispw >= 1 && disph >= 1 && dispw <= INT32_MAX && disph <= INT32_MAX) {

@@ -674,6 +674,9 @@ typedef struct hf_image {
   int origin_x, origin_y;       /* data window's top-left pixel */
   int display_x, display_y;     /* display window's top-left pixel */
   int display_width, display_height; /* 0: same as the data window */
+  const char *lossy;            /* read from a file: NULL, or the lossy compression its
+                                 * values went through ("B44", "B44A" for half channels,
+                                 * "PXR24" for float ones, "DWAA", "DWAB") */
 } hf_image;
 
 int hf_image_alloc(hf_image *img, int width, int height, int channels);

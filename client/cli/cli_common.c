@@ -92,6 +92,14 @@ int cli_input_range_check(const hf_input_range *r, const void *in, hf_dtype dtyp
   return rc ? rc : (int)hf_input_range_check(r, st);
 }
 
+void cli_warn_lossy(const char *prog, const char *path, const hf_image *img) {
+  if (img->lossy)
+    fprintf(stderr, "%s: warning: %s is compressed with %s, which is lossy: its samples (alpha, "
+            "depth, tangents) are not those the renderer wrote; write feature files with ZIP "
+            "or PIZ, e.g. oiiotool %s --compression zip -o lossless.exr\n", prog, path,
+            img->lossy, path);
+}
+
 void cli_warn_input_range(const char *prog, const char *frame, const char *variant,
                           const hf_input_range *r, const hf_input_stats *st, unsigned mask) {
   char why[512];
@@ -110,6 +118,7 @@ int cli_read_features(const char *path, const char *part, int spp, const char *v
     fprintf(stderr, "hairfilter: %s\n", err);
     return rc;
   }
+  cli_warn_lossy("hairfilter", path, img);
   int have = hf_features_spp(img);
   if (have < 0) {
     fprintf(stderr, "hairfilter: %s: no channel S0.color: not a feature file "

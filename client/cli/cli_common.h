@@ -30,6 +30,9 @@ int cli_write_preview(const char *path, const float *result, int w, int h, const
  * a negative HF_E* code. */
 int cli_input_range_check(const hf_input_range *r, const void *in, hf_dtype dtype, int w, int h,
                           int spp, hf_input_stats *st);
+/* "PROG: warning: PATH is compressed with B44, which is lossy: ..." on
+ * stderr when img was read from a lossily compressed file (img->lossy). */
+void cli_warn_lossy(const char *prog, const char *path, const hf_image *img);
 /* "PROG: warning: FRAME is outside the input range VARIANT was trained on:
  * STAT VALUE (trained LOW..HIGH), ..." on stderr (hf_input_range_describe). */
 void cli_warn_input_range(const char *prog, const char *frame, const char *variant,

@@ -863,6 +863,7 @@ int cmd_eval(int argc, char **argv) {
       fprintf(stderr, "hairfilter eval: %s\n", err);
       goto out;
     }
+    cli_warn_lossy("hairfilter eval", fr->path, &img);
     int w = img.width, h = img.height, spp = hf_features_spp(&img);
     size_t npx = (size_t)w * h;
     if (temporal && scored && (w != seq_w || h != seq_h)) {

@@ -65,6 +65,12 @@ static void test_inf_sample(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_field("frame-64x64.exr"), test_tmp("clean.exr")), 0);
   assert_null(strstr(text, "sanitised"));
+  assert_null(strstr(text, "lossy"));
+  /* Features compressed with B44: filtered, with a warning naming it. */
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_data("exr-b44-half.exr"), test_tmp("b44.exr")), 0);
+  expect_text("exr-b44-half.exr is compressed with B44, which is lossy");
+  expect_text("--compression zip");
 }
 
 static void test_tall_frame(void **state) {

@@ -386,6 +386,32 @@ static void test_undecodable_compression(void **state) {
   assert_non_null(strstr(err, "DWAB compression"));
 }
 
+/* Lossy compressions are named on the image: B44 of half channels (the
+ * file tests/data/exr-b44-half.exr, 8x8, 4 samples, written by
+ * OpenImageIO), PXR24 of float ones; B44 of float channels, PXR24 of half
+ * ones (the base frame as written) and ZIP keep every value. */
+static void test_lossy_compression(void **state) {
+  char err[512];
+  hf_image img;
+  assert_int_equal(hf_exr_read(test_data("exr-b44-half.exr"), &img, err, sizeof err), HF_OK);
+  assert_string_equal(img.lossy, "B44");
+  hf_image_free(&img);
+  const struct {
+    exr_compression_t c;
+    const char *lossy;
+  } cases[] = {{EXR_COMPRESSION_PXR24, "PXR24"}, {EXR_COMPRESSION_B44, NULL},
+               {EXR_COMPRESSION_ZIP, NULL}};
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    part_spec p = {"l", 0, 0, 0, 0, 0, 0, 8, 8, 6, FEAT6, cases[i].c, 0.5f, NULL};
+    const char *path = test_tmp("lossy.exr");
+    write_parts(path, &p, 1);
+    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
+    if (cases[i].lossy) assert_string_equal(img.lossy, cases[i].lossy);
+    else assert_null(img.lossy);
+    hf_image_free(&img);
+  }
+}
+
 static void test_subsampled_refused(void **state) {
   exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
   exr_context_t ctx;
@@ -535,6 +561,7 @@ int main(void) {
     cmocka_unit_test(test_windows),                  cmocka_unit_test(test_tiled),
     cmocka_unit_test(test_multipart),                cmocka_unit_test(test_truncated),
     cmocka_unit_test(test_undecodable_compression),  cmocka_unit_test(test_subsampled_refused),
+    cmocka_unit_test(test_lossy_compression),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),
   };

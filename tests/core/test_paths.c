@@ -23,6 +23,12 @@ const char *test_field(const char *name) {
   return p;
 }
 
+const char *test_data(const char *name) {
+  char *p = ring();
+  snprintf(p, 512, "%s/%s", HF_TEST_DATA, name);
+  return p;
+}
+
 int test_tmp_create(const char *prefix) {
   snprintf(dir, sizeof dir, "/tmp/%s_XXXXXX", prefix);
   return mkdtemp(dir) ? 0 : -1;

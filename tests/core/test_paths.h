@@ -6,6 +6,8 @@
 
 /* Path of a field case, e.g. test_field("exr-tiled.exr"). */
 const char *test_field(const char *name);
+/* Path of another file of tests/data, e.g. test_data("exr-b44-half.exr"). */
+const char *test_data(const char *name);
 /* Creates the temporary directory /tmp/<prefix>_XXXXXX; 0 or -1. */
 int test_tmp_create(const char *prefix);
 /* Path of a file in it. */
