@@ -213,6 +213,38 @@ static int check_tensor(const cJSON *t, const hf_tensor_spec *s, size_t data_len
   return HF_OK;
 }
 
+/* The tensors' byte ranges must tile the data: sorted by start, each
+ * begins where the one before ends, the first at 0, the last at the end of
+ * the file (the safetensors reference reader's rule; a range two tensors
+ * share, or bytes no tensor owns, would be read differently by readers that
+ * do not check). begin and end are indexed like specs. */
+static int check_tiling(const hf_tensor_spec *specs, const size_t *begin, const size_t *end,
+                        int n, size_t data_len, char *err, size_t errlen) {
+  int order[HF_TENSORS_MAX];
+  for (int k = 0; k < n; k++) {
+    int j = k;
+    for (; j > 0 && begin[order[j - 1]] > begin[k]; j--) order[j] = order[j - 1];
+    order[j] = k;
+  }
+  size_t at = 0;
+  for (int i = 0; i < n; i++) {
+    int k = order[i];
+    if (begin[k] < at)
+      return fail(err, errlen, HF_EFORMAT, "tensor '%s': data_offsets [%zu, %zu) overlap "
+                  "tensor '%s' [%zu, %zu): in safetensors each tensor owns its bytes",
+                  specs[k].name, begin[k], end[k], specs[order[i - 1]].name,
+                  begin[order[i - 1]], end[order[i - 1]]);
+    if (begin[k] > at)
+      return fail(err, errlen, HF_EFORMAT, "bytes [%zu, %zu) of the data belong to no tensor: "
+                  "safetensors tensors follow one another with no gap", at, begin[k]);
+    at = end[k];
+  }
+  if (at != data_len)
+    return fail(err, errlen, HF_EFORMAT, "%zu bytes after the last tensor: safetensors data "
+                "ends with its last tensor", data_len - at);
+  return HF_OK;
+}
+
 int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err,
                         size_t errlen) {
   if (!buf || !out) return fail(err, errlen, HF_EINVAL, "null argument");
@@ -223,6 +255,10 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   if (hlen < 2 || hlen > HEADER_MAX || hlen > len - 8)
     return fail(err, errlen, HF_EFORMAT, "header length %llu does not fit a %zu-byte file",
                 (unsigned long long)hlen, len);
+  if (p[8] != '{')
+    return fail(err, errlen, HF_EFORMAT, "header does not start with '{' (a byte order mark "
+                "or other bytes come before the JSON): write the file again with a "
+                "safetensors writer");
   char *text = malloc(hlen + 1);
   if (!text) return fail(err, errlen, HF_ENOMEM, "out of memory");
   memcpy(text, p + 8, hlen);
@@ -296,17 +332,23 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
     hf_weights_free(w);
     goto out;
   }
+  size_t begin[HF_TENSORS_MAX], end[HF_TENSORS_MAX];
+  int f16[HF_TENSORS_MAX];
   for (int k = 0; k < n; k++) {
-    int is_f16 = 0;
-    size_t begin = 0;
+    f16[k] = 0;
     const cJSON *t = cJSON_GetObjectItemCaseSensitive(root, specs[k].name);
-    rc = check_tensor(t, &specs[k], data_len, &is_f16, &begin, err, errlen);
+    rc = check_tensor(t, &specs[k], data_len, &f16[k], &begin[k], err, errlen);
     if (rc) {
       hf_weights_free(w);
       goto out;
     }
-    convert(data + begin, is_f16, specs[k].numel, *specs[k].slot);
+    end[k] = begin[k] + specs[k].numel * (f16[k] ? 2 : 4);
   }
+  if ((rc = check_tiling(specs, begin, end, n, data_len, err, errlen)) != HF_OK) {
+    hf_weights_free(w);
+    goto out;
+  }
+  for (int k = 0; k < n; k++) convert(data + begin[k], f16[k], specs[k].numel, *specs[k].slot);
   *out = w;
 out:
   cJSON_Delete(root);

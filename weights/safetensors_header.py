@@ -31,6 +31,10 @@ def read_header(path):
     (n,) = struct.unpack("<Q", data[:8])
     if n > len(data) - 8:
         raise ValueError(f"{path}: header length {n} exceeds file size")
+    if data[8:9] != b"{":
+        raise ValueError(f"{path}: header does not start with '{{' (a byte order mark or other "
+                         "bytes come before the JSON): write the file again with a safetensors "
+                         "writer")
     try:
         header = json.loads(data[8:8 + n], object_pairs_hook=unique_keys)
     except ValueError as e:
@@ -45,4 +49,30 @@ def read_header(path):
         if not isinstance(v, str):
             raise ValueError(f"{path}: header: '__metadata__.{k}' is {type(v).__name__}, "
                              "but safetensors metadata values are strings")
+    check_tiling(path, header, len(data) - 8 - n)
     return header, data, 8 + n
+
+
+def check_tiling(path, header, data_len):
+    """The tensors' byte ranges tile the data, as the C loader and the
+    safetensors reference reader require: sorted by start, each begins where
+    the one before ends, the first at 0, the last at the end of the file.
+    Entries without two integer data_offsets are left to the tensor checks."""
+    ranges = []
+    for name, t in header.items():
+        offs = t.get("data_offsets") if name != "__metadata__" and isinstance(t, dict) else None
+        if isinstance(offs, list) and len(offs) == 2 and all(type(o) is int for o in offs):
+            ranges.append((offs[0], offs[1], name))
+    at, prev = 0, None
+    for b, e, name in sorted(ranges):
+        if b < at:
+            raise ValueError(f"{path}: tensor '{name}': data_offsets [{b}, {e}) overlap tensor "
+                             f"'{prev[2]}' [{prev[0]}, {prev[1]}): in safetensors each tensor "
+                             "owns its bytes")
+        if b > at:
+            raise ValueError(f"{path}: bytes [{at}, {b}) of the data belong to no tensor: "
+                             "safetensors tensors follow one another with no gap")
+        at, prev = e, (b, e, name)
+    if ranges and at != data_len:
+        raise ValueError(f"{path}: {data_len - at} bytes after the last tensor: safetensors "
+                         "data ends with its last tensor")

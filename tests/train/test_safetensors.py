@@ -1,7 +1,9 @@
 #!/usr/bin/python3
 """The safetensors header checks of weights/hfnet.py and of the C loader,
-on the same files: duplicate keys at any level and "__metadata__" of the
-wrong type are refused by both, with the key named.
+on the same files: duplicate keys at any level, "__metadata__" of the
+wrong type, a header that does not start with '{', and tensor ranges that
+do not tile the data (overlapping, a gap, bytes after the last) are refused
+by both, with the key or the bytes named.
 
     test_safetensors.py --roundtrip BUILD/tests/train/weights_roundtrip --work DIR
 
@@ -49,14 +51,51 @@ class Header(unittest.TestCase):
         (n,) = struct.unpack("<Q", data[:8])
         cls.header, cls.rest = data[8:8 + n].decode(), data[8 + n:]
 
-    def edited(self, name, old, new):
-        """The valid file with the header's first old replaced by new."""
+    def edited(self, name, old, new, rest=None, prefix=b""):
+        """The valid file with the header's first old replaced by new (and
+        its data replaced by rest, prefix put before the header's JSON)."""
         self.assertIn(old, self.header)
-        h = self.header.replace(old, new, 1).encode()
+        h = prefix + self.header.replace(old, new, 1).encode()
         path = os.path.join(ARGS.work, name)
         with open(path, "wb") as f:
-            f.write(struct.pack("<Q", len(h)) + h + self.rest)
+            f.write(struct.pack("<Q", len(h)) + h + (self.rest if rest is None else rest))
         return path
+
+    def offsets(self, tensor):
+        """The [begin, end] text of tensor's data_offsets in the header."""
+        start = self.header.index('"data_offsets":', self.header.index(f'"{tensor}"'))
+        return self.header[start:self.header.index("]", start) + 1]
+
+    def test_byte_order_mark(self):
+        self.refused(self.edited("bom.safetensors", "{", "{", prefix=b"\xef\xbb\xbf"),
+                     ["does not start with '{'"])
+
+    def test_overlapping_tensors(self):
+        # enc0.bias and the last bias of the same size share their bytes.
+        def size(k):
+            o = self.offsets(k)
+            return int(o[o.index(",") + 1:-1]) - int(o[o.index("[") + 1:o.index(",")])
+        bias = self.offsets("enc0.bias")
+        other = [k for k in hfnet.load_safetensors(self.valid)[1]
+                 if k != "enc0.bias" and k.endswith(".bias") and size(k) == size("enc0.bias")][0]
+        self.refused(self.edited("overlap.safetensors", self.offsets(other), bias),
+                     ["overlap", "each tensor owns its bytes"])
+
+    def test_gap_between_tensors(self):
+        # The last tensor moved 4 bytes on, with 4 bytes more data before it.
+        ranges = []
+        for k in hfnet.load_safetensors(self.valid)[1]:
+            t = self.offsets(k)
+            ranges.append((int(t[t.index("[") + 1:t.index(",")]), int(t[t.index(",") + 1:-1]), k))
+        b, e, last = max(ranges)
+        path = self.edited("gap.safetensors", self.offsets(last),
+                           f'"data_offsets":[{b + 4},{e + 4}]',
+                           rest=self.rest[:b] + b"\0" * 4 + self.rest[b:])
+        self.refused(path, [f"bytes [{b}, {b + 4}) of the data belong to no tensor"])
+
+    def test_bytes_after_last_tensor(self):
+        path = self.edited("trailing.safetensors", "{", "{", rest=self.rest + b"\0" * 16)
+        self.refused(path, ["16 bytes after the last tensor"])
 
     def refused(self, path, words):
         """Both readers refuse path, naming every word of words."""
