@@ -208,6 +208,25 @@ static void test_bad_dtype_and_tensor_set(void **state) {
   free(b.data);
 }
 
+/* The tensors' byte ranges tile the data (the safetensors reference
+ * reader's rule), and the header starts with '{'. Small's enc0.weight is
+ * [0, 13824), enc0.bias [13824, 13888). */
+static void test_tiling_and_header_start(void **state) {
+  blob b = valid_file(NULL);
+  blob o = with_header_edit(&b, "[13824,13888]", "[13760,13824]");
+  expect_reject(&o, HF_EFORMAT, "data_offsets [13760, 13824) overlap tensor 'enc0.weight' [0, 13824)");
+  free(o.data);
+  blob t = {malloc(b.len + 16), b.len + 16};
+  memcpy(t.data, b.data, b.len);
+  memset(t.data + b.len, 0, 16);
+  expect_reject(&t, HF_EFORMAT, "16 bytes after the last tensor");
+  free(t.data);
+  blob m = with_header_edit(&b, "{\"__metadata__\"", "\xef\xbb\xbf{\"__metadata__\"");
+  expect_reject(&m, HF_EFORMAT, "does not start with '{'");
+  free(m.data);
+  free(b.data);
+}
+
 /* A name twice in one JSON object, at any level, is refused: cJSON would
  * read the first and Python's json the last, two different networks. */
 static void test_duplicate_keys(void **state) {
@@ -390,7 +409,7 @@ int main(void) {
     cmocka_unit_test(test_huge_header_length),  cmocka_unit_test(test_offsets_past_end),
     cmocka_unit_test(test_wrong_shapes),        cmocka_unit_test(test_bad_json),
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
-    cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_duplicate_keys),
+    cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_tiling_and_header_start), cmocka_unit_test(test_duplicate_keys),
     cmocka_unit_test(test_metadata_types),       cmocka_unit_test(test_kernel_arch),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
