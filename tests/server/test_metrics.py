@@ -217,8 +217,8 @@ def crowd(d):
                 s.send(b"X")
             except OSError:
                 pass
-        try:
-            answered += d.get("/healthz", timeout=2) == (200, "ok\n")
+        try:  # generous: the property is an answer, not its latency
+            answered += d.get("/healthz", timeout=10) == (200, "ok\n")
         except OSError:
             pass
         time.sleep(0.3)
@@ -227,7 +227,7 @@ def crowd(d):
     # The oldest were closed to make room: they read the end of the stream.
     closed = 0
     for s in slow[:8]:
-        s.settimeout(2)
+        s.settimeout(10)
         try:
             closed += s.recv(1) == b""
         except socket.timeout:
@@ -239,7 +239,7 @@ def crowd(d):
         s.close()
     idle = [socket.create_connection(addr) for _ in range(40)]
     try:
-        st = d.get("/healthz", timeout=2)
+        st = d.get("/healthz", timeout=10)
     except OSError as e:
         st = e
     check(st == (200, "ok\n"), "/healthz among 40 silent connections: %s" % (st,))
