@@ -50,6 +50,7 @@ typedef struct hfr_hair {
   uint32_t default_segments;
   float default_thickness, default_transparency, default_color[3];
   char info[89];                /* NUL-terminated file info */
+  uint32_t dropped;             /* strands of a single point (0 segments) left out */
 } hfr_hair;
 
 /* .hair header flag bits. */
@@ -64,7 +65,9 @@ enum {
 
 /* Reads a .hair file. Every count is checked against the file size, the
  * limits above and each other before anything is allocated; positions and
- * thickness must be finite, transparency in [0, 1]. */
+ * thickness must be finite, transparency in [0, 1]. A strand of 0 segments
+ * (one point, which the format allows and nothing draws) is left out and
+ * counted in `dropped`; a file of nothing else is refused. */
 int hfr_hair_load(const char *path, hfr_hair *out, char *err, size_t errlen);
 int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, size_t errlen);
 /* Writes every array the model has (and the segments array always). */

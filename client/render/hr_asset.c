@@ -41,6 +41,11 @@ int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hf
   } else {
     hfr_hair_check_widths(hair, warn, warnlen);
   }
+  if (hair->dropped && warn && warnlen) {
+    size_t used = strlen(warn);
+    snprintf(warn + used, warnlen - used, "%s%u strand(s) of a single point (0 segments) left "
+             "out: nothing draws them", used ? "; " : "", hair->dropped);
+  }
   if ((rc = hfr_hair_orient(hair, o->up, scale)) != HF_OK) {
     if (err) snprintf(err, errlen, "bad up axis or scale");
     goto fail;

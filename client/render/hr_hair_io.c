@@ -86,6 +86,30 @@ void hfr_hair_bounds(const hfr_hair *h, float c[3], float *radius) {
   *radius = r2 > 0 ? sqrtf(r2) : 1.0f;
 }
 
+/* Leaves out, in place, the strands of 0 segments (a single point each):
+ * every later stage (orientation, children, drawing) takes a strand to
+ * have a segment. */
+static void drop_single_points(hfr_hair *h) {
+  uint32_t ws = 0, wp = 0, rp = 0;
+  for (uint32_t i = 0; i < h->strands; i++) {
+    uint32_t n = h->segments[i] + 1u;
+    if (h->segments[i] == 0) {
+      h->dropped++;
+      rp += n;
+      continue;
+    }
+    memmove(h->pos + 3 * (size_t)wp, h->pos + 3 * (size_t)rp, 12 * (size_t)n);
+    if (h->thickness) memmove(h->thickness + wp, h->thickness + rp, 4 * (size_t)n);
+    if (h->transparency) memmove(h->transparency + wp, h->transparency + rp, 4 * (size_t)n);
+    if (h->color) memmove(h->color + 3 * (size_t)wp, h->color + 3 * (size_t)rp, 12 * (size_t)n);
+    h->segments[ws++] = h->segments[i];
+    wp += n;
+    rp += n;
+  }
+  h->strands = ws;
+  h->points = wp;
+}
+
 int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, size_t errlen) {
   if (!buf || !out) return fail(err, errlen, HF_EINVAL, "null argument");
   memset(out, 0, sizeof *out);
@@ -115,12 +139,16 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
 
   const unsigned char *q = p + HAIR_HEADER;
   uint64_t total = 0;
+  uint32_t single = 0;
   if (flags & HFR_HAIR_SEGMENTS) {
     for (uint32_t i = 0; i < strands; i++) {
       uint32_t s = (uint32_t)q[2 * (size_t)i] | (uint32_t)q[2 * (size_t)i + 1] << 8;
-      if (s == 0) return fail(err, errlen, HF_EFORMAT, "a strand with no segments");
+      single += s == 0;
       total += s + 1u;
     }
+    if (single == strands)
+      return fail(err, errlen, HF_EFORMAT, "every strand is a single point (0 segments): "
+                  "nothing to draw");
   } else {
     total = (uint64_t)strands * (defseg + 1u);
   }
@@ -183,6 +211,7 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
     if (!out->color) goto nomem;
     for (size_t i = 0; i < 3 * (size_t)points; i++) out->color[i] = rd_f32(q + 4 * i);
   }
+  if (single) drop_single_points(out);
   return HF_OK;
 nomem:
   hfr_hair_free(out);

@@ -137,8 +137,8 @@ static void test_malformed(void **state) {
   memcpy(bad + 12, &v, 4);
   expect_reject(bad, n, "no points");
   memcpy(bad, buf, n);
-  bad[128] = 0, bad[129] = 0; /* a strand with 0 segments */
-  expect_reject(bad, n, "zero segments");
+  bad[128] = 0, bad[129] = 0; /* 0 segments, but the points of 1 */
+  expect_reject(bad, n, "segments disagree with the points");
   memcpy(bad, buf, n);
   float nan = NAN;
   memcpy(bad + 132 + 8, &nan, 4);
@@ -165,6 +165,50 @@ static void test_malformed(void **state) {
   hfr_hair_free(&h);
   /* Missing file. */
   assert_int_equal(hfr_hair_load("/nonexistent/x.hair", &h, err, sizeof err), HF_EIO);
+}
+
+/* A strand of 0 segments (one point; the format allows it) is left out
+ * and counted; the other strands keep their points, thickness and
+ * transparency. A file of nothing but such strands is refused. */
+static void test_single_point_strands(void **state) {
+  (void)state;
+  unsigned char buf[1024];
+  const uint32_t flags = HFR_HAIR_SEGMENTS | HFR_HAIR_POINTS | HFR_HAIR_THICKNESS;
+  /* Three strands: 0 segments (point 0), 2 segments (points 1-3), 0 (point 4). */
+  memset(buf, 0, sizeof buf);
+  memcpy(buf, "HAIR", 4);
+  uint32_t strands = 3, points = 5;
+  memcpy(buf + 4, &strands, 4);
+  memcpy(buf + 8, &points, 4);
+  memcpy(buf + 12, &flags, 4);
+  uint16_t seg[3] = {0, 2, 0};
+  memcpy(buf + 128, seg, 6);
+  size_t o = 134;
+  for (int i = 0; i < 15; i++, o += 4) {
+    float f = (float)i;
+    memcpy(buf + o, &f, 4);
+  }
+  for (int i = 0; i < 5; i++, o += 4) {
+    float f = 0.01f * (float)(i + 1);
+    memcpy(buf + o, &f, 4);
+  }
+  hfr_hair h;
+  char err[256];
+  assert_int_equal(hfr_hair_load_mem(buf, o, &h, err, sizeof err), HF_OK);
+  assert_int_equal(h.strands, 1);
+  assert_int_equal(h.points, 3);
+  assert_int_equal(h.dropped, 2);
+  assert_int_equal(h.segments[0], 2);
+  for (int i = 0; i < 9; i++) assert_true(h.pos[i] == (float)(i + 3)); /* points 1-3 */
+  for (int i = 0; i < 3; i++) assert_true(h.thickness[i] == 0.01f * (float)(i + 2));
+  hfr_hair_free(&h);
+  seg[1] = 0; /* all single points: 3 strands, 3 points */
+  points = 3;
+  memcpy(buf + 8, &points, 4);
+  memcpy(buf + 128, seg, 6);
+  size_t m = 134 + 12 * 3 + 4 * 3;
+  assert_int_equal(hfr_hair_load_mem(buf, m, &h, err, sizeof err), HF_EFORMAT);
+  assert_non_null(strstr(err, "single point"));
 }
 
 static void test_styles(void **state) {
@@ -231,7 +275,7 @@ static void test_styles(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_round_trip),
-    cmocka_unit_test(test_malformed),
+    cmocka_unit_test(test_malformed), cmocka_unit_test(test_single_point_strands),
     cmocka_unit_test(test_styles),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
