@@ -691,10 +691,11 @@ static void filter_head(hfd_conn *c, size_t have) {
  * meet it (the defaults: queue 64, 32 in flight per connection). */
 static int over_queue_share(hfd_server *s, const hfd_conn *c) {
   int q = s->cfg->queue_size, reserve = q / 4 > 0 ? q / 4 : 1;
-  if (hfd_worker_queue_depth(&s->worker) + 1 <= q - reserve) return 0;
   int n = s->conns_with_frames + (c->inflight == 0);
-  int share = q / n;
-  return c->inflight >= (share > 0 ? share : 1);
+  int share = q / n > 0 ? q / n : 1;
+  /* Within its share nothing is refused: only then is the worker's queue
+   * (and its mutex) asked how full it is. */
+  return c->inflight >= share && hfd_worker_queue_depth(&s->worker) + 1 > q - reserve;
 }
 
 /* The FILTER's tensor is in: charge its result buffers and what running it

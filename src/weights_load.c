@@ -176,7 +176,7 @@ static void convert(const unsigned char *src, int is_f16, size_t numel, float *d
 }
 
 static int check_tensor(const cJSON *t, const hf_tensor_spec *s, size_t data_len,
-                        int *is_f16, size_t *begin, char *err, size_t errlen) {
+                        int *is_f16, size_t *begin, size_t *end, char *err, size_t errlen) {
   if (!cJSON_IsObject(t)) return fail(err, errlen, HF_EFORMAT, "tensor '%s' missing", s->name);
   const cJSON *dtype = cJSON_GetObjectItemCaseSensitive(t, "dtype");
   const cJSON *shape = cJSON_GetObjectItemCaseSensitive(t, "shape");
@@ -210,6 +210,7 @@ static int check_tensor(const cJSON *t, const hf_tensor_spec *s, size_t data_len
     return fail(err, errlen, HF_EFORMAT, "tensor '%s': %zu bytes of data, shape needs %zu",
                 s->name, (size_t)e - (size_t)b, bytes);
   *begin = (size_t)b;
+  *end = (size_t)e;
   return HF_OK;
 }
 
@@ -337,12 +338,11 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   for (int k = 0; k < n; k++) {
     f16[k] = 0;
     const cJSON *t = cJSON_GetObjectItemCaseSensitive(root, specs[k].name);
-    rc = check_tensor(t, &specs[k], data_len, &f16[k], &begin[k], err, errlen);
+    rc = check_tensor(t, &specs[k], data_len, &f16[k], &begin[k], &end[k], err, errlen);
     if (rc) {
       hf_weights_free(w);
       goto out;
     }
-    end[k] = begin[k] + specs[k].numel * (f16[k] ? 2 : 4);
   }
   if ((rc = check_tiling(specs, begin, end, n, data_len, err, errlen)) != HF_OK) {
     hf_weights_free(w);

@@ -124,22 +124,14 @@ def start_from_kernel(cfg, state, kappa0=KAPPA0):
 
 def probe(weights, kappas, frames):
     """Prints the probe's table (see the module's docstring)."""
-    import numpy as np
-    import dataset
-    import thick_pixels
-    import train
+    import probe_frames
     net = hfnet.load_model(weights).eval()
     taps = hfnet.kernel_taps(net.cfg["kernel_radius"])
     print("| frame | " + " | ".join(f"kappa {k:g}" for k in kappas) + " |")
     print("|---|" + "---:|" * len(kappas))
     for path in frames:
-        names, data = dataset.read_exr(path)
-        feat, _ = dataset.load_frame(path, spp=net.cfg["spp"], dtype=np.float32)
-        h, w = feat.shape[:2]
-        x = hfnet.nhwc_to_nchw(feat.reshape(1, h, w, -1))
-        gt = thick_pixels.planes(names, data, "gt")
-        truth = thick_pixels.composite(*gt)
-        hair = (gt[2] > 0) | (feat[..., 2].max(-1) > 0)
+        x, truth, hair, name = probe_frames.load(path, net.cfg["spp"])
+        h, w = hair.shape
         with torch.no_grad():
             raw = net.raw_any_size(x)
         cells = []
@@ -150,15 +142,8 @@ def probe(weights, kappas, frames):
                     y = aniso_finish(torch.cat([raw, kr], 1), x, net.cfg["spp"], net.cfg["kernel_radius"])
                 else:
                     y = _kernel_finish(raw[:, :taps + 3], x, net.cfg["spp"], net.cfg["kernel_radius"])
-            y = y[0].numpy()
-            c = thick_pixels.composite(y[0], y[1], y[2])
-            mse = float(((c - truth) ** 2)[hair].mean())
-            ssim = train.ssim_map(torch.from_numpy(c).permute(2, 0, 1)[None].float(),
-                                  torch.from_numpy(truth).permute(2, 0, 1)[None].float())[0].numpy()
-            r = train.SSIM_RADIUS
-            cells.append(f"{10 * math.log10(1 / mse):.2f} / {float(ssim[hair[r:-r, r:-r]].mean()):.3f}")
-        name = os.path.join(os.path.basename(os.path.dirname(os.path.abspath(path))),
-                            os.path.basename(path))
+            psnr, ssim = probe_frames.score(y[0].numpy(), truth, hair)
+            cells.append(f"{psnr:.2f} / {ssim:.3f}")
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
 

@@ -14,11 +14,10 @@ the pixel's own samples (`raw`: their sums over spp) or of the Kernel's
 result itself (`y0`: a second pass guided by the first). The probe runs
 Kernel weights at each fixed beta and prints, per frame, the PSNR and SSIM
 of the composite (train.EVAL_LOOK) against the truth's on the pixels with
-hair in the truth or a covered sample, as aniso_kernel.py's probe does (not
-`hairfilter eval`'s figures: compare within a row).
+hair in the truth or a covered sample (probe_frames.py, as aniso_kernel.py's
+probe; not `hairfilter eval`'s figures: compare within a row).
 
   python3 weights/experiments/bilateral_probe.py KERNEL.safetensors BETAS raw|y0 FRAME.exr..."""
-import math
 import os
 import sys
 
@@ -28,10 +27,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 
-import dataset  # noqa: E402
 import hfnet  # noqa: E402
-import thick_pixels  # noqa: E402
-import train  # noqa: E402
+import probe_frames  # noqa: E402
 
 
 def guide(raw, x, spp, radius, mode):
@@ -65,29 +62,16 @@ def main(argv):
     print("| frame | " + " | ".join(f"beta {b:g}" for b in betas) + " |")
     print("|---|" + "---:|" * len(betas))
     for path in argv[3:]:
-        names, data = dataset.read_exr(path)
-        feat, _ = dataset.load_frame(path, spp=spp, dtype=np.float32)
-        h, w = feat.shape[:2]
-        x = hfnet.nhwc_to_nchw(feat.reshape(1, h, w, -1))
-        gt = thick_pixels.planes(names, data, "gt")
-        truth = thick_pixels.composite(*gt)
-        hair = (gt[2] > 0) | (feat[..., 2].max(-1) > 0)
+        x, truth, hair, name = probe_frames.load(path, spp)
         cells = []
         with torch.no_grad():
             raw = net.raw_any_size(x)
             g = guide(raw, x, spp, radius, argv[2])
             for i, beta in enumerate(betas):
-                y = finish(raw, x, spp, radius, beta, g)[0].numpy()
-                c = thick_pixels.composite(y[0], y[1], y[2])
-                psnr = 10 * math.log10(1 / float(((c - truth) ** 2)[hair].mean()))
-                ssim = train.ssim_map(torch.from_numpy(c).permute(2, 0, 1)[None].float(),
-                                      torch.from_numpy(truth).permute(2, 0, 1)[None].float())
-                r = train.SSIM_RADIUS
-                ssim = float(ssim[0].numpy()[hair[r:-r, r:-r]].mean())
+                psnr, ssim = probe_frames.score(finish(raw, x, spp, radius, beta, g)[0].numpy(),
+                                                truth, hair)
                 total[i] += (psnr, ssim)
                 cells.append(f"{psnr:.2f} / {ssim:.3f}")
-        name = os.path.join(os.path.basename(os.path.dirname(os.path.abspath(path))),
-                            os.path.basename(path))
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
     n = len(argv) - 3
     print("| mean | " + " | ".join(f"{p / n:.2f} / {s / n:.3f}" for p, s in total) + " |")
