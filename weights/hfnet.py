@@ -196,6 +196,47 @@ def widen_kernel_hidden(state, hidden, fresh):
     return out
 
 
+def widen_levels(state, old_levels, fresh):
+    """U-Net weights with body widths old_levels widened to the shapes of
+    fresh (a state_dict of the same architecture with as many levels, each
+    at least as wide, randomly initialised), computing the same function.
+
+    Every layer keeps its old weights in the first rows and columns; the new
+    output channels of a layer keep fresh's random weights, and every layer
+    that reads a new channel (the next encoder, and the decoder that takes
+    it through the skip concatenation [upsampled, encoder]) gives it zero
+    weight, so the output is unchanged and training grows the new channels
+    from there (Net2Net's function-preserving widening with zero outgoing
+    weights: Chen, Goodfellow & Shlens, ICLR 2016). Shapes: Conv2d
+    [cout][cin][3][3], ConvTranspose2d [cin][cout][4][4]. Raises ValueError
+    when the level counts differ or a level would narrow."""
+    L = len(old_levels)
+    new_levels = [fresh[f"enc{i}.weight"].shape[0] for i in range(L)]
+    if f"enc{L}.weight" in fresh or any(n < o for n, o in zip(new_levels, old_levels)):
+        raise ValueError(f"widen_levels: {old_levels} -> {new_levels}: the same number of "
+                         f"levels, none narrower, is needed")
+    out = dict(state)
+    for i in range(L):
+        lo, cin_o = old_levels[i], state[f"enc{i}.weight"].shape[1]
+        w, b = fresh[f"enc{i}.weight"].clone(), fresh[f"enc{i}.bias"].clone()
+        w[:, cin_o:] = 0                                  # new input channels unread
+        w[:lo, :cin_o] = state[f"enc{i}.weight"]
+        b[:lo] = state[f"enc{i}.bias"]
+        out[f"enc{i}.weight"], out[f"enc{i}.bias"] = w, b
+    for i in range(L):
+        old_w = state[f"dec{i}.weight"]
+        cout_o = old_w.shape[1]
+        w, b = fresh[f"dec{i}.weight"].clone(), fresh[f"dec{i}.bias"].clone()
+        w[:, :cout_o].zero_()                             # new outputs (dec>0) stay random
+        lo, ln = old_levels[i], new_levels[i]
+        w[:lo, :cout_o] = old_w[:lo]                      # the upsampled path (or, at the
+        if i < L - 1:                                     # bottom, the encoder)
+            w[ln:ln + lo, :cout_o] = old_w[lo:2 * lo]     # the skip from enc{i}
+        b[:cout_o] = state[f"dec{i}.bias"]
+        out[f"dec{i}.weight"], out[f"dec{i}.bias"] = w, b
+    return out
+
+
 def equalise_phase_sums_(net):
     """Projects every transposed convolution of net, in place, onto kernels
     whose four output phases have equal tap sums.

@@ -538,6 +538,10 @@ def parse_args(argv):
                     help="checkpoint and stop after this many seconds of this invocation")
     ap.add_argument("--benchmark", type=int, default=0, metavar="N",
                     help="only time N steps of each forward variant (median ms/step)")
+    ap.add_argument("--levels", metavar="C0,C1,...",
+                    help="the U-Net's channels per level instead of the variant's (as many "
+                         "levels; recorded in the weights' metadata); with --init of narrower "
+                         "weights of the variant, they are widened to the same function")
     ap.add_argument("--kernel-radius", type=int, default=0,
                     help="Kernel variant: half side of the per-pixel kernel (default: the "
                     "variant's)")
@@ -565,6 +569,8 @@ def parse_args(argv):
 def make_config(args):
     """The variant's configuration with the run's kernel overrides."""
     cfg = hfnet.variant_config(args.variant)
+    if getattr(args, "levels", None):
+        cfg["levels"] = [int(c) for c in args.levels.split(",")]
     if cfg["arch"] == "kernel":
         if getattr(args, "kernel_radius", 0) > 0:
             cfg["kernel_radius"] = args.kernel_radius
@@ -593,7 +599,7 @@ def main(argv=None):
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
-                  "kernel_radius", "kernel_hidden",
+                  "kernel_radius", "kernel_hidden", "levels",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
                   "equal_phase_sums"):
@@ -611,9 +617,16 @@ def main(argv=None):
     train_set = None
     if args.init and not ckpt:
         icfg, state = hfnet.load_safetensors(args.init)
-        if icfg["levels"] != cfg["levels"] or icfg.get("arch", "unet") != cfg["arch"] \
-                or icfg["in_channels"] != cfg["in_channels"]:
-            sys.exit(f"train.py: --init {args.init} is {icfg['name']}, not {cfg['name']}")
+        if len(icfg["levels"]) != len(cfg["levels"]) or icfg.get("arch", "unet") != cfg["arch"] \
+                or icfg["in_channels"] != cfg["in_channels"] \
+                or any(a > b for a, b in zip(icfg["levels"], cfg["levels"])):
+            sys.exit(f"train.py: --init {args.init} is {icfg['name']} {icfg['levels']}, "
+                     f"not {cfg['name']} {cfg['levels']} or narrower")
+        if icfg["levels"] != cfg["levels"]:
+            fresh = hfnet.HairNet(dict(cfg, kernel_hidden=icfg.get("kernel_hidden", 0)))
+            state = hfnet.widen_levels(state, icfg["levels"], fresh.state_dict())
+            print(f"widened levels {icfg['levels']} -> {cfg['levels']} (same function)",
+                  file=sys.stderr)
         ih = icfg.get("kernel_hidden", 0)
         if cfg["arch"] == "kernel" and (icfg.get("kernel_radius") != cfg.get("kernel_radius")
                                         or ih > cfg.get("kernel_hidden", 0)):

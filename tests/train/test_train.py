@@ -197,6 +197,32 @@ class Recipe(unittest.TestCase):
         new = wide.head.weight.grad[:, cfg["kernel_hidden"]:2 * cfg["kernel_hidden"]]
         self.assertGreater(float(new.abs().sum()), 0.0)
 
+    def test_widening_levels_keeps_the_function(self):
+        """--init of narrower weights into --levels: for a U-Net (Base) and
+        a Kernel net the wider body computes what the narrower did, its new
+        channels are trainable (the layers that read them get gradient), and
+        a narrowing or a change in the number of levels is refused."""
+        for variant, levels in (("Base", [40, 80, 160]), ("Kernel", [48, 96, 192])):
+            torch.manual_seed(5)
+            cfg = hfnet.variant_config(variant)
+            narrow = hfnet.HairNet(cfg)
+            wide = hfnet.HairNet(dict(cfg, levels=levels))
+            wide.load_state_dict(hfnet.widen_levels(narrow.state_dict(), cfg["levels"],
+                                                    wide.state_dict()))
+            x = torch.rand(2, cfg["in_channels"], 24, 40) * (torch.rand(2, 1, 24, 40) > 0.2)
+            with torch.no_grad():
+                a, b = narrow(x), wide(x)
+            self.assertLess(float((a - b).abs().max()), 1e-5, variant)
+            wide(x).sum().backward()
+            lo = cfg["levels"][0]
+            new_in = wide.enc1.weight.grad[:, lo:]          # enc1 reading enc0's new channels
+            self.assertGreater(float(new_in.abs().sum()), 0.0, variant)
+            with self.assertRaises(ValueError):
+                hfnet.widen_levels(wide.state_dict(), levels, narrow.state_dict())
+            deep = hfnet.HairNet(dict(cfg, levels=levels + [256]))
+            with self.assertRaises(ValueError):
+                hfnet.widen_levels(narrow.state_dict(), cfg["levels"], deep.state_dict())
+
     @staticmethod
     def kernel_and_frame(seed, shared_fragment=False):
         """(cfg, a random Kernel network, a 2x24x40 frame with 30% of its
