@@ -46,8 +46,9 @@ static void usage(FILE *f) {
     "           --width-px MIN,MAX (regimes: strand width in pixels, default 0.004,4)\n"
     "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
     "           --occluder apply to them)\n"
-    "         a frame too dense for the A-buffer is left out (manifest \"skipped\") and the\n"
-    "         run goes on; --max-fragments N lowers that limit (default and most 67108864)\n"
+    "         a ground truth too dense for one A-buffer is drawn in bands of rows; a frame\n"
+    "         whose single rows do not fit is left out (manifest \"skipped\") and the run\n"
+    "         goes on; --max-fragments N lowers that limit (default and most 67108864)\n"
     "other:   --platform osmesa|egl|auto   --out PATH\n");
 }
 

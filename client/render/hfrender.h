@@ -301,9 +301,11 @@ typedef struct hfr_outputs {
   int opaque_samples;           /* opaque MSAA baseline (multiple of 4); 0 = none */
   int background_layer;         /* the occluder layer (background.*) */
   uint32_t seed;                /* hash seed of the stochastic samples */
-  /* Most A-buffer fragments the ground truth may store (each 20 bytes of
-   * GL memory): 0 or anything above HFR_MAX_FRAGMENTS means that limit. A
-   * frame that needs more fails with HF_ERANGE. */
+  /* Most A-buffer fragments the ground truth may store at once (each 20
+   * bytes of GL memory): 0 or anything above HFR_MAX_FRAGMENTS means that
+   * limit. A frame that needs more is drawn in bands of rows, each within
+   * it (the same result); one whose single rows need more fails with
+   * HF_ERANGE. */
   uint32_t max_fragments;
 } hfr_outputs;
 

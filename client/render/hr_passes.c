@@ -388,8 +388,11 @@ static void flip_rows(const float *src, float *dst, int w, int h, int ch) {
            sizeof(float) * w * ch);
 }
 
-int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss, float *gt,
-               float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
+/* The ground truth of v's window in one A-buffer. *overflow is set when the
+ * window needs more fragments than one A-buffer holds (HF_ERANGE). */
+static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
+                     float *gt, float *cpu_gt, hfr_stats *stats, int *overflow, char *err,
+                     size_t errlen) {
   int W, H;
   hr_view_target(v, &W, &H);
   const int SW = W * ss, SH = H * ss, FSW = v->width * ss, FSH = v->height * ss;
@@ -460,6 +463,8 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hr_bind_shading(r, &r->abuf, &sv, &cam, light, 0);
     hr_set_u(&r->abuf, "u_capacity", capacity);
     hr_set_i(&r->abuf, "u_width", FSW);
+    hr_set_2i(&r->abuf, "u_win_lo", cam.win_x, cam.win_y);
+    hr_set_2i(&r->abuf, "u_win_hi", cam.win_x + SW, cam.win_y + SH);
     draw_hair(r);
     hrgl.DepthMask(GL_TRUE);
     hrgl.Disable(GL_DEPTH_TEST);
@@ -471,8 +476,10 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     rc = hr_gl_check("A-buffer pass", err, errlen);
     if (rc != HF_OK) break;
     if (count > max_nodes) {
-      if (err) snprintf(err, errlen, "%u A-buffer fragments, more than the %u supported: "
-                        "lower the supersampling, size or strand count", count, max_nodes);
+      if (err) snprintf(err, errlen, "%u A-buffer fragments in %d row%s of %d pixels, more "
+                        "than the %u one A-buffer holds: lower the supersampling or the "
+                        "strand count", count, H, H == 1 ? "" : "s", W, max_nodes);
+      *overflow = 1;
       rc = HF_ERANGE;
       break;
     }
@@ -577,5 +584,51 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
   hrgl.DeleteTextures(1, &depth);
   if (rtex) hrgl.DeleteTextures(1, &rtex);
   hrgl.DeleteBuffers(4, bufs);
+  return rc;
+}
+
+/* The window as bands of rows when its fragments do not fit one A-buffer:
+ * each half of the rows is drawn again with the scissor on it (the scissor
+ * test runs before the A-buffer shader, so a band stores only its own
+ * fragments), down to single rows. Every pixel's list is the same whichever
+ * band draws it, so the result is the one a large enough A-buffer gives;
+ * each band costs one more draw of the hair. */
+int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss, float *gt,
+               float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
+  int W, H, overflow = 0;
+  hr_view_target(v, &W, &H);
+  hfr_stats own = {0};
+  int rc = gt_window(r, v, light, ss, gt, cpu_gt, &own, &overflow, err, errlen);
+  if (rc == HF_ERANGE && overflow && H > 1) {
+    /* Top rows first: gt and cpu_gt are [h][w][3], rows top first. */
+    hfr_view band = *v;
+    if (band.crop_w <= 0) band.crop_x = 0, band.crop_y = 0, band.crop_w = W, band.crop_h = H;
+    const int top = H / 2;
+    const size_t top_floats = (size_t)3 * W * top;
+    const double tried = own.gt_ms;
+    own = (hfr_stats){0};
+    own.gt_ms = tried;
+    band.crop_h = top;
+    rc = hr_pass_gt(r, &band, light, ss, gt, cpu_gt, &own, err, errlen);
+    if (rc == HF_OK) {
+      hfr_stats rest = {0};
+      band.crop_y += top, band.crop_h = H - top;
+      rc = hr_pass_gt(r, &band, light, ss, gt + top_floats, cpu_gt ? cpu_gt + top_floats : NULL,
+                      &rest, err, errlen);
+      own.gt_ms += rest.gt_ms;
+      own.gt_fragments += rest.gt_fragments;
+      own.gt_max_depth = rest.gt_max_depth > own.gt_max_depth ? rest.gt_max_depth
+                                                              : own.gt_max_depth;
+      own.gt_truncated += rest.gt_truncated;
+      own.gt_host_resolve |= rest.gt_host_resolve;
+    }
+  }
+  if (stats) {
+    stats->gt_ms += own.gt_ms;
+    stats->gt_fragments = own.gt_fragments;
+    stats->gt_max_depth = own.gt_max_depth;
+    stats->gt_truncated = own.gt_truncated;
+    stats->gt_host_resolve = own.gt_host_resolve;
+  }
   return rc;
 }

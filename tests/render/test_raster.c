@@ -263,6 +263,65 @@ static void test_gt_matches_cpu_blend(void **state) {
   free(cpu);
 }
 
+/* A window whose fragments do not fit one A-buffer is drawn in bands of
+ * rows: the same ground truth as one large enough A-buffer, on the GPU and
+ * on the host, the same fragment count, for the whole frame and for a crop;
+ * a limit below one row's fragments fails and says so. */
+static void test_gt_bands(void **state) {
+  (void)state;
+  hfr_view v;
+  style_scene(HFR_STYLE_CURLY, 600, &v);
+  hr_camera light;
+  hr_camera_light(R, &v, &light);
+  char err[512] = "";
+  assert_int_equal(hr_pass_shadow(R, &v, &light, 1, err, sizeof err), HF_OK);
+  const size_t n = (size_t)3 * W * H;
+  float *whole = malloc(sizeof(float) * n), *gpu = malloc(sizeof(float) * n),
+        *cpu = malloc(sizeof(float) * n);
+  assert_true(whole && gpu && cpu);
+  const uint32_t saved = R->max_fragments;
+  uint64_t frame_fragments = 0;
+  for (int crop = 0; crop < 2; crop++) {
+    hfr_view cv = v;
+    if (crop) cv.crop_x = W / 4, cv.crop_y = H / 3, cv.crop_w = W / 2, cv.crop_h = H / 2;
+    int w, h;
+    hr_view_target(&cv, &w, &h);
+    hfr_stats one = {0}, banded = {0};
+    R->max_fragments = 0;
+    if (hr_pass_gt(R, &cv, &light, 4, whole, NULL, &one, err, sizeof err) != HF_OK)
+      fail_msg("gt: %s", err);
+    assert_true(one.gt_fragments > 1000);
+    if (crop) assert_true(one.gt_fragments < frame_fragments); /* the crop's own fragments */
+    frame_fragments = one.gt_fragments;
+    R->max_fragments = (uint32_t)(one.gt_fragments / 5);
+    if (hr_pass_gt(R, &cv, &light, 4, gpu, cpu, &banded, err, sizeof err) != HF_OK)
+      fail_msg("banded gt: %s", err);
+    double dg = 0, dc = 0;
+    for (size_t i = 0; i < (size_t)w * h; i++) {
+      const float *g = gpu + 3 * i, *c = cpu + 3 * i, *o = whole + 3 * i;
+      for (int k = 0; k < 3; k++) dg = fmax(dg, fabs(g[k] - o[k]));
+      /* The host blend, premultiplied as the GPU's is compared above. */
+      dc = fmax(dc, fabs(c[2] - o[2]));
+      for (int k = 0; k < 2; k++) dc = fmax(dc, fabs(c[k] * c[2] - o[k] * o[2]));
+    }
+    print_message("%s: %llu fragments, in bands of at most %u: max |banded - whole| %.2e, "
+                  "host blend %.2e\n", crop ? "crop" : "frame",
+                  (unsigned long long)one.gt_fragments, R->max_fragments, dg, dc);
+    if (banded.gt_fragments != one.gt_fragments)
+      fail_msg("%llu fragments in bands", (unsigned long long)banded.gt_fragments);
+    assert_true(dg == 0);
+    assert_true(dc < 1e-4);
+  }
+  R->max_fragments = 1;
+  hfr_stats st = {0};
+  assert_int_equal(hr_pass_gt(R, &v, &light, 4, gpu, NULL, &st, err, sizeof err), HF_ERANGE);
+  assert_non_null(strstr(err, "in 1 row of"));
+  R->max_fragments = saved;
+  free(whole);
+  free(gpu);
+  free(cpu);
+}
+
 /* Dense hair: lists longer than one sort round, and more loop work per
  * pixel than llvmpipe allows one shader invocation. Still exact. */
 static void test_gt_dense(void **state) {
@@ -412,12 +471,26 @@ static void test_dataset_mode(void **state) {
   rmdir(dir);
 }
 
-/* --extended: every frame's parameters inside the documented wide ranges,
- * and not all alike. */
-/* A frame too dense for the ground truth's A-buffer is left out, named in
- * the manifest's "skipped" list, and the run goes on with the next frame;
- * a run that leaves out every frame fails. The limit is lowered between the
- * fragment counts of the run's own frames so that some cross it. */
+/* The sum of one channel (e.g. "gt.alpha") over an EXR's pixels. */
+static double channel_sum(const char *path, const char *channel) {
+  hf_image img;
+  char err[256] = "";
+  if (hf_exr_read(path, &img, err, sizeof err) != HF_OK) fail_msg("%s: %s", path, err);
+  int c = hf_image_channel(&img, channel);
+  assert_true(c >= 0);
+  double sum = 0;
+  for (size_t p = 0; p < (size_t)img.width * img.height; p++)
+    sum += img.data[p * img.channels + c];
+  hf_image_free(&img);
+  return sum;
+}
+
+/* A frame whose fragments do not fit one A-buffer is drawn in bands: with
+ * the limit lowered below the fragment counts of some of the run's own
+ * frames, every frame is still made, with the same fragment count and the
+ * same ground truth. A frame whose single rows do not fit is left out,
+ * named in the manifest's "skipped" list, and the run goes on with the next
+ * frame; a run that leaves out every frame fails. */
 static void test_dataset_skips_dense_frames(void **state) {
   (void)state;
   char dir[256];
@@ -453,26 +526,39 @@ static void test_dataset_skips_dense_frames(void **state) {
   free(text);
   print_message("fragments per frame: %d %d %d %d\n", counts[0], counts[1], counts[2], counts[3]);
   assert_true(lo < hi);
+  const char *files[] = {"straight_0000.exr", "curly_0000.exr", "straight_0001.exr",
+                         "curly_0001.exr"};
+  double gt_sum[4];
+  for (int i = 0; i < 4; i++) {
+    char f[512];
+    snprintf(f, sizeof f, "%s/%s", dir, files[i]);
+    gt_sum[i] = channel_sum(f, "gt.color") + channel_sum(f, "gt.alpha");
+  }
   o.max_fragments = (uint32_t)lo;
   assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_OK);
   assert_int_equal(hr_renderer_bind(R), HF_OK);
   text = slurp(path);
-  char *sk = strstr(text, "\"skipped\"");
-  assert_non_null(sk);
-  /* Every frame over the limit is in the skipped list, the others in frames. */
-  int skipped = 0;
-  for (const char *q = sk; (q = strstr(q, "\"reason\"")) != NULL; q++) skipped++;
-  int over = 0;
-  for (int i = 0; i < 4; i++) over += counts[i] > lo;
-  assert_int_equal(skipped, over);
-  assert_true(skipped >= 1 && skipped <= 3);
+  assert_null(strstr(text, "\"reason\""));   /* nothing left out */
+  k = text;
+  for (int i = 0; i < 4; i++) {
+    k = strstr(k, "\"gt_fragments\":");
+    assert_non_null(k);
+    k += strlen("\"gt_fragments\":");
+    assert_int_equal(atoi(k), counts[i]);
+    char f[512];
+    snprintf(f, sizeof f, "%s/%s", dir, files[i]);
+    assert_true(channel_sum(f, "gt.color") + channel_sum(f, "gt.alpha") == gt_sum[i]);
+  }
   free(text);
   o.max_fragments = 1;
   assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_ERANGE);
   assert_int_equal(hr_renderer_bind(R), HF_OK);
   assert_non_null(strstr(err, "every frame was left out"));
-  const char *files[] = {"straight_0000.exr", "curly_0000.exr", "straight_0001.exr",
-                         "curly_0001.exr"};
+  text = slurp(path);
+  int skipped = 0;
+  for (const char *q = text; (q = strstr(q, "\"reason\"")) != NULL; q++) skipped++;
+  assert_int_equal(skipped, 4);   /* each frame tried in turn */
+  free(text);
   for (int i = 0; i < 4; i++) {
     char f[512];
     snprintf(f, sizeof f, "%s/%s", dir, files[i]);
@@ -616,6 +702,7 @@ int main(void) {
     cmocka_unit_test(test_wide_strands_area),
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
+    cmocka_unit_test(test_gt_bands),
     cmocka_unit_test(test_frame_ranges),
     cmocka_unit_test(test_dataset_mode),
     cmocka_unit_test(test_dataset_skips_dense_frames),
