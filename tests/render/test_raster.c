@@ -229,14 +229,20 @@ static void style_scene(hfr_style s, int strands, hfr_view *v) {
   v->shadow_size = 256;
 }
 
+/* 600 curly strands in the default view, light and shadow map drawn. */
+static void curly_scene_with_shadow(hfr_view *v, hr_camera *light) {
+  style_scene(HFR_STYLE_CURLY, 600, v);
+  hr_camera_light(R, v, light);
+  char err[512] = "";
+  if (hr_pass_shadow(R, v, light, 1, err, sizeof err) != HF_OK) fail_msg("shadow: %s", err);
+}
+
 static void test_gt_matches_cpu_blend(void **state) {
   (void)state;
   hfr_view v;
-  style_scene(HFR_STYLE_CURLY, 600, &v);
   hr_camera light;
-  hr_camera_light(R, &v, &light);
   char err[512] = "";
-  assert_int_equal(hr_pass_shadow(R, &v, &light, 1, err, sizeof err), HF_OK);
+  curly_scene_with_shadow(&v, &light);
   float *gpu = malloc(sizeof(float) * 3 * W * H), *cpu = malloc(sizeof(float) * 3 * W * H);
   assert_non_null(gpu);
   assert_non_null(cpu);
@@ -270,11 +276,9 @@ static void test_gt_matches_cpu_blend(void **state) {
 static void test_gt_bands(void **state) {
   (void)state;
   hfr_view v;
-  style_scene(HFR_STYLE_CURLY, 600, &v);
   hr_camera light;
-  hr_camera_light(R, &v, &light);
   char err[512] = "";
-  assert_int_equal(hr_pass_shadow(R, &v, &light, 1, err, sizeof err), HF_OK);
+  curly_scene_with_shadow(&v, &light);
   const size_t n = (size_t)3 * W * H;
   float *whole = malloc(sizeof(float) * n), *gpu = malloc(sizeof(float) * n),
         *cpu = malloc(sizeof(float) * n);
