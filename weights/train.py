@@ -539,9 +539,9 @@ def parse_args(argv):
     ap.add_argument("--benchmark", type=int, default=0, metavar="N",
                     help="only time N steps of each forward variant (median ms/step)")
     ap.add_argument("--levels", metavar="C0,C1,...",
-                    help="the U-Net's channels per level instead of the variant's (as many "
-                         "levels; recorded in the weights' metadata); with --init of narrower "
-                         "weights of the variant, they are widened to the same function")
+                    help="the U-Net's channels per level instead of the variant's (recorded "
+                         "in the weights' metadata); --init weights with as many levels, none "
+                         "wider, are widened to the same function")
     ap.add_argument("--kernel-radius", type=int, default=0,
                     help="Kernel variant: half side of the per-pixel kernel (default: the "
                     "variant's)")
@@ -570,7 +570,13 @@ def make_config(args):
     """The variant's configuration with the run's kernel overrides."""
     cfg = hfnet.variant_config(args.variant)
     if getattr(args, "levels", None):
-        cfg["levels"] = [int(c) for c in args.levels.split(",")]
+        try:
+            cfg["levels"] = [int(c) for c in args.levels.split(",")]
+        except ValueError:
+            cfg["levels"] = []
+        if not cfg["levels"] or min(cfg["levels"]) < 1:
+            sys.exit(f"train.py: --levels {args.levels!r}: positive channel counts, "
+                     f"e.g. 48,96,192")
     if cfg["arch"] == "kernel":
         if getattr(args, "kernel_radius", 0) > 0:
             cfg["kernel_radius"] = args.kernel_radius

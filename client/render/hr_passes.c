@@ -388,10 +388,17 @@ static void flip_rows(const float *src, float *dst, int w, int h, int ch) {
            sizeof(float) * w * ch);
 }
 
-/* The ground truth of v's window in one A-buffer. *overflow is set when the
- * window needs more fragments than one A-buffer holds (HF_ERANGE). */
+/* Most fragments one A-buffer of r holds. */
+static uint32_t abuf_max_nodes(const hfr_renderer *r) {
+  return r->max_fragments > 0 && r->max_fragments < HFR_MAX_FRAGMENTS ? r->max_fragments
+                                                                      : HFR_MAX_FRAGMENTS;
+}
+
+/* The ground truth of v's window in one A-buffer. *overflow is set to the
+ * window's fragment count when that is more than one A-buffer holds
+ * (HF_ERANGE). */
 static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
-                     float *gt, float *cpu_gt, hfr_stats *stats, int *overflow, char *err,
+                     float *gt, float *cpu_gt, hfr_stats *stats, uint32_t *overflow, char *err,
                      size_t errlen) {
   int W, H;
   hr_view_target(v, &W, &H);
@@ -428,8 +435,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)sizeof(uint32_t) * FSW * FSH, NULL,
                   GL_DYNAMIC_COPY);
   /* HFR_MAX_FRAGMENTS: 1.3 GB of nodes at most. */
-  const uint32_t max_nodes = r->max_fragments > 0 && r->max_fragments < HFR_MAX_FRAGMENTS
-                                 ? r->max_fragments : HFR_MAX_FRAGMENTS;
+  const uint32_t max_nodes = abuf_max_nodes(r);
   uint64_t want = (uint64_t)SW * SH * 2;
   uint32_t capacity = want < ABUF_MIN_NODES ? ABUF_MIN_NODES
                       : want > max_nodes ? max_nodes : (uint32_t)want;
@@ -479,7 +485,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
       if (err) snprintf(err, errlen, "%u A-buffer fragments in %d row%s of %d pixels, more "
                         "than the %u one A-buffer holds: lower the supersampling or the "
                         "strand count", count, H, H == 1 ? "" : "s", W, max_nodes);
-      *overflow = 1;
+      *overflow = count;
       rc = HF_ERANGE;
       break;
     }
@@ -588,39 +594,44 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
 }
 
 /* The window as bands of rows when its fragments do not fit one A-buffer:
- * each half of the rows is drawn again with the scissor on it (the scissor
- * test runs before the A-buffer shader, so a band stores only its own
- * fragments), down to single rows. Every pixel's list is the same whichever
- * band draws it, so the result is the one a large enough A-buffer gives;
- * each band costs one more draw of the hair. */
+ * as many bands as the count it measured needs at three quarters of an
+ * A-buffer each (a band that still overflows is split again, down to single
+ * rows), each drawn again with the A-buffer shader keeping only its own
+ * rows' fragments. Every pixel's list is the same whichever band draws it,
+ * so the result is the one a large enough A-buffer gives; each band costs
+ * one more draw of the hair. */
 int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss, float *gt,
                float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
-  int W, H, overflow = 0;
+  int W, H;
+  uint32_t overflow = 0;
   hr_view_target(v, &W, &H);
   hfr_stats own = {0};
   int rc = gt_window(r, v, light, ss, gt, cpu_gt, &own, &overflow, err, errlen);
   if (rc == HF_ERANGE && overflow && H > 1) {
-    /* Top rows first: gt and cpu_gt are [h][w][3], rows top first. */
+    const uint64_t per_band = (uint64_t)abuf_max_nodes(r) * 3 / 4 + 1;
+    uint64_t want = (overflow + per_band - 1) / per_band;
+    const int n = want < 2 ? 2 : want > (uint64_t)H ? H : (int)want;
     hfr_view band = *v;
     if (band.crop_w <= 0) band.crop_x = 0, band.crop_y = 0, band.crop_w = W, band.crop_h = H;
-    const int top = H / 2;
-    const size_t top_floats = (size_t)3 * W * top;
+    const int y0 = band.crop_y;
     const double tried = own.gt_ms;
     own = (hfr_stats){0};
     own.gt_ms = tried;
-    band.crop_h = top;
-    rc = hr_pass_gt(r, &band, light, ss, gt, cpu_gt, &own, err, errlen);
-    if (rc == HF_OK) {
-      hfr_stats rest = {0};
-      band.crop_y += top, band.crop_h = H - top;
-      rc = hr_pass_gt(r, &band, light, ss, gt + top_floats, cpu_gt ? cpu_gt + top_floats : NULL,
-                      &rest, err, errlen);
-      own.gt_ms += rest.gt_ms;
-      own.gt_fragments += rest.gt_fragments;
-      own.gt_max_depth = rest.gt_max_depth > own.gt_max_depth ? rest.gt_max_depth
+    rc = HF_OK;
+    for (int b = 0; rc == HF_OK && b < n; b++) {
+      /* Rows top first: gt and cpu_gt are [h][w][3]. */
+      const int top = (int)((int64_t)H * b / n), end = (int)((int64_t)H * (b + 1) / n);
+      const size_t off = (size_t)3 * W * top;
+      band.crop_y = y0 + top, band.crop_h = end - top;
+      hfr_stats part = {0};
+      rc = hr_pass_gt(r, &band, light, ss, gt + off, cpu_gt ? cpu_gt + off : NULL, &part, err,
+                      errlen);
+      own.gt_ms += part.gt_ms;
+      own.gt_fragments += part.gt_fragments;
+      own.gt_max_depth = part.gt_max_depth > own.gt_max_depth ? part.gt_max_depth
                                                               : own.gt_max_depth;
-      own.gt_truncated += rest.gt_truncated;
-      own.gt_host_resolve |= rest.gt_host_resolve;
+      own.gt_truncated += part.gt_truncated;
+      own.gt_host_resolve |= part.gt_host_resolve;
     }
   }
   if (stats) {
