@@ -196,6 +196,40 @@ def widen_kernel_hidden(state, hidden, fresh):
     return out
 
 
+def grow_kernel_radius(state, old_radius, new_radius, hidden, logit_drop=4.0):
+    """Kernel weights of kernel_radius old_radius regrown to new_radius
+    (>= old_radius): the head's rows (or dec0's output channels without a
+    head) are renumbered from the old taps to the new, and each new tap
+    outside the old window gets the row of the old border tap nearest to it
+    (offsets clamped to the old radius) with logit_drop taken off its bias,
+    so it starts with e^-logit_drop of that tap's weight. The function moves
+    by that little (a softmax has no exactly neutral logit) and the new taps
+    get gradients from the first step. hidden: kernel_hidden (0: no head).
+    Shapes: head [taps + 3][hidden +
+    in_channels][1][1], dec0 (no head) ConvTranspose2d [cin][taps + 3][4][4].
+    Raises ValueError when new_radius < old_radius."""
+    if new_radius < old_radius:
+        raise ValueError(f"grow_kernel_radius: {old_radius} -> {new_radius}: cannot shrink")
+    old_taps, new_taps = _taps(old_radius), _taps(new_radius)
+    index = {t: i for i, t in enumerate(old_taps)}
+    src = [index[(max(-old_radius, min(old_radius, dy)), max(-old_radius, min(old_radius, dx)))]
+           for dy, dx in new_taps]
+    inside = [max(abs(dy), abs(dx)) <= old_radius for dy, dx in new_taps]
+    ot = len(old_taps)
+    rows = src + [ot + k for k in range(len(OUTPUTS))]
+    drop = torch.tensor([0.0 if i else logit_drop for i in inside] + [0.0] * len(OUTPUTS))
+    out = dict(state)
+    if hidden:
+        w, b = state["head.weight"], state["head.bias"]
+        out["head.weight"] = w[rows].clone()
+        out["head.bias"] = b[rows].clone() - drop.to(b.dtype)
+    else:
+        w, b = state["dec0.weight"], state["dec0.bias"]
+        out["dec0.weight"] = w[:, rows].clone()
+        out["dec0.bias"] = b[rows].clone() - drop.to(b.dtype)
+    return out
+
+
 def widen_levels(state, old_levels, fresh):
     """U-Net weights with body widths old_levels widened to the shapes of
     fresh (a state_dict of the same architecture with as many levels, each

@@ -544,7 +544,8 @@ def parse_args(argv):
                          "wider, are widened to the same function")
     ap.add_argument("--kernel-radius", type=int, default=0,
                     help="Kernel variant: half side of the per-pixel kernel (default: the "
-                    "variant's)")
+                    "variant's); --init weights of a smaller radius are regrown to it "
+                    "(hfnet.grow_kernel_radius)")
     ap.add_argument("--kernel-hidden", type=int, default=-1,
                     help="Kernel variant: channels of dec0 before the 1x1 head (0: dec0 "
                     "gives the kernel directly; default: the variant's)")
@@ -634,11 +635,15 @@ def main(argv=None):
             print(f"widened levels {icfg['levels']} -> {cfg['levels']} (same function)",
                   file=sys.stderr)
         ih = icfg.get("kernel_hidden", 0)
-        if cfg["arch"] == "kernel" and (icfg.get("kernel_radius") != cfg.get("kernel_radius")
-                                        or ih > cfg.get("kernel_hidden", 0)):
-            sys.exit(f"train.py: --init {args.init} has kernel_radius {icfg.get('kernel_radius')}"
-                     f" and kernel_hidden {ih}; this run needs the same radius and at least"
+        ir = icfg.get("kernel_radius")
+        if cfg["arch"] == "kernel" and (ir > cfg.get("kernel_radius") or ih > cfg.get("kernel_hidden", 0)):
+            sys.exit(f"train.py: --init {args.init} has kernel_radius {ir}"
+                     f" and kernel_hidden {ih}; this run needs at least that radius and at least"
                      f" as many hidden channels")
+        if cfg["arch"] == "kernel" and ir < cfg["kernel_radius"]:
+            state = hfnet.grow_kernel_radius(state, ir, cfg["kernel_radius"], ih)
+            print(f"kernel_radius {ir} -> {cfg['kernel_radius']}: each new tap starts as its"
+                  f" nearest old border tap less 4 in logit", file=sys.stderr)
         if cfg["arch"] == "kernel" and ih < cfg.get("kernel_hidden", 0):
             state = hfnet.widen_kernel_hidden(state, ih, net.state_dict())
             print(f"widened kernel_hidden {ih} -> {cfg['kernel_hidden']} (same function)",

@@ -223,6 +223,38 @@ class Recipe(unittest.TestCase):
             with self.assertRaises(ValueError):
                 hfnet.widen_levels(narrow.state_dict(), cfg["levels"], deep.state_dict())
 
+    def test_growing_the_kernel_radius(self):
+        """--init of a smaller kernel_radius: with and without a head, the
+        regrown net's logits are the old ones at the old taps and the
+        nearest old border tap's less the drop at the new ones, its
+        corrections are the old ones, a drop that underflows the new taps'
+        weights gives the same function, and shrinking is refused."""
+        for hidden in (32, 0):
+            torch.manual_seed(7)
+            cfg = dict(hfnet.variant_config("Kernel"), kernel_hidden=hidden)
+            small = hfnet.HairNet(cfg)
+            cfg4 = dict(cfg, kernel_radius=4, out_channels=hfnet.kernel_taps(4) + 3)
+            big = hfnet.HairNet(cfg4)
+            big.load_state_dict(hfnet.grow_kernel_radius(small.state_dict(), 3, 4, hidden))
+            x = torch.rand(2, cfg["in_channels"], 24, 40) * (torch.rand(2, 1, 24, 40) > 0.2)
+            with torch.no_grad():
+                r3, r4 = small.raw(x), big.raw(x)
+            for t, (dy, dx) in enumerate(hfnet._taps(4)):
+                cy, cx = max(-3, min(3, dy)), max(-3, min(3, dx))
+                s = (cy + 3) * 7 + cx + 3
+                drop = 0.0 if (cy, cx) == (dy, dx) else 4.0
+                self.assertLess(float((r4[:, t] - (r3[:, s] - drop)).abs().max()), 1e-5,
+                                (hidden, dy, dx))
+            self.assertLess(float((r4[:, 81:] - r3[:, 49:]).abs().max()), 1e-5, hidden)
+            exact = hfnet.HairNet(cfg4)
+            exact.load_state_dict(hfnet.grow_kernel_radius(small.state_dict(), 3, 4, hidden,
+                                                           logit_drop=1e4))
+            with torch.no_grad():
+                self.assertLess(float((exact(x) - small(x)).abs().max()), 1e-5, hidden)
+                self.assertGreater(float((big(x) - small(x)).abs().max()), 0.0, hidden)
+            with self.assertRaises(ValueError):
+                hfnet.grow_kernel_radius(big.state_dict(), 4, 3, hidden)
+
     @staticmethod
     def kernel_and_frame(seed, shared_fragment=False):
         """(cfg, a random Kernel network, a 2x24x40 frame with 30% of its
