@@ -161,8 +161,9 @@ def entry_stats(entry, feat, spp):
     """input_stats.frame_stats of a manifest entry's features [h][w][spp*6],
     with long_side that of the whole frame when the entry is a crop (the
     manifest's "full_width"/"full_height"): an engine sends the whole frame,
-    so that is the resolution the weights' input range must record, as
-    `hairfilter eval` reports it."""
+    so that is the resolution the regime tables count it at, as `hairfilter
+    eval` reports it (a trained range does not record it:
+    input_stats.RANGE_STATS)."""
     st = input_stats.frame_stats(feat, spp)
     full = max(int(entry.get("full_width") or 0), int(entry.get("full_height") or 0))
     if full > st["long_side"]:

@@ -83,14 +83,24 @@ def frame_stats(features, spp=None):
     return out
 
 
+# The statistics a trained range records: all but long_side. The networks
+# are fully convolutional and train on crops, so a pixel's result depends on
+# the samples around it, not on the size of the frame; what a resolution does
+# change (strands' width in pixels, full coverage, hair's share of the frame)
+# the other four measure. Recorded, long_side would flag every frame larger
+# than the largest frame the crops were cut from (1920x1080 for weights
+# trained on frames up to 1024) whatever its hair.
+RANGE_STATS = [k for k in STATS if k != "long_side"]
+
+
 def input_range(stats, spp):
     """The `input_range` metadata (weights/FORMAT.md) over a list of
-    frame_stats: [min, max] of each statistic over the frames where it is
-    defined (a statistic no frame defines is left out)."""
+    frame_stats: [min, max] of each statistic of RANGE_STATS over the frames
+    where it is defined (a statistic no frame defines is left out)."""
     if not stats:
         raise ValueError("input_range: no frames")
     out = {"definition": DEFINITION, "spp": int(spp), "frames": len(stats)}
-    for k in STATS:
+    for k in RANGE_STATS:
         v = [s[k] for s in stats if np.isfinite(s[k])]
         if v:
             out[k] = [float(min(v)), float(max(v))]

@@ -161,8 +161,16 @@ class Stamp(unittest.TestCase):
         after = open(w, "rb").read()
         tail = len(before) - 8 - int.from_bytes(before[:8], "little")
         self.assertEqual(after[-tail:], before[-tail:])
-        # Training frames are inside; a frame of opaque, wide strands is not.
+        # Training frames are inside, and so is a frame of the same hair at
+        # twice the size (a training frame tiled 2x2: every statistic but
+        # long_side the same), since the range records no size.
         self.assertEqual(dump("check", w, train[0]["file"]), 0)
+        self.assertNotIn("long_side", got)
+        big = os.path.join(ARGS.work, "tiled.exr")
+        feat = dataset.load_frame(train[0]["file"], 4, np.float32)[0]
+        write_features(big, np.tile(feat, (2, 2, 1, 1)))
+        self.assertEqual(dump("stats", big, "4")["long_side"], 2 * max(feat.shape[:2]))
+        self.assertEqual(dump("check", w, big), 0)
         wide = os.path.join(ARGS.work, "wide.exr")
         write_features(wide, features(np.ones((16, 16, 4), np.float32)))
         mask = dump("check", w, wide)
@@ -170,7 +178,7 @@ class Stamp(unittest.TestCase):
         self.assertTrue(mask & (1 << input_stats.STATS.index("full_coverage")), mask)
 
     def test_crop_counts_at_full_size(self):
-        # A crop of a 1024 frame: its range and its regime row say 1024.
+        # A crop of a 1024 frame: its statistics and its regime row say 1024.
         crop = os.path.join(ARGS.work, "crop")
         shutil.rmtree(crop, ignore_errors=True)
         shutil.copytree(self.data, crop)
@@ -186,8 +194,11 @@ class Stamp(unittest.TestCase):
         feat = dataset.load_frame(e["file"], 4, np.float32)[0]
         self.assertEqual(dataset.entry_stats(e, feat, 4)["long_side"], 1024.0)
         self.assertEqual(input_stats.frame_stats(feat, 4)["long_side"], 32.0)
+        # A trained range records no size: a frame larger than any trained
+        # on is not outside for that.
         rng = stamp_range.range_of_frames(entries, 4)
-        self.assertEqual(rng["long_side"], [32.0, 1024.0])
+        self.assertNotIn("long_side", rng)
+        self.assertIn("hair_fraction", rng)
         r = subprocess.run([sys.executable, os.path.join(WEIGHTS, "regime_table.py"),
                             "train=" + crop, "plain=" + self.data],
                            capture_output=True, text=True)
