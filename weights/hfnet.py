@@ -205,9 +205,9 @@ def grow_kernel_radius(state, old_radius, new_radius, hidden, logit_drop=4.0):
     so it starts with e^-logit_drop of that tap's weight. The function moves
     by that little (a softmax has no exactly neutral logit) and the new taps
     get gradients from the first step. hidden: kernel_hidden (0: no head).
-    Shapes: head [taps + 3][hidden +
-    in_channels][1][1], dec0 (no head) ConvTranspose2d [cin][taps + 3][4][4].
-    Raises ValueError when new_radius < old_radius."""
+    Shapes: head [taps + 3][hidden + in_channels][1][1], dec0 without a head
+    (ConvTranspose2d) [cin][taps + 3][4][4]. Raises ValueError when
+    new_radius < old_radius."""
     if new_radius < old_radius:
         raise ValueError(f"grow_kernel_radius: {old_radius} -> {new_radius}: cannot shrink")
     old_taps, new_taps = _taps(old_radius), _taps(new_radius)

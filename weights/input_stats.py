@@ -88,8 +88,8 @@ def frame_stats(features, spp=None):
 # the samples around it, not on the size of the frame; what a resolution does
 # change (strands' width in pixels, full coverage, hair's share of the frame)
 # the other four measure. Recorded, long_side would flag every frame larger
-# than the largest frame the crops were cut from (1920x1080 for weights
-# trained on frames up to 1024) whatever its hair.
+# than the largest the crops were cut from, whatever its hair: every
+# 1920x1080 frame, for weights trained on frames up to 1024 wide.
 RANGE_STATS = [k for k in STATS if k != "long_side"]
 
 
