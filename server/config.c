@@ -38,8 +38,9 @@ static void usage(FILE *f) {
           "  --max-queue-delay-us N   how long a frame waits for batch partners (default 0)\n"
           "  --queue-size N           admitted frames waiting for the worker (default 64)\n"
           "  --max-inflight N         requests in flight per connection (default 32)\n"
-          "  --max-size WxH           largest frame (default 4096x4096; lowered at start\n"
-          "                           to what the other limits let a frame of it meet)\n"
+          "  --max-size WxH           largest frame (default 3840x2160; lowered at start,\n"
+          "                           keeping its aspect, to what the other limits let a\n"
+          "                           frame of it meet)\n"
           "  --max-frame-mb N         largest payload read, MiB (default 1024)\n"
           "  --max-memory-mb N        request buffers and inference memory, MiB (default 4096)\n"
           "  --max-connections N      open connections (default 256)\n"
@@ -392,7 +393,12 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   cfg->max_batch = 0; /* by backend: default_max_batch in worker.c */
   cfg->queue_size = 64;
   cfg->max_inflight = 32;
-  cfg->max_width = cfg->max_height = 4096;
+  /* Ultra HD: engines render landscape frames, and the memory budget lowers
+   * this keeping its aspect, so a square default would shut out 1920x1080
+   * (1648x1648 with the bundled variants and the default budget) though it
+   * fits the budget. */
+  cfg->max_width = 3840;
+  cfg->max_height = 2160;
   cfg->max_connections = 256;
   cfg->max_handshakes = 32;
   cfg->max_frame_bytes = 1024ull << 20;

@@ -264,6 +264,28 @@ static void test_queue_shared(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* Item: the default --max-size is Ultra HD, 3840x2160, lowered keeping its
+ * 16:9 aspect: a tight budget still admits engine frames of that shape
+ * (1920x1080 with the bundled variants and the default budget), where a
+ * square default would cut their width to their height. */
+static void test_default_size_is_landscape(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-memory-mb", "64", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = test_options("limits", NULL, 20000);
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  const hfc_server_info *i = hfc_info(c);
+  int W = i->max_width, HH = i->max_height;
+  printf("announced %dx%d\n", W, HH);
+  assert_true(W > 16 && W < 3840);
+  assert_int_equal(HH, (int)((int64_t)W * 2160 / 3840));   /* the default's aspect */
+  assert_true(server_log_has(&d, "max size lowered from 3840x2160"));
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 /* Item: HELLO_OK announces a size a frame can meet. With a 1 MiB frame
  * limit and 4 MiB of memory, 4096x4096 is lowered; a frame of every
  * variant at exactly the announced size (f32, composite: the largest) is
@@ -627,6 +649,7 @@ static void test_batches_form_within_budget(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_batches_form_within_budget),
+    cmocka_unit_test(test_default_size_is_landscape),
     cmocka_unit_test(test_announced_maximum_is_admitted),
     cmocka_unit_test(test_queue_share_within_window),
     cmocka_unit_test(test_queue_shared),
