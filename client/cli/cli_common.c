@@ -7,6 +7,9 @@
 
 #include "cli_common.h"
 #include <hairfilter/hairfilter.h>
+#ifdef HF_HAVE_RENDERER
+#include "hfrender.h"
+#endif
 
 const float CLI_HAIR_DEFAULT[3] = {0.45f, 0.25f, 0.12f};
 const float CLI_LIGHT_DEFAULT[3] = {1.0f, 1.0f, 1.0f};
@@ -74,11 +77,17 @@ int cli_open_backend(const char *name, hf_backend **out) {
   return 0;
 }
 
-int cli_write_preview(const char *path, const float *result, int w, int h, const float hair[3],
-                      const float light[3], const float bg[3]) {
+int cli_write_preview(const char *path, const float *result, int w, int h,
+                      const hf_image *layer, const float hair[3], const float light[3],
+                      const float bg[3]) {
   float *rgb = malloc((size_t)w * h * 3 * sizeof(float));
   if (!rgb) return HF_ENOMEM;
+#ifdef HF_HAVE_RENDERER
+  hfr_composite_result(result, w, h, layer, hair, light, bg, rgb);
+#else
+  (void)layer;  /* built without the renderer: over bg alone */
   hf_composite(result, w, h, hair, light, bg, rgb);
+#endif
   int rc = hf_png_write_rgb(path, rgb, w, h);
   free(rgb);
   return rc;
@@ -108,11 +117,35 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
           frame, variant, why);
 }
 
+/* The four background.R/G/B/A channels of img (values in data, of dtype) as
+ * a float32 image of their own; layer stays zeroed when one is missing. */
+static int read_layer(const hf_image *img, const void *data, hf_dtype dtype, hf_image *layer) {
+  int ch[4];
+  for (int k = 0; k < 4; k++) {
+    char name[32];
+    snprintf(name, sizeof name, "background.%c", "RGBA"[k]);
+    if ((ch[k] = hf_image_channel(img, name)) < 0) return HF_OK;
+  }
+  int rc = hf_image_alloc(layer, img->width, img->height, 4);
+  if (rc) return rc;
+  for (int k = 0; k < 4; k++) snprintf(layer->names[k], sizeof layer->names[k], "background.%c",
+                                       "RGBA"[k]);
+  size_t px = (size_t)img->width * img->height;
+  for (size_t i = 0; i < px; i++)
+    for (int k = 0; k < 4; k++) {
+      size_t at = i * (size_t)img->channels + (size_t)ch[k];
+      layer->data[i * 4 + k] = dtype == HF_F16 ? hf_f16_to_f32(((const uint16_t *)data)[at])
+                                               : ((const float *)data)[at];
+    }
+  return HF_OK;
+}
+
 int cli_read_features(const char *path, const char *part, int spp, const char *variant,
-                      hf_dtype dtype, hf_image *img, void **in) {
+                      hf_dtype dtype, hf_image *img, void **in, hf_image *layer) {
   char err[512];
   void *data = NULL;
   *in = NULL;
+  if (layer) memset(layer, 0, sizeof *layer);
   int rc = hf_exr_read_part_as(path, part, "S0.color", dtype, img, &data, err, sizeof err);
   if (rc) {
     fprintf(stderr, "hairfilter: %s\n", err);
@@ -151,6 +184,12 @@ int cli_read_features(const char *path, const char *part, int spp, const char *v
     goto fail;
   }
   hf_features_from_data(img, data, dtype, spp, *in);
+  if (layer && (rc = read_layer(img, data, dtype, layer)) != 0) {
+    fprintf(stderr, "hairfilter: %s: its background layer: %s\n", path, hf_strerror(rc));
+    free(*in);
+    *in = NULL;
+    goto fail;
+  }
   free(data);
   return HF_OK;
 fail:

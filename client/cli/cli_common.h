@@ -20,9 +20,13 @@ int cli_parse_size(const char *s, int *w, int *h);
 const char *cli_data_dir(void);
 /* Creates the backend by name and prints one line saying which and why. */
 int cli_open_backend(const char *name, hf_backend **out);
-/* Composites a [h][w][3] result with the given colors and writes a PNG. */
-int cli_write_preview(const char *path, const float *result, int w, int h, const float hair[3],
-                      const float light[3], const float bg[3]);
+/* Composites a [h][w][3] result with the given colors and writes a PNG:
+ * over layer (a frame's background layer, cli_read_features) when it is not
+ * NULL and of this size, as the renderer's composites (hfr_composite_result;
+ * protocol/FEATURES.md), else over bg alone. */
+int cli_write_preview(const char *path, const float *result, int w, int h,
+                      const hf_image *layer, const float hair[3], const float light[3],
+                      const float bg[3]);
 
 /* The frame's input statistics (hf_input_stats_compute of in, [h][w][spp*6]
  * of dtype) into *st, checked against a trained range: the mask of the
@@ -41,13 +45,16 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
  * (NULL: the one with S0.color, else --part's N or NAME), and its first spp
  * samples as network input (*in, malloc'd, [h][w][spp*6] of dtype, NHWC; a
  * HALF file read as HF_F16 is never converted: hf_exr_read_part_as). img
- * gets the size, channel names and windows, img->data stays NULL.
+ * gets the size, channel names and windows, img->data stays NULL. layer
+ * (may be NULL) gets the file's background layer, background.R/G/B/A as
+ * float32 [h][w][4] (the renderer draws the head and anything else under the
+ * hair there: docs/RENDERING.md), or stays zeroed (width 0) without one.
  * Files with more samples are read on their first spp (protocol/FEATURES.md).
  * variant names the network in messages. On failure prints one line naming
  * the file, the part or channel and what to do, and returns a negative HF_E*
  * code with img and *in released. */
 int cli_read_features(const char *path, const char *part, int spp, const char *variant,
-                      hf_dtype dtype, hf_image *img, void **in);
+                      hf_dtype dtype, hf_image *img, void **in, hf_image *layer);
 /* Prints one warning when hf_model_run_report sanitised a frame's input or
  * repaired its output: how many samples, and the first one by pixel (in the
  * file's coordinates: img's data window origin added), sample and channel.

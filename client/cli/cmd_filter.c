@@ -32,7 +32,8 @@ static void usage(FILE *f) {
           "--variant defaults to the server's only variant, else to " FILTER_DEFAULT_VARIANT " (the bundled\n"
           "default) when the server has it. --f16 sends and\n"
           "receives half floats (a file of HALF channels is sent as stored, FLOAT ones are\n"
-          "rounded to nearest even). The PNG is composited by the server. The result keeps the\n"
+          "rounded to nearest even). The PNG is composited by the server, or here over the\n"
+          "frame's background layer where it has one. The result keeps the\n"
           "input's data window and display window; --part picks the part of a multi-part\n"
           "file (default: the one with S0.color).\n");
 }
@@ -205,7 +206,7 @@ int cmd_filter(int argc, char **argv) {
 
   int ret = 1, rc;
   hfc_client *c = NULL;
-  hf_image feat = {0}, res = {0};
+  hf_image feat = {0}, res = {0}, layer = {0};
   void *in = NULL, *out = NULL, *rgba = NULL, *out16 = NULL, *rgba16 = NULL;
   float *rgb = NULL;
   if ((rc = hfc_connect(server, &o, &c)) != 0) {
@@ -241,19 +242,24 @@ int cmd_filter(int argc, char **argv) {
   /* With --f16 a HALF file goes to the server as stored: no conversion. */
   struct timespec t0, t1;
   clock_gettime(CLOCK_MONOTONIC, &t0);
-  if (cli_read_features(in_path, part, v->spp, v->name, f16 ? HF_F16 : HF_F32, &feat, &in) != 0)
+  if (cli_read_features(in_path, part, v->spp, v->name, f16 ? HF_F16 : HF_F32, &feat, &in,
+                        &layer) != 0)
     goto out;
+  /* A frame with a background layer is composited here over it (the
+   * server's composite knows only a flat background); else by the server. */
+  const int local = png && layer.width > 0;
   clock_gettime(CLOCK_MONOTONIC, &t1);
   double read_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) / 1e6;
   size_t npx = (size_t)feat.width * feat.height;
   size_t nin = npx * (size_t)v->spp * HF_FEATURES_PER_SAMPLE;
   out = malloc(npx * 3 * sizeof(float));
-  rgba = png ? malloc(npx * 4 * sizeof(float)) : NULL;
+  const int remote = png && !local;
+  rgba = remote ? malloc(npx * 4 * sizeof(float)) : NULL;
   if (f16) {
     out16 = malloc(npx * 3 * sizeof(uint16_t));
-    rgba16 = png ? malloc(npx * 4 * sizeof(uint16_t)) : NULL;
+    rgba16 = remote ? malloc(npx * 4 * sizeof(uint16_t)) : NULL;
   }
-  if (!out || (png && !rgba) || (f16 && (!out16 || (png && !rgba16)))) {
+  if (!out || (remote && !rgba) || (f16 && (!out16 || (remote && !rgba16)))) {
     fprintf(stderr, "hairfilter: out of memory for a %dx%d frame\n", feat.width, feat.height);
     goto out;
   }
@@ -324,7 +330,12 @@ int cmd_filter(int argc, char **argv) {
     fprintf(stderr, "hairfilter: writing %s: %s\n", out_path, hf_strerror(rc));
     goto out;
   }
-  if (png) {
+  if (local) {
+    if ((rc = cli_write_preview(png, out, feat.width, feat.height, &layer, hair, light, bg))) {
+      fprintf(stderr, "hairfilter: writing %s: %s\n", png, hf_strerror(rc));
+      goto out;
+    }
+  } else if (png) {
     rgb = malloc(npx * 3 * sizeof(float));
     if (!rgb) goto out;
     for (size_t i = 0; i < npx; i++)
@@ -338,6 +349,7 @@ int cmd_filter(int argc, char **argv) {
 out:
   hfc_close(c);
   hf_image_free(&feat);
+  hf_image_free(&layer);
   hf_image_free(&res);
   free(in);
   free(out);

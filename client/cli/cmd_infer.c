@@ -15,13 +15,15 @@ static void usage(FILE *f) {
           "                        [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "Reads S{k}.<feature> channels, writes color/highlight/alpha (protocol/FEATURES.md)\n"
           "with the input's data window and display window. --part picks the part of a\n"
-          "multi-part file (default: the one with S0.color).\n");
+          "multi-part file (default: the one with S0.color). --png composites the result over\n"
+          "the frame's background layer where it has one, else over --background.\n");
 }
 
 /* Runs one frame through weights on backend; result_img gets [h][w][3] with
- * the features' data window and display window. */
+ * the features' data window and display window, layer the frame's
+ * background layer (cli_read_features). */
 static int infer_file(const char *weights, const char *in_path, const char *part,
-                      const char *backend, hf_image *result_img) {
+                      const char *backend, hf_image *result_img, hf_image *layer) {
   char err[512];
   hf_weights *w = NULL;
   hf_backend *b = NULL;
@@ -34,7 +36,7 @@ static int infer_file(const char *weights, const char *in_path, const char *part
     return rc;
   }
   void *in_data = NULL;
-  rc = cli_read_features(in_path, part, w->cfg.spp, w->cfg.name, HF_F32, &feat, &in_data);
+  rc = cli_read_features(in_path, part, w->cfg.spp, w->cfg.name, HF_F32, &feat, &in_data, layer);
   in = in_data;
   if (rc != 0) goto out;
   if (!(out = malloc((size_t)feat.width * feat.height * 3 * sizeof(float)))) {
@@ -107,21 +109,21 @@ int cmd_infer(int argc, char **argv) {
     }
   }
   if (!weights || !in || !out || optind != argc) goto bad;
-  hf_image res = {0};
-  int rc = infer_file(weights, in, part, backend, &res);
-  if (rc) return 1;
+  hf_image res = {0}, layer = {0};
+  int rc = infer_file(weights, in, part, backend, &res, &layer);
+  if (rc) {
+    hf_image_free(&layer);
+    return 1;
+  }
   if ((rc = hf_exr_write(out, &res, 0)) != 0) {
     fprintf(stderr, "hairfilter: writing %s: %s\n", out, hf_strerror(rc));
-    hf_image_free(&res);
-    return 1;
-  }
-  if (png && (rc = cli_write_preview(png, res.data, res.width, res.height, hair, light, bg))) {
+  } else if (png && (rc = cli_write_preview(png, res.data, res.width, res.height, &layer, hair,
+                                            light, bg))) {
     fprintf(stderr, "hairfilter: writing %s: %s\n", png, hf_strerror(rc));
-    hf_image_free(&res);
-    return 1;
   }
   hf_image_free(&res);
-  return 0;
+  hf_image_free(&layer);
+  return rc ? 1 : 0;
 bad:
   usage(stderr);
   return 2;

@@ -13,6 +13,7 @@
 #include <string.h>
 #include <sys/wait.h>
 #include <cmocka.h>
+#include <png.h>
 
 #include "exr_parts.h"
 #include "test_paths.h"
@@ -226,6 +227,68 @@ static void test_eval_warning(void **state) {
   hf_image_free(&feat);
 }
 
+/* An 8-bit RGB PNG read back (libpng's simplified API), [h][w][3]. */
+static unsigned char *read_png(const char *path, int *w, int *h) {
+  png_image im;
+  memset(&im, 0, sizeof im);
+  im.version = PNG_IMAGE_VERSION;
+  if (!png_image_begin_read_from_file(&im, path)) fail_msg("%s: %s", path, im.message);
+  im.format = PNG_FORMAT_RGB;
+  unsigned char *px = malloc(PNG_IMAGE_SIZE(im));
+  assert_non_null(px);
+  if (!png_image_finish_read(&im, NULL, px, 0, NULL)) fail_msg("%s: %s", path, im.message);
+  *w = (int)im.width;
+  *h = (int)im.height;
+  return px;
+}
+
+/* infer --png composites over the frame's background layer (the head the
+ * renderer draws under the hair) where it has one, as the renderer's own
+ * composites do, and over --background without one. */
+static void test_preview_over_background_layer(void **state) {
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer: previews are over --background alone */
+#endif
+  char err[512];
+  hf_image frame, layered;
+  assert_int_equal(hf_exr_read(test_field("frame-64x64.exr"), &frame, err, sizeof err), HF_OK);
+  assert_int_equal(hf_image_alloc(&layered, frame.width, frame.height, frame.channels + 4), HF_OK);
+  for (int c = 0; c < frame.channels; c++) memcpy(layered.names[c], frame.names[c], 32);
+  for (int k = 0; k < 4; k++)
+    snprintf(layered.names[frame.channels + k], 32, "background.%c", "RGBA"[k]);
+  const float red[4] = {1, 0, 0, 1};   /* an opaque red layer */
+  for (size_t p = 0; p < (size_t)frame.width * frame.height; p++) {
+    memcpy(layered.data + p * layered.channels, frame.data + p * frame.channels,
+           (size_t)frame.channels * sizeof(float));
+    memcpy(layered.data + p * layered.channels + frame.channels, red, sizeof red);
+  }
+  assert_int_equal(hf_exr_write(test_tmp("layered.exr"), &layered, 0), HF_OK);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --png %s "
+                       "--background 0,0,1", BASE, test_tmp("layered.exr"),
+                       test_tmp("layered_res.exr"), test_tmp("layered.png")), 0);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --png %s "
+                       "--background 0,0,1", BASE, test_field("frame-64x64.exr"),
+                       test_tmp("plain_res.exr"), test_tmp("plain.png")), 0);
+  hf_image res;
+  read_result(test_tmp("layered_res.exr"), &res);
+  int a = hf_image_channel(&res, "alpha"), w, h, w2, h2, empty = 0;
+  unsigned char *over = read_png(test_tmp("layered.png"), &w, &h);
+  unsigned char *flat = read_png(test_tmp("plain.png"), &w2, &h2);
+  assert_true(w == frame.width && h == frame.height && w2 == w && h2 == h);
+  for (int p = 0; p < w * h; p++) {
+    if (res.data[p * 3 + a] != 0) continue;   /* no hair: the layer alone */
+    empty++;
+    assert_true(over[p * 3] == 255 && over[p * 3 + 1] == 0 && over[p * 3 + 2] == 0);
+    assert_true(flat[p * 3] == 0 && flat[p * 3 + 1] == 0 && flat[p * 3 + 2] == 255);
+  }
+  assert_true(empty > 0);
+  free(over);
+  free(flat);
+  hf_image_free(&res);
+  hf_image_free(&layered);
+  hf_image_free(&frame);
+}
+
 static int setup(void **state) { return test_tmp_create("hf_test_cli"); }
 static int teardown(void **state) { return test_tmp_remove(); }
 
@@ -234,7 +297,7 @@ int main(void) {
     cmocka_unit_test(test_inf_sample),      cmocka_unit_test(test_tall_frame),
     cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
-    cmocka_unit_test(test_eval_warning),
+    cmocka_unit_test(test_eval_warning),    cmocka_unit_test(test_preview_over_background_layer),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

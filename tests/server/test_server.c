@@ -729,6 +729,45 @@ static void test_cli_filter(void **state) {
   }
   hf_image_free(&out);
   assert_int_equal(access(png, F_OK), 0);
+  /* A frame with a background layer (an opaque red one): the PNG is
+   * composited over it on the client, byte for byte the preview of
+   * hairfilter infer on the same weights and backend, and not the server's
+   * composite over the flat background. */
+  hf_image plain = {0}, layered = {0};
+  assert_int_equal(hf_features_to_image(in, W, HH, v->cfg.spp, &plain), 0);
+  assert_int_equal(hf_image_alloc(&layered, W, HH, plain.channels + 4), 0);
+  for (int ch = 0; ch < plain.channels; ch++) memcpy(layered.names[ch], plain.names[ch], 32);
+  for (int k = 0; k < 4; k++)
+    snprintf(layered.names[plain.channels + k], 32, "background.%c", "RGBA"[k]);
+  for (int p = 0; p < W * HH; p++) {
+    memcpy(layered.data + (size_t)p * layered.channels, plain.data + (size_t)p * plain.channels,
+           (size_t)plain.channels * sizeof(float));
+    for (int k = 0; k < 4; k++) layered.data[(size_t)p * layered.channels + plain.channels + k] =
+                                    k == 1 || k == 2 ? 0.0f : 1.0f;
+  }
+  char lfeat[300], lpng[300], ipng[300], ires[300];
+  snprintf(lfeat, sizeof lfeat, "%s/cli_layered.exr", H.dir);
+  snprintf(lpng, sizeof lpng, "%s/cli_layered.png", H.dir);
+  snprintf(ipng, sizeof ipng, "%s/cli_layered_infer.png", H.dir);
+  snprintf(ires, sizeof ires, "%s/cli_layered_infer.exr", H.dir);
+  assert_int_equal(hf_exr_write(lfeat, &layered, 0), 0);
+  hf_image_free(&plain);
+  hf_image_free(&layered);
+  char both[4000];
+  snprintf(both, sizeof both, "'%s' filter --server '%s' --variant Small --in '%s' --out '%s' "
+           "--png '%s' > '%s' 2>&1 && '%s' infer --backend cpu-ref --weights '%s/Small.safetensors' "
+           "--in '%s' --out '%s' --png '%s' >> '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, lfeat,
+           res, lpng, outtxt, HAIRFILTER_CLI_PATH, H.weights_dir, lfeat, ires, ipng, outtxt);
+  rc = system(both);
+  if (rc != 0) {
+    snprintf(cmd, sizeof cmd, "cat '%s' >&2", outtxt);
+    if (system(cmd)) {}
+  }
+  assert_int_equal(rc, 0);
+  snprintf(cmd, sizeof cmd, "cmp -s '%s' '%s'", lpng, ipng);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "cmp -s '%s' '%s'", lpng, png);
+  assert_int_not_equal(system(cmd), 0);
   /* an unknown variant fails with a message and status 1 */
   snprintf(cmd, sizeof cmd, "'%s' filter --server '%s' --variant Nope --in '%s' --out '%s' "
            "> '%s' 2>&1", HAIRFILTER_CLI_PATH, S.unix_url, feat, res, outtxt);
