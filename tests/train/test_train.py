@@ -344,6 +344,37 @@ class Recipe(unittest.TestCase):
             self.assertAlmostEqual(float(pen[t, 0, 1]), (dx * dx + dy * dy) / 2, places=4)
             self.assertAlmostEqual(float(pen[t, 0, 2]), dx * dx + dy * dy, places=4)
 
+    def test_experimental_sorted_samples(self):
+        """weights/experiments/sorted_samples.py: each pixel's samples come
+        nearest first, uncovered last in slot order, and the network so
+        built gives the same result whatever the order of the sample slots
+        (and the weights of a plain Kernel load unchanged)."""
+        cfg, kernel, x, _ = self.kernel_and_frame(9)
+        import sorted_samples
+        f = torch.zeros(1, 4, 6, 1, 1)
+        f[0, :, 2, 0, 0] = torch.tensor([0.5, 0.0, 0.5, 0.5])    # slot 1 uncovered
+        f[0, :, 3, 0, 0] = torch.tensor([0.7, 0.1, 0.2, 0.9])    # depths
+        f[0, :, 0, 0, 0] = torch.tensor([1.0, 2.0, 3.0, 4.0])    # colours name the slots
+        got = sorted_samples.sort_samples(f.view(1, 24, 1, 1), 4).view(1, 4, 6)
+        self.assertEqual(got[0, :, 0].tolist(), [3.0, 1.0, 4.0, 2.0])
+        try:
+            sorted_samples.install()
+            net = hfnet.HairNet(cfg)
+            net.load_state_dict(kernel.state_dict())
+            # Uncovered samples all zeros, as the renderer writes them.
+            s = x.view(2, 4, 6, *x.shape[-2:]).clone()
+            s *= (s[:, :, 2:3] > 0)
+            x = s.reshape(x.shape)
+            with torch.no_grad():
+                want = kernel(x)
+            perm = s[:, [2, 0, 3, 1]].reshape(x.shape)
+            with torch.no_grad():
+                a, b = net(x), net(perm)
+            self.assertLess(float((a - b).abs().max()), 1e-5)
+            self.assertGreater(float((a - want).abs().max()), 0.0)
+        finally:
+            sorted_samples.uninstall()
+
     def test_experimental_fullres_branch_starts_as_the_kernel(self):
         """weights/experiments/fullres_branch.py: Kernel weights with the
         branch added compute what the Kernel did, the head's new columns
