@@ -829,6 +829,9 @@ int cmd_eval(int argc, char **argv) {
     snprintf(ms[nm++].label, sizeof ms[0].label, "stochastic transparency %d spp", ST_SPP[i]);
   }
   ms[nm].kind = M_CHANNELS;
+  snprintf(ms[nm].prefix, sizeof ms[0].prefix, "acst4");
+  snprintf(ms[nm++].label, sizeof ms[0].label, "stochastic transparency 4 spp, alpha-corrected");
+  ms[nm].kind = M_CHANNELS;
   snprintf(ms[nm].prefix, sizeof ms[0].prefix, "opaque");
   snprintf(ms[nm++].label, sizeof ms[0].label, "opaque MSAA (no transparency)");
   for (int i = 0; i < nm; i++)

@@ -38,6 +38,8 @@ static void usage(FILE *f) {
     "         --seed N (hash seed of the stochastic samples)\n"
     "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites)\n"
     "         --no-background (leave out the occluder layer background.R/G/B/A)\n"
+    "         --alpha-corrected (acst4.*: the first 4 samples' alpha-corrected estimate,\n"
+    "           Enderton et al. 2010)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
     "         --size WxH --strands N --gt-ss S --st LIST --opaque N --quiet\n"
     "         --extended (style parameters, density and distance over wide ranges)\n"
@@ -210,6 +212,7 @@ static int parse_args(int argc, char **argv, opts *o) {
     if (!strcmp(a, "--extended")) { o->ds.extended = 1; continue; }
     if (!strcmp(a, "--regimes")) { o->ds.regimes = 1; continue; }
     if (!strcmp(a, "--no-background")) { o->no_background = 1; continue; }
+    if (!strcmp(a, "--alpha-corrected")) { o->outputs.alpha_corrected = 1; continue; }
     NEED_VALUE;
     if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--hair")) o->hair_path = v;
@@ -415,11 +418,12 @@ static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
 /* Adds composite.<prefix>.R/G/B for every result triple in img (the
  * ground truth and each baseline), with the view's colours. */
 static int add_composites(hf_image *img, const hfr_outputs *out, const hfr_view *v) {
-  char prefixes[2 + HFR_MAX_BASELINES][24];
+  char prefixes[3 + HFR_MAX_BASELINES][24];
   int n = 0;
   if (out->gt_supersample) snprintf(prefixes[n++], 24, "gt");
   for (int i = 0; i < out->n_st; i++) snprintf(prefixes[n++], 24, "st%d", out->st_spp[i]);
   if (out->opaque_samples) snprintf(prefixes[n++], 24, "opaque");
+  if (out->alpha_corrected) snprintf(prefixes[n++], 24, "acst4");
   if (!n) return HF_OK;
   hf_image big;
   size_t px = (size_t)img->width * img->height;
@@ -483,7 +487,7 @@ static int run_frame(opts *o) {
     if (rc == HF_OK && o->out && (rc = hf_exr_write(o->out, &img, o->half)) != HF_OK)
       fprintf(stderr, "hairfilter render: %s: %s\n", o->out, hf_strerror(rc));
     if (rc == HF_OK && o->png) {
-      const char *prefixes[2 + HFR_MAX_BASELINES];
+      const char *prefixes[3 + HFR_MAX_BASELINES];
       char names[HFR_MAX_BASELINES][16];
       int n = 0;
       if (o->outputs.gt_supersample) prefixes[n++] = "gt";
@@ -492,6 +496,7 @@ static int run_frame(opts *o) {
         prefixes[n++] = names[i];
       }
       if (o->outputs.opaque_samples) prefixes[n++] = "opaque";
+      if (o->outputs.alpha_corrected) prefixes[n++] = "acst4";
       for (int i = 0; rc == HF_OK && i < n; i++) {
         char path[4096];
         snprintf(path, sizeof path, "%s_%s.png", o->png, prefixes[i]);
@@ -581,6 +586,7 @@ static int run_dataset(opts *o) {
   d->n_st = o->outputs.n_st;
   memcpy(d->st_spp, o->outputs.st_spp, sizeof d->st_spp);
   d->opaque_samples = o->outputs.opaque_samples;
+  d->alpha_corrected = o->outputs.alpha_corrected;
   if (o->ov.strands) d->strands = o->ov.strands;
   else if (d->extended || d->regimes) d->strands = 0; /* density is one of the varied parameters */
   if (o->ov.segments) d->segments = o->ov.segments;

@@ -290,6 +290,10 @@ void hfr_view_randomize(hfr_view *v, uint64_t seed);
  *   gt.color gt.highlight gt.alpha                    when gt_supersample
  *   st{N}.color .highlight .alpha for each N in st_spp
  *   opaque.color .highlight .alpha                    when opaque_samples
+ *   acst4.color .highlight .alpha                     when alpha_corrected:
+ *     stochastic transparency's alpha-corrected estimate over the 4 samples
+ *     of the first pass (Enderton et al. 2010, section 3.3; one more draw of
+ *     every hair fragment)
  *   background.R .G .B .A                             when background_layer:
  *     the occluder, diffusely lit, premultiplied by its coverage A (0 where
  *     there is none); composites put the hair over it (hfr_composite_result) */
@@ -299,6 +303,7 @@ typedef struct hfr_outputs {
   int st_spp[HFR_MAX_BASELINES];/* stochastic-transparency baselines */
   int n_st;
   int opaque_samples;           /* opaque MSAA baseline (multiple of 4); 0 = none */
+  int alpha_corrected;          /* the alpha-corrected baseline (acst4.*) */
   int background_layer;         /* the occluder layer (background.*) */
   uint32_t seed;                /* hash seed of the stochastic samples */
   /* Most A-buffer fragments the ground truth may store at once (each 20
@@ -433,6 +438,7 @@ typedef struct hfr_dataset_opts {
   int st_spp[HFR_MAX_BASELINES];
   int n_st;
   int opaque_samples;
+  int alpha_corrected;          /* hfr_outputs.alpha_corrected of every frame */
   int strands;                  /* 0: style default */
   int segments;                 /* 0: style default */
   int shadow_size;

@@ -279,6 +279,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   cJSON_AddNumberToObject(doc, "spp", spp);
   cJSON_AddItemToObject(doc, "spp_list", int_list(o->spp_list, o->n_spp));
   cJSON_AddItemToObject(doc, "st", int_list(o->st_spp, o->n_st));
+  cJSON_AddBoolToObject(doc, "alpha_corrected", o->alpha_corrected != 0);
   cJSON_AddNumberToObject(doc, "seed", (double)o->seed);
   cJSON_AddBoolToObject(doc, "extended", o->extended != 0);
   cJSON_AddBoolToObject(doc, "regimes", o->regimes != 0);
@@ -340,6 +341,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       out.n_st = o->n_st;
       memcpy(out.st_spp, o->st_spp, sizeof out.st_spp);
       out.opaque_samples = o->opaque_samples;
+      out.alpha_corrected = o->alpha_corrected;
       out.background_layer = o->background_layer;
       out.seed = (uint32_t)(seed * 2654435761u);
       out.max_fragments = o->max_fragments;

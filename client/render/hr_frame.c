@@ -64,7 +64,8 @@ void hfr_view_randomize(hfr_view *v, uint64_t seed) {
 
 int hfr_outputs_channels(const hfr_outputs *o) {
   return o->spp * HF_FEATURES_PER_SAMPLE + (o->gt_supersample > 0 ? 3 : 0) + 3 * o->n_st +
-         (o->opaque_samples > 0 ? 3 : 0) + (o->background_layer ? 4 : 0);
+         (o->opaque_samples > 0 ? 3 : 0) + (o->alpha_corrected ? 3 : 0) +
+         (o->background_layer ? 4 : 0);
 }
 
 static int bad(char *err, size_t errlen, const char *msg) {
@@ -181,7 +182,10 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   }
   if (o->opaque_samples > 0)
     for (int f = 0; f < 3; f++) set_name(out, c_opaque + f, "opaque", HF_OUTPUT_NAMES[f]);
-  int c_bg = c_opaque + (o->opaque_samples > 0 ? 3 : 0);
+  int c_ac = c_opaque + (o->opaque_samples > 0 ? 3 : 0);
+  if (o->alpha_corrected)
+    for (int f = 0; f < 3; f++) set_name(out, c_ac + f, "acst4", HF_OUTPUT_NAMES[f]);
+  int c_bg = c_ac + (o->alpha_corrected ? 3 : 0);
   if (o->background_layer)
     for (int f = 0; f < 4; f++) set_name(out, c_bg + f, "background", (const char *[]){"R", "G", "B", "A"}[f]);
 
@@ -199,17 +203,20 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   for (int i = 0; i < o->n_st; i++) max_st = o->st_spp[i] > max_st ? o->st_spp[i] : max_st;
   int need = o->spp > max_st ? o->spp : max_st;
   int passes = (need + S - 1) / S;
+  if (o->alpha_corrected && passes == 0) passes = 1;
   float *pass = malloc(sizeof(float) * 6 * S * px);
+  float *ac = o->alpha_corrected ? malloc(sizeof(float) * 3 * px) : NULL;
   float *acc = calloc((size_t)3 * px * (o->n_st + 1), sizeof(float));
   unsigned char *hairpx = NULL; /* pixels with a covered sample in the first pass */
-  if (!pass || !acc) rc = HF_ENOMEM;
+  if (!pass || !acc || (o->alpha_corrected && !ac)) rc = HF_ENOMEM;
   if (rc == HF_OK && passes == 0) hr_frame_stats(r, v, &cam, NULL, W, H, &stats->frame);
   stats->frame.gt_opaque = -1;
   for (int p = 0; rc == HF_OK && p < passes; p++) {
     float jx, jy;
     pass_jitter(p, &jx, &jy);
     t0 = hr_now_ms();
-    rc = hr_pass_ms(r, v, &cam, &light, pass_seed(o->seed, p), jx, jy, 0, pass, err, errlen);
+    rc = hr_pass_ms(r, v, &cam, &light, pass_seed(o->seed, p), jx, jy, 0, pass,
+                    p == 0 ? ac : NULL, err, errlen);
     double dt = hr_now_ms() - t0;
     if (rc != HF_OK) break;
     if (p * S < o->spp) stats->features_ms += dt;
@@ -235,6 +242,8 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   }
   for (int b = 0; rc == HF_OK && b < o->n_st; b++)
     write_estimate(out, c_st + 3 * b, acc + (size_t)3 * px * b, o->st_spp[b]);
+  for (size_t i = 0; rc == HF_OK && ac && i < px; i++)
+    memcpy(out->data + i * out->channels + c_ac, ac + 3 * i, 3 * sizeof(float));
 
   if (rc == HF_OK && o->opaque_samples > 0) {
     float *oacc = acc + (size_t)3 * px * o->n_st;
@@ -242,7 +251,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
     for (int p = 0; rc == HF_OK && p < o->opaque_samples / S; p++) {
       float jx, jy;
       pass_jitter(p, &jx, &jy);
-      rc = hr_pass_ms(r, v, &cam, &light, 0, jx, jy, 1, pass, err, errlen);
+      rc = hr_pass_ms(r, v, &cam, &light, 0, jx, jy, 1, pass, NULL, err, errlen);
       if (rc == HF_OK) accumulate(pass, px, S, 0, S, oacc);
     }
     stats->baselines_ms += hr_now_ms() - t0;
@@ -280,6 +289,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
     free(bg);
   }
   free(pass);
+  free(ac);
   free(acc);
   free(hairpx);
   if (rc != HF_OK) hf_image_free(out);

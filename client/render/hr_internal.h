@@ -39,7 +39,7 @@ struct hfr_renderer {
   hr_gl_table gl;               /* entry points of ctx */
   char gl_renderer[128];        /* GL_RENDERER and GL_VERSION */
   int gl_loaded;
-  hr_program st, shadow, abuf, head, occluder, resolve_ms, resolve_abuf;
+  hr_program st, stac, shadow, abuf, head, occluder, resolve_ms, resolve_abuf;
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
   uint32_t points;              /* instances drawn: points - 1 */
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */
@@ -86,10 +86,12 @@ void hr_bind_shading(hfr_renderer *r, const hr_program *p, const hfr_view *v,
                      const hr_camera *cam, const hr_camera *light, uint32_t seed);
 /* One 4x MSAA pass: samples [pass_samples][h][w] features into out as
  * [h][w][ms_samples][6] floats, rows top first. opaque: geometric coverage
- * and alpha 1 instead of stochastic transparency. */
+ * and alpha 1 instead of stochastic transparency. ac, when not NULL: the
+ * pass's alpha-corrected estimate [h][w][3] (colour factor, highlight,
+ * alpha; hr_glsl_stac_fs), one more draw of the hair. */
 int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                const hr_camera *light, uint32_t seed, float jx, float jy, int opaque,
-               float *out, char *err, size_t errlen);
+               float *out, float *ac, char *err, size_t errlen);
 /* The supersampled A-buffer and its GPU resolve into gt [h][w][3] (rows top
  * first). When cpu_gt is not NULL the same lists are also read back and
  * blended on the host into cpu_gt (tests). */

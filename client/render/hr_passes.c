@@ -153,9 +153,81 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
   return hr_gl_check("shadow pass", err, errlen);
 }
 
+/* Alpha-corrected stochastic transparency over the depth samples depth_ms
+ * of a feature pass (hr_glsl_stac_fs): ac [h][w][3] colour factor,
+ * highlight, alpha, rows top first. The occluder hides hair through its own
+ * depth buffer here; hair hides hair only through the samples. */
+static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
+                                const hr_camera *light, float jx, float jy, GLuint depth_ms,
+                                int S, float *ac, char *err, size_t errlen) {
+  const int W = cam->win_w, H = cam->win_h, FW = cam->frame_w, FH = cam->frame_h;
+  GLuint tex[2], fbo = 0;
+  tex[0] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, FW, FH, 0);
+  tex[1] = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, FW, FH, 0);
+  hrgl.GenFramebuffers(1, &fbo);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, tex[0], 0);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, tex[1], 0);
+  const GLenum b0 = GL_COLOR_ATTACHMENT0;
+  hrgl.DrawBuffers(1, &b0);
+  float *tmp = NULL;
+  int rc = fbo_complete("alpha-corrected", err, errlen);
+  if (rc == HF_OK) {
+    const float zero4[4] = {0, 0, 0, 0}, one = 1.0f;
+    hr_set_viewport(cam);
+    hrgl.ClearBufferfv(GL_COLOR, 0, zero4);
+    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+    hrgl.Enable(GL_DEPTH_TEST);
+    hrgl.DepthFunc(GL_LESS);
+    hrgl.DepthMask(GL_TRUE);
+    hrgl.ColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+    draw_head(r, cam, v, jx, jy, 0);
+    hrgl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+    hrgl.DepthMask(GL_FALSE);
+    hrgl.UseProgram(r->stac.id);
+    set_geometry(&r->stac, cam, v, jx, jy);
+    hr_bind_shading(r, &r->stac, v, cam, light, 0);
+    hrgl.ActiveTexture(GL_TEXTURE3);
+    hrgl.BindTexture(GL_TEXTURE_2D_MULTISAMPLE, depth_ms);
+    hr_set_i(&r->stac, "u_depth", 3);
+    hr_set_i(&r->stac, "u_samples", S);
+    hrgl.Enable(GL_BLEND);
+    hrgl.BlendFunc(GL_ONE, GL_ONE);
+    draw_hair(r);
+    hrgl.Disable(GL_BLEND);
+    hrgl.DepthMask(GL_TRUE);
+    hrgl.Disable(GL_DEPTH_TEST);
+    hr_scissor_off();
+    hrgl.ActiveTexture(GL_TEXTURE0);
+    tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
+    if (!tmp) rc = HF_ENOMEM;
+  }
+  if (rc == HF_OK) {
+    hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
+    hrgl.PixelStorei(GL_PACK_ALIGNMENT, 4);
+    hrgl.ReadPixels(cam->win_x, cam->win_y, W, H, GL_RGBA, GL_FLOAT, tmp);
+    rc = hr_gl_check("alpha-corrected pass", err, errlen);
+  }
+  if (rc == HF_OK)
+    for (int y = 0; y < H; y++)
+      for (int x = 0; x < W; x++) {
+        const float *q = tmp + 4 * ((size_t)y * W + x);
+        float *o = ac + 3 * ((size_t)(H - 1 - y) * W + x);
+        float a = 1.0f - expf(-q[3]);
+        o[0] = q[2] > 0 ? q[0] / q[2] : 0;
+        o[1] = q[2] > 0 ? q[1] / q[2] : 0;
+        o[2] = q[2] > 0 ? a : 0;
+      }
+  free(tmp);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
+  hrgl.DeleteFramebuffers(1, &fbo);
+  hrgl.DeleteTextures(2, tex);
+  return rc;
+}
+
 int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                const hr_camera *light, uint32_t seed, float jx, float jy, int opaque,
-               float *out, char *err, size_t errlen) {
+               float *out, float *ac, char *err, size_t errlen) {
   const int W = cam->win_w, H = cam->win_h, S = 4, FW = cam->frame_w, FH = cam->frame_h;
   GLuint tex[3], fbo[2] = {0, 0}, rtex = 0;
   tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, FW, FH, S);
@@ -244,6 +316,8 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
       }
   }
   free(tmp);
+  if (rc == HF_OK && ac)
+    rc = pass_alpha_corrected(r, v, cam, light, jx, jy, tex[2], S, ac, err, errlen);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
   hrgl.DeleteFramebuffers(2, fbo);
   hrgl.DeleteTextures(3, tex);

@@ -28,8 +28,8 @@ int hr_renderer_bind(hfr_renderer *r) {
 void hfr_renderer_destroy(hfr_renderer *r) {
   if (!r) return;
   if (r->ctx && hr_renderer_bind(r) == HF_OK) {
-    hr_program *progs[] = {&r->st,         &r->shadow,     &r->abuf,        &r->head,
-                           &r->occluder,   &r->resolve_ms, &r->resolve_abuf};
+    hr_program *progs[] = {&r->st,       &r->stac,     &r->shadow,     &r->abuf,
+                           &r->head,     &r->occluder, &r->resolve_ms, &r->resolve_abuf};
     for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) hr_program_free(progs[i]);
     GLuint vaos[] = {r->hair_vao, r->head_vao, r->empty_vao};
     GLuint bufs[] = {r->hair_vbo, r->head_vbo};
@@ -122,6 +122,7 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
     const char *vs, *gs, *fs;
   } progs[] = {
     {&r->st, hr_glsl_hair_vs, NULL, hr_glsl_st_fs},
+    {&r->stac, hr_glsl_hair_vs, NULL, hr_glsl_stac_fs},
     {&r->shadow, hr_glsl_hair_vs, NULL, hr_glsl_shadow_fs},
     {&r->abuf, hr_glsl_hair_vs, NULL, hr_glsl_abuf_fs},
     {&r->head, hr_glsl_head_vs, NULL, hr_glsl_head_fs},

@@ -192,6 +192,34 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
 "  o_f1 = vec4(t.xy, 0.0, 0.0);\n"
 "}\n";
 
+/* Alpha-corrected stochastic transparency (Enderton et al. 2010, section 3.3,
+ * "Stochastic Transparency"): every hair fragment, none hiding another,
+ * adds its colour factor and highlight weighted by its alpha and by its
+ * visibility, the share of the pixel's u_samples stochastic depth samples
+ * (u_depth, the feature pass's depth) that lie at or behind it; the fourth
+ * sum is -log(1 - alpha), whose exponential is the pixel's exact
+ * transmittance. The host divides the colour sums by the alpha sum and
+ * scales them by 1 - exp(-sum): the estimate's noise is in the visibility
+ * only. The slope-scaled bias keeps a fragment from hiding itself (its own
+ * samples' depths are taken off the pixel centre). */
+const char hr_glsl_stac_fs[] = GLSL_VERSION FS_COMMON
+"layout(location = 0) out vec4 o;\n"
+"uniform sampler2DMS u_depth;\n"
+"uniform int u_samples;\n"
+"void main() {\n"
+"  float z = gl_FragCoord.z;\n"
+"  float bias = 2.0 * max(abs(dFdx(z)), abs(dFdy(z))) + 1e-7;\n"
+"  ivec2 p = ivec2(gl_FragCoord.xy);\n"
+"  int n = 0;\n"
+"  for (int s = 0; s < u_samples; s++)\n"
+"    if (texelFetch(u_depth, p, s).r >= z - bias) n++;\n"
+"  float vis = float(n) / float(u_samples);\n"
+"  float c, h;\n"
+"  shade(c, h);\n"
+"  float a = vi.alpha;\n"
+"  o = vec4(c * a * vis, h * a * vis, a * vis, -log(max(1.0 - a, 1e-6)));\n"
+"}\n";
+
 /* One sample per texel: the strand survives where its hashed threshold is
  * below alpha (salt 255: independent of the camera samples' bits). */
 const char hr_glsl_shadow_fs[] = GLSL_VERSION FS_COMMON

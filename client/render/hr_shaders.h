@@ -11,6 +11,7 @@ extern const char hr_glsl_st_fs[];
 extern const char hr_glsl_shadow_fs[];
 /* A-buffer insertion. */
 extern const char hr_glsl_abuf_fs[];
+extern const char hr_glsl_stac_fs[];
 /* The occluder: opaque depth (head_fs), and its diffuse shading in the
  * background layer (occluder_fs). */
 extern const char hr_glsl_head_vs[];

@@ -313,7 +313,8 @@ int main(int argc, char **argv) {
                 cJSON_GetArrayItem(tr, 1)->valuedouble == 0.025,
             "%s: flag details", fr[i].file);
     }
-    CHECK(cJSON_GetArraySize(at(row, "methods")) == 7, "%s: %d method rows", fr[i].file,
+    /* input, two pools, two networks, st4, st16, acst4 */
+    CHECK(cJSON_GetArraySize(at(row, "methods")) == 8, "%s: %d method rows", fr[i].file,
           cJSON_GetArraySize(at(row, "methods")));
   }
   /* Below its own input and below ST 16 spp, for each network (Small reads

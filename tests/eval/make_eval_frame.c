@@ -1,7 +1,8 @@
 /* Writes a small dataset frame and random weights for the end-to-end test
  * of `hairfilter eval`: make_eval_frame DIR. The frame's st4.* channels
  * equal the ground truth (that row must score PSNR inf, SSIM 1) and st16.*
- * is the truth with alpha scaled by 0.5 on every hair pixel.
+ * is the truth with alpha scaled by 0.5 on every hair pixel; acst4.* (the
+ * alpha-corrected baseline) is the truth in every frame.
  *
  * DIR/seq/ holds a two-frame sequence for --temporal: the same frame, then
  * that frame with the colour factor of the truth and of every baseline
@@ -44,15 +45,16 @@
 #define W 48
 #define H 40
 
-/* A w x h frame of 4 feature samples, then gt.*, st4.* and st16.*, zeroed. */
+/* A w x h frame of 4 feature samples, then gt.*, st4.*, st16.* and
+ * acst4.*, zeroed. */
 static int alloc_frame(hf_image *img, int w, int h) {
-  static const char *groups[] = {"gt", "st4", "st16"};
+  static const char *groups[] = {"gt", "st4", "st16", "acst4"};
   const int spp = 4, nfeat = spp * HF_FEATURES_PER_SAMPLE;
-  if (hf_image_alloc(img, w, h, nfeat + 9)) return 1;
+  if (hf_image_alloc(img, w, h, nfeat + 12)) return 1;
   for (int k = 0; k < spp; k++)
     for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
       snprintf(img->names[k * 6 + f], 32, "S%d.%s", k, HF_FEATURE_NAMES[f]);
-  for (int g = 0; g < 3; g++)
+  for (int g = 0; g < 4; g++)
     for (int f = 0; f < 3; f++)
       snprintf(img->names[nfeat + 3 * g + f], 32, "%s.%s", groups[g], HF_OUTPUT_NAMES[f]);
   memset(img->data, 0, (size_t)w * h * img->channels * sizeof(float));
@@ -85,6 +87,7 @@ static int write_frame_wh(const char *path, float gt_color, int w, int h, int do
       memcpy(px + nfeat, gt, sizeof gt);
       memcpy(px + nfeat + 3, gt, sizeof gt);
       memcpy(px + nfeat + 6, gt, sizeof gt);
+      memcpy(px + nfeat + 9, gt, sizeof gt);
       if (!dots) px[nfeat + 8] *= 0.5f;
       else if (x % 8 == 3 && y % 8 == 5) px[nfeat + 6] = 1.0f;
     }
@@ -123,7 +126,7 @@ static int write_strata_frame(const char *path, unsigned regions) {
       }
       float gt[3] = {REGION[r].gt_alpha > 0 ? 0.8f : 0, REGION[r].gt_alpha > 0 ? 0.1f : 0,
                      REGION[r].gt_alpha};
-      for (int g = 0; g < 3; g++) memcpy(px + nfeat + 3 * g, gt, sizeof gt);
+      for (int g = 0; g < 4; g++) memcpy(px + nfeat + 3 * g, gt, sizeof gt);
       px[nfeat + 8] *= 0.5f;
     }
   int rc = hf_exr_write(path, &img, 0);
