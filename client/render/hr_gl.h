@@ -15,6 +15,7 @@
   X(PFNGLENABLEPROC, Enable)                                                  \
   X(PFNGLDISABLEPROC, Disable)                                                \
   X(PFNGLBLENDFUNCPROC, BlendFunc)                                            \
+  X(PFNGLBLENDFUNCSEPARATEPROC, BlendFuncSeparate)                            \
   X(PFNGLVIEWPORTPROC, Viewport)                                              \
   X(PFNGLSCISSORPROC, Scissor)                                                \
   X(PFNGLDEPTHFUNCPROC, DepthFunc)                                            \

@@ -154,29 +154,38 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
 }
 
 /* Alpha-corrected stochastic transparency over the depth samples depth_ms
- * of a feature pass (hr_glsl_stac_fs): ac [h][w][3] colour factor,
- * highlight, alpha, rows top first. The occluder hides hair through its own
- * depth buffer here; hair hides hair only through the samples. */
+ * of a feature pass (hr_glsl_stac_fs), S-sample MSAA: ac [h][w][3] colour
+ * factor, highlight, alpha, rows top first. The occluder hides hair through
+ * its own depth samples here; hair hides hair only through depth_ms. Per
+ * pixel, over the means of its samples: alpha = 1 - mean transmittance
+ * (the exact coverage of every fragment, at S samples), colour and
+ * highlight = their weighted sums over the sum of the weights. */
 static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                                 const hr_camera *light, float jx, float jy, GLuint depth_ms,
                                 int S, float *ac, char *err, size_t errlen) {
   const int W = cam->win_w, H = cam->win_h, FW = cam->frame_w, FH = cam->frame_h;
-  GLuint tex[2], fbo = 0;
-  tex[0] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, FW, FH, 0);
-  tex[1] = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, FW, FH, 0);
-  hrgl.GenFramebuffers(1, &fbo);
-  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo);
-  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, tex[0], 0);
-  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, tex[1], 0);
+  const int RW = (W + 15) & ~15, RH = (H + 15) & ~15; /* whole blocks: draw_fullscreen */
+  GLuint tex[3], fbo[2] = {0, 0};
+  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, FW, FH, S);
+  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, FW, FH, S);
+  tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, RW, RH, 0);
+  hrgl.GenFramebuffers(2, fbo);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[0], 0);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[1], 0);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
   hrgl.DrawBuffers(1, &b0);
   float *tmp = NULL;
   int rc = fbo_complete("alpha-corrected", err, errlen);
   if (rc == HF_OK) {
-    const float zero4[4] = {0, 0, 0, 0}, one = 1.0f;
+    /* RGB: sums from 0; A: transmittance from 1. */
+    const float clear[4] = {0, 0, 0, 1}, one = 1.0f;
     hr_set_viewport(cam);
-    hrgl.ClearBufferfv(GL_COLOR, 0, zero4);
+    hrgl.ClearBufferfv(GL_COLOR, 0, clear);
     hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+    hrgl.Enable(GL_MULTISAMPLE);
     hrgl.Enable(GL_DEPTH_TEST);
     hrgl.DepthFunc(GL_LESS);
     hrgl.DepthMask(GL_TRUE);
@@ -192,12 +201,26 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     hr_set_i(&r->stac, "u_depth", 3);
     hr_set_i(&r->stac, "u_samples", S);
     hrgl.Enable(GL_BLEND);
-    hrgl.BlendFunc(GL_ONE, GL_ONE);
+    hrgl.BlendFuncSeparate(GL_ONE, GL_ONE, GL_ZERO, GL_ONE_MINUS_SRC_ALPHA);
     draw_hair(r);
     hrgl.Disable(GL_BLEND);
     hrgl.DepthMask(GL_TRUE);
     hrgl.Disable(GL_DEPTH_TEST);
     hr_scissor_off();
+
+    hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
+    hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, tex[2], 0);
+    hrgl.DrawBuffers(1, &b0);
+    rc = fbo_complete("alpha-corrected resolve", err, errlen);
+  }
+  if (rc == HF_OK) {
+    hrgl.UseProgram(r->resolve_mean.id);
+    hrgl.ActiveTexture(GL_TEXTURE1);
+    hrgl.BindTexture(GL_TEXTURE_2D_MULTISAMPLE, tex[0]);
+    hr_set_i(&r->resolve_mean, "u_src", 1);
+    hr_set_i(&r->resolve_mean, "u_samples", S);
+    hr_set_2i(&r->resolve_mean, "u_origin", cam->win_x, cam->win_y);
+    draw_fullscreen(r, &r->resolve_mean, RW, RH);
     hrgl.ActiveTexture(GL_TEXTURE0);
     tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
     if (!tmp) rc = HF_ENOMEM;
@@ -205,7 +228,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
   if (rc == HF_OK) {
     hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
     hrgl.PixelStorei(GL_PACK_ALIGNMENT, 4);
-    hrgl.ReadPixels(cam->win_x, cam->win_y, W, H, GL_RGBA, GL_FLOAT, tmp);
+    hrgl.ReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, tmp);
     rc = hr_gl_check("alpha-corrected pass", err, errlen);
   }
   if (rc == HF_OK)
@@ -213,15 +236,16 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
       for (int x = 0; x < W; x++) {
         const float *q = tmp + 4 * ((size_t)y * W + x);
         float *o = ac + 3 * ((size_t)(H - 1 - y) * W + x);
-        float a = 1.0f - expf(-q[3]);
-        o[0] = q[2] > 0 ? q[0] / q[2] : 0;
-        o[1] = q[2] > 0 ? q[1] / q[2] : 0;
-        o[2] = q[2] > 0 ? a : 0;
+        float a = 1.0f - q[3];
+        int some = q[2] > 0 && a > 0;
+        o[0] = some ? q[0] / q[2] : 0;
+        o[1] = some ? q[1] / q[2] : 0;
+        o[2] = some ? (a < 1 ? a : 1) : 0;
       }
   free(tmp);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
-  hrgl.DeleteFramebuffers(1, &fbo);
-  hrgl.DeleteTextures(2, tex);
+  hrgl.DeleteFramebuffers(2, fbo);
+  hrgl.DeleteTextures(3, tex);
   return rc;
 }
 

@@ -193,15 +193,15 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
 "}\n";
 
 /* Alpha-corrected stochastic transparency (Enderton et al. 2010, section 3.3,
- * "Stochastic Transparency"): every hair fragment, none hiding another,
+ * "Stochastic Transparency"), drawn with 4x MSAA so that each fragment
+ * reaches the samples it covers: every hair fragment, none hiding another,
  * adds its colour factor and highlight weighted by its alpha and by its
  * visibility, the share of the pixel's u_samples stochastic depth samples
- * (u_depth, the feature pass's depth) that lie at or behind it; the fourth
- * sum is -log(1 - alpha), whose exponential is the pixel's exact
- * transmittance. The host divides the colour sums by the alpha sum and
- * scales them by 1 - exp(-sum): the estimate's noise is in the visibility
- * only. The slope-scaled bias keeps a fragment from hiding itself (its own
- * samples' depths are taken off the pixel centre). */
+ * (u_depth, the feature pass's depth) at or behind it, and the sum of the
+ * weights (RGB, additive); the alpha channel is multiplied by 1 - alpha
+ * (the blend the host sets), leaving each sample's exact transmittance.
+ * The slope-scaled bias keeps a fragment from hiding itself (its samples'
+ * depths are taken off the pixel centre). */
 const char hr_glsl_stac_fs[] = GLSL_VERSION FS_COMMON
 "layout(location = 0) out vec4 o;\n"
 "uniform sampler2DMS u_depth;\n"
@@ -216,8 +216,22 @@ const char hr_glsl_stac_fs[] = GLSL_VERSION FS_COMMON
 "  float vis = float(n) / float(u_samples);\n"
 "  float c, h;\n"
 "  shade(c, h);\n"
-"  float a = vi.alpha;\n"
-"  o = vec4(c * a * vis, h * a * vis, a * vis, -log(max(1.0 - a, 1e-6)));\n"
+"  float a = clamp(vi.alpha, 0.0, 1.0);\n"
+"  o = vec4(c * a * vis, h * a * vis, a * vis, a);\n"
+"}\n";
+
+/* The mean of the u_samples samples of u_src at the window's pixel
+ * (gl_FragCoord + u_origin): one RGBA32F texel per pixel. */
+const char hr_glsl_resolve_mean_fs[] = GLSL_VERSION
+"uniform sampler2DMS u_src;\n"
+"uniform int u_samples;\n"
+"uniform ivec2 u_origin;\n"
+"out vec4 o;\n"
+"void main() {\n"
+"  ivec2 p = ivec2(gl_FragCoord.xy) + u_origin;\n"
+"  vec4 s = vec4(0.0);\n"
+"  for (int i = 0; i < u_samples; i++) s += texelFetch(u_src, p, i);\n"
+"  o = s / float(u_samples);\n"
 "}\n";
 
 /* One sample per texel: the strand survives where its hashed threshold is

@@ -15,6 +15,7 @@ import json
 import os
 import shutil
 import subprocess
+import tempfile
 import sys
 import unittest
 
@@ -374,6 +375,52 @@ class Recipe(unittest.TestCase):
             self.assertGreater(float((a - want).abs().max()), 0.0)
         finally:
             sorted_samples.uninstall()
+
+    def test_experimental_alpha_corrected_input(self):
+        """weights/experiments/ac_input.py: Kernel weights started on the
+        estimate keep the Kernel's raw output whatever the estimate, and
+        when the estimate is each pixel's own 4-sample estimate the output
+        stage is Kernel's exactly; augmentation keeps the estimate last; a
+        frame without acst4.* is refused with the option that makes it."""
+        cfg, kernel, x, want = self.kernel_and_frame(10)
+        import ac_input
+        s = x.view(2, 4, 6, *x.shape[-2:])
+        cov = (s[:, :, 2] > 0).float()
+        n = cov.sum(1)
+        slot = torch.zeros(2, 6, *x.shape[-2:])
+        slot[:, 0] = torch.where(n > 0, (s[:, :, 0] * cov).sum(1) / n.clamp(min=1), 0 * n)
+        slot[:, 1] = torch.where(n > 0, (s[:, :, 1] * cov).sum(1) / n.clamp(min=1), 0 * n)
+        slot[:, 2] = n / 4
+        xa = torch.cat([x, slot], 1)
+        try:
+            ac_input.install()
+            acfg, state = ac_input.start_from_kernel(cfg, kernel.state_dict())
+            self.assertEqual((acfg["spp"], acfg["in_channels"]), (5, 30))
+            net = hfnet.HairNet(acfg)
+            net.load_state_dict(state)
+            other = xa.clone()
+            other[:, 24:27] = torch.rand(2, 3, *x.shape[-2:])
+            with torch.no_grad():
+                self.assertLess(float((net.raw(other) - kernel.raw(x)).abs().max()), 1e-5)
+                got = net(xa)
+            self.assertLess(float((got - want).abs().max()), 1e-4)
+            f = np.random.default_rng(0).random((8, 8, 5, 6)).astype(np.float32)
+            f[:, :, 4, :3] += 100
+            for seed in range(4):
+                g, _ = dataset.augment(f, np.zeros((8, 8, 3), np.float32),
+                                       np.random.default_rng(seed))
+                self.assertTrue((g[:, :, 4, :3] >= 100).all())
+                self.assertTrue((g[:, :, :4, :3] < 1).all())
+            with tempfile.TemporaryDirectory() as d:
+                p = os.path.join(d, "f.exr")
+                names = [f"S{k}.{c}" for k in range(4) for c in hfnet.FEATURES] + \
+                    ["gt.color", "gt.highlight", "gt.alpha"]
+                dataset.write_exr(p, names, np.zeros((4, 4, len(names)), np.float32))
+                with self.assertRaisesRegex(dataset.DatasetError, "--alpha-corrected"):
+                    dataset.load_frame(p)
+        finally:
+            ac_input.uninstall()
+        self.assertEqual(hfnet.variant_config("Kernel")["spp"], 4)
 
     def test_experimental_fullres_branch_starts_as_the_kernel(self):
         """weights/experiments/fullres_branch.py: Kernel weights with the

@@ -1,0 +1,123 @@
+"""Kernel networks that also read stochastic transparency's alpha-corrected
+estimate (`hairfilter render --alpha-corrected`, channels acst4.*: Enderton
+et al. 2010, exact alpha, colour weighted by each fragment's visibility in
+the 4 depth samples) and filter it instead of the samples' sums.
+
+The estimate travels as a fifth sample slot [colour, highlight, alpha, 0, 0,
+0] after the spp samples, so the configuration says spp + 1 samples (and
+(spp + 1) x 6 input channels); augmentation permutes the real samples only.
+The output stage is Kernel's (hfnet.kernel_finish) with each tap's sums
+taken from the estimate (premultiplied) instead of the samples: alpha =
+sum w a, colour = sum w a c / sum w a, highlight = sum w a h / sum w a,
+then the corrections.
+
+  python3 weights/experiments/ac_input.py init OUT.safetensors [KERNEL]
+      # Kernel weights (default weights/kernel.safetensors) with zero weights
+      # on the new inputs: the same U-Net, the estimate filtered by its kernel
+  python3 weights/experiments/ac_input.py train ARGS...   # weights/train.py's
+
+Frames need the acst4.* channels (dataset.DatasetError otherwise). No
+backend runs these networks; eval_rows.py --stage ac scores them."""
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import torch.nn.functional as F  # noqa: E402
+
+import dataset  # noqa: E402
+import hfnet  # noqa: E402
+import patching  # noqa: E402
+
+NF = len(hfnet.FEATURES)
+CHANNELS = ["acst4.color", "acst4.highlight", "acst4.alpha"]
+ORIGINAL_LOAD, ORIGINAL_AUGMENT = dataset.load_frame, dataset.augment
+
+
+def load_frame(path, spp=None, dtype=np.float16):
+    """dataset.load_frame with the estimate as one more sample slot: features
+    [h][w][samples + 1][6]; spp counts the slot (a file's samples + 1)."""
+    feat, tgt = ORIGINAL_LOAD(path, None if spp is None else spp - 1, np.float32)
+    names, data = dataset.read_exr(path)
+    if any(c not in names for c in CHANNELS):
+        raise dataset.DatasetError(f"{path}: no acst4.* channels: render it with "
+                                   f"`hairfilter render ... --alpha-corrected`")
+    ac = dataset.pick_channels(names, data, CHANNELS, path)
+    slot = np.zeros(feat.shape[:2] + (1, NF), np.float32)
+    slot[:, :, 0, :3] = ac
+    return np.concatenate([feat, slot], axis=2).astype(dtype), tgt.astype(dtype)
+
+
+def augment(feat, tgt, rng, flips=True, rotations=True, permute=True):
+    """dataset.augment with the last slot (the estimate) kept last."""
+    feat, tgt = ORIGINAL_AUGMENT(feat, tgt, rng, flips, rotations, permute=False)
+    n = feat.shape[2] - 1
+    if permute and n > 1:
+        order = np.concatenate([rng.permutation(n), [n]])
+        feat = np.ascontiguousarray(feat[:, :, order])
+    return feat, tgt
+
+
+def kernel_finish(raw, x, spp, radius, clamp=torch.clamp):
+    """Kernel's output stage over the estimate: x holds spp - 1 samples and
+    the estimate's slot last (see the module's docstring)."""
+    o = NF * (spp - 1)
+    c, h, a = (x[:, o + k:o + k + 1].float() for k in range(3))
+    taps = hfnet.kernel_taps(radius)
+    wts = hfnet.kernel_weights(raw[:, :taps], radius)
+    sums = F.pad(torch.cat([a, a * c, a * h], 1), (radius,) * 4)
+    agg = 0
+    for wt, (dy, dx) in zip(wts, hfnet._taps(radius)):
+        agg = agg + wt[:, None] * hfnet._shifted(sums, radius, dy, dx)
+    cnt = agg[:, 0:1]
+    ok = cnt > 1e-12
+    safe = torch.where(ok, cnt, torch.ones_like(cnt))
+    color = torch.where(ok, agg[:, 1:2] / safe, torch.ones_like(cnt))
+    hl = torch.where(ok, agg[:, 2:3] / safe, torch.zeros_like(cnt))
+    corr = raw[:, taps:taps + 3]
+    return torch.cat([color + corr[:, 0:1], clamp(hl + corr[:, 1:2], 0, None),
+                      clamp(cnt + corr[:, 2:3], 0, 1)], dim=1)
+
+
+def entries(cfg):
+    return {"spp": cfg["spp"] + 1, "in_channels": (cfg["spp"] + 1) * NF, "ac_input": 1}
+
+
+def install():
+    patching.install(entries, kernel_finish=kernel_finish)
+    dataset.load_frame = load_frame
+    dataset.augment = augment
+
+
+def uninstall():
+    patching.uninstall()
+    dataset.load_frame = ORIGINAL_LOAD
+    dataset.augment = ORIGINAL_AUGMENT
+
+
+def start_from_kernel(cfg, state):
+    """Kernel weights cfg/state with the estimate's 6 input channels added at
+    zero weight in enc0 and in the head."""
+    if cfg.get("arch") != "kernel" or cfg.get("ac_input"):
+        raise ValueError("start from plain Kernel weights")
+    cfg = dict(cfg, **entries(cfg))
+    state = dict(state)
+    w = state["enc0.weight"]
+    state["enc0.weight"] = torch.cat([w, w.new_zeros(w.shape[0], NF, *w.shape[2:])], 1)
+    if "head.weight" in state:
+        w = state["head.weight"]
+        state["head.weight"] = torch.cat([w, w.new_zeros(w.shape[0], NF, *w.shape[2:])], 1)
+    return cfg, state
+
+
+def main(argv):
+    if len(argv) < 2 or argv[0] not in ("init", "train"):
+        sys.exit(__doc__)
+    install()
+    return patching.init_or_train(argv[0], argv[1:], start_from_kernel)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
