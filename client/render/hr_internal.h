@@ -39,7 +39,7 @@ struct hfr_renderer {
   hr_gl_table gl;               /* entry points of ctx */
   char gl_renderer[128];        /* GL_RENDERER and GL_VERSION */
   int gl_loaded;
-  hr_program st, stac, shadow, abuf, head, occluder, resolve_ms, resolve_mean, resolve_abuf;
+  hr_program st, stac, shadow, abuf, head, occluder, resolve_ms, resolve_stac, resolve_abuf;
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
   uint32_t points;              /* instances drawn: points - 1 */
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */

@@ -157,9 +157,10 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
  * of a feature pass (hr_glsl_stac_fs), S-sample MSAA: ac [h][w][3] colour
  * factor, highlight, alpha, rows top first. The occluder hides hair through
  * its own depth samples here; hair hides hair only through depth_ms. Per
- * pixel, over the means of its samples: alpha = 1 - mean transmittance
- * (the exact coverage of every fragment, at S samples), colour and
- * highlight = their weighted sums over the sum of the weights. */
+ * pixel (hr_glsl_resolve_stac_fs): alpha = 1 - the mean transmittance of
+ * its samples (the exact coverage of every fragment, at S samples);
+ * colour and highlight = the alpha-weighted means of each sample's
+ * weighted sums over its summed weight. */
 static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                                 const hr_camera *light, float jx, float jy, GLuint depth_ms,
                                 int S, float *ac, char *err, size_t errlen) {
@@ -214,13 +215,13 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     rc = fbo_complete("alpha-corrected resolve", err, errlen);
   }
   if (rc == HF_OK) {
-    hrgl.UseProgram(r->resolve_mean.id);
+    hrgl.UseProgram(r->resolve_stac.id);
     hrgl.ActiveTexture(GL_TEXTURE1);
     hrgl.BindTexture(GL_TEXTURE_2D_MULTISAMPLE, tex[0]);
-    hr_set_i(&r->resolve_mean, "u_src", 1);
-    hr_set_i(&r->resolve_mean, "u_samples", S);
-    hr_set_2i(&r->resolve_mean, "u_origin", cam->win_x, cam->win_y);
-    draw_fullscreen(r, &r->resolve_mean, RW, RH);
+    hr_set_i(&r->resolve_stac, "u_src", 1);
+    hr_set_i(&r->resolve_stac, "u_samples", S);
+    hr_set_2i(&r->resolve_stac, "u_origin", cam->win_x, cam->win_y);
+    draw_fullscreen(r, &r->resolve_stac, RW, RH);
     hrgl.ActiveTexture(GL_TEXTURE0);
     tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
     if (!tmp) rc = HF_ENOMEM;
@@ -236,11 +237,10 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
       for (int x = 0; x < W; x++) {
         const float *q = tmp + 4 * ((size_t)y * W + x);
         float *o = ac + 3 * ((size_t)(H - 1 - y) * W + x);
-        float a = 1.0f - q[3];
-        int some = q[2] > 0 && a > 0;
+        int some = q[2] > 0;
         o[0] = some ? q[0] / q[2] : 0;
         o[1] = some ? q[1] / q[2] : 0;
-        o[2] = some ? (a < 1 ? a : 1) : 0;
+        o[2] = some ? (q[3] < 1 ? q[3] : 1) : 0;
       }
   free(tmp);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);

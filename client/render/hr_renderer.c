@@ -29,7 +29,7 @@ void hfr_renderer_destroy(hfr_renderer *r) {
   if (!r) return;
   if (r->ctx && hr_renderer_bind(r) == HF_OK) {
     hr_program *progs[] = {&r->st,       &r->stac,     &r->shadow,     &r->abuf,
-                           &r->head,     &r->occluder, &r->resolve_ms, &r->resolve_mean,
+                           &r->head,     &r->occluder, &r->resolve_ms, &r->resolve_stac,
                            &r->resolve_abuf};
     for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) hr_program_free(progs[i]);
     GLuint vaos[] = {r->hair_vao, r->head_vao, r->empty_vao};
@@ -129,7 +129,7 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
     {&r->head, hr_glsl_head_vs, NULL, hr_glsl_head_fs},
     {&r->occluder, hr_glsl_head_vs, NULL, hr_glsl_occluder_fs},
     {&r->resolve_ms, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_ms_fs},
-    {&r->resolve_mean, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_mean_fs},
+    {&r->resolve_stac, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_stac_fs},
     {&r->resolve_abuf, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_abuf_fs},
   };
   for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) {

@@ -196,11 +196,14 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
  * "Stochastic Transparency"), drawn with 4x MSAA so that each fragment
  * reaches the samples it covers: every hair fragment, none hiding another,
  * adds its colour factor and highlight weighted by its alpha and by its
- * visibility, the share of the pixel's u_samples stochastic depth samples
- * (u_depth, the feature pass's depth) at or behind it, and the sum of the
- * weights (RGB, additive); the alpha channel is multiplied by 1 - alpha
- * (the blend the host sets), leaving each sample's exact transmittance.
- * The slope-scaled bias keeps a fragment from hiding itself (its samples'
+ * visibility, and that weight (RGB, additive); the alpha channel is
+ * multiplied by 1 - alpha (the blend the host sets), leaving each sample's
+ * exact transmittance. The visibility is the share of the stochastic depth
+ * samples (u_depth, the feature pass's) at or behind the fragment among
+ * the samples it covers: each is an unbiased estimate of the transmittance
+ * in front of it there, where the whole pixel's share would weigh a strand
+ * by the samples a neighbour covers (wide strands, edges). The
+ * slope-scaled bias keeps a fragment from hiding itself (its samples'
  * depths are taken off the pixel centre). */
 const char hr_glsl_stac_fs[] = GLSL_VERSION FS_COMMON
 "layout(location = 0) out vec4 o;\n"
@@ -210,28 +213,41 @@ const char hr_glsl_stac_fs[] = GLSL_VERSION FS_COMMON
 "  float z = gl_FragCoord.z;\n"
 "  float bias = 2.0 * max(abs(dFdx(z)), abs(dFdy(z))) + 1e-7;\n"
 "  ivec2 p = ivec2(gl_FragCoord.xy);\n"
-"  int n = 0;\n"
+"  int n = 0, m = 0;\n"
 "  for (int s = 0; s < u_samples; s++)\n"
-"    if (texelFetch(u_depth, p, s).r >= z - bias) n++;\n"
-"  float vis = float(n) / float(u_samples);\n"
+"    if ((gl_SampleMaskIn[0] & (1 << s)) != 0) {\n"
+"      m++;\n"
+"      if (texelFetch(u_depth, p, s).r >= z - bias) n++;\n"
+"    }\n"
+"  float vis = m > 0 ? float(n) / float(m) : 1.0;\n"
 "  float c, h;\n"
 "  shade(c, h);\n"
 "  float a = clamp(vi.alpha, 0.0, 1.0);\n"
 "  o = vec4(c * a * vis, h * a * vis, a * vis, a);\n"
 "}\n";
 
-/* The mean of the u_samples samples of u_src at the window's pixel
- * (gl_FragCoord + u_origin): one RGBA32F texel per pixel. */
-const char hr_glsl_resolve_mean_fs[] = GLSL_VERSION
+/* The alpha-corrected estimate of the window's pixel (gl_FragCoord +
+ * u_origin) from hr_glsl_stac_fs's samples of u_src: each sample's alpha
+ * is one less its transmittance and its colour factor and highlight its
+ * weighted sums over its summed weight, so that only fragments sharing a
+ * sample weigh each other. Means over the samples: (alpha colour, alpha
+ * highlight, alpha of the samples with a weight, alpha), premultiplied;
+ * the host divides by the third. */
+const char hr_glsl_resolve_stac_fs[] = GLSL_VERSION
 "uniform sampler2DMS u_src;\n"
 "uniform int u_samples;\n"
 "uniform ivec2 u_origin;\n"
 "out vec4 o;\n"
 "void main() {\n"
 "  ivec2 p = ivec2(gl_FragCoord.xy) + u_origin;\n"
-"  vec4 s = vec4(0.0);\n"
-"  for (int i = 0; i < u_samples; i++) s += texelFetch(u_src, p, i);\n"
-"  o = s / float(u_samples);\n"
+"  vec4 m = vec4(0.0);\n"
+"  for (int i = 0; i < u_samples; i++) {\n"
+"    vec4 q = texelFetch(u_src, p, i);\n"
+"    float a = clamp(1.0 - q.a, 0.0, 1.0);\n"
+"    if (q.b > 0.0) m.xyz += a * vec3(q.r / q.b, q.g / q.b, 1.0);\n"
+"    m.w += a;\n"
+"  }\n"
+"  o = m / float(u_samples);\n"
 "}\n";
 
 /* One sample per texel: the strand survives where its hashed threshold is

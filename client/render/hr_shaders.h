@@ -20,7 +20,7 @@ extern const char hr_glsl_occluder_fs[];
 /* Full-viewport triangle and the two resolve passes. */
 extern const char hr_glsl_fullscreen_vs[];
 extern const char hr_glsl_resolve_ms_fs[];
-extern const char hr_glsl_resolve_mean_fs[];
+extern const char hr_glsl_resolve_stac_fs[];
 extern const char hr_glsl_resolve_abuf_fs[];
 
 /* Fragments sorted per round of the A-buffer resolve. */
