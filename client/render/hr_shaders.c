@@ -32,6 +32,8 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "uniform int u_ortho;\n"
 "uniform float u_thick_scale;\n"
 "out V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vo;\n"
+"/* Window depth, interpolated as the rasteriser does (hr_glsl_stac_fs). */\n"
+"noperspective out float v_window_z;\n"
 "void main() {\n"
 "  vec4 e0 = u_view * vec4(a_pos0, 1.0), e1 = u_view * vec4(a_pos1, 1.0);\n"
 "  vec4 c0 = u_proj * e0, c1 = u_proj * e1;\n"
@@ -51,6 +53,7 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "  vo.alpha = (second ? a_opac1 : a_opac0) * clamp(px, 0.0, 1.0);\n"
 "  if (a_strand0 != a_strand1 || c0.w <= 0.0 || c1.w <= 0.0) {\n"
 "    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);   /* outside the clip volume: culled */\n"
+"    v_window_z = 1.0;\n"
 "    return;\n"
 "  }\n"
 "  vec2 s0 = c0.xy / c0.w * u_viewport * 0.5, s1 = c1.xy / c1.w * u_viewport * 0.5;\n"
@@ -64,6 +67,7 @@ const char hr_glsl_hair_vs[] = GLSL_VERSION
 "             ((gl_VertexID & 1) == 0 ? 1.0 : -1.0);\n"
 "  vec4 c = second ? c1 : c0;\n"
 "  gl_Position = vec4(c.xy + off * c.w, c.zw);\n"
+"  v_window_z = c.z / c.w * 0.5 + 0.5;\n"
 "}\n";
 
 /* The light and the stochastic shadow map lookup (hair and occluder). */
@@ -202,22 +206,24 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
  * samples (u_depth, the feature pass's) at or behind the fragment among
  * the samples it covers: each is an unbiased estimate of the transmittance
  * in front of it there, where the whole pixel's share would weigh a strand
- * by the samples a neighbour covers (wide strands, edges). The
- * slope-scaled bias keeps a fragment from hiding itself (its samples'
- * depths are taken off the pixel centre). */
+ * by the samples a neighbour covers (wide strands, edges). Each sample's
+ * depth is compared with the fragment's own depth at that sample
+ * (v_window_z interpolated there, as the rasteriser does), so a fragment
+ * does not hide itself without a bias that would let the strands just
+ * behind it through (a slope-scaled one cost 2.3 dB on dense fur). */
 const char hr_glsl_stac_fs[] = GLSL_VERSION FS_COMMON
 "layout(location = 0) out vec4 o;\n"
 "uniform sampler2DMS u_depth;\n"
 "uniform int u_samples;\n"
+"noperspective in float v_window_z;\n"
 "void main() {\n"
-"  float z = gl_FragCoord.z;\n"
-"  float bias = 2.0 * max(abs(dFdx(z)), abs(dFdy(z))) + 1e-7;\n"
 "  ivec2 p = ivec2(gl_FragCoord.xy);\n"
 "  int n = 0, m = 0;\n"
 "  for (int s = 0; s < u_samples; s++)\n"
 "    if ((gl_SampleMaskIn[0] & (1 << s)) != 0) {\n"
 "      m++;\n"
-"      if (texelFetch(u_depth, p, s).r >= z - bias) n++;\n"
+"      float z = interpolateAtSample(v_window_z, s);\n"
+"      if (texelFetch(u_depth, p, s).r >= z * (1.0 - 1e-6)) n++;\n"
 "    }\n"
 "  float vis = m > 0 ? float(n) / float(m) : 1.0;\n"
 "  float c, h;\n"
