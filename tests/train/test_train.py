@@ -26,7 +26,7 @@ sys.path.insert(0, WEIGHTS)
 try:
     import numpy as np
     import torch
-    import OpenImageIO  # noqa: F401
+    import OpenImageIO
 except ImportError as e:  # pragma: no cover - depends on the machine
     print(f"train.recipe skipped: {e} (install python3-torch python3-openimageio)")
     sys.exit(77)
@@ -421,6 +421,30 @@ class Recipe(unittest.TestCase):
         finally:
             ac_input.uninstall()
         self.assertEqual(hfnet.variant_config("Kernel")["spp"], 4)
+
+    def test_experimental_ac_grid(self):
+        """weights/experiments/ac_grid.py: one row per frame of five crops
+        with gaps, the composite of an opaque result is the hair colour
+        (sRGB), and a crop that leaves the frame is refused."""
+        sys.path.insert(0, os.path.join(WEIGHTS, "experiments"))
+        import ac_grid
+        names = [f"{p}.{k}" for p in ac_grid.COLUMNS for k in ("color", "highlight", "alpha")]
+        data = np.zeros((8, 10, len(names)), np.float32)
+        for p in ac_grid.COLUMNS:
+            data[..., names.index(f"{p}.color")] = 1.0
+            data[..., names.index(f"{p}.alpha")] = 1.0
+        with tempfile.TemporaryDirectory() as d:
+            f, out = os.path.join(d, "f.exr"), os.path.join(d, "g.png")
+            dataset.write_exr(f, names, data)
+            self.assertEqual(ac_grid.main([out, f + ":1,0,6", f + ":4,2,6"]), 0)
+            img = OpenImageIO.ImageBuf(out)
+            self.assertEqual((img.spec().width, img.spec().height),
+                             (5 * 6 + 4 * ac_grid.GAP, 2 * 6 + ac_grid.GAP))
+            px = np.asarray(img.get_pixels(OpenImageIO.FLOAT))[0, 0]
+            want = ac_grid.srgb(ac_grid.HAIR)
+            self.assertLess(float(np.abs(px - want).max()), 1.5 / 255)
+            with self.assertRaises(SystemExit):
+                ac_grid.main([out, f + ":6,0,6"])
 
     def test_experimental_fullres_branch_starts_as_the_kernel(self):
         """weights/experiments/fullres_branch.py: Kernel weights with the
