@@ -1,7 +1,7 @@
 /* hairfilter eval: filtering quality against ground truth over dataset EXRs.
  *
- * For every frame (an EXR with S{k}.* features, gt.* and optionally st{N}.*
- * and opaque.* baselines, as `hairfilter render dataset` writes them) and
+ * For every frame (an EXR with S{k}.* features, gt.* and optionally st{N}.*,
+ * acst4.* and opaque.* baselines, as `hairfilter render dataset` writes them) and
  * every method (the input's own sample average, each weights file run
  * in-process, each baseline present), the result is composited with one
  * fixed hair colour, light and background, and compared with the composited
@@ -45,7 +45,8 @@ static void usage(FILE *f) {
           "                       DIR|FRAME.exr ...\n"
           "Compares, on hair pixels (gt.alpha > 0) of the composited image, the networks,\n"
           "the input's sample average and its 3x3 and 5x5 pools, stochastic transparency\n"
-          "st{1,2,4,8,16,64} and opaque MSAA (those the frames hold) with the ground truth;\n"
+          "st{1,2,4,8,16,64}, its alpha-corrected estimate acst4 and opaque MSAA (those the\n"
+          "frames hold) with the ground truth;\n"
           "prints a Markdown table (docs/QUALITY.md), then one per regime grouping: hair\n"
           "pixels by strand width in pixels and by coverage, frames by those and by\n"
           "resolution. --json writes every number, per bucket and per frame. Frames\n"

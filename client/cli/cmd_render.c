@@ -41,7 +41,7 @@ static void usage(FILE *f) {
     "         --alpha-corrected (acst4.*: the first 4 samples' alpha-corrected estimate,\n"
     "           Enderton et al. 2010)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
-    "         --size WxH --strands N --gt-ss S --st LIST --opaque N --quiet\n"
+    "         --size WxH --strands N --gt-ss S --st LIST --opaque N --alpha-corrected --quiet\n"
     "         --extended (style parameters, density and distance over wide ranges)\n"
     "         --regimes (widths, density, zoom, crops, camera, light, shadows per frame and\n"
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
