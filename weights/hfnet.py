@@ -162,9 +162,16 @@ def kernel_finish(raw, x, spp, radius, clamp=torch.clamp):
         alpha = sum w n_q / spp,  colour = sum w C_q / sum w n_q (1 if 0),
         highlight = sum w H_q / sum w n_q (0 if 0),
     then the corrections are added and the ranges clamped as Residual's."""
+    return kernel_finish_sums(raw, pixel_sums(x, spp), spp, radius, clamp)
+
+
+def kernel_finish_sums(raw, sums, spp, radius, clamp=torch.clamp):
+    """kernel_finish with the per-pixel sums given: sums [n][3][h][w] as
+    pixel_sums lays them out (count, colour sum, highlight sum over spp
+    samples); weights/experiments give other estimates in this form."""
     taps = kernel_taps(radius)
     wts = kernel_weights(raw[:, :taps], radius)
-    sums = F.pad(pixel_sums(x, spp), (radius,) * 4)
+    sums = F.pad(sums, (radius,) * 4)
     agg = 0
     for wt, (dy, dx) in zip(wts, _taps(radius)):
         agg = agg + wt[:, None] * _shifted(sums, radius, dy, dx)

@@ -153,6 +153,38 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
   return hr_gl_check("shadow pass", err, errlen);
 }
 
+/* Starts a depth-tested 4x MSAA draw into the bound framebuffer over cam's
+ * window: colour attachment 0 cleared to clear, depth to 1, LESS with
+ * depth writes. */
+static void begin_ms_draw(const hr_camera *cam, const float clear[4]) {
+  const float one = 1.0f;
+  hr_set_viewport(cam);
+  hrgl.ClearBufferfv(GL_COLOR, 0, clear);
+  hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+  hrgl.Enable(GL_MULTISAMPLE);
+  hrgl.Enable(GL_DEPTH_TEST);
+  hrgl.DepthFunc(GL_LESS);
+  hrgl.DepthMask(GL_TRUE);
+}
+
+/* Colour attachment 0 of the bound read framebuffer, w x h RGBA32F from
+ * its origin, into a new buffer *out (the caller frees it); what names the
+ * pass in an error. */
+static int read_rgba(int w, int h, const char *what, float **out, char *err, size_t errlen) {
+  float *buf = malloc(sizeof(float) * 4 * (size_t)w * h);
+  if (!buf) return HF_ENOMEM;
+  hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
+  hrgl.PixelStorei(GL_PACK_ALIGNMENT, 4);
+  hrgl.ReadPixels(0, 0, w, h, GL_RGBA, GL_FLOAT, buf);
+  int rc = hr_gl_check(what, err, errlen);
+  if (rc != HF_OK) {
+    free(buf);
+    return rc;
+  }
+  *out = buf;
+  return HF_OK;
+}
+
 /* Alpha-corrected stochastic transparency over the depth samples depth_ms
  * of a feature pass (hr_glsl_stac_fs), S-sample MSAA: ac [h][w][3] colour
  * factor, highlight, alpha, rows top first. The occluder hides hair through
@@ -182,14 +214,8 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
   int rc = fbo_complete("alpha-corrected", err, errlen);
   if (rc == HF_OK) {
     /* RGB: sums from 0; A: transmittance from 1. */
-    const float clear[4] = {0, 0, 0, 1}, one = 1.0f;
-    hr_set_viewport(cam);
-    hrgl.ClearBufferfv(GL_COLOR, 0, clear);
-    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
-    hrgl.Enable(GL_MULTISAMPLE);
-    hrgl.Enable(GL_DEPTH_TEST);
-    hrgl.DepthFunc(GL_LESS);
-    hrgl.DepthMask(GL_TRUE);
+    const float clear[4] = {0, 0, 0, 1};
+    begin_ms_draw(cam, clear);
     hrgl.ColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
     draw_head(r, cam, v, jx, jy, 0);
     hrgl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
@@ -223,14 +249,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     hr_set_2i(&r->resolve_stac, "u_origin", cam->win_x, cam->win_y);
     draw_fullscreen(r, &r->resolve_stac, RW, RH);
     hrgl.ActiveTexture(GL_TEXTURE0);
-    tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
-    if (!tmp) rc = HF_ENOMEM;
-  }
-  if (rc == HF_OK) {
-    hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
-    hrgl.PixelStorei(GL_PACK_ALIGNMENT, 4);
-    hrgl.ReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, tmp);
-    rc = hr_gl_check("alpha-corrected pass", err, errlen);
+    rc = read_rgba(W, H, "alpha-corrected pass", &tmp, err, errlen);
   }
   if (rc == HF_OK)
     for (int y = 0; y < H; y++)
@@ -281,15 +300,9 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     r->ms_samples = samples;
     /* Samples no fragment covers keep all six features 0
      * (protocol/FEATURES.md); the depth test uses its own attachment. */
-    const float c0[4] = {0, 0, 0, 0}, c1[4] = {0, 0, 0, 0}, one = 1.0f;
-    hr_set_viewport(cam);
-    hrgl.ClearBufferfv(GL_COLOR, 0, c0);
-    hrgl.ClearBufferfv(GL_COLOR, 1, c1);
-    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
-    hrgl.Enable(GL_MULTISAMPLE);
-    hrgl.Enable(GL_DEPTH_TEST);
-    hrgl.DepthFunc(GL_LESS);
-    hrgl.DepthMask(GL_TRUE);
+    const float zero[4] = {0, 0, 0, 0};
+    begin_ms_draw(cam, zero);
+    hrgl.ClearBufferfv(GL_COLOR, 1, zero);
     hrgl.ColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
     draw_head(r, cam, v, jx, jy, 0);
     hrgl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
@@ -367,14 +380,8 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
   int rc = fbo_complete("background", err, errlen);
   float *tmp = NULL;
   if (rc == HF_OK) {
-    const float zero[4] = {0, 0, 0, 0}, one = 1.0f;
-    hr_set_viewport(cam);
-    hrgl.ClearBufferfv(GL_COLOR, 0, zero);
-    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
-    hrgl.Enable(GL_MULTISAMPLE);
-    hrgl.Enable(GL_DEPTH_TEST);
-    hrgl.DepthFunc(GL_LESS);
-    hrgl.DepthMask(GL_TRUE);
+    const float zero[4] = {0, 0, 0, 0};
+    begin_ms_draw(cam, zero);
     if (r->has_head) {
       hrgl.UseProgram(r->occluder.id);
       set_geometry(&r->occluder, cam, v, 0, 0);
@@ -397,14 +404,7 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hrgl.BlitFramebuffer(cam->win_x, cam->win_y, cam->win_x + W, cam->win_y + H, 0, 0, W, H,
                          GL_COLOR_BUFFER_BIT, GL_NEAREST);
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
-    tmp = malloc(sizeof(float) * 4 * (size_t)W * H);
-    if (!tmp) rc = HF_ENOMEM;
-  }
-  if (rc == HF_OK) {
-    hrgl.ReadBuffer(GL_COLOR_ATTACHMENT0);
-    hrgl.PixelStorei(GL_PACK_ALIGNMENT, 4);
-    hrgl.ReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, tmp);
-    rc = hr_gl_check("background pass", err, errlen);
+    rc = read_rgba(W, H, "background pass", &tmp, err, errlen);
   }
   if (rc == HF_OK)
     for (int y = 0; y < H; y++)

@@ -25,7 +25,6 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-import torch.nn.functional as F  # noqa: E402
 
 import dataset  # noqa: E402
 import hfnet  # noqa: E402
@@ -62,23 +61,14 @@ def augment(feat, tgt, rng, flips=True, rotations=True, permute=True):
 
 def kernel_finish(raw, x, spp, radius, clamp=torch.clamp):
     """Kernel's output stage over the estimate: x holds spp - 1 samples and
-    the estimate's slot last (see the module's docstring)."""
-    o = NF * (spp - 1)
+    the estimate's slot last (see the module's docstring). The estimate is
+    handed to hfnet.kernel_finish_sums as n samples that all show it: count
+    n a, colour sum n a c, highlight sum n a h."""
+    n = spp - 1
+    o = NF * n
     c, h, a = (x[:, o + k:o + k + 1].float() for k in range(3))
-    taps = hfnet.kernel_taps(radius)
-    wts = hfnet.kernel_weights(raw[:, :taps], radius)
-    sums = F.pad(torch.cat([a, a * c, a * h], 1), (radius,) * 4)
-    agg = 0
-    for wt, (dy, dx) in zip(wts, hfnet._taps(radius)):
-        agg = agg + wt[:, None] * hfnet._shifted(sums, radius, dy, dx)
-    cnt = agg[:, 0:1]
-    ok = cnt > 1e-12
-    safe = torch.where(ok, cnt, torch.ones_like(cnt))
-    color = torch.where(ok, agg[:, 1:2] / safe, torch.ones_like(cnt))
-    hl = torch.where(ok, agg[:, 2:3] / safe, torch.zeros_like(cnt))
-    corr = raw[:, taps:taps + 3]
-    return torch.cat([color + corr[:, 0:1], clamp(hl + corr[:, 1:2], 0, None),
-                      clamp(cnt + corr[:, 2:3], 0, 1)], dim=1)
+    sums = torch.cat([n * a, n * a * c, n * a * h], 1)
+    return hfnet.kernel_finish_sums(raw, sums, n, radius, clamp)
 
 
 def entries(cfg):
