@@ -212,6 +212,16 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
   hrgl.DrawBuffers(1, &b0);
   float *tmp = NULL;
   int rc = fbo_complete("alpha-corrected", err, errlen);
+  GLint samples = 0;
+  if (rc == HF_OK) {
+    /* Sample s here must lie where depth_ms's sample s does. */
+    hrgl.GetIntegerv(GL_SAMPLES, &samples);
+    if (samples != S) {
+      if (err) snprintf(err, errlen, "alpha-corrected pass: asked for %d MSAA samples, got %d", S,
+                        (int)samples);
+      rc = HF_EUNSUPPORTED;
+    }
+  }
   if (rc == HF_OK) {
     /* RGB: sums from 0; A: transmittance from 1. */
     const float clear[4] = {0, 0, 0, 1};
