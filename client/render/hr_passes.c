@@ -185,6 +185,23 @@ static int read_rgba(int w, int h, const char *what, float **out, char *err, siz
   return HF_OK;
 }
 
+/* A samples-sample MSAA target of the whole frame (fw x fh) bound as fbo:
+ * RGBA32F colour tex[0] as attachment 0 (the one drawn) and depth tex[1].
+ * what names it in an error. */
+static int ms_rgba_target(int fw, int fh, int samples, GLuint tex[2], GLuint fbo,
+                          const char *what, char *err, size_t errlen) {
+  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, fw, fh, samples);
+  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, fw, fh, samples);
+  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[0], 0);
+  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D_MULTISAMPLE,
+                            tex[1], 0);
+  const GLenum b0 = GL_COLOR_ATTACHMENT0;
+  hrgl.DrawBuffers(1, &b0);
+  return fbo_complete(what, err, errlen);
+}
+
 /* Alpha-corrected stochastic transparency over the depth samples depth_ms
  * of a feature pass (hr_glsl_stac_fs), S-sample MSAA: ac [h][w][3] colour
  * factor, highlight, alpha, rows top first. The occluder hides hair through
@@ -199,19 +216,11 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
   const int W = cam->win_w, H = cam->win_h, FW = cam->frame_w, FH = cam->frame_h;
   const int RW = (W + 15) & ~15, RH = (H + 15) & ~15; /* whole blocks: draw_fullscreen */
   GLuint tex[3], fbo[2] = {0, 0};
-  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, FW, FH, S);
-  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, FW, FH, S);
   tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, RW, RH, 0);
   hrgl.GenFramebuffers(2, fbo);
-  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
-  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
-                            tex[0], 0);
-  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D_MULTISAMPLE,
-                            tex[1], 0);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
-  hrgl.DrawBuffers(1, &b0);
   float *tmp = NULL;
-  int rc = fbo_complete("alpha-corrected", err, errlen);
+  int rc = ms_rgba_target(FW, FH, S, tex, fbo[0], "alpha-corrected", err, errlen);
   GLint samples = 0;
   if (rc == HF_OK) {
     /* Sample s here must lie where depth_ms's sample s does. */
@@ -376,18 +385,10 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                        const hr_camera *light, float *out, char *err, size_t errlen) {
   const int W = cam->win_w, H = cam->win_h, FW = cam->frame_w, FH = cam->frame_h;
   GLuint tex[3], fbo[2] = {0, 0};
-  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, FW, FH, 4);
-  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, FW, FH, 4);
   tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
   hrgl.GenFramebuffers(2, fbo);
-  hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
-  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
-                            tex[0], 0);
-  hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D_MULTISAMPLE,
-                            tex[1], 0);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
-  hrgl.DrawBuffers(1, &b0);
-  int rc = fbo_complete("background", err, errlen);
+  int rc = ms_rgba_target(FW, FH, 4, tex, fbo[0], "background", err, errlen);
   float *tmp = NULL;
   if (rc == HF_OK) {
     const float zero[4] = {0, 0, 0, 0};
