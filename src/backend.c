@@ -190,6 +190,20 @@ static int sanitise_input(hf_model *m, int slot, const hf_io *io, hf_io *run,
   size_t frame = values * esz;
   hf_input_report one;
   *run = *io;
+  if (m->cfg.estimate) {
+    /* Samples and estimate, planar in io, interleaved for the backend: a
+     * copy of every frame, checked on the way. */
+    uint8_t *copy = slot_buffer(m, slot, frame * (size_t)io->batch);
+    if (!copy) return HF_ENOMEM;
+    for (int n = 0; n < io->batch; n++) {
+      int rc = hf_features_interleave((const uint8_t *)io->in + n * frame, io->in_dtype,
+                                      io->width, io->height, m->cfg.spp, copy + n * frame,
+                                      rep ? &rep[n] : &one, stats ? &stats[n] : NULL);
+      if (rc) return rc;
+    }
+    run->in = copy;
+    return HF_OK;
+  }
   if (widen_here(m, io)) {
     float *wide = slot_buffer(m, slot, values * sizeof(float) * (size_t)io->batch);
     if (!wide) return HF_ENOMEM;
@@ -258,7 +272,9 @@ static int run_scanning(hf_model *m, const hf_io *io, hf_timing *t, hf_input_rep
                         hf_input_stats *stats) {
   const hf_backend_ops *ops = m->backend->ops;
   hf_input_report own[HF_SCAN_OWN_REPORTS];
-  if (!ops->model_run_scan || (!rep && io->batch > HF_SCAN_OWN_REPORTS)) return HF_RUN_DECLINED;
+  /* A frame with an estimate is interleaved first (sanitise_input). */
+  if (!ops->model_run_scan || m->cfg.estimate || (!rep && io->batch > HF_SCAN_OWN_REPORTS))
+    return HF_RUN_DECLINED;
   int guarded = 0;
   int rc = ops->model_run_scan(m->impl, io, t, rep ? rep : own, stats, &guarded);
   if (rc != HF_OK) return rc;
@@ -326,7 +342,8 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
   if (m->npending == HF_MAX_PENDING) return HF_ERANGE;
   const int slot = (m->head + m->npending) % HF_MAX_PENDING;
   const hf_backend_ops *ops = m->backend->ops;
-  if (!ops->model_submit && ops->model_run_scan && (rep || io->batch <= HF_SCAN_OWN_REPORTS)) {
+  if (!ops->model_submit && ops->model_run_scan && !m->cfg.estimate &&
+      (rep || io->batch <= HF_SCAN_OWN_REPORTS)) {
     /* Run here, checked in the backend's own read of the input; the guard
      * and its time come at the wait. */
     hf_input_report own[HF_SCAN_OWN_REPORTS];
@@ -522,7 +539,8 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
                           pw, cfg->in_channels};
     const float *raw = src + (size_t)n * ph * pw * raw_ch;
     if (base && kernel)
-      hf_kernel_output_frame(&view, cfg->spp, cfg->kernel_radius, raw, pw, raw_ch, base, tmp);
+      hf_kernel_output_frame(&view, cfg->spp, cfg->estimate, cfg->kernel_radius, raw, pw, raw_ch,
+                             base, tmp);
     else if (base)
       hf_residual_base_frame(&view, cfg->spp, base, tmp);
     for (int y = 0; y < io->height; y++) {

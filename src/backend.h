@@ -150,12 +150,14 @@ size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height);
  * and writes rows y0..y1-1 of out ([height][width][3]), with scratch of
  * hf_cpu_kernel_scratch(width, radius) floats. */
 size_t hf_cpu_kernel_scratch(int width, int radius);
-void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int y0, int y1, float *planes);
+void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+                        float *planes);
 /* The sums of one row of width pixels px (stride floats apart) into
  * planes[x], planes[plane + x] and planes[2 plane + x]: hf_cpu_kernel_sums a
- * row at a time, for a caller that has the row elsewhere. */
-void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, float *planes,
-                            size_t plane);
+ * row at a time, for a caller that has the row elsewhere. estimate: the
+ * network's (hf_net_config.estimate; hf_pixel_sums_rows). */
+void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, int estimate,
+                            float *planes, size_t plane);
 void hf_cpu_kernel_rows(int width, int height, int spp, int radius, const float *planes,
                         const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
                         float *out, float *scratch);

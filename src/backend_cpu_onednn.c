@@ -1445,9 +1445,10 @@ static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
     float *sums = k->sums + n * h * w * 3;
     if (k->ref) {
       hf_input_view v = {row, w, 1, k->pw, cin};
-      hf_pixel_sums_rows(&v, k->cfg->spp, 0, 1, sums + y * w * 3);
+      hf_pixel_sums_rows(&v, k->cfg->spp, k->cfg->estimate, 0, 1, sums + y * w * 3);
     } else {
-      hf_cpu_kernel_sums_row(row, w, cin, k->cfg->spp, sums + y * w, (size_t)h * w);
+      hf_cpu_kernel_sums_row(row, w, cin, k->cfg->spp, k->cfg->estimate, sums + y * w,
+                             (size_t)h * w);
     }
   }
 }
@@ -1521,7 +1522,7 @@ static void od_output(const od_kernel_out *k, const od_dev *dev) {
       float *base = k->sums + (size_t)n * h * w * 3;
       for (int y = 0; y < h; y++) {
         hf_input_view v = {od_in_row(k->in, n, y, k->rows), (int)w, 1, k->pw, c->in_channels};
-        hf_pixel_sums_rows(&v, c->spp, 0, 1, base + (size_t)y * w * 3);
+        hf_pixel_sums_rows(&v, c->spp, HF_ESTIMATE_NONE, 0, 1, base + (size_t)y * w * 3);
       }
       hf_pooled_estimate_sums((int)w, h, c->spp, HF_RESIDUAL_RADIUS, base, k->fin);
     }

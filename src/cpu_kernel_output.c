@@ -40,20 +40,22 @@ size_t hf_cpu_kernel_scratch(int width, int radius) {
   return plane_pitch(width) * ((size_t)hf_kernel_taps(radius) + 5);
 }
 
-void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, float *planes,
-                            size_t plane) {
+void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, int estimate,
+                            float *planes, size_t plane) {
   for (int x = 0; x < width; x++) {
     float s[3];
-    hf_pixel_sums(px + (size_t)x * stride, spp, s);
+    if (estimate) hf_estimate_sums(px + (size_t)x * stride, spp, s);
+    else hf_pixel_sums(px + (size_t)x * stride, spp, s);
     planes[x] = s[0], planes[plane + x] = s[1], planes[2 * plane + x] = s[2];
   }
 }
 
-void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int y0, int y1, float *planes) {
+void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+                        float *planes) {
   const size_t plane = (size_t)in->width * in->height;
   for (int y = y0; y < y1; y++)
     hf_cpu_kernel_sums_row(in->data + (size_t)y * in->pitch * in->stride, in->width, in->stride,
-                           spp, planes + (size_t)y * in->width, plane);
+                           spp, estimate, planes + (size_t)y * in->width, plane);
 }
 
 /* e^x for x <= 0 (the logits less their maximum), 0 below -87 where e^x

@@ -96,15 +96,16 @@ typedef struct hf_cuk_head {
  * kernel's taps inside the frame of the logits (the raw output's first
  * taps channels, or the head's) weighs the per-pixel sums (covered count,
  * colour, highlight) of the (2 radius + 1)^2 pixels around it, read from
- * the FP16 network input in ([batch][ph][pw][in_stride], spp samples);
- * then the three corrections. Each block reduces its tile and a halo of
+ * the FP16 network input in ([batch][ph][pw][in_stride], spp samples;
+ * with estimate HF_ESTIMATE_ALPHA_CORRECTED, the sums of the estimate after
+ * them instead, hf_estimate_sums); then the three corrections. Each block reduces its tile and a halo of
  * HF_KERNEL_MAX_RADIUS pixels to per-pixel sums in shared memory once;
  * each thread computes its pixel's logits one tap at a time (the head's
  * dot products when there is one) into an online softmax, so no logit is
  * stored. */
 cudaError_t hf_cuk_output_kernel(hf_cuk_raw raw, hf_cuk_head head, const void *in, int in_stride,
-                                 int pw, int ph, int spp, int radius, int batch, int w, int h,
-                                 void *dst, int dst_f16, cudaStream_t stream);
+                                 int pw, int ph, int spp, int estimate, int radius, int batch,
+                                 int w, int h, void *dst, int dst_f16, cudaStream_t stream);
 
 #ifdef __cplusplus
 }

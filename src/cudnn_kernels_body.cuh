@@ -198,10 +198,13 @@ template <int R> struct Halo {
 };
 
 // Per-pixel sums (covered samples, their colour sum, their highlight sum)
-// of a tile and its halo of R pixels, zero outside the frame.
+// of a tile and its halo of R pixels, zero outside the frame; with an
+// estimate (HF_ESTIMATE_ALPHA_CORRECTED), those of the pixel's estimate
+// after its samples (hf_estimate_sums).
 template <int R>
 HF_HD void sums_load(float3 (*px)[Halo<R>::W], const __half *in, int in_stride, int pw, int ph,
-                     int spp, int w, int h, int bx, int by, int n, int tid, int nthreads) {
+                     int spp, int estimate, int w, int h, int bx, int by, int n, int tid,
+                     int nthreads) {
   constexpr int HW = Halo<R>::W, HH = Halo<R>::H;
   const int gx0 = bx * kTileX - R, gy0 = by * kTileY - R;
   for (int i = tid; i < HW * HH; i += nthreads) {
@@ -210,12 +213,19 @@ HF_HD void sums_load(float3 (*px)[Halo<R>::W], const __half *in, int in_stride, 
     float cnt = 0.0f, col = 0.0f, hsum = 0.0f;
     if (gx >= 0 && gx < w && gy >= 0 && gy < h) {
       const __half *s = in + (((size_t)n * ph + gy) * pw + gx) * in_stride;
-      for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
-        if (__half2float(s[2]) > 0.0f) {
-          cnt += 1.0f;
-          col += __half2float(s[0]);
-          hsum += __half2float(s[1]);
-        }
+      if (estimate) {
+        const __half *e = s + spp * HF_FEATURES_PER_SAMPLE;
+        cnt = (float)spp * __half2float(e[2]);
+        col = cnt * __half2float(e[0]);
+        hsum = cnt * __half2float(e[1]);
+      } else {
+        for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
+          if (__half2float(s[2]) > 0.0f) {
+            cnt += 1.0f;
+            col += __half2float(s[0]);
+            hsum += __half2float(s[1]);
+          }
+      }
     }
     px[ly][lx] = make_float3(cnt, col, hsum);
   }
@@ -223,7 +233,7 @@ HF_HD void sums_load(float3 (*px)[Halo<R>::W], const __half *in, int in_stride, 
 
 HF_HD void residual_load(float3 (*px)[kHaloW], const __half *in, int in_stride, int pw, int ph,
                          int spp, int w, int h, int bx, int by, int n, int tid, int nthreads) {
-  sums_load<kR>(px, in, in_stride, pw, ph, spp, w, h, bx, by, n, tid, nthreads);
+  sums_load<kR>(px, in, in_stride, pw, ph, spp, HF_ESTIMATE_NONE, w, h, bx, by, n, tid, nthreads);
 }
 
 HF_HD void residual_rows(float3 (*px)[kHaloW], float3 (*rows)[kTileX], int tid, int nthreads) {
@@ -266,7 +276,8 @@ HF_HD void residual_finish(float3 (*rows)[kTileX], const hf_cuk_raw &raw, int sp
 // (hf_kernel_output_frame's values).
 constexpr int kKR = HF_KERNEL_MAX_RADIUS;
 constexpr int kKHaloW = Halo<kKR>::W, kKHaloH = Halo<kKR>::H;
-constexpr int kMaxFeat = HF_KERNEL_MAX_HIDDEN + HF_MAX_SPP * HF_FEATURES_PER_SAMPLE;
+constexpr int kMaxFeat =
+    HF_KERNEL_MAX_HIDDEN + HF_MAX_SPP * HF_FEATURES_PER_SAMPLE + HF_ESTIMATE_CHANNELS;
 
 // Raw channel o of a pixel: dec0's, or the head's dot product over feat
 // (ReLU(dec0)'s hidden channels, then the input's).

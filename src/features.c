@@ -55,6 +55,25 @@ int hf_features_from_data(const hf_image *img, const void *data, hf_dtype dtype,
   return spp;
 }
 
+int hf_estimate_from_data(const hf_image *img, const void *data, hf_dtype dtype, void *est) {
+  if (!img || !data || !est || (dtype != HF_F32 && dtype != HF_F16)) return HF_EINVAL;
+  int src[HF_ESTIMATE_CHANNELS];
+  for (int c = 0; c < HF_ESTIMATE_CHANNELS; c++) {
+    char name[32];
+    snprintf(name, sizeof name, "%s.%s", HF_ESTIMATE_PREFIX, HF_OUTPUT_NAMES[c]);
+    if ((src[c] = hf_image_channel(img, name)) < 0) return HF_ENOTFOUND;
+  }
+  size_t n = (size_t)img->width * img->height, nch = (size_t)img->channels;
+  for (size_t p = 0; p < n; p++)
+    for (int c = 0; c < HF_ESTIMATE_CHANNELS; c++) {
+      if (dtype == HF_F16)
+        ((uint16_t *)est)[p * HF_ESTIMATE_CHANNELS + c] = ((const uint16_t *)data)[p * nch + src[c]];
+      else
+        ((float *)est)[p * HF_ESTIMATE_CHANNELS + c] = ((const float *)data)[p * nch + src[c]];
+    }
+  return HF_OK;
+}
+
 int hf_features_to_image(const float *in, int width, int height, int spp, hf_image *img) {
   if (!in || !img || spp < 1 || spp > HF_MAX_SPP) return HF_EINVAL;
   int cin = spp * HF_FEATURES_PER_SAMPLE;

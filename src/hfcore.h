@@ -86,6 +86,18 @@ enum { HF_OUT_COLOR = 0, HF_OUT_HIGHLIGHT = 1, HF_OUT_ALPHA = 2 };
 typedef enum hf_arch { HF_ARCH_UNET = 0, HF_ARCH_RESIDUAL = 1, HF_ARCH_KERNEL = 2 } hf_arch;
 
 #define HF_KERNEL_MAX_RADIUS 4  /* kernels of up to 9x9 pixels */
+
+/* What a network reads besides the samples (hf_net_config.estimate).
+ * HF_ESTIMATE_ALPHA_CORRECTED: stochastic transparency's alpha-corrected
+ * estimate of each pixel (Enderton et al. 2010, section 3.3; the renderer's
+ * acst4.* channels, `hairfilter render --alpha-corrected`): colour factor,
+ * highlight (both not premultiplied) and alpha, HF_ESTIMATE_CHANNELS values
+ * per pixel. The network reads them as 3 input channels after the samples'
+ * (channel 6 spp + j), and the Kernel output stage weighs them instead of
+ * the samples' own estimate (protocol/FEATURES.md, "The alpha-corrected
+ * estimate"). */
+enum { HF_ESTIMATE_NONE = 0, HF_ESTIMATE_ALPHA_CORRECTED = 1 };
+#define HF_ESTIMATE_CHANNELS 3
 #define HF_KERNEL_MAX_HIDDEN 64
 /* Most raw output channels of any network: the 9x9 kernel's taps + 3. */
 #define HF_MAX_RAW_CHANNELS  ((2 * HF_KERNEL_MAX_RADIUS + 1) * (2 * HF_KERNEL_MAX_RADIUS + 1) + HF_OUT_CHANNELS)
@@ -93,7 +105,8 @@ typedef enum hf_arch { HF_ARCH_UNET = 0, HF_ARCH_RESIDUAL = 1, HF_ARCH_KERNEL = 
 typedef struct hf_net_config {
   char name[HF_NAME_MAX];
   int spp;                      /* samples per pixel, 1..HF_MAX_SPP */
-  int in_channels;              /* spp * HF_FEATURES_PER_SAMPLE */
+  int in_channels;              /* spp * HF_FEATURES_PER_SAMPLE, plus
+                                 * HF_ESTIMATE_CHANNELS with an estimate */
   int out_channels;             /* raw output channels: HF_OUT_CHANNELS, or
                                  * hf_kernel_taps(kernel_radius) + HF_OUT_CHANNELS
                                  * for HF_ARCH_KERNEL */
@@ -115,12 +128,18 @@ typedef struct hf_net_config {
    *     pixel's kernel also sees its own samples at full resolution. */
   int kernel_radius;
   int kernel_hidden;
+  /* HF_ESTIMATE_NONE, or HF_ESTIMATE_ALPHA_CORRECTED (HF_ARCH_KERNEL only):
+   * each frame also carries the alpha-corrected estimate; a frame in
+   * memory is then its samples, [h][w][spp * 6], followed by the estimate,
+   * [h][w][3] (hf_io), and the network reads both per pixel. */
+  int estimate;
 } hf_net_config;
 
 /* The seven variants of the paper's Table 1, by name ("Base", "Base@1spp",
  * "Base@2spp", "Large", "Small", "Shallow", "Deep"), "Residual" (Base's
- * shape with HF_ARCH_RESIDUAL) and "Kernel" (Base's shape with
- * HF_ARCH_KERNEL, kernel_radius 3, kernel_hidden 32), case-insensitive. */
+ * shape with HF_ARCH_RESIDUAL), "Kernel" (Base's shape with
+ * HF_ARCH_KERNEL, kernel_radius 3, kernel_hidden 32) and "KernelAC"
+ * (Kernel's shape reading HF_ESTIMATE_ALPHA_CORRECTED), case-insensitive. */
 int hf_variant_preset(const char *name, hf_net_config *out);
 /* Number of presets and the i-th preset's name, for listings. */
 int hf_variant_preset_count(void);
@@ -128,6 +147,13 @@ const char *hf_variant_preset_name(int i);
 
 /* Checks that a configuration describes a network every backend can run. */
 int hf_net_config_validate(const hf_net_config *cfg);
+/* Values per pixel of a frame of cfg (in_channels): spp * 6 samples'
+ * features, plus HF_ESTIMATE_CHANNELS with an estimate. */
+int hf_net_in_channels(int spp, int estimate);
+/* Name of an estimate in the weights' metadata and in messages
+ * ("alpha_corrected"; "none"), and back (HF_ENOTFOUND). */
+const char *hf_estimate_name(int estimate);
+int hf_estimate_from_name(const char *name);
 /* The frame side multiple a network needs: 2^L. */
 int hf_net_align(const hf_net_config *cfg);
 /* Input channels of enc{i} and dec{i}, output channels of enc{i}/dec{i}. */
@@ -247,7 +273,12 @@ enum {
  * the first one in memory order (pixel x, y of the frame, sample, feature
  * index into HF_FEATURE_NAMES, its value before, kind HF_SANITISED_*; x, y,
  * sample and feature are -1 when samples is 0), plus output values repaired
- * by hf_model_run's output guard. */
+ * by hf_model_run's output guard. With an estimate (hf_net_config.estimate),
+ * samples also counts the pixels whose estimate was changed; sample is
+ * HF_REPORT_ESTIMATE when the first change is one, feature then an index
+ * into HF_OUTPUT_NAMES (the estimate's colour, highlight, alpha). */
+#define HF_REPORT_ESTIMATE (-2) /* hf_input_report.sample: the pixel's estimate */
+
 typedef struct hf_input_report {
   uint64_t samples;
   int x, y, sample, feature, kind;
@@ -289,6 +320,20 @@ int hf_features_widen(const uint16_t *in, float *out, int width, int height, int
  * allocated. */
 int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int spp,
                      hf_input_report *report, hf_input_stats *stats);
+/* A frame of a network with an estimate, planar as hf_io holds it (in: the
+ * samples, [height][width][spp * 6], then the estimate, [height][width][3],
+ * of dtype), interleaved into out ([height][width][spp * 6 + 3] of the same
+ * dtype) as the backends read it, with the rule applied on the way: the
+ * samples as hf_features_sanitise does, the estimate by its own rule
+ * (protocol/FEATURES.md, "The alpha-corrected estimate": a non-finite value,
+ * or alpha <= 0 beside a non-zero value, makes all three 0; colour and
+ * highlight are clamped to [0, HF_FEATURE_LIGHT_MAX], alpha to at most 1).
+ * report gets what was changed (hf_input_report), stats, when not NULL,
+ * hf_input_stats_compute's values of the samples. in and out must not
+ * overlap. HF_ENOMEM (out unset) when the statistics' counts cannot be
+ * allocated. */
+int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height, int spp,
+                           void *out, hf_input_report *report, hf_input_stats *stats);
 /* hf_features_scan's report and statistics made part by part, for a pass
  * that reads a frame anyway, in pieces and on several threads (the cpu
  * backend's enc0 bands), so that the frame is read from memory once: each
@@ -319,7 +364,11 @@ uint64_t hf_output_guard(void *out, hf_dtype dtype, size_t pixels);
 uint64_t hf_output_guard_serial(void *out, hf_dtype dtype, size_t pixels);
 
 /* One batch of frames of the same size. in: [batch][h][w][in_channels],
- * out: [batch][h][w][3], both NHWC, dense, of the given dtypes. */
+ * out: [batch][h][w][3], both NHWC, dense, of the given dtypes. For a
+ * network with an estimate (hf_net_config.estimate), each frame of in is
+ * planar: its samples, [h][w][spp * 6], then its estimate, [h][w][3]
+ * (still h * w * in_channels values a frame), as a renderer makes them in
+ * two targets; hf_model_run interleaves them for the backend. */
 typedef struct hf_io {
   int batch, width, height;
   const void *in;  hf_dtype in_dtype;
@@ -514,11 +563,21 @@ void hf_residual_apply(const float base[3], float *v);
  * fallbacks; hf_residual_base_frame and hf_kernel_output_frame do frames. */
 void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, int y, float *v);
 
+/* The sums of one pixel's alpha-corrected estimate in hf_pixel_sums' form
+ * (protocol/FEATURES.md, "The alpha-corrected estimate"): with a, c, h the
+ * estimate's alpha, colour and highlight (pixel_in[spp * 6 + 2], [+0],
+ * [+1]), n = spp a, then n c and n h: spp samples that all show the
+ * estimate, so that n / spp is its alpha and the ratios its colour and
+ * highlight. pixel_in: the pixel's interleaved spp * 6 + 3 values. */
+void hf_estimate_sums(const float *pixel_in, int spp, float sums[3]);
 /* Per-pixel sums of rows y0..y1-1 of the frame into those rows of sums
  * ([height][width][3] for the whole frame): the number of covered samples
  * (alpha > 0), the sum of their colour and the sum of their highlight, the
- * stochastic-transparency estimate before its division. */
-void hf_pixel_sums_rows(const hf_input_view *in, int spp, int y0, int y1, float *sums);
+ * stochastic-transparency estimate before its division (hf_pixel_sums);
+ * with estimate HF_ESTIMATE_ALPHA_CORRECTED, hf_estimate_sums of the
+ * pixel's estimate (in interleaved: stride spp * 6 + 3) instead. */
+void hf_pixel_sums_rows(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+                        float *sums);
 /* The output stage of HF_ARCH_KERNEL (beyond the paper; protocol/FEATURES.md,
  * "Kernel architecture"; weights/hfnet.py kernel_finish is its twin) for a
  * frame of in->width x in->height pixels. raw holds the network's raw output
@@ -526,14 +585,16 @@ void hf_pixel_sums_rows(const hf_input_view *in, int spp, int y0, int y1, float 
  * raw + (y * raw_pitch + x) * raw_stride. For each pixel, w_t is the softmax
  * of its logits over the taps inside the frame (taps outside are left out;
  * the frame is cut, never padded) and (N, C, H) = sum_t w_t (n, C, H) of the
- * tap's pixel (hf_pixel_sums_rows); then
+ * tap's pixel (hf_pixel_sums_rows, of the estimate when estimate is
+ * HF_ESTIMATE_ALPHA_CORRECTED); then
  *   colour    = C / N (1 when N <= 1e-12) + c0,
  *   highlight = max(0, H / N (0 when N <= 1e-12) + c1),
  *   alpha     = min(1, max(0, N / spp + c2))
  * with c the three raw channels after the logits. out: [height][width][3];
  * sums: scratch of the same size. HF_EINVAL for an empty frame or a radius
  * outside 0..HF_KERNEL_MAX_RADIUS. */
-int hf_kernel_output_frame(const hf_input_view *in, int spp, int radius, const float *raw,
+int hf_kernel_output_frame(const hf_input_view *in, int spp, int estimate, int radius,
+                           const float *raw,
                            int raw_pitch, int raw_stride, float *out, float *sums);
 /* The same on rows y0..y1-1 of a width x height frame, from sums already
  * made for rows y0 - radius .. y1 - 1 + radius (those inside the frame), for
@@ -748,6 +809,17 @@ int hf_features_from_image(const hf_image *img, int spp, float *in);
 int hf_features_from_data(const hf_image *img, const void *data, hf_dtype dtype, int spp,
                           void *in);
 int hf_features_to_image(const float *in, int width, int height, int spp, hf_image *img);
+/* The alpha-corrected estimate's channels in EXR files (the renderer's
+ * `--alpha-corrected` output): HF_ESTIMATE_PREFIX ".color", ".highlight",
+ * ".alpha" (protocol/FEATURES.md, "The alpha-corrected estimate"). */
+#define HF_ESTIMATE_PREFIX "acst4"
+/* The estimate of an image whose values are data ([height][width]
+ * [img->channels] of dtype) into est ([height][width][3] of the same dtype:
+ * colour, highlight, alpha), copied bit for bit: the block a frame of a
+ * network with an estimate carries after its samples (hf_io). HF_OK,
+ * HF_ENOTFOUND when one of the three channels is missing, HF_EINVAL for a
+ * NULL argument or another dtype. */
+int hf_estimate_from_data(const hf_image *img, const void *data, hf_dtype dtype, void *est);
 /* Result channels "color", "highlight", "alpha". */
 int hf_result_to_image(const float *out, int width, int height, hf_image *img);
 

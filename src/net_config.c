@@ -19,21 +19,25 @@ static const struct {
   int levels[HF_MAX_LEVELS];
   int arch;
   int kernel_radius, kernel_hidden;
+  int estimate;
 } presets[] = {
-  {"Base",      4, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0},
-  {"Base@1spp", 1, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0},
-  {"Base@2spp", 2, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0},
-  {"Large",     4, 3, {64, 128, 256}, HF_ARCH_UNET, 0, 0},
-  {"Small",     4, 3, {16, 32, 64}, HF_ARCH_UNET, 0, 0},
-  {"Shallow",   4, 2, {32, 64}, HF_ARCH_UNET, 0, 0},
-  {"Deep",      4, 4, {32, 64, 128, 256}, HF_ARCH_UNET, 0, 0},
+  {"Base",      4, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
+  {"Base@1spp", 1, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
+  {"Base@2spp", 2, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
+  {"Large",     4, 3, {64, 128, 256}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
+  {"Small",     4, 3, {16, 32, 64}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
+  {"Shallow",   4, 2, {32, 64}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
+  {"Deep",      4, 4, {32, 64, 128, 256}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
   /* Beyond the paper: Base's cost, residual on the samples' own estimate. */
-  {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL, 0, 0},
+  {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL, 0, 0, HF_ESTIMATE_NONE},
   /* Beyond the paper: Base's U-Net, the output read off the samples of the
    * 7x7 pixels around each pixel with a learned kernel; a 32-channel dec0
    * and the head over it and the input (weights/kernel.md: 16 channels
    * until 2026-12-02). */
-  {"Kernel",    4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32},
+  {"Kernel",    4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32, HF_ESTIMATE_NONE},
+  /* Kernel reading stochastic transparency's alpha-corrected estimate too,
+   * and filtering it instead of the samples' own (weights/kernel.md). */
+  {"KernelAC",  4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32, HF_ESTIMATE_ALPHA_CORRECTED},
 };
 #define NPRESETS ((int)(sizeof presets / sizeof presets[0]))
 
@@ -50,7 +54,8 @@ int hf_variant_preset(const char *name, hf_net_config *out) {
     memset(out, 0, sizeof *out);
     snprintf(out->name, sizeof out->name, "%s", presets[i].name);
     out->spp = presets[i].spp;
-    out->in_channels = presets[i].spp * HF_FEATURES_PER_SAMPLE;
+    out->estimate = presets[i].estimate;
+    out->in_channels = hf_net_in_channels(presets[i].spp, presets[i].estimate);
     out->out_channels = HF_OUT_CHANNELS;
     out->num_levels = presets[i].num_levels;
     memcpy(out->levels, presets[i].levels, sizeof out->levels);
@@ -66,7 +71,11 @@ int hf_variant_preset(const char *name, hf_net_config *out) {
 int hf_net_config_validate(const hf_net_config *cfg) {
   if (!cfg) return HF_EINVAL;
   if (cfg->spp < 1 || cfg->spp > HF_MAX_SPP) return HF_ERANGE;
-  if (cfg->in_channels != cfg->spp * HF_FEATURES_PER_SAMPLE) return HF_EFORMAT;
+  if (cfg->estimate != HF_ESTIMATE_NONE && cfg->estimate != HF_ESTIMATE_ALPHA_CORRECTED)
+    return HF_EUNSUPPORTED;
+  /* Only the Kernel output stage knows what to do with an estimate. */
+  if (cfg->estimate && cfg->arch != HF_ARCH_KERNEL) return HF_EUNSUPPORTED;
+  if (cfg->in_channels != hf_net_in_channels(cfg->spp, cfg->estimate)) return HF_EFORMAT;
   if (cfg->num_levels < 1 || cfg->num_levels > HF_MAX_LEVELS) return HF_ERANGE;
   for (int i = 0; i < cfg->num_levels; i++)
     if (cfg->levels[i] < 1 || cfg->levels[i] > HF_MAX_CHANNELS) return HF_ERANGE;
@@ -83,6 +92,22 @@ int hf_net_config_validate(const hf_net_config *cfg) {
   if (cfg->out_channels != hf_kernel_taps(cfg->kernel_radius) + HF_OUT_CHANNELS)
     return HF_EFORMAT;
   return HF_OK;
+}
+
+int hf_net_in_channels(int spp, int estimate) {
+  return spp * HF_FEATURES_PER_SAMPLE + (estimate ? HF_ESTIMATE_CHANNELS : 0);
+}
+
+const char *hf_estimate_name(int estimate) {
+  return estimate == HF_ESTIMATE_NONE              ? "none"
+         : estimate == HF_ESTIMATE_ALPHA_CORRECTED ? "alpha_corrected"
+                                                   : "unknown";
+}
+
+int hf_estimate_from_name(const char *name) {
+  if (name && !strcmp(name, "none")) return HF_ESTIMATE_NONE;
+  if (name && !strcmp(name, "alpha_corrected")) return HF_ESTIMATE_ALPHA_CORRECTED;
+  return HF_ENOTFOUND;
 }
 
 int hf_net_align(const hf_net_config *cfg) { return 1 << cfg->num_levels; }
@@ -160,6 +185,14 @@ void hf_pixel_sums(const float *px, int spp, float sums[3]) {
   sums[0] = n, sums[1] = col, sums[2] = hl;
 }
 
+/* The estimate as spp samples that all show it (weights/hfnet.py
+ * estimate_sums is its twin: the products in the same order). */
+void hf_estimate_sums(const float *px, int spp, float sums[3]) {
+  const float *e = px + spp * HF_FEATURES_PER_SAMPLE;
+  const float n = (float)spp * e[2];
+  sums[0] = n, sums[1] = n * e[0], sums[2] = n * e[1];
+}
+
 void hf_st_estimate(const float *px, int spp, float est[3]) {
   float s[3];
   hf_pixel_sums(px, spp, s);
@@ -190,18 +223,22 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
   base[HF_OUT_ALPHA] = n / (float)samples;
 }
 
-void hf_pixel_sums_rows(const hf_input_view *in, int spp, int y0, int y1, float *sums) {
+void hf_pixel_sums_rows(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+                        float *sums) {
   for (int y = y0; y < y1; y++)
-    for (int x = 0; x < in->width; x++)
-      hf_pixel_sums(in->data + ((size_t)y * in->pitch + x) * in->stride, spp,
-                    sums + ((size_t)y * in->width + x) * 3);
+    for (int x = 0; x < in->width; x++) {
+      const float *px = in->data + ((size_t)y * in->pitch + x) * in->stride;
+      float *s = sums + ((size_t)y * in->width + x) * 3;
+      if (estimate) hf_estimate_sums(px, spp, s);
+      else hf_pixel_sums(px, spp, s);
+    }
 }
 
 int hf_pooled_estimate_frame(const hf_input_view *in, int spp, int radius, float *base,
                              float *tmp) {
   if (in->width < 1 || in->height < 1 || spp < 1 || radius < 0) return HF_EINVAL;
   /* Per-pixel sums (covered count, colour, highlight) into base... */
-  hf_pixel_sums_rows(in, spp, 0, in->height, base);
+  hf_pixel_sums_rows(in, spp, HF_ESTIMATE_NONE, 0, in->height, base);
   return hf_pooled_estimate_sums(in->width, in->height, spp, radius, base, tmp);
 }
 
@@ -304,12 +341,13 @@ void hf_kernel_output_rows(int width, int height, int spp, int radius, const flo
   }
 }
 
-int hf_kernel_output_frame(const hf_input_view *in, int spp, int radius, const float *raw,
-                           int raw_pitch, int raw_stride, float *out, float *sums) {
+int hf_kernel_output_frame(const hf_input_view *in, int spp, int estimate, int radius,
+                           const float *raw, int raw_pitch, int raw_stride, float *out,
+                           float *sums) {
   if (in->width < 1 || in->height < 1 || spp < 1 || radius < 0 ||
       radius > HF_KERNEL_MAX_RADIUS)
     return HF_EINVAL;
-  hf_pixel_sums_rows(in, spp, 0, in->height, sums);
+  hf_pixel_sums_rows(in, spp, estimate, 0, in->height, sums);
   hf_kernel_output_rows(in->width, in->height, spp, radius, sums, raw, raw_pitch, raw_stride, 0,
                         in->height, out);
   return HF_OK;
@@ -326,7 +364,8 @@ void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, 
     for (int dy = dy0; dy <= dy1; dy++) {
       hf_input_view row = {in->data + ((size_t)(y + dy) * in->pitch + x + dx0) * in->stride,
                            dx1 - dx0 + 1, 1, in->pitch, in->stride};
-      hf_pixel_sums_rows(&row, cfg->spp, 0, 1, sums + ((dy + r) * side + dx0 + r) * 3);
+      hf_pixel_sums_rows(&row, cfg->spp, cfg->estimate, 0, 1,
+                         sums + ((dy + r) * side + dx0 + r) * 3);
     }
     float o[3];
     kernel_pixel(v, cfg->spp, r, sums + (r * side + r) * 3, side * 3, dy0, dy1, dx0, dx1, o);

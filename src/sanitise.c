@@ -351,6 +351,80 @@ int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int 
   return widen_or_scan(in, dtype, NULL, width, height, spp, report, stats);
 }
 
+/* ---- the estimate, interleaved after the samples ------------------------------------ */
+
+/* The estimate's rule on one pixel's colour, highlight, alpha: 0 when it
+ * was in contract, else the kind, with the first feature at fault. */
+static int fix_estimate(float e[HF_ESTIMATE_CHANNELS], int *feature) {
+  const float m = HF_FEATURE_LIGHT_MAX;
+  float c = e[0], h = e[1], a = e[2];
+  if ((a > 0.0f) & (a <= 1.0f) & (c >= 0.0f) & (c <= m) & (h >= 0.0f) & (h <= m)) return 0;
+  if ((c == 0.0f) & (h == 0.0f) & (a == 0.0f)) return 0;  /* no hair: all zero */
+  for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++)
+    if (!isfinite(e[f])) {
+      *feature = f;
+      memset(e, 0, HF_ESTIMATE_CHANNELS * sizeof *e);
+      return HF_SANITISED_NONFINITE;
+    }
+  if (a <= 0.0f) {
+    *feature = 2;
+    memset(e, 0, HF_ESTIMATE_CHANNELS * sizeof *e);
+    return HF_SANITISED_UNCOVERED;
+  }
+  *feature = c < 0.0f || c > m ? 0 : h < 0.0f || h > m ? 1 : 2;
+  e[0] = fminf(fmaxf(c, 0.0f), m);
+  e[1] = fminf(fmaxf(h, 0.0f), m);
+  e[2] = fminf(a, 1.0f);
+  return HF_SANITISED_CLAMPED;
+}
+
+int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height, int spp,
+                           void *out, hf_input_report *report, hf_input_stats *stats) {
+  const size_t esz = dtype == HF_F16 ? 2 : 4, px = (size_t)width * height;
+  const size_t ns = (size_t)spp * HF_FEATURES_PER_SAMPLE, stride = ns + HF_ESTIMATE_CHANNELS;
+  /* The samples are checked where they are, as hf_model_run checks any
+   * frame; only a frame that needs it has them fixed, pixel by pixel. */
+  int rc = hf_features_scan(in, dtype, width, height, spp, report, stats);
+  if (rc) return rc;
+  const uint8_t *samples = in, *est = samples + px * ns * esz;
+  uint8_t *o = out;
+  const int fix = report->samples > 0;
+  for (size_t p = 0; p < px; p++) {
+    uint8_t *d = o + p * stride * esz;
+    memcpy(d, samples + p * ns * esz, ns * esz);
+    if (fix) {
+      hf_input_report one;
+      hf_features_sanitise(d, dtype, 1, 1, spp, &one);
+    }
+    float e[HF_ESTIMATE_CHANNELS], before[HF_ESTIMATE_CHANNELS];
+    for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++)
+      e[f] = dtype == HF_F32 ? ((const float *)est)[p * HF_ESTIMATE_CHANNELS + f]
+                             : hf_f16_to_f32(((const uint16_t *)est)[p * HF_ESTIMATE_CHANNELS + f]);
+    memcpy(before, e, sizeof e);
+    int feature = 0, kind = fix_estimate(e, &feature);
+    /* Every bound is exact in binary16: a fixed half is the fixed float. */
+    if (dtype == HF_F32) {
+      if (kind) memcpy(d + ns * esz, e, sizeof e);
+      else memcpy(d + ns * esz, (const float *)est + p * HF_ESTIMATE_CHANNELS, sizeof e);
+    } else {
+      uint16_t *d16 = (uint16_t *)(d + ns * esz);
+      for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++)
+        d16[f] = kind ? hf_f32_to_f16(e[f])
+                      : ((const uint16_t *)est)[p * HF_ESTIMATE_CHANNELS + f];
+    }
+    if (!kind) continue;
+    if (!report->samples++) {
+      report->x = (int)(p % (size_t)width);
+      report->y = (int)(p / (size_t)width);
+      report->sample = HF_REPORT_ESTIMATE;
+      report->feature = feature;
+      report->kind = kind;
+      report->value = before[feature];
+    }
+  }
+  return HF_OK;
+}
+
 /* ---- outputs ---------------------------------------------------------------------- */
 
 #define F16_MAX_BITS 0x7bffu  /* 65504 */

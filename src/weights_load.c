@@ -76,15 +76,38 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
     c->arch = a;
   }
   if (json_int(m, "spp", 1, HF_MAX_SPP, &c->spp) ||
-      json_int(m, "in_channels", 1, HF_MAX_SPP * HF_FEATURES_PER_SAMPLE, &c->in_channels) ||
+      json_int(m, "in_channels", 1, HF_MAX_SPP * HF_FEATURES_PER_SAMPLE + HF_ESTIMATE_CHANNELS,
+               &c->in_channels) ||
       json_int(m, "out_channels", 1, HF_MAX_RAW_CHANNELS, &c->out_channels)) {
     rc = fail(err, errlen, HF_EFORMAT,
               "metadata: 'spp', 'in_channels' or 'out_channels' missing or out of range");
     goto out;
   }
-  if (c->in_channels != c->spp * HF_FEATURES_PER_SAMPLE) {
-    rc = fail(err, errlen, HF_EFORMAT, "metadata: in_channels %d != spp %d x %d features",
-              c->in_channels, c->spp, HF_FEATURES_PER_SAMPLE);
+  /* Optional: files without it read the samples alone. */
+  const cJSON *estimate = cJSON_GetObjectItemCaseSensitive(m, "estimate");
+  if (estimate) {
+    int e = cJSON_IsString(estimate) ? hf_estimate_from_name(estimate->valuestring) : HF_ENOTFOUND;
+    if (e < 0) {
+      rc = fail(err, errlen, HF_EUNSUPPORTED,
+                "metadata: unsupported 'estimate' (want \"none\" or \"alpha_corrected\")");
+      goto out;
+    }
+    if (e && c->arch != HF_ARCH_KERNEL) {
+      rc = fail(err, errlen, HF_EUNSUPPORTED,
+                "metadata: 'estimate' %s is for arch kernel only, not %s", hf_estimate_name(e),
+                hf_arch_name(c->arch));
+      goto out;
+    }
+    c->estimate = e;
+  }
+  if (c->in_channels != hf_net_in_channels(c->spp, c->estimate)) {
+    if (c->estimate)
+      rc = fail(err, errlen, HF_EFORMAT,
+                "metadata: in_channels %d != spp %d x %d features + %d of the estimate",
+                c->in_channels, c->spp, HF_FEATURES_PER_SAMPLE, HF_ESTIMATE_CHANNELS);
+    else
+      rc = fail(err, errlen, HF_EFORMAT, "metadata: in_channels %d != spp %d x %d features",
+                c->in_channels, c->spp, HF_FEATURES_PER_SAMPLE);
     goto out;
   }
   const cJSON *radius = cJSON_GetObjectItemCaseSensitive(m, "kernel_radius");

@@ -22,6 +22,7 @@ static char *metadata_json(const hf_weights *w) {
     cJSON_AddNumberToObject(m, "kernel_radius", c->kernel_radius);
     cJSON_AddNumberToObject(m, "kernel_hidden", c->kernel_hidden);
   }
+  if (c->estimate) cJSON_AddStringToObject(m, "estimate", hf_estimate_name(c->estimate));
   cJSON_AddItemToObject(m, "features",
                         cJSON_CreateStringArray(HF_FEATURE_NAMES, HF_FEATURES_PER_SAMPLE));
   char *s = cJSON_PrintUnformatted(m);

@@ -37,7 +37,13 @@ VARIANTS = {
     # the (2r+1)^2 pixels around each pixel, applied to their samples, plus
     # a small correction (kernel_finish).
     "Kernel":    dict(spp=4, levels=[32, 64, 128], arch="kernel", kernel_radius=3, kernel_hidden=32),
+    # Kernel reading stochastic transparency's alpha-corrected estimate as 3
+    # more input channels and filtering it instead of the samples' own
+    # estimate (estimate_sums; protocol/FEATURES.md).
+    "KernelAC":  dict(spp=4, levels=[32, 64, 128], arch="kernel", kernel_radius=3, kernel_hidden=32,
+                      estimate="alpha_corrected"),
 }
+ESTIMATE_CHANNELS = ["acst4.color", "acst4.highlight", "acst4.alpha"]   # in EXR files
 TABLE1 = ["Base", "Base@1spp", "Base@2spp", "Large", "Small", "Shallow", "Deep"]
 
 
@@ -57,6 +63,9 @@ def variant_config(name):
                 cfg["kernel_radius"] = v["kernel_radius"]
                 cfg["kernel_hidden"] = v.get("kernel_hidden", 0)
                 cfg["out_channels"] = kernel_taps(v["kernel_radius"]) + len(OUTPUTS)
+            if v.get("estimate"):
+                cfg["estimate"] = v["estimate"]
+                cfg["in_channels"] += len(OUTPUTS)
             return cfg
     raise KeyError(f"unknown variant {name!r}; known: {', '.join(VARIANTS)}")
 
@@ -116,6 +125,17 @@ def pixel_sums(x, spp):
     return torch.stack([cov.sum(1), (s[:, :, 0] * cov).sum(1), (s[:, :, 1] * cov).sum(1)], 1)
 
 
+def estimate_sums(x, spp):
+    """pixel_sums' form of the alpha-corrected estimate that follows the spp
+    samples in x (channels 6 spp + 0, 1, 2: colour, highlight, alpha): spp
+    samples that all show it, n = spp a, then n c and n h
+    (src/net_config.c hf_estimate_sums, the products in the same order)."""
+    o = spp * len(FEATURES)
+    c, h, a = (x[:, o + k:o + k + 1].float() for k in range(3))
+    n = spp * a
+    return torch.cat([n, n * c, n * h], 1)
+
+
 def _taps(radius):
     """Offsets (dy, dx) of the taps in row-major order (tap t = (dy + r) *
     (2r + 1) + dx + r), as the C backends number them."""
@@ -154,15 +174,17 @@ def kernel_weights(logits, radius):
     return [et / den for et in e]
 
 
-def kernel_finish(raw, x, spp, radius, clamp=torch.clamp):
+def kernel_finish(raw, x, spp, radius, clamp=torch.clamp, estimate=None):
     """Output stage of the kernel architecture. raw: [n][taps + 3][h][w]
     (kernel logits, then colour, highlight and alpha corrections), x the
     unpadded NCHW features. With w the softmax weights of pixel p's taps q and
-    (n_q, C_q, H_q) the sums of pixel_sums:
+    (n_q, C_q, H_q) the sums of pixel_sums (of estimate_sums with estimate
+    "alpha_corrected"):
         alpha = sum w n_q / spp,  colour = sum w C_q / sum w n_q (1 if 0),
         highlight = sum w H_q / sum w n_q (0 if 0),
     then the corrections are added and the ranges clamped as Residual's."""
-    return kernel_finish_sums(raw, pixel_sums(x, spp), spp, radius, clamp)
+    sums = estimate_sums(x, spp) if estimate else pixel_sums(x, spp)
+    return kernel_finish_sums(raw, sums, spp, radius, clamp)
 
 
 def kernel_finish_sums(raw, sums, spp, radius, clamp=torch.clamp):
@@ -389,6 +411,9 @@ class HairNet(nn.Module):
         if self.arch == "residual":
             return residual_finish(raw, residual_base(x, self.cfg["spp"]), clamp)
         if self.arch == "kernel":
+            if self.cfg.get("estimate"):
+                return kernel_finish(raw, x, self.cfg["spp"], self.cfg["kernel_radius"], clamp,
+                                     self.cfg["estimate"])
             return kernel_finish(raw, x, self.cfg["spp"], self.cfg["kernel_radius"], clamp)
         return output_transform(raw, clamp)
 

@@ -24,6 +24,7 @@ CASES = [  # variant, width, height: odd sizes exercise pad-and-crop
     ("Residual", 64, 48), ("Residual", 27, 35),
     ("Kernel", 64, 48), ("Kernel", 37, 23),
     ("Kernel_r2h0", 64, 48), ("Kernel_r2h0", 37, 23),
+    ("KernelAC", 64, 48), ("KernelAC", 37, 23),
 ]
 
 # Configurations that are not presets: a name, the preset it varies, and
@@ -82,6 +83,18 @@ def kernel_features(rng, h, w, spp):
     return f.reshape(h, w, spp * 6)
 
 
+def estimate_features(rng, feat, spp):
+    """An alpha-corrected estimate [h][w][3] (colour, highlight, alpha) for
+    features feat: zero where the pixel has no covered sample and in a
+    tenth of the others (the estimate may see no hair where a sample did),
+    else alpha in (0, 1] and the colours' ranges."""
+    h, w = feat.shape[:2]
+    hair = (feat.reshape(h, w, spp, 6)[..., 2] > 0).any(-1) & (rng.uniform(size=(h, w)) < 0.9)
+    e = np.stack([rng.uniform(0, 2, (h, w)), rng.exponential(0.2, (h, w)),
+                  rng.uniform(0.005, 1, (h, w))], -1).astype(np.float32)
+    return e * hair[..., None]
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("out")
@@ -111,6 +124,9 @@ def main():
         spp = cfg["spp"]
         feat = (kernel_features if cfg["arch"] == "kernel" else random_features)(rng, h, w, spp)
         names = [f"S{s}.{n}" for s in range(spp) for n in hfnet.FEATURES]
+        if cfg.get("estimate"):
+            feat = np.concatenate([feat, estimate_features(rng, feat, spp)], 2)
+            names += hfnet.ESTIMATE_CHANNELS
         write_exr(os.path.join(args.out, stem + ".features.exr"), names, feat)
         with torch.no_grad():
             y = net(hfnet.nhwc_to_nchw(feat[None]))

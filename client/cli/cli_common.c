@@ -140,8 +140,9 @@ static int read_layer(const hf_image *img, const void *data, hf_dtype dtype, hf_
   return HF_OK;
 }
 
-int cli_read_features(const char *path, const char *part, int spp, const char *variant,
-                      hf_dtype dtype, hf_image *img, void **in, hf_image *layer) {
+int cli_read_features(const char *path, const char *part, int spp, int estimate,
+                      const char *variant, hf_dtype dtype, hf_image *img, void **in,
+                      hf_image *layer) {
   char err[512];
   void *data = NULL;
   *in = NULL;
@@ -176,14 +177,30 @@ int cli_read_features(const char *path, const char *part, int spp, const char *v
         goto fail;
       }
     }
-  if (!(*in = malloc((size_t)img->width * img->height * spp * HF_FEATURES_PER_SAMPLE *
-                     (dtype == HF_F16 ? sizeof(uint16_t) : sizeof(float))))) {
+  for (int c = 0; estimate && c < HF_ESTIMATE_CHANNELS; c++) {
+    char name[32];
+    snprintf(name, sizeof name, "%s.%s", HF_ESTIMATE_PREFIX, HF_OUTPUT_NAMES[c]);
+    if (hf_image_channel(img, name) < 0) {
+      fprintf(stderr, "hairfilter: %s: no channel %s: variant %s reads stochastic "
+              "transparency's alpha-corrected estimate beside the samples; render the frame "
+              "with `hairfilter render ... --alpha-corrected` (protocol/FEATURES.md, \"The "
+              "alpha-corrected estimate\")\n", path, name, variant);
+      rc = HF_EFORMAT;
+      goto fail;
+    }
+  }
+  const size_t px = (size_t)img->width * img->height;
+  const size_t esz = dtype == HF_F16 ? sizeof(uint16_t) : sizeof(float);
+  if (!(*in = malloc(px * hf_net_in_channels(spp, estimate) * esz))) {
     fprintf(stderr, "hairfilter: %s: out of memory for a %dx%d frame\n", path, img->width,
             img->height);
     rc = HF_ENOMEM;
     goto fail;
   }
   hf_features_from_data(img, data, dtype, spp, *in);
+  /* A frame with an estimate is planar: the samples, then the estimate. */
+  if (estimate)
+    hf_estimate_from_data(img, data, dtype, (uint8_t *)*in + px * spp * HF_FEATURES_PER_SAMPLE * esz);
   if (layer && (rc = read_layer(img, data, dtype, layer)) != 0) {
     fprintf(stderr, "hairfilter: %s: its background layer: %s\n", path, hf_strerror(rc));
     free(*in);
@@ -201,7 +218,10 @@ fail:
 void cli_warn_sanitised(const char *path, const hf_image *img, const hf_input_report *r) {
   if (r->samples) {
     char ch[40], what[120];
-    snprintf(ch, sizeof ch, "S%d.%s", r->sample, HF_FEATURE_NAMES[r->feature]);
+    if (r->sample == HF_REPORT_ESTIMATE)
+      snprintf(ch, sizeof ch, "%s.%s", HF_ESTIMATE_PREFIX, HF_OUTPUT_NAMES[r->feature]);
+    else
+      snprintf(ch, sizeof ch, "S%d.%s", r->sample, HF_FEATURE_NAMES[r->feature]);
     if (r->kind == HF_SANITISED_NONFINITE)
       snprintf(what, sizeof what, "%s = %g is not finite: the sample counts as uncovered", ch,
                r->value);

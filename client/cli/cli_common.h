@@ -44,7 +44,10 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
 /* Reads a feature EXR for a network of spp samples per pixel: the part
  * (NULL: the one with S0.color, else --part's N or NAME), and its first spp
  * samples as network input (*in, malloc'd, [h][w][spp*6] of dtype, NHWC; a
- * HALF file read as HF_F16 is never converted: hf_exr_read_part_as). img
+ * HALF file read as HF_F16 is never converted: hf_exr_read_part_as), with
+ * estimate (hf_net_config.estimate) followed by the frame's alpha-corrected
+ * estimate ([h][w][3], the acst4.* channels: the planar frame hf_io
+ * takes; a file without them is refused, naming the render option). img
  * gets the size, channel names and windows, img->data stays NULL. layer
  * (may be NULL) gets the file's background layer, background.R/G/B/A as
  * float32 [h][w][4] (the renderer draws the head and anything else under the
@@ -53,8 +56,9 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
  * variant names the network in messages. On failure prints one line naming
  * the file, the part or channel and what to do, and returns a negative HF_E*
  * code with img and *in released. */
-int cli_read_features(const char *path, const char *part, int spp, const char *variant,
-                      hf_dtype dtype, hf_image *img, void **in, hf_image *layer);
+int cli_read_features(const char *path, const char *part, int spp, int estimate,
+                      const char *variant, hf_dtype dtype, hf_image *img, void **in,
+                      hf_image *layer);
 /* Prints one warning when hf_model_run_report sanitised a frame's input or
  * repaired its output: how many samples, and the first one by pixel (in the
  * file's coordinates: img's data window origin added), sample and channel.

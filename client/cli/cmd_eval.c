@@ -886,7 +886,7 @@ int cmd_eval(int argc, char **argv) {
     gt = malloc(npx * 3 * sizeof(float));
     rgb = malloc(npx * 3 * sizeof(float));
     gt_rgb = malloc(npx * 3 * sizeof(float));
-    in = malloc(npx * HF_MAX_SPP * HF_FEATURES_PER_SAMPLE * sizeof(float));
+    in = malloc(npx * (HF_MAX_SPP * HF_FEATURES_PER_SAMPLE + HF_ESTIMATE_CHANNELS) * sizeof(float));
     diff = malloc(npx * 3 * sizeof(float));
     mask = malloc(npx);
     if (!res || !gt || !rgb || !gt_rgb || !in || !diff || !mask || !smap) {
@@ -971,6 +971,15 @@ int cmd_eval(int argc, char **argv) {
             goto out;
         }
         if ((rc = hf_features_from_image(&img, cfg->spp, in)) < 0) goto out;
+        /* A network that reads the estimate gets it after the samples. */
+        if (cfg->estimate &&
+            hf_estimate_from_data(&img, img.data, HF_F32,
+                                  in + npx * cfg->spp * HF_FEATURES_PER_SAMPLE) != HF_OK) {
+          fprintf(stderr, "hairfilter eval: %s has no %s.* channels, %s reads the "
+                  "alpha-corrected estimate: skipped for it (render with --alpha-corrected)\n",
+                  fr->path, HF_ESTIMATE_PREFIX, cfg->name);
+          continue;
+        }
         int out_of_range = check_range(&ranges[m->model], m->label, fr->path, in, w, h,
                                        cfg->spp, row_flags);
         if (out_of_range < 0) {

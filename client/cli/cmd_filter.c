@@ -242,7 +242,7 @@ int cmd_filter(int argc, char **argv) {
   /* With --f16 a HALF file goes to the server as stored: no conversion. */
   struct timespec t0, t1;
   clock_gettime(CLOCK_MONOTONIC, &t0);
-  if (cli_read_features(in_path, part, v->spp, v->name, f16 ? HF_F16 : HF_F32, &feat, &in,
+  if (cli_read_features(in_path, part, v->spp, HF_ESTIMATE_NONE, v->name, f16 ? HF_F16 : HF_F32, &feat, &in,
                         &layer) != 0)
     goto out;
   /* A frame with a background layer is composited here over it (the

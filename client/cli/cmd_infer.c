@@ -36,7 +36,8 @@ static int infer_file(const char *weights, const char *in_path, const char *part
     return rc;
   }
   void *in_data = NULL;
-  rc = cli_read_features(in_path, part, w->cfg.spp, w->cfg.name, HF_F32, &feat, &in_data, layer);
+  rc = cli_read_features(in_path, part, w->cfg.spp, w->cfg.estimate, w->cfg.name, HF_F32, &feat,
+                         &in_data, layer);
   in = in_data;
   if (rc != 0) goto out;
   if (!(out = malloc((size_t)feat.width * feat.height * 3 * sizeof(float)))) {

@@ -705,7 +705,7 @@ static void *make_frame(opts *o, int spp, size_t *bytes) {
     hf_image img;
     void *data = NULL;
     hf_dtype dt = o->f16 ? HF_F16 : HF_F32;
-    if (cli_read_features(o->input, o->part, spp, o->variant, dt, &img, &data, NULL)) return NULL;
+    if (cli_read_features(o->input, o->part, spp, HF_ESTIMATE_NONE, o->variant, dt, &img, &data, NULL)) return NULL;
     o->width = img.width;
     o->height = img.height;
     hf_image_free(&img);

@@ -20,6 +20,7 @@ static const struct { const char *weights, *stem; } cases[] = {
   {"Residual", "Residual_64x48"},   {"Residual", "Residual_27x35"},
   {"Kernel", "Kernel_64x48"},       {"Kernel", "Kernel_37x23"},
   {"Kernel_r2h0", "Kernel_r2h0_64x48"}, {"Kernel_r2h0", "Kernel_r2h0_37x23"},
+  {"KernelAC", "KernelAC_64x48"},   {"KernelAC", "KernelAC_37x23"},
 };
 
 static int backend_in_build(const char *name) {
@@ -50,6 +51,11 @@ static void run_golden(const char *backend) {
     size_t npx = (size_t)feat.width * feat.height;
     float *in = malloc(npx * w->cfg.in_channels * 4), *out = malloc(npx * 3 * 4);
     assert_int_equal(hf_features_from_image(&feat, w->cfg.spp, in), w->cfg.spp);
+    /* KernelAC: the alpha-corrected estimate after the samples (planar). */
+    if (w->cfg.estimate)
+      assert_int_equal(hf_estimate_from_data(&feat, feat.data, HF_F32,
+                                             in + npx * w->cfg.spp * HF_FEATURES_PER_SAMPLE),
+                       HF_OK);
     hf_model *m;
     assert_int_equal(hf_model_create(b, w, &m), HF_OK);
     hf_io io = {1, feat.width, feat.height, in, HF_F32, out, HF_F32};

@@ -16,7 +16,7 @@ static void test_table1_presets(void **state) {
     {"Base@2spp", 2, 3, {32, 64, 128}}, {"Large", 4, 3, {64, 128, 256}},
     {"Small", 4, 3, {16, 32, 64}},     {"Shallow", 4, 2, {32, 64}},
     {"Deep", 4, 4, {32, 64, 128, 256}}};
-  assert_int_equal(hf_variant_preset_count(), 9); /* Table 1 + Residual + Kernel */
+  assert_int_equal(hf_variant_preset_count(), 10); /* Table 1 + Residual + Kernel + KernelAC */
   for (size_t k = 0; k < sizeof want / sizeof want[0]; k++) {
     hf_net_config c;
     assert_int_equal(hf_variant_preset(want[k].name, &c), HF_OK);
@@ -47,6 +47,23 @@ static void test_table1_presets(void **state) {
   assert_int_equal(c.kernel_hidden, 32);
   assert_int_equal(c.out_channels, 49 + 3);
   assert_int_equal(hf_net_config_validate(&c), HF_OK);
+  assert_int_equal(c.estimate, HF_ESTIMATE_NONE);
+  /* KernelAC: Kernel's shape reading the alpha-corrected estimate too. */
+  assert_int_equal(hf_variant_preset("KernelAC", &c), HF_OK);
+  assert_int_equal(c.arch, HF_ARCH_KERNEL);
+  assert_int_equal(c.estimate, HF_ESTIMATE_ALPHA_CORRECTED);
+  assert_int_equal(c.in_channels, 4 * 6 + 3);
+  assert_int_equal(c.kernel_radius, 3);
+  assert_int_equal(c.kernel_hidden, 32);
+  assert_int_equal(hf_net_config_validate(&c), HF_OK);
+  c.in_channels = 24;   /* the estimate's channels missing */
+  assert_int_equal(hf_net_config_validate(&c), HF_EFORMAT);
+  c.in_channels = 27;
+  c.arch = HF_ARCH_UNET, c.kernel_radius = c.kernel_hidden = 0, c.out_channels = 3;
+  assert_int_equal(hf_net_config_validate(&c), HF_EUNSUPPORTED); /* Kernel only */
+  assert_string_equal(hf_estimate_name(HF_ESTIMATE_ALPHA_CORRECTED), "alpha_corrected");
+  assert_int_equal(hf_estimate_from_name("alpha_corrected"), HF_ESTIMATE_ALPHA_CORRECTED);
+  assert_int_equal(hf_estimate_from_name("premultiplied"), HF_ENOTFOUND);
   assert_string_equal(hf_arch_name(HF_ARCH_KERNEL), "kernel");
   assert_int_equal(hf_arch_from_name("kernel"), HF_ARCH_KERNEL);
   assert_int_equal(hf_arch_from_name("Kernel"), HF_ENOTFOUND);
@@ -183,7 +200,7 @@ static void test_kernel_output(void **state) {
       for (int t = 0; t < RAW_STRIDE; t++)
         raw[((size_t)y * PITCH + x) * RAW_STRIDE + t] =
             t < TAPS ? 0.5f * (float)(x + 3 * y) : t == RAW ? NAN : 0.0f;
-  assert_int_equal(hf_kernel_output_frame(&v, SPP, R, raw, PITCH, RAW_STRIDE, out, sums), HF_OK);
+  assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_ESTIMATE_NONE, R, raw, PITCH, RAW_STRIDE, out, sums), HF_OK);
   assert_int_equal(hf_pooled_estimate_frame(&v, SPP, R, want, tmp), HF_OK);
   for (int i = 0; i < FH * FW * 3; i++)
     assert_float_equal(out[i], want[i], 2e-6f * (1 + fabsf(want[i])));
@@ -222,7 +239,7 @@ static void test_kernel_output(void **state) {
       }
       rp[TAPS] = 0.25f, rp[TAPS + 1] = -5.0f, rp[TAPS + 2] = 0.5f;
     }
-  assert_int_equal(hf_kernel_output_frame(&v, SPP, R, raw, PITCH, RAW_STRIDE, out, sums), HF_OK);
+  assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_ESTIMATE_NONE, R, raw, PITCH, RAW_STRIDE, out, sums), HF_OK);
   for (int y = 0; y < FH; y++)
     for (int x = 0; x < FW; x++) {
       float e[3];
@@ -242,9 +259,9 @@ static void test_kernel_output(void **state) {
       assert_memory_equal(px, got, 3 * sizeof(float));
     }
   hf_input_view empty = {buf, 0, FH, PITCH, STRIDE};
-  assert_int_equal(hf_kernel_output_frame(&empty, SPP, R, raw, PITCH, RAW_STRIDE, out, sums),
+  assert_int_equal(hf_kernel_output_frame(&empty, SPP, HF_ESTIMATE_NONE, R, raw, PITCH, RAW_STRIDE, out, sums),
                    HF_EINVAL);
-  assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_KERNEL_MAX_RADIUS + 1, raw, PITCH,
+  assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_ESTIMATE_NONE, HF_KERNEL_MAX_RADIUS + 1, raw, PITCH,
                                           RAW_STRIDE, out, sums), HF_EINVAL);
 }
 

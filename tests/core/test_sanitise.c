@@ -542,6 +542,116 @@ static void check_guard(hf_backend *b, const hf_net_config *c) {
   hf_weights_free(w);
 }
 
+/* ---- the estimate (hf_features_interleave) ------------------------------------ */
+
+/* The estimate's rule written out: 1 when it changed e. */
+static int reference_estimate(float *e) {
+  int finite = isfinite(e[0]) && isfinite(e[1]) && isfinite(e[2]);
+  if (e[0] == 0 && e[1] == 0 && e[2] == 0) return 0;
+  if (finite && e[2] > 0 && e[2] <= 1 && e[0] >= 0 && e[0] <= 64 && e[1] >= 0 && e[1] <= 64)
+    return 0;
+  if (!finite || e[2] <= 0) {
+    e[0] = e[1] = e[2] = 0;
+    return 1;
+  }
+  for (int f = 0; f < 2; f++) e[f] = e[f] < 0 ? 0 : e[f] > 64 ? 64 : e[f];
+  if (e[2] > 1) e[2] = 1;
+  return 1;
+}
+
+/* A planar frame (samples, then estimate) interleaved, in float32 and
+ * binary16: every pixel is its sanitised samples followed by its estimate
+ * under the estimate's rule; the report counts both, the first change in
+ * memory order (the samples' block comes first); the statistics are those
+ * of the samples. */
+static void check_interleave(int w, int h, int spp, int bad_samples) {
+  const size_t px = (size_t)w * h, ns = (size_t)spp * 6, cin = ns + 3;
+  float *planar = malloc(px * cin * sizeof(float));
+  float *samples = bad_samples ? make_samples(px * spp) : NULL;
+  for (size_t i = 0; i < px * ns; i++)
+    planar[i] = samples ? samples[i] : (i % 6 == 2 ? 0.5f : 0.25f);
+  float *est = planar + px * ns;
+  for (size_t p = 0; p < px; p++)
+    for (int f = 0; f < 3; f++)
+      est[p * 3 + f] = p % 3 ? (float)((next() >> 8) + 1) / 16777217.0f : special(f);
+  float *want = malloc(px * cin * sizeof(float));
+  uint64_t changed = 0;
+  long first_est = -1;
+  for (size_t p = 0; p < px; p++) {
+    memcpy(want + p * cin, planar + p * ns, ns * sizeof(float));
+    for (int k = 0; k < spp; k++) changed += (uint64_t)reference_rule(want + p * cin + k * 6);
+    memcpy(want + p * cin + ns, est + p * 3, 3 * sizeof(float));
+    if (reference_estimate(want + p * cin + ns)) {
+      changed++;
+      if (first_est < 0) first_est = (long)p;
+    }
+  }
+  float *out = malloc(px * cin * sizeof(float));
+  hf_input_report r;
+  hf_input_stats st, st_want;
+  assert_int_equal(hf_features_interleave(planar, HF_F32, w, h, spp, out, &r, &st), HF_OK);
+  assert_int_equal(r.samples, changed);
+  for (size_t i = 0; i < px * cin; i++)
+    if (!same_bits(out[i], want[i]) && !(out[i] == 0 && want[i] == 0)) {
+      fprintf(stderr, "interleaved value %zu: %g, want %g\n", i, out[i], want[i]);
+      fail();
+    }
+  hf_input_report rs;
+  hf_features_check(planar, HF_F32, w, h, spp, &rs);
+  if (!rs.samples && first_est >= 0) {
+    assert_int_equal(r.sample, HF_REPORT_ESTIMATE);
+    assert_int_equal((long)r.y * w + r.x, first_est);
+    assert_true(r.feature >= 0 && r.feature < 3);
+  } else if (rs.samples) {
+    assert_int_equal(r.sample, rs.sample);
+    assert_int_equal(r.x, rs.x);
+  }
+  assert_int_equal(hf_input_stats_compute(planar, HF_F32, w, h, spp, &st_want), HF_OK);
+  assert_memory_equal(&st, &st_want, sizeof st);
+  /* Binary16: the halves of the same frame give the halves of the result. */
+  uint16_t *p16 = malloc(px * cin * 2), *o16 = malloc(px * cin * 2);
+  for (size_t i = 0; i < px * cin; i++) p16[i] = hf_f32_to_f16(planar[i]);
+  float *w16 = malloc(px * cin * sizeof(float));
+  for (size_t p = 0; p < px; p++) {
+    for (size_t i = 0; i < ns; i++) w16[p * cin + i] = hf_f16_to_f32(p16[p * ns + i]);
+    for (int f = 0; f < 3; f++) w16[p * cin + ns + f] = hf_f16_to_f32(p16[px * ns + p * 3 + f]);
+    for (int k = 0; k < spp; k++) reference_rule(w16 + p * cin + k * 6);
+    reference_estimate(w16 + p * cin + ns);
+  }
+  assert_int_equal(hf_features_interleave(p16, HF_F16, w, h, spp, o16, &r, NULL), HF_OK);
+  for (size_t i = 0; i < px * cin; i++) {
+    uint16_t expect = hf_f32_to_f16(w16[i]);
+    if (o16[i] != expect && !((o16[i] | expect) == 0x8000u)) {
+      fprintf(stderr, "interleaved half %zu: %04x, want %04x\n", i, o16[i], expect);
+      fail();
+    }
+  }
+  free(planar), free(samples), free(want), free(out), free(p16), free(o16), free(w16);
+}
+
+static void test_interleave_estimate(void **state) {
+  check_interleave(7, 5, 4, 0);
+  check_interleave(7, 5, 4, 1);
+  check_interleave(13, 3, 1, 1);
+  check_interleave(64, 33, 2, 1);
+  /* Named values: a NaN alpha, alpha 0 beside a colour, clamps. */
+  float planar[4 * 6 + 4 * 3] = {0}, out[4 * 9];
+  float *est = planar + 4 * 6;
+  const float in_est[4][3] = {{0.5f, 0.25f, NAN}, {0.5f, 0.0f, 0.0f}, {70.0f, -1.0f, 1.5f},
+                              {1.0f, 0.5f, 0.75f}};
+  memcpy(est, in_est, sizeof in_est);
+  hf_input_report r;
+  assert_int_equal(hf_features_interleave(planar, HF_F32, 2, 2, 1, out, &r, NULL), HF_OK);
+  assert_int_equal(r.samples, 3);
+  assert_int_equal(r.sample, HF_REPORT_ESTIMATE);
+  assert_int_equal(r.x, 0);
+  assert_int_equal(r.kind, HF_SANITISED_NONFINITE);
+  assert_int_equal(r.feature, 2);
+  const float want[4][3] = {{0, 0, 0}, {0, 0, 0}, {64.0f, 0.0f, 1.0f}, {1.0f, 0.5f, 0.75f}};
+  for (int p = 0; p < 4; p++)
+    for (int c = 0; c < 3; c++) assert_true(out[p * 9 + 6 + c] == want[p][c]);
+}
+
 static void test_backends(void **state) {
   hf_net_config base, residual;
   assert_int_equal(hf_variant_preset("Base", &base), HF_OK);
@@ -584,7 +694,7 @@ int main(void) {
     cmocka_unit_test(test_rule),         cmocka_unit_test(test_rule_each_position),
     cmocka_unit_test(test_widen),        cmocka_unit_test(test_report_kinds),
     cmocka_unit_test(test_output_guard), cmocka_unit_test(test_output_guard_split),
-    cmocka_unit_test(test_backends),
+    cmocka_unit_test(test_backends),     cmocka_unit_test(test_interleave_estimate),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -59,7 +59,10 @@ static uint64_t rng_next(uint64_t *s) {
 }
 
 /* Feature-like inputs: colour, highlight, alpha, depth in [0, 1], tangents
- * in [-1, 1], with some samples empty (all zero) as in real frames. */
+ * in [-1, 1], with some samples empty (all zero) as in real frames. A
+ * network with an estimate gets values of the same kind in its estimate's
+ * block (out of contract where a group of six straddles it: sanitised the
+ * same way for both backends). */
 static float *random_input(const hf_net_config *c, int batch, int w, int h, uint64_t seed) {
   size_t n = (size_t)batch * w * h * c->in_channels;
   float *in = malloc(n * sizeof *in);
@@ -67,7 +70,7 @@ static float *random_input(const hf_net_config *c, int batch, int w, int h, uint
   uint64_t s = seed * 2654435761u + 1;
   for (size_t i = 0; i < n; i += HF_FEATURES_PER_SAMPLE) {
     int empty = rng_next(&s) % 4 == 0;
-    for (int k = 0; k < HF_FEATURES_PER_SAMPLE; k++) {
+    for (int k = 0; k < HF_FEATURES_PER_SAMPLE && i + k < n; k++) {
       float u = (float)(rng_next(&s) >> 11) / (float)(1ull << 53);
       in[i + k] = empty ? 0.0f : (k >= 4 ? 2.0f * u - 1.0f : u);
     }

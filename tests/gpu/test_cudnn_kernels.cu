@@ -257,19 +257,26 @@ static hf_cuk_raw random_raw(int d2s, int co, int batch, int pw, int ph, __half 
 // The FP16 network input of batch frames of ph x pw (cpad channels, spp
 // samples): samples covered (alpha > 0) or not (all zero), none covered in
 // the left empty_cols columns of frame 0. *in32 is the same in FP32.
+// With estimate, each pixel also gets an alpha-corrected estimate after its
+// samples (alpha 0 in a fifth of the pixels and in the empty columns).
 static __half *random_input(int batch, int pw, int ph, int spp, int cpad, int empty_cols,
-                            float **in32) {
+                            float **in32, int estimate = 0) {
   const size_t nin = (size_t)batch * ph * pw * cpad;
   __half *in = (__half *)dalloc(nin * 2);
   *in32 = (float *)malloc(nin * 4);
-  for (size_t p = 0; p < (size_t)batch * ph * pw; p++)
+  for (size_t i = 0; i < nin; i++) in[i] = __float2half_rn(0.0f);
+  for (size_t p = 0; p < (size_t)batch * ph * pw; p++) {
+    const int hair = p >= (size_t)ph * pw || (int)(p % pw) >= empty_cols;
     for (int s = 0; s < spp; s++) {
-      const int covered = frand() < 0.6f && (p >= (size_t)ph * pw || (int)(p % pw) >= empty_cols);
+      const int covered = frand() < 0.6f && hair;
       for (int f = 0; f < 6; f++) {
         const float v = covered ? (f == 2 ? 0.05f + 0.95f * frand() : frand()) : 0.0f;
         in[p * cpad + s * 6 + f] = __float2half_rn(v);
       }
     }
+    if (estimate && hair && frand() < 0.8f)
+      for (int f = 0; f < 3; f++) in[p * cpad + spp * 6 + f] = __float2half_rn(frand());
+  }
   for (size_t i = 0; i < nin; i++) (*in32)[i] = h2f(in[i]);
   return in;
 }
@@ -342,10 +349,11 @@ static void test_output(int residual, int d2s, int dst_f16) {
 // taps + 3 channels, or the hidden ones a head reads with the input),
 // against hf_output_finish of the same values (the head's dot products
 // summed in the same order on the CPU).
-static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16) {
-  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4, cin = 24, cpad = 24;
+static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16, int estimate = 0) {
+  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4;
+  const int cin = estimate ? 27 : 24, cpad = estimate ? 32 : 24;
   hf_net_config cfg;
-  hf_variant_preset("Kernel", &cfg);
+  hf_variant_preset(estimate ? "KernelAC" : "Kernel", &cfg);
   cfg.kernel_radius = radius;
   cfg.kernel_hidden = hidden;
   cfg.out_channels = hf_kernel_taps(radius) + 3;
@@ -363,7 +371,7 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16) {
   // The left 5 columns of frame 0 empty: pixels with no covered sample in
   // reach, for radius <= 4.
   float *in32;
-  __half *in = random_input(batch, pw, ph, spp, cpad, 5, &in32);
+  __half *in = random_input(batch, pw, ph, spp, cpad, 5, &in32, estimate);
   const size_t nout = (size_t)batch * h * w * 3;
   void *out = dalloc(nout * 4);
   memset(out, 0xff, nout * 4);
@@ -373,7 +381,8 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16) {
     for (int by = 0; by < (h + kTileY - 1) / kTileY; by++)
       for (int bx = 0; bx < (w + kTileX - 1) / kTileX; bx++) {
         for (int t = 0; t < kTileX * kTileY; t++)
-          sums_load<kKR>(px, in, cpad, pw, ph, spp, w, h, bx, by, n, t, kTileX * kTileY);
+          sums_load<kKR>(px, in, cpad, pw, ph, spp, estimate, w, h, bx, by, n, t,
+                         kTileX * kTileY);
         for (int ty = 0; ty < kTileY; ty++)
           for (int tx = 0; tx < kTileX; tx++)
             kernel_finish(px, raw, head, in, cpad, pw, ph, spp, radius, w, h, out, dst_f16, bx, by,
@@ -412,10 +421,12 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16) {
   // order, and FP16 rounding of the result.
   const double tol = dst_f16 ? 1e-3 : 2e-5;
   CHECK(colour_one > 0, "no pixel without a covered sample in reach");
-  CHECK(worst <= tol, "output kernel r%d h%d%s %s: worst relative difference %.2e", radius, hidden,
-        d2s ? " (D2S phases)" : "", dst_f16 ? "f16" : "f32", worst);
-  printf("  output     kernel r%d h%-2d raw %-10s -> %s: worst relative difference %.1e\n", radius,
-         hidden, d2s ? "D2S phases" : "OUT buffer", dst_f16 ? "f16" : "f32", worst);
+  CHECK(worst <= tol, "output kernel%s r%d h%d%s %s: worst relative difference %.2e",
+        estimate ? " (estimate)" : "", radius, hidden, d2s ? " (D2S phases)" : "",
+        dst_f16 ? "f16" : "f32", worst);
+  printf("  output     kernel%s r%d h%-2d raw %-10s -> %s: worst relative difference %.1e\n",
+         estimate ? " (estimate)" : "", radius, hidden, d2s ? "D2S phases" : "OUT buffer",
+         dst_f16 ? "f16" : "f32", worst);
   free(rbuf);
   free(in);
   free(in32);
@@ -450,6 +461,9 @@ int main(void) {
   test_output_kernel(2, 0, 0, 1);
   test_output_kernel(1, 5, 1, 0);
   test_output_kernel(4, 64, 0, 0);
+  test_output_kernel(3, 32, 0, 0, 1);
+  test_output_kernel(3, 32, 1, 1, 1);
+  test_output_kernel(2, 0, 0, 0, 1);
   if (failures) {
     printf("%d check(s) failed\n", failures);
     return 1;

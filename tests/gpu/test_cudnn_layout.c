@@ -433,8 +433,25 @@ static void emulate_vs_cpu_ref(const hf_net_config *cfg, int dec_form, int batch
   assert_int_equal(hf_backend_create("cpu-ref", &b, why, sizeof why), HF_OK);
   hf_model *m;
   assert_int_equal(hf_model_create(b, w, &m), HF_OK);
-  hf_io io = {batch, width, height, in, HF_F32, want, HF_F32};
+  /* hf_model_run takes a frame with an estimate planar: each frame's
+   * samples, then its estimate (the emulation read them interleaved). */
+  float *planar = in;
+  if (cfg->estimate) {
+    const int ns = cfg->spp * HF_FEATURES_PER_SAMPLE, cin = cfg->in_channels;
+    const size_t fpx = (size_t)width * height;
+    assert_non_null(planar = malloc(npx * cin * sizeof(float)));
+    for (int n = 0; n < batch; n++)
+      for (size_t p = 0; p < fpx; p++) {
+        const float *src = in + ((size_t)n * fpx + p) * cin;
+        float *frame = planar + (size_t)n * fpx * cin;
+        memcpy(frame + p * ns, src, ns * sizeof(float));
+        memcpy(frame + fpx * ns + p * HF_ESTIMATE_CHANNELS, src + ns,
+               HF_ESTIMATE_CHANNELS * sizeof(float));
+      }
+  }
+  hf_io io = {batch, width, height, planar, HF_F32, want, HF_F32};
   assert_int_equal(hf_model_run(m, &io, NULL), HF_OK);
+  if (planar != in) free(planar);
   double num = 0, den = 0;
   for (size_t i = 0; i < npx * 3; i++) {
     assert_false(isnan(got[i]));

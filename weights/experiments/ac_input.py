@@ -15,9 +15,14 @@ then the corrections.
       # Kernel weights (default weights/kernel.safetensors) with zero weights
       # on the new inputs: the same U-Net, the estimate filtered by its kernel
   python3 weights/experiments/ac_input.py train ARGS...   # weights/train.py's
+  python3 weights/experiments/ac_input.py export IN.safetensors OUT.safetensors
+      # the KernelAC variant every backend runs (hfnet.variant_config
+      # "KernelAC": the estimate as 3 input channels after the samples, the
+      # slot's 3 always-zero inputs dropped): the same function
 
 Frames need the acst4.* channels (dataset.DatasetError otherwise). No
-backend runs these networks; eval_rows.py --stage ac scores them."""
+backend runs these networks as they are; eval_rows.py --stage ac scores them,
+and `export` makes them the KernelAC variant the backends run."""
 import os
 import sys
 
@@ -102,7 +107,34 @@ def start_from_kernel(cfg, state):
     return cfg, state
 
 
+def to_variant(cfg, state):
+    """Experiment weights (cfg with ac_input) as hfnet's KernelAC: enc0's and
+    the head's input columns of the slot's depth and tangents (inputs that
+    are always 0) dropped, so the input is the samples then the estimate's
+    colour, highlight, alpha (in_channels spp x 6 + 3)."""
+    if not cfg.get("ac_input"):
+        raise ValueError("not weights of this experiment (no 'ac_input' in the metadata)")
+    spp = cfg["spp"] - 1
+    keep = list(range(spp * NF + 3))
+    out = hfnet.variant_config("KernelAC")
+    for key in ("kernel_radius", "kernel_hidden", "levels", "out_channels"):
+        if cfg[key] != out[key]:
+            raise ValueError(f"{key} {cfg[key]} is not KernelAC's {out[key]}")
+    state = dict(state)
+    state["enc0.weight"] = state["enc0.weight"][:, keep].clone()
+    if "head.weight" in state:
+        hidden = cfg["kernel_hidden"]
+        cols = list(range(hidden)) + [hidden + k for k in keep]
+        state["head.weight"] = state["head.weight"][:, cols].clone()
+    return out, state
+
+
 def main(argv):
+    if len(argv) == 3 and argv[0] == "export":
+        cfg, state = to_variant(*hfnet.load_safetensors(argv[1]))
+        meta = {k: v for k, v in hfnet.load_metadata(argv[1]).items() if k != "hairfilter"}
+        hfnet.save_safetensors(argv[2], cfg, state, metadata=meta)
+        return 0
     if len(argv) < 2 or argv[0] not in ("init", "train"):
         sys.exit(__doc__)
     install()
