@@ -1,5 +1,5 @@
 /*
- * hfproto.c: encoders and decoders of protocol versions 1 and 2 (PROTOCOL.md).
+ * hfproto.c: encoders and decoders of protocol versions 1, 2 and 3 (PROTOCOL.md).
  *
  * Decoding goes through a bounds-checked reader: every get either succeeds
  * or latches an error, and callers check the latch once at the end. That
@@ -99,6 +99,14 @@ int hfp_features_bytes(uint32_t width, uint32_t height, uint32_t spp, int dtype,
 int hfp_output_bytes(uint32_t width, uint32_t height, uint32_t channels,
                      int dtype, uint64_t *out) {
   if (channels < 1 || channels > 4) return -HFP_E_INVALID;
+  return tensor_bytes(width, height, channels, dtype, out);
+}
+
+int hfp_filter_input_bytes(uint32_t width, uint32_t height, uint32_t spp, int dtype,
+                           unsigned flags, uint64_t *out) {
+  if (spp < 1 || spp > HFP_MAX_SPP) return -HFP_E_INVALID;
+  uint64_t channels = (uint64_t)spp * HFP_FEATURES +
+                      ((flags & HFP_FILTER_ESTIMATE) ? HFP_ESTIMATE_VALUES : 0);
   return tensor_bytes(width, height, channels, dtype, out);
 }
 
@@ -441,6 +449,7 @@ size_t hfp_frame_size_variants_v(const hfp_variant *v, int count, int version) {
          strnlen(v[i].backend, HFP_NAME_MAX + 1) +
          strnlen(v[i].precision, HFP_NAME_MAX + 1) + 4 + 4 * (size_t)v[i].num_levels;
     if (version >= 2) n += 1 + RANGE_BYTES * (size_t)v[i].num_ranges;
+    if (version >= 3) n += 1;
   }
   return n;
 }
@@ -473,6 +482,11 @@ int hfp_encode_variants_v(uint8_t *buf, size_t cap, const hfp_variant *v, int co
       wr_f64(&w, v[i].ranges[k].lo);
       wr_f64(&w, v[i].ranges[k].hi);
     }
+  }
+  /* Version 3: the estimate each variant reads, one byte per entry. */
+  for (int i = 0; version >= 3 && i < count && !w.err; i++) {
+    if (v[i].estimate > HFP_ESTIMATE_ALPHA_CORRECTED) w.err = -HFP_E_INVALID;
+    wr_u8(&w, v[i].estimate);
   }
   return wr_finish(&w, HFP_VARIANTS, 0, 0);
 }
@@ -518,6 +532,13 @@ int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,
     if (r.err) return r.err;
     if (!ranges_ok(e)) return -HFP_E_INVALID;
   }
+  /* Bytes after the ranges: version 3's estimates, one byte per entry. */
+  int v3 = v2 && r.off < r.len;
+  for (int i = 0; v3 && i < n; i++) {
+    v[i].estimate = rd_u8(&r);
+    if (r.err) return r.err;
+    if (v[i].estimate > HFP_ESTIMATE_ALPHA_CORRECTED) return -HFP_E_INVALID;
+  }
   int rc = rd_end(&r);
   if (rc) return rc;
   *count = n;
@@ -541,7 +562,7 @@ static int filter_fields(const hfp_filter *m, uint64_t *data_len) {
   if (!colors_finite(m->hair, 3) || !colors_finite(m->light, 3) ||
       !colors_finite(m->bg, 3))
     return -HFP_E_INVALID;
-  return hfp_features_bytes(m->width, m->height, m->spp, m->in_dtype, data_len);
+  return hfp_filter_input_bytes(m->width, m->height, m->spp, m->in_dtype, m->flags, data_len);
 }
 
 int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
@@ -924,7 +945,7 @@ int hfp_regions_overlap(uint64_t a, uint64_t an, uint64_t b, uint64_t bn) {
 
 int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
   uint64_t in_len, out_len, rgba_len = 0;
-  int rc = hfp_features_bytes(m->width, m->height, m->spp, m->in_dtype, &in_len);
+  int rc = hfp_filter_input_bytes(m->width, m->height, m->spp, m->in_dtype, m->flags, &in_len);
   if (!rc) rc = hfp_output_bytes(m->width, m->height, HFP_OUTPUTS, m->out_dtype, &out_len);
   if (!rc && (m->flags & HFP_FILTER_COMPOSITE))
     rc = hfp_output_bytes(m->width, m->height, 4, m->out_dtype, &rgba_len);

@@ -1,11 +1,14 @@
 /*
- * hfproto: the hairfilter wire protocol, versions 1 and 2 (see PROTOCOL.md,
- * which is normative; this header follows it). Version 2 is version 1 plus
- * the input-range report and the input-sanitised flag: RESULT flags
- * HFP_RESULT_INPUT_SANITISED and HFP_RESULT_OUT_OF_RANGE, each variant's
- * trained input range after VARIANTS, and per-variant counters after
- * STATS_REPLY, and the server's software version after HELLO_OK. A peer
- * that negotiated version 1 never sees them.
+ * hfproto: the hairfilter wire protocol, versions 1, 2 and 3 (see
+ * PROTOCOL.md, which is normative; this header follows it). Version 2 is
+ * version 1 plus the input-range report and the input-sanitised flag:
+ * RESULT flags HFP_RESULT_INPUT_SANITISED and HFP_RESULT_OUT_OF_RANGE, each
+ * variant's trained input range after VARIANTS, and per-variant counters
+ * after STATS_REPLY, and the server's software version after HELLO_OK. A
+ * peer that negotiated version 1 never sees them. Version 3 is version 2
+ * plus the alpha-corrected estimate: FILTER flag HFP_FILTER_ESTIMATE (the
+ * features are followed by the frame's estimate) and, after VARIANTS'
+ * ranges, the estimate each variant reads (hfp_variant.estimate).
  *
  * A pure codec: it turns message structs into bytes and bytes into structs.
  * It does no I/O and never allocates, so every length it reads from the wire
@@ -33,7 +36,7 @@ extern "C" {
 #endif
 
 #define HFP_MAGIC          0x31504648u  /* "HFP1" in byte order */
-#define HFP_VERSION        2            /* the newest version this codec speaks */
+#define HFP_VERSION        3            /* the newest version this codec speaks */
 #define HFP_VERSION_MIN    1            /* the oldest */
 #define HFP_HEADER_SIZE    16
 
@@ -46,6 +49,7 @@ extern "C" {
 #define HFP_MAX_SIDE       65535  /* width/height the codec accepts at all */
 #define HFP_FEATURES       6      /* features per sample */
 #define HFP_OUTPUTS        3      /* color, highlight, alpha */
+#define HFP_ESTIMATE_VALUES 3     /* the estimate's colour, highlight, alpha (v3) */
 #define HFP_HIST_BUCKETS   24     /* latency histogram buckets */
 #define HFP_MAX_STATS      16     /* input statistics a variant's range may name */
 #define HFP_STATS_COUNTERS 3      /* per-variant counters after STATS_REPLY (v2) */
@@ -97,7 +101,12 @@ enum { HFP_F32 = 0, HFP_F16 = 1 };
 /* FILTER flags. */
 #define HFP_FILTER_COMPOSITE 0x0001u  /* also return composited RGBA */
 #define HFP_FILTER_SHM       0x0002u  /* tensors in a shared segment, not the frame */
-#define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM)
+#define HFP_FILTER_ESTIMATE  0x0004u  /* version 3: the features are followed by the
+                                         frame's alpha-corrected estimate, W*H*3 values */
+#define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM | HFP_FILTER_ESTIMATE)
+
+/* What a variant reads besides the samples (VARIANTS, version 3). */
+enum { HFP_ESTIMATE_NONE = 0, HFP_ESTIMATE_ALPHA_CORRECTED = 1 };
 
 /* RESULT flags beyond the FILTER's (version 2 only). */
 #define HFP_RESULT_INPUT_SANITISED 0x04u  /* some samples were non-finite or out of
@@ -165,6 +174,10 @@ typedef struct hfp_variant {
     uint8_t stat;
     double lo, hi;
   } ranges[HFP_MAX_STATS];
+  /* Version 3: HFP_ESTIMATE_ALPHA_CORRECTED when the variant reads the
+   * alpha-corrected estimate (its FILTERs carry HFP_FILTER_ESTIMATE);
+   * HFP_ESTIMATE_NONE, and always on versions 1 and 2 (not on the wire). */
+  uint8_t estimate;
 } hfp_variant;
 
 typedef struct hfp_filter {
@@ -174,8 +187,10 @@ typedef struct hfp_filter {
   uint16_t spp;
   uint8_t in_dtype, out_dtype;
   float hair[3], light[3], bg[3];     /* linear RGB, used with COMPOSITE */
-  const void *data;                   /* [h][w][spp*6] of in_dtype */
-  uint64_t data_len;                  /* bytes of features, sent or in the segment */
+  const void *data;                   /* [h][w][spp*6] of in_dtype, then with
+                                         HFP_FILTER_ESTIMATE [h][w][3] */
+  uint64_t data_len;                  /* bytes of features (and estimate), sent or in
+                                         the segment: hfp_filter_input_bytes */
   /* With HFP_FILTER_SHM: where the tensors are in segment shm_segment. */
   uint32_t shm_segment;
   uint64_t shm_in, shm_out, shm_rgba;
@@ -252,6 +267,10 @@ int hfp_features_bytes(uint32_t width, uint32_t height, uint32_t spp, int dtype,
                        uint64_t *out);
 int hfp_output_bytes(uint32_t width, uint32_t height, uint32_t channels,
                      int dtype, uint64_t *out);
+/* Bytes of a FILTER's input tensor: the features, plus W*H*3 values of the
+ * estimate with HFP_FILTER_ESTIMATE in flags. */
+int hfp_filter_input_bytes(uint32_t width, uint32_t height, uint32_t spp, int dtype,
+                           unsigned flags, uint64_t *out);
 
 /* Encoders write header and payload to buf and return the frame size, or
  * HFP_E_NOSPACE when cap is too small, or HFP_E_INVALID for a field out of

@@ -462,6 +462,8 @@ static void reply_variants(hfd_conn *c) {
       v[i].ranges[v[i].num_ranges].lo = sv->range.lo[k];
       v[i].ranges[v[i].num_ranges++].hi = sv->range.hi[k];
     }
+    /* Sent to version-3 peers only (the codec leaves it out before). */
+    v[i].estimate = sv->cfg.estimate ? HFP_ESTIMATE_ALPHA_CORRECTED : HFP_ESTIMATE_NONE;
   }
   size_t need = hfp_frame_size_variants_v(v, n, c->version);
   uint8_t *frame = malloc(need);
@@ -616,6 +618,14 @@ static void filter_head(hfd_conn *c, size_t have) {
                       : "shared memory needs a Unix socket");
     return;
   }
+  /* Before version 3, bit 2 (ESTIMATE) is a flag no FILTER may set: an
+   * unknown flag, whatever the length says (PROTOCOL.md, "Version 3"). */
+  if ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_ESTIMATE) && c->version < 3) {
+    reject(c, v, HFP_E_UNSUPPORTED, left,
+           "FILTER flag ESTIMATE (bit 2) needs protocol version 3; this connection speaks %d",
+           c->version);
+    return;
+  }
   if (rc) {
     reject(c, v, -rc, left, "malformed FILTER: %s", hfp_strerror(rc));
     return;
@@ -628,6 +638,15 @@ static void filter_head(hfd_conn *c, size_t have) {
   } else if (f.spp != s->variants[v].model->cfg.spp) {
     reject(c, v, HFP_E_INVALID, left, "variant %s takes %d spp, request has %u", f.variant,
            s->variants[v].model->cfg.spp, f.spp);
+  } else if (s->variants[v].model->cfg.estimate && !(f.flags & HFP_FILTER_ESTIMATE)) {
+    reject(c, v, HFP_E_INVALID, left,
+           "variant %s reads stochastic transparency's alpha-corrected estimate: set FILTER "
+           "flag ESTIMATE and send the estimate after the features (protocol version 3%s)",
+           f.variant, c->version < 3 ? "; this connection speaks an older one" : "");
+  } else if (!s->variants[v].model->cfg.estimate && (f.flags & HFP_FILTER_ESTIMATE)) {
+    reject(c, v, HFP_E_INVALID, left,
+           "variant %s reads no estimate: clear FILTER flag ESTIMATE and send the features "
+           "alone", f.variant);
   } else if (f.width > (uint32_t)s->max_width || f.height > (uint32_t)s->max_height) {
     reject(c, v, HFP_E_TOO_LARGE, left, "%ux%u is over the limit of %dx%d", f.width, f.height,
            s->max_width, s->max_height);

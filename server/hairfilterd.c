@@ -585,17 +585,17 @@ int main(int argc, char **argv) {
              cfg.max_inflight, s->max_width, s->max_height,
              (unsigned long long)(cfg.max_memory_bytes >> 20));
   /* Receive buffers for the --warm shapes (float32 frames of the most
-   * samples any variant takes), faulted in before the first frame, within
-   * the memory kept between runs (recv_pool.c). */
-  int spp = 0;
+   * values per pixel any variant takes, an estimate included), faulted in
+   * before the first frame, within the memory kept between runs
+   * (recv_pool.c). */
+  int channels = 0;
   for (int i = 0; i < s->num_variants; i++)
-    if (s->variants[i].model && s->variants[i].model->cfg.spp > spp)
-      spp = s->variants[i].model->cfg.spp;
+    if (s->variants[i].model && s->variants[i].model->cfg.in_channels > channels)
+      channels = s->variants[i].model->cfg.in_channels;
   uint64_t plans = atomic_load(&w->cached_bytes);
   uint64_t room = plans < w->cache_cap ? w->cache_cap - plans : 0;
   for (int i = 0; i < cfg.num_warm; i++) {
-    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * spp *
-                   HF_FEATURES_PER_SAMPLE * sizeof(float);
+    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * channels * sizeof(float);
     if (hfd_rpool_prefault(&s->rpool, bytes, room))
       hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",
               cfg.warm[i].width, cfg.warm[i].height);

@@ -35,9 +35,10 @@ static int frame_fits(const hfd_server *s, uint32_t w, uint32_t h, char *why, si
   for (int v = 0; v < s->num_variants; v++) {
     const hfd_model *var = s->variants[v].model;
     if (!var) continue;  /* removed */
-    hfp_filter f = {.flags = HFP_FILTER_COMPOSITE, .width = w, .height = h,
-                    .spp = (uint16_t)var->cfg.spp, .in_dtype = HFP_F32, .out_dtype = HFP_F32};
-    if (hfp_features_bytes(w, h, f.spp, HFP_F32, &f.data_len)) return 0;
+    hfp_filter f = {.flags = HFP_FILTER_COMPOSITE | (var->cfg.estimate ? HFP_FILTER_ESTIMATE : 0),
+                    .width = w, .height = h, .spp = (uint16_t)var->cfg.spp,
+                    .in_dtype = HFP_F32, .out_dtype = HFP_F32};
+    if (hfp_filter_input_bytes(w, h, f.spp, HFP_F32, f.flags, &f.data_len)) return 0;
     uint64_t payload = HFP_FILTER_FIXED + strlen(var->name) + f.data_len;
     if (payload > s->cfg->max_frame_bytes) {
       snprintf(why, whylen, "a %s frame of %ux%u is %.1f MiB, over --max-frame-mb %llu",

@@ -244,8 +244,9 @@ static void log_variant(const hfd_server *s, const char *what, const hfd_model *
     snprintf(levels + used, sizeof levels - used, "%s%d", l ? "," : "", m->cfg.levels[l]);
   }
   hfd_kv(kv, sizeof kv, "file", m->path);
-  hfd_log("variant %s: %s%d spp, levels %s, %s on %s%s", m->name, what, m->cfg.spp, levels,
-          m->precision, hf_backend_name(s->worker.backend), kv);
+  hfd_log("variant %s: %s%d spp%s, levels %s, %s on %s%s", m->name, what, m->cfg.spp,
+          m->cfg.estimate ? " and the alpha-corrected estimate (protocol version 3)" : "",
+          levels, m->precision, hf_backend_name(s->worker.backend), kv);
 }
 
 /* Applies loads that are all back (loads[i] for ws[i], some NULL: kept as

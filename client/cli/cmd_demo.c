@@ -111,7 +111,9 @@ static int filter_via_daemon(const demo_opts *o, const hf_net_config *cfg, const
       r.height = o->height;
       r.spp = cfg->spp;
       r.features = in;
-      r.features_bytes = hfc_features_bytes(o->width, o->height, cfg->spp, HFC_F32);
+      r.estimate = cfg->estimate != HF_ESTIMATE_NONE;
+      r.features_bytes = hfc_features_bytes(o->width, o->height, cfg->spp, HFC_F32) +
+                         (r.estimate ? hfc_estimate_bytes(o->width, o->height, HFC_F32) : 0);
       r.result = out;
       r.result_bytes = hfc_output_bytes(o->width, o->height, 3, HFC_F32);
       hfc_timing t;
@@ -221,6 +223,9 @@ int cmd_demo(int argc, char **argv) {
   f.style.seed = o.seed;
   f.outputs.spp = w->cfg.spp;
   f.outputs.background_layer = 1; /* the head under the hair, not a hole */
+  /* A variant that reads stochastic transparency's alpha-corrected estimate
+   * gets it rendered too (one more draw of the hair). */
+  f.outputs.alpha_corrected = w->cfg.estimate != HF_ESTIMATE_NONE;
   hf_image img = {0};
   hfr_stats st;
   int rc = 1;
@@ -237,6 +242,9 @@ int cmd_demo(int argc, char **argv) {
   for (int p = 0; p < 3; p++) panels[p] = malloc(npx * 3 * sizeof(float));
   if (!in || !out || !panels[0] || !panels[1] || !panels[2]) goto done;
   if (hf_features_from_image(&img, w->cfg.spp, in) < 0) goto done;
+  if (w->cfg.estimate &&
+      hf_estimate_from_data(&img, img.data, HF_F32, in + npx * w->cfg.spp * HF_FEATURES_PER_SAMPLE))
+    goto done;
 
   if ((o.in_process ? filter_in_process(&o, w, in, out) : filter_via_daemon(&o, &w->cfg, in, out)))
     goto done;
@@ -244,7 +252,8 @@ int cmd_demo(int argc, char **argv) {
   /* Input panel: what stochastic transparency alone shows at this spp. */
   float *est = malloc(npx * 3 * sizeof(float));
   if (!est) goto done;
-  for (size_t p = 0; p < npx; p++) hf_st_estimate(in + p * w->cfg.in_channels, w->cfg.spp, est + p * 3);
+  for (size_t p = 0; p < npx; p++)
+    hf_st_estimate(in + p * w->cfg.spp * HF_FEATURES_PER_SAMPLE, w->cfg.spp, est + p * 3);
   hfr_composite_result(est, o.width, o.height, &img, f.view.hair_color, f.view.light_color,
                        f.view.background, panels[0]);
   free(est);

@@ -242,8 +242,10 @@ int cmd_filter(int argc, char **argv) {
   /* With --f16 a HALF file goes to the server as stored: no conversion. */
   struct timespec t0, t1;
   clock_gettime(CLOCK_MONOTONIC, &t0);
-  if (cli_read_features(in_path, part, v->spp, HF_ESTIMATE_NONE, v->name, f16 ? HF_F16 : HF_F32, &feat, &in,
-                        &layer) != 0)
+  /* A variant that reads the estimate gets it after the samples. */
+  const int estimate = v->estimate ? HF_ESTIMATE_ALPHA_CORRECTED : HF_ESTIMATE_NONE;
+  if (cli_read_features(in_path, part, v->spp, estimate, v->name, f16 ? HF_F16 : HF_F32, &feat,
+                        &in, &layer) != 0)
     goto out;
   /* A frame with a background layer is composited here over it (the
    * server's composite knows only a flat background); else by the server. */
@@ -251,7 +253,7 @@ int cmd_filter(int argc, char **argv) {
   clock_gettime(CLOCK_MONOTONIC, &t1);
   double read_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) / 1e6;
   size_t npx = (size_t)feat.width * feat.height;
-  size_t nin = npx * (size_t)v->spp * HF_FEATURES_PER_SAMPLE;
+  size_t nin = npx * (size_t)hf_net_in_channels(v->spp, estimate);
   out = malloc(npx * 3 * sizeof(float));
   const int remote = png && !local;
   rgba = remote ? malloc(npx * 4 * sizeof(float)) : NULL;
@@ -273,6 +275,7 @@ int cmd_filter(int argc, char **argv) {
   const size_t es = f16 ? sizeof(uint16_t) : sizeof(float);
   r.features = in;
   r.features_bytes = nin * es;
+  r.estimate = estimate != HF_ESTIMATE_NONE;
   r.result = f16 ? out16 : out;
   r.result_bytes = npx * 3 * es;
   r.rgba = f16 ? rgba16 : rgba;
@@ -316,7 +319,13 @@ int cmd_filter(int argc, char **argv) {
   if (t.input_sanitised) {
     /* The server says that it sanitised; the same check here says where. */
     hf_input_report rep;
-    hf_features_check(in, f16 ? HF_F16 : HF_F32, feat.width, feat.height, v->spp, &rep);
+    void *scratch = estimate ? malloc(nin * es) : NULL;
+    if (scratch)  /* the estimate's values too, as the server checked them */
+      hf_features_interleave(in, f16 ? HF_F16 : HF_F32, feat.width, feat.height, v->spp, scratch,
+                             &rep, NULL);
+    else
+      hf_features_check(in, f16 ? HF_F16 : HF_F32, feat.width, feat.height, v->spp, &rep);
+    free(scratch);
     cli_warn_sanitised(in_path, &feat, &rep);
   }
   printf("%s %dx%d via %s (%s, %s, batch %d)\n", v->name, feat.width, feat.height, server,

@@ -69,7 +69,8 @@ typedef struct pending {
   uint8_t in_dtype, out_dtype;
   float hair[3], light[3], bg[3];
   const void *features;
-  uint64_t features_len;
+  uint64_t features_len;        /* the estimate's bytes included */
+  int estimate;                 /* hfc_request.estimate */
   void *result, *rgba;
   int shm;                      /* the last send went by reference */
   int in_place;                 /* result or rgba overlaps the features: a

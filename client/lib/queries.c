@@ -43,6 +43,7 @@ int hfci_list(hfc_client *c, hfc_variant *out, int max, int *count) {
       out[i].range_lo[stat] = v[i].ranges[k].lo;
       out[i].range_hi[stat] = v[i].ranges[k].hi;
     }
+    out[i].estimate = v[i].estimate == HFP_ESTIMATE_ALPHA_CORRECTED;
   }
   free(v);
   return 0;

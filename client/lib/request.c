@@ -30,6 +30,10 @@ size_t hfc_features_bytes(int width, int height, int spp, hfc_dtype dtype) {
   return (size_t)n;
 }
 
+size_t hfc_estimate_bytes(int width, int height, hfc_dtype dtype) {
+  return hfc_output_bytes(width, height, HFP_ESTIMATE_VALUES, dtype);
+}
+
 size_t hfc_output_bytes(int width, int height, int channels, hfc_dtype dtype) {
   uint64_t n;
   if (width < 1 || height < 1 ||
@@ -67,14 +71,19 @@ static int check_request(hfc_client *c, const hfc_request *r) {
     return hfci_arg(c, "hfc_request.in_dtype is %d: want HFC_F32 or HFC_F16", (int)r->in_dtype);
   if (r->out_dtype != HFC_F32 && r->out_dtype != HFC_F16)
     return hfci_arg(c, "hfc_request.out_dtype is %d: want HFC_F32 or HFC_F16", (int)r->out_dtype);
+  if (r->estimate != 0 && r->estimate != 1)
+    return hfci_arg(c, "hfc_request.estimate is %d: want 0, or 1 when the features are "
+                       "followed by the frame's alpha-corrected estimate", r->estimate);
   size_t in = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
+  size_t est = r->estimate ? hfc_estimate_bytes(r->width, r->height, r->in_dtype) : 0;
   size_t out = hfc_output_bytes(r->width, r->height, 3, r->out_dtype);
   size_t rgba = hfc_output_bytes(r->width, r->height, 4, r->out_dtype);
   if (!r->features) return hfci_arg(c, "hfc_request.features is NULL");
-  if (r->features_bytes < in)
+  if (r->features_bytes < in + est)
     return hfci_arg(c, "hfc_request.features_bytes is %zu: a %dx%d frame of %d spp in %s needs "
-                       "%zu ([height][width][spp*6])", r->features_bytes, r->width, r->height,
-                    r->spp, dtype_name(r->in_dtype), in);
+                       "%zu ([height][width][spp*6]%s)", r->features_bytes, r->width, r->height,
+                    r->spp, dtype_name(r->in_dtype), in + est,
+                    r->estimate ? ", then the estimate, [height][width][3]" : "");
   if (!r->result) return hfci_arg(c, "hfc_request.result is NULL");
   if (r->result_bytes < out)
     return hfci_arg(c, "hfc_request.result_bytes is %zu: a %dx%d result in %s needs %zu "
@@ -178,7 +187,7 @@ static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
   hfp_filter f;
   memset(&f, 0, sizeof f);
   strcpy(f.variant, p->variant);
-  f.flags = p->rgba ? HFP_FILTER_COMPOSITE : 0;
+  f.flags = (p->rgba ? HFP_FILTER_COMPOSITE : 0) | (p->estimate ? HFP_FILTER_ESTIMATE : 0);
   f.width = p->width;
   f.height = p->height;
   f.spp = p->spp;
@@ -259,6 +268,12 @@ static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) 
   if ((rc = resolve_variant(c, r->variant, variant))) return rc;
   if ((k = hfci_need_conn(c)) < 0) return k;
   const conn *x = &c->conns[c->active];
+  if (r->estimate && x->info.version < 3) {
+    hfci_msg(c, "hfc_request.estimate is 1, but %s speaks protocol version %d: the estimate "
+                "needs version 3 (a newer hairfilterd)", c->eps[x->endpoint].url,
+             x->info.version);
+    return HFC_E_ARG;
+  }
   if (c->npending >= x->info.max_inflight) {
     hfci_msg(c, "%d requests pending, as many as %s allows on a connection: collect some "
                 "with hfc_wait", c->npending, c->eps[x->endpoint].url);
@@ -285,7 +300,9 @@ static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) 
   memcpy(p->light, r->light, sizeof p->light);
   memcpy(p->bg, r->background, sizeof p->bg);
   p->features = r->features;
-  p->features_len = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
+  p->estimate = r->estimate;
+  p->features_len = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype) +
+                    (r->estimate ? hfc_estimate_bytes(r->width, r->height, r->in_dtype) : 0);
   p->result = r->result;
   p->rgba = r->rgba;
   p->in_place = overlaps_features(p);

@@ -333,7 +333,7 @@ static void test_versions(void **state) {
                                                             HAIRFILTER_VERSION_PATCH));
   hfc_client *c = client_connect(&S, "versions");
   assert_non_null(c);
-  assert_int_equal(hfc_info(c)->version, 2);
+  assert_int_equal(hfc_info(c)->version, HFP_VERSION);
   assert_string_equal(hfc_info(c)->software_version, HAIRFILTER_VERSION_STRING);
   assert_string_equal(hfc_endpoint(c), S.unix_url);
   hfc_close(c);

@@ -151,7 +151,7 @@ static int hello_info(cf_test *t, intptr_t flags) {
 }
 
 enum {
-  HO_VERSION_3, HO_VERSION_0, HO_INFLIGHT_0, HO_SPP_0, HO_SPP_17, HO_DTYPES_0, HO_DTYPES_4,
+  HO_VERSION_OVER, HO_VERSION_0, HO_INFLIGHT_0, HO_SPP_0, HO_SPP_17, HO_DTYPES_0, HO_DTYPES_4,
   HO_WIDTH_0, HO_HEIGHT_65536, HO_BATCH_0, HO_NAME_0, HO_NAME_SPACE, HO_TRAILING, HO_MISSING,
   HO_ID, HO_FLAGS, HO_MAGIC, HO_WRONG_TYPE, HO_REQUEST_TYPE, HO_TYPE_13,
 };
@@ -172,7 +172,7 @@ static int bad_hello_ok_script(mock *m) {
   int n = hfp_encode_hello_ok(b, sizeof b, &ok);
   uint8_t *q = b + HFP_HEADER_SIZE;
   switch (m->arg) {
-    case HO_VERSION_3: hfp_put_u16(q, 3); break;
+    case HO_VERSION_OVER: hfp_put_u16(q, HFP_VERSION + 1); break;
     case HO_VERSION_0: hfp_put_u16(q, 0); break;
     case HO_INFLIGHT_0: hfp_put_u16(q + 14, 0); break;
     case HO_SPP_0: hfp_put_u16(q + 12, 0); break;
@@ -899,9 +899,10 @@ static int variants(cf_test *t, intptr_t version) {
   m.ok.version = (uint16_t)version;
   CASE_BEGIN(t, &m, c, 0);
   hfc_variant v[4];
-  int n = 0, rc = hfc_list_variants(c, v, 1, &n), res = 0;
+  const int room = version >= 3 ? 2 : 1;
+  int n = 0, rc = hfc_list_variants(c, v, room, &n), res = 0;
   if (rc) res = cf_fail(t, "hfc_list_variants: %s", hfc_strerror(rc));
-  else if (n != 2) res = cf_fail(t, "%d variants, the mock has 2 (with room for 1)", n);
+  else if (n != 2) res = cf_fail(t, "%d variants, the mock has 2 (with room for %d)", n, room);
   else if (strcmp(v[0].name, MK_VARIANT) || v[0].spp != MK_SPP || v[0].num_levels != 2 || v[0].levels[1] != 16)
     res = cf_fail(t, "the first variant is not the mock's");
   else if (version == 1 && v[0].range_mask)
@@ -910,6 +911,11 @@ static int variants(cf_test *t, intptr_t version) {
                             v[0].range_hi[4] != 2048))
     res = cf_fail(t, "the version-2 ranges read as mask 0x%x, [%g, %g]", v[0].range_mask,
                   v[0].range_lo[0], v[0].range_hi[4]);
+  else if (v[0].estimate)
+    res = cf_fail(t, "variant %s reads no estimate, yet hfc_variant.estimate is 1", v[0].name);
+  else if (version >= 3 && !v[1].estimate)
+    res = cf_fail(t, "a version-3 VARIANTS said variant %s reads the estimate; "
+                     "hfc_variant.estimate is 0", v[1].name);
   return finish(t, &m, c, res);
 }
 
@@ -1180,10 +1186,10 @@ static int shm_not_offered(cf_test *t, intptr_t arg) {
 #define RB(how, name, rule) {"client.bad_result." name, rule, 0, bad_result, how}
 
 const cf_case cf_cases_client[] = {
-  {"client.hello.offer", "the client offers versions 1..2, its name and its token", 0, hello_offer, 0},
+  {"client.hello.offer", "the client offers versions 1..3, its name and its token", 0, hello_offer, 0},
   {"client.hello.info_v1", "hfc_info reports HELLO_OK's fields (a version-1 server)", 0, hello_info, 0},
   {"client.hello.info_flags", "server_flags bit 0 and 1 reach hfc_info", 0, hello_info, 3},
-  HO(HO_VERSION_3, "version_not_offered", "HELLO_OK with a version not offered: VERSION"),
+  HO(HO_VERSION_OVER, "version_not_offered", "HELLO_OK with a version not offered: VERSION"),
   HO(HO_VERSION_0, "version_zero", "HELLO_OK with version 0: VERSION"),
   HO(HO_INFLIGHT_0, "max_inflight_zero", "HELLO_OK max_inflight must be >= 1: PROTOCOL"),
   HO(HO_SPP_0, "max_spp_zero", "HELLO_OK max_spp is 1..16: PROTOCOL"),
@@ -1264,6 +1270,7 @@ const cf_case cf_cases_client[] = {
   {"client.server_closes", "a pending request fails CLOSED when the server closes; polling does not fail it", 0, server_closes, 0},
   {"client.variants.v1", "a version-1 VARIANTS: no ranges", 0, variants, 1},
   {"client.variants.v2", "a version-2 VARIANTS: each variant's ranges", 0, variants, 2},
+  {"client.variants.v3", "a version-3 VARIANTS: the estimate each variant reads", 0, variants, 3},
   {"client.variants.unknown_statistic", "a range of a statistic the library does not know is skipped", 0, unknown_stat, 0},
   {"client.variants.error", "LIST_VARIANTS answered by a non-fatal ERROR: that call fails, the connection goes on", 0, control_error, 0},
   {"client.stats.v1", "a version-1 STATS_REPLY: the extra counters are 0", 0, stats, SV_V1},

@@ -199,7 +199,7 @@ static int same_values(cf_test *t, intptr_t n) {
 
 enum {
   F_WIDTH0, F_HEIGHT0, F_WIDTH_65536, F_HEIGHT_65536, F_WIDTH_U32, F_WIDTH_OVER, F_HEIGHT_OVER,
-  F_SPP0, F_SPP17, F_SPP_PLUS, F_SPP_MINUS, F_IN2, F_IN255, F_OUT2, F_OUT255, F_FLAG4,
+  F_SPP0, F_SPP17, F_SPP_PLUS, F_SPP_MINUS, F_IN2, F_IN255, F_OUT2, F_OUT255, F_FLAG8,
   F_FLAG8000, F_HAIR_NAN, F_HAIR_INF, F_HAIR_NINF, F_LIGHT_NAN, F_LIGHT_INF, F_LIGHT_NINF,
   F_BG_NAN, F_BG_INF, F_BG_NINF, F_UNKNOWN, F_CASE, F_VLEN0, F_VLEN65, F_VLEN_PAST,
   F_SHORT, F_LONG, F_FIXED_ONLY, F_BELOW_FIXED, F_EMPTY, F_OVERFLOW32, F_SHM_SHORT,
@@ -255,7 +255,8 @@ static int bad_field(cf_test *t, intptr_t which) {
     case F_IN255: b[CF_FILTER_IN_DTYPE] = 255; codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     case F_OUT2: b[CF_FILTER_OUT_DTYPE] = 2; codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     case F_OUT255: b[CF_FILTER_OUT_DTYPE] = 255; codes = CF_CODE(HFP_E_UNSUPPORTED); break;
-    case F_FLAG4: hfp_put_u16(b + CF_FILTER_FLAGS, 4); codes = CF_CODE(HFP_E_UNSUPPORTED); break;
+    /* Bit 3: unknown in every version (bit 2 is version 3's ESTIMATE). */
+    case F_FLAG8: hfp_put_u16(b + CF_FILTER_FLAGS, 8); codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     case F_FLAG8000: hfp_put_u16(b + CF_FILTER_FLAGS, 0x8000); codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     case F_HAIR_NAN: memcpy(b + CF_FILTER_HAIR, &nan, 4); break;
     case F_HAIR_INF: memcpy(b + CF_FILTER_HAIR + 4, &inf, 4); break;
@@ -366,6 +367,61 @@ static int bad_field(cf_test *t, intptr_t which) {
   cf_filter ok = {.id = f.id + 1000};
   cf_filter_defaults(t, &ok);
   return cf_filter_ok(t, fd, &ok, s->version, NULL, NULL);
+}
+
+/* ---- the alpha-corrected estimate (version 3) --------------------------------- */
+
+enum { EST_V2_FLAG, EST_UNNEEDED, EST_SHORT, EST_MISSING, EST_SERVED };
+
+/* The first variant VARIANTS says reads the estimate, or -1. */
+static int estimate_variant(const cf_server *s) {
+  for (int i = 0; i < s->nv; i++)
+    if (s->variants[i].estimate) return i;
+  return -1;
+}
+
+/* FILTER flag ESTIMATE: unknown before version 3 (UNSUPPORTED, whatever
+ * the length); in version 3 refused for a variant that reads no estimate
+ * (INVALID) and required by one that does (INVALID without it); a tensor
+ * without the estimate it announces is LENGTH; with it, the frame is
+ * served. Each refusal is non-fatal and the connection goes on. */
+static int estimate(cf_test *t, intptr_t which) {
+  const cf_server *s = t->srv;
+  if (which != EST_V2_FLAG && s->version < 3)
+    return cf_skip(t, "the server speaks version %d, without the estimate", s->version);
+  if (s->variants[s->probe].estimate && which != EST_MISSING && which != EST_SERVED)
+    return cf_skip(t, "the probe variant reads the estimate");
+  int ev = estimate_variant(s);
+  if ((which == EST_MISSING || which == EST_SERVED) && ev < 0)
+    return cf_skip(t, "no variant reads the estimate");
+  int fd, version = which == EST_V2_FLAG ? 2 : s->version;
+  if (which == EST_V2_FLAG) {
+    if (s->version < 2) return cf_skip(t, "the server speaks version 1");
+    CF_TRY(cf_connect_hello(t, 1, 2, &fd, NULL));
+  } else {
+    CF_TRY(connect_v(t, &fd));
+  }
+  cf_filter f = {.id = 1700 + (uint32_t)which};
+  if (which == EST_MISSING || which == EST_SERVED) f.variant = s->variants[ev].name;
+  cf_filter_defaults(t, &f);
+  if (which == EST_SERVED) return cf_filter_ok(t, fd, &f, version, NULL, NULL);
+  /* The tensor as the flags before the change say: with the estimate only
+   * for EST_UNNEEDED. */
+  int code = HFP_E_INVALID;
+  if (which == EST_UNNEEDED) f.flags |= HFP_FILTER_ESTIMATE;
+  if (which == EST_MISSING) f.flags &= (uint16_t)~HFP_FILTER_ESTIMATE;
+  size_t n;
+  uint8_t *b = cf_filter_frame(t, &f, &n);
+  CF_CHECK(t, b, "out of memory");
+  if (which == EST_V2_FLAG || which == EST_SHORT) {
+    hfp_put_u16(b + CF_FILTER_FLAGS, f.flags | HFP_FILTER_ESTIMATE);
+    code = which == EST_V2_FLAG ? HFP_E_UNSUPPORTED : HFP_E_LENGTH;
+  }
+  CF_TRY(cf_send(t, fd, b, n));
+  CF_TRY(cf_expect_error(t, fd, code, 0, f.id));
+  cf_filter ok = {.id = f.id + 1000};
+  cf_filter_defaults(t, &ok);
+  return cf_filter_ok(t, fd, &ok, version, NULL, NULL);
 }
 
 /* A refusal may come before the tensor; the rest is read and dropped, and
@@ -652,7 +708,7 @@ const cf_case cf_cases_filter[] = {
   BF(F_OUT255, "out_dtype_255", "an unknown out_dtype is a non-fatal UNSUPPORTED"),
   BF(F_F16_WITH_F32_TENSOR, "f16_with_f32_tensor", "in_dtype f16 with a tensor of f32's size: LENGTH"),
   BF(F_DTYPE_UNOFFERED, "dtype_not_offered", "a dtype HELLO_OK does not offer is UNSUPPORTED"),
-  BF(F_FLAG4, "flags_bit2", "unknown FILTER flags are a non-fatal UNSUPPORTED"),
+  BF(F_FLAG8, "flags_bit3", "unknown FILTER flags are a non-fatal UNSUPPORTED"),
   BF(F_FLAG8000, "flags_bit15", "unknown FILTER flags are a non-fatal UNSUPPORTED"),
   BF(F_HAIR_NAN, "hair_nan", "colours must be finite even without COMPOSITE: INVALID"),
   BF(F_HAIR_INF, "hair_inf", "colours must be finite: INVALID"),
@@ -676,6 +732,11 @@ const cf_case cf_cases_filter[] = {
   BF(F_OVERFLOW32, "length_overflow_32", "dimensions whose tensor overflows 32 bits are never admitted"),
   BF(F_SHM_SHORT, "shm_reference_short", "with SHM, a reference cut short is LENGTH (UNSUPPORTED where SHM is not offered)"),
   BF(F_SHM_LONG, "shm_reference_long", "with SHM, bytes after the reference are LENGTH (UNSUPPORTED where SHM is not offered)"),
+  {"filter.estimate.v2_flag", "before version 3, FILTER flag bit 2 is unknown: a non-fatal UNSUPPORTED", 0, estimate, EST_V2_FLAG},
+  {"filter.estimate.unneeded", "ESTIMATE to a variant that reads no estimate is a non-fatal INVALID", 0, estimate, EST_UNNEEDED},
+  {"filter.estimate.short", "ESTIMATE with a tensor that lacks the estimate is a non-fatal LENGTH", 0, estimate, EST_SHORT},
+  {"filter.estimate.missing", "a variant that reads the estimate refuses a FILTER without ESTIMATE: INVALID", 0, estimate, EST_MISSING},
+  {"filter.estimate.served", "a variant that reads the estimate filters a frame with it", 0, estimate, EST_SERVED},
   {"filter.early_refusal", "a refusal may come before the tensor; the rest is dropped, the next frame served", 0, early_refusal, 0},
   {"filter.refused_then_valid", "a refused FILTER and a valid one in one write: ERROR then RESULT", 0, refused_then_valid, 0},
   {"filter.duplicate_id", "a reused id is not checked: each FILTER gets exactly one reply", 0, duplicate_id, 0},

@@ -412,7 +412,7 @@ static int out_of_range(cf_test *t, intptr_t version) {
   int vi = -1, plain = -1;
   float a = 0;
   for (int i = 0; i < s->nv; i++) {
-    if (!s->variants[i].num_ranges && plain < 0) plain = i;
+    if (!s->variants[i].num_ranges && !s->variants[i].estimate && plain < 0) plain = i;
     if (vi < 0 && (a = outside_alpha(&s->variants[i])) > 0) vi = i;
   }
   if (vi < 0 && version == 2)

@@ -32,6 +32,11 @@ void cf_filter_defaults(const cf_test *t, cf_filter *f) {
     for (int i = 0; i < s->nv; i++)
       if (!strcmp(s->variants[i].name, f->variant)) f->spp = s->variants[i].spp;
   }
+  /* A variant that reads the estimate (version 3) gets it after the
+   * features. */
+  for (int i = 0; i < s->nv; i++)
+    if (!strcmp(s->variants[i].name, f->variant) && s->variants[i].estimate)
+      f->flags |= HFP_FILTER_ESTIMATE;
   static const float hair[3] = {0.55f, 0.35f, 0.2f}, light[3] = {1.0f, 0.95f, 0.9f},
                      bg[3] = {0.1f, 0.15f, 0.25f};
   if (!f->hair[0] && !f->hair[1] && !f->hair[2]) memcpy(f->hair, hair, sizeof hair);
@@ -41,7 +46,8 @@ void cf_filter_defaults(const cf_test *t, cf_filter *f) {
 
 uint64_t cf_features_bytes(const cf_filter *f) {
   uint64_t n = 0;
-  if (hfp_features_bytes(f->width, f->height, (uint32_t)f->spp, f->in_dtype, &n)) return 0;
+  if (hfp_filter_input_bytes(f->width, f->height, (uint32_t)f->spp, f->in_dtype, f->flags, &n))
+    return 0;
   return n;
 }
 
@@ -89,6 +95,27 @@ void cf_fill_features(const cf_filter *f, void *dst) {
       } else {
         memcpy(d, &s[k], sizeof s[k]);
         d += sizeof s[k];
+      }
+    }
+  }
+  /* With ESTIMATE, the estimate follows (FEATURES.md, "The alpha-corrected
+   * estimate"): colour, highlight, alpha of each pixel, a sixth without
+   * hair (all 0). */
+  uint64_t pixels = (uint64_t)f->width * f->height;
+  for (uint64_t p = 0; (f->flags & HFP_FILTER_ESTIMATE) && p < pixels; p++) {
+    float s[6];
+    sample(f, p, &x, s);
+    float e[3] = {s[0], s[1], s[2]};
+    if (p % 6 == 1) e[0] = e[1] = e[2] = 0;
+    else if (e[2] <= 0) e[2] = 0.5f;
+    for (int k = 0; k < 3; k++) {
+      if (f->in_dtype == HFP_F16) {
+        uint16_t h = hf_f32_to_f16(e[k]);
+        memcpy(d, &h, sizeof h);
+        d += sizeof h;
+      } else {
+        memcpy(d, &e[k], sizeof e[k]);
+        d += sizeof e[k];
       }
     }
   }
@@ -307,6 +334,7 @@ hfc_request cf_client_request(const cf_filter *f, const void *in, void *out, siz
   r.in_dtype = r.out_dtype = HFC_F32;
   r.features = in;
   r.features_bytes = (size_t)cf_features_bytes(f);
+  r.estimate = (f->flags & HFP_FILTER_ESTIMATE) != 0;
   r.result = out;
   r.result_bytes = out_bytes;
   return r;

@@ -222,6 +222,7 @@ uint8_t *mk_variants(mock *m, int version, size_t *n) {
   v[0].ranges[1].stat = 4;
   v[0].ranges[1].lo = 16;
   v[0].ranges[1].hi = 2048;
+  v[1].estimate = HFP_ESTIMATE_ALPHA_CORRECTED;   /* said from version 3 on */
   size_t need = hfp_frame_size_variants_v(v, 2, version);
   uint8_t *b = malloc(need);
   int k = b ? hfp_encode_variants_v(b, need, v, 2, version) : -1;

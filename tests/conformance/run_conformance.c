@@ -1,6 +1,7 @@
 /* ctest driver of the conformance suite: a fresh hairfilterd (the server
  * tests' harness: random weights on cpu-ref, plus a variant whose weights
- * record a trained range), with deadlines short enough for the stall cases
+ * record a trained range and one that reads the alpha-corrected estimate),
+ * with deadlines short enough for the stall cases
  * to see them, and `hairfilter conformance` run against its Unix socket or
  * its TCP listener (with the token), or its TLS listener (with the token,
  * certificates made by test_certs.c). Passes when the command exits 0 with
@@ -38,14 +39,15 @@ int main(int argc, char **argv) {
   int min_passed = noshm ? MIN_PASSED_NOSHM : MIN_PASSED;
   harness h;
   server s;
-  char narrow[320];
+  char narrow[320], estimate[320];
   /* "Narrow" records a trained range (median strand alpha 0.2..0.3), so
    * the out-of-range cases have a range to leave. */
   if (harness_init(&h) ||
       harness_narrow_weights(&h,
                              "{\"definition\": 1, \"spp\": 4, \"frames\": 20, "
                              "\"strand_alpha_p50\": [0.2, 0.3]}",
-                             narrow, sizeof narrow)) {
+                             narrow, sizeof narrow) ||
+      harness_estimate_weights(&h, estimate, sizeof estimate)) {
     fprintf(stderr, "run_conformance: cannot make the weights\n");
     return 1;
   }
@@ -63,11 +65,13 @@ int main(int argc, char **argv) {
    * a sanitizer on a loaded 2-core machine took over 500 ms; the stall
    * cases stay silent longer than the deadlines either way. */
   const char *deadline = tls ? "2000" : "500", *stall = tls ? "2500ms" : "800ms";
-  const char *extra[32] = {"--weights", narrow, "--handshake-timeout-ms", deadline,
+  /* "Estimate" reads the alpha-corrected estimate (protocol version 3). */
+  const char *extra[32] = {"--weights", narrow, "--weights", estimate,
+                           "--handshake-timeout-ms", deadline,
                            "--stall-timeout-ms", deadline, "--max-handshakes", "8",
                            "--max-inflight", "4", "--max-size", "64x64", "--max-frame-mb", "1",
                            "--max-batch", "4", "--max-queue-delay-us", "1000"};
-  int ne = 18;
+  int ne = 20;
   if (tls) {
     const char *more[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key};
     for (size_t i = 0; i < sizeof more / sizeof *more; i++) extra[ne++] = more[i];

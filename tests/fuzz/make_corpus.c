@@ -50,11 +50,13 @@ static void protocol(void) {
   frame("list_variants", hfp_encode_empty(b, sizeof b, HFP_LIST_VARIANTS, 0), b);
   frame("stats", hfp_encode_empty(b, sizeof b, HFP_STATS, 0), b);
   hfp_variant v[2] = {
-    {"Base", "cpu", "fp32", 4, 3, {32, 64, 128}, 2, {{0, 0.01, 0.3}, {4, 16, 2048}}},
-    {"Base@1spp", "cudnn", "fp16", 1, 3, {32, 64, 128}, 0, {{0, 0, 0}}},
+    {"Base", "cpu", "fp32", 4, 3, {32, 64, 128}, 2, {{0, 0.01, 0.3}, {4, 16, 2048}}, 0},
+    {"KernelAC", "cudnn", "fp16", 4, 3, {32, 64, 128}, 0, {{0, 0, 0}},
+     HFP_ESTIMATE_ALPHA_CORRECTED},
   };
   frame("variants_v1", hfp_encode_variants_v(b, sizeof b, v, 2, 1), b);
   frame("variants_v2", hfp_encode_variants_v(b, sizeof b, v, 2, 2), b);
+  frame("variants_v3", hfp_encode_variants_v(b, sizeof b, v, 2, 3), b);
   static float feat[3 * 2 * 4 * 6];
   for (size_t i = 0; i < sizeof feat / sizeof feat[0]; i++) feat[i] = (float)(i % 7) / 7;
   hfp_filter f = {"Base", 0, 3, 2, 4, HFP_F32, HFP_F32, {0.5f, 0.4f, 0.3f}, {1, 1, 1},
@@ -73,6 +75,14 @@ static void protocol(void) {
   f.flags = HFP_FILTER_SHM | HFP_FILTER_COMPOSITE;
   f.shm_segment = 1, f.shm_in = 0, f.shm_out = 4096, f.shm_rgba = 8192;
   frame("filter_shm", hfp_encode_filter_head(b, sizeof b, 11, &f, NULL), b);
+  /* Version 3: the estimate after the features (3 x 2 pixels, 3 values). */
+  static float feat_est[3 * 2 * (4 * 6 + 3)];
+  for (size_t i = 0; i < sizeof feat_est / sizeof feat_est[0]; i++) feat_est[i] = (float)(i % 5) / 5;
+  hfp_filter fe = {"KernelAC", HFP_FILTER_ESTIMATE, 3, 2, 4, HFP_F32, HFP_F32, {0.5f, 0.4f, 0.3f},
+                   {1, 1, 1}, {0.1f, 0.1f, 0.1f}, feat_est, sizeof feat_est, 0, 0, 0, 0};
+  n = hfp_encode_filter_head(b, sizeof b, 13, &fe, &total);
+  if (n > 0) memcpy(b + n, feat_est, sizeof feat_est), n = (int)total;
+  frame("filter_estimate", n, b);
   static float res[3 * 2 * 4];
   hfp_result r = {0, HFP_F32, HFP_FILTER_COMPOSITE | HFP_RESULT_INPUT_SANITISED, 3, 2, 2,
                   {10, 20, 3000, 40, 3200}, res, 3 * 2 * 3 * 4, res, 3 * 2 * 4 * 4};

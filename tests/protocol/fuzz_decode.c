@@ -91,9 +91,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (all || h.type == HFP_VARIANTS) {
     rc = hfp_decode_variants(p, len, vs, HFP_MAX_VARIANTS, &count);
     check_rc("variants", rc);
-    /* as version 1, or version 2 when ranges followed the entries */
+    /* as version 1, or version 2 when ranges followed the entries, or
+     * version 3 when the estimates followed those */
     if (!rc && hfp_encode_variants_v(out, sizeof out, vs, count, 1) != (int)(HFP_HEADER_SIZE + len) &&
-        hfp_encode_variants_v(out, sizeof out, vs, count, 2) != (int)(HFP_HEADER_SIZE + len))
+        hfp_encode_variants_v(out, sizeof out, vs, count, 2) != (int)(HFP_HEADER_SIZE + len) &&
+        hfp_encode_variants_v(out, sizeof out, vs, count, 3) != (int)(HFP_HEADER_SIZE + len))
       fail("variants re-encode", 0);
   }
   if (all || h.type == HFP_FILTER) {
@@ -166,7 +168,7 @@ static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
     }
     case 2: {
       /* version 2: with a range block after the entry */
-      hfp_variant v = {"Base", "cpu", "fp32", 4, 2, {16, 32}, 1, {{0, 0.015, 0.02}}};
+      hfp_variant v = {"Base", "cpu", "fp32", 4, 2, {16, 32}, 1, {{0, 0.015, 0.02}}, 0};
       n = hfp_encode_variants_v(b, cap, &v, 1, 2);
       break;
     }

@@ -661,8 +661,8 @@ static void test_version2(void **state) {
   assert_int_equal(hfp_negotiate(1, 1), 1);
   assert_int_equal(hfp_negotiate(1, 2), 2);
   assert_int_equal(hfp_negotiate(2, 2), 2);
-  assert_int_equal(hfp_negotiate(1, 9), 2);
-  assert_int_equal(hfp_negotiate(3, 4), -HFP_E_VERSION);
+  assert_int_equal(hfp_negotiate(1, 9), HFP_VERSION);
+  assert_int_equal(hfp_negotiate(HFP_VERSION + 1, HFP_VERSION + 2), -HFP_E_VERSION);
   assert_int_equal(hfp_negotiate(2, 1), -HFP_E_VERSION);
 
   hfp_hello_ok ok = {2, 0, 64, 64, 4, 8, 3, 2, 16, 1 << 20, "srv", "0.1.0"}, okd;
@@ -672,7 +672,7 @@ static void test_version2(void **state) {
   assert_int_equal(hfp_decode_hello_ok(p, h.length, &okd), 0);
   assert_int_equal(okd.version, 2);
   assert_string_equal(okd.software_version, "0.1.0");
-  ok.version = 3;
+  ok.version = HFP_VERSION + 1;
   assert_int_equal(hfp_encode_hello_ok(buf, sizeof buf, &ok), -HFP_E_INVALID);
 
   /* RESULT: bit 3 says the input is out of range, bit 2 that it was
@@ -810,6 +810,88 @@ static void test_version2(void **state) {
   hfp_put_u16(c + n1, 0);                   /* no counters: not a valid block */
   assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, (size_t)n1 + 2 - HFP_HEADER_SIZE, &sd),
                    -HFP_E_INVALID);
+}
+
+/* Version 3 (PROTOCOL.md, "Version 3"): the estimate each variant reads
+ * after VARIANTS' ranges, and FILTER flag ESTIMATE, whose tensor is the
+ * features followed by W*H*3 values; version-2 encodings stay what they
+ * were and decode with no estimate. */
+static void test_version3(void **state) {
+  (void)state;
+  assert_int_equal(hfp_negotiate(1, 3), 3);
+  assert_int_equal(hfp_negotiate(3, 3), 3);
+  assert_int_equal(hfp_negotiate(1, 2), 2);
+
+  hfp_variant v[2], d[HFP_MAX_VARIANTS];
+  memset(v, 0, sizeof v);
+  for (int i = 0; i < 2; i++) {
+    snprintf(v[i].name, sizeof v[i].name, "V%d", i);
+    strcpy(v[i].backend, "cpu");
+    strcpy(v[i].precision, "fp32");
+    v[i].spp = 4;
+    v[i].num_levels = 1;
+    v[i].levels[0] = 8;
+  }
+  v[1].estimate = HFP_ESTIMATE_ALPHA_CORRECTED;
+  int n2 = hfp_encode_variants_v(buf, sizeof buf, v, 2, 2);
+  static uint8_t v2[1024];
+  memcpy(v2, buf, (size_t)n2);
+  int n3 = hfp_encode_variants_v(buf, sizeof buf, v, 2, 3);
+  assert_int_equal((size_t)n3, hfp_frame_size_variants_v(v, 2, 3));
+  assert_int_equal(n3, n2 + 2);   /* a byte per entry */
+  assert_memory_equal(buf + HFP_HEADER_SIZE, v2 + HFP_HEADER_SIZE, (size_t)n2 - HFP_HEADER_SIZE);
+  hfp_header h;
+  const uint8_t *p = split(buf, n3, HFP_VARIANTS, &h);
+  int count = 0;
+  assert_int_equal(hfp_decode_variants(p, h.length, d, HFP_MAX_VARIANTS, &count), 0);
+  assert_int_equal(count, 2);
+  assert_int_equal(d[0].estimate, HFP_ESTIMATE_NONE);
+  assert_int_equal(d[1].estimate, HFP_ESTIMATE_ALPHA_CORRECTED);
+  /* cut inside the estimate block, or an estimate no one knows */
+  assert_int_equal(hfp_decode_variants(p, h.length - 1, d, HFP_MAX_VARIANTS, &count),
+                   -HFP_E_LENGTH);
+  static uint8_t c[1024];
+  memcpy(c, p, h.length);
+  c[h.length - 1] = 2;
+  assert_int_equal(hfp_decode_variants(c, h.length, d, HFP_MAX_VARIANTS, &count), -HFP_E_INVALID);
+  v[1].estimate = 2;
+  assert_int_equal(hfp_encode_variants_v(buf, sizeof buf, v, 2, 3), -HFP_E_INVALID);
+  /* the version-2 frame: no estimate, the field not sent */
+  p = split(v2, n2, HFP_VARIANTS, &h);
+  assert_int_equal(hfp_decode_variants(p, h.length, d, HFP_MAX_VARIANTS, &count), 0);
+  assert_int_equal(d[1].estimate, HFP_ESTIMATE_NONE);
+  assert_int_equal(hfp_encode_variants_v(buf, sizeof buf, v, 2, 2), n2);
+
+  /* FILTER with ESTIMATE: 3 x 2 pixels of 4 spp and 3 estimate values. */
+  uint64_t bytes;
+  assert_int_equal(hfp_filter_input_bytes(3, 2, 4, HFP_F32, HFP_FILTER_ESTIMATE, &bytes), 0);
+  assert_int_equal(bytes, 3 * 2 * 27 * 4);
+  assert_int_equal(hfp_filter_input_bytes(3, 2, 4, HFP_F16, 0, &bytes), 0);
+  assert_int_equal(bytes, 3 * 2 * 24 * 2);
+  static float t[3 * 2 * 27];
+  hfp_filter f = {"V1", HFP_FILTER_ESTIMATE, 3, 2, 4, HFP_F32, HFP_F32, {0}, {0}, {0}, t,
+                  sizeof t, 0, 0, 0, 0}, fd;
+  uint64_t total;
+  int n = hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total);
+  assert_true(n > 0);
+  memcpy(buf + n, t, sizeof t);
+  p = split(buf, (int)total, HFP_FILTER, &h);
+  assert_int_equal(hfp_decode_filter(p, h.length, &fd), 0);
+  assert_int_equal(fd.flags, HFP_FILTER_ESTIMATE);
+  assert_int_equal(fd.data_len, sizeof t);
+  /* the features alone with the flag: the length disagrees */
+  f.data_len = 3 * 2 * 24 * 4;
+  assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total), -HFP_E_INVALID);
+  memcpy(c, p, h.length);
+  assert_int_equal(hfp_decode_filter(c, h.length - 3 * 2 * 3 * 4, &fd), -HFP_E_LENGTH);
+  /* by reference: the input region holds both */
+  f.flags = HFP_FILTER_ESTIMATE | HFP_FILTER_SHM;
+  f.shm_segment = 1, f.shm_in = 0, f.shm_out = sizeof t;
+  assert_int_equal(hfp_shm_check(&f, sizeof t + 3 * 2 * 3 * 4), 0);
+  f.shm_out = sizeof t - 4;  /* overlaps the estimate */
+  assert_int_equal(hfp_shm_check(&f, sizeof t + 3 * 2 * 3 * 4), -HFP_E_LENGTH);
+  f.shm_out = sizeof t;
+  assert_int_equal(hfp_shm_check(&f, sizeof t + 3 * 2 * 3 * 4 - 4), -HFP_E_LENGTH);
 }
 
 static void test_filter_shm(void **state) {
@@ -988,6 +1070,7 @@ int main(void) {
     cmocka_unit_test(test_filter_shm), cmocka_unit_test(test_regions_overlap),
     cmocka_unit_test(test_shm_messages),
     cmocka_unit_test(test_version2),
+    cmocka_unit_test(test_version3),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -94,6 +94,24 @@ int harness_narrow_weights(const harness *h, const char *range_json, char *path,
   return rc ? -1 : 0;
 }
 
+int harness_estimate_weights(const harness *h, char *path, size_t cap) {
+  char dir[256];
+  snprintf(dir, sizeof dir, "%s/estimate", h->dir);
+  if (mkdir(dir, 0700)) return -1;
+  snprintf(path, cap, "%s/Estimate.safetensors", dir);
+  hf_net_config cfg;
+  hf_weights *w = NULL;
+  if (hf_variant_preset("KernelAC", &cfg)) return -1;
+  snprintf(cfg.name, sizeof cfg.name, "Estimate");
+  cfg.num_levels = 2, cfg.levels[0] = 8, cfg.levels[1] = 16;
+  cfg.kernel_radius = 1, cfg.kernel_hidden = 4;
+  cfg.out_channels = hf_kernel_taps(1) + HF_OUT_CHANNELS;
+  if (hf_weights_init_random(&cfg, 78, &w)) return -1;
+  int rc = hf_weights_save(path, w);
+  hf_weights_free(w);
+  return rc ? -1 : 0;
+}
+
 const ref_variant *harness_variant(const harness *h, const char *name) {
   for (int i = 0; i < h->nv; i++)
     if (!strcmp(h->v[i].cfg.name, name)) return &h->v[i];
@@ -464,7 +482,8 @@ hfc_options test_options(const char *name, const char *token, int timeout_ms) {
 
 hfc_request test_request_sized(hfc_request r) {
   if (!r.features_bytes)
-    r.features_bytes = hfc_features_bytes(r.width, r.height, r.spp, r.in_dtype);
+    r.features_bytes = hfc_features_bytes(r.width, r.height, r.spp, r.in_dtype) +
+                       (r.estimate ? hfc_estimate_bytes(r.width, r.height, r.in_dtype) : 0);
   if (!r.result_bytes) r.result_bytes = hfc_output_bytes(r.width, r.height, 3, r.out_dtype);
   if (r.rgba && !r.rgba_bytes) r.rgba_bytes = hfc_output_bytes(r.width, r.height, 4, r.out_dtype);
   return r;

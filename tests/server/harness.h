@@ -47,6 +47,11 @@ const ref_variant *harness_variant(const harness *h, const char *name);
  * directory so the other servers do not see it. Its path goes to path;
  * returns 0 or -1. */
 int harness_narrow_weights(const harness *h, const char *range_json, char *path, size_t cap);
+/* A small Kernel network that reads the alpha-corrected estimate (KernelAC's
+ * kind: 2 levels of 8 and 16 channels, a 3x3 kernel, a 4-channel head),
+ * named "Estimate", written to <dir>/estimate/Estimate.safetensors (out of
+ * the weights directory). Its path goes to path; returns 0 or -1. */
+int harness_estimate_weights(const harness *h, char *path, size_t cap);
 
 /* Starts hairfilterd on a fresh Unix socket and a loopback port 0 with the
  * harness weights on cpu-ref, plus extra arguments (NULL-terminated).

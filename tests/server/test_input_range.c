@@ -60,7 +60,7 @@ static int teardown(void **state) {
 static hfc_client *connect_unix(void) {
   hfc_client *c = client_connect(&S, "test-range");
   assert_non_null(c);
-  assert_int_equal(hfc_info(c)->version, 2);
+  assert_int_equal(hfc_info(c)->version, HFP_VERSION);
   return c;
 }
 

@@ -52,7 +52,7 @@ static void test_flag_and_result(void **state) {
   int spp = v->cfg.spp;
   hfc_client *c = client_connect(&S, "test-sanitised");
   assert_non_null(c);
-  assert_int_equal(hfc_info(c)->version, 2);
+  assert_int_equal(hfc_info(c)->version, HFP_VERSION);
   size_t nin = (size_t)W * HH * spp * 6, nout = (size_t)W * HH * 3;
   float got[W * HH * 3], want[W * HH * 3];
   for (int bad = 0; bad < 3; bad++) {

@@ -2,7 +2,10 @@
  * loads any weights file through the core. A Kernel weights file (the
  * preset's shape, random weights) beside the harness's variants is listed
  * and filters frames, f32 and f16, over the socket and shared memory,
- * to exactly the bytes in-process cpu-ref gives. */
+ * to exactly the bytes in-process cpu-ref gives. So does a KernelAC one,
+ * which reads the alpha-corrected estimate (protocol version 3): VARIANTS
+ * says so, its frames carry the estimate after the features, and a frame
+ * without it (or one with it for Kernel) is refused, naming the flag. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -19,6 +22,7 @@
 static harness H;
 static server S;
 static hf_model *kernel_ref;   /* cpu-ref, in process, on the same weights */
+static hf_model *ac_ref;       /* the same for KernelAC */
 
 static int setup(void **state) {
   (void)state;
@@ -35,13 +39,20 @@ static int setup(void **state) {
   int rc = hf_weights_save(path, w) || hf_model_create(H.backend, w, &kernel_ref);
   hf_weights_free(w);
   if (rc) return -1;
-  const char *const extra[] = {"--weights", path, NULL};
+  char ac_path[300];
+  snprintf(ac_path, sizeof ac_path, "%s/KernelAC.safetensors", dir);
+  if (hf_variant_preset("KernelAC", &cfg) || hf_weights_init_random(&cfg, 32, &w)) return -1;
+  rc = hf_weights_save(ac_path, w) || hf_model_create(H.backend, w, &ac_ref);
+  hf_weights_free(w);
+  if (rc) return -1;
+  const char *const extra[] = {"--weights", path, "--weights", ac_path, NULL};
   return server_start(&H, &S, extra);
 }
 
 static int teardown(void **state) {
   (void)state;
   hf_model_destroy(kernel_ref);
+  hf_model_destroy(ac_ref);
   return harness_stop(&H, &S);
 }
 
@@ -112,9 +123,97 @@ static void test_kernel_listed_and_filtered(void **state) {
   hfc_close(c);
 }
 
+/* KernelAC's frame: kernel_frame's samples, then an estimate ([h][w][3]) with
+ * no hair in the left 8 columns. */
+static float *ac_frame(int w, int h, uint32_t seed) {
+  float *s = kernel_frame(w, h, seed), *in = malloc((size_t)w * h * 27 * sizeof(float));
+  assert_non_null(in);
+  memcpy(in, s, (size_t)w * h * 24 * sizeof(float));
+  float *e = in + (size_t)w * h * 24;
+  for (int p = 0; p < w * h; p++) {
+    int hair = p % w >= 8;
+    e[p * 3] = hair ? 0.3f + 0.5f * (float)((p * 7) % 11) / 11 : 0;
+    e[p * 3 + 1] = hair ? 0.2f * (float)((p * 5) % 7) / 7 : 0;
+    e[p * 3 + 2] = hair ? 0.1f + 0.9f * (float)((p * 3) % 13) / 13 : 0;
+  }
+  free(s);
+  return in;
+}
+
+/* One KernelAC frame through the daemon (into shm when not NULL) against
+ * cpu-ref. */
+static void ac_filter_and_compare(hfc_client *c, int w, int h, int f16, uint8_t *shm) {
+  size_t n_in = (size_t)w * h * 27, n_out = (size_t)w * h * 3, es = f16 ? 2 : 4;
+  float *in = ac_frame(w, h, (uint32_t)(w * 17 + h + f16));
+  uint8_t *send = shm ? shm : malloc(n_in * es);
+  uint8_t *got = shm ? shm + n_in * es : malloc(n_out * es), *want = malloc(n_out * es);
+  assert_non_null(send);
+  assert_non_null(got);
+  assert_non_null(want);
+  for (size_t i = 0; i < n_in; i++) {
+    if (f16) ((uint16_t *)send)[i] = hf_f32_to_f16(in[i]);
+    else ((float *)send)[i] = in[i];
+  }
+  memset(got, 0xcd, n_out * es);
+  hfc_request r = TEST_REQUEST(.variant = "KernelAC", .width = w, .height = h, .spp = 4,
+                                .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
+                                .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got,
+                                .estimate = 1);
+  assert_int_equal(r.features_bytes, n_in * es);
+  hfc_timing t;
+  int rc = hfc_filter(c, &r, &t);
+  if (rc) fprintf(stderr, "filter KernelAC %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
+                  hfc_last_message(c));
+  assert_int_equal(rc, 0);
+  assert_int_equal(t.via_shm, shm != NULL);
+  hf_io io = {1, w, h, send, f16 ? HF_F16 : HF_F32, want, f16 ? HF_F16 : HF_F32};
+  assert_int_equal(hf_model_run(ac_ref, &io, NULL), HF_OK);
+  assert_memory_equal(got, want, n_out * es);
+  free(in);
+  if (!shm) free(send), free(got);
+  free(want);
+}
+
+static void test_estimate_listed_and_filtered(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "test-kernel-ac");
+  assert_non_null(c);
+  assert_int_equal(hfc_info(c)->version, 3);
+  hfc_variant v[8];
+  int n = 0, found = 0;
+  assert_int_equal(hfc_list_variants(c, v, 8, &n), 0);
+  for (int i = 0; i < n && i < 8; i++) {
+    assert_int_equal(v[i].estimate, !strcmp(v[i].name, "KernelAC"));
+    found += !strcmp(v[i].name, "KernelAC");
+  }
+  assert_int_equal(found, 1);
+  ac_filter_and_compare(c, 37, 23, 0, NULL);
+  ac_filter_and_compare(c, 64, 48, 1, NULL);
+  uint8_t *mem;
+  assert_int_equal(hfc_shm_alloc(c, (size_t)40 * 30 * (27 + 3) * 4, (void **)&mem), 0);
+  ac_filter_and_compare(c, 40, 30, 0, mem);
+  assert_int_equal(hfc_shm_free(c, mem), 0);
+  /* Without the estimate, KernelAC refuses the frame; with it, Kernel does. */
+  const int w = 16, h = 8;
+  float *in = ac_frame(w, h, 5), out[16 * 8 * 3];
+  hfc_request r = TEST_REQUEST(.variant = "KernelAC", .width = w, .height = h, .spp = 4,
+                                .features = in, .result = out);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_INVALID);
+  assert_non_null(strstr(hfc_last_message(c), "ESTIMATE"));
+  r = TEST_REQUEST(.variant = "Kernel", .width = w, .height = h, .spp = 4, .features = in,
+                   .result = out, .estimate = 1);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_INVALID);
+  assert_non_null(strstr(hfc_last_message(c), "reads no estimate"));
+  /* The connection goes on. */
+  ac_filter_and_compare(c, 9, 5, 0, NULL);
+  free(in);
+  hfc_close(c);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_kernel_listed_and_filtered),
+    cmocka_unit_test(test_estimate_listed_and_filtered),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

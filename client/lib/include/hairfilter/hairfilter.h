@@ -232,6 +232,11 @@ typedef struct hfc_variant {
    * weights record none, or the server speaks protocol version 1. */
   unsigned range_mask;
   double range_lo[HFC_MAX_STATS], range_hi[HFC_MAX_STATS];
+  /* 1: the variant reads stochastic transparency's alpha-corrected estimate
+   * besides the samples (protocol/FEATURES.md, "The alpha-corrected
+   * estimate"): its requests set hfc_request.estimate. 0 otherwise, and
+   * always from servers of protocol versions 1 and 2. */
+  int estimate;
 } hfc_variant;
 
 /* Fills up to max entries; *count is the number the server has (0..64). */
@@ -264,6 +269,13 @@ typedef struct hfc_request {
   size_t rgba_bytes;         /* bytes at rgba: at least width*height*4*dtype size */
   float hair[3], light[3], background[3];   /* linear RGB, finite, for rgba */
   void *user;                /* returned in the completion */
+  /* 1: features is followed, in the same buffer, by the frame's
+   * alpha-corrected estimate, [height][width][3] (colour, highlight,
+   * alpha; protocol/FEATURES.md), and features_bytes counts both
+   * (hfc_features_bytes + hfc_estimate_bytes). Required by variants with
+   * hfc_variant.estimate, refused by the others; needs a server of
+   * protocol version 3 (hfc_info()->version). */
+  int estimate;
 } hfc_request;
 
 /* A request of this header's size with every field zero (NULL buffers,
@@ -276,6 +288,9 @@ static inline void hfc_request_init(hfc_request *r) {
 /* Bytes of a features tensor of width x height pixels, spp samples of 6
  * features each, in dtype; 0 when a dimension is outside its range. */
 HFC_API size_t hfc_features_bytes(int width, int height, int spp, hfc_dtype dtype);
+/* Bytes of a frame's alpha-corrected estimate, width x height x 3 values in
+ * dtype (hfc_request.estimate); 0 when a dimension is outside its range. */
+HFC_API size_t hfc_estimate_bytes(int width, int height, hfc_dtype dtype);
 /* Bytes of an output tensor with channels per pixel: 3 for result, 4 for
  * rgba; 0 when a dimension is outside its range. */
 HFC_API size_t hfc_output_bytes(int width, int height, int channels, hfc_dtype dtype);
