@@ -529,3 +529,27 @@ int hf_exr_display_size(const char *path, int *width, int *height, char *err, si
   exr_finish(&ctx);
   return rc;
 }
+
+int hf_exr_has_channel(const char *path, const char *channel) {
+  if (!path || !channel) return HF_EINVAL;
+  hf_exr_msg msg = {""};
+  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+  init.error_handler_fn = hf_exr_on_error;
+  init.user_data = &msg;
+  init.flags |= EXR_CONTEXT_FLAG_SILENT_HEADER_PARSE;
+  exr_context_t ctx = NULL;
+  exr_result_t r = exr_start_read(&ctx, path, &init);
+  int parts = 0, found = 0;
+  if (r != EXR_ERR_SUCCESS || exr_get_count(ctx, &parts) != EXR_ERR_SUCCESS) {
+    exr_finish(&ctx);
+    return HF_EIO;
+  }
+  for (int p = 0; p < parts && !found; p++) {
+    const exr_attr_chlist_t *ch = NULL;
+    if (exr_get_channels(ctx, p, &ch) != EXR_ERR_SUCCESS || !ch) continue;
+    for (int c = 0; c < ch->num_channels && !found; c++)
+      found = ch->entries[c].name.str && !strcmp(ch->entries[c].name.str, channel);
+  }
+  exr_finish(&ctx);
+  return found;
+}

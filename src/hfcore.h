@@ -778,6 +778,10 @@ int hf_exr_read_part_as(const char *path, const char *part, const char *channel,
                         hf_image *img, void **data, char *err, size_t errlen);
 /* hf_exr_read_part(path, NULL, NULL, ...): a single-part file, any layout. */
 int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen);
+/* Whether some part of an EXR file has a channel of that name, from the
+ * headers alone: 1 or 0, HF_EIO when the file cannot be read as EXR,
+ * HF_EINVAL for a NULL argument. */
+int hf_exr_has_channel(const char *path, const char *channel);
 /* Size of an EXR's display window (the whole image a crop was cut from;
  * equal to the data window's size for an uncropped file), header only, of
  * its first part. */

@@ -12,10 +12,13 @@
 #include "commands.h"
 #include <hairfilter/hairfilter.h>
 
-/* The variant README and `hairfilter demo` use (weights/kernel.safetensors):
- * a server loaded from the bundled weights directory has several, and an
- * engine that just wants a filtered frame should not have to pick one. */
+/* The variants README and `hairfilter demo` use: a server loaded from the
+ * bundled weights directory has several, and an engine that just wants a
+ * filtered frame should not have to pick one. KernelAC
+ * (weights/kernel_ac.safetensors) for a frame that carries the
+ * alpha-corrected estimate (acst4.*), else Kernel. */
 #define FILTER_DEFAULT_VARIANT "Kernel"
+#define FILTER_DEFAULT_ESTIMATE_VARIANT "KernelAC"
 
 static void usage(FILE *f) {
   fprintf(f,
@@ -29,8 +32,9 @@ static void usage(FILE *f) {
           "       hairfilter filter --server URL --stats    (counters and latency)\n"
           "URL is unix:PATH, tcp:HOST:PORT or tls:HOST:PORT, or several of them separated by commas\n"
           "(tried in order, and failed over to). The token defaults to $HAIRFILTER_TOKEN.\n"
-          "--variant defaults to the server's only variant, else to " FILTER_DEFAULT_VARIANT " (the bundled\n"
-          "default) when the server has it. --f16 sends and\n"
+          "--variant defaults to the server's only variant, else to " FILTER_DEFAULT_ESTIMATE_VARIANT " (the\n"
+          "bundled default) for a frame with the alpha-corrected estimate (acst4.*) when the server\n"
+          "has it, else to " FILTER_DEFAULT_VARIANT " when the server has it. --f16 sends and\n"
           "receives half floats (a file of HALF channels is sent as stored, FLOAT ones are\n"
           "rounded to nearest even). The PNG is composited by the server, or here over the\n"
           "frame's background layer where it has one. The result keeps the\n"
@@ -227,8 +231,14 @@ int cmd_filter(int argc, char **argv) {
     if (variant ? !strcmp(vs[i].name, variant) : nv == 1) v = &vs[i];
   for (int i = 0; i < nv && i < 64 && variant && !v; i++)
     if (!strcasecmp(vs[i].name, variant)) v = &vs[i];
+  /* The default: KernelAC where the frame has the estimate to give it. */
+  int has_estimate = 0;
+  for (int i = 0; i < nv && i < 64 && !variant && !v && !has_estimate; i++)
+    if (!strcmp(vs[i].name, FILTER_DEFAULT_ESTIMATE_VARIANT) && vs[i].estimate)
+      has_estimate = hf_exr_has_channel(in_path, HF_ESTIMATE_PREFIX ".alpha") == 1;
   for (int i = 0; i < nv && i < 64 && !variant && !v; i++)
-    if (!strcmp(vs[i].name, FILTER_DEFAULT_VARIANT)) v = &vs[i];
+    if (!strcmp(vs[i].name, has_estimate ? FILTER_DEFAULT_ESTIMATE_VARIANT : FILTER_DEFAULT_VARIANT))
+      v = &vs[i];
   if (!v) {
     if (variant)
       fprintf(stderr, "hairfilter: no such variant \"%s\"; the server has:", variant);

@@ -38,10 +38,10 @@ static void usage(FILE *f) {
     "         --seed N (hash seed of the stochastic samples)\n"
     "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites)\n"
     "         --no-background (leave out the occluder layer background.R/G/B/A)\n"
-    "         --alpha-corrected (acst4.*: the first 4 samples' alpha-corrected estimate,\n"
-    "           Enderton et al. 2010)\n"
+    "         --no-alpha-corrected (leave out acst4.*, the first 4 samples' alpha-corrected\n"
+    "           estimate, Enderton et al. 2010, that KernelAC reads: one more draw of the hair)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
-    "         --size WxH --strands N --gt-ss S --st LIST --opaque N --alpha-corrected --quiet\n"
+    "         --size WxH --strands N --gt-ss S --st LIST --opaque N --no-alpha-corrected --quiet\n"
     "         --extended (style parameters, density and distance over wide ranges)\n"
     "         --regimes (widths, density, zoom, crops, camera, light, shadows per frame and\n"
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
@@ -213,6 +213,7 @@ static int parse_args(int argc, char **argv, opts *o) {
     if (!strcmp(a, "--regimes")) { o->ds.regimes = 1; continue; }
     if (!strcmp(a, "--no-background")) { o->no_background = 1; continue; }
     if (!strcmp(a, "--alpha-corrected")) { o->outputs.alpha_corrected = 1; continue; }
+    if (!strcmp(a, "--no-alpha-corrected")) { o->outputs.alpha_corrected = 0; continue; }
     NEED_VALUE;
     if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--hair")) o->hair_path = v;
@@ -636,6 +637,8 @@ int cmd_render(int argc, char **argv) {
   o.outputs.spp = 4;
   o.outputs.gt_supersample = 4;
   o.outputs.seed = 1;
+  /* The default variant (KernelAC) reads it: on unless --no-alpha-corrected. */
+  o.outputs.alpha_corrected = 1;
   hfr_dataset_defaults(&o.ds);
   hfr_asset_defaults(&o.asset);
   int rc = 2;

@@ -1,7 +1,8 @@
 """hairfilter filter without --variant: the server's only variant, else
-Kernel (the bundled default) when the server has it, else a clear error
-that lists what the server has. The Kernel result must equal the one named
-explicitly, byte for byte."""
+KernelAC (the bundled default) for a frame with the alpha-corrected
+estimate when the server has it, else Kernel when the server has it, else
+a clear error that lists what the server has. The default's result must
+equal the one named explicitly, byte for byte."""
 import os
 import subprocess
 import sys
@@ -11,8 +12,8 @@ from opsdaemon import Daemon, check, finish, run_then_stop, workdir
 HAIRFILTERD, HAIRFILTER, WEIGHTS, FRAME = sys.argv[1:5]
 
 
-def filt(d, w, out, *extra):
-    p = subprocess.run([HAIRFILTER, "filter", "--server", d.urls["unix"], "--in", FRAME,
+def filt(d, w, out, *extra, frame=FRAME):
+    p = subprocess.run([HAIRFILTER, "filter", "--server", d.urls["unix"], "--in", frame,
                         "--out", os.path.join(w, out)] + list(extra),
                        capture_output=True, text=True, timeout=120)
     return p.returncode, p.stdout + p.stderr
@@ -38,6 +39,36 @@ def several_with_kernel(d, w):
         check(a == b, "the default result differs from --variant Kernel's")
 
 
+def estimate_frame(w):
+    """A 64x64 frame of the renderer's defaults, the estimate (acst4.*)
+    included."""
+    out = os.path.join(w, "ac.exr")
+    p = subprocess.run([HAIRFILTER, "render", "frame", "--style", "wavy", "--size", "64x64",
+                        "--strands", "3000", "--gt-ss", "1", "--st", "4", "--out", out],
+                       capture_output=True, text=True, timeout=120)
+    check(p.returncode == 0, "render: %s" % p.stderr)
+    return out
+
+
+def with_estimate_variant(d, w):
+    ac = estimate_frame(w)
+    rc, text = filt(d, w, "default_ac.exr", frame=ac)
+    check(rc == 0 and "KernelAC" in text, "filter without --variant of a frame with the "
+          "estimate on Kernel+KernelAC: rc %d: %s" % (rc, text))
+    rc2, text2 = filt(d, w, "named_ac.exr", "--variant", "KernelAC", frame=ac)
+    check(rc2 == 0, "filter --variant KernelAC: rc %d: %s" % (rc2, text2))
+    if rc == 0 and rc2 == 0:
+        a = open(os.path.join(w, "default_ac.exr"), "rb").read()
+        b = open(os.path.join(w, "named_ac.exr"), "rb").read()
+        check(a == b, "the default result differs from --variant KernelAC's")
+    # A frame without the estimate: Kernel, as named.
+    several_with_kernel(d, w)
+    # KernelAC named for a frame without the estimate: the render option named.
+    rc3, text3 = filt(d, w, "x.exr", "--variant", "KernelAC")
+    check(rc3 != 0 and "acst4.color" in text3 and "--alpha-corrected" in text3,
+          "KernelAC on a frame without the estimate names what is missing: %r" % text3)
+
+
 def several_without_kernel(d, w):
     rc, text = filt(d, w, "x.exr")
     check(rc != 0, "filter without --variant on Small+Shallow succeeded")
@@ -51,6 +82,7 @@ def only_one(d, w):
 
 
 with_daemon(["small.safetensors", "kernel.safetensors"], several_with_kernel)
+with_daemon(["kernel.safetensors", "kernel_ac.safetensors"], with_estimate_variant)
 with_daemon(["small.safetensors", "shallow.safetensors"], several_without_kernel)
 with_daemon(["small.safetensors"], only_one)
 finish()
