@@ -65,6 +65,7 @@ enum { PHASE_WARMUP, PHASE_MEASURE, PHASE_STOP };
 typedef struct shared {
   const opts *o;
   int spp;
+  int estimate;                 /* the variant reads the alpha-corrected estimate */
   const void *features;          /* one frame, in the input dtype */
   size_t in_bytes, out_bytes, rgba_bytes;
   int open_loop;
@@ -243,6 +244,7 @@ static void *run(void *arg) {
   r.width = o->width;
   r.height = o->height;
   r.spp = sh->spp;
+  r.estimate = sh->estimate;
   r.in_dtype = r.out_dtype = o->f16 ? HFC_F16 : HFC_F32;
   r.features = in;
   r.features_bytes = sh->in_bytes;
@@ -698,21 +700,26 @@ static int parse(int argc, char **argv, opts *o) {
 }
 
 /* The frame every request sends: the EXR's features, or random ones in the
- * ranges of FEATURES.md, in the input dtype. */
-static void *make_frame(opts *o, int spp, size_t *bytes) {
+ * ranges of FEATURES.md, in the input dtype; for a variant that reads the
+ * estimate, followed by it (the file's acst4.*, or random values in its
+ * ranges). */
+static void *make_frame(opts *o, int spp, int estimate, size_t *bytes) {
   float *in = NULL;
+  const int channels = hf_net_in_channels(spp, estimate);
   if (o->input) {
     hf_image img;
     void *data = NULL;
     hf_dtype dt = o->f16 ? HF_F16 : HF_F32;
-    if (cli_read_features(o->input, o->part, spp, HF_ESTIMATE_NONE, o->variant, dt, &img, &data, NULL)) return NULL;
+    if (cli_read_features(o->input, o->part, spp, estimate, o->variant, dt, &img, &data, NULL))
+      return NULL;
     o->width = img.width;
     o->height = img.height;
     hf_image_free(&img);
-    *bytes = (size_t)o->width * o->height * (size_t)spp * 6 * (o->f16 ? 2 : 4);
+    *bytes = (size_t)o->width * o->height * (size_t)channels * (o->f16 ? 2 : 4);
     return data;
   }
-  size_t n = (size_t)o->width * o->height * (size_t)spp * 6;
+  size_t samples = (size_t)o->width * o->height * (size_t)spp * 6;
+  size_t n = (size_t)o->width * o->height * (size_t)channels;
   {
     in = malloc(n * sizeof *in);
     if (!in) return NULL;
@@ -720,7 +727,7 @@ static void *make_frame(opts *o, int spp, size_t *bytes) {
     for (size_t i = 0; i < n; i++) {
       x = x * 1664525u + 1013904223u;
       float u = (float)(x >> 8) / 16777216.0f;
-      in[i] = i % 6 >= 4 ? 2 * u - 1 : u;
+      in[i] = i < samples && i % 6 >= 4 ? 2 * u - 1 : u;
     }
   }
   if (!o->f16) {
@@ -760,7 +767,7 @@ int cmd_load(int argc, char **argv) {
     return 1;
   }
   hfc_variant *vs = calloc(64, sizeof *vs);
-  int nv = 0, spp = 0;
+  int nv = 0, spp = 0, estimate = 0;
   char backend[65] = "?", precision[65] = "?";
   if (!vs || (rc = hfc_list_variants(c, vs, 64, &nv)) != 0) {
     fprintf(stderr, "hairfilter load: listing variants: %s\n", hfc_strerror(rc));
@@ -771,6 +778,7 @@ int cmd_load(int argc, char **argv) {
   for (int i = 0; i < nv && i < 64; i++)
     if (!strcmp(vs[i].name, o.variant)) {
       spp = vs[i].spp;
+      estimate = vs[i].estimate;
       snprintf(backend, sizeof backend, "%s", vs[i].backend);
       snprintf(precision, sizeof precision, "%s", vs[i].precision);
     }
@@ -792,7 +800,7 @@ int cmd_load(int argc, char **argv) {
     return 2;
   }
   size_t in_bytes;
-  void *frame = make_frame(&o, spp, &in_bytes);
+  void *frame = make_frame(&o, spp, estimate, &in_bytes);
   if (!frame) {
     if (!o.input) fprintf(stderr, "hairfilter load: out of memory for a %dx%d frame\n", o.width, o.height);
     return 1;
@@ -829,7 +837,7 @@ int cmd_load(int argc, char **argv) {
   load_run run_info = {o.server, o.variant, o.input, backend, precision, o.width, o.height, spp,
                        o.f16, o.shm, o.composite, o.poisson ? "poisson" : "constant",
                        o.window_s, o.warmup_s, o.stability, points, 0};
-  shared sh = {.o = &o, .spp = spp, .features = frame, .in_bytes = in_bytes};
+  shared sh = {.o = &o, .spp = spp, .estimate = estimate, .features = frame, .in_bytes = in_bytes};
   size_t es = o.f16 ? 2 : 4;
   sh.out_bytes = (size_t)o.width * o.height * 3 * es;
   sh.rgba_bytes = o.composite ? (size_t)o.width * o.height * 4 * es : 0;
