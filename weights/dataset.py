@@ -28,6 +28,9 @@ import input_stats
 
 FEATURES = ["color", "highlight", "alpha", "depth", "tangent.x", "tangent.y"]
 TARGETS = ["color", "highlight", "alpha"]
+# The alpha-corrected estimate (protocol/FEATURES.md), read by variants whose
+# configuration has "estimate".
+ESTIMATE = ["acst4.color", "acst4.highlight", "acst4.alpha"]
 TANGENT_X, TANGENT_Y = 4, 5
 
 # Keys a manifest may use for its frame list and for a frame's file name.
@@ -155,6 +158,17 @@ def load_frame(path, spp=None, dtype=np.float16):
     return feat.reshape(h, w, spp, 6).astype(dtype), tgt.astype(dtype)
 
 
+def load_estimate(path, dtype=np.float16):
+    """The alpha-corrected estimate [h][w][3] (acst4.color, .highlight,
+    .alpha) of one dataset EXR; DatasetError naming the render option when
+    the file has none."""
+    names, data = read_exr(path)
+    if any(c not in names for c in ESTIMATE):
+        raise DatasetError(f"{path}: no acst4.* channels (the alpha-corrected estimate): "
+                           f"render it without --no-alpha-corrected")
+    return pick_channels(names, data, ESTIMATE, path).astype(dtype)
+
+
 # ---- augmentation ----------------------------------------------------------
 
 def entry_stats(entry, feat, spp):
@@ -206,12 +220,16 @@ class FrameSet:
     statistics of each (weights/input_stats.py) at the variant's spp, measured
     on the file's values before they are rounded to float16."""
 
-    def __init__(self, entries, spp, log=None):
+    def __init__(self, entries, spp, log=None, estimate=False):
         """Keeps every sample a file holds, so that variants reading fewer
-        samples than the files hold train on random subsets of them."""
+        samples than the files hold train on random subsets of them. With
+        estimate, also each frame's alpha-corrected estimate (load_estimate),
+        which follows the samples in every input (NHWC channels spp * 6 +
+        0..2)."""
         self.entries = []
-        self.feats, self.tgts, self.stats = [], [], []
+        self.feats, self.tgts, self.stats, self.ests = [], [], [], []
         self.spp = spp
+        self.estimate = estimate
         self.add(entries, log)
 
     def add(self, entries, log=None):
@@ -222,6 +240,8 @@ class FrameSet:
             if f.shape[2] < spp:
                 raise DatasetError(f"{e['file']}: {f.shape[2]} samples per pixel, {spp} needed")
             self.stats.append(entry_stats(e, f, spp))
+            if self.estimate:
+                self.ests.append(load_estimate(e["file"]))
             self.feats.append(f.astype(np.float16))
             self.tgts.append(t.astype(np.float16))
             self.entries.append(e)
@@ -232,12 +252,15 @@ class FrameSet:
         return len(self.feats)
 
     def nbytes(self):
-        return sum(f.nbytes + t.nbytes for f, t in zip(self.feats, self.tgts))
+        return sum(f.nbytes + t.nbytes for f, t in zip(self.feats, self.tgts)) + \
+            sum(e.nbytes for e in self.ests)
 
     def crop(self, rng, size, hair_bias=0.9):
-        """One random crop (feat [s][s][samples in file][6], tgt [s][s][3]). With
-        probability hair_bias, retries (a few times) until the crop holds
-        some hair, so training does not spend its steps on background."""
+        """One random crop (feat [s][s][samples in file][6], tgt [s][s][3],
+        and with an estimate tgt [s][s][6]: the target, then the estimate,
+        both moved only by augment's spatial transforms). With probability
+        hair_bias, retries (a few times) until the crop holds some hair, so
+        training does not spend its steps on background."""
         for attempt in range(8):
             i = int(rng.integers(len(self.feats)))
             f, t = self.feats[i], self.tgts[i]
@@ -248,6 +271,8 @@ class FrameSet:
             fc, tc = f[y:y + ch, x:x + cw], t[y:y + ch, x:x + cw]
             if rng.random() > hair_bias or float(tc[..., 2].max()) > 0:
                 break
+        if self.estimate:
+            tc = np.concatenate([tc, self.ests[i][y:y + ch, x:x + cw]], -1)
         return fc, tc
 
     def batch(self, rng, size, n, augment_on=True):
@@ -262,7 +287,10 @@ class FrameSet:
             if f.shape[2] > self.spp:
                 f = f[:, :, np.sort(rng.choice(f.shape[2], self.spp, replace=False))]
             h, w = t.shape[:2]
-            xs.append(f.reshape(h, w, -1))
+            x = f.reshape(h, w, -1)
+            if self.estimate:
+                x, t = np.concatenate([x, t[..., 3:]], -1), t[..., :3]
+            xs.append(x)
             ys.append(t)
         x = np.stack(xs).astype(np.float32).transpose(0, 3, 1, 2)
         y = np.stack(ys).astype(np.float32).transpose(0, 3, 1, 2)

@@ -97,7 +97,7 @@ def residual_base(x, spp, radius=RESIDUAL_RADIUS):
     colour and highlight of the covered ones (colour 1 where none is);
     src/net_config.c hf_residual_base."""
     n, _, h, w = x.shape
-    s = x.view(n, spp, len(FEATURES), h, w)
+    s = x[:, :spp * len(FEATURES)].reshape(n, spp, len(FEATURES), h, w)
     cov = (s[:, :, 2] > 0).to(x.dtype)
     cnt = _box_sum(cov.sum(1, keepdim=True), radius)
     col = _box_sum((s[:, :, 0] * cov).sum(1, keepdim=True), radius)
@@ -120,7 +120,7 @@ def pixel_sums(x, spp):
     highlight, NCHW [n][3][h][w] (the unnormalised stochastic-transparency
     estimate of each pixel)."""
     n, _, h, w = x.shape
-    s = x.view(n, spp, len(FEATURES), h, w)
+    s = x[:, :spp * len(FEATURES)].reshape(n, spp, len(FEATURES), h, w)
     cov = (s[:, :, 2] > 0).to(x.dtype)
     return torch.stack([cov.sum(1), (s[:, :, 0] * cov).sum(1), (s[:, :, 1] * cov).sum(1)], 1)
 

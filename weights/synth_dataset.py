@@ -19,6 +19,13 @@ width below a pixel and an opacity. The world is the same as the renderer's:
   st{N}.*    stochastic transparency averaged over N samples: alpha is the
              covered fraction, color/highlight the mean over covered samples.
   opaque.*   16x MSAA without transparency (every sample covered).
+  acst4.*    stochastic transparency's alpha-corrected estimate over the
+             first 4 samples (with spp >= 4): per sample, every fragment's
+             colour and highlight weighted by alpha times its visibility
+             (1 where the sample's kept depth is at or behind it, or nothing
+             was kept), alpha 1 - prod(1 - alpha); the samples averaged
+             premultiplied (protocol/FEATURES.md, "The alpha-corrected
+             estimate").
 
 Shading is the paper's Fig. 3 with a 3D tangent (screen tangent plus a
 per-strand z) and one directional light per frame, plus an ambient term and
@@ -206,6 +213,31 @@ def ground_truth(strands, w, h):
     return np.stack([np.where(A > 0, C / safe, 0), np.where(A > 0, Hl / safe, 0), A], -1)
 
 
+def alpha_corrected(strands, w, h, offsets, planes):
+    """[h][w][3] colour, highlight, alpha of the alpha-corrected estimate
+    over the samples at offsets whose kept fragments are planes ([h*w][6]
+    each)."""
+    pre = np.zeros((h * w, 3))
+    for off, f in zip(offsets, planes):
+        idx, sid, pid = fragments(strands, w, h, 1, off)
+        alpha = attr(strands, "opacity", sid, pid) * np.minimum(1, attr(strands, "width", sid, pid))
+        depth = attr(strands, "depth", sid, pid)
+        kept = f[idx, 3]
+        vis = ((f[idx, 2] <= 0) | (kept >= depth)).astype(np.float64)
+        wgt = alpha * vis
+        W = np.bincount(idx, wgt, h * w)
+        C = np.bincount(idx, wgt * attr(strands, "color", sid, pid), h * w)
+        Hl = np.bincount(idx, wgt * attr(strands, "highlight", sid, pid), h * w)
+        A = 1 - np.exp(np.bincount(idx, np.log1p(-np.minimum(alpha, 0.999)), h * w))
+        safe = np.where(W > 0, W, 1)
+        pre += np.stack([A * C / safe, A * Hl / safe, A], -1)
+    pre /= len(offsets)
+    a = pre[:, 2]
+    safe = np.where(a > 0, a, 1)
+    return np.stack([np.where(a > 0, pre[:, 0] / safe, 0), np.where(a > 0, pre[:, 1] / safe, 0),
+                     a], -1).reshape(h, w, 3)
+
+
 def baseline(strands, w, h, n, rng, opaque=False):
     """Average of n stochastic (or opaque) samples as color/highlight/alpha."""
     cov = np.zeros(h * w)
@@ -229,9 +261,14 @@ def render_frame(style, w, h, spp, st_list, seed):
     light = np.array([math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az)])
     shade(strands, light, math.radians(rng.uniform(-10, -5)))
     names, planes = [], []
-    for k, off in enumerate(sample_offsets(spp, rng)):
+    offsets = sample_offsets(spp, rng)
+    for k, off in enumerate(offsets):
         planes.append(nearest_surviving(strands, w, h, off, rng).reshape(h, w, 6))
         names += [f"S{k}.{f}" for f in dataset.FEATURES]
+    if spp >= 4:
+        planes.append(alpha_corrected(strands, w, h, offsets[:4],
+                                      [p.reshape(h * w, 6) for p in planes[:4]]))
+        names += [f"acst4.{t}" for t in dataset.TARGETS]
     planes.append(ground_truth(strands, w, h))
     names += [f"gt.{t}" for t in dataset.TARGETS]
     for n in st_list:

@@ -388,11 +388,13 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
         return None
     net.eval()
     total = 0.0
-    for f, t in zip(frames.feats, frames.tgts):
+    for i, (f, t) in enumerate(zip(frames.feats, frames.tgts)):
         h, w = t.shape[:2]
         ch, cw = min(h, max_side), min(w, max_side)
         y0, x0 = (h - ch) // 2, (w - cw) // 2
         x = f[y0:y0 + ch, x0:x0 + cw, :spp].reshape(ch, cw, -1)
+        if frames.ests:   # the estimate after the samples
+            x = np.concatenate([x, frames.ests[i][y0:y0 + ch, x0:x0 + cw]], -1)
         y = t[y0:y0 + ch, x0:x0 + cw]
         x = torch.from_numpy(np.ascontiguousarray(x.astype(np.float32).transpose(2, 0, 1)))[None]
         y = torch.from_numpy(np.ascontiguousarray(y.astype(np.float32).transpose(2, 0, 1)))[None]
@@ -675,8 +677,9 @@ def main(argv=None):
             sys.exit(f"train.py: no frames of styles {args.styles} in {args.data}")
         train_e, val_e = dataset.split_frames(entries, args.val_fraction)
         t0 = time.time()
-        train_set = dataset.FrameSet(train_e, cfg["spp"])
-        val_set = dataset.FrameSet(val_e, cfg["spp"]) if val_e else None
+        est = bool(cfg.get("estimate"))
+        train_set = dataset.FrameSet(train_e, cfg["spp"], estimate=est)
+        val_set = dataset.FrameSet(val_e, cfg["spp"], estimate=est) if val_e else None
         print(f"{cfg['name']}: {len(train_e)} training / {len(val_e)} validation frames "
               f"({', '.join(sorted(set(e['style'] for e in entries)))}), "
               f"{(train_set.nbytes() + (val_set.nbytes() if val_set else 0)) / 2**20:.0f} MiB, "

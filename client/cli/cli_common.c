@@ -182,9 +182,10 @@ int cli_read_features(const char *path, const char *part, int spp, int estimate,
     snprintf(name, sizeof name, "%s.%s", HF_ESTIMATE_PREFIX, HF_OUTPUT_NAMES[c]);
     if (hf_image_channel(img, name) < 0) {
       fprintf(stderr, "hairfilter: %s: no channel %s: variant %s reads stochastic "
-              "transparency's alpha-corrected estimate beside the samples; render the frame "
-              "with `hairfilter render ... --alpha-corrected` (protocol/FEATURES.md, \"The "
-              "alpha-corrected estimate\")\n", path, name, variant);
+              "transparency's alpha-corrected estimate beside the samples; `hairfilter render` "
+              "writes it unless given --no-alpha-corrected (protocol/FEATURES.md, \"The "
+              "alpha-corrected estimate\"), or filter the frame with a variant that reads the "
+              "samples alone (Kernel)\n", path, name, variant);
       rc = HF_EFORMAT;
       goto fail;
     }

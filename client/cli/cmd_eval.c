@@ -976,7 +976,7 @@ int cmd_eval(int argc, char **argv) {
             hf_estimate_from_data(&img, img.data, HF_F32,
                                   in + npx * cfg->spp * HF_FEATURES_PER_SAMPLE) != HF_OK) {
           fprintf(stderr, "hairfilter eval: %s has no %s.* channels, %s reads the "
-                  "alpha-corrected estimate: skipped for it (render with --alpha-corrected)\n",
+                  "alpha-corrected estimate: skipped for it (rendered with --no-alpha-corrected?)\n",
                   fr->path, HF_ESTIMATE_PREFIX, cfg->name);
           continue;
         }

@@ -65,7 +65,7 @@ def with_estimate_variant(d, w):
     several_with_kernel(d, w)
     # KernelAC named for a frame without the estimate: the render option named.
     rc3, text3 = filt(d, w, "x.exr", "--variant", "KernelAC")
-    check(rc3 != 0 and "acst4.color" in text3 and "--alpha-corrected" in text3,
+    check(rc3 != 0 and "acst4.color" in text3 and "--no-alpha-corrected" in text3,
           "KernelAC on a frame without the estimate names what is missing: %r" % text3)
 
 

@@ -404,6 +404,17 @@ class Recipe(unittest.TestCase):
                 self.assertLess(float((net.raw(other) - kernel.raw(x)).abs().max()), 1e-5)
                 got = net(xa)
             self.assertLess(float((got - want).abs().max()), 1e-4)
+            # Exported as KernelAC (the slot's zero inputs dropped): the
+            # same output from the samples and the estimate's 3 channels.
+            vcfg, vstate = ac_input.to_variant(acfg, state)
+            self.assertEqual((vcfg["name"], vcfg["in_channels"], vcfg["estimate"]),
+                             ("KernelAC", 27, "alpha_corrected"))
+            ac_input.uninstall()
+            vnet = hfnet.HairNet(vcfg)
+            vnet.load_state_dict(vstate)
+            with torch.no_grad():
+                self.assertEqual(float((vnet(xa[:, :27]) - got).abs().max()), 0.0)
+            ac_input.install()
             f = np.random.default_rng(0).random((8, 8, 5, 6)).astype(np.float32)
             f[:, :, 4, :3] += 100
             for seed in range(4):
@@ -774,6 +785,44 @@ class Recipe(unittest.TestCase):
         for k in sd16:
             self.assertTrue(torch.equal(sd16[k], sdb16[k]), k)
             self.assertTrue(torch.equal(sd16[k], sd_a[k].half().float()), k)
+
+    def test_kernel_ac_trains_and_the_c_backend_agrees(self):
+        """KernelAC trains from the synthetic frames' acst4.* (the estimate
+        after the samples in every input), exports with its 'estimate', and
+        hairfilter infer (cpu-ref) reads the frame's estimate and gives
+        PyTorch's result; a frame without acst4.* is refused naming the
+        render option."""
+        run = os.path.join(self.work, "run_ac")
+        exp = os.path.join(self.work, "kernel_ac.safetensors")
+        r = run_train("--data", self.data, "--variant", "KernelAC", "--out", run, "--steps", "6",
+                      "--batch", "2", "--crop", "48", "--val-every", "3", "--export", exp)
+        self.assertIn("6/6", r.stderr)
+        cfg = hfnet.load_safetensors(exp)[0]
+        self.assertEqual((cfg["estimate"], cfg["in_channels"]), ("alpha_corrected", 27))
+        frame = dataset.read_manifest(self.data)[0]["file"]
+        out = os.path.join(self.work, "result_ac.exr")
+        subprocess.run([ARGS.hairfilter, "infer", "--backend", "cpu-ref", "--weights", exp,
+                        "--in", frame, "--out", out], check=True, capture_output=True)
+        names, res = dataset.read_exr(out)
+        c_out = dataset.pick_channels(names, res, dataset.TARGETS)
+        feat, _ = dataset.load_frame(frame, spp=4, dtype=np.float32)
+        est = dataset.load_estimate(frame, np.float32)
+        x = np.concatenate([feat.reshape(SIZE, SIZE, 24), est], -1)
+        net = hfnet.load_model(exp).eval()
+        with torch.no_grad():
+            ref = net(torch.from_numpy(x.transpose(2, 0, 1).copy())[None])[0].numpy()
+        ref = ref.transpose(1, 2, 0)
+        rel = np.linalg.norm(c_out - ref) / np.linalg.norm(ref)
+        self.assertLess(rel, 1e-4, f"C vs PyTorch relative L2 {rel:.3g}")
+        bare = os.path.join(self.work, "no_estimate.exr")
+        names, data = dataset.read_exr(frame)
+        keep = [n for n in names if not n.startswith("acst4.")]
+        dataset.write_exr(bare, keep, dataset.pick_channels(names, data, keep))
+        p = subprocess.run([ARGS.hairfilter, "infer", "--backend", "cpu-ref", "--weights", exp,
+                            "--in", bare, "--out", out], capture_output=True, text=True)
+        self.assertNotEqual(p.returncode, 0)
+        self.assertIn("acst4.color", p.stderr)
+        self.assertIn("--no-alpha-corrected", p.stderr)
 
     def test_target_input_trains_towards_the_own_input(self):
         """--target input: the target is st_estimate of the crop's own

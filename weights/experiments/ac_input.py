@@ -116,7 +116,7 @@ def to_variant(cfg, state):
         raise ValueError("not weights of this experiment (no 'ac_input' in the metadata)")
     spp = cfg["spp"] - 1
     keep = list(range(spp * NF + 3))
-    out = hfnet.variant_config("KernelAC")
+    out = patching.ORIGINAL["variant_config"]("KernelAC")   # installed or not
     for key in ("kernel_radius", "kernel_hidden", "levels", "out_channels"):
         if cfg[key] != out[key]:
             raise ValueError(f"{key} {cfg[key]} is not KernelAC's {out[key]}")
