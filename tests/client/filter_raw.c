@@ -3,8 +3,11 @@
  * the C library's byte for byte.
  *
  *   filter_raw URL VARIANT WIDTH HEIGHT SPP f32|f16 IN OUT [shm] [rgba RGBA] [ca CA.pem]
+ *              [estimate]
  *
- * IN holds the features [HEIGHT][WIDTH][SPP*6] in the dtype given; OUT gets
+ * IN holds the features [HEIGHT][WIDTH][SPP*6] in the dtype given (with
+ * estimate, followed by the alpha-corrected estimate [HEIGHT][WIDTH][3],
+ * sent with hfc_request.estimate); OUT gets
  * the result [HEIGHT][WIDTH][3] in the same dtype, RGBA the composite
  * (hair 0.45,0.25,0.12, light 1,1,1, background 0.18,0.2,0.24). With shm the
  * frame goes through a shared segment (and must: exit 3 otherwise). */
@@ -43,16 +46,18 @@ int main(int argc, char **argv) {
   }
   int w = atoi(argv[3]), h = atoi(argv[4]), spp = atoi(argv[5]);
   hfc_dtype dt = strcmp(argv[6], "f16") ? HFC_F32 : HFC_F16;
-  int shm = 0;
+  int shm = 0, estimate = 0;
   const char *rgba_path = NULL;
   hfc_options o;
   hfc_options_init(&o);
   for (int i = 9; i < argc; i++) {
     if (!strcmp(argv[i], "shm")) shm = 1;
+    if (!strcmp(argv[i], "estimate")) estimate = 1;
     if (!strcmp(argv[i], "rgba") && i + 1 < argc) rgba_path = argv[++i];
     if (!strcmp(argv[i], "ca") && i + 1 < argc) o.tls_ca_file = argv[++i];
   }
-  size_t in_b = hfc_features_bytes(w, h, spp, dt), out_b = hfc_output_bytes(w, h, 3, dt);
+  size_t in_b = hfc_features_bytes(w, h, spp, dt) + (estimate ? hfc_estimate_bytes(w, h, dt) : 0);
+  size_t out_b = hfc_output_bytes(w, h, 3, dt);
   size_t rgba_b = rgba_path ? hfc_output_bytes(w, h, 4, dt) : 0;
   void *in = slurp(argv[7], in_b);
   if (!in) return 1;
@@ -82,6 +87,7 @@ int main(int argc, char **argv) {
   r.in_dtype = r.out_dtype = dt;
   r.features = shm ? mem : in;
   r.features_bytes = in_b;
+  r.estimate = estimate;
   r.result = out;
   r.result_bytes = out_b;
   if (rgba_path) {

@@ -44,15 +44,21 @@ def features(h, w, spp, seed, dtype=np.float32):
     return np.ascontiguousarray(f.reshape(h, w, spp * 6).astype(dtype))
 
 
-def c_filter(url, variant, f, shm=False, rgba=False, ca=None):
-    """The C library's result (and composite) of frame f, as bytes."""
+def c_filter(url, variant, f, shm=False, rgba=False, ca=None, estimate=None):
+    """The C library's result (and composite) of frame f (and its estimate),
+    as bytes."""
     h, w, ch = f.shape
     dt = "f16" if f.dtype == np.float16 else "f32"
     src = os.path.join(ARGS.work, "in.raw")
     dst = os.path.join(ARGS.work, "out.raw")
     drgba = os.path.join(ARGS.work, "rgba.raw")
-    f.tofile(src)
+    with open(src, "wb") as fh:
+        fh.write(f.tobytes())
+        if estimate is not None:
+            fh.write(estimate.tobytes())
     cmd = [ARGS.filter_raw, url, variant, str(w), str(h), str(ch // 6), dt, src, dst]
+    if estimate is not None:
+        cmd.append("estimate")
     if shm:
         cmd.append("shm")
     if rgba:
@@ -121,7 +127,7 @@ def tearDownModule():
 class PythonClient(unittest.TestCase):
     def test_handshake_and_variants(self):
         with hairfilter.Client(UNIX, client_name="py-test") as hf:
-            self.assertEqual(hf.info.version, 2)
+            self.assertEqual(hf.info.version, 3)
             self.assertEqual(hf.info.software_version, ARGS.version)
             self.assertEqual(hairfilter.__version__, ARGS.version)
             self.assertTrue(hf.info.shm)
@@ -133,6 +139,50 @@ class PythonClient(unittest.TestCase):
             self.assertEqual(vs["Small"].backend, "cpu-ref")
         with hairfilter.Client(TCP) as hf:
             self.assertFalse(hf.info.shm)
+
+    def test_estimate_equals_c(self):
+        """A variant that reads the alpha-corrected estimate (KernelAC,
+        protocol version 3): Variant.estimate says so, the frame with its
+        estimate gives the C library's bytes over the socket and shared
+        memory, a frame without it is refused INVALID, and an estimate of
+        the wrong shape is refused before anything is sent."""
+        sock = os.path.join(ARGS.work, "ac.sock")
+        if os.path.exists(sock):
+            os.unlink(sock)
+        proc, urls = start_daemon("ac", ["--listen", "unix:" + sock, "--weights",
+                                         os.path.join(ARGS.weights, "kernel_ac.safetensors"),
+                                         "--max-size", "64x64"])
+        try:
+            url = urls[0]
+            f = features(20, 28, 4, 5)
+            rng = np.random.default_rng(6)
+            e = rng.random((20, 28, 3), dtype=np.float32)
+            e[:, :4] = 0
+            want = c_filter(url, "KernelAC", f, estimate=e)
+            with hairfilter.Client(url) as hf:
+                self.assertEqual(hf.info.version, 3)
+                self.assertTrue(hf.variants()[0].estimate)
+                done = hf.filter("KernelAC", f, estimate=e)
+                self.assertEqual(done.status, "OK", done.message)
+                self.assertEqual(done.result.tobytes(), want)
+                seg = hf.shared_memory(f.nbytes + e.nbytes + 20 * 28 * 3 * 4)
+                fs = seg.array(f.shape, np.float32, 0)
+                es = seg.array(e.shape, np.float32, f.nbytes)    # right after the features
+                rs = seg.array((20, 28, 3), np.float32, f.nbytes + e.nbytes)
+                fs[...], es[...] = f, e
+                done = hf.filter("KernelAC", fs, estimate=es, result=rs)
+                self.assertTrue(done.timing.via_shm)
+                self.assertEqual(done.result.tobytes(), want)
+                with self.assertRaises(hairfilter.Error) as err:
+                    hf.filter("KernelAC", f)
+                self.assertEqual(err.exception.code, "INVALID")
+                self.assertIn("ESTIMATE", err.exception.message)
+                with self.assertRaises(hairfilter.Error) as err:
+                    hf.submit("KernelAC", f, estimate=e[:, :, :2].copy())
+                self.assertEqual(err.exception.code, "ARG")
+        finally:
+            proc.terminate()
+            self.assertEqual(proc.wait(timeout=30), 0)
 
     def test_socket_equals_c(self):
         f = features(24, 40, 4, 1)

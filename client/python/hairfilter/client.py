@@ -1,5 +1,6 @@
-"""A hairfilterd client in Python 3 and numpy: protocol version 2 (1 with a
-server that speaks only 1) over a Unix socket or TCP, with shared memory.
+"""A hairfilterd client in Python 3 and numpy: protocol version 3 (2 or 1
+with a server that speaks only those) over a Unix socket or TCP, with
+shared memory.
 
     import numpy as np, hairfilter
     with hairfilter.Client("unix:/run/hairfilterd/hairfilterd.sock") as hf:
@@ -501,9 +502,13 @@ class Client:
         return name
 
     def submit(self, variant, features, out_dtype=None, result=None, composite=False,
-               rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None):
+               rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None,
+               estimate=None):
         """Sends one frame and returns its id at once; wait() gives its
         Completion. features: [h][w][spp*6] float32 or float16, C-contiguous.
+        estimate: the frame's alpha-corrected estimate, [h][w][3] of the
+        features' dtype, for a variant that reads it (Variant.estimate;
+        protocol version 3), sent after the features.
         result / rgba: arrays to receive into ([h][w][3], [h][w][4] of
         out_dtype, by default the features' dtype), made when None. The
         arrays must stay untouched until the completion."""
@@ -518,6 +523,14 @@ class Client:
         if ch % P.FEATURES or not 1 <= ch // P.FEATURES <= P.MAX_SPP:
             raise Error("ARG", "features: %d channels per pixel, want spp*6 with spp 1..16" % ch)
         spp = ch // P.FEATURES
+        if estimate is not None:
+            if self.info.version < 3:
+                raise Error("ARG", "estimate: %s speaks protocol version %d; the estimate needs 3"
+                            % (self.endpoint, self.info.version))
+            if (not isinstance(estimate, np.ndarray) or estimate.shape != (h, w, 3) or
+                    estimate.dtype != f.dtype or not estimate.flags.c_contiguous):
+                raise Error("ARG", "estimate: want a C-contiguous %s array of shape %s"
+                            % (f.dtype, (h, w, 3)))
         odt = np.dtype(out_dtype) if out_dtype is not None else f.dtype
         if odt not in _DTYPES:
             raise Error("ARG", "out_dtype: want float32 or float16")
@@ -540,6 +553,10 @@ class Client:
         arrays = [f, result] + ([rgba] if composite else [])
         for s in self._segments:
             offs = (s.place(f), s.place(result), s.place(rgba) if composite else 0)
+            # By reference, the estimate must follow the features in the segment.
+            if estimate is not None and (offs[0] is None or
+                                         s.place(estimate) != offs[0] + f.nbytes):
+                continue
             if None not in offs and not _overlapping(offs, arrays):
                 seg, ref = s, (s.id,) + offs
                 break
@@ -548,10 +565,12 @@ class Client:
         head = P.encode_filter_head(rid, name, w, h, spp, _DTYPES[f.dtype], _DTYPES[odt],
                                     composite, tuple(map(float, hair)),
                                     tuple(map(float, light)), tuple(map(float, background)),
-                                    shm=ref)
+                                    shm=ref, estimate=estimate is not None)
         self._pending[rid] = _Pending(rid, name, result, rgba, user, seg)
         if ref:
             self._send(head)
+        elif estimate is not None:
+            self._send(head, memoryview(f).cast("B"), memoryview(estimate).cast("B"))
         else:
             self._send(head, memoryview(f).cast("B"))
         return rid

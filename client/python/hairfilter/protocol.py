@@ -14,7 +14,7 @@ import struct
 from collections import namedtuple
 
 MAGIC = 0x31504648          # the bytes "HFP1"
-VERSION = 2                 # the newest version spoken here
+VERSION = 3                 # the newest version spoken here
 VERSION_MIN = 1
 HEADER = struct.Struct("<IHHII")   # magic, type, flags, request_id, length
 HEADER_SIZE = HEADER.size
@@ -48,6 +48,8 @@ DTYPE_SIZE = {F32: 4, F16: 2}
 # FILTER flags, RESULT flags, HELLO_OK server flags
 FILTER_COMPOSITE = 0x1
 FILTER_SHM = 0x2
+FILTER_ESTIMATE = 0x4       # version 3: the alpha-corrected estimate follows the features
+ESTIMATE_VALUES = 3         # its colour, highlight, alpha per pixel
 RESULT_INPUT_SANITISED = 0x4
 RESULT_OUT_OF_RANGE = 0x8
 SERVER_AUTH_REQUIRED = 0x1
@@ -164,9 +166,10 @@ def decode_hello_ok(payload):
 
 # ---- VARIANTS ------------------------------------------------------------------
 
-Variant = namedtuple("Variant", "name backend precision spp levels ranges")
+Variant = namedtuple("Variant", "name backend precision spp levels ranges estimate")
 Variant.__doc__ = ("A loaded variant; ranges maps an input statistic's number "
-                   "(protocol/FEATURES.md) to its trained (low, high), empty without one.")
+                   "(protocol/FEATURES.md) to its trained (low, high), empty without one; "
+                   "estimate is True when it reads the alpha-corrected estimate (version 3).")
 
 
 def decode_variants(payload):
@@ -185,7 +188,7 @@ def decode_variants(payload):
         levels = r.unpack("%dI" % nl)
         if min(levels) < 1:
             raise ProtocolError(E_INVALID, "variant %s levels" % name)
-        out.append(Variant(name, backend, precision, spp, tuple(levels), {}))
+        out.append(Variant(name, backend, precision, spp, tuple(levels), {}, False))
     # Version 2: one block of ranges per entry after the last one.
     if r.left():
         for v in out:
@@ -197,6 +200,13 @@ def decode_variants(payload):
                 if stat in v.ranges or not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
                     raise ProtocolError(E_INVALID, "range of statistic %d" % stat)
                 v.ranges[stat] = (lo, hi)
+    # Version 3: the estimate each variant reads, one byte per entry.
+    if r.left():
+        for i, v in enumerate(out):
+            (e,) = r.unpack("B")
+            if e > 1:
+                raise ProtocolError(E_INVALID, "variant %s: estimate %d" % (v.name, e))
+            out[i] = v._replace(estimate=bool(e))
     r.end()
     return out
 
@@ -217,14 +227,17 @@ def output_bytes(width, height, channels, dtype):
 
 def encode_filter_head(request_id, variant, width, height, spp, in_dtype, out_dtype,
                        composite=False, hair=(0, 0, 0), light=(0, 0, 0), background=(0, 0, 0),
-                       shm=None):
+                       shm=None, estimate=False):
     """The FILTER frame up to its tensor. shm: (segment, in_offset, out_offset,
-    rgba_offset) to send a reference instead; the features then do not follow."""
+    rgba_offset) to send a reference instead; the features then do not follow.
+    estimate: the features are followed by the frame's alpha-corrected
+    estimate, [h][w][3] of in_dtype (flag ESTIMATE, version 3)."""
     name = _text_bytes(variant, NAME_MAX)
     if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE and 1 <= spp <= MAX_SPP):
         raise ValueError("frame %dx%d of %d spp: want 1..%d pixels a side, 1..%d spp"
                          % (width, height, spp, MAX_SIDE, MAX_SPP))
-    flags = (FILTER_COMPOSITE if composite else 0) | (FILTER_SHM if shm else 0)
+    flags = (FILTER_COMPOSITE if composite else 0) | (FILTER_SHM if shm else 0) | \
+        (FILTER_ESTIMATE if estimate else 0)
     fixed = FILTER_FIXED.pack(len(name), flags, width, height, spp, in_dtype, out_dtype,
                               *hair, *light, *background)
     if shm:
@@ -232,7 +245,8 @@ def encode_filter_head(request_id, variant, width, height, spp, in_dtype, out_dt
         ref = struct.pack("<IIQQQ", seg, 0, off_in, off_out, off_rgba)
         return frame(FILTER, fixed + name + ref, request_id)
     return frame(FILTER, fixed + name, request_id,
-                 extra=features_bytes(width, height, spp, in_dtype))
+                 extra=features_bytes(width, height, spp, in_dtype) +
+                 (output_bytes(width, height, ESTIMATE_VALUES, in_dtype) if estimate else 0))
 
 
 ResultHead = namedtuple("ResultHead", "status dtype flags width height batch queue_us input_us "
