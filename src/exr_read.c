@@ -499,15 +499,22 @@ int hf_exr_read(const char *path, hf_image *img, char *err, size_t errlen) {
   return hf_exr_read_part(path, NULL, NULL, img, err, errlen);
 }
 
+/* Opens path's headers alone (no chunk is read), errors into msg: what the
+ * header-only queries below share. */
+static exr_result_t start_headers(const char *path, hf_exr_msg *msg, exr_context_t *ctx) {
+  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+  init.error_handler_fn = hf_exr_on_error;
+  init.user_data = msg;
+  init.flags |= EXR_CONTEXT_FLAG_SILENT_HEADER_PARSE;
+  *ctx = NULL;
+  return exr_start_read(ctx, path, &init);
+}
+
 int hf_exr_display_size(const char *path, int *width, int *height, char *err, size_t errlen) {
   if (!path || !width || !height) return fail(err, errlen, HF_EINVAL, "null argument");
   hf_exr_msg msg = {""};
-  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
-  init.error_handler_fn = hf_exr_on_error;
-  init.user_data = &msg;
-  init.flags |= EXR_CONTEXT_FLAG_SILENT_HEADER_PARSE;
-  exr_context_t ctx = NULL;
-  exr_result_t r = exr_start_read(&ctx, path, &init);
+  exr_context_t ctx;
+  exr_result_t r = start_headers(path, &msg, &ctx);
   if (r != EXR_ERR_SUCCESS) {
     exr_finish(&ctx);
     return fail(err, errlen, HF_EIO, "%s: %s", path, exr_get_error_code_as_string(r));
@@ -533,14 +540,10 @@ int hf_exr_display_size(const char *path, int *width, int *height, char *err, si
 int hf_exr_has_channel(const char *path, const char *channel) {
   if (!path || !channel) return HF_EINVAL;
   hf_exr_msg msg = {""};
-  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
-  init.error_handler_fn = hf_exr_on_error;
-  init.user_data = &msg;
-  init.flags |= EXR_CONTEXT_FLAG_SILENT_HEADER_PARSE;
-  exr_context_t ctx = NULL;
-  exr_result_t r = exr_start_read(&ctx, path, &init);
+  exr_context_t ctx;
   int parts = 0, found = 0;
-  if (r != EXR_ERR_SUCCESS || exr_get_count(ctx, &parts) != EXR_ERR_SUCCESS) {
+  if (start_headers(path, &msg, &ctx) != EXR_ERR_SUCCESS ||
+      exr_get_count(ctx, &parts) != EXR_ERR_SUCCESS) {
     exr_finish(&ctx);
     return HF_EIO;
   }

@@ -78,8 +78,19 @@ static void sample(const cf_filter *f, uint64_t i, uint32_t *x, float s[6]) {
   }
 }
 
-/* dst may sit anywhere in a frame (after a variant name of any length), so
- * values are copied in, never stored through a float or uint16_t pointer. */
+/* One value of dtype at d; returns the byte after it. d may sit anywhere in
+ * a frame (after a variant name of any length), so values are copied in,
+ * never stored through a float or uint16_t pointer. */
+static uint8_t *put_value(uint8_t *d, float v, int dtype) {
+  if (dtype == HFP_F16) {
+    uint16_t h = hf_f32_to_f16(v);
+    memcpy(d, &h, sizeof h);
+    return d + sizeof h;
+  }
+  memcpy(d, &v, sizeof v);
+  return d + sizeof v;
+}
+
 void cf_fill_features(const cf_filter *f, void *dst) {
   uint64_t samples = (uint64_t)f->width * f->height * (uint64_t)f->spp;
   uint32_t x = f->seed * 2654435761u + 12345u;
@@ -87,16 +98,7 @@ void cf_fill_features(const cf_filter *f, void *dst) {
   for (uint64_t i = 0; i < samples; i++) {
     float s[6];
     sample(f, i, &x, s);
-    for (int k = 0; k < 6; k++) {
-      if (f->in_dtype == HFP_F16) {
-        uint16_t h = hf_f32_to_f16(s[k]);
-        memcpy(d, &h, sizeof h);
-        d += sizeof h;
-      } else {
-        memcpy(d, &s[k], sizeof s[k]);
-        d += sizeof s[k];
-      }
-    }
+    for (int k = 0; k < 6; k++) d = put_value(d, s[k], f->in_dtype);
   }
   /* With ESTIMATE, the estimate follows (FEATURES.md, "The alpha-corrected
    * estimate"): colour, highlight, alpha of each pixel, a sixth without
@@ -108,16 +110,7 @@ void cf_fill_features(const cf_filter *f, void *dst) {
     float e[3] = {s[0], s[1], s[2]};
     if (p % 6 == 1) e[0] = e[1] = e[2] = 0;
     else if (e[2] <= 0) e[2] = 0.5f;
-    for (int k = 0; k < 3; k++) {
-      if (f->in_dtype == HFP_F16) {
-        uint16_t h = hf_f32_to_f16(e[k]);
-        memcpy(d, &h, sizeof h);
-        d += sizeof h;
-      } else {
-        memcpy(d, &e[k], sizeof e[k]);
-        d += sizeof e[k];
-      }
-    }
+    for (int k = 0; k < 3; k++) d = put_value(d, e[k], f->in_dtype);
   }
 }
 

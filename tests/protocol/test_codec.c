@@ -653,6 +653,20 @@ static void test_stats(void **state) {
   assert_int_equal(hfp_encode_stats(buf, sizeof buf, &m), -HFP_E_INVALID);
 }
 
+/* Two plain variants, V0 and V1 (4 spp, one level of 8 channels), for the
+ * VARIANTS blocks of versions 2 and 3. */
+static void two_variants(hfp_variant v[2]) {
+  memset(v, 0, 2 * sizeof *v);
+  for (int i = 0; i < 2; i++) {
+    snprintf(v[i].name, sizeof v[i].name, "V%d", i);
+    strcpy(v[i].backend, "cpu");
+    strcpy(v[i].precision, "fp32");
+    v[i].spp = 4;
+    v[i].num_levels = 1;
+    v[i].levels[0] = 8;
+  }
+}
+
 /* Version 2 (PROTOCOL.md, "Version 2"): negotiation, the RESULT flag, the
  * ranges after VARIANTS and the counters after STATS_REPLY; version-1
  * encodings stay byte for byte what they were, and decode with none. */
@@ -711,15 +725,7 @@ static void test_version2(void **state) {
 
   /* VARIANTS with ranges. */
   hfp_variant v[2], d[HFP_MAX_VARIANTS];
-  memset(v, 0, sizeof v);
-  for (int i = 0; i < 2; i++) {
-    snprintf(v[i].name, sizeof v[i].name, "V%d", i);
-    strcpy(v[i].backend, "cpu");
-    strcpy(v[i].precision, "fp32");
-    v[i].spp = 4;
-    v[i].num_levels = 1;
-    v[i].levels[0] = 8;
-  }
+  two_variants(v);
   v[1].num_ranges = 2;
   v[1].ranges[0].stat = 0, v[1].ranges[0].lo = 0.015, v[1].ranges[0].hi = 0.0190001;
   v[1].ranges[1].stat = 4, v[1].ranges[1].lo = 256, v[1].ranges[1].hi = 1024;
@@ -823,15 +829,7 @@ static void test_version3(void **state) {
   assert_int_equal(hfp_negotiate(1, 2), 2);
 
   hfp_variant v[2], d[HFP_MAX_VARIANTS];
-  memset(v, 0, sizeof v);
-  for (int i = 0; i < 2; i++) {
-    snprintf(v[i].name, sizeof v[i].name, "V%d", i);
-    strcpy(v[i].backend, "cpu");
-    strcpy(v[i].precision, "fp32");
-    v[i].spp = 4;
-    v[i].num_levels = 1;
-    v[i].levels[0] = 8;
-  }
+  two_variants(v);
   v[1].estimate = HFP_ESTIMATE_ALPHA_CORRECTED;
   int n2 = hfp_encode_variants_v(buf, sizeof buf, v, 2, 2);
   static uint8_t v2[1024];

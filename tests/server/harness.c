@@ -78,38 +78,37 @@ void harness_free(harness *h) {
   if (system(cmd) != 0) fprintf(stderr, "harness: could not remove %s\n", h->dir);
 }
 
-int harness_narrow_weights(const harness *h, const char *range_json, char *path, size_t cap) {
+/* Random weights of cfg (named name, seed) into <dir>/<sub>/<name>.safetensors,
+ * out of the weights directory so the other suites' servers do not see
+ * them; range_json, when not NULL, as their trained range. */
+static int weights_aside(const harness *h, const char *sub, hf_net_config cfg, const char *name,
+                         uint64_t seed, const char *range_json, char *path, size_t cap) {
   char dir[256];
-  snprintf(dir, sizeof dir, "%s/narrow", h->dir);
+  snprintf(dir, sizeof dir, "%s/%s", h->dir, sub);
   if (mkdir(dir, 0700)) return -1;
-  snprintf(path, cap, "%s/Narrow.safetensors", dir);
-  hf_net_config cfg;
+  snprintf(path, cap, "%s/%s.safetensors", dir, name);
+  snprintf(cfg.name, sizeof cfg.name, "%s", name);
   hf_weights *w = NULL;
-  if (hf_variant_preset("Small", &cfg)) return -1;
-  snprintf(cfg.name, sizeof cfg.name, "Narrow");
-  if (hf_weights_init_random(&cfg, 77, &w)) return -1;
-  int rc = hf_input_range_parse(range_json, 4, &w->input_range, NULL, 0) ||
+  if (hf_weights_init_random(&cfg, seed, &w)) return -1;
+  int rc = (range_json && hf_input_range_parse(range_json, cfg.spp, &w->input_range, NULL, 0)) ||
            hf_weights_save(path, w);
   hf_weights_free(w);
   return rc ? -1 : 0;
 }
 
-int harness_estimate_weights(const harness *h, char *path, size_t cap) {
-  char dir[256];
-  snprintf(dir, sizeof dir, "%s/estimate", h->dir);
-  if (mkdir(dir, 0700)) return -1;
-  snprintf(path, cap, "%s/Estimate.safetensors", dir);
+int harness_narrow_weights(const harness *h, const char *range_json, char *path, size_t cap) {
   hf_net_config cfg;
-  hf_weights *w = NULL;
+  if (hf_variant_preset("Small", &cfg)) return -1;
+  return weights_aside(h, "narrow", cfg, "Narrow", 77, range_json, path, cap);
+}
+
+int harness_estimate_weights(const harness *h, char *path, size_t cap) {
+  hf_net_config cfg;
   if (hf_variant_preset("KernelAC", &cfg)) return -1;
-  snprintf(cfg.name, sizeof cfg.name, "Estimate");
   cfg.num_levels = 2, cfg.levels[0] = 8, cfg.levels[1] = 16;
   cfg.kernel_radius = 1, cfg.kernel_hidden = 4;
   cfg.out_channels = hf_kernel_taps(1) + HF_OUT_CHANNELS;
-  if (hf_weights_init_random(&cfg, 78, &w)) return -1;
-  int rc = hf_weights_save(path, w);
-  hf_weights_free(w);
-  return rc ? -1 : 0;
+  return weights_aside(h, "estimate", cfg, "Estimate", 78, NULL, path, cap);
 }
 
 const ref_variant *harness_variant(const harness *h, const char *name) {

@@ -67,10 +67,33 @@ static float *kernel_frame(int w, int h, uint32_t seed) {
   return in;
 }
 
-/* One frame through the daemon (into shm when not NULL) against cpu-ref. */
-static void filter_and_compare(hfc_client *c, int w, int h, int f16, uint8_t *shm) {
-  size_t n_in = (size_t)w * h * 4 * 6, n_out = (size_t)w * h * 3, es = f16 ? 2 : 4;
-  float *in = kernel_frame(w, h, (uint32_t)(w * 31 + h + f16));
+/* KernelAC's frame: kernel_frame's samples, then an estimate ([h][w][3]) with
+ * no hair in the left 8 columns. */
+static float *ac_frame(int w, int h, uint32_t seed) {
+  float *s = kernel_frame(w, h, seed), *in = malloc((size_t)w * h * 27 * sizeof(float));
+  assert_non_null(in);
+  memcpy(in, s, (size_t)w * h * 24 * sizeof(float));
+  float *e = in + (size_t)w * h * 24;
+  for (int p = 0; p < w * h; p++) {
+    int hair = p % w >= 8;
+    e[p * 3] = hair ? 0.3f + 0.5f * (float)((p * 7) % 11) / 11 : 0;
+    e[p * 3 + 1] = hair ? 0.2f * (float)((p * 5) % 7) / 7 : 0;
+    e[p * 3 + 2] = hair ? 0.1f + 0.9f * (float)((p * 3) % 13) / 13 : 0;
+  }
+  free(s);
+  return in;
+}
+
+/* One frame through the daemon as variant (into shm when not NULL) against
+ * cpu-ref's ref on the same weights: kernel_frame's, and for a variant
+ * that reads the estimate ac_frame's with the estimate sent. */
+static void filter_and_compare(hfc_client *c, const char *variant, hf_model *ref, int w, int h,
+                               int f16, uint8_t *shm) {
+  const int estimate = hf_model_config(ref)->estimate != HF_ESTIMATE_NONE;
+  size_t n_in = (size_t)w * h * hf_model_config(ref)->in_channels, n_out = (size_t)w * h * 3;
+  size_t es = f16 ? 2 : 4;
+  uint32_t seed = (uint32_t)(w * 31 + h + f16);
+  float *in = estimate ? ac_frame(w, h, seed) : kernel_frame(w, h, seed);
   uint8_t *send = shm ? shm : malloc(n_in * es);
   uint8_t *got = shm ? shm + n_in * es : malloc(n_out * es), *want = malloc(n_out * es);
   assert_non_null(send);
@@ -81,17 +104,19 @@ static void filter_and_compare(hfc_client *c, int w, int h, int f16, uint8_t *sh
     else ((float *)send)[i] = in[i];
   }
   memset(got, 0xcd, n_out * es);
-  hfc_request r = TEST_REQUEST(.variant = "Kernel", .width = w, .height = h, .spp = 4,
+  hfc_request r = TEST_REQUEST(.variant = variant, .width = w, .height = h, .spp = 4,
                                 .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
-                                .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got);
+                                .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got,
+                                .estimate = estimate);
+  assert_int_equal(r.features_bytes, n_in * es);
   hfc_timing t;
   int rc = hfc_filter(c, &r, &t);
-  if (rc) fprintf(stderr, "filter Kernel %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
+  if (rc) fprintf(stderr, "filter %s %dx%d: %s (%s)\n", variant, w, h, hfc_strerror(rc),
                   hfc_last_message(c));
   assert_int_equal(rc, 0);
   assert_int_equal(t.via_shm, shm != NULL);
   hf_io io = {1, w, h, send, f16 ? HF_F16 : HF_F32, want, f16 ? HF_F16 : HF_F32};
-  assert_int_equal(hf_model_run(kernel_ref, &io, NULL), HF_OK);
+  assert_int_equal(hf_model_run(ref, &io, NULL), HF_OK);
   assert_memory_equal(got, want, n_out * es);
   free(in);
   if (!shm) free(send), free(got);
@@ -112,66 +137,15 @@ static void test_kernel_listed_and_filtered(void **state) {
       assert_string_equal(v[i].backend, "cpu-ref");
     }
   assert_true(found);
-  filter_and_compare(c, 37, 23, 0, NULL);
-  filter_and_compare(c, 64, 48, 1, NULL);
-  filter_and_compare(c, 9, 5, 0, NULL); /* smaller than the 7x7 kernel's reach */
+  filter_and_compare(c, "Kernel", kernel_ref, 37, 23, 0, NULL);
+  filter_and_compare(c, "Kernel", kernel_ref, 64, 48, 1, NULL);
+  filter_and_compare(c, "Kernel", kernel_ref, 9, 5, 0, NULL); /* smaller than the 7x7 kernel's reach */
   assert_int_equal(hfc_info(c)->shm, 1); /* a Unix socket */
   uint8_t *mem;
   assert_int_equal(hfc_shm_alloc(c, (size_t)40 * 30 * (24 + 3) * 4, (void **)&mem), 0);
-  filter_and_compare(c, 40, 30, 0, mem);
+  filter_and_compare(c, "Kernel", kernel_ref, 40, 30, 0, mem);
   assert_int_equal(hfc_shm_free(c, mem), 0);
   hfc_close(c);
-}
-
-/* KernelAC's frame: kernel_frame's samples, then an estimate ([h][w][3]) with
- * no hair in the left 8 columns. */
-static float *ac_frame(int w, int h, uint32_t seed) {
-  float *s = kernel_frame(w, h, seed), *in = malloc((size_t)w * h * 27 * sizeof(float));
-  assert_non_null(in);
-  memcpy(in, s, (size_t)w * h * 24 * sizeof(float));
-  float *e = in + (size_t)w * h * 24;
-  for (int p = 0; p < w * h; p++) {
-    int hair = p % w >= 8;
-    e[p * 3] = hair ? 0.3f + 0.5f * (float)((p * 7) % 11) / 11 : 0;
-    e[p * 3 + 1] = hair ? 0.2f * (float)((p * 5) % 7) / 7 : 0;
-    e[p * 3 + 2] = hair ? 0.1f + 0.9f * (float)((p * 3) % 13) / 13 : 0;
-  }
-  free(s);
-  return in;
-}
-
-/* One KernelAC frame through the daemon (into shm when not NULL) against
- * cpu-ref. */
-static void ac_filter_and_compare(hfc_client *c, int w, int h, int f16, uint8_t *shm) {
-  size_t n_in = (size_t)w * h * 27, n_out = (size_t)w * h * 3, es = f16 ? 2 : 4;
-  float *in = ac_frame(w, h, (uint32_t)(w * 17 + h + f16));
-  uint8_t *send = shm ? shm : malloc(n_in * es);
-  uint8_t *got = shm ? shm + n_in * es : malloc(n_out * es), *want = malloc(n_out * es);
-  assert_non_null(send);
-  assert_non_null(got);
-  assert_non_null(want);
-  for (size_t i = 0; i < n_in; i++) {
-    if (f16) ((uint16_t *)send)[i] = hf_f32_to_f16(in[i]);
-    else ((float *)send)[i] = in[i];
-  }
-  memset(got, 0xcd, n_out * es);
-  hfc_request r = TEST_REQUEST(.variant = "KernelAC", .width = w, .height = h, .spp = 4,
-                                .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = send,
-                                .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got,
-                                .estimate = 1);
-  assert_int_equal(r.features_bytes, n_in * es);
-  hfc_timing t;
-  int rc = hfc_filter(c, &r, &t);
-  if (rc) fprintf(stderr, "filter KernelAC %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
-                  hfc_last_message(c));
-  assert_int_equal(rc, 0);
-  assert_int_equal(t.via_shm, shm != NULL);
-  hf_io io = {1, w, h, send, f16 ? HF_F16 : HF_F32, want, f16 ? HF_F16 : HF_F32};
-  assert_int_equal(hf_model_run(ac_ref, &io, NULL), HF_OK);
-  assert_memory_equal(got, want, n_out * es);
-  free(in);
-  if (!shm) free(send), free(got);
-  free(want);
 }
 
 static void test_estimate_listed_and_filtered(void **state) {
@@ -187,11 +161,11 @@ static void test_estimate_listed_and_filtered(void **state) {
     found += !strcmp(v[i].name, "KernelAC");
   }
   assert_int_equal(found, 1);
-  ac_filter_and_compare(c, 37, 23, 0, NULL);
-  ac_filter_and_compare(c, 64, 48, 1, NULL);
+  filter_and_compare(c, "KernelAC", ac_ref, 37, 23, 0, NULL);
+  filter_and_compare(c, "KernelAC", ac_ref, 64, 48, 1, NULL);
   uint8_t *mem;
   assert_int_equal(hfc_shm_alloc(c, (size_t)40 * 30 * (27 + 3) * 4, (void **)&mem), 0);
-  ac_filter_and_compare(c, 40, 30, 0, mem);
+  filter_and_compare(c, "KernelAC", ac_ref, 40, 30, 0, mem);
   assert_int_equal(hfc_shm_free(c, mem), 0);
   /* Without the estimate, KernelAC refuses the frame; with it, Kernel does. */
   const int w = 16, h = 8;
@@ -205,7 +179,7 @@ static void test_estimate_listed_and_filtered(void **state) {
   assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_INVALID);
   assert_non_null(strstr(hfc_last_message(c), "reads no estimate"));
   /* The connection goes on. */
-  ac_filter_and_compare(c, 9, 5, 0, NULL);
+  filter_and_compare(c, "KernelAC", ac_ref, 9, 5, 0, NULL);
   free(in);
   hfc_close(c);
 }

@@ -734,6 +734,21 @@ class Recipe(unittest.TestCase):
 
     # -- training --------------------------------------------------------------
 
+    def assert_c_infer_is_pytorch(self, weights, frame, x):
+        """hairfilter infer (cpu-ref) of weights on the dataset EXR frame gives
+        what PyTorch gives on its network input x ([h][w][channels])."""
+        out = os.path.join(self.work, "result.exr")
+        subprocess.run([ARGS.hairfilter, "infer", "--backend", "cpu-ref", "--weights", weights,
+                        "--in", frame, "--out", out], check=True, capture_output=True)
+        names, res = dataset.read_exr(out)
+        c_out = dataset.pick_channels(names, res, dataset.TARGETS)
+        net = hfnet.load_model(weights).eval()
+        with torch.no_grad():
+            ref = net(torch.from_numpy(x.transpose(2, 0, 1).copy())[None])[0].numpy()
+        ref = ref.transpose(1, 2, 0)
+        rel = np.linalg.norm(c_out - ref) / np.linalg.norm(ref)
+        self.assertLess(rel, 1e-4, f"C vs PyTorch relative L2 {rel:.3g}")
+
     def test_loss_falls_and_export_roundtrips(self):
         run = os.path.join(self.work, "run")
         exp = os.path.join(self.work, "base.safetensors")
@@ -761,18 +776,8 @@ class Recipe(unittest.TestCase):
 
         # C inference (cpu-ref) on a dataset EXR against PyTorch.
         frame = dataset.read_manifest(self.data)[0]["file"]
-        out = os.path.join(self.work, "result.exr")
-        subprocess.run([ARGS.hairfilter, "infer", "--backend", "cpu-ref", "--weights", exp,
-                        "--in", frame, "--out", out], check=True, capture_output=True)
-        names, res = dataset.read_exr(out)
-        c_out = dataset.pick_channels(names, res, dataset.TARGETS)
         feat, _ = dataset.load_frame(frame, spp=4, dtype=np.float32)
-        net = hfnet.load_model(exp).eval()
-        with torch.no_grad():
-            x = torch.from_numpy(feat.reshape(SIZE, SIZE, 24).transpose(2, 0, 1).copy())[None]
-            ref = net(x)[0].numpy().transpose(1, 2, 0)
-        rel = np.linalg.norm(c_out - ref) / np.linalg.norm(ref)
-        self.assertLess(rel, 1e-4, f"C vs PyTorch relative L2 {rel:.3g}")
+        self.assert_c_infer_is_pytorch(exp, frame, feat.reshape(SIZE, SIZE, 24))
 
         # F16 export: what C reads is exactly the halves' values.
         exp16 = os.path.join(self.work, "base16.safetensors")
@@ -800,20 +805,11 @@ class Recipe(unittest.TestCase):
         cfg = hfnet.load_safetensors(exp)[0]
         self.assertEqual((cfg["estimate"], cfg["in_channels"]), ("alpha_corrected", 27))
         frame = dataset.read_manifest(self.data)[0]["file"]
-        out = os.path.join(self.work, "result_ac.exr")
-        subprocess.run([ARGS.hairfilter, "infer", "--backend", "cpu-ref", "--weights", exp,
-                        "--in", frame, "--out", out], check=True, capture_output=True)
-        names, res = dataset.read_exr(out)
-        c_out = dataset.pick_channels(names, res, dataset.TARGETS)
         feat, _ = dataset.load_frame(frame, spp=4, dtype=np.float32)
         est = dataset.load_estimate(frame, np.float32)
-        x = np.concatenate([feat.reshape(SIZE, SIZE, 24), est], -1)
-        net = hfnet.load_model(exp).eval()
-        with torch.no_grad():
-            ref = net(torch.from_numpy(x.transpose(2, 0, 1).copy())[None])[0].numpy()
-        ref = ref.transpose(1, 2, 0)
-        rel = np.linalg.norm(c_out - ref) / np.linalg.norm(ref)
-        self.assertLess(rel, 1e-4, f"C vs PyTorch relative L2 {rel:.3g}")
+        self.assert_c_infer_is_pytorch(exp, frame,
+                                       np.concatenate([feat.reshape(SIZE, SIZE, 24), est], -1))
+        out = os.path.join(self.work, "result_ac.exr")
         bare = os.path.join(self.work, "no_estimate.exr")
         names, data = dataset.read_exr(frame)
         keep = [n for n in names if not n.startswith("acst4.")]
