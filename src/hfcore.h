@@ -406,9 +406,12 @@ const hf_net_config *hf_model_config(const hf_model *m);
  * itself in enc0's bands, as the convolution reads the frame (float16
  * frames, float32 frames of a size that needs no padding): it is then part
  * of infer_us, and a frame found to need sanitising is run again through
- * the check's pass and a sanitised copy, with the same results.
- * HF_ENOMEM when a frame needs sanitising or widening and there is no
- * memory for the copy. */
+ * the check's pass and a sanitised copy, with the same results. A network
+ * with an estimate (hf_net_config.estimate) takes each frame planar
+ * (hf_io) and always runs on such a copy: the frame interleaved, the rule
+ * applied to samples and estimate on the way (hf_features_interleave), in
+ * input_us. HF_ENOMEM when a frame needs sanitising or widening and there
+ * is no memory for the copy. */
 int hf_model_run(hf_model *m, const hf_io *io, hf_timing *timing);
 /* hf_model_run that also says what it changed: report, when not NULL, is
  * [io->batch], one hf_input_report per frame. */
