@@ -72,6 +72,8 @@ static int list_variants(hfc_client *c) {
     printf("  %-16s %2d spp  levels ", vs[k].name, vs[k].spp);
     for (int l = 0; l < vs[k].num_levels; l++) printf("%s%d", l ? "," : "", vs[k].levels[l]);
     printf("  %s %s", vs[k].backend, vs[k].precision);
+    /* What it reads besides the samples (protocol v3 servers). */
+    if (vs[k].estimate) printf("  reads the alpha-corrected estimate (acst4.*)");
     /* The input statistics it was trained on (protocol v2 servers). */
     for (int s = 0, first = 1; s < HFC_MAX_STATS; s++)
       if (vs[k].range_mask & (1u << s)) {
@@ -232,19 +234,23 @@ int cmd_filter(int argc, char **argv) {
   for (int i = 0; i < nv && i < 64 && variant && !v; i++)
     if (!strcasecmp(vs[i].name, variant)) v = &vs[i];
   /* The default: KernelAC where the frame has the estimate to give it. */
-  int has_estimate = 0;
-  for (int i = 0; i < nv && i < 64 && !variant && !v && !has_estimate; i++)
-    if (!strcmp(vs[i].name, FILTER_DEFAULT_ESTIMATE_VARIANT) && vs[i].estimate)
-      has_estimate = hf_exr_has_channel(in_path, HF_ESTIMATE_PREFIX ".alpha") == 1;
+  const int has_estimate =
+      !variant && !v && hf_exr_has_channel(in_path, HF_ESTIMATE_PREFIX ".alpha") == 1;
+  for (int i = 0; i < nv && i < 64 && !variant && !v && has_estimate; i++)
+    if (!strcmp(vs[i].name, FILTER_DEFAULT_ESTIMATE_VARIANT) && vs[i].estimate) v = &vs[i];
+  /* Kernel reads the samples alone: any frame, the estimate or not. */
   for (int i = 0; i < nv && i < 64 && !variant && !v; i++)
-    if (!strcmp(vs[i].name, has_estimate ? FILTER_DEFAULT_ESTIMATE_VARIANT : FILTER_DEFAULT_VARIANT))
-      v = &vs[i];
+    if (!strcmp(vs[i].name, FILTER_DEFAULT_VARIANT)) v = &vs[i];
   if (!v) {
     if (variant)
       fprintf(stderr, "hairfilter: no such variant \"%s\"; the server has:", variant);
     else
-      fprintf(stderr, "hairfilter: name a --variant (it has no " FILTER_DEFAULT_VARIANT
-              "); the server has:");
+      fprintf(stderr, "hairfilter: name a --variant: the default is "
+              FILTER_DEFAULT_ESTIMATE_VARIANT " for a frame with the alpha-corrected estimate "
+              "(acst4.*), else " FILTER_DEFAULT_VARIANT "; this frame has %s, and the server "
+              "has no %s; it has:", has_estimate ? "it" : "none",
+              has_estimate ? FILTER_DEFAULT_ESTIMATE_VARIANT " nor " FILTER_DEFAULT_VARIANT
+                           : FILTER_DEFAULT_VARIANT);
     for (int i = 0; i < nv && i < 64; i++) fprintf(stderr, " %s", vs[i].name);
     fprintf(stderr, "\n");
     goto out;

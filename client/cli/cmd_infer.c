@@ -13,7 +13,9 @@ static void usage(FILE *f) {
           "                        [--part N|NAME] [--backend auto|cpu|cpu-ref|cudnn]\n"
           "                        [--png PREVIEW.png]\n"
           "                        [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
-          "Reads S{k}.<feature> channels, writes color/highlight/alpha (protocol/FEATURES.md)\n"
+          "Reads S{k}.<feature> channels (and acst4.color/highlight/alpha, the alpha-corrected\n"
+          "estimate, for weights that read it: KernelAC), writes color/highlight/alpha\n"
+          "(protocol/FEATURES.md)\n"
           "with the input's data window and display window. --part picks the part of a\n"
           "multi-part file (default: the one with S0.color). --png composites the result over\n"
           "the frame's background layer where it has one, else over --background.\n");

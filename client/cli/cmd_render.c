@@ -39,7 +39,8 @@ static void usage(FILE *f) {
     "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites)\n"
     "         --no-background (leave out the occluder layer background.R/G/B/A)\n"
     "         --no-alpha-corrected (leave out acst4.*, the first 4 samples' alpha-corrected\n"
-    "           estimate, Enderton et al. 2010, that KernelAC reads: one more draw of the hair)\n"
+    "           estimate, Enderton et al. 2010, that KernelAC reads: one more draw of the hair;\n"
+    "           written by default with --spp 4 or more) --alpha-corrected (also below 4)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
     "         --size WxH --strands N --gt-ss S --st LIST --opaque N --no-alpha-corrected --quiet\n"
     "         --extended (style parameters, density and distance over wide ranges)\n"
@@ -637,12 +638,16 @@ int cmd_render(int argc, char **argv) {
   o.outputs.spp = 4;
   o.outputs.gt_supersample = 4;
   o.outputs.seed = 1;
-  /* The default variant (KernelAC) reads it: on unless --no-alpha-corrected. */
-  o.outputs.alpha_corrected = 1;
+  /* The default variant (KernelAC, 4 spp) reads it: on for frames of at
+   * least 4 spp unless --no-alpha-corrected (-1: not said). */
+  o.outputs.alpha_corrected = -1;
   hfr_dataset_defaults(&o.ds);
   hfr_asset_defaults(&o.asset);
   int rc = 2;
   if (parse_args(argc, argv, &o)) goto done;
+  /* fig6's panels are the paper's unless asked. */
+  if (o.outputs.alpha_corrected < 0)
+    o.outputs.alpha_corrected = strcmp(o.cmd, "fig6") != 0 && o.outputs.spp >= 4;
   if (!strcmp(o.cmd, "frame")) rc = run_frame(&o);
   else if (!strcmp(o.cmd, "fig6")) rc = run_fig6(&o);
   else if (!strcmp(o.cmd, "dataset")) rc = run_dataset(&o);

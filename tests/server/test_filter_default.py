@@ -1,6 +1,6 @@
 """hairfilter filter without --variant: the server's only variant, else
 KernelAC (the bundled default) for a frame with the alpha-corrected
-estimate when the server has it, else Kernel when the server has it, else
+estimate when the server has it, else Kernel (any frame) when it has it, else
 a clear error that lists what the server has. The default's result must
 equal the one named explicitly, byte for byte."""
 import os
@@ -69,6 +69,15 @@ def with_estimate_variant(d, w):
           "KernelAC on a frame without the estimate names what is missing: %r" % text3)
 
 
+def estimate_frame_without_kernel_ac(d, w):
+    """A frame with the estimate on a server without KernelAC: Kernel, which
+    reads the samples alone."""
+    rc, text = filt(d, w, "k.exr", frame=estimate_frame(w))
+    check(rc == 0 and "Kernel " in text and "KernelAC" not in text,
+          "filter without --variant of a frame with the estimate on Small+Kernel: rc %d: %s"
+          % (rc, text))
+
+
 def several_without_kernel(d, w):
     rc, text = filt(d, w, "x.exr")
     check(rc != 0, "filter without --variant on Small+Shallow succeeded")
@@ -83,6 +92,7 @@ def only_one(d, w):
 
 with_daemon(["small.safetensors", "kernel.safetensors"], several_with_kernel)
 with_daemon(["kernel.safetensors", "kernel_ac.safetensors"], with_estimate_variant)
+with_daemon(["small.safetensors", "kernel.safetensors"], estimate_frame_without_kernel_ac)
 with_daemon(["small.safetensors", "shallow.safetensors"], several_without_kernel)
 with_daemon(["small.safetensors"], only_one)
 finish()
