@@ -40,14 +40,20 @@ def p90(sorted_vals):
     return sorted_vals[max(0, (9 * len(sorted_vals) + 9) // 10 - 1)]
 
 
-def feature_input(spp, batch, w, h, device, dtype, seed):
+def feature_input(cfg, batch, w, h, device, dtype, seed):
     """Feature-like values: colour, highlight, alpha, depth in [0, 1],
-    tangents in [-1, 1]; the values do not change the timing, but denormals
-    or NaNs would, so they are kept in range."""
+    tangents in [-1, 1], and for a configuration with an estimate its 3
+    channels after them in [0, 1]; the values do not change the timing, but
+    denormals or NaNs would, so they are kept in range."""
+    spp = cfg["spp"]
     g = torch.Generator().manual_seed(seed)
     x = torch.rand(batch, spp, len(hfnet.FEATURES), h, w, generator=g)
     x[:, :, 4:] = 2 * x[:, :, 4:] - 1
-    return x.view(batch, spp * len(hfnet.FEATURES), h, w).to(device=device, dtype=dtype)
+    x = x.view(batch, spp * len(hfnet.FEATURES), h, w)
+    extra = cfg["in_channels"] - x.shape[1]
+    if extra:
+        x = torch.cat([x, torch.rand(batch, extra, h, w, generator=g)], 1)
+    return x.to(device=device, dtype=dtype)
 
 
 def time_loop(fn, iters, warmup, sync):
@@ -87,7 +93,7 @@ def bench_cpu(net, cfg, sizes, batches, iters, warmup):
             for mode, fmt in (("torch-cpu", torch.contiguous_format),
                               ("torch-cpu-cl", torch.channels_last)):
                 m = net.to(memory_format=fmt)
-                x = feature_input(cfg["spp"], b, w, h, "cpu", torch.float32, 1)
+                x = feature_input(cfg, b, w, h, "cpu", torch.float32, 1)
                 x = x.contiguous(memory_format=fmt)
                 with torch.inference_mode():
                     times = time_loop(lambda: m(x), iters, warmup, lambda: None)
@@ -100,7 +106,7 @@ def bench_cuda(net, cfg, sizes, batches, iters, warmup):
     sync = torch.cuda.synchronize
     for w, h in sizes:
         for b in batches:
-            x = feature_input(cfg["spp"], b, w, h, "cuda", torch.float16, 1)
+            x = feature_input(cfg, b, w, h, "cuda", torch.float16, 1)
             x = x.contiguous(memory_format=torch.channels_last)
             with torch.inference_mode():
                 torch.cuda.reset_peak_memory_stats()
