@@ -371,7 +371,8 @@ static int bad_field(cf_test *t, intptr_t which) {
 
 /* ---- the alpha-corrected estimate (version 3) --------------------------------- */
 
-enum { EST_V2_FLAG, EST_UNNEEDED, EST_SHORT, EST_MISSING, EST_SERVED };
+enum { EST_V2_FLAG, EST_UNNEEDED, EST_SHORT, EST_MISSING, EST_SERVED, EST_NAN, EST_HUGE,
+       EST_NEGATIVE };
 
 /* The first variant VARIANTS says reads the estimate, or -1. */
 static int estimate_variant(const cf_server *s) {
@@ -384,16 +385,33 @@ static int estimate_variant(const cf_server *s) {
  * the length); in version 3 refused for a variant that reads no estimate
  * (INVALID) and required by one that does (INVALID without it); a tensor
  * without the estimate it announces is LENGTH; with it, the frame is
- * served. Each refusal is non-fatal and the connection goes on. */
+ * served, also when samples and estimate are out of contract. Each refusal
+ * is non-fatal and the connection goes on. */
 static int estimate(cf_test *t, intptr_t which) {
   const cf_server *s = t->srv;
   if (which != EST_V2_FLAG && s->version < 3)
     return cf_skip(t, "the server speaks version %d, without the estimate", s->version);
-  if (s->variants[s->probe].estimate && which != EST_MISSING && which != EST_SERVED)
-    return cf_skip(t, "the probe variant reads the estimate");
   int ev = estimate_variant(s);
-  if ((which == EST_MISSING || which == EST_SERVED) && ev < 0)
-    return cf_skip(t, "no variant reads the estimate");
+  const int served = which == EST_MISSING || which >= EST_SERVED;
+  if (served && ev < 0) return cf_skip(t, "no variant reads the estimate");
+  if (s->variants[s->probe].estimate && !served)
+    return cf_skip(t, "the probe variant reads the estimate");
+  if (which >= EST_NAN) {
+    /* Samples and estimate alike out of contract: the RESULT is in range
+     * (cf_check_result), in each offered output dtype, with a composite. */
+    static const int kinds[] = {CF_FEAT_NAN, CF_FEAT_HUGE, CF_FEAT_NEGATIVE};
+    int fd;
+    CF_TRY(connect_v(t, &fd));
+    for (int out = HFP_F32; out <= HFP_F16; out++) {
+      if (!(s->hello.dtypes & (1u << out))) continue;
+      cf_filter f = {.id = 1720 + (uint32_t)out, .variant = s->variants[ev].name,
+                     .features = kinds[which - EST_NAN], .out_dtype = out,
+                     .flags = HFP_FILTER_COMPOSITE};
+      cf_filter_defaults(t, &f);
+      CF_TRY(cf_filter_ok(t, fd, &f, s->version, NULL, NULL));
+    }
+    return 0;
+  }
   int fd, version = which == EST_V2_FLAG ? 2 : s->version;
   if (which == EST_V2_FLAG) {
     if (s->version < 2) return cf_skip(t, "the server speaks version 1");
@@ -737,6 +755,9 @@ const cf_case cf_cases_filter[] = {
   {"filter.estimate.short", "ESTIMATE with a tensor that lacks the estimate is a non-fatal LENGTH", 0, estimate, EST_SHORT},
   {"filter.estimate.missing", "a variant that reads the estimate refuses a FILTER without ESTIMATE: INVALID", 0, estimate, EST_MISSING},
   {"filter.estimate.served", "a variant that reads the estimate filters a frame with it", 0, estimate, EST_SERVED},
+  {"filter.estimate.input_non_finite", "NaN and infinities in samples and estimate: results finite and in range", 0, estimate, EST_NAN},
+  {"filter.estimate.input_huge", "huge values in samples and estimate: results finite and in range", 0, estimate, EST_HUGE},
+  {"filter.estimate.input_negative", "negative values in samples and estimate: results finite and in range", 0, estimate, EST_NEGATIVE},
   {"filter.early_refusal", "a refusal may come before the tensor; the rest is dropped, the next frame served", 0, early_refusal, 0},
   {"filter.refused_then_valid", "a refused FILTER and a valid one in one write: ERROR then RESULT", 0, refused_then_valid, 0},
   {"filter.duplicate_id", "a reused id is not checked: each FILTER gets exactly one reply", 0, duplicate_id, 0},
