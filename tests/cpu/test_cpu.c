@@ -188,6 +188,11 @@ static void test_batch_and_dtypes(void **state) {
   /* ... and its float16 frames, a row at a time through the thread's row. */
   compare(*state, "Base", 2, 160, 96, HF_F32, HF_F16, 403);
   compare(*state, "Base", 2, 160, 96, HF_F16, HF_F16, 404);
+  /* A network with an estimate: planar frames interleaved into a copy,
+   * halves included, batched, aligned and not. */
+  compare(*state, "KernelAC", 2, 37, 23, HF_F16, HF_F16, 405);
+  compare(*state, "KernelAC", 3, 64, 48, HF_F16, HF_F32, 406);
+  compare(*state, "KernelAC", 2, 64, 48, HF_F32, HF_F16, 407);
 }
 
 /* Where dec0 writes the caller's frames (aligned sizes; U-Net variants),
