@@ -378,50 +378,107 @@ static int fix_estimate(float e[HF_ESTIMATE_CHANNELS], int *feature) {
   return HF_SANITISED_CLAMPED;
 }
 
+/* One worker's part of hf_features_interleave: its samples' report and
+ * statistics, and its estimates changed with the first of them (a
+ * worker's chunks come in increasing order). */
+typedef struct interleave_part {
+  hf_scan_part scan;
+  uint64_t changed;
+  size_t first;
+  int feature, kind;
+  float value;
+} interleave_part;
+
+typedef struct interleave_run {
+  const uint8_t *samples, *est;
+  uint8_t *out;
+  hf_dtype dtype;
+  int width, spp;
+  size_t esz, ns, stride;       /* bytes per value; values per pixel: samples', all */
+  interleave_part part[HF_PARALLEL_MAX];
+} interleave_run;
+
+/* Pixels [b, e): their samples checked (and counted into the statistics)
+ * where they are, then copied while the chunk is still in the cache, each
+ * pixel's estimate after them under the estimate's rule. */
+static void interleave_chunk(void *arg, int worker, size_t b, size_t e) {
+  interleave_run *r = arg;
+  interleave_part *part = &r->part[worker];
+  const size_t esz = r->esz, ns = r->ns;
+  hf_scan_part_add(&part->scan, r->samples, r->dtype, r->width, r->spp, b, e);
+  for (size_t p = b; p < e; p++) {
+    uint8_t *d = r->out + p * r->stride * esz;
+    memcpy(d, r->samples + p * ns * esz, ns * esz);
+    const uint8_t *src = r->est + p * HF_ESTIMATE_CHANNELS * esz;
+    uint8_t *de = d + ns * esz;
+    float v[HF_ESTIMATE_CHANNELS], before[HF_ESTIMATE_CHANNELS];
+    for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++)
+      v[f] = r->dtype == HF_F32 ? ((const float *)src)[f] : hf_f16_to_f32(((const uint16_t *)src)[f]);
+    memcpy(before, v, sizeof v);
+    int feature = 0, kind = fix_estimate(v, &feature);
+    if (!kind) {
+      memcpy(de, src, HF_ESTIMATE_CHANNELS * esz);
+      continue;
+    }
+    /* Every bound is exact in binary16: a fixed half is the fixed float. */
+    if (r->dtype == HF_F32)
+      memcpy(de, v, sizeof v);
+    else
+      for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++) ((uint16_t *)de)[f] = hf_f32_to_f16(v[f]);
+    if (!part->changed++) {
+      part->first = p;
+      part->feature = feature;
+      part->kind = kind;
+      part->value = before[feature];
+    }
+  }
+}
+
 int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height, int spp,
                            void *out, hf_input_report *report, hf_input_stats *stats) {
   const size_t esz = dtype == HF_F16 ? 2 : 4, px = (size_t)width * height;
-  const size_t ns = (size_t)spp * HF_FEATURES_PER_SAMPLE, stride = ns + HF_ESTIMATE_CHANNELS;
-  /* The samples are checked where they are, as hf_model_run checks any
-   * frame; only a frame that needs it has them fixed, pixel by pixel. */
-  int rc = hf_features_scan(in, dtype, width, height, spp, report, stats);
-  if (rc) return rc;
-  const uint8_t *samples = in, *est = samples + px * ns * esz;
-  uint8_t *o = out;
-  const int fix = report->samples > 0;
-  for (size_t p = 0; p < px; p++) {
-    uint8_t *d = o + p * stride * esz;
-    memcpy(d, samples + p * ns * esz, ns * esz);
-    if (fix) {
-      hf_input_report one;
-      hf_features_sanitise(d, dtype, 1, 1, spp, &one);
-    }
-    float e[HF_ESTIMATE_CHANNELS], before[HF_ESTIMATE_CHANNELS];
-    for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++)
-      e[f] = dtype == HF_F32 ? ((const float *)est)[p * HF_ESTIMATE_CHANNELS + f]
-                             : hf_f16_to_f32(((const uint16_t *)est)[p * HF_ESTIMATE_CHANNELS + f]);
-    memcpy(before, e, sizeof e);
-    int feature = 0, kind = fix_estimate(e, &feature);
-    /* Every bound is exact in binary16: a fixed half is the fixed float. */
-    if (dtype == HF_F32) {
-      if (kind) memcpy(d + ns * esz, e, sizeof e);
-      else memcpy(d + ns * esz, (const float *)est + p * HF_ESTIMATE_CHANNELS, sizeof e);
-    } else {
-      uint16_t *d16 = (uint16_t *)(d + ns * esz);
-      for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++)
-        d16[f] = kind ? hf_f32_to_f16(e[f])
-                      : ((const uint16_t *)est)[p * HF_ESTIMATE_CHANNELS + f];
-    }
-    if (!kind) continue;
-    if (!report->samples++) {
-      report->x = (int)(p % (size_t)width);
-      report->y = (int)(p / (size_t)width);
-      report->sample = HF_REPORT_ESTIMATE;
-      report->feature = feature;
-      report->kind = kind;
-      report->value = before[feature];
-    }
+  const size_t ns = (size_t)spp * HF_FEATURES_PER_SAMPLE;
+  interleave_run r = {.samples = in, .est = (const uint8_t *)in + px * ns * esz, .out = out,
+                      .dtype = dtype, .width = width, .spp = spp, .esz = esz, .ns = ns,
+                      .stride = ns + HF_ESTIMATE_CHANNELS};
+  /* Chunks and threads as hf_features_widen's, so that a chunk's samples
+   * stay in the cache from their check to their copy: the frame is read
+   * from memory once. */
+  size_t chunk = (WIDEN_CHUNK_SAMPLES / (size_t)spp + 3) & ~(size_t)3;
+  size_t per_thread = (WIDEN_PER_THREAD + (size_t)spp - 1) / (size_t)spp;
+  int nw = hf_parallel_workers(px, per_thread);
+  hf_input_stats_acc *acc = NULL;
+  if (stats && !(acc = malloc((size_t)nw * sizeof *acc))) return HF_ENOMEM;
+  for (int k = 0; k < HF_PARALLEL_MAX; k++)
+    hf_scan_part_init(&r.part[k].scan, k < nw && acc ? &acc[k] : NULL);
+  nw = hf_parallel_chunks(px, chunk, per_thread, interleave_chunk, &r);
+  if (nw < 1) nw = 1; /* an empty frame: worker 0's empty counts */
+  hf_scan_part parts[HF_PARALLEL_MAX];
+  for (int k = 0; k < nw; k++) parts[k] = r.part[k].scan;
+  hf_scan_parts_finish(parts, nw, width, height, spp, report, stats);
+  free(acc);
+  /* Samples out of contract (rare): fixed in the copy, pixel by pixel. */
+  for (size_t p = 0; report->samples && p < px; p++) {
+    hf_input_report one;
+    hf_features_sanitise(r.out + p * r.stride * esz, dtype, 1, 1, spp, &one);
   }
+  /* The first change in memory order: the samples' block comes first, then
+   * the lowest pixel among the workers' first estimates. */
+  const interleave_part *first = NULL;
+  uint64_t changed = 0;
+  for (int k = 0; k < nw; k++) {
+    changed += r.part[k].changed;
+    if (r.part[k].changed && (!first || r.part[k].first < first->first)) first = &r.part[k];
+  }
+  if (first && !report->samples) {
+    report->x = (int)(first->first % (size_t)width);
+    report->y = (int)(first->first / (size_t)width);
+    report->sample = HF_REPORT_ESTIMATE;
+    report->feature = first->feature;
+    report->kind = first->kind;
+    report->value = first->value;
+  }
+  report->samples += changed;
   return HF_OK;
 }
 
