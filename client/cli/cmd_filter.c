@@ -74,6 +74,11 @@ static int list_variants(hfc_client *c) {
     printf("  %s %s", vs[k].backend, vs[k].precision);
     /* What it reads besides the samples (protocol v3 servers). */
     if (vs[k].estimate) printf("  reads the alpha-corrected estimate (acst4.*)");
+    /* What `filter` without --variant picks (with more than one variant). */
+    if (n > 1 && !strcmp(vs[k].name, FILTER_DEFAULT_ESTIMATE_VARIANT) && vs[k].estimate)
+      printf("  [default for frames with acst4.*]");
+    else if (n > 1 && !strcmp(vs[k].name, FILTER_DEFAULT_VARIANT))
+      printf("  [default for other frames]");
     /* The input statistics it was trained on (protocol v2 servers). */
     for (int s = 0, first = 1; s < HFC_MAX_STATS; s++)
       if (vs[k].range_mask & (1u << s)) {
