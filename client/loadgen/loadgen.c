@@ -34,6 +34,7 @@ typedef struct worker {
   pthread_t thread;
   const opts *o;
   int spp;
+  int estimate;                 /* the variant reads the alpha-corrected estimate */
   double t_end, t_measure;
   sample *samples;
   size_t n, cap;
@@ -112,7 +113,9 @@ static void *run(void *arg) {
     return NULL;
   }
   size_t px = (size_t)o->width * o->height;
-  size_t nin = px * (size_t)w->spp * 6, es = o->f16 ? 2 : 4;
+  /* The features, and for a variant that reads it the estimate after
+   * them (3 values per pixel; the same random values in [0, 1)). */
+  size_t nin = px * ((size_t)w->spp * 6 + (w->estimate ? 3 : 0)), es = o->f16 ? 2 : 4;
   int k = o->inflight;
   uint8_t *in, *out, *shm = NULL;
   if (o->shm) {
@@ -158,6 +161,7 @@ static void *run(void *arg) {
   r.in_dtype = r.out_dtype = o->f16 ? HFC_F16 : HFC_F32;
   r.features = in;
   r.features_bytes = nin * es;
+  r.estimate = w->estimate;
   r.result_bytes = px * 3 * es;
   int pending = 0;
   for (int s = 0; s < k; s++) {
@@ -291,7 +295,7 @@ int main(int argc, char **argv) {
     return 1;
   }
   hfc_variant vs[64];
-  int nv = 0, spp = 0;
+  int nv = 0, spp = 0, estimate = 0;
   const char *backend = "?", *precision = "?";
   char backend_s[65] = "", precision_s[65] = "";
   if ((rc = hfc_list_variants(c, vs, 64, &nv)) != 0) {
@@ -302,6 +306,7 @@ int main(int argc, char **argv) {
   for (int i = 0; i < nv && i < 64; i++)
     if (!strcmp(vs[i].name, o.variant)) {
       spp = vs[i].spp;
+      estimate = vs[i].estimate;
       snprintf(backend_s, sizeof backend_s, "%s", vs[i].backend);
       snprintf(precision_s, sizeof precision_s, "%s", vs[i].precision);
       backend = backend_s;
@@ -325,6 +330,7 @@ int main(int argc, char **argv) {
   for (int i = 0; i < o.connections; i++) {
     w[i].o = &o;
     w[i].spp = spp;
+    w[i].estimate = estimate;
     w[i].t_measure = t0 + o.warmup;
     w[i].t_end = t0 + o.warmup + o.seconds;
     if ((rc = pthread_create(&w[i].thread, NULL, run, &w[i])) != 0) {

@@ -27,6 +27,16 @@ BACKEND=${BACKEND:-cudnn}
 BIG=${BIG:-1024x1024}
 DEADLINE=${DEADLINE:-450}
 CARRY=${CARRY:-$ROOT/.gpu-carry}
+# pack.sh packs the binaries and libraries into carry.tar.xz: unpacked here
+# into a folder of our own, beside the MANIFEST.
+if [ -f "$CARRY/carry.tar.xz" ]; then
+  X=$(mktemp -d)
+  tar -xJf "$CARRY/carry.tar.xz" -C "$X" 2>/dev/null ||
+    python3 -c 'import sys, tarfile; tarfile.open(sys.argv[1]).extractall(sys.argv[2])' \
+      "$CARRY/carry.tar.xz" "$X"
+  cp "$CARRY/MANIFEST" "$X/" 2>/dev/null
+  CARRY=$X
+fi
 B=$CARRY/bin
 WEIGHTS=$ROOT/weights/base.safetensors
 mkdir -p "$OUT"
@@ -141,9 +151,13 @@ step bench 180 env HF_CUDNN_VERBOSE=1 CUDNN_LOGLEVEL_DBG=2 CUDNN_LOGDEST_DBG="$R
 step bench_f16 90 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --io f16
 step bench_pipe 90 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --io f16 --pipeline
 step bench_pipe_f32 90 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --pipeline
+# The default variant, KernelAC (Kernel reading the alpha-corrected estimate:
+# 27 input channels, its frames interleaved on the host), beside Kernel.
+step bench_kernel_ac 90 "$B/hairfilter" bench --backend "$BACKEND" --sizes "$BIG" --batch 1 \
+  --iters 20 --warmup 3 --weights "$ROOT/weights/kernel_ac.safetensors,$ROOT/weights/kernel.safetensors"
 
 # ---- 3. end to end: hairfilterd over the Unix socket and shared memory --------
-# serve TAG [VAR=value...] [-- daemon options]: hairfilterd with Base on
+# serve TAG [VAR=value...] [-- daemon options]: hairfilterd with $WEIGHTS (Base) on
 # $R/TAG.sock, the plan for BIG built before it is ready. Batch 1: two
 # frames in flight then measure the two request slots (pipelining), not a
 # batch of two (batches are timed in process by bench).
@@ -174,7 +188,8 @@ stop() { kill "$(cat "$R/$1.pid")" 2>/dev/null; wait "$(cat "$R/$1.pid")" 2>/dev
 load() {  # load NAME TAG [hairfilter-load options]
   local name=$1 tag=$2
   shift 2
-  step "$name" 40 "$B/hairfilter-load" --server "unix:$R/$tag.sock" --variant Base --size "$BIG" \
+  step "$name" 40 "$B/hairfilter-load" --server "unix:$R/$tag.sock" --variant "${VARIANT:-Base}" \
+    --size "$BIG" \
     --seconds "$SECS" --warmup 1 "$@"
 }
 if [ "$(left)" -gt 120 ] && serve e2e; then
@@ -185,6 +200,12 @@ if [ "$(left)" -gt 120 ] && serve e2e; then
   load load_shm_f16_k2 e2e --shm --f16 --inflight 2
   load load_shm_f32_k2 e2e --shm --inflight 2
   stop e2e
+fi
+# KernelAC end to end: the estimate on the wire (protocol version 3).
+if [ "$(left)" -gt 100 ] && WEIGHTS=$ROOT/weights/kernel_ac.safetensors serve kac; then
+  VARIANT=KernelAC load load_kac_shm_f16 kac --shm --f16
+  VARIANT=KernelAC load load_kac_sock_f32 kac
+  stop kac
 fi
 
 # ---- 4. correctness: every variant against cpu-ref on this device --------------

@@ -118,7 +118,7 @@ def main():
 
     section("in-process timings (hairfilter bench; ms per frame; net = CUDA events)")
     rows = []
-    for name in ["bench", "bench_f16", "bench_pipe", "bench_pipe_f32"] + \
+    for name in ["bench", "bench_f16", "bench_pipe", "bench_pipe_f32", "bench_kernel_ac"] + \
             [f"form_{f}" for f in ("bwd-data", "d2s", "phase", "shuffle")]:
         t = read(logdir, name + ".log")
         r = table_rows(t)
