@@ -318,27 +318,41 @@ static void widen_chunk(void *arg, int worker, size_t b, size_t e) {
   if (part->acc) hf_input_stats_add(part->acc, in, HF_F16, w->spp, b, e);
 }
 
-/* The pass of hf_features_widen and hf_features_scan: a frame of dtype
- * (HF_F16 when out is not NULL) in chunks of whole pixels split between
- * threads, each worker with its own report and statistics, merged at the
- * end. */
-static int widen_or_scan(const void *in, hf_dtype dtype, float *out, int width, int height,
-                         int spp, hf_input_report *report, hf_input_stats *stats) {
-  size_t px = (size_t)width * height, n = px * spp;
+/* A pass over a frame of width x height pixels of spp samples in chunks
+ * of whole pixels (a multiple of 4 of them, about WIDEN_CHUNK_SAMPLES
+ * samples: a chunk stays in the cache while fn works on it) split between
+ * threads, fn(ctx, worker, b, e) adding its pixels' report and statistics
+ * to part[worker]; the parts are merged into report and stats at the end.
+ * The number of workers, or HF_ENOMEM when the statistics' counts cannot
+ * be allocated (nothing run). */
+static int scan_in_chunks(int width, int height, int spp, hf_scan_part part[HF_PARALLEL_MAX],
+                          hf_chunk_fn fn, void *ctx, hf_input_report *report,
+                          hf_input_stats *stats) {
+  size_t px = (size_t)width * height;
   size_t chunk = (WIDEN_CHUNK_SAMPLES / spp + 3) & ~(size_t)3;
   size_t per_thread = (WIDEN_PER_THREAD + spp - 1) / spp;
-  widen_run w = {.in = in, .dtype = dtype, .out = out, .width = width, .spp = spp,
-                 .stream = n * HF_FEATURES_PER_SAMPLE >= WIDEN_STREAM_MIN};
   int nw = hf_parallel_workers(px, per_thread);
   hf_input_stats_acc *acc = NULL;
   /* A worker's own counts: no sharing of cache lines between threads. */
   if (stats && !(acc = malloc((size_t)nw * sizeof *acc))) return HF_ENOMEM;
-  for (int k = 0; k < HF_PARALLEL_MAX; k++) hf_scan_part_init(&w.part[k], k < nw && acc ? &acc[k] : NULL);
-  nw = hf_parallel_chunks(px, chunk, per_thread, widen_chunk, &w);
+  for (int k = 0; k < HF_PARALLEL_MAX; k++) hf_scan_part_init(&part[k], k < nw && acc ? &acc[k] : NULL);
+  nw = hf_parallel_chunks(px, chunk, per_thread, fn, ctx);
   if (nw < 1) nw = 1; /* an empty frame: worker 0's empty counts */
-  hf_scan_parts_finish(w.part, nw, width, height, spp, report, stats);
+  hf_scan_parts_finish(part, nw, width, height, spp, report, stats);
   free(acc);
-  return HF_OK;
+  return nw;
+}
+
+/* The pass of hf_features_widen and hf_features_scan: a frame of dtype
+ * (HF_F16 when out is not NULL), each worker with its own report and
+ * statistics. */
+static int widen_or_scan(const void *in, hf_dtype dtype, float *out, int width, int height,
+                         int spp, hf_input_report *report, hf_input_stats *stats) {
+  size_t n = (size_t)width * height * spp;
+  widen_run w = {.in = in, .dtype = dtype, .out = out, .width = width, .spp = spp,
+                 .stream = n * HF_FEATURES_PER_SAMPLE >= WIDEN_STREAM_MIN};
+  int nw = scan_in_chunks(width, height, spp, w.part, widen_chunk, &w, report, stats);
+  return nw < 0 ? nw : HF_OK;
 }
 
 int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
@@ -378,11 +392,9 @@ static int fix_estimate(float e[HF_ESTIMATE_CHANNELS], int *feature) {
   return HF_SANITISED_CLAMPED;
 }
 
-/* One worker's part of hf_features_interleave: its samples' report and
- * statistics, and its estimates changed with the first of them (a
- * worker's chunks come in increasing order). */
+/* One worker's estimates changed in hf_features_interleave, and the first
+ * of them (a worker's chunks come in increasing order). */
 typedef struct interleave_part {
-  hf_scan_part scan;
   uint64_t changed;
   size_t first;
   int feature, kind;
@@ -395,6 +407,7 @@ typedef struct interleave_run {
   hf_dtype dtype;
   int width, spp;
   size_t esz, ns, stride;       /* bytes per value; values per pixel: samples', all */
+  hf_scan_part scan[HF_PARALLEL_MAX];   /* each worker's samples' report and statistics */
   interleave_part part[HF_PARALLEL_MAX];
 } interleave_run;
 
@@ -405,7 +418,7 @@ static void interleave_chunk(void *arg, int worker, size_t b, size_t e) {
   interleave_run *r = arg;
   interleave_part *part = &r->part[worker];
   const size_t esz = r->esz, ns = r->ns;
-  hf_scan_part_add(&part->scan, r->samples, r->dtype, r->width, r->spp, b, e);
+  hf_scan_part_add(&r->scan[worker], r->samples, r->dtype, r->width, r->spp, b, e);
   for (size_t p = b; p < e; p++) {
     uint8_t *d = r->out + p * r->stride * esz;
     memcpy(d, r->samples + p * ns * esz, ns * esz);
@@ -441,22 +454,10 @@ int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height
   interleave_run r = {.samples = in, .est = (const uint8_t *)in + px * ns * esz, .out = out,
                       .dtype = dtype, .width = width, .spp = spp, .esz = esz, .ns = ns,
                       .stride = ns + HF_ESTIMATE_CHANNELS};
-  /* Chunks and threads as hf_features_widen's, so that a chunk's samples
-   * stay in the cache from their check to their copy: the frame is read
-   * from memory once. */
-  size_t chunk = (WIDEN_CHUNK_SAMPLES / (size_t)spp + 3) & ~(size_t)3;
-  size_t per_thread = (WIDEN_PER_THREAD + (size_t)spp - 1) / (size_t)spp;
-  int nw = hf_parallel_workers(px, per_thread);
-  hf_input_stats_acc *acc = NULL;
-  if (stats && !(acc = malloc((size_t)nw * sizeof *acc))) return HF_ENOMEM;
-  for (int k = 0; k < HF_PARALLEL_MAX; k++)
-    hf_scan_part_init(&r.part[k].scan, k < nw && acc ? &acc[k] : NULL);
-  nw = hf_parallel_chunks(px, chunk, per_thread, interleave_chunk, &r);
-  if (nw < 1) nw = 1; /* an empty frame: worker 0's empty counts */
-  hf_scan_part parts[HF_PARALLEL_MAX];
-  for (int k = 0; k < nw; k++) parts[k] = r.part[k].scan;
-  hf_scan_parts_finish(parts, nw, width, height, spp, report, stats);
-  free(acc);
+  /* Chunks as hf_features_widen's: a chunk's samples stay in the cache
+   * from their check to their copy, so the frame is read from memory once. */
+  int nw = scan_in_chunks(width, height, spp, r.scan, interleave_chunk, &r, report, stats);
+  if (nw < 0) return nw;
   /* Samples out of contract (rare): fixed in the copy, pixel by pixel. */
   for (size_t p = 0; report->samples && p < px; p++) {
     hf_input_report one;
