@@ -1,0 +1,228 @@
+#!/usr/bin/python3
+"""Writes two hair models made without the renderer's styles, in the
+conventions assets arrive in, for held-out evaluation (docs/QUALITY.md,
+"Models the renderer's styles did not make"):
+
+    hair_models.py tied OUT.hair [--seed N]
+        a long tied style: hair combed back over the scalp to a tie at the
+        back of the head and hanging down as a tail; y up, inches, per-point
+        thickness tapering from 0.0035 in at the root to 0.0012 in at the
+        tip (human hair is about 0.003 in), about 40 points per strand,
+        unevenly spaced as a groom tool's resampling leaves them.
+    hair_models.py fur OUT.hair --mesh BODY.obj [--seed N]
+        an animal's fur: short guides over a four-legged body (torso, head,
+        legs), combed back and down; z up, millimetres, front towards -y,
+        per-point thickness 0.09 mm at the root to 0.03 mm at the tip, 6
+        segments per guide (grow children at render time with
+        --children); BODY.obj is the body as a triangle mesh, to render
+        with --occluder BODY.obj.
+
+Numpy only. The format is Cem Yuksel's (docs/RENDERING.md, "Your own
+models"): header, segments, points, thickness."""
+import argparse
+import struct
+
+import numpy as np
+
+HEADER = 128
+SEGMENTS, POINTS, THICKNESS = 1, 2, 4
+
+
+def write_hair(path, strands, info):
+    """strands: list of (P x 3 positions, P thicknesses); P >= 2."""
+    seg = np.array([len(p) - 1 for p, _ in strands], "<u2")
+    pos = np.concatenate([p for p, _ in strands]).astype("<f4")
+    thk = np.concatenate([t for _, t in strands]).astype("<f4")
+    flags = SEGMENTS | POINTS | THICKNESS
+    text = info.encode()[:88].ljust(88, b"\0")
+    hdr = struct.pack("<4s4I5f", b"HAIR", len(strands), len(pos), flags, 0,
+                      float(thk.mean()), 0.0, 0.3, 0.2, 0.1) + text
+    assert len(hdr) == HEADER
+    with open(path, "wb") as f:
+        f.write(hdr + seg.tobytes() + pos.tobytes() + thk.tobytes())
+
+
+def taper(n, root, tip):
+    return np.linspace(root, tip, n)
+
+
+def tied(rng, count):
+    """Long tied style, y up, inches; head ellipsoid at the origin, face +z."""
+    rad = np.array([3.0, 3.6, 3.4])                  # half-widths x, y, z (in)
+    tie = np.array([0.0, 1.6, -3.55])                # where the tail is tied
+    out = []
+    while len(out) < count:
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        root = d * rad
+        # hairline: from the forehead (1.8 in above the centre) over the
+        # ears (-1.0) to the nape (-2.6)
+        if root[1] < -1.0 - 1.6 * max(0.0, -d[2]) + 2.8 * max(0.0, d[2]):
+            continue
+        lift = rng.uniform(0.02, 0.12)               # layer above the scalp
+        end = tie + rng.normal(scale=0.18, size=3) * np.array([1, 1, 0.4])
+        pts = []
+        n1 = rng.integers(14, 20)
+        ts = np.concatenate([[0.0], np.sort(rng.uniform(0, 1, n1 - 2)), [1.0]])
+        for t in ts:
+            q = (1 - t) * root + t * end
+            # over the scalp: q brought out to the head's surface along the
+            # ray from its centre, lifted by this strand's layer; joining
+            # the tie at the end
+            on = q / np.sqrt(np.sum((q / rad) ** 2))
+            h = 0.01 + lift * np.sin(np.pi * min(t * 1.3, 1.0))
+            w = t ** 4
+            pts.append((1 - w) * on * (1 + h / 3.4) + w * q)
+        # the tail: out of the tie, back, then down, spreading
+        length = rng.uniform(7.0, 15.0)
+        phi = rng.uniform(0, 2 * np.pi)
+        spread = rng.uniform(0.2, 1.0)
+        wave_a, wave_p = rng.uniform(0.05, 0.25), rng.uniform(2.0, 4.5)
+        n2 = rng.integers(22, 30)
+        ss = np.concatenate([np.sort(rng.uniform(0, 1, n2 - 1)), [1.0]]) * length
+        for s in ss:
+            r = 0.25 + spread * 0.12 * s
+            off = np.array([r * np.cos(phi), 0.0, r * np.sin(phi) * 0.6])
+            back = -1.4 * (1 - np.exp(-s / 1.5))
+            wave = wave_a * np.sin(2 * np.pi * s / wave_p + phi)
+            pts.append(end + off + np.array([wave, -s, back]))
+        p = np.array(pts)
+        out.append((p, taper(len(p), 0.0035, 0.0012)))
+    return out
+
+
+# body parts of the animal, z up, mm, front -y: ("ellipsoid", centre, radii)
+# and ("cylinder", base centre, radius, height)
+BODY = [
+    ("ellipsoid", (0.0, 0.0, 360.0), (120.0, 270.0, 125.0)),
+    ("ellipsoid", (0.0, -320.0, 460.0), (75.0, 95.0, 75.0)),
+    ("cylinder", (70.0, -170.0, 0.0), 34.0, 330.0),
+    ("cylinder", (-70.0, -170.0, 0.0), 34.0, 330.0),
+    ("cylinder", (70.0, 170.0, 0.0), 38.0, 330.0),
+    ("cylinder", (-70.0, 170.0, 0.0), 38.0, 330.0),
+]
+
+
+def body_samples(rng, n):
+    """n points on the body's surface with outward normals, by area."""
+    areas = []
+    for part in BODY:
+        if part[0] == "ellipsoid":
+            a, b, c = part[2]
+            p = 1.6075
+            areas.append(4 * np.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3) ** (1 / p))
+        else:
+            areas.append(2 * np.pi * part[2] * part[3])
+    areas = np.array(areas) / np.sum(areas)
+    pts, nrm = [], []
+    for k in rng.choice(len(BODY), size=n, p=areas):
+        part = BODY[k]
+        if part[0] == "ellipsoid":
+            c, r = np.array(part[1]), np.array(part[2])
+            d = rng.normal(size=3)
+            d /= np.linalg.norm(d)
+            q = c + d * r
+            g = d / r
+            pts.append(q)
+            nrm.append(g / np.linalg.norm(g))
+        else:
+            c, r, h = np.array(part[1]), part[2], part[3]
+            a = rng.uniform(0, 2 * np.pi)
+            q = c + np.array([r * np.cos(a), r * np.sin(a), rng.uniform(0, h)])
+            pts.append(q)
+            nrm.append(np.array([np.cos(a), np.sin(a), 0.0]))
+    return np.array(pts), np.array(nrm)
+
+
+def inside_body(q):
+    for part in BODY:
+        if part[0] == "ellipsoid":
+            if np.sum(((q - np.array(part[1])) / np.array(part[2])) ** 2) < 0.98:
+                return True
+        else:
+            c, r, h = np.array(part[1]), part[2], part[3]
+            if np.hypot(*(q[:2] - c[:2])) < 0.98 * r and c[2] <= q[2] <= c[2] + h:
+                return True
+    return False
+
+
+def fur(rng, count):
+    """Fur guides on BODY: short, combed back (+y) and down (-z)."""
+    out = []
+    roots, normals = body_samples(rng, 4 * count)
+    comb = np.array([0.0, 0.75, -0.65])
+    comb /= np.linalg.norm(comb)
+    for root, n in zip(roots, normals):
+        if len(out) == count:
+            break
+        if inside_body(root + 2.0 * n):             # root hidden where parts meet
+            continue
+        length = rng.uniform(14.0, 34.0)
+        t = comb - np.dot(comb, n) * n
+        t = t / (np.linalg.norm(t) + 1e-9)
+        lift = rng.uniform(0.25, 0.6)
+        curl = rng.normal(scale=0.25, size=3)
+        p = [root]
+        d = lift * n + (1 - lift) * t
+        for i in range(6):
+            d = d + 0.18 * (t - d) + 0.1 * curl * np.sin(i)
+            d /= np.linalg.norm(d)
+            p.append(p[-1] + d * length / 6)
+        p = np.array(p)
+        out.append((p, taper(len(p), 0.09, 0.03)))
+    return out
+
+
+def write_body_obj(path, rings=24, sectors=48):
+    """BODY as a triangulated OBJ (z up, mm): the occluder to render with."""
+    v, f = [], []
+    for part in BODY:
+        base = len(v)
+        if part[0] == "ellipsoid":
+            c, r = np.array(part[1]), np.array(part[2])
+            for i in range(rings + 1):
+                th = np.pi * i / rings
+                for j in range(sectors):
+                    ph = 2 * np.pi * j / sectors
+                    v.append(c + r * np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph),
+                                               np.cos(th)]))
+            for i in range(rings):
+                for j in range(sectors):
+                    a = base + i * sectors + j
+                    b = base + i * sectors + (j + 1) % sectors
+                    f += [(a, a + sectors, b), (b, a + sectors, b + sectors)]
+        else:
+            c, r, h = np.array(part[1]), part[2], part[3]
+            for z in (0.0, h):
+                for j in range(sectors):
+                    ph = 2 * np.pi * j / sectors
+                    v.append(c + np.array([r * np.cos(ph), r * np.sin(ph), z]))
+            for j in range(sectors):
+                a, b = base + j, base + (j + 1) % sectors
+                f += [(a, b, a + sectors), (b, b + sectors, a + sectors)]
+    with open(path, "w") as o:
+        for q in v:
+            o.write(f"v {q[0]:.3f} {q[1]:.3f} {q[2]:.3f}\n")
+        for t in f:
+            o.write(f"f {t[0] + 1} {t[1] + 1} {t[2] + 1}\n")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("model", choices=["tied", "fur"])
+    ap.add_argument("out")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--strands", type=int, help="strands (tied: 6000) or guides (fur: 4000)")
+    ap.add_argument("--mesh", help="fur: also write the body as this OBJ")
+    a = ap.parse_args()
+    rng = np.random.default_rng(a.seed)
+    if a.model == "tied":
+        write_hair(a.out, tied(rng, a.strands or 6000), "tied style, y up, inches")
+    else:
+        write_hair(a.out, fur(rng, a.strands or 4000), "fur guides, z up, mm, front -y")
+        if a.mesh:
+            write_body_obj(a.mesh)
+
+
+if __name__ == "__main__":
+    main()
