@@ -1,3 +1,4 @@
+#include <errno.h>
 #include <inttypes.h>
 #include <limits.h>
 #include <stdio.h>
@@ -18,6 +19,39 @@ const float CLI_BG_DEFAULT[3] = {0.18f, 0.2f, 0.24f};
 int cli_parse_rgb(const char *s, float rgb[3]) {
   char tail;
   return sscanf(s, "%f,%f,%f%c", &rgb[0], &rgb[1], &rgb[2], &tail) == 3 ? 0 : -1;
+}
+
+int cli_check_output(const char *prog, const char *path) {
+  if (!path) return 0;
+  const char *slash = strrchr(path, '/');
+  char dir[4096];
+  if (!slash) {
+    snprintf(dir, sizeof dir, ".");
+  } else if (slash == path) {
+    snprintf(dir, sizeof dir, "/");
+  } else {
+    size_t n = (size_t)(slash - path);
+    if (n >= sizeof dir) {
+      fprintf(stderr, "%s: %s: path too long\n", prog, path);
+      return HF_EIO;
+    }
+    memcpy(dir, path, n);
+    dir[n] = 0;
+  }
+  if (slash && slash[1] == 0) {
+    fprintf(stderr, "%s: %s: names a directory; give a file name\n", prog, path);
+    return HF_EIO;
+  }
+  if (access(dir, W_OK) != 0) {
+    int e = errno;
+    if (e == ENOENT || e == ENOTDIR)
+      fprintf(stderr, "%s: %s: the directory %s does not exist; create it first (mkdir -p %s)\n",
+              prog, path, dir, dir);
+    else
+      fprintf(stderr, "%s: %s: cannot write in %s: %s\n", prog, path, dir, strerror(e));
+    return HF_EIO;
+  }
+  return 0;
 }
 
 int cli_parse_size(const char *s, int *w, int *h) {

@@ -10,6 +10,12 @@ int cli_parse_rgb(const char *s, float rgb[3]);
  * names each endpoint and what to check), then, for a refused token, where
  * the CLI takes it from. prog: "hairfilter filter", ... */
 void cli_connect_failed(const char *prog, int rc);
+/* Checks, before any work, that a file can be created at path: its
+ * directory exists and is writable. 0 when so; else prints
+ * "<prog>: <path>: ..." naming the directory and what to do, and returns
+ * HF_EIO, so that a command does not render or filter for minutes and
+ * then lose the result. NULL path: 0. */
+int cli_check_output(const char *prog, const char *path);
 /* Parses "WxH"; 0 on success. */
 int cli_parse_size(const char *s, int *w, int *h);
 /* Where bundled data (weights/, bench/) lives: $HAIRFILTER_DATA; else the

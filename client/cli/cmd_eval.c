@@ -19,6 +19,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include <sys/stat.h>
 
 #include "cli_common.h"
@@ -439,7 +440,8 @@ static int check_range(const hf_input_range *r, const char *label, const char *p
   hf_input_stats st;
   int bad = cli_input_range_check(r, in, HF_F32, w, h, spp, &st);
   if (bad <= 0) return bad;
-  fprintf(stderr, "\r\x1b[K");   /* over the progress line */
+  if (isatty(2)) fprintf(stderr, "\r\x1b[K");   /* over the progress line */
+  else fprintf(stderr, "\n");
   cli_warn_input_range("hairfilter eval", path, label, r, &st, (unsigned)bad);
   if (flags) {
     cJSON *o = cJSON_CreateObject();
@@ -748,6 +750,9 @@ int cmd_eval(int argc, char **argv) {
     }
   }
   if (optind >= argc) goto bad;
+  if (cli_check_output("hairfilter eval", json_path) || cli_check_output("hairfilter eval", grid_path) ||
+      cli_check_output("hairfilter eval", temporal_png))
+    return 1;
 
   int rc = 0, nmodels = 0, nm = 0;
   frame_list frames = {0};
@@ -1068,9 +1073,11 @@ int cmd_eval(int argc, char **argv) {
     eval_strata_frame_done(strata, &rg);
     hair_px += nhair;
     scored++;
-    fprintf(stderr, "\reval: %d frames (%s)\x1b[K", scored, fr->path);
+    /* One line rewritten in place on a terminal; in a log, no control codes. */
+    if (isatty(2)) fprintf(stderr, "\reval: %d frames (%s)\x1b[K", scored, fr->path);
   }
-  fprintf(stderr, "\n");
+  if (isatty(2)) fprintf(stderr, "\n");
+  fprintf(stderr, "eval: %d frames scored\n", scored);
   if (!scored) {
     fprintf(stderr, "hairfilter eval: no frames with hair%s%s\n", styles ? " of styles " : "",
             styles ? styles : "");

@@ -214,6 +214,8 @@ int cmd_filter(int argc, char **argv) {
     return ret;
   }
   if (!in_path || !out_path) goto bad;
+  if (cli_check_output("hairfilter filter", out_path) || cli_check_output("hairfilter filter", png))
+    return 1;
 
   int ret = 1, rc;
   hfc_client *c = NULL;

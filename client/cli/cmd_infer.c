@@ -112,6 +112,7 @@ int cmd_infer(int argc, char **argv) {
     }
   }
   if (!weights || !in || !out || optind != argc) goto bad;
+  if (cli_check_output("hairfilter infer", out) || cli_check_output("hairfilter infer", png)) return 1;
   hf_image res = {0}, layer = {0};
   int rc = infer_file(weights, in, part, backend, &res, &layer);
   if (rc) {

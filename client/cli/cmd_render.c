@@ -11,6 +11,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "cli_common.h"
 #include "commands.h"
 #include "hfrender.h"
 
@@ -464,6 +465,8 @@ static int run_frame(opts *o) {
     fprintf(stderr, "hairfilter render frame: --out F.exr and/or --png PREFIX\n");
     return 2;
   }
+  if (cli_check_output("hairfilter render", o->out) || cli_check_output("hairfilter render", o->png))
+    return 1;
   hfr_hair hair;
   hfr_mesh occ;
   hfr_renderer *r = NULL;
@@ -521,6 +524,7 @@ static int run_fig6(opts *o) {
     fprintf(stderr, "hairfilter render fig6: --out F.png\n");
     return 2;
   }
+  if (cli_check_output("hairfilter render", o->out)) return 1;
   if (!o->st_set) {
     const int def[] = {1, 4, 16, 64};
     memcpy(o->outputs.st_spp, def, sizeof def);
@@ -580,6 +584,14 @@ static int run_dataset(opts *o) {
     fprintf(stderr, "hairfilter render dataset: --out DIR\n");
     return 2;
   }
+  {
+    /* The set's directory is created; the one it goes in must exist. */
+    char dir[4096];
+    size_t n = strlen(o->out);
+    while (n > 1 && o->out[n - 1] == '/') n--;
+    snprintf(dir, sizeof dir, "%.*s", (int)n, o->out);
+    if (cli_check_output("hairfilter render dataset", dir)) return 1;
+  }
   hfr_dataset_opts *d = &o->ds;
   d->out_dir = o->out;
   d->width = o->view.width;
@@ -613,6 +625,7 @@ static int run_hair(opts *o) {
     fprintf(stderr, "hairfilter render hair: --out F.hair\n");
     return 2;
   }
+  if (cli_check_output("hairfilter render", o->out)) return 1;
   hfr_hair hair;
   hfr_mesh occ;
   if (load_model(o, &hair, &occ) != HF_OK) return 1;

@@ -168,6 +168,45 @@ static void test_refusals(void **state) {
   expect_text("no channel S0.color: not a feature file");
 }
 
+/* An output in a directory that does not exist is refused before any
+ * work, naming the directory and the command that makes it; nothing is
+ * written. */
+static void test_output_directory(void **state) {
+  (void)state;
+  char missing[1024];
+  snprintf(missing, sizeof missing, "%s", test_tmp("no-such-dir/x.exr"));
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_field("frame-64x64.exr"), missing), 1);
+  expect_text("no-such-dir/x.exr: the directory ");
+  expect_text("does not exist; create it first (mkdir -p ");
+  assert_null(strstr(text, "Base 64x64"));   /* refused before inference */
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --png %s", BASE,
+                       test_field("frame-64x64.exr"), test_tmp("x.exr"),
+                       test_tmp("no-such-dir/p.png")), 1);
+  expect_text("no-such-dir/p.png: the directory ");
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s/", BASE,
+                       test_field("frame-64x64.exr"), test_tmp("")), 1);
+  expect_text("names a directory; give a file name");
+#ifdef HF_TEST_EVAL
+  assert_int_equal(cli("eval --json %s %s", test_tmp("no-such-dir/e.json"),
+                       test_field("frame-64x64.exr")), 1);
+  expect_text("no-such-dir/e.json: the directory ");
+  assert_int_equal(cli("eval --grid %s %s", test_tmp("no-such-dir/g.png"),
+                       test_field("frame-64x64.exr")), 1);
+  expect_text("no-such-dir/g.png: the directory ");
+#endif
+#ifdef HF_TEST_RENDERER
+  assert_int_equal(cli("render frame --style straight --strands 50 --size 16x16 --out %s",
+                       test_tmp("no-such-dir/r.exr")), 1);
+  expect_text("no-such-dir/r.exr: the directory ");
+  assert_null(strstr(text, "regime:"));   /* refused before rendering */
+  assert_int_equal(cli("render dataset --styles straight --count 1 --size 16x16 --out %s/",
+                       test_tmp("no-such-dir/set")), 1);
+  expect_text("render dataset: ");
+  expect_text("no-such-dir/set: the directory ");
+#endif
+}
+
 /* A file with fewer samples than the variant reads, and one with a feature
  * channel missing: the message names the channel. */
 static void test_missing_samples(void **state) {
@@ -297,6 +336,7 @@ int main(void) {
     cmocka_unit_test(test_inf_sample),      cmocka_unit_test(test_tall_frame),
     cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
+    cmocka_unit_test(test_output_directory),
     cmocka_unit_test(test_eval_warning),    cmocka_unit_test(test_preview_over_background_layer),
   };
   return cmocka_run_group_tests(tests, setup, teardown);

@@ -76,6 +76,14 @@ def main():
     if sum(1 for line in open(body) if line.startswith("f ")) < 1000:
         sys.exit(f"FAIL: {body}: too few triangles for the body")
 
+    # refusals name the option or the directory, and write nothing
+    for args, needle in ((["tied", tied, "--mesh", body], "only the fur model has a body mesh"),
+                         (["fur", os.path.join(w, "none", "f.hair")], "does not exist; create it first")):
+        r = subprocess.run([py, os.path.join(TOOLS, "hair_models.py")] + args, capture_output=True,
+                           text=True)
+        if r.returncode == 0 or needle not in r.stderr:
+            sys.exit(f"FAIL: hair_models.py {' '.join(args)} -> {r.returncode}: {r.stderr}")
+
     # hair_convert.py: the tied model (y up, inches) rewritten z up in
     # centimetres covers the same samples when loaded with that convention
     # and the same width, and other samples when taken as y up

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Writes two hair models made without the renderer's styles, in the
 conventions assets arrive in, for held-out evaluation (docs/QUALITY.md,
-"Models the renderer's styles did not make"):
+"Models the styles did not make"):
 
     hair_models.py tied OUT.hair [--seed N]
         a long tied style: hair combed back over the scalp to a tie at the
@@ -9,17 +9,20 @@ conventions assets arrive in, for held-out evaluation (docs/QUALITY.md,
         thickness tapering from 0.0035 in at the root to 0.0012 in at the
         tip (human hair is about 0.003 in), about 40 points per strand,
         unevenly spaced as a groom tool's resampling leaves them.
-    hair_models.py fur OUT.hair --mesh BODY.obj [--seed N]
+    hair_models.py fur OUT.hair [--mesh BODY.obj] [--seed N]
         an animal's fur: short guides over a four-legged body (torso, head,
         legs), combed back and down; z up, millimetres, front towards -y,
         per-point thickness 0.09 mm at the root to 0.03 mm at the tip, 6
         segments per guide (grow children at render time with
-        --children); BODY.obj is the body as a triangle mesh, to render
-        with --occluder BODY.obj.
+        --children); --mesh also writes the body as a triangle mesh, to
+        render with --occluder BODY.obj.
+
+The directories of OUT and BODY must exist. Prints what it wrote.
 
 Numpy only. The format is Cem Yuksel's (docs/RENDERING.md, "Your own
 models"): header, segments, points, thickness."""
 import argparse
+import os
 import struct
 
 import numpy as np
@@ -215,13 +218,28 @@ def main():
     ap.add_argument("--strands", type=int, help="strands (tied: 6000) or guides (fur: 4000)")
     ap.add_argument("--mesh", help="fur: also write the body as this OBJ")
     a = ap.parse_args()
+    if a.mesh and a.model != "fur":
+        ap.error("--mesh: only the fur model has a body mesh")
+    if a.strands is not None and not 1 <= a.strands <= 1000000:
+        ap.error("--strands: 1 to 1000000")
+    for path in (a.out, a.mesh):
+        d = os.path.dirname(path) if path else ""
+        if d and not os.path.isdir(d):
+            ap.error(f"{path}: the directory {d} does not exist; create it first (mkdir -p {d})")
     rng = np.random.default_rng(a.seed)
     if a.model == "tied":
-        write_hair(a.out, tied(rng, a.strands or 6000), "tied style, y up, inches")
+        strands = tied(rng, a.strands or 6000)
+        write_hair(a.out, strands, "tied style, y up, inches")
+        how = "y up, inches: render with --units in"
     else:
-        write_hair(a.out, fur(rng, a.strands or 4000), "fur guides, z up, mm, front -y")
+        strands = fur(rng, a.strands or 4000)
+        write_hair(a.out, strands, "fur guides, z up, mm, front -y")
+        how = "z up, millimetres: render with --up z --units mm"
         if a.mesh:
             write_body_obj(a.mesh)
+            print(f"{a.mesh}: the body, for --occluder")
+    points = sum(len(p) for p, _ in strands)
+    print(f"{a.out}: {len(strands)} strands, {points} points; {how}")
 
 
 if __name__ == "__main__":
