@@ -37,7 +37,8 @@ static void usage(FILE *f) {
     "         --hair-color R,G,B --light-color R,G,B --background R,G,B (composites)\n"
     "outputs: --spp N (4) --gt-ss S (4; 0: none) --st 1,2,4,... --opaque N (multiple of 4)\n"
     "         --seed N (hash seed of the stochastic samples)\n"
-    "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites)\n"
+    "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites; _input: the\n"
+    "           samples' own estimate, what a filter reads)\n"
     "         --no-background (leave out the occluder layer background.R/G/B/A)\n"
     "         --no-alpha-corrected (leave out acst4.*, the first 4 samples' alpha-corrected\n"
     "           estimate, Enderton et al. 2010, that KernelAC reads: one more draw of the hair;\n"
@@ -418,6 +419,29 @@ static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
   return rc;
 }
 
+/* PNG of the stochastic-transparency estimate of the frame's own spp
+ * feature samples (what a filter reads; hf_st_estimate per pixel),
+ * composited as the baselines are. */
+static int write_input_png(const hf_image *img, int spp, const hfr_view *v, const char *path) {
+  size_t px = (size_t)img->width * img->height;
+  float *in = malloc(sizeof(float) * px * (size_t)spp * 6);
+  float *res = malloc(sizeof(float) * 3 * px);
+  float *rgb = malloc(sizeof(float) * 3 * px);
+  int rc = in && res && rgb ? hf_features_from_image(img, spp, in) : HF_ENOMEM;
+  if (rc == spp) rc = HF_OK;   /* it returns the samples read */
+  for (size_t i = 0; rc == HF_OK && i < px; i++)
+    hf_st_estimate(in + i * (size_t)spp * 6, spp, res + 3 * i);
+  if (rc == HF_OK)
+    rc = hfr_composite_result(res, img->width, img->height, img, v->hair_color, v->light_color,
+                              v->background, rgb);
+  if (rc == HF_OK) rc = hf_png_write_rgb(path, rgb, img->width, img->height);
+  if (rc != HF_OK) fprintf(stderr, "hairfilter render: %s: %s\n", path, hf_strerror(rc));
+  free(in);
+  free(res);
+  free(rgb);
+  return rc;
+}
+
 /* Adds composite.<prefix>.R/G/B for every result triple in img (the
  * ground truth and each baseline), with the view's colours. */
 static int add_composites(hf_image *img, const hfr_outputs *out, const hfr_view *v) {
@@ -506,6 +530,11 @@ static int run_frame(opts *o) {
         char path[4096];
         snprintf(path, sizeof path, "%s_%s.png", o->png, prefixes[i]);
         rc = write_png(&img, prefixes[i], &o->view, path);
+      }
+      if (rc == HF_OK && o->outputs.spp > 0) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s_input.png", o->png);
+        rc = write_input_png(&img, o->outputs.spp, &o->view, path);
       }
     }
     hf_image_free(&img);

@@ -281,6 +281,34 @@ static unsigned char *read_png(const char *path, int *w, int *h) {
   return px;
 }
 
+/* render frame --png PREFIX writes PREFIX_input.png, the estimate of the
+ * frame's own samples: the 4-sample stochastic-transparency baseline of the
+ * same pass, to the byte. */
+static void test_render_input_preview(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  char prefix[1024];
+  snprintf(prefix, sizeof prefix, "%s", test_tmp("prev"));
+  assert_int_equal(cli("render frame --style wavy --strands 1500 --size 48x40 --spp 4 --st 4 "
+                       "--gt-ss 0 --out %s --png %s", test_tmp("prev.exr"), prefix), 0);
+  int w, h, w2, h2;
+  char a[1100], b[1100];
+  snprintf(a, sizeof a, "%s_input.png", prefix);
+  snprintf(b, sizeof b, "%s_st4.png", prefix);
+  unsigned char *in = read_png(a, &w, &h);
+  unsigned char *st = read_png(b, &w2, &h2);
+  assert_true(w == 48 && h == 40 && w2 == w && h2 == h);
+  assert_memory_equal(in, st, (size_t)w * h * 3);
+  int varied = 0;   /* hair over the background, not a flat image */
+  for (int p = 1; p < w * h; p++) varied |= memcmp(in + 3 * p, in, 3) != 0;
+  assert_true(varied);
+  free(in);
+  free(st);
+#endif
+}
+
 /* infer --png composites over the frame's background layer (the head the
  * renderer draws under the hair) where it has one, as the renderer's own
  * composites do, and over --background without one. */
@@ -336,7 +364,7 @@ int main(void) {
     cmocka_unit_test(test_inf_sample),      cmocka_unit_test(test_tall_frame),
     cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
-    cmocka_unit_test(test_output_directory),
+    cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),
     cmocka_unit_test(test_eval_warning),    cmocka_unit_test(test_preview_over_background_layer),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
