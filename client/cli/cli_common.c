@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "cli_common.h"
@@ -40,6 +41,11 @@ int cli_check_output(const char *prog, const char *path) {
   }
   if (slash && slash[1] == 0) {
     fprintf(stderr, "%s: %s: names a directory; give a file name\n", prog, path);
+    return HF_EIO;
+  }
+  struct stat sb;
+  if (stat(dir, &sb) == 0 && !S_ISDIR(sb.st_mode)) {
+    fprintf(stderr, "%s: %s: %s is a file, not a directory\n", prog, path, dir);
     return HF_EIO;
   }
   if (access(dir, W_OK) != 0) {

@@ -205,6 +205,7 @@ int cmd_demo(int argc, char **argv) {
     }
   }
   if (optind != argc) goto bad;
+  if (cli_check_output("hairfilter demo", o.out)) return 1;
 
   char err[512];
   hf_weights *w = NULL;

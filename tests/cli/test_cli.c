@@ -187,6 +187,11 @@ static void test_output_directory(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s/", BASE,
                        test_field("frame-64x64.exr"), test_tmp("")), 1);
   expect_text("names a directory; give a file name");
+  char under_file[1100];   /* a "directory" that is a file */
+  snprintf(under_file, sizeof under_file, "%s/x.exr", test_field("frame-64x64.exr"));
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_field("frame-64x64.exr"), under_file), 1);
+  expect_text("frame-64x64.exr is a file, not a directory");
 #ifdef HF_TEST_EVAL
   assert_int_equal(cli("eval --json %s %s", test_tmp("no-such-dir/e.json"),
                        test_field("frame-64x64.exr")), 1);
@@ -204,6 +209,10 @@ static void test_output_directory(void **state) {
                        test_tmp("no-such-dir/set")), 1);
   expect_text("render dataset: ");
   expect_text("no-such-dir/set: the directory ");
+  assert_int_equal(cli("demo --size 16x16 --out %s", test_tmp("no-such-dir/d.png")), 1);
+  expect_text("hairfilter demo: ");
+  expect_text("no-such-dir/d.png: the directory ");
+  assert_null(strstr(text, "PSNR"));   /* refused before rendering and filtering */
 #endif
 }
 

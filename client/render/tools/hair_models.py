@@ -211,9 +211,10 @@ def write_body_obj(path, rings=24, sectors=48):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("model", choices=["tied", "fur"])
-    ap.add_argument("out")
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("model", choices=["tied", "fur"], help="which model")
+    ap.add_argument("out", help="the .hair file to write")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--strands", type=int, help="strands (tied: 6000) or guides (fur: 4000)")
     ap.add_argument("--mesh", help="fur: also write the body as this OBJ")
