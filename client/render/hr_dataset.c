@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include <sys/stat.h>
 
 #include <cjson/cJSON.h>
@@ -36,7 +37,10 @@ static void progress(int done, int total, double start_ms) {
   char b[64];
   for (int i = 0; i < bar; i++) b[i] = i < fill ? '#' : '.';
   b[bar] = 0;
-  fprintf(stderr, "\r[%s] %d/%d  %.0fs elapsed  ETA %.0fs ", b, done, total, el, eta);
+  /* Rewritten in place on a terminal; a line per frame in a log. */
+  int tty = isatty(2);
+  fprintf(stderr, "%s[%s] %d/%d  %.0fs elapsed  ETA %.0fs%s", tty ? "\r" : "", b, done, total, el,
+          eta, tty ? " " : "\n");
   fflush(stderr);
 }
 
@@ -392,8 +396,8 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         /* A draw too dense for the ground truth's A-buffer: the frame is
          * left out (named in the manifest's "skipped" list) and the run goes
          * on, rather than losing every frame after it. */
-        fprintf(stderr, "%shairfilter render dataset: %s left out: %s\n", o->progress ? "\n" : "",
-                file, err ? err : "too many fragments");
+        fprintf(stderr, "%shairfilter render dataset: %s left out: %s\n",
+                o->progress && isatty(2) ? "\n" : "", file, err ? err : "too many fragments");
         cJSON *sk = cJSON_CreateObject();
         cJSON_AddStringToObject(sk, "file", file);
         cJSON_AddStringToObject(sk, "reason", err ? err : "too many fragments");
@@ -422,7 +426,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       done++;
       if (o->progress) progress(done, total, start);
     }
-  if (o->progress) fprintf(stderr, "\n");
+  if (o->progress && isatty(2)) fprintf(stderr, "\n");
   if (rc == HF_OK && n_skipped == total) {
     if (err) snprintf(err, errlen, "every frame was left out (too dense for the A-buffer): "
                       "lower --strands, --size or --gt-ss");
