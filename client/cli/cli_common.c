@@ -22,9 +22,22 @@ int cli_parse_rgb(const char *s, float rgb[3]) {
   return sscanf(s, "%f,%f,%f%c", &rgb[0], &rgb[1], &rgb[2], &tail) == 3 ? 0 : -1;
 }
 
-int cli_check_output(const char *prog, const char *path) {
+/* cli_check_output and cli_check_output_dir: path names a file (a trailing
+ * '/' is refused) or, with is_dir, a directory to create (trailing '/'s
+ * ignored); either way the directory it goes in must exist and be
+ * writable. */
+static int check_output(const char *prog, const char *path, int is_dir) {
   if (!path) return 0;
-  const char *slash = strrchr(path, '/');
+  size_t len = strlen(path);
+  if (is_dir)
+    while (len > 1 && path[len - 1] == '/') len--;
+  else if (len && path[len - 1] == '/') {
+    fprintf(stderr, "%s: %s: names a directory; give a file name\n", prog, path);
+    return HF_EIO;
+  }
+  const char *slash = NULL;   /* the last '/' of path[0, len) */
+  for (size_t i = len; i > 0 && !slash; i--)
+    if (path[i - 1] == '/') slash = path + i - 1;
   char dir[4096];
   if (!slash) {
     snprintf(dir, sizeof dir, ".");
@@ -39,26 +52,26 @@ int cli_check_output(const char *prog, const char *path) {
     memcpy(dir, path, n);
     dir[n] = 0;
   }
-  if (slash && slash[1] == 0) {
-    fprintf(stderr, "%s: %s: names a directory; give a file name\n", prog, path);
-    return HF_EIO;
-  }
   struct stat sb;
   if (stat(dir, &sb) == 0 && !S_ISDIR(sb.st_mode)) {
-    fprintf(stderr, "%s: %s: %s is a file, not a directory\n", prog, path, dir);
+    fprintf(stderr, "%s: %.*s: %s is a file, not a directory\n", prog, (int)len, path, dir);
     return HF_EIO;
   }
   if (access(dir, W_OK) != 0) {
     int e = errno;
     if (e == ENOENT || e == ENOTDIR)
-      fprintf(stderr, "%s: %s: the directory %s does not exist; create it first (mkdir -p %s)\n",
-              prog, path, dir, dir);
+      fprintf(stderr, "%s: %.*s: the directory %s does not exist; create it first (mkdir -p %s)\n",
+              prog, (int)len, path, dir, dir);
     else
-      fprintf(stderr, "%s: %s: cannot write in %s: %s\n", prog, path, dir, strerror(e));
+      fprintf(stderr, "%s: %.*s: cannot write in %s: %s\n", prog, (int)len, path, dir, strerror(e));
     return HF_EIO;
   }
   return 0;
 }
+
+int cli_check_output(const char *prog, const char *path) { return check_output(prog, path, 0); }
+
+int cli_check_output_dir(const char *prog, const char *dir) { return check_output(prog, dir, 1); }
 
 int cli_parse_size(const char *s, int *w, int *h) {
   char tail;

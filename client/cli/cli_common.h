@@ -16,6 +16,9 @@ void cli_connect_failed(const char *prog, int rc);
  * HF_EIO, so that a command does not render or filter for minutes and
  * then lose the result. NULL path: 0. */
 int cli_check_output(const char *prog, const char *path);
+/* cli_check_output for a directory the command creates (trailing '/'s
+ * allowed): the directory it goes in must exist and be writable. */
+int cli_check_output_dir(const char *prog, const char *dir);
 /* Parses "WxH"; 0 on success. */
 int cli_parse_size(const char *s, int *w, int *h);
 /* Where bundled data (weights/, bench/) lives: $HAIRFILTER_DATA; else the

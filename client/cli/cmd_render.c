@@ -613,14 +613,7 @@ static int run_dataset(opts *o) {
     fprintf(stderr, "hairfilter render dataset: --out DIR\n");
     return 2;
   }
-  {
-    /* The set's directory is created; the one it goes in must exist. */
-    char dir[4096];
-    size_t n = strlen(o->out);
-    while (n > 1 && o->out[n - 1] == '/') n--;
-    snprintf(dir, sizeof dir, "%.*s", (int)n, o->out);
-    if (cli_check_output("hairfilter render dataset", dir)) return 1;
-  }
+  if (cli_check_output_dir("hairfilter render dataset", o->out)) return 1;
   hfr_dataset_opts *d = &o->ds;
   d->out_dir = o->out;
   d->width = o->view.width;
