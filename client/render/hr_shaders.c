@@ -140,6 +140,14 @@ FS_LIGHT                                                                        
 "  else t = 1.0 - (1.0 - x) * (1.0 - x) / (2.0 * a * (1.0 - a));\n"             \
 "  return clamp(t, 1e-6, 1.0);\n"                                               \
 "}\n"                                                                           \
+"/* The fragment's alpha. With multisampling a fragment is shaded at the\n"    \
+" * pixel centre, which for a partly covered pixel can lie outside the\n"       \
+" * primitive, where alpha interpolated between two points of different\n"     \
+" * width or opacity runs past both (1.06 seen): kept to [0, 1] here, as\n"      \
+" * the feature contract requires (protocol/FEATURES.md). */\n"                 \
+"float frag_alpha() {\n"                                                       \
+"  return clamp(vi.alpha, 0.0, 1.0);\n"                                          \
+"}\n"                                                                           \
 "float hash_log2_scale() {\n"                                                   \
 "  float m = max(length(dFdx(vi.obj)), length(dFdy(vi.obj)));\n"                \
 "  return log2(1.0 / (u_hash_scale * max(m, 1e-12)));\n"                        \
@@ -177,12 +185,13 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
 "void main() {\n"
 "  float l2 = hash_log2_scale();\n"
 "  int mask = gl_SampleMaskIn[0];\n"
+"  float a = frag_alpha();\n"
 "  if (u_opaque == 0) {\n"
 "    uvec3 c0, c1;\n"
 "    hash_cells(l2, c0, c1);\n"
 "    int m = 0;\n"
 "    for (int s = 0; s < u_samples; s++)\n"
-"      if (hashed_threshold(l2, c0, c1, uint(s)) < vi.alpha) m |= 1 << s;\n"
+"      if (hashed_threshold(l2, c0, c1, uint(s)) < a) m |= 1 << s;\n"
 "    mask &= m;\n"
 "  }\n"
 "  gl_SampleMask[0] = mask;\n"
@@ -192,7 +201,7 @@ const char hr_glsl_st_fs[] = GLSL_VERSION FS_COMMON
 "  float c, h;\n"
 "  shade(c, h);\n"
 "  vec3 t = normalize(vi.vtan);\n"
-"  o_f0 = vec4(c, h, u_opaque != 0 ? 1.0 : vi.alpha, depth01());\n"
+"  o_f0 = vec4(c, h, u_opaque != 0 ? 1.0 : a, depth01());\n"
 "  o_f1 = vec4(t.xy, 0.0, 0.0);\n"
 "}\n";
 
@@ -228,7 +237,7 @@ const char hr_glsl_stac_fs[] = GLSL_VERSION FS_COMMON
 "  float vis = m > 0 ? float(n) / float(m) : 1.0;\n"
 "  float c, h;\n"
 "  shade(c, h);\n"
-"  float a = clamp(vi.alpha, 0.0, 1.0);\n"
+"  float a = frag_alpha();\n"
 "  o = vec4(c * a * vis, h * a * vis, a * vis, a);\n"
 "}\n";
 
@@ -263,7 +272,7 @@ const char hr_glsl_shadow_fs[] = GLSL_VERSION FS_COMMON
 "  float l2 = hash_log2_scale();\n"
 "  uvec3 c0, c1;\n"
 "  hash_cells(l2, c0, c1);\n"
-"  bool keep = hashed_threshold(l2, c0, c1, 255u) < vi.alpha;\n"
+"  bool keep = hashed_threshold(l2, c0, c1, 255u) < frag_alpha();\n"
 "  gl_FragDepth = depth01();\n"
 "  if (!keep) discard;\n"
 "}\n";
@@ -287,7 +296,7 @@ const char hr_glsl_abuf_fs[] = GLSL_VERSION FS_COMMON
 "  shade(c, h);\n"
 "  uint i = atomicCounterIncrement(u_count);\n"
 "  if (i >= u_capacity) return;   /* counted: the host grows the pool and redraws */\n"
-"  nodes[i].c = c; nodes[i].h = h; nodes[i].a = vi.alpha; nodes[i].d = depth01();\n"
+"  nodes[i].c = c; nodes[i].h = h; nodes[i].a = frag_alpha(); nodes[i].d = depth01();\n"
 "  ivec2 p = ivec2(gl_FragCoord.xy);\n"
 "  nodes[i].next = atomicExchange(heads[p.y * u_width + p.x], i);\n"
 "}\n";

@@ -361,6 +361,55 @@ static void test_gt_dense(void **state) {
   free(cpu);
 }
 
+/* A strand whose width and opacity change along it, from a pixel and more
+ * (alpha 1) to a fraction of one: with multisampling a pixel's fragment is
+ * shaded at the pixel centre, which for a partly covered pixel can lie
+ * outside the strand's quad, where the interpolated alpha runs past its
+ * end values. Every sample's alpha and the ground truth's stay in [0, 1]
+ * (protocol/FEATURES.md) whatever the strand's widths. */
+static void test_varying_width_alpha_range(void **state) {
+  (void)state;
+  hfr_hair h;
+  synthetic(&h, 1.0f);
+  for (uint32_t p = 0; p < h.points; p++) {
+    h.pos[3 * p + 1] += 0.11f * h.pos[3 * p];    /* every row and phase crossed */
+    h.thickness[p] = (p % 2) ? 3.0f : 0.25f;     /* x the view's 1.03 px */
+    h.transparency[p] = (p % 3 == 0) ? 0.4f : 0.0f;
+  }
+  char err[512] = "";
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_OK);
+  hfr_view v;
+  flat_view(&v);
+  hfr_outputs o = {0};
+  o.spp = 4, o.gt_supersample = 4, o.n_st = 1, o.st_spp[0] = 16, o.seed = 9;
+  hf_image img;
+  int rc = hfr_render(R, &v, &o, &img, NULL, err, sizeof err);
+  if (rc != HF_OK) fail_msg("render: %s", err);
+  int ga = hf_image_channel(&img, "gt.alpha"), sa = hf_image_channel(&img, "st16.alpha");
+  assert_true(ga >= 0 && sa >= 0);
+  size_t covered = 0, opaque = 0;
+  float amax = 0, amin = 1;
+  for (size_t p = 0; p < (size_t)W * H; p++) {
+    const float *px = img.data + p * img.channels;
+    for (int k = 0; k < 4; k++) {
+      float a = px[6 * k + 2];
+      if (a == 0) continue;
+      covered++;
+      opaque += a > 0.95f;
+      if (a > amax) amax = a;
+      if (a < amin) amin = a;
+    }
+    assert_true(px[ga] >= 0 && px[ga] <= 1);
+    assert_true(px[sa] >= 0 && px[sa] <= 1);
+  }
+  print_message("%zu covered samples, %zu of alpha > 0.95; sample alpha %.6f..%.6f\n", covered,
+                opaque, amin, amax);
+  assert_true(covered > 1000 && opaque > 100);
+  assert_true(amin > 0 && amax <= 1.0f);
+  hf_image_free(&img);
+  hfr_hair_free(&h);
+}
+
 static void test_frame_ranges(void **state) {
   (void)state;
   hfr_view v;
@@ -797,6 +846,7 @@ int main(void) {
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_gt_bands),
+    cmocka_unit_test(test_varying_width_alpha_range),
     cmocka_unit_test(test_frame_ranges),
     cmocka_unit_test(test_alpha_corrected),
     cmocka_unit_test(test_dataset_mode),
