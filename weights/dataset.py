@@ -18,6 +18,7 @@ manifest is read as every *.exr in it.
 import glob
 import hashlib
 import json
+import math
 import os
 import re
 
@@ -31,6 +32,7 @@ TARGETS = ["color", "highlight", "alpha"]
 # The alpha-corrected estimate (protocol/FEATURES.md), read by variants whose
 # configuration has "estimate".
 ESTIMATE = ["acst4.color", "acst4.highlight", "acst4.alpha"]
+COLOR, HIGHLIGHT = 0, 1
 TANGENT_X, TANGENT_Y = 4, 5
 
 # Keys a manifest may use for its frame list and for a frame's file name.
@@ -215,6 +217,32 @@ def augment(feat, tgt, rng, flips=True, rotations=True, permute=True):
     return np.ascontiguousarray(feat), np.ascontiguousarray(tgt)
 
 
+def dim_light(feat, tgt, rng, lo):
+    """Dims one crop's light: its colour factor by kc and its highlight by
+    kh, each drawn log-uniform in [lo, 1], in every sample, the target and,
+    where tgt holds one (6 channels: target, then estimate), the
+    alpha-corrected estimate. Valid because every one of them is linear in
+    the fragments' colour factors and highlights (the samples are
+    fragments', the target and estimate alpha-weighted means of them,
+    protocol/FEATURES.md), which a dimmer light or deeper shadow scales
+    alike; coverage, depth and tangents do not change. Shadowed, dense hair
+    is rare in rendered frames and a network sees it as darker colour
+    factors, not as less hair.
+
+    feat: [h][w][spp][6], tgt: [h][w][3 or 6] (numpy); lo in (0, 1].
+    Returns new arrays."""
+    if not 0 < lo <= 1:
+        raise ValueError(f"dim_light: lo {lo} is outside (0, 1]")
+    kc, kh = np.exp(rng.uniform(math.log(lo), 0.0, size=2))
+    feat, tgt = feat.copy(), tgt.copy()
+    feat[..., COLOR] *= kc
+    feat[..., HIGHLIGHT] *= kh
+    for base in range(0, tgt.shape[-1], 3):
+        tgt[..., base + COLOR] *= kc
+        tgt[..., base + HIGHLIGHT] *= kh
+    return feat, tgt
+
+
 class FrameSet:
     """Frames held in memory (float16) for crop sampling, and the input
     statistics of each (weights/input_stats.py) at the variant's spp, measured
@@ -275,15 +303,19 @@ class FrameSet:
             tc = np.concatenate([tc, self.ests[i][y:y + ch, x:x + cw]], -1)
         return fc, tc
 
-    def batch(self, rng, size, n, augment_on=True):
+    def batch(self, rng, size, n, augment_on=True, dim=(0.0, 1.0)):
         """Batch of n augmented crops as float32 NCHW input [n][spp*6][s][s]
         and target [n][3][s][s]. When the frames hold more samples than the
-        variant reads, each crop uses a random subset of them."""
+        variant reads, each crop uses a random subset of them. dim (share,
+        lo): that share of the crops has its light dimmed (dim_light, down
+        to lo); share 0 draws nothing, so runs without it are unchanged."""
         xs, ys = [], []
         for _ in range(n):
             f, t = self.crop(rng, size)
             if augment_on:
                 f, t = augment(f, t, rng)
+                if dim[0] > 0 and rng.random() < dim[0]:
+                    f, t = dim_light(f, t, rng, dim[1])
             if f.shape[2] > self.spp:
                 f = f[:, :, np.sort(rng.choice(f.shape[2], self.spp, replace=False))]
             h, w = t.shape[:2]

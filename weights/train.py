@@ -551,6 +551,13 @@ def parse_args(argv):
     ap.add_argument("--kernel-hidden", type=int, default=-1,
                     help="Kernel variant: channels of dec0 before the 1x1 head (0: dec0 "
                     "gives the kernel directly; default: the variant's)")
+    ap.add_argument("--dim-light", type=float, default=0.0, metavar="LO",
+                    help="dim the light of --dim-share of the crops: colour factor and "
+                    "highlight each scaled by a factor drawn log-uniform in [LO, 1], in the "
+                    "samples and the target alike (dataset.dim_light; shadowed dense hair); "
+                    "0: off")
+    ap.add_argument("--dim-share", type=float, default=0.5,
+                    help="with --dim-light: the share of the crops dimmed")
     ap.add_argument("--reload-every", type=int, default=0, metavar="N",
                     help="every N steps, add the frames that appeared in the --data "
                     "directories since the start (a data set still being rendered) to the "
@@ -564,6 +571,10 @@ def parse_args(argv):
         ap.error("--lattice-weight needs --loss look (it scores the composited images)")
     if args.below_input_weight and args.loss != "look":
         ap.error("--below-input-weight needs --loss look (it scores the composited images)")
+    if args.dim_light and not 0 < args.dim_light <= 1:
+        ap.error("--dim-light must be in (0, 1] (the dimmest factor; 0: off)")
+    if not 0 <= args.dim_share <= 1:
+        ap.error("--dim-share must be a share in [0, 1]")
     if args.clip_grad_norm < 0 or not math.isfinite(args.clip_grad_norm):
         ap.error("--clip-grad-norm must be a finite norm >= 0 (0: no clipping)")
     return args
@@ -608,7 +619,7 @@ def main(argv=None):
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
-                  "kernel_radius", "kernel_hidden", "levels",
+                  "dim_light", "dim_share", "kernel_radius", "kernel_hidden", "levels",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
                   "equal_phase_sums"):
@@ -712,7 +723,9 @@ def main(argv=None):
                     train_set.add(new)
                     print(f"\n{len(new)} new frames: {len(train_set)} training frames",
                           file=sys.stderr)
-            x, y = train_set.batch(np_rng, args.crop, args.batch)
+            x, y = train_set.batch(np_rng, args.crop, args.batch,
+                                   dim=(args.dim_share if args.dim_light else 0.0,
+                                        args.dim_light or 1.0))
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
             y = training_target(x, y, args.target, cfg["spp"])
             looks = random_looks(x.shape[0], look_gen) if args.loss == "look" else None
@@ -776,6 +789,7 @@ def main(argv=None):
                            lattice_weight=args.lattice_weight,
                            below_input_weight=args.below_input_weight, target=args.target,
                            clip_grad_norm=args.clip_grad_norm,
+                           dim_light=args.dim_light, dim_share=args.dim_share,
                            seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through,

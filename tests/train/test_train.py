@@ -109,6 +109,39 @@ class Recipe(unittest.TestCase):
             seen.add(tuple(np.round(tan, 3)))
         self.assertGreaterEqual(len(seen), 4, "augmentation produced too few orientations")
 
+    def test_dim_light_scales_colour_and_highlight_alike(self):
+        """dataset.dim_light: every sample's colour factor and the target's
+        (and the estimate's) by one factor, the highlights by another, both
+        in [lo, 1] and drawn afresh per call; coverage, depth and tangents
+        untouched; a bad lo refused, and so is --dim-light outside (0, 1]."""
+        rng = np.random.default_rng(5)
+        f = rng.uniform(0.1, 2.0, (6, 7, 4, 6)).astype(np.float32)
+        f[0, 0] = 0                                  # a pixel without hair
+        t = rng.uniform(0.1, 1.0, (6, 7, 6)).astype(np.float32)
+        factors = set()
+        for _ in range(8):
+            g, u = dataset.dim_light(f, t, rng, 0.05)
+            kc = g[..., dataset.COLOR] / np.where(f[..., 0] > 0, f[..., 0], 1)
+            kh = g[..., dataset.HIGHLIGHT] / np.where(f[..., 1] > 0, f[..., 1], 1)
+            kc, kh = float(kc[1, 1, 0]), float(kh[1, 1, 0])
+            self.assertTrue(0.05 <= kc <= 1 and 0.05 <= kh <= 1, (kc, kh))
+            np.testing.assert_allclose(g[..., 0], f[..., 0] * kc, rtol=1e-6)
+            np.testing.assert_allclose(g[..., 1], f[..., 1] * kh, rtol=1e-6)
+            np.testing.assert_array_equal(g[..., 2:], f[..., 2:])
+            for base in (0, 3):
+                np.testing.assert_allclose(u[..., base], t[..., base] * kc, rtol=1e-6)
+                np.testing.assert_allclose(u[..., base + 1], t[..., base + 1] * kh, rtol=1e-6)
+                np.testing.assert_array_equal(u[..., base + 2], t[..., base + 2])
+            self.assertTrue((g[0, 0] == 0).all())
+            factors.add((round(kc, 6), round(kh, 6)))
+        self.assertEqual(len(factors), 8)
+        for bad in (0.0, 1.5):
+            with self.assertRaises(ValueError):
+                dataset.dim_light(f, t, rng, bad)
+        for bad in ("-0.1", "2"):
+            with self.assertRaises(SystemExit):
+                train.parse_args(["--out", "x", "--dim-light", bad])
+
     def test_deconv_rewrite_is_exact(self):
         torch.manual_seed(0)
         for name in ("Base", "Shallow", "Deep", "Kernel"):
