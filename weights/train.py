@@ -75,13 +75,15 @@ def mse_and_gradients(p, q, grad_weight):
 EVAL_LOOK = ((0.45, 0.25, 0.12), (1.0, 1.0, 1.0), (0.18, 0.20, 0.24))
 
 
-def composite(y, hair, light, bg):
+def composite(y, hair, light, bg, clamp=torch.clamp):
     """What a viewer sees of NCHW (color, highlight, alpha) y: the paper's
     composite (Fig. 3), rgb = alpha light (hair color + highlight) + (1 -
     alpha) bg, clamped to [0, 1] as a display shows it (hf_composite, and
-    `hairfilter eval`'s images). hair, light, bg: [n][3][1][1]."""
+    `hairfilter eval`'s images). hair, light, bg: [n][3][1][1]. clamp:
+    torch.clamp, or clamp_st (the same values; a gradient also where the
+    composite is out of [0, 1])."""
     col, hl, a = y[:, 0:1], y[:, 1:2], y[:, 2:3]
-    return torch.clamp(a * light * (hair * col + hl) + (1 - a) * bg, 0, 1)
+    return clamp(a * light * (hair * col + hl) + (1 - a) * bg, 0, 1)
 
 
 def random_looks(n, gen):
@@ -211,7 +213,7 @@ def below_input_loss(cp, ct, ci, alpha):
 
 
 def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0,
-              lattice=(0.0, 8), below=(0.0, None, 4)):
+              lattice=(0.0, 8), below=(0.0, None, 4), display_st=False):
     """The squared error of what a viewer sees: pred and target composited
     with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
     weighted by grad_weight, of their finite differences, as the paper's loss
@@ -227,8 +229,14 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weigh
     the MSE counts no more than any other error of the same energy. below
     (weight, features, spp) adds weight times below_input_loss against the
     composite of st_estimate(features, spp): the crops where the network
-    does worse than the samples it reads."""
-    cp, ct = composite(pred, *looks), composite(target, *looks)
+    does worse than the samples it reads. display_st: the display's clamp
+    of the prediction's composite passes a gradient where the composite is
+    below 0 or above 1 (clamp_st; the loss's value is the same): with the
+    exact clamp a dark pixel whose colour factor has gone below 0 shows
+    black and gets no gradient from the composite, so only the paper's
+    term, a tenth of the loss, pulls it back."""
+    cp = composite(pred, *looks, clamp=clamp_st if display_st else torch.clamp)
+    ct = composite(target, *looks)
     loss = mse_and_gradients(cp, ct, grad_weight)
     if ssim_weight:
         loss = loss + ssim_weight * hair_ssim_loss(cp, ct, target[:, 2:3])
@@ -249,14 +257,15 @@ def eval_looks(n, device):
 
 
 def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0, lattice=(0.0, 8),
-             below=(0.0, None, 4)):
+             below=(0.0, None, 4), display_st=False):
     """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
     (look_loss with looks, EVAL_LOOK when None, ssim_weight, lattice and
     below)."""
     if kind == "look":
         return look_loss(pred, target, looks if looks is not None
                          else eval_looks(pred.shape[0], pred.device), grad_weight,
-                         ssim_weight=ssim_weight, lattice=lattice, below=below)
+                         ssim_weight=ssim_weight, lattice=lattice, below=below,
+                         display_st=display_st)
     return hair_loss(pred, target, grad_weight)
 
 
@@ -551,6 +560,10 @@ def parse_args(argv):
     ap.add_argument("--kernel-hidden", type=int, default=-1,
                     help="Kernel variant: channels of dec0 before the 1x1 head (0: dec0 "
                     "gives the kernel directly; default: the variant's)")
+    ap.add_argument("--display-straight-through", action="store_true",
+                    help="--loss look: the display clamp of the predicted composite passes "
+                    "a gradient outside [0, 1] (train.py look_loss display_st), so a colour "
+                    "factor gone below 0 in dark hair is pulled back")
     ap.add_argument("--dim-light", type=float, default=0.0, metavar="LO",
                     help="dim the light of --dim-share of the crops: colour factor and "
                     "highlight each scaled by a factor drawn log-uniform in [LO, 1], in the "
@@ -571,6 +584,8 @@ def parse_args(argv):
         ap.error("--lattice-weight needs --loss look (it scores the composited images)")
     if args.below_input_weight and args.loss != "look":
         ap.error("--below-input-weight needs --loss look (it scores the composited images)")
+    if args.display_straight_through and args.loss != "look":
+        ap.error("--display-straight-through needs --loss look (it clamps the composited images)")
     if args.dim_light and not 0 < args.dim_light <= 1:
         ap.error("--dim-light must be in (0, 1] (the dimmest factor; 0: off)")
     if not 0 <= args.dim_share <= 1:
@@ -619,7 +634,7 @@ def main(argv=None):
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
-                  "dim_light", "dim_share", "kernel_radius", "kernel_hidden", "levels",
+                  "dim_light", "dim_share", "display_straight_through", "kernel_radius", "kernel_hidden", "levels",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
                   "equal_phase_sums"):
@@ -732,7 +747,8 @@ def main(argv=None):
             looks = tuple(v.to(device) for v in looks) if looks else None
             loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
                             y, args.grad_weight, looks, args.ssim_weight, lattice,
-                            (args.below_input_weight, x, cfg["spp"]))
+                            (args.below_input_weight, x, cfg["spp"]),
+                            display_st=args.display_straight_through)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             # The norm before clipping, recorded with or without a clip: a run
@@ -790,6 +806,7 @@ def main(argv=None):
                            below_input_weight=args.below_input_weight, target=args.target,
                            clip_grad_norm=args.clip_grad_norm,
                            dim_light=args.dim_light, dim_share=args.dim_share,
+                           display_straight_through=args.display_straight_through,
                            seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through,

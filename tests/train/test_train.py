@@ -623,6 +623,31 @@ class Recipe(unittest.TestCase):
         self.assertTrue(bool((h >= 0).all() and (h <= 1).all() and (b >= 0).all()))
         self.assertGreater(float(h.std(0).min()), 0.05)
 
+    def test_display_straight_through_pulls_a_black_pixel_back(self):
+        """An opaque, dark pixel whose colour factor has gone below 0 shows
+        black (the composite is clamped at 0): the look loss's value is the
+        same with display_st, but only with it does the colour factor get a
+        gradient, and one that raises it towards the truth; a pixel inside
+        [0, 1] gets the same gradient either way; --display-straight-through
+        needs the look loss."""
+        looks = train.eval_looks(1, "cpu")
+        t = torch.tensor([0.03, 0.0, 1.0]).view(1, 3, 1, 1)
+        grads = {}
+        for st in (False, True):
+            for name, c in (("black", -0.05), ("dark", 0.01)):
+                p = torch.tensor([c, 0.0, 1.0]).view(1, 3, 1, 1).requires_grad_()
+                loss = train.look_loss(p, t, looks, 0, 0, display_st=st)
+                loss.backward()
+                grads[st, name] = (float(loss), float(p.grad[0, 0]))
+        self.assertEqual(grads[False, "black"][0], grads[True, "black"][0])
+        self.assertGreater(grads[False, "black"][0], 0)
+        self.assertEqual(grads[False, "black"][1], 0.0)
+        self.assertLess(grads[True, "black"][1], 0.0)   # descent raises the colour factor
+        self.assertEqual(grads[False, "dark"], grads[True, "dark"])
+        self.assertLess(grads[True, "dark"][1], 0.0)
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", "--display-straight-through"])
+
     def test_ssim_term_is_the_evaluations_ssim(self):
         """ssim_map is the evaluation's SSIM (Gaussian window of radius 5,
         sigma 1.5, C1 = 0.01^2, C2 = 0.03^2) at pixels whose window lies
