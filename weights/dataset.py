@@ -221,13 +221,16 @@ def dim_light(feat, tgt, rng, lo):
     """Dims one crop's light: its colour factor by kc and its highlight by
     kh, each drawn log-uniform in [lo, 1], in every sample, the target and,
     where tgt holds one (6 channels: target, then estimate), the
-    alpha-corrected estimate. Valid because every one of them is linear in
-    the fragments' colour factors and highlights (the samples are
+    alpha-corrected estimate. Consistent because every one of them is
+    linear in the fragments' colour factors and highlights (the samples are
     fragments', the target and estimate alpha-weighted means of them,
-    protocol/FEATURES.md), which a dimmer light or deeper shadow scales
-    alike; coverage, depth and tangents do not change. Shadowed, dense hair
-    is rare in rendered frames and a network sees it as darker colour
-    factors, not as less hair.
+    protocol/FEATURES.md); coverage, depth and tangents do not change. It
+    stands in, approximately, for a dimmer light or deeper shadow: a
+    shadow does not dim the ambient term of the colour factor, and the two
+    factors are drawn independently, as a light's diffuse and specular
+    strengths may differ. Shadowed, dense hair is rare in rendered frames
+    and a network should see it as darker colour factors, not as less
+    hair.
 
     feat: [h][w][spp][6], tgt: [h][w][3 or 6] (numpy); lo in (0, 1].
     Returns new arrays."""
@@ -307,8 +310,9 @@ class FrameSet:
         """Batch of n augmented crops as float32 NCHW input [n][spp*6][s][s]
         and target [n][3][s][s]. When the frames hold more samples than the
         variant reads, each crop uses a random subset of them. dim (share,
-        lo): that share of the crops has its light dimmed (dim_light, down
-        to lo); share 0 draws nothing, so runs without it are unchanged."""
+        lo): with augment_on, that share of the crops has its light dimmed
+        (dim_light, down to lo); share 0 draws nothing, so runs without it
+        are unchanged."""
         xs, ys = [], []
         for _ in range(n):
             f, t = self.crop(rng, size)

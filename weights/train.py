@@ -567,10 +567,10 @@ def parse_args(argv):
     ap.add_argument("--dim-light", type=float, default=0.0, metavar="LO",
                     help="dim the light of --dim-share of the crops: colour factor and "
                     "highlight each scaled by a factor drawn log-uniform in [LO, 1], in the "
-                    "samples and the target alike (dataset.dim_light; shadowed dense hair); "
-                    "0: off")
-    ap.add_argument("--dim-share", type=float, default=0.5,
-                    help="with --dim-light: the share of the crops dimmed")
+                    "samples, the target and the estimate alike (dataset.dim_light; "
+                    "shadowed dense hair); 0: off")
+    ap.add_argument("--dim-share", type=float, default=None,
+                    help="with --dim-light: the share of the crops dimmed (default 0.5)")
     ap.add_argument("--reload-every", type=int, default=0, metavar="N",
                     help="every N steps, add the frames that appeared in the --data "
                     "directories since the start (a data set still being rendered) to the "
@@ -588,6 +588,10 @@ def parse_args(argv):
         ap.error("--display-straight-through needs --loss look (it clamps the composited images)")
     if args.dim_light and not 0 < args.dim_light <= 1:
         ap.error("--dim-light must be in (0, 1] (the dimmest factor; 0: off)")
+    if args.dim_share is not None and not args.dim_light:
+        ap.error("--dim-share needs --dim-light (the dimmest factor)")
+    if args.dim_share is None:
+        args.dim_share = 0.5
     if not 0 <= args.dim_share <= 1:
         ap.error("--dim-share must be a share in [0, 1]")
     if args.clip_grad_norm < 0 or not math.isfinite(args.clip_grad_norm):

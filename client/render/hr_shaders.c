@@ -140,11 +140,13 @@ FS_LIGHT                                                                        
 "  else t = 1.0 - (1.0 - x) * (1.0 - x) / (2.0 * a * (1.0 - a));\n"             \
 "  return clamp(t, 1e-6, 1.0);\n"                                               \
 "}\n"                                                                           \
-"/* The fragment's alpha. With multisampling a fragment is shaded at the\n"    \
-" * pixel centre, which for a partly covered pixel can lie outside the\n"       \
-" * primitive, where alpha interpolated between two points of different\n"     \
-" * width or opacity runs past both (1.06 seen): kept to [0, 1] here, as\n"      \
-" * the feature contract requires (protocol/FEATURES.md). */\n"                 \
+"/* The fragment's alpha. With multisampling a fragment is shaded once,\n"    \
+" * usually at the pixel centre, which for a partly covered pixel can lie\n"   \
+" * outside the primitive, where alpha interpolated between two points of\n"   \
+" * different width or opacity runs past both (1.06 seen in the feature\n"     \
+" * pass): kept to [0, 1] here, as the feature contract requires\n"            \
+" * (protocol/FEATURES.md). The single-sampled passes (shadow map, A-buffer)\n" \
+" * shade inside the primitive and use it alike. */\n"                         \
 "float frag_alpha() {\n"                                                       \
 "  return clamp(vi.alpha, 0.0, 1.0);\n"                                          \
 "}\n"                                                                           \

@@ -109,11 +109,12 @@ class Recipe(unittest.TestCase):
             seen.add(tuple(np.round(tan, 3)))
         self.assertGreaterEqual(len(seen), 4, "augmentation produced too few orientations")
 
-    def test_dim_light_scales_colour_and_highlight_alike(self):
+    def test_dim_light_scales_samples_target_and_estimate_alike(self):
         """dataset.dim_light: every sample's colour factor and the target's
-        (and the estimate's) by one factor, the highlights by another, both
-        in [lo, 1] and drawn afresh per call; coverage, depth and tangents
-        untouched; a bad lo refused, and so is --dim-light outside (0, 1]."""
+        (and the estimate's) by one factor, the highlights by another drawn
+        independently, both in [lo, 1] and drawn afresh per call; coverage,
+        depth and tangents untouched; a bad lo refused, and so are
+        --dim-light outside (0, 1] and --dim-share without it."""
         rng = np.random.default_rng(5)
         f = rng.uniform(0.1, 2.0, (6, 7, 4, 6)).astype(np.float32)
         f[0, 0] = 0                                  # a pixel without hair
@@ -134,13 +135,17 @@ class Recipe(unittest.TestCase):
                 np.testing.assert_array_equal(u[..., base + 2], t[..., base + 2])
             self.assertTrue((g[0, 0] == 0).all())
             factors.add((round(kc, 6), round(kh, 6)))
-        self.assertEqual(len(factors), 8)
+        self.assertEqual(len({kc for kc, _ in factors}), 8)
+        self.assertEqual(len({kh for _, kh in factors}), 8)
+        self.assertTrue(any(kc != kh for kc, kh in factors))
         for bad in (0.0, 1.5):
             with self.assertRaises(ValueError):
                 dataset.dim_light(f, t, rng, bad)
-        for bad in ("-0.1", "2"):
+        for bad in (["--dim-light", "-0.1"], ["--dim-light", "2"], ["--dim-share", "0.3"],
+                    ["--dim-light", "0.1", "--dim-share", "1.5"]):
             with self.assertRaises(SystemExit):
-                train.parse_args(["--out", "x", "--dim-light", bad])
+                train.parse_args(["--out", "x", *bad])
+        self.assertEqual(train.parse_args(["--out", "x", "--dim-light", "0.1"]).dim_share, 0.5)
 
     def test_deconv_rewrite_is_exact(self):
         torch.manual_seed(0)
