@@ -86,6 +86,17 @@ def composite(y, hair, light, bg, clamp=torch.clamp):
     return clamp(a * light * (hair * col + hl) + (1 - a) * bg, 0, 1)
 
 
+def srgb_encode(x):
+    """The sRGB transfer function (IEC 61966-2-1) of linear values x in [0,
+    1]: what a display's 8-bit code values are proportional to. Its slope
+    is 12.92 below 0.0031308 and falls as x^(-7/12) above, so an error in
+    dark tones weighs about as much as a viewer sees it (the linear MSE
+    weighs it by the square of the value's scale)."""
+    lo = 12.92 * x
+    hi = 1.055 * x.clamp(min=0.0031308) ** (1 / 2.4) - 0.055
+    return torch.where(x <= 0.0031308, lo, hi)
+
+
 def random_looks(n, gen):
     """n looks an engine might composite with, as [n][3][1][1] tensors
     (hair, light, bg): hair colours from near-black through brown and red to
@@ -213,7 +224,7 @@ def below_input_loss(cp, ct, ci, alpha):
 
 
 def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0,
-              lattice=(0.0, 8), below=(0.0, None, 4), display_st=False):
+              lattice=(0.0, 8), below=(0.0, None, 4), display_st=False, srgb=False):
     """The squared error of what a viewer sees: pred and target composited
     with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
     weighted by grad_weight, of their finite differences, as the paper's loss
@@ -234,10 +245,17 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weigh
     below 0 or above 1 (clamp_st; the loss's value is the same): with the
     exact clamp a dark pixel whose colour factor has gone below 0 shows
     black and gets no gradient from the composite, so only the paper's
-    term, a tenth of the loss, pulls it back."""
+    term, a tenth of the loss, pulls it back. srgb: the images' MSE (and
+    their finite differences') on the sRGB-encoded composites
+    (srgb_encode), as a display's code values differ, instead of the
+    linear ones; the other terms stay on the linear composites, as the
+    evaluation scores them."""
     cp = composite(pred, *looks, clamp=clamp_st if display_st else torch.clamp)
     ct = composite(target, *looks)
-    loss = mse_and_gradients(cp, ct, grad_weight)
+    if srgb:
+        loss = mse_and_gradients(srgb_encode(cp), srgb_encode(ct), grad_weight)
+    else:
+        loss = mse_and_gradients(cp, ct, grad_weight)
     if ssim_weight:
         loss = loss + ssim_weight * hair_ssim_loss(cp, ct, target[:, 2:3])
     if lattice[0]:
@@ -257,15 +275,15 @@ def eval_looks(n, device):
 
 
 def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0, lattice=(0.0, 8),
-             below=(0.0, None, 4), display_st=False):
+             below=(0.0, None, 4), display_st=False, srgb=False):
     """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
-    (look_loss with looks, EVAL_LOOK when None, ssim_weight, lattice and
-    below)."""
+    (look_loss with looks, EVAL_LOOK when None, ssim_weight, lattice,
+    below, display_st and srgb)."""
     if kind == "look":
         return look_loss(pred, target, looks if looks is not None
                          else eval_looks(pred.shape[0], pred.device), grad_weight,
                          ssim_weight=ssim_weight, lattice=lattice, below=below,
-                         display_st=display_st)
+                         display_st=display_st, srgb=srgb)
     return hair_loss(pred, target, grad_weight)
 
 
@@ -564,6 +582,11 @@ def parse_args(argv):
                     help="--loss look: the display clamp of the predicted composite passes "
                     "a gradient outside [0, 1] (train.py look_loss display_st), so a colour "
                     "factor gone below 0 in dark hair is pulled back")
+    ap.add_argument("--look-srgb", action="store_true",
+                    help="--loss look: the images' MSE on the sRGB-encoded composites "
+                    "(train.py srgb_encode), as a display's code values differ, so an error "
+                    "in dark hair weighs as a viewer sees it; the SSIM and lattice terms "
+                    "stay linear")
     ap.add_argument("--dim-light", type=float, default=0.0, metavar="LO",
                     help="dim the light of --dim-share of the crops: colour factor and "
                     "highlight each scaled by a factor drawn log-uniform in [LO, 1], in the "
@@ -586,6 +609,8 @@ def parse_args(argv):
         ap.error("--below-input-weight needs --loss look (it scores the composited images)")
     if args.display_straight_through and args.loss != "look":
         ap.error("--display-straight-through needs --loss look (it clamps the composited images)")
+    if args.look_srgb and args.loss != "look":
+        ap.error("--look-srgb needs --loss look (it encodes the composited images)")
     if args.dim_light and not 0 < args.dim_light <= 1:
         ap.error("--dim-light must be in (0, 1] (the dimmest factor; 0: off)")
     if args.dim_share is not None and not args.dim_light:
@@ -638,7 +663,7 @@ def main(argv=None):
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
-                  "dim_light", "dim_share", "display_straight_through", "kernel_radius", "kernel_hidden", "levels",
+                  "dim_light", "dim_share", "display_straight_through", "look_srgb", "kernel_radius", "kernel_hidden", "levels",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
                   "equal_phase_sums"):
@@ -752,7 +777,7 @@ def main(argv=None):
             loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
                             y, args.grad_weight, looks, args.ssim_weight, lattice,
                             (args.below_input_weight, x, cfg["spp"]),
-                            display_st=args.display_straight_through)
+                            display_st=args.display_straight_through, srgb=args.look_srgb)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             # The norm before clipping, recorded with or without a clip: a run
@@ -811,7 +836,7 @@ def main(argv=None):
                            clip_grad_norm=args.clip_grad_norm,
                            dim_light=args.dim_light, dim_share=args.dim_share,
                            display_straight_through=args.display_straight_through,
-                           seed=args.seed,
+                           look_srgb=args.look_srgb, seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through,
                            equal_phase_sums=args.equal_phase_sums, train_seconds=elapsed,

@@ -653,6 +653,34 @@ class Recipe(unittest.TestCase):
         with self.assertRaises(SystemExit):
             train.parse_args(["--out", "x", "--display-straight-through"])
 
+    def test_look_srgb_weighs_dark_errors_as_a_display_shows_them(self):
+        """srgb_encode is the sRGB transfer function (IEC 61966-2-1: 12.92 x
+        below 0.0031308, 1.055 x^(1/2.4) - 0.055 above; 0.5 encodes to
+        0.7354), and with srgb the look loss is the MSE of the encoded
+        composites: the same error of 0.01 in the colour factor of an opaque
+        pixel costs more in dark hair than in bright hair, where the linear
+        loss costs both alike; --look-srgb needs the look loss."""
+        x = torch.tensor([0.0, 0.002, 0.0031308, 0.5, 1.0])
+        want = [0.0, 12.92 * 0.002, 12.92 * 0.0031308, 1.055 * 0.5 ** (1 / 2.4) - 0.055, 1.0]
+        for g, w in zip(train.srgb_encode(x).tolist(), want):
+            self.assertAlmostEqual(g, w, places=5)
+        self.assertAlmostEqual(float(train.srgb_encode(torch.tensor(0.5))), 0.7354, places=4)
+        looks = train.eval_looks(1, "cpu")
+        cost = {}
+        for srgb in (False, True):
+            for name, c in (("dark", 0.05), ("bright", 0.9)):
+                t = torch.tensor([c, 0.0, 1.0]).view(1, 3, 1, 1)
+                p = t + torch.tensor([0.01, 0.0, 0.0]).view(1, 3, 1, 1)
+                cost[srgb, name] = float(train.look_loss(p, t, looks, 0, 0, srgb=srgb))
+        self.assertAlmostEqual(cost[False, "dark"], cost[False, "bright"], places=9)
+        self.assertGreater(cost[True, "dark"], 4 * cost[True, "bright"])
+        hair = torch.tensor(train.EVAL_LOOK[0])
+        enc = train.srgb_encode
+        want = float(((enc(hair * 0.06) - enc(hair * 0.05)) ** 2).mean())
+        self.assertAlmostEqual(cost[True, "dark"], want, places=9)
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", "--look-srgb"])
+
     def test_ssim_term_is_the_evaluations_ssim(self):
         """ssim_map is the evaluation's SSIM (Gaussian window of radius 5,
         sigma 1.5, C1 = 0.01^2, C2 = 0.03^2) at pixels whose window lies
