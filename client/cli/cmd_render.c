@@ -49,6 +49,7 @@ static void usage(FILE *f) {
     "         --regimes (widths, density, zoom, crops, camera, light, shadows per frame and\n"
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
     "           --width-px MIN,MAX (regimes: strand width in pixels, default 0.004,4)\n"
+    "           --opacity-range MIN,MAX (regimes: strand opacity, default 0.2,1; 1,1: opaque)\n"
     "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
     "           --occluder apply to them)\n"
     "         a ground truth too dense for one A-buffer is drawn in bands of rows; a frame\n"
@@ -247,6 +248,11 @@ static int parse_args(int argc, char **argv, opts *o) {
     } else if (!strcmp(a, "--width-px")) {
       if (sscanf(v, "%f,%f", &o->ds.width_px_min, &o->ds.width_px_max) != 2) {
         fprintf(stderr, "hairfilter render: --width-px wants MIN,MAX (strand width in pixels)\n");
+        return -1;
+      }
+    } else if (!strcmp(a, "--opacity-range")) {
+      if (sscanf(v, "%f,%f", &o->ds.opacity_min, &o->ds.opacity_max) != 2) {
+        fprintf(stderr, "hairfilter render: --opacity-range wants MIN,MAX (strand opacity in (0, 1])\n");
         return -1;
       }
     } else if (!strcmp(a, "--hair-files")) {

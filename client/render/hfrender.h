@@ -457,6 +457,12 @@ typedef struct hfr_dataset_opts {
    * sub-pixel to several pixels); a narrower range renders more frames of
    * one regime (wide strands, say) without changing the others' draws. */
   float width_px_min, width_px_max;
+  /* Regimes: each frame's strand opacity is drawn uniformly from
+   * opacity_min..opacity_max (0, 0: 0.2..1). 1, 1 draws opaque strands, as
+   * many assets have, so that covered-sample alpha reaches 1 where strands
+   * are wider than a pixel; the draw is made either way, so the other
+   * parameters' draws do not change. */
+  float opacity_min, opacity_max;
   /* .hair files drawn as styles (frames {basename}_{i:04d}.exr), each taken
    * as asset says; children.seed is varied per frame. */
   const char *const *hair_files;

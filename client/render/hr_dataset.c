@@ -249,6 +249,11 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       snprintf(err, errlen, "strand widths must be 0 < MIN <= MAX <= 64 pixels (--width-px)");
     return HF_EINVAL;
   }
+  if (o->regimes && (o->opacity_min || o->opacity_max) &&
+      !(o->opacity_min > 0 && o->opacity_min <= o->opacity_max && o->opacity_max <= 1)) {
+    if (err) snprintf(err, errlen, "strand opacities must be 0 < MIN <= MAX <= 1 (--opacity-range)");
+    return HF_EINVAL;
+  }
   if (mkdir(o->out_dir, 0777) != 0 && errno != EEXIST) {
     if (err) snprintf(err, errlen, "%s: %s", o->out_dir, strerror(errno));
     return HF_EIO;
@@ -295,6 +300,11 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
                                                                     : HR_REGIME_WIDTH_PX_MIN));
     cJSON_AddItemToArray(wr, cJSON_CreateNumber(o->width_px_max > 0 ? o->width_px_max
                                                                     : HR_REGIME_WIDTH_PX_MAX));
+    cJSON *orange = cJSON_AddArrayToObject(doc, "opacity_range");
+    cJSON_AddItemToArray(orange, cJSON_CreateNumber(o->opacity_max > 0 ? o->opacity_min
+                                                                       : HR_REGIME_OPACITY_MIN));
+    cJSON_AddItemToArray(orange, cJSON_CreateNumber(o->opacity_max > 0 ? o->opacity_max
+                                                                       : HR_REGIME_OPACITY_MAX));
   }
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
   cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");

@@ -9,6 +9,8 @@
  * covered-sample alpha from about 0.005 (far sub-pixel) to opacity (wider
  * than a pixel). */
 #define HR_REGIME_WIDTH_PX_MIN 0.004f
+#define HR_REGIME_OPACITY_MIN 0.2f
+#define HR_REGIME_OPACITY_MAX 1.0f
 #define HR_REGIME_WIDTH_PX_MAX 4.0f
 
 /* What a regimes frame drew beyond its style parameters and view. */

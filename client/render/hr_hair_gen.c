@@ -247,6 +247,10 @@ static void add_curl(const hfr_style_params *sp, hr_rng *g, const float nrm[3], 
   free(base);
 }
 
+float hr_strand_opacity(float style_opacity, float jitter) {
+  return style_opacity >= 1 ? 1 : style_opacity * jitter;
+}
+
 /* A clump's diameter factor: spread^u, u uniform in [-1, 1], from the clump's
  * own stream. */
 float hr_clump_width(const hfr_style_params *sp, uint64_t clump) {
@@ -324,7 +328,7 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
     float shell = hr_rng_range(&g, 0.01f, sp->style == HFR_STYLE_COILY ? 0.05f : 0.12f);
     grow_base(sp, &g, roots + 3 * s, nrm, len, shell, c);
     add_curl(sp, &g, nrm, c);
-    float opac = sp->opacity * hr_rng_range(&g, 0.9f, 1.0f);
+    float opac = hr_strand_opacity(sp->opacity, hr_rng_range(&g, 0.9f, 1.0f));
     for (int i = 0; i <= n; i++) {
       float t = (float)i / n;
       /* Strands taper towards the tip. */

@@ -112,7 +112,8 @@ int hr_generate_from_guides(const hfr_style_params *sp, hfr_hair *out) {
     float *c = g.pos + 3 * (size_t)s * (n + 1);
     if (sp->style == HFR_STYLE_FUR) fur_guide(sp, &r, c, n);
     else spiky_guide(sp, &r, c, n);
-    float opac = sp->opacity * hr_rng_range(&r, 0.9f, 1.0f), w = hr_clump_width(sp, (uint64_t)s);
+    float opac = hr_strand_opacity(sp->opacity, hr_rng_range(&r, 0.9f, 1.0f));
+    float w = hr_clump_width(sp, (uint64_t)s);
     for (int i = 0; i <= n; i++) {
       float t = (float)i / n;
       /* Spikes and fur taper to a fine tip. */

@@ -13,6 +13,11 @@ void hr_scalp_root(hr_rng *g, float p[3], float n[3]);
 void hr_push_out_of(const float radii[3], float p[3], float shell);
 /* Diameter factor of clump (guide) number clump: sp->width_spread^u. */
 float hr_clump_width(const hfr_style_params *sp, uint64_t clump);
+/* A strand's opacity: the style's times its own factor jitter (drawn in
+ * [0.9, 1] by the caller, whatever the opacity, so the stream is the same),
+ * except that a style opacity of 1 gives opaque strands, as assets without
+ * transparency have. */
+float hr_strand_opacity(float style_opacity, float jitter);
 /* Frizz of every strand of h, then a push out of the body (semi-axes). */
 void hr_frizz(const hfr_style_params *sp, const float body[3], hfr_hair *h);
 /* Spiky and fur: guides, then hfr_hair_interpolate (no frizz yet). */

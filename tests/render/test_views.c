@@ -414,6 +414,70 @@ static void test_dataset_width_range(void **state) {
   }
 }
 
+/* --opacity-range sets the regimes' strand opacity: with 1,1 and strands
+ * wider than a pixel every frame's covered samples have alpha 1 (at the
+ * median) and its opacity is recorded as 1; the manifest records the range;
+ * the other draws (widths, frame sizes) are those of the default range; a
+ * range that is empty or outside (0, 1] is refused naming the option. */
+static void test_dataset_opacity_range(void **state) {
+  (void)state;
+  char dir[256], path[600], err[512] = "";
+  snprintf(dir, sizeof dir, "/tmp/hf_test_opacity_%d", (int)getpid());
+  hfr_dataset_opts o;
+  hfr_dataset_defaults(&o);
+  o.out_dir = dir;
+  o.styles[0] = HFR_STYLE_STRAIGHT;
+  o.n_styles = 1;
+  o.count = 2;
+  o.width = o.height = 16;
+  o.strands = 300;
+  o.regimes = 1, o.frame_min = 32, o.frame_max = 48;
+  o.width_px_min = 6.0f, o.width_px_max = 8.0f; /* at least 1.5 px after the clump factor */
+  o.gt_supersample = 1;
+  o.progress = 0;
+  o.platform = "osmesa";
+  double drawn[2][2]; /* [run][frame] target width */
+  for (int run = 0; run < 2; run++) {
+    o.opacity_min = o.opacity_max = run ? 1.0f : 0.0f;
+    cJSON *doc = run_dataset(&o, R);
+    cJSON *orange = cJSON_GetObjectItem(doc, "opacity_range");
+    assert_int_equal(cJSON_GetArraySize(orange), 2);
+    assert_float_equal(cJSON_GetArrayItem(orange, 0)->valuedouble, run ? 1.0 : 0.2, 1e-6);
+    assert_float_equal(cJSON_GetArrayItem(orange, 1)->valuedouble, 1.0, 1e-6);
+    cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
+    assert_int_equal(cJSON_GetArraySize(frames), 2);
+    int i = 0;
+    cJSON_ArrayForEach(f, frames) {
+      drawn[run][i++] =
+          cJSON_GetObjectItem(cJSON_GetObjectItem(f, "regime"), "target_width_px")->valuedouble;
+      double op = cJSON_GetObjectItem(cJSON_GetObjectItem(f, "hair"), "opacity")->valuedouble;
+      cJSON *ca = cJSON_GetObjectItem(cJSON_GetObjectItem(f, "stats"), "covered_alpha_p10_p50_p90");
+      double p50 = cJSON_GetArrayItem(ca, 1)->valuedouble;
+      if (run) {
+        assert_float_equal(op, 1.0, 1e-6);
+        if (!(p50 > 0.999)) fail_msg("opaque strands 6-8 px wide: covered alpha p50 %g, not 1", p50);
+      } else if (!(op >= 0.2 - 1e-6 && op < 1.0)) {
+        fail_msg("default opacity %g outside [0.2, 1)", op);
+      }
+      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
+      remove(path);
+    }
+    cJSON_Delete(doc);
+  }
+  assert_float_equal(drawn[0][0], drawn[1][0], 1e-9);
+  assert_float_equal(drawn[0][1], drawn[1][1], 1e-9);
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  remove(path);
+  rmdir(dir);
+  const float bad[][2] = {{0.8f, 0.5f}, {-0.1f, 1.0f}, {0.0f, 1.0f}, {0.5f, 1.5f}};
+  for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+    o.opacity_min = bad[k][0], o.opacity_max = bad[k][1];
+    err[0] = 0;
+    assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_EINVAL);
+    assert_non_null(strstr(err, "--opacity-range"));
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_crop_equals_window),
@@ -422,6 +486,7 @@ int main(void) {
     cmocka_unit_test(test_frame_stats),
     cmocka_unit_test(test_dataset_regimes),
     cmocka_unit_test(test_dataset_width_range),
+    cmocka_unit_test(test_dataset_opacity_range),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
