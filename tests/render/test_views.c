@@ -368,12 +368,25 @@ static void test_dataset_regimes(void **state) {
   remove(hair);
 }
 
+/* Each of the n ranges bad[k] = {MIN, MAX}, set in o through *lo and *hi,
+ * is refused with HF_EINVAL and an error naming option. */
+static void assert_ranges_refused(hfr_dataset_opts *o, float *lo, float *hi, const float bad[][2],
+                                  size_t n, const char *option) {
+  for (size_t k = 0; k < n; k++) {
+    char err[512] = "";
+    *lo = bad[k][0], *hi = bad[k][1];
+    assert_int_equal(hfr_dataset_run(o, err, sizeof err), HF_EINVAL);
+    if (!strstr(err, option))
+      fail_msg("range %g,%g: error '%s' does not name %s", bad[k][0], bad[k][1], err, option);
+  }
+}
+
 /* --width-px narrows the regimes' strand width: every frame's drawn width
  * lies in the range asked for, the manifest records it, and a range that
  * is empty or not positive is refused with an error naming the option. */
 static void test_dataset_width_range(void **state) {
   (void)state;
-  char dir[256], path[600], err[512] = "";
+  char dir[256], path[600];
   snprintf(dir, sizeof dir, "/tmp/hf_test_width_px_%d", (int)getpid());
   hfr_dataset_opts o;
   hfr_dataset_defaults(&o);
@@ -406,12 +419,7 @@ static void test_dataset_width_range(void **state) {
   remove(path);
   rmdir(dir);
   const float bad[][2] = {{2.0f, 1.0f}, {-1.0f, 1.0f}, {0.0f, 1.0f}, {1.0f, 100.0f}};
-  for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
-    o.width_px_min = bad[k][0], o.width_px_max = bad[k][1];
-    err[0] = 0;
-    assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_EINVAL);
-    assert_non_null(strstr(err, "--width-px"));
-  }
+  assert_ranges_refused(&o, &o.width_px_min, &o.width_px_max, bad, 4, "--width-px");
 }
 
 /* --opacity-range sets the regimes' strand opacity: with 1,1 and strands
@@ -421,7 +429,7 @@ static void test_dataset_width_range(void **state) {
  * range that is empty or outside (0, 1] is refused naming the option. */
 static void test_dataset_opacity_range(void **state) {
   (void)state;
-  char dir[256], path[600], err[512] = "";
+  char dir[256], path[600];
   snprintf(dir, sizeof dir, "/tmp/hf_test_opacity_%d", (int)getpid());
   hfr_dataset_opts o;
   hfr_dataset_defaults(&o);
@@ -470,12 +478,7 @@ static void test_dataset_opacity_range(void **state) {
   remove(path);
   rmdir(dir);
   const float bad[][2] = {{0.8f, 0.5f}, {-0.1f, 1.0f}, {0.0f, 1.0f}, {0.5f, 1.5f}};
-  for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
-    o.opacity_min = bad[k][0], o.opacity_max = bad[k][1];
-    err[0] = 0;
-    assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_EINVAL);
-    assert_non_null(strstr(err, "--opacity-range"));
-  }
+  assert_ranges_refused(&o, &o.opacity_min, &o.opacity_max, bad, 4, "--opacity-range");
 }
 
 int main(void) {
