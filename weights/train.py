@@ -601,16 +601,12 @@ def parse_args(argv):
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
     args = ap.parse_args(argv)
-    if args.ssim_weight and args.loss != "look":
-        ap.error("--ssim-weight needs --loss look (it scores the composited images)")
-    if args.lattice_weight and args.loss != "look":
-        ap.error("--lattice-weight needs --loss look (it scores the composited images)")
-    if args.below_input_weight and args.loss != "look":
-        ap.error("--below-input-weight needs --loss look (it scores the composited images)")
-    if args.display_straight_through and args.loss != "look":
-        ap.error("--display-straight-through needs --loss look (it clamps the composited images)")
-    if args.look_srgb and args.loss != "look":
-        ap.error("--look-srgb needs --loss look (it encodes the composited images)")
+    # The options that act on the composited images, which only the look loss makes.
+    for flag, does in (("--ssim-weight", "scores"), ("--lattice-weight", "scores"),
+                       ("--below-input-weight", "scores"),
+                       ("--display-straight-through", "clamps"), ("--look-srgb", "encodes")):
+        if getattr(args, flag[2:].replace("-", "_")) and args.loss != "look":
+            ap.error(f"{flag} needs --loss look (it {does} the composited images)")
     if args.dim_light and not 0 < args.dim_light <= 1:
         ap.error("--dim-light must be in (0, 1] (the dimmest factor; 0: off)")
     if args.dim_share is not None and not args.dim_light:

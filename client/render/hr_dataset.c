@@ -300,11 +300,11 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
                                                                     : HR_REGIME_WIDTH_PX_MIN));
     cJSON_AddItemToArray(wr, cJSON_CreateNumber(o->width_px_max > 0 ? o->width_px_max
                                                                     : HR_REGIME_WIDTH_PX_MAX));
+    float opacity[2];
+    hr_regime_opacity_range(o, opacity);
     cJSON *orange = cJSON_AddArrayToObject(doc, "opacity_range");
-    cJSON_AddItemToArray(orange, cJSON_CreateNumber(o->opacity_max > 0 ? o->opacity_min
-                                                                       : HR_REGIME_OPACITY_MIN));
-    cJSON_AddItemToArray(orange, cJSON_CreateNumber(o->opacity_max > 0 ? o->opacity_max
-                                                                       : HR_REGIME_OPACITY_MAX));
+    cJSON_AddItemToArray(orange, cJSON_CreateNumber(opacity[0]));
+    cJSON_AddItemToArray(orange, cJSON_CreateNumber(opacity[1]));
   }
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
   cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");

@@ -31,5 +31,8 @@ void hr_regime_view(hr_rng *g, const hfr_dataset_opts *o, hfr_renderer *r, const
                     hfr_view *v, hr_regime *rg);
 /* Median strand diameter of a model (model units). */
 float hr_typical_thickness(const hfr_hair *h);
+/* The regimes' strand opacity range of o: o->opacity_min..max, or the
+ * default 0.2..1 where o leaves it 0, 0. */
+void hr_regime_opacity_range(const hfr_dataset_opts *o, float range[2]);
 
 #endif

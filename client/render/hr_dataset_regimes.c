@@ -28,8 +28,9 @@ void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
   /* Density: sparse flyaways to masses that cover everything. */
   if (o->strands <= 0) sp->strands = (int)log_range(g, 400.0f, 40000.0f);
   if (sp->style == HFR_STYLE_FUR && o->strands <= 0) sp->strands *= 2;
-  sp->opacity = hr_rng_range(g, o->opacity_max > 0 ? o->opacity_min : HR_REGIME_OPACITY_MIN,
-                             o->opacity_max > 0 ? o->opacity_max : HR_REGIME_OPACITY_MAX);
+  float opacity[2];
+  hr_regime_opacity_range(o, opacity);
+  sp->opacity = hr_rng_range(g, opacity[0], opacity[1]);
   sp->length = def.length * hr_rng_range(g, 0.5f, 1.6f);
   sp->clumping = hr_rng_range(g, 0.0f, 0.9f);
   sp->frizz = fminf(0.08f, def.frizz * log_range(g, 0.2f, 5.0f));
@@ -46,6 +47,12 @@ void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
   /* Per clump: diameter x s^u, u in [-1, 1]. */
   sp->width_spread = log_range(g, 1.0f, 4.0f);
   rg->clump_width_spread = sp->width_spread;
+}
+
+void hr_regime_opacity_range(const hfr_dataset_opts *o, float range[2]) {
+  int set = o->opacity_max > 0;
+  range[0] = set ? o->opacity_min : HR_REGIME_OPACITY_MIN;
+  range[1] = set ? o->opacity_max : HR_REGIME_OPACITY_MAX;
 }
 
 float hr_typical_thickness(const hfr_hair *h) {
