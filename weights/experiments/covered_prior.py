@@ -22,7 +22,7 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 import numpy as np  # noqa: E402
 
-import dataset  # noqa: E402
+from dark_hair import channels  # noqa: E402
 
 SPP = 4
 STRAND_ALPHA_MEDIAN_MIN = 0.3
@@ -34,8 +34,7 @@ def covered_pixels(path):
     """[SPP][2] array of one frame: per number of distinct sample depths
     (1..SPP), the pixels counted and of them those with truth alpha <
     TRUTH_OPAQUE; None when the frame has fewer than SPP samples."""
-    names, data = dataset.read_exr(path)
-    ch = {n: data[..., i] for i, n in enumerate(names)}
+    ch = channels(path)
     if any(f"S{k}.alpha" not in ch for k in range(SPP)):
         return None
     sa = np.stack([ch[f"S{k}.alpha"] for k in range(SPP)])
