@@ -35,7 +35,8 @@ static void usage(FILE *f) {
     "         --shadow-size N (0: off) --shadow-bias B --thickness-scale S\n"
     "         --random-view SEED (camera, light, lobes, colours from a seed)\n"
     "         --hair-color R,G,B --light-color R,G,B --background R,G,B (composites)\n"
-    "outputs: --spp N (4) --gt-ss S (4; 0: none) --st 1,2,4,... --opaque N (multiple of 4)\n"
+    "outputs: --spp N (4) --gt-ss S (8; 0: none; at 4 its sub-pixel centres include the\n"
+    "         4 MSAA positions) --st 1,2,4,... --opaque N (multiple of 4)\n"
     "         --seed N (hash seed of the stochastic samples)\n"
     "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites; _input: the\n"
     "           samples' own estimate, what a filter reads)\n"
@@ -398,6 +399,16 @@ static int open_renderer(const opts *o, const hfr_hair *hair, const hfr_mesh *oc
   return rc;
 }
 
+/* Says when the truth's sub-pixel centres include MSAA sample positions:
+ * scores of the first pass's samples against it are then biased upward. */
+static void gt_grid_note(int shared) {
+  if (shared > 0)
+    fprintf(stderr, "hairfilter render: note: %d of the 4 MSAA sample positions are sub-pixel "
+            "centres of this ground truth, so on opaque strands 4 spp scores above what it "
+            "estimates against it; use --gt-ss %d (docs/RENDERING.md)\n", shared,
+            HFR_GT_SUPERSAMPLE);
+}
+
 static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_view *v,
                         const hfr_stats *st) {
   fprintf(stderr,
@@ -412,6 +423,7 @@ static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_v
   char line[512];
   hfr_frame_stats_format(&st->frame, line, sizeof line);
   fprintf(stderr, "regime: %s\n", line);
+  gt_grid_note(st->gt_shared_positions);
 }
 
 static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
@@ -567,7 +579,7 @@ static int run_fig6(opts *o) {
   }
   o->outputs.spp = 0;
   if (!o->outputs.opaque_samples) o->outputs.opaque_samples = 16;
-  if (!o->outputs.gt_supersample) o->outputs.gt_supersample = 4;
+  if (!o->outputs.gt_supersample) o->outputs.gt_supersample = HFR_GT_SUPERSAMPLE;
   o->outputs.background_layer = !o->no_background;
   hfr_hair hair;
   hfr_mesh occ;
@@ -677,7 +689,7 @@ int cmd_render(int argc, char **argv) {
   hfr_style_defaults(HFR_STYLE_STRAIGHT, &o.style);
   hfr_view_defaults(&o.view);
   o.outputs.spp = 4;
-  o.outputs.gt_supersample = 4;
+  o.outputs.gt_supersample = HFR_GT_SUPERSAMPLE;
   o.outputs.seed = 1;
   /* The default variant (KernelAC, 4 spp) reads it: on for frames of at
    * least 4 spp unless --no-alpha-corrected (-1: not said). */

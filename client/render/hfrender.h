@@ -285,6 +285,16 @@ void hfr_view_randomize(hfr_view *v, uint64_t seed);
 #define HFR_MAX_BASELINES 8
 #define HFR_MAX_ST_SPP 256
 
+/* The ground truth's default supersampling: s x s sub-pixel centres at
+ * ((i + 0.5) / s, (j + 0.5) / s) of the pixel. 8, not 4: the 4x MSAA
+ * positions every GL implementation here reports (the standard pattern,
+ * (0.375, 0.125), (0.875, 0.375), (0.125, 0.625), (0.625, 0.875)) are 4 of
+ * the 16 centres of a 4x4 truth, so where strands are opaque 4 samples see
+ * exactly what a quarter of that truth sees and score above what they
+ * estimate (docs/RENDERING.md, "The ground truth's sub-pixel grid"). No
+ * centre of 8x8 is one of them (hfr_gt_shared_positions). */
+#define HFR_GT_SUPERSAMPLE 8
+
 /* What to render. Channels of the output image, in this order:
  *   S{k}.color .highlight .alpha .depth .tangent.x .tangent.y, k < spp
  *   gt.color gt.highlight gt.alpha                    when gt_supersample
@@ -299,7 +309,7 @@ void hfr_view_randomize(hfr_view *v, uint64_t seed);
  *     there is none); composites put the hair over it (hfr_composite_result) */
 typedef struct hfr_outputs {
   int spp;                      /* feature samples per pixel, 0..HF_MAX_SPP */
-  int gt_supersample;           /* ground truth s x s per pixel; 0 = none */
+  int gt_supersample;           /* ground truth s x s per pixel, 1..8; 0 = none */
   int st_spp[HFR_MAX_BASELINES];/* stochastic-transparency baselines */
   int n_st;
   int opaque_samples;           /* opaque MSAA baseline (multiple of 4); 0 = none */
@@ -339,6 +349,10 @@ typedef struct hfr_stats {
   uint32_t gt_max_depth;        /* longest per-subsample fragment list */
   uint64_t gt_truncated;        /* subsamples sorted in more than one round */
   int gt_host_resolve;          /* lists too deep for the GPU resolve: blended on the host */
+  /* How many of the 4 MSAA sample positions are sub-pixel centres of the
+   * ground truth (hfr_gt_shared_positions): 0 when there is no truth, -1
+   * when the implementation did not say where its samples are. */
+  int gt_shared_positions;
   hfr_frame_stats frame;        /* the frame's regime */
 } hfr_stats;
 
@@ -362,6 +376,18 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *hair, int head, char 
  * is framed (a whole body under a groom). */
 int hfr_renderer_set_occluder(hfr_renderer *r, const hfr_mesh *m, int enclose, char *err,
                               size_t errlen);
+/* The sub-pixel positions of the 4 samples of the renderer's 4x MSAA
+ * passes, as its GL implementation reports them (glGetMultisamplefv,
+ * GL_SAMPLE_POSITION): pos[2k], pos[2k + 1] = x, y of sample k in pixels
+ * from the pixel's lower-left corner, each in [0, 1). HF_EUNSUPPORTED
+ * when the implementation has no 4-sample target, HF_EBACKEND when GL
+ * fails (err says why). */
+int hfr_msaa_positions(hfr_renderer *r, float pos[8], char *err, size_t errlen);
+/* How many of the 4 positions pos (as hfr_msaa_positions gives them) lie,
+ * within 1e-4 pixel, on a sub-pixel centre ((i + 0.5) / ss, (j + 0.5) / ss)
+ * of an ss x ss ground truth: 0..4; 0 for ss < 1. With the standard
+ * pattern: 4 at ss 4 (and 12, 20, ...), 0 at every other ss up to 8. */
+int hfr_gt_shared_positions(const float pos[8], int ss);
 /* Bounding sphere the camera and light orbit (hair, and an enclosed occluder). */
 void hfr_renderer_bounds(const hfr_renderer *r, float centre[3], float *radius);
 /* Renders what o asks for into *out (allocated here; hf_image_free it).

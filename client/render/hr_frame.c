@@ -162,6 +162,12 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   const size_t px = (size_t)W * H;
   if ((rc = hf_image_alloc(out, W, H, hfr_outputs_channels(o))) != HF_OK) return rc;
   stats->segments = r->segments;
+  if (o->gt_supersample > 0) {
+    float pos[8];
+    stats->gt_shared_positions =
+        hfr_msaa_positions(r, pos, NULL, 0) == HF_OK ? hfr_gt_shared_positions(pos, o->gt_supersample)
+                                                     : -1;
+  }
 
   /* Channel layout (hfrender.h). */
   int c = 0;
@@ -304,7 +310,7 @@ void hfr_frame_defaults(hfr_frame *f, int width, int height) {
   f->view.width = width;
   f->view.height = height;
   f->outputs.spp = 4;
-  f->outputs.gt_supersample = 4;
+  f->outputs.gt_supersample = HFR_GT_SUPERSAMPLE;
   f->outputs.seed = 1;
 }
 

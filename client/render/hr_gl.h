@@ -12,6 +12,7 @@
   X(PFNGLGETERRORPROC, GetError)                                              \
   X(PFNGLGETSTRINGPROC, GetString)                                            \
   X(PFNGLGETINTEGERVPROC, GetIntegerv)                                        \
+  X(PFNGLGETMULTISAMPLEFVPROC, GetMultisamplefv)                              \
   X(PFNGLENABLEPROC, Enable)                                                  \
   X(PFNGLDISABLEPROC, Disable)                                                \
   X(PFNGLBLENDFUNCPROC, BlendFunc)                                            \

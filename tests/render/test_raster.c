@@ -367,6 +367,59 @@ static void test_gt_dense(void **state) {
  * outside the strand's quad, where the interpolated alpha runs past its
  * end values. Every sample's alpha and the ground truth's stay in [0, 1]
  * (protocol/FEATURES.md) whatever the strand's widths. */
+/* Where the 4x MSAA samples sit, and the default ground truth off them:
+ * the implementation's positions are inside the pixel and distinct, none is
+ * a sub-pixel centre of the default truth, the standard pattern lies on the
+ * 4x4 grid (and on no other up to 8), and a rendered frame reports how many
+ * its truth shares. */
+static void test_gt_grid(void **state) {
+  (void)state;
+  float pos[8];
+  char err[512] = "";
+  int rc = hfr_msaa_positions(R, pos, err, sizeof err);
+  if (rc != HF_OK) fail_msg("positions: %s", err);
+  for (int k = 0; k < 4; k++) {
+    assert_true(pos[2 * k] >= 0 && pos[2 * k] < 1 && pos[2 * k + 1] >= 0 && pos[2 * k + 1] < 1);
+    for (int j = 0; j < k; j++)
+      assert_true(fabsf(pos[2 * k] - pos[2 * j]) + fabsf(pos[2 * k + 1] - pos[2 * j + 1]) > 0.01f);
+  }
+  assert_int_equal(hfr_gt_shared_positions(pos, HFR_GT_SUPERSAMPLE), 0);
+
+  const float standard[8] = {0.375f, 0.125f, 0.875f, 0.375f, 0.125f, 0.625f, 0.625f, 0.875f};
+  for (int ss = 1; ss <= 8; ss++)
+    assert_int_equal(hfr_gt_shared_positions(standard, ss), ss == 4 ? 4 : 0);
+  assert_int_equal(hfr_gt_shared_positions(standard, 12), 4);
+  assert_int_equal(hfr_gt_shared_positions(standard, 0), 0);
+  const float centre[8] = {0.5f, 0.5f, 0.1f, 0.5f, 0.5f, 0.9f, 0.3f, 0.7f};
+  assert_int_equal(hfr_gt_shared_positions(centre, 1), 1);
+  assert_int_equal(hfr_gt_shared_positions(centre, 5), 4);
+  assert_int_equal(hfr_gt_shared_positions(centre, 2), 0);
+  int is_standard = 1;
+  for (int k = 0; k < 8; k++) is_standard &= fabsf(pos[k] - standard[k]) < 1e-6f;
+  if (!strcmp(hfr_renderer_platform(R), "osmesa")) assert_true(is_standard);
+
+  hfr_view v;
+  flat_view(&v);
+  hfr_outputs o = {0};
+  o.spp = 4, o.seed = 2;
+  hf_image img;
+  hfr_stats st;
+  const int ss[3] = {HFR_GT_SUPERSAMPLE, 4, 0};
+  for (int i = 0; i < 3; i++) {
+    o.gt_supersample = ss[i];
+    rc = hfr_render(R, &v, &o, &img, &st, err, sizeof err);
+    if (rc != HF_OK) fail_msg("render at gt %d: %s", ss[i], err);
+    assert_int_equal(st.gt_shared_positions, hfr_gt_shared_positions(pos, ss[i]));
+    hf_image_free(&img);
+  }
+  hfr_frame f;
+  hfr_frame_defaults(&f, 16, 16);
+  assert_int_equal(f.outputs.gt_supersample, HFR_GT_SUPERSAMPLE);
+  hfr_dataset_opts d;
+  hfr_dataset_defaults(&d);
+  assert_int_equal(d.gt_supersample, HFR_GT_SUPERSAMPLE);
+}
+
 static void test_varying_width_alpha_range(void **state) {
   (void)state;
   hfr_hair h;
@@ -848,6 +901,7 @@ int main(void) {
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_gt_bands),
+    cmocka_unit_test(test_gt_grid),
     cmocka_unit_test(test_varying_width_alpha_range),
     cmocka_unit_test(test_frame_ranges),
     cmocka_unit_test(test_alpha_corrected),
