@@ -318,6 +318,24 @@ static void test_render_input_preview(void **state) {
 #endif
 }
 
+/* render says when the ground truth's sub-pixel centres include the MSAA
+ * sample positions (--gt-ss 4 here), and not at the default. */
+static void test_render_gt_grid_note(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  const char *note = "MSAA sample positions are sub-pixel centres of this ground truth";
+  assert_int_equal(cli("render frame --style wavy --strands 500 --size 24x24 --gt-ss 4 "
+                       "--no-alpha-corrected --out %s", test_tmp("grid4.exr")), 0);
+  expect_text("4 of the 4 ");
+  expect_text(note);
+  assert_int_equal(cli("render frame --style wavy --strands 500 --size 24x24 "
+                       "--no-alpha-corrected --out %s", test_tmp("grid8.exr")), 0);
+  if (strstr(text, note)) fail_msg("a note at the default ground truth:\n%s", text);
+#endif
+}
+
 /* infer --png composites over the frame's background layer (the head the
  * renderer draws under the hair) where it has one, as the renderer's own
  * composites do, and over --background without one. */
@@ -374,6 +392,7 @@ int main(void) {
     cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
     cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),
+    cmocka_unit_test(test_render_gt_grid_note),
     cmocka_unit_test(test_eval_warning),    cmocka_unit_test(test_preview_over_background_layer),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
