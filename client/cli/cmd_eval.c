@@ -52,7 +52,9 @@ static void usage(FILE *f) {
           "pixels by strand width in pixels and by coverage, frames by those and by\n"
           "resolution. --json writes every number, per bucket and per frame. Frames\n"
           "outside the input range a weights file was trained on (its input_range\n"
-          "metadata) are named on stderr. A table then counts, per network, the frames\n"
+          "metadata) are named on stderr, and counted there are frames whose manifest says\n"
+          "their truth's sub-pixel centres include the MSAA positions (gt_supersample 4,\n"
+          "docs/RENDERING.md). A table then counts, per network, the frames\n"
           "where it is below its own input (the estimate of the samples it reads) and\n"
           "below ST 16 spp in PSNR or SSIM; stderr names the frames below the input. A\n"
           "last table measures the lattice in each method's error: the pattern of period\n"
@@ -71,6 +73,7 @@ typedef struct frame_ref {
   char *path;
   char style[32];
   int full_w, full_h;           /* manifest full_width/full_height; 0: none */
+  int gt_shared;                /* MSAA positions on the truth's grid; -1: not said */
 } frame_ref;
 
 typedef struct frame_list {
@@ -79,7 +82,7 @@ typedef struct frame_list {
 } frame_list;
 
 static int list_push(frame_list *l, const char *path, const char *style, int full_w,
-                     int full_h) {
+                     int full_h, int gt_shared) {
   if (l->n == l->cap) {
     int cap = l->cap ? 2 * l->cap : 64;
     frame_ref *v = realloc(l->v, cap * sizeof *v);
@@ -92,6 +95,7 @@ static int list_push(frame_list *l, const char *path, const char *style, int ful
   snprintf(f->style, sizeof f->style, "%s", style);
   f->full_w = full_w;
   f->full_h = full_h;
+  f->gt_shared = gt_shared;
   l->n++;
   return 0;
 }
@@ -130,13 +134,17 @@ static char *read_text(const char *path) {
   return buf;
 }
 
-/* Style of base name `name` according to DIR/manifest.json, if any, and the
+/* Style of base name `name` according to DIR/manifest.json, if any, the
  * frame's full size when it is a crop ("full_width", "full_height"; left
- * alone when absent). The manifest lists frames under "frames" (or
+ * alone when absent) and how many MSAA sample positions its ground truth
+ * shares ("gt_shared_positions"; manifests older than it that say
+ * "gt_supersample": 4 share all 4 of the standard pattern's, the only
+ * supersampling up to 8 that does, docs/RENDERING.md; left alone when
+ * neither says). The manifest lists frames under "frames" (or
  * "images", "renders", "items"), each an object with "file" (or "path",
  * "exr", "name") and "style". */
 static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t len,
-                          int *full_w, int *full_h) {
+                          int *full_w, int *full_h, int *gt_shared) {
   static const char *lists[] = {"frames", "images", "renders", "items", "files"};
   static const char *files[] = {"file", "path", "exr", "name"};
   const cJSON *arr = cJSON_IsArray(doc) ? doc : NULL;
@@ -162,6 +170,12 @@ static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t 
       *full_w = (int)fw->valuedouble;
       *full_h = (int)fh->valuedouble;
     }
+    const cJSON *sh = cJSON_GetObjectItemCaseSensitive(it, "gt_shared_positions");
+    const cJSON *ss = cJSON_GetObjectItemCaseSensitive(it, "gt_supersample");
+    if (cJSON_IsNumber(sh) && sh->valuedouble >= -1 && sh->valuedouble <= 4)
+      *gt_shared = (int)sh->valuedouble;
+    else if (cJSON_IsNumber(ss))
+      *gt_shared = ss->valuedouble == 4 ? 4 : 0;
     const cJSON *st = cJSON_GetObjectItemCaseSensitive(it, "style");
     if (!cJSON_IsString(st)) return HF_ENOTFOUND;
     snprintf(out, len, "%s", st->valuestring);
@@ -191,7 +205,7 @@ static int add_path(frame_list *l, const char *path) {
   char style[32];
   if (!S_ISDIR(st.st_mode)) {
     style_from_name(path, style, sizeof style);
-    return list_push(l, path, style, 0, 0);
+    return list_push(l, path, style, 0, 0, -1);
   }
   char mpath[4096];
   snprintf(mpath, sizeof mpath, "%s/manifest.json", path);
@@ -209,10 +223,10 @@ static int add_path(frame_list *l, const char *path) {
     if (!ends_with(e->d_name, ".exr")) continue;
     char full[4096];
     snprintf(full, sizeof full, "%s/%s", path, e->d_name);
-    int fw = 0, fh = 0;
-    if (!doc || manifest_entry(doc, e->d_name, style, sizeof style, &fw, &fh))
+    int fw = 0, fh = 0, shared = -1;
+    if (!doc || manifest_entry(doc, e->d_name, style, sizeof style, &fw, &fh, &shared))
       style_from_name(e->d_name, style, sizeof style);
-    rc = list_push(l, full, style, fw, fh);
+    rc = list_push(l, full, style, fw, fh, shared);
   }
   closedir(d);
   cJSON_Delete(doc);
@@ -865,7 +879,7 @@ int cmd_eval(int argc, char **argv) {
     tg.gap = 4;
   }
 
-  int scored = 0;
+  int scored = 0, on_sample_grid = 0;
   size_t hair_px = 0;
   for (int fi = 0; fi < frames.n && (!max_frames || scored < max_frames); fi++) {
     frame_ref *fr = &frames.v[fi];
@@ -1075,6 +1089,7 @@ int cmd_eval(int argc, char **argv) {
     }
     eval_strata_frame_done(strata, &rg);
     hair_px += nhair;
+    on_sample_grid += fr->gt_shared > 0;
     scored++;
     /* One line rewritten in place on a terminal; in a log, no control codes. */
     if (isatty(2)) fprintf(stderr, "\reval: %d frames (%s)\x1b[K", scored, fr->path);
@@ -1096,6 +1111,12 @@ int cmd_eval(int argc, char **argv) {
   print_below(ms, nm);
   print_lattice(ms, nm, &frames);
   fflush(stdout);   /* the tables first, then what stderr says about them */
+  if (on_sample_grid)
+    fprintf(stderr, "hairfilter eval: warning: %d of %d frames have a ground truth whose "
+            "sub-pixel centres include the MSAA sample positions (as their manifest says), so "
+            "on opaque strands their 4 samples, and what reads them, score better than they "
+            "are; render them again with the default --gt-ss 8 (docs/RENDERING.md, "
+            "\"The ground truth's sub-pixel grid\")\n", on_sample_grid, scored);
   for (int i = 0; i < nm; i++)
     if (ms[i].kind == M_MODEL && flagged[ms[i].model])
       fprintf(stderr, "hairfilter eval: warning: %d of %d frames are outside the input range %s "

@@ -11,6 +11,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <errno.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <cmocka.h>
 #include <png.h>
@@ -333,6 +335,20 @@ static void test_render_gt_grid_note(void **state) {
   assert_int_equal(cli("render frame --style wavy --strands 500 --size 24x24 "
                        "--no-alpha-corrected --out %s", test_tmp("grid8.exr")), 0);
   if (strstr(text, note)) fail_msg("a note at the default ground truth:\n%s", text);
+
+  /* eval warns of such frames by their manifest, and of no others. */
+  const char *warn = "frames have a ground truth whose sub-pixel centres include the MSAA";
+  const char *sizes[2] = {"--gt-ss 4", ""};
+  for (int i = 0; i < 2; i++) {
+    char dir[1100];
+    snprintf(dir, sizeof dir, "%s", test_tmp(i ? "grid_ds8" : "grid_ds4"));
+    assert_int_equal(mkdir(dir, 0755) == 0 || errno == EEXIST, 1);
+    assert_int_equal(cli("render dataset --styles wavy --count 1 --size 24x24 --strands 500 "
+                         "--spp 4 %s --quiet --out %s", sizes[i], dir), 0);
+    assert_int_equal(cli("eval %s", dir), 0);
+    if (!i) expect_text("1 of 1 frames have a ground truth whose sub-pixel centres");
+    else if (strstr(text, warn)) fail_msg("eval warned of an 8x8 truth:\n%s", text);
+  }
 #endif
 }
 
