@@ -14,7 +14,9 @@ int hfr_msaa_positions(hfr_renderer *r, float pos[8], char *err, size_t errlen) 
   if (!r || !pos) return HF_EINVAL;
   int rc = hr_renderer_bind(r);
   if (rc != HF_OK) return rc;
-  while (hrgl.GetError() != GL_NO_ERROR) {
+  /* Errors left by earlier calls are not this query's (a bounded drain: a
+   * lost context may keep reporting one). */
+  for (int i = 0; i < 16 && hrgl.GetError() != GL_NO_ERROR; i++) {
   }
   /* A 1x1 target of the samples' count and format is enough: positions are
    * a property of the sample count and the implementation. */
