@@ -195,7 +195,18 @@ static int ends_with(const char *s, const char *suf) {
   return n >= m && !strcmp(s + n - m, suf);
 }
 
-/* Adds FILE.exr, or every *.exr of DIR in name order. */
+/* DIR/manifest.json parsed, or NULL when there is none (or it is not JSON). */
+static cJSON *read_manifest(const char *dir, int dir_len) {
+  char mpath[4096];
+  snprintf(mpath, sizeof mpath, "%.*s/manifest.json", dir_len, dir);
+  char *text = read_text(mpath);
+  cJSON *doc = text ? cJSON_Parse(text) : NULL;
+  free(text);
+  return doc;
+}
+
+/* Adds FILE.exr (with what the manifest beside it says of it), or every
+ * *.exr of DIR in name order. */
 static int add_path(frame_list *l, const char *path) {
   struct stat st;
   if (stat(path, &st)) {
@@ -204,14 +215,16 @@ static int add_path(frame_list *l, const char *path) {
   }
   char style[32];
   if (!S_ISDIR(st.st_mode)) {
-    style_from_name(path, style, sizeof style);
-    return list_push(l, path, style, 0, 0, -1);
+    const char *slash = strrchr(path, '/');
+    cJSON *doc = slash ? read_manifest(path, (int)(slash - path)) : read_manifest(".", 1);
+    int fw = 0, fh = 0, shared = -1;
+    if (!doc || manifest_entry(doc, slash ? slash + 1 : path, style, sizeof style, &fw, &fh,
+                               &shared))
+      style_from_name(path, style, sizeof style);
+    cJSON_Delete(doc);
+    return list_push(l, path, style, fw, fh, shared);
   }
-  char mpath[4096];
-  snprintf(mpath, sizeof mpath, "%s/manifest.json", path);
-  char *text = read_text(mpath);
-  cJSON *doc = text ? cJSON_Parse(text) : NULL;
-  free(text);
+  cJSON *doc = read_manifest(path, (int)strlen(path));
   DIR *d = opendir(path);
   if (!d) {
     cJSON_Delete(doc);

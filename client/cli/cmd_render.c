@@ -35,8 +35,8 @@ static void usage(FILE *f) {
     "         --shadow-size N (0: off) --shadow-bias B --thickness-scale S\n"
     "         --random-view SEED (camera, light, lobes, colours from a seed)\n"
     "         --hair-color R,G,B --light-color R,G,B --background R,G,B (composites)\n"
-    "outputs: --spp N (4) --gt-ss S (8; 0: none; at 4 its sub-pixel centres include the\n"
-    "         4 MSAA positions) --st 1,2,4,... --opaque N (multiple of 4)\n"
+    "outputs: --spp N (4) --gt-ss S (0..8, default 8; 0: none; at 4 its sub-pixel centres\n"
+    "         include the 4 MSAA positions) --st 1,2,4,... --opaque N (multiple of 4)\n"
     "         --seed N (hash seed of the stochastic samples)\n"
     "         --half (float16 EXR)  --png PREFIX (frame: PREFIX_<name>.png composites; _input: the\n"
     "           samples' own estimate, what a filter reads)\n"
@@ -321,7 +321,14 @@ static int parse_args(int argc, char **argv, opts *o) {
       else if (!strcmp(a, "--hair-seed")) o->ov.seed_set = 1, o->ov.seed = (uint64_t)n;
       else if (!strcmp(a, "--children")) o->ov.children_set = 1, o->ov.children = (int)n;
       else if (!strcmp(a, "--shadow-size")) o->view.shadow_size = (int)n;
-      else if (!strcmp(a, "--gt-ss")) o->outputs.gt_supersample = (int)n;
+      else if (!strcmp(a, "--gt-ss")) {
+        if (n > 8) {
+          fprintf(stderr, "hairfilter render: --gt-ss takes 0..8 (0: no ground truth; default "
+                  "%d), not %lld\n", HFR_GT_SUPERSAMPLE, n);
+          return -1;
+        }
+        o->outputs.gt_supersample = (int)n;
+      }
       else if (!strcmp(a, "--opaque")) o->outputs.opaque_samples = (int)n;
       else if (!strcmp(a, "--seed")) o->outputs.seed = (uint32_t)n, o->ds.seed = (uint64_t)n;
       else if (!strcmp(a, "--count")) o->ds.count = (int)n;
@@ -404,9 +411,9 @@ static int open_renderer(const opts *o, const hfr_hair *hair, const hfr_mesh *oc
 static void gt_grid_note(int shared) {
   if (shared > 0)
     fprintf(stderr, "hairfilter render: note: %d of the 4 MSAA sample positions are sub-pixel "
-            "centres of this ground truth, so on opaque strands 4 spp scores above what it "
-            "estimates against it; use --gt-ss %d (docs/RENDERING.md)\n", shared,
-            HFR_GT_SUPERSAMPLE);
+            "centres of this ground truth, so on opaque strands the 4 samples, and what reads "
+            "them, score better against it than they are; use --gt-ss %d "
+            "(docs/RENDERING.md)\n", shared, HFR_GT_SUPERSAMPLE);
 }
 
 static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_view *v,

@@ -290,8 +290,8 @@ void hfr_view_randomize(hfr_view *v, uint64_t seed);
  * positions every GL implementation here reports (the standard pattern,
  * (0.375, 0.125), (0.875, 0.375), (0.125, 0.625), (0.625, 0.875)) are 4 of
  * the 16 centres of a 4x4 truth, so where strands are opaque 4 samples see
- * exactly what a quarter of that truth sees and score above what they
- * estimate (docs/RENDERING.md, "The ground truth's sub-pixel grid"). No
+ * exactly what a quarter of that truth sees and score better against it
+ * than they are (docs/RENDERING.md, "The ground truth's sub-pixel grid"). No
  * centre of 8x8 is one of them (hfr_gt_shared_positions). */
 #define HFR_GT_SUPERSAMPLE 8
 
@@ -386,7 +386,8 @@ int hfr_msaa_positions(hfr_renderer *r, float pos[8], char *err, size_t errlen);
 /* How many of the 4 positions pos (as hfr_msaa_positions gives them) lie,
  * within 1e-4 pixel, on a sub-pixel centre ((i + 0.5) / ss, (j + 0.5) / ss)
  * of an ss x ss ground truth: 0..4; 0 for ss < 1. With the standard
- * pattern: 4 at ss 4 (and 12, 20, ...), 0 at every other ss up to 8. */
+ * pattern: 4 at ss 4, 0 at every other ss from 1 to 8 (the range
+ * hfr_outputs.gt_supersample takes). */
 int hfr_gt_shared_positions(const float pos[8], int ss);
 /* Bounding sphere the camera and light orbit (hair, and an enclosed occluder). */
 void hfr_renderer_bounds(const hfr_renderer *r, float centre[3], float *radius);

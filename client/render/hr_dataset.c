@@ -425,8 +425,10 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         /* Once per run: every frame shares the same positions. */
         fprintf(stderr, "%shairfilter render dataset: note: %d of the 4 MSAA sample positions "
                 "are sub-pixel centres of this ground truth (--gt-ss %d): on opaque strands the "
-                "4 samples score above what they estimate against it\n",
-                isatty(2) ? "\n" : "", st.gt_shared_positions, out.gt_supersample);
+                "4 samples, and what reads them, score better against it than they are; use "
+                "--gt-ss %d\n",
+                isatty(2) ? "\n" : "", st.gt_shared_positions, out.gt_supersample,
+                HFR_GT_SUPERSAMPLE);
         grid_noted = 1;
       }
       if (rc == HF_OK && !left_out) {

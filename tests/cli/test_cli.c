@@ -348,7 +348,13 @@ static void test_render_gt_grid_note(void **state) {
     assert_int_equal(cli("eval %s", dir), 0);
     if (!i) expect_text("1 of 1 frames have a ground truth whose sub-pixel centres");
     else if (strstr(text, warn)) fail_msg("eval warned of an 8x8 truth:\n%s", text);
+    /* A frame named alone is taken with what its directory's manifest says. */
+    assert_int_equal(cli("eval %s/wavy_0000.exr", dir), 0);
+    if (!i) expect_text("1 of 1 frames have a ground truth whose sub-pixel centres");
+    else if (strstr(text, warn)) fail_msg("eval warned of an 8x8 truth:\n%s", text);
   }
+  assert_int_equal(cli("render frame --gt-ss 9 --out %s", test_tmp("grid9.exr")), 2);
+  expect_text("--gt-ss takes 0..8");
 #endif
 }
 
