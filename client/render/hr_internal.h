@@ -55,6 +55,10 @@ struct hfr_renderer {
   GLuint shadow_tex, shadow_fbo;
   int shadow_size;
   int ms_samples;               /* samples the MS framebuffer really has */
+  /* hfr_msaa_positions once read: a property of the context, asked by
+   * every frame that has a ground truth. */
+  float msaa_pos[8];
+  int msaa_pos_known;
 };
 
 /* Makes r's context current and its entry points the ones hrgl calls. */

@@ -6,12 +6,17 @@
  * against such a truth unknowingly. */
 #include <math.h>
 #include <stdio.h>
+#include <string.h>
 
 #include "hr_gl.h"
 #include "hr_internal.h"
 
 int hfr_msaa_positions(hfr_renderer *r, float pos[8], char *err, size_t errlen) {
   if (!r || !pos) return HF_EINVAL;
+  if (r->msaa_pos_known) {
+    memcpy(pos, r->msaa_pos, sizeof r->msaa_pos);
+    return HF_OK;
+  }
   int rc = hr_renderer_bind(r);
   if (rc != HF_OK) return rc;
   /* Errors left by earlier calls are not this query's (a bounded drain: a
@@ -50,6 +55,10 @@ int hfr_msaa_positions(hfr_renderer *r, float pos[8], char *err, size_t errlen) 
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
   hrgl.DeleteFramebuffers(1, &fbo);
   hrgl.DeleteTextures(1, &tex);
+  if (rc == HF_OK) {
+    memcpy(r->msaa_pos, pos, sizeof r->msaa_pos);
+    r->msaa_pos_known = 1;
+  }
   return rc;
 }
 
