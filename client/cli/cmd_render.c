@@ -46,6 +46,8 @@ static void usage(FILE *f) {
     "           written by default with --spp 4 or more) --alpha-corrected (also below 4)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
     "         --size WxH --strands N --gt-ss S --st LIST --opaque N --no-alpha-corrected --quiet\n"
+    "         --resume (take up a run stopped in --out: keep the frames its manifest lists,\n"
+    "           render the rest; the same options, --count may grow)\n"
     "         --extended (style parameters, density and distance over wide ranges)\n"
     "         --regimes (widths, density, zoom, crops, camera, light, shadows per frame and\n"
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
@@ -216,6 +218,7 @@ static int parse_args(int argc, char **argv, opts *o) {
     if (!strcmp(a, "--quiet")) { o->quiet = 1; continue; }
     if (!strcmp(a, "--extended")) { o->ds.extended = 1; continue; }
     if (!strcmp(a, "--regimes")) { o->ds.regimes = 1; continue; }
+    if (!strcmp(a, "--resume")) { o->ds.resume = 1; continue; }
     if (!strcmp(a, "--no-background")) { o->no_background = 1; continue; }
     if (!strcmp(a, "--alpha-corrected")) { o->outputs.alpha_corrected = 1; continue; }
     if (!strcmp(a, "--no-alpha-corrected")) { o->outputs.alpha_corrected = 0; continue; }

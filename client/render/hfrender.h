@@ -499,6 +499,11 @@ typedef struct hfr_dataset_opts {
   int background_layer;         /* background.* channels in every frame */
   int progress;                 /* progress bar with ETA on stderr */
   const char *platform;
+  /* Take up an interrupted run in out_dir: the frames its manifest lists
+   * are kept and the others rendered. Its manifest must record the same
+   * options ("options"; count may differ), else HF_EINVAL naming the first
+   * that differs. Without a manifest in out_dir, a fresh run. */
+  int resume;
 } hfr_dataset_opts;
 
 void hfr_dataset_defaults(hfr_dataset_opts *o);

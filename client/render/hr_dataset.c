@@ -30,9 +30,12 @@ void hfr_dataset_defaults(hfr_dataset_opts *o) {
   hfr_asset_defaults(&o->asset);
 }
 
-static void progress(int done, int total, double start_ms) {
+/* done of total frames, reused of them taken up from an earlier run (no
+ * time spent: the ETA is the rate of the others). */
+static void progress(int done, int reused, int total, double start_ms) {
   double el = (hr_now_ms() - start_ms) / 1000;
-  double eta = done ? el / done * (total - done) : 0;
+  int rendered = done - reused;
+  double eta = rendered > 0 ? el / rendered * (total - done) : 0;
   int bar = 30, fill = total ? done * bar / total : bar;
   char b[64];
   for (int i = 0; i < bar; i++) b[i] = i < fill ? '#' : '.';
@@ -307,9 +310,15 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     cJSON_AddItemToArray(orange, cJSON_CreateNumber(opacity[0]));
     cJSON_AddItemToArray(orange, cJSON_CreateNumber(opacity[1]));
   }
+  cJSON *options = hr_dataset_options(o);
+  if (options) cJSON_AddItemToObject(doc, "options", options);
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
   cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");
-  int n_skipped = 0, grid_noted = 0;
+  int n_skipped = 0, grid_noted = 0, reused = 0;
+  cJSON *old = NULL;
+  if (!options || !frames || !skipped) rc = HF_ENOMEM;
+  else if (o->resume)
+    rc = hr_dataset_resume_open(o->out_dir, options, hfr_renderer_gl_name(r), &old, err, errlen);
 
   const int sources = o->n_styles + o->n_hair_files, total = sources * o->count;
   double start = hr_now_ms();
@@ -321,6 +330,22 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     for (int si = 0; rc == HF_OK && si < sources; si++) {
       const int fi = si - o->n_styles; /* >= 0: a .hair file */
       uint64_t seed = o->seed * 1000003ull + (uint64_t)si * 10007ull + (uint64_t)i;
+      char file[128], path[4200];
+      snprintf(file, sizeof file, "%s_%04d.exr",
+               fi < 0 ? hfr_style_name(o->styles[si]) : models[fi].name, i);
+      snprintf(path, sizeof path, "%s/%s", o->out_dir, file);
+      int was_skipped = 0;
+      cJSON *kept = hr_dataset_resume_take(old, o->out_dir, file, &was_skipped);
+      if (kept) {
+        /* Finished (or left out) by the run taken up: as it was. */
+        cJSON_AddItemToArray(was_skipped ? skipped : frames, kept);
+        n_skipped += was_skipped;
+        /* The manifest on disk lists it already; the next frame rendered,
+         * or the end of the run, writes the new one. */
+        reused++;
+        done++;
+        continue;
+      }
       hr_rng g = {seed * 0x9e3779b97f4a7c15ull + 3};
       hfr_style_params sp;
       hfr_style_defaults(fi < 0 ? o->styles[si] : HFR_STYLE_STRAIGHT, &sp);
@@ -398,10 +423,6 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         rc = hfr_renderer_set_occluder(r, occ, fi < 0 || hfr_asset_fitted(&o->asset), err, errlen);
       if (rc == HF_OK && o->regimes) hr_regime_view(&g, o, r, &hair, &v, &rg);
       if (rc == HF_OK) rc = hfr_render(r, &v, &out, &img, &st, err, errlen);
-      char file[128], path[4200];
-      snprintf(file, sizeof file, "%s_%04d.exr", fi < 0 ? hfr_style_name(sp.style) : models[fi].name,
-               i);
-      snprintf(path, sizeof path, "%s/%s", o->out_dir, file);
       int left_out = rc == HF_ERANGE;
       if (left_out) {
         /* A draw too dense for the ground truth's A-buffer: the frame is
@@ -421,13 +442,14 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         rc = hf_exr_write(path, &img, o->half);
         if (rc != HF_OK && err) snprintf(err, errlen, "%s: %s", path, hf_strerror(rc));
       }
-      if (rc == HF_OK && !left_out && st.gt_shared_positions > 0 && !grid_noted && o->progress) {
-        /* Once per run: every frame shares the same positions. */
+      if (rc == HF_OK && !left_out && st.gt_shared_positions > 0 && !grid_noted) {
+        /* Once per run, --quiet or not: every frame shares the same
+         * positions, and the scores of every frame are biased by them. */
         fprintf(stderr, "%shairfilter render dataset: note: %d of the 4 MSAA sample positions "
                 "are sub-pixel centres of this ground truth (--gt-ss %d): on opaque strands the "
                 "4 samples, and what reads them, score better against it than they are; use "
                 "--gt-ss %d\n",
-                isatty(2) ? "\n" : "", st.gt_shared_positions, out.gt_supersample,
+                o->progress && isatty(2) ? "\n" : "", st.gt_shared_positions, out.gt_supersample,
                 HFR_GT_SUPERSAMPLE);
         grid_noted = 1;
       }
@@ -445,9 +467,17 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       hfr_hair_free(&hair);
       hfr_mesh_free(&body);
       done++;
-      if (o->progress) progress(done, total, start);
+      if (o->progress) progress(done, reused, total, start);
     }
   if (o->progress && isatty(2)) fprintf(stderr, "\n");
+  if (rc == HF_OK && reused) {
+    rc = write_manifest(o->out_dir, doc);
+    if (rc != HF_OK && err) snprintf(err, errlen, "cannot write %s/manifest.json", o->out_dir);
+  }
+  if (o->progress && reused)
+    fprintf(stderr, "hairfilter render dataset: took up %d frames of the run before, "
+            "rendered %d\n", reused, done - reused);
+  cJSON_Delete(old);
   if (rc == HF_OK && n_skipped == total) {
     if (err) snprintf(err, errlen, "every frame was left out (too dense for the A-buffer): "
                       "lower --strands, --size or --gt-ss");

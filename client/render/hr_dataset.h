@@ -35,4 +35,23 @@ float hr_typical_thickness(const hfr_hair *h);
  * default 0.2..1 where o leaves it 0, 0. */
 void hr_regime_opacity_range(const hfr_dataset_opts *o, float range[2]);
 
+/* ---- resuming (hr_dataset_resume.c) ---- */
+struct cJSON;
+/* The manifest's "options": every option that decides the frames (all of o
+ * but count, out_dir, progress, platform and resume). NULL when out of
+ * memory. */
+struct cJSON *hr_dataset_options(const hfr_dataset_opts *o);
+/* Reads dir/manifest.json for a resumed run: *old is NULL when there is
+ * none (a fresh run), else the parsed manifest. HF_EFORMAT when it is not a
+ * dataset manifest, HF_EINVAL when it has no "options" record or its
+ * options differ from options (err names the first that differs), HF_EIO
+ * when it cannot be read. Warns on stderr when gl_renderer differs. */
+int hr_dataset_resume_open(const char *dir, const struct cJSON *options, const char *gl_renderer,
+                           struct cJSON **old, char *err, size_t errlen);
+/* The manifest entry of frame file that old lists as finished (its file is
+ * still in dir) or as left out (*was_skipped 1), detached from old for the
+ * new manifest; NULL when the frame is to be rendered. old may be NULL. */
+struct cJSON *hr_dataset_resume_take(struct cJSON *old, const char *dir, const char *file,
+                                     int *was_skipped);
+
 #endif

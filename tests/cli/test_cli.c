@@ -345,6 +345,9 @@ static void test_render_gt_grid_note(void **state) {
     assert_int_equal(mkdir(dir, 0755) == 0 || errno == EEXIST, 1);
     assert_int_equal(cli("render dataset --styles wavy --count 1 --size 24x24 --strands 500 "
                          "--spp 4 %s --quiet --out %s", sizes[i], dir), 0);
+    /* --quiet leaves out the progress, not the note. */
+    if (!i) expect_text(note);
+    else if (strstr(text, note)) fail_msg("a note at the default ground truth:\n%s", text);
     assert_int_equal(cli("eval %s", dir), 0);
     if (!i) expect_text("1 of 1 frames have a ground truth whose sub-pixel centres");
     else if (strstr(text, warn)) fail_msg("eval warned of an 8x8 truth:\n%s", text);
@@ -355,6 +358,88 @@ static void test_render_gt_grid_note(void **state) {
   }
   assert_int_equal(cli("render frame --gt-ss 9 --out %s", test_tmp("grid9.exr")), 2);
   expect_text("--gt-ss takes 0..8");
+#endif
+}
+
+/* The bytes of a file (at most 64 MB), NUL-terminated; *n its length. */
+static char *slurp(const char *path, size_t *n) {
+  FILE *f = fopen(path, "rb");
+  if (!f) fail_msg("cannot open %s", path);
+  char *b = malloc(64u << 20);
+  assert_non_null(b);
+  *n = fread(b, 1, (64u << 20) - 1, f);
+  b[*n] = 0;
+  fclose(f);
+  return b;
+}
+
+static void write_text(const char *path, const char *t) {
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  assert_int_equal(fputs(t, f) >= 0, 1);
+  assert_int_equal(fclose(f), 0);
+}
+
+/* render dataset --resume takes up a stopped run: the frames its manifest
+ * lists are kept as they are (not rendered again), a file it does not list
+ * (the frame in flight when it stopped) is rendered again, --count may
+ * grow, and the result is the run made in one go, frame for frame. Other
+ * options, or a manifest without their record, are refused by name. */
+static void test_render_dataset_resume(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  const char *opt = "--styles straight,wavy --size 16x16 --strands 300 --spp 4 --st 4 --seed 7 "
+                    "--quiet";
+  char whole[1100], part[1100], p1[1200], p2[1200];
+  snprintf(whole, sizeof whole, "%s", test_tmp("resume_whole"));
+  snprintf(part, sizeof part, "%s", test_tmp("resume_part"));
+  assert_int_equal(cli("render dataset %s --count 2 --out %s", opt, whole), 0);
+  assert_int_equal(cli("render dataset %s --count 1 --out %s", opt, part), 0);
+  /* A listed frame whose bytes say whether it was rendered again, and the
+   * half-written frame of a stopped run. */
+  snprintf(p1, sizeof p1, "%s/wavy_0000.exr", part);
+  write_text(p1, "kept");
+  snprintf(p2, sizeof p2, "%s/straight_0001.exr", part);
+  write_text(p2, "half written");
+  assert_int_equal(cli("render dataset %s --count 2 --resume --out %s", opt, part), 0);
+  const char *files[4] = {"straight_0000.exr", "wavy_0000.exr", "straight_0001.exr",
+                          "wavy_0001.exr"};
+  for (int k = 0; k < 4; k++) {
+    size_t na, nb;
+    snprintf(p1, sizeof p1, "%s/%s", whole, files[k]);
+    snprintf(p2, sizeof p2, "%s/%s", part, files[k]);
+    char *a = slurp(p1, &na), *b = slurp(p2, &nb);
+    if (k == 1) assert_string_equal(b, "kept");
+    else if (na != nb || memcmp(a, b, na)) fail_msg("%s differs from the run in one go", p2);
+    free(a);
+    free(b);
+  }
+  /* The manifest lists the 4 frames in the order of the run in one go. */
+  size_t n;
+  snprintf(p1, sizeof p1, "%s/manifest.json", part);
+  char *m = slurp(p1, &n);
+  const char *at = m;
+  for (int k = 0; k < 4; k++) {
+    char key[64];
+    snprintf(key, sizeof key, "\"%s\"", files[k]);
+    const char *hit = strstr(at, key);
+    if (!hit) fail_msg("manifest lacks %s after the one before:\n%s", files[k], m);
+    at = hit + 1;
+  }
+  free(m);
+
+  assert_int_equal(cli("render dataset %s --count 2 --seed 8 --resume --out %s", opt, part), 1);
+  expect_text("\"seed\" differs");
+  assert_int_equal(cli("render dataset %s --count 2 --gt-ss 4 --resume --out %s", opt, part), 1);
+  expect_text("\"gt_supersample\" differs");
+  write_text(p1, "{\"format\": \"hairfilter-dataset\", \"frames\": []}");
+  assert_int_equal(cli("render dataset %s --count 2 --resume --out %s", opt, part), 1);
+  expect_text("no record of the options");
+  write_text(p1, "{\"frames\"");
+  assert_int_equal(cli("render dataset %s --count 2 --resume --out %s", opt, part), 1);
+  expect_text("is not a hairfilter dataset manifest");
 #endif
 }
 
@@ -414,7 +499,7 @@ int main(void) {
     cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
     cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),
-    cmocka_unit_test(test_render_gt_grid_note),
+    cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
     cmocka_unit_test(test_eval_warning),    cmocka_unit_test(test_preview_over_background_layer),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
