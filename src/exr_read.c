@@ -556,3 +556,20 @@ int hf_exr_has_channel(const char *path, const char *channel) {
   exr_finish(&ctx);
   return found;
 }
+
+int hf_exr_read_int_attr(const char *path, const char *name, int *value) {
+  if (!path || !name || !value) return HF_EINVAL;
+  hf_exr_msg msg = {""};
+  exr_context_t ctx;
+  if (start_headers(path, &msg, &ctx) != EXR_ERR_SUCCESS) {
+    exr_finish(&ctx);
+    return HF_EIO;
+  }
+  int32_t v = 0;
+  exr_result_t r = exr_attr_get_int(ctx, 0, name, &v);
+  exr_finish(&ctx);
+  if (r == EXR_ERR_NO_ATTR_BY_NAME) return HF_ENOTFOUND;
+  if (r != EXR_ERR_SUCCESS) return HF_EFORMAT; /* there, but not an int */
+  *value = v;
+  return HF_OK;
+}

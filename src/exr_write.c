@@ -84,6 +84,14 @@ static exr_attr_box2i_t box(int x, int y, int w, int h) {
 }
 
 int hf_exr_write(const char *path, const hf_image *img, int half) {
+  return hf_exr_write_attrs(path, img, half, NULL, 0);
+}
+
+int hf_exr_write_attrs(const char *path, const hf_image *img, int half,
+                       const hf_exr_int_attr *attrs, int n_attrs) {
+  if (n_attrs < 0 || (n_attrs > 0 && !attrs)) return HF_EINVAL;
+  for (int a = 0; a < n_attrs; a++)
+    if (!attrs[a].name || !strchr(attrs[a].name, ':')) return HF_EINVAL;
   if (!path || !img || !img->data || !img->names || img->width < 1 || img->height < 1 ||
       img->channels < 1 || img->display_width < 0 || img->display_height < 0 ||
       (int64_t)img->origin_x + img->width - 1 > INT32_MAX ||
@@ -111,6 +119,11 @@ int hf_exr_write(const char *path, const hf_image *img, int half) {
       exr_initialize_required_attr(ctx, part, &disp, &data, 1.0f, &center, 1.0f,
                                    EXR_LINEORDER_INCREASING_Y, EXR_COMPRESSION_ZIP))
     goto out;
+  for (int a = 0; a < n_attrs; a++)
+    if (exr_attr_set_int(ctx, part, attrs[a].name, attrs[a].value)) {
+      rc = HF_EINVAL; /* a name the library refuses (empty, too long, a standard one's) */
+      goto out;
+    }
   for (int c = 0; c < nch; c++)
     if (exr_add_channel(ctx, part, img->names[c], half ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT,
                         EXR_PERCEPTUALLY_LINEAR, 1, 1)) {

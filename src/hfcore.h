@@ -800,6 +800,21 @@ int hf_exr_display_size(const char *path, int *width, int *height, char *err, si
  * HF_EINVAL bad image or channel names, HF_ENOMEM, HF_EIO the file could not
  * be written or did not read back as written. */
 int hf_exr_write(const char *path, const hf_image *img, int half);
+/* An int attribute of an EXR header, named "tool:name" (OpenEXR's
+ * convention for attributes of one tool: a prefix keeps them apart from the
+ * standard ones), such as "hairfilter:gtSupersample". */
+typedef struct hf_exr_int_attr {
+  const char *name;
+  int value;
+} hf_exr_int_attr;
+/* hf_exr_write with n_attrs int attributes in the header. HF_EINVAL also
+ * for a name without ':' or one the library refuses. */
+int hf_exr_write_attrs(const char *path, const hf_image *img, int half,
+                       const hf_exr_int_attr *attrs, int n_attrs);
+/* The int attribute name of the first part's header of path into *value:
+ * HF_OK, HF_ENOTFOUND when the header has none, HF_EFORMAT when it has one
+ * of another type, HF_EIO when the file cannot be opened as an EXR. */
+int hf_exr_read_int_attr(const char *path, const char *name, int *value);
 
 /* Feature EXR <-> network input. Channels are S{k}.color, S{k}.highlight,
  * S{k}.alpha, S{k}.depth, S{k}.tangent.x, S{k}.tangent.y (protocol/FEATURES.md).

@@ -52,9 +52,9 @@ static void usage(FILE *f) {
           "pixels by strand width in pixels and by coverage, frames by those and by\n"
           "resolution. --json writes every number, per bucket and per frame. Frames\n"
           "outside the input range a weights file was trained on (its input_range\n"
-          "metadata) are named on stderr, and counted there are frames whose manifest says\n"
-          "their truth's sub-pixel centres include the MSAA positions (gt_supersample 4,\n"
-          "docs/RENDERING.md). A table then counts, per network, the frames\n"
+          "metadata) are named on stderr, and counted there are frames whose manifest (or\n"
+          "EXR header) says their truth's sub-pixel centres include the MSAA positions\n"
+          "(gt_supersample 4, docs/RENDERING.md). A table then counts, per network, the frames\n"
           "where it is below its own input (the estimate of the samples it reads) and\n"
           "below ST 16 spp in PSNR or SSIM; stderr names the frames below the input. A\n"
           "last table measures the lattice in each method's error: the pattern of period\n"
@@ -81,8 +81,21 @@ typedef struct frame_list {
   int n, cap;
 } frame_list;
 
+/* What the frame's own EXR header says of its truth (hfr_frame_write), for
+ * a frame whose manifest does not: the MSAA positions its truth shares, 4
+ * for a 4x4 truth of a file without the count, else -1 (not said). */
+static int gt_shared_of_file(const char *path) {
+  int shared, ss;
+  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SHARED, &shared) == HF_OK && shared >= -1 &&
+      shared <= 4)
+    return shared;
+  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SUPERSAMPLE, &ss) == HF_OK) return ss == 4 ? 4 : 0;
+  return -1;
+}
+
 static int list_push(frame_list *l, const char *path, const char *style, int full_w,
                      int full_h, int gt_shared) {
+  if (gt_shared < 0) gt_shared = gt_shared_of_file(path);
   if (l->n == l->cap) {
     int cap = l->cap ? 2 * l->cap : 64;
     frame_ref *v = realloc(l->v, cap * sizeof *v);
@@ -1126,7 +1139,8 @@ int cmd_eval(int argc, char **argv) {
   fflush(stdout);   /* the tables first, then what stderr says about them */
   if (on_sample_grid)
     fprintf(stderr, "hairfilter eval: warning: %d of %d frames have a ground truth whose "
-            "sub-pixel centres include the MSAA sample positions (as their manifest says), so "
+            "sub-pixel centres include the MSAA sample positions (as their manifest or EXR "
+            "header says), so "
             "on opaque strands their 4 samples, and what reads them, score better than they "
             "are; render them again with the default --gt-ss 8 (docs/RENDERING.md, "
             "\"The ground truth's sub-pixel grid\")\n", on_sample_grid, scored);

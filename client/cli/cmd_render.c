@@ -433,7 +433,6 @@ static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_v
   char line[512];
   hfr_frame_stats_format(&st->frame, line, sizeof line);
   fprintf(stderr, "regime: %s\n", line);
-  gt_grid_note(st->gt_shared_positions);
 }
 
 static int write_png(const hf_image *img, const char *prefix, const hfr_view *v,
@@ -539,9 +538,11 @@ static int run_frame(opts *o) {
               o->view.crop_x, o->view.crop_y, o->view.crop_w, o->view.crop_h, o->view.width,
               o->view.height);
     if (!o->quiet) print_stats(r, &hair, &o->view, &st);
+    gt_grid_note(st.gt_shared_positions); /* --quiet or not: it biases every score */
     if (o->out && (rc = add_composites(&img, &o->outputs, &o->view)) != HF_OK)
       fprintf(stderr, "hairfilter render: composites: %s\n", hf_strerror(rc));
-    if (rc == HF_OK && o->out && (rc = hf_exr_write(o->out, &img, o->half)) != HF_OK)
+    if (rc == HF_OK && o->out &&
+        (rc = hfr_frame_write(o->out, &img, o->half, &o->outputs, &st)) != HF_OK)
       fprintf(stderr, "hairfilter render: %s: %s\n", o->out, hf_strerror(rc));
     if (rc == HF_OK && o->png) {
       const char *prefixes[3 + HFR_MAX_BASELINES];
@@ -608,6 +609,7 @@ static int run_fig6(opts *o) {
     fprintf(stderr, "hairfilter render: %s (%s)\n", err, hf_strerror(rc));
   } else {
     if (!o->quiet) print_stats(r, &hair, &o->view, &st);
+    gt_grid_note(st.gt_shared_positions); /* --quiet or not: it biases every score */
     const int W = img.width, H = img.height, tiles = o->outputs.n_st + 2, gap = 2;
     const int FW = tiles * W + (tiles - 1) * gap;
     float *fig = malloc(sizeof(float) * 3 * (size_t)FW * H);

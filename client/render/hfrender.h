@@ -389,6 +389,17 @@ int hfr_msaa_positions(hfr_renderer *r, float pos[8], char *err, size_t errlen);
  * pattern: 4 at ss 4, 0 at every other ss from 1 to 8 (the range
  * hfr_outputs.gt_supersample takes). */
 int hfr_gt_shared_positions(const float pos[8], int ss);
+/* The EXR header attributes that record a frame's ground truth, so that a
+ * frame read without its manifest still says what its truth is: an int
+ * "hairfilter:gtSupersample" (hfr_outputs.gt_supersample; 0: no truth) and,
+ * with a truth, "hairfilter:gtSharedPositions" (hfr_stats.gt_shared_positions;
+ * -1: not known). hairfilter eval reads them where a manifest does not say. */
+#define HFR_EXR_ATTR_GT_SUPERSAMPLE "hairfilter:gtSupersample"
+#define HFR_EXR_ATTR_GT_SHARED "hairfilter:gtSharedPositions"
+/* hf_exr_write of a rendered frame img (of hfr_render(r, v, out, ...), which
+ * gave stats) with those attributes. Errors: those of hf_exr_write. */
+int hfr_frame_write(const char *path, const hf_image *img, int half, const hfr_outputs *out,
+                    const hfr_stats *stats);
 /* Bounding sphere the camera and light orbit (hair, and an enclosed occluder). */
 void hfr_renderer_bounds(const hfr_renderer *r, float centre[3], float *radius);
 /* Renders what o asks for into *out (allocated here; hf_image_free it).

@@ -439,7 +439,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         n_skipped++;
       }
       if (rc == HF_OK && !left_out) {
-        rc = hf_exr_write(path, &img, o->half);
+        rc = hfr_frame_write(path, &img, o->half, &out, &st);
         if (rc != HF_OK && err) snprintf(err, errlen, "%s: %s", path, hf_strerror(rc));
       }
       if (rc == HF_OK && !left_out && st.gt_shared_positions > 0 && !grid_noted) {

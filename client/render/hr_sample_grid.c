@@ -3,7 +3,8 @@
  * standard MSAA positions, which biases every score of the first pass's
  * samples upward on opaque strands; the renderer reports how many a frame's
  * truth shares (hfr_stats.gt_shared_positions) so that no figure is made
- * against such a truth unknowingly. */
+ * against such a truth unknowingly, and writes it into the frame's EXR
+ * header, where it stays with the frame wherever the file goes. */
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -73,4 +74,12 @@ int hfr_gt_shared_positions(const float pos[8], int ss) {
   int n = 0;
   for (int k = 0; k < 4; k++) n += on_centre(pos[2 * k], ss) && on_centre(pos[2 * k + 1], ss);
   return n;
+}
+
+int hfr_frame_write(const char *path, const hf_image *img, int half, const hfr_outputs *out,
+                    const hfr_stats *stats) {
+  if (!out || !stats) return HF_EINVAL;
+  hf_exr_int_attr attrs[2] = {{HFR_EXR_ATTR_GT_SUPERSAMPLE, out->gt_supersample},
+                              {HFR_EXR_ATTR_GT_SHARED, stats->gt_shared_positions}};
+  return hf_exr_write_attrs(path, img, half, attrs, out->gt_supersample > 0 ? 2 : 1);
 }

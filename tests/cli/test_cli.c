@@ -356,6 +356,18 @@ static void test_render_gt_grid_note(void **state) {
     if (!i) expect_text("1 of 1 frames have a ground truth whose sub-pixel centres");
     else if (strstr(text, warn)) fail_msg("eval warned of an 8x8 truth:\n%s", text);
   }
+  /* A frame without its manifest: its EXR header says what its truth is. */
+  char lone[1100];
+  snprintf(lone, sizeof lone, "%s", test_tmp("grid_lone"));
+  assert_int_equal(mkdir(lone, 0755) == 0 || errno == EEXIST, 1);
+  for (int i = 0; i < 2; i++) {
+    assert_int_equal(cli("render frame --style wavy --strands 500 --size 24x24 %s --quiet "
+                         "--no-alpha-corrected --out %s/f.exr", sizes[i], lone), 0);
+    if (!i) expect_text(note);  /* --quiet leaves out the statistics, not the note */
+    assert_int_equal(cli("eval %s", lone), 0);
+    if (!i) expect_text("1 of 1 frames have a ground truth whose sub-pixel centres");
+    else if (strstr(text, warn)) fail_msg("eval warned of an 8x8 truth:\n%s", text);
+  }
   assert_int_equal(cli("render frame --gt-ss 9 --out %s", test_tmp("grid9.exr")), 2);
   expect_text("--gt-ss takes 0..8");
 #endif

@@ -555,8 +555,45 @@ static void test_read_as_halves(void **state) {
   free(in32);
 }
 
+/* Int attributes written into the header read back by name, with the
+ * pixels unchanged; absent ones, a name without a tool's prefix and a file
+ * that is not an EXR are told apart. */
+static void test_int_attrs(void **state) {
+  (void)state;
+  hf_image img;
+  assert_int_equal(hf_image_alloc(&img, 5, 3, 2), HF_OK);
+  snprintf(img.names[0], 32, "a");
+  snprintf(img.names[1], 32, "b");
+  for (int i = 0; i < 30; i++) img.data[i] = (float)i * 0.25f;
+  const char *path = test_tmp("attrs.exr");
+  hf_exr_int_attr attrs[2] = {{"hairfilter:gtSupersample", 8}, {"hairfilter:gtSharedPositions", -1}};
+  assert_int_equal(hf_exr_write_attrs(path, &img, 1, attrs, 2), HF_OK);
+  int v = 99;
+  assert_int_equal(hf_exr_read_int_attr(path, "hairfilter:gtSupersample", &v), HF_OK);
+  assert_int_equal(v, 8);
+  assert_int_equal(hf_exr_read_int_attr(path, "hairfilter:gtSharedPositions", &v), HF_OK);
+  assert_int_equal(v, -1);
+  assert_int_equal(hf_exr_read_int_attr(path, "hairfilter:other", &v), HF_ENOTFOUND);
+  /* A standard attribute of another type. */
+  assert_int_equal(hf_exr_read_int_attr(path, "pixelAspectRatio", &v), HF_EFORMAT);
+  char err[256];
+  hf_image back;
+  assert_int_equal(hf_exr_read(path, &back, err, sizeof err), HF_OK);
+  for (int i = 0; i < 30; i++) assert_true(back.data[i] == img.data[i]);
+  hf_image_free(&back);
+  /* A file hf_exr_write makes has none. */
+  assert_int_equal(hf_exr_write(path, &img, 0), HF_OK);
+  assert_int_equal(hf_exr_read_int_attr(path, "hairfilter:gtSupersample", &v), HF_ENOTFOUND);
+  hf_exr_int_attr bare = {"gtSupersample", 8};
+  assert_int_equal(hf_exr_write_attrs(path, &img, 0, &bare, 1), HF_EINVAL);
+  assert_int_equal(hf_exr_write_attrs(path, &img, 0, NULL, 1), HF_EINVAL);
+  assert_int_equal(hf_exr_read_int_attr(test_tmp("no-such.exr"), "hairfilter:x", &v), HF_EIO);
+  hf_image_free(&img);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_int_attrs),
     cmocka_unit_test(test_write_reads_back_exactly), cmocka_unit_test(test_result_of_tall_frame),
     cmocka_unit_test(test_windows),                  cmocka_unit_test(test_tiled),
     cmocka_unit_test(test_multipart),                cmocka_unit_test(test_truncated),

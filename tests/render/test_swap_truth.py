@@ -81,6 +81,18 @@ def main():
         sys.exit(f"FAIL: manifest {m['st']}, {[fr['gt_supersample'] for fr in m['frames']]}")
     if WARNING in run([a.hairfilter, "eval", dirs["out"]]).stderr:
         sys.exit("FAIL: eval warned of the swapped 8x8 truth")
+    # The EXR header's record of the truth is the truth's, so a frame taken
+    # out of its directory says so too.
+    for n in names:
+        spec = oiio.ImageInput.open(os.path.join(dirs["out"], n)).spec()
+        got = [spec.getattribute(k) for k in ("hairfilter:gtSupersample",
+                                              "hairfilter:gtSharedPositions")]
+        if got != [8, 0]:
+            sys.exit(f"FAIL: {n}: header says gtSupersample, gtSharedPositions {got}, "
+                     "expected the 8x8 truth's [8, 0]")
+    os.remove(os.path.join(dirs["out"], "manifest.json"))
+    if WARNING in run([a.hairfilter, "eval", dirs["out"]]).stderr:
+        sys.exit("FAIL: eval warned of the swapped 8x8 truth without the manifest")
 
     r = run([sys.executable, SWAP, dirs["gt4"], dirs["gt8_seed"], dirs["bad"]], ok=False)
     if r.returncode != 1 or "differs between the two renderings" not in r.stderr:

@@ -25,6 +25,9 @@ import numpy as np
 import OpenImageIO as oiio
 
 TRUTH = ("gt.color", "gt.highlight", "gt.alpha")
+# The EXR header's record of the truth (hfrender.h HFR_EXR_ATTR_*): the
+# output takes the truth file's, or none when it has none.
+TRUTH_ATTRS = ("hairfilter:gtSupersample", "hairfilter:gtSharedPositions")
 
 
 def read(path):
@@ -55,7 +58,7 @@ def swap(frames_dir, truth_dir, name):
     if not os.path.exists(other):
         fail(f"{other} is missing: render TRUTH_DIR with the same arguments")
     buf, ch, px = read(os.path.join(frames_dir, name))
-    _, tch, tpx = read(other)
+    tbuf, tch, tpx = read(other)
     samples = [c for c in ch if c[:1] == "S" and c[1:2].isdigit()]
     if not samples:
         fail(f"{name}: no sample channels (S0.*) in {frames_dir}")
@@ -66,7 +69,14 @@ def swap(frames_dir, truth_dir, name):
         if c not in ch or c not in tch:
             fail(f"{name}: no {c} in one of the two renderings")
         px[..., ch.index(c)] = tpx[..., tch.index(c)]
-    return buf.spec(), px
+    spec = oiio.ImageSpec(buf.spec())
+    for a in TRUTH_ATTRS:
+        v = tbuf.spec().getattribute(a)
+        if v is None:
+            spec.erase_attribute(a)
+        else:
+            spec.attribute(a, int(v))
+    return spec, px
 
 
 def main():
