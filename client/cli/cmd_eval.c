@@ -85,12 +85,15 @@ typedef struct frame_list {
  * a frame whose manifest does not: the MSAA positions its truth shares, 4
  * for a 4x4 truth of a file without the count, else -1 (not said). */
 static int gt_shared_of_file(const char *path) {
-  int shared, ss;
-  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SHARED, &shared) == HF_OK && shared >= -1 &&
-      shared <= 4)
-    return shared;
-  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SUPERSAMPLE, &ss) == HF_OK) return ss == 4 ? 4 : 0;
-  return -1;
+  int shared = -1, ss = 0;
+  int has_ss = hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SUPERSAMPLE, &ss) == HF_OK;
+  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SHARED, &shared) != HF_OK || shared < -1 ||
+      shared > 4)
+    shared = -1;
+  /* Not counted (-1: GL did not say where its samples are): a 4x4 truth
+   * is taken to share the standard pattern's 4, as every GPU's does. */
+  if (shared == -1 && has_ss) shared = ss == 4 ? 4 : 0;
+  return shared;
 }
 
 static int list_push(frame_list *l, const char *path, const char *style, int full_w,
@@ -185,9 +188,9 @@ static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t 
     }
     const cJSON *sh = cJSON_GetObjectItemCaseSensitive(it, "gt_shared_positions");
     const cJSON *ss = cJSON_GetObjectItemCaseSensitive(it, "gt_supersample");
-    if (cJSON_IsNumber(sh) && sh->valuedouble >= -1 && sh->valuedouble <= 4)
+    if (cJSON_IsNumber(sh) && sh->valuedouble >= 0 && sh->valuedouble <= 4)
       *gt_shared = (int)sh->valuedouble;
-    else if (cJSON_IsNumber(ss))
+    else if (cJSON_IsNumber(ss)) /* older, or -1: GL did not say (as gt_shared_of_file) */
       *gt_shared = ss->valuedouble == 4 ? 4 : 0;
     const cJSON *st = cJSON_GetObjectItemCaseSensitive(it, "style");
     if (!cJSON_IsString(st)) return HF_ENOTFOUND;
@@ -906,6 +909,7 @@ int cmd_eval(int argc, char **argv) {
   }
 
   int scored = 0, on_sample_grid = 0;
+  char grid_names[512] = "";
   size_t hair_px = 0;
   for (int fi = 0; fi < frames.n && (!max_frames || scored < max_frames); fi++) {
     frame_ref *fr = &frames.v[fi];
@@ -1115,7 +1119,12 @@ int cmd_eval(int argc, char **argv) {
     }
     eval_strata_frame_done(strata, &rg);
     hair_px += nhair;
-    on_sample_grid += fr->gt_shared > 0;
+    if (fr->gt_shared > 0 && on_sample_grid++ < 5) {
+      /* The first few named in the warning; base names keep it short. */
+      const char *b = strrchr(fr->path, '/');
+      size_t used = strlen(grid_names);
+      snprintf(grid_names + used, sizeof grid_names - used, " %s", b ? b + 1 : fr->path);
+    }
     scored++;
     /* One line rewritten in place on a terminal; in a log, no control codes. */
     if (isatty(2)) fprintf(stderr, "\reval: %d frames (%s)\x1b[K", scored, fr->path);
@@ -1143,7 +1152,8 @@ int cmd_eval(int argc, char **argv) {
             "header says), so "
             "on opaque strands their 4 samples, and what reads them, score better than they "
             "are; render them again with the default --gt-ss 8 (docs/RENDERING.md, "
-            "\"The ground truth's sub-pixel grid\")\n", on_sample_grid, scored);
+            "\"The ground truth's sub-pixel grid\"):%s%s\n", on_sample_grid, scored, grid_names,
+            on_sample_grid > 5 ? " ..." : "");
   for (int i = 0; i < nm; i++)
     if (ms[i].kind == M_MODEL && flagged[ms[i].model])
       fprintf(stderr, "hairfilter eval: warning: %d of %d frames are outside the input range %s "

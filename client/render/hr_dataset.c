@@ -314,11 +314,13 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   if (options) cJSON_AddItemToObject(doc, "options", options);
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
   cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");
-  int n_skipped = 0, grid_noted = 0, reused = 0;
+  int n_skipped = 0, grid_noted = 0, reused = 0, n_reused_skipped = 0;
   cJSON *old = NULL;
   if (!options || !frames || !skipped) rc = HF_ENOMEM;
   else if (o->resume)
-    rc = hr_dataset_resume_open(o->out_dir, options, hfr_renderer_gl_name(r), &old, err, errlen);
+    rc = hr_dataset_resume_open(o->out_dir, options, o->count, hfr_renderer_gl_name(r), &old,
+                                err, errlen);
+  hr_dataset_resume_history(doc, old);
 
   const int sources = o->n_styles + o->n_hair_files, total = sources * o->count;
   double start = hr_now_ms();
@@ -340,10 +342,12 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         /* Finished (or left out) by the run taken up: as it was. */
         cJSON_AddItemToArray(was_skipped ? skipped : frames, kept);
         n_skipped += was_skipped;
+        n_reused_skipped += was_skipped;
         /* The manifest on disk lists it already; the next frame rendered,
          * or the end of the run, writes the new one. */
         reused++;
         done++;
+        if (o->progress) progress(done, reused, total, start);
         continue;
       }
       hr_rng g = {seed * 0x9e3779b97f4a7c15ull + 3};
@@ -475,8 +479,9 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     if (rc != HF_OK && err) snprintf(err, errlen, "cannot write %s/manifest.json", o->out_dir);
   }
   if (o->progress && reused)
-    fprintf(stderr, "hairfilter render dataset: took up %d frames of the run before, "
-            "rendered %d\n", reused, done - reused);
+    fprintf(stderr, "hairfilter render dataset: took up %d frames of the run before (%d of "
+            "them left out as too dense), rendered %d\n", reused, n_reused_skipped,
+            done - reused);
   cJSON_Delete(old);
   if (rc == HF_OK && n_skipped == total) {
     if (err) snprintf(err, errlen, "every frame was left out (too dense for the A-buffer): "

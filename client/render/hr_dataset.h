@@ -42,12 +42,17 @@ struct cJSON;
  * memory. */
 struct cJSON *hr_dataset_options(const hfr_dataset_opts *o);
 /* Reads dir/manifest.json for a resumed run: *old is NULL when there is
- * none (a fresh run), else the parsed manifest. HF_EFORMAT when it is not a
- * dataset manifest, HF_EINVAL when it has no "options" record or its
- * options differ from options (err names the first that differs), HF_EIO
- * when it cannot be read. Warns on stderr when gl_renderer differs. */
-int hr_dataset_resume_open(const char *dir, const struct cJSON *options, const char *gl_renderer,
-                           struct cJSON **old, char *err, size_t errlen);
+ * none (a fresh run, said on stderr), else the parsed manifest. HF_EFORMAT
+ * when it is not a dataset manifest, HF_EINVAL when it has no "options"
+ * record, when its options differ from options (err names the first that
+ * differs, by its command-line option, with both values) or when it lists
+ * a frame of index count or more; HF_EIO when it cannot be read. Warns on
+ * stderr when gl_renderer differs. */
+int hr_dataset_resume_open(const char *dir, const struct cJSON *options, int count,
+                           const char *gl_renderer, struct cJSON **old, char *err, size_t errlen);
+/* Records in doc's "earlier_gl_renderers" the renderers of old's frames
+ * (its "gl_renderer" and its own list) that differ from doc's. */
+void hr_dataset_resume_history(struct cJSON *doc, const struct cJSON *old);
 /* The manifest entry of frame file that old lists as finished (its file is
  * still in dir) or as left out (*was_skipped 1), detached from old for the
  * new manifest; NULL when the frame is to be rendered. old may be NULL. */

@@ -33,8 +33,12 @@ cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
   for (int i = 0; i < o->n_styles; i++)
     cJSON_AddItemToArray(styles, cJSON_CreateString(hfr_style_name(o->styles[i])));
   cJSON *files = cJSON_AddArrayToObject(j, "hair_files");
-  for (int i = 0; i < o->n_hair_files; i++)
-    cJSON_AddItemToArray(files, cJSON_CreateString(o->hair_files[i]));
+  for (int i = 0; i < o->n_hair_files; i++) {
+    /* The file, not the spelling of its path: ./a.hair and /abs/a.hair match. */
+    char *real = realpath(o->hair_files[i], NULL);
+    cJSON_AddItemToArray(files, cJSON_CreateString(real ? real : o->hair_files[i]));
+    free(real);
+  }
   cJSON_AddNumberToObject(j, "width", o->width);
   cJSON_AddNumberToObject(j, "height", o->height);
   cJSON_AddItemToObject(j, "spp_list", cJSON_CreateIntArray(o->spp_list, o->n_spp));
@@ -108,25 +112,100 @@ static char *read_text(const char *path, char *err, size_t errlen) {
   return text;
 }
 
-/* The first member of want whose value differs in have (or is missing). */
-static const char *first_difference(const cJSON *want, const cJSON *have) {
-  const cJSON *w;
-  cJSON_ArrayForEach(w, want) {
-    const cJSON *h = cJSON_GetObjectItemCaseSensitive(have, w->string);
-    if (!h || !cJSON_Compare(w, h, 1)) return w->string;
-  }
-  cJSON_ArrayForEach(w, have)
-    if (!cJSON_GetObjectItemCaseSensitive(want, w->string)) return w->string;
-  return NULL;
+/* The command-line option that sets each member of the options record
+ * (hr_dataset_options), for messages; members without one are named as
+ * they are. */
+static const char *const option_names[][2] = {
+    {"styles", "--styles"}, {"hair_files", "--hair-files"}, {"width", "--size"},
+    {"height", "--size"}, {"spp_list", "--spp"}, {"gt_supersample", "--gt-ss"}, {"st", "--st"},
+    {"opaque_samples", "--opaque"}, {"alpha_corrected", "--alpha-corrected/--no-alpha-corrected"},
+    {"strands", "--strands"}, {"segments", "--segments"}, {"shadow_size", "--shadow-size"},
+    {"seed", "--seed"}, {"half", "--half"}, {"extended", "--extended"},
+    {"max_fragments", "--max-fragments"}, {"regimes", "--regimes"},
+    {"frame_sizes", "--frame-sizes"}, {"width_px_range", "--width-px"},
+    {"opacity_range", "--opacity-range"}, {"width_spread", "--width-spread"},
+    {"background_layer", "--no-background"}, {"asset.up", "--up"},
+    {"asset.scale", "--units/--scale"}, {"asset.thickness", "--thickness"},
+    {"asset.occluder", "--occluder"}, {"asset.children", "--children"},
+    {"asset.child_spread", "--child-spread"}, {"asset.child_clumping", "--child-clumping"},
+};
+
+static const char *option_of(const char *key) {
+  for (size_t i = 0; i < sizeof option_names / sizeof option_names[0]; i++)
+    if (!strcmp(option_names[i][0], key)) return option_names[i][1];
+  return key;
 }
 
-int hr_dataset_resume_open(const char *dir, const cJSON *options, const char *gl_renderer,
-                           cJSON **old, char *err, size_t errlen) {
+/* The first member of want whose value differs in have, or that one of the
+ * two lacks, descending into objects: its path ("asset.up") into key and
+ * the two values into w and h (JSON, "(none)" where absent). 0 when none. */
+static int first_difference(const cJSON *want, const cJSON *have, const char *prefix, char *key,
+                            size_t keylen, const cJSON **w, const cJSON **h) {
+  for (int pass = 0; pass < 2; pass++) {
+    const cJSON *a = pass ? have : want, *b = pass ? want : have, *it;
+    cJSON_ArrayForEach(it, a) {
+      const cJSON *other = cJSON_GetObjectItemCaseSensitive(b, it->string);
+      if (other && cJSON_Compare(it, other, 1)) continue;
+      if (other && cJSON_IsObject(it) && cJSON_IsObject(other)) {
+        char sub[128];
+        snprintf(sub, sizeof sub, "%s%s.", prefix, it->string);
+        if (first_difference(pass ? other : it, pass ? it : other, sub, key, keylen, w, h))
+          return 1;
+      }
+      snprintf(key, keylen, "%s%s", prefix, it->string);
+      *w = pass ? other : it;
+      *h = pass ? it : other;
+      return 1;
+    }
+  }
+  return 0;
+}
+
+/* A value for a message: JSON on one line, cut to fit. */
+static void value_text(const cJSON *v, char *out, size_t len) {
+  char *t = v ? cJSON_PrintUnformatted(v) : NULL;
+  snprintf(out, len, "%s", t ? t : "(none)");
+  if (t && strlen(t) >= len && len > 4) memcpy(out + len - 4, "...", 4);
+  free(t);
+}
+
+/* The index of a frame file "{source}_{i:04d}.exr", or -1. */
+static long frame_index(const char *file) {
+  const char *u = strrchr(file, '_');
+  if (!u) return -1;
+  char *end;
+  long i = strtol(u + 1, &end, 10);
+  return end != u + 1 && !strcmp(end, ".exr") && i >= 0 ? i : -1;
+}
+
+/* HF_EINVAL, err naming it, when list holds a frame beyond count. */
+static int check_count(const cJSON *list, int count, const char *path, char *err,
+                       size_t errlen) {
+  const cJSON *e;
+  cJSON_ArrayForEach(e, list) {
+    const cJSON *f = cJSON_GetObjectItemCaseSensitive(e, "file");
+    long i = cJSON_IsString(f) ? frame_index(f->valuestring) : -1;
+    if (i >= count) {
+      snprintf(err, errlen, "%s lists %s, beyond --count %d: resume with --count %ld or more "
+               "(a smaller set would leave frames on disk that its manifest does not list)",
+               path, f->valuestring, count, i + 1);
+      return HF_EINVAL;
+    }
+  }
+  return HF_OK;
+}
+
+int hr_dataset_resume_open(const char *dir, const cJSON *options, int count,
+                           const char *gl_renderer, cJSON **old, char *err, size_t errlen) {
   *old = NULL;
   char path[4200];
   snprintf(path, sizeof path, "%s/manifest.json", dir);
   struct stat st;
-  if (stat(path, &st) != 0) return HF_OK; /* nothing to take up: a fresh run */
+  if (stat(path, &st) != 0) {
+    /* Said, so that a mistyped --out does not silently start over. */
+    fprintf(stderr, "hairfilter render dataset: --resume: no %s to take up: a fresh run\n", path);
+    return HF_OK;
+  }
   char *text = read_text(path, err, errlen);
   if (!text) return HF_EIO;
   cJSON *doc = cJSON_Parse(text);
@@ -134,8 +213,8 @@ int hr_dataset_resume_open(const char *dir, const cJSON *options, const char *gl
   const cJSON *fmt = doc ? cJSON_GetObjectItemCaseSensitive(doc, "format") : NULL;
   if (!cJSON_IsString(fmt) || strcmp(fmt->valuestring, "hairfilter-dataset") != 0 ||
       !cJSON_IsArray(cJSON_GetObjectItemCaseSensitive(doc, "frames"))) {
-    snprintf(err, errlen, "%s is not a hairfilter dataset manifest: --out another directory, "
-             "or leave out --resume to start again", path);
+    snprintf(err, errlen, "%s is not a hairfilter dataset manifest (a run would overwrite "
+             "it): --out another directory", path);
     cJSON_Delete(doc);
     return HF_EFORMAT;
   }
@@ -147,13 +226,23 @@ int hr_dataset_resume_open(const char *dir, const cJSON *options, const char *gl
     cJSON_Delete(doc);
     return HF_EINVAL;
   }
-  const char *diff = first_difference(options, had);
-  if (diff) {
-    snprintf(err, errlen, "%s was made with other options (\"%s\" differs; only --count may "
-             "change): resume with the options it was made with, or --out another directory",
-             path, diff);
+  char key[160], now[96], then[96];
+  const cJSON *w = NULL, *h = NULL;
+  if (first_difference(options, had, "", key, sizeof key, &w, &h)) {
+    value_text(w, now, sizeof now);
+    value_text(h, then, sizeof then);
+    snprintf(err, errlen, "%s was made with other options: %s (\"%s\") is %s there, %s here; "
+             "only --count may grow: resume with the options it was made with, or --out "
+             "another directory", path, option_of(key), key, then, now);
     cJSON_Delete(doc);
     return HF_EINVAL;
+  }
+  int rc = check_count(cJSON_GetObjectItemCaseSensitive(doc, "frames"), count, path, err, errlen);
+  if (rc == HF_OK)
+    rc = check_count(cJSON_GetObjectItemCaseSensitive(doc, "skipped"), count, path, err, errlen);
+  if (rc != HF_OK) {
+    cJSON_Delete(doc);
+    return rc;
   }
   const cJSON *gl = cJSON_GetObjectItemCaseSensitive(doc, "gl_renderer");
   if (cJSON_IsString(gl) && gl_renderer && strcmp(gl->valuestring, gl_renderer) != 0)
@@ -191,4 +280,25 @@ cJSON *hr_dataset_resume_take(cJSON *old, const char *dir, const char *file, int
   e = take_entry(cJSON_GetObjectItemCaseSensitive(old, "skipped"), file);
   if (e) *was_skipped = 1;
   return e;
+}
+
+/* Adds name to doc's "earlier_gl_renderers" unless it is doc's own
+ * "gl_renderer" or listed already. */
+static void add_earlier(cJSON *doc, const char *name) {
+  const cJSON *now = cJSON_GetObjectItemCaseSensitive(doc, "gl_renderer");
+  if (!name || (cJSON_IsString(now) && !strcmp(now->valuestring, name))) return;
+  cJSON *list = cJSON_GetObjectItemCaseSensitive(doc, "earlier_gl_renderers");
+  if (!list && !(list = cJSON_AddArrayToObject(doc, "earlier_gl_renderers"))) return;
+  const cJSON *e;
+  cJSON_ArrayForEach(e, list)
+    if (cJSON_IsString(e) && !strcmp(e->valuestring, name)) return;
+  cJSON_AddItemToArray(list, cJSON_CreateString(name));
+}
+
+void hr_dataset_resume_history(cJSON *doc, const cJSON *old) {
+  if (!old) return;
+  const cJSON *gl = cJSON_GetObjectItemCaseSensitive(old, "gl_renderer"), *e;
+  if (cJSON_IsString(gl)) add_earlier(doc, gl->valuestring);
+  cJSON_ArrayForEach(e, cJSON_GetObjectItemCaseSensitive(old, "earlier_gl_renderers"))
+    if (cJSON_IsString(e)) add_earlier(doc, e->valuestring);
 }
