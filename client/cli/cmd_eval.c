@@ -974,6 +974,8 @@ int cmd_eval(int argc, char **argv) {
       cJSON_AddItemToArray(rows, row);
       cJSON_AddStringToObject(row, "file", fr->path);
       cJSON_AddStringToObject(row, "style", fr->style);
+      /* MSAA positions its truth shares (manifest or EXR header; -1 not said). */
+      cJSON_AddNumberToObject(row, "gt_shared_positions", fr->gt_shared);
     }
     cJSON *row_scores = json_path ? cJSON_AddArrayToObject(row, "methods") : NULL;
     cJSON *row_flags = json_path ? cJSON_AddArrayToObject(row, "out_of_range") : NULL;

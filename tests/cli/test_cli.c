@@ -320,6 +320,25 @@ static void test_render_input_preview(void **state) {
 #endif
 }
 
+/* The bytes of a file (at most 64 MB), NUL-terminated; *n its length. */
+static char *slurp(const char *path, size_t *n) {
+  FILE *f = fopen(path, "rb");
+  if (!f) fail_msg("cannot open %s", path);
+  char *b = malloc(64u << 20);
+  assert_non_null(b);
+  *n = fread(b, 1, (64u << 20) - 1, f);
+  b[*n] = 0;
+  fclose(f);
+  return b;
+}
+
+static void write_text(const char *path, const char *t) {
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  assert_int_equal(fputs(t, f) >= 0, 1);
+  assert_int_equal(fclose(f), 0);
+}
+
 /* render says when the ground truth's sub-pixel centres include the MSAA
  * sample positions (--gt-ss 4 here), and not at the default. */
 static void test_render_gt_grid_note(void **state) {
@@ -364,32 +383,22 @@ static void test_render_gt_grid_note(void **state) {
     assert_int_equal(cli("render frame --style wavy --strands 500 --size 24x24 %s --quiet "
                          "--no-alpha-corrected --out %s/f.exr", sizes[i], lone), 0);
     if (!i) expect_text(note);  /* --quiet leaves out the statistics, not the note */
-    assert_int_equal(cli("eval %s", lone), 0);
+    assert_int_equal(cli("eval --json %s %s", test_tmp("grid_lone.json"), lone), 0);
     if (!i) expect_text("1 of 1 frames have a ground truth whose sub-pixel centres");
     else if (strstr(text, warn)) fail_msg("eval warned of an 8x8 truth:\n%s", text);
+    /* --json gives it per frame. */
+    size_t n;
+    char *j = slurp(test_tmp("grid_lone.json"), &n);
+    const char *k = strstr(j, "\"gt_shared_positions\"");
+    if (!k) fail_msg("eval --json lacks gt_shared_positions");
+    k += strlen("\"gt_shared_positions\"");
+    while (*k == ':' || *k == ' ' || *k == '\t') k++;
+    assert_int_equal(atoi(k), i ? 0 : 4);
+    free(j);
   }
   assert_int_equal(cli("render frame --gt-ss 9 --out %s", test_tmp("grid9.exr")), 2);
   expect_text("--gt-ss takes 0..8");
 #endif
-}
-
-/* The bytes of a file (at most 64 MB), NUL-terminated; *n its length. */
-static char *slurp(const char *path, size_t *n) {
-  FILE *f = fopen(path, "rb");
-  if (!f) fail_msg("cannot open %s", path);
-  char *b = malloc(64u << 20);
-  assert_non_null(b);
-  *n = fread(b, 1, (64u << 20) - 1, f);
-  b[*n] = 0;
-  fclose(f);
-  return b;
-}
-
-static void write_text(const char *path, const char *t) {
-  FILE *f = fopen(path, "w");
-  assert_non_null(f);
-  assert_int_equal(fputs(t, f) >= 0, 1);
-  assert_int_equal(fclose(f), 0);
 }
 
 /* render dataset --resume takes up a stopped run: the frames its manifest
