@@ -114,7 +114,10 @@ int hf_exr_write_attrs(const char *path, const hf_image *img, int half,
                               : data;
   exr_attr_v2f_t center;
   center.x = center.y = 0.0f;
-  if (exr_start_write(&ctx, path, EXR_WRITE_FILE_DIRECTLY, &init)) return HF_EIO;
+  /* Into a temporary file renamed over path once complete: a reader, or a
+   * run stopped and taken up again, never sees half a file at path (a file
+   * there is whole), and an earlier file there survives a failed write. */
+  if (exr_start_write(&ctx, path, EXR_INTERMEDIATE_TEMP_FILE, &init)) return HF_EIO;
   if (exr_add_part(ctx, "main", EXR_STORAGE_SCANLINE, &part) ||
       exr_initialize_required_attr(ctx, part, &disp, &data, 1.0f, &center, 1.0f,
                                    EXR_LINEORDER_INCREASING_Y, EXR_COMPRESSION_ZIP))

@@ -796,7 +796,9 @@ int hf_exr_display_size(const char *path, int *width, int *height, char *err, si
  * ZIP compression, with every chunk that does not shrink stored raw (the
  * layout rule OpenEXRCore 3.1 breaks, upstream issue 2306), and the file is
  * read back and compared bit for bit before this returns: HF_OK means the
- * file holds exactly img's values (rounded to half with half). Errors:
+ * file holds exactly img's values (rounded to half with half). The file is
+ * written under a temporary name in the same directory and renamed to path
+ * when complete, so path never holds half a file. Errors:
  * HF_EINVAL bad image or channel names, HF_ENOMEM, HF_EIO the file could not
  * be written or did not read back as written. */
 int hf_exr_write(const char *path, const hf_image *img, int half);
