@@ -668,7 +668,9 @@ static int run_dataset(opts *o) {
   d->platform = o->platform;
   char err[512] = "";
   int rc = hfr_dataset_run(d, err, sizeof err);
-  if (rc != HF_OK) fprintf(stderr, "hairfilter render dataset: %s (%s)\n", err, hf_strerror(rc));
+  /* err says what and what to do; the code's name only when it is empty. */
+  if (rc != HF_OK)
+    fprintf(stderr, "hairfilter render dataset: %s\n", *err ? err : hf_strerror(rc));
   return rc == HF_OK ? 0 : 1;
 }
 
