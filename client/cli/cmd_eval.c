@@ -86,14 +86,15 @@ typedef struct frame_list {
  * for a 4x4 truth of a file without the count, else -1 (not said). */
 static int gt_shared_of_file(const char *path) {
   int shared = -1, ss = 0;
-  int has_ss = hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SUPERSAMPLE, &ss) == HF_OK;
-  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SHARED, &shared) != HF_OK || shared < -1 ||
-      shared > 4)
-    shared = -1;
+  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SHARED, &shared) == HF_OK && shared >= 0 &&
+      shared <= 4)
+    return shared;
   /* Not counted (-1: GL did not say where its samples are): a 4x4 truth
-   * is taken to share the standard pattern's 4, as every GPU's does. */
-  if (shared == -1 && has_ss) shared = ss == 4 ? 4 : 0;
-  return shared;
+   * is taken to share the standard pattern's 4, as every GPU's does. The
+   * header is opened a second time only here. */
+  if (hf_exr_read_int_attr(path, HFR_EXR_ATTR_GT_SUPERSAMPLE, &ss) == HF_OK)
+    return ss == 4 ? 4 : 0;
+  return -1;
 }
 
 static int list_push(frame_list *l, const char *path, const char *style, int full_w,

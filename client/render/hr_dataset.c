@@ -296,21 +296,13 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   cJSON_AddNumberToObject(doc, "seed", (double)o->seed);
   cJSON_AddBoolToObject(doc, "extended", o->extended != 0);
   cJSON_AddBoolToObject(doc, "regimes", o->regimes != 0);
-  if (o->regimes) {
-    int fs[2] = {o->frame_min > 0 ? o->frame_min : 256, o->frame_max > 0 ? o->frame_max : 1024};
-    cJSON_AddItemToObject(doc, "frame_sizes", int_list(fs, 2));
-    cJSON *wr = cJSON_AddArrayToObject(doc, "width_px_range");
-    cJSON_AddItemToArray(wr, cJSON_CreateNumber(o->width_px_min > 0 ? o->width_px_min
-                                                                    : HR_REGIME_WIDTH_PX_MIN));
-    cJSON_AddItemToArray(wr, cJSON_CreateNumber(o->width_px_max > 0 ? o->width_px_max
-                                                                    : HR_REGIME_WIDTH_PX_MAX));
-    float opacity[2];
-    hr_regime_opacity_range(o, opacity);
-    cJSON *orange = cJSON_AddArrayToObject(doc, "opacity_range");
-    cJSON_AddItemToArray(orange, cJSON_CreateNumber(opacity[0]));
-    cJSON_AddItemToArray(orange, cJSON_CreateNumber(opacity[1]));
-  }
+  /* The regimes' ranges as they were drawn from (defaults filled in): the
+   * options record's, at the top level where readers look for them. */
   cJSON *options = hr_dataset_options(o);
+  static const char *const ranges[] = {"frame_sizes", "width_px_range", "opacity_range"};
+  for (int k = 0; options && o->regimes && k < 3; k++)
+    cJSON_AddItemToObject(doc, ranges[k],
+                          cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, ranges[k]), 1));
   if (options) cJSON_AddItemToObject(doc, "options", options);
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
   cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");
