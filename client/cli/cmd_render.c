@@ -58,7 +58,9 @@ static void usage(FILE *f) {
     "         a ground truth too dense for one A-buffer is drawn in bands of rows; a frame\n"
     "         whose single rows do not fit is left out (manifest \"skipped\") and the run\n"
     "         goes on; --max-fragments N lowers that limit (default and most 67108864)\n"
-    "other:   --platform osmesa|egl|auto   --out PATH\n");
+    "other:   --platform osmesa|egl|auto   --out PATH\n"
+    "An option the mode does not read (render frame --resume, render dataset --cam-yaw) is\n"
+    "refused, naming the modes that read it.\n");
 }
 
 typedef struct {
@@ -166,10 +168,71 @@ static int collect_hair_files(const char *v, opts *o) {
   return 0;
 }
 
+/* Which modes read an option. Each mode reads only some of the options,
+ * and one it does not read would be dropped without a word (render frame
+ * --resume rendering a frame afresh), so parse_args refuses it by name.
+ * Options not listed here are read by every mode. */
+enum { M_FRAME = 1, M_FIG6 = 2, M_DATASET = 4, M_HAIR = 8 };
+static const struct { const char *name; int modes; } option_modes[] = {
+  /* the procedural model, which a dataset varies itself */
+  {"--style", M_FRAME | M_FIG6 | M_HAIR},        {"--hair", M_FRAME | M_FIG6 | M_HAIR},
+  {"--length", M_FRAME | M_FIG6 | M_HAIR},       {"--clumping", M_FRAME | M_FIG6 | M_HAIR},
+  {"--frizz", M_FRAME | M_FIG6 | M_HAIR},        {"--curl-radius", M_FRAME | M_FIG6 | M_HAIR},
+  {"--curl-period", M_FRAME | M_FIG6 | M_HAIR},  {"--opacity", M_FRAME | M_FIG6 | M_HAIR},
+  /* the view, which a dataset draws per frame */
+  {"--cam-distance", M_FRAME | M_FIG6},  {"--cam-yaw", M_FRAME | M_FIG6},
+  {"--cam-pitch", M_FRAME | M_FIG6},     {"--fov", M_FRAME | M_FIG6},
+  {"--light-yaw", M_FRAME | M_FIG6},     {"--light-pitch", M_FRAME | M_FIG6},
+  {"--light-distance", M_FRAME | M_FIG6}, {"--directional", M_FRAME | M_FIG6},
+  {"--alpha-r", M_FRAME | M_FIG6},       {"--alpha-trt", M_FRAME | M_FIG6},
+  {"--ambient", M_FRAME | M_FIG6},       {"--spec-half", M_FRAME | M_FIG6},
+  {"--shadow-bias", M_FRAME | M_FIG6},   {"--thickness-scale", M_FRAME | M_FIG6},
+  {"--crop", M_FRAME | M_FIG6},          {"--random-view", M_FRAME | M_FIG6},
+  {"--hair-color", M_FRAME | M_FIG6},    {"--light-color", M_FRAME | M_FIG6},
+  {"--background", M_FRAME | M_FIG6},
+  /* what is rendered: nothing of it in a .hair file */
+  {"--size", M_FRAME | M_FIG6 | M_DATASET},        {"--shadow-size", M_FRAME | M_FIG6 | M_DATASET},
+  {"--gt-ss", M_FRAME | M_FIG6 | M_DATASET},       {"--st", M_FRAME | M_FIG6 | M_DATASET},
+  {"--opaque", M_FRAME | M_FIG6 | M_DATASET},      {"--seed", M_FRAME | M_FIG6 | M_DATASET},
+  {"--max-fragments", M_FRAME | M_FIG6 | M_DATASET},
+  {"--no-background", M_FRAME | M_FIG6 | M_DATASET},
+  {"--alpha-corrected", M_FRAME | M_DATASET},      {"--no-alpha-corrected", M_FRAME | M_DATASET},
+  {"--spp", M_FRAME | M_DATASET},                  {"--half", M_FRAME | M_DATASET},
+  {"--png", M_FRAME},
+  /* the set of frames */
+  {"--styles", M_DATASET},       {"--count", M_DATASET},     {"--resume", M_DATASET},
+  {"--extended", M_DATASET},     {"--regimes", M_DATASET},   {"--frame-sizes", M_DATASET},
+  {"--width-px", M_DATASET},     {"--opacity-range", M_DATASET},
+  {"--hair-files", M_DATASET},
+};
+
+/* 0 when mode reads option a (or a or mode is not known here); otherwise
+ * prints which modes do and returns -1. */
+static int check_option_mode(const char *mode, const char *a) {
+  static const char *const names[] = {"frame", "fig6", "dataset", "hair"};
+  int m = 0;
+  for (int k = 0; k < 4; k++)
+    if (!strcmp(mode, names[k])) m = 1 << k;
+  if (!m) return 0;
+  for (size_t i = 0; i < sizeof option_modes / sizeof option_modes[0]; i++) {
+    if (strcmp(a, option_modes[i].name) || (option_modes[i].modes & m)) continue;
+    char which[64] = "";
+    for (int k = 0; k < 4; k++)
+      if (option_modes[i].modes & (1 << k))
+        snprintf(which + strlen(which), sizeof which - strlen(which), "%s%s",
+                 *which ? ", " : "", names[k]);
+    fprintf(stderr, "hairfilter render %s: %s is an option of render %s only; leave it out "
+            "here\n", mode, a, which);
+    return -1;
+  }
+  return 0;
+}
+
 static int parse_args(int argc, char **argv, opts *o) {
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+    if (check_option_mode(o->cmd, a)) return -1;
 #define NEED_VALUE                                                   \
   if (!v) {                                                          \
     fprintf(stderr, "hairfilter render: %s needs a value\n", a);     \
@@ -380,7 +443,8 @@ static int load_model(const opts *o, hfr_hair *hair, hfr_mesh *occ) {
     rc = hfr_asset_load(o->hair_path, &o->asset, hair, occ, warn, sizeof warn, err, sizeof err);
     if (*warn) fprintf(stderr, "hairfilter render: warning: %s: %s\n", o->hair_path, warn);
   } else {
-    rc = hfr_hair_generate(&o->style, hair);
+    if ((rc = hfr_style_check(&o->style, err, sizeof err)) == HF_OK)
+      rc = hfr_hair_generate(&o->style, hair);
     hfr_ellipsoid body;
     hfr_style_body(o->style.style, &body);
     if (rc == HF_OK && (rc = hfr_mesh_ellipsoid(&body, 48, 24, occ)) != HF_OK)
@@ -388,7 +452,7 @@ static int load_model(const opts *o, hfr_hair *hair, hfr_mesh *occ) {
   }
   if (rc != HF_OK)
     fprintf(stderr, "hairfilter render: %s: %s\n",
-            o->hair_path ? o->hair_path : "style", *err ? err : "bad style parameters");
+            o->hair_path ? o->hair_path : "style", *err ? err : hf_strerror(rc));
   return rc;
 }
 

@@ -201,7 +201,16 @@ const char *hfr_style_name(hfr_style s);
 int hfr_style_from_name(const char *name, hfr_style *out);
 /* The style's defaults (strands 50000, its segments, length, curl, ...). */
 int hfr_style_defaults(hfr_style s, hfr_style_params *p);
-/* Builds the hairstyle; same parameters give the same model. */
+/* Checks p against the ranges hfr_hair_generate takes: strands 1 to
+ * HFR_MAX_STRANDS, segments 8 to 1024, strands x (segments + 1) at most
+ * HFR_MAX_POINTS, length and thickness above 0, opacity in (0, 1], clumping
+ * in [0, 1], frizz and the curl's radius and period at least 0, width_spread
+ * in [0, 100], children 0 to 10000. HF_OK; HF_EINVAL or HF_ERANGE (too many
+ * strands or points) with err naming the parameter, its value and its range
+ * (err may be NULL). */
+int hfr_style_check(const hfr_style_params *p, char *err, size_t errlen);
+/* Builds the hairstyle; same parameters give the same model. Errors as
+ * hfr_style_check. */
 int hfr_hair_generate(const hfr_style_params *p, hfr_hair *out);
 
 /* ---- occluders (hr_occluder.c, hr_mesh_io.c) ------------------------------ */

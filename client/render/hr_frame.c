@@ -323,11 +323,12 @@ int hfr_render_frame(const hfr_frame *f, hf_image *out, hfr_stats *stats, char *
   if (f->hair_path) {
     rc = hfr_asset_load(f->hair_path, &f->asset, &hair, &occ, NULL, 0, err, errlen);
   } else {
-    rc = hfr_hair_generate(&f->style, &hair);
-    if (rc != HF_OK && err) snprintf(err, errlen, "bad style parameters");
+    rc = hfr_style_check(&f->style, err, errlen);
+    if (rc == HF_OK) rc = hfr_hair_generate(&f->style, &hair);
     hfr_ellipsoid body;
     hfr_style_body(f->style.style, &body);
-    if (rc == HF_OK) rc = hfr_mesh_ellipsoid(&body, 48, 24, &occ);
+    if (rc == HF_OK && (rc = hfr_mesh_ellipsoid(&body, 48, 24, &occ)) != HF_OK)
+      hfr_hair_free(&hair);
   }
   if (rc != HF_OK) return rc;
   hfr_renderer *r = NULL;

@@ -280,20 +280,57 @@ void hr_frizz(const hfr_style_params *sp, const float body[3], hfr_hair *h) {
   }
 }
 
+/* One failed range for hfr_style_check's message. */
+static int style_range(char *err, size_t errlen, const char *name, double v, const char *range) {
+  if (err && errlen) snprintf(err, errlen, "%s %g is outside %s", name, v, range);
+  return HF_EINVAL;
+}
+
+int hfr_style_check(const hfr_style_params *sp, char *err, size_t errlen) {
+  if (err && errlen) *err = 0;
+  if (!sp) return HF_EINVAL;
+  if ((unsigned)sp->style >= HFR_STYLE_COUNT) return style_range(err, errlen, "style", sp->style, "the styles");
+  if (sp->segments < 8 || sp->segments > 1024)
+    return style_range(err, errlen, "segments", sp->segments, "8..1024");
+  if (!(sp->length > 0)) return style_range(err, errlen, "length", sp->length, "(0, inf)");
+  if (!(sp->thickness > 0)) return style_range(err, errlen, "thickness", sp->thickness, "(0, inf)");
+  if (!(sp->opacity > 0 && sp->opacity <= 1))
+    return style_range(err, errlen, "opacity", sp->opacity, "(0, 1]");
+  if (!(sp->clumping >= 0 && sp->clumping <= 1))
+    return style_range(err, errlen, "clumping", sp->clumping, "[0, 1]");
+  if (!(sp->frizz >= 0)) return style_range(err, errlen, "frizz", sp->frizz, "[0, inf)");
+  if (!(sp->curl_radius >= 0))
+    return style_range(err, errlen, "curl radius", sp->curl_radius, "[0, inf)");
+  if (!(sp->curl_period >= 0))
+    return style_range(err, errlen, "curl period", sp->curl_period, "[0, inf)");
+  if (!(sp->width_spread >= 0 && sp->width_spread <= 100))
+    return style_range(err, errlen, "width spread", sp->width_spread, "[0, 100]");
+  if (sp->children < 0 || sp->children > 10000)
+    return style_range(err, errlen, "children", sp->children, "0..10000");
+  if (sp->strands < 1 || (uint64_t)sp->strands > HFR_MAX_STRANDS) {
+    if (err && errlen)
+      snprintf(err, errlen, "strands %d is outside 1..%u", sp->strands, HFR_MAX_STRANDS);
+    return sp->strands < 1 ? HF_EINVAL : HF_ERANGE;
+  }
+  uint64_t points = (uint64_t)sp->strands * (sp->segments + 1);
+  if (points > HFR_MAX_POINTS) {
+    if (err && errlen)
+      snprintf(err, errlen, "%d strands of %d segments are %llu points, more than %u: fewer "
+               "strands or segments", sp->strands, sp->segments, (unsigned long long)points,
+               HFR_MAX_POINTS);
+    return HF_ERANGE;
+  }
+  return HF_OK;
+}
+
 int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
   if (!sp || !out) return HF_EINVAL;
   memset(out, 0, sizeof *out);
-  if ((unsigned)sp->style >= HFR_STYLE_COUNT || sp->strands < 1 || sp->segments < 8 ||
-      sp->segments > 1024 || !(sp->length > 0) || !(sp->thickness > 0) ||
-      !(sp->opacity > 0 && sp->opacity <= 1) || sp->clumping < 0 || sp->clumping > 1 ||
-      sp->frizz < 0 || sp->curl_radius < 0 || sp->curl_period < 0 ||
-      !(sp->width_spread >= 0 && sp->width_spread <= 100) || sp->children < 0 ||
-      sp->children > 10000)
-    return HF_EINVAL;
+  int rc = hfr_style_check(sp, NULL, 0);
+  if (rc != HF_OK) return rc;
   uint64_t points = (uint64_t)sp->strands * (sp->segments + 1);
-  if ((uint64_t)sp->strands > HFR_MAX_STRANDS || points > HFR_MAX_POINTS) return HF_ERANGE;
   if (sp->style == HFR_STYLE_SPIKY || sp->style == HFR_STYLE_FUR) {
-    int rc = hr_generate_from_guides(sp, out);
+    rc = hr_generate_from_guides(sp, out);
     if (rc != HF_OK) return rc;
     hfr_ellipsoid body;
     hfr_style_body(sp->style, &body);

@@ -467,6 +467,38 @@ static void test_render_dataset_resume(void **state) {
 #endif
 }
 
+/* An option the mode does not read is refused by name, before anything is
+ * rendered or written, instead of being dropped. */
+static void test_render_option_modes(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  assert_int_equal(cli("render frame --size 16x16 --strands 50 --resume --out %s",
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("render frame: --resume is an option of render dataset only");
+  struct stat st;
+  assert_int_not_equal(stat(test_tmp("mode_frame.exr"), &st), 0);
+  assert_int_equal(cli("render dataset --styles straight --count 1 --size 16x16 --cam-yaw 30 "
+                       "--out %s", test_tmp("mode_set")), 2);
+  expect_text("render dataset: --cam-yaw is an option of render frame, fig6 only");
+  assert_int_equal(cli("render hair --style wavy --strands 20 --size 64x64 --out %s",
+                       test_tmp("mode.hair")), 2);
+  expect_text("render hair: --size is an option of render frame, fig6, dataset only");
+  assert_int_equal(cli("render fig6 --png x --out %s", test_tmp("mode.png")), 2);
+  expect_text("--png is an option of render frame only");
+  /* What every mode reads, and the value of an option that looks like one. */
+  assert_int_equal(cli("render hair --style wavy --strands 20 --segments 8 --quiet --out %s",
+                       test_tmp("mode.hair")), 0);
+  /* A style parameter out of range is named with its range. */
+  assert_int_equal(cli("render hair --style wavy --strands 20 --segments 4 --out %s",
+                       test_tmp("mode.hair")), 1);
+  expect_text("segments 4 is outside 8..1024");
+  assert_int_equal(cli("render frame --size 16x16 --strands 50 --gt-ss 0 --st 4 --quiet "
+                       "--cam-pitch -20 --out %s", test_tmp("mode_frame.exr")), 0);
+#endif
+}
+
 /* infer --png composites over the frame's background layer (the head the
  * renderer draws under the hair) where it has one, as the renderer's own
  * composites do, and over --background without one. */
@@ -524,7 +556,8 @@ int main(void) {
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
     cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),
     cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
-    cmocka_unit_test(test_eval_warning),    cmocka_unit_test(test_preview_over_background_layer),
+    cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
+    cmocka_unit_test(test_preview_over_background_layer),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
