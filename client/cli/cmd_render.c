@@ -6,6 +6,7 @@
  *   render hair    [model] --out F.hair            (export a procedural style) */
 #include <dirent.h>
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,6 +27,7 @@ static void usage(FILE *f) {
     "         --width-spread S (per clump width x S^u, u in [-1,1]) --children N (spiky, fur)\n"
     ".hair:   --up y|z|x|-y|-z|-x (the file's up axis)  --units m|dm|cm|mm|in|ft  --scale S\n"
     "         --thickness T (diameter in the file's units, replaces the file's widths)\n"
+    "         --opacity O (in (0, 1], replaces the file's transparencies)\n"
     "         --children N (grow N children per guide) --child-spread F --child-clumping C\n"
     "         --occluder fit|none|MESH (fit: ellipsoid under the roots; MESH: OBJ, PLY, ...)\n"
     "view:    --size WxH (256x256)  --cam-distance D --cam-yaw DEG --cam-pitch DEG --fov DEG\n"
@@ -74,7 +76,7 @@ typedef struct {
   int st_set;
   /* Overrides applied after a --style resets the parameters. */
   struct { int strands, segments; float length, clumping, frizz, cr, cp, thick, opac, wspread;
-           int seed_set, children_set, children; uint64_t seed; } ov;
+           int children; uint64_t seed; } ov;
   hfr_asset_opts asset;
   int no_background, styles_set;
   char *hair_files[256];
@@ -82,7 +84,18 @@ typedef struct {
   int random_view;
   uint64_t random_seed;
   int random_keep_size;
+  /* The options given, by name (argv's strings), for given(). */
+  const char *given[128];
+  int n_given;
 } opts;
+
+/* 1 when option name (or, for --up, its alias) was given. */
+static int given(const opts *o, const char *name) {
+  for (int i = 0; i < o->n_given; i++)
+    if (!strcmp(o->given[i], name) || (!strcmp(name, "--up") && !strcmp(o->given[i], "--up-axis")))
+      return 1;
+  return 0;
+}
 
 static int parse_int_list(const char *s, int *out, int max, int *n) {
   *n = 0;
@@ -112,7 +125,7 @@ static int parse_float(const char *s, float *f) {
   char *end;
   errno = 0;
   *f = strtof(s, &end);
-  return end != s && !*end && !errno ? 0 : -1;
+  return end != s && !*end && !errno && isfinite(*f) ? 0 : -1;
 }
 
 /* --hair-files: a comma-separated list, or a directory's *.hair files in
@@ -178,7 +191,8 @@ static const struct { const char *name; int modes; } option_modes[] = {
   {"--style", M_FRAME | M_FIG6 | M_HAIR},        {"--hair", M_FRAME | M_FIG6 | M_HAIR},
   {"--length", M_FRAME | M_FIG6 | M_HAIR},       {"--clumping", M_FRAME | M_FIG6 | M_HAIR},
   {"--frizz", M_FRAME | M_FIG6 | M_HAIR},        {"--curl-radius", M_FRAME | M_FIG6 | M_HAIR},
-  {"--curl-period", M_FRAME | M_FIG6 | M_HAIR},  {"--opacity", M_FRAME | M_FIG6 | M_HAIR},
+  {"--curl-period", M_FRAME | M_FIG6 | M_HAIR},  {"--opacity", M_FRAME | M_FIG6 | M_DATASET | M_HAIR},
+  {"--hair-seed", M_FRAME | M_FIG6 | M_HAIR},    /* a dataset draws a seed per frame */
   /* the view, which a dataset draws per frame */
   {"--cam-distance", M_FRAME | M_FIG6},  {"--cam-yaw", M_FRAME | M_FIG6},
   {"--cam-pitch", M_FRAME | M_FIG6},     {"--fov", M_FRAME | M_FIG6},
@@ -199,6 +213,7 @@ static const struct { const char *name; int modes; } option_modes[] = {
   {"--alpha-corrected", M_FRAME | M_DATASET},      {"--no-alpha-corrected", M_FRAME | M_DATASET},
   {"--spp", M_FRAME | M_DATASET},                  {"--half", M_FRAME | M_DATASET},
   {"--png", M_FRAME},
+  {"--platform", M_FRAME | M_FIG6 | M_DATASET}, /* render hair draws nothing */
   /* the set of frames */
   {"--styles", M_DATASET},       {"--count", M_DATASET},     {"--resume", M_DATASET},
   {"--extended", M_DATASET},     {"--regimes", M_DATASET},   {"--frame-sizes", M_DATASET},
@@ -228,11 +243,63 @@ static int check_option_mode(const char *mode, const char *a) {
   return 0;
 }
 
+/* Options that one kind of model reads and the other drops: refused by
+ * name rather than dropped. A procedural style reads its shape; a .hair
+ * model (--hair, or a dataset's --hair-files) reads its conventions. */
+static int check_model_options(const opts *o) {
+  static const char *const style_only[] = {"--style", "--strands", "--segments", "--length",
+                                           "--clumping", "--frizz", "--curl-radius",
+                                           "--curl-period", "--width-spread"};
+  static const char *const asset_only[] = {"--up", "--units", "--scale", "--occluder",
+                                           "--child-spread", "--child-clumping"};
+  const int dataset = !strcmp(o->cmd, "dataset");
+  const int files = dataset ? o->n_hair_files > 0 : o->hair_path != NULL;
+  /* A dataset of --hair-files alone has no procedural style. */
+  const int styles = dataset ? !files || o->styles_set : !files;
+  for (size_t k = 0; k < sizeof style_only / sizeof style_only[0]; k++)
+    if (!styles && given(o, style_only[k])) {
+      fprintf(stderr, "hairfilter render %s: %s shapes a procedural style, and a .hair model "
+              "keeps its own; it takes --thickness, --opacity, --children, --up, --units and "
+              "--occluder\n", o->cmd, style_only[k]);
+      return -1;
+    }
+  for (size_t k = 0; k < sizeof asset_only / sizeof asset_only[0]; k++)
+    if (!files && given(o, asset_only[k])) {
+      fprintf(stderr, "hairfilter render %s: %s applies to a .hair model: give %s\n", o->cmd,
+              asset_only[k], dataset ? "--hair-files" : "--hair FILE");
+      return -1;
+    }
+  /* 0 would mean "the file's" to a .hair model: said, not taken. */
+  if (given(o, "--opacity") && !(o->ov.opac > 0 && o->ov.opac <= 1)) {
+    fprintf(stderr, "hairfilter render %s: --opacity %g is outside (0, 1]\n", o->cmd, o->ov.opac);
+    return -1;
+  }
+  if (given(o, "--thickness") && !(o->ov.thick > 0)) {
+    fprintf(stderr, "hairfilter render %s: --thickness %g: a diameter above 0\n", o->cmd,
+            o->ov.thick);
+    return -1;
+  }
+  /* A dataset draws its styles' widths, opacities and children itself. */
+  static const char *const dataset_asset[] = {"--thickness", "--opacity", "--children"};
+  for (size_t k = 0; dataset && !files && k < 3; k++)
+    if (given(o, dataset_asset[k])) {
+      fprintf(stderr, "hairfilter render dataset: %s applies to --hair-files; the styles' "
+              "are drawn per frame\n", dataset_asset[k]);
+      return -1;
+    }
+  return 0;
+}
+
 static int parse_args(int argc, char **argv, opts *o) {
+  /* Help first, whatever else the line holds. */
+  for (int i = 2; i < argc; i++)
+    if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
+      usage(stdout);
+      exit(0);
+    }
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-    if (check_option_mode(o->cmd, a)) return -1;
 #define NEED_VALUE                                                   \
   if (!v) {                                                          \
     fprintf(stderr, "hairfilter render: %s needs a value\n", a);     \
@@ -252,6 +319,8 @@ static int parse_args(int argc, char **argv, opts *o) {
       usage(stdout);
       exit(0);
     }
+    if (check_option_mode(o->cmd, a)) return -1;
+    if (o->n_given < (int)(sizeof o->given / sizeof o->given[0])) o->given[o->n_given++] = a;
     FLOAT_OPT("--length", o->ov.length)
     FLOAT_OPT("--clumping", o->ov.clumping)
     FLOAT_OPT("--frizz", o->ov.frizz)
@@ -379,13 +448,22 @@ static int parse_args(int argc, char **argv, opts *o) {
       errno = 0;
       long long n = strtoll(v, &end, 10);
       if (end == v || *end || errno || n < 0) {
-        fprintf(stderr, "hairfilter render: unknown option %s or bad value %s\n", a, v);
+        static const char *const ints[] = {"--strands", "--segments", "--hair-seed", "--children",
+                                           "--shadow-size", "--gt-ss", "--opaque", "--seed",
+                                           "--count", "--max-fragments", "--random-view"};
+        int known = 0;
+        for (size_t k = 0; k < sizeof ints / sizeof ints[0]; k++) known |= !strcmp(a, ints[k]);
+        if (known)
+          fprintf(stderr, "hairfilter render: %s wants a whole number of at least 0, not '%s'\n",
+                  a, v);
+        else
+          fprintf(stderr, "hairfilter render: unknown option %s\n", a);
         return -1;
       }
       if (!strcmp(a, "--strands")) o->ov.strands = (int)n;
       else if (!strcmp(a, "--segments")) o->ov.segments = (int)n;
-      else if (!strcmp(a, "--hair-seed")) o->ov.seed_set = 1, o->ov.seed = (uint64_t)n;
-      else if (!strcmp(a, "--children")) o->ov.children_set = 1, o->ov.children = (int)n;
+      else if (!strcmp(a, "--hair-seed")) o->ov.seed = (uint64_t)n;
+      else if (!strcmp(a, "--children")) o->ov.children = (int)n;
       else if (!strcmp(a, "--shadow-size")) o->view.shadow_size = (int)n;
       else if (!strcmp(a, "--gt-ss")) {
         if (n > 8) {
@@ -412,24 +490,22 @@ static int parse_args(int argc, char **argv, opts *o) {
       }
     }
   }
-  /* Overrides on top of the style's defaults. */
   hfr_style_params *s = &o->style;
-  if (o->ov.strands) s->strands = o->ov.strands;
-  if (o->ov.segments) s->segments = o->ov.segments;
-  if (o->ov.length) s->length = o->ov.length;
-  if (o->ov.clumping) s->clumping = o->ov.clumping;
-  if (o->ov.frizz) s->frizz = o->ov.frizz;
-  if (o->ov.cr) s->curl_radius = o->ov.cr;
-  if (o->ov.cp) s->curl_period = o->ov.cp;
-  if (o->ov.thick) s->thickness = o->ov.thick;
-  if (o->ov.opac) s->opacity = o->ov.opac;
-  if (o->ov.seed_set) s->seed = o->ov.seed;
-  if (o->ov.wspread) s->width_spread = o->ov.wspread;
-  if (o->ov.children_set) s->children = o->ov.children, o->asset.children.children = o->ov.children;
-  if (o->ov.thick) o->asset.thickness = o->ov.thick;
-  if (o->ov.seed_set) o->asset.children.seed = o->ov.seed;
+  /* Overrides on top of the style's defaults, 0 included where given. */
+  if (given(o, "--strands")) s->strands = o->ov.strands;
+  if (given(o, "--segments")) s->segments = o->ov.segments;
+  if (given(o, "--length")) s->length = o->ov.length;
+  if (given(o, "--clumping")) s->clumping = o->ov.clumping;
+  if (given(o, "--frizz")) s->frizz = o->ov.frizz;
+  if (given(o, "--curl-radius")) s->curl_radius = o->ov.cr;
+  if (given(o, "--curl-period")) s->curl_period = o->ov.cp;
+  if (given(o, "--thickness")) s->thickness = o->ov.thick, o->asset.thickness = o->ov.thick;
+  if (given(o, "--opacity")) s->opacity = o->ov.opac, o->asset.opacity = o->ov.opac;
+  if (given(o, "--hair-seed")) s->seed = o->ov.seed, o->asset.children.seed = o->ov.seed;
+  if (given(o, "--width-spread")) s->width_spread = o->ov.wspread;
+  if (given(o, "--children")) s->children = o->ov.children, o->asset.children.children = o->ov.children;
   if (o->random_view) hfr_view_randomize(&o->view, o->random_seed);
-  return 0;
+  return check_model_options(o);
 }
 
 /* The model and what it grows on: a .hair file as --up, --units, --children
@@ -451,7 +527,7 @@ static int load_model(const opts *o, hfr_hair *hair, hfr_mesh *occ) {
       hfr_hair_free(hair);
   }
   if (rc != HF_OK)
-    fprintf(stderr, "hairfilter render: %s: %s\n",
+    fprintf(stderr, "hairfilter render %s: %s: %s\n", o->cmd,
             o->hair_path ? o->hair_path : "style", *err ? err : hf_strerror(rc));
   return rc;
 }
@@ -653,8 +729,14 @@ static int run_fig6(opts *o) {
     o->outputs.n_st = 4;
   }
   o->outputs.spp = 0;
+  /* Its last two tiles are opaque MSAA and the ground truth. */
+  if ((given(o, "--gt-ss") && !o->outputs.gt_supersample) ||
+      (given(o, "--opaque") && !o->outputs.opaque_samples)) {
+    fprintf(stderr, "hairfilter render fig6: its tiles include opaque MSAA and the ground "
+            "truth: --opaque and --gt-ss take 1 or more here\n");
+    return 2;
+  }
   if (!o->outputs.opaque_samples) o->outputs.opaque_samples = 16;
-  if (!o->outputs.gt_supersample) o->outputs.gt_supersample = HFR_GT_SUPERSAMPLE;
   o->outputs.background_layer = !o->no_background;
   hfr_hair hair;
   hfr_mesh occ;
@@ -708,6 +790,18 @@ static int run_dataset(opts *o) {
     return 2;
   }
   if (cli_check_output_dir("hairfilter render dataset", o->out)) return 1;
+  /* The overrides every procedural frame takes, checked before any frame
+   * is drawn rather than at the first. */
+  hfr_style_params p;
+  hfr_style_defaults(HFR_STYLE_STRAIGHT, &p);
+  if (given(o, "--strands")) p.strands = o->ov.strands;
+  if (given(o, "--segments")) p.segments = o->ov.segments;
+  if (given(o, "--width-spread")) p.width_spread = o->ov.wspread;
+  char err[512] = "";
+  if (hfr_style_check(&p, err, sizeof err) != HF_OK) {
+    fprintf(stderr, "hairfilter render dataset: %s\n", err);
+    return 1;
+  }
   hfr_dataset_opts *d = &o->ds;
   d->out_dir = o->out;
   d->width = o->view.width;
@@ -717,9 +811,9 @@ static int run_dataset(opts *o) {
   memcpy(d->st_spp, o->outputs.st_spp, sizeof d->st_spp);
   d->opaque_samples = o->outputs.opaque_samples;
   d->alpha_corrected = o->outputs.alpha_corrected;
-  if (o->ov.strands) d->strands = o->ov.strands;
+  if (given(o, "--strands")) d->strands = o->ov.strands;
   else if (d->extended || d->regimes) d->strands = 0; /* density is one of the varied parameters */
-  if (o->ov.segments) d->segments = o->ov.segments;
+  if (given(o, "--segments")) d->segments = o->ov.segments;
   d->shadow_size = o->view.shadow_size;
   d->half = o->half;
   d->background_layer = !o->no_background;
@@ -727,10 +821,9 @@ static int run_dataset(opts *o) {
   d->hair_files = (const char *const *)o->hair_files;
   d->n_hair_files = o->n_hair_files;
   if (o->n_hair_files && !o->styles_set) d->n_styles = 0; /* the files alone */
-  if (o->ov.wspread) d->width_spread = o->ov.wspread;
+  if (given(o, "--width-spread")) d->width_spread = o->ov.wspread;
   d->progress = !o->quiet;
   d->platform = o->platform;
-  char err[512] = "";
   int rc = hfr_dataset_run(d, err, sizeof err);
   /* err says what and what to do; the code's name only when it is empty. */
   if (rc != HF_OK)

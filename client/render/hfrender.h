@@ -428,6 +428,8 @@ typedef struct hfr_asset_opts {
   hfr_axis up;                  /* the file's up axis */
   float scale;                  /* renderer units per file unit (hfr_units_scale); 0 = 1 */
   float thickness;              /* > 0: every strand this diameter, in the file's units */
+  float opacity;                /* in (0, 1]: every strand this opacity (1 - transparency);
+                                   0: the file's */
   hfr_children_params children; /* children.children = 0: the strands as they are */
   /* "fit" (NULL, "", "auto": the default) an ellipsoid under the roots,
    * "none", or a mesh file (hfr_mesh_load) in the file's conventions. */
@@ -439,7 +441,8 @@ void hfr_asset_defaults(hfr_asset_opts *o);
  * none (the camera frames the hair alone). */
 int hfr_asset_fitted(const hfr_asset_opts *o);
 /* Loads a .hair file as o says: widths checked (hfr_hair_check_widths, the
- * warning into warn), --thickness applied, oriented and scaled, the
+ * warning into warn), --thickness and --opacity applied (HF_EINVAL, err
+ * set, for an opacity outside [0, 1]), oriented and scaled, the
  * occluder made (fitted on the guides' roots, or loaded and oriented the
  * same way; *occ empty for none), then children grown. */
 int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hfr_mesh *occ,

@@ -31,8 +31,18 @@ int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hf
   memset(occ, 0, sizeof *occ);
   if (warn && warnlen) warn[0] = 0;
   float scale = o->scale > 0 ? o->scale : 1;
+  if (!(o->opacity >= 0 && o->opacity <= 1)) {
+    if (err) snprintf(err, errlen, "opacity %g is outside (0, 1]", o->opacity);
+    return HF_EINVAL;
+  }
   int rc = hfr_hair_load(path, hair, err, errlen);
   if (rc != HF_OK) return rc;
+  if (o->opacity > 0) {
+    /* The user's opacity, for every strand. */
+    free(hair->transparency);
+    hair->transparency = NULL;
+    hair->default_transparency = 1 - o->opacity;
+  }
   if (o->thickness > 0) {
     /* The user's diameter, for every strand. */
     free(hair->thickness);

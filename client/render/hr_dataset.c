@@ -127,6 +127,7 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
     cJSON_AddNumberToObject(h, "child_spread", cp->spread);
     cJSON_AddNumberToObject(h, "child_clumping", cp->clumping);
     if (o->asset.thickness > 0) cJSON_AddNumberToObject(h, "thickness", o->asset.thickness);
+    if (o->asset.opacity > 0) cJSON_AddNumberToObject(h, "opacity", o->asset.opacity);
   } else {
     cJSON_AddNumberToObject(h, "seed", (double)sp->seed);
     cJSON_AddNumberToObject(h, "strands", sp->strands);
@@ -391,8 +392,8 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       hfr_children_params cp = o->asset.children;
       cp.seed = seed;
       if (fi < 0) {
-        rc = hfr_hair_generate(&sp, &hair);
-        if (rc != HF_OK && err) snprintf(err, errlen, "style generation failed");
+        rc = hfr_style_check(&sp, err, errlen);
+        if (rc == HF_OK) rc = hfr_hair_generate(&sp, &hair);
         hfr_ellipsoid e;
         hfr_style_body(sp.style, &e);
         if (rc == HF_OK) rc = hfr_mesh_ellipsoid(&e, 48, 24, &body);

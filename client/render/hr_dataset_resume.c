@@ -74,6 +74,9 @@ cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
     cJSON_AddStringToObject(aj, "up", hfr_axis_name(a->up));
     cJSON_AddNumberToObject(aj, "scale", a->scale > 0 ? a->scale : 1);
     cJSON_AddNumberToObject(aj, "thickness", a->thickness);
+    /* Only when given, so that a manifest from before --opacity took .hair
+     * files still matches. */
+    if (a->opacity > 0) cJSON_AddNumberToObject(aj, "opacity", a->opacity);
     cJSON_AddStringToObject(aj, "occluder", hfr_asset_fitted(a) ? "fit" : a->occluder);
     const hfr_children_params *c = &a->children;
     cJSON_AddNumberToObject(aj, "children", c->children);
@@ -125,7 +128,7 @@ static const char *const option_names[][2] = {
     {"frame_sizes", "--frame-sizes"}, {"width_px_range", "--width-px"},
     {"opacity_range", "--opacity-range"}, {"width_spread", "--width-spread"},
     {"background_layer", "--no-background"}, {"asset.up", "--up"},
-    {"asset.scale", "--units/--scale"}, {"asset.thickness", "--thickness"},
+    {"asset.scale", "--units/--scale"}, {"asset.thickness", "--thickness"}, {"asset.opacity", "--opacity"},
     {"asset.occluder", "--occluder"}, {"asset.children", "--children"},
     {"asset.child_spread", "--child-spread"}, {"asset.child_clumping", "--child-clumping"},
 };

@@ -300,11 +300,11 @@ int hfr_style_check(const hfr_style_params *sp, char *err, size_t errlen) {
     return style_range(err, errlen, "clumping", sp->clumping, "[0, 1]");
   if (!(sp->frizz >= 0)) return style_range(err, errlen, "frizz", sp->frizz, "[0, inf)");
   if (!(sp->curl_radius >= 0))
-    return style_range(err, errlen, "curl radius", sp->curl_radius, "[0, inf)");
+    return style_range(err, errlen, "curl-radius", sp->curl_radius, "[0, inf)");
   if (!(sp->curl_period >= 0))
-    return style_range(err, errlen, "curl period", sp->curl_period, "[0, inf)");
+    return style_range(err, errlen, "curl-period", sp->curl_period, "[0, inf)");
   if (!(sp->width_spread >= 0 && sp->width_spread <= 100))
-    return style_range(err, errlen, "width spread", sp->width_spread, "[0, 100]");
+    return style_range(err, errlen, "width-spread", sp->width_spread, "[0, 100]");
   if (sp->children < 0 || sp->children > 10000)
     return style_range(err, errlen, "children", sp->children, "0..10000");
   if (sp->strands < 1 || (uint64_t)sp->strands > HFR_MAX_STRANDS) {

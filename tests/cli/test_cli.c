@@ -487,7 +487,52 @@ static void test_render_option_modes(void **state) {
   expect_text("render hair: --size is an option of render frame, fig6, dataset only");
   assert_int_equal(cli("render fig6 --png x --out %s", test_tmp("mode.png")), 2);
   expect_text("--png is an option of render frame only");
-  /* What every mode reads, and the value of an option that looks like one. */
+  assert_int_equal(cli("render fig6 --gt-ss 0 --out %s", test_tmp("mode.png")), 2);
+  expect_text("--opaque and --gt-ss take 1 or more here");
+  /* A style's shape with a .hair model, a .hair model's conventions with a
+   * style, and a dataset's per-frame widths. */
+  assert_int_equal(cli("render frame --hair %s --length 0.3 --out %s",
+                       HF_SOURCE_DIR "/tests/data/hair-default-header.hair",
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("render frame: --length shapes a procedural style");
+  assert_int_equal(cli("render frame --style wavy --up z --out %s", test_tmp("mode_frame.exr")),
+                   2);
+  expect_text("--up applies to a .hair model: give --hair FILE");
+  assert_int_equal(cli("render dataset --styles wavy --count 1 --children 3 --out %s",
+                       test_tmp("mode_set")), 2);
+  expect_text("--children applies to --hair-files");
+  assert_int_equal(cli("render dataset --styles wavy --count 1 --segments 4 --out %s",
+                       test_tmp("mode_set")), 1);
+  expect_text("render dataset: segments 4 is outside 8..1024");
+  /* 0 is a value, not "unset"; a negative count is named. */
+  assert_int_equal(cli("render hair --strands 0 --out %s", test_tmp("mode.hair")), 1);
+  expect_text("strands 0 is outside 1..");
+  assert_int_equal(cli("render hair --strands -5 --out %s", test_tmp("mode.hair")), 2);
+  expect_text("--strands wants a whole number of at least 0, not '-5'");
+  assert_int_equal(cli("render hair --opacity 0 --out %s", test_tmp("mode.hair")), 2);
+  expect_text("--opacity 0 is outside (0, 1]");
+  /* --opacity reaches a .hair model: its truth's coverage falls. */
+  const char *hair = HF_SOURCE_DIR "/tests/data/hair-default-header.hair";
+  double cover[2] = {0, 0};
+  for (int k = 0; k < 2; k++) {
+    assert_int_equal(cli("render frame --hair %s --units cm --thickness 0.05 %s --size 32x32 "
+                         "--gt-ss 2 --spp 4 --no-alpha-corrected --quiet --out %s", hair,
+                         k ? "--opacity 0.2" : "", test_tmp("mode_op.exr")), 0);
+    char err[512];
+    hf_image img;
+    assert_int_equal(hf_exr_read(test_tmp("mode_op.exr"), &img, err, sizeof err), HF_OK);
+    int a = hf_image_channel(&img, "gt.alpha");
+    assert_true(a >= 0);
+    for (size_t p = 0; p < (size_t)img.width * img.height; p++)
+      cover[k] += img.data[p * img.channels + a];
+    hf_image_free(&img);
+  }
+  assert_true(cover[0] > 1);
+  assert_true(cover[1] < 0.8 * cover[0]);
+  /* --help wins over a refusal. */
+  assert_int_equal(cli("render dataset --cam-yaw 3 --help"), 0);
+  expect_text("usage: hairfilter render");
+  /* What every mode reads, and a negative value after an option. */
   assert_int_equal(cli("render hair --style wavy --strands 20 --segments 8 --quiet --out %s",
                        test_tmp("mode.hair")), 0);
   /* A style parameter out of range is named with its range. */

@@ -325,6 +325,18 @@ static void test_asset_load(void **state) {
   assert_int_equal(occ.vertices, 0);
   assert_true(fabsf(h.default_thickness - 0.0008f) < 1e-9f);
   hfr_hair_free(&h);
+  /* --opacity replaces the file's transparency for every strand. */
+  o.opacity = 0.25f;
+  assert_int_equal(hfr_asset_load(HF_TEST_DATA "/hair-default-header.hair", &o, &h, &occ, warn,
+                                  sizeof warn, err, sizeof err), HF_OK);
+  assert_null(h.transparency);
+  assert_true(fabsf(h.default_transparency - 0.75f) < 1e-6f);
+  hfr_hair_free(&h);
+  o.opacity = 1.5f;
+  assert_int_equal(hfr_asset_load(HF_TEST_DATA "/hair-default-header.hair", &o, &h, &occ, warn,
+                                  sizeof warn, err, sizeof err), HF_EINVAL);
+  assert_non_null(strstr(err, "opacity 1.5"));
+  o.opacity = 0;
   o.occluder = "/nonexistent/head.obj";
   assert_true(hfr_asset_load(HF_TEST_DATA "/hair-default-header.hair", &o, &h, &occ, warn,
                              sizeof warn, err, sizeof err) < 0);
