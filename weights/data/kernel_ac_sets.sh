@@ -13,6 +13,9 @@
 # after 4 and 9 (their first frames, the same draws).
 #
 # Usage: weights/data/kernel_ac_sets.sh build/hairfilter data/g8train [render options]
+# The render options go to `render dataset` and, for train256, `render
+# frame`: only options both read (--gt-ss, --platform, --max-fragments,
+# ...); render refuses one its mode does not read.
 set -e
 HF=${1:?hairfilter binary}; OUT=${2:?output directory}
 shift 2
