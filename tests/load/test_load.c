@@ -8,6 +8,7 @@
  * shared memory too small for every open-loop slot takes fewer.
  * `test_load plot` draws the
  * plot (skips without gnuplot). */
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -146,8 +147,7 @@ static void test_closed_sweep(void **state) {
   assert_non_null(strstr(text, "closed-loop sweep"));
   assert_non_null(strstr(text, "unanswered 0"));
   assert_null(strstr(text, "CONNECTIONS LOST"));
-  /* stability 100 %: three windows are always within it */
-  assert_non_null(strstr(text, "(stable)"));
+  assert_true(strstr(text, "(stable)") || strstr(text, "(unstable)"));
   cJSON *doc = read_json();
   const cJSON *pts = cJSON_GetObjectItemCaseSensitive(doc, "points");
   assert_int_equal(cJSON_GetArraySize(pts), 2);
@@ -166,6 +166,24 @@ static void test_closed_sweep(void **state) {
     const cJSON *st = cJSON_GetObjectItemCaseSensitive(p, "server_stats");
     assert_non_null(st);
     assert_true(num(st, "ok") >= num(p, "frames"));
+    /* The verdict is the rule's on the windows it reports: stable when the
+     * 3 windows' throughput, p50 and p99 are each within 100 % of their
+     * mean. Whether they are depends on the machine's other load, so the
+     * verdict is checked against the figures rather than assumed. */
+    const cJSON *wr = cJSON_GetObjectItemCaseSensitive(p, "window_results");
+    int nw = cJSON_GetArraySize(wr);
+    assert_true(nw >= 1 && nw <= 3 && nw == (int)num(p, "windows"));
+    int agree = nw == 3;
+    const char *keys[3] = {"throughput", "p50_ms", "p99_ms"};
+    for (int k = 0; agree && k < 3; k++) {
+      double v[3], mean = 0;
+      for (int w = 0; w < 3; w++) mean += (v[w] = num(cJSON_GetArrayItem(wr, w), keys[k])) / 3;
+      for (int w = 0; w < 3; w++) agree &= fabs(v[w] - mean) <= fabs(mean);
+      if (k == 0) agree &= v[0] > 0;
+    }
+    const cJSON *verdict = cJSON_GetObjectItemCaseSensitive(p, "stability");
+    assert_true(cJSON_IsString(verdict));
+    assert_string_equal(verdict->valuestring, agree ? "stable" : "unstable");
   }
   cJSON_Delete(doc);
   /* CSV: a header and a row per point, as many columns each. */
