@@ -56,7 +56,7 @@ static void usage(FILE *f) {
     "           --width-px MIN,MAX (regimes: strand width in pixels, default 0.004,4)\n"
     "           --opacity-range MIN,MAX (regimes: strand opacity, default 0.2,1; 1,1: opaque)\n"
     "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
-    "           --occluder apply to them)\n"
+    "           --thickness, --opacity, --occluder apply to them)\n"
     "         a ground truth too dense for one A-buffer is drawn in bands of rows; a frame\n"
     "         whose single rows do not fit is left out (manifest \"skipped\") and the run\n"
     "         goes on; --max-fragments N lowers that limit (default and most 67108864)\n"
@@ -236,8 +236,22 @@ static int check_option_mode(const char *mode, const char *a) {
       if (option_modes[i].modes & (1 << k))
         snprintf(which + strlen(which), sizeof which - strlen(which), "%s%s",
                  *which ? ", " : "", names[k]);
-    fprintf(stderr, "hairfilter render %s: %s is an option of render %s only; leave it out "
-            "here\n", mode, a, which);
+    /* The option of this mode a user most likely meant. */
+    static const char *const siblings[][3] = {
+        {"dataset", "--hair", "--hair-files"}, {"dataset", "--style", "--styles"},
+        {"frame", "--hair-files", "--hair"},   {"fig6", "--hair-files", "--hair"},
+        {"hair", "--hair-files", "--hair"},    {"frame", "--styles", "--style"},
+        {"fig6", "--styles", "--style"},       {"hair", "--styles", "--style"},
+        {"hair", "--seed", "--hair-seed"}};
+    const char *instead = NULL;
+    for (size_t k = 0; k < sizeof siblings / sizeof siblings[0]; k++)
+      if (!strcmp(mode, siblings[k][0]) && !strcmp(a, siblings[k][1])) instead = siblings[k][2];
+    if (instead)
+      fprintf(stderr, "hairfilter render %s: %s is an option of render %s only; here it is "
+              "%s\n", mode, a, which, instead);
+    else
+      fprintf(stderr, "hairfilter render %s: %s is an option of render %s only; leave it out "
+              "here\n", mode, a, which);
     return -1;
   }
   return 0;
@@ -277,6 +291,44 @@ static int check_model_options(const opts *o) {
   if (given(o, "--thickness") && !(o->ov.thick > 0)) {
     fprintf(stderr, "hairfilter render %s: --thickness %g: a diameter above 0\n", o->cmd,
             o->ov.thick);
+    return -1;
+  }
+  if (given(o, "--scale") && !(o->asset.scale > 0)) {
+    fprintf(stderr, "hairfilter render %s: --scale %g: renderer units per file unit, above 0\n",
+            o->cmd, o->asset.scale);
+    return -1;
+  }
+  if (dataset) {
+    /* What only --regimes reads, and what it draws itself. */
+    static const char *const regimes_only[] = {"--frame-sizes", "--width-px", "--opacity-range"};
+    for (size_t k = 0; k < 3; k++)
+      if (!o->ds.regimes && given(o, regimes_only[k])) {
+        fprintf(stderr, "hairfilter render dataset: %s applies to --regimes\n", regimes_only[k]);
+        return -1;
+      }
+    if (o->ds.regimes && given(o, "--width-spread")) {
+      fprintf(stderr, "hairfilter render dataset: --regimes draws each frame's clump width "
+              "spread itself: leave out --width-spread\n");
+      return -1;
+    }
+    if (!styles && given(o, "--opacity-range")) {
+      fprintf(stderr, "hairfilter render dataset: --opacity-range draws the procedural --styles' "
+              "opacity; for --hair-files give --opacity\n");
+      return -1;
+    }
+  }
+  /* A style's parameters, checked here so that a bad value is a usage
+   * error (exit 2) like every other, before anything is opened. */
+  char err[512] = "";
+  hfr_style_params p = o->style;
+  if (dataset) {
+    hfr_style_defaults(HFR_STYLE_STRAIGHT, &p);
+    if (given(o, "--strands")) p.strands = o->ov.strands;
+    if (given(o, "--segments")) p.segments = o->ov.segments;
+    if (given(o, "--width-spread")) p.width_spread = o->ov.wspread;
+  }
+  if (styles && hfr_style_check(&p, err, sizeof err) != HF_OK) {
+    fprintf(stderr, "hairfilter render %s: %s\n", o->cmd, err);
     return -1;
   }
   /* A dataset draws its styles' widths, opacities and children itself. */
@@ -790,18 +842,7 @@ static int run_dataset(opts *o) {
     return 2;
   }
   if (cli_check_output_dir("hairfilter render dataset", o->out)) return 1;
-  /* The overrides every procedural frame takes, checked before any frame
-   * is drawn rather than at the first. */
-  hfr_style_params p;
-  hfr_style_defaults(HFR_STYLE_STRAIGHT, &p);
-  if (given(o, "--strands")) p.strands = o->ov.strands;
-  if (given(o, "--segments")) p.segments = o->ov.segments;
-  if (given(o, "--width-spread")) p.width_spread = o->ov.wspread;
   char err[512] = "";
-  if (hfr_style_check(&p, err, sizeof err) != HF_OK) {
-    fprintf(stderr, "hairfilter render dataset: %s\n", err);
-    return 1;
-  }
   hfr_dataset_opts *d = &o->ds;
   d->out_dir = o->out;
   d->width = o->view.width;

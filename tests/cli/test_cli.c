@@ -502,10 +502,10 @@ static void test_render_option_modes(void **state) {
                        test_tmp("mode_set")), 2);
   expect_text("--children applies to --hair-files");
   assert_int_equal(cli("render dataset --styles wavy --count 1 --segments 4 --out %s",
-                       test_tmp("mode_set")), 1);
+                       test_tmp("mode_set")), 2);
   expect_text("render dataset: segments 4 is outside 8..1024");
   /* 0 is a value, not "unset"; a negative count is named. */
-  assert_int_equal(cli("render hair --strands 0 --out %s", test_tmp("mode.hair")), 1);
+  assert_int_equal(cli("render hair --strands 0 --out %s", test_tmp("mode.hair")), 2);
   expect_text("strands 0 is outside 1..");
   assert_int_equal(cli("render hair --strands -5 --out %s", test_tmp("mode.hair")), 2);
   expect_text("--strands wants a whole number of at least 0, not '-5'");
@@ -529,6 +529,23 @@ static void test_render_option_modes(void **state) {
   }
   assert_true(cover[0] > 1);
   assert_true(cover[1] < 0.8 * cover[0]);
+  /* What --regimes draws itself, what only it reads, and the option of this
+   * mode a user most likely meant. */
+  assert_int_equal(cli("render dataset --styles wavy --count 1 --regimes --width-spread 2 "
+                       "--out %s", test_tmp("mode_set")), 2);
+  expect_text("--regimes draws each frame's clump width spread itself");
+  assert_int_equal(cli("render dataset --styles wavy --count 1 --opacity-range 0.2,0.5 --out %s",
+                       test_tmp("mode_set")), 2);
+  expect_text("--opacity-range applies to --regimes");
+  assert_int_equal(cli("render dataset --hair-files %s --regimes --opacity-range 0.2,0.5 "
+                       "--count 1 --out %s", hair, test_tmp("mode_set")), 2);
+  expect_text("for --hair-files give --opacity");
+  assert_int_equal(cli("render dataset --hair %s --count 1 --out %s", hair, test_tmp("mode_set")),
+                   2);
+  expect_text("here it is --hair-files");
+  assert_int_equal(cli("render frame --hair %s --scale 0 --out %s", hair,
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("--scale 0: renderer units per file unit, above 0");
   /* --help wins over a refusal. */
   assert_int_equal(cli("render dataset --cam-yaw 3 --help"), 0);
   expect_text("usage: hairfilter render");
@@ -537,7 +554,7 @@ static void test_render_option_modes(void **state) {
                        test_tmp("mode.hair")), 0);
   /* A style parameter out of range is named with its range. */
   assert_int_equal(cli("render hair --style wavy --strands 20 --segments 4 --out %s",
-                       test_tmp("mode.hair")), 1);
+                       test_tmp("mode.hair")), 2);
   expect_text("segments 4 is outside 8..1024");
   assert_int_equal(cli("render frame --size 16x16 --strands 50 --gt-ss 0 --st 4 --quiet "
                        "--cam-pitch -20 --out %s", test_tmp("mode_frame.exr")), 0);
