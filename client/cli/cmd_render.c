@@ -293,6 +293,22 @@ static int check_model_options(const opts *o) {
             o->ov.thick);
     return -1;
   }
+  /* A .hair model's children, in hfr_hair_interpolate's ranges. */
+  const hfr_children_params *c = &o->asset.children;
+  if (files && given(o, "--children") && (c->children < 0 || c->children > 10000)) {
+    fprintf(stderr, "hairfilter render %s: --children %d is outside 0..10000\n", o->cmd,
+            c->children);
+    return -1;
+  }
+  if (files && given(o, "--child-spread") && !(c->spread >= 0)) {
+    fprintf(stderr, "hairfilter render %s: --child-spread %g is below 0\n", o->cmd, c->spread);
+    return -1;
+  }
+  if (files && given(o, "--child-clumping") && !(c->clumping >= 0 && c->clumping <= 1)) {
+    fprintf(stderr, "hairfilter render %s: --child-clumping %g is outside [0, 1]\n", o->cmd,
+            c->clumping);
+    return -1;
+  }
   if (given(o, "--scale") && !(o->asset.scale > 0)) {
     fprintf(stderr, "hairfilter render %s: --scale %g: renderer units per file unit, above 0\n",
             o->cmd, o->asset.scale);

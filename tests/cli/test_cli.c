@@ -546,6 +546,9 @@ static void test_render_option_modes(void **state) {
   assert_int_equal(cli("render frame --hair %s --scale 0 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--scale 0: renderer units per file unit, above 0");
+  assert_int_equal(cli("render frame --hair %s --children 2 --child-clumping 2 --out %s", hair,
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("--child-clumping 2 is outside [0, 1]");
   /* --help wins over a refusal. */
   assert_int_equal(cli("render dataset --cam-yaw 3 --help"), 0);
   expect_text("usage: hairfilter render");
