@@ -587,8 +587,7 @@ static int load_model(const opts *o, hfr_hair *hair, hfr_mesh *occ) {
     rc = hfr_asset_load(o->hair_path, &o->asset, hair, occ, warn, sizeof warn, err, sizeof err);
     if (*warn) fprintf(stderr, "hairfilter render: warning: %s: %s\n", o->hair_path, warn);
   } else {
-    if ((rc = hfr_style_check(&o->style, err, sizeof err)) == HF_OK)
-      rc = hfr_hair_generate(&o->style, hair);
+    rc = hfr_hair_generate(&o->style, hair);  /* parameters checked in parse_args */
     hfr_ellipsoid body;
     hfr_style_body(o->style.style, &body);
     if (rc == HF_OK && (rc = hfr_mesh_ellipsoid(&body, 48, 24, occ)) != HF_OK)
