@@ -300,6 +300,15 @@ static int check_model_options(const opts *o) {
             c->children);
     return -1;
   }
+  /* Children are grown only where --children asks for them. */
+  static const char *const child_shape[] = {"--child-spread", "--child-clumping"};
+  for (size_t k = 0; files && k < 2; k++)
+    if (given(o, child_shape[k]) && c->children <= 0) {
+      fprintf(stderr, "hairfilter render %s: %s shapes the children --children N grows, and "
+              "none are grown: give --children N above 0, or leave %s out\n", o->cmd,
+              child_shape[k], child_shape[k]);
+      return -1;
+    }
   if (files && given(o, "--child-spread") && !(c->spread >= 0)) {
     fprintf(stderr, "hairfilter render %s: --child-spread %g is below 0\n", o->cmd, c->spread);
     return -1;

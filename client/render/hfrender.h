@@ -193,7 +193,7 @@ typedef struct hfr_style_params {
   float thickness;              /* strand diameter */
   float opacity;                /* strand opacity (1 - transparency) */
   float width_spread;           /* per clump: diameter x s^u, u uniform in [-1, 1]; 0/1 none */
-  int children;                 /* spiky, fur: children per guide (>= 0) */
+  int children;                 /* spiky, fur: children per guide (>= 0); others 0 */
 } hfr_style_params;
 
 const char *hfr_style_name(hfr_style s);
@@ -205,7 +205,8 @@ int hfr_style_defaults(hfr_style s, hfr_style_params *p);
  * HFR_MAX_STRANDS, segments 8 to 1024, strands x (segments + 1) at most
  * HFR_MAX_POINTS, length and thickness above 0, opacity in (0, 1], clumping
  * in [0, 1], frizz and the curl's radius and period at least 0, width_spread
- * in [0, 100], children 0 to 10000. HF_OK; HF_EINVAL or HF_ERANGE (too many
+ * in [0, 100], children 0 to 10000 (above 0 on spiky and fur only, the
+ * styles grown from guides). HF_OK; HF_EINVAL or HF_ERANGE (too many
  * strands or points) with err naming the parameter, its value and its range
  * (err may be NULL). */
 int hfr_style_check(const hfr_style_params *p, char *err, size_t errlen);

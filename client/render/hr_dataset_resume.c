@@ -164,12 +164,66 @@ static int first_difference(const cJSON *want, const cJSON *have, const char *pr
   return 0;
 }
 
+/* A number as it was given: the options record holds floats widened to
+ * double (0.7f is 0.699999988079071), so a value a float holds exactly is
+ * printed with the fewest digits that give the same float back ("0.7"),
+ * any other with the fewest that give the same double back. */
+static void number_text(double v, char *out, size_t len) {
+  const int as_float = (double)(float)v == v;
+  for (int p = 1; p <= 17; p++) {
+    snprintf(out, len, "%.*g", p, v);
+    double back = strtod(out, NULL);
+    if (as_float ? (float)back == (float)v : back == v) return;
+  }
+}
+
+/* v as one line of JSON with its numbers as number_text writes them,
+ * appended at out + *used (never past len - 1). */
+static void append_json(const cJSON *v, char *out, size_t len, size_t *used) {
+  char num[32];
+  const char *t = NULL;
+  char *owned = NULL;
+  if (cJSON_IsNumber(v)) {
+    number_text(v->valuedouble, num, sizeof num);
+    t = num;
+  } else if (cJSON_IsArray(v) || cJSON_IsObject(v)) {
+    const int obj = cJSON_IsObject(v);
+    if (*used + 1 < len) out[(*used)++] = obj ? '{' : '[';
+    const cJSON *it;
+    cJSON_ArrayForEach(it, v) {
+      if (it != v->child && *used + 1 < len) out[(*used)++] = ',';
+      if (obj && it->string && *used + 1 < len)
+        *used += (size_t)snprintf(out + *used, len - *used, "\"%s\":", it->string);
+      if (*used >= len) *used = len - 1;
+      append_json(it, out, len, used);
+    }
+    if (*used + 1 < len) out[(*used)++] = obj ? '}' : ']';
+    out[*used] = 0;
+    return;
+  } else if (v) {
+    t = owned = cJSON_PrintUnformatted(v);
+  }
+  if (t && *used + 1 < len) {
+    *used += (size_t)snprintf(out + *used, len - *used, "%s", t);
+    if (*used >= len) *used = len - 1;
+  }
+  free(owned);
+}
+
 /* A value for a message: JSON on one line, cut to fit. */
 static void value_text(const cJSON *v, char *out, size_t len) {
-  char *t = v ? cJSON_PrintUnformatted(v) : NULL;
-  snprintf(out, len, "%s", t ? t : "(none)");
-  if (t && strlen(t) >= len && len > 4) memcpy(out + len - 4, "...", 4);
-  free(t);
+  if (len < 8) {
+    if (len) *out = 0;
+    return;
+  }
+  size_t used = 0;
+  *out = 0;
+  if (!v) {
+    snprintf(out, len, "(none)");
+    return;
+  }
+  append_json(v, out, len, &used);
+  if (used >= len - 1) memcpy(out + len - 4, "...", 4);
 }
 
 /* The index of a frame file "{source}_{i:04d}.exr", or -1. */

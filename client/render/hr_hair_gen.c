@@ -307,6 +307,14 @@ int hfr_style_check(const hfr_style_params *sp, char *err, size_t errlen) {
     return style_range(err, errlen, "width-spread", sp->width_spread, "[0, 100]");
   if (sp->children < 0 || sp->children > 10000)
     return style_range(err, errlen, "children", sp->children, "0..10000");
+  /* Only the styles grown from guides have children to grow; elsewhere the
+   * count would be dropped without a word. */
+  if (sp->children > 0 && sp->style != HFR_STYLE_SPIKY && sp->style != HFR_STYLE_FUR) {
+    if (err && errlen)
+      snprintf(err, errlen, "children %d: the %s style draws every strand itself; children "
+               "grow on the guides of spiky and fur only", sp->children, hfr_style_name(sp->style));
+    return HF_EINVAL;
+  }
   if (sp->strands < 1 || (uint64_t)sp->strands > HFR_MAX_STRANDS) {
     if (err && errlen)
       snprintf(err, errlen, "strands %d is outside 1..%u", sp->strands, HFR_MAX_STRANDS);

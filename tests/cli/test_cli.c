@@ -455,6 +455,11 @@ static void test_render_dataset_resume(void **state) {
   expect_text("--seed (\"seed\") is \"7\" there, \"8\" here");
   assert_int_equal(cli("render dataset %s --count 2 --gt-ss 4 --resume --out %s", opt, part), 1);
   expect_text("--gt-ss (\"gt_supersample\") is 8 there, 4 here");
+  /* A float option is named as given, not as its float widened to double
+   * (0.699999988...). */
+  assert_int_equal(cli("render dataset %s --count 2 --width-spread 0.7 --resume --out %s", opt,
+                       part), 1);
+  expect_text("--width-spread (\"width_spread\") is 0 there, 0.7 here");
   /* A smaller count would leave listed frames on disk outside the set. */
   assert_int_equal(cli("render dataset %s --count 1 --resume --out %s", opt, part), 1);
   expect_text("lists straight_0001.exr, beyond --count 1: resume with --count 2 or more");
@@ -549,6 +554,19 @@ static void test_render_option_modes(void **state) {
   assert_int_equal(cli("render frame --hair %s --children 2 --child-clumping 2 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--child-clumping 2 is outside [0, 1]");
+  /* Children where none are grown: a style drawn strand by strand, and a
+   * .hair model without --children. */
+  assert_int_equal(cli("render frame --style straight --children 8 --out %s",
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("children 8: the straight style draws every strand itself");
+  assert_int_equal(cli("render frame --style fur --strands 160 --children 7 --size 16x16 --quiet "
+                       "--gt-ss 1 --st 4 --out %s", test_tmp("mode_frame.exr")), 0);
+  assert_int_equal(cli("render frame --hair %s --child-spread 0.5 --out %s", hair,
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("--child-spread shapes the children --children N grows, and none are grown");
+  assert_int_equal(cli("render dataset --hair-files %s --children 0 --child-clumping 0.5 "
+                       "--count 1 --out %s", hair, test_tmp("mode_set")), 2);
+  expect_text("--child-clumping shapes the children");
   /* --help wins over a refusal. */
   assert_int_equal(cli("render dataset --cam-yaw 3 --help"), 0);
   expect_text("usage: hairfilter render");
