@@ -33,6 +33,7 @@
 #include "server.h"
 
 static void read_next(hfd_conn *c);
+static void job_free(hfd_server *s, hfd_job *j);
 static void conn_idle_check(hfd_conn *c);
 static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf);
 static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
@@ -136,13 +137,82 @@ static void conn_release(hfd_conn *c) {
   hfd_maybe_finish(s);
 }
 
+/* After a fatal ERROR over TCP the connection closes only once its peer
+ * can have read it. Closing a TCP socket whose receive queue holds unread
+ * bytes (the rest of the bad frame, requests pipelined behind it) makes the
+ * kernel send a reset, and a reset throws away what is still on its way to
+ * the peer: the ERROR and the results written before it. So the server
+ * half-closes (the peer reads the ERROR, then the end of the stream), reads
+ * and drops what the peer still sends, and closes at the peer's end of
+ * stream, on a read error, or after HFD_LINGER_MS (hfd_sweep_stalled), as
+ * HTTP servers do in their "lingering close". Unix sockets keep queued data
+ * whatever the receiver left unread, and TLS connections close at once
+ * (their close_notify ends the stream). Without a sweep timer (every
+ * timeout disabled) nothing would bound the wait, so they close at once
+ * too. */
+#define HFD_LINGER_MS 2000
+
+static void linger_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
+  hfd_conn *c = h->data;
+  (void)suggested;
+  *buf = uv_buf_init((char *)c->sink, sizeof c->sink);
+}
+
+static void linger_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
+  (void)buf;
+  if (nread < 0) hfd_conn_close(stream->data); /* end of stream, or the peer is gone */
+}
+
+static void on_linger_shutdown(uv_shutdown_t *req, int status) {
+  hfd_conn *c = req->data;
+  free(req);
+  c->writes_pending--;
+  if (status < 0) hfd_conn_close(c);
+  conn_release(c);
+}
+
+static void fatal_linger(hfd_conn *c) {
+  if (c->closing) return;
+  if (c->tls || c->is_pipe || c->eof || !uv_is_active((uv_handle_t *)&c->srv->sweep_timer)) {
+    hfd_conn_close(c);
+    return;
+  }
+  uv_shutdown_t *req = malloc(sizeof *req);
+  if (!req) {
+    hfd_conn_close(c);
+    return;
+  }
+  req->data = c;
+  if (uv_shutdown(req, &c->h.stream, on_linger_shutdown) < 0) {
+    free(req);
+    hfd_conn_close(c);
+    return;
+  }
+  c->writes_pending++;
+  c->lingering = c->shutting = 1;
+  c->t_linger = hfd_now_us();
+  if (c->job) {
+    /* A FILTER half received when the error came: dropped. */
+    job_free(c->srv, c->job);
+    c->job = NULL;
+  }
+  int rc = uv_read_start(&c->h.stream, linger_alloc, linger_read);
+  if (rc < 0) {
+    hfd_debug("conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
+    hfd_conn_close(c);
+  }
+}
+
 static void on_ctl_written(uv_write_t *req, int status) {
   ctl_write *w = (ctl_write *)req;
   hfd_conn *c = w->c;
   wrote_one(c);
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: write failed: %s", (unsigned long long)c->id, uv_strerror(status));
-  if (w->close_after || status < 0) hfd_conn_close(c);
+  if (status < 0)
+    hfd_conn_close(c);
+  else if (w->close_after)
+    fatal_linger(c);
   free(w);
   conn_release(c);
 }
@@ -285,7 +355,8 @@ static void deliver(hfd_server *s, hfd_job *j) {
   s->mem_held -= j->infer_bytes;
   j->bytes_held -= j->infer_bytes;
   j->infer_bytes = 0;
-  if (c->closing) {
+  /* Nothing follows a fatal ERROR (PROTOCOL.md, "Errors"). */
+  if (c->closing || c->fatal_sent) {
     s->replies_lost++;
     job_free(s, j);
     conn_release(c);
@@ -892,10 +963,12 @@ static void shm_create(hfd_conn *c) {
   hfd_server *s = c->srv;
   uint64_t bytes;
   if (hfp_decode_shm_create(c->ctl, c->want, &bytes)) {
+    s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_INVALID, 0, "segment size must be at least 1 byte");
     return;
   }
   if (c->num_segs >= HFD_MAX_SEGMENTS) {
+    s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
     return;
   }
@@ -904,6 +977,7 @@ static void shm_create(hfd_conn *c) {
   int fd;
   int code = hfd_seg_create(s, bytes, &g, &fd, why, sizeof why);
   if (code) {
+    s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, code, 0, "%s", why);
     return;
   }
@@ -922,6 +996,7 @@ static void shm_create(hfd_conn *c) {
     if (fd >= 0) close(fd);
     free(w);
     hfd_seg_drop(s, g);
+    s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_INTERNAL, 0, "cannot pass the segment: %s", uv_strerror(rc));
     return;
   }
@@ -934,6 +1009,7 @@ static void shm_create(hfd_conn *c) {
     w->fdpipe.data = w;
     uv_close((uv_handle_t *)&w->fdpipe, on_fdpipe_closed);
     hfd_seg_drop(s, g);
+    s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_INTERNAL, 0, "cannot pass the segment: %s", uv_strerror(rc));
     return;
   }
@@ -946,12 +1022,14 @@ static void shm_create(hfd_conn *c) {
 }
 
 static void shm_destroy(hfd_conn *c) {
+  hfd_server *s = c->srv;
   uint32_t id = 0;
   hfd_seg **pp = &c->segs;
   if (hfp_decode_shm_destroy(c->ctl, c->want, &id) == 0)
     for (; *pp; pp = &(*pp)->next)
       if ((*pp)->id == id) break;
   if (!id || !*pp) {
+    s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_INVALID, 0, "no segment %u on this connection", id);
     return;
   }
@@ -1157,6 +1235,10 @@ static void on_shutdown(uv_shutdown_t *req, int status) {
 
 /* Flushes what is written, then closes. */
 void hfd_conn_shutdown(hfd_conn *c) {
+  if (c->lingering) {
+    hfd_conn_close(c); /* its ERROR is out; the server is stopping */
+    return;
+  }
   if (c->closing || c->shutting) return;
   c->shutting = 1;
   read_stop(c);
@@ -1188,6 +1270,10 @@ void hfd_sweep_stalled(hfd_server *s) {
   for (hfd_conn *c = s->conns, *next; c; c = next) {
     next = c->next;
     if (c->closing) continue;
+    if (c->lingering) {
+      if (now - c->t_linger > HFD_LINGER_MS * 1e3) hfd_conn_close(c);
+      continue;
+    }
     /* Replies waiting: has the peer read any of them lately? */
     if (c->writes_pending && stall_us > 0) {
       uint64_t written = c->bytes_queued - (uint64_t)hfd_io_write_queue_size(c);

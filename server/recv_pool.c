@@ -13,9 +13,9 @@
  * the kernel gives them: fewer faults and TLB misses), so frames of nearby
  * sizes share them.
  *
- * Bounded and accounted: idle buffers, and the part of a lent buffer its
- * frame has not been charged for yet, are counted in the memory the daemon
- * commits (hfd_rpool_reserve, next to mem_held), so --max-memory-mb holds
+ * Bounded and accounted: idle buffers, and the part of a lent idle buffer
+ * its frame has not been charged for yet, are counted in the memory the
+ * daemon commits (hfd_rpool_reserve, next to mem_held), so --max-memory-mb holds
  * with the pool; idle buffers and the backends' cached plans together stay
  * within the worker's cache_cap, and the least recently used idle buffer
  * goes first whenever a frame needs the room (hfd_rpool_shrink). Frames
@@ -128,19 +128,25 @@ void *hfd_rpool_take(hfd_rpool *p, size_t bytes) {
   for (hfd_rbuf *b = p->bufs; b; b = b->next)
     if (!b->lent && b->cap >= bytes && b->cap / 2 <= bytes && (!best || b->cap < best->cap))
       best = b;
+  uint64_t resident;
   if (best) {
     atomic_fetch_sub(&p->idle_bytes, best->cap);
     p->hits++;
+    resident = best->cap; /* faulted in: stays counted, now as lent */
   } else {
     /* Not populated here: the loop thread would stall for the whole
-     * frame's faults at once; they happen as the bytes arrive instead. */
+     * frame's faults at once; they happen as the bytes arrive instead, and
+     * the frame is charged for those bytes as they do (hfd_rpool_take's
+     * comment in server.h). */
     size_t cap = round_step(bytes);
     if (cap < bytes || !(best = map_new(p, cap, 0))) return NULL;
     p->misses++;
+    resident = 0;
   }
   best->lent = 1;
   best->charged = 0;
-  p->lent_uncharged += best->cap;
+  best->reserved = resident;
+  p->lent_uncharged += resident;
   return best->addr;
 }
 
@@ -149,7 +155,9 @@ void hfd_rpool_charge(hfd_rpool *p, const void *addr, uint64_t n) {
   if (!b || !b->lent) return;
   if (n > b->cap - b->charged) n = b->cap - b->charged;
   b->charged += n;
-  p->lent_uncharged -= n;
+  uint64_t r = n < b->reserved ? n : b->reserved;
+  b->reserved -= r;
+  p->lent_uncharged -= r;
 }
 
 void hfd_rpool_give(hfd_rpool *p, void *addr, uint64_t cache_bytes, uint64_t cache_cap) {
@@ -159,9 +167,10 @@ void hfd_rpool_give(hfd_rpool *p, void *addr, uint64_t cache_bytes, uint64_t cac
     free(addr);
     return;
   }
-  p->lent_uncharged -= b->cap - b->charged;
+  p->lent_uncharged -= b->reserved;
   b->lent = 0;
   b->charged = 0;
+  b->reserved = 0;
   b->last_use = ++p->clock;
   /* Kept while idle buffers and the backends' cache fit cache_cap, older
    * idle buffers making way for it. */

@@ -341,6 +341,7 @@ typedef struct hfd_rbuf {
   void *addr;
   size_t cap;                    /* bytes mapped */
   uint64_t charged;              /* lent: bytes its frame has been charged */
+  uint64_t reserved;             /* lent: of its uncharged bytes, those resident */
   uint64_t last_use;             /* idle: when it came back (pool clock) */
   int lent;
 } hfd_rbuf;
@@ -356,8 +357,12 @@ typedef struct hfd_rpool {
 
 /* A buffer of at least bytes, 64-byte aligned: an idle pooled one, a new
  * mapping (from HFD_RPOOL_MIN up), or malloc's; NULL when out of memory.
- * Its bytes count in hfd_rpool_reserve until hfd_rpool_charge says a frame
- * has been charged for them. */
+ * An idle buffer's bytes are resident: they count in hfd_rpool_reserve
+ * until hfd_rpool_charge says a frame has been charged for them. A new
+ * mapping's pages become resident only as bytes land in them, which the
+ * frame is charged for as they arrive, so none of it is reserved: a peer
+ * that sends a large frame's head and then trickles holds what it sent,
+ * not the whole frame. */
 void *hfd_rpool_take(hfd_rpool *p, size_t bytes);
 /* n more bytes of addr's buffer are charged to its frame (mem_held). */
 void hfd_rpool_charge(hfd_rpool *p, const void *addr, uint64_t n);
@@ -425,6 +430,8 @@ typedef struct hfd_conn {
   int shutting;                  /* uv_shutdown sent: flushing, then closing */
   int closing;                   /* uv_close called or pending */
   int fatal_sent;                /* reading stopped, closing after the write */
+  int lingering;                 /* fatal ERROR written: half-closed, draining input */
+  double t_linger;               /* when lingering began */
   int handle_closed;
   int inflight;                  /* jobs admitted and not yet answered */
   int writes_pending;

@@ -303,7 +303,9 @@ int reference(const ref_variant *v, int w, int h, const void *in, int in_dtype, 
 
 /* ---- raw sockets ------------------------------------------------------- */
 
-int raw_connect(const char *url) {
+int raw_connect(const char *url) { return raw_connect_rcvbuf(url, 0); }
+
+int raw_connect_rcvbuf(const char *url, int rcvbuf) {
   int fd = -1;
   hfp_url u;
   if (hfp_url_parse(url, 0, &u, NULL, 0)) return -1;
@@ -313,6 +315,7 @@ int raw_connect(const char *url) {
     sun.sun_family = AF_UNIX;
     snprintf(sun.sun_path, sizeof sun.sun_path, "%s", u.path);
     fd = socket(AF_UNIX, SOCK_STREAM, 0);
+    if (fd >= 0 && rcvbuf > 0) setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &rcvbuf, sizeof rcvbuf);
     if (fd < 0 || connect(fd, (struct sockaddr *)&sun, sizeof sun)) {
       if (fd >= 0) close(fd);
       return -1;
@@ -324,6 +327,7 @@ int raw_connect(const char *url) {
     hints.ai_socktype = SOCK_STREAM;
     if (getaddrinfo(u.host, port, &hints, &res)) return -1;
     fd = socket(res->ai_family, SOCK_STREAM, 0);
+    if (fd >= 0 && rcvbuf > 0) setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &rcvbuf, sizeof rcvbuf);
     if (fd < 0 || connect(fd, res->ai_addr, res->ai_addrlen)) {
       if (fd >= 0) close(fd);
       freeaddrinfo(res);

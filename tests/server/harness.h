@@ -98,6 +98,9 @@ int reference(const ref_variant *v, int w, int h, const void *in, int in_dtype, 
 
 /* Raw sockets (blocking, 10 s timeouts). */
 int raw_connect(const char *url);
+/* raw_connect with the socket's receive buffer set to rcvbuf bytes before
+ * it connects (0: the system's), so that a peer's replies back up. */
+int raw_connect_rcvbuf(const char *url, int rcvbuf);
 int raw_send(int fd, const void *buf, size_t n);
 /* Sends HELLO and reads HELLO_OK; 0 on success. */
 int raw_hello(int fd, const char *token);

@@ -11,6 +11,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -311,6 +312,68 @@ static void test_unsent_answers_not_counted(void **state) {
   free(in);
 }
 
+/* Item: a fatal ERROR over TCP reaches a peer that sent more after the bad
+ * frame and is slow to read: after every RESULT queued before it, and then
+ * the end of the stream, not a reset. Closing a socket with unread input
+ * makes the kernel reset the connection and drop what is still on its way
+ * to the peer (PROTOCOL.md, "Errors": the client reads the ERROR before it
+ * sees the connection broken). */
+static void test_fatal_error_reaches_a_slow_reader(void **state) {
+  (void)state;
+  enum { N = 24, W = 64, HH = 64 };
+  float *in = make_features(W, HH, 2, 17);
+  size_t len;
+  uint8_t *f = raw_filter(1, "Tiny", W, HH, 2, in, &len);
+  int fd = raw_connect_rcvbuf(S.tcp_url, 4096);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello(fd, TEST_TOKEN), 0);
+  for (int i = 0; i < N; i++) {
+    hfp_put_u32(f + 8, (uint32_t)i + 1);
+    assert_int_equal(raw_send(fd, f, len), 0);
+  }
+  /* Every frame computed, its RESULT queued behind the small window. */
+  hfc_client *c = NULL;
+  hfc_options o = test_options("queue", NULL, 20000);
+  assert_int_equal(hfc_connect(S.unix_url, &o, &c), 0);
+  double t0 = now_ms();
+  for (;;) {
+    hfc_stats st;
+    assert_int_equal(hfc_get_stats(c, &st), 0);
+    if (st.queue_depth == 0) break;
+    assert_true(now_ms() - t0 < 20000);
+    sleep_ms(50);
+  }
+  hfc_close(c);
+  sleep_ms(300);
+  /* A frame whose header is not one, and bytes the server never reads. */
+  uint8_t bad[HFP_HEADER_SIZE + 1000];
+  memset(bad, 'j', sizeof bad);
+  memset(bad, 0xee, 4);
+  assert_int_equal(raw_send(fd, bad, sizeof bad), 0);
+  sleep_ms(300);
+  for (int i = 0; i < N; i++) {
+    hfp_header h;
+    uint8_t *p;
+    if (raw_read(fd, &h, &p)) fail_msg("RESULT %d of %d lost to the close", i + 1, N);
+    assert_int_equal(h.type, HFP_RESULT);
+    assert_int_equal(h.request_id, (uint32_t)i + 1);
+    free(p);
+  }
+  hfp_header h;
+  hfp_error e;
+  if (raw_read_error(fd, &h, &e)) fail_msg("the fatal ERROR was lost to the close");
+  assert_int_equal(e.code, HFP_E_PROTOCOL);
+  assert_int_equal(e.fatal, 1);
+  char byte;
+  ssize_t r = recv(fd, &byte, 1, 0);
+  if (r != 0) fail_msg("after the ERROR: %zd (%s), want the end of the stream", r,
+                       r < 0 ? strerror(errno) : "data");
+  close(fd);
+  free(f);
+  free(in);
+  assert_true(server_alive(&S));
+}
+
 /* Item: the handshake has a deadline that trickled bytes do not extend. */
 static void test_handshake_deadline(void **state) {
   (void)state;
@@ -428,6 +491,7 @@ int main(void) {
     cmocka_unit_test(test_control_errors_carry_id_0),
     cmocka_unit_test(test_half_close_gets_every_answer),
     cmocka_unit_test(test_unsent_answers_not_counted),
+    cmocka_unit_test(test_fatal_error_reaches_a_slow_reader),
     cmocka_unit_test(test_handshake_deadline),
     cmocka_unit_test(test_trickled_frame_is_cut_off),
     cmocka_unit_test(test_handshake_limit),

@@ -421,6 +421,47 @@ static void test_memory_charged_as_received(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* Item: peers that send the head and the first 64 KiB of a frame large
+ * enough for a receive-pool buffer (1 MiB and up) and then stop hold those
+ * bytes, not the whole buffer: a frame of the announced maximum from
+ * someone else is served beside three of them. */
+static void test_slow_senders_hold_what_they_sent(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-memory-mb", "64", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = test_options("probe", NULL, 60000);
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  int W = hfc_info(c)->max_width, HH = hfc_info(c)->max_height;
+  enum { M = 3 };
+  float *in = make_features(W, HH, 4, 10);
+  size_t len;
+  uint8_t *f = raw_filter(1, "Small", W, HH, 4, in, &len);
+  assert_true(len > ((size_t)2 << 20));
+  int fd[M];
+  for (int i = 0; i < M; i++) {
+    fd[i] = raw_connect(d.unix_url);
+    assert_int_equal(raw_hello(fd[i], NULL), 0);
+    assert_int_equal(raw_send(fd[i], f, 65536), 0);
+  }
+  usleep(200000);
+  float *out = malloc(sizeof(float) * 3 * (size_t)W * HH);
+  assert_non_null(out);
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = 4,
+                   .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32, .result = out);
+  int rc = hfc_filter(c, &r, NULL);
+  if (rc) fail_msg("%dx%d frame beside %d peers that sent 64 KiB of one: %s (%s)", W, HH, M,
+                   hfc_strerror(rc), hfc_last_message(c));
+  hfc_close(c);
+  for (int i = 0; i < M; i++) close(fd[i]);
+  free(out);
+  free(f);
+  free(in);
+  assert_true(server_alive(&d));
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 /* Item: inference memory is inside --max-memory-mb. Four frames at the
  * announced maximum sent at once: the daemon's peak resident memory grows
  * by no more than the budget (those that do not fit are BUSY), and once
@@ -655,6 +696,7 @@ int main(void) {
     cmocka_unit_test(test_queue_shared),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
+    cmocka_unit_test(test_slow_senders_hold_what_they_sent),
     cmocka_unit_test(test_inference_memory_in_budget),
     cmocka_unit_test(test_mixed_load_within_budget),
   };

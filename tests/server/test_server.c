@@ -42,6 +42,17 @@ static int teardown(void **state) {
   return rc == 0 ? 0 : -1;
 }
 
+static hfc_client *connect_unix(void);
+
+/* STATS' protocol_errors now. */
+static uint64_t protocol_errors(void) {
+  hfc_client *c = connect_unix();
+  hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  hfc_close(c);
+  return st.protocol_errors;
+}
+
 static hfc_client *connect_unix(void) {
   hfc_client *c = NULL;
   hfc_options o = test_options("test", NULL, 20000);
@@ -1184,7 +1195,10 @@ static void test_shared_memory_bad_references(void **state) {
   assert_true(res.flags & HFP_FILTER_SHM);
   assert_int_equal(h.length, HFP_RESULT_FIXED);
   free(p);
-  /* destroying an unknown segment: a non-fatal ERROR */
+  /* destroying an unknown segment and asking for an empty one: non-fatal
+   * ERRORs, each counted in STATS' protocol_errors (no variant to count
+   * them against) */
+  uint64_t errors_before = protocol_errors();
   n = hfp_encode_shm_destroy(b, sizeof b, 77);
   assert_int_equal(raw_send(fd, b, (size_t)n), 0);
   assert_int_equal(raw_read(fd, &h, &p), 0);
@@ -1194,6 +1208,17 @@ static void test_shared_memory_bad_references(void **state) {
   assert_int_equal(e.code, HFP_E_INVALID);
   assert_int_equal(e.fatal, 0);
   free(p);
+  n = hfp_encode_shm_create(b, sizeof b, 4096);
+  assert_true(n > 0);
+  memset(b + HFP_HEADER_SIZE, 0, 8); /* size 0 */
+  assert_int_equal(raw_send(fd, b, (size_t)n), 0);
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_ERROR);
+  assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+  assert_int_equal(e.code, HFP_E_INVALID);
+  assert_int_equal(e.fatal, 0);
+  free(p);
+  assert_int_equal(protocol_errors() - errors_before, 2);
   /* destroy the real one; a reference to it is then refused */
   n = hfp_encode_shm_destroy(b, sizeof b, seg);
   assert_int_equal(raw_send(fd, b, (size_t)n), 0);
