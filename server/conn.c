@@ -145,11 +145,12 @@ static void conn_release(hfd_conn *c) {
  * half-closes (the peer reads the ERROR, then the end of the stream), reads
  * and drops what the peer still sends, and closes at the peer's end of
  * stream, on a read error, or after HFD_LINGER_MS (hfd_sweep_stalled), as
- * HTTP servers do in their "lingering close". Unix sockets keep queued data
- * whatever the receiver left unread, and TLS connections close at once
- * (their close_notify ends the stream). Without a sweep timer (every
- * timeout disabled) nothing would bound the wait, so they close at once
- * too. */
+ * HTTP servers do in their "lingering close"; over TLS the half-close is
+ * close_notify and the plaintext read is dropped. Unix sockets keep queued
+ * data whatever the receiver left unread, and a TLS connection whose
+ * handshake did not complete has nothing to drain through: both close at
+ * once. Without a sweep timer (every timeout disabled) nothing would bound
+ * the wait, so they close at once too. */
 #define HFD_LINGER_MS 2000
 
 static void linger_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
@@ -173,7 +174,8 @@ static void on_linger_shutdown(uv_shutdown_t *req, int status) {
 
 static void fatal_linger(hfd_conn *c) {
   if (c->closing) return;
-  if (c->tls || c->is_pipe || c->eof || !uv_is_active((uv_handle_t *)&c->srv->sweep_timer)) {
+  if ((c->tls && !hfd_tls_established(c)) || c->is_pipe || c->eof ||
+      !uv_is_active((uv_handle_t *)&c->srv->sweep_timer)) {
     hfd_conn_close(c);
     return;
   }
@@ -183,12 +185,14 @@ static void fatal_linger(hfd_conn *c) {
     return;
   }
   req->data = c;
-  if (uv_shutdown(req, &c->h.stream, on_linger_shutdown) < 0) {
+  c->writes_pending++; /* before: over TLS the callback may run inside */
+  if (hfd_io_shutdown(c, req, on_linger_shutdown) < 0) {
+    c->writes_pending--;
     free(req);
     hfd_conn_close(c);
     return;
   }
-  c->writes_pending++;
+  if (c->closing) return;
   c->lingering = c->shutting = 1;
   c->t_linger = hfd_now_us();
   if (c->job) {
@@ -196,7 +200,7 @@ static void fatal_linger(hfd_conn *c) {
     job_free(c->srv, c->job);
     c->job = NULL;
   }
-  int rc = uv_read_start(&c->h.stream, linger_alloc, linger_read);
+  int rc = hfd_io_read_start(c, linger_alloc, linger_read);
   if (rc < 0) {
     hfd_debug("conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
     hfd_conn_close(c);

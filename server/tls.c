@@ -737,6 +737,11 @@ int hfd_io_shutdown(hfd_conn *c, uv_shutdown_t *req, uv_shutdown_cb cb) {
   return 0;
 }
 
+int hfd_tls_established(const hfd_conn *c) {
+  const struct hfd_tls_conn *t = c->tls;
+  return t && t->established && !t->failed;
+}
+
 int hfd_tls_overdue(const hfd_conn *c, double now_us) {
   const struct hfd_tls_conn *t = c->tls;
   if (!t || t->established || !c->fatal_sent) return 0;
