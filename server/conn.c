@@ -144,12 +144,13 @@ static void conn_release(hfd_conn *c) {
  * the peer: the ERROR and the results written before it. So the server
  * half-closes (the peer reads the ERROR, then the end of the stream), reads
  * and drops what the peer still sends, and closes at the peer's end of
- * stream, on a read error, or after HFD_LINGER_MS (hfd_sweep_stalled), as
+ * stream, on a read error, or after HFD_LINGER_MS (hfd_sweep_stalled, which
+ * runs at least once a second: 2 to 3 s), as
  * HTTP servers do in their "lingering close"; over TLS the half-close is
  * close_notify and the plaintext read is dropped. Unix sockets keep queued
- * data whatever the receiver left unread, and a TLS connection whose
- * handshake did not complete has nothing to drain through: both close at
- * once. Without a sweep timer (every timeout disabled) nothing would bound
+ * data whatever the receiver left unread, a TLS connection whose
+ * handshake did not complete has nothing to drain through, and one that
+ * never completed its HELLO had nothing answered: they close at once. Without a sweep timer (every timeout disabled) nothing would bound
  * the wait, so they close at once too. */
 #define HFD_LINGER_MS 2000
 
@@ -174,7 +175,10 @@ static void on_linger_shutdown(uv_shutdown_t *req, int status) {
 
 static void fatal_linger(hfd_conn *c) {
   if (c->closing) return;
-  if ((c->tls && !hfd_tls_established(c)) || c->is_pipe || c->eof ||
+  /* Before HELLO nothing was answered, and a lingering connection holds
+   * its slot under --max-connections: peers that only connect would fill
+   * the slots that --max-handshakes frees by closing the oldest of them. */
+  if (!c->hello_done || (c->tls && !hfd_tls_established(c)) || c->is_pipe || c->eof ||
       !uv_is_active((uv_handle_t *)&c->srv->sweep_timer)) {
     hfd_conn_close(c);
     return;

@@ -144,6 +144,7 @@ void *hfd_rpool_take(hfd_rpool *p, size_t bytes) {
     resident = 0;
   }
   best->lent = 1;
+  best->warm = resident != 0;
   best->charged = 0;
   best->reserved = resident;
   p->lent_uncharged += resident;
@@ -155,9 +156,13 @@ void hfd_rpool_charge(hfd_rpool *p, const void *addr, uint64_t n) {
   if (!b || !b->lent) return;
   if (n > b->cap - b->charged) n = b->cap - b->charged;
   b->charged += n;
-  uint64_t r = n < b->reserved ? n : b->reserved;
-  b->reserved -= r;
-  p->lent_uncharged -= r;
+  /* Resident: all of a warm buffer; of a new mapping, the 2 MiB steps its
+   * bytes have reached (a huge page faults in whole). */
+  uint64_t resident = b->cap;
+  if (!b->warm && round_step((size_t)b->charged) < b->cap) resident = round_step((size_t)b->charged);
+  uint64_t reserved = resident - b->charged;
+  p->lent_uncharged = p->lent_uncharged - b->reserved + reserved;
+  b->reserved = reserved;
 }
 
 void hfd_rpool_give(hfd_rpool *p, void *addr, uint64_t cache_bytes, uint64_t cache_cap) {
@@ -169,6 +174,7 @@ void hfd_rpool_give(hfd_rpool *p, void *addr, uint64_t cache_bytes, uint64_t cac
   }
   p->lent_uncharged -= b->reserved;
   b->lent = 0;
+  b->warm = 0;
   b->charged = 0;
   b->reserved = 0;
   b->last_use = ++p->clock;

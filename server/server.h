@@ -342,6 +342,7 @@ typedef struct hfd_rbuf {
   size_t cap;                    /* bytes mapped */
   uint64_t charged;              /* lent: bytes its frame has been charged */
   uint64_t reserved;             /* lent: of its uncharged bytes, those resident */
+  int warm;                      /* lent: faulted in whole before it was lent */
   uint64_t last_use;             /* idle: when it came back (pool clock) */
   int lent;
 } hfd_rbuf;
@@ -360,9 +361,10 @@ typedef struct hfd_rpool {
  * An idle buffer's bytes are resident: they count in hfd_rpool_reserve
  * until hfd_rpool_charge says a frame has been charged for them. A new
  * mapping's pages become resident only as bytes land in them, which the
- * frame is charged for as they arrive, so none of it is reserved: a peer
+ * frame is charged for as they arrive: of it, only the rest of the 2 MiB
+ * steps (huge pages) that its bytes have reached is reserved, so a peer
  * that sends a large frame's head and then trickles holds what it sent,
- * not the whole frame. */
+ * rounded up to 2 MiB, not the whole frame. */
 void *hfd_rpool_take(hfd_rpool *p, size_t bytes);
 /* n more bytes of addr's buffer are charged to its frame (mem_held). */
 void hfd_rpool_charge(hfd_rpool *p, const void *addr, uint64_t n);

@@ -312,6 +312,33 @@ static void test_unsent_answers_not_counted(void **state) {
   free(in);
 }
 
+/* Item: connections that never send a HELLO cannot fill --max-connections:
+ * those --max-handshakes pushes out give their slot back at once (they are
+ * not kept open to drain, as a connection closed after its HELLO is). */
+static void test_bare_connections_leave_room(void **state) {
+  (void)state;
+  enum { M = 24 };
+  server L;
+  const char *largs[] = {"--max-connections", "8", "--max-handshakes", "2",
+                         "--handshake-timeout-ms", "60000", NULL};
+  assert_int_equal(server_start(&H, &L, largs), 0);
+  int fd[M];
+  for (int i = 0; i < M; i++) {
+    fd[i] = raw_connect(L.tcp_url);
+    assert_true(fd[i] >= 0);
+    assert_int_equal(raw_send(fd[i], "x", 1), 0); /* input the server never reads */
+  }
+  sleep_ms(100);
+  hfc_client *c = NULL;
+  hfc_options o = test_options("legit", TEST_TOKEN, 20000);
+  int rc = hfc_connect(L.tcp_url, &o, &c);
+  if (rc) fail_msg("a client beside %d bare connections: %s (%s)", M, hfc_strerror(rc),
+                   c ? hfc_last_message(c) : "");
+  hfc_close(c);
+  for (int i = 0; i < M; i++) close(fd[i]);
+  assert_int_equal(server_stop(&L, 20000), 0);
+}
+
 /* Item: a fatal ERROR over TCP reaches a peer that sent more after the bad
  * frame and is slow to read: after every RESULT queued before it, and then
  * the end of the stream, not a reset. Closing a socket with unread input
@@ -495,6 +522,7 @@ int main(void) {
     cmocka_unit_test(test_handshake_deadline),
     cmocka_unit_test(test_trickled_frame_is_cut_off),
     cmocka_unit_test(test_handshake_limit),
+    cmocka_unit_test(test_bare_connections_leave_room),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
