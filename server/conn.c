@@ -1415,6 +1415,12 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   read_next(c);
   if (s->num_conns > s->cfg->max_connections) {
     s->protocol_errors++;
+    if (c->tls) {
+      /* No TLS session yet to carry the ERROR; one queued for after the
+       * handshake would hold the slot for the handshake's deadline. */
+      hfd_conn_close(c);
+      return;
+    }
     send_error(c, 0, HFP_E_BUSY, 1, "connection limit (%d) reached", s->cfg->max_connections);
     return;
   }
@@ -1426,8 +1432,14 @@ void hfd_on_connection(uv_stream_t *server, int status) {
      * the one that has waited longest is the likeliest not to, and goes. */
     hfd_conn *old = oldest_handshake(s);
     s->protocol_errors++;
-    send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
-               s->cfg->max_handshakes);
+    if (old->tls && !hfd_tls_established(old)) {
+      /* No TLS session to carry an ERROR: an ERROR queued for after the
+       * handshake would keep the slot until the handshake deadline. */
+      hfd_conn_close(old);
+    } else {
+      send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
+                 s->cfg->max_handshakes);
+    }
     if (old == c) return;
   }
   rc = hfd_io_read_start(c, on_alloc, on_read);

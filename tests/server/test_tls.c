@@ -431,6 +431,40 @@ static void test_cli(void **state) {
   }
 }
 
+/* Item: TCP connections to a TLS listener that never start their TLS
+ * handshake cannot fill --max-connections: those refused at the limit, or
+ * pushed out by --max-handshakes, are closed at once (no TLS session could
+ * carry their ERROR), and a real client gets in beside a hundred of them. */
+static void test_bare_connections_leave_room(void **state) {
+  (void)state;
+  enum { N = 100 };
+  char cert[256], key[256];
+  path_of(cert, sizeof cert, "served.pem");
+  path_of(key, sizeof key, "served.key");
+  server L;
+  const char *largs[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
+                         "--max-connections", "8", "--max-handshakes", "2", NULL};
+  assert_int_equal(server_start(&H, &L, largs), 0);
+  char url[300], msg[600];
+  tls_url(&L, 1, url, sizeof url);
+  char tcp[300];
+  snprintf(tcp, sizeof tcp, "tcp:%s", strchr(url, ':') + 1);
+  int fd[N];
+  for (int i = 0; i < N; i++) {
+    fd[i] = raw_connect(tcp);
+    assert_true(fd[i] >= 0);
+    assert_int_equal(raw_send(fd[i], "\x16", 1), 0); /* the start of a ClientHello, no more */
+  }
+  usleep(100000);
+  tls_url(&L, 0, url, sizeof url);
+  hfc_client *c;
+  int rc = tls_connect(url, &GOOD, &c, msg, sizeof msg);
+  if (rc) fail_msg("a client beside %d bare connections: %s (%s)", N, hfc_strerror(rc), msg);
+  hfc_close(c);
+  for (int i = 0; i < N; i++) close(fd[i]);
+  assert_int_equal(server_stop(&L, 20000), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_tls_equals_tcp),
@@ -440,6 +474,7 @@ int main(void) {
     cmocka_unit_test(test_reload_certificate),
     cmocka_unit_test(test_start_options),
     cmocka_unit_test(test_cli),
+    cmocka_unit_test(test_bare_connections_leave_room),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
