@@ -1344,6 +1344,29 @@ static hfd_conn *oldest_handshake(hfd_server *s) {
   return old;
 }
 
+/* Makes room for one more connection at --max-connections, when it can:
+ * connections already closing do not count, and a TLS connection holding a
+ * fatal ERROR until its handshake is done (pushed out by --max-handshakes,
+ * or past the handshake deadline) gives its slot up, the oldest first, and
+ * is closed without the ERROR (no TLS session could carry it yet). Peers
+ * that open TCP connections to a TLS listener and never finish a handshake
+ * cannot fill the slots that way. 1 when the newest connection may stay. */
+static int reclaim_slot(hfd_server *s) {
+  int live = 0;
+  for (hfd_conn *c = s->conns; c; c = c->next) live += !c->closing;
+  while (live > s->cfg->max_connections) {
+    hfd_conn *old = NULL;
+    for (hfd_conn *c = s->conns; c; c = c->next)
+      if (c->tls && c->fatal_sent && !c->closing && !hfd_tls_established(c) &&
+          (!old || c->t_accept < old->t_accept))
+        old = c;
+    if (!old) return 0;
+    hfd_conn_close(old);
+    live--;
+  }
+  return 1;
+}
+
 void hfd_on_connection(uv_stream_t *server, int status) {
   hfd_listener *l = server->data;
   hfd_server *s = l->srv;
@@ -1413,7 +1436,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   hfd_kv(kv, sizeof kv, "listener", l->url);
   hfd_debug("connection accepted%s", kv);
   read_next(c);
-  if (s->num_conns > s->cfg->max_connections) {
+  if (s->num_conns > s->cfg->max_connections && !reclaim_slot(s)) {
     s->protocol_errors++;
     if (c->tls) {
       /* No TLS session yet to carry the ERROR; one queued for after the
@@ -1432,14 +1455,11 @@ void hfd_on_connection(uv_stream_t *server, int status) {
      * the one that has waited longest is the likeliest not to, and goes. */
     hfd_conn *old = oldest_handshake(s);
     s->protocol_errors++;
-    if (old->tls && !hfd_tls_established(old)) {
-      /* No TLS session to carry an ERROR: an ERROR queued for after the
-       * handshake would keep the slot until the handshake deadline. */
-      hfd_conn_close(old);
-    } else {
-      send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
-                 s->cfg->max_handshakes);
-    }
+    /* Over TLS the ERROR waits for the handshake (a client racing its
+     * handshake sees why it was refused); until then reclaim_slot may
+     * take the connection's slot for a newcomer. */
+    send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
+               s->cfg->max_handshakes);
     if (old == c) return;
   }
   rc = hfd_io_read_start(c, on_alloc, on_read);

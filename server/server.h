@@ -556,12 +556,12 @@ int hfd_io_read_stop(hfd_conn *c);
 int hfd_io_write(hfd_conn *c, uv_write_t *req, const uv_buf_t *bufs, unsigned nbufs,
                  uv_write_cb cb);
 int hfd_io_shutdown(hfd_conn *c, uv_shutdown_t *req, uv_shutdown_cb cb);
-/* 1 when c was answered with a fatal ERROR before its TLS handshake was
- * done, and the handshake has not come within the handshake deadline (10 s
- * without one): the ERROR can never be sent, so the sweep closes it. */
 /* 1 when c is a TLS connection whose handshake completed and has not
  * failed: its stream can be ended with close_notify and read on. */
 int hfd_tls_established(const hfd_conn *c);
+/* 1 when c was answered with a fatal ERROR before its TLS handshake was
+ * done, and the handshake has not come within the handshake deadline (10 s
+ * without one): the ERROR can never be sent, so the sweep closes it. */
 int hfd_tls_overdue(const hfd_conn *c, double now_us);
 /* Reply bytes handed over and not yet written to the socket. */
 size_t hfd_io_write_queue_size(const hfd_conn *c);

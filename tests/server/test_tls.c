@@ -11,6 +11,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <openssl/ssl.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/stat.h>
@@ -465,6 +466,89 @@ static void test_bare_connections_leave_room(void **state) {
   assert_int_equal(server_stop(&L, 20000), 0);
 }
 
+/* Sends what the memory BIO holds to fd; 0 on success. */
+static int flush_bio(BIO *w, int fd) {
+  char buf[16384];
+  int n;
+  while ((n = BIO_read(w, buf, sizeof buf)) > 0)
+    if (raw_send(fd, buf, (size_t)n)) return -1;
+  return 0;
+}
+
+/* Feeds what fd has (waiting up to 5 s for the first byte) into r; 0 on
+ * success, -1 on EOF, error or timeout. */
+static int fill_bio(BIO *r, int fd) {
+  struct pollfd p = {fd, POLLIN, 0};
+  if (poll(&p, 1, 5000) != 1) return -1;
+  char buf[16384];
+  ssize_t n = read(fd, buf, sizeof buf);
+  return n > 0 && BIO_write(r, buf, (int)n) == n ? 0 : -1;
+}
+
+/* Item: a TLS client that --max-handshakes pushes out while its handshake
+ * is under way (its ClientHello answered, its Finished not yet read by the
+ * server; from the client's side the handshake may be done) gets the fatal
+ * BUSY as soon as its handshake completes, not a bare close. */
+static void test_mid_handshake_eviction_says_busy(void **state) {
+  (void)state;
+  char cert[256], key[256];
+  path_of(cert, sizeof cert, "served.pem");
+  path_of(key, sizeof key, "served.key");
+  server L;
+  const char *largs[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
+                         "--max-handshakes", "2", NULL};
+  assert_int_equal(server_start(&H, &L, largs), 0);
+  char url[300], tcp[300];
+  tls_url(&L, 1, url, sizeof url);
+  snprintf(tcp, sizeof tcp, "tcp:%s", strchr(url, ':') + 1);
+  SSL_CTX *ctx = SSL_CTX_new(TLS_client_method());
+  assert_non_null(ctx);
+  SSL_CTX_set_verify(ctx, SSL_VERIFY_NONE, NULL);
+  SSL *ssl = SSL_new(ctx);
+  BIO *rb = BIO_new(BIO_s_mem()), *wb = BIO_new(BIO_s_mem());
+  assert_true(ssl && rb && wb);
+  SSL_set_bio(ssl, rb, wb);
+  SSL_set_connect_state(ssl);
+  int fd = raw_connect(tcp);
+  assert_true(fd >= 0);
+  /* Run the client's side of the handshake, holding back its last flight
+   * (the Finished) so that the server stays mid-handshake. */
+  int r;
+  while ((r = SSL_do_handshake(ssl)) != 1) {
+    assert_int_equal(SSL_get_error(ssl, r), SSL_ERROR_WANT_READ);
+    assert_int_equal(flush_bio(wb, fd), 0);
+    assert_int_equal(fill_bio(rb, fd), 0);
+  }
+  /* Two more connections before their HELLO push the oldest out. */
+  int other[2];
+  for (int i = 0; i < 2; i++) assert_true((other[i] = raw_connect(tcp)) >= 0);
+  usleep(200000);
+  assert_int_equal(flush_bio(wb, fd), 0);
+  uint8_t got[4096];
+  size_t have = 0;
+  hfp_header h = {0};
+  while (have < HFP_HEADER_SIZE || have < HFP_HEADER_SIZE + (size_t)h.length) {
+    int n = SSL_read(ssl, got + have, (int)(sizeof got - have));
+    if (n > 0) {
+      have += (size_t)n;
+      if (have >= HFP_HEADER_SIZE) assert_int_equal(hfp_header_decode(got, 4096, &h), 0);
+      continue;
+    }
+    if (SSL_get_error(ssl, n) != SSL_ERROR_WANT_READ || fill_bio(rb, fd))
+      fail_msg("the evicted client got no ERROR (the connection closed without one)");
+  }
+  hfp_error e;
+  assert_int_equal(h.type, HFP_ERROR);
+  assert_int_equal(hfp_decode_error(got + HFP_HEADER_SIZE, h.length, &e), 0);
+  assert_int_equal(e.code, HFP_E_BUSY);
+  assert_true(e.fatal);
+  SSL_free(ssl);
+  SSL_CTX_free(ctx);
+  close(fd);
+  for (int i = 0; i < 2; i++) close(other[i]);
+  assert_int_equal(server_stop(&L, 20000), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_tls_equals_tcp),
@@ -475,6 +559,7 @@ int main(void) {
     cmocka_unit_test(test_start_options),
     cmocka_unit_test(test_cli),
     cmocka_unit_test(test_bare_connections_leave_room),
+    cmocka_unit_test(test_mid_handshake_eviction_says_busy),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
