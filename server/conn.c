@@ -283,6 +283,7 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
   }
   if (fatal) {
     c->fatal_sent = 1;
+    c->t_fatal = hfd_now_us();
     handshake_over(c);
     read_stop(c);
   }

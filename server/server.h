@@ -432,6 +432,7 @@ typedef struct hfd_conn {
   int shutting;                  /* uv_shutdown sent: flushing, then closing */
   int closing;                   /* uv_close called or pending */
   int fatal_sent;                /* reading stopped, closing after the write */
+  double t_fatal;                /* when the fatal ERROR was queued */
   int lingering;                 /* fatal ERROR written: half-closed, draining input */
   double t_linger;               /* when lingering began */
   int handle_closed;
@@ -560,8 +561,10 @@ int hfd_io_shutdown(hfd_conn *c, uv_shutdown_t *req, uv_shutdown_cb cb);
  * failed: its stream can be ended with close_notify and read on. */
 int hfd_tls_established(const hfd_conn *c);
 /* 1 when c was answered with a fatal ERROR before its TLS handshake was
- * done, and the handshake has not come within the handshake deadline (10 s
- * without one): the ERROR can never be sent, so the sweep closes it. */
+ * done, and the handshake has come neither within HFD_TLS_FATAL_GRACE_MS of
+ * that ERROR nor within the handshake deadline (10 s without one): the
+ * ERROR can never be sent, so the sweep closes it. */
+#define HFD_TLS_FATAL_GRACE_MS 2000
 int hfd_tls_overdue(const hfd_conn *c, double now_us);
 /* Reply bytes handed over and not yet written to the socket. */
 size_t hfd_io_write_queue_size(const hfd_conn *c);

@@ -745,8 +745,11 @@ int hfd_tls_established(const hfd_conn *c) {
 int hfd_tls_overdue(const hfd_conn *c, double now_us) {
   const struct hfd_tls_conn *t = c->tls;
   if (!t || t->established || !c->fatal_sent) return 0;
+  /* A client racing its handshake finishes it in milliseconds; a peer that
+   * has not within the grace never will, and holding it would let a crowd
+   * of bare TCP peers on this listener outnumber --max-handshakes. */
   int limit_ms = c->srv->cfg->handshake_timeout_ms > 0 ? c->srv->cfg->handshake_timeout_ms : 10000;
-  return now_us - c->t_accept > limit_ms * 1e3;
+  return now_us - c->t_accept > limit_ms * 1e3 || now_us - c->t_fatal > HFD_TLS_FATAL_GRACE_MS * 1e3;
 }
 
 size_t hfd_io_write_queue_size(const hfd_conn *c) {

@@ -466,6 +466,50 @@ static void test_bare_connections_leave_room(void **state) {
   assert_int_equal(server_stop(&L, 20000), 0);
 }
 
+/* Item: TCP connections to a TLS listener that never start their TLS
+ * handshake are held to --max-handshakes like any other peer before its
+ * HELLO: those pushed out are closed once the grace for a racing handshake
+ * (HFD_TLS_FATAL_GRACE_MS in server/server.h, 2 s) has passed without one
+ * to carry their BUSY, long before the handshake deadline; the newest stay. */
+static void test_silent_crowd_held_to_max_handshakes(void **state) {
+  (void)state;
+  enum { N = 6, KEEP = 2 };
+  char cert[256], key[256];
+  path_of(cert, sizeof cert, "served.pem");
+  path_of(key, sizeof key, "served.key");
+  server L;
+  const char *largs[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
+                         "--max-handshakes", "2", "--handshake-timeout-ms", "60000", NULL};
+  assert_int_equal(server_start(&H, &L, largs), 0);
+  char url[300], tcp[300];
+  tls_url(&L, 1, url, sizeof url);
+  snprintf(tcp, sizeof tcp, "tcp:%s", strchr(url, ':') + 1);
+  int fd[N], open_[N];
+  for (int i = 0; i < N; i++) {
+    assert_true((fd[i] = raw_connect(tcp)) >= 0);
+    open_[i] = 1;
+    usleep(20000); /* accepted in this order */
+  }
+  /* The grace, then up to one sweep (at most a second), with room to spare. */
+  int closed = 0;
+  for (int waited = 0; closed < N - KEEP && waited < 2000 + 4000; waited += 50) {
+    usleep(50000);
+    for (int i = 0; i < N; i++) {
+      struct pollfd p = {fd[i], POLLIN, 0};
+      char b;
+      if (open_[i] && poll(&p, 1, 0) == 1 && read(fd[i], &b, 1) <= 0) open_[i] = 0, closed++;
+    }
+  }
+  for (int i = 0; i < N; i++) {
+    if (i < N - KEEP && open_[i])
+      fail_msg("silent connection %d of %d, pushed out by --max-handshakes 2, is still open", i, N);
+    if (i >= N - KEEP && !open_[i])
+      fail_msg("silent connection %d of %d, within --max-handshakes 2, was closed", i, N);
+  }
+  for (int i = 0; i < N; i++) close(fd[i]);
+  assert_int_equal(server_stop(&L, 20000), 0);
+}
+
 /* Sends what the memory BIO holds to fd; 0 on success. */
 static int flush_bio(BIO *w, int fd) {
   char buf[16384];
@@ -560,6 +604,7 @@ int main(void) {
     cmocka_unit_test(test_cli),
     cmocka_unit_test(test_bare_connections_leave_room),
     cmocka_unit_test(test_mid_handshake_eviction_says_busy),
+    cmocka_unit_test(test_silent_crowd_held_to_max_handshakes),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
