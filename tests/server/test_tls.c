@@ -432,6 +432,25 @@ static void test_cli(void **state) {
   }
 }
 
+/* Starts L with a TLS listener (the served certificate) and the limit
+ * options in limits (NULL-terminated, at most 8), and writes the plain
+ * tcp: URL of that listener to tcp, for peers that speak no TLS. */
+static void start_tls_limited(server *L, const char *const *limits, char *tcp, size_t tcplen) {
+  char cert[256], key[256], url[300];
+  path_of(cert, sizeof cert, "served.pem");
+  path_of(key, sizeof key, "served.key");
+  const char *largs[16] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key};
+  int n = 6;
+  for (int i = 0; limits[i]; i++) {
+    assert_true(n < 15);
+    largs[n++] = limits[i];
+  }
+  largs[n] = NULL;
+  assert_int_equal(server_start(&H, L, largs), 0);
+  tls_url(L, 1, url, sizeof url);
+  snprintf(tcp, tcplen, "tcp:%s", strchr(url, ':') + 1);
+}
+
 /* Item: TCP connections to a TLS listener that never start their TLS
  * handshake cannot fill --max-connections: those refused at the limit, or
  * pushed out by --max-handshakes, are closed at once (no TLS session could
@@ -439,17 +458,10 @@ static void test_cli(void **state) {
 static void test_bare_connections_leave_room(void **state) {
   (void)state;
   enum { N = 100 };
-  char cert[256], key[256];
-  path_of(cert, sizeof cert, "served.pem");
-  path_of(key, sizeof key, "served.key");
   server L;
-  const char *largs[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
-                         "--max-connections", "8", "--max-handshakes", "2", NULL};
-  assert_int_equal(server_start(&H, &L, largs), 0);
-  char url[300], msg[600];
-  tls_url(&L, 1, url, sizeof url);
-  char tcp[300];
-  snprintf(tcp, sizeof tcp, "tcp:%s", strchr(url, ':') + 1);
+  char url[300], msg[600], tcp[300];
+  const char *limits[] = {"--max-connections", "8", "--max-handshakes", "2", NULL};
+  start_tls_limited(&L, limits, tcp, sizeof tcp);
   int fd[N];
   for (int i = 0; i < N; i++) {
     fd[i] = raw_connect(tcp);
@@ -474,16 +486,10 @@ static void test_bare_connections_leave_room(void **state) {
 static void test_silent_crowd_held_to_max_handshakes(void **state) {
   (void)state;
   enum { N = 6, KEEP = 2 };
-  char cert[256], key[256];
-  path_of(cert, sizeof cert, "served.pem");
-  path_of(key, sizeof key, "served.key");
   server L;
-  const char *largs[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
-                         "--max-handshakes", "2", "--handshake-timeout-ms", "60000", NULL};
-  assert_int_equal(server_start(&H, &L, largs), 0);
-  char url[300], tcp[300];
-  tls_url(&L, 1, url, sizeof url);
-  snprintf(tcp, sizeof tcp, "tcp:%s", strchr(url, ':') + 1);
+  char tcp[300];
+  const char *limits[] = {"--max-handshakes", "2", "--handshake-timeout-ms", "60000", NULL};
+  start_tls_limited(&L, limits, tcp, sizeof tcp);
   int fd[N], open_[N];
   for (int i = 0; i < N; i++) {
     assert_true((fd[i] = raw_connect(tcp)) >= 0);
@@ -535,16 +541,10 @@ static int fill_bio(BIO *r, int fd) {
  * BUSY as soon as its handshake completes, not a bare close. */
 static void test_mid_handshake_eviction_says_busy(void **state) {
   (void)state;
-  char cert[256], key[256];
-  path_of(cert, sizeof cert, "served.pem");
-  path_of(key, sizeof key, "served.key");
   server L;
-  const char *largs[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
-                         "--max-handshakes", "2", NULL};
-  assert_int_equal(server_start(&H, &L, largs), 0);
-  char url[300], tcp[300];
-  tls_url(&L, 1, url, sizeof url);
-  snprintf(tcp, sizeof tcp, "tcp:%s", strchr(url, ':') + 1);
+  char tcp[300];
+  const char *limits[] = {"--max-handshakes", "2", NULL};
+  start_tls_limited(&L, limits, tcp, sizeof tcp);
   SSL_CTX *ctx = SSL_CTX_new(TLS_client_method());
   assert_non_null(ctx);
   SSL_CTX_set_verify(ctx, SSL_VERIFY_NONE, NULL);
