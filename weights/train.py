@@ -70,6 +70,23 @@ def mse_and_gradients(p, q, grad_weight):
     return loss
 
 
+def l1_and_gradients(p, q, grad_weight, eps=1e-3):
+    """mse_and_gradients with the mean of sqrt(d^2 + eps^2) - eps in place
+    of the MSE (Charbonnier's smooth L1): its minimiser over an ambiguous
+    input is the median of the targets, not their mean, so where a few
+    training pixels disagree with most (4 covered samples over one layer
+    of strands, among many over several), the output takes the common
+    answer instead of a hedge between them."""
+    def cl1(a, b):
+        return (torch.sqrt((a - b) ** 2 + eps * eps) - eps).mean()
+    loss = cl1(p, q)
+    if grad_weight:
+        dxp, dxq = p[..., :, 1:] - p[..., :, :-1], q[..., :, 1:] - q[..., :, :-1]
+        dyp, dyq = p[..., 1:, :] - p[..., :-1, :], q[..., 1:, :] - q[..., :-1, :]
+        loss = loss + grad_weight * (cl1(dxp, dxq) + cl1(dyp, dyq))
+    return loss
+
+
 # The look `hairfilter eval` scores with (client/cli/cmd_eval.c): brown hair,
 # white light, a grey-blue background.
 EVAL_LOOK = ((0.45, 0.25, 0.12), (1.0, 1.0, 1.0), (0.18, 0.20, 0.24))
@@ -224,7 +241,8 @@ def below_input_loss(cp, ct, ci, alpha):
 
 
 def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0,
-              lattice=(0.0, 8), below=(0.0, None, 4), display_st=False, srgb=False):
+              lattice=(0.0, 8), below=(0.0, None, 4), display_st=False, srgb=False,
+              l1=False):
     """The squared error of what a viewer sees: pred and target composited
     with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
     weighted by grad_weight, of their finite differences, as the paper's loss
@@ -249,13 +267,15 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weigh
     their finite differences') on the sRGB-encoded composites
     (srgb_encode), as a display's code values differ, instead of the
     linear ones; the other terms stay on the linear composites, as the
-    evaluation scores them."""
+    evaluation scores them. l1: l1_and_gradients in place of
+    mse_and_gradients for the images' term."""
     cp = composite(pred, *looks, clamp=clamp_st if display_st else torch.clamp)
     ct = composite(target, *looks)
+    image_term = l1_and_gradients if l1 else mse_and_gradients
     if srgb:
-        loss = mse_and_gradients(srgb_encode(cp), srgb_encode(ct), grad_weight)
+        loss = image_term(srgb_encode(cp), srgb_encode(ct), grad_weight)
     else:
-        loss = mse_and_gradients(cp, ct, grad_weight)
+        loss = image_term(cp, ct, grad_weight)
     if ssim_weight:
         loss = loss + ssim_weight * hair_ssim_loss(cp, ct, target[:, 2:3])
     if lattice[0]:
@@ -275,15 +295,15 @@ def eval_looks(n, device):
 
 
 def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0, lattice=(0.0, 8),
-             below=(0.0, None, 4), display_st=False, srgb=False):
+             below=(0.0, None, 4), display_st=False, srgb=False, l1=False):
     """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
     (look_loss with looks, EVAL_LOOK when None, ssim_weight, lattice,
-    below, display_st and srgb)."""
+    below, display_st, srgb and l1)."""
     if kind == "look":
         return look_loss(pred, target, looks if looks is not None
                          else eval_looks(pred.shape[0], pred.device), grad_weight,
                          ssim_weight=ssim_weight, lattice=lattice, below=below,
-                         display_st=display_st, srgb=srgb)
+                         display_st=display_st, srgb=srgb, l1=l1)
     return hair_loss(pred, target, grad_weight)
 
 
@@ -587,6 +607,10 @@ def parse_args(argv):
                     "(train.py srgb_encode), as a display's code values differ, so an error "
                     "in dark hair weighs as a viewer sees it; the SSIM and lattice terms "
                     "stay linear")
+    ap.add_argument("--look-l1", action="store_true",
+                    help="--loss look: the images' term as a smooth L1 (train.py "
+                    "l1_and_gradients) instead of the MSE: the median of what an input "
+                    "could be, not the mean; validation stays the MSE")
     ap.add_argument("--dim-light", type=float, default=0.0, metavar="LO",
                     help="dim the light of --dim-share of the crops: colour factor and "
                     "highlight each scaled by a factor drawn log-uniform in [LO, 1], in the "
@@ -604,7 +628,8 @@ def parse_args(argv):
     # The options that act on the composited images, which only the look loss makes.
     for flag, does in (("--ssim-weight", "scores"), ("--lattice-weight", "scores"),
                        ("--below-input-weight", "scores"),
-                       ("--display-straight-through", "clamps"), ("--look-srgb", "encodes")):
+                       ("--display-straight-through", "clamps"), ("--look-srgb", "encodes"),
+                       ("--look-l1", "scores")):
         if getattr(args, flag[2:].replace("-", "_")) and args.loss != "look":
             ap.error(f"{flag} needs --loss look (it {does} the composited images)")
     if args.dim_light and not 0 < args.dim_light <= 1:
@@ -659,7 +684,7 @@ def main(argv=None):
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
-                  "dim_light", "dim_share", "display_straight_through", "look_srgb", "kernel_radius", "kernel_hidden", "levels",
+                  "dim_light", "dim_share", "display_straight_through", "look_srgb", "look_l1", "kernel_radius", "kernel_hidden", "levels",
                   "schedule", "lr_floor",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
                   "equal_phase_sums"):
@@ -773,7 +798,8 @@ def main(argv=None):
             loss = run_loss(args.loss, forward(net, x, *mode, straight_through=args.straight_through),
                             y, args.grad_weight, looks, args.ssim_weight, lattice,
                             (args.below_input_weight, x, cfg["spp"]),
-                            display_st=args.display_straight_through, srgb=args.look_srgb)
+                            display_st=args.display_straight_through, srgb=args.look_srgb,
+                            l1=args.look_l1)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             # The norm before clipping, recorded with or without a clip: a run
@@ -832,7 +858,7 @@ def main(argv=None):
                            clip_grad_norm=args.clip_grad_norm,
                            dim_light=args.dim_light, dim_share=args.dim_share,
                            display_straight_through=args.display_straight_through,
-                           look_srgb=args.look_srgb, seed=args.seed,
+                           look_srgb=args.look_srgb, look_l1=args.look_l1, seed=args.seed,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through,
                            equal_phase_sums=args.equal_phase_sums, train_seconds=elapsed,
