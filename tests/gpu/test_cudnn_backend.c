@@ -4,6 +4,9 @@
  * runtime directly, not of the backend, so the "no GPU" test checks the
  * backend's answer instead of trusting it. Tests that need a device print
  * "SKIP: no CUDA device: <reason>" and skip. */
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE   /* memfd_create */
+#endif
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -12,6 +15,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <time.h>
+#include <unistd.h>
 #include <cmocka.h>
 
 #include <cuda_runtime_api.h>
@@ -393,6 +399,75 @@ static int dump_devprop(const char *path) {
   return 0;
 }
 
+/* Shared-memory segments as hairfilterd makes them (memfd, MAP_SHARED),
+ * pinned with hf_backend_host_register and unpinned: both succeed, a frame
+ * read from and written to a pinned segment matches cpu-ref, and the time
+ * each call takes is printed. hairfilterd pins on its event-loop thread
+ * (server/shm.c), so that time is how long every other connection waits
+ * when a client creates a segment. */
+static double now_ms(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return t.tv_sec * 1e3 + t.tv_nsec / 1e6;
+}
+
+static void test_register_shared_segments(void **state) {
+  REQUIRE_GPU();
+  ctx *c = *state;
+  hf_net_config cfg;
+  hf_model *gm, *rm;
+  hf_weights *w = weights_and_ref(c, "Base", 11, &cfg, &rm);
+  assert_int_equal(hf_model_create(c->gpu, w, &gm), HF_OK);
+  static const size_t mib[] = {8, 48, 192};
+  const int W = 256, H = 256;
+  const size_t npx = (size_t)W * H, in_bytes = npx * cfg.in_channels * 2;
+  float *want = malloc(npx * 3 * sizeof(float)), *in32 = malloc(npx * cfg.in_channels * 4);
+  assert_non_null(want);
+  assert_non_null(in32);
+  for (size_t k = 0; k < sizeof mib / sizeof mib[0]; k++) {
+    const size_t bytes = mib[k] << 20;
+    int fd = memfd_create("test-segment", MFD_CLOEXEC);
+    assert_true(fd >= 0);
+    assert_int_equal(ftruncate(fd, (off_t)bytes), 0);
+    unsigned char *seg = mmap(NULL, bytes, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    assert_true(seg != MAP_FAILED);
+    memset(seg, 0, bytes);   /* a client has written it before it sends a frame */
+    double t0 = now_ms();
+    assert_int_equal(hf_backend_host_register(c->gpu, seg, bytes), HF_OK);
+    double t_pin = now_ms() - t0;
+    uint16_t *in16 = (uint16_t *)seg;
+    uint16_t *out16 = (uint16_t *)(seg + in_bytes);
+    for (size_t i = 0; i < npx * cfg.in_channels; i++) {
+      in16[i] = hf_f32_to_f16(frand());
+      in32[i] = hf_f16_to_f32(in16[i]);
+    }
+    hf_io ref = {1, W, H, in32, HF_F32, want, HF_F32};
+    assert_int_equal(hf_model_run(rm, &ref, NULL), HF_OK);
+    hf_io io = {1, W, H, in16, HF_F16, out16, HF_F16};
+    assert_int_equal(hf_model_run(gm, &io, NULL), HF_OK);
+    double err = 0, norm = 0;
+    for (size_t i = 0; i < npx * 3; i++) {
+      const double d = hf_f16_to_f32(out16[i]) - want[i];
+      err += d * d;
+      norm += (double)want[i] * want[i];
+    }
+    const double rel = sqrt(err / (norm > 0 ? norm : 1));
+    t0 = now_ms();
+    hf_backend_host_unregister(c->gpu, seg);
+    double t_unpin = now_ms() - t0;
+    printf("  segment %4zu MiB: pin %.3f ms, unpin %.3f ms; Base 256x256 f16 from it: rel L2 %.2e\n",
+           mib[k], t_pin, t_unpin, rel);
+    assert_true(rel < 1e-2);
+    assert_int_equal(munmap(seg, bytes), 0);
+    assert_int_equal(close(fd), 0);
+  }
+  free(want);
+  free(in32);
+  hf_model_destroy(gm);
+  hf_model_destroy(rm);
+  hf_weights_free(w);
+}
+
 /* test_cudnn_backend fallback: the availability and fallback checks, which
  * run on every machine. test_cudnn_backend device: the comparisons with
  * cpu-ref, which need a GPU; without one the program says why and exits 77,
@@ -414,6 +489,7 @@ int main(int argc, char **argv) {
         cmocka_unit_test_setup_teardown(test_forms_and_switches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pipelined_and_registered, setup, teardown),
         cmocka_unit_test_setup_teardown(test_prepare, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_register_shared_segments, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
   }

@@ -156,6 +156,13 @@ step bench_pipe_f32 90 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --pipeline
 step bench_kernel_ac 90 "$B/hairfilter" bench --backend "$BACKEND" --sizes "$BIG" --batch 1 \
   --iters 20 --warmup 3 --weights "$ROOT/weights/kernel_ac.safetensors,$ROOT/weights/kernel.safetensors"
 
+# The host's work on a frame's input, which the runs so far found to be most
+# of the end-to-end time: the input statistics, the out-of-contract check and
+# the threaded pass that does both in hf_model_run, each beside a memcpy of
+# the same frame, FP32 and FP16 (docs/PERFORMANCE.md "Input statistics",
+# "Data checks").
+step host_input 90 "${BENCH[@]}" --batch 1 --iters 20 --warmup 2 --input-stats --input-check
+
 # ---- 3. end to end: hairfilterd over the Unix socket and shared memory --------
 # serve TAG [VAR=value...] [-- daemon options]: hairfilterd with $WEIGHTS (Base) on
 # $R/TAG.sock, the plan for BIG built before it is ready. Batch 1: two

@@ -99,6 +99,13 @@ def main():
         print(f"  {len(rels)} comparisons, worst relative L2 "
               f"{max(rels):.2e}" if rels else "  no comparison completed")
         print(f"  second runs: {same} bit-identical, {differ} differing (within 1e-4)")
+        worst = {}
+        for m in re.finditer(r"^\s+(\w+)\s+batch (\d+)\s+(\d+x\d+)\s+rel L2 ([0-9.e+-]+)", d, re.M):
+            v, rel = m.group(1), float(m.group(4))
+            n, w = worst.get(v, (0, 0.0))
+            worst[v] = (n + 1, max(w, rel))
+        for v, (n, w) in worst.items():
+            print(f"  {v}: {n} comparisons (presets), worst relative L2 {w:.2e}")
         for l in d.splitlines():
             if re.search(r"\[  (PASSED|FAILED|  OK|  ERROR|  SKIPPED) |\[==========\]|FAILED|"
                          r"Failure|SKIP:|error", l):
@@ -133,6 +140,16 @@ def main():
               " frames/s | device MiB |")
         for r in rows:
             print("  | " + " | ".join(r[:10]) + " |")
+
+    section("host work on the input (bench --input-stats --input-check; ms per frame)")
+    h = read(logdir, "host_input.log")
+    if h is None:
+        print("  not run")
+    else:
+        # The tables after bench's own (their header rows start "| size").
+        tables = [l for l in h.splitlines() if l.startswith("| ") and not l.startswith("| backend")
+                  and not (l.startswith("| cpu") or l.startswith("| cudnn"))]
+        print("\n".join("  " + l for l in tables) if tables else "  no table (see host_input.log)")
 
     section("end to end through hairfilterd (hairfilter-load; p50 ms, total also p99)")
     loads = {}
