@@ -23,6 +23,9 @@
 
 #include "harness.h"
 
+#ifndef HAIRFILTER_LOADGEN_PATH
+#error "HAIRFILTER_LOADGEN_PATH must name hairfilter-load"
+#endif
 #ifndef HAIRFILTER_CLI_PATH
 #error "HAIRFILTER_CLI_PATH must name the hairfilter CLI"
 #endif
@@ -251,6 +254,53 @@ static void test_transports(void **state) {
     fail_msg("without the token: %s", text);
 }
 
+/* The server's count of sanitised frames for variant, from STATS. */
+static uint64_t sanitised_count(const server *srv, const char *variant, uint64_t *ok) {
+  hfc_client *c = NULL;
+  assert_int_equal(hfc_connect(srv->unix_url, NULL, &c), HFC_OK);
+  hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), HFC_OK);
+  hfc_close(c);
+  for (int i = 0; i < st.num_variants; i++)
+    if (!strcmp(st.variants[i].name, variant)) {
+      *ok = st.variants[i].requests_ok;
+      return st.variants[i].frames_sanitised;
+    }
+  fail_msg("STATS has no variant %s", variant);
+  return 0;
+}
+
+/* Both load tools send frames in contract (protocol/FEATURES.md), in f32
+ * and f16, so what they time is a clean frame's path, not the sanitising
+ * copy. 1024x768 at 4 spp: with values drawn from 0, the 775067th pixel's
+ * first sample had an alpha of exactly 0 beside non-zero features, and
+ * every f32 request was sanitised. */
+static void test_frames_in_contract(void **state) {
+  (void)state;
+  static const char *const progs[] = {HAIRFILTER_CLI_PATH, HAIRFILTER_LOADGEN_PATH};
+  /* The cpu backend: cpu-ref takes seconds for a frame this size. */
+  static const char *const extra[] = {"--backend", "cpu", NULL};
+  server C;
+  assert_int_equal(server_start(&H, &C, extra), 0);
+  for (size_t p = 0; p < 2; p++)
+    for (int f16 = 0; f16 < 2; f16++) {
+      uint64_t ok0, ok1;
+      uint64_t before = sanitised_count(&C, "Small", &ok0);
+      char args[600];
+      snprintf(args, sizeof args, "--server %s --variant Small --size 1024x768 --shm %s "
+               "--seconds 0.5 --warmup 0%s", C.unix_url, f16 ? "--f16" : "",
+               p ? "" : " --quiet");
+      int rc = load_prog(progs[p], args);
+      if (rc) fail_msg("%s %s: status %d:\n%s", progs[p], args, rc, text);
+      uint64_t after = sanitised_count(&C, "Small", &ok1);
+      if (ok1 <= ok0) fail_msg("%s %s: no frame answered:\n%s", progs[p], args, text);
+      if (after != before)
+        fail_msg("%s %s: the server sanitised %llu of its %llu frames", progs[p], args,
+                 (unsigned long long)(after - before), (unsigned long long)(ok1 - ok0));
+    }
+  assert_int_equal(server_stop(&C, 10000), 0);
+}
+
 /* Against a server that refuses: a closed-loop request refused BUSY is
  * sent again only after a pause (BUSY_BACKOFF_S, 10 ms), so a window of 1 s
  * at concurrency 6 sees at most about 600 refusals, not the tens of
@@ -321,6 +371,7 @@ int main(int argc, char **argv) {
     cmocka_unit_test(test_closed_sweep),
     cmocka_unit_test(test_open_loop),
     cmocka_unit_test(test_transports),
+    cmocka_unit_test(test_frames_in_contract),
     cmocka_unit_test(test_refusing_server),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
