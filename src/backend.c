@@ -231,11 +231,18 @@ static int sanitise_input(hf_model *m, int slot, const hf_io *io, hf_io *run,
   size_t need = frame * (size_t)io->batch;
   uint8_t *copy = slot_buffer(m, slot, need);
   if (!copy) return HF_ENOMEM;
-  memcpy(copy, io->in, need);
-  for (int n = 0; n < io->batch; n++)
-    if (!rep || rep[n].samples)
-      hf_features_sanitise(copy + n * frame, io->in_dtype, io->width, io->height, m->cfg.spp,
-                           rep ? &rep[n] : &one);
+  /* Copied and fixed chunk by chunk on the pool's threads: a frame with
+   * one bad sample costs about a copy, not a single-threaded pass. */
+  for (int n = 0; n < io->batch; n++) {
+    const uint8_t *src = (const uint8_t *)io->in + n * frame;
+    if (rep && !rep[n].samples) {
+      memcpy(copy + n * frame, src, frame);
+      continue;
+    }
+    int rc = hf_features_copy_sanitised(src, copy + n * frame, io->in_dtype, io->width,
+                                        io->height, m->cfg.spp, rep ? &rep[n] : &one);
+    if (rc) return rc;
+  }
   run->in = copy;
   return HF_OK;
 }

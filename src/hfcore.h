@@ -295,6 +295,15 @@ void hf_features_check(const void *in, hf_dtype dtype, int width, int height, in
  * (uncovered); finite features outside their range are clamped into it. */
 void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int spp,
                           hf_input_report *report);
+/* hf_features_sanitise on a copy: out ([height][width][spp*6] of dtype) gets
+ * in with the rule applied, in is not written; report as
+ * hf_features_sanitise's. Split between threads for large frames
+ * (hf_parallel_chunks), each copying a chunk and fixing it while it is in
+ * the cache, so one bad sample does not cost a single-threaded pass over
+ * the frame. in and out must not overlap. HF_OK, or HF_ENOMEM (nothing
+ * written). */
+int hf_features_copy_sanitised(const void *in, void *out, hf_dtype dtype, int width, int height,
+                               int spp, hf_input_report *report);
 /* A binary16 frame in ([height][width][spp*6]) widened to float32 in out
  * (same shape) for a backend that computes in float32, with the rule
  * applied on the way: out is hf_f16_to_f32 of what hf_features_sanitise

@@ -355,6 +355,31 @@ static int widen_or_scan(const void *in, hf_dtype dtype, float *out, int width, 
   return nw < 0 ? nw : HF_OK;
 }
 
+typedef struct copy_run {
+  const uint8_t *in;
+  uint8_t *out;
+  hf_dtype dtype;
+  int width, spp;
+  hf_scan_part part[HF_PARALLEL_MAX];
+} copy_run;
+
+/* Pixels [b, e): copied, then the rule applied to the copy while it is
+ * still in the cache. */
+static void copy_chunk(void *arg, int worker, size_t b, size_t e) {
+  copy_run *c = arg;
+  const size_t px_bytes = (size_t)c->spp * HF_FEATURES_PER_SAMPLE * (c->dtype == HF_F16 ? 2 : 4);
+  memcpy(c->out + b * px_bytes, c->in + b * px_bytes, (e - b) * px_bytes);
+  scan_range(c->out, c->dtype, c->width, c->spp, b * c->spp, e * c->spp, 1, NULL,
+             &c->part[worker].report);
+}
+
+int hf_features_copy_sanitised(const void *in, void *out, hf_dtype dtype, int width, int height,
+                               int spp, hf_input_report *report) {
+  copy_run c = {.in = in, .out = out, .dtype = dtype, .width = width, .spp = spp};
+  int nw = scan_in_chunks(width, height, spp, c.part, copy_chunk, &c, report, NULL);
+  return nw < 0 ? nw : HF_OK;
+}
+
 int hf_features_widen(const uint16_t *in, float *out, int width, int height, int spp,
                       hf_input_report *report, hf_input_stats *stats) {
   return widen_or_scan(in, HF_F16, out, width, height, spp, report, stats);

@@ -256,6 +256,56 @@ static void check_widen(int w, int h, int spp, int plant) {
   free(s), free(got), free(want), free(h16), free(copy);
 }
 
+/* hf_features_copy_sanitised: the copy is hf_features_sanitise's result
+ * bit for bit, with the same report, in both dtypes; the source is not
+ * written. plant: bad values planted in the second half of a clean frame
+ * (else make_samples' third of bad samples). */
+static void check_copy_sanitised(int w, int h, int spp, int plant) {
+  size_t n = (size_t)w * h * spp, vals = n * 6;
+  float *s = make_samples(n);
+  if (plant) {
+    for (size_t i = 0; i < vals; i++) s[i] = i % 6 == 4 ? -0.25f : 0.5f;
+    for (int k = 0; k < plant; k++) s[(n / 2 + next() % (n - n / 2)) * 6 + next() % 6] = NAN;
+  }
+  for (int f16 = 0; f16 < 2; f16++) {
+    const size_t es = f16 ? 2 : 4;
+    const hf_dtype dt = f16 ? HF_F16 : HF_F32;
+    uint8_t *src = malloc(vals * es), *keep = malloc(vals * es), *want = malloc(vals * es),
+            *got = malloc(vals * es);
+    assert_non_null(src), assert_non_null(keep), assert_non_null(want), assert_non_null(got);
+    for (size_t i = 0; i < vals; i++)
+      if (f16) ((uint16_t *)src)[i] = hf_f32_to_f16(s[i]);
+      else ((float *)src)[i] = s[i];
+    memcpy(keep, src, vals * es);
+    memcpy(want, src, vals * es);
+    hf_input_report wr, r;
+    hf_features_sanitise(want, dt, w, h, spp, &wr);
+    memset(got, 0x5a, vals * es);
+    memset(&r, 0x5a, sizeof r);
+    assert_int_equal(hf_features_copy_sanitised(src, got, dt, w, h, spp, &r), HF_OK);
+    assert_memory_equal(got, want, vals * es);
+    assert_memory_equal(&r, &wr, sizeof r);
+    assert_memory_equal(src, keep, vals * es);
+    assert_true(!plant || (r.samples >= 1 && r.samples <= (uint64_t)plant));
+    free(src), free(keep), free(want), free(got);
+  }
+  free(s);
+}
+
+static void test_copy_sanitised(void **state) {
+  (void)state;
+  static const int shapes[][3] = {{1, 1, 1}, {5, 3, 1}, {7, 5, 4}, {33, 9, 2}, {64, 64, 4}};
+  for (size_t i = 0; i < sizeof shapes / sizeof shapes[0]; i++) {
+    check_copy_sanitised(shapes[i][0], shapes[i][1], shapes[i][2], 0);
+    check_copy_sanitised(shapes[i][0], shapes[i][1], shapes[i][2], 3);
+  }
+  /* Split between threads, not a whole number of chunks: the first bad
+   * sample is the frame's first whichever thread found it. */
+  check_copy_sanitised(517, 211, 4, 0);
+  check_copy_sanitised(517, 211, 4, 1);
+  check_copy_sanitised(517, 211, 4, 1000);
+}
+
 static void test_widen(void **state) {
   static const int shapes[][3] = {{1, 1, 1}, {5, 3, 1}, {7, 5, 4}, {33, 9, 2}, {64, 64, 4}};
   for (size_t i = 0; i < sizeof shapes / sizeof shapes[0]; i++) {
@@ -693,6 +743,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_rule),         cmocka_unit_test(test_rule_each_position),
     cmocka_unit_test(test_widen),        cmocka_unit_test(test_report_kinds),
+    cmocka_unit_test(test_copy_sanitised),
     cmocka_unit_test(test_output_guard), cmocka_unit_test(test_output_guard_split),
     cmocka_unit_test(test_backends),     cmocka_unit_test(test_interleave_estimate),
   };
