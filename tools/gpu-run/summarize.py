@@ -107,6 +107,9 @@ def main():
         for v, (n, w) in worst.items():
             print(f"  {v}: {n} comparisons (presets), worst relative L2 {w:.2e}")
         for l in d.splitlines():
+            if l.strip().startswith("segment "):   # what pinning a segment costs
+                print("  " + l.strip())
+        for l in d.splitlines():
             if re.search(r"\[  (PASSED|FAILED|  OK|  ERROR|  SKIPPED) |\[==========\]|FAILED|"
                          r"Failure|SKIP:|error", l):
                 print("  " + l.strip())
