@@ -77,6 +77,23 @@ static int gather(const hfd_config *cfg, want *ws, int *nw, char *why, size_t wh
       w->stat_errno = errno;
     else
       w->file = file_id(&st);
+    /* A loaded model is known by its file (a reload replaces the model of
+     * a changed file), so one file cannot serve two names: the second
+     * entry would silently replace the first. */
+    for (int j = 0; j < n - 1; j++) {
+      const want *o = &ws[j];
+      int same = !strcmp(o->path, w->path) ||
+                 (!o->stat_errno && !w->stat_errno && o->file.dev == w->file.dev &&
+                  o->file.ino == w->file.ino);
+      if (same) {
+        snprintf(why, whylen,
+                 "--weights %s%s%s and --weights %s%s%s are the same file: a file serves one "
+                 "variant; give the second name a copy of it",
+                 o->override ? o->override : "", o->override ? "=" : "", o->path,
+                 w->override ? w->override : "", w->override ? "=" : "", w->path);
+        return -1;
+      }
+    }
   }
   int explicit = n;
   if (cfg->weights_dir) {

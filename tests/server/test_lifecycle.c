@@ -308,6 +308,51 @@ static void test_failed_start_leaves_nothing(void **state) {
   assert_int_equal(access(sock, F_OK), -1);
 }
 
+/* One file under two variant names is refused at start, by path and by
+ * a hard link to it (the same file under another path), with a message
+ * naming both entries; two copies of it are two variants. */
+static void test_one_file_two_names(void **state) {
+  (void)state;
+  char sock[300], listen[320], small[300], link_path[300], copy[300], a[340], b[340], out[4096];
+  snprintf(sock, sizeof sock, "%s/twice.sock", H.dir);
+  snprintf(listen, sizeof listen, "unix:%s", sock);
+  snprintf(small, sizeof small, "%s/Small.safetensors", H.weights_dir);
+  snprintf(link_path, sizeof link_path, "%s/small-link.safetensors", H.dir);
+  snprintf(copy, sizeof copy, "%s/small-copy.safetensors", H.dir);
+  unlink(link_path);
+  assert_int_equal(link(small, link_path), 0);
+  const char *seconds[] = {small, link_path};
+  for (int k = 0; k < 2; k++) {
+    snprintf(a, sizeof a, "A=%s", small);
+    snprintf(b, sizeof b, "B=%s", seconds[k]);
+    const char *args[] = {"--listen", listen, "--no-auth", "--weights", a, "--weights", b,
+                          "--backend", "cpu-ref", NULL};
+    int st = daemon_run(args, NULL, 20000, out, sizeof out);
+    if (st == 0 || !strstr(out, "are the same file") || !strstr(out, a) || !strstr(out, b))
+      fail_msg("--weights %s --weights %s: status %d: %s", a, b, st, out);
+  }
+  /* A copy is another file: both names are served. */
+  char cmd[700];
+  snprintf(cmd, sizeof cmd, "cp '%s' '%s'", small, copy);
+  assert_int_equal(system(cmd), 0);
+  snprintf(b, sizeof b, "B=%s", copy);
+  const char *args[] = {"--weights", a, "--weights", b, NULL};
+  server d;
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  assert_int_equal(hfc_connect(d.unix_url, NULL, &c), 0);
+  hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  int served = 0;
+  for (int i = 0; i < st.num_variants; i++)
+    served += !strcmp(st.variants[i].name, "A") || !strcmp(st.variants[i].name, "B");
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 10000), 0);
+  assert_int_equal(served, 2);
+  unlink(link_path);
+  unlink(copy);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_bad_listen_urls),
@@ -317,6 +362,7 @@ int main(void) {
     cmocka_unit_test(test_sigterm_with_unread_replies),
     cmocka_unit_test(test_second_signal_shortens_the_wait),
     cmocka_unit_test(test_failed_start_leaves_nothing),
+    cmocka_unit_test(test_one_file_two_names),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
