@@ -375,8 +375,8 @@ static void deliver(hfd_server *s, hfd_job *j) {
   memset(&r, 0, sizeof r);
   r.status = (uint16_t)j->status;
   r.timing = j->timing;
+  r.dtype = j->req.out_dtype;   /* echoed whatever the status (PROTOCOL.md, RESULT) */
   if (j->status == HFP_OK) {
-    r.dtype = j->req.out_dtype;
     r.flags = j->rgba ? HFP_FILTER_COMPOSITE : 0;
     r.width = j->req.width;
     r.height = j->req.height;

@@ -643,6 +643,51 @@ static void test_sigterm_no_drain_time(void **state) {
   free(in);
 }
 
+/* A RESULT with an error status echoes the FILTER's out_dtype (PROTOCOL.md,
+ * RESULT `dtype`), as a successful one does: f16 out, then SIGTERM with
+ * no drain time, so the queued frames get SHUTTING_DOWN. */
+static void test_error_result_echoes_dtype(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-batch", "1", "--drain-timeout-ms", "0", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  enum { N = 6, W = 128, HH = 128 };
+  const ref_variant *v = harness_variant(&H, "Small");
+  float *in = make_features(W, HH, v->cfg.spp, 23);
+  int fd = raw_connect(d.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  for (uint32_t id = 1; id <= N; id++) {
+    size_t len;
+    uint8_t *f = raw_filter(id, "Small", W, HH, v->cfg.spp, in, &len);
+    assert_non_null(f);
+    f[HFP_HEADER_SIZE + 15] = HFP_F16;   /* out_dtype */
+    assert_int_equal(raw_send(fd, f, len), 0);
+    free(f);
+  }
+  int ok = 0, failed = 0;
+  for (int k = 0; k < N; k++) {
+    hfp_header h;
+    uint8_t *p;
+    if (raw_read(fd, &h, &p)) break;
+    assert_int_equal(h.type, HFP_RESULT);
+    assert_true(h.length >= 4);
+    const int status = p[0] | p[1] << 8;
+    if (status == 0) ok++;
+    else failed++;
+    if (p[2] != HFP_F16)
+      fail_msg("RESULT %u, status %d: dtype %u, the FILTER asked for %u", h.request_id, status,
+               p[2], HFP_F16);
+    free(p);
+    if (k == 0) kill(d.pid, SIGTERM);
+  }
+  close(fd);
+  assert_int_equal(server_stop(&d, 20000), 0);
+  assert_true(ok >= 1);
+  assert_true(failed >= 1);
+  free(in);
+}
+
 /* A peer that stops in the middle of a frame is cut off after the stall
  * timeout, and one that never says HELLO after the handshake timeout,
  * instead of holding their buffers and slots forever. */
@@ -1248,6 +1293,7 @@ int main(void) {
     cmocka_unit_test(test_sigterm_drains),
     cmocka_unit_test(test_warm_and_pipeline_depth),
     cmocka_unit_test(test_sigterm_no_drain_time),
+    cmocka_unit_test(test_error_result_echoes_dtype),
     cmocka_unit_test(test_stalled_peer_is_closed),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
