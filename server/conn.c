@@ -849,6 +849,13 @@ static void filter_admit(hfd_conn *c) {
   read_next(c);
 }
 
+/* The types a client sends (PROTOCOL.md, "Frames"); the others go only
+ * from server to client. */
+static int is_client_type(uint16_t type) {
+  return type == HFP_HELLO || type == HFP_LIST_VARIANTS || type == HFP_FILTER ||
+         type == HFP_STATS || type == HFP_SHM_CREATE || type == HFP_SHM_DESTROY;
+}
+
 /* A whole header is in hbuf. Request ids in ERRORs (PROTOCOL.md,
  * "Errors"): a FILTER's own for errors about it, 0 for everything else. */
 static void on_header(hfd_conn *c) {
@@ -857,6 +864,13 @@ static void on_header(hfd_conn *c) {
                                                        : (uint32_t)s->cfg->max_frame_bytes;
   int rc = hfp_header_decode(c->hbuf, max, &c->hdr);
   const hfp_header *h = &c->hdr;
+  /* The type is the header's before its length: a server -> client type
+   * is PROTOCOL whatever length it claims. */
+  if (rc == -HFP_E_TOO_LARGE && c->hello_done && !is_client_type(h->type)) {
+    s->protocol_errors++;
+    send_error(c, 0, HFP_E_PROTOCOL, 1, "message type %u is not a request", h->type);
+    return;
+  }
   if (rc == -HFP_E_TOO_LARGE && c->hello_done) {
     s->protocol_errors++;
     send_error(c, h->type == HFP_FILTER ? h->request_id : 0, HFP_E_TOO_LARGE, 1,

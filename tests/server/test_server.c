@@ -430,6 +430,18 @@ static void test_bad_requests_keep_connection(void **state) {
   hfp_header_encode(&res, hb);
   expect_fatal(fd, hb, sizeof hb, HFP_E_PROTOCOL);
   close(fd);
+  /* every server -> client type, also when it claims more than
+   * --max-frame-mb: the type is checked before the length */
+  static const uint16_t responses[] = {HFP_HELLO_OK, HFP_VARIANTS, HFP_RESULT, HFP_ERROR,
+                                       HFP_STATS_REPLY, HFP_SHM_CREATED};
+  for (size_t k = 0; k < sizeof responses / sizeof responses[0]; k++) {
+    fd = raw_connect(S.unix_url);
+    assert_int_equal(raw_hello(fd, NULL), 0);
+    hfp_header r = {responses[k], 0, 0, (1u << 30) + 1};
+    hfp_header_encode(&r, hb);
+    expect_fatal(fd, hb, sizeof hb, HFP_E_PROTOCOL);
+    close(fd);
+  }
 
   free(good);
   free(in);
