@@ -70,7 +70,7 @@ static void read_stop(hfd_conn *c) {
 static void wrote_one(hfd_conn *c) {
   c->writes_pending--;
   if (c->read_paused && c->writes_pending <= WRITES_LOW && !c->closing && !c->fatal_sent &&
-      !c->eof && !c->shutting) {
+      !c->eof && !c->shutting && !c->pin_wait) {
     int rc = hfd_io_read_start(c, on_alloc, on_read);
     if (rc < 0) {
       hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
@@ -130,7 +130,7 @@ typedef struct ctl_write {
 static void conn_release(hfd_conn *c) {
   /* Freed only when libuv is done with the handle and nothing in flight
    * (queued jobs, pending writes) still points at it. */
-  if (!c->handle_closed || c->inflight || c->writes_pending) return;
+  if (!c->handle_closed || c->inflight || c->writes_pending || c->pin_wait) return;
   hfd_server *s = c->srv;
   hfd_tls_conn_free(c);
   free(c);
@@ -982,28 +982,10 @@ static void on_fd_written(uv_write_t *req, int status) {
   conn_release(c);
 }
 
-static void shm_create(hfd_conn *c) {
+/* Passes the new segment g (its memfd fd, which this closes) to the peer
+ * in SHM_CREATED and adds it to the connection's. */
+static void shm_created(hfd_conn *c, hfd_seg *g, int fd, uint64_t bytes) {
   hfd_server *s = c->srv;
-  uint64_t bytes;
-  if (hfp_decode_shm_create(c->ctl, c->want, &bytes)) {
-    s->protocol_errors++; /* no variant to count it against */
-    send_error(c, 0, HFP_E_INVALID, 0, "segment size must be at least 1 byte");
-    return;
-  }
-  if (c->num_segs >= HFD_MAX_SEGMENTS) {
-    s->protocol_errors++; /* no variant to count it against */
-    send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
-    return;
-  }
-  char why[200];
-  hfd_seg *g;
-  int fd;
-  int code = hfd_seg_create(s, bytes, &g, &fd, why, sizeof why);
-  if (code) {
-    s->protocol_errors++; /* no variant to count it against */
-    send_error(c, 0, code, 0, "%s", why);
-    return;
-  }
   do g->id = ++c->next_seg_id; while (g->id == 0 || find_seg(c, g->id));
   fd_write *w = calloc(1, sizeof *w);
   int rc = w ? uv_pipe_init(s->loop, &w->fdpipe, 0) : UV_ENOMEM;
@@ -1042,6 +1024,93 @@ static void shm_create(hfd_conn *c) {
   c->num_segs++;
   hfd_debug("conn %llu: segment %u of %llu bytes", (unsigned long long)c->id, g->id,
             (unsigned long long)bytes);
+}
+
+/* Pinning a segment takes milliseconds (hfd_seg_pin), which on the loop
+ * thread every other connection would wait, and a client creating and
+ * destroying segments in a loop could make the loop do little else. So
+ * it runs on libuv's thread pool; meanwhile the connection reads nothing
+ * more (its later requests, and their replies, stay behind SHM_CREATED),
+ * and it is not freed (conn_release waits for pin_wait). */
+typedef struct pin_req {
+  uv_work_t req;
+  hfd_conn *c;
+  hfd_seg *g;
+  int fd;
+  uint64_t bytes;
+  int rc;
+} pin_req;
+
+static void pin_work(uv_work_t *req) {
+  pin_req *p = req->data;
+  p->rc = hfd_seg_pin(p->c->srv, p->g);
+}
+
+static void pin_done(uv_work_t *req, int status) {
+  pin_req *p = req->data;
+  hfd_conn *c = p->c;
+  hfd_server *s = c->srv;
+  c->pin_wait = 0;
+  /* UV_ECANCELED (never asked for here): it never ran, nothing is pinned. */
+  if (status < 0)
+    p->g->registered = 0;
+  else
+    hfd_seg_pinned(s, p->g, p->rc);
+  if (c->closing || c->fatal_sent) {
+    close(p->fd);
+    hfd_seg_drop(s, p->g);
+    free(p);
+    conn_release(c);
+    return;
+  }
+  shm_created(c, p->g, p->fd, p->bytes);
+  free(p);
+  if (c->closing || c->fatal_sent || c->read_paused) return; /* wrote_one restarts it */
+  int rc = hfd_io_read_start(c, on_alloc, on_read);
+  if (rc < 0) {
+    hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
+    hfd_conn_close(c);
+  }
+}
+
+static void shm_create(hfd_conn *c) {
+  hfd_server *s = c->srv;
+  uint64_t bytes;
+  if (hfp_decode_shm_create(c->ctl, c->want, &bytes)) {
+    s->protocol_errors++; /* no variant to count it against */
+    send_error(c, 0, HFP_E_INVALID, 0, "segment size must be at least 1 byte");
+    return;
+  }
+  if (c->num_segs >= HFD_MAX_SEGMENTS) {
+    s->protocol_errors++; /* no variant to count it against */
+    send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
+    return;
+  }
+  char why[200];
+  hfd_seg *g;
+  int fd;
+  int code = hfd_seg_create(s, bytes, &g, &fd, why, sizeof why);
+  if (code) {
+    s->protocol_errors++; /* no variant to count it against */
+    send_error(c, 0, code, 0, "%s", why);
+    return;
+  }
+  if (s->worker.backend) {
+    pin_req *p = calloc(1, sizeof *p);
+    if (p) {
+      *p = (pin_req){.c = c, .g = g, .fd = fd, .bytes = bytes};
+      p->req.data = p;
+      if (uv_queue_work(s->loop, &p->req, pin_work, pin_done) == 0) {
+        read_stop(c);
+        c->pin_wait = 1;
+        return;
+      }
+      free(p);
+    }
+    /* No thread to hand it to: pinned here, as it was always safe to. */
+    hfd_seg_pinned(s, g, hfd_seg_pin(s, g));
+  }
+  shm_created(c, g, fd, bytes);
 }
 
 static void shm_destroy(hfd_conn *c) {

@@ -60,22 +60,26 @@ int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *
   g->addr = addr;
   g->size = bytes;
   s->shm_held += bytes;
-  /* A GPU backend pins the segment once, so requests in it are copied by
-   * DMA with no staging copy; if it cannot, they are staged (slower, same
-   * results), which is said once. */
-  if (s->worker.backend) {
-    int rc = hf_backend_host_register(s->worker.backend, addr, (size_t)bytes);
-    g->registered = rc == HF_OK;
-    static int warned;
-    if (rc && !warned) {
-      warned = 1;
-      hfd_warn("%s could not pin a shared-memory segment (%s); requests in segments "
-              "are staged", hf_backend_name(s->worker.backend), hf_strerror(rc));
-    }
-  }
   *out = g;
   *fd = f;
   return 0;
+}
+
+/* A GPU backend pins the segment once, so requests in it are copied by DMA
+ * with no staging copy. */
+int hfd_seg_pin(hfd_server *s, hfd_seg *g) {
+  if (!s->worker.backend) return HF_OK;
+  return hf_backend_host_register(s->worker.backend, g->addr, (size_t)g->size);
+}
+
+void hfd_seg_pinned(hfd_server *s, hfd_seg *g, int rc) {
+  g->registered = s->worker.backend && rc == HF_OK;
+  static int warned;
+  if (rc && !warned) {
+    warned = 1;
+    hfd_warn("%s could not pin a shared-memory segment (%s); requests in segments "
+             "are staged", hf_backend_name(s->worker.backend), hf_strerror(rc));
+  }
 }
 
 static void seg_free(hfd_server *s, hfd_seg *g) {

@@ -1186,6 +1186,60 @@ static void test_shared_memory(void **state) {
   hfc_close(c);
 }
 
+/* A segment is pinned off the event loop (server/conn.c, pin_req) while
+ * its connection reads nothing more: requests sent right behind
+ * SHM_CREATE are answered after SHM_CREATED, in order; and segments of
+ * connections that leave at once come back to the budget. */
+static void test_segment_then_pipelined_requests(void **state) {
+  (void)state;
+  int fd = raw_connect(S.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello(fd, NULL), 0);
+  uint8_t b[256];
+  int n = hfp_encode_shm_create(b, sizeof b, 1 << 20);
+  hfp_header lv = {HFP_LIST_VARIANTS, 0, 0, 0}, st = {HFP_STATS, 0, 0, 0};
+  hfp_header_encode(&lv, b + n);
+  hfp_header_encode(&st, b + n + HFP_HEADER_SIZE);
+  n += 2 * HFP_HEADER_SIZE;
+  n += hfp_encode_shm_create(b + n, sizeof b - (size_t)n, 4096);
+  assert_int_equal(raw_send(fd, b, (size_t)n), 0);
+  static const uint16_t order[] = {HFP_SHM_CREATED, HFP_VARIANTS, HFP_STATS_REPLY,
+                                   HFP_SHM_CREATED};
+  for (size_t k = 0; k < sizeof order / sizeof order[0]; k++) {
+    hfp_header h;
+    uint8_t *p;
+    int seg_fd = -1;
+    assert_int_equal(raw_read_fd(fd, &h, &p, &seg_fd), 0);
+    if (h.type != order[k]) fail_msg("reply %zu: type %u, wanted %u", k, h.type, order[k]);
+    assert_true((seg_fd >= 0) == (h.type == HFP_SHM_CREATED));
+    if (seg_fd >= 0) close(seg_fd);
+    free(p);
+  }
+  close(fd);
+  /* 16 connections each make a 60 MiB segment and leave without a word;
+   * then 1000 MiB of the 1024 MiB budget can be had again. */
+  for (int k = 0; k < 16; k++) {
+    int f = raw_connect(S.unix_url);
+    assert_true(f >= 0);
+    assert_int_equal(raw_hello(f, NULL), 0);
+    n = hfp_encode_shm_create(b, sizeof b, (uint64_t)60 << 20);
+    assert_int_equal(raw_send(f, b, (size_t)n), 0);
+    close(f);
+  }
+  hfc_client *c = connect_unix();
+  void *big = NULL;
+  int rc = HFC_E_BUSY;
+  for (int tries = 0; tries < 100 && rc == HFC_E_BUSY; tries++) {
+    rc = hfc_shm_alloc(c, (size_t)1000 << 20, &big);
+    if (rc == HFC_E_BUSY) usleep(50000);
+  }
+  if (rc) fail_msg("1000 MiB after the 16 left: %s (%s)", hfc_strerror(rc), hfc_last_message(c));
+  assert_int_equal(hfc_shm_free(c, big), 0);
+  filter_and_compare(c, "Tiny", 8, 8, 0, 4);
+  hfc_close(c);
+  assert_true(server_alive(&S));
+}
+
 /* The server's side of bad references, with a raw connection holding a
  * real segment. */
 static void test_shared_memory_bad_references(void **state) {
@@ -1306,6 +1360,7 @@ int main(void) {
     cmocka_unit_test(test_warm_and_pipeline_depth),
     cmocka_unit_test(test_sigterm_no_drain_time),
     cmocka_unit_test(test_error_result_echoes_dtype),
+    cmocka_unit_test(test_segment_then_pipelined_requests),
     cmocka_unit_test(test_stalled_peer_is_closed),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
