@@ -292,32 +292,29 @@ static void check_copy_sanitised(int w, int h, int spp, int plant) {
   free(s);
 }
 
-static void test_copy_sanitised(void **state) {
-  (void)state;
+/* check(w, h, spp, plant) over small shapes, clean and with 3 bad values,
+ * then over a frame large enough to be split between threads (and, when
+ * widened, written with non-temporal stores) that is not a whole number of
+ * chunks, with 0 to 1000 bad values: wherever a thread finds the first bad
+ * sample, the report names the frame's first. */
+static void over_shapes(void (*check)(int, int, int, int)) {
   static const int shapes[][3] = {{1, 1, 1}, {5, 3, 1}, {7, 5, 4}, {33, 9, 2}, {64, 64, 4}};
   for (size_t i = 0; i < sizeof shapes / sizeof shapes[0]; i++) {
-    check_copy_sanitised(shapes[i][0], shapes[i][1], shapes[i][2], 0);
-    check_copy_sanitised(shapes[i][0], shapes[i][1], shapes[i][2], 3);
+    check(shapes[i][0], shapes[i][1], shapes[i][2], 0);
+    check(shapes[i][0], shapes[i][1], shapes[i][2], 3);
   }
-  /* Split between threads, not a whole number of chunks: the first bad
-   * sample is the frame's first whichever thread found it. */
-  check_copy_sanitised(517, 211, 4, 0);
-  check_copy_sanitised(517, 211, 4, 1);
-  check_copy_sanitised(517, 211, 4, 1000);
+  static const int plants[] = {0, 1, 5, 1000};
+  for (size_t i = 0; i < sizeof plants / sizeof plants[0]; i++) check(517, 211, 4, plants[i]);
+}
+
+static void test_copy_sanitised(void **state) {
+  (void)state;
+  over_shapes(check_copy_sanitised);
 }
 
 static void test_widen(void **state) {
-  static const int shapes[][3] = {{1, 1, 1}, {5, 3, 1}, {7, 5, 4}, {33, 9, 2}, {64, 64, 4}};
-  for (size_t i = 0; i < sizeof shapes / sizeof shapes[0]; i++) {
-    check_widen(shapes[i][0], shapes[i][1], shapes[i][2], 0);
-    check_widen(shapes[i][0], shapes[i][1], shapes[i][2], 3);
-  }
-  /* Large enough to be split between threads and written with
-   * non-temporal stores, and not a whole number of chunks. */
-  check_widen(517, 211, 4, 0);
-  check_widen(517, 211, 4, 1);
-  check_widen(517, 211, 4, 5);
-  check_widen(517, 211, 4, 1000);
+  (void)state;
+  over_shapes(check_widen);
 }
 
 static void test_report_kinds(void **state) {

@@ -209,6 +209,33 @@ static void test_presets_vs_cpu_ref(void **state) {
   }
 }
 
+/* Fills in16 ([H][W][in_channels], FP16, in whatever memory the caller
+ * chose) with random features, runs gm on it (FP16 out into out16) and rm
+ * on the same values widened to float32: the relative L2 of gm's output
+ * against rm's. */
+static double f16_against_ref(hf_model *gm, hf_model *rm, const hf_net_config *cfg, int W,
+                              int H, uint16_t *in16, uint16_t *out16) {
+  const size_t npx = (size_t)W * H;
+  float *in = malloc(npx * cfg->in_channels * 4), *want = malloc(npx * 12), *got = malloc(npx * 12);
+  assert_non_null(in);
+  assert_non_null(want);
+  assert_non_null(got);
+  for (size_t i = 0; i < npx * cfg->in_channels; i++) {
+    in16[i] = hf_f32_to_f16(frand());
+    in[i] = hf_f16_to_f32(in16[i]);
+  }
+  hf_io io = {1, W, H, in, HF_F32, want, HF_F32};
+  assert_int_equal(hf_model_run(rm, &io, NULL), HF_OK);
+  hf_io io16 = {1, W, H, in16, HF_F16, out16, HF_F16};
+  assert_int_equal(hf_model_run(gm, &io16, NULL), HF_OK);
+  for (size_t i = 0; i < npx * 3; i++) got[i] = hf_f16_to_f32(out16[i]);
+  double rel = rel_l2(got, want, npx * 3);
+  free(in);
+  free(want);
+  free(got);
+  return rel;
+}
+
 /* FP16 in and out, and more shapes than the plan cache holds, so plans are
  * evicted and rebuilt. */
 static void test_f16_io_and_plan_eviction(void **state) {
@@ -223,28 +250,14 @@ static void test_f16_io_and_plan_eviction(void **state) {
   for (size_t s = 0; s < sizeof sizes / sizeof sizes[0]; s++) {
     const int W = sizes[s][0], H = sizes[s][1];
     const size_t npx = (size_t)W * H;
-    float *in = malloc(npx * cfg.in_channels * 4), *want = malloc(npx * 12), *got = malloc(npx * 12);
     uint16_t *in16 = malloc(npx * cfg.in_channels * 2), *out16 = malloc(npx * 6);
-    assert_non_null(in);
     assert_non_null(in16);
     assert_non_null(out16);
-    for (size_t i = 0; i < npx * cfg.in_channels; i++) {
-      in16[i] = hf_f32_to_f16(frand());
-      in[i] = hf_f16_to_f32(in16[i]);
-    }
-    hf_io io = {1, W, H, in, HF_F32, want, HF_F32};
-    assert_int_equal(hf_model_run(rm, &io, NULL), HF_OK);
-    hf_io io16 = {1, W, H, in16, HF_F16, out16, HF_F16};
-    assert_int_equal(hf_model_run(gm, &io16, NULL), HF_OK);
-    for (size_t i = 0; i < npx * 3; i++) got[i] = hf_f16_to_f32(out16[i]);
-    double rel = rel_l2(got, want, npx * 3);
+    double rel = f16_against_ref(gm, rm, &cfg, W, H, in16, out16);
     printf("  f16 io %dx%d: rel L2 %.2e\n", W, H, rel);
     assert_true(rel < 1e-2);
-    free(in);
     free(in16);
     free(out16);
-    free(want);
-    free(got);
   }
   hf_model_destroy(gm);
   hf_model_destroy(rm);
@@ -420,10 +433,7 @@ static void test_register_shared_segments(void **state) {
   assert_int_equal(hf_model_create(c->gpu, w, &gm), HF_OK);
   static const size_t mib[] = {8, 48, 192};
   const int W = 256, H = 256;
-  const size_t npx = (size_t)W * H, in_bytes = npx * cfg.in_channels * 2;
-  float *want = malloc(npx * 3 * sizeof(float)), *in32 = malloc(npx * cfg.in_channels * 4);
-  assert_non_null(want);
-  assert_non_null(in32);
+  const size_t in_bytes = (size_t)W * H * cfg.in_channels * 2;
   for (size_t k = 0; k < sizeof mib / sizeof mib[0]; k++) {
     const size_t bytes = mib[k] << 20;
     int fd = memfd_create("test-segment", MFD_CLOEXEC);
@@ -435,23 +445,8 @@ static void test_register_shared_segments(void **state) {
     double t0 = now_ms();
     assert_int_equal(hf_backend_host_register(c->gpu, seg, bytes), HF_OK);
     double t_pin = now_ms() - t0;
-    uint16_t *in16 = (uint16_t *)seg;
-    uint16_t *out16 = (uint16_t *)(seg + in_bytes);
-    for (size_t i = 0; i < npx * cfg.in_channels; i++) {
-      in16[i] = hf_f32_to_f16(frand());
-      in32[i] = hf_f16_to_f32(in16[i]);
-    }
-    hf_io ref = {1, W, H, in32, HF_F32, want, HF_F32};
-    assert_int_equal(hf_model_run(rm, &ref, NULL), HF_OK);
-    hf_io io = {1, W, H, in16, HF_F16, out16, HF_F16};
-    assert_int_equal(hf_model_run(gm, &io, NULL), HF_OK);
-    double err = 0, norm = 0;
-    for (size_t i = 0; i < npx * 3; i++) {
-      const double d = hf_f16_to_f32(out16[i]) - want[i];
-      err += d * d;
-      norm += (double)want[i] * want[i];
-    }
-    const double rel = sqrt(err / (norm > 0 ? norm : 1));
+    const double rel =
+        f16_against_ref(gm, rm, &cfg, W, H, (uint16_t *)seg, (uint16_t *)(seg + in_bytes));
     t0 = now_ms();
     hf_backend_host_unregister(c->gpu, seg);
     double t_unpin = now_ms() - t0;
@@ -461,8 +456,6 @@ static void test_register_shared_segments(void **state) {
     assert_int_equal(munmap(seg, bytes), 0);
     assert_int_equal(close(fd), 0);
   }
-  free(want);
-  free(in32);
   hf_model_destroy(gm);
   hf_model_destroy(rm);
   hf_weights_free(w);
