@@ -339,7 +339,6 @@ static void account(hfd_server *s, hfd_job *j) {
   st->requests_ok++;
   st->out_of_range += j->out_of_range != 0;
   st->frames_sanitised += j->sanitised != 0;
-  if (j->batch_leader) st->batches++;
   st->sum_queue_us += j->timing.queue_us;
   st->sum_infer_us += j->timing.infer_us;
   st->sum_total_us += j->timing.total_us;
@@ -785,9 +784,11 @@ static void filter_head(hfd_conn *c, size_t have) {
  * moment a slot frees (after every BUSY) fill the queue up to its last
  * quarter only, and one that sends a frame at a time, holding none, finds
  * room there; the queue is shared, not first come first served. The rule
- * refuses nothing that is within its share: a connection alone may fill the
- * whole queue, and connections that each stay within queue_size / n never
- * meet it (the defaults: queue 64, 32 in flight per connection). */
+ * refuses nothing that is within its share: a connection alone may hold as
+ * many frames as the queue has places, those running or being answered
+ * counted (so with one running it fills all but one place), and
+ * connections that each stay within queue_size / n never meet it (the
+ * defaults: queue 64, 32 in flight per connection). */
 static int over_queue_share(hfd_server *s, const hfd_conn *c) {
   int q = s->cfg->queue_size, reserve = q / 4 > 0 ? q / 4 : 1;
   int n = s->conns_with_frames + (c->inflight == 0);

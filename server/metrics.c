@@ -60,13 +60,20 @@ void hfd_metrics_observe(hfd_server *s, const hfd_job *j) {
   observe_time(&m->time[HFD_T_INFER], j->timing.infer_us);
   observe_time(&m->time[HFD_T_OUTPUT], j->timing.output_us);
   observe_time(&m->time[HFD_T_TOTAL], j->timing.total_us);
-  if (j->batch_leader) {
-    int b = 0;
-    while (b < HFD_BATCH_BUCKETS && j->batch > (1u << b)) b++;
-    m->batch.bucket[b]++;
-    m->batch.count++;
-    m->batch.sum += j->batch;
-  }
+}
+
+/* Counted when the run's jobs come back from the worker, not when a reply
+ * is written: the run happened (and took the backend's time) whether or
+ * not its clients are still there, and whether or not it succeeded. */
+void hfd_metrics_batch(hfd_server *s, const hfd_job *j) {
+  hfd_variant *v = &s->variants[j->variant];
+  hfd_hist *h = &v->m.batch;
+  int b = 0;
+  while (b < HFD_BATCH_BUCKETS && j->batch > (1u << b)) b++;
+  h->bucket[b]++;
+  h->count++;
+  h->sum += j->batch;
+  v->stats.batches++;
 }
 
 /* ---- text format ------------------------------------------------------ */
@@ -327,7 +334,8 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
   PER_VARIANT(f, s, "hairfilterd_frames_sanitised_total", "%llu",
               (unsigned long long)v->stats.frames_sanitised);
 
-  scalar(f, "hairfilterd_queue_depth", "gauge", "Admitted frames waiting for the worker.",
+  scalar(f, "hairfilterd_queue_depth", "gauge",
+         "Admitted frames not yet running, queued or held for batch partners.",
          s->stopped ? 0 : hfd_worker_queue_depth(&s->worker));
   scalar(f, "hairfilterd_queue_capacity", "gauge", "--queue-size.",
          s->cfg->queue_size);

@@ -229,7 +229,10 @@ typedef struct hfd_job {
   double t_received, t_started, t_done;
   hfp_timing timing;
   uint32_t batch;
-  int batch_leader;              /* counts the backend run in the stats */
+  /* The first job of a backend run: set by the worker, cleared by
+   * hfd_worker_take_done once it has counted the run (hfd_metrics_batch),
+   * so the run counts once, whether or not its replies are delivered. */
+  int batch_leader;
   uint64_t sanitised;            /* samples hf_model_run sanitised (FEATURES.md) */
   int status;                    /* HFP_OK or an HFP_E_* code */
   int out_of_range;              /* input outside the variant's trained range */
@@ -258,6 +261,10 @@ typedef struct hfd_worker {
   pthread_cond_t cv;
   hfd_job *q_head, *q_tail;
   int q_len, q_cap;
+  /* Frames taken off the queue into the batch being formed, waiting there
+   * for partners: still admitted frames not yet running, so they count as
+   * queued (q_len + q_forming, in the depth and against q_cap). */
+  int q_forming;
   hfd_job *done_head, *done_tail;
   hfd_ctl *ctl_head, *ctl_tail;  /* loads and unloads to do */
   hfd_ctl *ctl_done;             /* loads done, for the loop thread (LIFO) */
@@ -300,18 +307,23 @@ typedef struct hfd_worker {
 int hfd_worker_start(hfd_worker *w);
 /* 0 when queued, HFP_E_BUSY when the queue is full. */
 int hfd_worker_submit(hfd_worker *w, hfd_job *job);
-/* Takes every completed job (in completion order). */
+/* Takes every completed job (in completion order). Loop thread: it also
+ * counts each backend run among them in its variant's statistics
+ * (hfd_metrics_batch), before any reply is written. */
 hfd_job *hfd_worker_take_done(hfd_worker *w);
 /* Queues a load or unload. An UNLOAD's ctl and model are freed by the
  * worker; a LOAD comes back through hfd_worker_take_ctl (and uv_async). */
 void hfd_worker_control(hfd_worker *w, hfd_ctl *ctl);
 /* Takes every finished LOAD; with wait, blocks until there is one. */
 hfd_ctl *hfd_worker_take_ctl(hfd_worker *w, int wait);
+/* Admitted frames not yet running: queued, or held by the batcher while
+ * it waits for partners. */
 int hfd_worker_queue_depth(hfd_worker *w);
 /* Frees LOADs that were never applied, once the worker has stopped: the
  * models of failed ones (built ones went with the worker). */
 void hfd_ctl_free_list(hfd_ctl *c);
-/* Fails every queued job with HFP_E_SHUTTING_DOWN. */
+/* Fails every queued job with HFP_E_SHUTTING_DOWN (the batch being formed
+ * is failed by the worker, which sees cancel). */
 void hfd_worker_cancel(hfd_worker *w);
 /* Asks the thread to exit once the queue is empty, and joins it; models
  * still built are destroyed there. */
@@ -625,9 +637,11 @@ void hfd_model_unref(hfd_server *s, hfd_model *m);
 /* Counts an answer (RESULT or refusal) for a variant slot, or for no variant
  * (slot -1), by status. */
 void hfd_metrics_count(hfd_server *s, int slot, int status);
-/* Records a successful request's timings and, for the batch's first job,
- * the batch size. */
+/* Records a successful request's timings. */
 void hfd_metrics_observe(hfd_server *s, const hfd_job *j);
+/* Counts one backend run, of which j is the first job: STATS' batches and
+ * the batch_size histogram of j's variant. Loop thread. */
+void hfd_metrics_batch(hfd_server *s, const hfd_job *j);
 /* Prometheus text exposition format 0.0.4 of everything /metrics shows,
  * taken on the loop thread; *out is malloc'd, *len its length. */
 int hfd_metrics_render(hfd_server *s, char **out, size_t *len);

@@ -3,7 +3,9 @@
  * takes jobs from the bounded queue, groups compatible ones into a batch
  * (same variant, size and dtypes; at most max_batch; waiting at most
  * max_delay_us for partners, like Triton's dynamic batcher) and hands the
- * finished jobs back to the loop thread through uv_async_send.
+ * finished jobs back to the loop thread through uv_async_send. Frames held
+ * for partners are still queued: they count in the depth and against
+ * q_cap (q_forming), and a full queue ends the wait.
  *
  * With pipeline_depth 2 and a backend that overlaps runs
  * (hf_model_overlaps), a batch that goes straight from its request's
@@ -174,7 +176,7 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   for (int i = 0; i < nb; i++) {
     r->jobs[i]->t_started = r->t0;
     r->jobs[i]->batch = (uint32_t)nb;
-    r->jobs[i]->batch_leader = i == 0;
+    r->jobs[i]->batch_leader = 0;
   }
   size_t in_bytes = (size_t)j0->req.data_len;
   size_t px = (size_t)j0->req.width * j0->req.height;
@@ -193,6 +195,10 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   *io = (hf_io){nb, (int)j0->req.width, (int)j0->req.height, in, (hf_dtype)j0->req.in_dtype,
                 r->direct ? j0->out : w->scratch_out,
                 r->direct ? (hf_dtype)j0->req.out_dtype : HF_F32};
+  /* The batch goes to the backend now: a backend run, counted whatever
+   * becomes of it (hfd_worker_take_done). One that could not be prepared
+   * never ran. */
+  j0->batch_leader = 1;
   r->t1 = hfd_now_us();
   return HF_OK;
 }
@@ -527,6 +533,10 @@ static void *worker_main(void *arg) {
     j0->next = NULL;
     int nb = 1;
     batch[0] = j0;
+    /* Until the batch is formed its frames wait here instead of in the
+     * queue, and count there: the queue's depth and --queue-size are about
+     * admitted frames that are not running yet, wherever they wait. */
+    w->q_forming = 1;
     uint64_t reserved = j0->infer_bytes;
     double deadline = j0->t_received + w->max_delay_us;
     while (nb < w->max_batch && !w->cancel) {
@@ -534,16 +544,22 @@ static void *worker_main(void *arg) {
       if (j) {
         reserved += j->infer_bytes;
         batch[nb++] = j;
+        w->q_forming = nb;
         continue;
       }
-      /* A pending batch is not kept waiting for partners of this one. */
-      if (w->stop || pend.nb || hfd_now_us() >= deadline) break;
+      /* A pending batch is not kept waiting for partners of this one. Nor
+       * is a full queue: no partner can be admitted until a frame leaves
+       * it, and none leaves while this batch waits. */
+      if (w->stop || pend.nb || hfd_now_us() >= deadline ||
+          w->q_len + w->q_forming >= w->q_cap)
+        break;
       struct timespec ts;
       deadline_ts(deadline, &ts);
       int wr = pthread_cond_timedwait(&w->cv, &w->mu, &ts);
       if (wr && wr != ETIMEDOUT && wr != EINTR) break;
     }
     int cancelled = w->cancel;
+    w->q_forming = 0;   /* running (or failed, when cancelled) from here */
     w->busy = 1;
     pthread_mutex_unlock(&w->mu);
     cur.nb = nb;
@@ -625,7 +641,7 @@ int hfd_worker_start(hfd_worker *w) {
 
 int hfd_worker_submit(hfd_worker *w, hfd_job *job) {
   pthread_mutex_lock(&w->mu);
-  if (w->q_len >= w->q_cap || w->stop) {
+  if (w->q_len + w->q_forming >= w->q_cap || w->stop) {
     pthread_mutex_unlock(&w->mu);
     return HFP_E_BUSY;
   }
@@ -646,6 +662,14 @@ hfd_job *hfd_worker_take_done(hfd_worker *w) {
   hfd_job *j = w->done_head;
   w->done_head = w->done_tail = NULL;
   pthread_mutex_unlock(&w->mu);
+  /* Every job passes here on the loop thread, those whose connection has
+   * gone included (delivery drops them), so this is where a backend run is
+   * counted: once, by its first job, whoever is left to receive it. */
+  for (hfd_job *k = j; k; k = k->next)
+    if (k->batch_leader) {
+      hfd_metrics_batch(k->conn->srv, k);
+      k->batch_leader = 0;
+    }
   return j;
 }
 
@@ -679,7 +703,7 @@ int hfd_worker_stalled(hfd_worker *w, double limit_us, double *stalled_us) {
 
 int hfd_worker_queue_depth(hfd_worker *w) {
   pthread_mutex_lock(&w->mu);
-  int n = w->q_len;
+  int n = w->q_len + w->q_forming;
   pthread_mutex_unlock(&w->mu);
   return n;
 }

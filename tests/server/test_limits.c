@@ -687,6 +687,111 @@ static void test_batches_form_within_budget(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* STATS' queue_depth, asked on c. */
+static int queue_depth(hfc_client *c) {
+  static hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  return st.queue_depth;
+}
+
+/* Waits up to 2 s for STATS' queue_depth to be want; fails saying what it
+ * was. */
+static void expect_queue_depth(hfc_client *c, int want, const char *what) {
+  int got = -1;
+  for (int waited = 0; waited < 2000; waited += 10) {
+    if ((got = queue_depth(c)) == want) return;
+    usleep(10000);
+  }
+  fail_msg("queue_depth %d with %s, not %d", got, what, want);
+}
+
+/* Sends a FILTER of Small at w x h with id on fd. */
+static void send_small(int fd, uint32_t id, int w, int h) {
+  float *in = make_features(w, h, 4, id);
+  size_t len;
+  uint8_t *f = raw_filter(id, "Small", w, h, 4, in, &len);
+  assert_non_null(f);
+  assert_int_equal(raw_send(fd, f, len), 0);
+  free(f);
+  free(in);
+}
+
+/* Reads the next reply on fd: it must be about id; returns its type, with
+ * an ERROR's code in *code or a RESULT's batch and queue time in *batch
+ * and *queue_us. */
+static int read_reply(int fd, uint32_t id, int *code, uint32_t *batch, uint64_t *queue_us) {
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.request_id, id);
+  if (h.type == HFP_ERROR) {
+    hfp_error e;
+    assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+    *code = (int)e.code;
+  } else {
+    assert_int_equal(h.type, HFP_RESULT);
+    hfp_result r;
+    assert_int_equal(hfp_decode_result(p, h.length, &r), 0);
+    assert_int_equal(r.status, 0);
+    *batch = r.batch;
+    *queue_us = r.timing.queue_us;
+  }
+  free(p);
+  return h.type;
+}
+
+/* Item: frames the batcher holds while it waits for partners are queued
+ * frames like any other (docs/SERVER.md, "Limits and backpressure",
+ * "Batching"; PROTOCOL.md, STATS' queue_depth: admitted, not yet running).
+ * With --queue-size 8, --max-batch 16 and a delay of 10 s, four frames from
+ * one connection and two from another wait in the batcher: STATS says 6;
+ * the first connection's fifth frame would take a place in the queue's
+ * last quarter over its share (8 / 2), so it is BUSY; two frames from a
+ * third connection fill the queue, and then no partner can be admitted, so
+ * the batch of 8 runs at once rather than when the 10 s are up. */
+static void test_batcher_frames_are_queued(void **state) {
+  (void)state;
+  enum { W = 24 };
+  server d;
+  const char *args[] = {"--queue-size", "8", "--max-batch", "16", "--max-queue-delay-us",
+                        "10000000", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = test_options("stats", NULL, 20000);
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  int fd[3];
+  for (int k = 0; k < 3; k++) {
+    fd[k] = raw_connect(d.unix_url);
+    assert_true(fd[k] >= 0);
+    assert_int_equal(raw_hello(fd[k], NULL), 0);
+  }
+  for (uint32_t id = 1; id <= 4; id++) send_small(fd[0], id, W, W);
+  expect_queue_depth(c, 4, "4 frames in the batcher");
+  for (uint32_t id = 1; id <= 2; id++) send_small(fd[1], id, W, W);
+  expect_queue_depth(c, 6, "6 frames in the batcher");
+  int code = 0;
+  uint32_t batch = 0;
+  uint64_t queue_us = 0;
+  send_small(fd[0], 5, W, W);
+  if (read_reply(fd[0], 5, &code, &batch, &queue_us) != HFP_ERROR)
+    fail_msg("a fifth frame over its share of a queue holding 6 of 8 was admitted");
+  assert_int_equal(code, HFP_E_BUSY);
+  expect_queue_depth(c, 6, "6 frames in the batcher and one refused");
+  for (uint32_t id = 1; id <= 2; id++) send_small(fd[2], id, W, W);
+  const int sent[3] = {4, 2, 2};
+  for (int k = 0; k < 3; k++)
+    for (uint32_t id = 1; id <= (uint32_t)sent[k]; id++) {
+      assert_int_equal(read_reply(fd[k], id, &code, &batch, &queue_us), HFP_RESULT);
+      if (batch != 8 || queue_us >= 5000000)
+        fail_msg("connection %d frame %u: batch %u, queued %.3f s; want the 8 frames that "
+                 "filled the queue run together at once", k, id, batch, queue_us / 1e6);
+    }
+  expect_queue_depth(c, 0, "every frame answered");
+  for (int k = 0; k < 3; k++) close(fd[k]);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_batches_form_within_budget),
@@ -694,6 +799,7 @@ int main(void) {
     cmocka_unit_test(test_announced_maximum_is_admitted),
     cmocka_unit_test(test_queue_share_within_window),
     cmocka_unit_test(test_queue_shared),
+    cmocka_unit_test(test_batcher_frames_are_queued),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
     cmocka_unit_test(test_slow_senders_hold_what_they_sent),

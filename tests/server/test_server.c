@@ -534,6 +534,136 @@ static void test_busy_when_queue_full(void **state) {
   assert_int_equal(server_stop(&b, 20000), 0);
 }
 
+/* The body of GET path on the daemon's --http endpoint, whose URL
+ * (http://HOST:PORT) its ready file lists; malloc'd, or NULL. */
+static char *http_get(const server *d, const char *path) {
+  char buf[4096], url[300] = "";
+  if (read_text_file(d->ready, buf, sizeof buf) < 0) return NULL;
+  for (char *line = strtok(buf, "\n"); line; line = strtok(NULL, "\n"))
+    if (!strncmp(line, "http://", 7)) snprintf(url, sizeof url, "tcp:%s", line + 7);
+  if (!url[0]) return NULL;
+  int fd = raw_connect(url);
+  if (fd < 0) return NULL;
+  char req[256];
+  int n = snprintf(req, sizeof req, "GET %s HTTP/1.0\r\n\r\n", path);
+  size_t len = 0, cap = 1 << 16;
+  char *all = malloc(cap);
+  if (!all || raw_send(fd, req, (size_t)n)) {
+    free(all);
+    close(fd);
+    return NULL;
+  }
+  for (;;) {
+    if (len + 1 == cap) {
+      char *more = realloc(all, cap *= 2);
+      if (!more) break;
+      all = more;
+    }
+    ssize_t got = recv(fd, all + len, cap - 1 - len, 0);
+    if (got < 0 && errno == EINTR) continue;
+    if (got <= 0) break;
+    len += (size_t)got;
+  }
+  close(fd);
+  all[len] = 0;
+  char *body = strstr(all, "\r\n\r\n");
+  if (!body || strncmp(all, "HTTP/1.", 7) || strncmp(all + 8, " 200", 4)) {
+    free(all);
+    return NULL;
+  }
+  memmove(all, body + 4, strlen(body + 4) + 1);
+  return all;
+}
+
+/* A metric's value for variant="Small" in a /metrics body; fails when
+ * absent. */
+static double small_metric(const char *body, const char *name) {
+  char key[160];
+  snprintf(key, sizeof key, "\n%s{variant=\"Small\"} ", name);
+  const char *at = strstr(body, key);
+  if (!at) fail_msg("/metrics has no %s for Small", name);
+  return strtod(at + strlen(key), NULL);
+}
+
+/* STATS' batches of Small, asked on c. */
+static uint64_t small_batches(hfc_client *c) {
+  static hfc_stats st;
+  assert_int_equal(hfc_get_stats(c, &st), 0);
+  for (int i = 0; i < st.num_variants; i++)
+    if (!strcmp(st.variants[i].name, "Small")) return st.variants[i].batches;
+  fail_msg("STATS has no Small");
+  return 0;
+}
+
+/* Item: every backend run counts as a batch, in STATS' batches and in
+ * /metrics' hairfilterd_batch_size, whoever is still there to receive its
+ * result (docs/SERVER.md, "Statistics"). A frame whose client closes while
+ * it waits behind a long one still runs; its run is counted beside the
+ * other two. */
+static void test_batches_counted_when_client_gone(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-batch", "1", "--http", "tcp:127.0.0.1:0", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL;
+  hfc_options o = test_options("stats", NULL, 20000);
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  uint64_t batches0 = small_batches(c);
+  char *m0 = http_get(&d, "/metrics");
+  assert_non_null(m0);
+  double count0 = small_metric(m0, "hairfilterd_batch_size_count");
+  double sum0 = small_metric(m0, "hairfilterd_batch_size_sum");
+  free(m0);
+  /* A frame long enough (cpu-ref) that the next one waits behind it. */
+  const int sizes[3] = {384, 32, 16};
+  uint8_t *frames[3];
+  size_t lens[3];
+  for (int k = 0; k < 3; k++) {
+    float *in = make_features(sizes[k], sizes[k], 4, (uint32_t)k + 1);
+    frames[k] = raw_filter((uint32_t)k + 1, "Small", sizes[k], sizes[k], 4, in, &lens[k]);
+    assert_non_null(frames[k]);
+    free(in);
+  }
+  int stay = raw_connect(d.unix_url), gone = raw_connect(d.unix_url);
+  assert_true(stay >= 0 && gone >= 0);
+  assert_int_equal(raw_hello(stay, NULL), 0);
+  assert_int_equal(raw_hello(gone, NULL), 0);
+  assert_int_equal(raw_send(stay, frames[0], lens[0]), 0);
+  usleep(20000);
+  /* Admitted whole, then its client leaves before it has run. */
+  assert_int_equal(raw_send(gone, frames[1], lens[1]), 0);
+  close(gone);
+  usleep(50000);
+  assert_int_equal(raw_send(stay, frames[2], lens[2]), 0);
+  for (uint32_t id = 1; id <= 3; id += 2) {
+    hfp_header h;
+    uint8_t *p;
+    assert_int_equal(raw_read(stay, &h, &p), 0);
+    assert_int_equal(h.type, HFP_RESULT);
+    assert_int_equal(h.request_id, id);
+    free(p);
+  }
+  /* The queue runs in order, so the frame whose client went ran before the
+   * last one answered; its jobs may come back to the loop a moment later. */
+  uint64_t batches = 0;
+  for (int waited = 0; waited < 2000 && (batches = small_batches(c) - batches0) < 3;
+       waited += 20)
+    usleep(20000);
+  char *m1 = http_get(&d, "/metrics");
+  assert_non_null(m1);
+  double count = small_metric(m1, "hairfilterd_batch_size_count") - count0;
+  double sum = small_metric(m1, "hairfilterd_batch_size_sum") - sum0;
+  free(m1);
+  printf("3 backend runs, one whose client had gone: STATS batches +%llu, batch_size count "
+         "+%g, sum +%g\n", (unsigned long long)batches, count, sum);
+  assert_int_equal(batches, 3);
+  assert_true(count == 3 && sum == 3);
+  for (int k = 0; k < 3; k++) free(frames[k]);
+  close(stay);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 /* SIGTERM with requests queued: they are finished (drain), new ones are
  * refused, the socket file is removed and the exit status is 0. */
 static void test_sigterm_drains(void **state) {
@@ -1356,6 +1486,7 @@ int main(void) {
     cmocka_unit_test(test_backpressure_on_unread_replies),
     cmocka_unit_test(test_stats),
     cmocka_unit_test(test_busy_when_queue_full),
+    cmocka_unit_test(test_batches_counted_when_client_gone),
     cmocka_unit_test(test_sigterm_drains),
     cmocka_unit_test(test_warm_and_pipeline_depth),
     cmocka_unit_test(test_sigterm_no_drain_time),
