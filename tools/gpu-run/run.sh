@@ -206,6 +206,14 @@ if [ "$(left)" -gt 120 ] && serve e2e; then
   load load_shm_f16 e2e --shm --f16
   load load_shm_f16_k2 e2e --shm --f16 --inflight 2
   load load_shm_f32_k2 e2e --shm --inflight 2
+  # The same as load_shm_f16 beside a client that creates and destroys
+  # 192 MiB segments in a loop, each pinned off the event loop: its p99
+  # against load_shm_f16's says whether other connections wait for it.
+  "$PY" "$ROOT/tools/gpu-run/shm_churn.py" "unix:$R/e2e.sock" --mib 192 \
+    --seconds $((SECS + 2)) > "$R/shm_churn.log" 2>&1 &
+  CHURN_PID=$!
+  load load_shm_f16_churn e2e --shm --f16
+  wait "$CHURN_PID"
   stop e2e
 fi
 # KernelAC end to end: the estimate on the wire (protocol version 3).

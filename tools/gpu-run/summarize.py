@@ -173,6 +173,16 @@ def main():
               f"  input {p.get('input', 0):.3f}  infer {p.get('infer', 0):.3f}"
               f"  output {p.get('output', 0):.3f}" + (f"  [{m.group(1)}]" if m else ""))
 
+    churn = read(logdir, "shm_churn.log")
+    if churn is not None:
+        line = next((l for l in churn.splitlines() if l.startswith("CHURN")), None)
+        if line:
+            f = line.split("\t")
+            print(f"  beside shm_f16_churn: {f[1]} segments of {f[2]} MiB created and destroyed in "
+                  f"{f[3]} s, creation p50 {f[4]} ms, max {f[5]} ms")
+        else:
+            print("  shm_churn: no result (see shm_churn.log)")
+
     section("PCIe floor (pinned copies of one frame's bytes, CUDA events)")
     pcie = {}
     for name in ("pcie_f16", "pcie_f32"):
