@@ -45,6 +45,18 @@ static int bad_type(cf_test *t, intptr_t type) {
   return cf_expect_error(t, fd, HFP_E_PROTOCOL, 1, 0);
 }
 
+/* The header's type is checked before its length: a type that is not a
+ * request claiming a payload far over max_frame_bytes is still PROTOCOL,
+ * not TOO_LARGE (only the header is sent). */
+static int bad_type_long(cf_test *t, intptr_t type) {
+  int fd;
+  CF_TRY(cf_connect_hello(t, 1, HFP_VERSION, &fd, NULL));
+  uint8_t b[HFP_HEADER_SIZE];
+  cf_header(b, (int)type, 0, 5, UINT32_MAX);
+  CF_TRY(cf_send(t, fd, b, sizeof b));
+  return cf_expect_error(t, fd, HFP_E_PROTOCOL, 1, 0);
+}
+
 /* Header flags are reserved: any bit is a fatal PROTOCOL, on any type. */
 static int bad_flags(cf_test *t, intptr_t arg) {
   int type = (int)(arg & 0xffff);
@@ -242,6 +254,9 @@ const cf_case cf_cases_frame[] = {
   TYPE(HFP_ERROR, "error"),
   TYPE(HFP_STATS_REPLY, "stats_reply"),
   TYPE(HFP_SHM_CREATED, "shm_created"),
+  {"frame.bad_type.result_over_max", "the type before the length: a RESULT claiming 4 GiB is a fatal PROTOCOL, not TOO_LARGE", 0, bad_type_long, HFP_RESULT},
+  {"frame.bad_type.error_over_max", "the type before the length: an ERROR claiming 4 GiB is a fatal PROTOCOL, not TOO_LARGE", 0, bad_type_long, HFP_ERROR},
+  {"frame.bad_type.thirteen_over_max", "the type before the length: type 13 claiming 4 GiB is a fatal PROTOCOL, not TOO_LARGE", 0, bad_type_long, 13},
   FLAGS(HFP_LIST_VARIANTS, 1, "bit0"),
   FLAGS(HFP_LIST_VARIANTS, 0x8000, "bit15"),
   FLAGS(HFP_STATS, 0x0100, "stats_bit8"),
