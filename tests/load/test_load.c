@@ -290,8 +290,10 @@ static void test_frames_in_contract(void **state) {
       snprintf(args, sizeof args, "--server %s --variant Small --size 1024x768 --shm %s "
                "--seconds 0.5 --warmup 0%s", C.unix_url, f16 ? "--f16" : "",
                p ? "" : " --quiet");
+      /* Status 1 is a window with no frame completed in it (a slow build,
+       * such as the sanitizer's): the frames still count at the server. */
       int rc = load_prog(progs[p], args);
-      if (rc) fail_msg("%s %s: status %d:\n%s", progs[p], args, rc, text);
+      if (rc != 0 && rc != 1) fail_msg("%s %s: status %d:\n%s", progs[p], args, rc, text);
       uint64_t after = sanitised_count(&C, "Small", &ok1);
       if (ok1 <= ok0) fail_msg("%s %s: no frame answered:\n%s", progs[p], args, text);
       if (after != before)
