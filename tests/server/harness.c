@@ -483,6 +483,14 @@ hfc_options test_options(const char *name, const char *token, int timeout_ms) {
   return o;
 }
 
+int server_start_connected(const harness *h, server *s, const char *const *extra,
+                           const char *name, hfc_client **c) {
+  *c = NULL;
+  if (server_start(h, s, extra)) return -1;
+  hfc_options o = test_options(name, NULL, 20000);
+  return hfc_connect(s->unix_url, &o, c) ? -1 : 0;
+}
+
 hfc_request test_request_sized(hfc_request r) {
   if (!r.features_bytes)
     r.features_bytes = hfc_features_bytes(r.width, r.height, r.spp, r.in_dtype) +

@@ -79,6 +79,10 @@ void server_dump_log(const server *s);
 int harness_stop(harness *h, server *s);
 /* Client options: name, token (NULL: none), timeout; the rest defaults. */
 hfc_options test_options(const char *name, const char *token, int timeout_ms);
+/* server_start with extra, then a client named name on its Unix socket
+ * (20 s timeout) in *c: 0, or -1 when either failed. */
+int server_start_connected(const harness *h, server *s, const char *const *extra,
+                           const char *name, hfc_client **c);
 /* A request from designated initialisers, with struct_size set and every
  * buffer size left at 0 set to what its dimensions need (the tests' buffers
  * are exactly that large):

@@ -37,6 +37,28 @@ static int teardown(void **state) {
   return 0;
 }
 
+/* Reads the next reply on fd, which must be about id and not fatal:
+ * returns its type, with an ERROR's code in *code (else 0) or the decoded
+ * RESULT (status 0) in *r, whose tensors point into *payload (the caller
+ * frees it). */
+static int read_reply(int fd, uint32_t id, int *code, hfp_result *r, uint8_t **payload) {
+  hfp_header h;
+  assert_int_equal(raw_read(fd, &h, payload), 0);
+  assert_int_equal(h.request_id, id);
+  *code = 0;
+  if (h.type == HFP_ERROR) {
+    hfp_error e;
+    assert_int_equal(hfp_decode_error(*payload, h.length, &e), 0);
+    *code = (int)e.code;
+    assert_int_equal(e.fatal, 0);
+  } else {
+    assert_int_equal(h.type, HFP_RESULT);
+    assert_int_equal(hfp_decode_result(*payload, h.length, r), 0);
+    assert_int_equal(r->status, 0);
+  }
+  return h.type;
+}
+
 /* Sends one FILTER of variant at w x h (with a composite when rgba) on fd
  * and returns the reply's type; *code gets an ERROR's code, and the RESULT
  * is compared with the in-process reference. */
@@ -50,21 +72,10 @@ static int filter_once(int fd, uint32_t id, const char *variant, int w, int h, i
   assert_non_null(f);
   if (rgba) hfp_put_u16(f + HFP_HEADER_SIZE + 2, HFP_FILTER_COMPOSITE);
   assert_int_equal(raw_send(fd, f, len), 0);
-  hfp_header hd;
+  hfp_result r;
   uint8_t *p;
-  assert_int_equal(raw_read(fd, &hd, &p), 0);
-  assert_int_equal(hd.request_id, id);
-  *code = 0;
-  if (hd.type == HFP_ERROR) {
-    hfp_error e;
-    assert_int_equal(hfp_decode_error(p, hd.length, &e), 0);
-    *code = (int)e.code;
-    assert_int_equal(e.fatal, 0);
-  } else {
-    assert_int_equal(hd.type, HFP_RESULT);
-    hfp_result r;
-    assert_int_equal(hfp_decode_result(p, hd.length, &r), 0);
-    assert_int_equal(r.status, 0);
+  int type = read_reply(fd, id, code, &r, &p);
+  if (type == HFP_RESULT) {
     size_t n = (size_t)w * h * 3;
     float *want = malloc(n * sizeof *want);
     assert_int_equal(reference(v, w, h, in, HF_F32, want, HF_F32), 0);
@@ -74,7 +85,7 @@ static int filter_once(int fd, uint32_t id, const char *variant, int w, int h, i
   free(p);
   free(f);
   free(in);
-  return hd.type;
+  return type;
 }
 
 /* Sends n Small frames of w x h at once on c and waits for them all:
@@ -716,30 +727,6 @@ static void send_small(int fd, uint32_t id, int w, int h) {
   free(in);
 }
 
-/* Reads the next reply on fd: it must be about id; returns its type, with
- * an ERROR's code in *code or a RESULT's batch and queue time in *batch
- * and *queue_us. */
-static int read_reply(int fd, uint32_t id, int *code, uint32_t *batch, uint64_t *queue_us) {
-  hfp_header h;
-  uint8_t *p;
-  assert_int_equal(raw_read(fd, &h, &p), 0);
-  assert_int_equal(h.request_id, id);
-  if (h.type == HFP_ERROR) {
-    hfp_error e;
-    assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
-    *code = (int)e.code;
-  } else {
-    assert_int_equal(h.type, HFP_RESULT);
-    hfp_result r;
-    assert_int_equal(hfp_decode_result(p, h.length, &r), 0);
-    assert_int_equal(r.status, 0);
-    *batch = r.batch;
-    *queue_us = r.timing.queue_us;
-  }
-  free(p);
-  return h.type;
-}
-
 /* Item: frames the batcher holds while it waits for partners are queued
  * frames like any other (docs/SERVER.md, "Limits and backpressure",
  * "Batching"; PROTOCOL.md, STATS' queue_depth: admitted, not yet running).
@@ -755,10 +742,8 @@ static void test_batcher_frames_are_queued(void **state) {
   server d;
   const char *args[] = {"--queue-size", "8", "--max-batch", "16", "--max-queue-delay-us",
                         "10000000", NULL};
-  assert_int_equal(server_start(&H, &d, args), 0);
-  hfc_client *c = NULL;
-  hfc_options o = test_options("stats", NULL, 20000);
-  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  hfc_client *c;
+  assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
   int fd[3];
   for (int k = 0; k < 3; k++) {
     fd[k] = raw_connect(d.unix_url);
@@ -770,21 +755,24 @@ static void test_batcher_frames_are_queued(void **state) {
   for (uint32_t id = 1; id <= 2; id++) send_small(fd[1], id, W, W);
   expect_queue_depth(c, 6, "6 frames in the batcher");
   int code = 0;
-  uint32_t batch = 0;
-  uint64_t queue_us = 0;
+  hfp_result r;
+  uint8_t *p;
   send_small(fd[0], 5, W, W);
-  if (read_reply(fd[0], 5, &code, &batch, &queue_us) != HFP_ERROR)
+  if (read_reply(fd[0], 5, &code, &r, &p) != HFP_ERROR)
     fail_msg("a fifth frame over its share of a queue holding 6 of 8 was admitted");
+  free(p);
   assert_int_equal(code, HFP_E_BUSY);
   expect_queue_depth(c, 6, "6 frames in the batcher and one refused");
   for (uint32_t id = 1; id <= 2; id++) send_small(fd[2], id, W, W);
   const int sent[3] = {4, 2, 2};
   for (int k = 0; k < 3; k++)
     for (uint32_t id = 1; id <= (uint32_t)sent[k]; id++) {
-      assert_int_equal(read_reply(fd[k], id, &code, &batch, &queue_us), HFP_RESULT);
-      if (batch != 8 || queue_us >= 5000000)
+      assert_int_equal(read_reply(fd[k], id, &code, &r, &p), HFP_RESULT);
+      free(p);
+      if (r.batch != 8 || r.timing.queue_us >= 5000000)
         fail_msg("connection %d frame %u: batch %u, queued %.3f s; want the 8 frames that "
-                 "filled the queue run together at once", k, id, batch, queue_us / 1e6);
+                 "filled the queue run together at once", k, id, r.batch,
+                 r.timing.queue_us / 1e6);
     }
   expect_queue_depth(c, 0, "every frame answered");
   for (int k = 0; k < 3; k++) close(fd[k]);

@@ -604,10 +604,8 @@ static void test_batches_counted_when_client_gone(void **state) {
   (void)state;
   server d;
   const char *args[] = {"--max-batch", "1", "--http", "tcp:127.0.0.1:0", NULL};
-  assert_int_equal(server_start(&H, &d, args), 0);
-  hfc_client *c = NULL;
-  hfc_options o = test_options("stats", NULL, 20000);
-  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  hfc_client *c;
+  assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
   uint64_t batches0 = small_batches(c);
   char *m0 = http_get(&d, "/metrics");
   assert_non_null(m0);
