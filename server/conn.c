@@ -1052,6 +1052,7 @@ static void pin_done(uv_work_t *req, int status) {
   hfd_conn *c = p->c;
   hfd_server *s = c->srv;
   c->pin_wait = 0;
+  s->pins_outstanding--;
   /* UV_ECANCELED (never asked for here): it never ran, nothing is pinned. */
   if (status < 0)
     p->g->registered = 0;
@@ -1062,16 +1063,20 @@ static void pin_done(uv_work_t *req, int status) {
     hfd_seg_drop(s, p->g);
     free(p);
     conn_release(c);
-    return;
+  } else {
+    shm_created(c, p->g, p->fd, p->bytes);
+    free(p);
+    /* Not while replies are unread: wrote_one restarts it then. */
+    if (!c->closing && !c->fatal_sent && !c->read_paused) {
+      int rc = hfd_io_read_start(c, on_alloc, on_read);
+      if (rc < 0) {
+        hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
+        hfd_conn_close(c);
+      }
+    }
   }
-  shm_created(c, p->g, p->fd, p->bytes);
-  free(p);
-  if (c->closing || c->fatal_sent || c->read_paused) return; /* wrote_one restarts it */
-  int rc = hfd_io_read_start(c, on_alloc, on_read);
-  if (rc < 0) {
-    hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
-    hfd_conn_close(c);
-  }
+  /* A drain that waited for this pin may finish now. */
+  hfd_maybe_finish(s);
 }
 
 static void shm_create(hfd_conn *c) {
@@ -1104,6 +1109,7 @@ static void shm_create(hfd_conn *c) {
       if (uv_queue_work(s->loop, &p->req, pin_work, pin_done) == 0) {
         read_stop(c);
         c->pin_wait = 1;
+        s->pins_outstanding++;
         return;
       }
       free(p);

@@ -326,7 +326,8 @@ static void on_flush_timeout(uv_timer_t *t) {
 void hfd_maybe_finish(hfd_server *s) {
   if (!s->draining) return;
   if (!s->stopped) {
-    if (s->jobs_outstanding) return;
+    /* A segment being pinned uses the worker's backend (hfd_seg_pin). */
+    if (s->jobs_outstanding || s->pins_outstanding) return;
     s->stopped = 1;
     /* Nothing is queued or running (every admitted job was answered), so
      * the worker exits at once. */

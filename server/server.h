@@ -504,6 +504,8 @@ struct hfd_server {
   uint64_t shm_held;             /* bytes of shared segments */
   uint64_t replies_lost;         /* computed, never delivered (peer gone or closed) */
   int jobs_outstanding;          /* admitted, not yet answered */
+  int pins_outstanding;          /* segments being pinned on the thread pool: the
+                                    worker (and its backend) must outlive them */
   int conns_with_frames;         /* connections with inflight > 0 */
   int draining, stopped;
   int hurry;                     /* a second signal: no more waiting */
