@@ -111,7 +111,21 @@ int cmd_infer(int argc, char **argv) {
     default: goto bad;
     }
   }
-  if (!weights || !in || !out || optind != argc) goto bad;
+  if (optind != argc) {
+    fprintf(stderr, "hairfilter infer: unexpected argument '%s'\n", argv[optind]);
+    goto bad;
+  }
+  if (!weights || !in || !out) {
+    /* Said before the usage, so the missing one is not lost in it. */
+    char missing[80] = "";
+    if (!weights) strcat(missing, " --weights FILE");
+    if (!in) strcat(missing, " --in FEATURES.exr");
+    if (!out) strcat(missing, " --out RESULT.exr");
+    fprintf(stderr, "hairfilter infer: give%s (the default variant's weights: "
+                    "weights/kernel_ac.safetensors; weights/kernel.safetensors for a frame "
+                    "without the estimate)\n", missing);
+    goto bad;
+  }
   if (cli_check_output("hairfilter infer", out) || cli_check_output("hairfilter infer", png)) return 1;
   hf_image res = {0}, layer = {0};
   int rc = infer_file(weights, in, part, backend, &res, &layer);

@@ -153,6 +153,14 @@ static void test_tiled_and_parts(void **state) {
 }
 
 static void test_refusals(void **state) {
+  /* A missing option is named before the usage, with the weights to give. */
+  assert_int_equal(cli("infer --in %s --out %s", test_field("frame-64x64.exr"), test_tmp("x.exr")),
+                   2);
+  expect_text("hairfilter infer: give --weights FILE (");
+  expect_text("weights/kernel_ac.safetensors");
+  assert_int_equal(cli("infer --weights %s --in %s --out %s stray", BASE,
+                       test_field("frame-64x64.exr"), test_tmp("x.exr")), 2);
+  expect_text("unexpected argument 'stray'");
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_field("exr-dwaa.exr"), test_tmp("x.exr")), 1);
   expect_text("exr-dwaa.exr: DWAA compression cannot be decoded");
