@@ -136,12 +136,37 @@ typedef struct cudnn_dev {
   int nranges, cap;
 } cudnn_dev;
 
+/* What "CUDA driver version is insufficient" means here. The CUDA runtime
+ * answers that both without any NVIDIA driver (no GPU: nothing to do) and
+ * with a driver older than the runtime (update the driver); the loaded
+ * kernel module's version file tells them apart. */
+static const char *driver_note(cudaError_t e, char *buf, size_t cap) {
+  buf[0] = 0;
+  if (e != cudaErrorInsufficientDriver) return buf;
+  FILE *f = fopen("/proc/driver/nvidia/version", "r");
+  if (!f) {
+    snprintf(buf, cap, "; no NVIDIA driver is loaded (no /proc/driver/nvidia/version): "
+                       "this machine has no usable GPU");
+    return buf;
+  }
+  char line[160] = "";
+  if (!fgets(line, sizeof line, f)) line[0] = 0;
+  fclose(f);
+  line[strcspn(line, "\n")] = 0;
+  snprintf(buf, cap, "; the loaded driver (%s) is older than this build's CUDA %d.%d runtime "
+                     "needs: update the NVIDIA driver", line[0] ? line : "version unknown",
+           CUDART_VERSION / 1000, CUDART_VERSION % 1000 / 10);
+  return buf;
+}
+
 static int cudnn_probe(char *why, size_t whylen) {
   int count = 0;
   cudaError_t e = cudaGetDeviceCount(&count);
   if (e != cudaSuccess || count < 1) {
-    snprintf(why, whylen, "no CUDA device (cudaGetDeviceCount: %s)",
-             e != cudaSuccess ? cudaGetErrorString(e) : "0 devices");
+    char note[300];
+    snprintf(why, whylen, "no CUDA device (cudaGetDeviceCount: %s%s)",
+             e != cudaSuccess ? cudaGetErrorString(e) : "0 devices",
+             driver_note(e, note, sizeof note));
     cudaGetLastError(); /* the failure is not sticky; leave no trace */
     return HF_EUNAVAILABLE;
   }

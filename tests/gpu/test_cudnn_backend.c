@@ -55,6 +55,12 @@ static void test_availability(void **state) {
     assert_null(b);
     assert_true(strlen(why) > 0);
     assert_non_null(strstr(why, "no CUDA device"));
+    /* "Driver insufficient" is the runtime's word for no driver at all, too:
+     * the reason says which it is. */
+    if (strstr(no_gpu_reason, "insufficient"))
+      assert_non_null(strstr(why, access("/proc/driver/nvidia/version", F_OK) == 0
+                                      ? "update the NVIDIA driver"
+                                      : "no NVIDIA driver is loaded"));
     /* auto falls back to a CPU backend and says why cudnn was passed over. */
     assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
     printf("  auto: %s\n", why);
