@@ -923,6 +923,14 @@ int cmd_bench(int argc, char **argv) {
     }
     weights_label(&o, i, o.loaded[i]->cfg.name, o.labels[i], sizeof o.labels[i]);
   }
+  /* What is about to run, before the minutes it may take (every backend at
+   * three sizes by default, cpu-ref among them). */
+  fprintf(stderr,
+          "hairfilter bench: %d backend(s) x %d network(s) x %d size(s) x %d batch(es), %d timed "
+          "runs each after %d warm-up%s; --backend, --variants, --weights, --sizes and --iters "
+          "narrow it\n",
+          o.nbackends, o.nvariants + o.nweights, o.nsizes, o.nbatches, o.iters, o.warmup,
+          o.torch ? ", then PyTorch on the same" : "");
   bench_machine mc;
   memset(&mc, 0, sizeof mc);
   bench_cpu_describe(&mc.cpu);
