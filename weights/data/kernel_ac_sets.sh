@@ -10,7 +10,10 @@
 #
 # Whole rounds of styles: regimes256b and regimes256c hold 6 and 12
 # frames here, where the sets of the bundled weights were runs stopped
-# after 4 and 9 (their first frames, the same draws).
+# after 4 and 9 (their first frames, the same draws). regimes256c's 10th
+# frame (ponytail_0001) is by far the costliest of all: 40 min of wall time
+# and 6.1 GB at its peak on a 2-core AMD EPYC (2026-12-04, `/usr/bin/time
+# -v`), its 8x8 truth drawn in bands; the sets after it wait for it.
 #
 # Usage: weights/data/kernel_ac_sets.sh build/hairfilter data/g8train [render options]
 # The render options go to `render dataset` and, for train256, `render
