@@ -515,8 +515,11 @@ static void test_inference_memory_in_budget(void **state) {
     /* Inside the budget (the 8x8 frame's plan and connection buffers are in
      * the 2 MiB). */
     assert_true(hwm - rss0 <= 48 * 1024 + 2048);
-    /* Given back: within 4 MiB of where it started. */
-    assert_true(rss1 - rss0 <= 4096);
+    /* Given back: within 5 MiB of where it started, less than one of the
+     * frames (5.3 MiB of features) and more than the malloc arenas and
+     * thread state such a burst leaves (3.5 to 4.3 MiB measured here, with
+     * the models' cache and the idle receive buffers unchanged). */
+    assert_true(rss1 - rss0 <= 5120);
   } else {
     printf("peak RSS not checked: %s\n",
            UNDER_ASAN ? "AddressSanitizer keeps freed memory" : "cannot reset it");
