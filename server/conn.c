@@ -866,13 +866,9 @@ static void on_header(hfd_conn *c) {
   int rc = hfp_header_decode(c->hbuf, max, &c->hdr);
   const hfp_header *h = &c->hdr;
   /* The type is the header's before its length: a server -> client type
-   * is PROTOCOL whatever length it claims. */
-  if (rc == -HFP_E_TOO_LARGE && c->hello_done && !is_client_type(h->type)) {
-    s->protocol_errors++;
-    send_error(c, 0, HFP_E_PROTOCOL, 1, "message type %u is not a request", h->type);
-    return;
-  }
-  if (rc == -HFP_E_TOO_LARGE && c->hello_done) {
+   * claiming too much goes on to the switch below, which refuses it as
+   * PROTOCOL whatever its length. */
+  if (rc == -HFP_E_TOO_LARGE && c->hello_done && is_client_type(h->type)) {
     s->protocol_errors++;
     send_error(c, h->type == HFP_FILTER ? h->request_id : 0, HFP_E_TOO_LARGE, 1,
                "frame of %u bytes is over the limit of %llu", h->length,
