@@ -266,10 +266,6 @@ static void finish_output(hf_model *m, int slot, const hf_io *io, hf_input_repor
   }
 }
 
-/* Frames whose reports a scanning run can keep on the stack when the
- * caller wants none. */
-#define HF_SCAN_OWN_REPORTS 16
-
 /* io run by a backend that checks it in its own first read of the input
  * (model_run_scan), saving sanitise_input's pass over memory: HF_OK (the
  * output guard applied), an error, or HF_RUN_DECLINED / HF_RUN_UNCLEAN,
@@ -280,10 +276,17 @@ static int run_scanning(hf_model *m, const hf_io *io, hf_timing *t, hf_input_rep
   const hf_backend_ops *ops = m->backend->ops;
   hf_input_report own[HF_SCAN_OWN_REPORTS];
   /* A frame with an estimate is interleaved first (sanitise_input). */
-  if (!ops->model_run_scan || m->cfg.estimate || (!rep && io->batch > HF_SCAN_OWN_REPORTS))
+  if (m->cfg.estimate || (!rep && io->batch > HF_SCAN_OWN_REPORTS)) return HF_RUN_DECLINED;
+  int guarded = 0, rc;
+  if (ops->model_run_scan) {
+    rc = ops->model_run_scan(m->impl, io, t, rep ? rep : own, stats, &guarded);
+  } else if (ops->model_submit_scan) {
+    /* Checked by the backend on the device; complete when waited for. */
+    rc = ops->model_submit_scan(m->impl, io, rep ? rep : own, stats);
+    if (rc == HF_OK) rc = ops->model_wait(m->impl, t);
+  } else {
     return HF_RUN_DECLINED;
-  int guarded = 0;
-  int rc = ops->model_run_scan(m->impl, io, t, rep ? rep : own, stats, &guarded);
+  }
   if (rc != HF_OK) return rc;
   double t0 = hf_now_us();
   finish_output(m, 0, io, rep, rc, guarded);
@@ -364,6 +367,22 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
       m->pending[slot].guarded = guarded;
       m->pending[slot].rc = rc;
       m->pending[slot].t = t;
+      m->npending++;
+      return HF_OK;
+    }
+  }
+  if (ops->model_submit_scan && !m->cfg.estimate && (rep || io->batch <= HF_SCAN_OWN_REPORTS)) {
+    /* Checked by the backend itself, on the device: the reports and
+     * statistics are complete at the wait. */
+    hf_input_report *r = rep ? rep : m->pending[slot].own;
+    rc = ops->model_submit_scan(m->impl, io, r, stats);
+    if (rc != HF_RUN_DECLINED) {
+      if (rc != HF_OK) return rc;
+      m->pending[slot].io = *io;
+      m->pending[slot].report = r;
+      m->pending[slot].input_us = 0;
+      m->pending[slot].guarded = 0;
+      m->pending[slot].rc = HF_OK;
       m->npending++;
       return HF_OK;
     }

@@ -77,6 +77,17 @@ typedef struct hf_backend_ops {
    * Without them the common code runs io inside submit. */
   int (*model_submit)(void *model, const hf_io *io);
   int (*model_wait)(void *model, hf_timing *timing);
+  /* Optional, with model_submit: model_submit that takes io as it came and
+   * makes, itself (on the device), what backend.c's pass before
+   * model_submit makes (sanitise_input): each out-of-contract sample fixed
+   * by the rule in its own copy of the input, rep ([io->batch]) given
+   * hf_features_check's report of each frame and stats, when not NULL,
+   * hf_input_stats_compute's values, both filled in by the model_wait that
+   * completes the run (io->in must stay as it is until then). Answers
+   * HF_RUN_DECLINED (nothing started) for an io it does not check itself,
+   * which then takes the common path. */
+  int (*model_submit_scan)(void *model, const hf_io *io, hf_input_report *rep,
+                           hf_input_stats *stats);
   /* Optional: host memory that will hold tensors (hf_backend_host_register). */
   int (*host_register)(void *dev, void *ptr, size_t bytes);
   void (*host_unregister)(void *dev, void *ptr);
@@ -99,6 +110,10 @@ extern const hf_backend_ops hf_backend_cpu_onednn;
 extern const hf_backend_ops hf_backend_cudnn;
 #endif
 
+/* Frames whose reports a scanning run keeps itself when the caller wants
+ * none (model_run_scan, model_submit_scan). */
+#define HF_SCAN_OWN_REPORTS 16
+
 struct hf_backend {
   const hf_backend_ops *ops;
   void *dev;
@@ -115,7 +130,8 @@ struct hf_model {
     int rc;
     hf_timing t;
     hf_io io;                  /* the caller's */
-    hf_input_report *report;   /* the caller's, or NULL */
+    hf_input_report *report;   /* the caller's, own, or NULL */
+    hf_input_report own[HF_SCAN_OWN_REPORTS];   /* when the caller wants none */
     double input_us;           /* the out-of-contract check at submit */
     int guarded;               /* the backend applied the output guard */
   } pending[HF_MAX_PENDING];

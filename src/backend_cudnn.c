@@ -35,6 +35,7 @@
  *   HF_CUDA_DEVICE=N        the device (0)
  */
 #include <pthread.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -75,7 +76,7 @@ static int env_int(const char *name, int def, int lo, int hi) {
 }
 
 typedef struct cudnn_opts {
-  int no_graph, no_fusion, dense, no_register;
+  int no_graph, no_fusion, dense, no_register, host_check;
   unsigned dec_forms;           /* mask of 1 << HF_CL_FORM_* tried for decoders */
   int candidates, rtc, plans;
   size_t stage_bytes;
@@ -112,6 +113,7 @@ static int read_opts(cudnn_opts *o) {
   o->no_fusion = env_flag("HF_CUDNN_NO_FUSION");
   o->dense = env_flag("HF_CUDNN_DENSE");
   o->no_register = env_flag("HF_CUDNN_NO_REGISTER");
+  o->host_check = env_flag("HF_CUDNN_HOST_CHECK");
   o->candidates = env_int("HF_CUDNN_CANDIDATES", 4, 1, HF_CG_MAX_CAND);
   o->rtc = env_int("HF_CUDNN_RTC", 1, 0, HF_CG_MAX_CAND);
   o->plans = env_int("HF_CUDNN_PLANS", 8, 1, MAX_PLANS);
@@ -367,6 +369,13 @@ typedef struct slot {
   size_t in_bytes, out_bytes;
   double host_in_us, host_out_us;
   cudaEvent_t ev[EV_COUNT];
+  /* The input check on the device (model_submit_scan): the frames' counts,
+   * on the device and in pinned host memory, and where they go. */
+  int scan;
+  hf_input_report *rep;
+  hf_input_stats *stats;
+  hf_cuk_scan_counts *d_counts, *h_counts;
+  int counts_cap;               /* frames both hold */
 } slot;
 
 typedef struct ring {
@@ -950,6 +959,8 @@ static void cudnn_model_destroy(void *impl) {
     slot *s = &m->slots[i];
     cudaFree(s->d_in);
     cudaFree(s->d_out);
+    cudaFree(s->d_counts);
+    cudaFreeHost(s->h_counts);
     for (int k = 0; k < EV_COUNT; k++)
       if (s->ev[k]) cudaEventDestroy(s->ev[k]);
   }
@@ -1080,7 +1091,10 @@ static int upload(cudnn_model *m, slot *s) {
   const hf_io *io = &s->io;
   const size_t n = (size_t)io->batch * io->width * io->height * m->cfg.in_channels;
   const size_t es = io->in_dtype == HF_F16 ? 2 : 4;
-  const int direct = is_registered(m->dev, io->in, n * es);
+  /* A frame checked on the device goes up as it came (model_submit_scan
+   * found it registered; were it unregistered since, the copy from pageable
+   * memory is slower, not wrong). */
+  const int direct = s->scan || is_registered(m->dev, io->in, n * es);
   s->in_f16 = direct ? io->in_dtype == HF_F16 : 1;
   s->in_bytes = n * (s->in_f16 ? 2 : 4);
   HF_TRY(grow(&s->d_in, &s->d_in_cap, s->in_bytes, &m->io_bytes));
@@ -1123,6 +1137,14 @@ static int compute(cudnn_model *m, slot *s) {
   const hf_io *io = &s->io;
   HF_CU_TRY(cudaStreamWaitEvent(m->s_comp, s->ev[EV_IN1], 0));
   HF_CU_TRY(cudaEventRecord(s->ev[EV_C0], m->s_comp));
+  if (s->scan) {
+    /* The check on the frames as uploaded, fixed in place before the input
+     * kernel reads them; the counts come back beside the network's work. */
+    HF_CU_TRY(hf_cuk_scan(s->d_in, s->in_f16, io->batch, (long long)io->width * io->height,
+                          m->cfg.spp, s->d_counts, m->s_comp));
+    HF_CU_TRY(cudaMemcpyAsync(s->h_counts, s->d_counts, sizeof *s->h_counts * io->batch,
+                              cudaMemcpyDeviceToHost, m->s_comp));
+  }
   HF_CU_TRY(hf_cuk_input(s->d_in, s->in_f16, io->batch, io->width, io->height,
                          m->cfg.in_channels, p->buf[HF_CL_BUF_IN], p->pw, p->ph, p->lo.cin_pad,
                          m->s_comp));
@@ -1187,7 +1209,54 @@ fail:
   return rc;
 }
 
-static int submit_locked(cudnn_model *m, const hf_io *io) {
+/* Makes s hold the input check's counts of batch frames. */
+static int counts_grow(cudnn_model *m, slot *s, int batch) {
+  int rc;
+  if (s->counts_cap >= batch) return HF_OK;
+  const size_t bytes = sizeof(hf_cuk_scan_counts) * (size_t)batch;
+  if (s->d_counts) {
+    cudaFree(s->d_counts);
+    m->io_bytes -= sizeof(hf_cuk_scan_counts) * (size_t)s->counts_cap;
+  }
+  cudaFreeHost(s->h_counts);
+  s->d_counts = NULL, s->h_counts = NULL, s->counts_cap = 0;
+  HF_TRY(dmalloc((void **)&s->d_counts, bytes, &m->io_bytes));
+  HF_CU_TRY(cudaHostAlloc((void **)&s->h_counts, bytes, cudaHostAllocDefault));
+  s->counts_cap = batch;
+  return HF_OK;
+fail:
+  return rc;
+}
+
+/* The check's counts of s's frames as the reports and statistics
+ * hf_features_scan would have made of them (model_submit_scan). */
+static void scan_results(const cudnn_model *m, const slot *s) {
+  const hf_io *io = &s->io;
+  const size_t frame = (size_t)io->width * io->height * m->cfg.in_channels *
+                       (io->in_dtype == HF_F16 ? 2 : 4);
+  for (int n = 0; n < io->batch; n++) {
+    const hf_cuk_scan_counts *c = &s->h_counts[n];
+    hf_features_report_counted((const uint8_t *)io->in + frame * n, io->in_dtype, io->width,
+                               m->cfg.spp, c->bad, (size_t)~c->first_bad_inv, &s->rep[n]);
+    if (s->stats) {
+      hf_input_stats_acc acc;
+      memcpy(&acc, c, sizeof acc);
+      hf_input_stats_finish(&acc, io->width, io->height, m->cfg.spp, &s->stats[n]);
+    }
+  }
+}
+
+/* The counts' first fields are hf_input_stats_acc, copied as they are. */
+_Static_assert(offsetof(hf_cuk_scan_counts, hair) == offsetof(hf_input_stats_acc, hair) &&
+                   offsetof(hf_cuk_scan_counts, full) == offsetof(hf_input_stats_acc, full) &&
+                   offsetof(hf_cuk_scan_counts, hist) == offsetof(hf_input_stats_acc, hist) &&
+                   sizeof(unsigned long long) == sizeof(uint64_t),
+               "hf_cuk_scan_counts begins as hf_input_stats_acc");
+
+/* scan: check the input on the device (rep and stats filled at the wait),
+ * which only an upload of the frames as they came allows. */
+static int submit_locked(cudnn_model *m, const hf_io *io, hf_input_report *rep,
+                         hf_input_stats *stats) {
   int rc;
   if (m->npending == HF_MAX_PENDING) return HF_ERANGE;
   slot *s = &m->slots[(m->head + m->npending) % HF_MAX_PENDING];
@@ -1198,6 +1267,10 @@ static int submit_locked(cudnn_model *m, const hf_io *io) {
   s->p = p;
   s->io = *io;
   s->rc = HF_OK;
+  s->scan = rep != NULL;
+  s->rep = rep;
+  s->stats = stats;
+  if (s->scan) HF_TRY(counts_grow(m, s, io->batch));
   s->host_in_us = s->host_out_us = 0;
   const size_t pix = (size_t)io->batch * io->width * io->height;
   s->out_bytes = pix * HF_OUT_CHANNELS * (io->out_dtype == HF_F16 ? 2 : 4);
@@ -1237,6 +1310,7 @@ static int wait_locked(cudnn_model *m, hf_timing *t) {
   }
   HF_TRY(download(m, s, 1));
   HF_CU_TRY(cudaEventSynchronize(s->ev[EV_O1]));
+  if (s->scan) scan_results(m, s);
   double dma_in = 0, kin = 0, net = 0, out = 0, dma_out = 0;
   HF_TRY(elapsed_us(s->ev[EV_IN0], s->ev[EV_IN1], &dma_in));
   HF_TRY(elapsed_us(s->ev[EV_C0], s->ev[EV_C1], &kin));
@@ -1261,7 +1335,25 @@ fail:
 static int cudnn_model_submit(void *impl, const hf_io *io) {
   cudnn_model *m = impl;
   pthread_mutex_lock(&m->lock);
-  int rc = submit_locked(m, io);
+  int rc = submit_locked(m, io, NULL, NULL);
+  pthread_mutex_unlock(&m->lock);
+  return rc;
+}
+
+/* The check on the device needs the frames uploaded as they came: from
+ * registered memory (a shared-memory segment, a pinned buffer), by DMA.
+ * Through the staging ring an FP32 frame is narrowed to FP16 on the host,
+ * which changes what the rule sees (70000 is "clamped" as a float and
+ * infinite as a half), so those frames are checked on the host first. */
+static int cudnn_model_submit_scan(void *impl, const hf_io *io, hf_input_report *rep,
+                                   hf_input_stats *stats) {
+  cudnn_model *m = impl;
+  if (!rep || m->cfg.estimate || m->opts.host_check) return HF_RUN_DECLINED;
+  const size_t bytes = (size_t)io->batch * io->width * io->height * m->cfg.in_channels *
+                       (io->in_dtype == HF_F16 ? 2 : 4);
+  pthread_mutex_lock(&m->lock);
+  int rc = is_registered(m->dev, io->in, bytes) ? submit_locked(m, io, rep, stats)
+                                                : HF_RUN_DECLINED;
   pthread_mutex_unlock(&m->lock);
   return rc;
 }
@@ -1277,7 +1369,7 @@ static int cudnn_model_wait(void *impl, hf_timing *t) {
 static int cudnn_model_run(void *impl, const hf_io *io, hf_timing *t) {
   cudnn_model *m = impl;
   pthread_mutex_lock(&m->lock);
-  int rc = submit_locked(m, io);
+  int rc = submit_locked(m, io, NULL, NULL);
   if (rc == HF_OK) rc = wait_locked(m, t);
   pthread_mutex_unlock(&m->lock);
   return rc;
@@ -1325,6 +1417,7 @@ const hf_backend_ops hf_backend_cudnn = {
   .model_prepare = cudnn_model_prepare,
   .model_submit = cudnn_model_submit,
   .model_wait = cudnn_model_wait,
+  .model_submit_scan = cudnn_model_submit_scan,
   .host_register = cudnn_host_register,
   .host_unregister = cudnn_host_unregister,
   .run_bytes = cudnn_run_bytes,

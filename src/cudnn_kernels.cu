@@ -20,6 +20,57 @@ __global__ void input_kernel(const void *src, int w, int h, int cin, __half *dst
                          blockIdx.y, blockIdx.z);
 }
 
+// Blocks per frame of the input check: every block keeps a histogram in
+// shared memory and adds its non-zero bins to the frame's at the end, so
+// fewer, fuller blocks mean fewer global atomics; 256 blocks of 256 threads
+// fill every SM of an H100/H200 twice.
+constexpr int kScanBlocks = 256;
+
+template <bool F16>
+__global__ void scan_kernel(void *src, long long pixels, int spp, hf_cuk_scan_counts *counts) {
+  __shared__ unsigned hist[HF_INPUT_STATS_BINS];
+  __shared__ unsigned long long hair, full, bad, first_inv;
+  for (int i = threadIdx.x; i < HF_INPUT_STATS_BINS; i += blockDim.x) hist[i] = 0;
+  if (threadIdx.x == 0) hair = full = bad = first_inv = 0;
+  __syncthreads();
+  const long long frame_values = pixels * spp * HF_FEATURES_PER_SAMPLE;
+  void *frame = F16 ? (void *)((uint16_t *)src + blockIdx.y * frame_values)
+                    : (void *)((float *)src + blockIdx.y * frame_values);
+  unsigned long long my_hair = 0, my_full = 0, my_bad = 0, my_first_inv = 0;
+  for (long long p = (long long)blockIdx.x * blockDim.x + threadIdx.x; p < pixels;
+       p += (long long)gridDim.x * blockDim.x) {
+    const ScanPixel r = scan_pixel<F16>(frame, spp, p);
+    if (r.covered) {
+      atomicAdd(&hist[r.bin], 1u);
+      my_hair++;
+      my_full += r.covered == spp;
+    }
+    if (r.bad) {
+      my_bad += r.bad;
+      const unsigned long long inv = ~(unsigned long long)(p * spp + r.first_bad);
+      if (inv > my_first_inv) my_first_inv = inv;
+    }
+  }
+  if (my_hair) atomicAdd(&hair, my_hair);
+  if (my_full) atomicAdd(&full, my_full);
+  if (my_bad) {
+    atomicAdd(&bad, my_bad);
+    atomicMax(&first_inv, my_first_inv);
+  }
+  __syncthreads();
+  hf_cuk_scan_counts *c = counts + blockIdx.y;
+  for (int i = threadIdx.x; i < HF_INPUT_STATS_BINS; i += blockDim.x)
+    if (hist[i]) atomicAdd(&c->hist[i], (unsigned long long)hist[i]);
+  if (threadIdx.x == 0) {
+    if (hair) atomicAdd(&c->hair, hair);
+    if (full) atomicAdd(&c->full, full);
+    if (bad) {
+      atomicAdd(&c->bad, bad);
+      atomicMax(&c->first_bad_inv, first_inv);
+    }
+  }
+}
+
 template <int U> __global__ void bias_act_kernel(hf_cuk_view y, const float *bias, int relu) {
   bias_act_unit<U>(y, bias, relu, blockIdx.x * blockDim.x + threadIdx.x, blockIdx.y, blockIdx.z);
 }
@@ -97,6 +148,20 @@ extern "C" cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int
     input_kernel<false, true><<<l.grid, l.block, 0, stream>>>(src, w, h, cin, d, pw, ph, cpad);
   else
     input_kernel<false, false><<<l.grid, l.block, 0, stream>>>(src, w, h, cin, d, pw, ph, cpad);
+  return cudaGetLastError();
+}
+
+extern "C" cudaError_t hf_cuk_scan(void *src, int src_f16, int batch, long long pixels, int spp,
+                                   hf_cuk_scan_counts *counts, cudaStream_t stream) {
+  if (batch < 1 || batch > 65535 || pixels < 1 || spp < 1) return cudaErrorInvalidValue;
+  cudaError_t e = cudaMemsetAsync(counts, 0, sizeof *counts * (size_t)batch, stream);
+  if (e != cudaSuccess) return e;
+  const long long blocks = (pixels + kMaxThreads - 1) / kMaxThreads;
+  const dim3 grid((unsigned)(blocks < kScanBlocks ? blocks : kScanBlocks), (unsigned)batch);
+  if (src_f16)
+    scan_kernel<true><<<grid, kMaxThreads, 0, stream>>>(src, pixels, spp, counts);
+  else
+    scan_kernel<false><<<grid, kMaxThreads, 0, stream>>>(src, pixels, spp, counts);
   return cudaGetLastError();
 }
 

@@ -17,6 +17,7 @@
 #include <cuda_runtime_api.h>
 
 #include "cudnn_layout.h"
+#include "hfcore.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -36,6 +37,23 @@ typedef struct hf_cuk_view {
 cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int w, int h, int cin,
                          void *dst, int pw, int ph, int cpad, cudaStream_t stream);
 
+/* What the input check counted in one frame: the first three fields are
+ * hf_input_stats_acc's, in its layout (the statistics of the frame as it
+ * came); bad is the number of out-of-contract samples, first_bad_inv the
+ * bitwise complement of the lowest sample index among them (0: none). */
+typedef struct hf_cuk_scan_counts {
+  unsigned long long hair, full, hist[HF_INPUT_STATS_BINS];
+  unsigned long long bad, first_bad_inv;
+} hf_cuk_scan_counts;
+/* The input check on the device, for frames uploaded as they came: src is
+ * [batch][pixels][spp * 6] of FP32 (src_f16 == 0) or FP16; each
+ * out-of-contract sample is fixed in place by hfcore's rule
+ * (hf_features_sanitise, bit for bit), and counts[n] (batch of them,
+ * zeroed here first) gets frame n's statistics and rule counts. What
+ * hf_features_scan reads on the host's cores, read at the device's memory
+ * bandwidth after a plain upload. */
+cudaError_t hf_cuk_scan(void *src, int src_f16, int batch, long long pixels, int spp,
+                        hf_cuk_scan_counts *counts, cudaStream_t stream);
 /* y = y + bias[k] (FP32), then ReLU when relu, over batch frames of y. For
  * convolutions no cuDNN engine would fuse with their epilogue. */
 cudaError_t hf_cuk_bias_act(hf_cuk_view y, int batch, const float *bias, int relu,

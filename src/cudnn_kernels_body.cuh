@@ -16,6 +16,7 @@
 
 #include "cudnn_kernels.h"
 #include "hfcore.h"  // HF_RESIDUAL_RADIUS, HF_KERNEL_MAX_*, HF_FEATURES_PER_SAMPLE
+#include "sample_rule.h"
 
 #define HF_HD __host__ __device__ __forceinline__
 
@@ -104,6 +105,62 @@ HF_HD void input_unit(const void *src, int w, int h, int cin, __half *dst, int p
     }
   }
   store<8>(dst + (((size_t)n * ph + y) * pw + x) * cpad + c0, out);
+}
+
+// ---- input check: one pixel of the frame as uploaded per thread --------------
+
+// What one pixel adds to its frame's counts (hf_cuk_scan_counts).
+struct ScanPixel {
+  int covered;       // covered samples of the pixel as it came (the statistics' input)
+  unsigned bin;      // its strand alpha's histogram bin, when covered
+  int bad;           // out-of-contract samples, fixed in place
+  int first_bad;     // the first of them, as a sample index in the pixel; -1 if none
+};
+
+// Pixel `pixel` of a frame of spp samples of six FP32 (F16 false) or FP16
+// values: its statistic made from the values as they came
+// (hf_input_stats_add's), then each out-of-contract sample fixed in place
+// by the rule (hf_features_sanitise's, through float32 as it does: exact,
+// sample_rule.h). What the host passes make of the same pixel, bit for bit.
+template <bool F16> HF_HD ScanPixel scan_pixel(void *frame, int spp, long long pixel) {
+  ScanPixel r;
+  r.bad = 0;
+  r.first_bad = -1;
+  const long long stride = (long long)spp * HF_FEATURES_PER_SAMPLE;
+  float v;
+  if (F16) {
+    uint16_t *px = (uint16_t *)frame + pixel * stride;
+    v = hf_rule_strand_alpha_f16(px, spp, &r.covered);
+    for (int k = 0; k < spp; k++) {
+      uint16_t *sm = px + k * HF_FEATURES_PER_SAMPLE;
+      if (hf_rule_ok_f16(sm)) continue;
+      float f[HF_FEATURES_PER_SAMPLE];
+      for (int i = 0; i < HF_FEATURES_PER_SAMPLE; i++) {
+        __half_raw hr;
+        hr.x = sm[i];
+        f[i] = __half2float(__half(hr));
+      }
+      int kind, feature;
+      hf_rule_fix_f32(f, &kind, &feature);
+      for (int i = 0; i < HF_FEATURES_PER_SAMPLE; i++) {
+        __half_raw hr = __half_raw(__float2half_rn(f[i]));
+        sm[i] = hr.x;
+      }
+      if (!r.bad++) r.first_bad = k;
+    }
+  } else {
+    float *px = (float *)frame + pixel * stride;
+    v = hf_rule_strand_alpha_f32(px, spp, &r.covered);
+    for (int k = 0; k < spp; k++) {
+      float *sm = px + k * HF_FEATURES_PER_SAMPLE;
+      if (hf_rule_ok_f32(sm)) continue;
+      int kind, feature;
+      hf_rule_fix_f32(sm, &kind, &feature);
+      if (!r.bad++) r.first_bad = k;
+    }
+  }
+  r.bin = r.covered ? hf_rule_stat_bin(v) : 0;
+  return r;
 }
 
 // ---- bias + activation, copies, depth-to-space: U channels per thread ----

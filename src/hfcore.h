@@ -345,6 +345,15 @@ int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int 
  * allocated. */
 int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height, int spp,
                            void *out, hf_input_report *report, hf_input_stats *stats);
+/* The report of a frame ([height][width][spp*6] of dtype) whose
+ * out-of-contract samples another pass counted (the cudnn backend's device
+ * check, hf_cuk_scan): samples of them, the first at sample index first
+ * (pixel first / spp, sample first % spp), which is read from in (not
+ * written) for its feature, kind and value. The report hf_features_check
+ * gives when the count and index are right; samples 0 gives the empty
+ * report. */
+void hf_features_report_counted(const void *in, hf_dtype dtype, int width, int spp,
+                                uint64_t samples, size_t first, hf_input_report *report);
 /* hf_features_scan's report and statistics made part by part, for a pass
  * that reads a frame anyway, in pieces and on several threads (the cpu
  * backend's enc0 bands), so that the frame is read from memory once: each
@@ -456,11 +465,15 @@ int hf_model_prepare(hf_model *m, int batch, int width, int height);
 int hf_model_submit(hf_model *m, const hf_io *io);
 /* hf_model_submit that also says what was sanitised: report, when not NULL,
  * is [io->batch] and must stay valid until the matching hf_model_wait,
- * which fills in the output guard's counts. */
+ * which fills in the output guard's counts (and, for a frame the cudnn
+ * backend checks on the device, the rest of it). */
 int hf_model_submit_report(hf_model *m, const hf_io *io, hf_input_report *report);
 /* hf_model_submit_report that also makes the input statistics as
- * hf_model_run_stats does: stats, when not NULL, is [io->batch] and is
- * filled when this returns. */
+ * hf_model_run_stats does: stats, when not NULL, is [io->batch], must stay
+ * valid until the matching hf_model_wait, and is complete when that
+ * returns (the cudnn backend counts a frame in registered memory on the
+ * device, with its check: the statistics are then filled only at the
+ * wait). */
 int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *report,
                           hf_input_stats *stats);
 /* Waits for the oldest pending run and returns its status; timing (may be

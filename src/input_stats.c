@@ -18,12 +18,13 @@
 #include <string.h>
 
 #include "hfcore.h"
+#include "sample_rule.h"
 
-/* Bins of the strand-alpha histogram: 0 below 2^-16, then 128 per octave
- * up to 1 (the float's exponent and top 7 mantissa bits), then >= 1. */
-#define LOW_KEY   (111u << 7)              /* (bits of 2^-16) >> 16 */
-#define ONE_KEY   (127u << 7)              /* (bits of 1.0) >> 16 */
-#define NBINS     (2 + ONE_KEY - LOW_KEY)  /* 2050 */
+/* The strand-alpha histogram's bins (HF_INPUT_STATS_BINS) and a pixel's
+ * strand alpha are sample_rule.h's, shared with the cudnn backend's device
+ * pass. */
+#define LOW_KEY HF_RULE_LOW_KEY
+#define NBINS   HF_INPUT_STATS_BINS
 
 static const char *const STAT_NAMES[HF_STAT_COUNT] = {
   [HF_STAT_STRAND_ALPHA_P50] = "strand_alpha_p50",
@@ -43,75 +44,15 @@ int hf_input_stat_from_name(const char *name) {
   return HF_ENOTFOUND;
 }
 
-/* a when c, else +0, without a branch: compilers turn `c ? a : 0` into a
- * jump, and coverage is random from sample to sample (a third of the time
- * of a frame went to mispredicting it). */
-static inline float keep_if(float a, int c) {
-  uint32_t bits;
-  memcpy(&bits, &a, sizeof bits);
-  bits &= 0u - (uint32_t)c;
-  memcpy(&a, &bits, sizeof a);
-  return a;
-}
-
-/* Mean alpha of the covered samples of one pixel and their count. Summed
- * in sample order in float (adding +0 for an uncovered sample changes no
- * bit), which the numpy twin does too. */
-static inline float strand_alpha(const float *px, int spp, int *covered) {
-  float sum = 0.0f;
-  int n = 0;
-  for (int k = 0; k < spp; k++) {
-    float a = px[k * HF_FEATURES_PER_SAMPLE + 2];
-    int c = a > 0.0f;
-    sum += keep_if(a, c);
-    n += c;
-  }
-  *covered = n;
-  return n ? sum / (float)n : 0.0f;
-}
-
-/* The same over binary16 alphas. A covered half is positive and not NaN:
- * its float is exact (normal halves by moving the bits, subnormal ones as
- * a multiple of 2^-24, infinity as itself), so the sum is that of the
- * widened values, as when the frame is widened first (hf_f16_to_f32). */
-static inline float strand_alpha_f16(const uint16_t *px, int spp, int *covered) {
-  float sum = 0.0f;
-  int n = 0;
-  for (int k = 0; k < spp; k++) {
-    uint32_t h = px[k * HF_FEATURES_PER_SAMPLE + 2];
-    int c = h - 1u < 0x7c00u;                   /* 1..0x7c00: sign 0, not 0, not NaN */
-    uint32_t bits = (h << 13) + (112u << 23);   /* normal: rebias the exponent */
-    float a;
-    memcpy(&a, &bits, sizeof a);
-    /* Subnormals and infinity are rare in real frames: branches that are
-     * almost never taken cost nothing. (0 is uncovered: not used.) */
-    if (h - 1u < 0x3ffu) a = (float)h * 0x1p-24f;
-    else if (h == 0x7c00u) a = INFINITY;
-    sum += keep_if(a, c);
-    n += c;
-  }
-  *covered = n;
-  return n ? sum / (float)n : 0.0f;
-}
-
 int hf_pixel_covered(const float *px, int spp) {
   int n;
-  strand_alpha(px, spp, &n);
+  hf_rule_strand_alpha_f32(px, spp, &n);
   return n;
 }
 
 float hf_pixel_strand_alpha(const float *px, int spp) {
   int n;
-  return strand_alpha(px, spp, &n);
-}
-
-static inline unsigned bin_of(float v) {
-  uint32_t bits;
-  memcpy(&bits, &v, sizeof bits);
-  /* v > 0 here: below 2^-16 -> 0, from 1 (and +inf) up -> the last bin. */
-  int b = (int)(bits >> 16) - (int)LOW_KEY + 1;
-  b = b < 0 ? 0 : b;
-  return (unsigned)(b > (int)NBINS - 1 ? (int)NBINS - 1 : b);
+  return hf_rule_strand_alpha_f32(px, spp, &n);
 }
 
 /* Lower edge of a bin: the value a percentile falling in it reports. */
@@ -134,7 +75,7 @@ static double hist_rank(const uint64_t *hist, uint64_t rank) {
   return NAN;
 }
 
-_Static_assert(NBINS == HF_INPUT_STATS_BINS, "the histogram's bins");
+_Static_assert(NBINS == 2 + HF_RULE_ONE_KEY - HF_RULE_LOW_KEY, "the histogram's bins");
 
 void hf_input_stats_acc_init(hf_input_stats_acc *a) { memset(a, 0, sizeof *a); }
 
@@ -151,12 +92,13 @@ static inline __attribute__((always_inline)) void add_pixels(hf_input_stats_acc 
   uint64_t hair = 0, full = 0, *hist = a->hist;
   for (size_t p = p0; p < p1; p++) {
     int n;
-    float v = dtype == HF_F32 ? strand_alpha((const float *)in + p * stride, spp, &n)
-                              : strand_alpha_f16((const uint16_t *)in + p * stride, spp, &n);
+    float v = dtype == HF_F32
+                  ? hf_rule_strand_alpha_f32((const float *)in + p * stride, spp, &n)
+                  : hf_rule_strand_alpha_f16((const uint16_t *)in + p * stride, spp, &n);
     if (!n) continue;
     hair++;
     full += n == spp;
-    hist[bin_of(v)]++;
+    hist[hf_rule_stat_bin(v)]++;
   }
   a->hair += hair;
   a->full += full;

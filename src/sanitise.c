@@ -21,82 +21,22 @@
 #include <string.h>
 
 #include "hfcore.h"
-
-/* ---- float32 --------------------------------------------------------------- */
-
-/* Ranges by feature index (HF_FEATURE_NAMES order). */
-static const float LO[HF_FEATURES_PER_SAMPLE] = {0.0f, 0.0f, 0.0f, 0.0f, -1.0f, -1.0f};
-static const float HI[HF_FEATURES_PER_SAMPLE] = {HF_FEATURE_LIGHT_MAX, HF_FEATURE_LIGHT_MAX,
-                                                 1.0f, 1.0f, 1.0f, 1.0f};
-
-/* In contract: covered with every feature in range, or uncovered (all 0).
- * Comparisons are false for NaN, so NaN is never in range. Branch-free:
- * covered and uncovered samples alternate unpredictably. */
-static inline int ok_f32(const float *s) {
-  const float m = HF_FEATURE_LIGHT_MAX;
-  float c = s[0], h = s[1], a = s[2], d = s[3], x = s[4], y = s[5];
-  int in = (a > 0.0f) & (a <= 1.0f) & (c >= 0.0f) & (c <= m) & (h >= 0.0f) & (h <= m) &
-           (d >= 0.0f) & (d <= 1.0f) & (x >= -1.0f) & (x <= 1.0f) & (y >= -1.0f) & (y <= 1.0f);
-  int zero = (c == 0.0f) & (h == 0.0f) & (a == 0.0f) & (d == 0.0f) & (x == 0.0f) & (y == 0.0f);
-  return in | zero;
-}
-
-/* The rule on one sample of six floats; says what was wrong in kind, feature. */
-static void fix_f32(float *s, int *kind, int *feature) {
-  for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
-    if (!isfinite(s[f])) {
-      *kind = HF_SANITISED_NONFINITE, *feature = f;
-      memset(s, 0, HF_FEATURES_PER_SAMPLE * sizeof *s);
-      return;
-    }
-  if (s[2] <= 0.0f) {
-    *kind = HF_SANITISED_UNCOVERED, *feature = 2;
-    memset(s, 0, HF_FEATURES_PER_SAMPLE * sizeof *s);
-    return;
-  }
-  *kind = HF_SANITISED_CLAMPED, *feature = -1;
-  for (int f = 0; f < HF_FEATURES_PER_SAMPLE; f++)
-    if (s[f] < LO[f] || s[f] > HI[f]) {
-      if (*feature < 0) *feature = f;
-      s[f] = s[f] < LO[f] ? LO[f] : HI[f];
-    }
-}
-
-/* ---- binary16 ----------------------------------------------------------------- */
-
-/* Orders halves as integers: key(a) < key(b) iff a < b for non-NaN a, b
- * (-0 just below +0); NaNs land outside [key(-Inf), key(+Inf)]. */
-static inline uint16_t key16(uint16_t h) {
-  return (uint16_t)((h & 0x8000u) ? ~(unsigned)h : (unsigned)h | 0x8000u);
-}
-#define K_NEG_ZERO 0x7fffu            /* key16(0x8000): a lower bound 0 takes -0 */
-#define K_POS_ZERO 0x8000u            /* key16(0x0000) */
-#define K_NEG_ONE  0x43ffu            /* key16(0xbc00) */
-#define K_ONE      0xbc00u            /* key16(0x3c00) */
-#define K_LIGHT    0xd400u            /* key16(0x5400) = 64.0 */
-
-static inline int ok_f16(const uint16_t *s) {
-  unsigned c = key16(s[0]), h = key16(s[1]), a = key16(s[2]), d = key16(s[3]);
-  unsigned x = key16(s[4]), y = key16(s[5]);
-  int in = (a > K_POS_ZERO) & (a <= K_ONE) & (c >= K_NEG_ZERO) & (c <= K_LIGHT) &
-           (h >= K_NEG_ZERO) & (h <= K_LIGHT) & (d >= K_NEG_ZERO) & (d <= K_ONE) &
-           (x >= K_NEG_ONE) & (x <= K_ONE) & (y >= K_NEG_ONE) & (y <= K_ONE);
-  int zero = ((s[0] | s[1] | s[2] | s[3] | s[4] | s[5]) & 0x7fffu) == 0;
-  return in | zero;
-}
+#include "sample_rule.h"
 
 /* ---- frames -------------------------------------------------------------------- */
 
-/* The whole-frame check runs before every backend pass, also in front of a
- * GPU whose upload of a 1024x1024 frame takes ~1.6 ms, so it has to run at
- * about the speed of a copy of the frame (`hairfilter bench-io` measures
- * both; docs/PERFORMANCE.md). Scalar code per sample (ok_f32) does not
- * vectorize: the six features interleave. These loops use GCC/Clang vector
- * extensions on groups of four samples (24 values): six vectors of four
- * floats, or three of eight halves, whose lanes hold the features in a
- * fixed pattern. The predicate is ok_f32's, rewritten per lane: every value
- * in its range (alpha's lower bound 0 included), and a non-zero value only
- * in a sample whose alpha is > 0. */
+/* The whole-frame check runs before every backend pass (but the cudnn
+ * backend's on frames in registered memory, which it checks on the device,
+ * sample_rule.h), also in front of a GPU's upload of a staged frame, so it
+ * has to run at about the speed of a copy of the frame (`hairfilter bench
+ * --input-check` measures both; docs/PERFORMANCE.md). Scalar code per
+ * sample (hf_rule_ok_f32) does not vectorize: the six features interleave.
+ * These loops use GCC/Clang vector extensions on groups of four samples
+ * (24 values): six vectors of four floats, or three of eight halves, whose
+ * lanes hold the features in a fixed pattern. The predicate is
+ * hf_rule_ok_f32's, rewritten per lane: every value in its range (alpha's
+ * lower bound 0 included), and a non-zero value only in a sample whose
+ * alpha is > 0. */
 typedef float v4f __attribute__((vector_size(16)));
 typedef int32_t v4i __attribute__((vector_size(16)));
 typedef int16_t v8s __attribute__((vector_size(16)));
@@ -126,10 +66,12 @@ static size_t good_groups_f32(const float *in, size_t groups) {
 }
 
 static size_t good_groups_f16(const uint16_t *in, size_t groups) {
-  /* key16 less 0x8000, as signed lanes: SSE2 compares signed 16-bit lanes
-   * in one instruction, unsigned ones in three. */
-  const int16_t Z = (int16_t)((int)K_NEG_ZERO - 0x8000), N = (int16_t)((int)K_NEG_ONE - 0x8000),
-                L = (int16_t)((int)K_LIGHT - 0x8000), O = (int16_t)((int)K_ONE - 0x8000);
+  /* hf_rule_key16 less 0x8000, as signed lanes: SSE2 compares signed 16-bit
+   * lanes in one instruction, unsigned ones in three. */
+  const int16_t Z = (int16_t)((int)HF_RULE_K_NEG_ZERO - 0x8000),
+                N = (int16_t)((int)HF_RULE_K_NEG_ONE - 0x8000),
+                L = (int16_t)((int)HF_RULE_K_LIGHT - 0x8000),
+                O = (int16_t)((int)HF_RULE_K_ONE - 0x8000);
   /* Lanes: c0 h0 a0 d0 x0 y0 c1 h1 | a1 d1 x1 y1 c2 h2 a2 d2 | x2 y2 c3 h3 a3 d3 x3 y3 */
   const v8s lo[3] = {{Z, Z, Z, Z, N, N, Z, Z}, {Z, Z, N, N, Z, Z, Z, Z}, {N, N, Z, Z, Z, Z, N, N}};
   const v8s hi[3] = {{L, L, O, O, O, O, L, L}, {O, O, O, O, L, L, O, O}, {O, O, L, L, O, O, O, O}};
@@ -170,8 +112,8 @@ static size_t good_groups_f16(const uint16_t *in, size_t groups) {
         if (!OK(in + i * HF_FEATURES_PER_SAMPLE)) return i;                      \
     }                                                                            \
   }
-NEXT_BAD(next_bad_f32, float, ok_f32, good_groups_f32)
-NEXT_BAD(next_bad_f16, uint16_t, ok_f16, good_groups_f16)
+NEXT_BAD(next_bad_f32, float, hf_rule_ok_f32, good_groups_f32)
+NEXT_BAD(next_bad_f16, uint16_t, hf_rule_ok_f16, good_groups_f16)
 
 static void report_init(hf_input_report *r) {
   memset(r, 0, sizeof *r);
@@ -195,7 +137,7 @@ static void scan_range(void *in, hf_dtype dtype, int width, int spp, size_t i, s
     int kind = 0, feature = 0;
     /* Every bound is exact in binary16, so fixing through float32 is exact
      * (and the fixed half widens back to the fixed float). */
-    fix_f32(v, &kind, &feature);
+    hf_rule_fix_f32(v, &kind, &feature);
     if (wide)
       memcpy(wide + i * HF_FEATURES_PER_SAMPLE, v, sizeof v);
     else if (fix)
@@ -229,6 +171,15 @@ void hf_features_check(const void *in, hf_dtype dtype, int width, int height, in
 void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int spp,
                           hf_input_report *report) {
   scan(in, dtype, width, height, spp, 1, report);
+}
+
+void hf_features_report_counted(const void *in, hf_dtype dtype, int width, int spp,
+                                uint64_t samples, size_t first, hf_input_report *report) {
+  report_init(report);
+  if (!samples) return;
+  /* The one sample read again, unchanged, for what the report says of it. */
+  scan_range((void *)in, dtype, width, spp, first, first + 1, 0, NULL, report);
+  report->samples = samples;
 }
 
 /* ---- binary16 frames widened for a float32 backend ------------------------- */
@@ -533,18 +484,21 @@ static uint64_t guard_range(void *out, hf_dtype dtype, size_t p0, size_t p1) {
   uint16_t *o = out;
   for (size_t i = p0 * HF_OUT_CHANNELS; i < p1 * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
     uint16_t c = o[i], h = o[i + 1], a = o[i + 2];
-    uint16_t kc = key16(c), kh = key16(h), ka = key16(a);
-    if ((kc >= key16(0x8000u | F16_MAX_BITS)) & (kc <= key16(F16_MAX_BITS)) &
-        (kh >= K_NEG_ZERO) & (kh <= key16(F16_MAX_BITS)) & (ka >= K_NEG_ZERO) & (ka <= K_ONE))
+    uint16_t kc = hf_rule_key16(c), kh = hf_rule_key16(h), ka = hf_rule_key16(a);
+    if ((kc >= hf_rule_key16(0x8000u | F16_MAX_BITS)) & (kc <= hf_rule_key16(F16_MAX_BITS)) &
+        (kh >= HF_RULE_K_NEG_ZERO) & (kh <= hf_rule_key16(F16_MAX_BITS)) &
+        (ka >= HF_RULE_K_NEG_ZERO) & (ka <= HF_RULE_K_ONE))
       continue;
     fixed++;
     int nan_c = (c & 0x7fffu) > 0x7c00u, nan_h = (h & 0x7fffu) > 0x7c00u;
     int nan_a = (a & 0x7fffu) > 0x7c00u;
     o[i] = nan_c ? F16_ONE_BITS
-         : kc < key16(0x8000u | F16_MAX_BITS) ? (uint16_t)(0x8000u | F16_MAX_BITS)
-         : kc > key16(F16_MAX_BITS) ? (uint16_t)F16_MAX_BITS : c;
-    o[i + 1] = nan_h || kh < K_NEG_ZERO ? 0 : kh > key16(F16_MAX_BITS) ? F16_MAX_BITS : h;
-    o[i + 2] = nan_a || ka < K_NEG_ZERO ? 0 : ka > K_ONE ? F16_ONE_BITS : a;
+         : kc < hf_rule_key16(0x8000u | F16_MAX_BITS) ? (uint16_t)(0x8000u | F16_MAX_BITS)
+         : kc > hf_rule_key16(F16_MAX_BITS) ? (uint16_t)F16_MAX_BITS : c;
+    o[i + 1] = nan_h || kh < HF_RULE_K_NEG_ZERO            ? 0
+               : kh > hf_rule_key16(F16_MAX_BITS) ? F16_MAX_BITS
+                                                  : h;
+    o[i + 2] = nan_a || ka < HF_RULE_K_NEG_ZERO ? 0 : ka > HF_RULE_K_ONE ? F16_ONE_BITS : a;
   }
   return fixed;
 }

@@ -370,6 +370,102 @@ static void test_pipelined_and_registered(void **state) {
   hf_weights_free(w);
 }
 
+/* Frames from registered memory are checked on the device
+ * (model_submit_scan): with out-of-contract samples of every kind, the
+ * output is cpu-ref's on the host-sanitised frame, the report and the
+ * statistics are cpu-ref's to the bit, and the caller's input is left as
+ * it was; a clean frame reports nothing. Through hf_model_submit_stats
+ * (two in flight) and hf_model_run_stats. */
+static void test_device_check(void **state) {
+  REQUIRE_GPU();
+  ctx *c = *state;
+  hf_net_config cfg;
+  hf_model *gm, *rm;
+  hf_weights *w = weights_and_ref(c, "Base", 12, &cfg, &rm);
+  assert_int_equal(hf_model_create(c->gpu, w, &gm), HF_OK);
+  const int W = 150, H = 97;
+  const size_t cin = cfg.in_channels, n = (size_t)W * H;
+  const size_t per_in = n * cin * 4, per_out = n * 3 * 4;
+  const size_t arena_bytes = (2 * (per_in + per_out) + 4095) / 4096 * 4096;
+  uint8_t *arena = aligned_alloc(4096, arena_bytes);
+  uint8_t *saved = malloc(2 * per_in);
+  float *in32 = malloc(per_in), *want = malloc(per_out), *got = malloc(per_out);
+  assert_non_null(arena);
+  assert_non_null(saved);
+  assert_non_null(in32);
+  assert_non_null(want);
+  assert_non_null(got);
+  assert_int_equal(hf_backend_host_register(c->gpu, arena, arena_bytes), HF_OK);
+  for (int f16 = 0; f16 <= 1; f16++)
+    for (int sync = 0; sync <= 1; sync++) {
+      hf_io io[2];
+      for (int f = 0; f < 2; f++) {
+        const int dirty = f == 0;
+        void *in = arena + f * per_in, *out = arena + 2 * per_in + f * per_out;
+        for (size_t i = 0; i < n * cin; i++) {
+          float v = frand();
+          if (dirty && frand() < 0.004f) {
+            static const float bad[] = {NAN, INFINITY, -3.0f, 100.0f, 0.0f, 1.5f};
+            v = bad[(int)(frand() * 6)];
+          }
+          if (f16) ((uint16_t *)in)[i] = hf_f32_to_f16(v);
+          else ((float *)in)[i] = v;
+        }
+        memset(out, 0xff, per_out);
+        io[f] = (hf_io){1, W, H, in, f16 ? HF_F16 : HF_F32, out, HF_F32};
+      }
+      memcpy(saved, arena, 2 * per_in);
+      hf_input_report rep[2];
+      hf_input_stats st[2];
+      if (sync) {
+        for (int f = 0; f < 2; f++)
+          assert_int_equal(hf_model_run_stats(gm, &io[f], NULL, &rep[f], &st[f]), HF_OK);
+      } else {
+        assert_int_equal(hf_model_submit_stats(gm, &io[0], &rep[0], &st[0]), HF_OK);
+        assert_int_equal(hf_model_submit_stats(gm, &io[1], &rep[1], &st[1]), HF_OK);
+        assert_int_equal(hf_model_wait(gm, NULL), HF_OK);
+        assert_int_equal(hf_model_wait(gm, NULL), HF_OK);
+      }
+      assert_memory_equal(saved, arena, 2 * per_in);
+      for (int f = 0; f < 2; f++) {
+        for (size_t i = 0; i < n * cin; i++)
+          in32[i] = f16 ? hf_f16_to_f32(((const uint16_t *)io[f].in)[i])
+                        : ((const float *)io[f].in)[i];
+        hf_input_report want_rep;
+        hf_input_stats want_st;
+        hf_io ref = {1, W, H, in32, HF_F32, want, HF_F32};
+        assert_int_equal(hf_model_run_stats(rm, &ref, NULL, &want_rep, &want_st), HF_OK);
+        memcpy(got, io[f].out, per_out);
+        const double rel = rel_l2(got, want, n * 3);
+        printf("  device check %s %s frame %d: %llu samples fixed (cpu-ref %llu), rel L2 %.2e\n",
+               f16 ? "f16" : "f32", sync ? "run" : "submitted", f,
+               (unsigned long long)rep[f].samples, (unsigned long long)want_rep.samples, rel);
+        assert_true(rel < 1e-2);
+        if (f == 0) assert_true(rep[f].samples > 0);
+        assert_int_equal(rep[f].samples, want_rep.samples);
+        assert_int_equal(rep[f].x, want_rep.x);
+        assert_int_equal(rep[f].y, want_rep.y);
+        assert_int_equal(rep[f].sample, want_rep.sample);
+        assert_int_equal(rep[f].feature, want_rep.feature);
+        assert_int_equal(rep[f].kind, want_rep.kind);
+        /* Statistics of the frame as it came; an f16 frame's from its
+         * halves, which widen exactly. */
+        assert_int_equal(st[f].hair_pixels, want_st.hair_pixels);
+        assert_int_equal(st[f].full_pixels, want_st.full_pixels);
+        assert_memory_equal(st[f].value, want_st.value, sizeof st[f].value);
+      }
+    }
+  hf_backend_host_unregister(c->gpu, arena);
+  free(arena);
+  free(saved);
+  free(in32);
+  free(want);
+  free(got);
+  hf_model_destroy(gm);
+  hf_model_destroy(rm);
+  hf_weights_free(w);
+}
+
 /* hf_model_prepare builds the plan ahead: the first run of that shape then
  * allocates nothing, and prepared plans survive eviction of the others. */
 static void test_prepare(void **state) {
@@ -489,6 +585,7 @@ int main(int argc, char **argv) {
         cmocka_unit_test_setup_teardown(test_pipelined_and_registered, setup, teardown),
         cmocka_unit_test_setup_teardown(test_prepare, setup, teardown),
         cmocka_unit_test_setup_teardown(test_register_shared_segments, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_device_check, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
   }

@@ -4,9 +4,10 @@
 // access widths the launchers pick for the same (256-byte aligned) buffers,
 // and their results compared with the definitions: the input padding and
 // FP16 conversion, bias + ReLU, view copies, depth-to-space with and
-// without the one-pixel offset, and the output stages against hfcore's
+// without the one-pixel offset, the output stages against hfcore's
 // hf_output_transform, hf_residual_base and hf_output_finish (the Kernel
-// architecture, head included). Exit status 1 on any mismatch.
+// architecture, head included), and the input check against
+// hf_features_scan and hf_features_sanitise. Exit status 1 on any mismatch.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -435,6 +436,115 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16, int
   free(hb);
 }
 
+// ---- input check -------------------------------------------------------------
+
+// One random feature value of a sample, in contract or (rarely) not: every
+// kind the rule knows (non-finite, alpha <= 0 beside other values, each
+// feature out of range on either side), and the edge cases it must let
+// through (-0 in an uncovered sample, bounds exactly).
+static void random_sample(float *s) {
+  const float r = frand();
+  if (r < 0.35f) {  // uncovered
+    for (int f = 0; f < 6; f++) s[f] = frand() < 0.1f ? -0.0f : 0.0f;
+    return;
+  }
+  s[0] = 2 * frand(), s[1] = frand() < 0.5f ? 0 : 3 * frand(), s[2] = 1 - frand();
+  s[3] = frand(), s[4] = 2 * frand() - 1, s[5] = 2 * frand() - 1;
+  if (frand() < 0.05f) s[2] = 1.0f, s[3] = frand() < 0.5f ? 0.0f : 1.0f, s[4] = -1.0f;
+  if (frand() >= 0.03f) return;
+  const int f = (int)(frand() * 6);
+  switch ((int)(frand() * 7)) {
+  case 0: s[f] = NAN; break;
+  case 1: s[f] = frand() < 0.5f ? INFINITY : -INFINITY; break;
+  case 2: s[2] = 0.0f; break;                                // uncovered, features left
+  case 3: s[2] = -0.25f; break;
+  case 4: s[f] = 100.0f; break;                              // above every range
+  case 5: s[f] = -1.5f; break;                               // below every range
+  default: s[f] = f < 2 ? 64.0f : f == 2 ? 1.0f : -1.0f;     // a bound itself: in contract
+  }
+}
+
+// The device's input check (scan_pixel over the kernel's pixels, its counts
+// summed as the kernel's atomics sum them) against the host passes:
+// hf_features_scan's report and statistics of the frame as it came, and
+// hf_features_sanitise's fixed frame, bit for bit. clean: every sample
+// in contract.
+static void test_scan(int f16, int spp, int batch, int w, int h, int clean) {
+  const size_t pixels = (size_t)w * h, values = pixels * spp * 6;
+  const size_t es = f16 ? 2 : 4;
+  uint8_t *in = (uint8_t *)malloc(values * es * batch);
+  uint8_t *dev = (uint8_t *)dalloc(values * es * batch);
+  uint8_t *want = (uint8_t *)malloc(values * es * batch);
+  if (!in || !want) abort();
+  for (size_t i = 0; i < values * batch; i += 6) {
+    float smp[6];
+    do random_sample(smp);
+    while (clean && !hf_rule_ok_f32(smp));
+    for (int f = 0; f < 6; f++) {
+      if (f16) ((uint16_t *)in)[i + f] = hf_f32_to_f16(smp[f]);
+      else ((float *)in)[i + f] = smp[f];
+    }
+    if (f16 && !clean && frand() < 0.01f)  // halves the floats above do not make
+      ((uint16_t *)in)[i + 2] = frand() < 0.5f ? 0x0001u : 0x7c00u;  // subnormal, +inf alpha
+  }
+  memcpy(dev, in, values * es * batch);
+  memcpy(want, in, values * es * batch);
+  hf_cuk_scan_counts *counts = (hf_cuk_scan_counts *)calloc(batch, sizeof *counts);
+  if (!counts) abort();
+  for (int n = 0; n < batch; n++) {
+    void *frame = dev + values * es * n;
+    hf_cuk_scan_counts *c = &counts[n];
+    for (size_t p = 0; p < pixels; p++) {
+      const ScanPixel r = f16 ? scan_pixel<true>(frame, spp, (long long)p)
+                              : scan_pixel<false>(frame, spp, (long long)p);
+      if (r.covered) c->hist[r.bin]++, c->hair++, c->full += r.covered == spp;
+      if (r.bad) {
+        c->bad += r.bad;
+        const unsigned long long inv = ~(unsigned long long)(p * spp + r.first_bad);
+        if (inv > c->first_bad_inv) c->first_bad_inv = inv;
+      }
+    }
+  }
+  uint64_t total_bad = 0;
+  for (int n = 0; n < batch; n++) {
+    const hf_dtype dt = f16 ? HF_F16 : HF_F32;
+    const uint8_t *frame = in + values * es * n;
+    hf_input_report want_rep, got_rep;
+    hf_input_stats want_st, got_st;
+    if (hf_features_scan(frame, dt, w, h, spp, &want_rep, &want_st) != HF_OK) abort();
+    hf_features_sanitise(want + values * es * n, dt, w, h, spp, &want_rep);
+    hf_input_stats_acc acc;
+    memcpy(&acc, &counts[n], sizeof acc);
+    hf_input_stats_finish(&acc, w, h, spp, &got_st);
+    hf_features_report_counted(frame, dt, w, spp, counts[n].bad, ~counts[n].first_bad_inv,
+                               &got_rep);
+    total_bad += got_rep.samples;
+    CHECK(got_rep.samples == want_rep.samples && got_rep.x == want_rep.x &&
+              got_rep.y == want_rep.y && got_rep.sample == want_rep.sample &&
+              got_rep.feature == want_rep.feature && got_rep.kind == want_rep.kind &&
+              !memcmp(&got_rep.value, &want_rep.value, sizeof got_rep.value),
+          "scan f16=%d spp=%d frame %d: report %llu at (%d,%d) s%d f%d kind %d, want %llu at "
+          "(%d,%d) s%d f%d kind %d", f16, spp, n, (unsigned long long)got_rep.samples, got_rep.x,
+          got_rep.y, got_rep.sample, got_rep.feature, got_rep.kind,
+          (unsigned long long)want_rep.samples, want_rep.x, want_rep.y, want_rep.sample,
+          want_rep.feature, want_rep.kind);
+    CHECK(!memcmp(&got_st, &want_st, sizeof got_st),
+          "scan f16=%d spp=%d frame %d: statistics differ (hair %llu/%llu, p50 %g/%g)", f16, spp,
+          n, (unsigned long long)got_st.hair_pixels, (unsigned long long)want_st.hair_pixels,
+          got_st.value[HF_STAT_STRAND_ALPHA_P50], want_st.value[HF_STAT_STRAND_ALPHA_P50]);
+  }
+  CHECK(!memcmp(dev, want, values * es * batch), "scan f16=%d spp=%d: fixed frames differ from "
+        "hf_features_sanitise's", f16, spp);
+  CHECK(clean ? total_bad == 0 : total_bad > 0, "scan f16=%d spp=%d: %llu bad samples in a %s "
+        "frame", f16, spp, (unsigned long long)total_bad, clean ? "clean" : "dirty");
+  printf("  input check %s spp %2d, %d frame(s) %dx%d: %llu out-of-contract samples\n",
+         f16 ? "f16" : "f32", spp, batch, w, h, (unsigned long long)total_bad);
+  free(in);
+  free(dev);
+  free(want);
+  free(counts);
+}
+
 int main(void) {
   printf("element-wise kernels of the cudnn backend, run on the CPU\n");
   for (int f16 = 0; f16 <= 1; f16++) {
@@ -464,6 +574,12 @@ int main(void) {
   test_output_kernel(3, 32, 0, 0, 1);
   test_output_kernel(3, 32, 1, 1, 1);
   test_output_kernel(2, 0, 0, 0, 1);
+  for (int f16 = 0; f16 <= 1; f16++) {
+    test_scan(f16, 4, 2, 67, 45, 0);
+    test_scan(f16, 4, 1, 64, 64, 1);
+    test_scan(f16, 1, 1, 33, 17, 0);
+    test_scan(f16, 16, 1, 19, 23, 0);
+  }
   if (failures) {
     printf("%d check(s) failed\n", failures);
     return 1;

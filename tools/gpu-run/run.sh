@@ -232,8 +232,9 @@ if [ "$BACKEND" = cudnn ]; then
 fi
 
 # ---- 5. what the speed-ups are worth, one at a time ----------------------------
-# Each decoder form alone; shared memory staged instead of pinned; one run
-# at a time instead of two in flight.
+# Each decoder form alone; shared memory staged instead of pinned; the
+# input checked on the host instead of the device; one run at a time
+# instead of two in flight.
 for f in bwd-data d2s phase shuffle; do
   step "form_$f" 45 env HF_CUDNN_DECONV=$f HF_CUDNN_VERBOSE=1 "${BENCH[@]}" --batch 1 --iters 20 \
     --warmup 2
@@ -241,6 +242,14 @@ done
 if [ "$(left)" -gt 60 ] && serve staged HF_CUDNN_NO_REGISTER=1; then
   load load_staged_shm_f16_k2 staged --shm --f16 --inflight 2
   stop staged
+fi
+# The out-of-contract check and the statistics on the host's cores before
+# the upload, as before the device check (HF_CUDNN_HOST_CHECK): against
+# load_shm_f16 and load_shm_f32, what checking on the device is worth.
+if [ "$(left)" -gt 60 ] && serve hostcheck HF_CUDNN_HOST_CHECK=1; then
+  load load_hostcheck_shm_f16 hostcheck --shm --f16
+  load load_hostcheck_shm_f32 hostcheck --shm
+  stop hostcheck
 fi
 if [ "$(left)" -gt 60 ] && serve depth1 -- --pipeline-depth 1; then
   load load_depth1_shm_f16_k2 depth1 --shm --f16 --inflight 2
