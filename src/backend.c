@@ -284,6 +284,7 @@ static int run_scanning(hf_model *m, const hf_io *io, hf_timing *t, hf_input_rep
     /* Checked by the backend on the device; complete when waited for. */
     rc = ops->model_submit_scan(m->impl, io, rep ? rep : own, stats);
     if (rc == HF_OK) rc = ops->model_wait(m->impl, t);
+    guarded = 1;
   } else {
     return HF_RUN_DECLINED;
   }
@@ -381,7 +382,7 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
       m->pending[slot].io = *io;
       m->pending[slot].report = r;
       m->pending[slot].input_us = 0;
-      m->pending[slot].guarded = 0;
+      m->pending[slot].guarded = 1;
       m->pending[slot].rc = HF_OK;
       m->npending++;
       return HF_OK;

@@ -83,7 +83,9 @@ typedef struct hf_backend_ops {
    * by the rule in its own copy of the input, rep ([io->batch]) given
    * hf_features_check's report of each frame and stats, when not NULL,
    * hf_input_stats_compute's values, both filled in by the model_wait that
-   * completes the run (io->in must stay as it is until then). Answers
+   * completes the run (io->in must stay as it is until then), which has
+   * also applied hf_output_guard's rule to the outputs (the counts in
+   * rep[n].outputs). Answers
    * HF_RUN_DECLINED (nothing started) for an io it does not check itself,
    * which then takes the common path. */
   int (*model_submit_scan)(void *model, const hf_io *io, hf_input_report *rep,

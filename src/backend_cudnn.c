@@ -1142,8 +1142,6 @@ static int compute(cudnn_model *m, slot *s) {
      * kernel reads them; the counts come back beside the network's work. */
     HF_CU_TRY(hf_cuk_scan(s->d_in, s->in_f16, io->batch, (long long)io->width * io->height,
                           m->cfg.spp, s->d_counts, m->s_comp));
-    HF_CU_TRY(cudaMemcpyAsync(s->h_counts, s->d_counts, sizeof *s->h_counts * io->batch,
-                              cudaMemcpyDeviceToHost, m->s_comp));
   }
   HF_CU_TRY(hf_cuk_input(s->d_in, s->in_f16, io->batch, io->width, io->height,
                          m->cfg.in_channels, p->buf[HF_CL_BUF_IN], p->pw, p->ph, p->lo.cin_pad,
@@ -1158,6 +1156,14 @@ static int compute(cudnn_model *m, slot *s) {
   /* The slot's output tensor must have been downloaded from last time. */
   if (s->used) HF_CU_TRY(cudaStreamWaitEvent(m->s_comp, s->ev[EV_O1], 0));
   HF_CU_TRY(m->output(m, p, s));
+  if (s->scan) {
+    /* The output guard here too, so the host reads neither the frame nor
+     * the result; the counts come back with it. */
+    HF_CU_TRY(hf_cuk_guard(s->d_out, io->out_dtype == HF_F16, io->batch,
+                           (long long)io->width * io->height, s->d_counts, m->s_comp));
+    HF_CU_TRY(cudaMemcpyAsync(s->h_counts, s->d_counts, sizeof *s->h_counts * io->batch,
+                              cudaMemcpyDeviceToHost, m->s_comp));
+  }
   HF_CU_TRY(cudaEventRecord(s->ev[EV_C3], m->s_comp));
   return HF_OK;
 fail:
@@ -1229,7 +1235,8 @@ fail:
 }
 
 /* The check's counts of s's frames as the reports and statistics
- * hf_features_scan would have made of them (model_submit_scan). */
+ * hf_features_scan would have made of them, with the output guard's counts
+ * (model_submit_scan). */
 static void scan_results(const cudnn_model *m, const slot *s) {
   const hf_io *io = &s->io;
   const size_t frame = (size_t)io->width * io->height * m->cfg.in_channels *
@@ -1238,6 +1245,7 @@ static void scan_results(const cudnn_model *m, const slot *s) {
     const hf_cuk_scan_counts *c = &s->h_counts[n];
     hf_features_report_counted((const uint8_t *)io->in + frame * n, io->in_dtype, io->width,
                                m->cfg.spp, c->bad, (size_t)~c->first_bad_inv, &s->rep[n]);
+    s->rep[n].outputs = c->outputs;
     if (s->stats) {
       hf_input_stats_acc acc;
       memcpy(&acc, c, sizeof acc);

@@ -71,6 +71,22 @@ __global__ void scan_kernel(void *src, long long pixels, int spp, hf_cuk_scan_co
   }
 }
 
+template <bool F16>
+__global__ void guard_kernel(void *dst, long long pixels, hf_cuk_scan_counts *counts) {
+  __shared__ unsigned long long changed;
+  if (threadIdx.x == 0) changed = 0;
+  __syncthreads();
+  void *frame = F16 ? (void *)((uint16_t *)dst + blockIdx.y * pixels * 3)
+                    : (void *)((float *)dst + blockIdx.y * pixels * 3);
+  unsigned long long mine = 0;
+  for (long long p = (long long)blockIdx.x * blockDim.x + threadIdx.x; p < pixels;
+       p += (long long)gridDim.x * blockDim.x)
+    mine += guard_pixel<F16>(frame, p);
+  if (mine) atomicAdd(&changed, mine);
+  __syncthreads();
+  if (threadIdx.x == 0 && changed) atomicAdd(&counts[blockIdx.y].outputs, changed);
+}
+
 template <int U> __global__ void bias_act_kernel(hf_cuk_view y, const float *bias, int relu) {
   bias_act_unit<U>(y, bias, relu, blockIdx.x * blockDim.x + threadIdx.x, blockIdx.y, blockIdx.z);
 }
@@ -162,6 +178,18 @@ extern "C" cudaError_t hf_cuk_scan(void *src, int src_f16, int batch, long long 
     scan_kernel<true><<<grid, kMaxThreads, 0, stream>>>(src, pixels, spp, counts);
   else
     scan_kernel<false><<<grid, kMaxThreads, 0, stream>>>(src, pixels, spp, counts);
+  return cudaGetLastError();
+}
+
+extern "C" cudaError_t hf_cuk_guard(void *dst, int dst_f16, int batch, long long pixels,
+                                    hf_cuk_scan_counts *counts, cudaStream_t stream) {
+  if (batch < 1 || batch > 65535 || pixels < 1) return cudaErrorInvalidValue;
+  const long long blocks = (pixels + kMaxThreads - 1) / kMaxThreads;
+  const dim3 grid((unsigned)(blocks < kScanBlocks ? blocks : kScanBlocks), (unsigned)batch);
+  if (dst_f16)
+    guard_kernel<true><<<grid, kMaxThreads, 0, stream>>>(dst, pixels, counts);
+  else
+    guard_kernel<false><<<grid, kMaxThreads, 0, stream>>>(dst, pixels, counts);
   return cudaGetLastError();
 }
 

@@ -40,10 +40,11 @@ cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int w, int h, 
 /* What the input check counted in one frame: the first three fields are
  * hf_input_stats_acc's, in its layout (the statistics of the frame as it
  * came); bad is the number of out-of-contract samples, first_bad_inv the
- * bitwise complement of the lowest sample index among them (0: none). */
+ * bitwise complement of the lowest sample index among them (0: none);
+ * outputs the output pixels the guard changed (hf_cuk_guard). */
 typedef struct hf_cuk_scan_counts {
   unsigned long long hair, full, hist[HF_INPUT_STATS_BINS];
-  unsigned long long bad, first_bad_inv;
+  unsigned long long bad, first_bad_inv, outputs;
 } hf_cuk_scan_counts;
 /* The input check on the device, for frames uploaded as they came: src is
  * [batch][pixels][spp * 6] of FP32 (src_f16 == 0) or FP16; each
@@ -54,6 +55,12 @@ typedef struct hf_cuk_scan_counts {
  * bandwidth after a plain upload. */
 cudaError_t hf_cuk_scan(void *src, int src_f16, int batch, long long pixels, int spp,
                         hf_cuk_scan_counts *counts, cudaStream_t stream);
+/* The output guard on the device (hf_output_guard, bit for bit): dst is
+ * [batch][pixels][3] of FP32 (dst_f16 == 0) or FP16, each pixel kept in its
+ * ranges in place; counts[n].outputs gets the pixels of frame n it changed
+ * added (hf_cuk_scan zeroes it). */
+cudaError_t hf_cuk_guard(void *dst, int dst_f16, int batch, long long pixels,
+                         hf_cuk_scan_counts *counts, cudaStream_t stream);
 /* y = y + bias[k] (FP32), then ReLU when relu, over batch frames of y. For
  * convolutions no cuDNN engine would fuse with their epilogue. */
 cudaError_t hf_cuk_bias_act(hf_cuk_view y, int batch, const float *bias, int relu,

@@ -163,6 +163,14 @@ template <bool F16> HF_HD ScanPixel scan_pixel(void *frame, int spp, long long p
   return r;
 }
 
+// Output pixel `pixel` of [pixels][3] FP32 (F16 false) or FP16 values kept in
+// its ranges in place (hf_output_guard's rule, sample_rule.h); 1 when it
+// changed.
+template <bool F16> HF_HD int guard_pixel(void *out, long long pixel) {
+  return F16 ? hf_rule_guard_f16((uint16_t *)out + pixel * 3)
+             : hf_rule_guard_f32((float *)out + pixel * 3);
+}
+
 // ---- bias + activation, copies, depth-to-space: U channels per thread ----
 template <int U>
 HF_HD void bias_act_unit(const hf_cuk_view &y, const float *bias, int relu, int u, int row, int n) {

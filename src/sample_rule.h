@@ -157,4 +157,45 @@ HF_RULE_FN unsigned hf_rule_stat_bin(float v) {
   return (unsigned)(b > HF_INPUT_STATS_BINS - 1 ? HF_INPUT_STATS_BINS - 1 : b);
 }
 
+/* ---- the output guard ------------------------------------------------------ */
+
+#define HF_RULE_F16_MAX_BITS 0x7bffu  /* 65504 */
+#define HF_RULE_F16_ONE_BITS 0x3c00u
+
+/* One output pixel (colour, highlight, alpha) kept in its ranges
+ * (hf_output_guard): NaN becomes the channel's neutral value (colour 1,
+ * highlight 0, alpha 0), anything else is clamped to [-HF_OUTPUT_MAX,
+ * HF_OUTPUT_MAX], [0, HF_OUTPUT_MAX], [0, 1]. 1 when it changed. */
+HF_RULE_FN int hf_rule_guard_f32(float *o) {
+  float c = o[0], h = o[1], a = o[2];
+  if ((c >= -HF_OUTPUT_MAX) & (c <= HF_OUTPUT_MAX) & (h >= 0.0f) & (h <= HF_OUTPUT_MAX) &
+      (a >= 0.0f) & (a <= 1.0f))
+    return 0;
+  o[0] = isnan(c) ? 1.0f : fminf(fmaxf(c, -HF_OUTPUT_MAX), HF_OUTPUT_MAX);
+  o[1] = isnan(h) ? 0.0f : fminf(fmaxf(h, 0.0f), HF_OUTPUT_MAX);
+  o[2] = isnan(a) ? 0.0f : fminf(fmaxf(a, 0.0f), 1.0f);
+  return 1;
+}
+
+/* The same on binary16 values (HF_OUTPUT_MAX is above the largest half,
+ * so colour and highlight are kept finite: within +-65504). */
+HF_RULE_FN int hf_rule_guard_f16(uint16_t *o) {
+  const uint16_t max = HF_RULE_F16_MAX_BITS, neg_max = 0x8000u | HF_RULE_F16_MAX_BITS;
+  uint16_t c = o[0], h = o[1], a = o[2];
+  uint16_t kc = hf_rule_key16(c), kh = hf_rule_key16(h), ka = hf_rule_key16(a);
+  if ((kc >= hf_rule_key16(neg_max)) & (kc <= hf_rule_key16(max)) &
+      (kh >= HF_RULE_K_NEG_ZERO) & (kh <= hf_rule_key16(max)) & (ka >= HF_RULE_K_NEG_ZERO) &
+      (ka <= HF_RULE_K_ONE))
+    return 0;
+  int nan_c = (c & 0x7fffu) > 0x7c00u, nan_h = (h & 0x7fffu) > 0x7c00u;
+  int nan_a = (a & 0x7fffu) > 0x7c00u;
+  o[0] = nan_c ? (uint16_t)HF_RULE_F16_ONE_BITS
+         : kc < hf_rule_key16(neg_max) ? neg_max
+         : kc > hf_rule_key16(max) ? max : c;
+  o[1] = nan_h || kh < HF_RULE_K_NEG_ZERO ? (uint16_t)0 : kh > hf_rule_key16(max) ? max : h;
+  o[2] = nan_a || ka < HF_RULE_K_NEG_ZERO ? (uint16_t)0
+         : ka > HF_RULE_K_ONE ? (uint16_t)HF_RULE_F16_ONE_BITS : a;
+  return 1;
+}
+
 #endif /* HF_SAMPLE_RULE_H */

@@ -461,45 +461,15 @@ int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height
 
 /* ---- outputs ---------------------------------------------------------------------- */
 
-#define F16_MAX_BITS 0x7bffu  /* 65504 */
-#define F16_ONE_BITS 0x3c00u
-
-/* Pixels [p0, p1) of out kept in range; the number changed. */
+/* Pixels [p0, p1) of out kept in range (sample_rule.h's guard, shared with
+ * the cudnn backend's device pass); the number changed. */
 static uint64_t guard_range(void *out, hf_dtype dtype, size_t p0, size_t p1) {
   uint64_t fixed = 0;
-  if (dtype == HF_F32) {
-    float *o = out;
-    for (size_t i = p0 * HF_OUT_CHANNELS; i < p1 * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
-      float c = o[i], h = o[i + 1], a = o[i + 2];
-      if ((c >= -HF_OUTPUT_MAX) & (c <= HF_OUTPUT_MAX) & (h >= 0.0f) & (h <= HF_OUTPUT_MAX) &
-          (a >= 0.0f) & (a <= 1.0f))
-        continue;
-      fixed++;
-      o[i] = isnan(c) ? 1.0f : fminf(fmaxf(c, -HF_OUTPUT_MAX), HF_OUTPUT_MAX);
-      o[i + 1] = isnan(h) ? 0.0f : fminf(fmaxf(h, 0.0f), HF_OUTPUT_MAX);
-      o[i + 2] = isnan(a) ? 0.0f : fminf(fmaxf(a, 0.0f), 1.0f);
-    }
-    return fixed;
-  }
-  uint16_t *o = out;
-  for (size_t i = p0 * HF_OUT_CHANNELS; i < p1 * HF_OUT_CHANNELS; i += HF_OUT_CHANNELS) {
-    uint16_t c = o[i], h = o[i + 1], a = o[i + 2];
-    uint16_t kc = hf_rule_key16(c), kh = hf_rule_key16(h), ka = hf_rule_key16(a);
-    if ((kc >= hf_rule_key16(0x8000u | F16_MAX_BITS)) & (kc <= hf_rule_key16(F16_MAX_BITS)) &
-        (kh >= HF_RULE_K_NEG_ZERO) & (kh <= hf_rule_key16(F16_MAX_BITS)) &
-        (ka >= HF_RULE_K_NEG_ZERO) & (ka <= HF_RULE_K_ONE))
-      continue;
-    fixed++;
-    int nan_c = (c & 0x7fffu) > 0x7c00u, nan_h = (h & 0x7fffu) > 0x7c00u;
-    int nan_a = (a & 0x7fffu) > 0x7c00u;
-    o[i] = nan_c ? F16_ONE_BITS
-         : kc < hf_rule_key16(0x8000u | F16_MAX_BITS) ? (uint16_t)(0x8000u | F16_MAX_BITS)
-         : kc > hf_rule_key16(F16_MAX_BITS) ? (uint16_t)F16_MAX_BITS : c;
-    o[i + 1] = nan_h || kh < HF_RULE_K_NEG_ZERO            ? 0
-               : kh > hf_rule_key16(F16_MAX_BITS) ? F16_MAX_BITS
-                                                  : h;
-    o[i + 2] = nan_a || ka < HF_RULE_K_NEG_ZERO ? 0 : ka > HF_RULE_K_ONE ? F16_ONE_BITS : a;
-  }
+  if (dtype == HF_F32)
+    for (size_t p = p0; p < p1; p++) fixed += hf_rule_guard_f32((float *)out + p * HF_OUT_CHANNELS);
+  else
+    for (size_t p = p0; p < p1; p++)
+      fixed += hf_rule_guard_f16((uint16_t *)out + p * HF_OUT_CHANNELS);
   return fixed;
 }
 

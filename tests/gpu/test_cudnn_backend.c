@@ -373,8 +373,8 @@ static void test_pipelined_and_registered(void **state) {
 /* Frames from registered memory are checked on the device
  * (model_submit_scan): with out-of-contract samples of every kind, the
  * output is cpu-ref's on the host-sanitised frame, the report and the
- * statistics are cpu-ref's to the bit, and the caller's input is left as
- * it was; a clean frame reports nothing. Through hf_model_submit_stats
+ * statistics are cpu-ref's to the bit (the output guard's count too), and
+ * the caller's input is left as it was; a clean frame reports nothing. Through hf_model_submit_stats
  * (two in flight) and hf_model_run_stats. */
 static void test_device_check(void **state) {
   REQUIRE_GPU();
@@ -448,6 +448,7 @@ static void test_device_check(void **state) {
         assert_int_equal(rep[f].sample, want_rep.sample);
         assert_int_equal(rep[f].feature, want_rep.feature);
         assert_int_equal(rep[f].kind, want_rep.kind);
+        assert_int_equal(rep[f].outputs, want_rep.outputs);   /* the guard, on the device */
         /* Statistics of the frame as it came; an f16 frame's from its
          * halves, which widen exactly. */
         assert_int_equal(st[f].hair_pixels, want_st.hair_pixels);

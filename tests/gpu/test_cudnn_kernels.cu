@@ -6,8 +6,9 @@
 // FP16 conversion, bias + ReLU, view copies, depth-to-space with and
 // without the one-pixel offset, the output stages against hfcore's
 // hf_output_transform, hf_residual_base and hf_output_finish (the Kernel
-// architecture, head included), and the input check against
-// hf_features_scan and hf_features_sanitise. Exit status 1 on any mismatch.
+// architecture, head included), the input check against hf_features_scan
+// and hf_features_sanitise, and the output guard against hf_output_guard.
+// Exit status 1 on any mismatch.
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -545,6 +546,35 @@ static void test_scan(int f16, int spp, int batch, int w, int h, int clean) {
   free(counts);
 }
 
+// The device's output guard (guard_pixel over the kernel's pixels) against
+// hf_output_guard_serial: the same values and the same count, bit for bit.
+static void test_guard(int f16) {
+  const size_t pixels = 5000, n = pixels * 3;
+  const size_t es = f16 ? 2 : 4;
+  uint8_t *dev = (uint8_t *)dalloc(n * es), *want = (uint8_t *)malloc(n * es);
+  if (!want) abort();
+  static const float odd[] = {NAN, INFINITY, -INFINITY, -0.0f, 1e30f, -1e30f, 70000.0f,
+                              -2.0f, 1.0f, 1.5f, 65504.0f, -65504.0f};
+  for (size_t i = 0; i < n; i++) {
+    const float v = frand() < 0.05f ? odd[(int)(frand() * 12)] : 3 * frand() - 1;
+    if (f16) ((uint16_t *)dev)[i] = hf_f32_to_f16(v);
+    else ((float *)dev)[i] = v;
+  }
+  memcpy(want, dev, n * es);
+  const uint64_t want_fixed = hf_output_guard_serial(want, f16 ? HF_F16 : HF_F32, pixels);
+  uint64_t fixed = 0;
+  for (size_t p = 0; p < pixels; p++)
+    fixed += f16 ? guard_pixel<true>(dev, (long long)p) : guard_pixel<false>(dev, (long long)p);
+  CHECK(fixed == want_fixed && fixed > 0, "guard %s: %llu pixels changed, want %llu",
+        f16 ? "f16" : "f32", (unsigned long long)fixed, (unsigned long long)want_fixed);
+  CHECK(!memcmp(dev, want, n * es), "guard %s: values differ from hf_output_guard's",
+        f16 ? "f16" : "f32");
+  printf("  output guard %s, %zu pixels: %llu changed\n", f16 ? "f16" : "f32", pixels,
+         (unsigned long long)fixed);
+  free(dev);
+  free(want);
+}
+
 int main(void) {
   printf("element-wise kernels of the cudnn backend, run on the CPU\n");
   for (int f16 = 0; f16 <= 1; f16++) {
@@ -579,6 +609,7 @@ int main(void) {
     test_scan(f16, 4, 1, 64, 64, 1);
     test_scan(f16, 1, 1, 33, 17, 0);
     test_scan(f16, 16, 1, 19, 23, 0);
+    test_guard(f16);
   }
   if (failures) {
     printf("%d check(s) failed\n", failures);
