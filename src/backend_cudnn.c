@@ -1226,11 +1226,16 @@ static int counts_grow(cudnn_model *m, slot *s, int batch) {
   }
   cudaFreeHost(s->h_counts);
   s->d_counts = NULL, s->h_counts = NULL, s->counts_cap = 0;
-  HF_TRY(dmalloc((void **)&s->d_counts, bytes, &m->io_bytes));
   HF_CU_TRY(cudaHostAlloc((void **)&s->h_counts, bytes, cudaHostAllocDefault));
+  if ((rc = dmalloc((void **)&s->d_counts, bytes, &m->io_bytes)) != HF_OK) {
+    cudaFreeHost(s->h_counts);
+    s->h_counts = NULL;
+    return rc;
+  }
   s->counts_cap = batch;
   return HF_OK;
 fail:
+  s->h_counts = NULL;
   return rc;
 }
 
