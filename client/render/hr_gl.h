@@ -47,6 +47,8 @@
   X(PFNGLBINDBUFFERBASEPROC, BindBufferBase)                                  \
   X(PFNGLBUFFERDATAPROC, BufferData)                                          \
   X(PFNGLGETBUFFERSUBDATAPROC, GetBufferSubData)                              \
+  X(PFNGLMAPBUFFERRANGEPROC, MapBufferRange)                                  \
+  X(PFNGLUNMAPBUFFERPROC, UnmapBuffer)                                        \
   X(PFNGLCLEARBUFFERDATAPROC, ClearBufferData)                                \
   X(PFNGLGENVERTEXARRAYSPROC, GenVertexArrays)                                \
   X(PFNGLDELETEVERTEXARRAYSPROC, DeleteVertexArrays)                          \

@@ -41,6 +41,10 @@ struct hfr_renderer {
   int gl_loaded;
   hr_program st, stac, shadow, abuf, head, occluder, resolve_ms, resolve_stac, resolve_abuf;
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
+  /* The ground truth's pool of A-buffer nodes, grown as windows need and
+   * kept for the next (hr_pass_gt): up to HFR_MAX_FRAGMENTS nodes. */
+  GLuint abuf_nodes;
+  uint32_t abuf_nodes_cap;
   uint32_t points;              /* instances drawn: points - 1 */
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */
   GLsizei head_vertices;
@@ -116,10 +120,19 @@ void hr_frame_stats(const hfr_renderer *r, const hfr_view *v, const hr_camera *c
 /* Rotation and scale of hfr_hair_orient on n points of stride floats. */
 void hr_orient_points(float *p, size_t n, size_t stride, hfr_axis up, float scale);
 
-/* Host sort-and-blend of A-buffer lists (heads: ss_w x ss_h, nodes: 5
- * 32-bit words each: c, h, a, d, next) into [h][w][3] rows bottom first. */
-int hr_abuf_blend_cpu(const uint32_t *heads, const uint32_t *nodes, uint32_t capacity, int w,
-                      int h, int ss, float *out);
+/* Host sort-and-blend of A-buffer lists into out [h][w][3] (colour factor,
+ * highlight, alpha; rows bottom first): heads holds the window's h * ss
+ * rows of w * ss list heads, row r at heads + r * heads_stride; nodes are
+ * 5 32-bit words each (c, h, a, d, next), indices at or above capacity
+ * ending a list. Each subsample's list is sorted by depth, then node index
+ * (as the shader's resolve), and blended front to back in double. Rows of
+ * pixels are split between threads (hf_parallel_chunks). max_depth and
+ * long_lists, when not NULL, get the longest list's length and the number
+ * of lists longer than HR_ABUF_SORT (those the shader sorts in several
+ * rounds). HF_OK or HF_ENOMEM. */
+int hr_abuf_blend_cpu(const uint32_t *heads, size_t heads_stride, const uint32_t *nodes,
+                      uint32_t capacity, int w, int h, int ss, float *out, uint32_t *max_depth,
+                      uint64_t *long_lists);
 
 double hr_now_ms(void);
 

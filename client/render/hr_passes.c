@@ -441,54 +441,98 @@ static int key_cmp(const void *a, const void *b) {
   return x->i < y->i ? -1 : x->i > y->i;
 }
 
-int hr_abuf_blend_cpu(const uint32_t *heads, const uint32_t *nodes, uint32_t capacity, int w,
-                      int h, int ss, float *out) {
-  size_t cap = 256;
-  sort_key *keys = malloc(sizeof *keys * cap);
-  if (!keys) return HF_ENOMEM;
-  const int sw = w * ss;
-  for (int y = 0; y < h; y++)
+/* The host blend's work, split by rows of pixels between threads
+ * (hf_parallel_chunks): each worker sorts with its own keys and keeps its
+ * own deepest list and count of long lists. */
+typedef struct blend_run {
+  const uint32_t *heads, *nodes;
+  size_t heads_stride;
+  uint32_t capacity;
+  int w, ss;
+  float *out;
+  struct {
+    sort_key *keys;
+    size_t cap;
+    uint32_t max_depth;
+    uint64_t long_lists;
+    int rc;
+  } part[HF_PARALLEL_MAX];
+} blend_run;
+
+static void blend_rows(void *arg, int worker, size_t y0, size_t y1) {
+  blend_run *b = arg;
+  const int ss = b->ss, w = b->w;
+  __typeof__(b->part[0]) *pt = &b->part[worker];
+  if (pt->rc) return;
+  for (size_t y = y0; y < y1; y++)
     for (int x = 0; x < w; x++) {
       double acc[3] = {0, 0, 0};
       for (int sy = 0; sy < ss; sy++)
         for (int sx = 0; sx < ss; sx++) {
           size_t n = 0;
-          for (uint32_t i = heads[(size_t)(y * ss + sy) * sw + x * ss + sx];
-               i != 0xFFFFFFFFu && i < capacity; i = nodes[(size_t)i * NODE_WORDS + 4]) {
-            if (n == cap) {
-              sort_key *k2 = realloc(keys, sizeof *keys * cap * 2);
+          for (uint32_t i = b->heads[(y * ss + sy) * b->heads_stride + (size_t)x * ss + sx];
+               i != 0xFFFFFFFFu && i < b->capacity; i = b->nodes[(size_t)i * NODE_WORDS + 4]) {
+            if (n == pt->cap) {
+              size_t cap = pt->cap ? pt->cap * 2 : 256;
+              sort_key *k2 = realloc(pt->keys, sizeof *k2 * cap);
               if (!k2) {
-                free(keys);
-                return HF_ENOMEM;
+                pt->rc = HF_ENOMEM;
+                return;
               }
-              keys = k2;
-              cap *= 2;
+              pt->keys = k2;
+              pt->cap = cap;
             }
             float d;
-            memcpy(&d, &nodes[(size_t)i * NODE_WORDS + 3], 4);
-            keys[n].d = d;
-            keys[n].i = i;
+            memcpy(&d, &b->nodes[(size_t)i * NODE_WORDS + 3], 4);
+            pt->keys[n].d = d;
+            pt->keys[n].i = i;
             n++;
           }
-          qsort(keys, n, sizeof *keys, key_cmp);
+          if (n > pt->max_depth) pt->max_depth = (uint32_t)n;
+          pt->long_lists += n > HR_ABUF_SORT;
+          qsort(pt->keys, n, sizeof *pt->keys, key_cmp);
           double T = 1, c = 0, hl = 0;
           for (size_t k = 0; k < n; k++) {
             float q[3];
-            memcpy(q, &nodes[(size_t)keys[k].i * NODE_WORDS], sizeof q);
+            memcpy(q, &b->nodes[(size_t)pt->keys[k].i * NODE_WORDS], sizeof q);
             c += T * q[2] * q[0];
             hl += T * q[2] * q[1];
             T *= 1 - q[2];
           }
           acc[0] += c, acc[1] += hl, acc[2] += 1 - T;
         }
-      float *o = out + 3 * ((size_t)y * w + x);
+      float *o = b->out + 3 * (y * (size_t)w + x);
       double a = acc[2] / (ss * ss);
       o[0] = a > 0 ? (float)(acc[0] / acc[2]) : 0;
       o[1] = a > 0 ? (float)(acc[1] / acc[2]) : 0;
       o[2] = (float)a;
     }
-  free(keys);
-  return HF_OK;
+}
+
+int hr_abuf_blend_cpu(const uint32_t *heads, size_t heads_stride, const uint32_t *nodes,
+                      uint32_t capacity, int w, int h, int ss, float *out, uint32_t *max_depth,
+                      uint64_t *long_lists) {
+  blend_run *b = calloc(1, sizeof *b);
+  if (!b) return HF_ENOMEM;
+  b->heads = heads, b->heads_stride = heads_stride, b->nodes = nodes, b->capacity = capacity;
+  b->w = w, b->ss = ss, b->out = out;
+  /* Rows of at least 64 lists' worth per thread: a few rows of a small
+   * window are not worth a thread. */
+  const size_t min_rows = (size_t)(4096 / ((size_t)w * ss * ss) + 1);
+  int nw = hf_parallel_chunks((size_t)h, 1, min_rows, blend_rows, b);
+  int rc = HF_OK;
+  uint32_t depth = 0;
+  uint64_t longs = 0;
+  for (int k = 0; k < nw; k++) {
+    if (b->part[k].rc) rc = b->part[k].rc;
+    depth = b->part[k].max_depth > depth ? b->part[k].max_depth : depth;
+    longs += b->part[k].long_lists;
+  }
+  for (int k = 0; k < HF_PARALLEL_MAX; k++) free(b->part[k].keys);
+  free(b);
+  if (max_depth) *max_depth = depth;
+  if (long_lists) *long_lists = longs;
+  return rc;
 }
 
 static void flip_rows(const float *src, float *dst, int w, int h, int ch) {
@@ -501,6 +545,18 @@ static void flip_rows(const float *src, float *dst, int w, int h, int ch) {
 static uint32_t abuf_max_nodes(const hfr_renderer *r) {
   return r->max_fragments > 0 && r->max_fragments < HFR_MAX_FRAGMENTS ? r->max_fragments
                                                                       : HFR_MAX_FRAGMENTS;
+}
+
+/* Grows r's pool of A-buffer nodes to capacity nodes (no smaller). */
+static int abuf_reserve(hfr_renderer *r, uint32_t capacity, char *err, size_t errlen) {
+  if (capacity <= r->abuf_nodes_cap) return HF_OK;
+  if (!r->abuf_nodes) hrgl.GenBuffers(1, &r->abuf_nodes);
+  hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, r->abuf_nodes);
+  hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)capacity * NODE_WORDS * 4, NULL,
+                  GL_DYNAMIC_COPY);
+  int rc = hr_gl_check("A-buffer nodes", err, errlen);
+  r->abuf_nodes_cap = rc == HF_OK ? capacity : 0;
+  return rc;
 }
 
 /* The ground truth of v's window in one A-buffer. *overflow is set to the
@@ -529,31 +585,41 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   hr_camera cam;
   hr_camera_from_view(r, &sv, &cam);
 
-  GLuint bufs[4] = {0, 0, 0, 0}; /* heads, nodes, counter, stats */
+  /* heads, nodes (the renderer's: r->abuf_nodes, set below), counter,
+   * stats */
+  GLuint bufs[4] = {0, 0, 0, 0};
   GLuint depth = 0, rtex = 0, fbo[2] = {0, 0};
-  hrgl.GenBuffers(4, bufs);
+  hrgl.GenBuffers(1, &bufs[0]);
+  hrgl.GenBuffers(2, &bufs[2]);
+  int rc = abuf_reserve(r, ABUF_MIN_NODES, err, errlen);
+  bufs[1] = r->abuf_nodes;
   hrgl.GenFramebuffers(2, fbo);
   depth = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, FSW, FSH, 0);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, depth, 0);
   GLenum none = GL_NONE;
   hrgl.DrawBuffers(1, &none);
-  int rc = fbo_complete("A-buffer", err, errlen);
+  if (rc == HF_OK) rc = fbo_complete("A-buffer", err, errlen);
 
+  /* List heads of the window's supersampled pixels only (a 256x256 crop of
+   * a 1024x1024 frame at 8x8 needs 16 MiB of them, not 256). */
   hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
-  hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)sizeof(uint32_t) * FSW * FSH, NULL,
+  hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)sizeof(uint32_t) * SW * SH, NULL,
                   GL_DYNAMIC_COPY);
   /* HFR_MAX_FRAGMENTS: 1.3 GB of nodes at most. */
   const uint32_t max_nodes = abuf_max_nodes(r);
   uint64_t want = (uint64_t)SW * SH * 2;
   uint32_t capacity = want < ABUF_MIN_NODES ? ABUF_MIN_NODES
                       : want > max_nodes ? max_nodes : (uint32_t)want;
+  /* The pool of nodes is kept from window to window (bands, frames): a
+   * new buffer is zero-filled by llvmpipe, 4.5 s for 1.2 GB on a 2-core
+   * KVM machine, so a window takes the pool the one before it grew. */
+  if (r->abuf_nodes_cap > capacity) capacity = r->abuf_nodes_cap < max_nodes ? r->abuf_nodes_cap
+                                                                             : max_nodes;
   uint32_t count = 0;
   double t0 = hr_now_ms();
   for (int attempt = 0; rc == HF_OK && attempt < 2; attempt++) {
-    hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[1]);
-    hrgl.BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)capacity * NODE_WORDS * 4, NULL,
-                    GL_DYNAMIC_COPY);
+    if ((rc = abuf_reserve(r, capacity, err, errlen)) != HF_OK) break;
     const uint32_t empty = 0xFFFFFFFFu, zero = 0;
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
     hrgl.ClearBufferData(GL_SHADER_STORAGE_BUFFER, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT,
@@ -577,7 +643,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     set_geometry(&r->abuf, &cam, &sv, 0, 0);
     hr_bind_shading(r, &r->abuf, &sv, &cam, light, 0);
     hr_set_u(&r->abuf, "u_capacity", capacity);
-    hr_set_i(&r->abuf, "u_width", FSW);
+    hr_set_i(&r->abuf, "u_width", SW);
     hr_set_2i(&r->abuf, "u_win_lo", cam.win_x, cam.win_y);
     hr_set_2i(&r->abuf, "u_win_hi", cam.win_x + SW, cam.win_y + SH);
     draw_hair(r);
@@ -625,9 +691,8 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     hrgl.ClearBufferfv(GL_COLOR, 0, zero4);
     hrgl.UseProgram(r->resolve_abuf.id);
     hr_set_i(&r->resolve_abuf, "u_ss", ss);
-    hr_set_i(&r->resolve_abuf, "u_width", FSW);
-    hr_set_2i(&r->resolve_abuf, "u_origin", cam.win_x / ss, cam.win_y / ss);
-    hr_set_2i(&r->resolve_abuf, "u_frame", v->width, v->height);
+    hr_set_i(&r->resolve_abuf, "u_width", SW);
+    hr_set_2i(&r->resolve_abuf, "u_size", W, H);
     hr_set_u(&r->resolve_abuf, "u_capacity", capacity);
     /* One draw per subsample, summed (see hr_glsl_resolve_abuf_fs). */
     hrgl.Enable(GL_BLEND);
@@ -635,6 +700,17 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     for (int sub = 0; sub < ss * ss; sub++) {
       hr_set_i(&r->resolve_abuf, "u_sub", sub);
       draw_fullscreen(r, &r->resolve_abuf, (W + 15) & ~15, (H + 15) & ~15);
+      if (sub == 0) {
+        /* A list too deep for the shader in the first subsample means the
+         * host blends the window: the other subsamples' draws would only
+         * walk deep lists up to the loop budget, then be thrown away (on
+         * dense close-ups that was most of a frame's time). */
+        uint32_t st0[3] = {0, 0, 0};
+        hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
+        hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, sizeof st0, st0);
+        if (st0[2] > 0) break;
+      }
     }
     hrgl.Disable(GL_BLEND);
     hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
@@ -668,28 +744,45 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     flip_rows(tmp, gt, W, H, 3);
   }
   if (rc == HF_OK && (cpu_gt || host)) {
-    uint32_t *heads = malloc(sizeof(uint32_t) * (size_t)SW * SH);
-    uint32_t *nodes = malloc(sizeof(uint32_t) * NODE_WORDS * (size_t)(count ? count : 1));
+    /* The lists where they are: the window's rows of the whole frame's
+     * heads and the pool of nodes, mapped for reading (llvmpipe's buffers
+     * are host memory: no copy of up to HFR_MAX_FRAGMENTS nodes). */
     float *cpu = malloc(sizeof(float) * 3 * (size_t)W * H);
-    if (!heads || !nodes || !cpu) rc = HF_ENOMEM;
+    const uint32_t *heads = NULL, *nodes = NULL;
+    if (!cpu) rc = HF_ENOMEM;
     if (rc == HF_OK) {
-      /* The window's rows of the whole frame's list heads. */
       hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
-      for (int y = 0; y < SH; y++)
-        hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER,
-                              (GLintptr)(sizeof(uint32_t) * ((size_t)(cam.win_y + y) * FSW + cam.win_x)),
-                              (GLsizeiptr)(sizeof(uint32_t) * SW), heads + (size_t)y * SW);
+      heads = hrgl.MapBufferRange(GL_SHADER_STORAGE_BUFFER, 0,
+                                  (GLsizeiptr)(sizeof(uint32_t) * (size_t)SW * SH),
+                                  GL_MAP_READ_BIT);
       hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[1]);
       if (count)
-        hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0,
-                              sizeof(uint32_t) * NODE_WORDS * (size_t)count, nodes);
-      rc = hr_gl_check("A-buffer read back", err, errlen);
+        nodes = hrgl.MapBufferRange(GL_SHADER_STORAGE_BUFFER, 0,
+                                    (GLsizeiptr)(sizeof(uint32_t) * NODE_WORDS * (size_t)count),
+                                    GL_MAP_READ_BIT);
+      rc = hr_gl_check("A-buffer map", err, errlen);
+      if (rc == HF_OK && (!heads || (count && !nodes))) {
+        if (err) snprintf(err, errlen, "A-buffer map: the GL gave no pointer");
+        rc = HF_EBACKEND;
+      }
     }
-    if (rc == HF_OK) rc = hr_abuf_blend_cpu(heads, nodes, count, W, H, ss, cpu);
+    uint32_t depth = 0;
+    uint64_t longs = 0;
+    if (rc == HF_OK)
+      rc = hr_abuf_blend_cpu(heads, (size_t)SW, nodes, count, W, H, ss, cpu, &depth, &longs);
+    if (heads) {
+      hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
+      hrgl.UnmapBuffer(GL_SHADER_STORAGE_BUFFER);
+    }
+    if (nodes) {
+      hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[1]);
+      hrgl.UnmapBuffer(GL_SHADER_STORAGE_BUFFER);
+    }
+    /* Blended here: the statistics of every list, not of the shader's
+     * first subsample. */
+    if (rc == HF_OK && host && stats) stats->gt_max_depth = depth, stats->gt_truncated = longs;
     if (rc == HF_OK) flip_rows(cpu, cpu_gt ? cpu_gt : gt, W, H, 3);
     if (rc == HF_OK && host && cpu_gt) memcpy(gt, cpu_gt, sizeof(float) * 3 * (size_t)W * H);
-    free(heads);
-    free(nodes);
     free(cpu);
   }
   if (stats) stats->gt_ms += hr_now_ms() - t0;
@@ -698,7 +791,8 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   hrgl.DeleteFramebuffers(2, fbo);
   hrgl.DeleteTextures(1, &depth);
   if (rtex) hrgl.DeleteTextures(1, &rtex);
-  hrgl.DeleteBuffers(4, bufs);
+  hrgl.DeleteBuffers(1, &bufs[0]);
+  hrgl.DeleteBuffers(2, &bufs[2]);
   return rc;
 }
 
@@ -723,7 +817,13 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
     hfr_view band = *v;
     if (band.crop_w <= 0) band.crop_x = 0, band.crop_y = 0, band.crop_w = W, band.crop_h = H;
     const int y0 = band.crop_y;
-    const double tried = own.gt_ms;
+    /* Every band's nodes fit the largest pool, which is made once here:
+     * growing it band by band would zero-fill it again and redraw each
+     * band that outgrew it. */
+    const double t_pool = hr_now_ms();
+    rc = abuf_reserve(r, abuf_max_nodes(r), err, errlen);
+    if (rc != HF_OK) return rc;
+    const double tried = own.gt_ms + (hr_now_ms() - t_pool);
     own = (hfr_stats){0};
     own.gt_ms = tried;
     rc = HF_OK;

@@ -38,6 +38,7 @@ void hfr_renderer_destroy(hfr_renderer *r) {
     hrgl.DeleteBuffers(2, bufs);
     if (r->shadow_tex) hrgl.DeleteTextures(1, &r->shadow_tex);
     if (r->shadow_fbo) hrgl.DeleteFramebuffers(1, &r->shadow_fbo);
+    if (r->abuf_nodes) hrgl.DeleteBuffers(1, &r->abuf_nodes);
   }
   hr_context_destroy(r->ctx);
   free(r->stat_pts);

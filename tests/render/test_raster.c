@@ -361,6 +361,44 @@ static void test_gt_dense(void **state) {
   free(cpu);
 }
 
+/* The pool of A-buffer nodes is the renderer's, grown once and kept: a
+ * second ground truth of the same window allocates nothing (llvmpipe
+ * zero-fills every new buffer) and is the same to the bit, with the same
+ * statistics; a window of fewer fragments keeps the pool as it is. */
+static void test_gt_pool(void **state) {
+  (void)state;
+  hfr_view v;
+  style_scene(HFR_STYLE_STRAIGHT, 12000, &v);
+  v.shadow_size = 0;
+  hr_camera light;
+  hr_camera_light(R, &v, &light);
+  const size_t n = (size_t)3 * W * H;
+  float *a = malloc(sizeof(float) * n), *b = malloc(sizeof(float) * n);
+  assert_true(a && b);
+  char err[512] = "";
+  hfr_stats s1 = {0}, s2 = {0}, s3 = {0};
+  if (hr_pass_gt(R, &v, &light, 4, a, NULL, &s1, err, sizeof err) != HF_OK) fail_msg("%s", err);
+  const uint32_t cap = R->abuf_nodes_cap;
+  assert_true(cap >= s1.gt_fragments);
+  if (hr_pass_gt(R, &v, &light, 4, b, NULL, &s2, err, sizeof err) != HF_OK) fail_msg("%s", err);
+  assert_int_equal(R->abuf_nodes_cap, cap);
+  assert_memory_equal(a, b, sizeof(float) * n);
+  assert_int_equal(s1.gt_fragments, s2.gt_fragments);
+  assert_int_equal(s1.gt_max_depth, s2.gt_max_depth);
+  assert_int_equal(s1.gt_truncated, s2.gt_truncated);
+  assert_int_equal(s1.gt_host_resolve, s2.gt_host_resolve);
+  hfr_view cv = v;
+  cv.crop_x = W / 4, cv.crop_y = H / 4, cv.crop_w = W / 4, cv.crop_h = H / 4;
+  if (hr_pass_gt(R, &cv, &light, 4, b, NULL, &s3, err, sizeof err) != HF_OK) fail_msg("%s", err);
+  assert_true(s3.gt_fragments < s1.gt_fragments);
+  assert_int_equal(R->abuf_nodes_cap, cap);
+  print_message("pool of %u nodes kept: %llu and %llu fragments, deepest list %u (%s)\n", cap,
+                (unsigned long long)s1.gt_fragments, (unsigned long long)s3.gt_fragments,
+                s1.gt_max_depth, s1.gt_host_resolve ? "blended on the host" : "on the GPU");
+  free(a);
+  free(b);
+}
+
 /* A strand whose width and opacity change along it, from a pixel and more
  * (alpha 1) to a fraction of one: with multisampling a pixel's fragment is
  * shaded at the pixel centre, which for a partly covered pixel can lie
@@ -901,6 +939,7 @@ int main(void) {
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_gt_bands),
+    cmocka_unit_test(test_gt_pool),
     cmocka_unit_test(test_gt_grid),
     cmocka_unit_test(test_varying_width_alpha_range),
     cmocka_unit_test(test_frame_ranges),
