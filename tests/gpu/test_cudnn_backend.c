@@ -374,8 +374,8 @@ static void test_pipelined_and_registered(void **state) {
  * (model_submit_scan): with out-of-contract samples of every kind, the
  * output is cpu-ref's on the host-sanitised frame, the report and the
  * statistics are cpu-ref's to the bit (the output guard's count too), and
- * the caller's input is left as it was; a clean frame reports nothing. Through hf_model_submit_stats
- * (two in flight) and hf_model_run_stats. */
+ * the caller's input is left as it was; so is a clean frame's. Through
+ * hf_model_submit_stats (two in flight) and hf_model_run_stats. */
 static void test_device_check(void **state) {
   REQUIRE_GPU();
   ctx *c = *state;
