@@ -465,6 +465,9 @@ static int dmalloc(void **p, size_t bytes, size_t *acct) {
   *acct += bytes;
   return HF_OK;
 fail:
+  /* The runtime keeps the failure as the thread's last error, which the
+   * next launch's check (cudaGetLastError) would take for its own. */
+  (void)cudaGetLastError();
   *p = NULL;
   return rc;
 }
@@ -1235,6 +1238,7 @@ static int counts_grow(cudnn_model *m, slot *s, int batch) {
   s->counts_cap = batch;
   return HF_OK;
 fail:
+  (void)cudaGetLastError();   /* as in dmalloc */
   s->h_counts = NULL;
   return rc;
 }
@@ -1283,7 +1287,9 @@ static int submit_locked(cudnn_model *m, const hf_io *io, hf_input_report *rep,
   s->scan = rep != NULL;
   s->rep = rep;
   s->stats = stats;
-  if (s->scan) HF_TRY(counts_grow(m, s, io->batch));
+  /* Without room for the counts the frame is checked on the host instead
+   * (nothing is pending yet). */
+  if (s->scan && counts_grow(m, s, io->batch) != HF_OK) return HF_RUN_DECLINED;
   s->host_in_us = s->host_out_us = 0;
   const size_t pix = (size_t)io->batch * io->width * io->height;
   s->out_bytes = pix * HF_OUT_CHANNELS * (io->out_dtype == HF_F16 ? 2 : 4);

@@ -20,11 +20,14 @@ __global__ void input_kernel(const void *src, int w, int h, int cin, __half *dst
                          blockIdx.y, blockIdx.z);
 }
 
-// Blocks per frame of the input check: every block keeps a histogram in
-// shared memory and adds its non-zero bins to the frame's at the end, so
-// fewer, fuller blocks mean fewer global atomics; 256 blocks of 256 threads
-// fill every SM of an H100/H200 twice.
-constexpr int kScanBlocks = 256;
+// Most blocks per frame of the input check and the guard. Every block keeps
+// a histogram in shared memory (8 KiB) and adds its non-zero bins to the
+// frame's at the end: fewer, fuller blocks mean fewer global atomics, more
+// mean more of the device busy. 1024 blocks of 256 threads are more than
+// an H100/H200 holds at once (132 SMs; about 5 such blocks each at the
+// scan's 44 registers a thread, sm_90), so every SM has work to the end;
+// the flush is then 1024 atomics per bin in use. Not yet tuned on a device.
+constexpr int kScanBlocks = 1024;
 
 template <bool F16>
 __global__ void scan_kernel(void *src, long long pixels, int spp, hf_cuk_scan_counts *counts) {

@@ -171,9 +171,16 @@ HF_RULE_FN int hf_rule_guard_f32(float *o) {
   if ((c >= -HF_OUTPUT_MAX) & (c <= HF_OUTPUT_MAX) & (h >= 0.0f) & (h <= HF_OUTPUT_MAX) &
       (a >= 0.0f) & (a <= 1.0f))
     return 0;
-  o[0] = isnan(c) ? 1.0f : fminf(fmaxf(c, -HF_OUTPUT_MAX), HF_OUTPUT_MAX);
-  o[1] = isnan(h) ? 0.0f : fminf(fmaxf(h, 0.0f), HF_OUTPUT_MAX);
-  o[2] = isnan(a) ? 0.0f : fminf(fmaxf(a, 0.0f), 1.0f);
+  /* Comparisons, not fminf/fmaxf: those may return either zero for -0
+   * against +0 (glibc versions differ, and a device's min/max and
+   * saturation differ again), so a -0 beside a fixed value is kept, the
+   * same everywhere. */
+  o[0] = isnan(c)               ? 1.0f
+         : c < -HF_OUTPUT_MAX ? -HF_OUTPUT_MAX
+         : c > HF_OUTPUT_MAX  ? HF_OUTPUT_MAX
+                              : c;
+  o[1] = isnan(h) ? 0.0f : h < 0.0f ? 0.0f : h > HF_OUTPUT_MAX ? HF_OUTPUT_MAX : h;
+  o[2] = isnan(a) ? 0.0f : a < 0.0f ? 0.0f : a > 1.0f ? 1.0f : a;
   return 1;
 }
 

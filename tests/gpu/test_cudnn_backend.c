@@ -370,12 +370,68 @@ static void test_pipelined_and_registered(void **state) {
   hf_weights_free(w);
 }
 
+/* A registered batch of two 420x310 frames with out-of-contract samples,
+ * checked on the device in one run (the kernels' frame index, and more
+ * pixels than threads: each thread checks several): outputs, reports and
+ * statistics as cpu-ref's frame by frame; then hf_model_submit without
+ * reports (the model keeps its own) gives the same output. */
+static void device_check_batch(ctx *c, const hf_net_config *cfg, hf_model *gm, hf_model *rm) {
+  enum { B = 2 };
+  const int W = 420, H = 310;
+  const size_t cin = cfg->in_channels, n = (size_t)W * H;
+  const size_t per_in = n * cin * 4, per_out = n * 3 * 4;
+  const size_t arena_bytes = (B * (per_in + 2 * per_out) + 4095) / 4096 * 4096;
+  uint8_t *arena = aligned_alloc(4096, arena_bytes);
+  float *want = malloc(per_out);
+  assert_non_null(arena);
+  assert_non_null(want);
+  assert_int_equal(hf_backend_host_register(c->gpu, arena, arena_bytes), HF_OK);
+  float *in = (float *)arena, *out = (float *)(arena + B * per_in);
+  float *again = (float *)(arena + B * (per_in + per_out));
+  for (size_t i = 0; i < B * n * cin; i++) {
+    static const float bad[] = {NAN, -INFINITY, -0.5f, 80.0f, 0.0f, 2.0f};
+    in[i] = frand() < 0.002f ? bad[(int)(frand() * 6)] : frand();
+  }
+  hf_io io = {B, W, H, in, HF_F32, out, HF_F32};
+  hf_input_report rep[B];
+  hf_input_stats st[B];
+  assert_int_equal(hf_model_run_stats(gm, &io, NULL, rep, st), HF_OK);
+  for (int f = 0; f < B; f++) {
+    hf_input_report want_rep;
+    hf_input_stats want_st;
+    hf_io ref = {1, W, H, in + n * cin * f, HF_F32, want, HF_F32};
+    assert_int_equal(hf_model_run_stats(rm, &ref, NULL, &want_rep, &want_st), HF_OK);
+    const double rel = rel_l2(out + n * 3 * f, want, n * 3);
+    printf("  device check batch of %d %dx%d, frame %d: %llu samples fixed (cpu-ref %llu), rel L2 "
+           "%.2e\n", B, W, H, f, (unsigned long long)rep[f].samples,
+           (unsigned long long)want_rep.samples, rel);
+    assert_true(rel < 1e-2);
+    assert_true(rep[f].samples > 0);
+    assert_int_equal(rep[f].samples, want_rep.samples);
+    assert_int_equal(rep[f].x, want_rep.x);
+    assert_int_equal(rep[f].y, want_rep.y);
+    assert_int_equal(rep[f].sample, want_rep.sample);
+    assert_int_equal(rep[f].kind, want_rep.kind);
+    assert_int_equal(rep[f].outputs, want_rep.outputs);
+    assert_int_equal(st[f].hair_pixels, want_st.hair_pixels);
+    assert_memory_equal(st[f].value, want_st.value, sizeof st[f].value);
+  }
+  io.out = again;
+  assert_int_equal(hf_model_submit(gm, &io), HF_OK);
+  assert_int_equal(hf_model_wait(gm, NULL), HF_OK);
+  assert_true(rel_l2(again, out, B * n * 3) < 1e-4);
+  hf_backend_host_unregister(c->gpu, arena);
+  free(arena);
+  free(want);
+}
+
 /* Frames from registered memory are checked on the device
  * (model_submit_scan): with out-of-contract samples of every kind, the
  * output is cpu-ref's on the host-sanitised frame, the report and the
  * statistics are cpu-ref's to the bit (the output guard's count too), and
  * the caller's input is left as it was; so is a clean frame's. Through
- * hf_model_submit_stats (two in flight) and hf_model_run_stats. */
+ * hf_model_submit_stats (two in flight) and hf_model_run_stats; then a
+ * batch (device_check_batch). */
 static void test_device_check(void **state) {
   REQUIRE_GPU();
   ctx *c = *state;
@@ -462,6 +518,7 @@ static void test_device_check(void **state) {
   free(in32);
   free(want);
   free(got);
+  device_check_batch(c, &cfg, gm, rm);
   hf_model_destroy(gm);
   hf_model_destroy(rm);
   hf_weights_free(w);
