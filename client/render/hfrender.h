@@ -370,6 +370,10 @@ typedef struct hfr_renderer hfr_renderer;
 
 /* platform: "osmesa", "egl", "auto" or NULL (see HF_GL_PLATFORM). */
 int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, size_t errlen);
+/* Frees r and its GL context, with the ground truth's pool of A-buffer
+ * nodes, which r keeps from frame to frame once a truth has grown it (20
+ * bytes a fragment, up to hfr_outputs.max_fragments: 1.3 GB at most), so a
+ * long-lived renderer holds that much between frames. */
 void hfr_renderer_destroy(hfr_renderer *r);
 const char *hfr_renderer_platform(const hfr_renderer *r);
 /* GL_RENDERER and GL_VERSION of its context ("llvmpipe (LLVM ...), 4.5 ..."). */
