@@ -69,7 +69,7 @@ typedef struct bench_opts {
   int nsizes, ref_max_side;
   int batches[BENCH_MAX_LIST];
   int nbatches;
-  int iters, warmup, torch, input_stats, input_check, exr, pipeline;
+  int iters, warmup, torch, input_stats, input_check, exr, pipeline, pinned;
   hf_dtype io_dtype;
   const char *torch_device, *python;
   uint64_t seed;
@@ -83,7 +83,7 @@ static void usage(FILE *f) {
           "usage: hairfilter bench [--backend cpu,cpu-ref,cudnn|all] [--variants Base,...|all]\n"
           "                        [--sizes 256x256,512x512,1024x1024] [--batch 1,4]\n"
           "                        [--iters N] [--warmup N] [--seed N] [--ref-max-side N]\n"
-          "                        [--io f32|f16] [--pipeline] [--input-stats]\n"
+          "                        [--io f32|f16] [--pipeline] [--pinned] [--input-stats]\n"
           "                        [--torch] [--torch-device cpu|cuda] [--python PATH]\n"
           "                        [--input-check] [--exr] [--weights FILE,...]\n"
           "Times each backend, variant, size and batch on random weights; prints a Markdown\n"
@@ -92,6 +92,10 @@ static void usage(FILE *f) {
           "(default %d), and at most %d iterations after 1 warm-up.\n"
           "--io f16 sends and receives FP16 tensors (default f32). --pipeline keeps two\n"
           "batches in flight (hf_model_submit/wait) and times completions: throughput.\n"
+          "--pinned registers the frames' memory with the backend first\n"
+          "(hf_backend_host_register), as hairfilterd does a shared-memory segment: the\n"
+          "cudnn backend then uploads by DMA and checks the input on the device (rows\n"
+          "labelled -pinned; HF_CUDNN_HOST_CHECK=1 checks on the host, to compare).\n"
           "--torch adds PyTorch rows (bench/bench_torch.py, found under the data directory:\n"
           "$HAIRFILTER_DATA, else beside this executable) on the same weights, run by\n"
           "--python, else $HAIRFILTER_PYTHON, else the first of python3 on PATH and\n"
@@ -132,6 +136,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     {"torch-device", required_argument, 0, 'd'}, {"ref-max-side", required_argument, 0, 'r'},
     {"python", required_argument, 0, 'p'},  {"io", required_argument, 0, 'o'},
     {"pipeline", no_argument, 0, 'P'},      {"input-stats", no_argument, 0, 'I'},
+    {"pinned", no_argument, 0, 'R'},
     {"help", no_argument, 0, 'h'},
     {"input-check", no_argument, 0, 'C'},   {"exr", no_argument, 0, 'E'},
     {"weights", required_argument, 0, 'W'},
@@ -173,6 +178,7 @@ static int parse_opts(int argc, char **argv, bench_opts *o) {
     case 'I': o->input_stats = 1; break;
     case 'p': o->python = optarg; break;
     case 'P': o->pipeline = 1; break;
+    case 'R': o->pinned = 1; break;
     case 'o':
       if (strcmp(optarg, "f32") && strcmp(optarg, "f16")) {
         fprintf(stderr, "hairfilter bench: --io is f32 or f16\n");
@@ -473,23 +479,34 @@ static int bench_exr(const bench_opts *o) {
 
 /* Times model m on one size and batch, appending a row labelled label (the
  * variant column). */
-static int bench_one(hf_model *m, const char *label, const char *backend, int w, int h,
-                     int batch, int iters, int warmup, uint64_t seed, hf_dtype dt,
-                     int pipeline) {
+static int bench_one(hf_model *m, hf_backend *be, const char *label, int w, int h, int batch,
+                     int iters, int warmup, uint64_t seed, hf_dtype dt, int pipeline,
+                     int pinned) {
+  const char *backend = hf_backend_name(be);
   const hf_net_config *c = hf_model_config(m);
   const size_t px = (size_t)batch * w * h, es = dt == HF_F16 ? 2 : 4;
   const size_t nin = px * c->in_channels;
   /* Two sets of buffers: with --pipeline one batch is in flight while the
-   * next is submitted. */
-  void *in[2] = {malloc(nin * es), malloc(nin * es)};
-  void *out[2] = {malloc(px * 3 * es), malloc(px * 3 * es)};
+   * next is submitted. One page-aligned arena, registered with the
+   * backend when pinned. */
+  const size_t in_bytes = (nin * es + 4095) / 4096 * 4096;
+  const size_t out_bytes = (px * 3 * es + 4095) / 4096 * 4096;
+  const size_t arena_bytes = 2 * (in_bytes + out_bytes);
+  uint8_t *arena = aligned_alloc(4096, arena_bytes);
+  int registered = 0;
+  void *in[2] = {arena, arena ? arena + in_bytes : NULL};
+  void *out[2] = {arena ? arena + 2 * in_bytes : NULL,
+                  arena ? arena + 2 * in_bytes + out_bytes : NULL};
   float *tmp = malloc(nin * sizeof(float));
   double *wall = malloc(iters * sizeof(double)), *net = malloc(iters * sizeof(double));
   double *tin = malloc(iters * sizeof(double)), *tout = malloc(iters * sizeof(double));
   double *cpu = malloc(iters * sizeof(double));
   int rc = HF_ENOMEM, pending = 0;
-  if (!in[0] || !in[1] || !out[0] || !out[1] || !tmp || !wall || !net || !tin || !tout || !cpu)
-    goto out;
+  if (!arena || !tmp || !wall || !net || !tin || !tout || !cpu) goto out;
+  if (pinned) {
+    if ((rc = hf_backend_host_register(be, arena, arena_bytes)) != HF_OK) goto fail;
+    registered = 1;
+  }
   fill_input(tmp, nin, seed);
   for (int b = 0; b < 2; b++) {
     if (dt == HF_F16) hf_f32_to_f16_array(tmp, in[b], nin);
@@ -529,8 +546,8 @@ static int bench_one(hf_model *m, const char *label, const char *backend, int w,
     rc = HF_ERANGE;
     goto out;
   }
-  snprintf(r->backend, sizeof r->backend, "%s%s%s", backend, dt == HF_F16 ? "-f16io" : "",
-           pipeline ? "-pipe" : "");
+  snprintf(r->backend, sizeof r->backend, "%s%s%s%s", backend, dt == HF_F16 ? "-f16io" : "",
+           pipeline ? "-pipe" : "", pinned ? "-pinned" : "");
   snprintf(r->variant, sizeof r->variant, "%s", label);
   r->cfg = *c, r->has_cfg = 1;
   snprintf(r->precision, sizeof r->precision, "%s", hf_model_precision(m));
@@ -551,10 +568,8 @@ fail:
           hf_strerror(rc));
 out:
   while (pending-- > 0) hf_model_wait(m, NULL);
-  free(in[0]);
-  free(in[1]);
-  free(out[0]);
-  free(out[1]);
+  if (registered) hf_backend_host_unregister(be, arena);
+  free(arena);
   free(tmp);
   free(wall);
   free(net);
@@ -897,9 +912,10 @@ static int bench_weights(const bench_opts *o, hf_backend *be, int is_ref, const 
     if (is_ref && (o->sizes[s][0] > o->ref_max_side || o->sizes[s][1] > o->ref_max_side))
       continue;
     for (int n = 0; n < o->nbatches; n++)
-      if (bench_one(m, label, hf_backend_name(be), o->sizes[s][0], o->sizes[s][1],
-                    o->batches[n], is_ref && o->iters > BENCH_REF_ITERS ? BENCH_REF_ITERS : o->iters,
-                    is_ref && o->warmup > 1 ? 1 : o->warmup, o->seed, o->io_dtype, o->pipeline))
+      if (bench_one(m, be, label, o->sizes[s][0], o->sizes[s][1], o->batches[n],
+                    is_ref && o->iters > BENCH_REF_ITERS ? BENCH_REF_ITERS : o->iters,
+                    is_ref && o->warmup > 1 ? 1 : o->warmup, o->seed, o->io_dtype, o->pipeline,
+                    o->pinned))
         failed = 1;
   }
   hf_model_destroy(m);

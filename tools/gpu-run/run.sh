@@ -162,6 +162,11 @@ step bench_kernel_ac 90 "$B/hairfilter" bench --backend "$BACKEND" --sizes "$BIG
 # the same frame, FP32 and FP16 (docs/PERFORMANCE.md "Input statistics",
 # "Data checks").
 step host_input 90 "${BENCH[@]}" --batch 1 --iters 20 --warmup 2 --input-stats --input-check
+# Frames in registered memory, in process: uploaded by DMA and checked on the
+# device, beside the same with the check on the host's cores.
+step bench_pinned_f16 60 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --io f16 --pinned
+step bench_pinned_f16_hostcheck 60 env HF_CUDNN_HOST_CHECK=1 "${BENCH[@]}" --batch 1 --iters 30 \
+  --warmup 3 --io f16 --pinned
 
 # ---- 3. end to end: hairfilterd over the Unix socket and shared memory --------
 # serve TAG [VAR=value...] [-- daemon options]: hairfilterd with $WEIGHTS (Base) on

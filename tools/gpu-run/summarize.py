@@ -128,13 +128,17 @@ def main():
 
     section("in-process timings (hairfilter bench; ms per frame; net = CUDA events)")
     rows = []
-    for name in ["bench", "bench_f16", "bench_pipe", "bench_pipe_f32", "bench_kernel_ac"] + \
+    for name in ["bench", "bench_f16", "bench_pipe", "bench_pipe_f32", "bench_kernel_ac",
+                 "bench_pinned_f16", "bench_pinned_f16_hostcheck"] + \
             [f"form_{f}" for f in ("bwd-data", "d2s", "phase", "shuffle")]:
         t = read(logdir, name + ".log")
         r = table_rows(t)
         if name.startswith("form_"):
             for x in r:
                 x[0] = f"{x[0]} ({name[5:]})"
+        if name.endswith("_hostcheck"):
+            for x in r:
+                x[0] = f"{x[0]} (input checked on the host)"
         rows += r
         if t is not None and not r:
             print(f"  {name}: no table (see {name}.log)")
