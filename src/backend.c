@@ -266,6 +266,25 @@ static void finish_output(hf_model *m, int slot, const hf_io *io, hf_input_repor
   }
 }
 
+/* Whether a backend that checks frames itself (model_run_scan,
+ * model_submit_scan) may take io: not a network with an estimate, which is
+ * interleaved first (sanitise_input), and reports somewhere to go. */
+static int may_scan(const hf_model *m, const hf_io *io, const hf_input_report *rep) {
+  return !m->cfg.estimate && (rep || io->batch <= HF_SCAN_OWN_REPORTS);
+}
+
+/* Pending slot `slot` holds io, run or started by the backend itself. */
+static void pend(hf_model *m, int slot, const hf_io *io, hf_input_report *report, int guarded,
+                 int rc, hf_timing t) {
+  m->pending[slot].io = *io;
+  m->pending[slot].report = report;
+  m->pending[slot].input_us = 0;
+  m->pending[slot].guarded = guarded;
+  m->pending[slot].rc = rc;
+  m->pending[slot].t = t;
+  m->npending++;
+}
+
 /* io run by a backend that checks it in its own first read of the input
  * (model_run_scan), saving sanitise_input's pass over memory: HF_OK (the
  * output guard applied), an error, or HF_RUN_DECLINED / HF_RUN_UNCLEAN,
@@ -275,8 +294,7 @@ static int run_scanning(hf_model *m, const hf_io *io, hf_timing *t, hf_input_rep
                         hf_input_stats *stats) {
   const hf_backend_ops *ops = m->backend->ops;
   hf_input_report own[HF_SCAN_OWN_REPORTS];
-  /* A frame with an estimate is interleaved first (sanitise_input). */
-  if (m->cfg.estimate || (!rep && io->batch > HF_SCAN_OWN_REPORTS)) return HF_RUN_DECLINED;
+  if (!may_scan(m, io, rep)) return HF_RUN_DECLINED;
   int guarded = 0, rc;
   if (ops->model_run_scan) {
     rc = ops->model_run_scan(m->impl, io, t, rep ? rep : own, stats, &guarded);
@@ -353,8 +371,7 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
   if (m->npending == HF_MAX_PENDING) return HF_ERANGE;
   const int slot = (m->head + m->npending) % HF_MAX_PENDING;
   const hf_backend_ops *ops = m->backend->ops;
-  if (!ops->model_submit && ops->model_run_scan && !m->cfg.estimate &&
-      (rep || io->batch <= HF_SCAN_OWN_REPORTS)) {
+  if (!ops->model_submit && ops->model_run_scan && may_scan(m, io, rep)) {
     /* Run here, checked in the backend's own read of the input; the guard
      * and its time come at the wait. */
     hf_input_report own[HF_SCAN_OWN_REPORTS];
@@ -362,29 +379,18 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *rep,
     int guarded = 0;
     rc = ops->model_run_scan(m->impl, io, &t, rep ? rep : own, stats, &guarded);
     if (rc <= 0) {
-      m->pending[slot].io = *io;
-      m->pending[slot].report = rep;
-      m->pending[slot].input_us = 0;
-      m->pending[slot].guarded = guarded;
-      m->pending[slot].rc = rc;
-      m->pending[slot].t = t;
-      m->npending++;
+      pend(m, slot, io, rep, guarded, rc, t);
       return HF_OK;
     }
   }
-  if (ops->model_submit_scan && !m->cfg.estimate && (rep || io->batch <= HF_SCAN_OWN_REPORTS)) {
+  if (ops->model_submit_scan && may_scan(m, io, rep)) {
     /* Checked by the backend itself, on the device: the reports and
      * statistics are complete at the wait. */
     hf_input_report *r = rep ? rep : m->pending[slot].own;
     rc = ops->model_submit_scan(m->impl, io, r, stats);
     if (rc != HF_RUN_DECLINED) {
       if (rc != HF_OK) return rc;
-      m->pending[slot].io = *io;
-      m->pending[slot].report = r;
-      m->pending[slot].input_us = 0;
-      m->pending[slot].guarded = 1;
-      m->pending[slot].rc = HF_OK;
-      m->npending++;
+      pend(m, slot, io, r, 1, HF_OK, (hf_timing){0, 0, 0});
       return HF_OK;
     }
   }

@@ -375,7 +375,7 @@ typedef struct slot {
   hf_input_report *rep;
   hf_input_stats *stats;
   hf_cuk_scan_counts *d_counts, *h_counts;
-  int counts_cap;               /* frames both hold */
+  size_t d_counts_cap, h_counts_cap;   /* bytes */
 } slot;
 
 typedef struct ring {
@@ -1218,24 +1218,17 @@ fail:
   return rc;
 }
 
-/* Makes s hold the input check's counts of batch frames. */
+/* Makes s hold the input check's counts of batch frames, on the device
+ * (grow) and in pinned host memory. */
 static int counts_grow(cudnn_model *m, slot *s, int batch) {
   int rc;
-  if (s->counts_cap >= batch) return HF_OK;
   const size_t bytes = sizeof(hf_cuk_scan_counts) * (size_t)batch;
-  if (s->d_counts) {
-    cudaFree(s->d_counts);
-    m->io_bytes -= sizeof(hf_cuk_scan_counts) * (size_t)s->counts_cap;
-  }
+  if (s->h_counts_cap >= bytes && s->d_counts_cap >= bytes) return HF_OK;
+  HF_TRY(grow((void **)&s->d_counts, &s->d_counts_cap, bytes, &m->io_bytes));
   cudaFreeHost(s->h_counts);
-  s->d_counts = NULL, s->h_counts = NULL, s->counts_cap = 0;
+  s->h_counts = NULL, s->h_counts_cap = 0;
   HF_CU_TRY(cudaHostAlloc((void **)&s->h_counts, bytes, cudaHostAllocDefault));
-  if ((rc = dmalloc((void **)&s->d_counts, bytes, &m->io_bytes)) != HF_OK) {
-    cudaFreeHost(s->h_counts);
-    s->h_counts = NULL;
-    return rc;
-  }
-  s->counts_cap = batch;
+  s->h_counts_cap = bytes;
   return HF_OK;
 fail:
   (void)cudaGetLastError();   /* as in dmalloc */

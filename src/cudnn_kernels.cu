@@ -25,7 +25,8 @@ __global__ void input_kernel(const void *src, int w, int h, int cin, __half *dst
 // frame's at the end: fewer, fuller blocks mean fewer global atomics, more
 // mean more of the device busy. 1024 blocks of 256 threads are more than
 // an H100/H200 holds at once (132 SMs; about 5 such blocks each at the
-// scan's 44 registers a thread, sm_90), so every SM has work to the end;
+// scan's 41-44 registers a thread on sm_90: `nvcc -arch=sm_90
+// --ptxas-options=-v`), so every SM has work to the end;
 // the flush is then 1024 atomics per bin in use. Not yet tuned on a device.
 constexpr int kScanBlocks = 1024;
 
@@ -170,13 +171,19 @@ extern "C" cudaError_t hf_cuk_input(const void *src, int src_f16, int batch, int
   return cudaGetLastError();
 }
 
+// The grid of the input check and the guard: up to kScanBlocks blocks of
+// kMaxThreads along the frame's pixels, one row of blocks per frame.
+static dim3 scan_grid(long long pixels, int batch) {
+  const long long blocks = (pixels + kMaxThreads - 1) / kMaxThreads;
+  return dim3((unsigned)(blocks < kScanBlocks ? blocks : kScanBlocks), (unsigned)batch);
+}
+
 extern "C" cudaError_t hf_cuk_scan(void *src, int src_f16, int batch, long long pixels, int spp,
                                    hf_cuk_scan_counts *counts, cudaStream_t stream) {
   if (batch < 1 || batch > 65535 || pixels < 1 || spp < 1) return cudaErrorInvalidValue;
   cudaError_t e = cudaMemsetAsync(counts, 0, sizeof *counts * (size_t)batch, stream);
   if (e != cudaSuccess) return e;
-  const long long blocks = (pixels + kMaxThreads - 1) / kMaxThreads;
-  const dim3 grid((unsigned)(blocks < kScanBlocks ? blocks : kScanBlocks), (unsigned)batch);
+  const dim3 grid = scan_grid(pixels, batch);
   if (src_f16)
     scan_kernel<true><<<grid, kMaxThreads, 0, stream>>>(src, pixels, spp, counts);
   else
@@ -187,8 +194,7 @@ extern "C" cudaError_t hf_cuk_scan(void *src, int src_f16, int batch, long long 
 extern "C" cudaError_t hf_cuk_guard(void *dst, int dst_f16, int batch, long long pixels,
                                     hf_cuk_scan_counts *counts, cudaStream_t stream) {
   if (batch < 1 || batch > 65535 || pixels < 1) return cudaErrorInvalidValue;
-  const long long blocks = (pixels + kMaxThreads - 1) / kMaxThreads;
-  const dim3 grid((unsigned)(blocks < kScanBlocks ? blocks : kScanBlocks), (unsigned)batch);
+  const dim3 grid = scan_grid(pixels, batch);
   if (dst_f16)
     guard_kernel<true><<<grid, kMaxThreads, 0, stream>>>(dst, pixels, counts);
   else

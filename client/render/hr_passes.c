@@ -632,15 +632,13 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   GLuint depth = 0, rtex = 0, fbo[2] = {0, 0};
   hrgl.GenBuffers(1, &bufs[0]);
   hrgl.GenBuffers(2, &bufs[2]);
-  int rc = abuf_reserve(r, ABUF_MIN_NODES, err, errlen);
-  bufs[1] = r->abuf_nodes;
   hrgl.GenFramebuffers(2, fbo);
   depth = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, FSW, FSH, 0);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, depth, 0);
   GLenum none = GL_NONE;
   hrgl.DrawBuffers(1, &none);
-  if (rc == HF_OK) rc = fbo_complete("A-buffer", err, errlen);
+  int rc = fbo_complete("A-buffer", err, errlen);
 
   /* List heads of the window's supersampled pixels only (a 256x256 crop of
    * a 1024x1024 frame at 8x8 needs 16 MiB of them, not 256). */
@@ -653,14 +651,15 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   uint32_t capacity = want < ABUF_MIN_NODES ? ABUF_MIN_NODES
                       : want > max_nodes ? max_nodes : (uint32_t)want;
   /* The pool of nodes is kept from window to window (bands, frames): a
-   * new buffer is zero-filled by llvmpipe, 4.5 s for 1.2 GB on a 2-core
-   * KVM machine, so a window takes the pool the one before it grew. */
+   * new buffer is zero-filled by llvmpipe (docs/RENDERING.md, step 3: 4.5
+   * s for 1.2 GB), so a window takes the pool the one before it grew. */
   if (r->abuf_nodes_cap > capacity) capacity = r->abuf_nodes_cap < max_nodes ? r->abuf_nodes_cap
                                                                              : max_nodes;
   uint32_t count = 0;
   double t0 = hr_now_ms();
   for (int attempt = 0; rc == HF_OK && attempt < 2; attempt++) {
     if ((rc = abuf_reserve(r, capacity, err, errlen)) != HF_OK) break;
+    bufs[1] = r->abuf_nodes;
     const uint32_t empty = 0xFFFFFFFFu, zero = 0;
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
     hrgl.ClearBufferData(GL_SHADER_STORAGE_BUFFER, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT,
