@@ -381,7 +381,10 @@ const char *hfr_renderer_gl_name(const hfr_renderer *r);
 /* Uploads a model (replacing the previous one). head: the model grows on
  * the procedural head (HFR_HEAD_RADII at the origin), which is then drawn as
  * an opaque occluder (hair behind it hidden and shadowed) that itself never
- * shows in the features. */
+ * shows in the features. r keeps, besides the GL's copy, every point's
+ * position and diameter (16 bytes a point) to draw a crop's segments only.
+ * HF_EINVAL, HF_ERANGE (more strands or points than HFR_MAX_STRANDS,
+ * HFR_MAX_POINTS), HF_ENOMEM (r then has no model: set one again). */
 int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *hair, int head, char *err,
                           size_t errlen);
 /* Replaces the occluder (after hfr_renderer_set_hair; NULL or an empty mesh

@@ -264,6 +264,9 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
     if (rc == HF_OK) write_estimate(out, c_opaque, oacc, o->opaque_samples);
   }
 
+  /* Each stage's attachments, kept from pass to pass and band to band,
+   * are given back before the next stage makes its own. */
+  hr_frame_tex_release(r);
   if (rc == HF_OK && o->gt_supersample > 0) {
     float *gt = malloc(sizeof(float) * 3 * px);
     if (!gt) rc = HF_ENOMEM;
@@ -283,6 +286,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
     }
     free(gt);
   }
+  hr_frame_tex_release(r);
   if (rc == HF_OK && o->background_layer) {
     float *bg = malloc(sizeof(float) * 2 * px);
     if (!bg) rc = HF_ENOMEM;
@@ -294,6 +298,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
     }
     free(bg);
   }
+  hr_frame_tex_release(r);
   free(pass);
   free(ac);
   free(acc);

@@ -57,6 +57,7 @@
   X(PFNGLENABLEVERTEXATTRIBARRAYPROC, EnableVertexAttribArray)                \
   X(PFNGLDRAWARRAYSPROC, DrawArrays)                                          \
   X(PFNGLDRAWARRAYSINSTANCEDPROC, DrawArraysInstanced)                        \
+  X(PFNGLDRAWARRAYSINSTANCEDBASEINSTANCEPROC, DrawArraysInstancedBaseInstance) \
   X(PFNGLVERTEXATTRIBDIVISORPROC, VertexAttribDivisor)                        \
   X(PFNGLMEMORYBARRIERPROC, MemoryBarrier)                                    \
   X(PFNGLCREATESHADERPROC, CreateShader)                                      \

@@ -34,6 +34,25 @@ typedef struct hr_camera {
   int frame_w, frame_h, win_x, win_y, win_w, win_h;
 } hr_camera;
 
+/* Instances [first, first + count) of the hair's draw. */
+typedef struct hr_run {
+  uint32_t first, count;
+} hr_run;
+
+/* The whole frame's attachments of each pass (hr_passes.c frame_tex). */
+enum {
+  HR_TEX_FEATURE_0, HR_TEX_FEATURE_1, HR_TEX_FEATURE_DEPTH, /* hr_pass_ms */
+  HR_TEX_AC_COLOR, HR_TEX_AC_DEPTH,                         /* its alpha-corrected pass */
+  HR_TEX_BG_COLOR, HR_TEX_BG_DEPTH,                         /* hr_pass_background */
+  HR_TEX_GT_DEPTH,                                          /* hr_pass_gt, supersampled */
+  HR_TEX_SLOTS
+};
+typedef struct hr_frame_tex {
+  GLuint id;
+  GLenum fmt;
+  int w, h, samples;
+} hr_frame_tex;
+
 struct hfr_renderer {
   hr_context *ctx;
   hr_gl_table gl;               /* entry points of ctx */
@@ -45,7 +64,20 @@ struct hfr_renderer {
    * kept for the next (hr_pass_gt): up to HFR_MAX_FRAGMENTS nodes. */
   GLuint abuf_nodes;
   uint32_t abuf_nodes_cap;
+  /* Attachments the size of the whole (supersampled) frame, kept while the
+   * next pass asks for the same size: llvmpipe zero-fills a new texture
+   * (256 MiB for the depth of a 1024x1024 frame at 8x8) and a banded ground
+   * truth or a frame of many passes asked for one per band or pass.
+   * hfr_render releases them after each stage (hr_frame_tex_release). */
+  hr_frame_tex frame_tex[HR_TEX_SLOTS];
   uint32_t points;              /* instances drawn: points - 1 */
+  /* The model's points as drawn ([points][4]: x, y, z, diameter) and the
+   * first point of each strand ([strands + 1]), for hr_hair_window_runs;
+   * runs is its output, reused from window to window. */
+  float *cull_pts;
+  uint32_t *strand_first, strands;
+  hr_run *runs;
+  size_t runs_cap;
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */
   GLsizei head_vertices;
   int has_hair, has_head;       /* has_head: an occluder is set */
@@ -86,7 +118,21 @@ void hr_view_target(const hfr_view *v, int *w, int *h);
 /* Light camera for the shadow map. */
 void hr_camera_light(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);
 
+/* The runs of r's hair instances, in order, whose quads (hr_glsl_hair_vs,
+ * with thick_scale and a pass jitter under a pixel) can cover a pixel of
+ * cam's window: r->runs[0 .. *n_runs), ascending and disjoint. Instances
+ * joining two strands, which the vertex shader culls, are left out; runs
+ * less than 32 instances apart are joined. Drawing these runs in order
+ * gives the window the fragments, in the order, that drawing every
+ * instance gives it (hr_cull.c). HF_OK, HF_EINVAL (no hair set) or
+ * HF_ENOMEM (r->runs kept as it was, *n_runs 0). */
+int hr_hair_window_runs(hfr_renderer *r, const hr_camera *cam, float thick_scale,
+                        size_t *n_runs);
+
 /* Passes (hr_passes.c). */
+/* Deletes r's whole-frame attachments (r->frame_tex): a stage of
+ * hfr_render that no longer needs them gives their memory back. */
+void hr_frame_tex_release(hfr_renderer *r);
 int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, uint32_t seed,
                    char *err, size_t errlen);
 /* Sets every shading uniform of p (light, lobes, shadow map) for one pass. */

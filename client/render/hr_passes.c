@@ -26,6 +26,26 @@ static GLuint make_tex(GLenum target, GLenum fmt, int w, int h, int samples) {
   return t;
 }
 
+/* r's texture of slot (HR_TEX_*): the one kept from the pass before when
+ * it has this format, size and sample count, else a new one (the old one
+ * deleted). Its contents are those of the pass before: each pass clears
+ * the window it draws (the scissor of hr_set_viewport) and reads nothing
+ * else. */
+static GLuint frame_tex(hfr_renderer *r, int slot, GLenum fmt, int w, int h, int samples) {
+  hr_frame_tex *t = &r->frame_tex[slot];
+  if (t->id && t->fmt == fmt && t->w == w && t->h == h && t->samples == samples) return t->id;
+  if (t->id) hrgl.DeleteTextures(1, &t->id);
+  t->id = make_tex(samples ? GL_TEXTURE_2D_MULTISAMPLE : GL_TEXTURE_2D, fmt, w, h, samples);
+  t->fmt = fmt, t->w = w, t->h = h, t->samples = samples;
+  return t->id;
+}
+
+void hr_frame_tex_release(hfr_renderer *r) {
+  for (int k = 0; k < HR_TEX_SLOTS; k++)
+    if (r->frame_tex[k].id) hrgl.DeleteTextures(1, &r->frame_tex[k].id);
+  memset(r->frame_tex, 0, sizeof r->frame_tex);
+}
+
 static int fbo_complete(const char *what, char *err, size_t errlen) {
   GLenum st = hrgl.CheckFramebufferStatus(GL_FRAMEBUFFER);
   if (st == GL_FRAMEBUFFER_COMPLETE) return HF_OK;
@@ -77,6 +97,22 @@ static void draw_head(hfr_renderer *r, const hr_camera *cam, const hfr_view *v, 
 static void draw_hair(hfr_renderer *r) {
   hrgl.BindVertexArray(r->hair_vao);
   hrgl.DrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, (GLsizei)(r->points - 1));
+}
+
+/* draw_hair for cam's window: when it is smaller than the frame, only the
+ * instances that can reach it, in order (hr_hair_window_runs), which gives
+ * the window the same fragments in the same order. */
+static void draw_hair_window(hfr_renderer *r, const hr_camera *cam, const hfr_view *v) {
+  size_t n = 0;
+  if ((cam->win_w == cam->frame_w && cam->win_h == cam->frame_h) ||
+      hr_hair_window_runs(r, cam, v->thickness_scale, &n) != HF_OK) {
+    draw_hair(r);
+    return;
+  }
+  hrgl.BindVertexArray(r->hair_vao);
+  for (size_t k = 0; k < n; k++)
+    hrgl.DrawArraysInstancedBaseInstance(GL_TRIANGLE_STRIP, 0, 4, (GLsizei)r->runs[k].count,
+                                         r->runs[k].first);
 }
 
 void hr_bind_shading(hfr_renderer *r, const hr_program *p, const hfr_view *v,
@@ -188,10 +224,11 @@ static int read_rgba(int w, int h, const char *what, float **out, char *err, siz
 /* A samples-sample MSAA target of the whole frame (fw x fh) bound as fbo:
  * RGBA32F colour tex[0] as attachment 0 (the one drawn) and depth tex[1].
  * what names it in an error. */
-static int ms_rgba_target(int fw, int fh, int samples, GLuint tex[2], GLuint fbo,
-                          const char *what, char *err, size_t errlen) {
-  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, fw, fh, samples);
-  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, fw, fh, samples);
+static int ms_rgba_target(hfr_renderer *r, int slot_color, int slot_depth, int fw, int fh,
+                          int samples, GLuint tex[2], GLuint fbo, const char *what, char *err,
+                          size_t errlen) {
+  tex[0] = frame_tex(r, slot_color, GL_RGBA32F, fw, fh, samples);
+  tex[1] = frame_tex(r, slot_depth, GL_DEPTH_COMPONENT32F, fw, fh, samples);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo);
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
                             tex[0], 0);
@@ -220,7 +257,8 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
   hrgl.GenFramebuffers(2, fbo);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
   float *tmp = NULL;
-  int rc = ms_rgba_target(FW, FH, S, tex, fbo[0], "alpha-corrected", err, errlen);
+  int rc = ms_rgba_target(r, HR_TEX_AC_COLOR, HR_TEX_AC_DEPTH, FW, FH, S, tex, fbo[0],
+                          "alpha-corrected", err, errlen);
   GLint samples = 0;
   if (rc == HF_OK) {
     /* Sample s here must lie where depth_ms's sample s does. */
@@ -248,7 +286,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     hr_set_i(&r->stac, "u_samples", S);
     hrgl.Enable(GL_BLEND);
     hrgl.BlendFuncSeparate(GL_ONE, GL_ONE, GL_ZERO, GL_ONE_MINUS_SRC_ALPHA);
-    draw_hair(r);
+    draw_hair_window(r, cam, v);
     hrgl.Disable(GL_BLEND);
     hrgl.DepthMask(GL_TRUE);
     hrgl.Disable(GL_DEPTH_TEST);
@@ -283,7 +321,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
   free(tmp);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
   hrgl.DeleteFramebuffers(2, fbo);
-  hrgl.DeleteTextures(3, tex);
+  hrgl.DeleteTextures(1, &tex[2]); /* tex[0], tex[1]: r's (frame_tex) */
   return rc;
 }
 
@@ -292,9 +330,9 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                float *out, float *ac, char *err, size_t errlen) {
   const int W = cam->win_w, H = cam->win_h, S = 4, FW = cam->frame_w, FH = cam->frame_h;
   GLuint tex[3], fbo[2] = {0, 0}, rtex = 0;
-  tex[0] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA32F, FW, FH, S);
-  tex[1] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_RG32F, FW, FH, S);
-  tex[2] = make_tex(GL_TEXTURE_2D_MULTISAMPLE, GL_DEPTH_COMPONENT32F, FW, FH, S);
+  tex[0] = frame_tex(r, HR_TEX_FEATURE_0, GL_RGBA32F, FW, FH, S);
+  tex[1] = frame_tex(r, HR_TEX_FEATURE_1, GL_RG32F, FW, FH, S);
+  tex[2] = frame_tex(r, HR_TEX_FEATURE_DEPTH, GL_DEPTH_COMPONENT32F, FW, FH, S);
   hrgl.GenFramebuffers(2, fbo);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
@@ -330,7 +368,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hr_bind_shading(r, &r->st, v, cam, light, seed);
     hr_set_i(&r->st, "u_opaque", opaque);
     hr_set_i(&r->st, "u_samples", S);
-    draw_hair(r);
+    draw_hair_window(r, cam, v);
     hrgl.Disable(GL_DEPTH_TEST);
     hr_scissor_off();
 
@@ -376,7 +414,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     rc = pass_alpha_corrected(r, v, cam, light, jx, jy, tex[2], S, ac, err, errlen);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
   hrgl.DeleteFramebuffers(2, fbo);
-  hrgl.DeleteTextures(3, tex);
+  /* tex: r's (frame_tex) */
   if (rtex) hrgl.DeleteTextures(1, &rtex);
   return rc;
 }
@@ -388,7 +426,8 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
   tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
   hrgl.GenFramebuffers(2, fbo);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
-  int rc = ms_rgba_target(FW, FH, 4, tex, fbo[0], "background", err, errlen);
+  int rc = ms_rgba_target(r, HR_TEX_BG_COLOR, HR_TEX_BG_DEPTH, FW, FH, 4, tex, fbo[0],
+                          "background", err, errlen);
   float *tmp = NULL;
   if (rc == HF_OK) {
     const float zero[4] = {0, 0, 0, 0};
@@ -427,7 +466,7 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
   free(tmp);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
   hrgl.DeleteFramebuffers(2, fbo);
-  hrgl.DeleteTextures(3, tex);
+  hrgl.DeleteTextures(1, &tex[2]); /* tex[0], tex[1]: r's (frame_tex) */
   return rc;
 }
 
@@ -633,7 +672,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   hrgl.GenBuffers(1, &bufs[0]);
   hrgl.GenBuffers(2, &bufs[2]);
   hrgl.GenFramebuffers(2, fbo);
-  depth = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, FSW, FSH, 0);
+  depth = frame_tex(r, HR_TEX_GT_DEPTH, GL_DEPTH_COMPONENT32F, FSW, FSH, 0);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, depth, 0);
   GLenum none = GL_NONE;
@@ -686,7 +725,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     hr_set_i(&r->abuf, "u_width", SW);
     hr_set_2i(&r->abuf, "u_win_lo", cam.win_x, cam.win_y);
     hr_set_2i(&r->abuf, "u_win_hi", cam.win_x + SW, cam.win_y + SH);
-    draw_hair(r);
+    draw_hair_window(r, &cam, &sv);
     hrgl.DepthMask(GL_TRUE);
     hrgl.Disable(GL_DEPTH_TEST);
     hr_scissor_off();
@@ -829,7 +868,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   free(tmp);
   hrgl.BindFramebuffer(GL_FRAMEBUFFER, 0);
   hrgl.DeleteFramebuffers(2, fbo);
-  hrgl.DeleteTextures(1, &depth);
+  /* depth: r's (frame_tex) */
   if (rtex) hrgl.DeleteTextures(1, &rtex);
   hrgl.DeleteBuffers(1, &bufs[0]);
   hrgl.DeleteBuffers(2, &bufs[2]);

@@ -39,9 +39,13 @@ void hfr_renderer_destroy(hfr_renderer *r) {
     if (r->shadow_tex) hrgl.DeleteTextures(1, &r->shadow_tex);
     if (r->shadow_fbo) hrgl.DeleteFramebuffers(1, &r->shadow_fbo);
     if (r->abuf_nodes) hrgl.DeleteBuffers(1, &r->abuf_nodes);
+    hr_frame_tex_release(r);
   }
   hr_context_destroy(r->ctx);
   free(r->stat_pts);
+  free(r->cull_pts);
+  free(r->strand_first);
+  free(r->runs);
   free(r);
 }
 
@@ -228,6 +232,23 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
   for (uint32_t k = 0; k < n_stat; k++)
     memcpy(sp + 4 * k, v + (size_t)k * pick * VERTEX_FLOATS, 3 * sizeof(float)),
         sp[4 * k + 3] = v[(size_t)k * pick * VERTEX_FLOATS + 6];
+  /* Every point's position and diameter, and where each strand starts, for
+   * drawing a window's instances only (hr_hair_window_runs). */
+  float *cp = realloc(r->cull_pts, sizeof(float) * 4 * (size_t)h->points);
+  if (cp) r->cull_pts = cp;
+  uint32_t *sf = cp ? realloc(r->strand_first, sizeof(uint32_t) * ((size_t)h->strands + 1)) : NULL;
+  if (sf) r->strand_first = sf;
+  if (!cp || !sf) {
+    free(v);
+    r->strands = 0, r->has_hair = 0; /* the buffer above holds the new model */
+    return HF_ENOMEM;
+  }
+  for (size_t k = 0; k < h->points; k++)
+    memcpy(cp + 4 * k, v + k * VERTEX_FLOATS, 3 * sizeof(float)),
+        cp[4 * k + 3] = v[k * VERTEX_FLOATS + 6];
+  sf[0] = 0;
+  for (uint32_t s = 0; s < h->strands; s++) sf[s + 1] = sf[s] + hfr_hair_strand_segments(h, s) + 1;
+  r->strands = h->strands;
   free(v);
   r->points = h->points;
   r->segments = hfr_hair_total_segments(h);

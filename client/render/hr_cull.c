@@ -1,0 +1,105 @@
+/* Which of the hair's segment instances can reach a window of the frame.
+ *
+ * A crop or a band of rows is drawn with the whole frame's viewport and a
+ * scissor to the window (hr_set_viewport), so that every sample sees the
+ * whole frame's coordinates. llvmpipe runs the vertex shader and sets up
+ * every instance of a draw, in one thread, before the scissor throws it
+ * away: a dense ground truth drawn in 53 bands of rows spent most of its
+ * time there (docs/RENDERING.md, "Dense ground truths"). Drawing only the
+ * runs of instances whose quads can touch the window leaves the window's
+ * fragments, and their order, as they were: the instances left out have
+ * none there, the others keep their order (one draw per run, in order). */
+#include <math.h>
+#include <stdlib.h>
+
+#include "hr_internal.h"
+
+/* Instances between two runs that are drawn anyway (the vertex shader
+ * places them outside the window) rather than costing one more draw. */
+#define RUN_GAP 32u
+
+/* Pixels added around a quad's bounds: a pass's jitter (at most half a
+ * pixel) and rounding between this float arithmetic and the shader's.
+ * Only the window's own pixels matter: the scissor's growth to whole
+ * 16-pixel blocks (hr_set_viewport) rasterises pixels no pass reads, and
+ * the A-buffer keeps only the window's fragments. */
+#define WINDOW_MARGIN 2.0f
+
+static void clip_of(const hr_camera *cam, const float p[3], float e[4], float c[4]) {
+  for (int i = 0; i < 4; i++)
+    e[i] = cam->view[i] * p[0] + cam->view[4 + i] * p[1] + cam->view[8 + i] * p[2] +
+           cam->view[12 + i];
+  for (int i = 0; i < 4; i++)
+    c[i] = cam->proj[i] * e[0] + cam->proj[4 + i] * e[1] + cam->proj[8 + i] * e[2] +
+           cam->proj[12 + i] * e[3];
+}
+
+/* 1 when the quad of the segment from point a to point b (x, y, z, diameter
+ * each) can cover a pixel of [x0, x1) x [y0, y1) (GL window coordinates);
+ * as hr_glsl_hair_vs builds it. Anything this arithmetic cannot place
+ * (a point at or behind the eye, NaN) counts as inside. */
+static int may_reach(const hr_camera *cam, float thick_scale, const float *a, const float *b,
+                     float x0, float y0, float x1, float y1) {
+  float lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY}, half = 0;
+  const float *pt[2] = {a, b};
+  for (int k = 0; k < 2; k++) {
+    float e[4], c[4];
+    clip_of(cam, pt[k], e, c);
+    if (!(c[3] > 1e-6f)) return 1;
+    const float dist = -e[2] > 1e-6f ? -e[2] : 1e-6f;
+    const float px = pt[k][3] * thick_scale * cam->px_per_unit / (cam->ortho ? 1.0f : dist);
+    const float m = px > 1 ? px : 1;
+    half = m > half ? m : half;
+    const float s[2] = {(c[0] / c[3] * 0.5f + 0.5f) * cam->frame_w,
+                        (c[1] / c[3] * 0.5f + 0.5f) * cam->frame_h};
+    for (int i = 0; i < 2; i++) {
+      lo[i] = s[i] < lo[i] ? s[i] : lo[i];
+      hi[i] = s[i] > hi[i] ? s[i] : hi[i];
+    }
+  }
+  /* The quad reaches half its width either side of the segment. */
+  const float r = 0.5f * half + WINDOW_MARGIN;
+  if (hi[0] + r < x0 || lo[0] - r > x1 || hi[1] + r < y0 || lo[1] - r > y1) return 0;
+  return 1;
+}
+
+/* Appends the run [first, end) to r->runs[*n]. */
+static int push_run(hfr_renderer *r, size_t *n, uint32_t first, uint32_t end) {
+  if (*n == r->runs_cap) {
+    size_t cap = r->runs_cap ? 2 * r->runs_cap : 1024;
+    hr_run *g = realloc(r->runs, cap * sizeof *g);
+    if (!g) return HF_ENOMEM;
+    r->runs = g, r->runs_cap = cap;
+  }
+  r->runs[(*n)++] = (hr_run){first, end - first};
+  return HF_OK;
+}
+
+int hr_hair_window_runs(hfr_renderer *r, const hr_camera *cam, float thick_scale,
+                        size_t *n_runs) {
+  *n_runs = 0;
+  if (!r->cull_pts || !r->strand_first) return HF_EINVAL;
+  const float x0 = (float)cam->win_x, y0 = (float)cam->win_y;
+  const float x1 = (float)(cam->win_x + cam->win_w), y1 = (float)(cam->win_y + cam->win_h);
+  size_t n = 0;
+  uint32_t first = 0, end = 0; /* the open run, [first, end) */
+  int open = 0;
+  for (uint32_t s = 0; s < r->strands; s++) {
+    /* Instance i is the segment from point i to i + 1; the strand's last
+     * point starts the instance that would join two strands. */
+    for (uint32_t i = r->strand_first[s]; i + 1 < r->strand_first[s + 1]; i++) {
+      if (!may_reach(cam, thick_scale, r->cull_pts + 4 * (size_t)i,
+                     r->cull_pts + 4 * ((size_t)i + 1), x0, y0, x1, y1))
+        continue;
+      if (open && i - end <= RUN_GAP) {
+        end = i + 1;
+        continue;
+      }
+      if (open && push_run(r, &n, first, end) != HF_OK) return HF_ENOMEM;
+      first = i, end = i + 1, open = 1;
+    }
+  }
+  if (open && push_run(r, &n, first, end) != HF_OK) return HF_ENOMEM;
+  *n_runs = n;
+  return HF_OK;
+}
