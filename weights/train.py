@@ -425,6 +425,12 @@ def save_checkpoint(path, **state):
     os.replace(tmp, path)
 
 
+def averaged(net, avg):
+    """The weights a run validates and exports: the moving average of
+    --weight-ema once it has averaged a step, else the network's own."""
+    return avg.module if avg is not None and int(avg.n_averaged) > 0 else net
+
+
 @torch.no_grad()
 def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper",
              ssim_weight=0.0, lattice=(0.0, 8), below_weight=0.0, target="truth"):
@@ -622,6 +628,11 @@ def parse_args(argv):
                     help="every N steps, add the frames that appeared in the --data "
                     "directories since the start (a data set still being rendered) to the "
                     "training set")
+    ap.add_argument("--weight-ema", type=float, default=0.0, metavar="DECAY",
+                    help="keep an exponential moving average of the weights (torch's "
+                    "AveragedModel; after each step avg = DECAY * avg + (1 - DECAY) * weights, "
+                    "starting from the first step's), and validate and export it instead of "
+                    "the last step's weights; 0: off")
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
     args = ap.parse_args(argv)
@@ -640,6 +651,8 @@ def parse_args(argv):
         args.dim_share = 0.5
     if not 0 <= args.dim_share <= 1:
         ap.error("--dim-share must be a share in [0, 1]")
+    if not 0 <= args.weight_ema < 1:
+        ap.error("--weight-ema must be a decay in [0, 1) (0: off)")
     if args.clip_grad_norm < 0 or not math.isfinite(args.clip_grad_norm):
         ap.error("--clip-grad-norm must be a finite norm >= 0 (0: no clipping)")
     return args
@@ -685,7 +698,7 @@ def main(argv=None):
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
                   "dim_light", "dim_share", "display_straight_through", "look_srgb", "look_l1", "kernel_radius", "kernel_hidden", "levels",
-                  "schedule", "lr_floor",
+                  "schedule", "lr_floor", "weight_ema",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
                   "equal_phase_sums"):
             setattr(args, k, saved.get(k, getattr(args, k)))
@@ -698,6 +711,13 @@ def main(argv=None):
     device = pick_device(args.device)
     net = hfnet.HairNet(cfg).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    # The weights' moving average (--weight-ema): what is validated and
+    # exported; the optimiser steps the raw weights.
+    avg = None
+    if args.weight_ema:
+        d = args.weight_ema
+        avg = torch.optim.swa_utils.AveragedModel(
+            net, avg_fn=lambda a, w, n: d * a + (1 - d) * w)
     step, history, elapsed, ema = 0, [], 0.0, None
     train_set = None
     if args.init and not ckpt:
@@ -733,6 +753,10 @@ def main(argv=None):
         opt.load_state_dict(ckpt["optimizer"])
         step, history, elapsed = ckpt["step"], ckpt["history"], ckpt.get("elapsed", 0.0)
         ema = ckpt.get("ema")
+        if avg is not None:
+            if ckpt.get("weight_ema") is None:
+                sys.exit(f"train.py: --resume: {ckpt_path} holds no weight average")
+            avg.load_state_dict(ckpt["weight_ema"])
         set_rng_state(np_rng, ckpt["rng"])
         print(f"resumed {cfg['name']} at step {step} from {ckpt_path}", file=sys.stderr)
     if args.equal_phase_sums and not ckpt:
@@ -810,6 +834,8 @@ def main(argv=None):
             opt.step()
             if args.equal_phase_sums:
                 hfnet.equalise_phase_sums_(net)
+            if avg is not None:
+                avg.update_parameters(net)
             step += 1
             lv = float(loss)
             if not math.isfinite(lv):
@@ -819,7 +845,7 @@ def main(argv=None):
             out_of_time = args.time_limit and time.time() - t_start > args.time_limit
             last = step == stop or out_of_time
             if step % args.val_every == 0 or last:
-                val = validate(net, val_set, cfg["spp"], args.grad_weight, mode, device,
+                val = validate(averaged(net, avg), val_set, cfg["spp"], args.grad_weight, mode, device,
                                loss=args.loss, ssim_weight=args.ssim_weight,
                                lattice=lattice, below_weight=args.below_input_weight,
                                target=args.target)
@@ -839,7 +865,8 @@ def main(argv=None):
                                 step=step, rng=rng_state(np_rng), look_rng=look_gen.get_state(),
                                 args=vars(args),
                                 history=history, elapsed=elapsed + time.time() - t_start, ema=ema,
-                                config=cfg)
+                                config=cfg,
+                                weight_ema=avg.state_dict() if avg is not None else None)
             if out_of_time:
                 print(f"\ntime limit: stopped at step {step}; --resume continues", file=sys.stderr)
                 break
@@ -859,6 +886,7 @@ def main(argv=None):
                            dim_light=args.dim_light, dim_share=args.dim_share,
                            display_straight_through=args.display_straight_through,
                            look_srgb=args.look_srgb, look_l1=args.look_l1, seed=args.seed,
+                           weight_ema=args.weight_ema,
                            deconv=args.deconv, bf16=args.bf16, init=args.init,
                            straight_through=args.straight_through,
                            equal_phase_sums=args.equal_phase_sums, train_seconds=elapsed,
@@ -881,7 +909,7 @@ def main(argv=None):
         else:
             rng = None
             print("train.py: no --data: exported without an input range", file=sys.stderr)
-        export(net, args.export, args.export_dtype, rng)
+        export(averaged(net, avg), args.export, args.export_dtype, rng)
     return 0
 
 

@@ -1002,6 +1002,39 @@ class Recipe(unittest.TestCase):
             with self.assertRaises(SystemExit):
                 train.parse_args(["--out", "x", "--clip-grad-norm", bad])
 
+    def test_weight_ema_exports_the_moving_average_and_resumes(self):
+        """--weight-ema D: after two steps the export is D * (the weights
+        after step 1) + (1 - D) * (after step 2), the average starting at
+        the first step's weights; a run stopped after step 1 and resumed
+        exports the same; a decay outside [0, 1) is refused."""
+        common = ["--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
+                  "--val-every", "1", "--ckpt-every", "1", "--seed", "9", "--steps", "2",
+                  "--lr", "1e-2"]
+        w = os.path.join(self.work, "ema_")
+        run_train(*common, "--out", w + "r1", "--stop-at", "1", "--export", w + "1.safetensors")
+        run_train(*common, "--out", w + "r2", "--export", w + "2.safetensors")
+        run_train(*common, "--out", w + "re", "--weight-ema", "0.25",
+                  "--export", w + "e.safetensors")
+        run_train(*common, "--out", w + "rs", "--weight-ema", "0.25", "--stop-at", "1")
+        run_train("--out", w + "rs", "--resume", "--steps", "2", "--export", w + "s.safetensors")
+        _, s1 = hfnet.load_safetensors(w + "1.safetensors")
+        _, s2 = hfnet.load_safetensors(w + "2.safetensors")
+        _, se = hfnet.load_safetensors(w + "e.safetensors")
+        _, ss = hfnet.load_safetensors(w + "s.safetensors")
+        moved = 0
+        for k in s1:
+            want = 0.25 * s1[k] + 0.75 * s2[k]
+            self.assertTrue(torch.allclose(se[k], want, rtol=0, atol=1e-7), f"{k}: not the average")
+            self.assertTrue(torch.equal(ss[k], se[k]), f"{k} differs after resume")
+            moved += int(not torch.equal(se[k], s2[k]))
+        self.assertGreater(moved, 0, "the average is the last step's weights")
+        for bad in ("1", "-0.1"):
+            cmd = [sys.executable, os.path.join(WEIGHTS, "train.py"), "--out", w + "bad",
+                   "--weight-ema", bad]
+            r = subprocess.run(cmd, capture_output=True, text=True)
+            self.assertEqual(r.returncode, 2)
+            self.assertIn("--weight-ema must be a decay in [0, 1)", r.stderr)
+
     def test_resume_equals_uninterrupted(self):
         self.resume_equals_uninterrupted("paper")
 
