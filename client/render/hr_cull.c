@@ -52,6 +52,7 @@ static int may_reach(const hr_camera *cam, float thick_scale, const float *a, co
     half = m > half ? m : half;
     const float s[2] = {(c[0] / c[3] * 0.5f + 0.5f) * cam->frame_w,
                         (c[1] / c[3] * 0.5f + 0.5f) * cam->frame_h};
+    if (!isfinite(s[0]) || !isfinite(s[1]) || !isfinite(m)) return 1;
     for (int i = 0; i < 2; i++) {
       lo[i] = s[i] < lo[i] ? s[i] : lo[i];
       hi[i] = s[i] > hi[i] ? s[i] : hi[i];

@@ -225,6 +225,7 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
   float *sp = realloc(r->stat_pts, sizeof(float) * 4 * n_stat);
   if (!sp) {
     free(v);
+    r->strands = 0, r->has_hair = 0; /* the buffer above holds the new model */
     return HF_ENOMEM;
   }
   r->stat_pts = sp;
