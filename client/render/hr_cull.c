@@ -11,6 +11,7 @@
  * none there, the others keep their order (one draw per run, in order). */
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "hr_internal.h"
 
@@ -34,34 +35,78 @@ static void clip_of(const hr_camera *cam, const float p[3], float e[4], float c[
            cam->proj[12 + i] * e[3];
 }
 
-/* 1 when the quad of the segment from point a to point b (x, y, z, diameter
- * each) can cover a pixel of [x0, x1) x [y0, y1) (GL window coordinates);
- * as hr_glsl_hair_vs builds it. Anything this arithmetic cannot place
- * (a point at or behind the eye, NaN) counts as inside. */
-static int may_reach(const hr_camera *cam, float thick_scale, const float *a, const float *b,
-                     float x0, float y0, float x1, float y1) {
+/* The pixels the quad of the segment from point a to point b (x, y, z,
+ * diameter each) can cover, as hr_glsl_hair_vs builds it: out = x0, y0,
+ * x1, y1 in GL window coordinates, the quad reaching half its width either
+ * side of the projected segment, plus WINDOW_MARGIN. A segment this
+ * arithmetic cannot place (a point at or behind the eye, infinite or NaN
+ * coordinates) gets the whole plane. */
+static void segment_bounds(const hr_camera *cam, float thick_scale, const float *a,
+                           const float *b, float out[4]) {
   float lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY}, half = 0;
   const float *pt[2] = {a, b};
   for (int k = 0; k < 2; k++) {
     float e[4], c[4];
     clip_of(cam, pt[k], e, c);
-    if (!(c[3] > 1e-6f)) return 1;
     const float dist = -e[2] > 1e-6f ? -e[2] : 1e-6f;
     const float px = pt[k][3] * thick_scale * cam->px_per_unit / (cam->ortho ? 1.0f : dist);
     const float m = px > 1 ? px : 1;
-    half = m > half ? m : half;
     const float s[2] = {(c[0] / c[3] * 0.5f + 0.5f) * cam->frame_w,
                         (c[1] / c[3] * 0.5f + 0.5f) * cam->frame_h};
-    if (!isfinite(s[0]) || !isfinite(s[1]) || !isfinite(m)) return 1;
+    if (!(c[3] > 1e-6f) || !isfinite(s[0]) || !isfinite(s[1]) || !isfinite(m)) {
+      out[0] = out[1] = -INFINITY, out[2] = out[3] = INFINITY;
+      return;
+    }
+    half = m > half ? m : half;
     for (int i = 0; i < 2; i++) {
       lo[i] = s[i] < lo[i] ? s[i] : lo[i];
       hi[i] = s[i] > hi[i] ? s[i] : hi[i];
     }
   }
-  /* The quad reaches half its width either side of the segment. */
   const float r = 0.5f * half + WINDOW_MARGIN;
-  if (hi[0] + r < x0 || lo[0] - r > x1 || hi[1] + r < y0 || lo[1] - r > y1) return 0;
-  return 1;
+  out[0] = lo[0] - r, out[1] = lo[1] - r, out[2] = hi[0] + r, out[3] = hi[1] + r;
+}
+
+/* What the segments' bounds depend on: the camera without its window,
+ * and the thickness scale. */
+static void bounds_key(const hr_camera *cam, float thick_scale, float key[HR_BOUNDS_KEY]) {
+  memcpy(key, cam->view, sizeof cam->view);
+  memcpy(key + 16, cam->proj, sizeof cam->proj);
+  key[32] = (float)cam->frame_w, key[33] = (float)cam->frame_h;
+  key[34] = cam->px_per_unit, key[35] = (float)cam->ortho, key[36] = thick_scale;
+}
+
+typedef struct {
+  const hfr_renderer *r;
+  const hr_camera *cam;
+  float thick_scale;
+} bounds_job;
+
+static void bounds_chunk(void *arg, int worker, size_t i0, size_t i1) {
+  (void)worker;
+  const bounds_job *j = arg;
+  for (size_t i = i0; i < i1; i++)
+    segment_bounds(j->cam, j->thick_scale, j->r->cull_pts + 4 * i, j->r->cull_pts + 4 * (i + 1),
+                   j->r->seg_bounds + 4 * i);
+}
+
+/* r->seg_bounds for cam and thick_scale: computed once, on every core,
+ * for all the windows (bands, passes) of one camera. */
+static int ensure_bounds(hfr_renderer *r, const hr_camera *cam, float thick_scale) {
+  float key[HR_BOUNDS_KEY];
+  bounds_key(cam, thick_scale, key);
+  if (r->bounds_valid && !memcmp(key, r->bounds_key, sizeof key)) return HF_OK;
+  r->bounds_valid = 0;
+  const size_t segs = r->points - 1;
+  if (!r->seg_bounds) {
+    r->seg_bounds = malloc(sizeof(float) * 4 * (r->points ? r->points : 1));
+    if (!r->seg_bounds) return HF_ENOMEM;
+  }
+  bounds_job j = {r, cam, thick_scale};
+  hf_parallel_chunks(segs, 1 << 14, 1 << 16, bounds_chunk, &j);
+  memcpy(r->bounds_key, key, sizeof key);
+  r->bounds_valid = 1;
+  return HF_OK;
 }
 
 /* Appends the run [first, end) to r->runs[*n]. */
@@ -79,7 +124,8 @@ static int push_run(hfr_renderer *r, size_t *n, uint32_t first, uint32_t end) {
 int hr_hair_window_runs(hfr_renderer *r, const hr_camera *cam, float thick_scale,
                         size_t *n_runs) {
   *n_runs = 0;
-  if (!r->cull_pts || !r->strand_first) return HF_EINVAL;
+  if (!r->cull_pts || !r->strand_first || r->points < 2) return HF_EINVAL;
+  if (ensure_bounds(r, cam, thick_scale) != HF_OK) return HF_ENOMEM;
   const float x0 = (float)cam->win_x, y0 = (float)cam->win_y;
   const float x1 = (float)(cam->win_x + cam->win_w), y1 = (float)(cam->win_y + cam->win_h);
   size_t n = 0;
@@ -89,9 +135,8 @@ int hr_hair_window_runs(hfr_renderer *r, const hr_camera *cam, float thick_scale
     /* Instance i is the segment from point i to i + 1; the strand's last
      * point starts the instance that would join two strands. */
     for (uint32_t i = r->strand_first[s]; i + 1 < r->strand_first[s + 1]; i++) {
-      if (!may_reach(cam, thick_scale, r->cull_pts + 4 * (size_t)i,
-                     r->cull_pts + 4 * ((size_t)i + 1), x0, y0, x1, y1))
-        continue;
+      const float *b = r->seg_bounds + 4 * (size_t)i;
+      if (b[2] < x0 || b[0] > x1 || b[3] < y0 || b[1] > y1) continue;
       if (open && i - end <= RUN_GAP) {
         end = i + 1;
         continue;

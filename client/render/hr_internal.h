@@ -34,6 +34,9 @@ typedef struct hr_camera {
   int frame_w, frame_h, win_x, win_y, win_w, win_h;
 } hr_camera;
 
+/* Floats of the camera and thickness scale the segments' bounds depend on. */
+#define HR_BOUNDS_KEY 37
+
 /* Instances [first, first + count) of the hair's draw. */
 typedef struct hr_run {
   uint32_t first, count;
@@ -78,6 +81,13 @@ struct hfr_renderer {
   uint32_t *strand_first, strands;
   hr_run *runs;
   size_t runs_cap;
+  /* Each segment's pixel bounds ([points - 1][4]) for the camera in
+   * bounds_key (hr_cull.c), kept for the next window of that camera (the
+   * bands of a ground truth, the passes of a crop); bounds_valid 0 when
+   * stale. */
+  float *seg_bounds;
+  float bounds_key[HR_BOUNDS_KEY];
+  int bounds_valid;
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */
   GLsizei head_vertices;
   int has_hair, has_head;       /* has_head: an occluder is set */
