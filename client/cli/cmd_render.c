@@ -60,6 +60,9 @@ static void usage(FILE *f) {
     "         a ground truth too dense for one A-buffer is drawn in bands of rows; a frame\n"
     "         whose single rows do not fit is left out (manifest \"skipped\") and the run\n"
     "         goes on; --max-fragments N lowers that limit (default and most 67108864)\n"
+    "         --gt-cull auto|off|on: keep out of the truth's A-buffer the fragments behind an\n"
+    "           optical depth of 30 (each, and all together, weigh under 1e-13); auto: windows\n"
+    "           drawn again with 8 or more fragments a subsample; off: every fragment\n"
     "other:   --platform osmesa|egl|auto   --out PATH\n"
     "An option the mode does not read (render frame --resume, render dataset --cam-yaw) is\n"
     "refused, naming the modes that read it.\n");
@@ -209,6 +212,7 @@ static const struct { const char *name; int modes; } option_modes[] = {
   {"--gt-ss", M_FRAME | M_FIG6 | M_DATASET},       {"--st", M_FRAME | M_FIG6 | M_DATASET},
   {"--opaque", M_FRAME | M_FIG6 | M_DATASET},      {"--seed", M_FRAME | M_FIG6 | M_DATASET},
   {"--max-fragments", M_FRAME | M_FIG6 | M_DATASET},
+  {"--gt-cull", M_FRAME | M_FIG6 | M_DATASET},
   {"--no-background", M_FRAME | M_FIG6 | M_DATASET},
   {"--alpha-corrected", M_FRAME | M_DATASET},      {"--no-alpha-corrected", M_FRAME | M_DATASET},
   {"--spp", M_FRAME | M_DATASET},                  {"--half", M_FRAME | M_DATASET},
@@ -453,6 +457,16 @@ static int parse_args(int argc, char **argv, opts *o) {
         fprintf(stderr, "hairfilter render: --crop wants X,Y,W,H in pixels of the --size frame\n");
         return -1;
       }
+    } else if (!strcmp(a, "--gt-cull")) {
+      static const char *const modes[] = {"auto", "off", "on"}; /* HFR_GT_CULL_* */
+      int m = -1;
+      for (int k = 0; k < 3; k++)
+        if (!strcmp(v, modes[k])) m = k;
+      if (m < 0) {
+        fprintf(stderr, "hairfilter render: --gt-cull takes auto, off or on, not '%s'\n", v);
+        return -1;
+      }
+      o->outputs.gt_cull = m, o->ds.gt_cull = m;
     } else if (!strcmp(a, "--frame-sizes")) {
       if (sscanf(v, "%d,%d", &o->ds.frame_min, &o->ds.frame_max) != 2) {
         fprintf(stderr, "hairfilter render: --frame-sizes wants MIN,MAX\n");
@@ -639,12 +653,13 @@ static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_v
                         const hfr_stats *st) {
   fprintf(stderr,
           "%s (%s), %u strands, %llu segments, %dx%d: shadow %.0f ms, features %.0f ms, "
-          "baselines %.0f ms, ground truth %.0f ms (%llu fragments, deepest list %u, "
+          "baselines %.0f ms, ground truth %.0f ms (%llu fragments%s%.0llu%s, deepest list %u, "
           "%llu lists sorted in several rounds%s)\n",
           hfr_renderer_platform(r), hfr_renderer_gl_name(r), hair->strands,
           (unsigned long long)hfr_hair_total_segments(hair), v->width, v->height, st->shadow_ms,
           st->features_ms, st->baselines_ms, st->gt_ms, (unsigned long long)st->gt_fragments,
-          st->gt_max_depth, (unsigned long long)st->gt_truncated,
+          st->gt_culled ? ", " : "", (unsigned long long)st->gt_culled,
+          st->gt_culled ? " behind an optical depth of 30 left out" : "", st->gt_max_depth, (unsigned long long)st->gt_truncated,
           st->gt_host_resolve ? ", blended on the host" : "");
   char line[512];
   hfr_frame_stats_format(&st->frame, line, sizeof line);

@@ -332,7 +332,17 @@ typedef struct hfr_outputs {
    * it (the same result); one whose single rows need more fails with
    * HF_ERANGE. */
   uint32_t max_fragments;
+  /* The ground truth's transmittance cull (HFR_GT_CULL_*): fragments behind
+   * an optical depth of 30 (weight under e^-30 in their subsample, all of
+   * them together too) are kept out of the A-buffer. */
+  int gt_cull;
 } hfr_outputs;
+
+enum {
+  HFR_GT_CULL_AUTO = 0, /* windows drawn again with 8 or more fragments a subsample */
+  HFR_GT_CULL_OFF = 1,  /* every fragment stored: the exact blend */
+  HFR_GT_CULL_ON = 2    /* every window, from its first draw */
+};
 
 #define HFR_MAX_FRAGMENTS (1u << 26)
 
@@ -359,6 +369,10 @@ typedef struct hfr_stats {
   uint32_t gt_max_depth;        /* longest per-subsample fragment list */
   uint64_t gt_truncated;        /* subsamples sorted in more than one round */
   int gt_host_resolve;          /* lists too deep for the GPU resolve: blended on the host */
+  /* Fragments the transmittance cull kept out of the A-buffer (each behind
+   * an optical depth of at least 30: weight under e^-30 in its subsample)
+   * in windows counted whole before it was used; 0 when none was. */
+  uint64_t gt_culled;
   /* How many of the 4 MSAA sample positions are sub-pixel centres of the
    * ground truth (hfr_gt_shared_positions): 0 when there is no truth, -1
    * when the implementation did not say where its samples are. */
@@ -504,6 +518,7 @@ typedef struct hfr_dataset_opts {
   int half;                     /* EXR in float16 */
   int extended;                 /* style parameters over wide ranges (hr_dataset.c) */
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of every frame */
+  int gt_cull;                  /* hfr_outputs.gt_cull of every frame */
   /* Regimes (hr_dataset_regimes.c): per frame and per clump, strand width in
    * pixels, density, virtual frame size (the output is a width x height
    * crop of a frame_min..frame_max square frame), camera, light, shadows,

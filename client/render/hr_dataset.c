@@ -158,6 +158,7 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
   cJSON_AddNumberToObject(e, "strand_count", hair->strands);
   cJSON_AddNumberToObject(e, "segment_count", (double)hfr_hair_total_segments(hair));
   cJSON_AddNumberToObject(e, "gt_fragments", (double)st->gt_fragments);
+  if (st->gt_culled) cJSON_AddNumberToObject(e, "gt_culled", (double)st->gt_culled);
   cJSON_AddNumberToObject(e, "gt_shared_positions", st->gt_shared_positions);
   cJSON_AddNumberToObject(e, "render_ms", ms);
   return e;
@@ -382,6 +383,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       out.background_layer = o->background_layer;
       out.seed = (uint32_t)(seed * 2654435761u);
       out.max_fragments = o->max_fragments;
+      out.gt_cull = o->gt_cull;
 
       double t0 = hr_now_ms();
       hfr_hair hair;

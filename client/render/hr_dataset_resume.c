@@ -56,6 +56,7 @@ cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
   cJSON_AddBoolToObject(j, "half", o->half != 0);
   cJSON_AddBoolToObject(j, "extended", o->extended != 0);
   cJSON_AddNumberToObject(j, "max_fragments", o->max_fragments);
+  if (o->gt_cull) cJSON_AddNumberToObject(j, "gt_cull", o->gt_cull); /* auto: as before */
   cJSON_AddBoolToObject(j, "regimes", o->regimes != 0);
   if (o->regimes) {
     add_range(j, "frame_sizes", o->frame_min > 0 ? o->frame_min : 256,
@@ -124,7 +125,7 @@ static const char *const option_names[][2] = {
     {"opaque_samples", "--opaque"}, {"alpha_corrected", "--alpha-corrected/--no-alpha-corrected"},
     {"strands", "--strands"}, {"segments", "--segments"}, {"shadow_size", "--shadow-size"},
     {"seed", "--seed"}, {"half", "--half"}, {"extended", "--extended"},
-    {"max_fragments", "--max-fragments"}, {"regimes", "--regimes"},
+    {"max_fragments", "--max-fragments"}, {"gt_cull", "--gt-cull"}, {"regimes", "--regimes"},
     {"frame_sizes", "--frame-sizes"}, {"width_px_range", "--width-px"},
     {"opacity_range", "--opacity-range"}, {"width_spread", "--width-spread"},
     {"background_layer", "--no-background"}, {"asset.up", "--up"},

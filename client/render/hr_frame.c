@@ -96,6 +96,8 @@ static int validate(const hfr_view *v, const hfr_outputs *o, char *err, size_t e
       return bad(err, errlen, "stochastic baselines take 1..256 spp");
   if (o->opaque_samples < 0 || o->opaque_samples % 4 || o->opaque_samples > 64)
     return bad(err, errlen, "opaque samples must be a multiple of 4 up to 64");
+  if (o->gt_cull < HFR_GT_CULL_AUTO || o->gt_cull > HFR_GT_CULL_ON)
+    return bad(err, errlen, "the ground truth's cull must be HFR_GT_CULL_AUTO, _OFF or _ON");
   if (hfr_outputs_channels(o) == 0) return bad(err, errlen, "nothing to render");
   return HF_OK;
 }
@@ -156,6 +158,7 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   if (!r->has_hair) return bad(err, errlen, "no hair model set");
   if ((rc = hr_renderer_bind(r)) != HF_OK) return rc;
   r->max_fragments = o->max_fragments;
+  r->gt_cull = o->gt_cull;
   int W, H;
   hr_view_target(v, &W, &H);
   const int S = 4;

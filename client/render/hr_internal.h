@@ -62,6 +62,7 @@ struct hfr_renderer {
   char gl_renderer[128];        /* GL_RENDERER and GL_VERSION */
   int gl_loaded;
   hr_program st, stac, shadow, abuf, head, occluder, resolve_ms, resolve_stac, resolve_abuf;
+  hr_program gt_near, gt_depths, gt_cut; /* hr_gt_cull.c */
   GLuint hair_vao, hair_vbo, head_vao, head_vbo, empty_vao;
   /* The ground truth's pool of A-buffer nodes, grown as windows need and
    * kept for the next (hr_pass_gt): up to HFR_MAX_FRAGMENTS nodes. */
@@ -89,6 +90,7 @@ struct hfr_renderer {
   float bounds_key[HR_BOUNDS_KEY];
   int bounds_valid;
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */
+  int gt_cull;                  /* hfr_outputs.gt_cull of the frame drawn */
   GLsizei head_vertices;
   int has_hair, has_head;       /* has_head: an occluder is set */
   uint64_t segments;
@@ -140,6 +142,23 @@ int hr_hair_window_runs(hfr_renderer *r, const hr_camera *cam, float thick_scale
                         size_t *n_runs);
 
 /* Passes (hr_passes.c). */
+/* A texture of one level (GL_TEXTURE_2D, nearest filtering) or a
+ * multisampled one of samples samples, fmt storage, w x h texels. */
+GLuint hr_make_tex(GLenum target, GLenum fmt, int w, int h, int samples);
+/* HF_OK when the bound framebuffer is complete, else HF_EBACKEND with
+ * "<what> framebuffer incomplete" in err. */
+int hr_fbo_complete(const char *what, char *err, size_t errlen);
+/* Draws p's full-viewport triangle (hr_glsl_fullscreen_vs) over a w x h
+ * target; sets the viewport. */
+void hr_draw_fullscreen(hfr_renderer *r, const hr_program *p, int w, int h);
+/* The hair vertex shader's uniforms of p for cam and v, with a sub-pixel
+ * offset of (jx, jy) pixels. */
+void hr_set_geometry(const hr_program *p, const hr_camera *cam, const hfr_view *v, float jx,
+                     float jy);
+/* Draws the hair instances that can reach cam's window (all of them for a
+ * whole frame), in order, with the bound program. */
+void hr_draw_hair_window(hfr_renderer *r, const hr_camera *cam, const hfr_view *v);
+
 /* Deletes r's whole-frame attachments (r->frame_tex): a stage of
  * hfr_render that no longer needs them gives their memory back. */
 void hr_frame_tex_release(hfr_renderer *r);
@@ -162,6 +181,22 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
 int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
                float *gt, float *cpu_gt, hfr_stats *stats, char *err, size_t errlen);
 
+/* The ground truth's transmittance cull (hr_gt_cull.c): into the depth
+ * attachment of depth_fbo, which holds the occluder's depth of cam's
+ * supersampled frame (LESS), writes at each pixel of cam's window the
+ * depth behind which the hair's fragments are hidden by an optical depth
+ * of at least HR_GT_CULL_TAU in front of them, where such a depth exists,
+ * so that the A-buffer's early depth test keeps them out. v: the view
+ * drawn (thickness scale). row_frags [cam->win_h], rows bottom first: at
+ * least the fragments the A-buffer will then hold in each supersampled
+ * row. Leaves depth_fbo bound, the depth test and the scissor off; uses
+ * storage buffer bindings 4 to 6. HF_OK, or HF_EBACKEND with err set. */
+int hr_gt_cull(hfr_renderer *r, const hfr_view *v, const hr_camera *cam, GLuint depth_fbo,
+               uint64_t *row_frags, char *err, size_t errlen);
+/* ln(1 / transmittance) in front of a fragment the cull keeps out: each
+ * such fragment, and all of them together, weigh less than e^-30 (1e-13)
+ * in their subsample's blend. */
+#define HR_GT_CULL_TAU 30.0f
 /* The occluder, diffusely lit, at the camera's window with 4x MSAA:
  * out [h][w][2] (diffuse factor premultiplied by coverage, coverage), rows
  * top first. */

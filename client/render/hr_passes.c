@@ -11,8 +11,12 @@
 
 #define ABUF_MIN_NODES (1u << 20)
 #define NODE_WORDS 5
+/* Mean fragments per supersampled pixel from which a window drawn again
+ * (its A-buffer too small) is drawn behind the transmittance cull
+ * (hr_gt_cull.c): its three passes cost about one more draw of the hair. */
+#define GT_CULL_DEPTH 8
 
-static GLuint make_tex(GLenum target, GLenum fmt, int w, int h, int samples) {
+GLuint hr_make_tex(GLenum target, GLenum fmt, int w, int h, int samples) {
   GLuint t = 0;
   hrgl.GenTextures(1, &t);
   hrgl.BindTexture(target, t);
@@ -35,7 +39,7 @@ static GLuint frame_tex(hfr_renderer *r, int slot, GLenum fmt, int w, int h, int
   hr_frame_tex *t = &r->frame_tex[slot];
   if (t->id && t->fmt == fmt && t->w == w && t->h == h && t->samples == samples) return t->id;
   if (t->id) hrgl.DeleteTextures(1, &t->id);
-  t->id = make_tex(samples ? GL_TEXTURE_2D_MULTISAMPLE : GL_TEXTURE_2D, fmt, w, h, samples);
+  t->id = hr_make_tex(samples ? GL_TEXTURE_2D_MULTISAMPLE : GL_TEXTURE_2D, fmt, w, h, samples);
   t->fmt = fmt, t->w = w, t->h = h, t->samples = samples;
   return t->id;
 }
@@ -46,7 +50,7 @@ void hr_frame_tex_release(hfr_renderer *r) {
   memset(r->frame_tex, 0, sizeof r->frame_tex);
 }
 
-static int fbo_complete(const char *what, char *err, size_t errlen) {
+int hr_fbo_complete(const char *what, char *err, size_t errlen) {
   GLenum st = hrgl.CheckFramebufferStatus(GL_FRAMEBUFFER);
   if (st == GL_FRAMEBUFFER_COMPLETE) return HF_OK;
   if (err) snprintf(err, errlen, "%s framebuffer incomplete (0x%04x)", what, (unsigned)st);
@@ -56,7 +60,7 @@ static int fbo_complete(const char *what, char *err, size_t errlen) {
 /* Draws the full-viewport triangle over a w x h target: a 2w x 2h viewport
  * when the implementation allows it (see hr_glsl_fullscreen_vs), else a
  * w x h viewport with the usual clipped triangle. */
-static void draw_fullscreen(hfr_renderer *r, const hr_program *p, int w, int h) {
+void hr_draw_fullscreen(hfr_renderer *r, const hr_program *p, int w, int h) {
   GLint maxvp[2] = {0, 0};
   hrgl.GetIntegerv(GL_MAX_VIEWPORT_DIMS, maxvp);
   int grow = !(2 * w <= maxvp[0] && 2 * h <= maxvp[1]);
@@ -68,7 +72,7 @@ static void draw_fullscreen(hfr_renderer *r, const hr_program *p, int w, int h) 
 }
 
 /* jx, jy: the pass's sub-pixel offset in pixels. */
-static void set_geometry(const hr_program *p, const hr_camera *cam, const hfr_view *v,
+void hr_set_geometry(const hr_program *p, const hr_camera *cam, const hfr_view *v,
                          float jx, float jy) {
   hr_set_m4(p, "u_view", cam->view);
   hr_set_m4(p, "u_proj", cam->proj);
@@ -85,7 +89,7 @@ static void draw_head(hfr_renderer *r, const hr_camera *cam, const hfr_view *v, 
                       float jy, int linear_depth) {
   if (!r->has_head) return;
   hrgl.UseProgram(r->head.id);
-  set_geometry(&r->head, cam, v, jx, jy);
+  hr_set_geometry(&r->head, cam, v, jx, jy);
   hr_set_i(&r->head, "u_linear_depth", linear_depth);
   hrgl.BindVertexArray(r->head_vao);
   hrgl.DrawArrays(GL_TRIANGLES, 0, r->head_vertices);
@@ -102,7 +106,7 @@ static void draw_hair(hfr_renderer *r) {
 /* draw_hair for cam's window: when it is smaller than the frame, only the
  * instances that can reach it, in order (hr_hair_window_runs), which gives
  * the window the same fragments in the same order. */
-static void draw_hair_window(hfr_renderer *r, const hr_camera *cam, const hfr_view *v) {
+void hr_draw_hair_window(hfr_renderer *r, const hr_camera *cam, const hfr_view *v) {
   size_t n = 0;
   if ((cam->win_w == cam->frame_w && cam->win_h == cam->frame_h) ||
       hr_hair_window_runs(r, cam, v->thickness_scale, &n) != HF_OK) {
@@ -153,7 +157,7 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
   if (r->shadow_size != v->shadow_size) {
     if (r->shadow_tex) hrgl.DeleteTextures(1, &r->shadow_tex);
     if (r->shadow_fbo) hrgl.DeleteFramebuffers(1, &r->shadow_fbo);
-    r->shadow_tex = make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, v->shadow_size,
+    r->shadow_tex = hr_make_tex(GL_TEXTURE_2D, GL_DEPTH_COMPONENT32F, v->shadow_size,
                              v->shadow_size, 0);
     /* Hardware comparison with bilinear PCF. */
     hrgl.TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
@@ -168,7 +172,7 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
                               r->shadow_tex, 0);
     GLenum none = GL_NONE;
     hrgl.DrawBuffers(1, &none);
-    int rc = fbo_complete("shadow", err, errlen);
+    int rc = hr_fbo_complete("shadow", err, errlen);
     if (rc != HF_OK) return rc;
     r->shadow_size = v->shadow_size;
   }
@@ -181,7 +185,7 @@ int hr_pass_shadow(hfr_renderer *r, const hfr_view *v, const hr_camera *light, u
   hrgl.DepthMask(GL_TRUE);
   draw_head(r, light, v, 0, 0, 1);
   hrgl.UseProgram(r->shadow.id);
-  set_geometry(&r->shadow, light, v, 0, 0);
+  hr_set_geometry(&r->shadow, light, v, 0, 0);
   hr_set_u(&r->shadow, "u_seed", seed);
   hr_set_f(&r->shadow, "u_hash_scale", 1.0f);
   draw_hair(r);
@@ -236,7 +240,7 @@ static int ms_rgba_target(hfr_renderer *r, int slot_color, int slot_depth, int f
                             tex[1], 0);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
   hrgl.DrawBuffers(1, &b0);
-  return fbo_complete(what, err, errlen);
+  return hr_fbo_complete(what, err, errlen);
 }
 
 /* Alpha-corrected stochastic transparency over the depth samples depth_ms
@@ -253,7 +257,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
   const int W = cam->win_w, H = cam->win_h, FW = cam->frame_w, FH = cam->frame_h;
   const int RW = (W + 15) & ~15, RH = (H + 15) & ~15; /* whole blocks: draw_fullscreen */
   GLuint tex[3], fbo[2] = {0, 0};
-  tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, RW, RH, 0);
+  tex[2] = hr_make_tex(GL_TEXTURE_2D, GL_RGBA32F, RW, RH, 0);
   hrgl.GenFramebuffers(2, fbo);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
   float *tmp = NULL;
@@ -278,7 +282,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     hrgl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
     hrgl.DepthMask(GL_FALSE);
     hrgl.UseProgram(r->stac.id);
-    set_geometry(&r->stac, cam, v, jx, jy);
+    hr_set_geometry(&r->stac, cam, v, jx, jy);
     hr_bind_shading(r, &r->stac, v, cam, light, 0);
     hrgl.ActiveTexture(GL_TEXTURE3);
     hrgl.BindTexture(GL_TEXTURE_2D_MULTISAMPLE, depth_ms);
@@ -286,7 +290,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     hr_set_i(&r->stac, "u_samples", S);
     hrgl.Enable(GL_BLEND);
     hrgl.BlendFuncSeparate(GL_ONE, GL_ONE, GL_ZERO, GL_ONE_MINUS_SRC_ALPHA);
-    draw_hair_window(r, cam, v);
+    hr_draw_hair_window(r, cam, v);
     hrgl.Disable(GL_BLEND);
     hrgl.DepthMask(GL_TRUE);
     hrgl.Disable(GL_DEPTH_TEST);
@@ -295,7 +299,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
     hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, tex[2], 0);
     hrgl.DrawBuffers(1, &b0);
-    rc = fbo_complete("alpha-corrected resolve", err, errlen);
+    rc = hr_fbo_complete("alpha-corrected resolve", err, errlen);
   }
   if (rc == HF_OK) {
     hrgl.UseProgram(r->resolve_stac.id);
@@ -304,7 +308,7 @@ static int pass_alpha_corrected(hfr_renderer *r, const hfr_view *v, const hr_cam
     hr_set_i(&r->resolve_stac, "u_src", 1);
     hr_set_i(&r->resolve_stac, "u_samples", S);
     hr_set_2i(&r->resolve_stac, "u_origin", cam->win_x, cam->win_y);
-    draw_fullscreen(r, &r->resolve_stac, RW, RH);
+    hr_draw_fullscreen(r, &r->resolve_stac, RW, RH);
     hrgl.ActiveTexture(GL_TEXTURE0);
     rc = read_rgba(W, H, "alpha-corrected pass", &tmp, err, errlen);
   }
@@ -344,7 +348,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
   const GLenum bufs[2] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
   hrgl.DrawBuffers(2, bufs);
   float *tmp = NULL;
-  int rc = fbo_complete("feature", err, errlen);
+  int rc = hr_fbo_complete("feature", err, errlen);
   GLint samples = 0;
   if (rc == HF_OK) {
     hrgl.GetIntegerv(GL_SAMPLES, &samples);
@@ -364,20 +368,20 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     draw_head(r, cam, v, jx, jy, 0);
     hrgl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
     hrgl.UseProgram(r->st.id);
-    set_geometry(&r->st, cam, v, jx, jy);
+    hr_set_geometry(&r->st, cam, v, jx, jy);
     hr_bind_shading(r, &r->st, v, cam, light, seed);
     hr_set_i(&r->st, "u_opaque", opaque);
     hr_set_i(&r->st, "u_samples", S);
-    draw_hair_window(r, cam, v);
+    hr_draw_hair_window(r, cam, v);
     hrgl.Disable(GL_DEPTH_TEST);
     hr_scissor_off();
 
     /* Resolve: a (3W) x (H * S) RG32F target, texel (3x + j, S y + s). */
-    rtex = make_tex(GL_TEXTURE_2D, GL_RG32F, 3 * W, H * S, 0);
+    rtex = hr_make_tex(GL_TEXTURE_2D, GL_RG32F, 3 * W, H * S, 0);
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
     hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, rtex, 0);
     hrgl.DrawBuffers(1, bufs);
-    rc = fbo_complete("resolve", err, errlen);
+    rc = hr_fbo_complete("resolve", err, errlen);
   }
   if (rc == HF_OK) {
     hrgl.UseProgram(r->resolve_ms.id);
@@ -389,7 +393,7 @@ int hr_pass_ms(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hr_set_i(&r->resolve_ms, "u_f1", 2);
     hr_set_i(&r->resolve_ms, "u_samples", S);
     hr_set_2i(&r->resolve_ms, "u_origin", cam->win_x, cam->win_y);
-    draw_fullscreen(r, &r->resolve_ms, 3 * W, H * S);
+    hr_draw_fullscreen(r, &r->resolve_ms, 3 * W, H * S);
     tmp = malloc(sizeof(float) * 6 * (size_t)W * H * S);
     if (!tmp) rc = HF_ENOMEM;
   }
@@ -423,7 +427,7 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
                        const hr_camera *light, float *out, char *err, size_t errlen) {
   const int W = cam->win_w, H = cam->win_h, FW = cam->frame_w, FH = cam->frame_h;
   GLuint tex[3], fbo[2] = {0, 0};
-  tex[2] = make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
+  tex[2] = hr_make_tex(GL_TEXTURE_2D, GL_RGBA32F, W, H, 0);
   hrgl.GenFramebuffers(2, fbo);
   const GLenum b0 = GL_COLOR_ATTACHMENT0;
   int rc = ms_rgba_target(r, HR_TEX_BG_COLOR, HR_TEX_BG_DEPTH, FW, FH, 4, tex, fbo[0],
@@ -434,7 +438,7 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     begin_ms_draw(cam, zero);
     if (r->has_head) {
       hrgl.UseProgram(r->occluder.id);
-      set_geometry(&r->occluder, cam, v, 0, 0);
+      hr_set_geometry(&r->occluder, cam, v, 0, 0);
       hr_bind_shading(r, &r->occluder, v, cam, light, 0);
       hr_set_f(&r->occluder, "u_normal_offset", 0.02f * r->radius);
       hrgl.BindVertexArray(r->head_vao);
@@ -446,7 +450,7 @@ int hr_pass_background(hfr_renderer *r, const hfr_view *v, const hr_camera *cam,
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
     hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, tex[2], 0);
     hrgl.DrawBuffers(1, &b0);
-    rc = fbo_complete("background resolve", err, errlen);
+    rc = hr_fbo_complete("background resolve", err, errlen);
   }
   if (rc == HF_OK) {
     hrgl.BindFramebuffer(GL_READ_FRAMEBUFFER, fbo[0]);
@@ -639,12 +643,26 @@ static int abuf_reserve(hfr_renderer *r, uint32_t capacity, char *err, size_t er
   return rc;
 }
 
+/* How a window of the ground truth is drawn, and what its first draw
+ * learnt for its bands. */
+typedef struct gt_plan {
+  int cull;          /* behind the transmittance cull (hr_gt_cull) */
+  int depth_ready;   /* a band: the window it belongs to made the A-buffer's
+                      * depth over it (occluder and cut) */
+  uint64_t *rows;    /* [h], rows top first: a bound on each row's A-buffer
+                      * fragments behind the cut, once known; else NULL */
+  uint32_t uncut;    /* fragments counted before the cut (0: none) */
+} gt_plan;
+
 /* The ground truth of v's window in one A-buffer. *overflow is set to the
  * window's fragment count when that is more than one A-buffer holds
- * (HF_ERANGE). */
+ * (HF_ERANGE). plan says how to draw it and gets what the draw learnt: a
+ * window first drawn without the cull turns it on (plan->cull, uncut) when
+ * it must be drawn again (HFR_GT_CULL_AUTO) with lists GT_CULL_DEPTH deep;
+ * the cull then sets plan->rows (the caller frees it). */
 static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
-                     float *gt, float *cpu_gt, hfr_stats *stats, uint32_t *overflow, char *err,
-                     size_t errlen) {
+                     float *gt, float *cpu_gt, hfr_stats *stats, uint32_t *overflow,
+                     gt_plan *plan, char *err, size_t errlen) {
   int W, H;
   hr_view_target(v, &W, &H);
   const int SW = W * ss, SH = H * ss, FSW = v->width * ss, FSH = v->height * ss;
@@ -677,7 +695,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, depth, 0);
   GLenum none = GL_NONE;
   hrgl.DrawBuffers(1, &none);
-  int rc = fbo_complete("A-buffer", err, errlen);
+  int rc = hr_fbo_complete("A-buffer", err, errlen);
 
   /* List heads of the window's supersampled pixels only (a 256x256 crop of
    * a 1024x1024 frame at 8x8 needs 16 MiB of them, not 256). */
@@ -694,9 +712,16 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
    * s for 1.2 GB), so a window takes the pool the one before it grew. */
   if (r->abuf_nodes_cap > capacity) capacity = r->abuf_nodes_cap < max_nodes ? r->abuf_nodes_cap
                                                                              : max_nodes;
+  if (plan->rows) {
+    /* A band of a cut window: its bound, which the pool holds at once. */
+    uint64_t n = 0;
+    for (int y = 0; y < H; y++) n += plan->rows[y];
+    capacity = n < ABUF_MIN_NODES ? ABUF_MIN_NODES : n > max_nodes ? max_nodes : (uint32_t)n;
+  }
   uint32_t count = 0;
   double t0 = hr_now_ms();
-  for (int attempt = 0; rc == HF_OK && attempt < 2; attempt++) {
+  int depth_made = plan->depth_ready, cut = plan->depth_ready && plan->cull;
+  for (int attempt = 0; rc == HF_OK && attempt < 3; attempt++) {
     if ((rc = abuf_reserve(r, capacity, err, errlen)) != HF_OK) break;
     bufs[1] = r->abuf_nodes;
     const uint32_t empty = 0xFFFFFFFFu, zero = 0;
@@ -709,23 +734,63 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, bufs[1]);
     hrgl.BindBufferBase(GL_ATOMIC_COUNTER_BUFFER, 0, bufs[2]);
 
+    /* The depth the hair is tested against (the occluder's, then the
+     * cull's) is made once: the hair's draws leave it as it is. */
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
     hr_set_viewport(&cam);
-    const float one = 1.0f;
-    hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+    if (!depth_made) {
+      const float one = 1.0f;
+      hrgl.ClearBufferfv(GL_DEPTH, 0, &one);
+      hrgl.Enable(GL_DEPTH_TEST);
+      hrgl.DepthFunc(GL_LESS);
+      hrgl.DepthMask(GL_TRUE);
+      draw_head(r, &cam, &sv, 0, 0, 0);
+      depth_made = 1;
+    }
+    if (plan->cull && !cut) {
+      uint64_t *fine = calloc((size_t)SH, sizeof *fine);
+      plan->rows = calloc((size_t)H, sizeof *plan->rows);
+      if (!fine || !plan->rows) {
+        free(fine);
+        rc = HF_ENOMEM;
+        break;
+      }
+      rc = hr_gt_cull(r, &sv, &cam, fbo[0], fine, err, errlen);
+      cut = 1;
+      /* Supersampled rows, bottom first, into the window's rows, top first. */
+      uint64_t total = 0;
+      for (int y = 0; y < SH; y++) plan->rows[H - 1 - y / ss] += fine[y], total += fine[y];
+      free(fine);
+      if (rc != HF_OK) break;
+      if (total > max_nodes) {
+        if (err) snprintf(err, errlen, "%llu A-buffer fragments in %d row%s of %d pixels, "
+                          "more than the %u one A-buffer holds: lower the supersampling or "
+                          "the strand count", (unsigned long long)total, H, H == 1 ? "" : "s",
+                          W, max_nodes);
+        *overflow = max_nodes; /* the caller bands by plan->rows */
+        rc = HF_ERANGE;
+        break;
+      }
+      if (total > capacity) {
+        capacity = (uint32_t)total;
+        if ((rc = abuf_reserve(r, capacity, err, errlen)) != HF_OK) break;
+        bufs[1] = r->abuf_nodes;
+        hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, bufs[1]);
+      }
+      hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[0]);
+      hr_set_viewport(&cam);
+    }
     hrgl.Enable(GL_DEPTH_TEST);
     hrgl.DepthFunc(GL_LESS);
-    hrgl.DepthMask(GL_TRUE);
-    draw_head(r, &cam, &sv, 0, 0, 0);
     hrgl.DepthMask(GL_FALSE); /* every hair fragment is kept, none hides another */
     hrgl.UseProgram(r->abuf.id);
-    set_geometry(&r->abuf, &cam, &sv, 0, 0);
+    hr_set_geometry(&r->abuf, &cam, &sv, 0, 0);
     hr_bind_shading(r, &r->abuf, &sv, &cam, light, 0);
     hr_set_u(&r->abuf, "u_capacity", capacity);
     hr_set_i(&r->abuf, "u_width", SW);
     hr_set_2i(&r->abuf, "u_win_lo", cam.win_x, cam.win_y);
     hr_set_2i(&r->abuf, "u_win_hi", cam.win_x + SW, cam.win_y + SH);
-    draw_hair_window(r, &cam, &sv);
+    hr_draw_hair_window(r, &cam, &sv);
     hrgl.DepthMask(GL_TRUE);
     hrgl.Disable(GL_DEPTH_TEST);
     hr_scissor_off();
@@ -735,6 +800,13 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     hrgl.GetBufferSubData(GL_ATOMIC_COUNTER_BUFFER, 0, 4, &count);
     rc = hr_gl_check("A-buffer pass", err, errlen);
     if (rc != HF_OK) break;
+    /* Lists deep enough to be drawn again: again behind the cull. */
+    if (!plan->cull && r->gt_cull == HFR_GT_CULL_AUTO && count > capacity &&
+        count / ((double)SW * SH) >= GT_CULL_DEPTH) {
+      plan->cull = 1;
+      plan->uncut = count;
+      continue;
+    }
     if (count > max_nodes) {
       if (err) snprintf(err, errlen, "%u A-buffer fragments in %d row%s of %d pixels, more "
                         "than the %u one A-buffer holds: lower the supersampling or the "
@@ -756,15 +828,16 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     /* Whole 16x16 blocks: llvmpipe blends the lists of partially covered
      * 4x4 blocks wrongly (draw_fullscreen), so the target is grown to whole
      * blocks and only W x H is read back. */
-    rtex = make_tex(GL_TEXTURE_2D, GL_RGBA32F, (W + 15) & ~15, (H + 15) & ~15, 0);
+    rtex = hr_make_tex(GL_TEXTURE_2D, GL_RGBA32F, (W + 15) & ~15, (H + 15) & ~15, 0);
     hrgl.BindFramebuffer(GL_FRAMEBUFFER, fbo[1]);
     hrgl.FramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, rtex, 0);
     GLenum b0 = GL_COLOR_ATTACHMENT0;
     hrgl.DrawBuffers(1, &b0);
-    rc = fbo_complete("A-buffer resolve", err, errlen);
+    rc = hr_fbo_complete("A-buffer resolve", err, errlen);
   }
   float *tmp = NULL;
   int host = 0; /* lists too deep for the shader: blend on the host */
+  int deep = 0; /* that known before the shader's resolve */
   if (rc == HF_OK) {
     const float zero4[4] = {0, 0, 0, 0};
     hrgl.ClearBufferfv(GL_COLOR, 0, zero4);
@@ -773,12 +846,17 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     hr_set_i(&r->resolve_abuf, "u_width", SW);
     hr_set_2i(&r->resolve_abuf, "u_size", W, H);
     hr_set_u(&r->resolve_abuf, "u_capacity", capacity);
-    /* One draw per subsample, summed (see hr_glsl_resolve_abuf_fs). */
+    /* One draw per subsample, summed (see hr_glsl_resolve_abuf_fs). Lists
+     * longer than one round of its sort on average go to the host at once:
+     * the shader would sort most of them in several rounds, walking each
+     * list again per round, often up to its loop budget, then hand the
+     * window to the host all the same (5 of a dense 48x48 crop's 15 s). */
+    deep = count > (uint64_t)HR_ABUF_SORT * SW * SH;
     hrgl.Enable(GL_BLEND);
     hrgl.BlendFunc(GL_ONE, GL_ONE);
-    for (int sub = 0; sub < ss * ss; sub++) {
+    for (int sub = 0; sub < (deep ? 0 : ss * ss); sub++) {
       hr_set_i(&r->resolve_abuf, "u_sub", sub);
-      draw_fullscreen(r, &r->resolve_abuf, (W + 15) & ~15, (H + 15) & ~15);
+      hr_draw_fullscreen(r, &r->resolve_abuf, (W + 15) & ~15, (H + 15) & ~15);
       if (sub == 0) {
         /* A list too deep for the shader in the first subsample means the
          * host blends the window: the other subsamples' draws would only
@@ -803,7 +881,7 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[3]);
     hrgl.GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, sizeof st, st);
     rc = hr_gl_check("A-buffer resolve", err, errlen);
-    host = st[2] > 0;
+    host = deep || st[2] > 0;
     if (stats) {
       stats->gt_host_resolve = host;
       stats->gt_fragments = count;
@@ -875,24 +953,26 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
   return rc;
 }
 
-/* The window as bands of rows when its fragments do not fit one A-buffer:
- * as many bands as the count it measured needs at three quarters of an
- * A-buffer each (a band that still overflows is split again, down to single
- * rows), each drawn again with the A-buffer shader keeping only its own
- * rows' fragments. Every pixel's list is the same whichever band draws it,
- * so the result is the one a large enough A-buffer gives; each band costs
- * one more draw of the hair. */
-int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss, float *gt,
-               float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
+/* The window as bands of rows when its fragments do not fit one A-buffer,
+ * each drawn again with the A-buffer shader keeping only its own rows'
+ * fragments: behind a cut the window made (gt_plan), bands as large as the
+ * bounds of its rows allow, drawn against its depth; otherwise as many
+ * bands as the count it measured needs at three quarters of an A-buffer
+ * each. A band that still overflows is split again, down to single rows.
+ * Every pixel's list is the same whichever band draws it, so the result is
+ * the one a large enough A-buffer gives; each band costs one more draw of
+ * the hair. */
+static int gt_rows(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
+                   float *gt, float *cpu_gt, hfr_stats *stats, gt_plan plan, char *err,
+                   size_t errlen) {
   int W, H;
   uint32_t overflow = 0;
   hr_view_target(v, &W, &H);
   hfr_stats own = {0};
-  int rc = gt_window(r, v, light, ss, gt, cpu_gt, &own, &overflow, err, errlen);
+  uint64_t *const given = plan.rows; /* a band's: its window's, not freed here */
+  int rc = gt_window(r, v, light, ss, gt, cpu_gt, &own, &overflow, &plan, err, errlen);
   if (rc == HF_ERANGE && overflow && H > 1) {
-    const uint64_t per_band = (uint64_t)abuf_max_nodes(r) * 3 / 4 + 1;
-    uint64_t want = (overflow + per_band - 1) / per_band;
-    const int n = want < 2 ? 2 : want > (uint64_t)H ? H : (int)want;
+    const uint32_t max_nodes = abuf_max_nodes(r);
     hfr_view band = *v;
     if (band.crop_w <= 0) band.crop_x = 0, band.crop_y = 0, band.crop_w = W, band.crop_h = H;
     const int y0 = band.crop_y;
@@ -900,34 +980,63 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
      * growing it band by band would zero-fill it again and redraw each
      * band that outgrew it. */
     const double t_pool = hr_now_ms();
-    rc = abuf_reserve(r, abuf_max_nodes(r), err, errlen);
-    if (rc != HF_OK) return rc;
+    rc = abuf_reserve(r, max_nodes, err, errlen);
+    if (rc != HF_OK) {
+      if (!given) free(plan.rows);
+      return rc;
+    }
     const double tried = own.gt_ms + (hr_now_ms() - t_pool);
     own = (hfr_stats){0};
     own.gt_ms = tried;
-    rc = HF_OK;
-    for (int b = 0; rc == HF_OK && b < n; b++) {
+    /* Behind a cut made here, bands as full as each row's bound allows,
+     * drawn against that depth; else (or a band that still overflows) as
+     * many even bands as the count needs at three quarters of the pool. */
+    const int by_rows = plan.cull && plan.rows && !given;
+    const uint64_t per_band = (uint64_t)max_nodes * 3 / 4 + 1;
+    uint64_t want = (overflow + per_band - 1) / per_band;
+    const int n = want < 2 ? 2 : want > (uint64_t)H ? H : (int)want;
+    for (int b = 0, top = 0; rc == HF_OK && top < H; b++) {
+      int end;
+      if (by_rows) {
+        uint64_t sum = plan.rows[top];
+        for (end = top + 1; end < H && sum + plan.rows[end] <= max_nodes; end++)
+          sum += plan.rows[end];
+      } else {
+        end = (int)((int64_t)H * (b + 1) / n);
+      }
       /* Rows top first: gt and cpu_gt are [h][w][3]. */
-      const int top = (int)((int64_t)H * b / n), end = (int)((int64_t)H * (b + 1) / n);
       const size_t off = (size_t)3 * W * top;
       band.crop_y = y0 + top, band.crop_h = end - top;
+      gt_plan sub = {plan.cull, plan.cull && plan.rows, by_rows ? plan.rows + top : NULL, 0};
       hfr_stats part = {0};
-      rc = hr_pass_gt(r, &band, light, ss, gt + off, cpu_gt ? cpu_gt + off : NULL, &part, err,
-                      errlen);
+      rc = gt_rows(r, &band, light, ss, gt + off, cpu_gt ? cpu_gt + off : NULL, &part, sub,
+                   err, errlen);
       own.gt_ms += part.gt_ms;
       own.gt_fragments += part.gt_fragments;
       own.gt_max_depth = part.gt_max_depth > own.gt_max_depth ? part.gt_max_depth
                                                               : own.gt_max_depth;
       own.gt_truncated += part.gt_truncated;
       own.gt_host_resolve |= part.gt_host_resolve;
+      top = end;
     }
   }
+  if (!given) free(plan.rows);
+  /* Counted whole before the cull: what it kept out is the difference. */
+  if (rc == HF_OK && plan.uncut)
+    own.gt_culled = plan.uncut > own.gt_fragments ? plan.uncut - own.gt_fragments : 0;
   if (stats) {
     stats->gt_ms += own.gt_ms;
     stats->gt_fragments = own.gt_fragments;
     stats->gt_max_depth = own.gt_max_depth;
     stats->gt_truncated = own.gt_truncated;
     stats->gt_host_resolve = own.gt_host_resolve;
+    stats->gt_culled = own.gt_culled;
   }
   return rc;
+}
+
+int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss, float *gt,
+               float *cpu_gt, hfr_stats *stats, char *err, size_t errlen) {
+  const gt_plan plan = {r->gt_cull == HFR_GT_CULL_ON, 0, NULL, 0};
+  return gt_rows(r, v, light, ss, gt, cpu_gt, stats, plan, err, errlen);
 }

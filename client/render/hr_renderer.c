@@ -30,7 +30,7 @@ void hfr_renderer_destroy(hfr_renderer *r) {
   if (r->ctx && hr_renderer_bind(r) == HF_OK) {
     hr_program *progs[] = {&r->st,       &r->stac,     &r->shadow,     &r->abuf,
                            &r->head,     &r->occluder, &r->resolve_ms, &r->resolve_stac,
-                           &r->resolve_abuf};
+                           &r->resolve_abuf, &r->gt_near,   &r->gt_depths,   &r->gt_cut};
     for (size_t i = 0; i < sizeof progs / sizeof progs[0]; i++) hr_program_free(progs[i]);
     GLuint vaos[] = {r->hair_vao, r->head_vao, r->empty_vao};
     GLuint bufs[] = {r->hair_vbo, r->head_vbo};
@@ -132,6 +132,9 @@ int hfr_renderer_create(const char *platform, hfr_renderer **out, char *err, siz
     {&r->stac, hr_glsl_hair_vs, NULL, hr_glsl_stac_fs},
     {&r->shadow, hr_glsl_hair_vs, NULL, hr_glsl_shadow_fs},
     {&r->abuf, hr_glsl_hair_vs, NULL, hr_glsl_abuf_fs},
+    {&r->gt_near, hr_glsl_hair_vs, NULL, hr_glsl_gt_near_fs},
+    {&r->gt_depths, hr_glsl_hair_vs, NULL, hr_glsl_gt_depths_fs},
+    {&r->gt_cut, hr_glsl_fullscreen_vs, NULL, hr_glsl_gt_cut_fs},
     {&r->head, hr_glsl_head_vs, NULL, hr_glsl_head_fs},
     {&r->occluder, hr_glsl_head_vs, NULL, hr_glsl_occluder_fs},
     {&r->resolve_ms, hr_glsl_fullscreen_vs, NULL, hr_glsl_resolve_ms_fs},

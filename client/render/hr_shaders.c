@@ -279,6 +279,98 @@ const char hr_glsl_shadow_fs[] = GLSL_VERSION FS_COMMON
 "  if (!keep) discard;\n"
 "}\n";
 
+/* The ground truth's transmittance cull (hr_gt_cull.c), over the pixels
+ * [u_win_lo, u_win_hi) of the supersampled frame (a strip of the window;
+ * u_width its width), with the A-buffer's depth test (the occluder).
+ * cull_counts holds 9 words a pixel: the fragments of bins 2j and 2j + 1
+ * in the low and high halves of word j, and in word 8 every fragment. */
+#define CULL_COMMON                                                             \
+"layout(std430, binding = 4) buffer CullNear { uint cull_near[]; };\n"         \
+"layout(std430, binding = 5) buffer CullSums { uint cull_sums[]; };\n"         \
+"layout(std430, binding = 6) buffer CullCounts { uint cull_counts[]; };\n"     \
+"uniform ivec2 u_win_lo, u_win_hi;\n"                                          \
+"uniform int u_width;\n"                                                       \
+"/* The pixel's index in the strip, -1 outside it. */\n"                      \
+"int cull_pixel() {\n"                                                         \
+"  ivec2 q = ivec2(gl_FragCoord.xy);\n"                                        \
+"  if (any(lessThan(q, u_win_lo)) || any(greaterThanEqual(q, u_win_hi))) return -1;\n" \
+"  q -= u_win_lo;\n"                                                           \
+"  return q.y * u_width + q.x;\n"                                              \
+"}\n"
+
+/* Step 1: each pixel's nearest hair fragment, as the bits of its view
+ * distance (positive floats order as their bits do), and its fragments. */
+const char hr_glsl_gt_near_fs[] = GLSL_VERSION
+"layout(early_fragment_tests) in;\n"
+"in V { vec3 obj; vec3 wtan; vec3 vtan; float alpha; float vdist; flat uint strand; } vi;\n"
+CULL_COMMON
+"void main() {\n"
+"  int i = cull_pixel();\n"
+"  if (i < 0) return;\n"
+"  atomicMin(cull_near[i], floatBitsToUint(vi.vdist));\n"
+"  atomicAdd(cull_counts[9 * i + 8], 1u);\n"
+"}\n";
+
+/* Step 2: each fragment's optical depth -ln(1 - alpha), capped at 16 (an
+ * alpha of 1 is infinite), in fixed point (4096 to the unit, truncated: a
+ * sum never exceeds the true one), added to the first of 16 bins it lies
+ * in front of: view distance past the pixel's nearest fragment below
+ * u_edge times 2^(k/2), k = 0 .. 15; none past the last. Each bin also
+ * counts its fragments (16 bits: a count past 65535 spills into the next
+ * bin's, which only makes the estimate of step 3 larger). */
+const char hr_glsl_gt_depths_fs[] = GLSL_VERSION
+"layout(early_fragment_tests) in;\n"
+FS_COMMON CULL_COMMON
+"uniform float u_edge;\n"
+"void main() {\n"
+"  int i = cull_pixel();\n"
+"  if (i < 0) return;\n"
+"  float rel = vi.vdist - uintBitsToFloat(cull_near[i]);\n"
+"  int k = 0;\n"
+"  while (k < 16 && !(rel < u_edge * exp2(0.5 * float(k)))) k++;\n"
+"  if (k == 16) return;\n"
+"  float a = frag_alpha();\n"
+"  float od = a >= 1.0 ? 16.0 : min(-log(1.0 - a), 16.0);\n"
+"  atomicAdd(cull_sums[16 * i + k], uint(od * 4096.0));\n"
+"  atomicAdd(cull_counts[9 * i + k / 2], 1u << (16 * (k & 1)));\n"
+"}\n";
+
+/* Step 3, a full-frame pass over the A-buffer's depth (LESS): at each
+ * pixel of the strip, the first bound k (of 0 .. 14) whose bins sum to
+ * u_tau (fixed point) or more, plus u_margin, as a window depth (z_ndc =
+ * u_p14 / d - u_p10), so that the A-buffer's early depth test keeps out
+ * what lies behind it. Nothing is written where no bound reaches u_tau or
+ * where the bound leaves [u_near_lim, u_far_lim), the depth feature's
+ * range (depth01 would clamp there and order equal depths by index). Word
+ * 8 of the pixel's counts becomes how many fragments the A-buffer will
+ * hold there at most: those of bins 0 .. k + 1 (the margin lies inside bin
+ * k + 1), or all of them where nothing is cut. */
+const char hr_glsl_gt_cut_fs[] = GLSL_VERSION
+CULL_COMMON
+"uniform uint u_tau;\n"
+"uniform float u_p10, u_p14, u_edge, u_margin, u_near_lim, u_far_lim;\n"
+"uint bin_count(int i, int k) { return (cull_counts[9 * i + k / 2] >> (16 * (k & 1))) & 0xFFFFu; }\n"
+"void main() {\n"
+"  int i = cull_pixel();\n"
+"  if (i < 0) discard;\n"
+"  uint nb = cull_near[i];\n"
+"  if (nb == 0xFFFFFFFFu) discard;   /* no hair fragment */\n"
+"  uint cum = 0u, kept = 0u;\n"
+"  int k = 0;\n"
+"  for (; k < 15; k++) {\n"
+"    uint c = cum + cull_sums[16 * i + k];\n"
+"    cum = c < cum ? 0xFFFFFFFFu : c;\n"
+"    kept += bin_count(i, k);\n"
+"    if (cum >= u_tau) break;\n"
+"  }\n"
+"  float dn = uintBitsToFloat(nb);\n"
+"  float dc = dn + u_edge * exp2(0.5 * float(k)) + u_margin;\n"
+"  if (k == 15 || !(dn >= u_near_lim) || !(dc < u_far_lim)) discard;\n"
+"  kept += bin_count(i, k + 1);\n"
+"  if (kept < cull_counts[9 * i + 8]) cull_counts[9 * i + 8] = kept;\n"
+"  gl_FragDepth = clamp((u_p14 / dc - u_p10) * 0.5 + 0.5, 0.0, 1.0);\n"
+"}\n";
+
 const char hr_glsl_abuf_fs[] = GLSL_VERSION FS_COMMON
 "layout(early_fragment_tests) in;   /* the head's depth culls before insertion */\n"
 "struct Node { float c, h, a, d; uint next; };\n"
@@ -294,10 +386,10 @@ const char hr_glsl_abuf_fs[] = GLSL_VERSION FS_COMMON
 "   * count and store its neighbours' fragments too. */\n"
 "  ivec2 q = ivec2(gl_FragCoord.xy);\n"
 "  if (any(lessThan(q, u_win_lo)) || any(greaterThanEqual(q, u_win_hi))) return;\n"
-"  float c, h;\n"
-"  shade(c, h);\n"
 "  uint i = atomicCounterIncrement(u_count);\n"
 "  if (i >= u_capacity) return;   /* counted: the host grows the pool and redraws */\n"
+"  float c, h;\n"
+"  shade(c, h);\n"
 "  nodes[i].c = c; nodes[i].h = h; nodes[i].a = frag_alpha(); nodes[i].d = depth01();\n"
 "  ivec2 p = ivec2(gl_FragCoord.xy) - u_win_lo;\n"
 "  nodes[i].next = atomicExchange(heads[p.y * u_width + p.x], i);\n"

@@ -11,6 +11,11 @@ extern const char hr_glsl_st_fs[];
 extern const char hr_glsl_shadow_fs[];
 /* A-buffer insertion. */
 extern const char hr_glsl_abuf_fs[];
+/* The ground truth's transmittance cull: nearest depth, optical depth
+ * sums, cut depth (hr_gt_cull.c). */
+extern const char hr_glsl_gt_near_fs[];
+extern const char hr_glsl_gt_depths_fs[];
+extern const char hr_glsl_gt_cut_fs[];
 extern const char hr_glsl_stac_fs[];
 /* The occluder: opaque depth (head_fs), and its diffuse shading in the
  * background layer (occluder_fs). */

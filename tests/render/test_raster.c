@@ -367,6 +367,99 @@ static void test_gt_dense(void **state) {
   free(cpu);
 }
 
+/* max |a - b| over the premultiplied colour, highlight and alpha of n
+ * pixels [n][3]. */
+static double premultiplied_diff(const float *a, const float *b, size_t n) {
+  double d = 0;
+  for (size_t i = 0; i < n; i++) {
+    const float *p = a + 3 * i, *q = b + 3 * i;
+    d = fmax(d, fabs(p[2] - q[2]));
+    for (int k = 0; k < 2; k++) d = fmax(d, fabs(p[k] * p[2] - q[k] * q[2]));
+  }
+  return d;
+}
+
+/* The transmittance cull (hr_gt_cull.c) on hair dense and wide enough that
+ * most of each list lies behind a hundred strands: it keeps most fragments
+ * out of the A-buffer and moves the truth by less than float rounding,
+ * whether it draws the window from the start (HFR_GT_CULL_ON), turns on
+ * when a window must be drawn again with deep lists (AUTO, here in bands
+ * planned by its per-row bounds) or draws a crop; off, every fragment is
+ * stored. */
+static void test_gt_cull(void **state) {
+  (void)state;
+  hfr_view v;
+  hr_camera light;
+  hfr_style_params p;
+  hfr_style_defaults(HFR_STYLE_PONYTAIL, &p);
+  p.strands = 20000, p.seed = 3, p.opacity = 0.6f;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+  char err[512] = "";
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 1, err, sizeof err), HF_OK);
+  hfr_hair_free(&h);
+  hfr_view_defaults(&v);
+  v.width = W, v.height = H, v.shadow_size = 0;
+  v.thickness_scale = 40; /* strands a few supersampled pixels wide */
+  v.cam_yaw_deg = 90;     /* the tail's side: a hundred strands deep */
+  hr_camera_light(R, &v, &light);
+  const size_t n = (size_t)3 * W * H;
+  float *off = malloc(sizeof(float) * n), *off_cpu = malloc(sizeof(float) * n),
+        *on = malloc(sizeof(float) * n), *on_cpu = malloc(sizeof(float) * n),
+        *aut = malloc(sizeof(float) * n);
+  assert_true(off && off_cpu && on && on_cpu && aut);
+  const uint32_t saved = R->max_fragments;
+  const int saved_cull = R->gt_cull;
+  R->max_fragments = 0;
+  hfr_stats s_off = {0}, s_on = {0}, s_auto = {0};
+  R->gt_cull = HFR_GT_CULL_OFF;
+  if (hr_pass_gt(R, &v, &light, 4, off, off_cpu, &s_off, err, sizeof err) != HF_OK)
+    fail_msg("gt, no cull: %s", err);
+  R->gt_cull = HFR_GT_CULL_ON;
+  if (hr_pass_gt(R, &v, &light, 4, on, on_cpu, &s_on, err, sizeof err) != HF_OK)
+    fail_msg("gt, cull: %s", err);
+  const double d_gpu = premultiplied_diff(on, off, (size_t)W * H),
+               d_cpu = premultiplied_diff(on_cpu, off_cpu, (size_t)W * H);
+  print_message("%llu fragments, %llu behind the cut (deepest list %u, then %u): max |cut - "
+                "all| %.2e, host blend %.2e\n", (unsigned long long)s_off.gt_fragments,
+                (unsigned long long)s_on.gt_fragments, s_off.gt_max_depth, s_on.gt_max_depth,
+                d_gpu, d_cpu);
+  assert_int_equal(s_off.gt_culled, 0);
+  assert_true((double)s_off.gt_fragments / (4.0 * W * 4.0 * H) >= 8); /* deep lists */
+  assert_true(s_on.gt_fragments < s_off.gt_fragments / 2);
+  assert_true(d_cpu < 1e-9);
+  assert_true(d_gpu < 1e-5);
+  /* AUTO with a pool too small for the window: counted, cut, banded. */
+  R->gt_cull = HFR_GT_CULL_AUTO;
+  R->max_fragments = (uint32_t)(s_on.gt_fragments / 3);
+  if (hr_pass_gt(R, &v, &light, 4, aut, NULL, &s_auto, err, sizeof err) != HF_OK)
+    fail_msg("gt, cull turned on, bands: %s", err);
+  print_message("auto, in bands of at most %u: %llu fragments stored, %llu culled, max |auto "
+                "- cut| %.2e\n", R->max_fragments, (unsigned long long)s_auto.gt_fragments,
+                (unsigned long long)s_auto.gt_culled, premultiplied_diff(aut, on, (size_t)W * H));
+  assert_int_equal(s_auto.gt_fragments, s_on.gt_fragments);
+  assert_int_equal(s_auto.gt_culled, s_off.gt_fragments - s_on.gt_fragments);
+  assert_true(premultiplied_diff(aut, on, (size_t)W * H) < 1e-5);
+  /* A crop behind its own cut: the same as that window of the frame. */
+  R->gt_cull = HFR_GT_CULL_ON;
+  R->max_fragments = 0;
+  hfr_view cv = v;
+  cv.crop_x = 20, cv.crop_y = 12, cv.crop_w = 24, cv.crop_h = 30;
+  hfr_stats s_crop = {0};
+  if (hr_pass_gt(R, &cv, &light, 4, aut, NULL, &s_crop, err, sizeof err) != HF_OK)
+    fail_msg("gt of a crop, cull: %s", err);
+  double d_crop = 0;
+  for (int y = 0; y < cv.crop_h; y++)
+    d_crop = fmax(d_crop, premultiplied_diff(aut + (size_t)3 * y * cv.crop_w,
+                                             on + 3 * ((size_t)(cv.crop_y + y) * W + cv.crop_x),
+                                             (size_t)cv.crop_w));
+  print_message("crop %dx%d: max |crop - frame| %.2e\n", cv.crop_w, cv.crop_h, d_crop);
+  assert_true(d_crop < 1e-5);
+  R->gt_cull = saved_cull;
+  R->max_fragments = saved;
+  free(off), free(off_cpu), free(on), free(on_cpu), free(aut);
+}
+
 /* The pool of A-buffer nodes is the renderer's, grown once and kept: a
  * second ground truth of the same window allocates nothing (llvmpipe
  * zero-fills every new buffer) and is the same to the bit, with the same
@@ -943,6 +1036,7 @@ int main(void) {
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_gt_bands),
+    cmocka_unit_test(test_gt_cull),
     cmocka_unit_test(test_gt_pool),
     cmocka_unit_test(test_gt_grid),
     cmocka_unit_test(test_varying_width_alpha_range),
