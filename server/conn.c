@@ -1316,6 +1316,15 @@ void hfd_conn_close(hfd_conn *c) {
     hfd_seg_drop(c->srv, g);
   }
   c->num_segs = 0;
+  /* Its frames still queued would run for no one (deliver drops their
+   * results) while other clients are refused BUSY for the places. */
+  if (c->inflight > 0) {
+    int n = hfd_worker_drop_conn(&c->srv->worker, c);
+    char kv[300];
+    if (n > 0 && log_allowed())
+      hfd_log("%d queued frame%s dropped unrun, the peer gone%s", n, n == 1 ? "" : "s",
+              conn_kv(c, kv, sizeof kv));
+  }
   uv_close(&c->h.handle, on_closed);
 }
 

@@ -325,6 +325,11 @@ void hfd_ctl_free_list(hfd_ctl *c);
 /* Fails every queued job with HFP_E_SHUTTING_DOWN (the batch being formed
  * is failed by the worker, which sees cancel). */
 void hfd_worker_cancel(hfd_worker *w);
+/* Takes conn's queued frames (not those in a batch being formed or run)
+ * off the queue and completes them unrun: their connection is gone, so
+ * nothing would read their results, and they would hold queue places and
+ * memory other clients are refused for. Loop thread; returns how many. */
+int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn);
 /* Asks the thread to exit once the queue is empty, and joins it; models
  * still built are destroyed there. */
 void hfd_worker_stop(hfd_worker *w);

@@ -728,6 +728,40 @@ void hfd_worker_cancel(hfd_worker *w) {
   (void)n;
 }
 
+int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn) {
+  hfd_job *dropped = NULL, **tail = &dropped;
+  int n = 0;
+  pthread_mutex_lock(&w->mu);
+  hfd_job *prev = NULL;
+  for (hfd_job *j = w->q_head, *next; j; j = next) {
+    next = j->next;
+    if (j->conn != conn) {
+      prev = j;
+      continue;
+    }
+    if (prev)
+      prev->next = next;
+    else
+      w->q_head = next;
+    if (w->q_tail == j) w->q_tail = prev;
+    w->q_len--;
+    j->next = NULL;
+    *tail = j;
+    tail = &j->next;
+    n++;
+  }
+  pthread_mutex_unlock(&w->mu);
+  for (hfd_job *j = dropped, *next; j; j = next) {
+    next = j->next;
+    j->status = HFP_E_SHUTTING_DOWN; /* never written: its connection is gone */
+    j->t_started = j->t_done = hfd_now_us();
+    j->batch = 0;
+    hfd_job *one[1] = {j};
+    complete(w, one, 1);
+  }
+  return n;
+}
+
 void hfd_worker_stop(hfd_worker *w) {
   pthread_mutex_lock(&w->mu);
   w->stop = 1;

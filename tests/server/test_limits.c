@@ -13,6 +13,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <poll.h>
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -783,6 +784,63 @@ static void test_batcher_frames_are_queued(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* Item: frames still queued when their connection goes are dropped unrun
+ * (docs/SERVER.md, "Limits and backpressure"): nothing would read their
+ * results, and their places and memory would be refused to other clients
+ * until the worker had run them for no one. One connection's frame waits
+ * in the batcher for a partner (--max-batch 2, a delay of 10 s); another
+ * connection queues 4 frames of another size behind it and closes with a
+ * STATS_REPLY unread, which resets the connection (a plain close looks
+ * like a half-close, which is answered: PROTOCOL.md): STATS' queue_depth
+ * falls from 5 to 1 at once, the log says so, and the first connection's
+ * batch still runs and answers when its partner comes. */
+static void test_gone_connection_frames_dropped(void **state) {
+  (void)state;
+  enum { W = 24 };
+  server d;
+  const char *args[] = {"--max-batch", "2", "--max-queue-delay-us", "10000000", NULL};
+  hfc_client *c;
+  assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
+  int fd[2];
+  for (int k = 0; k < 2; k++) {
+    fd[k] = raw_connect(d.unix_url);
+    assert_true(fd[k] >= 0);
+    assert_int_equal(raw_hello(fd[k], NULL), 0);
+  }
+  send_small(fd[0], 1, W, W);
+  expect_queue_depth(c, 1, "a frame in the batcher");
+  uint8_t stats[HFP_HEADER_SIZE];
+  hfp_header_encode(&(hfp_header){HFP_STATS, 0, 9, 0}, stats);
+  assert_int_equal(raw_send(fd[1], stats, sizeof stats), 0);
+  struct pollfd pf = {fd[1], POLLIN, 0};
+  assert_int_equal(poll(&pf, 1, 5000), 1); /* the reply is there, left unread */
+  for (uint32_t id = 1; id <= 4; id++) send_small(fd[1], id, W + 8, W);
+  expect_queue_depth(c, 5, "4 frames of another size queued behind it");
+  close(fd[1]);
+  expect_queue_depth(c, 1, "their connection closed");
+  for (int waited = 0; !server_log_has(&d, "4 queued frames dropped unrun"); waited += 10) {
+    if (waited > 2000) {
+      server_dump_log(&d);
+      fail_msg("no log line for the 4 frames dropped");
+    }
+    usleep(10000);
+  }
+  send_small(fd[0], 2, W, W);
+  int code = 0;
+  hfp_result r;
+  uint8_t *p;
+  for (uint32_t id = 1; id <= 2; id++) {
+    assert_int_equal(read_reply(fd[0], id, &code, &r, &p), HFP_RESULT);
+    free(p);
+    assert_int_equal(r.status, 0);
+    assert_int_equal(r.batch, 2);
+  }
+  expect_queue_depth(c, 0, "every frame answered or dropped");
+  close(fd[0]);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_batches_form_within_budget),
@@ -791,6 +849,7 @@ int main(void) {
     cmocka_unit_test(test_queue_share_within_window),
     cmocka_unit_test(test_queue_shared),
     cmocka_unit_test(test_batcher_frames_are_queued),
+    cmocka_unit_test(test_gone_connection_frames_dropped),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
     cmocka_unit_test(test_slow_senders_hold_what_they_sent),
