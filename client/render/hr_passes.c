@@ -651,7 +651,7 @@ typedef struct gt_plan {
                       * depth over it (occluder and cut) */
   uint64_t *rows;    /* [h], rows top first: a bound on each row's A-buffer
                       * fragments behind the cut, once known; else NULL */
-  uint32_t uncut;    /* fragments counted before the cut (0: none) */
+  uint64_t uncut;    /* fragments counted before the cut (0: none) */
 } gt_plan;
 
 /* The ground truth of v's window in one A-buffer. *overflow is set to the
@@ -661,7 +661,7 @@ typedef struct gt_plan {
  * it must be drawn again (HFR_GT_CULL_AUTO) with lists GT_CULL_DEPTH deep;
  * the cull then sets plan->rows (the caller frees it). */
 static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int ss,
-                     float *gt, float *cpu_gt, hfr_stats *stats, uint32_t *overflow,
+                     float *gt, float *cpu_gt, hfr_stats *stats, uint64_t *overflow,
                      gt_plan *plan, char *err, size_t errlen) {
   int W, H;
   hr_view_target(v, &W, &H);
@@ -718,18 +718,19 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     for (int y = 0; y < H; y++) n += plan->rows[y];
     capacity = n < ABUF_MIN_NODES ? ABUF_MIN_NODES : n > max_nodes ? max_nodes : (uint32_t)n;
   }
-  uint32_t count = 0;
+  uint64_t count = 0;
   double t0 = hr_now_ms();
   int depth_made = plan->depth_ready, cut = plan->depth_ready && plan->cull;
   for (int attempt = 0; rc == HF_OK && attempt < 3; attempt++) {
     if ((rc = abuf_reserve(r, capacity, err, errlen)) != HF_OK) break;
     bufs[1] = r->abuf_nodes;
-    const uint32_t empty = 0xFFFFFFFFu, zero = 0;
+    const uint32_t empty = 0xFFFFFFFFu;
     hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
     hrgl.ClearBufferData(GL_SHADER_STORAGE_BUFFER, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT,
                          &empty);
+    const uint32_t zero2[2] = {0, 0};
     hrgl.BindBuffer(GL_ATOMIC_COUNTER_BUFFER, bufs[2]);
-    hrgl.BufferData(GL_ATOMIC_COUNTER_BUFFER, 4, &zero, GL_DYNAMIC_COPY);
+    hrgl.BufferData(GL_ATOMIC_COUNTER_BUFFER, sizeof zero2, zero2, GL_DYNAMIC_COPY);
     hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, bufs[0]);
     hrgl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, bufs[1]);
     hrgl.BindBufferBase(GL_ATOMIC_COUNTER_BUFFER, 0, bufs[2]);
@@ -796,8 +797,12 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     hr_scissor_off();
     hrgl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_ATOMIC_COUNTER_BARRIER_BIT |
                        GL_BUFFER_UPDATE_BARRIER_BIT);
+    /* Fragments counted, and how often the 32-bit counter went round: a
+     * dense 512x512 window at 8x8 draws more than 2^32. */
+    uint32_t cw[2] = {0, 0};
     hrgl.BindBuffer(GL_ATOMIC_COUNTER_BUFFER, bufs[2]);
-    hrgl.GetBufferSubData(GL_ATOMIC_COUNTER_BUFFER, 0, 4, &count);
+    hrgl.GetBufferSubData(GL_ATOMIC_COUNTER_BUFFER, 0, sizeof cw, cw);
+    count = (uint64_t)cw[1] << 32 | cw[0];
     rc = hr_gl_check("A-buffer pass", err, errlen);
     if (rc != HF_OK) break;
     /* Lists deep enough to be drawn again: again behind the cull. */
@@ -808,16 +813,17 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
       continue;
     }
     if (count > max_nodes) {
-      if (err) snprintf(err, errlen, "%u A-buffer fragments in %d row%s of %d pixels, more "
+      if (err) snprintf(err, errlen, "%llu A-buffer fragments in %d row%s of %d pixels, more "
                         "than the %u one A-buffer holds: lower the supersampling or the "
-                        "strand count", count, H, H == 1 ? "" : "s", W, max_nodes);
+                        "strand count", (unsigned long long)count, H, H == 1 ? "" : "s", W,
+                        max_nodes);
       *overflow = count;
       rc = HF_ERANGE;
       break;
     }
     if (count <= capacity) break;
     /* Too small: grow to what was counted and draw again. */
-    capacity = count + count / 16 > max_nodes ? max_nodes : count + count / 16;
+    capacity = count + count / 16 > max_nodes ? max_nodes : (uint32_t)(count + count / 16);
   }
 
   if (rc == HF_OK) {
@@ -926,7 +932,8 @@ static int gt_window(hfr_renderer *r, const hfr_view *v, const hr_camera *light,
     uint32_t depth = 0;
     uint64_t longs = 0;
     if (rc == HF_OK)
-      rc = hr_abuf_blend_cpu(heads, (size_t)SW, nodes, count, W, H, ss, cpu, &depth, &longs);
+      rc = hr_abuf_blend_cpu(heads, (size_t)SW, nodes, (uint32_t)count, W, H, ss, cpu, &depth,
+                             &longs);
     if (heads) {
       hrgl.BindBuffer(GL_SHADER_STORAGE_BUFFER, bufs[0]);
       hrgl.UnmapBuffer(GL_SHADER_STORAGE_BUFFER);
@@ -966,7 +973,7 @@ static int gt_rows(hfr_renderer *r, const hfr_view *v, const hr_camera *light, i
                    float *gt, float *cpu_gt, hfr_stats *stats, gt_plan plan, char *err,
                    size_t errlen) {
   int W, H;
-  uint32_t overflow = 0;
+  uint64_t overflow = 0;
   hr_view_target(v, &W, &H);
   hfr_stats own = {0};
   uint64_t *const given = plan.rows; /* a band's: its window's, not freed here */
