@@ -370,8 +370,8 @@ typedef struct hfr_stats {
   uint64_t gt_truncated;        /* subsamples sorted in more than one round */
   int gt_host_resolve;          /* lists too deep for the GPU resolve: blended on the host */
   /* Fragments the transmittance cull kept out of the A-buffer (each behind
-   * an optical depth of at least 30: weight under e^-30 in its subsample)
-   * in windows counted whole before it was used; 0 when none was. */
+   * an optical depth of at least 30: weight under e^-30 in its subsample,
+   * all of them together too); 0 when it was not used. */
   uint64_t gt_culled;
   /* How many of the 4 MSAA sample positions are sub-pixel centres of the
    * ground truth (hfr_gt_shared_positions): 0 when there is no truth, -1

@@ -42,8 +42,10 @@ static void clip_of(const hr_camera *cam, const float p[3], float e[4], float c[
  * arithmetic cannot place (a point at or behind the eye, infinite or NaN
  * coordinates) gets the whole plane. */
 static void segment_bounds(const hr_camera *cam, float thick_scale, const float *a,
-                           const float *b, float out[4]) {
-  float lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY}, half = 0;
+                           const float *b, float out[4], float *area) {
+  float lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY}, half = 0, wsum = 0;
+  float sp[2][2];
+  *area = 0;
   const float *pt[2] = {a, b};
   for (int k = 0; k < 2; k++) {
     float e[4], c[4];
@@ -58,6 +60,7 @@ static void segment_bounds(const hr_camera *cam, float thick_scale, const float 
       return;
     }
     half = m > half ? m : half;
+    wsum += m, sp[k][0] = s[0], sp[k][1] = s[1];
     for (int i = 0; i < 2; i++) {
       lo[i] = s[i] < lo[i] ? s[i] : lo[i];
       hi[i] = s[i] > hi[i] ? s[i] : hi[i];
@@ -65,6 +68,8 @@ static void segment_bounds(const hr_camera *cam, float thick_scale, const float 
   }
   const float r = 0.5f * half + WINDOW_MARGIN;
   out[0] = lo[0] - r, out[1] = lo[1] - r, out[2] = hi[0] + r, out[3] = hi[1] + r;
+  /* The quad: the projected length times the mean of its end widths. */
+  *area = hypotf(sp[1][0] - sp[0][0], sp[1][1] - sp[0][1]) * 0.5f * wsum;
 }
 
 /* What the segments' bounds depend on: the camera without its window,
@@ -87,7 +92,7 @@ static void bounds_chunk(void *arg, int worker, size_t i0, size_t i1) {
   const bounds_job *j = arg;
   for (size_t i = i0; i < i1; i++)
     segment_bounds(j->cam, j->thick_scale, j->r->cull_pts + 4 * i, j->r->cull_pts + 4 * (i + 1),
-                   j->r->seg_bounds + 4 * i);
+                   j->r->seg_bounds + 4 * i, j->r->seg_area + i);
 }
 
 /* r->seg_bounds for cam and thick_scale: computed once, on every core,
@@ -101,6 +106,10 @@ static int ensure_bounds(hfr_renderer *r, const hr_camera *cam, float thick_scal
   if (!r->seg_bounds) {
     r->seg_bounds = malloc(sizeof(float) * 4 * (r->points ? r->points : 1));
     if (!r->seg_bounds) return HF_ENOMEM;
+  }
+  if (!r->seg_area) {
+    r->seg_area = malloc(sizeof(float) * (r->points ? r->points : 1));
+    if (!r->seg_area) return HF_ENOMEM;
   }
   bounds_job j = {r, cam, thick_scale};
   hf_parallel_chunks(segs, 1 << 14, 1 << 16, bounds_chunk, &j);
@@ -147,5 +156,26 @@ int hr_hair_window_runs(hfr_renderer *r, const hr_camera *cam, float thick_scale
   }
   if (open && push_run(r, &n, first, end) != HF_OK) return HF_ENOMEM;
   *n_runs = n;
+  return HF_OK;
+}
+
+int hr_hair_window_fragments(hfr_renderer *r, const hr_camera *cam, float thick_scale,
+                             double *frags) {
+  *frags = 0;
+  if (!r->cull_pts || !r->strand_first || r->points < 2) return HF_EINVAL;
+  if (ensure_bounds(r, cam, thick_scale) != HF_OK) return HF_ENOMEM;
+  const double x0 = cam->win_x, y0 = cam->win_y;
+  const double x1 = cam->win_x + cam->win_w, y1 = cam->win_y + cam->win_h;
+  double sum = 0;
+  for (uint32_t s = 0; s < r->strands; s++)
+    for (uint32_t i = r->strand_first[s]; i + 1 < r->strand_first[s + 1]; i++) {
+      const float *b = r->seg_bounds + 4 * (size_t)i;
+      if (!(r->seg_area[i] > 0) || b[2] < x0 || b[0] > x1 || b[3] < y0 || b[1] > y1) continue;
+      /* The share of its bounds inside the window. */
+      const double w = (double)b[2] - b[0], h = (double)b[3] - b[1];
+      const double iw = fmin(b[2], x1) - fmax(b[0], x0), ih = fmin(b[3], y1) - fmax(b[1], y0);
+      if (w > 0 && h > 0 && iw > 0 && ih > 0) sum += r->seg_area[i] * (iw / w) * (ih / h);
+    }
+  *frags = sum;
   return HF_OK;
 }

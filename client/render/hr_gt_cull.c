@@ -54,7 +54,8 @@ static void set_strip(const hr_program *p, const hr_camera *s) {
 }
 
 int hr_gt_cull(hfr_renderer *r, const hfr_view *v, const hr_camera *cam, GLuint depth_fbo,
-               uint64_t *row_frags, char *err, size_t errlen) {
+               uint64_t *row_frags, uint64_t *uncut, char *err, size_t errlen) {
+  *uncut = 0;
   const int W = cam->win_w, H = cam->win_h;
   const size_t px_bytes = sizeof(uint32_t) * (1 + CULL_BINS + CULL_COUNT_WORDS);
   size_t rows = CULL_STRIP_BYTES / ((size_t)W * px_bytes);
@@ -135,7 +136,10 @@ int hr_gt_cull(hfr_renderer *r, const hfr_view *v, const hr_camera *cam, GLuint 
     if (cnt) {
       for (int y = 0; y < strip.win_h; y++) {
         uint64_t n = 0;
-        for (int x = 0; x < W; x++) n += cnt[((size_t)y * W + x) * CULL_COUNT_WORDS + 8];
+        for (int x = 0; x < W; x++) {
+          const uint32_t *w = cnt + ((size_t)y * W + x) * CULL_COUNT_WORDS;
+          n += w[0], *uncut += w[8];
+        }
         row_frags[y0 + y] = n;
       }
       hrgl.UnmapBuffer(GL_SHADER_STORAGE_BUFFER);

@@ -87,6 +87,7 @@ struct hfr_renderer {
    * bands of a ground truth, the passes of a crop); bounds_valid 0 when
    * stale. */
   float *seg_bounds;
+  float *seg_area;              /* each segment's quad in pixels ([points - 1]) */
   float bounds_key[HR_BOUNDS_KEY];
   int bounds_valid;
   uint32_t max_fragments;       /* hfr_outputs.max_fragments of the frame drawn */
@@ -140,6 +141,13 @@ void hr_camera_light(const hfr_renderer *r, const hfr_view *v, hr_camera *cam);
  * HF_ENOMEM (r->runs kept as it was, *n_runs 0). */
 int hr_hair_window_runs(hfr_renderer *r, const hr_camera *cam, float thick_scale,
                         size_t *n_runs);
+/* An estimate of the fragments r's hair draws into cam's window, pixels of
+ * its quads (projected length times width, at least a pixel wide) where
+ * their bounds overlap the window, the occluder not counted: what a
+ * window's depth complexity will be before it is drawn. HF_OK, HF_EINVAL
+ * (no hair set) or HF_ENOMEM. */
+int hr_hair_window_fragments(hfr_renderer *r, const hr_camera *cam, float thick_scale,
+                             double *frags);
 
 /* Passes (hr_passes.c). */
 /* A texture of one level (GL_TEXTURE_2D, nearest filtering) or a
@@ -189,10 +197,11 @@ int hr_pass_gt(hfr_renderer *r, const hfr_view *v, const hr_camera *light, int s
  * so that the A-buffer's early depth test keeps them out. v: the view
  * drawn (thickness scale). row_frags [cam->win_h], rows bottom first: at
  * least the fragments the A-buffer will then hold in each supersampled
- * row. Leaves depth_fbo bound, the depth test and the scissor off; uses
- * storage buffer bindings 4 to 6. HF_OK, or HF_EBACKEND with err set. */
+ * row; *uncut: the window's fragments before the cut. Leaves depth_fbo
+ * bound, the depth test and the scissor off; uses storage buffer bindings
+ * 4 to 6. HF_OK, or HF_EBACKEND with err set. */
 int hr_gt_cull(hfr_renderer *r, const hfr_view *v, const hr_camera *cam, GLuint depth_fbo,
-               uint64_t *row_frags, char *err, size_t errlen);
+               uint64_t *row_frags, uint64_t *uncut, char *err, size_t errlen);
 /* ln(1 / transmittance) in front of a fragment the cull keeps out: each
  * such fragment, and all of them together, weigh less than e^-30 (1e-13)
  * in their subsample's blend. */

@@ -47,6 +47,7 @@ void hfr_renderer_destroy(hfr_renderer *r) {
   free(r->strand_first);
   free(r->runs);
   free(r->seg_bounds);
+  free(r->seg_area);
   free(r);
 }
 
@@ -240,7 +241,8 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
   /* Every point's position and diameter, and where each strand starts, for
    * drawing a window's instances only (hr_hair_window_runs). */
   free(r->seg_bounds); /* sized for the model before: made again when needed */
-  r->seg_bounds = NULL, r->bounds_valid = 0;
+  free(r->seg_area);
+  r->seg_bounds = NULL, r->seg_area = NULL, r->bounds_valid = 0;
   float *cp = realloc(r->cull_pts, sizeof(float) * 4 * (size_t)h->points);
   if (cp) r->cull_pts = cp;
   uint32_t *sf = cp ? realloc(r->strand_first, sizeof(uint32_t) * ((size_t)h->strands + 1)) : NULL;

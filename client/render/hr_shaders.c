@@ -342,9 +342,9 @@ FS_COMMON CULL_COMMON
  * what lies behind it. Nothing is written where no bound reaches u_tau or
  * where the bound leaves [u_near_lim, u_far_lim), the depth feature's
  * range (depth01 would clamp there and order equal depths by index). Word
- * 8 of the pixel's counts becomes how many fragments the A-buffer will
+ * 0 of the pixel's counts becomes how many fragments the A-buffer will
  * hold there at most: those of bins 0 .. k + 1 (the margin lies inside bin
- * k + 1), or all of them where nothing is cut. */
+ * k + 1), or all of them (word 8) where nothing is cut. */
 const char hr_glsl_gt_cut_fs[] = GLSL_VERSION
 CULL_COMMON
 "uniform uint u_tau;\n"
@@ -353,8 +353,7 @@ CULL_COMMON
 "void main() {\n"
 "  int i = cull_pixel();\n"
 "  if (i < 0) discard;\n"
-"  uint nb = cull_near[i];\n"
-"  if (nb == 0xFFFFFFFFu) discard;   /* no hair fragment */\n"
+"  uint nb = cull_near[i], total = cull_counts[9 * i + 8];\n"
 "  uint cum = 0u, kept = 0u;\n"
 "  int k = 0;\n"
 "  for (; k < 15; k++) {\n"
@@ -364,10 +363,11 @@ CULL_COMMON
 "    if (cum >= u_tau) break;\n"
 "  }\n"
 "  float dn = uintBitsToFloat(nb);\n"
-"  float dc = dn + u_edge * exp2(0.5 * float(k)) + u_margin;\n"
-"  if (k == 15 || !(dn >= u_near_lim) || !(dc < u_far_lim)) discard;\n"
-"  kept += bin_count(i, k + 1);\n"
-"  if (kept < cull_counts[9 * i + 8]) cull_counts[9 * i + 8] = kept;\n"
+"  float dc = dn + u_edge * exp2(0.5 * float(min(k, 14))) + u_margin;\n"
+"  bool cut = nb != 0xFFFFFFFFu && k < 15 && dn >= u_near_lim && dc < u_far_lim;\n"
+"  if (cut) kept += bin_count(i, k + 1);\n"
+"  cull_counts[9 * i] = cut ? min(kept, total) : total;\n"
+"  if (!cut) discard;\n"
 "  gl_FragDepth = clamp((u_p14 / dc - u_p10) * 0.5 + 0.5, 0.0, 1.0);\n"
 "}\n";
 

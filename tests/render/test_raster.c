@@ -425,7 +425,18 @@ static void test_gt_cull(void **state) {
                 (unsigned long long)s_on.gt_fragments, s_off.gt_max_depth, s_on.gt_max_depth,
                 d_gpu, d_cpu);
   assert_int_equal(s_off.gt_culled, 0);
+  assert_int_equal(s_on.gt_culled, s_off.gt_fragments - s_on.gt_fragments);
   assert_true((double)s_off.gt_fragments / (4.0 * W * 4.0 * H) >= 8); /* deep lists */
+  /* The estimate auto chooses by before a window's first draw: its quads,
+   * the occluder left out, so at least what is drawn, and not far above. */
+  hfr_view sv = v;
+  sv.width *= 4, sv.height *= 4;
+  hr_camera scam;
+  hr_camera_from_view(R, &sv, &scam);
+  double est = 0;
+  assert_int_equal(hr_hair_window_fragments(R, &scam, v.thickness_scale, &est), HF_OK);
+  print_message("estimated %.0f fragments before drawing\n", est);
+  assert_true(est >= 0.9 * s_off.gt_fragments && est <= 3.0 * s_off.gt_fragments);
   assert_true(s_on.gt_fragments < s_off.gt_fragments / 2);
   assert_true(d_cpu < 1e-9);
   assert_true(d_gpu < 1e-5);
