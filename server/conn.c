@@ -1322,7 +1322,7 @@ void hfd_conn_close(hfd_conn *c) {
     int n = hfd_worker_drop_conn(&c->srv->worker, c);
     char kv[300];
     if (n > 0 && log_allowed())
-      hfd_log("%d queued frame%s dropped unrun, the peer gone%s", n, n == 1 ? "" : "s",
+      hfd_log("%d queued frame%s dropped unrun, the connection gone%s", n, n == 1 ? "" : "s",
               conn_kv(c, kv, sizeof kv));
   }
   uv_close(&c->h.handle, on_closed);

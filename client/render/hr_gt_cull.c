@@ -32,15 +32,15 @@
  * The steps keep their values in storage buffers of the window's pixels
  * and draw with the A-buffer's own viewport, scissor and depth test (the
  * occluder), so that they see exactly its fragments; the window is taken
- * in strips of rows of at most CULL_STRIP_BYTES of them (104 bytes a
- * pixel), so a 1024x1024 window at 8x8 needs 256 MiB, not 6.5 GiB. */
+ * in strips of rows of at most CULL_STRIP_BYTES of them (136 bytes a
+ * pixel), so a 1024x1024 window at 8x8 needs 256 MiB, not 8.5 GiB. */
 #include <stdio.h>
 
 #include "hr_internal.h"
 
 #define CULL_STRIP_BYTES ((size_t)256 << 20)
 #define CULL_BINS 16
-#define CULL_COUNT_WORDS 9 /* hr_glsl_gt_near_fs */
+#define CULL_COUNT_WORDS 17 /* hr_glsl_gt_near_fs */
 #define CULL_FIXED 4096.0f /* optical depth's fixed point (hr_glsl_gt_depths_fs) */
 
 /* The uniforms every step reads: the strip's pixels and the bounds. */
@@ -138,7 +138,7 @@ int hr_gt_cull(hfr_renderer *r, const hfr_view *v, const hr_camera *cam, GLuint 
         uint64_t n = 0;
         for (int x = 0; x < W; x++) {
           const uint32_t *w = cnt + ((size_t)y * W + x) * CULL_COUNT_WORDS;
-          n += w[0], *uncut += w[8];
+          n += w[0], *uncut += w[16];
         }
         row_frags[y0 + y] = n;
       }

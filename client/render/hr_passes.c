@@ -1030,7 +1030,9 @@ static int gt_rows(hfr_renderer *r, const hfr_view *v, const hr_camera *light, i
       /* Rows top first: gt and cpu_gt are [h][w][3]. */
       const size_t off = (size_t)3 * W * top;
       band.crop_y = y0 + top, band.crop_h = end - top;
-      gt_plan sub = {plan.cull, plan.cull && plan.rows, by_rows ? plan.rows + top : NULL, 0};
+      /* A band keeps its window's depth (and cut) however deep it is split. */
+      gt_plan sub = {plan.cull, plan.depth_ready || (plan.cull && plan.rows),
+                     by_rows ? plan.rows + top : NULL, 0};
       hfr_stats part = {0};
       rc = gt_rows(r, &band, light, ss, gt + off, cpu_gt ? cpu_gt + off : NULL, &part, sub,
                    err, errlen);
@@ -1040,6 +1042,7 @@ static int gt_rows(hfr_renderer *r, const hfr_view *v, const hr_camera *light, i
                                                               : own.gt_max_depth;
       own.gt_truncated += part.gt_truncated;
       own.gt_host_resolve |= part.gt_host_resolve;
+      own.gt_culled += part.gt_culled;
       top = end;
     }
   }

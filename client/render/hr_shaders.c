@@ -282,8 +282,8 @@ const char hr_glsl_shadow_fs[] = GLSL_VERSION FS_COMMON
 /* The ground truth's transmittance cull (hr_gt_cull.c), over the pixels
  * [u_win_lo, u_win_hi) of the supersampled frame (a strip of the window;
  * u_width its width), with the A-buffer's depth test (the occluder).
- * cull_counts holds 9 words a pixel: the fragments of bins 2j and 2j + 1
- * in the low and high halves of word j, and in word 8 every fragment. */
+ * cull_counts holds 17 words a pixel: the fragments of bin k in word k,
+ * and in word 16 every fragment. */
 #define CULL_COMMON                                                             \
 "layout(std430, binding = 4) buffer CullNear { uint cull_near[]; };\n"         \
 "layout(std430, binding = 5) buffer CullSums { uint cull_sums[]; };\n"         \
@@ -308,7 +308,7 @@ CULL_COMMON
 "  int i = cull_pixel();\n"
 "  if (i < 0) return;\n"
 "  atomicMin(cull_near[i], floatBitsToUint(vi.vdist));\n"
-"  atomicAdd(cull_counts[9 * i + 8], 1u);\n"
+"  atomicAdd(cull_counts[17 * i + 16], 1u);\n"
 "}\n";
 
 /* Step 2: each fragment's optical depth -ln(1 - alpha), capped at 16 (an
@@ -316,8 +316,7 @@ CULL_COMMON
  * sum never exceeds the true one), added to the first of 16 bins it lies
  * in front of: view distance past the pixel's nearest fragment below
  * u_edge times 2^(k/2), k = 0 .. 15; none past the last. Each bin also
- * counts its fragments (16 bits: a count past 65535 spills into the next
- * bin's, which only makes the estimate of step 3 larger). */
+ * counts its fragments. */
 const char hr_glsl_gt_depths_fs[] = GLSL_VERSION
 "layout(early_fragment_tests) in;\n"
 FS_COMMON CULL_COMMON
@@ -332,7 +331,7 @@ FS_COMMON CULL_COMMON
 "  float a = frag_alpha();\n"
 "  float od = a >= 1.0 ? 16.0 : min(-log(1.0 - a), 16.0);\n"
 "  atomicAdd(cull_sums[16 * i + k], uint(od * 4096.0));\n"
-"  atomicAdd(cull_counts[9 * i + k / 2], 1u << (16 * (k & 1)));\n"
+"  atomicAdd(cull_counts[17 * i + k], 1u);\n"
 "}\n";
 
 /* Step 3, a full-frame pass over the A-buffer's depth (LESS): at each
@@ -344,29 +343,31 @@ FS_COMMON CULL_COMMON
  * range (depth01 would clamp there and order equal depths by index). Word
  * 0 of the pixel's counts becomes how many fragments the A-buffer will
  * hold there at most: those of bins 0 .. k + 1 (the margin lies inside bin
- * k + 1), or all of them (word 8) where nothing is cut. */
+ * k + 1), or all of them (word 16) where nothing is cut. The margin is at
+ * least 1e-5 of the distance, far above float rounding however far the
+ * camera stands. */
 const char hr_glsl_gt_cut_fs[] = GLSL_VERSION
 CULL_COMMON
 "uniform uint u_tau;\n"
 "uniform float u_p10, u_p14, u_edge, u_margin, u_near_lim, u_far_lim;\n"
-"uint bin_count(int i, int k) { return (cull_counts[9 * i + k / 2] >> (16 * (k & 1))) & 0xFFFFu; }\n"
+"uint bin_count(int i, int k) { return cull_counts[17 * i + k]; }\n"
 "void main() {\n"
 "  int i = cull_pixel();\n"
 "  if (i < 0) discard;\n"
-"  uint nb = cull_near[i], total = cull_counts[9 * i + 8];\n"
+"  uint nb = cull_near[i], total = cull_counts[17 * i + 16];\n"
 "  uint cum = 0u, kept = 0u;\n"
 "  int k = 0;\n"
 "  for (; k < 15; k++) {\n"
 "    uint c = cum + cull_sums[16 * i + k];\n"
 "    cum = c < cum ? 0xFFFFFFFFu : c;\n"
-"    kept += bin_count(i, k);\n"
+"    kept = min(kept + bin_count(i, k), total);\n"
 "    if (cum >= u_tau) break;\n"
 "  }\n"
 "  float dn = uintBitsToFloat(nb);\n"
-"  float dc = dn + u_edge * exp2(0.5 * float(min(k, 14))) + u_margin;\n"
+"  float dc = dn + u_edge * exp2(0.5 * float(min(k, 14))) + max(u_margin, 1e-5 * dn);\n"
 "  bool cut = nb != 0xFFFFFFFFu && k < 15 && dn >= u_near_lim && dc < u_far_lim;\n"
-"  if (cut) kept += bin_count(i, k + 1);\n"
-"  cull_counts[9 * i] = cut ? min(kept, total) : total;\n"
+"  if (cut) kept = min(kept + bin_count(i, k + 1), total);\n"
+"  cull_counts[17 * i] = cut ? kept : total;\n"
 "  if (!cut) discard;\n"
 "  gl_FragDepth = clamp((u_p14 / dc - u_p10) * 0.5 + 0.5, 0.0, 1.0);\n"
 "}\n";
