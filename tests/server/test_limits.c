@@ -720,6 +720,15 @@ static void expect_queue_depth(hfc_client *c, int want, const char *what) {
   fail_msg("queue_depth %d with %s, not %d", got, what, want);
 }
 
+/* n raw connections to d's Unix socket, each past its HELLO. */
+static void raw_clients(const server *d, int *fd, int n) {
+  for (int k = 0; k < n; k++) {
+    fd[k] = raw_connect(d->unix_url);
+    assert_true(fd[k] >= 0);
+    assert_int_equal(raw_hello(fd[k], NULL), 0);
+  }
+}
+
 /* Sends a FILTER of Small at w x h with id on fd. */
 static void send_small(int fd, uint32_t id, int w, int h) {
   float *in = make_features(w, h, 4, id);
@@ -749,11 +758,7 @@ static void test_batcher_frames_are_queued(void **state) {
   hfc_client *c;
   assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
   int fd[3];
-  for (int k = 0; k < 3; k++) {
-    fd[k] = raw_connect(d.unix_url);
-    assert_true(fd[k] >= 0);
-    assert_int_equal(raw_hello(fd[k], NULL), 0);
-  }
+  raw_clients(&d, fd, 3);
   for (uint32_t id = 1; id <= 4; id++) send_small(fd[0], id, W, W);
   expect_queue_depth(c, 4, "4 frames in the batcher");
   for (uint32_t id = 1; id <= 2; id++) send_small(fd[1], id, W, W);
@@ -802,11 +807,7 @@ static void test_gone_connection_frames_dropped(void **state) {
   hfc_client *c;
   assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
   int fd[2];
-  for (int k = 0; k < 2; k++) {
-    fd[k] = raw_connect(d.unix_url);
-    assert_true(fd[k] >= 0);
-    assert_int_equal(raw_hello(fd[k], NULL), 0);
-  }
+  raw_clients(&d, fd, 2);
   send_small(fd[0], 1, W, W);
   expect_queue_depth(c, 1, "a frame in the batcher");
   uint8_t stats[HFP_HEADER_SIZE];

@@ -13,10 +13,10 @@
 # after 4 and 9 (their first frames, the same draws). regimes256c's 10th
 # frame (ponytail_0001) is by far the costliest of all: 2.55 G fragments at
 # 8x8, of which the transmittance cull keeps 2.14 G out of the A-buffer,
-# 246 s on a 2-core AMD EPYC (40 min before the dense-truth changes of
+# 161 s on a 2-core AMD EPYC (40 min before the dense-truth changes of
 # 2026-12-04; docs/RENDERING.md, "Dense ground truths", "Windows that draw
 # only their segments", "The transmittance cull"); the whole set takes
-# 5 min 15 s and 4.2 GB at its peak.
+# 3 min 47 s and 4.1 GB at its peak.
 #
 # Usage: weights/data/kernel_ac_sets.sh build/hairfilter data/g8train [render options]
 # The render options go to `render dataset` and, for train256, `render
