@@ -62,7 +62,8 @@ static void usage(FILE *f) {
     "         goes on; --max-fragments N lowers that limit (default and most 67108864)\n"
     "         --gt-cull auto|off|on: keep out of the truth's A-buffer the fragments behind an\n"
     "           optical depth of 30 (each, and all together, weigh under 1e-13); auto: windows\n"
-    "           drawn again with 8 or more fragments a subsample; off: every fragment\n"
+    "           whose lists will be deep (about 64 fragments a subsample, or 8 once drawn);\n"
+    "           off: every fragment\n"
     "other:   --platform osmesa|egl|auto   --out PATH\n"
     "An option the mode does not read (render frame --resume, render dataset --cam-yaw) is\n"
     "refused, naming the modes that read it.\n");

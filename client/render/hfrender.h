@@ -339,7 +339,8 @@ typedef struct hfr_outputs {
 } hfr_outputs;
 
 enum {
-  HFR_GT_CULL_AUTO = 0, /* windows drawn again with 8 or more fragments a subsample */
+  HFR_GT_CULL_AUTO = 0, /* windows whose quads promise 64 or more fragments a subsample,
+                         * and windows drawn again with 8 or more */
   HFR_GT_CULL_OFF = 1,  /* every fragment stored: the exact blend */
   HFR_GT_CULL_ON = 2    /* every window, from its first draw */
 };
