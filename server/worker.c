@@ -270,6 +270,17 @@ static void complete(hfd_worker *w, hfd_job **batch, int nb) {
   if (rc < 0) hfd_err("worker: uv_async_send: %s", uv_strerror(rc));
 }
 
+/* Takes j, queued after prev (NULL: first), off the queue (mu held). */
+static void unlink_queued(hfd_worker *w, hfd_job *prev, hfd_job *j) {
+  if (prev)
+    prev->next = j->next;
+  else
+    w->q_head = j->next;
+  if (w->q_tail == j) w->q_tail = prev;
+  w->q_len--;
+  j->next = NULL;
+}
+
 /* Removes and returns the first queued job compatible with j0 (mu held),
  * when running it in the batch (nb jobs so far, which reserved reserved
  * bytes for running) needs no more than the batch's jobs reserved. */
@@ -280,13 +291,7 @@ static hfd_job *take_compatible(hfd_worker *w, const hfd_job *j0, int nb, uint64
     if (hfd_worker_run_bytes(w, &j0->model->cfg, j0->req.width, j0->req.height, nb + 1,
                              j0->req.data_len) > reserved + j->infer_bytes)
       return NULL;
-    if (prev)
-      prev->next = j->next;
-    else
-      w->q_head = j->next;
-    if (w->q_tail == j) w->q_tail = prev;
-    w->q_len--;
-    j->next = NULL;
+    unlink_queued(w, prev, j);
     return j;
   }
   return NULL;
@@ -708,14 +713,9 @@ int hfd_worker_queue_depth(hfd_worker *w) {
   return n;
 }
 
-void hfd_worker_cancel(hfd_worker *w) {
-  pthread_mutex_lock(&w->mu);
-  w->cancel = 1;
-  hfd_job *list = w->q_head;
-  w->q_head = w->q_tail = NULL;
-  w->q_len = 0;
-  pthread_mutex_unlock(&w->mu);
-  int n = 0;
+/* Completes the jobs of list (taken off the queue) unrun, as
+ * SHUTTING_DOWN. */
+static void complete_unrun(hfd_worker *w, hfd_job *list) {
   for (hfd_job *j = list, *next; j; j = next) {
     next = j->next;
     j->status = HFP_E_SHUTTING_DOWN;
@@ -723,9 +723,17 @@ void hfd_worker_cancel(hfd_worker *w) {
     j->batch = 0;
     hfd_job *one[1] = {j};
     complete(w, one, 1);
-    n++;
   }
-  (void)n;
+}
+
+void hfd_worker_cancel(hfd_worker *w) {
+  pthread_mutex_lock(&w->mu);
+  w->cancel = 1;
+  hfd_job *list = w->q_head;
+  w->q_head = w->q_tail = NULL;
+  w->q_len = 0;
+  pthread_mutex_unlock(&w->mu);
+  complete_unrun(w, list);
 }
 
 int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn) {
@@ -739,26 +747,13 @@ int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn) {
       prev = j;
       continue;
     }
-    if (prev)
-      prev->next = next;
-    else
-      w->q_head = next;
-    if (w->q_tail == j) w->q_tail = prev;
-    w->q_len--;
-    j->next = NULL;
+    unlink_queued(w, prev, j);
     *tail = j;
     tail = &j->next;
     n++;
   }
   pthread_mutex_unlock(&w->mu);
-  for (hfd_job *j = dropped, *next; j; j = next) {
-    next = j->next;
-    j->status = HFP_E_SHUTTING_DOWN; /* never written: its connection is gone */
-    j->t_started = j->t_done = hfd_now_us();
-    j->batch = 0;
-    hfd_job *one[1] = {j};
-    complete(w, one, 1);
-  }
+  complete_unrun(w, dropped); /* their status is never written: the connection is gone */
   return n;
 }
 

@@ -652,15 +652,18 @@ static void gt_grid_note(int shared) {
 
 static void print_stats(const hfr_renderer *r, const hfr_hair *hair, const hfr_view *v,
                         const hfr_stats *st) {
+  char culled[96] = "";
+  if (st->gt_culled)
+    snprintf(culled, sizeof culled, ", %llu behind an optical depth of 30 left out",
+             (unsigned long long)st->gt_culled);
   fprintf(stderr,
           "%s (%s), %u strands, %llu segments, %dx%d: shadow %.0f ms, features %.0f ms, "
-          "baselines %.0f ms, ground truth %.0f ms (%llu fragments%s%.0llu%s, deepest list %u, "
+          "baselines %.0f ms, ground truth %.0f ms (%llu fragments%s, deepest list %u, "
           "%llu lists sorted in several rounds%s)\n",
           hfr_renderer_platform(r), hfr_renderer_gl_name(r), hair->strands,
           (unsigned long long)hfr_hair_total_segments(hair), v->width, v->height, st->shadow_ms,
           st->features_ms, st->baselines_ms, st->gt_ms, (unsigned long long)st->gt_fragments,
-          st->gt_culled ? ", " : "", (unsigned long long)st->gt_culled,
-          st->gt_culled ? " behind an optical depth of 30 left out" : "", st->gt_max_depth, (unsigned long long)st->gt_truncated,
+          culled, st->gt_max_depth, (unsigned long long)st->gt_truncated,
           st->gt_host_resolve ? ", blended on the host" : "");
   char line[512];
   hfr_frame_stats_format(&st->frame, line, sizeof line);

@@ -31,6 +31,16 @@ static hfr_hair style(hfr_style s, int strands) {
   return h;
 }
 
+/* Gives the renderer strands of style s (with the head) and v the default
+ * view. */
+static void use_style(hfr_style s, int strands, hfr_view *v) {
+  hfr_hair h = style(s, strands);
+  char err[256];
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 1, err, sizeof err), HF_OK);
+  hfr_hair_free(&h);
+  hfr_view_defaults(v);
+}
+
 static void render(const hfr_view *v, const hfr_outputs *o, hf_image *img, hfr_stats *st) {
   char err[512] = "";
   int rc = hfr_render(R, v, o, img, st, err, sizeof err);
@@ -119,11 +129,8 @@ static void pick_windows(const hfr_view *v, const hfr_outputs *o, int n, int out
  * further than their centre lines. */
 static void test_crop_equals_window(void **state) {
   (void)state;
-  hfr_hair h = style(HFR_STYLE_WAVY, 1500);
-  char err[256];
-  assert_int_equal(hfr_renderer_set_hair(R, &h, 1, err, sizeof err), HF_OK);
   hfr_view v;
-  hfr_view_defaults(&v);
+  use_style(HFR_STYLE_WAVY, 1500, &v);
   v.width = 96, v.height = 80;
   v.shadow_size = 128;
   v.cam_distance = 2.2f;
@@ -150,8 +157,8 @@ static void test_crop_equals_window(void **state) {
   hfr_view bad = v;
   bad.crop_x = 80, bad.crop_y = 0, bad.crop_w = 32, bad.crop_h = 8;
   hf_image crop;
+  char err[256];
   assert_int_equal(hfr_render(R, &bad, &o, &crop, NULL, err, sizeof err), HF_EINVAL);
-  hfr_hair_free(&h);
 }
 
 /* Parallel strands in the plane z = -0.5 behind a quad occluder at z = 0
@@ -292,11 +299,8 @@ static void test_conventions_framing(void **state) {
 /* Frame statistics: inside their ranges, and they follow the strand width. */
 static void test_frame_stats(void **state) {
   (void)state;
-  hfr_hair h = style(HFR_STYLE_STRAIGHT, 2000);
-  char err[256];
-  assert_int_equal(hfr_renderer_set_hair(R, &h, 1, err, sizeof err), HF_OK);
   hfr_view v;
-  hfr_view_defaults(&v);
+  use_style(HFR_STYLE_STRAIGHT, 2000, &v);
   v.width = v.height = 64;
   v.shadow_size = 0;
   hfr_outputs o = {0};
@@ -328,7 +332,6 @@ static void test_frame_stats(void **state) {
   assert_true(fs[2].alpha_p50 > 0.7 && fs[2].alpha_p90 <= 0.8 + 1e-6);
   assert_true(fs[2].full_pixels > fs[0].full_pixels);
   assert_true(fs[2].gt_opaque > fs[0].gt_opaque);
-  hfr_hair_free(&h);
 }
 
 /* Regimes over two styles and a .hair file (z-up, cm, guides grown into
