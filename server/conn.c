@@ -1328,13 +1328,44 @@ void hfd_conn_close(hfd_conn *c) {
   uv_close(&c->h.handle, on_closed);
 }
 
+/* Every reply is handed to the kernel and the end of stream sent. A TCP
+ * peer of a stopping server that was still sending then may have bytes on
+ * their way, and closing with received bytes unread sends a reset, which
+ * throws away the replies the peer has not read yet (see HFD_LINGER_MS):
+ * such a connection stays open, dropping what arrives, until the peer
+ * closes its side, or until --flush-timeout-ms closes every connection. */
 static void on_shutdown(uv_shutdown_t *req, int status) {
   hfd_conn *c = req->data;
-  (void)status;
   free(req);
   c->writes_pending--;
-  hfd_conn_close(c);
+  if (status == 0 && c->srv->stopped && c->flush_sending && !c->eof && !c->is_pipe &&
+      !c->closing)
+    c->flushed = 1;
+  else
+    hfd_conn_close(c);
   conn_release(c);
+}
+
+/* What a peer sends while the stopping server flushes its replies: dropped
+ * unread, so that a peer blocked writing a frame (a client that reads only
+ * between frames, as libhairfilter does) gets it out and goes on to read
+ * its replies. With reading stopped the two would wait on each other
+ * until --flush-timeout-ms and the replies would be lost. The peer's end
+ * of stream ends the reading only, until the replies are out. */
+static void flush_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
+  hfd_conn *c = stream->data;
+  (void)buf;
+  if (nread > 0) {
+    c->flush_sending = 1;
+  } else if (nread == UV_EOF) {
+    c->eof = 1;
+    if (c->flushed)
+      hfd_conn_close(c);
+    else
+      read_stop(c);
+  } else if (nread < 0) {
+    hfd_conn_close(c); /* the peer is gone: nothing more can reach it */
+  }
 }
 
 /* Flushes what is written, then closes. */
@@ -1345,7 +1376,20 @@ void hfd_conn_shutdown(hfd_conn *c) {
   }
   if (c->closing || c->shutting) return;
   c->shutting = 1;
-  read_stop(c);
+  if (c->srv->stopped && !c->eof) {
+    c->flush_sending = mid_frame(c);
+    if (c->job) {
+      /* A FILTER half received: never to be answered (SERVER.md, "Shutdown"). */
+      job_free(c->srv, c->job);
+      c->job = NULL;
+    }
+    read_stop(c); /* uv_read_start refuses a stream that is reading */
+    int rc = hfd_io_read_start(c, linger_alloc, flush_read);
+    if (rc < 0)
+      hfd_debug("conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
+  } else {
+    read_stop(c);
+  }
   handshake_over(c);
   uv_shutdown_t *req = malloc(sizeof *req);
   if (!req) {

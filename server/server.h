@@ -452,6 +452,8 @@ typedef struct hfd_conn {
   double t_fatal;                /* when the fatal ERROR was queued */
   int lingering;                 /* fatal ERROR written: half-closed, draining input */
   double t_linger;               /* when lingering began */
+  int flush_sending;             /* stopping: the peer was sending while its replies went out */
+  int flushed;                   /* stopping: replies out, waiting for the peer's end (TCP) */
   int handle_closed;
   int inflight;                  /* jobs admitted and not yet answered */
   int writes_pending;

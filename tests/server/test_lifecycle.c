@@ -221,11 +221,12 @@ static void test_ready_file_symlinks(void **state) {
   unlink(tmp);
 }
 
-/* A client that sends frames with large results and reads none of them. */
-static int hog(const server *d, int n) {
-  int fd = raw_connect(d->unix_url);
+/* A client on url (tcp: with the token) that sends frames with large
+ * results and reads none of them. */
+static int hog_at(const char *url, int n) {
+  int fd = raw_connect(url);
   assert_true(fd >= 0);
-  assert_int_equal(raw_hello(fd, NULL), 0);
+  assert_int_equal(raw_hello(fd, strncmp(url, "tcp:", 4) ? NULL : TEST_TOKEN), 0);
   float *in = make_features(160, 120, 2, 1);
   size_t len;
   uint8_t *f = raw_filter(1, "Tiny", 160, 120, 2, in, &len);
@@ -237,6 +238,8 @@ static int hog(const server *d, int n) {
   free(in);
   return fd;
 }
+
+static int hog(const server *d, int n) { return hog_at(d->unix_url, n); }
 
 /* Item: SIGTERM while a client leaves 230 KiB replies unread: the daemon
  * answers what it admitted, waits --flush-timeout-ms for the reader, then
@@ -261,6 +264,59 @@ static void test_sigterm_with_unread_replies(void **state) {
   assert_int_equal(access(d.ready, F_OK), -1);
   assert_int_equal(access(d.unix_url + 5, F_OK), -1);
   close(fd);
+}
+
+/* Item: SIGTERM while a client is in the middle of sending a frame larger
+ * than the socket holds, with replies waiting that it reads only once the
+ * frame is out (libhairfilter's order): the stopping server drops what the
+ * client still sends instead of no longer reading it, so the send
+ * completes, every admitted frame's reply arrives, and the stop takes no
+ * flush timeout. With reading stopped the two waited on each other until
+ * the flush timeout closed the connection with the replies unsent. */
+static void test_sigterm_while_a_frame_is_half_sent(void **state) {
+  (void)state;
+  for (int tcp = 0; tcp < 2; tcp++) {
+    server d;
+    const char *args[] = {"--flush-timeout-ms", "6000", "--max-batch", "1", NULL};
+    assert_int_equal(server_start(&H, &d, args), 0);
+    int fd = hog_at(tcp ? d.tcp_url : d.unix_url, 4);
+    usleep(500000);   /* the 4 frames admitted and computed; 920 KiB of replies unread */
+    /* Far more than the socket holds (loopback TCP grows its buffers to
+     * several MiB): 12 MiB, 48 over TCP. */
+    int side = tcp ? 1024 : 512;
+    float *in = make_features(side, side, 2, 2);
+    size_t len, part = (size_t)1 << 20;
+    uint8_t *f = raw_filter(100, "Tiny", side, side, 2, in, &len);
+    assert_true(len > 8 * part);
+    assert_int_equal(raw_send(fd, f, part), 0);   /* the head and the first MiB */
+    usleep(200000);
+    double t0 = now_ms();
+    kill(d.pid, SIGTERM);
+    usleep(300000);   /* stopped: every admitted frame was answered */
+    /* The rest: only a server that reads lets it out (the raw socket's
+     * send gives up after 10 s, the server's flush after 6). */
+    int sent = raw_send(fd, f + part, len - part);
+    int results = 0;
+    hfp_header h;
+    uint8_t *p;
+    while (raw_read(fd, &h, &p) == 0) {
+      results += h.type == HFP_RESULT;
+      free(p);
+    }
+    close(fd);   /* at the server's end of stream, as libhairfilter does */
+    int st = wait_exit(&d, 15000);
+    double took = now_ms() - t0;
+    printf("SIGTERM mid-frame over %s: send %s, %d of 4 replies, exit in %.0f ms (flush timeout "
+           "6000)\n", tcp ? "TCP" : "a Unix socket", sent ? "failed" : "completed", results, took);
+    if (st != 0) server_dump_log(&d);
+    assert_int_equal(st, 0);
+    assert_int_equal(sent, 0);
+    assert_int_equal(results, 4);
+    assert_false(server_log_has(&d, "flush timeout"));
+    assert_true(took < 4000);
+    free(f);
+    free(in);
+  }
 }
 
 /* Item: a second SIGTERM or SIGINT while replies wait to be read closes
@@ -360,6 +416,7 @@ int main(void) {
     cmocka_unit_test(test_token_rules),
     cmocka_unit_test(test_ready_file_symlinks),
     cmocka_unit_test(test_sigterm_with_unread_replies),
+    cmocka_unit_test(test_sigterm_while_a_frame_is_half_sent),
     cmocka_unit_test(test_second_signal_shortens_the_wait),
     cmocka_unit_test(test_failed_start_leaves_nothing),
     cmocka_unit_test(test_one_file_two_names),
