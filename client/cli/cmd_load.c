@@ -23,7 +23,7 @@
  * open loop each connection offers rate/connections frames/s; a request's
  * latency counts from when it was due, not from when a free slot let it go,
  * so a server that falls behind shows it (no coordinated omission). In the
- * closed loop a request refused BUSY is counted and its slot rests 10 ms
+ * closed loop a request refused BUSY or SHUTTING_DOWN is counted and its slot rests 10 ms
  * before it sends again, so that a refusing server is not spun against.
  */
 #define _POSIX_C_SOURCE 200809L
@@ -154,8 +154,9 @@ static double uniform01(uint64_t *s) {
 
 /* ---- one connection ----------------------------------------------------------- */
 
-/* A closed-loop request refused BUSY goes again after this long, so that a
- * refusing server is not spun against (that would take the CPU it needs). */
+/* A closed-loop request refused BUSY (or SHUTTING_DOWN, by a server that is
+ * stopping) goes again after this long, so that a refusing server is not
+ * spun against (that would take the CPU it needs). */
 #define BUSY_BACKOFF_S 0.01
 
 typedef struct slot {
@@ -329,7 +330,8 @@ static void *run(void *arg) {
     slot *s = d.user;
     s->busy = 0;
     pending--;
-    if (d.status == HFC_E_BUSY) s->not_before = now_s() + BUSY_BACKOFF_S;
+    if (d.status == HFC_E_BUSY || d.status == HFC_E_SHUTTING_DOWN)
+      s->not_before = now_s() + BUSY_BACKOFF_S;
     record(sh, &d, s->started);
   }
   if (err) {
