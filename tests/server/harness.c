@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/prctl.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/time.h>
@@ -70,7 +71,22 @@ int harness_init(harness *h) {
   return 0;
 }
 
+/* Every daemon server_start_ex started, so that harness_free can stop those
+ * a failed assertion left running: cmocka leaves a test at its first
+ * failure, past the test's own server_stop. */
+static pid_t started[256];
+static int nstarted;
+
 void harness_free(harness *h) {
+  for (int i = 0; i < nstarted; i++) {
+    int st;
+    if (waitpid(started[i], &st, WNOHANG) != 0) continue;   /* reaped, or gone */
+    fprintf(stderr, "harness: hairfilterd (pid %d) outlived its test (a failed assertion "
+            "skipped its stop): killed\n", (int)started[i]);
+    kill(started[i], SIGKILL);
+    waitpid(started[i], NULL, 0);
+  }
+  nstarted = 0;
   for (int i = 0; i < h->nv; i++) hf_model_destroy(h->v[i].model);
   hf_backend_destroy(h->backend);
   char cmd[300];
@@ -169,9 +185,12 @@ int server_start_ex(const harness *h, server *s, const char *const *extra,
   argv[n++] = s->ready;
   for (int i = 0; extra && extra[i] && n < 62; i++) argv[n++] = extra[i];
   argv[n] = NULL;
+  pid_t parent = getpid();
   pid_t pid = fork();
   if (pid < 0) return -1;
   if (pid == 0) {
+    /* A test process that dies (a crash, an abort) takes its daemon along. */
+    if (prctl(PR_SET_PDEATHSIG, SIGKILL) != 0 || getppid() != parent) _exit(127);
     int fd = open(s->log, O_WRONLY | O_CREAT | O_TRUNC, 0600);
     if (fd >= 0) {
       dup2(fd, 2);
@@ -183,6 +202,7 @@ int server_start_ex(const harness *h, server *s, const char *const *extra,
     _exit(127);
   }
   s->pid = pid;
+  if (nstarted < (int)(sizeof started / sizeof started[0])) started[nstarted++] = pid;
   /* The ready file appears once every listener is bound and every model
    * built: up to 30 s on a slow machine. */
   for (int waited = 0; waited < 30000; waited += 20) {
