@@ -158,6 +158,34 @@ static int resolve_variant(hfc_client *c, const char *name, char out[HFP_NAME_MA
   }
 }
 
+/* Whether the listed variant named `name` reads an estimate other than the
+ * request says: 1 for a mismatch, 0 otherwise (also for a name not listed,
+ * which the server answers). */
+static int estimate_mismatch(const conn *x, const char *name, int estimate) {
+  for (int i = 0; i < x->nvariants; i++)
+    if (!strcmp(x->variants[i].name, name)) return !x->variants[i].estimate != !estimate;
+  return 0;
+}
+
+/* A request whose hfc_request.estimate the variant does not match, refused
+ * here in the API's words (the server's INVALID speaks of the wire's
+ * flag). The variants are listed again first: a reload may have changed
+ * what the name serves. 0, or HFC_E_ARG with the message set. */
+static int check_estimate(hfc_client *c, const char *variant, int estimate) {
+  if (estimate_mismatch(&c->conns[c->active], variant, estimate)) {
+    int rc = load_variants(c);
+    if (rc) return rc;
+  }
+  if (c->active < 0 || !estimate_mismatch(&c->conns[c->active], variant, estimate)) return 0;
+  if (estimate)
+    return hfci_arg(c, "variant %s reads no estimate: set hfc_request.estimate to 0 and send "
+                       "the features alone", variant);
+  return hfci_arg(c, "variant %s reads stochastic transparency's alpha-corrected estimate "
+                     "(hfc_variant.estimate): set hfc_request.estimate to 1 and put the estimate "
+                     "after the features in the same buffer (features_bytes = hfc_features_bytes "
+                     "+ hfc_estimate_bytes; protocol/FEATURES.md)", variant);
+}
+
 /* ---- sending ------------------------------------------------------------------ */
 
 int hfci_can_resend(const hfc_client *c, const pending *p, int err, int lost) {
@@ -274,6 +302,9 @@ static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) 
              x->info.version);
     return HFC_E_ARG;
   }
+  if ((rc = check_estimate(c, variant, r->estimate))) return rc;
+  if ((k = hfci_need_conn(c)) < 0) return k;
+  x = &c->conns[c->active];
   if (c->npending >= x->info.max_inflight) {
     hfci_msg(c, "%d requests pending, as many as %s allows on a connection: collect some "
                 "with hfc_wait", c->npending, c->eps[x->endpoint].url);

@@ -1,5 +1,5 @@
 /*
- * libhairfilter: the client side of hairfilterd (protocol versions 1 and 2,
+ * libhairfilter: the client side of hairfilterd (protocol versions 1 to 3,
  * protocol/PROTOCOL.md). C99 and C++ (hairfilter.hpp wraps it in RAII).
  *
  *   hfc_client *c;
@@ -76,7 +76,7 @@ HFC_API const char *hfc_version(void);
 #define HFC_E_INVALID        -11
 /* local */
 #define HFC_E_ARG            -100 /* bad argument: hfc_last_message names the field */
-#define HFC_E_URL            -101 /* not unix:PATH, tcp:HOST:PORT or tcp:PORT (or a list of them) */
+#define HFC_E_URL            -101 /* not unix:PATH, tcp:HOST:PORT, tcp:PORT, tls:HOST:PORT or tls:PORT (or a list of them) */
 #define HFC_E_CONNECT        -102 /* could not connect: errno and hfc_last_message say why */
 #define HFC_E_IO             -103 /* the connection failed */
 #define HFC_E_TIMEOUT        -104 /* no answer within the timeout */
@@ -324,7 +324,9 @@ HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
  * request naming a variant on a connection lists the server's variants
  * once, to match the name without regard to case; a name the server does
  * not have is still sent, and its completion is HFC_E_UNKNOWN_VARIANT with
- * the listed names in hfc_last_message. */
+ * the listed names in hfc_last_message. A request whose estimate flag the
+ * listed variant does not match (hfc_variant.estimate) is HFC_E_ARG before
+ * anything is sent. */
 HFC_API int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id);
 
 typedef struct hfc_completion {
