@@ -74,10 +74,14 @@ static void scaled(uint32_t w0, uint32_t h0, uint32_t k, uint32_t m, uint32_t *w
 
 int hfd_limits_derive(hfd_server *s) {
   uint32_t w0 = (uint32_t)s->cfg->max_width, h0 = (uint32_t)s->cfg->max_height;
+  /* A reload derives the size again; the log speaks when it changes. */
+  const int w_before = s->max_width, h_before = s->max_height;
   char why[400] = "";
   if (frame_fits(s, w0, h0, why, sizeof why)) {
     s->max_width = (int)w0;
     s->max_height = (int)h0;
+    if (w_before && (w_before != (int)w0 || h_before != (int)h0))
+      hfd_log("max size back to %ux%u (was %dx%d)", w0, h0, w_before, h_before);
     return 0;
   }
   /* Shrink both sides by the same factor: the largest step k of m (the
@@ -103,6 +107,7 @@ int hfd_limits_derive(hfd_server *s) {
   scaled(w0, h0, lo, m, &w, &h);
   s->max_width = (int)w;
   s->max_height = (int)h;
-  hfd_log("max size lowered from %ux%u to %ux%u: %s", w0, h0, w, h, why);
+  if (w_before != (int)w || h_before != (int)h)
+    hfd_log("max size lowered from %ux%u to %ux%u: %s", w0, h0, w, h, why);
   return 0;
 }

@@ -142,15 +142,17 @@ void server_dump_log(const server *s) {
   fclose(f);
 }
 
-int server_log_has(const server *s, const char *needle) {
+int server_log_count(const server *s, const char *needle) {
   FILE *f = fopen(s->log, "r");
   if (!f) return 0;
   char line[1024];
-  int found = 0;
-  while (!found && fgets(line, sizeof line, f)) found = strstr(line, needle) != NULL;
+  int n = 0;
+  while (fgets(line, sizeof line, f)) n += strstr(line, needle) != NULL;
   fclose(f);
-  return found;
+  return n;
 }
+
+int server_log_has(const server *s, const char *needle) { return server_log_count(s, needle) > 0; }
 
 int server_start(const harness *h, server *s, const char *const *extra) {
   return server_start_ex(h, s, extra, NULL, NULL);

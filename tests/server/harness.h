@@ -73,6 +73,8 @@ int server_stop(server *s, int timeout_ms);
 int server_alive(const server *s);
 /* 1 when the log contains needle. */
 int server_log_has(const server *s, const char *needle);
+/* The number of log lines that contain needle. */
+int server_log_count(const server *s, const char *needle);
 void server_dump_log(const server *s);
 /* server_stop (dumping the log if it did not exit cleanly) and harness_free:
  * a cmocka group teardown's body; 0 when the server exited with status 0. */

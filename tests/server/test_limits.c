@@ -16,6 +16,7 @@
 #include <poll.h>
 #include <pthread.h>
 #include <stdatomic.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -294,6 +295,12 @@ static void test_default_size_is_landscape(void **state) {
   assert_true(W > 16 && W < 3840);
   assert_int_equal(HH, (int)((int64_t)W * 2160 / 3840));   /* the default's aspect */
   assert_true(server_log_has(&d, "max size lowered from 3840x2160"));
+  /* A reload derives the size again, and says nothing when it is the same. */
+  kill(d.pid, SIGHUP);
+  for (int waited = 0; waited < 20000 && !server_log_has(&d, "reload done"); waited += 20)
+    usleep(20000);
+  assert_true(server_log_has(&d, "reload done"));
+  assert_int_equal(server_log_count(&d, "max size lowered"), 1);
   hfc_close(c);
   assert_int_equal(server_stop(&d, 20000), 0);
 }
