@@ -295,16 +295,20 @@ static int apply(hfd_server *s, const want *ws, int nw, hfd_ctl **loads, hfd_mod
     if (c->rc) {
       failed++;
       s->loads_failed++;
+      /* The loader's message may already start with the file's path. */
+      size_t pl = strlen(ws[i].path);
+      const char *why = strncmp(c->msg, ws[i].path, pl) || strncmp(c->msg + pl, ": ", 2)
+                            ? c->msg : c->msg + pl + 2;
       if (strict) {
-        hfd_err("%s: %s", ws[i].path, c->msg);
+        hfd_err("%s: %s", ws[i].path, why);
       } else if (old) {
         hfd_err("reload: %s: %s; variant %s keeps serving the version loaded before%s",
-                ws[i].path, c->msg, old->name, kv);
+                ws[i].path, why, old->name, kv);
       } else {
-        hfd_err("reload: %s: %s; not served%s", ws[i].path, c->msg, kv);
+        hfd_err("reload: %s: %s; not served%s", ws[i].path, why, kv);
       }
       if (!old && !s->missing++)
-        snprintf(s->missing_why, sizeof s->missing_why, "%.100s: %.190s", ws[i].path, c->msg);
+        snprintf(s->missing_why, sizeof s->missing_why, "%.100s: %.190s", ws[i].path, why);
       free_failed(c);
       loads[i] = NULL;
       continue;

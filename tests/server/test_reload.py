@@ -116,6 +116,9 @@ def run(d, w, conf):
     v, s = served(d)
     check(v.get("Small") == ("small.safetensors", "16,32,64"), "Small back to its own weights: %s" % v)
     check(sample(s, "hairfilterd_weights_files_unserved") == 1, "one file unserved")
+    lines = [l for l in d.log_text().splitlines() if "broken.safetensors" in l and "not served" in l]
+    check(lines and all(l.count("broken.safetensors") == 2 for l in lines),
+          "the failure names the file once (and in file=): %s" % lines)
     os.unlink(os.path.join(wd, "broken.safetensors"))
     reloads = reload_and_wait(d, reloads)
     check(d.get("/readyz") == (200, "ready\n"), "ready again once the broken file is gone")
