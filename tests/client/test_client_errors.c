@@ -248,59 +248,6 @@ static void test_variant_names(void **state) {
   hfc_close(c);
 }
 
-/* hfc_request.estimate that does not match the variant is refused before
- * anything is sent, in the API's words (the server's INVALID names the
- * wire's FILTER flag); matching, the frame is served. */
-static void test_estimate_named_in_the_api(void **state) {
-  (void)state;
-  char path[300];
-  assert_int_equal(harness_estimate_weights(&H, path, sizeof path), 0);
-  server d;
-  const char *args[] = {"--weights", path, NULL};
-  assert_int_equal(server_start(&H, &d, args), 0);
-  hfc_client *c = client_connect(&d, "estimate");
-  assert_non_null(c);
-  hfc_variant v[16];
-  int n = 0, spp = 0;
-  assert_int_equal(hfc_list_variants(c, v, 16, &n), 0);
-  for (int i = 0; i < n && i < 16; i++)
-    if (!strcmp(v[i].name, "Estimate")) spp = v[i].spp;
-  assert_true(spp > 0);
-  const int w = 8, h = 6;
-  size_t fb = hfc_features_bytes(w, h, spp, HFC_F32), eb = hfc_estimate_bytes(w, h, HFC_F32);
-  float *samples = make_features(w, h, spp, 3);
-  uint8_t *in = malloc(fb + eb);
-  float *out = malloc(hfc_output_bytes(w, h, 3, HFC_F32));
-  assert_non_null(samples);
-  assert_non_null(in);
-  assert_non_null(out);
-  memcpy(in, samples, fb);
-  for (size_t k = 0; k < eb / sizeof(float); k++) ((float *)(in + fb))[k] = 0.25f;
-  hfc_request r = TEST_REQUEST(.variant = "Estimate", .width = w, .height = h, .spp = spp,
-                               .features = in, .result = out);
-  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_ARG);
-  assert_non_null(strstr(hfc_last_message(c), "set hfc_request.estimate to 1"));
-  r = TEST_REQUEST(.variant = "Estimate", .width = w, .height = h, .spp = spp, .features = in,
-                   .result = out, .estimate = 1);
-  assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
-  r = TEST_REQUEST(.variant = "Tiny", .width = w, .height = h, .spp = 2, .features = in,
-                   .result = out, .estimate = 1);
-  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_ARG);
-  assert_non_null(strstr(hfc_last_message(c), "Tiny reads no estimate"));
-  /* Refused here: the server saw neither. */
-  hfc_stats st;
-  assert_int_equal(hfc_get_stats(c, &st), HFC_OK);
-  for (int i = 0; i < st.num_variants; i++) {
-    assert_int_equal(st.variants[i].rejected, 0);
-    assert_int_equal(st.variants[i].requests_failed, 0);
-  }
-  hfc_close(c);
-  assert_int_equal(server_stop(&d, 10000), 0);
-  free(samples);
-  free(in);
-  free(out);
-}
-
 /* A failed connect leaves errno and a message naming the endpoint and the
  * reason: a missing socket and a refused one read differently, and both
  * differently from a socket this user may not open. */
@@ -440,7 +387,6 @@ int main(void) {
     cmocka_unit_test(test_fields_named),
     cmocka_unit_test(test_message_cleared),
     cmocka_unit_test(test_variant_names),
-    cmocka_unit_test(test_estimate_named_in_the_api),
     cmocka_unit_test(test_connect_errno),
     cmocka_unit_test(test_versions),
     cmocka_unit_test(test_fd_polls),

@@ -522,6 +522,18 @@ hfc_request test_request_sized(hfc_request r) {
   return r;
 }
 
+int listed_variant(hfc_client *c, const char *name, hfc_variant *out) {
+  hfc_variant v[HFP_MAX_VARIANTS];
+  int n = 0;
+  if (hfc_list_variants(c, v, HFP_MAX_VARIANTS, &n)) return -1;
+  for (int i = 0; i < n && i < HFP_MAX_VARIANTS; i++)
+    if (!strcmp(v[i].name, name)) {
+      *out = v[i];
+      return 0;
+    }
+  return -1;
+}
+
 hfc_client *client_connect(const server *s, const char *name) {
   hfc_client *c = NULL;
   hfc_options o = test_options(name, NULL, 20000);

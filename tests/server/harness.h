@@ -91,6 +91,9 @@ int server_start_connected(const harness *h, server *s, const char *const *extra
  *   hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = 8, ...); */
 #define TEST_REQUEST(...) test_request_sized((hfc_request){.struct_size = sizeof(hfc_request), __VA_ARGS__})
 hfc_request test_request_sized(hfc_request r);
+/* The server's listing of variant name (hfc_list_variants) into *out: 0, or
+ * -1 when it lists none of that name or the listing fails. */
+int listed_variant(hfc_client *c, const char *name, hfc_variant *out);
 /* A libhairfilter connection to the server's Unix socket, or NULL (printed). */
 hfc_client *client_connect(const server *s, const char *name);
 /* A file's first cap - 1 bytes as a string in buf; -1 if unreadable. */
