@@ -144,8 +144,8 @@ class PythonClient(unittest.TestCase):
         """A variant that reads the alpha-corrected estimate (KernelAC,
         protocol version 3): Variant.estimate says so, the frame with its
         estimate gives the C library's bytes over the socket and shared
-        memory, a frame without it is refused INVALID, and an estimate of
-        the wrong shape is refused before anything is sent."""
+        memory, and a frame without it or with an estimate of the wrong
+        shape is refused before anything is sent."""
         sock = os.path.join(ARGS.work, "ac.sock")
         if os.path.exists(sock):
             os.unlink(sock)
@@ -175,8 +175,8 @@ class PythonClient(unittest.TestCase):
                 self.assertEqual(done.result.tobytes(), want)
                 with self.assertRaises(hairfilter.Error) as err:
                     hf.filter("KernelAC", f)
-                self.assertEqual(err.exception.code, "INVALID")
-                self.assertIn("ESTIMATE", err.exception.message)
+                self.assertEqual(err.exception.code, "ARG")   # before anything is sent
+                self.assertIn("pass it as estimate=", err.exception.message)
                 with self.assertRaises(hairfilter.Error) as err:
                     hf.submit("KernelAC", f, estimate=e[:, :, :2].copy())
                 self.assertEqual(err.exception.code, "ARG")

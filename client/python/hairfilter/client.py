@@ -501,6 +501,23 @@ class Client:
                 return close[0]
         return name
 
+    def _check_estimate(self, name, given):
+        """Raises ARG, in this API's words, for a frame whose estimate the
+        listed variant does not match (the server's INVALID names the wire's
+        FILTER flag); the variants are listed again first, since a reload
+        may have changed what the name serves. A name not listed passes."""
+        for attempt in range(2):
+            v = next((v for v in self._variants or () if v.name == name), None)
+            if v is None or bool(v.estimate) == given:
+                return
+            if not attempt:
+                self.variants()
+        if given:
+            raise Error("ARG", "variant %s reads no estimate: call without estimate=" % name)
+        raise Error("ARG", "variant %s reads stochastic transparency's alpha-corrected estimate "
+                           "(Variant.estimate): pass it as estimate=, [height][width][3] of the "
+                           "features' dtype (protocol/FEATURES.md)" % name)
+
     def submit(self, variant, features, out_dtype=None, result=None, composite=False,
                rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None,
                estimate=None):
@@ -546,6 +563,7 @@ class Client:
         composite = composite or rgba is not None
         rgba = out_array(rgba, 4, "rgba") if composite else None
         name = self._variant_name(variant)
+        self._check_estimate(name, estimate is not None)
         if len(self._pending) >= self.info.max_inflight:
             raise Error("INFLIGHT", "%d requests pending, as many as the server allows"
                         % len(self._pending))
