@@ -588,7 +588,11 @@ static void usage(FILE *f) {
           "  --json FILE, --csv FILE         every point ('-' for stdout)\n"
           "  --plot FILE.png                 latency against throughput over the sweep (gnuplot)\n"
           "  --verbose                       each window's figures; --quiet: no progress line\n"
-          "Durations take a unit (us, ms, s, m, h); a plain number is seconds.\n");
+          "Durations take a unit (us, ms, s, m, h); a plain number is seconds.\n"
+          "In the report, 'frames' are the answers inside the measured windows; 'requests\n"
+          "sent' and 'answered' count from the first STATS to the stop, frames in flight\n"
+          "across a window's end included; the server's STATS line counts what it finished\n"
+          "between its two STATS, the second taken when sending stops.\n");
 }
 
 static int parse(int argc, char **argv, opts *o) {
