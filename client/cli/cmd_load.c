@@ -75,6 +75,7 @@ typedef struct shared {
   load_window *cur;              /* under mu */
   atomic_uint_fast64_t sent, answered, delayed;
   atomic_int lost;
+  atomic_int ready;              /* connections set up (connected, segment mapped) */
   double t_stop;                 /* when the point stopped sending */
   double t_measure;              /* under mu: requests due from then on count */
 } shared;
@@ -255,6 +256,7 @@ static void *run(void *arg) {
   memcpy(r.light, CLI_LIGHT_DEFAULT, sizeof r.light);
   memcpy(r.background, CLI_BG_DEFAULT, sizeof r.background);
   int pending = 0;
+  atomic_fetch_add(&sh->ready, 1);
   /* Open loop: due times of requests no slot was free for (bounded). */
   enum { BACKLOG = 4096 };
   double *backlog = sh->open_loop ? malloc(sizeof(double) * BACKLOG) : NULL;
@@ -445,6 +447,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   atomic_store(&sh->answered, 0);
   atomic_store(&sh->delayed, 0);
   atomic_store(&sh->lost, 0);
+  atomic_store(&sh->ready, 0);
   sh->open_loop = p->open_loop;
   sh->rate_per_conn = p->open_loop ? p->rate / n : 0;
   sh->cur = &win[STABLE_OVER];
@@ -464,6 +467,11 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
       return -1;
     }
   }
+  /* The warm-up starts once every connection is set up: connecting and
+   * mapping a large segment can take longer than a short window on a
+   * loaded machine, which would then hold no frame. Each connection either
+   * gets ready or fails (counted lost) within its timeouts. */
+  while (atomic_load(&sh->ready) + atomic_load(&sh->lost) < n) sleep_s(0.005);
   sleep_s(o->warmup_s);
   hfc_variant_stats before, after;
   int have_before = stats_of(o, &before) == 0;

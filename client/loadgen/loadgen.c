@@ -156,6 +156,11 @@ static void *run(void *arg) {
       ((float *)in)[i] = 0.125f + 0.875f * ((float)(x >> 8) / 16777216.0f);
     }
   }
+  /* The warm-up and the window start now that the connection is set up:
+   * connecting, mapping a large segment and filling the frame can take
+   * longer than a short window on a loaded machine. */
+  w->t_measure = now_s() + o->warmup;
+  w->t_end = w->t_measure + o->seconds;
   /* Each in-flight slot owns an output buffer; the slot index rides in
    * the request's user pointer. */
   hfc_request r;
@@ -332,13 +337,10 @@ int main(int argc, char **argv) {
 
   worker *w = calloc((size_t)o.connections, sizeof *w);
   if (!w) return 1;
-  double t0 = now_s();
   for (int i = 0; i < o.connections; i++) {
     w[i].o = &o;
     w[i].spp = spp;
     w[i].estimate = estimate;
-    w[i].t_measure = t0 + o.warmup;
-    w[i].t_end = t0 + o.warmup + o.seconds;
     if ((rc = pthread_create(&w[i].thread, NULL, run, &w[i])) != 0) {
       fprintf(stderr, "hairfilter-load: thread: %s\n", strerror(rc));
       return 1;
