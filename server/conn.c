@@ -727,7 +727,9 @@ static void filter_head(hfd_conn *c, size_t have) {
            "variant %s reads no estimate: clear FILTER flag ESTIMATE and send the features "
            "alone", f.variant);
   } else if (f.width > (uint32_t)s->max_width || f.height > (uint32_t)s->max_height) {
-    reject(c, v, HFP_E_TOO_LARGE, left, "%ux%u is over the limit of %dx%d", f.width, f.height,
+    reject(c, v, HFP_E_TOO_LARGE, left,
+           "%ux%u is over the limit of %dx%d (HELLO_OK's max size; hairfilterd's --max-size, "
+           "lowered at start to fit --max-memory-mb: docs/SERVER.md)", f.width, f.height,
            s->max_width, s->max_height);
   } else if ((need = hfd_frame_bytes(s, v, &f)) > s->frame_budget) {
     /* Within the announced size this cannot happen (limits.c); kept so

@@ -238,7 +238,8 @@ int cli_read_features(const char *path, const char *part, int spp, int estimate,
               "transparency's alpha-corrected estimate beside the samples; `hairfilter render` "
               "writes it unless given --no-alpha-corrected (protocol/FEATURES.md, \"The "
               "alpha-corrected estimate\"), or filter the frame with a variant that reads the "
-              "samples alone (Kernel: weights/kernel.safetensors)\n", path, name, variant);
+              "samples alone (Kernel: --variant Kernel from a server, --weights "
+              "weights/kernel.safetensors for infer)\n", path, name, variant);
       rc = HF_EFORMAT;
       goto fail;
     }

@@ -947,7 +947,9 @@ int cmd_eval(int argc, char **argv) {
       goto out;
     }
     if (gather(&img, "gt", gt)) {
-      fprintf(stderr, "hairfilter eval: %s: no gt.color/gt.highlight/gt.alpha\n", fr->path);
+      fprintf(stderr, "hairfilter eval: %s: no gt.color/gt.highlight/gt.alpha: eval scores "
+              "against the frame's ground truth; render it without --gt-ss 0 (docs/RENDERING.md)\n",
+              fr->path);
       rc = HF_EFORMAT;
       goto out;
     }

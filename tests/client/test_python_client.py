@@ -277,8 +277,9 @@ class PythonClient(unittest.TestCase):
             self.refused("TLS", ["unknown ca", "does not trust this client certificate"], tls,
                          tls_ca=c("ca.pem"), tls_cert=c("client-other.pem"),
                          tls_key=c("client-other.key"))
-            self.refused("UNAUTHORIZED", [tcp], tcp)
-            self.refused("UNAUTHORIZED", ["No such file"],
+            self.refused("UNAUTHORIZED", [tcp, "Client(url, token=...)"], tcp)
+            self.refused("UNAUTHORIZED", ["not the server's"], tcp, token="wrong-token")
+            self.refused("UNAUTHORIZED", ["No such file", "is hairfilterd running?"],
                          "unix:" + os.path.join(ARGS.work, "missing.sock") + "," + tcp)
         finally:
             proc.terminate()
@@ -396,6 +397,7 @@ class PythonClient(unittest.TestCase):
             hairfilter.Client(missing)
         self.assertEqual(e.exception.code, "CONNECT")
         self.assertIn("No such file", e.exception.message)
+        self.assertIn("is hairfilterd running?", e.exception.message)
         with hairfilter.Client(missing + "," + UNIX) as hf:
             self.assertEqual(hf.endpoint, UNIX)
         with self.assertRaises(hairfilter.Error) as e:

@@ -19,6 +19,7 @@ mid-stream; this client does not).
 """
 
 import array
+import errno
 import mmap
 import os
 import socket
@@ -157,6 +158,18 @@ class _Pending:
         self.user, self.t0, self.shm = user, time.monotonic(), shm
 
 
+def _connect_hint(kind, e):
+    """What to check after the usual connect failures (as libhairfilter says)."""
+    if kind == "unix" and e.errno in (errno.EACCES, errno.EPERM):
+        return (" (the socket's permissions refuse this user: is it in the server's group, "
+                "e.g. hairfilter?)")
+    if kind == "unix" and e.errno == errno.ENOENT:
+        return " (no socket there: is hairfilterd running?)"
+    if e.errno == errno.ECONNREFUSED:
+        return " (nothing listens there: is hairfilterd running?)"
+    return ""
+
+
 class Client:
     """One connection to hairfilterd. url: "unix:PATH", "tcp:HOST:PORT",
     "tcp:[IPV6]:PORT", "tcp:PORT", or several separated by commas (the first
@@ -224,7 +237,7 @@ class Client:
                 s = socket.create_connection((addr.host, addr.port), timeout=self.timeout)
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         except OSError as e:
-            raise Error("CONNECT", "connect: %s" % (e.strerror or e))
+            raise Error("CONNECT", "connect: %s%s" % (e.strerror or e, _connect_hint(addr.kind, e)))
         if addr.kind == "tls":
             s = self._wrap_tls(s, addr)
         self._sock = s
@@ -234,6 +247,9 @@ class Client:
         payload = self._read_payload(length)
         if type_ == P.ERROR:
             code, _, msg = P.decode_error(payload)
+            if code == P.E_UNAUTHORIZED:
+                msg += ("; give the server's token: Client(url, token=...)" if not token else
+                        "; the token given is not the server's (its --auth-token-file)")
             raise Error(P.code_name(code), msg)
         if type_ != P.HELLO_OK:
             raise Error("PROTOCOL", "handshake answered with message type %d" % type_)
