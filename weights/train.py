@@ -774,12 +774,25 @@ def main(argv=None):
 
         entries = list_frames()
         if not entries:
-            sys.exit(f"train.py: no frames of styles {args.styles} in {args.data}")
+            found = sorted({e["style"] for d in args.data.split(",") if d
+                            for e in dataset.read_manifest(d)})
+            sys.exit(f"train.py: no frames of styles {args.styles} in {args.data} (it has "
+                     f"{', '.join(found) or 'no frames'}): name them with --styles, or "
+                     f"--styles '' for every style")
         train_e, val_e = dataset.split_frames(entries, args.val_fraction)
         t0 = time.time()
         est = bool(cfg.get("estimate"))
         train_set = dataset.FrameSet(train_e, cfg["spp"], estimate=est)
         val_set = dataset.FrameSet(val_e, cfg["spp"], estimate=est) if val_e else None
+        # A crop larger than a frame would be cut to the frame (the whole
+        # frame, mostly background), and frames of several sizes would then
+        # not stack into one batch.
+        small = min(((min(t.shape[:2]), e["file"], t.shape[1], t.shape[0])
+                     for fs in (train_set, val_set) if fs for t, e in zip(fs.tgts, fs.entries)))
+        if args.crop > small[0]:
+            sys.exit(f"train.py: --crop {args.crop} is larger than the smallest frame, {small[1]} "
+                     f"({small[2]}x{small[3]}): crops must fit inside every frame; use --crop "
+                     f"{small[0] // 16 * 16} or less")
         print(f"{cfg['name']}: {len(train_e)} training / {len(val_e)} validation frames "
               f"({', '.join(sorted(set(e['style'] for e in entries)))}), "
               f"{(train_set.nbytes() + (val_set.nbytes() if val_set else 0)) / 2**20:.0f} MiB, "

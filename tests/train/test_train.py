@@ -921,6 +921,22 @@ class Recipe(unittest.TestCase):
             self.assertTrue(torch.equal(sd16[k], sdb16[k]), k)
             self.assertTrue(torch.equal(sd16[k], sd_a[k].half().float()), k)
 
+    def test_refusals_say_what_to_give(self):
+        """A crop larger than the frames, and styles the data does not hold,
+        are refused before training, naming what would work."""
+        cmd = [sys.executable, os.path.join(WEIGHTS, "train.py"), "--threads", "1", "--device",
+               "cpu", "--data", self.data, "--variant", "Base", "--steps", "1",
+               "--out", os.path.join(self.work, "run_refused")]
+        p = subprocess.run(cmd + ["--crop", str(2 * SIZE)], capture_output=True, text=True)
+        self.assertNotEqual(p.returncode, 0)
+        self.assertIn(f"--crop {2 * SIZE} is larger than the smallest frame", p.stderr)
+        self.assertIn(f"({SIZE}x{SIZE})", p.stderr)
+        self.assertIn(f"use --crop {SIZE} or less", p.stderr)
+        p = subprocess.run(cmd + ["--styles", "curly"], capture_output=True, text=True)
+        self.assertNotEqual(p.returncode, 0)
+        self.assertIn("it has straight, wavy", p.stderr)
+        self.assertIn("--styles ''", p.stderr)
+
     def test_kernel_ac_trains_and_the_c_backend_agrees(self):
         """KernelAC trains from the synthetic frames' acst4.* (the estimate
         after the samples in every input), exports with its 'estimate', and
