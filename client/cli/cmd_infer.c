@@ -15,10 +15,10 @@ static void usage(FILE *f) {
           "                        [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "Reads S{k}.<feature> channels (and acst4.color/highlight/alpha, the alpha-corrected\n"
           "estimate, for weights that read it: KernelAC), writes color/highlight/alpha\n"
-          "(protocol/FEATURES.md)\n"
-          "with the input's data window and display window. --part picks the part of a\n"
-          "multi-part file (default: the one with S0.color). --png composites the result over\n"
-          "the frame's background layer where it has one, else over --background.\n");
+          "(protocol/FEATURES.md) with the input's data window and display window.\n"
+          "--part picks the part of a multi-part file (default: the one with S0.color).\n"
+          "--png composites the result over the frame's background layer where it has one,\n"
+          "else over --background.\n");
 }
 
 /* Runs one frame through weights on backend; result_img gets [h][w][3] with
