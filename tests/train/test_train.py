@@ -922,8 +922,9 @@ class Recipe(unittest.TestCase):
             self.assertTrue(torch.equal(sd16[k], sd_a[k].half().float()), k)
 
     def test_refusals_say_what_to_give(self):
-        """A crop larger than the frames, and styles the data does not hold,
-        are refused before training, naming what would work."""
+        """A crop larger than the frames, styles the data does not hold and a
+        directory without frames are refused before training, naming what
+        would work, without a traceback."""
         cmd = [sys.executable, os.path.join(WEIGHTS, "train.py"), "--threads", "1", "--device",
                "cpu", "--data", self.data, "--variant", "Base", "--steps", "1",
                "--out", os.path.join(self.work, "run_refused")]
@@ -936,6 +937,11 @@ class Recipe(unittest.TestCase):
         self.assertNotEqual(p.returncode, 0)
         self.assertIn("it has straight, wavy", p.stderr)
         self.assertIn("--styles ''", p.stderr)
+        missing = os.path.join(self.work, "no_such_set")
+        p = subprocess.run(cmd + ["--data", missing], capture_output=True, text=True)
+        self.assertNotEqual(p.returncode, 0)
+        self.assertIn(f"train.py: {missing}: no frames", p.stderr)
+        self.assertNotIn("Traceback", p.stderr)
 
     def test_kernel_ac_trains_and_the_c_backend_agrees(self):
         """KernelAC trains from the synthetic frames' acst4.* (the estimate
