@@ -107,6 +107,22 @@ def input_range(stats, spp):
     return out
 
 
+def union_range(a, b):
+    """The `input_range` covering both a and b (each input_range's dict):
+    per statistic the lower of the minima and the higher of the maxima, the
+    frames summed. Ranges of another definition or spp cannot be merged:
+    a is returned as it is."""
+    if b is None or a.get("definition") != b.get("definition") or a.get("spp") != b.get("spp"):
+        return a
+    out = dict(a, frames=int(a.get("frames", 0)) + int(b.get("frames", 0)))
+    for k in RANGE_STATS:
+        if k in a and k in b:
+            out[k] = [min(a[k][0], b[k][0]), max(a[k][1], b[k][1])]
+        elif k in b:
+            out[k] = list(b[k])
+    return out
+
+
 def input_range_json(rng):
     """The metadata string: JSON whose floats read back exactly."""
     return json.dumps(rng, separators=(", ", ": "))

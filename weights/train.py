@@ -922,6 +922,12 @@ def main(argv=None):
         else:
             rng = None
             print("train.py: no --data: exported without an input range", file=sys.stderr)
+        # Weights that started from others (--init) learnt those frames too:
+        # their range joins this run's, or a fine-tune on a few frames would
+        # record only those, and a server would flag every other frame.
+        init_meta = hfnet.load_metadata(args.init).get("input_range") if args.init else None
+        if rng is not None and init_meta:
+            rng = input_stats.union_range(rng, json.loads(init_meta))
         export(averaged(net, avg), args.export, args.export_dtype, rng)
     return 0
 

@@ -943,6 +943,29 @@ class Recipe(unittest.TestCase):
         self.assertIn(f"train.py: {missing}: no frames", p.stderr)
         self.assertNotIn("Traceback", p.stderr)
 
+    def test_init_range_joins_the_exported_range(self):
+        """Weights trained from others (--init) record the union of the
+        others' input range and their own frames'; without --init, their
+        frames' alone."""
+        import input_stats
+        import stamp_range
+        a = os.path.join(self.work, "range_a.safetensors")
+        run_train("--data", self.data, "--variant", "Small", "--out", os.path.join(self.work, "ra"),
+                  "--steps", "1", "--batch", "2", "--crop", "48", "--export", a)
+        own = json.loads(hfnet.load_metadata(a)["input_range"])
+        wide = dict(own, frames=1000, strand_alpha_p50=[1e-4, 0.999])
+        b = os.path.join(self.work, "range_b.safetensors")
+        stamp_range.stamp(a, wide, b)
+        c = os.path.join(self.work, "range_c.safetensors")
+        run_train("--data", self.data, "--variant", "Small", "--init", b,
+                  "--out", os.path.join(self.work, "rc"), "--steps", "1", "--batch", "2",
+                  "--crop", "48", "--export", c)
+        got = json.loads(hfnet.load_metadata(c)["input_range"])
+        self.assertEqual(got, input_stats.union_range(own, wide))
+        self.assertEqual(got["frames"], own["frames"] + 1000)
+        self.assertEqual(got["strand_alpha_p50"], [1e-4, 0.999])
+        self.assertEqual(got["hair_fraction"], own["hair_fraction"])
+
     def test_kernel_ac_trains_and_the_c_backend_agrees(self):
         """KernelAC trains from the synthetic frames' acst4.* (the estimate
         after the samples in every input), exports with its 'estimate', and
