@@ -768,17 +768,18 @@ def main(argv=None):
             sys.exit("train.py: --data is required to train")
         styles = dataset.parse_styles(args.styles)
 
-        def list_frames():
-            found = [e for d in args.data.split(",") if d for e in dataset.read_manifest(d)]
+        def every_frame():
+            return [e for d in args.data.split(",") if d for e in dataset.read_manifest(d)]
+
+        def of_styles(found):
             return [e for e in found if e["style"] in styles] if styles else found
 
-        entries = list_frames()
+        every = every_frame()
+        entries = of_styles(every)
         if not entries:
-            found = sorted({e["style"] for d in args.data.split(",") if d
-                            for e in dataset.read_manifest(d)})
+            have = ", ".join(sorted({e["style"] for e in every})) or "no frames"
             sys.exit(f"train.py: no frames of styles {args.styles} in {args.data} (it has "
-                     f"{', '.join(found) or 'no frames'}): name them with --styles, or "
-                     f"--styles '' for every style")
+                     f"{have}): name them with --styles, or --styles '' for every style")
         train_e, val_e = dataset.split_frames(entries, args.val_fraction)
         t0 = time.time()
         est = bool(cfg.get("estimate"))
@@ -820,7 +821,7 @@ def main(argv=None):
                 # validation frames stay those chosen at the start).
                 known = {e["file"] for e in train_set.entries}
                 known.update(e["file"] for e in val_e)
-                new = [e for e in list_frames() if e["file"] not in known]
+                new = [e for e in of_styles(every_frame()) if e["file"] not in known]
                 if new:
                     train_set.add(new)
                     print(f"\n{len(new)} new frames: {len(train_set)} training frames",
