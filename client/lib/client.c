@@ -6,7 +6,8 @@
  * client's timeout, so a dead or stuck server costs a timeout, never a hang.
  * Frames are read piece by piece straight into their destination: a RESULT
  * tensor lands in the caller's buffer with no intermediate copy, and a
- * request's features go out with one sendmsg() of [head, features].
+ * request's features go out with one sendmsg() of [head, features] (and
+ * the estimate, when it is in a buffer of its own).
  *
  * Failover (a URL listing several endpoints): a lost connection's requests
  * are queued and sent again on the next endpoint that answers; a request
@@ -43,10 +44,12 @@ int hfci_wait_fd(int fd, short events, int timeout_ms) {
   }
 }
 
-int hfci_send_fd(int fd, int timeout_ms, const void *a, size_t an, const void *b, size_t bn) {
-  struct iovec vec[2] = {{(void *)a, an}, {(void *)b, bn}};
+int hfci_send_fd(int fd, int timeout_ms, const struct iovec *in, int n) {
+  struct iovec vec[HFCI_MAX_IOV];
+  int iovcnt = 0;
+  for (int i = 0; i < n && i < HFCI_MAX_IOV; i++)
+    if (in[i].iov_len) vec[iovcnt++] = in[i];
   struct iovec *iov = vec;
-  int iovcnt = bn ? 2 : 1;
   while (iovcnt) {
     struct msghdr mh;
     memset(&mh, 0, sizeof mh);
@@ -120,10 +123,13 @@ int hfci_recv_fd(int fd, int *rx_fd, void *buf, size_t n, int timeout_ms) {
   return 0;
 }
 
-int hfci_send_io(int fd, void *ssl, int timeout_ms, const void *a, size_t an, const void *b,
-                 size_t bn) {
-  return ssl ? hfci_tls_send(ssl, fd, timeout_ms, a, an, b, bn)
-             : hfci_send_fd(fd, timeout_ms, a, an, b, bn);
+int hfci_send_iov(int fd, void *ssl, int timeout_ms, const struct iovec *iov, int n) {
+  return ssl ? hfci_tls_send(ssl, fd, timeout_ms, iov, n) : hfci_send_fd(fd, timeout_ms, iov, n);
+}
+
+int hfci_send_io(int fd, void *ssl, int timeout_ms, const void *buf, size_t n) {
+  struct iovec iov = {(void *)buf, n};
+  return hfci_send_iov(fd, ssl, timeout_ms, &iov, 1);
 }
 
 int hfci_recv_io(int fd, void *ssl, int *rx_fd, void *buf, size_t n, int timeout_ms) {
@@ -498,7 +504,7 @@ int hfci_control(hfc_client *c, const uint8_t *frame, size_t len, int reply_type
     c->ctl_done = 0;
     c->ctl_status = 0;
     c->ctl = NULL;
-    int rc = hfci_send_io(c->conns[k].fd, c->conns[k].ssl, c->timeout_ms, frame, len, NULL, 0);
+    int rc = hfci_send_io(c->conns[k].fd, c->conns[k].ssl, c->timeout_ms, frame, len);
     if (rc) hfci_conn_lost(c, k, rc);   /* marks the control request done with rc */
     while (!c->ctl_done) {
       rc = hfci_pump(c, c->timeout_ms);

@@ -15,6 +15,7 @@
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <sys/uio.h>
 
 #include "hairfilter.h"
 #include "hfproto.h"
@@ -69,8 +70,11 @@ typedef struct pending {
   uint8_t in_dtype, out_dtype;
   float hair[3], light[3], bg[3];
   const void *features;
-  uint64_t features_len;        /* the estimate's bytes included */
+  uint64_t features_len;        /* bytes sent from features: the estimate's
+                                   included when it follows them */
   int estimate;                 /* hfc_request.estimate */
+  const void *estimate_buffer;  /* the estimate in a buffer of its own, or NULL */
+  uint64_t estimate_len;        /* bytes sent from estimate_buffer (else 0) */
   void *result, *rgba;
   int shm;                      /* the last send went by reference */
   int in_place;                 /* result or rgba overlaps the features: a
@@ -156,13 +160,15 @@ int hfci_wait_fd(int fd, short events, int timeout_ms);
  * other is closed (rx_fd may be NULL). 0, or HFC_E_CLOSED / HFC_E_IO /
  * HFC_E_TIMEOUT. */
 int hfci_recv_fd(int fd, int *rx_fd, void *buf, size_t n, int timeout_ms);
-/* Sends a then b (bn may be 0) on fd, waiting up to timeout_ms whenever the
- * socket is full. 0, or HFC_E_CLOSED / HFC_E_IO / HFC_E_TIMEOUT. */
-int hfci_send_fd(int fd, int timeout_ms, const void *a, size_t an, const void *b, size_t bn);
+/* Sends the n (1..HFCI_MAX_IOV) buffers of iov in order on fd (one
+ * sendmsg() while the socket takes them), waiting up to timeout_ms whenever
+ * it is full. 0, or HFC_E_CLOSED / HFC_E_IO / HFC_E_TIMEOUT. */
+#define HFCI_MAX_IOV 3
+int hfci_send_fd(int fd, int timeout_ms, const struct iovec *iov, int n);
 /* The same through TLS when ssl is not NULL (no descriptors travel then):
- * the calls every frame goes through. */
-int hfci_send_io(int fd, void *ssl, int timeout_ms, const void *a, size_t an, const void *b,
-                 size_t bn);
+ * the calls every frame goes through. hfci_send_io sends one buffer. */
+int hfci_send_iov(int fd, void *ssl, int timeout_ms, const struct iovec *iov, int n);
+int hfci_send_io(int fd, void *ssl, int timeout_ms, const void *buf, size_t n);
 int hfci_recv_io(int fd, void *ssl, int *rx_fd, void *buf, size_t n, int timeout_ms);
 /* Reads one frame from any connection (waiting up to timeout_ms for one to
  * start) and dispatches it. 0 when something happened (a frame, or a
@@ -204,8 +210,7 @@ void hfci_tls_signal(hfc_client *c);
  * checked): 0 with *ssl set, or HFC_E_TLS / HFC_E_TIMEOUT with
  * hfci_tls_why() saying what failed and what to check. */
 int hfci_tls_connect(hfc_client *c, int fd, const hfp_url *u, void **ssl);
-int hfci_tls_send(void *ssl, int fd, int timeout_ms, const void *a, size_t an, const void *b,
-                  size_t bn);
+int hfci_tls_send(void *ssl, int fd, int timeout_ms, const struct iovec *iov, int n);
 int hfci_tls_recv(void *ssl, int fd, void *buf, size_t n, int timeout_ms);
 /* Decrypted bytes waiting in OpenSSL, which poll() on the socket cannot see. */
 int hfci_tls_pending(void *ssl);

@@ -156,7 +156,7 @@ static int handshake(hfc_client *c, int fd, void *ssl, hfp_hello_ok *ok, char *w
     snprintf(why, whylen, "cannot encode HELLO");
     return HFC_E_ARG;
   }
-  int rc = hfci_send_io(fd, ssl, c->timeout_ms, frame, (size_t)n, NULL, 0);
+  int rc = hfci_send_io(fd, ssl, c->timeout_ms, frame, (size_t)n);
   uint8_t hb[HFP_HEADER_SIZE];
   if (!rc) rc = hfci_recv_io(fd, ssl, NULL, hb, sizeof hb, c->timeout_ms);
   if (rc) {

@@ -72,18 +72,29 @@ static int check_request(hfc_client *c, const hfc_request *r) {
   if (r->out_dtype != HFC_F32 && r->out_dtype != HFC_F16)
     return hfci_arg(c, "hfc_request.out_dtype is %d: want HFC_F32 or HFC_F16", (int)r->out_dtype);
   if (r->estimate != 0 && r->estimate != 1)
-    return hfci_arg(c, "hfc_request.estimate is %d: want 0, or 1 when the features are "
-                       "followed by the frame's alpha-corrected estimate", r->estimate);
+    return hfci_arg(c, "hfc_request.estimate is %d: want 0, or 1 when the request carries the "
+                       "frame's alpha-corrected estimate", r->estimate);
+  if (r->estimate_buffer && !r->estimate)
+    return hfci_arg(c, "hfc_request.estimate_buffer is set but hfc_request.estimate is 0: set "
+                       "estimate to 1 to send it, or estimate_buffer to NULL");
   size_t in = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
-  size_t est = r->estimate ? hfc_estimate_bytes(r->width, r->height, r->in_dtype) : 0;
+  size_t est = hfc_estimate_bytes(r->width, r->height, r->in_dtype);
   size_t out = hfc_output_bytes(r->width, r->height, 3, r->out_dtype);
   size_t rgba = hfc_output_bytes(r->width, r->height, 4, r->out_dtype);
+  /* The estimate after the features, in the same buffer. */
+  int follows = r->estimate && !r->estimate_buffer;
   if (!r->features) return hfci_arg(c, "hfc_request.features is NULL");
-  if (r->features_bytes < in + est)
+  if (r->features_bytes < in + (follows ? est : 0))
     return hfci_arg(c, "hfc_request.features_bytes is %zu: a %dx%d frame of %d spp in %s needs "
                        "%zu ([height][width][spp*6]%s)", r->features_bytes, r->width, r->height,
-                    r->spp, dtype_name(r->in_dtype), in + est,
-                    r->estimate ? ", then the estimate, [height][width][3]" : "");
+                    r->spp, dtype_name(r->in_dtype), in + (follows ? est : 0),
+                    follows ? ", then the estimate, [height][width][3]; or set "
+                              "hfc_request.estimate_buffer to send it from a buffer of its own"
+                            : "");
+  if (r->estimate_buffer && r->estimate_bytes < est)
+    return hfci_arg(c, "hfc_request.estimate_bytes is %zu: the estimate of a %dx%d frame in %s "
+                       "needs %zu ([height][width][3])", r->estimate_bytes, r->width, r->height,
+                    dtype_name(r->in_dtype), est);
   if (!r->result) return hfci_arg(c, "hfc_request.result is NULL");
   if (r->result_bytes < out)
     return hfci_arg(c, "hfc_request.result_bytes is %zu: a %dx%d result in %s needs %zu "
@@ -178,12 +189,13 @@ static int check_estimate(hfc_client *c, const char *variant, int estimate) {
   }
   if (c->active < 0 || !estimate_mismatch(&c->conns[c->active], variant, estimate)) return 0;
   if (estimate)
-    return hfci_arg(c, "variant %s reads no estimate: set hfc_request.estimate to 0 and send "
-                       "the features alone", variant);
+    return hfci_arg(c, "variant %s reads no estimate: set hfc_request.estimate to 0 (and "
+                       "estimate_buffer to NULL) and send the features alone", variant);
   return hfci_arg(c, "variant %s reads stochastic transparency's alpha-corrected estimate "
-                     "(hfc_variant.estimate): set hfc_request.estimate to 1 and put the estimate "
-                     "after the features in the same buffer (features_bytes = hfc_features_bytes "
-                     "+ hfc_estimate_bytes; protocol/FEATURES.md)", variant);
+                     "(hfc_variant.estimate): set hfc_request.estimate to 1 and give the estimate, "
+                     "[height][width][3], in hfc_request.estimate_buffer (or after the features "
+                     "in the same buffer, features_bytes = hfc_features_bytes + "
+                     "hfc_estimate_bytes; protocol/FEATURES.md)", variant);
 }
 
 /* ---- sending ------------------------------------------------------------------ */
@@ -225,8 +237,11 @@ static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
   memcpy(f.light, p->light, sizeof f.light);
   memcpy(f.bg, p->bg, sizeof f.bg);
   f.data = p->features;
-  f.data_len = p->features_len;
-  *seg = hfci_shm_place(c, &f, p);
+  f.data_len = p->features_len + p->estimate_len;
+  /* By reference only when the tensor is one run of the segment (an
+   * estimate of its own directly after the features was joined to them at
+   * submission). */
+  *seg = p->estimate_buffer ? NULL : hfci_shm_place(c, &f, p);
   if (*seg) {
     f.flags |= HFP_FILTER_SHM;
     f.shm_segment = (*seg)->id;
@@ -257,8 +272,10 @@ int hfci_send_request(hfc_client *c, pending *p) {
   x->inflight++;
   /* On failure part of a frame may be out: the connection cannot be trusted
    * any more, and the caller ends it (hfci_conn_lost, which resends p). */
-  return hfci_send_io(x->fd, x->ssl, c->timeout_ms, head, (size_t)n, g ? NULL : p->features,
-                      g ? 0 : (size_t)p->features_len);
+  struct iovec iov[3] = {{head, (size_t)n},
+                         {(void *)p->features, g ? 0 : (size_t)p->features_len},
+                         {(void *)p->estimate_buffer, g ? 0 : (size_t)p->estimate_len}};
+  return hfci_send_iov(x->fd, x->ssl, c->timeout_ms, iov, 3);
 }
 
 /* Grows the slots to at least n. */
@@ -272,17 +289,25 @@ static int grow(hfc_client *c, int n) {
   return 0;
 }
 
-/* Whether p's result or rgba shares a byte with its features (filtering in
- * place). Such a frame may be sent through the socket, where its result
- * arrives only after its features have gone, but never again after a
- * failover: by then the result may have overwritten them. */
-static int overlaps_features(const pending *p) {
+/* Whether p's result or rgba shares a byte with its input, the features
+ * or an estimate of its own (filtering in place). Such a frame may be sent
+ * through the socket, where its result arrives only after its input has
+ * gone, but never again after a failover: by then the result may have
+ * overwritten it. */
+static int overlaps_input(const pending *p) {
   uint64_t out_len = 0, rgba_len = 0;
   hfp_output_bytes(p->width, p->height, HFP_OUTPUTS, p->out_dtype, &out_len);
   if (p->rgba) hfp_output_bytes(p->width, p->height, 4, p->out_dtype, &rgba_len);
-  uint64_t f = (uintptr_t)p->features, r = (uintptr_t)p->result, a = (uintptr_t)p->rgba;
-  return hfp_regions_overlap(f, p->features_len, r, out_len) ||
-         (p->rgba && hfp_regions_overlap(f, p->features_len, a, rgba_len));
+  const struct {
+    uint64_t at, len;
+  } in[2] = {{(uintptr_t)p->features, p->features_len},
+             {(uintptr_t)p->estimate_buffer, p->estimate_len}};
+  uint64_t r = (uintptr_t)p->result, a = (uintptr_t)p->rgba;
+  for (int i = 0; i < 2; i++)
+    if (in[i].len && (hfp_regions_overlap(in[i].at, in[i].len, r, out_len) ||
+                      (p->rgba && hfp_regions_overlap(in[i].at, in[i].len, a, rgba_len))))
+      return 1;
+  return 0;
 }
 
 static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) {
@@ -332,11 +357,21 @@ static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) 
   memcpy(p->bg, r->background, sizeof p->bg);
   p->features = r->features;
   p->estimate = r->estimate;
-  p->features_len = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype) +
-                    (r->estimate ? hfc_estimate_bytes(r->width, r->height, r->in_dtype) : 0);
+  p->features_len = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
+  uint64_t est = r->estimate ? hfc_estimate_bytes(r->width, r->height, r->in_dtype) : 0;
+  if (r->estimate_buffer &&
+      r->estimate_buffer != (const uint8_t *)r->features + p->features_len) {
+    p->estimate_buffer = r->estimate_buffer;
+    p->estimate_len = est;
+  } else {
+    /* After the features in the same buffer, or in a buffer of its own
+     * that directly follows them: one run, which shared memory can take
+     * by reference. */
+    p->features_len += est;
+  }
   p->result = r->result;
   p->rgba = r->rgba;
-  p->in_place = overlaps_features(p);
+  p->in_place = overlaps_input(p);
   /* Whatever the codec refuses is refused now, before the slot is taken. */
   uint8_t head[HFP_FILTER_HEAD_MAX];
   const segment *g;

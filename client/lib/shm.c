@@ -97,7 +97,7 @@ int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem) {
   if (addr == MAP_FAILED) {
     uint8_t d[HFP_HEADER_SIZE + 4];
     int dn = hfp_encode_shm_destroy(d, sizeof d, id);
-    if (dn > 0 && !x->draining && (rc = hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)dn, NULL, 0)))
+    if (dn > 0 && !x->draining && (rc = hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)dn)))
       hfci_conn_lost(c, c->ctl_conn, rc);
     hfci_msg(c, "mmap of a %zu-byte segment failed", bytes);
     return HFC_E_NOMEM;
@@ -114,7 +114,8 @@ static int in_use(const hfc_client *c, const segment *g) {
     const pending *p = &c->p[k];
     if (p->state != P_SENT && p->state != P_QUEUED) continue;
     if (seg_of(c, p->features, 1) == g || seg_of(c, p->result, 1) == g ||
-        (p->rgba && seg_of(c, p->rgba, 1) == g))
+        (p->rgba && seg_of(c, p->rgba, 1) == g) ||
+        (p->estimate_buffer && seg_of(c, p->estimate_buffer, 1) == g))
       return 1;
   }
   return 0;
@@ -138,7 +139,7 @@ int hfc_shm_free(hfc_client *c, void *mem) {
       if (x->fd < 0 || x->serial != g.conn_serial || x->draining || !g.conn_serial) continue;
       uint8_t d[HFP_HEADER_SIZE + 4];
       int n = hfp_encode_shm_destroy(d, sizeof d, g.id);
-      int rc = n < 0 ? HFC_E_ARG : hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)n, NULL, 0);
+      int rc = n < 0 ? HFC_E_ARG : hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)n);
       if (rc) hfci_conn_lost(c, k, rc);
       return rc;
     }

@@ -334,12 +334,15 @@ static int transfer(SSL *ssl, int fd, int writing, uint8_t *p, size_t n, int tim
   return 0;
 }
 
-int hfci_tls_send(void *s, int fd, int timeout_ms, const void *a, size_t an, const void *b,
-                  size_t bn) {
+int hfci_tls_send(void *s, int fd, int timeout_ms, const struct iovec *iov, int n) {
   /* SSL_MODE_ACCEPT_MOVING_WRITE_BUFFER and partial writes: the pointer
-   * may move on between retries. */
-  int rc = transfer(s, fd, 1, (uint8_t *)a, an, timeout_ms);
-  return rc ? rc : transfer(s, fd, 1, (uint8_t *)b, bn, timeout_ms);
+   * may move on between retries. Buffer by buffer: TLS records are copied
+   * and encrypted anyway, so a gather write would save nothing. */
+  for (int i = 0; i < n; i++) {
+    int rc = transfer(s, fd, 1, (uint8_t *)iov[i].iov_base, iov[i].iov_len, timeout_ms);
+    if (rc) return rc;
+  }
+  return 0;
 }
 
 int hfci_tls_recv(void *s, int fd, void *buf, size_t n, int timeout_ms) {

@@ -184,6 +184,16 @@ prefix)
   step "engines through the installed daemon, on the installed config"
   start_daemon "$prefix/bin/hairfilterd" "" "$prefix/share/hairfilter/hairfilterd.conf"
   run_engines "${engines[@]}"
+  step "the C++ engines on KernelAC, the estimate in a buffer of its own (set_estimate)"
+  first_ac=
+  for e in "${engines[@]}"; do
+    case $(basename "$e") in *cpp*) ;; *) continue;; esac
+    ac=$("$e" "$url" KernelAC) || fail "$e on KernelAC failed"
+    echo "   $(basename "$e") KernelAC: $ac"
+    [ -z "$first_ac" ] && first_ac=$ac
+    [ "$ac" = "$first_ac" ] || fail "$e disagrees with the first C++ engine on KernelAC"
+  done
+  [ -n "$first_ac" ] || fail "no C++ engine was built"
   if "$python" -c 'import numpy' 2>/dev/null; then
     step "the installed Python client"
     PYTHONPATH="$prefix/lib/python3/dist-packages" "$python" - "$url" "$version" <<'EOF'

@@ -514,9 +514,11 @@ int server_start_connected(const harness *h, server *s, const char *const *extra
 }
 
 hfc_request test_request_sized(hfc_request r) {
+  size_t est = r.estimate ? hfc_estimate_bytes(r.width, r.height, r.in_dtype) : 0;
   if (!r.features_bytes)
     r.features_bytes = hfc_features_bytes(r.width, r.height, r.spp, r.in_dtype) +
-                       (r.estimate ? hfc_estimate_bytes(r.width, r.height, r.in_dtype) : 0);
+                       (r.estimate_buffer ? 0 : est);
+  if (r.estimate_buffer && !r.estimate_bytes) r.estimate_bytes = est;
   if (!r.result_bytes) r.result_bytes = hfc_output_bytes(r.width, r.height, 3, r.out_dtype);
   if (r.rgba && !r.rgba_bytes) r.rgba_bytes = hfc_output_bytes(r.width, r.height, 4, r.out_dtype);
   return r;

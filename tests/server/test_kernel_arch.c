@@ -4,8 +4,9 @@
  * and filters frames, f32 and f16, over the socket and shared memory,
  * to exactly the bytes in-process cpu-ref gives. So does a KernelAC one,
  * which reads the alpha-corrected estimate (protocol version 3): VARIANTS
- * says so, its frames carry the estimate after the features, and a frame
- * without it (or one with it for Kernel) is refused, naming the flag. */
+ * says so, its frames carry the estimate after the features or from a
+ * buffer of its own, and a frame without it (or one with it for Kernel) is
+ * refused, naming the flag. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -187,10 +188,104 @@ static void test_estimate_listed_and_filtered(void **state) {
   hfc_close(c);
 }
 
+/* KernelAC's frame with the estimate in a buffer of its own
+ * (hfc_request.estimate_buffer) gives the bytes of the same frame sent in
+ * one buffer: f32 and f16, over the Unix socket and TCP, and in shared
+ * memory, by reference when the estimate directly follows the features in
+ * the segment and through the socket when it lies elsewhere. */
+static void split_and_compare(hfc_client *c, int w, int h, int f16, uint8_t *shm, int adjacent,
+                              int want_shm) {
+  const size_t es = f16 ? 2 : 4, n_feat = (size_t)w * h * 24, n_est = (size_t)w * h * 3;
+  const size_t n_out = (size_t)w * h * 3;
+  float *in = ac_frame(w, h, (uint32_t)(w + h * 3 + f16));
+  uint8_t *one = malloc((n_feat + n_est) * es), *want = malloc(n_out * es);
+  assert_non_null(one);
+  assert_non_null(want);
+  for (size_t i = 0; i < n_feat + n_est; i++) {
+    if (f16) ((uint16_t *)one)[i] = hf_f32_to_f16(in[i]);
+    else ((float *)one)[i] = in[i];
+  }
+  /* The layout: features, then (adjacent) the estimate, result; or
+   * features, result, estimate. */
+  uint8_t *feat = shm ? shm : malloc(n_feat * es);
+  uint8_t *est = shm ? shm + (adjacent ? n_feat * es : (n_feat + n_out) * es) : malloc(n_est * es);
+  uint8_t *got = shm ? shm + (adjacent ? (n_feat + n_est) * es : n_feat * es) : malloc(n_out * es);
+  assert_non_null(feat);
+  assert_non_null(est);
+  assert_non_null(got);
+  memcpy(feat, one, n_feat * es);
+  memcpy(est, one + n_feat * es, n_est * es);
+  memset(got, 0xcd, n_out * es);
+  hfc_request r = TEST_REQUEST(.variant = "KernelAC", .width = w, .height = h, .spp = 4,
+                                .in_dtype = f16 ? HFC_F16 : HFC_F32, .features = feat,
+                                .out_dtype = f16 ? HFC_F16 : HFC_F32, .result = got,
+                                .estimate = 1, .estimate_buffer = est);
+  assert_int_equal(r.features_bytes, n_feat * es);   /* the samples alone */
+  hfc_timing t;
+  int rc = hfc_filter(c, &r, &t);
+  if (rc) fail_msg("filter %dx%d with the estimate apart: %s (%s)", w, h, hfc_strerror(rc),
+                   hfc_last_message(c));
+  assert_int_equal(t.via_shm, want_shm);
+  hf_io io = {1, w, h, one, f16 ? HF_F16 : HF_F32, want, f16 ? HF_F16 : HF_F32};
+  assert_int_equal(hf_model_run(ac_ref, &io, NULL), HF_OK);
+  assert_memory_equal(got, want, n_out * es);
+  if (!shm) free(feat), free(est), free(got);
+  free(one);
+  free(want);
+  free(in);
+}
+
+static void test_estimate_in_a_buffer_of_its_own(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "test-estimate-apart");
+  assert_non_null(c);
+  split_and_compare(c, 37, 23, 0, NULL, 0, 0);
+  split_and_compare(c, 64, 48, 1, NULL, 0, 0);
+  const size_t seg = (size_t)40 * 30 * (24 + 3 + 3) * 4;
+  uint8_t *mem;
+  assert_int_equal(hfc_shm_alloc(c, seg, (void **)&mem), 0);
+  split_and_compare(c, 40, 30, 0, mem, 1, 1);
+  split_and_compare(c, 40, 30, 0, mem, 0, 0);
+  /* While a frame whose estimate is in the segment is pending, the segment
+   * stays. */
+  float *in = ac_frame(8, 8, 3);
+  memcpy(mem + (size_t)8 * 8 * 27 * 4, in + 8 * 8 * 24, 8 * 8 * 3 * 4);
+  float out[8 * 8 * 3];
+  hfc_request r = TEST_REQUEST(.variant = "KernelAC", .width = 8, .height = 8, .spp = 4,
+                                .features = in, .result = out, .estimate = 1,
+                                .estimate_buffer = mem + (size_t)8 * 8 * 27 * 4);
+  uint32_t id;
+  assert_int_equal(hfc_submit(c, &r, &id), 0);
+  assert_int_equal(hfc_shm_free(c, mem), HFC_E_ARG);
+  hfc_completion done;
+  assert_int_equal(hfc_wait(c, -1, &done), 0);
+  assert_int_equal(done.status, 0);
+  assert_int_equal(hfc_shm_free(c, mem), 0);
+  /* Refused before anything is sent, naming the field. */
+  r = TEST_REQUEST(.variant = "KernelAC", .width = 8, .height = 8, .spp = 4, .features = in,
+                   .result = out, .estimate_buffer = in + 8 * 8 * 24);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(c), "hfc_request.estimate_buffer is set but"));
+  r = TEST_REQUEST(.variant = "KernelAC", .width = 8, .height = 8, .spp = 4, .features = in,
+                   .result = out, .estimate = 1, .estimate_buffer = in + 8 * 8 * 24,
+                   .estimate_bytes = 8 * 8 * 3 * 4 - 1);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(c), "hfc_request.estimate_bytes is 767"));
+  free(in);
+  hfc_close(c);
+  /* Over TCP (no shared memory): the three parts in one gather write. */
+  hfc_options o = test_options("test-estimate-apart-tcp", TEST_TOKEN, 20000);
+  assert_int_equal(hfc_connect(S.tcp_url, &o, &c), 0);
+  split_and_compare(c, 37, 23, 0, NULL, 0, 0);
+  split_and_compare(c, 200, 150, 1, NULL, 0, 0);
+  hfc_close(c);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_kernel_listed_and_filtered),
     cmocka_unit_test(test_estimate_listed_and_filtered),
+    cmocka_unit_test(test_estimate_in_a_buffer_of_its_own),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -48,8 +48,10 @@ static int setup(void **state) {
   snprintf(cmd, sizeof cmd, "cp %s/server.pem %s && cp %s/server.key %s", cert_dir, cert,
            cert_dir, key);
   if (system(cmd) != 0) return -1;
+  char est[300];
+  if (harness_estimate_weights(&H, est, sizeof est)) return -1;
   const char *extra[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
-                         "--listen", "tcp:0.0.0.0:0", "--verbose", NULL};
+                         "--listen", "tcp:0.0.0.0:0", "--verbose", "--weights", est, NULL};
   if (server_start(&H, &S, extra) || !S.tls_url[0]) return -1;
   const char *mextra[] = {"--listen", "tls:127.0.0.1:0", "--tls-cert", cert, "--tls-key", key,
                           "--tls-client-ca", ca, "--tls-client-cert-auth", NULL};
@@ -177,6 +179,41 @@ static void test_tls_equals_tcp(void **state) {
   free(tls);
   /* The loud warning about plain TCP on a non-loopback address. */
   assert_true(server_log_has(&S, "plain TCP on a non-loopback address"));
+}
+
+/* A frame of a variant that reads the estimate, sent with the estimate in a
+ * buffer of its own (three parts through TLS records) gives the bytes of the
+ * same frame sent in one buffer over plain TCP. */
+static void test_tls_estimate_apart(void **state) {
+  (void)state;
+  const int w = 48, h = 40;
+  const size_t n_feat = (size_t)w * h * 24, n_est = (size_t)w * h * 3, n_out = (size_t)w * h * 3;
+  float *in = make_features(w, h, 4, 23), *est = malloc(n_est * sizeof(float));
+  float *plain = malloc(n_out * sizeof(float)), *tls = malloc(n_out * sizeof(float));
+  float *one = malloc((n_feat + n_est) * sizeof(float));
+  for (size_t i = 0; i < n_est; i++) est[i] = (float)((i * 7) % 13) / 13.0f;
+  memcpy(one, in, n_feat * sizeof(float));
+  memcpy(one + n_feat, est, n_est * sizeof(float));
+  hfc_options o = test_options("tcp-estimate", TEST_TOKEN, 10000);
+  hfc_client *c;
+  assert_int_equal(hfc_connect(S.tcp_url, &o, &c), 0);
+  hfc_request r = TEST_REQUEST(.variant = "Estimate", .width = w, .height = h, .spp = 4,
+                               .features = one, .result = plain, .estimate = 1);
+  assert_int_equal(hfc_filter(c, &r, NULL), 0);
+  hfc_close(c);
+  char url[300], msg[600];
+  tls_url(&S, 0, url, sizeof url);
+  int rc = tls_connect(url, &GOOD, &c, msg, sizeof msg);
+  if (rc) fail_msg("%s: %s (%s)", url, hfc_strerror(rc), msg);
+  memset(tls, 0xff, n_out * sizeof(float));
+  r = TEST_REQUEST(.variant = "Estimate", .width = w, .height = h, .spp = 4, .features = in,
+                   .result = tls, .estimate = 1, .estimate_buffer = est);
+  rc = hfc_filter(c, &r, NULL);
+  if (rc) fail_msg("over TLS with the estimate apart: %s (%s)", hfc_strerror(rc),
+                   hfc_last_message(c));
+  assert_memory_equal(plain, tls, n_out * sizeof(float));
+  hfc_close(c);
+  free(in), free(est), free(one), free(plain), free(tls);
 }
 
 /* One refused client: rc and words of its message, then the server goes on. */
@@ -596,6 +633,7 @@ static void test_mid_handshake_eviction_says_busy(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_tls_equals_tcp),
+    cmocka_unit_test(test_tls_estimate_apart),
     cmocka_unit_test(test_server_certificate_refused),
     cmocka_unit_test(test_client_certificate_refused),
     cmocka_unit_test(test_wrong_protocol),

@@ -1,8 +1,9 @@
 // A tiny engine in C++ (11 and 17), built against an installed hairfilter
 // alone through hairfilter.hpp. engine URL VARIANT prints the same line as
-// engine.c.
+// engine.c (for a variant that reads no estimate).
 #include <cinttypes>
 #include <cstdio>
+#include <cstring>
 #include <vector>
 
 #include <hairfilter/hairfilter.hpp>
@@ -19,8 +20,11 @@ int main(int argc, char **argv) {
     hairfilter::Options opt;
     opt.client_name = "engine-cpp";
     hairfilter::Client hf(argv[1], opt);
-    bool known = false;
-    for (const hfc_variant &v : hf.variants()) known = known || v.spp == ENGINE_SPP;
+    bool known = false, reads_estimate = false;
+    for (const hfc_variant &v : hf.variants()) {
+      known = known || v.spp == ENGINE_SPP;
+      if (!std::strcmp(v.name, argv[2])) reads_estimate = v.estimate != 0;
+    }
     if (!known) return 1;
     hairfilter::Request r;
     r.variant = argv[2];
@@ -28,6 +32,16 @@ int main(int argc, char **argv) {
     r.height = ENGINE_H;
     r.spp = ENGINE_SPP;
     r.set_features(features.data(), features.size() * sizeof(float));
+    // A variant that reads the alpha-corrected estimate gets one from a
+    // buffer of its own (here the samples' mean colour, highlight, alpha).
+    std::vector<float> estimate;
+    if (reads_estimate) {
+      estimate.resize(ENGINE_W * ENGINE_H * 3);
+      for (std::size_t p = 0; p < estimate.size(); p++)
+        for (int k = 0; k < ENGINE_SPP; k++)
+          estimate[p] += features[(p / 3 * ENGINE_SPP + k) * 6 + p % 3] / ENGINE_SPP;
+      r.set_estimate(estimate.data(), estimate.size() * sizeof(float));
+    }
     r.set_result(filtered.data(), filtered.size() * sizeof(float));
     hairfilter::Status s = hf.filter(r);
     if (!s) {

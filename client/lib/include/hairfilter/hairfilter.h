@@ -269,13 +269,21 @@ typedef struct hfc_request {
   size_t rgba_bytes;         /* bytes at rgba: at least width*height*4*dtype size */
   float hair[3], light[3], background[3];   /* linear RGB, finite, for rgba */
   void *user;                /* returned in the completion */
-  /* 1: features is followed, in the same buffer, by the frame's
-   * alpha-corrected estimate, [height][width][3] (colour, highlight,
-   * alpha; protocol/FEATURES.md), and features_bytes counts both
+  /* 1: the request carries the frame's alpha-corrected estimate,
+   * [height][width][3] in in_dtype (colour, highlight, alpha;
+   * protocol/FEATURES.md): in estimate_buffer, or, when that is NULL, after
+   * the features in the same buffer, features_bytes then counting both
    * (hfc_features_bytes + hfc_estimate_bytes). Required by variants with
    * hfc_variant.estimate, refused by the others; needs a server of
    * protocol version 3 (hfc_info()->version). */
   int estimate;
+  /* The estimate in a buffer of its own (with estimate 1), for a renderer
+   * that makes it apart from the samples: it goes out after them with no
+   * copy. Through shared memory only when it directly follows the features
+   * in the same segment; elsewhere the frame takes the socket. NULL: the
+   * estimate follows the features, or there is none. */
+  const void *estimate_buffer;
+  size_t estimate_bytes;     /* bytes at estimate_buffer: at least width*height*3*dtype size */
 } hfc_request;
 
 /* A request of this header's size with every field zero (NULL buffers,

@@ -7,6 +7,7 @@
 //   hairfilter::Request r;
 //   r.variant = "Base"; r.width = w; r.height = h; r.spp = 4;
 //   r.set_features(features.data(), features.size() * sizeof(float));
+//   if (reads_estimate) r.set_estimate(estimate.data(), estimate.size() * sizeof(float));
 //   r.set_result(filtered.data(), filtered.size() * sizeof(float));
 //   hairfilter::Status s = hf.filter(r);        // never throws
 //   if (s.busy()) use_last_frame(); else if (!s) log(s.message);
@@ -86,6 +87,14 @@ struct Request : hfc_request {
   void set_features(const void *p, std::size_t bytes) {
     features = p;
     features_bytes = bytes;
+  }
+  // The frame's alpha-corrected estimate, [height][width][3] in in_dtype,
+  // from a buffer of its own (hfc_request.estimate_buffer): for a variant
+  // that reads it (hfc_variant.estimate).
+  void set_estimate(const void *p, std::size_t bytes) {
+    estimate = 1;
+    estimate_buffer = p;
+    estimate_bytes = bytes;
   }
   void set_result(void *p, std::size_t bytes) {
     result = p;
