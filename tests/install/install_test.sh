@@ -181,6 +181,8 @@ prefix)
       fail "hairfilterd --version with a broken config file"
 
   build_engines "$prefix" prefix yes
+  pc_prefix=(env PKG_CONFIG_LIBDIR="$(dirname "$(find "$prefix" -name hairfilter.pc | head -n1)")"
+             PKG_CONFIG_PATH= pkg-config)
   step "engines through the installed daemon, on the installed config"
   start_daemon "$prefix/bin/hairfilterd" "" "$prefix/share/hairfilter/hairfilterd.conf"
   run_engines "${engines[@]}"
@@ -194,6 +196,16 @@ prefix)
     [ "$ac" = "$first_ac" ] || fail "$e disagrees with the first C++ engine on KernelAC"
   done
   [ -n "$first_ac" ] || fail "no C++ engine was built"
+  step "the installed example filter_exr.cpp, built as its comment says, on a feature EXR"
+  ex="$prefix/share/doc/hairfilter/examples/filter_exr.cpp"
+  [ -f "$ex" ] || fail "no $ex"
+  # OpenEXR's .pc is the system's; hairfilter's the prefix's alone.
+  # shellcheck disable=SC2046
+  "$cxx" -std=c++11 $san "$ex" $("${pc_prefix[@]}" --cflags --libs hairfilter) \
+      $(pkg-config --cflags --libs OpenEXR) -Wl,-rpath,"$libdir" -o "$work/filter_exr" ||
+      fail "the example does not build"
+  "$work/filter_exr" "$url" "$src/tests/data/field/frame-64x64.exr" "$work/ex.exr" ||
+      fail "the example failed"
   if "$python" -c 'import numpy' 2>/dev/null; then
     step "the installed Python client"
     PYTHONPATH="$prefix/lib/python3/dist-packages" "$python" - "$url" "$version" <<'EOF'
