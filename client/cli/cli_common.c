@@ -272,19 +272,25 @@ fail:
 
 void cli_warn_sanitised(const char *path, const hf_image *img, const hf_input_report *r) {
   if (r->samples) {
-    char ch[40], what[120];
-    if (r->sample == HF_REPORT_ESTIMATE)
+    char ch[40], what[160];
+    /* The estimate has a rule of its own (protocol/FEATURES.md, "The
+     * alpha-corrected estimate"): a fault makes the pixel's estimate 0. */
+    const int est = r->sample == HF_REPORT_ESTIMATE;
+    const char *gone = est ? "the pixel's estimate becomes 0 (no hair)"
+                           : "the sample counts as uncovered";
+    if (est)
       snprintf(ch, sizeof ch, "%s.%s", HF_ESTIMATE_PREFIX, HF_OUTPUT_NAMES[r->feature]);
     else
       snprintf(ch, sizeof ch, "S%d.%s", r->sample, HF_FEATURE_NAMES[r->feature]);
     if (r->kind == HF_SANITISED_NONFINITE)
-      snprintf(what, sizeof what, "%s = %g is not finite: the sample counts as uncovered", ch,
-               r->value);
+      snprintf(what, sizeof what, "%s = %g is not finite: %s", ch, r->value, gone);
     else if (r->kind == HF_SANITISED_UNCOVERED)
-      snprintf(what, sizeof what, "%s = %g but other features are not 0: the sample counts "
-               "as uncovered", ch, r->value);
+      snprintf(what, sizeof what, "%s = %g but %s: %s", ch, r->value,
+               est ? "colour or highlight is not 0" : "other features are not 0", gone);
     else
       snprintf(what, sizeof what, "%s = %g is out of range: clamped", ch, r->value);
+    /* "First" in the frame's memory order: every sample before any
+     * estimate, which follows the samples (protocol/FEATURES.md). */
     fprintf(stderr, "hairfilter: warning: %s: %" PRIu64 " sample%s sanitised (protocol/"
             "FEATURES.md, \"Out-of-contract values\"), the first at pixel (%d, %d): %s\n",
             path, r->samples, r->samples == 1 ? "" : "s", img->origin_x + r->x,

@@ -436,6 +436,7 @@ int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
 int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing) {
   uint32_t id;
   int slot;
+  if (timing) memset(timing, 0, sizeof *timing);
   int rc = submit(c, r, &id, &slot);
   if (rc) return rc;
   /* The slot stays this request's until released below (slots only grow in

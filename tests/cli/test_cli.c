@@ -76,6 +76,38 @@ static void test_inf_sample(void **state) {
   expect_text("--compression zip");
 }
 
+/* An estimate out of contract: the warning names its channel and the
+ * estimate's own rule (the pixel's estimate becomes 0), not a sample's. */
+static void test_estimate_sanitised(void **state) {
+  hf_image f, e;
+  char err[512];
+  assert_int_equal(hf_exr_read(test_field("frame-64x64.exr"), &f, err, sizeof err), HF_OK);
+  assert_int_equal(hf_image_alloc(&e, f.width, f.height, f.channels + 3), HF_OK);
+  for (int c = 0; c < f.channels; c++) memcpy(e.names[c], f.names[c], sizeof e.names[c]);
+  static const char *const est[3] = {"acst4.color", "acst4.highlight", "acst4.alpha"};
+  for (int c = 0; c < 3; c++) snprintf(e.names[f.channels + c], sizeof e.names[0], "%s", est[c]);
+  const int n = f.channels + 3;
+  for (int p = 0; p < f.width * f.height; p++) {
+    memcpy(e.data + (size_t)p * n, f.data + (size_t)p * f.channels, f.channels * sizeof(float));
+    memset(e.data + (size_t)p * n + f.channels, 0, 3 * sizeof(float));
+  }
+  /* (3, 7): colour without alpha; (10, 5), first in memory: a NaN. */
+  e.data[(size_t)(7 * f.width + 3) * n + f.channels] = 0.5f;
+  e.data[(size_t)(5 * f.width + 10) * n + f.channels] = NAN;
+  assert_int_equal(hf_exr_write(test_tmp("est_nan.exr"), &e, 0), HF_OK);
+  hf_image_free(&f);
+  hf_image_free(&e);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s/weights/kernel_ac.safetensors "
+                       "--in %s --out %s", HF_SOURCE_DIR, test_tmp("est_nan.exr"),
+                       test_tmp("est_out.exr")), 0);
+  expect_text("est_nan.exr: 2 samples sanitised");
+  expect_text("the first at pixel (10, 5): acst4.color = nan is not finite: the pixel's "
+              "estimate becomes 0 (no hair)");
+  hf_image img;
+  read_result(test_tmp("est_out.exr"), &img);
+  hf_image_free(&img);
+}
+
 static void test_tall_frame(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_field("exr-1x1024.exr"), test_tmp("tall.exr")), 0);
@@ -642,7 +674,8 @@ static int teardown(void **state) { return test_tmp_remove(); }
 
 int main(void) {
   const struct CMUnitTest tests[] = {
-    cmocka_unit_test(test_inf_sample),      cmocka_unit_test(test_tall_frame),
+    cmocka_unit_test(test_inf_sample),      cmocka_unit_test(test_estimate_sanitised),
+    cmocka_unit_test(test_tall_frame),
     cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
     cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),

@@ -5,7 +5,7 @@ data and display windows. Files: a 64x64 frame (Kernel); the same frame
 with the alpha-corrected estimate (KernelAC, the estimate from a buffer of
 its own); a crop of it, tiled, HALF, with its data window inside a larger
 display window. A file without the channels the variant reads fails with
-the channel named.
+the channel named, an unknown variant with the server's listed.
 
 usage: test_example_filter_exr.py HAIRFILTERD HAIRFILTER FILTER_EXR WEIGHTS FRAME"""
 import os
@@ -99,6 +99,13 @@ def body(d, w):
     check(p.returncode == 1 and "no channel acst4.color" in p.stderr,
           "KernelAC on a file without the estimate names the channel: rc %d %r"
           % (p.returncode, p.stderr))
+    p = subprocess.run([FILTER_EXR, d.urls["unix"], FRAME, os.path.join(w, "x.exr"), "Bsae"],
+                       capture_output=True, text=True, timeout=60)
+    check(p.returncode == 1 and "no variant Bsae; it has Kernel, KernelAC" in p.stderr,
+          "an unknown variant lists the server's: rc %d %r" % (p.returncode, p.stderr))
+    p = subprocess.run([FILTER_EXR, d.urls["unix"]], capture_output=True, text=True, timeout=60)
+    check(p.returncode == 2 and "usage: filter_exr" in p.stderr,
+          "a wrong command line: rc %d %r" % (p.returncode, p.stderr))
 
 
 w = workdir()

@@ -181,8 +181,6 @@ prefix)
       fail "hairfilterd --version with a broken config file"
 
   build_engines "$prefix" prefix yes
-  pc_prefix=(env PKG_CONFIG_LIBDIR="$(dirname "$(find "$prefix" -name hairfilter.pc | head -n1)")"
-             PKG_CONFIG_PATH= pkg-config)
   step "engines through the installed daemon, on the installed config"
   start_daemon "$prefix/bin/hairfilterd" "" "$prefix/share/hairfilter/hairfilterd.conf"
   run_engines "${engines[@]}"
@@ -199,11 +197,14 @@ prefix)
   step "the installed example filter_exr.cpp, built as its comment says, on a feature EXR"
   ex="$prefix/share/doc/hairfilter/examples/filter_exr.cpp"
   [ -f "$ex" ] || fail "no $ex"
-  # OpenEXR's .pc is the system's; hairfilter's the prefix's alone.
-  # shellcheck disable=SC2046
-  "$cxx" -std=c++11 $san "$ex" $("${pc_prefix[@]}" --cflags --libs hairfilter) \
-      $(pkg-config --cflags --libs OpenEXR) -Wl,-rpath,"$libdir" -o "$work/filter_exr" ||
-      fail "the example does not build"
+  # The comment's command, word for word, with PKG_CONFIG_PATH naming the prefix.
+  cmd=$(grep -E '^//[[:space:]]+(c\+\+ -std|-Wl,-rpath)' "$ex" | sed 's|^//[[:space:]]*||; s|\\$||' |
+        tr '\n' ' ')
+  [ -n "$cmd" ] || fail "no build command in $ex"
+  pcdir=$(dirname "$(find "$prefix" -name hairfilter.pc | head -n1)")
+  (cd "$(dirname "$ex")" &&
+      PKG_CONFIG_PATH="$pcdir" bash -c "${cmd/c++ /$cxx $san } -o '$work/filter_exr'") ||
+      fail "the example does not build with: $cmd"
   "$work/filter_exr" "$url" "$src/tests/data/field/frame-64x64.exr" "$work/ex.exr" ||
       fail "the example failed"
   if "$python" -c 'import numpy' 2>/dev/null; then

@@ -261,11 +261,14 @@ static void test_estimate_in_a_buffer_of_its_own(void **state) {
   assert_int_equal(hfc_wait(c, -1, &done), 0);
   assert_int_equal(done.status, 0);
   assert_int_equal(hfc_shm_free(c, mem), 0);
-  /* Refused before anything is sent, naming the field. */
+  /* Refused before anything is sent, naming the field; the timing is all 0. */
   r = TEST_REQUEST(.variant = "KernelAC", .width = 8, .height = 8, .spp = 4, .features = in,
                    .result = out, .estimate_buffer = in + 8 * 8 * 24);
-  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_ARG);
+  hfc_timing t;
+  memset(&t, 0x5a, sizeof t);
+  assert_int_equal(hfc_filter(c, &r, &t), HFC_E_ARG);
   assert_non_null(strstr(hfc_last_message(c), "hfc_request.estimate_buffer is set but"));
+  assert_true(t.total_us == 0 && t.server_us == 0 && t.via_shm == 0 && t.batch == 0);
   r = TEST_REQUEST(.variant = "KernelAC", .width = 8, .height = 8, .spp = 4, .features = in,
                    .result = out, .estimate = 1, .estimate_buffer = in + 8 * 8 * 24,
                    .estimate_bytes = 8 * 8 * 3 * 4 - 1);

@@ -14,9 +14,14 @@
 // acst4.alpha from a buffer of their own. The result (color, highlight,
 // alpha) is written with the input's data and display windows. Scanline or
 // tiled files; of a multi-part file, the first part (`hairfilter filter
-// --part` picks another). Exit status 0, or 1 with the reason on stderr.
+// --part` picks another). Exit status 0; 1 with the reason on stderr; 2
+// for a wrong command line.
 //
-// Build: c++ -std=c++11 filter_exr.cpp $(pkg-config --cflags --libs hairfilter OpenEXR)
+// Built in the source tree as build/client/lib/examples/filter_exr. From an
+// installed hairfilter (its pkg-config file in PREFIX/lib/<arch>/pkgconfig,
+// which PKG_CONFIG_PATH names unless PREFIX is /usr; the rpath finds
+// libhairfilter.so where the loader does not look):
+//   c++ -std=c++11 filter_exr.cpp $(pkg-config --cflags --libs hairfilter OpenEXR) -Wl,-rpath,$(pkg-config --variable=libdir hairfilter)
 #include <cstdio>
 #include <cstring>
 #include <stdexcept>
@@ -83,9 +88,12 @@ int main(int argc, char **argv) {
     hairfilter::Client hf(argv[1], opt);
     const hfc_variant *v = nullptr;
     std::vector<hfc_variant> variants = hf.variants();
-    for (const hfc_variant &x : variants)
+    std::string listed;
+    for (const hfc_variant &x : variants) {
       if (!strcasecmp(x.name, name.c_str())) v = &x;  // as the server matches names
-    if (!v) throw std::runtime_error("the server has no variant " + name);
+      listed += std::string(listed.empty() ? "" : ", ") + x.name;
+    }
+    if (!v) throw std::runtime_error("the server has no variant " + name + "; it has " + listed);
 
     // One read of the rows for the samples and the estimate together.
     std::vector<float> features, estimate;
@@ -111,6 +119,10 @@ int main(int argc, char **argv) {
     if (t.out_of_range)
       std::fprintf(stderr, "filter_exr: %s is outside the range %s was trained on\n", argv[2],
                    v->name);
+    if (t.input_sanitised)
+      std::fprintf(stderr, "filter_exr: %s has NaN, infinite or out-of-range values, which the "
+                   "server sanitised (protocol/FEATURES.md, \"Out-of-contract values\")\n",
+                   argv[2]);
 
     Imf::Header out_head(head.displayWindow(), dw);
     out_head.compression() = Imf::ZIP_COMPRESSION;

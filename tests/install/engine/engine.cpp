@@ -33,15 +33,14 @@ int main(int argc, char **argv) {
     r.spp = ENGINE_SPP;
     r.set_features(features.data(), features.size() * sizeof(float));
     // A variant that reads the alpha-corrected estimate gets one from a
-    // buffer of its own (here the samples' mean colour, highlight, alpha).
-    std::vector<float> estimate;
-    if (reads_estimate) {
-      estimate.resize(ENGINE_W * ENGINE_H * 3);
-      for (std::size_t p = 0; p < estimate.size(); p++)
-        for (int k = 0; k < ENGINE_SPP; k++)
-          estimate[p] += features[(p / 3 * ENGINE_SPP + k) * 6 + p % 3] / ENGINE_SPP;
-      r.set_estimate(estimate.data(), estimate.size() * sizeof(float));
-    }
+    // buffer of its own (here the samples' mean colour, highlight, alpha);
+    // nullptr sends none.
+    std::vector<float> estimate(ENGINE_W * ENGINE_H * 3);
+    for (std::size_t p = 0; p < estimate.size(); p++)
+      for (int k = 0; k < ENGINE_SPP; k++)
+        estimate[p] += features[(p / 3 * ENGINE_SPP + k) * 6 + p % 3] / ENGINE_SPP;
+    r.set_estimate(estimate.data(), estimate.size() * sizeof(float));
+    if (!reads_estimate) r.set_estimate(nullptr, 0);
     r.set_result(filtered.data(), filtered.size() * sizeof(float));
     hairfilter::Status s = hf.filter(r);
     if (!s) {

@@ -323,11 +323,14 @@ typedef struct hfc_timing {
   int resends;               /* times the frame was sent again after a failover */
 } hfc_timing;
 
-/* Synchronous: sends r and waits for its result. timing may be NULL. */
+/* Synchronous: sends r and waits for its result. timing may be NULL; it is
+ * filled whatever the outcome: all 0 for a request refused before it was
+ * sent, total_us and resends for one that failed after. */
 HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
 
 /* Asynchronous: sends r and returns at once with its id. r's buffers (not r
- * itself) must stay valid until its completion comes out of hfc_wait. At
+ * itself: features, estimate_buffer, result, rgba) must stay valid until
+ * its completion comes out of hfc_wait. At
  * most hfc_info(c)->max_inflight may be pending (HFC_E_INFLIGHT). The first
  * request naming a variant on a connection lists the server's variants
  * once, to match the name without regard to case; a name the server does
@@ -355,9 +358,10 @@ HFC_API int hfc_pending(const hfc_client *c);
 /* ---- shared memory ------------------------------------------------------- */
 
 /* On a Unix socket, frames can skip the socket: allocate buffers in memory
- * shared with the server, put features, result and rgba of a request in
- * the same segment, not overlapping, and hfc_filter / hfc_submit send only
- * a reference; the server reads the features and writes the results in
+ * shared with the server, put features (the estimate directly after them,
+ * when the request carries one), result and rgba of a request in the same
+ * segment, not overlapping, and hfc_filter / hfc_submit send only a
+ * reference; the server reads the features and writes the results in
  * place. Requests whose buffers are elsewhere, or overlap one another (a
  * result written over its own features, never resent by a failover), go
  * through the socket as usual, and so do those in a segment of a

@@ -90,9 +90,9 @@ struct Request : hfc_request {
   }
   // The frame's alpha-corrected estimate, [height][width][3] in in_dtype,
   // from a buffer of its own (hfc_request.estimate_buffer): for a variant
-  // that reads it (hfc_variant.estimate).
+  // that reads it (hfc_variant.estimate). nullptr: no estimate.
   void set_estimate(const void *p, std::size_t bytes) {
-    estimate = 1;
+    estimate = p ? 1 : 0;
     estimate_buffer = p;
     estimate_bytes = bytes;
   }
