@@ -723,6 +723,7 @@ static int add_composites(hf_image *img, const hfr_outputs *out, const hfr_view 
     hf_image_free(&big);
     return HF_ENOMEM;
   }
+  hf_image_copy_windows(&big, img);   /* a crop stays where it lies in the frame */
   for (int c = 0; c < img->channels; c++) memcpy(big.names[c], img->names[c], sizeof big.names[c]);
   for (size_t i = 0; i < px; i++)
     memcpy(big.data + i * big.channels, img->data + i * img->channels,

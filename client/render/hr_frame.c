@@ -164,6 +164,15 @@ int hfr_render(hfr_renderer *r, const hfr_view *v, const hfr_outputs *o, hf_imag
   const int S = 4;
   const size_t px = (size_t)W * H;
   if ((rc = hf_image_alloc(out, W, H, hfr_outputs_channels(o))) != HF_OK) return rc;
+  if (v->crop_w > 0) {
+    /* A crop lies where it was in the whole frame: its data window inside
+     * the frame's display window (EXR's convention, which hairfilter filter
+     * and infer keep in their results). */
+    out->origin_x = v->crop_x;
+    out->origin_y = v->crop_y;
+    out->display_width = v->width;
+    out->display_height = v->height;
+  }
   stats->segments = r->segments;
   if (o->gt_supersample > 0) {
     float pos[8];

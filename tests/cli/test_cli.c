@@ -360,6 +360,32 @@ static void test_render_input_preview(void **state) {
 #endif
 }
 
+/* render frame --crop writes the window where it lies in the whole frame
+ * (data window inside the frame's display window), and infer keeps both. */
+static void test_render_crop_windows(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  assert_int_equal(cli("render frame --style wavy --strands 1500 --size 64x48 --crop 8,4,24,20 "
+                       "--gt-ss 0 --out %s --quiet", test_tmp("crop.exr")), 0);
+  hf_image img;
+  char err[512];
+  assert_int_equal(hf_exr_read(test_tmp("crop.exr"), &img, err, sizeof err), HF_OK);
+  assert_true(img.width == 24 && img.height == 20 && img.origin_x == 8 && img.origin_y == 4);
+  assert_true(img.display_x == 0 && img.display_y == 0 && img.display_width == 64 &&
+              img.display_height == 48);
+  hf_image_free(&img);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s/weights/kernel_ac.safetensors --in %s "
+                       "--out %s", HF_SOURCE_DIR, test_tmp("crop.exr"), test_tmp("crop_out.exr")),
+                   0);
+  read_result(test_tmp("crop_out.exr"), &img);
+  assert_true(img.origin_x == 8 && img.origin_y == 4 && img.display_width == 64 &&
+              img.display_height == 48);
+  hf_image_free(&img);
+#endif
+}
+
 /* The bytes of a file (at most 64 MB), NUL-terminated; *n its length. */
 static char *slurp(const char *path, size_t *n) {
   FILE *f = fopen(path, "rb");
@@ -682,6 +708,7 @@ int main(void) {
     cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
     cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
     cmocka_unit_test(test_preview_over_background_layer),
+    cmocka_unit_test(test_render_crop_windows),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
