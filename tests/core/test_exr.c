@@ -386,6 +386,57 @@ static void test_undecodable_compression(void **state) {
   assert_non_null(strstr(err, "DWAB compression"));
 }
 
+/* Sets the header's data window to w x h pixels from its origin. */
+static void set_data_window(const char *path, int w, int h) {
+  FILE *f = fopen(path, "r+b");
+  assert_non_null(f);
+  char buf[4096];
+  size_t n = fread(buf, 1, sizeof buf, f);
+  static const char key[] = "dataWindow\0box2i\0\x10\0\0\0";
+  char *at = NULL;
+  for (size_t i = 0; i + sizeof key + 16 <= n && !at; i++)
+    if (!memcmp(buf + i, key, sizeof key - 1)) at = buf + i + sizeof key - 1;
+  assert_non_null(at);
+  int32_t box[4];
+  memcpy(box, at, sizeof box);
+  box[2] = box[0] + w - 1;
+  box[3] = box[1] + h - 1;
+  fseek(f, (long)(at - buf), SEEK_SET);
+  assert_int_equal(fwrite(box, sizeof box, 1, f), 1);
+  fclose(f);
+}
+
+/* A header that claims more pixels than the file's data can decode to (a
+ * few KB claiming 1.9 GB) is refused as damaged before the image is
+ * allocated, for each compression's bound; a real file at the bound of its
+ * compression reads (tests/fuzz/regressions/exr: what the fuzzer found). */
+static void test_claimed_size(void **state) {
+  char err[512];
+  hf_image img;
+  static const exr_compression_t comps[] = {EXR_COMPRESSION_NONE, EXR_COMPRESSION_RLE,
+                                            EXR_COMPRESSION_ZIP, EXR_COMPRESSION_PIZ};
+  for (size_t k = 0; k < sizeof comps / sizeof comps[0]; k++) {
+    part_spec p = {"c", 0, 0, 0, 0, 0, 0, 40, 70, 6, FEAT6, comps[k], 0.25f, NULL};
+    const char *path = test_tmp("claims.exr");
+    write_parts(path, &p, 1);
+    set_data_window(path, 9000, 9000);
+    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
+    assert_non_null(strstr(err, "claims 9000x9000 pixels of 6 channels (1944.0 MB of pixels)"));
+    assert_non_null(strstr(err, "damaged"));
+    assert_null(img.data);
+  }
+  /* Zeros compress best: 1024x1024 of 4 channels in ZIP reads. */
+  float *zeros = calloc((size_t)1024 * 1024 * 4, sizeof(float));
+  assert_non_null(zeros);
+  static const char *const four[] = {"A", "B", "G", "R"};
+  part_spec z = {"z", 0, 0, 0, 0, 0, 0, 1024, 1024, 4, four, EXR_COMPRESSION_ZIP, 0, zeros};
+  write_parts(test_tmp("zeros.exr"), &z, 1);
+  assert_int_equal(hf_exr_read(test_tmp("zeros.exr"), &img, err, sizeof err), HF_OK);
+  assert_true(img.width == 1024 && img.height == 1024 && img.data[4 * 1024 * 1024 - 1] == 0);
+  hf_image_free(&img);
+  free(zeros);
+}
+
 /* Lossy compressions are named on the image: B44 of half channels (the
  * file tests/data/exr-b44-half.exr, 8x8, 4 samples, written by
  * OpenImageIO), PXR24 of float ones; B44 of float channels, PXR24 of half
@@ -598,7 +649,7 @@ int main(void) {
     cmocka_unit_test(test_windows),                  cmocka_unit_test(test_tiled),
     cmocka_unit_test(test_multipart),                cmocka_unit_test(test_truncated),
     cmocka_unit_test(test_undecodable_compression),  cmocka_unit_test(test_subsampled_refused),
-    cmocka_unit_test(test_lossy_compression),
+    cmocka_unit_test(test_lossy_compression),        cmocka_unit_test(test_claimed_size),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),
   };
