@@ -349,20 +349,33 @@ static void test_truncated(void **state) {
   }
 }
 
-/* Replaces the value byte of the header's compression attribute. */
-static void set_compression(const char *path, int value) {
+/* n bytes of an attribute's value in the header of the file at path: the
+ * bytes after the first occurrence of key (keylen bytes: name, type and
+ * size). Their old bytes into old when old is not NULL, then value written
+ * over them when value is not NULL. */
+static void patch_header(const char *path, const char *key, size_t keylen, const void *value,
+                         size_t n, void *old) {
   FILE *f = fopen(path, "r+b");
   assert_non_null(f);
   char buf[4096];
-  size_t n = fread(buf, 1, sizeof buf, f);
-  static const char key[] = "compression\0compression\0\1\0\0\0";
-  char *at = NULL;
-  for (size_t i = 0; i + sizeof key <= n && !at; i++)
-    if (!memcmp(buf + i, key, sizeof key - 1)) at = buf + i;
-  assert_non_null(at);
-  fseek(f, (long)(at - buf) + (long)sizeof key - 1, SEEK_SET);
-  fputc(value, f);
+  size_t got = fread(buf, 1, sizeof buf, f);
+  long at = -1;
+  for (size_t i = 0; i + keylen + n <= got && at < 0; i++)
+    if (!memcmp(buf + i, key, keylen)) at = (long)(i + keylen);
+  assert_true(at >= 0);
+  if (old) memcpy(old, buf + at, n);
+  if (value) {
+    fseek(f, at, SEEK_SET);
+    assert_int_equal(fwrite(value, 1, n, f), n);
+  }
   fclose(f);
+}
+
+/* Replaces the value byte of the header's compression attribute. */
+static void set_compression(const char *path, int value) {
+  static const char key[] = "compression\0compression\0\1\0\0\0";
+  unsigned char v = (unsigned char)value;
+  patch_header(path, key, sizeof key - 1, &v, 1, NULL);
 }
 
 static void test_undecodable_compression(void **state) {
@@ -388,22 +401,12 @@ static void test_undecodable_compression(void **state) {
 
 /* Sets the header's data window to w x h pixels from its origin. */
 static void set_data_window(const char *path, int w, int h) {
-  FILE *f = fopen(path, "r+b");
-  assert_non_null(f);
-  char buf[4096];
-  size_t n = fread(buf, 1, sizeof buf, f);
   static const char key[] = "dataWindow\0box2i\0\x10\0\0\0";
-  char *at = NULL;
-  for (size_t i = 0; i + sizeof key + 16 <= n && !at; i++)
-    if (!memcmp(buf + i, key, sizeof key - 1)) at = buf + i + sizeof key - 1;
-  assert_non_null(at);
   int32_t box[4];
-  memcpy(box, at, sizeof box);
+  patch_header(path, key, sizeof key - 1, NULL, sizeof box, box);
   box[2] = box[0] + w - 1;
   box[3] = box[1] + h - 1;
-  fseek(f, (long)(at - buf), SEEK_SET);
-  assert_int_equal(fwrite(box, sizeof box, 1, f), 1);
-  fclose(f);
+  patch_header(path, key, sizeof key - 1, box, sizeof box, NULL);
 }
 
 /* A header that claims more pixels than the file's data can decode to (a
