@@ -26,7 +26,12 @@ uint64_t hfd_frame_bytes(const hfd_server *s, int variant, const hfp_filter *f) 
   if (run == UINT64_MAX) return UINT64_MAX;
   /* A frame by reference reads and writes the client's segment. */
   if (f->flags & HFP_FILTER_SHM) return run;
-  return f->data_len + out + rgba + run;
+  /* Through the socket its tensor and results sit in receive-pool buffers,
+   * which a new mapping rounds up to 2 MiB steps: that rest is resident too
+   * and is counted here, so that the announced size is admitted on an idle
+   * server whatever plans the worker keeps within its quarter. */
+  return hfd_rpool_footprint(f->data_len) + hfd_rpool_footprint(out) +
+         (rgba ? hfd_rpool_footprint(rgba) : 0) + run;
 }
 
 /* The most demanding frame of w x h any loaded variant can be sent: f32

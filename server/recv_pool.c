@@ -151,6 +151,11 @@ void *hfd_rpool_take(hfd_rpool *p, size_t bytes) {
   return best->addr;
 }
 
+uint64_t hfd_rpool_footprint(uint64_t bytes) {
+  if (bytes < HFD_RPOOL_MIN || bytes > SIZE_MAX - RPOOL_STEP) return bytes;
+  return round_step((size_t)bytes);
+}
+
 void hfd_rpool_charge(hfd_rpool *p, const void *addr, uint64_t n) {
   hfd_rbuf *b = addr ? find(p, addr) : NULL;
   if (!b || !b->lent) return;
