@@ -30,8 +30,8 @@ uint64_t hfd_frame_bytes(const hfd_server *s, int variant, const hfp_filter *f) 
    * which a new mapping rounds up to 2 MiB steps: that rest is resident too
    * and is counted here, so that the announced size is admitted on an idle
    * server whatever plans the worker keeps within its quarter. */
-  return hfd_rpool_footprint(f->data_len) + hfd_rpool_footprint(out) +
-         (rgba ? hfd_rpool_footprint(rgba) : 0) + run;
+  return hfd_rpool_footprint(f->data_len) + hfd_rpool_footprint(out) + hfd_rpool_footprint(rgba) +
+         run;
 }
 
 /* The most demanding frame of w x h any loaded variant can be sent: f32

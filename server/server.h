@@ -383,9 +383,9 @@ typedef struct hfd_rpool {
  * that sends a large frame's head and then trickles holds what it sent,
  * rounded up to 2 MiB, not the whole frame. */
 void *hfd_rpool_take(hfd_rpool *p, size_t bytes);
-/* The most a buffer of bytes from hfd_rpool_take can hold resident beyond
- * what is charged for it or counted as idle: a new mapping is rounded up to
- * its 2 MiB steps. bytes itself below HFD_RPOOL_MIN (malloc's). */
+/* The most a buffer of bytes from hfd_rpool_take holds resident outside
+ * the idle buffers: a new mapping's bytes rounded up to its 2 MiB steps;
+ * bytes itself below HFD_RPOOL_MIN (malloc's), 0 for 0. */
 uint64_t hfd_rpool_footprint(uint64_t bytes);
 /* n more bytes of addr's buffer are charged to its frame (mem_held). */
 void hfd_rpool_charge(hfd_rpool *p, const void *addr, uint64_t n);
