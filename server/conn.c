@@ -455,20 +455,15 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   hfd_server *s = c->srv;
   hfp_hello h;
   int rc = hfp_decode_hello(p, len, &h);
-  int version = rc ? -HFP_E_VERSION : hfp_negotiate(h.min_version, h.max_version);
-  if (rc == -HFP_E_VERSION || (!rc && version < 0)) {
-    s->protocol_errors++;
-    send_error(c, 0, HFP_E_VERSION, 1, "client speaks versions %u..%u, server speaks %d..%d",
-               h.min_version, h.max_version, HFP_VERSION_MIN, HFP_VERSION);
-    return;
-  }
-  if (rc) {
+  if (rc && rc != -HFP_E_VERSION) {
     /* Whatever the codec found (a length that disagrees with its fields,
      * a bad name), a HELLO that is not one is a PROTOCOL error. */
     s->protocol_errors++;
     send_error(c, 0, HFP_E_PROTOCOL, 1, "malformed HELLO: %s", hfp_strerror(rc));
     return;
   }
+  /* The token before the version: a peer without the token learns nothing
+   * of this server, not even which versions it speaks. */
   if (c->listener->auth_required) {
     /* Constant-time comparison: the time taken says nothing about how much
      * of a guessed token was right. */
@@ -482,6 +477,13 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
       send_error(c, 0, HFP_E_UNAUTHORIZED, 1, "%s", gl ? "wrong token" : "this listener needs a token");
       return;
     }
+  }
+  int version = rc ? -HFP_E_VERSION : hfp_negotiate(h.min_version, h.max_version);
+  if (version < 0) {
+    s->protocol_errors++;
+    send_error(c, 0, HFP_E_VERSION, 1, "client speaks versions %u..%u, server speaks %d..%d",
+               h.min_version, h.max_version, HFP_VERSION_MIN, HFP_VERSION);
+    return;
   }
   snprintf(c->client_name, sizeof c->client_name, "%s", h.client_name);
   c->hello_done = 1;

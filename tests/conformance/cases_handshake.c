@@ -468,15 +468,21 @@ static int out_of_range_counted(cf_test *t, intptr_t arg) {
 
 /* ---- tokens ---------------------------------------------------------------- */
 
-enum { TOK_NONE, TOK_WRONG, TOK_PREFIX, TOK_LONGER, TOK_CASE, TOK_RIGHT };
+enum { TOK_NONE, TOK_WRONG, TOK_PREFIX, TOK_LONGER, TOK_CASE, TOK_RIGHT, TOK_WRONG_NO_VERSION };
 
 static int token_case(cf_test *t, intptr_t how) {
   const char *right = t->o->token ? t->o->token : "";
   char tok[HFP_TOKEN_MAX + 2];
   snprintf(tok, sizeof tok, "%s", right);
   size_t n = strlen(tok);
+  int lo = 1, hi = HFP_VERSION;
   switch (how) {
     case TOK_NONE: tok[0] = 0; break;
+    case TOK_WRONG_NO_VERSION:
+      /* No version in common as well: the token is checked first, so the
+       * peer learns nothing of the server, not even the versions it speaks. */
+      lo = hi = 65535;
+      /* fall through */
     case TOK_WRONG: snprintf(tok, sizeof tok, "%s", strcmp(right, "not-the-token") ? "not-the-token" : "other"); break;
     case TOK_PREFIX:
       if (n < 2) return cf_skip(t, "the token is too short to cut");
@@ -495,7 +501,7 @@ static int token_case(cf_test *t, intptr_t how) {
     }
   }
   uint8_t b[HFP_HEADER_SIZE + 8 + HFP_NAME_MAX + HFP_TOKEN_MAX];
-  size_t len = cf_hello_frame(b, sizeof b, 1, HFP_VERSION, "conformance", tok);
+  size_t len = cf_hello_frame(b, sizeof b, lo, hi, "conformance", tok);
   /* A request after it in the same write: nothing is served to a peer
    * that failed the check. */
   cf_header(b + len, HFP_STATS, 0, 0, 0);
@@ -693,6 +699,7 @@ const cf_case cf_cases_handshake[] = {
   TOK(TOK_PREFIX, "token_prefix", "the token less its last byte: fatal UNAUTHORIZED"),
   TOK(TOK_LONGER, "token_longer", "the token and one byte more: fatal UNAUTHORIZED"),
   TOK(TOK_CASE, "token_case", "the token with one letter's case changed: fatal UNAUTHORIZED"),
+  TOK(TOK_WRONG_NO_VERSION, "before_version", "a wrong token and no version in common: fatal UNAUTHORIZED (the token is checked first)"),
   TOK(TOK_RIGHT, "right_token", "the right token is accepted and HELLO_OK sets bit 0"),
   {"auth.unix_ignores_token", "Unix sockets ignore the token and clear bit 0", CF_NEED_UNIX, unix_ignores_token, 0},
   {NULL, NULL, 0, NULL, 0},
