@@ -582,12 +582,16 @@ static int write_json(const char *path, const method *ms, int nm, const eval_str
   }
   cJSON_AddItemToObject(doc, "groupings", eval_strata_groupings_json(strata));
   cJSON *arr = cJSON_AddArrayToObject(doc, "methods");
+  /* The methods written: those no frame had (a baseline its channels lack)
+   * are left out, so the count said is the document's, not nm. */
+  int written = 0;
   for (int i = 0; arr && i < nm; i++) {
     eval_frame_score mean;
     if (!eval_strata_mean(strata, i, &mean)) continue;
     cJSON *o = eval_strata_method_json(strata, i);
     if (!o) break;
     cJSON_AddItemToArray(arr, o);
+    written++;
     cJSON_AddStringToObject(o, "method", ms[i].label);
     cJSON_AddStringToObject(o, "kind", kind_name(ms[i].kind));
     if (ms[i].kind == M_CHANNELS) cJSON_AddStringToObject(o, "channels", ms[i].prefix);
@@ -619,7 +623,7 @@ static int write_json(const char *path, const method *ms, int nm, const eval_str
     fprintf(stderr, "hairfilter eval: writing %s failed\n", path);
     return HF_EIO;
   }
-  fprintf(stderr, "eval: %s: %d frames, %d methods\n", path, frames, nm);
+  fprintf(stderr, "eval: %s: %d frames, %d methods\n", path, frames, written);
   return 0;
 }
 

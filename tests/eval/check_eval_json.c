@@ -217,6 +217,10 @@ int main(int argc, char **argv) {
   }
 
   const cJSON *methods = at(doc, "methods");
+  /* The rows the frames have: the input and its two pools, the two
+   * networks, st4, st16 and the alpha-corrected estimate (eval.json_methods
+   * checks the count eval reports is this one). */
+  CHECK(cJSON_GetArraySize(methods) == 8, "%d methods, not 8", cJSON_GetArraySize(methods));
   /* st4 is the truth everywhere. */
   const cJSON *st4 = find(methods, "method", "stochastic transparency 4 spp");
   CHECK(st4, "no st4 row");
