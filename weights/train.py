@@ -194,6 +194,22 @@ def lattice_loss(p, q, period):
     return (m * m).mean()
 
 
+def lowpass_loss(p, q, size):
+    """The mean square of the error p - q (NCHW) averaged over size x size
+    blocks: what is left of the error once a box of that size has averaged
+    the noise away, its bias. An estimate that is biased where many layers
+    of strands overlap (stochastic transparency's alpha-corrected estimate
+    over-weighs the front strands there) costs the same in the MSE as noise
+    of the same energy, which a blur trades away; this weighs the part no
+    blur removes. Rows and columns beyond whole blocks are left out; 0 for
+    an image smaller than one block."""
+    r = (p - q).float()
+    if r.shape[-2] < size or r.shape[-1] < size:
+        return r.new_zeros(())
+    m = F.avg_pool2d(r, size)
+    return (m * m).mean()
+
+
 def st_estimate(x, spp):
     """The stochastic-transparency estimate of each pixel's own samples, NCHW
     [n][3][h][w] from features x [n][spp*6][h][w] (hfnet.residual_base with
@@ -242,7 +258,7 @@ def below_input_loss(cp, ct, ci, alpha):
 
 def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weight=0.0,
               lattice=(0.0, 8), below=(0.0, None, 4), display_st=False, srgb=False,
-              l1=False):
+              l1=False, lowpass=(0.0, 8)):
     """The squared error of what a viewer sees: pred and target composited
     with looks (random_looks, or EVAL_LOOK broadcast), MSE of the images and,
     weighted by grad_weight, of their finite differences, as the paper's loss
@@ -268,7 +284,8 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weigh
     (srgb_encode), as a display's code values differ, instead of the
     linear ones; the other terms stay on the linear composites, as the
     evaluation scores them. l1: l1_and_gradients in place of
-    mse_and_gradients for the images' term."""
+    mse_and_gradients for the images' term. lowpass (weight, size) adds
+    weight times lowpass_loss of the two linear images."""
     cp = composite(pred, *looks, clamp=clamp_st if display_st else torch.clamp)
     ct = composite(target, *looks)
     image_term = l1_and_gradients if l1 else mse_and_gradients
@@ -280,6 +297,8 @@ def look_loss(pred, target, looks, grad_weight=1.0, paper_weight=0.1, ssim_weigh
         loss = loss + ssim_weight * hair_ssim_loss(cp, ct, target[:, 2:3])
     if lattice[0]:
         loss = loss + lattice[0] * lattice_loss(cp, ct, lattice[1])
+    if lowpass[0]:
+        loss = loss + lowpass[0] * lowpass_loss(cp, ct, lowpass[1])
     if below[0]:
         with torch.no_grad():
             ci = composite(st_estimate(below[1], below[2]), *looks)
@@ -295,15 +314,15 @@ def eval_looks(n, device):
 
 
 def run_loss(kind, pred, target, grad_weight, looks=None, ssim_weight=0.0, lattice=(0.0, 8),
-             below=(0.0, None, 4), display_st=False, srgb=False, l1=False):
+             below=(0.0, None, 4), display_st=False, srgb=False, l1=False, lowpass=(0.0, 8)):
     """The loss a run trains with (--loss): "paper" (hair_loss) or "look"
     (look_loss with looks, EVAL_LOOK when None, ssim_weight, lattice,
-    below, display_st, srgb and l1)."""
+    below, display_st, srgb, l1 and lowpass)."""
     if kind == "look":
         return look_loss(pred, target, looks if looks is not None
                          else eval_looks(pred.shape[0], pred.device), grad_weight,
                          ssim_weight=ssim_weight, lattice=lattice, below=below,
-                         display_st=display_st, srgb=srgb, l1=l1)
+                         display_st=display_st, srgb=srgb, l1=l1, lowpass=lowpass)
     return hair_loss(pred, target, grad_weight)
 
 
@@ -433,7 +452,8 @@ def averaged(net, avg):
 
 @torch.no_grad()
 def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="paper",
-             ssim_weight=0.0, lattice=(0.0, 8), below_weight=0.0, target="truth"):
+             ssim_weight=0.0, lattice=(0.0, 8), below_weight=0.0, target="truth",
+             lowpass=(0.0, 8)):
     """Mean loss over the held-out frames (first spp samples, no
     augmentation; frames larger than max_side are centre-cropped) against
     training_target; the look loss with the evaluation's look (EVAL_LOOK)."""
@@ -455,7 +475,7 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
         y = training_target(x, y, target, spp)
         total += float(run_loss(loss, forward(net, x, *mode), y, grad_weight,
                                 ssim_weight=ssim_weight, lattice=lattice,
-                                below=(below_weight, x, spp)))
+                                below=(below_weight, x, spp), lowpass=lowpass))
     net.train()
     return total / len(frames)
 
@@ -551,6 +571,12 @@ def parse_args(argv):
                     "input (PSNR in dB / 10 plus SSIM, where the network is below the "
                     "stochastic-transparency estimate of its samples; train.py "
                     "below_input_loss)")
+    ap.add_argument("--lowpass-weight", type=float, default=0.0,
+                    help="--loss look: add this times the mean square of the composites' "
+                    "error averaged over --lowpass-size blocks (its bias, which no blur "
+                    "removes; train.py lowpass_loss)")
+    ap.add_argument("--lowpass-size", type=int, default=8, metavar="N",
+                    help="the blocks of --lowpass-weight, N x N pixels (default 8)")
     ap.add_argument("--clip-grad-norm", type=float, default=0.0, metavar="C",
                     help="scale each step's gradient down to global L2 norm C where it is "
                     "larger (torch.nn.utils.clip_grad_norm_; 0: off). The log records each "
@@ -638,11 +664,13 @@ def parse_args(argv):
     args = ap.parse_args(argv)
     # The options that act on the composited images, which only the look loss makes.
     for flag, does in (("--ssim-weight", "scores"), ("--lattice-weight", "scores"),
-                       ("--below-input-weight", "scores"),
+                       ("--below-input-weight", "scores"), ("--lowpass-weight", "scores"),
                        ("--display-straight-through", "clamps"), ("--look-srgb", "encodes"),
                        ("--look-l1", "scores")):
         if getattr(args, flag[2:].replace("-", "_")) and args.loss != "look":
             ap.error(f"{flag} needs --loss look (it {does} the composited images)")
+    if args.lowpass_size < 1:
+        ap.error("--lowpass-size must be 1 or more (pixels)")
     if args.dim_light and not 0 < args.dim_light <= 1:
         ap.error("--dim-light must be in (0, 1] (the dimmest factor; 0: off)")
     if args.dim_share is not None and not args.dim_light:
@@ -697,6 +725,7 @@ def main(argv=None):
         # cadence, threads and export may change on resume.
         for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
                   "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
+                  "lowpass_weight", "lowpass_size",
                   "dim_light", "dim_share", "display_straight_through", "look_srgb", "look_l1", "kernel_radius", "kernel_hidden", "levels",
                   "schedule", "lr_floor", "weight_ema",
                   "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
@@ -705,6 +734,7 @@ def main(argv=None):
     cfg = make_config(args)
     # The period of a U-Net's lattice: its upsamplings' total stride.
     lattice = (args.lattice_weight, 2 ** len(cfg["levels"]))
+    lowpass = (args.lowpass_weight, args.lowpass_size)
     torch.manual_seed(args.seed)
     np_rng = np.random.default_rng(args.seed)
     random.seed(args.seed)
@@ -837,7 +867,7 @@ def main(argv=None):
                             y, args.grad_weight, looks, args.ssim_weight, lattice,
                             (args.below_input_weight, x, cfg["spp"]),
                             display_st=args.display_straight_through, srgb=args.look_srgb,
-                            l1=args.look_l1)
+                            l1=args.look_l1, lowpass=lowpass)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             # The norm before clipping, recorded with or without a clip: a run
@@ -862,7 +892,7 @@ def main(argv=None):
                 val = validate(averaged(net, avg), val_set, cfg["spp"], args.grad_weight, mode, device,
                                loss=args.loss, ssim_weight=args.ssim_weight,
                                lattice=lattice, below_weight=args.below_input_weight,
-                               target=args.target)
+                               target=args.target, lowpass=lowpass)
                 # loss: mean training loss since the previous record.
                 rec = dict(step=step, loss=float(np.mean(window)), val=val,
                            time=elapsed + time.time() - t_start,
@@ -896,6 +926,7 @@ def main(argv=None):
                            ssim_weight=args.ssim_weight,
                            lattice_weight=args.lattice_weight,
                            below_input_weight=args.below_input_weight, target=args.target,
+                           lowpass_weight=args.lowpass_weight, lowpass_size=args.lowpass_size,
                            clip_grad_norm=args.clip_grad_norm,
                            dim_light=args.dim_light, dim_share=args.dim_share,
                            display_straight_through=args.display_straight_through,

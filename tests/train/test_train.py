@@ -805,6 +805,39 @@ class Recipe(unittest.TestCase):
         with self.assertRaises(SystemExit):
             train.parse_args(["--out", "x", "--lattice-weight", "1"])
 
+    def test_lowpass_term_measures_the_bias(self):
+        """lowpass_loss is the mean square of the error's size x size block
+        means: all of a uniform offset, nothing of an error whose blocks
+        sum to zero (a checkerboard of pixels), the mean of the blocks'
+        squares for an offset in some blocks only; 0 for an image smaller
+        than a block."""
+        g = torch.Generator().manual_seed(6)
+        q = torch.rand(1, 3, 32, 32, generator=g)
+        self.assertAlmostEqual(float(train.lowpass_loss(q + 0.3, q, 8)), 0.09, places=6)
+        checker = (torch.arange(32)[:, None] + torch.arange(32)[None, :]) % 2 * 2 - 1.0
+        self.assertAlmostEqual(float(train.lowpass_loss(q + 0.5 * checker, q, 8)), 0.0,
+                               places=6)
+        part = q.clone()
+        part[:, :, :8, :8] += 0.4                      # one block of 16
+        self.assertAlmostEqual(float(train.lowpass_loss(part, q, 8)), 0.16 / 16, places=6)
+        self.assertEqual(float(train.lowpass_loss(q[:, :, :4, :4], q[:, :, :4, :4] + 1, 8)), 0.0)
+        # In the look loss, with its weight; --lowpass-weight needs --loss look
+        # and --lowpass-size a whole pixel or more.
+        t = torch.rand(2, 3, 32, 32, generator=g)
+        pr = torch.clamp(t + 0.2 * torch.rand(2, 3, 32, 32, generator=g), 0, 1)
+        looks = train.eval_looks(2, "cpu")
+        self.assertAlmostEqual(
+            float(train.look_loss(pr, t, looks, 1.0, 0.1, lowpass=(4.0, 8))),
+            float(train.look_loss(pr, t, looks, 1.0, 0.1))
+            + 4.0 * float(train.lowpass_loss(train.composite(pr, *looks),
+                                             train.composite(t, *looks), 8)),
+            places=6)
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", "--lowpass-weight", "1"])
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", "--loss", "look", "--lowpass-weight", "1",
+                              "--lowpass-size", "0"])
+
     def test_below_input_term_is_a_hinge_on_the_own_input(self):
         """st_estimate is hf_st_estimate of each pixel's samples; the below
         term is 0 where the network equals its input or beats it, and where

@@ -1,0 +1,221 @@
+#!/usr/bin/python3
+"""Three hair models in Cem Yuksel's .hair format, built from the format
+alone (none of the renderer's styles, nor client/render/tools/hair_models.py),
+in conventions no training frame used, for docs/QUALITY.md's "Three
+models written apart":
+
+A  wavy_zup_cm.hair    : z up, centimetres, origin offset (152, -87, 104) cm,
+                         SEGMENTS|POINTS only, header thickness 0.0075 cm,
+                         30000 strands of 16..60 points, wavy/curly, mid length.
+B  long_yup_m.hair     : y up, metres, SEGMENTS|POINTS|THICKNESS|COLORS,
+                         per-point width 90 um -> 22 um at the tip, long straight
+                         hanging hair (35-55 cm) in clumps, 40..90 points.
+C  buzz_yup_mm.hair    : y up, millimetres, POINTS|THICKNESS|TRANSPARENCY,
+                         header default segments 5 (no segment array),
+                         90000 short strands (6-14 mm), widths 70 -> 25 um,
+                         transparency 0.0..0.3 per point.
+Internally everything is built y up, metres, face towards +z; roots over an
+ellipsoid scalp above a hairline, strands grown along the normal, bent by
+gravity and kept outside the head.
+
+Usage: models_written_apart.py [a] [b] [c]   (default all three; written to
+the current directory; each model from its own seed, the same files every run)
+"""
+import struct
+import sys
+import numpy as np
+
+SEGMENTS, POINTS, THICKNESS, TRANSPARENCY, COLORS = 1, 2, 4, 8, 16
+HEAD = np.array([0.078, 0.100, 0.098])  # ellipsoid semi-axes x, y, z (m)
+
+
+def write_hair(path, segs, pts, flags, d_seg=0, d_thick=1.0, d_transp=0.0,
+               d_color=(1.0, 1.0, 1.0), thick=None, transp=None, color=None, info=""):
+    n_strands = len(segs)
+    n_points = int(np.sum(np.asarray(segs, np.int64) + 1))
+    assert pts.shape == (n_points, 3), (pts.shape, n_points)
+    hdr = b"HAIR" + struct.pack("<IIII", n_strands, n_points, flags, d_seg)
+    hdr += struct.pack("<fffff", d_thick, d_transp, *d_color)
+    hdr += info.encode()[:87].ljust(88, b"\0")
+    assert len(hdr) == 128
+    with open(path, "wb") as f:
+        f.write(hdr)
+        if flags & SEGMENTS:
+            f.write(np.asarray(segs, "<u2").tobytes())
+        f.write(np.asarray(pts, "<f4").tobytes())
+        if flags & THICKNESS:
+            f.write(np.asarray(thick, "<f4").tobytes())
+        if flags & TRANSPARENCY:
+            f.write(np.asarray(transp, "<f4").tobytes())
+        if flags & COLORS:
+            f.write(np.asarray(color, "<f4").tobytes())
+    print(f"{path}: {n_strands} strands, {n_points} points, flags {flags}, "
+          f"bbox {pts.min(0).round(4)} .. {pts.max(0).round(4)}")
+
+
+def sample_scalp(rng, n, front_line=0.42, back_line=0.05):
+    """Roots uniform-ish over the ellipsoid above a hairline (higher at the face)."""
+    out = np.zeros((0, 3))
+    while len(out) < n:
+        v = rng.normal(size=(4 * n, 3))
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        p = v * HEAD
+        # area weighting of the ellipsoid (approximately): accept by the local scale
+        nrm = p / HEAD**2
+        w = np.linalg.norm(nrm * HEAD.prod(), axis=1)
+        keep = rng.random(len(p)) < w / w.max()
+        p = p[keep]
+        az = np.arctan2(p[:, 0], p[:, 2])            # 0 = face (+z)
+        face = np.clip(np.cos(az), 0, 1) ** 2         # 1 at the face, 0 at the sides/back
+        line = back_line + (front_line - back_line) * face
+        p = p[p[:, 1] / HEAD[1] > line]
+        out = np.vstack([out, p])
+    return out[:n]
+
+
+def normals(p):
+    nn = p / HEAD**2
+    return nn / np.linalg.norm(nn, axis=1, keepdims=True)
+
+
+def grow(rng, roots, lengths, steps, gravity, stiff, layer, comb):
+    """Strands as `steps` segments: start along the normal tilted by `comb`,
+    bend under gravity, kept outside the head grown by a per-strand layer."""
+    n = len(roots)
+    nrm = normals(roots)
+    d = nrm + comb
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    path = np.zeros((n, steps + 1, 3))
+    path[:, 0] = roots
+    step = (lengths / steps)[:, None]
+    p = roots.copy()
+    g = np.array([0.0, -1.0, 0.0])
+    for k in range(steps):
+        t = k / steps
+        d = d + gravity * (1 - stiff * (1 - t)) * g * (1.0 / steps) * 6
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        p = p + d * step
+        # collision with the head grown by the strand's layer offset
+        grown = HEAD * (1 + layer)[:, None]
+        r = np.linalg.norm(p / grown, axis=1)
+        inside = r < 1
+        if inside.any():
+            p[inside] /= r[inside, None]
+            # slide the direction along the surface
+            nn = normals(p[inside] / (1 + layer[inside, None]))
+            dn = np.sum(d[inside] * nn, axis=1, keepdims=True)
+            d[inside] = d[inside] - np.minimum(dn, 0) * nn
+            d[inside] /= np.linalg.norm(d[inside], axis=1, keepdims=True)
+        path[:, k + 1] = p
+    return path
+
+
+def frames_along(path):
+    tan = np.gradient(path, axis=1)
+    tan /= np.linalg.norm(tan, axis=2, keepdims=True) + 1e-12
+    ref = np.broadcast_to(np.array([0.0, 0.0, 1.0]), tan.shape).copy()
+    ref[np.abs(tan[..., 2]) > 0.9] = [1.0, 0.0, 0.0]
+    b1 = np.cross(tan, ref)
+    b1 /= np.linalg.norm(b1, axis=2, keepdims=True)
+    b2 = np.cross(tan, b1)
+    return tan, b1, b2
+
+
+def resample(path, npts):
+    """Each strand's fixed-resolution path resampled at npts[i] points (list)."""
+    steps = path.shape[1] - 1
+    out = []
+    for i in range(len(path)):
+        t = np.linspace(0, steps, npts[i])
+        j = np.minimum(np.floor(t).astype(int), steps - 1)
+        f = (t - j)[:, None]
+        out.append(path[i, j] * (1 - f) + path[i, j + 1] * f)
+    return out
+
+
+def model_a(rng):
+    n, steps = 30000, 64
+    roots = sample_scalp(rng, n)
+    az = np.arctan2(roots[:, 0], roots[:, 2])
+    face = np.clip(np.cos(az), 0, 1)
+    lengths = rng.uniform(0.10, 0.30, n) * (1 - 0.45 * face)   # shorter at the face
+    comb = np.stack([np.sign(roots[:, 0]) * 0.4, np.full(n, 0.2), np.full(n, -0.3)], 1)
+    layer = rng.uniform(0.02, 0.20, n)
+    path = grow(rng, roots, lengths, steps, gravity=0.9, stiff=0.6, layer=layer, comb=comb)
+    # waves/curls: a helix growing in radius from the root, per strand period & phase
+    tan, b1, b2 = frames_along(path)
+    s = np.linspace(0, 1, steps + 1)[None, :] * lengths[:, None]   # arc length
+    period = rng.uniform(0.022, 0.04, n)[:, None]
+    radius = rng.uniform(0.003, 0.008, n)[:, None] * np.clip(s / 0.03, 0, 1)
+    ph = 2 * np.pi * s / period + rng.uniform(0, 2 * np.pi, n)[:, None]
+    ell = rng.uniform(0.4, 1.0, n)[:, None]           # flattened helix = wave
+    path = path + radius[..., None] * (np.cos(ph)[..., None] * b1 + ell[..., None] * np.sin(ph)[..., None] * b2)
+    # frizz
+    fr = np.cumsum(rng.normal(0, 0.0004, path.shape), axis=1)
+    fr[:, 0] = 0
+    path += fr * np.linspace(0, 1, steps + 1)[None, :, None]
+    npts = np.clip(np.round(16 + 44 * (lengths - lengths.min()) / np.ptp(lengths)
+                            + rng.integers(-3, 4, n)), 16, 60).astype(int)
+    strands = resample(path, npts)
+    pts = np.concatenate(strands)                    # y up, metres
+    # z up, centimetres, offset origin: y-up (X,Y,Z) -> z-up (X, -Z, Y)
+    pz = np.stack([pts[:, 0], -pts[:, 2], pts[:, 1]], 1) * 100.0 + np.array([152.0, -87.0, 104.0])
+    write_hair("wavy_zup_cm.hair", npts - 1, pz, SEGMENTS | POINTS,
+               d_seg=0, d_thick=0.0075, d_transp=0.0, d_color=(0.3, 0.18, 0.1),
+               info="wavy, z up, cm, origin offset; header thickness only")
+
+
+def model_b(rng):
+    n, steps, ng = 24000, 96, 300
+    roots = sample_scalp(rng, n, front_line=0.38, back_line=-0.05)
+    lengths = rng.uniform(0.35, 0.55, n)
+    # side parting: comb away from x = 0.01
+    side = np.sign(roots[:, 0] - 0.01)
+    comb = np.stack([side * 0.6, np.full(n, 0.1), np.full(n, -0.5)], 1)
+    layer = rng.uniform(0.01, 0.12, n)
+    path = grow(rng, roots, lengths, steps, gravity=1.6, stiff=0.3, layer=layer, comb=comb)
+    # clumps: pull each strand towards the nearest clump guide (by root), more at the tip
+    gidx = rng.choice(n, ng, replace=False)
+    d2 = ((roots[:, None, :] - roots[None, gidx, :]) ** 2).sum(-1)
+    near = gidx[np.argmin(d2, axis=1)]
+    t = np.linspace(0, 1, steps + 1)[None, :, None]
+    c = rng.uniform(0.4, 0.8, n)[:, None, None]
+    w = c * t ** 0.8
+    # guide's shape offset to this strand's root, then blended
+    gpath = path[near] - path[near][:, :1] + path[:, :1]
+    path = path * (1 - w) + (gpath * (1 - 0.6) + path[near] * 0.6) * w
+    # slight straight-hair noise
+    fr = np.cumsum(rng.normal(0, 0.00025, path.shape), axis=1)
+    fr[:, 0] = 0
+    path += fr * t
+    npts = np.clip(np.round(40 + 50 * (lengths - 0.35) / 0.2 + rng.integers(-4, 5, n)), 40, 90).astype(int)
+    strands = resample(path, npts)
+    pts = np.concatenate(strands)
+    thick = np.concatenate([90e-6 + (22e-6 - 90e-6) * np.linspace(0, 1, k) ** 1.5 for k in npts])
+    base = np.array([0.55, 0.38, 0.2])
+    col = np.concatenate([np.tile(base * rng.uniform(0.8, 1.1), (k, 1)) for k in npts])
+    write_hair("long_yup_m.hair", npts - 1, pts, SEGMENTS | POINTS | THICKNESS | COLORS,
+               d_seg=0, d_thick=1.0, d_transp=0.0, d_color=(1, 1, 1),
+               thick=thick, color=col, info="long straight clumped, y up, metres")
+
+
+def model_c(rng):
+    n, seg = 90000, 5
+    roots = sample_scalp(rng, n, front_line=0.40, back_line=-0.1)
+    lengths = rng.uniform(0.006, 0.014, n)
+    comb = np.stack([np.zeros(n), np.zeros(n), np.full(n, -0.35)], 1) + rng.normal(0, 0.15, (n, 3))
+    layer = np.zeros(n)
+    path = grow(rng, roots, lengths, seg, gravity=0.15, stiff=0.9, layer=layer, comb=comb)
+    pts = path.reshape(-1, 3) * 1000.0               # mm, y up
+    tt = np.linspace(0, 1, seg + 1)
+    thick = np.tile(70e-3 + (25e-3 - 70e-3) * tt, n)
+    transp = np.tile(0.3 * tt, n)
+    write_hair("buzz_yup_mm.hair", np.full(n, seg), pts, POINTS | THICKNESS | TRANSPARENCY,
+               d_seg=seg, d_thick=1.0, d_transp=0.0, d_color=(1, 1, 1),
+               thick=thick, transp=transp, info="buzz cut, y up, mm, default segments")
+
+
+if __name__ == "__main__":
+    which = sys.argv[1:] or ["a", "b", "c"]
+    for w in which:
+        {"a": model_a, "b": model_b, "c": model_c}[w](np.random.default_rng(ord(w) + 11))
