@@ -720,6 +720,21 @@ class Recipe(unittest.TestCase):
         with self.assertRaises(SystemExit):
             train.parse_args(["--out", "x", "--look-l1"])
 
+    def assert_look_term(self, g, side, kwargs, weight, term, flag):
+        """look_loss with kwargs (one term at weight) is look_loss without it
+        plus weight times term(composite of the prediction, of the truth,
+        the truth) on random frames of side x side; flag needs --loss look."""
+        t = torch.rand(2, 3, side, side, generator=g)
+        pr = torch.clamp(t + 0.2 * torch.rand(2, 3, side, side, generator=g), 0, 1)
+        looks = train.eval_looks(2, "cpu")
+        self.assertAlmostEqual(
+            float(train.look_loss(pr, t, looks, 1.0, 0.1, **kwargs)),
+            float(train.look_loss(pr, t, looks, 1.0, 0.1))
+            + weight * float(term(train.composite(pr, *looks), train.composite(t, *looks), t)),
+            places=6)
+        with self.assertRaises(SystemExit):
+            train.parse_args(["--out", "x", flag, "1"])
+
     def test_ssim_term_is_the_evaluations_ssim(self):
         """ssim_map is the evaluation's SSIM (Gaussian window of radius 5,
         sigma 1.5, C1 = 0.01^2, C2 = 0.03^2) at pixels whose window lies
@@ -749,18 +764,9 @@ class Recipe(unittest.TestCase):
         alpha[0, 0, 5 + 3, 5 + 2] = 0.4                                   # one hair pixel
         self.assertAlmostEqual(float(train.hair_ssim_loss(p, q, alpha)),
                                1 - float(got[0, 3, 2]), places=6)
-        # In the look loss, with its weight; --ssim-weight needs --loss look.
-        t = torch.rand(2, 3, 16, 16, generator=g)
-        pr = torch.clamp(t + 0.2 * torch.rand(2, 3, 16, 16, generator=g), 0, 1)
-        looks = train.eval_looks(2, "cpu")
-        self.assertAlmostEqual(
-            float(train.look_loss(pr, t, looks, 1.0, 0.1, ssim_weight=0.5)),
-            float(train.look_loss(pr, t, looks, 1.0, 0.1))
-            + 0.5 * float(train.hair_ssim_loss(train.composite(pr, *looks),
-                                               train.composite(t, *looks), t[:, 2:3])),
-            places=6)
-        with self.assertRaises(SystemExit):
-            train.parse_args(["--out", "x", "--ssim-weight", "0.1"])
+        self.assert_look_term(g, 16, dict(ssim_weight=0.5), 0.5,
+                              lambda cp, ct, t: train.hair_ssim_loss(cp, ct, t[:, 2:3]),
+                              "--ssim-weight")
 
     def test_lattice_term_measures_the_periodic_error(self):
         """lattice_loss is the mean square of the error's part that repeats
@@ -792,18 +798,8 @@ class Recipe(unittest.TestCase):
                                                         period)), want, places=6)
         self.assertEqual(float(train.lattice_loss(q[:, :, :4, :4], q[:, :, :4, :4] + 1, period)),
                          0.0)
-        # In the look loss, with its weight; --lattice-weight needs --loss look.
-        t = torch.rand(2, 3, 32, 32, generator=g)
-        pr = torch.clamp(t + 0.2 * torch.rand(2, 3, 32, 32, generator=g), 0, 1)
-        looks = train.eval_looks(2, "cpu")
-        self.assertAlmostEqual(
-            float(train.look_loss(pr, t, looks, 1.0, 0.1, lattice=(3.0, 8))),
-            float(train.look_loss(pr, t, looks, 1.0, 0.1))
-            + 3.0 * float(train.lattice_loss(train.composite(pr, *looks),
-                                             train.composite(t, *looks), 8)),
-            places=6)
-        with self.assertRaises(SystemExit):
-            train.parse_args(["--out", "x", "--lattice-weight", "1"])
+        self.assert_look_term(g, 32, dict(lattice=(3.0, 8)), 3.0,
+                              lambda cp, ct, t: train.lattice_loss(cp, ct, 8), "--lattice-weight")
 
     def test_lowpass_term_measures_the_bias(self):
         """lowpass_loss is the mean square of the error's size x size block
@@ -821,19 +817,9 @@ class Recipe(unittest.TestCase):
         part[:, :, :8, :8] += 0.4                      # one block of 16
         self.assertAlmostEqual(float(train.lowpass_loss(part, q, 8)), 0.16 / 16, places=6)
         self.assertEqual(float(train.lowpass_loss(q[:, :, :4, :4], q[:, :, :4, :4] + 1, 8)), 0.0)
-        # In the look loss, with its weight; --lowpass-weight needs --loss look
-        # and --lowpass-size a whole pixel or more.
-        t = torch.rand(2, 3, 32, 32, generator=g)
-        pr = torch.clamp(t + 0.2 * torch.rand(2, 3, 32, 32, generator=g), 0, 1)
-        looks = train.eval_looks(2, "cpu")
-        self.assertAlmostEqual(
-            float(train.look_loss(pr, t, looks, 1.0, 0.1, lowpass=(4.0, 8))),
-            float(train.look_loss(pr, t, looks, 1.0, 0.1))
-            + 4.0 * float(train.lowpass_loss(train.composite(pr, *looks),
-                                             train.composite(t, *looks), 8)),
-            places=6)
-        with self.assertRaises(SystemExit):
-            train.parse_args(["--out", "x", "--lowpass-weight", "1"])
+        self.assert_look_term(g, 32, dict(lowpass=(4.0, 8)), 4.0,
+                              lambda cp, ct, t: train.lowpass_loss(cp, ct, 8), "--lowpass-weight")
+        # --lowpass-size a whole pixel or more.
         with self.assertRaises(SystemExit):
             train.parse_args(["--out", "x", "--loss", "look", "--lowpass-weight", "1",
                               "--lowpass-size", "0"])
