@@ -18,8 +18,10 @@ Internally everything is built y up, metres, face towards +z; roots over an
 ellipsoid scalp above a hairline, strands grown along the normal, bent by
 gravity and kept outside the head.
 
-Usage: models_written_apart.py [a] [b] [c]   (default all three; written to
-the current directory; each model from its own seed, the same files every run)
+Usage: models_written_apart.py [--seed N] [a] [b] [c]   (default all three;
+written to the current directory; each model from its own seed, the same
+files every run; --seed N draws other models of the same kinds, for
+training: the evaluation's are those without it)
 """
 import struct
 import sys
@@ -216,6 +218,16 @@ def model_c(rng):
 
 
 if __name__ == "__main__":
-    which = sys.argv[1:] or ["a", "b", "c"]
+    args = sys.argv[1:]
+    seed = 0
+    if args[:1] == ["--seed"]:
+        if len(args) < 2 or not args[1].isdigit() or int(args[1]) < 1:
+            sys.exit("models_written_apart.py: --seed takes a whole number from 1")
+        seed, args = int(args[1]), args[2:]
+    which = args or ["a", "b", "c"]
     for w in which:
-        {"a": model_a, "b": model_b, "c": model_c}[w](np.random.default_rng(ord(w) + 11))
+        if w not in ("a", "b", "c"):
+            sys.exit(f"models_written_apart.py: {w!r}: the models are a, b and c")
+        # Without --seed, the seeds of docs/QUALITY.md's evaluation frames.
+        rng = np.random.default_rng(ord(w) + 11 if not seed else [seed, ord(w)])
+        {"a": model_a, "b": model_b, "c": model_c}[w](rng)
