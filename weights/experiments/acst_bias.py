@@ -26,19 +26,20 @@ import sys
 import tempfile
 
 import numpy as np
-import OpenImageIO as oiio
 import torch
 import torch.nn.functional as F
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+import dataset  # noqa: E402
+
 
 def read(path):
-    i = oiio.ImageInput.open(path)
-    if not i:
-        sys.exit(f"acst_bias.py: {path}: {oiio.geterror()}")
-    spec = i.spec()
-    a = i.read_image(oiio.FLOAT)
-    i.close()
-    return {n: a[..., k] for k, n in enumerate(spec.channelnames)}
+    """The frame's channels by name (dataset.read_exr)."""
+    try:
+        names, data = dataset.read_exr(path)
+    except dataset.DatasetError as e:
+        sys.exit(f"acst_bias.py: {e}")
+    return {n: data[..., k] for k, n in enumerate(names)}
 
 
 def gaussian(x, sigma):
