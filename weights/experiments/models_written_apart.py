@@ -1,8 +1,8 @@
 #!/usr/bin/python3
-"""Three hair models in Cem Yuksel's .hair format, built from the format
+"""Four hair models in Cem Yuksel's .hair format, built from the format
 alone (none of the renderer's styles, nor client/render/tools/hair_models.py),
 in conventions no training frame used, for docs/QUALITY.md's "Three
-models written apart":
+models written apart" (A, B, C) and a fourth unlike them (D):
 
 A  wavy_zup_cm.hair    : z up, centimetres, origin offset (152, -87, 104) cm,
                          SEGMENTS|POINTS only, header thickness 0.0075 cm,
@@ -14,14 +14,23 @@ C  buzz_yup_mm.hair    : y up, millimetres, POINTS|THICKNESS|TRANSPARENCY,
                          header default segments 5 (no segment array),
                          90000 short strands (6-14 mm), widths 70 -> 25 um,
                          transparency 0.0..0.3 per point.
+D  coily_xup_in.hair   : x up (the head's up is +x), inches,
+                         SEGMENTS|POINTS|THICKNESS|COLORS, per-point width
+                         160-200 um -> 75-85% of it at the tip (thick: about
+                         0.1 px in a 256 px frame of the whole head, 0.09-0.14
+                         p10-p90 at --random-view 101), colours dark
+                         brown to near black per strand; 12000 tight coils
+                         (radius 3-6 mm, period 6-12 mm, 8-20 cm of arc) around
+                         paths grown out to a round afro volume, 40..120 points
+                         (about 14 a turn, so the coil survives resampling).
 Internally everything is built y up, metres, face towards +z; roots over an
 ellipsoid scalp above a hairline, strands grown along the normal, bent by
 gravity and kept outside the head.
 
-Usage: models_written_apart.py [--seed N] [a] [b] [c]   (default all three;
-written to the current directory; each model from its own seed, the same
-files every run; --seed N draws other models of the same kinds, for
-training: the evaluation's are those without it)
+Usage: models_written_apart.py [--seed N] [a] [b] [c] [d]   (default a, b
+and c, the evaluation's three; d by name; written to the current directory;
+each model from its own seed, the same files every run; --seed N draws other
+models of the same kinds, for training: the evaluation's are those without it)
 """
 import struct
 import sys
@@ -217,6 +226,112 @@ def model_c(rng):
                thick=thick, transp=transp, info="buzz cut, y up, mm, default segments")
 
 
+def transport_frames(path):
+    """Rotation-minimising frames along each path (parallel transport): a coil
+    wound in frames_along's would jump where its reference axis is swapped,
+    and a tight helix shows that kink at once."""
+    tan = np.gradient(path, axis=1)
+    tan /= np.linalg.norm(tan, axis=2, keepdims=True) + 1e-12
+    t0 = tan[:, 0]
+    ref = np.eye(3)[np.argmin(np.abs(t0), axis=1)]  # the axis least along t0
+    b1 = np.zeros_like(tan)
+    b = np.cross(t0, ref)
+    for k in range(path.shape[1]):
+        b = b - np.sum(b * tan[:, k], axis=1, keepdims=True) * tan[:, k]
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        b1[:, k] = b
+    return tan, b1, np.cross(tan, b1)
+
+
+def model_d(rng):
+    n, steps, nmax = 12000, 48, 120
+    roots = sample_scalp(rng, n, front_line=0.40, back_line=-0.3)   # down to the nape
+    nrm = normals(roots)
+    # A round volume: each path reaches out along its normal to a sphere-like
+    # envelope around the head (raised, set back from the face), +-12%.
+    centre, env = np.array([0.0, 0.03, -0.012]), np.array([0.135, 0.135, 0.14])
+    q, v = (roots - centre) / env, nrm / env
+    a, b, c = np.sum(v * v, 1), 2 * np.sum(q * v, 1), np.sum(q * q, 1) - 1
+    reach = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a) * rng.uniform(0.88, 1.12, n)
+    reach = np.clip(reach, 0.083 / 6.2, 0.195 / 1.9)  # so that an arc below fits
+    # Then coils that fit it: a helix of radius r and period P spends
+    # sqrt(P^2 + (2 pi r)^2) of hair per turn, 1.9-6.2 times P in these
+    # ranges, so an arc of 8-20 cm is drawn from what that allows over the
+    # reach, and the coil's shape (2 pi r / P) follows; had the arc been drawn
+    # first and clipped, a clipped strand would stop short of the envelope and
+    # the volume would be the clip's, not round. (Drawn in 8.3-19.5 cm: the
+    # coil's opening at the root and its breathing move it a few percent.)
+    arc = rng.uniform(np.maximum(0.083, 1.9 * reach), np.minimum(0.195, 6.2 * reach))
+    slope = np.sqrt((arc / reach) ** 2 - 1)           # 2 pi r / P
+    period = rng.uniform(np.maximum(0.006, 2 * np.pi * 0.003 / slope),
+                         np.minimum(0.012, 2 * np.pi * 0.006 / slope))
+    radius = slope * period / (2 * np.pi)
+    lengths = reach                                   # the path's length
+    # Springy: little gravity, a stiff start, a little scatter in direction.
+    comb = rng.normal(0, 0.2, (n, 3)) + np.array([0.0, 0.15, -0.1])
+    layer = rng.uniform(0.0, 0.04, n)
+    path = grow(rng, roots, lengths, steps, gravity=0.25, stiff=0.8, layer=layer, comb=comb)
+    # A slow wander, then every step put back to its length: the arc length is
+    # what the coil is wound by, and a wander (or a slide over the scalp in
+    # grow) that stretched the path would stretch the strand with it.
+    wander = np.cumsum(np.cumsum(rng.normal(0, 2e-5, path.shape), axis=1), axis=1)
+    dp = np.diff(path + wander, axis=1)
+    dp *= (lengths / steps)[:, None, None] / np.linalg.norm(dp, axis=2, keepdims=True)
+    path = np.concatenate([roots[:, None], roots[:, None] + np.cumsum(dp, axis=1)], 1)
+    tan, b1, b2 = transport_frames(path)
+    # Arc length of the path, for the coil phase.
+    sp = np.concatenate([np.zeros((n, 1)), np.cumsum(
+        np.linalg.norm(np.diff(path, axis=1), axis=2), axis=1)], 1)
+    # Points by turns, about 14 a turn so the coil stays a coil, 40..120.
+    turns = lengths / period
+    npts = np.clip(np.round(14 * turns) + 1 + rng.integers(-2, 3, n), 40, nmax).astype(int)
+    # The path and its frames at each strand's points (padded to nmax with the tip).
+    j = np.arange(nmax)[None, :]
+    u = np.minimum(j, npts[:, None] - 1) / (npts[:, None] - 1) * steps
+    k = np.minimum(np.floor(u).astype(int), steps - 1)
+    f = (u - k)[..., None]
+    rows = np.arange(n)[:, None]
+
+    def at(x):
+        return x[rows, k] * (1 - f) + x[rows, k + 1] * f
+
+    cp, e1, e2 = at(path), at(b1), at(b2)
+    e1 /= np.linalg.norm(e1, axis=2, keepdims=True)
+    e2 /= np.linalg.norm(e2, axis=2, keepdims=True)
+    s = at(sp[..., None])[..., 0]
+    # Coils are irregular: the phase drifts, the radius breathes a little
+    # (within 3-6 mm), and it opens out over the first 3 mm from the root.
+    drift = np.cumsum(rng.normal(0, 0.12, (n, steps + 1)), axis=1)
+    ph = (2 * np.pi * s / period[:, None] + rng.uniform(0, 2 * np.pi, n)[:, None]
+          + at(drift[..., None])[..., 0])
+    r = radius[:, None] * (1 + 0.1 * np.sin(2 * np.pi * s / rng.uniform(0.02, 0.04, n)[:, None]
+                                            + rng.uniform(0, 2 * np.pi, n)[:, None]))
+    r = np.clip(r, 0.003, 0.006) * np.sqrt(np.clip(s / 0.003, 0, 1))
+    pts = cp + r[..., None] * (np.cos(ph)[..., None] * e1 + np.sin(ph)[..., None] * e2)
+    # A coil near the root may dip under the scalp: back onto it.
+    rr = np.linalg.norm(pts / HEAD, axis=2)
+    pts[rr < 1] /= rr[rr < 1, None]
+    keep = (j < npts[:, None]).ravel()
+    pts = pts.reshape(-1, 3)[keep]                   # y up, metres
+    # Thick strands, 160-200 um at the root, 75-85% of it at the tip (>= 120 um).
+    w0 = rng.uniform(160e-6, 200e-6, n)
+    tip = rng.uniform(0.75, 0.85, n)
+    thick = np.concatenate([w0[i] * (1 - (1 - tip[i]) * np.linspace(0, 1, npts[i]))
+                            for i in range(n)])
+    # Dark brown to near black per strand, the ends a touch lighter.
+    brown, black = np.array([0.16, 0.095, 0.055]), np.array([0.035, 0.028, 0.024])
+    mix = rng.random(n) ** 0.7
+    base = (brown * (1 - mix[:, None]) + black * mix[:, None]) * rng.uniform(0.85, 1.1, n)[:, None]
+    col = np.concatenate([base[i] * (1 + 0.12 * np.linspace(0, 1, npts[i]) ** 2)[:, None]
+                          for i in range(n)])
+    # x up, inches: y-up (X, Y, Z) -> x-up (Y, -X, Z), a rotation about z that
+    # keeps the face towards +z.
+    px = np.stack([pts[:, 1], -pts[:, 0], pts[:, 2]], 1) / 0.0254
+    write_hair("coily_xup_in.hair", npts - 1, px, SEGMENTS | POINTS | THICKNESS | COLORS,
+               d_seg=0, d_thick=1.0, d_transp=0.0, d_color=(1, 1, 1),
+               thick=thick / 0.0254, color=col, info="coily afro, x up, inches")
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     seed = 0
@@ -224,10 +339,10 @@ if __name__ == "__main__":
         if len(args) < 2 or not args[1].isdigit() or int(args[1]) < 1:
             sys.exit("models_written_apart.py: --seed takes a whole number from 1")
         seed, args = int(args[1]), args[2:]
-    which = args or ["a", "b", "c"]
+    which = args or ["a", "b", "c"]   # d only by name: the evaluation's three
     for w in which:
-        if w not in ("a", "b", "c"):
-            sys.exit(f"models_written_apart.py: {w!r}: the models are a, b and c")
+        if w not in ("a", "b", "c", "d"):
+            sys.exit(f"models_written_apart.py: {w!r}: the models are a, b, c and d")
         # Without --seed, the seeds of docs/QUALITY.md's evaluation frames.
         rng = np.random.default_rng(ord(w) + 11 if not seed else [seed, ord(w)])
-        {"a": model_a, "b": model_b, "c": model_c}[w](rng)
+        {"a": model_a, "b": model_b, "c": model_c, "d": model_d}[w](rng)
