@@ -1,8 +1,8 @@
 #!/usr/bin/python3
-"""Four hair models in Cem Yuksel's .hair format, built from the format
+"""Five hair models in Cem Yuksel's .hair format, built from the format
 alone (none of the renderer's styles, nor client/render/tools/hair_models.py),
 in conventions no training frame used, for docs/QUALITY.md's "Three
-models written apart" (A, B, C) and a fourth unlike them (D):
+models written apart" (A, B, C) and two more unlike them (D, E):
 
 A  wavy_zup_cm.hair    : z up, centimetres, origin offset (152, -87, 104) cm,
                          SEGMENTS|POINTS only, header thickness 0.0075 cm,
@@ -23,12 +23,28 @@ D  coily_xup_in.hair   : x up (the head's up is +x), inches,
                          (radius 3-6 mm, period 6-12 mm, 8-20 cm of arc) around
                          paths grown out to a round afro volume, 40..120 points
                          (about 14 a turn, so the coil survives resampling).
+E  spiky_zup_dm.hair   : z up with the face towards -y (as A, which --up z
+                         turns to the renderer's +z front), decimetres, origin
+                         at the head's centre, SEGMENTS|POINTS|THICKNESS|
+                         TRANSPARENCY, header default colour (light brown, no
+                         colour array), per-point width 110-150 um -> 20-40%
+                         of it at the tip (0.1 px at the root in a 256 px
+                         frame of the whole head; 0.034/0.069/0.097 px
+                         p10/p50/p90 at --random-view 101), transparency
+                         0 at the root -> 0.2-0.5 at the tip; 25000 strands
+                         of 8..24 points in
+                         320 clumps, a gelled spiky short cut: pointed spikes
+                         of 4-9 cm standing up and back on top (a fifth of
+                         them splayed), 2-4 cm combed flat at the sides and
+                         back, a 4-7 cm fringe forward and down; each strand
+                         runs to its clump's tip, cut at 60-100% of the way.
 Internally everything is built y up, metres, face towards +z; roots over an
 ellipsoid scalp above a hairline, strands grown along the normal, bent by
-gravity and kept outside the head.
+gravity and kept outside the head (E's are not grown: each is a curve from
+its root to its clump's tip, no gravity, gel holds it).
 
-Usage: models_written_apart.py [--seed N] [a] [b] [c] [d]   (default a, b
-and c, the evaluation's three; d by name; written to the current directory;
+Usage: models_written_apart.py [--seed N] [a] [b] [c] [d] [e]   (default a,
+b and c, the evaluation's three; d and e by name; written to the current directory;
 each model from its own seed, the same files every run; --seed N draws other
 models of the same kinds, for training: the evaluation's are those without it)
 """
@@ -332,6 +348,102 @@ def model_d(rng):
                thick=thick / 0.0254, color=col, info="coily afro, x up, inches")
 
 
+def model_e(rng):
+    n, steps, nc = 25000, 32, 320
+    roots = sample_scalp(rng, n, front_line=0.42, back_line=-0.15)
+    nrm = normals(roots)
+    # Clumps: a few hundred centres among the roots, each strand in its
+    # nearest's (by root), so a clump is a patch of scalp, as gel gathers it.
+    cidx = rng.choice(n, nc, replace=False)
+    d2 = ((roots[:, None, :] - roots[None, cidx, :]) ** 2).sum(-1)
+    clump = np.argmin(d2, axis=1)
+    R, N = roots[cidx], nrm[cidx]
+    # Where a clump sits: top (crown and top of the head: long, standing),
+    # the sides and back below it (short, combed flat), and the fringe (the
+    # front hairline: forward and down over the forehead).
+    hy = R[:, 1] / HEAD[1]
+    top = np.clip((hy - 0.35) / 0.4, 0, 1) ** 1.5
+    cz = R[:, 2] / np.linalg.norm(R[:, [0, 2]], axis=1)     # cos of the azimuth, 1 at the face
+    fringe = np.clip((cz - 0.55) / 0.3, 0, 1) * np.clip((0.8 - hy) / 0.2, 0, 1)
+
+    def tangent(v):
+        """v's part in the scalp's tangent plane at each clump, unit."""
+        t = v - np.sum(v * N, axis=1, keepdims=True) * N
+        return t / np.linalg.norm(t, axis=1, keepdims=True)
+
+    # Spikes at the top stand up and lean back; 20% splay out anywhere above
+    # the scalp; the sides and back lie down and back along the scalp; the
+    # fringe points forward and down.
+    splay = rng.random(nc) < 0.2
+    d_top = N + np.array([0.0, 0.35, -0.6]) + rng.normal(0, 0.25, (nc, 3))
+    d_top[splay] += rng.normal(0, 0.7, (splay.sum(), 3))
+    d_top /= np.linalg.norm(d_top, axis=1, keepdims=True)
+    d_top += np.maximum(0.35 - np.sum(d_top * N, 1), 0)[:, None] * N    # never into the head
+    d_side = 0.15 * N + tangent(np.array([0.0, -0.7, -1.0]) + rng.normal(0, 0.25, (nc, 3)))
+    d_fringe = 0.2 * N + tangent(np.array([0.0, -1.0, 0.1]) + rng.normal(0, 0.35, (nc, 3)))
+    dirs = top[:, None] * d_top + (1 - top[:, None]) * d_side
+    dirs = (1 - fringe[:, None]) * dirs / np.linalg.norm(dirs, axis=1, keepdims=True) + fringe[:, None] * d_fringe
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    # Clump lengths: 4-9 cm at the top, 2-4 cm at the sides and back, 4-7 cm
+    # in the fringe; the tip is where the clump's strands meet.
+    L = (1 - top) * rng.uniform(0.02, 0.04, nc) + top * rng.uniform(0.04, 0.09, nc)
+    L = (1 - fringe) * L + fringe * rng.uniform(0.04, 0.07, nc)
+    tipc = R + L[:, None] * dirs
+    # Each strand: a quadratic Bezier out of its root (first along the
+    # clump's direction, lifted off the scalp) to the clump's tip, or most of
+    # the way there in a splayed clump (convergence 0.35-0.7, else 0.9-1),
+    # with a millimetre or two of scatter where the gel did not hold; cut at
+    # 60-100% of it, so fewer strands reach the tip and the spike is pointed.
+    conv = np.where(splay, rng.uniform(0.35, 0.7, nc), rng.uniform(0.9, 1.0, nc))[clump]
+    c = clump
+    p0 = roots
+    lift = np.where(top[c] > 0.5, 0.6, 0.15)[:, None]
+    p1 = p0 + 0.4 * L[c, None] * (dirs[c] + lift * nrm) / np.linalg.norm(dirs[c] + lift * nrm, axis=1, keepdims=True)
+    p2 = p0 + (tipc[c] - R[c]) + conv[:, None] * (R[c] - p0) + rng.normal(0, 0.0012, (n, 3))
+    cut = 1 - 0.4 * rng.random(n) ** 1.5
+    t = cut[:, None, None] * np.linspace(0, 1, steps + 1)[None, :, None]
+    path = (1 - t) ** 2 * p0[:, None] + 2 * t * (1 - t) * p1[:, None] + t ** 2 * p2[:, None]
+    # A little unevenness along the strand, none at the root.
+    wob = np.cumsum(rng.normal(0, 0.00015, path.shape), axis=1)
+    path += (wob - wob[:, :1]) * np.linspace(0, 1, steps + 1)[None, :, None]
+    # Kept outside the head, grown by a per-strand layer that opens over the
+    # first centimetre (a flat strand at the side would cut the ellipsoid's
+    # curve between its root and its tip).
+    layer = rng.uniform(0.005, 0.035, n)
+    seg = np.linalg.norm(np.diff(path, axis=1), axis=2)
+    s = np.concatenate([np.zeros((n, 1)), np.cumsum(seg, axis=1)], 1)
+    grown = 1 + layer[:, None] * np.clip(s / 0.01, 0, 1)
+    rr = np.linalg.norm(path / HEAD, axis=2) / grown
+    path[rr < 1] /= rr[rr < 1, None]
+    # Slicked down below the top: a straight spike at the sides, back or
+    # fringe would stand off the curved scalp by centimetres at its tip, so
+    # its height over the layer is cut by up to 60% (none at the top).
+    flat = 0.6 * np.maximum(1 - top, fringe)[c][:, None]
+    rr = np.maximum(np.linalg.norm(path / HEAD, axis=2), grown)
+    path *= ((grown + (rr - grown) * (1 - flat)) / rr)[..., None]
+    # Points by length: 8 for the shortest, 24 for the longest, +-2.
+    length = s[:, -1]
+    npts = np.clip(np.round(8 + 16 * (length - length.min()) / np.ptp(length)
+                            + rng.integers(-2, 3, n)), 8, 24).astype(int)
+    strands = resample(path, npts)
+    pts = np.concatenate(strands)                    # y up, metres
+    # Medium strands tapering hard: 110-150 um at the root, 20-40% of it at
+    # the tip, most of the loss in the outer half; transparency from 0 at the
+    # root to 0.2-0.5 at the tip (the thin, gel-coated ends).
+    w0 = rng.uniform(110e-6, 150e-6, n)
+    wt = rng.uniform(0.2, 0.4, n)
+    tmax = rng.uniform(0.2, 0.5, n)
+    u = [np.linspace(0, 1, k) for k in npts]
+    thick = np.concatenate([w0[i] * (1 - (1 - wt[i]) * u[i] ** 1.6) for i in range(n)])
+    transp = np.concatenate([tmax[i] * u[i] ** 1.5 for i in range(n)])
+    # z up, decimetres, origin at the head's centre: y-up (X, Y, Z) -> z-up
+    # (X, -Z, Y), the face towards -y.
+    pe = np.stack([pts[:, 0], -pts[:, 2], pts[:, 1]], 1) * 10.0
+    write_hair("spiky_zup_dm.hair", npts - 1, pe, SEGMENTS | POINTS | THICKNESS | TRANSPARENCY,
+               d_seg=0, d_thick=0.0013, d_transp=0.0, d_color=(0.42, 0.3, 0.17),
+               thick=thick * 10.0, transp=transp, info="gelled spiky short cut, z up, dm")
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     seed = 0
@@ -339,10 +451,10 @@ if __name__ == "__main__":
         if len(args) < 2 or not args[1].isdigit() or int(args[1]) < 1:
             sys.exit("models_written_apart.py: --seed takes a whole number from 1")
         seed, args = int(args[1]), args[2:]
-    which = args or ["a", "b", "c"]   # d only by name: the evaluation's three
+    which = args or ["a", "b", "c"]   # d and e only by name: the evaluation's three
     for w in which:
-        if w not in ("a", "b", "c", "d"):
-            sys.exit(f"models_written_apart.py: {w!r}: the models are a, b, c and d")
+        if w not in ("a", "b", "c", "d", "e"):
+            sys.exit(f"models_written_apart.py: {w!r}: the models are a, b, c, d and e")
         # Without --seed, the seeds of docs/QUALITY.md's evaluation frames.
         rng = np.random.default_rng(ord(w) + 11 if not seed else [seed, ord(w)])
-        {"a": model_a, "b": model_b, "c": model_c, "d": model_d}[w](rng)
+        {"a": model_a, "b": model_b, "c": model_c, "d": model_d, "e": model_e}[w](rng)
