@@ -451,10 +451,10 @@ if __name__ == "__main__":
         if len(args) < 2 or not args[1].isdigit() or int(args[1]) < 1:
             sys.exit("models_written_apart.py: --seed takes a whole number from 1")
         seed, args = int(args[1]), args[2:]
+    models = {"a": model_a, "b": model_b, "c": model_c, "d": model_d, "e": model_e}
     which = args or ["a", "b", "c"]   # d and e only by name: the evaluation's three
     for w in which:
-        if w not in ("a", "b", "c", "d", "e"):
+        if w not in models:
             sys.exit(f"models_written_apart.py: {w!r}: the models are a, b, c, d and e")
         # Without --seed, the seeds of docs/QUALITY.md's evaluation frames.
-        rng = np.random.default_rng(ord(w) + 11 if not seed else [seed, ord(w)])
-        {"a": model_a, "b": model_b, "c": model_c, "d": model_d, "e": model_e}[w](rng)
+        models[w](np.random.default_rng(ord(w) + 11 if not seed else [seed, ord(w)]))
