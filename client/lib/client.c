@@ -272,12 +272,16 @@ static int read_frame(hfc_client *c, int k) {
     t->input_sanitised = (r.flags & HFP_RESULT_INPUT_SANITISED) != 0;
     if (r.status != HFP_OK) {
       int err = r.status < HFP_E_COUNT ? -(int)r.status : HFC_E_INTERNAL;
-      /* Admitted, then not run: a server that stopped (SHUTTING_DOWN) or
-       * failed (INTERNAL) may leave the frame to another. */
+      /* Admitted, then not run: a server that stopped (SHUTTING_DOWN),
+       * failed (INTERNAL) or gave the frame's queue place to a client
+       * under its share (BUSY) may leave the frame to another. */
       if (!fail_over_request(c, k, p, err)) {
         char why[400];
-        snprintf(why, sizeof why, "%s admitted the frame, then did not run it: %s",
-                 c->eps[x->endpoint].url, hfp_code_name(err));
+        snprintf(why, sizeof why, "%s admitted the frame, then did not run it: %s%s",
+                 c->eps[x->endpoint].url, hfp_code_name(err),
+                 err == HFC_E_BUSY ? " (its queue place went to a client holding less than "
+                                     "its share; retry later)"
+                                   : "");
         hfci_finish(c, p, err, why);
       }
       return 0;

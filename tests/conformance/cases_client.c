@@ -1239,6 +1239,7 @@ const cf_case cf_cases_client[] = {
   EC(HFP_E_TOO_LARGE | 1 << 16, "fatal_too_large"),
   {"client.result_status.internal", "RESULT status INTERNAL: the request fails INTERNAL", 0, result_status, HFP_E_INTERNAL},
   {"client.result_status.shutting_down", "RESULT status SHUTTING_DOWN: the request fails SHUTTING_DOWN", 0, result_status, HFP_E_SHUTTING_DOWN},
+  {"client.result_status.busy", "RESULT status BUSY (pushed out of a full queue): the request fails BUSY", 0, result_status, HFP_E_BUSY},
   {"client.result_status.with_tensor", "a RESULT with status and a tensor is malformed: PROTOCOL", 0, result_status, HFP_E_INTERNAL | 1 << 8},
   RB(RB_UNKNOWN_ID, "unknown_id", "a RESULT for an id not in flight: PROTOCOL"),
   RB(RB_WIDTH, "width", "a RESULT whose size is not the request's: PROTOCOL"),
