@@ -781,25 +781,52 @@ static void filter_head(hfd_conn *c, size_t have) {
   }
 }
 
+/* The queue places c may hold, queue_size / n with n the connections
+ * holding frames (admitted, not yet answered), c counted, at least 1. */
+static int queue_share(const hfd_server *s, const hfd_conn *c) {
+  int q = s->cfg->queue_size, n = s->conns_with_frames + (c->inflight == 0);
+  return q / n > 0 ? q / n : 1;
+}
+
 /* Whether c must wait for its share of the queue: the last quarter of the
  * queue (at least one place) goes only to connections holding fewer frames
- * (admitted, not yet answered) than queue_size / n, n the connections
- * holding frames with c counted, at least 1. So clients that resend the
- * moment a slot frees (after every BUSY) fill the queue up to its last
- * quarter only, and one that sends a frame at a time, holding none, finds
- * room there; the queue is shared, not first come first served. The rule
- * refuses nothing that is within its share: a connection alone may hold as
- * many frames as the queue has places, those running or being answered
- * counted (so with one running it fills all but one place), and
- * connections that each stay within queue_size / n never meet it (the
- * defaults: queue 64, 32 in flight per connection). */
+ * than their share (queue_share). So clients that resend the moment a slot
+ * frees (after every BUSY) fill the queue up to its last quarter only, and
+ * one that sends a frame at a time, holding none, finds room there; where a
+ * connection under its share took that room, filter_admit makes room by
+ * pushing out a frame of one over its share. The queue is shared, not
+ * first come first served. The rule refuses nothing that is within its
+ * share: a connection alone may hold as many frames as the queue has
+ * places, those running or being answered counted (so with one running it
+ * fills all but one place), and connections that each stay within
+ * queue_size / n never meet it (the defaults: queue 64, 32 in flight per
+ * connection). */
 static int over_queue_share(hfd_server *s, const hfd_conn *c) {
   int q = s->cfg->queue_size, reserve = q / 4 > 0 ? q / 4 : 1;
-  int n = s->conns_with_frames + (c->inflight == 0);
-  int share = q / n > 0 ? q / n : 1;
   /* Within its share nothing is refused: only then is the worker's queue
    * (and its mutex) asked how full it is. */
-  return c->inflight >= share && hfd_worker_queue_depth(&s->worker) + 1 > q - reserve;
+  return c->inflight >= queue_share(s, c) &&
+         hfd_worker_queue_depth(&s->worker) + 1 > q - reserve;
+}
+
+/* Answers j, which a connection under its share pushed out of the queue
+ * (hfd_worker_push_out), with a RESULT of status BUSY: it was admitted, so
+ * its reply is a RESULT (PROTOCOL.md, "Flow control"). */
+static void answer_pushed_out(hfd_server *s, hfd_job *j) {
+  j->status = HFP_E_BUSY;
+  j->t_started = j->t_done = hfd_now_us();
+  j->batch = 0;
+  s->queue_pushed_out++;
+  deliver(s, j);
+}
+
+/* Queues j of c: 0, or HFP_E_BUSY for a full queue. A connection under
+ * its share takes, in a full queue, the place of a frame of one over its
+ * share (hfd_worker_push_out), which *pushed then returns. */
+static int queue_frame(hfd_server *s, const hfd_conn *c, hfd_job *j, hfd_job **pushed) {
+  int share = queue_share(s, c);
+  if (c->inflight < share) return hfd_worker_push_out(&s->worker, j, share, pushed);
+  return hfd_worker_submit(&s->worker, j);
 }
 
 /* The FILTER's tensor is in: charge its result buffers and what running it
@@ -811,6 +838,7 @@ static void filter_admit(hfd_conn *c) {
   j->t_received = hfd_now_us();
   int code = 0;
   const char *why = NULL;
+  hfd_job *pushed = NULL;
   uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
                                       1, j->req.data_len);
   uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);
@@ -837,7 +865,7 @@ static void filter_admit(hfd_conn *c) {
     if (!j->out || (j->rgba_len && !j->rgba)) {
       code = HFP_E_BUSY;
       why = "out of memory for the result";
-    } else if (hfd_worker_submit(&s->worker, j)) {
+    } else if (queue_frame(s, c, j, &pushed)) {
       code = HFP_E_BUSY;
       why = "queue full";
     }
@@ -851,6 +879,9 @@ static void filter_admit(hfd_conn *c) {
     if (c->inflight++ == 0) s->conns_with_frames++;
     s->jobs_outstanding++;
   }
+  /* Answered once c's frame is counted (it is never one of c's: c holds
+   * fewer than its share). */
+  if (pushed) answer_pushed_out(s, pushed);
   read_next(c);
 }
 

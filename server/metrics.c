@@ -356,6 +356,10 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
          "Results computed and never delivered: the client had gone, or its connection was "
          "closed with them unread.",
          s->replies_lost);
+  scalar(f, "hairfilterd_queue_pushed_out_total", "counter",
+         "Admitted frames taken off the full queue for a connection under its share, "
+         "answered BUSY.",
+         s->queue_pushed_out);
   scalar(f, "hairfilterd_request_memory_bytes", "gauge",
          "Host memory charged to requests: features, results, inference (--max-memory-mb).",
          s->mem_held);

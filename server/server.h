@@ -307,6 +307,18 @@ typedef struct hfd_worker {
 int hfd_worker_start(hfd_worker *w);
 /* 0 when queued, HFP_E_BUSY when the queue is full. */
 int hfd_worker_submit(hfd_worker *w, hfd_job *job);
+/* hfd_worker_submit for a frame of a connection holding fewer than share
+ * frames: when the queue is full, the newest queued frame (not one the
+ * batcher holds or runs) of the connection holding the most frames, more
+ * than share, leaves the queue and job takes its place, in one step.
+ * 0 when job is queued, *pushed then the frame taken off (for the caller
+ * to answer BUSY) or NULL when there was room; HFP_E_BUSY when no
+ * connection over share has a frame in the queue, or the worker is
+ * stopping. Loop thread only: it reads the connections' inflight counts.
+ * So the queue is shared (docs/SERVER.md, "Limits and backpressure"): a
+ * client within its share is not refused for a queue that clients over
+ * theirs keep full, however quickly they resend. */
+int hfd_worker_push_out(hfd_worker *w, hfd_job *job, int share, hfd_job **pushed);
 /* Takes every completed job (in completion order). Loop thread: it also
  * counts each backend run among them in its variant's statistics
  * (hfd_metrics_batch), before any reply is written. */
@@ -514,6 +526,7 @@ struct hfd_server {
   uint64_t frame_budget;         /* the most one frame may need */
   uint64_t shm_held;             /* bytes of shared segments */
   uint64_t replies_lost;         /* computed, never delivered (peer gone or closed) */
+  uint64_t queue_pushed_out;     /* queued frames given up for a connection under its share */
   int jobs_outstanding;          /* admitted, not yet answered */
   int pins_outstanding;          /* segments being pinned on the thread pool: the
                                     worker (and its backend) must outlive them */

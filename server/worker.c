@@ -644,12 +644,8 @@ int hfd_worker_start(hfd_worker *w) {
   return 0;
 }
 
-int hfd_worker_submit(hfd_worker *w, hfd_job *job) {
-  pthread_mutex_lock(&w->mu);
-  if (w->q_len + w->q_forming >= w->q_cap || w->stop) {
-    pthread_mutex_unlock(&w->mu);
-    return HFP_E_BUSY;
-  }
+/* Appends job to the queue and wakes the worker (mu held). */
+static void enqueue(hfd_worker *w, hfd_job *job) {
   job->next = NULL;
   if (w->q_tail)
     w->q_tail->next = job;
@@ -658,6 +654,48 @@ int hfd_worker_submit(hfd_worker *w, hfd_job *job) {
   w->q_tail = job;
   w->q_len++;
   pthread_cond_signal(&w->cv);
+}
+
+int hfd_worker_submit(hfd_worker *w, hfd_job *job) {
+  pthread_mutex_lock(&w->mu);
+  if (w->q_len + w->q_forming >= w->q_cap || w->stop) {
+    pthread_mutex_unlock(&w->mu);
+    return HFP_E_BUSY;
+  }
+  enqueue(w, job);
+  pthread_mutex_unlock(&w->mu);
+  return 0;
+}
+
+int hfd_worker_push_out(hfd_worker *w, hfd_job *job, int share, hfd_job **pushed) {
+  *pushed = NULL;
+  pthread_mutex_lock(&w->mu);
+  if (w->stop) {
+    pthread_mutex_unlock(&w->mu);
+    return HFP_E_BUSY;
+  }
+  if (w->q_len + w->q_forming >= w->q_cap) {
+    /* The connection holding the most frames over share, and its newest
+     * frame in the queue: the one its client sent last, which loses the
+     * least waiting. Reading conn->inflight is safe only because this
+     * runs on the loop thread, which alone writes it. */
+    hfd_job *victim = NULL, *victim_prev = NULL, *prev = NULL;
+    for (hfd_job *j = w->q_head; j; prev = j, j = j->next) {
+      int held = j->conn->inflight;
+      if (held <= share) continue;
+      if (!victim || held > victim->conn->inflight || j->conn == victim->conn) {
+        victim = j;
+        victim_prev = prev;
+      }
+    }
+    if (!victim) {
+      pthread_mutex_unlock(&w->mu);
+      return HFP_E_BUSY;
+    }
+    unlink_queued(w, victim_prev, victim);
+    *pushed = victim;
+  }
+  enqueue(w, job);
   pthread_mutex_unlock(&w->mu);
   return 0;
 }
