@@ -334,6 +334,8 @@ static void account(hfd_server *s, hfd_job *j) {
   if (j->status == HFP_OK) hfd_metrics_observe(s, j);
   if (j->status != HFP_OK) {
     st->requests_failed++;
+    /* Counted apart for the stop line: overload, not a failure to run. */
+    if (j->status == HFP_E_BUSY) s->pushed_out_answered++;
     return;
   }
   st->requests_ok++;

@@ -527,6 +527,7 @@ struct hfd_server {
   uint64_t shm_held;             /* bytes of shared segments */
   uint64_t replies_lost;         /* computed, never delivered (peer gone or closed) */
   uint64_t queue_pushed_out;     /* queued frames given up for a connection under its share */
+  uint64_t pushed_out_answered;  /* of those, answered (RESULT BUSY written) */
   int jobs_outstanding;          /* admitted, not yet answered */
   int pins_outstanding;          /* segments being pinned on the thread pool: the
                                     worker (and its backend) must outlive them */
