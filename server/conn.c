@@ -334,7 +334,8 @@ static void account(hfd_server *s, hfd_job *j) {
   if (j->status == HFP_OK) hfd_metrics_observe(s, j);
   if (j->status != HFP_OK) {
     st->requests_failed++;
-    /* Counted apart for the stop line: overload, not a failure to run. */
+    /* Counted apart for the stop line and /metrics: overload, not a
+     * failure to run. Only BUSY RESULTs are pushed-out frames. */
     if (j->status == HFP_E_BUSY) s->pushed_out_answered++;
     return;
   }
@@ -818,7 +819,6 @@ static void answer_pushed_out(hfd_server *s, hfd_job *j) {
   j->status = HFP_E_BUSY;
   j->t_started = j->t_done = hfd_now_us();
   j->batch = 0;
-  s->queue_pushed_out++;
   deliver(s, j);
 }
 

@@ -358,8 +358,8 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
          s->replies_lost);
   scalar(f, "hairfilterd_queue_pushed_out_total", "counter",
          "Admitted frames taken off the full queue for a connection under its share, "
-         "answered BUSY.",
-         s->queue_pushed_out);
+         "answered by a RESULT of status BUSY (counted once written, as requests_total).",
+         s->pushed_out_answered);
   scalar(f, "hairfilterd_request_memory_bytes", "gauge",
          "Host memory charged to requests: features, results, inference (--max-memory-mb).",
          s->mem_held);

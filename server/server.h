@@ -526,8 +526,8 @@ struct hfd_server {
   uint64_t frame_budget;         /* the most one frame may need */
   uint64_t shm_held;             /* bytes of shared segments */
   uint64_t replies_lost;         /* computed, never delivered (peer gone or closed) */
-  uint64_t queue_pushed_out;     /* queued frames given up for a connection under its share */
-  uint64_t pushed_out_answered;  /* of those, answered (RESULT BUSY written) */
+  uint64_t pushed_out_answered;  /* frames pushed out of the queue whose RESULT BUSY was
+                                    written (one whose client had gone: replies_lost) */
   int jobs_outstanding;          /* admitted, not yet answered */
   int pins_outstanding;          /* segments being pinned on the thread pool: the
                                     worker (and its backend) must outlive them */
