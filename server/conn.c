@@ -804,12 +804,11 @@ static int queue_share(const hfd_server *s, const hfd_conn *c) {
  * fills all but one place), and connections that each stay within
  * queue_size / n never meet it (the defaults: queue 64, 32 in flight per
  * connection). */
-static int over_queue_share(hfd_server *s, const hfd_conn *c) {
+static int over_queue_share(hfd_server *s, const hfd_conn *c, int share) {
   int q = s->cfg->queue_size, reserve = q / 4 > 0 ? q / 4 : 1;
   /* Within its share nothing is refused: only then is the worker's queue
    * (and its mutex) asked how full it is. */
-  return c->inflight >= queue_share(s, c) &&
-         hfd_worker_queue_depth(&s->worker) + 1 > q - reserve;
+  return c->inflight >= share && hfd_worker_queue_depth(&s->worker) + 1 > q - reserve;
 }
 
 /* Answers j, which a connection under its share pushed out of the queue
@@ -822,11 +821,12 @@ static void answer_pushed_out(hfd_server *s, hfd_job *j) {
   deliver(s, j);
 }
 
-/* Queues j of c: 0, or HFP_E_BUSY for a full queue. A connection under
- * its share takes, in a full queue, the place of a frame of one over its
- * share (hfd_worker_push_out), which *pushed then returns. */
-static int queue_frame(hfd_server *s, const hfd_conn *c, hfd_job *j, hfd_job **pushed) {
-  int share = queue_share(s, c);
+/* Queues j of c, whose share is share: 0, or HFP_E_BUSY for a full queue.
+ * A connection under its share takes, in a full queue, the place of a
+ * frame of one over its share (hfd_worker_push_out), which *pushed then
+ * returns. */
+static int queue_frame(hfd_server *s, const hfd_conn *c, int share, hfd_job *j,
+                       hfd_job **pushed) {
   if (c->inflight < share) return hfd_worker_push_out(&s->worker, j, share, pushed);
   return hfd_worker_submit(&s->worker, j);
 }
@@ -841,6 +841,7 @@ static void filter_admit(hfd_conn *c) {
   int code = 0;
   const char *why = NULL;
   hfd_job *pushed = NULL;
+  int share = queue_share(s, c);   /* c's count cannot change before it is queued */
   uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
                                       1, j->req.data_len);
   uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);
@@ -850,7 +851,7 @@ static void filter_admit(hfd_conn *c) {
   } else if (c->inflight >= s->cfg->max_inflight) {
     code = HFP_E_BUSY;
     why = "too many requests in flight on this connection";
-  } else if (over_queue_share(s, c)) {
+  } else if (over_queue_share(s, c, share)) {
     code = HFP_E_BUSY;
     why = "this connection holds its share of the queue";
   } else if (run == UINT64_MAX || !mem_fits(s, more)) {
@@ -867,7 +868,7 @@ static void filter_admit(hfd_conn *c) {
     if (!j->out || (j->rgba_len && !j->rgba)) {
       code = HFP_E_BUSY;
       why = "out of memory for the result";
-    } else if (queue_frame(s, c, j, &pushed)) {
+    } else if (queue_frame(s, c, share, j, &pushed)) {
       code = HFP_E_BUSY;
       why = "queue full";
     }

@@ -51,12 +51,6 @@ static int teardown(void **state) {
   return 0;
 }
 
-static double now_ms(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec / 1e6;
-}
-
 /* Waits for a daemon signalled outside server_stop; its exit status. */
 static int reap(server *s) {
   int st;

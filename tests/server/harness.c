@@ -580,3 +580,9 @@ size_t raw_hello_frame(uint8_t *buf, size_t cap, uint16_t min_version, uint16_t 
   hfp_put_u16(buf + HFP_HEADER_SIZE + 2, max_version);
   return (size_t)n;
 }
+
+double now_ms(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec / 1e6;
+}

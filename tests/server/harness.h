@@ -105,6 +105,9 @@ float *make_features(int w, int h, int spp, uint32_t seed);
 int reference(const ref_variant *v, int w, int h, const void *in, int in_dtype, void *out,
               int out_dtype);
 
+/* Milliseconds on the monotonic clock, for deadlines and durations. */
+double now_ms(void);
+
 /* Raw sockets (blocking, 10 s timeouts). */
 int raw_connect(const char *url);
 /* raw_connect with the socket's receive buffer set to rcvbuf bytes before

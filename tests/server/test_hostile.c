@@ -40,12 +40,6 @@ static int teardown(void **state) {
   return harness_stop(&H, &S);
 }
 
-static double now_ms(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec * 1e3 + ts.tv_nsec / 1e6;
-}
-
 static void sleep_ms(int ms) { usleep((useconds_t)ms * 1000); }
 
 static uint64_t ok_count(const char *variant) {

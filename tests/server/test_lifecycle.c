@@ -35,12 +35,6 @@ static int teardown(void **state) {
   return 0;
 }
 
-static double now_ms(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec * 1e3 + ts.tv_nsec / 1e6;
-}
-
 /* Waits up to timeout_ms for the daemon to exit; its status, or -1. */
 static int wait_exit(server *s, int timeout_ms) {
   for (int waited = 0; waited < timeout_ms; waited += 10) {
