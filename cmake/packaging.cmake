@@ -12,7 +12,10 @@
 #   share/hairfilter/          hairfilterd.conf, the example config (same paths)
 #   lib/python3/dist-packages/ the Python client (client/python)
 #   share/doc/hairfilter/      LICENSE, CHANGELOG.md, README.md, copyright,
-#                              SERVER.md
+#                              SERVER.md, and what an engine integrating the
+#                              client reads: CLIENT.md (client/lib/README.md),
+#                              PROTOCOL.md and FEATURES.md (protocol/), which
+#                              the headers cite
 #
 # Every file refers to the prefix relatively (the CMake package, the
 # pkg-config file) or is written at install time (the service unit and its
@@ -26,7 +29,7 @@ install(EXPORT hairfilterTargets NAMESPACE hairfilter:: DESTINATION ${HF_CMAKE_D
 configure_package_config_file(${PROJECT_SOURCE_DIR}/cmake/hairfilterConfig.cmake.in
   ${PROJECT_BINARY_DIR}/hairfilterConfig.cmake INSTALL_DESTINATION ${HF_CMAKE_DIR})
 # 0.x: a new minor version may change the API (CHANGELOG.md), so a request
-# for 0.1 is met by 0.1.x only.
+# for 0.2 is met by 0.2.x only.
 write_basic_package_version_file(${PROJECT_BINARY_DIR}/hairfilterConfigVersion.cmake
   VERSION ${PROJECT_VERSION} COMPATIBILITY SameMinorVersion)
 install(FILES ${PROJECT_BINARY_DIR}/hairfilterConfig.cmake
@@ -54,7 +57,9 @@ install(FILES ${HF_WEIGHT_FILES} ${PROJECT_SOURCE_DIR}/weights/hfnet.py
 install(FILES ${PROJECT_SOURCE_DIR}/bench/bench_torch.py
         DESTINATION ${CMAKE_INSTALL_DATADIR}/hairfilter/bench)
 install(FILES LICENSE CHANGELOG.md README.md cmake/debian/copyright
+              protocol/PROTOCOL.md protocol/FEATURES.md
         DESTINATION ${CMAKE_INSTALL_DOCDIR})
+install(FILES client/lib/README.md DESTINATION ${CMAKE_INSTALL_DOCDIR} RENAME CLIENT.md)
 
 if(NOT HF_CLIENT_ONLY)
   # The service unit and the example config file of deploy/systemd, their

@@ -8,6 +8,7 @@
  */
 #define _POSIX_C_SOURCE 200809L
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -48,14 +49,6 @@ static int finite3(const float *v) { return isfinite(v[0]) && isfinite(v[1]) && 
 
 /* Checks r field by field: 0, or HFC_E_ARG with the field named. */
 static int check_request(hfc_client *c, const hfc_request *r) {
-  if (!r) return hfci_arg(c, "the request is NULL");
-  if (r->struct_size == 0)
-    return hfci_arg(c, "hfc_request.struct_size is 0: initialise the request with "
-                       "hfc_request_init()");
-  if (r->struct_size < sizeof(hfc_request))
-    return hfci_arg(c, "hfc_request.struct_size is %zu, smaller than this library's %zu: "
-                       "initialise the request with hfc_request_init()",
-                    r->struct_size, sizeof(hfc_request));
   if (!r->variant || !r->variant[0])
     return hfci_arg(c, "hfc_request.variant is %s: name a variant (hfc_list_variants)",
                     r->variant ? "empty" : "NULL");
@@ -107,6 +100,12 @@ static int check_request(hfc_client *c, const hfc_request *r) {
   if (!finite3(r->hair) || !finite3(r->light) || !finite3(r->background))
     return hfci_arg(c, "hfc_request.%s has a value that is not finite",
                     !finite3(r->hair) ? "hair" : !finite3(r->light) ? "light" : "background");
+  /* hfc_request_init() leaves the colours at 0; a composite under no light
+   * is the hair drawn black, never what a caller asking for it meant. */
+  if (r->rgba && r->light[0] == 0 && r->light[1] == 0 && r->light[2] == 0)
+    return hfci_arg(c, "hfc_request.light is 0,0,0, so the composite (rgba) would draw the hair "
+                       "black: set hfc_request.light (linear RGB, 1,1,1 for white) and "
+                       "hfc_request.hair, or set rgba to NULL");
   return 0;
 }
 
@@ -310,10 +309,35 @@ static int overlaps_input(const pending *p) {
   return 0;
 }
 
-static int submit(hfc_client *c, const hfc_request *r, uint32_t *id, int *slot) {
+/* Copies the caller's request into *full, this header's layout. Fields are
+ * appended to hfc_request within a SONAME (hairfilter.h, "ABI"), so a
+ * request of an older header (a smaller struct_size; 0.1.0's ended at
+ * user) keeps the rest at their hfc_request_init() values: no estimate.
+ * Returns 0, or HFC_E_ARG for a struct_size no version had. */
+static int take_request(hfc_client *c, const hfc_request *r, hfc_request *full) {
+  if (!r) return hfci_arg(c, "the request is NULL");
+  if (r->struct_size == 0)
+    return hfci_arg(c, "hfc_request.struct_size is 0: initialise the request with "
+                       "hfc_request_init()");
+  size_t oldest = offsetof(hfc_request, estimate);
+  if (r->struct_size < oldest)
+    return hfci_arg(c, "hfc_request.struct_size is %zu, smaller than any version's %zu: "
+                       "initialise the request with hfc_request_init()",
+                    r->struct_size, oldest);
+  hfc_request_init(full);
+  memcpy(full, r, r->struct_size < sizeof *full ? r->struct_size : sizeof *full);
+  full->struct_size = sizeof *full;
+  return 0;
+}
+
+static int submit(hfc_client *c, const hfc_request *caller, uint32_t *id, int *slot) {
   hfci_begin(c);
   if (!c) return hfci_arg(NULL, "hfc_submit: the client is NULL");
-  int rc = check_request(c, r);
+  hfc_request full;
+  int rc = take_request(c, caller, &full);
+  if (rc) return rc;
+  const hfc_request *r = &full;
+  rc = check_request(c, r);
   if (rc) return rc;
   int k = hfci_need_conn(c);
   if (k < 0) return k;

@@ -146,7 +146,9 @@ prefix)
            share/hairfilter/weights/hfnet.py share/hairfilter/bench/bench_torch.py \
            share/doc/hairfilter/LICENSE share/doc/hairfilter/CHANGELOG.md \
            lib/systemd/system/hairfilterd.service share/hairfilter/hairfilterd.conf \
-           share/doc/hairfilter/SERVER.md lib/python3/dist-packages/hairfilter/__init__.py \
+           share/doc/hairfilter/SERVER.md share/doc/hairfilter/CLIENT.md \
+           share/doc/hairfilter/PROTOCOL.md share/doc/hairfilter/FEATURES.md \
+           lib/python3/dist-packages/hairfilter/__init__.py \
            lib/python3/dist-packages/hairfilter/_version.py; do
     [ -e "$prefix/$f" ] || fail "missing $f"
   done

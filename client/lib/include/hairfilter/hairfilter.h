@@ -1,6 +1,9 @@
 /*
  * libhairfilter: the client side of hairfilterd (protocol versions 1 to 3,
  * protocol/PROTOCOL.md). C99 and C++ (hairfilter.hpp wraps it in RAII).
+ * The documents cited here as protocol/PROTOCOL.md, protocol/FEATURES.md
+ * and client/lib/README.md (the guide) are installed beside it in
+ * share/doc/hairfilter/ as PROTOCOL.md, FEATURES.md and CLIENT.md.
  *
  *   hfc_client *c;
  *   if (hfc_connect("unix:/run/hairfilterd/hairfilterd.sock", NULL, &c)) ...
@@ -147,7 +150,11 @@ typedef struct hfc_options {
  * Byte by byte rather than memset, so the header needs no <string.h>; an
  * aggregate initialiser would warn under -Wextra in C and C++. */
 static inline void hfc_struct_clear(void *s, size_t size) {
+#ifdef __cplusplus
+  unsigned char *p = static_cast<unsigned char *>(s);
+#else
   unsigned char *p = (unsigned char *)s;
+#endif
   size_t i;
   for (i = 0; i < size; i++) p[i] = 0;
 }
@@ -246,14 +253,15 @@ HFC_API int hfc_list_variants(hfc_client *c, hfc_variant *out, int max, int *cou
 
 typedef enum hfc_dtype { HFC_F32 = 0, HFC_F16 = 1 } hfc_dtype;
 
-/* One frame. Tensors are NHWC and dense: features [height][width][spp*6]
- * in protocol/FEATURES.md order (sample-major: color, highlight, alpha,
- * depth, tangent.x, tangent.y), result [height][width][3] (color,
- * highlight, alpha), rgba [height][width][4] composited over the
- * background, alpha = hair coverage. f16 is IEEE binary16 as uint16_t.
- * Each buffer's size in bytes goes beside it; a buffer smaller than its
- * tensor (hfc_features_bytes, hfc_output_bytes) is refused with HFC_E_ARG
- * before anything is sent. */
+/* One frame. Tensors are NHWC and dense, top row first (an engine reading
+ * an OpenGL framebuffer, bottom row first, flips its rows): features
+ * [height][width][spp*6] in protocol/FEATURES.md order (sample-major:
+ * color, highlight, alpha, depth, tangent.x, tangent.y), result
+ * [height][width][3] (color, highlight, alpha), rgba [height][width][4]
+ * composited over the background, alpha = hair coverage. f16 is IEEE
+ * binary16 as uint16_t. Each buffer's size in bytes goes beside it; a
+ * buffer smaller than its tensor (hfc_features_bytes, hfc_output_bytes)
+ * is refused with HFC_E_ARG before anything is sent. */
 typedef struct hfc_request {
   size_t struct_size;        /* sizeof(hfc_request), set by hfc_request_init() */
   const char *variant;       /* a loaded variant; case does not matter ("base" is Base) */
@@ -267,7 +275,9 @@ typedef struct hfc_request {
   size_t result_bytes;       /* bytes at result: at least width*height*3*dtype size */
   void *rgba;                /* NULL: no composite */
   size_t rgba_bytes;         /* bytes at rgba: at least width*height*4*dtype size */
-  float hair[3], light[3], background[3];   /* linear RGB, finite, for rgba */
+  float hair[3], light[3], background[3];   /* linear RGB, finite, for rgba: set them
+                                               when rgba is set (hfc_request_init leaves
+                                               0; a light of 0,0,0 is refused then) */
   void *user;                /* returned in the completion */
   /* 1: the request carries the frame's alpha-corrected estimate,
    * [height][width][3] in in_dtype (colour, highlight, alpha;
@@ -287,7 +297,9 @@ typedef struct hfc_request {
 } hfc_request;
 
 /* A request of this header's size with every field zero (NULL buffers,
- * f32, no composite); then set what the frame needs. */
+ * f32, no composite, colours 0); then set what the frame needs. A request
+ * of an older header's size is taken with the fields it lacks at these
+ * values. */
 static inline void hfc_request_init(hfc_request *r) {
   hfc_struct_clear(r, sizeof *r);
   r->struct_size = sizeof *r;
