@@ -336,9 +336,13 @@ static void account(hfd_server *s, hfd_job *j) {
     st->requests_failed++;
     /* Counted apart for the stop line and /metrics: overload, not a
      * failure to run. Only BUSY RESULTs are pushed-out frames. */
-    if (j->status == HFP_E_BUSY) s->pushed_out_answered++;
+    if (j->status == HFP_E_BUSY)
+      s->pushed_out_answered++;
+    else
+      s->failed_answered++;
     return;
   }
+  s->served_answered++;
   st->requests_ok++;
   st->out_of_range += j->out_of_range != 0;
   st->frames_sanitised += j->sanitised != 0;

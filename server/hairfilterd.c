@@ -620,14 +620,9 @@ int main(int argc, char **argv) {
   hfd_http_stop(s);
   hfd_tls_free(s);
   remove_files(s);
-  uint64_t ok = 0, failed = 0;
-  for (int i = 0; i < s->num_variants; i++) {
-    ok += s->variants[i].stats.requests_ok;
-    failed += s->variants[i].stats.requests_failed;
-  }
   /* Frames pushed out of the queue (conn.c) are answered by a RESULT of
    * status BUSY, which STATS counts as failed; here they are overload. */
-  failed -= s->pushed_out_answered;
+  uint64_t ok = s->served_answered, failed = s->failed_answered;
   hfd_notice("stopped: %llu request(s) served, %llu failed, %llu pushed out of the queue "
              "(BUSY), %llu answer(s) not delivered (peer gone), %llu connection(s) in all",
              (unsigned long long)ok, (unsigned long long)failed,

@@ -526,6 +526,10 @@ struct hfd_server {
   uint64_t frame_budget;         /* the most one frame may need */
   uint64_t shm_held;             /* bytes of shared segments */
   uint64_t replies_lost;         /* computed, never delivered (peer gone or closed) */
+  /* RESULTs written, for the stop line: server-wide, so they outlive a
+   * variant a reload removes (its STATS counters go with it). */
+  uint64_t served_answered;      /* status 0 */
+  uint64_t failed_answered;      /* another status, push-outs' BUSY not counted */
   uint64_t pushed_out_answered;  /* frames pushed out of the queue whose RESULT BUSY was
                                     written (one whose client had gone: replies_lost) */
   int jobs_outstanding;          /* admitted, not yet answered */

@@ -149,14 +149,17 @@ def load_result(proc, timeout=120):
     return json.loads(out)
 
 
-def run_then_stop(d, w, body):
-    """Runs body(), then stops the daemon (which must exit 0), prints its log
-    when a check failed, and removes the work directory w."""
+def run_then_stop(d, w, body, after=None):
+    """Runs body(), then stops the daemon (which must exit 0), runs
+    after(d) on the stopped daemon (its log complete) when given, prints its
+    log when a check failed, and removes the work directory w."""
     try:
         body()
     finally:
         rc = d.stop()
         check(rc == 0, "daemon exited %s" % rc)
+        if after and rc == 0:
+            after(d)
         if failures:
             print(d.log_text())
         cleanup(w)

@@ -2,7 +2,8 @@
 """SIGHUP reloads under load: variants added, replaced and removed with no
 request lost; a failed load keeps the old version serving and is counted;
 readiness goes 503 while a configured file serves nothing; SIGUSR1 logs
-the statistics and changes nothing. The daemon is configured through a
+the statistics and changes nothing; the stop line counts the requests of
+a removed variant. The daemon is configured through a
 config file (hairfilterd.conf), which the reload reads again.
 
 usage: test_reload.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR
@@ -60,7 +61,17 @@ def main():
     conf = os.path.join(w, "hairfilterd.conf")
     write_conf(conf, w)
     d = Daemon(HAIRFILTERD, ["--config", conf], w)
-    run_then_stop(d, w, lambda: run(d, w, conf))
+    answered = {}
+    run_then_stop(d, w, lambda: answered.update(run(d, w, conf)),
+                  lambda d: check_stop_line(d, answered))
+
+
+def check_stop_line(d, answered):
+    """The stop line counts every RESULT written, those of a variant a
+    reload removed (whose STATS counters went with it) included."""
+    want = "stopped: %d request(s) served, 0 failed, 0 pushed out" % answered.get("ok", -1)
+    check(want in d.log_text(), "the stop line says '%s': %s" % (
+        want, [l for l in d.log_text().splitlines() if "stopped:" in l]))
 
 
 def run(d, w, conf):
@@ -143,6 +154,7 @@ def run(d, w, conf):
     ok = ("hairfilterd_requests_total", dict(variant="Small", status="ok", **{"class": "ok"}))
     s, _ = d.settled_metrics([ok + (r["sent"],)])
     check(sample(s, ok[0], **ok[1]) == r["sent"], "Small's counter went on through the replacements")
+    return {"ok": r["sent"] + 10}
 
 
 main()
