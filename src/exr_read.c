@@ -126,6 +126,130 @@ static int cut_short(const char *path, int part, const chunk_pos *c, uint64_t si
   return p.past_end;
 }
 
+/* ---- the chunk offset table ------------------------------------------------- */
+
+/* Our own walk over the headers to the chunk offset tables, because
+ * OpenEXRCore 3.1 says neither where a part's table lies nor what it
+ * holds, and it "repairs" a table whose offsets point past the end of the
+ * file by scanning the chunks, failing then with a chunk-leader error (or,
+ * before decoding, a data window too large for the file) that does not say
+ * the file is cut short. The layout is the format's (openexr.com, "OpenEXR
+ * File Layout"): magic and version (8 bytes), then each part's header,
+ * attributes of name\0 type\0 int32 size and value, ended by a 0 byte;
+ * a multi-part file (version bit 12) ends its headers with one more 0
+ * byte; then the parts' tables in part order, one little-endian uint64
+ * file offset per chunk. */
+typedef enum table_state {
+  TABLE_INSIDE,
+  TABLE_OFFSET_PAST_END,   /* an offset points past the end of the file (a file cut
+                              short, or a damaged table) or before the chunks (a
+                              damaged table) */
+  TABLE_CHUNK_CUT,         /* the chunk that starts last in the file ends past it: cut
+                              short, whatever the table says */
+  TABLE_PAST_END           /* the table itself does not fit in the file */
+} table_state;
+
+static int read_cstring(FILE *f, char *buf, int max) {
+  for (int i = 0; i < max; i++) {
+    int c = fgetc(f);
+    if (c == EOF) return -1;
+    buf[i] = (char)c;
+    if (c == 0) return i;
+  }
+  return -1;
+}
+
+/* The offset just past the headers, or 0 when they cannot be walked (a
+ * damaged header, which the library reports in its own words). */
+static uint64_t headers_end(FILE *f, uint64_t size) {
+  unsigned char head[8];
+  if (fread(head, 1, 8, f) != 8) return 0;
+  int multipart = (head[5] & 0x10) != 0;   /* version bit 12 */
+  char name[256], type[256];
+  for (int part = 0;; part++) {
+    if (part > 0 && !multipart) break;
+    for (int attr = 0;; attr++) {
+      int n = read_cstring(f, name, (int)sizeof name);
+      if (n < 0 || attr > 100000) return 0;
+      if (n == 0) {
+        if (attr == 0) return part > 0 ? (uint64_t)ftello(f) : 0;   /* the empty header */
+        break;
+      }
+      unsigned char len[4];
+      if (read_cstring(f, type, (int)sizeof type) < 0 || fread(len, 1, 4, f) != 4) return 0;
+      uint32_t vlen = (uint32_t)len[0] | (uint32_t)len[1] << 8 | (uint32_t)len[2] << 16 |
+                      (uint32_t)len[3] << 24;
+      off_t at = ftello(f);
+      if (at < 0 || vlen > 0x7fffffffu || (uint64_t)at + vlen > size ||
+          fseeko(f, (off_t)vlen, SEEK_CUR) != 0)
+        return 0;
+    }
+  }
+  off_t at = ftello(f);
+  return at < 0 ? 0 : (uint64_t)at;
+}
+
+/* Whether part's chunk offset table, or a chunk it points to (or the data
+ * of the one that starts last), lies past the end of a file of size bytes: the file was cut short (or its header
+ * claims far more chunks than the file holds). TABLE_INSIDE also when the
+ * table cannot be found. */
+static table_state chunk_table(exr_const_context_t ctx, int part, const char *path,
+                               uint64_t size) {
+  int nparts = 0;
+  if (exr_get_count(ctx, &nparts) || part < 0 || part >= nparts) return TABLE_INSIDE;
+  FILE *f = fopen(path, "rb");
+  if (!f) return TABLE_INSIDE;
+  table_state st = TABLE_INSIDE;
+  uint64_t at = headers_end(f, size), tables_end = at, part_at = 0;
+  for (int q = 0; at && q < nparts; q++) {
+    int32_t n = 0;
+    if (q == part) part_at = tables_end;
+    if (exr_get_chunk_count(ctx, q, &n) || n < 0) at = 0;
+    else tables_end += (uint64_t)n * 8;
+  }
+  at = at ? part_at : 0;
+  int32_t count = 0;
+  if (!at || exr_get_chunk_count(ctx, part, &count) || count < 0) goto out;
+  if (at + (uint64_t)count * 8 > size || tables_end > size) {
+    st = TABLE_PAST_END;
+    goto out;
+  }
+  if (fseeko(f, (off_t)at, SEEK_SET) != 0) goto out;
+  unsigned char buf[8 * 512];
+  uint64_t last = 0;   /* the chunk that starts last inside the file */
+  for (int32_t i = 0; i < count;) {
+    size_t k = (size_t)(count - i) < 512 ? (size_t)(count - i) : 512;
+    if (fread(buf, 8, k, f) != k) goto out;
+    for (size_t j = 0; j < k; j++) {
+      uint64_t off = 0;
+      for (int b = 7; b >= 0; b--) off = off << 8 | buf[8 * j + (size_t)b];
+      if (off >= size || off < tables_end)
+        st = TABLE_OFFSET_PAST_END;
+      else if (off > last)
+        last = off;
+    }
+    i += (int32_t)k;
+  }
+  /* The last chunk's leader: [part number (multi-part)], the scanline's y
+   * or the tile's 4 coordinates, then its data's size. */
+  exr_storage_t storage;
+  if (!last || exr_get_storage(ctx, part, &storage) ||
+      (storage != EXR_STORAGE_SCANLINE && storage != EXR_STORAGE_TILED))
+    goto out;
+  uint64_t lead = (nparts > 1 ? 4 : 0) + (storage == EXR_STORAGE_TILED ? 16 : 4);
+  unsigned char len[4];
+  if (last + lead + 4 > size) {
+    st = TABLE_CHUNK_CUT;
+  } else if (fseeko(f, (off_t)(last + lead), SEEK_SET) == 0 && fread(len, 1, 4, f) == 4) {
+    uint32_t packed = (uint32_t)len[0] | (uint32_t)len[1] << 8 | (uint32_t)len[2] << 16 |
+                      (uint32_t)len[3] << 24;
+    if (last + lead + 4 + packed > size) st = TABLE_CHUNK_CUT;
+  }
+out:
+  fclose(f);
+  return st;
+}
+
 /* The refusal of a part whose compression this build's OpenEXR cannot
  * decode, with a conversion command. */
 static int undecodable(exr_const_context_t ctx, int part, const char *path, const char *label,
@@ -151,7 +275,8 @@ static int chunk_failed(exr_const_context_t ctx, int part, const char *path, con
   const char *d = detail(ud, more, sizeof more);
   if (r == EXR_ERR_FEATURE_NOT_IMPLEMENTED) return undecodable(ctx, part, path, label, err, errlen);
   if (r == EXR_ERR_READ_IO || (ci->data_offset && ci->data_offset + ci->packed_size > file_size) ||
-      cut_short(path, part, p, file_size))
+      cut_short(path, part, p, file_size) ||
+      chunk_table(ctx, part, path, file_size) != TABLE_INSIDE)
     return fail(err, errlen, HF_EIO,
                 "%s%s: truncated / incomplete file: the data of %s is missing (the file ends "
                 "at byte %llu); write or copy the file again",
@@ -271,6 +396,32 @@ static double max_expansion(exr_compression_t c) {
   }
 }
 
+/* HF_OK, or HF_EIO when the part's chunk table shows the file cut short
+ * (chunk_table): its last chunk ends past the end of the file, or the
+ * table does not fit in it. Also when the full-resolution level is whole
+ * (a mipmapped file cut in its smaller levels): a file cut short was
+ * copied or written wrong. Also an offset outside the chunks: OpenEXR 3.1.5
+ * "repairs" such a table by scanning the chunks and then reads the wrong
+ * chunk for a scanline, with no error (test_exr, a table with one offset
+ * past the end). */
+static int check_complete(table_state t, const char *path, const char *label, int64_t w,
+                          int64_t h, uint64_t file_size, char *err, size_t errlen) {
+  if (t == TABLE_CHUNK_CUT)
+    return fail(err, errlen, HF_EIO, "%s%s: truncated / incomplete file: it ends inside the "
+                "data of its last chunk (%llu bytes); write or copy the file again", path,
+                label, (unsigned long long)file_size);
+  if (t == TABLE_OFFSET_PAST_END)
+    return fail(err, errlen, HF_EIO, "%s%s: truncated / incomplete file, or a damaged chunk "
+                "table: an offset of its table points outside the file's chunks (%llu bytes); "
+                "write or copy the file again", path, label, (unsigned long long)file_size);
+  if (t == TABLE_PAST_END)
+    return fail(err, errlen, HF_EIO, "%s%s: truncated / incomplete file, or a damaged header: "
+                "the chunk table of its %lldx%lld data window does not fit in its %llu bytes; "
+                "write or copy the file again", path, label, (long long)w, (long long)h,
+                (unsigned long long)file_size);
+  return HF_OK;
+}
+
 /* HF_OK, or HF_EFORMAT when w x h pixels of the part's channels cannot come
  * out of a file of file_size bytes (max_expansion). */
 static int check_claimed_size(exr_const_context_t ctx, int part, const char *path,
@@ -292,17 +443,32 @@ static int check_claimed_size(exr_const_context_t ctx, int part, const char *pat
 }
 
 /* HF_OK, or the refusal of a part whose compression this build's OpenEXR
- * cannot decode (DWAA and DWAB, which OpenEXRCore decodes from 3.2 on),
+ * cannot decode (DWAA and DWAB, which OpenEXRCore decodes from 3.2 on;
+ * B44 and B44A with 32-bit channels, below; a code the library does not
+ * know is refused when the header is read, read_part),
  * before the image is allocated: the file is not read further, so a
  * damaged one cannot make the reader allocate what its header claims. */
 static int check_decodable(exr_const_context_t ctx, int part, const char *path,
-                           const char *label, char *err, size_t errlen) {
+                           const char *label, const exr_attr_chlist_t *chl, char *err,
+                           size_t errlen) {
   exr_compression_t c = EXR_COMPRESSION_NONE;
-  if (exr_get_compression(ctx, part, &c) ||
-      (c != EXR_COMPRESSION_DWAA && c != EXR_COMPRESSION_DWAB))
-    return HF_OK;
+  if (exr_get_compression(ctx, part, &c)) return HF_OK;
   int maj = 0, min = 0, pat = 0;
   exr_get_library_version(&maj, &min, &pat, NULL);
+  /* B44 stores FLOAT and UINT channels uncompressed beside its half
+   * blocks; OpenEXRCore 3.1.5 (Debian 12's) decodes them to wrong values
+   * with no error, where OpenEXR's C++ reader gets them right (measured on
+   * files written by OpenImageIO 2.4). Refused rather than read wrong. */
+  if (c == EXR_COMPRESSION_B44 || c == EXR_COMPRESSION_B44A)
+    for (int i = 0; i < chl->num_channels; i++)
+      if (chl->entries[i].pixel_type != EXR_PIXEL_HALF)
+        return fail(err, errlen, HF_EUNSUPPORTED,
+                    "%s%s: channel %s is 32-bit in a %s-compressed part, which this build's "
+                    "OpenEXR %d.%d.%d decodes wrongly; convert the file to ZIP first, e.g. "
+                    "oiiotool %s --compression zip -o converted.exr (Debian package "
+                    "openimageio-tools)", path, label, chl->entries[i].name.str,
+                    compression_name(c), maj, min, pat, path);
+  if (c != EXR_COMPRESSION_DWAA && c != EXR_COMPRESSION_DWAB) return HF_OK;
   if (maj > 3 || (maj == 3 && min >= 2)) return HF_OK;
   return undecodable(ctx, part, path, label, err, errlen);
 }
@@ -409,7 +575,12 @@ static int open_failed(const char *path, uint64_t size, exr_result_t r, const hf
     return fail(err, errlen, HF_EIO, "%s: cannot open%s", path, d);
   if (got < 4 || magic[0] != 0x76 || magic[1] != 0x2f || magic[2] != 0x31 || magic[3] != 0x01)
     return fail(err, errlen, HF_EFORMAT, "%s: not an OpenEXR file", path);
-  if (cut_short(path, 0, NULL, size))
+  /* A header cut short fails to parse (bad header, a required attribute
+   * missing, a short read); an invalid value (EXR_ERR_INVALID_ATTR) is
+   * found in a header read whole, even when the library read ahead past
+   * the end of a small file. */
+  if ((r == EXR_ERR_FILE_BAD_HEADER || r == EXR_ERR_MISSING_REQ_ATTR || r == EXR_ERR_READ_IO) &&
+      cut_short(path, 0, NULL, size))
     return fail(err, errlen, HF_EIO, "%s: truncated / incomplete file: it ends inside its "
                 "header (%llu bytes); write or copy the file again", path,
                 (unsigned long long)size);
@@ -438,6 +609,15 @@ static int read_part(const char *path, const char *part, const char *channel, hf
   if (r != EXR_ERR_SUCCESS) {
     exr_finish(&ctx);
     return open_failed(path, (uint64_t)st.st_size, r, &msg, err, errlen);
+  }
+  /* The library reports some invalid values and reads on with a default in
+   * their place (a compression code it does not know becomes ZIP, whose
+   * decoder then fails or reads garbage): what it said is why the file is
+   * refused. */
+  if (msg.text[0]) {
+    exr_finish(&ctx);
+    return fail(err, errlen, HF_EFORMAT, "%s: the EXR header holds an invalid value (OpenEXR: "
+                "%s); the file is damaged, write it again", path, msg.text);
   }
   int rc, nparts = 0, pi = 0;
   char label[128];
@@ -478,9 +658,20 @@ static int read_part(const char *path, const char *part, const char *channel, hf
                 chl->entries[c].y_sampling);
       goto out;
     }
-  if ((rc = check_decodable(ctx, pi, path, label, err, errlen)) != HF_OK ||
+  /* The claimed-size check speaks first, its words (pixels claimed against
+   * bytes held) saying most about a header that claims far more than the
+   * file holds, whose table is then garbage; but a file that ends inside
+   * its last chunk is called cut short, also when (uncompressed) it holds
+   * fewer bytes than its pixels. */
+  table_state table = chunk_table(ctx, pi, path, (uint64_t)st.st_size);
+  if ((rc = check_decodable(ctx, pi, path, label, chl, err, errlen)) != HF_OK ||
+      (table == TABLE_CHUNK_CUT &&
+       (rc = check_complete(table, path, label, w, h, (uint64_t)st.st_size, err, errlen)) !=
+           HF_OK) ||
       (rc = check_claimed_size(ctx, pi, path, label, chl, w, h, (uint64_t)st.st_size, err,
-                               errlen)) != HF_OK)
+                               errlen)) != HF_OK ||
+      (rc = check_complete(table, path, label, w, h, (uint64_t)st.st_size, err, errlen)) !=
+          HF_OK)
     goto out;
   /* HALF channels go straight into halves when halves are asked for: the
    * library widens them to float otherwise, and narrowing back would cost a

@@ -310,6 +310,9 @@ static void copy_prefix(const char *from, const char *to, long n) {
   fclose(b);
 }
 
+static void patch_header(const char *path, const char *key, size_t keylen, const void *value,
+                         size_t n, void *old);
+
 static void test_truncated(void **state) {
   char err[512];
   hf_image img;
@@ -321,8 +324,11 @@ static void test_truncated(void **state) {
    * chunk's leader or its data. */
   part_spec scan = {"s", 0, 0, 0, 0, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_ZIP, 0.25f, NULL};
   part_spec tile = {"t", 1, 16, 16, 0, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_ZIP, 0.25f, NULL};
-  part_spec *specs[2] = {&scan, &tile};
-  for (int s = 0; s < 2; s++) {
+  /* Mipmapped: a cut in the smaller levels leaves the full-resolution one
+   * whole, and the file is still refused as cut short. */
+  part_spec mip = {"m", 1, 16, 16, 1, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_ZIP, 0.25f, NULL};
+  part_spec *specs[3] = {&scan, &tile, &mip};
+  for (int s = 0; s < 3; s++) {
     const char *full = test_tmp("full.exr"), *cut = test_tmp("cut.exr");
     write_parts(full, specs[s], 1);
     long n = file_size(full);
@@ -347,6 +353,67 @@ static void test_truncated(void **state) {
     assert_non_null(strstr(err, "damaged"));
     assert_null(strstr(err, "truncated"));
   }
+  /* Uncompressed and RLE, whose claimed-size check fails first on a cut
+   * file: still called truncated. */
+  static const exr_compression_t raw[] = {EXR_COMPRESSION_NONE, EXR_COMPRESSION_RLE};
+  for (int k = 0; k < 2; k++) {
+    part_spec p = {"r", 0, 0, 0, 0, 0, 0, 40, 70, 6, FEAT6, raw[k], 0.25f, NULL};
+    const char *full = test_tmp("full.exr"), *cut = test_tmp("cut.exr");
+    write_parts(full, &p, 1);
+    long n = file_size(full);
+    for (int pct = 50; pct < 100; pct += 7) {
+      copy_prefix(full, cut, n * pct / 100);
+      assert_int_equal(hf_exr_read(cut, &img, err, sizeof err), HF_EIO);
+      assert_non_null(strstr(err, "truncated / incomplete"));
+    }
+  }
+}
+
+/* A chunk offset table with an offset outside the file's chunks is
+ * refused: OpenEXR 3.1.5 "repairs" it by scanning the chunks and then
+ * reads another chunk's pixels for a scanline, with no error. A complete
+ * file whose header holds an invalid value is damaged, not truncated,
+ * however small (the library reads ahead past the end of a small file). */
+static void test_damaged_chunk_table(void **state) {
+  char err[512];
+  hf_image img;
+  part_spec p = {"d", 0, 0, 0, 0, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_ZIP, 0.25f, NULL};
+  const char *path = test_tmp("table.exr");
+  /* ZIP holds 16 scanlines a chunk: 5 chunks; the first offset is the
+   * table's own end. The second chunk's offset past the end, then into
+   * the header. */
+  const unsigned char bad[2][8] = {{0xff, 0xff, 0xff, 0x7f, 0, 0, 0, 0}, {100, 0, 0, 0, 0, 0, 0, 0}};
+  for (int k = 0; k < 2; k++) {
+    write_parts(path, &p, 1);
+    FILE *f = fopen(path, "r+b");
+    assert_non_null(f);
+    unsigned char buf[4096];
+    size_t got = fread(buf, 1, sizeof buf, f);
+    long at = -1;
+    for (size_t i = 8; i + 8 <= got && at < 0; i++) {
+      uint64_t v = 0;
+      for (int b = 7; b >= 0; b--) v = v << 8 | buf[i + (size_t)b];
+      if (v == i + 5 * 8) at = (long)i;
+    }
+    assert_true(at > 0);
+    fseek(f, at + 8, SEEK_SET);
+    assert_int_equal(fwrite(bad[k], 1, 8, f), 8);
+    fclose(f);
+    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EIO);
+    assert_non_null(strstr(err, "damaged chunk table"));
+    assert_null(img.data);
+  }
+
+  static const char disp[] = "displayWindow\0box2i\0\x10\0\0\0";
+  const int32_t inverted[4] = {5, 5, 0, 0};
+  part_spec one = {"o", 0, 0, 0, 0, 0, 0, 1, 1, 6, FEAT6, EXR_COMPRESSION_ZIP, 0.25f, NULL};
+  path = test_tmp("inverted.exr");
+  write_parts(path, &one, 1);
+  patch_header(path, disp, sizeof disp - 1, inverted, sizeof inverted, NULL);
+  assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
+  assert_non_null(strstr(err, "display window"));
+  assert_non_null(strstr(err, "damaged"));
+  assert_null(strstr(err, "truncated"));
 }
 
 /* n bytes of an attribute's value in the header of the file at path: the
@@ -397,6 +464,53 @@ static void test_undecodable_compression(void **state) {
   set_compression(path, EXR_COMPRESSION_DWAB);
   assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EUNSUPPORTED);
   assert_non_null(strstr(err, "DWAB compression"));
+  /* A compression code no OpenEXR defines, which the library reports and
+   * replaces with ZIP: refused in its words, before any decoding. */
+  write_parts(path, &p, 1);
+  set_compression(path, 42);
+  assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
+  assert_non_null(strstr(err, "'compression'"));
+  assert_non_null(strstr(err, "Invalid value 42"));
+  assert_non_null(strstr(err, "damaged"));
+}
+
+/* B44 stores 32-bit channels as they are; OpenEXRCore before 3.2 decodes
+ * those of files written by OpenEXR's C++ library wrongly, so they are
+ * refused there (tests/data/exr-b44-float.exr: 8x8, 24 FLOAT channels,
+ * channel c of pixel (x, y) = 0.25 + 0.01 c + 0.001 y + 0.0001 x in the
+ * order of FEATURES.md, written by OpenImageIO 2.4.7); a later OpenEXR
+ * must read every value exactly. */
+static void test_b44_float(void **state) {
+  char err[512];
+  hf_image img;
+  int maj = 0, min = 0, pat = 0;
+  exr_get_library_version(&maj, &min, &pat, NULL);
+  int rc = hf_exr_read(test_data("exr-b44-float.exr"), &img, err, sizeof err);
+  if (maj < 3 || (maj == 3 && min < 2)) {
+    assert_int_equal(rc, HF_EUNSUPPORTED);
+    assert_non_null(strstr(err, "is 32-bit in a B44-compressed part"));
+    assert_non_null(strstr(err, "--compression zip"));
+    return;
+  }
+  assert_int_equal(rc, HF_OK);
+  static const char *const feats[] = {"color", "highlight", "alpha", "depth", "tangent.x",
+                                      "tangent.y"};
+  for (int c = 0; c < img.channels; c++) {
+    int k = -1, fi = -1;
+    for (int kk = 0; kk < 4; kk++)
+      for (int ff = 0; ff < 6; ff++) {
+        char name[32];
+        snprintf(name, sizeof name, "S%d.%s", kk, feats[ff]);
+        if (!strcmp(name, img.names[c])) k = kk, fi = ff;
+      }
+    assert_true(k >= 0);
+    for (int y = 0; y < 8; y++)
+      for (int x = 0; x < 8; x++)
+        assert_true(same_bits(img.data[((size_t)y * 8 + (size_t)x) * (size_t)img.channels +
+                                       (size_t)c],
+                              (float)(0.25f + (k * 6 + fi) * 0.01f + y * 0.001f + x * 0.0001f)));
+  }
+  hf_image_free(&img);
 }
 
 /* Sets the header's data window to w x h pixels from its origin. */
@@ -442,8 +556,9 @@ static void test_claimed_size(void **state) {
 
 /* Lossy compressions are named on the image: B44 of half channels (the
  * file tests/data/exr-b44-half.exr, 8x8, 4 samples, written by
- * OpenImageIO), PXR24 of float ones; B44 of float channels, PXR24 of half
- * ones (the base frame as written) and ZIP keep every value. */
+ * OpenImageIO), PXR24 of float ones; PXR24 of half ones (the base frame
+ * as written) and ZIP keep every value (B44 of float ones:
+ * test_b44_float). */
 static void test_lossy_compression(void **state) {
   char err[512];
   hf_image img;
@@ -453,8 +568,7 @@ static void test_lossy_compression(void **state) {
   const struct {
     exr_compression_t c;
     const char *lossy;
-  } cases[] = {{EXR_COMPRESSION_PXR24, "PXR24"}, {EXR_COMPRESSION_B44, NULL},
-               {EXR_COMPRESSION_ZIP, NULL}};
+  } cases[] = {{EXR_COMPRESSION_PXR24, "PXR24"}, {EXR_COMPRESSION_ZIP, NULL}};
   for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
     part_spec p = {"l", 0, 0, 0, 0, 0, 0, 8, 8, 6, FEAT6, cases[i].c, 0.5f, NULL};
     const char *path = test_tmp("lossy.exr");
@@ -654,7 +768,8 @@ int main(void) {
     cmocka_unit_test(test_undecodable_compression),  cmocka_unit_test(test_subsampled_refused),
     cmocka_unit_test(test_lossy_compression),        cmocka_unit_test(test_claimed_size),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
-    cmocka_unit_test(test_read_as_halves),
+    cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
+    cmocka_unit_test(test_b44_float),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
