@@ -51,6 +51,9 @@ typedef struct hfr_hair {
   float default_thickness, default_transparency, default_color[3];
   char info[89];                /* NUL-terminated file info */
   uint32_t dropped;             /* strands of a single point (0 segments) left out */
+  /* 1: default_thickness is the caller's choice (--thickness), drawn as
+   * given instead of judged against the model's size. */
+  uint8_t thickness_given;
 } hfr_hair;
 
 /* .hair header flag bits. */
@@ -76,8 +79,23 @@ void hfr_hair_free(hfr_hair *hair);
 /* Segments of strand i, and the model's total segment count. */
 uint32_t hfr_hair_strand_segments(const hfr_hair *hair, uint32_t i);
 uint64_t hfr_hair_total_segments(const hfr_hair *hair);
-/* Centre and radius of a sphere enclosing every point. */
+/* Centre and radius of a sphere enclosing every point, computed in double
+ * (a float model's extent can overflow or underflow float); radius 0 when
+ * every point coincides. */
+void hfr_hair_extent(const hfr_hair *hair, double centre[3], double *radius);
+/* hfr_hair_extent in float: radius 1 where the extent is 0, inf where it
+ * overflows float. */
 void hfr_hair_bounds(const hfr_hair *hair, float centre[3], float *radius);
+/* Bounding radii (renderer units, about 10 cm) the renderer draws: its
+ * cameras, widths and coverage are float, and their squares and products
+ * lose the model outside this range. */
+#define HFR_RADIUS_MIN 1e-5
+#define HFR_RADIUS_MAX 1e15
+/* HF_OK when the model's bounding radius times scale (renderer units per
+ * model unit) is within [HFR_RADIUS_MIN, HFR_RADIUS_MAX]; else HF_ERANGE
+ * with err naming the radius (or, where every point coincides, the point)
+ * and the --units/--scale way out. */
+int hfr_hair_check_extent(const hfr_hair *hair, double scale, char *err, size_t errlen);
 
 /* ---- strand widths (hr_hair_width.c) ------------------------------------- */
 
@@ -104,6 +122,28 @@ float hfr_hair_default_thickness(const hfr_hair *hair, float radius, const char 
  * hfr_hair_default_thickness; per-point widths are kept. Writes a one-line
  * warning into warn (empty when none) and returns 1 when it has one, else 0. */
 int hfr_hair_check_widths(hfr_hair *hair, char *warn, size_t warnlen);
+/* 1 when the model has a per-point thickness and every value is 0: no width
+ * at all, which hfr_hair_check_widths and the renderer take as no per-point
+ * thickness (the header rule above applies). */
+int hfr_hair_thickness_all_zero(const hfr_hair *hair);
+
+/* ---- strand transparency (hr_hair_width.c) -------------------------------- */
+
+/* The header transparency drawn for a model without per-point transparency
+ * when the header's is not usable (not finite, or outside [0, 1]): opaque,
+ * what the reference writer stores when its author set none. */
+#define HFR_HAIR_FALLBACK_TRANSPARENCY 0.0f
+/* The transparency drawn where a model has no per-point transparency: the
+ * header's when finite and in [0, 1] (1 is kept: fully transparent, as a
+ * per-point 1 is), otherwise HFR_HAIR_FALLBACK_TRANSPARENCY. The renderer
+ * and hfr_hair_interpolate use this same rule. *why is set to NULL, or to
+ * a static reason when the fallback was taken. */
+float hfr_hair_default_transparency(const hfr_hair *hair, const char **why);
+/* Without per-point transparency, replaces an unusable header value in
+ * place by hfr_hair_default_transparency's; says so, and says when nothing
+ * will be drawn (header 1, or every per-point value 1). Writes a one-line
+ * warning into warn (empty when none) and returns 1 when it has one. */
+int hfr_hair_check_transparency(hfr_hair *hair, char *warn, size_t warnlen);
 
 /* ---- conventions of loaded models (hr_hair_orient.c) ---------------------- */
 
@@ -450,7 +490,8 @@ void hfr_frame_stats_format(const hfr_frame_stats *s, char *buf, size_t len);
 typedef struct hfr_asset_opts {
   hfr_axis up;                  /* the file's up axis */
   float scale;                  /* renderer units per file unit (hfr_units_scale); 0 = 1 */
-  float thickness;              /* > 0: every strand this diameter, in the file's units */
+  float thickness;              /* > 0: every strand this diameter, in the file's units,
+                                   at any width (hfr_hair.thickness_given) */
   float opacity;                /* in (0, 1]: every strand this opacity (1 - transparency);
                                    0: the file's */
   hfr_children_params children; /* children.children = 0: the strands as they are */
@@ -463,8 +504,11 @@ void hfr_asset_defaults(hfr_asset_opts *o);
 /* 1 when o's occluder is fitted (framed with the hair), 0 for a mesh file or
  * none (the camera frames the hair alone). */
 int hfr_asset_fitted(const hfr_asset_opts *o);
-/* Loads a .hair file as o says: widths checked (hfr_hair_check_widths, the
- * warning into warn), --thickness and --opacity applied (HF_EINVAL, err
+/* Loads a .hair file as o says: its extent checked at o's scale
+ * (hfr_hair_check_extent: HF_ERANGE, err set), transparency and widths
+ * checked (hfr_hair_check_transparency, hfr_hair_check_widths; the
+ * warnings into warn, "; " between them), --thickness (drawn as given,
+ * warned about when implausible) and --opacity applied (HF_EINVAL, err
  * set, for an opacity outside [0, 1]), oriented and scaled, the
  * occluder made (fitted on the guides' roots, or loaded and oriented the
  * same way; *occ empty for none), then children grown. */

@@ -25,6 +25,13 @@ int hfr_asset_fitted(const hfr_asset_opts *o) {
          !strcasecmp(o->occluder, "auto");
 }
 
+/* Appends one warning to warn, "; " between warnings. */
+static void add_warning(char *warn, size_t warnlen, const char *msg) {
+  if (!warn || !warnlen) return;
+  size_t used = strlen(warn);
+  if (used + 1 < warnlen) snprintf(warn + used, warnlen - used, "%s%s", used ? "; " : "", msg);
+}
+
 int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hfr_mesh *occ,
                    char *warn, size_t warnlen, char *err, size_t errlen) {
   if (!path || !o || !hair || !occ) return HF_EINVAL;
@@ -37,24 +44,42 @@ int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hf
   }
   int rc = hfr_hair_load(path, hair, err, errlen);
   if (rc != HF_OK) return rc;
+  /* Before anything is judged against the model's size: a size float
+   * cannot draw has no plausible widths either. */
+  if ((rc = hfr_hair_check_extent(hair, scale, err, errlen)) != HF_OK) goto fail;
+  char msg[512];
   if (o->opacity > 0) {
     /* The user's opacity, for every strand. */
     free(hair->transparency);
     hair->transparency = NULL;
     hair->default_transparency = 1 - o->opacity;
+  } else if (hfr_hair_check_transparency(hair, msg, sizeof msg)) {
+    add_warning(warn, warnlen, msg);
   }
   if (o->thickness > 0) {
-    /* The user's diameter, for every strand. */
+    /* The user's diameter, for every strand, drawn as given (not judged
+     * against the model's size like the file's): said when implausible. */
     free(hair->thickness);
     hair->thickness = NULL;
     hair->default_thickness = o->thickness;
-  } else {
-    hfr_hair_check_widths(hair, warn, warnlen);
+    hair->thickness_given = 1;
+    double c[3], r;
+    hfr_hair_extent(hair, c, &r);
+    if (o->thickness > r * HFR_WIDTH_MAX_REL || o->thickness < r * HFR_WIDTH_MIN_REL) {
+      snprintf(msg, sizeof msg, "--thickness %g is %s than any plausible strand for the "
+               "model's size (bounding radius %.4g, plausible %.3g..%.3g in the file's "
+               "units); drawn as given", o->thickness,
+               o->thickness > r * HFR_WIDTH_MAX_REL ? "wider" : "narrower", r,
+               r * HFR_WIDTH_MIN_REL, r * HFR_WIDTH_MAX_REL);
+      add_warning(warn, warnlen, msg);
+    }
+  } else if (hfr_hair_check_widths(hair, msg, sizeof msg)) {
+    add_warning(warn, warnlen, msg);
   }
-  if (hair->dropped && warn && warnlen) {
-    size_t used = strlen(warn);
-    snprintf(warn + used, warnlen - used, "%s%u strand(s) of a single point (0 segments) left "
-             "out: nothing draws them", used ? "; " : "", hair->dropped);
+  if (hair->dropped) {
+    snprintf(msg, sizeof msg, "%u strand(s) of a single point (0 segments) left out: nothing "
+             "draws them", hair->dropped);
+    add_warning(warn, warnlen, msg);
   }
   if ((rc = hfr_hair_orient(hair, o->up, scale)) != HF_OK) {
     if (err) snprintf(err, errlen, "bad up axis or scale");

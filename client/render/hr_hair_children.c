@@ -221,8 +221,9 @@ int hfr_hair_interpolate(const hfr_hair *in, const hfr_children_params *p, hfr_h
   float centre[3], radius;
   hfr_hair_bounds(in, centre, &radius);
   const float def_thick = hfr_hair_default_thickness(in, radius, NULL);
-  const float def_transp = in->default_transparency >= 0 && in->default_transparency < 1
-                               ? in->default_transparency : 0;
+  const float def_transp = hfr_hair_default_transparency(in, NULL);
+  /* An all-zero thickness is no width (as in the renderer): the default's. */
+  const float *in_thick = hfr_hair_thickness_all_zero(in) ? NULL : in->thickness;
 
   root_grid grid = {0};
   int rc = grid_build(&grid, roots, G);
@@ -230,6 +231,7 @@ int hfr_hair_interpolate(const hfr_hair *in, const hfr_children_params *p, hfr_h
   out->points = (uint32_t)points;
   out->default_segments = in->default_segments;
   out->default_thickness = def_thick;
+  out->thickness_given = in->thickness_given;
   out->default_transparency = def_transp;
   memcpy(out->default_color, in->default_color, sizeof out->default_color);
   memcpy(out->info, in->info, sizeof out->info);
@@ -324,7 +326,7 @@ int hfr_hair_interpolate(const hfr_hair *in, const hfr_children_params *p, hfr_h
                    p->frizz * spacing * tn * sqrtf(tn) * walk[a] * 2;
           }
         }
-        out->thickness[po + i] = width * profile_at(in->thickness, g, t, def_thick);
+        out->thickness[po + i] = width * profile_at(in_thick, g, t, def_thick);
         out->transparency[po + i] = profile_at(in->transparency, g, t, def_transp);
       }
       so++;

@@ -60,30 +60,70 @@ uint64_t hfr_hair_total_segments(const hfr_hair *h) {
   return (uint64_t)h->points - h->strands;
 }
 
-void hfr_hair_bounds(const hfr_hair *h, float c[3], float *radius) {
-  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+/* In double: a float model's coordinate differences and their squares
+ * overflow float from about 1e19 (and the extent of coordinates near
+ * FLT_MAX overflows outright), and underflow it below about 1e-19; double
+ * holds every float model's extent exactly enough. */
+void hfr_hair_extent(const hfr_hair *h, double c[3], double *radius) {
+  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
   for (uint32_t i = 0; i < h->points; i++)
     for (int k = 0; k < 3; k++) {
-      float v = h->pos[3 * (size_t)i + k];
+      double v = h->pos[3 * (size_t)i + k];
       if (v < lo[k]) lo[k] = v;
       if (v > hi[k]) hi[k] = v;
     }
   if (!h->points) {
     c[0] = c[1] = c[2] = 0;
-    *radius = 1;
+    *radius = 0;
     return;
   }
-  for (int k = 0; k < 3; k++) c[k] = 0.5f * (lo[k] + hi[k]);
-  float r2 = 0;
+  for (int k = 0; k < 3; k++) c[k] = 0.5 * (lo[k] + hi[k]);
+  double r2 = 0;
   for (uint32_t i = 0; i < h->points; i++) {
-    float d2 = 0;
+    double d2 = 0;
     for (int k = 0; k < 3; k++) {
-      float d = h->pos[3 * (size_t)i + k] - c[k];
+      double d = h->pos[3 * (size_t)i + k] - c[k];
       d2 += d * d;
     }
     if (d2 > r2) r2 = d2;
   }
-  *radius = r2 > 0 ? sqrtf(r2) : 1.0f;
+  *radius = sqrt(r2);
+}
+
+void hfr_hair_bounds(const hfr_hair *h, float c[3], float *radius) {
+  double cd[3], rd;
+  hfr_hair_extent(h, cd, &rd);
+  for (int k = 0; k < 3; k++) c[k] = (float)cd[k];
+  /* A model of coincident points gets a unit sphere (to frame something);
+   * hfr_hair_check_extent refuses such a model. */
+  *radius = rd > 0 ? (float)rd : 1.0f;
+}
+
+int hfr_hair_check_extent(const hfr_hair *h, double scale, char *err, size_t errlen) {
+  if (err && errlen) err[0] = 0;
+  if (!h || !h->pos || !h->points) return HF_EINVAL;
+  double c[3], r;
+  hfr_hair_extent(h, c, &r);
+  double rs = r * scale;
+  if (isfinite(rs) && rs >= HFR_RADIUS_MIN && rs <= HFR_RADIUS_MAX) return HF_OK;
+  if (err) {
+    if (r == 0)
+      snprintf(err, errlen, "every point is at (%.4g, %.4g, %.4g): the model has no extent "
+               "to frame or draw (a degenerate model, or coordinates so far from the origin "
+               "that float cannot tell its points apart: write it nearer the origin)",
+               c[0], c[1], c[2]);
+    else if (scale != 1)
+      snprintf(err, errlen, "bounding radius %.4g in the file's units (centre %.4g, %.4g, "
+               "%.4g) is %.4g after --units/--scale, outside the %g..%g the renderer draws in "
+               "float (about 1 is a head); a --scale of about %.3g brings it to 1",
+               r, c[0], c[1], c[2], rs, HFR_RADIUS_MIN, HFR_RADIUS_MAX, 1 / r);
+    else
+      snprintf(err, errlen, "bounding radius %.4g (centre %.4g, %.4g, %.4g) is outside the "
+               "%g..%g the renderer draws in float (about 1 is a head); give the file's unit "
+               "(--units m|dm|cm|mm|in|ft) or a --scale (about %.3g brings it to 1)",
+               r, c[0], c[1], c[2], HFR_RADIUS_MIN, HFR_RADIUS_MAX, 1 / r);
+  }
+  return HF_ERANGE;
 }
 
 /* Leaves out, in place, the strands of 0 segments (a single point each):

@@ -12,16 +12,19 @@
  * so widths up to HFR_WIDTH_MAX_REL R are accepted. */
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "hfrender.h"
 
-float hfr_hair_default_thickness(const hfr_hair *h, float radius, const char **why) {
-  float t = h->default_thickness;
+/* The rule in double: the radius of a model near float's limits (and its
+ * products with the limits below) does not fit a float. */
+static double default_thickness(const hfr_hair *h, double radius, const char **why) {
+  double t = h->default_thickness;
   const char *reason = NULL;
   if (!isfinite(t) || !(t > 0))
     reason = "no usable header thickness";
-  else if (t == HFR_HAIR_UNSET_THICKNESS && t > radius * 1e-3f)
+  else if (t == HFR_HAIR_UNSET_THICKNESS && t > radius * 1e-3)
     reason = "header thickness 1.0 is what the reference .hair writer stores when none was set";
   else if (t > radius * HFR_WIDTH_MAX_REL)
     reason = "header thickness wider than any plausible strand for the model's size";
@@ -31,12 +34,39 @@ float hfr_hair_default_thickness(const hfr_hair *h, float radius, const char **w
   return reason ? radius * HFR_WIDTH_FALLBACK_REL : t;
 }
 
+float hfr_hair_default_thickness(const hfr_hair *h, float radius, const char **why) {
+  /* The user's diameter (--thickness) is drawn as given: judging it would
+   * silently replace an explicit choice. */
+  if (h->thickness_given) {
+    if (why) *why = NULL;
+    return h->default_thickness;
+  }
+  return (float)default_thickness(h, radius, why);
+}
+
+int hfr_hair_thickness_all_zero(const hfr_hair *h) {
+  if (!h->thickness) return 0;
+  for (uint32_t i = 0; i < h->points; i++)
+    if (h->thickness[i] != 0) return 0;
+  return 1;
+}
+
 int hfr_hair_check_widths(hfr_hair *h, char *warn, size_t warnlen) {
   if (warn && warnlen) warn[0] = 0;
   if (!h || !h->pos || !h->points) return 0;
-  float centre[3], radius;
-  hfr_hair_bounds(h, centre, &radius);
-  const float lo = radius * HFR_WIDTH_MIN_REL, hi = radius * HFR_WIDTH_MAX_REL;
+  double centre[3], radius;
+  hfr_hair_extent(h, centre, &radius);
+  const double lo = radius * HFR_WIDTH_MIN_REL, hi = radius * HFR_WIDTH_MAX_REL;
+  const char *zero = "";
+  if (hfr_hair_thickness_all_zero(h)) {
+    /* Zero everywhere is no width at all (a tool that wrote the array
+     * without filling it), not a taper: nothing would be drawn. The header
+     * rule below applies, as to a file without the array. */
+    free(h->thickness);
+    h->thickness = NULL;
+    zero = "every point's thickness is 0 (nothing would be drawn), so the per-point "
+           "thickness is ignored and the header's used: ";
+  }
   if (h->thickness) {
     /* Per-point widths are the author's: kept, but said when implausible.
      * Zero is a legitimate tip taper, not a width. */
@@ -61,13 +91,63 @@ int hfr_hair_check_widths(hfr_hair *h, char *warn, size_t warnlen) {
   }
   const char *why = NULL;
   float header = h->default_thickness;
-  float t = hfr_hair_default_thickness(h, radius, &why);
-  if (!why) return 0;
+  float t = h->thickness_given ? header : (float)default_thickness(h, radius, &why);
+  if (!why) {
+    if (!*zero) return 0;
+    if (warn)
+      snprintf(warn, warnlen, "%sstrands are drawn %.4g wide (the header thickness); set "
+               "--thickness (a diameter in the file's units) to choose", zero, t);
+    return 1;
+  }
   h->default_thickness = t;
   if (warn)
     snprintf(warn, warnlen,
-             "%s (%g, bounding radius %.4g): strands are drawn %.4g wide, 1/%d of the "
+             "%s%s (%g, bounding radius %.4g): strands are drawn %.4g wide, 1/%d of the "
              "bounding radius; set --thickness (a diameter in the file's units) to choose",
-             why, header, radius, t, (int)lroundf(1.0f / HFR_WIDTH_FALLBACK_REL));
+             zero, why, header, radius, t, (int)lroundf(1.0f / HFR_WIDTH_FALLBACK_REL));
   return 1;
+}
+
+float hfr_hair_default_transparency(const hfr_hair *h, const char **why) {
+  float t = h->default_transparency;
+  const char *reason = NULL;
+  if (!isfinite(t))
+    reason = "header transparency not finite";
+  else if (t < 0 || t > 1)
+    reason = "header transparency outside [0, 1]";
+  if (why) *why = reason;
+  return reason ? HFR_HAIR_FALLBACK_TRANSPARENCY : t;
+}
+
+int hfr_hair_check_transparency(hfr_hair *h, char *warn, size_t warnlen) {
+  if (warn && warnlen) warn[0] = 0;
+  if (!h || !h->points) return 0;
+  if (h->transparency) {
+    /* The loader keeps per-point values in [0, 1]; all of them 1 is a
+     * model nothing draws, which a user would otherwise see as a bug. */
+    for (uint32_t i = 0; i < h->points; i++)
+      if (h->transparency[i] < 1) return 0;
+    if (warn)
+      snprintf(warn, warnlen, "every point's transparency is 1 (fully transparent): nothing "
+               "is drawn; set --opacity to draw the strands");
+    return 1;
+  }
+  const char *why = NULL;
+  float header = h->default_transparency;
+  float t = hfr_hair_default_transparency(h, &why);
+  if (why) {
+    h->default_transparency = t;
+    if (warn)
+      snprintf(warn, warnlen, "%s (%g) and no per-point transparency: strands are drawn with "
+               "transparency %g (opaque, what the reference .hair writer stores when none is "
+               "set); set --opacity to choose", why, header, t);
+    return 1;
+  }
+  if (t == 1) {
+    if (warn)
+      snprintf(warn, warnlen, "header transparency 1 (fully transparent) and no per-point "
+               "transparency: nothing is drawn; set --opacity to draw the strands");
+    return 1;
+  }
+  return 0;
 }

@@ -177,14 +177,17 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
     if (err) snprintf(err, errlen, "model too large for one vertex buffer");
     return HF_ERANGE;
   }
+  /* A radius float cannot hold, or one whose squares it cannot, frames
+   * nothing: an empty frame would pass for a rendering. */
+  if ((rc = hfr_hair_check_extent(h, 1, err, errlen)) != HF_OK) return rc;
   float *v = malloc(bytes);
   if (!v) return HF_ENOMEM;
   float centre[3], radius;
   hfr_hair_bounds(h, centre, &radius);
-  /* The same fallback the loader documents and warns about. */
+  /* The same rules the loader documents and warns about. */
   float def_thick = hfr_hair_default_thickness(h, radius, NULL);
-  float def_opac = 1 - h->default_transparency;
-  if (!(def_opac > 0 && def_opac <= 1)) def_opac = 0.8f;
+  float def_opac = 1 - hfr_hair_default_transparency(h, NULL);
+  const float *thick = hfr_hair_thickness_all_zero(h) ? NULL : h->thickness;
 
   size_t base = 0;
   for (uint32_t s = 0; s < h->strands; s++) {
@@ -199,7 +202,7 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
       hr_normalize(t);
       o[0] = p[0], o[1] = p[1], o[2] = p[2];
       o[3] = t[0], o[4] = t[1], o[5] = t[2];
-      o[6] = h->thickness ? h->thickness[base + i] : def_thick;
+      o[6] = thick ? thick[base + i] : def_thick;
       o[7] = h->transparency ? 1 - h->transparency[base + i] : def_opac;
       o[8] = (float)s;
     }
