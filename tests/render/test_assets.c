@@ -343,6 +343,166 @@ static void test_asset_load(void **state) {
   assert_true(strlen(err) > 0);
 }
 
+/* Writes h to a temporary file and loads it as o says. */
+static int load_as(const hfr_hair *h, const hfr_asset_opts *o, hfr_hair *out, char *warn,
+                   size_t warnlen, char *err, size_t errlen) {
+  char path[256];
+  tmp_path(path, sizeof path, "rules.hair");
+  assert_int_equal(hfr_hair_save(path, h), HF_OK);
+  hfr_mesh occ;
+  int rc = hfr_asset_load(path, o, out, &occ, warn, warnlen, err, errlen);
+  remove(path);
+  if (rc == HF_OK) hfr_mesh_free(&occ);
+  return rc;
+}
+
+/* --thickness is the user's diameter: kept at any width (it was replaced by
+ * R / 2000 above 0.02 R), with a warning where implausible, and children
+ * take it too. */
+static void test_thickness_option(void **state) {
+  (void)state;
+  hfr_hair h = small_style(HFR_STYLE_WAVY, 200);
+  float c[3], r;
+  hfr_hair_bounds(&h, c, &r);
+  hfr_asset_opts o;
+  hfr_asset_defaults(&o);
+  o.occluder = "none";
+  hfr_hair got;
+  char warn[1024], err[256];
+  const float rel[] = {0.001f, 0.019f, 0.021f, 0.1f, 2};
+  for (size_t i = 0; i < sizeof rel / sizeof rel[0]; i++) {
+    o.thickness = rel[i] * r;
+    assert_int_equal(load_as(&h, &o, &got, warn, sizeof warn, err, sizeof err), HF_OK);
+    print_message("--thickness %g R: %s\n", rel[i], warn);
+    float gc[3], gr;
+    hfr_hair_bounds(&got, gc, &gr);
+    const char *why = "";
+    assert_true(hfr_hair_default_thickness(&got, gr, &why) == o.thickness);
+    assert_null(why);
+    if (rel[i] > HFR_WIDTH_MAX_REL)
+      assert_non_null(strstr(warn, "--thickness"));
+    else
+      assert_string_equal(warn, "");
+    hfr_hair_free(&got);
+  }
+  o.thickness = 0.1f * r;
+  o.children.children = 3;
+  assert_int_equal(load_as(&h, &o, &got, warn, sizeof warn, err, sizeof err), HF_OK);
+  assert_non_null(got.thickness);
+  assert_true(got.thickness[0] > 0.05f * r); /* tapered at most to half */
+  hfr_hair_free(&got);
+  hfr_hair_free(&h);
+}
+
+/* A header transparency without per-point values: one rule with children
+ * or without, a warning naming the value where it is not in [0, 1]. */
+static void test_header_transparency(void **state) {
+  (void)state;
+  hfr_hair h = small_style(HFR_STYLE_STRAIGHT, 100);
+  free(h.transparency);
+  h.transparency = NULL;
+  hfr_asset_opts o;
+  hfr_asset_defaults(&o);
+  o.occluder = "none";
+  hfr_hair got;
+  char warn[1024], err[256];
+  const struct {
+    float header, drawn;
+    const char *said;
+  } cases[] = {{NAN, 0, "(nan)"}, {INFINITY, 0, "(inf)"}, {-1, 0, "(-1)"}, {2, 0, "(2)"},
+               {1, 1, "nothing is drawn"}, {0.3f, 0.3f, NULL}, {0, 0, NULL}};
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    h.default_transparency = cases[i].header;
+    assert_true(hfr_hair_default_transparency(&h, NULL) == cases[i].drawn);
+    for (int k = 0; k < 2; k++) {
+      o.children.children = k ? 3 : 0;
+      assert_int_equal(load_as(&h, &o, &got, warn, sizeof warn, err, sizeof err), HF_OK);
+      print_message("header %g, children %d: %s\n", cases[i].header, o.children.children, warn);
+      if (cases[i].said)
+        assert_non_null(strstr(warn, cases[i].said));
+      else
+        assert_string_equal(warn, "");
+      if (k) {
+        assert_non_null(got.transparency);
+        for (uint32_t p = 0; p < got.points; p++)
+          assert_true(got.transparency[p] == cases[i].drawn);
+      } else {
+        assert_null(got.transparency);
+        assert_true(got.default_transparency == cases[i].drawn);
+      }
+      hfr_hair_free(&got);
+    }
+  }
+  /* Every per-point value 1: nothing is drawn, and that is said. */
+  h.transparency = malloc(sizeof(float) * h.points);
+  assert_non_null(h.transparency);
+  for (uint32_t p = 0; p < h.points; p++) h.transparency[p] = 1;
+  o.children.children = 0;
+  assert_int_equal(load_as(&h, &o, &got, warn, sizeof warn, err, sizeof err), HF_OK);
+  assert_non_null(strstr(warn, "nothing is drawn"));
+  hfr_hair_free(&got);
+  hfr_hair_free(&h);
+}
+
+/* Extents computed in double; a model whose extent float cannot draw
+ * (huge, tiny, or every point coinciding) is refused with the radius and
+ * the way out; an all-zero thickness array is taken as none. */
+static void test_extent_and_zero_widths(void **state) {
+  (void)state;
+  hfr_hair h = small_style(HFR_STYLE_STRAIGHT, 100);
+  double cd[3], rd;
+  hfr_hair_extent(&h, cd, &rd);
+  float c[3], r;
+  hfr_hair_bounds(&h, c, &r);
+  assert_true(fabs(rd - r) < 1e-6 * r);
+  assert_int_equal(hfr_hair_check_extent(&h, 1, NULL, 0), HF_OK);
+  hfr_asset_opts o;
+  hfr_asset_defaults(&o);
+  o.occluder = "none";
+  hfr_hair got;
+  char warn[1024], err[512];
+  /* Coordinates near FLT_MAX: the radius is finite in double. */
+  hfr_hair big = small_style(HFR_STYLE_STRAIGHT, 100);
+  const float k = 1e38f / r;
+  for (size_t i = 0; i < 3 * (size_t)big.points; i++) big.pos[i] *= k;
+  hfr_hair_extent(&big, cd, &rd);
+  assert_true(isfinite(rd) && fabs(rd / ((double)r * k) - 1) < 1e-5);
+  const float scales[] = {1e30f, 1e-30f, 1e20f, 1e-10f};
+  for (size_t s = 0; s < sizeof scales / sizeof scales[0] + 1; s++) {
+    for (size_t i = 0; i < 3 * (size_t)h.points; i++)
+      big.pos[i] = s < 4 ? h.pos[i] * scales[s] : 2e38f + h.pos[i]; /* last: all coincide */
+    err[0] = 0;
+    assert_int_equal(load_as(&big, &o, &got, warn, sizeof warn, err, sizeof err), HF_ERANGE);
+    print_message("%s\n", err);
+    assert_non_null(strstr(err, s < 4 ? "bounding radius" : "no extent"));
+    if (s < 4) assert_non_null(strstr(err, "--units"));
+  }
+  /* --scale brings a huge model into range. */
+  for (size_t i = 0; i < 3 * (size_t)h.points; i++) big.pos[i] = h.pos[i] * 1e30f;
+  o.scale = 1e-30f;
+  assert_int_equal(load_as(&big, &o, &got, warn, sizeof warn, err, sizeof err), HF_OK);
+  float gc[3], gr;
+  hfr_hair_bounds(&got, gc, &gr);
+  assert_true(fabsf(gr / r - 1) < 1e-3f);
+  hfr_hair_free(&got);
+  hfr_hair_free(&big);
+  o.scale = 1;
+  /* All-zero per-point thickness: the header rule instead, with a warning. */
+  for (uint32_t p = 0; p < h.points; p++) h.thickness[p] = 0;
+  h.default_thickness = 0.0008f;
+  assert_int_equal(hfr_hair_thickness_all_zero(&h), 1);
+  assert_int_equal(load_as(&h, &o, &got, warn, sizeof warn, err, sizeof err), HF_OK);
+  print_message("zero widths: %s\n", warn);
+  assert_non_null(strstr(warn, "thickness is 0"));
+  assert_null(got.thickness);
+  assert_true(got.default_thickness == 0.0008f);
+  hfr_hair_free(&got);
+  /* A zero tip taper is not that. */
+  h.thickness[1] = 0.0008f;
+  assert_int_equal(hfr_hair_thickness_all_zero(&h), 0);
+  hfr_hair_free(&h);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_field_case_thickness),
@@ -352,6 +512,9 @@ int main(void) {
     cmocka_unit_test(test_fit_roots),
     cmocka_unit_test(test_mesh_file),
     cmocka_unit_test(test_asset_load),
+    cmocka_unit_test(test_thickness_option),
+    cmocka_unit_test(test_header_transparency),
+    cmocka_unit_test(test_extent_and_zero_widths),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -1008,6 +1008,109 @@ static void test_render_frame_from_file(void **state) {
   assert_int_equal(hr_renderer_bind(R), HF_OK);
 }
 
+/* A loaded model's stated rules, as drawn: --thickness at any width (it
+ * was replaced by R / 2000 above 0.02 R), one header-transparency rule with
+ * and without children, and a model float cannot frame refused instead of
+ * rendered empty. */
+static void frame_of(const char *path, const hfr_asset_opts *a, hfr_frame_stats *fs) {
+  hfr_frame f;
+  hfr_frame_defaults(&f, 48, 48);
+  f.hair_path = path;
+  f.platform = "osmesa";
+  f.asset = *a;
+  f.outputs.gt_supersample = 0;
+  f.outputs.st_spp[0] = 4;
+  f.outputs.n_st = 1;
+  hf_image img;
+  hfr_stats st;
+  char err[512] = "";
+  int rc = hfr_render_frame(&f, &img, &st, err, sizeof err);
+  if (rc != HF_OK) fail_msg("frame of %s: %s", path, err);
+  *fs = st.frame;
+  hf_image_free(&img);
+}
+
+static void test_loaded_model_rules(void **state) {
+  (void)state;
+  hfr_style_params p;
+  hfr_style_defaults(HFR_STYLE_STRAIGHT, &p);
+  p.strands = 300;
+  p.seed = 5;
+  hfr_hair h;
+  assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+  free(h.thickness), free(h.transparency);
+  h.thickness = h.transparency = NULL;
+  h.default_thickness = 0.0008f;
+  float c[3], r;
+  hfr_hair_bounds(&h, c, &r);
+  char path[256];
+  snprintf(path, sizeof path, "/tmp/hf_test_rules_%d.hair", (int)getpid());
+  hfr_asset_opts a;
+  hfr_asset_defaults(&a);
+  a.occluder = "none";
+  hfr_frame_stats fs[2];
+  /* --thickness 0.01 R and 0.1 R: ten times as wide in pixels. */
+  h.default_transparency = 0.2f;
+  assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+  a.thickness = 0.01f * r;
+  frame_of(path, &a, &fs[0]);
+  a.thickness = 0.1f * r;
+  frame_of(path, &a, &fs[1]);
+  print_message("--thickness 0.01 R: %.4f px, 0.1 R: %.4f px\n", fs[0].width_px_p50,
+                fs[1].width_px_p50);
+  assert_true(fs[0].valid && fs[1].valid);
+  assert_true(fabs(fs[1].width_px_p50 / fs[0].width_px_p50 - 10) < 0.1);
+  /* Wide strands: a covered sample's alpha is the opacity. Invalid header
+   * transparencies draw opaque (transparency 0) with children or without;
+   * a header 1 draws nothing on either path, as a per-point 1 does. */
+  const float bad[] = {NAN, -1, 2, INFINITY};
+  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    h.default_transparency = bad[i];
+    assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+    for (int k = 0; k < 2; k++) {
+      a.children.children = k ? 3 : 0;
+      frame_of(path, &a, &fs[k]);
+      print_message("header transparency %g, children %d: alpha p50 %.4f\n", bad[i],
+                    a.children.children, fs[k].alpha_p50);
+      assert_true(fs[k].hair_pixels > 0.05);
+      assert_true(fs[k].alpha_p50 > 0.999 && fs[k].alpha_p10 > 0.999);
+    }
+  }
+  h.default_transparency = 1;
+  assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+  for (int k = 0; k < 2; k++) {
+    a.children.children = k ? 3 : 0;
+    frame_of(path, &a, &fs[k]);
+    assert_true(fs[k].hair_pixels == 0);
+  }
+  a.children.children = 0;
+  /* Coordinates scaled by 1e30: refused naming the radius and --units;
+   * with --scale 1e-30 the same file renders as the original. */
+  for (size_t k = 0; k < 3 * (size_t)h.points; k++) h.pos[k] *= 1e30f;
+  h.default_transparency = 0.2f;
+  assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+  hfr_frame f;
+  hfr_frame_defaults(&f, 48, 48);
+  f.hair_path = path;
+  f.platform = "osmesa";
+  hf_image img;
+  char err[512] = "";
+  assert_int_equal(hfr_render_frame(&f, &img, NULL, err, sizeof err), HF_ERANGE);
+  print_message("1e30: %s\n", err);
+  assert_non_null(strstr(err, "bounding radius"));
+  assert_non_null(strstr(err, "--units"));
+  a.scale = 1e-30f;
+  a.thickness = 0.1f * r * 1e30f;
+  frame_of(path, &a, &fs[0]);
+  assert_true(fabs(fs[0].width_px_p50 / fs[1].width_px_p50 - 1) < 0.01);
+  remove(path);
+  /* The renderer refuses such a model itself (callers without the loader). */
+  err[0] = 0;
+  assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_ERANGE);
+  assert_non_null(strstr(err, "bounding radius"));
+  hfr_hair_free(&h);
+}
+
 /* The same GL code on EGL, where this build and machine have it. */
 static void test_egl(void **state) {
   (void)state;
@@ -1057,6 +1160,7 @@ int main(void) {
     cmocka_unit_test(test_dataset_skips_dense_frames),
     cmocka_unit_test(test_dataset_extended),
     cmocka_unit_test(test_render_frame_from_file),
+    cmocka_unit_test(test_loaded_model_rules),
     cmocka_unit_test(test_egl),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
