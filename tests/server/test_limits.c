@@ -396,6 +396,7 @@ static void test_announced_maximum_after_other_plans(void **state) {
     const int ac = order[k][0] == 'K';
     hfc_request r = TEST_REQUEST(.variant = order[k], .width = W, .height = HH, .spp = 4,
                                   .features = in, .result = out, .rgba = rgba,
+                                  .hair = {0.3f, 0.2f, 0.1f}, .light = {1, 1, 1},
                                   .estimate = ac, .estimate_buffer = ac ? est : NULL);
     int rc = hfc_filter(c, &r, NULL);
     if (rc) fail_msg("%s at the announced %dx%d, frame %d: %s (%s)", order[k], W, HH, k + 1,
