@@ -3,14 +3,20 @@
  * "--opt=VALUE" work. The config file is read with inih (libinih, Debian's
  * libinih-dev): "key = value" lines whose keys are the long options without
  * their dashes; each line becomes "--key=value" ahead of the command line,
- * so the same parser checks both and the command line wins. */
+ * so the same parser checks both and the command line wins. A key that
+ * takes one value and comes twice in the file is warned about, naming
+ * both lines; the later line wins. Errors go through the log (log.c) at
+ * error level, so under journald they carry priority 3 like the daemon's
+ * other errors. */
 #define _GNU_SOURCE
+#include <arpa/inet.h>
 #include <errno.h>
 #include <getopt.h>
 #include <ini.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 
 #include <hairfilter/hairfilter_version.h>
@@ -87,7 +93,7 @@ static int parse_int(const char *opt, const char *s, long lo, long hi, long *out
   errno = 0;
   long v = strtol(s, &end, 10);
   if (errno || *end || end == s || v < lo || v > hi) {
-    fprintf(stderr, "hairfilterd: --%s wants an integer in %ld..%ld, not '%s'\n", opt, lo, hi, s);
+    hfd_err("--%s wants an integer in %ld..%ld, not '%s'", opt, lo, hi, s);
     return -1;
   }
   *out = v;
@@ -103,13 +109,12 @@ static int parse_int(const char *opt, const char *s, long lo, long hi, long *out
 static int token_take(const char *source, const char *s, size_t n, char *dst) {
   while (n && (s[n - 1] == '\n' || s[n - 1] == '\r' || s[n - 1] == ' ')) n--;
   if (n == 0 || n > HFP_TOKEN_MAX) {
-    fprintf(stderr, "hairfilterd: token in %s must be 1..%d bytes\n", source, HFP_TOKEN_MAX);
+    hfd_err("token in %s must be 1..%d bytes", source, HFP_TOKEN_MAX);
     return -1;
   }
   for (size_t i = 0; i < n; i++)
     if ((unsigned char)s[i] <= 0x20 || (unsigned char)s[i] > 0x7e) {
-      fprintf(stderr, "hairfilterd: token in %s must be printable ASCII without spaces\n",
-              source);
+      hfd_err("token in %s must be printable ASCII without spaces", source);
       return -1;
     }
   memcpy(dst, s, n);
@@ -120,7 +125,7 @@ static int token_take(const char *source, const char *s, size_t n, char *dst) {
 static int read_token(const char *path, char *dst) {
   FILE *f = fopen(path, "r");
   if (!f) {
-    fprintf(stderr, "hairfilterd: cannot read %s: %s\n", path, strerror(errno));
+    hfd_err("cannot read %s: %s", path, strerror(errno));
     return -1;
   }
   /* One byte more than the longest token and its line end, so that a
@@ -160,7 +165,7 @@ static int weights_entry(hfd_config *cfg, const char *val) {
 static int parse_warm(const char *list, hfd_config *cfg) {
   char buf[1024];
   if (strlen(list) >= sizeof buf) {
-    fprintf(stderr, "hairfilterd: --warm list too long\n");
+    hfd_err("--warm list too long");
     return -1;
   }
   strcpy(buf, list);
@@ -173,14 +178,13 @@ static int parse_warm(const char *list, hfd_config *cfg) {
     int max_batch = cfg->max_batch ? cfg->max_batch : 256;
     if ((got != 2 && got != 3) || w < 1 || h < 1 || w > cfg->max_width || h > cfg->max_height ||
         n < 1 || n > max_batch) {
-      fprintf(stderr,
-              "hairfilterd: --warm wants WxH or WxHxBATCH within --max-size %dx%d and "
-              "--max-batch %d, not '%s'\n",
+      hfd_err("--warm wants WxH or WxHxBATCH within --max-size %dx%d and --max-batch %d, "
+              "not '%s'",
               cfg->max_width, cfg->max_height, max_batch, tok);
       return -1;
     }
     if (cfg->num_warm == HFD_MAX_WARM) {
-      fprintf(stderr, "hairfilterd: at most %d --warm shapes\n", HFD_MAX_WARM);
+      hfd_err("at most %d --warm shapes", HFD_MAX_WARM);
       return -1;
     }
     cfg->warm[cfg->num_warm].width = w;
@@ -189,7 +193,7 @@ static int parse_warm(const char *list, hfd_config *cfg) {
     cfg->num_warm++;
   }
   if (!cfg->num_warm) {
-    fprintf(stderr, "hairfilterd: --warm needs at least one WxH\n");
+    hfd_err("--warm needs at least one WxH");
     return -1;
   }
   return 0;
@@ -201,18 +205,56 @@ static int tls_check(const hfd_config *cfg) {
   for (int i = 0; i < cfg->num_listen; i++)
     tls |= cfg->listen_url[i].kind == HFP_URL_TCP && cfg->listen_url[i].tls;
   if (tls && (!cfg->tls_cert || !cfg->tls_key)) {
-    fprintf(stderr, "hairfilterd: a tls: listener needs --tls-cert FILE and --tls-key FILE "
-            "(docs/SERVER.md, \"TLS\")\n");
+    hfd_err("a tls: listener needs --tls-cert FILE and --tls-key FILE "
+            "(docs/SERVER.md, \"TLS\")");
     return -1;
   }
   if ((cfg->tls_cert != NULL) != (cfg->tls_key != NULL)) {
-    fprintf(stderr, "hairfilterd: --tls-cert and --tls-key go together\n");
+    hfd_err("--tls-cert and --tls-key go together");
     return -1;
   }
   if (cfg->tls_client_cert_auth && !cfg->tls_client_ca) {
-    fprintf(stderr, "hairfilterd: --tls-client-cert-auth needs --tls-client-ca FILE (the CA "
-            "whose client certificates replace the token)\n");
+    hfd_err("--tls-client-cert-auth needs --tls-client-ca FILE (the CA "
+            "whose client certificates replace the token)");
     return -1;
+  }
+  return 0;
+}
+
+/* Whether a listener's host is the loopback interface (127.0.0.0/8, ::1,
+ * localhost); -1 when it is not a numeric address, which opening the
+ * listener refuses. */
+static int loopback_host(const char *host) {
+  unsigned char a[16];
+  if (!strcmp(host, "localhost")) return 1;
+  if (inet_pton(AF_INET, host, a) == 1) return a[0] == 127;
+  if (inet_pton(AF_INET6, host, a) == 1) {
+    static const unsigned char lo[16] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1};
+    return !memcmp(a, lo, 16);
+  }
+  return -1;
+}
+
+/* TCP listeners and their authentication, checked with the options rather
+ * than after the weights are loaded (minutes with --warm on a GPU): a TCP
+ * listener needs a token unless --no-auth (loopback only) or, on tls:,
+ * verified client certificates replace it. */
+static int auth_check(const hfd_config *cfg) {
+  for (int i = 0; i < cfg->num_listen; i++) {
+    const hfp_url *u = &cfg->listen_url[i];
+    if (u->kind != HFP_URL_TCP) continue;
+    int loop = loopback_host(u->host);
+    if (cfg->no_auth && loop == 0) {
+      hfd_err("--listen %s: --no-auth is only allowed on loopback addresses", cfg->listen[i]);
+      return -1;
+    }
+    int auth_required = !cfg->no_auth && !(u->tls && cfg->tls_client_cert_auth);
+    if (auth_required && !cfg->token[0]) {
+      hfd_err("--listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), or "
+              "--no-auth on loopback%s", cfg->listen[i],
+              u->tls ? ", or --tls-client-ca with --tls-client-cert-auth" : "");
+      return -1;
+    }
   }
   return 0;
 }
@@ -268,6 +310,8 @@ static const struct option opts[] = {
 
 /* ---- the config file ------------------------------------------------------ */
 
+_Static_assert(sizeof opts / sizeof opts[0] <= 64, "file_args.seen_line holds every option");
+
 static char *own(hfd_config *cfg, char *s) {
   if (!s) return NULL;
   if (cfg->num_owned == cfg->cap_owned) {
@@ -297,7 +341,24 @@ typedef struct file_args {
   int argc, cap;
   int bad;                       /* a line was refused: why */
   char why[300];
+  FILE *f;
+  int line, next_line;           /* the line being parsed, the next one */
+  int seen_line[64];             /* per option (opts[]): its last line, 0: none */
+  int seen_arg[64];              /* and that line's index in argv, -1: none */
 } file_args;
+
+/* inih's reader (fgets), counting lines so that on_ini knows which one it
+ * is given: a line longer than inih's buffer is read in pieces, and only
+ * the piece with its line end moves the count on. */
+static char *read_line(char *str, int num, void *stream) {
+  file_args *fa = stream;
+  char *r = fgets(str, num, fa->f);
+  if (r) {
+    fa->line = fa->next_line;
+    if (strchr(r, '\n')) fa->next_line++;
+  }
+  return r;
+}
 
 static int truthy(const char *v, int *out) {
   static const char *const yes[] = {"1", "yes", "true", "on"};
@@ -323,6 +384,7 @@ static int on_ini(void *user, const char *section, const char *key, const char *
   const struct option *o = NULL;
   for (const struct option *p = opts; p->name; p++)
     if (!strcmp(p->name, key)) o = p;
+  int oi = o ? (int)(o - opts) : 0;
   if (!o || !strcmp(key, "config") || !strcmp(key, "help") ||
       !strcmp(key, "version")) {
     snprintf(fa->why, sizeof fa->why, "unknown key '%s' (keys are the long options without "
@@ -331,13 +393,24 @@ static int on_ini(void *user, const char *section, const char *key, const char *
     return 0;
   }
   char *arg = NULL;
+  int on = 1;
+  if (o->has_arg == no_argument && truthy(value, &on)) {
+    snprintf(fa->why, sizeof fa->why, "%s wants yes or no, not '%s'", key, value);
+    fa->bad = 1;
+    return 0;
+  }
+  /* A key of one value given again: the later line wins (a flag set to
+   * no drops the earlier yes), and both lines are named, since an edit
+   * that appended a key the file already had is otherwise invisible. */
+  int repeatable = o->val == OPT_LISTEN || o->val == OPT_WEIGHTS;
+  if (!repeatable && fa->seen_line[oi]) {
+    hfd_warn("%s:%d: '%s' was given already on line %d; a key takes one value, so line %d's "
+             "wins", fa->path, fa->line, key, fa->seen_line[oi], fa->line);
+    if (fa->seen_arg[oi] >= 0) fa->argv[fa->seen_arg[oi]] = NULL;
+  }
+  fa->seen_line[oi] = fa->line;
+  fa->seen_arg[oi] = -1;
   if (o->has_arg == no_argument) {
-    int on;
-    if (truthy(value, &on)) {
-      snprintf(fa->why, sizeof fa->why, "%s wants yes or no, not '%s'", key, value);
-      fa->bad = 1;
-      return 0;
-    }
     if (!on) return 1;
     if (asprintf(&arg, "--%s", key) < 0) arg = NULL;
   } else if (asprintf(&arg, "--%s=%s", key, value) < 0) {
@@ -360,7 +433,7 @@ static int on_ini(void *user, const char *section, const char *key, const char *
     fa->bad = 1;
     return 0;
   }
-  fa->argc++;
+  fa->seen_arg[oi] = fa->argc++;
   return 1;
 }
 
@@ -419,15 +492,28 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   /* The file's lines first, then the command line, through one parser. */
   int explicit;
   const char *path = config_path(argc, argv, &explicit);
-  file_args fa = {cfg, path, NULL, 0, 0, 0, ""};
+  static file_args zero;
+  file_args fa = zero;
+  fa.cfg = cfg;
+  fa.path = path;
+  fa.next_line = 1;
   struct stat st;
   if (path && (explicit || stat(path, &st) == 0)) {
-    int rc = ini_parse(path, on_ini, &fa);
+    int rc = -1;
+    if ((fa.f = fopen(path, "r"))) {
+      rc = ini_parse_stream(read_line, &fa, on_ini, &fa);
+      fclose(fa.f);
+      /* Lines a repeated key overrode (on_ini) leave holes. */
+      int n = 0;
+      for (int i = 0; i < fa.argc; i++)
+        if (fa.argv[i]) fa.argv[n++] = fa.argv[i];
+      fa.argc = n;
+    }
     if (rc < 0)
-      fprintf(stderr, "hairfilterd: cannot read config file %s: %s\n", path,
+      hfd_err("cannot read config file %s: %s", path,
               rc == -1 ? strerror(errno) : "out of memory");
     else if (rc > 0)
-      fprintf(stderr, "hairfilterd: %s:%d: %s\n", path, rc,
+      hfd_err("%s:%d: %s", path, rc,
               fa.bad ? fa.why : "not a 'key = value' line");
     if (rc) {
       free(fa.argv);
@@ -488,7 +574,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         if (hfp_url_parse(val, HFP_URL_LISTEN, &cfg->http_url, why, sizeof why) ||
             cfg->http_url.kind != HFP_URL_TCP || cfg->http_url.tls) {
           if (cfg->http_url.tls) snprintf(why, sizeof why, "it serves plain HTTP, not TLS");
-          fprintf(stderr, "hairfilterd: --http wants tcp:HOST:PORT%s%s\n",
+          hfd_err("--http wants tcp:HOST:PORT%s%s",
                   cfg->http_url.kind == HFP_URL_UNIX ? "" : ": ",
                   cfg->http_url.kind == HFP_URL_UNIX ? "" : why);
           rc = -1;
@@ -504,8 +590,8 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_LOG_LEVEL: {
         int l = hfd_log_level_parse(val);
         if (l < 0) {
-          fprintf(stderr, "hairfilterd: --log-level wants error, warning, notice, info or "
-                  "debug, not '%s'\n", val);
+          hfd_err("--log-level wants error, warning, notice, info or "
+                  "debug, not '%s'", val);
           goto fail;
         }
         cfg->log_level = l;
@@ -513,13 +599,13 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       }
       case OPT_LISTEN: {
         if (cfg->num_listen == HFD_MAX_LISTENERS) {
-          fprintf(stderr, "hairfilterd: at most %d --listen\n", HFD_MAX_LISTENERS);
+          hfd_err("at most %d --listen", HFD_MAX_LISTENERS);
           goto fail;
         }
         char why[300];
         if (hfp_url_parse(val, HFP_URL_LISTEN, &cfg->listen_url[cfg->num_listen], why,
                           sizeof why)) {
-          fprintf(stderr, "hairfilterd: --listen: %s\n", why);
+          hfd_err("--listen: %s", why);
           goto fail;
         }
         cfg->listen[cfg->num_listen++] = val;
@@ -527,7 +613,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       }
       case OPT_WEIGHTS:
         if (cfg->num_weights == HFD_MAX_VARIANTS) {
-          fprintf(stderr, "hairfilterd: at most %d --weights\n", HFD_MAX_VARIANTS);
+          hfd_err("at most %d --weights", HFD_MAX_VARIANTS);
           goto fail;
         }
         if (weights_entry(cfg, val)) goto fail;
@@ -555,7 +641,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         char tail;
         if (sscanf(val, "%dx%d%c", &w, &h, &tail) != 2 || w < 1 || h < 1 ||
             w > HFP_MAX_SIDE || h > HFP_MAX_SIDE) {
-          fprintf(stderr, "hairfilterd: --max-size wants WxH within 1..%d, not '%s'\n",
+          hfd_err("--max-size wants WxH within 1..%d, not '%s'",
                   HFP_MAX_SIDE, val);
           goto fail;
         }
@@ -620,7 +706,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         int ok = n >= 1 && n <= HFP_NAME_MAX;
         for (size_t k = 0; ok && k < n; k++) ok = val[k] > 0x20 && val[k] < 0x7f;
         if (!ok) {
-          fprintf(stderr, "hairfilterd: --name must be 1..%d printable characters\n",
+          hfd_err("--name must be 1..%d printable characters",
                   HFP_NAME_MAX);
           goto fail;
         }
@@ -628,25 +714,25 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         break;
       }
       case ':':
-        fprintf(stderr, "hairfilterd: %s needs a value\n", all[optind - 1]);
+        hfd_err("%s needs a value", all[optind - 1]);
         goto fail;
       default:
-        fprintf(stderr, "hairfilterd: unknown option '%s'\n", all[optind - 1]);
+        hfd_err("unknown option '%s'", all[optind - 1]);
         usage(stderr);
         goto fail;
     }
   }
   if (optind < nall) {
-    fprintf(stderr, "hairfilterd: unexpected argument '%s'\n", all[optind]);
+    hfd_err("unexpected argument '%s'", all[optind]);
     usage(stderr);
     goto fail;
   }
   if (!cfg->num_listen) {
-    fprintf(stderr, "hairfilterd: nothing to listen on: give --listen unix:PATH or tcp:HOST:PORT\n");
+    hfd_err("nothing to listen on: give --listen unix:PATH, tcp:HOST:PORT or tls:HOST:PORT");
     goto fail;
   }
   if (!cfg->num_weights && !cfg->weights_dir) {
-    fprintf(stderr, "hairfilterd: no variants: give --weights FILE or --weights-dir DIR\n");
+    hfd_err("no variants: give --weights FILE or --weights-dir DIR");
     goto fail;
   }
   if (warm && parse_warm(warm, cfg)) goto fail;
@@ -657,6 +743,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
     const char *env = getenv("HAIRFILTERD_TOKEN");
     if (env && token_take("$HAIRFILTERD_TOKEN", env, strlen(env), cfg->token)) goto fail;
   }
+  if (auth_check(cfg)) goto fail;
   goto out;
 fail:
   rc = -1;

@@ -124,7 +124,9 @@ typedef struct hfd_config {
  * exists; "--config none" reads none), then the command line: flags win,
  * and a repeatable flag (--listen, --weights) given on the command line
  * replaces the file's entries of that key. Returns 0, 1 after --help, -1
- * after an error it printed (naming the file and line, or the flag). */
+ * after an error it logged at error level (naming the file and line, or
+ * the flag). Checks that need nothing loaded (URLs, tokens, TLS options, a
+ * TCP listener's authentication) are made here. */
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg);
 /* Frees what the config owns (the strings read from its file). */
 void hfd_config_free(hfd_config *cfg);
@@ -532,6 +534,8 @@ struct hfd_server {
   uint64_t failed_answered;      /* another status, push-outs' BUSY not counted */
   uint64_t pushed_out_answered;  /* frames pushed out of the queue whose RESULT BUSY was
                                     written (one whose client had gone: replies_lost) */
+  uint64_t refused_draining;     /* frames refused with an ERROR SHUTTING_DOWN while
+                                    draining (never admitted, so in no count above) */
   int jobs_outstanding;          /* admitted, not yet answered */
   int pins_outstanding;          /* segments being pinned on the thread pool: the
                                     worker (and its backend) must outlive them */
