@@ -450,21 +450,87 @@ void hfd_models_on_loaded(hfd_server *s, hfd_ctl *c) {
   finish_reload(s);
 }
 
-/* The keys a reload takes from the configuration; the others need a
- * restart, and a changed one is said so. */
+/* A key the reload does not take, changed in the configuration: one line
+ * each, naming it with the value that keeps serving and the one the next
+ * start will use. */
+static void restart_needed(const char *key, const char *was, const char *now) {
+  hfd_warn("reload: --%s changed from %s to %s; it takes effect at the next start, and %s "
+           "stays until then", key, was, now, was);
+}
+
+static void restart_str(const char *key, const char *was, const char *now) {
+  if (!was) was = "(none)";
+  if (!now) now = "(none)";
+  if (strcmp(was, now)) restart_needed(key, was, now);
+}
+
+static void restart_int(const char *key, long long was, long long now) {
+  if (was == now) return;
+  char a[32], b[32];
+  snprintf(a, sizeof a, "%lld", was);
+  snprintf(b, sizeof b, "%lld", now);
+  restart_needed(key, a, b);
+}
+
+static void restart_flag(const char *key, int was, int now) {
+  if (!was != !now) restart_needed(key, was ? "yes" : "no", now ? "yes" : "no");
+}
+
+static void listen_list(const hfd_config *c, char *buf, size_t cap) {
+  buf[0] = 0;
+  for (int i = 0; i < c->num_listen; i++)
+    snprintf(buf + strlen(buf), cap - strlen(buf), "%s%s", i ? " " : "", c->listen[i]);
+}
+
+static void warm_list(const hfd_config *c, char *buf, size_t cap) {
+  snprintf(buf, cap, "%s", c->num_warm ? "" : "(none)");
+  for (int i = 0; i < c->num_warm; i++)
+    snprintf(buf + strlen(buf), cap - strlen(buf), "%s%dx%dx%d", i ? "," : "", c->warm[i].width,
+             c->warm[i].height, c->warm[i].batch);
+}
+
+/* The keys a reload takes from the configuration (weights, names, the
+ * token, TLS files, the log level); every other key needs a restart, and
+ * each that changed is named with its old and new values. */
 static void take_reloadable(hfd_server *s, hfd_config *n) {
   hfd_config *c = s->cfg;
-  if (strcmp(c->backend, n->backend) || c->num_listen != n->num_listen ||
-      (n->max_batch && c->max_batch != n->max_batch) || c->queue_size != n->queue_size ||
-      c->max_memory_bytes != n->max_memory_bytes || c->max_shm_bytes != n->max_shm_bytes ||
-      (c->http == NULL) != (n->http == NULL) || (c->http && strcmp(c->http, n->http)) ||
-      c->pipeline_depth != n->pipeline_depth || c->num_warm != n->num_warm)
-    hfd_warn("reload: listeners, backend, batching, queue, memory, --http and --warm take "
-             "effect at the next start; weights, names, the token, TLS certificates and the log "
-             "level now");
-  for (int i = 0; i < c->num_listen && i < n->num_listen; i++)
-    if (strcmp(c->listen[i], n->listen[i]))
-      hfd_warn("reload: --listen %s takes effect at the next start", n->listen[i]);
+  char a[2048], b[2048];
+  listen_list(c, a, sizeof a);
+  listen_list(n, b, sizeof b);
+  restart_str("listen", a, b);
+  restart_str("backend", c->backend, n->backend);
+  /* Without --max-batch the backend's default serves, whatever it is. */
+  if (n->max_batch) restart_int("max-batch", c->max_batch, n->max_batch);
+  restart_int("max-queue-delay-us", c->max_queue_delay_us, n->max_queue_delay_us);
+  restart_int("queue-size", c->queue_size, n->queue_size);
+  restart_int("max-inflight", c->max_inflight, n->max_inflight);
+  snprintf(a, sizeof a, "%dx%d", c->max_width, c->max_height);
+  snprintf(b, sizeof b, "%dx%d", n->max_width, n->max_height);
+  restart_str("max-size", a, b);
+  restart_int("max-frame-mb", (long long)(c->max_frame_bytes >> 20),
+              (long long)(n->max_frame_bytes >> 20));
+  restart_int("max-memory-mb", (long long)(c->max_memory_bytes >> 20),
+              (long long)(n->max_memory_bytes >> 20));
+  restart_int("max-shm-mb", (long long)(c->max_shm_bytes >> 20),
+              (long long)(n->max_shm_bytes >> 20));
+  restart_int("max-connections", c->max_connections, n->max_connections);
+  restart_int("max-handshakes", c->max_handshakes, n->max_handshakes);
+  restart_flag("no-auth", c->no_auth, n->no_auth);
+  restart_flag("tls-client-cert-auth", c->tls_client_cert_auth, n->tls_client_cert_auth);
+  restart_int("drain-timeout-ms", c->drain_timeout_ms, n->drain_timeout_ms);
+  restart_int("flush-timeout-ms", c->flush_timeout_ms, n->flush_timeout_ms);
+  restart_int("handshake-timeout-ms", c->handshake_timeout_ms, n->handshake_timeout_ms);
+  restart_int("stall-timeout-ms", c->stall_timeout_ms, n->stall_timeout_ms);
+  restart_int("min-recv-rate", (long long)(c->min_recv_rate >> 10),
+              (long long)(n->min_recv_rate >> 10));
+  restart_str("ready-file", c->ready_file, n->ready_file);
+  restart_str("name", c->name, n->name);
+  restart_str("http", c->http, n->http);
+  restart_int("watchdog-ms", c->watchdog_ms, n->watchdog_ms);
+  restart_int("pipeline-depth", c->pipeline_depth, n->pipeline_depth);
+  warm_list(c, a, sizeof a);
+  warm_list(n, b, sizeof b);
+  restart_str("warm", a, b);
   memcpy(c->weights, n->weights, sizeof c->weights);
   memcpy(c->weights_name, n->weights_name, sizeof c->weights_name);
   c->num_weights = n->num_weights;

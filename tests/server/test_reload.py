@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """SIGHUP reloads under load: variants added, replaced and removed with no
 request lost; a failed load keeps the old version serving and is counted;
-readiness goes 503 while a configured file serves nothing; SIGUSR1 logs
-the statistics and changes nothing; the stop line counts the requests of
+readiness goes 503 while a configured file serves nothing; a config file
+error is logged at error level and changes nothing; each changed key that
+needs a restart is named with its old and new values; SIGUSR1 logs the
+statistics and changes nothing; the stop line counts the requests of
 a removed variant. The daemon is configured through a
 config file (hairfilterd.conf), which the reload reads again.
 
@@ -139,6 +141,34 @@ def run(d, w, conf):
     reloads = reload_and_wait(d, reloads)
     v, s = served(d)
     check(set(v) == {"Small"}, "Small-retrained removed: %s" % v)
+
+    # 6. A config file error: the reason is a log line of level error (so
+    # journalctl -p warning shows it), and nothing changes.
+    with open(conf, "a") as f:
+        f.write("queue = 5\n")
+    reloads = reload_and_wait(d, reloads)
+    lines = [l for l in d.log_text().splitlines() if "unknown key 'queue'" in l]
+    check(len(lines) == 1 and "error: %s:" % conf in lines[0],
+          "the config error is logged at error level, naming file and line: %s" % lines)
+    check(set(served(d)[0]) == {"Small"}, "a config error changes nothing")
+
+    # 7. Keys that need a restart: each changed one is named with its old
+    # and new values; unchanged ones are not mentioned.
+    write_conf(conf, w)
+    with open(conf) as f:
+        text = f.read().replace("queue-size = 256", "queue-size = 128")
+    with open(conf, "w") as f:
+        f.write(text + "max-connections = 100\n")
+    reloads = reload_and_wait(d, reloads)
+    log = d.log_text()
+    check("warning: reload: --queue-size changed from 256 to 128; it takes effect at the next "
+          "start" in log, "the reload names --queue-size with both values")
+    check("--max-connections changed from 256 to 100" in log,
+          "the reload names --max-connections with both values")
+    check("--max-inflight changed" not in log and "--backend changed" not in log,
+          "unchanged keys are not named")
+    write_conf(conf, w)
+    reloads = reload_and_wait(d, reloads)
 
     # SIGUSR1: statistics in the log, nothing else.
     d.signal(signal.SIGUSR1)
