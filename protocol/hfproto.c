@@ -26,7 +26,8 @@ static const char *const messages[HFP_E_COUNT] = {
   [HFP_E_BUSY] = "server busy: queue or in-flight limit full",
   [HFP_E_UNAUTHORIZED] = "unauthorized: missing or wrong token",
   [HFP_E_INTERNAL] = "internal server error",
-  [HFP_E_UNSUPPORTED] = "unsupported dtype or flag",
+  [HFP_E_UNSUPPORTED] =
+      "not supported here (a dtype, a flag, or shared memory on this connection)",
   [HFP_E_SHUTTING_DOWN] = "server shutting down",
   [HFP_E_INVALID] = "field out of range",
   [HFP_E_NOSPACE] = "buffer too small",

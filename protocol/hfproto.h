@@ -65,7 +65,7 @@ extern "C" {
 #define HFP_E_BUSY           6   /* queue or per-connection in-flight limit full */
 #define HFP_E_UNAUTHORIZED   7   /* missing or wrong auth token */
 #define HFP_E_INTERNAL       8   /* the server failed; the request may be retried */
-#define HFP_E_UNSUPPORTED    9   /* valid but not offered (dtype, flag) */
+#define HFP_E_UNSUPPORTED    9   /* valid but not offered (dtype, flag, shared memory here) */
 #define HFP_E_SHUTTING_DOWN  10  /* the server is draining and takes no new work */
 #define HFP_E_INVALID        11  /* a field is out of its domain */
 #define HFP_E_NOSPACE        12  /* (local only) output buffer too small */

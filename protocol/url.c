@@ -107,7 +107,10 @@ int hfp_url_parse(const char *url, int flags, hfp_url *out, char *why, size_t wh
     if (*p < '0' || *p > '9')
       return bad(why, whylen, url, "port '%.20s' is not a decimal number", port_s);
     port = port * 10 + (unsigned long)(*p - '0');
-    if (port > 65535) return bad(why, whylen, url, "port %.20s is outside 1..65535", port_s);
+    /* A listener's port may be 0 (any free one); a client's may not. */
+    if (port > 65535)
+      return bad(why, whylen, url, "port %.20s is outside %d..65535", port_s,
+                 flags & HFP_URL_LISTEN ? 0 : 1);
   }
   if (port == 0 && !(flags & HFP_URL_LISTEN))
     return bad(why, whylen, url, "port 0 is outside 1..65535");

@@ -18,7 +18,7 @@ static const struct {
   const char *msg;
 } local_errors[] = {
   {HFC_E_ARG, "bad argument"},
-  {HFC_E_URL, "bad server URL (want unix:PATH, tcp:HOST:PORT or tcp:PORT)"},
+  {HFC_E_URL, "bad server URL (want unix:PATH, tcp:HOST:PORT, tcp:PORT or tls:HOST:PORT)"},
   {HFC_E_CONNECT, "cannot connect to the server"},
   {HFC_E_IO, "connection failed"},
   {HFC_E_TIMEOUT, "timed out waiting for the server"},

@@ -163,13 +163,19 @@ static void test_url(void **state) {
   /* port 0 only where it means "any free port" */
   assert_int_equal(hfp_url_parse("tcp:127.0.0.1:0", HFP_URL_LISTEN, &u, why, sizeof why), 0);
   assert_int_equal(u.port, 0);
+  /* and the range a refusal names is the one that applies */
+  assert_int_equal(hfp_url_parse("tcp:127.0.0.1:99999", 0, &u, why, sizeof why), -HFP_E_INVALID);
+  assert_non_null(strstr(why, "port 99999 is outside 1..65535"));
+  assert_int_equal(hfp_url_parse("tcp:127.0.0.1:99999", HFP_URL_LISTEN, &u, why, sizeof why),
+                   -HFP_E_INVALID);
+  assert_non_null(strstr(why, "port 99999 is outside 0..65535"));
   static const struct {
     const char *url, *says;
   } bad[] = {
     {"tcp:127.0.0.1:0", "port 0 is outside 1..65535"},
-    {"tcp:127.0.0.1:65536", "port 65536 is outside 1..65535"},
-    {"tcp:127.0.0.1:99999999999999999999", "is outside 1..65535"},
-    {"tcp:70000", "port 70000 is outside 1..65535"},
+    {"tcp:127.0.0.1:65536", "port 65536 is outside 0..65535"},
+    {"tcp:127.0.0.1:99999999999999999999", "is outside 0..65535"},
+    {"tcp:70000", "port 70000 is outside 0..65535"},
     {"tcp:127.0.0.1:80x", "port '80x' is not a decimal number"},
     {"tcp:127.0.0.1:-1", "port '-1' is not a decimal number"},
     {"tcp:127.0.0.1:+80", "port '+80' is not a decimal number"},
@@ -186,7 +192,7 @@ static void test_url(void **state) {
     {"tcp:host name:80", "' ' in the host name"},
     {"tcp:nohostport", "is not a decimal number"},
     {"unix:", "empty socket path"},
-    {"tls:127.0.0.1:65536", "port 65536 is outside 1..65535"},
+    {"tls:127.0.0.1:65536", "port 65536 is outside 0..65535"},
     {"tls:host name:80", "' ' in the host name"},
     {"tls://host:7443", "no '//' after 'tls:': write tls:HOST:PORT"},
     {"tcp://host:7070", "no '//' after 'tcp:': write tcp:HOST:PORT"},

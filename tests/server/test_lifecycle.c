@@ -55,8 +55,8 @@ static void test_bad_listen_urls(void **state) {
   static const struct {
     const char *url, *says;
   } bad[] = {
-    {"tcp:127.0.0.1:70000", "port 70000 is outside 1..65535"},
-    {"tcp:127.0.0.1:65536", "port 65536 is outside 1..65535"},
+    {"tcp:127.0.0.1:70000", "port 70000 is outside 0..65535"},
+    {"tcp:127.0.0.1:65536", "port 65536 is outside 0..65535"},
     {"tcp:127.0.0.1:80x", "port '80x' is not a decimal number"},
     {"tcp:127.0.0.1:-5", "port '-5' is not a decimal number"},
     {"tcp:::1:80", "brackets"},
