@@ -268,11 +268,18 @@ static void send_error(hfd_conn *c, uint32_t request_id, int code, int fatal,
    * the wire are already checked, but be sure). */
   for (char *p = e.message; *p; p++)
     if (*p < 0x20 || *p > 0x7e) *p = '?';
-  if (code != HFP_E_BUSY && log_allowed()) {
+  /* BUSY is overload, not an error, and is not logged. Neither is a frame
+   * refused with SHUTTING_DOWN an error: a drain refuses every frame sent
+   * after SIGTERM, on every rolling restart; they are counted for the stop
+   * line and logged at debug level. */
+  int refused_draining = code == HFP_E_SHUTTING_DOWN && !fatal;
+  if (refused_draining) c->srv->refused_draining++;
+  if (refused_draining ? hfd_log_level >= HFD_LOG_DEBUG
+                       : code != HFP_E_BUSY && log_allowed()) {
     char kv[300];
-    hfd_err("%s: %s%s%s request=%u code=%s", hfp_code_name(code), e.message,
-            fatal ? "; closing the connection" : "", conn_kv(c, kv, sizeof kv), request_id,
-            hfp_code_name(code));
+    hfd_logl(refused_draining ? HFD_LOG_DEBUG : HFD_LOG_ERR, "%s: %s%s%s request=%u code=%s",
+             hfp_code_name(code), e.message, fatal ? "; closing the connection" : "",
+             conn_kv(c, kv, sizeof kv), request_id, hfp_code_name(code));
   }
   uint8_t frame[HFP_HEADER_SIZE + 8 + HFP_MESSAGE_MAX];
   int n = hfp_encode_error(frame, sizeof frame, request_id, &e);
@@ -844,6 +851,7 @@ static void filter_admit(hfd_conn *c) {
   j->t_received = hfd_now_us();
   int code = 0;
   const char *why = NULL;
+  char share_why[200];
   hfd_job *pushed = NULL;
   int share = queue_share(s, c);   /* c's count cannot change before it is queued */
   uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
@@ -857,7 +865,14 @@ static void filter_admit(hfd_conn *c) {
     why = "too many requests in flight on this connection";
   } else if (over_queue_share(s, c, share)) {
     code = HFP_E_BUSY;
-    why = "this connection holds its share of the queue";
+    /* Where the share comes from, and the operator's knob: a single
+     * connection meets this too, with a queue smaller than its window. */
+    snprintf(share_why, sizeof share_why,
+             "this connection holds its share of the queue (%d frame(s) of --queue-size %d, "
+             "shared by %d connection(s) holding frames; the server's operator can raise "
+             "--queue-size)", share, s->cfg->queue_size,
+             s->conns_with_frames + (c->inflight == 0));
+    why = share_why;
   } else if (run == UINT64_MAX || !mem_fits(s, more)) {
     code = HFP_E_BUSY;
     why = "request memory full";

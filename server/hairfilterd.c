@@ -444,7 +444,8 @@ static void on_signal(uv_signal_t *h, int signum) {
   }
   s->draining = 1;
   hfd_notify_stopping();
-  hfd_notice("%s: draining %d request(s), no new work accepted", name, s->jobs_outstanding);
+  hfd_notice("%s: draining %d request(s), no new work accepted (frames sent from now on get "
+             "SHUTTING_DOWN; the stop line counts them)", name, s->jobs_outstanding);
   for (int i = 0; i < s->num_listeners; i++) close_handle(&s->listeners[i].h.handle);
   /* Not ready any more: clients find no socket and no ready file. */
   remove_files(s);
@@ -511,6 +512,10 @@ int main(int argc, char **argv) {
     return 1;
   }
   s->async.data = s;
+  /* The TLS files are read before the backend starts and the weights load
+   * (minutes on a GPU with --warm), so a key the daemon cannot read stops
+   * it at once. */
+  if (hfd_tls_init(s)) return 1;
   if (hfd_worker_start(w)) {
     hfd_err("cannot start inference: %s", w->init_msg);
     return 1;
@@ -566,10 +571,6 @@ int main(int argc, char **argv) {
   /* Every listener or none: a daemon that cannot open one of them stops
    * here, before it is ready, rather than serve on the others and leave
    * the missing one unnoticed (docs/SERVER.md, "Socket directory"). */
-  if (hfd_tls_init(s)) {
-    remove_files(s);
-    return 1;
-  }
   for (int i = 0; i < cfg.num_listen; i++)
     if (open_listener(s, cfg.listen[i], &cfg.listen_url[i])) {
       remove_files(s);
@@ -621,12 +622,16 @@ int main(int argc, char **argv) {
   hfd_tls_free(s);
   remove_files(s);
   /* Frames pushed out of the queue (conn.c) are answered by a RESULT of
-   * status BUSY, which STATS counts as failed; here they are overload. */
+   * status BUSY, which STATS counts as failed; here they are overload.
+   * Frames that came while draining were never admitted: refused with an
+   * ERROR SHUTTING_DOWN, counted apart (and logged at debug level only). */
   uint64_t ok = s->served_answered, failed = s->failed_answered;
   hfd_notice("stopped: %llu request(s) served, %llu failed, %llu pushed out of the queue "
-             "(BUSY), %llu answer(s) not delivered (peer gone), %llu connection(s) in all",
+             "(BUSY), %llu refused while draining (SHUTTING_DOWN), %llu answer(s) not "
+             "delivered (peer gone), %llu connection(s) in all",
              (unsigned long long)ok, (unsigned long long)failed,
-             (unsigned long long)s->pushed_out_answered, (unsigned long long)s->replies_lost,
+             (unsigned long long)s->pushed_out_answered,
+             (unsigned long long)s->refused_draining, (unsigned long long)s->replies_lost,
              (unsigned long long)s->conns_total);
   hfd_rpool_free(&s->rpool);
   hfd_config_free(&cfg);

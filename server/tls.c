@@ -24,9 +24,14 @@
  * they were accepted with (OpenSSL counts the references).
  */
 #define _POSIX_C_SOURCE 200809L
+#include <errno.h>
+#include <fcntl.h>
+#include <pwd.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <openssl/err.h>
 #include <openssl/ssl.h>
@@ -110,10 +115,47 @@ static const char *ssl_errors(char *buf, size_t cap) {
 
 /* ---- contexts -------------------------------------------------------------- */
 
+/* A file the daemon cannot open, said before OpenSSL reads it (whose
+ * error would be "error:8000000D:system library::Permission denied"):
+ * which file, who the daemon runs as, who owns the file, and the fix, as
+ * for the socket directory. A key is readable by the daemon's user alone;
+ * a certificate or CA may be read by anyone. */
+static int unreadable(const char *opt, const char *path, int secret, char *why, size_t whylen) {
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  if (fd >= 0) {
+    close(fd);
+    return 0;
+  }
+  int err = errno;
+  struct stat st;
+  if ((err == EACCES || err == EPERM) && stat(path, &st) == 0) {
+    char user[64];
+    struct passwd *pw = getpwuid(geteuid());
+    if (pw && pw->pw_name[0])
+      snprintf(user, sizeof user, "%s", pw->pw_name);
+    else
+      snprintf(user, sizeof user, "%ld", (long)geteuid());
+    snprintf(why, whylen,
+             "%s %s: permission denied: hairfilterd runs as uid %ld (%s) gid %ld and cannot read "
+             "it (owner uid %ld gid %ld, mode %04o); make it readable for that user, e.g. "
+             "install -o %s -m %s NEW-FILE %s, or chown %s %s (docs/SERVER.md, \"TLS\")",
+             opt, path, (long)geteuid(), user, (long)getegid(), (long)st.st_uid,
+             (long)st.st_gid, (unsigned)(st.st_mode & 07777), user, secret ? "0600" : "0644",
+             path, user, path);
+  } else {
+    snprintf(why, whylen, "%s %s: %s", opt, path, strerror(err));
+  }
+  return -1;
+}
+
 /* A server context from cfg's files: NULL with why when any of them does
  * not load (missing, not PEM, a key that is not the certificate's). */
 static SSL_CTX *ctx_build(const hfd_config *cfg, char *why, size_t whylen) {
   char err[512];
+  if (unreadable("--tls-cert", cfg->tls_cert, 0, why, whylen) ||
+      unreadable("--tls-key", cfg->tls_key, 1, why, whylen) ||
+      (cfg->tls_client_ca && unreadable("--tls-client-ca", cfg->tls_client_ca, 0, why, whylen)))
+    return NULL;
   SSL_CTX *ctx = SSL_CTX_new(TLS_server_method());
   if (!ctx) {
     snprintf(why, whylen, "SSL_CTX_new: %s", ssl_errors(err, sizeof err));

@@ -943,8 +943,19 @@ static void test_queue_push_out(void **state) {
   raw_clients(&d, fd, 3);
   send_small(fd[0], 1, BIG, BIG);
   for (uint32_t id = 2; id <= 5; id++) send_small(fd[0], id, W, W);
-  assert_int_equal(reply_status(fd[0], 5, &st, &r), HFP_ERROR);
-  assert_int_equal(st, HFP_E_BUSY);                       /* A's share */
+  /* A's share, and the message names the option that sets it */
+  hfp_header h;
+  uint8_t *p = NULL;
+  hfp_error e;
+  assert_int_equal(raw_read(fd[0], &h, &p), 0);
+  assert_int_equal(h.type, HFP_ERROR);
+  assert_int_equal(h.request_id, 5);
+  assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+  free(p);
+  assert_int_equal(e.code, HFP_E_BUSY);
+  if (!strstr(e.message, "holds its share of the queue (4 frame(s) of --queue-size 4") ||
+      !strstr(e.message, "can raise --queue-size"))
+    fail_msg("BUSY for A's share says: %s", e.message);
   double t0 = now_ms();                                   /* the large frame admitted */
   expect_queue_depth(c, 3, "A's large frame running and 3 queued");
   send_small(fd[1], 1, W, W);

@@ -704,6 +704,64 @@ static void test_sigterm_drains(void **state) {
   free(in);
 }
 
+/* Frames sent while draining are refused with SHUTTING_DOWN: that is the
+ * drain working, not an error, so no "error:" line is logged for them
+ * (a rolling restart would trip error alerts); the stop line counts them
+ * apart from the admitted requests. One frame waits in the batcher (a 2 s
+ * delay for partners) while SIGTERM arrives; three sent after it are
+ * refused; the waiting one is served. */
+static void test_drain_refusals_counted(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-batch", "16", "--max-queue-delay-us", "2000000", NULL};
+  assert_int_equal(server_start(&H, &d, args), 0);
+  hfc_client *c = NULL, *stats = NULL;
+  hfc_options o = test_options("drain-refused", NULL, 20000);
+  assert_int_equal(hfc_connect(d.unix_url, &o, &c), 0);
+  assert_int_equal(hfc_connect(d.unix_url, &o, &stats), 0);
+  enum { W = 16, N = 4 };
+  const ref_variant *v = harness_variant(&H, "Small");
+  float *in = make_features(W, W, v->cfg.spp, 5);
+  static float out[N][W * W * 3];
+  hfc_request r[N];
+  for (int i = 0; i < N; i++)
+    r[i] = TEST_REQUEST(.variant = "Small", .width = W, .height = W, .spp = v->cfg.spp,
+                        .in_dtype = HFC_F32, .features = in, .out_dtype = HFC_F32,
+                        .result = out[i]);
+  assert_int_equal(hfc_submit(c, &r[0], NULL), 0);
+  hfc_stats st;
+  int queued = 0;
+  for (int waited = 0; waited < 5000 && !queued; waited += 10) {
+    assert_int_equal(hfc_get_stats(stats, &st), 0);
+    if (!(queued = st.queue_depth == 1)) usleep(10000);
+  }
+  assert_true(queued);
+  hfc_close(stats);
+  kill(d.pid, SIGTERM);
+  for (int waited = 0; waited < 5000 && !server_log_has(&d, "SIGTERM: draining"); waited += 10)
+    usleep(10000);
+  assert_true(server_log_has(&d, "SIGTERM: draining"));
+  for (int i = 1; i < N; i++) assert_int_equal(hfc_submit(c, &r[i], NULL), 0);
+  int served = 0, refused = 0;
+  for (int k = 0; k < N; k++) {
+    hfc_completion x;
+    assert_int_equal(hfc_wait(c, 20000, &x), 0);
+    served += x.status == 0;
+    refused += x.status == HFC_E_SHUTTING_DOWN;
+  }
+  assert_int_equal(served, 1);
+  assert_int_equal(refused, N - 1);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+  if (server_log_count(&d, "SHUTTING_DOWN: server is shutting down") != 0 ||
+      !server_log_has(&d, "stopped: 1 request(s) served, 0 failed, 0 pushed out of the queue "
+                          "(BUSY), 3 refused while draining (SHUTTING_DOWN)")) {
+    server_dump_log(&d);
+    fail_msg("refusals while draining logged as errors, or not in the stop line");
+  }
+  free(in);
+}
+
 /* --warm prepares every variant for the given shapes before the server
  * says it is ready (cpu-ref prepares nothing, but the path and the log are
  * the daemon's); --pipeline-depth 1 serves one run at a time; shapes
@@ -996,6 +1054,10 @@ static void test_client_errors(void **state) {
   (void)state;
   hfc_client *c = NULL;
   assert_int_equal(hfc_connect("http://x", NULL, &c), HFC_E_URL);
+  /* the messages name every URL form, and UNSUPPORTED's covers shared
+   * memory where the connection cannot have it */
+  assert_non_null(strstr(hfc_strerror(HFC_E_URL), "tls:HOST:PORT"));
+  assert_non_null(strstr(hfc_strerror(HFC_E_UNSUPPORTED), "shared memory"));
   assert_int_equal(hfc_connect("tcp:nohostport", NULL, &c), HFC_E_URL);
   assert_int_equal(hfc_connect("unix:", NULL, &c), HFC_E_URL);
   /* a port outside 1..65535 or with trailing junk is a bad URL, never
@@ -1486,6 +1548,7 @@ int main(void) {
     cmocka_unit_test(test_busy_when_queue_full),
     cmocka_unit_test(test_batches_counted_when_client_gone),
     cmocka_unit_test(test_sigterm_drains),
+    cmocka_unit_test(test_drain_refusals_counted),
     cmocka_unit_test(test_warm_and_pipeline_depth),
     cmocka_unit_test(test_sigterm_no_drain_time),
     cmocka_unit_test(test_error_result_echoes_dtype),

@@ -1,0 +1,132 @@
+#!/usr/bin/env python3
+"""What hairfilterd says when it cannot start, as journald sees it: every
+reason is a log line with its level (a "<N>" priority prefix when stderr is
+the journal, so `journalctl -p warning` shows it), and the checks that need
+no weights are made before any is loaded.
+
+  * a config file line with an unknown key: exit 2, priority 3, file:line;
+  * a key of one value given twice in the file: a warning naming both
+    lines, the later one winning;
+  * tcp: on a non-loopback address without a token: exit 2 at once, before
+    the backend starts or a weights file is read;
+  * nothing to listen on: the message names the tls: form too;
+  * a TLS key the daemon's user cannot read: exit 1 before the weights
+    load, naming the file, the uid and the fix (install -o ... -m 0600).
+
+usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
+"""
+import os
+import shutil
+import subprocess
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from opsdaemon import check, cleanup, finish, workdir  # noqa: E402
+
+HAIRFILTERD, MAKE_TEST_CERTS, WEIGHTS = sys.argv[1:4]
+
+
+def run(args, w, env=None, journal=True, user=None):
+    """Runs hairfilterd until it exits: (status, its stderr). With journal,
+    $JOURNAL_STREAM names the file stderr goes to, as systemd sets it for
+    a stream to journald."""
+    log = os.path.join(w, "stderr.log")
+    e = {k: v for k, v in os.environ.items() if k not in ("HAIRFILTERD_TOKEN", "JOURNAL_STREAM")}
+    e.update(env or {})
+    with open(log, "w") as f:
+        if journal:
+            st = os.fstat(f.fileno())
+            e["JOURNAL_STREAM"] = "%d:%d" % (st.st_dev, st.st_ino)
+        pre = None
+        if user is not None:
+            def pre():
+                os.setgroups([])
+                os.setgid(user)
+                os.setuid(user)
+        rc = subprocess.run([HAIRFILTERD] + args, stdout=f, stderr=subprocess.STDOUT, env=e,
+                            timeout=60, preexec_fn=pre).returncode
+    return rc, open(log).read()
+
+
+def main():
+    w = workdir()
+    try:
+        body(w)
+    finally:
+        cleanup(w)
+    finish()
+
+
+def body(w):
+    wd = os.path.join(w, "weights")
+    os.mkdir(wd)
+    shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), wd)
+    conf = os.path.join(w, "hairfilterd.conf")
+    base = ("listen = unix:%s/s.sock\n"
+            "weights-dir = %s\n"
+            "backend = auto\n" % (w, wd))
+
+    # An unknown key: the reason at priority 3, naming the file and line.
+    with open(conf, "w") as f:
+        f.write(base + "queue = 5\n")
+    rc, out = run(["--config", conf], w)
+    check(rc == 2, "unknown key: exit status %s, not 2" % rc)
+    check("<3>error: %s:4: unknown key 'queue'" % conf in out.splitlines()[0] if out else False,
+          "unknown key: the reason is a priority 3 line naming %s:4: %r" % (conf, out))
+    check(all(l.startswith("<") for l in out.splitlines()),
+          "every line has a priority prefix: %r" % out)
+
+    # A repeated key warns naming both lines; the TCP listener without a
+    # token is refused before the backend starts (no "starting" line, no
+    # backend named). Then a flag: no-auth = no on a later line undoes
+    # no-auth = yes (the later line wins), so the token is missing.
+    with open(conf, "w") as f:
+        f.write(base + "listen = tcp:0.0.0.0:0\nbackend = cpu-ref\n")
+    rc, out = run(["--config", conf], w)
+    check("<4>warning: %s:5: 'backend' was given already on line 3" % conf in out,
+          "repeated key: a warning naming both lines: %r" % out)
+    check(rc == 2 and "<3>error: --listen tcp:0.0.0.0:0: TCP needs a token" in out,
+          "tcp: without a token: exit status %s (want 2): %r" % (rc, out))
+    check("starting" not in out and "cpu-ref" not in out,
+          "tcp: without a token is refused before anything starts: %r" % out)
+    with open(conf, "w") as f:
+        f.write(base + "no-auth = yes\nno-auth = no\nlisten = tcp:127.0.0.1:0\n")
+    rc, out = run(["--config", conf], w)
+    check(rc == 2 and "'no-auth' was given already on line 4" in out and
+          "TCP needs a token" in out,
+          "no-auth = no on a later line wins over yes: status %s: %r" % (rc, out))
+
+    # Nothing to listen on: every URL form named.
+    rc, out = run(["--config", "none", "--weights-dir", wd], w)
+    check(rc == 2 and "unix:PATH, tcp:HOST:PORT or tls:HOST:PORT" in out,
+          "nothing to listen on: status %s: %r" % (rc, out))
+
+    # A TLS key the daemon's user cannot read: root reads every file, so
+    # the daemon runs as nobody then; otherwise the key loses its mode.
+    certs = os.path.join(w, "certs")
+    os.mkdir(certs)
+    subprocess.run([MAKE_TEST_CERTS, certs], check=True)
+    os.chmod(certs, 0o755)
+    os.chmod(os.path.join(certs, "server.pem"), 0o644)
+    key = os.path.join(certs, "server.key")
+    user = None
+    if os.geteuid() == 0:
+        user = 65534
+        os.chmod(key, 0o600)
+    else:
+        os.chmod(key, 0)
+    rc, out = run(["--config", "none", "--listen", "tls:127.0.0.1:0", "--tls-cert",
+                   os.path.join(certs, "server.pem"), "--tls-key", key, "--weights-dir", wd,
+                   "--backend", "cpu-ref"], w, env={"HAIRFILTERD_TOKEN": "t0ken"}, user=user)
+    uid = user if user is not None else os.geteuid()
+    lines = [l for l in out.splitlines() if "--tls-key %s" % key in l]
+    check(rc == 1 and len(lines) == 1 and lines[0].startswith("<3>error: "),
+          "unreadable key: status %s (want 1), one error line: %r" % (rc, out))
+    check(lines and "runs as uid %d" % uid in lines[0] and "-m 0600" in lines[0] and
+          "install -o" in lines[0] and "error:8000000D" not in lines[0],
+          "unreadable key: the uid and the fix named: %r" % lines)
+    check("cpu-ref" not in out, "unreadable key: refused before the backend starts: %r" % out)
+
+
+if __name__ == "__main__":
+    main()
