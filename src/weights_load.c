@@ -40,10 +40,11 @@ static int json_int(const cJSON *obj, const char *key, int lo, int hi, int *out)
 
 /* Parses the "hairfilter" metadata string into w->cfg and w->features. */
 static int parse_metadata(const char *text, hf_weights *w, char *err, size_t errlen) {
-  cJSON *m = cJSON_Parse(text);
+  cJSON *m = cJSON_ParseWithOpts(text, NULL, 1);
   if (!m || !cJSON_IsObject(m)) {
     cJSON_Delete(m);
-    return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not a JSON object");
+    return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not one JSON object (nothing "
+                "may follow it)");
   }
   int rc = HF_OK;
   const char *where = "", *dup = hf_json_duplicate(m, &where);
@@ -75,14 +76,25 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
     }
     c->arch = a;
   }
-  if (json_int(m, "spp", 1, HF_MAX_SPP, &c->spp) ||
-      json_int(m, "in_channels", 1, HF_MAX_SPP * HF_FEATURES_PER_SAMPLE + HF_ESTIMATE_CHANNELS,
-               &c->in_channels) ||
-      json_int(m, "out_channels", 1, HF_MAX_RAW_CHANNELS, &c->out_channels)) {
-    rc = fail(err, errlen, HF_EFORMAT,
-              "metadata: 'spp', 'in_channels' or 'out_channels' missing or out of range");
-    goto out;
-  }
+  const struct {
+    const char *key;
+    int hi;
+    int *to;
+    const char *why;
+  } sizes[] = {
+      {"spp", HF_MAX_SPP, &c->spp, ""},
+      {"in_channels", HF_MAX_SPP * HF_FEATURES_PER_SAMPLE + HF_ESTIMATE_CHANNELS, &c->in_channels,
+       ""},
+      {"out_channels", HF_MAX_RAW_CHANNELS, &c->out_channels,
+       " (a kernel variant's taps and 3, so a kernel_radius of at most 4)"},
+  };
+  _Static_assert(HF_KERNEL_MAX_RADIUS == 4, "the out_channels message names the radius");
+  for (size_t i = 0; i < sizeof sizes / sizeof sizes[0]; i++)
+    if (json_int(m, sizes[i].key, 1, sizes[i].hi, sizes[i].to)) {
+      rc = fail(err, errlen, HF_EFORMAT, "metadata: '%s' missing or not an integer in 1..%d%s",
+                sizes[i].key, sizes[i].hi, sizes[i].why);
+      goto out;
+    }
   /* Optional: files without it read the samples alone. */
   const cJSON *estimate = cJSON_GetObjectItemCaseSensitive(m, "estimate");
   if (estimate) {
@@ -287,11 +299,14 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   if (!text) return fail(err, errlen, HF_ENOMEM, "out of memory");
   memcpy(text, p + 8, hlen);
   text[hlen] = 0;
-  cJSON *root = cJSON_Parse(text);
+  /* One JSON value and nothing after it (bytes after the closing brace are
+   * not JSON: safetensors' own reader refuses them). */
+  cJSON *root = cJSON_ParseWithOpts(text, NULL, 1);
   free(text);
   if (!root || !cJSON_IsObject(root)) {
     cJSON_Delete(root);
-    return fail(err, errlen, HF_EFORMAT, "header is not valid JSON");
+    return fail(err, errlen, HF_EFORMAT, "header is not valid JSON (one object, nothing after "
+                "it; the padding spaces safetensors allows excepted)");
   }
   const unsigned char *data = p + 8 + hlen;
   size_t data_len = len - 8 - (size_t)hlen;
@@ -337,23 +352,22 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
       fail(err, errlen, rc, "metadata: %s", why);
     if (rc) goto out;
   }
-  hf_weights *w;
-  rc = hf_weights_alloc(&tmp.cfg, &w);
-  if (rc) {
-    fail(err, errlen, rc, "cannot allocate weights: %s", hf_strerror(rc));
+  /* Every tensor is checked against the file before the network is
+   * allocated: metadata that claims huge levels must not cost their memory
+   * when the file holds a fraction of it. */
+  if ((rc = hf_net_config_validate(&tmp.cfg)) != HF_OK) {
+    fail(err, errlen, rc, "metadata 'hairfilter': the configuration is invalid: %s",
+         hf_strerror(rc));
     goto out;
   }
-  memcpy(w->features, tmp.features, sizeof w->features);
-  w->input_range = tmp.input_range;
   hf_tensor_spec specs[HF_TENSORS_MAX];
-  int n = hf_weights_specs(w, specs);
+  int n = hf_weights_specs(&tmp, specs);
   /* Unknown tensors mean the file describes another network. */
   int entries = 0;
   for (const cJSON *it = root->child; it; it = it->next)
     if (strcmp(it->string, "__metadata__")) entries++;
   if (entries != n) {
     rc = fail(err, errlen, HF_EFORMAT, "file has %d tensors, configuration needs %d", entries, n);
-    hf_weights_free(w);
     goto out;
   }
   size_t begin[HF_TENSORS_MAX], end[HF_TENSORS_MAX];
@@ -362,15 +376,19 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
     f16[k] = 0;
     const cJSON *t = cJSON_GetObjectItemCaseSensitive(root, specs[k].name);
     rc = check_tensor(t, &specs[k], data_len, &f16[k], &begin[k], &end[k], err, errlen);
-    if (rc) {
-      hf_weights_free(w);
-      goto out;
-    }
+    if (rc) goto out;
   }
-  if ((rc = check_tiling(specs, begin, end, n, data_len, err, errlen)) != HF_OK) {
-    hf_weights_free(w);
+  if ((rc = check_tiling(specs, begin, end, n, data_len, err, errlen)) != HF_OK) goto out;
+  hf_weights *w;
+  rc = hf_weights_alloc(&tmp.cfg, &w);
+  if (rc) {
+    fail(err, errlen, rc, "cannot allocate weights: %s", hf_strerror(rc));
     goto out;
   }
+  memcpy(w->features, tmp.features, sizeof w->features);
+  w->input_range = tmp.input_range;
+  /* The same specs in the same order, their slots now w's arrays. */
+  hf_weights_specs(w, specs);
   for (int k = 0; k < n; k++) convert(data + begin[k], f16[k], specs[k].numel, *specs[k].slot);
   *out = w;
 out:

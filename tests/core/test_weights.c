@@ -7,6 +7,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
 #include <unistd.h>
 #include <cmocka.h>
 
@@ -184,12 +186,83 @@ static void test_bad_json(void **state) {
     char to[64];
     snprintf(to, sizeof to, "\\\"spp\\\":%s", huge[i]);
     blob h = with_header_edit(&b, "\\\"spp\\\":4", to);
-    expect_reject(&h, HF_EFORMAT, "'spp', 'in_channels' or 'out_channels' missing or out of range");
+    expect_reject(&h, HF_EFORMAT, "'spp' missing or not an integer in 1..16");
     free(h.data);
   }
   blob a = with_header_edit(&b, "\\\"arch\\\":\\\"unet\\\"", "\\\"arch\\\":\\\"gan\\\"");
   expect_reject(&a, HF_EUNSUPPORTED, "arch");
   free(a.data);
+  free(b.data);
+}
+
+/* One JSON value and nothing after it, in the header and in the metadata
+ * strings: bytes after the closing brace were ignored (cJSON_Parse stops
+ * there), while safetensors' own reader refuses them. */
+static void test_trailing_json(void **state) {
+  blob b = valid_file(NULL);
+  uint64_t hl = hlen_of(&b);
+  blob o = {malloc(b.len + 3), b.len + 3};
+  for (int i = 0; i < 8; i++) o.data[i] = (unsigned char)((hl + 3) >> (8 * i));
+  memcpy(o.data + 8, b.data + 8, hl);
+  memcpy(o.data + 8 + hl, "xyz", 3);
+  memcpy(o.data + 8 + hl + 3, b.data + 8 + hl, b.len - 8 - hl);
+  expect_reject(&o, HF_EFORMAT, "header is not valid JSON");
+  free(o.data);
+  blob m = with_header_edit(&b, "\\\"tangent.y\\\"]}", "\\\"tangent.y\\\"]}garbage");
+  expect_reject(&m, HF_EFORMAT, "metadata 'hairfilter' is not one JSON object");
+  free(m.data);
+  blob r = with_header_edit(&b, "\"__metadata__\":{",
+                            "\"__metadata__\":{\"input_range\":\"{\\\"definition\\\":1,"
+                            "\\\"spp\\\":4}{}\",");
+  expect_reject(&r, HF_EFORMAT, "input_range is not a JSON object");
+  free(r.data);
+  /* safetensors pads its header with spaces: still one value. */
+  blob p = {malloc(b.len + 4), b.len + 4};
+  for (int i = 0; i < 8; i++) p.data[i] = (unsigned char)((hl + 4) >> (8 * i));
+  memcpy(p.data + 8, b.data + 8, hl);
+  memcpy(p.data + 8 + hl, "    ", 4);
+  memcpy(p.data + 8 + hl + 4, b.data + 8 + hl, b.len - 8 - hl);
+  hf_weights *w = NULL;
+  char err[512] = "";
+  assert_int_equal(hf_weights_load_mem(p.data, p.len, &w, err, sizeof err), HF_OK);
+  hf_weights_free(w);
+  free(p.data);
+  free(b.data);
+}
+
+/* Metadata claiming a network far larger than the file (8 levels of 4096
+ * channels: about 2.4 GB of parameters in a 300 KB file) is refused by the
+ * tensor checks before the network is allocated: under a 1 GB address
+ * space limit the refusal is the tensor count's, not an allocation
+ * failure's. (Not under AddressSanitizer, which reserves far more address
+ * space itself.) */
+static void test_checked_before_allocation(void **state) {
+  blob b = valid_file(NULL);
+  blob h = with_header_edit(&b, "\\\"levels\\\":[16,32,64]",
+                            "\\\"levels\\\":[4096,4096,4096,4096,4096,4096,4096,4096]");
+  expect_reject(&h, HF_EFORMAT, "configuration needs");
+#if defined(__SANITIZE_ADDRESS__)
+  fprintf(stderr, "test_checked_before_allocation: the address space limit is skipped under "
+                  "AddressSanitizer\n");
+#else
+  pid_t pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    struct rlimit lim = {(rlim_t)1 << 30, (rlim_t)1 << 30};
+    if (setrlimit(RLIMIT_AS, &lim) != 0) _exit(3);
+    hf_weights *w = NULL;
+    char err[512] = "";
+    int rc = hf_weights_load_mem(h.data, h.len, &w, err, sizeof err);
+    if (rc == HF_EFORMAT && strstr(err, "configuration needs")) _exit(0);
+    fprintf(stderr, "under 1 GB: %d %s\n", rc, err);
+    _exit(1);
+  }
+  int status = 0;
+  assert_int_equal(waitpid(pid, &status, 0), pid);
+  assert_true(WIFEXITED(status));
+  assert_int_equal(WEXITSTATUS(status), 0);
+#endif
+  free(h.data);
   free(b.data);
 }
 
@@ -409,6 +482,7 @@ int main(void) {
     cmocka_unit_test(test_huge_header_length),  cmocka_unit_test(test_offsets_past_end),
     cmocka_unit_test(test_wrong_shapes),        cmocka_unit_test(test_bad_json),
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
+    cmocka_unit_test(test_trailing_json),       cmocka_unit_test(test_checked_before_allocation),
     cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_tiling_and_header_start), cmocka_unit_test(test_duplicate_keys),
     cmocka_unit_test(test_metadata_types),       cmocka_unit_test(test_kernel_arch),
   };
