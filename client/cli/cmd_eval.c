@@ -825,6 +825,8 @@ int cmd_eval(int argc, char **argv) {
    * it reads fewer samples than the input row (Base@1spp, Base@2spp). */
   eval_frame_score frame_fs[MAX_METHODS], own_fs[MAX_METHODS];
   int frame_has[MAX_METHODS];
+  int frames_by[MAX_METHODS] = {0};         /* frames each method scored */
+  int ispp_min = 0, ispp_max = 0;           /* samples the input rows read, over the frames */
   cJSON *row_item[MAX_METHODS];
   int st16 = -1;
   cJSON *rows = cJSON_CreateArray(), *row = NULL;   /* per-frame JSON rows */
@@ -1020,7 +1022,7 @@ int cmd_eval(int argc, char **argv) {
         const hf_net_config *cfg = hf_model_config(models[m->model]);
         if (spp < cfg->spp) {
           fprintf(stderr, "hairfilter eval: %s has %d spp, %s needs %d: skipped for it\n",
-                  fr->path, spp, cfg->name, cfg->spp);
+                  fr->path, spp, m->label, cfg->spp);
           continue;
         }
         if (cfg->spp != ispp) {
@@ -1038,7 +1040,7 @@ int cmd_eval(int argc, char **argv) {
                                   in + npx * cfg->spp * HF_FEATURES_PER_SAMPLE) != HF_OK) {
           fprintf(stderr, "hairfilter eval: %s has no %s.* channels, %s reads the "
                   "alpha-corrected estimate: skipped for it (rendered with --no-alpha-corrected?)\n",
-                  fr->path, HF_ESTIMATE_PREFIX, cfg->name);
+                  fr->path, HF_ESTIMATE_PREFIX, m->label);
           continue;
         }
         int out_of_range = check_range(&ranges[m->model], m->label, fr->path, in, w, h,
@@ -1086,6 +1088,7 @@ int cmd_eval(int argc, char **argv) {
       }
       frame_fs[mi] = fs;
       frame_has[mi] = 1;
+      frames_by[mi]++;
       int in_grid = m->kind == M_INPUT || m->kind == M_MODEL || !strcmp(m->prefix, "st16");
       if (grow >= 0 && in_grid) grid_put(&g, grow, col++, rgb, w, h);
       if (temporal) {
@@ -1128,6 +1131,8 @@ int cmd_eval(int argc, char **argv) {
     }
     eval_strata_frame_done(strata, &rg);
     hair_px += nhair;
+    if (!ispp_min || ispp < ispp_min) ispp_min = ispp;
+    if (ispp > ispp_max) ispp_max = ispp;
     if (fr->gt_shared > 0 && on_sample_grid++ < 5) {
       /* The first few named in the warning; base names keep it short. */
       const char *b = strrchr(fr->path, '/');
@@ -1145,6 +1150,19 @@ int cmd_eval(int argc, char **argv) {
             styles ? styles : "");
     rc = HF_ENOTFOUND;
     goto out;
+  }
+  /* The input rows read what the frames hold: fewer samples than
+   * --input-spp on frames rendered with fewer. */
+  if (ispp_min != input_spp || ispp_max != input_spp) {
+    char what[48];
+    if (ispp_min == ispp_max)
+      snprintf(what, sizeof what, "mean of %d samples", ispp_min);
+    else
+      snprintf(what, sizeof what, "mean of %d to %d samples", ispp_min, ispp_max);
+    snprintf(ms[0].label, sizeof ms[0].label, "input (%s)", what);
+    fprintf(stderr, "hairfilter eval: warning: frames hold fewer samples than --input-spp %d: "
+            "the input rows are the %s (render with --spp ...,%d, or give --input-spp %d)\n",
+            input_spp, what, input_spp, ispp_min);
   }
   print_table(ms, nm, strata, scored, hair_px, &lk, styles);
   {
@@ -1179,7 +1197,7 @@ int cmd_eval(int argc, char **argv) {
   if (temporal) print_temporal(ms, nm, &truth);
   if (json_path &&
       (rc = write_json(json_path, ms, nm, strata, rows, ranges, flagged, scored, hair_px, &lk,
-                       styles, input_spp, &frames)) != 0)
+                       styles, ispp_min, &frames)) != 0)
     goto out;
   if (temporal_png) {
     if (!tg.filled) {
@@ -1205,6 +1223,14 @@ int cmd_eval(int argc, char **argv) {
       if (ms[mi].kind == M_MODEL) fprintf(stderr, " %s,", ms[mi].label);
     fprintf(stderr, " ST 16 spp, ground truth\n");
   }
+  /* A network asked for that scored nothing: its row is empty, which a
+   * script reading only the exit status would miss. */
+  for (int mi = 0; mi < nm; mi++)
+    if (ms[mi].kind == M_MODEL && !frames_by[mi]) {
+      fprintf(stderr, "hairfilter eval: %s scored none of the %d frames (the lines above say "
+              "why each was skipped)\n", ms[mi].label, scored);
+      rc = HF_ENOTFOUND;
+    }
 out:
   for (int i = 0; i < nmodels; i++) hf_model_destroy(models[i]);
   hf_backend_destroy(backend);

@@ -215,5 +215,13 @@ int main(int argc, char **argv) {
     rc = hf_input_range_parse(narrow, 4, &w->input_range, NULL, 0) || hf_weights_save(path, w);
   }
   hf_weights_free(w);
+  /* A variant of 8 spp, more samples than the frames hold: a network eval
+   * scores on no frame. */
+  w = NULL;
+  cfg.spp = 8;
+  cfg.in_channels = 8 * HF_FEATURES_PER_SAMPLE;
+  snprintf(path, sizeof path, "%s/small_8spp.safetensors", argv[1]);
+  if (!rc) rc = hf_weights_init_random(&cfg, 7, &w) || hf_weights_save(path, w);
+  hf_weights_free(w);
   return rc || write_strata(argv[1]) ? 1 : 0;
 }
