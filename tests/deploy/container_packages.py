@@ -7,7 +7,8 @@ their dependencies, or what debian:12-slim holds for apt), and the package
 that holds the link-time name (libX.so, the -dev package) of each one a
 binary links directly in the build stage. There is no docker here: the check reads this machine's dpkg
 database, whose packages are Debian 12's, as the images' are. CUDA's and
-cuDNN's libraries come from the GPU images (CUDNN=ON) and are left out.
+cuDNN's libraries come from the GPU images (CUDNN=ON), and a sanitizer
+tree's runtimes are not the image's: both are left out.
 
 usage: container_packages.py DOCKERFILE BINARY...   (exit 77: cannot check)
 """
@@ -73,7 +74,9 @@ def main():
         out = subprocess.run(["ldd", binary], capture_output=True, text=True, check=True).stdout
         for m in re.finditer(r"^\s*(\S+) => (\S+)", out, re.M):
             name, path = m.groups()
-            if re.match(r"lib(cud|cublas|nv)", name):
+            # CUDA's (the GPU images'), and the sanitizers' runtimes of a
+            # sanitizer tree (the image is built without them).
+            if re.match(r"lib(cud|cublas|nv|asan|ubsan|lsan|tsan)", name):
                 continue
             checked += 1
             pkg = owner(os.path.realpath(path)) or owner(path)
