@@ -4,7 +4,8 @@
     eval_table.py OUT.json [--methods SUBSTR,SUBSTR,...] [--below]
 
 A row per method (all of them, or those whose label holds one of the
---methods substrings, in that order), `PSNR / SSIM` overall and in every
+--methods substrings, in that order; a substring no label holds is an
+error that lists the labels), `PSNR / SSIM` overall and in every
 bucket of the three frame groupings (strand width, coverage, resolution),
 each column headed by its bucket and frame count (buckets without frames
 left out): the table the weights' cards and docs/QUALITY.md quote.
@@ -28,12 +29,18 @@ def cell(v):
 
 
 def pick(methods, wanted):
+    """The methods whose label holds one of the substrings wanted, in their
+    order (all of them when none is wanted), and the substrings no label
+    holds."""
     if not wanted:
-        return list(methods)
-    out = []
+        return list(methods), []
+    out, missing = [], []
     for w in wanted:
-        out += [m for m in methods if w in m["method"] and m not in out]
-    return out
+        found = [m for m in methods if w in m["method"]]
+        if not found:
+            missing.append(w)
+        out += [m for m in found if m not in out]
+    return out, missing
 
 
 def main(argv=None):
@@ -55,9 +62,16 @@ def main(argv=None):
     for key in FRAME_GROUPINGS:
         heads += [f"{groups[key]['buckets'][i]['bucket']} ({groups[key]['buckets'][i]['frames']})"
                   for i in keep[key]]
+    wanted = [s for s in args.methods.split(",") if s]
+    rows, missing = pick(doc["methods"], wanted)
+    if missing:
+        # A table without the rows asked for would pass for a complete one.
+        sys.exit(f"eval_table.py: --methods: no method of {args.json} has "
+                 f"{', '.join(repr(w) for w in missing)} in its label"
+                 f"{' (the others matched)' if len(missing) < len(wanted) else ''}"
+                 f"; its labels: {'; '.join(m['method'] for m in doc['methods'])}")
     print("| method | " + " | ".join(heads) + " |")
     print("|---|" + "---:|" * len(heads))
-    rows = pick(doc["methods"], [s for s in args.methods.split(",") if s])
     for m in rows:
         cells = [cell(m["overall"])]
         for key in FRAME_GROUPINGS:

@@ -1121,6 +1121,47 @@ class Recipe(unittest.TestCase):
                                        zip(read_log(b), read_log(a))])
 
 
+class EvalTable(unittest.TestCase):
+    """weights/eval_table.py on a small eval document."""
+
+    def setUp(self):
+        bucket = dict(frames=1, psnr=30.0, ssim=0.9)
+        method = lambda label, kind: dict(  # noqa: E731
+            method=label, kind=kind, overall=bucket,
+            **{k: [bucket] for k in ("strand_width_frames", "coverage_frames",
+                                      "resolution_frames")})
+        doc = dict(format="hairfilter-eval", frames=1,
+                   groupings=[dict(key=k, buckets=[dict(bucket="b", frames=1)])
+                              for k in ("strand_width_frames", "coverage_frames",
+                                        "resolution_frames")],
+                   methods=[method("stochastic transparency 4 spp", "baseline"),
+                            method("ours Small (small.safetensors)", "network")])
+        self.doc = os.path.join(ARGS.work, "eval_table.json")
+        os.makedirs(ARGS.work, exist_ok=True)
+        with open(self.doc, "w") as f:
+            json.dump(doc, f)
+
+    def table(self, methods):
+        return subprocess.run([sys.executable, os.path.join(WEIGHTS, "eval_table.py"), self.doc,
+                               "--methods", methods], capture_output=True, text=True)
+
+    def test_methods_that_match_no_label_are_refused_naming_the_labels(self):
+        r = self.table("4 spp,Small")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(r.stdout.count("\n| "), 2, r.stdout)
+        for wanted, partial in (("Base", False), ("Small,Base,st 8", True)):
+            r = self.table(wanted)
+            self.assertNotEqual(r.returncode, 0, wanted)
+            self.assertEqual(r.stdout, "", "a table without the rows asked for")
+            self.assertIn("no method of", r.stderr)
+            self.assertIn("'Base'", r.stderr)
+            self.assertEqual("'st 8'" in r.stderr, partial)
+            self.assertNotIn("'Small'", r.stderr)
+            self.assertEqual("(the others matched)" in r.stderr, partial)
+            self.assertIn("its labels: stochastic transparency 4 spp; "
+                          "ours Small (small.safetensors)", r.stderr)
+
+
 def main():
     global ARGS
     ap = argparse.ArgumentParser()
