@@ -532,7 +532,7 @@ def benchmark(args):
     return 0
 
 
-def parse_args(argv):
+def make_parser():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", help="dataset directory (manifest.json + EXRs); several "
@@ -612,7 +612,13 @@ def parse_args(argv):
     ap.add_argument("--init", metavar="WEIGHTS",
                     help="start from these weights (safetensors of the same variant) "
                     "instead of a random initialisation: fine-tuning")
-    ap.add_argument("--resume", action="store_true", help="continue RUN/checkpoint.pt")
+    ap.add_argument("--resume", action="store_true",
+                    help="continue RUN/checkpoint.pt with the run's options (the data, variant, "
+                    "loss, crop, batch, lr, seed, ...: those left out come from the checkpoint); "
+                    "only --steps, --stop-at, --time-limit, --threads, --device, --val-every, "
+                    "--ckpt-every, --reload-every, --export and --export-dtype may change, and "
+                    "another value of any other option is refused. Without --resume, an --out "
+                    "that holds a checkpoint is refused")
     ap.add_argument("--stop-at", type=int, default=0,
                     help="checkpoint and stop at this step (the run stays resumable)")
     ap.add_argument("--time-limit", type=float, default=0,
@@ -661,6 +667,20 @@ def parse_args(argv):
                     "the last step's weights; 0: off")
     ap.add_argument("--export", help="write the weights here (safetensors)")
     ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
+    return ap
+
+
+def given_options(argv):
+    """{dest: action} of the options argv names (a default is not given)."""
+    ap = make_parser()
+    actions = {a.dest: a for a in ap._actions}
+    for a in ap._actions:
+        a.default = argparse.SUPPRESS
+    return {k: actions[k] for k in vars(ap.parse_args(argv))}
+
+
+def parse_args(argv):
+    ap = make_parser()
     args = ap.parse_args(argv)
     # The options that act on the composited images, which only the look loss makes.
     for flag, does in (("--ssim-weight", "scores"), ("--lattice-weight", "scores"),
@@ -706,6 +726,68 @@ def make_config(args):
     return cfg
 
 
+# The options that make a run what it is: a resumed run takes them from its
+# checkpoint, and refuses a command line that gives one another value.
+RUN_OPTIONS = ("data", "variant", "styles", "val_fraction", "seed", "init", "levels",
+               "kernel_radius", "kernel_hidden", "batch", "crop", "lr", "schedule", "lr_floor",
+               "loss", "grad_weight", "ssim_weight", "lattice_weight", "below_input_weight",
+               "lowpass_weight", "lowpass_size", "target", "clip_grad_norm", "dim_light",
+               "dim_share", "display_straight_through", "look_srgb", "look_l1", "weight_ema",
+               "deconv", "bf16", "straight_through", "equal_phase_sums")
+# What a resumed run may change: how long it runs and where, how often it
+# validates and checkpoints, what it exports (docs/TRAINING.md).
+RESUME_MAY_CHANGE = ("--steps", "--stop-at", "--time-limit", "--threads", "--device",
+                     "--val-every", "--ckpt-every", "--reload-every", "--export",
+                     "--export-dtype")
+
+
+def same_option(key, a, b):
+    """Whether option key's values a and b make the same run: paths as the
+    files they name (from this directory), styles as sets, variant names
+    in any case."""
+    if a is None or b is None:
+        return a == b
+    if key in ("data", "init"):
+        return ([os.path.realpath(p) for p in str(a).split(",") if p]
+                == [os.path.realpath(p) for p in str(b).split(",") if p])
+    if key == "styles":
+        return set(dataset.parse_styles(a)) == set(dataset.parse_styles(b))
+    if key == "variant":
+        return str(a).lower() == str(b).lower()
+    if key == "levels":
+        return str(a).replace(" ", "") == str(b).replace(" ", "")
+    return a == b
+
+
+def option_text(action, v):
+    """v as a command line gives it: a flag on or off, '' for an empty string."""
+    if action.nargs == 0 and isinstance(action.const, bool):
+        return "on" if v == action.const else "off"
+    if v is None:
+        return "none"
+    return str(v) if str(v) else "''"
+
+
+def resume_options(args, saved, given, ckpt_path):
+    """Sets args' RUN_OPTIONS to the run's (saved: the checkpoint's args);
+    exits naming every one that given (the options the command line names,
+    given_options) sets to another value."""
+    diffs = []
+    for k in RUN_OPTIONS:
+        if k not in saved:   # a checkpoint older than the option: its default
+            continue
+        if k in given and not same_option(k, saved[k], getattr(args, k)):
+            a = given[k]
+            diffs.append(f"{a.option_strings[0]} is {option_text(a, saved[k])} there, "
+                         f"{option_text(a, getattr(args, k))} here")
+        setattr(args, k, saved[k])
+    if diffs:
+        sys.exit(f"train.py: --resume: {ckpt_path} is a run with other options: "
+                 f"{'; '.join(diffs)}; a resumed run may change only "
+                 f"{', '.join(RESUME_MAY_CHANGE)}: leave the others out (the run's are used) "
+                 f"or --out another directory for a new run")
+
+
 def main(argv=None):
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -715,22 +797,25 @@ def main(argv=None):
     ckpt_path = os.path.join(args.out, CKPT)
     log_path = os.path.join(args.out, "log.jsonl")
 
+    if not args.resume and os.path.exists(ckpt_path):
+        # A second run would overwrite the first's checkpoint and append to its log.
+        sys.exit(f"train.py: --out {args.out} holds a run ({ckpt_path}): add --resume to take "
+                 f"it up, or give another --out (or remove {args.out}) for a new run")
     ckpt = None
     if args.resume:
         if not os.path.exists(ckpt_path):
             sys.exit(f"train.py: --resume: no {ckpt_path}")
         ckpt = torch.load(ckpt_path, map_location="cpu")
-        saved = ckpt["args"]
-        # The run's identity comes from the checkpoint; only the length,
-        # cadence, threads and export may change on resume.
-        for k in ("data", "variant", "batch", "crop", "lr", "grad_weight", "styles", "loss",
-                  "ssim_weight", "lattice_weight", "below_input_weight", "target", "clip_grad_norm",
-                  "lowpass_weight", "lowpass_size",
-                  "dim_light", "dim_share", "display_straight_through", "look_srgb", "look_l1", "kernel_radius", "kernel_hidden", "levels",
-                  "schedule", "lr_floor", "weight_ema",
-                  "val_fraction", "seed", "deconv", "bf16", "straight_through", "init",
-                  "equal_phase_sums"):
-            setattr(args, k, saved.get(k, getattr(args, k)))
+        resume_options(args, ckpt["args"], given_options(argv), ckpt_path)
+        # The log as the checkpoint left it: records written after it (a run
+        # killed between a validation and the next checkpoint) are made again.
+        with open(log_path + ".tmp", "w") as f:
+            f.writelines(json.dumps(rec) + "\n" for rec in ckpt["history"])
+        os.replace(log_path + ".tmp", log_path)
+    elif os.path.exists(log_path):
+        print(f"train.py: {log_path} of a run that saved no checkpoint: started anew",
+              file=sys.stderr)
+        os.remove(log_path)
     cfg = make_config(args)
     # The period of a U-Net's lattice: its upsamplings' total stride.
     lattice = (args.lattice_weight, 2 ** len(cfg["levels"]))

@@ -1099,6 +1099,62 @@ class Recipe(unittest.TestCase):
             self.assertEqual(r.returncode, 2)
             self.assertIn("--weight-ema must be a decay in [0, 1)", r.stderr)
 
+    def test_resume_refuses_other_options_and_a_new_run_refuses_the_out(self):
+        """--resume takes the run's options from its checkpoint: a command
+        line that gives one of them another value is refused naming each
+        (the run's value, this one's) and what may change, and the
+        checkpoint is left; the same values (a path spelt otherwise) and a
+        larger --steps, other threads and cadence are taken. A new run into
+        an --out that holds a checkpoint is refused, its log left. Records
+        logged after the checkpoint are not repeated by the resumed run."""
+        run = os.path.join(self.work, "resume_opts")
+        common = ["--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
+                  "--val-every", "1", "--ckpt-every", "1", "--seed", "9", "--loss", "look",
+                  "--lr", "1e-3"]
+        run_train(*common, "--steps", "3", "--stop-at", "1", "--out", run)
+        ckpt = os.path.join(run, "checkpoint.pt")
+        with open(ckpt, "rb") as f:
+            before = f.read()
+        log_before = read_log(run)
+        self.assertEqual([r["step"] for r in log_before], [1])
+        cmd = [sys.executable, os.path.join(WEIGHTS, "train.py"), "--threads", "1",
+               "--device", "cpu", "--out", run]
+        other = os.path.join(self.work, "other_data")
+        p = subprocess.run(cmd + ["--resume", "--data", other, "--variant", "Kernel", "--loss",
+                                  "paper", "--lr", "5e-3", "--crop", "48", "--steps", "3"],
+                           capture_output=True, text=True)
+        self.assertEqual(p.returncode, 1, p.stderr)
+        for want in (f"--data is {self.data} there, {other} here",
+                     "--variant is Small there, Kernel here", "--loss is look there, paper here",
+                     "--lr is 0.001 there, 0.005 here", "--crop is 32 there, 48 here",
+                     f"--resume: {ckpt} is a run with other options",
+                     "may change only --steps", "--out another directory"):
+            self.assertIn(want, p.stderr)
+        self.assertNotIn("--batch", p.stderr)
+        self.assertNotIn("Traceback", p.stderr)
+        p = subprocess.run(cmd + ["--resume", "--exact-clamps"], capture_output=True, text=True)
+        self.assertEqual(p.returncode, 1, p.stderr)
+        self.assertIn("--exact-clamps is off there, on here", p.stderr)
+        # A new run into the same --out.
+        p = subprocess.run(cmd + common + ["--steps", "3"], capture_output=True, text=True)
+        self.assertEqual(p.returncode, 1, p.stderr)
+        self.assertIn(f"--out {run} holds a run ({ckpt}): add --resume", p.stderr)
+        self.assertIn(f"another --out (or remove {run})", p.stderr)
+        with open(ckpt, "rb") as f:
+            self.assertEqual(f.read(), before, "a refused command changed the checkpoint")
+        self.assertEqual(read_log(run), log_before)
+        # A record logged after the checkpoint (a run killed between the two).
+        with open(os.path.join(run, "log.jsonl"), "a") as f:
+            f.write(json.dumps(dict(log_before[0], step=2)) + "\n")
+        # The same options, the data spelt with a trailing slash; a longer run.
+        r = run_train(*common, "--data", self.data + os.sep, "--variant", "small", "--out", run,
+                      "--resume", "--steps", "4", "--val-every", "2", "--ckpt-every", "3")
+        self.assertIn("resumed Small at step 1", r.stderr)
+        self.assertEqual([x["step"] for x in read_log(run)], [1, 2, 4])
+        with open(os.path.join(run, "summary.json")) as f:
+            summary = json.load(f)
+        self.assertEqual((summary["steps"], summary["lr"], summary["loss"]), (4, 1e-3, "look"))
+
     def test_resume_equals_uninterrupted(self):
         self.resume_equals_uninterrupted("paper")
 
