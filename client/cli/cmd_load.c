@@ -32,11 +32,13 @@
 #include <math.h>
 #include <poll.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdatomic.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/utsname.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -74,6 +76,9 @@ typedef struct shared {
   pthread_mutex_t mu;
   load_window *cur;              /* under mu */
   atomic_uint_fast64_t sent, answered, delayed;
+  /* Requests sent in the warm-up, and how they were answered: the server
+   * counts them too. */
+  atomic_uint_fast64_t warm_sent, warm_ok, warm_busy, warm_errors;
   atomic_int lost;
   atomic_int ready;              /* connections set up (connected, segment mapped) */
   double t_stop;                 /* when the point stopped sending */
@@ -96,10 +101,16 @@ static double now_s(void) {
   return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
 }
 
+/* Set by SIGINT or SIGTERM: the point in progress stops, and what was
+ * measured is reported. */
+static volatile sig_atomic_t interrupted;
+
+static void on_signal(int sig) { interrupted = sig; }
+
 static void sleep_s(double s) {
   if (s <= 0) return;
   struct timespec ts = {(time_t)s, (long)((s - floor(s)) * 1e9)};
-  while (nanosleep(&ts, &ts) && errno == EINTR) {
+  while (nanosleep(&ts, &ts) && errno == EINTR && !interrupted) {
   }
 }
 
@@ -119,9 +130,15 @@ static hfc_options client_options(const char *name, const opts *o) {
 
 /* ---- recording ------------------------------------------------------------- */
 
-static void record(shared *sh, const hfc_completion *d, double started) {
+static void record(shared *sh, const hfc_completion *d, double started, int warm) {
   /* Local failures (a closed connection, a timeout) are not answers. */
   if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->answered, 1);
+  if (warm) {
+    if (d->status == HFC_E_BUSY) atomic_fetch_add(&sh->warm_busy, 1);
+    else if (!d->status) atomic_fetch_add(&sh->warm_ok, 1);
+    else if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->warm_errors, 1);
+    return;
+  }
   if (atomic_load(&sh->phase) != PHASE_MEASURE) return;
   double t = now_s();
   pthread_mutex_lock(&sh->mu);
@@ -164,6 +181,7 @@ typedef struct slot {
   int busy;
   double started;                /* when the request was due */
   double not_before;             /* closed loop, after a BUSY: not sent again before */
+  int warm;                      /* sent in the warm-up */
   void *out, *rgba;
 } slot;
 
@@ -178,6 +196,8 @@ static int submit(hfc_client *c, hfc_request *r, slot *s, double started, shared
   if (err) return err;
   s->busy = 1;
   (*pending)++;
+  s->warm = atomic_load(&sh->phase) == PHASE_WARMUP;
+  if (s->warm) atomic_fetch_add(&sh->warm_sent, 1);
   atomic_fetch_add(&sh->sent, 1);
   return 0;
 }
@@ -334,7 +354,7 @@ static void *run(void *arg) {
     pending--;
     if (d.status == HFC_E_BUSY || d.status == HFC_E_SHUTTING_DOWN)
       s->not_before = now_s() + BUSY_BACKOFF_S;
-    record(sh, &d, s->started);
+    record(sh, &d, s->started, s->warm);
   }
   if (err) {
     /* What was pending is lost with the connection; the main thread counts
@@ -446,11 +466,21 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   atomic_store(&sh->sent, 0);
   atomic_store(&sh->answered, 0);
   atomic_store(&sh->delayed, 0);
+  atomic_store(&sh->warm_sent, 0);
+  atomic_store(&sh->warm_ok, 0);
+  atomic_store(&sh->warm_busy, 0);
+  atomic_store(&sh->warm_errors, 0);
   atomic_store(&sh->lost, 0);
   atomic_store(&sh->ready, 0);
   sh->open_loop = p->open_loop;
   sh->rate_per_conn = p->open_loop ? p->rate / n : 0;
   sh->cur = &win[STABLE_OVER];
+  /* SIGINT and SIGTERM go to this thread alone, which stops the point. */
+  sigset_t stop_sigs, old_sigs;
+  sigemptyset(&stop_sigs);
+  sigaddset(&stop_sigs, SIGINT);
+  sigaddset(&stop_sigs, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_sigs, &old_sigs);
   for (int i = 0; i < n; i++) {
     ws[i].sh = sh;
     ws[i].index = i;
@@ -460,6 +490,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
     ws[i].seed = 0x9e3779b97f4a7c15ull * (uint64_t)(i + 1) + (uint64_t)(p->rate * 1000);
     if (pthread_create(&ws[i].thread, NULL, run, &ws[i])) {
       fprintf(stderr, "hairfilter load: cannot start a thread\n");
+      pthread_sigmask(SIG_SETMASK, &old_sigs, NULL);
       atomic_store(&sh->phase, PHASE_STOP);
       for (int j = 0; j < i; j++) pthread_join(ws[j].thread, NULL);
       free(ws);
@@ -467,6 +498,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
       return -1;
     }
   }
+  pthread_sigmask(SIG_SETMASK, &old_sigs, NULL);
   /* The warm-up starts once every connection is set up: connecting and
    * mapping a large segment can take longer than a short window on a
    * loaded machine, which would then hold no frame. Each connection either
@@ -480,17 +512,25 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   sh->t_measure = now_s();
   atomic_store(&sh->phase, PHASE_MEASURE);
   pthread_mutex_unlock(&sh->mu);
-  uint64_t sent0 = atomic_load(&sh->sent);
   int trials = o->trials ? o->trials : o->max_trials;
-  for (int t = 1; t <= trials; t++) {
+  for (int t = 1; t <= trials && !interrupted; t++) {
     double t0 = now_s();
-    while (now_s() - t0 < o->window_s) {
+    while (now_s() - t0 < o->window_s && !interrupted) {
       double left = o->window_s - (now_s() - t0);
       sleep_s(left < 0.25 ? left : 0.25);
       pthread_mutex_lock(&sh->mu);
       progress(p, t, now_s() - t0, sh->cur, o);
       pthread_mutex_unlock(&sh->mu);
       if (atomic_load(&sh->lost) == n) break;
+    }
+    if (interrupted) {
+      /* The window cut short is dropped: its figures would not be a
+       * window's. */
+      if (isatty_err && !o->quiet) fprintf(stderr, "\r\033[K");
+      fprintf(stderr, "hairfilter load: interrupted; the unfinished window %d (%.2f of %.1f s) "
+                      "is dropped\n", t, now_s() - t0, o->window_s);
+      p->interrupted = 1;
+      break;
     }
     /* Close the window: it joins the ring of the last STABLE_OVER. */
     pthread_mutex_lock(&sh->mu);
@@ -539,12 +579,17 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
     p->result.seconds += src->seconds;
   }
   if (o->trials) p->stable = -1;   /* not asked */
+  if (interrupted) p->interrupted = 1;
   /* Stop sending; every request sent must still be answered. */
   sh->t_stop = now_s();
   atomic_store(&sh->phase, PHASE_STOP);
   if (have_before && stats_of(o, &after) == 0) stats_delta(&before, &after, &p->stats);
   for (int i = 0; i < n; i++) pthread_join(ws[i].thread, NULL);
-  p->sent = atomic_load(&sh->sent) - sent0;
+  p->warm_sent = atomic_load(&sh->warm_sent);
+  p->warm_ok = atomic_load(&sh->warm_ok);
+  p->warm_busy = atomic_load(&sh->warm_busy);
+  p->warm_errors = atomic_load(&sh->warm_errors);
+  p->sent = atomic_load(&sh->sent) - p->warm_sent;
   p->delayed = atomic_load(&sh->delayed);
   p->lost_connections = atomic_load(&sh->lost);
   uint64_t sent_all = atomic_load(&sh->sent), answered_all = atomic_load(&sh->answered);
@@ -593,14 +638,24 @@ static void usage(FILE *f) {
           "  --seconds DUR                   one window of DUR, no repetition (--trials 1)\n"
           "  --warmup DUR                    before each point (default 1s)\n"
           "output:\n"
-          "  --json FILE, --csv FILE         every point ('-' for stdout)\n"
+          "  --json FILE, --csv FILE         every point ('-': stdout, and the report goes to\n"
+          "                                  stderr); written under a temporary name, then\n"
+          "                                  renamed; an earlier FILE is removed at the start\n"
           "  --plot FILE.png                 latency against throughput over the sweep (gnuplot)\n"
           "  --verbose                       each window's figures; --quiet: no progress line\n"
           "Durations take a unit (us, ms, s, m, h); a plain number is seconds.\n"
           "In the report, 'frames' are the answers inside the measured windows; 'requests\n"
           "sent' and 'answered' count from the first STATS to the stop, frames in flight\n"
           "across a window's end included; the server's STATS line counts what it finished\n"
-          "between its two STATS, the second taken when sending stops.\n");
+          "between its two STATS, the second taken when sending stops; 'warm-up' counts\n"
+          "the requests sent before the first STATS, which the server counts too.\n"
+          "The report starts with the command line, the CPU, cores, UTC date and version.\n"
+          "SIGINT or SIGTERM stops the point in progress (a window cut short is dropped)\n"
+          "and reports and writes the points done.\n"
+          "Exit status: 0 every point measured; 1 the server could not be reached or\n"
+          "used, a point measured no frame, requests went unanswered, connections were\n"
+          "lost or a file could not be written; 2 bad options, or a frame or concurrency\n"
+          "over the server's limits; 130 interrupted (SIGINT or SIGTERM).\n");
 }
 
 static int parse(int argc, char **argv, opts *o) {
@@ -761,11 +816,58 @@ static void *make_frame(opts *o, int spp, int estimate, size_t *bytes) {
   return h;
 }
 
+/* The header's fields: the command line as a shell would take it back,
+ * the CPU model and cores, the UTC date and the tool's version. */
+static void describe_run(int argc, char **argv, load_run *r) {
+  static char cmd[4096], cpu[256], date[32];
+  size_t n = (size_t)snprintf(cmd, sizeof cmd, "hairfilter");
+  for (int i = 0; i < argc && n < sizeof cmd - 8; i++) {
+    const char *a = argv[i];
+    int plain = *a != 0;
+    for (const char *c = a; *c; c++)
+      if (!strchr("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_@%+=:,./-", *c))
+        plain = 0;
+    n += (size_t)snprintf(cmd + n, sizeof cmd - n, plain ? " " : " '");
+    for (const char *c = a; *c && n < sizeof cmd - 8; c++)
+      n += (size_t)snprintf(cmd + n, sizeof cmd - n, *c == '\'' ? "'\\''" : "%c", *c);
+    if (!plain && n < sizeof cmd - 1) n += (size_t)snprintf(cmd + n, sizeof cmd - n, "'");
+  }
+  cpu[0] = 0;
+  FILE *f = fopen("/proc/cpuinfo", "r");
+  char line[512];
+  while (f && !cpu[0] && fgets(line, sizeof line, f)) {
+    char *colon = strchr(line, ':');
+    if (!colon || strncmp(line, "model name", 10)) continue;
+    char *v = colon + 1 + strspn(colon + 1, " \t");
+    v[strcspn(v, "\n")] = 0;
+    snprintf(cpu, sizeof cpu, "%s", v);
+  }
+  if (f) fclose(f);
+  struct utsname u;
+  if (!cpu[0]) snprintf(cpu, sizeof cpu, "%s", uname(&u) == 0 ? u.machine : "unknown");
+  time_t t = time(NULL);
+  struct tm tm;
+  if (!gmtime_r(&t, &tm) || !strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", &tm))
+    snprintf(date, sizeof date, "unknown");
+  long cores = sysconf(_SC_NPROCESSORS_ONLN);
+  r->command = cmd;
+  r->cpu = cpu;
+  r->date = date;
+  r->version = HAIRFILTER_VERSION_STRING;
+  r->cores = cores > 0 ? (int)cores : 0;
+}
+
 int cmd_load(int argc, char **argv) {
   opts o = {.token = getenv("HAIRFILTER_TOKEN"), .width = 256, .height = 256, .window_s = 5,
             .warmup_s = 1, .stability = 10, .max_trials = 10, .drain_s = 60};
   int prc = parse(argc, argv, &o);
   if (prc) return prc > 0 ? 0 : 2;
+  if (o.json && o.csv && !strcmp(o.json, "-") && !strcmp(o.csv, "-")) {
+    fprintf(stderr, "hairfilter load: --json - and --csv - would share stdout; give one a file\n");
+    return 2;
+  }
+  /* With a file on stdout, the report goes to stderr. */
+  FILE *rep = (o.json && !strcmp(o.json, "-")) || (o.csv && !strcmp(o.csv, "-")) ? stderr : stdout;
   if (o.token && !*o.token) o.token = NULL;
   isatty_err = isatty(2);
   char why[300];
@@ -856,7 +958,30 @@ int cmd_load(int argc, char **argv) {
   }
   load_run run_info = {o.server, o.variant, o.input, backend, precision, o.width, o.height, spp,
                        o.f16, o.shm, o.composite, o.poisson ? "poisson" : "constant",
-                       o.window_s, o.warmup_s, o.stability, points, 0};
+                       o.window_s, o.warmup_s, o.stability, points, 0, NULL, NULL, NULL, NULL, 0, 0};
+  describe_run(argc, argv, &run_info);
+  /* Results of an earlier run are not left where this run's go: a run
+   * stopped before it writes leaves none (each is written under a
+   * temporary name, then renamed). */
+  const char *outs[] = {o.json, o.csv, o.plot};
+  for (int i = 0; i < 3; i++)
+    if (outs[i] && strcmp(outs[i], "-") && unlink(outs[i]) && errno != ENOENT) {
+      fprintf(stderr, "hairfilter load: cannot remove the earlier %s: %s\n", outs[i], strerror(errno));
+      free(points);
+      free(frame);
+      return 1;
+    }
+  /* SIGINT or SIGTERM stops the point in progress; the points done are
+   * reported and written. A second one kills. */
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_signal;
+  sa.sa_flags = SA_RESETHAND;
+  sigemptyset(&sa.sa_mask);
+  interrupted = 0;
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+  load_print_header(rep, &run_info);
   shared sh = {.o = &o, .spp = spp, .estimate = estimate, .features = frame, .in_bytes = in_bytes};
   size_t es = o.f16 ? 2 : 4;
   sh.out_bytes = (size_t)o.width * o.height * 3 * es;
@@ -864,7 +989,7 @@ int cmd_load(int argc, char **argv) {
   pthread_mutex_init(&sh.mu, NULL);
   sh.cur = NULL;
   int status = 0;
-  for (int i = 0; i < npoints; i++) {
+  for (int i = 0; i < npoints && !interrupted; i++) {
     load_point *p = &points[i];
     p->open_loop = open;
     if (open) {
@@ -887,20 +1012,34 @@ int cmd_load(int argc, char **argv) {
       fprintf(stderr, "hairfilter load: every connection failed; stopping the sweep\n");
       status = 1;
       run_info.npoints = i + 1;
-      load_print_point(stdout, &run_info, p);
+      load_print_point(rep, &run_info, p);
+      break;
+    }
+    if (p->interrupted && !p->trials) {
+      /* Stopped before a whole window: nothing to report of it. */
+      fprintf(stderr, "hairfilter load: interrupted before a window of this point was complete; "
+                      "the point is dropped\n");
       break;
     }
     run_info.npoints = i + 1;
-    load_print_point(stdout, &run_info, p);
+    load_print_point(rep, &run_info, p);
     if (p->unanswered || p->lost_connections) status = 1;
   }
-  if (run_info.npoints > 1) load_print_summary(stdout, &run_info);
+  run_info.interrupted = interrupted != 0;
+  if (run_info.npoints > 1) load_print_summary(rep, &run_info);
   if (run_info.npoints && o.csv && load_write_csv(o.csv, &run_info)) status = 1;
   if (run_info.npoints && o.json && load_write_json(o.json, &run_info)) status = 1;
   if (run_info.npoints && o.plot && load_write_plot(o.plot, &run_info)) status = 1;
   int measured = 0;
   for (int i = 0; i < run_info.npoints; i++) measured += points[i].result.ok > 0;
   if (!status && !measured) status = 1;
+  if (run_info.interrupted) {
+    fprintf(stderr, "hairfilter load: interrupted by %s after %d point(s)\n",
+            interrupted == SIGTERM ? "SIGTERM" : "SIGINT", run_info.npoints);
+    status = 130;
+  }
+  signal(SIGINT, SIG_DFL);
+  signal(SIGTERM, SIG_DFL);
   pthread_mutex_destroy(&sh.mu);
   free(points);
   free(frame);

@@ -43,7 +43,10 @@ typedef struct load_point {
   double window_throughput[64];  /* each window's frames/s (up to 64 kept) */
   double window_p50[64], window_p99[64];
   uint64_t sent, answered, delayed, unanswered;
+  /* Sent in the warm-up (not in sent), and their answers by outcome. */
+  uint64_t warm_sent, warm_ok, warm_busy, warm_errors;
   int lost_connections;
+  int interrupted;               /* stopped by a signal: windows cut short dropped */
   load_stats stats;
 } load_point;
 
@@ -55,11 +58,17 @@ typedef struct load_run {
   double stability;              /* percent */
   load_point *points;
   int npoints;
+  /* Where the figures come from: the command line, the machine, when (UTC,
+   * ISO 8601) and the tool's version. */
+  const char *command, *cpu, *date, *version;
+  int cores;
+  int interrupted;               /* the sweep was stopped by a signal */
 } load_run;
 
 /* Writers of the report: the text table of one point, the sweep's summary,
  * CSV, JSON (cJSON) and a latency-versus-throughput PNG through gnuplot.
  * Return 0, or -1 with a message printed. */
+void load_print_header(FILE *f, const load_run *r);
 void load_print_point(FILE *f, const load_run *r, const load_point *p);
 void load_print_summary(FILE *f, const load_run *r);
 int load_write_csv(const char *path, const load_run *r);

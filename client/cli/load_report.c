@@ -8,6 +8,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "load.h"
 
@@ -26,7 +27,13 @@ static double ms(const load_point *p, int field, double pct) {
 }
 
 static const char *stability(const load_point *p) {
-  return p->stable > 0 ? "stable" : p->stable < 0 ? "fixed" : "unstable";
+  return p->interrupted ? "interrupted" : p->stable > 0 ? "stable" : p->stable < 0 ? "fixed" : "unstable";
+}
+
+void load_print_header(FILE *f, const load_run *r) {
+  fprintf(f, "command: %s\nmachine: %s, %d cores; %s; hairfilter %s\n\n", r->command, r->cpu,
+          r->cores, r->date, r->version);
+  fflush(f);
 }
 
 void load_print_point(FILE *f, const load_run *r, const load_point *p) {
@@ -49,6 +56,9 @@ void load_print_point(FILE *f, const load_run *r, const load_point *p) {
           (unsigned long long)p->sent, (unsigned long long)p->answered,
           (unsigned long long)p->unanswered, (unsigned long long)p->delayed,
           p->lost_connections ? "  CONNECTIONS LOST" : "");
+  fprintf(f, "  warm-up: requests sent %llu  ok %llu  busy %llu  errors %llu\n",
+          (unsigned long long)p->warm_sent, (unsigned long long)p->warm_ok,
+          (unsigned long long)p->warm_busy, (unsigned long long)p->warm_errors);
   fprintf(f, "  %-8s %10s %10s %10s %10s %10s %10s   (ms)\n", "", "p50", "p90", "p95", "p99",
           "p99.9", "max");
   for (int k = 0; k < LF_COUNT; k++) {
@@ -89,20 +99,41 @@ void load_print_summary(FILE *f, const load_run *r) {
   fflush(f);
 }
 
+/* A file is written under a temporary name beside it, then renamed, so
+ * that a run stopped while writing leaves no half file under path. */
+static void temp_name(char *tmp, size_t size, const char *path) {
+  snprintf(tmp, size, "%s.tmp%ld", path, (long)getpid());
+}
+
 static FILE *open_out(const char *path, const char *what) {
   if (!strcmp(path, "-")) return stdout;
-  FILE *f = fopen(path, "w");
+  char tmp[4200];
+  temp_name(tmp, sizeof tmp, path);
+  FILE *f = fopen(tmp, "w");
   if (!f) fprintf(stderr, "hairfilter load: cannot write the %s to %s\n", what, path);
   return f;
 }
 
 static int close_out(FILE *f, const char *path, const char *what) {
   if (f == stdout) return fflush(f) ? -1 : 0;
-  if (fclose(f)) {
+  char tmp[4200];
+  temp_name(tmp, sizeof tmp, path);
+  if (fclose(f) || rename(tmp, path)) {
     fprintf(stderr, "hairfilter load: writing the %s to %s failed\n", what, path);
+    unlink(tmp);
     return -1;
   }
   return 0;
+}
+
+/* A CSV field in double quotes. */
+static void csv_quoted(FILE *f, const char *v) {
+  fputc('"', f);
+  for (; *v; v++) {
+    if (*v == '"') fputc('"', f);
+    fputc(*v, f);
+  }
+  fputc('"', f);
 }
 
 int load_write_csv(const char *path, const load_run *r) {
@@ -116,7 +147,8 @@ int load_write_csv(const char *path, const load_run *r) {
             load_field_names[k], load_field_names[k], load_field_names[k], load_field_names[k],
             load_field_names[k], load_field_names[k], load_field_names[k]);
   fprintf(f, ",stats_ok,stats_refused,stats_mean_batch,stats_mean_queue_ms,stats_mean_infer_ms,"
-             "stats_mean_total_ms\n");
+             "stats_mean_total_ms,warmup_sent,warmup_ok,warmup_busy,warmup_errors,command,cpu,cores,"
+             "date,version\n");
   for (int i = 0; i < r->npoints; i++) {
     const load_point *p = &r->points[i];
     const load_window *w = &p->result;
@@ -134,9 +166,16 @@ int load_write_csv(const char *path, const load_run *r) {
       fprintf(f, ",%.3f,%.3f", ms(p, k, 100), lh_mean(&w->h[k]) / 1e3);
     }
     const load_stats *s = &p->stats;
-    fprintf(f, ",%llu,%llu,%.3f,%.3f,%.3f,%.3f\n", (unsigned long long)s->ok,
+    fprintf(f, ",%llu,%llu,%.3f,%.3f,%.3f,%.3f", (unsigned long long)s->ok,
             (unsigned long long)s->rejected, s->batches ? (double)s->ok / (double)s->batches : 0.0,
             s->mean_queue_ms, s->mean_infer_ms, s->mean_total_ms);
+    fprintf(f, ",%llu,%llu,%llu,%llu,", (unsigned long long)p->warm_sent,
+            (unsigned long long)p->warm_ok, (unsigned long long)p->warm_busy,
+            (unsigned long long)p->warm_errors);
+    csv_quoted(f, r->command);
+    fputc(',', f);
+    csv_quoted(f, r->cpu);
+    fprintf(f, ",%d,%s,%s\n", r->cores, r->date, r->version);
   }
   return close_out(f, path, "CSV");
 }
@@ -162,6 +201,12 @@ int load_write_json(const char *path, const load_run *r) {
   cJSON_AddNumberToObject(doc, "window_s", r->window_s);
   cJSON_AddNumberToObject(doc, "warmup_s", r->warmup_s);
   cJSON_AddNumberToObject(doc, "stability_percentage", r->stability);
+  cJSON_AddStringToObject(doc, "command", r->command);
+  cJSON_AddStringToObject(doc, "cpu", r->cpu);
+  cJSON_AddNumberToObject(doc, "cores", r->cores);
+  cJSON_AddStringToObject(doc, "date", r->date);
+  cJSON_AddStringToObject(doc, "version", r->version);
+  cJSON_AddBoolToObject(doc, "interrupted", r->interrupted);
   cJSON_AddItemToObject(doc, "points", pts);
   for (int i = 0; i < r->npoints; i++) {
     const load_point *p = &r->points[i];
@@ -189,6 +234,11 @@ int load_write_json(const char *path, const load_run *r) {
     cJSON_AddNumberToObject(o, "unanswered", (double)p->unanswered);
     cJSON_AddNumberToObject(o, "late", (double)p->delayed);
     cJSON_AddNumberToObject(o, "mean_batch", w->ok ? (double)w->batch_sum / (double)w->ok : 0.0);
+    cJSON *wu = cJSON_AddObjectToObject(o, "warmup");
+    cJSON_AddNumberToObject(wu, "sent", (double)p->warm_sent);
+    cJSON_AddNumberToObject(wu, "ok", (double)p->warm_ok);
+    cJSON_AddNumberToObject(wu, "busy", (double)p->warm_busy);
+    cJSON_AddNumberToObject(wu, "errors", (double)p->warm_errors);
     cJSON *lat = cJSON_AddObjectToObject(o, "latency_ms");
     for (int k = 0; k < LF_COUNT; k++) {
       cJSON *fo = cJSON_AddObjectToObject(lat, load_field_names[k]);
@@ -247,7 +297,9 @@ int load_write_plot(const char *path, const load_run *r) {
     return -1;
   }
   int open = r->points[0].open_loop;
-  fprintf(g, "set terminal pngcairo size 900,600 font ',10'\nset output \"%s\"\n", path);
+  char tmp[4200];
+  temp_name(tmp, sizeof tmp, path);
+  fprintf(g, "set terminal pngcairo size 900,600 font ',10'\nset output \"%s\"\n", tmp);
   fprintf(g, "set title \"%s %dx%d %s via %s%s (%s), %s loop\" noenhanced\n", r->variant, r->width,
           r->height, r->f16 ? "f16" : "f32", r->server, r->shm ? " + shared memory" : "",
           r->backend, open ? "open" : "closed");
@@ -268,8 +320,9 @@ int load_write_plot(const char *path, const load_run *r) {
              "$d using 1:5 with linespoints title \"p99.9\", "
              "$d using 1:4:6 with labels offset 0,1 notitle\n");
   int rc = pclose(g);
-  if (rc != 0) {
+  if (rc != 0 || rename(tmp, path)) {
     fprintf(stderr, "hairfilter load: gnuplot failed (status %d) writing %s\n", rc, path);
+    unlink(tmp);
     return -1;
   }
   return 0;
