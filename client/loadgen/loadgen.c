@@ -4,18 +4,25 @@
  * percentiles (client-observed, plus the server's own breakdown).
  *
  * One thread per connection, since an hfc_client is single-threaded; each
- * thread submits until K are pending, then waits for one and resubmits.
+ * thread submits until K are pending, then waits for one and resubmits. A
+ * request refused BUSY (or SHUTTING_DOWN) is counted apart and its slot
+ * rests BUSY_BACKOFF_S before it sends again, as in `hairfilter load`; a
+ * refusal no retry can fix (TOO_LARGE, UNKNOWN_VARIANT, ...) stops the run,
+ * naming it. SIGINT or SIGTERM ends the window early and reports it.
  * Features are random but fixed and in contract (protocol/FEATURES.md), so
  * the server does the same work as for a real frame of that size.
  */
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/utsname.h>
 #include <time.h>
+#include <unistd.h>
 
 #include <hairfilter/hairfilter.h>
 
@@ -38,10 +45,23 @@ typedef struct worker {
   double t_end, t_measure;
   sample *samples;
   size_t n, cap;
-  uint64_t busy, errors;
+  /* Requests sent after the warm-up, and their answers; busy and errors
+   * are of those. The warm-up's apart, by outcome. */
+  uint64_t sent, answered, busy, errors;
+  uint64_t warm_sent, warm_ok, warm_busy, warm_errors;
+  int last_error;                /* the last error answered, for its name */
   int fatal;
   int batch_sum, batch_n;
 } worker;
+
+/* A refused request's slot rests this long before it sends again, so that
+ * a refusing server is not spun against (as BUSY_BACKOFF_S in cmd_load.c). */
+#define BUSY_BACKOFF_S 0.01
+
+/* Set by SIGINT or SIGTERM: the window ends there. */
+static volatile sig_atomic_t interrupted;
+
+static void on_signal(int sig) { interrupted = sig; }
 
 static double now_s(void) {
   struct timespec ts;
@@ -61,10 +81,21 @@ static void usage(FILE *f) {
           "The token defaults to $HAIRFILTER_TOKEN. --tls-ca names the CA that signed a\n"
           "tls: server's certificate (default: the system's), --tls-server-name the name\n"
           "it must carry (default: the URL's host); --tls-cert and --tls-key, together, a\n"
-          "client certificate for mutual TLS.\n");
+          "client certificate for mutual TLS.\n"
+          "A request refused BUSY is sent again after 10 ms; a refusal no retry can fix\n"
+          "stops the run, naming it. SIGINT or SIGTERM ends the window and reports it.\n"
+          "Exit status: 0 frames measured; 1 none, or the server could not be reached or\n"
+          "refused; 2 bad options or over the server's limits; 130 interrupted.\n");
 }
 
-static int record(worker *w, const hfc_completion *d) {
+static int record(worker *w, const hfc_completion *d, int warm) {
+  if (d->status) w->last_error = d->status;
+  if (warm) {
+    if (d->status == HFC_E_BUSY) w->warm_busy++;
+    else if (d->status) w->warm_errors++;
+    else w->warm_ok++;
+    return 0;
+  }
   if (d->status == HFC_E_BUSY) {
     w->busy++;
     return 0;
@@ -174,29 +205,73 @@ static void *run(void *arg) {
   r.features_bytes = nin * es;
   r.estimate = w->estimate;
   r.result_bytes = px * 3 * es;
-  int pending = 0;
-  for (int s = 0; s < k; s++) {
-    r.result = out + px * 3 * es * (size_t)s;
-    r.user = (void *)(intptr_t)s;
-    if ((rc = hfc_submit(c, &r, NULL)) != 0) break;
-    pending++;
+  struct {
+    int busy, warm;
+    double not_before;           /* after a BUSY: not sent again before */
+  } *slots = calloc((size_t)k, sizeof *slots);
+  if (!slots) {
+    fprintf(stderr, "hairfilter-load: out of memory\n");
+    w->fatal = 1;
+    goto done;
   }
-  while (pending && !rc) {
+  int pending = 0, refused = 0;
+  for (;;) {
+    double now = now_s();
+    if (interrupted && now < w->t_end) w->t_end = now < w->t_measure ? w->t_measure : now;
+    int stopping = now >= w->t_end || refused;
+    if (stopping && !pending) break;
+    double first = now + 0.1;
+    for (int s = 0; s < k && !stopping; s++) {
+      if (slots[s].busy) continue;
+      if (slots[s].not_before > now) {
+        if (slots[s].not_before < first) first = slots[s].not_before;
+        continue;
+      }
+      r.result = out + px * 3 * es * (size_t)s;
+      r.user = (void *)(intptr_t)s;
+      if ((rc = hfc_submit(c, &r, NULL)) != 0) break;
+      slots[s].busy = 1;
+      slots[s].warm = now < w->t_measure;
+      if (slots[s].warm) w->warm_sent++;
+      else w->sent++;
+      pending++;
+    }
+    if (rc) break;
+    /* Wait for a completion, the first resting slot, or (to notice the end
+     * or a signal) 100 ms. */
+    int wait_ms = first <= now ? 0 : (int)((first - now) * 1e3) + 1;
+    if (!pending) {
+      struct timespec ts = {0, (long)wait_ms * 1000000L};
+      nanosleep(&ts, NULL);
+      continue;
+    }
     hfc_completion d;
-    rc = hfc_wait(c, -1, &d);
+    rc = hfc_wait(c, wait_ms, &d);
+    if (rc == HFC_E_TIMEOUT) {
+      rc = 0;
+      continue;
+    }
     if (rc) break;
     pending--;
-    if (record(w, &d)) {
+    int s = (int)(intptr_t)d.user;
+    slots[s].busy = 0;
+    if (!slots[s].warm) w->answered++;
+    if (record(w, &d, slots[s].warm)) {
       rc = HFC_E_NOMEM;
       break;
     }
-    if (now_s() < w->t_end) {
-      r.result = out + px * 3 * es * (size_t)(intptr_t)d.user;
-      r.user = d.user;
-      if ((rc = hfc_submit(c, &r, NULL)) != 0) break;
-      pending++;
+    if (d.status == HFC_E_BUSY || d.status == HFC_E_SHUTTING_DOWN) {
+      slots[s].not_before = now_s() + BUSY_BACKOFF_S;
+    } else if (d.status && d.status != HFC_E_INTERNAL && !refused) {
+      /* Sent again, it would be refused again. */
+      const char *m = hfc_last_message(c);
+      fprintf(stderr, "hairfilter-load: the server refused a frame: %s%s%s%s; stopping\n",
+              hfc_strerror(d.status), m[0] ? " (" : "", m, m[0] ? ")" : "");
+      refused = 1;
+      w->fatal = 1;
     }
   }
+  free(slots);
   if (rc) {
     fprintf(stderr, "hairfilter-load: connection failed: %s\n", hfc_strerror(rc));
     w->fatal = 1;
@@ -223,6 +298,42 @@ static double pct(const float *v, size_t n, double p) {
   return v[i < n ? i : n - 1];
 }
 
+/* The line above the figures: the command, the machine (CPU model and
+ * cores), the UTC date and the version. */
+static void print_header(int argc, char **argv) {
+  char cpu[256] = "", line[512], date[32] = "unknown";
+  FILE *f = fopen("/proc/cpuinfo", "r");
+  while (f && !cpu[0] && fgets(line, sizeof line, f)) {
+    char *colon = strchr(line, ':');
+    if (!colon || strncmp(line, "model name", 10)) continue;
+    char *v = colon + 1 + strspn(colon + 1, " \t");
+    v[strcspn(v, "\n")] = 0;
+    snprintf(cpu, sizeof cpu, "%s", v);
+  }
+  if (f) fclose(f);
+  struct utsname u;
+  if (!cpu[0]) snprintf(cpu, sizeof cpu, "%s", uname(&u) == 0 ? u.machine : "unknown");
+  time_t t = time(NULL);
+  struct tm tm;
+  if (gmtime_r(&t, &tm)) strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  printf("command: hairfilter-load");
+  for (int i = 1; i < argc; i++) {
+    int plain = argv[i][0] != 0;
+    for (const char *c = argv[i]; *c; c++)
+      if (!strchr("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_@%+=:,./-", *c))
+        plain = 0;
+    if (plain) {
+      printf(" %s", argv[i]);
+      continue;
+    }
+    printf(" '");
+    for (const char *c = argv[i]; *c; c++) printf(*c == '\'' ? "'\\''" : "%c", *c);
+    printf("'");
+  }
+  printf("\nmachine: %s, %ld cores; %s; hairfilter-load %s\n\n", cpu, sysconf(_SC_NPROCESSORS_ONLN),
+         date, HAIRFILTER_VERSION_STRING);
+}
+
 int main(int argc, char **argv) {
   opts o = {.token = getenv("HAIRFILTER_TOKEN"), .width = 640, .height = 480, .connections = 1,
             .inflight = 1, .seconds = 10, .warmup = 1};
@@ -244,7 +355,17 @@ int main(int argc, char **argv) {
       o.shm = 1;
       continue;
     }
-    if (!v) {
+    static const char *const valued[] = {"--server", "--variant", "--token", "--tls-ca",
+                                         "--tls-cert", "--tls-key", "--tls-server-name", "--size",
+                                         "--connections", "--inflight", "--seconds", "--warmup"};
+    int known = 0;
+    for (size_t j = 0; j < sizeof valued / sizeof valued[0]; j++) known |= !strcmp(a, valued[j]);
+    if (!known || !v) {
+      if (!known)
+        fprintf(stderr, "hairfilter-load: %s '%s'\n",
+                strncmp(a, "-", 1) ? "unexpected argument" : "unknown option", a);
+      else
+        fprintf(stderr, "hairfilter-load: option '%s' needs a value\n", a);
       usage(stderr);
       return 2;
     }
@@ -266,10 +387,6 @@ int main(int argc, char **argv) {
     else if (!strcmp(a, "--inflight")) o.inflight = atoi(v);
     else if (!strcmp(a, "--seconds")) o.seconds = atof(v);
     else if (!strcmp(a, "--warmup")) o.warmup = atof(v);
-    else {
-      usage(stderr);
-      return 2;
-    }
   }
   if (!o.server || !o.variant || o.connections < 1 || o.connections > 1024 || o.inflight < 1 ||
       o.seconds <= 0 || o.warmup < 0) {
@@ -302,7 +419,8 @@ int main(int argc, char **argv) {
     const char *m = hfc_last_message(NULL);
     fprintf(stderr, "hairfilter-load: %s\n", m[0] ? m : hfc_strerror(rc));
     if (rc == HFC_E_UNAUTHORIZED)
-      fprintf(stderr, "hairfilter-load: give the server's token with --token TOKEN\n");
+      fprintf(stderr, "hairfilter-load: give the server's token with --token TOKEN or "
+                      "$HAIRFILTER_TOKEN\n");
     return 1;
   }
   hfc_variant vs[64];
@@ -323,11 +441,17 @@ int main(int argc, char **argv) {
       backend = backend_s;
       precision = precision_s;
     }
-  int max_inflight = hfc_info(c)->max_inflight;
+  hfc_server_info info = *hfc_info(c);
+  int max_inflight = info.max_inflight;
   hfc_close(c);
   if (!spp) {
     fprintf(stderr, "hairfilter-load: the server has no variant '%s'\n", o.variant);
     return 1;
+  }
+  if (o.width > info.max_width || o.height > info.max_height) {
+    fprintf(stderr, "hairfilter-load: %dx%d is over the server's limit of %dx%d\n", o.width,
+            o.height, info.max_width, info.max_height);
+    return 2;
   }
   if (o.inflight > max_inflight) {
     fprintf(stderr, "hairfilter-load: --inflight %d is over the server's limit of %d\n",
@@ -337,6 +461,15 @@ int main(int argc, char **argv) {
 
   worker *w = calloc((size_t)o.connections, sizeof *w);
   if (!w) return 1;
+  /* SIGINT or SIGTERM ends the window; what was measured is reported. A
+   * second one kills. */
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_signal;
+  sa.sa_flags = SA_RESETHAND;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
   for (int i = 0; i < o.connections; i++) {
     w[i].o = &o;
     w[i].spp = spp;
@@ -347,18 +480,29 @@ int main(int argc, char **argv) {
     }
   }
   size_t total = 0;
-  uint64_t busy = 0, errors = 0;
-  int fatal = 0, bsum = 0, bn = 0;
+  uint64_t busy = 0, errors = 0, sent = 0, answered = 0, wsent = 0, wok = 0, wbusy = 0, werr = 0;
+  int fatal = 0, bsum = 0, bn = 0, last_error = 0;
+  double elapsed = o.seconds;
   for (int i = 0; i < o.connections; i++) {
     pthread_join(w[i].thread, NULL);
     total += w[i].n;
     busy += w[i].busy;
     errors += w[i].errors;
+    sent += w[i].sent;
+    answered += w[i].answered;
+    wsent += w[i].warm_sent;
+    wok += w[i].warm_ok;
+    wbusy += w[i].warm_busy;
+    werr += w[i].warm_errors;
+    if (w[i].last_error) last_error = w[i].last_error;
+    /* Interrupted: the window ended when the connections noticed. */
+    if (interrupted && w[i].t_end > w[i].t_measure && w[i].t_end - w[i].t_measure < elapsed)
+      elapsed = w[i].t_end - w[i].t_measure;
+    if (interrupted && w[i].t_end <= w[i].t_measure) elapsed = 0;
     fatal |= w[i].fatal;
     bsum += w[i].batch_sum;
     bn += w[i].batch_n;
   }
-  double elapsed = o.seconds;
   /* One sorted column per timing field, for the percentiles. */
   enum { COLS = 6 };
   static const char *const names[COLS] = {"total", "server", "queue", "input", "infer", "output"};
@@ -379,13 +523,21 @@ int main(int argc, char **argv) {
     free(w[i].samples);
   }
   for (int j = 0; j < COLS; j++) qsort(col[j], total, sizeof(float), cmp_float);
-  printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.1f s measured\n",
+  print_header(argc, argv);
+  printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.1f s measured%s\n",
          o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server,
          o.shm ? " + shared memory" : "", backend, precision,
-         o.connections, o.inflight, elapsed);
-  printf("  frames %zu  throughput %.1f frames/s  busy %llu  errors %llu  mean batch %.2f\n",
+         o.connections, o.inflight, elapsed, interrupted ? " (interrupted)" : "");
+  printf("  frames %zu  throughput %.1f frames/s  busy %llu  errors %llu%s%s%s  mean batch %.2f\n",
          total, elapsed > 0 ? (double)total / elapsed : 0.0, (unsigned long long)busy,
-         (unsigned long long)errors, bn ? (double)bsum / bn : 0.0);
+         (unsigned long long)errors, last_error ? " (last: " : "",
+         last_error ? hfc_strerror(last_error) : "", last_error ? ")" : "",
+         bn ? (double)bsum / bn : 0.0);
+  printf("  requests sent %llu  answered %llu  unanswered %llu\n", (unsigned long long)sent,
+         (unsigned long long)answered, (unsigned long long)(sent > answered ? sent - answered : 0));
+  printf("  warm-up: requests sent %llu  ok %llu  busy %llu  errors %llu\n",
+         (unsigned long long)wsent, (unsigned long long)wok, (unsigned long long)wbusy,
+         (unsigned long long)werr);
   printf("  %-8s %10s %10s %10s %10s %10s   (ms)\n", "", "p50", "p90", "p99", "p99.9", "max");
   for (int j = 0; j < COLS; j++) {
     printf("  %-8s %10.3f %10.3f %10.3f %10.3f %10.3f\n", names[j], pct(col[j], total, 50) / 1e3,
@@ -394,5 +546,9 @@ int main(int argc, char **argv) {
     free(col[j]);
   }
   free(w);
+  if (interrupted) {
+    fprintf(stderr, "hairfilter-load: interrupted by %s\n", interrupted == SIGTERM ? "SIGTERM" : "SIGINT");
+    return 130;
+  }
   return fatal || total == 0 ? 1 : 0;
 }
