@@ -5,7 +5,9 @@
  * open loop offers the rate it was asked for, Unix, TCP and shared memory
  * and f16 all run, a real feature EXR is sent, CSV and JSON carry every
  * point, and against a server that refuses, BUSY is not spun against and
- * shared memory too small for every open-loop slot takes fewer.
+ * shared memory too small for every open-loop slot takes fewer. SIGINT
+ * ends a run with the finished points reported and written (status 130),
+ * '--json -' leaves stdout to the JSON, and warm-up requests are counted.
  * `test_load plot` draws the
  * plot (skips without gnuplot). */
 #include <math.h>
@@ -18,8 +20,10 @@
 #include <cjson/cJSON.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <signal.h>
 #include <string.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include "harness.h"
 
@@ -32,13 +36,14 @@
 
 static harness H;
 static server S;
-static char out_path[300], csv_path[300], json_path[300], png_path[300];
+static char out_path[300], err_path[300], csv_path[300], json_path[300], png_path[300];
 static char text[65536];
 
 static int setup(void **state) {
   (void)state;
   if (harness_init(&H)) return -1;
   snprintf(out_path, sizeof out_path, "%s/load.out", H.dir);
+  snprintf(err_path, sizeof err_path, "%s/load.err", H.dir);
   snprintf(csv_path, sizeof csv_path, "%s/load.csv", H.dir);
   snprintf(json_path, sizeof json_path, "%s/load.json", H.dir);
   snprintf(png_path, sizeof png_path, "%s/load.png", H.dir);
@@ -97,6 +102,22 @@ static void test_strict_options(void **state) {
   expect_refused("--stability-percentage 1e999", "--stability-percentage: '1e999' is not a number");
   expect_refused("--max-trials 2", "--max-trials: 2 is outside 3..64");
   expect_refused("--size 0x4", "--size: '0x4'");
+  expect_refused("--json - --csv -", "would share stdout");
+  /* --help gives the exit statuses. */
+  assert_int_equal(load("--help"), 0);
+  if (!strstr(text, "Exit status: 0") || !strstr(text, "; 1 ") || !strstr(text, "; 2 ") ||
+      !strstr(text, "130 interrupted"))
+    fail_msg("--help without the exit statuses:\n%s", text);
+  /* hairfilter-load names an option it does not know, and one without its
+   * value. */
+  static const char *const bad[][2] = {{"--server x --json f.json", "unknown option '--json'"},
+                                       {"--server x --json", "unknown option '--json'"},
+                                       {"--variant Tiny --server", "option '--server' needs a value"}};
+  for (int i = 0; i < 3; i++) {
+    int lrc = load_prog(HAIRFILTER_LOADGEN_PATH, bad[i][0]);
+    if (lrc != 2 || !strstr(text, bad[i][1]))
+      fail_msg("hairfilter-load %s: status %d, wanted 2 and '%s':\n%s", bad[i][0], lrc, bad[i][1], text);
+  }
   /* A unit it knows is taken as that unit: 0.5s, 700ms and a plain 0.5
    * (seconds). */
   for (int i = 0; i < 3; i++) {
@@ -140,8 +161,18 @@ static double num(const cJSON *o, const char *key) {
   return v->valuedouble;
 }
 
+static uint64_t sanitised_count(const server *srv, const char *variant, uint64_t *ok);
+
+static const char *str(const cJSON *o, const char *key) {
+  const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, key);
+  if (!cJSON_IsString(v)) fail_msg("no string '%s' in the JSON", key);
+  return v->valuestring;
+}
+
 static void test_closed_sweep(void **state) {
   (void)state;
+  uint64_t ok0, ok1;
+  sanitised_count(&S, "Tiny", &ok0);
   int rc = load("--server %s --variant Tiny --size 16x16 --concurrency-range 1:3:2 --window 0.4s "
                 "--warmup 0.2s --max-trials 3 --stability-percentage 100 --csv %s --json %s --quiet",
                 S.unix_url, csv_path, json_path);
@@ -151,9 +182,35 @@ static void test_closed_sweep(void **state) {
   assert_non_null(strstr(text, "unanswered 0"));
   assert_null(strstr(text, "CONNECTIONS LOST"));
   assert_true(strstr(text, "(stable)") || strstr(text, "(unstable)"));
+  /* The header: the command, then the machine, the date and the version. */
+  if (strncmp(text, "command: hairfilter load --server ", 34) || !strstr(text, "\nmachine: ") ||
+      !strstr(text, " cores; ") || !strstr(text, "Z; hairfilter "))
+    fail_msg("no header in:\n%s", text);
+  sanitised_count(&S, "Tiny", &ok1);
   cJSON *doc = read_json();
+  assert_non_null(strstr(str(doc, "command"), "--concurrency-range 1:3:2"));
+  assert_true(str(doc, "cpu")[0] && num(doc, "cores") >= 1);
+  assert_int_equal(strlen(str(doc, "date")), 20);   /* 2026-01-02T03:04:05Z */
+  assert_true(str(doc, "version")[0]);
+  assert_true(cJSON_IsFalse(cJSON_GetObjectItemCaseSensitive(doc, "interrupted")));
   const cJSON *pts = cJSON_GetObjectItemCaseSensitive(doc, "points");
   assert_int_equal(cJSON_GetArraySize(pts), 2);
+  /* Every request sent, warm-up included, is one the server counts: with
+   * none refused, its requests_ok rose by the sum. */
+  double sent_all = 0, refused = 0;
+  for (int i = 0; i < 2; i++) {
+    const cJSON *p = cJSON_GetArrayItem(pts, i);
+    const cJSON *wu = cJSON_GetObjectItemCaseSensitive(p, "warmup");
+    assert_non_null(wu);
+    assert_true(num(wu, "sent") >= 1);
+    assert_true(num(wu, "ok") + num(wu, "busy") + num(wu, "errors") == num(wu, "sent"));
+    sent_all += num(wu, "sent") + num(p, "sent");
+    refused += num(wu, "busy") + num(wu, "errors") + num(p, "busy") + num(p, "errors");
+  }
+  if (!refused && (double)(ok1 - ok0) != sent_all)
+    fail_msg("the server answered %llu frames; the tool reports %.0f sent, warm-up included",
+             (unsigned long long)(ok1 - ok0), sent_all);
+  assert_non_null(strstr(text, "  warm-up: requests sent "));
   for (int i = 0; i < 2; i++) {
     const cJSON *p = cJSON_GetArrayItem(pts, i);
     assert_true(num(p, "concurrency") == (i ? 3 : 1));
@@ -191,15 +248,99 @@ static void test_closed_sweep(void **state) {
   cJSON_Delete(doc);
   /* CSV: a header and a row per point, as many columns each. */
   assert_int_equal(read_text_file(csv_path, text, sizeof text), 0);
-  int lines = 0, commas[3] = {0};
+  int lines = 0, commas[3] = {0}, quoted = 0;
   for (const char *c = text; *c; c++) {
-    if (*c == ',' && lines < 3) commas[lines]++;
+    if (*c == '"') quoted = !quoted;
+    if (*c == ',' && !quoted && lines < 3) commas[lines]++;
     if (*c == '\n') lines++;
   }
   assert_int_equal(lines, 3);
   assert_int_equal(commas[1], commas[0]);
   assert_int_equal(commas[2], commas[0]);
   assert_non_null(strstr(text, "closed,3,"));
+}
+
+/* '--json -': stdout holds the JSON alone, the report goes to stderr. */
+static void test_json_stdout(void **state) {
+  (void)state;
+  char cmd[1200];
+  snprintf(cmd, sizeof cmd, "'%s' load --server %s --variant Tiny --size 8x8 --seconds 0.3 "
+           "--warmup 0 --quiet --json - > '%s' 2> '%s'", HAIRFILTER_CLI_PATH, S.unix_url,
+           json_path, err_path);
+  int rc = system(cmd);
+  assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
+  cJSON *doc = read_json();
+  assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(doc, "points")), 1);
+  cJSON_Delete(doc);
+  assert_int_equal(read_text_file(err_path, text, sizeof text), 0);
+  check_rows();
+}
+
+/* Runs prog with args in the background, stdout in out_path and stderr in
+ * err_path; waits (20 s at most) until out_path holds want, if given, then
+ * sends SIGINT and returns the exit status (-1 if killed by a signal). */
+static int interrupt_after(const char *prog, const char *args, const char *want, double after_s) {
+  char cmd[2048];
+  snprintf(cmd, sizeof cmd, "exec '%s' %s %s > '%s' 2> '%s'", prog,
+           strcmp(prog, HAIRFILTER_CLI_PATH) ? "" : "load", args, out_path, err_path);
+  remove(out_path);
+  pid_t pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    execl("/bin/sh", "sh", "-c", cmd, (char *)NULL);
+    _exit(127);
+  }
+  for (int i = 0; want && i < 400; i++) {
+    if (read_text_file(out_path, text, sizeof text) == 0 && strstr(text, want)) break;
+    usleep(50000);
+  }
+  usleep((useconds_t)(after_s * 1e6));
+  kill(pid, SIGINT);
+  int st;
+  assert_int_equal(waitpid(pid, &st, 0), pid);
+  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
+  return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+/* SIGINT in a sweep: the finished points are printed and written, the
+ * files of an earlier run replaced, the status 130; hairfilter-load reports
+ * the window it measured up to the signal. */
+static void test_interrupt(void **state) {
+  (void)state;
+  FILE *f = fopen(json_path, "w");
+  assert_non_null(f);
+  fputs("{\"stale\": true}\n", f);
+  fclose(f);
+  f = fopen(csv_path, "w");
+  assert_non_null(f);
+  fputs("stale\n", f);
+  fclose(f);
+  char args[1200];
+  snprintf(args, sizeof args, "--server %s --variant Tiny --size 8x8 --concurrency-range 1:5:2 "
+           "--window 2s --warmup 0 --trials 1 --quiet --json %s --csv %s", S.unix_url, json_path,
+           csv_path);
+  /* Interrupted in the second point: the first is done. */
+  int rc = interrupt_after(HAIRFILTER_CLI_PATH, args, "  total", 0.2);
+  if (rc != 130 || !strstr(text, "x 1 in flight"))
+    fail_msg("status %d (wanted 130):\n%s", rc, text);
+  cJSON *doc = read_json();
+  assert_null(cJSON_GetObjectItemCaseSensitive(doc, "stale"));
+  assert_true(cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(doc, "interrupted")));
+  const cJSON *pts = cJSON_GetObjectItemCaseSensitive(doc, "points");
+  int n = cJSON_GetArraySize(pts);
+  assert_true(n >= 1 && n < 3);
+  assert_true(num(cJSON_GetArrayItem(pts, 0), "frames") > 0);
+  cJSON_Delete(doc);
+  assert_int_equal(read_text_file(csv_path, text, sizeof text), 0);
+  assert_non_null(strstr(text, "closed,1,"));
+  assert_null(strstr(text, "stale"));
+  /* hairfilter-load: a 30 s window cut short after 1 s. */
+  snprintf(args, sizeof args, "--server %s --variant Tiny --size 8x8 --seconds 30 --warmup 0",
+           S.unix_url);
+  rc = interrupt_after(HAIRFILTER_LOADGEN_PATH, args, NULL, 1.0);
+  if (rc != 130 || !strstr(text, "(interrupted)") || !strstr(text, "requests sent ") ||
+      strstr(text, "30.0 s measured"))
+    fail_msg("hairfilter-load: status %d (wanted 130):\n%s", rc, text);
 }
 
 /* The open loop offers what it is asked: 80 frames/s in constant and
@@ -252,6 +393,16 @@ static void test_transports(void **state) {
   assert_int_equal(rc, 1);
   if (!strstr(text, "UNAUTHORIZED") || !strstr(text, "--token TOKEN or $HAIRFILTER_TOKEN"))
     fail_msg("without the token: %s", text);
+  char args[600];
+  snprintf(args, sizeof args, "--server %s --variant Tiny --seconds 0.2", S.tcp_url);
+  rc = load_prog(HAIRFILTER_LOADGEN_PATH, args);
+  if (rc != 1 || !strstr(text, "--token TOKEN or $HAIRFILTER_TOKEN"))
+    fail_msg("hairfilter-load without the token: status %d:\n%s", rc, text);
+  /* A frame over the server's limit is refused up front. */
+  snprintf(args, sizeof args, "--server %s --variant Tiny --size 4000x64 --seconds 0.2", S.unix_url);
+  rc = load_prog(HAIRFILTER_LOADGEN_PATH, args);
+  if (rc != 2 || !strstr(text, "4000x64 is over the server's limit of "))
+    fail_msg("hairfilter-load --size 4000x64: status %d:\n%s", rc, text);
 }
 
 /* The server's count of sanitised frames for variant, from STATS. */
@@ -331,6 +482,19 @@ static void test_refusing_server(void **state) {
   else
     print_message("closed loop over shared memory at concurrency 6 against a queue of 1: "
                   "%llu frames, %llu BUSY\n", frames, busy);
+  /* hairfilter-load rests a refused slot as long. */
+  if (!why[0]) {
+    char args[600];
+    snprintf(args, sizeof args, "--server %s --variant Small --size 64x64 --inflight 6 "
+             "--seconds 1 --warmup 0.2", s2.unix_url);
+    rc = load_prog(HAIRFILTER_LOADGEN_PATH, args);
+    p = strstr(text, "  frames ");
+    if (rc > 1 || !p || sscanf(p, "  frames %llu throughput %*f frames/s busy %llu", &frames, &busy) != 2)
+      snprintf(why, sizeof why, "hairfilter-load against a refusing server: status %d:\n%s", rc, text);
+    else if (busy < 1 || busy > 1000)
+      snprintf(why, sizeof why, "hairfilter-load: %llu BUSY in 1 s with 6 in flight (wanted "
+               "1..1000):\n%s", busy, text);
+  }
   /* Tiny 128x128: 768 KiB of features (2 spp), 192 KiB of results a slot;
    * 32 slots are 30 MiB, over the 3 MiB budget. Tiny, not Small: with a
    * queue of 1, a network slower than the 50 ms between requests (Small
@@ -374,6 +538,8 @@ int main(int argc, char **argv) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_strict_options),
     cmocka_unit_test(test_closed_sweep),
+    cmocka_unit_test(test_json_stdout),
+    cmocka_unit_test(test_interrupt),
     cmocka_unit_test(test_open_loop),
     cmocka_unit_test(test_transports),
     cmocka_unit_test(test_frames_in_contract),
