@@ -21,20 +21,31 @@ static void usage(FILE *f) {
           "rule, valid and invalid messages, every byte of every frame cut short,\n"
           "stalls and disconnects at every stage), or, with --client, libhairfilter\n"
           "against a scripted mock server. After each server case an ordinary client\n"
-          "must still be served. Prints the failed and skipped cases and a summary;\n"
-          "exits 0 when none failed, 1 when some did, 2 when the server cannot be\n"
-          "probed. It assumes nothing of the server beyond HELLO_OK and VARIANTS.\n"
+          "must still be served. Prints a header line, the failed and skipped cases\n"
+          "and a summary, all to stdout; exits 0 when none failed, 1 when some did,\n"
+          "2 when the server cannot be probed, no case matches --case, or an option\n"
+          "is wrong. It assumes nothing of the server beyond HELLO_OK and VARIANTS.\n"
           "\n"
           "  --server URL     unix:PATH, tcp:HOST:PORT, tls:HOST:PORT or tcp:PORT\n"
           "  --token T        the TCP listener's token (default $HAIRFILTER_TOKEN)\n"
           CLI_TLS_USAGE
-          "  --case PATTERN   only cases whose name matches (shell pattern, e.g. 'shm.*')\n"
+          "  --case PATTERN   only cases whose name matches (shell pattern, e.g. 'shm.*');\n"
+          "                   a pattern that matches none exits 2\n"
+          "  --junit FILE     also write the verdicts as JUnit XML (one testcase per case,\n"
+          "                   failures and skips with their reasons) for CI\n"
           "  --timeout DUR    longest wait for a reply the server owes (default 10s)\n"
           "  --quiet DUR      how long 'no reply' is watched for (default 300ms)\n"
           "  --stall DUR      how long the stall cases stay silent (default 1500ms);\n"
           "                   longer than the server's deadlines to see them act\n"
           "  --verbose        print every case with its time\n"
-          "Durations take a unit (ms, s, m); a plain number is milliseconds.\n");
+          "Durations take a unit: 10s, 300ms, 1m. A plain number is MILLISECONDS (unlike\n"
+          "hairfilter load's seconds), so one below 100 is refused: --timeout 10 would\n"
+          "be 10 ms; write 10s, or 10ms if that is meant.\n");
+}
+
+/* A duration written without a unit. */
+static int plain_number(const char *s) {
+  return *s && s[strspn(s, "0123456789.")] == 0;
 }
 
 int cmd_conformance(int argc, char **argv) {
@@ -44,7 +55,8 @@ int cmd_conformance(int argc, char **argv) {
     {"list", no_argument, 0, 'l'},         {"check-doc", required_argument, 0, 'd'},
     {"timeout", required_argument, 0, 't'}, {"quiet", required_argument, 0, 'q'},
     {"stall", required_argument, 0, 'S'},  {"verbose", no_argument, 0, 'v'},
-    {"help", no_argument, 0, 'h'},         CLI_TLS_LONG_OPTIONS,
+    {"junit", required_argument, 0, 'j'},  {"help", no_argument, 0, 'h'},
+    CLI_TLS_LONG_OPTIONS,
     {0, 0, 0, 0},
   };
   cf_options o = {0};
@@ -65,15 +77,24 @@ int cmd_conformance(int argc, char **argv) {
       case 'l': list = 1; break;
       case 'd': doc = optarg; break;
       case 'v': o.verbose = 1; break;
+      case 'j': o.junit = optarg; break;
       case 't':
       case 'q':
-      case 'S':
-        if (cli_arg_duration("conformance",
-                             ch == 't' ? "--timeout" : ch == 'q' ? "--quiet" : "--stall", optarg,
-                             1e-3, 1e-3, 3600, &secs))
+      case 'S': {
+        const char *opt = ch == 't' ? "--timeout" : ch == 'q' ? "--quiet" : "--stall";
+        if (cli_arg_duration("conformance", opt, optarg, 1e-3, 1e-3, 3600, &secs)) return 2;
+        if (plain_number(optarg) && secs < 0.1) {
+          /* hairfilter load counts plain numbers in seconds: "--timeout 10"
+           * meant as 10 s must not run with 10 ms. */
+          fprintf(stderr,
+                  "hairfilter conformance: %s %s: a plain number is milliseconds here, and %s ms "
+                  "is too short to be meant; write %ss for seconds, or %sms if you mean "
+                  "milliseconds\n", opt, optarg, optarg, optarg, optarg);
           return 2;
+        }
         *(ch == 't' ? &o.timeout_ms : ch == 'q' ? &o.quiet_ms : &o.stall_ms) = (int)(secs * 1e3 + 0.5);
         break;
+      }
       case 'h': usage(stdout); return 0;
       case ':': cli_arg_bad_option("conformance", argv, optind, optopt, 1); return 2;
       default:

@@ -253,10 +253,12 @@ static int control_order(cf_test *t, intptr_t with_filters) {
       results++;
       continue;
     }
-    CF_CHECK(t, next < N, "a control reply of type %u after all %d were answered", r.h.type, N);
+    char tn[16];
+    CF_CHECK(t, next < N, "a control reply (%s) after all %d were answered",
+             cf_type_name(r.h.type, tn), N);
     int want = seq[next] == HFP_STATS ? HFP_STATS_REPLY : HFP_VARIANTS;
-    CF_CHECK(t, r.h.type == want, "control reply %d has type %u, wanted %s (replies keep the order "
-             "of their requests)", next, r.h.type, want == HFP_VARIANTS ? "VARIANTS" : "STATS_REPLY");
+    CF_CHECK(t, r.h.type == want, "control reply %d is %s, wanted %s (replies keep the order "
+             "of their requests)", next, cf_type_name(r.h.type, tn), want == HFP_VARIANTS ? "VARIANTS" : "STATS_REPLY");
     next++;
   }
   return 0;

@@ -277,7 +277,9 @@ static int version_range(cf_test *t, intptr_t i) {
              hfp_code_name((int)e.code), e.fatal, f.h.request_id);
     return cf_expect_eof(t, fd);
   }
-  CF_CHECK(t, f.h.type == HFP_HELLO_OK, "the reply to HELLO has type %u", f.h.type);
+  char tn[16];
+  CF_CHECK(t, f.h.type == HFP_HELLO_OK, "the reply to HELLO is %s, not HELLO_OK",
+           cf_type_name(f.h.type, tn));
   hfp_hello_ok ok;
   /* The codec reads versions 1..HFP_VERSION; decode the version by hand. */
   CF_CHECK(t, f.h.length >= 2, "HELLO_OK too short");

@@ -162,6 +162,38 @@ static float value(const uint8_t *p, int dtype, size_t i) {
   return v;
 }
 
+const char *cf_result_malformed(const cf_frame *fr, int rc, char *buf, size_t cap) {
+  uint32_t len = fr->h.length;
+  if (len < HFP_RESULT_FIXED) {
+    snprintf(buf, cap, "its payload is %u bytes, shorter than the %d of its fixed fields", len,
+             HFP_RESULT_FIXED);
+    return buf;
+  }
+  hfp_result m;
+  hfp_decode_result_head(fr->p, HFP_RESULT_FIXED, len, &m);
+  char fields[200];
+  snprintf(fields, sizeof fields, "status %s, dtype %u, flags 0x%02x, %ux%u, batch %u",
+           hfp_code_name(m.status), m.dtype, m.flags, m.width, m.height, m.batch);
+  if (rc != -HFP_E_LENGTH) {
+    snprintf(buf, cap, "%s (%s; %u payload bytes)", hfp_strerror(rc), fields, len);
+    return buf;
+  }
+  /* The sizes the fields imply (PROTOCOL.md, RESULT). */
+  uint64_t dl = 0, rl = 0;
+  if (m.status == HFP_OK && !(m.flags & HFP_FILTER_SHM)) {
+    hfp_output_bytes(m.width, m.height, HFP_OUTPUTS, m.dtype, &dl);
+    if (m.flags & HFP_FILTER_COMPOSITE) hfp_output_bytes(m.width, m.height, 4, m.dtype, &rl);
+  }
+  uint64_t want = HFP_RESULT_FIXED + dl + rl;
+  char comp[48] = "";
+  if (rl) snprintf(comp, sizeof comp, " + %llu composite", (unsigned long long)rl);
+  snprintf(buf, cap, "its payload is %u bytes, %llu %s than its fields (%s) need: %llu = %d fixed "
+           "+ %llu result%s", len, (unsigned long long)(len < want ? want - len : len - want),
+           len < want ? "fewer" : "more", fields, (unsigned long long)want, HFP_RESULT_FIXED,
+           (unsigned long long)dl, comp);
+  return buf;
+}
+
 int cf_check_result(cf_test *t, const cf_frame *fr, const cf_filter *f, int version,
                     const uint8_t *shm_mem, float **result, uint8_t *result_flags) {
   char d[400];
@@ -171,7 +203,11 @@ int cf_check_result(cf_test *t, const cf_frame *fr, const cf_filter *f, int vers
            fr->h.request_id, f->id);
   hfp_result r;
   int rc = hfp_decode_result(fr->p, fr->h.length, &r);
-  CF_CHECK(t, rc == 0, "RESULT for request %u does not decode: %s", f->id, hfp_strerror(rc));
+  if (rc) {
+    char why[400];
+    return cf_fail(t, "RESULT for request %u is malformed: %s", f->id,
+                   cf_result_malformed(fr, rc, why, sizeof why));
+  }
   CF_CHECK(t, r.status == HFP_OK, "RESULT for request %u has status %s", f->id,
            hfp_code_name(r.status));
   CF_CHECK(t, r.dtype == f->out_dtype, "RESULT dtype %u, the FILTER asked for %d", r.dtype,

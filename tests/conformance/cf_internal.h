@@ -13,6 +13,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include <hairfilter/hairfilter.h>
 
@@ -139,6 +140,8 @@ int cf_expect_quiet(cf_test *t, int fd);
 int cf_busy(cf_test *t, const cf_frame *r, hfp_error *e);
 /* The connection still serves: LIST_VARIANTS gets VARIANTS. */
 int cf_still_serves(cf_test *t, int fd);
+/* PROTOCOL.md's name of a message type ("RESULT"), or "type N" (in buf). */
+const char *cf_type_name(int type, char buf[16]);
 /* A description of a frame for messages ("ERROR BUSY (fatal) id 3: ..."). */
 const char *cf_describe(const cf_frame *f, char *buf, size_t cap);
 #define CF_CODE(c) (1u << (c))
@@ -215,6 +218,9 @@ void cf_header(uint8_t *buf, int type, uint16_t flags, uint32_t id, uint32_t len
  * registered f32 copy of the result channels. */
 int cf_check_result(cf_test *t, const cf_frame *fr, const cf_filter *f, int version,
                     const uint8_t *shm_mem, float **result, uint8_t *result_flags);
+/* What is malformed in a RESULT that hfp_decode_result refused with rc:
+ * for a length, the bytes it has and the bytes its fields need. */
+const char *cf_result_malformed(const cf_frame *fr, int rc, char *buf, size_t cap);
 /* Sends f on fd and checks its RESULT (cf_check_result). */
 int cf_filter_ok(cf_test *t, int fd, const cf_filter *f, int version, float **result,
                  uint8_t *result_flags);
@@ -232,6 +238,37 @@ size_t cf_shm_destroy_frame(uint8_t *buf, uint32_t segment);
 /* What an ordinary libhairfilter client gets for the probe frame: 0 when it
  * is served and its result equals the reference. */
 int cf_health(cf_test *t);
+
+/* ---- the JUnit report (cf_junit.c) ---------------------------------------- */
+
+typedef struct cf_record {
+  const char *name;
+  int rc;                            /* CF_PASS, CF_FAIL, CF_SKIP */
+  char *why;
+  double ms;
+} cf_record;
+
+typedef struct cf_report {
+  FILE *f;                           /* NULL: no report asked for */
+  const char *path, *suite;
+  cf_record *rec;
+  int n, cap;
+  double t0;
+  char stamp[32];
+} cf_report;
+
+/* Text as XML character data or an attribute value: markup escaped, every
+ * byte that is not valid UTF-8 of a character XML 1.0 allows written as the
+ * text \xNN. */
+void cf_xml_text(FILE *f, const char *text);
+/* Opens path (NULL: no report) for the suite named suite; -1 with the
+ * reason printed to out when it cannot be written. */
+int cf_report_open(cf_report *r, const char *path, const char *suite, FILE *out);
+void cf_report_add(cf_report *r, const char *name, int rc, const char *why, double ms);
+/* Writes the report and closes it: the cases added, or with error (not
+ * NULL) one errored testcase saying why the suite could not run. -1 with
+ * the reason printed to out when writing failed. */
+int cf_report_close(cf_report *r, const cf_summary *s, const char *error, FILE *out);
 
 /* Milliseconds of CLOCK_MONOTONIC. */
 double cf_now_ms(void);

@@ -59,8 +59,11 @@ static int hello_at(cf_test *t, int lo, int hi, const char *token, hfp_hello_ok 
     rc = 0;
   else if (f.h.type == HFP_ERROR && hfp_decode_error(f.p, f.h.length, err) == 0)
     rc = 1;
-  else
-    cf_fail(t, "the reply to HELLO is neither HELLO_OK nor ERROR (type %u)", f.h.type);
+  else {
+    char tn[16];
+    cf_fail(t, "the reply to HELLO is neither HELLO_OK nor ERROR that decodes (%s, %u bytes)",
+            cf_type_name(f.h.type, tn), f.h.length);
+  }
   cf_close(t, fd);
   return rc;
 }
@@ -152,8 +155,22 @@ static int probe(const cf_options *o, cf_server *s, char *why, size_t whylen) {
       rc = HFC_E_NOMEM;
     }
     free(in);
-    if (rc) snprintf(why, whylen, "an ordinary frame (%s %dx%d) failed: %s (%s)", pf.variant,
-                     s->pw, s->ph, hfc_strerror(rc), hfc_last_message(c));
+    if (rc) {
+      /* Say what was wrong with the reply: the same frame over a raw
+       * connection, its RESULT checked field by field. */
+      char lib[300];
+      snprintf(lib, sizeof lib, "%s (%s)", hfc_strerror(rc), hfc_last_message(c));
+      int fd;
+      pf.id = 1;
+      t.why[0] = 0;
+      if (cf_connect_hello(&t, 1, HFP_VERSION, &fd, NULL) == 0)
+        cf_filter_ok(&t, fd, &pf, s->version, NULL, NULL);
+      snprintf(why, whylen,
+               "the probe's ordinary frame (variant %s, %dx%d, f32), which every case's health "
+               "check needs, failed through libhairfilter: %.200s%s%.200s", pf.variant, s->pw,
+               s->ph, lib, t.why[0] ? "; sent again directly: " : "", t.why);
+      release(&t);
+    }
     hfc_close(c);
   } else {
     snprintf(why, whylen, "libhairfilter cannot connect: %s", hfc_strerror(rc));
@@ -180,9 +197,10 @@ static const char *unmet(const cf_server *s, unsigned needs) {
   return NULL;
 }
 
-static void verdict(const cf_options *o, cf_summary *sum, const char *name, int rc,
-                    const char *why, double ms) {
+static void verdict(const cf_options *o, cf_summary *sum, cf_report *rep, const char *name,
+                    int rc, const char *why, double ms) {
   sum->cases++;
+  cf_report_add(rep, name, rc, why, ms);
   const char *word = rc == CF_PASS ? "PASS" : rc == CF_SKIP ? "SKIP" : "FAIL";
   if (rc == CF_PASS) sum->passed++;
   else if (rc == CF_SKIP) sum->skipped++;
@@ -198,10 +216,32 @@ static void verdict(const cf_options *o, cf_summary *sum, const char *name, int 
   }
 }
 
-static void summary(const cf_options *o, const cf_summary *sum, const char *what) {
+/* The summary line, the report written: 0, 1 or 2 as cf_run_server says. */
+static int summary(const cf_options *o, const cf_summary *sum, cf_report *rep, const char *what) {
   fprintf(o->out, "conformance: %d cases, %d passed, %d failed, %d skipped (%s)\n", sum->cases,
           sum->passed, sum->failed, sum->skipped, what);
   fflush(o->out);
+  if (cf_report_close(rep, sum, NULL, o->out)) return 2;
+  return sum->failed ? 1 : 0;
+}
+
+/* How many cases of the tables match the pattern; with none, says so (a
+ * mistyped filter must not pass as an empty run). */
+static int matching(const cf_options *o, const cf_case *const *tables, size_t nt, int client) {
+  int n = 0;
+  for (size_t k = 0; k < nt; k++)
+    for (const cf_case *c = tables[k]; c->name; c++)
+      n += !o->pattern || !fnmatch(o->pattern, c->name, 0);
+  if (!n)
+    fprintf(o->out, "conformance: no case matches '%s' (hairfilter conformance --list%s names "
+            "them)\n", o->pattern, client ? " --client" : "");
+  return n;
+}
+
+/* Gives up before any case ran: the reason in the report too. */
+static int give_up(const cf_options *o, const cf_summary *sum, cf_report *rep, const char *why) {
+  cf_report_close(rep, sum, why, o->out);
+  return 2;
 }
 
 int cf_run_server(const cf_options *opt, cf_summary *sum) {
@@ -209,11 +249,20 @@ int cf_run_server(const cf_options *opt, cf_summary *sum) {
   memset(sum, 0, sizeof *sum);
   signal(SIGPIPE, SIG_IGN);
   cf_server s;
-  char why[600];
+  char why[1024], suite[400];
+  snprintf(suite, sizeof suite, "conformance %.380s", o.server ? o.server : "(no server)");
+  cf_report rep;
+  if (cf_report_open(&rep, o.junit, suite, o.out)) return 2;
+  if (!matching(&o, server_tables, sizeof server_tables / sizeof server_tables[0], 0)) {
+    snprintf(why, sizeof why, "no case matches '%.900s'", o.pattern);
+    return give_up(&o, sum, &rep, why);
+  }
   if (!o.server || probe(&o, &s, why, sizeof why)) {
-    fprintf(o.out, "conformance: cannot probe %s: %s\n", o.server ? o.server : "(no server)",
-            o.server ? why : "give --server URL");
-    return 2;
+    char line[1200];
+    snprintf(line, sizeof line, "cannot probe %s: %s", o.server ? o.server : "(no server)",
+             o.server ? why : "give --server URL");
+    fprintf(o.out, "conformance: %s\n", line);
+    return give_up(&o, sum, &rep, line);
   }
   fprintf(o.out, "conformance: %s: %s, protocol version %d (speaks%s%s%s), %s%s, %d variant(s), "
                  "limits %ux%u, %u in flight\n",
@@ -221,6 +270,7 @@ int cf_run_server(const cf_options *opt, cf_summary *sum) {
           s.speaks[2] ? " 2" : "", s.speaks[3] ? " 3" : "", s.auth ? "token checked" : "no token",
           (s.hello.server_flags & HFP_SERVER_SHM) ? ", shared memory" : "", s.nv,
           s.hello.max_width, s.hello.max_height, s.hello.max_inflight);
+  fflush(o.out);
   for (size_t k = 0; k < sizeof server_tables / sizeof server_tables[0]; k++)
     for (const cf_case *c = server_tables[k]; c->name; c++) {
       if (o.pattern && fnmatch(o.pattern, c->name, 0)) continue;
@@ -243,17 +293,29 @@ int cf_run_server(const cf_options *opt, cf_summary *sum) {
         }
         release(&t);
       }
-      verdict(&o, sum, c->name, rc, t.why, cf_now_ms() - t0);
+      verdict(&o, sum, &rep, c->name, rc, t.why, cf_now_ms() - t0);
     }
   free(s.reference);
-  summary(&o, sum, o.server);
-  return sum->failed ? 1 : 0;
+  return summary(&o, sum, &rep, o.server);
 }
 
 int cf_run_client(const cf_options *opt, cf_summary *sum) {
   cf_options o = defaults(opt);
   memset(sum, 0, sizeof *sum);
   signal(SIGPIPE, SIG_IGN);
+  static const char what[] = "libhairfilter against the mock server";
+  static const cf_case *const tables[] = {cf_cases_client};
+  cf_report rep;
+  if (cf_report_open(&rep, o.junit, "conformance --client", o.out)) return 2;
+  int n = matching(&o, tables, 1, 1);
+  if (!n) {
+    char why[1024];
+    snprintf(why, sizeof why, "no case matches '%.900s'", o.pattern);
+    return give_up(&o, sum, &rep, why);
+  }
+  /* The header line, as for a server. */
+  fprintf(o.out, "conformance: %s, %d case(s)\n", what, n);
+  fflush(o.out);
   for (const cf_case *c = cf_cases_client; c->name; c++) {
     if (o.pattern && fnmatch(o.pattern, c->name, 0)) continue;
     cf_test t;
@@ -263,10 +325,9 @@ int cf_run_client(const cf_options *opt, cf_summary *sum) {
     double t0 = cf_now_ms();
     int rc = c->run(&t, c->arg);
     release(&t);
-    verdict(&o, sum, c->name, rc, t.why, cf_now_ms() - t0);
+    verdict(&o, sum, &rep, c->name, rc, t.why, cf_now_ms() - t0);
   }
-  summary(&o, sum, "libhairfilter against the mock server");
-  return sum->failed ? 1 : 0;
+  return summary(&o, sum, &rep, what);
 }
 
 void cf_list(FILE *out, int client_suite) {

@@ -316,6 +316,21 @@ static ssize_t recv_until(int fd, uint8_t *p, size_t n, double deadline, int *pa
   return (ssize_t)got;
 }
 
+/* PROTOCOL.md's name of a message type, "type N" for one it does not name. */
+const char *cf_type_name(int type, char buf[16]) {
+  static const char *const n[] = {"?", "HELLO", "HELLO_OK", "LIST_VARIANTS", "VARIANTS",
+                                  "FILTER", "RESULT", "ERROR", "STATS", "STATS_REPLY",
+                                  "SHM_CREATE", "SHM_CREATED", "SHM_DESTROY"};
+  if (type >= 1 && type <= HFP_TYPE_MAX && type < (int)(sizeof n / sizeof n[0])) return n[type];
+  snprintf(buf, 16, "type %d", type);
+  return buf;
+}
+
+static const char *type_name(int type) {
+  static __thread char b[16];
+  return cf_type_name(type, b);
+}
+
 int cf_read(cf_test *t, int fd, int timeout_ms, cf_frame *f) {
   memset(f, 0, sizeof *f);
   f->passed_fd = -1;
@@ -332,31 +347,24 @@ int cf_read(cf_test *t, int fd, int timeout_ms, cf_frame *f) {
     return cf_fail(t, "the connection closed %zd bytes into a frame header", r);
   int rc = hfp_header_decode(hb, UINT32_MAX, &f->h);
   if (rc)
-    return cf_fail(t, "the server sent a bad frame header (%s): %02x %02x %02x %02x type %u flags %u",
-                   hfp_strerror(rc), hb[0], hb[1], hb[2], hb[3], hfp_get_u16(hb + 4),
+    return cf_fail(t, "the server sent a bad frame header (%s): %02x %02x %02x %02x %s flags %u",
+                   hfp_strerror(rc), hb[0], hb[1], hb[2], hb[3], type_name(hfp_get_u16(hb + 4)),
                    hfp_get_u16(hb + 6));
   /* Replies are bounded by what was asked; 1 GiB is far past any of ours. */
   if (f->h.length > (1u << 30))
-    return cf_fail(t, "a frame of type %u announces %u payload bytes", f->h.type, f->h.length);
+    return cf_fail(t, "a %s frame announces %u payload bytes", type_name(f->h.type), f->h.length);
   f->p = cf_alloc(t, f->h.length);
   if (!f->p) return cf_fail(t, "out of memory for a %u-byte frame", f->h.length);
   /* The rest of a frame must follow promptly. */
   deadline = cf_now_ms() + t->o->timeout_ms;
   r = recv_until(fd, f->p, f->h.length, deadline, &f->passed_fd, &err);
-  if (r == -1) return cf_fail(t, "a frame of type %u stopped after %d of %u payload bytes",
-                              f->h.type, err, f->h.length);
+  if (r == -1) return cf_fail(t, "a %s frame (id %u) stopped after %d of its %u payload bytes",
+                              type_name(f->h.type), f->h.request_id, err, f->h.length);
   if (r == -2) return cf_fail(t, "recv: %s", strerror(err));
   if (r < (ssize_t)f->h.length)
-    return cf_fail(t, "the connection closed %zd bytes into a %u-byte payload of type %u", r,
-                   f->h.length, f->h.type);
+    return cf_fail(t, "the connection closed %zd bytes into the %u-byte payload of a %s (id %u)", r,
+                   f->h.length, type_name(f->h.type), f->h.request_id);
   return CF_GOT;
-}
-
-static const char *type_name(int type) {
-  static const char *const n[] = {"?", "HELLO", "HELLO_OK", "LIST_VARIANTS", "VARIANTS",
-                                  "FILTER", "RESULT", "ERROR", "STATS", "STATS_REPLY",
-                                  "SHM_CREATE", "SHM_CREATED", "SHM_DESTROY"};
-  return type >= 1 && type <= HFP_TYPE_MAX ? n[type] : "?";
 }
 
 const char *cf_describe(const cf_frame *f, char *buf, size_t cap) {

@@ -38,7 +38,8 @@ typedef struct cf_options {
   int quiet_ms;            /* how long "no reply" is watched for; 0: 300 */
   int stall_ms;            /* how long the stall cases stay silent; 0: 1500 */
   int verbose;             /* print passing cases too */
-  FILE *out;               /* progress and summary; NULL: stdout */
+  FILE *out;               /* the report: header, verdicts, summary; NULL: stdout */
+  const char *junit;       /* also write the verdicts as JUnit XML to this file; NULL: no */
 } cf_options;
 
 typedef struct cf_summary {
@@ -47,9 +48,15 @@ typedef struct cf_summary {
 
 /* Runs the server suite against o->server. Returns 0 when no case failed,
  * 1 when some did, 2 when the server could not be probed at all (no
- * HELLO_OK, no VARIANTS: the message says why). Prints one line per failed
- * or skipped case (every case with verbose) and a summary line
- * "conformance: N cases, P passed, F failed, S skipped". */
+ * HELLO_OK, no VARIANTS, no valid RESULT for an ordinary frame: the message
+ * says why), when o->pattern matches no case, or when o->junit cannot be
+ * written. Prints to o->out a header line, one line per failed or skipped
+ * case (every case with verbose) and a summary line
+ * "conformance: N cases, P passed, F failed, S skipped". With o->junit,
+ * writes the same verdicts as JUnit XML: a <testsuite> with one <testcase>
+ * per case run, a failed one holding <failure message="why">, a skipped
+ * one <skipped message="why">; when it returns 2 after opening the file,
+ * one <testcase name="conformance"> holding <error message="why">. */
 int cf_run_server(const cf_options *o, cf_summary *sum);
 
 /* Runs the client suite: libhairfilter against the scripted mock server
