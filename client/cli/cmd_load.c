@@ -38,7 +38,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/utsname.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -47,6 +46,7 @@
 #include "commands.h"
 #include <hairfilter/hairfilter.h>
 #include "load.h"
+#include "run_header.h"
 
 typedef struct opts {
   const char *server, *variant, *token, *input, *part, *json, *csv, *plot;
@@ -816,45 +816,15 @@ static void *make_frame(opts *o, int spp, int estimate, size_t *bytes) {
   return h;
 }
 
-/* The header's fields: the command line as a shell would take it back,
- * the CPU model and cores, the UTC date and the tool's version. */
+/* The header's fields (run_header.h) and the tool's version. */
 static void describe_run(int argc, char **argv, load_run *r) {
-  static char cmd[4096], cpu[256], date[32];
-  size_t n = (size_t)snprintf(cmd, sizeof cmd, "hairfilter");
-  for (int i = 0; i < argc && n < sizeof cmd - 8; i++) {
-    const char *a = argv[i];
-    int plain = *a != 0;
-    for (const char *c = a; *c; c++)
-      if (!strchr("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_@%+=:,./-", *c))
-        plain = 0;
-    n += (size_t)snprintf(cmd + n, sizeof cmd - n, plain ? " " : " '");
-    for (const char *c = a; *c && n < sizeof cmd - 8; c++)
-      n += (size_t)snprintf(cmd + n, sizeof cmd - n, *c == '\'' ? "'\\''" : "%c", *c);
-    if (!plain && n < sizeof cmd - 1) n += (size_t)snprintf(cmd + n, sizeof cmd - n, "'");
-  }
-  cpu[0] = 0;
-  FILE *f = fopen("/proc/cpuinfo", "r");
-  char line[512];
-  while (f && !cpu[0] && fgets(line, sizeof line, f)) {
-    char *colon = strchr(line, ':');
-    if (!colon || strncmp(line, "model name", 10)) continue;
-    char *v = colon + 1 + strspn(colon + 1, " \t");
-    v[strcspn(v, "\n")] = 0;
-    snprintf(cpu, sizeof cpu, "%s", v);
-  }
-  if (f) fclose(f);
-  struct utsname u;
-  if (!cpu[0]) snprintf(cpu, sizeof cpu, "%s", uname(&u) == 0 ? u.machine : "unknown");
-  time_t t = time(NULL);
-  struct tm tm;
-  if (!gmtime_r(&t, &tm) || !strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", &tm))
-    snprintf(date, sizeof date, "unknown");
-  long cores = sysconf(_SC_NPROCESSORS_ONLN);
-  r->command = cmd;
-  r->cpu = cpu;
-  r->date = date;
+  static run_header h;
+  run_header_describe("hairfilter", argc, argv, &h);
+  r->command = h.command;
+  r->cpu = h.cpu;
+  r->date = h.date;
   r->version = HAIRFILTER_VERSION_STRING;
-  r->cores = cores > 0 ? (int)cores : 0;
+  r->cores = h.cores;
 }
 
 int cmd_load(int argc, char **argv) {

@@ -134,6 +134,14 @@ void hfci_begin(hfc_client *c);
 void hfci_msg(hfc_client *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* HFC_E_ARG with a message naming the field. */
 int hfci_arg(hfc_client *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* Copies a caller's struct of struct_size bytes (its first field) into
+ * full, a struct of this header's size already at its init values: fields
+ * are appended within a SONAME (hairfilter.h, "ABI"), so one of an older
+ * header keeps the rest at their defaults. 0, or HFC_E_ARG naming
+ * type.struct_size when it is 0 or below oldest (the first version's
+ * size); init names the function that sets it. */
+int hfci_take_struct(hfc_client *c, const char *type, const void *given, void *full,
+                     size_t full_size, size_t oldest, const char *init);
 
 /* ---- endpoints.c ----------------------------------------------------------- */
 

@@ -361,19 +361,12 @@ int hfci_can_failover(const hfc_client *c, int err, int lost) {
 static int set_options(hfc_client *c, const hfc_options *opt) {
   hfc_options o;
   hfc_options_init(&o);
-  if (opt) {
-    if (opt->struct_size == 0)
-      return hfci_arg(c, "hfc_options.struct_size is 0: initialise the options with "
-                         "hfc_options_init()");
-    /* Fields are appended within a SONAME: options of an older header
-     * (0.1.0 ended before the TLS fields) keep the defaults of the rest. */
-    size_t oldest = offsetof(hfc_options, tls_ca_file);
-    if (opt->struct_size < oldest)
-      return hfci_arg(c, "hfc_options.struct_size is %zu, smaller than any version's %zu: "
-                         "initialise the options with hfc_options_init()",
-                      opt->struct_size, oldest);
-    memcpy(&o, opt, opt->struct_size < sizeof o ? opt->struct_size : sizeof o);
-  }
+  /* Options of an older header (0.1.0's ended before the TLS fields) keep
+   * the defaults of the rest. */
+  int rc;
+  if (opt && (rc = hfci_take_struct(c, "hfc_options", opt, &o, sizeof o,
+                                    offsetof(hfc_options, tls_ca_file), "hfc_options_init")))
+    return rc;
   const char *name = o.client_name ? o.client_name : "libhairfilter";
   size_t nl = strlen(name), tl = o.token ? strlen(o.token) : 0;
   if (nl < 1 || nl > HFP_NAME_MAX)

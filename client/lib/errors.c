@@ -64,4 +64,18 @@ int hfci_arg(hfc_client *c, const char *fmt, ...) {
   return HFC_E_ARG;
 }
 
+int hfci_take_struct(hfc_client *c, const char *type, const void *given, void *full,
+                     size_t full_size, size_t oldest, const char *init) {
+  size_t size;
+  memcpy(&size, given, sizeof size);   /* struct_size, the first field of each */
+  if (size == 0)
+    return hfci_arg(c, "%s.struct_size is 0: initialise it with %s()", type, init);
+  if (size < oldest)
+    return hfci_arg(c, "%s.struct_size is %zu, smaller than any version's %zu: initialise it "
+                       "with %s()", type, size, oldest, init);
+  memcpy(full, given, size < full_size ? size : full_size);
+  memcpy(full, &full_size, sizeof full_size);
+  return 0;
+}
+
 const char *hfc_last_message(const hfc_client *c) { return c ? c->msg : thread_msg; }

@@ -309,25 +309,13 @@ static int overlaps_input(const pending *p) {
   return 0;
 }
 
-/* Copies the caller's request into *full, this header's layout. Fields are
- * appended to hfc_request within a SONAME (hairfilter.h, "ABI"), so a
- * request of an older header (a smaller struct_size; 0.1.0's ended at
- * user) keeps the rest at their hfc_request_init() values: no estimate.
- * Returns 0, or HFC_E_ARG for a struct_size no version had. */
+/* The caller's request in this header's layout (hfci_take_struct):
+ * 0.1.0's ended at user, so the estimate fields default to none. */
 static int take_request(hfc_client *c, const hfc_request *r, hfc_request *full) {
   if (!r) return hfci_arg(c, "the request is NULL");
-  if (r->struct_size == 0)
-    return hfci_arg(c, "hfc_request.struct_size is 0: initialise the request with "
-                       "hfc_request_init()");
-  size_t oldest = offsetof(hfc_request, estimate);
-  if (r->struct_size < oldest)
-    return hfci_arg(c, "hfc_request.struct_size is %zu, smaller than any version's %zu: "
-                       "initialise the request with hfc_request_init()",
-                    r->struct_size, oldest);
   hfc_request_init(full);
-  memcpy(full, r, r->struct_size < sizeof *full ? r->struct_size : sizeof *full);
-  full->struct_size = sizeof *full;
-  return 0;
+  return hfci_take_struct(c, "hfc_request", r, full, sizeof *full,
+                          offsetof(hfc_request, estimate), "hfc_request_init");
 }
 
 static int submit(hfc_client *c, const hfc_request *caller, uint32_t *id, int *slot) {

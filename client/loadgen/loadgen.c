@@ -20,11 +20,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/utsname.h>
 #include <time.h>
 #include <unistd.h>
 
 #include <hairfilter/hairfilter.h>
+
+#include "run_header.h"
 
 typedef struct opts {
   const char *server, *variant, *token;
@@ -299,39 +300,12 @@ static double pct(const float *v, size_t n, double p) {
 }
 
 /* The line above the figures: the command, the machine (CPU model and
- * cores), the UTC date and the version. */
+ * cores), the UTC date and the version (run_header.h). */
 static void print_header(int argc, char **argv) {
-  char cpu[256] = "", line[512], date[32] = "unknown";
-  FILE *f = fopen("/proc/cpuinfo", "r");
-  while (f && !cpu[0] && fgets(line, sizeof line, f)) {
-    char *colon = strchr(line, ':');
-    if (!colon || strncmp(line, "model name", 10)) continue;
-    char *v = colon + 1 + strspn(colon + 1, " \t");
-    v[strcspn(v, "\n")] = 0;
-    snprintf(cpu, sizeof cpu, "%s", v);
-  }
-  if (f) fclose(f);
-  struct utsname u;
-  if (!cpu[0]) snprintf(cpu, sizeof cpu, "%s", uname(&u) == 0 ? u.machine : "unknown");
-  time_t t = time(NULL);
-  struct tm tm;
-  if (gmtime_r(&t, &tm)) strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  printf("command: hairfilter-load");
-  for (int i = 1; i < argc; i++) {
-    int plain = argv[i][0] != 0;
-    for (const char *c = argv[i]; *c; c++)
-      if (!strchr("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_@%+=:,./-", *c))
-        plain = 0;
-    if (plain) {
-      printf(" %s", argv[i]);
-      continue;
-    }
-    printf(" '");
-    for (const char *c = argv[i]; *c; c++) printf(*c == '\'' ? "'\\''" : "%c", *c);
-    printf("'");
-  }
-  printf("\nmachine: %s, %ld cores; %s; hairfilter-load %s\n\n", cpu, sysconf(_SC_NPROCESSORS_ONLN),
-         date, HAIRFILTER_VERSION_STRING);
+  run_header h;
+  run_header_describe("hairfilter-load", argc - 1, argv + 1, &h);
+  printf("command: %s\nmachine: %s, %d cores; %s; hairfilter-load %s\n\n", h.command, h.cpu,
+         h.cores, h.date, HAIRFILTER_VERSION_STRING);
 }
 
 int main(int argc, char **argv) {

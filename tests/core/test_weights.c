@@ -74,6 +74,20 @@ static blob with_header_edit(const blob *b, const char *from, const char *to) {
   return o;
 }
 
+/* Rebuilds the file with suffix after the header's JSON (inside the
+ * header's declared length). */
+static blob with_header_suffix(const blob *b, const char *suffix) {
+  uint64_t hl = hlen_of(b);
+  size_t k = strlen(suffix);
+  blob o = {malloc(b->len + k), b->len + k};
+  assert_non_null(o.data);
+  for (int i = 0; i < 8; i++) o.data[i] = (unsigned char)((hl + k) >> (8 * i));
+  memcpy(o.data + 8, b->data + 8, hl);
+  memcpy(o.data + 8 + hl, suffix, k);
+  memcpy(o.data + 8 + hl + k, b->data + 8 + hl, b->len - 8 - hl);
+  return o;
+}
+
 static void expect_reject(const blob *b, int want_rc, const char *want_in_msg) {
   hf_weights *w = (hf_weights *)0x1;
   char err[512] = "";
@@ -200,12 +214,7 @@ static void test_bad_json(void **state) {
  * there), while safetensors' own reader refuses them. */
 static void test_trailing_json(void **state) {
   blob b = valid_file(NULL);
-  uint64_t hl = hlen_of(&b);
-  blob o = {malloc(b.len + 3), b.len + 3};
-  for (int i = 0; i < 8; i++) o.data[i] = (unsigned char)((hl + 3) >> (8 * i));
-  memcpy(o.data + 8, b.data + 8, hl);
-  memcpy(o.data + 8 + hl, "xyz", 3);
-  memcpy(o.data + 8 + hl + 3, b.data + 8 + hl, b.len - 8 - hl);
+  blob o = with_header_suffix(&b, "xyz");
   expect_reject(&o, HF_EFORMAT, "header is not valid JSON");
   free(o.data);
   blob m = with_header_edit(&b, "\\\"tangent.y\\\"]}", "\\\"tangent.y\\\"]}garbage");
@@ -217,11 +226,7 @@ static void test_trailing_json(void **state) {
   expect_reject(&r, HF_EFORMAT, "input_range is not a JSON object");
   free(r.data);
   /* safetensors pads its header with spaces: still one value. */
-  blob p = {malloc(b.len + 4), b.len + 4};
-  for (int i = 0; i < 8; i++) p.data[i] = (unsigned char)((hl + 4) >> (8 * i));
-  memcpy(p.data + 8, b.data + 8, hl);
-  memcpy(p.data + 8 + hl, "    ", 4);
-  memcpy(p.data + 8 + hl + 4, b.data + 8 + hl, b.len - 8 - hl);
+  blob p = with_header_suffix(&b, "    ");
   hf_weights *w = NULL;
   char err[512] = "";
   assert_int_equal(hf_weights_load_mem(p.data, p.len, &w, err, sizeof err), HF_OK);

@@ -1,0 +1,39 @@
+/* The command, machine and date of a load run (run_header.h). */
+#define _POSIX_C_SOURCE 200809L
+#include "run_header.h"
+
+#include <stdio.h>
+#include <string.h>
+#include <sys/utsname.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "bench_peak.h"
+
+void run_header_describe(const char *prog, int argc, char **argv, run_header *h) {
+  size_t cap = sizeof h->command;
+  size_t n = (size_t)snprintf(h->command, cap, "%s", prog);
+  for (int i = 0; i < argc && n < cap - 8; i++) {
+    const char *a = argv[i];
+    int plain = *a != 0;
+    for (const char *c = a; *c; c++)
+      if (!strchr("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_@%+=:,./-", *c))
+        plain = 0;
+    n += (size_t)snprintf(h->command + n, cap - n, plain ? " " : " '");
+    for (const char *c = a; *c && n < cap - 8; c++)
+      n += (size_t)snprintf(h->command + n, cap - n, *c == '\'' ? "'\\''" : "%c", *c);
+    if (!plain && n < cap - 1) n += (size_t)snprintf(h->command + n, cap - n, "'");
+  }
+  bench_cpu cpu;
+  bench_cpu_describe(&cpu);
+  struct utsname u;
+  if (strcmp(cpu.model, "unknown") || uname(&u) != 0)
+    snprintf(h->cpu, sizeof h->cpu, "%s", cpu.model);
+  else
+    snprintf(h->cpu, sizeof h->cpu, "%s", u.machine);
+  h->cores = cpu.online > 0 ? cpu.online : 0;
+  time_t t = time(NULL);
+  struct tm tm;
+  if (!gmtime_r(&t, &tm) || !strftime(h->date, sizeof h->date, "%Y-%m-%dT%H:%M:%SZ", &tm))
+    snprintf(h->date, sizeof h->date, "unknown");
+}
