@@ -235,27 +235,36 @@ static int loopback_host(const char *host) {
   return -1;
 }
 
-/* TCP listeners and their authentication, checked with the options rather
- * than after the weights are loaded (minutes with --warm on a GPU): a TCP
- * listener needs a token unless --no-auth (loopback only) or, on tls:,
- * verified client certificates replace it. */
-static int auth_check(const hfd_config *cfg) {
-  for (int i = 0; i < cfg->num_listen; i++) {
-    const hfp_url *u = &cfg->listen_url[i];
-    if (u->kind != HFP_URL_TCP) continue;
-    int loop = loopback_host(u->host);
-    if (cfg->no_auth && loop == 0) {
-      hfd_err("--listen %s: --no-auth is only allowed on loopback addresses", cfg->listen[i]);
-      return -1;
-    }
-    int auth_required = !cfg->no_auth && !(u->tls && cfg->tls_client_cert_auth);
-    if (auth_required && !cfg->token[0]) {
-      hfd_err("--listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), or "
-              "--no-auth on loopback%s", cfg->listen[i],
-              u->tls ? ", or --tls-client-ca with --tls-client-cert-auth" : "");
-      return -1;
-    }
+int hfd_listener_auth(const hfd_config *cfg, const hfp_url *u, const char *url, int *loopback,
+                      int *auth_required) {
+  /* A host that is not a numeric address is refused when the listener
+   * opens (hairfilterd.c), after what a start made is cleaned up. */
+  int loop = loopback_host(u->host);
+  if (cfg->no_auth && loop == 0) {
+    hfd_err("--listen %s: --no-auth is only allowed on loopback addresses", url);
+    return -1;
   }
+  /* A verified client certificate replaces the token only where it is
+   * asked for, and only on TLS listeners (mutual TLS). */
+  int need = !cfg->no_auth && !(u->tls && cfg->tls_client_cert_auth);
+  if (need && !cfg->token[0]) {
+    hfd_err("--listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), or "
+            "--no-auth on loopback%s", url,
+            u->tls ? ", or --tls-client-ca with --tls-client-cert-auth" : "");
+    return -1;
+  }
+  if (loopback) *loopback = loop == 1;
+  if (auth_required) *auth_required = need;
+  return 0;
+}
+
+/* TCP listeners and their authentication, checked with the options rather
+ * than after the weights are loaded (minutes with --warm on a GPU). */
+static int auth_check(const hfd_config *cfg) {
+  for (int i = 0; i < cfg->num_listen; i++)
+    if (cfg->listen_url[i].kind == HFP_URL_TCP &&
+        hfd_listener_auth(cfg, &cfg->listen_url[i], cfg->listen[i], NULL, NULL))
+      return -1;
   return 0;
 }
 

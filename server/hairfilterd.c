@@ -29,16 +29,6 @@
 
 /* ---- listeners ----------------------------------------------------------- */
 
-static int is_loopback(const struct sockaddr *sa) {
-  if (sa->sa_family == AF_INET)
-    return (ntohl(((const struct sockaddr_in *)sa)->sin_addr.s_addr) >> 24) == 127;
-  if (sa->sa_family == AF_INET6) {
-    static const unsigned char lo[16] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1};
-    return !memcmp(&((const struct sockaddr_in6 *)sa)->sin6_addr, lo, 16);
-  }
-  return 0;
-}
-
 /* A socket file left by a server that died is removed; one that a live
  * server answers on is not. */
 static int clear_stale_socket(const char *path) {
@@ -134,20 +124,10 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
     }
     l->is_tcp = 1;
     l->is_tls = u->tls;
-    int loop_only = is_loopback((struct sockaddr *)&ss);
-    if (s->cfg->no_auth && !loop_only) {
-      hfd_err("--listen %s: --no-auth is only allowed on loopback addresses", url);
-      return -1;
-    }
-    /* A verified client certificate replaces the token only where it is
-     * asked for, and only on TLS listeners (mutual TLS). */
-    l->auth_required = !s->cfg->no_auth && !(l->is_tls && s->cfg->tls_client_cert_auth);
-    if (l->auth_required && !s->cfg->token[0]) {
-      hfd_err("--listen %s: TCP needs a token (--auth-token-file or $HAIRFILTERD_TOKEN), "
-              "or --no-auth on loopback%s", url,
-              l->is_tls ? ", or --tls-client-ca with --tls-client-cert-auth" : "");
-      return -1;
-    }
+    /* Checked with the options already (config.c); again here for a
+     * reload's configuration, by the same rule. */
+    int loop_only;
+    if (hfd_listener_auth(s->cfg, u, url, &loop_only, &l->auth_required)) return -1;
     if (!l->is_tls && !loop_only)
       hfd_warn("--listen %s: plain TCP on a non-loopback address: the token and every frame "
                "cross the network unencrypted; serve remote clients on tls:HOST:PORT "

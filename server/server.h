@@ -128,6 +128,14 @@ typedef struct hfd_config {
  * the flag). Checks that need nothing loaded (URLs, tokens, TLS options, a
  * TCP listener's authentication) are made here. */
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg);
+/* For the tcp:/tls: listener u (written url) of cfg: *loopback 1 when its
+ * host is the loopback interface (127.0.0.0/8, ::1, localhost), and
+ * *auth_required 1 when its clients must give the token (not with
+ * --no-auth, nor on tls: with --tls-client-cert-auth); either may be NULL.
+ * -1, logged, when cfg cannot serve it: --no-auth off loopback, or no
+ * token where one is required. */
+int hfd_listener_auth(const hfd_config *cfg, const hfp_url *u, const char *url, int *loopback,
+                      int *auth_required);
 /* Frees what the config owns (the strings read from its file). */
 void hfd_config_free(hfd_config *cfg);
 

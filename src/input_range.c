@@ -18,7 +18,7 @@ int hf_input_range_parse(const char *json, int spp, hf_input_range *out, char *e
                          size_t errlen) {
   if (!json || !out) return fail(err, errlen, HF_EINVAL, "null argument");
   memset(out, 0, sizeof *out);
-  cJSON *m = cJSON_ParseWithOpts(json, NULL, 1);   /* nothing may follow the object */
+  cJSON *m = hf_json_one_value(json, strlen(json));   /* nothing may follow the object */
   int rc = HF_OK;
   if (!cJSON_IsObject(m)) {
     rc = fail(err, errlen, HF_EFORMAT, "input_range is not a JSON object");

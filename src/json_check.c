@@ -50,3 +50,19 @@ const char *hf_json_duplicate(const cJSON *node, const char **where) {
   }
   return NULL;
 }
+
+/* The JSON value that text's len bytes hold, or NULL when anything but
+ * JSON's whitespace (space, tab, CR, LF) follows it: cJSON's own check
+ * also passes control bytes and stops at a NUL, which Python's json (the
+ * recipe's reader, weights/hfnet.py) refuses. */
+cJSON *hf_json_one_value(const char *text, size_t len) {
+  const char *end = NULL;
+  cJSON *v = cJSON_ParseWithLengthOpts(text, len, &end, 0);
+  if (!v) return NULL;
+  for (const char *p = end; p && p < text + len; p++)
+    if (*p != ' ' && *p != '\t' && *p != '\r' && *p != '\n') {
+      cJSON_Delete(v);
+      return NULL;
+    }
+  return v;
+}

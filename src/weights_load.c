@@ -40,7 +40,7 @@ static int json_int(const cJSON *obj, const char *key, int lo, int hi, int *out)
 
 /* Parses the "hairfilter" metadata string into w->cfg and w->features. */
 static int parse_metadata(const char *text, hf_weights *w, char *err, size_t errlen) {
-  cJSON *m = cJSON_ParseWithOpts(text, NULL, 1);
+  cJSON *m = hf_json_one_value(text, strlen(text));
   if (!m || !cJSON_IsObject(m)) {
     cJSON_Delete(m);
     return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not one JSON object (nothing "
@@ -299,9 +299,10 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   if (!text) return fail(err, errlen, HF_ENOMEM, "out of memory");
   memcpy(text, p + 8, hlen);
   text[hlen] = 0;
-  /* One JSON value and nothing after it (bytes after the closing brace are
-   * not JSON: safetensors' own reader refuses them). */
-  cJSON *root = cJSON_ParseWithOpts(text, NULL, 1);
+  /* One JSON value and nothing after it but JSON's whitespace (the spaces
+   * safetensors pads with): what safetensors' own reader and Python's json
+   * take. */
+  cJSON *root = hf_json_one_value(text, (size_t)hlen);
   free(text);
   if (!root || !cJSON_IsObject(root)) {
     cJSON_Delete(root);

@@ -480,7 +480,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   sigemptyset(&stop_sigs);
   sigaddset(&stop_sigs, SIGINT);
   sigaddset(&stop_sigs, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &stop_sigs, &old_sigs);
+  int masked = pthread_sigmask(SIG_BLOCK, &stop_sigs, &old_sigs) == 0;
   for (int i = 0; i < n; i++) {
     ws[i].sh = sh;
     ws[i].index = i;
@@ -490,7 +490,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
     ws[i].seed = 0x9e3779b97f4a7c15ull * (uint64_t)(i + 1) + (uint64_t)(p->rate * 1000);
     if (pthread_create(&ws[i].thread, NULL, run, &ws[i])) {
       fprintf(stderr, "hairfilter load: cannot start a thread\n");
-      pthread_sigmask(SIG_SETMASK, &old_sigs, NULL);
+      if (masked) pthread_sigmask(SIG_SETMASK, &old_sigs, NULL);
       atomic_store(&sh->phase, PHASE_STOP);
       for (int j = 0; j < i; j++) pthread_join(ws[j].thread, NULL);
       free(ws);
@@ -498,12 +498,12 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
       return -1;
     }
   }
-  pthread_sigmask(SIG_SETMASK, &old_sigs, NULL);
+  if (masked) pthread_sigmask(SIG_SETMASK, &old_sigs, NULL);
   /* The warm-up starts once every connection is set up: connecting and
    * mapping a large segment can take longer than a short window on a
    * loaded machine, which would then hold no frame. Each connection either
    * gets ready or fails (counted lost) within its timeouts. */
-  while (atomic_load(&sh->ready) + atomic_load(&sh->lost) < n) sleep_s(0.005);
+  while (atomic_load(&sh->ready) + atomic_load(&sh->lost) < n && !interrupted) sleep_s(0.005);
   sleep_s(o->warmup_s);
   hfc_variant_stats before, after;
   int have_before = stats_of(o, &before) == 0;
@@ -949,8 +949,9 @@ int cmd_load(int argc, char **argv) {
   sa.sa_flags = SA_RESETHAND;
   sigemptyset(&sa.sa_mask);
   interrupted = 0;
-  sigaction(SIGINT, &sa, NULL);
-  sigaction(SIGTERM, &sa, NULL);
+  if (sigaction(SIGINT, &sa, NULL) || sigaction(SIGTERM, &sa, NULL))
+    fprintf(stderr, "hairfilter load: warning: cannot catch SIGINT/SIGTERM (%s): an interrupt "
+            "will lose the points done\n", strerror(errno));
   load_print_header(rep, &run_info);
   shared sh = {.o = &o, .spp = spp, .estimate = estimate, .features = frame, .in_bytes = in_bytes};
   size_t es = o.f16 ? 2 : 4;
@@ -997,16 +998,19 @@ int cmd_load(int argc, char **argv) {
   }
   run_info.interrupted = interrupted != 0;
   if (run_info.npoints > 1) load_print_summary(rep, &run_info);
-  if (run_info.npoints && o.csv && load_write_csv(o.csv, &run_info)) status = 1;
-  if (run_info.npoints && o.json && load_write_json(o.json, &run_info)) status = 1;
-  if (run_info.npoints && o.plot && load_write_plot(o.plot, &run_info)) status = 1;
+  int write_failed = (run_info.npoints && o.csv && load_write_csv(o.csv, &run_info)) |
+                     (run_info.npoints && o.json && load_write_json(o.json, &run_info)) |
+                     (run_info.npoints && o.plot && load_write_plot(o.plot, &run_info));
+  if (write_failed) status = 1;
   int measured = 0;
   for (int i = 0; i < run_info.npoints; i++) measured += points[i].result.ok > 0;
   if (!status && !measured) status = 1;
+  /* 130 says interrupted; a file that could not be written (said above)
+   * keeps 1, which a script must not take for a complete run either. */
   if (run_info.interrupted) {
     fprintf(stderr, "hairfilter load: interrupted by %s after %d point(s)\n",
             interrupted == SIGTERM ? "SIGTERM" : "SIGINT", run_info.npoints);
-    status = 130;
+    if (!write_failed) status = 130;
   }
   signal(SIGINT, SIG_DFL);
   signal(SIGTERM, SIG_DFL);

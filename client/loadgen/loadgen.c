@@ -58,6 +58,9 @@ typedef struct worker {
 /* A refused request's slot rests this long before it sends again, so that
  * a refusing server is not spun against (as BUSY_BACKOFF_S in cmd_load.c). */
 #define BUSY_BACKOFF_S 0.01
+/* Seconds without an answer, frames pending, after which the server is
+ * taken for stalled: the connections' hfc_options timeout. */
+#define STALL_S 30.0
 
 /* Set by SIGINT or SIGTERM: the window ends there. */
 static volatile sig_atomic_t interrupted;
@@ -89,20 +92,31 @@ static void usage(FILE *f) {
           "refused; 2 bad options or over the server's limits; 130 interrupted.\n");
 }
 
+/* BUSY and SHUTTING_DOWN are refusals for now, counted as busy apart from
+ * the errors. */
+static int refused_for_now(int status) {
+  return status == HFC_E_BUSY || status == HFC_E_SHUTTING_DOWN;
+}
+
 static int record(worker *w, const hfc_completion *d, int warm) {
-  if (d->status) w->last_error = d->status;
   if (warm) {
-    if (d->status == HFC_E_BUSY) w->warm_busy++;
-    else if (d->status) w->warm_errors++;
-    else w->warm_ok++;
+    if (refused_for_now(d->status)) {
+      w->warm_busy++;
+    } else if (d->status) {
+      w->warm_errors++;
+      w->last_error = d->status;
+    } else {
+      w->warm_ok++;
+    }
     return 0;
   }
-  if (d->status == HFC_E_BUSY) {
+  if (refused_for_now(d->status)) {
     w->busy++;
     return 0;
   }
   if (d->status) {
     w->errors++;
+    w->last_error = d->status;
     return 0;
   }
   /* Only completions inside the measured window count, so the frames still
@@ -136,7 +150,7 @@ static void *run(void *arg) {
   co.tls_cert_file = o->tls_cert;
   co.tls_key_file = o->tls_key;
   co.tls_server_name = o->tls_server_name;
-  co.timeout_ms = 30000;
+  co.timeout_ms = (int)(STALL_S * 1000);
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
     const char *m = hfc_last_message(NULL);
@@ -216,8 +230,19 @@ static void *run(void *arg) {
     goto done;
   }
   int pending = 0, refused = 0;
+  /* hfc_wait is asked for 100 ms at most, to see the end and signals, so
+   * it never times a stalled server out itself: nothing back for the
+   * client's timeout with frames pending fails the connection here. */
+  double last_answer = now_s();
   for (;;) {
     double now = now_s();
+    if (pending && now - last_answer > STALL_S) {
+      fprintf(stderr, "hairfilter-load: no answer from the server for %.0f s with %d frame(s) "
+              "pending; stopping\n", STALL_S, pending);
+      w->fatal = 1;
+      break;
+    }
+    if (!pending) last_answer = now;
     if (interrupted && now < w->t_end) w->t_end = now < w->t_measure ? w->t_measure : now;
     int stopping = now >= w->t_end || refused;
     if (stopping && !pending) break;
@@ -254,16 +279,19 @@ static void *run(void *arg) {
     }
     if (rc) break;
     pending--;
+    last_answer = now_s();
     int s = (int)(intptr_t)d.user;
     slots[s].busy = 0;
-    if (!slots[s].warm) w->answered++;
+    /* An answer is the server's: local failures (the connection lost, a
+     * timeout) are not. */
+    if (!slots[s].warm && d.status > HFC_E_ARG) w->answered++;
     if (record(w, &d, slots[s].warm)) {
       rc = HFC_E_NOMEM;
       break;
     }
-    if (d.status == HFC_E_BUSY || d.status == HFC_E_SHUTTING_DOWN) {
+    if (refused_for_now(d.status)) {
       slots[s].not_before = now_s() + BUSY_BACKOFF_S;
-    } else if (d.status && d.status != HFC_E_INTERNAL && !refused) {
+    } else if (d.status < 0 && d.status > HFC_E_ARG && d.status != HFC_E_INTERNAL && !refused) {
       /* Sent again, it would be refused again. */
       const char *m = hfc_last_message(c);
       fprintf(stderr, "hairfilter-load: the server refused a frame: %s%s%s%s; stopping\n",
@@ -387,7 +415,7 @@ int main(int argc, char **argv) {
   co.tls_cert_file = o.tls_cert;
   co.tls_key_file = o.tls_key;
   co.tls_server_name = o.tls_server_name;
-  co.timeout_ms = 30000;
+  co.timeout_ms = (int)(STALL_S * 1000);
   int rc = hfc_connect(o.server, &co, &c);
   if (rc) {
     const char *m = hfc_last_message(NULL);
@@ -442,8 +470,12 @@ int main(int argc, char **argv) {
   sa.sa_handler = on_signal;
   sa.sa_flags = SA_RESETHAND;
   sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, NULL);
-  sigaction(SIGTERM, &sa, NULL);
+  if (sigaction(SIGINT, &sa, NULL) || sigaction(SIGTERM, &sa, NULL))
+    fprintf(stderr, "hairfilter-load: warning: cannot catch SIGINT/SIGTERM (%s)\n",
+            strerror(errno));
+  else
+    fprintf(stderr, "hairfilter-load: %d connection(s) starting; SIGINT or SIGTERM ends the "
+            "window and reports it\n", o.connections);
   for (int i = 0; i < o.connections; i++) {
     w[i].o = &o;
     w[i].spp = spp;

@@ -169,8 +169,11 @@ const char *cf_result_malformed(const cf_frame *fr, int rc, char *buf, size_t ca
              HFP_RESULT_FIXED);
     return buf;
   }
+  /* Only the fixed fields are wanted, for the message: with len at least
+   * their size they are always read (and m is zeroed first), whatever the
+   * decoder then says of the rest, which rc already holds. */
   hfp_result m;
-  hfp_decode_result_head(fr->p, HFP_RESULT_FIXED, len, &m);
+  (void)hfp_decode_result_head(fr->p, HFP_RESULT_FIXED, len, &m);
   char fields[200];
   snprintf(fields, sizeof fields, "status %s, dtype %u, flags 0x%02x, %ux%u, batch %u",
            hfp_code_name(m.status), m.dtype, m.flags, m.width, m.height, m.batch);

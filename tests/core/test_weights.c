@@ -76,9 +76,8 @@ static blob with_header_edit(const blob *b, const char *from, const char *to) {
 
 /* Rebuilds the file with suffix after the header's JSON (inside the
  * header's declared length). */
-static blob with_header_suffix(const blob *b, const char *suffix) {
+static blob with_header_suffix(const blob *b, const char *suffix, size_t k) {
   uint64_t hl = hlen_of(b);
-  size_t k = strlen(suffix);
   blob o = {malloc(b->len + k), b->len + k};
   assert_non_null(o.data);
   for (int i = 0; i < 8; i++) o.data[i] = (unsigned char)((hl + k) >> (8 * i));
@@ -214,9 +213,17 @@ static void test_bad_json(void **state) {
  * there), while safetensors' own reader refuses them. */
 static void test_trailing_json(void **state) {
   blob b = valid_file(NULL);
-  blob o = with_header_suffix(&b, "xyz");
-  expect_reject(&o, HF_EFORMAT, "header is not valid JSON");
-  free(o.data);
+  /* Bytes JSON does not call whitespace, a control byte and a NUL with
+   * bytes after it included (cJSON's own end check passes both). */
+  static const struct {
+    const char *bytes;
+    size_t len;
+  } after[] = {{"xyz", 3}, {"\x01", 1}, {" \0junk", 6}};
+  for (size_t i = 0; i < sizeof after / sizeof after[0]; i++) {
+    blob o = with_header_suffix(&b, after[i].bytes, after[i].len);
+    expect_reject(&o, HF_EFORMAT, "header is not valid JSON");
+    free(o.data);
+  }
   blob m = with_header_edit(&b, "\\\"tangent.y\\\"]}", "\\\"tangent.y\\\"]}garbage");
   expect_reject(&m, HF_EFORMAT, "metadata 'hairfilter' is not one JSON object");
   free(m.data);
@@ -225,8 +232,9 @@ static void test_trailing_json(void **state) {
                             "\\\"spp\\\":4}{}\",");
   expect_reject(&r, HF_EFORMAT, "input_range is not a JSON object");
   free(r.data);
-  /* safetensors pads its header with spaces: still one value. */
-  blob p = with_header_suffix(&b, "    ");
+  /* safetensors pads its header with spaces, and JSON's whitespace is
+   * allowed: still one value. */
+  blob p = with_header_suffix(&b, "  \t\r\n  ", 7);
   hf_weights *w = NULL;
   char err[512] = "";
   assert_int_equal(hf_weights_load_mem(p.data, p.len, &w, err, sizeof err), HF_OK);

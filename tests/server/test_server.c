@@ -713,7 +713,10 @@ static void test_sigterm_drains(void **state) {
 static void test_drain_refusals_counted(void **state) {
   (void)state;
   server d;
-  const char *args[] = {"--max-batch", "16", "--max-queue-delay-us", "2000000", NULL};
+  /* Frame 0 waits for batch partners for 6 s, which the drain does not cut
+   * short: the STATS polling, the SIGTERM and the log polling below must
+   * end within it, with room on a loaded machine under a sanitizer. */
+  const char *args[] = {"--max-batch", "16", "--max-queue-delay-us", "6000000", NULL};
   assert_int_equal(server_start(&H, &d, args), 0);
   hfc_client *c = NULL, *stats = NULL;
   hfc_options o = test_options("drain-refused", NULL, 20000);
