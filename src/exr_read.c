@@ -436,7 +436,8 @@ static int check_complete(table_state t, const char *path, const char *label, in
  * out of a file of file_size bytes (max_expansion). */
 static int check_claimed_size(exr_const_context_t ctx, int part, const char *path,
                               const char *label, const exr_attr_chlist_t *chl, int64_t w,
-                              int64_t h, uint64_t file_size, char *err, size_t errlen) {
+                              int64_t h, uint64_t file_size, table_state table, char *err,
+                              size_t errlen) {
   exr_compression_t c = EXR_COMPRESSION_NONE;
   exr_get_compression(ctx, part, &c);
   double bytes = 0;
@@ -445,11 +446,16 @@ static int check_claimed_size(exr_const_context_t ctx, int part, const char *pat
   bytes *= (double)w * (double)h;
   const double most = (double)file_size * max_expansion(c);
   if (bytes <= most) return HF_OK;
-  return fail(err, errlen, HF_EFORMAT, "%s%s: its data window claims %lldx%lld pixels of %d "
-              "channels (%.1f MB of pixels), more than %llu bytes of %s-compressed data can "
-              "hold (%.1f MB); the file is damaged, write it again", path, label, (long long)w,
+  /* A file cut inside its chunk table fails here too: said as both. */
+  int cut = table == TABLE_PAST_END;
+  return fail(err, errlen, cut ? HF_EIO : HF_EFORMAT, "%s%s: %sits data window claims "
+              "%lldx%lld pixels of %d channels (%.1f MB of pixels), more than %llu bytes of "
+              "%s-compressed data can hold (%.1f MB)%s; %s", path, label,
+              cut ? "truncated / incomplete file, or a damaged header: " : "", (long long)w,
               (long long)h, chl->num_channels, bytes / 1e6, (unsigned long long)file_size,
-              compression_name(c), most / 1e6);
+              compression_name(c), most / 1e6,
+              cut ? ", and its chunk table does not fit in the file" : "",
+              cut ? "write or copy the file again" : "the file is damaged, write it again");
 }
 
 /* HF_OK, or the refusal of a part whose compression this build's OpenEXR
@@ -680,8 +686,8 @@ static int read_part(const char *path, const char *part, const char *channel, hf
       (table == TABLE_CHUNK_CUT &&
        (rc = check_complete(table, path, label, w, h, (uint64_t)st.st_size, err, errlen)) !=
            HF_OK) ||
-      (rc = check_claimed_size(ctx, pi, path, label, chl, w, h, (uint64_t)st.st_size, err,
-                               errlen)) != HF_OK ||
+      (rc = check_claimed_size(ctx, pi, path, label, chl, w, h, (uint64_t)st.st_size, table,
+                               err, errlen)) != HF_OK ||
       (rc = check_complete(table, path, label, w, h, (uint64_t)st.st_size, err, errlen)) !=
           HF_OK)
     goto out;

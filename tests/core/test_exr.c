@@ -537,7 +537,11 @@ static void test_claimed_size(void **state) {
     const char *path = test_tmp("claims.exr");
     write_parts(path, &p, 1);
     set_data_window(path, 9000, 9000);
-    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
+    /* Damaged, or, where the chunk table 9000 rows need does not fit in
+     * the file either, as a file cut short would be: truncated or damaged. */
+    int rc = hf_exr_read(path, &img, err, sizeof err);
+    assert_true(rc == HF_EFORMAT || (rc == HF_EIO && strstr(err, "chunk table does not fit") &&
+                                     strstr(err, "truncated / incomplete")));
     assert_non_null(strstr(err, "claims 9000x9000 pixels of 6 channels (1944.0 MB of pixels)"));
     assert_non_null(strstr(err, "damaged"));
     assert_null(img.data);
