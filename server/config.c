@@ -354,6 +354,10 @@ typedef struct file_args {
   int line, next_line;           /* the line being parsed, the next one */
   int seen_line[64];             /* per option (opts[]): its last line, 0: none */
   int seen_arg[64];              /* and that line's index in argv, -1: none */
+  /* Warnings about the file, said once --log-level (which the file or the
+   * command line may set after them) is known. */
+  char warning[8][300];
+  int nwarnings;
 } file_args;
 
 /* inih's reader (fgets), counting lines so that on_ini knows which one it
@@ -413,8 +417,10 @@ static int on_ini(void *user, const char *section, const char *key, const char *
    * that appended a key the file already had is otherwise invisible. */
   int repeatable = o->val == OPT_LISTEN || o->val == OPT_WEIGHTS;
   if (!repeatable && fa->seen_line[oi]) {
-    hfd_warn("%s:%d: '%s' was given already on line %d; a key takes one value, so line %d's "
-             "wins", fa->path, fa->line, key, fa->seen_line[oi], fa->line);
+    if (fa->nwarnings < (int)(sizeof fa->warning / sizeof fa->warning[0]))
+      snprintf(fa->warning[fa->nwarnings++], sizeof fa->warning[0],
+               "%s:%d: '%s' was given already on line %d; a key takes one value, so line %d's "
+               "wins", fa->path, fa->line, key, fa->seen_line[oi], fa->line);
     if (fa->seen_arg[oi] >= 0) fa->argv[fa->seen_arg[oi]] = NULL;
   }
   fa->seen_line[oi] = fa->line;
@@ -736,6 +742,8 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
     usage(stderr);
     goto fail;
   }
+  if (cfg->log_level >= HFD_LOG_WARNING)
+    for (int i = 0; i < fa.nwarnings; i++) hfd_warn("%s", fa.warning[i]);
   if (!cfg->num_listen) {
     hfd_err("nothing to listen on: give --listen unix:PATH, tcp:HOST:PORT or tls:HOST:PORT");
     goto fail;

@@ -417,9 +417,9 @@ static double max_expansion(exr_compression_t c) {
 static int check_complete(table_state t, const char *path, const char *label, int64_t w,
                           int64_t h, uint64_t file_size, char *err, size_t errlen) {
   if (t == TABLE_CHUNK_CUT)
-    return fail(err, errlen, HF_EIO, "%s%s: truncated / incomplete file: it ends inside the "
-                "data of its last chunk (%llu bytes); write or copy the file again", path,
-                label, (unsigned long long)file_size);
+    return fail(err, errlen, HF_EIO, "%s%s: truncated / incomplete file: it ends (at %llu "
+                "bytes) inside the data of a chunk its table points to; write or copy the file "
+                "again", path, label, (unsigned long long)file_size);
   if (t == TABLE_OFFSET_PAST_END)
     return fail(err, errlen, HF_EIO, "%s%s: truncated / incomplete file, or a damaged chunk "
                 "table: an offset of its table points outside the file's chunks (%llu bytes); "

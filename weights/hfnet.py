@@ -456,10 +456,20 @@ def load_safetensors(path):
     header, data, base = safetensors_header.read_header(path)
     if "hairfilter" not in header.get("__metadata__", {}):
         raise ValueError(f"{path}: no '__metadata__.hairfilter' entry")
+    meta = header.pop("__metadata__")
     try:
-        cfg = json.loads(header.pop("__metadata__")["hairfilter"], object_pairs_hook=safetensors_header.unique_keys)
+        cfg = json.loads(meta["hairfilter"], object_pairs_hook=safetensors_header.unique_keys)
     except ValueError as e:
         raise ValueError(f"{path}: metadata 'hairfilter': {e}") from None
+    # Checked as the C loader checks it, though only hairfilterd and the
+    # CLI read it: one JSON object, nothing after it.
+    if "input_range" in meta:
+        try:
+            rng = json.loads(meta["input_range"], object_pairs_hook=safetensors_header.unique_keys)
+        except ValueError as e:
+            raise ValueError(f"{path}: metadata 'input_range': {e}") from None
+        if not isinstance(rng, dict):
+            raise ValueError(f"{path}: metadata 'input_range' is not a JSON object")
     sd = {}
     for name, t in header.items():
         np_dtype, _ = _DTYPES[t["dtype"]]

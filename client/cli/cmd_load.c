@@ -133,8 +133,11 @@ static hfc_options client_options(const char *name, const opts *o) {
 static void record(shared *sh, const hfc_completion *d, double started, int warm) {
   /* Local failures (a closed connection, a timeout) are not answers. */
   if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->answered, 1);
+  /* BUSY and SHUTTING_DOWN refuse for now, not for good: busy, apart from
+   * the errors (as hairfilter-load counts them). */
+  int refused = d->status == HFC_E_BUSY || d->status == HFC_E_SHUTTING_DOWN;
   if (warm) {
-    if (d->status == HFC_E_BUSY) atomic_fetch_add(&sh->warm_busy, 1);
+    if (refused) atomic_fetch_add(&sh->warm_busy, 1);
     else if (!d->status) atomic_fetch_add(&sh->warm_ok, 1);
     else if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->warm_errors, 1);
     return;
@@ -147,7 +150,7 @@ static void record(shared *sh, const hfc_completion *d, double started, int warm
     return;
   }
   load_window *w = sh->cur;
-  if (d->status == HFC_E_BUSY) {
+  if (refused) {
     w->busy++;
   } else if (d->status) {
     w->errors++;

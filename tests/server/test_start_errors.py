@@ -96,6 +96,14 @@ def body(w):
           "TCP needs a token" in out,
           "no-auth = no on a later line wins over yes: status %s: %r" % (rc, out))
 
+    # --log-level error (here on the command line, read after the file)
+    # silences the repeated-key warning, as it does every warning.
+    with open(conf, "w") as f:
+        f.write(base + "backend = cpu-ref\nlisten = tcp:0.0.0.0:0\n")
+    rc, out = run(["--config", conf, "--log-level", "error"], w)
+    check(rc == 2 and "given already" not in out and "TCP needs a token" in out,
+          "--log-level error: no repeated-key warning, the error still said: %r" % out)
+
     # Nothing to listen on: every URL form named.
     rc, out = run(["--config", "none", "--weights-dir", wd], w)
     check(rc == 2 and "unix:PATH, tcp:HOST:PORT or tls:HOST:PORT" in out,

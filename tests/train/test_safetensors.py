@@ -139,6 +139,23 @@ class Header(unittest.TestCase):
         self.refused(self.edited("dup_levels.safetensors", '\\"spp\\": 4', '\\"spp\\": 4, \\"spp\\": 1'),
                      ["hairfilter", "duplicate key 'spp'"])
 
+    def test_bytes_after_json(self):
+        """Bytes after a JSON object (the header's, the 'hairfilter' and
+        'input_range' strings') are refused by both readers; JSON's
+        whitespace after the header is not."""
+        end = self.header.rstrip(" ")
+        self.refused(self.edited("after_header.safetensors", end, end + "x"), [])
+        self.refused(self.edited("after_header_ctl.safetensors", end, end + "\x01"), [])
+        self.refused(self.edited("after_hairfilter.safetensors", ']}"}', ']}x"}'),
+                     ["hairfilter"])
+        rng = '"input_range":"{\\"definition\\": 1, \\"spp\\": 4}x",'
+        self.refused(self.edited("after_range.safetensors", '"__metadata__":{',
+                                 '"__metadata__":{' + rng), ["input_range"])
+        path = self.edited("after_header_ws.safetensors", end, end + " \t\r\n ")
+        hfnet.load_safetensors(path)
+        rc, err = c_loader(path)
+        self.assertEqual(rc, 0, err)
+
     def test_metadata_wrong_types(self):
         path = self.edited("meta_number.safetensors", '"__metadata__":{', '"__metadata__":{"epoch":3,')
         self.refused(path, ["'__metadata__.epoch'", "string"])
