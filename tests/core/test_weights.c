@@ -244,11 +244,11 @@ static void test_trailing_json(void **state) {
 }
 
 /* Metadata claiming a network far larger than the file (8 levels of 4096
- * channels: about 2.4 GB of parameters in a 300 KB file) is refused by the
- * tensor checks before the network is allocated: under a 1 GB address
- * space limit the refusal is the tensor count's, not an allocation
- * failure's. (Not under AddressSanitizer, which reserves far more address
- * space itself.) */
+ * channels: 4.5 billion parameters, 18 GB of float32, in a 300 KB file) is
+ * refused by the tensor checks before the network is allocated: under a
+ * 1 GB address space limit the refusal is the tensor count's, not an
+ * allocation failure's. (Not under AddressSanitizer, which reserves far
+ * more address space itself.) */
 static void test_checked_before_allocation(void **state) {
   blob b = valid_file(NULL);
   blob h = with_header_edit(&b, "\\\"levels\\\":[16,32,64]",
