@@ -387,6 +387,19 @@ class PythonClient(unittest.TestCase):
             with self.assertRaises(hairfilter.Error) as e:
                 hf.filter("Small", f.astype(np.float64))
             self.assertEqual(e.exception.code, "ARG")
+            # A bad colour or an empty frame is an argument named, not a
+            # struct or codec exception.
+            for kw, word in (({"composite": True, "hair": (1, 2)}, "hair"),
+                             ({"composite": True, "light": (1, float("nan"), 1)}, "light"),
+                             ({"background": "grey"}, "background")):
+                with self.assertRaises(hairfilter.Error) as e:
+                    hf.filter("Small", f, **kw)
+                self.assertEqual(e.exception.code, "ARG")
+                self.assertIn(word, e.exception.message)
+            with self.assertRaises(hairfilter.Error) as e:
+                hf.filter("Small", np.zeros((0, 0, 24), np.float32))
+            self.assertEqual(e.exception.code, "ARG")
+            self.assertIn("features", e.exception.message)
             # The server's verdict: spp not the variant's.
             with self.assertRaises(hairfilter.Error) as e:
                 hf.filter(BASE1, f)

@@ -537,8 +537,12 @@ class Client:
     def submit(self, variant, features, out_dtype=None, result=None, composite=False,
                rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None,
                estimate=None):
-        """Sends one frame and returns its id at once; wait() gives its
-        Completion. features: [h][w][spp*6] float32 or float16, C-contiguous.
+        """Sends one frame and returns its id; wait() gives its Completion.
+        It returns at once, but for the first request naming a variant on a
+        connection, which lists the server's variants first (a round trip,
+        up to the client's timeout). features: [h][w][spp*6] float32 or
+        float16, C-contiguous; hair, light, background: 3 finite numbers
+        each, linear RGB, for the composite.
         estimate: the frame's alpha-corrected estimate, [h][w][3] of the
         features' dtype, for a variant that reads it (Variant.estimate;
         protocol version 3), sent after the features.
@@ -553,6 +557,8 @@ class Client:
         if not f.flags.c_contiguous:
             raise Error("ARG", "features: not C-contiguous (np.ascontiguousarray)")
         h, w, ch = f.shape
+        if not (1 <= h <= 65535 and 1 <= w <= 65535):
+            raise Error("ARG", "features: a %dx%d frame, want 1..65535 pixels a side" % (w, h))
         if ch % P.FEATURES or not 1 <= ch // P.FEATURES <= P.MAX_SPP:
             raise Error("ARG", "features: %d channels per pixel, want spp*6 with spp 1..16" % ch)
         spp = ch // P.FEATURES
@@ -575,6 +581,15 @@ class Client:
                 raise Error("ARG", "%s: want a C-contiguous %s array of shape %s"
                             % (what, odt, (h, w, channels)))
             return a
+        colours = {}
+        for what, v in (("hair", hair), ("light", light), ("background", background)):
+            try:
+                c = tuple(float(x) for x in v)
+            except (TypeError, ValueError):
+                c = ()
+            if len(c) != 3 or not all(np.isfinite(c)):
+                raise Error("ARG", "%s: want 3 finite numbers (linear RGB), got %r" % (what, v))
+            colours[what] = c
         result = out_array(result, P.OUTPUTS, "result")
         composite = composite or rgba is not None
         rgba = out_array(rgba, 4, "rgba") if composite else None
@@ -597,8 +612,8 @@ class Client:
         rid = self._next_id
         self._next_id = self._next_id % 0xFFFFFFFF + 1
         head = P.encode_filter_head(rid, name, w, h, spp, _DTYPES[f.dtype], _DTYPES[odt],
-                                    composite, tuple(map(float, hair)),
-                                    tuple(map(float, light)), tuple(map(float, background)),
+                                    composite, colours["hair"], colours["light"],
+                                    colours["background"],
                                     shm=ref, estimate=estimate is not None)
         self._pending[rid] = _Pending(rid, name, result, rgba, user, seg)
         if ref:
@@ -678,7 +693,10 @@ class Client:
         return len(self._pending) + len(self._done)
 
     def filter(self, variant, features, **kw):
-        """submit() and wait for that frame; raises Error unless it succeeded."""
+        """submit() and wait for that frame; raises Error unless it succeeded.
+        On Error("TIMEOUT") the frame stays pending: its completion comes
+        out of a later wait() if the server answers after all (pending
+        counts it)."""
         rid = self.submit(variant, features, **kw)
         while True:
             for i, c in enumerate(self._done):
