@@ -285,8 +285,7 @@ static int chunk_failed(exr_const_context_t ctx, int part, const char *path, con
   const char *d = detail(ud, more, sizeof more);
   if (r == EXR_ERR_FEATURE_NOT_IMPLEMENTED) return undecodable(ctx, part, path, label, err, errlen);
   if (r == EXR_ERR_READ_IO || (ci->data_offset && ci->data_offset + ci->packed_size > file_size) ||
-      cut_short(path, part, p, file_size) ||
-      chunk_table(ctx, part, path, file_size) != TABLE_INSIDE)
+      cut_short(path, part, p, file_size))
     return fail(err, errlen, HF_EIO,
                 "%s%s: truncated / incomplete file: the data of %s is missing (the file ends "
                 "at byte %llu); write or copy the file again",

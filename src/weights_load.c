@@ -355,12 +355,8 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   }
   /* Every tensor is checked against the file before the network is
    * allocated: metadata that claims huge levels must not cost their memory
-   * when the file holds a fraction of it. */
-  if ((rc = hf_net_config_validate(&tmp.cfg)) != HF_OK) {
-    fail(err, errlen, rc, "metadata 'hairfilter': the configuration is invalid: %s",
-         hf_strerror(rc));
-    goto out;
-  }
+   * when the file holds a fraction of it. (parse_metadata validated the
+   * configuration, which hf_weights_specs needs.) */
   hf_tensor_spec specs[HF_TENSORS_MAX];
   int n = hf_weights_specs(&tmp, specs);
   /* Unknown tensors mean the file describes another network. */
