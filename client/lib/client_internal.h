@@ -137,11 +137,14 @@ int hfci_arg(hfc_client *c, const char *fmt, ...) __attribute__((format(printf, 
 /* Copies a caller's struct of struct_size bytes (its first field) into
  * full, a struct of this header's size already at its init values: fields
  * are appended within a SONAME (hairfilter.h, "ABI"), so one of an older
- * header keeps the rest at their defaults. 0, or HFC_E_ARG naming
- * type.struct_size when it is 0 or below oldest (the first version's
- * size); init names the function that sets it. */
+ * header keeps the rest at their defaults. sizes[0..nsizes) are the sizes
+ * of the struct in earlier releases, the first 0.1.0's; a newer header's
+ * larger struct is taken when the fields this library lacks are all zero.
+ * 0, or HFC_E_ARG naming type.struct_size when it is 0, another size, or
+ * larger with a set field past ours; init names the function that sets
+ * it. */
 int hfci_take_struct(hfc_client *c, const char *type, const void *given, void *full,
-                     size_t full_size, size_t oldest, const char *init);
+                     size_t full_size, const size_t *sizes, int nsizes, const char *init);
 
 /* ---- endpoints.c ----------------------------------------------------------- */
 

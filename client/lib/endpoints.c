@@ -363,9 +363,10 @@ static int set_options(hfc_client *c, const hfc_options *opt) {
   hfc_options_init(&o);
   /* Options of an older header (0.1.0's ended before the TLS fields) keep
    * the defaults of the rest. */
+  static const size_t released[] = {offsetof(hfc_options, tls_ca_file)};   /* 0.1.0 */
   int rc;
-  if (opt && (rc = hfci_take_struct(c, "hfc_options", opt, &o, sizeof o,
-                                    offsetof(hfc_options, tls_ca_file), "hfc_options_init")))
+  if (opt && (rc = hfci_take_struct(c, "hfc_options", opt, &o, sizeof o, released, 1,
+                                    "hfc_options_init")))
     return rc;
   const char *name = o.client_name ? o.client_name : "libhairfilter";
   size_t nl = strlen(name), tl = o.token ? strlen(o.token) : 0;

@@ -65,14 +65,33 @@ int hfci_arg(hfc_client *c, const char *fmt, ...) {
 }
 
 int hfci_take_struct(hfc_client *c, const char *type, const void *given, void *full,
-                     size_t full_size, size_t oldest, const char *init) {
+                     size_t full_size, const size_t *sizes, int nsizes, const char *init) {
   size_t size;
   memcpy(&size, given, sizeof size);   /* struct_size, the first field of each */
   if (size == 0)
     return hfci_arg(c, "%s.struct_size is 0: initialise it with %s()", type, init);
-  if (size < oldest)
-    return hfci_arg(c, "%s.struct_size is %zu, smaller than any version's %zu: initialise it "
-                       "with %s()", type, size, oldest, init);
+  if (size > full_size) {
+    /* A newer header's struct: its fields past ours are honoured only
+     * when unset (all zero, what its init leaves), the rule of the
+     * kernel's extensible structs (copy_struct_from_user); a set one
+     * would be ignored silently. */
+    const unsigned char *tail = (const unsigned char *)given + full_size;
+    for (size_t i = 0; i < size - full_size; i++)
+      if (tail[i])
+        return hfci_arg(c, "%s.struct_size is %zu, from a newer hairfilter.h than this "
+                           "library's (%s, %zu bytes), and byte %zu past its fields is set: "
+                           "run with the library of the header you built with",
+                        type, size, HAIRFILTER_VERSION_STRING, full_size, full_size + i);
+  } else {
+    /* Only the sizes the header has had: any other ends inside a field
+     * (half a pointer copied) or is not a struct of ours at all. */
+    int known = size == full_size;
+    for (int i = 0; i < nsizes && !known; i++) known = size == sizes[i];
+    if (!known)
+      return hfci_arg(c, "%s.struct_size is %zu, not the size of any version of it (%zu in "
+                         "0.1.0, %zu in %s): initialise it with %s()",
+                      type, size, sizes[0], full_size, HAIRFILTER_VERSION_STRING, init);
+  }
   memcpy(full, given, size < full_size ? size : full_size);
   memcpy(full, &full_size, sizeof full_size);
   return 0;

@@ -313,9 +313,10 @@ static int overlaps_input(const pending *p) {
  * 0.1.0's ended at user, so the estimate fields default to none. */
 static int take_request(hfc_client *c, const hfc_request *r, hfc_request *full) {
   if (!r) return hfci_arg(c, "the request is NULL");
+  static const size_t released[] = {offsetof(hfc_request, estimate)};   /* 0.1.0 */
   hfc_request_init(full);
-  return hfci_take_struct(c, "hfc_request", r, full, sizeof *full,
-                          offsetof(hfc_request, estimate), "hfc_request_init");
+  return hfci_take_struct(c, "hfc_request", r, full, sizeof *full, released, 1,
+                          "hfc_request_init");
 }
 
 static int submit(hfc_client *c, const hfc_request *caller, uint32_t *id, int *slot) {

@@ -193,36 +193,64 @@ static void test_fields_named(void **state) {
   o.struct_size = 0;
   assert_int_equal(hfc_connect(S.unix_url, &o, &d), HFC_E_ARG);
   assert_non_null(strstr(hfc_last_message(NULL), "hfc_options.struct_size"));
+  o.struct_size = offsetof(hfc_options, tls_ca_file) + 4;   /* inside a pointer */
+  assert_int_equal(hfc_connect(S.unix_url, &o, &d), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(NULL), "not the size of any version"));
+  o.struct_size = offsetof(hfc_options, tls_ca_file);       /* 0.1.0's */
+  assert_int_equal(hfc_connect(S.unix_url, &o, &d), 0);
+  hfc_close(d);
   frame_free(&f);
   hfc_close(c);
 }
 
-/* A request of an older header (a smaller struct_size: 0.1.0's ended at
- * user) is filtered as one of this header with the fields it lacks at
- * their hfc_request_init() values, whatever lies in memory beyond it; one
- * smaller than any version's is refused. */
-static void test_older_request_layout(void **state) {
+/* A request of an older header (0.1.0's ended at user) is filtered as one
+ * of this header with the fields it lacks at their hfc_request_init()
+ * values, whatever lies in memory beyond it; a newer header's larger
+ * request is filtered when the fields past ours are zero and refused when
+ * one is set; a size no version had (ending inside a field) is refused. */
+static void test_request_sizes(void **state) {
   (void)state;
   hfc_client *c = client_connect(&S, "older");
   assert_non_null(c);
   frame f;
   frame_make(&f, 8, 6, hfc_features_bytes(8, 6, 2, HFC_F32), hfc_output_bytes(8, 6, 3, HFC_F32));
-  size_t sizes[] = {offsetof(hfc_request, estimate), offsetof(hfc_request, estimate_buffer)};
-  for (int i = 0; i < 2; i++) {
-    hfc_request r = f.r;
-    r.struct_size = sizes[i];
-    /* What an older caller's memory may hold past its struct. */
-    if (i == 0) r.estimate = 7;
-    r.estimate_buffer = f.in;
-    r.estimate_bytes = 3;
-    memset(f.out, 0xff, hfc_output_bytes(8, 6, 3, HFC_F32));
-    assert_int_equal(hfc_filter(c, &r, NULL), 0);
-    expect_reference(&f);
-  }
   hfc_request r = f.r;
-  r.struct_size = offsetof(hfc_request, estimate) - 1;
-  assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_ARG);
-  assert_non_null(strstr(hfc_last_message(c), "smaller than any version's"));
+  r.struct_size = offsetof(hfc_request, estimate);
+  /* What an older caller's memory may hold past its struct. */
+  r.estimate = 7;
+  r.estimate_buffer = f.in;
+  r.estimate_bytes = 3;
+  memset(f.out, 0xff, hfc_output_bytes(8, 6, 3, HFC_F32));
+  assert_int_equal(hfc_filter(c, &r, NULL), 0);
+  expect_reference(&f);
+
+  struct {
+    hfc_request r;
+    unsigned char newer[16];
+  } big;
+  memset(&big, 0, sizeof big);
+  big.r = f.r;
+  big.r.struct_size = sizeof big;
+  memset(f.out, 0xff, hfc_output_bytes(8, 6, 3, HFC_F32));
+  assert_int_equal(hfc_filter(c, &big.r, NULL), 0);
+  expect_reference(&f);
+  big.newer[5] = 1;
+  assert_int_equal(hfc_filter(c, &big.r, NULL), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(c), "from a newer hairfilter.h"));
+  char want[32];
+  snprintf(want, sizeof want, "byte %zu", sizeof(hfc_request) + 5);
+  assert_non_null(strstr(hfc_last_message(c), want));
+
+  size_t bad[] = {offsetof(hfc_request, estimate) - 1, offsetof(hfc_request, estimate) + 2,
+                  offsetof(hfc_request, estimate_buffer),
+                  offsetof(hfc_request, estimate_buffer) + 4, sizeof(hfc_request) - 1};
+  for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+    r = f.r;
+    r.struct_size = bad[i];
+    assert_int_equal(hfc_filter(c, &r, NULL), HFC_E_ARG);
+    assert_non_null(strstr(hfc_last_message(c), "not the size of any version"));
+    assert_non_null(strstr(hfc_last_message(c), "hfc_request.struct_size"));
+  }
   frame_free(&f);
   hfc_close(c);
 }
@@ -421,7 +449,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_short_buffers_refused),
     cmocka_unit_test(test_fields_named),
-    cmocka_unit_test(test_older_request_layout),
+    cmocka_unit_test(test_request_sizes),
     cmocka_unit_test(test_message_cleared),
     cmocka_unit_test(test_variant_names),
     cmocka_unit_test(test_connect_errno),

@@ -33,7 +33,9 @@
  * the ABI; CHANGELOG.md says what changed). The structs the caller fills
  * (hfc_options, hfc_request) start with struct_size, so fields can be
  * appended to them within a SONAME; hfc_options_init() and
- * hfc_request_init() set it. The structs the library fills change only
+ * hfc_request_init() set it. The library takes the sizes they have had
+ * and a newer header's larger one whose fields past its own are zero;
+ * another struct_size is HFC_E_ARG. The structs the library fills change only
  * with a new SONAME.
  */
 #ifndef HAIRFILTER_H
