@@ -67,19 +67,28 @@ static void read_stop(hfd_conn *c) {
   if (rc < 0) hfd_err("conn %llu: read stop: %s", (unsigned long long)c->id, uv_strerror(rc));
 }
 
+/* Reading starts again once nothing holds it stopped: replies unread
+ * (read_paused), a segment being pinned (pin_wait) or its descriptor not
+ * yet passed (fd_sending), and the connection still reading at all. */
+static void read_resume(hfd_conn *c) {
+  if (c->read_paused || c->pin_wait || c->fd_sending || c->closing || c->fatal_sent || c->eof ||
+      c->shutting)
+    return;
+  int rc = hfd_io_read_start(c, on_alloc, on_read);
+  if (rc < 0) {
+    hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
+    hfd_conn_close(c);
+    return;
+  }
+  c->t_last_read = c->t_window = hfd_now_us();
+  c->window_bytes = 0;
+}
+
 static void wrote_one(hfd_conn *c) {
   c->writes_pending--;
-  if (c->read_paused && c->writes_pending <= WRITES_LOW && !c->closing && !c->fatal_sent &&
-      !c->eof && !c->shutting && !c->pin_wait) {
-    int rc = hfd_io_read_start(c, on_alloc, on_read);
-    if (rc < 0) {
-      hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
-      hfd_conn_close(c);
-      return;
-    }
+  if (c->read_paused && c->writes_pending <= WRITES_LOW) {
     c->read_paused = 0;
-    c->t_last_read = c->t_window = hfd_now_us();
-    c->window_bytes = 0;
+    read_resume(c);
   }
 }
 
@@ -1026,10 +1035,17 @@ static void on_fdpipe_closed(uv_handle_t *h) { free(h->data); }
 static void on_fd_written(uv_write_t *req, int status) {
   fd_write *w = (fd_write *)req;
   hfd_conn *c = w->c;
+  /* The descriptor is out (or never will be): the connection may ask for
+   * the next segment. wrote_one resumes reading when replies held it too. */
+  c->fd_sending = 0;
+  int paused = c->read_paused;
   wrote_one(c);
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: segment send failed: %s", (unsigned long long)c->id, uv_strerror(status));
-  if (status < 0) hfd_conn_close(c);
+  if (status < 0)
+    hfd_conn_close(c);
+  else if (!paused)
+    read_resume(c);
   /* Our copy of the fd goes; the mapping and the client's copy stay. */
   w->fdpipe.data = w;
   uv_close((uv_handle_t *)&w->fdpipe, on_fdpipe_closed);
@@ -1073,6 +1089,16 @@ static void shm_created(hfd_conn *c, hfd_seg *g, int fd, uint64_t bytes) {
     return;
   }
   writing_one(c, (uint64_t)n);
+  /* Until this SHM_CREATED is written the connection reads nothing more:
+   * its descriptor stays open in the daemon as long as the write waits, and
+   * a client that asked for segment after segment without reading the
+   * answers would otherwise hold 16 descriptors per connection, enough to
+   * exhaust the daemon's open-file limit (every new connection then
+   * refused unseen, every memfd_create failing). One at a time bounds it to
+   * two per connection, its socket and one segment's; a client that never
+   * reads is closed by the sweep, its replies unread. */
+  c->fd_sending = 1;
+  read_stop(c);
   g->next = c->segs;
   c->segs = g;
   c->num_segs++;
@@ -1119,14 +1145,9 @@ static void pin_done(uv_work_t *req, int status) {
   } else {
     shm_created(c, p->g, p->fd, p->bytes);
     free(p);
-    /* Not while replies are unread: wrote_one restarts it then. */
-    if (!c->closing && !c->fatal_sent && !c->read_paused) {
-      int rc = hfd_io_read_start(c, on_alloc, on_read);
-      if (rc < 0) {
-        hfd_err("conn %llu: read restart: %s", (unsigned long long)c->id, uv_strerror(rc));
-        hfd_conn_close(c);
-      }
-    }
+    /* Not while replies are unread (wrote_one restarts it then), nor while
+     * the descriptor waits to be written (on_fd_written does). */
+    read_resume(c);
   }
   /* A drain that waited for this pin may finish now. */
   hfd_maybe_finish(s);

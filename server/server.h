@@ -485,6 +485,7 @@ typedef struct hfd_conn {
   int writes_pending;
   int read_paused;               /* too many replies unread by the peer */
   int pin_wait;                  /* a new segment is being pinned: not reading */
+  int fd_sending;                /* SHM_CREATED and its descriptor not yet written: not reading */
   int is_ipc;                    /* a Unix socket that can pass segments */
   int is_pipe;                   /* a Unix socket: descriptors a client sends are seen */
   struct hfd_tls_conn *tls;      /* on a TLS listener: its session (tls.c) */

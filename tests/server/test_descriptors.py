@@ -1,0 +1,166 @@
+#!/usr/bin/env python3
+"""hairfilterd and its open files: a connection past the limit always gets
+the documented refusal, never a close without a word.
+
+  * segments: a Unix-socket client that asks for segment after segment
+    without reading the answers holds one descriptor in the daemon at a
+    time (its SHM_CREATED waits to be written), not one per segment: 16
+    per connection would let a few dozen clients exhaust the open-file
+    limit, and every new connection would then be dropped unseen.
+
+usage: test_descriptors.py HAIRFILTERD WEIGHTS_DIR
+"""
+import os
+import resource
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+
+HAIRFILTERD, WEIGHTS = sys.argv[1:3]
+failures = []
+
+
+def check(cond, what):
+    """Records a failed check (the test goes on, to report them all)."""
+    if not cond:
+        failures.append(what)
+        print("FAIL:", what)
+MAGIC = 0x31504648
+HELLO, HELLO_OK, FILTER, RESULT, ERROR, SHM_CREATE = 1, 2, 5, 6, 7, 10
+
+
+def start(w, args, nofile):
+    """hairfilterd on a Unix socket in w with RLIMIT_NOFILE (soft, hard):
+    (process, socket path), once its ready file is there, or (process,
+    None) when it exited first."""
+    sock = os.path.join(w, "s.sock")
+    ready = os.path.join(w, "ready")
+    for p in (sock, ready):
+        if os.path.exists(p):
+            os.unlink(p)
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_NOFILE, nofile)
+
+    log = open(os.path.join(w, "daemon.log"), "w")
+    proc = subprocess.Popen([HAIRFILTERD, "--config", "none", "--listen", "unix:" + sock,
+                             "--backend", "cpu", "--weights",
+                             os.path.join(WEIGHTS, "small.safetensors"), "--ready-file", ready]
+                            + args, stdout=log, stderr=subprocess.STDOUT, preexec_fn=limit)
+    log.close()
+    deadline = time.time() + 60
+    while time.time() < deadline and not os.path.exists(ready):
+        if proc.poll() is not None:
+            return proc, None
+        time.sleep(0.02)
+    return proc, sock
+
+
+def stop(proc, w):
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.wait(30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    return open(os.path.join(w, "daemon.log")).read()
+
+
+def frame(t, payload=b"", rid=0):
+    return struct.pack("<IHHII", MAGIC, t, 0, rid, len(payload)) + payload
+
+
+def recvn(s, n):
+    b = b""
+    while len(b) < n:
+        c = s.recv(n - len(b))
+        if not c:
+            raise EOFError("the daemon closed after %d of %d bytes" % (len(b), n))
+        b += c
+    return b
+
+
+def read_frame(s):
+    magic, t, _, rid, n = struct.unpack("<IHHII", recvn(s, 16))
+    return t, rid, recvn(s, n)
+
+
+def hello(path):
+    """A connection and what the daemon answered its HELLO: ("ok", socket),
+    ("error", (code, fatal, message)), or ("nothing", why) when it closed
+    without an ERROR."""
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(10)
+    s.connect(path)
+    try:
+        s.sendall(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, 0) + b"test"))
+    except OSError:
+        pass  # refused at once: the ERROR is still there to read
+    try:
+        t, _, p = read_frame(s)
+    except (OSError, EOFError) as e:
+        s.close()
+        return "nothing", repr(e)
+    if t == HELLO_OK:
+        return "ok", s
+    s.close()
+    code, fatal, _, n = struct.unpack("<IBBH", p[:8])
+    return "error", (code, fatal, p[8:8 + n].decode())
+
+
+def fds(pid):
+    return len(os.listdir("/proc/%d/fd" % pid))
+
+
+def segments_one_at_a_time(w):
+    proc, sock = start(w, [], (1024, 1024))
+    check(sock is not None, "segments: the daemon started")
+    if not sock:
+        print(stop(proc, w))
+        return
+    try:
+        kind, s = hello(sock)
+        check(kind == "ok", "segments: HELLO_OK, not %s %s" % (kind, s))
+        if kind != "ok":
+            return
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        # A result far larger than any socket buffer, left unread, keeps
+        # what follows it waiting in the daemon.
+        w_, h_, spp = 256, 256, 4
+        fixed = struct.pack("<HHIIHBB", 5, 0, w_, h_, spp, 0, 0) + struct.pack("<9f", *[0.5] * 9)
+        tensor = b"\0" * (w_ * h_ * spp * 6 * 4)
+        s.sendall(frame(FILTER, fixed + b"Small" + tensor, rid=1))
+        _, t, _, _, _ = struct.unpack("<IHHII", recvn(s, 16))
+        check(t == RESULT, "segments: the FILTER's RESULT starts (type %d)" % t)
+        before = fds(proc.pid)
+        s.sendall(frame(SHM_CREATE, struct.pack("<Q", 4096)) * 16)
+        time.sleep(0.5)
+        grew = fds(proc.pid) - before
+        check(grew <= 1, "segments: 16 SHM_CREATE behind an unread reply hold %d descriptors in "
+              "the daemon, not at most 1" % grew)
+        s.close()
+    finally:
+        log = stop(proc, w)
+        if any("segments" in f for f in failures):
+            print(log)
+
+
+def main():
+    w = tempfile.mkdtemp(prefix="hffds-")
+    try:
+        segments_one_at_a_time(w)
+    finally:
+        shutil.rmtree(w, ignore_errors=True)
+    if failures:
+        print("%d check(s) failed" % len(failures))
+        sys.exit(1)
+    print("all checks passed")
+
+
+if __name__ == "__main__":
+    main()
