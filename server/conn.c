@@ -1562,6 +1562,20 @@ static hfd_conn *oldest_handshake(hfd_server *s) {
   return old;
 }
 
+/* A connection refused before its HELLO (the connection limit, or pushed
+ * out by --max-handshakes) closes now, not when its ERROR's write
+ * completes on a later turn of the loop: in a burst of connections libuv
+ * accepts one after another in a single turn, and refused ones that stayed
+ * open until then would hold a slot and a descriptor each, refusing the
+ * rest of the burst and running the daemon out of descriptors (a
+ * connection libuv cannot get one for is dropped without a word). The
+ * ERROR is in the kernel already when its write left nothing queued (a
+ * fresh socket takes it whole); over TLS it waits for the handshake
+ * (reclaim_slot). */
+static void close_refused(hfd_conn *c) {
+  if (!c->closing && !c->tls && hfd_io_write_queue_size(c) == 0) hfd_conn_close(c);
+}
+
 /* Makes room for one more connection at --max-connections, when it can:
  * connections already closing do not count, and a TLS connection holding a
  * fatal ERROR until its handshake is done (pushed out by --max-handshakes,
@@ -1572,7 +1586,7 @@ static hfd_conn *oldest_handshake(hfd_server *s) {
 static int reclaim_slot(hfd_server *s) {
   int live = 0;
   for (hfd_conn *c = s->conns; c; c = c->next) live += !c->closing;
-  while (live > s->cfg->max_connections) {
+  while (live > s->max_connections) {
     hfd_conn *old = NULL;
     for (hfd_conn *c = s->conns; c; c = c->next)
       if (c->tls && c->fatal_sent && !c->closing && !hfd_tls_established(c) &&
@@ -1654,7 +1668,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   hfd_kv(kv, sizeof kv, "listener", l->url);
   hfd_debug("connection accepted%s", kv);
   read_next(c);
-  if (s->num_conns > s->cfg->max_connections && !reclaim_slot(s)) {
+  if (s->num_conns > s->max_connections && !reclaim_slot(s)) {
     s->protocol_errors++;
     if (c->tls) {
       /* No TLS session yet to carry the ERROR; one queued for after the
@@ -1662,7 +1676,8 @@ void hfd_on_connection(uv_stream_t *server, int status) {
       hfd_conn_close(c);
       return;
     }
-    send_error(c, 0, HFP_E_BUSY, 1, "connection limit (%d) reached", s->cfg->max_connections);
+    send_error(c, 0, HFP_E_BUSY, 1, "connection limit (%d) reached", s->max_connections);
+    close_refused(c);
     return;
   }
   c->handshaking = 1;
@@ -1678,6 +1693,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
      * take the connection's slot for a newcomer. */
     send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
                s->cfg->max_handshakes);
+    close_refused(old);
     if (old == c) return;
   }
   rc = hfd_io_read_start(c, on_alloc, on_read);

@@ -504,6 +504,7 @@ int main(int argc, char **argv) {
   hfd_log("%s", w->init_msg);
   if (hfd_models_load_initial(s)) return 1;
   if (hfd_limits_derive(s)) return 1;
+  if (hfd_limits_fds(s)) return 1;
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sighup)) < 0 ||

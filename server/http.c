@@ -44,7 +44,7 @@
 
 #define ANSWER_TIMEOUT_MS 5000
 #define HTTP_SLOTS 32            /* connections kept */
-#define HTTP_MHD_LIMIT 128       /* libmicrohttpd's hard limit: room for those closing */
+#define HTTP_MHD_LIMIT HFD_HTTP_CONN_LIMIT /* libmicrohttpd's hard limit: room for those closing */
 #define HTTP_IDLE_TIMEOUT_S 10   /* libmicrohttpd's idle timeout */
 
 typedef struct hfd_http hfd_http;

@@ -9,9 +9,16 @@
  * less what the worker may keep between runs), and the backend's own range.
  * --max-size is the operator's wish; this file lowers it to what those
  * limits allow, for the most demanding loaded variant.
+ *
+ * Likewise --max-connections, against the open-file limit: a connection
+ * the kernel will not give a descriptor for is accepted and dropped by
+ * libuv unseen, with no ERROR and no log line, so the documented refusal
+ * (a fatal BUSY naming the limit) must come first.
  */
+#include <errno.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/resource.h>
 
 #include "server.h"
 
@@ -114,5 +121,57 @@ int hfd_limits_derive(hfd_server *s) {
   s->max_height = (int)h;
   if (w_before != (int)w || h_before != (int)h)
     hfd_log("max size lowered from %ux%u to %ux%u: %s", w0, h0, w, h, why);
+  return 0;
+}
+
+/* Descriptors each connection may hold: its socket, and one shared-memory
+ * segment's memfd while its SHM_CREATED waits to be written (conn.c passes
+ * one at a time). */
+#define FDS_PER_CONN 2
+/* The daemon's own, besides its listeners and connections: stdio, the
+ * loop (epoll, signals, async, timers), the worker and its backend, a
+ * weights file being read on reload, the ready file, TLS files. */
+#define FDS_RESERVE 64
+
+int hfd_limits_fds(hfd_server *s) {
+  const hfd_config *cfg = s->cfg;
+  uint64_t reserve = FDS_RESERVE + (uint64_t)cfg->num_listen + (cfg->http ? HFD_HTTP_CONN_LIMIT : 0);
+  uint64_t need = (uint64_t)cfg->max_connections * FDS_PER_CONN + reserve;
+  s->max_connections = cfg->max_connections;
+  struct rlimit rl;
+  if (getrlimit(RLIMIT_NOFILE, &rl) != 0) {
+    hfd_warn("getrlimit(RLIMIT_NOFILE): %s; --max-connections %d not checked against it",
+             strerror(errno), cfg->max_connections);
+    return 0;
+  }
+  if (rl.rlim_cur != RLIM_INFINITY && rl.rlim_cur < need) {
+    /* The soft limit is ours to raise, up to the hard one. */
+    rlim_t was = rl.rlim_cur;
+    rl.rlim_cur = rl.rlim_max == RLIM_INFINITY || rl.rlim_max >= need ? (rlim_t)need : rl.rlim_max;
+    if (rl.rlim_cur > was) {
+      if (setrlimit(RLIMIT_NOFILE, &rl) == 0) {
+        hfd_log("open-file limit raised from %llu to %llu for --max-connections %d",
+                (unsigned long long)was, (unsigned long long)rl.rlim_cur, cfg->max_connections);
+      } else {
+        hfd_warn("setrlimit(RLIMIT_NOFILE, %llu): %s", (unsigned long long)rl.rlim_cur,
+                 strerror(errno));
+        rl.rlim_cur = was;
+      }
+    }
+  }
+  if (rl.rlim_cur == RLIM_INFINITY || rl.rlim_cur >= need) return 0;
+  uint64_t fit = rl.rlim_cur > reserve ? (rl.rlim_cur - reserve) / FDS_PER_CONN : 0;
+  if (fit < 1) {
+    hfd_err("the open-file limit (%llu) leaves no descriptor for a connection: the daemon keeps "
+            "%llu for itself; raise it (ulimit -n, or LimitNOFILE= in the systemd unit)",
+            (unsigned long long)rl.rlim_cur, (unsigned long long)reserve);
+    return -1;
+  }
+  s->max_connections = (int)fit;
+  hfd_warn("--max-connections lowered from %d to %d: the open-file limit is %llu (hard limit "
+           "%llu) and each connection may hold %d descriptors besides the %llu the daemon keeps; "
+           "raise it with ulimit -n or LimitNOFILE= in the systemd unit",
+           cfg->max_connections, s->max_connections, (unsigned long long)rl.rlim_cur,
+           (unsigned long long)rl.rlim_max, FDS_PER_CONN, (unsigned long long)reserve);
   return 0;
 }

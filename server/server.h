@@ -530,6 +530,7 @@ struct hfd_server {
   int num_conns;
   int num_handshaking;           /* connections before their HELLO */
   int max_width, max_height;     /* --max-size, lowered to what a frame can meet */
+  int max_connections;           /* --max-connections, lowered to the open-file limit */
   uint64_t conns_total, next_conn_id;
   uint64_t protocol_errors;
   uint64_t mem_held;             /* bytes charged: buffers and inference */
@@ -635,6 +636,13 @@ uint64_t hfd_frame_bytes(const hfd_server *s, int variant, const hfp_filter *f);
  * frame limit and the memory one frame may use; logs why it was lowered.
  * -1 when not even 1x1 fits (the budget is too small to serve anything). */
 int hfd_limits_derive(hfd_server *s);
+/* Sets s->max_connections: --max-connections, when the open-file limit
+ * holds that many connections (raising the soft limit up to the hard one
+ * when needed), else as many as it holds, with a warning naming both and
+ * the fix. -1, logged, when not even one fits. */
+int hfd_limits_fds(hfd_server *s);
+/* libmicrohttpd's connection limit on the --http endpoint (http.c). */
+#define HFD_HTTP_CONN_LIMIT 128
 /* shm.c */
 /* Makes a sealed, mapped segment of bytes; *fd is its memfd, which the
  * caller sends to the peer and then closes. Not pinned: hfd_seg_pin. */
