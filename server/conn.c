@@ -45,6 +45,15 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
  * --max-inflight, so this only bites on misbehaving peers. */
 #define WRITES_HIGH 256
 #define WRITES_LOW 64
+/* The same in bytes, for the replies other than RESULT (ERROR, HELLO_OK,
+ * VARIANTS, STATS_REPLY): they are charged to no budget, and a count alone
+ * lets a STATS_REPLY of 64 variants (34 KiB) pile up to 8.5 MiB per
+ * connection, gigabytes over --max-connections. HIGH still lets the
+ * largest reply through alone; RESULTs are charged to --max-memory-mb
+ * until written, and pausing for them would stall a client that writes
+ * its next frame while it reads a large result. */
+#define CTL_BYTES_HIGH ((uint64_t)64 << 10)
+#define CTL_BYTES_LOW ((uint64_t)16 << 10)
 
 /* A FILTER's tensor is read (and charged) in pieces of at most this many
  * bytes, so the memory received ahead of its charge is bounded. */
@@ -86,7 +95,7 @@ static void read_resume(hfd_conn *c) {
 
 static void wrote_one(hfd_conn *c) {
   c->writes_pending--;
-  if (c->read_paused && c->writes_pending <= WRITES_LOW) {
+  if (c->read_paused && c->writes_pending <= WRITES_LOW && c->ctl_bytes <= CTL_BYTES_LOW) {
     c->read_paused = 0;
     read_resume(c);
   }
@@ -101,7 +110,8 @@ static void writing_one(hfd_conn *c, uint64_t bytes) {
   }
   c->bytes_queued += bytes;
   c->writes_pending++;
-  if (!c->read_paused && c->writes_pending >= WRITES_HIGH && !c->fatal_sent) {
+  if (!c->read_paused && (c->writes_pending >= WRITES_HIGH || c->ctl_bytes >= CTL_BYTES_HIGH) &&
+      !c->fatal_sent) {
     read_stop(c);
     c->read_paused = 1;
   }
@@ -223,6 +233,7 @@ static void fatal_linger(hfd_conn *c) {
 static void on_ctl_written(uv_write_t *req, int status) {
   ctl_write *w = (ctl_write *)req;
   hfd_conn *c = w->c;
+  c->ctl_bytes -= w->len;
   wrote_one(c);
   if (status < 0 && status != UV_ECANCELED)
     hfd_debug("conn %llu: write failed: %s", (unsigned long long)c->id, uv_strerror(status));
@@ -249,9 +260,11 @@ static void send_ctl(hfd_conn *c, const uint8_t *frame, size_t len, int close_af
   w->len = len;
   memcpy(w->data, frame, len);
   uv_buf_t b = uv_buf_init((char *)w->data, (unsigned)len);
+  c->ctl_bytes += len;   /* before: the write may complete inside (TLS) */
   int rc = hfd_io_write(c, &w->req, &b, 1, on_ctl_written);
   if (rc < 0) {
     hfd_debug("conn %llu: uv_write: %s", (unsigned long long)c->id, uv_strerror(rc));
+    c->ctl_bytes -= len;
     free(w);
     hfd_conn_close(c);
     return;

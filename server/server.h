@@ -497,6 +497,7 @@ typedef struct hfd_conn {
   double t_window;               /* start of the current receive-rate window */
   uint64_t window_bytes;         /* received in it */
   uint64_t bytes_queued;         /* handed to uv_write, all replies */
+  uint64_t ctl_bytes;            /* of replies other than RESULT, not yet written */
   uint64_t written_seen;         /* of those, written to the socket at t_write */
   double t_write;                /* last time a reply byte left */
 
