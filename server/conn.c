@@ -779,7 +779,9 @@ static void filter_head(hfd_conn *c, size_t have) {
     reject(c, v, HFP_E_SHUTTING_DOWN, left, "server is shutting down");
   } else if (!mem_fits(s, need)) {
     /* Refused now rather than after the upload: it would not fit. */
-    reject(c, v, HFP_E_BUSY, left, "request memory full (%llu of %llu MiB in use)",
+    reject(c, v, HFP_E_BUSY, left,
+           "request memory full: the frame needs %llu MiB, %llu of %llu MiB are in use "
+           "(--max-memory-mb); retry later", (unsigned long long)(need >> 20),
            (unsigned long long)(mem_committed(s) >> 20),
            (unsigned long long)(s->cfg->max_memory_bytes >> 20));
   } else if (f.flags & HFP_FILTER_SHM) {
@@ -873,7 +875,7 @@ static void filter_admit(hfd_conn *c) {
   j->t_received = hfd_now_us();
   int code = 0;
   const char *why = NULL;
-  char share_why[200];
+  char share_why[256];
   hfd_job *pushed = NULL;
   int share = queue_share(s, c);   /* c's count cannot change before it is queued */
   uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
@@ -884,7 +886,11 @@ static void filter_admit(hfd_conn *c) {
     why = "server is shutting down";
   } else if (c->inflight >= s->cfg->max_inflight) {
     code = HFP_E_BUSY;
-    why = "too many requests in flight on this connection";
+    /* The client's own doing: the limit it was told in HELLO_OK. */
+    snprintf(share_why, sizeof share_why,
+             "too many requests in flight on this connection: %d, HELLO_OK's max_inflight "
+             "(--max-inflight); read a reply before sending more", c->inflight);
+    why = share_why;
   } else if (over_queue_share(s, c, share)) {
     code = HFP_E_BUSY;
     /* Where the share comes from, and the operator's knob: a single
@@ -897,7 +903,13 @@ static void filter_admit(hfd_conn *c) {
     why = share_why;
   } else if (run == UINT64_MAX || !mem_fits(s, more)) {
     code = HFP_E_BUSY;
-    why = "request memory full";
+    /* How much it needed and what is left, as the refusal at the head says. */
+    snprintf(share_why, sizeof share_why,
+             "request memory full: running the frame needs %llu MiB, %llu of %llu MiB are in use "
+             "(--max-memory-mb); retry later", (unsigned long long)(more >> 20),
+             (unsigned long long)(mem_committed(s) >> 20),
+             (unsigned long long)(s->cfg->max_memory_bytes >> 20));
+    why = share_why;
   } else {
     s->mem_held += more;
     j->bytes_held += more;
@@ -911,7 +923,10 @@ static void filter_admit(hfd_conn *c) {
       why = "out of memory for the result";
     } else if (queue_frame(s, c, share, j, &pushed)) {
       code = HFP_E_BUSY;
-      why = "queue full";
+      snprintf(share_why, sizeof share_why,
+               "queue full (--queue-size %d frames waiting to run); retry later",
+               s->cfg->queue_size);
+      why = share_why;
     }
   }
   if (code) {
@@ -1359,7 +1374,9 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
       uint64_t left = (uint64_t)c->want - c->got;
       c->job = NULL;
       job_free(s, j);
-      reject(c, v, HFP_E_BUSY, left, "request memory full (%llu MiB) while receiving the frame",
+      reject(c, v, HFP_E_BUSY, left,
+             "request memory full while receiving the frame (%llu of %llu MiB in use, "
+             "--max-memory-mb); retry later", (unsigned long long)(mem_committed(s) >> 20),
              (unsigned long long)(s->cfg->max_memory_bytes >> 20));
       return;
     }
