@@ -12,6 +12,7 @@
 #ifndef HFC_CLIENT_INTERNAL_H
 #define HFC_CLIENT_INTERNAL_H
 
+#include <signal.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -230,6 +231,19 @@ int hfci_tls_shutdown_wr(void *ssl);
 void hfci_tls_close(void *ssl);
 /* This thread's explanation of the last TLS failure. */
 const char *hfci_tls_why(void);
+
+/* ---- sigpipe.c ---------------------------------------------------------------- */
+
+/* SIGPIPE blocked in this thread around an OpenSSL call that may write to
+ * a socket whose peer is gone (OpenSSL's write(2) has no MSG_NOSIGNAL):
+ * block before the call, restore after it; a SIGPIPE the call raised is
+ * consumed, so the write just fails with EPIPE. */
+typedef struct hfci_sigpipe {
+  sigset_t old;
+  int was_pending, blocked;
+} hfci_sigpipe;
+void hfci_sigpipe_block(hfci_sigpipe *s);
+void hfci_sigpipe_restore(hfci_sigpipe *s);
 
 /* ---- queries.c --------------------------------------------------------------- */
 

@@ -279,7 +279,10 @@ int hfci_tls_connect(hfc_client *c, int fd, const hfp_url *u, void **out) {
     }
   }
   for (;;) {
+    hfci_sigpipe sp;
+    hfci_sigpipe_block(&sp);
     int r = SSL_connect(ssl);
+    hfci_sigpipe_restore(&sp);
     if (r == 1) break;
     int e = SSL_get_error(ssl, r);
     if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
@@ -306,12 +309,31 @@ int hfci_tls_connect(hfc_client *c, int fd, const hfp_url *u, void **out) {
   return 0;
 }
 
+/* Whether the error OpenSSL just reported is the peer's close without
+ * close_notify: OpenSSL 3 reports it as SSL_ERROR_SSL with this reason
+ * (1.1 as SSL_ERROR_SYSCALL, handled below). A server that was killed, or
+ * exited, did just that: the connection is closed (HFC_E_CLOSED, which
+ * fails over), not a TLS failure. */
+static int unexpected_eof(void) {
+#ifdef SSL_R_UNEXPECTED_EOF_WHILE_READING
+  unsigned long e = ERR_peek_error();
+  return e && ERR_GET_LIB(e) == ERR_LIB_SSL &&
+         ERR_GET_REASON(e) == SSL_R_UNEXPECTED_EOF_WHILE_READING;
+#else
+  return 0;
+#endif
+}
+
 /* Moves n bytes through ssl, writing from p or reading into it, waiting
  * on fd for what OpenSSL asks for, up to timeout_ms each time. */
 static int transfer(SSL *ssl, int fd, int writing, uint8_t *p, size_t n, int timeout_ms) {
   while (n) {
     int chunk = n > (1u << 30) ? 1 << 30 : (int)n;
+    /* A read may write too (a TLS 1.3 key update's answer). */
+    hfci_sigpipe sp;
+    hfci_sigpipe_block(&sp);
     int r = writing ? SSL_write(ssl, p, chunk) : SSL_read(ssl, p, chunk);
+    hfci_sigpipe_restore(&sp);
     if (r > 0) {
       p += r;
       n -= (size_t)r;
@@ -324,10 +346,16 @@ static int transfer(SSL *ssl, int fd, int writing, uint8_t *p, size_t n, int tim
       continue;
     }
     if (e == SSL_ERROR_ZERO_RETURN) return HFC_E_CLOSED;
-    if (e == SSL_ERROR_SYSCALL && ERR_peek_error() == 0) {
-      /* EOF or a reset without close_notify. */
+    if (e == SSL_ERROR_SYSCALL &&
+        (ERR_peek_error() == 0 || errno == EPIPE || errno == ECONNRESET)) {
+      /* EOF or a reset without close_notify (OpenSSL 3 may have queued
+       * the system error: the peer is gone all the same). */
       ERR_clear_error();
       return errno == EPIPE || errno == ECONNRESET || errno == 0 ? HFC_E_CLOSED : HFC_E_IO;
+    }
+    if (e == SSL_ERROR_SSL && unexpected_eof()) {
+      ERR_clear_error();
+      return HFC_E_CLOSED;
     }
     return tls_fail(ssl, writing ? "write" : "read");
   }
@@ -354,7 +382,10 @@ int hfci_tls_pending(void *s) { return s && SSL_pending((SSL *)s) > 0; }
 int hfci_tls_shutdown_wr(void *s) {
   /* close_notify is TLS's half-close: the server answers what it has
    * admitted and closes (PROTOCOL.md, "Transport"). */
+  hfci_sigpipe sp;
+  hfci_sigpipe_block(&sp);
   int r = SSL_shutdown((SSL *)s);
+  hfci_sigpipe_restore(&sp);
   ERR_clear_error();
   return r < 0 ? HFC_E_IO : 0;
 }
