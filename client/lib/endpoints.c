@@ -443,6 +443,10 @@ void hfc_close(hfc_client *c) {
   if (c->tls_evfd >= 0) close(c->tls_evfd);
   hfci_tls_free(c);
   free(c->ctl);
+  /* Requests completed with an error and never collected by hfc_wait keep
+   * their message until then: an engine closing with frames in flight
+   * leaves them here. */
+  for (int i = 0; i < c->np; i++) free(c->p[i].msg);
   free(c->p);
   free(c);
   errno = saved;
