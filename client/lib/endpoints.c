@@ -452,12 +452,27 @@ void hfc_close(hfc_client *c) {
   errno = saved;
 }
 
+/* The getters take NULL too: an engine whose hfc_connect failed (or a
+ * default-constructed or moved-from hairfilter::Client) asks them before
+ * it asks whether it has a client, and a crash there says nothing. */
 const hfc_server_info *hfc_info(const hfc_client *c) {
+  static const hfc_server_info none;
+  if (!c) {
+    hfci_msg(NULL, "hfc_info: the client is NULL (hfc_connect failed or was not called)");
+    return &none;
+  }
   return c->active >= 0 ? &c->conns[c->active].info : &c->info_last;
 }
 
 const char *hfc_endpoint(const hfc_client *c) {
+  if (!c) {
+    hfci_msg(NULL, "hfc_endpoint: the client is NULL (hfc_connect failed or was not called)");
+    return "";
+  }
   return c->active >= 0 ? c->eps[c->conns[c->active].endpoint].url : "";
 }
 
-int hfc_fd(const hfc_client *c) { return c->epfd; }
+int hfc_fd(const hfc_client *c) {
+  if (!c) return hfci_arg(NULL, "hfc_fd: the client is NULL (hfc_connect failed or was not called)");
+  return c->epfd;
+}

@@ -319,9 +319,11 @@ static int take_request(hfc_client *c, const hfc_request *r, hfc_request *full) 
                           "hfc_request_init");
 }
 
-static int submit(hfc_client *c, const hfc_request *caller, uint32_t *id, int *slot) {
+/* fn: the public function called, for the message of a NULL client. */
+static int submit(const char *fn, hfc_client *c, const hfc_request *caller, uint32_t *id,
+                  int *slot) {
   hfci_begin(c);
-  if (!c) return hfci_arg(NULL, "hfc_submit: the client is NULL");
+  if (!c) return hfci_arg(NULL, "%s: the client is NULL", fn);
   hfc_request full;
   int rc = take_request(c, caller, &full);
   if (rc) return rc;
@@ -407,10 +409,14 @@ static int submit(hfc_client *c, const hfc_request *caller, uint32_t *id, int *s
 
 int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id) {
   int slot;
-  return submit(c, r, id, &slot);
+  return submit("hfc_submit", c, r, id, &slot);
 }
 
-int hfc_pending(const hfc_client *c) { return c->npending; }
+int hfc_pending(const hfc_client *c) {
+  if (!c)
+    return hfci_arg(NULL, "hfc_pending: the client is NULL (hfc_connect failed or was not called)");
+  return c->npending;
+}
 
 static pending *first_done(hfc_client *c) {
   pending *best = NULL;
@@ -450,7 +456,7 @@ int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing) {
   uint32_t id;
   int slot;
   if (timing) memset(timing, 0, sizeof *timing);
-  int rc = submit(c, r, &id, &slot);
+  int rc = submit("hfc_filter", c, r, &id, &slot);
   if (rc) return rc;
   /* The slot stays this request's until released below (slots only grow in
    * hfc_submit, so the index holds). */

@@ -445,8 +445,37 @@ static void test_fd_polls(void **state) {
   hfc_close(c);
 }
 
+/* Every call takes a NULL client (an engine whose hfc_connect failed, a
+ * default-constructed or moved-from hairfilter::Client): the getters too,
+ * which crashed, each naming the function in hfc_last_message(NULL). */
+static void test_null_client(void **state) {
+  (void)state;
+  assert_int_equal(hfc_pending(NULL), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(NULL), "hfc_pending: the client is NULL"));
+  assert_int_equal(hfc_fd(NULL), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(NULL), "hfc_fd: the client is NULL"));
+  const hfc_server_info *i = hfc_info(NULL);
+  assert_non_null(i);
+  assert_int_equal(i->max_inflight, 0);
+  assert_string_equal(i->name, "");
+  assert_non_null(strstr(hfc_last_message(NULL), "hfc_info: the client is NULL"));
+  assert_string_equal(hfc_endpoint(NULL), "");
+  assert_non_null(strstr(hfc_last_message(NULL), "hfc_endpoint: the client is NULL"));
+  frame f;
+  frame_make(&f, 8, 8, hfc_features_bytes(8, 8, 2, HFC_F32), hfc_output_bytes(8, 8, 3, HFC_F32));
+  assert_int_equal(hfc_filter(NULL, &f.r, NULL), HFC_E_ARG);
+  assert_string_equal(hfc_last_message(NULL), "hfc_filter: the client is NULL");
+  assert_int_equal(hfc_submit(NULL, &f.r, NULL), HFC_E_ARG);
+  assert_string_equal(hfc_last_message(NULL), "hfc_submit: the client is NULL");
+  hfc_completion d;
+  assert_int_equal(hfc_wait(NULL, 0, &d), HFC_E_ARG);
+  hfc_close(NULL);
+  frame_free(&f);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_null_client),
     cmocka_unit_test(test_short_buffers_refused),
     cmocka_unit_test(test_fields_named),
     cmocka_unit_test(test_request_sizes),

@@ -213,15 +213,17 @@ typedef struct hfc_server_info {
                                 that do not say (protocol version 1) */
 } hfc_server_info;
 
-/* The server in use; after a failover, the new one. */
+/* The server in use; after a failover, the new one. Never NULL: with c
+ * NULL, an info of all zeros (and hfc_last_message(NULL) says so). */
 HFC_API const hfc_server_info *hfc_info(const hfc_client *c);
-/* The endpoint in use, as written in the URL ("unix:/a"). */
+/* The endpoint in use, as written in the URL ("unix:/a"); "" with c NULL. */
 HFC_API const char *hfc_endpoint(const hfc_client *c);
 /* A descriptor that polls readable when a reply is waiting (on any of the
  * client's connections), for an engine's own event loop; then call
  * hfc_wait(c, 0, ...). Stays the same across failovers. Not the socket:
  * use it only to poll (over TLS it also polls readable while OpenSSL holds
- * a decrypted reply that the socket no longer shows). */
+ * a decrypted reply that the socket no longer shows). HFC_E_ARG with c
+ * NULL. */
 HFC_API int hfc_fd(const hfc_client *c);
 
 /* ---- variants ----------------------------------------------------------- */
@@ -366,7 +368,8 @@ typedef struct hfc_completion {
  * with *done filled, HFC_E_TIMEOUT, HFC_E_NOPENDING, or a connection error
  * (then every pending request completes with that error on later calls). */
 HFC_API int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done);
-/* Requests submitted and not yet returned by hfc_wait. */
+/* Requests submitted and not yet returned by hfc_wait; HFC_E_ARG with c
+ * NULL. */
 HFC_API int hfc_pending(const hfc_client *c);
 
 /* ---- shared memory ------------------------------------------------------- */
