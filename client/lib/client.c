@@ -216,8 +216,19 @@ static int fail_over_request(hfc_client *c, int k, pending *p, int err) {
 }
 
 /* The server's words about a variant it does not know, with the names it
- * has (as last listed on this connection), into why. */
-static void unknown_variant_msg(conn *x, const char *server_msg, char *why, size_t whylen) {
+ * has (as last listed on this connection), into why. When that list holds
+ * the very name refused, it is out of date: a reload removed the variant
+ * since, and listing the names would contradict the server's answer. */
+static void unknown_variant_msg(conn *x, const char *name, const char *server_msg, char *why,
+                                size_t whylen) {
+  for (int i = 0; i < x->nvariants; i++)
+    if (!strcmp(x->variants[i].name, name)) {
+      snprintf(why, whylen, "%s: the server served it when this connection listed its "
+               "variants, and a reload has removed it since (hfc_list_variants says what it "
+               "serves now)", server_msg);
+      x->variants_known = 0;
+      return;
+    }
   int n = snprintf(why, whylen, "%s", server_msg);
   for (int i = 0; i < x->nvariants && n > 0 && (size_t)n < whylen; i++) {
     int m = snprintf(why + n, whylen - (size_t)n, "%s%s", i ? ", " : ": this server has ",
@@ -330,7 +341,7 @@ static int read_frame(hfc_client *c, int k) {
       if (fail_over_request(c, k, p, code)) return e.fatal ? code : 0;
       char why[900];
       if (code == HFC_E_UNKNOWN_VARIANT)
-        unknown_variant_msg(x, e.message, why, sizeof why);
+        unknown_variant_msg(x, p->variant, e.message, why, sizeof why);
       else
         snprintf(why, sizeof why, "%s", e.message);
       hfci_finish(c, p, code, why);
