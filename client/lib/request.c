@@ -168,25 +168,38 @@ static int resolve_variant(hfc_client *c, const char *name, char out[HFP_NAME_MA
   }
 }
 
-/* Whether the listed variant named `name` reads an estimate other than the
- * request says: 1 for a mismatch, 0 otherwise (also for a name not listed,
- * which the server answers). */
-static int estimate_mismatch(const conn *x, const char *name, int estimate) {
+/* The listed variant named `name`, or NULL (a name not listed, which the
+ * server answers). */
+static const hfc_variant *find_listed(const conn *x, const char *name) {
   for (int i = 0; i < x->nvariants; i++)
-    if (!strcmp(x->variants[i].name, name)) return !x->variants[i].estimate != !estimate;
-  return 0;
+    if (!strcmp(x->variants[i].name, name)) return &x->variants[i];
+  return NULL;
 }
 
-/* A request whose hfc_request.estimate the variant does not match, refused
- * here in the API's words (the server's INVALID speaks of the wire's
- * flag). The variants are listed again first: a reload may have changed
- * what the name serves. 0, or HFC_E_ARG with the message set. */
-static int check_estimate(hfc_client *c, const char *variant, int estimate) {
-  if (estimate_mismatch(&c->conns[c->active], variant, estimate)) {
+/* Whether the listed variant takes other samples per pixel, or reads an
+ * estimate other than, the request says. */
+static int variant_mismatch(const conn *x, const char *name, int spp, int estimate) {
+  const hfc_variant *v = find_listed(x, name);
+  return v && (v->spp != spp || !v->estimate != !estimate);
+}
+
+/* A request whose spp or hfc_request.estimate the variant does not match,
+ * refused here in the API's words, before its features go out (the
+ * server's INVALID speaks of the wire's fields, and comes only after the
+ * whole frame was sent). The variants are listed again first: a reload
+ * may have changed what the name serves. 0, or HFC_E_ARG with the message
+ * set. */
+static int check_variant(hfc_client *c, const char *variant, int spp, int estimate) {
+  if (variant_mismatch(&c->conns[c->active], variant, spp, estimate)) {
     int rc = load_variants(c);
     if (rc) return rc;
   }
-  if (c->active < 0 || !estimate_mismatch(&c->conns[c->active], variant, estimate)) return 0;
+  if (c->active < 0 || !variant_mismatch(&c->conns[c->active], variant, spp, estimate)) return 0;
+  const hfc_variant *v = find_listed(&c->conns[c->active], variant);
+  if (v->spp != spp)
+    return hfci_arg(c, "hfc_request.spp is %d: variant %s takes %d samples per pixel "
+                       "(hfc_variant.spp): render %d, or name a variant of %d spp "
+                       "(hfc_list_variants)", spp, variant, v->spp, v->spp, spp);
   if (estimate)
     return hfci_arg(c, "variant %s reads no estimate: set hfc_request.estimate to 0 (and "
                        "estimate_buffer to NULL) and send the features alone", variant);
@@ -342,7 +355,7 @@ static int submit(const char *fn, hfc_client *c, const hfc_request *caller, uint
              x->info.version);
     return HFC_E_ARG;
   }
-  if ((rc = check_estimate(c, variant, r->estimate))) return rc;
+  if ((rc = check_variant(c, variant, r->spp, r->estimate))) return rc;
   if ((k = hfci_need_conn(c)) < 0) return k;
   x = &c->conns[c->active];
   if (c->npending >= x->info.max_inflight) {

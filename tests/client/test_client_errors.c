@@ -312,6 +312,45 @@ static void test_variant_names(void **state) {
   hfc_close(c);
 }
 
+/* The errors a Tiny frame counts in the server's statistics. */
+static uint64_t tiny_failed(hfc_client *c) {
+  hfc_stats *st = malloc(sizeof *st);
+  assert_non_null(st);
+  assert_int_equal(hfc_get_stats(c, st), 0);
+  uint64_t n = UINT64_MAX;
+  for (int i = 0; i < st->num_variants; i++)
+    if (!strcmp(st->variants[i].name, "Tiny"))
+      n = st->variants[i].requests_failed + st->variants[i].rejected;
+  free(st);
+  assert_true(n != UINT64_MAX);
+  return n;
+}
+
+/* A request with other samples per pixel than its variant is HFC_E_ARG
+ * naming hfc_request.spp and the variant's, before the frame goes out
+ * (the server would have read all of it to answer INVALID). */
+static void test_spp_mismatch(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "spp");
+  assert_non_null(c);
+  frame f;
+  frame_make(&f, 8, 6, hfc_features_bytes(8, 6, 4, HFC_F32), hfc_output_bytes(8, 6, 3, HFC_F32));
+  uint64_t before = tiny_failed(c);
+  f.r.spp = 4;   /* Tiny takes 2 */
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_E_ARG);
+  const char *m = hfc_last_message(c);
+  if (!strstr(m, "hfc_request.spp is 4") || !strstr(m, "Tiny takes 2"))
+    fail_msg("the message does not name hfc_request.spp and Tiny's 2: %s", m);
+  f.r.variant = "tiny";   /* matched without regard to case, then checked */
+  assert_int_equal(hfc_submit(c, &f.r, NULL), HFC_E_ARG);
+  assert_int_equal(hfc_pending(c), 0);
+  assert_int_equal(tiny_failed(c), before);
+  f.r.spp = 2;
+  assert_int_equal(hfc_filter(c, &f.r, NULL), HFC_OK);
+  frame_free(&f);
+  hfc_close(c);
+}
+
 /* A failed connect leaves errno and a message naming the endpoint and the
  * reason: a missing socket and a refused one read differently, and both
  * differently from a socket this user may not open. */
@@ -481,6 +520,7 @@ int main(void) {
     cmocka_unit_test(test_request_sizes),
     cmocka_unit_test(test_message_cleared),
     cmocka_unit_test(test_variant_names),
+    cmocka_unit_test(test_spp_mismatch),
     cmocka_unit_test(test_connect_errno),
     cmocka_unit_test(test_versions),
     cmocka_unit_test(test_fd_polls),

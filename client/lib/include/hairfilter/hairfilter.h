@@ -351,9 +351,9 @@ HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
  * request naming a variant on a connection lists the server's variants
  * once, to match the name without regard to case; a name the server does
  * not have is still sent, and its completion is HFC_E_UNKNOWN_VARIANT with
- * the listed names in hfc_last_message. A request whose estimate flag the
- * listed variant does not match (hfc_variant.estimate) is HFC_E_ARG before
- * anything is sent. */
+ * the listed names in hfc_last_message. A request whose spp or estimate
+ * flag the listed variant does not match (hfc_variant.spp,
+ * hfc_variant.estimate) is HFC_E_ARG before anything is sent. */
 HFC_API int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id);
 
 typedef struct hfc_completion {
