@@ -78,24 +78,28 @@ static int check_request(hfc_client *c, const hfc_request *r) {
   int follows = r->estimate && !r->estimate_buffer;
   if (!r->features) return hfci_arg(c, "hfc_request.features is NULL");
   if (r->features_bytes < in + (follows ? est : 0))
-    return hfci_arg(c, "hfc_request.features_bytes is %zu: a %dx%d frame of %d spp in %s needs "
-                       "%zu ([height][width][spp*6]%s)", r->features_bytes, r->width, r->height,
+    return hfci_arg(c, "hfc_request.features_bytes is %zu: a %dx%d frame of %d spp in %s "
+                       "(hfc_request.in_dtype) needs %zu ([height][width][spp*6]%s; "
+                       "hfc_features_bytes gives it)", r->features_bytes, r->width, r->height,
                     r->spp, dtype_name(r->in_dtype), in + (follows ? est : 0),
                     follows ? ", then the estimate, [height][width][3]; or set "
                               "hfc_request.estimate_buffer to send it from a buffer of its own"
                             : "");
   if (r->estimate_buffer && r->estimate_bytes < est)
     return hfci_arg(c, "hfc_request.estimate_bytes is %zu: the estimate of a %dx%d frame in %s "
-                       "needs %zu ([height][width][3])", r->estimate_bytes, r->width, r->height,
+                       "(hfc_request.in_dtype) needs %zu ([height][width][3]; "
+                       "hfc_estimate_bytes gives it)", r->estimate_bytes, r->width, r->height,
                     dtype_name(r->in_dtype), est);
   if (!r->result) return hfci_arg(c, "hfc_request.result is NULL");
   if (r->result_bytes < out)
-    return hfci_arg(c, "hfc_request.result_bytes is %zu: a %dx%d result in %s needs %zu "
-                       "([height][width][3])", r->result_bytes, r->width, r->height,
+    return hfci_arg(c, "hfc_request.result_bytes is %zu: a %dx%d result in %s "
+                       "(hfc_request.out_dtype) needs %zu ([height][width][3]; "
+                       "hfc_output_bytes(width, height, 3, out_dtype) gives it)", r->result_bytes, r->width, r->height,
                     dtype_name(r->out_dtype), out);
   if (r->rgba && r->rgba_bytes < rgba)
-    return hfci_arg(c, "hfc_request.rgba_bytes is %zu: a %dx%d composite in %s needs %zu "
-                       "([height][width][4])", r->rgba_bytes, r->width, r->height,
+    return hfci_arg(c, "hfc_request.rgba_bytes is %zu: a %dx%d composite in %s "
+                       "(hfc_request.out_dtype) needs %zu ([height][width][4]; "
+                       "hfc_output_bytes(width, height, 4, out_dtype) gives it)", r->rgba_bytes, r->width, r->height,
                     dtype_name(r->out_dtype), rgba);
   if (!finite3(r->hair) || !finite3(r->light) || !finite3(r->background))
     return hfci_arg(c, "hfc_request.%s has a value that is not finite",

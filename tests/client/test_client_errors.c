@@ -141,7 +141,7 @@ static void test_fields_named(void **state) {
   struct {
     const char *field;
     hfc_request r;
-  } bad[12];
+  } bad[16];
   int n = 0;
   bad[n].field = "hfc_request.struct_size";
   bad[n].r = f.r;
@@ -176,6 +176,19 @@ static void test_fields_named(void **state) {
   bad[n].r = f.r;
   bad[n].r.rgba = rgba;
   bad[n++].r.rgba_bytes = sizeof rgba;
+  /* A dtype that does not fit its buffer: the dtype's field is named
+   * beside the size's, since either may be the mistake. */
+  bad[n].field = "in f32 (hfc_request.in_dtype) needs";
+  bad[n].r = f.r;
+  bad[n++].r.features_bytes = hfc_features_bytes(4, 4, 2, HFC_F16);
+  bad[n].field = "in f32 (hfc_request.out_dtype) needs";
+  bad[n].r = f.r;
+  bad[n++].r.result_bytes = hfc_output_bytes(4, 4, 3, HFC_F16);
+  bad[n].field = "hfc_output_bytes(width, height, 4, out_dtype)";
+  bad[n].r = f.r;
+  bad[n].r.rgba = rgba;
+  bad[n].r.light[0] = 1;
+  bad[n++].r.rgba_bytes = hfc_output_bytes(4, 4, 4, HFC_F16);
   for (int i = 0; i < n; i++) {
     assert_int_equal(hfc_filter(c, &bad[i].r, NULL), HFC_E_ARG);
     if (!strstr(hfc_last_message(c), bad[i].field))

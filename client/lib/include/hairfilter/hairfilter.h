@@ -104,7 +104,8 @@ typedef struct hfc_client hfc_client;
  * failed hfc_connect, which returns no client, explains itself). "" after
  * a call that succeeded: every call clears it first. Valid until the next
  * call on c (c NULL: in this thread). Examples:
- *   hfc_request.features_bytes is 1000: a 64x48 frame of 4 spp in f32 needs 294912
+ *   hfc_request.features_bytes is 1000: a 64x48 frame of 4 spp in f32
+ *     (hfc_request.in_dtype) needs 294912 ([height][width][spp*6]; ...)
  *   unix:/run/hairfilterd/hairfilterd.sock: connect: Permission denied (...)
  *   unknown variant 'Bsae': this server has Base, Small, Large */
 HFC_API const char *hfc_last_message(const hfc_client *c);
