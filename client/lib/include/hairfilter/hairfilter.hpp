@@ -21,6 +21,10 @@
 //
 // Client owns its connection and SharedBuffer its segment (RAII, movable,
 // not copyable). A Client, like an hfc_client, is for one thread at a time.
+// A SharedBuffer follows the connection, not the Client object: it stays
+// valid when its Client is moved, and one that outlives the connection
+// (members declared in either order, a Client moved into a shorter-lived
+// owner) is simply forgotten, since hfc_close has unmapped it.
 #ifndef HAIRFILTER_HPP
 #define HAIRFILTER_HPP
 
@@ -106,24 +110,20 @@ struct Request : hfc_request {
   }
 };
 
+class SharedBuffer;
+
 class Client {
  public:
-  Client() : c_(nullptr) {}
+  Client() {}
 #ifdef HAIRFILTER_HPP_EXCEPTIONS
   // Connects (url: one endpoint or a comma-separated list); throws Error.
-  explicit Client(const std::string &url) : c_(nullptr) { check(open(url, nullptr, *this)); }
-  Client(const std::string &url, const hfc_options &opt) : c_(nullptr) {
-    check(open(url, &opt, *this));
-  }
+  explicit Client(const std::string &url) { check(open(url, nullptr, *this)); }
+  Client(const std::string &url, const hfc_options &opt) { check(open(url, &opt, *this)); }
 #endif
-  ~Client() { hfc_close(c_); }
-  Client(Client &&o) noexcept : c_(o.c_) { o.c_ = nullptr; }
+  // The connection is closed with the last Client it was moved through.
+  Client(Client &&o) noexcept : c_(std::move(o.c_)) {}
   Client &operator=(Client &&o) noexcept {
-    if (this != &o) {
-      hfc_close(c_);
-      c_ = o.c_;
-      o.c_ = nullptr;
-    }
+    c_ = std::move(o.c_);
     return *this;
   }
   Client(const Client &) = delete;
@@ -139,33 +139,34 @@ class Client {
   }
 
   explicit operator bool() const { return c_ != nullptr; }
-  hfc_client *get() const { return c_; }
-  const hfc_server_info &info() const { return *hfc_info(c_); }
-  std::string endpoint() const { return hfc_endpoint(c_); }
-  int fd() const { return hfc_fd(c_); }
-  int pending() const { return hfc_pending(c_); }
+  hfc_client *get() const { return c_.get(); }
+  // On an empty Client: an all-zero info, "", HFC_E_ARG, HFC_E_ARG.
+  const hfc_server_info &info() const { return *hfc_info(get()); }
+  std::string endpoint() const { return hfc_endpoint(get()); }
+  int fd() const { return hfc_fd(get()); }
+  int pending() const { return hfc_pending(get()); }
 
   // One frame, synchronously; timing may be null.
   Status filter(const hfc_request &r, hfc_timing *timing = nullptr) {
-    return status(hfc_filter(c_, &r, timing));
+    return status(hfc_filter(get(), &r, timing));
   }
   Status submit(const hfc_request &r, std::uint32_t *id = nullptr) {
-    return status(hfc_submit(c_, &r, id));
+    return status(hfc_submit(get(), &r, id));
   }
   // The next completion (its own status in done.status); timeout_ms < 0:
   // the client's timeout, 0: just poll.
   Status wait(hfc_completion &done, int timeout_ms = -1) {
-    return status(hfc_wait(c_, timeout_ms, &done));
+    return status(hfc_wait(get(), timeout_ms, &done));
   }
 
   Status variants(std::vector<hfc_variant> &out) {
     out.resize(64);
     int n = 0;
-    int rc = hfc_list_variants(c_, out.data(), static_cast<int>(out.size()), &n);
+    int rc = hfc_list_variants(get(), out.data(), static_cast<int>(out.size()), &n);
     out.resize(rc ? 0 : static_cast<std::size_t>(n < 64 ? n : 64));
     return status(rc);
   }
-  Status stats(hfc_stats &out) { return status(hfc_get_stats(c_, &out)); }
+  Status stats(hfc_stats &out) { return status(hfc_get_stats(get(), &out)); }
 #ifdef HAIRFILTER_HPP_EXCEPTIONS
   std::vector<hfc_variant> variants() {
     std::vector<hfc_variant> v;
@@ -180,26 +181,30 @@ class Client {
 #endif
 
  private:
-  explicit Client(hfc_client *c) : c_(c) {}
+  friend class SharedBuffer;
+  // Owns c from here: should the control block's allocation throw,
+  // shared_ptr closes c before the exception leaves.
+  explicit Client(hfc_client *c) : c_(c, hfc_close) {}
   Status status(int rc) const {
-    return rc ? Status(rc, hfc_last_message(c_)) : Status();
+    return rc ? Status(rc, hfc_last_message(get())) : Status();
   }
-  hfc_client *c_;
+  // Shared with nothing but the SharedBuffers' weak references, which
+  // tell them whether the connection is still open.
+  std::shared_ptr<hfc_client> c_;
 };
 
 // A segment of memory shared with the server (hfc_shm_alloc), freed with
-// the object. The Client must outlive it.
+// the object. It may outlive its Client: once the connection is closed,
+// hfc_close has unmapped the segment (data() must not be used then), and
+// the object only forgets it.
 class SharedBuffer {
  public:
-  SharedBuffer() : c_(nullptr), p_(nullptr), n_(0) {}
+  SharedBuffer() : p_(nullptr), n_(0) {}
 #ifdef HAIRFILTER_HPP_EXCEPTIONS
-  SharedBuffer(Client &c, std::size_t bytes) : c_(nullptr), p_(nullptr), n_(0) {
-    check(open(c, bytes, *this));
-  }
+  SharedBuffer(Client &c, std::size_t bytes) : p_(nullptr), n_(0) { check(open(c, bytes, *this)); }
 #endif
   ~SharedBuffer() { reset(); }
-  SharedBuffer(SharedBuffer &&o) noexcept : c_(o.c_), p_(o.p_), n_(o.n_) {
-    o.c_ = nullptr;
+  SharedBuffer(SharedBuffer &&o) noexcept : c_(std::move(o.c_)), p_(o.p_), n_(o.n_) {
     o.p_ = nullptr;
     o.n_ = 0;
   }
@@ -220,7 +225,7 @@ class SharedBuffer {
     int rc = hfc_shm_alloc(c.get(), bytes, &p);
     if (rc) return Status(rc, hfc_last_message(c.get()));
     out.reset();
-    out.c_ = c.get();
+    out.c_ = c.c_;
     out.p_ = p;
     out.n_ = bytes;
     return Status();
@@ -234,14 +239,17 @@ class SharedBuffer {
     return reinterpret_cast<T *>(static_cast<unsigned char *>(p_) + byte_offset);
   }
   void reset() {
-    if (p_) hfc_shm_free(c_, p_);
-    c_ = nullptr;
+    if (p_) {
+      std::shared_ptr<hfc_client> c = c_.lock();
+      if (c) hfc_shm_free(c.get(), p_);   // else hfc_close unmapped it already
+    }
+    c_.reset();
     p_ = nullptr;
     n_ = 0;
   }
 
  private:
-  hfc_client *c_;
+  std::weak_ptr<hfc_client> c_;
   void *p_;
   std::size_t n_;
 };
