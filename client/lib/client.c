@@ -247,6 +247,8 @@ static int read_frame(hfc_client *c, int k) {
   uint8_t hb[HFP_HEADER_SIZE];
   int rc = recv_all(c, x, hb, sizeof hb);
   if (rc) return rc;
+  /* A frame has begun: the server is alive (hfci_check_silent). */
+  x->quiet_since_us = now_us();
   hfp_header h;
   if (hfp_header_decode(hb, UINT32_MAX, &h)) {
     snprintf(x->why, sizeof x->why, "a malformed frame header");
@@ -464,6 +466,33 @@ void hfci_conn_lost(hfc_client *c, int k, int err) {
   char all[2 * MSG_MAX + 40];
   snprintf(all, sizeof all, "%s; no other endpoint answers: %s", why, move ? c->msg : "");
   fail_queued(c, err, move ? all : why);
+}
+
+int hfci_silence_left_ms(const hfc_client *c) {
+  if (c->timeout_ms < 0) return -1;
+  double now = now_us(), least = -1;
+  for (int k = 0; k < MAX_CONNS; k++) {
+    const conn *x = &c->conns[k];
+    if (x->fd < 0 || x->inflight <= 0) continue;
+    double left = x->quiet_since_us + (double)c->timeout_ms * 1e3 - now;
+    if (left < 0) left = 0;
+    if (least < 0 || left < least) least = left;
+  }
+  return least < 0 ? -1 : (int)(least / 1e3 + 0.999);
+}
+
+void hfci_check_silent(hfc_client *c) {
+  if (c->timeout_ms < 0) return;
+  double now = now_us();
+  for (int k = 0; k < MAX_CONNS; k++) {
+    conn *x = &c->conns[k];
+    if (x->fd < 0 || x->inflight <= 0 ||
+        now - x->quiet_since_us < (double)c->timeout_ms * 1e3)
+      continue;
+    snprintf(x->why, sizeof x->why, "no reply for %d ms (hfc_options.timeout_ms) with %d "
+             "frame(s) in flight: is the server stopped or stuck?", c->timeout_ms, x->inflight);
+    hfci_conn_lost(c, k, HFC_E_TIMEOUT);
+  }
 }
 
 void hfci_progress(hfc_client *c) {

@@ -39,6 +39,9 @@ typedef struct conn {
   uint64_t serial;              /* never reused: segments name their connection by it */
   int draining;                 /* half-closed: replies still read, nothing sent */
   int inflight;                 /* FILTERs sent on it and not yet answered */
+  double quiet_since_us;        /* owing replies, it has sent nothing since (monotonic
+                                   us): the last frame it sent began, or the first
+                                   FILTER of an idle spell went out */
   int rx_fd;                    /* a descriptor that came with a frame, or -1 */
   char why[320];                /* what ended it, when more than a code says */
   hfc_server_info info;
@@ -190,6 +193,14 @@ int hfci_pump(hfc_client *c, int timeout_ms);
 /* Connection k failed with err: its requests go to the next endpoint when
  * the policy allows, else complete with err. */
 void hfci_conn_lost(hfc_client *c, int k, int err);
+/* A connection owing replies that has sent nothing for the client's
+ * timeout is stuck (a stopped or wedged server keeps its socket open):
+ * it is lost with HFC_E_TIMEOUT, so its frames fail over or complete.
+ * hfc_wait calls it, as hfc_filter ends a silent wait of its own. */
+void hfci_check_silent(hfc_client *c);
+/* Milliseconds until hfci_check_silent would end a connection (0: now),
+ * or -1 when none owes replies or the timeout is off. */
+int hfci_silence_left_ms(const hfc_client *c);
 /* Sends queued requests while the active connection has room, and closes
  * draining connections that have nothing left to answer. */
 void hfci_progress(hfc_client *c);

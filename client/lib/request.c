@@ -285,6 +285,8 @@ int hfci_send_request(hfc_client *c, pending *p) {
   p->conn = k;
   p->shm = g != NULL;
   p->state = P_SENT;
+  /* The first frame owed after an idle spell starts the silence clock. */
+  if (x->inflight == 0) x->quiet_since_us = now_us();
   x->inflight++;
   /* On failure part of a frame may be out: the connection cannot be trusted
    * any more, and the caller ends it (hfci_conn_lost, which resends p). */
@@ -457,9 +459,19 @@ int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
     if (c->npending == 0) return c->broken && c->active < 0 ? c->broken : HFC_E_NOPENDING;
     int left = timeout_ms < 0 ? -1 : (int)((deadline - now_us()) / 1e3);
     if (left < 0 && timeout_ms >= 0) left = 0;
-    int rc = hfci_pump(c, left);
+    /* Not past the moment a silent connection is to be given up: a wait
+     * longer than the client's timeout, or a loop of polls, must not keep
+     * frames on a stopped server pending for ever (nor from failing over). */
+    int step = left, silent = hfci_silence_left_ms(c);
+    if (silent >= 0 && (step < 0 || silent < step)) step = silent;
+    int rc = hfci_pump(c, step);
+    hfci_check_silent(c);
     hfci_progress(c);
-    if (rc == HFC_E_TIMEOUT && !first_done(c)) return rc;
+    if (first_done(c)) continue;
+    if (rc == HFC_E_TIMEOUT) {
+      if (timeout_ms >= 0 && now_us() >= deadline) return rc;
+      continue;
+    }
     if (rc && rc != HFC_E_TIMEOUT && !first_done(c)) {
       /* No connection left and nothing could complete: fail what waits. */
       for (int i = 0; i < c->np; i++)

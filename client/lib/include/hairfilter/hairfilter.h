@@ -367,7 +367,11 @@ typedef struct hfc_completion {
 /* Waits up to timeout_ms (0: just poll, < 0: the client's timeout) for the
  * next completion, in whatever order the server finishes them. Returns 0
  * with *done filled, HFC_E_TIMEOUT, HFC_E_NOPENDING, or a connection error
- * (then every pending request completes with that error on later calls). */
+ * (then every pending request completes with that error on later calls).
+ * A connection that owes replies and has sent nothing for
+ * hfc_options.timeout_ms (a stopped or stuck server) is given up as lost,
+ * whatever timeout_ms this call has and however often it polls: its
+ * frames fail over (a list) or complete with HFC_E_TIMEOUT. */
 HFC_API int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done);
 /* Requests submitted and not yet returned by hfc_wait; HFC_E_ARG with c
  * NULL. */

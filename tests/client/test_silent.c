@@ -1,0 +1,119 @@
+/* A server that stops answering (SIGSTOP: its socket stays open, so no
+ * error ever comes) while an engine collects its frames with hfc_wait, in
+ * one long wait or a loop of polls: after hfc_options.timeout_ms of
+ * silence the frames complete with HFC_E_TIMEOUT (one endpoint), or are
+ * sent to the next endpoint (a list), as hfc_filter's do. They stayed
+ * pending for as long as the server was stopped, and a list never failed
+ * over. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "harness.h"
+
+#define TIMEOUT_MS 2000
+#define W 8
+#define HT 8
+
+static harness H;
+static server A, B;
+static float *in, *out;
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H) || server_start(&H, &A, NULL) || server_start(&H, &B, NULL)) return -1;
+  in = make_features(W, HT, 2, 21);
+  out = malloc(hfc_output_bytes(W, HT, 3, HFC_F32));
+  return in && out ? 0 : -1;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  free(in);
+  free(out);
+  int bad = server_stop(&B, 20000) != 0;
+  return harness_stop(&H, &A) || bad;
+}
+
+static hfc_client *connect_url(const char *url) {
+  hfc_options o = test_options("silent", NULL, TIMEOUT_MS);
+  hfc_client *c = NULL;
+  int rc = hfc_connect(url, &o, &c);
+  if (rc) fail_msg("connect %s: %s (%s)", url, hfc_strerror(rc), hfc_last_message(NULL));
+  return c;
+}
+
+/* A frame filtered (the variants listed), A stopped, one more submitted:
+ * its completion, collected with one wait of 20 s (poll 0: a loop of
+ * hfc_wait(c, 0) 20 ms apart), within that time. */
+static hfc_completion stopped_frame(hfc_client *c, int poll, double *took_ms) {
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
+                               .features = in, .result = out);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
+  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  assert_int_equal(hfc_submit(c, &r, NULL), HFC_OK);
+  double t0 = now_ms();
+  hfc_completion d;
+  int rc;
+  if (poll) {
+    while ((rc = hfc_wait(c, 0, &d)) == HFC_E_TIMEOUT && now_ms() - t0 < 20000) {
+      struct timespec ts = {0, 20 * 1000000L};
+      nanosleep(&ts, NULL);
+    }
+  } else {
+    rc = hfc_wait(c, 20000, &d);
+  }
+  *took_ms = now_ms() - t0;
+  kill(A.pid, SIGCONT);
+  if (rc)
+    fail_msg("hfc_wait on a stopped server: %s after %.0f ms (%s), want the frame's completion "
+             "after about %d ms", hfc_strerror(rc), *took_ms, hfc_last_message(c), TIMEOUT_MS);
+  return d;
+}
+
+static void test_one_endpoint(void **state) {
+  (void)state;
+  for (int poll = 0; poll < 2; poll++) {
+    hfc_client *c = connect_url(A.unix_url);
+    double took;
+    hfc_completion d = stopped_frame(c, poll, &took);
+    assert_int_equal(d.status, HFC_E_TIMEOUT);
+    assert_non_null(strstr(hfc_last_message(c), "no reply for"));
+    assert_true(took >= TIMEOUT_MS - 50 && took < 10000);
+    hfc_close(c);
+  }
+}
+
+static void test_list_fails_over(void **state) {
+  (void)state;
+  char url[600];
+  snprintf(url, sizeof url, "%s,%s", A.unix_url, B.unix_url);
+  for (int poll = 0; poll < 2; poll++) {
+    hfc_client *c = connect_url(url);
+    assert_string_equal(hfc_endpoint(c), A.unix_url);
+    double took;
+    hfc_completion d = stopped_frame(c, poll, &took);
+    if (d.status != HFC_OK)
+      fail_msg("the frame on the stopped server: %s (%s), want it filtered by the next",
+               hfc_strerror(d.status), hfc_last_message(c));
+    assert_int_equal(d.timing.resends, 1);
+    assert_string_equal(hfc_endpoint(c), B.unix_url);
+    hfc_close(c);
+  }
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_one_endpoint),
+    cmocka_unit_test(test_list_fails_over),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
