@@ -489,6 +489,11 @@ void hfci_check_silent(hfc_client *c) {
     if (x->fd < 0 || x->inflight <= 0 ||
         now - x->quiet_since_us < (double)c->timeout_ms * 1e3)
       continue;
+    /* Bytes (or its close) already waiting are not silence: an engine that
+     * did not collect for a while finds its replies there, and a pump reads
+     * one connection's frame at a time. */
+    struct pollfd pfd = {x->fd, POLLIN, 0};
+    if (hfci_tls_pending(x->ssl) || poll(&pfd, 1, 0) > 0) continue;
     snprintf(x->why, sizeof x->why, "no reply for %d ms (hfc_options.timeout_ms) with %d "
              "frame(s) in flight: is the server stopped or stuck?", c->timeout_ms, x->inflight);
     hfci_conn_lost(c, k, HFC_E_TIMEOUT);
