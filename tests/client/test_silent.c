@@ -110,10 +110,33 @@ static void test_list_fails_over(void **state) {
   }
 }
 
+/* No silence where replies wait: an engine that submits, then does not
+ * collect for longer than the timeout (a loading screen), finds its
+ * results, by one wait or by polls. */
+static void test_pause_then_collect(void **state) {
+  (void)state;
+  hfc_client *c = connect_url(A.unix_url);
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
+                               .features = in, .result = out);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
+  for (int i = 0; i < 3; i++) assert_int_equal(hfc_submit(c, &r, NULL), HFC_OK);
+  struct timespec ts = {(TIMEOUT_MS + 500) / 1000, (long)((TIMEOUT_MS + 500) % 1000) * 1000000L};
+  nanosleep(&ts, NULL);
+  for (int i = 0; i < 3; i++) {
+    hfc_completion d;
+    int rc = hfc_wait(c, i == 0 ? 0 : 20000, &d);
+    if (rc || d.status)
+      fail_msg("frame %d after a pause: %s / %s (%s)", i, hfc_strerror(rc), hfc_strerror(d.status),
+               hfc_last_message(c));
+  }
+  hfc_close(c);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_one_endpoint),
     cmocka_unit_test(test_list_fails_over),
+    cmocka_unit_test(test_pause_then_collect),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
