@@ -400,10 +400,18 @@ class PythonClient(unittest.TestCase):
                 hf.filter("Small", np.zeros((0, 0, 24), np.float32))
             self.assertEqual(e.exception.code, "ARG")
             self.assertIn("features", e.exception.message)
-            # The server's verdict: spp not the variant's.
+            # spp not the variant's: refused before sending, naming both.
+            with self.assertRaises(hairfilter.Error) as e:
+                hf.filter(BASE1, f)
+            self.assertEqual(e.exception.code, "ARG")
+            self.assertIn("4 samples per pixel", e.exception.message)
+            self.assertIn("takes 1 (Variant.spp)", e.exception.message)
+            # The server's verdict on the same frame, the client's check off.
+            check, hf._check_variant = hf._check_variant, lambda name, spp, given: None
             with self.assertRaises(hairfilter.Error) as e:
                 hf.filter(BASE1, f)
             self.assertEqual(e.exception.code, "INVALID")
+            hf._check_variant = check
             self.assertEqual(hf.filter("Small", f).status, "OK")
         missing = "unix:" + os.path.join(ARGS.work, "missing.sock")
         with self.assertRaises(hairfilter.Error) as e:

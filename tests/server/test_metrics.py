@@ -25,9 +25,10 @@ import urllib.parse
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-# The Python client from the source tree: it sends a frame whose spp is not
-# its variant's for the server to refuse INVALID, where libhairfilter (and
-# so load_client) refuses it before sending.
+# The Python client from the source tree, its own check of a frame's spp
+# against the listed variant's turned off (libhairfilter, and so
+# load_client, refuses such a frame before sending), so that the server
+# refuses it INVALID.
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..",
                                 "client", "python"))
 import hairfilter  # noqa: E402
@@ -49,6 +50,7 @@ class BadSpp(threading.Thread):
     def run(self):
         try:
             with hairfilter.Client(self.url, client_name="bad-spp") as hf:
+                hf._check_variant = lambda name, spp, given: None
                 features = np.zeros((16, 16, 2 * 6), np.float32)
                 for _ in range(self.count):
                     hf.submit("Small", features)

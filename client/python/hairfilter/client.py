@@ -517,17 +517,22 @@ class Client:
                 return close[0]
         return name
 
-    def _check_estimate(self, name, given):
-        """Raises ARG, in this API's words, for a frame whose estimate the
-        listed variant does not match (the server's INVALID names the wire's
-        FILTER flag); the variants are listed again first, since a reload
-        may have changed what the name serves. A name not listed passes."""
+    def _check_variant(self, name, spp, given):
+        """Raises ARG, in this API's words, for a frame whose samples per
+        pixel or estimate the listed variant does not match (the server
+        would answer INVALID after the whole upload, naming the wire's
+        fields); the variants are listed again first, since a reload may
+        have changed what the name serves. A name not listed passes."""
         for attempt in range(2):
             v = next((v for v in self._variants or () if v.name == name), None)
-            if v is None or bool(v.estimate) == given:
+            if v is None or (v.spp == spp and bool(v.estimate) == given):
                 return
             if not attempt:
                 self.variants()
+        if v.spp != spp:
+            raise Error("ARG", "features: %d samples per pixel (%d channels), variant %s takes "
+                               "%d (Variant.spp): render %d, or name a variant of %d spp "
+                               "(variants())" % (spp, spp * P.FEATURES, name, v.spp, v.spp, spp))
         if given:
             raise Error("ARG", "variant %s reads no estimate: call without estimate=" % name)
         raise Error("ARG", "variant %s reads stochastic transparency's alpha-corrected estimate "
@@ -594,7 +599,7 @@ class Client:
         composite = composite or rgba is not None
         rgba = out_array(rgba, 4, "rgba") if composite else None
         name = self._variant_name(variant)
-        self._check_estimate(name, estimate is not None)
+        self._check_variant(name, spp, estimate is not None)
         if len(self._pending) >= self.info.max_inflight:
             raise Error("INFLIGHT", "%d requests pending, as many as the server allows"
                         % len(self._pending))
