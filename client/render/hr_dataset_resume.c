@@ -171,6 +171,12 @@ static int first_difference(const cJSON *want, const cJSON *have, const char *pr
  * any other with the fewest that give the same double back. */
 static void number_text(double v, char *out, size_t len) {
   const int as_float = (double)(float)v == v;
+  /* A whole number in full ("20", "1000"): %g with few digits would write
+   * 20 as "2e+01", which reads back the same but not as it was typed. */
+  if (v == (double)(long long)v && v > -1e15 && v < 1e15) {
+    snprintf(out, len, "%lld", (long long)v);
+    return;
+  }
   for (int p = 1; p <= 17; p++) {
     snprintf(out, len, "%.*g", p, v);
     double back = strtod(out, NULL);

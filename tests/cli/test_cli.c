@@ -521,6 +521,13 @@ static void test_render_dataset_resume(void **state) {
   expect_text("--seed (\"seed\") is \"7\" there, \"8\" here");
   assert_int_equal(cli("render dataset %s --count 2 --gt-ss 4 --resume --out %s", opt, part), 1);
   expect_text("--gt-ss (\"gt_supersample\") is 8 there, 4 here");
+  /* Whole numbers as they were typed, not as %g's shortest form (2e+01). */
+  assert_int_equal(cli("render dataset %s --count 2 --size 20x16 --resume --out %s", opt, part),
+                   1);
+  expect_text("--size (\"width\") is 16 there, 20 here");
+  assert_int_equal(cli("render dataset %s --count 2 --strands 1000 --resume --out %s", opt,
+                       part), 1);
+  expect_text("--strands (\"strands\") is 300 there, 1000 here");
   /* A float option is named as given, not as its float widened to double
    * (0.699999988...). */
   assert_int_equal(cli("render dataset %s --count 2 --width-spread 0.7 --resume --out %s", opt,
