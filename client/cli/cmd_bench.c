@@ -890,8 +890,15 @@ static void print_table(const bench_machine *mc) {
         continue;
       printf("%s%s %dx%d batch %d: cpu is %.2fx as fast as %s", first ? "\n" : "",
              rows[i].variant, t->w, t->h, t->batch, t->med_ms / rows[i].med_ms, t->backend);
-      if (t->cpu_ms > 0 && rows[i].cpu_ms > 0)
-        printf(" and takes %.2fx less CPU time per frame", t->cpu_ms / rows[i].cpu_ms);
+      if (t->cpu_ms > 0 && rows[i].cpu_ms > 0) {
+        /* Said the way round that reads: a ratio under 1 is more time
+         * ("0.10x less" meant ten times more). */
+        const double less = t->cpu_ms / rows[i].cpu_ms;
+        if (less >= 1)
+          printf(" and takes %.2fx less CPU time per frame", less);
+        else
+          printf(" and takes %.2fx more CPU time per frame", 1 / less);
+      }
       printf("\n");
       first = 0;
     }
