@@ -56,16 +56,24 @@ awk '{printf "%s%s:%s", (NR > 1 ? "  " : "  "), $1, $2} NR % 8 == 0 {print ""} E
 # After the 10 s warm-up.
 read -r lo hi < <(awk '$1 >= 10 {if (!n++ || $2 < lo) lo = $2; if ($2 > hi) hi = $2} END {print lo, hi}' "$work/rss")
 echo "RSS after the warm-up: $((lo / 1024)) to $((hi / 1024)) MiB"
-sent=$(sed -n 's/.*requests sent \([0-9]*\).*/\1/p' "$work/load.txt" | tail -1)
-answered=$(sed -n 's/.*answered \([0-9]*\)  unanswered.*/\1/p' "$work/load.txt" | tail -1)
-unanswered=$(sed -n 's/.*unanswered \([0-9]*\).*/\1/p' "$work/load.txt" | tail -1)
-errors=$(sed -n 's/.*errors \([0-9]*\).*/\1/p' "$work/load.txt" | tail -1)
-echo "load exit status $rc; requests sent ${sent:-?}, answered ${answered:-?}, unanswered ${unanswered:-?}, errors ${errors:-?}"
+# The point's own lines: its "requests sent ... answered ... unanswered"
+# line and its "frames ... errors N" line; the warm-up's requests are on a
+# line of their own ("warm-up: requests sent W  ok ...  errors E"), counted
+# apart.
+point=$(grep -v 'warm-up:' "$work/load.txt" || true)
+sent=$(sed -n 's/^ *requests sent \([0-9]*\) .*/\1/p' <<< "$point" | tail -1)
+answered=$(sed -n 's/^ *requests sent .* answered \([0-9]*\)  unanswered.*/\1/p' <<< "$point" | tail -1)
+unanswered=$(sed -n 's/^ *requests sent .* unanswered \([0-9]*\).*/\1/p' <<< "$point" | tail -1)
+errors=$(sed -n 's/^ *frames [0-9]* .* errors \([0-9]*\) .*/\1/p' <<< "$point" | tail -1)
+wsent=$(sed -n 's/.*warm-up: requests sent \([0-9]*\) .*/\1/p' "$work/load.txt" | tail -1)
+werrors=$(sed -n 's/.*warm-up: .* errors \([0-9]*\).*/\1/p' "$work/load.txt" | tail -1)
+echo "load exit status $rc; requests sent ${sent:-?}, answered ${answered:-?}, unanswered ${unanswered:-?}, errors ${errors:-?}; warm-up: requests sent ${wsent:-?}, errors ${werrors:-?}"
 echo "\$ hairfilter load ${common[*]} --seconds 2s --warmup 0"
 "$build/hairfilter" load "${common[@]}" --seconds 2s --warmup 0 --quiet > "$work/after.txt" 2>&1 || rc=1
 after=$(sed -n 's/.*frames \([0-9]*\) .*/\1/p' "$work/after.txt" | head -1)
 echo "after the soak: ${after:-0} frames answered in 2 s"
-if [ "$rc" -ne 0 ] || [ -z "$sent" ] || [ "${unanswered:-1}" -ne 0 ] || [ "${errors:-1}" -ne 0 ] ||
+if [ "$rc" -ne 0 ] || [ -z "$sent" ] || [ "${answered:-0}" -ne "$sent" ] ||
+   [ "${unanswered:-1}" -ne 0 ] || [ "${errors:-1}" -ne 0 ] || [ "${werrors:-0}" -ne 0 ] ||
    [ "${after:-0}" -lt 1 ]; then
   echo "soak FAILED"
   exit 1
