@@ -46,7 +46,23 @@ int hf_backend_create(const char *name, hf_backend **out, char *why, size_t whyl
   if (strcmp(name, "auto") != 0) {
     for (int i = 0; i < NREG; i++)
       if (!strcmp(name, registry[i]->name)) return open_backend(registry[i], out, why, whylen);
-    if (why && whylen) snprintf(why, whylen, "no backend named '%s' in this build", name);
+    if (why && whylen) {
+      /* Name the ones there are, and for a known backend left out of this
+       * build, how to build it. */
+      char have[128] = "";
+      for (int i = 0; i < NREG; i++) {
+        size_t used = strlen(have);
+        snprintf(have + used, sizeof have - used, "%s%s", i ? ", " : "", registry[i]->name);
+      }
+      const char *how = "";
+      if (!strcmp(name, "cudnn"))
+        how = "; the cudnn backend is built when CMake finds CUDA and cuDNN 9 "
+              "(HF_WITH_CUDNN=ON, docs/GPU.md)";
+      else if (!strcmp(name, "cpu"))
+        how = "; the cpu backend is built when CMake finds oneDNN (Debian's libdnnl-dev)";
+      snprintf(why, whylen, "no backend named '%s' in this build: it has %s, or auto for the "
+               "best of them%s", name, have, how);
+    }
     return HF_ENOTFOUND;
   }
   /* "auto": try by priority and say why each better one was passed over. */

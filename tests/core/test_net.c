@@ -433,6 +433,15 @@ static void test_backend_selection(void **state) {
   assert_int_equal(hf_backend_create("nope", &b, why, sizeof why), HF_ENOTFOUND);
   assert_null(b);
   assert_true(strstr(why, "nope") != NULL);
+  /* The message says what there is instead. */
+  assert_true(strstr(why, "it has ") != NULL);
+  assert_true(strstr(why, "cpu-ref") != NULL);
+  assert_true(strstr(why, "or auto") != NULL);
+#ifndef HF_HAVE_CUDNN
+  /* and how to get the GPU backend a build left out. */
+  assert_int_equal(hf_backend_create("cudnn", &b, why, sizeof why), HF_ENOTFOUND);
+  assert_true(strstr(why, "HF_WITH_CUDNN") != NULL);
+#endif
   assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
   assert_true(strstr(why, hf_backend_name(b)) != NULL); /* says which it chose */
   hf_backend_destroy(b);
