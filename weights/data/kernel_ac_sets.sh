@@ -23,7 +23,11 @@
 # frame`: only options both read (--gt-ss, --platform, --max-fragments,
 # ...); render refuses one its mode does not read.
 set -e
-HF=${1:?hairfilter binary}; OUT=${2:?output directory}
+if [ $# -lt 2 ]; then
+  echo "usage: weights/data/kernel_ac_sets.sh BUILD/hairfilter OUT_DIR [render options] (the script's header says more)" >&2
+  exit 2
+fi
+HF=$1; OUT=$2
 shift 2
 HERE=$(dirname "$0")
 mkdir -p "$OUT"

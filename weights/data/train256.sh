@@ -10,7 +10,11 @@
 # those weights were trained on had the 4x4 one: pass --gt-ss 4 for them.
 # Usage: weights/data/train256.sh build/hairfilter data/train256 [render options]
 set -e
-HF=${1:?hairfilter binary}; OUT=${2:?output directory}
+if [ $# -lt 2 ]; then
+  echo "usage: weights/data/train256.sh BUILD/hairfilter OUT_DIR [render options] (the script's header says more)" >&2
+  exit 2
+fi
+HF=$1; OUT=$2
 shift 2
 mkdir -p "$OUT"
 # A frame already there is kept (render writes each file whole under a

@@ -446,6 +446,9 @@ def model_e(rng):
 
 if __name__ == "__main__":
     args = sys.argv[1:]
+    if args[:1] in (["-h"], ["--help"]):
+        print(__doc__[__doc__.index("Usage:"):].rstrip())
+        sys.exit(0)
     seed = 0
     if args[:1] == ["--seed"]:
         if len(args) < 2 or not args[1].isdigit() or int(args[1]) < 1:
@@ -455,6 +458,7 @@ if __name__ == "__main__":
     which = args or ["a", "b", "c"]   # d and e only by name: the evaluation's three
     for w in which:
         if w not in models:
-            sys.exit(f"models_written_apart.py: {w!r}: the models are a, b, c, d and e")
+            sys.exit(f"models_written_apart.py: {w!r}: the models are a, b, c, d and e "
+                     "(--help says more)")
         # Without --seed, the seeds of docs/QUALITY.md's evaluation frames.
         models[w](np.random.default_rng(ord(w) + 11 if not seed else [seed, ord(w)]))

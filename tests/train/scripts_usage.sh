@@ -1,0 +1,26 @@
+#!/bin/sh
+# weights/data/*.sh called without their arguments: status 2 and a usage
+# line (not the shell's "1: hairfilter binary"); models_written_apart.py
+# --help: its usage, status 0.
+#
+#   scripts_usage.sh SOURCE_DIR
+cd "$1" || exit 1
+fail=0
+for s in weights/data/kernel_ac_sets.sh weights/data/train256.sh; do
+  out=$(sh "$s" 2>&1)
+  rc=$?
+  if [ "$rc" -ne 2 ] || ! printf '%s\n' "$out" | grep -q "^usage: $s BUILD/hairfilter OUT_DIR"; then
+    echo "FAIL: $s without arguments: status $rc, said: $out"
+    fail=1
+  fi
+done
+if [ -x /usr/bin/python3 ]; then
+  out=$(/usr/bin/python3 weights/experiments/models_written_apart.py --help 2>&1)
+  rc=$?
+  if [ "$rc" -ne 0 ] || ! printf '%s\n' "$out" | grep -q '^Usage: models_written_apart.py \[--seed N\]'; then
+    echo "FAIL: models_written_apart.py --help: status $rc, said: $out"
+    fail=1
+  fi
+fi
+[ "$fail" -eq 0 ] && echo PASS
+exit "$fail"
