@@ -617,9 +617,16 @@ static int load_model(const opts *o, hfr_hair *hair, hfr_mesh *occ) {
     if (rc == HF_OK && (rc = hfr_mesh_ellipsoid(&body, 48, 24, occ)) != HF_OK)
       hfr_hair_free(hair);
   }
-  if (rc != HF_OK)
-    fprintf(stderr, "hairfilter render %s: %s: %s\n", o->cmd,
-            o->hair_path ? o->hair_path : "style", *err ? err : hf_strerror(rc));
+  if (rc != HF_OK) {
+    /* Some reasons name the file already ("groom.hair: No such file or
+     * directory"): not twice. */
+    const char *what = o->hair_path ? o->hair_path : "style";
+    size_t n = strlen(what);
+    if (*err && !strncmp(err, what, n) && err[n] == ':')
+      fprintf(stderr, "hairfilter render %s: %s\n", o->cmd, err);
+    else
+      fprintf(stderr, "hairfilter render %s: %s: %s\n", o->cmd, what, *err ? err : hf_strerror(rc));
+  }
   return rc;
 }
 

@@ -273,6 +273,13 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     char warn[1024] = "";
     rc = hfr_asset_load(o->hair_files[f], &guides_only, &models[f].guides, &models[f].occ, warn,
                         sizeof warn, err, errlen);
+    /* Which of the files it was, when the reason does not say. */
+    size_t n = strlen(o->hair_files[f]);
+    if (rc != HF_OK && err && errlen && (strncmp(err, o->hair_files[f], n) || err[n] != ':')) {
+      char why[1024];
+      snprintf(why, sizeof why, "%s", err);
+      snprintf(err, errlen, "%s: %s", o->hair_files[f], why);
+    }
     if (*warn && o->progress) fprintf(stderr, "warning: %s: %s\n", o->hair_files[f], warn);
     base_name(o->hair_files[f], models[f].name, sizeof models[f].name);
   }

@@ -545,6 +545,35 @@ static void test_render_dataset_resume(void **state) {
 #endif
 }
 
+/* A .hair file that does not load is named once, in every mode: render
+ * frame did not repeat it, render dataset (several files) did not name it. */
+static void test_render_bad_hair_named(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  char missing[1100], bad[1100], twice[2300];
+  snprintf(missing, sizeof missing, "%s", test_tmp("missing.hair"));
+  snprintf(bad, sizeof bad, "%s", test_tmp("short.hair"));
+  write_text(bad, "HAIR");
+  assert_int_equal(cli("render frame --hair %s --size 16x16 --out %s", missing,
+                       test_tmp("bad_hair.exr")), 1);
+  expect_text(missing);
+  expect_text("No such file or directory");
+  snprintf(twice, sizeof twice, "%s: %s", missing, missing);
+  if (strstr(text, twice)) fail_msg("the file is named twice:\n%s", text);
+  assert_int_equal(cli("render dataset --hair-files %s --count 1 --size 16x16 --quiet --out %s",
+                       bad, test_tmp("bad_hair_set")), 1);
+  char said[1200];
+  snprintf(said, sizeof said, "%s: ", bad);
+  expect_text(said);
+  assert_int_equal(cli("render dataset --hair-files %s --count 1 --size 16x16 --quiet --out %s",
+                       missing, test_tmp("bad_hair_set")), 1);
+  expect_text(missing);
+  if (strstr(text, twice)) fail_msg("the file is named twice:\n%s", text);
+#endif
+}
+
 /* An option the mode does not read is refused by name, before anything is
  * rendered or written, instead of being dropped. */
 static void test_render_option_modes(void **state) {
@@ -713,6 +742,7 @@ int main(void) {
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
     cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),
     cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
+    cmocka_unit_test(test_render_bad_hair_named),
     cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
     cmocka_unit_test(test_preview_over_background_layer),
     cmocka_unit_test(test_render_crop_windows),
