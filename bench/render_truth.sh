@@ -1,6 +1,6 @@
 #!/bin/bash
 # What a render costs, one hairfilter binary beside another in the same run
-# (docs/RENDERING.md, "Performance"): wall time, the ground truth's share
+# (docs/RENDERING.md, "Timings"): wall time, the ground truth's share
 # of it, peak memory, and whether the binaries wrote the same files.
 #
 #   bench/render_truth.sh HAIRFILTER [HAIRFILTER ...] -- RENDER ARGS

@@ -1,7 +1,7 @@
 #!/bin/bash
 # Frames through hairfilterd against the socket floor, float16 against
-# float32 end to end, on every path (docs/PERFORMANCE.md, "Transport and
-# float16").
+# float32 end to end, on every path (docs/PERFORMANCE.md, "Transport,
+# receive buffers and float16").
 #
 #   bench/transport.sh BUILD_DIR [WEIGHTS [VARIANT [SIZES [ITERS [-- daemon options]]]]]
 #

@@ -1,7 +1,7 @@
 /*
  * Transport of frames through hairfilterd against the socket floor, and
  * float16 against float32 end to end, side by side in one run
- * (docs/PERFORMANCE.md, "Transport and float16").
+ * (docs/PERFORMANCE.md, "Transport, receive buffers and float16").
  *
  *   hf-transport-bench UNIX_URL TCP_URL VARIANT SIZE[,SIZE...] ITERS
  *
