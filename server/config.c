@@ -352,6 +352,8 @@ typedef struct file_args {
   char why[300];
   FILE *f;
   int line, next_line;           /* the line being parsed, the next one */
+  int mid_line;                  /* the last piece read ended without a line end */
+  int bad_line;                  /* a line refused before inih gave it to on_ini */
   int seen_line[64];             /* per option (opts[]): its last line, 0: none */
   int seen_arg[64];              /* and that line's index in argv, -1: none */
   /* Warnings about the file, said once --log-level (which the file or the
@@ -368,7 +370,18 @@ static char *read_line(char *str, int num, void *stream) {
   char *r = fgets(str, num, fa->f);
   if (r) {
     fa->line = fa->next_line;
-    if (strchr(r, '\n')) fa->next_line++;
+    /* A section header is refused here: inih hands on_ini only key lines,
+     * so one with no key after it (at the end of the file) would pass. */
+    const char *t = r + strspn(r, " \t");
+    if (!fa->mid_line && *t == '[' && !fa->bad) {
+      size_t n = strcspn(t + 1, "]\r\n");
+      snprintf(fa->why, sizeof fa->why, "no sections ([%.*s]): keys are the options' names",
+               (int)(n > 64 ? 64 : n), t + 1);
+      fa->bad = 1;
+      fa->bad_line = fa->line;
+    }
+    fa->mid_line = !strchr(r, '\n');
+    if (!fa->mid_line) fa->next_line++;
   }
   return r;
 }
@@ -524,6 +537,8 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         if (fa.argv[i]) fa.argv[n++] = fa.argv[i];
       fa.argc = n;
     }
+    /* A line read_line refused: its own line, whatever inih made of it. */
+    if (rc >= 0 && fa.bad_line) rc = fa.bad_line;
     if (rc < 0)
       hfd_err("cannot read config file %s: %s", path,
               rc == -1 ? strerror(errno) : "out of memory");

@@ -5,6 +5,7 @@ the journal, so `journalctl -p warning` shows it), and the checks that need
 no weights are made before any is loaded.
 
   * a config file line with an unknown key: exit 2, priority 3, file:line;
+  * a section header, the file's last line included: exit 2, its line;
   * a key of one value given twice in the file: a warning naming both
     lines, the later one winning;
   * tcp: on a non-loopback address without a token: exit 2 at once, before
@@ -75,6 +76,17 @@ def body(w):
           "unknown key: the reason is a priority 3 line naming %s:4: %r" % (conf, out))
     check(all(l.startswith("<") for l in out.splitlines()),
           "every line has a priority prefix: %r" % out)
+
+    # A section is an error, also as the file's last line (inih passes
+    # only key lines on, so nothing used to see it there): exit 2, its line.
+    # (No weights file there: a daemon that let the section by stops at once.)
+    short = "listen = unix:%s/s.sock\nweights = %s/none.safetensors\n" % (w, w)
+    for text, line in ((short + "[server]\n", 3), (short + "[server]\nqueue-size = 8\n", 3)):
+        with open(conf, "w") as f:
+            f.write(text)
+        rc, out = run(["--config", conf], w)
+        check(rc == 2 and "<3>error: %s:%d: no sections ([server])" % (conf, line) in out,
+              "a section on line %d: exit status %s (want 2), naming the line: %r" % (line, rc, out))
 
     # A repeated key warns naming both lines; the TCP listener without a
     # token is refused before the backend starts (no "starting" line, no
