@@ -347,6 +347,7 @@ typedef struct file_args {
   hfd_config *cfg;
   const char *path;
   char **argv;                   /* "--key=value", owned by cfg */
+  int *argline;                  /* the line each of argv came from */
   int argc, cap;
   int bad;                       /* a line was refused: why */
   char why[300];
@@ -447,7 +448,10 @@ static int on_ini(void *user, const char *section, const char *key, const char *
   if (fa->argc + 2 >= fa->cap) {
     int cap = fa->cap ? fa->cap * 2 : 32;
     char **p = realloc(fa->argv, (size_t)cap * sizeof *p);
-    if (!p) {
+    int *pl = p ? realloc(fa->argline, (size_t)cap * sizeof *pl) : NULL;
+    if (pl) fa->argline = pl;
+    if (!p || !pl) {
+      if (p) fa->argv = p;
       free(arg);
       snprintf(fa->why, sizeof fa->why, "out of memory");
       fa->bad = 1;
@@ -461,6 +465,7 @@ static int on_ini(void *user, const char *section, const char *key, const char *
     fa->bad = 1;
     return 0;
   }
+  fa->argline[fa->argc] = fa->line;
   fa->seen_arg[oi] = fa->argc++;
   return 1;
 }
@@ -534,7 +539,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       /* Lines a repeated key overrode (on_ini) leave holes. */
       int n = 0;
       for (int i = 0; i < fa.argc; i++)
-        if (fa.argv[i]) fa.argv[n++] = fa.argv[i];
+        if (fa.argv[i]) fa.argline[n] = fa.argline[i], fa.argv[n++] = fa.argv[i];
       fa.argc = n;
     }
     /* A line read_line refused: its own line, whatever inih made of it. */
@@ -547,6 +552,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
               fa.bad ? fa.why : "not a 'key = value' line");
     if (rc) {
       free(fa.argv);
+      free(fa.argline);
       return -1;
     }
     cfg->config_path = path;
@@ -555,6 +561,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   char **all = calloc((size_t)nall + 1, sizeof *all);
   if (!all) {
     free(fa.argv);
+    free(fa.argline);
     return -1;
   }
   all[0] = argv[0];
@@ -567,11 +574,19 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   int rc = 0;
   optind = 1;
   opterr = 0;
+  char where[4300];
   for (;;) {
+    hfd_log_context(NULL);
     int idx = -1, o = getopt_long(nall, all, ":hv", opts, &idx);
     if (o == -1) break;
-    /* Arguments up to index fa.argc came from the file. */
+    /* Arguments up to index fa.argc came from the file: what is wrong
+     * with one is said with its file and line, as the file's own checks
+     * are. */
     int from_file = optind - 1 <= fa.argc;
+    if (from_file && optind >= 2 && optind - 2 < fa.argc) {
+      snprintf(where, sizeof where, "%s:%d: ", path, fa.argline[optind - 2]);
+      hfd_log_context(where);
+    }
     const char *name = idx >= 0 ? opts[idx].name : "";
     const char *val = optarg;
     long v;
@@ -780,6 +795,8 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
 fail:
   rc = -1;
 out:
+  hfd_log_context(NULL);
+  free(fa.argline);
   free(all);
   return rc;
 }

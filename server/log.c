@@ -47,12 +47,20 @@ void hfd_log_init(void) {
                (unsigned long long)st.st_dev == dev && (unsigned long long)st.st_ino == ino;
 }
 
+static __thread const char *log_context;
+
+void hfd_log_context(const char *where) { log_context = where; }
+
 void hfd_logl(int level, const char *fmt, ...) {
   if (level > hfd_log_level) return;
   char msg[1024];
+  size_t at = 0;
+  if (log_context && level <= HFD_LOG_WARNING)
+    at = (size_t)snprintf(msg, sizeof msg, "%s", log_context);
+  if (at >= sizeof msg) at = sizeof msg - 1;
   va_list ap;
   va_start(ap, fmt);
-  vsnprintf(msg, sizeof msg, fmt, ap);
+  vsnprintf(msg + at, sizeof msg - at, fmt, ap);
   va_end(ap);
   /* Only errors and warnings name their level in the text: that is what a
    * reader scans for, and what the lines said before levels existed. */

@@ -38,6 +38,10 @@ enum { HFD_LOG_ERR = 3, HFD_LOG_WARNING = 4, HFD_LOG_NOTICE = 5, HFD_LOG_INFO = 
  * priority. Context travels as key=value fields after the message
  * (hfd_kv quotes values that need it). Thread-safe: one write per line. */
 void hfd_logl(int level, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* Where the errors and warnings said from now on come from ("FILE:LINE: ",
+ * put after their "error: "), on this thread; NULL for nowhere in
+ * particular. The config parser sets it while it reads a file's line. */
+void hfd_log_context(const char *where);
 #define hfd_err(...) hfd_logl(HFD_LOG_ERR, __VA_ARGS__)
 #define hfd_warn(...) hfd_logl(HFD_LOG_WARNING, __VA_ARGS__)
 #define hfd_notice(...) hfd_logl(HFD_LOG_NOTICE, __VA_ARGS__)

@@ -6,6 +6,7 @@ no weights are made before any is loaded.
 
   * a config file line with an unknown key: exit 2, priority 3, file:line;
   * a section header, the file's last line included: exit 2, its line;
+  * a value the option refuses: exit 2, the file and line named;
   * a key of one value given twice in the file: a warning naming both
     lines, the later one winning;
   * tcp: on a non-loopback address without a token: exit 2 at once, before
@@ -76,6 +77,19 @@ def body(w):
           "unknown key: the reason is a priority 3 line naming %s:4: %r" % (conf, out))
     check(all(l.startswith("<") for l in out.splitlines()),
           "every line has a priority prefix: %r" % out)
+
+    # A value the option refuses is said with the file and line it came
+    # from, as an unknown key is; the same option on the command line not.
+    with open(conf, "w") as f:
+        f.write(base + "queue-size = abc\n")
+    rc, out = run(["--config", conf], w)
+    check(rc == 2 and "<3>error: %s:4: --queue-size wants an integer" % conf in out,
+          "a bad value in the file: exit status %s (want 2), naming %s:4: %r" % (rc, conf, out))
+    with open(conf, "w") as f:
+        f.write(base)
+    rc, out = run(["--config", conf, "--queue-size", "xyz"], w)
+    check(rc == 2 and "<3>error: --queue-size wants an integer in 1..65536, not 'xyz'" in out,
+          "a bad value on the command line: status %s, no file named: %r" % (rc, out))
 
     # A section is an error, also as the file's last line (inih passes
     # only key lines on, so nothing used to see it there): exit 2, its line.
