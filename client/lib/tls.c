@@ -47,6 +47,10 @@ static const char *reason_hint(int reason) {
              "of the server's --tls-client-ca?)";
     case SSL_R_SSLV3_ALERT_CERTIFICATE_EXPIRED:
       return " (the server says this client certificate has expired)";
+    case SSL_R_SSLV3_ALERT_UNSUPPORTED_CERTIFICATE:
+      return " (the server refused this client certificate's purpose: a client certificate "
+             "needs extendedKeyUsage=clientAuth, docs/SERVER.md \"Certificates for a render "
+             "farm\"; a server's certificate will not do)";
     case SSL_R_WRONG_VERSION_NUMBER:
     case SSL_R_PACKET_LENGTH_TOO_LONG:
       return " (the server did not answer in TLS: is it a plain tcp: listener? then use a "

@@ -277,6 +277,9 @@ class PythonClient(unittest.TestCase):
             self.refused("TLS", ["unknown ca", "does not trust this client certificate"], tls,
                          tls_ca=c("ca.pem"), tls_cert=c("client-other.pem"),
                          tls_key=c("client-other.key"))
+            # A server's certificate (serverAuth) as the client's: its purpose named.
+            self.refused("TLS", ["unsupported certificate", "extendedKeyUsage=clientAuth"], tls,
+                         tls_ca=c("ca.pem"), tls_cert=c("server.pem"), tls_key=c("server.key"))
             self.refused("UNAUTHORIZED", [tcp, "Client(url, token=...)"], tcp)
             self.refused("UNAUTHORIZED", ["not the server's"], tcp, token="wrong-token")
             self.refused("UNAUTHORIZED", ["No such file", "is hairfilterd running?"],

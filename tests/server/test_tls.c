@@ -282,6 +282,11 @@ static void test_client_certificate_refused(void **state) {
   tls_opts foreign = {.ca = "ca.pem", .cert = "client-other.pem", .key = "client-other.key"};
   refused(&M, url, &foreign, HFC_E_TLS, "unknown ca", "does not trust this client certificate",
           &MUTUAL);
+  /* The server's own certificate (extendedKeyUsage serverAuth) as a
+   * client's: the purpose is named, and what a client certificate needs. */
+  tls_opts purpose = {.ca = "ca.pem", .cert = "server.pem", .key = "server.key"};
+  refused(&M, url, &purpose, HFC_E_TLS, "unsupported certificate", "extendedKeyUsage=clientAuth",
+          &MUTUAL);
   assert_true(server_log_has(&M, "TLS handshake failed"));
   assert_true(server_log_has(&M, "this server refused the client's certificate: the client sent "
                                  "no certificate"));

@@ -49,6 +49,10 @@ _REASON_HINTS = {
         " (the server does not trust this client certificate: is it signed by the CA of "
         "the server's --tls-client-ca?)",
     "SSLV3_ALERT_CERTIFICATE_EXPIRED": " (the server says this client certificate has expired)",
+    "SSLV3_ALERT_UNSUPPORTED_CERTIFICATE":
+        " (the server refused this client certificate's purpose: a client certificate needs "
+        "extendedKeyUsage=clientAuth, docs/SERVER.md \"Certificates for a render farm\"; a "
+        "server's certificate will not do)",
     "WRONG_VERSION_NUMBER":
         " (the server did not answer in TLS: is it a plain tcp: listener? then use a tcp: URL)",
     "UNEXPECTED_EOF_WHILE_READING":
