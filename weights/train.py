@@ -1021,9 +1021,11 @@ def main(argv=None):
                            straight_through=args.straight_through,
                            equal_phase_sums=args.equal_phase_sums, train_seconds=elapsed,
                            last=history[-1] if history else None), f, indent=1)
-        print(f"{cfg['name']}: step {step}, loss {ema if ema is not None else float('nan'):.6f}, validation "
-              f"{val if val is not None else float('nan'):.6f}, "
-              f"{fmt_time(elapsed)} of training", file=sys.stderr)
+        # No validation frames (one frame of the styles, --val-fraction 0):
+        # said so, not as a "nan" that reads as a diverged run.
+        said = f"{val:.6f}" if val is not None else "none (no validation frames)"
+        print(f"{cfg['name']}: step {step}, loss {ema if ema is not None else float('nan'):.6f}, "
+              f"validation {said}, {fmt_time(elapsed)} of training", file=sys.stderr)
     elif ckpt:
         print(f"{cfg['name']}: already at step {step} >= --steps {args.steps}", file=sys.stderr)
 

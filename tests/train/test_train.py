@@ -962,6 +962,16 @@ class Recipe(unittest.TestCase):
         self.assertIn(f"train.py: {missing}: no frames", p.stderr)
         self.assertNotIn("Traceback", p.stderr)
 
+    def test_no_validation_frames_said_so(self):
+        """Without validation frames (--val-fraction 0, or a style of one
+        frame) the last line says so rather than 'validation nan'."""
+        r = run_train("--data", self.data, "--variant", "Small", "--steps", "1", "--batch", "1",
+                      "--crop", "32", "--val-fraction", "0",
+                      "--out", os.path.join(self.work, "run_no_val"))
+        self.assertIn("0 validation frames", r.stderr)
+        self.assertIn("validation none (no validation frames)", r.stderr)
+        self.assertNotIn("validation nan", r.stderr)
+
     def test_init_range_joins_the_exported_range(self):
         """Weights trained from others (--init) record the union of the
         others' input range and their own frames'; without --init, their
