@@ -530,7 +530,8 @@ typedef struct hfr_frame {
 } hfr_frame;
 
 /* Fills f with: straight style defaults (seed 1), default view at
- * width x height, 4 spp features, 4x4 ground truth, no baselines, no
+ * width x height, 4 spp features, the default ground truth
+ * (HFR_GT_SUPERSAMPLE: 8x8), no baselines, no
  * background layer, default asset options. */
 void hfr_frame_defaults(hfr_frame *f, int width, int height);
 int hfr_render_frame(const hfr_frame *f, hf_image *out, hfr_stats *stats, char *err,
