@@ -38,6 +38,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -870,21 +871,30 @@ int cmd_load(int argc, char **argv) {
     hfc_close(c);
     return 1;
   }
-  for (int i = 0; i < nv && i < 64; i++)
-    if (!strcmp(vs[i].name, o.variant)) {
+  /* Names match without regard to case, as the server matches them; the
+   * server's spelling is the one reported. */
+  static char variant[65];
+  char names[64 * 66] = "";
+  for (int i = 0; i < nv && i < 64; i++) {
+    size_t used = strlen(names);
+    snprintf(names + used, sizeof names - used, "%s%.64s", i ? ", " : "", vs[i].name);
+    if (!spp && !strcasecmp(vs[i].name, o.variant)) {
       spp = vs[i].spp;
       estimate = vs[i].estimate;
       snprintf(backend, sizeof backend, "%s", vs[i].backend);
       snprintf(precision, sizeof precision, "%s", vs[i].precision);
+      snprintf(variant, sizeof variant, "%.64s", vs[i].name);
     }
+  }
   free(vs);
   hfc_server_info info = *hfc_info(c);
   hfc_close(c);
   if (!spp) {
-    fprintf(stderr, "hairfilter load: the server has no variant '%s' (hairfilter filter --list "
-                    "shows them)\n", o.variant);
+    fprintf(stderr, "hairfilter load: the server has no variant '%s': it has %s\n", o.variant,
+            names[0] ? names : "none");
     return 1;
   }
+  o.variant = variant;
   if (o.shm && !info.shm) {
     fprintf(stderr, "hairfilter load: --shm: this connection offers no shared memory (a Unix "
                     "socket to a server with it enabled is needed)\n");

@@ -20,6 +20,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -434,22 +435,32 @@ int main(int argc, char **argv) {
     hfc_close(c);
     return 1;
   }
-  for (int i = 0; i < nv && i < 64; i++)
-    if (!strcmp(vs[i].name, o.variant)) {
+  /* Names match without regard to case, as the server matches them; the
+   * server's spelling is the one reported. */
+  static char variant[65];
+  char have[64 * 66] = "";
+  for (int i = 0; i < nv && i < 64; i++) {
+    size_t used = strlen(have);
+    snprintf(have + used, sizeof have - used, "%s%.64s", i ? ", " : "", vs[i].name);
+    if (!spp && !strcasecmp(vs[i].name, o.variant)) {
       spp = vs[i].spp;
       estimate = vs[i].estimate;
       snprintf(backend_s, sizeof backend_s, "%s", vs[i].backend);
       snprintf(precision_s, sizeof precision_s, "%s", vs[i].precision);
       backend = backend_s;
       precision = precision_s;
+      snprintf(variant, sizeof variant, "%.64s", vs[i].name);
     }
+  }
   hfc_server_info info = *hfc_info(c);
   int max_inflight = info.max_inflight;
   hfc_close(c);
   if (!spp) {
-    fprintf(stderr, "hairfilter-load: the server has no variant '%s'\n", o.variant);
+    fprintf(stderr, "hairfilter-load: the server has no variant '%s': it has %s\n", o.variant,
+            have[0] ? have : "none");
     return 1;
   }
+  o.variant = variant;
   if (o.width > info.max_width || o.height > info.max_height) {
     fprintf(stderr, "hairfilter-load: %dx%d is over the server's limit of %dx%d\n", o.width,
             o.height, info.max_width, info.max_height);

@@ -131,6 +131,29 @@ static void test_strict_options(void **state) {
   }
 }
 
+/* Both tools take a variant's name without regard to case, as the server
+ * and `hairfilter filter` do, and report it as the server spells it; a
+ * name the server does not have is refused naming the ones it has. */
+static void test_variant_names(void **state) {
+  (void)state;
+  int rc = load("--server %s --variant tiny --size 8x8 --seconds 0.5 --warmup 0 --quiet",
+                S.unix_url);
+  if (rc || !strstr(text, "Tiny 8x8")) fail_msg("hairfilter load --variant tiny: status %d:\n%s", rc, text);
+  char args[600];
+  snprintf(args, sizeof args, "--server %s --variant TINY --size 8x8 --seconds 1 --warmup 0",
+           S.unix_url);
+  rc = load_prog(HAIRFILTER_LOADGEN_PATH, args);
+  if (rc || !strstr(text, "Tiny 8x8")) fail_msg("hairfilter-load --variant TINY: status %d:\n%s", rc, text);
+  rc = load("--server %s --variant Nope --size 8x8 --seconds 0.5 --warmup 0 --quiet", S.unix_url);
+  if (rc != 1 || !strstr(text, "no variant 'Nope': it has ") || !strstr(text, "Tiny"))
+    fail_msg("hairfilter load --variant Nope: status %d:\n%s", rc, text);
+  snprintf(args, sizeof args, "--server %s --variant Nope --size 8x8 --seconds 1 --warmup 0",
+           S.unix_url);
+  rc = load_prog(HAIRFILTER_LOADGEN_PATH, args);
+  if (rc != 1 || !strstr(text, "no variant 'Nope': it has ") || !strstr(text, "Tiny"))
+    fail_msg("hairfilter-load --variant Nope: status %d:\n%s", rc, text);
+}
+
 /* Every percentile row of the report is in order: p50 <= ... <= max. */
 static void check_rows(void) {
   const char *p = text;
@@ -542,6 +565,7 @@ int main(int argc, char **argv) {
   }
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_strict_options),
+    cmocka_unit_test(test_variant_names),
     cmocka_unit_test(test_closed_sweep),
     cmocka_unit_test(test_json_stdout),
     cmocka_unit_test(test_interrupt),
