@@ -112,12 +112,30 @@ static void test_strict_options(void **state) {
    * value. */
   static const char *const bad[][2] = {{"--server x --json f.json", "unknown option '--json'"},
                                        {"--server x --json", "unknown option '--json'"},
-                                       {"--variant Tiny --server", "option '--server' needs a value"}};
-  for (int i = 0; i < 3; i++) {
+                                       {"--variant Tiny --server", "option '--server' needs a value"},
+                                       /* values as strictly as hairfilter load's */
+                                       {"--server x --variant Tiny --seconds 1x",
+                                        "--seconds: unknown unit 'x' in '1x'"},
+                                       {"--server x --variant Tiny --warmup 2parsecs",
+                                        "--warmup: unknown unit 'parsecs'"},
+                                       {"--server x --variant Tiny --connections 2k",
+                                        "--connections: '2k' is not an integer"},
+                                       {"--server x --variant Tiny --inflight 0",
+                                        "--inflight: 0 is outside 1.."}};
+  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
     int lrc = load_prog(HAIRFILTER_LOADGEN_PATH, bad[i][0]);
     if (lrc != 2 || !strstr(text, bad[i][1]))
       fail_msg("hairfilter-load %s: status %d, wanted 2 and '%s':\n%s", bad[i][0], lrc, bad[i][1], text);
   }
+  /* hairfilter-load takes a unit too: 500ms is half a second (it was taken
+   * as 500 seconds). */
+  char lg[600];
+  snprintf(lg, sizeof lg, "--server %s --variant Tiny --size 8x8 --seconds 500ms --warmup 0",
+           S.unix_url);
+  int lrc = load_prog(HAIRFILTER_LOADGEN_PATH, lg);
+  if (lrc || !strstr(text, "0.5 s measured"))
+    fail_msg("hairfilter-load --seconds 500ms: status %d, wanted 0 and 0.5 s measured:\n%s", lrc,
+             text);
   /* A unit it knows is taken as that unit: 0.5s, 700ms and a plain 0.5
    * (seconds). */
   for (int i = 0; i < 3; i++) {
