@@ -22,6 +22,7 @@
 #include <unistd.h>
 #include <sys/stat.h>
 
+#include "cli_args.h"
 #include "cli_common.h"
 #include "commands.h"
 #include "eval_lattice.h"
@@ -785,11 +786,23 @@ int cmd_eval(int argc, char **argv) {
     case 'H': if (cli_parse_rgb(optarg, lk.hair)) goto bad; break;
     case 'L': if (cli_parse_rgb(optarg, lk.light)) goto bad; break;
     case 'B': if (cli_parse_rgb(optarg, lk.bg)) goto bad; break;
-    case 'n': input_spp = atoi(optarg); if (input_spp < 1 || input_spp > HF_MAX_SPP) goto bad; break;
-    case 'm': max_frames = atoi(optarg); if (max_frames < 0) goto bad; break;
+    case 'n': case 'm': case 'r': case 'c': {
+      /* The whole argument, in range, or said what is wrong with it. */
+      long v;
+      const char *name = c == 'n'   ? "--input-spp"
+                         : c == 'm' ? "--max-frames"
+                         : c == 'r' ? "--grid-rows"
+                                    : "--grid-crop";
+      long lo = c == 'n' ? 1 : c == 'm' ? 0 : c == 'r' ? 1 : 8;
+      long hi = c == 'n' ? HF_MAX_SPP : c == 'm' ? 1000000000L : c == 'r' ? 64 : 4096;
+      if (cli_arg_long("eval", name, optarg, lo, hi, &v)) return 2;
+      if (c == 'n') input_spp = (int)v;
+      else if (c == 'm') max_frames = (int)v;
+      else if (c == 'r') grid_rows = (int)v;
+      else grid_crop = (int)v;
+      break;
+    }
     case 'g': grid_path = optarg; break;
-    case 'r': grid_rows = atoi(optarg); if (grid_rows < 1 || grid_rows > 64) goto bad; break;
-    case 'c': grid_crop = atoi(optarg); if (grid_crop < 8 || grid_crop > 4096) goto bad; break;
     case 't': temporal = 1; break;
     case 'T': temporal = 1; temporal_png = optarg; break;
     case 'J': json_path = optarg; break;

@@ -177,7 +177,13 @@ int cmd_filter(int argc, char **argv) {
     case 'l': list = 1; break;
     case 'S': stats = 1; break;
     case 'T': token = optarg; break;
-    case 't': timeout_ms = atoi(optarg); break;
+    case 't': {
+      /* Milliseconds, the whole argument: "10s" is refused, not 10 ms. */
+      long v;
+      if (cli_arg_long("filter", "--timeout-ms", optarg, -1, 86400000, &v)) return 2;
+      timeout_ms = (int)v;
+      break;
+    }
     case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
     case 'L': if (cli_parse_rgb(optarg, light)) goto bad; break;
     case 'B': if (cli_parse_rgb(optarg, bg)) goto bad; break;

@@ -574,6 +574,18 @@ static void test_render_bad_hair_named(void **state) {
 #endif
 }
 
+/* Numbers are read whole: a value with a unit or a tail is refused naming
+ * the option (filter --timeout-ms 10s was 10 ms, eval --max-frames 5x 5). */
+static void test_strict_numbers(void **state) {
+  (void)state;
+  assert_int_equal(cli("filter --server unix:/nonexistent.sock --timeout-ms 10s --list"), 2);
+  expect_text("--timeout-ms: '10s' is not an integer");
+  assert_int_equal(cli("eval --weights %s --max-frames 5x %s", BASE, test_tmp("none")), 2);
+  expect_text("--max-frames: '5x' is not an integer");
+  assert_int_equal(cli("eval --weights %s --grid-rows 0 %s", BASE, test_tmp("none")), 2);
+  expect_text("--grid-rows: 0 is outside 1..64");
+}
+
 /* An option the mode does not read is refused by name, before anything is
  * rendered or written, instead of being dropped. */
 static void test_render_option_modes(void **state) {
@@ -743,6 +755,7 @@ int main(void) {
     cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),
     cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
     cmocka_unit_test(test_render_bad_hair_named),
+    cmocka_unit_test(test_strict_numbers),
     cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
     cmocka_unit_test(test_preview_over_background_layer),
     cmocka_unit_test(test_render_crop_windows),
