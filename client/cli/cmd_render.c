@@ -117,12 +117,16 @@ static int parse_int_list(const char *s, int *out, int max, int *n) {
   return *n > 0 ? 0 : -1;
 }
 
+/* The whole argument: anything after the numbers ("64x64x", "1,2,3x") is
+ * refused, not dropped. */
 static int parse_vec3(const char *s, float v[3]) {
-  return sscanf(s, "%f,%f,%f", &v[0], &v[1], &v[2]) == 3 ? 0 : -1;
+  char tail;
+  return sscanf(s, "%f,%f,%f%c", &v[0], &v[1], &v[2], &tail) == 3 ? 0 : -1;
 }
 
 static int parse_size(const char *s, int *w, int *h) {
-  return sscanf(s, "%dx%d", w, h) == 2 && *w > 0 && *h > 0 ? 0 : -1;
+  char tail;
+  return sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w > 0 && *h > 0 ? 0 : -1;
 }
 
 static int parse_float(const char *s, float *f) {

@@ -584,6 +584,12 @@ static void test_strict_numbers(void **state) {
   expect_text("--max-frames: '5x' is not an integer");
   assert_int_equal(cli("eval --weights %s --grid-rows 0 %s", BASE, test_tmp("none")), 2);
   expect_text("--grid-rows: 0 is outside 1..64");
+#ifdef HF_TEST_RENDERER
+  assert_int_equal(cli("render frame --size 64x64x --out %s", test_tmp("tail.exr")), 2);
+  expect_text("--size wants WxH");
+  assert_int_equal(cli("render frame --size 16x16 --hair-color 1,2,3x --out %s",
+                       test_tmp("tail.exr")), 2);
+#endif
 }
 
 /* An option the mode does not read is refused by name, before anything is
