@@ -171,12 +171,18 @@ static int parse_warm(const char *list, hfd_config *cfg) {
   strcpy(buf, list);
   char *save = NULL;
   for (char *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
-    int w, h, n = 1;
-    char tail;
-    int got = sscanf(tok, "%dx%dx%d%c", &w, &h, &n, &tail);
+    int w = 0, h = 0, n = 1, at = 0, more = 0;
+    /* WxH, then xBATCH or nothing: a tail ("8x8x", "8x8y") is refused, not
+     * dropped. */
+    int ok = sscanf(tok, "%dx%d%n", &w, &h, &at) == 2;
+    if (ok && tok[at] == 'x')
+      ok = sscanf(tok + at + 1, "%d%n", &n, &more) == 1 && tok[at + 1 + more] == 0 &&
+           tok[at + 1] != ' ' && tok[at + 1] != '+';
+    else if (ok)
+      ok = tok[at] == 0;
     /* Without --max-batch, the default grows to the largest warm batch. */
     int max_batch = cfg->max_batch ? cfg->max_batch : 256;
-    if ((got != 2 && got != 3) || w < 1 || h < 1 || w > cfg->max_width || h > cfg->max_height ||
+    if (!ok || w < 1 || h < 1 || w > cfg->max_width || h > cfg->max_height ||
         n < 1 || n > max_batch) {
       hfd_err("--warm wants WxH or WxHxBATCH within --max-size %dx%d and --max-batch %d, "
               "not '%s'",

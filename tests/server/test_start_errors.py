@@ -130,6 +130,15 @@ def body(w):
     check(rc == 2 and "given already" not in out and "TCP needs a token" in out,
           "--log-level error: no repeated-key warning, the error still said: %r" % out)
 
+    # --warm with a tail after its numbers is refused (it was dropped:
+    # 8x8y warmed 8x8), as every other option's value is, before anything
+    # loads (no weights file there: a daemon that let it by stops at once).
+    for bad in ("8x8y", "8x8x", "8x8x2x"):
+        rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights",
+                       os.path.join(w, "none.safetensors"), "--warm", bad], w)
+        check(rc == 2 and "--warm wants WxH or WxHxBATCH" in out and "'%s'" % bad in out,
+              "--warm %s: exit status %s (want 2): %r" % (bad, rc, out))
+
     # Nothing to listen on: every URL form named.
     rc, out = run(["--config", "none", "--weights-dir", wd], w)
     check(rc == 2 and "unix:PATH, tcp:HOST:PORT or tls:HOST:PORT" in out,
