@@ -93,6 +93,15 @@ void cf_close(cf_test *t, int fd) {
 
 /* ---- connecting ---------------------------------------------------------- */
 
+/* The first thing to check when a connect fails the usual ways, in the
+ * words libhairfilter uses (client/lib/endpoints.c): the suite speaks the
+ * wire itself, so it does not connect through the library. */
+static const char *connect_hint(int err) {
+  if (err == ENOENT || err == ECONNREFUSED) return " (is hairfilterd running?)";
+  if (err == EACCES || err == EPERM) return " (is this user in the socket's group?)";
+  return "";
+}
+
 static int open_url(const cf_options *o, const char *url, int timeout_ms, char *why,
                     size_t whylen) {
   hfp_url u;
@@ -105,7 +114,8 @@ static int open_url(const cf_options *o, const char *url, int timeout_ms, char *
     memcpy(sun.sun_path, u.path, sizeof u.path);
     fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
     if (fd < 0 || connect(fd, (struct sockaddr *)&sun, sizeof sun)) {
-      snprintf(why, whylen, "cannot connect to %s: %s", url, strerror(errno));
+      snprintf(why, whylen, "cannot connect to %s: %s%s", url, strerror(errno),
+               connect_hint(errno));
       if (fd >= 0) close(fd);
       return -1;
     }
@@ -135,7 +145,8 @@ static int open_url(const cf_options *o, const char *url, int timeout_ms, char *
           errno = err ? err : ETIMEDOUT;
       }
       if (rc) {
-        snprintf(why, whylen, "cannot connect to %s: %s", url, strerror(errno));
+        snprintf(why, whylen, "cannot connect to %s: %s%s", url, strerror(errno),
+                 connect_hint(errno));
         close(fd);
         fd = -1;
       }

@@ -172,8 +172,9 @@ static void test_cli(void) {
   rc = cli(&o, &e, "--server", "unix:/nonexistent/conformance.sock", "--junit", path, NULL);
   x = slurp(path);
   EXPECT(rc == 2 && count(x, "<testcase ") == 1 && strstr(x, "errors=\"1\"") &&
-             strstr(x, "<error message=\"cannot probe unix:/nonexistent/conformance.sock"),
-         "unreachable server: exit %d, the report:\n%s", rc, x);
+             strstr(x, "<error message=\"cannot probe unix:/nonexistent/conformance.sock") &&
+             strstr(o, "No such file or directory (is hairfilterd running?)"),
+         "unreachable server: exit %d, stdout %s, the report:\n%s", rc, o, x);
   free(x), free(o), free(e);
 
   rc = cli(&o, &e, "--client", "--junit", "/nonexistent/dir/r.xml", NULL);
