@@ -15,37 +15,10 @@ import sys
 import tempfile
 import time
 
+from rawwire import (BUSY, ERROR, FILTER, HELLO, HELLO_OK, RESULT, check, failures, finish, frame,
+                     read_frame)
+
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
-MAGIC = 0x31504648
-HELLO, HELLO_OK, FILTER, RESULT, ERROR = 1, 2, 5, 6, 7
-BUSY = 6
-failures = []
-
-
-def check(cond, what):
-    """Records a failed check (the test goes on, to report them all)."""
-    if not cond:
-        failures.append(what)
-        print("FAIL:", what)
-
-
-def frame(t, payload=b"", rid=0):
-    return struct.pack("<IHHII", MAGIC, t, 0, rid, len(payload)) + payload
-
-
-def recvn(s, n):
-    b = b""
-    while len(b) < n:
-        c = s.recv(n - len(b))
-        if not c:
-            raise EOFError("the daemon closed after %d of %d bytes" % (len(b), n))
-        b += c
-    return b
-
-
-def read_frame(s):
-    magic, t, _, rid, n = struct.unpack("<IHHII", recvn(s, 16))
-    return t, rid, recvn(s, n)
 
 
 def small_filter(rid, w, h):
@@ -107,10 +80,7 @@ def main():
         if failures and os.path.exists(os.path.join(w, "daemon.log")):
             print(open(os.path.join(w, "daemon.log")).read())
         shutil.rmtree(w, ignore_errors=True)
-    if failures:
-        print("%d check(s) failed" % len(failures))
-        sys.exit(1)
-    print("all checks passed")
+    finish()
 
 
 if __name__ == "__main__":

@@ -27,18 +27,10 @@ import sys
 import tempfile
 import time
 
+from rawwire import (BUSY, FILTER, RESULT, SHM_CREATE, check, failures, finish, frame, hello,
+                     recvn)
+
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
-failures = []
-
-
-def check(cond, what):
-    """Records a failed check (the test goes on, to report them all)."""
-    if not cond:
-        failures.append(what)
-        print("FAIL:", what)
-MAGIC = 0x31504648
-HELLO, HELLO_OK, FILTER, RESULT, ERROR, SHM_CREATE = 1, 2, 5, 6, 7, 10
-BUSY = 6
 
 
 def start(w, args, nofile):
@@ -77,48 +69,6 @@ def stop(proc, w):
         proc.kill()
         proc.wait()
     return open(os.path.join(w, "daemon.log")).read()
-
-
-def frame(t, payload=b"", rid=0):
-    return struct.pack("<IHHII", MAGIC, t, 0, rid, len(payload)) + payload
-
-
-def recvn(s, n):
-    b = b""
-    while len(b) < n:
-        c = s.recv(n - len(b))
-        if not c:
-            raise EOFError("the daemon closed after %d of %d bytes" % (len(b), n))
-        b += c
-    return b
-
-
-def read_frame(s):
-    magic, t, _, rid, n = struct.unpack("<IHHII", recvn(s, 16))
-    return t, rid, recvn(s, n)
-
-
-def hello(path):
-    """A connection and what the daemon answered its HELLO: ("ok", socket),
-    ("error", (code, fatal, message)), or ("nothing", why) when it closed
-    without an ERROR."""
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(10)
-    s.connect(path)
-    try:
-        s.sendall(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, 0) + b"test"))
-    except OSError:
-        pass  # refused at once: the ERROR is still there to read
-    try:
-        t, _, p = read_frame(s)
-    except (OSError, EOFError) as e:
-        s.close()
-        return "nothing", repr(e)
-    if t == HELLO_OK:
-        return "ok", s
-    s.close()
-    code, fatal, _, n = struct.unpack("<IBBH", p[:8])
-    return "error", (code, fatal, p[8:8 + n].decode())
 
 
 def fds(pid):
@@ -213,10 +163,7 @@ def main():
               "open-file limit 60: the reason is logged: %r" % log)
     finally:
         shutil.rmtree(w, ignore_errors=True)
-    if failures:
-        print("%d check(s) failed" % len(failures))
-        sys.exit(1)
-    print("all checks passed")
+    finish()
 
 
 if __name__ == "__main__":

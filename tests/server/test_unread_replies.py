@@ -14,56 +14,16 @@ usage: test_unread_replies.py HAIRFILTERD WEIGHTS_DIR
 """
 import os
 import shutil
-import socket
-import struct
 import subprocess
 import sys
 import tempfile
 import time
 
+from rawwire import STATS, STATS_REPLY, check, connect, failures, finish, frame, read_frame
+
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
-MAGIC = 0x31504648
-HELLO, HELLO_OK, STATS, STATS_REPLY = 1, 2, 8, 9
 VARIANTS = 10     # copies of one weights file, served under as many names
 CONNECTIONS = 40  # clients that never read
-failures = []
-
-
-def check(cond, what):
-    """Records a failed check (the test goes on, to report them all)."""
-    if not cond:
-        failures.append(what)
-        print("FAIL:", what)
-
-
-def frame(t, payload=b"", rid=0):
-    return struct.pack("<IHHII", MAGIC, t, 0, rid, len(payload)) + payload
-
-
-def recvn(s, n):
-    b = b""
-    while len(b) < n:
-        c = s.recv(n - len(b))
-        if not c:
-            raise EOFError("the daemon closed after %d of %d bytes" % (len(b), n))
-        b += c
-    return b
-
-
-def read_frame(s):
-    magic, t, _, rid, n = struct.unpack("<IHHII", recvn(s, 16))
-    return t, rid, recvn(s, n)
-
-
-def connect(path):
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(10)
-    s.connect(path)
-    s.sendall(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, 0) + b"test"))
-    t, _, _ = read_frame(s)
-    if t != HELLO_OK:
-        raise RuntimeError("no HELLO_OK (type %d)" % t)
-    return s
 
 
 def rss_kib(pid):
@@ -148,10 +108,7 @@ def main():
         if failures and os.path.exists(os.path.join(w, "daemon.log")):
             print(open(os.path.join(w, "daemon.log")).read())
         shutil.rmtree(w, ignore_errors=True)
-    if failures:
-        print("%d check(s) failed" % len(failures))
-        sys.exit(1)
-    print("all checks passed")
+    finish()
 
 
 if __name__ == "__main__":

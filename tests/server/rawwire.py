@@ -1,0 +1,83 @@
+"""The wire of protocol/PROTOCOL.md at its lowest, for the server tests that
+must send what no client library would (a FILTER past the window, replies
+left unread, SHM_CREATE behind an unread reply): message types, frames,
+HELLO, and the tests' check/finish."""
+import socket
+import struct
+import sys
+
+MAGIC = 0x31504648
+HELLO, HELLO_OK, FILTER, RESULT, ERROR = 1, 2, 5, 6, 7
+STATS, STATS_REPLY, SHM_CREATE = 8, 9, 10
+BUSY = 6   # ERROR code
+
+failures = []
+
+
+def check(cond, what):
+    """Records a failed check (the test goes on, to report them all)."""
+    if not cond:
+        failures.append(what)
+        print("FAIL:", what)
+
+
+def finish():
+    """Exits 1 when a check failed."""
+    if failures:
+        print("%d check(s) failed" % len(failures))
+        sys.exit(1)
+    print("all checks passed")
+
+
+def frame(t, payload=b"", rid=0):
+    """One message: the 16-byte header (magic, type, flags 0, id, length)
+    and its payload."""
+    return struct.pack("<IHHII", MAGIC, t, 0, rid, len(payload)) + payload
+
+
+def recvn(s, n):
+    b = b""
+    while len(b) < n:
+        c = s.recv(n - len(b))
+        if not c:
+            raise EOFError("the daemon closed after %d of %d bytes" % (len(b), n))
+        b += c
+    return b
+
+
+def read_frame(s):
+    """(type, id, payload) of the next message."""
+    _, t, _, rid, n = struct.unpack("<IHHII", recvn(s, 16))
+    return t, rid, recvn(s, n)
+
+
+def hello(path):
+    """A connection to the Unix socket path and what the daemon answered
+    its HELLO (versions 1..3, 4 in flight): ("ok", socket), ("error",
+    (code, fatal, message)), or ("nothing", why) when it closed without
+    an ERROR."""
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(10)
+    s.connect(path)
+    try:
+        s.sendall(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, 0) + b"test"))
+    except OSError:
+        pass  # refused at once: the ERROR is still there to read
+    try:
+        t, _, p = read_frame(s)
+    except (OSError, EOFError) as e:
+        s.close()
+        return "nothing", repr(e)
+    if t == HELLO_OK:
+        return "ok", s
+    s.close()
+    code, fatal, _, n = struct.unpack("<IBBH", p[:8])
+    return "error", (code, fatal, p[8:8 + n].decode())
+
+
+def connect(path):
+    """A connection past its HELLO_OK; RuntimeError otherwise."""
+    kind, s = hello(path)
+    if kind != "ok":
+        raise RuntimeError("no HELLO_OK: %s %s" % (kind, s))
+    return s
