@@ -47,6 +47,7 @@
 #include "commands.h"
 #include <hairfilter/hairfilter.h>
 #include "load.h"
+#include "load_variant.h"
 #include "run_header.h"
 
 typedef struct opts {
@@ -862,39 +863,17 @@ int cmd_load(int argc, char **argv) {
     cli_connect_failed("hairfilter load", rc);
     return 1;
   }
-  hfc_variant *vs = calloc(64, sizeof *vs);
-  int nv = 0, spp = 0, estimate = 0;
-  char backend[65] = "?", precision[65] = "?";
-  if (!vs || (rc = hfc_list_variants(c, vs, 64, &nv)) != 0) {
-    fprintf(stderr, "hairfilter load: listing variants: %s\n", hfc_strerror(rc));
-    free(vs);
+  /* Static: o.variant points at its name until the report is written. */
+  static hfc_variant v;
+  if (load_find_variant(c, "hairfilter load", o.variant, &v)) {
     hfc_close(c);
     return 1;
   }
-  /* Names match without regard to case, as the server matches them; the
-   * server's spelling is the one reported. */
-  static char variant[65];
-  char names[64 * 66] = "";
-  for (int i = 0; i < nv && i < 64; i++) {
-    size_t used = strlen(names);
-    snprintf(names + used, sizeof names - used, "%s%.64s", i ? ", " : "", vs[i].name);
-    if (!spp && !strcasecmp(vs[i].name, o.variant)) {
-      spp = vs[i].spp;
-      estimate = vs[i].estimate;
-      snprintf(backend, sizeof backend, "%s", vs[i].backend);
-      snprintf(precision, sizeof precision, "%s", vs[i].precision);
-      snprintf(variant, sizeof variant, "%.64s", vs[i].name);
-    }
-  }
-  free(vs);
+  int spp = v.spp, estimate = v.estimate;
+  const char *backend = v.backend, *precision = v.precision;
   hfc_server_info info = *hfc_info(c);
   hfc_close(c);
-  if (!spp) {
-    fprintf(stderr, "hairfilter load: the server has no variant '%s': it has %s\n", o.variant,
-            names[0] ? names : "none");
-    return 1;
-  }
-  o.variant = variant;
+  o.variant = v.name;
   if (o.shm && !info.shm) {
     fprintf(stderr, "hairfilter load: --shm: this connection offers no shared memory (a Unix "
                     "socket to a server with it enabled is needed)\n");

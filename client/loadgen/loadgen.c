@@ -27,6 +27,7 @@
 
 #include <hairfilter/hairfilter.h>
 
+#include "load_variant.h"
 #include "run_header.h"
 
 typedef struct opts {
@@ -486,41 +487,18 @@ int main(int argc, char **argv) {
                       "$HAIRFILTER_TOKEN\n");
     return 1;
   }
-  hfc_variant vs[64];
-  int nv = 0, spp = 0, estimate = 0;
-  const char *backend = "?", *precision = "?";
-  char backend_s[65] = "", precision_s[65] = "";
-  if ((rc = hfc_list_variants(c, vs, 64, &nv)) != 0) {
-    fprintf(stderr, "hairfilter-load: listing variants: %s\n", hfc_strerror(rc));
+  /* Static: o.variant points at its name until the report is written. */
+  static hfc_variant v;
+  if (load_find_variant(c, "hairfilter-load", o.variant, &v)) {
     hfc_close(c);
     return 1;
   }
-  /* Names match without regard to case, as the server matches them; the
-   * server's spelling is the one reported. */
-  static char variant[65];
-  char have[64 * 66] = "";
-  for (int i = 0; i < nv && i < 64; i++) {
-    size_t used = strlen(have);
-    snprintf(have + used, sizeof have - used, "%s%.64s", i ? ", " : "", vs[i].name);
-    if (!spp && !strcasecmp(vs[i].name, o.variant)) {
-      spp = vs[i].spp;
-      estimate = vs[i].estimate;
-      snprintf(backend_s, sizeof backend_s, "%s", vs[i].backend);
-      snprintf(precision_s, sizeof precision_s, "%s", vs[i].precision);
-      backend = backend_s;
-      precision = precision_s;
-      snprintf(variant, sizeof variant, "%.64s", vs[i].name);
-    }
-  }
+  int spp = v.spp, estimate = v.estimate;
+  const char *backend = v.backend, *precision = v.precision;
   hfc_server_info info = *hfc_info(c);
   int max_inflight = info.max_inflight;
   hfc_close(c);
-  if (!spp) {
-    fprintf(stderr, "hairfilter-load: the server has no variant '%s': it has %s\n", o.variant,
-            have[0] ? have : "none");
-    return 1;
-  }
-  o.variant = variant;
+  o.variant = v.name;
   if (o.width > info.max_width || o.height > info.max_height) {
     fprintf(stderr, "hairfilter-load: %dx%d is over the server's limit of %dx%d\n", o.width,
             o.height, info.max_width, info.max_height);
