@@ -15,23 +15,8 @@ import urllib.request
 
 from prometheus_client.parser import text_string_to_metric_families
 
-
-failures = []
-
-
-def check(cond, what):
-    """Records a failed check (the test goes on, to report them all)."""
-    if not cond:
-        failures.append(what)
-        print("FAIL:", what)
-
-
-def finish():
-    """Exits 1 when a check failed."""
-    if failures:
-        print("%d check(s) failed" % len(failures))
-        sys.exit(1)
-    print("all checks passed")
+# The tests' checks: one list of failures for every module a test uses.
+from rawwire import check, failures, finish  # noqa: F401
 
 
 class Daemon:

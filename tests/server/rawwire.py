@@ -1,9 +1,11 @@
 """The wire of protocol/PROTOCOL.md at its lowest, for the server tests that
 must send what no client library would (a FILTER past the window, replies
 left unread, SHM_CREATE behind an unread reply): message types, frames,
-HELLO, and the tests' check/finish."""
+HELLO, stopping the daemon, and the tests' check/finish."""
+import os
 import socket
 import struct
+import subprocess
 import sys
 
 MAGIC = 0x31504648
@@ -81,3 +83,17 @@ def connect(path):
     if kind != "ok":
         raise RuntimeError("no HELLO_OK: %s %s" % (kind, s))
     return s
+
+
+def stop(proc, w):
+    """Stops hairfilterd (SIGTERM, then SIGKILL after 30 s) and returns
+    its log, w/daemon.log."""
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.wait(30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    path = os.path.join(w, "daemon.log")
+    return open(path).read() if os.path.exists(path) else ""

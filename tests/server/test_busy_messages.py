@@ -16,7 +16,7 @@ import tempfile
 import time
 
 from rawwire import (BUSY, ERROR, FILTER, HELLO, HELLO_OK, RESULT, check, failures, finish, frame,
-                     read_frame)
+                     read_frame, stop)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 
@@ -70,15 +70,9 @@ def main():
         check(answers.get(1, (None,))[0] == RESULT, "request 1 gets its RESULT")
         s.close()
     finally:
-        if proc and proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if failures and os.path.exists(os.path.join(w, "daemon.log")):
-            print(open(os.path.join(w, "daemon.log")).read())
+        log = stop(proc, w) if proc else ""
+        if failures:
+            print(log)
         shutil.rmtree(w, ignore_errors=True)
     finish()
 

@@ -28,7 +28,7 @@ import tempfile
 import time
 
 from rawwire import (BUSY, FILTER, RESULT, SHM_CREATE, check, failures, finish, frame, hello,
-                     recvn)
+                     recvn, stop)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 
@@ -58,17 +58,6 @@ def start(w, args, nofile):
             return proc, None
         time.sleep(0.02)
     return proc, sock
-
-
-def stop(proc, w):
-    if proc.poll() is None:
-        proc.terminate()
-    try:
-        proc.wait(30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-    return open(os.path.join(w, "daemon.log")).read()
 
 
 def fds(pid):

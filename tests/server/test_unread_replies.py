@@ -19,7 +19,8 @@ import sys
 import tempfile
 import time
 
-from rawwire import STATS, STATS_REPLY, check, connect, failures, finish, frame, read_frame
+from rawwire import (STATS, STATS_REPLY, check, connect, failures, finish, frame, read_frame,
+                     stop)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 VARIANTS = 10     # copies of one weights file, served under as many names
@@ -98,15 +99,9 @@ def main():
             s.close()
         probe.close()
     finally:
-        if proc and proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if failures and os.path.exists(os.path.join(w, "daemon.log")):
-            print(open(os.path.join(w, "daemon.log")).read())
+        log = stop(proc, w) if proc else ""
+        if failures:
+            print(log)
         shutil.rmtree(w, ignore_errors=True)
     finish()
 
