@@ -1,12 +1,13 @@
 """The wire of protocol/PROTOCOL.md at its lowest, for the server tests that
 must send what no client library would (a FILTER past the window, replies
 left unread, SHM_CREATE behind an unread reply): message types, frames,
-HELLO, stopping the daemon, and the tests' check/finish."""
+HELLO, starting and stopping the daemon, and the tests' check/finish."""
 import os
 import socket
 import struct
 import subprocess
 import sys
+import time
 
 MAGIC = 0x31504648
 HELLO, HELLO_OK, FILTER, RESULT, ERROR = 1, 2, 5, 6, 7
@@ -83,6 +84,29 @@ def connect(path):
     if kind != "ok":
         raise RuntimeError("no HELLO_OK: %s %s" % (kind, s))
     return s
+
+
+def start(binary, w, args, env=None, preexec_fn=None):
+    """hairfilterd (binary) on a Unix socket in w with args, the cpu
+    backend, its log in w/daemon.log: (process, socket path) once its
+    ready file is there, or (process, None) when it exited or was not
+    ready within 60 s."""
+    sock = os.path.join(w, "s.sock")
+    ready = os.path.join(w, "ready")
+    for p in (sock, ready):
+        if os.path.exists(p):
+            os.unlink(p)
+    with open(os.path.join(w, "daemon.log"), "w") as log:
+        proc = subprocess.Popen([binary, "--config", "none", "--listen", "unix:" + sock,
+                                 "--backend", "cpu", "--ready-file", ready] + args,
+                                stdout=log, stderr=subprocess.STDOUT, env=env,
+                                preexec_fn=preexec_fn)
+    deadline = time.time() + 60
+    while time.time() < deadline and not os.path.exists(ready):
+        if proc.poll() is not None:
+            return proc, None
+        time.sleep(0.02)
+    return proc, sock if os.path.exists(ready) else None
 
 
 def stop(proc, w):

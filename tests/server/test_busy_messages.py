@@ -10,13 +10,11 @@ import os
 import shutil
 import socket
 import struct
-import subprocess
 import sys
 import tempfile
-import time
 
 from rawwire import (BUSY, ERROR, FILTER, HELLO, HELLO_OK, RESULT, check, failures, finish, frame,
-                     read_frame, stop)
+                     read_frame, start, stop)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 
@@ -31,20 +29,11 @@ def main():
     w = tempfile.mkdtemp(prefix="hfbusy-")
     proc = None
     try:
-        sock = os.path.join(w, "s.sock")
-        ready = os.path.join(w, "ready")
-        log = open(os.path.join(w, "daemon.log"), "w")
-        proc = subprocess.Popen([HAIRFILTERD, "--config", "none", "--listen", "unix:" + sock,
-                                 "--backend", "cpu", "--weights",
-                                 os.path.join(WEIGHTS, "small.safetensors"), "--max-inflight",
-                                 "1", "--ready-file", ready], stdout=log, stderr=subprocess.STDOUT)
-        log.close()
-        deadline = time.time() + 60
-        while not os.path.exists(ready) and time.time() < deadline and proc.poll() is None:
-            time.sleep(0.02)
-        check(os.path.exists(ready), "the daemon started")
-        if not os.path.exists(ready):
-            return
+        proc, sock = start(HAIRFILTERD, w, ["--weights", os.path.join(WEIGHTS, "small.safetensors"),
+                                            "--max-inflight", "1"])
+        check(sock is not None, "the daemon started")
+        if sock is None:
+            raise RuntimeError("hairfilterd did not start")   # its log follows
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         s.settimeout(30)
         s.connect(sock)

@@ -22,11 +22,11 @@ import resource
 import shutil
 import socket
 import struct
-import subprocess
 import sys
 import tempfile
 import time
 
+import rawwire
 from rawwire import (BUSY, FILTER, RESULT, SHM_CREATE, check, failures, finish, frame, hello,
                      recvn, stop)
 
@@ -34,30 +34,13 @@ HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 
 
 def start(w, args, nofile):
-    """hairfilterd on a Unix socket in w with RLIMIT_NOFILE (soft, hard):
-    (process, socket path), once its ready file is there, or (process,
-    None) when it exited first."""
-    sock = os.path.join(w, "s.sock")
-    ready = os.path.join(w, "ready")
-    for p in (sock, ready):
-        if os.path.exists(p):
-            os.unlink(p)
-
+    """Small's hairfilterd (rawwire.start) under RLIMIT_NOFILE nofile
+    (soft, hard)."""
     def limit():
         resource.setrlimit(resource.RLIMIT_NOFILE, nofile)
 
-    log = open(os.path.join(w, "daemon.log"), "w")
-    proc = subprocess.Popen([HAIRFILTERD, "--config", "none", "--listen", "unix:" + sock,
-                             "--backend", "cpu", "--weights",
-                             os.path.join(WEIGHTS, "small.safetensors"), "--ready-file", ready]
-                            + args, stdout=log, stderr=subprocess.STDOUT, preexec_fn=limit)
-    log.close()
-    deadline = time.time() + 60
-    while time.time() < deadline and not os.path.exists(ready):
-        if proc.poll() is not None:
-            return proc, None
-        time.sleep(0.02)
-    return proc, sock
+    return rawwire.start(HAIRFILTERD, w, ["--weights", os.path.join(WEIGHTS, "small.safetensors")]
+                         + args, preexec_fn=limit)
 
 
 def fds(pid):

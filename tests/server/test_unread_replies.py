@@ -14,13 +14,12 @@ usage: test_unread_replies.py HAIRFILTERD WEIGHTS_DIR
 """
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 
 from rawwire import (STATS, STATS_REPLY, check, connect, failures, finish, frame, read_frame,
-                     stop)
+                     start, stop)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 VARIANTS = 10     # copies of one weights file, served under as many names
@@ -43,25 +42,16 @@ def main():
             f = os.path.join(w, "v%02d.safetensors" % i)
             shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), f)
             args += ["--weights", "Variant%02d=%s" % (i, f)]
-        sock = os.path.join(w, "s.sock")
-        ready = os.path.join(w, "ready")
-        log = open(os.path.join(w, "daemon.log"), "w")
         # Under AddressSanitizer freed memory waits in its quarantine (256
         # MiB) and would count as growth: off here, so RSS is what is held.
         env = dict(os.environ)
         env["ASAN_OPTIONS"] = ":".join(filter(None, [env.get("ASAN_OPTIONS"),
                                                      "quarantine_size_mb=0",
                                                      "thread_local_quarantine_size_kb=0"]))
-        proc = subprocess.Popen([HAIRFILTERD, "--config", "none", "--listen", "unix:" + sock,
-                                 "--backend", "cpu", "--ready-file", ready] + args,
-                                stdout=log, stderr=subprocess.STDOUT, env=env)
-        log.close()
-        deadline = time.time() + 60
-        while not os.path.exists(ready) and time.time() < deadline and proc.poll() is None:
-            time.sleep(0.02)
-        check(os.path.exists(ready), "the daemon started")
-        if not os.path.exists(ready):
-            return
+        proc, sock = start(HAIRFILTERD, w, args, env=env)
+        check(sock is not None, "the daemon started")
+        if sock is None:
+            raise RuntimeError("hairfilterd did not start")   # its log follows
         probe = connect(sock)
         probe.sendall(frame(STATS))
         t, _, p = read_frame(probe)
