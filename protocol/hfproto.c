@@ -10,6 +10,7 @@
 #include "hfproto.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <string.h>
 
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
@@ -944,22 +945,55 @@ int hfp_regions_overlap(uint64_t a, uint64_t an, uint64_t b, uint64_t bn) {
   return an && bn && a < b + bn && b < a + an;
 }
 
-int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
+/* Whether region (named what) of n bytes at off fits; writes why when not. */
+static int region_fits(const char *what, uint64_t off, uint64_t n, uint64_t size, size_t es,
+                       char *why, size_t whylen) {
+  if (region_ok(off, n, size, es)) return 1;
+  if (why && whylen) {
+    if (off % es)
+      snprintf(why, whylen, "%s at offset %llu is not aligned to its %zu-byte elements", what,
+               (unsigned long long)off, es);
+    else
+      snprintf(why, whylen, "%s of %llu bytes at offset %llu ends past the segment's %llu bytes",
+               what, (unsigned long long)n, (unsigned long long)off,
+               (unsigned long long)size);
+  }
+  return 0;
+}
+
+int hfp_shm_check_why(const hfp_filter *m, uint64_t seg_bytes, char *why, size_t whylen) {
   uint64_t in_len, out_len, rgba_len = 0;
   int rc = hfp_filter_input_bytes(m->width, m->height, m->spp, m->in_dtype, m->flags, &in_len);
   if (!rc) rc = hfp_output_bytes(m->width, m->height, HFP_OUTPUTS, m->out_dtype, &out_len);
   if (!rc && (m->flags & HFP_FILTER_COMPOSITE))
     rc = hfp_output_bytes(m->width, m->height, 4, m->out_dtype, &rgba_len);
-  if (rc) return rc;
-  if (!region_ok(m->shm_in, in_len, seg_bytes, hfp_dtype_size(m->in_dtype)) ||
-      !region_ok(m->shm_out, out_len, seg_bytes, hfp_dtype_size(m->out_dtype)) ||
-      (rgba_len && !region_ok(m->shm_rgba, rgba_len, seg_bytes, hfp_dtype_size(m->out_dtype))))
+  if (rc) {
+    if (why && whylen) snprintf(why, whylen, "the frame's tensor sizes are out of range");
+    return rc;
+  }
+  if (!region_fits("the features", m->shm_in, in_len, seg_bytes, hfp_dtype_size(m->in_dtype),
+                   why, whylen) ||
+      !region_fits("the result", m->shm_out, out_len, seg_bytes, hfp_dtype_size(m->out_dtype),
+                   why, whylen) ||
+      (rgba_len && !region_fits("the rgba composite", m->shm_rgba, rgba_len, seg_bytes,
+                                hfp_dtype_size(m->out_dtype), why, whylen)))
     return -HFP_E_LENGTH;
   /* Disjoint: a backend may still read the features (Kernel's output stage
    * reads them again) while it writes the result, from several threads. */
-  if (hfp_regions_overlap(m->shm_in, in_len, m->shm_out, out_len) ||
-      (rgba_len && (hfp_regions_overlap(m->shm_in, in_len, m->shm_rgba, rgba_len) ||
-                    hfp_regions_overlap(m->shm_out, out_len, m->shm_rgba, rgba_len))))
+  const char *a = NULL, *b = NULL;
+  if (hfp_regions_overlap(m->shm_in, in_len, m->shm_out, out_len))
+    a = "the features", b = "the result";
+  else if (rgba_len && hfp_regions_overlap(m->shm_in, in_len, m->shm_rgba, rgba_len))
+    a = "the features", b = "the rgba composite";
+  else if (rgba_len && hfp_regions_overlap(m->shm_out, out_len, m->shm_rgba, rgba_len))
+    a = "the result", b = "the rgba composite";
+  if (a) {
+    if (why && whylen) snprintf(why, whylen, "%s and %s overlap", a, b);
     return -HFP_E_LENGTH;
+  }
   return 0;
+}
+
+int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes) {
+  return hfp_shm_check_why(m, seg_bytes, NULL, 0);
 }

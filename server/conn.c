@@ -657,11 +657,10 @@ static void filter_shm(hfd_conn *c, int v, const hfp_filter *f) {
     reject(c, v, HFP_E_INVALID, 0, "no segment %u on this connection", f->shm_segment);
     return;
   }
-  int rc = hfp_shm_check(f, g->size);
+  char why[200];
+  int rc = hfp_shm_check_why(f, g->size, why, sizeof why);
   if (rc) {
-    reject(c, v, -rc, 0,
-           "tensors outside segment %u (%llu bytes), misaligned or overlapping one another",
-           f->shm_segment, (unsigned long long)g->size);
+    reject(c, v, -rc, 0, "segment %u: %s", f->shm_segment, why);
     return;
   }
   hfd_job *j = calloc(1, sizeof *j);

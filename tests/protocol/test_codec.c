@@ -962,6 +962,17 @@ static void test_filter_shm(void **state) {
   assert_int_equal(hfp_shm_check(&d, UINT64_MAX), -HFP_E_LENGTH);
   d.shm_in = 2; /* f32 input not 4-aligned */
   assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+  /* what a client is told: which region, and how it is wrong */
+  char why[200];
+  assert_int_equal(hfp_shm_check_why(&d, 1 << 20, why, sizeof why), -HFP_E_LENGTH);
+  assert_string_equal(why, "the features at offset 2 is not aligned to its 4-byte elements");
+  d.shm_in = 0;
+  d.shm_out = 4096;
+  assert_int_equal(hfp_shm_check_why(&d, 4100, why, sizeof why), -HFP_E_LENGTH);
+  assert_non_null(strstr(why, "the result of "));
+  assert_non_null(strstr(why, " bytes at offset 4096 ends past the segment's 4100 bytes"));
+  assert_int_equal(hfp_shm_check_why(&d, 4100, NULL, 0), -HFP_E_LENGTH);   /* why optional */
+  d.shm_in = 2;
 
   /* regions may touch but not share a byte */
   uint64_t in_len = 0, out_len = 0;
@@ -980,6 +991,8 @@ static void test_filter_shm(void **state) {
   assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
   d.shm_rgba = 0; /* the composite on the features */
   assert_int_equal(hfp_shm_check(&d, 1 << 20), -HFP_E_LENGTH);
+  assert_int_equal(hfp_shm_check_why(&d, 1 << 20, why, sizeof why), -HFP_E_LENGTH);
+  assert_string_equal(why, "the features and the rgba composite overlap");
   d.flags &= (uint16_t)~HFP_FILTER_COMPOSITE; /* no composite: its offset is not a region */
   assert_int_equal(hfp_shm_check(&d, 1 << 20), 0);
 
