@@ -608,7 +608,7 @@ static int parse_args(int argc, char **argv, opts *o) {
  * and --occluder say (warnings about its widths printed), or a style and
  * its body. */
 static int load_model(const opts *o, hfr_hair *hair, hfr_mesh *occ) {
-  char err[512] = "", warn[1024] = "";
+  char err[512] = "", warn[2048] = "";
   int rc;
   memset(occ, 0, sizeof *occ);
   if (o->hair_path) {

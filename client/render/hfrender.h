@@ -51,6 +51,13 @@ typedef struct hfr_hair {
   float default_thickness, default_transparency, default_color[3];
   char info[89];                /* NUL-terminated file info */
   uint32_t dropped;             /* strands of a single point (0 segments) left out */
+  /* What the loader accepted as other .hair readers do (cyHairFile and the
+   * renderers built on it read what the header announces and no more),
+   * each said as a warning by hfr_asset_load: */
+  uint32_t dropped_nonfinite;   /* strands left out for a NaN/Inf point, width or transparency */
+  uint64_t clamped;             /* per-point values clamped: width < 0 to 0, transparency to [0, 1] */
+  uint64_t trailing_bytes;      /* bytes after the arrays, not read */
+  uint32_t unknown_flags;       /* header flag bits above the five the format defines, ignored */
   /* 1: default_thickness is the caller's choice (--thickness), drawn as
    * given instead of judged against the model's size. */
   uint8_t thickness_given;
@@ -67,10 +74,15 @@ enum {
 #define HFR_MAX_POINTS  (1u << 27)
 
 /* Reads a .hair file. Every count is checked against the file size, the
- * limits above and each other before anything is allocated; positions and
- * thickness must be finite, transparency in [0, 1]. A strand of 0 segments
- * (one point, which the format allows and nothing draws) is left out and
- * counted in `dropped`; a file of nothing else is refused. */
+ * limits above and each other before anything is allocated; a file shorter
+ * than its arrays is refused. Read as the reference reader (cyHairFile)
+ * reads it, and counted in the fields above so callers can warn: bytes after
+ * the arrays and flag bits above 16 are ignored; a strand of 0 segments (one
+ * point, which the format allows and nothing draws) is left out (`dropped`),
+ * and so is a strand with a non-finite position, thickness or transparency
+ * (`dropped_nonfinite`); a negative thickness is taken as 0 and a
+ * transparency outside [0, 1] clamped to it (`clamped`). A file with no
+ * strand left is refused (HF_EFORMAT, err says why). */
 int hfr_hair_load(const char *path, hfr_hair *out, char *err, size_t errlen);
 int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, size_t errlen);
 /* Writes every array the model has (and the segments array always). */

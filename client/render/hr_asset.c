@@ -81,6 +81,30 @@ int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hf
              "draws them", hair->dropped);
     add_warning(warn, warnlen, msg);
   }
+  if (hair->dropped_nonfinite) {
+    snprintf(msg, sizeof msg, "%u strand(s) with a NaN or Inf point coordinate, thickness or "
+             "transparency left out (the file is damaged or its writer has a fault)",
+             hair->dropped_nonfinite);
+    add_warning(warn, warnlen, msg);
+  }
+  if (hair->clamped) {
+    snprintf(msg, sizeof msg, "%llu per-point value(s) out of range clamped: a thickness "
+             "below 0 taken as 0, a transparency outside [0, 1] to it",
+             (unsigned long long)hair->clamped);
+    add_warning(warn, warnlen, msg);
+  }
+  if (hair->unknown_flags) {
+    snprintf(msg, sizeof msg, "header flag bits 0x%x are not the format's (segments, points, "
+             "thickness, transparency, colours: 0x1f) and are ignored, as other .hair readers "
+             "do", hair->unknown_flags);
+    add_warning(warn, warnlen, msg);
+  }
+  if (hair->trailing_bytes) {
+    snprintf(msg, sizeof msg, "%llu byte(s) after the arrays the header announces are "
+             "ignored, as other .hair readers do (if the model looks incomplete, the header's "
+             "strand and point counts are wrong)", (unsigned long long)hair->trailing_bytes);
+    add_warning(warn, warnlen, msg);
+  }
   if ((rc = hfr_hair_orient(hair, o->up, scale)) != HF_OK) {
     if (err) snprintf(err, errlen, "bad up axis or scale");
     goto fail;

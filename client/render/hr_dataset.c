@@ -270,7 +270,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   hfr_asset_opts guides_only = o->asset;
   guides_only.children.children = 0;
   for (int f = 0; rc == HF_OK && f < o->n_hair_files; f++) {
-    char warn[1024] = "";
+    char warn[2048] = "";
     rc = hfr_asset_load(o->hair_files[f], &guides_only, &models[f].guides, &models[f].occ, warn,
                         sizeof warn, err, errlen);
     /* Which of the files it was, when the reason does not say. */

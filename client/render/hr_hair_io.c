@@ -126,15 +126,30 @@ int hfr_hair_check_extent(const hfr_hair *h, double scale, char *err, size_t err
   return HF_ERANGE;
 }
 
-/* Leaves out, in place, the strands of 0 segments (a single point each):
- * every later stage (orientation, children, drawing) takes a strand to
- * have a segment. */
-static void drop_single_points(hfr_hair *h) {
+/* 1 when strand i (points [p, p + n)) has a value nothing can draw: a
+ * non-finite coordinate, thickness or transparency. */
+static int strand_nonfinite(const hfr_hair *h, uint32_t p, uint32_t n) {
+  for (size_t k = 3 * (size_t)p; k < 3 * ((size_t)p + n); k++)
+    if (!isfinite(h->pos[k])) return 1;
+  for (size_t k = p; k < (size_t)p + n; k++) {
+    if (h->thickness && !isfinite(h->thickness[k])) return 1;
+    if (h->transparency && !isfinite(h->transparency[k])) return 1;
+  }
+  return 0;
+}
+
+/* Leaves out, in place, the strands of 0 segments (a single point each:
+ * every later stage, orientation, children, drawing, takes a strand to have
+ * a segment) and those strand_nonfinite finds. Needs the segments array
+ * (load_mem makes one when it has to drop from a file without). */
+static void drop_strands(hfr_hair *h) {
   uint32_t ws = 0, wp = 0, rp = 0;
   for (uint32_t i = 0; i < h->strands; i++) {
     uint32_t n = h->segments[i] + 1u;
-    if (h->segments[i] == 0) {
-      h->dropped++;
+    int single = h->segments[i] == 0, bad = !single && strand_nonfinite(h, rp, n);
+    if (single || bad) {
+      if (single) h->dropped++;
+      else h->dropped_nonfinite++;
       rp += n;
       continue;
     }
@@ -150,6 +165,17 @@ static void drop_single_points(hfr_hair *h) {
   h->points = wp;
 }
 
+/* Any non-finite value among the per-point arrays drop_strands reads. */
+static int any_nonfinite(const hfr_hair *h) {
+  for (size_t k = 0; k < 3 * (size_t)h->points; k++)
+    if (!isfinite(h->pos[k])) return 1;
+  for (size_t k = 0; k < h->points; k++)
+    if ((h->thickness && !isfinite(h->thickness[k])) ||
+        (h->transparency && !isfinite(h->transparency[k])))
+      return 1;
+  return 0;
+}
+
 int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, size_t errlen) {
   if (!buf || !out) return fail(err, errlen, HF_EINVAL, "null argument");
   memset(out, 0, sizeof *out);
@@ -158,7 +184,6 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
   if (memcmp(p, "HAIR", 4)) return fail(err, errlen, HF_EFORMAT, "not a .hair file (magic)");
   uint32_t strands = rd_u32(p + 4), points = rd_u32(p + 8), flags = rd_u32(p + 12);
   uint32_t defseg = rd_u32(p + 16);
-  if (flags & ~31u) return fail(err, errlen, HF_EFORMAT, "unknown flag bits");
   if (!(flags & HFR_HAIR_POINTS)) return fail(err, errlen, HF_EFORMAT, "no points array");
   if (strands == 0 || points == 0) return fail(err, errlen, HF_EFORMAT, "no strands or points");
   if (strands > HFR_MAX_STRANDS || points > HFR_MAX_POINTS)
@@ -167,7 +192,10 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
     return fail(err, errlen, HF_EFORMAT, "no segments array and a bad default segment count");
 
   /* Exact size from the counts (64-bit: the limits keep it far from
-   * overflow), compared before any allocation. */
+   * overflow), compared before any allocation. Flag bits the format does
+   * not define announce no array the reference reader knows of, so they
+   * are ignored (and counted); so are bytes after the arrays, which it
+   * never reads. */
   uint64_t need = HAIR_HEADER;
   if (flags & HFR_HAIR_SEGMENTS) need += 2ull * strands;
   need += 12ull * points;
@@ -175,7 +203,6 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
   if (flags & HFR_HAIR_TRANSPARENCY) need += 4ull * points;
   if (flags & HFR_HAIR_COLORS) need += 12ull * points;
   if (len < need) return fail(err, errlen, HF_EFORMAT, "file shorter than its arrays");
-  if (len > need) return fail(err, errlen, HF_EFORMAT, "trailing bytes after the arrays");
 
   const unsigned char *q = p + HAIR_HEADER;
   uint64_t total = 0;
@@ -197,6 +224,8 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
 
   out->strands = strands;
   out->points = points;
+  out->unknown_flags = flags & ~31u;
+  out->trailing_bytes = len - need;
   out->default_segments = defseg;
   out->default_thickness = rd_f32(p + 20);
   out->default_transparency = rd_f32(p + 24);
@@ -213,23 +242,18 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
   }
   out->pos = malloc(12 * (size_t)points);
   if (!out->pos) goto nomem;
-  for (size_t i = 0; i < 3 * (size_t)points; i++) {
-    out->pos[i] = rd_f32(q + 4 * i);
-    if (!isfinite(out->pos[i])) {
-      hfr_hair_free(out);
-      return fail(err, errlen, HF_EFORMAT, "non-finite point coordinate");
-    }
-  }
+  for (size_t i = 0; i < 3 * (size_t)points; i++) out->pos[i] = rd_f32(q + 4 * i);
   q += 12 * (size_t)points;
   if (flags & HFR_HAIR_THICKNESS) {
     out->thickness = malloc(4 * (size_t)points);
     if (!out->thickness) goto nomem;
     for (size_t i = 0; i < points; i++) {
-      out->thickness[i] = rd_f32(q + 4 * i);
-      if (!isfinite(out->thickness[i]) || out->thickness[i] < 0) {
-        hfr_hair_free(out);
-        return fail(err, errlen, HF_EFORMAT, "negative or non-finite thickness");
+      float t = rd_f32(q + 4 * i);
+      if (t < 0) { /* no width; NaN is left for drop_strands */
+        t = 0;
+        out->clamped++;
       }
+      out->thickness[i] = t;
     }
     q += 4 * (size_t)points;
   }
@@ -238,9 +262,9 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
     if (!out->transparency) goto nomem;
     for (size_t i = 0; i < points; i++) {
       float t = rd_f32(q + 4 * i);
-      if (!(t >= 0 && t <= 1)) {
-        hfr_hair_free(out);
-        return fail(err, errlen, HF_EFORMAT, "transparency outside [0, 1]");
+      if (t < 0 || t > 1) { /* +-Inf too; NaN is left for drop_strands */
+        t = t < 0 ? 0.0f : 1.0f;
+        out->clamped++;
       }
       out->transparency[i] = t;
     }
@@ -251,7 +275,24 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
     if (!out->color) goto nomem;
     for (size_t i = 0; i < 3 * (size_t)points; i++) out->color[i] = rd_f32(q + 4 * i);
   }
-  if (single) drop_single_points(out);
+  int nonfinite = any_nonfinite(out);
+  if (single || nonfinite) {
+    if (!out->segments) { /* default segments: drop_strands needs them spelt out */
+      out->segments = malloc(sizeof(uint16_t) * strands);
+      if (!out->segments) goto nomem;
+      for (uint32_t i = 0; i < strands; i++) out->segments[i] = (uint16_t)defseg;
+    }
+    drop_strands(out);
+    if (!out->strands) {
+      uint32_t bad = out->dropped_nonfinite;
+      hfr_hair_free(out);
+      if (err)
+        snprintf(err, errlen, "every strand has a non-finite (NaN or Inf) point coordinate, "
+                 "thickness or transparency (%u strands) or a single point: nothing to draw; "
+                 "the file is damaged or was written wrongly", bad);
+      return HF_EFORMAT;
+    }
+  }
   return HF_OK;
 nomem:
   hfr_hair_free(out);

@@ -168,8 +168,12 @@ static void hair(void) {
   static uint16_t seg[3] = {2, 3, 1};
   for (int i = 0; i < 27; i++) pos[i] = (float)i * 0.1f, col[i] = 0.5f;
   for (int i = 0; i < 9; i++) thick[i] = 0.01f, trans[i] = 0.2f;
-  hfr_hair all = {3, 9, seg, pos, thick, trans, col, 0, 0.02f, 0.1f, {0.3f, 0.2f, 0.1f}, "all arrays", 0, 0};
-  hfr_hair plain = {3, 9, NULL, pos, NULL, NULL, NULL, 2, 0.02f, 0, {0, 0, 0}, "default segments", 0, 0};
+  hfr_hair all = {.strands = 3, .points = 9, .segments = seg, .pos = pos, .thickness = thick,
+                  .transparency = trans, .color = col, .default_thickness = 0.02f,
+                  .default_transparency = 0.1f, .default_color = {0.3f, 0.2f, 0.1f},
+                  .info = "all arrays"};
+  hfr_hair plain = {.strands = 3, .points = 9, .pos = pos, .default_segments = 2,
+                    .default_thickness = 0.02f, .info = "default segments"};
   const struct {
     const char *name;
     const hfr_hair *h;

@@ -356,6 +356,52 @@ static int load_as(const hfr_hair *h, const hfr_asset_opts *o, hfr_hair *out, ch
   return rc;
 }
 
+/* A model written as other .hair readers take it but outside the format's
+ * letter (bytes after the arrays, an undefined flag bit, a strand with a
+ * NaN point, a transparency above 1) is drawn, each departure said. */
+static void test_asset_read_as_reference(void **state) {
+  (void)state;
+  hfr_hair h = small_style(HFR_STYLE_WAVY, 201);
+  uint32_t strands = h.strands;
+  h.pos[3 * 5 + 1] = NAN; /* point 5: in strand 0 (every strand has more) */
+  assert_true(hfr_hair_strand_segments(&h, 0) >= 5);
+  assert_non_null(h.transparency);
+  h.transparency[h.points - 1] = 1.25f;
+  char path[256];
+  tmp_path(path, sizeof path, "reference.hair");
+  assert_int_equal(hfr_hair_save(path, &h), HF_OK);
+  hfr_hair_free(&h);
+  FILE *f = fopen(path, "r+b");
+  assert_non_null(f);
+  unsigned char flags[4];
+  assert_int_equal(fseek(f, 12, SEEK_SET), 0);
+  assert_int_equal(fread(flags, 1, 4, f), 4);
+  flags[1] |= 0x01; /* bit 8 */
+  assert_int_equal(fseek(f, 12, SEEK_SET), 0);
+  assert_int_equal(fwrite(flags, 1, 4, f), 4);
+  assert_int_equal(fseek(f, 0, SEEK_END), 0);
+  assert_int_equal(fwrite("exporter tail", 1, 13, f), 13);
+  assert_int_equal(fclose(f), 0);
+
+  hfr_asset_opts o;
+  hfr_asset_defaults(&o);
+  o.occluder = "none";
+  hfr_mesh occ;
+  char warn[2048] = "", err[256] = "";
+  assert_int_equal(hfr_asset_load(path, &o, &h, &occ, warn, sizeof warn, err, sizeof err), HF_OK);
+  print_message("warnings: %s\n", warn);
+  assert_int_equal(h.strands, strands - 1);
+  assert_non_null(strstr(warn, "1 strand(s) with a NaN or Inf"));
+  assert_non_null(strstr(warn, "1 per-point value(s) out of range clamped"));
+  assert_non_null(strstr(warn, "flag bits 0x100"));
+  assert_non_null(strstr(warn, "13 byte(s) after the arrays"));
+  for (size_t i = 0; i < 3 * (size_t)h.points; i++) assert_true(isfinite(h.pos[i]));
+  assert_true(h.transparency[h.points - 1] == 1.0f);
+  hfr_hair_free(&h);
+  hfr_mesh_free(&occ);
+  remove(path);
+}
+
 /* --thickness is the user's diameter: kept at any width (it was replaced by
  * R / 2000 above 0.02 R), with a warning where implausible, and children
  * take it too. */
@@ -512,6 +558,7 @@ int main(void) {
     cmocka_unit_test(test_fit_roots),
     cmocka_unit_test(test_mesh_file),
     cmocka_unit_test(test_asset_load),
+    cmocka_unit_test(test_asset_read_as_reference),
     cmocka_unit_test(test_thickness_option),
     cmocka_unit_test(test_header_transparency),
     cmocka_unit_test(test_extent_and_zero_widths),
