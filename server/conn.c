@@ -960,8 +960,10 @@ static void on_header(hfd_conn *c) {
   const hfp_header *h = &c->hdr;
   /* The type is the header's before its length: a server -> client type
    * claiming too much goes on to the switch below, which refuses it as
-   * PROTOCOL whatever its length. */
-  if (rc == -HFP_E_TOO_LARGE && c->hello_done && is_client_type(h->type)) {
+   * PROTOCOL whatever its length, and so does a second HELLO, which is no
+   * request once the handshake is done. */
+  if (rc == -HFP_E_TOO_LARGE && c->hello_done && is_client_type(h->type) &&
+      h->type != HFP_HELLO) {
     s->protocol_errors++;
     send_error(c, h->type == HFP_FILTER ? h->request_id : 0, HFP_E_TOO_LARGE, 1,
                "frame of %u bytes is over the limit of %llu", h->length,

@@ -148,12 +148,20 @@ static int hello_longest_token(cf_test *t, intptr_t arg) {
   return cf_expect(t, fd, HFP_HELLO_OK, &f);
 }
 
-static int second_hello(cf_test *t, intptr_t arg) {
-  (void)arg;
+/* A HELLO after the handshake. With over_max, only its header, claiming
+ * 4 GiB: the type is checked before the length, and a second HELLO is no
+ * request of this state whatever it claims, so still PROTOCOL, not the
+ * TOO_LARGE of a request over max_frame_bytes. */
+static int second_hello(cf_test *t, intptr_t over_max) {
   int fd;
   CF_TRY(cf_connect_hello(t, 1, HFP_VERSION, &fd, NULL));
   uint8_t b[HFP_HEADER_SIZE + 8 + HFP_NAME_MAX + HFP_TOKEN_MAX];
-  CF_TRY(cf_send(t, fd, b, hello(t, b, sizeof b)));
+  size_t n = hello(t, b, sizeof b);
+  if (over_max) {
+    hfp_put_u32(b + 12, UINT32_MAX);
+    n = HFP_HEADER_SIZE;
+  }
+  CF_TRY(cf_send(t, fd, b, n));
   return cf_expect_error(t, fd, HFP_E_PROTOCOL, 1, 0);
 }
 
@@ -665,6 +673,7 @@ const cf_case cf_cases_handshake[] = {
   {"handshake.name_printable.second", "every byte 0x21..0x7E is allowed in a name (64 bytes)", 0, hello_printable, 1},
   {"handshake.longest_token", "a 256-byte token decodes: accepted, or UNAUTHORIZED where it is wrong", 0, hello_longest_token, 0},
   {"handshake.second_hello", "a repeated HELLO is a fatal PROTOCOL", 0, second_hello, 0},
+  {"handshake.second_hello_over_max", "a repeated HELLO claiming 4 GiB is a fatal PROTOCOL, not TOO_LARGE", 0, second_hello, 1},
   {"handshake.request_id_ignored", "HELLO_OK carries id 0 whatever the HELLO's id", 0, hello_id_ignored, 0},
   {"handshake.hello_ok_fields", "HELLO_OK's max_spp, flags and size promise agree with the server", 0, hello_ok_fields, 0},
   {"handshake.silent", "a server may close a peer silent before HELLO (fatal PROTOCOL, id 0); if not, HELLO works", 0, silent_before_hello, 0},
