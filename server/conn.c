@@ -1190,7 +1190,10 @@ static void shm_create(hfd_conn *c) {
     send_error(c, 0, HFP_E_INVALID, 0, "segment size must be at least 1 byte");
     return;
   }
-  if (c->num_segs >= HFD_MAX_SEGMENTS) {
+  /* The size before the count: a segment over the whole budget is
+   * TOO_LARGE (hfd_seg_create) also on a connection holding 16, since no
+   * release can make it fit, where BUSY would ask for a retry. */
+  if (c->num_segs >= HFD_MAX_SEGMENTS && bytes <= s->cfg->max_shm_bytes) {
     s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
     return;

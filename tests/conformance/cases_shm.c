@@ -113,9 +113,10 @@ static int control_length(cf_test *t, intptr_t arg) {
 }
 
 /* 16 segments a connection; the 17th is BUSY (it may succeed once one is
- * released). */
-static int seventeenth(cf_test *t, intptr_t arg) {
-  (void)arg;
+ * released). With over_budget, the 17th asks for 2^63 bytes, more than any
+ * budget: TOO_LARGE, since no release can make it fit, and 0 bytes is
+ * INVALID; the segment's size is judged before the connection's count. */
+static int seventeenth(cf_test *t, intptr_t over_budget) {
   int fd;
   CF_TRY(connect_v(t, &fd));
   uint32_t ids[16];
@@ -124,6 +125,12 @@ static int seventeenth(cf_test *t, intptr_t arg) {
     for (int j = 0; j < i; j++) CF_CHECK(t, ids[i] != ids[j], "two segments have id %u", ids[i]);
   }
   uint8_t b[24];
+  if (over_budget) {
+    CF_TRY(cf_send(t, fd, b, cf_shm_create_frame(b, (uint64_t)1 << 63)));
+    CF_TRY(cf_expect_error(t, fd, HFP_E_TOO_LARGE, 0, 0));
+    CF_TRY(cf_send(t, fd, b, cf_shm_create_frame(b, 0)));
+    CF_TRY(cf_expect_error(t, fd, HFP_E_INVALID, 0, 0));
+  }
   CF_TRY(cf_send(t, fd, b, cf_shm_create_frame(b, 4096)));
   CF_TRY(cf_expect_error(t, fd, HFP_E_BUSY, 0, 0));
   CF_TRY(cf_send(t, fd, b, cf_shm_destroy_frame(b, ids[3])));
@@ -345,6 +352,7 @@ const cf_case cf_cases_shm[] = {
   {"shm.create.length_9", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH, on any transport", 0, control_length, HFP_SHM_CREATE | 9 << 8},
   {"shm.create.length_0", "SHM_CREATE with a payload of the wrong length is a fatal LENGTH, on any transport", 0, control_length, HFP_SHM_CREATE | 0 << 8},
   {"shm.create.seventeenth", "the 17th segment of a connection is BUSY; after a release one more fits", UX, seventeenth, 0},
+  {"shm.create.seventeenth_over_budget", "a 17th segment over the whole budget is TOO_LARGE, not BUSY: no release makes it fit", UX, seventeenth, 1},
   {"shm.filter.f32", "a FILTER by reference: RESULT flag bit 1, 56 bytes, the socket path's values", UX, by_reference, 0},
   {"shm.filter.f16", "a FILTER by reference in f16", UX, by_reference, 3},
   {"shm.filter.composite", "a FILTER by reference with COMPOSITE writes rgba to its region", UX, by_reference, 4},
