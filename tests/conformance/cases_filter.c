@@ -208,6 +208,19 @@ enum {
 
 /* A FILTER that is well framed but wrong in one field: the non-fatal code
  * (one of codes) with the FILTER's id, and the connection goes on. */
+/* Makes the name of the FILTER frame b (vn bytes) one no variant of s has:
+ * same length, last byte changed until unknown. */
+static void unknown_name(const cf_server *s, uint8_t *b, size_t vn) {
+  for (int c = 0x21; c <= 0x7e; c++) {
+    b[CF_FILTER_NAME + vn - 1] = (uint8_t)c;
+    int known = 0;
+    for (int i = 0; i < s->nv; i++)
+      known |= strlen(s->variants[i].name) == vn &&
+               !memcmp(s->variants[i].name, b + CF_FILTER_NAME, vn);
+    if (!known) return;
+  }
+}
+
 static int bad_field(cf_test *t, intptr_t which) {
   const cf_server *s = t->srv;
   cf_filter f = {.id = 600 + (uint32_t)which};
@@ -267,19 +280,10 @@ static int bad_field(cf_test *t, intptr_t which) {
     case F_BG_NAN: memcpy(b + CF_FILTER_BG + 8, &nan, 4); break;
     case F_BG_INF: memcpy(b + CF_FILTER_BG + 4, &inf, 4); break;
     case F_BG_NINF: memcpy(b + CF_FILTER_BG, &ninf, 4); break;
-    case F_UNKNOWN: {
-      /* A name no variant has: same length, last byte changed until unknown. */
+    case F_UNKNOWN:
       codes = CF_CODE(HFP_E_UNKNOWN_VARIANT);
-      for (int c = 0x21; c <= 0x7e; c++) {
-        b[CF_FILTER_NAME + vn - 1] = (uint8_t)c;
-        int known = 0;
-        for (int i = 0; i < s->nv; i++)
-          known |= strlen(s->variants[i].name) == vn &&
-                   !memcmp(s->variants[i].name, b + CF_FILTER_NAME, vn);
-        if (!known) break;
-      }
+      unknown_name(s, b, vn);
       break;
-    }
     case F_CASE: {
       codes = CF_CODE(HFP_E_UNKNOWN_VARIANT);
       size_t i = 0;
@@ -440,6 +444,105 @@ static int estimate(cf_test *t, intptr_t which) {
   cf_filter ok = {.id = f.id + 1000};
   cf_filter_defaults(t, &ok);
   return cf_filter_ok(t, fd, &ok, version, NULL, NULL);
+}
+
+/* PROTOCOL.md, "Which error a FILTER gets": a FILTER with two faults gets
+ * one non-fatal ERROR, with its id, for the fault that comes first in the
+ * order, and the next frame is served. Each case pairs a fault with one
+ * the order puts after it; the tensor agrees with the fields unless the
+ * length is one of the two. */
+enum {
+  O_VLEN_FLAG,      /* variant_len 0 before an unknown flag: INVALID */
+  O_NAME_FLAG,      /* a space in the name before an unknown flag: INVALID */
+  O_FLAG_COLOUR,    /* an unknown flag before a NaN colour: UNSUPPORTED */
+  O_DTYPE_SPP,      /* an unknown dtype before spp 0: UNSUPPORTED */
+  O_COLOUR_LENGTH,  /* a NaN colour before a tensor a byte short: INVALID */
+  O_WIDTH_LENGTH,   /* width 0 before the tensor of the ordinary size: INVALID */
+  O_LENGTH_ID0,     /* a tensor a byte short before request id 0: LENGTH */
+  O_LENGTH_VARIANT, /* a tensor a byte short before an unknown variant: LENGTH */
+  O_FLAG_VARIANT,   /* an unknown flag before an unknown variant: UNSUPPORTED */
+  O_ID0_VARIANT,    /* request id 0 before an unknown variant: INVALID */
+  O_VARIANT_SPP,    /* an unknown variant before spp not the variant's: UNKNOWN_VARIANT */
+  O_VARIANT_SIZE,   /* an unknown variant before a width over max_width: UNKNOWN_VARIANT */
+  O_SPP_SIZE,       /* spp not the variant's before a width over max_width: INVALID */
+};
+
+static int fault_order(cf_test *t, intptr_t which) {
+  const cf_server *s = t->srv;
+  cf_filter f = {.id = 700 + (uint32_t)which};
+  cf_filter_defaults(t, &f);
+  if (which == O_VARIANT_SPP || which == O_SPP_SIZE) f.spp = f.spp < HFP_MAX_SPP ? f.spp + 1 : f.spp - 1;
+  if (which == O_VARIANT_SIZE || which == O_SPP_SIZE) {
+    if (s->hello.max_width >= HFP_MAX_SIDE) return cf_skip(t, "max_width is the protocol's 65535");
+    f.width = s->hello.max_width + 1;
+    f.height = 1;
+  }
+  size_t n;
+  uint8_t *b = cf_filter_frame(t, &f, &n);
+  CF_CHECK(t, b, "out of memory");
+  size_t vn = strlen(f.variant);
+  uint32_t length = (uint32_t)(n - HFP_HEADER_SIZE), id = f.id;
+  float nan = NAN;
+  int code = HFP_E_INVALID;
+  switch (which) {
+    case O_VLEN_FLAG:
+      hfp_put_u16(b + CF_FILTER_VLEN, 0);
+      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      break;
+    case O_NAME_FLAG:
+      b[CF_FILTER_NAME] = ' ';
+      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      break;
+    case O_FLAG_COLOUR:
+      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      memcpy(b + CF_FILTER_HAIR, &nan, 4);
+      code = HFP_E_UNSUPPORTED;
+      break;
+    case O_DTYPE_SPP:
+      b[CF_FILTER_IN_DTYPE] = 2;
+      hfp_put_u16(b + CF_FILTER_SPP, 0);
+      code = HFP_E_UNSUPPORTED;
+      break;
+    case O_COLOUR_LENGTH:
+      memcpy(b + CF_FILTER_LIGHT, &nan, 4);
+      length--, n--;
+      break;
+    case O_WIDTH_LENGTH: hfp_put_u32(b + CF_FILTER_WIDTH, 0); break;
+    case O_LENGTH_ID0:
+      length--, n--;
+      id = 0;
+      code = HFP_E_LENGTH;
+      break;
+    case O_LENGTH_VARIANT:
+      length--, n--;
+      unknown_name(s, b, vn);
+      code = HFP_E_LENGTH;
+      break;
+    case O_FLAG_VARIANT:
+      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      unknown_name(s, b, vn);
+      code = HFP_E_UNSUPPORTED;
+      break;
+    case O_ID0_VARIANT:
+      id = 0;
+      unknown_name(s, b, vn);
+      break;
+    case O_VARIANT_SPP:
+    case O_VARIANT_SIZE:
+      unknown_name(s, b, vn);
+      code = HFP_E_UNKNOWN_VARIANT;
+      break;
+    case O_SPP_SIZE: break;
+  }
+  hfp_put_u32(b + 8, id);
+  cf_set_length(b, length);
+  int fd;
+  CF_TRY(connect_v(t, &fd));
+  CF_TRY(cf_send(t, fd, b, n));
+  CF_TRY(cf_expect_error(t, fd, code, 0, id));
+  cf_filter ok = {.id = f.id + 1000};
+  cf_filter_defaults(t, &ok);
+  return cf_filter_ok(t, fd, &ok, s->version, NULL, NULL);
 }
 
 /* A refusal may come before the tensor; the rest is read and dropped, and
@@ -758,6 +861,19 @@ const cf_case cf_cases_filter[] = {
   {"filter.estimate.input_non_finite", "NaN and infinities in samples and estimate: results finite and in range", 0, estimate, EST_NAN},
   {"filter.estimate.input_huge", "huge values in samples and estimate: results finite and in range", 0, estimate, EST_HUGE},
   {"filter.estimate.input_negative", "negative values in samples and estimate: results finite and in range", 0, estimate, EST_NEGATIVE},
+  {"filter.order.variant_len_before_flag", "variant_len 0 and an unknown flag: INVALID, the name's fault first", 0, fault_order, O_VLEN_FLAG},
+  {"filter.order.name_byte_before_flag", "a space in the name and an unknown flag: INVALID, the name's fault first", 0, fault_order, O_NAME_FLAG},
+  {"filter.order.flag_before_colour", "an unknown flag and a NaN colour: UNSUPPORTED, the flag first", 0, fault_order, O_FLAG_COLOUR},
+  {"filter.order.dtype_before_spp", "an unknown dtype and spp 0: UNSUPPORTED, the dtype first", 0, fault_order, O_DTYPE_SPP},
+  {"filter.order.colour_before_length", "a NaN colour and a tensor a byte short: INVALID, the colour first", 0, fault_order, O_COLOUR_LENGTH},
+  {"filter.order.width_before_length", "width 0 and a tensor of another size: INVALID, the width first", 0, fault_order, O_WIDTH_LENGTH},
+  {"filter.order.length_before_id", "a tensor a byte short and request id 0: LENGTH, the frame's own fields first", 0, fault_order, O_LENGTH_ID0},
+  {"filter.order.length_before_variant", "a tensor a byte short and an unknown variant: LENGTH, the frame's own fields first", 0, fault_order, O_LENGTH_VARIANT},
+  {"filter.order.flag_before_variant", "an unknown flag and an unknown variant: UNSUPPORTED, the frame's own fields first", 0, fault_order, O_FLAG_VARIANT},
+  {"filter.order.id_before_variant", "request id 0 and an unknown variant: INVALID, the id first", 0, fault_order, O_ID0_VARIANT},
+  {"filter.order.variant_before_spp", "an unknown variant and spp not the variant's: UNKNOWN_VARIANT, the variant first", 0, fault_order, O_VARIANT_SPP},
+  {"filter.order.variant_before_size", "an unknown variant and a width over max_width: UNKNOWN_VARIANT, the variant first", 0, fault_order, O_VARIANT_SIZE},
+  {"filter.order.spp_before_size", "spp not the variant's and a width over max_width: INVALID, the spp first", 0, fault_order, O_SPP_SIZE},
   {"filter.early_refusal", "a refusal may come before the tensor; the rest is dropped, the next frame served", 0, early_refusal, 0},
   {"filter.refused_then_valid", "a refused FILTER and a valid one in one write: ERROR then RESULT", 0, refused_then_valid, 0},
   {"filter.duplicate_id", "a reused id is not checked: each FILTER gets exactly one reply", 0, duplicate_id, 0},
