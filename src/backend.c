@@ -74,7 +74,22 @@ int hf_backend_create(const char *name, hf_backend **out, char *why, size_t whyl
       order[j] = order[j - 1];
       order[j - 1] = t;
     }
+  /* Backends this build left out are named first, with how to build them:
+   * a CPU-only package installed on a GPU node would otherwise say only
+   * "backend cpu (best available)", and the operator would not learn why
+   * the GPU sits idle. */
   char skipped[512] = "";
+#ifndef HF_HAVE_CUDNN
+  snprintf(skipped, sizeof skipped, "cudnn not in this build: it is built when CMake finds "
+           "CUDA and cuDNN 9, HF_WITH_CUDNN=ON, docs/GPU.md");
+#endif
+#ifndef HF_HAVE_ONEDNN
+  {
+    size_t used = strlen(skipped);
+    snprintf(skipped + used, sizeof skipped - used, "%scpu not in this build: it is built when "
+             "CMake finds oneDNN (Debian's libdnnl-dev)", used ? "; " : "");
+  }
+#endif
   for (int i = 0; i < NREG; i++) {
     char reason[256] = "";
     int rc = open_backend(order[i], out, reason, sizeof reason);

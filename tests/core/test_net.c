@@ -444,6 +444,16 @@ static void test_backend_selection(void **state) {
 #endif
   assert_int_equal(hf_backend_create("auto", &b, why, sizeof why), HF_OK);
   assert_true(strstr(why, hf_backend_name(b)) != NULL); /* says which it chose */
+  /* and, when it is not the GPU's, why not: the device is missing, or this
+   * build has no cudnn backend (said as such, not "best available"). */
+  if (strcmp(hf_backend_name(b), "cudnn") != 0) {
+    assert_true(strstr(why, "cudnn") != NULL);
+    assert_null(strstr(why, "best available"));
+  }
+#ifndef HF_HAVE_CUDNN
+  assert_true(strstr(why, "cudnn not in this build") != NULL);
+  assert_true(strstr(why, "HF_WITH_CUDNN=ON") != NULL);
+#endif
   hf_backend_destroy(b);
 }
 
