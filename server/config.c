@@ -670,7 +670,17 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         if (weights_entry(cfg, val)) goto fail;
         break;
       case OPT_WEIGHTS_DIR: cfg->weights_dir = val; break;
-      case OPT_BACKEND: cfg->backend = val; break;
+      case OPT_BACKEND:
+        /* A name that is no backend at all is a bad option (status 2, at
+         * once); one this build lacks (cudnn without CUDA) is found when
+         * the backend starts, which says how to build it. */
+        if (strcmp(val, "auto") && strcmp(val, "cudnn") && strcmp(val, "cpu") &&
+            strcmp(val, "cpu-ref")) {
+          hfd_err("--backend wants auto, cudnn, cpu or cpu-ref, not '%s'", val);
+          goto fail;
+        }
+        cfg->backend = val;
+        break;
       case OPT_MAX_BATCH:
         if (parse_int(name, val, 1, 256, &v)) goto fail;
         cfg->max_batch = (int)v;

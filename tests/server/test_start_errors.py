@@ -13,7 +13,8 @@ no weights are made before any is loaded.
     the backend starts or a weights file is read;
   * nothing to listen on: the message names the tls: form too;
   * a TLS key the daemon's user cannot read: exit 1 before the weights
-    load, naming the file, the uid and the fix (install -o ... -m 0600).
+    load, naming the file, the uid and the fix (install -o ... -m 0600);
+  * a --backend that names no backend: exit 2 before anything starts.
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
@@ -169,6 +170,14 @@ def body(w):
           "install -o" in lines[0] and "error:8000000D" not in lines[0],
           "unreadable key: the uid and the fix named: %r" % lines)
     check("cpu-ref" not in out, "unreadable key: refused before the backend starts: %r" % out)
+
+    # A backend name that is none of the four is a bad option, refused
+    # before anything starts (it was found by the backend: status 1).
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights-dir", wd,
+                   "--backend", "gpu"], w)
+    check(rc == 2 and "<3>error: --backend wants auto, cudnn, cpu or cpu-ref, not 'gpu'" in out
+          and "starting" not in out,
+          "--backend gpu: exit status %s (want 2), refused before starting: %r" % (rc, out))
 
 
 if __name__ == "__main__":
