@@ -89,6 +89,21 @@ static void explain_socket_dir(const char *url, const char *path, int rc) {
           (long)geteuid(), (long)getegid(), dir);
 }
 
+void hfd_bind_error(const char *option, const char *url, const char *host, int port, int err) {
+  if (err == EADDRINUSE)
+    hfd_err("%s %s: port %d is in use on %s: another process listens there (another "
+            "hairfilterd? `ss -ltnp 'sport = :%d'` names it); stop it or give another port",
+            option, url, port, host, port);
+  else if (err == EADDRNOTAVAIL)
+    hfd_err("%s %s: %s is not an address of this host (`ip -brief address` lists them); "
+            "give one of them, 0.0.0.0 for all, or 127.0.0.1", option, url, host);
+  else if (err == EACCES && port > 0 && port < 1024)
+    hfd_err("%s %s: port %d is privileged (below 1024) and hairfilterd runs without "
+            "CAP_NET_BIND_SERVICE; give a port of 1024 or more", option, url, port);
+  else
+    hfd_err("%s %s: %s", option, url, strerror(err));
+}
+
 static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
   hfd_listener *l = &s->listeners[s->num_listeners];
   memset(l, 0, sizeof *l);
@@ -137,14 +152,19 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
       return -1;
     }
     if ((rc = uv_tcp_bind(&l->h.tcp, (struct sockaddr *)&ss, 0)) < 0) {
-      hfd_err("--listen %s: %s", url, uv_strerror(rc));
+      hfd_bind_error("--listen", url, host, u->port, -rc);
       uv_close(&l->h.handle, NULL);
       return -1;
     }
   }
   l->h.handle.data = l;
   if ((rc = uv_listen(&l->h.stream, 511, hfd_on_connection)) < 0) {
-    hfd_err("--listen %s: %s", url, uv_strerror(rc));
+    /* libuv reports a TCP bind's EADDRINUSE here, not at uv_tcp_bind. */
+    if (l->is_tcp)
+      hfd_bind_error("--listen", url, strcmp(u->host, "localhost") ? u->host : "127.0.0.1",
+                     u->port, -rc);
+    else
+      hfd_err("--listen %s: %s", url, uv_strerror(rc));
     uv_close(&l->h.handle, NULL);
     if (l->unix_path[0]) unlink(l->unix_path);
     return -1;

@@ -33,12 +33,14 @@
 #define _GNU_SOURCE
 #include <microhttpd.h>
 #include <errno.h>
+#include <netinet/in.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "server.h"
 
@@ -282,13 +284,40 @@ int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
     }
     v6 = 1;
   }
+  /* The socket is bound here rather than by libmicrohttpd, which says only
+   * "Failed to bind to port 0" (the port it was given beside the address)
+   * and not why in a way the operator can act on. */
+  int fd = socket(v6 ? AF_INET6 : AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+  if (fd < 0) {
+    hfd_err("--http %s: socket: %s", s->cfg->http, strerror(errno));
+    return -1;
+  }
+  int one = 1;
+  setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+  if (v6) setsockopt(fd, IPPROTO_IPV6, IPV6_V6ONLY, &one, sizeof one);
+  socklen_t slen = v6 ? sizeof(struct sockaddr_in6) : sizeof(struct sockaddr_in);
+  if (bind(fd, (struct sockaddr *)&ss, slen) != 0 || listen(fd, HTTP_MHD_LIMIT) != 0) {
+    hfd_bind_error("--http", s->cfg->http, host, u->port, errno);
+    close(fd);
+    return -1;
+  }
+  struct sockaddr_storage bound;
+  socklen_t blen = sizeof bound;
+  unsigned port = u->port;
+  if (getsockname(fd, (struct sockaddr *)&bound, &blen) == 0)
+    port = ntohs(v6 ? ((struct sockaddr_in6 *)&bound)->sin6_port
+                    : ((struct sockaddr_in *)&bound)->sin_port);
   hfd_http *h = calloc(1, sizeof *h);
-  if (!h) return -1;
+  if (!h) {
+    close(fd);
+    return -1;
+  }
   h->s = s;
   pthread_condattr_t ca;
   if (pthread_mutex_init(&h->mu, NULL) || pthread_condattr_init(&ca) ||
       pthread_condattr_setclock(&ca, CLOCK_MONOTONIC) || pthread_cond_init(&h->cv, &ca)) {
     free(h);
+    close(fd);
     return -1;
   }
   pthread_condattr_destroy(&ca);
@@ -296,6 +325,7 @@ int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
   if (rc < 0) {
     hfd_err("--http: uv_async_init: %s", uv_strerror(rc));
     free(h);
+    close(fd);
     return -1;
   }
   h->async.data = h;
@@ -305,18 +335,18 @@ int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
                    (v6 ? MHD_USE_IPv6 : 0);
   h->d = MHD_start_daemon(flags, 0, NULL, NULL, on_request, h,
                           MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, h,
-                          MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&ss,
+                          MHD_OPTION_LISTEN_SOCKET, (MHD_socket)fd,
                           MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_MHD_LIMIT,
                           MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_IDLE_TIMEOUT_S,
                           MHD_OPTION_NOTIFY_CONNECTION, on_connection, h,
                           MHD_OPTION_END);
   if (!h->d) {
-    hfd_err("--http %s: cannot listen there (address in use, or not this host's?)",
-            s->cfg->http);
+    /* Its reason went to the log as an http warning (on_mhd_log); the
+     * socket is left to the exit that follows, as libmicrohttpd may have
+     * closed it. */
+    hfd_err("--http %s: libmicrohttpd could not start on the bound socket", s->cfg->http);
     return -1;
   }
-  const union MHD_DaemonInfo *info = MHD_get_daemon_info(h->d, MHD_DAEMON_INFO_BIND_PORT);
-  unsigned port = info ? info->port : u->port;
   snprintf(url, urlcap, v6 ? "http://[%s]:%u" : "http://%s:%u", host, port);
   hfd_log("http on %s: /metrics /healthz /readyz", url);
   return 0;

@@ -140,6 +140,11 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg);
  * token where one is required. */
 int hfd_listener_auth(const hfd_config *cfg, const hfp_url *u, const char *url, int *loopback,
                       int *auth_required);
+/* Logs why a TCP address (a --listen or --http URL, named by option and
+ * url) could not be bound or listened on, err an errno value: a port in
+ * use, an address not this host's or a privileged port said as such with
+ * what to do, anything else as strerror says it. */
+void hfd_bind_error(const char *option, const char *url, const char *host, int port, int err);
 /* Frees what the config owns (the strings read from its file). */
 void hfd_config_free(hfd_config *cfg);
 

@@ -14,12 +14,16 @@ no weights are made before any is loaded.
   * nothing to listen on: the message names the tls: form too;
   * a TLS key the daemon's user cannot read: exit 1 before the weights
     load, naming the file, the uid and the fix (install -o ... -m 0600);
-  * a --backend that names no backend: exit 2 before anything starts.
+  * a --backend that names no backend: exit 2 before anything starts;
+  * a port in use, for --listen and for --http: exit 1, the port said to
+    be in use and how to find who holds it (--http said "Failed to bind to
+    port 0" and guessed).
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
 import os
 import shutil
+import socket
 import subprocess
 import sys
 
@@ -178,6 +182,28 @@ def body(w):
     check(rc == 2 and "<3>error: --backend wants auto, cudnn, cpu or cpu-ref, not 'gpu'" in out
           and "starting" not in out,
           "--backend gpu: exit status %s (want 2), refused before starting: %r" % (rc, out))
+
+    # A port in use: the listener and the HTTP endpoint say so, and how to
+    # find who holds it.
+    holder = socket.socket()
+    holder.bind(("127.0.0.1", 0))
+    holder.listen()
+    port = holder.getsockname()[1]
+    try:
+        rc, out = run(["--config", "none", "--listen", "tcp:127.0.0.1:%d" % port, "--no-auth",
+                       "--weights-dir", wd, "--backend", "cpu-ref"], w)
+        check(rc == 1 and "<3>error: --listen tcp:127.0.0.1:%d: port %d is in use" % (port, port)
+              in out and "ss -ltnp" in out,
+              "--listen on a port in use: status %s (want 1), said so: %r" % (rc, out))
+        rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--http",
+                       "tcp:127.0.0.1:%d" % port, "--weights-dir", wd, "--backend", "cpu-ref"], w)
+        check(rc == 1 and "<3>error: --http tcp:127.0.0.1:%d: port %d is in use" % (port, port)
+              in out and "port 0" not in out,
+              "--http on a port in use: status %s (want 1), said so: %r" % (rc, out))
+        check(not os.path.exists(os.path.join(w, "s.sock")),
+              "--http on a port in use: the Unix socket opened before it is removed")
+    finally:
+        holder.close()
 
 
 if __name__ == "__main__":
