@@ -492,6 +492,21 @@ int main(int argc, char **argv) {
              HFP_VERSION, cfg.config_path ? ", config " : "",
              cfg.config_path ? cfg.config_path : "");
   if (sd_watchdog_enabled(0, &s->watchdog_usec) <= 0) s->watchdog_usec = 0;
+  /* A ready file left by a daemon that could not remove it (SIGKILL, the
+   * OOM killer, a crash) would say "serving" with its old URLs while this
+   * one loads its models, or after this one failed to start: whoever
+   * waits for the file would connect to nothing. It goes before anything
+   * else, and comes back once this daemon serves. */
+  if (cfg.ready_file) {
+    if (unlink(cfg.ready_file) == 0)
+      hfd_warn("--ready-file %s: removed the one there, left by a daemon that did not stop "
+               "cleanly (or another daemon's: give each its own); written again once this one "
+               "serves", cfg.ready_file);
+    else if (errno != ENOENT)
+      hfd_warn("--ready-file %s: cannot remove the one there: %s", cfg.ready_file,
+               strerror(errno));
+  }
+
 
   hfd_worker *w = &s->worker;
   w->backend_name = cfg.backend;

@@ -17,7 +17,10 @@ no weights are made before any is loaded.
   * a --backend that names no backend: exit 2 before anything starts;
   * a port in use, for --listen and for --http: exit 1, the port said to
     be in use and how to find who holds it (--http said "Failed to bind to
-    port 0" and guessed).
+    port 0" and guessed);
+  * a ready file left by a daemon killed before it could remove it: gone
+    as the next one starts, so it never says "serving" for a daemon that
+    is still loading, or that failed to start.
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
@@ -204,6 +207,19 @@ def body(w):
               "--http on a port in use: the Unix socket opened before it is removed")
     finally:
         holder.close()
+
+    # A ready file a killed daemon left is removed as the next starts, here
+    # one that then fails (its weights file is missing): nothing says ready.
+    ready = os.path.join(w, "ready")
+    with open(ready, "w") as f:
+        f.write("unix:%s/old.sock\n" % w)
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights",
+                   os.path.join(w, "none.safetensors"), "--ready-file", ready], w)
+    check(rc == 1 and not os.path.exists(ready),
+          "a stale ready file: status %s (want 1), file still there: %s: %r"
+          % (rc, os.path.exists(ready), out))
+    check("<4>warning: --ready-file %s: removed the one there" % ready in out,
+          "a stale ready file: its removal is said: %r" % out)
 
 
 if __name__ == "__main__":
