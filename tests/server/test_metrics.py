@@ -9,7 +9,9 @@ parser the server uses; `promtool check metrics` also lints names, types
 and help) and the Python client's text parser (Debian's
 python3-prometheus-client). Counters must never go down between scrapes,
 and once the load is done they must equal what the clients were answered,
-status by status. /readyz must say 503 while the daemon drains.
+status by status. /readyz must say 503 while the daemon drains. The
+metrics served are the ones docs/SERVER.md's table lists, of the types it
+gives, no more and no fewer (an operator writes alerts from that table).
 
 usage: test_metrics.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR
 """
@@ -74,6 +76,38 @@ def promtool(text):
     return p.returncode, p.stdout + p.stderr
 
 
+SERVER_MD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "docs",
+                         "SERVER.md")
+
+
+def documented_metrics():
+    """{name: type or None} from docs/SERVER.md's metrics table ("The
+    metrics (all `hairfilterd_` but the `process_` ones)"): a row's first
+    cell names one or more metrics, its second their type, one for all or
+    one each."""
+    text = open(SERVER_MD).read()
+    start = text.index("The metrics (all `hairfilterd_`")
+    rows = []
+    for line in text[start:].splitlines()[1:]:
+        if rows and not line.startswith("|"):
+            break
+        if line.startswith("| `"):
+            rows.append([c.strip() for c in line.strip("|").split("|")])
+    doc = {}
+    for cells in rows:
+        names = [n.strip(" `") for n in cells[0].split(",")]
+        types = [t.strip() for t in cells[1].split(",")] if cells[1] else []
+        for i, n in enumerate(names):
+            full = n if n.startswith("process_") else "hairfilterd_" + n
+            doc[full] = (types[i] if len(types) == len(names) else types[0]) if types else None
+    return doc
+
+
+def served_metrics(text):
+    """{name: type} from the # TYPE lines of a /metrics text."""
+    return {l.split()[2]: l.split()[3] for l in text.splitlines() if l.startswith("# TYPE ")}
+
+
 def main():
     w = workdir()
     # The config file's keys lose to the command line's: its listener (in a
@@ -113,6 +147,13 @@ def run(d):
     check(sample(samples, "hairfilterd_queue_capacity") == 2, "queue capacity 2")
     rc, out = promtool(text)
     check(rc == 0, "promtool check metrics at rest: " + out)
+    doc, served = documented_metrics(), served_metrics(text)
+    check(sorted(set(served) - set(doc)) == [],
+          "served but not in docs/SERVER.md's metrics table: %s" % sorted(set(served) - set(doc)))
+    check(sorted(set(doc) - set(served)) == [],
+          "in docs/SERVER.md's metrics table but not served: %s" % sorted(set(doc) - set(served)))
+    wrong = {n: (doc[n], t) for n, t in served.items() if doc.get(n) and doc[n] != t}
+    check(not wrong, "types in docs/SERVER.md's table (documented, served): %s" % wrong)
 
     # The load: every kind of answer, concurrently. The served load runs
     # until the scraper has scraped it a number of times.
