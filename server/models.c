@@ -300,7 +300,10 @@ static int apply(hfd_server *s, const want *ws, int nw, hfd_ctl **loads, hfd_mod
       const char *why = strncmp(c->msg, ws[i].path, pl) || strncmp(c->msg + pl, ": ", 2)
                             ? c->msg : c->msg + pl + 2;
       if (strict) {
-        hfd_err("%s: %s", ws[i].path, why);
+        /* At start every configured file must load (docs/SERVER.md,
+         * "Reload"): say so, and where the file came from to fix it. */
+        hfd_err("weights file %s: %s; every configured weights file must load at start: fix "
+                "it, or take it out of --weights or --weights-dir", ws[i].path, why);
       } else if (old) {
         hfd_err("reload: %s: %s; variant %s keeps serving the version loaded before%s",
                 ws[i].path, why, old->name, kv);

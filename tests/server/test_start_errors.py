@@ -20,7 +20,9 @@ no weights are made before any is loaded.
     port 0" and guessed);
   * a ready file left by a daemon killed before it could remove it: gone
     as the next one starts, so it never says "serving" for a daemon that
-    is still loading, or that failed to start.
+    is still loading, or that failed to start;
+  * a weights file that does not load: named as a weights file, with
+    what to do (it was the path and the reason alone).
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
@@ -220,6 +222,11 @@ def body(w):
           % (rc, os.path.exists(ready), out))
     check("<4>warning: --ready-file %s: removed the one there" % ready in out,
           "a stale ready file: its removal is said: %r" % out)
+    # (and the missing weights file is said with what to do about it)
+    check("<3>error: weights file %s: No such file or directory; every configured weights "
+          "file must load at start: fix it, or take it out of --weights or --weights-dir"
+          % os.path.join(w, "none.safetensors") in out,
+          "a missing weights file: named, with what to do: %r" % out)
 
 
 if __name__ == "__main__":
