@@ -79,14 +79,24 @@ static void explain_socket_dir(const char *url, const char *path, int rc) {
             (long)geteuid());
     return;
   }
+  if (rc == UV_EROFS) {
+    /* No owner or mode makes a read-only mount writable: a container run
+     * with a read-only root file system needs a writable mount there. */
+    hfd_err("--listen %s: %s is on a read-only file system, so hairfilterd (uid %ld gid %ld) "
+            "cannot create its socket there; mount a writable directory there for it: docker run "
+            "--tmpfs %s:uid=%ld,gid=%ld,mode=0750, a Kubernetes emptyDir, or systemd's "
+            "RuntimeDirectory= (docs/SERVER.md, \"Socket directory\"). No listener is opened: "
+            "the daemon stops rather than serve on some of its addresses", url, dir,
+            (long)geteuid(), (long)getegid(), dir, (long)geteuid(), (long)getegid());
+    return;
+  }
   hfd_err("--listen %s: %s: hairfilterd runs as uid %ld gid %ld and cannot create a socket in "
-          "%s (owner uid %ld gid %ld, mode %04o%s); make the directory writable for it, e.g. "
+          "%s (owner uid %ld gid %ld, mode %04o); make the directory writable for it, e.g. "
           "install -d -o %ld -g %ld -m 0750 %s, systemd's RuntimeDirectory=, or a Kubernetes "
           "emptyDir (docs/SERVER.md, \"Socket directory\"). No listener is opened: the daemon "
           "stops rather than serve on some of its addresses", url, uv_strerror(rc),
           (long)geteuid(), (long)getegid(), dir, (long)st.st_uid, (long)st.st_gid,
-          (unsigned)(st.st_mode & 07777), rc == UV_EROFS ? ", read-only file system" : "",
-          (long)geteuid(), (long)getegid(), dir);
+          (unsigned)(st.st_mode & 07777), (long)geteuid(), (long)getegid(), dir);
 }
 
 void hfd_bind_error(const char *option, const char *url, const char *host, int port, int err) {

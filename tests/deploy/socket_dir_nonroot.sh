@@ -6,7 +6,7 @@
 # listener. It must stop at once (status 1), before it is ready, with an
 # error that names the directory, its owner and the fix; then, with the
 # directory set up as documented (owned by the daemon's user), it must serve
-# on both listeners.
+# on both listeners; and a read-only directory is said to be one.
 # usage: socket_dir_nonroot.sh HAIRFILTERD LOAD_CLIENT WEIGHTS_FILE
 set -euo pipefail
 daemon=$1 load=$2 weights=$3
@@ -54,4 +54,27 @@ status=0
 wait "$pid" || status=$?
 pid=
 [ "$status" -eq 0 ] || { cat "$tmp/log2"; echo "FAIL: exit status $status after SIGTERM"; exit 1; }
+# 3. A read-only directory (a container run with a read-only root file
+# system, where /run/hairfilterd is the image's): status 1, the read-only
+# file system named and a writable mount as the fix, not an owner or mode
+# (install -d cannot help there). Needs a mount namespace to make one.
+install -d -o "$uid" -g "$gid" -m 0750 "$tmp/ro"
+if unshare -m true 2>/dev/null; then
+  set +e
+  unshare -m sh -c "mount --bind -o ro '$tmp/ro' '$tmp/ro' && \
+    setpriv --reuid=$uid --regid=$gid --clear-groups -- '$daemon' --config none \
+      --listen 'unix:$tmp/ro/hf.sock' --weights '$tmp/small.safetensors' --backend cpu-ref" \
+    > "$tmp/log3" 2>&1
+  status=$?
+  set -e
+  cat "$tmp/log3"
+  [ "$status" -eq 1 ] || { echo "FAIL: read-only directory: status $status, want 1"; exit 1; }
+  grep -q "$tmp/ro is on a read-only file system" "$tmp/log3"
+  grep -q -- "--tmpfs $tmp/ro:uid=$uid,gid=$gid,mode=0750" "$tmp/log3"
+  if grep -q "install -d" "$tmp/log3"; then
+    echo "FAIL: read-only directory: the fix offered is an owner and mode"; exit 1
+  fi
+else
+  echo "(the read-only directory is not checked: no mount namespace here)"
+fi
 echo "1 passed, 0 failed"
