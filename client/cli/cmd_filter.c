@@ -55,7 +55,9 @@ static void print_timing(const hfc_timing *t) {
 
 static int list_variants(hfc_client *c) {
   const hfc_server_info *i = hfc_info(c);
-  printf("%s%s%s, protocol v%d: max %dx%d, %d spp, %d in flight per connection, batch %d, "
+  /* max_spp is the most any variant takes; each variant's own is on its
+   * line below. */
+  printf("%s%s%s, protocol v%d: max %dx%d, up to %d spp, %d in flight per connection, batch %d, "
          "queue %d, frames up to %llu MiB%s\n",
          i->name, i->software_version[0] ? " " : "", i->software_version, i->version,
          i->max_width, i->max_height, i->max_spp, i->max_inflight,

@@ -85,6 +85,16 @@ def several_without_kernel(d, w):
           "the error names the choice and lists the variants: %r" % text)
 
 
+def list_header(d, w):
+    """--list's first line gives the server's limits: spp as the most any
+    variant takes (it read "4 spp" beside a variant of 1 spp)."""
+    p = subprocess.run([HAIRFILTER, "filter", "--server", d.urls["unix"], "--list"],
+                       capture_output=True, text=True, timeout=60)
+    head = p.stdout.splitlines()[0] if p.stdout else ""
+    check(p.returncode == 0 and ", up to 4 spp," in head and "Base@1spp" in p.stdout,
+          "--list's header says up to 4 spp: rc %d: %r" % (p.returncode, p.stdout + p.stderr))
+
+
 def only_one(d, w):
     rc, text = filt(d, w, "one.exr")
     check(rc == 0, "filter without --variant on Small alone: rc %d: %s" % (rc, text))
@@ -95,4 +105,5 @@ with_daemon(["kernel.safetensors", "kernel_ac.safetensors"], with_estimate_varia
 with_daemon(["small.safetensors", "kernel.safetensors"], estimate_frame_without_kernel_ac)
 with_daemon(["small.safetensors", "shallow.safetensors"], several_without_kernel)
 with_daemon(["small.safetensors"], only_one)
+with_daemon(["small.safetensors", "base_1spp.safetensors"], list_header)
 finish()
