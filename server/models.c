@@ -32,10 +32,13 @@
 #define _GNU_SOURCE
 #include <dirent.h>
 #include <errno.h>
+#include <fcntl.h>
+#include <pwd.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "server.h"
 
@@ -50,6 +53,33 @@ typedef struct want {
 static hfd_file_id file_id(const struct stat *st) {
   return (hfd_file_id){(uint64_t)st->st_dev, (uint64_t)st->st_ino, (uint64_t)st->st_size,
                        (int64_t)st->st_mtim.tv_sec * 1000000000 + st->st_mtim.tv_nsec};
+}
+
+/* A weights file the daemon's user may not read: "Permission denied" alone
+ * does not say that the daemon runs as its own user (hairfilter under
+ * systemd, 10001 in the image) while the file was copied in by root with a
+ * private mode. Fills why with who the daemon is, the file's owner and
+ * mode, and the fix; 0 when the file is readable or that is not the
+ * reason (the loader's own message then stands). */
+static int explain_unreadable(const char *path, char *why, size_t whylen) {
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  if (fd >= 0) close(fd);
+  if (fd >= 0 || errno != EACCES) return 0;
+  struct stat st;
+  if (stat(path, &st) != 0) return 0;  /* a directory on the way: the loader says so */
+  char user[64];
+  struct passwd *pw = getpwuid(geteuid());
+  if (pw && pw->pw_name[0])
+    snprintf(user, sizeof user, "%s", pw->pw_name);
+  else
+    snprintf(user, sizeof user, "%ld", (long)geteuid());
+  snprintf(why, whylen,
+           "permission denied: hairfilterd runs as uid %ld (%s) gid %ld and cannot read it "
+           "(owner uid %ld gid %ld, mode %04o); weights are not secret: chmod 0644 %s (or "
+           "install -m 0644 when copying it in)",
+           (long)geteuid(), user, (long)getegid(), (long)st.st_uid, (long)st.st_gid,
+           (unsigned)(st.st_mode & 07777), path);
+  return 1;
 }
 
 static int has_suffix(const char *s, const char *suf) {
@@ -299,6 +329,8 @@ static int apply(hfd_server *s, const want *ws, int nw, hfd_ctl **loads, hfd_mod
       size_t pl = strlen(ws[i].path);
       const char *why = strncmp(c->msg, ws[i].path, pl) || strncmp(c->msg + pl, ": ", 2)
                             ? c->msg : c->msg + pl + 2;
+      char denied[600];
+      if (explain_unreadable(ws[i].path, denied, sizeof denied)) why = denied;
       if (strict) {
         /* At start every configured file must load (docs/SERVER.md,
          * "Reload"): say so, and where the file came from to fix it. */

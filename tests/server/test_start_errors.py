@@ -22,7 +22,8 @@ no weights are made before any is loaded.
     as the next one starts, so it never says "serving" for a daemon that
     is still loading, or that failed to start;
   * a weights file that does not load: named as a weights file, with
-    what to do (it was the path and the reason alone).
+    what to do (it was the path and the reason alone); one the daemon's
+    user cannot read: that user, the file's owner and mode, and chmod.
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
@@ -227,6 +228,23 @@ def body(w):
           "file must load at start: fix it, or take it out of --weights or --weights-dir"
           % os.path.join(w, "none.safetensors") in out,
           "a missing weights file: named, with what to do: %r" % out)
+
+    # A weights file the daemon's user cannot read (copied in by root with
+    # a private mode): who the daemon runs as, the file's owner and mode,
+    # and the fix, not "Permission denied" alone.
+    private = os.path.join(w, "private")
+    os.mkdir(private)
+    os.chmod(private, 0o755)
+    shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), private)
+    pw = os.path.join(private, "small.safetensors")
+    os.chmod(pw, 0o600 if os.geteuid() == 0 else 0)
+    user = 65534 if os.geteuid() == 0 else None
+    uid = user if user is not None else os.geteuid()
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights-dir", private,
+                   "--backend", "cpu-ref"], w, user=user)
+    check(rc == 1 and "<3>error: weights file %s: permission denied: hairfilterd runs as uid %d"
+          % (pw, uid) in out and "chmod 0644 %s" % pw in out,
+          "an unreadable weights file: status %s (want 1), the uid and the fix: %r" % (rc, out))
 
 
 if __name__ == "__main__":
