@@ -173,7 +173,8 @@ static void *run(void *arg) {
     size_t bytes = nin * es + px * 3 * es * (size_t)k;
     rc = hfc_shm_alloc(c, bytes, (void **)&shm);
     if (rc) {
-      fprintf(stderr, "hairfilter-load: shared memory: %s\n", hfc_strerror(rc));
+      const char *m = hfc_last_message(c);
+      fprintf(stderr, "hairfilter-load: --shm: %s\n", m[0] ? m : hfc_strerror(rc));
       w->fatal = 1;
       hfc_close(c);
       return NULL;
@@ -502,6 +503,14 @@ int main(int argc, char **argv) {
   if (o.width > info.max_width || o.height > info.max_height) {
     fprintf(stderr, "hairfilter-load: %dx%d is over the server's limit of %dx%d\n", o.width,
             o.height, info.max_width, info.max_height);
+    return 2;
+  }
+  /* A server that offers no shared memory here (a TCP connection, or
+   * hairfilterd --max-shm-mb 0) is said before the run, as the limits
+   * above are, rather than after an empty window. */
+  if (o.shm && !info.shm) {
+    fprintf(stderr, "hairfilter-load: --shm: %s offers no shared memory (only Unix sockets do, "
+            "unless the server runs with --max-shm-mb 0); leave out --shm\n", o.server);
     return 2;
   }
   if (o.inflight > max_inflight) {
