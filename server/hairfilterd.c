@@ -623,6 +623,9 @@ int main(int argc, char **argv) {
   uint64_t plans = atomic_load(&w->cached_bytes);
   uint64_t room = plans < w->cache_cap ? w->cache_cap - plans : 0;
   for (int i = 0; i < cfg.num_warm; i++) {
+    /* A shape over the lowered size was warned about (limits.c): none of
+     * its frames come through the socket. */
+    if (cfg.warm[i].width > s->max_width || cfg.warm[i].height > s->max_height) continue;
     size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * channels * sizeof(float);
     if (hfd_rpool_prefault(&s->rpool, bytes, room))
       hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",

@@ -119,8 +119,18 @@ int hfd_limits_derive(hfd_server *s) {
   scaled(w0, h0, lo, m, &w, &h);
   s->max_width = (int)w;
   s->max_height = (int)h;
-  if (w_before != (int)w || h_before != (int)h)
+  if (w_before != (int)w || h_before != (int)h) {
     hfd_log("max size lowered from %ux%u to %ux%u: %s", w0, h0, w, h, why);
+    /* --warm is checked against --max-size as given; a shape above the
+     * lowered size had its plans built (seconds each on a GPU, and device
+     * memory) for frames that will all get TOO_LARGE. */
+    for (int k = 0; k < s->cfg->num_warm; k++)
+      if ((uint32_t)s->cfg->warm[k].width > w || (uint32_t)s->cfg->warm[k].height > h)
+        hfd_warn("--warm %dx%d is over the largest frame served, %ux%u (lowered: the line "
+                 "above says why): its frames get TOO_LARGE and its plans serve none; warm "
+                 "shapes within %ux%u, or raise the limit that lowered it",
+                 s->cfg->warm[k].width, s->cfg->warm[k].height, w, h, w, h);
+  }
   return 0;
 }
 

@@ -23,7 +23,8 @@ no weights are made before any is loaded.
     is still loading, or that failed to start;
   * a weights file that does not load: named as a weights file, with
     what to do (it was the path and the reason alone); one the daemon's
-    user cannot read: that user, the file's owner and mode, and chmod.
+    user cannot read: that user, the file's owner and mode, and chmod;
+  * a --warm shape over the size --max-size is lowered to: a warning.
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
@@ -245,6 +246,19 @@ def body(w):
     check(rc == 1 and "<3>error: weights file %s: permission denied: hairfilterd runs as uid %d"
           % (pw, uid) in out and "chmod 0644 %s" % pw in out,
           "an unreadable weights file: status %s (want 1), the uid and the fix: %r" % (rc, out))
+
+
+    # A --warm shape over the size the memory budget lowers --max-size to:
+    # a warning naming it (its plans were built for frames that all get
+    # TOO_LARGE). The socket directory is missing, so the daemon stops
+    # right after the limits are derived.
+    rc, out = run(["--config", "none", "--listen", "unix:%s/no-such-dir/s.sock" % w,
+                   "--weights-dir", wd, "--backend", "cpu-ref", "--max-memory-mb", "64",
+                   "--warm", "1920x1080,32x32"], w)
+    lines = [l for l in out.splitlines() if "--warm" in l]
+    check(rc == 1 and len(lines) == 1 and lines[0].startswith("<4>warning: --warm 1920x1080 is "
+                                                               "over the largest frame served"),
+          "a --warm shape over the lowered max size: one warning naming it: %r" % out)
 
 
 if __name__ == "__main__":
