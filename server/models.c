@@ -399,10 +399,10 @@ static int apply(hfd_server *s, const want *ws, int nw, hfd_ctl **loads, hfd_mod
   for (int i = 0; i < s->num_variants; i++) serving += s->variants[i].model != NULL;
   if (!strict) {
     char kv[200];
-    snprintf(kv, sizeof kv, " serving=%d loaded=%d replaced=%d removed=%d failed=%d", serving,
-             loaded, replaced, removed, failed);
-    if (failed)
-      hfd_warn("reload done with %d failure(s):%s", failed, kv);
+    snprintf(kv, sizeof kv, " serving=%d loaded=%d replaced=%d removed=%d failed=%d%s", serving,
+             loaded, replaced, removed, failed, s->reload.tls_failed ? " tls=failed" : "");
+    if (failed || s->reload.tls_failed)
+      hfd_warn("reload done with %d failure(s):%s", failed + s->reload.tls_failed, kv);
     else
       hfd_notice("reload done:%s", kv);
   }
@@ -466,7 +466,7 @@ static struct {
 static void finish_reload(hfd_server *s) {
   int failed = apply(s, pending.ws, pending.nw, pending.loads, pending.gone, pending.ngone, 0);
   s->reload.active = 0;
-  if (failed)
+  if (failed || s->reload.tls_failed)
     s->reloads_failed++;
   else
     s->reloads_ok++;
@@ -579,7 +579,10 @@ static void take_reloadable(hfd_server *s, hfd_config *n) {
   c->tls_cert = n->tls_cert;
   c->tls_key = n->tls_key;
   c->tls_client_ca = n->tls_client_ca;
-  hfd_tls_reload(s, n);
+  /* A certificate renewal that did not load is a failed reload: the old
+   * certificate serves on towards its end date, and an operator alerting
+   * on hairfilterd_reloads_total{result="failed"} must see it. */
+  s->reload.tls_failed = hfd_tls_reload(s, n) != 0;
   if (c->log_level != n->log_level) {
     c->log_level = n->log_level;
     hfd_log_level = n->log_level;

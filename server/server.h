@@ -578,6 +578,7 @@ struct hfd_server {
     int active;                  /* loads queued, not all back */
     int again;                   /* another SIGHUP came meanwhile */
     int pending;                 /* loads not yet back */
+    int tls_failed;              /* this reload's TLS files did not load */
     hfd_ctl *done;               /* loads back, to apply together */
     hfd_model *remove[HFD_MAX_VARIANTS]; /* models whose file went away */
     int num_remove;
@@ -608,8 +609,8 @@ void hfd_sweep_stalled(hfd_server *s);
 int hfd_tls_init(hfd_server *s);
 /* SIGHUP: builds a context from the new configuration's files and swaps it
  * in for new connections; on any failure the one before keeps serving
- * (logged). */
-void hfd_tls_reload(hfd_server *s, const hfd_config *n);
+ * (logged) and -1 is returned, which makes the reload a failed one. */
+int hfd_tls_reload(hfd_server *s, const hfd_config *n);
 /* Closes the loop handle (drain's last step); hfd_tls_free after uv_run. */
 void hfd_tls_stop(hfd_server *s);
 void hfd_tls_free(hfd_server *s);

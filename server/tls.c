@@ -261,19 +261,19 @@ int hfd_tls_init(hfd_server *s) {
   return 0;
 }
 
-void hfd_tls_reload(hfd_server *s, const hfd_config *n) {
+int hfd_tls_reload(hfd_server *s, const hfd_config *n) {
   struct hfd_tls *t = s->tls;
-  if (!t) return;
+  if (!t) return 0;
   if (!n->tls_cert || !n->tls_key) {
     hfd_err("reload: TLS: the configuration no longer names --tls-cert and --tls-key; the "
             "certificate loaded before keeps serving");
-    return;
+    return -1;
   }
   char why[1024];
   SSL_CTX *ctx = ctx_build(n, why, sizeof why);
   if (!ctx) {
     hfd_err("reload: TLS: %s; the certificate loaded before keeps serving", why);
-    return;
+    return -1;
   }
   /* Connections hold their own reference to the context they began with. */
   SSL_CTX_free(t->ctx);
@@ -281,6 +281,7 @@ void hfd_tls_reload(hfd_server *s, const hfd_config *n) {
   char desc[400];
   ctx_describe(ctx, desc, sizeof desc);
   hfd_notice("reload: TLS: %s; new connections use it", desc);
+  return 0;
 }
 
 void hfd_tls_stop(hfd_server *s) {

@@ -6,13 +6,17 @@ error is logged at error level and changes nothing; each changed key that
 needs a restart is named with its old and new values; SIGUSR1 logs the
 statistics and changes nothing; the stop line counts the requests of
 a removed variant. The daemon is configured through a
-config file (hairfilterd.conf), which the reload reads again.
+config file (hairfilterd.conf), which the reload reads again. A TLS
+certificate that does not load on reload (a renewal gone wrong) makes the
+reload a failed one in the log and in hairfilterd_reloads_total, and a
+good one after it an ok one.
 
-usage: test_reload.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR
+usage: test_reload.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR MAKE_TEST_CERTS
 """
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import time
 
@@ -20,7 +24,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from opsdaemon import (Daemon, check, finish, load_result, run_then_stop,  # noqa: E402
                        run_load, sample, set_weights_name, workdir)
 
-HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
+HAIRFILTERD, LOAD_CLIENT, WEIGHTS, MAKE_TEST_CERTS = sys.argv[1:5]
 def write_conf(path, w, extra=""):
     with open(path, "w") as f:
         f.write("; hairfilterd.conf for the reload test\n"
@@ -66,6 +70,51 @@ def main():
     answered = {}
     run_then_stop(d, w, lambda: answered.update(run(d, w, conf)),
                   lambda d: check_stop_line(d, answered))
+
+
+def tls_reload():
+    """A certificate renewal that does not load: the old certificate keeps
+    serving, and the reload is counted and logged as failed (it was "reload
+    done ... failed=0" and result="ok", so an alert on failed reloads
+    missed a certificate left to expire)."""
+    w = workdir()
+    os.mkdir(os.path.join(w, "weights"))
+    shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), os.path.join(w, "weights"))
+    certs = os.path.join(w, "certs")
+    os.mkdir(certs)
+    subprocess.run([MAKE_TEST_CERTS, certs], check=True)
+    conf = os.path.join(w, "hairfilterd.conf")
+    write_conf(conf, w, "listen = tls:127.0.0.1:0\ntls-cert = %s/server.pem\n"
+                        "tls-key = %s/server.key\n" % (certs, certs))
+    d = Daemon(HAIRFILTERD, ["--config", conf], w, env={"HAIRFILTERD_TOKEN": "t0ken"})
+
+    def body():
+        # The renewal writes a certificate that is not the key's.
+        shutil.copy(os.path.join(certs, "client.pem"), os.path.join(certs, "new.pem"))
+        os.replace(os.path.join(certs, "new.pem"), os.path.join(certs, "server.pem"))
+        reload_and_wait(d, 0)
+        s, _ = d.metrics()
+        check(sample(s, "hairfilterd_reloads_total", result="failed") == 1 and
+              sample(s, "hairfilterd_reloads_total", result="ok") == 0,
+              "a TLS file that does not load: a failed reload in /metrics: %s" %
+              {k: v for k, v in s.items() if k[0] == "hairfilterd_reloads_total"})
+        log = d.log_text()
+        check("reload: TLS: --tls-key" in log and "reload done with 1 failure(s):" in log and
+              "tls=failed" in log,
+              "a TLS file that does not load: the reload line says it failed: %s" %
+              [l for l in log.splitlines() if "reload" in l])
+        # Renewed properly: an ok reload.
+        shutil.copy(os.path.join(certs, "expired.pem"), os.path.join(certs, "new.pem"))
+        shutil.copy(os.path.join(certs, "expired.key"), os.path.join(certs, "new.key"))
+        os.replace(os.path.join(certs, "new.key"), os.path.join(certs, "server.key"))
+        os.replace(os.path.join(certs, "new.pem"), os.path.join(certs, "server.pem"))
+        reload_and_wait(d, 1)
+        s, _ = d.metrics()
+        check(sample(s, "hairfilterd_reloads_total", result="ok") == 1,
+              "TLS files that load: an ok reload: %s" %
+              {k: v for k, v in s.items() if k[0] == "hairfilterd_reloads_total"})
+
+    run_then_stop(d, w, body)
 
 
 def check_stop_line(d, answered):
@@ -188,4 +237,5 @@ def run(d, w, conf):
 
 
 main()
+tls_reload()
 finish()
