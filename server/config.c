@@ -12,12 +12,15 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <getopt.h>
+#include <grp.h>
 #include <ini.h>
+#include <pwd.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <hairfilter/hairfilter_version.h>
 
@@ -122,10 +125,43 @@ static int token_take(const char *source, const char *s, size_t n, char *dst) {
   return 0;
 }
 
+/* Why a file the daemon must read (its config, its token) could not be
+ * opened, err an errno value. "Permission denied" alone hides that the
+ * daemon runs as its own user (hairfilter under systemd, 10001 in the
+ * image) while the file was written by root with a private mode: say who
+ * the daemon is, the file's owner and mode, and the fix, which keeps the
+ * file from everyone but the daemon's group (a token is a secret). */
+static void unreadable_why(const char *path, int err, char *why, size_t whylen) {
+  struct stat st;
+  if (err != EACCES || stat(path, &st) != 0) {
+    snprintf(why, whylen, "%s", strerror(err));
+    return;
+  }
+  char user[64], group[64];
+  struct passwd *pw = getpwuid(geteuid());
+  struct group *gr = getgrgid(getegid());
+  if (pw && pw->pw_name[0])
+    snprintf(user, sizeof user, "%s", pw->pw_name);
+  else
+    snprintf(user, sizeof user, "%ld", (long)geteuid());
+  if (gr && gr->gr_name[0])
+    snprintf(group, sizeof group, "%s", gr->gr_name);
+  else
+    snprintf(group, sizeof group, "%ld", (long)getegid());
+  snprintf(why, whylen,
+           "permission denied: hairfilterd runs as uid %ld (%s) gid %ld (%s) and cannot read it "
+           "(owner uid %ld gid %ld, mode %04o); let its group read it and no one else: "
+           "chgrp %s %s && chmod 0640 %s",
+           (long)geteuid(), user, (long)getegid(), group, (long)st.st_uid, (long)st.st_gid,
+           (unsigned)(st.st_mode & 07777), group, path, path);
+}
+
 static int read_token(const char *path, char *dst) {
   FILE *f = fopen(path, "r");
   if (!f) {
-    hfd_err("cannot read %s: %s", path, strerror(errno));
+    char why[600];
+    unreadable_why(path, errno, why, sizeof why);
+    hfd_err("--auth-token-file %s: %s", path, why);
     return -1;
   }
   /* One byte more than the longest token and its line end, so that a
@@ -550,9 +586,13 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
     }
     /* A line read_line refused: its own line, whatever inih made of it. */
     if (rc >= 0 && fa.bad_line) rc = fa.bad_line;
-    if (rc < 0)
-      hfd_err("cannot read config file %s: %s", path,
-              rc == -1 ? strerror(errno) : "out of memory");
+    if (rc == -1) {
+      char why[600];
+      unreadable_why(path, errno, why, sizeof why);
+      hfd_err("cannot read config file %s: %s", path, why);
+    } else if (rc < 0) {
+      hfd_err("cannot read config file %s: out of memory", path);
+    }
     else if (rc > 0)
       hfd_err("%s:%d: %s", path, rc,
               fa.bad ? fa.why : "not a 'key = value' line");

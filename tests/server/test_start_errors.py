@@ -24,7 +24,9 @@ no weights are made before any is loaded.
   * a weights file that does not load: named as a weights file, with
     what to do (it was the path and the reason alone); one the daemon's
     user cannot read: that user, the file's owner and mode, and chmod;
-  * a --warm shape over the size --max-size is lowered to: a warning.
+  * a --warm shape over the size --max-size is lowered to: a warning;
+  * a config or token file the daemon's user cannot read: that user, the
+    file's owner and mode, and the fix.
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
@@ -259,6 +261,31 @@ def body(w):
     check(rc == 1 and len(lines) == 1 and lines[0].startswith("<4>warning: --warm 1920x1080 is "
                                                                "over the largest frame served"),
           "a --warm shape over the lowered max size: one warning naming it: %r" % out)
+
+
+    # The config file and the token file the daemon's user cannot read
+    # (written by root with a private mode): exit 2, that user, the file's
+    # owner and mode, and a fix that keeps the token from others; they said
+    # "Permission denied" alone, the token file without its option.
+    user = 65534 if os.geteuid() == 0 else None
+    uid = user if user is not None else os.geteuid()
+    secret = os.path.join(private, "token")
+    with open(secret, "w") as f:
+        f.write("t0ken\n")
+    os.chmod(secret, 0o600 if os.geteuid() == 0 else 0)
+    rc, out = run(["--config", "none", "--listen", "tcp:127.0.0.1:0", "--auth-token-file", secret,
+                   "--weights-dir", wd, "--backend", "cpu-ref"], w, user=user)
+    check(rc == 2 and "<3>error: --auth-token-file %s: permission denied: hairfilterd runs as "
+          "uid %d" % (secret, uid) in out and "chmod 0640 %s" % secret in out,
+          "an unreadable token file: status %s (want 2), the option, uid and fix: %r" % (rc, out))
+    pconf = os.path.join(private, "hairfilterd.conf")
+    with open(pconf, "w") as f:
+        f.write(base)
+    os.chmod(pconf, 0o600 if os.geteuid() == 0 else 0)
+    rc, out = run(["--config", pconf], w, user=user)
+    check(rc == 2 and "<3>error: cannot read config file %s: permission denied: hairfilterd runs "
+          "as uid %d" % (pconf, uid) in out and "chmod 0640 %s" % pconf in out,
+          "an unreadable config file: status %s (want 2), the uid and fix: %r" % (rc, out))
 
 
 if __name__ == "__main__":
