@@ -93,7 +93,8 @@ static void usage(FILE *f) {
           "A request refused BUSY is sent again after 10 ms; a refusal no retry can fix\n"
           "stops the run, naming it. SIGINT or SIGTERM ends the window and reports it.\n"
           "Exit status: 0 frames measured; 1 none, or the server could not be reached or\n"
-          "refused; 2 bad options or over the server's limits; 130 interrupted.\n");
+          "refused; 2 bad options, over the server's limits, or --shm where the server\n"
+          "offers no shared memory; 130 interrupted.\n");
 }
 
 /* BUSY and SHUTTING_DOWN are refusals for now, counted as busy apart from
