@@ -115,6 +115,34 @@ static const char *ssl_errors(char *buf, size_t cap) {
 
 /* ---- contexts -------------------------------------------------------------- */
 
+/* What to say of a file OpenSSL could not read that holds no PEM block of
+ * the kind wanted, which its errors ("no start line", "DECODER
+ * routines::unsupported") do not say: a DER file, or the key given for the
+ * certificate or the other way round. "" when the file has such a block
+ * (OpenSSL's reason then stands). */
+static const char *not_pem(const char *path, int key) {
+  FILE *f = fopen(path, "rb");
+  if (!f) return "";
+  static char buf[65536];
+  size_t n = fread(buf, 1, sizeof buf - 1, f);
+  fclose(f);
+  buf[n] = 0;
+  for (size_t i = 0; i < n; i++)
+    if (!buf[i]) buf[i] = ' ';  /* binary: keep searching past a zero byte */
+  if (!strstr(buf, "-----BEGIN"))
+    return key ? " holds no PEM key (no -----BEGIN line; a DER key converts with "
+                 "openssl pkey -inform DER -in FILE -out FILE.pem)"
+               : " holds no PEM certificate (no -----BEGIN line; a DER certificate converts "
+                 "with openssl x509 -inform DER -in FILE -out FILE.pem)";
+  if (key && !strstr(buf, "PRIVATE KEY-----"))
+    return " holds no private key (no -----BEGIN ... PRIVATE KEY----- block: a certificate "
+           "given in its place?)";
+  if (!key && !strstr(buf, "-----BEGIN CERTIFICATE-----"))
+    return " holds no certificate (no -----BEGIN CERTIFICATE----- block: a key or a request "
+           "given in its place?)";
+  return "";
+}
+
 /* A file the daemon cannot open, said before OpenSSL reads it (whose
  * error would be "error:8000000D:system library::Permission denied"):
  * which file, who the daemon runs as, who owns the file, and the fix, as
@@ -169,13 +197,14 @@ static SSL_CTX *ctx_build(const hfd_config *cfg, char *why, size_t whylen) {
                                SSL_OP_CIPHER_SERVER_PREFERENCE);
   SSL_CTX_set_mode(ctx, SSL_MODE_RELEASE_BUFFERS);
   if (SSL_CTX_use_certificate_chain_file(ctx, cfg->tls_cert) != 1) {
-    snprintf(why, whylen, "--tls-cert %s: %s", cfg->tls_cert, ssl_errors(err, sizeof err));
+    const char *hint = not_pem(cfg->tls_cert, 0);
+    snprintf(why, whylen, "--tls-cert %s%s: %s", cfg->tls_cert, hint, ssl_errors(err, sizeof err));
     goto fail;
   }
   if (SSL_CTX_use_PrivateKey_file(ctx, cfg->tls_key, SSL_FILETYPE_PEM) != 1) {
     int mismatch = ERR_GET_REASON(ERR_peek_last_error()) == X509_R_KEY_VALUES_MISMATCH;
-    snprintf(why, whylen, "--tls-key %s%s: %s", cfg->tls_key,
-             mismatch ? " is not the key of --tls-cert" : "", ssl_errors(err, sizeof err));
+    const char *hint = mismatch ? " is not the key of --tls-cert" : not_pem(cfg->tls_key, 1);
+    snprintf(why, whylen, "--tls-key %s%s: %s", cfg->tls_key, hint, ssl_errors(err, sizeof err));
     if (mismatch) snprintf(why + strlen(why), whylen - strlen(why), " (%s)", cfg->tls_cert);
     goto fail;
   }
@@ -190,7 +219,8 @@ static SSL_CTX *ctx_build(const hfd_config *cfg, char *why, size_t whylen) {
     STACK_OF(X509_NAME) *names = SSL_load_client_CA_file(cfg->tls_client_ca);
     if (!names || SSL_CTX_load_verify_locations(ctx, cfg->tls_client_ca, NULL) != 1) {
       if (names) sk_X509_NAME_pop_free(names, X509_NAME_free);
-      snprintf(why, whylen, "--tls-client-ca %s: %s", cfg->tls_client_ca,
+      const char *hint = not_pem(cfg->tls_client_ca, 0);
+      snprintf(why, whylen, "--tls-client-ca %s%s: %s", cfg->tls_client_ca, hint,
                ssl_errors(err, sizeof err));
       goto fail;
     }

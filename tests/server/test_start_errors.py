@@ -26,10 +26,12 @@ no weights are made before any is loaded.
     user cannot read: that user, the file's owner and mode, and chmod;
   * a --warm shape over the size --max-size is lowered to: a warning;
   * a config or token file the daemon's user cannot read: that user, the
-    file's owner and mode, and the fix.
+    file's owner and mode, and the fix;
+  * a DER certificate, or the certificate and key swapped: said as such.
 
 usage: test_start_errors.py HAIRFILTERD MAKE_TEST_CERTS WEIGHTS_DIR
 """
+import base64
 import os
 import shutil
 import socket
@@ -183,6 +185,29 @@ def body(w):
           "install -o" in lines[0] and "error:8000000D" not in lines[0],
           "unreadable key: the uid and the fix named: %r" % lines)
     check("cpu-ref" not in out, "unreadable key: refused before the backend starts: %r" % out)
+
+    # A certificate in DER, and the certificate and key given in each
+    # other's place: said as such (OpenSSL said "no start line" or
+    # "DECODER routines::unsupported"), status 1 before the backend starts.
+    os.chmod(key, 0o644)
+    pem = open(os.path.join(certs, "server.pem")).read()
+    body = pem.split("-----BEGIN CERTIFICATE-----")[1].split("-----END CERTIFICATE-----")[0]
+    der = os.path.join(certs, "server.der")
+    with open(der, "wb") as f:
+        f.write(base64.b64decode("".join(body.split())))
+    for cert_file, key_file, said in (
+            (der, key, "--tls-cert %s holds no PEM certificate (no -----BEGIN line; a DER "
+                       "certificate converts with openssl x509 -inform DER" % der),
+            (key, key, "--tls-cert %s holds no certificate (no -----BEGIN CERTIFICATE----- "
+                       "block" % key),
+            (os.path.join(certs, "server.pem"), os.path.join(certs, "server.pem"),
+             "--tls-key %s holds no private key" % os.path.join(certs, "server.pem"))):
+        rc, out = run(["--config", "none", "--listen", "tls:127.0.0.1:0", "--tls-cert", cert_file,
+                       "--tls-key", key_file, "--weights-dir", wd, "--backend", "cpu-ref"], w,
+                      env={"HAIRFILTERD_TOKEN": "t0ken"})
+        check(rc == 1 and "<3>error: TLS: " + said in out and "cpu-ref" not in out,
+              "TLS files of the wrong kind: status %s (want 1), said what they hold: %r"
+              % (rc, out))
 
     # A backend name that is none of the four is a bad option, refused
     # before anything starts (it was found by the backend: status 1).
