@@ -384,6 +384,11 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
           (unsigned long long)s->loads_ok);
   fprintf(f, "hairfilterd_model_loads_total{result=\"failed\"} %llu\n",
           (unsigned long long)s->loads_failed);
+  long long not_after;
+  if (hfd_tls_not_after(s, &not_after) == 0 && not_after >= 0)
+    scalar(f, "hairfilterd_tls_certificate_expiry_timestamp_seconds", "gauge",
+           "notAfter of the certificate new TLS connections get, as a Unix time (with a tls: "
+           "listener only).", (unsigned long long)not_after);
   scalar(f, "hairfilterd_weights_files_unserved", "gauge",
          "Configured weights files that serve no variant (their load failed).",
          s->missing);

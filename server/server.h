@@ -611,6 +611,10 @@ int hfd_tls_init(hfd_server *s);
  * in for new connections; on any failure the one before keeps serving
  * (logged) and -1 is returned, which makes the reload a failed one. */
 int hfd_tls_reload(hfd_server *s, const hfd_config *n);
+/* The notAfter of the certificate new TLS connections get (the one loaded at
+ * start or by the last reload that loaded), in seconds since 1970-01-01 UTC:
+ * 0, or -1 without a TLS listener or where OpenSSL cannot read the time. */
+int hfd_tls_not_after(const hfd_server *s, long long *unix_s);
 /* Closes the loop handle (drain's last step); hfd_tls_free after uv_run. */
 void hfd_tls_stop(hfd_server *s);
 void hfd_tls_free(hfd_server *s);

@@ -251,6 +251,21 @@ static void ctx_describe(SSL_CTX *ctx, char *buf, size_t cap) {
     snprintf(buf + strlen(buf), cap - strlen(buf), " (EXPIRED: clients will refuse it)");
 }
 
+int hfd_tls_not_after(const hfd_server *s, long long *unix_s) {
+  if (!s->tls || !s->tls->ctx) return -1;
+  X509 *x = SSL_CTX_get0_certificate(s->tls->ctx);
+  if (!x) return -1;
+  /* The difference from the epoch, in OpenSSL's own calendar arithmetic
+   * (timegm is not POSIX, and mktime would read the time zone). */
+  ASN1_TIME *epoch = ASN1_TIME_set(NULL, 0);
+  int day = 0, sec = 0;
+  int ok = epoch && ASN1_TIME_diff(&day, &sec, epoch, X509_get0_notAfter(x)) == 1;
+  ASN1_TIME_free(epoch);
+  if (!ok) return -1;
+  *unix_s = (long long)day * 86400 + sec;
+  return 0;
+}
+
 static int wants_tls(const hfd_config *cfg) {
   for (int i = 0; i < cfg->num_listen; i++)
     if (cfg->listen_url[i].kind == HFP_URL_TCP && cfg->listen_url[i].tls) return 1;

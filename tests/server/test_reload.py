@@ -16,6 +16,7 @@ usage: test_reload.py HAIRFILTERD LOAD_CLIENT WEIGHTS_DIR MAKE_TEST_CERTS
 import os
 import shutil
 import signal
+import ssl
 import subprocess
 import sys
 import time
@@ -72,6 +73,13 @@ def main():
                   lambda d: check_stop_line(d, answered))
 
 
+def not_after(pem):
+    """notAfter of a PEM certificate as a Unix time, read by openssl(1)."""
+    out = subprocess.run(["openssl", "x509", "-enddate", "-noout", "-in", pem], check=True,
+                         capture_output=True, text=True).stdout
+    return ssl.cert_time_to_seconds(out.strip().split("=", 1)[1])
+
+
 def tls_reload():
     """A certificate renewal that does not load: the old certificate keeps
     serving, and the reload is counted and logged as failed (it was "reload
@@ -89,6 +97,13 @@ def tls_reload():
     d = Daemon(HAIRFILTERD, ["--config", conf], w, env={"HAIRFILTERD_TOKEN": "t0ken"})
 
     def body():
+        expiry = "hairfilterd_tls_certificate_expiry_timestamp_seconds"
+        s, _ = d.metrics()
+        check(sample(s, expiry) == not_after(os.path.join(certs, "server.pem")) and
+              sample(s, expiry) > time.time(),
+              "%s is server.pem's notAfter (%s): %s" %
+              (expiry, not_after(os.path.join(certs, "server.pem")), sample(s, expiry)))
+        served_pem = not_after(os.path.join(certs, "server.pem"))
         # The renewal writes a certificate that is not the key's.
         shutil.copy(os.path.join(certs, "client.pem"), os.path.join(certs, "new.pem"))
         os.replace(os.path.join(certs, "new.pem"), os.path.join(certs, "server.pem"))
@@ -98,6 +113,9 @@ def tls_reload():
               sample(s, "hairfilterd_reloads_total", result="ok") == 0,
               "a TLS file that does not load: a failed reload in /metrics: %s" %
               {k: v for k, v in s.items() if k[0] == "hairfilterd_reloads_total"})
+        check(sample(s, expiry) == served_pem,
+              "after a failed reload %s is still the served certificate's: %s" %
+              (expiry, sample(s, expiry)))
         log = d.log_text()
         check("reload: TLS: --tls-key" in log and "reload done with 1 failure(s):" in log and
               "tls=failed" in log,
@@ -113,6 +131,10 @@ def tls_reload():
         check(sample(s, "hairfilterd_reloads_total", result="ok") == 1,
               "TLS files that load: an ok reload: %s" %
               {k: v for k, v in s.items() if k[0] == "hairfilterd_reloads_total"})
+        expired = not_after(os.path.join(certs, "server.pem"))
+        check(sample(s, expiry) == expired and expired < time.time(),
+              "after the renewal %s is the new (expired) certificate's %s: %s" %
+              (expiry, expired, sample(s, expiry)))
 
     run_then_stop(d, w, body)
 
