@@ -617,8 +617,10 @@ def make_parser():
                     "loss, crop, batch, lr, seed, ...: those left out come from the checkpoint); "
                     "only --steps, --stop-at, --time-limit, --threads, --device, --val-every, "
                     "--ckpt-every, --reload-every, --export and --export-dtype may change, and "
-                    "another value of any other option is refused. Without --resume, an --out "
-                    "that holds a checkpoint is refused")
+                    "another value of any other option is refused; --steps, --val-every, "
+                    "--ckpt-every, --reload-every, --export and --export-dtype left out are the "
+                    "run's too, --stop-at, --time-limit, --threads and --device this command's. "
+                    "Without --resume, an --out that holds a checkpoint is refused")
     ap.add_argument("--stop-at", type=int, default=0,
                     help="checkpoint and stop at this step (the run stays resumable)")
     ap.add_argument("--time-limit", type=float, default=0,
@@ -739,6 +741,13 @@ RUN_OPTIONS = ("data", "variant", "styles", "val_fraction", "seed", "init", "lev
 RESUME_MAY_CHANGE = ("--steps", "--stop-at", "--time-limit", "--threads", "--device",
                      "--val-every", "--ckpt-every", "--reload-every", "--export",
                      "--export-dtype")
+# Of those, the ones a resumed run keeps from its checkpoint when the command
+# line leaves them out: `--out RUN --resume` finishes the run as it was
+# started (its length, cadence and export), not a run of the defaults'
+# length under a stretched schedule. The others are this invocation's:
+# --stop-at and --time-limit say when this one stops, and --threads and
+# --device where it runs (a checkpoint moves between machines).
+RESUME_KEEPS = ("steps", "val_every", "ckpt_every", "reload_every", "export", "export_dtype")
 
 
 def same_option(key, a, b):
@@ -769,8 +778,9 @@ def option_text(action, v):
 
 
 def resume_options(args, saved, given, ckpt_path):
-    """Sets args' RUN_OPTIONS to the run's (saved: the checkpoint's args);
-    exits naming every one that given (the options the command line names,
+    """Sets args' RUN_OPTIONS to the run's (saved: the checkpoint's args),
+    and RESUME_KEEPS that the command line leaves out; exits naming every
+    RUN_OPTION that given (the options the command line names,
     given_options) sets to another value."""
     diffs = []
     for k in RUN_OPTIONS:
@@ -781,6 +791,9 @@ def resume_options(args, saved, given, ckpt_path):
             diffs.append(f"{a.option_strings[0]} is {option_text(a, saved[k])} there, "
                          f"{option_text(a, getattr(args, k))} here")
         setattr(args, k, saved[k])
+    for k in RESUME_KEEPS:
+        if k in saved and k not in given:
+            setattr(args, k, saved[k])
     if diffs:
         sys.exit(f"train.py: --resume: {ckpt_path} is a run with other options: "
                  f"{'; '.join(diffs)}; a resumed run may change only "

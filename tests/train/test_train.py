@@ -1165,6 +1165,29 @@ class Recipe(unittest.TestCase):
             summary = json.load(f)
         self.assertEqual((summary["steps"], summary["lr"], summary["loss"]), (4, 1e-3, "look"))
 
+    def test_resume_with_only_out_finishes_the_run_as_started(self):
+        """`--out RUN --resume` (docs/TRAINING.md: the options left out come
+        from the checkpoint) runs to the run's own --steps on its cadence and
+        exports where it said; it is the uninterrupted run to the bit. A
+        --stop-at of the first command is not kept (it would stop again at
+        once)."""
+        common = ["--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
+                  "--val-every", "2", "--ckpt-every", "2", "--seed", "9", "--loss", "paper",
+                  "--steps", "4"]
+        a, b = os.path.join(self.work, "only_out_a"), os.path.join(self.work, "only_out_b")
+        run_train(*common, "--out", a, "--export", a + ".safetensors")
+        run_train(*common, "--out", b, "--stop-at", "2", "--export", b + ".safetensors")
+        os.remove(b + ".safetensors")
+        r = run_train("--out", b, "--resume")
+        self.assertIn("resumed Small at step 2", r.stderr)
+        self.assertIn("step 4,", r.stderr)
+        self.assertEqual([x["step"] for x in read_log(b)], [2, 4])
+        self.assertTrue(os.path.exists(b + ".safetensors"), "the run's --export was not written")
+        _, sa = hfnet.load_safetensors(a + ".safetensors")
+        _, sb = hfnet.load_safetensors(b + ".safetensors")
+        for k in sa:
+            self.assertTrue(torch.equal(sa[k], sb[k]), f"{k} differs after resume")
+
     def test_resume_equals_uninterrupted(self):
         self.resume_equals_uninterrupted("paper")
 
