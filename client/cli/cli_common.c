@@ -1,6 +1,7 @@
 #include <errno.h>
 #include <inttypes.h>
 #include <limits.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,9 +18,24 @@ const float CLI_HAIR_DEFAULT[3] = {0.45f, 0.25f, 0.12f};
 const float CLI_LIGHT_DEFAULT[3] = {1.0f, 1.0f, 1.0f};
 const float CLI_BG_DEFAULT[3] = {0.18f, 0.2f, 0.24f};
 
-int cli_parse_rgb(const char *s, float rgb[3]) {
-  char tail;
-  return sscanf(s, "%f,%f,%f%c", &rgb[0], &rgb[1], &rgb[2], &tail) == 3 ? 0 : -1;
+int cli_parse_rgb(const char *cmd, const char *opt, const char *s, float rgb[3]) {
+  float v[3];
+  const char *p = s;
+  for (int i = 0; i < 3; i++) {
+    char *end;
+    errno = 0;
+    v[i] = strtof(p, &end);
+    /* Each number whole and finite, separated by single commas: "1,2"
+     * or "nan,0,0" would composite with a colour nobody asked for. */
+    if (end == p || errno || !isfinite(v[i]) || *end != (i < 2 ? ',' : '\0')) {
+      fprintf(stderr, "hairfilter %s: %s: '%s' is not R,G,B (three finite numbers, e.g. "
+                      "0.45,0.25,0.12)\n", cmd, opt, s);
+      return -1;
+    }
+    p = end + 1;
+  }
+  memcpy(rgb, v, sizeof v);
+  return 0;
 }
 
 /* cli_check_output and cli_check_output_dir: path names a file (a trailing

@@ -4,8 +4,10 @@
 
 #include "hfcore.h"
 
-/* Parses "r,g,b" into three floats; 0 on success. */
-int cli_parse_rgb(const char *s, float rgb[3]);
+/* Parses "r,g,b" (three finite numbers, nothing else) into rgb; 0 on
+ * success, else -1 after printing "hairfilter <cmd>: <opt>: ..." naming
+ * the value and the form it takes. */
+int cli_parse_rgb(const char *cmd, const char *opt, const char *s, float rgb[3]);
 /* Prints why hfc_connect failed with rc: the library's message (which
  * names each endpoint and what to check), then, for a refused token, where
  * the CLI takes it from. prog: "hairfilter filter", ... */

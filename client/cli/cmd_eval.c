@@ -783,9 +783,9 @@ int cmd_eval(int argc, char **argv) {
     case 'w': weights_arg = optarg; break;
     case 'b': backend_name = optarg; break;
     case 's': styles = optarg; break;
-    case 'H': if (cli_parse_rgb(optarg, lk.hair)) goto bad; break;
-    case 'L': if (cli_parse_rgb(optarg, lk.light)) goto bad; break;
-    case 'B': if (cli_parse_rgb(optarg, lk.bg)) goto bad; break;
+    case 'H': if (cli_parse_rgb("eval", "--hair", optarg, lk.hair)) return 2; break;
+    case 'L': if (cli_parse_rgb("eval", "--light", optarg, lk.light)) return 2; break;
+    case 'B': if (cli_parse_rgb("eval", "--background", optarg, lk.bg)) return 2; break;
     case 'n': case 'm': case 'r': case 'c': {
       /* The whole argument, in range, or said what is wrong with it. */
       long v;

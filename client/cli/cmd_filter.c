@@ -186,9 +186,9 @@ int cmd_filter(int argc, char **argv) {
       timeout_ms = (int)v;
       break;
     }
-    case 'H': if (cli_parse_rgb(optarg, hair)) goto bad; break;
-    case 'L': if (cli_parse_rgb(optarg, light)) goto bad; break;
-    case 'B': if (cli_parse_rgb(optarg, bg)) goto bad; break;
+    case 'H': if (cli_parse_rgb("filter", "--hair", optarg, hair)) return 2; break;
+    case 'L': if (cli_parse_rgb("filter", "--light", optarg, light)) return 2; break;
+    case 'B': if (cli_parse_rgb("filter", "--background", optarg, bg)) return 2; break;
     case 'h': usage(stdout); return 0;
     default:
       if (!cli_tls_option(opt, optarg, &tls)) goto bad;

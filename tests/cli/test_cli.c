@@ -584,6 +584,15 @@ static void test_strict_numbers(void **state) {
   expect_text("--max-frames: '5x' is not an integer");
   assert_int_equal(cli("eval --weights %s --grid-rows 0 %s", BASE, test_tmp("none")), 2);
   expect_text("--grid-rows: 0 is outside 1..64");
+  /* A colour that is not three numbers is named, not answered with the
+   * whole usage and no word of what is wrong. */
+  assert_int_equal(cli("eval --weights %s --hair 1,2 %s", BASE, test_tmp("none")), 2);
+  expect_text("hairfilter eval: --hair: '1,2' is not R,G,B (three finite numbers");
+  assert_int_equal(cli("infer --weights %s --background 0,0,nan --in x.exr --out %s", BASE,
+                       test_tmp("x.exr")), 2);
+  expect_text("hairfilter infer: --background: '0,0,nan' is not R,G,B");
+  assert_int_equal(cli("filter --server unix:/nonexistent.sock --light 1,1,1x --list"), 2);
+  expect_text("hairfilter filter: --light: '1,1,1x' is not R,G,B");
 #ifdef HF_TEST_RENDERER
   assert_int_equal(cli("render frame --size 64x64x --out %s", test_tmp("tail.exr")), 2);
   expect_text("--size wants WxH");
