@@ -261,6 +261,13 @@ static int add_path(frame_list *l, const char *path) {
   }
   closedir(d);
   cJSON_Delete(doc);
+  if (!rc && l->n == first) {
+    /* Said here, not later as "no frames with hair": a run directory or a
+     * mistyped path is not a set of frames whose hair was all empty. */
+    fprintf(stderr, "hairfilter eval: %s: no .exr frames in it (give a directory that "
+                    "`hairfilter render dataset` wrote, or FRAME.exr files)\n", path);
+    return HF_ENOTFOUND;
+  }
   qsort(l->v + first, l->n - first, sizeof *l->v, cmp_ref);
   return rc;
 }
@@ -847,6 +854,28 @@ int cmd_eval(int argc, char **argv) {
 
   for (int i = optind; i < argc; i++)
     if ((rc = add_path(&frames, argv[i])) != 0) goto out;
+  if (styles && *styles) {
+    /* --styles that match none of the frames: name the styles they have,
+     * before any weights are loaded or frames read. */
+    int any = 0;
+    for (int fi = 0; fi < frames.n && !any; fi++) any = style_wanted(styles, frames.v[fi].style);
+    if (!any) {
+      char have[512] = "";
+      for (int fi = 0; fi < frames.n; fi++) {
+        const char *st = frames.v[fi].style;
+        int seen = 0;
+        for (int fj = 0; fj < fi && !seen; fj++) seen = !strcmp(frames.v[fj].style, st);
+        size_t used = strlen(have);
+        if (!seen && used < sizeof have - 1)
+          snprintf(have + used, sizeof have - used, "%s%s", used ? ", " : "", st);
+      }
+      fprintf(stderr, "hairfilter eval: no frame of styles %s among the %d frames given "
+                      "(their styles: %s); name some of those with --styles\n",
+              styles, frames.n, have);
+      rc = HF_ENOTFOUND;
+      goto out;
+    }
+  }
 
   /* Methods: the input average, each network, each baseline. */
   ms[nm].kind = M_INPUT;

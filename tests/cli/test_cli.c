@@ -317,6 +317,26 @@ static void test_eval_warning(void **state) {
   hf_image_free(&feat);
 }
 
+/* Paths that hold no frames to score are named for what they are: a
+ * directory without .exr files (a run directory, a mistyped set), and
+ * --styles that match none of the frames given (with the styles they
+ * have), not "no frames with hair". */
+static void test_eval_no_frames(void **state) {
+  (void)state;
+#ifndef HF_TEST_EVAL
+  skip();  /* built without the renderer: no eval command */
+#endif
+  mkdir(test_tmp("evalempty"), 0755);
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, test_tmp("evalempty")), 1);
+  expect_text("evalempty: no .exr frames in it (give a directory that `hairfilter render "
+              "dataset` wrote, or FRAME.exr files)");
+  assert_null(strstr(text, "no frames with hair"));
+  assert_int_equal(cli("eval --backend cpu-ref --styles curly,coily %s",
+                       test_field("frame-64x64.exr")), 1);
+  expect_text("no frame of styles curly,coily among the 1 frames given (their styles: "
+              "frame-64x64); name some of those with --styles");
+}
+
 /* An 8-bit RGB PNG read back (libpng's simplified API), [h][w][3]. */
 static unsigned char *read_png(const char *path, int *w, int *h) {
   png_image im;
@@ -772,6 +792,7 @@ int main(void) {
     cmocka_unit_test(test_render_bad_hair_named),
     cmocka_unit_test(test_strict_numbers),
     cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
+    cmocka_unit_test(test_eval_no_frames),
     cmocka_unit_test(test_preview_over_background_layer),
     cmocka_unit_test(test_render_crop_windows),
   };
