@@ -54,11 +54,18 @@ def _style_from_name(fname):
 def read_manifest(root):
     """List of frame dicts, each with at least 'file' (absolute path) and
     'style', sorted by file name so every reader sees the same order."""
+    if not os.path.isdir(root):
+        raise DatasetError(f"{root}: no such directory (give a directory that "
+                           "`hairfilter render dataset` wrote)")
     path = os.path.join(root, "manifest.json")
     entries = []
     if os.path.exists(path):
         with open(path) as f:
-            doc = json.load(f)
+            try:
+                doc = json.load(f)
+            except ValueError as e:
+                raise DatasetError(f"{path}: not JSON ({e}); `hairfilter render dataset` "
+                                   "writes the manifest whole: render the set again") from None
         items = doc
         if isinstance(doc, dict):
             items = next((doc[k] for k in _LIST_KEYS if isinstance(doc.get(k), list)), None)
@@ -153,7 +160,8 @@ def load_frame(path, spp=None, dtype=np.float16):
         raise DatasetError(f"{path}: no S0.color channel: not a feature file")
     spp = have if spp is None else spp
     if spp > have:
-        raise DatasetError(f"{path}: {have} samples per pixel, {spp} needed")
+        raise DatasetError(f"{path}: {have} samples per pixel, {spp} needed: render the set "
+                           f"with --spp {spp}, or read at most {have}")
     feat = pick_channels(names, data, [f"S{k}.{f}" for k in range(spp) for f in FEATURES], path)
     tgt = pick_channels(names, data, [f"gt.{t}" for t in TARGETS], path)
     h, w = data.shape[:2]

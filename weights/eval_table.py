@@ -50,9 +50,15 @@ def main(argv=None):
     ap.add_argument("--below", action="store_true",
                     help="also the networks' frames below their own input and ST 16 spp")
     args = ap.parse_args(argv)
-    with open(args.json) as f:
-        doc = json.load(f)
-    if doc.get("format") != "hairfilter-eval":
+    try:
+        with open(args.json) as f:
+            doc = json.load(f)
+    except OSError as e:
+        sys.exit(f"eval_table.py: {args.json}: {e.strerror}")
+    except ValueError as e:
+        sys.exit(f"eval_table.py: {args.json}: not JSON ({e}); give the file that "
+                 f"`hairfilter eval --json` wrote")
+    if not isinstance(doc, dict) or doc.get("format") != "hairfilter-eval":
         sys.exit(f"eval_table.py: {args.json} is not a hairfilter eval document")
     groups = {g["key"]: g for g in doc["groupings"]}
     # Buckets that hold no frame (strand width "none") are left out.

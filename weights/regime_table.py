@@ -99,4 +99,8 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except dataset.DatasetError as e:
+        # A data directory or frame that cannot be used: its own words, no traceback.
+        sys.exit(f"regime_table.py: {e}")

@@ -72,6 +72,12 @@ def check_tiling(path, header, data_len):
         if b > at:
             raise ValueError(f"{path}: bytes [{at}, {b}) of the data belong to no tensor: "
                              "safetensors tensors follow one another with no gap")
+        if e > data_len:
+            # Said as the C loader says it, with the likely cause: "bytes
+            # after the last tensor" with a negative count misled.
+            raise ValueError(f"{path}: tensor '{name}': data_offsets [{b}, {e}) end past the "
+                             f"{data_len} bytes of data in the file: the file is cut short "
+                             "(copy or export it again)")
         at, prev = e, (b, e, name)
     if ranges and at != data_len:
         raise ValueError(f"{path}: {data_len - at} bytes after the last tensor: safetensors "

@@ -84,7 +84,12 @@ def main(argv=None):
     ap.add_argument("--out", help="write a stamped copy here instead")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
-    header, _ = read_safetensors_header(args.weights)
+    try:
+        header, _ = read_safetensors_header(args.weights)
+    except OSError as e:
+        sys.exit(f"stamp_range.py: {args.weights}: {e.strerror}")
+    except ValueError as e:   # the header's checks, naming the file
+        sys.exit(f"stamp_range.py: {e}")
     try:
         cfg = json.loads(header["__metadata__"]["hairfilter"],
                          object_pairs_hook=safetensors_header.unique_keys)
@@ -103,4 +108,8 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except dataset.DatasetError as e:
+        # A data directory or frame that cannot be used: its own words, no traceback.
+        sys.exit(f"stamp_range.py: {e}")

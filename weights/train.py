@@ -705,7 +705,21 @@ def parse_args(argv):
         ap.error("--weight-ema must be a decay in [0, 1) (0: off)")
     if args.clip_grad_norm < 0 or not math.isfinite(args.clip_grad_norm):
         ap.error("--clip-grad-norm must be a finite norm >= 0 (0: no clipping)")
+    # Before any data is read (a mistyped name was a KeyError traceback
+    # after the frames had loaded).
+    if args.variant is not None and not any(k.lower() == args.variant.lower()
+                                            for k in hfnet.VARIANTS):
+        ap.error(f"--variant {args.variant!r} is not a variant: give one of "
+                 f"{', '.join(hfnet.VARIANTS)}")
     return args
+
+
+def file_error(e):
+    """An OSError or a weights file's ValueError as one line: the file and
+    what is wrong with it."""
+    if isinstance(e, OSError) and e.filename is not None:
+        return f"{e.filename}: {e.strerror}"
+    return str(e)
 
 
 def make_config(args):
@@ -818,7 +832,14 @@ def main(argv=None):
     if args.resume:
         if not os.path.exists(ckpt_path):
             sys.exit(f"train.py: --resume: no {ckpt_path}")
-        ckpt = torch.load(ckpt_path, map_location="cpu")
+        try:
+            ckpt = torch.load(ckpt_path, map_location="cpu")
+            if not isinstance(ckpt, dict) or not isinstance(ckpt.get("args"), dict):
+                raise ValueError("not a train.py checkpoint")
+        except Exception as e:   # torch.load raises whatever its unpickler meets
+            sys.exit(f"train.py: --resume: {ckpt_path} cannot be read ({type(e).__name__}: "
+                     f"{e}): a file cut short or not train.py's; restore it, or start the run "
+                     f"again into another --out")
         resume_options(args, ckpt["args"], given_options(argv), ckpt_path)
         # The log as the checkpoint left it: records written after it (a run
         # killed between a validation and the next checkpoint) are made again.
@@ -849,7 +870,10 @@ def main(argv=None):
     step, history, elapsed, ema = 0, [], 0.0, None
     train_set = None
     if args.init and not ckpt:
-        icfg, state = hfnet.load_safetensors(args.init)
+        try:
+            icfg, state = hfnet.load_safetensors(args.init)
+        except (OSError, ValueError) as e:
+            sys.exit(f"train.py: --init: {file_error(e)}")
         if len(icfg["levels"]) != len(cfg["levels"]) or icfg.get("arch", "unet") != cfg["arch"] \
                 or icfg["in_channels"] != cfg["in_channels"] \
                 or any(a > b for a, b in zip(icfg["levels"], cfg["levels"])):

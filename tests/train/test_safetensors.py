@@ -97,6 +97,20 @@ class Header(unittest.TestCase):
         path = self.edited("trailing.safetensors", "{", "{", rest=self.rest + b"\0" * 16)
         self.refused(path, ["16 bytes after the last tensor"])
 
+    def test_cut_short(self):
+        """A file cut short (a copy that stopped) is named as such by the
+        Python reader, not as "-N bytes after the last tensor"; the C
+        loader names the tensor whose offsets pass the end."""
+        path = self.edited("cut.safetensors", "{", "{", rest=self.rest[:-100])
+        with self.assertRaises(ValueError) as e:
+            hfnet.load_safetensors(path)
+        self.assertIn("end past the", str(e.exception))
+        self.assertIn("the file is cut short", str(e.exception))
+        self.assertNotIn("after the last tensor", str(e.exception))
+        rc, err = c_loader(path)
+        self.assertEqual(rc, 1, err)
+        self.assertIn("data_offsets outside the file", err)
+
     def refused(self, path, words):
         """Both readers refuse path, naming every word of words."""
         with self.assertRaises(ValueError) as e:

@@ -1251,6 +1251,77 @@ class EvalTable(unittest.TestCase):
                           "ours Small (small.safetensors)", r.stderr)
 
 
+class ScriptRefusals(unittest.TestCase):
+    """The scripts docs/TRAINING.md runs, given what does not exist or
+    cannot be read, exit with one line naming it and what to do, never a
+    traceback: an unknown --variant (before any data is read), a missing or
+    cut-short --init, a checkpoint that cannot be read, a --data directory
+    that does not exist or whose manifest is not JSON; stamp_range.py,
+    regime_table.py and eval_table.py likewise."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.work = os.path.join(ARGS.work, "refusals")
+        shutil.rmtree(cls.work, ignore_errors=True)
+        os.makedirs(cls.work)
+        cls.missing = os.path.join(cls.work, "nothing_here")
+        cls.bad_manifest = os.path.join(cls.work, "bad_manifest")
+        os.makedirs(cls.bad_manifest)
+        with open(os.path.join(cls.bad_manifest, "manifest.json"), "w") as f:
+            f.write('{"frames": [')
+        cls.cut = os.path.join(cls.work, "cut.safetensors")
+        with open(os.path.join(WEIGHTS, "small.safetensors"), "rb") as f:
+            data = f.read()
+        with open(cls.cut, "wb") as f:
+            f.write(data[:len(data) - 1000])
+
+    def script(self, name, *argv):
+        r = subprocess.run([sys.executable, os.path.join(WEIGHTS, name), *argv],
+                           capture_output=True, text=True)
+        self.assertNotEqual(r.returncode, 0, r.stderr)
+        self.assertNotIn("Traceback", r.stderr)
+        return r.stderr
+
+    def test_train(self):
+        out = os.path.join(self.work, "run")
+        err = self.script("train.py", "--data", self.missing, "--variant", "Bogus", "--out", out)
+        self.assertIn("--variant 'Bogus' is not a variant: give one of Base,", err)
+        err = self.script("train.py", "--data", self.missing, "--variant", "Small", "--init",
+                          os.path.join(self.work, "none.safetensors"), "--out", out)
+        self.assertIn("train.py: --init: " + os.path.join(self.work, "none.safetensors")
+                      + ": No such file or directory", err)
+        err = self.script("train.py", "--data", self.missing, "--variant", "Small", "--init",
+                          self.cut, "--out", out)
+        self.assertIn(f"train.py: --init: {self.cut}: tensor '", err)
+        self.assertIn("the file is cut short", err)
+        err = self.script("train.py", "--data", self.missing, "--variant", "Small", "--out", out)
+        self.assertIn(f"train.py: {self.missing}: no such directory", err)
+        err = self.script("train.py", "--data", self.bad_manifest, "--variant", "Small",
+                          "--out", out)
+        self.assertIn(f"{self.bad_manifest}/manifest.json: not JSON", err)
+        # A checkpoint that cannot be read: the file named, and what to do.
+        run = os.path.join(self.work, "torn")
+        os.makedirs(run)
+        with open(os.path.join(run, "checkpoint.pt"), "wb") as f:
+            f.write(b"PK\3\4 not a checkpoint")
+        err = self.script("train.py", "--out", run, "--resume")
+        self.assertIn(f"train.py: --resume: {run}/checkpoint.pt cannot be read (", err)
+        self.assertIn("restore it, or start the run again into another --out", err)
+
+    def test_other_scripts(self):
+        err = self.script("stamp_range.py", self.cut, "--data", self.missing)
+        self.assertIn("stamp_range.py: " + self.cut + ": tensor '", err)
+        err = self.script("stamp_range.py", os.path.join(WEIGHTS, "small.safetensors"),
+                          "--data", self.missing, "--out", os.path.join(self.work, "s.safetensors"))
+        self.assertIn(f"stamp_range.py: {self.missing}: no such directory", err)
+        err = self.script("regime_table.py", f"x={self.missing}")
+        self.assertIn(f"regime_table.py: {self.missing}: no such directory", err)
+        err = self.script("eval_table.py", os.path.join(self.work, "none.json"))
+        self.assertIn("none.json: No such file or directory", err)
+        err = self.script("eval_table.py", os.path.join(self.bad_manifest, "manifest.json"))
+        self.assertIn("manifest.json: not JSON (", err)
+
+
 def main():
     global ARGS
     ap = argparse.ArgumentParser()
