@@ -277,7 +277,9 @@ class FrameSet:
         for i, e in enumerate(entries):
             f, t = load_frame(e["file"], dtype=np.float32)
             if f.shape[2] < spp:
-                raise DatasetError(f"{e['file']}: {f.shape[2]} samples per pixel, {spp} needed")
+                raise DatasetError(f"{e['file']}: {f.shape[2]} samples per pixel, the variant "
+                                   f"reads {spp}: render the set with --spp {spp}, or train a "
+                                   f"variant of fewer samples (Base@1spp reads 1, Base@2spp 2)")
             self.stats.append(entry_stats(e, f, spp))
             if self.estimate:
                 self.ests.append(load_estimate(e["file"]))

@@ -1307,6 +1307,14 @@ class ScriptRefusals(unittest.TestCase):
         err = self.script("train.py", "--out", run, "--resume")
         self.assertIn(f"train.py: --resume: {run}/checkpoint.pt cannot be read (", err)
         self.assertIn("restore it, or start the run again into another --out", err)
+        # Frames of fewer samples than the variant reads: which --spp to render.
+        one = os.path.join(self.work, "one_spp")
+        synth_dataset.main(["--out", one, "--styles", "straight", "--count", "2",
+                            "--size", "32x32", "--spp", "1", "--st", "", "--seed", "4"])
+        err = self.script("train.py", "--data", one, "--variant", "Small", "--crop", "16",
+                          "--out", out)
+        self.assertIn("1 samples per pixel, the variant reads 4: render the set with --spp 4",
+                      err)
 
     def test_other_scripts(self):
         err = self.script("stamp_range.py", self.cut, "--data", self.missing)
