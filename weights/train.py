@@ -714,6 +714,27 @@ def parse_args(argv):
     return args
 
 
+def init_mismatch(icfg, cfg):
+    """What keeps weights of config icfg from starting a run of cfg ('' if
+    nothing): each difference named, since the levels alone (what this
+    said) are often the same, as Kernel's and KernelAC's are."""
+    def inputs(c):
+        est = " and the alpha-corrected estimate" if c.get("estimate") else ""
+        return f"{c['spp']} sample{'s' if c['spp'] != 1 else ''}{est} ({c['in_channels']} " \
+               f"input channels)"
+    why = []
+    if icfg.get("arch", "unet") != cfg["arch"]:
+        why.append(f"architecture {icfg.get('arch', 'unet')}, not {cfg['arch']}")
+    if icfg["in_channels"] != cfg["in_channels"]:
+        why.append(f"it reads {inputs(icfg)}, {cfg['name']} {inputs(cfg)}")
+    if len(icfg["levels"]) != len(cfg["levels"]):
+        why.append(f"{len(icfg['levels'])} levels {icfg['levels']}, not {len(cfg['levels'])} "
+                   f"{cfg['levels']}")
+    elif any(a > b for a, b in zip(icfg["levels"], cfg["levels"])):
+        why.append(f"levels {icfg['levels']} wider than {cfg['levels']}")
+    return "; ".join(why)
+
+
 def file_error(e):
     """An OSError or a weights file's ValueError as one line: the file and
     what is wrong with it."""
@@ -874,11 +895,11 @@ def main(argv=None):
             icfg, state = hfnet.load_safetensors(args.init)
         except (OSError, ValueError) as e:
             sys.exit(f"train.py: --init: {file_error(e)}")
-        if len(icfg["levels"]) != len(cfg["levels"]) or icfg.get("arch", "unet") != cfg["arch"] \
-                or icfg["in_channels"] != cfg["in_channels"] \
-                or any(a > b for a, b in zip(icfg["levels"], cfg["levels"])):
-            sys.exit(f"train.py: --init {args.init} is {icfg['name']} {icfg['levels']}, "
-                     f"not {cfg['name']} {cfg['levels']} or narrower")
+        why = init_mismatch(icfg, cfg)
+        if why:
+            sys.exit(f"train.py: --init {args.init} is {icfg['name']}, which cannot start "
+                     f"--variant {cfg['name']}: {why}; give weights of {cfg['name']} (or of its "
+                     f"architecture and inputs, narrower levels)")
         if icfg["levels"] != cfg["levels"]:
             fresh = hfnet.HairNet(dict(cfg, kernel_hidden=icfg.get("kernel_hidden", 0)))
             state = hfnet.widen_levels(state, icfg["levels"], fresh.state_dict())

@@ -1294,6 +1294,19 @@ class ScriptRefusals(unittest.TestCase):
                           self.cut, "--out", out)
         self.assertIn(f"train.py: --init: {self.cut}: tensor '", err)
         self.assertIn("the file is cut short", err)
+        # Weights of another variant: the difference named, where the levels
+        # (all it named) are the same.
+        err = self.script("train.py", "--data", self.missing, "--variant", "Kernel", "--init",
+                          os.path.join(WEIGHTS, "kernel_ac.safetensors"), "--out", out)
+        self.assertIn("is KernelAC, which cannot start --variant Kernel: it reads 4 samples and "
+                      "the alpha-corrected estimate (27 input channels), Kernel 4 samples (24 "
+                      "input channels)", err)
+        err = self.script("train.py", "--data", self.missing, "--variant", "Residual", "--init",
+                          os.path.join(WEIGHTS, "base.safetensors"), "--out", out)
+        self.assertIn("architecture unet, not residual", err)
+        err = self.script("train.py", "--data", self.missing, "--variant", "Shallow", "--init",
+                          os.path.join(WEIGHTS, "base.safetensors"), "--out", out)
+        self.assertIn("3 levels [32, 64, 128], not 2 [32, 64]", err)
         err = self.script("train.py", "--data", self.missing, "--variant", "Small", "--out", out)
         self.assertIn(f"train.py: {self.missing}: no such directory", err)
         err = self.script("train.py", "--data", self.bad_manifest, "--variant", "Small",
