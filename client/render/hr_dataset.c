@@ -321,6 +321,8 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   else if (o->resume)
     rc = hr_dataset_resume_open(o->out_dir, options, o->count, hfr_renderer_gl_name(r), &old,
                                 err, errlen);
+  else
+    hr_dataset_note_earlier_run(o->out_dir);
   hr_dataset_resume_history(doc, old);
 
   const int sources = o->n_styles + o->n_hair_files, total = sources * o->count;

@@ -50,6 +50,11 @@ struct cJSON *hr_dataset_options(const hfr_dataset_opts *o);
  * stderr when gl_renderer differs. */
 int hr_dataset_resume_open(const char *dir, const struct cJSON *options, int count,
                            const char *gl_renderer, struct cJSON **old, char *err, size_t errlen);
+/* For a run without --resume: says on stderr, before anything is
+ * rendered, when dir/manifest.json lists frames of an earlier run, how
+ * many, that they are rendered again over and that --resume keeps them
+ * (a command run again without it started over in silence). */
+void hr_dataset_note_earlier_run(const char *dir);
 /* Records in doc's "earlier_gl_renderers" the renderers of old's frames
  * (its "gl_renderer" and its own list) that differ from doc's. */
 void hr_dataset_resume_history(struct cJSON *doc, const struct cJSON *old);

@@ -259,6 +259,22 @@ static int check_count(const cJSON *list, int count, const char *path, char *err
   return HF_OK;
 }
 
+void hr_dataset_note_earlier_run(const char *dir) {
+  char path[4200], err[256];
+  snprintf(path, sizeof path, "%s/manifest.json", dir);
+  struct stat st;
+  if (stat(path, &st) != 0) return;
+  char *text = read_text(path, err, sizeof err);
+  cJSON *doc = text ? cJSON_Parse(text) : NULL;
+  free(text);
+  int n = cJSON_GetArraySize(doc ? cJSON_GetObjectItemCaseSensitive(doc, "frames") : NULL);
+  if (n > 0)
+    fprintf(stderr, "hairfilter render dataset: %s lists %d frame%s of an earlier run: this "
+            "run starts the set again and renders over them; to keep them, stop it and run "
+            "the set's command with --resume\n", path, n, n == 1 ? "" : "s");
+  cJSON_Delete(doc);
+}
+
 int hr_dataset_resume_open(const char *dir, const cJSON *options, int count,
                            const char *gl_renderer, cJSON **old, char *err, size_t errlen) {
   *old = NULL;

@@ -562,6 +562,12 @@ static void test_render_dataset_resume(void **state) {
   write_text(p1, "{\"frames\"");
   assert_int_equal(cli("render dataset %s --count 2 --resume --out %s", opt, part), 1);
   expect_text("is not a hairfilter dataset manifest");
+  /* The set's command run again without --resume starts over: said, with
+   * how many frames it renders over and how to keep them. */
+  assert_int_equal(cli("render dataset %s --count 1 --out %s", opt, whole), 0);
+  expect_text("/manifest.json lists 4 frames of an earlier run: this run starts the set again "
+              "and renders over them; to keep them, stop it and run the set's command with "
+              "--resume");
 #endif
 }
 
