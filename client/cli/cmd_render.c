@@ -6,6 +6,7 @@
  *   render hair    [model] --out F.hair            (export a procedural style) */
 #include <dirent.h>
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -504,8 +505,21 @@ static int parse_args(int argc, char **argv, opts *o) {
       o->ds.n_styles = 0;
       o->styles_set = 1;
       for (char *t = strtok(buf, ","); t; t = strtok(NULL, ",")) {
-        if (o->ds.n_styles == HFR_STYLE_COUNT || hfr_style_from_name(t, &o->ds.styles[o->ds.n_styles])) {
-          fprintf(stderr, "hairfilter render: bad style list '%s'\n", v);
+        if (o->ds.n_styles == HFR_STYLE_COUNT) {
+          fprintf(stderr, "hairfilter render: --styles '%s': more than %d styles (name each "
+                  "once)\n", v, HFR_STYLE_COUNT);
+          return -1;
+        }
+        if (hfr_style_from_name(t, &o->ds.styles[o->ds.n_styles])) {
+          /* The one not known, and those that are. */
+          char known[256] = "";
+          for (int k = 0; k < HFR_STYLE_COUNT; k++) {
+            size_t used = strlen(known);
+            snprintf(known + used, sizeof known - used, "%s%s", k ? ", " : "",
+                     hfr_style_name((hfr_style)k));
+          }
+          fprintf(stderr, "hairfilter render: --styles '%s': no style '%s' (the styles: %s; "
+                  "your own models: --hair-files)\n", v, t, known);
           return -1;
         }
         o->ds.n_styles++;
@@ -554,6 +568,12 @@ static int parse_args(int argc, char **argv, opts *o) {
                   a, v);
         else
           fprintf(stderr, "hairfilter render: unknown option %s\n", a);
+        return -1;
+      }
+      /* Past int, (int)n would wrap: --count 4294967297 rendered 1 frame a
+       * style, --strands 4294967296 was "strands 0". The seeds keep 64 bits. */
+      if (n > INT_MAX && strcmp(a, "--seed") && strcmp(a, "--hair-seed")) {
+        fprintf(stderr, "hairfilter render: %s %s is too large (at most %d)\n", a, v, INT_MAX);
         return -1;
       }
       if (!strcmp(a, "--strands")) o->ov.strands = (int)n;
@@ -894,6 +914,11 @@ static int run_fig6(opts *o) {
 static int run_dataset(opts *o) {
   if (!o->out) {
     fprintf(stderr, "hairfilter render dataset: --out DIR\n");
+    return 2;
+  }
+  if (o->ds.count < 1) {
+    fprintf(stderr, "hairfilter render dataset: --count %d: a set needs at least 1 frame of "
+            "each style\n", o->ds.count);
     return 2;
   }
   if (cli_check_output_dir("hairfilter render dataset", o->out)) return 1;

@@ -624,6 +624,22 @@ static void test_strict_numbers(void **state) {
   expect_text("--size wants WxH");
   assert_int_equal(cli("render frame --size 16x16 --hair-color 1,2,3x --out %s",
                        test_tmp("tail.exr")), 2);
+  /* Past int a count wrapped (4294967297 frames was 1) and 0 was "need an
+   * output directory, styles or .hair files, a count and spp". */
+  assert_int_equal(cli("render dataset --styles straight --count 4294967297 --size 16x16 "
+                       "--out %s", test_tmp("wrap_set")), 2);
+  expect_text("--count 4294967297 is too large (at most 2147483647)");
+  assert_int_equal(cli("render frame --strands 4294967296 --size 16x16 --out %s",
+                       test_tmp("tail.exr")), 2);
+  expect_text("--strands 4294967296 is too large");
+  assert_int_equal(cli("render dataset --styles straight --count 0 --size 16x16 --out %s",
+                       test_tmp("wrap_set")), 2);
+  expect_text("--count 0: a set needs at least 1 frame of each style");
+  /* A style not known is named, with those that are. */
+  assert_int_equal(cli("render dataset --styles straight,bogus --count 1 --size 16x16 --out %s",
+                       test_tmp("wrap_set")), 2);
+  expect_text("--styles 'straight,bogus': no style 'bogus' (the styles: straight, wavy, curly, "
+              "coily, ponytail, spiky, fur;");
 #endif
 }
 
