@@ -705,6 +705,26 @@ def parse_args(argv):
         ap.error("--weight-ema must be a decay in [0, 1) (0: off)")
     if args.clip_grad_norm < 0 or not math.isfinite(args.clip_grad_norm):
         ap.error("--clip-grad-norm must be a finite norm >= 0 (0: no clipping)")
+    # Counts and rates in their ranges, before any data is read: out of
+    # them a run did nothing (--steps 0) or ended in a traceback from numpy
+    # or torch (--batch 0, --val-every 0, --lr -1, --threads 0, ...).
+    for flag, lo, what in (("--steps", 1, "optimizer steps"), ("--batch", 1, "crops a step"),
+                           ("--crop", 1, "pixels"), ("--val-every", 1, "steps"),
+                           ("--ckpt-every", 1, "steps"), ("--threads", 1, "threads"),
+                           ("--reload-every", 0, "steps; 0: off"),
+                           ("--stop-at", 0, "a step; 0: off"), ("--benchmark", 0, "steps")):
+        v = getattr(args, flag[2:].replace("-", "_"))
+        if v < lo:
+            ap.error(f"{flag} {v}: must be {lo} or more ({what})")
+    if not (math.isfinite(args.lr) and args.lr > 0):
+        ap.error(f"--lr {args.lr}: must be a finite rate above 0")
+    if not 0 <= args.lr_floor <= 1:
+        ap.error(f"--lr-floor {args.lr_floor}: must be a share of --lr in [0, 1]")
+    if not 0 <= args.val_fraction < 1:
+        ap.error(f"--val-fraction {args.val_fraction}: must be a share in [0, 1) (0: no "
+                 f"validation frames)")
+    if not (math.isfinite(args.time_limit) and args.time_limit >= 0):
+        ap.error(f"--time-limit {args.time_limit}: must be seconds >= 0 (0: none)")
     # Before any data is read (a mistyped name was a KeyError traceback
     # after the frames had loaded).
     if args.variant is not None and not any(k.lower() == args.variant.lower()
@@ -872,6 +892,13 @@ def main(argv=None):
               file=sys.stderr)
         os.remove(log_path)
     cfg = make_config(args)
+    # The U-Net halves a crop once per level; a crop that does not divide
+    # ended in a torch size mismatch after the frames had loaded.
+    period = 2 ** len(cfg["levels"])
+    if args.crop % period:
+        sys.exit(f"train.py: --crop {args.crop}: {cfg['name']} halves the crop "
+                 f"{len(cfg['levels'])} times, so it must be a multiple of {period}: use "
+                 f"{max(period, args.crop // period * period)}")
     # The period of a U-Net's lattice: its upsamplings' total stride.
     lattice = (args.lattice_weight, 2 ** len(cfg["levels"]))
     lowpass = (args.lowpass_weight, args.lowpass_size)

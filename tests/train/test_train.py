@@ -1329,6 +1329,33 @@ class ScriptRefusals(unittest.TestCase):
         self.assertIn("1 samples per pixel, the variant reads 4: render the set with --spp 4",
                       err)
 
+    def test_numbers_out_of_range(self):
+        """Counts and rates out of range are refused by name before any
+        frame is read: they did nothing (--steps 0) or ended in a traceback
+        from numpy or torch. A crop the U-Net cannot halve is named with
+        the multiple it needs."""
+        out = os.path.join(self.work, "numbers")
+        for flag, value, want in (("--steps", "0", "--steps 0: must be 1 or more"),
+                                  ("--batch", "0", "--batch 0: must be 1 or more"),
+                                  ("--val-every", "0", "--val-every 0: must be 1 or more"),
+                                  ("--ckpt-every", "0", "--ckpt-every 0: must be 1 or more"),
+                                  ("--threads", "0", "--threads 0: must be 1 or more"),
+                                  ("--lr", "-1", "--lr -1.0: must be a finite rate above 0"),
+                                  ("--lr", "nan", "--lr nan: must be a finite rate above 0"),
+                                  ("--val-fraction", "1.5", "--val-fraction 1.5: must be a "
+                                                            "share in [0, 1)")):
+            err = self.script("train.py", "--data", self.missing, "--variant", "Small",
+                              "--out", out, flag, value)
+            self.assertIn(want, err)
+            self.assertNotIn("no such directory", err, "refused after the data was looked at")
+        one = os.path.join(self.work, "crop_data")
+        synth_dataset.main(["--out", one, "--styles", "straight", "--count", "2",
+                            "--size", "32x32", "--st", "", "--seed", "4"])
+        err = self.script("train.py", "--data", one, "--styles", "", "--variant", "Small",
+                          "--crop", "20", "--out", out)
+        self.assertIn("--crop 20: Small halves the crop 3 times, so it must be a multiple of 8: "
+                      "use 16", err)
+
     def test_other_scripts(self):
         err = self.script("stamp_range.py", self.cut, "--data", self.missing)
         self.assertIn("stamp_range.py: " + self.cut + ": tensor '", err)
