@@ -891,6 +891,19 @@ def main(argv=None):
         print(f"train.py: {log_path} of a run that saved no checkpoint: started anew",
               file=sys.stderr)
         os.remove(log_path)
+    if args.export:
+        # Checked now, not after the training it would have lost the
+        # export of (the checkpoint stays, but the run ended in a traceback).
+        where = os.path.dirname(os.path.abspath(args.export))
+        if os.path.isdir(args.export) or args.export.endswith(os.sep):
+            sys.exit(f"train.py: --export {args.export} is a directory: give the weights "
+                     f"file's name (e.g. {os.path.join(args.export, 'mine.safetensors')})")
+        try:
+            os.makedirs(where, exist_ok=True)
+        except OSError as e:
+            sys.exit(f"train.py: --export {args.export}: cannot make {where}: {e.strerror}")
+        if not os.access(where, os.W_OK):
+            sys.exit(f"train.py: --export {args.export}: {where} is not writable")
     cfg = make_config(args)
     # The U-Net halves a crop once per level; a crop that does not divide
     # ended in a torch size mismatch after the frames had loaded.

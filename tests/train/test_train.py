@@ -1348,6 +1348,17 @@ class ScriptRefusals(unittest.TestCase):
                               "--out", out, flag, value)
             self.assertIn(want, err)
             self.assertNotIn("no such directory", err, "refused after the data was looked at")
+        # An export that cannot be written: said before training, not after.
+        err = self.script("train.py", "--data", self.missing, "--variant", "Small", "--out", out,
+                          "--export", self.work + os.sep)
+        self.assertIn(f"--export {self.work}{os.sep} is a directory: give the weights file's "
+                      "name", err)
+        blocker = os.path.join(self.work, "a_file")
+        with open(blocker, "w") as f:
+            f.write("x")
+        err = self.script("train.py", "--data", self.missing, "--variant", "Small", "--out", out,
+                          "--export", os.path.join(blocker, "w.safetensors"))
+        self.assertIn(f"cannot make {blocker}", err)
         one = os.path.join(self.work, "crop_data")
         synth_dataset.main(["--out", one, "--styles", "straight", "--count", "2",
                             "--size", "32x32", "--st", "", "--seed", "4"])
