@@ -13,6 +13,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include <cjson/cJSON.h>
 
@@ -288,9 +289,18 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
   const unsigned char *p = buf;
   if (len < 8) return fail(err, errlen, HF_EFORMAT, "file too short (%zu bytes)", len);
   uint64_t hlen = read_le64(p);
-  if (hlen < 2 || hlen > HEADER_MAX || hlen > len - 8)
-    return fail(err, errlen, HF_EFORMAT, "header length %llu does not fit a %zu-byte file",
-                (unsigned long long)hlen, len);
+  if (hlen < 2 || hlen > HEADER_MAX || hlen > len - 8) {
+    /* Files given for weights by mistake are named for what they are: a
+     * header length read off a zip's or an EXR's first bytes says nothing. */
+    if (!memcmp(p, "PK\3\4", 4))
+      return fail(err, errlen, HF_EFORMAT, "a zip archive, not a safetensors file: a PyTorch "
+                  "checkpoint (train.py's RUN/checkpoint.pt)? Export its weights with "
+                  "weights/train.py --out RUN --resume --export W.safetensors");
+    if (p[0] == 0x76 && p[1] == 0x2f && p[2] == 0x31 && p[3] == 0x01)
+      return fail(err, errlen, HF_EFORMAT, "an OpenEXR image, not a safetensors weights file");
+    return fail(err, errlen, HF_EFORMAT, "header length %llu does not fit a %zu-byte file "
+                "(not a safetensors file, or one cut short)", (unsigned long long)hlen, len);
+  }
   if (p[8] != '{')
     return fail(err, errlen, HF_EFORMAT, "header does not start with '{' (a byte order mark "
                 "or other bytes come before the JSON): write the file again with a "
@@ -400,13 +410,20 @@ int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen
   if (!f) return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
   int rc = HF_OK;
   unsigned char *buf = NULL;
+  struct stat st;
+  if (fstat(fileno(f), &st) == 0 && S_ISDIR(st.st_mode)) {
+    /* fopen reads a directory on Linux; its size was "not supported". */
+    rc = fail(err, errlen, HF_EIO, "%s: is a directory: give a .safetensors file", path);
+    goto out;
+  }
   if (fseek(f, 0, SEEK_END) != 0) {
     rc = fail(err, errlen, HF_EIO, "%s: cannot seek", path);
     goto out;
   }
   long size = ftell(f);
   if (size < 0 || (unsigned long)size > FILE_MAX) {
-    rc = fail(err, errlen, HF_ERANGE, "%s: size not supported", path);
+    rc = fail(err, errlen, HF_ERANGE, "%s: larger than the %zu bytes a weights file may have",
+              path, FILE_MAX);
     goto out;
   }
   rewind(f);

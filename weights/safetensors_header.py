@@ -30,7 +30,15 @@ def read_header(path):
         raise ValueError(f"{path}: file too short ({len(data)} bytes)")
     (n,) = struct.unpack("<Q", data[:8])
     if n > len(data) - 8:
-        raise ValueError(f"{path}: header length {n} exceeds file size")
+        # Files given for weights by mistake, named as the C loader names them.
+        if data[:4] == b"PK\3\4":
+            raise ValueError(f"{path}: a zip archive, not a safetensors file: a PyTorch "
+                             "checkpoint (train.py's RUN/checkpoint.pt)? Export its weights "
+                             "with weights/train.py --out RUN --resume --export W.safetensors")
+        if data[:4] == b"\x76\x2f\x31\x01":
+            raise ValueError(f"{path}: an OpenEXR image, not a safetensors weights file")
+        raise ValueError(f"{path}: header length {n} exceeds file size (not a safetensors "
+                         "file, or one cut short)")
     if data[8:9] != b"{":
         raise ValueError(f"{path}: header does not start with '{{' (a byte order mark or other "
                          "bytes come before the JSON): write the file again with a safetensors "

@@ -455,6 +455,26 @@ static void test_missing_file(void **state) {
   assert_non_null(strstr(err, "/nonexistent/x.safetensors"));
 }
 
+/* Files given for weights by mistake are named for what they are, where the
+ * header length read off their first bytes said nothing to the user (a
+ * PyTorch checkpoint, an EXR frame) or the size was "not supported" (a
+ * directory, which fopen reads on Linux). */
+static void test_not_weights(void **state) {
+  unsigned char zip[64] = "PK\3\4 a checkpoint's zip archive";
+  blob z = {zip, sizeof zip};
+  expect_reject(&z, HF_EFORMAT, "a zip archive, not a safetensors file: a PyTorch checkpoint");
+  expect_reject(&z, HF_EFORMAT, "--export W.safetensors");
+  unsigned char exr[64] = {0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0};
+  blob e = {exr, sizeof exr};
+  expect_reject(&e, HF_EFORMAT, "an OpenEXR image, not a safetensors weights file");
+  hf_weights *w;
+  char err[512] = "";
+  assert_int_equal(hf_weights_load(HF_TEST_DATA, &w, err, sizeof err), HF_EIO);
+  assert_null(w);
+  if (!strstr(err, "is a directory: give a .safetensors file"))
+    fail_msg("error '%s' does not say it is a directory", err);
+}
+
 /* Random byte flips in the header: whatever happens, no crash, and either a
  * clean error or a successfully validated model. */
 static void test_header_fuzz(void **state) {
@@ -497,6 +517,7 @@ int main(void) {
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
     cmocka_unit_test(test_trailing_json),       cmocka_unit_test(test_checked_before_allocation),
     cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_tiling_and_header_start), cmocka_unit_test(test_duplicate_keys),
+    cmocka_unit_test(test_not_weights),
     cmocka_unit_test(test_metadata_types),       cmocka_unit_test(test_kernel_arch),
   };
   return cmocka_run_group_tests(tests, setup, teardown);

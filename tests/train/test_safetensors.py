@@ -111,6 +111,15 @@ class Header(unittest.TestCase):
         self.assertEqual(rc, 1, err)
         self.assertIn("data_offsets outside the file", err)
 
+    def test_checkpoint_for_weights(self):
+        """A PyTorch checkpoint given for weights (train.py --init
+        RUN/checkpoint.pt) is named as one, with how to export its weights,
+        by both readers; it was "header length N exceeds file size"."""
+        path = os.path.join(ARGS.work, "checkpoint.pt")
+        torch.save({"model": {}}, path)
+        self.refused(path, ["a zip archive, not a safetensors file: a PyTorch checkpoint",
+                            "--export W.safetensors"])
+
     def refused(self, path, words):
         """Both readers refuse path, naming every word of words."""
         with self.assertRaises(ValueError) as e:
