@@ -716,6 +716,15 @@ def parse_args(argv):
         v = getattr(args, flag[2:].replace("-", "_"))
         if v < lo:
             ap.error(f"{flag} {v}: must be {lo} or more ({what})")
+    # The loader's limits (src/hfcore.h HF_KERNEL_MAX_RADIUS, _MAX_HIDDEN):
+    # beyond them a run trained weights no backend loads.
+    if args.kernel_radius and not 1 <= args.kernel_radius <= KERNEL_MAX_RADIUS:
+        ap.error(f"--kernel-radius {args.kernel_radius}: must be 1..{KERNEL_MAX_RADIUS} (kernels "
+                 f"of up to {2 * KERNEL_MAX_RADIUS + 1}x{2 * KERNEL_MAX_RADIUS + 1} pixels, what "
+                 f"the C loader and backends take)")
+    if args.kernel_hidden != -1 and not 0 <= args.kernel_hidden <= KERNEL_MAX_HIDDEN:
+        ap.error(f"--kernel-hidden {args.kernel_hidden}: must be 0..{KERNEL_MAX_HIDDEN} (what the "
+                 f"C loader and backends take; 0: no head)")
     if not (math.isfinite(args.lr) and args.lr > 0):
         ap.error(f"--lr {args.lr}: must be a finite rate above 0")
     if not 0 <= args.lr_floor <= 1:
@@ -763,9 +772,19 @@ def file_error(e):
     return str(e)
 
 
+KERNEL_MAX_RADIUS = 4    # src/hfcore.h HF_KERNEL_MAX_RADIUS
+KERNEL_MAX_HIDDEN = 64   # src/hfcore.h HF_KERNEL_MAX_HIDDEN
+
+
 def make_config(args):
     """The variant's configuration with the run's kernel overrides."""
     cfg = hfnet.variant_config(args.variant)
+    if cfg["arch"] != "kernel" and (getattr(args, "kernel_radius", 0) > 0
+                                    or getattr(args, "kernel_hidden", -1) >= 0):
+        # Checked here, after --resume has set the variant: dropped in
+        # silence, the run would not be the one asked for.
+        sys.exit(f"train.py: --kernel-radius and --kernel-hidden are for the kernel variants "
+                 f"(Kernel, KernelAC), not {cfg['name']}")
     if getattr(args, "levels", None):
         try:
             cfg["levels"] = [int(c) for c in args.levels.split(",")]

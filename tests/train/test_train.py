@@ -1359,6 +1359,24 @@ class ScriptRefusals(unittest.TestCase):
         err = self.script("train.py", "--data", self.missing, "--variant", "Small", "--out", out,
                           "--export", os.path.join(blocker, "w.safetensors"))
         self.assertIn(f"cannot make {blocker}", err)
+        # Kernels the C loader takes, and only on the kernel variants: a
+        # radius of 5 trained weights no backend loads, and --kernel-radius
+        # on Small was dropped in silence.
+        err = self.script("train.py", "--data", self.missing, "--variant", "Kernel",
+                          "--kernel-radius", "5", "--out", out)
+        self.assertIn("--kernel-radius 5: must be 1..4", err)
+        err = self.script("train.py", "--data", self.missing, "--variant", "Kernel",
+                          "--kernel-hidden", "65", "--out", out)
+        self.assertIn("--kernel-hidden 65: must be 0..64", err)
+        err = self.script("train.py", "--data", self.missing, "--variant", "Small",
+                          "--kernel-radius", "2", "--out", out)
+        self.assertIn("--kernel-radius and --kernel-hidden are for the kernel variants "
+                      "(Kernel, KernelAC), not Small", err)
+        with open(os.path.join(HERE, "..", "..", "src", "hfcore.h")) as f:
+            h = f.read()
+        for name, value in (("HF_KERNEL_MAX_RADIUS", train.KERNEL_MAX_RADIUS),
+                            ("HF_KERNEL_MAX_HIDDEN", train.KERNEL_MAX_HIDDEN)):
+            self.assertRegex(h, rf"#define {name} +{value}\b", f"train.py's limit is not {name}'s")
         one = os.path.join(self.work, "crop_data")
         synth_dataset.main(["--out", one, "--styles", "straight", "--count", "2",
                             "--size", "32x32", "--st", "", "--seed", "4"])
