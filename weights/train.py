@@ -772,6 +772,8 @@ def file_error(e):
     return str(e)
 
 
+MAX_LEVELS = 8           # src/hfcore.h HF_MAX_LEVELS
+MAX_CHANNELS = 4096      # src/hfcore.h HF_MAX_CHANNELS
 KERNEL_MAX_RADIUS = 4    # src/hfcore.h HF_KERNEL_MAX_RADIUS
 KERNEL_MAX_HIDDEN = 64   # src/hfcore.h HF_KERNEL_MAX_HIDDEN
 
@@ -793,6 +795,10 @@ def make_config(args):
         if not cfg["levels"] or min(cfg["levels"]) < 1:
             sys.exit(f"train.py: --levels {args.levels!r}: positive channel counts, "
                      f"e.g. 48,96,192")
+        if len(cfg["levels"]) > MAX_LEVELS or max(cfg["levels"]) > MAX_CHANNELS:
+            # Past the loader's limits the run would train weights no backend loads.
+            sys.exit(f"train.py: --levels {args.levels!r}: at most {MAX_LEVELS} levels of at "
+                     f"most {MAX_CHANNELS} channels (what the C loader and backends take)")
     if cfg["arch"] == "kernel":
         if getattr(args, "kernel_radius", 0) > 0:
             cfg["kernel_radius"] = args.kernel_radius

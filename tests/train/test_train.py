@@ -1374,7 +1374,12 @@ class ScriptRefusals(unittest.TestCase):
                       "(Kernel, KernelAC), not Small", err)
         with open(os.path.join(HERE, "..", "..", "src", "hfcore.h")) as f:
             h = f.read()
-        for name, value in (("HF_KERNEL_MAX_RADIUS", train.KERNEL_MAX_RADIUS),
+        err = self.script("train.py", "--data", self.missing, "--variant", "Small",
+                          "--levels", "8,8,8,8,8,8,8,8,8", "--out", out)
+        self.assertIn("at most 8 levels of at most 4096 channels", err)
+        for name, value in (("HF_MAX_LEVELS", train.MAX_LEVELS),
+                            ("HF_MAX_CHANNELS", train.MAX_CHANNELS),
+                            ("HF_KERNEL_MAX_RADIUS", train.KERNEL_MAX_RADIUS),
                             ("HF_KERNEL_MAX_HIDDEN", train.KERNEL_MAX_HIDDEN)):
             self.assertRegex(h, rf"#define {name} +{value}\b", f"train.py's limit is not {name}'s")
         one = os.path.join(self.work, "crop_data")
