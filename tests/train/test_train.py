@@ -959,7 +959,7 @@ class Recipe(unittest.TestCase):
         missing = os.path.join(self.work, "no_such_set")
         p = subprocess.run(cmd + ["--data", missing], capture_output=True, text=True)
         self.assertNotEqual(p.returncode, 0)
-        self.assertIn(f"train.py: {missing}: no frames", p.stderr)
+        self.assertIn(f"train.py: {missing}: no such directory", p.stderr)
         self.assertNotIn("Traceback", p.stderr)
 
     def test_no_validation_frames_said_so(self):
