@@ -492,8 +492,9 @@ static int check_range(const hf_input_range *r, const char *label, const char *p
   hf_input_stats st;
   int bad = cli_input_range_check(r, in, HF_F32, w, h, spp, &st);
   if (bad <= 0) return bad;
-  if (isatty(2)) fprintf(stderr, "\r\x1b[K");   /* over the progress line */
-  else fprintf(stderr, "\n");
+  /* Over the progress line on a terminal; a log has none to end, so no
+   * blank line before each warning there. */
+  if (isatty(2)) fprintf(stderr, "\r\x1b[K");
   cli_warn_input_range("hairfilter eval", path, label, r, &st, (unsigned)bad);
   if (flags) {
     cJSON *o = cJSON_CreateObject();
