@@ -272,6 +272,24 @@ static int add_path(frame_list *l, const char *path) {
   return rc;
 }
 
+/* How many entries of the comma-separated list all have base name base (n
+ * bytes), and how many are the whole path tok. */
+static void count_names(const char *all, const char *tok, const char *base, size_t n,
+                        int *same_base, int *same_path) {
+  *same_base = *same_path = 0;
+  for (const char *p = all; *p;) {
+    size_t m = strcspn(p, ",");
+    const char *b = p;
+    for (size_t i = 0; i < m; i++)
+      if (p[i] == '/') b = p + i + 1;
+    size_t bn = m - (size_t)(b - p);
+    *same_base += bn == n && !strncmp(b, base, n);
+    *same_path += m == strlen(tok) && !strncmp(p, tok, m);
+    p += m;
+    if (*p == ',') p++;
+  }
+}
+
 static int style_wanted(const char *styles, const char *style) {
   if (!styles || !*styles) return 1;
   size_t n = strlen(style);
@@ -299,7 +317,7 @@ typedef struct lattice_summary {
 
 typedef struct method {
   int kind;
-  char label[128];
+  char label[320];
   char prefix[16];              /* M_CHANNELS: "st4", "opaque" */
   int radius;                   /* M_INPUT_POOL: half side of the window */
   int model;                    /* M_MODEL: index into models */
@@ -913,12 +931,25 @@ int cmd_eval(int argc, char **argv) {
         break;
       }
       const char *base = strrchr(tok, '/');
+      base = base ? base + 1 : tok;
+      /* Two runs' files of one name (runs/a/final.safetensors and
+       * runs/b/final.safetensors) would be two rows of one label, in the
+       * tables and the JSON alike: such files are labelled by their path. */
+      int same_base, same_path;
+      count_names(weights_arg, tok, base, strlen(base), &same_base, &same_path);
+      if (same_path > 1) {
+        fprintf(stderr, "hairfilter eval: --weights names %s %d times: give each file once\n",
+                tok, same_path);
+        hf_weights_free(w);
+        rc = HF_EINVAL;
+        break;
+      }
       ranges[nmodels] = w->input_range;
       ms[nm].kind = M_MODEL;
       ms[nm].lattice_period = 1 << w->cfg.num_levels;
       ms[nm].model = nmodels++;
       snprintf(ms[nm++].label, sizeof ms[0].label, "ours %s (%s)", w->cfg.name,
-               base ? base + 1 : tok);
+               same_base > 1 ? tok : base);
       hf_weights_free(w);
     }
     free(list);
