@@ -470,13 +470,81 @@ def load_safetensors(path):
             raise ValueError(f"{path}: metadata 'input_range': {e}") from None
         if not isinstance(rng, dict):
             raise ValueError(f"{path}: metadata 'input_range' is not a JSON object")
+    check_config(path, cfg)
+    # The tensors the configuration makes, as the C loader checks them: a
+    # file with one missing, extra or of another shape was accepted here
+    # and failed later in load_state_dict (or not at all).
+    want = {k: tuple(v.shape) for k, v in HairNet(cfg).state_dict().items()}
+    missing = [k for k in want if k not in header]
+    extra = [k for k in header if k not in want]
+    if missing or extra:
+        raise ValueError(f"{path}: file has {len(header)} tensors, the configuration needs "
+                         f"{len(want)}" + (f"; missing {', '.join(missing)}" if missing else "")
+                         + (f"; not of this network: {', '.join(extra)}" if extra else ""))
     sd = {}
     for name, t in header.items():
-        np_dtype, _ = _DTYPES[t["dtype"]]
+        if not isinstance(t, dict) or t.get("dtype") not in _DTYPES:
+            raise ValueError(f"{path}: tensor '{name}': dtype "
+                             f"{t.get('dtype') if isinstance(t, dict) else t!r} is not F32 or F16")
+        np_dtype, size = _DTYPES[t["dtype"]]
+        shape = tuple(t.get("shape", ()))
+        if shape != want[name]:
+            raise ValueError(f"{path}: tensor '{name}': shape {list(shape)}, the configuration "
+                             f"needs {list(want[name])}")
         b, e = t["data_offsets"]
-        a = np.frombuffer(data[base + b:base + e], dtype=np_dtype).reshape(t["shape"])
+        if e - b != int(np.prod(shape)) * size:
+            raise ValueError(f"{path}: tensor '{name}': data_offsets [{b}, {e}) hold {e - b} "
+                             f"bytes, its shape and dtype need {int(np.prod(shape)) * size}")
+        a = np.frombuffer(data[base + b:base + e], dtype=np_dtype).reshape(shape)
         sd[name] = torch.from_numpy(a.astype(np.float32))
     return cfg, sd
+
+
+def check_config(path, cfg):
+    """The 'hairfilter' metadata as src/weights_load.c checks it (one-line
+    ValueError naming the field): the features, the inputs that spp and
+    the estimate make, levels, the architecture and its output channels."""
+    def bad(what):
+        raise ValueError(f"{path}: metadata: {what}")
+
+    def count(v, lo, hi):
+        return isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi
+
+    if not isinstance(cfg, dict):
+        bad("'hairfilter' is not a JSON object")
+    if not isinstance(cfg.get("name"), str) or not cfg["name"]:
+        bad("'name' missing")
+    arch = cfg.get("arch", "unet")
+    if arch not in ("unet", "residual", "kernel"):
+        bad(f"unsupported 'arch' {arch!r} (want unet, residual or kernel)")
+    if cfg.get("features") != FEATURES:
+        bad(f"'features' is {cfg.get('features')!r}, not {FEATURES}")
+    if not count(cfg.get("spp"), 1, 16):
+        bad("'spp' missing or not a count in 1..16")
+    est = cfg.get("estimate", "none")
+    if est not in ("none", "alpha_corrected") or (est != "none" and arch != "kernel"):
+        bad(f"'estimate' {est!r}: none, or alpha_corrected on arch kernel")
+    cin = cfg["spp"] * len(FEATURES) + (len(OUTPUTS) if est == "alpha_corrected" else 0)
+    if cfg.get("in_channels") != cin:
+        bad(f"in_channels {cfg.get('in_channels')!r}, but spp {cfg['spp']} x "
+            f"{len(FEATURES)} features{' and the estimate' if cin % len(FEATURES) else ''} "
+            f"make {cin}")
+    lv = cfg.get("levels")
+    if not isinstance(lv, list) or not 1 <= len(lv) <= 8 or not all(count(c, 1, 4096) for c in lv):
+        bad("'levels' must be a list of 1..8 channel counts in 1..4096")
+    kernel_keys = [k for k in ("kernel_radius", "kernel_hidden") if k in cfg]
+    if arch == "kernel":
+        if not count(cfg.get("kernel_radius"), 1, 4):
+            bad("'kernel_radius' missing or not an integer in 1..4 (arch kernel)")
+        if not count(cfg.get("kernel_hidden", 0), 0, 64):
+            bad("'kernel_hidden' not an integer in 0..64")
+        out = kernel_taps(cfg["kernel_radius"]) + len(OUTPUTS)
+    else:
+        if kernel_keys:
+            bad(f"'{kernel_keys[0]}' is for arch kernel only, not {arch}")
+        out = len(OUTPUTS)
+    if cfg.get("out_channels") != out:
+        bad(f"out_channels {cfg.get('out_channels')!r}, but arch {arch} makes {out}")
 
 
 def load_model(path):

@@ -120,6 +120,33 @@ class Header(unittest.TestCase):
         self.refused(path, ["a zip archive, not a safetensors file: a PyTorch checkpoint",
                             "--export W.safetensors"])
 
+    def test_tensors_and_metadata_the_network_does_not_match(self):
+        """weights/FORMAT.md: hfnet.load_safetensors refuses, as the C
+        loader does, a tensor missing, extra or of another shape and
+        metadata whose features or input channels are not the network's;
+        it took them, and train.py --init failed later in load_state_dict
+        (or trained on a wrong features list)."""
+        cfg = hfnet.variant_config("Small")
+        sd = hfnet.HairNet(cfg).state_dict()
+        extra = dict(sd, **{"extra.weight": torch.zeros(3)})
+        missing = {k: v for k, v in sd.items() if k != "enc0.bias"}
+        shape = dict(sd, **{"enc0.bias": torch.zeros(5)})
+        features = dict(cfg, features=["color", "highlight", "alpha", "depth", "tangent.x", "x"])
+        inputs = dict(cfg, in_channels=23)
+        for name, c, state, words in (
+                ("extra", cfg, extra, "not of this network: extra.weight"),
+                ("missing", cfg, missing, "missing enc0.bias"),
+                ("shape", cfg, shape, "tensor 'enc0.bias': shape [5], the configuration needs [16]"),
+                ("features", features, sd, "metadata: 'features' is"),
+                ("inputs", inputs, sd, "in_channels 23, but spp 4 x 6 features make 24")):
+            path = os.path.join(ARGS.work, f"mismatch_{name}.safetensors")
+            hfnet.save_safetensors(path, c, state)
+            with self.assertRaises(ValueError, msg=name) as e:
+                hfnet.load_safetensors(path)
+            self.assertIn(words, str(e.exception))
+            rc, err = c_loader(path)
+            self.assertEqual(rc, 1, f"{name}: {err}")
+
     def refused(self, path, words):
         """Both readers refuse path, naming every word of words."""
         with self.assertRaises(ValueError) as e:

@@ -32,6 +32,7 @@ convolution starts random. Usage, from the repository root:
 fullres scores the result with `hairfilter eval`. The C backends refuse
 these files (the head's shape does not match the configuration they
 know)."""
+import json
 import os
 import sys
 
@@ -102,7 +103,10 @@ def main(argv):
             del args[i:i + 2]
     else:
         init = args[args.index("--init") + 1] if "--init" in args else None
-        channels = hfnet.load_safetensors(init)[0].get("fullres", CHANNELS) if init else CHANNELS
+        # The header alone: hfnet.load_safetensors checks the tensors against
+        # the network, which has no branch until install() below.
+        channels = (json.loads(hfnet.load_metadata(init)["hairfilter"]).get("fullres", CHANNELS)
+                    if init else CHANNELS)
     install(channels)
     return patching.init_or_train(argv[0], args,
                                   lambda cfg, state: start_from_kernel(cfg, state, channels=channels))
