@@ -955,6 +955,11 @@ def main(argv=None):
             net, avg_fn=lambda a, w, n: d * a + (1 - d) * w)
     step, history, elapsed, ema = 0, [], 0.0, None
     train_set = None
+    # The --init weights' input range, which the export joins: read when
+    # they are loaded and kept in the checkpoint, so that a resumed run
+    # exports without the file (moved or deleted since; it was read after
+    # the whole run, a traceback there).
+    init_range = None
     if args.init and not ckpt:
         try:
             icfg, state = hfnet.load_safetensors(args.init)
@@ -986,7 +991,16 @@ def main(argv=None):
                   file=sys.stderr)
         net.load_state_dict(state)
         print(f"initialised from {args.init}", file=sys.stderr)
+        init_range = hfnet.load_metadata(args.init).get("input_range")
     if ckpt:
+        if "init_range" in ckpt:
+            init_range = ckpt["init_range"]
+        elif args.init:   # a checkpoint from before it kept the range
+            try:
+                init_range = hfnet.load_metadata(args.init).get("input_range")
+            except (OSError, ValueError) as e:
+                print(f"train.py: warning: --init {file_error(e)}: its input range is not joined "
+                      f"to the export's", file=sys.stderr)
         net.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         step, history, elapsed = ckpt["step"], ckpt["history"], ckpt.get("elapsed", 0.0)
@@ -1117,7 +1131,7 @@ def main(argv=None):
                                 step=step, rng=rng_state(np_rng), look_rng=look_gen.get_state(),
                                 args=vars(args),
                                 history=history, elapsed=elapsed + time.time() - t_start, ema=ema,
-                                config=cfg,
+                                config=cfg, init_range=init_range,
                                 weight_ema=avg.state_dict() if avg is not None else None)
             if out_of_time:
                 print(f"\ntime limit: stopped at step {step}; --resume continues", file=sys.stderr)
@@ -1167,9 +1181,8 @@ def main(argv=None):
         # Weights that started from others (--init) learnt those frames too:
         # their range joins this run's, or a fine-tune on a few frames would
         # record only those, and a server would flag every other frame.
-        init_meta = hfnet.load_metadata(args.init).get("input_range") if args.init else None
-        if rng is not None and init_meta:
-            rng = input_stats.union_range(rng, json.loads(init_meta))
+        if rng is not None and init_range:
+            rng = input_stats.union_range(rng, json.loads(init_range))
         export(averaged(net, avg), args.export, args.export_dtype, rng)
     return 0
 

@@ -1188,6 +1188,26 @@ class Recipe(unittest.TestCase):
         for k in sa:
             self.assertTrue(torch.equal(sa[k], sb[k]), f"{k} differs after resume")
 
+    def test_resume_exports_without_the_init_file(self):
+        """A fine-tune's export joins its --init weights' input range; a
+        run resumed after that file was moved or deleted still exports it
+        (kept in the checkpoint), where it was a traceback after the run."""
+        init = os.path.join(self.work, "init_gone.safetensors")
+        shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), init)
+        run = os.path.join(self.work, "init_gone")
+        common = ["--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
+                  "--val-every", "1", "--ckpt-every", "1", "--steps", "2", "--init", init]
+        run_train(*common, "--stop-at", "1", "--out", run, "--export", run + "_1.safetensors")
+        os.remove(init)
+        r = run_train("--out", run, "--resume", "--export", run + "_2.safetensors")
+        self.assertIn("step 2,", r.stderr)
+        first = json.loads(hfnet.load_metadata(run + "_1.safetensors")["input_range"])
+        second = json.loads(hfnet.load_metadata(run + "_2.safetensors")["input_range"])
+        self.assertEqual(first, second)
+        own = json.loads(hfnet.load_metadata(os.path.join(WEIGHTS, "small.safetensors"))
+                         ["input_range"])
+        self.assertGreater(second["frames"], own["frames"], "the init's range was not joined")
+
     def test_resume_equals_uninterrupted(self):
         self.resume_equals_uninterrupted("paper")
 
