@@ -830,6 +830,20 @@ RESUME_MAY_CHANGE = ("--steps", "--stop-at", "--time-limit", "--threads", "--dev
 RESUME_KEEPS = ("steps", "val_every", "ckpt_every", "reload_every", "export", "export_dtype")
 
 
+def saved_args(args):
+    """The run's options as the checkpoint keeps them: the paths (--data,
+    --init, --export) absolute, so that `--out RUN --resume` from another
+    directory reads and writes the same files (relative ones were taken
+    from wherever the resumed command ran)."""
+    saved = dict(vars(args))
+    if args.data:
+        saved["data"] = ",".join(os.path.abspath(d) for d in args.data.split(",") if d)
+    for k in ("init", "export"):
+        if saved.get(k):
+            saved[k] = os.path.abspath(saved[k])
+    return saved
+
+
 def same_option(key, a, b):
     """Whether option key's values a and b make the same run: paths as the
     files they name (from this directory), styles as sets, variant names
@@ -1129,7 +1143,7 @@ def main(argv=None):
             if step % args.ckpt_every == 0 or last:
                 save_checkpoint(ckpt_path, model=net.state_dict(), optimizer=opt.state_dict(),
                                 step=step, rng=rng_state(np_rng), look_rng=look_gen.get_state(),
-                                args=vars(args),
+                                args=saved_args(args),
                                 history=history, elapsed=elapsed + time.time() - t_start, ema=ema,
                                 config=cfg, init_range=init_range,
                                 weight_ema=avg.state_dict() if avg is not None else None)

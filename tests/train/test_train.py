@@ -1188,6 +1188,30 @@ class Recipe(unittest.TestCase):
         for k in sa:
             self.assertTrue(torch.equal(sa[k], sb[k]), f"{k} differs after resume")
 
+    def test_resume_from_another_directory(self):
+        """A run started with relative --data and --export and taken up with
+        `--out RUN --resume` from another directory reads the same frames
+        and exports to the same file (the checkpoint keeps the paths
+        absolute; they were taken from the resumed command's directory)."""
+        run = os.path.join(self.work, "cwd_run")
+        exp = os.path.join(self.work, "cwd_run.safetensors")
+        cmd = [sys.executable, os.path.join(WEIGHTS, "train.py"), "--threads", "1",
+               "--device", "cpu"]
+        r = subprocess.run(cmd + ["--data", os.path.basename(self.data), "--variant", "Small",
+                                  "--batch", "2", "--crop", "32", "--steps", "2", "--stop-at", "1",
+                                  "--out", run, "--export", os.path.basename(exp)],
+                           cwd=self.work, capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        os.remove(exp)
+        elsewhere = os.path.join(self.work, "elsewhere")
+        os.makedirs(elsewhere, exist_ok=True)
+        r = subprocess.run(cmd + ["--out", run, "--resume"], cwd=elsewhere, capture_output=True,
+                           text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertIn("step 2,", r.stderr)
+        self.assertTrue(os.path.exists(exp), "not exported where the run said")
+        self.assertEqual(os.listdir(elsewhere), [])
+
     def test_resume_exports_without_the_init_file(self):
         """A fine-tune's export joins its --init weights' input range; a
         run resumed after that file was moved or deleted still exports it
