@@ -1268,11 +1268,19 @@ int cmd_eval(int argc, char **argv) {
     cJSON_ArrayForEach(f, ms[i].below_files) fprintf(stderr, " %s", f->valuestring);
     fprintf(stderr, "\n");
   }
-  if (temporal) print_temporal(ms, nm, &truth);
+  /* Without a pair of frames the table would be a truth that moves by
+   * 0.00000 and no method at all: said instead, as --temporal-png says it. */
+  if (temporal && truth.pairs) print_temporal(ms, nm, &truth);
   if (json_path &&
       (rc = write_json(json_path, ms, nm, strata, rows, ranges, flagged, scored, hair_px, &lk,
                        styles, ispp_min, &frames)) != 0)
     goto out;
+  if (temporal && !truth.pairs) {
+    fprintf(stderr, "hairfilter eval: --temporal needs at least two frames (one camera "
+            "sequence, in file-name order); %d scored\n", scored);
+    rc = HF_EINVAL;
+    goto out;
+  }
   if (temporal_png) {
     if (!tg.filled) {
       fprintf(stderr, "hairfilter eval: --temporal-png needs at least two frames\n");
