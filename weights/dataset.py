@@ -92,11 +92,14 @@ def read_manifest(root):
 
 def split_frames(entries, val_fraction=0.1):
     """Deterministic split: the frames whose file-name hash is lowest go to
-    validation (round(val_fraction * n), at least one when n > 1). Depends
-    only on the names, never on a seed or on the listing order."""
+    validation (round(val_fraction * n), at least one when n > 1, and at
+    most n - 1, so one frame is left to train on). Depends only on the
+    names, never on a seed or on the listing order."""
     if val_fraction <= 0 or len(entries) < 2:
         return list(entries), []
-    n_val = max(1, int(round(val_fraction * len(entries))))
+    # Capped: a large fraction of a few frames held out every one of them,
+    # and the run failed drawing a crop from no frames (numpy "high <= 0").
+    n_val = min(len(entries) - 1, max(1, int(round(val_fraction * len(entries)))))
     key = lambda e: hashlib.sha1(os.path.basename(e["file"]).encode()).hexdigest()
     ranked = sorted(entries, key=key)
     val = set(id(e) for e in ranked[:n_val])

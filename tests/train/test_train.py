@@ -1434,6 +1434,16 @@ class ScriptRefusals(unittest.TestCase):
         self.assertIn("--crop 20: Small halves the crop 3 times, so it must be a multiple of 8: "
                       "use 16", err)
 
+    def test_split_leaves_a_training_frame(self):
+        """A validation share that rounds to every frame leaves one to train
+        on (the run failed drawing crops from none: numpy's "high <= 0")."""
+        entries = [{"file": f"/x/straight_{i:04d}.exr", "style": "straight"} for i in range(2)]
+        train_e, val_e = dataset.split_frames(entries, 0.9)
+        self.assertEqual((len(train_e), len(val_e)), (1, 1))
+        entries = [{"file": f"/x/wavy_{i:04d}.exr", "style": "wavy"} for i in range(10)]
+        self.assertEqual([len(x) for x in dataset.split_frames(entries, 0.99)], [1, 9])
+        self.assertEqual([len(x) for x in dataset.split_frames(entries, 0.1)], [9, 1])
+
     def test_other_scripts(self):
         err = self.script("stamp_range.py", self.cut, "--data", self.missing)
         self.assertIn("stamp_range.py: " + self.cut + ": tensor '", err)
