@@ -900,9 +900,13 @@ def main(argv=None):
     torch.set_num_threads(args.threads)
     if args.benchmark:
         return benchmark(args)
-    os.makedirs(args.out, exist_ok=True)
     ckpt_path = os.path.join(args.out, CKPT)
     log_path = os.path.join(args.out, "log.jsonl")
+    if args.resume and not os.path.exists(ckpt_path):
+        # Before the directory is made: a mistyped --out is left as it was.
+        sys.exit(f"train.py: --resume: {args.out} holds no {CKPT}: name the --out of the run "
+                 f"to take up, or leave out --resume to start a run there")
+    os.makedirs(args.out, exist_ok=True)
 
     if not args.resume and os.path.exists(ckpt_path):
         # A second run would overwrite the first's checkpoint and append to its log.
@@ -910,8 +914,6 @@ def main(argv=None):
                  f"it up, or give another --out (or remove {args.out}) for a new run")
     ckpt = None
     if args.resume:
-        if not os.path.exists(ckpt_path):
-            sys.exit(f"train.py: --resume: no {ckpt_path}")
         try:
             ckpt = torch.load(ckpt_path, map_location="cpu")
             if not isinstance(ckpt, dict) or not isinstance(ckpt.get("args"), dict):

@@ -1356,6 +1356,13 @@ class ScriptRefusals(unittest.TestCase):
         err = self.script("train.py", "--data", self.bad_manifest, "--variant", "Small",
                           "--out", out)
         self.assertIn(f"{self.bad_manifest}/manifest.json: not JSON", err)
+        # --resume of an --out that holds no run: said, and the directory
+        # is not made.
+        nowhere = os.path.join(self.work, "no_run_here")
+        err = self.script("train.py", "--out", nowhere, "--resume")
+        self.assertIn(f"train.py: --resume: {nowhere} holds no checkpoint.pt: name the --out of "
+                      "the run to take up, or leave out --resume", err)
+        self.assertFalse(os.path.exists(nowhere))
         # A checkpoint that cannot be read: the file named, and what to do.
         run = os.path.join(self.work, "torn")
         os.makedirs(run)
