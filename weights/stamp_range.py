@@ -95,6 +95,15 @@ def main(argv=None):
                          object_pairs_hook=safetensors_header.unique_keys)
     except (KeyError, TypeError, ValueError):
         sys.exit(f"stamp_range.py: {args.weights}: no hairfilter metadata")
+    # Where it writes, checked before the frames are measured (a missing
+    # directory was a traceback after them).
+    where = os.path.dirname(os.path.abspath(args.out or args.weights))
+    if not os.path.isdir(where):
+        sys.exit(f"stamp_range.py: --out {args.out}: the directory {where} does not exist; "
+                 f"create it first (mkdir -p {where})")
+    if not os.access(where, os.W_OK):
+        sys.exit(f"stamp_range.py: {args.out or args.weights}: {where} is not writable"
+                 + ("" if args.out else "; write a stamped copy elsewhere with --out"))
     entries = training_frames(args.data, args.styles, args.val_fraction)
     log = None if args.quiet else (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr))
     rng = range_of_frames(entries, int(cfg["spp"]), log)

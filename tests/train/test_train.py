@@ -1457,6 +1457,11 @@ class ScriptRefusals(unittest.TestCase):
         err = self.script("stamp_range.py", os.path.join(WEIGHTS, "small.safetensors"),
                           "--data", self.missing, "--out", os.path.join(self.work, "s.safetensors"))
         self.assertIn(f"stamp_range.py: {self.missing}: no such directory", err)
+        out = os.path.join(self.missing, "s.safetensors")
+        err = self.script("stamp_range.py", os.path.join(WEIGHTS, "small.safetensors"),
+                          "--data", self.bad_manifest, "--out", out)
+        self.assertIn(f"stamp_range.py: --out {out}: the directory {self.missing} does not exist",
+                      err)
         err = self.script("regime_table.py", f"x={self.missing}")
         self.assertIn(f"regime_table.py: {self.missing}: no such directory", err)
         err = self.script("eval_table.py", os.path.join(self.work, "none.json"))
