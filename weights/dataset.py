@@ -166,6 +166,10 @@ def load_frame(path, spp=None, dtype=np.float16):
         raise DatasetError(f"{path}: {have} samples per pixel, {spp} needed: render the set "
                            f"with --spp {spp}, or read at most {have}")
     feat = pick_channels(names, data, [f"S{k}.{f}" for k in range(spp) for f in FEATURES], path)
+    if not any(f"gt.{t}" in names for t in TARGETS):
+        # The frame was rendered for filtering only: said, with the option.
+        raise DatasetError(f"{path}: no ground truth (gt.color, gt.highlight, gt.alpha): render "
+                           f"the set without --gt-ss 0")
     tgt = pick_channels(names, data, [f"gt.{t}" for t in TARGETS], path)
     h, w = data.shape[:2]
     return feat.reshape(h, w, spp, 6).astype(dtype), tgt.astype(dtype)

@@ -1379,6 +1379,18 @@ class ScriptRefusals(unittest.TestCase):
                           "--out", out)
         self.assertIn("1 samples per pixel, the variant reads 4: render the set with --spp 4",
                       err)
+        # Frames without the ground truth (rendered with --gt-ss 0).
+        nogt = os.path.join(self.work, "no_truth")
+        synth_dataset.main(["--out", nogt, "--styles", "straight", "--count", "2",
+                            "--size", "32x32", "--st", "", "--seed", "4"])
+        for e in dataset.read_manifest(nogt):
+            names, data = dataset.read_exr(e["file"])
+            keep = [i for i, n in enumerate(names) if not n.startswith("gt.")]
+            dataset.write_exr(e["file"], [names[i] for i in keep], data[..., keep])
+        err = self.script("train.py", "--data", nogt, "--variant", "Small", "--crop", "16",
+                          "--out", out)
+        self.assertIn("no ground truth (gt.color, gt.highlight, gt.alpha): render the set "
+                      "without --gt-ss 0", err)
 
     def test_numbers_out_of_range(self):
         """Counts and rates out of range are refused by name before any
