@@ -191,6 +191,20 @@ static int weights_entry(hfd_config *cfg, const char *val) {
       path = eq + 1;
     }
   }
+  if (!name && eq && !memchr(val, '/', (size_t)(eq - val)) && access(val, F_OK) != 0) {
+    /* Meant as NAME=FILE (no file has the whole value's name, and what
+     * comes before '=' is no directory), but one of the two is missing or
+     * cannot be a name: said now, not as the whole value's "No such file"
+     * after the backend starts. */
+    if (!eq[1])
+      hfd_err("--weights %s: no file after '='; give NAME=FILE, or the file's path alone", val);
+    else
+      hfd_err("--weights %s: '%.*s' before '=' is not a variant name (1..%d printable "
+              "characters, no space or '/') and no file has that whole name; give NAME=FILE "
+              "with such a name, or the file's path alone", val, (int)(eq - val), val,
+              HFP_NAME_MAX);
+    return -1;
+  }
   cfg->weights_name[cfg->num_weights] = name;
   cfg->weights[cfg->num_weights++] = path;
   return 0;

@@ -257,6 +257,18 @@ def body(w):
           % os.path.join(w, "none.safetensors") in out,
           "a missing weights file: named, with what to do: %r" % out)
 
+    # --weights NAME=FILE whose name cannot be one, or with no file after
+    # '=': a bad option (status 2) saying which, not the whole value's "No
+    # such file" once the backend has started.
+    small = os.path.join(WEIGHTS, "small.safetensors")
+    for val, want in (("Mi ne=%s" % small, "'Mi ne' before '=' is not a variant name"),
+                      ("=%s" % small, "'' before '=' is not a variant name"),
+                      ("Small=", "--weights Small=: no file after '='")):
+        rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights", val],
+                      w)
+        check(rc == 2 and want in out, "--weights %r: status %s (want 2), says %r: %r"
+              % (val, rc, want, out))
+
     # A weights file the daemon's user cannot read (copied in by root with
     # a private mode): who the daemon runs as, the file's owner and mode,
     # and the fix, not "Permission denied" alone.
