@@ -12,9 +12,7 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <getopt.h>
-#include <grp.h>
 #include <ini.h>
-#include <pwd.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -138,16 +136,8 @@ static void unreadable_why(const char *path, int err, char *why, size_t whylen) 
     return;
   }
   char user[64], group[64];
-  struct passwd *pw = getpwuid(geteuid());
-  struct group *gr = getgrgid(getegid());
-  if (pw && pw->pw_name[0])
-    snprintf(user, sizeof user, "%s", pw->pw_name);
-  else
-    snprintf(user, sizeof user, "%ld", (long)geteuid());
-  if (gr && gr->gr_name[0])
-    snprintf(group, sizeof group, "%s", gr->gr_name);
-  else
-    snprintf(group, sizeof group, "%ld", (long)getegid());
+  hfd_user_name(user, sizeof user);
+  hfd_group_name(group, sizeof group);
   snprintf(why, whylen,
            "permission denied: hairfilterd runs as uid %ld (%s) gid %ld (%s) and cannot read it "
            "(owner uid %ld gid %ld, mode %04o); let its group read it and no one else: "

@@ -33,7 +33,6 @@
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
-#include <pwd.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -68,11 +67,7 @@ static int explain_unreadable(const char *path, char *why, size_t whylen) {
   struct stat st;
   if (stat(path, &st) != 0) return 0;  /* a directory on the way: the loader says so */
   char user[64];
-  struct passwd *pw = getpwuid(geteuid());
-  if (pw && pw->pw_name[0])
-    snprintf(user, sizeof user, "%s", pw->pw_name);
-  else
-    snprintf(user, sizeof user, "%ld", (long)geteuid());
+  hfd_user_name(user, sizeof user);
   snprintf(why, whylen,
            "permission denied: hairfilterd runs as uid %ld (%s) gid %ld and cannot read it "
            "(owner uid %ld gid %ld, mode %04o); weights are not secret: chmod 0644 %s (or "

@@ -611,6 +611,10 @@ int hfd_tls_init(hfd_server *s);
  * in for new connections; on any failure the one before keeps serving
  * (logged) and -1 is returned, which makes the reload a failed one. */
 int hfd_tls_reload(hfd_server *s, const hfd_config *n);
+/* identity.c: the daemon's effective user and group by name, or their
+ * number where none is found, for permission errors (always NUL-ended). */
+void hfd_user_name(char *buf, size_t cap);
+void hfd_group_name(char *buf, size_t cap);
 /* The notAfter of the certificate new TLS connections get (the one loaded at
  * start or by the last reload that loaded), in seconds since 1970-01-01 UTC:
  * 0, or -1 without a TLS listener or where OpenSSL cannot read the time. */

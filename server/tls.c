@@ -26,7 +26,6 @@
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
 #include <fcntl.h>
-#include <pwd.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -158,11 +157,7 @@ static int unreadable(const char *opt, const char *path, int secret, char *why, 
   struct stat st;
   if ((err == EACCES || err == EPERM) && stat(path, &st) == 0) {
     char user[64];
-    struct passwd *pw = getpwuid(geteuid());
-    if (pw && pw->pw_name[0])
-      snprintf(user, sizeof user, "%s", pw->pw_name);
-    else
-      snprintf(user, sizeof user, "%ld", (long)geteuid());
+    hfd_user_name(user, sizeof user);
     snprintf(why, whylen,
              "%s %s: permission denied: hairfilterd runs as uid %ld (%s) gid %ld and cannot read "
              "it (owner uid %ld gid %ld, mode %04o); make it readable for that user, e.g. "
