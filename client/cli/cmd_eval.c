@@ -837,6 +837,14 @@ int cmd_eval(int argc, char **argv) {
     }
   }
   if (optind >= argc) goto bad;
+  if (strcmp(backend_name, "auto") && strcmp(backend_name, "cudnn") &&
+      strcmp(backend_name, "cpu") && strcmp(backend_name, "cpu-ref")) {
+    /* Said at once, with or without --weights (without, no backend is
+     * opened, and a misspelt name would pass unseen). */
+    fprintf(stderr, "hairfilter eval: --backend wants auto, cudnn, cpu or cpu-ref, not '%s'\n",
+            backend_name);
+    return 2;
+  }
   if (cli_check_output("hairfilter eval", json_path) || cli_check_output("hairfilter eval", grid_path) ||
       cli_check_output("hairfilter eval", temporal_png))
     return 1;

@@ -335,6 +335,9 @@ static void test_eval_no_frames(void **state) {
                        test_field("frame-64x64.exr")), 1);
   expect_text("no frame of styles curly,coily among the 1 frames given (their styles: "
               "frame-64x64); name some of those with --styles");
+  /* A backend that does not exist is a bad option, --weights or not. */
+  assert_int_equal(cli("eval --backend foo %s", test_field("frame-64x64.exr")), 2);
+  expect_text("hairfilter eval: --backend wants auto, cudnn, cpu or cpu-ref, not 'foo'");
 }
 
 /* An 8-bit RGB PNG read back (libpng's simplified API), [h][w][3]. */
