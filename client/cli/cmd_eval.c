@@ -926,6 +926,20 @@ int cmd_eval(int argc, char **argv) {
         rc = HF_ERANGE;
         break;
       }
+      const char *base = strrchr(tok, '/');
+      base = base ? base + 1 : tok;
+      /* Two runs' files of one name (runs/a/final.safetensors and
+       * runs/b/final.safetensors) would be two rows of one label, in the
+       * tables and the JSON alike: such files are labelled by their path.
+       * Checked before anything is loaded for the file. */
+      int same_base, same_path;
+      count_names(weights_arg, tok, base, strlen(base), &same_base, &same_path);
+      if (same_path > 1) {
+        fprintf(stderr, "hairfilter eval: --weights names %s %d times: give each file once\n",
+                tok, same_path);
+        rc = HF_EINVAL;
+        break;
+      }
       hf_weights *w = NULL;
       if ((rc = hf_weights_load(tok, &w, err, sizeof err)) != 0) {
         fprintf(stderr, "hairfilter eval: %s\n", err);
@@ -936,20 +950,6 @@ int cmd_eval(int argc, char **argv) {
         fprintf(stderr, "hairfilter eval: preparing %s on %s: %s\n", tok,
                 hf_backend_name(backend), hf_strerror(rc));
         hf_weights_free(w);
-        break;
-      }
-      const char *base = strrchr(tok, '/');
-      base = base ? base + 1 : tok;
-      /* Two runs' files of one name (runs/a/final.safetensors and
-       * runs/b/final.safetensors) would be two rows of one label, in the
-       * tables and the JSON alike: such files are labelled by their path. */
-      int same_base, same_path;
-      count_names(weights_arg, tok, base, strlen(base), &same_base, &same_path);
-      if (same_path > 1) {
-        fprintf(stderr, "hairfilter eval: --weights names %s %d times: give each file once\n",
-                tok, same_path);
-        hf_weights_free(w);
-        rc = HF_EINVAL;
         break;
       }
       ranges[nmodels] = w->input_range;
