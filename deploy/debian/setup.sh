@@ -18,6 +18,8 @@ packages=(
   # and the Python client's parser read /metrics; npm installs the pinned
   # Kubernetes schema validator (deploy/kubernetes/validate).
   prometheus python3-prometheus-client
+  # deploy.shipped_configs reads the Kubernetes ConfigMap's config file.
+  python3-yaml
   # the fuzz targets (clang, libFuzzer) and hairfilter load's plot.
   clang libclang-rt-14-dev gnuplot-nox
 )
