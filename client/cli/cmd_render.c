@@ -571,8 +571,10 @@ static int parse_args(int argc, char **argv, opts *o) {
         return -1;
       }
       /* Past int, (int)n would wrap: --count 4294967297 rendered 1 frame a
-       * style, --strands 4294967296 was "strands 0". The seeds keep 64 bits. */
-      if (n > INT_MAX && strcmp(a, "--seed") && strcmp(a, "--hair-seed")) {
+       * style, --strands 4294967296 was "strands 0". The seeds (--random-view
+       * takes one too) keep 64 bits. */
+      if (n > INT_MAX && strcmp(a, "--seed") && strcmp(a, "--hair-seed") &&
+          strcmp(a, "--random-view")) {
         fprintf(stderr, "hairfilter render: %s %s is too large (at most %d)\n", a, v, INT_MAX);
         return -1;
       }

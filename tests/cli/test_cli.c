@@ -635,6 +635,9 @@ static void test_strict_numbers(void **state) {
   assert_int_equal(cli("render frame --strands 4294967296 --size 16x16 --out %s",
                        test_tmp("tail.exr")), 2);
   expect_text("--strands 4294967296 is too large");
+  /* A seed is not a count: --random-view takes 64 bits, as --seed does. */
+  assert_int_equal(cli("render frame --random-view 4294967296 --size 16x16 --spp 1 --out %s",
+                       test_tmp("seed.exr")), 0);
   assert_int_equal(cli("render dataset --styles straight --count 0 --size 16x16 --out %s",
                        test_tmp("wrap_set")), 2);
   expect_text("--count 0: a set needs at least 1 frame of each style");
