@@ -268,6 +268,14 @@ def body(w):
                       w)
         check(rc == 2 and want in out, "--weights %r: status %s (want 2), says %r: %r"
               % (val, rc, want, out))
+    # With a '/' before the '=' the value is a path (docs/SERVER.md): a
+    # missing one is a weights file that does not load, not a bad name.
+    val = os.path.join(w, "run=3", "final.safetensors")
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights", val,
+                   "--backend", "cpu-ref"], w)
+    check(rc == 1 and "<3>error: weights file %s: No such file or directory" % val in out
+          and "not a variant name" not in out,
+          "--weights %r: status %s (want 1), a missing file: %r" % (val, rc, out))
 
     # A weights file the daemon's user cannot read (copied in by root with
     # a private mode): who the daemon runs as, the file's owner and mode,
