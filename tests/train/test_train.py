@@ -383,6 +383,27 @@ class Recipe(unittest.TestCase):
             self.assertAlmostEqual(float(pen[t, 0, 1]), (dx * dx + dy * dy) / 2, places=4)
             self.assertAlmostEqual(float(pen[t, 0, 2]), dx * dx + dy * dy, places=4)
 
+    def test_experiment_weights_load_with_the_experiment(self):
+        """hfnet.load_safetensors reads, with its experiment installed, a
+        file whose Kernel has that experiment's outputs (aniso_kernel.py
+        init's, which `aniso_kernel.py train --init` loads: it was refused
+        for its out_channels); without the experiment it is refused."""
+        cfg, kernel, _, _ = self.kernel_and_frame(8)
+        import aniso_kernel
+        path = os.path.join(self.work, "aniso_init.safetensors")
+        try:
+            aniso_kernel.install()
+            c2, st2 = aniso_kernel.start_from_kernel(cfg, kernel.state_dict())
+            hfnet.save_safetensors(path, c2, st2)
+            c3, st3 = hfnet.load_safetensors(path)
+            self.assertEqual(c3["out_channels"], hfnet.kernel_taps(3) + 4)
+            self.assertEqual(sorted(st3), sorted(st2))
+        finally:
+            aniso_kernel.uninstall()
+        with self.assertRaises(ValueError) as e:
+            hfnet.load_safetensors(path)
+        self.assertIn("out_channels", str(e.exception))
+
     def test_experimental_sorted_samples(self):
         """weights/experiments/sorted_samples.py: each pixel's samples come
         nearest first, uncovered last in slot order, and the network so
