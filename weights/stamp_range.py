@@ -97,6 +97,10 @@ def main(argv=None):
         sys.exit(f"stamp_range.py: {args.weights}: no hairfilter metadata")
     # Where it writes, checked before the frames are measured (a missing
     # directory was a traceback after them).
+    if args.out and (os.path.isdir(args.out) or args.out.endswith(os.sep)):
+        # os.replace onto a directory was a traceback after the frames.
+        sys.exit(f"stamp_range.py: --out {args.out} is a directory: give the stamped copy's "
+                 f"file name (e.g. {os.path.join(args.out, os.path.basename(args.weights))})")
     where = os.path.dirname(os.path.abspath(args.out or args.weights))
     if not os.path.isdir(where):
         sys.exit(f"stamp_range.py: --out {args.out}: the directory {where} does not exist; "

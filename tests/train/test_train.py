@@ -1495,6 +1495,13 @@ class ScriptRefusals(unittest.TestCase):
                           "--data", self.bad_manifest, "--out", out)
         self.assertIn(f"stamp_range.py: --out {out}: the directory {self.missing} does not exist",
                       err)
+        # A directory for --out (with or without its slash): said before the
+        # frames are measured, not a traceback from os.replace after them.
+        for out in (self.work, self.work + os.sep):
+            err = self.script("stamp_range.py", os.path.join(WEIGHTS, "small.safetensors"),
+                              "--data", self.bad_manifest, "--out", out)
+            self.assertIn(f"stamp_range.py: --out {out} is a directory: give the stamped copy's "
+                          "file name", err)
         err = self.script("regime_table.py", f"x={self.missing}")
         self.assertIn(f"regime_table.py: {self.missing}: no such directory", err)
         err = self.script("eval_table.py", os.path.join(self.work, "none.json"))
