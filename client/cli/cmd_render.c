@@ -557,17 +557,20 @@ static int parse_args(int argc, char **argv, opts *o) {
       char *end;
       errno = 0;
       long long n = strtoll(v, &end, 10);
+      static const char *const ints[] = {"--strands", "--segments", "--hair-seed", "--children",
+                                         "--shadow-size", "--gt-ss", "--opaque", "--seed",
+                                         "--count", "--max-fragments", "--random-view"};
+      int known = 0;
+      for (size_t k = 0; k < sizeof ints / sizeof ints[0]; k++) known |= !strcmp(a, ints[k]);
+      /* An option not known is said as such, whatever its value (past
+       * int, it was "too large"). */
+      if (!known) {
+        fprintf(stderr, "hairfilter render: unknown option %s\n", a);
+        return -1;
+      }
       if (end == v || *end || errno || n < 0) {
-        static const char *const ints[] = {"--strands", "--segments", "--hair-seed", "--children",
-                                           "--shadow-size", "--gt-ss", "--opaque", "--seed",
-                                           "--count", "--max-fragments", "--random-view"};
-        int known = 0;
-        for (size_t k = 0; k < sizeof ints / sizeof ints[0]; k++) known |= !strcmp(a, ints[k]);
-        if (known)
-          fprintf(stderr, "hairfilter render: %s wants a whole number of at least 0, not '%s'\n",
-                  a, v);
-        else
-          fprintf(stderr, "hairfilter render: unknown option %s\n", a);
+        fprintf(stderr, "hairfilter render: %s wants a whole number of at least 0, not '%s'\n",
+                a, v);
         return -1;
       }
       /* Past int, (int)n would wrap: --count 4294967297 rendered 1 frame a

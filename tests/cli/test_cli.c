@@ -635,6 +635,11 @@ static void test_strict_numbers(void **state) {
   assert_int_equal(cli("render frame --strands 4294967296 --size 16x16 --out %s",
                        test_tmp("tail.exr")), 2);
   expect_text("--strands 4294967296 is too large");
+  /* An option not known is said to be one, not a number too large. */
+  assert_int_equal(cli("render frame --strandz 4294967296 --size 16x16 --out %s",
+                       test_tmp("tail.exr")), 2);
+  expect_text("hairfilter render: unknown option --strandz");
+  assert_null(strstr(text, "too large"));
   /* A seed is not a count: --random-view takes 64 bits, as --seed does. */
   assert_int_equal(cli("render frame --random-view 4294967296 --size 16x16 --spp 1 --out %s",
                        test_tmp("seed.exr")), 0);
