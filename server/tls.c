@@ -120,6 +120,11 @@ static const char *ssl_errors(char *buf, size_t cap) {
  * certificate or the other way round. "" when the file has such a block
  * (OpenSSL's reason then stands). */
 static const char *not_pem(const char *path, int key) {
+  /* A directory opens and reads as empty: it is no DER file. */
+  struct stat st;
+  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
+    return " is a directory: give the PEM file in it (of a Kubernetes TLS Secret mounted "
+           "there, DIR/tls.crt for --tls-cert and DIR/tls.key for --tls-key)";
   FILE *f = fopen(path, "rb");
   if (!f) return "";
   static char buf[65536];

@@ -201,7 +201,9 @@ def body(w):
             (key, key, "--tls-cert %s holds no certificate (no -----BEGIN CERTIFICATE----- "
                        "block" % key),
             (os.path.join(certs, "server.pem"), os.path.join(certs, "server.pem"),
-             "--tls-key %s holds no private key" % os.path.join(certs, "server.pem"))):
+             "--tls-key %s holds no private key" % os.path.join(certs, "server.pem")),
+            # A directory (a Secret's mount point): not said to hold DER.
+            (certs, key, "--tls-cert %s is a directory: give the PEM file in it" % certs)):
         rc, out = run(["--config", "none", "--listen", "tls:127.0.0.1:0", "--tls-cert", cert_file,
                        "--tls-key", key_file, "--weights-dir", wd, "--backend", "cpu-ref"], w,
                       env={"HAIRFILTERD_TOKEN": "t0ken"})
