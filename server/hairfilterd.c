@@ -486,7 +486,9 @@ int main(int argc, char **argv) {
    * on their own, so that what an oversized frame needed goes back to the
    * system when it is freed. glibc's default threshold rises with every
    * such block freed (up to 32 MiB) and would keep them in the heap. */
-  if (!mallopt(M_MMAP_THRESHOLD, 1 << 20)) hfd_err("mallopt(M_MMAP_THRESHOLD) failed");
+  if (!mallopt(M_MMAP_THRESHOLD, 1 << 20))
+    hfd_warn("mallopt(M_MMAP_THRESHOLD) failed (an allocator other than glibc's, such as a "
+             "sanitizer's, is in use): freed large frames may stay in the process's heap");
 
   hfd_server *s = &srv;
   s->cfg = &cfg;

@@ -110,7 +110,8 @@ def run(name, text, kinds, tls):
         rc = d.stop()
         check(rc == 0, "%s: daemon exited %s" % (name, rc))
         log = d.log_text()
-        check("error" not in log.lower(), "%s: an error in the log:\n%s" % (name, log))
+        errors = [l for l in log.splitlines() if "error:" in l]
+        check(not errors, "%s: errors in the log: %s\n%s" % (name, errors, log))
         cleanup(w)
 
 
