@@ -13,11 +13,11 @@ int cli_arg_long(const char *cmd, const char *opt, const char *s, long lo, long 
   errno = 0;
   long v = strtol(s, &end, 10);
   if (!*s || *end || errno) {
-    fprintf(stderr, "hairfilter %s: %s: '%s' is not an integer\n", cmd, opt, s);
+    fprintf(stderr, "%s: %s: '%s' is not an integer\n", cmd, opt, s);
     return -1;
   }
   if (v < lo || v > hi) {
-    fprintf(stderr, "hairfilter %s: %s: %ld is outside %ld..%ld\n", cmd, opt, v, lo, hi);
+    fprintf(stderr, "%s: %s: %ld is outside %ld..%ld\n", cmd, opt, v, lo, hi);
     return -1;
   }
   *out = v;
@@ -35,11 +35,11 @@ int cli_arg_double(const char *cmd, const char *opt, const char *s, double lo, d
   char *end;
   double v;
   if (!number(s, &v, &end) || *end) {
-    fprintf(stderr, "hairfilter %s: %s: '%s' is not a number\n", cmd, opt, s);
+    fprintf(stderr, "%s: %s: '%s' is not a number\n", cmd, opt, s);
     return -1;
   }
   if (v < lo || v > hi) {
-    fprintf(stderr, "hairfilter %s: %s: %g is outside %g..%g\n", cmd, opt, v, lo, hi);
+    fprintf(stderr, "%s: %s: %g is outside %g..%g\n", cmd, opt, v, lo, hi);
     return -1;
   }
   *out = v;
@@ -55,7 +55,7 @@ int cli_arg_duration(const char *cmd, const char *opt, const char *s, double pla
   char *end;
   double v;
   if (!number(s, &v, &end)) {
-    fprintf(stderr, "hairfilter %s: %s: '%s' is not a duration (a number, optionally with h, m, "
+    fprintf(stderr, "%s: %s: '%s' is not a duration (a number, optionally with h, m, "
                     "s, ms or us)\n", cmd, opt, s);
     return -1;
   }
@@ -65,14 +65,14 @@ int cli_arg_duration(const char *cmd, const char *opt, const char *s, double pla
     for (size_t i = 0; i < sizeof units / sizeof units[0]; i++)
       if (!strcmp(end, units[i].name)) unit = units[i].s;
     if (unit == 0) {
-      fprintf(stderr, "hairfilter %s: %s: unknown unit '%s' in '%s' (use h, m, s, ms or us)\n",
+      fprintf(stderr, "%s: %s: unknown unit '%s' in '%s' (use h, m, s, ms or us)\n",
               cmd, opt, end, s);
       return -1;
     }
   }
   v *= unit;
   if (v < lo_s || v > hi_s) {
-    fprintf(stderr, "hairfilter %s: %s: %s is outside %gs..%gs\n", cmd, opt, s, lo_s, hi_s);
+    fprintf(stderr, "%s: %s: %s is outside %gs..%gs\n", cmd, opt, s, lo_s, hi_s);
     return -1;
   }
   *seconds = v;
@@ -87,14 +87,14 @@ int cli_arg_range(const char *cmd, const char *opt, const char *s, double lo, do
   for (;;) {
     char *end;
     if (n == 3 || !number(p, &v[n], &end) || (integer && v[n] != floor(v[n]))) {
-      fprintf(stderr, "hairfilter %s: %s: '%s' is not start[:end[:step]] of %s\n", cmd, opt, s,
+      fprintf(stderr, "%s: %s: '%s' is not start[:end[:step]] of %s\n", cmd, opt, s,
               integer ? "integers" : "numbers");
       return -1;
     }
     n++;
     if (!*end) break;
     if (*end != ':') {
-      fprintf(stderr, "hairfilter %s: %s: '%s': unexpected '%s' (want start[:end[:step]])\n", cmd,
+      fprintf(stderr, "%s: %s: '%s': unexpected '%s' (want start[:end[:step]])\n", cmd,
               opt, s, end);
       return -1;
     }
@@ -102,7 +102,7 @@ int cli_arg_range(const char *cmd, const char *opt, const char *s, double lo, do
   }
   if (n == 1) v[1] = v[0];
   if (v[0] < lo || v[1] > hi || v[0] > v[1] || v[2] <= 0) {
-    fprintf(stderr, "hairfilter %s: %s: '%s': want %g <= start <= end <= %g and step > 0\n", cmd,
+    fprintf(stderr, "%s: %s: '%s': want %g <= start <= end <= %g and step > 0\n", cmd,
             opt, s, lo, hi);
     return -1;
   }
@@ -121,9 +121,9 @@ void cli_arg_bad_option(const char *cmd, char **argv, int optind_now, int optopt
   else
     snprintf(o, sizeof o, "-%c", optopt_now > 32 && optopt_now < 127 ? optopt_now : '?');
   if (missing_value)
-    fprintf(stderr, "hairfilter %s: option '%s' needs a value\n", cmd, o);
+    fprintf(stderr, "%s: option '%s' needs a value\n", cmd, o);
   else
-    fprintf(stderr, "hairfilter %s: unknown option '%s' (see hairfilter %s --help)\n", cmd, o, cmd);
+    fprintf(stderr, "%s: unknown option '%s' (see %s --help)\n", cmd, o, cmd);
 }
 
 int cli_tls_option(int ch, const char *arg, cli_tls *t) {
@@ -138,7 +138,7 @@ int cli_tls_option(int ch, const char *arg, cli_tls *t) {
 
 int cli_tls_pair(const char *cmd, const char *cert, const char *key) {
   if (!cert == !key) return 0;
-  fprintf(stderr, "hairfilter %s: give --tls-cert and --tls-key together (a client certificate "
+  fprintf(stderr, "%s: give --tls-cert and --tls-key together (a client certificate "
           "and its private key; %s is missing)\n", cmd, cert ? "--tls-key" : "--tls-cert");
   return -1;
 }

@@ -2,7 +2,9 @@
  * argument must be the value, inside its range, and a unit the parser does
  * not know is refused, never dropped (so `--seconds 1x` is an error, not 1
  * second). Each function prints one line naming the command, the option
- * and the value on failure and returns -1; 0 on success. */
+ * and the value on failure and returns -1; 0 on success. cmd is the command
+ * as typed ("hairfilter eval", or a tool's own name: "hairfilter-load"),
+ * which starts every message. */
 #ifndef HF_CLI_ARGS_H
 #define HF_CLI_ARGS_H
 
@@ -51,7 +53,7 @@ typedef struct cli_tls {
  * else 0. */
 int cli_tls_option(int ch, const char *arg, cli_tls *t);
 /* 0, or -1 after saying so when only one of --tls-cert and --tls-key is
- * given (cmd as in the messages above: "filter", "load", ...). */
+ * given (cmd as above). */
 int cli_tls_pair(const char *cmd, const char *cert, const char *key);
 
 #endif

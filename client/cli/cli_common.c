@@ -28,7 +28,7 @@ int cli_parse_rgb(const char *cmd, const char *opt, const char *s, float rgb[3])
     /* Each number whole and finite, separated by single commas: "1,2"
      * or "nan,0,0" would composite with a colour nobody asked for. */
     if (end == p || errno || !isfinite(v[i]) || *end != (i < 2 ? ',' : '\0')) {
-      fprintf(stderr, "hairfilter %s: %s: '%s' is not R,G,B (three finite numbers, e.g. "
+      fprintf(stderr, "%s: %s: '%s' is not R,G,B (three finite numbers, e.g. "
                       "0.45,0.25,0.12)\n", cmd, opt, s);
       return -1;
     }

@@ -82,7 +82,8 @@ int cmd_conformance(int argc, char **argv) {
       case 'q':
       case 'S': {
         const char *opt = ch == 't' ? "--timeout" : ch == 'q' ? "--quiet" : "--stall";
-        if (cli_arg_duration("conformance", opt, optarg, 1e-3, 1e-3, 3600, &secs)) return 2;
+        if (cli_arg_duration("hairfilter conformance", opt, optarg, 1e-3, 1e-3, 3600, &secs))
+          return 2;
         if (plain_number(optarg) && secs < 0.1) {
           /* hairfilter load counts plain numbers in seconds: "--timeout 10"
            * meant as 10 s must not run with 10 ms. */
@@ -96,10 +97,10 @@ int cmd_conformance(int argc, char **argv) {
         break;
       }
       case 'h': usage(stdout); return 0;
-      case ':': cli_arg_bad_option("conformance", argv, optind, optopt, 1); return 2;
+      case ':': cli_arg_bad_option("hairfilter conformance", argv, optind, optopt, 1); return 2;
       default:
         if (cli_tls_option(ch, optarg, &tls)) break;
-        cli_arg_bad_option("conformance", argv, optind, optopt, 0);
+        cli_arg_bad_option("hairfilter conformance", argv, optind, optopt, 0);
         return 2;
     }
   }
@@ -107,7 +108,7 @@ int cmd_conformance(int argc, char **argv) {
     fprintf(stderr, "hairfilter conformance: unexpected argument '%s'\n", argv[optind]);
     return 2;
   }
-  if (cli_tls_pair("conformance", tls.cert, tls.key)) return 2;
+  if (cli_tls_pair("hairfilter conformance", tls.cert, tls.key)) return 2;
   o.tls_ca = tls.ca;
   o.tls_cert = tls.cert;
   o.tls_key = tls.key;

@@ -809,9 +809,9 @@ int cmd_eval(int argc, char **argv) {
     case 'w': weights_arg = optarg; break;
     case 'b': backend_name = optarg; break;
     case 's': styles = optarg; break;
-    case 'H': if (cli_parse_rgb("eval", "--hair", optarg, lk.hair)) return 2; break;
-    case 'L': if (cli_parse_rgb("eval", "--light", optarg, lk.light)) return 2; break;
-    case 'B': if (cli_parse_rgb("eval", "--background", optarg, lk.bg)) return 2; break;
+    case 'H': if (cli_parse_rgb("hairfilter eval", "--hair", optarg, lk.hair)) return 2; break;
+    case 'L': if (cli_parse_rgb("hairfilter eval", "--light", optarg, lk.light)) return 2; break;
+    case 'B': if (cli_parse_rgb("hairfilter eval", "--background", optarg, lk.bg)) return 2; break;
     case 'n': case 'm': case 'r': case 'c': {
       /* The whole argument, in range, or said what is wrong with it. */
       long v;
@@ -821,7 +821,7 @@ int cmd_eval(int argc, char **argv) {
                                     : "--grid-crop";
       long lo = c == 'n' ? 1 : c == 'm' ? 0 : c == 'r' ? 1 : 8;
       long hi = c == 'n' ? HF_MAX_SPP : c == 'm' ? 1000000000L : c == 'r' ? 64 : 4096;
-      if (cli_arg_long("eval", name, optarg, lo, hi, &v)) return 2;
+      if (cli_arg_long("hairfilter eval", name, optarg, lo, hi, &v)) return 2;
       if (c == 'n') input_spp = (int)v;
       else if (c == 'm') max_frames = (int)v;
       else if (c == 'r') grid_rows = (int)v;

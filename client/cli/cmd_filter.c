@@ -182,20 +182,20 @@ int cmd_filter(int argc, char **argv) {
     case 't': {
       /* Milliseconds, the whole argument: "10s" is refused, not 10 ms. */
       long v;
-      if (cli_arg_long("filter", "--timeout-ms", optarg, -1, 86400000, &v)) return 2;
+      if (cli_arg_long("hairfilter filter", "--timeout-ms", optarg, -1, 86400000, &v)) return 2;
       timeout_ms = (int)v;
       break;
     }
-    case 'H': if (cli_parse_rgb("filter", "--hair", optarg, hair)) return 2; break;
-    case 'L': if (cli_parse_rgb("filter", "--light", optarg, light)) return 2; break;
-    case 'B': if (cli_parse_rgb("filter", "--background", optarg, bg)) return 2; break;
+    case 'H': if (cli_parse_rgb("hairfilter filter", "--hair", optarg, hair)) return 2; break;
+    case 'L': if (cli_parse_rgb("hairfilter filter", "--light", optarg, light)) return 2; break;
+    case 'B': if (cli_parse_rgb("hairfilter filter", "--background", optarg, bg)) return 2; break;
     case 'h': usage(stdout); return 0;
     default:
       if (!cli_tls_option(opt, optarg, &tls)) goto bad;
     }
   }
   if (!server || optind != argc) goto bad;
-  if (cli_tls_pair("filter", tls.cert, tls.key)) return 2;
+  if (cli_tls_pair("hairfilter filter", tls.cert, tls.key)) return 2;
   char why[300];
   if (hfc_check_url(server, why, sizeof why)) {
     fprintf(stderr, "hairfilter: --server: %s\n", why);

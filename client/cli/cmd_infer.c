@@ -104,9 +104,9 @@ int cmd_infer(int argc, char **argv) {
     case 'b': backend = optarg; break;
     case 'p': png = optarg; break;
     case 'P': part = optarg; break;
-    case 'H': if (cli_parse_rgb("infer", "--hair", optarg, hair)) return 2; break;
-    case 'L': if (cli_parse_rgb("infer", "--light", optarg, light)) return 2; break;
-    case 'B': if (cli_parse_rgb("infer", "--background", optarg, bg)) return 2; break;
+    case 'H': if (cli_parse_rgb("hairfilter infer", "--hair", optarg, hair)) return 2; break;
+    case 'L': if (cli_parse_rgb("hairfilter infer", "--light", optarg, light)) return 2; break;
+    case 'B': if (cli_parse_rgb("hairfilter infer", "--background", optarg, bg)) return 2; break;
     case 'h': usage(stdout); return 0;
     default: goto bad;
     }

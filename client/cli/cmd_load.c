@@ -682,7 +682,7 @@ static int parse(int argc, char **argv, opts *o) {
     CLI_TLS_LONG_OPTIONS,
     {0, 0, 0, 0},
   };
-  const char *cmd = "load";
+  const char *cmd = "hairfilter load";
   long v;
   int size_given = 0;
   opterr = 0;

@@ -27,6 +27,7 @@
 
 #include <hairfilter/hairfilter.h>
 
+#include "cli_args.h"
 #include "load_variant.h"
 #include "run_header.h"
 
@@ -335,59 +336,6 @@ static double pct(const float *v, size_t n, double p) {
 
 /* The line above the figures: the command, the machine (CPU model and
  * cores), the UTC date and the version (run_header.h). */
-/* An integer option, the whole argument, in lo..hi; else says so, -1. */
-static int arg_int(const char *opt, const char *s, long lo, long hi, int *out) {
-  char *end;
-  errno = 0;
-  long v = strtol(s, &end, 10);
-  if (!*s || *end || errno) {
-    fprintf(stderr, "hairfilter-load: %s: '%s' is not an integer\n", opt, s);
-    return -1;
-  }
-  if (v < lo || v > hi) {
-    fprintf(stderr, "hairfilter-load: %s: %ld is outside %ld..%ld\n", opt, v, lo, hi);
-    return -1;
-  }
-  *out = (int)v;
-  return 0;
-}
-
-/* A duration in seconds, a plain number or one with a unit (as hairfilter
- * load takes them: h, m or min, s, ms, us), at least lo; a unit it does not
- * know is refused rather than dropped ("500ms" is not 500 s). */
-static int arg_seconds(const char *opt, const char *s, double lo, double *out) {
-  static const struct {
-    const char *name;
-    double s;
-  } units[] = {{"h", 3600}, {"m", 60}, {"min", 60}, {"s", 1}, {"ms", 1e-3}, {"us", 1e-6}};
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  if (end == s || errno || !isfinite(v)) {
-    fprintf(stderr, "hairfilter-load: %s: '%s' is not a duration (seconds, or a number with h, "
-                    "m, s, ms or us)\n", opt, s);
-    return -1;
-  }
-  double unit = 1;
-  if (*end) {
-    unit = 0;
-    for (size_t i = 0; i < sizeof units / sizeof units[0]; i++)
-      if (!strcmp(end, units[i].name)) unit = units[i].s;
-    if (unit == 0) {
-      fprintf(stderr, "hairfilter-load: %s: unknown unit '%s' in '%s' (use h, m, s, ms or us)\n",
-              opt, end, s);
-      return -1;
-    }
-  }
-  v *= unit;
-  if (!(v >= lo) || v > 7 * 86400) {
-    fprintf(stderr, "hairfilter-load: %s: %s is outside %gs..7 days\n", opt, s, lo);
-    return -1;
-  }
-  *out = v;
-  return 0;
-}
-
 static void print_header(int argc, char **argv) {
   run_header h;
   run_header_describe("hairfilter-load", argc - 1, argv + 1, &h);
@@ -431,6 +379,7 @@ int main(int argc, char **argv) {
       return 2;
     }
     i++;
+    long n;
     if (!strcmp(a, "--server")) o.server = v;
     else if (!strcmp(a, "--variant")) o.variant = v;
     else if (!strcmp(a, "--token")) o.token = v;
@@ -445,13 +394,15 @@ int main(int argc, char **argv) {
         return 2;
       }
     } else if (!strcmp(a, "--connections")) {
-      if (arg_int(a, v, 1, 1024, &o.connections)) return 2;
+      if (cli_arg_long("hairfilter-load", a, v, 1, 1024, &n)) return 2;
+      o.connections = (int)n;
     } else if (!strcmp(a, "--inflight")) {
-      if (arg_int(a, v, 1, 1 << 20, &o.inflight)) return 2;
+      if (cli_arg_long("hairfilter-load", a, v, 1, 1 << 20, &n)) return 2;
+      o.inflight = (int)n;
     } else if (!strcmp(a, "--seconds")) {
-      if (arg_seconds(a, v, 1e-3, &o.seconds)) return 2;
+      if (cli_arg_duration("hairfilter-load", a, v, 1, 1e-3, 7 * 86400, &o.seconds)) return 2;
     } else if (!strcmp(a, "--warmup")) {
-      if (arg_seconds(a, v, 0, &o.warmup)) return 2;
+      if (cli_arg_duration("hairfilter-load", a, v, 1, 0, 7 * 86400, &o.warmup)) return 2;
     }
   }
   if (!o.server || !o.variant || o.connections < 1 || o.connections > 1024 || o.inflight < 1 ||

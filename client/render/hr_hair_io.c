@@ -126,8 +126,8 @@ int hfr_hair_check_extent(const hfr_hair *h, double scale, char *err, size_t err
   return HF_ERANGE;
 }
 
-/* 1 when strand i (points [p, p + n)) has a value nothing can draw: a
- * non-finite coordinate, thickness or transparency. */
+/* 1 when points [p, p + n) (a strand, or the whole model) have a value
+ * nothing can draw: a non-finite coordinate, thickness or transparency. */
 static int strand_nonfinite(const hfr_hair *h, uint32_t p, uint32_t n) {
   for (size_t k = 3 * (size_t)p; k < 3 * ((size_t)p + n); k++)
     if (!isfinite(h->pos[k])) return 1;
@@ -163,17 +163,6 @@ static void drop_strands(hfr_hair *h) {
   }
   h->strands = ws;
   h->points = wp;
-}
-
-/* Any non-finite value among the per-point arrays drop_strands reads. */
-static int any_nonfinite(const hfr_hair *h) {
-  for (size_t k = 0; k < 3 * (size_t)h->points; k++)
-    if (!isfinite(h->pos[k])) return 1;
-  for (size_t k = 0; k < h->points; k++)
-    if ((h->thickness && !isfinite(h->thickness[k])) ||
-        (h->transparency && !isfinite(h->transparency[k])))
-      return 1;
-  return 0;
 }
 
 int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, size_t errlen) {
@@ -275,7 +264,7 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
     if (!out->color) goto nomem;
     for (size_t i = 0; i < 3 * (size_t)points; i++) out->color[i] = rd_f32(q + 4 * i);
   }
-  int nonfinite = any_nonfinite(out);
+  int nonfinite = strand_nonfinite(out, 0, out->points); /* any point at all */
   if (single || nonfinite) {
     if (!out->segments) { /* default segments: drop_strands needs them spelt out */
       out->segments = malloc(sizeof(uint16_t) * strands);
