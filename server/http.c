@@ -293,8 +293,12 @@ int hfd_http_start(hfd_server *s, char *url, size_t urlcap) {
     return -1;
   }
   int one = 1;
-  setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-  if (v6) setsockopt(fd, IPPROTO_IPV6, IPV6_V6ONLY, &one, sizeof one);
+  /* Neither is needed to serve (a restart may wait out TIME_WAIT, an IPv6
+   * address may take IPv4 too): said, not fatal. */
+  if (setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0)
+    hfd_warn("--http %s: SO_REUSEADDR: %s", s->cfg->http, strerror(errno));
+  if (v6 && setsockopt(fd, IPPROTO_IPV6, IPV6_V6ONLY, &one, sizeof one) != 0)
+    hfd_warn("--http %s: IPV6_V6ONLY: %s", s->cfg->http, strerror(errno));
   socklen_t slen = v6 ? sizeof(struct sockaddr_in6) : sizeof(struct sockaddr_in);
   if (bind(fd, (struct sockaddr *)&ss, slen) != 0 || listen(fd, HTTP_MHD_LIMIT) != 0) {
     hfd_bind_error("--http", s->cfg->http, host, u->port, errno);
