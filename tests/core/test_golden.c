@@ -12,15 +12,19 @@
 
 #include "hfcore.h"
 
-static const struct { const char *weights, *stem; } cases[] = {
-  {"Base", "Base_64x48"},           {"Base", "Base_37x23"},
-  {"Shallow", "Shallow_64x48"},     {"Shallow", "Shallow_29x17"},
-  {"Deep", "Deep_64x48"},           {"Deep", "Deep_45x31"},
-  {"Base_1spp", "Base_1spp_64x48"}, {"Base_1spp", "Base_1spp_19x41"},
-  {"Residual", "Residual_64x48"},   {"Residual", "Residual_27x35"},
-  {"Kernel", "Kernel_64x48"},       {"Kernel", "Kernel_37x23"},
-  {"Kernel_r2h0", "Kernel_r2h0_64x48"}, {"Kernel_r2h0", "Kernel_r2h0_37x23"},
-  {"KernelAC", "KernelAC_64x48"},   {"KernelAC", "KernelAC_37x23"},
+/* preset: the Table 1 or beyond-the-paper preset the fixture's weights stand
+ * for (their shape must be the preset's as it is now, so a changed preset
+ * cannot leave its golden test checking the old network); NULL for a
+ * configuration that varies one (weights/make_golden.py, CONFIGS). */
+static const struct { const char *weights, *stem, *preset; } cases[] = {
+  {"Base", "Base_64x48", "Base"},                {"Base", "Base_37x23", "Base"},
+  {"Shallow", "Shallow_64x48", "Shallow"},       {"Shallow", "Shallow_29x17", "Shallow"},
+  {"Deep", "Deep_64x48", "Deep"},                {"Deep", "Deep_45x31", "Deep"},
+  {"Base_1spp", "Base_1spp_64x48", "Base@1spp"}, {"Base_1spp", "Base_1spp_19x41", "Base@1spp"},
+  {"Residual", "Residual_64x48", "Residual"},    {"Residual", "Residual_27x35", "Residual"},
+  {"Kernel", "Kernel_64x48", "Kernel"},          {"Kernel", "Kernel_37x23", "Kernel"},
+  {"Kernel_r2h0", "Kernel_r2h0_64x48", NULL},    {"Kernel_r2h0", "Kernel_r2h0_37x23", NULL},
+  {"KernelAC", "KernelAC_64x48", "KernelAC"},    {"KernelAC", "KernelAC_37x23", "KernelAC"},
 };
 
 static int backend_in_build(const char *name) {
@@ -81,11 +85,39 @@ static void run_golden(const char *backend) {
   hf_backend_destroy(b);
 }
 
+/* Every fixture of a preset has the preset's shape: levels, architecture,
+ * kernel radius, head width and estimate (make_golden.py writes them from
+ * hfnet.variant_config, which mirrors the C presets). */
+static void test_fixtures_have_preset_shapes(void **state) {
+  for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+    if (!cases[k].preset) continue;
+    char path[512], err[256];
+    hf_weights *w;
+    hf_net_config want;
+    snprintf(path, sizeof path, "%s/golden/%s.safetensors", HF_TEST_DATA, cases[k].weights);
+    assert_int_equal(hf_weights_load(path, &w, err, sizeof err), HF_OK);
+    assert_int_equal(hf_variant_preset(cases[k].preset, &want), HF_OK);
+    const hf_net_config *got = &w->cfg;
+    int same = got->spp == want.spp && got->in_channels == want.in_channels &&
+               got->out_channels == want.out_channels && got->num_levels == want.num_levels &&
+               !memcmp(got->levels, want.levels, sizeof want.levels) && got->arch == want.arch &&
+               got->kernel_radius == want.kernel_radius &&
+               got->kernel_hidden == want.kernel_hidden && got->estimate == want.estimate;
+    if (!same)
+      print_error("%s.safetensors is not the %s preset as it is now (head %d, preset %d): "
+                  "rerun /usr/bin/python3 weights/make_golden.py\n",
+                  cases[k].weights, cases[k].preset, got->kernel_hidden, want.kernel_hidden);
+    assert_true(same);
+    hf_weights_free(w);
+  }
+}
+
 static void test_cpu_ref_matches_pytorch(void **state) { run_golden("cpu-ref"); }
 static void test_cpu_matches_pytorch(void **state) { run_golden("cpu"); }
 
 int main(void) {
   const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_fixtures_have_preset_shapes),
     cmocka_unit_test(test_cpu_ref_matches_pytorch),
     cmocka_unit_test(test_cpu_matches_pytorch),
   };
