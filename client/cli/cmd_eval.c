@@ -48,7 +48,8 @@ static void usage(FILE *f) {
           "Compares, on hair pixels (gt.alpha > 0) of the composited image, the networks,\n"
           "the input's sample average and its 3x3 and 5x5 pools, stochastic transparency\n"
           "st{1,2,4,8,16,64}, its alpha-corrected estimate acst4 and opaque MSAA (those the\n"
-          "frames hold) with the ground truth;\n"
+          "frames hold) with the ground truth. A DIR is the frames its manifest.json lists\n"
+          "(as weights/train.py reads it), or every *.exr in it when it has none;\n"
           "prints a Markdown table (docs/QUALITY.md), then one per regime grouping: hair\n"
           "pixels by strand width in pixels and by coverage, frames by those and by\n"
           "resolution. --json writes every number, per bucket and per frame. Frames\n"
@@ -161,26 +162,36 @@ static char *read_text(const char *path) {
  * neither says). The manifest lists frames under "frames" (or
  * "images", "renders", "items"), each an object with "file" (or "path",
  * "exr", "name") and "style". */
-static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t len,
-                          int *full_w, int *full_h, int *gt_shared) {
+static const cJSON *manifest_frames(const cJSON *doc) {
   static const char *lists[] = {"frames", "images", "renders", "items", "files"};
-  static const char *files[] = {"file", "path", "exr", "name"};
   const cJSON *arr = cJSON_IsArray(doc) ? doc : NULL;
-  for (size_t i = 0; !arr && i < sizeof lists / sizeof *lists; i++) {
+  for (size_t i = 0; doc && !arr && i < sizeof lists / sizeof *lists; i++) {
     const cJSON *a = cJSON_GetObjectItemCaseSensitive(doc, lists[i]);
     if (cJSON_IsArray(a)) arr = a;
   }
+  return arr;
+}
+
+/* Base name of manifest frame entry it (a string, or an object's "file",
+ * "path", "exr" or "name"), NULL when it has none. */
+static const char *manifest_file(const cJSON *it) {
+  static const char *files[] = {"file", "path", "exr", "name"};
+  const char *fname = cJSON_IsString(it) ? it->valuestring : NULL;
+  for (size_t i = 0; !fname && i < sizeof files / sizeof *files; i++) {
+    const cJSON *s = cJSON_GetObjectItemCaseSensitive(it, files[i]);
+    if (cJSON_IsString(s)) fname = s->valuestring;
+  }
+  const char *b = fname ? strrchr(fname, '/') : NULL;
+  return b ? b + 1 : fname;
+}
+
+static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t len,
+                          int *full_w, int *full_h, int *gt_shared) {
+  const cJSON *arr = manifest_frames(doc), *it;
   if (!arr) return HF_ENOTFOUND;
-  const cJSON *it;
   cJSON_ArrayForEach(it, arr) {
-    const char *fname = NULL;
-    for (size_t i = 0; !fname && i < sizeof files / sizeof *files; i++) {
-      const cJSON *s = cJSON_GetObjectItemCaseSensitive(it, files[i]);
-      if (cJSON_IsString(s)) fname = s->valuestring;
-    }
-    if (!fname) continue;
-    const char *b = strrchr(fname, '/');
-    if (strcmp(b ? b + 1 : fname, name)) continue;
+    const char *fname = manifest_file(it);
+    if (!fname || strcmp(fname, name)) continue;
     const cJSON *fw = cJSON_GetObjectItemCaseSensitive(it, "full_width");
     const cJSON *fh = cJSON_GetObjectItemCaseSensitive(it, "full_height");
     if (cJSON_IsNumber(fw) && cJSON_IsNumber(fh) && fw->valuedouble >= 1 &&
@@ -211,6 +222,34 @@ static int cmp_ref(const void *a, const void *b) {
 static int ends_with(const char *s, const char *suf) {
   size_t n = strlen(s), m = strlen(suf);
   return n >= m && !strcmp(s + n - m, suf);
+}
+
+static int in_manifest(const cJSON *frames, const char *name) {
+  const cJSON *it;
+  cJSON_ArrayForEach(it, frames) {
+    const char *f = manifest_file(it);
+    if (f && !strcmp(f, name)) return 1;
+  }
+  return 0;
+}
+
+/* Names (the first, and a count) the frames manifest list frames of dir
+ * gives that are not in dir: a set copied in part, or rendered elsewhere. */
+static void report_missing(const char *dir, const cJSON *frames) {
+  int missing = 0;
+  char first[256] = "";
+  const cJSON *it;
+  cJSON_ArrayForEach(it, frames) {
+    const char *f = manifest_file(it);
+    char full[4096];
+    struct stat st;
+    if (!f || snprintf(full, sizeof full, "%s/%s", dir, f) >= (int)sizeof full) continue;
+    if (!stat(full, &st)) continue;
+    if (!missing++) snprintf(first, sizeof first, "%s", f);
+  }
+  if (missing)
+    fprintf(stderr, "hairfilter eval: %s: %d frame(s) its manifest.json lists are not there "
+                    "(%s%s); left out\n", dir, missing, first, missing > 1 ? ", ..." : "");
 }
 
 /* DIR/manifest.json parsed, or NULL when there is none (or it is not JSON). */
@@ -248,10 +287,21 @@ static int add_path(frame_list *l, const char *path) {
     cJSON_Delete(doc);
     return HF_EIO;
   }
-  int first = l->n, rc = 0;
+  /* A directory whose manifest lists its frames is the set the manifest
+   * lists, as weights/train.py reads it: other .exr files there (results
+   * written beside the frames, a frame a stopped render left half written)
+   * are left out and counted; frames it lists that are not there are
+   * named. */
+  const cJSON *listed = manifest_frames(doc);
+  int first = l->n, rc = 0, unlisted = 0;
+  char first_unlisted[256] = "";
   struct dirent *e;
   while (!rc && (e = readdir(d))) {
     if (!ends_with(e->d_name, ".exr")) continue;
+    if (listed && !in_manifest(listed, e->d_name)) {
+      if (!unlisted++) snprintf(first_unlisted, sizeof first_unlisted, "%s", e->d_name);
+      continue;
+    }
     char full[4096];
     snprintf(full, sizeof full, "%s/%s", path, e->d_name);
     int fw = 0, fh = 0, shared = -1;
@@ -260,6 +310,11 @@ static int add_path(frame_list *l, const char *path) {
     rc = list_push(l, full, style, fw, fh, shared);
   }
   closedir(d);
+  if (unlisted)
+    fprintf(stderr, "hairfilter eval: %s: %d .exr file(s) not in its manifest.json left out "
+                    "(%s%s); name them as FILE.exr to score them\n",
+            path, unlisted, first_unlisted, unlisted > 1 ? ", ..." : "");
+  if (!rc && listed) report_missing(path, listed);
   cJSON_Delete(doc);
   if (!rc && l->n == first) {
     /* Said here, not later as "no frames with hair": a run directory or a

@@ -183,6 +183,26 @@ static int write_strata(const char *dir) {
   return fclose(f) ? 1 : 0;
 }
 
+/* DIR/listed: the set its manifest lists, a.exr and gone.exr (not there),
+ * beside results.exr, which is no EXR at all: `hairfilter eval DIR` must
+ * score a.exr alone and say what it left out. */
+static int write_listed(const char *dir) {
+  char path[4096];
+  snprintf(path, sizeof path, "%s/listed", dir);
+  mkdir(path, 0777);
+  snprintf(path, sizeof path, "%s/listed/a.exr", dir);
+  if (write_strata_frame(path, 0x7f)) return 1;
+  snprintf(path, sizeof path, "%s/listed/results.exr", dir);
+  FILE *f = fopen(path, "w");
+  if (!f || fputs("not a frame\n", f) < 0 || fclose(f)) return 1;
+  snprintf(path, sizeof path, "%s/listed/manifest.json", dir);
+  f = fopen(path, "w");
+  if (!f) return 1;
+  fprintf(f, "{\"frames\": [{\"file\": \"a.exr\", \"style\": \"listed\"},\n"
+             "            {\"file\": \"gone.exr\", \"style\": \"listed\"}]}\n");
+  return fclose(f) ? 1 : 0;
+}
+
 int main(int argc, char **argv) {
   if (argc != 2) {
     fprintf(stderr, "usage: make_eval_frame DIR\n");
@@ -223,5 +243,5 @@ int main(int argc, char **argv) {
   snprintf(path, sizeof path, "%s/small_8spp.safetensors", argv[1]);
   if (!rc) rc = hf_weights_init_random(&cfg, 7, &w) || hf_weights_save(path, w);
   hf_weights_free(w);
-  return rc || write_strata(argv[1]) ? 1 : 0;
+  return rc || write_strata(argv[1]) || write_listed(argv[1]) ? 1 : 0;
 }
