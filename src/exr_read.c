@@ -11,6 +11,7 @@
 #define _XOPEN_SOURCE 700
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -751,6 +752,15 @@ static int read_part(const char *path, const char *part, const char *channel, hf
       goto fail_dst;
     }
     hf_f32_to_f16_array(dst, half, nval);
+    /* A finite value beyond binary16's range rounds to an infinity the
+     * file does not hold, and a non-finite feature makes its whole sample
+     * uncovered where float32 would clamp it (protocol/FEATURES.md, "Out-of-
+     * contract values"): it becomes the largest half of its sign instead,
+     * which every rule clamps as it clamps the file's value (every bound is
+     * at most 64). */
+    const float *f = dst;
+    for (size_t i = 0; i < nval; i++)
+      if ((half[i] & 0x7fffu) == 0x7c00u && isfinite(f[i])) half[i] = (uint16_t)(half[i] - 1u);
     free(dst);
     dst = half;
   }

@@ -36,7 +36,8 @@ static void usage(FILE *f) {
           "bundled default) for a frame with the alpha-corrected estimate (acst4.*) when the server\n"
           "has it, else to " FILTER_DEFAULT_VARIANT " when the server has it. --f16 sends and\n"
           "receives half floats (a file of HALF channels is sent as stored, FLOAT ones are\n"
-          "rounded to nearest even). The PNG is composited by the server, or here over the\n"
+          "rounded to nearest even, finite ones beyond half's range to +-65504). The PNG is\n"
+          "composited by the server, or here over the\n"
           "frame's background layer where it has one. The result keeps the\n"
           "input's data window and display window; --part picks the part of a multi-part\n"
           "file (default: the one with S0.color).\n");

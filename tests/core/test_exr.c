@@ -650,7 +650,8 @@ static int teardown(void **state) { return test_tmp_remove(); }
 
 
 /* Read as halves, a HALF file gives its stored bits and a FLOAT file
- * hf_f32_to_f16 of its values; read as float32, the halves widened. Every
+ * hf_f32_to_f16 of its values (finite ones beyond half's range the largest
+ * half of their sign); read as float32, the halves widened. Every
  * finite half pattern is stored once (65,536 less the infinities and NaNs,
  * padded with zeros to 128 x 128 pixels of one sample's 6 features). The
  * library sorts channels by name, so values are compared after the
@@ -704,12 +705,40 @@ static void test_read_as_halves(void **state) {
   assert_int_equal(hf_exr_read_part_as(path, NULL, NULL, HF_F16, &got, &data, err, sizeof err),
                    HF_OK);
   assert_int_equal(hf_features_from_data(&got, data, HF_F16, 1, in16), 1);
-  for (size_t i = 0; i < n; i++)
-    if (in16[i] != hf_f32_to_f16(img.data[i]))
-      fail_msg("value %zu: 0x%04x for %a", i, in16[i], (double)img.data[i]);
+  for (size_t i = 0; i < n; i++) {
+    uint16_t want = hf_f32_to_f16(img.data[i]);
+    if ((want & 0x7fffu) == 0x7c00u) want--; /* finite beyond half's range: below */
+    if (in16[i] != want) fail_msg("value %zu: 0x%04x for %a", i, in16[i], (double)img.data[i]);
+  }
   assert_int_equal(hf_features_from_data(&got, data, HF_F16, 2, in16), HF_ENOTFOUND);
   free(data);
   hf_image_free(&got);
+
+  /* A finite FLOAT value beyond binary16's range is read as the largest
+   * half of its sign, not rounded to an infinity the file does not hold:
+   * the sanitising rule then clamps it as it does in float32, instead of
+   * making the whole sample uncovered (protocol/FEATURES.md). Infinities
+   * and NaNs stay what they are. */
+  {
+    const float big[] = {1e9f, -70000.0f, 65520.0f, 65504.0f, 3.4e38f, INFINITY, -INFINITY, NAN};
+    const uint16_t want[] = {0x7bff, 0xfbff, 0x7bff, 0x7bff, 0x7bff, 0x7c00, 0xfc00, 0};
+    const size_t nb = sizeof big / sizeof big[0];
+    for (size_t i = 0; i < n; i++) img.data[i] = i < nb ? big[i] : 0.5f;
+    assert_int_equal(hf_exr_write(path, &img, 0), HF_OK);
+    assert_int_equal(hf_exr_read_part_as(path, NULL, NULL, HF_F16, &got, &data, err, sizeof err),
+                     HF_OK);
+    assert_int_equal(hf_features_from_data(&got, data, HF_F16, 1, in16), 1);
+    for (size_t i = 0; i < nb; i++) {
+      if (isnan(big[i])) {
+        if ((in16[i] & 0x7c00u) != 0x7c00u || !(in16[i] & 0x3ffu))
+          fail_msg("value %zu: 0x%04x for NaN", i, in16[i]);
+      } else if (in16[i] != want[i]) {
+        fail_msg("value %zu: 0x%04x for %g, want 0x%04x", i, in16[i], (double)big[i], want[i]);
+      }
+    }
+    free(data);
+    hf_image_free(&got);
+  }
 
   /* Errors release everything and name the file. */
   data = (void *)1;
