@@ -295,6 +295,22 @@ static int chunk_failed(exr_const_context_t ctx, int part, const char *path, con
               "write it again", path, label, what, exr_get_error_code_as_string(r), d);
 }
 
+/* HF_OK, or the refusal of an uncompressed chunk whose leader claims a
+ * size other than its pixels': OpenEXRCore 3.1.5 decodes one that claims
+ * fewer bytes with no error, the pixels past the claimed size read from
+ * the wrong bytes or left as they were. (A compressed chunk's size is its
+ * compressor's to check.) */
+static int check_raw_size(const exr_chunk_info_t *ci, const chunk_pos *p, const char *path,
+                          const char *label, char *err, size_t errlen) {
+  if (ci->compression != EXR_COMPRESSION_NONE || ci->packed_size == ci->unpacked_size)
+    return HF_OK;
+  char what[96];
+  chunk_name(p, what, sizeof what);
+  return fail(err, errlen, HF_EFORMAT, "%s%s: %s is uncompressed and holds %llu bytes, but its "
+              "pixels are %llu bytes; the file is damaged, write it again", path, label, what,
+              (unsigned long long)ci->packed_size, (unsigned long long)ci->unpacked_size);
+}
+
 static exr_result_t decode_chunk(exr_const_context_t ctx, int part, const exr_chunk_info_t *ci,
                                  const chunk_pos *p, const exr_attr_box2i_t *dw,
                                  const int *slot, int nch, exr_pixel_type_t type, void *dst) {
@@ -345,6 +361,7 @@ int hf_exr_decode_part(exr_const_context_t ctx, int part, const char *path, cons
                      0, 0, 0};
       r = exr_read_scanline_chunk_info(ctx, part, (int)y, &ci);
       if (!r && ci.data_offset + ci.packed_size > file_size) r = EXR_ERR_READ_IO;
+      if (!r && check_raw_size(&ci, &p, path, label, err, errlen)) return HF_EFORMAT;
       if (!r) r = decode_chunk(ctx, part, &ci, &p, &dw, slot, nch, type, dst);
       if (r)
         return chunk_failed(ctx, part, path, label, &p, r, &ci, file_size, err, errlen);
@@ -371,6 +388,7 @@ int hf_exr_decode_part(exr_const_context_t ctx, int part, const char *path, cons
       r = exr_read_tile_chunk_info(ctx, part, tx, ty, 0, 0, &ci);
       if (!r && ci.data_offset + ci.packed_size > file_size) r = EXR_ERR_READ_IO;
       if (!r && (ci.width != p.w || ci.height != p.h)) r = EXR_ERR_CORRUPT_CHUNK;
+      if (!r && check_raw_size(&ci, &p, path, label, err, errlen)) return HF_EFORMAT;
       if (!r) r = decode_chunk(ctx, part, &ci, &p, &dw, slot, nch, type, dst);
       if (r)
         return chunk_failed(ctx, part, path, label, &p, r, &ci, file_size, err, errlen);

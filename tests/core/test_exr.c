@@ -416,6 +416,59 @@ static void test_damaged_chunk_table(void **state) {
   assert_null(strstr(err, "truncated"));
 }
 
+/* An uncompressed chunk holds exactly its pixels: one whose leader claims
+ * fewer bytes is damaged. OpenEXRCore 3.1.5 decodes it with no error, the
+ * pixels after the claimed size shifted or left at what the buffer held
+ * (the pixels read back differed, the leader one byte short). */
+static void test_short_uncompressed_chunk(void **state) {
+  (void)state;
+  char err[512];
+  hf_image img;
+  /* 70 chunks of one scanline; 3 x 5 tiles of 16 x 16. */
+  part_spec scan = {"n", 0, 0, 0, 0, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_NONE, 0.25f, NULL};
+  part_spec tile = {"n", 1, 16, 16, 0, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_NONE, 0.25f, NULL};
+  const part_spec *specs[2] = {&scan, &tile};
+  const int chunks[2] = {70, 15}, lead[2] = {4, 16};
+  const char *path = test_tmp("short-chunk.exr");
+  for (int s = 0; s < 2; s++)
+    for (int which = 0; which < 3; which++)
+      for (int by = 1; by <= 4; by *= 2) {
+        write_parts(path, specs[s], 1);
+        FILE *f = fopen(path, "r+b");
+        assert_non_null(f);
+        static unsigned char buf[1 << 17];
+        size_t got = fread(buf, 1, sizeof buf, f);
+        long table = -1;
+        for (size_t i = 8; i + 8 <= got && table < 0; i++) {
+          uint64_t v = 0;
+          for (int b = 7; b >= 0; b--) v = v << 8 | buf[i + (size_t)b];
+          if (v == i + (uint64_t)chunks[s] * 8) table = (long)i;
+        }
+        assert_true(table > 0);
+        /* The first, a middle and the last chunk: its data size one, two
+         * or four bytes short. */
+        int c = which == 0 ? 0 : which == 1 ? chunks[s] / 2 : chunks[s] - 1;
+        uint64_t off = 0;
+        for (int b = 7; b >= 0; b--) off = off << 8 | buf[table + 8 * c + b];
+        size_t at = (size_t)off + (size_t)lead[s];
+        assert_true(at + 4 <= got);
+        uint32_t size = (uint32_t)buf[at] | (uint32_t)buf[at + 1] << 8 |
+                        (uint32_t)buf[at + 2] << 16 | (uint32_t)buf[at + 3] << 24;
+        size -= (uint32_t)by;
+        unsigned char le[4] = {(unsigned char)size, (unsigned char)(size >> 8),
+                               (unsigned char)(size >> 16), (unsigned char)(size >> 24)};
+        fseek(f, (long)at, SEEK_SET);
+        assert_int_equal(fwrite(le, 1, 4, f), 4);
+        fclose(f);
+        int rc = hf_exr_read(path, &img, err, sizeof err);
+        if (rc == HF_OK) hf_image_free(&img);
+        if (rc != HF_EFORMAT || !strstr(err, "damaged") || !strstr(err, "short-chunk.exr"))
+          fail_msg("%s, chunk %d, %d byte(s) short: %d %s", s ? "tiled" : "scanline", c, by, rc,
+                   rc ? err : "read");
+        assert_non_null(strstr(err, "uncompressed"));
+      }
+}
+
 /* n bytes of an attribute's value in the header of the file at path: the
  * bytes after the first occurrence of key (keylen bytes: name, type and
  * size). Their old bytes into old when old is not NULL, then value written
@@ -802,7 +855,7 @@ int main(void) {
     cmocka_unit_test(test_lossy_compression),        cmocka_unit_test(test_claimed_size),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
-    cmocka_unit_test(test_b44_float),
+    cmocka_unit_test(test_b44_float),                cmocka_unit_test(test_short_uncompressed_chunk),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
