@@ -193,10 +193,13 @@ static uint64_t headers_end(FILE *f, uint64_t size) {
   return at < 0 ? 0 : (uint64_t)at;
 }
 
-/* Whether part's chunk offset table, or a chunk it points to (or the data
- * of the one that starts last), lies past the end of a file of size bytes: the file was cut short (or its header
- * claims far more chunks than the file holds). TABLE_INSIDE also when the
- * table cannot be found. */
+/* Whether the file's chunk offset tables, or a chunk they point to (or the
+ * data of the one that starts last), lie past the end of a file of size
+ * bytes: the file was cut short (or its header claims far more chunks than
+ * the file holds). Every part's table is judged, not only part's: a
+ * multi-part file cut in its last part is cut short whichever part is
+ * read, as a mipmapped one cut in its smaller levels is (check_complete).
+ * TABLE_INSIDE also when the tables cannot be found. */
 static table_state chunk_table(exr_const_context_t ctx, int part, const char *path,
                                uint64_t size) {
   int nparts = 0;
@@ -211,25 +214,23 @@ static table_state chunk_table(exr_const_context_t ctx, int part, const char *pa
     fclose(f);
     return TABLE_INSIDE;
   }
-  uint64_t at = headers_end(f, size), tables_end = at, part_at = 0;
+  uint64_t at = headers_end(f, size), tables_end = at, count = 0;
   for (int q = 0; at && q < nparts; q++) {
     int32_t n = 0;
-    if (q == part) part_at = tables_end;
     if (exr_get_chunk_count(ctx, q, &n) || n < 0) at = 0;
-    else tables_end += (uint64_t)n * 8;
+    else count += (uint64_t)n;
   }
-  at = at ? part_at : 0;
-  int32_t count = 0;
-  if (!at || exr_get_chunk_count(ctx, part, &count) || count < 0) goto out;
-  if (at + (uint64_t)count * 8 > size || tables_end > size) {
+  if (!at) goto out;
+  tables_end = at + count * 8;
+  if (tables_end > size) {
     st = TABLE_PAST_END;
     goto out;
   }
   if (fseeko(f, (off_t)at, SEEK_SET) != 0) goto out;
   unsigned char buf[8 * 512];
   uint64_t last = 0;   /* the chunk that starts last inside the file */
-  for (int32_t i = 0; i < count;) {
-    size_t k = (size_t)(count - i) < 512 ? (size_t)(count - i) : 512;
+  for (uint64_t i = 0; i < count;) {
+    size_t k = count - i < 512 ? (size_t)(count - i) : 512;
     if (fread(buf, 8, k, f) != k) goto out;
     for (size_t j = 0; j < k; j++) {
       uint64_t off = 0;
@@ -239,22 +240,41 @@ static table_state chunk_table(exr_const_context_t ctx, int part, const char *pa
       else if (off > last)
         last = off;
     }
-    i += (int32_t)k;
+    i += k;
   }
   /* The last chunk's leader: [part number (multi-part)], the scanline's y
-   * or the tile's 4 coordinates, then its data's size. */
+   * or the tile's 4 coordinates, then its data's size; a deep chunk's,
+   * three 64-bit sizes (its sample count table, its data packed and
+   * unpacked), the first two of which follow. */
+  if (!last) goto out;
+  int owner = part;
+  unsigned char num[4];
+  if (nparts > 1) {
+    if (last + 4 > size) {
+      st = TABLE_CHUNK_CUT;
+      goto out;
+    }
+    if (fseeko(f, (off_t)last, SEEK_SET) != 0 || fread(num, 1, 4, f) != 4) goto out;
+    owner = (int)((uint32_t)num[0] | (uint32_t)num[1] << 8 | (uint32_t)num[2] << 16 |
+                  (uint32_t)num[3] << 24);
+    if (owner < 0 || owner >= nparts) goto out;   /* a damaged leader: the decoder's to say */
+  }
   exr_storage_t storage;
-  if (!last || exr_get_storage(ctx, part, &storage) ||
-      (storage != EXR_STORAGE_SCANLINE && storage != EXR_STORAGE_TILED))
-    goto out;
-  uint64_t lead = (nparts > 1 ? 4 : 0) + (storage == EXR_STORAGE_TILED ? 16 : 4);
-  unsigned char len[4];
-  if (last + lead + 4 > size) {
+  if (exr_get_storage(ctx, owner, &storage)) goto out;
+  int tiled = storage == EXR_STORAGE_TILED || storage == EXR_STORAGE_DEEP_TILED;
+  int deep = storage == EXR_STORAGE_DEEP_SCANLINE || storage == EXR_STORAGE_DEEP_TILED;
+  uint64_t lead = (nparts > 1 ? 4 : 0) + (tiled ? 16 : 4), sizes = deep ? 24 : 4;
+  unsigned char len[24];
+  if (last + lead + sizes > size) {
     st = TABLE_CHUNK_CUT;
-  } else if (fseeko(f, (off_t)(last + lead), SEEK_SET) == 0 && fread(len, 1, 4, f) == 4) {
-    uint32_t packed = (uint32_t)len[0] | (uint32_t)len[1] << 8 | (uint32_t)len[2] << 16 |
-                      (uint32_t)len[3] << 24;
-    if (last + lead + 4 + packed > size) st = TABLE_CHUNK_CUT;
+  } else if (fseeko(f, (off_t)(last + lead), SEEK_SET) == 0 && fread(len, 1, sizes, f) == sizes) {
+    uint64_t data = 0;
+    for (int v = 0; v < (deep ? 2 : 1); v++) {
+      uint64_t x = 0;
+      for (int b = (deep ? 7 : 3); b >= 0; b--) x = x << 8 | len[8 * v + b];
+      data = x > size - data ? size + 1 : data + x;   /* no wrap past 2^64 */
+    }
+    if (last + lead + sizes + data > size) st = TABLE_CHUNK_CUT;
   }
 out:
   fclose(f);

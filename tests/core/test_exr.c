@@ -353,6 +353,32 @@ static void test_truncated(void **state) {
     assert_non_null(strstr(err, "damaged"));
     assert_null(strstr(err, "truncated"));
   }
+  /* Multi-part: a cut in the last part's chunks leaves the others whole,
+   * and the file is still refused as cut short whichever part is read (as
+   * a mipmapped file cut in its smaller levels is). */
+  {
+    part_spec mp[3] = {
+      {"beauty", 0, 0, 0, 0, 0, 0, 20, 10, 3, RGB, EXR_COMPRESSION_ZIP, 1.0f, NULL},
+      {"features", 1, 8, 8, 0, 5, -3, 19, 11, 6, FEAT6, EXR_COMPRESSION_PIZ, 2.0f, NULL},
+      {"depth", 0, 0, 0, 0, 0, 0, 20, 10, 1, Z, EXR_COMPRESSION_NONE, 3.0f, NULL},
+    };
+    const char *full = test_tmp("full.exr"), *cut = test_tmp("cut.exr");
+    write_parts(full, mp, 3);
+    long n = file_size(full);
+    const long at[] = {n - 1, n - 8, n - 100};
+    for (int k = 0; k < 3; k++) {
+      copy_prefix(full, cut, at[k]);
+      for (int part = 0; part < 3; part++) {
+        char which[4];
+        snprintf(which, sizeof which, "%d", part);
+        int rc = hf_exr_read_part(cut, which, NULL, &img, err, sizeof err);
+        if (rc == HF_OK) hf_image_free(&img);
+        if (rc != HF_EIO || !strstr(err, "truncated / incomplete"))
+          fail_msg("3 parts cut at %ld of %ld, part %d: %d %s", at[k], n, part, rc,
+                   rc ? err : "read");
+      }
+    }
+  }
   /* Uncompressed and RLE, whose claimed-size check fails first on a cut
    * file: still called truncated. */
   static const exr_compression_t raw[] = {EXR_COMPRESSION_NONE, EXR_COMPRESSION_RLE};
