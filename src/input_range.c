@@ -18,6 +18,11 @@ int hf_input_range_parse(const char *json, int spp, hf_input_range *out, char *e
                          size_t errlen) {
   if (!json || !out) return fail(err, errlen, HF_EINVAL, "null argument");
   memset(out, 0, sizeof *out);
+  size_t at = 0;
+  const char *fault = hf_json_text_fault(json, strlen(json), &at);
+  if (fault)
+    return fail(err, errlen, HF_EFORMAT, "input_range holds %s at byte %zu of its JSON", fault,
+                at);
   cJSON *m = hf_json_one_value(json, strlen(json));   /* nothing may follow the object */
   int rc = HF_OK;
   if (!cJSON_IsObject(m)) {

@@ -66,3 +66,46 @@ cJSON *hf_json_one_value(const char *text, size_t len) {
     }
   return v;
 }
+
+/* Length of the well-formed UTF-8 sequence at p (at most n bytes), or 0:
+ * RFC 3629's table, so no overlong form, no surrogate (U+D800..U+DFFF),
+ * nothing above U+10FFFF. */
+static size_t utf8_len(const unsigned char *p, size_t n) {
+  unsigned char c = p[0];
+  if (c < 0x80) return 1;
+  size_t len = c >= 0xc2 && c <= 0xdf ? 2 : c >= 0xe0 && c <= 0xef ? 3
+               : c >= 0xf0 && c <= 0xf4 ? 4 : 0;
+  if (!len || len > n) return 0;
+  unsigned char lo = 0x80, hi = 0xbf;   /* the second byte's range */
+  if (c == 0xe0) lo = 0xa0;
+  else if (c == 0xed) hi = 0x9f;
+  else if (c == 0xf0) lo = 0x90;
+  else if (c == 0xf4) hi = 0x8f;
+  if (p[1] < lo || p[1] > hi) return 0;
+  for (size_t i = 2; i < len; i++)
+    if (p[i] < 0x80 || p[i] > 0xbf) return 0;
+  return len;
+}
+
+const char *hf_json_text_fault(const char *text, size_t len, size_t *at) {
+  const unsigned char *p = (const unsigned char *)text;
+  for (size_t i = 0; i < len;) {
+    size_t k = utf8_len(p + i, len - i);
+    if (!k) {
+      if (at) *at = i;
+      return "a byte that is not UTF-8";
+    }
+    /* Backslashes occur only in strings; an escaped one is skipped with
+     * its escape, so "\\u0000" is a backslash and "u0000". */
+    if (p[i] == '\\' && i + 1 < len) {
+      if (p[i + 1] == 'u' && i + 6 <= len && !memcmp(p + i + 2, "0000", 4)) {
+        if (at) *at = i;
+        return "\\u0000 (a NUL character, at which this reader would cut its name or string "
+               "short)";
+      }
+      k = 2;
+    }
+    i += k;
+  }
+  return NULL;
+}

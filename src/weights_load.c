@@ -41,6 +41,11 @@ static int json_int(const cJSON *obj, const char *key, int lo, int hi, int *out)
 
 /* Parses the "hairfilter" metadata string into w->cfg and w->features. */
 static int parse_metadata(const char *text, hf_weights *w, char *err, size_t errlen) {
+  size_t at = 0;
+  const char *fault = hf_json_text_fault(text, strlen(text), &at);
+  if (fault)
+    return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' holds %s at byte %zu of its "
+                "JSON; write the file again (weights/train.py --export)", fault, at);
   cJSON *m = hf_json_one_value(text, strlen(text));
   if (!m || !cJSON_IsObject(m)) {
     cJSON_Delete(m);
@@ -305,6 +310,13 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
     return fail(err, errlen, HF_EFORMAT, "header does not start with '{' (a byte order mark "
                 "or other bytes come before the JSON): write the file again with a "
                 "safetensors writer");
+  /* Before cJSON, which takes other bytes and cuts names at \u0000. */
+  size_t at = 0;
+  const char *fault = hf_json_text_fault((const char *)p + 8, (size_t)hlen, &at);
+  if (fault)
+    return fail(err, errlen, HF_EFORMAT, "header holds %s at byte %zu of its JSON (byte %zu of "
+                "the file): a safetensors header is UTF-8 JSON whose names other readers must "
+                "read alike; write the file again with a safetensors writer", fault, at, at + 8);
   char *text = malloc(hlen + 1);
   if (!text) return fail(err, errlen, HF_ENOMEM, "out of memory");
   memcpy(text, p + 8, hlen);

@@ -462,6 +462,7 @@ def load_safetensors(path):
     if "hairfilter" not in header.get("__metadata__", {}):
         raise ValueError(f"{path}: no '__metadata__.hairfilter' entry")
     meta = header.pop("__metadata__")
+    safetensors_header.check_text(path, "metadata 'hairfilter'", meta["hairfilter"])
     try:
         cfg = json.loads(meta["hairfilter"], object_pairs_hook=safetensors_header.unique_keys)
     except ValueError as e:
@@ -469,6 +470,7 @@ def load_safetensors(path):
     # Checked as the C loader checks it, though only hairfilterd and the
     # CLI read it: one JSON object, nothing after it.
     if "input_range" in meta:
+        safetensors_header.check_text(path, "metadata 'input_range'", meta["input_range"])
         try:
             rng = json.loads(meta["input_range"], object_pairs_hook=safetensors_header.unique_keys)
         except ValueError as e:

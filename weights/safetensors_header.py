@@ -19,6 +19,30 @@ def unique_keys(pairs):
     return dict(pairs)
 
 
+def text_fault(text):
+    """(what, offset) of the first thing in JSON text that the C loader
+    refuses although json takes it (src/json_check.c, hf_json_text_fault):
+    a \\u0000 escape, at which C would cut a name or string short, so
+    "a\\u0000b" would be "a" there and another name here. None if none.
+    Bytes that are not UTF-8 are refused when the text is decoded."""
+    i = text.find("\\")
+    while i >= 0:
+        if text.startswith("u0000", i + 1):
+            return ("\\u0000 (a NUL character, at which the C loader would cut its name or "
+                    "string short)", i)
+        i = text.find("\\", i + 2)   # an escape is two characters: "\\\\" is one backslash
+    return None
+
+
+def check_text(path, what, text):
+    """Raises ValueError naming path and what (the header, 'hairfilter')
+    when text holds what text_fault finds."""
+    fault = text_fault(text)
+    if fault:
+        raise ValueError(f"{path}: {what} holds {fault[0]} at character {fault[1]} of its "
+                         "JSON; write the file again")
+
+
 def read_header(path):
     """The safetensors header of path as (header dict, file bytes, data
     start), checked as the C loader (src/weights_load.c) checks it: no
@@ -43,8 +67,17 @@ def read_header(path):
         raise ValueError(f"{path}: header does not start with '{{' (a byte order mark or other "
                          "bytes come before the JSON): write the file again with a safetensors "
                          "writer")
+    # UTF-8 strictly (json.loads of bytes would pass encoded surrogates),
+    # as the C loader and safetensors' reference reader read it.
     try:
-        header = json.loads(data[8:8 + n], object_pairs_hook=unique_keys)
+        text = data[8:8 + n].decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: header holds a byte that is not UTF-8 at byte {e.start} of "
+                         "its JSON: a safetensors header is UTF-8 JSON; write the file again "
+                         "with a safetensors writer") from None
+    check_text(path, "header", text)
+    try:
+        header = json.loads(text, object_pairs_hook=unique_keys)
     except ValueError as e:
         raise ValueError(f"{path}: header: {e}") from None
     if not isinstance(header, dict):

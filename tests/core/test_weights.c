@@ -363,6 +363,48 @@ static void test_duplicate_keys(void **state) {
   free(b.data);
 }
 
+/* A header is UTF-8 JSON (the safetensors format; its reference reader
+ * refuses any other bytes), and a name or string with \u0000 cannot be
+ * kept in C: "enc0.bias\u0000x" read as "enc0.bias" would load a tensor
+ * that other readers call by another name. Both are refused, at every
+ * level of JSON (the header, the 'hairfilter' and 'input_range' texts). */
+static void test_header_text(void **state) {
+  blob b = valid_file(NULL);
+  static const struct {
+    const char *from, *to, *want;
+  } bad[] = {
+    {"\"enc0.bias\":", "\"enc0.bias\\u0000x\":", "\\u0000"},
+    {"\"enc0.bias\":", "\"enc0.bias\\u0000\":", "\\u0000"},
+    {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"a\\u0000\",", "\\u0000"},
+    {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"\xc3\x28\",", "UTF-8"},
+    {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"\xed\xa0\x80\",", "UTF-8"},
+    {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"\xc0\xaf\",", "UTF-8"},
+    {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"\xf4\x90\x80\x80\",", "UTF-8"},
+    {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"\xe2\x82\",", "UTF-8"},
+    {"\"enc0.bias\":", "\"enc0.bias\xff\":", "UTF-8"},
+    {"\\\"spp\\\":4", "\\\"spp\\\":4,\\\"x\\\\u0000\\\":1", "metadata 'hairfilter'"},
+  };
+  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    blob t = with_header_edit(&b, bad[i].from, bad[i].to);
+    expect_reject(&t, HF_EFORMAT, bad[i].want);
+    free(t.data);
+  }
+  /* The inner text's fault is named as such. */
+  blob n = with_header_edit(&b, "\\\"spp\\\":4", "\\\"spp\\\":4,\\\"x\\\\u0000\\\":1");
+  expect_reject(&n, HF_EFORMAT, "\\u0000");
+  free(n.data);
+  /* Escapes that are not \u0000, and UTF-8 of every length, load. */
+  blob ok = with_header_edit(&b, "\"__metadata__\":{",
+                             "\"__metadata__\":{\"note\":\"\\\\u0000 \\u0001 h\xc3\xa9 "
+                             "\xe2\x82\xac \xf0\x9f\x98\x80 \xf4\x8f\xbf\xbf\",");
+  hf_weights *w = NULL;
+  char err[512] = "";
+  assert_int_equal(hf_weights_load_mem(ok.data, ok.len, &w, err, sizeof err), HF_OK);
+  hf_weights_free(w);
+  free(ok.data);
+  free(b.data);
+}
+
 /* safetensors: "__metadata__" is an object whose values are strings. */
 static void test_metadata_types(void **state) {
   blob b = valid_file(NULL);
@@ -517,7 +559,7 @@ int main(void) {
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
     cmocka_unit_test(test_trailing_json),       cmocka_unit_test(test_checked_before_allocation),
     cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_tiling_and_header_start), cmocka_unit_test(test_duplicate_keys),
-    cmocka_unit_test(test_not_weights),
+    cmocka_unit_test(test_not_weights),         cmocka_unit_test(test_header_text),
     cmocka_unit_test(test_metadata_types),       cmocka_unit_test(test_kernel_arch),
   };
   return cmocka_run_group_tests(tests, setup, teardown);

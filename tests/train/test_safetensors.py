@@ -189,6 +189,32 @@ class Header(unittest.TestCase):
         self.refused(self.edited("dup_levels.safetensors", '\\"spp\\": 4', '\\"spp\\": 4, \\"spp\\": 1'),
                      ["hairfilter", "duplicate key 'spp'"])
 
+    def test_header_text(self):
+        """A header with bytes that are not UTF-8, or a \\u0000 escape (which
+        C cuts a name at: "enc0.bias\\u0000x" would load as enc0.bias), is
+        refused by both readers, in the header and in the 'hairfilter'
+        string alike."""
+        self.refused(self.edited("nul_name.safetensors", '"enc0.bias"', '"enc0.bias\\u0000x"'),
+                     ["\\u0000"])
+        self.refused(self.edited("nul_meta.safetensors", '"__metadata__":{',
+                                 '"__metadata__":{"note":"a\\u0000",'), ["\\u0000"])
+        self.refused(self.edited("nul_hairfilter.safetensors", '\\"spp\\": 4',
+                                 '\\"spp\\": 4, \\"x\\\\u0000\\": 1'),
+                     ["hairfilter", "\\u0000"])
+        for name, raw in [("latin1", b"\xe9"), ("surrogate", b"\xed\xa0\x80"),
+                          ("overlong", b"\xc0\xaf")]:
+            h = self.header.encode().replace(b'"__metadata__":{',
+                                             b'"__metadata__":{"note":"' + raw + b'",', 1)
+            path = os.path.join(ARGS.work, f"text_{name}.safetensors")
+            with open(path, "wb") as f:
+                f.write(struct.pack("<Q", len(h)) + h + self.rest)
+            self.refused(path, ["UTF-8"])
+        # An escaped backslash before u0000 is no NUL: both load it.
+        path = self.edited("escaped_backslash.safetensors", '"__metadata__":{',
+                           '"__metadata__":{"note":"\\\\u0000",')
+        hfnet.load_safetensors(path)
+        self.assertEqual(c_loader(path)[0], 0)
+
     def test_bytes_after_json(self):
         """Bytes after a JSON object (the header's, the 'hairfilter' and
         'input_range' strings') are refused by both readers; JSON's
