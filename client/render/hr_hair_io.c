@@ -7,6 +7,7 @@
  *   40 file info (88 bytes)                                               */
 #include <errno.h>
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,6 +39,17 @@ static void wr_f32(unsigned char *p, float f) {
 
 static int fail(char *err, size_t errlen, int code, const char *msg) {
   if (err) snprintf(err, errlen, "%s", msg);
+  return code;
+}
+
+__attribute__((format(printf, 4, 5))) static int failf(char *err, size_t errlen, int code,
+                                                       const char *fmt, ...) {
+  if (err && errlen) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+  }
   return code;
 }
 
@@ -169,16 +181,31 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
   if (!buf || !out) return fail(err, errlen, HF_EINVAL, "null argument");
   memset(out, 0, sizeof *out);
   const unsigned char *p = buf;
-  if (len < HAIR_HEADER) return fail(err, errlen, HF_EFORMAT, "shorter than the 128-byte header");
-  if (memcmp(p, "HAIR", 4)) return fail(err, errlen, HF_EFORMAT, "not a .hair file (magic)");
+  /* Every refusal gives the header's figures and what they mean, so a
+   * file cut short is told from a damaged or hostile header. */
+  if (len >= 4 && memcmp(p, "HAIR", 4))
+    return fail(err, errlen, HF_EFORMAT, "does not start with \"HAIR\": not a .hair file "
+                "(Cem Yuksel's format)");
+  if (len < HAIR_HEADER)
+    return failf(err, errlen, HF_EFORMAT, "%zu bytes, shorter than the 128-byte header: cut "
+                 "short, copy the file again", len);
   uint32_t strands = rd_u32(p + 4), points = rd_u32(p + 8), flags = rd_u32(p + 12);
   uint32_t defseg = rd_u32(p + 16);
-  if (!(flags & HFR_HAIR_POINTS)) return fail(err, errlen, HF_EFORMAT, "no points array");
-  if (strands == 0 || points == 0) return fail(err, errlen, HF_EFORMAT, "no strands or points");
+  if (!(flags & HFR_HAIR_POINTS))
+    return failf(err, errlen, HF_EFORMAT, "header flags 0x%x lack POINTS (0x2): the file has "
+                 "no points, nothing to draw", flags);
+  if (strands == 0 || points == 0)
+    return failf(err, errlen, HF_EFORMAT, "the header says %u strands and %u points: an empty "
+                 "model, nothing to draw", strands, points);
   if (strands > HFR_MAX_STRANDS || points > HFR_MAX_POINTS)
-    return fail(err, errlen, HF_ERANGE, "more strands or points than supported");
+    return failf(err, errlen, HF_ERANGE, "the header says %u strands and %u points, more than "
+                 "the %u strands and %u points this renderer takes (a damaged header, or a "
+                 "model to split or decimate)", strands, points, HFR_MAX_STRANDS,
+                 HFR_MAX_POINTS);
   if (!(flags & HFR_HAIR_SEGMENTS) && (defseg == 0 || defseg > 65535))
-    return fail(err, errlen, HF_EFORMAT, "no segments array and a bad default segment count");
+    return failf(err, errlen, HF_EFORMAT, "no segments array (flags 0x%x) and a default "
+                 "segment count of %u in the header, outside 1..65535: the header is damaged",
+                 flags, defseg);
 
   /* Exact size from the counts (64-bit: the limits keep it far from
    * overflow), compared before any allocation. Flag bits the format does
@@ -191,7 +218,11 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
   if (flags & HFR_HAIR_THICKNESS) need += 4ull * points;
   if (flags & HFR_HAIR_TRANSPARENCY) need += 4ull * points;
   if (flags & HFR_HAIR_COLORS) need += 12ull * points;
-  if (len < need) return fail(err, errlen, HF_EFORMAT, "file shorter than its arrays");
+  if (len < need)
+    return failf(err, errlen, HF_EFORMAT, "%zu bytes, but the header's %u strands and %u "
+                 "points with arrays 0x%x need %llu: the file is cut short (copy it again) or "
+                 "its header is damaged", len, strands, points, flags & 31u,
+                 (unsigned long long)need);
 
   const unsigned char *q = p + HAIR_HEADER;
   uint64_t total = 0;
@@ -208,8 +239,14 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
   } else {
     total = (uint64_t)strands * (defseg + 1u);
   }
+  if (total != points && (flags & HFR_HAIR_SEGMENTS))
+    return failf(err, errlen, HF_EFORMAT, "the strands' segment counts make %llu points (a "
+                 "strand of n segments has n + 1), the header says %u: the file is damaged",
+                 (unsigned long long)total, points);
   if (total != points)
-    return fail(err, errlen, HF_EFORMAT, "segment counts do not add up to the point count");
+    return failf(err, errlen, HF_EFORMAT, "the header's %u strands of %u segments (its "
+                 "default count) make %llu points, the header says %u: the file is damaged",
+                 strands, defseg, (unsigned long long)total, points);
 
   out->strands = strands;
   out->points = points;
@@ -300,13 +337,16 @@ int hfr_hair_load(const char *path, hfr_hair *out, char *err, size_t errlen) {
   if (fseek(f, 0, SEEK_END) == 0) size = ftell(f);
   if (size < 0 || fseek(f, 0, SEEK_SET) != 0) {
     fclose(f);
-    return fail(err, errlen, HF_EIO, "cannot size the file");
+    if (err) snprintf(err, errlen, "%s: cannot size the file: %s", path, strerror(errno));
+    return HF_EIO;
   }
   /* The largest valid file: header + every array at the limits. */
   uint64_t max = HAIR_HEADER + 2ull * HFR_MAX_STRANDS + 32ull * HFR_MAX_POINTS;
   if ((uint64_t)size > max) {
     fclose(f);
-    return fail(err, errlen, HF_ERANGE, "file larger than any supported model");
+    return failf(err, errlen, HF_ERANGE, "%ld bytes, larger than any model this renderer "
+                 "takes (%u strands, %u points with every array: %llu bytes)", size,
+                 HFR_MAX_STRANDS, HFR_MAX_POINTS, (unsigned long long)max);
   }
   unsigned char *buf = malloc(size ? (size_t)size : 1);
   if (!buf) {
@@ -317,7 +357,8 @@ int hfr_hair_load(const char *path, hfr_hair *out, char *err, size_t errlen) {
   fclose(f);
   if (got != (size_t)size) {
     free(buf);
-    return fail(err, errlen, HF_EIO, "short read");
+    return failf(err, errlen, HF_EIO, "read %zu of its %ld bytes (changed while read?)", got,
+                 size);
   }
   int rc = hfr_hair_load_mem(buf, got, out, err, errlen);
   free(buf);

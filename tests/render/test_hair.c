@@ -291,6 +291,61 @@ static void test_read_as_reference(void **state) {
   expect_reject(bad, n - 2, "truncated");
 }
 
+/* Each refusal gives the header's figures, so a file cut short is told
+ * from a damaged header: the sizes, counts and flags it read. */
+static void refused_saying(const unsigned char *buf, size_t len, const char *a, const char *b) {
+  hfr_hair h;
+  char err[512] = "";
+  int rc = hfr_hair_load_mem(buf, len, &h, err, sizeof err);
+  if (rc == HF_OK) fail_msg("accepted; want an error with '%s'", a);
+  assert_null(h.pos);
+  if (!strstr(err, a) || (b && !strstr(err, b)))
+    fail_msg("error '%s' lacks '%s'%s%s", err, a, b ? " or " : "", b ? b : "");
+}
+
+static void test_refusals_say_why(void **state) {
+  (void)state;
+  unsigned char buf[1024], bad[1024];
+  const uint32_t full = HFR_HAIR_SEGMENTS | HFR_HAIR_POINTS | HFR_HAIR_THICKNESS |
+                        HFR_HAIR_TRANSPARENCY;
+  size_t n = build_file(buf, full);   /* 128 + 4 + 60 + 20 + 20 = 232 bytes */
+  memset(bad, 0, sizeof bad);
+  assert_int_equal(n, 232);
+  refused_saying(buf, 64, "64 bytes, shorter than the 128-byte header", "cut short");
+  refused_saying(buf, n - 1, "231 bytes", "need 232");
+  refused_saying(buf, 130, "2 strands and 5 points", "cut short");
+  memcpy(bad, buf, n);
+  bad[0] = 'X';
+  refused_saying(bad, n, "\"HAIR\"", "not a .hair file");
+  refused_saying(bad, 10, "\"HAIR\"", "not a .hair file");
+  uint32_t v = 6;
+  memcpy(bad, buf, n);
+  memcpy(bad + 8, &v, 4);
+  refused_saying(bad, 252, "segment counts make 5 points", "says 6");   /* the arrays of 6 points */
+  memcpy(bad, buf, n);
+  v = 0;
+  memcpy(bad + 4, &v, 4);
+  refused_saying(bad, n, "0 strands and 5 points", "nothing to draw");
+  memcpy(bad, buf, n);
+  v = 0xffffffffu;
+  memcpy(bad + 8, &v, 4);
+  refused_saying(bad, n, "4294967295 points", "more than");
+  memcpy(bad, buf, n);
+  v = HFR_HAIR_POINTS;
+  memcpy(bad + 12, &v, 4);
+  v = 70000;
+  memcpy(bad + 16, &v, 4);
+  refused_saying(bad, n, "default segment count of 70000", "1..65535");
+  v = 1; /* 2 strands of 1 segment: 4 points, not 5 */
+  memcpy(bad + 16, &v, 4);
+  refused_saying(bad, 128 + 60, "2 strands of 1 segments (its default count) make 4 points",
+                 "says 5");
+  memcpy(bad, buf, n);
+  v = HFR_HAIR_SEGMENTS;
+  memcpy(bad + 12, &v, 4);
+  refused_saying(bad, n, "flags 0x1 lack POINTS", NULL);
+}
+
 static void test_styles(void **state) {
   (void)state;
   for (int s = 0; s < HFR_STYLE_COUNT; s++) {
@@ -355,7 +410,8 @@ static void test_styles(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_round_trip),
-    cmocka_unit_test(test_malformed), cmocka_unit_test(test_single_point_strands),
+    cmocka_unit_test(test_malformed), cmocka_unit_test(test_refusals_say_why),
+    cmocka_unit_test(test_single_point_strands),
     cmocka_unit_test(test_read_as_reference),
     cmocka_unit_test(test_styles),
   };
