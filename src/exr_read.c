@@ -629,6 +629,16 @@ static int open_failed(const char *path, uint64_t size, exr_result_t r, const hf
   if (f) fclose(f);
   if (r == EXR_ERR_FILE_ACCESS || !f)
     return fail(err, errlen, HF_EIO, "%s: cannot open%s", path, d);
+  /* An empty file, or one that ends inside the magic number, is a copy or
+   * a write that stopped, not a file of another kind. */
+  static const unsigned char want[4] = {0x76, 0x2f, 0x31, 0x01};
+  if (size == 0)
+    return fail(err, errlen, HF_EIO, "%s: empty file (0 bytes): write or copy the file again",
+                path);
+  if (got < 4 && got == size && !memcmp(magic, want, got))
+    return fail(err, errlen, HF_EIO, "%s: truncated / incomplete file: it ends inside the "
+                "OpenEXR magic number (%llu bytes); write or copy the file again", path,
+                (unsigned long long)size);
   if (got < 4 || magic[0] != 0x76 || magic[1] != 0x2f || magic[2] != 0x31 || magic[3] != 0x01)
     return fail(err, errlen, HF_EFORMAT, "%s: not an OpenEXR file", path);
   /* A header cut short fails to parse (bad header, a required attribute

@@ -697,6 +697,25 @@ static void test_not_exr(void **state) {
   assert_non_null(strstr(err, "not an OpenEXR file"));
   assert_int_equal(hf_exr_read(test_tmp("missing.exr"), &img, err, sizeof err), HF_EIO);
   assert_non_null(strstr(err, "No such file"));
+  /* An empty file, and one cut inside the 4-byte magic number, are not
+   * files of another kind: said as empty or cut short. */
+  f = fopen(path, "wb");
+  fclose(f);
+  assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EIO);
+  if (!strstr(err, "empty") || !strstr(err, "junk.exr")) fail_msg("0 bytes: %s", err);
+  static const unsigned char magic[4] = {0x76, 0x2f, 0x31, 0x01};
+  for (size_t n = 1; n < 4; n++) {
+    f = fopen(path, "wb");
+    fwrite(magic, 1, n, f);
+    fclose(f);
+    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EIO);
+    if (!strstr(err, "truncated / incomplete")) fail_msg("%zu bytes: %s", n, err);
+  }
+  f = fopen(path, "wb");
+  fputs("P6", f);
+  fclose(f);
+  assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
+  assert_non_null(strstr(err, "not an OpenEXR file"));
 }
 
 /* More samples than any network reads (HF_MAX_SPP): counted, and the first
