@@ -116,6 +116,11 @@ static int cut_short(const char *path, int part, const chunk_pos *c, uint64_t si
   init.read_fn = probe_read;
   exr_context_t ctx = NULL;
   if (exr_start_read(&ctx, path, &init) == EXR_ERR_SUCCESS && c) {
+    /* The header is read in blocks, past the end of a file smaller than
+     * one: only the chunk's own reads say whether it was cut short (a
+     * complete small file with a damaged chunk leader was called
+     * truncated). */
+    p.past_end = 0;
     exr_chunk_info_t ci;
     memset(&ci, 0, sizeof ci);
     exr_result_t r = c->tiled ? exr_read_tile_chunk_info(ctx, part, c->tx, c->ty, 0, 0, &ci)

@@ -495,6 +495,43 @@ static void test_short_uncompressed_chunk(void **state) {
       }
 }
 
+/* A complete file smaller than the block the library reads its header in,
+ * with a chunk leader that claims more bytes than the chunk holds (but not
+ * past the end of the file), is damaged, not truncated: the header's
+ * read-ahead past the end of the file is no sign of a cut. */
+static void test_small_file_bad_leader(void **state) {
+  (void)state;
+  char err[512];
+  hf_image img;
+  part_spec p = {"s", 0, 0, 0, 0, 0, 0, 1, 7, 6, FEAT6, EXR_COMPRESSION_NONE, 0.25f, NULL};
+  const char *path = test_tmp("small-leader.exr");
+  for (int c = 0; c < 6; c += 3) {
+    write_parts(path, &p, 1);
+    long n = file_size(path);
+    assert_true(n < 4096);
+    FILE *f = fopen(path, "r+b");
+    assert_non_null(f);
+    unsigned char buf[4096];
+    assert_int_equal(fread(buf, 1, (size_t)n, f), (size_t)n);
+    long table = -1;
+    for (long i = 8; i + 8 <= n && table < 0; i++) {
+      uint64_t v = 0;
+      for (int b = 7; b >= 0; b--) v = v << 8 | buf[i + b];
+      if (v == (uint64_t)i + 7 * 8) table = i;
+    }
+    assert_true(table > 0);
+    uint64_t off = 0;
+    for (int b = 7; b >= 0; b--) off = off << 8 | buf[table + 8 * c + b];
+    buf[off + 4] += 1;   /* 24 bytes of pixels, said to be 25 */
+    fseek(f, 0, SEEK_SET);
+    assert_int_equal(fwrite(buf, 1, (size_t)n, f), (size_t)n);
+    fclose(f);
+    assert_int_not_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
+    if (!strstr(err, "damaged") || strstr(err, "truncated"))
+      fail_msg("chunk %d's leader 1 byte long: %s", c, err);
+  }
+}
+
 /* n bytes of an attribute's value in the header of the file at path: the
  * bytes after the first occurrence of key (keylen bytes: name, type and
  * size). Their old bytes into old when old is not NULL, then value written
@@ -901,6 +938,7 @@ int main(void) {
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
     cmocka_unit_test(test_b44_float),                cmocka_unit_test(test_short_uncompressed_chunk),
+    cmocka_unit_test(test_small_file_bad_leader),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
