@@ -224,6 +224,21 @@ int cli_read_features(const char *path, const char *part, int spp, int estimate,
   cli_warn_lossy("hairfilter", path, img);
   int have = hf_features_spp(img);
   if (have < 0) {
+    /* Compositing tools put a file's channels under a layer
+     * ("beauty.S0.color"): said as such, not as another kind of file. */
+    static const char tail[] = ".S0.color";
+    const size_t nt = sizeof tail - 1;
+    for (int c = 0; c < img->channels; c++) {
+      size_t n = strlen(img->names[c]);
+      if (n > nt && !strcmp(img->names[c] + n - nt, tail)) {
+        fprintf(stderr, "hairfilter: %s: no channel S0.color, but %s: the features are under "
+                "layer \"%.*s\", and are read only without one (S0.color, S0.highlight, ..., "
+                "protocol/FEATURES.md); write or rename the channels without the layer\n", path,
+                img->names[c], (int)(n - nt), img->names[c]);
+        rc = HF_EFORMAT;
+        goto fail;
+      }
+    }
     fprintf(stderr, "hairfilter: %s: no channel S0.color: not a feature file "
             "(protocol/FEATURES.md names the channels)\n", path);
     rc = HF_EFORMAT;

@@ -204,6 +204,17 @@ static void test_refusals(void **state) {
                        test_field("weights-duplicate-metadata.safetensors"), test_field("frame-64x64.exr"),
                        test_tmp("x.exr")), 1);
   expect_text("duplicate key '__metadata__'");
+  /* Features under a layer (as compositing tools write them) are said to
+   * be, with the layer's name. */
+  static const char *const layered[] = {"beauty.S0.color", "beauty.S0.highlight",
+                                         "beauty.S0.alpha", "beauty.S0.depth",
+                                         "beauty.S0.tangent.x", "beauty.S0.tangent.y"};
+  part_spec lp = {"main", 0, 0, 0, 0, 0, 0, 8, 8, 6, layered, EXR_COMPRESSION_ZIP, 0.0f, NULL};
+  write_parts(test_tmp("layered.exr"), &lp, 1);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_tmp("layered.exr"), test_tmp("x.exr")), 1);
+  expect_text("layered.exr: no channel S0.color, but beauty.S0.color: the features are under "
+              "layer \"beauty\"");
   /* A result file is not a feature file. */
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_tmp("plain.exr"), test_tmp("x.exr")), 1);
