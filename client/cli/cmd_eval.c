@@ -479,6 +479,25 @@ static int gather(const hf_image *img, const char *prefix, float *res) {
   return 0;
 }
 
+/* The first non-finite value of res ([n][3] of prefix.color/highlight/
+ * alpha, as gather makes it), said in what: "gt.color = nan at pixel (x,
+ * y)". 0 when every value is finite. Scores of a NaN or an infinity are NaN
+ * or infinite themselves, and one such pixel would turn a whole table's
+ * mean into one. */
+static int nonfinite(const hf_image *img, const char *prefix, const float *res, char *what,
+                     size_t len) {
+  size_t n = (size_t)img->width * img->height;
+  for (size_t i = 0; i < 3 * n; i++)
+    if (!isfinite(res[i])) {
+      size_t p = i / 3;
+      snprintf(what, len, "%s.%s = %g at pixel (%lld, %lld)", prefix, HF_OUTPUT_NAMES[i % 3],
+               (double)res[i], (long long)img->origin_x + (long long)(p % (size_t)img->width),
+               (long long)img->origin_y + (long long)(p / (size_t)img->width));
+      return 1;
+    }
+  return 0;
+}
+
 typedef struct look {
   float hair[3], light[3], bg[3];
 } look;
@@ -1096,6 +1115,13 @@ int cmd_eval(int argc, char **argv) {
       rc = HF_EFORMAT;
       goto out;
     }
+    char bad[160];
+    if (nonfinite(&img, "gt", gt, bad, sizeof bad)) {
+      fprintf(stderr, "hairfilter eval: %s: its ground truth %s is not finite: nothing can be "
+              "scored against it; render the frame again\n", fr->path, bad);
+      rc = HF_EFORMAT;
+      goto out;
+    }
     size_t nhair = 0;
     for (size_t p = 0; p < npx; p++) nhair += (mask[p] = gt[3 * p + 2] > 0);
     if (!nhair) {
@@ -1196,6 +1222,10 @@ int cmd_eval(int argc, char **argv) {
         }
       } else if (gather(&img, m->prefix, res)) {
         continue;   /* this frame has no such baseline */
+      } else if (nonfinite(&img, m->prefix, res, bad, sizeof bad)) {
+        fprintf(stderr, "hairfilter eval: warning: %s: %s is not finite: %s skipped for this "
+                "frame (its stored result is damaged)\n", fr->path, bad, m->label);
+        continue;
       }
       if (!warned && (rep.samples || rep.outputs)) {
         cli_warn_sanitised(fr->path, &img, &rep);

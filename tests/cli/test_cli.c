@@ -323,6 +323,46 @@ static void test_eval_warning(void **state) {
   assert_int_equal(warnings, 1);
   assert_null(strstr(text, "| nan"));
   expect_text("| ours Base");
+
+  /* A stored baseline (acst4.*) with a non-finite value is left out for
+   * the frame, said with its pixel, and no score is NaN or Inf. */
+  hf_image more;
+  assert_int_equal(hf_image_alloc(&more, 64, 64, frame.channels + 3), HF_OK);
+  for (int c = 0; c < frame.channels; c++) strcpy(more.names[c], frame.names[c]);
+  for (int c = 0; c < 3; c++)
+    snprintf(more.names[frame.channels + c], 32, "acst4.%s", HF_OUTPUT_NAMES[c]);
+  for (int p = 0; p < 64 * 64; p++) {
+    memcpy(more.data + (size_t)p * more.channels, frame.data + (size_t)p * frame.channels,
+           frame.channels * sizeof(float));
+    memcpy(more.data + (size_t)p * more.channels + frame.channels,
+           frame.data + (size_t)p * frame.channels + feat.channels, 3 * sizeof(float));
+  }
+  more.data[((size_t)20 * 64 + 40) * more.channels + hf_image_channel(&more, "acst4.color")] =
+      INFINITY;
+  assert_int_equal(hf_exr_write(test_tmp("evalbase.exr"), &more, 0), HF_OK);
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, test_tmp("evalbase.exr")),
+                   0);
+  expect_text("evalbase.exr: acst4.color = inf at pixel (40, 20) is not finite");
+  /* (The input's own rows may score inf dB: this frame's truth is its
+   * input's estimate.) */
+  assert_null(strstr(text, "| nan"));
+  assert_null(strstr(text, " nan |"));
+  for (const char *r = text; (r = strstr(r, "| stochastic transparency 4 spp, alpha")); r++) {
+    const char *end = strchr(r, '\n');
+    const char *inf = strstr(r, "inf");
+    if (inf && (!end || inf < end)) fail_msg("a damaged baseline scored: %.120s", r);
+  }
+
+  /* A ground truth with a non-finite value cannot score the frame:
+   * refused, naming the value and its pixel. */
+  more.data[((size_t)20 * 64 + 40) * more.channels + hf_image_channel(&more, "acst4.color")] = 0;
+  more.data[((size_t)7 * 64 + 12) * more.channels + hf_image_channel(&more, "gt.highlight")] =
+      NAN;
+  assert_int_equal(hf_exr_write(test_tmp("evalgt.exr"), &more, 0), HF_OK);
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, test_tmp("evalgt.exr")),
+                   1);
+  expect_text("evalgt.exr: its ground truth gt.highlight = nan at pixel (12, 7) is not finite");
+  hf_image_free(&more);
   free(in);
   hf_image_free(&frame);
   hf_image_free(&feat);
