@@ -188,7 +188,8 @@ void cli_warn_input_range(const char *prog, const char *frame, const char *varia
 
 /* The four background.R/G/B/A channels of img (values in data, of dtype) as
  * a float32 image of their own; layer stays zeroed when one is missing. */
-static int read_layer(const hf_image *img, const void *data, hf_dtype dtype, hf_image *layer) {
+static int read_layer(const char *path, const hf_image *img, const void *data, hf_dtype dtype,
+                      hf_image *layer) {
   int ch[4];
   for (int k = 0; k < 4; k++) {
     char name[32];
@@ -199,13 +200,36 @@ static int read_layer(const hf_image *img, const void *data, hf_dtype dtype, hf_
   if (rc) return rc;
   for (int k = 0; k < 4; k++) snprintf(layer->names[k], sizeof layer->names[k], "background.%c",
                                        "RGBA"[k]);
-  size_t px = (size_t)img->width * img->height;
-  for (size_t i = 0; i < px; i++)
+  size_t px = (size_t)img->width * img->height, bad = 0, first = 0;
+  int first_k = 0;
+  float first_v = 0;
+  for (size_t i = 0; i < px; i++) {
+    int ok = 1;
     for (int k = 0; k < 4; k++) {
       size_t at = i * (size_t)img->channels + (size_t)ch[k];
-      layer->data[i * 4 + k] = dtype == HF_F16 ? hf_f16_to_f32(((const uint16_t *)data)[at])
-                                               : ((const float *)data)[at];
+      float v = dtype == HF_F16 ? hf_f16_to_f32(((const uint16_t *)data)[at])
+                                : ((const float *)data)[at];
+      layer->data[i * 4 + k] = v;
+      if (ok && !isfinite(v)) {
+        ok = 0;
+        if (!bad) first = i, first_k = k, first_v = v;
+      }
     }
+    /* A damaged layer pixel would composite to NaN, which a PNG shows as
+     * black: it is left out (transparent), so the background colour shows,
+     * and said. */
+    if (!ok) {
+      bad++;
+      for (int k = 0; k < 4; k++) layer->data[i * 4 + k] = 0;
+    }
+  }
+  if (bad)
+    fprintf(stderr, "hairfilter: warning: %s: its background layer has %zu pixel%s with a "
+            "value that is not finite, the first at pixel (%lld, %lld): background.%c = %g; "
+            "a preview (--png) shows the background colour there\n", path, bad, bad == 1 ? "" : "s",
+            (long long)img->origin_x + (long long)(first % (size_t)img->width),
+            (long long)img->origin_y + (long long)(first / (size_t)img->width), "RGBA"[first_k],
+            (double)first_v);
   return HF_OK;
 }
 
@@ -287,7 +311,7 @@ int cli_read_features(const char *path, const char *part, int spp, int estimate,
   /* A frame with an estimate is planar: the samples, then the estimate. */
   if (estimate)
     hf_estimate_from_data(img, data, dtype, (uint8_t *)*in + px * spp * HF_FEATURES_PER_SAMPLE * esz);
-  if (layer && (rc = read_layer(img, data, dtype, layer)) != 0) {
+  if (layer && (rc = read_layer(path, img, data, dtype, layer)) != 0) {
     fprintf(stderr, "hairfilter: %s: its background layer: %s\n", path, hf_strerror(rc));
     free(*in);
     *in = NULL;

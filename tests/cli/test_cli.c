@@ -855,6 +855,25 @@ static void test_preview_over_background_layer(void **state) {
     assert_true(flat[p * 3] == 0 && flat[p * 3 + 1] == 0 && flat[p * 3 + 2] == 255);
   }
   assert_true(empty > 0);
+
+  /* A layer pixel with a NaN (a damaged layer) is left out, with a warning
+   * naming it: the preview shows --background there, not black. */
+  int bare = -1;
+  for (int p = 0; p < w * h && bare < 0; p++)
+    if (res.data[p * 3 + a] == 0) bare = p;
+  layered.data[(size_t)bare * layered.channels + frame.channels + 1] = NAN;
+  assert_int_equal(hf_exr_write(test_tmp("layered_nan.exr"), &layered, 0), HF_OK);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s --png %s "
+                       "--background 0,0,1", BASE, test_tmp("layered_nan.exr"),
+                       test_tmp("layered_res.exr"), test_tmp("layered_nan.png")), 0);
+  char want[160];
+  snprintf(want, sizeof want, "layered_nan.exr: its background layer has 1 pixel with a value "
+           "that is not finite, the first at pixel (%d, %d): background.G = nan", bare % w,
+           bare / w);
+  expect_text(want);
+  unsigned char *fixed = read_png(test_tmp("layered_nan.png"), &w2, &h2);
+  assert_true(fixed[bare * 3] == 0 && fixed[bare * 3 + 1] == 0 && fixed[bare * 3 + 2] == 255);
+  free(fixed);
   free(over);
   free(flat);
   hf_image_free(&res);
