@@ -198,6 +198,63 @@ static uint64_t headers_end(FILE *f, uint64_t size) {
   return at < 0 ? 0 : (uint64_t)at;
 }
 
+/* 1 when the headers, walked attribute by attribute (headers_end's
+ * layout), run into the end of the file while every attribute so far
+ * looks like one: a name and a type of printable characters and a size
+ * that is not negative. 0 when the headers end inside the file, or bytes
+ * that are no attribute come first: a header the library refused for a
+ * value it holds (a channel's sampling, say) is damaged, not cut short,
+ * although the library's parse, once off the rails, may read on to the
+ * end of the file (and it reads ahead past the end of a small one). */
+static int header_cut_short(const char *path, uint64_t size) {
+  FILE *f = fopen(path, "rb");
+  if (!f) return 0;
+  unsigned char head[8];
+  int cut = 1;
+  if (fread(head, 1, 8, f) != 8) goto out;
+  int multipart = (head[5] & 0x10) != 0;   /* version bit 12 */
+  for (int part = 0;; part++) {
+    if (part > 0 && !multipart) break;
+    for (int attr = 0;; attr++) {
+      for (int field = 0; field < 2; field++) {   /* the name, then the type */
+        int len = 0, c;
+        while ((c = fgetc(f)) != 0) {
+          if (c == EOF) goto out;
+          if (c < 0x20 || c > 0x7e || ++len > 255) {
+            cut = 0;
+            goto out;
+          }
+        }
+        if (field == 0 && len == 0) {
+          /* The end of a header; on a first attribute, of a multi-part
+           * file's headers. */
+          if (!multipart || attr == 0) {
+            cut = 0;
+            goto out;
+          }
+          goto next_part;
+        }
+      }
+      unsigned char len[4];
+      if (fread(len, 1, 4, f) != 4) goto out;
+      int32_t vlen = (int32_t)((uint32_t)len[0] | (uint32_t)len[1] << 8 |
+                               (uint32_t)len[2] << 16 | (uint32_t)len[3] << 24);
+      off_t at = ftello(f);
+      if (vlen < 0 || at < 0) {
+        cut = 0;
+        goto out;
+      }
+      if ((uint64_t)at + (uint64_t)vlen > size) goto out;
+      if (fseeko(f, (off_t)vlen, SEEK_CUR) != 0) goto out;
+    }
+  next_part:;
+  }
+  cut = 0;   /* a single-part file's header ends inside the file */
+out:
+  fclose(f);
+  return cut;
+}
+
 /* Whether the file's chunk offset tables, or a chunk they point to (or the
  * data of the one that starts last), lie past the end of a file of size
  * bytes: the file was cut short (or its header claims far more chunks than
@@ -649,9 +706,11 @@ static int open_failed(const char *path, uint64_t size, exr_result_t r, const hf
   /* A header cut short fails to parse (bad header, a required attribute
    * missing, a short read); an invalid value (EXR_ERR_INVALID_ATTR) is
    * found in a header read whole, even when the library read ahead past
-   * the end of a small file. */
+   * the end of a small file. The library also reads past the end of a
+   * damaged header it has given up on (and ahead past the end of a small
+   * file): the headers must run into the end looking whole up to it. */
   if ((r == EXR_ERR_FILE_BAD_HEADER || r == EXR_ERR_MISSING_REQ_ATTR || r == EXR_ERR_READ_IO) &&
-      cut_short(path, 0, NULL, size))
+      cut_short(path, 0, NULL, size) && header_cut_short(path, size))
     return fail(err, errlen, HF_EIO, "%s: truncated / incomplete file: it ends inside its "
                 "header (%llu bytes); write or copy the file again", path,
                 (unsigned long long)size);

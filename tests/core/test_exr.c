@@ -532,6 +532,67 @@ static void test_small_file_bad_leader(void **state) {
   }
 }
 
+/* A complete file whose header holds a value the library refuses (a
+ * channel's sampling, an attribute's size) is damaged, not truncated: it
+ * does not end inside its header. Small files too, whose header the
+ * library reads ahead past the end of. */
+static void test_damaged_header_not_cut(void **state) {
+  (void)state;
+  char err[512];
+  hf_image img;
+  part_spec big = {"h", 0, 0, 0, 0, 0, 0, 40, 70, 6, FEAT6, EXR_COMPRESSION_NONE, 0.25f, NULL};
+  part_spec small = {"h", 0, 0, 0, 0, 0, 0, 1, 3, 6, FEAT6, EXR_COMPRESSION_NONE, 0.25f, NULL};
+  const part_spec *specs[2] = {&big, &small};
+  const char *path = test_tmp("damaged-header.exr");
+  for (int s = 0; s < 2; s++)
+    for (int how = 0; how < 2; how++) {
+      write_parts(path, specs[s], 1);
+      long n = file_size(path);
+      FILE *f = fopen(path, "r+b");
+      assert_non_null(f);
+      static unsigned char buf[1 << 17];
+      assert_int_equal(fread(buf, 1, (size_t)n, f), (size_t)n);
+      /* The header's end: the 0 after the last attribute, which the
+       * chunk table follows (its first offset is the table's end). */
+      long end = -1;
+      int chunks = s ? 3 : 70;
+      for (long i = 9; i + 8 <= n && end < 0; i++) {
+        uint64_t v = 0;
+        for (int b = 7; b >= 0; b--) v = v << 8 | buf[i + b];
+        if (v == (uint64_t)i + (uint64_t)chunks * 8 && buf[i - 1] == 0) end = i - 1;
+      }
+      assert_true(end > 0);
+      if (how == 0) {
+        /* The first channel's y sampling (after its name, pixel type,
+         * pLinear, 3 reserved bytes and x sampling) made negative: the
+         * library drops the channel list, and reports it missing. */
+        static const char key[] = "chlist\0";
+        long at = -1;
+        for (long i = 8; i + 16 < end && at < 0; i++)
+          if (!memcmp(buf + i, key, sizeof key - 1)) at = i + (long)sizeof key - 1 + 4;
+        assert_true(at > 0 && buf[at] == 'S');
+        at += (long)strlen((const char *)buf + at) + 1 + 4 + 4 + 4;
+        buf[at + 3] = 0xdb;
+      } else {
+        /* The last attribute's size (4 bytes before its value) negative:
+         * the "type" attribute's string, "scanlineimage", is last. */
+        static const char key[] = "type\0string\0";
+        long at = -1;
+        for (long i = 8; i + 16 < end && at < 0; i++)
+          if (!memcmp(buf + i, key, sizeof key - 1)) at = i + (long)sizeof key - 1;
+        assert_true(at > 0);
+        buf[at + 3] = 0xf0;
+      }
+      fseek(f, 0, SEEK_SET);
+      assert_int_equal(fwrite(buf, 1, (size_t)n, f), (size_t)n);
+      fclose(f);
+      assert_int_not_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
+      if (strstr(err, "truncated") || !strstr(err, "damaged"))
+        fail_msg("%s file, %s: %s", s ? "small" : "large",
+                 how ? "negative attribute size" : "negative channel sampling", err);
+    }
+}
+
 /* n bytes of an attribute's value in the header of the file at path: the
  * bytes after the first occurrence of key (keylen bytes: name, type and
  * size). Their old bytes into old when old is not NULL, then value written
@@ -938,7 +999,7 @@ int main(void) {
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
     cmocka_unit_test(test_b44_float),                cmocka_unit_test(test_short_uncompressed_chunk),
-    cmocka_unit_test(test_small_file_bad_leader),
+    cmocka_unit_test(test_small_file_bad_leader), cmocka_unit_test(test_damaged_header_not_cut),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
