@@ -103,10 +103,16 @@ void hfr_hair_bounds(const hfr_hair *hair, float centre[3], float *radius);
  * lose the model outside this range. */
 #define HFR_RADIUS_MIN 1e-5
 #define HFR_RADIUS_MAX 1e15
+/* The coarsest float spacing at a model's coordinates, relative to its
+ * bounding radius, that keeps its shape: a fifth of the default strand
+ * width (1/2000 of the radius). */
+#define HFR_SPACING_MAX_REL 1e-4
 /* HF_OK when the model's bounding radius times scale (renderer units per
- * model unit) is within [HFR_RADIUS_MIN, HFR_RADIUS_MAX]; else HF_ERANGE
- * with err naming the radius (or, where every point coincides, the point)
- * and the --units/--scale way out. */
+ * model unit) is within [HFR_RADIUS_MIN, HFR_RADIUS_MAX] and float's
+ * spacing at its coordinates within HFR_SPACING_MAX_REL of the radius;
+ * else HF_ERANGE with err naming the radius (or, where every point
+ * coincides, the point; or the spacing and the way out, nearer the
+ * origin) and the --units/--scale way out. */
 int hfr_hair_check_extent(const hfr_hair *hair, double scale, char *err, size_t errlen);
 
 /* ---- strand widths (hr_hair_width.c) ------------------------------------- */

@@ -117,7 +117,25 @@ int hfr_hair_check_extent(const hfr_hair *h, double scale, char *err, size_t err
   double c[3], r;
   hfr_hair_extent(h, c, &r);
   double rs = r * scale;
-  if (isfinite(rs) && rs >= HFR_RADIUS_MIN && rs <= HFR_RADIUS_MAX) return HF_OK;
+  if (isfinite(rs) && rs >= HFR_RADIUS_MIN && rs <= HFR_RADIUS_MAX && r > 0) {
+    /* Far from the origin float's spacing grows (2^-23 of the magnitude):
+     * a model written there has its points rounded to a grid, and one
+     * coarser than HFR_SPACING_MAX_REL of its radius has lost its shape
+     * (strands zigzag between grid points, or collapse), whatever the
+     * renderer does with it. */
+    double most = 0;
+    for (size_t k = 0; k < 3 * (size_t)h->points; k++)
+      if (fabs((double)h->pos[k]) > most) most = fabs((double)h->pos[k]);
+    float m = (float)most;
+    double spacing = (double)nextafterf(m, INFINITY) - (double)m;
+    if (spacing <= r * HFR_SPACING_MAX_REL) return HF_OK;
+    if (err)
+      snprintf(err, errlen, "coordinates reach %.4g (centre %.4g, %.4g, %.4g), where float's "
+               "spacing is %.3g, more than %g of the bounding radius %.4g: the file's points "
+               "are rounded to that grid and the model's shape is lost; write the model "
+               "nearer the origin", most, c[0], c[1], c[2], spacing, HFR_SPACING_MAX_REL, r);
+    return HF_ERANGE;
+  }
   if (err) {
     if (r == 0)
       snprintf(err, errlen, "every point is at (%.4g, %.4g, %.4g): the model has no extent "

@@ -523,6 +523,18 @@ static void test_extent_and_zero_widths(void **state) {
     assert_non_null(strstr(err, s < 4 ? "bounding radius" : "no extent"));
     if (s < 4) assert_non_null(strstr(err, "--units"));
   }
+  /* Far from the origin, float rounds the file's points to a grid coarser
+   * than the model's detail: refused, naming the grid and the way out
+   * (the model at 1e6 is rounded to steps of 1/16, a third of its size
+   * here). Nearer, it loads. */
+  for (size_t i = 0; i < 3 * (size_t)h.points; i++) big.pos[i] = h.pos[i] * 0.2f / r + 1e6f;
+  err[0] = 0;
+  assert_int_equal(load_as(&big, &o, &got, warn, sizeof warn, err, sizeof err), HF_ERANGE);
+  if (!strstr(err, "spacing is 0.0625") || !strstr(err, "nearer the origin"))
+    fail_msg("far from the origin: %s", err);
+  for (size_t i = 0; i < 3 * (size_t)h.points; i++) big.pos[i] = h.pos[i] * 0.2f / r + 100.0f;
+  assert_int_equal(load_as(&big, &o, &got, warn, sizeof warn, err, sizeof err), HF_OK);
+  hfr_hair_free(&got);
   /* --scale brings a huge model into range. */
   for (size_t i = 0; i < 3 * (size_t)h.points; i++) big.pos[i] = h.pos[i] * 1e30f;
   o.scale = 1e-30f;
