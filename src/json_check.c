@@ -1,4 +1,5 @@
 /* Checks on parsed JSON that cJSON does not make. */
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -108,4 +109,74 @@ const char *hf_json_text_fault(const char *text, size_t len, size_t *at) {
     i += k;
   }
   return NULL;
+}
+
+/* Skips JSON whitespace from text[i]. */
+static size_t skip_ws(const char *text, size_t len, size_t i) {
+  while (i < len && (text[i] == ' ' || text[i] == '\t' || text[i] == '\r' || text[i] == '\n'))
+    i++;
+  return i;
+}
+
+long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
+                           char *outer, size_t outer_len, const char **key, size_t *tok_len) {
+  int depth = 0, inside = 0;
+  const char *pending = NULL, *target = NULL;
+  size_t outer_at = 0, outer_n = 0;
+  for (size_t i = 0; i < len;) {
+    char c = text[i];
+    if (c == '"') {
+      size_t start = ++i;
+      while (i < len && text[i] != '"') i += text[i] == '\\' ? 2 : 1;
+      size_t n = i - start;
+      i++;
+      size_t j = skip_ws(text, len, i);
+      if (j < len && text[j] == ':') {   /* a key */
+        if (depth == 1) outer_at = start, outer_n = n;
+        pending = NULL;
+        if (depth == 2)
+          for (int k = 0; k < nkeys; k++)
+            if (strlen(keys[k]) == n && !memcmp(text + start, keys[k], n)) pending = keys[k];
+        i = j + 1;
+        continue;
+      }
+      pending = NULL;   /* a string value */
+      continue;
+    }
+    if (c == '{' || c == '[') {
+      depth++;
+      if (c == '[' && depth == 3 && pending) inside = 1, target = pending;
+      pending = NULL;
+      i++;
+      continue;
+    }
+    if (c == '}' || c == ']') {
+      if (depth == 3) inside = 0;
+      depth--;
+      i++;
+      continue;
+    }
+    if (c == '-' || (c >= '0' && c <= '9')) {
+      size_t start = i;
+      int integral = 1;
+      while (i < len && (text[i] == '-' || text[i] == '+' || text[i] == '.' || text[i] == 'e' ||
+                         text[i] == 'E' || (text[i] >= '0' && text[i] <= '9'))) {
+        if (text[i] == '.' || text[i] == 'e' || text[i] == 'E') integral = 0;
+        i++;
+      }
+      if (inside && depth == 3 && !integral) {
+        if (outer && outer_len)
+          snprintf(outer, outer_len, "%.*s", (int)(outer_n < outer_len ? outer_n : outer_len - 1),
+                   text + outer_at);
+        if (key) *key = target;
+        if (tok_len) *tok_len = i - start;
+        return (long)start;
+      }
+      pending = NULL;
+      continue;
+    }
+    if (c != ',' && c != ' ' && c != '\t' && c != '\r' && c != '\n') pending = NULL;
+    i++;
+  }
+  return -1;
 }

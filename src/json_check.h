@@ -20,6 +20,15 @@ cJSON *hf_json_one_value(const char *text, size_t len);
  * be read as "a" where other readers see another name. *at gets its
  * offset. */
 const char *hf_json_text_fault(const char *text, size_t len, size_t *at);
+/* The offset in text (valid JSON, len bytes) of the first number written
+ * with a fraction or an exponent ("32.0", "3.2e1") in an array that is the
+ * value of one of keys in an object that is a member of the top object
+ * (a safetensors tensor's "shape" or "data_offsets"), or -1: such numbers
+ * are integers to cJSON and Python's == alike, but not to safetensors'
+ * reference reader. outer gets that member's key, *key the matching key,
+ * *tok_len the number's length. */
+long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
+                           char *outer, size_t outer_len, const char **key, size_t *tok_len);
 /* "a string", "a number", "an object", ... of v, for messages. */
 const char *hf_json_kind(const cJSON *v);
 

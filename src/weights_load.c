@@ -331,6 +331,22 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
     return fail(err, errlen, HF_EFORMAT, "header is not valid JSON (one object, nothing after "
                 "it; the padding spaces safetensors allows excepted)");
   }
+  /* "shape": [32.0, ...] is 32 to cJSON, but no integer to safetensors'
+   * reference reader (nor are offsets so written): refused, so no reader
+   * takes a file another refuses. */
+  static const char *const int_keys[] = {"shape", "data_offsets"};
+  char tensor[80] = "";
+  const char *which = "";
+  size_t tok = 0;
+  long nonint = hf_json_nonint_member((const char *)p + 8, (size_t)hlen, int_keys, 2, tensor,
+                                      sizeof tensor, &which, &tok);
+  if (nonint >= 0) {
+    cJSON_Delete(root);
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': %s holds %.*s, not an integer (byte %ld "
+                "of the header's JSON): safetensors shapes and offsets are integers, written "
+                "without a fraction or exponent; write the file again with a safetensors writer",
+                tensor, which, (int)(tok < 32 ? tok : 32), (const char *)p + 8 + nonint, nonint);
+  }
   const unsigned char *data = p + 8 + hlen;
   size_t data_len = len - 8 - (size_t)hlen;
   int rc;

@@ -90,6 +90,18 @@ def read_header(path):
         if not isinstance(v, str):
             raise ValueError(f"{path}: header: '__metadata__.{k}' is {type(v).__name__}, "
                              "but safetensors metadata values are strings")
+    # "shape": [32.0, ...] equals [32, ...] in Python, but safetensors'
+    # reference reader refuses it (as the C loader does): integers only.
+    for name, t in header.items():
+        if name == "__metadata__" or not isinstance(t, dict):
+            continue
+        for key in ("shape", "data_offsets"):
+            for v in t.get(key) if isinstance(t.get(key), list) else ():
+                if isinstance(v, float):
+                    raise ValueError(f"{path}: tensor '{name}': {key} holds {v!r}, not an "
+                                     "integer: safetensors shapes and offsets are integers, "
+                                     "written without a fraction or exponent; write the file "
+                                     "again with a safetensors writer")
     check_tiling(path, header, len(data) - 8 - n)
     return header, data, 8 + n
 

@@ -389,6 +389,29 @@ static void test_header_text(void **state) {
     expect_reject(&t, HF_EFORMAT, bad[i].want);
     free(t.data);
   }
+  /* Shapes and offsets written as fractions or exponents ("16.0", "1.6e1"):
+   * integers to cJSON, not to safetensors' reference reader. Elsewhere
+   * (a metadata string, a number in another place) such a number is no
+   * concern of this check. */
+  static const struct {
+    const char *from, *to, *want;
+  } nonint[] = {
+    {"\"shape\":[16,24,3,3]", "\"shape\":[16.0,24,3,3]", "shape holds 16.0, not an integer"},
+    {"\"shape\":[16,24,3,3]", "\"shape\":[1.6e1,24,3,3]", "shape holds 1.6e1"},
+    {"\"shape\":[16,24,3,3]", "\"shape\":[16,24,3,3E0]", "shape holds 3E0"},
+    {"\"data_offsets\":[0,", "\"data_offsets\":[0.0,", "'enc0.weight': data_offsets holds 0.0"},
+  };
+  for (size_t i = 0; i < sizeof nonint / sizeof nonint[0]; i++) {
+    blob t = with_header_edit(&b, nonint[i].from, nonint[i].to);
+    expect_reject(&t, HF_EFORMAT, nonint[i].want);
+    free(t.data);
+  }
+  blob fine = with_header_edit(&b, "\"__metadata__\":{", "\"__metadata__\":{\"shape\":\"[1.5]\",");
+  hf_weights *fw = NULL;
+  char ferr[512] = "";
+  assert_int_equal(hf_weights_load_mem(fine.data, fine.len, &fw, ferr, sizeof ferr), HF_OK);
+  hf_weights_free(fw);
+  free(fine.data);
   /* The inner text's fault is named as such. */
   blob n = with_header_edit(&b, "\\\"spp\\\":4", "\\\"spp\\\":4,\\\"x\\\\u0000\\\":1");
   expect_reject(&n, HF_EFORMAT, "\\u0000");

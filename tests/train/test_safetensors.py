@@ -209,6 +209,14 @@ class Header(unittest.TestCase):
             with open(path, "wb") as f:
                 f.write(struct.pack("<Q", len(h)) + h + self.rest)
             self.refused(path, ["UTF-8"])
+        # Shapes and offsets as fractions: integers to == , not to the
+        # safetensors reference reader; both loaders refuse them.
+        start = self.header.index('"shape":[', self.header.index('"enc0.weight"')) + 9
+        first = self.header[start:self.header.index(",", start)]
+        self.refused(self.edited("shape_float.safetensors", f'"shape":[{first},',
+                                 f'"shape":[{first}.0,'), ["shape holds", "not an integer"])
+        self.refused(self.edited("offset_float.safetensors", '"data_offsets":[0,',
+                                 '"data_offsets":[0.0,'), ["data_offsets holds", "not an integer"])
         # An escaped backslash before u0000 is no NUL: both load it.
         path = self.edited("escaped_backslash.safetensors", '"__metadata__":{',
                            '"__metadata__":{"note":"\\\\u0000",')
