@@ -444,6 +444,27 @@ static pending *first_done(hfc_client *c) {
   return best;
 }
 
+/* hfc_wait with nothing pending: HFC_E_NOPENDING, or, once the connection
+ * is gone, the error that ended it, so that an engine collecting until
+ * hfc_wait fails learns it must connect again. Either way the message says
+ * which and what to do: an engine polling hfc_wait(c, 0) in a loop that
+ * takes HFC_E_TIMEOUT for "nothing yet" would otherwise spin on a
+ * connection given up as silent with nothing to tell it why. */
+static int nothing_pending(hfc_client *c) {
+  if (!(c->broken && c->active < 0)) {
+    hfci_msg(c, "hfc_wait: no request is pending (every completion has been returned; "
+                "hfc_submit sends the next)");
+    return HFC_E_NOPENDING;
+  }
+  const char *url = c->last_ep >= 0 && c->last_ep < c->neps ? c->eps[c->last_ep].url : "the server";
+  int relist = c->neps > 1 && !(c->failover & HFC_FAILOVER_NEVER) && (c->failover & HFC_FAILOVER_LOST);
+  hfci_msg(c, "hfc_wait: no request is pending, and the connection to %s was lost (%s): %s", url,
+           hfc_strerror(c->broken),
+           relist ? "the next request connects to the next endpoint that answers"
+                  : "hfc_close, then hfc_connect again");
+  return c->broken;
+}
+
 int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
   hfci_begin(c);
   if (!c || !done) return hfci_arg(c, "hfc_wait: %s is NULL", c ? "done" : "the client");
@@ -456,7 +477,7 @@ int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
       hfci_release(c, p, done);
       return 0;
     }
-    if (c->npending == 0) return c->broken && c->active < 0 ? c->broken : HFC_E_NOPENDING;
+    if (c->npending == 0) return nothing_pending(c);
     int left = timeout_ms < 0 ? -1 : (int)((deadline - now_us()) / 1e3);
     if (left < 0 && timeout_ms >= 0) left = 0;
     /* Not past the moment a silent connection is to be given up: a wait

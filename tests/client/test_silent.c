@@ -88,6 +88,15 @@ static void test_one_endpoint(void **state) {
     assert_int_equal(d.status, HFC_E_TIMEOUT);
     assert_non_null(strstr(hfc_last_message(c), "no reply for"));
     assert_true(took >= TIMEOUT_MS - 50 && took < 10000);
+    /* Nothing pending on a connection given up: the loss's error, and a
+     * message that says so (it was empty, leaving an engine that takes
+     * HFC_E_TIMEOUT for "nothing yet" polling a dead connection blind). */
+    assert_int_equal(hfc_pending(c), 0);
+    assert_int_equal(hfc_wait(c, 0, &d), HFC_E_TIMEOUT);
+    if (!strstr(hfc_last_message(c), "no request is pending") ||
+        !strstr(hfc_last_message(c), "hfc_connect again"))
+      fail_msg("hfc_wait after the loss: message '%s', want it to say nothing is pending and "
+               "to connect again", hfc_last_message(c));
     hfc_close(c);
   }
 }
@@ -129,6 +138,9 @@ static void test_pause_then_collect(void **state) {
       fail_msg("frame %d after a pause: %s / %s (%s)", i, hfc_strerror(rc), hfc_strerror(d.status),
                hfc_last_message(c));
   }
+  hfc_completion none;
+  assert_int_equal(hfc_wait(c, 0, &none), HFC_E_NOPENDING);
+  assert_non_null(strstr(hfc_last_message(c), "no request is pending"));
   hfc_close(c);
 }
 

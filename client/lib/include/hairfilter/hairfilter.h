@@ -366,8 +366,12 @@ typedef struct hfc_completion {
 
 /* Waits up to timeout_ms (0: just poll, < 0: the client's timeout) for the
  * next completion, in whatever order the server finishes them. Returns 0
- * with *done filled, HFC_E_TIMEOUT, HFC_E_NOPENDING, or a connection error
- * (then every pending request completes with that error on later calls).
+ * with *done filled; HFC_E_TIMEOUT when none came within timeout_ms;
+ * HFC_E_NOPENDING when nothing is pending; or, when nothing is pending and
+ * the connection is gone, the error that ended it (HFC_E_CLOSED, HFC_E_IO,
+ * HFC_E_TIMEOUT for a server given up as silent, ...; hfc_pending(c) is 0
+ * and hfc_last_message says to connect again). Frames pending when a
+ * connection is lost complete with its error, one per call.
  * A connection that owes replies and has sent nothing for
  * hfc_options.timeout_ms (a stopped or stuck server) is given up as lost,
  * whatever timeout_ms this call has and however often it polls: its
