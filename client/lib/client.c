@@ -22,6 +22,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/timerfd.h>
 #include <sys/uio.h>
 #include <time.h>
 #include <unistd.h>
@@ -377,6 +378,7 @@ static int pump_once(hfc_client *c, int timeout_ms);
 int hfci_pump(hfc_client *c, int timeout_ms) {
   int rc = pump_once(c, timeout_ms);
   hfci_tls_signal(c);
+  hfci_due_update(c);
   return rc;
 }
 
@@ -481,6 +483,26 @@ int hfci_silence_left_ms(const hfc_client *c) {
   return least < 0 ? -1 : (int)(least / 1e3 + 0.999);
 }
 
+void hfci_due_update(hfc_client *c) {
+  if (c->due_fd < 0) return;
+  struct itimerspec its;
+  memset(&its, 0, sizeof its);
+  int done = 0;
+  for (int i = 0; i < c->np && !done; i++) done = c->p[i].state == P_DONE;
+  int silent = done ? 0 : hfci_silence_left_ms(c);
+  if (done) {
+    its.it_value.tv_nsec = 1;   /* all zero would disarm it */
+  } else if (silent >= 0) {
+    /* One millisecond late rather than early: hfci_check_silent gives a
+     * connection up only once the whole timeout has passed. */
+    its.it_value.tv_sec = (silent + 1) / 1000;
+    its.it_value.tv_nsec = (long)((silent + 1) % 1000) * 1000000L;
+  }
+  /* Setting it also clears the expirations counted so far, so the fd is
+   * quiet again once nothing is due. */
+  timerfd_settime(c->due_fd, 0, &its, NULL);
+}
+
 void hfci_check_silent(hfc_client *c) {
   if (c->timeout_ms < 0) return;
   double now = now_us();
@@ -566,6 +588,7 @@ int hfci_control(hfc_client *c, const uint8_t *frame, size_t len, int reply_type
       hfci_progress(c);
     }
     c->ctl_type = 0;
+    hfci_due_update(c);   /* hfci_progress may have sent or failed frames since the pump */
     rc = c->ctl_status;
     if (rc && c->ctl) {
       free(c->ctl);

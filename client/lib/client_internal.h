@@ -108,6 +108,9 @@ struct hfc_client {
   int epfd;                     /* hfc_fd: every connection's socket */
   void *tls_ctx;                /* SSL_CTX * when an endpoint is tls: (tls.c) */
   int tls_evfd;                 /* in epfd: readable while OpenSSL holds decrypted bytes */
+  int due_fd;                   /* in epfd: a timerfd, readable while a completion waits
+                                   that no socket shows, or once a silent connection is
+                                   due to be given up (hfci_due_update) */
   char tls_server_name[256];    /* hfc_options.tls_server_name, or "" */
   char *tls_ca_file;            /* a copy of hfc_options.tls_ca_file; NULL: the system's CAs */
   int tls_no_verify_host;
@@ -201,6 +204,14 @@ void hfci_check_silent(hfc_client *c);
 /* Milliseconds until hfci_check_silent would end a connection (0: now),
  * or -1 when none owes replies or the timeout is off. */
 int hfci_silence_left_ms(const hfc_client *c);
+/* Arms c->due_fd after a call changed what is pending: at once when a
+ * completion waits (one the library made itself, a failed send or a lost
+ * connection, shows on no socket; one read ahead of another, neither),
+ * when the first silent connection is due to be given up (which only a
+ * call notices), else never. So hfc_fd polls readable whenever hfc_wait(c,
+ * 0) has something to do, and an engine that polls it without a timeout
+ * cannot wait for ever. */
+void hfci_due_update(hfc_client *c);
 /* Sends queued requests while the active connection has room, and closes
  * draining connections that have nothing left to answer. */
 void hfci_progress(hfc_client *c);

@@ -21,6 +21,7 @@
 #include <string.h>
 #include <sys/epoll.h>
 #include <sys/socket.h>
+#include <sys/timerfd.h>
 #include <sys/un.h>
 #include <time.h>
 #include <unistd.h>
@@ -404,6 +405,7 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
   if (!c) return HFC_E_NOMEM;
   c->epfd = -1;
   c->tls_evfd = -1;
+  c->due_fd = -1;
   c->active = -1;
   for (int k = 0; k < MAX_CONNS; k++) c->conns[k].fd = c->conns[k].rx_fd = -1;
   char why[400];
@@ -422,6 +424,17 @@ int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out) {
     rc = HFC_E_IO;
   }
   if (!rc && (rc = hfci_tls_poll_setup(c, why, sizeof why))) hfci_msg(NULL, "%s", why);
+  if (!rc) {
+    struct epoll_event ev;
+    memset(&ev, 0, sizeof ev);
+    ev.events = EPOLLIN;
+    c->due_fd = timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC);
+    ev.data.fd = c->due_fd;
+    if (c->due_fd < 0 || epoll_ctl(c->epfd, EPOLL_CTL_ADD, c->due_fd, &ev) != 0) {
+      hfci_msg(NULL, "timerfd for hfc_fd: %s", strerror(errno));
+      rc = HFC_E_IO;
+    }
+  }
   if (!rc) rc = hfci_connect_next(c, 0);
   if (rc) {
     /* The message (this thread's copy) and errno outlive the client. */
@@ -441,6 +454,7 @@ void hfc_close(hfc_client *c) {
   hfci_shm_release_all(c);
   if (c->epfd >= 0) close(c->epfd);
   if (c->tls_evfd >= 0) close(c->tls_evfd);
+  if (c->due_fd >= 0) close(c->due_fd);
   hfci_tls_free(c);
   free(c->ctl);
   /* Requests completed with an error and never collected by hfc_wait keep

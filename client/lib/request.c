@@ -428,7 +428,11 @@ static int submit(const char *fn, hfc_client *c, const hfc_request *caller, uint
 
 int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id) {
   int slot;
-  return submit("hfc_submit", c, r, id, &slot);
+  int rc = submit("hfc_submit", c, r, id, &slot);
+  /* A send that failed is the frame's completion already, and the first
+   * frame in flight starts the silence clock: either is due on hfc_fd. */
+  if (c) hfci_due_update(c);
+  return rc;
 }
 
 int hfc_pending(const hfc_client *c) {
@@ -465,7 +469,7 @@ static int nothing_pending(hfc_client *c) {
   return c->broken;
 }
 
-int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
+static int wait_next(hfc_client *c, int timeout_ms, hfc_completion *done) {
   hfci_begin(c);
   if (!c || !done) return hfci_arg(c, "hfc_wait: %s is NULL", c ? "done" : "the client");
   if (timeout_ms < 0) timeout_ms = c->timeout_ms;
@@ -502,6 +506,13 @@ int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
   }
 }
 
+int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done) {
+  int rc = wait_next(c, timeout_ms, done);
+  /* The completion returned may have been the last one due. */
+  if (c) hfci_due_update(c);
+  return rc;
+}
+
 int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing) {
   uint32_t id;
   int slot;
@@ -527,6 +538,7 @@ int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing) {
   }
   hfc_completion comp;
   hfci_release(c, &c->p[slot], &comp);
+  hfci_due_update(c);
   if (timing) *timing = comp.timing;
   return comp.status;
 }

@@ -11,6 +11,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <poll.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -144,11 +145,76 @@ static void test_pause_then_collect(void **state) {
   hfc_close(c);
 }
 
+/* An engine that waits for hfc_fd in its own event loop (poll without a
+ * timeout: it has nothing else to do) and then collects with
+ * hfc_wait(c, 0). The fd polls readable when the stopped server is due to
+ * be given up, so the frame completes; it polled readable only for bytes
+ * on a socket, and the engine waited for as long as the server was
+ * stopped. */
+static void test_fd_wakes_for_silence(void **state) {
+  (void)state;
+  hfc_client *c = connect_url(A.unix_url);
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
+                               .features = in, .result = out);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
+  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  assert_int_equal(hfc_submit(c, &r, NULL), HFC_OK);
+  double t0 = now_ms();
+  hfc_completion d;
+  int rc = HFC_E_TIMEOUT;
+  /* The engine's loop; 20 s stands in for "for ever". */
+  while (rc == HFC_E_TIMEOUT && now_ms() - t0 < 20000) {
+    struct pollfd p = {hfc_fd(c), POLLIN, 0};
+    if (poll(&p, 1, 20000 - (int)(now_ms() - t0)) <= 0) break;
+    rc = hfc_wait(c, 0, &d);
+  }
+  double took = now_ms() - t0;
+  kill(A.pid, SIGCONT);
+  if (rc)
+    fail_msg("poll(hfc_fd) then hfc_wait(c, 0) on a stopped server: %s after %.0f ms, want the "
+             "frame's completion after about %d ms", hfc_strerror(rc), took, TIMEOUT_MS);
+  assert_int_equal(d.status, HFC_E_TIMEOUT);
+  assert_true(took >= TIMEOUT_MS - 50 && took < 10000);
+  /* Nothing is owed any more: the fd is quiet again. */
+  struct pollfd p = {hfc_fd(c), POLLIN, 0};
+  assert_int_equal(poll(&p, 1, 100), 0);
+  hfc_close(c);
+}
+
+/* A server killed before a frame is submitted: the send fails inside
+ * hfc_submit, which returns 0 and leaves the frame's HFC_E_CLOSED as its
+ * completion. No socket is left to poll readable, so hfc_fd must say a
+ * completion waits, or an engine polling it waits for ever. */
+static void test_fd_wakes_for_local_completion(void **state) {
+  (void)state;
+  server C;
+  if (server_start(&H, &C, NULL)) fail_msg("a third server did not start");
+  hfc_client *c = connect_url(C.unix_url);
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
+                               .features = in, .result = out);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
+  assert_int_equal(kill(C.pid, SIGKILL), 0);
+  server_stop(&C, 20000);
+  int rc = hfc_submit(c, &r, NULL);
+  if (rc == HFC_OK) {
+    struct pollfd p = {hfc_fd(c), POLLIN, 0};
+    if (poll(&p, 1, 5000) != 1)
+      fail_msg("hfc_submit took a frame whose send failed, and hfc_fd did not poll readable "
+               "for its completion within 5 s");
+    hfc_completion d;
+    assert_int_equal(hfc_wait(c, 0, &d), HFC_OK);
+    assert_int_not_equal(d.status, HFC_OK);
+  }
+  hfc_close(c);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_one_endpoint),
     cmocka_unit_test(test_list_fails_over),
     cmocka_unit_test(test_pause_then_collect),
+    cmocka_unit_test(test_fd_wakes_for_silence),
+    cmocka_unit_test(test_fd_wakes_for_local_completion),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

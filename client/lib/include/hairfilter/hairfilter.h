@@ -219,12 +219,16 @@ typedef struct hfc_server_info {
 HFC_API const hfc_server_info *hfc_info(const hfc_client *c);
 /* The endpoint in use, as written in the URL ("unix:/a"); "" with c NULL. */
 HFC_API const char *hfc_endpoint(const hfc_client *c);
-/* A descriptor that polls readable when a reply is waiting (on any of the
- * client's connections), for an engine's own event loop; then call
- * hfc_wait(c, 0, ...). Stays the same across failovers. Not the socket:
- * use it only to poll (over TLS it also polls readable while OpenSSL holds
- * a decrypted reply that the socket no longer shows). HFC_E_ARG with c
- * NULL. */
+/* A descriptor that polls readable whenever hfc_wait(c, 0, ...) has
+ * something to do, for an engine's own event loop: a reply waiting on any
+ * of the client's connections (over TLS, also one OpenSSL holds decrypted
+ * that the socket no longer shows), a completion the library made itself
+ * (a frame failed with its lost connection), or a connection that owes
+ * replies and has been silent for hfc_options.timeout_ms (hfc_wait gives
+ * it up). So polling it without a timeout never waits for ever on a
+ * stopped server; it may poll readable with no completion left
+ * (hfc_wait then returns HFC_E_TIMEOUT). Stays the same across failovers.
+ * Not the socket: use it only to poll. HFC_E_ARG with c NULL. */
 HFC_API int hfc_fd(const hfc_client *c);
 
 /* ---- variants ----------------------------------------------------------- */
