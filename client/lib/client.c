@@ -516,10 +516,21 @@ void hfci_check_silent(hfc_client *c) {
      * one connection's frame at a time. */
     struct pollfd pfd = {x->fd, POLLIN, 0};
     if (hfci_tls_pending(x->ssl) || poll(&pfd, 1, 0) > 0) continue;
-    snprintf(x->why, sizeof x->why, "no reply for %d ms (hfc_options.timeout_ms) with %d "
-             "frame(s) in flight: is the server stopped or stuck?", c->timeout_ms, x->inflight);
-    hfci_conn_lost(c, k, HFC_E_TIMEOUT);
+    hfci_give_up_silent(c, k);
   }
+}
+
+void hfci_give_up_silent(hfc_client *c, int k) {
+  conn *x = &c->conns[k];
+  char owed[48] = "a request";
+  if (x->inflight > 0) snprintf(owed, sizeof owed, "%d frame(s) in flight", x->inflight);
+  /* timeout_ms reads as a deadline, and an engine that set it to a frame
+   * budget finds its connection given up: the message says what it is. */
+  snprintf(x->why, sizeof x->why,
+           "no reply for %d ms (hfc_options.timeout_ms) with %s: is the server stopped or "
+           "stuck? A server slower than that needs a larger timeout_ms (a frame's own deadline "
+           "is hfc_wait's timeout, which leaves the frame pending)", c->timeout_ms, owed);
+  hfci_conn_lost(c, k, HFC_E_TIMEOUT);
 }
 
 void hfci_progress(hfc_client *c) {
@@ -580,7 +591,7 @@ int hfci_control(hfc_client *c, const uint8_t *frame, size_t len, int reply_type
     while (!c->ctl_done) {
       rc = hfci_pump(c, c->timeout_ms);
       if (rc == HFC_E_TIMEOUT)
-        hfci_conn_lost(c, c->ctl_conn, rc);
+        hfci_give_up_silent(c, c->ctl_conn);
       else if (rc && !c->ctl_done) {
         c->ctl_done = 1;
         c->ctl_status = rc;

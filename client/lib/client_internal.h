@@ -201,6 +201,9 @@ void hfci_conn_lost(hfc_client *c, int k, int err);
  * it is lost with HFC_E_TIMEOUT, so its frames fail over or complete.
  * hfc_wait calls it, as hfc_filter ends a silent wait of its own. */
 void hfci_check_silent(hfc_client *c);
+/* Gives connection k up as silent (HFC_E_TIMEOUT), its reason saying that
+ * hfc_options.timeout_ms passed without a reply and what to change. */
+void hfci_give_up_silent(hfc_client *c, int k);
 /* Milliseconds until hfci_check_silent would end a connection (0: now),
  * or -1 when none owes replies or the timeout is off. */
 int hfci_silence_left_ms(const hfc_client *c);

@@ -528,7 +528,7 @@ int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing) {
       /* Nothing at all for a whole timeout: the server is stuck. */
       int k = p->state == P_SENT ? p->conn : c->active;
       if (k >= 0)
-        hfci_conn_lost(c, k, rc);
+        hfci_give_up_silent(c, k);
       else
         hfci_finish(c, p, rc, "no answer within the timeout");
     } else if (rc && p->state != P_DONE) {

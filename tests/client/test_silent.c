@@ -145,6 +145,30 @@ static void test_pause_then_collect(void **state) {
   hfc_close(c);
 }
 
+/* hfc_filter on a stopped server gives the connection up after the
+ * timeout as hfc_wait does, and says why in the same words, naming
+ * hfc_options.timeout_ms (it said only "timed out waiting for the
+ * server", which an engine that set timeout_ms to a frame budget could
+ * not tell from a dead server). */
+static void test_filter_names_the_timeout(void **state) {
+  (void)state;
+  hfc_client *c = connect_url(A.unix_url);
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
+                               .features = in, .result = out);
+  assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
+  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  int rc = hfc_filter(c, &r, NULL);
+  char msg[1024];
+  snprintf(msg, sizeof msg, "%s", hfc_last_message(c));
+  kill(A.pid, SIGCONT);
+  assert_int_equal(rc, HFC_E_TIMEOUT);
+  if (!strstr(msg, "no reply for") || !strstr(msg, "hfc_options.timeout_ms") ||
+      !strstr(msg, "hfc_wait's timeout"))
+    fail_msg("hfc_filter on a stopped server: '%s', want it to name hfc_options.timeout_ms and "
+             "what a frame's deadline is", msg);
+  hfc_close(c);
+}
+
 /* An engine that waits for hfc_fd in its own event loop (poll without a
  * timeout: it has nothing else to do) and then collects with
  * hfc_wait(c, 0). The fd polls readable when the stopped server is due to
@@ -213,6 +237,7 @@ int main(void) {
     cmocka_unit_test(test_one_endpoint),
     cmocka_unit_test(test_list_fails_over),
     cmocka_unit_test(test_pause_then_collect),
+    cmocka_unit_test(test_filter_names_the_timeout),
     cmocka_unit_test(test_fd_wakes_for_silence),
     cmocka_unit_test(test_fd_wakes_for_local_completion),
   };

@@ -126,7 +126,11 @@ typedef struct hfc_options {
   const char *client_name;   /* shown in the server's logs; NULL: "libhairfilter"; 1..64
                                 printable ASCII characters without spaces */
   const char *token;         /* auth token (TCP); NULL: none; up to 256 characters */
-  int timeout_ms;            /* per blocking step; 0: 30000; < 0: no limit */
+  int timeout_ms;            /* per blocking step, ms; 0: 30000; < 0: no limit. A
+                                connection owing replies that sends nothing for this
+                                long is given up (HFC_E_TIMEOUT): keep it above the
+                                slowest frame, not at a frame budget (that is
+                                hfc_wait's timeout, which leaves frames pending) */
   /* The retry policy, for a URL that lists several endpoints:
    * hfc_connect tries them in order; once connected, what failover allows
    * moves the client to the next endpoint that answers. */
