@@ -159,7 +159,15 @@ static int handshake(hfc_client *c, int fd, void *ssl, hfp_hello_ok *ok, char *w
   }
   int rc = hfci_send_io(fd, ssl, c->timeout_ms, frame, (size_t)n);
   uint8_t hb[HFP_HEADER_SIZE];
-  if (!rc) rc = hfci_recv_io(fd, ssl, NULL, hb, sizeof hb, c->timeout_ms);
+  /* A server that refuses the connection outright (a fatal BUSY at
+   * --max-connections) writes its ERROR and closes before reading the
+   * HELLO, so the send may fail (EPIPE) with the reason waiting unread:
+   * read it, and report the send's failure only when there is none. */
+  if (!rc || (!ssl && (rc == HFC_E_CLOSED || rc == HFC_E_IO))) {
+    int sent = rc;
+    rc = hfci_recv_io(fd, ssl, NULL, hb, sizeof hb, c->timeout_ms);
+    if (rc && sent) rc = sent;
+  }
   if (rc) {
     /* Under TLS 1.3 a server refuses a client certificate after the
      * client's side of the handshake is done: its alert comes here. */

@@ -435,6 +435,32 @@ static void test_connect_errno(void **state) {
   assert_non_null(strstr(why, "99999"));
 }
 
+/* A server at --max-connections answers the next connection with a fatal
+ * BUSY and closes it at once; the client, writing its HELLO after that
+ * close, saw EPIPE and reported "handshake: server closed the connection"
+ * (HFC_E_CLOSED) without reading the ERROR waiting for it. Every try is
+ * HFC_E_BUSY naming the limit. */
+static void test_connection_limit(void **state) {
+  (void)state;
+  static const char *const extra[] = {"--max-connections", "1", NULL};
+  server L;
+  hfc_client *held = NULL;
+  assert_int_equal(server_start_connected(&H, &L, extra, "held", &held), 0);
+  const char *urls[] = {L.unix_url, L.tcp_url};
+  for (int u = 0; u < 2; u++)
+    for (int i = 0; i < 100; i++) {
+      hfc_options o = test_options("over", NULL, 5000);
+      hfc_client *c = NULL;
+      int rc = hfc_connect(urls[u], &o, &c);
+      if (rc != HFC_E_BUSY || !strstr(hfc_last_message(NULL), "connection limit (1)"))
+        fail_msg("connect %d to %s over --max-connections 1: %s (%s), want BUSY naming the "
+                 "limit", i, urls[u], hfc_strerror(rc), hfc_last_message(NULL));
+      hfc_close(c);
+    }
+  hfc_close(held);
+  assert_int_equal(server_stop(&L, 20000), 0);
+}
+
 /* Versions: the library's, the headers', and the server's in HELLO_OK (to
  * version-2 peers; a version-1 peer gets the version-1 frame). */
 static void test_versions(void **state) {
@@ -537,6 +563,7 @@ int main(void) {
     cmocka_unit_test(test_connect_errno),
     cmocka_unit_test(test_versions),
     cmocka_unit_test(test_fd_polls),
+    cmocka_unit_test(test_connection_limit),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
