@@ -196,7 +196,15 @@ static int handshake(hfc_client *c, int fd, void *ssl, hfp_hello_ok *ok, char *w
       snprintf(why, whylen, "handshake: malformed ERROR");
       return HFC_E_PROTOCOL;
     }
-    snprintf(why, whylen, "%s: %s", hfp_code_name((int)e.code), e.message);
+    /* The server's words say what is wrong; what the engine changes is
+     * the option, which only the client can name. */
+    const char *hint = "";
+    if (e.code == HFP_E_UNAUTHORIZED)
+      hint = c->token[0] ? "; hfc_options.token (--token) is not the server's token (its "
+                           "--auth-token-file or $HAIRFILTERD_TOKEN)"
+                         : "; set hfc_options.token (--token) to the server's token (its "
+                           "--auth-token-file or $HAIRFILTERD_TOKEN)";
+    snprintf(why, whylen, "%s: %s%s", hfp_code_name((int)e.code), e.message, hint);
     return e.code < HFP_E_COUNT ? -(int)e.code : HFC_E_INTERNAL;
   }
   rc = hfp_decode_hello_ok(payload, h.length, ok);

@@ -461,6 +461,23 @@ static void test_connection_limit(void **state) {
   assert_int_equal(server_stop(&L, 20000), 0);
 }
 
+/* A TCP listener's token refused: the message names the option to set
+ * (it was the server's "this listener needs a token" or "wrong token"
+ * alone, with nothing naming hfc_options.token). */
+static void test_unauthorized_names_the_option(void **state) {
+  (void)state;
+  const char *tokens[] = {NULL, "wrong"};
+  const char *want[] = {"set hfc_options.token", "is not the server's token"};
+  for (int i = 0; i < 2; i++) {
+    hfc_options o = test_options("auth", tokens[i], 5000);
+    hfc_client *c = NULL;
+    assert_int_equal(hfc_connect(S.tcp_url, &o, &c), HFC_E_UNAUTHORIZED);
+    if (!strstr(hfc_last_message(NULL), want[i]))
+      fail_msg("token %s refused: '%s', want '%s'", tokens[i] ? tokens[i] : "none",
+               hfc_last_message(NULL), want[i]);
+  }
+}
+
 /* Versions: the library's, the headers', and the server's in HELLO_OK (to
  * version-2 peers; a version-1 peer gets the version-1 frame). */
 static void test_versions(void **state) {
@@ -564,6 +581,7 @@ int main(void) {
     cmocka_unit_test(test_versions),
     cmocka_unit_test(test_fd_polls),
     cmocka_unit_test(test_connection_limit),
+    cmocka_unit_test(test_unauthorized_names_the_option),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
