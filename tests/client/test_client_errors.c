@@ -20,6 +20,7 @@
 #include <sys/stat.h>
 #include <sys/un.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "harness.h"
@@ -536,6 +537,22 @@ static void test_fd_polls(void **state) {
   assert_int_equal(hfc_wait(c, 0, &d), 0);
   assert_int_equal(d.status, 0);
   expect_reference(&f);
+  /* Replies a statistics call read on its way to its own answer are
+   * completions no socket shows any more: hfc_fd still polls readable for
+   * them (it did not, and an engine waiting on it waited for ever). */
+  assert_int_equal(hfc_submit(c, &f.r, NULL), 0);
+  assert_int_equal(hfc_submit(c, &f.r, NULL), 0);
+  struct timespec ts = {0, 300 * 1000000L};
+  nanosleep(&ts, NULL);
+  hfc_stats *st = malloc(sizeof *st);
+  assert_int_equal(hfc_get_stats(c, st), 0);
+  free(st);
+  for (int got = 0; got < 2;) {
+    if (poll(&p, 1, 5000) != 1)
+      fail_msg("hfc_fd not readable with %d completion(s) read ahead by hfc_get_stats",
+               2 - got);
+    while (got < 2 && hfc_wait(c, 0, &d) == 0) got++;
+  }
   frame_free(&f);
   hfc_close(c);
 }
