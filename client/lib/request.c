@@ -494,7 +494,13 @@ static int wait_next(hfc_client *c, int timeout_ms, hfc_completion *done) {
     hfci_progress(c);
     if (first_done(c)) continue;
     if (rc == HFC_E_TIMEOUT) {
-      if (timeout_ms >= 0 && now_us() >= deadline) return rc;
+      if (timeout_ms >= 0 && now_us() >= deadline) {
+        /* Routine for an engine with a frame budget; the message tells it
+         * apart from a connection given up, which has nothing pending. */
+        hfci_msg(c, "hfc_wait: no completion within %d ms; %d request(s) still pending "
+                    "(their buffers stay in use: collect them later)", timeout_ms, c->npending);
+        return rc;
+      }
       continue;
     }
     if (rc && rc != HFC_E_TIMEOUT && !first_done(c)) {

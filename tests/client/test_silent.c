@@ -66,6 +66,11 @@ static hfc_completion stopped_frame(hfc_client *c, int poll, double *took_ms) {
   int rc;
   if (poll) {
     while ((rc = hfc_wait(c, 0, &d)) == HFC_E_TIMEOUT && now_ms() - t0 < 20000) {
+      /* Nothing yet: said so, with the frame still pending (the message
+       * was empty, like a lost connection's). */
+      if (!strstr(hfc_last_message(c), "1 request(s) still pending") && !kill(A.pid, SIGCONT))
+        fail_msg("hfc_wait(c, 0) with a frame in flight: '%s', want it to say the frame is "
+                 "still pending", hfc_last_message(c));
       struct timespec ts = {0, 20 * 1000000L};
       nanosleep(&ts, NULL);
     }
