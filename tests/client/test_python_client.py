@@ -428,6 +428,28 @@ class PythonClient(unittest.TestCase):
             hairfilter.Client("tcp:host:99999")
         self.assertEqual(e.exception.code, "URL")
 
+    def test_connection_limit(self):
+        """A server at --max-connections answers the next connection with
+        a fatal BUSY and closes it before reading the HELLO: the client
+        reports BUSY naming the limit, not the failed send ('CLOSED: send:
+        Broken pipe', which it said every time on a Unix socket)."""
+        sock = os.path.join(ARGS.work, "limit.sock")
+        if os.path.exists(sock):
+            os.unlink(sock)
+        proc, urls = start_daemon("limit", ["--listen", "unix:" + sock, "--weights",
+                                            os.path.join(ARGS.weights, "small.safetensors"),
+                                            "--max-connections", "1"])
+        try:
+            with hairfilter.Client(urls[0]):
+                for _ in range(50):
+                    with self.assertRaises(hairfilter.Error) as e:
+                        hairfilter.Client(urls[0]).close()
+                    self.assertEqual(e.exception.code, "BUSY", e.exception.message)
+                    self.assertIn("connection limit (1)", e.exception.message)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+
     def test_codec(self):
         hello = P.encode_hello("py", "tok")
         self.assertEqual(P.decode_header(hello[:16]), (P.HELLO, 0, len(hello) - 16))

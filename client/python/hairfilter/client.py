@@ -246,9 +246,33 @@ class Client:
             s = self._wrap_tls(s, addr)
         self._sock = s
         self._unix = addr.kind == "unix"
-        self._send(P.encode_hello(client_name, token))
-        type_, _, length = self._read_header(self.timeout)
-        payload = self._read_payload(length)
+        hello = P.encode_hello(client_name, token)
+        refused = None
+        if addr.kind == "tls":
+            self._send(hello)
+        else:
+            try:
+                s.sendall(hello)
+            except socket.timeout:
+                self._fail("TIMEOUT", "sending took longer than the timeout")
+            except OSError as e:
+                # A server refusing the connection outright (a fatal BUSY at
+                # --max-connections) writes its ERROR and closes before it
+                # reads the HELLO, so the send fails with the reason unread:
+                # read it, and report the send's failure only without one.
+                try:
+                    refused = self._read_header(self.timeout)
+                    refused += (self._read_payload(refused[2]),)
+                except Error:
+                    refused = None
+                if refused is None or refused[0] != P.ERROR:
+                    self._fail("CLOSED" if isinstance(e, (BrokenPipeError, ConnectionResetError))
+                               else "IO", "send: %s" % (e.strerror or e))
+        if refused is not None:
+            type_, _, length, payload = refused
+        else:
+            type_, _, length = self._read_header(self.timeout)
+            payload = self._read_payload(length)
         if type_ == P.ERROR:
             code, _, msg = P.decode_error(payload)
             if code == P.E_UNAUTHORIZED:
