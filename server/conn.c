@@ -38,6 +38,13 @@ static void conn_idle_check(hfd_conn *c);
 static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf);
 static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
 
+/* A frame refused by a drain: what the server is doing, and what the
+ * client does about it (the client library sends it on to another
+ * endpoint of its list by itself; one endpoint alone must connect again). */
+#define DRAINING_WHY                                                                   \
+  "server is shutting down (draining before it stops): send the frame to another "     \
+  "server, or connect again once this one has restarted"
+
 /* Backpressure on replies: a peer that sends requests without reading the
  * answers would make us queue replies without bound (a flood of rejected
  * frames costs it nothing). Past HIGH unwritten replies we stop reading
@@ -775,7 +782,7 @@ static void filter_head(hfd_conn *c, size_t have) {
            f.width, f.height, (unsigned long long)(need >> 20),
            (unsigned long long)(s->frame_budget >> 20));
   } else if (s->draining) {
-    reject(c, v, HFP_E_SHUTTING_DOWN, left, "server is shutting down");
+    reject(c, v, HFP_E_SHUTTING_DOWN, left, "%s", DRAINING_WHY);
   } else if (!mem_fits(s, need)) {
     /* Refused now rather than after the upload: it would not fit. */
     reject(c, v, HFP_E_BUSY, left,
@@ -882,7 +889,7 @@ static void filter_admit(hfd_conn *c) {
   uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);
   if (s->draining) {
     code = HFP_E_SHUTTING_DOWN;
-    why = "server is shutting down";
+    why = DRAINING_WHY;
   } else if (c->inflight >= s->cfg->max_inflight) {
     code = HFP_E_BUSY;
     /* The client's own doing: the limit it was told in HELLO_OK. */
