@@ -124,6 +124,11 @@ static void test_killed_server_single_url(void **state) {
   if (rc != HFC_E_CLOSED)
     fail_msg("a frame to a killed server: %s (%s), want HFC_E_CLOSED", hfc_strerror(rc),
              hfc_last_message(c));
+  /* One endpoint: the frame's error says to connect again (it said only
+   * "server closed the connection"). */
+  if (!strstr(hfc_last_message(c), "connect again"))
+    fail_msg("a frame lost with the only endpoint: '%s', want it to say to connect again",
+             hfc_last_message(c));
   hfc_close(c);
 
   /* A frame whose request went out whole before the loss: its reply is
@@ -137,6 +142,7 @@ static void test_killed_server_single_url(void **state) {
   if (rc != HFC_E_CLOSED)
     fail_msg("a small frame to a killed server: %s (%s), want HFC_E_CLOSED", hfc_strerror(rc),
              hfc_last_message(c));
+  assert_non_null(strstr(hfc_last_message(c), "connect again"));
   assert_null(strstr(hfc_last_message(c), "handshake"));
   hfc_close(c);
   frame_free(&small);
