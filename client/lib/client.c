@@ -501,8 +501,9 @@ void hfci_due_update(hfc_client *c) {
   } else if (silent >= 0) {
     /* One millisecond late rather than early: hfci_check_silent gives a
      * connection up only once the whole timeout has passed. */
-    its.it_value.tv_sec = (silent + 1) / 1000;
-    its.it_value.tv_nsec = (long)((silent + 1) % 1000) * 1000000L;
+    long long ms = (long long)silent + 1;   /* timeout_ms may be INT_MAX */
+    its.it_value.tv_sec = (time_t)(ms / 1000);
+    its.it_value.tv_nsec = (long)(ms % 1000) * 1000000L;
   }
   /* Setting it also clears the expirations counted so far, so the fd is
    * quiet again once nothing is due. */
