@@ -111,6 +111,23 @@ build_engines() {
   engines=()
   for t in "${targets[@]}"; do engines+=("$b/$t"); done
 
+  # OpenSSL's development files absent (libssl-dev not installed): only the
+  # static library needs them, so find_package still gives the shared one
+  # (it failed as a whole, OpenSSL being a required dependency).
+  step "$tag: engine by find_package without OpenSSL's development files"
+  local bn="$work/engine-$tag-nossl"
+  "${CMAKE:-cmake}" -S "$src/tests/install/engine" -B "$bn" -DCMAKE_BUILD_TYPE=Release \
+      -DCMAKE_C_COMPILER="$cc" "${langs[@]}" -DCMAKE_PREFIX_PATH="$prefix" \
+      -DCMAKE_FIND_USE_PACKAGE_REGISTRY=OFF -DCMAKE_FIND_USE_SYSTEM_PACKAGE_REGISTRY=OFF \
+      -DCMAKE_DISABLE_FIND_PACKAGE_OpenSSL=TRUE -DENGINE_SHARED_ONLY=ON \
+      -DCMAKE_C_FLAGS="$san" -DCMAKE_CXX_FLAGS="$san" > "$bn.log" 2>&1 ||
+      { cat "$bn.log"; fail "engine configure without OpenSSL's development files"; }
+  grep -q "hairfilter::client_static needs them" "$bn.log" ||
+      { cat "$bn.log"; fail "no word on what lacking OpenSSL costs"; }
+  "${CMAKE:-cmake}" --build "$bn" --target engine_c >> "$bn.log" 2>&1 ||
+      { cat "$bn.log"; fail "engine build without OpenSSL's development files"; }
+  engines+=("$bn/engine_c")
+
   step "$tag: engine by pkg-config from $prefix"
   local pcdir
   pcdir=$(dirname "$(find "$prefix" -name hairfilter.pc | head -n1)")
