@@ -203,7 +203,10 @@ HFC_API int hfc_check_url(const char *url, char *why, size_t whylen);
  * flight are abandoned. NULL is allowed. */
 HFC_API void hfc_close(hfc_client *c);
 
-/* What the server in use said about itself in the handshake. */
+/* What the server in use said about itself in the handshake. Its limits
+ * are the handshake's: a reload of the server (SIGHUP) that changes the
+ * variants may raise or lower max_width and max_height for new connections
+ * only, and a frame over the new limit is HFC_E_TOO_LARGE naming it. */
 typedef struct hfc_server_info {
   char name[65];
   int version;               /* protocol version of this connection */
