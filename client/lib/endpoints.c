@@ -168,6 +168,13 @@ static int handshake(hfc_client *c, int fd, void *ssl, hfp_hello_ok *ok, char *w
     rc = hfci_recv_io(fd, ssl, NULL, hb, sizeof hb, c->timeout_ms);
     if (rc && sent) rc = sent;
   }
+  if (rc == HFC_E_TIMEOUT) {
+    /* The socket connected (the kernel's backlog takes it) but nothing
+     * answered: say how long, and what holds a server up there. */
+    snprintf(why, whylen, "handshake: no answer to HELLO within %d ms (hfc_options.timeout_ms): "
+             "is the server stopped or stuck, or are its --max-handshakes taken?", c->timeout_ms);
+    return rc;
+  }
   if (rc) {
     /* Under TLS 1.3 a server refuses a client certificate after the
      * client's side of the handshake is done: its alert comes here. */

@@ -174,6 +174,24 @@ static void test_filter_names_the_timeout(void **state) {
   hfc_close(c);
 }
 
+/* hfc_connect to a stopped server: the kernel accepts the connection, and
+ * the HELLO goes unanswered; the error says how long it waited and what to
+ * check (it said only "handshake: timed out waiting for the server"). */
+static void test_connect_to_stopped(void **state) {
+  (void)state;
+  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  hfc_options o = test_options("silent", NULL, 500);
+  hfc_client *c = NULL;
+  int rc = hfc_connect(A.unix_url, &o, &c);
+  char msg[1024];
+  snprintf(msg, sizeof msg, "%s", hfc_last_message(NULL));
+  kill(A.pid, SIGCONT);
+  hfc_close(c);
+  assert_int_equal(rc, HFC_E_TIMEOUT);
+  if (!strstr(msg, "no answer to HELLO within 500 ms") || !strstr(msg, "hfc_options.timeout_ms"))
+    fail_msg("connect to a stopped server: '%s', want how long it waited and the option", msg);
+}
+
 /* An engine that waits for hfc_fd in its own event loop (poll without a
  * timeout: it has nothing else to do) and then collects with
  * hfc_wait(c, 0). The fd polls readable when the stopped server is due to
@@ -243,6 +261,7 @@ int main(void) {
     cmocka_unit_test(test_list_fails_over),
     cmocka_unit_test(test_pause_then_collect),
     cmocka_unit_test(test_filter_names_the_timeout),
+    cmocka_unit_test(test_connect_to_stopped),
     cmocka_unit_test(test_fd_wakes_for_silence),
     cmocka_unit_test(test_fd_wakes_for_local_completion),
   };
