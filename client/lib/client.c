@@ -437,8 +437,9 @@ void hfci_conn_lost(hfc_client *c, int k, int err) {
              err > -HFP_E_COUNT ? hfp_code_name(err) : hfc_strerror(err), x->why);
   else
     snprintf(why, sizeof why, "%s: %s", c->eps[e].url, hfc_strerror(err));
-  /* The client's only way on is gone and it moves nowhere by itself: the
-   * frames' errors say what the engine does (a single URL's every loss). */
+  /* The client's only way on is gone and it moves nowhere by itself (a
+   * single URL, or a list without HFC_FAILOVER_LOST): the frames' errors
+   * say what the engine does. */
   if (!move && k == c->active) {
     size_t n = strlen(why);
     snprintf(why + n, sizeof why - n, ": connect again (hfc_close, then hfc_connect)");
