@@ -356,7 +356,11 @@ typedef struct hfc_timing {
  * sent, total_us and resends for one that failed after. */
 HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
 
-/* Asynchronous: sends r and returns at once with its id. r's buffers (not r
+/* Asynchronous: sends r and returns with its id, without waiting for the
+ * result. Through a socket, sending is writing the whole frame: one larger
+ * than the socket's buffers waits while the server reads it (up to
+ * hfc_options.timeout_ms); through shared memory only a reference is
+ * written, whatever the frame's size. r's buffers (not r
  * itself: features, estimate_buffer, result, rgba) must stay valid until
  * its completion comes out of hfc_wait. At
  * most hfc_info(c)->max_inflight may be pending (HFC_E_INFLIGHT). The first
