@@ -530,14 +530,18 @@ void hfci_check_silent(hfc_client *c) {
 
 void hfci_give_up_silent(hfc_client *c, int k) {
   conn *x = &c->conns[k];
-  char owed[48] = "a request";
-  if (x->inflight > 0) snprintf(owed, sizeof owed, "%d frame(s) in flight", x->inflight);
   /* timeout_ms reads as a deadline, and an engine that set it to a frame
    * budget finds its connection given up: the message says what it is. */
-  snprintf(x->why, sizeof x->why,
-           "no reply for %d ms (hfc_options.timeout_ms) with %s: is the server stopped or "
-           "stuck? A server slower than that needs a larger timeout_ms (a frame's own deadline "
-           "is hfc_wait's timeout, which leaves the frame pending)", c->timeout_ms, owed);
+  if (x->inflight > 0)
+    snprintf(x->why, sizeof x->why,
+             "no reply for %d ms (hfc_options.timeout_ms) with %d frame(s) in flight: is the "
+             "server stopped or stuck? A server slower than that needs a larger timeout_ms (a "
+             "frame's own deadline is hfc_wait's timeout, which leaves the frame pending)",
+             c->timeout_ms, x->inflight);
+  else
+    snprintf(x->why, sizeof x->why,
+             "no reply for %d ms (hfc_options.timeout_ms) to a variant list, statistics or "
+             "shared-memory request: is the server stopped or stuck?", c->timeout_ms);
   hfci_conn_lost(c, k, HFC_E_TIMEOUT);
 }
 
