@@ -462,6 +462,22 @@ static void test_connection_limit(void **state) {
   assert_int_equal(server_stop(&L, 20000), 0);
 }
 
+/* The 17th segment of a client is HFC_E_INFLIGHT, as the header says,
+ * saying what to do; one freed makes room again. */
+static void test_segment_limit(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "segments");
+  assert_non_null(c);
+  void *m[16], *more = NULL;
+  for (int i = 0; i < 16; i++) assert_int_equal(hfc_shm_alloc(c, 4096, &m[i]), 0);
+  assert_int_equal(hfc_shm_alloc(c, 4096, &more), HFC_E_INFLIGHT);
+  assert_non_null(strstr(hfc_last_message(c), "free one with hfc_shm_free"));
+  assert_int_equal(hfc_shm_free(c, m[0]), 0);
+  assert_int_equal(hfc_shm_alloc(c, 4096, &m[0]), 0);
+  for (int i = 0; i < 16; i++) assert_int_equal(hfc_shm_free(c, m[i]), 0);
+  hfc_close(c);
+}
+
 /* A TCP listener's token refused: the message names the option to set
  * (it was the server's "this listener needs a token" or "wrong token"
  * alone, with nothing naming hfc_options.token). */
@@ -599,6 +615,7 @@ int main(void) {
     cmocka_unit_test(test_fd_polls),
     cmocka_unit_test(test_connection_limit),
     cmocka_unit_test(test_unauthorized_names_the_option),
+    cmocka_unit_test(test_segment_limit),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -407,7 +407,8 @@ HFC_API int hfc_pending(const hfc_client *c);
  * result written over its own features, never resent by a failover), go
  * through the socket as usual, and so do those in a segment of a
  * connection lost in a failover (the memory stays mapped until
- * hfc_shm_free). At most 16 segments per client; *mem is page-aligned.
+ * hfc_shm_free). At most 16 segments per client (a 17th is HFC_E_INFLIGHT,
+ * with nothing asked of the server); *mem is page-aligned.
  * The server may refuse (HFC_E_BUSY when its shared-memory budget is
  * spent, HFC_E_TOO_LARGE over all of it, HFC_E_UNSUPPORTED on TCP or when
  * disabled). While a request is pending, do not write its features or read
