@@ -76,7 +76,9 @@ static int check_request(hfc_client *c, const hfc_request *r) {
   size_t rgba = hfc_output_bytes(r->width, r->height, 4, r->out_dtype);
   /* The estimate after the features, in the same buffer. */
   int follows = r->estimate && !r->estimate_buffer;
-  if (!r->features) return hfci_arg(c, "hfc_request.features is NULL");
+  if (!r->features)
+    return hfci_arg(c, "hfc_request.features is NULL: give the frame's samples, "
+                       "[height][width][spp*6] (hfc_features_bytes bytes)");
   if (r->features_bytes < in + (follows ? est : 0))
     return hfci_arg(c, "hfc_request.features_bytes is %zu: a %dx%d frame of %d spp in %s "
                        "(hfc_request.in_dtype) needs %zu ([height][width][spp*6]%s; "
@@ -90,7 +92,9 @@ static int check_request(hfc_client *c, const hfc_request *r) {
                        "(hfc_request.in_dtype) needs %zu ([height][width][3]; "
                        "hfc_estimate_bytes gives it)", r->estimate_bytes, r->width, r->height,
                     dtype_name(r->in_dtype), est);
-  if (!r->result) return hfci_arg(c, "hfc_request.result is NULL");
+  if (!r->result)
+    return hfci_arg(c, "hfc_request.result is NULL: give the buffer the result is written to, "
+                       "[height][width][3] (hfc_output_bytes(width, height, 3, out_dtype) bytes)");
   if (r->result_bytes < out)
     return hfci_arg(c, "hfc_request.result_bytes is %zu: a %dx%d result in %s "
                        "(hfc_request.out_dtype) needs %zu ([height][width][3]; "
@@ -102,7 +106,8 @@ static int check_request(hfc_client *c, const hfc_request *r) {
                        "hfc_output_bytes(width, height, 4, out_dtype) gives it)", r->rgba_bytes, r->width, r->height,
                     dtype_name(r->out_dtype), rgba);
   if (!finite3(r->hair) || !finite3(r->light) || !finite3(r->background))
-    return hfci_arg(c, "hfc_request.%s has a value that is not finite",
+    return hfci_arg(c, "hfc_request.%s has a value that is not finite: want linear RGB, "
+                       "finite (hfc_request_init leaves 0)",
                     !finite3(r->hair) ? "hair" : !finite3(r->light) ? "light" : "background");
   /* hfc_request_init() leaves the colours at 0; a composite under no light
    * is the hair drawn black, never what a caller asking for it meant. */

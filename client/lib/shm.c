@@ -6,6 +6,7 @@
  * it take the socket path until it is freed.
  */
 #define _POSIX_C_SOURCE 200809L
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -55,7 +56,9 @@ int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem) {
   hfci_begin(c);
   if (!c || !mem) return hfci_arg(c, "hfc_shm_alloc: %s is NULL", c ? "mem" : "the client");
   *mem = NULL;
-  if (bytes == 0) return hfci_arg(c, "hfc_shm_alloc: bytes is 0");
+  if (bytes == 0)
+    return hfci_arg(c, "hfc_shm_alloc: bytes is 0: want the bytes of the buffers to share "
+                       "(hfc_features_bytes, hfc_estimate_bytes, hfc_output_bytes)");
   int k = hfci_need_conn(c);
   if (k < 0) return k;
   if (!c->conns[k].info.shm) {
@@ -93,13 +96,15 @@ int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem) {
     return HFC_E_PROTOCOL;
   }
   void *addr = mmap(NULL, bytes, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+  int map_errno = errno;   /* before the close and the send below */
   close(fd);
   if (addr == MAP_FAILED) {
     uint8_t d[HFP_HEADER_SIZE + 4];
     int dn = hfp_encode_shm_destroy(d, sizeof d, id);
     if (dn > 0 && !x->draining && (rc = hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)dn)))
       hfci_conn_lost(c, c->ctl_conn, rc);
-    hfci_msg(c, "mmap of a %zu-byte segment failed", bytes);
+    hfci_msg(c, "mmap of a %zu-byte segment failed: %s (the process's address space or "
+                "memory limit)", bytes, strerror(map_errno));
     return HFC_E_NOMEM;
   }
   c->segs[c->nsegs++] = (segment){id, addr, bytes, x->draining ? 0 : x->serial};

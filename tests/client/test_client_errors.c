@@ -162,13 +162,13 @@ static void test_fields_named(void **state) {
   bad[n].field = "hfc_request.in_dtype";
   bad[n].r = f.r;
   bad[n++].r.in_dtype = (hfc_dtype)5;
-  bad[n].field = "hfc_request.features";
+  bad[n].field = "hfc_request.features is NULL: give";   /* and what to do */
   bad[n].r = f.r;
   bad[n++].r.features = NULL;
-  bad[n].field = "hfc_request.result";
+  bad[n].field = "hfc_request.result is NULL: give";
   bad[n].r = f.r;
   bad[n++].r.result = NULL;
-  bad[n].field = "hfc_request.light";
+  bad[n].field = "hfc_request.light has a value that is not finite: want";
   bad[n].r = f.r;
   bad[n++].r.light[1] = INFINITY;
   /* A composite under a light left at 0 would draw the hair black. */
@@ -195,6 +195,9 @@ static void test_fields_named(void **state) {
     if (!strstr(hfc_last_message(c), bad[i].field))
       fail_msg("case %d: '%s' does not name %s", i, hfc_last_message(c), bad[i].field);
   }
+  void *mem = NULL;
+  assert_int_equal(hfc_shm_alloc(c, 0, &mem), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(c), "bytes is 0: want"));
   /* Options too, with the message in this thread since there is no client. */
   hfc_options o;
   hfc_options_init(&o);
