@@ -100,8 +100,22 @@ static void read_resume(hfd_conn *c) {
   c->window_bytes = 0;
 }
 
+/* Written bytes of all the replies handed to libuv. */
+static uint64_t bytes_written(const hfd_conn *c) {
+  return c->bytes_queued - (uint64_t)hfd_io_write_queue_size(c);
+}
+
+/* A new reply-read-rate window starts (hfd_sweep_stalled): replies began
+ * to wait, or the kernel took every byte that waited, which a peer that
+ * keeps up with its replies does whatever their rate. */
+static void read_window_start(hfd_conn *c, double now) {
+  c->t_rwin = now;
+  c->rwin_written = bytes_written(c);
+}
+
 static void wrote_one(hfd_conn *c) {
   c->writes_pending--;
+  if (hfd_io_write_queue_size(c) == 0) read_window_start(c, hfd_now_us());
   if (c->read_paused && c->writes_pending <= WRITES_LOW && c->ctl_bytes <= CTL_BYTES_LOW) {
     c->read_paused = 0;
     read_resume(c);
@@ -114,6 +128,7 @@ static void writing_one(hfd_conn *c, uint64_t bytes) {
     /* Nothing was waiting: the peer's reading is timed from now. */
     c->t_write = hfd_now_us();
     c->written_seen = c->bytes_queued;
+    read_window_start(c, c->t_write);
   }
   c->bytes_queued += bytes;
   c->writes_pending++;
@@ -1543,7 +1558,7 @@ void hfd_sweep_stalled(hfd_server *s) {
     }
     /* Replies waiting: has the peer read any of them lately? */
     if (c->writes_pending && stall_us > 0) {
-      uint64_t written = c->bytes_queued - (uint64_t)hfd_io_write_queue_size(c);
+      uint64_t written = bytes_written(c);
       if (written != c->written_seen) {
         c->written_seen = written;
         c->t_write = now;
@@ -1556,6 +1571,29 @@ void hfd_sweep_stalled(hfd_server *s) {
         }
         hfd_conn_close(c);
         continue;
+      }
+      /* And fast enough? A peer that reads a few bytes now and then would
+       * otherwise hold its unread RESULTs, charged to --max-memory-mb,
+       * for as long as it likes, and every other client would get BUSY:
+       * the reading side of --min-recv-rate's trickle. Measured over each
+       * --stall-timeout-ms window in which bytes stayed queued in the
+       * daemon (the kernel's socket buffer full); a window starts afresh
+       * whenever the kernel has taken every byte (read_window_start). */
+      if (hfd_io_write_queue_size(c) == 0) {
+        read_window_start(c, now);
+      } else if (now - c->t_rwin >= stall_us) {
+        double rate = (double)(written - c->rwin_written) / ((now - c->t_rwin) / 1e6);
+        if (cfg->min_recv_rate && rate < (double)cfg->min_recv_rate) {
+          if (log_allowed()) {
+            char kv[300];
+            hfd_log("replies read at %.0f bytes/s, under the minimum of %llu KiB/s "
+                    "(--min-recv-rate); closing%s", rate,
+                    (unsigned long long)(cfg->min_recv_rate >> 10), conn_kv(c, kv, sizeof kv));
+          }
+          hfd_conn_close(c);
+          continue;
+        }
+        read_window_start(c, now);
       }
     }
     if (hfd_tls_overdue(c, now)) {

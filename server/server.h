@@ -509,6 +509,8 @@ typedef struct hfd_conn {
   uint64_t ctl_bytes;            /* of replies other than RESULT, not yet written */
   uint64_t written_seen;         /* of those, written to the socket at t_write */
   double t_write;                /* last time a reply byte left */
+  double t_rwin;                 /* start of the current reply-read-rate window */
+  uint64_t rwin_written;         /* bytes written to the socket at t_rwin */
 
   enum hfd_read_state rstate;
   hfp_header hdr;
