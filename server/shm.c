@@ -85,6 +85,17 @@ void hfd_seg_pinned(hfd_server *s, hfd_seg *g, int rc) {
 static void seg_free(hfd_server *s, hfd_seg *g) {
   /* No job uses the segment any more (refs == 0): no transfer is pending. */
   if (g->registered) hf_backend_host_unregister(s->worker.backend, g->addr);
+  /* The pages go back now, not when the last descriptor closes: the
+   * client keeps its copy of the memfd as long as it likes, and the pages
+   * the worker faulted in (reading features the client never wrote,
+   * writing results) are charged to this process. A client that made,
+   * used and released segments in a loop, keeping each descriptor, would
+   * otherwise hold memory without bound outside --max-shm-mb, which has
+   * given the segment's bytes back. The seals (no F_SEAL_WRITE) allow the
+   * hole; a client still mapping the segment reads zeros from now on. */
+  if (madvise(g->addr, (size_t)g->size, MADV_REMOVE) != 0)
+    hfd_err("madvise(MADV_REMOVE) of a %llu-byte segment: %s; its pages stay until the "
+            "client closes its descriptor", (unsigned long long)g->size, strerror(errno));
   if (munmap(g->addr, (size_t)g->size) != 0)
     hfd_err("munmap of a %llu-byte segment: %s", (unsigned long long)g->size,
             strerror(errno));
