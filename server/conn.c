@@ -26,6 +26,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include <hairfilter/hairfilter_version.h>
@@ -1632,13 +1633,44 @@ void hfd_sweep_stalled(hfd_server *s) {
   }
 }
 
-/* The oldest connection still before its HELLO. */
+/* Whether c's socket already holds its whole HELLO, none of it read yet.
+ * libuv accepts every connection waiting in the backlog in one turn of
+ * the loop, before it reads from any of them: in a burst of connections a
+ * client that sent its HELLO at once is among the oldest before the server
+ * has read a byte of it. A peek tells it from the silent ones. Not over
+ * TLS, whose bytes are records. */
+static int hello_waiting(hfd_conn *c) {
+  if (c->tls || c->rstate != RD_HEADER || c->got) return 0;
+  uv_os_fd_t fd;
+  if (uv_fileno(&c->h.handle, &fd) != 0) return 0;
+  uint8_t b[HFP_HEADER_SIZE + 8 + HFP_NAME_MAX + HFP_TOKEN_MAX];
+  ssize_t n = recv(fd, b, sizeof b, MSG_PEEK | MSG_DONTWAIT);
+  if (n < HFP_HEADER_SIZE) return 0;   /* nothing, part of a header, or an error */
+  hfp_header h;
+  if (hfp_header_decode(b, 8 + HFP_NAME_MAX + HFP_TOKEN_MAX, &h) != 0 || h.type != HFP_HELLO)
+    return 0;
+  return (size_t)n >= HFP_HEADER_SIZE + (size_t)h.length;
+}
+
+/* The connection to refuse at --max-handshakes: the oldest still before
+ * its HELLO whose HELLO has not arrived whole, so that a crowd arriving in
+ * one burst does not push out a client whose HELLO is waiting to be read.
+ * NULL when every one's has: none is refused, as each leaves the count
+ * when its HELLO is read, on the loop's next turn (a HELLO that is not
+ * accepted closes its connection at once), so the excess lasts a turn and
+ * --max-connections still bounds it; refusing the oldest instead would let
+ * a crowd sending bogus HELLOs push out a real one. Once seen, a waiting
+ * HELLO is remembered: it is read before anything else arrives. */
 static hfd_conn *oldest_handshake(hfd_server *s) {
-  hfd_conn *old = NULL;
-  for (hfd_conn *c = s->conns; c; c = c->next)
-    if (c->handshaking && !c->closing && !c->fatal_sent && (!old || c->t_accept < old->t_accept))
-      old = c;
-  return old;
+  for (;;) {
+    hfd_conn *old = NULL;
+    for (hfd_conn *c = s->conns; c; c = c->next)
+      if (c->handshaking && !c->closing && !c->fatal_sent && !c->hello_waiting &&
+          (!old || c->t_accept < old->t_accept))
+        old = c;
+    if (!old || !hello_waiting(old)) return old;
+    old->hello_waiting = 1;
+  }
 }
 
 /* A connection refused before its HELLO (the connection limit, or pushed
@@ -1766,14 +1798,16 @@ void hfd_on_connection(uv_stream_t *server, int status) {
      * that they cannot take every slot. A real client says HELLO at once;
      * the one that has waited longest is the likeliest not to, and goes. */
     hfd_conn *old = oldest_handshake(s);
-    s->protocol_errors++;
-    /* Over TLS the ERROR waits for the handshake (a client racing its
-     * handshake sees why it was refused); until then reclaim_slot may
-     * take the connection's slot for a newcomer. */
-    send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
-               s->cfg->max_handshakes);
-    close_refused(old);
-    if (old == c) return;
+    if (old) {
+      s->protocol_errors++;
+      /* Over TLS the ERROR waits for the handshake (a client racing its
+       * handshake sees why it was refused); until then reclaim_slot may
+       * take the connection's slot for a newcomer. */
+      send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
+                 s->cfg->max_handshakes);
+      close_refused(old);
+      if (old == c) return;
+    }
   }
   rc = hfd_io_read_start(c, on_alloc, on_read);
   if (rc < 0) {

@@ -480,6 +480,7 @@ typedef struct hfd_conn {
   int hello_done;
   int version;                   /* protocol version negotiated in the HELLO */
   int handshaking;               /* counted in num_handshaking */
+  int hello_waiting;             /* its whole HELLO is in its socket, unread (oldest_handshake) */
   int eof;                       /* the peer shut down its sending side */
   int shutting;                  /* uv_shutdown sent: flushing, then closing */
   int closing;                   /* uv_close called or pending */
