@@ -1710,6 +1710,31 @@ static int reclaim_slot(hfd_server *s) {
   return 1;
 }
 
+/* Connections accepted in one turn of the loop before the others get a
+ * turn. libuv accepts from a listener until the backlog is empty, with no
+ * other I/O between: peers that connect as fast as the daemon can accept
+ * and refuse them (no HELLO, no token needed) would hold the loop in that
+ * accept loop, and every other connection, its HELLO, its requests and its
+ * results, would wait as long as they kept at it. Past this many, the next
+ * connection is left pending (libuv stops watching the listener until it
+ * is accepted) and taken at the end of the turn (hfd_on_accept_check),
+ * after the rest of the turn's I/O. */
+#define HFD_ACCEPTS_PER_TURN 64
+
+void hfd_on_accept_check(uv_check_t *h) {
+  hfd_server *s = h->data;
+  s->accepts_in_turn = 0;
+  int rc = uv_check_stop(h);
+  if (rc < 0) hfd_err("accept check stop: %s", uv_strerror(rc));
+  for (int i = 0; i < s->num_listeners; i++) {
+    hfd_listener *l = &s->listeners[i];
+    if (!l->accept_deferred) continue;
+    l->accept_deferred = 0;
+    /* A listener closed meanwhile (a drain) closes its pending connection. */
+    if (!uv_is_closing(&l->h.handle)) hfd_on_connection(&l->h.stream, 0);
+  }
+}
+
 void hfd_on_connection(uv_stream_t *server, int status) {
   hfd_listener *l = server->data;
   hfd_server *s = l->srv;
@@ -1717,6 +1742,15 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     hfd_err("accept on %s: %s", l->url, uv_strerror(status));
     return;
   }
+  if (s->accepts_in_turn >= HFD_ACCEPTS_PER_TURN) {
+    int rc = uv_check_start(&s->accept_check, hfd_on_accept_check);
+    if (rc == 0) {
+      l->accept_deferred = 1;   /* not accepted: libuv keeps it and stops listening */
+      return;
+    }
+    hfd_err("accept check start: %s; accepting on", uv_strerror(rc));
+  }
+  s->accepts_in_turn++;
   hfd_conn *c = calloc(1, sizeof *c);
   if (!c) {
     hfd_err("out of memory for a connection on %s", l->url);

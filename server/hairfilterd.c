@@ -379,6 +379,7 @@ void hfd_maybe_finish(hfd_server *s) {
     close_handle((uv_handle_t *)&s->sigusr1);
     close_handle((uv_handle_t *)&s->flush_timer);
     close_handle((uv_handle_t *)&s->beat_timer);
+    close_handle((uv_handle_t *)&s->accept_check);
     hfd_tls_stop(s);
     hfd_http_loop_closing(s);
   }
@@ -559,10 +560,12 @@ int main(int argc, char **argv) {
       (rc = uv_timer_init(s->loop, &s->drain_timer)) < 0 ||
       (rc = uv_timer_init(s->loop, &s->flush_timer)) < 0 ||
       (rc = uv_timer_init(s->loop, &s->sweep_timer)) < 0 ||
-      (rc = uv_timer_init(s->loop, &s->beat_timer)) < 0) {
+      (rc = uv_timer_init(s->loop, &s->beat_timer)) < 0 ||
+      (rc = uv_check_init(s->loop, &s->accept_check)) < 0) {
     hfd_err("libuv init: %s", uv_strerror(rc));
     return 1;
   }
+  s->accept_check.data = s;
   s->sigint.data = s->sigterm.data = s->drain_timer.data = s->sweep_timer.data = s;
   s->sighup.data = s->sigusr1.data = s->beat_timer.data = s;
   s->flush_timer.data = s;

@@ -454,6 +454,7 @@ typedef struct hfd_listener {
   int auth_required;
   char url[256];                 /* as resolved (the real port) */
   char unix_path[200];
+  int accept_deferred;           /* a connection left pending until the turn ends (conn.c) */
 } hfd_listener;
 
 enum hfd_read_state {
@@ -539,6 +540,8 @@ struct hfd_server {
   uv_timer_t drain_timer;
   uv_timer_t flush_timer;        /* bounds the wait for peers to read replies */
   uv_timer_t sweep_timer;        /* closes stalled connections */
+  uv_check_t accept_check;       /* resumes listeners past their accepts for a turn */
+  int accepts_in_turn;           /* connections accepted since accept_check last ran */
   hfd_conn *conns;
   int num_conns;
   int num_handshaking;           /* connections before their HELLO */
@@ -600,6 +603,7 @@ struct hfd_server {
 
 /* conn.c */
 void hfd_on_connection(uv_stream_t *listener, int status);
+void hfd_on_accept_check(uv_check_t *h);
 void hfd_on_async(uv_async_t *a);
 void hfd_conn_shutdown(hfd_conn *c);
 void hfd_conn_close(hfd_conn *c);
