@@ -541,7 +541,9 @@ struct hfd_server {
   uv_timer_t flush_timer;        /* bounds the wait for peers to read replies */
   uv_timer_t sweep_timer;        /* closes stalled connections */
   uv_check_t accept_check;       /* resumes listeners past their accepts for a turn */
-  int accepts_in_turn;           /* connections accepted since accept_check last ran */
+  int accepts_in_turn;           /* connections accepted since accept_check last ran; it
+                                  * runs only after a deferral, so a listener is held
+                                  * back one turn at most once per 64 accepts */
   hfd_conn *conns;
   int num_conns;
   int num_handshaking;           /* connections before their HELLO */
