@@ -52,7 +52,7 @@ void hfci_shm_release_all(hfc_client *c) {
   c->nsegs = 0;
 }
 
-int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem) {
+static int shm_alloc(hfc_client *c, size_t bytes, void **mem) {
   hfci_begin(c);
   if (!c || !mem) return hfci_arg(c, "hfc_shm_alloc: %s is NULL", c ? "mem" : "the client");
   *mem = NULL;
@@ -126,7 +126,7 @@ static int in_use(const hfc_client *c, const segment *g) {
   return 0;
 }
 
-int hfc_shm_free(hfc_client *c, void *mem) {
+static int shm_free(hfc_client *c, void *mem) {
   hfci_begin(c);
   if (!c || !mem) return hfci_arg(c, "hfc_shm_free: %s is NULL", c ? "mem" : "the client");
   for (int i = 0; i < c->nsegs; i++) {
@@ -151,4 +151,19 @@ int hfc_shm_free(hfc_client *c, void *mem) {
     return 0;
   }
   return hfci_arg(c, "hfc_shm_free: %p is not a segment of this client (from hfc_shm_alloc)", mem);
+}
+
+/* Either may lose the connection (a send that fails), which completes the
+ * frames in flight on it: hfc_fd must then poll readable for them, as no
+ * socket shows them. */
+int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem) {
+  int rc = shm_alloc(c, bytes, mem);
+  if (c) hfci_due_update(c);
+  return rc;
+}
+
+int hfc_shm_free(hfc_client *c, void *mem) {
+  int rc = shm_free(c, mem);
+  if (c) hfci_due_update(c);
+  return rc;
 }

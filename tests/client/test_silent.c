@@ -255,6 +255,37 @@ static void test_fd_wakes_for_local_completion(void **state) {
   hfc_close(c);
 }
 
+/* The same through hfc_shm_free: its SHM_DESTROY to a server killed with
+ * a frame in flight fails, and the frame completes with the lost
+ * connection. hfc_fd must poll readable for that completion; it stayed
+ * quiet until the silence timeout (30 s here), as hfc_shm_free left the
+ * descriptor's timer as hfc_submit had set it. */
+static void test_fd_wakes_after_shm_free(void **state) {
+  (void)state;
+  server C;
+  if (server_start(&H, &C, NULL)) fail_msg("a third server did not start");
+  hfc_options o = test_options("silent", NULL, 30000);
+  hfc_client *c = NULL;
+  if (hfc_connect(C.unix_url, &o, &c))
+    fail_msg("connect %s: %s", C.unix_url, hfc_last_message(NULL));
+  void *seg = NULL;
+  assert_int_equal(hfc_shm_alloc(c, 4096, &seg), HFC_OK);
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
+                               .features = in, .result = out);
+  assert_int_equal(hfc_submit(c, &r, NULL), HFC_OK);
+  assert_int_equal(kill(C.pid, SIGKILL), 0);
+  server_stop(&C, 20000);
+  assert_int_not_equal(hfc_shm_free(c, seg), HFC_OK);
+  struct pollfd p = {hfc_fd(c), POLLIN, 0};
+  if (poll(&p, 1, 5000) != 1)
+    fail_msg("hfc_shm_free lost the connection with a frame in flight, and hfc_fd did not poll "
+             "readable for the frame's completion within 5 s");
+  hfc_completion d;
+  assert_int_equal(hfc_wait(c, 0, &d), HFC_OK);
+  assert_int_not_equal(d.status, HFC_OK);
+  hfc_close(c);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_one_endpoint),
@@ -264,6 +295,7 @@ int main(void) {
     cmocka_unit_test(test_connect_to_stopped),
     cmocka_unit_test(test_fd_wakes_for_silence),
     cmocka_unit_test(test_fd_wakes_for_local_completion),
+    cmocka_unit_test(test_fd_wakes_after_shm_free),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
