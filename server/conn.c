@@ -125,13 +125,18 @@ static void wrote_one(hfd_conn *c) {
 
 /* A reply of bytes was handed to libuv. */
 static void writing_one(hfd_conn *c, uint64_t bytes) {
-  if (c->writes_pending == 0) {
+  int first = c->writes_pending == 0;
+  if (first) {
     /* Nothing was waiting: the peer's reading is timed from now. */
     c->t_write = hfd_now_us();
     c->written_seen = c->bytes_queued;
-    read_window_start(c, c->t_write);
   }
   c->bytes_queued += bytes;
+  /* The rate's window starts with this reply counted: it is in libuv's
+   * queue already, so counted before, the bytes of it still waiting would
+   * have been taken for bytes read, and a reply larger than --min-recv-rate
+   * times the window would have passed its first window, read or not. */
+  if (first) read_window_start(c, c->t_write);
   c->writes_pending++;
   if (!c->read_paused && (c->writes_pending >= WRITES_HIGH || c->ctl_bytes >= CTL_BYTES_HIGH) &&
       !c->fatal_sent) {
