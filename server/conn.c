@@ -1639,10 +1639,10 @@ void hfd_sweep_stalled(hfd_server *s) {
 }
 
 /* Whether c's socket already holds its whole HELLO, none of it read yet.
- * libuv accepts every connection waiting in the backlog in one turn of
- * the loop, before it reads from any of them: in a burst of connections a
- * client that sent its HELLO at once is among the oldest before the server
- * has read a byte of it. A peek tells it from the silent ones. Not over
+ * The connections waiting in the backlog are accepted in one turn of the
+ * loop (up to HFD_ACCEPTS_PER_TURN, below), before any of them is read
+ * from: in a burst of connections a client that sent its HELLO at once is
+ * among the oldest before the server has read a byte of it. A peek tells it from the silent ones. Not over
  * TLS, whose bytes are records. */
 static int hello_waiting(hfd_conn *c) {
   if (c->tls || c->rstate != RD_HEADER || c->got) return 0;
