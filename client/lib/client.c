@@ -439,8 +439,9 @@ void hfci_conn_lost(hfc_client *c, int k, int err) {
     snprintf(why, sizeof why, "%s: %s", c->eps[e].url, hfc_strerror(err));
   /* The client's only way on is gone and it moves nowhere by itself (a
    * single URL, or a list without HFC_FAILOVER_LOST): the frames' errors
-   * say what the engine does. */
-  if (!move && k == c->active) {
+   * say what the engine does. Not on a list that the next call follows,
+   * whether or not this error moves these frames (hfci_need_conn). */
+  if (!hfci_follows_list(c) && k == c->active) {
     size_t n = strlen(why);
     snprintf(why + n, sizeof why - n, ": connect again (hfc_close, then hfc_connect)");
   }
@@ -579,7 +580,7 @@ void hfci_progress(hfc_client *c) {
 
 int hfci_need_conn(hfc_client *c) {
   if (c->active >= 0) return c->active;
-  if (c->neps < 2 || (c->failover & HFC_FAILOVER_NEVER) || !(c->failover & HFC_FAILOVER_LOST)) {
+  if (!hfci_follows_list(c)) {
     int err = c->broken ? c->broken : HFC_E_CLOSED;
     if (!c->msg[0]) hfci_msg(c, "the connection was lost earlier (%s): connect again", hfc_strerror(err));
     return err;

@@ -168,6 +168,11 @@ void hfci_conn_close(hfc_client *c, int k);
 /* Whether err moves the client to another endpoint: lost = 1 for a
  * connection that failed with it, 0 for a request answered with it. */
 int hfci_can_failover(const hfc_client *c, int err, int lost);
+/* Whether, its connection gone, the client goes on to the next endpoint of
+ * its list by itself (a list, HFC_FAILOVER_LOST, no HFC_FAILOVER_NEVER):
+ * the next call connects (hfci_need_conn). Else the engine must connect
+ * again, which the messages of a loss say. */
+int hfci_follows_list(const hfc_client *c);
 
 /* ---- client.c -------------------------------------------------------------- */
 

@@ -360,6 +360,10 @@ void hfci_conn_close(hfc_client *c, int k) {
   if (c->active == k) c->active = -1;
 }
 
+int hfci_follows_list(const hfc_client *c) {
+  return c->neps > 1 && !(c->failover & HFC_FAILOVER_NEVER) && (c->failover & HFC_FAILOVER_LOST);
+}
+
 int hfci_can_failover(const hfc_client *c, int err, int lost) {
   if (c->neps < 2 || (c->failover & HFC_FAILOVER_NEVER)) return 0;
   if (!lost) {

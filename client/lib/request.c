@@ -466,7 +466,7 @@ static int nothing_pending(hfc_client *c) {
     return HFC_E_NOPENDING;
   }
   const char *url = c->last_ep >= 0 && c->last_ep < c->neps ? c->eps[c->last_ep].url : "the server";
-  int relist = c->neps > 1 && !(c->failover & HFC_FAILOVER_NEVER) && (c->failover & HFC_FAILOVER_LOST);
+  int relist = hfci_follows_list(c);
   hfci_msg(c, "hfc_wait: no request is pending, and the connection to %s was lost (%s): %s", url,
            hfc_strerror(c->broken),
            relist ? "the next request connects to the next endpoint that answers"
