@@ -385,7 +385,9 @@ typedef struct hfc_completion {
  * HFC_E_NOPENDING when nothing is pending; or, when nothing is pending and
  * the connection is gone, the error that ended it (HFC_E_CLOSED, HFC_E_IO,
  * HFC_E_TIMEOUT for a server given up as silent, ...; hfc_pending(c) is 0
- * and hfc_last_message says to connect again). Frames pending when a
+ * and hfc_last_message says to connect again, or, on a list with
+ * HFC_FAILOVER_LOST, that the next request goes to the next endpoint that
+ * answers). Frames pending when a
  * connection is lost complete with its error, one per call.
  * A connection that owes replies and has sent nothing for
  * hfc_options.timeout_ms (a stopped or stuck server) is given up as lost,
