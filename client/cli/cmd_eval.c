@@ -282,6 +282,21 @@ static int add_path(frame_list *l, const char *path) {
     return list_push(l, path, style, fw, fh, shared);
   }
   cJSON *doc = read_manifest(path, (int)strlen(path));
+  /* A manifest that is there but lists nothing readable (cut short, not
+   * JSON, no frame list) is refused, as weights/train.py refuses it: taken
+   * for no manifest, the set would silently become every .exr beside it. */
+  char mpath[4096];
+  struct stat ms;
+  snprintf(mpath, sizeof mpath, "%s/manifest.json", path);
+  if (!manifest_frames(doc) && !stat(mpath, &ms)) {
+    fprintf(stderr, "hairfilter eval: %s: %s, so the set it lists is unknown (weights/train.py "
+            "refuses it too); render the set again, or remove it to score every .exr of %s\n",
+            mpath, doc ? "no frame list (frames, images, renders, items or files)"
+                       : "not JSON, or not readable",
+            path);
+    cJSON_Delete(doc);
+    return HF_EFORMAT;
+  }
   DIR *d = opendir(path);
   if (!d) {
     cJSON_Delete(doc);

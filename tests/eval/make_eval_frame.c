@@ -203,6 +203,22 @@ static int write_listed(const char *dir) {
   return fclose(f) ? 1 : 0;
 }
 
+/* DIR/damaged: a.exr beside a manifest.json cut short, which lists no set
+ * that can be read: `hairfilter eval DIR` must refuse it, not score every
+ * .exr there. */
+static int write_damaged(const char *dir) {
+  char path[4096];
+  snprintf(path, sizeof path, "%s/damaged", dir);
+  mkdir(path, 0777);
+  snprintf(path, sizeof path, "%s/damaged/a.exr", dir);
+  if (write_strata_frame(path, 0x7f)) return 1;
+  snprintf(path, sizeof path, "%s/damaged/manifest.json", dir);
+  FILE *f = fopen(path, "w");
+  if (!f) return 1;
+  fprintf(f, "{\"frames\": [{\"file\": \"a.exr\", \"sty");
+  return fclose(f) ? 1 : 0;
+}
+
 int main(int argc, char **argv) {
   if (argc != 2) {
     fprintf(stderr, "usage: make_eval_frame DIR\n");
@@ -243,5 +259,6 @@ int main(int argc, char **argv) {
   snprintf(path, sizeof path, "%s/small_8spp.safetensors", argv[1]);
   if (!rc) rc = hf_weights_init_random(&cfg, 7, &w) || hf_weights_save(path, w);
   hf_weights_free(w);
-  return rc || write_strata(argv[1]) || write_listed(argv[1]) ? 1 : 0;
+  return rc || write_strata(argv[1]) || write_listed(argv[1]) ||
+         write_damaged(argv[1]) ? 1 : 0;
 }
