@@ -59,7 +59,7 @@ static hfc_completion stopped_frame(hfc_client *c, int poll, double *took_ms) {
   hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
                                .features = in, .result = out);
   assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
-  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  assert_int_equal(server_pause(&A), 0);
   assert_int_equal(hfc_submit(c, &r, NULL), HFC_OK);
   double t0 = now_ms();
   hfc_completion d;
@@ -161,7 +161,7 @@ static void test_filter_names_the_timeout(void **state) {
   hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
                                .features = in, .result = out);
   assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
-  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  assert_int_equal(server_pause(&A), 0);
   int rc = hfc_filter(c, &r, NULL);
   char msg[1024];
   snprintf(msg, sizeof msg, "%s", hfc_last_message(c));
@@ -179,7 +179,7 @@ static void test_filter_names_the_timeout(void **state) {
  * check (it said only "handshake: timed out waiting for the server"). */
 static void test_connect_to_stopped(void **state) {
   (void)state;
-  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  assert_int_equal(server_pause(&A), 0);
   hfc_options o = test_options("silent", NULL, 500);
   hfc_client *c = NULL;
   int rc = hfc_connect(A.unix_url, &o, &c);
@@ -204,7 +204,7 @@ static void test_fd_wakes_for_silence(void **state) {
   hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = W, .height = HT, .spp = 2,
                                .features = in, .result = out);
   assert_int_equal(hfc_filter(c, &r, NULL), HFC_OK);
-  assert_int_equal(kill(A.pid, SIGSTOP), 0);
+  assert_int_equal(server_pause(&A), 0);
   assert_int_equal(hfc_submit(c, &r, NULL), HFC_OK);
   double t0 = now_ms();
   hfc_completion d;

@@ -242,6 +242,16 @@ int server_alive(const server *s) {
   return s->pid > 0 && waitpid(s->pid, &st, WNOHANG) == 0;
 }
 
+int server_pause(server *s) {
+  if (s->pid <= 0 || kill(s->pid, SIGSTOP) != 0) return -1;
+  int st;
+  pid_t r;
+  do {
+    r = waitpid(s->pid, &st, WUNTRACED);   /* reported once every thread has stopped */
+  } while (r < 0 && errno == EINTR);
+  return r == s->pid && WIFSTOPPED(st) ? 0 : -1;
+}
+
 int server_stop(server *s, int timeout_ms) {
   if (s->pid <= 0) return -1;
   kill(s->pid, SIGTERM);

@@ -71,6 +71,11 @@ int daemon_run(const char *const *args, const char *token_env, int timeout_ms, c
  * had to be killed. */
 int server_stop(server *s, int timeout_ms);
 int server_alive(const server *s);
+/* SIGSTOP, returning 0 once the whole daemon has stopped (-1 if it did
+ * not): kill() only makes the signal pending, and the thread picked to
+ * take it may wait for a CPU while the daemon's other threads still read
+ * and answer, on a loaded machine for milliseconds. */
+int server_pause(server *s);
 /* 1 when the log contains needle. */
 int server_log_has(const server *s, const char *needle);
 /* The number of log lines that contain needle. */

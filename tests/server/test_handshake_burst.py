@@ -60,6 +60,10 @@ def main():
         if sock is None:
             raise RuntimeError("hairfilterd did not start")   # its log follows
         os.kill(proc.pid, signal.SIGSTOP)
+        # kill() only makes the stop pending: until every thread of the
+        # daemon has stopped (reported to its parent), it may still accept
+        # and read, and the burst would not be one.
+        os.waitpid(proc.pid, os.WUNTRACED)
         try:
             client = raw(sock)
             client.sendall(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, 0) + b"test"))
