@@ -37,13 +37,9 @@ static void wr_f32(unsigned char *p, float f) {
   wr_u32(p, u);
 }
 
-static int fail(char *err, size_t errlen, int code, const char *msg) {
-  if (err) snprintf(err, errlen, "%s", msg);
-  return code;
-}
-
-__attribute__((format(printf, 4, 5))) static int failf(char *err, size_t errlen, int code,
-                                                       const char *fmt, ...) {
+/* Writes the refusal's message (printf-style) to err, returns code. */
+__attribute__((format(printf, 4, 5))) static int fail(char *err, size_t errlen, int code,
+                                                      const char *fmt, ...) {
   if (err && errlen) {
     va_list ap;
     va_start(ap, fmt);
@@ -205,23 +201,23 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
     return fail(err, errlen, HF_EFORMAT, "does not start with \"HAIR\": not a .hair file "
                 "(Cem Yuksel's format)");
   if (len < HAIR_HEADER)
-    return failf(err, errlen, HF_EFORMAT, "%zu bytes, shorter than the 128-byte header: cut "
+    return fail(err, errlen, HF_EFORMAT, "%zu bytes, shorter than the 128-byte header: cut "
                  "short, copy the file again", len);
   uint32_t strands = rd_u32(p + 4), points = rd_u32(p + 8), flags = rd_u32(p + 12);
   uint32_t defseg = rd_u32(p + 16);
   if (!(flags & HFR_HAIR_POINTS))
-    return failf(err, errlen, HF_EFORMAT, "header flags 0x%x lack POINTS (0x2): the file has "
+    return fail(err, errlen, HF_EFORMAT, "header flags 0x%x lack POINTS (0x2): the file has "
                  "no points, nothing to draw", flags);
   if (strands == 0 || points == 0)
-    return failf(err, errlen, HF_EFORMAT, "the header says %u strands and %u points: an empty "
+    return fail(err, errlen, HF_EFORMAT, "the header says %u strands and %u points: an empty "
                  "model, nothing to draw", strands, points);
   if (strands > HFR_MAX_STRANDS || points > HFR_MAX_POINTS)
-    return failf(err, errlen, HF_ERANGE, "the header says %u strands and %u points, more than "
+    return fail(err, errlen, HF_ERANGE, "the header says %u strands and %u points, more than "
                  "the %u strands and %u points this renderer takes (a damaged header, or a "
                  "model to split or decimate)", strands, points, HFR_MAX_STRANDS,
                  HFR_MAX_POINTS);
   if (!(flags & HFR_HAIR_SEGMENTS) && (defseg == 0 || defseg > 65535))
-    return failf(err, errlen, HF_EFORMAT, "no segments array (flags 0x%x) and a default "
+    return fail(err, errlen, HF_EFORMAT, "no segments array (flags 0x%x) and a default "
                  "segment count of %u in the header, outside 1..65535: the header is damaged",
                  flags, defseg);
 
@@ -237,7 +233,7 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
   if (flags & HFR_HAIR_TRANSPARENCY) need += 4ull * points;
   if (flags & HFR_HAIR_COLORS) need += 12ull * points;
   if (len < need)
-    return failf(err, errlen, HF_EFORMAT, "%zu bytes, but the header's %u strands and %u "
+    return fail(err, errlen, HF_EFORMAT, "%zu bytes, but the header's %u strands and %u "
                  "points with arrays 0x%x need %llu: the file is cut short (copy it again) or "
                  "its header is damaged", len, strands, points, flags & 31u,
                  (unsigned long long)need);
@@ -258,11 +254,11 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
     total = (uint64_t)strands * (defseg + 1u);
   }
   if (total != points && (flags & HFR_HAIR_SEGMENTS))
-    return failf(err, errlen, HF_EFORMAT, "the strands' segment counts make %llu points (a "
+    return fail(err, errlen, HF_EFORMAT, "the strands' segment counts make %llu points (a "
                  "strand of n segments has n + 1), the header says %u: the file is damaged",
                  (unsigned long long)total, points);
   if (total != points)
-    return failf(err, errlen, HF_EFORMAT, "the header's %u strands of %u segments (its "
+    return fail(err, errlen, HF_EFORMAT, "the header's %u strands of %u segments (its "
                  "default count) make %llu points, the header says %u: the file is damaged",
                  strands, defseg, (unsigned long long)total, points);
 
@@ -362,7 +358,7 @@ int hfr_hair_load(const char *path, hfr_hair *out, char *err, size_t errlen) {
   uint64_t max = HAIR_HEADER + 2ull * HFR_MAX_STRANDS + 32ull * HFR_MAX_POINTS;
   if ((uint64_t)size > max) {
     fclose(f);
-    return failf(err, errlen, HF_ERANGE, "%ld bytes, larger than any model this renderer "
+    return fail(err, errlen, HF_ERANGE, "%ld bytes, larger than any model this renderer "
                  "takes (%u strands, %u points with every array: %llu bytes)", size,
                  HFR_MAX_STRANDS, HFR_MAX_POINTS, (unsigned long long)max);
   }
@@ -375,7 +371,7 @@ int hfr_hair_load(const char *path, hfr_hair *out, char *err, size_t errlen) {
   fclose(f);
   if (got != (size_t)size) {
     free(buf);
-    return failf(err, errlen, HF_EIO, "read %zu of its %ld bytes (changed while read?)", got,
+    return fail(err, errlen, HF_EIO, "read %zu of its %ld bytes (changed while read?)", got,
                  size);
   }
   int rc = hfr_hair_load_mem(buf, got, out, err, errlen);
