@@ -508,8 +508,12 @@ void hfci_due_update(hfc_client *c) {
     its.it_value.tv_nsec = (long)(ms % 1000) * 1000000L;
   }
   /* Setting it also clears the expirations counted so far, so the fd is
-   * quiet again once nothing is due. */
-  timerfd_settime(c->due_fd, 0, &its, NULL);
+   * quiet again once nothing is due. It fails only for a descriptor that
+   * is no timerfd or a time out of range, neither of which this makes; the
+   * message is kept so that an engine whose poll never wakes can see why. */
+  if (timerfd_settime(c->due_fd, 0, &its, NULL) != 0)
+    hfci_msg(c, "timerfd_settime for hfc_fd: %s (hfc_fd may not wake: poll it with a timeout)",
+             strerror(errno));
 }
 
 void hfci_check_silent(hfc_client *c) {
