@@ -1642,8 +1642,8 @@ void hfd_sweep_stalled(hfd_server *s) {
  * The connections waiting in the backlog are accepted in one turn of the
  * loop (up to HFD_ACCEPTS_PER_TURN, below), before any of them is read
  * from: in a burst of connections a client that sent its HELLO at once is
- * among the oldest before the server has read a byte of it. A peek tells it from the silent ones. Not over
- * TLS, whose bytes are records. */
+ * among the oldest before the server has read a byte of it. A peek tells
+ * it from the silent ones. Not over TLS, whose bytes are records. */
 static int hello_waiting(hfd_conn *c) {
   if (c->tls || c->rstate != RD_HEADER || c->got) return 0;
   uv_os_fd_t fd;
