@@ -172,8 +172,9 @@ static const cJSON *manifest_frames(const cJSON *doc) {
   return arr;
 }
 
-/* Base name of manifest frame entry it (a string, or an object's "file",
- * "path", "exr" or "name"), NULL when it has none. */
+/* File of manifest frame entry it, as written (a string, or an object's
+ * "file", "path", "exr" or "name": relative to the manifest's directory,
+ * or absolute), NULL when it has none. */
 static const char *manifest_file(const cJSON *it) {
   static const char *files[] = {"file", "path", "exr", "name"};
   const char *fname = cJSON_IsString(it) ? it->valuestring : NULL;
@@ -181,38 +182,59 @@ static const char *manifest_file(const cJSON *it) {
     const cJSON *s = cJSON_GetObjectItemCaseSensitive(it, files[i]);
     if (cJSON_IsString(s)) fname = s->valuestring;
   }
-  const char *b = fname ? strrchr(fname, '/') : NULL;
-  return b ? b + 1 : fname;
+  return fname;
 }
 
+/* What manifest frame entry it says of its frame: its style (lower case;
+ * HF_ENOTFOUND when it gives none), its full size when it is a crop
+ * ("full_width", "full_height"; left alone when absent) and how many MSAA
+ * sample positions its ground truth shares ("gt_shared_positions";
+ * manifests older than it that say "gt_supersample": 4 share all 4 of the
+ * standard pattern's, the only supersampling up to 8 that does,
+ * docs/RENDERING.md; left alone when neither says). */
+static int entry_fields(const cJSON *it, char *out, size_t len, int *full_w, int *full_h,
+                        int *gt_shared) {
+  const cJSON *fw = cJSON_GetObjectItemCaseSensitive(it, "full_width");
+  const cJSON *fh = cJSON_GetObjectItemCaseSensitive(it, "full_height");
+  if (cJSON_IsNumber(fw) && cJSON_IsNumber(fh) && fw->valuedouble >= 1 &&
+      fh->valuedouble >= 1 && fw->valuedouble <= 1 << 20 && fh->valuedouble <= 1 << 20) {
+    *full_w = (int)fw->valuedouble;
+    *full_h = (int)fh->valuedouble;
+  }
+  const cJSON *sh = cJSON_GetObjectItemCaseSensitive(it, "gt_shared_positions");
+  const cJSON *ss = cJSON_GetObjectItemCaseSensitive(it, "gt_supersample");
+  if (cJSON_IsNumber(sh) && sh->valuedouble >= 0 && sh->valuedouble <= 4)
+    *gt_shared = (int)sh->valuedouble;
+  else if (cJSON_IsNumber(ss)) /* older, or -1: GL did not say (as gt_shared_of_file) */
+    *gt_shared = ss->valuedouble == 4 ? 4 : 0;
+  const cJSON *st = cJSON_GetObjectItemCaseSensitive(it, "style");
+  if (!cJSON_IsString(st)) return HF_ENOTFOUND;
+  snprintf(out, len, "%s", st->valuestring);
+  for (char *p = out; *p; p++)
+    if (*p >= 'A' && *p <= 'Z') *p += 32;
+  return 0;
+}
+
+/* entry_fields of the entry of doc's frame list whose file has base name
+ * name; HF_ENOTFOUND when none has (or it gives no style). */
 static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t len,
                           int *full_w, int *full_h, int *gt_shared) {
   const cJSON *arr = manifest_frames(doc), *it;
   if (!arr) return HF_ENOTFOUND;
   cJSON_ArrayForEach(it, arr) {
-    const char *fname = manifest_file(it);
-    if (!fname || strcmp(fname, name)) continue;
-    const cJSON *fw = cJSON_GetObjectItemCaseSensitive(it, "full_width");
-    const cJSON *fh = cJSON_GetObjectItemCaseSensitive(it, "full_height");
-    if (cJSON_IsNumber(fw) && cJSON_IsNumber(fh) && fw->valuedouble >= 1 &&
-        fh->valuedouble >= 1 && fw->valuedouble <= 1 << 20 && fh->valuedouble <= 1 << 20) {
-      *full_w = (int)fw->valuedouble;
-      *full_h = (int)fh->valuedouble;
-    }
-    const cJSON *sh = cJSON_GetObjectItemCaseSensitive(it, "gt_shared_positions");
-    const cJSON *ss = cJSON_GetObjectItemCaseSensitive(it, "gt_supersample");
-    if (cJSON_IsNumber(sh) && sh->valuedouble >= 0 && sh->valuedouble <= 4)
-      *gt_shared = (int)sh->valuedouble;
-    else if (cJSON_IsNumber(ss)) /* older, or -1: GL did not say (as gt_shared_of_file) */
-      *gt_shared = ss->valuedouble == 4 ? 4 : 0;
-    const cJSON *st = cJSON_GetObjectItemCaseSensitive(it, "style");
-    if (!cJSON_IsString(st)) return HF_ENOTFOUND;
-    snprintf(out, len, "%s", st->valuestring);
-    for (char *p = out; *p; p++)
-      if (*p >= 'A' && *p <= 'Z') *p += 32;
-    return 0;
+    const char *fname = manifest_file(it), *b = fname ? strrchr(fname, '/') : NULL;
+    if (fname && !strcmp(b ? b + 1 : fname, name))
+      return entry_fields(it, out, len, full_w, full_h, gt_shared);
   }
   return HF_ENOTFOUND;
+}
+
+/* Path of manifest entry file fname of directory dir, as weights/train.py
+ * joins them: fname itself when absolute. 0, or HF_ERANGE when too long. */
+static int entry_path(const char *dir, const char *fname, char *out, size_t len) {
+  int n = fname[0] == '/' ? snprintf(out, len, "%s", fname)
+                          : snprintf(out, len, "%s/%s", dir, fname);
+  return n < 0 || (size_t)n >= len ? HF_ERANGE : 0;
 }
 
 static int cmp_ref(const void *a, const void *b) {
@@ -224,32 +246,43 @@ static int ends_with(const char *s, const char *suf) {
   return n >= m && !strcmp(s + n - m, suf);
 }
 
-static int in_manifest(const cJSON *frames, const char *name) {
+/* Whether one of manifest frame list frames of dir is dir/name. */
+static int in_manifest(const cJSON *frames, const char *dir, const char *name) {
+  char full[4096], mine[4096];
+  if (entry_path(dir, name, mine, sizeof mine)) return 0;
   const cJSON *it;
   cJSON_ArrayForEach(it, frames) {
     const char *f = manifest_file(it);
-    if (f && !strcmp(f, name)) return 1;
+    if (f && !entry_path(dir, f, full, sizeof full) && !strcmp(full, mine)) return 1;
   }
   return 0;
 }
 
-/* Names (the first, and a count) the frames manifest list frames of dir
- * gives that are not in dir: a set copied in part, or rendered elsewhere. */
-static void report_missing(const char *dir, const cJSON *frames) {
-  int missing = 0;
-  char first[256] = "";
+/* Adds the frames manifest list frames of dir lists, in its order (sorted
+ * later), naming (the first, and a count) those that are not there: a set
+ * copied in part, or rendered elsewhere. */
+static int add_listed(frame_list *l, const char *dir, const cJSON *frames) {
+  int missing = 0, rc = 0;
+  char first[256] = "", style[32];
   const cJSON *it;
   cJSON_ArrayForEach(it, frames) {
     const char *f = manifest_file(it);
     char full[4096];
     struct stat st;
-    if (!f || snprintf(full, sizeof full, "%s/%s", dir, f) >= (int)sizeof full) continue;
-    if (!stat(full, &st)) continue;
-    if (!missing++) snprintf(first, sizeof first, "%s", f);
+    if (!f) continue;
+    if (entry_path(dir, f, full, sizeof full) || stat(full, &st) || !S_ISREG(st.st_mode)) {
+      if (!missing++) snprintf(first, sizeof first, "%s", f);
+      continue;
+    }
+    int fw = 0, fh = 0, shared = -1;
+    if (entry_fields(it, style, sizeof style, &fw, &fh, &shared))
+      style_from_name(full, style, sizeof style);
+    if ((rc = list_push(l, full, style, fw, fh, shared))) return rc;
   }
   if (missing)
     fprintf(stderr, "hairfilter eval: %s: %d frame(s) its manifest.json lists are not there "
                     "(%s%s); left out\n", dir, missing, first, missing > 1 ? ", ..." : "");
+  return 0;
 }
 
 /* DIR/manifest.json parsed, or NULL when there is none (or it is not JSON). */
@@ -303,33 +336,31 @@ static int add_path(frame_list *l, const char *path) {
     return HF_EIO;
   }
   /* A directory whose manifest lists its frames is the set the manifest
-   * lists, as weights/train.py reads it: other .exr files there (results
-   * written beside the frames, a frame a stopped render left half written)
-   * are left out and counted; frames it lists that are not there are
-   * named. */
+   * lists, as weights/train.py reads it (entries relative to the directory
+   * or absolute): other .exr files there (results written beside the
+   * frames, a frame a stopped render left half written) are left out and
+   * counted; frames it lists that are not there are named. */
   const cJSON *listed = manifest_frames(doc);
-  int first = l->n, rc = 0, unlisted = 0;
+  int first = l->n, rc = listed ? add_listed(l, path, listed) : 0, unlisted = 0;
   char first_unlisted[256] = "";
   struct dirent *e;
   while (!rc && (e = readdir(d))) {
     if (!ends_with(e->d_name, ".exr")) continue;
-    if (listed && !in_manifest(listed, e->d_name)) {
-      if (!unlisted++) snprintf(first_unlisted, sizeof first_unlisted, "%s", e->d_name);
+    if (listed) {
+      if (!in_manifest(listed, path, e->d_name) && !unlisted++)
+        snprintf(first_unlisted, sizeof first_unlisted, "%s", e->d_name);
       continue;
     }
     char full[4096];
     snprintf(full, sizeof full, "%s/%s", path, e->d_name);
-    int fw = 0, fh = 0, shared = -1;
-    if (!doc || manifest_entry(doc, e->d_name, style, sizeof style, &fw, &fh, &shared))
-      style_from_name(e->d_name, style, sizeof style);
-    rc = list_push(l, full, style, fw, fh, shared);
+    style_from_name(e->d_name, style, sizeof style);
+    rc = list_push(l, full, style, 0, 0, -1);
   }
   closedir(d);
   if (unlisted)
     fprintf(stderr, "hairfilter eval: %s: %d .exr file(s) not in its manifest.json left out "
                     "(%s%s); name them as FILE.exr to score them\n",
             path, unlisted, first_unlisted, unlisted > 1 ? ", ..." : "");
-  if (!rc && listed) report_missing(path, listed);
   cJSON_Delete(doc);
   if (!rc && l->n == first) {
     /* Said here, not later as "no frames with hair": a run directory or a

@@ -183,14 +183,25 @@ static int write_strata(const char *dir) {
   return fclose(f) ? 1 : 0;
 }
 
-/* DIR/listed: the set its manifest lists, a.exr and gone.exr (not there),
- * beside results.exr, which is no EXR at all: `hairfilter eval DIR` must
- * score a.exr alone and say what it left out. */
+/* DIR/listed: the set its manifest lists, as weights/train.py joins its
+ * entries: a.exr, sub/b.exr (a subdirectory), DIR/outside/elsewhere.exr by
+ * its absolute path, and gone.exr (not there); beside them results.exr, which
+ * is no EXR at all. `hairfilter eval DIR/listed` must score the three
+ * frames alone and say what it left out. */
 static int write_listed(const char *dir) {
-  char path[4096];
+  char path[4096 + 32], abs_dir[4096];
+  if (!realpath(dir, abs_dir)) return 1;
   snprintf(path, sizeof path, "%s/listed", dir);
   mkdir(path, 0777);
+  snprintf(path, sizeof path, "%s/listed/sub", dir);
+  mkdir(path, 0777);
   snprintf(path, sizeof path, "%s/listed/a.exr", dir);
+  if (write_strata_frame(path, 0x7f)) return 1;
+  snprintf(path, sizeof path, "%s/listed/sub/b.exr", dir);
+  if (write_strata_frame(path, 0x7f)) return 1;
+  snprintf(path, sizeof path, "%s/outside", dir);
+  mkdir(path, 0777);
+  snprintf(path, sizeof path, "%s/outside/elsewhere.exr", abs_dir);
   if (write_strata_frame(path, 0x7f)) return 1;
   snprintf(path, sizeof path, "%s/listed/results.exr", dir);
   FILE *f = fopen(path, "w");
@@ -199,7 +210,9 @@ static int write_listed(const char *dir) {
   f = fopen(path, "w");
   if (!f) return 1;
   fprintf(f, "{\"frames\": [{\"file\": \"a.exr\", \"style\": \"listed\"},\n"
-             "            {\"file\": \"gone.exr\", \"style\": \"listed\"}]}\n");
+             "            {\"file\": \"sub/b.exr\", \"style\": \"listed\"},\n"
+             "            {\"file\": \"%s/outside/elsewhere.exr\", \"style\": \"listed\"},\n"
+             "            {\"file\": \"gone.exr\", \"style\": \"listed\"}]}\n", abs_dir);
   return fclose(f) ? 1 : 0;
 }
 
