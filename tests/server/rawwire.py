@@ -3,6 +3,7 @@ must send what no client library would (a FILTER past the window, replies
 left unread, SHM_CREATE behind an unread reply): message types, frames,
 HELLO, starting and stopping the daemon, and the tests' check/finish."""
 import os
+import shutil
 import socket
 import struct
 import subprocess
@@ -121,3 +122,20 @@ def stop(proc, w):
         proc.wait()
     path = os.path.join(w, "daemon.log")
     return open(path).read() if os.path.exists(path) else ""
+
+
+def require_started(sock):
+    """Checks that start gave a socket; raises RuntimeError when it did not
+    (the caller's clean-up prints the daemon's log)."""
+    check(sock is not None, "the daemon started")
+    if sock is None:
+        raise RuntimeError("hairfilterd did not start")   # its log follows
+
+
+def stop_and_clean(proc, w):
+    """A test's clean-up: stops hairfilterd (when start ran), prints its
+    log when a check failed, removes the work directory w."""
+    log = stop(proc, w) if proc else ""
+    if failures:
+        print(log)
+    shutil.rmtree(w, ignore_errors=True)

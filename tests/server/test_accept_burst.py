@@ -22,7 +22,7 @@ import tempfile
 import time
 
 from rawwire import (STATS, STATS_REPLY, check, connect, failures, finish, frame, read_frame,
-                     start, stop)
+                     require_started, start, stop)
 
 FLOOD_S = 4          # how long the flood lasts
 FLOODERS = 2         # processes connecting
@@ -54,9 +54,7 @@ def main():
     try:
         proc, sock = start(hairfilterd, w, ["--weights", os.path.join(weights, "small.safetensors"),
                                             "--max-connections", "16"])
-        check(sock is not None, "the daemon started")
-        if sock is None:
-            raise RuntimeError("hairfilterd did not start")   # its log follows
+        require_started(sock)
         client = connect(sock)
         client.settimeout(FLOOD_S * 4)
         flood = [multiprocessing.Process(target=flooder, args=(sock, FLOOD_S))

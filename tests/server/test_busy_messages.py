@@ -7,14 +7,13 @@ where it said "too many requests in flight on this connection" alone.
 usage: test_busy_messages.py HAIRFILTERD WEIGHTS_DIR
 """
 import os
-import shutil
 import socket
 import struct
 import sys
 import tempfile
 
-from rawwire import (BUSY, ERROR, FILTER, HELLO, HELLO_OK, RESULT, check, failures, finish, frame,
-                     read_frame, start, stop)
+from rawwire import (BUSY, ERROR, FILTER, HELLO, HELLO_OK, RESULT, check, finish, frame, read_frame,
+                     require_started, start, stop_and_clean)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 
@@ -31,9 +30,7 @@ def main():
     try:
         proc, sock = start(HAIRFILTERD, w, ["--weights", os.path.join(WEIGHTS, "small.safetensors"),
                                             "--max-inflight", "1"])
-        check(sock is not None, "the daemon started")
-        if sock is None:
-            raise RuntimeError("hairfilterd did not start")   # its log follows
+        require_started(sock)
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         s.settimeout(30)
         s.connect(sock)
@@ -59,10 +56,7 @@ def main():
         check(answers.get(1, (None,))[0] == RESULT, "request 1 gets its RESULT")
         s.close()
     finally:
-        log = stop(proc, w) if proc else ""
-        if failures:
-            print(log)
-        shutil.rmtree(w, ignore_errors=True)
+        stop_and_clean(proc, w)
     finish()
 
 

@@ -17,15 +17,14 @@ then letting it go on: it accepts all four in one turn.
 usage: test_handshake_burst.py HAIRFILTERD WEIGHTS_DIR
 """
 import os
-import shutil
 import signal
 import socket
 import struct
 import sys
 import tempfile
 
-from rawwire import (BUSY, ERROR, HELLO, HELLO_OK, check, failures, finish, frame, read_frame,
-                     start, stop)
+from rawwire import (BUSY, ERROR, HELLO, HELLO_OK, check, finish, frame, read_frame,
+                     require_started, start, stop_and_clean)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 
@@ -56,9 +55,7 @@ def main():
     try:
         proc, sock = start(HAIRFILTERD, w, ["--weights", os.path.join(WEIGHTS, "small.safetensors"),
                                             "--max-handshakes", "2"])
-        check(sock is not None, "the daemon started")
-        if sock is None:
-            raise RuntimeError("hairfilterd did not start")   # its log follows
+        require_started(sock)
         os.kill(proc.pid, signal.SIGSTOP)
         # kill() only makes the stop pending: until every thread of the
         # daemon has stopped (reported to its parent), it may still accept
@@ -88,10 +85,7 @@ def main():
     finally:
         for s in conns:
             s.close()
-        log = stop(proc, w) if proc else ""
-        if failures:
-            print(log)
-        shutil.rmtree(w, ignore_errors=True)
+        stop_and_clean(proc, w)
     finish()
 
 

@@ -16,15 +16,14 @@ usage: test_shm_release.py HAIRFILTERD WEIGHTS_DIR
 """
 import array
 import os
-import shutil
 import socket
 import struct
 import sys
 import tempfile
 import time
 
-from rawwire import (FILTER, RESULT, SHM_CREATE, STATS, STATS_REPLY, check, connect, failures,
-                     finish, frame, read_frame, start, stop)
+from rawwire import (FILTER, RESULT, SHM_CREATE, STATS, STATS_REPLY, check, connect, finish, frame,
+                     read_frame, require_started, start, stop_and_clean)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 SHM_CREATED, SHM_DESTROY = 11, 12
@@ -67,9 +66,7 @@ def main():
     fds = []
     try:
         proc, sock = start(HAIRFILTERD, w, ["--weights", os.path.join(WEIGHTS, "small.safetensors")])
-        check(sock is not None, "the daemon started")
-        if sock is None:
-            raise RuntimeError("hairfilterd did not start")   # its log follows
+        require_started(sock)
 
         # Released by SHM_DESTROY, the client keeping the descriptor.
         s = connect(sock)
@@ -105,10 +102,7 @@ def main():
     finally:
         for fd in fds:
             os.close(fd)
-        log = stop(proc, w) if proc else ""
-        if failures:
-            print(log)
-        shutil.rmtree(w, ignore_errors=True)
+        stop_and_clean(proc, w)
     finish()
 
 

@@ -19,15 +19,14 @@ client that reads nothing never closes it) and under 64 KiB/s.
 usage: test_slow_reader.py HAIRFILTERD WEIGHTS_DIR
 """
 import os
-import shutil
 import socket
 import struct
 import sys
 import tempfile
 import time
 
-from rawwire import (ERROR, FILTER, HELLO, HELLO_OK, RESULT, check, failures, finish, frame,
-                     read_frame, start, stop)
+from rawwire import (ERROR, FILTER, HELLO, HELLO_OK, RESULT, check, finish, frame, read_frame,
+                     require_started, start, stop_and_clean)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 WINDOW_MS = 6000          # --stall-timeout-ms: the rate's window
@@ -60,9 +59,7 @@ def main():
         proc, sock = start(HAIRFILTERD, w, [
             "--weights", os.path.join(WEIGHTS, "small.safetensors"), "--max-memory-mb", "64",
             "--stall-timeout-ms", str(WINDOW_MS)])
-        check(sock is not None, "the daemon started")
-        if sock is None:
-            raise RuntimeError("hairfilterd did not start")   # its log follows
+        require_started(sock)
 
         # The slow reader: frames of the announced size with a composite,
         # one every 0.25 s (40 of them), and 10 KiB of the replies read in
@@ -121,10 +118,7 @@ def main():
               % (status,))
         honest.close()
     finally:
-        log = stop(proc, w) if proc else ""
-        if failures:
-            print(log)
-        shutil.rmtree(w, ignore_errors=True)
+        stop_and_clean(proc, w)
     finish()
 
 

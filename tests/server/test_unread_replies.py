@@ -18,8 +18,8 @@ import sys
 import tempfile
 import time
 
-from rawwire import (STATS, STATS_REPLY, check, connect, failures, finish, frame, read_frame,
-                     start, stop)
+from rawwire import (STATS, STATS_REPLY, check, connect, finish, frame, read_frame, require_started,
+                     start, stop_and_clean)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 VARIANTS = 10     # copies of one weights file, served under as many names
@@ -49,9 +49,7 @@ def main():
                                                      "quarantine_size_mb=0",
                                                      "thread_local_quarantine_size_kb=0"]))
         proc, sock = start(HAIRFILTERD, w, args, env=env)
-        check(sock is not None, "the daemon started")
-        if sock is None:
-            raise RuntimeError("hairfilterd did not start")   # its log follows
+        require_started(sock)
         probe = connect(sock)
         probe.sendall(frame(STATS))
         t, _, p = read_frame(probe)
@@ -89,10 +87,7 @@ def main():
             s.close()
         probe.close()
     finally:
-        log = stop(proc, w) if proc else ""
-        if failures:
-            print(log)
-        shutil.rmtree(w, ignore_errors=True)
+        stop_and_clean(proc, w)
     finish()
 
 
