@@ -155,27 +155,46 @@ typedef enum table_state {
   TABLE_PAST_END           /* the table itself does not fit in the file */
 } table_state;
 
-static int read_cstring(FILE *f, char *buf, int max) {
+/* Reads a NUL-terminated string of at most max - 1 bytes into buf: its
+ * length, -1 at the end of the file, -2 when max bytes hold no NUL.
+ * *printable is cleared when a byte is not printable ASCII, which no
+ * attribute's name or type holds. */
+static int read_cstring(FILE *f, char *buf, int max, int *printable) {
   for (int i = 0; i < max; i++) {
     int c = fgetc(f);
     if (c == EOF) return -1;
     buf[i] = (char)c;
     if (c == 0) return i;
+    if (c < 0x20 || c > 0x7e) *printable = 0;
   }
-  return -1;
+  return -2;
 }
 
 /* The offset just past the headers, or 0 when they cannot be walked (a
- * damaged header, which the library reports in its own words). */
-static uint64_t headers_end(FILE *f, uint64_t size) {
+ * damaged header, which the library reports in its own words). *cut (NULL:
+ * not wanted) is 1 when the walk ran into the end of the file while every
+ * attribute so far looked like one (a name and a type of printable
+ * characters, a size that is not negative), else 0: a header the library
+ * refused for a value it holds (a channel's sampling, say) is damaged, not
+ * cut short, although the library's parse, once off the rails, may read
+ * on to the end of the file (and it reads ahead past the end of a small
+ * one). */
+static uint64_t headers_end(FILE *f, uint64_t size, int *cut) {
+  int whole = 1, dummy;
+  if (!cut) cut = &dummy;
+  *cut = 0;
   unsigned char head[8];
-  if (fread(head, 1, 8, f) != 8) return 0;
+  if (fread(head, 1, 8, f) != 8) {
+    *cut = 1;
+    return 0;
+  }
   int multipart = (head[5] & 0x10) != 0;   /* version bit 12 */
   char name[256], type[256];
   for (int part = 0;; part++) {
     if (part > 0 && !multipart) break;
     for (int attr = 0;; attr++) {
-      int n = read_cstring(f, name, (int)sizeof name);
+      int n = read_cstring(f, name, (int)sizeof name, &whole);
+      if (n == -1) *cut = whole;
       if (n < 0 || attr > 100000) return 0;
       if (n == 0) {
         if (attr == 0) {   /* the empty header that ends a multi-part file's */
@@ -185,72 +204,33 @@ static uint64_t headers_end(FILE *f, uint64_t size) {
         break;
       }
       unsigned char len[4];
-      if (read_cstring(f, type, (int)sizeof type) < 0 || fread(len, 1, 4, f) != 4) return 0;
+      int t = read_cstring(f, type, (int)sizeof type, &whole);
+      if (t == -1 || (t >= 0 && fread(len, 1, 4, f) != 4)) {
+        *cut = whole;   /* the end of the file inside the type or its size */
+        return 0;
+      }
+      if (t < 0) return 0;
       uint32_t vlen = (uint32_t)len[0] | (uint32_t)len[1] << 8 | (uint32_t)len[2] << 16 |
                       (uint32_t)len[3] << 24;
       off_t at = ftello(f);
-      if (at < 0 || vlen > 0x7fffffffu || (uint64_t)at + vlen > size ||
-          fseeko(f, (off_t)vlen, SEEK_CUR) != 0)
+      if (at < 0 || vlen > 0x7fffffffu) return 0;
+      if ((uint64_t)at + vlen > size || fseeko(f, (off_t)vlen, SEEK_CUR) != 0) {
+        *cut = whole;
         return 0;
+      }
     }
   }
   off_t at = ftello(f);
   return at < 0 ? 0 : (uint64_t)at;
 }
 
-/* 1 when the headers, walked attribute by attribute (headers_end's
- * layout), run into the end of the file while every attribute so far
- * looks like one: a name and a type of printable characters and a size
- * that is not negative. 0 when the headers end inside the file, or bytes
- * that are no attribute come first: a header the library refused for a
- * value it holds (a channel's sampling, say) is damaged, not cut short,
- * although the library's parse, once off the rails, may read on to the
- * end of the file (and it reads ahead past the end of a small one). */
+/* headers_end's *cut for the file at path, of size bytes; 0 when it
+ * cannot be opened. */
 static int header_cut_short(const char *path, uint64_t size) {
   FILE *f = fopen(path, "rb");
   if (!f) return 0;
-  unsigned char head[8];
-  int cut = 1;
-  if (fread(head, 1, 8, f) != 8) goto out;
-  int multipart = (head[5] & 0x10) != 0;   /* version bit 12 */
-  for (int part = 0;; part++) {
-    if (part > 0 && !multipart) break;
-    for (int attr = 0;; attr++) {
-      for (int field = 0; field < 2; field++) {   /* the name, then the type */
-        int len = 0, c;
-        while ((c = fgetc(f)) != 0) {
-          if (c == EOF) goto out;
-          if (c < 0x20 || c > 0x7e || ++len > 255) {
-            cut = 0;
-            goto out;
-          }
-        }
-        if (field == 0 && len == 0) {
-          /* The end of a header; on a first attribute, of a multi-part
-           * file's headers. */
-          if (!multipart || attr == 0) {
-            cut = 0;
-            goto out;
-          }
-          goto next_part;
-        }
-      }
-      unsigned char len[4];
-      if (fread(len, 1, 4, f) != 4) goto out;
-      int32_t vlen = (int32_t)((uint32_t)len[0] | (uint32_t)len[1] << 8 |
-                               (uint32_t)len[2] << 16 | (uint32_t)len[3] << 24);
-      off_t at = ftello(f);
-      if (vlen < 0 || at < 0) {
-        cut = 0;
-        goto out;
-      }
-      if ((uint64_t)at + (uint64_t)vlen > size) goto out;
-      if (fseeko(f, (off_t)vlen, SEEK_CUR) != 0) goto out;
-    }
-  next_part:;
-  }
-  cut = 0;   /* a single-part file's header ends inside the file */
-out:
+  int cut;
+  headers_end(f, size, &cut);
   fclose(f);
   return cut;
 }
@@ -276,7 +256,7 @@ static table_state chunk_table(exr_const_context_t ctx, int part, const char *pa
     fclose(f);
     return TABLE_INSIDE;
   }
-  uint64_t at = headers_end(f, size), tables_end = at, count = 0;
+  uint64_t at = headers_end(f, size, NULL), tables_end = at, count = 0;
   for (int q = 0; at && q < nparts; q++) {
     int32_t n = 0;
     if (exr_get_chunk_count(ctx, q, &n) || n < 0) at = 0;
