@@ -118,13 +118,8 @@ static int parse_int_list(const char *s, int *out, int max, int *n) {
   return *n > 0 ? 0 : -1;
 }
 
-/* The whole argument: anything after the numbers ("64x64x", "1,2,3x") is
- * refused, not dropped. */
-static int parse_vec3(const char *s, float v[3]) {
-  char tail;
-  return sscanf(s, "%f,%f,%f%c", &v[0], &v[1], &v[2], &tail) == 3 ? 0 : -1;
-}
-
+/* The whole argument: anything after the numbers ("64x64x") is refused,
+ * not dropped. */
 static int parse_size(const char *s, int *w, int *h) {
   char tail;
   return sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w > 0 && *h > 0 ? 0 : -1;
@@ -533,10 +528,7 @@ static int parse_args(int argc, char **argv, opts *o) {
                !strcmp(a, "--background")) {
       float *dst = a[2] == 'h' ? o->view.hair_color : a[2] == 'l' ? o->view.light_color
                                                                   : o->view.background;
-      if (parse_vec3(v, dst)) {
-        fprintf(stderr, "hairfilter render: %s wants R,G,B\n", a);
-        return -1;
-      }
+      if (cli_parse_rgb("hairfilter render", a, v, dst)) return -1;
     } else if (!strcmp(a, "--st")) {
       if (parse_int_list(v, o->outputs.st_spp, HFR_MAX_BASELINES, &o->outputs.n_st)) {
         fprintf(stderr, "hairfilter render: --st wants a list like 1,2,4,8,16,64\n");
