@@ -15,7 +15,11 @@
 #
 # Every step has a time cap and may fail; the next one runs anyway, and
 # steps that no longer fit before DEADLINE (seconds, default 450) are
-# skipped. Whatever happens, $OUT (default ./gpu-out) gets summary.txt (also
+# skipped. Nothing else waits without a bound either: a daemon gets until
+# DEADLINE to be ready and STOP_GRACE seconds (default 15) to stop on
+# SIGTERM before it is killed, so the run ends near DEADLINE and packs its
+# results itself (the device tool kills a command that outlives its limit,
+# and then nothing is packed). Whatever happens, $OUT (default ./gpu-out) gets summary.txt (also
 # printed last), logs.tgz (every step's output) and devprop.json (cuDNN's
 # description of the device, for tests/data/cudnn/). The last thing printed
 # is what the next run must still show.
@@ -77,6 +81,8 @@ step() {
 # Packs whatever there is, whenever the script ends.
 pack() {
   trap - EXIT
+  # Daemons a stopped run left behind would go on writing their logs.
+  for f in "$R"/*.pid; do [ -f "$f" ] && kill -KILL "$(cat "$f")" 2>/dev/null; done
   "$PY" "$ROOT/tools/gpu-run/summarize.py" "$R" "$ROOT" > "$OUT/summary.txt" 2>&1 ||
     echo "summarize.py failed" >> "$OUT/summary.txt"
   [ -f "$R/devprop.json" ] && cp "$R/devprop.json" "$OUT/"
@@ -185,18 +191,39 @@ serve() {
     --max-batch 1 --warm "$BIG" --ready-file "$R/$tag.ready" "${opts[@]}" \
     > "$R/server_$tag.log" 2>&1 &
   echo $! > "$R/$tag.pid"
-  local waited=0
+  # Up to 120 s for the warmed plan, never past the deadline.
+  local waited=0 most=240
+  [ $((2 * ($(left) - 10))) -lt $most ] && most=$((2 * ($(left) - 10)))
   while [ ! -s "$R/$tag.ready" ]; do
     sleep 0.5
     waited=$((waited + 1))
-    if ! kill -0 "$(cat "$R/$tag.pid")" 2>/dev/null || [ $waited -gt 240 ]; then
+    if ! kill -0 "$(cat "$R/$tag.pid")" 2>/dev/null || [ $waited -gt $most ]; then
       echo "server $tag did not become ready" >> "$R/steps.txt"
+      stop "$tag"
       return 1
     fi
   done
   printf '%-22s ready after %s s\n' "server_$tag" "$(awk -v t="$waited" 'BEGIN {printf "%.1f", t / 2}')" >> "$R/steps.txt"
 }
-stop() { kill "$(cat "$R/$1.pid")" 2>/dev/null; wait "$(cat "$R/$1.pid")" 2>/dev/null; }
+# stop TAG: SIGTERM, then SIGKILL after STOP_GRACE seconds: a daemon that
+# hangs on its way out is a finding, and must not hold up the steps after it.
+stop() {
+  local pid
+  pid=$(cat "$R/$1.pid")
+  kill "$pid" 2>/dev/null
+  local i=0
+  while kill -0 "$pid" 2>/dev/null && [ $i -lt $((4 * ${STOP_GRACE:-15})) ]; do
+    sleep 0.25
+    i=$((i + 1))
+  done
+  if kill -0 "$pid" 2>/dev/null; then
+    printf '%-22s did not stop in %s s after SIGTERM: killed\n' "server_$1" "${STOP_GRACE:-15}" \
+      >> "$R/steps.txt"
+    kill -KILL "$pid" 2>/dev/null
+  fi
+  wait "$pid" 2>/dev/null
+  rm -f "$R/$1.pid"
+}
 load() {  # load NAME TAG [hairfilter-load options]
   local name=$1 tag=$2
   shift 2
@@ -214,8 +241,8 @@ if [ "$(left)" -gt 120 ] && serve e2e; then
   # The same as load_shm_f16 beside a client that creates and destroys
   # 192 MiB segments in a loop, each pinned off the event loop: its p99
   # against load_shm_f16's says whether other connections wait for it.
-  "$PY" "$ROOT/tools/gpu-run/shm_churn.py" "unix:$R/e2e.sock" --mib 192 \
-    --seconds $((SECS + 2)) > "$R/shm_churn.log" 2>&1 &
+  timeout -k 5 $((SECS + 40)) "$PY" "$ROOT/tools/gpu-run/shm_churn.py" "unix:$R/e2e.sock" \
+    --mib 192 --seconds $((SECS + 2)) > "$R/shm_churn.log" 2>&1 &
   CHURN_PID=$!
   load load_shm_f16_churn e2e --shm --f16
   wait "$CHURN_PID"
