@@ -1,10 +1,12 @@
 #!/bin/bash
 # tools/gpu-run/run.sh ends and packs its results although a daemon it
-# starts never stops on SIGTERM: stand-ins for the carried programs (a
-# hairfilterd that ignores SIGTERM, everything else answering at once) run
-# the whole script with BACKEND=cudnn, which must finish well within the
-# limit, say in steps.txt which daemon it had to kill, and leave
-# summary.txt and logs.tgz in OUT. No GPU and no build needed.
+# starts never stops on SIGTERM and the logs outgrow what comes back:
+# stand-ins for the carried programs (a hairfilterd that ignores SIGTERM
+# and writes 12 MiB of logs that do not compress, everything else
+# answering at once) run the whole script with BACKEND=cudnn, which must
+# finish well within the limit, say in steps.txt which daemon it had to
+# kill, and leave summary.txt and a logs.tgz small enough to come back
+# (16 MiB) in OUT. No GPU and no build needed.
 #
 #   tests/gpu/run_sh_bounded.sh REPO_ROOT
 set -u
@@ -21,6 +23,9 @@ cat > "$T/carry/bin/hairfilterd" <<'EOF'
 #!/bin/bash
 trap '' TERM
 echo $$ >> "$(dirname "$0")/../pids"
+# Logs that do not compress: cuDNN's and its own, 6 MiB each.
+head -c 4718592 /dev/urandom | base64 > "${CUDNN_LOGDEST_DBG:-/dev/null}"
+head -c 4718592 /dev/urandom | base64
 while [ $# -gt 0 ]; do
   [ "$1" = --ready-file ] && echo ready > "$2"
   shift
@@ -45,6 +50,11 @@ fail() {
 [ "$rc" = 124 ] || [ "$rc" = 137 ] && fail "run.sh still running after 150 s (a daemon's stop waited without bound)"
 [ -s "$T/out/summary.txt" ] || fail "no summary.txt in OUT (rc $rc)"
 [ -s "$T/out/logs.tgz" ] || fail "no logs.tgz in OUT (rc $rc)"
+# Five daemons' 60 MiB of logs, cut so that logs.tgz comes back (the
+# device tool brings back no file over 16 MiB).
+size=$(stat -c %s "$T/out/logs.tgz")
+[ "$size" -le $((16 << 20)) ] || fail "logs.tgz is $size bytes, over the 16 MiB that come back"
+grep -q "cut to its last MiB" "$T/out/summary.txt" || fail "summary.txt does not say the logs were cut"
 mkdir "$T/logs"
 tar xzf "$T/out/logs.tgz" -C "$T/logs" || fail "logs.tgz does not unpack"
 for tag in e2e kac staged hostcheck depth1; do

@@ -90,6 +90,16 @@ pack() {
     [ -f "$f" ] && tail -c 4M "$f" > "$f.tail" && mv "$f.tail" "$f"
   done
   tar czf "$OUT/logs.tgz" -C "$R" --exclude='*.sock' . 2>/dev/null
+  # The device tool brings back no file over 16 MiB: rather every log's
+  # last MiB than no log at all.
+  if [ "$(stat -c %s "$OUT/logs.tgz" 2>/dev/null || echo 0)" -gt $((15 << 20)) ]; then
+    for f in "$R"/*.log; do
+      [ -f "$f" ] && tail -c 1M "$f" > "$f.tail" && mv "$f.tail" "$f"
+    done
+    tar czf "$OUT/logs.tgz" -C "$R" --exclude='*.sock' . 2>/dev/null
+    echo "logs.tgz was over 15 MiB, more than the device tool brings back: every log in it" \
+      "is cut to its last MiB" >> "$OUT/summary.txt"
+  fi
   cat "$OUT/summary.txt"
   rm -rf "$R"
 }
