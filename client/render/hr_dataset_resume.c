@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 
 #include <cjson/cJSON.h>
@@ -24,6 +25,19 @@
 static void add_range(cJSON *o, const char *name, double lo, double hi) {
   double v[2] = {lo, hi};
   cJSON_AddItemToObject(o, name, cJSON_CreateDoubleArray(v, 2));
+}
+
+/* A mesh file by its real path, as the .hair files are: the record is
+ * compared on --resume, which may run from another directory or spell the
+ * path another way (./head.obj, /abs/head.obj). "fit" and "none" as they
+ * are: they name no file. */
+static cJSON *occluder_record(const hfr_asset_opts *a) {
+  if (hfr_asset_fitted(a)) return cJSON_CreateString("fit");
+  if (!strcasecmp(a->occluder, "none")) return cJSON_CreateString("none");
+  char *real = realpath(a->occluder, NULL);
+  cJSON *s = cJSON_CreateString(real ? real : a->occluder);
+  free(real);
+  return s;
 }
 
 cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
@@ -78,7 +92,7 @@ cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
     /* Only when given, so that a manifest from before --opacity took .hair
      * files still matches. */
     if (a->opacity > 0) cJSON_AddNumberToObject(aj, "opacity", a->opacity);
-    cJSON_AddStringToObject(aj, "occluder", hfr_asset_fitted(a) ? "fit" : a->occluder);
+    cJSON_AddItemToObject(aj, "occluder", occluder_record(a));
     const hfr_children_params *c = &a->children;
     cJSON_AddNumberToObject(aj, "children", c->children);
     cJSON_AddBoolToObject(aj, "keep_guides", c->keep_guides != 0);
@@ -275,6 +289,21 @@ void hr_dataset_note_earlier_run(const char *dir) {
   cJSON_Delete(doc);
 }
 
+/* A manifest written before occluder_record kept the mesh's path as it was
+ * typed: taken as a path from here (where the set's command is run again),
+ * so that its own command still resumes it. */
+static void occluder_to_real_path(cJSON *asset) {
+  cJSON *occ = cJSON_GetObjectItemCaseSensitive(asset, "occluder");
+  if (!cJSON_IsString(occ) || !strcasecmp(occ->valuestring, "fit") ||
+      !strcasecmp(occ->valuestring, "none"))
+    return;
+  char *real = realpath(occ->valuestring, NULL);
+  /* Out of memory leaves the path as it was, which the comparison names. */
+  if (real && !cJSON_SetValuestring(occ, real))
+    fprintf(stderr, "hairfilter render dataset: out of memory reading the occluder's path\n");
+  free(real);
+}
+
 int hr_dataset_resume_open(const char *dir, const cJSON *options, int count,
                            const char *gl_renderer, cJSON **old, char *err, size_t errlen) {
   *old = NULL;
@@ -306,6 +335,7 @@ int hr_dataset_resume_open(const char *dir, const cJSON *options, int count,
     cJSON_Delete(doc);
     return HF_EINVAL;
   }
+  occluder_to_real_path(cJSON_GetObjectItemCaseSensitive(had, "asset"));
   char key[160], now[96], then[96];
   const cJSON *w = NULL, *h = NULL;
   if (first_difference(options, had, "", key, sizeof key, &w, &h)) {

@@ -625,6 +625,62 @@ static void test_render_dataset_resume(void **state) {
 #endif
 }
 
+/* An occluder mesh is the file, not the spelling of its path, as the .hair
+ * files are: a set made with DIR/./head.obj resumes with DIR/head.obj (or
+ * from another directory), and a manifest that kept the path as it was
+ * typed still resumes with its own command. */
+static void test_render_dataset_resume_occluder(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  char dir[1100], hair[1200], obj[1200], dotted[1200], set[1200], man[1300];
+  snprintf(dir, sizeof dir, "%s", test_tmp("resume_occ"));
+  mkdir(dir, 0755);
+  snprintf(hair, sizeof hair, "%s/bob.hair", dir);
+  snprintf(obj, sizeof obj, "%s/head.obj", dir);
+  snprintf(dotted, sizeof dotted, "%s/./head.obj", dir);
+  snprintf(set, sizeof set, "%s/set", dir);
+  snprintf(man, sizeof man, "%s/manifest.json", set);
+  assert_int_equal(cli("render hair --style straight --strands 40 --hair-seed 3 --out %s", hair),
+                   0);
+  write_text(obj, "v -0.5 -0.5 -0.5\nv 0.5 -0.5 -0.5\nv 0 0.5 -0.5\nv 0 0 0.5\n"
+                  "f 1 2 3\nf 1 2 4\nf 2 3 4\nf 3 1 4\n");
+  const char *opt = "--size 16x16 --spp 4 --seed 5 --quiet";
+  assert_int_equal(cli("render dataset --hair-files %s --occluder %s --count 1 %s --out %s", hair,
+                       dotted, opt, set), 0);
+  size_t n;
+  char *m = slurp(man, &n), *real = realpath(obj, NULL);
+  assert_non_null(real);
+  char want[1300];
+  snprintf(want, sizeof want, "\"occluder\":\t\"%s\"", real);
+  free(real);
+  if (!strstr(m, want)) fail_msg("the options record lacks %s:\n%s", want, m);
+  free(m);
+  assert_int_equal(cli("render dataset --hair-files %s --occluder %s --count 2 --resume %s --out %s",
+                       hair, obj, opt, set), 0);
+  /* A manifest of before, with the path as it was typed. */
+  m = slurp(man, &n);
+  char *at = strstr(m, want);
+  assert_non_null(at);
+  char *old = malloc(n + 64);
+  assert_non_null(old);
+  snprintf(old, n + 64, "%.*s\"occluder\":\t\"%s\"%s", (int)(at - m), m, dotted,
+           at + strlen(want));
+  write_text(man, old);
+  free(old);
+  free(m);
+  assert_int_equal(cli("render dataset --hair-files %s --occluder %s --count 3 --resume %s --out %s",
+                       hair, dotted, opt, set), 0);
+  /* Another mesh is still another option. */
+  snprintf(dotted, sizeof dotted, "%s/other.obj", dir);
+  write_text(dotted, "v -0.5 -0.5 -0.5\nv 0.5 -0.5 -0.5\nv 0 0.5 -0.5\nf 1 2 3\n");
+  assert_int_equal(cli("render dataset --hair-files %s --occluder %s --count 3 --resume %s --out %s",
+                       hair, dotted, opt, set), 1);
+  expect_text("--occluder (\"asset.occluder\") is");
+#endif
+}
+
 /* A .hair file that does not load is named once, in every mode: render
  * frame did not repeat it, render dataset (several files) did not name it. */
 static void test_render_bad_hair_named(void **state) {
@@ -892,6 +948,7 @@ int main(void) {
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),
     cmocka_unit_test(test_output_directory), cmocka_unit_test(test_render_input_preview),
     cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
+    cmocka_unit_test(test_render_dataset_resume_occluder),
     cmocka_unit_test(test_render_bad_hair_named),
     cmocka_unit_test(test_strict_numbers),
     cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
