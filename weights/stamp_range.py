@@ -12,6 +12,10 @@ first `spp` samples are measured, spp being the variant's. Only the header
 is rewritten (tensor bytes are copied unchanged); --out writes a copy.
 train.py --export stamps its exports this way by itself. hairfilterd and
 `hairfilter filter|infer|eval` then say when a frame is outside the range.
+
+A range the file already records is replaced, and said so; --join keeps it
+and adds these frames' (as train.py --export joins its --init weights'
+range), for weights fine-tuned from others, which learnt both.
 """
 import argparse
 import json
@@ -67,6 +71,29 @@ def range_of_frames(entries, spp, log=None):
     return input_stats.input_range(stats, spp)
 
 
+def recorded_range(header, path):
+    """The input_range the header records (its dict), or None."""
+    text = (header.get("__metadata__") or {}).get("input_range")
+    if text is None:
+        return None
+    try:
+        return json.loads(text, object_pairs_hook=safetensors_header.unique_keys)
+    except ValueError as e:
+        raise ValueError(f"{path}: its input_range is not JSON ({e}): stamp without --join "
+                         "to replace it") from None
+
+
+def joined_range(rng, old, path):
+    """rng joined with the range old the file records (input_stats.union_range),
+    refused where they cannot be joined (another definition or spp)."""
+    for k in ("definition", "spp"):
+        if old.get(k) != rng.get(k):
+            raise ValueError(f"{path}: its input_range has {k} {old.get(k)!r}, these frames' "
+                             f"{rng.get(k)!r}: the two cannot be joined; stamp without --join "
+                             "to replace it")
+    return input_stats.union_range(rng, old)
+
+
 def stamp(path, rng, out=None):
     header, body = read_safetensors_header(path)
     meta = header.setdefault("__metadata__", {})
@@ -81,6 +108,11 @@ def main(argv=None):
     ap.add_argument("--styles", default="", help="only these styles (default: all)")
     ap.add_argument("--val-fraction", type=float, default=0.1,
                     help="train.py's validation split, left out (default 0.1)")
+    ap.add_argument("--join", action="store_true",
+                    help="keep the input_range the file records and add these frames' (per "
+                         "statistic the lower minimum and the higher maximum, frames summed), "
+                         "as train.py --export joins its --init weights' range: for weights "
+                         "fine-tuned from others. Without it a recorded range is replaced")
     ap.add_argument("--out", help="write a stamped copy here instead")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
@@ -95,6 +127,12 @@ def main(argv=None):
                          object_pairs_hook=safetensors_header.unique_keys)
     except (KeyError, TypeError, ValueError):
         sys.exit(f"stamp_range.py: {args.weights}: no hairfilter metadata")
+    try:
+        old = recorded_range(header, args.weights)
+    except ValueError as e:
+        old = None
+        if args.join:
+            sys.exit(f"stamp_range.py: {e}")
     # Where it writes, checked before the frames are measured (a missing
     # directory was a traceback after them).
     if args.out and (os.path.isdir(args.out) or args.out.endswith(os.sep)):
@@ -113,6 +151,17 @@ def main(argv=None):
     rng = range_of_frames(entries, int(cfg["spp"]), log)
     if log:
         print(file=sys.stderr)
+    if args.join and old is not None:
+        try:
+            rng = joined_range(rng, old, args.weights)
+        except ValueError as e:
+            sys.exit(f"stamp_range.py: {e}")
+    elif old is not None:
+        # Said: weights fine-tuned from others would lose the range of the
+        # frames they learnt first, and a server would flag those frames.
+        print(f"stamp_range.py: {args.weights}: replaces the input_range it recorded (over "
+              f"{old.get('frames', '?')} frames); add --join to keep it and add these frames' "
+              "(weights fine-tuned from others learnt both)", file=sys.stderr)
     stamp(args.weights, rng, args.out)
     print(f"{args.out or args.weights}: {cfg['name']}, input_range over {rng['frames']} frames: "
           + ", ".join(f"{k} {v[0]:.4g}..{v[1]:.4g}" for k, v in rng.items()

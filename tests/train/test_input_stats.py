@@ -177,6 +177,32 @@ class Stamp(unittest.TestCase):
         self.assertTrue(mask & (1 << input_stats.STATS.index("strand_alpha_p50")), mask)
         self.assertTrue(mask & (1 << input_stats.STATS.index("full_coverage")), mask)
 
+    def test_stamp_join(self):
+        # A range the file records is replaced, and said so; --join keeps it
+        # and adds the new frames' (weights fine-tuned from others learnt both).
+        other = os.path.join(ARGS.work, "other")
+        shutil.rmtree(other, ignore_errors=True)
+        synth_dataset.main(["--out", other, "--styles", "straight", "--count", "3",
+                            "--size", "24x24", "--spp", "4", "--st", "", "--seed", "9"])
+        w = os.path.join(ARGS.work, "joined.safetensors")
+        subprocess.run([ARGS.dump, "weights", w], check=True)
+        stamp = [sys.executable, os.path.join(WEIGHTS, "stamp_range.py"), w, "--quiet"]
+        r = subprocess.run(stamp + ["--data", self.data], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(r.stderr, "")    # nothing recorded before: nothing replaced
+        first = dump("range", w)
+        r = subprocess.run(stamp + ["--data", other, "--join"], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        alone = stamp_range.range_of_frames(stamp_range.training_frames(other, "", 0.1), 4)
+        got = dump("range", w)
+        self.assertEqual(got, input_stats.union_range(alone, first))
+        self.assertEqual(got["frames"], first["frames"] + alone["frames"])
+        r = subprocess.run(stamp + ["--data", other], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertIn(f"replaces the input_range it recorded (over {got['frames']} frames); "
+                      "add --join", r.stderr)
+        self.assertEqual(dump("range", w), alone)
+
     def test_crop_counts_at_full_size(self):
         # A crop of a 1024 frame: its statistics and its regime row say 1024.
         crop = os.path.join(ARGS.work, "crop")
