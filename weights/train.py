@@ -537,18 +537,23 @@ def make_parser():
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", help="dataset directory (manifest.json + EXRs); several "
                     "separated by commas are trained on together")
-    ap.add_argument("--variant", default="Base", help="Table 1 variant name")
+    ap.add_argument("--variant", default="Base",
+                    help="the variant: " + ", ".join(hfnet.VARIANTS) + " (default Base, the "
+                    "paper's; the server's default is KernelAC)")
     ap.add_argument("--out", required=True, help="run directory (checkpoint, log)")
-    ap.add_argument("--steps", type=int, default=10000, help="total optimizer steps")
-    ap.add_argument("--batch", type=int, default=8)
-    ap.add_argument("--crop", type=int, default=128)
-    ap.add_argument("--lr", type=float, default=5e-4)
+    ap.add_argument("--steps", type=int, default=10000, help="total optimizer steps (default 10000)")
+    ap.add_argument("--batch", type=int, default=8, help="crops per step (default 8)")
+    ap.add_argument("--crop", type=int, default=128,
+                    help="side of the square crops, in pixels (default 128): inside every "
+                    "frame, a multiple of 2 to the number of levels")
+    ap.add_argument("--lr", type=float, default=5e-4, help="Adam's learning rate (default 5e-4)")
     ap.add_argument("--schedule", default="cosine", choices=["cosine", "constant"],
                     help="cosine: lr decays to --lr-floor x lr at --steps (a resumed run "
                     "with a larger --steps continues on the stretched curve)")
-    ap.add_argument("--lr-floor", type=float, default=0.05)
+    ap.add_argument("--lr-floor", type=float, default=0.05,
+                    help="--schedule cosine: the last lr, times --lr (default 0.05)")
     ap.add_argument("--grad-weight", type=float, default=1.0,
-                    help="weight of the image-gradient MSE term")
+                    help="weight of the image-gradient MSE term (default 1)")
     ap.add_argument("--loss", default="paper", choices=["paper", "look"],
                     help="paper: the paper's MSE of premultiplied colour, highlight and "
                     "alpha and of their gradients; look: the same on the composited image "
@@ -582,12 +587,19 @@ def make_parser():
                     "larger (torch.nn.utils.clip_grad_norm_; 0: off). The log records each "
                     "interval's median norm before clipping and the share of steps clipped")
     ap.add_argument("--styles", default="straight,wavy",
-                    help="styles to train on (others are never loaded); '' = all")
-    ap.add_argument("--val-fraction", type=float, default=0.1)
-    ap.add_argument("--val-every", type=int, default=500)
-    ap.add_argument("--ckpt-every", type=int, default=500)
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1))
+                    help="styles to train on (others are never loaded); '' = all (default "
+                    "straight,wavy, the paper's two)")
+    ap.add_argument("--val-fraction", type=float, default=0.1,
+                    help="share of the frames held out for validation, chosen by a hash of "
+                    "the file name (default 0.1; at least one, and one left to train on)")
+    ap.add_argument("--val-every", type=int, default=500,
+                    help="validate and log every N steps (default 500)")
+    ap.add_argument("--ckpt-every", type=int, default=500,
+                    help="write RUN/checkpoint.pt every N steps (default 500)")
+    ap.add_argument("--seed", type=int, default=1,
+                    help="seed of the initialisation and the crops (default 1)")
+    ap.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1),
+                    help="PyTorch's CPU threads (default 2, or 1 on a one-core machine)")
     ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                     help="auto: CUDA when PyTorch sees a GPU, else the CPU (a run resumes "
                     "on any device)")
@@ -668,7 +680,8 @@ def make_parser():
                     "starting from the first step's), and validate and export it instead of "
                     "the last step's weights; 0: off")
     ap.add_argument("--export", help="write the weights here (safetensors)")
-    ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"])
+    ap.add_argument("--export-dtype", default="F32", choices=["F32", "F16"],
+                    help="the exported tensors' type (default F32)")
     return ap
 
 
