@@ -26,7 +26,7 @@ static void usage(FILE *f) {
     "         --strands N --segments N --length L --clumping C --frizz F\n"
     "         --curl-radius R --curl-period P --thickness T --opacity O\n"
     "         --width-spread S (per clump width x S^u, u in [-1,1]) --children N (spiky, fur)\n"
-    ".hair:   --up y|z|x|-y|-z|-x (the file's up axis)  --units m|dm|cm|mm|in|ft  --scale S\n"
+    ".hair:   --up y|z|x|-y|-z|-x (the file's up axis)  --units m|dm|cm|mm|in|ft or --scale S\n"
     "         --thickness T (diameter in the file's units, replaces the file's widths)\n"
     "         --opacity O (in (0, 1], replaces the file's transparencies)\n"
     "         --children N (grow N children per guide) --child-spread F --child-clumping C\n"
@@ -321,6 +321,14 @@ static int check_model_options(const opts *o) {
   if (files && given(o, "--child-clumping") && !(c->clumping >= 0 && c->clumping <= 1)) {
     fprintf(stderr, "hairfilter render %s: --child-clumping %g is outside [0, 1]\n", o->cmd,
             c->clumping);
+    return -1;
+  }
+  /* Both set the one factor, the later silently over the earlier: --units cm
+   * --scale 2 drew the model at 2 renderer units per centimetre. */
+  if (given(o, "--units") && given(o, "--scale")) {
+    fprintf(stderr, "hairfilter render %s: --units and --scale both say the file's unit "
+            "(--scale S: S renderer units per file unit; --units cm is --scale 0.1): give "
+            "one\n", o->cmd);
     return -1;
   }
   if (given(o, "--scale") && !(o->asset.scale > 0)) {

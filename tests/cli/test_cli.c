@@ -840,6 +840,13 @@ static void test_render_option_modes(void **state) {
   assert_int_equal(cli("render frame --hair %s --scale 0 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--scale 0: renderer units per file unit, above 0");
+  /* Two options of one factor: the later one silently won. */
+  assert_int_equal(cli("render frame --hair %s --units cm --scale 2 --out %s", hair,
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("render frame: --units and --scale both say the file's unit");
+  assert_int_equal(cli("render dataset --hair-files %s --scale 2 --units mm --count 1 --out %s",
+                       hair, test_tmp("mode_set")), 2);
+  expect_text("render dataset: --units and --scale both say the file's unit");
   assert_int_equal(cli("render frame --hair %s --children 2 --child-clumping 2 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--child-clumping 2 is outside [0, 1]");
