@@ -1230,8 +1230,9 @@ int cmd_eval(int argc, char **argv) {
       } else if (m->kind == M_MODEL) {
         const hf_net_config *cfg = hf_model_config(models[m->model]);
         if (spp < cfg->spp) {
-          fprintf(stderr, "hairfilter eval: %s has %d spp, %s needs %d: skipped for it\n",
-                  fr->path, spp, m->label, cfg->spp);
+          fprintf(stderr, "hairfilter eval: %s has %d spp, %s needs %d: skipped for it "
+                  "(render the frames with --spp %d or more to score it there)\n",
+                  fr->path, spp, m->label, cfg->spp, cfg->spp);
           continue;
         }
         if (cfg->spp != ispp) {

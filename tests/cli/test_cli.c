@@ -278,7 +278,8 @@ static void test_missing_samples(void **state) {
   assert_int_equal(hf_exr_write(test_tmp("two.exr"), &img, 0), HF_OK);
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_tmp("two.exr"), test_tmp("x.exr")), 1);
-  expect_text("has 2 samples per pixel (S0.color..S1.color), variant Base needs 4");
+  expect_text("has 2 samples per pixel (S0.color..S1.color), variant Base needs 4: render the "
+              "frame with --spp 4 (or more), or filter it with Base@2spp");
   hf_image_free(&img);
   float in4[4 * 4 * 24] = {0};
   assert_int_equal(hf_features_to_image(in4, 4, 4, 4, &img), HF_OK);
@@ -288,6 +289,15 @@ static void test_missing_samples(void **state) {
                        test_tmp("typo.exr"), test_tmp("x.exr")), 1);
   expect_text("no channel S3.depth: sample 3 lacks its depth feature");
   hf_image_free(&img);
+#ifdef HF_TEST_RENDERER
+  /* eval skips such a frame for that network, and says what would score it. */
+  assert_int_equal(cli("render frame --style wavy --strands 200 --size 16x16 --spp 2 --gt-ss 2 "
+                       "--quiet --out %s", test_tmp("two_gt.exr")), 0);
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s", BASE, test_tmp("two_gt.exr")),
+                   1);   /* the network scored no frame */
+  expect_text("has 2 spp, ours Base (base.safetensors) needs 4: skipped for it (render the "
+              "frames with --spp 4 or more to score it there)");
+#endif
 }
 
 /* hairfilter eval on a frame with a NaN sample: one warning for the frame,
