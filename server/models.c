@@ -354,7 +354,8 @@ static int apply(hfd_server *s, const want *ws, int nw, hfd_ctl **loads, hfd_mod
                 "--weights NAME=FILE", ws[i].path, m->name, by);
       else
         hfd_err("reload: %s: a variant named '%s' is already served (from %s); name one of "
-                "them with --weights NAME=FILE%s", ws[i].path, m->name, by, kv);
+                "them in the --config file (weights = NAME=FILE) and reload again, or at the "
+                "next start with --weights NAME=FILE%s", ws[i].path, m->name, by, kv);
       if (!old && !s->missing++)
         snprintf(s->missing_why, sizeof s->missing_why, "%s: variant name '%s' taken by %s",
                  ws[i].path, m->name, by);

@@ -207,6 +207,18 @@ def run(d, w, conf):
     reloads = reload_and_wait(d, reloads)
     check(d.get("/readyz") == (200, "ready\n"), "ready again once the broken file is gone")
 
+    # 4b. A new file of a name already served: refused, and the fix named is
+    # one a reload can take (the config file; --weights waits for a restart).
+    shutil.copy(os.path.join(WEIGHTS, "small.safetensors"), os.path.join(wd, "dup.safetensors"))
+    reloads = reload_and_wait(d, reloads)
+    lines = [l for l in d.log_text().splitlines() if "dup.safetensors" in l
+             and "a variant named 'Small' is already served" in l]
+    check(lines and "name one of them in the --config file (weights = NAME=FILE) and reload "
+          "again" in lines[0], "the duplicate name says how to serve both: %s" % lines)
+    os.unlink(os.path.join(wd, "dup.safetensors"))
+    reloads = reload_and_wait(d, reloads)
+    check(d.get("/readyz") == (200, "ready\n"), "ready again once the duplicate is gone")
+
     # 5. Removed: Small-retrained leaves the config.
     write_conf(conf, w)
     reloads = reload_and_wait(d, reloads)
