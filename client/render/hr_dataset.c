@@ -230,6 +230,47 @@ static void base_name(const char *path, char *out, size_t n) {
   out[k] = 0;
 }
 
+/* Source k's name, the stem of its frames' files: the k-th style, then the
+ * .hair files. */
+static void source_name(const hfr_dataset_opts *o, int k, char *out, size_t n) {
+  if (k < o->n_styles) snprintf(out, n, "%s", hfr_style_name(o->styles[k]));
+  else base_name(o->hair_files[k - o->n_styles], out, n);
+}
+
+/* Source k as the command line gave it, for messages. */
+static void source_said(const hfr_dataset_opts *o, int k, char *out, size_t n) {
+  if (k < o->n_styles) snprintf(out, n, "style %s", hfr_style_name(o->styles[k]));
+  else snprintf(out, n, "%s", o->hair_files[k - o->n_styles]);
+}
+
+/* A frame's file is named after its source ("{source}_{i:04d}.exr"), so two
+ * sources of one name (a style given twice, a/bob.hair and b/bob.hair,
+ * wavy.hair beside --styles wavy) would write over each other's frames and
+ * the manifest would list one file twice. HF_EINVAL, naming both. */
+static int check_source_names(const hfr_dataset_opts *o, char *err, size_t errlen) {
+  const int n = o->n_styles + o->n_hair_files;
+  for (int a = 0; a < n; a++)
+    for (int b = a + 1; b < n; b++) {
+      char na[64], nb[64];
+      source_name(o, a, na, sizeof na);
+      source_name(o, b, nb, sizeof nb);
+      if (strcmp(na, nb)) continue;
+      char sa[512], sb[512];
+      source_said(o, a, sa, sizeof sa);
+      source_said(o, b, sb, sizeof sb);
+      if (err)
+        snprintf(err, errlen, "%s and %s would both write %s_NNNN.exr (a frame is named "
+                 "after its style or .hair file): %s", sa, sb, na,
+                 b < o->n_styles   ? "give each style once"
+                 : a < o->n_styles ? "link the file under another name (ln -s "
+                                     "DIR/NAME.hair OTHER.hair)"
+                                   : "give each file once, or link one under another name "
+                                     "(ln -s DIR/NAME.hair OTHER.hair)");
+      return HF_EINVAL;
+    }
+  return HF_OK;
+}
+
 int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   if (!o || !o->out_dir || (o->n_styles < 1 && o->n_hair_files < 1) || o->count < 1 ||
       o->n_spp < 1 || o->n_styles < 0 || o->n_hair_files < 0) {
@@ -260,6 +301,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     if (err) snprintf(err, errlen, "strand opacities must be 0 < MIN <= MAX <= 1 (--opacity-range)");
     return HF_EINVAL;
   }
+  if (check_source_names(o, err, errlen) != HF_OK) return HF_EINVAL;
   if (mkdir(o->out_dir, 0777) != 0 && errno != EEXIST) {
     if (err) snprintf(err, errlen, "%s: %s", o->out_dir, strerror(errno));
     return HF_EIO;

@@ -691,6 +691,45 @@ static void test_render_dataset_resume_occluder(void **state) {
 #endif
 }
 
+/* Frames are named after their source, so two sources of one name (a style
+ * twice, two files of one base name, a file named after a style) would
+ * write over each other's frames: refused, naming both, before a frame. */
+static void test_render_dataset_source_names(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  char a[1100], b[1100], fa[1200], fb[1200], fw[1200], set[1100];
+  snprintf(a, sizeof a, "%s", test_tmp("names_a"));
+  snprintf(b, sizeof b, "%s", test_tmp("names_b"));
+  mkdir(a, 0755);
+  mkdir(b, 0755);
+  snprintf(fa, sizeof fa, "%s/bob.hair", a);
+  snprintf(fb, sizeof fb, "%s/bob.hair", b);
+  snprintf(fw, sizeof fw, "%s/wavy.hair", b);
+  snprintf(set, sizeof set, "%s", test_tmp("names_set"));
+  assert_int_equal(cli("render hair --style wavy --strands 30 --out %s", fa), 0);
+  assert_int_equal(cli("render hair --style curly --strands 30 --out %s", fb), 0);
+  assert_int_equal(cli("render hair --style curly --strands 30 --out %s", fw), 0);
+  const char *opt = "--count 1 --size 16x16 --spp 4 --gt-ss 2 --quiet";
+  assert_int_equal(cli("render dataset --styles wavy,straight,afro,coily %s --out %s", opt, set),
+                   1);
+  expect_text("style coily and style coily would both write coily_NNNN.exr");
+  expect_text("give each style once");
+  assert_int_equal(cli("render dataset --hair-files %s,%s %s --out %s", fa, fb, opt, set), 1);
+  char said[2600];
+  snprintf(said, sizeof said, "%s and %s would both write bob_NNNN.exr", fa, fb);
+  expect_text(said);
+  assert_int_equal(cli("render dataset --styles wavy --hair-files %s %s --out %s", fw, opt, set),
+                   1);
+  snprintf(said, sizeof said, "style wavy and %s would both write wavy_NNNN.exr", fw);
+  expect_text(said);
+  expect_text("link the file under another name");
+  struct stat st;
+  assert_int_not_equal(stat(set, &st), 0);   /* refused before anything was written */
+#endif
+}
+
 /* A .hair file that does not load is named once, in every mode: render
  * frame did not repeat it, render dataset (several files) did not name it. */
 static void test_render_bad_hair_named(void **state) {
@@ -967,6 +1006,7 @@ int main(void) {
     cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
     cmocka_unit_test(test_render_dataset_resume_occluder),
     cmocka_unit_test(test_render_bad_hair_named),
+    cmocka_unit_test(test_render_dataset_source_names),
     cmocka_unit_test(test_strict_numbers),
     cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
     cmocka_unit_test(test_eval_no_frames),
