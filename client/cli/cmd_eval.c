@@ -13,12 +13,14 @@
  * frames and in windows (eval_lattice.h). */
 #define _POSIX_C_SOURCE 200809L
 #include <cjson/cJSON.h>
+#include <ctype.h>
 #include <dirent.h>
 #include <getopt.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <unistd.h>
 #include <sys/stat.h>
 
@@ -391,16 +393,26 @@ static void count_names(const char *all, const char *tok, const char *base, size
   }
 }
 
+/* 1 when style is one of the comma-separated styles (all when none), each
+ * taken as train.py's --styles takes it (dataset.parse_styles): spaces
+ * around it dropped, in any case (a frame's style is lower case, a .hair
+ * file's name need not be: MyBob.hair's frames are style mybob). */
 static int style_wanted(const char *styles, const char *style) {
-  if (!styles || !*styles) return 1;
+  if (!styles) return 1;
   size_t n = strlen(style);
+  int named = 0;   /* no style named (",", " "): every style, as parse_styles */
   for (const char *p = styles; *p;) {
     size_t m = strcspn(p, ",");
-    if (m == n && !strncmp(p, style, n)) return 1;
+    const char *t = p;
+    size_t k = m;
+    while (k && isspace((unsigned char)*t)) t++, k--;
+    while (k && isspace((unsigned char)t[k - 1])) k--;
+    named += k > 0;
+    if (k && k == n && !strncasecmp(t, style, n)) return 1;
     p += m;
     if (*p == ',') p++;
   }
-  return 0;
+  return !named;
 }
 
 /* ---- methods ------------------------------------------------------------- */

@@ -396,6 +396,13 @@ static void test_eval_no_frames(void **state) {
                        test_field("frame-64x64.exr")), 1);
   expect_text("no frame of styles curly,coily among the 1 frames given (their styles: "
               "frame-64x64); name some of those with --styles");
+  /* As train.py takes --styles: spaces around a name dropped, in any case
+   * (MyBob.hair's frames are style mybob). The frame is then chosen, and
+   * refused for what it lacks. */
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s --styles 'coily, Frame-64x64' %s",
+                       BASE, test_field("frame-64x64.exr")), 1);
+  assert_null(strstr(text, "no frame of styles"));
+  expect_text("frame-64x64.exr: no gt.color/gt.highlight/gt.alpha");
   /* A backend that does not exist is a bad option, --weights or not. */
   assert_int_equal(cli("eval --backend foo %s", test_field("frame-64x64.exr")), 2);
   expect_text("hairfilter eval: --backend wants auto, cudnn, cpu or cpu-ref, not 'foo'");
