@@ -480,14 +480,19 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
     return total / len(frames)
 
 
-def export(net, path, dtype, input_range=None):
+def export(net, path, dtype, input_range=None, step=None, steps=None):
     """Writes the weights; input_range (weights/input_stats.py) becomes the
-    `input_range` metadata that hairfilterd checks frames against."""
+    `input_range` metadata that hairfilterd checks frames against. A run
+    stopped before its --steps (--stop-at, --time-limit) exports the weights
+    of the step it reached, and says so: the file is not the finished run's."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     meta = {"input_range": input_stats.input_range_json(input_range)} if input_range else None
     hfnet.save_safetensors(path, net.cfg, net.state_dict(), dtype=dtype, metadata=meta)
+    early = step is not None and steps is not None and step < steps
     print(f"exported {net.cfg['name']} to {path} ({dtype}"
-          f"{', input range of %d frames' % input_range['frames'] if input_range else ''})",
+          f"{', input range of %d frames' % input_range['frames'] if input_range else ''})"
+          + (f": the weights of step {step} of {steps}; --resume finishes the run and exports "
+             "again" if early else ""),
           file=sys.stderr)
 
 
@@ -1212,7 +1217,7 @@ def main(argv=None):
         # record only those, and a server would flag every other frame.
         if rng is not None and init_range:
             rng = input_stats.union_range(rng, json.loads(init_range))
-        export(averaged(net, avg), args.export, args.export_dtype, rng)
+        export(averaged(net, avg), args.export, args.export_dtype, rng, step, args.steps)
     return 0
 
 

@@ -1200,13 +1200,16 @@ class Recipe(unittest.TestCase):
                   "--steps", "4"]
         a, b = os.path.join(self.work, "only_out_a"), os.path.join(self.work, "only_out_b")
         run_train(*common, "--out", a, "--export", a + ".safetensors")
-        run_train(*common, "--out", b, "--stop-at", "2", "--export", b + ".safetensors")
+        r = run_train(*common, "--out", b, "--stop-at", "2", "--export", b + ".safetensors")
+        # The stopped run's export says it is not the finished run's.
+        self.assertIn("the weights of step 2 of 4; --resume finishes the run", r.stderr)
         os.remove(b + ".safetensors")
         r = run_train("--out", b, "--resume")
         self.assertIn("resumed Small at step 2", r.stderr)
         self.assertIn("step 4,", r.stderr)
         self.assertEqual([x["step"] for x in read_log(b)], [2, 4])
         self.assertTrue(os.path.exists(b + ".safetensors"), "the run's --export was not written")
+        self.assertNotIn("the weights of step", r.stderr)
         _, sa = hfnet.load_safetensors(a + ".safetensors")
         _, sb = hfnet.load_safetensors(b + ".safetensors")
         for k in sa:
