@@ -85,9 +85,28 @@ def read_manifest(root):
         for fname in glob.glob(os.path.join(root, "*.exr")):
             entries.append({"file": fname, "style": _style_from_name(fname)})
     if not entries:
+        sets = sets_below(root)
+        if sets:
+            # The parent of the sets (data/ rather than data/mine,data/bob).
+            shown = ",".join(sets[:4]) + (",..." if len(sets) > 4 else "")
+            raise DatasetError(f"{root}: no frames of its own; it holds {len(sets)} set(s) "
+                               f"(directories with a manifest.json): give them, comma-separated "
+                               f"(--data {shown})")
         raise DatasetError(f"{root}: no frames (no manifest.json entries, no *.exr)")
     entries.sort(key=lambda e: os.path.basename(e["file"]))
     return entries
+
+
+def sets_below(root):
+    """The directories right under root that hold a manifest.json, in name
+    order (root joined to each): the sets of a directory that is their
+    parent."""
+    try:
+        names = sorted(os.listdir(root))
+    except OSError:
+        return []
+    return [os.path.join(root, n) for n in names
+            if os.path.isfile(os.path.join(root, n, "manifest.json"))]
 
 
 def split_frames(entries, val_fraction=0.1):

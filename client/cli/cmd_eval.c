@@ -297,6 +297,52 @@ static cJSON *read_manifest(const char *dir, int dir_len) {
   return doc;
 }
 
+static int cmp_str(const void *a, const void *b) {
+  return strcmp(*(const char *const *)a, *(const char *const *)b);
+}
+
+/* How many directories right under dir hold a manifest.json (the sets of a
+ * directory that is their parent, as weights/dataset.py sets_below finds
+ * them), and the first four in name order, dir joined to each and
+ * space-separated, into out ("..." after them when there are more). */
+static int sets_below(const char *dir, char *out, size_t len) {
+  *out = 0;
+  DIR *d = opendir(dir);
+  if (!d) return 0;
+  char **names = NULL;
+  int n = 0, cap = 0;
+  struct dirent *e;
+  while ((e = readdir(d))) {
+    if (e->d_name[0] == '.') continue;
+    char m[4096];
+    struct stat st;
+    int k = snprintf(m, sizeof m, "%s/%s/manifest.json", dir, e->d_name);
+    if (k < 0 || (size_t)k >= sizeof m || stat(m, &st) || !S_ISREG(st.st_mode)) continue;
+    if (n == cap) {
+      int nc = cap ? 2 * cap : 16;
+      char **v = realloc(names, nc * sizeof *v);
+      if (!v) break;   /* out of memory: the sets found so far */
+      names = v;
+      cap = nc;
+    }
+    if (!(names[n] = strdup(e->d_name))) break;
+    n++;
+  }
+  closedir(d);
+  if (n) qsort(names, n, sizeof *names, cmp_str);
+  size_t used = 0;
+  const char *sep = dir[0] && dir[strlen(dir) - 1] == '/' ? "" : "/";   /* data/ or data */
+  for (int i = 0; i < n && i < 4 && used < len; i++) {
+    int k = snprintf(out + used, len - used, "%s%s%s%s", i ? " " : "", dir, sep, names[i]);
+    if (k < 0) break;
+    used += (size_t)k;
+  }
+  if (n > 4 && used < len) snprintf(out + used, len - used, " ...");
+  for (int i = 0; i < n; i++) free(names[i]);
+  free(names);
+  return n;
+}
+
 /* Adds FILE.exr (with what the manifest beside it says of it), or every
  * *.exr of DIR in name order. */
 static int add_path(frame_list *l, const char *path) {
@@ -367,8 +413,15 @@ static int add_path(frame_list *l, const char *path) {
   if (!rc && l->n == first) {
     /* Said here, not later as "no frames with hair": a run directory or a
      * mistyped path is not a set of frames whose hair was all empty. */
-    fprintf(stderr, "hairfilter eval: %s: no .exr frames in it (give a directory that "
-                    "`hairfilter render dataset` wrote, or FRAME.exr files)\n", path);
+    char sets[1024];
+    int n_sets = sets_below(path, sets, sizeof sets);
+    if (n_sets > 0)
+      fprintf(stderr, "hairfilter eval: %s: no .exr frames of its own; it holds %d set(s) "
+                      "(directories with a manifest.json): give them (%s)\n", path, n_sets,
+              sets);
+    else
+      fprintf(stderr, "hairfilter eval: %s: no .exr frames in it (give a directory that "
+                      "`hairfilter render dataset` wrote, or FRAME.exr files)\n", path);
     return HF_ENOTFOUND;
   }
   qsort(l->v + first, l->n - first, sizeof *l->v, cmp_ref);

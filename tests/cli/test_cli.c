@@ -392,6 +392,25 @@ static void test_eval_no_frames(void **state) {
   expect_text("evalempty: no .exr frames in it (give a directory that `hairfilter render "
               "dataset` wrote, or FRAME.exr files)");
   assert_null(strstr(text, "no frames with hair"));
+  /* The parent of sets: the sets named, to give instead. */
+  char sub[1200];
+  mkdir(test_tmp("evalsets"), 0755);
+  const char *names[] = {"b", "a", "c", "e", "d"};
+  for (int i = 0; i < 5; i++) {
+    snprintf(sub, sizeof sub, "%s/%s", test_tmp("evalsets"), names[i]);
+    mkdir(sub, 0755);
+    strcat(sub, "/manifest.json");
+    FILE *f = fopen(sub, "w");
+    assert_non_null(f);
+    assert_true(fputs("{\"frames\": []}", f) >= 0);
+    assert_int_equal(fclose(f), 0);
+  }
+  assert_int_equal(cli("eval --backend cpu-ref --weights %s %s/", BASE, test_tmp("evalsets")), 1);
+  snprintf(sub, sizeof sub, "evalsets/: no .exr frames of its own; it holds 5 set(s) "
+           "(directories with a manifest.json): give them (%s/a %s/b %s/c %s/d ...)",
+           test_tmp("evalsets"), test_tmp("evalsets"), test_tmp("evalsets"),
+           test_tmp("evalsets"));
+  expect_text(sub);
   assert_int_equal(cli("eval --backend cpu-ref --styles curly,coily %s",
                        test_field("frame-64x64.exr")), 1);
   expect_text("no frame of styles curly,coily among the 1 frames given (their styles: "

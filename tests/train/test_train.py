@@ -1400,6 +1400,15 @@ class ScriptRefusals(unittest.TestCase):
         err = self.script("train.py", "--data", self.bad_manifest, "--variant", "Small",
                           "--out", out)
         self.assertIn(f"{self.bad_manifest}/manifest.json: not JSON", err)
+        # The parent of sets: the sets named, to give instead.
+        parent = os.path.join(self.work, "sets")
+        for name in ("b", "a"):
+            synth_dataset.main(["--out", os.path.join(parent, name), "--styles", "straight",
+                                "--count", "1", "--size", "16x16", "--st", "", "--seed", "3"])
+        err = self.script("train.py", "--data", parent, "--variant", "Small", "--out", out)
+        self.assertIn(f"{parent}: no frames of its own; it holds 2 set(s) (directories with a "
+                      f"manifest.json): give them, comma-separated (--data {parent}/a,"
+                      f"{parent}/b)", err)
         # --resume of an --out that holds no run: said, and the directory
         # is not made.
         nowhere = os.path.join(self.work, "no_run_here")
