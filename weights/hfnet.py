@@ -10,6 +10,7 @@ a model trained here exports directly to the C backends and vice versa.
     dec0 has 3 outputs and no ReLU but the output transforms.
 """
 import json
+import os
 import struct
 
 import safetensors_header
@@ -430,7 +431,12 @@ _DTYPES = {"F32": (np.float32, 4), "F16": (np.float16, 2)}
 
 def save_safetensors(path, cfg, state_dict, dtype="F32", metadata=None):
     """Writes state_dict with the hairfilter metadata (weights/FORMAT.md);
-    metadata: more string entries, e.g. {"input_range": json_text}."""
+    metadata: more string entries, e.g. {"input_range": json_text}.
+
+    Whole or not at all, as train.py's checkpoint and stamp_range.py's
+    stamp: written beside path and renamed onto it, so a run stopped
+    mid-export leaves the previous file as it was, and a reader of path (a
+    server reloading it) never meets half a file."""
     np_dtype, size = _DTYPES[dtype]
     header = {"__metadata__": {"hairfilter": json.dumps(cfg), **(metadata or {})}}
     blobs, off = [], 0
@@ -443,11 +449,22 @@ def save_safetensors(path, cfg, state_dict, dtype="F32", metadata=None):
         off += len(b)
     h = json.dumps(header, separators=(",", ":")).encode()
     h += b" " * ((-len(h)) % 8)
-    with open(path, "wb") as f:
-        f.write(struct.pack("<Q", len(h)))
-        f.write(h)
-        for b in blobs:
-            f.write(b)
+    tmp = path + ".tmp"
+    f = open(tmp, "wb")
+    try:
+        with f:
+            f.write(struct.pack("<Q", len(h)))
+            f.write(h)
+            for b in blobs:
+                f.write(b)
+        os.replace(tmp, path)
+    except BaseException:
+        # Nothing half-written left behind (a full disk, an interrupt).
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
 
 
 def load_metadata(path):

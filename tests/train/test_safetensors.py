@@ -11,6 +11,7 @@ Exits 77 (skipped) when torch or numpy is missing.
 """
 import argparse
 import os
+import shutil
 import struct
 import subprocess
 import sys
@@ -162,6 +163,23 @@ class Header(unittest.TestCase):
         cfg, sd = hfnet.load_safetensors(self.valid)
         self.assertEqual(cfg["name"], "Small")
         self.assertEqual(c_loader(self.valid)[0], 0)
+
+    def test_save_replaces_whole(self):
+        """save_safetensors writes beside the file and renames: a reader that
+        has the old file open reads it whole to the end (written in place,
+        it read the new file's bytes after the first 100), and no temporary
+        is left behind."""
+        path = os.path.join(ARGS.work, "replaced.safetensors")
+        shutil.copy(self.valid, path)
+        with open(self.valid, "rb") as f:
+            old = f.read()
+        cfg = hfnet.variant_config("Shallow")
+        with open(path, "rb") as reader:
+            head = reader.read(100)
+            hfnet.save_safetensors(path, cfg, hfnet.HairNet(cfg).state_dict())
+            self.assertEqual(head + reader.read(), old)
+        self.assertEqual(hfnet.load_safetensors(path)[0]["name"], "Shallow")
+        self.assertFalse(os.path.exists(path + ".tmp"))
 
     def test_field_case_duplicate_metadata(self):
         self.refused(os.path.join(FIELD, "weights-duplicate-metadata.safetensors"),
