@@ -234,7 +234,8 @@ int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen
 int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out,
                         char *err, size_t errlen);
 /* Writes float32 safetensors with the metadata of w->cfg (and w->input_range
- * when present). */
+ * when present), into path.tmp renamed over path once whole: a file at path
+ * is never half written, and survives a failed write (HF_EIO). */
 int hf_weights_save(const char *path, const hf_weights *w);
 /* Allocates zeroed weights for cfg. */
 int hf_weights_alloc(const hf_net_config *cfg, hf_weights **out);

@@ -36,7 +36,7 @@ int hf_weights_save(const char *path, const hf_weights *w) {
   hf_tensor_spec specs[HF_TENSORS_MAX];
   int n = hf_weights_specs(&copy, specs);
   int rc = HF_ENOMEM;
-  char *header = NULL, *meta = metadata_json(w), *range = NULL;
+  char *header = NULL, *meta = metadata_json(w), *range = NULL, *tmp = NULL;
   cJSON *root = cJSON_CreateObject();
   if (!meta || !root) goto out;
   cJSON *md = cJSON_AddObjectToObject(root, "__metadata__");
@@ -63,7 +63,15 @@ int hf_weights_save(const char *path, const hf_weights *w) {
   size_t hlen = strlen(header), padded = (hlen + 7) & ~(size_t)7;
   unsigned char lenbuf[8];
   for (int i = 0; i < 8; i++) lenbuf[i] = (unsigned char)((uint64_t)padded >> (8 * i));
-  FILE *f = fopen(path, "wb");
+  /* Into path.tmp renamed over path once complete (as hf_exr_write, and
+   * hfnet.save_safetensors): a reader of path (a server reloading it) never
+   * meets half a file, and an earlier file there survives a failed write. */
+  size_t plen = strlen(path);
+  rc = HF_ENOMEM;
+  if (!(tmp = malloc(plen + 5))) goto out;
+  memcpy(tmp, path, plen);
+  memcpy(tmp + plen, ".tmp", 5);
+  FILE *f = fopen(tmp, "wb");
   rc = HF_EIO;
   if (!f) goto out;
   int ok = fwrite(lenbuf, 1, 8, f) == 8 && fwrite(header, 1, hlen, f) == hlen;
@@ -71,8 +79,11 @@ int hf_weights_save(const char *path, const hf_weights *w) {
   for (int k = 0; ok && k < n; k++)
     ok = fwrite(*specs[k].slot, 4, specs[k].numel, f) == specs[k].numel;
   if (fclose(f) != 0) ok = 0;
+  if (ok && rename(tmp, path) != 0) ok = 0;
+  if (!ok) remove(tmp);   /* nothing half-written left behind */
   rc = ok ? HF_OK : HF_EIO;
 out:
+  free(tmp);
   free(header);
   free(meta);
   free(range);

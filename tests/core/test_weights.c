@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #include <cmocka.h>
@@ -120,6 +121,51 @@ static void test_roundtrip_bit_exact(void **state) {
   hf_weights_free(r);
   hf_weights_free(w);
   free(b.data);
+}
+
+/* hf_weights_save writes beside the file and renames: a reader that has
+ * the old file open reads it whole (written in place, it read the new
+ * file's bytes after its first 100), and a failed save leaves the old file
+ * as it was, with no temporary behind. */
+static void test_save_replaces_whole(void **state) {
+  (void)state;
+  char path[256], tmp[300];
+  snprintf(path, sizeof path, "%s/replaced.safetensors", tmpdir);
+  snprintf(tmp, sizeof tmp, "%s.tmp", path);
+  hf_net_config c;
+  hf_weights *a, *b;
+  hf_variant_preset("Small", &c);
+  assert_int_equal(hf_weights_init_random(&c, 1, &a), HF_OK);
+  hf_variant_preset("Shallow", &c);
+  assert_int_equal(hf_weights_init_random(&c, 2, &b), HF_OK);
+  assert_int_equal(hf_weights_save(path, a), HF_OK);
+  blob old = read_all(path);
+  FILE *f = fopen(path, "rb");
+  assert_non_null(f);
+  unsigned char *seen = malloc(old.len + 1);
+  assert_non_null(seen);
+  assert_int_equal(fread(seen, 1, 100, f), 100);
+  assert_int_equal(hf_weights_save(path, b), HF_OK);
+  assert_int_equal(fread(seen + 100, 1, old.len + 1 - 100, f), old.len - 100);
+  fclose(f);
+  assert_memory_equal(seen, old.data, old.len);
+  struct stat st;
+  assert_int_not_equal(stat(tmp, &st), 0);
+  /* A save that cannot complete (its temporary's name taken by a
+   * directory): the file there is the one before. */
+  blob now = read_all(path);
+  assert_int_equal(mkdir(tmp, 0755), 0);
+  assert_int_equal(hf_weights_save(path, a), HF_EIO);
+  assert_int_equal(rmdir(tmp), 0);
+  blob after = read_all(path);
+  assert_int_equal(after.len, now.len);
+  assert_memory_equal(after.data, now.data, now.len);
+  free(seen);
+  free(old.data);
+  free(now.data);
+  free(after.data);
+  hf_weights_free(a);
+  hf_weights_free(b);
 }
 
 static void test_truncated(void **state) {
@@ -577,6 +623,7 @@ static int teardown(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_roundtrip_bit_exact), cmocka_unit_test(test_truncated),
+    cmocka_unit_test(test_save_replaces_whole),
     cmocka_unit_test(test_huge_header_length),  cmocka_unit_test(test_offsets_past_end),
     cmocka_unit_test(test_wrong_shapes),        cmocka_unit_test(test_bad_json),
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
