@@ -30,10 +30,10 @@ static void add_range(cJSON *o, const char *name, double lo, double hi) {
 /* A mesh file by its real path, as the .hair files are: the record is
  * compared on --resume, which may run from another directory or spell the
  * path another way (./head.obj, /abs/head.obj). "fit" and "none" as they
- * are: they name no file. */
+ * were recorded before: they name no file. */
 static cJSON *occluder_record(const hfr_asset_opts *a) {
   if (hfr_asset_fitted(a)) return cJSON_CreateString("fit");
-  if (!strcasecmp(a->occluder, "none")) return cJSON_CreateString("none");
+  if (!strcasecmp(a->occluder, "none")) return cJSON_CreateString(a->occluder);
   char *real = realpath(a->occluder, NULL);
   cJSON *s = cJSON_CreateString(real ? real : a->occluder);
   free(real);
