@@ -272,8 +272,10 @@ int cli_read_features(const char *path, const char *part, int spp, int estimate,
     fprintf(stderr, "hairfilter: %s has %d sample%s per pixel (S0.color..S%d.color), "
             "variant %s needs %d: render the frame with --spp %d (or more), or filter it "
             "with %s\n", path, have, have == 1 ? "" : "s", have - 1, variant, spp, spp,
-            have >= 2 ? "Base@2spp (weights/base_2spp.safetensors), which reads 2"
-                      : "Base@1spp (weights/base_1spp.safetensors), which reads 1");
+            have >= 2 ? "Base@2spp, which reads 2 (--variant Base@2spp from a server, "
+                        "--weights weights/base_2spp.safetensors for infer)"
+                      : "Base@1spp, which reads 1 (--variant Base@1spp from a server, "
+                        "--weights weights/base_1spp.safetensors for infer)");
     rc = HF_EFORMAT;
     goto fail;
   }
