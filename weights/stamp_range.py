@@ -77,21 +77,25 @@ def recorded_range(header, path):
     if text is None:
         return None
     try:
-        return json.loads(text, object_pairs_hook=safetensors_header.unique_keys)
+        rng = json.loads(text, object_pairs_hook=safetensors_header.unique_keys)
     except ValueError as e:
         raise ValueError(f"{path}: its input_range is not JSON ({e}): stamp without --join "
                          "to replace it") from None
+    if not isinstance(rng, dict):
+        raise ValueError(f"{path}: its input_range is not a JSON object: stamp without --join "
+                         "to replace it")
+    return rng
 
 
-def joined_range(rng, old, path):
-    """rng joined with the range old the file records (input_stats.union_range),
-    refused where they cannot be joined (another definition or spp)."""
-    for k in ("definition", "spp"):
-        if old.get(k) != rng.get(k):
+def check_joinable(old, spp, path):
+    """Refuses (ValueError) a recorded range that these frames' cannot join:
+    another version of the statistics' definitions, or another spp
+    (input_stats.union_range would keep the old one as it is)."""
+    for k, want in (("definition", input_stats.DEFINITION), ("spp", spp)):
+        if old.get(k) != want:
             raise ValueError(f"{path}: its input_range has {k} {old.get(k)!r}, these frames' "
-                             f"{rng.get(k)!r}: the two cannot be joined; stamp without --join "
+                             f"{want!r}: the two cannot be joined; stamp without --join "
                              "to replace it")
-    return input_stats.union_range(rng, old)
 
 
 def stamp(path, rng, out=None):
@@ -129,6 +133,8 @@ def main(argv=None):
         sys.exit(f"stamp_range.py: {args.weights}: no hairfilter metadata")
     try:
         old = recorded_range(header, args.weights)
+        if args.join and old is not None:   # before the frames are measured
+            check_joinable(old, int(cfg["spp"]), args.weights)
     except ValueError as e:
         old = None
         if args.join:
@@ -152,16 +158,14 @@ def main(argv=None):
     if log:
         print(file=sys.stderr)
     if args.join and old is not None:
-        try:
-            rng = joined_range(rng, old, args.weights)
-        except ValueError as e:
-            sys.exit(f"stamp_range.py: {e}")
+        rng = input_stats.union_range(rng, old)
     elif old is not None:
         # Said: weights fine-tuned from others would lose the range of the
         # frames they learnt first, and a server would flag those frames.
-        print(f"stamp_range.py: {args.weights}: replaces the input_range it recorded (over "
-              f"{old.get('frames', '?')} frames); add --join to keep it and add these frames' "
-              "(weights fine-tuned from others learnt both)", file=sys.stderr)
+        print(f"stamp_range.py: {args.out or args.weights}: replaces the input_range "
+              f"{args.weights} recorded (over {old.get('frames', '?')} frames); add --join to "
+              "keep it and add these frames' (weights fine-tuned from others learnt both)",
+              file=sys.stderr)
     stamp(args.weights, rng, args.out)
     print(f"{args.out or args.weights}: {cfg['name']}, input_range over {rng['frames']} frames: "
           + ", ".join(f"{k} {v[0]:.4g}..{v[1]:.4g}" for k, v in rng.items()

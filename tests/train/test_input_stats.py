@@ -199,9 +199,20 @@ class Stamp(unittest.TestCase):
         self.assertEqual(got["frames"], first["frames"] + alone["frames"])
         r = subprocess.run(stamp + ["--data", other], capture_output=True, text=True)
         self.assertEqual(r.returncode, 0, r.stderr)
-        self.assertIn(f"replaces the input_range it recorded (over {got['frames']} frames); "
-                      "add --join", r.stderr)
+        self.assertIn(f"{w}: replaces the input_range {w} recorded (over {got['frames']} "
+                      "frames); add --join", r.stderr)
         self.assertEqual(dump("range", w), alone)
+        # A range of another version of the definitions is not joined: said
+        # before any frame is measured.
+        header, body = stamp_range.read_safetensors_header(w)
+        old = json.loads(header["__metadata__"]["input_range"])
+        old["definition"] = input_stats.DEFINITION + 1
+        header["__metadata__"]["input_range"] = json.dumps(old)
+        stamp_range.write_safetensors_header(w, header, body)
+        r = subprocess.run(stamp + ["--data", other, "--join"], capture_output=True, text=True)
+        self.assertNotEqual(r.returncode, 0)
+        self.assertIn(f"its input_range has definition {input_stats.DEFINITION + 1}, these "
+                      f"frames' {input_stats.DEFINITION}: the two cannot be joined", r.stderr)
 
     def test_crop_counts_at_full_size(self):
         # A crop of a 1024 frame: its statistics and its regime row say 1024.
