@@ -97,6 +97,33 @@ def read_manifest(root):
     return entries
 
 
+def read_sets(dirs):
+    """The frames of the dataset directories dirs (comma-separated, or a
+    list), each as read_manifest lists them, in that order. A frame reached
+    twice (a set given twice, a manifest that lists a file twice) is refused,
+    naming both: it would be trained on twice, and could be a validation and
+    a training frame at once, the split going by file name."""
+    if isinstance(dirs, str):
+        dirs = [d for d in dirs.split(",") if d]
+    entries, seen = [], {}
+    for d in dirs:
+        for e in read_manifest(d):
+            try:
+                st = os.stat(e["file"])
+                key = (st.st_dev, st.st_ino)
+            except OSError:   # missing: named when it is read
+                key = os.path.realpath(e["file"])
+            if key in seen:
+                f0, d0 = seen[key]
+                what = (f"{e['file']} is given twice" if f0 == e["file"]
+                        else f"{e['file']} and {f0} are one frame, given twice")
+                raise DatasetError(f"{what} (by the sets {d0} and {d}: a set given twice, or "
+                                   "a manifest that lists the frame twice): give each set once")
+            seen[key] = (e["file"], d)
+            entries.append(e)
+    return entries
+
+
 def sets_below(root):
     """The directories right under root that hold a manifest.json, in name
     order (root joined to each): the sets of a directory that is their

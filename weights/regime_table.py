@@ -43,14 +43,13 @@ def bucket(v, edges):
 def scan(dirs, spp=4):
     """Per-frame statistics and per-pixel width counts of the frames in dirs."""
     frames, pixels = [], np.zeros(len(WIDTH_NAMES), np.int64)
-    for d in dirs:
-        for e in dataset.read_manifest(d):
-            feat, _ = dataset.load_frame(e["file"], spp=spp, dtype=np.float32)
-            frames.append(dataset.entry_stats(e, feat, spp))
-            mean, n = input_stats.strand_alpha(feat, spp)
-            w = mean[n > 0]
-            pixels += np.bincount(np.searchsorted(WIDTH_EDGES, w, side="right"),
-                                  minlength=len(WIDTH_NAMES))
+    for e in dataset.read_sets(dirs):
+        feat, _ = dataset.load_frame(e["file"], spp=spp, dtype=np.float32)
+        frames.append(dataset.entry_stats(e, feat, spp))
+        mean, n = input_stats.strand_alpha(feat, spp)
+        w = mean[n > 0]
+        pixels += np.bincount(np.searchsorted(WIDTH_EDGES, w, side="right"),
+                              minlength=len(WIDTH_NAMES))
     return frames, pixels
 
 

@@ -51,7 +51,7 @@ def write_safetensors_header(path, header, body):
 def training_frames(data, styles="", val_fraction=0.1):
     """The entries train.py trains on: every frame of the comma-separated
     dataset directories, of the given styles, less its validation split."""
-    entries = [e for d in data.split(",") if d for e in dataset.read_manifest(d)]
+    entries = dataset.read_sets(data)
     wanted = dataset.parse_styles(styles)
     if wanted:
         entries = [e for e in entries if e["style"] in wanted]

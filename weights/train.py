@@ -1055,7 +1055,7 @@ def main(argv=None):
         styles = dataset.parse_styles(args.styles)
 
         def every_frame():
-            return [e for d in args.data.split(",") if d for e in dataset.read_manifest(d)]
+            return dataset.read_sets(args.data)
 
         def of_styles(found):
             return [e for e in found if e["style"] in styles] if styles else found

@@ -232,10 +232,13 @@ static int manifest_entry(const cJSON *doc, const char *name, char *out, size_t 
 }
 
 /* Path of manifest entry file fname of directory dir, as weights/train.py
- * joins them: fname itself when absolute. 0, or HF_ERANGE when too long. */
+ * joins them (os.path.join: no second '/' after a dir given as "data/bob/"):
+ * fname itself when absolute. 0, or HF_ERANGE when too long. */
 static int entry_path(const char *dir, const char *fname, char *out, size_t len) {
+  size_t dl = strlen(dir);
+  const char *sep = dl && dir[dl - 1] == '/' ? "" : "/";
   int n = fname[0] == '/' ? snprintf(out, len, "%s", fname)
-                          : snprintf(out, len, "%s/%s", dir, fname);
+                          : snprintf(out, len, "%s%s%s", dir, sep, fname);
   return n < 0 || (size_t)n >= len ? HF_ERANGE : 0;
 }
 
@@ -343,6 +346,55 @@ static int sets_below(const char *dir, char *out, size_t len) {
   return n;
 }
 
+typedef struct file_key {
+  dev_t dev;
+  ino_t ino;
+  int at;   /* index in the frame list */
+} file_key;
+
+static int cmp_key(const void *a, const void *b) {
+  const file_key *x = a, *y = b;
+  if (x->dev != y->dev) return x->dev < y->dev ? -1 : 1;
+  if (x->ino != y->ino) return x->ino < y->ino ? -1 : 1;
+  return x->at - y->at;
+}
+
+/* HF_EINVAL, naming it, when one file is in l twice (a set given twice, a set
+ * and a frame of it, a manifest that lists a file twice): its scores would
+ * count twice in every mean, as weights/dataset.py read_sets refuses such a
+ * frame for training. The file itself (device and inode) is compared, not
+ * the spelling of its path. */
+static int check_frames_once(const frame_list *l) {
+  if (l->n < 2) return 0;
+  file_key *k = malloc((size_t)l->n * sizeof *k);
+  if (!k) return HF_ENOMEM;
+  int n = 0;
+  for (int i = 0; i < l->n; i++) {
+    struct stat st;
+    if (stat(l->v[i].path, &st)) continue;   /* missing: said when it is read */
+    k[n].dev = st.st_dev;
+    k[n].ino = st.st_ino;
+    k[n++].at = i;
+  }
+  qsort(k, n, sizeof *k, cmp_key);
+  /* The first repeat in the order given (equal keys are sorted by index). */
+  int best = -1;
+  for (int i = 1; i < n; i++)
+    if (k[i].dev == k[i - 1].dev && k[i].ino == k[i - 1].ino && (best < 0 || k[i].at < k[best].at))
+      best = i;
+  if (best >= 0) {
+    const char *a = l->v[k[best - 1].at].path, *b = l->v[k[best].at].path;
+    if (!strcmp(a, b))
+      fprintf(stderr, "hairfilter eval: %s is given twice", a);
+    else
+      fprintf(stderr, "hairfilter eval: %s and %s are one frame, given twice", a, b);
+    fprintf(stderr, " (a set given twice, a set and a frame of it, or a manifest that lists "
+                    "the frame twice): give each frame once; its scores would count twice\n");
+  }
+  free(k);
+  return best >= 0 ? HF_EINVAL : 0;
+}
+
 /* Adds FILE.exr (with what the manifest beside it says of it), or every
  * *.exr of DIR in name order. */
 static int add_path(frame_list *l, const char *path) {
@@ -400,7 +452,7 @@ static int add_path(frame_list *l, const char *path) {
       continue;
     }
     char full[4096];
-    snprintf(full, sizeof full, "%s/%s", path, e->d_name);
+    if (entry_path(path, e->d_name, full, sizeof full)) continue;   /* too long to open */
     style_from_name(e->d_name, style, sizeof style);
     rc = list_push(l, full, style, 0, 0, -1);
   }
@@ -1066,6 +1118,7 @@ int cmd_eval(int argc, char **argv) {
 
   for (int i = optind; i < argc; i++)
     if ((rc = add_path(&frames, argv[i])) != 0) goto out;
+  if ((rc = check_frames_once(&frames)) != 0) goto out;
   if (styles && *styles) {
     /* --styles that match none of the frames: name the styles they have,
      * before any weights are loaded or frames read. */

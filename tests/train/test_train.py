@@ -1409,6 +1409,16 @@ class ScriptRefusals(unittest.TestCase):
         self.assertIn(f"{parent}: no frames of its own; it holds 2 set(s) (directories with a "
                       f"manifest.json): give them, comma-separated (--data {parent}/a,"
                       f"{parent}/b)", err)
+        # A set given twice: its frames would be trained on twice, and the
+        # validation frame's twin trained on (the split goes by file name).
+        a = os.path.join(parent, "a")
+        err = self.script("train.py", "--data", f"{a},{a}/", "--variant", "Small", "--out", out)
+        self.assertIn(f"{a}/straight_0000.exr is given twice (by the sets {a} and {a}/: a set "
+                      "given twice, or a manifest that lists the frame twice): give each set "
+                      "once", err)
+        err = self.script("stamp_range.py", os.path.join(WEIGHTS, "small.safetensors"),
+                          "--data", f"{a},{a}", "--out", os.path.join(self.work, "s.safetensors"))
+        self.assertIn("straight_0000.exr is given twice", err)
         # --resume of an --out that holds no run: said, and the directory
         # is not made.
         nowhere = os.path.join(self.work, "no_run_here")
