@@ -1218,10 +1218,11 @@ static void shm_create(hfd_conn *c) {
     send_error(c, 0, HFP_E_INVALID, 0, "segment size must be at least 1 byte");
     return;
   }
-  /* The size before the count: a segment over the whole budget is
-   * TOO_LARGE (hfd_seg_create) also on a connection holding 16, since no
-   * release can make it fit, where BUSY would ask for a retry. */
-  if (c->num_segs >= HFD_MAX_SEGMENTS && bytes <= s->cfg->max_shm_bytes) {
+  /* The size before the count: a segment over the whole budget, or over
+   * a connection's, is TOO_LARGE (hfd_seg_create) also on a connection
+   * holding 16, since no release can make it fit, where BUSY would ask
+   * for a retry. */
+  if (c->num_segs >= HFD_MAX_SEGMENTS && bytes <= hfd_shm_conn_cap(s)) {
     s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
     return;
@@ -1229,7 +1230,7 @@ static void shm_create(hfd_conn *c) {
   char why[200];
   hfd_seg *g;
   int fd;
-  int code = hfd_seg_create(s, bytes, &g, &fd, why, sizeof why);
+  int code = hfd_seg_create(s, c, bytes, &g, &fd, why, sizeof why);
   if (code) {
     s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, code, 0, "%s", why);

@@ -94,6 +94,7 @@ typedef struct hfd_config {
   uint64_t max_frame_bytes;      /* largest payload read */
   uint64_t max_memory_bytes;     /* request buffers + inference memory */
   uint64_t max_shm_bytes;        /* shared segments held at once; 0: no SHM */
+  uint64_t max_shm_conn_bytes;   /* of which one connection may hold; 0: hfd_shm_conn_cap's default */
   int drain_timeout_ms;          /* queued work after SIGTERM */
   int flush_timeout_ms;          /* then, replies still unread by peers */
   int handshake_timeout_ms;      /* accept -> HELLO complete; 0: none */
@@ -230,6 +231,10 @@ typedef struct hfd_seg {
   int refs;                      /* jobs using it */
   int dropped;                   /* no longer reachable by id */
   int registered;                /* pinned by the backend (hf_backend_host_register) */
+  /* The connection that made it, whose shm_bytes counts it until it is
+   * freed (SHM_DESTROY leaves frames running on it to finish): its jobs
+   * keep the connection alive at least that long. */
+  struct hfd_conn *owner;
 } hfd_seg;
 
 typedef struct hfd_job {
@@ -502,6 +507,7 @@ typedef struct hfd_conn {
   struct hfd_tls_conn *tls;      /* on a TLS listener: its session (tls.c) */
   hfd_seg *segs;
   int num_segs;
+  uint64_t shm_bytes;            /* of its segments not yet freed (--max-shm-mb-per-connection) */
   uint32_t next_seg_id;
   double t_accept;               /* for the handshake deadline */
   double t_last_read;            /* for the stall sweep */
@@ -672,9 +678,17 @@ int hfd_limits_fds(hfd_server *s);
 /* libmicrohttpd's connection limit on the --http endpoint (http.c). */
 #define HFD_HTTP_CONN_LIMIT 128
 /* shm.c */
-/* Makes a sealed, mapped segment of bytes; *fd is its memfd, which the
- * caller sends to the peer and then closes. Not pinned: hfd_seg_pin. */
-int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *why,
+/* The shared memory one connection may hold: --max-shm-mb-per-connection,
+ * or by default a quarter of --max-shm-mb but at least the segments of the
+ * largest frame HELLO_OK announces (features and estimate, result and
+ * composite, all f32), and never more than --max-shm-mb. */
+uint64_t hfd_shm_conn_cap(const hfd_server *s);
+/* Makes a sealed, mapped segment of bytes for connection c; *fd is its
+ * memfd, which the caller sends to the peer and then closes. Not pinned:
+ * hfd_seg_pin. 0, or an HFP_E_* code with the reason in why: TOO_LARGE
+ * for a segment over the whole budget or over a connection's, BUSY for
+ * one over what is left of either. */
+int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, int *fd, char *why,
                    size_t whylen);
 /* Pins g for the backend's DMA (hf_backend_host_register): HF_OK, or the
  * backend's error (then frames in g are staged: slower, same results).

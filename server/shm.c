@@ -18,7 +18,35 @@
 
 #include "server.h"
 
-int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *why,
+/* The segments one frame of w x h of the most demanding loaded variant
+ * needs: f32 features (and estimate), f32 result and composite. */
+static uint64_t largest_frame_segments(const hfd_server *s) {
+  uint64_t most = 0;
+  for (int v = 0; v < s->num_variants; v++) {
+    const hfd_model *var = s->variants[v].model;
+    if (!var) continue;  /* removed */
+    uint64_t in = 0, out = 0, rgba = 0;
+    unsigned flags = var->cfg.estimate ? HFP_FILTER_ESTIMATE : 0;
+    if (hfp_filter_input_bytes((uint32_t)s->max_width, (uint32_t)s->max_height,
+                               (uint32_t)var->cfg.spp, HFP_F32, flags, &in) ||
+        hfp_output_bytes((uint32_t)s->max_width, (uint32_t)s->max_height, HFP_OUTPUTS, HFP_F32,
+                         &out) ||
+        hfp_output_bytes((uint32_t)s->max_width, (uint32_t)s->max_height, 4, HFP_F32, &rgba))
+      continue;
+    if (in + out + rgba > most) most = in + out + rgba;
+  }
+  return most;
+}
+
+uint64_t hfd_shm_conn_cap(const hfd_server *s) {
+  uint64_t all = s->cfg->max_shm_bytes;
+  if (s->cfg->max_shm_conn_bytes) return s->cfg->max_shm_conn_bytes < all ? s->cfg->max_shm_conn_bytes : all;
+  uint64_t cap = all / 4, frame = largest_frame_segments(s);
+  if (cap < frame) cap = frame;
+  return cap < all ? cap : all;
+}
+
+int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, int *fd, char *why,
                    size_t whylen) {
   *out = NULL;
   *fd = -1;
@@ -29,6 +57,22 @@ int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *
              "budget (--max-shm-mb %llu)", (unsigned long long)bytes,
              (unsigned long long)(s->cfg->max_shm_bytes >> 20));
     return HFP_E_TOO_LARGE;
+  }
+  /* So too against a connection's part of it, which keeps one client from
+   * taking the whole budget and leaving every other local client BUSY. */
+  uint64_t cap = hfd_shm_conn_cap(s);
+  if (bytes > cap) {
+    snprintf(why, whylen, "a segment of %llu bytes is larger than one connection may hold "
+             "(%llu bytes, --max-shm-mb-per-connection)", (unsigned long long)bytes,
+             (unsigned long long)cap);
+    return HFP_E_TOO_LARGE;
+  }
+  if (c->shm_bytes + bytes > cap) {
+    snprintf(why, whylen, "this connection holds %llu bytes of shared memory, and %llu more "
+             "would pass the %llu one connection may hold (--max-shm-mb-per-connection); "
+             "release a segment (SHM_DESTROY) first", (unsigned long long)c->shm_bytes,
+             (unsigned long long)bytes, (unsigned long long)cap);
+    return HFP_E_BUSY;
   }
   if (s->shm_held + bytes > s->cfg->max_shm_bytes) {
     snprintf(why, whylen, "shared memory full (%llu of %llu MiB held)",
@@ -59,6 +103,8 @@ int hfd_seg_create(hfd_server *s, uint64_t bytes, hfd_seg **out, int *fd, char *
   }
   g->addr = addr;
   g->size = bytes;
+  g->owner = c;
+  c->shm_bytes += bytes;
   s->shm_held += bytes;
   *out = g;
   *fd = f;
@@ -100,6 +146,7 @@ static void seg_free(hfd_server *s, hfd_seg *g) {
     hfd_err("munmap of a %llu-byte segment: %s", (unsigned long long)g->size,
             strerror(errno));
   s->shm_held -= g->size;
+  if (g->owner) g->owner->shm_bytes -= g->size;
   free(g);
 }
 

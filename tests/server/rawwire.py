@@ -2,6 +2,7 @@
 must send what no client library would (a FILTER past the window, replies
 left unread, SHM_CREATE behind an unread reply): message types, frames,
 HELLO, starting and stopping the daemon, and the tests' check/finish."""
+import array
 import os
 import shutil
 import socket
@@ -12,8 +13,8 @@ import time
 
 MAGIC = 0x31504648
 HELLO, HELLO_OK, FILTER, RESULT, ERROR = 1, 2, 5, 6, 7
-STATS, STATS_REPLY, SHM_CREATE = 8, 9, 10
-BUSY = 6   # ERROR code
+STATS, STATS_REPLY, SHM_CREATE, SHM_CREATED, SHM_DESTROY = 8, 9, 10, 11, 12
+TOO_LARGE, BUSY = 4, 6   # ERROR codes
 
 failures = []
 
@@ -53,6 +54,29 @@ def read_frame(s):
     """(type, id, payload) of the next message."""
     _, t, _, rid, n = struct.unpack("<IHHII", recvn(s, 16))
     return t, rid, recvn(s, n)
+
+
+def shm_create(s, nbytes):
+    """Asks for a segment of nbytes: ("ok", (segment id, descriptor)), or
+    ("error", (code, fatal, message))."""
+    s.sendall(frame(SHM_CREATE, struct.pack("<Q", nbytes)))
+    head, anc, _, _ = s.recvmsg(16, socket.CMSG_SPACE(4 * 4))
+    fds = array.array("i")
+    for level, kind, data in anc:
+        if level == socket.SOL_SOCKET and kind == socket.SCM_RIGHTS:
+            fds.frombytes(data[:len(data) - len(data) % fds.itemsize])
+    if not head:
+        raise EOFError("the daemon closed instead of answering SHM_CREATE")
+    _, t, _, _, n = struct.unpack("<IHHII", head + recvn(s, 16 - len(head)))
+    p = recvn(s, n)
+    if t == SHM_CREATED and len(fds) == 1:
+        return "ok", (struct.unpack("<I", p[:4])[0], fds[0])
+    for fd in fds:
+        os.close(fd)
+    if t != ERROR:
+        raise RuntimeError("SHM_CREATE answered by type %d" % t)
+    code, fatal, _, m = struct.unpack("<IBBH", p[:8])
+    return "error", (code, fatal, p[8:8 + m].decode())
 
 
 def hello(path):
