@@ -323,6 +323,13 @@ typedef struct hfd_worker {
   size_t scratch_in_cap, scratch_out_cap;
   float *scratch_rgb;
   size_t scratch_rgb_cap;
+  /* Private copies of frames in shared segments, one per run that may be
+   * in flight (HF_MAX_PENDING), used in turn: the backend reads the copy,
+   * never the segment its client can write meanwhile. */
+  void *seg_in[2];
+  size_t seg_in_cap[2];
+  int seg_in_registered[2];      /* pinned by the backend (hf_backend_host_register) */
+  int seg_in_next;
 } hfd_worker;
 
 /* Starts the thread; it creates the backend and reports through init_rc /

@@ -67,8 +67,19 @@ uint64_t hfd_worker_run_bytes(const hfd_worker *w, const hf_net_config *cfg, uin
   return net + (in_bytes + f32_out) * (uint64_t)batch + f32_out;
 }
 
+static void free_seg_copies(hfd_worker *w) {
+  for (int i = 0; i < 2; i++) {
+    if (w->seg_in_registered[i]) hf_backend_host_unregister(w->backend, w->seg_in[i]);
+    w->seg_in_registered[i] = 0;
+    free(w->seg_in[i]);
+    w->seg_in[i] = NULL;
+    w->seg_in_cap[i] = 0;
+  }
+}
+
 static size_t worker_cached(const hfd_worker *w) {
-  size_t n = w->scratch_in_cap + w->scratch_out_cap + w->scratch_rgb_cap;
+  size_t n = w->scratch_in_cap + w->scratch_out_cap + w->scratch_rgb_cap + w->seg_in_cap[0] +
+             w->seg_in_cap[1];
   for (const hfd_model *m = w->models; m; m = m->wnext) n += hf_model_cached_bytes(m->model);
   return n;
 }
@@ -94,6 +105,7 @@ static void worker_trim(hfd_worker *w, hfd_model *ran) {
     w->scratch_in = w->scratch_out = NULL;
     w->scratch_rgb = NULL;
     w->scratch_in_cap = w->scratch_out_cap = w->scratch_rgb_cap = 0;
+    free_seg_copies(w);
     if (ran) hf_model_trim(ran->model, cap);
     while (worker_cached(w) > cap) {
       hfd_model *lru = NULL;
@@ -166,7 +178,8 @@ typedef struct run {
 } run;
 
 /* Gathers the batch's inputs and makes its hf_io. Fast path: one frame
- * whose output goes straight to its buffer. Else inputs are gathered into
+ * whose output goes straight to its buffer (its input too, unless it lies
+ * in a shared segment, which is copied out). Else inputs are gathered into
  * one tensor and the run has float32 output, converted per job: that is
  * also where the composite is made. */
 static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
@@ -184,7 +197,29 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   for (int i = 0; i < nb; i++) composite |= r->jobs[i]->rgba != NULL;
   r->direct = nb == 1 && !composite;
   const void *in = j0->input;
-  if (nb > 1) {
+  if (nb == 1 && j0->seg) {
+    /* A frame in a shared segment is copied out: its client can write the
+     * segment while the backend runs, and the backend reads its input
+     * more than once (the out-of-contract check, then the network), so a
+     * value rewritten between them would reach the network unchecked.
+     * The copy is what is both checked and run. Its room is charged
+     * already (hfd_worker_run_bytes counts a frame's gather slot when it
+     * runs alone); the other buffer may still feed a pending run. */
+    int k = w->seg_in_next;
+    w->seg_in_next ^= 1;
+    if (w->seg_in_cap[k] < in_bytes) {
+      /* Pinned like the segment was, so the cudnn backend still moves the
+       * frame by DMA (and checks it on the device); unpinned, it is staged. */
+      if (w->seg_in_registered[k]) hf_backend_host_unregister(w->backend, w->seg_in[k]);
+      w->seg_in_registered[k] = 0;
+      if (ensure(&w->seg_in[k], &w->seg_in_cap[k], in_bytes)) return HF_ENOMEM;
+      w->seg_in_registered[k] =
+          hf_backend_host_register(w->backend, w->seg_in[k], w->seg_in_cap[k]) == HF_OK;
+    }
+    memcpy(w->seg_in[k], j0->input, in_bytes);
+    in = w->seg_in[k];
+  } else if (nb > 1) {
+    /* Gathered into one tensor: a private copy, segments' frames too. */
     if (ensure(&w->scratch_in, &w->scratch_in_cap, in_bytes * nb)) return HF_ENOMEM;
     for (int i = 0; i < nb; i++)
       memcpy((uint8_t *)w->scratch_in + in_bytes * i, r->jobs[i]->input, in_bytes);
@@ -450,6 +485,7 @@ static void release_models(hfd_worker *w) {
     free(m->path);
     free(m);
   }
+  free_seg_copies(w);   /* unregistered while the backend is there */
   hf_backend_destroy(w->backend);
   w->backend = NULL;
   free(w->scratch_in);
