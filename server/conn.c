@@ -1658,6 +1658,11 @@ static int hello_waiting(hfd_conn *c) {
   return (size_t)n >= HFP_HEADER_SIZE + (size_t)h.length;
 }
 
+/* A connection before its HELLO that --max-handshakes may refuse. */
+static int refusable(const hfd_conn *c) {
+  return c->handshaking && !c->closing && !c->fatal_sent;
+}
+
 /* The connection to refuse at --max-handshakes: the oldest still before
  * its HELLO whose HELLO has not arrived whole, so that a crowd arriving in
  * one burst does not push out a client whose HELLO is waiting to be read.
@@ -1666,17 +1671,41 @@ static int hello_waiting(hfd_conn *c) {
  * accepted closes its connection at once), so the excess lasts a turn and
  * --max-connections still bounds it; refusing the oldest instead would let
  * a crowd sending bogus HELLOs push out a real one. Once seen, a waiting
- * HELLO is remembered: it is read before anything else arrives. */
-static hfd_conn *oldest_handshake(hfd_server *s) {
+ * HELLO is remembered: it is read before anything else arrives.
+ *
+ * Over TLS a HELLO is not seen before the handshake, which takes the
+ * client round trips: a crowd of bare TCP connections, each cheaper than a
+ * real client's, would push it out in the middle. So on a TLS listener a
+ * peer that has sent nothing goes first, the oldest of them (not the
+ * newest connection, fresh, just accepted, which has had no time to); then the
+ * oldest of the rest, passing over one whose socket holds a whole TLS
+ * record not read yet (its ClientHello in a burst, or the flight that
+ * ends its handshake). That is forgotten after this choice: a record read
+ * moves the handshake on but need not end it. */
+static hfd_conn *oldest_handshake(hfd_server *s, const hfd_conn *fresh) {
+  hfd_conn *old = NULL;
+  for (hfd_conn *c = s->conns; c; c = c->next)
+    if (refusable(c) && c->tls && c != fresh && (!old || c->t_accept < old->t_accept) &&
+        hfd_tls_peer_silent(c))
+      old = c;
+  if (old) return old;
   for (;;) {
-    hfd_conn *old = NULL;
+    old = NULL;
     for (hfd_conn *c = s->conns; c; c = c->next)
-      if (c->handshaking && !c->closing && !c->fatal_sent && !c->hello_waiting &&
+      if (refusable(c) && !c->hello_waiting && !c->record_waiting &&
           (!old || c->t_accept < old->t_accept))
         old = c;
-    if (!old || !hello_waiting(old)) return old;
-    old->hello_waiting = 1;
+    if (!old) break;
+    if (old->tls) {
+      if (!hfd_tls_record_waiting(old)) break;
+      old->record_waiting = 1;
+    } else {
+      if (!hello_waiting(old)) break;
+      old->hello_waiting = 1;
+    }
   }
+  for (hfd_conn *c = s->conns; c; c = c->next) c->record_waiting = 0;
+  return old;
 }
 
 /* A connection refused before its HELLO (the connection limit, or pushed
@@ -1837,7 +1866,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     /* Connections that have not said HELLO have their own small limit, so
      * that they cannot take every slot. A real client says HELLO at once;
      * the one that has waited longest is the likeliest not to, and goes. */
-    hfd_conn *old = oldest_handshake(s);
+    hfd_conn *old = oldest_handshake(s, c);
     if (old) {
       s->protocol_errors++;
       /* Over TLS the ERROR waits for the handshake (a client racing its

@@ -494,6 +494,7 @@ typedef struct hfd_conn {
   int version;                   /* protocol version negotiated in the HELLO */
   int handshaking;               /* counted in num_handshaking */
   int hello_waiting;             /* its whole HELLO is in its socket, unread (oldest_handshake) */
+  int record_waiting;            /* over TLS, a whole record is: within one oldest_handshake */
   int eof;                       /* the peer shut down its sending side */
   int shutting;                  /* uv_shutdown sent: flushing, then closing */
   int closing;                   /* uv_close called or pending */
@@ -665,6 +666,12 @@ int hfd_tls_established(const hfd_conn *c);
  * ERROR can never be sent, so the sweep closes it. */
 #define HFD_TLS_FATAL_GRACE_MS 2000
 int hfd_tls_overdue(const hfd_conn *c, double now_us);
+/* 1 when c is a TLS connection whose peer has sent nothing yet: no byte
+ * read, none waiting in the socket. */
+int hfd_tls_peer_silent(const hfd_conn *c);
+/* 1 when a whole TLS record waits unread in c's socket: the peer has done
+ * its part of the handshake's step, the server has not read it yet. */
+int hfd_tls_record_waiting(const hfd_conn *c);
 /* Reply bytes handed over and not yet written to the socket. */
 size_t hfd_io_write_queue_size(const hfd_conn *c);
 /* limits.c */

@@ -29,6 +29,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -83,6 +85,7 @@ struct hfd_tls_conn {
   int established;
   int failed;                    /* handshake failed: closing after the alert */
   int eof;                       /* close_notify or EOF delivered */
+  int heard;                     /* the peer has sent a byte (--max-handshakes) */
   hfd_conn *resume_next;
   int in_resume;
   tls_wreq *q_head, *q_tail;     /* not yet wholly encrypted */
@@ -700,6 +703,7 @@ static void raw_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     t->user_read(&c->h.stream, nread, &b);
     return;
   }
+  t->heard = 1;
   if (!t->established && BIO_ctrl_pending(t->rbio) == 0 && SSL_get_state(t->ssl) == TLS_ST_BEFORE &&
       plain_hello(c, buf->base, (size_t)nread))
     return;
@@ -838,6 +842,29 @@ int hfd_tls_overdue(const hfd_conn *c, double now_us) {
    * of bare TCP peers on this listener outnumber --max-handshakes. */
   int limit_ms = c->srv->cfg->handshake_timeout_ms > 0 ? c->srv->cfg->handshake_timeout_ms : 10000;
   return now_us - c->t_accept > limit_ms * 1e3 || now_us - c->t_fatal > HFD_TLS_FATAL_GRACE_MS * 1e3;
+}
+
+/* Bytes waiting in c's socket, not read yet; 0 on an error. */
+static size_t unread(const hfd_conn *c) {
+  uv_os_fd_t fd;
+  int n = 0;
+  if (uv_fileno((const uv_handle_t *)&c->h.handle, &fd) != 0 || ioctl(fd, FIONREAD, &n) != 0 || n < 0)
+    return 0;
+  return (size_t)n;
+}
+
+int hfd_tls_peer_silent(const hfd_conn *c) {
+  return c->tls && !c->tls->heard && unread(c) == 0;
+}
+
+int hfd_tls_record_waiting(const hfd_conn *c) {
+  if (!c->tls) return 0;
+  uv_os_fd_t fd;
+  uint8_t h[5];   /* a record's header: type, version, length (big-endian) */
+  if (uv_fileno((const uv_handle_t *)&c->h.handle, &fd) != 0 ||
+      recv(fd, h, sizeof h, MSG_PEEK | MSG_DONTWAIT) != (ssize_t)sizeof h)
+    return 0;
+  return unread(c) >= sizeof h + ((size_t)h[3] << 8 | h[4]);
 }
 
 size_t hfd_io_write_queue_size(const hfd_conn *c) {

@@ -605,9 +605,15 @@ static void test_mid_handshake_eviction_says_busy(void **state) {
     assert_int_equal(flush_bio(wb, fd), 0);
     assert_int_equal(fill_bio(rb, fd), 0);
   }
-  /* Two more connections before their HELLO push the oldest out. */
+  /* Two more connections before their HELLO push the oldest out. Each
+   * sends a byte of a ClientHello: peers that have sent nothing would go
+   * first. */
   int other[2];
-  for (int i = 0; i < 2; i++) assert_true((other[i] = raw_connect(tcp)) >= 0);
+  for (int i = 0; i < 2; i++) {
+    assert_true((other[i] = raw_connect(tcp)) >= 0);
+    usleep(50000);
+    assert_int_equal(raw_send(other[i], "\x16", 1), 0);
+  }
   usleep(200000);
   assert_int_equal(flush_bio(wb, fd), 0);
   uint8_t got[4096];
