@@ -1415,7 +1415,9 @@ static void test_segment_then_pipelined_requests(void **state) {
   }
   close(fd);
   /* 16 connections each make a 60 MiB segment and leave without a word;
-   * then 1000 MiB of the 1024 MiB budget can be had again. */
+   * then 1000 MiB of the 1024 MiB budget can be had again, by four
+   * connections of 250 MiB (each within --max-shm-mb-per-connection, a
+   * quarter of it). */
   for (int k = 0; k < 16; k++) {
     int f = raw_connect(S.unix_url);
     assert_true(f >= 0);
@@ -1424,17 +1426,22 @@ static void test_segment_then_pipelined_requests(void **state) {
     assert_int_equal(raw_send(f, b, (size_t)n), 0);
     close(f);
   }
-  hfc_client *c = connect_unix();
-  void *big = NULL;
-  int rc = HFC_E_BUSY;
-  for (int tries = 0; tries < 100 && rc == HFC_E_BUSY; tries++) {
-    rc = hfc_shm_alloc(c, (size_t)1000 << 20, &big);
-    if (rc == HFC_E_BUSY) usleep(50000);
+  hfc_client *cs[4];
+  void *big[4];
+  for (int k = 0; k < 4; k++) {
+    cs[k] = connect_unix();
+    int rc = HFC_E_BUSY;
+    for (int tries = 0; tries < 100 && rc == HFC_E_BUSY; tries++) {
+      rc = hfc_shm_alloc(cs[k], (size_t)250 << 20, &big[k]);
+      if (rc == HFC_E_BUSY) usleep(50000);
+    }
+    if (rc)
+      fail_msg("250 MiB on connection %d of 4 after the 16 left: %s (%s)", k, hfc_strerror(rc),
+               hfc_last_message(cs[k]));
   }
-  if (rc) fail_msg("1000 MiB after the 16 left: %s (%s)", hfc_strerror(rc), hfc_last_message(c));
-  assert_int_equal(hfc_shm_free(c, big), 0);
-  filter_and_compare(c, "Tiny", 8, 8, 0, 4);
-  hfc_close(c);
+  for (int k = 0; k < 4; k++) assert_int_equal(hfc_shm_free(cs[k], big[k]), 0);
+  filter_and_compare(cs[0], "Tiny", 8, 8, 0, 4);
+  for (int k = 0; k < 4; k++) hfc_close(cs[k]);
   assert_true(server_alive(&S));
 }
 
