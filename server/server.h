@@ -697,6 +697,10 @@ int hfd_limits_fds(hfd_server *s);
  * largest frame HELLO_OK announces (features and estimate, result and
  * composite, all f32), and never more than --max-shm-mb. */
 uint64_t hfd_shm_conn_cap(const hfd_server *s);
+/* The segments the largest frame HELLO_OK announces needs, for the most
+ * demanding loaded variant: f32 features (and estimate), f32 result and
+ * composite. */
+uint64_t hfd_shm_largest_frame(const hfd_server *s);
 /* Makes a sealed, mapped segment of bytes for connection c; *fd is its
  * memfd, which the caller sends to the peer and then closes. Not pinned:
  * hfd_seg_pin. 0, or an HFP_E_* code with the reason in why: TOO_LARGE

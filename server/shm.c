@@ -18,9 +18,7 @@
 
 #include "server.h"
 
-/* The segments one frame of w x h of the most demanding loaded variant
- * needs: f32 features (and estimate), f32 result and composite. */
-static uint64_t largest_frame_segments(const hfd_server *s) {
+uint64_t hfd_shm_largest_frame(const hfd_server *s) {
   uint64_t most = 0;
   for (int v = 0; v < s->num_variants; v++) {
     const hfd_model *var = s->variants[v].model;
@@ -41,7 +39,7 @@ static uint64_t largest_frame_segments(const hfd_server *s) {
 uint64_t hfd_shm_conn_cap(const hfd_server *s) {
   uint64_t all = s->cfg->max_shm_bytes;
   if (s->cfg->max_shm_conn_bytes) return s->cfg->max_shm_conn_bytes < all ? s->cfg->max_shm_conn_bytes : all;
-  uint64_t cap = all / 4, frame = largest_frame_segments(s);
+  uint64_t cap = all / 4, frame = hfd_shm_largest_frame(s);
   if (cap < frame) cap = frame;
   return cap < all ? cap : all;
 }

@@ -34,7 +34,7 @@ def run(args, body):
         proc, sock = start(HAIRFILTERD, w,
                            ["--weights", os.path.join(WEIGHTS, "small.safetensors")] + args)
         require_started(sock)
-        body(sock, fds)
+        body(sock, fds, w)
     finally:
         for fd in fds:
             os.close(fd)
@@ -49,7 +49,7 @@ def ok(got, fds, what):
     return 0
 
 
-def explicit(sock, fds):
+def explicit(sock, fds, w):
     """--max-shm-mb 8 --max-shm-mb-per-connection 4: two connections get 4
     MiB each, neither more."""
     a, b = connect(sock), connect(sock)
@@ -78,7 +78,7 @@ def explicit(sock, fds):
     c.close()
 
 
-def default(sock, fds):
+def default(sock, fds, w):
     """--max-shm-mb 16 at 200x200: a quarter, 4 MiB, is less than the
     segments of the largest frame (Small, 4 spp: features 3,840,000 bytes,
     result 480,000, composite 640,000), which one connection may still
@@ -92,11 +92,26 @@ def default(sock, fds):
     ok(shm_create(b, largest), fds, "the same on a second connection")
     a.close()
     b.close()
+    log = open(os.path.join(w, "daemon.log")).read()
+    check("shared memory 16 MiB (5 MiB per connection)" in log,
+          "the start line says what a connection may hold: %r" % log)
+    check("warning" not in log, "no warning with the default: %r" % log)
+
+
+def below_largest(sock, fds, w):
+    """An operator's value below the largest frame's segments is warned
+    about at start, naming the option and the frame."""
+    log = open(os.path.join(w, "daemon.log")).read()
+    check("warning: a frame of 200x200 needs 4.7 MiB of shared segments, over what one "
+          "connection may hold (--max-shm-mb-per-connection 2)" in log,
+          "the start warns that the largest frame does not fit a connection's part: %r" % log)
 
 
 def main():
     run(["--max-shm-mb", "8", "--max-shm-mb-per-connection", "4"], explicit)
     run(["--max-shm-mb", "16", "--max-size", "200x200"], default)
+    run(["--max-shm-mb", "16", "--max-size", "200x200", "--max-shm-mb-per-connection", "2"],
+        below_largest)
     finish()
 
 
