@@ -94,7 +94,7 @@ typedef struct hfd_config {
   uint64_t max_frame_bytes;      /* largest payload read */
   uint64_t max_memory_bytes;     /* request buffers + inference memory */
   uint64_t max_shm_bytes;        /* shared segments held at once; 0: no SHM */
-  uint64_t max_shm_conn_bytes;   /* of which one connection may hold; 0: hfd_shm_conn_cap's default */
+  uint64_t max_shm_conn_bytes;   /* of which one connection may hold; 0: the default */
   int drain_timeout_ms;          /* queued work after SIGTERM */
   int flush_timeout_ms;          /* then, replies still unread by peers */
   int handshake_timeout_ms;      /* accept -> HELLO complete; 0: none */

@@ -38,7 +38,8 @@ uint64_t hfd_shm_largest_frame(const hfd_server *s) {
 
 uint64_t hfd_shm_conn_cap(const hfd_server *s) {
   uint64_t all = s->cfg->max_shm_bytes;
-  if (s->cfg->max_shm_conn_bytes) return s->cfg->max_shm_conn_bytes < all ? s->cfg->max_shm_conn_bytes : all;
+  uint64_t set = s->cfg->max_shm_conn_bytes;
+  if (set) return set < all ? set : all;
   uint64_t cap = all / 4, frame = hfd_shm_largest_frame(s);
   if (cap < frame) cap = frame;
   return cap < all ? cap : all;
@@ -66,10 +67,10 @@ int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, in
     return HFP_E_TOO_LARGE;
   }
   if (c->shm_bytes + bytes > cap) {
-    snprintf(why, whylen, "this connection holds %llu bytes of shared memory, and %llu more "
-             "would pass the %llu one connection may hold (--max-shm-mb-per-connection); "
-             "release a segment (SHM_DESTROY) first", (unsigned long long)c->shm_bytes,
-             (unsigned long long)bytes, (unsigned long long)cap);
+    snprintf(why, whylen, "this connection holds %llu bytes of segments; %llu more would pass "
+             "its %llu (--max-shm-mb-per-connection): release one first",
+             (unsigned long long)c->shm_bytes, (unsigned long long)bytes,
+             (unsigned long long)cap);
     return HFP_E_BUSY;
   }
   if (s->shm_held + bytes > s->cfg->max_shm_bytes) {

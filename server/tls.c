@@ -848,7 +848,8 @@ int hfd_tls_overdue(const hfd_conn *c, double now_us) {
 static size_t unread(const hfd_conn *c) {
   uv_os_fd_t fd;
   int n = 0;
-  if (uv_fileno((const uv_handle_t *)&c->h.handle, &fd) != 0 || ioctl(fd, FIONREAD, &n) != 0 || n < 0)
+  if (uv_fileno((const uv_handle_t *)&c->h.handle, &fd) != 0 || ioctl(fd, FIONREAD, &n) != 0 ||
+      n < 0)
     return 0;
   return (size_t)n;
 }
