@@ -468,6 +468,15 @@ int hf_model_wait(hf_model *m, hf_timing *timing) {
   return rc;
 }
 
+int hf_model_reads_input_once(const hf_model *m, const void *in, size_t bytes) {
+  if (!m || !in) return 0;
+  /* sanitise_input checks such a network's samples where they are and
+   * then copies them, interleaved with the estimate: two reads. */
+  if (m->cfg.estimate) return 0;
+  const hf_backend_ops *ops = m->backend->ops;
+  return ops->model_reads_input_once ? ops->model_reads_input_once(m->impl, in, bytes) : 0;
+}
+
 int hf_model_overlaps(const hf_model *m) { return m && m->backend->ops->model_submit != NULL; }
 
 int hf_backend_host_register(hf_backend *b, void *ptr, size_t bytes) {

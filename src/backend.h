@@ -90,6 +90,9 @@ typedef struct hf_backend_ops {
    * which then takes the common path. */
   int (*model_submit_scan)(void *model, const hf_io *io, hf_input_report *rep,
                            hf_input_stats *stats);
+  /* Optional: 1 when a run with reports reads io->in == in ([bytes]) once
+   * (hf_model_reads_input_once); absent: 0. */
+  int (*model_reads_input_once)(void *model, const void *in, size_t bytes);
   /* Optional: host memory that will hold tensors (hf_backend_host_register). */
   int (*host_register)(void *dev, void *ptr, size_t bytes);
   void (*host_unregister)(void *dev, void *ptr);

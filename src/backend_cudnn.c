@@ -1370,6 +1370,13 @@ static int cudnn_model_submit_scan(void *impl, const hf_io *io, hf_input_report 
   return rc;
 }
 
+/* A frame that model_submit_scan takes is read once: uploaded by DMA as it
+ * came, then checked and run on the device. */
+static int cudnn_model_reads_input_once(void *impl, const void *in, size_t bytes) {
+  cudnn_model *m = impl;
+  return !m->cfg.estimate && !m->opts.host_check && is_registered(m->dev, in, bytes);
+}
+
 static int cudnn_model_wait(void *impl, hf_timing *t) {
   cudnn_model *m = impl;
   pthread_mutex_lock(&m->lock);
@@ -1430,6 +1437,7 @@ const hf_backend_ops hf_backend_cudnn = {
   .model_submit = cudnn_model_submit,
   .model_wait = cudnn_model_wait,
   .model_submit_scan = cudnn_model_submit_scan,
+  .model_reads_input_once = cudnn_model_reads_input_once,
   .host_register = cudnn_host_register,
   .host_unregister = cudnn_host_unregister,
   .run_bytes = cudnn_run_bytes,

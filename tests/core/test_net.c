@@ -391,6 +391,9 @@ static void test_submit_wait_prepare(void **state) {
   assert_int_equal(hf_model_create(b, w, &m), HF_OK);
   assert_int_equal(hf_model_prepare(m, 2, 9, 7), HF_OK);
   assert_int_equal(hf_model_overlaps(m), 0);   /* cpu-ref runs inside submit */
+  /* cpu-ref checks the input, then runs the network on it: two reads. */
+  assert_int_equal(hf_model_reads_input_once(m, w, 16), 0);
+  assert_int_equal(hf_model_reads_input_once(NULL, w, 16), 0);
   assert_int_equal(hf_model_prepare(m, 0, 9, 7), HF_EINVAL);
   assert_int_equal(hf_model_prepare(m, 1, 100000, 7), HF_ERANGE);
   enum { W = 9, H = 7, C = 24 };
