@@ -373,6 +373,31 @@ static int read_frame(hfc_client *c, int k) {
   return HFC_E_PROTOCOL;
 }
 
+/* A send on connection k failed with err. A server answers a frame from
+ * its header and may close while the client is still writing it: after a
+ * fatal ERROR for it (TOO_LARGE over max_frame_bytes), or at the end of a
+ * drain, whose last reply may be the SHUTTING_DOWN of that very frame
+ * (PROTOCOL.md, "Fatal or not"). Those replies are still on a plain socket
+ * (a Unix socket keeps them; over TCP they are there unless a reset threw
+ * them away) and are read first, so each frame completes as the server
+ * answered it; then the connection ends, with a fatal ERROR's code when
+ * one came. Over TLS the session is gone with the failed write. */
+void hfci_send_failed(hfc_client *c, int k, int err) {
+  conn *x = &c->conns[k];
+  while (err == HFC_E_CLOSED && x->fd >= 0 && !x->ssl) {
+    struct pollfd pf = {x->fd, POLLIN, 0};
+    int r;
+    do {
+      r = poll(&pf, 1, 0);
+    } while (r < 0 && errno == EINTR);
+    if (r <= 0) break;
+    int rc = read_frame(c, k);
+    if (rc == HFC_E_CLOSED) break;   /* the end of what the server wrote */
+    if (rc) err = rc;                /* its fatal ERROR, or a broken frame */
+  }
+  hfci_conn_lost(c, k, err);
+}
+
 static int pump_once(hfc_client *c, int timeout_ms);
 
 int hfci_pump(hfc_client *c, int timeout_ms) {
@@ -578,7 +603,7 @@ void hfci_progress(hfc_client *c) {
     if (!p) return;
     int k = c->active;
     int rc = hfci_send_request(c, p);
-    if (rc) hfci_conn_lost(c, k, rc);
+    if (rc) hfci_send_failed(c, k, rc);
   }
 }
 
@@ -604,7 +629,7 @@ int hfci_control(hfc_client *c, const uint8_t *frame, size_t len, int reply_type
     c->ctl_status = 0;
     c->ctl = NULL;
     int rc = hfci_send_io(c->conns[k].fd, c->conns[k].ssl, c->timeout_ms, frame, len);
-    if (rc) hfci_conn_lost(c, k, rc);   /* marks the control request done with rc */
+    if (rc) hfci_send_failed(c, k, rc);   /* marks the control request done with rc */
     while (!c->ctl_done) {
       rc = hfci_pump(c, c->timeout_ms);
       if (rc == HFC_E_TIMEOUT)

@@ -201,6 +201,10 @@ int hfci_pump(hfc_client *c, int timeout_ms);
 /* Connection k failed with err: its requests go to the next endpoint when
  * the policy allows, else complete with err. */
 void hfci_conn_lost(hfc_client *c, int k, int err);
+/* A send on connection k failed with err: the replies the server wrote
+ * before it closed are read and dispatched first (a plain socket keeps
+ * them), then the connection is lost as hfci_conn_lost says. */
+void hfci_send_failed(hfc_client *c, int k, int err);
 /* A connection owing replies that has sent nothing for the client's
  * timeout is stuck (a stopped or wedged server keeps its socket open):
  * it is lost with HFC_E_TIMEOUT, so its frames fail over or complete.

@@ -102,7 +102,7 @@ static int shm_alloc(hfc_client *c, size_t bytes, void **mem) {
     uint8_t d[HFP_HEADER_SIZE + 4];
     int dn = hfp_encode_shm_destroy(d, sizeof d, id);
     if (dn > 0 && !x->draining && (rc = hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)dn)))
-      hfci_conn_lost(c, c->ctl_conn, rc);
+      hfci_send_failed(c, c->ctl_conn, rc);
     hfci_msg(c, "mmap of a %zu-byte segment failed: %s (the process's address space or "
                 "memory limit)", bytes, strerror(map_errno));
     return HFC_E_NOMEM;
@@ -145,7 +145,7 @@ static int shm_free(hfc_client *c, void *mem) {
       uint8_t d[HFP_HEADER_SIZE + 4];
       int n = hfp_encode_shm_destroy(d, sizeof d, g.id);
       int rc = n < 0 ? HFC_E_ARG : hfci_send_io(x->fd, x->ssl, c->timeout_ms, d, (size_t)n);
-      if (rc) hfci_conn_lost(c, k, rc);
+      if (rc) hfci_send_failed(c, k, rc);
       return rc;
     }
     return 0;

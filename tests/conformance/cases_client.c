@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include "cf_mock.h"
@@ -833,6 +834,81 @@ static int server_closes(cf_test *t, intptr_t arg) {
   return finish(t, &m, c, v);
 }
 
+/* A server that answers a FILTER from its header and closes while the
+ * client is still writing the frame (a fatal TOO_LARGE over
+ * max_frame_bytes; a draining server's SHUTTING_DOWN, then the end of the
+ * drain): the frame is larger than the socket's buffers, so the client's
+ * write fails, and the answer waits on the socket. The request completes
+ * with the server's code and message, not as a lost connection. */
+static int closed_mid_frame_script(mock *m) {
+  if (mk_accept(m) || mk_hello(m)) return CF_FAIL;
+  uint8_t hb[HFP_HEADER_SIZE];
+  hfp_header h;
+  /* Control requests (the variants' list) answered as usual, up to the
+   * FILTER, of which only the header is read. */
+  for (;;) {
+    ssize_t got = recv(m->fd, hb, sizeof hb, MSG_WAITALL);
+    if (got != (ssize_t)sizeof hb || hfp_header_decode(hb, 1u << 30, &h))
+      return mk_fail(m, "no FILTER header from the client");
+    if (h.type == HFP_FILTER) break;
+    uint8_t *p = malloc(h.length ? h.length : 1);
+    if (!p || (h.length && recv(m->fd, p, h.length, MSG_WAITALL) != (ssize_t)h.length)) {
+      free(p);
+      return mk_fail(m, "the client's message of type %u was cut", h.type);
+    }
+    int rc = mk_reply(m, &h, p);
+    free(p);
+    if (rc) return rc;
+  }
+  uint8_t b[300];
+  int code = (int)(m->arg & 0xffff), fatal = (int)(m->arg >> 16);
+  mk_send(m, b, mk_error(b, h.request_id, code, fatal, "said the mock"));
+  /* Closed with the rest of the frame unread. */
+  close(m->fd);
+  m->fd = -1;
+  return 0;
+}
+
+static int closed_mid_frame(cf_test *t, intptr_t arg) {
+  int code = (int)(arg & 0xffff);
+  mock m = {0};
+  m.script = closed_mid_frame_script;
+  m.arg = arg;
+  CASE_BEGIN(t, &m, c, 0);
+  /* 256x256 at 2 spp in f32: 3 MiB, far over a socket's buffers. */
+  enum { BW = 256, BH = 256 };
+  size_t n = (size_t)BW * BH * MK_SPP * 6;
+  float *in = calloc(n, sizeof *in), *out = malloc((size_t)BW * BH * 3 * sizeof *out);
+  int v = 0;
+  if (!in || !out) v = cf_fail(t, "out of memory");
+  hfc_request r;
+  hfc_request_init(&r);
+  r.variant = MK_VARIANT;
+  r.width = BW;
+  r.height = BH;
+  r.spp = MK_SPP;
+  r.in_dtype = r.out_dtype = HFC_F32;
+  r.features = in;
+  r.features_bytes = n * sizeof *in;
+  r.result = out;
+  r.result_bytes = (size_t)BW * BH * 3 * sizeof *out;
+  uint32_t id = 0;
+  hfc_completion d;
+  int rc = v ? 0 : hfc_submit(c, &r, &id);
+  if (!v && rc) v = cf_fail(t, "hfc_submit: %s", hfc_strerror(rc));
+  if (!v && (rc = hfc_wait(c, -1, &d)))
+    v = cf_fail(t, "hfc_wait: %s", hfc_strerror(rc));
+  if (!v && (d.id != id || d.status != -code))
+    v = cf_fail(t, "the server answered %s and closed while the frame was being written: the "
+                "request completed %s, wanted %s", hfp_code_name(code), hfc_strerror(d.status),
+                hfc_strerror(-code));
+  if (!v && !strstr(hfc_last_message(c), "said the mock"))
+    v = cf_fail(t, "hfc_last_message is '%s', without the server's message", hfc_last_message(c));
+  free(in);
+  free(out);
+  return finish(t, &m, c, v);
+}
+
 /* A RESULT arriving while a control reply is awaited is kept for hfc_wait. */
 static int interleave_handler(mock *m, const hfp_header *h, const uint8_t *p) {
   static uint8_t *held;
@@ -1269,6 +1345,8 @@ const cf_case cf_cases_client[] = {
   {"client.stall.mid_result", "a server that stops inside a RESULT: TIMEOUT, the connection given up", 0, stall, HFP_HEADER_SIZE + HFP_RESULT_FIXED + 20},
   {"client.stall.mid_header_async", "a timeout inside a frame gives the connection up or keeps the frame; never misreads the rest", 0, late_rest, 0},
   {"client.server_closes", "a pending request fails CLOSED when the server closes; polling does not fail it", 0, server_closes, 0},
+  {"client.closed_mid_frame.shutting_down", "a server that refuses a frame SHUTTING_DOWN and closes while the client still writes it: the request fails SHUTTING_DOWN, not CLOSED", 0, closed_mid_frame, HFP_E_SHUTTING_DOWN},
+  {"client.closed_mid_frame.too_large", "a fatal TOO_LARGE for a frame still being written, then the close: the request fails TOO_LARGE with the server's message", 0, closed_mid_frame, HFP_E_TOO_LARGE | 1 << 16},
   {"client.variants.v1", "a version-1 VARIANTS: no ranges", 0, variants, 1},
   {"client.variants.v2", "a version-2 VARIANTS: each variant's ranges", 0, variants, 2},
   {"client.variants.v3", "a version-3 VARIANTS: the estimate each variant reads", 0, variants, 3},
