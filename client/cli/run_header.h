@@ -1,7 +1,7 @@
 /* The line above a load tool's figures (docs/PERFORMANCE.md: every figure
  * with its command, machine and date): the command line as a shell takes
- * it back, the CPU model and online cores, the UTC date. Shared by
- * `hairfilter load` and `hairfilter-load`. */
+ * it back (a --token's value hidden), the CPU model and online cores, the
+ * UTC date. Shared by `hairfilter load` and `hairfilter-load`. */
 #ifndef HF_RUN_HEADER_H
 #define HF_RUN_HEADER_H
 

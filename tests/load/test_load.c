@@ -415,6 +415,7 @@ static void test_open_loop(void **state) {
 /* Every transport and dtype, the composite, a real EXR, and the old name. */
 static void test_transports(void **state) {
   (void)state;
+  int rc_token;
   struct {
     const char *url, *extra, *says;
   } runs[] = {
@@ -428,7 +429,22 @@ static void test_transports(void **state) {
                   runs[i].url, runs[i].extra);
     if (rc || !strstr(text, runs[i].says)) fail_msg("%s: status %d:\n%s", runs[i].extra, rc, text);
     check_rows();
+    /* The report is kept and shared: its command line hides the token. */
+    if (strstr(text, TEST_TOKEN)) fail_msg("%s: the report shows the token:\n%s", runs[i].extra, text);
   }
+  /* Both tools, the token given after '=' too, and the JSON. */
+  rc_token = load("--server %s --token=%s --variant Tiny --size 12x10 --seconds 0.3 --warmup 0 "
+                  "--quiet --json %s", S.tcp_url, TEST_TOKEN, json_path);
+  if (rc_token || !strstr(text, "--token=") || strstr(text, TEST_TOKEN))
+    fail_msg("--token=: status %d:\n%s", rc_token, text);
+  if (read_text_file(json_path, text, sizeof text) || strstr(text, TEST_TOKEN))
+    fail_msg("the JSON shows the token:\n%s", text);
+  char targs[600];
+  snprintf(targs, sizeof targs, "--server %s --token %s --variant Tiny --size 12x10 --seconds 0.3 "
+           "--warmup 0", S.tcp_url, TEST_TOKEN);
+  rc_token = load_prog(HAIRFILTER_LOADGEN_PATH, targs);
+  if (rc_token || !strstr(text, "command: hairfilter-load") || strstr(text, TEST_TOKEN))
+    fail_msg("hairfilter-load --token: status %d:\n%s", rc_token, text);
   /* A real feature EXR (4 spp; Small takes 4), its size taken from the file. */
   int rc = load("--server %s --variant Small --input %s/field/frame-64x64.exr --seconds 1 --warmup 0 "
                 "--quiet", S.unix_url, HF_TEST_DATA);
