@@ -14,8 +14,11 @@ Exit status 77 (a skip) without numpy.
 import argparse
 import os
 import shutil
+import socket
+import struct
 import subprocess
 import sys
+import threading
 import time
 import unittest
 
@@ -42,6 +45,22 @@ def features(h, w, spp, seed, dtype=np.float32):
     f = rng.random((h, w, spp, 6), dtype=np.float32)
     f[..., 4:] = 2 * f[..., 4:] - 1
     return np.ascontiguousarray(f.reshape(h, w, spp * 6).astype(dtype))
+
+
+def recv_exactly(s, n):
+    b = b""
+    while len(b) < n:
+        c = s.recv(n - len(b))
+        if not c:
+            raise EOFError("closed after %d of %d bytes" % (len(b), n))
+        b += c
+    return b
+
+
+def read_message(s):
+    """One whole message (header and payload) as bytes."""
+    head = recv_exactly(s, 16)
+    return head + recv_exactly(s, P.decode_header(head)[2])
 
 
 def c_filter(url, variant, f, shm=False, rgba=False, ca=None, estimate=None):
@@ -449,6 +468,60 @@ class PythonClient(unittest.TestCase):
         finally:
             proc.terminate()
             proc.wait(timeout=30)
+
+    def test_closed_mid_frame(self):
+        """A server that answers a frame from its header and closes while
+        the client is still writing it (a draining server's SHUTTING_DOWN,
+        a fatal TOO_LARGE): the frame completes with the server's answer,
+        not as a lost connection. The mock replays the daemon's own
+        HELLO_OK and VARIANTS."""
+        raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        raw.settimeout(10)
+        raw.connect(UNIX[len("unix:"):])
+        raw.sendall(P.encode_hello("recorder"))
+        hello_ok = read_message(raw)
+        raw.sendall(P.frame(P.LIST_VARIANTS))
+        variants = read_message(raw)
+        raw.close()
+        for code, fatal in ((P.E_SHUTTING_DOWN, 0), (P.E_TOO_LARGE, 1)):
+            path = os.path.join(ARGS.work, "mock.sock")
+            if os.path.exists(path):
+                os.unlink(path)
+            lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            lsock.bind(path)
+            lsock.listen(1)
+
+            def serve():
+                s, _ = lsock.accept()
+                s.settimeout(10)
+                read_message(s)
+                s.sendall(hello_ok)
+                while True:
+                    head = recv_exactly(s, 16)
+                    type_, rid, length = P.decode_header(head)
+                    if type_ == P.FILTER:
+                        break
+                    recv_exactly(s, length)
+                    s.sendall(variants)
+                msg = b"said the mock"
+                s.sendall(P.frame(P.ERROR, struct.pack("<IBBH", code, fatal, 0, len(msg)) + msg,
+                                  rid))
+                s.close()   # the rest of the frame unread
+                lsock.close()
+
+            t = threading.Thread(target=serve)
+            t.start()
+            try:
+                with hairfilter.Client("unix:" + path) as c:
+                    # 256x256 at 4 spp: 6 MiB, far over a socket's buffers.
+                    rid = c.submit("Small", features(256, 256, 4, 9))
+                    d = c.wait()
+                    self.assertEqual((d.id, d.status), (rid, P.code_name(code)), d.message)
+                    self.assertIn("said the mock", d.message)
+                    with self.assertRaises(hairfilter.Error):
+                        c.submit("Small", features(8, 8, 4, 9))
+            finally:
+                t.join(30)
 
     def test_codec(self):
         hello = P.encode_hello("py", "tok")

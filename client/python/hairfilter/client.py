@@ -417,8 +417,29 @@ class Client:
         except ssl.SSLError as e:
             self._fail("TLS", "TLS write: %s" % _ssl_reason(e))
         except OSError as e:
-            self._fail("CLOSED" if isinstance(e, (BrokenPipeError, ConnectionResetError))
-                       else "IO", "send: %s" % (e.strerror or e))
+            closed = isinstance(e, (BrokenPipeError, ConnectionResetError))
+            if closed:
+                self._read_left()
+            self._fail("CLOSED" if closed else "IO", "send: %s" % (e.strerror or e))
+
+    def _read_left(self):
+        """A write failed because the server closed. It answers a frame from
+        its header and may close while it is still being written: after a
+        fatal ERROR for it (TOO_LARGE over max_frame_bytes), or at the end of
+        a drain, whose last reply may be the SHUTTING_DOWN of that very frame
+        (PROTOCOL.md, "Fatal or not"). Those replies wait on a plain socket
+        (a Unix socket keeps them; over TCP they are there unless a reset
+        threw them away): read them, so each frame completes as the server
+        answered it. A fatal ERROR among them is raised as the loss."""
+        if isinstance(self._sock, ssl.SSLSocket):
+            return
+        try:
+            while self._broken is None:
+                self._read_one(0)
+        except Error:
+            pass
+        if self._broken is not None and self._broken.code != "CLOSED":
+            raise self._broken
 
     def _recv_into(self, view, first_timeout=None):
         """Fills the writable memoryview. The first byte may take
@@ -649,12 +670,19 @@ class Client:
                                     colours["background"],
                                     shm=ref, estimate=estimate is not None)
         self._pending[rid] = _Pending(rid, name, result, rgba, user, seg)
-        if ref:
-            self._send(head)
-        elif estimate is not None:
-            self._send(head, memoryview(f).cast("B"), memoryview(estimate).cast("B"))
-        else:
-            self._send(head, memoryview(f).cast("B"))
+        try:
+            if ref:
+                self._send(head)
+            elif estimate is not None:
+                self._send(head, memoryview(f).cast("B"), memoryview(estimate).cast("B"))
+            else:
+                self._send(head, memoryview(f).cast("B"))
+        except Error:
+            # Answered before the server closed (_read_left): the frame's
+            # completion says how; the next call raises the loss.
+            if any(d.id == rid for d in self._done):
+                return rid
+            raise
         return rid
 
     def _read_one(self, first_timeout, want=None):
