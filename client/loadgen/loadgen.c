@@ -56,6 +56,7 @@ typedef struct worker {
   uint64_t warm_sent, warm_ok, warm_busy, warm_errors;
   int last_error;                /* the last error answered, for its name */
   int fatal;
+  int cut;                       /* stopped (fatal) before its window's end */
   int batch_sum, batch_n;
 } worker;
 
@@ -312,6 +313,14 @@ static void *run(void *arg) {
     fprintf(stderr, "hairfilter-load: connection failed: %s\n", hfc_strerror(rc));
     w->fatal = 1;
   }
+  if (w->fatal) {
+    /* Its window ends here: the throughput is over the time measured. */
+    double now = now_s();
+    if (now < w->t_end) {
+      w->t_end = now < w->t_measure ? w->t_measure : now;
+      w->cut = 1;
+    }
+  }
 done:
   if (shm) {
     hfc_shm_free(c, shm);
@@ -497,8 +506,8 @@ int main(int argc, char **argv) {
   }
   size_t total = 0;
   uint64_t busy = 0, errors = 0, sent = 0, answered = 0, wsent = 0, wok = 0, wbusy = 0, werr = 0;
-  int fatal = 0, bsum = 0, bn = 0, last_error = 0;
-  double elapsed = o.seconds;
+  int fatal = 0, bsum = 0, bn = 0, last_error = 0, cut = 0;
+  double elapsed = o.seconds, longest = 0;
   for (int i = 0; i < o.connections; i++) {
     pthread_join(w[i].thread, NULL);
     total += w[i].n;
@@ -515,10 +524,15 @@ int main(int argc, char **argv) {
     if (interrupted && w[i].t_end > w[i].t_measure && w[i].t_end - w[i].t_measure < elapsed)
       elapsed = w[i].t_end - w[i].t_measure;
     if (interrupted && w[i].t_end <= w[i].t_measure) elapsed = 0;
+    if (w[i].t_end - w[i].t_measure > longest) longest = w[i].t_end - w[i].t_measure;
+    cut |= w[i].cut;
     fatal |= w[i].fatal;
     bsum += w[i].batch_sum;
     bn += w[i].batch_n;
   }
+  /* Connections lost before the end: the window lasted as long as one of
+   * them still measured. */
+  if (cut && !interrupted) elapsed = longest < o.seconds ? longest : o.seconds;
   /* One sorted column per timing field, for the percentiles. */
   enum { COLS = 6 };
   static const char *const names[COLS] = {"total", "server", "queue", "input", "infer", "output"};
@@ -542,8 +556,8 @@ int main(int argc, char **argv) {
   print_header(argc, argv);
   printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.1f s measured%s\n",
          o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server,
-         o.shm ? " + shared memory" : "", backend, precision,
-         o.connections, o.inflight, elapsed, interrupted ? " (interrupted)" : "");
+         o.shm ? " + shared memory" : "", backend, precision, o.connections, o.inflight, elapsed,
+         interrupted ? " (interrupted)" : cut ? " (cut short: connections lost)" : "");
   printf("  frames %zu  throughput %.1f frames/s  busy %llu  errors %llu%s%s%s  mean batch %.2f\n",
          total, elapsed > 0 ? (double)total / elapsed : 0.0, (unsigned long long)busy,
          (unsigned long long)errors, last_error ? " (last: " : "",

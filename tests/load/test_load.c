@@ -519,6 +519,36 @@ static void test_frames_in_contract(void **state) {
   assert_int_equal(server_stop(&C, 10000), 0);
 }
 
+/* A server that goes away in the middle of the window: hairfilter-load
+ * reports the time it measured (the window up to the loss), and a
+ * throughput of the frames over that time, not over the --seconds asked. */
+static void test_server_lost(void **state) {
+  (void)state;
+  server s2;
+  assert_int_equal(server_start(&H, &s2, NULL), 0);
+  char cmd[1200];
+  snprintf(cmd, sizeof cmd, "'%s' --server %s --variant Tiny --size 12x10 --seconds 20 "
+           "--warmup 0.2 > '%s' 2>&1 & L=$!; sleep 1.5; kill -KILL %d; wait $L",
+           HAIRFILTER_LOADGEN_PATH, s2.unix_url, out_path, (int)s2.pid);
+  int rc = system(cmd);
+  rc = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
+  server_stop(&s2, 1000);
+  double measured = 0, tput = 0;
+  unsigned long long frames = 0;
+  const char *m = strstr(text, "in flight, ");
+  const char *p = strstr(text, "  frames ");
+  if (rc != 1 || !m || !p || sscanf(m, "in flight, %lf s measured", &measured) != 1 ||
+      sscanf(p, "  frames %llu throughput %lf", &frames, &tput) != 2)
+    fail_msg("hairfilter-load, its server killed: status %d:\n%s", rc, text);
+  if (measured < 0.5 || measured > 5 || !strstr(text, "connections lost"))
+    fail_msg("the server killed after 1.5 s of a 20 s window: %.1f s measured:\n%s", measured,
+             text);
+  if (frames && fabs(tput - (double)frames / measured) > 0.05 * tput + 0.1)
+    fail_msg("throughput %.1f frames/s is not %llu frames over %.1f s:\n%s", tput, frames,
+             measured, text);
+}
+
 /* Against a server that refuses: a closed-loop request refused BUSY is
  * sent again only after a pause (BUSY_BACKOFF_S, 10 ms), so a window of 1 s
  * at concurrency 6 sees at most about 600 refusals, not the tens of
@@ -607,6 +637,7 @@ int main(int argc, char **argv) {
     cmocka_unit_test(test_transports),
     cmocka_unit_test(test_frames_in_contract),
     cmocka_unit_test(test_refusing_server),
+    cmocka_unit_test(test_server_lost),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
