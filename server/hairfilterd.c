@@ -35,7 +35,8 @@ static int clear_stale_socket(const char *path) {
   struct stat st;
   if (lstat(path, &st) != 0) return errno == ENOENT ? 0 : -1;
   if (!S_ISSOCK(st.st_mode)) {
-    hfd_err("%s exists and is not a socket", path);
+    hfd_err("--listen unix:%s: %s exists and is not a socket; remove it, or give another path",
+            path, path);
     return -1;
   }
   int fd = socket(AF_UNIX, SOCK_STREAM, 0);
@@ -47,7 +48,8 @@ static int clear_stale_socket(const char *path) {
   int live = connect(fd, (struct sockaddr *)&sun, sizeof sun) == 0;
   close(fd);
   if (live) {
-    hfd_err("%s: another server is listening there", path);
+    hfd_err("--listen unix:%s: another server is listening there (another hairfilterd?); stop "
+            "it, or give each daemon its own socket path", path);
     return -1;
   }
   if (unlink(path) != 0) {

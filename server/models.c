@@ -124,7 +124,9 @@ static int gather(const hfd_config *cfg, want *ws, int *nw, char *why, size_t wh
   if (cfg->weights_dir) {
     DIR *d = opendir(cfg->weights_dir);
     if (!d) {
-      snprintf(why, whylen, "--weights-dir %s: %s", cfg->weights_dir, strerror(errno));
+      snprintf(why, whylen, "--weights-dir %s: %s; give the folder that holds the weights files "
+               "(*.safetensors; the bundled ones are installed in share/hairfilter/weights under "
+               "the install prefix)", cfg->weights_dir, strerror(errno));
       return -1;
     }
     char *names[HFD_MAX_VARIANTS];
@@ -171,7 +173,9 @@ static int gather(const hfd_config *cfg, want *ws, int *nw, char *why, size_t wh
     }
     if (rc) return -1;
     if (!found && !explicit) {
-      snprintf(why, whylen, "no *.safetensors in %s", cfg->weights_dir);
+      snprintf(why, whylen, "no *.safetensors in %s: copy the weights files there, or give the "
+               "folder that holds them (--weights-dir, or each file with --weights)",
+               cfg->weights_dir);
       return -1;
     }
   }

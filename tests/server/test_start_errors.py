@@ -241,6 +241,41 @@ def body(w):
     finally:
         holder.close()
 
+    # A socket path a live server answers on, and a path that is no socket:
+    # named as the --listen they came from, with what to do.
+    live = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    live.bind(os.path.join(w, "live.sock"))
+    live.listen()
+    try:
+        rc, out = run(["--config", "none", "--listen", "unix:%s/live.sock" % w, "--weights-dir",
+                       wd, "--backend", "cpu-ref"], w)
+        check(rc == 1 and "<3>error: --listen unix:%s/live.sock: another server is listening "
+              "there" % w in out and "stop it, or give each daemon its own socket path" in out,
+              "a socket a live server answers on: status %s (want 1), said so: %r" % (rc, out))
+    finally:
+        live.close()
+    with open(os.path.join(w, "plain.sock"), "w") as f:
+        f.write("not a socket\n")
+    rc, out = run(["--config", "none", "--listen", "unix:%s/plain.sock" % w, "--weights-dir",
+                   wd, "--backend", "cpu-ref"], w)
+    check(rc == 1 and "<3>error: --listen unix:%s/plain.sock: %s/plain.sock exists and is not a "
+          "socket; remove it, or give another path" % (w, w) in out,
+          "a socket path that is a file: status %s (want 1), said so: %r" % (rc, out))
+
+    # A weights folder that is not there, or holds no weights file: what
+    # to give instead.
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights-dir",
+                   os.path.join(w, "nodir"), "--backend", "cpu-ref"], w)
+    check(rc == 1 and "<3>error: --weights-dir %s/nodir: No such file or directory; give the "
+          "folder that holds the weights files (*.safetensors;" % w in out,
+          "a missing --weights-dir: status %s (want 1), said with what to do: %r" % (rc, out))
+    os.mkdir(os.path.join(w, "noweights"))
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights-dir",
+                   os.path.join(w, "noweights"), "--backend", "cpu-ref"], w)
+    check(rc == 1 and "<3>error: no *.safetensors in %s/noweights: copy the weights files there, "
+          "or give the folder that holds them" % w in out,
+          "an empty --weights-dir: status %s (want 1), said with what to do: %r" % (rc, out))
+
     # A ready file a killed daemon left is removed as the next starts, here
     # one that then fails (its weights file is missing): nothing says ready.
     ready = os.path.join(w, "ready")
