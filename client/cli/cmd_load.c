@@ -95,6 +95,7 @@ typedef struct worker {
   int max_inflight;              /* the server's per-connection limit */
   uint64_t seed;
   int failed;
+  int saw_draining;              /* the server answered SHUTTING_DOWN */
 } worker;
 
 static double now_s(void) {
@@ -206,6 +207,9 @@ static int submit(hfc_client *c, hfc_request *r, slot *s, double started, shared
   atomic_fetch_add(&sh->sent, 1);
   return 0;
 }
+
+/* Whether stderr is a terminal: the progress line is drawn there. */
+static int isatty_err;
 
 static void *run(void *arg) {
   worker *w = arg;
@@ -359,13 +363,17 @@ static void *run(void *arg) {
     pending--;
     if (d.status == HFC_E_BUSY || d.status == HFC_E_SHUTTING_DOWN)
       s->not_before = now_s() + BUSY_BACKOFF_S;
+    if (d.status == HFC_E_SHUTTING_DOWN) w->saw_draining = 1;
     record(sh, &d, s->started, s->warm);
   }
   if (err) {
     /* What was pending is lost with the connection; the main thread counts
-     * it as unanswered. */
-    fprintf(stderr, "\nhairfilter load: connection %d failed: %s (%s)\n", w->index,
-            hfc_strerror(err), hfc_last_message(c));
+     * it as unanswered. The library's message is for an engine (connect
+     * again); the tool says what happened, off the progress line if one
+     * is shown. */
+    fprintf(stderr, "%shairfilter load: connection %d lost: %s%s\n",
+            isatty_err && !o->quiet ? "\n" : "", w->index, hfc_strerror(err),
+            w->saw_draining ? " (the server is stopping: it answered SHUTTING_DOWN before)" : "");
     atomic_fetch_add(&sh->lost, 1);
     w->failed = 1;
   }
@@ -427,7 +435,6 @@ static void stats_delta(const hfc_variant_stats *a, const hfc_variant_stats *b, 
 
 /* ---- one point of the sweep ----------------------------------------------------- */
 
-static int isatty_err;
 
 static void progress(const load_point *p, int trial, double elapsed, const load_window *w,
                      const opts *o) {

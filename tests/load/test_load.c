@@ -547,6 +547,19 @@ static void test_server_lost(void **state) {
   if (frames && fabs(tput - (double)frames / measured) > 0.05 * tput + 0.1)
     fail_msg("throughput %.1f frames/s is not %llu frames over %.1f s:\n%s", tput, frames,
              measured, text);
+  /* hairfilter load says which connection was lost and why, once, in its
+   * own words (not the library's advice to an engine to connect again). */
+  assert_int_equal(server_start(&H, &s2, NULL), 0);
+  snprintf(cmd, sizeof cmd, "'%s' load --server %s --variant Tiny --size 12x10 --seconds 20s "
+           "--warmup 0.2s --quiet > '%s' 2>&1 & L=$!; sleep 1.5; kill -KILL %d; wait $L",
+           HAIRFILTER_CLI_PATH, s2.unix_url, out_path, (int)s2.pid);
+  rc = system(cmd);
+  rc = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
+  server_stop(&s2, 1000);
+  if (rc != 1 || !strstr(text, "hairfilter load: connection 0 lost: server closed the connection\n") ||
+      strstr(text, "lost earlier") || strstr(text, "connect again") || strstr(text, "\n\n\n"))
+    fail_msg("hairfilter load, its server killed: status %d:\n%s", rc, text);
 }
 
 /* Against a server that refuses: a closed-loop request refused BUSY is
