@@ -431,6 +431,16 @@ static char *read_line(char *str, int num, void *stream) {
       fa->bad = 1;
       fa->bad_line = fa->line;
     }
+    /* An indented line is, to inih, more of the value of the key above it
+     * (a second --listen URL 'weights = FILE', say), which no message
+     * about that value would make plain. Comments and empty lines may be
+     * indented. */
+    if (!fa->mid_line && t != r && !strchr(";#\r\n", *t) && *t && !fa->bad) {
+      snprintf(fa->why, sizeof fa->why, "the line starts with whitespace, which continues the "
+               "key above it (inih's rule): indent nothing");
+      fa->bad = 1;
+      fa->bad_line = fa->line;
+    }
     fa->mid_line = !strchr(r, '\n');
     if (!fa->mid_line) fa->next_line++;
   }

@@ -6,6 +6,8 @@ no weights are made before any is loaded.
 
   * a config file line with an unknown key: exit 2, priority 3, file:line;
   * a section header, the file's last line included: exit 2, its line;
+  * an indented line (inih's continuation of the key above): exit 2, its
+    line, said as such;
   * a value the option refuses: exit 2, the file and line named;
   * a key of one value given twice in the file: a warning naming both
     lines, the later one winning;
@@ -117,6 +119,16 @@ def body(w):
         rc, out = run(["--config", conf], w)
         check(rc == 2 and "<3>error: %s:%d: no sections ([server])" % (conf, line) in out,
               "a section on line %d: exit status %s (want 2), naming the line: %r" % (line, rc, out))
+
+    # An indented line: inih would take it for more of the key above
+    # ('weights = ...' as a second listen URL); refused, saying so, while
+    # an indented comment and an empty line pass.
+    with open(conf, "w") as f:
+        f.write(short + "  ; a comment\n\n  queue-size = 8\n")
+    rc, out = run(["--config", conf], w)
+    check(rc == 2 and "<3>error: %s:5: the line starts with whitespace, which continues the key "
+          "above it (inih's rule): indent nothing" % conf in out,
+          "an indented line: exit status %s (want 2), said so: %r" % (rc, out))
 
     # A repeated key warns naming both lines; the TCP listener without a
     # token is refused before the backend starts (no "starting" line, no
