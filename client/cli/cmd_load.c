@@ -82,6 +82,9 @@ typedef struct shared {
    * counts them too. */
   atomic_uint_fast64_t warm_sent, warm_ok, warm_busy, warm_errors;
   atomic_int lost;
+  /* Connections that stopped at a refusal no retry can fix, and whether
+   * it has been said (once for all of them). */
+  atomic_int refused, refusal_said;
   atomic_int ready;              /* connections set up (connected, segment mapped) */
   double t_stop;                 /* when the point stopped sending */
   double t_measure;              /* under mu: requests due from then on count */
@@ -95,6 +98,7 @@ typedef struct worker {
   int max_inflight;              /* the server's per-connection limit */
   uint64_t seed;
   int failed;
+  int refused;                   /* a refusal no retry can fix: sends no more */
   int saw_draining;              /* the server answered SHUTTING_DOWN */
 } worker;
 
@@ -299,19 +303,19 @@ static void *run(void *arg) {
   int err = 0;
   for (;;) {
     int stopping = atomic_load(&sh->phase) == PHASE_STOP;
-    if (stopping && pending == 0) break;
+    if ((stopping || w->refused) && pending == 0) break;
     if (stopping && now_s() - sh->t_stop > o->drain_s) {
       fprintf(stderr, "\nhairfilter load: connection %d: %d request(s) unanswered %.0f s after "
                       "the end\n", w->index, pending, o->drain_s);
       break;
     }
     /* Submit what is due. */
-    if (!stopping && !sh->open_loop) {
+    if (!stopping && !w->refused && !sh->open_loop) {
       double now = now_s();
       for (int i = 0; i < k && pending < k && !err; i++)
         if (!slots[i].busy && slots[i].not_before <= now)
           err = submit(c, &r, &slots[i], now_s(), sh, &pending);
-    } else if (!stopping && sh->open_loop) {
+    } else if (!stopping && !w->refused && sh->open_loop) {
       double now = now_s();
       while (t_next <= now) {
         /* Due with every slot taken: it waits for one (and its latency
@@ -365,6 +369,20 @@ static void *run(void *arg) {
       s->not_before = now_s() + BUSY_BACKOFF_S;
     if (d.status == HFC_E_SHUTTING_DOWN) w->saw_draining = 1;
     record(sh, &d, s->started, s->warm);
+    if (d.status < 0 && d.status > HFC_E_ARG && d.status != HFC_E_BUSY &&
+        d.status != HFC_E_SHUTTING_DOWN && d.status != HFC_E_INTERNAL && !w->refused) {
+      /* A refusal no retry can fix (the variant a reload removed, say):
+       * sent again, each frame would be refused again, as fast as the
+       * server answers. This connection sends no more (as hairfilter-load). */
+      w->refused = 1;
+      atomic_fetch_add(&sh->refused, 1);
+      if (!atomic_exchange(&sh->refusal_said, 1)) {
+        const char *m = hfc_last_message(c);
+        fprintf(stderr, "%shairfilter load: the server refused a frame: %s%s%s%s; stopping\n",
+                isatty_err && !o->quiet ? "\n" : "", hfc_strerror(d.status), m[0] ? " (" : "",
+                m, m[0] ? ")" : "");
+      }
+    }
   }
   if (err) {
     /* What was pending is lost with the connection; the main thread counts
@@ -483,6 +501,8 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   atomic_store(&sh->warm_busy, 0);
   atomic_store(&sh->warm_errors, 0);
   atomic_store(&sh->lost, 0);
+  atomic_store(&sh->refused, 0);
+  atomic_store(&sh->refusal_said, 0);
   atomic_store(&sh->ready, 0);
   sh->open_loop = p->open_loop;
   sh->rate_per_conn = p->open_loop ? p->rate / n : 0;
@@ -533,7 +553,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
       pthread_mutex_lock(&sh->mu);
       progress(p, t, now_s() - t0, sh->cur, o);
       pthread_mutex_unlock(&sh->mu);
-      if (atomic_load(&sh->lost) == n) break;
+      if (atomic_load(&sh->lost) + atomic_load(&sh->refused) == n) break;
     }
     if (interrupted) {
       /* The window cut short is dropped: its figures would not be a
@@ -566,7 +586,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
               lh_percentile(&done->h[LF_CLIENT], 99) / 1e3, (unsigned long long)done->busy,
               (unsigned long long)done->errors);
     }
-    if (atomic_load(&sh->lost) == n) break;
+    if (atomic_load(&sh->lost) + atomic_load(&sh->refused) == n) break;
     if (!o->trials && t >= STABLE_OVER && t <= 64) {
       const double *tp = p->window_throughput + t - STABLE_OVER;
       const double *p50 = p->window_p50 + t - STABLE_OVER, *p99 = p->window_p99 + t - STABLE_OVER;
@@ -604,6 +624,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   p->sent = atomic_load(&sh->sent) - p->warm_sent;
   p->delayed = atomic_load(&sh->delayed);
   p->lost_connections = atomic_load(&sh->lost);
+  p->refused_connections = atomic_load(&sh->refused);
   uint64_t sent_all = atomic_load(&sh->sent), answered_all = atomic_load(&sh->answered);
   p->unanswered = sent_all > answered_all ? sent_all - answered_all : 0;
   p->answered = p->sent > p->unanswered ? p->sent - p->unanswered : 0;
@@ -664,10 +685,13 @@ static void usage(FILE *f) {
           "The report starts with the command line, the CPU, cores, UTC date and version.\n"
           "SIGINT or SIGTERM stops the point in progress (a window cut short is dropped)\n"
           "and reports and writes the points done.\n"
+          "A frame refused for good (UNKNOWN_VARIANT after a reload, INVALID, ...) stops\n"
+          "the sweep, naming the refusal; BUSY and SHUTTING_DOWN are retried after 10 ms.\n"
           "Exit status: 0 every point measured; 1 the server could not be reached or\n"
           "used, a point measured no frame, requests went unanswered, connections were\n"
-          "lost or a file could not be written; 2 bad options, or a frame or concurrency\n"
-          "over the server's limits; 130 interrupted (SIGINT or SIGTERM).\n");
+          "lost, a frame was refused for good or a file could not be written; 2 bad\n"
+          "options, or a frame or concurrency over the server's limits; 130 interrupted\n"
+          "(SIGINT or SIGTERM).\n");
 }
 
 static int parse(int argc, char **argv, opts *o) {
@@ -994,6 +1018,11 @@ int cmd_load(int argc, char **argv) {
     run_info.npoints = i + 1;
     load_print_point(rep, &run_info, p);
     if (p->unanswered || p->lost_connections) status = 1;
+    if (p->refused_connections) {
+      /* Said where it happened; the next points would meet it too. */
+      status = 1;
+      break;
+    }
   }
   run_info.interrupted = interrupted != 0;
   if (run_info.npoints > 1) load_print_summary(rep, &run_info);

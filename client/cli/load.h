@@ -46,6 +46,7 @@ typedef struct load_point {
   /* Sent in the warm-up (not in sent), and their answers by outcome. */
   uint64_t warm_sent, warm_ok, warm_busy, warm_errors;
   int lost_connections;
+  int refused_connections;       /* stopped by a refusal no retry can fix */
   int interrupted;               /* stopped by a signal: windows cut short dropped */
   load_stats stats;
 } load_point;

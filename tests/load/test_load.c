@@ -562,6 +562,46 @@ static void test_server_lost(void **state) {
     fail_msg("hairfilter load, its server killed: status %d:\n%s", rc, text);
 }
 
+/* A variant that a reload removes in the middle of a run: UNKNOWN_VARIANT
+ * is a refusal no retry can fix, so the tool stops, naming it, with exit
+ * status 1, instead of sending frame after frame to be refused (it sent
+ * 23,456 in 3.5 s and exited 0). */
+static void test_refused_for_good(void **state) {
+  (void)state;
+  char dir[300], copy[400], cmd[1600], tiny[400];
+  snprintf(dir, sizeof dir, "%s/gone", H.dir);
+  snprintf(copy, sizeof copy, "%s/Gone.safetensors", dir);
+  snprintf(tiny, sizeof tiny, "%s/Tiny.safetensors", H.weights_dir);
+  snprintf(cmd, sizeof cmd, "mkdir -p '%s' && cp '%s' '%s'", dir, tiny, copy);
+  assert_int_equal(system(cmd), 0);
+  /* Served from the config file, which the reload reads without it. */
+  char conf[400];
+  snprintf(conf, sizeof conf, "%s/gone.conf", dir);
+  FILE *f = fopen(conf, "w");
+  assert_non_null(f);
+  fprintf(f, "weights = Gone=%s\n", copy);
+  fclose(f);
+  const char *const extra[] = {"--config", conf, NULL};
+  server s2;
+  assert_int_equal(server_start(&H, &s2, extra), 0);
+  snprintf(cmd, sizeof cmd, "'%s' load --server %s --variant Gone --size 12x10 "
+           "--concurrency-range 2 --seconds 6s --warmup 0.2s --quiet > '%s' 2>&1 & L=$!; "
+           "sleep 1.5; echo '; Gone is gone' > '%s'; kill -HUP %d; wait $L",
+           HAIRFILTER_CLI_PATH, s2.unix_url, out_path, conf, (int)s2.pid);
+  int rc = system(cmd);
+  rc = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
+  server_stop(&s2, 5000);
+  unsigned long long frames = 0, busy = 0, errors = 0;
+  const char *p = strstr(text, "  frames ");
+  if (rc != 1 || !strstr(text, "the server refused a frame: unknown variant") ||
+      !strstr(text, "stopping") || !p ||
+      sscanf(p, "  frames %llu throughput %*f frames/s busy %llu errors %llu", &frames, &busy,
+             &errors) != 3 || errors < 1 || errors > 2)
+    fail_msg("a variant removed mid-run: status %d (want 1), %llu error(s) (want 1 or 2, one a "
+             "connection):\n%s", rc, errors, text);
+}
+
 /* Against a server that refuses: a closed-loop request refused BUSY is
  * sent again only after a pause (BUSY_BACKOFF_S, 10 ms), so a window of 1 s
  * at concurrency 6 sees at most about 600 refusals, not the tens of
@@ -651,6 +691,7 @@ int main(int argc, char **argv) {
     cmocka_unit_test(test_frames_in_contract),
     cmocka_unit_test(test_refusing_server),
     cmocka_unit_test(test_server_lost),
+    cmocka_unit_test(test_refused_for_good),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
