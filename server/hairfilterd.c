@@ -677,7 +677,7 @@ int main(int argc, char **argv) {
   uint64_t ok = s->served_answered, failed = s->failed_answered;
   hfd_notice("stopped: %llu request(s) served, %llu failed, %llu pushed out of the queue "
              "(BUSY), %llu refused while draining (SHUTTING_DOWN), %llu answer(s) not "
-             "delivered (peer gone), %llu connection(s) in all",
+             "delivered (peer gone or not reading), %llu connection(s) in all",
              (unsigned long long)ok, (unsigned long long)failed,
              (unsigned long long)s->pushed_out_answered,
              (unsigned long long)s->refused_draining, (unsigned long long)s->replies_lost,
