@@ -16,8 +16,8 @@
 #                saturation), Poisson arrivals
 #
 # Each point: measurement windows (SWEEP_WINDOW, default 2s at 256x256,
-# 4s above) until the last three agree within 10 % or SWEEP_TRIALS (4)
-# windows. SWEEP_TRANSPORTS (default "unix tcp shm") runs fewer. Writes
+# 4s above) until the last three agree within 10 % or SWEEP_TRIALS (default
+# 4, at least 3) windows. SWEEP_TRANSPORTS ("unix tcp shm") runs fewer. Writes
 # OUT_DIR/<size>-<transport>-<loop>.{txt,csv} and one PNG per size (client
 # p50 and p99 against throughput, a panel per loop, a line per transport
 # whose CSV is in OUT_DIR), and prints the sweep tables with the machine
