@@ -136,6 +136,19 @@ int cli_tls_option(int ch, const char *arg, cli_tls *t) {
   }
 }
 
+int cli_tls_for_server(const char *cmd, const char *server, const cli_tls *t) {
+  if (!server || !(t->ca || t->cert || t->key || t->server_name)) return 0;
+  /* An endpoint list: one tls: endpoint is enough. */
+  for (const char *p = server; p; p = strchr(p, ',')) {
+    if (*p == ',') p++;
+    if (!strncmp(p, "tls:", 4)) return 0;
+  }
+  fprintf(stderr, "%s: the --tls-* options are for tls: URLs, and --server %s has none: the "
+          "connection would be plain, its token and frames unencrypted; connect with "
+          "tls:HOST:PORT, or leave the TLS options out\n", cmd, server);
+  return -1;
+}
+
 int cli_tls_pair(const char *cmd, const char *cert, const char *key) {
   if (!cert == !key) return 0;
   fprintf(stderr, "%s: give --tls-cert and --tls-key together (a client certificate "

@@ -55,5 +55,9 @@ int cli_tls_option(int ch, const char *arg, cli_tls *t);
 /* 0, or -1 after saying so when only one of --tls-cert and --tls-key is
  * given (cmd as above). */
 int cli_tls_pair(const char *cmd, const char *cert, const char *key);
+/* 0, or -1 after saying so when a TLS option is given and no endpoint of
+ * server (a URL, or a comma-separated list; NULL: none) is tls:, where it
+ * would be ignored and the connection plain (cmd as above). */
+int cli_tls_for_server(const char *cmd, const char *server, const cli_tls *t);
 
 #endif

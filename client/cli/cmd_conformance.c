@@ -109,6 +109,7 @@ int cmd_conformance(int argc, char **argv) {
     return 2;
   }
   if (cli_tls_pair("hairfilter conformance", tls.cert, tls.key)) return 2;
+  if (cli_tls_for_server("hairfilter conformance", o.server, &tls)) return 2;
   o.tls_ca = tls.ca;
   o.tls_cert = tls.cert;
   o.tls_key = tls.key;

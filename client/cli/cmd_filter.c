@@ -197,6 +197,7 @@ int cmd_filter(int argc, char **argv) {
   }
   if (!server || optind != argc) goto bad;
   if (cli_tls_pair("hairfilter filter", tls.cert, tls.key)) return 2;
+  if (cli_tls_for_server("hairfilter filter", server, &tls)) return 2;
   char why[300];
   if (hfc_check_url(server, why, sizeof why)) {
     fprintf(stderr, "hairfilter: --server: %s\n", why);

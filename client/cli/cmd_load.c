@@ -788,6 +788,7 @@ static int parse(int argc, char **argv, opts *o) {
     return -1;
   }
   if (cli_tls_pair(cmd, o->tls.cert, o->tls.key)) return -1;
+  if (cli_tls_for_server(cmd, o->server, &o->tls)) return -1;
   if (o->input && size_given) {
     fprintf(stderr, "hairfilter load: --size and --input exclude each other (the EXR has its size)\n");
     return -1;

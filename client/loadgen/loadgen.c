@@ -424,6 +424,8 @@ int main(int argc, char **argv) {
             "certificate and its private key)\n");
     return 2;
   }
+  const cli_tls tls = {o.tls_ca, o.tls_cert, o.tls_key, o.tls_server_name};
+  if (cli_tls_for_server("hairfilter-load", o.server, &tls)) return 2;
   char why[300];
   if (hfc_check_url(o.server, why, sizeof why)) {
     fprintf(stderr, "hairfilter-load: --server: %s\n", why);

@@ -98,6 +98,24 @@ static void test_strict_options(void **state) {
   expect_refused("--request-rate-range 5 --concurrency-range 2", "exclude each other");
   expect_refused("--request-distribution gaussian", "'gaussian' is neither constant nor poisson");
   expect_refused("--connections 0", "--connections: 0 is outside 1..1024");
+  /* TLS options with no tls: URL would connect in plain text, the token
+   * and frames unencrypted, while the command line reads as TLS: refused,
+   * by both tools and by filter. */
+  expect_refused("--tls-ca /etc/ssl/certs/ca-certificates.crt",
+                 "--tls-* options are for tls: URLs");
+  char targs[700];
+  snprintf(targs, sizeof targs, "--server %s --variant Tiny --tls-ca /x.pem --seconds 0.2", S.tcp_url);
+  int trc = load_prog(HAIRFILTER_LOADGEN_PATH, targs);
+  if (trc != 2 || !strstr(text, "--tls-* options are for tls: URLs"))
+    fail_msg("hairfilter-load --tls-ca with a tcp: URL: status %d:\n%s", trc, text);
+  char tcmd[900];
+  snprintf(tcmd, sizeof tcmd, "'%s' filter --server %s --tls-server-name x --list > '%s' 2>&1",
+           HAIRFILTER_CLI_PATH, S.tcp_url, out_path);
+  trc = system(tcmd);
+  trc = WIFEXITED(trc) ? WEXITSTATUS(trc) : -1;
+  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
+  if (trc != 2 || !strstr(text, "--tls-* options are for tls: URLs"))
+    fail_msg("hairfilter filter --tls-server-name with a tcp: URL: status %d:\n%s", trc, text);
   expect_refused("--connections 2k", "--connections: '2k' is not an integer");
   expect_refused("--stability-percentage 1e999", "--stability-percentage: '1e999' is not a number");
   expect_refused("--max-trials 2", "--max-trials: 2 is outside 3..64");
