@@ -223,8 +223,11 @@ static void *run(void *arg) {
   hfc_options co = client_options("hairfilter-load", o);
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
-    fprintf(stderr, "hairfilter load: connection %d: %s: %s\n", w->index, o->server,
-            hfc_strerror(rc));
+    /* The server's reason (its connection limit, say), which starts with
+     * the endpoint; the code's words are a guess at it. */
+    const char *m = hfc_last_message(NULL);
+    fprintf(stderr, "hairfilter load: connection %d: %s\n", w->index,
+            m[0] ? m : hfc_strerror(rc));
     w->failed = 1;
     atomic_fetch_add(&sh->lost, 1);
     return NULL;

@@ -620,6 +620,22 @@ static void test_refused_for_good(void **state) {
              "connection):\n%s", rc, errors, text);
 }
 
+/* More connections than the server's --max-connections: the connections
+ * refused say the server's reason (its connection limit), not the BUSY
+ * code's words about the queue, which would send the operator to
+ * --queue-size. */
+static void test_connection_limit(void **state) {
+  (void)state;
+  const char *const extra[] = {"--max-connections", "2", NULL};
+  server s2;
+  assert_int_equal(server_start(&H, &s2, extra), 0);
+  int rc = load("--server %s --variant Tiny --size 12x10 --concurrency-range 3 --seconds 0.5s "
+                "--warmup 0.1s --quiet", s2.unix_url);
+  server_stop(&s2, 5000);
+  if (!strstr(text, "connection limit (2)") || strstr(text, "queue or in-flight limit"))
+    fail_msg("3 connections to a server of --max-connections 2: status %d:\n%s", rc, text);
+}
+
 /* Against a server that refuses: a closed-loop request refused BUSY is
  * sent again only after a pause (BUSY_BACKOFF_S, 10 ms), so a window of 1 s
  * at concurrency 6 sees at most about 600 refusals, not the tens of
@@ -710,6 +726,7 @@ int main(int argc, char **argv) {
     cmocka_unit_test(test_refusing_server),
     cmocka_unit_test(test_server_lost),
     cmocka_unit_test(test_refused_for_good),
+    cmocka_unit_test(test_connection_limit),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
