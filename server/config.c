@@ -134,6 +134,10 @@ static int token_take(const char *source, const char *s, size_t n, char *dst) {
  * file from everyone but the daemon's group (a token is a secret). */
 static void unreadable_why(const char *path, int err, char *why, size_t whylen) {
   struct stat st;
+  if (err == EISDIR) {
+    snprintf(why, whylen, "it is a directory; give the file in it");
+    return;
+  }
   if (err != EACCES || stat(path, &st) != 0) {
     snprintf(why, whylen, "%s", strerror(err));
     return;
@@ -149,8 +153,21 @@ static void unreadable_why(const char *path, int err, char *why, size_t whylen) 
            (unsigned)(st.st_mode & 07777), group, path, path);
 }
 
-static int read_token(const char *path, char *dst) {
+/* fopen(path, "r"), refusing a directory (which Linux opens, and which
+ * then reads as an empty file) with EISDIR. */
+static FILE *open_file(const char *path) {
   FILE *f = fopen(path, "r");
+  struct stat st;
+  if (f && fstat(fileno(f), &st) == 0 && S_ISDIR(st.st_mode)) {
+    fclose(f);
+    errno = EISDIR;
+    return NULL;
+  }
+  return f;
+}
+
+static int read_token(const char *path, char *dst) {
+  FILE *f = open_file(path);
   if (!f) {
     char why[600];
     unreadable_why(path, errno, why, sizeof why);
@@ -593,7 +610,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   struct stat st;
   if (path && (explicit || stat(path, &st) == 0)) {
     int rc = -1;
-    if ((fa.f = fopen(path, "r"))) {
+    if ((fa.f = open_file(path))) {
       rc = ini_parse_stream(read_line, &fa, on_ini, &fa);
       fclose(fa.f);
       /* Lines a repeated key overrode (on_ini) leave holes. */

@@ -8,6 +8,7 @@ no weights are made before any is loaded.
   * a section header, the file's last line included: exit 2, its line;
   * an indented line (inih's continuation of the key above): exit 2, its
     line, said as such;
+  * a config or token file that is a directory: exit 2, said as such;
   * a value the option refuses: exit 2, the file and line named;
   * a key of one value given twice in the file: a warning naming both
     lines, the later one winning;
@@ -108,6 +109,18 @@ def body(w):
     rc, out = run(["--config", conf, "--queue-size", "xyz"], w)
     check(rc == 2 and "<3>error: --queue-size wants an integer in 1..65536, not 'xyz'" in out,
           "a bad value on the command line: status %s, no file named: %r" % (rc, out))
+
+    # A config or token file that is a directory (the folder given for the
+    # file in it): said as such, not read as an empty file.
+    rc, out = run(["--config", w], w)
+    check(rc == 2 and "<3>error: cannot read config file %s: it is a directory; give the file "
+          "in it" % w in out,
+          "--config DIR: exit status %s (want 2), said to be a directory: %r" % (rc, out))
+    rc, out = run(["--config", "none", "--listen", "tcp:127.0.0.1:0", "--auth-token-file", w,
+                   "--weights-dir", wd], w)
+    check(rc == 2 and "<3>error: --auth-token-file %s: it is a directory; give the file in it"
+          % w in out,
+          "--auth-token-file DIR: exit status %s (want 2), said to be a directory: %r" % (rc, out))
 
     # A section is an error, also as the file's last line (inih passes
     # only key lines on, so nothing used to see it there): exit 2, its line.
