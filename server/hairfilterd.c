@@ -222,6 +222,26 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
  * than following it. */
 static char http_url[300];
 
+/* Whether a file can be made beside path, as write_ready_file will:
+ * 0, or -1 after saying why and what to do. */
+static int ready_file_probe(const char *path) {
+  char tmp[4200];
+  if ((size_t)snprintf(tmp, sizeof tmp, "%s.XXXXXX", path) >= sizeof tmp) {
+    hfd_err("--ready-file %s: path too long", path);
+    return -1;
+  }
+  int fd = mkostemp(tmp, O_CLOEXEC | O_NOFOLLOW);
+  if (fd < 0) {
+    hfd_err("--ready-file %s: cannot create a file beside it: %s; its directory must exist and "
+            "be writable by uid %ld, or give another path", path, strerror(errno),
+            (long)geteuid());
+    return -1;
+  }
+  close(fd);
+  unlink(tmp);
+  return 0;
+}
+
 static int write_ready_file(hfd_server *s) {
   const char *path = s->cfg->ready_file;
   char tmp[4200];
@@ -513,6 +533,12 @@ int main(int argc, char **argv) {
    * waits for the file would connect to nothing. It goes before anything
    * else, and comes back once this daemon serves. */
   if (cfg.ready_file) {
+    struct stat rst;
+    if (stat(cfg.ready_file, &rst) == 0 && S_ISDIR(rst.st_mode)) {
+      hfd_err("--ready-file %s is a directory: give the path of a file (%s/ready, say)",
+              cfg.ready_file, cfg.ready_file);
+      return 1;
+    }
     if (unlink(cfg.ready_file) == 0)
       hfd_warn("--ready-file %s: removed the one there, left by a daemon that did not stop "
                "cleanly (or another daemon's: give each its own); written again once this one "
@@ -520,6 +546,10 @@ int main(int argc, char **argv) {
     else if (errno != ENOENT)
       hfd_warn("--ready-file %s: cannot remove the one there: %s", cfg.ready_file,
                strerror(errno));
+    /* It is written beside its place once every model is built, which
+     * with --warm on a GPU takes minutes: a directory that is missing or
+     * not writable is said now, not then. */
+    if (ready_file_probe(cfg.ready_file)) return 1;
   }
 
 

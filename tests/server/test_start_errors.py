@@ -9,6 +9,8 @@ no weights are made before any is loaded.
   * an indented line (inih's continuation of the key above): exit 2, its
     line, said as such;
   * a config or token file that is a directory: exit 2, said as such;
+  * a --ready-file that is a directory or in a missing directory: exit 1
+    at start, before the backend starts;
   * a value the option refuses: exit 2, the file and line named;
   * a key of one value given twice in the file: a warning naming both
     lines, the later one winning;
@@ -300,6 +302,21 @@ def body(w):
     check(rc == 1 and "<3>error: no *.safetensors in %s/noweights: copy the weights files there, "
           "or give the folder that holds them" % w in out,
           "an empty --weights-dir: status %s (want 1), said with what to do: %r" % (rc, out))
+
+    # A ready file that cannot be written: said at start, before the
+    # backend starts and the models are built (minutes with --warm on a
+    # GPU), not once they are.
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights-dir", wd,
+                   "--ready-file", w], w)
+    check(rc == 1 and "<3>error: --ready-file %s is a directory: give the path of a file" % w
+          in out and "backend" not in out,
+          "--ready-file DIR: exit status %s (want 1), said before anything loads: %r" % (rc, out))
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights-dir", wd,
+                   "--ready-file", os.path.join(w, "nodir", "ready")], w)
+    check(rc == 1 and "<3>error: --ready-file %s/nodir/ready: cannot create a file beside it: No "
+          "such file or directory; its directory must exist" % w in out and "backend" not in out,
+          "--ready-file in a missing directory: exit status %s (want 1), said before anything "
+          "loads: %r" % (rc, out))
 
     # A ready file a killed daemon left is removed as the next starts, here
     # one that then fails (its weights file is missing): nothing says ready.
