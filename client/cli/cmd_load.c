@@ -968,6 +968,15 @@ int cmd_load(int argc, char **argv) {
       free(frame);
       return 1;
     }
+  /* They are written at the end: a directory that cannot take them is
+   * said now, not after the run (an hour's soak). */
+  static const char *const out_options[] = {"--json", "--csv", "--plot"};
+  for (int i = 0; i < 3; i++)
+    if (outs[i] && load_out_probe(out_options[i], outs[i])) {
+      free(points);
+      free(frame);
+      return 1;
+    }
   /* SIGINT or SIGTERM stops the point in progress; the points done are
    * reported and written. A second one kills. */
   struct sigaction sa;

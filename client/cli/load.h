@@ -72,6 +72,10 @@ typedef struct load_run {
 void load_print_header(FILE *f, const load_run *r);
 void load_print_point(FILE *f, const load_run *r, const load_point *p);
 void load_print_summary(FILE *f, const load_run *r);
+/* Whether a file can be made beside path (an output written at the end
+ * of the run, under a temporary name there): 0, or -1 after saying why,
+ * naming option. "-" (a standard stream) passes. */
+int load_out_probe(const char *option, const char *path);
 int load_write_csv(const char *path, const load_run *r);
 int load_write_json(const char *path, const load_run *r);
 int load_have_gnuplot(void);

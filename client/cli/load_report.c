@@ -4,6 +4,7 @@
  * its standard input. */
 #define _POSIX_C_SOURCE 200809L
 #include <cjson/cJSON.h>
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -105,12 +106,28 @@ static void temp_name(char *tmp, size_t size, const char *path) {
   snprintf(tmp, size, "%s.tmp%ld", path, (long)getpid());
 }
 
+int load_out_probe(const char *option, const char *path) {
+  if (!strcmp(path, "-")) return 0;
+  char tmp[4200];
+  temp_name(tmp, sizeof tmp, path);
+  FILE *f = fopen(tmp, "w");
+  if (!f) {
+    fprintf(stderr, "hairfilter load: %s %s: cannot create a file beside it: %s; give a path in "
+            "a directory this user can write\n", option, path, strerror(errno));
+    return -1;
+  }
+  fclose(f);
+  unlink(tmp);
+  return 0;
+}
+
 static FILE *open_out(const char *path, const char *what) {
   if (!strcmp(path, "-")) return stdout;
   char tmp[4200];
   temp_name(tmp, sizeof tmp, path);
   FILE *f = fopen(tmp, "w");
-  if (!f) fprintf(stderr, "hairfilter load: cannot write the %s to %s\n", what, path);
+  if (!f) fprintf(stderr, "hairfilter load: cannot write the %s to %s: %s\n", what, path,
+                  strerror(errno));
   return f;
 }
 
@@ -119,7 +136,8 @@ static int close_out(FILE *f, const char *path, const char *what) {
   char tmp[4200];
   temp_name(tmp, sizeof tmp, path);
   if (fclose(f) || rename(tmp, path)) {
-    fprintf(stderr, "hairfilter load: writing the %s to %s failed\n", what, path);
+    fprintf(stderr, "hairfilter load: writing the %s to %s failed: %s\n", what, path,
+            strerror(errno));
     unlink(tmp);
     return -1;
   }

@@ -98,6 +98,17 @@ static void test_strict_options(void **state) {
   expect_refused("--request-rate-range 5 --concurrency-range 2", "exclude each other");
   expect_refused("--request-distribution gaussian", "'gaussian' is neither constant nor poisson");
   expect_refused("--connections 0", "--connections: 0 is outside 1..1024");
+  /* An output file that cannot be written is said before the run, not
+   * after it (a soak's hour lost), with the reason. */
+  const char *outs[] = {"--json", "--csv", "--plot"};
+  for (int i = 0; i < 3; i++) {
+    int orc = load("--server %s --variant Tiny --size 12x10 --seconds 5s --quiet %s "
+                   "/nonexistent-dir/out", S.unix_url, outs[i]);
+    if (orc != 1 || !strstr(text, "cannot create a file beside it: No such file or directory") ||
+        strstr(text, "  frames "))
+      fail_msg("%s in a missing directory: status %d (want 1, before the run):\n%s", outs[i], orc,
+               text);
+  }
   /* TLS options with no tls: URL would connect in plain text, the token
    * and frames unencrypted, while the command line reads as TLS: refused,
    * by both tools and by filter. */
