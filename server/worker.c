@@ -199,11 +199,11 @@ static int prepare_run(hfd_worker *w, run *r, hf_io *io) {
   const void *in = j0->input;
   if (nb == 1 && j0->seg && !hf_model_reads_input_once(j0->model->model, in, in_bytes)) {
     /* A frame in a shared segment is copied out unless the run reads it
-     * once anyway (cudnn moves a pinned segment's frame of a network
-     * without an estimate by DMA and checks it on the device): its client
-     * can write the segment while the backend runs, and the other paths
-     * read the input more than once (the out-of-contract check, then the
-     * network or the estimate's interleaving), so a value rewritten
+     * once anyway (a network with an estimate interleaves it into a copy
+     * of its own; cudnn moves a pinned segment's frame by DMA and checks
+     * it on the device): its client can write the segment while the
+     * backend runs, and the other paths read the input more than once (the
+     * out-of-contract check, then the network), so a value rewritten
      * between them would reach the network unchecked. The copy is what is
      * both checked and run. Its room is charged already
      * (hfd_worker_run_bytes counts a frame's gather slot when it runs

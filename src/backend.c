@@ -470,9 +470,10 @@ int hf_model_wait(hf_model *m, hf_timing *timing) {
 
 int hf_model_reads_input_once(const hf_model *m, const void *in, size_t bytes) {
   if (!m || !in) return 0;
-  /* sanitise_input checks such a network's samples where they are and
-   * then copies them, interleaved with the estimate: two reads. */
-  if (m->cfg.estimate) return 0;
+  /* sanitise_input interleaves such a network's samples and estimate into
+   * a copy, reading each once (hf_features_interleave), and the backend
+   * reads only the copy. */
+  if (m->cfg.estimate) return 1;
   const hf_backend_ops *ops = m->backend->ops;
   return ops->model_reads_input_once ? ops->model_reads_input_once(m->impl, in, bytes) : 0;
 }

@@ -481,15 +481,15 @@ int hf_model_submit_stats(hf_model *m, const hf_io *io, hf_input_report *report,
  * NULL) gets its hf_timing. HF_EINVAL when no run is pending. */
 int hf_model_wait(hf_model *m, hf_timing *timing);
 /* 1 when a run of m with reports (hf_model_submit_report and the functions
- * after it) reads the batch input at in ([bytes] bytes) exactly once: the
- * cudnn backend moves a frame of a network without an estimate by DMA from
- * memory registered with hf_backend_host_register and checks it on the
- * device. 0 when the out-of-contract check (protocol/FEATURES.md) and the
- * network, or the check and the copy that interleaves an estimate with the
- * samples, read it apart (the CPU backends, a staged upload, every network
- * with an estimate): a caller whose input another process may write during
- * the run (a shared-memory segment) copies it first, so that what is
- * checked is what is run. */
+ * after it) reads the batch input at in ([bytes] bytes) exactly once: a
+ * network with an estimate (its samples and estimate are interleaved into
+ * a copy, each value read once, hf_features_interleave), or the cudnn
+ * backend's DMA of a frame from memory registered with
+ * hf_backend_host_register, checked on the device. 0 when the
+ * out-of-contract check (protocol/FEATURES.md) and the network read it
+ * apart (the CPU backends, a staged upload): a caller whose input another
+ * process may write during the run (a shared-memory segment) copies it
+ * first, so that what is checked is what is run. */
 int hf_model_reads_input_once(const hf_model *m, const void *in, size_t bytes);
 /* 1 when hf_model_submit returns before the run ends, so keeping a second
  * run pending overlaps work (the cudnn backend); 0 when submit runs the

@@ -387,38 +387,76 @@ typedef struct interleave_run {
   interleave_part part[HF_PARALLEL_MAX];
 } interleave_run;
 
-/* Pixels [b, e): their samples checked (and counted into the statistics)
- * where they are, then copied while the chunk is still in the cache, each
- * pixel's estimate after them under the estimate's rule. */
+/* Bytes of samples interleave_chunk stages at a time on its stack: at
+ * least 42 pixels of 16 samples of floats, and in L1 with the copy it
+ * makes from them. */
+#define INTERLEAVE_STAGE_BYTES 16384
+
+/* hf_scan_part_add for pixels [p0, p1) of a frame width pixels wide whose
+ * samples are at copy, a copy of those pixels' alone. */
+static void scan_part_add_copy(hf_scan_part *s, const void *copy, hf_dtype dtype, int width,
+                               int spp, size_t p0, size_t p1) {
+  hf_input_report r;
+  report_init(&r);
+  scan_range((void *)copy, dtype, width, spp, 0, (p1 - p0) * spp, 0, NULL, &r);
+  if (r.samples) {
+    /* scan_range placed the first bad sample as if copy began the frame. */
+    size_t px = (size_t)r.y * width + r.x + p0;
+    r.x = (int)(px % (size_t)width);
+    r.y = (int)(px / (size_t)width);
+  }
+  report_merge(&s->report, &r, width, spp);
+  if (s->acc) hf_input_stats_add(s->acc, copy, dtype, spp, 0, p1 - p0);
+}
+
+/* Pixels [b, e), a stage at a time: the samples copied onto the stack
+ * (the one read of them from the input), checked and counted into the
+ * statistics there, and copied on; each pixel's estimate after them,
+ * read once, under the estimate's rule. The input is read once so that
+ * what is checked is what is run though another process may write it
+ * meanwhile (a shared-memory segment: hf_model_reads_input_once). */
 static void interleave_chunk(void *arg, int worker, size_t b, size_t e) {
   interleave_run *r = arg;
   interleave_part *part = &r->part[worker];
-  const size_t esz = r->esz, ns = r->ns;
-  hf_scan_part_add(&r->scan[worker], r->samples, r->dtype, r->width, r->spp, b, e);
-  for (size_t p = b; p < e; p++) {
-    uint8_t *d = r->out + p * r->stride * esz;
-    memcpy(d, r->samples + p * ns * esz, ns * esz);
-    const uint8_t *src = r->est + p * HF_ESTIMATE_CHANNELS * esz;
-    uint8_t *de = d + ns * esz;
-    float v[HF_ESTIMATE_CHANNELS], before[HF_ESTIMATE_CHANNELS];
-    for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++)
-      v[f] = r->dtype == HF_F32 ? ((const float *)src)[f] : hf_f16_to_f32(((const uint16_t *)src)[f]);
-    memcpy(before, v, sizeof v);
-    int feature = 0, kind = fix_estimate(v, &feature);
-    if (!kind) {
-      memcpy(de, src, HF_ESTIMATE_CHANNELS * esz);
-      continue;
-    }
-    /* Every bound is exact in binary16: a fixed half is the fixed float. */
-    if (r->dtype == HF_F32)
-      memcpy(de, v, sizeof v);
-    else
-      for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++) ((uint16_t *)de)[f] = hf_f32_to_f16(v[f]);
-    if (!part->changed++) {
-      part->first = p;
-      part->feature = feature;
-      part->kind = kind;
-      part->value = before[feature];
+  const size_t esz = r->esz, ns = r->ns, per = INTERLEAVE_STAGE_BYTES / (ns * esz);
+  uint8_t stage[INTERLEAVE_STAGE_BYTES];
+  for (size_t q = b; q < e; q += per) {
+    const size_t qe = e - q < per ? e : q + per;
+    memcpy(stage, r->samples + q * ns * esz, (qe - q) * ns * esz);
+    scan_part_add_copy(&r->scan[worker], stage, r->dtype, r->width, r->spp, q, qe);
+    for (size_t p = q; p < qe; p++) {
+      uint8_t *d = r->out + p * r->stride * esz;
+      memcpy(d, stage + (p - q) * ns * esz, ns * esz);
+      uint8_t raw[HF_ESTIMATE_CHANNELS * sizeof(float)];
+      memcpy(raw, r->est + p * HF_ESTIMATE_CHANNELS * esz, HF_ESTIMATE_CHANNELS * esz);
+      uint8_t *de = d + ns * esz;
+      float v[HF_ESTIMATE_CHANNELS], before[HF_ESTIMATE_CHANNELS];
+      for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++) {
+        if (r->dtype == HF_F32) {
+          memcpy(&v[f], raw + f * sizeof(float), sizeof(float));
+        } else {
+          uint16_t h;
+          memcpy(&h, raw + f * sizeof h, sizeof h);
+          v[f] = hf_f16_to_f32(h);
+        }
+      }
+      memcpy(before, v, sizeof v);
+      int feature = 0, kind = fix_estimate(v, &feature);
+      if (!kind) {
+        memcpy(de, raw, HF_ESTIMATE_CHANNELS * esz);
+        continue;
+      }
+      /* Every bound is exact in binary16: a fixed half is the fixed float. */
+      if (r->dtype == HF_F32)
+        memcpy(de, v, sizeof v);
+      else
+        for (int f = 0; f < HF_ESTIMATE_CHANNELS; f++) ((uint16_t *)de)[f] = hf_f32_to_f16(v[f]);
+      if (!part->changed++) {
+        part->first = p;
+        part->feature = feature;
+        part->kind = kind;
+        part->value = before[feature];
+      }
     }
   }
 }
@@ -430,8 +468,7 @@ int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height
   interleave_run r = {.samples = in, .est = (const uint8_t *)in + px * ns * esz, .out = out,
                       .dtype = dtype, .width = width, .spp = spp, .esz = esz, .ns = ns,
                       .stride = ns + HF_ESTIMATE_CHANNELS};
-  /* Chunks as hf_features_widen's: a chunk's samples stay in the cache
-   * from their check to their copy, so the frame is read from memory once. */
+  /* Chunks as hf_features_widen's, each read from the input once. */
   int nw = scan_in_chunks(width, height, spp, r.scan, interleave_chunk, &r, report, stats);
   if (nw < 0) return nw;
   /* Samples out of contract (rare): fixed in the copy, pixel by pixel. */

@@ -652,6 +652,8 @@ static void check_interleave(int w, int h, int spp, int bad_samples) {
   } else if (rs.samples) {
     assert_int_equal(r.sample, rs.sample);
     assert_int_equal(r.x, rs.x);
+    assert_int_equal(r.y, rs.y);
+    assert_int_equal(r.feature, rs.feature);
   }
   assert_int_equal(hf_input_stats_compute(planar, HF_F32, w, h, spp, &st_want), HF_OK);
   assert_memory_equal(&st, &st_want, sizeof st);
@@ -681,6 +683,28 @@ static void test_interleave_estimate(void **state) {
   check_interleave(7, 5, 4, 1);
   check_interleave(13, 3, 1, 1);
   check_interleave(64, 33, 2, 1);
+  check_interleave(97, 61, 16, 1);   /* pixels of 384 bytes: many stages a chunk */
+  /* One bad sample far past the first stage of its chunk: the report
+   * places it in the frame, not in the stage. */
+  {
+    const int w = 97, h = 61, spp = 16;
+    const size_t px = (size_t)w * h, ns = (size_t)spp * 6;
+    float *planar = calloc(px * (ns + 3), sizeof(float)), *out = malloc(px * (ns + 3) * 4);
+    assert_non_null(planar);
+    assert_non_null(out);
+    for (size_t i = 0; i < px * ns; i += 6) planar[i + 2] = 0.5f;   /* alpha */
+    const size_t bad = (size_t)40 * w + 50;
+    planar[bad * ns + 5 * 6 + 1] = INFINITY;   /* sample 5's highlight */
+    hf_input_report r;
+    assert_int_equal(hf_features_interleave(planar, HF_F32, w, h, spp, out, &r, NULL), HF_OK);
+    assert_int_equal(r.samples, 1);
+    assert_int_equal(r.x, 50);
+    assert_int_equal(r.y, 40);
+    assert_int_equal(r.sample, 5);
+    assert_int_equal(r.feature, 1);
+    assert_true(out[bad * (ns + 3) + 5 * 6 + 1] == 0.0f);   /* uncovered: all zero */
+    free(planar), free(out);
+  }
   /* Named values: a NaN alpha, alpha 0 beside a colour, clamps. */
   float planar[4 * 6 + 4 * 3] = {0}, out[4 * 9];
   float *est = planar + 4 * 6;

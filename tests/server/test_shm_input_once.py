@@ -14,9 +14,10 @@ A thread flips one feature between 0 and NaN for as long as the frames
 run. Each frame is then either clean when read, and its result is
 exactly that of the clean frame with flag bit 2 clear, or has the NaN,
 and has flag bit 2 set. The size, 60x60, needs padding, so the cpu
-backend checks the frame in a pass of its own before the network; for
-KernelAC the samples are checked where they are and then interleaved with
-the estimate into a copy, a second read. Both variants hold.
+backend checks Small's frame in a pass of its own before the network
+(the daemon copies it out of the segment first); KernelAC's samples and
+estimate are interleaved into a copy, each value read once and checked
+there (no copy first). Both hold.
 
 usage: test_shm_input_once.py HAIRFILTERD WEIGHTS_DIR
 """
