@@ -394,8 +394,17 @@ static exr_result_t decode_chunk(exr_const_context_t ctx, int part, const exr_ch
     ch->user_data_type = (uint16_t)type;
     ch->user_bytes_per_element = (int16_t)esz;
   }
-  if ((r = exr_decoding_choose_default_routines(ctx, part, &dec)) == EXR_ERR_SUCCESS)
-    r = exr_decoding_run(ctx, part, &dec);
+  r = exr_decoding_choose_default_routines(ctx, part, &dec);
+  /* The file layout stores a chunk that compression would not make smaller
+   * as it is, its size then the raw size (OpenEXR's C++ writer does so for
+   * B44 blocks of chunks under 4x4 pixels). OpenEXRCore 3.1 skips
+   * decompression of such chunks for every compression but B44 and B44A,
+   * whose decoder then refuses the raw bytes: the pipeline reads them as
+   * they are, as OpenEXR's C++ reader does. */
+  if (r == EXR_ERR_SUCCESS && ci->packed_size == ci->unpacked_size &&
+      (ci->compression == EXR_COMPRESSION_B44 || ci->compression == EXR_COMPRESSION_B44A))
+    dec.decompress_fn = NULL;
+  if (r == EXR_ERR_SUCCESS) r = exr_decoding_run(ctx, part, &dec);
   exr_decoding_destroy(ctx, &dec);
   return r;
 }

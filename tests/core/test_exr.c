@@ -690,6 +690,35 @@ static void test_b44_float(void **state) {
   hf_image_free(&img);
 }
 
+/* B44 and B44A chunks that compression would not make smaller are stored
+ * raw by OpenEXR's C++ writer (a chunk of 1 row, a 2x2 edge tile): they
+ * read exactly. tests/data/exr-b44-raw-scanlines.exr (6x33, B44, the
+ * last chunk one row) and exr-b44a-raw-tiles.exr (6x6 in 4x4 tiles,
+ * B44A, tile (1, 1) 2x2), half channels c0..c4: channel c of pixel
+ * (x, y) = c + 0.5 x + 0.25 y, written by OpenImageIO 2.4.7; the blocks
+ * B44 compressed are within its error (0.25 here) of it. */
+static void test_b44_raw_chunks(void **state) {
+  static const struct {
+    const char *file;
+    int w, h, exact_x, exact_y;   /* pixels from (exact_x, exact_y) on are stored raw */
+  } files[] = {{"exr-b44-raw-scanlines.exr", 6, 33, 0, 32}, {"exr-b44a-raw-tiles.exr", 6, 6, 4, 4}};
+  for (size_t i = 0; i < sizeof files / sizeof files[0]; i++) {
+    char err[512];
+    hf_image img;
+    assert_int_equal(hf_exr_read(test_data(files[i].file), &img, err, sizeof err), HF_OK);
+    assert_true(img.width == files[i].w && img.height == files[i].h && img.channels == 5);
+    for (int y = 0; y < img.height; y++)
+      for (int x = 0; x < img.width; x++)
+        for (int c = 0; c < 5; c++) {
+          float v = img.data[((size_t)y * (size_t)img.width + (size_t)x) * 5 + (size_t)c];
+          float want = (float)c + 0.5f * (float)x + 0.25f * (float)y;
+          if (x >= files[i].exact_x && y >= files[i].exact_y) assert_true(same_bits(v, want));
+          else assert_true(fabsf(v - want) <= 0.25f);
+        }
+    hf_image_free(&img);
+  }
+}
+
 /* Sets the header's data window to w x h pixels from its origin. */
 static void set_data_window(const char *path, int w, int h) {
   static const char key[] = "dataWindow\0box2i\0\x10\0\0\0";
@@ -999,6 +1028,7 @@ int main(void) {
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
     cmocka_unit_test(test_b44_float),                cmocka_unit_test(test_short_uncompressed_chunk),
+    cmocka_unit_test(test_b44_raw_chunks),
     cmocka_unit_test(test_small_file_bad_leader), cmocka_unit_test(test_damaged_header_not_cut),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
