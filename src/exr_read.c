@@ -373,25 +373,52 @@ static int check_raw_size(const exr_chunk_info_t *ci, const chunk_pos *p, const 
               (unsigned long long)ci->packed_size, (unsigned long long)ci->unpacked_size);
 }
 
+/* 1 when the chunk's channels are four HALF ones, each decoded: OpenEXRCore
+ * 3.1.5 (Debian 12's) widens those to interleaved floats in reverse order
+ * (its fast path for A, B, G, R into R, G, B, A), with no error; halves
+ * come out in order. */
+static int four_halves(const exr_decode_pipeline_t *dec, const int *slot) {
+  if (dec->channel_count != 4) return 0;
+  for (int c = 0; c < 4; c++)
+    if (dec->channels[c].data_type != EXR_PIXEL_HALF || slot[c] < 0) return 0;
+  return 1;
+}
+
 static exr_result_t decode_chunk(exr_const_context_t ctx, int part, const exr_chunk_info_t *ci,
                                  const chunk_pos *p, const exr_attr_box2i_t *dw,
                                  const int *slot, int nch, exr_pixel_type_t type, void *dst) {
-  size_t esz = type == EXR_PIXEL_HALF ? 2 : 4;
   size_t w = (size_t)((int64_t)dw->max.x - dw->min.x + 1);
+  size_t px = (size_t)(p->y - dw->min.y) * w + (size_t)(p->x - dw->min.x);
   exr_decode_pipeline_t dec = EXR_DECODE_PIPELINE_INITIALIZER;
   exr_result_t r = exr_decoding_initialize(ctx, part, ci, &dec);
   if (r) return r;
+  /* Four halves asked for as floats: decoded as halves into tmp, a tight
+   * p->w x p->h x 4 block, and widened here. */
+  uint16_t *tmp = NULL;
+  if (type == EXR_PIXEL_FLOAT && four_halves(&dec, slot)) {
+    if (!(tmp = malloc((size_t)p->w * (size_t)p->h * 4 * sizeof *tmp))) {
+      exr_decoding_destroy(ctx, &dec);
+      return EXR_ERR_OUT_OF_MEMORY;
+    }
+  }
+  exr_pixel_type_t as = tmp ? EXR_PIXEL_HALF : type;
+  size_t esz = as == EXR_PIXEL_HALF ? 2 : 4;
   for (int c = 0; c < dec.channel_count; c++) {
     exr_coding_channel_info_t *ch = &dec.channels[c];
     if (slot[c] < 0) {
       ch->decode_to_ptr = NULL; /* skipped */
       continue;
     }
-    size_t px = (size_t)(p->y - dw->min.y) * w + (size_t)(p->x - dw->min.x);
-    ch->decode_to_ptr = (uint8_t *)dst + (px * (size_t)nch + (size_t)slot[c]) * esz;
-    ch->user_pixel_stride = (int32_t)(esz * (size_t)nch);
-    ch->user_line_stride = (int32_t)(esz * (size_t)nch * w);
-    ch->user_data_type = (uint16_t)type;
+    if (tmp) {
+      ch->decode_to_ptr = (uint8_t *)(tmp + c);
+      ch->user_pixel_stride = (int32_t)(4 * esz);
+      ch->user_line_stride = (int32_t)(4 * esz * (size_t)p->w);
+    } else {
+      ch->decode_to_ptr = (uint8_t *)dst + (px * (size_t)nch + (size_t)slot[c]) * esz;
+      ch->user_pixel_stride = (int32_t)(esz * (size_t)nch);
+      ch->user_line_stride = (int32_t)(esz * (size_t)nch * w);
+    }
+    ch->user_data_type = (uint16_t)as;
     ch->user_bytes_per_element = (int16_t)esz;
   }
   r = exr_decoding_choose_default_routines(ctx, part, &dec);
@@ -406,6 +433,13 @@ static exr_result_t decode_chunk(exr_const_context_t ctx, int part, const exr_ch
     dec.decompress_fn = NULL;
   if (r == EXR_ERR_SUCCESS) r = exr_decoding_run(ctx, part, &dec);
   exr_decoding_destroy(ctx, &dec);
+  if (tmp && r == EXR_ERR_SUCCESS)
+    for (int y = 0; y < p->h; y++)
+      for (int x = 0; x < p->w; x++)
+        for (int c = 0; c < 4; c++)
+          ((float *)dst)[(px + (size_t)y * w + (size_t)x) * (size_t)nch + (size_t)slot[c]] =
+              hf_f16_to_f32(tmp[((size_t)y * (size_t)p->w + (size_t)x) * 4 + (size_t)c]);
+  free(tmp);
   return r;
 }
 

@@ -719,6 +719,44 @@ static void test_b44_raw_chunks(void **state) {
   }
 }
 
+/* A part of exactly four HALF channels (tests/data/exr-half-4ch.exr: 5x3,
+ * ZIP, c0..c3, channel c of pixel (x, y) = c + 0.5 x + 0.25 y, written by
+ * OpenImageIO 2.4.7) reads with each channel under its own name, as
+ * float32 (which OpenEXRCore 3.1.5 widens in reverse channel order) and as
+ * halves. */
+static void test_four_half_channels(void **state) {
+  for (int as_half = 0; as_half < 2; as_half++) {
+    char err[512];
+    hf_image img;
+    void *data = NULL;
+    assert_int_equal(hf_exr_read_part_as(test_data("exr-half-4ch.exr"), NULL, NULL,
+                                         as_half ? HF_F16 : HF_F32, &img, &data, err, sizeof err),
+                     HF_OK);
+    assert_true(img.width == 5 && img.height == 3 && img.channels == 4);
+    for (int c = 0; c < 4; c++) {
+      char name[8];
+      snprintf(name, sizeof name, "c%d", c);
+      int k = hf_image_channel(&img, name);
+      assert_true(k >= 0);
+      for (int y = 0; y < 3; y++)
+        for (int x = 0; x < 5; x++) {
+          size_t i = ((size_t)y * 5 + (size_t)x) * 4 + (size_t)k;
+          float v = as_half ? hf_f16_to_f32(((const uint16_t *)data)[i]) : ((const float *)data)[i];
+          assert_true(same_bits(v, (float)c + 0.5f * (float)x + 0.25f * (float)y));
+        }
+    }
+    free(data);
+    hf_image_free(&img);
+  }
+  /* And into the image's own floats. */
+  char err[512];
+  hf_image img;
+  assert_int_equal(hf_exr_read(test_data("exr-half-4ch.exr"), &img, err, sizeof err), HF_OK);
+  int k = hf_image_channel(&img, "c3");
+  assert_true(k >= 0 && same_bits(img.data[k], 3.0f));
+  hf_image_free(&img);
+}
+
 /* Sets the header's data window to w x h pixels from its origin. */
 static void set_data_window(const char *path, int w, int h) {
   static const char key[] = "dataWindow\0box2i\0\x10\0\0\0";
@@ -1028,7 +1066,7 @@ int main(void) {
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
     cmocka_unit_test(test_b44_float),                cmocka_unit_test(test_short_uncompressed_chunk),
-    cmocka_unit_test(test_b44_raw_chunks),
+    cmocka_unit_test(test_b44_raw_chunks),             cmocka_unit_test(test_four_half_channels),
     cmocka_unit_test(test_small_file_bad_leader), cmocka_unit_test(test_damaged_header_not_cut),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
