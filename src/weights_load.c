@@ -216,6 +216,18 @@ static void convert(const unsigned char *src, int is_f16, size_t numel, float *d
     dst[i] = hf_f16_to_f32((uint16_t)(src[2 * i] | (src[2 * i + 1] << 8)));
 }
 
+/* Index of the first NaN or infinity among a tensor's numel stored values,
+ * or -1. Read off the bits: an exponent of all ones (F32 0x7f800000, F16
+ * 0x7c00) is an infinity or a NaN. */
+static long long first_nonfinite(const unsigned char *src, int is_f16, size_t numel) {
+  for (size_t i = 0; i < numel; i++) {
+    int bad = is_f16 ? (src[2 * i + 1] & 0x7c) == 0x7c
+                     : (src[4 * i + 3] & 0x7f) == 0x7f && (src[4 * i + 2] & 0x80);
+    if (bad) return (long long)i;
+  }
+  return -1;
+}
+
 static int check_tensor(const cJSON *t, const hf_tensor_spec *s, size_t data_len,
                         int *is_f16, size_t *begin, size_t *end, char *err, size_t errlen) {
   if (!cJSON_IsObject(t)) return fail(err, errlen, HF_EFORMAT, "tensor '%s' missing", s->name);
@@ -414,6 +426,18 @@ int hf_weights_load_mem(const void *buf, size_t len, hf_weights **out, char *err
     if (rc) goto out;
   }
   if ((rc = check_tiling(specs, begin, end, n, data_len, err, errlen)) != HF_OK) goto out;
+  /* A network with a NaN or infinite weight gives NaN for every pixel its
+   * receptive field reaches, which the output guard would turn into neutral
+   * values frame after frame, blamed on the frames. */
+  for (int k = 0; k < n; k++) {
+    long long bad = first_nonfinite(data + begin[k], f16[k], specs[k].numel);
+    if (bad >= 0) {
+      rc = fail(err, errlen, HF_EFORMAT, "tensor '%s': value %lld of %zu is not finite (NaN or "
+                "infinite): the weights are damaged (a training run that diverged?); export "
+                "them again from a good checkpoint", specs[k].name, bad, specs[k].numel);
+      goto out;
+    }
+  }
   hf_weights *w;
   rc = hf_weights_alloc(&tmp.cfg, &w);
   if (rc) {

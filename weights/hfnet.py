@@ -520,6 +520,11 @@ def load_safetensors(path):
             raise ValueError(f"{path}: tensor '{name}': data_offsets [{b}, {e}) hold {e - b} "
                              f"bytes, its shape and dtype need {int(np.prod(shape)) * size}")
         a = np.frombuffer(data[base + b:base + e], dtype=np_dtype).reshape(shape)
+        bad = np.flatnonzero(~np.isfinite(a))
+        if bad.size:
+            raise ValueError(f"{path}: tensor '{name}': value {int(bad[0])} of {a.size} is not "
+                             "finite (NaN or infinite): the weights are damaged (a training run "
+                             "that diverged?); export them again from a good checkpoint")
         sd[name] = torch.from_numpy(a.astype(np.float32))
     return cfg, sd
 

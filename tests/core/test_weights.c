@@ -359,6 +359,32 @@ static void test_tiling_and_header_start(void **state) {
   free(b.data);
 }
 
+/* A NaN or infinite weight is refused, naming the tensor and the value:
+ * loaded, it made every pixel it reached NaN, which the output guard
+ * turned into neutral values blamed on the frames. */
+static void test_nonfinite_values(void **state) {
+  static const unsigned char nan_f32[4] = {0x00, 0x00, 0xc0, 0x7f}, inf_f32[4] = {0, 0, 0x80, 0x7f},
+                             ninf_f32[4] = {0, 0, 0x80, 0xff};
+  const unsigned char *vals[] = {nan_f32, inf_f32, ninf_f32};
+  for (int v = 0; v < 3; v++)
+    for (int last = 0; last < 2; last++) {
+      blob b = valid_file(NULL);
+      size_t at = last ? b.len - 4 : 8 + (size_t)hlen_of(&b);
+      memcpy(b.data + at, vals[v], 4);
+      expect_reject(&b, HF_EFORMAT, "is not finite (NaN or infinite)");
+      free(b.data);
+    }
+  /* The largest finite float is a weight like any other. */
+  blob b = valid_file(NULL);
+  static const unsigned char max_f32[4] = {0xff, 0xff, 0x7f, 0x7f};
+  memcpy(b.data + 8 + hlen_of(&b), max_f32, 4);
+  hf_weights *w = NULL;
+  char err[256];
+  assert_int_equal(hf_weights_load_mem(b.data, b.len, &w, err, sizeof err), HF_OK);
+  hf_weights_free(w);
+  free(b.data);
+}
+
 /* A name twice in one JSON object, at any level, is refused: cJSON would
  * read the first and Python's json the last, two different networks. */
 static void test_duplicate_keys(void **state) {
@@ -629,6 +655,7 @@ int main(void) {
     cmocka_unit_test(test_bad_dtype_and_tensor_set), cmocka_unit_test(test_missing_file),
     cmocka_unit_test(test_trailing_json),       cmocka_unit_test(test_checked_before_allocation),
     cmocka_unit_test(test_header_fuzz),         cmocka_unit_test(test_tiling_and_header_start), cmocka_unit_test(test_duplicate_keys),
+    cmocka_unit_test(test_nonfinite_values),
     cmocka_unit_test(test_not_weights),         cmocka_unit_test(test_header_text),
     cmocka_unit_test(test_metadata_types),       cmocka_unit_test(test_kernel_arch),
   };

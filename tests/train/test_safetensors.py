@@ -159,6 +159,17 @@ class Header(unittest.TestCase):
         for w in words:
             self.assertIn(w, err)
 
+    def test_nonfinite_weight(self):
+        """A NaN or infinite weight is refused by both readers, naming the
+        tensor: loaded, it made every output pixel it reached NaN."""
+        first = min((int(self.offsets(k)[self.offsets(k).index("[") + 1:
+                                         self.offsets(k).index(",")]), k)
+                    for k in hfnet.load_safetensors(self.valid)[1])[1]
+        for v in (float("nan"), float("inf"), float("-inf")):
+            rest = struct.pack("<f", v) + self.rest[4:]
+            self.refused(self.edited("nonfinite.safetensors", "{", "{", rest=rest),
+                         [f"tensor '{first}': value 0 of", "is not finite (NaN or infinite)"])
+
     def test_valid_loads_in_both(self):
         cfg, sd = hfnet.load_safetensors(self.valid)
         self.assertEqual(cfg["name"], "Small")
