@@ -482,7 +482,7 @@ def load_safetensors(path):
     safetensors_header.check_text(path, "metadata 'hairfilter'", meta["hairfilter"])
     try:
         cfg = json.loads(meta["hairfilter"], object_pairs_hook=safetensors_header.unique_keys)
-    except ValueError as e:
+    except (ValueError, RecursionError) as e:   # RecursionError: nested thousands deep
         raise ValueError(f"{path}: metadata 'hairfilter': {e}") from None
     # Checked as the C loader checks it, though only hairfilterd and the
     # CLI read it: one JSON object, nothing after it.
@@ -490,7 +490,7 @@ def load_safetensors(path):
         safetensors_header.check_text(path, "metadata 'input_range'", meta["input_range"])
         try:
             rng = json.loads(meta["input_range"], object_pairs_hook=safetensors_header.unique_keys)
-        except ValueError as e:
+        except (ValueError, RecursionError) as e:
             raise ValueError(f"{path}: metadata 'input_range': {e}") from None
         if not isinstance(rng, dict):
             raise ValueError(f"{path}: metadata 'input_range' is not a JSON object")
@@ -507,15 +507,23 @@ def load_safetensors(path):
                          + (f"; not of this network: {', '.join(extra)}" if extra else ""))
     sd = {}
     for name, t in header.items():
-        if not isinstance(t, dict) or t.get("dtype") not in _DTYPES:
+        if not isinstance(t, dict) or not isinstance(t.get("dtype"), str) or \
+                t["dtype"] not in _DTYPES:
             raise ValueError(f"{path}: tensor '{name}': dtype "
                              f"{t.get('dtype') if isinstance(t, dict) else t!r} is not F32 or F16")
         np_dtype, size = _DTYPES[t["dtype"]]
-        shape = tuple(t.get("shape", ()))
+        if not isinstance(t.get("shape"), list):
+            raise ValueError(f"{path}: tensor '{name}': shape {t.get('shape')!r} is not a list "
+                             f"of integers; the configuration needs {list(want[name])}")
+        shape = tuple(t["shape"])
         if shape != want[name]:
             raise ValueError(f"{path}: tensor '{name}': shape {list(shape)}, the configuration "
                              f"needs {list(want[name])}")
-        b, e = t["data_offsets"]
+        offs = t.get("data_offsets")
+        if not isinstance(offs, list) or len(offs) != 2 or any(type(o) is not int for o in offs):
+            raise ValueError(f"{path}: tensor '{name}': data_offsets {offs!r} are not two "
+                             "integers [begin, end)")
+        b, e = offs
         if e - b != int(np.prod(shape)) * size:
             raise ValueError(f"{path}: tensor '{name}': data_offsets [{b}, {e}) hold {e - b} "
                              f"bytes, its shape and dtype need {int(np.prod(shape)) * size}")

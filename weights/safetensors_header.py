@@ -80,6 +80,10 @@ def read_header(path):
         header = json.loads(text, object_pairs_hook=unique_keys)
     except ValueError as e:
         raise ValueError(f"{path}: header: {e}") from None
+    except RecursionError:
+        # Arrays or objects nested thousands deep: no header of a network.
+        raise ValueError(f"{path}: header: JSON nested too deeply to read (not a safetensors "
+                         "header of weights)") from None
     if not isinstance(header, dict):
         raise ValueError(f"{path}: header is not a JSON object")
     meta = header.get("__metadata__", {})
@@ -118,6 +122,9 @@ def check_tiling(path, header, data_len):
             ranges.append((offs[0], offs[1], name))
     at, prev = 0, None
     for b, e, name in sorted(ranges):
+        if b < 0 or e < b:
+            raise ValueError(f"{path}: tensor '{name}': data_offsets [{b}, {e}) are outside "
+                             "the file (a negative offset, or an end before the begin)")
         if b < at:
             raise ValueError(f"{path}: tensor '{name}': data_offsets [{b}, {e}) overlap tensor "
                              f"'{prev[2]}' [{prev[0]}, {prev[1]}): in safetensors each tensor "

@@ -170,6 +170,28 @@ class Header(unittest.TestCase):
             self.refused(self.edited("nonfinite.safetensors", "{", "{", rest=rest),
                          [f"tensor '{first}': value 0 of", "is not finite (NaN or infinite)"])
 
+    def test_malformed_tensor_fields(self):
+        """A tensor field of another JSON type (a shape that is a number, a
+        dtype that is a list, offsets that are negative) or a header nested
+        thousands deep is a ValueError naming the file, as the C loader
+        refuses it; the Python reader raised TypeError or RecursionError."""
+        deep = "[" * 5000 + "]" * 5000
+        cases = [("shape.safetensors", '"shape":[', '"shape":5,"x":['),
+                 ("dtype.safetensors", '"dtype":"F32"', '"dtype":["F32"]'),
+                 ("offsets.safetensors", '"data_offsets":[0,', '"data_offsets":[-4,'),
+                 ("deep.safetensors", '{"__metadata__":', '{"x":' + deep + ',"__metadata__":'),
+                 ("deep_cfg.safetensors", '{\\"name', '{\\"x\\":' + deep + ',\\"name')]
+        for name, old, new in cases:
+            with self.subTest(name):
+                path = self.edited(name, old, new)
+                try:
+                    hfnet.load_safetensors(path)
+                    self.fail(f"{name} loaded")
+                except ValueError as e:
+                    self.assertIn(path, str(e))
+                rc, err = c_loader(path)
+                self.assertEqual(rc, 1, err)
+
     def test_valid_loads_in_both(self):
         cfg, sd = hfnet.load_safetensors(self.valid)
         self.assertEqual(cfg["name"], "Small")
