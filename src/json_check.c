@@ -57,6 +57,9 @@ const char *hf_json_duplicate(const cJSON *node, const char **where) {
  * also passes control bytes and stops at a NUL, which Python's json (the
  * recipe's reader, weights/hfnet.py) refuses. */
 cJSON *hf_json_one_value(const char *text, size_t len) {
+  /* cJSON skips a UTF-8 byte order mark, which JSON text may not start
+   * with and Python's json refuses. */
+  if (len >= 3 && !memcmp(text, "\xef\xbb\xbf", 3)) return NULL;
   const char *end = NULL;
   cJSON *v = cJSON_ParseWithLengthOpts(text, len, &end, 0);
   if (!v) return NULL;
@@ -176,6 +179,67 @@ long hf_json_nonint_member(const char *text, size_t len, const char *const *keys
       continue;
     }
     if (c != ',' && c != ' ' && c != '\t' && c != '\r' && c != '\n') pending = NULL;
+    i++;
+  }
+  return -1;
+}
+
+long hf_json_nonint_field(const char *text, size_t len, const char *const *keys, int nkeys,
+                          const char **key, size_t *tok_len) {
+  int depth = 0;
+  const char *pending = NULL, *target = NULL;
+  for (size_t i = 0; i < len;) {
+    char c = text[i];
+    if (c == '"') {
+      size_t start = ++i;
+      while (i < len && text[i] != '"') i += text[i] == '\\' ? 2 : 1;
+      size_t n = i - start;
+      i++;
+      size_t j = skip_ws(text, len, i);
+      if (j < len && text[j] == ':') {   /* a key */
+        pending = NULL;
+        if (depth == 1)
+          for (int k = 0; k < nkeys; k++)
+            if (strlen(keys[k]) == n && !memcmp(text + start, keys[k], n)) pending = keys[k];
+        target = pending;
+        i = j + 1;
+        continue;
+      }
+      pending = NULL;
+      continue;
+    }
+    if (c == '{' || c == '[') {
+      depth++;
+      /* The key's value is this array: its numbers are checked too. */
+      if (!(c == '[' && depth == 2 && pending)) target = NULL;
+      pending = NULL;
+      i++;
+      continue;
+    }
+    if (c == '}' || c == ']') {
+      if (depth == 2) target = NULL;
+      depth--;
+      i++;
+      continue;
+    }
+    if (c == '-' || (c >= '0' && c <= '9')) {
+      size_t start = i;
+      int integral = 1;
+      while (i < len && (text[i] == '-' || text[i] == '+' || text[i] == '.' || text[i] == 'e' ||
+                         text[i] == 'E' || (text[i] >= '0' && text[i] <= '9'))) {
+        if (text[i] == '.' || text[i] == 'e' || text[i] == 'E') integral = 0;
+        i++;
+      }
+      if (target && (depth == 1 || depth == 2) && !integral) {
+        if (key) *key = target;
+        if (tok_len) *tok_len = i - start;
+        return (long)start;
+      }
+      if (depth == 1) target = NULL;
+      pending = NULL;
+      continue;
+    }
+    if (c == ',' && depth == 1) target = NULL;
     i++;
   }
   return -1;

@@ -27,6 +27,13 @@ const char *hf_json_text_fault(const char *text, size_t len, size_t *at);
  * are integers to cJSON and Python's == alike, but not to safetensors'
  * reference reader. outer gets that member's key, *key the matching key,
  * *tok_len the number's length. */
+/* The offset in text (valid JSON, len bytes: one object) of the first
+ * number written with a fraction or an exponent that is the value of one of
+ * keys in the top object, or an element of an array that is ("spp": 4.0,
+ * "levels": [32.0]), or -1. *key gets the matching key, *tok_len the
+ * number's length. */
+long hf_json_nonint_field(const char *text, size_t len, const char *const *keys, int nkeys,
+                          const char **key, size_t *tok_len);
 long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
                            char *outer, size_t outer_len, const char **key, size_t *tok_len);
 /* "a string", "a number", "an object", ... of v, for messages. */

@@ -50,9 +50,23 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
   if (!m || !cJSON_IsObject(m)) {
     cJSON_Delete(m);
     return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not one JSON object (nothing "
-                "may follow it)");
+                "may come before it, a byte order mark included, or follow it)");
   }
   int rc = HF_OK;
+  /* 4.0 is 4 to cJSON, but no count to Python's json (hfnet.py refuses
+   * it): refused here too, so no reader takes a file the other refuses. */
+  static const char *const counts[] = {"spp", "in_channels", "out_channels", "levels",
+                                       "kernel_radius", "kernel_hidden"};
+  const char *which = "";
+  size_t tok = 0;
+  long nonint = hf_json_nonint_field(text, strlen(text), counts, 6, &which, &tok);
+  if (nonint >= 0) {
+    rc = fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter': '%s' holds %.*s, not an "
+              "integer: counts are written without a fraction or exponent; write the file "
+              "again (weights/train.py --export)", which, (int)(tok < 32 ? tok : 32),
+              text + nonint);
+    goto out;
+  }
   const char *where = "", *dup = hf_json_duplicate(m, &where);
   if (dup) {
     rc = fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter': duplicate key '%.64s'%s%.64s%s: "

@@ -192,6 +192,18 @@ class Header(unittest.TestCase):
                 rc, err = c_loader(path)
                 self.assertEqual(rc, 1, err)
 
+    def test_hairfilter_counts_and_bom(self):
+        """The 'hairfilter' string's counts written as 4.0 or 32.0, and a
+        byte order mark before its JSON, are refused by both readers (the C
+        loader took them: cJSON reads 4.0 as 4 and skips a mark)."""
+        for name, old, new, word in [
+                ("spp.safetensors", '\\"spp\\": 4', '\\"spp\\": 4.0', "'spp'"),
+                ("levels.safetensors", '\\"levels\\": [16', '\\"levels\\": [16.0', "'levels'"),
+                ("levels_exp.safetensors", '\\"levels\\": [16', '\\"levels\\": [1.6e1', "'levels'"),
+                ("bom.safetensors", '"hairfilter":"{', '"hairfilter":"\ufeff{', "metadata 'hairfilter'")]:
+            with self.subTest(name):
+                self.refused(self.edited(name, old, new), [word])
+
     def test_valid_loads_in_both(self):
         cfg, sd = hfnet.load_safetensors(self.valid)
         self.assertEqual(cfg["name"], "Small")
