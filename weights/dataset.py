@@ -157,13 +157,29 @@ def split_frames(entries, val_fraction=0.1):
 # ---- EXR -------------------------------------------------------------------
 
 def read_exr(path):
-    """(channel names, float32 array [h][w][c])."""
+    """(channel names, float32 array [h][w][c]) of the file's part that the
+    C reader (src/exr_read.c) chooses: the only part, else the one part
+    holding S0.color; other multi-part files are refused, naming the parts."""
     inp = oiio.ImageInput.open(path)
     if not inp:
         raise DatasetError(f"cannot read {path}: {oiio.geterror()}")
-    spec = inp.spec()
+    specs = []
+    while inp.seek_subimage(len(specs), 0):
+        specs.append(inp.spec())
+    part = 0
+    if len(specs) > 1:
+        with_features = [i for i, s in enumerate(specs) if "S0.color" in s.channelnames]
+        if len(with_features) != 1:
+            inp.close()
+            listed = ", ".join(f'{i} "{s.getattribute("name") or ""}" ({s.nchannels} channels)'
+                               for i, s in enumerate(specs))
+            raise DatasetError(f"{path} has {len(specs)} parts, "
+                               f"{'several' if with_features else 'none'} with channel "
+                               f"S0.color: {listed}; write the frame's features as one part")
+        part = with_features[0]
+    spec = specs[part]
     names = list(spec.channelnames)
-    data = inp.read_image(oiio.FLOAT)
+    data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
     inp.close()
     if data is None:
         raise DatasetError(f"cannot read pixels of {path}")

@@ -84,6 +84,44 @@ class Recipe(unittest.TestCase):
         self.assertEqual(sorted(e["file"] for e in va), sorted(e["file"] for e in va2))
         self.assertFalse({e["file"] for e in va} & {e["file"] for e in tr})
 
+    def test_multipart_frame_reads_its_feature_part(self):
+        """A frame whose features are one part of a multi-part EXR (after an
+        RGBA part) is read from that part, as the C reader chooses it; it was
+        read from part 0 and refused as "not a feature file". Two parts with
+        S0.color are refused, naming the parts."""
+        import OpenImageIO as oiio
+        frame = dataset.read_manifest(self.data)[0]["file"]
+        names, data = dataset.read_exr(frame)
+        h, w, c = data.shape
+        rgba = oiio.ImageSpec(w, h, 4, oiio.HALF)
+        rgba.channelnames = ("R", "G", "B", "A")
+        rgba.attribute("name", "rgba")
+        feat = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+        feat.channelnames = tuple(names)
+        feat.attribute("name", "features")
+        feat0 = oiio.ImageSpec(feat)
+        feat0.attribute("name", "features0")
+        for label, first in (("one", rgba), ("two", feat0)):
+            path = os.path.join(self.work, f"multipart_{label}.exr")
+            out = oiio.ImageOutput.create(path)
+            self.assertTrue(out.open(path, (first, feat)), oiio.geterror())
+            self.assertTrue(out.write_image(data if label == "two" else
+                                            np.zeros((h, w, 4), np.float32)))
+            self.assertTrue(out.open(path, feat, "appendsubimage"))
+            self.assertTrue(out.write_image(data))
+            out.close()
+            if label == "one":
+                n2, d2 = dataset.read_exr(path)
+                self.assertEqual(n2, names)
+                self.assertTrue(np.array_equal(d2.view(np.uint32), data.view(np.uint32)))
+                f1, t1 = dataset.load_frame(frame)
+                f2, t2 = dataset.load_frame(path)
+                self.assertTrue(np.array_equal(f1, f2) and np.array_equal(t1, t2))
+            else:
+                with self.assertRaises(dataset.DatasetError) as e:
+                    dataset.read_exr(path)
+                self.assertIn("2 parts, several with channel S0.color", str(e.exception))
+
     def test_augmentation_keeps_tangents_on_the_strand(self):
         """A single straight strand: after every flip/rotation the tangent
         features must still be parallel to the strand as seen in the image
