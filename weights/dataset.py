@@ -180,10 +180,18 @@ def read_exr(path):
     spec = specs[part]
     names = list(spec.channelnames)
     data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
-    inp.close()
     if data is None:
+        inp.close()
         raise DatasetError(f"cannot read pixels of {path}")
-    data = np.asarray(data, np.float32).reshape(spec.height, spec.width, len(names))
+    data = np.array(data, np.float32).reshape(spec.height, spec.width, len(names))
+    # OpenImageIO scales a UINT channel to [0, 1]; OpenEXR (and the C
+    # reader) convert its integers to float as they are: read as such.
+    formats = list(spec.channelformats) or [spec.format] * spec.nchannels
+    for c, f in enumerate(formats):
+        if f.basetype == oiio.UINT32:
+            ints = inp.read_image(part, 0, c, c + 1, oiio.UINT32)
+            data[..., c] = np.asarray(ints, np.uint32).reshape(spec.height, spec.width)
+    inp.close()
     return names, data
 
 

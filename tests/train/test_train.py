@@ -122,6 +122,24 @@ class Recipe(unittest.TestCase):
                     dataset.read_exr(path)
                 self.assertIn("2 parts, several with channel S0.color", str(e.exception))
 
+    def test_uint_channels_read_as_their_integers(self):
+        """A UINT channel reads as its integers converted to float, as
+        OpenEXR and the C reader convert it, not scaled to [0, 1] as
+        OpenImageIO presents it: training and hairfilter see one value."""
+        import OpenImageIO as oiio
+        ints = np.array([[[0, 1, 7, 4294967295]]], np.uint32)
+        spec = oiio.ImageSpec(1, 1, 4, oiio.UINT32)
+        spec.channelnames = ("c0", "c1", "c2", "c3")
+        spec.channelformats = tuple(oiio.TypeDesc(t) for t in ("uint", "uint", "half", "uint"))
+        path = os.path.join(self.work, "uint.exr")
+        out = oiio.ImageOutput.create(path)
+        self.assertTrue(out.open(path, spec) and out.write_image(ints), oiio.geterror())
+        out.close()
+        names, data = dataset.read_exr(path)
+        self.assertEqual(names, ["c0", "c1", "c2", "c3"])
+        self.assertEqual([float(data[0, 0, c]) for c in (0, 1, 3)],
+                         [0.0, 1.0, float(np.float32(4294967295))])
+
     def test_augmentation_keeps_tangents_on_the_strand(self):
         """A single straight strand: after every flip/rotation the tangent
         features must still be parallel to the strand as seen in the image
