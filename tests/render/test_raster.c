@@ -173,6 +173,45 @@ static void test_mask_deterministic(void **state) {
  * same rule) and 64-sample stochastic transparency must then agree on the
  * frame's coverage, and the area must grow with the width beyond a pixel
  * (it stalled at one pixel, and at one subsample in the truth, before). */
+/* Strands far wider than the frame (widths near float's largest, or a
+ * thickness scale that overflows their product) cover what strands a few
+ * frames wide cover; they were dropped or drawn in part. */
+static void test_huge_widths_cover_the_frame(void **state) {
+  (void)state;
+  static const struct {
+    float thickness, px;   /* model thickness, thickness scale in pixels per unit */
+  } cases[] = {{1.0f, 4.0f * W}, {1.0f, 1e30f}, {1e30f, 1e30f}, {3.4e38f, 1.0f}};
+  size_t first = 0;
+  for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+    hfr_hair h;
+    synthetic(&h, 1.0f);
+    for (uint32_t p = 0; p < h.points; p++) h.thickness[p] = cases[c].thickness;
+    char err[512] = "";
+    assert_int_equal(hfr_renderer_set_hair(R, &h, 0, err, sizeof err), HF_OK);
+    hfr_view v;
+    flat_view(&v);
+    v.thickness_scale = scale_for_pixels(R, &v, cases[c].px);
+    hfr_outputs o = {0};
+    o.spp = 4, o.seed = 3;
+    hf_image img;
+    int rc = hfr_render(R, &v, &o, &img, NULL, err, sizeof err);
+    if (rc != HF_OK) fail_msg("render: %s", err);
+    int a = hf_image_channel(&img, "S0.alpha");
+    assert_true(a >= 0);
+    size_t covered = 0;
+    for (size_t p = 0; p < (size_t)W * H; p++) covered += img.data[p * img.channels + a] > 0;
+    print_message("thickness %g x scale for %g px: %zu of %d pixels covered\n",
+                  (double)cases[c].thickness, (double)cases[c].px, covered, W * H);
+    /* Every row, along the strands' length (the view frames them with a
+     * margin at their ends): what the strands 4 frames wide cover. */
+    if (c == 0) first = covered;
+    assert_true(covered >= (size_t)W * H / 2);
+    assert_int_equal(covered, first);
+    hf_image_free(&img);
+    hfr_hair_free(&h);
+  }
+}
+
 static void test_wide_strands_area(void **state) {
   (void)state;
   hfr_hair h;
@@ -1146,7 +1185,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_hashed_alpha_binomial),
     cmocka_unit_test(test_mask_deterministic),
-    cmocka_unit_test(test_wide_strands_area),
+    cmocka_unit_test(test_wide_strands_area), cmocka_unit_test(test_huge_widths_cover_the_frame),
     cmocka_unit_test(test_gt_matches_cpu_blend),
     cmocka_unit_test(test_gt_dense),
     cmocka_unit_test(test_gt_bands),
