@@ -549,8 +549,11 @@ def check_config(path, cfg):
 
     if not isinstance(cfg, dict):
         bad("'hairfilter' is not a JSON object")
-    if not isinstance(cfg.get("name"), str) or not cfg["name"]:
-        bad("'name' missing")
+    # The C loader's bound (HF_NAME_MAX - 1 bytes, src/hfcore.h): a longer
+    # name was taken here, by train.py --init, and refused by hairfilterd.
+    if not isinstance(cfg.get("name"), str) or not cfg["name"] or \
+            len(cfg["name"].encode()) > 63:
+        bad("'name' missing or longer than 63 bytes")
     arch = cfg.get("arch", "unet")
     if arch not in ("unet", "residual", "kernel"):
         bad(f"unsupported 'arch' {arch!r} (want unet, residual or kernel)")

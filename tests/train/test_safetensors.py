@@ -204,6 +204,19 @@ class Header(unittest.TestCase):
             with self.subTest(name):
                 self.refused(self.edited(name, old, new), [word])
 
+    def test_name_longer_than_the_c_loader_takes(self):
+        """A variant name over 63 bytes (UTF-8) is refused by both readers;
+        hfnet.load_safetensors took it, and hairfilterd refused the file."""
+        for name, ok in (("x" * 63, True), ("x" * 64, False), ("\u00e9" * 32, False)):
+            with self.subTest(len=len(name.encode())):
+                path = self.edited("name.safetensors", '\\"name\\": \\"Small\\"',
+                                   '\\"name\\": \\"' + name + '\\"')
+                if ok:
+                    self.assertEqual(hfnet.load_safetensors(path)[0]["name"], name)
+                    self.assertEqual(c_loader(path)[0], 0)
+                else:
+                    self.refused(path, ["'name' missing or longer than 63 bytes"])
+
     def test_valid_loads_in_both(self):
         cfg, sd = hfnet.load_safetensors(self.valid)
         self.assertEqual(cfg["name"], "Small")
