@@ -10,6 +10,7 @@ a model trained here exports directly to the C backends and vice versa.
     dec0 has 3 outputs and no ReLU but the output transforms.
 """
 import json
+import math
 import os
 import struct
 
@@ -495,6 +496,8 @@ def load_safetensors(path):
         if not isinstance(rng, dict):
             raise ValueError(f"{path}: metadata 'input_range' is not a JSON object")
     check_config(path, cfg)
+    if "input_range" in meta:
+        check_input_range(path, rng, cfg["spp"])
     # The tensors the configuration makes, as the C loader checks them: a
     # file with one missing, extra or of another shape was accepted here
     # and failed later in load_state_dict (or not at all).
@@ -535,6 +538,41 @@ def load_safetensors(path):
                              "that diverged?); export them again from a good checkpoint")
         sd[name] = torch.from_numpy(a.astype(np.float32))
     return cfg, sd
+
+
+def check_input_range(path, rng, spp):
+    """The 'input_range' metadata as src/input_range.c checks it (one-line
+    ValueError in its words): a 'definition' number, and for this
+    definition the variant's spp, a count of frames and finite [low, high]
+    ranges, at least one. A range of another definition is left unused."""
+    import input_stats
+
+    def bad(what):
+        raise ValueError(f"{path}: metadata: input_range: {what}")
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if not number(rng.get("definition")):
+        bad("no 'definition' number")
+    if rng["definition"] != input_stats.DEFINITION:
+        return
+    if not number(rng.get("spp")) or rng["spp"] != spp:
+        bad(f"'spp' must be the variant's {spp}")
+    f = rng.get("frames")
+    if not number(f) or not 1 <= f <= 1e9 or f != int(f):
+        bad("'frames' must be a count >= 1")
+    seen = 0
+    for k in input_stats.STATS:
+        if k not in rng:
+            continue
+        r = rng[k]
+        if not isinstance(r, list) or len(r) != 2 or not all(number(v) for v in r) or \
+                not all(math.isfinite(v) for v in r) or r[0] > r[1]:
+            bad(f"'{k}' must be [low, high] with low <= high")
+        seen += 1
+    if not seen:
+        bad("no statistic has a range")
 
 
 def check_config(path, cfg):

@@ -10,6 +10,7 @@ by both, with the key or the bytes named.
 Exits 77 (skipped) when torch or numpy is missing.
 """
 import argparse
+import json
 import os
 import shutil
 import struct
@@ -216,6 +217,35 @@ class Header(unittest.TestCase):
                     self.assertEqual(c_loader(path)[0], 0)
                 else:
                     self.refused(path, ["'name' missing or longer than 63 bytes"])
+
+    def test_input_range_checked_alike(self):
+        """An 'input_range' the C loader refuses is refused by
+        hfnet.load_safetensors in its words; it took any JSON object."""
+        def with_range(name, text):
+            return self.edited(name, '"__metadata__":{',
+                               '"__metadata__":{"input_range":' + json.dumps(text) + ',')
+        for name, text, word in [
+                ("r_def.safetensors", '{"spp": 4}', "input_range: no 'definition' number"),
+                ("r_spp.safetensors", '{"definition": 1, "spp": 2, "frames": 3, '
+                 '"hair_fraction": [0.1, 0.2]}', "input_range: 'spp' must be the variant's 4"),
+                ("r_frames.safetensors", '{"definition": 1, "spp": 4, "frames": 0, '
+                 '"hair_fraction": [0.1, 0.2]}', "input_range: 'frames' must be a count >= 1"),
+                ("r_order.safetensors", '{"definition": 1, "spp": 4, "frames": 3, '
+                 '"hair_fraction": [0.2, 0.1]}', "'hair_fraction' must be [low, high]"),
+                ("r_none.safetensors", '{"definition": 1, "spp": 4, "frames": 3}',
+                 "input_range: no statistic has a range")]:
+            with self.subTest(name):
+                self.refused(with_range(name, text), [word])
+        # NaN, which Python's json reads and cJSON does not: refused by both.
+        path = with_range("r_nan.safetensors", '{"definition": 1, "spp": 4, "frames": 3, '
+                          '"hair_fraction": [NaN, 0.2]}')
+        with self.assertRaises(ValueError):
+            hfnet.load_safetensors(path)
+        self.assertEqual(c_loader(path)[0], 1)
+        # A range of another definition is left unused by both.
+        path = with_range("r_other.safetensors", '{"definition": 99}')
+        hfnet.load_safetensors(path)
+        self.assertEqual(c_loader(path)[0], 0)
 
     def test_valid_loads_in_both(self):
         cfg, sd = hfnet.load_safetensors(self.valid)
