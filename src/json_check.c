@@ -121,6 +121,18 @@ static size_t skip_ws(const char *text, size_t len, size_t i) {
   return i;
 }
 
+/* Whether the key whose n bytes start at text[start] (inside its quotes)
+ * is key once its escapes are decoded: "sp\u0070" is "spp" to cJSON and
+ * Python's json alike, so a check by name that compared the bytes as
+ * written would pass it over. */
+static int key_is(const char *text, size_t start, size_t n, const char *key) {
+  if (!memchr(text + start, '\\', n)) return strlen(key) == n && !memcmp(text + start, key, n);
+  cJSON *s = cJSON_ParseWithLength(text + start - 1, n + 2);   /* with its quotes */
+  int same = cJSON_IsString(s) && !strcmp(s->valuestring, key);
+  cJSON_Delete(s);
+  return same;
+}
+
 long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
                            char *outer, size_t outer_len, const char **key, size_t *tok_len) {
   int depth = 0, inside = 0;
@@ -139,7 +151,7 @@ long hf_json_nonint_member(const char *text, size_t len, const char *const *keys
         pending = NULL;
         if (depth == 2)
           for (int k = 0; k < nkeys; k++)
-            if (strlen(keys[k]) == n && !memcmp(text + start, keys[k], n)) pending = keys[k];
+            if (key_is(text, start, n, keys[k])) pending = keys[k];
         i = j + 1;
         continue;
       }
@@ -200,7 +212,7 @@ long hf_json_nonint_field(const char *text, size_t len, const char *const *keys,
         pending = NULL;
         if (depth == 1)
           for (int k = 0; k < nkeys; k++)
-            if (strlen(keys[k]) == n && !memcmp(text + start, keys[k], n)) pending = keys[k];
+            if (key_is(text, start, n, keys[k])) pending = keys[k];
         target = pending;
         i = j + 1;
         continue;

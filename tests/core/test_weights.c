@@ -481,6 +481,21 @@ static void test_header_text(void **state) {
     expect_reject(&t, HF_EFORMAT, nonint[i].want);
     free(t.data);
   }
+  /* A key written with escapes is the key it decodes to, to cJSON and
+   * Python's json alike: the check goes by the decoded name too. */
+  static const struct {
+    const char *from, *to, *want;
+  } escaped[] = {
+    {"\"shape\":[16,24,3,3]", "\"sh\\u0061pe\":[16.0,24,3,3]", "shape holds 16.0"},
+    {"\"data_offsets\":[0,", "\"data\\u005foffsets\":[0.0,", "data_offsets holds 0.0"},
+    {"\\\"spp\\\":4", "\\\"sp\\\\u0070\\\":4.0", "'spp' holds 4.0"},
+    {"\\\"spp\\\":4", "\\\"\\\\u0073pp\\\":4E0", "'spp' holds 4E0"},
+  };
+  for (size_t i = 0; i < sizeof escaped / sizeof escaped[0]; i++) {
+    blob t = with_header_edit(&b, escaped[i].from, escaped[i].to);
+    expect_reject(&t, HF_EFORMAT, escaped[i].want);
+    free(t.data);
+  }
   blob fine = with_header_edit(&b, "\"__metadata__\":{", "\"__metadata__\":{\"shape\":\"[1.5]\",");
   hf_weights *fw = NULL;
   char ferr[512] = "";
