@@ -14,13 +14,31 @@
  * shared folder): the token a server takes is written as this instead. */
 #define HIDDEN_TOKEN "***"
 
+/* Whether a names --token as getopt_long takes it: the whole name or any
+ * abbreviation of it ("--tok"), alone (its value the next argument) or
+ * with "=VALUE"; *eq gets the '=' or NULL. */
+static int token_option(const char *a, const char **eq) {
+  static const char name[] = "token";
+  if (strncmp(a, "--", 2)) return 0;
+  a += 2;
+  size_t n = strcspn(a, "=");
+  *eq = a[n] ? a + n : NULL;
+  return n > 0 && n < sizeof name && !strncmp(a, name, n);
+}
+
 void run_header_describe(const char *prog, int argc, char **argv, run_header *h) {
   size_t cap = sizeof h->command;
   size_t n = (size_t)snprintf(h->command, cap, "%s", prog);
   for (int i = 0; i < argc && n < cap - 8; i++) {
     const char *a = argv[i];
-    if (i > 0 && !strcmp(argv[i - 1], "--token")) a = HIDDEN_TOKEN;
-    else if (!strncmp(a, "--token=", 8)) a = "--token=" HIDDEN_TOKEN;
+    const char *eq = NULL;
+    char shown[64];
+    if (i > 0 && token_option(argv[i - 1], &eq) && !eq) {
+      a = HIDDEN_TOKEN;
+    } else if (token_option(a, &eq) && eq) {
+      snprintf(shown, sizeof shown, "%.*s=" HIDDEN_TOKEN, (int)(eq - a), a);
+      a = shown;
+    }
     int plain = *a != 0;
     for (const char *c = a; *c; c++)
       if (!strchr("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_@%+=:,./-", *c))

@@ -468,6 +468,16 @@ static void test_transports(void **state) {
     fail_msg("--token=: status %d:\n%s", rc_token, text);
   if (read_text_file(json_path, text, sizeof text) || strstr(text, TEST_TOKEN))
     fail_msg("the JSON shows the token:\n%s", text);
+  /* getopt_long takes an abbreviated option: hidden as well. */
+  static const char *const abbreviated[] = {"--tok %s", "--toke=%s"};
+  for (int i = 0; i < 2; i++) {
+    char tok[200];
+    snprintf(tok, sizeof tok, abbreviated[i], TEST_TOKEN);
+    rc_token = load("--server %s %s --variant Tiny --size 12x10 --seconds 0.3 --warmup 0 --quiet",
+                    S.tcp_url, tok);
+    if (rc_token || strstr(text, TEST_TOKEN))
+      fail_msg("%s: status %d, the report shows the token:\n%s", abbreviated[i], rc_token, text);
+  }
   char targs[600];
   snprintf(targs, sizeof targs, "--server %s --token %s --variant Tiny --size 12x10 --seconds 0.3 "
            "--warmup 0", S.tcp_url, TEST_TOKEN);
