@@ -57,6 +57,7 @@ typedef struct worker {
   int last_error;                /* the last error answered, for its name */
   int fatal;
   int cut;                       /* stopped (fatal) before its window's end */
+  int refused;                   /* stopped by a refusal no retry can fix, its link intact */
   int batch_sum, batch_n;
 } worker;
 
@@ -305,6 +306,7 @@ static void *run(void *arg) {
       fprintf(stderr, "hairfilter-load: the server refused a frame: %s%s%s%s; stopping\n",
               hfc_strerror(d.status), m[0] ? " (" : "", m, m[0] ? ")" : "");
       refused = 1;
+      w->refused = 1;
       w->fatal = 1;
     }
   }
@@ -312,6 +314,7 @@ static void *run(void *arg) {
   if (rc) {
     fprintf(stderr, "hairfilter-load: connection failed: %s\n", hfc_strerror(rc));
     w->fatal = 1;
+    w->refused = 0;   /* lost, whatever came before */
   }
   if (w->fatal) {
     /* Its window ends here: the throughput is over the time measured. */
@@ -508,7 +511,7 @@ int main(int argc, char **argv) {
   }
   size_t total = 0;
   uint64_t busy = 0, errors = 0, sent = 0, answered = 0, wsent = 0, wok = 0, wbusy = 0, werr = 0;
-  int fatal = 0, bsum = 0, bn = 0, last_error = 0, cut = 0;
+  int fatal = 0, bsum = 0, bn = 0, last_error = 0, cut = 0, cut_lost = 0;
   double elapsed = o.seconds, longest = 0;
   for (int i = 0; i < o.connections; i++) {
     pthread_join(w[i].thread, NULL);
@@ -528,6 +531,7 @@ int main(int argc, char **argv) {
     if (interrupted && w[i].t_end <= w[i].t_measure) elapsed = 0;
     if (w[i].t_end - w[i].t_measure > longest) longest = w[i].t_end - w[i].t_measure;
     cut |= w[i].cut;
+    cut_lost |= w[i].cut && !w[i].refused;
     fatal |= w[i].fatal;
     bsum += w[i].batch_sum;
     bn += w[i].batch_n;
@@ -559,7 +563,10 @@ int main(int argc, char **argv) {
   printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.1f s measured%s\n",
          o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server,
          o.shm ? " + shared memory" : "", backend, precision, o.connections, o.inflight, elapsed,
-         interrupted ? " (interrupted)" : cut ? " (cut short: connections lost)" : "");
+         interrupted ? " (interrupted)"
+         : !cut      ? ""
+         : cut_lost  ? " (cut short: connections lost)"
+                     : " (cut short: a frame refused for good)");
   printf("  frames %zu  throughput %.1f frames/s  busy %llu  errors %llu%s%s%s  mean batch %.2f\n",
          total, elapsed > 0 ? (double)total / elapsed : 0.0, (unsigned long long)busy,
          (unsigned long long)errors, last_error ? " (last: " : "",

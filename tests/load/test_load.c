@@ -607,7 +607,7 @@ static void test_server_lost(void **state) {
  * 23,456 in 3.5 s and exited 0). */
 static void test_refused_for_good(void **state) {
   (void)state;
-  char dir[300], copy[400], cmd[1600], tiny[400];
+  char dir[300], copy[400], cmd[3000], tiny[400];
   snprintf(dir, sizeof dir, "%s/gone", H.dir);
   snprintf(copy, sizeof copy, "%s/Gone.safetensors", dir);
   snprintf(tiny, sizeof tiny, "%s/Tiny.safetensors", H.weights_dir);
@@ -623,14 +623,25 @@ static void test_refused_for_good(void **state) {
   const char *const extra[] = {"--config", conf, NULL};
   server s2;
   assert_int_equal(server_start(&H, &s2, extra), 0);
+  /* hairfilter-load beside it, on the same reload. */
   snprintf(cmd, sizeof cmd, "'%s' load --server %s --variant Gone --size 12x10 "
            "--concurrency-range 2 --seconds 6s --warmup 0.2s --quiet > '%s' 2>&1 & L=$!; "
-           "sleep 1.5; echo '; Gone is gone' > '%s'; kill -HUP %d; wait $L",
-           HAIRFILTER_CLI_PATH, s2.unix_url, out_path, conf, (int)s2.pid);
+           "'%s' --server %s --variant Gone --size 12x10 --seconds 6 --warmup 0.2 > '%s' 2>&1 "
+           "& G=$!; sleep 1.5; echo '; Gone is gone' > '%s'; kill -HUP %d; wait $G; "
+           "echo \"exit $?\" >> '%s'; wait $L",
+           HAIRFILTER_CLI_PATH, s2.unix_url, out_path, HAIRFILTER_LOADGEN_PATH, s2.unix_url,
+           err_path, conf, (int)s2.pid, err_path);
   int rc = system(cmd);
   rc = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
   server_stop(&s2, 5000);
+  /* Its window, cut short by the refusal, is said to be so: no
+   * connection was lost. */
+  if (read_text_file(err_path, text, sizeof text)) text[0] = 0;
+  if (!strstr(text, "hairfilter-load: the server refused a frame: unknown variant") ||
+      !strstr(text, "(cut short: a frame refused for good)") ||
+      strstr(text, "connections lost") || !strstr(text, "exit 1\n"))
+    fail_msg("hairfilter-load, a variant removed mid-run:\n%s", text);
+  if (read_text_file(out_path, text, sizeof text)) text[0] = 0;
   unsigned long long frames = 0, busy = 0, errors = 0;
   const char *p = strstr(text, "  frames ");
   if (rc != 1 || !strstr(text, "the server refused a frame: unknown variant") ||
