@@ -1676,8 +1676,10 @@ static int refusable(const hfd_conn *c) {
  * Over TLS a HELLO is not seen before the handshake, which takes the
  * client round trips: a crowd of bare TCP connections, each cheaper than a
  * real client's, would push it out in the middle. So on a TLS listener a
- * peer that has sent nothing goes first, the oldest of them (not the
- * newest connection, fresh, just accepted, which has had no time to); then the
+ * peer the server has not answered goes first (nothing sent, or less than
+ * a ClientHello: a byte costs a peer no more than silence), the oldest of
+ * them (not the newest connection, fresh, just accepted, which has had no
+ * time to send one); then the
  * oldest of the rest, passing over one whose socket holds a whole TLS
  * record not read yet (its ClientHello in a burst, or the flight that
  * ends its handshake). That is forgotten after this choice: a record read
@@ -1686,7 +1688,7 @@ static hfd_conn *oldest_handshake(hfd_server *s, const hfd_conn *fresh) {
   hfd_conn *old = NULL;
   for (hfd_conn *c = s->conns; c; c = c->next)
     if (refusable(c) && c->tls && c != fresh && (!old || c->t_accept < old->t_accept) &&
-        hfd_tls_peer_silent(c))
+        hfd_tls_unanswered(c))
       old = c;
   if (old) return old;
   for (;;) {

@@ -666,9 +666,11 @@ int hfd_tls_established(const hfd_conn *c);
  * ERROR can never be sent, so the sweep closes it. */
 #define HFD_TLS_FATAL_GRACE_MS 2000
 int hfd_tls_overdue(const hfd_conn *c, double now_us);
-/* 1 when c is a TLS connection whose peer has sent nothing yet: no byte
- * read, none waiting in the socket. */
-int hfd_tls_peer_silent(const hfd_conn *c);
+/* 1 when c is a TLS connection the server has not answered yet: its peer
+ * has sent no whole ClientHello (nothing, a byte, the start of one), and
+ * no whole record waits unread in its socket. Such a peer has cost itself
+ * no more than a bare connection. */
+int hfd_tls_unanswered(const hfd_conn *c);
 /* 1 when a whole TLS record waits unread in c's socket: the peer has done
  * its part of the handshake's step, the server has not read it yet. */
 int hfd_tls_record_waiting(const hfd_conn *c);

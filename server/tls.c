@@ -85,7 +85,8 @@ struct hfd_tls_conn {
   int established;
   int failed;                    /* handshake failed: closing after the alert */
   int eof;                       /* close_notify or EOF delivered */
-  int heard;                     /* the peer has sent a byte (--max-handshakes) */
+  int answered;                  /* a handshake flight was written: the peer sent a whole
+                                  * ClientHello (--max-handshakes) */
   hfd_conn *resume_next;
   int in_resume;
   tls_wreq *q_head, *q_tail;     /* not yet wholly encrypted */
@@ -624,6 +625,7 @@ static void pump(hfd_conn *c) {
     if (r != 1) {
       int e = SSL_get_error(t->ssl, r);
       if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
+        if (BIO_ctrl_pending(t->wbio)) t->answered = 1;
         send_out(c, NULL, 0, 0);
         return;
       }
@@ -703,7 +705,6 @@ static void raw_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     t->user_read(&c->h.stream, nread, &b);
     return;
   }
-  t->heard = 1;
   if (!t->established && BIO_ctrl_pending(t->rbio) == 0 && SSL_get_state(t->ssl) == TLS_ST_BEFORE &&
       plain_hello(c, buf->base, (size_t)nread))
     return;
@@ -854,8 +855,8 @@ static size_t unread(const hfd_conn *c) {
   return (size_t)n;
 }
 
-int hfd_tls_peer_silent(const hfd_conn *c) {
-  return c->tls && !c->tls->heard && unread(c) == 0;
+int hfd_tls_unanswered(const hfd_conn *c) {
+  return c->tls && !c->tls->established && !c->tls->answered && !hfd_tls_record_waiting(c);
 }
 
 int hfd_tls_record_waiting(const hfd_conn *c) {

@@ -7,8 +7,9 @@ connection whose whole HELLO waits unread is passed over when a newer one
 needs a slot. Over TLS the HELLO comes only after the handshake's round
 trips, and the daemon refused the oldest connection before its HELLO
 whatever it had sent: peers that only connect, each cheaper than a real
-client, pushed it out in the middle of its handshake. Now a peer that has
-sent nothing goes first.
+client, pushed it out in the middle of its handshake. Now a peer the
+daemon has not answered goes first: one that has sent nothing, or less
+than a ClientHello (a byte, the start of one), which costs it no more.
 
 The client here stops after the server's first flight, as a client on a
 slow link would, while more bare connections than --max-handshakes
@@ -17,6 +18,7 @@ arrive; then it ends its handshake and says HELLO.
 usage: test_tls_handshake_crowd.py HAIRFILTERD WEIGHTS_DIR MAKE_TEST_CERTS
 """
 import os
+import shutil
 import socket
 import ssl
 import struct
@@ -25,10 +27,11 @@ import sys
 import tempfile
 import time
 
-from rawwire import (ERROR, HELLO, HELLO_OK, check, finish, frame, recvn, stop_and_clean)
+from rawwire import (ERROR, HELLO, HELLO_OK, check, failures, finish, frame, recvn, stop)
 
 HAIRFILTERD, WEIGHTS, MAKE_TEST_CERTS = sys.argv[1:4]
 TOKEN = b"crowd-token"
+failed = []   # the crowds a check failed with
 
 
 def start(w, certs):
@@ -104,11 +107,29 @@ class Tls:
         return out
 
 
+# What each peer of the crowd sends: nothing; one byte; the start of a
+# ClientHello (a record header and a handshake header, the rest never
+# sent). None of it is a ClientHello the daemon can answer, so none costs
+# the peer more than a bare connection does.
+CROWDS = [("silent", b""), ("one byte", b"\x16"),
+          ("the start of a ClientHello", bytes([0x16, 3, 1, 1, 0, 1, 0, 0, 0xfc, 3, 3]))]
+
+
 def main():
     w = tempfile.mkdtemp(prefix="hftlscrowd-")
     certs = os.path.join(w, "certs")
     os.mkdir(certs)
     subprocess.run([MAKE_TEST_CERTS, certs], check=True)
+    try:
+        for what, sends in CROWDS:
+            run(w, certs, what, sends)
+    finally:
+        shutil.rmtree(w, ignore_errors=True)
+    failures.extend("with a crowd that sent %s" % what for what in failed)
+    finish()
+
+
+def run(w, certs, what, sends):
     proc, crowd = None, []
     try:
         proc, port = start(w, certs)
@@ -126,22 +147,27 @@ def main():
         # A crowd twice --max-handshakes arrives while the client works.
         for _ in range(8):
             crowd.append(socket.create_connection(("127.0.0.1", port)))
+            if sends:
+                crowd[-1].sendall(sends)
         time.sleep(0.5)
         c.handshake()
         c.send(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, len(TOKEN)) + b"test" + TOKEN))
         _, t, _, _, n = struct.unpack("<IHHII", c.recv(16))
         p = c.recv(n)
-        what = "HELLO_OK"
+        got = "HELLO_OK"
         if t == ERROR:
-            what = "ERROR %d: %s" % (struct.unpack("<I", p[:4])[0], p[8:].decode(errors="replace"))
+            got = "ERROR %d: %s" % (struct.unpack("<I", p[:4])[0], p[8:].decode(errors="replace"))
         check(t == HELLO_OK, "the client in the middle of its handshake is served, not pushed "
-              "out by bare connections (%s)" % what)
+              "out by a crowd (%s) that sent %s" % (got, what))
         c.sock.close()
     finally:
         for s in crowd:
             s.close()
-        stop_and_clean(proc, w)
-    finish()
+        log = stop(proc, w) if proc else ""
+        if failures:
+            print(log)
+            del failures[:]   # said with this crowd's log; counted below
+            failed.append(what)
 
 
 if __name__ == "__main__":
