@@ -1280,9 +1280,11 @@ static int submit_locked(cudnn_model *m, const hf_io *io, hf_input_report *rep,
   s->scan = rep != NULL;
   s->rep = rep;
   s->stats = stats;
-  /* Without room for the counts the frame is checked on the host instead
-   * (nothing is pending yet). */
-  if (s->scan && counts_grow(m, s, io->batch) != HF_OK) return HF_RUN_DECLINED;
+  /* Without room for the counts the frame fails (nothing is pending yet)
+   * rather than going to the host's check: that path reads the input
+   * twice, and a caller told it is read once (hf_model_reads_input_once)
+   * may have handed memory another process writes. */
+  if (s->scan && (rc = counts_grow(m, s, io->batch)) != HF_OK) return rc;
   s->host_in_us = s->host_out_us = 0;
   const size_t pix = (size_t)io->batch * io->width * io->height;
   s->out_bytes = pix * HF_OUT_CHANNELS * (io->out_dtype == HF_F16 ? 2 : 4);
