@@ -133,11 +133,17 @@ static int key_is(const char *text, size_t start, size_t n, const char *key) {
   return same;
 }
 
-long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
-                           char *outer, size_t outer_len, const char **key, size_t *tok_len) {
-  int depth = 0, inside = 0;
-  const char *pending = NULL, *target = NULL;
-  size_t outer_at = 0, outer_n = 0;
+/* The scan of hf_json_nonint_field and hf_json_nonint_member: the first
+ * number written with a fraction or an exponent that is, in an object at
+ * depth key_depth (1: the top object), an element of an array that is the
+ * value of one of keys, or (when direct) that value itself. *outer_at and
+ * *outer_n, when outer_at is not NULL, get the last key read at depth
+ * key_depth - 1 (inside its quotes). */
+static long nonint_scan(const char *text, size_t len, const char *const *keys, int nkeys,
+                        int key_depth, int direct, size_t *outer_at, size_t *outer_n,
+                        const char **key, size_t *tok_len) {
+  int depth = 0;
+  const char *target = NULL;   /* the key of keys whose value is being read */
   for (size_t i = 0; i < len;) {
     char c = text[i];
     if (c == '"') {
@@ -146,27 +152,25 @@ long hf_json_nonint_member(const char *text, size_t len, const char *const *keys
       size_t n = i - start;
       i++;
       size_t j = skip_ws(text, len, i);
-      if (j < len && text[j] == ':') {   /* a key */
-        if (depth == 1) outer_at = start, outer_n = n;
-        pending = NULL;
-        if (depth == 2)
+      if (j < len && text[j] == ':') {   /* a key; else a string value */
+        if (depth == key_depth - 1 && outer_at) *outer_at = start, *outer_n = n;
+        target = NULL;
+        if (depth == key_depth)
           for (int k = 0; k < nkeys; k++)
-            if (key_is(text, start, n, keys[k])) pending = keys[k];
+            if (key_is(text, start, n, keys[k])) target = keys[k];
         i = j + 1;
-        continue;
       }
-      pending = NULL;   /* a string value */
       continue;
     }
     if (c == '{' || c == '[') {
       depth++;
-      if (c == '[' && depth == 3 && pending) inside = 1, target = pending;
-      pending = NULL;
+      /* The key's value is this array: its numbers are checked. */
+      if (!(c == '[' && depth == key_depth + 1)) target = NULL;
       i++;
       continue;
     }
     if (c == '}' || c == ']') {
-      if (depth == 3) inside = 0;
+      if (depth <= key_depth + 1) target = NULL;
       depth--;
       i++;
       continue;
@@ -179,80 +183,30 @@ long hf_json_nonint_member(const char *text, size_t len, const char *const *keys
         if (text[i] == '.' || text[i] == 'e' || text[i] == 'E') integral = 0;
         i++;
       }
-      if (inside && depth == 3 && !integral) {
-        if (outer && outer_len)
-          snprintf(outer, outer_len, "%.*s", (int)(outer_n < outer_len ? outer_n : outer_len - 1),
-                   text + outer_at);
+      if (target && !integral && (depth == key_depth + 1 || (direct && depth == key_depth))) {
         if (key) *key = target;
         if (tok_len) *tok_len = i - start;
         return (long)start;
       }
-      pending = NULL;
+      if (depth == key_depth) target = NULL;
       continue;
     }
-    if (c != ',' && c != ' ' && c != '\t' && c != '\r' && c != '\n') pending = NULL;
+    if (c == ',' && depth == key_depth) target = NULL;
     i++;
   }
   return -1;
 }
 
+long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
+                           char *outer, size_t outer_len, const char **key, size_t *tok_len) {
+  size_t at = 0, n = 0;
+  long r = nonint_scan(text, len, keys, nkeys, 2, 0, &at, &n, key, tok_len);
+  if (r >= 0 && outer && outer_len)
+    snprintf(outer, outer_len, "%.*s", (int)(n < outer_len ? n : outer_len - 1), text + at);
+  return r;
+}
+
 long hf_json_nonint_field(const char *text, size_t len, const char *const *keys, int nkeys,
                           const char **key, size_t *tok_len) {
-  int depth = 0;
-  const char *pending = NULL, *target = NULL;
-  for (size_t i = 0; i < len;) {
-    char c = text[i];
-    if (c == '"') {
-      size_t start = ++i;
-      while (i < len && text[i] != '"') i += text[i] == '\\' ? 2 : 1;
-      size_t n = i - start;
-      i++;
-      size_t j = skip_ws(text, len, i);
-      if (j < len && text[j] == ':') {   /* a key */
-        pending = NULL;
-        if (depth == 1)
-          for (int k = 0; k < nkeys; k++)
-            if (key_is(text, start, n, keys[k])) pending = keys[k];
-        target = pending;
-        i = j + 1;
-        continue;
-      }
-      pending = NULL;
-      continue;
-    }
-    if (c == '{' || c == '[') {
-      depth++;
-      /* The key's value is this array: its numbers are checked too. */
-      if (!(c == '[' && depth == 2 && pending)) target = NULL;
-      pending = NULL;
-      i++;
-      continue;
-    }
-    if (c == '}' || c == ']') {
-      if (depth == 2) target = NULL;
-      depth--;
-      i++;
-      continue;
-    }
-    if (c == '-' || (c >= '0' && c <= '9')) {
-      size_t start = i;
-      int integral = 1;
-      while (i < len && (text[i] == '-' || text[i] == '+' || text[i] == '.' || text[i] == 'e' ||
-                         text[i] == 'E' || (text[i] >= '0' && text[i] <= '9'))) {
-        if (text[i] == '.' || text[i] == 'e' || text[i] == 'E') integral = 0;
-        i++;
-      }
-      if (target && (depth == 1 || depth == 2) && !integral) {
-        if (key) *key = target;
-        if (tok_len) *tok_len = i - start;
-        return (long)start;
-      }
-      if (depth == 1) target = NULL;
-      pending = NULL;
-      continue;
-    }
-    if (c == ',' && depth == 1) target = NULL;
-    i++;
-  }
-  return -1;
+  return nonint_scan(text, len, keys, nkeys, 1, 1, NULL, NULL, key, tok_len);
 }

@@ -26,7 +26,10 @@ const char *hf_json_text_fault(const char *text, size_t len, size_t *at);
  * (a safetensors tensor's "shape" or "data_offsets"), or -1: such numbers
  * are integers to cJSON and Python's == alike, but not to safetensors'
  * reference reader. outer gets that member's key, *key the matching key,
- * *tok_len the number's length. */
+ * *tok_len the number's length. Keys are compared as decoded ("sh\u0061pe"
+ * is "shape"). */
+long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
+                           char *outer, size_t outer_len, const char **key, size_t *tok_len);
 /* The offset in text (valid JSON, len bytes: one object) of the first
  * number written with a fraction or an exponent that is the value of one of
  * keys in the top object, or an element of an array that is ("spp": 4.0,
@@ -34,8 +37,6 @@ const char *hf_json_text_fault(const char *text, size_t len, size_t *at);
  * number's length. */
 long hf_json_nonint_field(const char *text, size_t len, const char *const *keys, int nkeys,
                           const char **key, size_t *tok_len);
-long hf_json_nonint_member(const char *text, size_t len, const char *const *keys, int nkeys,
-                           char *outer, size_t outer_len, const char **key, size_t *tok_len);
 /* "a string", "a number", "an object", ... of v, for messages. */
 const char *hf_json_kind(const cJSON *v);
 
