@@ -214,47 +214,45 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
   return 0;
 }
 
-/* Writes the ready file whole, then renames it into place, so a reader
- * never sees half of it. The temporary file is made with O_CREAT | O_EXCL |
+static char http_url[300];
+
+/* A temporary file beside the ready file path, in tmp ([cap]): its fd, or
+ * -1 after saying why and what to do. It is made with O_CREAT | O_EXCL |
  * O_NOFOLLOW under a random name in the target's directory (mkostemp): a
  * symlink planted there, or at any name an attacker can guess, is never
- * written through. rename replaces a symlink at the target itself rather
- * than following it. */
-static char http_url[300];
+ * written through. */
+static int ready_file_temp(const char *path, char *tmp, size_t cap) {
+  if ((size_t)snprintf(tmp, cap, "%s.XXXXXX", path) >= cap) {
+    hfd_err("--ready-file %s: path too long", path);
+    return -1;
+  }
+  int fd = mkostemp(tmp, O_CLOEXEC | O_NOFOLLOW);
+  if (fd < 0)
+    hfd_err("--ready-file %s: cannot create a file beside it: %s; its directory must exist and "
+            "be writable by uid %ld, or give another path", path, strerror(errno),
+            (long)geteuid());
+  return fd;
+}
 
 /* Whether a file can be made beside path, as write_ready_file will:
  * 0, or -1 after saying why and what to do. */
 static int ready_file_probe(const char *path) {
   char tmp[4200];
-  if ((size_t)snprintf(tmp, sizeof tmp, "%s.XXXXXX", path) >= sizeof tmp) {
-    hfd_err("--ready-file %s: path too long", path);
-    return -1;
-  }
-  int fd = mkostemp(tmp, O_CLOEXEC | O_NOFOLLOW);
-  if (fd < 0) {
-    hfd_err("--ready-file %s: cannot create a file beside it: %s; its directory must exist and "
-            "be writable by uid %ld, or give another path", path, strerror(errno),
-            (long)geteuid());
-    return -1;
-  }
+  int fd = ready_file_temp(path, tmp, sizeof tmp);
+  if (fd < 0) return -1;
   close(fd);
   unlink(tmp);
   return 0;
 }
 
+/* Writes the ready file whole, then renames it into place, so a reader
+ * never sees half of it: rename replaces a symlink at the target itself
+ * rather than following it. */
 static int write_ready_file(hfd_server *s) {
   const char *path = s->cfg->ready_file;
   char tmp[4200];
-  if ((size_t)snprintf(tmp, sizeof tmp, "%s.XXXXXX", path) >= sizeof tmp) {
-    hfd_err("--ready-file %s: path too long", path);
-    return -1;
-  }
-  int fd = mkostemp(tmp, O_CLOEXEC | O_NOFOLLOW);
-  if (fd < 0) {
-    hfd_err("--ready-file %s: cannot create a temporary file beside it: %s", path,
-            strerror(errno));
-    return -1;
-  }
+  int fd = ready_file_temp(path, tmp, sizeof tmp);
+  if (fd < 0) return -1;
   /* mkostemp makes it 0600; a ready file is for others to read. */
   mode_t um = umask(0);
   umask(um);
