@@ -339,10 +339,11 @@ int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int 
  * or alpha <= 0 beside a non-zero value, makes all three 0; colour and
  * highlight are clamped to [0, HF_FEATURE_LIGHT_MAX], alpha to at most 1).
  * report gets what was changed (hf_input_report), stats, when not NULL,
- * hf_input_stats_compute's values of the samples. One pass over in, in
- * chunks of pixels checked and copied while in the cache, split between
- * threads for large frames (hf_parallel_chunks). in and out must not
- * overlap. HF_ENOMEM (out unset) when the statistics' counts cannot be
+ * hf_input_stats_compute's values of the samples. One pass over in that
+ * reads each value once (a few pixels' samples staged, checked and copied
+ * on while in the cache, split between threads for large frames,
+ * hf_parallel_chunks), so what is checked is what out holds though
+ * another process writes in meanwhile. in and out must not overlap. HF_ENOMEM (out unset) when the statistics' counts cannot be
  * allocated. */
 int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height, int spp,
                            void *out, hf_input_report *report, hf_input_stats *stats);
