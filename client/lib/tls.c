@@ -160,6 +160,15 @@ int hfci_tls_setup(hfc_client *c, const hfc_options *o, char *why, size_t whylen
              "or neither");
     return HFC_E_ARG;
   }
+  if (!any && (o->tls_ca_file || o->tls_cert_file || o->tls_server_name)) {
+    /* The options would be ignored and the connection plain: its token
+     * and frames unencrypted though the caller asked for TLS. */
+    snprintf(why, whylen, "hfc_options.tls_ca_file, tls_cert_file and tls_server_name (--tls-ca, "
+             "--tls-cert, --tls-server-name) are for tls: endpoints, and the URL has none: the "
+             "connection would be plain, its token and frames unencrypted; connect to "
+             "tls:HOST:PORT, or leave the TLS options unset");
+    return HFC_E_ARG;
+  }
   if (!any) return 0;
   SSL_CTX *ctx = SSL_CTX_new(TLS_client_method());
   if (!ctx) {

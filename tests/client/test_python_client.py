@@ -273,6 +273,11 @@ class PythonClient(unittest.TestCase):
                      tls_cert=cert, tls_key=cert)
         self.refused("ARG", ["tls_key %s is not the private key of tls_cert" % other_key],
                      TLS, tls_ca=ca, tls_cert=cert, tls_key=other_key)
+        # With no tls: endpoint the connection would be plain, the token
+        # unencrypted: refused before connecting.
+        plain = "tcp:" + TLS[4:] + ",unix:/nonexistent.sock"
+        self.refused("ARG", ["are for tls: endpoints", "unencrypted"], plain, tls_ca=ca)
+        self.refused("ARG", ["are for tls: endpoints"], plain, tls_server_name="localhost")
 
     def test_mutual_tls(self):
         """Under mutual TLS: a client certificate serves without a token; none,

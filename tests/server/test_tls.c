@@ -305,6 +305,17 @@ static void test_client_certificate_refused(void **state) {
     assert_int_equal(tls_connect(url, &halves[k], &c, msg, sizeof msg), HFC_E_ARG);
     if (!strstr(msg, "tls_cert_file and tls_key_file")) fail_msg("half a pair: '%s'", msg);
   }
+  /* TLS options with no tls: endpoint would leave the connection plain,
+   * the token unencrypted: refused before connecting. */
+  char plain[400];
+  snprintf(plain, sizeof plain, "tcp:%s,unix:/nonexistent.sock", url + 4);
+  tls_opts ca_only = {.ca = "ca.pem"}, name_only = {.server_name = "localhost"};
+  const tls_opts *plain_opts[] = {&ca_only, &name_only};
+  for (int k = 0; k < 2; k++) {
+    assert_int_equal(tls_connect(plain, plain_opts[k], &c, msg, sizeof msg), HFC_E_ARG);
+    if (!strstr(msg, "are for tls: endpoints") || !strstr(msg, "unencrypted"))
+      fail_msg("TLS options with plain endpoints: '%s'", msg);
+  }
 }
 
 /* Item: the wrong protocol on either port. */

@@ -187,7 +187,8 @@ class Client:
     "UNAUTHORIZED", "VERSION", "BUSY", ...) and the reason of every
     endpoint (a refused certificate says why and what to check), or "ARG"
     before connecting for TLS files that cannot be used (naming tls_ca,
-    tls_cert or tls_key)."""
+    tls_cert or tls_key) or for TLS options with no tls: endpoint (the
+    connection would be plain, its token unencrypted)."""
 
     def __init__(self, url, client_name="hairfilter-python", token=None, timeout=30.0,
                  tls_ca=None, tls_cert=None, tls_key=None, tls_server_name=None):
@@ -210,6 +211,13 @@ class Client:
         self._ssl = None
         if any(a.kind == "tls" for _, a in addrs):
             self._ssl = self._tls_context(check_hostname=True)
+        elif tls_ca or tls_cert or tls_key or tls_server_name:
+            # As libhairfilter: ignored, they would leave the connection
+            # plain, its token and frames unencrypted.
+            raise Error("ARG", "tls_ca, tls_cert, tls_key and tls_server_name are for tls: "
+                        "endpoints, and %s has none: the connection would be plain, its token "
+                        "and frames unencrypted; connect to tls:HOST:PORT, or leave the TLS "
+                        "options unset" % url)
         # As libhairfilter: the code is the last endpoint's, the message
         # every endpoint's reason.
         code, reasons = "URL", []

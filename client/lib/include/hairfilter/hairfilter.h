@@ -141,7 +141,9 @@ typedef struct hfc_options {
   unsigned failover;         /* HFC_FAILOVER_* bits; 0: LOST | BUSY */
   /* TLS, for tls:HOST:PORT endpoints (appended after 0.1.0). The server's
    * certificate must chain to a CA of tls_ca_file and name the URL's host
-   * (or tls_server_name) in its subjectAltName; TLS 1.2 at least. */
+   * (or tls_server_name) in its subjectAltName; TLS 1.2 at least. Set with
+   * no tls: endpoint in the URL they are HFC_E_ARG: the connection would be
+   * plain, its token and frames unencrypted. */
   const char *tls_ca_file;   /* PEM file of trusted CA certificates; NULL: the system's
                                 (/etc/ssl/certs) */
   const char *tls_cert_file; /* PEM client certificate (chain) for mutual TLS; NULL: none */
