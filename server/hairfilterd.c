@@ -204,13 +204,15 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
                       : ((struct sockaddr_in *)&ss)->sin_port));
   }
   s->num_listeners++;
-  hfd_log("listening on %s%s%s", l->url,
-          l->is_tls ? (s->cfg->tls_client_ca ? " (TLS, client certificate required)" : " (TLS)")
+  /* One parenthesis: "(TLS, client certificate required, token required)". */
+  hfd_log("listening on %s%s%s%s%s", l->url, l->is_tcp ? " (" : "",
+          l->is_tls ? (s->cfg->tls_client_ca ? "TLS, client certificate required, " : "TLS, ")
                     : "",
           !l->is_tcp ? ""
-          : l->auth_required ? " (token required)"
-          : l->is_tls && s->cfg->tls_client_cert_auth ? " (client certificate replaces the token)"
-                                                      : " (no auth, loopback)");
+          : l->auth_required ? "token required"
+          : l->is_tls && s->cfg->tls_client_cert_auth ? "client certificate replaces the token"
+                                                      : "no auth, loopback",
+          l->is_tcp ? ")" : "");
   return 0;
 }
 
