@@ -340,10 +340,10 @@ int hf_features_scan(const void *in, hf_dtype dtype, int width, int height, int 
  * highlight are clamped to [0, HF_FEATURE_LIGHT_MAX], alpha to at most 1).
  * report gets what was changed (hf_input_report), stats, when not NULL,
  * hf_input_stats_compute's values of the samples. One pass over in that
- * reads each value once (a few pixels' samples staged, checked and copied
- * on while in the cache, split between threads for large frames,
- * hf_parallel_chunks), so what is checked is what out holds though
- * another process writes in meanwhile. in and out must not overlap. HF_ENOMEM (out unset) when the statistics' counts cannot be
+ * reads each value once (each pixel's samples copied into out and checked
+ * there, split between threads for large frames, hf_parallel_chunks), so
+ * what is checked is what out holds though another process writes in
+ * meanwhile. in and out must not overlap. HF_ENOMEM (out unset) when the statistics' counts cannot be
  * allocated. */
 int hf_features_interleave(const void *in, hf_dtype dtype, int width, int height, int spp,
                            void *out, hf_input_report *report, hf_input_stats *stats);
@@ -678,6 +678,11 @@ typedef struct hf_input_stats_acc {
 void hf_input_stats_acc_init(hf_input_stats_acc *a);
 void hf_input_stats_add(hf_input_stats_acc *a, const void *in, hf_dtype dtype, int spp,
                         size_t p0, size_t p1);
+/* hf_input_stats_add over pixels whose samples lie stride values apart
+ * (stride >= spp * 6): pixel p's at in + p * stride, as an interleaved
+ * frame holds them ([pixels][spp * 6 + 3], hf_features_interleave). */
+void hf_input_stats_add_strided(hf_input_stats_acc *a, const void *in, hf_dtype dtype, int spp,
+                                size_t stride, size_t p0, size_t p1);
 void hf_input_stats_merge(hf_input_stats_acc *a, const hf_input_stats_acc *b);
 void hf_input_stats_finish(const hf_input_stats_acc *a, int width, int height, int spp,
                            hf_input_stats *out);

@@ -79,14 +79,15 @@ _Static_assert(NBINS == 2 + HF_RULE_ONE_KEY - HF_RULE_LOW_KEY, "the histogram's 
 
 void hf_input_stats_acc_init(hf_input_stats_acc *a) { memset(a, 0, sizeof *a); }
 
-/* Pixels [p0, p1) into a; inlined once more for f16 frames of 4 spp (the
+/* Pixels [p0, p1) into a, pixel p's samples at in + p * stride values;
+ * inlined once more for f16 frames of 4 spp (the
  * bundled variants'), whose sample loop is then unrolled: the statistics
  * run inside the pass that widens an f16 frame (hf_features_widen), where
  * they were the slowest part. */
 static inline __attribute__((always_inline)) void add_pixels(hf_input_stats_acc *a,
                                                             const void *in, hf_dtype dtype,
-                                                            int spp, size_t p0, size_t p1) {
-  const size_t stride = (size_t)spp * HF_FEATURES_PER_SAMPLE;
+                                                            int spp, size_t stride, size_t p0,
+                                                            size_t p1) {
   /* The counts in locals: through a, every histogram increment would make
    * the compiler store and reload them (they might alias). */
   uint64_t hair = 0, full = 0, *hist = a->hist;
@@ -106,8 +107,15 @@ static inline __attribute__((always_inline)) void add_pixels(hf_input_stats_acc 
 
 void hf_input_stats_add(hf_input_stats_acc *a, const void *in, hf_dtype dtype, int spp,
                         size_t p0, size_t p1) {
-  if (dtype == HF_F16 && spp == 4) add_pixels(a, in, HF_F16, 4, p0, p1);
-  else add_pixels(a, in, dtype, spp, p0, p1);
+  const size_t stride = (size_t)spp * HF_FEATURES_PER_SAMPLE;
+  if (dtype == HF_F16 && spp == 4) add_pixels(a, in, HF_F16, 4, stride, p0, p1);
+  else add_pixels(a, in, dtype, spp, stride, p0, p1);
+}
+
+void hf_input_stats_add_strided(hf_input_stats_acc *a, const void *in, hf_dtype dtype, int spp,
+                                size_t stride, size_t p0, size_t p1) {
+  if (dtype == HF_F16 && spp == 4) add_pixels(a, in, HF_F16, 4, stride, p0, p1);
+  else add_pixels(a, in, dtype, spp, stride, p0, p1);
 }
 
 void hf_input_stats_merge(hf_input_stats_acc *a, const hf_input_stats_acc *b) {

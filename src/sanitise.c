@@ -387,46 +387,38 @@ typedef struct interleave_run {
   interleave_part part[HF_PARALLEL_MAX];
 } interleave_run;
 
-/* Bytes of samples interleave_chunk stages at a time on its stack: at
- * least 42 pixels of 16 samples of floats, and in L1 with the copy it
- * makes from them. */
-#define INTERLEAVE_STAGE_BYTES 16384
+/* Pixels interleave_chunk counts into the statistics at a time, from the
+ * copy it has just written (still in the cache). */
+#define INTERLEAVE_STATS_PIXELS 64
 
-/* hf_scan_part_add for pixels [p0, p1) of a frame width pixels wide whose
- * samples are at copy, a copy of those pixels' alone. */
-static void scan_part_add_copy(hf_scan_part *s, const void *copy, hf_dtype dtype, int width,
-                               int spp, size_t p0, size_t p1) {
-  hf_input_report r;
-  report_init(&r);
-  scan_range((void *)copy, dtype, width, spp, 0, (p1 - p0) * spp, 0, NULL, &r);
-  if (r.samples) {
-    /* scan_range placed the first bad sample as if copy began the frame. */
-    size_t px = (size_t)r.y * width + r.x + p0;
-    r.x = (int)(px % (size_t)width);
-    r.y = (int)(px / (size_t)width);
-  }
-  report_merge(&s->report, &r, width, spp);
-  if (s->acc) hf_input_stats_add(s->acc, copy, dtype, spp, 0, p1 - p0);
-}
-
-/* Pixels [b, e), a stage at a time: the samples copied onto the stack
- * (the one read of them from the input), checked and counted into the
- * statistics there, and copied on; each pixel's estimate after them,
- * read once, under the estimate's rule. The input is read once so that
- * what is checked is what is run though another process may write it
- * meanwhile (a shared-memory segment: hf_model_reads_input_once). */
+/* Pixels [b, e): each pixel's samples copied into out (the one read of
+ * them from the input) and checked there, its estimate read once into a
+ * local and written after them under the estimate's rule; the statistics
+ * counted from out. What is checked is what the backend runs though
+ * another process may write the input meanwhile (a shared-memory segment:
+ * hf_model_reads_input_once). The check reads the pixel just written, in
+ * L1: no second pass over the frame, no stage to copy through. */
 static void interleave_chunk(void *arg, int worker, size_t b, size_t e) {
   interleave_run *r = arg;
   interleave_part *part = &r->part[worker];
-  const size_t esz = r->esz, ns = r->ns, per = INTERLEAVE_STAGE_BYTES / (ns * esz);
-  uint8_t stage[INTERLEAVE_STAGE_BYTES];
-  for (size_t q = b; q < e; q += per) {
-    const size_t qe = e - q < per ? e : q + per;
-    memcpy(stage, r->samples + q * ns * esz, (qe - q) * ns * esz);
-    scan_part_add_copy(&r->scan[worker], stage, r->dtype, r->width, r->spp, q, qe);
+  hf_scan_part *scan = &r->scan[worker];
+  const size_t esz = r->esz, ns = r->ns, spp = (size_t)r->spp;
+  for (size_t q = b; q < e; q += INTERLEAVE_STATS_PIXELS) {
+    const size_t qe = e - q < INTERLEAVE_STATS_PIXELS ? e : q + INTERLEAVE_STATS_PIXELS;
     for (size_t p = q; p < qe; p++) {
       uint8_t *d = r->out + p * r->stride * esz;
-      memcpy(d, stage + (p - q) * ns * esz, ns * esz);
+      memcpy(d, r->samples + p * ns * esz, ns * esz);
+      size_t bad = r->dtype == HF_F32 ? next_bad_f32((const float *)d, 0, spp)
+                                      : next_bad_f16((const uint16_t *)d, 0, spp);
+      if (bad < spp) {
+        /* Out of contract (rare): counted, and located as the frame's. */
+        hf_input_report one;
+        report_init(&one);
+        scan_range(d, r->dtype, 1, r->spp, bad, spp, 0, NULL, &one);
+        one.x = (int)(p % (size_t)r->width);
+        one.y = (int)(p / (size_t)r->width);
+        report_merge(&scan->report, &one, r->width, r->spp);
+      }
       uint8_t raw[HF_ESTIMATE_CHANNELS * sizeof(float)];
       memcpy(raw, r->est + p * HF_ESTIMATE_CHANNELS * esz, HF_ESTIMATE_CHANNELS * esz);
       uint8_t *de = d + ns * esz;
@@ -458,6 +450,9 @@ static void interleave_chunk(void *arg, int worker, size_t b, size_t e) {
         part->value = before[feature];
       }
     }
+    if (scan->acc)
+      hf_input_stats_add_strided(scan->acc, r->out + q * r->stride * esz, r->dtype, r->spp,
+                                 r->stride, 0, qe - q);
   }
 }
 

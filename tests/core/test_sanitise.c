@@ -667,7 +667,9 @@ static void check_interleave(int w, int h, int spp, int bad_samples) {
     for (int k = 0; k < spp; k++) reference_rule(w16 + p * cin + k * 6);
     reference_estimate(w16 + p * cin + ns);
   }
-  assert_int_equal(hf_features_interleave(p16, HF_F16, w, h, spp, o16, &r, NULL), HF_OK);
+  assert_int_equal(hf_features_interleave(p16, HF_F16, w, h, spp, o16, &r, &st), HF_OK);
+  assert_int_equal(hf_input_stats_compute(p16, HF_F16, w, h, spp, &st_want), HF_OK);
+  assert_memory_equal(&st, &st_want, sizeof st);
   for (size_t i = 0; i < px * cin; i++) {
     uint16_t expect = hf_f32_to_f16(w16[i]);
     if (o16[i] != expect && !((o16[i] | expect) == 0x8000u)) {
@@ -683,9 +685,9 @@ static void test_interleave_estimate(void **state) {
   check_interleave(7, 5, 4, 1);
   check_interleave(13, 3, 1, 1);
   check_interleave(64, 33, 2, 1);
-  check_interleave(97, 61, 16, 1);   /* pixels of 384 bytes: many stages a chunk */
-  /* One bad sample far past the first stage of its chunk: the report
-   * places it in the frame, not in the stage. */
+  check_interleave(97, 61, 16, 1);   /* pixels of 384 bytes, many statistics' groups a chunk */
+  /* One bad sample far into its chunk, not its pixel's first: the report
+   * places it in the frame, not in the pixel checked alone. */
   {
     const int w = 97, h = 61, spp = 16;
     const size_t px = (size_t)w * h, ns = (size_t)spp * 6;
