@@ -52,23 +52,8 @@
 
 #include <hairfilter/hairfilter.h>
 
+#include "bench_util.h"
 #include "hfcore.h"
-
-static double now_us(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec * 1e6 + ts.tv_nsec / 1e3;
-}
-
-static int cmp_d(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-
-static double median(double *v, int n) {
-  qsort(v, (size_t)n, sizeof *v, cmp_d);
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 /* ---- the socket floor --------------------------------------------------- */
 
@@ -166,10 +151,10 @@ fail:
 
 /* Microseconds of one request and its reply; -1 on error. */
 static double floor_once(floor_run *f) {
-  double t0 = now_us();
+  double t0 = bench_now_us();
   if (write_all(f->fd[0], f->src, f->in_bytes) || read_all(f->fd[0], f->back, f->out_bytes))
     return -1;
-  return now_us() - t0;
+  return bench_now_us() - t0;
 }
 
 static void floor_close(floor_run *f) {
@@ -261,17 +246,17 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
       r.features = in[d], r.features_bytes = in_b[d];
       r.result = out[d], r.result_bytes = out_b[d];
       hfc_timing tm;
-      double t0 = now_us();
+      double t0 = bench_now_us();
       if (convert) hf_f32_to_f16_array(feat32, in[d], nin);
-      double t1 = now_us();
+      double t1 = bench_now_us();
       if ((rc = hfc_filter(c, &r, &tm)) != 0) {
         fprintf(stderr, "hfc_filter %dx%d: %s (%s)\n", w, h, hfc_strerror(rc),
                 hfc_last_message(c));
         goto out;
       }
-      double t2 = now_us();
+      double t2 = bench_now_us();
       if (widen) hf_f16_to_f32_array(out[d], res32, nout);
-      double t3 = now_us();
+      double t3 = bench_now_us();
       if (!i) continue;
       t[d][0][i - 1] = t3 - t0;
       t[d][1][i - 1] = (t1 - t0) + (t3 - t2);
@@ -295,13 +280,13 @@ static int run_frames(hfc_client *c, const char *variant, int spp, int w, int h,
   }
   for (int d = 0; d < NCALLERS; d++) {
     result *q = &res[d];
-    q->e2e = median(t[d][0], iters), q->conv = median(t[d][1], iters);
-    q->transport = median(t[d][2], iters), q->server = median(t[d][3], iters);
-    q->input = median(t[d][4], iters), q->infer = median(t[d][5], iters);
-    q->output = median(t[d][6], iters);
+    q->e2e = bench_median(t[d][0], iters), q->conv = bench_median(t[d][1], iters);
+    q->transport = bench_median(t[d][2], iters), q->server = bench_median(t[d][3], iters);
+    q->input = bench_median(t[d][4], iters), q->infer = bench_median(t[d][5], iters);
+    q->output = bench_median(t[d][6], iters);
   }
   for (int k = 0; fl && k < NFLOORS; k++)
-    fl->us[k] = median(ft[k], iters), fl->ratio[k] = median(fr[k], iters);
+    fl->us[k] = bench_median(ft[k], iters), fl->ratio[k] = bench_median(fr[k], iters);
   rc = 0;
 out:
   for (int d = 0; d < NCALLERS; d++) {
@@ -333,33 +318,20 @@ static void conversion_table(const float *f32, size_t n, const char *what, int i
     double med[2];
     for (int dir = 0; dir < 2; dir++) {
       for (int i = 0; i < iters; i++) {
-        double t0 = now_us();
+        double t0 = bench_now_us();
         if (m == 2 && dir == 0) hf_f32_to_f16_array(f32, h, n);
         else if (m == 2) hf_f16_to_f32_array(h, back, n);
         else if (dir == 0) hf_f32_to_f16_serial(f32, h, n);
         else hf_f16_to_f32_serial(h, back, n);
-        d[i] = now_us() - t0;
+        d[i] = bench_now_us() - t0;
       }
-      med[dir] = median(d, iters);
+      med[dir] = bench_median(d, iters);
     }
     hf_half_use_simd(had);
     printf("| %s | %s | %.2f | %.2f |\n", what, impl[m], med[0] / 1e3, med[1] / 1e3);
   }
 out:
   free(h), free(back), free(t), free(d);
-}
-
-static void cpu_model(char *buf, size_t len) {
-  snprintf(buf, len, "unknown CPU");
-  FILE *f = fopen("/proc/cpuinfo", "r");
-  char line[512];
-  while (f && fgets(line, sizeof line, f))
-    if (!strncmp(line, "model name", 10) && strchr(line, ':')) {
-      snprintf(buf, len, "%s", strchr(line, ':') + 2);
-      buf[strcspn(buf, "\n")] = 0;
-      break;
-    }
-  if (f) fclose(f);
 }
 
 int main(int argc, char **argv) {
@@ -373,14 +345,9 @@ int main(int argc, char **argv) {
     fprintf(stderr, "ITERS must be at least 1\n");
     return 2;
   }
-  char model[256], date[64];
-  cpu_model(model, sizeof model);
-  time_t now = time(NULL);
-  strftime(date, sizeof date, "%Y-%m-%d %H:%M UTC", gmtime(&now));
-  printf("$");
-  for (int i = 0; i < argc; i++) printf(" %s", argv[i]);
-  printf("\n%s, %ld cores, %s; half conversion: %s\n\n", model, sysconf(_SC_NPROCESSORS_ONLN), date,
-         hf_half_impl());
+  char conv[96];
+  snprintf(conv, sizeof conv, "half conversion: %s", hf_half_impl());
+  bench_print_header(argc, argv, conv);
   hfc_client *c[2] = {NULL, NULL};
   hfc_options o;
   hfc_options_init(&o);
