@@ -242,9 +242,11 @@ static uint32_t new_id(hfc_client *c, int wire) {
 }
 
 /* The FILTER head of p for the active connection: its size, or a local
- * error; *seg is the segment it refers to, or NULL. */
+ * error; *seg is the segment it refers to, or NULL, and *frame_size the
+ * whole frame's bytes, head and tensors. */
 static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
-                       uint8_t head[HFP_FILTER_HEAD_MAX], const segment **seg) {
+                       uint8_t head[HFP_FILTER_HEAD_MAX], const segment **seg,
+                       uint64_t *frame_size) {
   hfp_filter f;
   memset(&f, 0, sizeof f);
   strcpy(f.variant, p->variant);
@@ -267,10 +269,48 @@ static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
     f.flags |= HFP_FILTER_SHM;
     f.shm_segment = (*seg)->id;
   }
-  uint64_t total;
-  int n = hfp_encode_filter_head(head, HFP_FILTER_HEAD_MAX, wire_id, &f, &total);
+  int n = hfp_encode_filter_head(head, HFP_FILTER_HEAD_MAX, wire_id, &f, frame_size);
   if (n < 0) return n == -HFP_E_TOO_LARGE ? HFC_E_TOO_LARGE : HFC_E_ARG;
   return n;
+}
+
+/* Whether p, as encoded in a frame of frame_size bytes (by reference when
+ * seg), is within what the server of connection x announced in HELLO_OK:
+ * max_width x max_height for every frame, max_frame_bytes for one whose
+ * tensors go through the socket, the dtypes it takes. The server would
+ * refuse such a frame only once its header arrived, while the client goes
+ * on writing the whole tensor, and one over max_frame_bytes closes the
+ * connection. 0, or HFC_E_TOO_LARGE / HFC_E_UNSUPPORTED with why (naming
+ * the limit, the frame's size and what to do) in why[0..whylen). */
+static int check_limits(const hfc_client *c, const conn *x, const pending *p,
+                        uint64_t frame_size, const segment *seg, char *why, size_t whylen) {
+  const hfc_server_info *i = &x->info;
+  const char *url = c->eps[x->endpoint].url;
+  if (p->width > (uint32_t)i->max_width || p->height > (uint32_t)i->max_height) {
+    snprintf(why, whylen, "a %ux%u frame is over the limit of %dx%d that %s announced "
+             "(hfc_info()->max_width, max_height; hairfilterd's --max-size): nothing was sent; "
+             "filter it in tiles within the limit, or raise the server's --max-size",
+             p->width, p->height, i->max_width, i->max_height, url);
+    return HFC_E_TOO_LARGE;
+  }
+  if ((p->in_dtype == HFC_F16 && !i->f16) || (p->in_dtype == HFC_F32 && !i->f32) ||
+      (p->out_dtype == HFC_F16 && !i->f16) || (p->out_dtype == HFC_F32 && !i->f32)) {
+    snprintf(why, whylen, "%s takes %s tensors only (hfc_info()->f32, f16): set "
+             "hfc_request.in_dtype and out_dtype to %s; nothing was sent",
+             url, i->f16 ? "f16" : "f32", i->f16 ? "HFC_F16" : "HFC_F32");
+    return HFC_E_UNSUPPORTED;
+  }
+  uint64_t payload = frame_size - HFP_HEADER_SIZE;
+  if (!seg && payload > i->max_frame_bytes) {
+    snprintf(why, whylen, "a %ux%u frame of %u spp is %llu bytes on the wire, over the "
+             "%llu-byte limit that %s announced (hfc_info()->max_frame_bytes; hairfilterd's "
+             "--max-frame-mb): nothing was sent; put its buffers in one shared segment "
+             "(hfc_shm_alloc), send f16, or filter it in tiles",
+             p->width, p->height, p->spp, (unsigned long long)payload,
+             (unsigned long long)i->max_frame_bytes, url);
+    return HFC_E_TOO_LARGE;
+  }
+  return 0;
 }
 
 int hfci_send_request(hfc_client *c, pending *p) {
@@ -279,11 +319,20 @@ int hfci_send_request(hfc_client *c, pending *p) {
   uint8_t head[HFP_FILTER_HEAD_MAX];
   const segment *g;
   uint32_t wire = new_id(c, 1);
-  int n = filter_head(c, p, wire, head, &g);
+  uint64_t total = 0;
+  int n = filter_head(c, p, wire, head, &g, &total);
   if (n < 0) {
     /* It was encoded once at submission: only a different server's
      * segment placement could change it, and that falls back to the socket. */
     hfci_finish(c, p, n, "the request cannot be encoded");
+    return 0;
+  }
+  /* Checked at submission against the server then in use; a failover may
+   * have brought one with lower limits. */
+  char why[512];
+  int lim = check_limits(c, x, p, total, g, why, sizeof why);
+  if (lim) {
+    hfci_finish(c, p, lim, why);
     return 0;
   }
   p->wire_id = wire;
@@ -414,9 +463,17 @@ static int submit(const char *fn, hfc_client *c, const hfc_request *caller, uint
   /* Whatever the codec refuses is refused now, before the slot is taken. */
   uint8_t head[HFP_FILTER_HEAD_MAX];
   const segment *g;
-  int n = filter_head(c, p, 1, head, &g);
+  uint64_t total = 0;
+  int n = filter_head(c, p, 1, head, &g, &total);
   if (n < 0) {
     hfci_msg(c, "the request cannot be encoded: %s", hfc_strerror(n));
+    return n;
+  }
+  /* Over the server's announced limits: refused here, the connection
+   * untouched, rather than after an upload the server only discards. */
+  char why[512];
+  if ((n = check_limits(c, x, p, total, g, why, sizeof why))) {
+    hfci_msg(c, "%s", why);
     return n;
   }
   p->id = new_id(c, 0);

@@ -528,6 +528,111 @@ class PythonClient(unittest.TestCase):
             finally:
                 t.join(30)
 
+    def test_limits_refused_before_sending(self):
+        """A frame over the limits HELLO_OK announced (16x16, an 8 KiB payload,
+        f32 only) is refused by the client before a byte of it is written,
+        naming the limit and the frame's size, and the connection goes on:
+        the mock counts the FILTERs that reach it."""
+        raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        raw.settimeout(10)
+        raw.connect(UNIX[len("unix:"):])
+        raw.sendall(P.encode_hello("recorder"))
+        hello_ok = bytearray(read_message(raw))
+        raw.sendall(P.frame(P.LIST_VARIANTS))
+        variants = read_message(raw)
+        raw.close()
+        # HELLO_OK's max_width, max_height, dtypes and max_frame_bytes
+        # (PROTOCOL.md), 16 header bytes in.
+        struct.pack_into("<II", hello_ok, 16 + 4, 16, 16)
+        struct.pack_into("<I", hello_ok, 16 + 16, 1)
+        struct.pack_into("<Q", hello_ok, 16 + 28, 8192)
+        path = os.path.join(ARGS.work, "limits.sock")
+        if os.path.exists(path):
+            os.unlink(path)
+        lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        lsock.bind(path)
+        lsock.listen(1)
+        filters = []
+
+        def serve():
+            s, _ = lsock.accept()
+            s.settimeout(10)
+            read_message(s)
+            s.sendall(hello_ok)
+            try:
+                while True:
+                    head = recv_exactly(s, 16)
+                    type_, rid, length = P.decode_header(head)
+                    recv_exactly(s, length)
+                    if type_ == P.FILTER:
+                        filters.append(length)
+                        msg = b"fake answer"
+                        s.sendall(P.frame(P.ERROR, struct.pack("<IBBH", P.E_INTERNAL, 0, 0,
+                                                               len(msg)) + msg, rid))
+                    else:
+                        s.sendall(variants)
+            except EOFError:
+                pass
+            s.close()
+            lsock.close()
+
+        t = threading.Thread(target=serve)
+        t.start()
+        try:
+            with hairfilter.Client("unix:" + path) as c:
+                for f, code, says in (
+                        (features(8, 32, 4, 1), "TOO_LARGE", ("32x8", "16x16", "max_width")),
+                        (features(16, 16, 4, 1), "TOO_LARGE",
+                         ("16x16 frame of 4 spp", "8192", "max_frame_bytes")),
+                        (features(4, 4, 4, 1, np.float16), "UNSUPPORTED", ("float32",))):
+                    with self.assertRaises(hairfilter.Error) as e:
+                        c.submit("small", f)
+                    self.assertEqual(e.exception.code, code, e.exception.message)
+                    for word in says + ("nothing was sent",):
+                        self.assertIn(word, e.exception.message)
+                    self.assertEqual(c.pending, 0)
+                with self.assertRaises(hairfilter.Error) as e:
+                    c.filter("Small", features(8, 8, 4, 1))
+                self.assertEqual(e.exception.code, "INTERNAL", e.exception.message)
+                self.assertIn("fake answer", e.exception.message)
+        finally:
+            t.join(30)
+        self.assertEqual(len(filters), 1, "FILTERs that reached the server: %s" % filters)
+
+    def test_shm_limits_refused_before_sending(self):
+        """A frame in shared memory over a real server's --max-size is
+        refused before its reference goes out (the server counts no request
+        of the variant), and one within it then goes by reference."""
+        sock = os.path.join(ARGS.work, "small-size.sock")
+        if os.path.exists(sock):
+            os.unlink(sock)
+        proc, urls = start_daemon("small-size", [
+            "--listen", "unix:" + sock, "--max-size", "16x16",
+            "--weights", os.path.join(ARGS.weights, "small.safetensors")])
+        try:
+            with hairfilter.Client("unix:" + sock) as c:
+                f = features(32, 32, 4, 3)
+                seg = c.shared_memory(f.nbytes + 32 * 32 * 3 * 4)
+                fin = seg.array(f.shape, np.float32, 0)
+                out = seg.array((32, 32, 3), np.float32, f.nbytes)
+                fin[...] = f
+                with self.assertRaises(hairfilter.Error) as e:
+                    c.filter("Small", fin, result=out)
+                self.assertEqual(e.exception.code, "TOO_LARGE", e.exception.message)
+                self.assertIn("32x32", e.exception.message)
+                self.assertIn("16x16", e.exception.message)
+                v = [v for v in c.stats().variants if v.name == "Small"][0]
+                self.assertEqual(v.rejected + v.requests_failed, 0)
+                small = seg.array((16, 16, 24), np.float32, 0)
+                small[...] = features(16, 16, 4, 3)
+                done = c.filter("Small", small, result=seg.array((16, 16, 3), np.float32,
+                                                                 small.nbytes))
+                self.assertTrue(done.timing.via_shm)
+                seg.close()
+        finally:
+            proc.terminate()
+            self.assertEqual(proc.wait(timeout=30), 0)
+
     def test_codec(self):
         hello = P.encode_hello("py", "tok")
         self.assertEqual(P.decode_header(hello[:16]), (P.HELLO, 0, len(hello) - 16))

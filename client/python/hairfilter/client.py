@@ -83,7 +83,9 @@ class Error(Exception):
     """A call that failed. code is the protocol's name of the error ("BUSY",
     "UNKNOWN_VARIANT", ...) or a local one: "URL", "CONNECT", "TLS", "CLOSED",
     "TIMEOUT", "IO", "ARG", "PROTOCOL", "INFLIGHT", "NOPENDING", "UNSUPPORTED";
-    message says what exactly."""
+    "TOO_LARGE" and "UNSUPPORTED" also come from submit() for a frame over
+    what the server announced (info), before anything is sent. message says
+    what exactly."""
 
     def __init__(self, code, message):
         super().__init__("%s: %s" % (code, message) if message else code)
@@ -596,6 +598,34 @@ class Client:
                            "(Variant.estimate): pass it as estimate=, [height][width][3] of the "
                            "features' dtype (protocol/FEATURES.md)" % name)
 
+    def _check_limits(self, w, h, spp, in_dtype, out_dtype, by_reference, payload):
+        """Raises, before anything is sent, for a frame over what the server
+        announced in HELLO_OK (self.info): TOO_LARGE over max_width x
+        max_height, or, through the socket, over max_frame_bytes (which the
+        server would answer only after the whole upload, closing the
+        connection); UNSUPPORTED for a dtype it does not take. The
+        connection stays usable."""
+        i = self.info
+        if w > i.max_width or h > i.max_height:
+            raise Error("TOO_LARGE", "a %dx%d frame is over the limit of %dx%d that %s announced "
+                                     "(info.max_width, max_height; hairfilterd's --max-size): "
+                                     "nothing was sent; filter it in tiles within the limit, or "
+                                     "raise the server's --max-size"
+                        % (w, h, i.max_width, i.max_height, self.endpoint))
+        offered = {np.dtype(np.float32): i.f32, np.dtype(np.float16): i.f16}
+        for what, dt in (("features", in_dtype), ("out_dtype", out_dtype)):
+            if not offered[dt]:
+                raise Error("UNSUPPORTED", "%s: %s takes %s tensors only (info.f32, info.f16): "
+                                           "nothing was sent"
+                            % (what, self.endpoint, "float16" if i.f16 else "float32"))
+        if not by_reference and payload > i.max_frame_bytes:
+            raise Error("TOO_LARGE", "a %dx%d frame of %d spp is %d bytes on the wire, over the "
+                                     "%d-byte limit that %s announced (info.max_frame_bytes; "
+                                     "hairfilterd's --max-frame-mb): nothing was sent; put its "
+                                     "arrays in one shared_memory() segment, send float16, or "
+                                     "filter it in tiles"
+                        % (w, h, spp, payload, i.max_frame_bytes, self.endpoint))
+
     def submit(self, variant, features, out_dtype=None, result=None, composite=False,
                rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None,
                estimate=None):
@@ -671,6 +701,11 @@ class Client:
             if None not in offs and not _overlapping(offs, arrays):
                 seg, ref = s, (s.id,) + offs
                 break
+        # The payload a FILTER header would announce: its fields and name,
+        # then a reference or the tensors.
+        payload = P.FILTER_FIXED.size + len(name.encode("ascii")) + (
+            P.SHM_REF_SIZE if ref else f.nbytes + (0 if estimate is None else estimate.nbytes))
+        self._check_limits(w, h, spp, f.dtype, odt, ref is not None, payload)
         rid = self._next_id
         self._next_id = self._next_id % 0xFFFFFFFF + 1
         head = P.encode_filter_head(rid, name, w, h, spp, _DTYPES[f.dtype], _DTYPES[odt],

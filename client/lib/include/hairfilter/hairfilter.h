@@ -205,7 +205,12 @@ HFC_API int hfc_check_url(const char *url, char *why, size_t whylen);
  * flight are abandoned. NULL is allowed. */
 HFC_API void hfc_close(hfc_client *c);
 
-/* What the server in use said about itself in the handshake. Its limits
+/* What the server in use said about itself in the handshake. A request
+ * over its limits (max_width x max_height; max_frame_bytes for a frame
+ * sent through the socket, its FILTER fields and tensors; f16 or f32 not
+ * offered) is refused by hfc_filter / hfc_submit before anything is sent,
+ * HFC_E_TOO_LARGE (HFC_E_UNSUPPORTED for the dtype) with the limit and the
+ * frame's size in hfc_last_message, and the connection stays usable. They
  * are the handshake's: a reload of the server (SIGHUP) that changes the
  * variants may raise or lower max_width and max_height for new connections
  * only, and a frame over the new limit is HFC_E_TOO_LARGE naming it. */
@@ -371,7 +376,9 @@ HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
  * not have is still sent, and its completion is HFC_E_UNKNOWN_VARIANT with
  * the listed names in hfc_last_message. A request whose spp or estimate
  * flag the listed variant does not match (hfc_variant.spp,
- * hfc_variant.estimate) is HFC_E_ARG before anything is sent. */
+ * hfc_variant.estimate) is HFC_E_ARG before anything is sent, and so is
+ * one over the server's announced limits HFC_E_TOO_LARGE (hfc_server_info):
+ * the server's refusal would come only after the whole upload. */
 HFC_API int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id);
 
 typedef struct hfc_completion {
