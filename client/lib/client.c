@@ -35,10 +35,20 @@ static double now_us(void) {
   return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec / 1e3;
 }
 
+int hfci_ms_left(double deadline_us, int timeout_ms) {
+  if (timeout_ms < 0) return -1;
+  double left = deadline_us - now_us();
+  return left <= 0 ? 0 : (int)((left + 999.0) / 1e3);
+}
+
 int hfci_wait_fd(int fd, short events, int timeout_ms) {
   struct pollfd pfd = {fd, events, 0};
-  for (;;) {
-    int n = poll(&pfd, 1, timeout_ms);
+  /* A signal (an engine's interval timer, a profiler's) ends poll early:
+   * it waits again for what is left, not the whole timeout, or signals
+   * more frequent than the timeout would keep it from ever running out. */
+  double deadline = now_us() + (double)timeout_ms * 1e3;
+  for (int wait = timeout_ms;; wait = hfci_ms_left(deadline, timeout_ms)) {
+    int n = poll(&pfd, 1, wait);
     if (n > 0) return 0;
     if (n == 0) return HFC_E_TIMEOUT;
     if (errno != EINTR) return HFC_E_IO;
@@ -426,9 +436,12 @@ static int pump_once(hfc_client *c, int timeout_ms) {
       return 0;
     }
   int r;
-  do {
-    r = poll(pf, (nfds_t)n, timeout_ms);
-  } while (r < 0 && errno == EINTR);
+  /* As hfci_wait_fd: a signal leaves only the rest of the timeout. */
+  double deadline = now_us() + (double)timeout_ms * 1e3;
+  for (int wait = timeout_ms;; wait = hfci_ms_left(deadline, timeout_ms)) {
+    r = poll(pf, (nfds_t)n, wait);
+    if (!(r < 0 && errno == EINTR)) break;
+  }
   if (r == 0) return HFC_E_TIMEOUT;
   if (r < 0) return HFC_E_IO;
   for (int i = 0; i < n; i++)

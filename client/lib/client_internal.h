@@ -176,7 +176,11 @@ int hfci_follows_list(const hfc_client *c);
 
 /* ---- client.c -------------------------------------------------------------- */
 
-/* poll() for events on fd: 0, HFC_E_TIMEOUT or HFC_E_IO. */
+/* Milliseconds from now to deadline_us (monotonic), rounded up, 0 once it
+ * passed; -1 (no limit) when timeout_ms, the wait it ends, is < 0. */
+int hfci_ms_left(double deadline_us, int timeout_ms);
+/* poll() for events on fd, up to timeout_ms in all however many signals
+ * interrupt it: 0, HFC_E_TIMEOUT or HFC_E_IO. */
 int hfci_wait_fd(int fd, short events, int timeout_ms);
 /* Reads exactly n bytes from fd, waiting up to timeout_ms whenever none
  * come; a descriptor passed with them goes to *rx_fd when that is -1, any

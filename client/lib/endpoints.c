@@ -74,7 +74,52 @@ static const char *connect_hint(int kind, int err) {
            "e.g. hairfilter?)";
   if (kind == HFP_URL_UNIX && err == ENOENT) return " (no socket there: is hairfilterd running?)";
   if (err == ECONNREFUSED) return " (nothing listens there: is hairfilterd running?)";
+  if (kind == HFP_URL_UNIX && err == ETIMEDOUT)
+    return " (the server accepted no connection within hfc_options.timeout_ms, its queue of "
+           "connections full: is hairfilterd stopped or overloaded?)";
   return "";
+}
+
+static double mono_us(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec / 1e3;
+}
+
+/* connect() of the non-blocking Unix socket fd within timeout_ms (< 0: no
+ * limit). A listener whose queue of connections is full (a stopped or
+ * overloaded server) makes a blocking connect wait for ever and a
+ * non-blocking one fail at once with EAGAIN, so that is tried again a few
+ * milliseconds apart until the timeout; a signal does not end it either.
+ * 0, or -1 with errno (ETIMEDOUT once the time is up). */
+static int connect_unix(int fd, const struct sockaddr_un *sun, int timeout_ms) {
+  double deadline = mono_us() + (double)timeout_ms * 1e3;
+  for (;;) {
+    if (connect(fd, (const struct sockaddr *)sun, sizeof *sun) == 0) return 0;
+    int e = errno;
+    if (e == EISCONN) return 0;
+    if (e == EINPROGRESS) {
+      int so = 0;
+      socklen_t sl = sizeof so;
+      int w = hfci_wait_fd(fd, POLLOUT, hfci_ms_left(deadline, timeout_ms));
+      if (w == 0 && getsockopt(fd, SOL_SOCKET, SO_ERROR, &so, &sl) == 0 && so == 0) return 0;
+      errno = w == HFC_E_TIMEOUT ? ETIMEDOUT : so ? so : EIO;
+      return -1;
+    }
+    if (e != EAGAIN && e != EINTR && e != EALREADY) {
+      errno = e;
+      return -1;
+    }
+    int left = hfci_ms_left(deadline, timeout_ms);
+    if (left == 0) {
+      errno = ETIMEDOUT;
+      return -1;
+    }
+    if (e != EINTR) {
+      struct timespec ts = {0, (long)((left < 0 || left > 10 ? 10 : left) * 1000000L)};
+      nanosleep(&ts, NULL);
+    }
+  }
 }
 
 /* Opens a socket connected to e: the descriptor, or HFC_E_CONNECT with
@@ -89,8 +134,8 @@ static int open_socket(const endpoint *e, int timeout_ms, int *err, char *why, s
     sun.sun_family = AF_UNIX;
     _Static_assert(sizeof u->path <= sizeof sun.sun_path, "hfp_url path fits sun_path");
     memcpy(sun.sun_path, u->path, sizeof u->path);
-    int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    if (fd >= 0 && connect(fd, (struct sockaddr *)&sun, sizeof sun) == 0) return fd;
+    int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+    if (fd >= 0 && connect_unix(fd, &sun, timeout_ms) == 0) return fd;
     *err = errno;
     if (fd >= 0) close(fd);
     snprintf(why, whylen, "connect: %s%s", strerror(*err), connect_hint(u->kind, *err));
@@ -117,7 +162,8 @@ static int open_socket(const endpoint *e, int timeout_ms, int *err, char *why, s
       continue;
     }
     int rc = connect(fd, ai->ai_addr, ai->ai_addrlen);
-    if (rc != 0 && errno == EINPROGRESS) {
+    /* A signal leaves a non-blocking connect going on, as EINPROGRESS does. */
+    if (rc != 0 && (errno == EINPROGRESS || errno == EINTR)) {
       int so = 0;
       socklen_t sl = sizeof so;
       int w = hfci_wait_fd(fd, POLLOUT, timeout_ms);
