@@ -633,6 +633,38 @@ class PythonClient(unittest.TestCase):
             proc.terminate()
             self.assertEqual(proc.wait(timeout=30), 0)
 
+    def test_connect_queue_full(self):
+        """A Unix listener that accepts nothing, its queue of connections
+        full: CONNECT after about the timeout, saying what to check (it was
+        refused at once with "Resource temporarily unavailable")."""
+        path = os.path.join(ARGS.work, "full.sock")
+        if os.path.exists(path):
+            os.unlink(path)
+        lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        lsock.bind(path)
+        lsock.listen(0)
+        fill = []
+        try:
+            for _ in range(8):
+                s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                fill.append(s)
+                s.setblocking(False)
+                s.connect(path)
+        except BlockingIOError:
+            pass
+        try:
+            t0 = time.monotonic()
+            with self.assertRaises(hairfilter.Error) as e:
+                hairfilter.Client("unix:" + path, timeout=1)
+            took = time.monotonic() - t0
+            self.assertEqual(e.exception.code, "CONNECT", e.exception.message)
+            self.assertIn("is hairfilterd stopped or overloaded", e.exception.message)
+            self.assertTrue(0.5 < took < 5, took)
+        finally:
+            for s in fill:
+                s.close()
+            lsock.close()
+
     def test_codec(self):
         hello = P.encode_hello("py", "tok")
         self.assertEqual(P.decode_header(hello[:16]), (P.HELLO, 0, len(hello) - 16))

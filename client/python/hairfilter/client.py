@@ -173,7 +173,30 @@ def _connect_hint(kind, e):
         return " (no socket there: is hairfilterd running?)"
     if e.errno == errno.ECONNREFUSED:
         return " (nothing listens there: is hairfilterd running?)"
+    if kind == "unix" and e.errno == errno.ETIMEDOUT:
+        return (" (the server accepted no connection within the timeout, its queue of "
+                "connections full: is hairfilterd stopped or overloaded?)")
     return ""
+
+
+def _connect_unix(s, path, timeout):
+    """Connects the Unix socket s within timeout seconds (None: no limit).
+    A listener whose queue of connections is full (a stopped or overloaded
+    server) refuses a connect at once with EAGAIN: it is tried again a few
+    milliseconds apart until the timeout, then OSError ETIMEDOUT, as
+    libhairfilter does."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while True:
+        try:
+            s.connect(path)
+            return
+        except BlockingIOError as e:
+            if e.errno != errno.EAGAIN:
+                raise
+        left = None if deadline is None else deadline - time.monotonic()
+        if left is not None and left <= 0:
+            raise OSError(errno.ETIMEDOUT, os.strerror(errno.ETIMEDOUT))
+        time.sleep(0.01 if left is None else min(0.01, left))
 
 
 class Client:
@@ -243,7 +266,7 @@ class Client:
                 s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
                 s.settimeout(self.timeout)
                 try:
-                    s.connect(addr.path)
+                    _connect_unix(s, addr.path, self.timeout)
                 except OSError:
                     s.close()
                     raise
