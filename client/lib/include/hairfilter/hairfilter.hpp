@@ -53,7 +53,7 @@ inline std::string version() { return hfc_version(); }
 struct Status {
   int code;
   std::string message;
-  Status() : code(HFC_OK) {}
+  Status() : code(HFC_OK), message() {}
   Status(int c, std::string m) : code(c), message(std::move(m)) {}
   explicit operator bool() const { return code == HFC_OK; }
   bool busy() const { return code == HFC_E_BUSY; }
@@ -114,11 +114,13 @@ class SharedBuffer;
 
 class Client {
  public:
-  Client() {}
+  Client() : c_() {}
 #ifdef HAIRFILTER_HPP_EXCEPTIONS
   // Connects (url: one endpoint or a comma-separated list); throws Error.
-  explicit Client(const std::string &url) { check(open(url, nullptr, *this)); }
-  Client(const std::string &url, const hfc_options &opt) { check(open(url, &opt, *this)); }
+  explicit Client(const std::string &url) : c_() { check(open(url, nullptr, *this)); }
+  Client(const std::string &url, const hfc_options &opt) : c_() {
+    check(open(url, &opt, *this));
+  }
 #endif
   // The connection is closed with the last Client it was moved through.
   Client(Client &&o) noexcept : c_(std::move(o.c_)) {}
@@ -199,9 +201,11 @@ class Client {
 // the object only forgets it.
 class SharedBuffer {
  public:
-  SharedBuffer() : p_(nullptr), n_(0) {}
+  SharedBuffer() : c_(), p_(nullptr), n_(0) {}
 #ifdef HAIRFILTER_HPP_EXCEPTIONS
-  SharedBuffer(Client &c, std::size_t bytes) : p_(nullptr), n_(0) { check(open(c, bytes, *this)); }
+  SharedBuffer(Client &c, std::size_t bytes) : c_(), p_(nullptr), n_(0) {
+    check(open(c, bytes, *this));
+  }
 #endif
   ~SharedBuffer() { reset(); }
   SharedBuffer(SharedBuffer &&o) noexcept : c_(std::move(o.c_)), p_(o.p_), n_(o.n_) {
