@@ -140,6 +140,16 @@ build_engines() {
       $("${pc[@]}" --cflags --libs hairfilter) -Wl,-rpath,"$libdir" -o "$work/pc_c_$tag" ||
       fail "pkg-config C build"
   engines+=("$work/pc_c_$tag")
+  # The static library by its path, as client/lib/README.md says: no
+  # libhairfilter.so in the program, which starts without an rpath.
+  # shellcheck disable=SC2046
+  "$cc" -std=c99 $cflags -I"$src/tests/install/engine" "$src/tests/install/engine/engine.c" \
+      $("${pc[@]}" --cflags hairfilter) "$libdir/libhairfilter.a" -lssl -lcrypto \
+      -o "$work/pc_static_c_$tag" || fail "pkg-config static C build"
+  if ldd "$work/pc_static_c_$tag" | grep -q libhairfilter; then
+    fail "pkg-config static C build links libhairfilter.so"
+  fi
+  engines+=("$work/pc_static_c_$tag")
   if [ "$cxx_too" = yes ]; then
     # shellcheck disable=SC2046
     "$cxx" -std=c++11 $cflags -I"$src/tests/install/engine" \
