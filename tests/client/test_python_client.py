@@ -665,6 +665,32 @@ class PythonClient(unittest.TestCase):
                 s.close()
             lsock.close()
 
+    def test_segment_close_pending_and_bounds(self):
+        """A segment whose close() is refused while a frame uses it stays
+        the client's: later frames in it still go by reference (it was
+        dropped from the client's list, and they went through the socket
+        without a word). array() out of the segment is ARG naming the sizes
+        (numpy's TypeError, or a view before the segment's start)."""
+        with hairfilter.Client(UNIX) as c:
+            seg = c.shared_memory(1 << 16)
+            fin = seg.array((8, 8, 24), np.float32, 0)
+            fin[...] = features(8, 8, 4, 2)
+            out = seg.array((8, 8, 3), np.float32, fin.nbytes)
+            c.submit("Small", fin, result=out)
+            with self.assertRaises(hairfilter.Error) as e:
+                seg.close()
+            self.assertEqual(e.exception.code, "ARG")
+            self.assertEqual(c.wait().status, "OK")
+            self.assertTrue(c.filter("Small", fin, result=out).timing.via_shm)
+            for offset in (1 << 16, (1 << 16) - 4, -4):
+                with self.assertRaises(hairfilter.Error) as e:
+                    seg.array((8, 8, 24), np.float32, offset)
+                self.assertEqual(e.exception.code, "ARG")
+                self.assertIn("run past", e.exception.message)
+            seg.close()
+            with self.assertRaises(hairfilter.Error):
+                seg.array((1,), np.float32, 0)
+
     def test_codec(self):
         hello = P.encode_hello("py", "tok")
         self.assertEqual(P.decode_header(hello[:16]), (P.HELLO, 0, len(hello) - 16))

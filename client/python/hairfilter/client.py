@@ -96,6 +96,13 @@ class Error(Exception):
 ServerInfo = namedtuple("ServerInfo", "name software_version version max_width max_height "
                                       "max_spp max_inflight max_batch queue_size auth_required "
                                       "f32 f16 shm max_frame_bytes")
+ServerInfo.__doc__ = ("What the server said about itself in the handshake (HELLO_OK, "
+                      "protocol/PROTOCOL.md): its name and software version, the protocol "
+                      "version of the connection, its limits (max_width x max_height, max_spp, "
+                      "max_frame_bytes: a frame over them is refused before it is sent), "
+                      "max_inflight per connection, max_batch, queue_size, whether it wants a "
+                      "token, the dtypes it takes (f32, f16) and whether the connection has "
+                      "shared memory.")
 Timing = namedtuple("Timing", "queue_us input_us infer_us output_us server_us total_us batch "
                               "via_shm out_of_range input_sanitised")
 Timing.__doc__ = ("Microseconds: the server's parts and total (server_us), and what the caller "
@@ -129,10 +136,20 @@ class Segment:
         self.base = np.frombuffer(mm, dtype=np.uint8).__array_interface__["data"][0]
 
     def array(self, shape, dtype=np.float32, offset=0):
-        """A view of shape and dtype at byte offset (a multiple of the
-        element size, so that the server accepts it)."""
-        a = np.ndarray(shape, dtype=dtype, buffer=self._mm, offset=offset)
-        return a
+        """A view of shape and dtype at byte offset: a multiple of the
+        element size, else the server would refuse a reference to it and a
+        frame using it takes the socket. Error("ARG") for a view that would
+        not lie within the segment, or a closed segment."""
+        if self._mm is None:
+            raise Error("ARG", "Segment.array: the segment is closed")
+        dt = np.dtype(dtype)
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+        if offset < 0 or offset + nbytes > self.size:
+            raise Error("ARG", "Segment.array: %d bytes (%s of %s) at offset %d run past the "
+                               "segment's %d bytes: allocate a larger one "
+                               "(Client.shared_memory)"
+                        % (nbytes, tuple(shape), dt, offset, self.size))
+        return np.ndarray(shape, dtype=dt, buffer=self._mm, offset=offset)
 
     def place(self, a):
         """The byte offset of array a in this segment, or None (also for an
@@ -146,6 +163,9 @@ class Segment:
         return None
 
     def close(self):
+        """Releases the segment on the server and unmaps it; a second close
+        does nothing. Error("ARG") while a pending request uses it (wait()
+        for its completion first): the segment then stays usable."""
         if self._mm is None:
             return
         self._client._shm_destroy(self)
@@ -573,10 +593,13 @@ class Client:
         return seg
 
     def _shm_destroy(self, seg):
+        # Refused before anything changes: a segment dropped from the list
+        # would send its later frames through the socket without a word.
+        if any(p.shm is seg for p in self._pending.values()):
+            raise Error("ARG", "a request pending on this segment still uses it: wait() for "
+                               "its completion, then close the segment")
         if seg in self._segments:
             self._segments.remove(seg)
-        if any(p.shm is seg for p in self._pending.values()):
-            raise Error("ARG", "a request pending on this segment still uses it")
         if self._sock is not None and self._broken is None:
             self._send(P.encode_shm_destroy(seg.id))
 
