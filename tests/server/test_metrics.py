@@ -40,22 +40,25 @@ from opsdaemon import (Daemon, check, finish, load_result, run_then_stop,  # noq
                        run_load, sample, workdir)
 
 HAIRFILTERD, LOAD_CLIENT, WEIGHTS = sys.argv[1:4]
-class BadSpp(threading.Thread):
-    """count Small frames of 2 spp (Small takes 4) through the Python
-    client, answered INVALID by the server; result() is shaped as
+class Refused(threading.Thread):
+    """count Small frames of shape (h, w, spp*6) through the Python client,
+    its own checks of the variant and of the server's announced limits
+    turned off, so that the server answers them: 2 spp (Small takes 4) is
+    INVALID, a size over --max-size TOO_LARGE. result() is shaped as
     load_client's report."""
 
-    def __init__(self, url, count):
+    def __init__(self, url, count, shape, name):
         super().__init__()
-        self.url, self.count = url, count
+        self.url, self.count, self.shape, self.name = url, count, shape, name
         self.report = {"sent": 0, "answered": 0, "connection_errors": 0, "status": {}}
         self.start()
 
     def run(self):
         try:
-            with hairfilter.Client(self.url, client_name="bad-spp") as hf:
+            with hairfilter.Client(self.url, client_name=self.name) as hf:
                 hf._check_variant = lambda name, spp, given: None
-                features = np.zeros((16, 16, 2 * 6), np.float32)
+                hf._check_limits = lambda *args: None
+                features = np.zeros(self.shape, np.float32)
                 for _ in range(self.count):
                     hf.submit("Small", features)
                     self.report["sent"] += 1
@@ -64,7 +67,7 @@ class BadSpp(threading.Thread):
                     st = self.report["status"]
                     st[done.status] = st.get(done.status, 0) + 1
         except (hairfilter.Error, OSError) as e:
-            print("bad_spp load: %s" % e)
+            print("%s load: %s" % (self.name, e))
             self.report["connection_errors"] += 1
 
     def result(self):
@@ -206,8 +209,9 @@ def run(d):
         "served": run_load(LOAD_CLIENT, unix, "Small", 4, "32x32", connections=3, inflight=4,
                            until_file=stop),
         "shallow": run_load(LOAD_CLIENT, unix, "Shallow", 4, "16x16", count=20),
-        "too_large": run_load(LOAD_CLIENT, unix, "Small", 4, "80x64", count=5),
-        "bad_spp": BadSpp(unix, 7),
+        # Clients refuse a frame over the announced size before sending it.
+        "too_large": Refused(unix, 5, (64, 80, 4 * 6), "too-large"),
+        "bad_spp": Refused(unix, 7, (16, 16, 2 * 6), "bad-spp"),
         "unknown": run_load(LOAD_CLIENT, unix, "Nope", 4, "16x16", count=3),
     }
     scrapes, lint = [], []
@@ -219,7 +223,7 @@ def run(d):
         time.sleep(0.05)
     still = loads["served"].poll() is None
     open(stop, "w").close()
-    results = {k: p.result() if isinstance(p, BadSpp) else load_result(p)
+    results = {k: p.result() if isinstance(p, Refused) else load_result(p)
                for k, p in loads.items()}
     print({k: r["status"] for k, r in results.items()})
     check(still, "the served load was still running at the last scrape")
