@@ -676,9 +676,12 @@ class Client:
                rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None,
                estimate=None):
         """Sends one frame and returns its id; wait() gives its Completion.
-        It returns at once, but for the first request naming a variant on a
-        connection, which lists the server's variants first (a round trip,
-        up to the client's timeout). features: [h][w][spp*6] float32 or
+        It does not wait for the result, but through the socket it writes
+        the whole frame first (one larger than the socket's buffers waits
+        while the server reads it, up to the client's timeout; through
+        shared memory only a reference goes), and the first request naming
+        a variant on a connection lists the server's variants (a round
+        trip). features: [h][w][spp*6] float32 or
         float16, C-contiguous; hair, light, background: 3 finite numbers
         each, linear RGB, for the composite.
         estimate: the frame's alpha-corrected estimate, [h][w][3] of the
