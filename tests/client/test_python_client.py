@@ -691,6 +691,76 @@ class PythonClient(unittest.TestCase):
             with self.assertRaises(hairfilter.Error):
                 seg.array((1,), np.float32, 0)
 
+    def test_lost_connection_completes_pending(self):
+        """A server that goes with frames in flight: wait() returns each
+        of them completed with the loss (pending counts down to 0), then
+        raises it saying to connect again. wait() raised the loss for ever
+        with pending stuck, so an engine's loop on pending never ended."""
+        raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        raw.settimeout(10)
+        raw.connect(UNIX[len("unix:"):])
+        raw.sendall(P.encode_hello("recorder"))
+        hello_ok = read_message(raw)
+        raw.sendall(P.frame(P.LIST_VARIANTS))
+        variants = read_message(raw)
+        raw.close()
+        path = os.path.join(ARGS.work, "gone.sock")
+        if os.path.exists(path):
+            os.unlink(path)
+        lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        lsock.bind(path)
+        lsock.listen(1)
+
+        def serve():
+            s, _ = lsock.accept()
+            s.settimeout(10)
+            read_message(s)
+            s.sendall(hello_ok)
+            filters = 0
+            while filters < 3:
+                type_, _, length = P.decode_header(recv_exactly(s, 16))
+                recv_exactly(s, length)
+                if type_ == P.FILTER:
+                    filters += 1
+                else:
+                    s.sendall(variants)
+            s.close()   # three frames owed, none answered
+            lsock.close()
+
+        t = threading.Thread(target=serve)
+        t.start()
+        try:
+            with hairfilter.Client("unix:" + path) as c:
+                for i in range(3):
+                    c.submit("Small", features(8, 8, 4, i), user=i)
+                users = []
+                while c.pending:
+                    d = c.wait()
+                    self.assertEqual(d.status, "CLOSED", d.message)
+                    self.assertIn("connect again", d.message)
+                    users.append(d.user)
+                self.assertEqual(sorted(users), [0, 1, 2])
+                with self.assertRaises(hairfilter.Error) as e:
+                    c.wait()
+                self.assertEqual(e.exception.code, "CLOSED")
+                self.assertIn("connect again", e.exception.message)
+        finally:
+            t.join(30)
+
+    def test_close_with_frame_pending_in_segment(self):
+        """close() (and leaving a with block) while a frame in a shared
+        segment is pending abandons it and closes: it raised ARG from the
+        segment's release and left the socket open."""
+        c = hairfilter.Client(UNIX)
+        seg = c.shared_memory(1 << 20)
+        fin = seg.array((32, 32, 24), np.float32, 0)
+        fin[...] = features(32, 32, 4, 5)
+        c.submit("Small", fin, result=seg.array((32, 32, 3), np.float32, fin.nbytes))
+        c.close()
+        with self.assertRaises(hairfilter.Error) as e:
+            c.wait()
+        self.assertEqual(e.exception.code, "CLOSED")
+
     def test_codec(self):
         hello = P.encode_hello("py", "tok")
         self.assertEqual(P.decode_header(hello[:16]), (P.HELLO, 0, len(hello) - 16))

@@ -247,6 +247,7 @@ class Client:
         self._variants = None
         self._fds = []
         self._broken = None
+        self._lost = set()   # ids of the completions _fail made
         addrs = []
         for ep in url.split(","):
             try:
@@ -433,7 +434,9 @@ class Client:
             self._sock = None
 
     def close(self):
-        """Releases the segments and closes; pending requests are abandoned."""
+        """Releases the segments and closes; pending requests are abandoned
+        (first, so that their segments can be released)."""
+        self._pending.clear()
         for seg in list(self._segments):
             seg.close()
         self._close_socket()
@@ -448,9 +451,20 @@ class Client:
         self.close()
 
     def _fail(self, code, message):
-        """The connection is unusable: every later call raises this."""
-        self._broken = Error(code, message)
+        """The connection is unusable: every later call raises this, once
+        wait() has returned the frames that were pending, each completed
+        with it (as libhairfilter completes them), so that a loop on
+        pending ends and says to connect again."""
+        hint = "; connect again (a new Client)"
+        self._broken = Error(code, message if message.endswith(hint) else message + hint)
         self._close_socket()
+        now = time.monotonic()
+        for rid, p in sorted(self._pending.items()):
+            t = Timing(0, 0, 0, 0, 0, (now - p.t0) * 1e6, 0, False, False, False)
+            self._done.append(Completion(rid, code, "the connection was lost (%s)%s"
+                                         % (message, hint), None, None, t, p.user))
+            self._lost.add(rid)
+        self._pending.clear()
         raise self._broken
 
     def _check(self):
@@ -771,9 +785,13 @@ class Client:
                 self._send(head, memoryview(f).cast("B"))
         except Error:
             # Answered before the server closed (_read_left): the frame's
-            # completion says how; the next call raises the loss.
-            if any(d.id == rid for d in self._done):
+            # completion says how; the next call raises the loss. Not
+            # answered, it is this call's failure, not a completion.
+            mine = next((d for d in self._done if d.id == rid), None)
+            if mine is not None and rid not in self._lost:
                 return rid
+            if mine is not None:
+                self._done.remove(mine)
             raise
         return rid
 
@@ -832,12 +850,18 @@ class Client:
     def wait(self, timeout=None):
         """The next completion, in the order the server finishes them.
         timeout: seconds (None: the client's); Error("TIMEOUT") when none
-        came, Error("NOPENDING") with nothing in flight."""
+        came, Error("NOPENDING") with nothing in flight. When the
+        connection is lost, the frames pending complete with its error, one
+        per call, and then wait() raises it (connect again)."""
         while not self._done:
             self._check()
             if not self._pending:
                 raise Error("NOPENDING", "no request in flight")
-            self._read_one(self.timeout if timeout is None else timeout)
+            try:
+                self._read_one(self.timeout if timeout is None else timeout)
+            except Error:
+                if not self._done:
+                    raise
         return self._done.pop(0)
 
     @property
@@ -859,4 +883,9 @@ class Client:
                         raise Error(c.status, c.message)
                     return c
             self._check()
-            self._read_one(self.timeout)
+            try:
+                self._read_one(self.timeout)
+            except Error:
+                # A lost connection completed this frame with its error.
+                if not any(c.id == rid for c in self._done):
+                    raise
