@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <cstring>
 #include <set>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -121,6 +122,28 @@ void reset_frees() {
   if (shm_frame(c, again)) fail("a frame through a buffer made after a reset");
 }
 
+// A completion that failed: wait() is OK, completion() gives the frame's
+// code and the server's words (they were out of reach of the wrapper).
+void failed_completion() {
+  hairfilter::Client c(S.unix_url);
+  std::vector<float> in(static_cast<std::size_t>(W) * HT * 2 * 6, 0.5f), out(W * HT * 3);
+  hairfilter::Request r;
+  r.variant = "NoSuchVariant";
+  r.width = W;
+  r.height = HT;
+  r.spp = 2;
+  r.set_features(in.data(), in.size() * sizeof(float));
+  r.set_result(out.data(), out.size() * sizeof(float));
+  if (!c.submit(r)) fail("submit of a frame naming no variant");
+  hfc_completion done;
+  hairfilter::Status s = c.wait(done, 10000);
+  hairfilter::Status frame = c.completion(done);
+  if (!s) fail("wait() for a completion that failed");
+  if (frame.code != HFC_E_UNKNOWN_VARIANT || frame.message.find("NoSuchVariant") == std::string::npos)
+    fail("completion() of a frame naming no variant: want HFC_E_UNKNOWN_VARIANT and its name");
+  if (c.last_message() != frame.message) fail("last_message() is not the completion's");
+}
+
 }  // namespace
 
 int main() {
@@ -129,6 +152,7 @@ int main() {
     buffer_outlives_client();
     client_moved();
     reset_frees();
+    failed_completion();
   } catch (const hairfilter::Error &e) {
     std::fprintf(stderr, "hairfilter::Error: %s\n", e.what());
     g_failures++;

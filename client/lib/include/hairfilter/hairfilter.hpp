@@ -156,10 +156,17 @@ class Client {
     return status(hfc_submit(get(), &r, id));
   }
   // The next completion (its own status in done.status); timeout_ms < 0:
-  // the client's timeout, 0: just poll.
+  // the client's timeout, 0: just poll. A Status that is OK may carry a
+  // completion that failed: completion() gives its code and message.
   Status wait(hfc_completion &done, int timeout_ms = -1) {
     return status(hfc_wait(get(), timeout_ms, &done));
   }
+  // The frame's own outcome after wait() returned done: done.status and
+  // why (hfc_last_message, which then speaks of that completion), e.g.
+  //   if (hf.wait(done, 0) && !hf.completion(done)) log(hf.completion(done).what());
+  Status completion(const hfc_completion &done) const { return status(done.status); }
+  // What hfc_last_message says about the last call on this client.
+  std::string last_message() const { return hfc_last_message(get()); }
 
   Status variants(std::vector<hfc_variant> &out) {
     out.resize(64);
