@@ -761,6 +761,22 @@ class PythonClient(unittest.TestCase):
             c.wait()
         self.assertEqual(e.exception.code, "CLOSED")
 
+    def test_inflight_says_what_to_do(self):
+        """A submit over the server's in-flight window is INFLIGHT naming
+        the window and saying to collect with wait(); the frames in flight
+        then complete."""
+        with hairfilter.Client(UNIX) as c:
+            f = features(8, 8, 4, 6)
+            for _ in range(c.info.max_inflight):
+                c.submit("Small", f)
+            with self.assertRaises(hairfilter.Error) as e:
+                c.submit("Small", f)
+            self.assertEqual(e.exception.code, "INFLIGHT")
+            self.assertIn("info.max_inflight", e.exception.message)
+            self.assertIn("wait()", e.exception.message)
+            while c.pending:
+                c.wait()
+
     def test_codec(self):
         hello = P.encode_hello("py", "tok")
         self.assertEqual(P.decode_header(hello[:16]), (P.HELLO, 0, len(hello) - 16))

@@ -751,8 +751,9 @@ class Client:
         name = self._variant_name(variant)
         self._check_variant(name, spp, estimate is not None)
         if len(self._pending) >= self.info.max_inflight:
-            raise Error("INFLIGHT", "%d requests pending, as many as the server allows"
-                        % len(self._pending))
+            raise Error("INFLIGHT", "%d requests pending, as many as %s allows on a connection "
+                                    "(info.max_inflight): collect some with wait()"
+                        % (len(self._pending), self.endpoint))
         seg, ref = None, None
         arrays = [f, result] + ([rgba] if composite else [])
         for s in self._segments:
