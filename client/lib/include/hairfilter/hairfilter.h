@@ -288,7 +288,9 @@ typedef enum hfc_dtype { HFC_F32 = 0, HFC_F16 = 1 } hfc_dtype;
 typedef struct hfc_request {
   size_t struct_size;        /* sizeof(hfc_request), set by hfc_request_init() */
   const char *variant;       /* a loaded variant; case does not matter ("base" is Base) */
-  int width, height;         /* pixels, 1..65535 (the server's limit may be lower) */
+  int width, height;         /* pixels, 1..65535; the server's limit may be lower
+                                (hfc_info()->max_width, max_height: a frame over it is
+                                HFC_E_TOO_LARGE before anything is sent) */
   int spp;                   /* samples per pixel, 1..16: the variant's */
   hfc_dtype in_dtype;
   const void *features;
