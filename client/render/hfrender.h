@@ -299,9 +299,11 @@ void hfr_style_body(hfr_style s, hfr_ellipsoid *e);
 /* An ellipsoid under the roots (first points) of a model: an algebraic
  * least-squares fit in the frame of the roots' principal axes (a scalp), or,
  * where that fails or does not lie under the hair (a flat patch of fur), a
- * flat ellipsoid below the roots' mean plane on the side away from the hair;
- * then shrunk about its centre until 98% of the roots are on or outside it.
- * HF_EINVAL for a model with fewer than 4 strands. */
+ * flat ellipsoid below the roots' mean plane on the side away from the hair
+ * (roots along a line: the plane of the line and the strands' growth, the
+ * body a quarter as wide as the line is long); then shrunk about its centre
+ * until 98% of the roots are on or outside it. HF_EINVAL for a model with
+ * fewer than 4 strands, HF_ERANGE when the roots are all at one point. */
 int hfr_ellipsoid_fit_roots(const hfr_hair *hair, hfr_ellipsoid *out);
 /* Reads a triangle mesh (Wavefront OBJ, PLY, glTF, FBX, STL, ... through
  * the Open Asset Import Library); polygons are triangulated, smooth normals

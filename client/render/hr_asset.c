@@ -112,9 +112,19 @@ int hfr_asset_load(const char *path, const hfr_asset_opts *o, hfr_hair *hair, hf
   const char *kind = o->occluder;
   if (hfr_asset_fitted(o)) {
     hfr_ellipsoid e;
-    if (hair->strands >= 4 && hfr_ellipsoid_fit_roots(hair, &e) == HF_OK)
+    int fit = hair->strands >= 4 ? hfr_ellipsoid_fit_roots(hair, &e) : HF_EINVAL;
+    if (fit == HF_OK) {
       rc = hfr_mesh_ellipsoid(&e, 64, 32, occ);
-    /* Fewer than 4 roots: nothing to fit, no occluder. */
+    } else if (fit == HF_ENOMEM) {
+      rc = fit;
+    } else {
+      /* Nothing to fit: said, since the background layer stays empty and
+       * strands behind the model show through where a body would be. */
+      snprintf(msg, sizeof msg, "no occluder fitted under the roots (%s): the hair is drawn "
+               "with nothing under it; give --occluder MESH, or --occluder none to say so",
+               hair->strands < 4 ? "fewer than 4 strands" : "the roots are all at one point");
+      add_warning(warn, warnlen, msg);
+    }
   } else if (strcasecmp(kind, "none")) {
     rc = hfr_mesh_load(kind, occ, err, errlen);
     if (rc == HF_OK) rc = hfr_mesh_orient(occ, o->up, scale);

@@ -234,10 +234,26 @@ int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
       for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++) cov[i][j] += (double)u[3 * s + i] * u[3 * s + j] / N;
     eigen_sym3(cov, lam, E);
+    if (lam[0] > 0 && !(lam[1] > 1e-6 * lam[0])) {
+      /* Roots along a line (a row of strands): every plane through it fits
+       * them, so the patch's plane is the one the strands grow out of, the
+       * line and their mean growth across it. */
+      double g[3], gl = 0, along = 0;
+      for (int k = 0; k < 3; k++) along += grow[k] * E[k][0];
+      for (int k = 0; k < 3; k++) g[k] = grow[k] - along * E[k][0], gl += g[k] * g[k];
+      if (gl > 0) {
+        gl = sqrt(gl);
+        for (int k = 0; k < 3; k++) E[k][2] = g[k] / gl;
+        E[0][1] = E[1][2] * E[2][0] - E[2][2] * E[1][0];
+        E[1][1] = E[2][2] * E[0][0] - E[0][2] * E[2][0];
+        E[2][1] = E[0][2] * E[1][0] - E[1][2] * E[0][0];
+      }
+    }
     double nrm_dot = grow[0] * E[0][2] + grow[1] * E[1][2] + grow[2] * E[2][2];
     double sgn = nrm_dot >= 0 ? 1 : -1;
     rad[0] = 2 * sqrt(fmax(lam[0], 0));
-    rad[1] = 2 * sqrt(fmax(lam[1], 0));
+    /* A line of roots gets a body a quarter as wide as it is long. */
+    rad[1] = fmax(2 * sqrt(fmax(lam[1], 0)), 0.25 * rad[0]);
     rad[2] = fmax(2 * sqrt(fmax(lam[2], 0)), 0.1 * 0.5 * (rad[0] + rad[1]));
     for (int k = 0; k < 3; k++) c[k] = -sgn * rad[2] * E[k][2];
   }

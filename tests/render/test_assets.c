@@ -253,7 +253,84 @@ static void test_fit_roots(void **state) {
   hfr_mesh_free(&m);
   p.strands = 3;
   assert_int_equal(hfr_ellipsoid_fit_roots(&p, &e), HF_EINVAL);
+  /* A row of strands: roots along x, growing up (+y) and leaning to +z.
+   * The body lies under them (-y), as wide as a quarter of the row. */
+  p.strands = 400;
+  for (int s = 0; s < 400; s++) {
+    float *q = p.pos + 6 * s;
+    q[0] = (float)s / 399 - 0.5f, q[1] = 0, q[2] = 0;
+    q[3] = q[0], q[4] = 0.1f, q[5] = 0.02f;
+  }
+  assert_int_equal(hfr_ellipsoid_fit_roots(&p, &e), HF_OK);
+  print_message("row: centre %.3f %.3f %.3f radii %.3f %.3f %.3f\n", e.centre[0], e.centre[1],
+                e.centre[2], e.radii[0], e.radii[1], e.radii[2]);
+  assert_true(e.centre[1] < 0);
+  for (int a = 0; a < 3; a++) assert_true(e.radii[a] > 0.01f);
+  /* Every root on or outside it. */
+  for (int s = 0; s < 400; s += 7) {
+    const float *q = p.pos + 6 * s;
+    float d2 = 0;
+    for (int a = 0; a < 3; a++) {
+      float t = 0;
+      for (int k = 0; k < 3; k++) t += (q[k] - e.centre[k]) * e.axes[a][k];
+      d2 += (t / e.radii[a]) * (t / e.radii[a]);
+    }
+    assert_true(d2 >= 0.99f);
+  }
+  /* Roots all at one point: nothing to fit. */
+  for (int s = 0; s < 400; s++) p.pos[6 * s] = p.pos[6 * s + 3] = 0;
+  assert_int_equal(hfr_ellipsoid_fit_roots(&p, &e), HF_ERANGE);
   hfr_hair_free(&p);
+}
+
+/* A model with nothing to fit an occluder under is drawn without one, and
+ * the loader says so rather than leaving an empty background layer
+ * unexplained; a row of strands gets one. */
+static void test_fit_nothing_warned(void **state) {
+  (void)state;
+  hfr_hair t = {0};
+  t.strands = 6, t.points = 12, t.default_segments = 1, t.default_thickness = 0.001f;
+  t.pos = calloc(36, sizeof(float));
+  assert_non_null(t.pos);
+  for (int s = 0; s < 6; s++) t.pos[6 * s + 3] = 0.1f * s, t.pos[6 * s + 4] = 1; /* a tuft */
+  char path[256], warn[1024], err[256];
+  tmp_path(path, sizeof path, "tuft.hair");
+  assert_int_equal(hfr_hair_save(path, &t), HF_OK);
+  hfr_asset_opts o;
+  hfr_asset_defaults(&o);
+  hfr_hair h;
+  hfr_mesh occ;
+  assert_int_equal(hfr_asset_load(path, &o, &h, &occ, warn, sizeof warn, err, sizeof err), HF_OK);
+  print_message("tuft: %s\n", warn);
+  assert_non_null(strstr(warn, "no occluder fitted under the roots (the roots are all at one point)"));
+  assert_int_equal(occ.vertices, 0);
+  hfr_hair_free(&h);
+  /* Three strands: too few. */
+  t.strands = 3, t.points = 6;
+  for (int s = 0; s < 3; s++) t.pos[6 * s] = t.pos[6 * s + 3] = (float)s;
+  assert_int_equal(hfr_hair_save(path, &t), HF_OK);
+  assert_int_equal(hfr_asset_load(path, &o, &h, &occ, warn, sizeof warn, err, sizeof err), HF_OK);
+  assert_non_null(strstr(warn, "no occluder fitted under the roots (fewer than 4 strands)"));
+  assert_int_equal(occ.vertices, 0);
+  hfr_hair_free(&h);
+  /* A row of six: an occluder, no such warning. */
+  t.strands = 6, t.points = 12;
+  for (int s = 0; s < 6; s++) t.pos[6 * s] = t.pos[6 * s + 3] = (float)s;
+  assert_int_equal(hfr_hair_save(path, &t), HF_OK);
+  assert_int_equal(hfr_asset_load(path, &o, &h, &occ, warn, sizeof warn, err, sizeof err), HF_OK);
+  assert_null(strstr(warn, "no occluder"));
+  assert_true(occ.vertices > 0);
+  hfr_hair_free(&h);
+  hfr_mesh_free(&occ);
+  /* --occluder none: nothing asked for, nothing said. */
+  t.strands = 3, t.points = 6;
+  assert_int_equal(hfr_hair_save(path, &t), HF_OK);
+  o.occluder = "none";
+  assert_int_equal(hfr_asset_load(path, &o, &h, &occ, warn, sizeof warn, err, sizeof err), HF_OK);
+  assert_null(strstr(warn, "no occluder"));
+  hfr_hair_free(&h);
+  remove(path);
+  free(t.pos);
 }
 
 /* A small OBJ: a quad (two triangles after triangulation) and a triangle;
@@ -568,6 +645,7 @@ int main(void) {
     cmocka_unit_test(test_axes_and_units),
     cmocka_unit_test(test_children),
     cmocka_unit_test(test_fit_roots),
+    cmocka_unit_test(test_fit_nothing_warned),
     cmocka_unit_test(test_mesh_file),
     cmocka_unit_test(test_asset_load),
     cmocka_unit_test(test_asset_read_as_reference),
