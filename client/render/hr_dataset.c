@@ -322,7 +322,10 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       snprintf(why, sizeof why, "%s", err);
       snprintf(err, errlen, "%s: %s", o->hair_files[f], why);
     }
-    if (*warn && o->progress) fprintf(stderr, "warning: %s: %s\n", o->hair_files[f], warn);
+    /* --quiet or not: --quiet silences the progress bar, and these say how
+     * the model is drawn (a width fallback, strands left out). */
+    if (*warn)
+      fprintf(stderr, "hairfilter render dataset: warning: %s: %s\n", o->hair_files[f], warn);
     base_name(o->hair_files[f], models[f].name, sizeof models[f].name);
   }
   hfr_renderer *r = NULL;

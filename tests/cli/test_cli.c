@@ -785,6 +785,22 @@ static void test_render_bad_hair_named(void **state) {
 #endif
 }
 
+/* A loaded model's warnings (here the width fallback of the reference
+ * writer's header 1.0) say how it is drawn: render dataset prints them with
+ * --quiet too, which silences only the progress bar. */
+static void test_render_dataset_quiet_warns(void **state) {
+  (void)state;
+#ifndef HF_TEST_RENDERER
+  skip();  /* built without the renderer */
+#else
+  const char *hair = HF_SOURCE_DIR "/tests/data/hair-default-header.hair";
+  assert_int_equal(cli("render dataset --hair-files %s --units cm --count 1 --size 16x16 --quiet "
+                       "--out %s", hair, test_tmp("quiet_set")), 0);
+  expect_text("render dataset: warning: ");
+  expect_text("header thickness 1.0 is what the reference .hair writer stores");
+#endif
+}
+
 /* Numbers are read whole: a value with a unit or a tail is refused naming
  * the option (filter --timeout-ms 10s was 10 ms, eval --max-frames 5x 5). */
 static void test_strict_numbers(void **state) {
@@ -1032,6 +1048,7 @@ int main(void) {
     cmocka_unit_test(test_render_gt_grid_note), cmocka_unit_test(test_render_dataset_resume),
     cmocka_unit_test(test_render_dataset_resume_occluder),
     cmocka_unit_test(test_render_bad_hair_named),
+    cmocka_unit_test(test_render_dataset_quiet_warns),
     cmocka_unit_test(test_render_dataset_source_names),
     cmocka_unit_test(test_strict_numbers),
     cmocka_unit_test(test_render_option_modes), cmocka_unit_test(test_eval_warning),
