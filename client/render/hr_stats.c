@@ -82,21 +82,24 @@ void hr_frame_stats(const hfr_renderer *r, const hfr_view *v, const hr_camera *c
   free(wd);
 }
 
+/* Significant digits, not decimals: strands far below a pixel (1e-5 px
+ * wide, a hair fraction of 4e-4) are a regime of their own, and printed as
+ * 0.0000 they read as no hair at all. */
 void hfr_frame_stats_format(const hfr_frame_stats *s, char *buf, size_t len) {
   int k = 0;
   if (s->valid)
     k = snprintf(buf, len,
-                 "covered-sample alpha p10/p50/p90 %.4f/%.4f/%.4f, samples covered %.3f, hair "
-                 "pixels %.3f, of them fully covered %.3f",
+                 "covered-sample alpha p10/p50/p90 %.3g/%.3g/%.3g, samples covered %.3g, hair "
+                 "pixels %.3g, of them fully covered %.3g",
                  s->alpha_p10, s->alpha_p50, s->alpha_p90, s->sample_coverage, s->hair_pixels,
                  s->full_pixels);
   else
     k = snprintf(buf, len, "no stochastic pass");
   if (k < 0 || (size_t)k >= len) return;
   if (s->gt_opaque >= 0)
-    k += snprintf(buf + k, len - k, ", opaque in the ground truth %.3f", s->gt_opaque);
+    k += snprintf(buf + k, len - k, ", opaque in the ground truth %.3g", s->gt_opaque);
   if (k < 0 || (size_t)k >= len) return;
-  snprintf(buf + k, len - k, "; strand width p10/p50/p90 %.4f/%.4f/%.4f px (%llu points in view)",
+  snprintf(buf + k, len - k, "; strand width p10/p50/p90 %.3g/%.3g/%.3g px (%llu points in view)",
            s->width_px_p10, s->width_px_p50, s->width_px_p90,
            (unsigned long long)s->points_in_view);
 }

@@ -333,6 +333,27 @@ static void test_fit_nothing_warned(void **state) {
   free(t.pos);
 }
 
+/* The regime line keeps three significant digits: strands 1e-5 px wide
+ * and a hair fraction of 4e-4 are not printed as zeros. */
+static void test_stats_line_small_values(void **state) {
+  (void)state;
+  hfr_frame_stats s = {.valid = 1, .alpha_p10 = 1.2e-5, .alpha_p50 = 1.46e-5,
+                       .alpha_p90 = 1.79e-5, .sample_coverage = 1.1e-4,
+                       .hair_pixels = 3.66e-4, .full_pixels = 0, .gt_opaque = -1,
+                       .width_px_p10 = 1.33e-5, .width_px_p50 = 1.46e-5,
+                       .width_px_p90 = 1.63e-5, .points_in_view = 125182};
+  char line[512];
+  hfr_frame_stats_format(&s, line, sizeof line);
+  print_message("%s\n", line);
+  assert_non_null(strstr(line, "covered-sample alpha p10/p50/p90 1.2e-05/1.46e-05/1.79e-05"));
+  assert_non_null(strstr(line, "hair pixels 0.000366"));
+  assert_non_null(strstr(line, "strand width p10/p50/p90 1.33e-05/1.46e-05/1.63e-05 px"));
+  s.width_px_p50 = 0.0559, s.gt_opaque = 0.096;
+  hfr_frame_stats_format(&s, line, sizeof line);
+  assert_non_null(strstr(line, "/0.0559/"));
+  assert_non_null(strstr(line, "opaque in the ground truth 0.096"));
+}
+
 /* A small OBJ: a quad (two triangles after triangulation) and a triangle;
  * normals made where it has none. Bad files are refused with a reason. */
 static void test_mesh_file(void **state) {
@@ -646,6 +667,7 @@ int main(void) {
     cmocka_unit_test(test_children),
     cmocka_unit_test(test_fit_roots),
     cmocka_unit_test(test_fit_nothing_warned),
+    cmocka_unit_test(test_stats_line_small_values),
     cmocka_unit_test(test_mesh_file),
     cmocka_unit_test(test_asset_load),
     cmocka_unit_test(test_asset_read_as_reference),
