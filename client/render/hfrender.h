@@ -318,7 +318,9 @@ int hfr_mesh_orient(hfr_mesh *m, hfr_axis up, float scale);
 typedef struct hfr_view {
   int width, height;
   /* Camera orbiting the hair's bounding-sphere centre: distance in bounding
-   * radii, yaw about +y (0 = looking at the face, from +z), pitch up. */
+   * radii, yaw about +y (0 = looking at the face, from +z), pitch up; the
+   * field of view spans the frame's shorter side (the vertical one of a
+   * square or landscape frame). */
   float cam_distance, cam_yaw_deg, cam_pitch_deg, cam_fov_deg;
   /* Light: a point light at light_distance bounding radii from the centre,
    * or a directional light from that direction (light_directional). */

@@ -323,7 +323,13 @@ void hr_camera_from_view(const hfr_renderer *r, const hfr_view *v, hr_camera *ca
   float up[3] = {0, 1, 0};
   hr_mat_look_at(cam->eye, r->centre, up, cam->view);
   float n = fmaxf(dist - 1.2f * r->radius, 0.02f * r->radius), f = dist + 1.2f * r->radius;
-  hr_mat_perspective(hr_deg(v->cam_fov_deg), (float)v->width / v->height, n, f, cam->proj);
+  /* --fov spans the frame's shorter side: the vertical one of a square or
+   * landscape frame, the horizontal one of a portrait frame, so that at the
+   * default distance the bounding sphere is in view at any aspect (a
+   * vertical fov cut the sides of a portrait frame's model off). */
+  float aspect = (float)v->width / v->height, fovy = hr_deg(v->cam_fov_deg);
+  if (aspect < 1) fovy = 2 * atanf(tanf(0.5f * fovy) / aspect);
+  hr_mat_perspective(fovy, aspect, n, f, cam->proj);
   cam->depth_near = dist - r->radius;
   cam->depth_far = dist + r->radius;
   cam->px_per_unit = cam->proj[5] * v->height * 0.5f;

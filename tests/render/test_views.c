@@ -269,20 +269,35 @@ static void test_conventions_framing(void **state) {
   hfr_view_defaults(&v);
   v.width = v.height = 64;
   v.shadow_size = 0;
-  /* The bounding sphere's extreme points project inside the frame. */
+  /* The whole bounding sphere (points all over it, its silhouette among
+   * them) projects inside the frame, in a square, a landscape and a
+   * portrait frame alike. */
   float centre[3], radius;
   hfr_renderer_bounds(R, centre, &radius);
-  hr_camera cam;
-  hr_camera_from_view(R, &v, &cam);
-  for (int k = 0; k < 6; k++) {
-    float p[4] = {centre[0], centre[1], centre[2], 1};
-    p[k / 2] += (k & 1 ? -1 : 1) * radius;
-    float e[4] = {0}, c[4] = {0};
-    for (int i = 0; i < 4; i++)
-      for (int j = 0; j < 4; j++) e[i] += cam.view[4 * j + i] * p[j];
-    for (int i = 0; i < 4; i++)
-      for (int j = 0; j < 4; j++) c[i] += cam.proj[4 * j + i] * e[j];
-    assert_true(c[3] > 0 && fabsf(c[0] / c[3]) < 1 && fabsf(c[1] / c[3]) < 1);
+  const int sizes[3][2] = {{64, 64}, {96, 48}, {48, 96}};
+  for (int sz = 0; sz < 3; sz++) {
+    hfr_view a = v;
+    a.width = sizes[sz][0], a.height = sizes[sz][1];
+    hr_camera cam;
+    hr_camera_from_view(R, &a, &cam);
+    float most = 0;
+    for (int t = 0; t < 64; t++)
+      for (int q = 0; q < 128; q++) {
+        float th = (float)M_PI * (t + 0.5f) / 64, ph = 2 * (float)M_PI * q / 128;
+        float p[4] = {centre[0] + radius * sinf(th) * cosf(ph),
+                      centre[1] + radius * cosf(th),
+                      centre[2] + radius * sinf(th) * sinf(ph), 1};
+        float e[4] = {0}, c[4] = {0};
+        for (int i = 0; i < 4; i++)
+          for (int j = 0; j < 4; j++) e[i] += cam.view[4 * j + i] * p[j];
+        for (int i = 0; i < 4; i++)
+          for (int j = 0; j < 4; j++) c[i] += cam.proj[4 * j + i] * e[j];
+        assert_true(c[3] > 0);
+        most = fmaxf(most, fmaxf(fabsf(c[0] / c[3]), fabsf(c[1] / c[3])));
+      }
+    print_message("%dx%d: the bounding sphere reaches %.3f of the half-frame\n", a.width,
+                  a.height, most);
+    assert_true(most < 1);
   }
   hfr_outputs o = {0};
   o.spp = 4, o.seed = 2;
