@@ -29,7 +29,10 @@ void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
  * centred on the hair. r holds h (hfr_renderer_set_hair) already. */
 void hr_regime_view(hr_rng *g, const hfr_dataset_opts *o, hfr_renderer *r, const hfr_hair *h,
                     hfr_view *v, hr_regime *rg);
-/* Median strand diameter of a model (model units). */
+/* Median strand diameter of a model (model units): of its points with a
+ * positive width, or the header rule's width (hfr_hair_default_thickness)
+ * where it has no per-point widths or only zeros, as the renderer draws
+ * it. */
 float hr_typical_thickness(const hfr_hair *h);
 /* The regimes' strand opacity range of o: o->opacity_min..max, or the
  * default 0.2..1 where o leaves it 0, 0. */

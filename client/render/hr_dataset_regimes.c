@@ -56,16 +56,28 @@ void hr_regime_opacity_range(const hfr_dataset_opts *o, float range[2]) {
 }
 
 float hr_typical_thickness(const hfr_hair *h) {
-  if (!h->thickness) {
+  /* Median of evenly picked points that have a width: tips written 0 (half
+   * the points of one-segment strands) would otherwise make it 0, and the
+   * drawn width then misses its target. An array of zeros is ignored, as
+   * the renderer ignores it (hfr_renderer_set_hair). */
+  enum { N = 4096 };
+  float v[N];
+  uint32_t n = 0;
+  if (h->thickness && !hfr_hair_thickness_all_zero(h)) {
+    uint32_t picks = h->points < N ? h->points : N;
+    for (uint32_t i = 0; i < picks; i++) {
+      float t = h->thickness[(uint64_t)i * h->points / picks];
+      if (t > 0) v[n++] = t;
+    }
+    /* Every picked point 0 but not every point: the positive ones. */
+    for (uint64_t i = 0; !n && i < h->points; i++)
+      if (h->thickness[i] > 0) v[n++] = h->thickness[i];
+  }
+  if (!n) {
     float c[3], r;
     hfr_hair_bounds(h, c, &r);
     return hfr_hair_default_thickness(h, r, NULL);
   }
-  /* Median of evenly picked points. */
-  enum { N = 4096 };
-  float v[N];
-  uint32_t n = h->points < N ? h->points : N;
-  for (uint32_t i = 0; i < n; i++) v[i] = h->thickness[(uint64_t)i * h->points / n];
   for (uint32_t i = 1; i < n; i++) { /* insertion sort: n is small */
     float x = v[i];
     uint32_t j = i;

@@ -15,6 +15,7 @@
 #include <cmocka.h>
 
 #include "hfrender.h"
+#include "hr_dataset.h"
 
 static void tmp_path(char *buf, size_t n, const char *name) {
   snprintf(buf, n, "/tmp/hf_test_assets_%d_%s", (int)getpid(), name);
@@ -354,6 +355,34 @@ static void test_stats_line_small_values(void **state) {
   assert_non_null(strstr(line, "opaque in the ground truth 0.096"));
 }
 
+/* The typical diameter --regimes scales to its target width in pixels is
+ * that of the points drawn with a width: tips written 0 do not make it 0,
+ * and an array of zeros (which the renderer ignores for the header's
+ * width) gives the header's width. A 0 left the target unreached (scale
+ * 1) while the manifest recorded it. */
+static void test_typical_thickness(void **state) {
+  (void)state;
+  hfr_hair h = {0};
+  h.strands = 100, h.points = 300, h.default_segments = 2, h.default_thickness = 0.002f;
+  h.pos = calloc(900, sizeof(float));
+  h.thickness = calloc(300, sizeof(float));
+  assert_non_null(h.pos);
+  assert_non_null(h.thickness);
+  for (int s = 0; s < 100; s++)
+    for (int i = 0; i < 3; i++) h.pos[9 * s + 3 * i] = 0.1f * s, h.pos[9 * s + 3 * i + 1] = 0.5f * i;
+  /* Every strand: a width at the root, 0 at its two other points. */
+  for (int s = 0; s < 100; s++) h.thickness[3 * s] = 0.01f;
+  assert_true(fabsf(hr_typical_thickness(&h) - 0.01f) < 1e-7f);
+  /* Only zeros: the header's width, as drawn. */
+  memset(h.thickness, 0, 300 * sizeof(float));
+  float c[3], r;
+  hfr_hair_bounds(&h, c, &r);
+  float drawn = hfr_hair_default_thickness(&h, r, NULL);
+  assert_true(drawn > 0);
+  assert_true(fabsf(hr_typical_thickness(&h) - drawn) < 1e-9f);
+  hfr_hair_free(&h);
+}
+
 /* A small OBJ: a quad (two triangles after triangulation) and a triangle;
  * normals made where it has none. Bad files are refused with a reason. */
 static void test_mesh_file(void **state) {
@@ -668,6 +697,7 @@ int main(void) {
     cmocka_unit_test(test_fit_roots),
     cmocka_unit_test(test_fit_nothing_warned),
     cmocka_unit_test(test_stats_line_small_values),
+    cmocka_unit_test(test_typical_thickness),
     cmocka_unit_test(test_mesh_file),
     cmocka_unit_test(test_asset_load),
     cmocka_unit_test(test_asset_read_as_reference),
