@@ -282,9 +282,18 @@ void eval_strata_print(const eval_strata *s, const char *const *labels, FILE *f)
       fprintf(f, "| %s |", labels[m]);
       for (int b = 0; b < td->nb; b++) {
         metrics v;
-        if (!metrics_of(slot(s, m, t, b), !px, &v)) fprintf(f, " - |");
-        else if (isinf(v.psnr)) fprintf(f, " inf / %.4f |", v.ssim);
-        else fprintf(f, " %.2f / %.4f |", v.psnr, v.ssim);
+        const sums *d = slot(s, m, t, b);
+        if (!metrics_of(d, !px, &v)) {
+          fprintf(f, " - |");
+          continue;
+        }
+        if (isinf(v.psnr)) fprintf(f, " inf / %.4f", v.ssim);
+        else fprintf(f, " %.2f / %.4f", v.psnr, v.ssim);
+        /* A method some of the bucket's frames lack (a baseline not
+         * rendered for them) is scored on other pixels than the rows
+         * beside it: said in its cell, not left to pass for a comparison. */
+        if (d->frames != s->frames[t][b]) fprintf(f, " (%d of %d frames)", d->frames, s->frames[t][b]);
+        fprintf(f, " |");
       }
       fprintf(f, "\n");
     }

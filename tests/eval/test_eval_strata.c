@@ -6,6 +6,7 @@
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -147,10 +148,59 @@ static void sums_match_direct(void **state) {
   eval_regime_free(&r);
 }
 
+/* A method that some frames lack (a baseline not rendered for them) is
+ * scored on fewer pixels than the bucket's row says: its cells say over
+ * how many of the bucket's frames, the others' cells say nothing. */
+static void partial_method_marked(void **state) {
+  (void)state;
+  float in[NPX * SPP * HF_FEATURES_PER_SAMPLE] = {0}, gt[NPX * 3], res[NPX * 3];
+  float rgb[NPX * 3], gt_rgb[NPX * 3];
+  double map[NPX];
+  uint8_t mask[NPX];
+  for (int p = 0; p < NPX; p++) {
+    if (WIDTH[p] > 0) in[p * SPP * 6 + 2] = WIDTH[p];
+    gt[3 * p] = 0.8f, gt[3 * p + 1] = 0.1f, gt[3 * p + 2] = GT_A[p];
+    res[3 * p] = 0.7f, res[3 * p + 1] = 0.1f, res[3 * p + 2] = GT_A[p];
+    for (int c = 0; c < 3; c++) gt_rgb[3 * p + c] = 0.2f, rgb[3 * p + c] = 0.25f;
+    map[p] = 0.5;
+    mask[p] = GT_A[p] > 0;
+  }
+  eval_regime r;
+  assert_int_equal(eval_regime_compute(&r, in, SPP, gt, mask, W, H, 0, 0), 0);
+  eval_strata *s;
+  assert_int_equal(eval_strata_create(2, &s), 0);
+  eval_frame_score fs = {.mse = 0.0025, .psnr = 26.0, .ssim = 0.5};
+  for (int frame = 0; frame < 2; frame++) {
+    eval_strata_add(s, 0, &r, rgb, gt_rgb, res, gt, map, &fs);
+    if (frame == 0) eval_strata_add(s, 1, &r, rgb, gt_rgb, res, gt, map, &fs);
+    eval_strata_frame_done(s, &r);
+  }
+  char *text = NULL;
+  size_t len = 0;
+  FILE *f = open_memstream(&text, &len);
+  assert_non_null(f);
+  const char *labels[2] = {"every frame", "first frame only"};
+  eval_strata_print(s, labels, f);
+  fclose(f);
+  const char *line = strstr(text, "| every frame |");
+  assert_non_null(line);
+  char *first = strndup(line, (size_t)(strchr(line, '\n') - line));
+  assert_non_null(first);
+  assert_null(strstr(first, "frames)"));
+  free(first);
+  line = strstr(text, "| first frame only |");
+  assert_non_null(line);
+  assert_non_null(strstr(line, "26.02 / 0.5000 (1 of 2 frames) |"));
+  free(text);
+  eval_strata_free(s);
+  eval_regime_free(&r);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(width_edges_are_bin_edges),
     cmocka_unit_test(sums_match_direct),
+    cmocka_unit_test(partial_method_marked),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
