@@ -141,6 +141,21 @@ static int cmp_float(const void *a, const void *b) {
   return (x > y) - (x < y);
 }
 
+/* The direction a strand of n points at p leaves its root in: to its
+ * first point apart from the root (exporters often write the root twice,
+ * and a zero first segment says nothing of the way out); 0, 0, 0 when
+ * every point is the root. */
+static void strand_out(const float *p, uint32_t n, double d[3]) {
+  d[0] = d[1] = d[2] = 0;
+  for (uint32_t i = 1; i < n; i++) {
+    const float *q = p + 3 * (size_t)i;
+    if (q[0] != p[0] || q[1] != p[1] || q[2] != p[2]) {
+      for (int k = 0; k < 3; k++) d[k] = (double)q[k] - p[k];
+      return;
+    }
+  }
+}
+
 int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
   if (!h || !out || !h->pos || h->strands < 4) return HF_EINVAL;
   const uint32_t N = h->strands;
@@ -155,10 +170,12 @@ int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
   for (uint32_t s = 0; s < N; s++) {
     uint32_t n = hfr_hair_strand_segments(h, s);
     const float *p = h->pos + 3 * base;
+    double d[3];
+    strand_out(p, n + 1, d);
     for (int k = 0; k < 3; k++) {
       u[3 * s + k] = p[k];
       mean[k] += p[k];
-      grow[k] += p[3 + k] - p[k];
+      grow[k] += d[k];
     }
     base += n + 1;
   }
@@ -213,18 +230,20 @@ int hfr_ellipsoid_fit_roots(const hfr_hair *h, hfr_ellipsoid *out) {
   }
   /* Under the hair: strands grow away from the centre. */
   if (ok) {
-    double out_dot = 0;
+    double out_dot = 0, counted = 0;
     base = 0;
     for (uint32_t s = 0; s < N; s++) {
       uint32_t n = hfr_hair_strand_segments(h, s);
       const float *p = h->pos + 3 * base;
-      double d = 0;
-      /* The first segment: strands leave the skin outwards, then may fall. */
-      for (int k = 0; k < 3; k++) d += (u[3 * s + k] - c[k]) * (p[3 + k] - p[k]);
-      out_dot += d > 0 ? 1 : -1;
+      double d = 0, dir[3];
+      /* The way out of the root: strands leave the skin outwards, then may
+       * fall. A strand that never leaves its root has no say. */
+      strand_out(p, n + 1, dir);
+      for (int k = 0; k < 3; k++) d += (u[3 * s + k] - c[k]) * dir[k];
+      if (dir[0] != 0 || dir[1] != 0 || dir[2] != 0) out_dot += d > 0 ? 1 : -1, counted++;
       base += n + 1;
     }
-    if (out_dot < 0.5 * N) ok = 0;
+    if (out_dot < 0.5 * counted) ok = 0;
   }
   if (!ok) {
     /* A flat ellipsoid under the roots' mean plane, on the side away from

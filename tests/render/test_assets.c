@@ -221,6 +221,28 @@ static void test_fit_roots(void **state) {
     assert_true(fabsf(e.radii[a] - head[k]) < 0.1f * head[k]);
   }
   for (int k = 0; k < 3; k++) assert_true(fabsf(e.centre[k]) < 0.1f);
+  /* The same with every root written twice (as exporters often do): the
+   * same head, not a flat patch's body. */
+  hfr_hair d = {0};
+  d.strands = h.strands, d.points = h.points + h.strands;
+  d.segments = malloc(sizeof(uint16_t) * d.strands);
+  d.pos = malloc(sizeof(float) * 3 * d.points);
+  assert_non_null(d.segments);
+  assert_non_null(d.pos);
+  for (uint32_t s = 0, src = 0, dst = 0; s < h.strands; s++) {
+    uint32_t n = hfr_hair_strand_segments(&h, s) + 1;
+    d.segments[s] = (uint16_t)n;
+    memcpy(d.pos + 3 * (size_t)dst, h.pos + 3 * (size_t)src, 3 * sizeof(float));
+    memcpy(d.pos + 3 * ((size_t)dst + 1), h.pos + 3 * (size_t)src, 3 * n * sizeof(float));
+    src += n, dst += n + 1;
+  }
+  hfr_ellipsoid ed;
+  assert_int_equal(hfr_ellipsoid_fit_roots(&d, &ed), HF_OK);
+  for (int a = 0; a < 3; a++) {
+    print_message("roots written twice: axis %d %.3f (once: %.3f)\n", a, ed.radii[a], e.radii[a]);
+    assert_true(fabsf(ed.radii[a] - e.radii[a]) < 0.01f * e.radii[a]);
+  }
+  hfr_hair_free(&d);
   hfr_hair_free(&h);
 
   /* A patch in y = 0 with strands growing up. */
