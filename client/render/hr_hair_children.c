@@ -103,7 +103,8 @@ static void grid_free(root_grid *g) {
   free(g->items);
 }
 
-/* The NEIGHBOURS roots nearest to root self (other than itself): nb[] and
+/* The NEIGHBOURS roots nearest to root self (other than itself, and apart
+ * from it): nb[] and
  * their squared distances d2[] (INFINITY where there are fewer). Shells of
  * cells at growing Chebyshev distance r are searched until the last
  * neighbour found is nearer than any unsearched cell. */
@@ -134,7 +135,10 @@ static void grid_nearest(const root_grid *g, const float *roots, uint32_t self, 
             cell_of(g, o, oc);
             if (oc[0] != x || oc[1] != y || oc[2] != z) continue;
             float d[3] = {o[0] - p[0], o[1] - p[1], o[2] - p[2]}, dd = hr_dot(d, d);
-            if (dd >= d2[NEIGHBOURS - 1]) continue;
+            /* A root at the same point (a guide written twice) is no
+             * neighbour: it spans no spacing (every child would sit on
+             * its guide's root) and no surface. */
+            if (dd == 0 || dd >= d2[NEIGHBOURS - 1]) continue;
             int k = NEIGHBOURS - 1;
             while (k > 0 && dd < d2[k - 1]) {
               d2[k] = d2[k - 1], nb[k] = nb[k - 1];

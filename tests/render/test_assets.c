@@ -196,6 +196,33 @@ static void test_children(void **state) {
   hfr_hair_free(&a);
   hfr_hair_free(&b);
   hfr_hair_free(&c);
+  /* Every guide written twice: the copy is no neighbour, so the children
+   * spread over the spacing to the other guides as before, not all on
+   * their guide's root. */
+  hfr_hair twice = g;
+  twice.strands = 2 * g.strands, twice.points = 2 * g.points;
+  twice.pos = malloc(sizeof(float) * 3 * twice.points);
+  assert_non_null(twice.pos);
+  memcpy(twice.pos, g.pos, sizeof(float) * 3 * g.points);
+  memcpy(twice.pos + 3 * (size_t)g.points, g.pos, sizeof(float) * 3 * g.points);
+  twice.thickness = NULL, twice.transparency = NULL, twice.color = NULL, twice.segments = NULL;
+  p.children = 9, p.seed = 1;
+  assert_int_equal(hfr_hair_interpolate(&twice, &p, &c), HF_OK);
+  double on_root = 0, off = 0;
+  for (uint32_t s = 0; s < twice.strands; s++) {
+    const float *gr = twice.pos + 3 * (size_t)s * n1;
+    for (int ch = 1; ch < 10; ch++) {
+      const float *cr = c.pos + 3 * (size_t)(s * 10 + ch) * n1;
+      float d = sqrtf((cr[0] - gr[0]) * (cr[0] - gr[0]) + (cr[1] - gr[1]) * (cr[1] - gr[1]) +
+                      (cr[2] - gr[2]) * (cr[2] - gr[2]));
+      on_root += d == 0, off += d;
+    }
+  }
+  print_message("guides written twice: %.0f children on their guide's root, mean offset %.4g\n",
+                on_root, off / (twice.strands * 9.0));
+  assert_true(on_root == 0);
+  free(twice.pos);
+  hfr_hair_free(&c);
   /* Limits. */
   p.children = 100000;
   assert_int_equal(hfr_hair_interpolate(&g, &p, &c), HF_EINVAL);
