@@ -938,8 +938,9 @@ static void print_table(const method *ms, int nm, const eval_strata *strata, int
   for (int i = 0; i < nm; i++) {
     int n = eval_strata_mean(strata, i, &(eval_frame_score){0});
     if (n && n < frames) {
-      printf("\nA row over fewer frames than %d (a baseline some frames lack: render every "
-             "frame with the same --st, --opaque and estimate) is scored on those frames' "
+      printf("\nA row over fewer frames than %d (a baseline, or the estimate a network reads, "
+             "that some frames lack: render every frame with the same --st, --opaque and "
+             "estimate) is scored on those frames' "
              "pixels only and does not compare with the rows over all of them; the regime "
              "tables mark such cells (k of n frames).\n", frames);
       break;
