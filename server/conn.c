@@ -177,12 +177,16 @@ typedef struct ctl_write {
 static void conn_release(hfd_conn *c) {
   /* Freed only when libuv is done with the handle and nothing in flight
    * (queued jobs, pending writes) still points at it. */
-  if (!c->handle_closed || c->inflight || c->writes_pending || c->pin_wait) return;
+  if (!c->handle_closed || c->inflight || c->writes_pending || c->pin_wait ||
+      hfd_tls_stepping(c))
+    return;
   hfd_server *s = c->srv;
   hfd_tls_conn_free(c);
   free(c);
   hfd_maybe_finish(s);
 }
+
+void hfd_conn_release(hfd_conn *c) { conn_release(c); }
 
 /* After a fatal ERROR over TCP the connection closes only once its peer
  * can have read it. Closing a TCP socket whose receive queue holds unread
@@ -1682,32 +1686,30 @@ static int refusable(const hfd_conn *c) {
  * time to send one); then the
  * oldest of the rest, passing over one whose socket holds a whole TLS
  * record not read yet (its ClientHello in a burst, or the flight that
- * ends its handshake). That is forgotten after this choice: a record read
+ * ends its handshake). That is forgotten once the record is read: it
  * moves the handshake on but need not end it. */
 static hfd_conn *oldest_handshake(hfd_server *s, const hfd_conn *fresh) {
-  hfd_conn *old = NULL;
-  for (hfd_conn *c = s->conns; c; c = c->next)
-    if (refusable(c) && c->tls && c != fresh && (!old || c->t_accept < old->t_accept) &&
-        hfd_tls_unanswered(c))
-      old = c;
-  if (old) return old;
-  for (;;) {
-    old = NULL;
-    for (hfd_conn *c = s->conns; c; c = c->next)
-      if (refusable(c) && !c->hello_waiting && !c->record_waiting &&
-          (!old || c->t_accept < old->t_accept))
-        old = c;
-    if (!old) break;
-    if (old->tls) {
-      if (!hfd_tls_record_waiting(old)) break;
-      old->record_waiting = 1;
+  /* Oldest first (s->conns is newest first, in the order of accepting),
+   * so that the first that qualifies is the one, and a crowd of
+   * connections costs a walk of flags, not a look into every socket for
+   * each connection accepted: that was the loop's main work under a flood
+   * of connections (the socket is looked into once, for the oldest
+   * candidates only, and a whole record or HELLO seen there is
+   * remembered until it is read). */
+  hfd_conn *tail = s->conns;
+  while (tail && tail->next) tail = tail->next;
+  for (hfd_conn *c = tail; c; c = c->prev)
+    if (refusable(c) && c->tls && c != fresh && hfd_tls_unanswered(c)) return c;
+  for (hfd_conn *c = tail; c; c = c->prev) {
+    if (!refusable(c) || c->hello_waiting) continue;
+    if (c->tls) {
+      if (!hfd_tls_record_waiting(c)) return c;
     } else {
-      if (!hello_waiting(old)) break;
-      old->hello_waiting = 1;
+      if (!hello_waiting(c)) return c;
+      c->hello_waiting = 1;
     }
   }
-  for (hfd_conn *c = s->conns; c; c = c->next) c->record_waiting = 0;
-  return old;
+  return NULL;
 }
 
 /* A connection refused before its HELLO (the connection limit, or pushed

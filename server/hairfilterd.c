@@ -383,7 +383,10 @@ void hfd_maybe_finish(hfd_server *s) {
       }
     }
   }
-  if (s->num_conns == 0 && !s->signals_closed) {
+  /* A handshake step still on a thread comes back through the TLS
+   * handle closed below: the stop waits for it (its connection is closed,
+   * so the thread skips it or is about to finish it). */
+  if (s->num_conns == 0 && !s->signals_closed && !hfd_tls_steps_outstanding(s)) {
     s->signals_closed = 1;
     /* Closing the last uv_signal_t restores the default action; block the
      * signals first (the worker and its threads already block them) and

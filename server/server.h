@@ -494,7 +494,6 @@ typedef struct hfd_conn {
   int version;                   /* protocol version negotiated in the HELLO */
   int handshaking;               /* counted in num_handshaking */
   int hello_waiting;             /* its whole HELLO is in its socket, unread (oldest_handshake) */
-  int record_waiting;            /* over TLS, a whole record is: within one oldest_handshake */
   int eof;                       /* the peer shut down its sending side */
   int shutting;                  /* uv_shutdown sent: flushing, then closing */
   int closing;                   /* uv_close called or pending */
@@ -623,9 +622,36 @@ void hfd_on_accept_check(uv_check_t *h);
 void hfd_on_async(uv_async_t *a);
 void hfd_conn_shutdown(hfd_conn *c);
 void hfd_conn_close(hfd_conn *c);
+/* Frees c once its handle is closed and nothing in flight (jobs, writes,
+ * a segment being pinned, a TLS handshake step) points at it; else later,
+ * when the last of them calls this again. */
+void hfd_conn_release(hfd_conn *c);
 /* Closes connections past their handshake deadline, silent or too slow in
  * the middle of a frame, or whose peer has stopped reading its replies. */
 void hfd_sweep_stalled(hfd_server *s);
+/* pool.c: threads for work the loop must not wait for (a TLS handshake's
+ * key exchange and signature), at a lower CPU priority than the loop.
+ * A task is submitted on the loop, run on a thread, and done on the loop. */
+typedef struct hfd_pool_task {
+  struct hfd_pool_task *next;
+  void (*run)(struct hfd_pool_task *t);   /* on a pool thread */
+  void (*done)(struct hfd_pool_task *t);  /* on the loop, after run; may free t */
+} hfd_pool_task;
+typedef struct hfd_pool hfd_pool;
+/* Starts the threads (one per four CPUs, 1..4; named what in the log) and
+ * their uv_async on loop: 0, or -1 after logging why. */
+int hfd_pool_start(hfd_pool **out, uv_loop_t *loop, const char *what);
+/* How many threads run. */
+int hfd_pool_threads(const hfd_pool *p);
+/* Queues t (first in, first out): 0, or a negative error (the pool is
+ * closing: UV_ECANCELED), when t->done will not be called. Loop thread. */
+int hfd_pool_submit(hfd_pool *p, hfd_pool_task *t);
+/* Tasks submitted whose done has not run yet. Loop thread. */
+int hfd_pool_outstanding(const hfd_pool *p);
+/* Closes the uv_async (the loop's last turn): call when nothing is
+ * outstanding. hfd_pool_free after uv_run joins the threads. */
+void hfd_pool_close(hfd_pool *p);
+void hfd_pool_free(hfd_pool *p);
 /* tls.c: TLS on TCP listeners, OpenSSL through memory BIOs. */
 /* Builds the context from --tls-cert, --tls-key and --tls-client-ca when a
  * listener is tls:; 0, or -1 after logging which file failed and why. */
@@ -642,8 +668,14 @@ void hfd_group_name(char *buf, size_t cap);
  * start or by the last reload that loaded), in seconds since 1970-01-01 UTC:
  * 0, or -1 without a TLS listener or where OpenSSL cannot read the time. */
 int hfd_tls_not_after(const hfd_server *s, long long *unix_s);
-/* Closes the loop handle (drain's last step); hfd_tls_free after uv_run. */
+/* Closes the loop handles (drain's last step, once no handshake step is
+ * outstanding); hfd_tls_free after uv_run joins the handshake threads. */
 void hfd_tls_stop(hfd_server *s);
+/* Handshake steps handed to the threads and not back on the loop yet. */
+int hfd_tls_steps_outstanding(const hfd_server *s);
+/* 1 while a step of c's handshake is on a thread: c's SSL object is that
+ * thread's, and c is not freed before the step is back. */
+int hfd_tls_stepping(const hfd_conn *c);
 void hfd_tls_free(hfd_server *s);
 /* A connection accepted on a TLS listener gets its session: 0 or a UV_E*. */
 int hfd_tls_conn_start(hfd_conn *c);
@@ -672,7 +704,8 @@ int hfd_tls_overdue(const hfd_conn *c, double now_us);
  * no more than a bare connection. */
 int hfd_tls_unanswered(const hfd_conn *c);
 /* 1 when a whole TLS record waits unread in c's socket: the peer has done
- * its part of the handshake's step, the server has not read it yet. */
+ * its part of the handshake's step, the server has not read it yet. Once
+ * seen, remembered until the socket is read (no second look). */
 int hfd_tls_record_waiting(const hfd_conn *c);
 /* Reply bytes handed over and not yet written to the socket. */
 size_t hfd_io_write_queue_size(const hfd_conn *c);

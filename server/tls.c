@@ -18,6 +18,17 @@
  *  - a shutdown sends close_notify after the last queued write, then shuts
  *    the socket down.
  *
+ * A handshake's steps (SSL_do_handshake: the key exchange, the signature,
+ * a client certificate's verification) run on the handshake threads
+ * (pool.c), not on the loop: they cost the server far more than they cost
+ * a peer replaying a recorded ClientHello, and come before any token is
+ * checked. While a step runs there the SSL object is that thread's alone:
+ * the loop stops reading the socket, and touches neither the SSL object
+ * nor its BIOs until the step is back (step_busy). Records of an
+ * established session are encrypted and decrypted on the loop, a piece at
+ * a time (docs/SERVER.md, "TLS": a few microseconds a piece, paid by
+ * clients that passed their handshake).
+ *
  * Certificates (--tls-cert, --tls-key, --tls-client-ca) are read at start
  * and again on SIGHUP: a new SSL_CTX is built and swapped in when it loads
  * whole, else the one before keeps serving. Connections keep the context
@@ -26,6 +37,8 @@
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
 #include <fcntl.h>
+#include <stdatomic.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -46,12 +59,17 @@
 #define TLS_WRITES_IN_FLIGHT 2
 /* Ciphertext read from the socket at a time. */
 #define TLS_RBUF ((size_t)64 << 10)
+/* A TLS record's header, and the longest plaintext record (RFC 8446, 5.1):
+ * a first record announcing more is refused by OpenSSL at once. */
+#define TLS_RECORD_HEADER 5
+#define TLS_RECORD_MAX 16384
 
 struct hfd_tls {
   SSL_CTX *ctx;
   uv_idle_t idle;                /* resumes reading what OpenSSL has buffered */
   int idle_ready;
   hfd_conn *resume;              /* connections waiting for the idle handle */
+  hfd_pool *pool;                /* the handshake threads */
 };
 
 /* A write conn.c asked for: its buffers, encrypted as the socket drains. */
@@ -87,6 +105,17 @@ struct hfd_tls_conn {
   int eof;                       /* close_notify or EOF delivered */
   int answered;                  /* a handshake flight was written: the peer sent a whole
                                   * ClientHello (--max-handshakes) */
+  /* The handshake's steps, on the handshake threads. */
+  hfd_pool_task step;
+  hfd_conn *conn;
+  int step_busy;                 /* loop: a step is with the threads, and the SSL object too */
+  _Atomic int step_cancel;       /* the connection closed: the thread skips the step */
+  int step_ret, step_err;        /* thread: SSL_do_handshake's return, SSL_get_error's */
+  char step_why[960];            /* thread: why the handshake failed, for the log */
+  uint64_t fed;                  /* ciphertext given to OpenSSL before the handshake ended */
+  uint8_t first[TLS_RECORD_HEADER]; /* the first record's header */
+  int hello_whole;               /* the first record (a ClientHello) is whole: worth a step */
+  int record_seen;               /* a whole record was seen waiting in the socket, unread */
   hfd_conn *resume_next;
   int in_resume;
   tls_wreq *q_head, *q_tail;     /* not yet wholly encrypted */
@@ -303,10 +332,12 @@ int hfd_tls_init(hfd_server *s) {
   t->idle.data = s;
   t->idle_ready = 1;
   s->tls = t;
+  if (hfd_pool_start(&t->pool, s->loop, "TLS handshake")) return -1;
   char desc[400];
   ctx_describe(t->ctx, desc, sizeof desc);
-  hfd_log("TLS: %s%s%s", desc, cfg->tls_client_ca ? "; client certificates from " : "",
-          cfg->tls_client_ca ? cfg->tls_client_ca : "");
+  hfd_log("TLS: %s%s%s; handshakes on %d thread(s) of their own", desc,
+          cfg->tls_client_ca ? "; client certificates from " : "",
+          cfg->tls_client_ca ? cfg->tls_client_ca : "", hfd_pool_threads(t->pool));
   return 0;
 }
 
@@ -337,11 +368,17 @@ void hfd_tls_stop(hfd_server *s) {
   struct hfd_tls *t = s->tls;
   if (t && t->idle_ready && !uv_is_closing((uv_handle_t *)&t->idle))
     uv_close((uv_handle_t *)&t->idle, NULL);
+  if (t) hfd_pool_close(t->pool);
+}
+
+int hfd_tls_steps_outstanding(const hfd_server *s) {
+  return s->tls ? hfd_pool_outstanding(s->tls->pool) : 0;
 }
 
 void hfd_tls_free(hfd_server *s) {
   struct hfd_tls *t = s->tls;
   if (!t) return;
+  hfd_pool_free(t->pool);
   SSL_CTX_free(t->ctx);
   free(t);
   s->tls = NULL;
@@ -570,24 +607,138 @@ static const char *refusal(SSL *ssl, unsigned long e, char *buf, size_t cap) {
   return NULL;
 }
 
-static void handshake_failed(hfd_conn *c, int ret) {
+/* The step failed: t->step_why says why (written on the thread, which
+ * holds OpenSSL's error queue). */
+static void handshake_failed(hfd_conn *c) {
   struct hfd_tls_conn *t = c->tls;
-  char err[512], kv[300], who[400];
-  int e = SSL_get_error(t->ssl, ret);
-  const char *why = e == SSL_ERROR_SSL ? refusal(t->ssl, ERR_peek_last_error(), who, sizeof who)
-                                       : NULL;
-  const char *what = e == SSL_ERROR_SSL ? ssl_errors(err, sizeof err) : "connection error";
+  char kv[300];
   c->srv->protocol_errors++;
-  hfd_err("TLS handshake failed: %s%s%s; closing the connection%s", why ? why : what,
-          why ? "; OpenSSL: " : "", why ? what : "",
+  hfd_err("TLS handshake failed: %s; closing the connection%s", t->step_why,
           (snprintf(kv, sizeof kv, " conn=%llu peer=%s", (unsigned long long)c->id, c->peer),
            kv));
-  ERR_clear_error();
   t->failed = 1;
   if (t->raw_reading) uv_read_stop(&c->h.stream);
   t->raw_reading = 0;
   /* The alert OpenSSL wrote goes out, then the connection closes. */
   send_out(c, NULL, 0, 1);
+}
+
+/* ---- the handshake, on the handshake threads ------------------------------ */
+
+static struct hfd_tls_conn *of_step(hfd_pool_task *task) {
+  return (struct hfd_tls_conn *)((char *)task - offsetof(struct hfd_tls_conn, step));
+}
+
+/* One handshake step, on a handshake thread: what OpenSSL can do with the
+ * ciphertext fed so far. OpenSSL's error queue is this thread's, so a
+ * failure is put in words here. */
+static void step_run(hfd_pool_task *task) {
+  struct hfd_tls_conn *t = of_step(task);
+  t->step_ret = 0;
+  t->step_err = SSL_ERROR_SYSCALL;
+  snprintf(t->step_why, sizeof t->step_why, "connection error");
+  if (atomic_load(&t->step_cancel)) return;   /* closed meanwhile: its done only releases */
+  ERR_clear_error();
+  int r = SSL_do_handshake(t->ssl);
+  t->step_ret = r;
+  if (r == 1) {
+    t->step_err = SSL_ERROR_NONE;
+    ERR_clear_error();
+    return;
+  }
+  int e = SSL_get_error(t->ssl, r);
+  t->step_err = e;
+  if (e == SSL_ERROR_SSL) {
+    char err[512], who[400];
+    const char *why = refusal(t->ssl, ERR_peek_last_error(), who, sizeof who);
+    const char *what = ssl_errors(err, sizeof err);
+    snprintf(t->step_why, sizeof t->step_why, "%s%s%s", why ? why : what,
+             why ? "; OpenSSL: " : "", why ? what : "");
+  }
+  ERR_clear_error();
+}
+
+static void raw_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf);
+static void raw_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf);
+
+/* Reads the socket again, when the connection wants bytes (always before
+ * the handshake ends): 0, or -1 when it failed and c is closing. */
+static int raw_resume(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (t->raw_reading || t->eof || t->failed || c->closing || t->step_busy) return 0;
+  if (t->established && !t->reading) return 0;
+  int rc = uv_read_start(&c->h.stream, raw_alloc, raw_read);
+  if (rc < 0) {
+    hfd_debug("conn %llu: read start: %s", (unsigned long long)c->id, uv_strerror(rc));
+    hfd_conn_close(c);
+    return -1;
+  }
+  t->raw_reading = 1;
+  return 0;
+}
+
+static void step_done(hfd_pool_task *task);
+
+/* Hands the next step to the threads; the socket is not read until it is
+ * back (the read BIO is the thread's meanwhile), so what a peer can make
+ * the daemon hold is its socket buffer. */
+static void step_submit(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (t->raw_reading) {
+    int rc = uv_read_stop(&c->h.stream);
+    if (rc < 0) hfd_debug("conn %llu: read stop: %s", (unsigned long long)c->id, uv_strerror(rc));
+    t->raw_reading = 0;
+  }
+  t->step.run = step_run;
+  t->step.done = step_done;
+  atomic_store(&t->step_cancel, 0);
+  int rc = hfd_pool_submit(c->srv->tls->pool, &t->step);
+  if (rc < 0) {
+    hfd_err("conn %llu: TLS handshake: cannot hand it to a thread: %s; closing it",
+            (unsigned long long)c->id, rc == UV_ECANCELED ? "stopping" : strerror(-rc));
+    hfd_conn_close(c);
+    return;
+  }
+  t->step_busy = 1;
+}
+
+static void established_pump(hfd_conn *c);
+
+/* On the loop: a step is back, and the SSL object with it. */
+static void step_done(hfd_pool_task *task) {
+  struct hfd_tls_conn *t = of_step(task);
+  hfd_conn *c = t->conn;
+  hfd_server *s = c->srv;
+  t->step_busy = 0;
+  if (c->closing) {
+    hfd_conn_release(c);   /* what on_closed could not free while the step ran */
+    hfd_maybe_finish(s);   /* a stop may have waited for it */
+    return;
+  }
+  if (t->step_ret != 1) {
+    if (t->step_err == SSL_ERROR_WANT_READ || t->step_err == SSL_ERROR_WANT_WRITE) {
+      if (BIO_ctrl_pending(t->wbio)) t->answered = 1;
+      if (send_out(c, NULL, 0, 0)) return;
+      raw_resume(c);
+      return;
+    }
+    handshake_failed(c);
+    return;
+  }
+  t->established = 1;
+  if (hfd_log_level >= HFD_LOG_DEBUG) {
+    char subject[256], kv[300];
+    peer_subject(t->ssl, subject, sizeof subject);
+    snprintf(kv, sizeof kv, " conn=%llu", (unsigned long long)c->id);
+    hfd_kv(kv, sizeof kv, "tls", SSL_get_version(t->ssl));
+    hfd_kv(kv, sizeof kv, "cipher", SSL_get_cipher_name(t->ssl));
+    if (subject[0]) hfd_kv(kv, sizeof kv, "client_cert", subject);
+    hfd_debug("TLS established%s", kv);
+  }
+  /* Reading resumes only when the connection wants bytes; what came with
+   * the handshake's last flight (a HELLO) is in the read BIO already. */
+  if (raw_resume(c)) return;
+  established_pump(c);
 }
 
 /* A plain-protocol HELLO on a TLS port: answered in the clear, so the
@@ -621,33 +772,18 @@ static void pump(hfd_conn *c) {
   struct hfd_tls_conn *t = c->tls;
   if (c->closing || t->failed) return;
   if (!t->established) {
-    int r = SSL_do_handshake(t->ssl);
-    if (r != 1) {
-      int e = SSL_get_error(t->ssl, r);
-      if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
-        if (BIO_ctrl_pending(t->wbio)) t->answered = 1;
-        send_out(c, NULL, 0, 0);
-        return;
-      }
-      handshake_failed(c, r);
-      return;
-    }
-    t->established = 1;
-    if (hfd_log_level >= HFD_LOG_DEBUG) {
-      char subject[256], kv[300];
-      peer_subject(t->ssl, subject, sizeof subject);
-      snprintf(kv, sizeof kv, " conn=%llu", (unsigned long long)c->id);
-      hfd_kv(kv, sizeof kv, "tls", SSL_get_version(t->ssl));
-      hfd_kv(kv, sizeof kv, "cipher", SSL_get_cipher_name(t->ssl));
-      if (subject[0]) hfd_kv(kv, sizeof kv, "client_cert", subject);
-      hfd_debug("TLS established%s", kv);
-    }
-    /* The handshake read on while the connection did not want bytes. */
-    if (!t->reading && t->raw_reading) {
-      uv_read_stop(&c->h.stream);
-      t->raw_reading = 0;
-    }
+    /* Nothing for OpenSSL before the first record is whole: a peer
+     * trickling a ClientHello costs a step only once it has sent one. */
+    if (!t->step_busy && t->hello_whole) step_submit(c);
+    return;
   }
+  established_pump(c);
+}
+
+/* Plaintext to the connection while it wants it, then what OpenSSL wrote. */
+static void established_pump(hfd_conn *c) {
+  struct hfd_tls_conn *t = c->tls;
+  if (c->closing || t->failed) return;
   while (t->reading && !c->closing && !t->eof) {
     uv_buf_t b;
     t->user_alloc(&c->h.handle, 65536, &b);
@@ -688,6 +824,7 @@ static void raw_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
   hfd_conn *c = stream->data;
   struct hfd_tls_conn *t = c->tls;
   if (nread == 0 || c->closing || t->failed) return;
+  t->record_seen = 0;   /* read: what waits now is looked at afresh */
   if (nread < 0) {
     if (t->raw_reading) uv_read_stop(&c->h.stream);
     t->raw_reading = 0;
@@ -705,13 +842,23 @@ static void raw_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     t->user_read(&c->h.stream, nread, &b);
     return;
   }
-  if (!t->established && BIO_ctrl_pending(t->rbio) == 0 && SSL_get_state(t->ssl) == TLS_ST_BEFORE &&
-      plain_hello(c, buf->base, (size_t)nread))
-    return;
+  if (!t->established && t->fed == 0 && plain_hello(c, buf->base, (size_t)nread)) return;
   if (BIO_write(t->rbio, buf->base, (int)nread) != (int)nread) {
     hfd_err("conn %llu: TLS read BIO refused data; closing it", (unsigned long long)c->id);
     hfd_conn_close(c);
     return;
+  }
+  if (!t->established && !t->hello_whole) {
+    for (ssize_t i = 0; i < nread && t->fed + (uint64_t)i < TLS_RECORD_HEADER; i++)
+      t->first[t->fed + (uint64_t)i] = (uint8_t)buf->base[i];
+    t->fed += (uint64_t)nread;
+    if (t->fed >= TLS_RECORD_HEADER) {
+      /* Not a handshake record, or longer than a record can be: OpenSSL
+       * refuses it at once, so the step is run for its error. */
+      size_t len = (size_t)t->first[3] << 8 | t->first[4];
+      t->hello_whole = t->first[0] != 0x16 || len > TLS_RECORD_MAX ||
+                       t->fed >= TLS_RECORD_HEADER + len;
+    }
   }
   pump(c);
 }
@@ -737,6 +884,7 @@ int hfd_tls_conn_start(hfd_conn *c) {
   BIO_set_mem_eof_return(t->rbio, -1);
   SSL_set_bio(t->ssl, t->rbio, t->wbio);
   SSL_set_accept_state(t->ssl);
+  t->conn = c;
   c->tls = t;
   return 0;
 }
@@ -745,6 +893,9 @@ void hfd_tls_conn_closing(hfd_conn *c) {
   struct hfd_tls_conn *t = c->tls;
   if (!t) return;
   resume_forget(c);
+  /* A step on a thread is skipped if not begun; it comes back all the
+   * same, and c is freed after (hfd_tls_stepping). */
+  if (t->step_busy) atomic_store(&t->step_cancel, 1);
   tls_wreq *q = t->q_head, *e = t->encrypted;
   t->q_head = t->q_tail = t->encrypted = NULL;
   if (t->shutdown_req) {
@@ -772,7 +923,7 @@ int hfd_io_read_start(hfd_conn *c, uv_alloc_cb alloc_cb, uv_read_cb read_cb) {
   t->user_alloc = alloc_cb;
   t->user_read = read_cb;
   t->reading = 1;
-  if (!t->raw_reading && !t->eof && !t->failed) {
+  if (!t->raw_reading && !t->eof && !t->failed && !t->step_busy) {
     int rc = uv_read_start(&c->h.stream, raw_alloc, raw_read);
     if (rc < 0) return rc;
     t->raw_reading = 1;
@@ -856,17 +1007,23 @@ static size_t unread(const hfd_conn *c) {
 }
 
 int hfd_tls_unanswered(const hfd_conn *c) {
-  return c->tls && !c->tls->established && !c->tls->answered && !hfd_tls_record_waiting(c);
+  return c->tls && !c->tls->established && !c->tls->answered && !c->tls->hello_whole &&
+         !hfd_tls_record_waiting(c);
 }
+
+int hfd_tls_stepping(const hfd_conn *c) { return c->tls && c->tls->step_busy; }
 
 int hfd_tls_record_waiting(const hfd_conn *c) {
   if (!c->tls) return 0;
+  if (c->tls->record_seen) return 1;
   uv_os_fd_t fd;
   uint8_t h[5];   /* a record's header: type, version, length (big-endian) */
   if (uv_fileno((const uv_handle_t *)&c->h.handle, &fd) != 0 ||
       recv(fd, h, sizeof h, MSG_PEEK | MSG_DONTWAIT) != (ssize_t)sizeof h)
     return 0;
-  return unread(c) >= sizeof h + ((size_t)h[3] << 8 | h[4]);
+  if (unread(c) < sizeof h + ((size_t)h[3] << 8 | h[4])) return 0;
+  c->tls->record_seen = 1;   /* it stays there until raw_read takes it */
+  return 1;
 }
 
 size_t hfd_io_write_queue_size(const hfd_conn *c) {
