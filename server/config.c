@@ -55,9 +55,13 @@ static void usage(FILE *f) {
           "  --max-handshakes N       connections still before their HELLO (default 32)\n"
           "  --max-shm-mb N           shared segments for Unix-socket clients, MiB (default\n"
           "                           1024; 0: no shared memory)\n"
+          "  --max-shm-mb-per-client N\n"
+          "                           of which one client (a process, all its connections)\n"
+          "                           may hold, MiB (default a quarter, at least the largest\n"
+          "                           frame's segments)\n"
           "  --max-shm-mb-per-connection N\n"
-          "                           of which one connection may hold, MiB (default a\n"
-          "                           quarter, at least the largest frame's segments)\n"
+          "                           of which one connection may hold, MiB (default the\n"
+          "                           client's part)\n"
           "  --auth-token-file FILE   token TCP clients must send (or $HAIRFILTERD_TOKEN)\n"
           "  --no-auth                accept TCP clients without a token (loopback only)\n"
           "  --tls-cert FILE          PEM certificate chain of tls: listeners (server first)\n"
@@ -337,6 +341,7 @@ static int auth_check(const hfd_config *cfg) {
 enum {
   OPT_LISTEN = 256, OPT_WEIGHTS, OPT_WEIGHTS_DIR, OPT_BACKEND, OPT_MAX_BATCH, OPT_QUEUE_DELAY,
   OPT_QUEUE_SIZE, OPT_MAX_INFLIGHT, OPT_MAX_SIZE, OPT_MAX_FRAME, OPT_MAX_MEMORY, OPT_MAX_SHM, OPT_MAX_SHM_CONN,
+  OPT_MAX_SHM_CLIENT,
   OPT_MAX_CONNECTIONS, OPT_MAX_HANDSHAKES, OPT_TOKEN_FILE, OPT_NO_AUTH, OPT_DRAIN,
   OPT_FLUSH, OPT_HANDSHAKE, OPT_STALL, OPT_MIN_RATE, OPT_READY, OPT_NAME, OPT_WARM,
   OPT_PIPELINE, OPT_HTTP, OPT_WATCHDOG, OPT_LOG_LEVEL, OPT_CONFIG, OPT_TLS_CERT, OPT_TLS_KEY,
@@ -357,6 +362,7 @@ static const struct option opts[] = {
   {"max-memory-mb", required_argument, 0, OPT_MAX_MEMORY},
   {"max-shm-mb", required_argument, 0, OPT_MAX_SHM},
   {"max-shm-mb-per-connection", required_argument, 0, OPT_MAX_SHM_CONN},
+  {"max-shm-mb-per-client", required_argument, 0, OPT_MAX_SHM_CLIENT},
   {"max-connections", required_argument, 0, OPT_MAX_CONNECTIONS},
   {"max-handshakes", required_argument, 0, OPT_MAX_HANDSHAKES},
   {"auth-token-file", required_argument, 0, OPT_TOKEN_FILE},
@@ -800,6 +806,10 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_MAX_SHM_CONN:
         if (parse_int(name, val, 1, 1 << 30, &v)) goto fail;
         cfg->max_shm_conn_bytes = (uint64_t)v << 20;
+        break;
+      case OPT_MAX_SHM_CLIENT:
+        if (parse_int(name, val, 1, 1 << 30, &v)) goto fail;
+        cfg->max_shm_client_bytes = (uint64_t)v << 20;
         break;
       case OPT_MAX_CONNECTIONS:
         if (parse_int(name, val, 1, 1000000, &v)) goto fail;

@@ -182,6 +182,7 @@ static void conn_release(hfd_conn *c) {
     return;
   hfd_server *s = c->srv;
   hfd_tls_conn_free(c);
+  hfd_shm_client_leave(s, c);   /* its segments are freed: their jobs kept c */
   free(c);
   hfd_maybe_finish(s);
 }
@@ -1226,7 +1227,7 @@ static void shm_create(hfd_conn *c) {
    * a connection's, is TOO_LARGE (hfd_seg_create) also on a connection
    * holding 16, since no release can make it fit, where BUSY would ask
    * for a retry. */
-  if (c->num_segs >= HFD_MAX_SEGMENTS && bytes <= hfd_shm_conn_cap(s)) {
+  if (c->num_segs >= HFD_MAX_SEGMENTS && bytes <= hfd_shm_segment_max(s)) {
     s->protocol_errors++; /* no variant to count it against */
     send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
     return;
@@ -1846,6 +1847,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     if (rc < 0) hfd_err("conn %llu: TCP_NODELAY: %s", (unsigned long long)c->id, uv_strerror(rc));
   } else {
     snprintf(c->peer, sizeof c->peer, "unix");
+    if (c->is_ipc) hfd_shm_client_join(s, c);   /* -1: its own client, logged */
   }
   char kv[300];
   conn_kv(c, kv, sizeof kv);

@@ -649,22 +649,31 @@ int main(int argc, char **argv) {
   int serving = 0;
   for (int i = 0; i < s->num_variants; i++) serving += s->variants[i].model != NULL;
   hfd_notice("serving: %d variant(s), max batch %d, queue %d, max in-flight %d per connection, "
-             "max %dx%d, memory %llu MiB, shared memory %llu MiB (%llu MiB per connection)",
+             "max %dx%d, memory %llu MiB, shared memory %llu MiB (%llu MiB per client, %llu MiB "
+             "per connection)",
              serving, cfg.max_batch, cfg.queue_size, cfg.max_inflight, s->max_width,
              s->max_height, (unsigned long long)(cfg.max_memory_bytes >> 20),
              (unsigned long long)(cfg.max_shm_bytes >> 20),
+             (unsigned long long)((hfd_shm_client_cap(s) + (1 << 20) - 1) >> 20),
              (unsigned long long)((hfd_shm_conn_cap(s) + (1 << 20) - 1) >> 20));
   /* The operator's own value may be below what the default guarantees. */
-  if (cfg.max_shm_bytes && hfd_shm_conn_cap(s) < hfd_shm_largest_frame(s))
+  if (cfg.max_shm_bytes && hfd_shm_segment_max(s) < hfd_shm_largest_frame(s)) {
+    /* The option that binds: the smallest of those given. */
+    const char *opt = "--max-shm-mb";
+    uint64_t val = cfg.max_shm_bytes;
+    if (cfg.max_shm_client_bytes && cfg.max_shm_client_bytes < val) {
+      opt = "--max-shm-mb-per-client";
+      val = cfg.max_shm_client_bytes;
+    }
+    if (cfg.max_shm_conn_bytes && cfg.max_shm_conn_bytes < val) {
+      opt = "--max-shm-mb-per-connection";
+      val = cfg.max_shm_conn_bytes;
+    }
     hfd_warn("a frame of %dx%d needs %.1f MiB of shared segments, over what one connection may "
-             "hold (--max-shm-mb%s %llu): such frames must go through the socket; raise it, or "
-             "lower --max-size", s->max_width, s->max_height,
-             hfd_shm_largest_frame(s) / 1048576.0,
-             cfg.max_shm_conn_bytes && cfg.max_shm_conn_bytes < cfg.max_shm_bytes
-                 ? "-per-connection" : "",
-             (unsigned long long)((cfg.max_shm_conn_bytes && cfg.max_shm_conn_bytes <
-                                   cfg.max_shm_bytes ? cfg.max_shm_conn_bytes
-                                                     : cfg.max_shm_bytes) >> 20));
+             "hold (%s %llu): such frames must go through the socket; raise it, or lower "
+             "--max-size", s->max_width, s->max_height, hfd_shm_largest_frame(s) / 1048576.0, opt,
+             (unsigned long long)(val >> 20));
+  }
   /* Receive buffers for the --warm shapes (float32 frames of the most
    * values per pixel any variant takes, an estimate included), faulted in
    * before the first frame, within the memory kept between runs

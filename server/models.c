@@ -550,6 +550,8 @@ static void take_reloadable(hfd_server *s, hfd_config *n) {
               (long long)(n->max_shm_bytes >> 20));
   restart_int("max-shm-mb-per-connection", (long long)(c->max_shm_conn_bytes >> 20),
               (long long)(n->max_shm_conn_bytes >> 20));
+  restart_int("max-shm-mb-per-client", (long long)(c->max_shm_client_bytes >> 20),
+              (long long)(n->max_shm_client_bytes >> 20));
   restart_int("max-connections", c->max_connections, n->max_connections);
   restart_int("max-handshakes", c->max_handshakes, n->max_handshakes);
   restart_flag("no-auth", c->no_auth, n->no_auth);

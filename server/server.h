@@ -95,6 +95,7 @@ typedef struct hfd_config {
   uint64_t max_memory_bytes;     /* request buffers + inference memory */
   uint64_t max_shm_bytes;        /* shared segments held at once; 0: no SHM */
   uint64_t max_shm_conn_bytes;   /* of which one connection may hold; 0: the default */
+  uint64_t max_shm_client_bytes; /* of which one client (process) may hold; 0: the default */
   int drain_timeout_ms;          /* queued work after SIGTERM */
   int flush_timeout_ms;          /* then, replies still unread by peers */
   int handshake_timeout_ms;      /* accept -> HELLO complete; 0: none */
@@ -515,6 +516,7 @@ typedef struct hfd_conn {
   hfd_seg *segs;
   int num_segs;
   uint64_t shm_bytes;            /* of its segments not yet freed (--max-shm-mb-per-connection) */
+  struct hfd_shm_client *shm_client; /* its client's count (--max-shm-mb-per-client), or NULL */
   uint32_t next_seg_id;
   double t_accept;               /* for the handshake deadline */
   double t_last_read;            /* for the stall sweep */
@@ -568,6 +570,7 @@ struct hfd_server {
   hfd_rpool rpool;               /* receive buffers kept for reuse */
   uint64_t frame_budget;         /* the most one frame may need */
   uint64_t shm_held;             /* bytes of shared segments */
+  struct hfd_shm_client *shm_clients; /* local clients with a connection that can hold segments */
   uint64_t replies_lost;         /* computed, never delivered (peer gone or closed) */
   /* RESULTs written, for the stop line: server-wide, so they outlive a
    * variant a reload removes (its STATS counters go with it). */
@@ -727,11 +730,34 @@ int hfd_limits_fds(hfd_server *s);
 /* libmicrohttpd's connection limit on the --http endpoint (http.c). */
 #define HFD_HTTP_CONN_LIMIT 128
 /* shm.c */
-/* The shared memory one connection may hold: --max-shm-mb-per-connection,
- * or by default a quarter of --max-shm-mb but at least the segments of the
- * largest frame HELLO_OK announces (features and estimate, result and
- * composite, all f32), and never more than --max-shm-mb. */
+/* A local client, one process (the pid SO_PEERCRED gives for its Unix
+ * socket), and the segments its connections hold together. A peer whose
+ * pid the daemon cannot see (another pid namespace: 0) is a client of its
+ * own on each connection. */
+typedef struct hfd_shm_client {
+  struct hfd_shm_client *next;
+  long pid;                      /* > 0, or 0: this connection alone */
+  int conns;                     /* connections counted in it */
+  uint64_t bytes;                /* of their segments not yet freed */
+} hfd_shm_client;
+/* Counts c (a Unix-socket connection that can hold segments) in its
+ * client's entry, made when it is the client's first: 0, or -1 (out of
+ * memory, logged) when c is left its own client. */
+int hfd_shm_client_join(hfd_server *s, hfd_conn *c);
+/* c is freed: its client's entry goes with its last connection. */
+void hfd_shm_client_leave(hfd_server *s, hfd_conn *c);
+/* The shared memory one client may hold, all its connections together:
+ * --max-shm-mb-per-client, or by default a quarter of --max-shm-mb but at
+ * least the segments of the largest frame HELLO_OK announces (features and
+ * estimate, result and composite, all f32), and never more than
+ * --max-shm-mb. */
+uint64_t hfd_shm_client_cap(const hfd_server *s);
+/* The shared memory one connection may hold: --max-shm-mb-per-connection
+ * (at most --max-shm-mb), or by default the client's part. */
 uint64_t hfd_shm_conn_cap(const hfd_server *s);
+/* The largest segment one connection can ever be given: the smallest of
+ * the budget, the connection's part and the client's part. */
+uint64_t hfd_shm_segment_max(const hfd_server *s);
 /* The segments the largest frame HELLO_OK announces needs, for the most
  * demanding loaded variant: f32 features (and estimate), f32 result and
  * composite. */
@@ -739,8 +765,8 @@ uint64_t hfd_shm_largest_frame(const hfd_server *s);
 /* Makes a sealed, mapped segment of bytes for connection c; *fd is its
  * memfd, which the caller sends to the peer and then closes. Not pinned:
  * hfd_seg_pin. 0, or an HFP_E_* code with the reason in why: TOO_LARGE
- * for a segment over the whole budget or over a connection's, BUSY for
- * one over what is left of either. */
+ * for a segment over the whole budget, a connection's part or a client's,
+ * BUSY for one over what is left of any of them (naming the option). */
 int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, int *fd, char *why,
                    size_t whylen);
 /* Pins g for the backend's DMA (hf_backend_host_register): HF_OK, or the

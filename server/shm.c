@@ -14,6 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include "server.h"
@@ -36,13 +37,74 @@ uint64_t hfd_shm_largest_frame(const hfd_server *s) {
   return most;
 }
 
-uint64_t hfd_shm_conn_cap(const hfd_server *s) {
+uint64_t hfd_shm_client_cap(const hfd_server *s) {
   uint64_t all = s->cfg->max_shm_bytes;
-  uint64_t set = s->cfg->max_shm_conn_bytes;
+  uint64_t set = s->cfg->max_shm_client_bytes;
   if (set) return set < all ? set : all;
   uint64_t cap = all / 4, frame = hfd_shm_largest_frame(s);
   if (cap < frame) cap = frame;
   return cap < all ? cap : all;
+}
+
+uint64_t hfd_shm_conn_cap(const hfd_server *s) {
+  uint64_t all = s->cfg->max_shm_bytes;
+  uint64_t set = s->cfg->max_shm_conn_bytes;
+  if (set) return set < all ? set : all;
+  return hfd_shm_client_cap(s);
+}
+
+uint64_t hfd_shm_segment_max(const hfd_server *s) {
+  uint64_t conn = hfd_shm_conn_cap(s), client = hfd_shm_client_cap(s);
+  return conn < client ? conn : client;
+}
+
+int hfd_shm_client_join(hfd_server *s, hfd_conn *c) {
+  /* The process at the other end, as the kernel recorded it at connect:
+   * one process is one client, whatever connections it opens. A process
+   * that forks makes clients of its children; --max-connections bounds
+   * how many connections, and so parts, they can have. */
+  long pid = 0;
+  uv_os_fd_t fd;
+  struct ucred cr;
+  socklen_t len = sizeof cr;
+  int rc = uv_fileno(&c->h.handle, &fd);
+  if (rc == 0 && getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cr, &len) == 0 && len == sizeof cr)
+    pid = (long)cr.pid;
+  else
+    hfd_debug("conn %llu: the peer's process is not known (%s); the connection is a client of "
+              "its own for --max-shm-mb-per-client", (unsigned long long)c->id,
+              rc ? uv_strerror(rc) : strerror(errno));
+  hfd_shm_client *k = NULL;
+  if (pid > 0)
+    for (k = s->shm_clients; k && k->pid != pid; k = k->next) {
+    }
+  if (!k) {
+    k = calloc(1, sizeof *k);
+    if (!k) {
+      hfd_err("conn %llu: out of memory for its client's shared-memory count; the "
+              "connection is a client of its own", (unsigned long long)c->id);
+      return -1;
+    }
+    k->pid = pid;
+    k->next = s->shm_clients;
+    s->shm_clients = k;
+  }
+  k->conns++;
+  c->shm_client = k;
+  return 0;
+}
+
+void hfd_shm_client_leave(hfd_server *s, hfd_conn *c) {
+  hfd_shm_client *k = c->shm_client;
+  if (!k) return;
+  c->shm_client = NULL;
+  if (--k->conns > 0) return;
+  for (hfd_shm_client **p = &s->shm_clients; *p; p = &(*p)->next)
+    if (*p == k) {
+      *p = k->next;
+      break;
+    }
+  free(k);
 }
 
 int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, int *fd, char *why,
@@ -57,13 +119,23 @@ int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, in
              (unsigned long long)(s->cfg->max_shm_bytes >> 20));
     return HFP_E_TOO_LARGE;
   }
-  /* So too against a connection's part of it, which keeps one client from
-   * taking the whole budget and leaving every other local client BUSY. */
-  uint64_t cap = hfd_shm_conn_cap(s);
+  /* So too against a connection's part of it and a client's (a process,
+   * all its connections together), which keep one client from taking the
+   * whole budget and leaving every other local client BUSY. A connection
+   * whose process is not known is a client of its own. */
+  uint64_t cap = hfd_shm_conn_cap(s), ccap = hfd_shm_client_cap(s);
+  uint64_t cheld = c->shm_client ? c->shm_client->bytes : c->shm_bytes;
+  int cconns = c->shm_client ? c->shm_client->conns : 1;
   if (bytes > cap) {
     snprintf(why, whylen, "a segment of %llu bytes is larger than one connection may hold "
              "(%llu bytes, --max-shm-mb-per-connection)", (unsigned long long)bytes,
              (unsigned long long)cap);
+    return HFP_E_TOO_LARGE;
+  }
+  if (bytes > ccap) {
+    snprintf(why, whylen, "a segment of %llu bytes is larger than one client may hold "
+             "(%llu bytes, --max-shm-mb-per-client)", (unsigned long long)bytes,
+             (unsigned long long)ccap);
     return HFP_E_TOO_LARGE;
   }
   if (c->shm_bytes + bytes > cap) {
@@ -71,6 +143,13 @@ int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, in
              "its %llu (--max-shm-mb-per-connection): release one first",
              (unsigned long long)c->shm_bytes, (unsigned long long)bytes,
              (unsigned long long)cap);
+    return HFP_E_BUSY;
+  }
+  if (cheld + bytes > ccap) {
+    snprintf(why, whylen, "this client (process %ld) holds %llu bytes of segments on its %d "
+             "connection(s); %llu more would pass its %llu (--max-shm-mb-per-client): release "
+             "one first", c->shm_client ? c->shm_client->pid : 0L, (unsigned long long)cheld,
+             cconns, (unsigned long long)bytes, (unsigned long long)ccap);
     return HFP_E_BUSY;
   }
   if (s->shm_held + bytes > s->cfg->max_shm_bytes) {
@@ -104,6 +183,7 @@ int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, in
   g->size = bytes;
   g->owner = c;
   c->shm_bytes += bytes;
+  if (c->shm_client) c->shm_client->bytes += bytes;
   s->shm_held += bytes;
   *out = g;
   *fd = f;
@@ -145,7 +225,10 @@ static void seg_free(hfd_server *s, hfd_seg *g) {
     hfd_err("munmap of a %llu-byte segment: %s", (unsigned long long)g->size,
             strerror(errno));
   s->shm_held -= g->size;
-  if (g->owner) g->owner->shm_bytes -= g->size;
+  if (g->owner) {
+    g->owner->shm_bytes -= g->size;
+    if (g->owner->shm_client) g->owner->shm_client->bytes -= g->size;
+  }
   free(g);
 }
 

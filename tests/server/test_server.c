@@ -1414,34 +1414,42 @@ static void test_segment_then_pipelined_requests(void **state) {
     free(p);
   }
   close(fd);
-  /* 16 connections each make a 60 MiB segment and leave without a word;
-   * then 1000 MiB of the 1024 MiB budget can be had again, by four
-   * connections of 250 MiB (each within --max-shm-mb-per-connection, a
-   * quarter of it). */
+  /* 16 clients (processes: one client's connections share its part,
+   * --max-shm-mb-per-client) each make a 60 MiB segment and leave without
+   * a word, 960 MiB of the 1024 MiB budget; then 250 MiB, a client's
+   * part, can be had again on one connection, and a second connection of
+   * the same client is held to that part. */
   for (int k = 0; k < 16; k++) {
-    int f = raw_connect(S.unix_url);
-    assert_true(f >= 0);
-    assert_int_equal(raw_hello(f, NULL), 0);
-    n = hfp_encode_shm_create(b, sizeof b, (uint64_t)60 << 20);
-    assert_int_equal(raw_send(f, b, (size_t)n), 0);
-    close(f);
-  }
-  hfc_client *cs[4];
-  void *big[4];
-  for (int k = 0; k < 4; k++) {
-    cs[k] = connect_unix();
-    int rc = HFC_E_BUSY;
-    for (int tries = 0; tries < 100 && rc == HFC_E_BUSY; tries++) {
-      rc = hfc_shm_alloc(cs[k], (size_t)250 << 20, &big[k]);
-      if (rc == HFC_E_BUSY) usleep(50000);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+      int f = raw_connect(S.unix_url);
+      if (f < 0 || raw_hello(f, NULL) != 0) _exit(1);
+      n = hfp_encode_shm_create(b, sizeof b, (uint64_t)60 << 20);
+      _exit(raw_send(f, b, (size_t)n) != 0);
     }
-    if (rc)
-      fail_msg("250 MiB on connection %d of 4 after the 16 left: %s (%s)", k, hfc_strerror(rc),
-               hfc_last_message(cs[k]));
+    int st = 0;
+    assert_int_equal(waitpid(pid, &st, 0), pid);
+    assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
   }
-  for (int k = 0; k < 4; k++) assert_int_equal(hfc_shm_free(cs[k], big[k]), 0);
+  hfc_client *cs[2];
+  void *big[2];
+  cs[0] = connect_unix();
+  int rc = HFC_E_BUSY;
+  for (int tries = 0; tries < 100 && rc == HFC_E_BUSY; tries++) {
+    rc = hfc_shm_alloc(cs[0], (size_t)250 << 20, &big[0]);
+    if (rc == HFC_E_BUSY) usleep(50000);
+  }
+  if (rc)
+    fail_msg("250 MiB after the 16 left: %s (%s)", hfc_strerror(rc), hfc_last_message(cs[0]));
+  cs[1] = connect_unix();
+  rc = hfc_shm_alloc(cs[1], (size_t)250 << 20, &big[1]);
+  if (rc != HFC_E_BUSY || !strstr(hfc_last_message(cs[1]), "--max-shm-mb-per-client"))
+    fail_msg("250 MiB more on a second connection of this client: %s (%s), wanted BUSY naming "
+             "--max-shm-mb-per-client", hfc_strerror(rc), hfc_last_message(cs[1]));
+  assert_int_equal(hfc_shm_free(cs[0], big[0]), 0);
   filter_and_compare(cs[0], "Tiny", 8, 8, 0, 4);
-  for (int k = 0; k < 4; k++) hfc_close(cs[k]);
+  for (int k = 0; k < 2; k++) hfc_close(cs[k]);
   assert_true(server_alive(&S));
 }
 

@@ -82,18 +82,21 @@ def default(sock, fds, w):
     """--max-shm-mb 16 at 200x200: a quarter, 4 MiB, is less than the
     segments of the largest frame (Small, 4 spp: features 3,840,000 bytes,
     result 480,000, composite 640,000), which one connection may still
-    hold whole."""
+    hold whole (and one client, a process, on all its connections)."""
     largest = 200 * 200 * (4 * 6 * 4 + 3 * 4 + 4 * 4)
     a, b = connect(sock), connect(sock)
     ok(shm_create(a, largest), fds, "the largest frame's segments on one connection")
     expect(shm_create(a, 1), BUSY, "one byte more on it", "--max-shm-mb-per-connection")
     expect(shm_create(b, largest + 1), TOO_LARGE, "one byte over the largest frame's segments",
            "--max-shm-mb-per-connection")
-    ok(shm_create(b, largest), fds, "the same on a second connection")
+    # Of the same process, whose part (--max-shm-mb-per-client) is the
+    # same by default: test_shm_per_client.py has another process's.
+    expect(shm_create(b, largest), BUSY, "the same on a second connection of this client",
+           "--max-shm-mb-per-client")
     a.close()
     b.close()
     log = open(os.path.join(w, "daemon.log")).read()
-    check("shared memory 16 MiB (5 MiB per connection)" in log,
+    check("shared memory 16 MiB (5 MiB per client, 5 MiB per connection)" in log,
           "the start line says what a connection may hold: %r" % log)
     # Only this warning: a sanitizer's allocator adds one of its own.
     check("of shared segments, over what one connection may hold" not in log,
