@@ -63,6 +63,8 @@
  * a first record announcing more is refused by OpenSSL at once. */
 #define TLS_RECORD_HEADER 5
 #define TLS_RECORD_MAX 16384
+/* The key-exchange groups offered (ctx_build). */
+#define TLS_GROUPS "X25519:P-256:P-384"
 
 struct hfd_tls {
   SSL_CTX *ctx;
@@ -229,6 +231,16 @@ static SSL_CTX *ctx_build(const hfd_config *cfg, char *why, size_t whylen) {
   SSL_CTX_set_options(ctx, SSL_OP_NO_RENEGOTIATION | SSL_OP_NO_COMPRESSION |
                                SSL_OP_CIPHER_SERVER_PREFERENCE);
   SSL_CTX_set_mode(ctx, SSL_MODE_RELEASE_BUFFERS);
+  /* Key exchange on elliptic curves only: the client picks the group, and
+   * OpenSSL's default list lets it pick finite-field Diffie-Hellman up to
+   * ffdhe8192, which cost the daemon 118 ms a handshake against 0.33 ms
+   * for X25519, before any token is checked. Every TLS 1.3 client has
+   * X25519 or P-256. */
+  if (SSL_CTX_set1_groups_list(ctx, TLS_GROUPS) != 1) {
+    snprintf(why, whylen, "TLS key-exchange groups %s: %s", TLS_GROUPS,
+             ssl_errors(err, sizeof err));
+    goto fail;
+  }
   if (SSL_CTX_use_certificate_chain_file(ctx, cfg->tls_cert) != 1) {
     const char *hint = not_pem(cfg->tls_cert, 0);
     snprintf(why, whylen, "--tls-cert %s%s: %s", cfg->tls_cert, hint, ssl_errors(err, sizeof err));

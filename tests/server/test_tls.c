@@ -11,6 +11,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <openssl/err.h>
 #include <openssl/ssl.h>
 #include <poll.h>
 #include <signal.h>
@@ -588,6 +589,43 @@ static int fill_bio(BIO *r, int fd) {
   return n > 0 && BIO_write(r, buf, (int)n) == n ? 0 : -1;
 }
 
+/* Item: a client that offers only a finite-field group (ffdhe8192, which
+ * cost the server 118 ms a handshake against 0.33 ms for X25519, its
+ * choice before any token is checked) fails the handshake at once; one
+ * offering X25519 or P-256 is served. */
+static void test_expensive_groups_refused(void **state) {
+  (void)state;
+  char url[300], tcp[300];
+  tls_url(&S, 1, url, sizeof url);
+  snprintf(tcp, sizeof tcp, "tcp:%s", strchr(url, ':') + 1);
+  const char *groups[] = {"ffdhe8192", "ffdhe2048", "X25519", "P-256"};
+  for (int g = 0; g < 4; g++) {
+    SSL_CTX *ctx = SSL_CTX_new(TLS_client_method());
+    assert_non_null(ctx);
+    SSL_CTX_set_verify(ctx, SSL_VERIFY_NONE, NULL);
+    assert_int_equal(SSL_CTX_set1_groups_list(ctx, groups[g]), 1);
+    SSL *ssl = SSL_new(ctx);
+    BIO *rb = BIO_new(BIO_s_mem()), *wb = BIO_new(BIO_s_mem());
+    assert_true(ssl && rb && wb);
+    SSL_set_bio(ssl, rb, wb);
+    SSL_set_connect_state(ssl);
+    int fd = raw_connect(tcp);
+    assert_true(fd >= 0);
+    int r;
+    while ((r = SSL_do_handshake(ssl)) != 1 && SSL_get_error(ssl, r) == SSL_ERROR_WANT_READ &&
+           flush_bio(wb, fd) == 0 && fill_bio(rb, fd) == 0) {
+    }
+    ERR_clear_error();
+    if (g < 2 && r == 1)
+      fail_msg("a handshake offering only %s was completed; it should fail (no group in "
+               "common)", groups[g]);
+    if (g >= 2 && r != 1) fail_msg("a handshake offering %s failed", groups[g]);
+    SSL_free(ssl);
+    SSL_CTX_free(ctx);
+    close(fd);
+  }
+}
+
 /* Item: a TLS client that --max-handshakes pushes out while its handshake
  * is under way (its ClientHello answered, its Finished not yet read by the
  * server; from the client's side the handshake may be done) gets the fatal
@@ -672,6 +710,7 @@ int main(void) {
     cmocka_unit_test(test_cli),
     cmocka_unit_test(test_bare_connections_leave_room),
     cmocka_unit_test(test_mid_handshake_eviction_says_busy),
+    cmocka_unit_test(test_expensive_groups_refused),
     cmocka_unit_test(test_silent_crowd_held_to_max_handshakes),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
