@@ -1436,7 +1436,10 @@ static void on_closed(uv_handle_t *h) {
     c->prev->next = c->next;
   else
     s->conns = c->next;
-  if (c->next) c->next->prev = c->prev;
+  if (c->next)
+    c->next->prev = c->prev;
+  else
+    s->conns_tail = c->prev;
   s->num_conns--;
   /* Writes TLS still held complete now, before the release below. */
   hfd_tls_conn_closing(c);
@@ -1697,11 +1700,9 @@ static hfd_conn *oldest_handshake(hfd_server *s, const hfd_conn *fresh) {
    * of connections (the socket is looked into once, for the oldest
    * candidates only, and a whole record or HELLO seen there is
    * remembered until it is read). */
-  hfd_conn *tail = s->conns;
-  while (tail && tail->next) tail = tail->next;
-  for (hfd_conn *c = tail; c; c = c->prev)
+  for (hfd_conn *c = s->conns_tail; c; c = c->prev)
     if (refusable(c) && c->tls && c != fresh && hfd_tls_unanswered(c)) return c;
-  for (hfd_conn *c = tail; c; c = c->prev) {
+  for (hfd_conn *c = s->conns_tail; c; c = c->prev) {
     if (!refusable(c) || c->hello_waiting) continue;
     if (c->tls) {
       if (!hfd_tls_record_waiting(c)) return c;
@@ -1812,7 +1813,10 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   c->h.handle.data = c;
   c->id = ++s->next_conn_id;
   c->next = s->conns;
-  if (s->conns) s->conns->prev = c;
+  if (s->conns)
+    s->conns->prev = c;
+  else
+    s->conns_tail = c;
   s->conns = c;
   s->num_conns++;
   s->conns_total++;

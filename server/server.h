@@ -559,7 +559,8 @@ struct hfd_server {
   int accepts_in_turn;           /* connections accepted since accept_check last ran; it
                                   * runs only after a deferral, so a listener is held
                                   * back one turn at most once per 64 accepts */
-  hfd_conn *conns;
+  hfd_conn *conns;               /* newest first, in the order of accepting */
+  hfd_conn *conns_tail;          /* the oldest */
   int num_conns;
   int num_handshaking;           /* connections before their HELLO */
   int max_width, max_height;     /* --max-size, lowered to what a frame can meet */

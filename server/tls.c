@@ -72,6 +72,10 @@ struct hfd_tls {
   int idle_ready;
   hfd_conn *resume;              /* connections waiting for the idle handle */
   hfd_pool *pool;                /* the handshake threads */
+  /* Ciphertext read from a socket, copied into its read BIO within the
+   * same callback: one buffer serves every connection (the loop reads
+   * one socket at a time), not 64 KiB zeroed for each one accepted. */
+  char rbuf[TLS_RBUF];
 };
 
 /* A write conn.c asked for: its buffers, encrypted as the socket drains. */
@@ -126,7 +130,6 @@ struct hfd_tls_conn {
   size_t plain_unsent;           /* plaintext queued and not yet written */
   uv_shutdown_t *shutdown_req;   /* deferred until the queue is out */
   uv_shutdown_cb shutdown_cb;
-  char rbuf[TLS_RBUF];
 };
 
 /* ---- errors -------------------------------------------------------------- */
@@ -829,7 +832,7 @@ static void established_pump(hfd_conn *c) {
 static void raw_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf) {
   hfd_conn *c = h->data;
   (void)suggested;
-  *buf = uv_buf_init(c->tls->rbuf, (unsigned)sizeof c->tls->rbuf);
+  *buf = uv_buf_init(c->srv->tls->rbuf, (unsigned)sizeof c->srv->tls->rbuf);
 }
 
 static void raw_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
