@@ -164,6 +164,8 @@ static int log_allowed(void) {
   return hfd_rate_allow(&lines, 20, "error");
 }
 
+int hfd_conn_log_allowed(void) { return log_allowed(); }
+
 /* ---- writes -------------------------------------------------------------- */
 
 typedef struct ctl_write {

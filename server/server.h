@@ -626,6 +626,11 @@ void hfd_on_accept_check(uv_check_t *h);
 void hfd_on_async(uv_async_t *a);
 void hfd_conn_shutdown(hfd_conn *c);
 void hfd_conn_close(hfd_conn *c);
+/* Whether one more error line a peer caused fits the loop's budget (20 a
+ * second; what is dropped is counted in the next line): a peer can cause
+ * them as fast as it connects, and journald, past its own rate limit,
+ * drops every line of the service, an operator's real errors too. */
+int hfd_conn_log_allowed(void);
 /* Frees c once its handle is closed and nothing in flight (jobs, writes,
  * a segment being pinned, a TLS handshake step) points at it; else later,
  * when the last of them calls this again. */

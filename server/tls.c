@@ -628,9 +628,10 @@ static void handshake_failed(hfd_conn *c) {
   struct hfd_tls_conn *t = c->tls;
   char kv[300];
   c->srv->protocol_errors++;
-  hfd_err("TLS handshake failed: %s; closing the connection%s", t->step_why,
-          (snprintf(kv, sizeof kv, " conn=%llu peer=%s", (unsigned long long)c->id, c->peer),
-           kv));
+  if (hfd_conn_log_allowed())
+    hfd_err("TLS handshake failed: %s; closing the connection%s", t->step_why,
+            (snprintf(kv, sizeof kv, " conn=%llu peer=%s", (unsigned long long)c->id, c->peer),
+             kv));
   t->failed = 1;
   if (t->raw_reading) uv_read_stop(&c->h.stream);
   t->raw_reading = 0;
@@ -772,8 +773,9 @@ static int plain_hello(hfd_conn *c, const char *data, size_t n) {
   c->srv->protocol_errors++;
   char kv[120];
   snprintf(kv, sizeof kv, " conn=%llu peer=%s", (unsigned long long)c->id, c->peer);
-  hfd_err("PROTOCOL: a plain-text HELLO on TLS listener %s; closing the connection%s",
-          c->listener->url, kv);
+  if (hfd_conn_log_allowed())
+    hfd_err("PROTOCOL: a plain-text HELLO on TLS listener %s; closing the connection%s",
+            c->listener->url, kv);
   struct hfd_tls_conn *t = c->tls;
   t->failed = 1;
   if (t->raw_reading) uv_read_stop(&c->h.stream);
