@@ -4,16 +4,20 @@ already served: the daemon computes handshakes on threads of their own,
 and the loop only moves their bytes.
 
 A TLS handshake costs the server a key exchange and a signature (0.42 ms
-of CPU with the test certificates' P-256 key, docs/SERVER.md, "TLS"),
-before any token is checked, and costs a peer that replays one recorded
-ClientHello next to nothing. Done on the loop, a few such peers kept it
-busy: a client on the Unix socket waited behind every ClientHello read in
-the same turn. Here processes replay a ClientHello on new connections to
-a tls: listener as fast as they can, while a connected Unix-socket client
-sends STATS after STATS; its round trips are compared with those before
-the flood.
+of CPU with a P-256 key, 4 ms with an RSA-4096 one; docs/SERVER.md,
+"TLS"), before any token is checked, and costs a peer that replays one
+recorded ClientHello next to nothing. Done on the loop, a few such peers
+kept it busy: a client on the Unix socket waited behind every ClientHello
+read in the same turn. Here processes replay a ClientHello on new
+connections to a tls: listener, while a connected Unix-socket client sends
+STATS after STATS; its round trips are compared with those before the
+flood. The server's key is RSA-4096, so that the handshakes, not the
+accepting of connections (which stays the loop's), are what a few hundred
+connections a second bring: on a loaded machine, in the sanitizers' build
+too, the loop's own share then stays small, and handshakes on the loop
+would hold it whole.
 
-usage: test_tls_handshake_flood.py HAIRFILTERD WEIGHTS_DIR MAKE_TEST_CERTS
+usage: test_tls_handshake_flood.py HAIRFILTERD WEIGHTS_DIR
 """
 import multiprocessing
 import os
@@ -31,8 +35,8 @@ from rawwire import (STATS, STATS_REPLY, check, connect, failures, finish, frame
 
 FLOOD_S = 5          # how long the flood lasts
 FLOODERS = 2         # processes replaying ClientHellos
-BURST = 128          # connections a flooder opens at once
-PAUSE_S = 0.05       # between its bursts
+BURST = 32           # connections a flooder opens at once
+PAUSE_S = 0.1        # between its bursts
 
 
 def start(hairfilterd, weights, w, certs):
@@ -44,8 +48,8 @@ def start(hairfilterd, weights, w, certs):
             [hairfilterd, "--config", "none", "--backend", "cpu", "--ready-file", ready,
              "--weights", os.path.join(weights, "small.safetensors"),
              "--listen", "unix:" + sock, "--listen", "tls:127.0.0.1:0",
-             "--tls-cert", os.path.join(certs, "server.pem"),
-             "--tls-key", os.path.join(certs, "server.key"), "--no-auth"],
+             "--tls-cert", os.path.join(certs, "rsa.pem"),
+             "--tls-key", os.path.join(certs, "rsa.key"), "--no-auth"],
             stdout=log, stderr=subprocess.STDOUT)
     deadline = time.time() + 60
     while time.time() < deadline and not os.path.exists(ready):
@@ -59,10 +63,12 @@ def start(hairfilterd, weights, w, certs):
     return proc, sock, port
 
 
-def client_hello(ca):
+def client_hello():
     """The bytes of one ClientHello, made once; a flooder replays them
     and does no cryptography of its own."""
-    ctx = ssl.create_default_context(cafile=ca)
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname = False
+    ctx.verify_mode = ssl.CERT_NONE
     inc, out = ssl.MemoryBIO(), ssl.MemoryBIO()
     obj = ctx.wrap_bio(inc, out, server_hostname="localhost")
     try:
@@ -131,18 +137,21 @@ def cpu_s(pid):
 
 
 def main():
-    hairfilterd, weights, make_certs = sys.argv[1:4]
+    hairfilterd, weights = sys.argv[1:3]
     w = tempfile.mkdtemp(prefix="hftlsflood-")
     certs = os.path.join(w, "certs")
     os.mkdir(certs)
-    subprocess.run([make_certs, certs], check=True)
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:4096", "-nodes", "-days", "2",
+                    "-subj", "/CN=localhost", "-keyout", os.path.join(certs, "rsa.key"),
+                    "-out", os.path.join(certs, "rsa.pem")], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     proc, flood = None, []
     try:
         proc, sock, port = start(hairfilterd, weights, w, certs)
         check(sock is not None, "the daemon started")
         if sock is None:
             raise RuntimeError("hairfilterd did not start")
-        hello = client_hello(os.path.join(certs, "ca.pem"))
+        hello = client_hello()
         client = connect(sock)
         client.settimeout(FLOOD_S * 4)
         before = round_trips(client, 1.5)
@@ -164,12 +173,16 @@ def main():
         check(cpu > 0.5, "the flood made the daemon work (%.2f s of CPU)" % cpu)
         # ... and the loop still answered at once. Handshakes on the loop
         # held each turn for every ClientHello read in it: half the round
-        # trips took 16 to 67 ms on a 2-core machine at load average 5 to
-        # 9. Off it, half took 0.1 to 1 ms there. (The slowest ones say
-        # more of the machine's load than of the daemon: not checked.)
+        # trips took 270 to 320 ms and 9 in 10 about 300 ms, on a 2-core
+        # machine at load average 3 to 5. Off it, half took under 0.1 ms
+        # and 9 in 10 under 3 ms there, in the sanitizers' build too. (The
+        # slowest ones say more of the machine's load than of the daemon:
+        # not checked.)
         check(p50 < max(0.010, 10 * p50_before),
               "half the STATS during the flood answered within 10 ms, or 10 times the "
               "median before it (%.2f ms, before %.2f ms)" % (p50 * 1e3, p50_before * 1e3))
+        check(p90 < 0.050, "9 STATS in 10 during the flood answered within 50 ms (%.2f ms)"
+              % (p90 * 1e3))
         client.close()
     finally:
         for p in flood:
