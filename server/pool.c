@@ -128,7 +128,12 @@ static void *pool_main(void *arg) {
 
 static void on_pool_async(uv_async_t *a) {
   hfd_pool *p = a->data;
-  if (pthread_mutex_lock(&p->mu)) return;   /* a default mutex does not fail */
+  int rc = pthread_mutex_lock(&p->mu);
+  if (rc) {
+    /* A default mutex does not fail; the tasks wait for the next send. */
+    hfd_err("%s threads: pthread_mutex_lock: %s", p->what, strerror(rc));
+    return;
+  }
   hfd_pool_task *t = p->done_head;
   p->done_head = p->done_tail = NULL;
   pthread_mutex_unlock(&p->mu);
@@ -216,10 +221,10 @@ int hfd_pool_outstanding(const hfd_pool *p) { return p ? p->outstanding : 0; }
 
 void hfd_pool_close(hfd_pool *p) {
   if (!p || p->async_closed) return;
-  if (pthread_mutex_lock(&p->mu) == 0) {
-    p->async_closed = 1;
-    pthread_mutex_unlock(&p->mu);
-  }
+  int rc = pthread_mutex_lock(&p->mu);
+  if (rc) hfd_err("%s threads: pthread_mutex_lock: %s", p->what, strerror(rc));
+  p->async_closed = 1;
+  if (!rc) pthread_mutex_unlock(&p->mu);
   uv_close((uv_handle_t *)&p->async, NULL);
 }
 
@@ -237,7 +242,9 @@ void hfd_pool_free(hfd_pool *p) {
   for (int i = 0; i < p->nthreads; i++)
     if ((rc = pthread_join(p->threads[i], NULL)) != 0)
       hfd_err("%s threads: pthread_join: %s", p->what, strerror(rc));
-  pthread_cond_destroy(&p->cv);
-  pthread_mutex_destroy(&p->mu);
+  if ((rc = pthread_cond_destroy(&p->cv)) != 0)
+    hfd_err("%s threads: pthread_cond_destroy: %s", p->what, strerror(rc));
+  if ((rc = pthread_mutex_destroy(&p->mu)) != 0)
+    hfd_err("%s threads: pthread_mutex_destroy: %s", p->what, strerror(rc));
   free(p);
 }
