@@ -148,7 +148,8 @@ int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, in
   if (cheld + bytes > ccap) {
     snprintf(why, whylen, "this client (process %ld) holds %llu bytes of segments on its %d "
              "connection(s); %llu more would pass its %llu (--max-shm-mb-per-client): release "
-             "one first", c->shm_client ? c->shm_client->pid : 0L, (unsigned long long)cheld,
+             "one first, or have hairfilterd's operator raise --max-shm-mb-per-client for a "
+             "client of many connections (a load test)", c->shm_client ? c->shm_client->pid : 0L, (unsigned long long)cheld,
              cconns, (unsigned long long)bytes, (unsigned long long)ccap);
     return HFP_E_BUSY;
   }

@@ -252,8 +252,12 @@ static void *run(void *arg) {
            sh->open_loop && k > 1)
       k /= 2;
     if (rc) {
-      fprintf(stderr, "hairfilter load: connection %d: shared memory: %s (%s)\n", w->index,
-              hfc_strerror(rc), hfc_last_message(c));
+      /* The server's reason (the part of its budget one client may hold,
+       * say), which names the option to raise; the code's words are a
+       * guess at it. */
+      const char *m = hfc_last_message(c);
+      fprintf(stderr, "hairfilter load: connection %d: shared memory: %s\n", w->index,
+              m[0] ? m : hfc_strerror(rc));
       w->failed = 1;
     } else {
       memcpy(mem, sh->features, sh->in_bytes);
