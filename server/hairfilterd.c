@@ -218,6 +218,22 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
 
 static char http_url[300];
 
+/* Logs why the ready file at path could not be made (what failed, err)
+ * and what to do about it: a full file system and one the daemon may not
+ * write need different fixes. */
+static void ready_file_error(const char *path, const char *what, int err) {
+  if (err == ENOSPC || err == EDQUOT)
+    hfd_err("--ready-file %s: %s: %s; the file system it is on is full (or the user's quota "
+            "is): free space there, or give a path on another file system",
+            path, what, strerror(err));
+  else if (err == EROFS)
+    hfd_err("--ready-file %s: %s: %s; give a path on a writable file system (a tmpfs such as "
+            "/run, an emptyDir in Kubernetes)", path, what, strerror(err));
+  else
+    hfd_err("--ready-file %s: %s: %s; its directory must exist and be writable by uid %ld, or "
+            "give another path", path, what, strerror(err), (long)geteuid());
+}
+
 /* A temporary file beside the ready file path, in tmp ([cap]): its fd, or
  * -1 after saying why and what to do. It is made with O_CREAT | O_EXCL |
  * O_NOFOLLOW under a random name in the target's directory (mkostemp): a
@@ -229,22 +245,46 @@ static int ready_file_temp(const char *path, char *tmp, size_t cap) {
     return -1;
   }
   int fd = mkostemp(tmp, O_CLOEXEC | O_NOFOLLOW);
-  if (fd < 0)
-    hfd_err("--ready-file %s: cannot create a file beside it: %s; its directory must exist and "
-            "be writable by uid %ld, or give another path", path, strerror(errno),
-            (long)geteuid());
+  if (fd < 0) ready_file_error(path, "cannot create a file beside it", errno);
   return fd;
 }
 
-/* Whether a file can be made beside path, as write_ready_file will:
- * 0, or -1 after saying why and what to do. */
-static int ready_file_probe(const char *path) {
+/* Writes the whole of text to fd: 0, or -1 with errno set. */
+static int write_all(int fd, const char *text, size_t len) {
+  while (len > 0) {
+    ssize_t n = write(fd, text, len);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      if (n == 0) errno = EIO;
+      return -1;
+    }
+    text += n;
+    len -= (size_t)n;
+  }
+  return 0;
+}
+
+/* Whether the ready file can be made beside path and written, as
+ * write_ready_file will: 0, or -1 after saying why and what to do. It
+ * writes the listeners as configured (their resolved ports are not known
+ * yet), so a file system with no room for them is said now, before the
+ * models are built, and not once they are. */
+static int ready_file_probe(const char *path, const hfd_config *cfg) {
   char tmp[4200];
   int fd = ready_file_temp(path, tmp, sizeof tmp);
   if (fd < 0) return -1;
-  close(fd);
+  int rc = 0;
+  for (int i = 0; i < cfg->num_listen && rc == 0; i++)
+    if (write_all(fd, cfg->listen[i], strlen(cfg->listen[i])) || write_all(fd, "\n", 1)) {
+      ready_file_error(path, "cannot write a file beside it", errno);
+      rc = -1;
+    }
+  if (close(fd) != 0 && rc == 0) {
+    ready_file_error(path, "cannot write a file beside it", errno);
+    rc = -1;
+  }
   unlink(tmp);
-  return 0;
+  return rc;
 }
 
 /* Writes the ready file whole, then renames it into place, so a reader
@@ -258,17 +298,29 @@ static int write_ready_file(hfd_server *s) {
   /* mkostemp makes it 0600; a ready file is for others to read. */
   mode_t um = umask(0);
   umask(um);
-  FILE *f = fchmod(fd, 0666 & ~um) == 0 ? fdopen(fd, "w") : NULL;
-  if (!f) {
-    hfd_err("--ready-file %s: %s", tmp, strerror(errno));
+  if (fchmod(fd, 0666 & ~um) != 0) {
+    ready_file_error(path, "cannot set the mode of a file beside it", errno);
     close(fd);
     unlink(tmp);
     return -1;
   }
-  for (int i = 0; i < s->num_listeners; i++) fprintf(f, "%s\n", s->listeners[i].url);
-  if (http_url[0]) fprintf(f, "%s\n", http_url);
-  if (fclose(f) != 0 || rename(tmp, path) != 0) {
-    hfd_err("--ready-file %s: %s", path, strerror(errno));
+  int rc = 0;
+  for (int i = 0; i < s->num_listeners && rc == 0; i++)
+    rc = write_all(fd, s->listeners[i].url, strlen(s->listeners[i].url)) || write_all(fd, "\n", 1);
+  if (rc == 0 && http_url[0])
+    rc = write_all(fd, http_url, strlen(http_url)) || write_all(fd, "\n", 1);
+  int err = errno;
+  if (close(fd) != 0 && rc == 0) {
+    rc = 1;
+    err = errno;
+  }
+  if (rc) {
+    ready_file_error(path, "cannot write a file beside it", err);
+    unlink(tmp);
+    return -1;
+  }
+  if (rename(tmp, path) != 0) {
+    ready_file_error(path, "cannot rename the file written beside it into place", errno);
     unlink(tmp);
     return -1;
   }
@@ -552,7 +604,7 @@ int main(int argc, char **argv) {
     /* It is written beside its place once every model is built, which
      * with --warm on a GPU takes minutes: a directory that is missing or
      * not writable is said now, not then. */
-    if (ready_file_probe(cfg.ready_file)) return 1;
+    if (ready_file_probe(cfg.ready_file, &cfg)) return 1;
   }
 
 
