@@ -116,6 +116,17 @@ void hfd_bind_error(const char *option, const char *url, const char *host, int p
     hfd_err("%s %s: %s", option, url, strerror(err));
 }
 
+/* Whether a Unix listener's path still names the socket it bound: a file
+ * removed (a cleaner of /tmp, a runtime directory another unit removed)
+ * or replaced leaves the daemon unreachable there. 1 for TCP listeners. */
+static int listener_socket_present(const hfd_listener *l) {
+  if (!l->unix_path[0]) return 1;
+  struct stat st;
+  return stat(l->unix_path, &st) == 0 && S_ISSOCK(st.st_mode) &&
+         (unsigned long long)st.st_dev == l->sock_dev &&
+         (unsigned long long)st.st_ino == l->sock_ino;
+}
+
 static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
   hfd_listener *l = &s->listeners[s->num_listeners];
   memset(l, 0, sizeof *l);
@@ -128,17 +139,45 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
       return -1;
     }
     if (clear_stale_socket(path)) return -1;
-    if ((rc = uv_pipe_init(s->loop, &l->h.pipe, 0)) < 0 ||
-        (rc = uv_pipe_bind(&l->h.pipe, path)) < 0) {
+    if ((rc = uv_pipe_init(s->loop, &l->h.pipe, 0)) < 0) {
+      hfd_err("--listen %s: %s", url, uv_strerror(rc));
+      return -1;
+    }
+    /* Bound here and handed to libuv, rather than by uv_pipe_bind: libuv
+     * unlinks a path it bound when the handle closes, whatever the path
+     * names by then, which may be the socket of a daemon started there
+     * since this one's was removed. remove_files unlinks it only while it
+     * is still this listener's. */
+    int fd = -1;
+    struct sockaddr_un sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sun_family = AF_UNIX;
+    if (strlen(path) >= sizeof sa.sun_path) {
+      rc = UV_ENAMETOOLONG;
+    } else {
+      memcpy(sa.sun_path, path, strlen(path) + 1);
+      fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+      if (fd < 0 || bind(fd, (struct sockaddr *)&sa, sizeof sa) != 0)
+        rc = -errno;
+      else if ((rc = uv_pipe_open(&l->h.pipe, fd)) < 0)
+        unlink(path);
+    }
+    if (rc < 0) {
       if (rc == UV_EACCES || rc == UV_EPERM || rc == UV_ENOENT || rc == UV_EROFS)
         explain_socket_dir(url, path, rc);
       else
         hfd_err("--listen %s: %s", url, uv_strerror(rc));
-      if (rc != UV_EINVAL) uv_close(&l->h.handle, NULL);
+      if (fd >= 0) close(fd);
+      uv_close(&l->h.handle, NULL);
       return -1;
     }
     snprintf(l->unix_path, sizeof l->unix_path, "%s", path);
     snprintf(l->url, sizeof l->url, "unix:%s", path);
+    struct stat st;
+    if (stat(path, &st) == 0) {
+      l->sock_dev = (unsigned long long)st.st_dev;
+      l->sock_ino = (unsigned long long)st.st_ino;
+    }
   } else {
     /* Numeric addresses only: a listener's address is not looked up. */
     const char *host = strcmp(u->host, "localhost") ? u->host : "127.0.0.1";
@@ -334,8 +373,10 @@ static int write_ready_file(hfd_server *s) {
 static void remove_files(hfd_server *s) {
   if (s->files_removed) return;
   s->files_removed = 1;
+  /* A path that names another socket now is another daemon's: left alone. */
   for (int i = 0; i < s->num_listeners; i++)
-    if (s->listeners[i].unix_path[0]) unlink(s->listeners[i].unix_path);
+    if (s->listeners[i].unix_path[0] && listener_socket_present(&s->listeners[i]))
+      unlink(s->listeners[i].unix_path);
   if (s->ready_written && s->cfg->ready_file) unlink(s->cfg->ready_file);
 }
 
@@ -374,6 +415,13 @@ int hfd_ready(const hfd_server *s, char *why, size_t whylen) {
   else if (!s->stopped &&
            hfd_worker_stalled((hfd_worker *)&s->worker, s->cfg->watchdog_ms * 1e3, &stalled))
     snprintf(why, whylen, "inference worker made no progress for %.1f s", stalled / 1e6);
+  else
+    for (int i = 0; i < s->num_listeners; i++)
+      if (!listener_socket_present(&s->listeners[i])) {
+        snprintf(why, whylen, "%s: the socket file is gone or replaced; restart hairfilterd",
+                 s->listeners[i].url);
+        break;
+      }
   return why[0] == 0;
 }
 
@@ -491,6 +539,19 @@ static void on_usr1(uv_signal_t *h, int signum) {
 static void on_beat(uv_timer_t *t) {
   hfd_server *s = t->data;
   atomic_store(&s->loop_beat_us, (uint64_t)hfd_now_us());
+  if (!s->draining)
+    for (int i = 0; i < s->num_listeners; i++) {
+      hfd_listener *l = &s->listeners[i];
+      int lost = !listener_socket_present(l);
+      if (lost && !l->socket_lost)
+        hfd_err("--listen %s: the socket file was removed or replaced by another file: local "
+                "clients can no longer connect, and /readyz says not ready; restart hairfilterd "
+                "to make it again (a socket directory another service removes, or a cleaner of "
+                "its directory? docs/SERVER.md, \"Socket directory\")", l->url);
+      else if (!lost && l->socket_lost)
+        hfd_notice("--listen %s: the socket file is back", l->url);
+      l->socket_lost = lost;
+    }
   static int stall_logged;
   double stalled;
   if (hfd_worker_stalled(&s->worker, s->cfg->watchdog_ms * 1e3, &stalled)) {

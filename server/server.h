@@ -467,6 +467,10 @@ typedef struct hfd_listener {
   int auth_required;
   char url[256];                 /* as resolved (the real port) */
   char unix_path[200];
+  /* The socket file as bound (unix:): a path removed or taken by another
+   * file is no longer this listener's, and local clients cannot reach it. */
+  unsigned long long sock_dev, sock_ino;
+  int socket_lost;               /* last seen gone (logged once per loss) */
   int accept_deferred;           /* a connection left pending until the turn ends (conn.c) */
 } hfd_listener;
 
@@ -791,7 +795,8 @@ void hfd_seg_drop(hfd_server *s, hfd_seg *g);
 void hfd_maybe_finish(hfd_server *s);
 void hfd_fill_stats(hfd_server *s, hfp_stats *st);
 /* 1 when serving: the backend up, every configured file serving a variant,
- * at least one variant, not draining; else 0 with why. Loop thread. */
+ * at least one variant, not draining, every Unix socket file still the one
+ * bound; else 0 with why. Loop thread. */
 int hfd_ready(const hfd_server *s, char *why, size_t whylen);
 
 /* models.c */
