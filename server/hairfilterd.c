@@ -29,31 +29,69 @@
 
 /* ---- listeners ----------------------------------------------------------- */
 
+static void explain_socket_dir(const char *url, const char *path, int rc);
+
 /* A socket file left by a server that died is removed; one that a live
- * server answers on is not. */
+ * server answers on is not, nor one the daemon cannot tell about: only a
+ * connection refused says no server listens there. Each refusal says why
+ * and what to do. */
 static int clear_stale_socket(const char *path) {
+  char url[220];
+  snprintf(url, sizeof url, "unix:%s", path);
   struct stat st;
-  if (lstat(path, &st) != 0) return errno == ENOENT ? 0 : -1;
+  if (lstat(path, &st) != 0) {
+    if (errno == ENOENT) return 0;
+    if (errno == EACCES) {
+      /* The directory cannot be searched: the same fix as one that
+       * cannot be written. */
+      explain_socket_dir(url, path, UV_EACCES);
+      return -1;
+    }
+    hfd_err("--listen %s: cannot look at %s: %s; give another path", url, path, strerror(errno));
+    return -1;
+  }
   if (!S_ISSOCK(st.st_mode)) {
     hfd_err("--listen unix:%s: %s exists and is not a socket; remove it, or give another path",
             path, path);
     return -1;
   }
-  int fd = socket(AF_UNIX, SOCK_STREAM, 0);
-  if (fd < 0) return -1;
+  int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) {
+    hfd_err("--listen %s: socket: %s", url, strerror(errno));
+    return -1;
+  }
   struct sockaddr_un sun;
   memset(&sun, 0, sizeof sun);
   sun.sun_family = AF_UNIX;
   snprintf(sun.sun_path, sizeof sun.sun_path, "%s", path);
-  int live = connect(fd, (struct sockaddr *)&sun, sizeof sun) == 0;
+  int rc = connect(fd, (struct sockaddr *)&sun, sizeof sun);
+  int err = errno;
   close(fd);
-  if (live) {
+  if (rc == 0 || err == EAGAIN) {
+    /* EAGAIN: a listener whose backlog is full, so a live one. */
     hfd_err("--listen unix:%s: another server is listening there (another hairfilterd?); stop "
             "it, or give each daemon its own socket path", path);
     return -1;
   }
+  if (err == ENOENT) return 0;   /* removed meanwhile */
+  if (err != ECONNREFUSED) {
+    /* Not allowed to connect (a socket of another user, mode 0700 or
+     * 0770): a live server may be behind it, and removing its file
+     * would cut it off from every new client. */
+    hfd_err("--listen unix:%s: a socket file is there and hairfilterd (uid %ld) cannot tell "
+            "whether a server listens on it: connect: %s (owner uid %ld gid %ld, mode %04o); if "
+            "no server uses it, remove it (rm %s), else give each daemon its own socket path",
+            path, (long)geteuid(), strerror(err), (long)st.st_uid, (long)st.st_gid,
+            (unsigned)(st.st_mode & 07777), path);
+    return -1;
+  }
   if (unlink(path) != 0) {
-    hfd_err("cannot remove stale socket %s: %s", path, strerror(errno));
+    err = errno;
+    hfd_err("--listen unix:%s: cannot remove the socket file left there by a server that is "
+            "gone: %s; hairfilterd runs as uid %ld and the file's owner is uid %ld (in a "
+            "directory with the sticky bit, such as /tmp, only the owner may remove it): remove "
+            "it as its owner or root (rm %s), or give another path",
+            path, strerror(err), (long)geteuid(), (long)st.st_uid, path);
     return -1;
   }
   return 0;
