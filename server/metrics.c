@@ -264,7 +264,7 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
   family(f, "hairfilterd_variant_loaded_timestamp_seconds", "gauge",
          "When the version of each variant now serving was loaded, since the Unix epoch.");
   PER_VARIANT(f, s, "hairfilterd_variant_loaded_timestamp_seconds", "%.3f",
-              s->t_start_wall + (v->model->t_loaded - s->t_start) / 1e6);
+              v->model->t_loaded_wall);
   family(f, "hairfilterd_model_parameters", "gauge", "Weights in each variant's network.");
   PER_VARIANT(f, s, "hairfilterd_model_parameters", "%llu",
               (unsigned long long)v->model->params);

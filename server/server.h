@@ -177,7 +177,10 @@ typedef struct hfd_model {
   hf_input_range range;          /* trained input range; .present 0: none */
   uint64_t params;               /* number of weights */
   uint64_t device_bytes;         /* hf_model_device_bytes once built */
-  double t_loaded;               /* hfd_now_us when built */
+  /* The wall clock when built, for variant_loaded_timestamp_seconds: read
+   * then, not derived from the start's and the monotonic clock, which a
+   * clock step (NTP at boot, a VM resumed) would leave off by the step. */
+  double t_loaded_wall;
   uint64_t last_run;             /* worker thread: its clock at the last run */
   /* Host memory its backend model keeps between runs (plans): written by
    * the worker, read for STATS and /metrics. */

@@ -442,7 +442,9 @@ static void do_load(hfd_worker *w, hfd_ctl *c) {
     hfd_log("variant %s: %dx%d batch %d prepared in %.2f s", m->name, ww, hh, nb,
             (hfd_now_us() - t0) / 1e6);
   }
-  m->t_loaded = hfd_now_us();
+  struct timespec wall;
+  clock_gettime(CLOCK_REALTIME, &wall);
+  m->t_loaded_wall = (double)wall.tv_sec + wall.tv_nsec / 1e9;
   m->wnext = w->models;
   w->models = m;
   worker_trim(w, NULL);
