@@ -416,15 +416,20 @@ void hfd_metrics_log(hfd_server *s) {
     const hfd_variant *v = &s->variants[i];
     if (!v->model) continue;
     const hfd_hist *t = &v->m.time[HFD_T_TOTAL];
+    /* SHUTTING_DOWN apart, as /metrics' class "unavailable": every
+     * rolling restart refuses what clients send while it drains, which is
+     * no error of theirs or the server's. */
     uint64_t errors = 0;
     for (int c = 1; c < HFP_E_COUNT; c++)
-      if (c != HFP_E_BUSY) errors += v->m.by_status[c];
+      if (c != HFP_E_BUSY && c != HFP_E_SHUTTING_DOWN) errors += v->m.by_status[c];
     char kv[128] = "";
     hfd_kv(kv, sizeof kv, "variant", v->name);
-    hfd_notice("statistics:%s ok=%llu busy=%llu errors=%llu batches=%llu mean_total_ms=%.3f "
-               "out_of_range=%llu sanitised=%llu", kv,
+    hfd_notice("statistics:%s ok=%llu busy=%llu unavailable=%llu errors=%llu batches=%llu "
+               "mean_total_ms=%.3f out_of_range=%llu sanitised=%llu", kv,
                (unsigned long long)v->m.by_status[HFP_OK],
-               (unsigned long long)v->m.by_status[HFP_E_BUSY], (unsigned long long)errors,
+               (unsigned long long)v->m.by_status[HFP_E_BUSY],
+               (unsigned long long)v->m.by_status[HFP_E_SHUTTING_DOWN],
+               (unsigned long long)errors,
                (unsigned long long)v->m.batch.count, t->count ? t->sum / t->count * 1e3 : 0.0,
                (unsigned long long)v->stats.out_of_range,
                (unsigned long long)v->stats.frames_sanitised);
