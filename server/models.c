@@ -604,7 +604,13 @@ static void take_reloadable(hfd_server *s, hfd_config *n) {
 }
 
 void hfd_models_reload(hfd_server *s) {
-  if (s->draining) return;
+  if (s->draining) {
+    /* Said, so that a reload sent by hand during a stop is not taken as
+     * done. */
+    hfd_notice("SIGHUP: ignored while draining; the configuration and the weights are read "
+               "at the next start");
+    return;
+  }
   if (s->reload.active) {
     s->reload.again = 1;
     hfd_log("SIGHUP: a reload is in progress; another follows it");

@@ -1,12 +1,16 @@
 #!/usr/bin/env python3
-"""SIGUSR1's statistics while the daemon drains: a FILTER refused with
-SHUTTING_DOWN counts as `unavailable`, apart from `errors`, as /metrics
-puts it in class "unavailable" and the stop line in "refused while
-draining". Every rolling restart refuses what clients send meanwhile; the
-line counted those refusals as errors, so a drain looked like a failing
-server.
+"""Signals while the daemon drains:
 
-usage: test_usr1_draining.py HAIRFILTERD WEIGHTS.safetensors
+  * SIGUSR1's statistics: a FILTER refused with SHUTTING_DOWN counts as
+    `unavailable`, apart from `errors`, as /metrics puts it in class
+    "unavailable" and the stop line in "refused while draining". Every
+    rolling restart refuses what clients send meanwhile; the line counted
+    those refusals as errors, so a drain looked like a failing server;
+  * SIGHUP is ignored, and the log says so (it said nothing, and a reload
+    sent by hand looked done);
+  * the frames admitted before SIGTERM are answered, and the daemon exits 0.
+
+usage: test_signals_draining.py HAIRFILTERD WEIGHTS.safetensors
 """
 import os
 import re
@@ -31,7 +35,7 @@ def small_filter(rid, w, h):
 
 
 def main():
-    w = tempfile.mkdtemp(prefix="hfusr1-")
+    w = tempfile.mkdtemp(prefix="hfsigdrain-")
     proc = None
     try:
         proc, sock = start(HAIRFILTERD, w, ["--weights", WEIGHTS, "--backend", "cpu-ref",
@@ -71,6 +75,13 @@ def main():
         if line:
             check(" unavailable=1 " in line and " errors=0 " in line,
                   "the refusal counted as unavailable, not as an error: " + line)
+        proc.send_signal(signal.SIGHUP)
+        deadline = time.time() + 10
+        while time.time() < deadline and "SIGHUP: ignored while draining" not in open(log_path).read():
+            time.sleep(0.05)
+        log = open(log_path).read()
+        check("SIGHUP: ignored while draining" in log and "SIGHUP: reading" not in log,
+              "SIGHUP while draining ignored, saying so")
         for _ in range(3 - results):
             t, rid, _ = read_frame(busy)
             check(t == RESULT and rid in (1, 2, 3),
