@@ -8,9 +8,11 @@ of hairfilterd, hairfilter-load and `hairfilter SUBCOMMAND` in their code
 Documentation that names an option a tool does not have (renamed, removed,
 misspelt) sends a reader to a usage error; this finds it before they do.
 
-The project's Python scripts (a path ending in .py) are checked the same
-way against their own --help; a script path that names no file in the
-source tree is reported too.
+The project's Python scripts (a path ending in .py after python3) are
+checked the same way against their own --help, run in an empty folder; a
+script path that names no file in the source tree, a --help that exits
+with an error or prints nothing, and one that writes files (taking --help
+for an argument) are reported too.
 
 usage: doc_options.py SOURCE_DIR BUILD_DIR FILE.md...
 Exit status 0 when every option is known, 1 when one is not (each printed
@@ -22,6 +24,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tempfile
 
 TOOLS = ("hairfilterd", "hairfilter-load", "hairfilter")
 SUBCOMMANDS = ("demo", "infer", "filter", "render", "bench", "eval",
@@ -84,7 +87,11 @@ def invocations(words):
     i = 0
     while i < len(words):
         name = os.path.basename(words[i])
-        if name.endswith(".py") and "/" in words[i]:
+        # A script is run when an interpreter comes before it; a path
+        # alone in inline code is a mention (`weights/hfnet.py`), not a
+        # command.
+        if (name.endswith(".py") and "/" in words[i] and i > 0
+                and re.fullmatch(r"python3?(\.\d+)?", os.path.basename(words[i - 1]))):
             key = os.path.normpath(words[i])
         elif name in TOOLS:
             key = name
@@ -125,19 +132,30 @@ def find_script(source, doc, key):
 
 
 def help_options(source, build, doc, key):
-    """The options a command's --help lists; None for a missing script."""
+    """The options a command's --help lists; None for a missing script, or
+    a string saying what is wrong with its --help."""
     if key.endswith(".py"):
         script = find_script(source, doc, key)
         if script is None:
             return None
-        cmd = [sys.executable, script, "--help"]
+        cmd = [sys.executable, os.path.abspath(script), "--help"]
     else:
         parts = key.split()
-        exe = os.path.join(build, parts[0])
+        exe = os.path.abspath(os.path.join(build, parts[0]))
         cmd = ([exe] + parts[1:] + (["frame"] if parts[1:] == ["render"] else [])
                + ["--help"])
-    out = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                         timeout=60, check=False).stdout.decode("utf-8", "replace")
+    # In an empty folder of its own: a tool that takes --help for an
+    # argument (an output folder, say) writes there, and is caught.
+    with tempfile.TemporaryDirectory() as cwd:
+        proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              timeout=60, check=False, cwd=cwd)
+        wrote = sorted(os.listdir(cwd))
+    out = proc.stdout.decode("utf-8", "replace")
+    if wrote:
+        return "`%s --help` wrote %s instead of printing its usage" % (key, ", ".join(wrote))
+    if proc.returncode != 0 or not out.strip():
+        return "`%s --help` exits %d%s" % (key, proc.returncode,
+                                           "" if out.strip() else " and prints nothing")
     return set(re.findall(r"--[a-z0-9][a-z0-9-]*", out)) | {"--help"}
 
 
@@ -154,8 +172,8 @@ def main(argv):
             for key, opts in invocations(tokens(text)):
                 if key not in known:
                     known[key] = help_options(source, build, path, key)
-                if known[key] is None:
-                    print(f"{path}:{no}: {key}: no such script")
+                if known[key] is None or isinstance(known[key], str):
+                    print(f"{path}:{no}: {key}: " + (known[key] or "no such script"))
                     faults += 1
                     continue
                 for opt in opts:

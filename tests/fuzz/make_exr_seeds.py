@@ -41,6 +41,13 @@ def write(path, w, h, spp, compression, half=False, tile=None, origin=(0, 0), fu
 
 
 def main():
+    # The folder is the one argument: an option, or none, gets the usage
+    # (--help was taken for a folder, and the seeds written into it).
+    if len(sys.argv) != 2 or sys.argv[1].startswith("-"):
+        help_asked = sys.argv[1:] in (["-h"], ["--help"])
+        print("usage: make_exr_seeds.py DIR\n\n" + __doc__.strip(),
+              file=sys.stdout if help_asked else sys.stderr)
+        sys.exit(0 if help_asked else 2)
     d = sys.argv[1]
     os.makedirs(d, exist_ok=True)
     write(f"{d}/features_tiled.exr", 5, 3, 1, "zip", tile=(2, 2))

@@ -43,6 +43,9 @@ def srgb(x):
 
 
 def main(argv):
+    if argv in (["-h"], ["--help"]):
+        print(__doc__)
+        return 0
     if len(argv) < 2:
         sys.exit(__doc__)
     rows = []

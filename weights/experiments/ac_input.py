@@ -130,6 +130,9 @@ def to_variant(cfg, state):
 
 
 def main(argv):
+    if argv in (["-h"], ["--help"]):
+        print(__doc__)
+        return 0
     if len(argv) == 3 and argv[0] == "export":
         cfg, state = to_variant(*hfnet.load_safetensors(argv[1]))
         meta = {k: v for k, v in hfnet.load_metadata(argv[1]).items() if k != "hairfilter"}

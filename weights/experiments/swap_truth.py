@@ -80,6 +80,9 @@ def swap(frames_dir, truth_dir, name):
 
 
 def main():
+    if sys.argv[1:] in (["-h"], ["--help"]):
+        print(__doc__)
+        return
     if len(sys.argv) != 4:
         sys.exit(__doc__)
     frames_dir, truth_dir, out_dir = sys.argv[1:]
