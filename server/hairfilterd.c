@@ -341,6 +341,34 @@ static int write_all(int fd, const char *text, size_t len) {
   return 0;
 }
 
+/* Whether the ready file at path is a running daemon's: 1 when a Unix
+ * socket it lists accepts a connection (its URL in url[cap]), else 0 (no
+ * file, none listed, or none answers: a stale one). TCP ports it lists
+ * are not tried, as another program may have a freed port by now. */
+static int ready_file_live(const char *path, char *url, size_t cap) {
+  FILE *f = fopen(path, "re");
+  if (!f) return 0;
+  char line[512];
+  int live = 0;
+  for (int n = 0; n < 64 && !live && fgets(line, sizeof line, f); n++) {
+    line[strcspn(line, "\r\n")] = 0;
+    struct sockaddr_un sa;
+    if (strncmp(line, "unix:", 5) != 0 || strlen(line + 5) >= sizeof sa.sun_path) continue;
+    memset(&sa, 0, sizeof sa);
+    sa.sun_family = AF_UNIX;
+    memcpy(sa.sun_path, line + 5, strlen(line + 5) + 1);
+    int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    if (fd < 0) continue;
+    if (connect(fd, (struct sockaddr *)&sa, sizeof sa) == 0 || errno == EAGAIN) {
+      live = 1;
+      snprintf(url, cap, "%s", line);
+    }
+    close(fd);
+  }
+  fclose(f);
+  return live;
+}
+
 /* Whether the ready file can be made beside path and written, as
  * write_ready_file will: 0, or -1 after saying why and what to do. It
  * writes the listeners as configured (their resolved ports are not known
@@ -691,6 +719,15 @@ int main(int argc, char **argv) {
     if (stat(cfg.ready_file, &rst) == 0 && S_ISDIR(rst.st_mode)) {
       hfd_err("--ready-file %s is a directory: give the path of a file (%s/ready, say)",
               cfg.ready_file, cfg.ready_file);
+      return 1;
+    }
+    /* Another daemon's, given the same path by mistake: removing it would
+     * say that daemon is gone while it serves, and this one may not start. */
+    char live_url[512];
+    if (ready_file_live(cfg.ready_file, live_url, sizeof live_url)) {
+      hfd_err("--ready-file %s: a running daemon wrote it (%s answers); give each daemon its own "
+              "ready file (docs/SERVER.md, \"Several daemons on one host\")", cfg.ready_file,
+              live_url);
       return 1;
     }
     if (unlink(cfg.ready_file) == 0)

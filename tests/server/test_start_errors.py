@@ -23,6 +23,8 @@ no weights are made before any is loaded.
   * a port in use, for --listen and for --http: exit 1, the port said to
     be in use and how to find who holds it (--http said "Failed to bind to
     port 0" and guessed);
+  * a running daemon's ready file given to a second daemon: status 1
+    before anything loads, and the file left alone;
   * a ready file left by a daemon killed before it could remove it: gone
     as the next one starts, so it never says "serving" for a daemon that
     is still loading, or that failed to start;
@@ -44,7 +46,7 @@ import subprocess
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from opsdaemon import check, cleanup, finish, workdir  # noqa: E402
+from opsdaemon import Daemon, check, cleanup, finish, workdir  # noqa: E402
 
 HAIRFILTERD, MAKE_TEST_CERTS, WEIGHTS = sys.argv[1:4]
 
@@ -335,6 +337,28 @@ def body(w):
           "file must load at start: fix it, or take it out of --weights or --weights-dir"
           % os.path.join(w, "none.safetensors") in out,
           "a missing weights file: named, with what to do: %r" % out)
+
+    # A running daemon's ready file given to a second daemon by mistake:
+    # the second stops (status 1) before anything loads, and the file
+    # stays. It was removed as stale, saying the first daemon was gone
+    # while it served, and the second then failed on its own socket.
+    live_dir = os.path.join(w, "live")
+    os.makedirs(live_dir)
+    first = Daemon(HAIRFILTERD, ["--config", "none", "--listen", "unix:%s/a.sock" % live_dir,
+                                 "--weights-dir", wd, "--backend", "cpu-ref"], live_dir)
+    try:
+        before = open(first.ready).read()
+        rc, out = run(["--config", "none", "--listen", "unix:%s/b.sock" % live_dir,
+                       "--weights-dir", wd, "--ready-file", first.ready], w)
+        check(rc == 1 and "<3>error: --ready-file %s: a running daemon wrote it (unix:%s/a.sock "
+              "answers); give each daemon its own ready file" % (first.ready, live_dir) in out
+              and "backend" not in out,
+              "a running daemon's ready file: status %s (want 1), said before anything loads: %r"
+              % (rc, out))
+        check(os.path.exists(first.ready) and open(first.ready).read() == before,
+              "a running daemon's ready file left as it was")
+    finally:
+        check(first.stop() == 0, "the first daemon stopped with 0")
 
     # --weights NAME=FILE whose name cannot be one, or with no file after
     # '=': a bad option (status 2) saying which, not the whole value's "No
