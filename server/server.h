@@ -797,6 +797,17 @@ void hfd_seg_drop(hfd_server *s, hfd_seg *g);
 /* hairfilterd.c */
 void hfd_maybe_finish(hfd_server *s);
 void hfd_fill_stats(hfd_server *s, hfp_stats *st);
+/* ready_file.c */
+/* Before the models are built: refuses a --ready-file that is a directory
+ * or a running daemon's, removes a stale one, and checks that one can be
+ * written beside the path. 0, or -1 after saying why and what to do. */
+int hfd_ready_file_prepare(const hfd_config *cfg);
+/* Writes the listeners' URLs (and http_url when not empty) to the ready
+ * file whole, then renames it into place, so a reader never sees half of
+ * it (rename replaces a symlink at the target rather than following it).
+ * 0, or -1 after saying why and what to do. */
+int hfd_ready_file_write(const hfd_server *s, const char *http_url);
+
 /* 1 when serving: the backend up, every configured file serving a variant,
  * at least one variant, not draining, every Unix socket file still the one
  * bound; else 0 with why. Loop thread. */
