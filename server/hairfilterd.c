@@ -449,6 +449,47 @@ static void ignore_stop_signals(void) {
   sigaction(SIGUSR1, &sa, NULL);
 }
 
+/* Signals that come while the daemon starts (loading its models and
+ * building --warm plans takes minutes on a GPU), before libuv's handlers
+ * are in place: recorded, so that none kills the process with its default
+ * action (a reload or a statistics request sent during a start was an
+ * outage), and acted on once the daemon can. */
+static const int early_signo[] = {SIGINT, SIGTERM, SIGHUP, SIGUSR1};
+static const char *const early_name[] = {"SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1"};
+static volatile sig_atomic_t early_signal[4];
+
+static void on_early_signal(int signo) {
+  for (int i = 0; i < 4; i++)
+    if (early_signo[i] == signo) early_signal[i] = 1;
+}
+
+static void catch_early_signals(void) {
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_early_signal;
+  sa.sa_flags = SA_RESTART;   /* the loads' reads go on */
+  sigemptyset(&sa.sa_mask);
+  for (int i = 0; i < 4; i++) sigaction(early_signo[i], &sa, NULL);
+}
+
+/* The name of a stop signal (SIGINT, SIGTERM) that came during the start,
+ * or NULL. */
+static const char *early_stop(void) {
+  return early_signal[0] ? early_name[0] : early_signal[1] ? early_name[1] : NULL;
+}
+
+/* Once libuv's handlers are in place and the daemon serves: each signal
+ * that came during the start is sent again, and the loop handles it as
+ * any other (a stop drains, a reload reads the configuration again). */
+static void replay_early_signals(void) {
+  for (int i = 0; i < 4; i++)
+    if (early_signal[i]) {
+      early_signal[i] = 0;
+      hfd_log("%s came during the start: handled now", early_name[i]);
+      kill(getpid(), early_signo[i]);
+    }
+}
+
 /* SIGHUP reloads (models.c); SIGUSR1 writes the statistics to the log. Both
  * leave every connection and request as it is. */
 static void on_hup(uv_signal_t *h, int signum) {
@@ -550,6 +591,7 @@ int main(int argc, char **argv) {
   hfd_log_level = cfg.log_level;
   /* A peer that vanishes must not kill us with SIGPIPE; libuv reports EPIPE. */
   signal(SIGPIPE, SIG_IGN);
+  catch_early_signals();
   /* Frames, results and plans of a megabyte or more are mapped and unmapped
    * on their own, so that what an oversized frame needed goes back to the
    * system when it is freed. glibc's default threshold rises with every
@@ -607,6 +649,11 @@ int main(int argc, char **argv) {
   cfg.max_batch = w->max_batch; /* the backend's default, unless given */
   hfd_log("%s", w->init_msg);
   if (hfd_models_load_initial(s)) return 1;
+  /* A stop asked for while the models loaded: no point in serving. */
+  if (early_stop()) {
+    hfd_notice("%s during the start: stopping before serving", early_stop());
+    return 0;
+  }
   if (hfd_limits_derive(s)) return 1;
   if (hfd_limits_fds(s)) return 1;
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
@@ -724,6 +771,7 @@ int main(int argc, char **argv) {
     s->ready_written = 1;
   }
   hfd_notify_ready(s);
+  replay_early_signals();
 
   rc = uv_run(s->loop, UV_RUN_DEFAULT);
   ignore_stop_signals();
