@@ -957,6 +957,8 @@ static void test_render_option_modes(void **state) {
   /* --help wins over a refusal. */
   assert_int_equal(cli("render dataset --cam-yaw 3 --help"), 0);
   expect_text("usage: hairfilter render");
+  /* Every spelling the parser takes is in the help, --up's other one too. */
+  expect_text("--up-axis");
   /* What every mode reads, and a negative value after an option. */
   assert_int_equal(cli("render hair --style wavy --strands 20 --segments 8 --quiet --out %s",
                        test_tmp("mode.hair")), 0);
