@@ -39,7 +39,11 @@ def main():
     step = os.path.join(w, "step")
     with open(step, "w") as f:
         f.write("0\n")
-    env = {"LD_PRELOAD": SHIM, "HF_TEST_CLOCK_STEP_FILE": step}
+    # (A sanitizer build's runtime must come first among the libraries;
+    # the shim is preloaded before it, which it accepts when told to.)
+    asan = os.environ.get("ASAN_OPTIONS", "")
+    env = {"LD_PRELOAD": SHIM, "HF_TEST_CLOCK_STEP_FILE": step,
+           "ASAN_OPTIONS": (asan + ":" if asan else "") + "verify_asan_link_order=0"}
     d = Daemon(HAIRFILTERD, ["--config", "none", "--listen", "unix:%s/s.sock" % w,
                              "--http", "tcp:127.0.0.1:0", "--backend", "cpu-ref",
                              "--weights-dir", os.path.join(w, "weights"),
