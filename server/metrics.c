@@ -162,6 +162,24 @@ static void histogram(FILE *f, const char *name, const char *variant, const hfd_
   fprintf(f, "\"} %llu\n", (unsigned long long)h->count);
 }
 
+/* Whether a variant's request counters are reported: while it serves, and
+ * once the daemon has stopped its worker, while the last replies are
+ * written (the series would otherwise vanish from a scrape then, and the
+ * answers counted in that time with them). */
+static int counted(const hfd_variant *v) { return v->model || v->served_at_stop; }
+
+/* A counter with one sample per variant whose counters are reported. */
+#define PER_VARIANT_COUNTED(f, s, metric, fmt, expr)                       \
+  do {                                                                     \
+    for (int i_ = 0; i_ < (s)->num_variants; i_++) {                       \
+      const hfd_variant *v = &(s)->variants[i_];                           \
+      if (!counted(v)) continue;                                           \
+      fprintf(f, "%s{variant=\"", metric);                                 \
+      label(f, v->name);                                                   \
+      fprintf(f, "\"} " fmt "\n", expr);                                   \
+    }                                                                      \
+  } while (0)
+
 /* A gauge or counter with one sample per serving variant. */
 #define PER_VARIANT(f, s, metric, fmt, expr)                               \
   do {                                                                     \
@@ -298,7 +316,7 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
          "is ok, overload (BUSY), client_error, unavailable (SHUTTING_DOWN) or server_error.");
   for (int i = 0; i < s->num_variants; i++) {
     const hfd_variant *v = &s->variants[i];
-    if (v->model) requests(f, v->name, &v->m, 0, NULL);
+    if (counted(v)) requests(f, v->name, &v->m, 0, NULL);
   }
   requests(f, "", &no_variant, 1, s->unrouted);
 
@@ -316,22 +334,22 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
     family(f, hist_name[t], "histogram", hist_help[t]);
     for (int i = 0; i < s->num_variants; i++) {
       const hfd_variant *v = &s->variants[i];
-      if (v->model) histogram(f, hist_name[t], v->name, &v->m.time[t], 0);
+      if (counted(v)) histogram(f, hist_name[t], v->name, &v->m.time[t], 0);
     }
   }
   family(f, "hairfilterd_batch_size", "histogram", "Frames per backend run.");
   for (int i = 0; i < s->num_variants; i++) {
     const hfd_variant *v = &s->variants[i];
-    if (v->model) histogram(f, "hairfilterd_batch_size", v->name, &v->m.batch, 1);
+    if (counted(v)) histogram(f, "hairfilterd_batch_size", v->name, &v->m.batch, 1);
   }
   family(f, "hairfilterd_frames_out_of_range_total", "counter",
          "Successful requests whose input was outside the variant's trained range.");
-  PER_VARIANT(f, s, "hairfilterd_frames_out_of_range_total", "%llu",
+  PER_VARIANT_COUNTED(f, s, "hairfilterd_frames_out_of_range_total", "%llu",
               (unsigned long long)v->stats.out_of_range);
   family(f, "hairfilterd_frames_sanitised_total", "counter",
          "Successful requests whose input held NaN, infinite or out-of-range samples, "
          "sanitised before the network.");
-  PER_VARIANT(f, s, "hairfilterd_frames_sanitised_total", "%llu",
+  PER_VARIANT_COUNTED(f, s, "hairfilterd_frames_sanitised_total", "%llu",
               (unsigned long long)v->stats.frames_sanitised);
 
   scalar(f, "hairfilterd_queue_depth", "gauge",
@@ -414,7 +432,7 @@ void hfd_metrics_log(hfd_server *s) {
              (unsigned long long)(s->reloads_ok + s->reloads_failed));
   for (int i = 0; i < s->num_variants; i++) {
     const hfd_variant *v = &s->variants[i];
-    if (!v->model) continue;
+    if (!counted(v)) continue;
     const hfd_hist *t = &v->m.time[HFD_T_TOTAL];
     /* SHUTTING_DOWN apart, as /metrics' class "unavailable": every
      * rolling restart refuses what clients send while it drains, which is

@@ -648,7 +648,10 @@ void hfd_models_reload(hfd_server *s) {
 }
 
 void hfd_models_after_stop(hfd_server *s) {
-  for (int i = 0; i < s->num_variants; i++) s->variants[i].model = NULL;
+  for (int i = 0; i < s->num_variants; i++) {
+    s->variants[i].served_at_stop = s->variants[i].model != NULL;
+    s->variants[i].model = NULL;
+  }
   if (!s->reload.active) return;
   s->reload.active = 0;
   for (int i = 0; i < pending.nw; i++) {

@@ -212,6 +212,9 @@ typedef struct hfd_variant_metrics {
 typedef struct hfd_variant {
   char name[HFP_NAME_MAX + 1];
   hfd_model *model;              /* serving now; NULL: free, or removed and retiring */
+  /* Served when the daemon stopped its worker (its models unloaded): its
+   * counters are still reported while the last replies are written. */
+  int served_at_stop;
   int models;                    /* models of this name not yet unloaded */
   hfp_variant_stats stats;       /* loop thread only */
   hfd_variant_metrics m;         /* loop thread only */
