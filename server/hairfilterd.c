@@ -513,13 +513,18 @@ static void on_beat(uv_timer_t *t) {
     for (int i = 0; i < s->num_listeners; i++) {
       hfd_listener *l = &s->listeners[i];
       int lost = !listener_socket_present(l);
-      if (lost && !l->socket_lost)
+      if (lost && !l->socket_lost) {
         hfd_err("--listen %s: the socket file was removed or replaced by another file: local "
                 "clients can no longer connect, and /readyz says not ready; restart hairfilterd "
                 "to make it again (a socket directory another service removes, or a cleaner of "
                 "its directory? docs/SERVER.md, \"Socket directory\")", l->url);
-      else if (!lost && l->socket_lost)
+        /* `systemctl status` says it too, where no readiness probe looks. */
+        hfd_notify_status("not ready: %s: the socket file is gone or replaced; restart "
+                          "hairfilterd", l->url);
+      } else if (!lost && l->socket_lost) {
         hfd_notice("--listen %s: the socket file is back", l->url);
+        hfd_notify_ready(s);
+      }
       l->socket_lost = lost;
     }
   static int stall_logged;

@@ -10,7 +10,9 @@ thought the daemon gone):
     one's stop leaves that daemon's socket alone (libuv unlinked the path
     it had bound when the listener closed, whatever the path was by then,
     so the second daemon lost its socket and said "ready");
-  * a socket file that is the daemon's own is still removed at its stop.
+  * a socket file that is the daemon's own is still removed at its stop;
+  * under systemd (NOTIFY_SOCKET), STATUS= says it too, for `systemctl
+    status`, where no readiness probe looks.
 
 usage: test_socket_lost.py HAIRFILTERD WEIGHTS.safetensors
 """
@@ -43,7 +45,11 @@ def main():
             "--backend", "cpu-ref", "--weights", WEIGHTS]
     os.makedirs(os.path.join(w, "a"))
     os.makedirs(os.path.join(w, "b"))
-    a = Daemon(HAIRFILTERD, args, os.path.join(w, "a"))
+    notify_path = os.path.join(w, "notify")
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(notify_path)
+    notify.settimeout(0.2)
+    a = Daemon(HAIRFILTERD, args, os.path.join(w, "a"), env={"NOTIFY_SOCKET": notify_path})
     b = None
     try:
         status, body = a.get("/readyz")
@@ -61,6 +67,15 @@ def main():
         log = a.log_text()
         check(log.count("error: --listen unix:%s: the socket file was removed" % path) == 1,
               "one error line for the lost socket:\n" + log)
+        said = []
+        deadline = time.time() + 5
+        while time.time() < deadline and not any("not ready: unix:%s" % path in m for m in said):
+            try:
+                said.append(notify.recv(4096).decode())
+            except socket.timeout:
+                pass
+        check(any("STATUS=not ready: unix:%s: the socket file is gone" % path in m for m in said),
+              "STATUS= says the socket is gone: %r" % said)
 
         b = Daemon(HAIRFILTERD, args, os.path.join(w, "b"))
         check(b.get("/readyz")[0] == 200, "second daemon ready on the same path")
@@ -78,6 +93,7 @@ def main():
             if d is not None and d.proc.poll() is None:
                 d.proc.kill()
                 d.proc.wait()
+        notify.close()
         cleanup(w)
     finish()
 
