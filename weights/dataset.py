@@ -21,11 +21,13 @@ import json
 import math
 import os
 import re
+import sys
 
 import numpy as np
 import OpenImageIO as oiio
 
 import input_stats
+import sample_rule
 
 FEATURES = ["color", "highlight", "alpha", "depth", "tangent.x", "tangent.y"]
 TARGETS = ["color", "highlight", "alpha"]
@@ -224,9 +226,55 @@ def pick_channels(names, data, wanted, path=""):
     return data[..., [idx[n] for n in wanted]]
 
 
-def load_frame(path, spp=None, dtype=np.float16):
+def _warn_sanitised(path, changed, before, names, estimate=False):
+    """One warning per frame for what the out-of-contract rule changed, in
+    the words `hairfilter infer` and `eval` print it (cli_warn_sanitised):
+    how many, and the first in memory order. changed: [h][w][n] mask;
+    before: [h][w][n][k] values as read; names(k, f): the channel of group
+    k, feature f."""
+    n = int(changed.sum())
+    if not n:
+        return
+    y, x, k = (int(i) for i in np.argwhere(changed)[0])
+    vals = [float(v) for v in before[y, x, k]]
+    gone = "the pixel's estimate becomes 0 (no hair)" if estimate else \
+        "the sample counts as uncovered"
+    high = sample_rule.ESTIMATE_HIGH if estimate else sample_rule.SAMPLE_HIGH
+    low = np.zeros(3, np.float32) if estimate else sample_rule.SAMPLE_LOW
+    f = next((i for i, v in enumerate(vals) if not math.isfinite(v)), None)
+    if f is not None:
+        what = f"{names(k, f)} = {vals[f]:g} is not finite: {gone}"
+    elif not vals[2] > 0:
+        other = "colour or highlight is not 0" if estimate else "other features are not 0"
+        what = f"{names(k, 2)} = {vals[2]:g} but {other}: {gone}"
+    else:
+        f = next(i for i, v in enumerate(vals) if v < low[i] or v > high[i])
+        what = f"{names(k, f)} = {vals[f]:g} is out of range: clamped"
+    kind = "estimate pixel" if estimate else "sample"
+    print(f"dataset: warning: {path}: {n} {kind}{'' if n == 1 else 's'} sanitised "
+          f"(protocol/FEATURES.md, \"Out-of-contract values\") as hairfilter sanitises them "
+          f"before the network, the first at pixel ({x}, {y}) of the data window: {what}",
+          file=sys.stderr)
+
+
+def sanitise_samples(path, feat):
+    """feat ([h][w][spp][6] samples of the frame at path) as the network
+    sees them: the out-of-contract rule applied (sample_rule.py), as the C
+    library applies it before every backend, with one warning on stderr
+    when it changed any."""
+    fixed, changed = sample_rule.sanitise_samples(feat)
+    _warn_sanitised(path, changed, feat, lambda k, f: f"S{k}.{FEATURES[f]}")
+    return fixed
+
+
+def load_frame(path, spp=None, dtype=np.float16, sanitise=True):
     """Features [h][w][spp][6] and target [h][w][3] (gt.color, gt.highlight,
-    gt.alpha) of one dataset EXR. spp=None keeps every sample in the file."""
+    gt.alpha) of one dataset EXR. spp=None keeps every sample in the file.
+    With sanitise, the samples are those the network sees
+    (sanitise_samples); without, the file's values, which the input
+    statistics are measured on (protocol/FEATURES.md, "Input statistics").
+    A non-finite ground truth value is refused, naming its pixel, as
+    `hairfilter eval` refuses it: no loss can be taken against it."""
     names, data = read_exr(path)
     have = count_spp(names)
     if have == 0:
@@ -242,18 +290,32 @@ def load_frame(path, spp=None, dtype=np.float16):
                            f"the set without --gt-ss 0")
     tgt = pick_channels(names, data, [f"gt.{t}" for t in TARGETS], path)
     h, w = data.shape[:2]
-    return feat.reshape(h, w, spp, 6).astype(dtype), tgt.astype(dtype)
+    bad = np.argwhere(~np.isfinite(tgt))
+    if bad.size:
+        y, x, c = (int(i) for i in bad[0])
+        raise DatasetError(f"{path}: its ground truth gt.{TARGETS[c]} = {float(tgt[y, x, c]):g} "
+                           f"at pixel ({x}, {y}) of the data window is not finite: nothing can "
+                           "be trained against it; render the frame again")
+    feat = feat.reshape(h, w, spp, 6)
+    if sanitise:
+        feat = sanitise_samples(path, feat)
+    return feat.astype(dtype), tgt.astype(dtype)
 
 
 def load_estimate(path, dtype=np.float16):
     """The alpha-corrected estimate [h][w][3] (acst4.color, .highlight,
-    .alpha) of one dataset EXR; DatasetError naming the render option when
-    the file has none."""
+    .alpha) of one dataset EXR, its out-of-contract rule applied
+    (sample_rule.py; a warning on stderr when it changed any); DatasetError
+    naming the render option when the file has none."""
     names, data = read_exr(path)
     if any(c not in names for c in ESTIMATE):
         raise DatasetError(f"{path}: no acst4.* channels (the alpha-corrected estimate): "
                            f"render it without --no-alpha-corrected")
-    return pick_channels(names, data, ESTIMATE, path).astype(dtype)
+    raw = pick_channels(names, data, ESTIMATE, path)
+    est, changed = sample_rule.sanitise_estimate(raw)
+    _warn_sanitised(path, changed[..., None], raw[..., None, :], lambda k, f: ESTIMATE[f],
+                    estimate=True)
+    return est.astype(dtype)
 
 
 # ---- augmentation ----------------------------------------------------------
@@ -352,12 +414,13 @@ class FrameSet:
         """Loads more frames (a dataset that is still being rendered)."""
         spp = self.spp
         for i, e in enumerate(entries):
-            f, t = load_frame(e["file"], dtype=np.float32)
+            f, t = load_frame(e["file"], dtype=np.float32, sanitise=False)
             if f.shape[2] < spp:
                 raise DatasetError(f"{e['file']}: {f.shape[2]} samples per pixel, the variant "
                                    f"reads {spp}: render the set with --spp {spp}, or train a "
                                    f"variant of fewer samples (Base@1spp reads 1, Base@2spp 2)")
             self.stats.append(entry_stats(e, f, spp))
+            f = sanitise_samples(e["file"], f)
             if self.estimate:
                 self.ests.append(load_estimate(e["file"]))
             self.feats.append(f.astype(np.float16))

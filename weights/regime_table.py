@@ -44,7 +44,8 @@ def scan(dirs, spp=4):
     """Per-frame statistics and per-pixel width counts of the frames in dirs."""
     frames, pixels = [], np.zeros(len(WIDTH_NAMES), np.int64)
     for e in dataset.read_sets(dirs):
-        feat, _ = dataset.load_frame(e["file"], spp=spp, dtype=np.float32)
+        feat, _ = dataset.load_frame(e["file"], spp=spp, dtype=np.float32,
+                                     sanitise=False)
         frames.append(dataset.entry_stats(e, feat, spp))
         mean, n = input_stats.strand_alpha(feat, spp)
         w = mean[n > 0]

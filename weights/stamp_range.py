@@ -64,7 +64,8 @@ def training_frames(data, styles="", val_fraction=0.1):
 def range_of_frames(entries, spp, log=None):
     stats = []
     for i, e in enumerate(entries):
-        feat, _ = dataset.load_frame(e["file"], spp=spp, dtype="float32")
+        feat, _ = dataset.load_frame(e["file"], spp=spp, dtype="float32",
+                                     sanitise=False)
         stats.append(dataset.entry_stats(e, feat, spp))
         if log:
             log(f"{i + 1}/{len(entries)} {os.path.basename(e['file'])}")

@@ -5,7 +5,10 @@
  *   input_stats_dump range W.safetensors     the weights' input_range ("null": none)
  *   input_stats_dump check W.safetensors FRAME.exr
  *                                            mask of statistics outside the range
- *   input_stats_dump weights OUT.safetensors random Small weights (seed 5) */
+ *   input_stats_dump weights OUT.safetensors random Small weights (seed 5)
+ *   input_stats_dump sanitise FRAME.exr SPP OUT
+ *                                            the first SPP samples as the network sees
+ *                                            them (hf_features_sanitise), raw float32 */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -24,6 +27,31 @@ static int frame_stats(const char *path, int spp, hf_input_stats *st) {
   int rc = !in || hf_features_from_image(&img, spp, in) < 0 ||
            hf_input_stats_compute(in, HF_F32, img.width, img.height, spp, st);
   if (rc) fprintf(stderr, "input_stats_dump: %s: no %d-spp features\n", path, spp);
+  free(in);
+  hf_image_free(&img);
+  return rc;
+}
+
+/* The first spp samples of the frame at path, sanitised, into the file out
+ * as [height][width][spp][6] float32: what the network sees. */
+static int sanitised(const char *path, int spp, const char *out) {
+  char err[512];
+  hf_image img = {0};
+  if (spp < 1 || spp > HF_MAX_SPP || hf_exr_read(path, &img, err, sizeof err)) {
+    fprintf(stderr, "input_stats_dump: %s: %s\n", path, spp < 1 || spp > HF_MAX_SPP ? "spp" : err);
+    return 1;
+  }
+  size_t n = (size_t)img.width * img.height * spp * HF_FEATURES_PER_SAMPLE;
+  float *in = malloc(n * sizeof(float));
+  hf_input_report rep;
+  FILE *f = NULL;
+  int rc = !in || hf_features_from_image(&img, spp, in) < 0;
+  if (!rc) {
+    hf_features_sanitise(in, HF_F32, img.width, img.height, spp, &rep);
+    rc = !(f = fopen(out, "wb")) || fwrite(in, sizeof(float), n, f) != n;
+    if (f && fclose(f)) rc = 1;
+  }
+  if (rc) fprintf(stderr, "input_stats_dump: %s: cannot sanitise into %s\n", path, out);
   free(in);
   hf_image_free(&img);
   return rc;
@@ -74,7 +102,8 @@ int main(int argc, char **argv) {
     hf_weights_free(w);
     return rc ? 1 : 0;
   }
+  if (argc == 5 && !strcmp(argv[1], "sanitise")) return sanitised(argv[2], atoi(argv[3]), argv[4]);
   fprintf(stderr, "usage: input_stats_dump stats FRAME.exr SPP | range W | check W FRAME.exr | "
-                  "weights OUT\n");
+                  "weights OUT | sanitise FRAME.exr SPP OUT\n");
   return 2;
 }

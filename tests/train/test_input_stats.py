@@ -1,7 +1,9 @@
 #!/usr/bin/python3
 """The input statistics in Python (weights/input_stats.py) against the C
 ones (src/input_stats.c, through input_stats_dump), the weights stamped by
-weights/stamp_range.py and by train.py --export as the C loader reads them.
+weights/stamp_range.py and by train.py --export as the C loader reads them,
+and the samples weights/dataset.py trains on as the C library sanitises
+them.
 
     test_input_stats.py --dump BUILD/tests/train/input_stats_dump --work DIR
 
@@ -9,6 +11,8 @@ Exits 77 (skipped) without numpy or OpenImageIO; the train.py case also
 needs torch and is skipped alone without it.
 """
 import argparse
+import contextlib
+import io
 import json
 import math
 import os
@@ -30,6 +34,7 @@ except ImportError as e:  # pragma: no cover - depends on the machine
 
 import dataset  # noqa: E402
 import input_stats  # noqa: E402
+import sample_rule  # noqa: E402
 import stamp_range  # noqa: E402
 import synth_dataset  # noqa: E402
 
@@ -150,8 +155,8 @@ class Stamp(unittest.TestCase):
         # The same training split as train.py: 6 frames, 1 held out.
         train = stamp_range.training_frames(self.data, "", 0.1)
         self.assertEqual(len(train), 5)
-        stats = [input_stats.frame_stats(dataset.load_frame(e["file"], 4, np.float32)[0], 4)
-                 for e in train]
+        stats = [input_stats.frame_stats(
+            dataset.load_frame(e["file"], 4, np.float32, sanitise=False)[0], 4) for e in train]
         want = input_stats.input_range(stats, 4)
         got = dump("range", w)
         self.assertEqual(got, want)   # the C loader reads back every bit
@@ -273,9 +278,76 @@ class Stamp(unittest.TestCase):
         self.assertEqual(got["frames"], 5)
         self.assertEqual(got["spp"], 4)
         train = stamp_range.training_frames(self.data, "straight,wavy", 0.1)
-        stats = [input_stats.frame_stats(dataset.load_frame(e["file"], 4, np.float32)[0], 4)
-                 for e in train]
+        stats = [input_stats.frame_stats(
+            dataset.load_frame(e["file"], 4, np.float32, sanitise=False)[0], 4) for e in train]
         self.assertEqual(got, input_stats.input_range(stats, 4))
+
+
+class Sanitise(unittest.TestCase):
+    """Training reads a frame's samples as the C library sanitises them
+    before the network (protocol/FEATURES.md, "Out-of-contract values"):
+    a NaN or infinite feature, a feature out of range (a UINT channel's
+    integers among them) or a negative alpha meant one thing in training
+    and another in `hairfilter infer`."""
+
+    def frame(self, half):
+        rng = np.random.default_rng(8)
+        h, w, spp = 9, 11, 4
+        feat = np.stack([rng.uniform(0, 2, (h, w, spp)), rng.uniform(0, 1, (h, w, spp)),
+                         rng.uniform(0.05, 1, (h, w, spp)), rng.uniform(0, 1, (h, w, spp)),
+                         rng.uniform(-1, 1, (h, w, spp)), rng.uniform(-1, 1, (h, w, spp))],
+                        -1).astype(np.float32)
+        feat[0, 0, 0] = 0                       # uncovered, left alone
+        feat[0, 1, 0] = -0.0                    # uncovered with -0.0
+        odd = [np.nan, np.inf, -np.inf, -0.5, 70.0, 3e38, 1e-41, -0.0, 1.5, -3.0]
+        for i, v in enumerate(odd):
+            for f in range(6):
+                feat[1 + i % 8, (i + f) % w, (i + f) % spp, f] = v
+        feat[8, 8, 1, 2] = 0.0                  # alpha 0 beside other features
+        names = [f"S{k}.{n}" for k in range(spp) for n in dataset.FEATURES]
+        names += ["gt.color", "gt.highlight", "gt.alpha"]
+        gt = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+        path = os.path.join(ARGS.work, f"odd{'h' if half else ''}.exr")
+        dataset.write_exr(path, names, np.concatenate([feat.reshape(h, w, -1), gt], -1), half)
+        return path, feat
+
+    def test_samples_are_those_c_sanitises(self):
+        for half in (False, True):
+            path, feat = self.frame(half)
+            c_path = os.path.join(ARGS.work, "c.f32")
+            subprocess.run([ARGS.dump, "sanitise", path, "4", c_path], check=True)
+            c = np.fromfile(c_path, np.float32).reshape(feat.shape)
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err):
+                py, _ = dataset.load_frame(path, dtype=np.float32)
+            self.assertTrue(np.isfinite(py).all())
+            bad = np.argwhere(py.view(np.uint32) != c.view(np.uint32))
+            self.assertEqual(bad.size, 0, f"{path}: first difference at {bad[:1]}: python "
+                             f"{py[tuple(bad[0])] if bad.size else ''}, C "
+                             f"{c[tuple(bad[0])] if bad.size else ''}")
+            self.assertIn(f"{path}: ", err.getvalue())
+            self.assertIn("sanitised (protocol/FEATURES.md", err.getvalue())
+            raw, _ = dataset.load_frame(path, dtype=np.float32, sanitise=False)
+            self.assertTrue(np.isnan(raw).any(), "sanitise=False reads the file's values")
+
+    def test_estimate_rule(self):
+        est = np.array([[[0, 0, 0], [-0.0, 0, 0], [np.nan, 0.1, 0.5], [0.5, 0.1, -1],
+                         [0.5, 0.1, 0], [80, -1, 2], [0.5, 0.2, 0.3]]], np.float32)
+        fixed, changed = sample_rule.sanitise_estimate(est)
+        want = [[0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [64, 0, 1],
+                [0.5, 0.2, 0.3]]
+        self.assertEqual(fixed[0].tolist(), np.array(want, np.float32).tolist())
+        self.assertEqual(changed[0].tolist(), [False, False, True, True, True, True, False])
+
+    def test_nonfinite_ground_truth_is_refused_naming_the_pixel(self):
+        names = [f"S0.{n}" for n in dataset.FEATURES] + ["gt.color", "gt.highlight", "gt.alpha"]
+        img = np.full((3, 4, 9), 0.5, np.float32)
+        img[2, 1, 7] = np.inf
+        path = os.path.join(ARGS.work, "gt_inf.exr")
+        dataset.write_exr(path, names, img)
+        with self.assertRaises(dataset.DatasetError) as e:
+            dataset.load_frame(path)
+        self.assertIn("gt.highlight = inf at pixel (1, 2)", str(e.exception))
 
 
 def main():
