@@ -26,6 +26,7 @@ import sys
 import numpy as np
 import OpenImageIO as oiio
 
+import exr_complete
 import input_stats
 import sample_rule
 
@@ -161,10 +162,19 @@ def split_frames(entries, val_fraction=0.1):
 def read_exr(path):
     """(channel names, float32 array [h][w][c]) of the file's part that the
     C reader (src/exr_read.c) chooses: the only part, else the one part
-    holding S0.color; other multi-part files are refused, naming the parts."""
+    holding S0.color; other multi-part files are refused, naming the parts,
+    and so are files cut short anywhere (exr_complete.py)."""
     inp = oiio.ImageInput.open(path)
     if not inp:
         raise DatasetError(f"cannot read {path}: {oiio.geterror()}")
+    # OpenImageIO reads one level of one part: a file cut short elsewhere
+    # (its smaller MIP levels, another part) is refused, as the C reader
+    # refuses it, not read as whole.
+    why = exr_complete.cut_short(path)
+    if why:
+        inp.close()
+        raise DatasetError(f"{path}: truncated / incomplete file: {why}; write or copy the "
+                           "file again")
     specs = []
     while inp.seek_subimage(len(specs), 0):
         specs.append(inp.spec())
@@ -183,8 +193,10 @@ def read_exr(path):
     names = list(spec.channelnames)
     data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
     if data is None:
+        why = inp.geterror() or oiio.geterror()
         inp.close()
-        raise DatasetError(f"cannot read pixels of {path}")
+        raise DatasetError(f"cannot read pixels of {path}: {why or 'no reason given'}; the "
+                           "file is damaged or incomplete, write or copy it again")
     data = np.array(data, np.float32).reshape(spec.height, spec.width, len(names))
     # OpenImageIO scales a UINT channel to [0, 1]; OpenEXR (and the C
     # reader) convert its integers to float as they are: read as such.

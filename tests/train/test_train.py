@@ -122,6 +122,63 @@ class Recipe(unittest.TestCase):
                     dataset.read_exr(path)
                 self.assertIn("2 parts, several with channel S0.color", str(e.exception))
 
+    def test_frame_cut_short_outside_its_first_level_or_part_is_refused(self):
+        """A file cut short where OpenImageIO does not read (a mipmapped
+        frame's smaller levels, the part after the features) is refused as
+        incomplete, as the C reader refuses it; it was read as whole. A
+        pixel read that fails says why and what to do."""
+        import OpenImageIO as oiio
+        data_dir = os.path.join(HERE, "..", "data")
+        whole = os.path.join(data_dir, "exr-mipmap.exr")
+        names, px = dataset.read_exr(whole)
+        self.assertEqual((px.shape, names[:1]), ((6, 8, 6), ["S0.alpha"]))
+        with open(whole, "rb") as f:
+            blob = f.read()
+        cut = os.path.join(self.work, "mipmap_cut.exr")
+        with open(cut, "wb") as f:
+            f.write(blob[:-10])   # inside the 1x1 level's chunk
+        with self.assertRaises(dataset.DatasetError) as e:
+            dataset.read_exr(cut)
+        self.assertIn(f"{cut}: truncated / incomplete file: it ends (at {len(blob) - 10} bytes) "
+                      "inside the data of a chunk", str(e.exception))
+        self.assertIn("write or copy the file again", str(e.exception))
+        # The features, then an RGBA part cut short.
+        h, w, c = px.shape
+        feat = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+        feat.channelnames = tuple(names)
+        feat.attribute("name", "features")
+        rgba = oiio.ImageSpec(w, h, 4, oiio.HALF)
+        rgba.channelnames = ("R", "G", "B", "A")
+        rgba.attribute("name", "rgba")
+        path = os.path.join(self.work, "multipart_cut.exr")
+        out = oiio.ImageOutput.create(path)
+        self.assertTrue(out.open(path, (feat, rgba)), oiio.geterror())
+        self.assertTrue(out.write_image(px))
+        self.assertTrue(out.open(path, rgba, "appendsubimage"))
+        self.assertTrue(out.write_image(np.ones((h, w, 4), np.float32)))
+        out.close()
+        self.assertEqual(dataset.read_exr(path)[0], names)
+        with open(path, "rb") as f:
+            blob = f.read()
+        with open(path, "wb") as f:
+            f.write(blob[:-3])
+        with self.assertRaises(dataset.DatasetError) as e:
+            dataset.read_exr(path)
+        self.assertIn("truncated / incomplete file", str(e.exception))
+        # A damaged chunk of the part read: OpenImageIO's own reason is given.
+        scan = os.path.join(self.work, "scanlines_damaged.exr")
+        dataset.write_exr(scan, names, px)
+        with open(scan, "rb") as f:
+            blob = bytearray(f.read())
+        blob[-30:-5] = b"\xab" * 25
+        with open(scan, "wb") as f:
+            f.write(blob)
+        with self.assertRaises(dataset.DatasetError) as e:
+            dataset.read_exr(scan)
+        self.assertIn("decompression (zlib) failed", str(e.exception))
+        self.assertIn("the file is damaged or incomplete, write or copy it again",
+                      str(e.exception))
+
     def test_uint_channels_read_as_their_integers(self):
         """A UINT channel reads as its integers converted to float, as
         OpenEXR and the C reader convert it, not scaled to [0, 1] as

@@ -1,0 +1,134 @@
+"""Whether an OpenEXR file holds every chunk its offset tables point to,
+judged as the C reader (src/exr_read.c, chunk_table) judges it: OpenImageIO
+reads the full-resolution level of one part and never looks at the rest,
+so a file cut short in its smaller MIP levels, or in another part, read as
+whole here and was refused as incomplete by `hairfilter infer`.
+
+The layout is the format's (openexr.com, "OpenEXR File Layout"): magic and
+version (8 bytes), each part's header (attributes of name\\0 type\\0 int32
+size and value, ended by a 0 byte; a multi-part file ends its headers with
+one more 0 byte), then the parts' offset tables (one little-endian uint64
+per chunk), then the chunks, each led by [part number (multi-part)], its
+scanline's y or its tile's 4 coordinates, and its data's size (a deep
+chunk's: three uint64, the sample table's and the data's packed sizes
+first)."""
+import mmap
+import struct
+
+_DEEP = ("deepscanline", "deeptile")
+_TILED = ("tiledimage", "deeptile")
+
+
+def _headers(data):
+    """(offset past the headers, [per part: its type string or None and its
+    chunkCount or None], multi-part) or None when they cannot be walked
+    (damaged, or cut inside them: OpenImageIO says so itself)."""
+    if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
+        return None
+    flags = data[5]
+    multipart, single_tiled = bool(flags & 0x10), bool(flags & 0x02)
+    at, parts = 8, []
+    while True:
+        kind, chunks = ("tiledimage" if single_tiled else "scanlineimage"), None
+        nattr = 0
+        while True:
+            end = data.find(b"\0", at, at + 256)
+            if end < 0:
+                return None
+            name = data[at:end]
+            at = end + 1
+            if not name:
+                break
+            tend = data.find(b"\0", at, at + 256)
+            if tend < 0 or tend + 5 > len(data):
+                return None
+            (size,) = struct.unpack_from("<i", data, tend + 1)
+            value_at = tend + 5
+            if size < 0 or value_at + size > len(data):
+                return None
+            if name == b"type":
+                kind = data[value_at:value_at + size].split(b"\0")[0].decode("latin-1")
+            elif name == b"chunkCount" and size == 4:
+                (chunks,) = struct.unpack_from("<i", data, value_at)
+            at = value_at + size
+            nattr += 1
+        if nattr == 0 and parts:
+            break   # the empty header that ends a multi-part file's
+        parts.append((kind, chunks))
+        if not multipart:
+            break
+    return at, parts, multipart
+
+
+def cut_short(path):
+    """None when every chunk the file's offset tables point to lies in the
+    file, else why not, in words for a message ("it ends (at N bytes) inside
+    the data of a chunk its table points to"). Also None when the tables
+    cannot be found (a damaged header: the reader says so)."""
+    with open(path, "rb") as f:
+        if not f.seek(0, 2):
+            return None   # empty: the reader says so
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return _cut_short(data)
+
+
+def _cut_short(data):
+    size = len(data)
+    walked = _headers(data)
+    if not walked:
+        return None
+    at, parts, multipart = walked
+    if multipart and any(c is None or c < 0 for _, c in parts):
+        return None
+    # A single-part file records no chunk count: its table runs from the
+    # end of the header to the first chunk, which its writer puts right
+    # after it (the smallest offset the table holds).
+    offsets = []
+    if multipart:
+        count = sum(c for _, c in parts)
+        if at + 8 * count > size:
+            return (f"its chunk tables ({count} chunks) do not fit in its {size} bytes")
+        offsets = list(struct.unpack_from(f"<{count}Q", data, at))
+        tables_end = at + 8 * count
+    else:
+        first, pos = None, at
+        while first is None or pos < first:
+            if pos + 8 > size:
+                return f"its chunk table does not fit in its {size} bytes"
+            (off,) = struct.unpack_from("<Q", data, pos)
+            pos += 8
+            offsets.append(off)
+            if off and (first is None or off < first):
+                first = off
+            if len(offsets) > size // 8:
+                return None
+        tables_end = pos
+    if any(o >= size or o < tables_end for o in offsets):
+        return (f"an offset of its chunk table points outside the file's chunks (it has "
+                f"{size} bytes)")
+    last = max(offsets) if offsets else 0
+    if not last:
+        return None
+    pos, owner = last, 0
+    if multipart:
+        if pos + 4 > size:
+            return f"it ends (at {size} bytes) inside the data of a chunk its table points to"
+        (owner,) = struct.unpack_from("<i", data, pos)
+        if not 0 <= owner < len(parts):
+            return None
+        pos += 4
+    kind = parts[owner][0]
+    pos += 16 if kind in _TILED else 4
+    if kind in _DEEP:
+        if pos + 24 > size:
+            return f"it ends (at {size} bytes) inside the data of a chunk its table points to"
+        table, packed, _ = struct.unpack_from("<QQQ", data, pos)
+        end = pos + 24 + table + packed
+    else:
+        if pos + 4 > size:
+            return f"it ends (at {size} bytes) inside the data of a chunk its table points to"
+        (packed,) = struct.unpack_from("<I", data, pos)
+        end = pos + 4 + packed
+    if end > size:
+        return f"it ends (at {size} bytes) inside the data of a chunk its table points to"
+    return None
