@@ -1,4 +1,5 @@
 /* Checks on parsed JSON that cJSON does not make. */
+#include <ctype.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -91,6 +92,15 @@ static size_t utf8_len(const unsigned char *p, size_t n) {
   return len;
 }
 
+/* 1 when the four hex digits at h are a high surrogate (D800-DBFF), 2 a
+ * low one (DC00-DFFF), else 0. */
+static int surrogate(const unsigned char *h) {
+  if ((h[0] != 'd' && h[0] != 'D') || !strchr("89abAB" "cdefCDEF", h[1]) || !h[1]) return 0;
+  for (int j = 2; j < 4; j++)
+    if (!isxdigit(h[j])) return 0;
+  return strchr("89abAB", h[1]) ? 1 : 2;
+}
+
 const char *hf_json_text_fault(const char *text, size_t len, size_t *at) {
   const unsigned char *p = (const unsigned char *)text;
   for (size_t i = 0; i < len;) {
@@ -107,7 +117,20 @@ const char *hf_json_text_fault(const char *text, size_t len, size_t *at) {
         return "\\u0000 (a NUL character, at which this reader would cut its name or string "
                "short)";
       }
-      k = 2;
+      /* A \uD800-\uDFFF escape is half of a UTF-16 surrogate pair: a high
+       * half followed by a low one is one character; alone it is none,
+       * refused by cJSON and taken by Python's json. */
+      int half = p[i + 1] == 'u' && i + 6 <= len ? surrogate(p + i + 2) : 0;
+      if (half == 1 && i + 12 <= len && p[i + 6] == '\\' && p[i + 7] == 'u' &&
+          surrogate(p + i + 8) == 2) {
+        k = 12;
+      } else if (half) {
+        if (at) *at = i;
+        return "a \\uD800-\\uDFFF escape that is half of a UTF-16 surrogate pair, alone (no "
+               "character: JSON readers disagree on it)";
+      } else {
+        k = 2;
+      }
     }
     i += k;
   }

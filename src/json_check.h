@@ -16,9 +16,11 @@ cJSON *hf_json_one_value(const char *text, size_t len);
 /* Why text's len bytes cannot be read as JSON here although a JSON parser
  * might take them, or NULL: a byte that is not UTF-8 (JSON text is UTF-8;
  * safetensors' reference reader refuses other bytes, cJSON passes them),
- * or a \u0000 escape, which cJSON cuts a C string at, so "a\u0000b" would
- * be read as "a" where other readers see another name. *at gets its
- * offset. */
+ * a \u0000 escape, which cJSON cuts a C string at, so "a\u0000b" would
+ * be read as "a" where other readers see another name, or a lone half of
+ * a UTF-16 surrogate pair (\uD800 not followed by \uDC00-\uDFFF, or
+ * \uDC00 alone), which cJSON refuses and Python's json takes. *at gets
+ * its offset. */
 const char *hf_json_text_fault(const char *text, size_t len, size_t *at);
 /* The offset in text (valid JSON, len bytes) of the first number written
  * with a fraction or an exponent ("32.0", "3.2e1") in an array that is the

@@ -49,8 +49,9 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
   cJSON *m = hf_json_one_value(text, strlen(text));
   if (!m || !cJSON_IsObject(m)) {
     cJSON_Delete(m);
-    return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not one JSON object (nothing "
-                "may come before it, a byte order mark included, or follow it)");
+    return fail(err, errlen, HF_EFORMAT, "metadata 'hairfilter' is not one JSON object, or not "
+                "valid JSON (NaN and Infinity are not JSON numbers; nothing may come before "
+                "it, a byte order mark included, or follow it)");
   }
   int rc = HF_OK;
   /* 4.0 is 4 to cJSON, but no count to Python's json (hfnet.py refuses
@@ -260,6 +261,11 @@ static int check_tensor(const cJSON *t, const hf_tensor_spec *s, size_t data_len
                 s->ndim);
   for (int d = 0; d < s->ndim; d++) {
     const cJSON *v = cJSON_GetArrayItem(shape, d);
+    /* true is 1 to Python's ==: said as what it is, in hfnet.py's words. */
+    if (cJSON_IsBool(v))
+      return fail(err, errlen, HF_EFORMAT, "tensor '%s': shape holds %s, not an integer: "
+                  "safetensors shapes and offsets are integers; write the file again with a "
+                  "safetensors writer", s->name, cJSON_IsTrue(v) ? "true" : "false");
     if (!cJSON_IsNumber(v) || v->valuedouble != (double)s->shape[d])
       return fail(err, errlen, HF_EFORMAT,
                   "tensor '%s': shape[%d] should be %lld for this configuration", s->name, d,

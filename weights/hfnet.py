@@ -482,7 +482,7 @@ def load_safetensors(path):
     meta = header.pop("__metadata__")
     safetensors_header.check_text(path, "metadata 'hairfilter'", meta["hairfilter"])
     try:
-        cfg = json.loads(meta["hairfilter"], object_pairs_hook=safetensors_header.unique_keys)
+        cfg = safetensors_header.loads(meta["hairfilter"])
     except (ValueError, RecursionError) as e:   # RecursionError: nested thousands deep
         raise ValueError(f"{path}: metadata 'hairfilter': {e}") from None
     # Checked as the C loader checks it, though only hairfilterd and the
@@ -490,7 +490,7 @@ def load_safetensors(path):
     if "input_range" in meta:
         safetensors_header.check_text(path, "metadata 'input_range'", meta["input_range"])
         try:
-            rng = json.loads(meta["input_range"], object_pairs_hook=safetensors_header.unique_keys)
+            rng = safetensors_header.loads(meta["input_range"])
         except (ValueError, RecursionError) as e:
             raise ValueError(f"{path}: metadata 'input_range': {e}") from None
         if not isinstance(rng, dict):

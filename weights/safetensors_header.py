@@ -19,19 +19,51 @@ def unique_keys(pairs):
     return dict(pairs)
 
 
+def _surrogate(text, i):
+    """1 when text[i:i + 6] is an escape of a high surrogate (\\uD800-
+    \\uDBFF), 2 of a low one (\\uDC00-\\uDFFF), else 0."""
+    e = text[i:i + 6]
+    if len(e) < 6 or e[:3].lower() != "\\ud" or e[3].lower() not in "89abcdef" or \
+            any(c not in "0123456789abcdefABCDEF" for c in e[4:]):
+        return 0
+    return 1 if e[3].lower() in "89ab" else 2
+
+
 def text_fault(text):
     """(what, offset) of the first thing in JSON text that the C loader
     refuses although json takes it (src/json_check.c, hf_json_text_fault):
     a \\u0000 escape, at which C would cut a name or string short, so
-    "a\\u0000b" would be "a" there and another name here. None if none.
+    "a\\u0000b" would be "a" there and another name here; a lone half of a
+    UTF-16 surrogate pair (\\uD800 not followed by \\uDC00-\\uDFFF, or
+    \\uDC00 alone), no character, which cJSON refuses. None if none.
     Bytes that are not UTF-8 are refused when the text is decoded."""
     i = text.find("\\")
     while i >= 0:
         if text.startswith("u0000", i + 1):
             return ("\\u0000 (a NUL character, at which the C loader would cut its name or "
                     "string short)", i)
+        half = _surrogate(text, i)
+        if half == 1 and _surrogate(text, i + 6) == 2:
+            i = text.find("\\", i + 12)
+            continue
+        if half:
+            return ("a \\uD800-\\uDFFF escape that is half of a UTF-16 surrogate pair, alone "
+                    "(no character: JSON readers disagree on it)", i)
         i = text.find("\\", i + 2)   # an escape is two characters: "\\\\" is one backslash
     return None
+
+
+def _no_constant(name):
+    """parse_constant for json: NaN, Infinity and -Infinity, which Python's
+    json takes, are not JSON (RFC 8259), and the C loader refuses them."""
+    raise ValueError(f"{name} is not a JSON number (JSON has no NaN or Infinity)")
+
+
+def loads(text):
+    """json.loads as every reader of a weights file's JSON reads it: a
+    duplicate key (unique_keys) and NaN or Infinity refused, as the C
+    loader refuses them."""
+    return json.loads(text, object_pairs_hook=unique_keys, parse_constant=_no_constant)
 
 
 def check_text(path, what, text):
@@ -77,7 +109,7 @@ def read_header(path):
                          "with a safetensors writer") from None
     check_text(path, "header", text)
     try:
-        header = json.loads(text, object_pairs_hook=unique_keys)
+        header = loads(text)
     except ValueError as e:
         raise ValueError(f"{path}: header: {e}") from None
     except RecursionError:
@@ -95,14 +127,18 @@ def read_header(path):
             raise ValueError(f"{path}: header: '__metadata__.{k}' is {type(v).__name__}, "
                              "but safetensors metadata values are strings")
     # "shape": [32.0, ...] equals [32, ...] in Python, but safetensors'
-    # reference reader refuses it (as the C loader does): integers only.
+    # reference reader refuses it (as the C loader does): integers only,
+    # true and false included.
     for name, t in header.items():
         if name == "__metadata__" or not isinstance(t, dict):
             continue
         for key in ("shape", "data_offsets"):
             for v in t.get(key) if isinstance(t.get(key), list) else ():
-                if isinstance(v, float):
-                    raise ValueError(f"{path}: tensor '{name}': {key} holds {v!r}, not an "
+                # true is 1 to Python (a shape [52, 56, true, true] equalled
+                # the network's), not to the C loader.
+                if isinstance(v, (float, bool)):
+                    v = json.dumps(v)
+                    raise ValueError(f"{path}: tensor '{name}': {key} holds {v}, not an "
                                      "integer: safetensors shapes and offsets are integers, "
                                      "written without a fraction or exponent; write the file "
                                      "again with a safetensors writer")

@@ -78,7 +78,7 @@ def recorded_range(header, path):
     if text is None:
         return None
     try:
-        rng = json.loads(text, object_pairs_hook=safetensors_header.unique_keys)
+        rng = safetensors_header.loads(text)
     except ValueError as e:
         raise ValueError(f"{path}: its input_range is not JSON ({e}): stamp without --join "
                          "to replace it") from None
@@ -128,8 +128,7 @@ def main(argv=None):
     except ValueError as e:   # the header's checks, naming the file
         sys.exit(f"stamp_range.py: {e}")
     try:
-        cfg = json.loads(header["__metadata__"]["hairfilter"],
-                         object_pairs_hook=safetensors_header.unique_keys)
+        cfg = safetensors_header.loads(header["__metadata__"]["hairfilter"])
     except (KeyError, TypeError, ValueError):
         sys.exit(f"stamp_range.py: {args.weights}: no hairfilter metadata")
     try:

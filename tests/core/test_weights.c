@@ -458,6 +458,14 @@ static void test_header_text(void **state) {
     {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"\xe2\x82\",", "UTF-8"},
     {"\"enc0.bias\":", "\"enc0.bias\xff\":", "UTF-8"},
     {"\\\"spp\\\":4", "\\\"spp\\\":4,\\\"x\\\\u0000\\\":1", "metadata 'hairfilter'"},
+    /* Half of a UTF-16 surrogate pair, alone: no character (cJSON refuses
+     * it, Python's json takes it), said as such, not "not valid JSON". */
+    {"\"enc0.bias\":", "\"enc0.bias\\ud800\":", "half of a UTF-16 surrogate pair"},
+    {"\"enc0.bias\":", "\"enc0.bias\\uDC00x\":", "half of a UTF-16 surrogate pair"},
+    {"\"__metadata__\":{", "\"__metadata__\":{\"note\":\"\\udbff\\u0041\",",
+     "half of a UTF-16 surrogate pair"},
+    {"\\\"spp\\\":4", "\\\"spp\\\":4,\\\"x\\\\ud800\\\":1", "metadata 'hairfilter' holds a"},
+    {"\"shape\":[16]", "\"shape\":[true]", "shape holds true, not an integer"},
   };
   for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
     blob t = with_header_edit(&b, bad[i].from, bad[i].to);

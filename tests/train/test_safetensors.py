@@ -329,6 +329,41 @@ class Header(unittest.TestCase):
         hfnet.load_safetensors(path)
         self.assertEqual(c_loader(path)[0], 0)
 
+    def test_json_python_took_and_c_refused(self):
+        """NaN and Infinity (not JSON, which Python's json reads), a lone
+        half of a UTF-16 surrogate pair (no character, which Python's json
+        reads into a str that cannot be encoded) and true in a shape (1 to
+        Python's ==) are refused by both readers, saying what they are;
+        hfnet.load_safetensors took the first and the last, and raised
+        UnicodeEncodeError, naming no file, on the second."""
+        for where, old, new in [
+                ("header", '"__metadata__":{', '"zz":NaN,"__metadata__":{'),
+                ("hairfilter", '\\"spp\\": 4', '\\"spp\\": 4, \\"x\\": Infinity'),
+                ("hairfilter", '\\"spp\\": 4', '\\"spp\\": 4, \\"x\\": -Infinity')]:
+            path = self.edited(f"constant_{where}.safetensors", old, new)
+            with self.assertRaises(ValueError) as e:
+                hfnet.load_safetensors(path)
+            self.assertIn("is not a JSON number", str(e.exception))
+            rc, err = c_loader(path)
+            self.assertEqual(rc, 1, err)
+            self.assertIn("not valid JSON", err)
+        for i, (old, new) in enumerate([
+                ('\\"name\\": \\"Small\\"', '\\"name\\": \\"a\\\\ud800b\\"'),
+                ('\\"name\\": \\"Small\\"', '\\"name\\": \\"a\\\\udc00\\"'),
+                ('"enc0.bias"', '"enc0.bias\\ud83dx"'),
+                ('"__metadata__":{', '"__metadata__":{"note":"\\uDBFF\\u0041",')]):
+            self.refused(self.edited(f"surrogate{i}.safetensors", old, new),
+                         ["half of a UTF-16 surrogate pair"])
+        # A pair is one character: both load it.
+        path = self.edited("pair.safetensors", '"__metadata__":{',
+                           '"__metadata__":{"note":"\\ud83d\\ude00",')
+        hfnet.load_safetensors(path)
+        self.assertEqual(c_loader(path)[0], 0)
+        start = self.header.index('"shape":[', self.header.index('"enc0.bias"')) + 9
+        end = self.header.index("]", start)
+        self.refused(self.edited("shape_true.safetensors", self.header[start - 9:end + 1],
+                                 '"shape":[true]'), ["shape holds true, not an integer"])
+
     def test_bytes_after_json(self):
         """Bytes after a JSON object (the header's, the 'hairfilter' and
         'input_range' strings') are refused by both readers; JSON's
