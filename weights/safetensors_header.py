@@ -2,7 +2,12 @@
 loader (src/weights_load.c) reads it: without torch, so every script that
 reads or rewrites weights files checks them the same way."""
 import json
+import os
 import struct
+
+# The largest weights file either loader reads (src/weights_load.c's
+# FILE_MAX; Large is about 3 MB).
+FILE_MAX = 1 << 31
 
 
 def unique_keys(pairs):
@@ -81,6 +86,13 @@ def read_header(path):
     duplicate keys at any level, and "__metadata__", when present, an object
     of string values. Raises ValueError naming the file and what is wrong."""
     with open(path, "rb") as f:
+        # Measured before it is read, as the C loader measures it: a large
+        # file given for weights by mistake (a dataset, a disk image) was
+        # read whole into memory.
+        size = os.fstat(f.fileno()).st_size
+        if size > FILE_MAX:
+            raise ValueError(f"{path}: larger than the {FILE_MAX} bytes a weights file may have "
+                             f"({size} bytes): not a weights file of this project")
         data = f.read()
     if len(data) < 8:
         raise ValueError(f"{path}: file too short ({len(data)} bytes)")

@@ -364,6 +364,32 @@ class Header(unittest.TestCase):
         self.refused(self.edited("shape_true.safetensors", self.header[start - 9:end + 1],
                                  '"shape":[true]'), ["shape holds true, not an integer"])
 
+    def test_huge_file_refused_before_it_is_read(self):
+        """A file over the 2 GiB either loader reads (a sparse 3 GiB file
+        here) is refused by its size before it is read, by both; the Python
+        reader read it whole into memory (run here under a 1 GiB address
+        space limit, where that fails)."""
+        path = os.path.join(ARGS.work, "huge.safetensors")
+        with open(path, "wb") as f:
+            f.write(struct.pack("<Q", 2) + b"{}")
+            f.truncate(3 << 30)
+        code = ("import resource, sys\n"
+                "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
+                f"sys.path.insert(0, {os.path.join(HERE, '..', '..', 'weights')!r})\n"
+                "import safetensors_header\n"
+                "try:\n"
+                f"    safetensors_header.read_header({path!r})\n"
+                "except ValueError as e:\n"
+                "    print(e)\n")
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertIn(f"{path}: larger than the 2147483648 bytes a weights file may have",
+                      r.stdout)
+        rc, err = c_loader(path)
+        self.assertEqual(rc, 1, err)
+        self.assertIn("larger than the 2147483648 bytes", err)
+        os.remove(path)
+
     def test_bytes_after_json(self):
         """Bytes after a JSON object (the header's, the 'hairfilter' and
         'input_range' strings') are refused by both readers; JSON's
