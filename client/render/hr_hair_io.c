@@ -205,6 +205,14 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
                  "short, copy the file again", len);
   uint32_t strands = rd_u32(p + 4), points = rd_u32(p + 8), flags = rd_u32(p + 12);
   uint32_t defseg = rd_u32(p + 16);
+  /* A file written big-endian (a writer that dumped its structs on such a
+   * machine) has its flags in the top byte: said as such, not as a file
+   * without points. */
+  uint32_t swapped = flags >> 24 | (flags >> 8 & 0xff00u) | (flags << 8 & 0xff0000u) | flags << 24;
+  if (!(flags & HFR_HAIR_POINTS) && (swapped & HFR_HAIR_POINTS) && !(swapped & ~31u))
+    return fail(err, errlen, HF_EFORMAT, "the header reads as big-endian (flags 0x%x, 0x%x with "
+                 "their bytes swapped): the .hair format is little-endian; write the file with "
+                 "a .hair writer, or swap every 2- and 4-byte value", flags, swapped);
   if (!(flags & HFR_HAIR_POINTS))
     return fail(err, errlen, HF_EFORMAT, "header flags 0x%x lack POINTS (0x2): the file has "
                  "no points, nothing to draw", flags);

@@ -344,6 +344,22 @@ static void test_refusals_say_why(void **state) {
   v = HFR_HAIR_SEGMENTS;
   memcpy(bad + 12, &v, 4);
   refused_saying(bad, n, "flags 0x1 lack POINTS", NULL);
+  /* Written big-endian: every value's bytes swapped. */
+  memcpy(bad, buf, n);
+  for (size_t at = 4; at < 40; at += 4)
+    for (int k = 0; k < 2; k++) {
+      unsigned char t = bad[at + k];
+      bad[at + k] = bad[at + 3 - k];
+      bad[at + 3 - k] = t;
+    }
+  refused_saying(bad, n, "reads as big-endian (flags 0xf000000, 0xf with their bytes swapped)",
+                 "little-endian");
+  v = 0x02000000u; /* POINTS alone, swapped */
+  memcpy(bad + 12, &v, 4);
+  refused_saying(bad, n, "reads as big-endian", NULL);
+  v = 0x02000010u; /* not a swapped flag word: no points */
+  memcpy(bad + 12, &v, 4);
+  refused_saying(bad, n, "lack POINTS", NULL);
 }
 
 static void test_styles(void **state) {
