@@ -5,7 +5,7 @@
   document and draw hair (the fur with its body mesh as occluder);
 - hair_convert.py: a model rewritten z up in centimetres, loaded with
   --up z --units cm, covers the same samples as the original, and loaded
-  without them (taken as y up) does not.
+  without them (taken as y up) does not; a damaged input is refused.
 
 Compares the renderer's own regime line (stderr of `render frame`), so it
 needs no image reader. Needs numpy; without it the test is skipped (77)."""
@@ -89,6 +89,26 @@ def main():
     # and the same width, and other samples when taken as y up
     conv = os.path.join(w, "tied_zup_cm.hair")
     run([py, os.path.join(TOOLS, "hair_convert.py"), tied, conv, "--up", "z", "--scale", "2.54"])
+    # a damaged or cut-short input is refused naming the file and the
+    # reason, as the renderer refuses it; it was rewritten into a file that
+    # looked whole, or failed with a numpy traceback
+    b = open(tied, "rb").read()
+    for name, blob, needle in (
+            ("cut.hair", b[:len(b) - 5], "the file is cut short"),
+            ("header.hair", b[:100], "shorter than the 128-byte header"),
+            ("count.hair", b[:8] + struct.pack("<I", struct.unpack_from("<I", b, 8)[0] - 1) + b[12:],
+             "the header says"),
+            ("big.hair", b[:4] + b"".join(b[i:i + 4][::-1] for i in range(4, 40, 4)) + b[40:],
+             "big-endian")):
+        bad = os.path.join(w, name)
+        with open(bad, "wb") as f:
+            f.write(blob)
+        out = os.path.join(w, "conv_" + name)
+        r = subprocess.run([py, os.path.join(TOOLS, "hair_convert.py"), bad, out],
+                           capture_output=True, text=True)
+        if r.returncode == 0 or f"hair_convert.py: {bad}: " not in r.stderr or \
+                needle not in r.stderr or "Traceback" in r.stderr or os.path.exists(out):
+            sys.exit(f"FAIL: hair_convert.py {bad} -> {r.returncode}: {r.stderr}")
     ref = coverage(hf, w, "ref", ["--hair", tied, "--units", "in", "--thickness", "0.004",
                                   "--cam-yaw", "40"])
     got = coverage(hf, w, "conv", ["--hair", conv, "--up", "z", "--units", "cm",

@@ -22,15 +22,52 @@ SEGMENTS, POINTS, THICKNESS, TRANSPARENCY, COLORS = 1, 2, 4, 8, 16
 
 
 def read_hair(path):
-    b = open(path, "rb").read()
-    if len(b) < HEADER or b[:4] != b"HAIR":
-        sys.exit(f"{path}: not a .hair file")
+    """(strands, points, default segments, segments or None, points [n][3],
+    info bytes) of the .hair file at path, checked as the renderer's reader
+    (client/render/hr_hair_io.c) checks it: a file cut short or with a
+    damaged header exits with the reason, naming the file, and is not
+    rewritten into a file that looks whole."""
+    def bad(why):
+        sys.exit(f"hair_convert.py: {path}: {why}")
+    try:
+        with open(path, "rb") as f:
+            b = f.read()
+    except OSError as e:
+        bad(e.strerror)
+    if len(b) >= 4 and b[:4] != b"HAIR":
+        bad('does not start with "HAIR": not a .hair file (Cem Yuksel\'s format)')
+    if len(b) < HEADER:
+        bad(f"{len(b)} bytes, shorter than the 128-byte header: cut short, copy the file again")
     strands, points, flags, defseg = struct.unpack_from("<4I", b, 4)
+    if not flags & POINTS:
+        swapped = int.from_bytes(struct.pack("<I", flags), "big")
+        if swapped & POINTS and not swapped & ~31:
+            bad(f"the header reads as big-endian (flags 0x{flags:x}): the .hair format is "
+                "little-endian")
+        bad(f"header flags 0x{flags:x} lack POINTS (0x2): the file has no points")
+    if not strands or not points:
+        bad(f"the header says {strands} strands and {points} points: an empty model")
+    if not flags & SEGMENTS and not 1 <= defseg <= 65535:
+        bad(f"no segments array and a default segment count of {defseg}, outside 1..65535: "
+            "the header is damaged")
+    sizes = {SEGMENTS: 2 * strands, POINTS: 12 * points, THICKNESS: 4 * points,
+             TRANSPARENCY: 4 * points, COLORS: 12 * points}
+    need = HEADER + sum(n for bit, n in sizes.items() if flags & bit)
+    if len(b) < need:
+        bad(f"{len(b)} bytes, but the header's {strands} strands and {points} points with "
+            f"arrays 0x{flags & 31:x} need {need}: the file is cut short (copy it again) or its "
+            "header is damaged")
     o = HEADER
     seg = None
     if flags & SEGMENTS:
         seg = np.frombuffer(b, "<u2", strands, o).copy()
         o += 2 * strands
+        total = int(seg.astype(np.int64).sum()) + strands
+    else:
+        total = strands * (defseg + 1)
+    if total != points:
+        bad(f"the strands' segment counts make {total} points (a strand of n segments has "
+            f"n + 1), the header says {points}: the file is damaged")
     pos = np.frombuffer(b, "<f4", 3 * points, o).reshape(points, 3).copy()
     return strands, points, defseg, seg, pos, b[40:128]
 
