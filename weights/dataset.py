@@ -163,7 +163,8 @@ def read_exr(path):
     """(channel names, float32 array [h][w][c]) of the file's part that the
     C reader (src/exr_read.c) chooses: the only part, else the one part
     holding S0.color; other multi-part files are refused, naming the parts,
-    and so are files cut short anywhere (exr_complete.py)."""
+    and so are files cut short anywhere and tiled files whose header
+    contradicts its tiles (exr_complete.py)."""
     inp = oiio.ImageInput.open(path)
     if not inp:
         raise DatasetError(f"cannot read {path}: {oiio.geterror()}")
@@ -175,6 +176,11 @@ def read_exr(path):
         inp.close()
         raise DatasetError(f"{path}: truncated / incomplete file: {why}; write or copy the "
                            "file again")
+    why = exr_complete.levels_mismatch(path)
+    if why:
+        inp.close()
+        raise DatasetError(f"{path}: the EXR header contradicts itself: {why}; the file is "
+                           "damaged, write it again")
     specs = []
     while inp.seek_subimage(len(specs), 0):
         specs.append(inp.spec())

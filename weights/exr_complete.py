@@ -1,8 +1,11 @@
 """Whether an OpenEXR file holds every chunk its offset tables point to,
-judged as the C reader (src/exr_read.c, chunk_table) judges it: OpenImageIO
-reads the full-resolution level of one part and never looks at the rest,
-so a file cut short in its smaller MIP levels, or in another part, read as
-whole here and was refused as incomplete by `hairfilter infer`.
+judged as the C reader (src/exr_read.c, chunk_table) judges it, and
+whether a tiled file's table has as many chunks as its tile description
+makes, as OpenEXRCore requires: OpenImageIO reads the full-resolution level
+of one part and never looks at the rest, so a file cut short in its smaller
+MIP levels, or in another part, or whose header names another level mode
+than its tiles were written in, read as whole here and was refused by
+`hairfilter infer`.
 
 The layout is the format's (openexr.com, "OpenEXR File Layout"): magic and
 version (8 bytes), each part's header (attributes of name\\0 type\\0 int32
@@ -30,6 +33,7 @@ def _headers(data):
     at, parts = 8, []
     while True:
         kind, chunks = ("tiledimage" if single_tiled else "scanlineimage"), None
+        tiles = window = None
         nattr = 0
         while True:
             end = data.find(b"\0", at, at + 256)
@@ -50,14 +54,82 @@ def _headers(data):
                 kind = data[value_at:value_at + size].split(b"\0")[0].decode("latin-1")
             elif name == b"chunkCount" and size == 4:
                 (chunks,) = struct.unpack_from("<i", data, value_at)
+            elif name == b"tiles" and size == 9:
+                tiles = struct.unpack_from("<IIB", data, value_at)
+            elif name == b"dataWindow" and size == 16:
+                window = struct.unpack_from("<4i", data, value_at)
             at = value_at + size
             nattr += 1
         if nattr == 0 and parts:
             break   # the empty header that ends a multi-part file's
-        parts.append((kind, chunks))
+        parts.append((kind, chunks, tiles, window))
         if not multipart:
             break
     return at, parts, multipart
+
+
+def _log2(n, up):
+    """OpenEXR's roundLog2: floor(log2 n), or ceil with up."""
+    k = n.bit_length() - 1
+    return k + 1 if up and n > 1 << k else k
+
+
+def _tiles(w, h, desc):
+    """How many tiles OpenEXR's layout gives a w x h data window with tile
+    description desc (x size, y size, mode): every level of its level mode
+    (one level, MIP levels, RIP levels), each level's side halved and
+    rounded as the mode's rounding bit says."""
+    tw, th, mode = desc
+    level, up = mode & 0xF, (mode >> 4) & 0xF == 1
+
+    def side(n, k):
+        return max(1, (n + (1 << k) - 1) >> k if up else n >> k)
+
+    def count(lw, lh):
+        return -(-lw // tw) * -(-lh // th)
+    if level == 0:
+        return count(w, h)
+    if level == 1:
+        return sum(count(side(w, k), side(h, k)) for k in range(_log2(max(w, h), up) + 1))
+    if level == 2:
+        return sum(count(side(w, kx), side(h, ky)) for kx in range(_log2(w, up) + 1)
+                   for ky in range(_log2(h, up) + 1))
+    return None
+
+
+def levels_mismatch(path):
+    """None, or why the tiled part of a single-part file has another number
+    of chunks than its tile description makes (a level mode written over
+    another's data: RIPMAP over MIPMAP levels, one level over either), as
+    the C reader (OpenEXRCore) refuses it: the header contradicts itself."""
+    with open(path, "rb") as f:
+        if not f.seek(0, 2):
+            return None
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            walked = _headers(data)
+            if not walked or walked[2] or walked[1][0][0] not in _TILED:
+                return None
+            at, ((kind, chunks, tiles, window),), _ = walked
+            if not tiles or not window or not tiles[0] or not tiles[1]:
+                return None
+            w, h = window[2] - window[0] + 1, window[3] - window[1] + 1
+            if w < 1 or h < 1:
+                return None
+            want = _tiles(w, h, tiles)
+            have = chunks
+            if have is None:   # no chunkCount: the table's length
+                have, pos, first = 0, at, None
+                while (first is None or pos < first) and pos + 8 <= len(data):
+                    (off,) = struct.unpack_from("<Q", data, pos)
+                    pos += 8
+                    have += 1
+                    if off and (first is None or off < first):
+                        first = off
+            if want is None or want == have:
+                return None
+            mode = {0: "one level", 1: "MIP levels", 2: "RIP levels"}.get(tiles[2] & 0xF)
+            return (f"its tile description ({tiles[0]}x{tiles[1]} tiles, {mode}) makes {want} "
+                    f"tiles of its {w}x{h} data window, its chunk table holds {have}")
 
 
 def cut_short(path):
@@ -78,14 +150,14 @@ def _cut_short(data):
     if not walked:
         return None
     at, parts, multipart = walked
-    if multipart and any(c is None or c < 0 for _, c in parts):
+    if multipart and any(p[1] is None or p[1] < 0 for p in parts):
         return None
     # A single-part file records no chunk count: its table runs from the
     # end of the header to the first chunk, which its writer puts right
     # after it (the smallest offset the table holds).
     offsets = []
     if multipart:
-        count = sum(c for _, c in parts)
+        count = sum(p[1] for p in parts)
         if at + 8 * count > size:
             return (f"its chunk tables ({count} chunks) do not fit in its {size} bytes")
         offsets = list(struct.unpack_from(f"<{count}Q", data, at))

@@ -179,6 +179,38 @@ class Recipe(unittest.TestCase):
         self.assertIn("the file is damaged or incomplete, write or copy it again",
                       str(e.exception))
 
+    def test_level_mode_over_other_levels_is_refused_as_the_c_reader_refuses_it(self):
+        """A tiled frame whose header names another level mode than its
+        tiles were written in (RIP levels or one level over MIP levels) is
+        refused as damaged by both readers; OpenImageIO read its first level
+        and training took the frame hairfilter refuses. The frames as
+        written (tests/data/exr-mipmap.exr) read in both."""
+        data_dir = os.path.join(HERE, "..", "data")
+        whole = os.path.join(data_dir, "exr-mipmap.exr")
+        with open(whole, "rb") as f:
+            blob = bytearray(f.read())
+        at = blob.index(b"tiles\0tiledesc\0") + len(b"tiles\0tiledesc\0") + 4 + 8
+        self.assertEqual(blob[at] & 0xF, 1)   # MIP levels
+        weights = os.path.join(WEIGHTS, "base_1spp.safetensors")
+        for mode, name in ((2, "RIP levels"), (0, "one level")):
+            blob[at] = (blob[at] & 0xF0) | mode
+            path = os.path.join(self.work, f"levels_{mode}.exr")
+            with open(path, "wb") as f:
+                f.write(blob)
+            with self.assertRaises(dataset.DatasetError) as e:
+                dataset.read_exr(path)
+            self.assertIn(f"{path}: the EXR header contradicts itself: its tile description "
+                          f"(4x4 tiles, {name})", str(e.exception))
+            r = subprocess.run([ARGS.hairfilter, "infer", "--weights", weights, "--in", path,
+                                "--out", path + ".result.exr", "--backend", "cpu-ref"],
+                               capture_output=True, text=True)
+            self.assertEqual(r.returncode, 1, r.stderr)
+            self.assertIn("the file is damaged", r.stderr)
+        r = subprocess.run([ARGS.hairfilter, "infer", "--weights", weights, "--in", whole,
+                            "--out", os.path.join(self.work, "levels_ok.exr"), "--backend",
+                            "cpu-ref"], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+
     def test_uint_channels_read_as_their_integers(self):
         """A UINT channel reads as its integers converted to float, as
         OpenEXR and the C reader convert it, not scaled to [0, 1] as
