@@ -197,6 +197,13 @@ def read_exr(path):
         part = with_features[0]
     spec = specs[part]
     names = list(spec.channelnames)
+    formats = list(spec.channelformats) or [spec.format] * spec.nchannels
+    why = exr_complete.claimed_size(path, spec.width, spec.height,
+                                    [2 if f.basetype == oiio.HALF else 4 for f in formats],
+                                    spec.getattribute("compression"))
+    if why:
+        inp.close()
+        raise DatasetError(f"{path}: {why}; the file is damaged, write it again")
     data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
     if data is None:
         why = inp.geterror() or oiio.geterror()
@@ -206,7 +213,6 @@ def read_exr(path):
     data = np.array(data, np.float32).reshape(spec.height, spec.width, len(names))
     # OpenImageIO scales a UINT channel to [0, 1]; OpenEXR (and the C
     # reader) convert its integers to float as they are: read as such.
-    formats = list(spec.channelformats) or [spec.format] * spec.nchannels
     for c, f in enumerate(formats):
         if f.basetype == oiio.UINT32:
             ints = inp.read_image(part, 0, c, c + 1, oiio.UINT32)

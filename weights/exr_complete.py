@@ -1,4 +1,7 @@
-"""Whether an OpenEXR file holds every chunk its offset tables point to,
+"""What the C reader (src/exr_read.c) checks of an OpenEXR file before it
+reads pixels and OpenImageIO does not: whether the data window's pixels
+can come out of a file of its size (claimed_size), and whether the file
+holds every chunk its offset tables point to,
 judged as the C reader (src/exr_read.c, chunk_table) judges it, and
 whether a tiled file's table has as many chunks as its tile description
 makes, as OpenEXRCore requires: OpenImageIO reads the full-resolution level
@@ -16,6 +19,7 @@ scanline's y or its tile's 4 coordinates, and its data's size (a deep
 chunk's: three uint64, the sample table's and the data's packed sizes
 first)."""
 import mmap
+import os
 import struct
 
 _DEEP = ("deepscanline", "deeptile")
@@ -66,6 +70,31 @@ def _headers(data):
         if not multipart:
             break
     return at, parts, multipart
+
+
+# The most bytes of pixels one byte of a chunk's data can decode to, by
+# compression (OpenImageIO's name): src/exr_read.c's max_expansion, whose
+# comment gives the formats' reasons and the measurements.
+_EXPANSION = {"none": 1, "rle": 64, "zips": 1032, "zip": 1032, "piz": 1032,
+              "pxr24": 1032 * 4 / 3, "b44": 32 / 3, "b44a": 32 / 3}
+
+
+def claimed_size(path, width, height, channel_bytes, compression):
+    """None, or why a data window of width x height pixels of channels of
+    channel_bytes bytes each (2 for HALF, 4 for FLOAT and UINT) cannot come
+    out of the file at path with that compression, as the C reader
+    (check_claimed_size) refuses it before allocating: a damaged header of
+    a small file made OpenImageIO allocate what it claims (755 MB for a
+    7 KB file) and return it filled with garbage."""
+    size = os.path.getsize(path)
+    name = (compression or "none").split(":")[0].lower()
+    most = size * _EXPANSION.get(name, 64 * 1032)
+    claimed = float(width) * float(height) * float(sum(channel_bytes))
+    if claimed <= most:
+        return None
+    return (f"its data window claims {width}x{height} pixels of {len(channel_bytes)} channels "
+            f"({claimed / 1e6:.1f} MB of pixels), more than {size} bytes of {name}-compressed "
+            f"data can hold ({most / 1e6:.1f} MB)")
 
 
 def _log2(n, up):

@@ -17,6 +17,7 @@ import json
 import os
 import runpy
 import shutil
+import struct
 import subprocess
 import tempfile
 import sys
@@ -210,6 +211,33 @@ class Recipe(unittest.TestCase):
                             "--out", os.path.join(self.work, "levels_ok.exr"), "--backend",
                             "cpu-ref"], capture_output=True, text=True)
         self.assertEqual(r.returncode, 0, r.stderr)
+
+    def test_data_window_larger_than_the_file_holds_is_refused(self):
+        """A header claiming a data window its small file cannot hold (a
+        damaged one) is refused before the pixels are read, as the C reader
+        refuses it; OpenImageIO allocated what it claimed (755 MB for a
+        7 KB file) and returned it, garbage, as the frame."""
+        import OpenImageIO as oiio
+        names = [f"S0.{f}" for f in dataset.FEATURES]
+        spec = oiio.ImageSpec(16, 12, 6, oiio.HALF)
+        spec.channelnames = tuple(names)
+        spec.attribute("compression", "none")
+        path = os.path.join(self.work, "claims.exr")
+        out = oiio.ImageOutput.create(path)
+        self.assertTrue(out.open(path, spec) and out.write_image(np.ones((12, 16, 6), np.float32)))
+        out.close()
+        self.assertEqual(dataset.read_exr(path)[1].shape, (12, 16, 6))
+        with open(path, "rb") as f:
+            blob = bytearray(f.read())
+        at = blob.index(b"dataWindow\0box2i\0") + len(b"dataWindow\0box2i\0") + 4
+        struct.pack_into("<i", blob, at + 8, (1 << 20) - 1)   # max.x
+        with open(path, "wb") as f:
+            f.write(blob)
+        with self.assertRaises(dataset.DatasetError) as e:
+            dataset.read_exr(path)
+        self.assertIn(f"{path}: its data window claims 1048576x12 pixels of 6 channels",
+                      str(e.exception))
+        self.assertIn("the file is damaged", str(e.exception))
 
     def test_uint_channels_read_as_their_integers(self):
         """A UINT channel reads as its integers converted to float, as
