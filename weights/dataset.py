@@ -163,11 +163,18 @@ def read_exr(path):
     """(channel names, float32 array [h][w][c]) of the file's part that the
     C reader (src/exr_read.c) chooses: the only part, else the one part
     holding S0.color; other multi-part files are refused, naming the parts,
-    and so are files cut short anywhere and tiled files whose header
-    contradicts its tiles (exr_complete.py)."""
+    and so are files cut short anywhere, tiled files whose header
+    contradicts its tiles and files that list a channel twice
+    (exr_complete.py)."""
     inp = oiio.ImageInput.open(path)
     if not inp:
         raise DatasetError(f"cannot read {path}: {oiio.geterror()}")
+    dup = exr_complete.duplicate_channel(path)
+    if dup:
+        inp.close()
+        raise DatasetError(f'{path}: channel "{dup[1]}" is listed twice in the channel list of '
+                           f"part {dup[0]}: every channel of a part needs its own name; write "
+                           "the file again with one of them renamed or left out")
     # OpenImageIO reads one level of one part: a file cut short elsewhere
     # (its smaller MIP levels, another part) is refused, as the C reader
     # refuses it, not read as whole.

@@ -26,6 +26,38 @@ _DEEP = ("deepscanline", "deeptile")
 _TILED = ("tiledimage", "deeptile")
 
 
+def _chlist(v):
+    """The channel names of a chlist value (entries of name\\0 and 16
+    bytes, ended by a 0 byte), as bytes."""
+    names, at = [], 0
+    while at < len(v) and v[at]:
+        end = v.find(b"\0", at)
+        if end < 0 or end + 17 > len(v):
+            break
+        names.append(v[at:end])
+        at = end + 17
+    return names
+
+
+def duplicate_channel(path):
+    """None, or (part, name) of a channel listed twice in a part's channel
+    list, as the C reader (src/exr_channels.c) refuses it: OpenImageIO
+    keeps one of the two and reads on, a frame of one channel fewer with
+    either's values under the name."""
+    with open(path, "rb") as f:
+        if not f.seek(0, 2):
+            return None
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            walked = _headers(data)
+    for i, part in enumerate(walked[1] if walked else []):
+        seen = set()
+        for n in part[4]:
+            if n in seen:
+                return i, n.decode("utf-8", "replace")
+            seen.add(n)
+    return None
+
+
 def _headers(data):
     """(offset past the headers, [per part: its type string or None and its
     chunkCount or None], multi-part) or None when they cannot be walked
@@ -37,7 +69,7 @@ def _headers(data):
     at, parts = 8, []
     while True:
         kind, chunks = ("tiledimage" if single_tiled else "scanlineimage"), None
-        tiles = window = None
+        tiles = window = names = None
         nattr = 0
         while True:
             end = data.find(b"\0", at, at + 256)
@@ -62,11 +94,13 @@ def _headers(data):
                 tiles = struct.unpack_from("<IIB", data, value_at)
             elif name == b"dataWindow" and size == 16:
                 window = struct.unpack_from("<4i", data, value_at)
+            elif name == b"channels":
+                names = _chlist(data[value_at:value_at + size])
             at = value_at + size
             nattr += 1
         if nattr == 0 and parts:
             break   # the empty header that ends a multi-part file's
-        parts.append((kind, chunks, tiles, window))
+        parts.append((kind, chunks, tiles, window, names or []))
         if not multipart:
             break
     return at, parts, multipart
@@ -138,7 +172,7 @@ def levels_mismatch(path):
             walked = _headers(data)
             if not walked or walked[2] or walked[1][0][0] not in _TILED:
                 return None
-            at, ((kind, chunks, tiles, window),), _ = walked
+            at, ((kind, chunks, tiles, window, _),), _ = walked
             if not tiles or not window or not tiles[0] or not tiles[1]:
                 return None
             w, h = window[2] - window[0] + 1, window[3] - window[1] + 1

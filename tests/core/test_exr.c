@@ -851,6 +851,37 @@ static void test_subsampled_refused(void **state) {
   assert_non_null(strstr(err, "channel RY is subsampled"));
 }
 
+/* A channel listed twice: OpenEXRCore refuses the list and calls it "not
+ * found"; the refusal names the channel (OpenEXR's C++ library, and
+ * weights/dataset.py through it, kept one of the two). */
+static void test_duplicate_channel(void **state) {
+  (void)state;
+  hf_image img;
+  assert_int_equal(hf_image_alloc(&img, 4, 3, 2), HF_OK);
+  snprintf(img.names[0], 32, "S0.alpha");
+  snprintf(img.names[1], 32, "S0.color");
+  for (size_t i = 0; i < 24; i++) img.data[i] = 0.5f;
+  const char *path = test_tmp("dup.exr");
+  assert_int_equal(hf_exr_write(path, &img, 0), HF_OK);
+  hf_image_free(&img);
+  FILE *f = fopen(path, "r+b");
+  assert_non_null(f);
+  unsigned char buf[4096];
+  size_t n = fread(buf, 1, sizeof buf, f);
+  size_t at = 0;
+  while (at + 8 <= n && memcmp(buf + at, "S0.color", 8)) at++;
+  assert_true(at + 8 <= n);
+  memcpy(buf + at, "S0.alpha", 8);
+  assert_int_equal(fseek(f, 0, SEEK_SET), 0);
+  assert_int_equal(fwrite(buf, 1, n, f), n);
+  assert_int_equal(fclose(f), 0);
+  char err[512];
+  assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
+  if (!strstr(err, "channel \"S0.alpha\" is listed twice in the channel list of part 0") ||
+      !strstr(err, "dup.exr"))
+    fail_msg("%s", err);
+}
+
 static void test_not_exr(void **state) {
   char err[512];
   const char *path = test_tmp("junk.exr");
@@ -1062,6 +1093,7 @@ int main(void) {
     cmocka_unit_test(test_windows),                  cmocka_unit_test(test_tiled),
     cmocka_unit_test(test_multipart),                cmocka_unit_test(test_truncated),
     cmocka_unit_test(test_undecodable_compression),  cmocka_unit_test(test_subsampled_refused),
+    cmocka_unit_test(test_duplicate_channel),
     cmocka_unit_test(test_lossy_compression),        cmocka_unit_test(test_claimed_size),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),

@@ -239,6 +239,27 @@ class Recipe(unittest.TestCase):
                       str(e.exception))
         self.assertIn("the file is damaged", str(e.exception))
 
+    def test_channel_listed_twice_is_refused(self):
+        """A frame whose channel list names a channel twice is refused,
+        naming it, as the C reader refuses it; OpenImageIO kept one of the
+        two and training read a frame of one channel fewer."""
+        names = [f"S0.{f}" for f in dataset.FEATURES]
+        path = os.path.join(self.work, "dup.exr")
+        dataset.write_exr(path, names, np.full((3, 4, 6), 0.5, np.float32))
+        with open(path, "rb") as f:
+            blob = f.read()
+        with open(path, "wb") as f:
+            f.write(blob.replace(b"S0.color\0", b"S0.alpha\0", 1))
+        with self.assertRaises(dataset.DatasetError) as e:
+            dataset.read_exr(path)
+        self.assertIn(f'{path}: channel "S0.alpha" is listed twice in the channel list of part 0',
+                      str(e.exception))
+        weights = os.path.join(WEIGHTS, "base_1spp.safetensors")
+        r = subprocess.run([ARGS.hairfilter, "infer", "--weights", weights, "--in", path,
+                            "--out", path + ".result.exr"], capture_output=True, text=True)
+        self.assertEqual(r.returncode, 1, r.stderr)
+        self.assertIn('channel "S0.alpha" is listed twice', r.stderr)
+
     def test_uint_channels_read_as_their_integers(self):
         """A UINT channel reads as its integers converted to float, as
         OpenEXR and the C reader convert it, not scaled to [0, 1] as
