@@ -211,6 +211,11 @@ def read_exr(path):
     if why:
         inp.close()
         raise DatasetError(f"{path}: {why}; the file is damaged, write it again")
+    why = exr_complete.chunk_size_mismatch(path, part)
+    if why:
+        inp.close()
+        raise DatasetError(f"{path}: {why}; the header does not describe its data (a damaged "
+                           "file), write it again")
     data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
     if data is None:
         why = inp.geterror() or oiio.geterror()

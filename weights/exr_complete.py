@@ -1,6 +1,8 @@
 """What the C reader (src/exr_read.c) checks of an OpenEXR file before it
 reads pixels and OpenImageIO does not: whether the data window's pixels
-can come out of a file of its size (claimed_size), and whether the file
+can come out of a file of its size (claimed_size), whether a channel is
+listed twice (duplicate_channel), whether each uncompressed or ZIP chunk
+holds its pixels' bytes (chunk_size_mismatch), and whether the file
 holds every chunk its offset tables point to,
 judged as the C reader (src/exr_read.c, chunk_table) judges it, and
 whether a tiled file's table has as many chunks as its tile description
@@ -21,20 +23,23 @@ first)."""
 import mmap
 import os
 import struct
+import zlib
 
 _DEEP = ("deepscanline", "deeptile")
 _TILED = ("tiledimage", "deeptile")
 
 
 def _chlist(v):
-    """The channel names of a chlist value (entries of name\\0 and 16
-    bytes, ended by a 0 byte), as bytes."""
+    """The channels of a chlist value (entries of name\\0, int32 pixel
+    type, 12 more bytes; ended by a 0 byte) as (name bytes, bytes per
+    value) pairs."""
     names, at = [], 0
     while at < len(v) and v[at]:
         end = v.find(b"\0", at)
         if end < 0 or end + 17 > len(v):
             break
-        names.append(v[at:end])
+        (ptype,) = struct.unpack_from("<i", v, end + 1)
+        names.append((v[at:end], 2 if ptype == 1 else 4))
         at = end + 17
     return names
 
@@ -51,10 +56,88 @@ def duplicate_channel(path):
             walked = _headers(data)
     for i, part in enumerate(walked[1] if walked else []):
         seen = set()
-        for n in part[4]:
+        for n, _ in part[4]:
             if n in seen:
                 return i, n.decode("utf-8", "replace")
             seen.add(n)
+    return None
+
+
+def chunk_size_mismatch(path, part):
+    """None, or why a chunk of the full-resolution level of part (an
+    index) holds another number of bytes than its pixels: uncompressed,
+    its data; ZIP or ZIPS, its data once inflated. The C reader refuses
+    such a chunk (src/exr_read.c, check_raw_size, and OpenEXRCore's
+    decoder); OpenEXR's C++ library read it, a header whose channel type
+    or data window had been changed giving garbage values with no error.
+    Other compressions are left to the decoder."""
+    with open(path, "rb") as f:
+        if not f.seek(0, 2):
+            return None
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return _chunk_sizes(data, part)
+
+
+def _chunk_sizes(data, part):
+    walked = _headers(data)
+    if not walked or part >= len(walked[1]):
+        return None
+    at, parts, multipart = walked
+    kind, chunks, tiles, window, channels, comp = parts[part]
+    if comp not in (0, 2, 3) or not window or not channels or kind in _DEEP:
+        return None
+    x0, y0, x1, y1 = window
+    w, h = x1 - x0 + 1, y1 - y0 + 1
+    pixel = sum(b for _, b in channels)
+    if w < 1 or h < 1:
+        return None
+    if multipart:
+        if any(p[1] is None or p[1] < 0 for p in parts):
+            return None
+        at += 8 * sum(p[1] for p in parts[:part])
+        count = chunks
+    else:
+        count = None   # up to the first chunk
+    first, n, pos = None, 0, at
+    lines = {0: 1, 2: 1, 3: 16}[comp]
+    while (count is None and (first is None or pos < first)) or (count is not None and n < count):
+        if pos + 8 > len(data):
+            return None
+        (off,) = struct.unpack_from("<Q", data, pos)
+        pos += 8
+        n += 1
+        if off and (first is None or off < first):
+            first = off
+        lead = off + (4 if multipart else 0)
+        if kind in _TILED:
+            if not tiles or lead + 20 > len(data):
+                return None
+            tx, ty, lx, ly, packed = struct.unpack_from("<4iI", data, lead)
+            if lx or ly:
+                continue
+            cw = min(tiles[0], w - tx * tiles[0])
+            ch = min(tiles[1], h - ty * tiles[1])
+            what = f"tile ({tx}, {ty})"
+            body = lead + 20
+        else:
+            if lead + 8 > len(data):
+                return None
+            y, packed = struct.unpack_from("<iI", data, lead)
+            cw, ch = w, min(lines, y1 - y + 1)
+            what = f"scanlines {y}-{y + ch - 1}"
+            body = lead + 8
+        if cw < 1 or ch < 1 or body + packed > len(data):
+            return None   # the decoder's to say
+        want = cw * ch * pixel
+        got = packed
+        if comp and packed < want:   # a chunk compression would not shrink is stored raw
+            try:
+                got = len(zlib.decompress(data[body:body + packed]))
+            except zlib.error as e:
+                return f"{what}: its ZIP data cannot be inflated ({e})"
+        if got != want:
+            return (f"{what} holds {got} bytes of pixels, but its {cw}x{ch} pixels of "
+                    f"{len(channels)} channels are {want} bytes")
     return None
 
 
@@ -69,7 +152,7 @@ def _headers(data):
     at, parts = 8, []
     while True:
         kind, chunks = ("tiledimage" if single_tiled else "scanlineimage"), None
-        tiles = window = names = None
+        tiles = window = names = compression = None
         nattr = 0
         while True:
             end = data.find(b"\0", at, at + 256)
@@ -96,11 +179,13 @@ def _headers(data):
                 window = struct.unpack_from("<4i", data, value_at)
             elif name == b"channels":
                 names = _chlist(data[value_at:value_at + size])
+            elif name == b"compression" and size == 1:
+                compression = data[value_at]
             at = value_at + size
             nattr += 1
         if nattr == 0 and parts:
             break   # the empty header that ends a multi-part file's
-        parts.append((kind, chunks, tiles, window, names or []))
+        parts.append((kind, chunks, tiles, window, names or [], compression))
         if not multipart:
             break
     return at, parts, multipart
@@ -172,7 +257,7 @@ def levels_mismatch(path):
             walked = _headers(data)
             if not walked or walked[2] or walked[1][0][0] not in _TILED:
                 return None
-            at, ((kind, chunks, tiles, window, _),), _ = walked
+            at, ((kind, chunks, tiles, window, _, _),), _ = walked
             if not tiles or not window or not tiles[0] or not tiles[1]:
                 return None
             w, h = window[2] - window[0] + 1, window[3] - window[1] + 1

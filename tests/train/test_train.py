@@ -260,6 +260,48 @@ class Recipe(unittest.TestCase):
         self.assertEqual(r.returncode, 1, r.stderr)
         self.assertIn('channel "S0.alpha" is listed twice', r.stderr)
 
+    def test_header_that_does_not_describe_its_chunks_is_refused(self):
+        """A header changed after its pixels were written (a channel's type,
+        the data window's width) so that a chunk holds another number of
+        bytes than its pixels: OpenEXR's C++ library read it into garbage
+        values with no error, and training took them; it is refused, as the
+        C reader refuses it, naming the chunk."""
+        import OpenImageIO as oiio
+        names = [f"S0.{f}" for f in dataset.FEATURES]
+        weights = os.path.join(WEIGHTS, "base_1spp.safetensors")
+        for comp in ("none", "zip"):
+            spec = oiio.ImageSpec(16, 12, 6, oiio.FLOAT)
+            spec.channelnames = tuple(names)
+            spec.attribute("compression", comp)
+            path = os.path.join(self.work, f"chunks_{comp}.exr")
+            out = oiio.ImageOutput.create(path)
+            rng = np.random.default_rng(2)
+            self.assertTrue(out.open(path, spec) and
+                            out.write_image(rng.uniform(0, 1, (12, 16, 6)).astype(np.float32)))
+            out.close()
+            self.assertEqual(dataset.read_exr(path)[1].shape, (12, 16, 6))
+            with open(path, "rb") as f:
+                blob = bytearray(f.read())
+            if comp == "none":   # S0.alpha FLOAT -> HALF
+                at = blob.index(b"S0.alpha\0") + 9
+                struct.pack_into("<i", blob, at, 1)
+                want = "scanlines 0-0 holds 384 bytes of pixels, but its 16x1 pixels of 6 " \
+                       "channels are 352 bytes"
+            else:                # 15 columns instead of 16
+                at = blob.index(b"dataWindow\0box2i\0") + len(b"dataWindow\0box2i\0") + 4
+                struct.pack_into("<i", blob, at + 8, 14)
+                want = "scanlines 0-11 holds 4608 bytes of pixels, but its 15x12 pixels of 6 " \
+                       "channels are 4320 bytes"
+            with open(path, "wb") as f:
+                f.write(blob)
+            with self.assertRaises(dataset.DatasetError) as e:
+                dataset.read_exr(path)
+            self.assertIn(f"{path}: {want}", str(e.exception))
+            r = subprocess.run([ARGS.hairfilter, "infer", "--weights", weights, "--in", path,
+                                "--out", path + ".result.exr"], capture_output=True, text=True)
+            self.assertEqual(r.returncode, 1, r.stderr)
+            self.assertIn("the file is damaged", r.stderr)
+
     def test_uint_channels_read_as_their_integers(self):
         """A UINT channel reads as its integers converted to float, as
         OpenEXR and the C reader convert it, not scaled to [0, 1] as
