@@ -270,7 +270,7 @@ class Recipe(unittest.TestCase):
         names = [f"S0.{f}" for f in dataset.FEATURES]
         weights = os.path.join(WEIGHTS, "base_1spp.safetensors")
         for comp in ("none", "zip"):
-            spec = oiio.ImageSpec(16, 12, 6, oiio.FLOAT)
+            spec = oiio.ImageSpec(16, 12, 6, oiio.HALF if comp == "none" else oiio.FLOAT)
             spec.channelnames = tuple(names)
             spec.attribute("compression", comp)
             path = os.path.join(self.work, f"chunks_{comp}.exr")
@@ -282,11 +282,11 @@ class Recipe(unittest.TestCase):
             self.assertEqual(dataset.read_exr(path)[1].shape, (12, 16, 6))
             with open(path, "rb") as f:
                 blob = bytearray(f.read())
-            if comp == "none":   # S0.alpha FLOAT -> HALF
+            if comp == "none":   # S0.alpha HALF -> FLOAT
                 at = blob.index(b"S0.alpha\0") + 9
-                struct.pack_into("<i", blob, at, 1)
-                want = "scanlines 0-0 holds 384 bytes of pixels, but its 16x1 pixels of 6 " \
-                       "channels are 352 bytes"
+                struct.pack_into("<i", blob, at, 2)
+                want = "scanlines 0-0 holds 192 bytes of pixels, but its 16x1 pixels of 6 " \
+                       "channels are 224 bytes"
             else:                # 15 columns instead of 16
                 at = blob.index(b"dataWindow\0box2i\0") + len(b"dataWindow\0box2i\0") + 4
                 struct.pack_into("<i", blob, at + 8, 14)
