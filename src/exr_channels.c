@@ -1,9 +1,10 @@
-/* The channel lists of an EXR file read from its bytes, for the one thing
- * OpenEXRCore does not say when it refuses a header: that a channel is
- * listed twice. It reports the list as missing ("'channels' attribute not
- * found"), which sends a user looking for the wrong fault, while
- * OpenEXR's C++ library (OpenImageIO, weights/dataset.py) keeps one of the
- * two and reads on.
+/* The channel lists of an EXR file read from its bytes, for what
+ * OpenEXRCore does not say when it refuses a header for one of its
+ * entries (a channel listed twice, a pixel type it does not know, a
+ * sampling below 1): it reports the list as missing ("'channels'
+ * attribute not found"), which sends a user looking for the wrong fault.
+ * OpenEXR's C++ library (OpenImageIO, weights/dataset.py) keeps one of two
+ * channels of a name and reads on.
  *
  * The layout is the format's (openexr.com, "OpenEXR File Layout"): magic
  * and version (8 bytes), then each part's header, attributes of name\0
@@ -34,27 +35,47 @@ static int read_name(FILE *f, char *buf, int max) {
   return -1;
 }
 
-/* 1 when the chlist value v of n bytes names a channel twice, its name in
- * dup. */
-static int chlist_duplicate(const unsigned char *v, size_t n, char *dup, size_t duplen) {
+/* 1 when the chlist value v of n bytes of part has an entry OpenEXRCore
+ * refuses (a name twice, a pixel type it does not know, a sampling below
+ * 1), what in why. */
+static int chlist_fault(const unsigned char *v, size_t n, int part, char *why, size_t len) {
   const char *names[4096];
   int count = 0;
   for (size_t at = 0; at < n && v[at] && count < (int)(sizeof names / sizeof names[0]);) {
     const unsigned char *end = memchr(v + at, 0, n - at);
     if (!end || (size_t)(end - v) + 17 > n) return 0;
     const char *name = (const char *)v + at;
+    const unsigned char *e = end + 1;
+    int32_t type = (int32_t)((uint32_t)e[0] | (uint32_t)e[1] << 8 | (uint32_t)e[2] << 16 |
+                             (uint32_t)e[3] << 24);
+    int32_t xs = (int32_t)((uint32_t)e[8] | (uint32_t)e[9] << 8 | (uint32_t)e[10] << 16 |
+                           (uint32_t)e[11] << 24);
+    int32_t ys = (int32_t)((uint32_t)e[12] | (uint32_t)e[13] << 8 | (uint32_t)e[14] << 16 |
+                           (uint32_t)e[15] << 24);
     for (int k = 0; k < count; k++)
       if (!strcmp(names[k], name)) {
-        snprintf(dup, duplen, "%s", name);
+        snprintf(why, len, "channel \"%.64s\" is listed twice in the channel list of part %d: "
+                 "every channel of a part needs its own name; write the file again with one "
+                 "of them renamed or left out", name, part);
         return 1;
       }
+    if (type < 0 || type > 2) {
+      snprintf(why, len, "channel \"%.64s\" of part %d has pixel type %d, not UINT (0), HALF "
+               "(1) or FLOAT (2); the file is damaged, write it again", name, part, (int)type);
+      return 1;
+    }
+    if (xs < 1 || ys < 1) {
+      snprintf(why, len, "channel \"%.64s\" of part %d has sampling %dx%d, below 1; the file "
+               "is damaged, write it again", name, part, (int)xs, (int)ys);
+      return 1;
+    }
     names[count++] = name;
     at = (size_t)(end - v) + 17;
   }
   return 0;
 }
 
-int hf_exr_duplicate_channel(const char *path, int *part, char *dup, size_t duplen) {
+int hf_exr_chlist_fault(const char *path, char *why, size_t len) {
   FILE *f = fopen(path, "rb");
   if (!f) return 0;
   unsigned char head[8];
@@ -68,17 +89,14 @@ int hf_exr_duplicate_channel(const char *path, int *part, char *dup, size_t dupl
       int n = read_name(f, name, (int)sizeof name);
       if (n < 0 || attrs > MAX_ATTRS) goto out;
       if (n == 0) break;
-      unsigned char len[4];
-      if (read_name(f, type, (int)sizeof type) < 0 || fread(len, 1, 4, f) != 4) goto out;
-      uint32_t vlen = (uint32_t)len[0] | (uint32_t)len[1] << 8 | (uint32_t)len[2] << 16 |
-                      (uint32_t)len[3] << 24;
+      unsigned char l[4];
+      if (read_name(f, type, (int)sizeof type) < 0 || fread(l, 1, 4, f) != 4) goto out;
+      uint32_t vlen = (uint32_t)l[0] | (uint32_t)l[1] << 8 | (uint32_t)l[2] << 16 |
+                      (uint32_t)l[3] << 24;
       if (!strcmp(name, "channels") && !strcmp(type, "chlist") && vlen <= MAX_CHLIST) {
         unsigned char *v = malloc(vlen ? vlen : 1);
         if (!v) goto out;
-        if (fread(v, 1, vlen, f) == vlen && chlist_duplicate(v, vlen, dup, duplen)) {
-          *part = p;
-          found = 1;
-        }
+        found = fread(v, 1, vlen, f) == vlen && chlist_fault(v, vlen, p, why, len);
         free(v);
         if (found) goto out;
       } else if (vlen > 0x7fffffffu || fseek(f, (long)vlen, SEEK_CUR) != 0) {

@@ -26,10 +26,12 @@ int hf_exr_decode_part(exr_const_context_t ctx, int part, const char *path, cons
                        uint64_t file_size, const int *slot, int nch, exr_pixel_type_t type,
                        void *dst, char *err, size_t errlen);
 
-/* 1 when a channel list of the file at path (its part *part) names a
- * channel twice, that name in dup; 0 otherwise, also when the headers
+/* 1 when a channel list of the file at path has an entry OpenEXRCore
+ * refuses (a channel named twice, a pixel type other than UINT, HALF or
+ * FLOAT, a sampling below 1), the refusal's words (naming the channel and
+ * its part, and what to do) in why; 0 otherwise, also when the headers
  * cannot be walked. For the refusal of a header OpenEXRCore would not
  * read, which it words as a list "not found". */
-int hf_exr_duplicate_channel(const char *path, int *part, char *dup, size_t duplen);
+int hf_exr_chlist_fault(const char *path, char *why, size_t len);
 
 #endif

@@ -737,12 +737,9 @@ static int open_failed(const char *path, uint64_t size, exr_result_t r, const hf
     return fail(err, errlen, HF_EIO, "%s: truncated / incomplete file: it ends inside its "
                 "header (%llu bytes); write or copy the file again", path,
                 (unsigned long long)size);
-  char dup[256];
-  int dpart = 0;
-  if (hf_exr_duplicate_channel(path, &dpart, dup, sizeof dup))
-    return fail(err, errlen, HF_EFORMAT, "%s: channel \"%s\" is listed twice in the channel list "
-                "of part %d: every channel of a part needs its own name; write the file again "
-                "with one of them renamed or left out", path, dup, dpart);
+  char why[400];
+  if (hf_exr_chlist_fault(path, why, sizeof why))
+    return fail(err, errlen, HF_EFORMAT, "%s: %s", path, why);
   return fail(err, errlen, HF_EFORMAT, "%s: the EXR header cannot be read: %s%s; the file is "
               "damaged, write it again", path, exr_get_error_code_as_string(r), d);
 }

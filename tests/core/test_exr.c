@@ -851,35 +851,50 @@ static void test_subsampled_refused(void **state) {
   assert_non_null(strstr(err, "channel RY is subsampled"));
 }
 
-/* A channel listed twice: OpenEXRCore refuses the list and calls it "not
- * found"; the refusal names the channel (OpenEXR's C++ library, and
- * weights/dataset.py through it, kept one of the two). */
-static void test_duplicate_channel(void **state) {
+/* A channel listed twice, of a pixel type OpenEXRCore does not know, or
+ * of a sampling below 1: OpenEXRCore refuses the list and calls it "not
+ * found"; the refusal names the channel and what is wrong with it
+ * (OpenEXR's C++ library, and weights/dataset.py through it, kept one of
+ * two channels of a name). */
+static void test_channel_list_faults(void **state) {
   (void)state;
-  hf_image img;
-  assert_int_equal(hf_image_alloc(&img, 4, 3, 2), HF_OK);
-  snprintf(img.names[0], 32, "S0.alpha");
-  snprintf(img.names[1], 32, "S0.color");
-  for (size_t i = 0; i < 24; i++) img.data[i] = 0.5f;
-  const char *path = test_tmp("dup.exr");
-  assert_int_equal(hf_exr_write(path, &img, 0), HF_OK);
-  hf_image_free(&img);
-  FILE *f = fopen(path, "r+b");
-  assert_non_null(f);
-  unsigned char buf[4096];
-  size_t n = fread(buf, 1, sizeof buf, f);
-  size_t at = 0;
-  while (at + 8 <= n && memcmp(buf + at, "S0.color", 8)) at++;
-  assert_true(at + 8 <= n);
-  memcpy(buf + at, "S0.alpha", 8);
-  assert_int_equal(fseek(f, 0, SEEK_SET), 0);
-  assert_int_equal(fwrite(buf, 1, n, f), n);
-  assert_int_equal(fclose(f), 0);
-  char err[512];
-  assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
-  if (!strstr(err, "channel \"S0.alpha\" is listed twice in the channel list of part 0") ||
-      !strstr(err, "dup.exr"))
-    fail_msg("%s", err);
+  static const struct {
+    const char *to;           /* S0.color's name becomes */
+    int at, value;            /* and the int32 this many bytes past its NUL this */
+    const char *want;
+  } cases[] = {
+      {"S0.alpha", 0, 2, "channel \"S0.alpha\" is listed twice in the channel list of part 0"},
+      {"S0.color", 0, 7, "channel \"S0.color\" of part 0 has pixel type 7, not UINT (0), HALF (1) "
+                         "or FLOAT (2)"},
+      {"S0.color", 8, 0, "channel \"S0.color\" of part 0 has sampling 0x1, below 1"},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    hf_image img;
+    assert_int_equal(hf_image_alloc(&img, 4, 3, 2), HF_OK);
+    snprintf(img.names[0], 32, "S0.alpha");
+    snprintf(img.names[1], 32, "S0.color");
+    for (size_t k = 0; k < 24; k++) img.data[k] = 0.5f;
+    const char *path = test_tmp("chlist.exr");
+    assert_int_equal(hf_exr_write(path, &img, 0), HF_OK);
+    hf_image_free(&img);
+    FILE *f = fopen(path, "r+b");
+    assert_non_null(f);
+    unsigned char buf[4096];
+    size_t n = fread(buf, 1, sizeof buf, f);
+    size_t at = 0;
+    while (at + 9 <= n && memcmp(buf + at, "S0.color", 9)) at++;
+    assert_true(at + 9 + 16 <= n);
+    memcpy(buf + at, cases[i].to, 8);
+    unsigned char *v = buf + at + 9 + cases[i].at;
+    v[0] = (unsigned char)cases[i].value;
+    v[1] = v[2] = v[3] = 0;
+    assert_int_equal(fseek(f, 0, SEEK_SET), 0);
+    assert_int_equal(fwrite(buf, 1, n, f), n);
+    assert_int_equal(fclose(f), 0);
+    char err[512];
+    assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_EFORMAT);
+    if (!strstr(err, cases[i].want) || !strstr(err, "chlist.exr")) fail_msg("%s", err);
+  }
 }
 
 static void test_not_exr(void **state) {
@@ -1093,7 +1108,7 @@ int main(void) {
     cmocka_unit_test(test_windows),                  cmocka_unit_test(test_tiled),
     cmocka_unit_test(test_multipart),                cmocka_unit_test(test_truncated),
     cmocka_unit_test(test_undecodable_compression),  cmocka_unit_test(test_subsampled_refused),
-    cmocka_unit_test(test_duplicate_channel),
+    cmocka_unit_test(test_channel_list_faults),
     cmocka_unit_test(test_lossy_compression),        cmocka_unit_test(test_claimed_size),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
