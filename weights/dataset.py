@@ -204,6 +204,11 @@ def read_exr(path):
         part = with_features[0]
     spec = specs[part]
     names = list(spec.channelnames)
+    if spec.deep:
+        inp.close()
+        raise DatasetError(f"{path}: deep data (several samples per pixel of varying count) is "
+                           f"not read; flatten it first, e.g. oiiotool {path} --flatten -o "
+                           "flat.exr")
     formats = list(spec.channelformats) or [spec.format] * spec.nchannels
     why = exr_complete.claimed_size(path, spec.width, spec.height,
                                     [2 if f.basetype == oiio.HALF else 4 for f in formats],

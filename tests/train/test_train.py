@@ -302,6 +302,31 @@ class Recipe(unittest.TestCase):
             self.assertEqual(r.returncode, 1, r.stderr)
             self.assertIn("the file is damaged", r.stderr)
 
+    def test_deep_frame_is_refused_saying_so(self):
+        """A deep frame is refused as the C reader refuses it, with the
+        flatten command; it was called "damaged or incomplete" after an
+        OpenImageIO error about a file not open."""
+        import OpenImageIO as oiio
+        names = [f"S0.{f}" for f in dataset.FEATURES]
+        spec = oiio.ImageSpec(4, 3, 6, oiio.FLOAT)
+        spec.channelnames = tuple(names)
+        spec.deep = True
+        spec.attribute("compression", "zips")
+        path = os.path.join(self.work, "deep.exr")
+        out = oiio.ImageOutput.create(path)
+        self.assertTrue(out.open(path, spec), oiio.geterror())
+        deep = oiio.DeepData()
+        deep.init(spec)
+        for p in range(12):
+            deep.set_samples(p, 1)
+        self.assertTrue(out.write_deep_image(deep))
+        out.close()
+        with self.assertRaises(dataset.DatasetError) as e:
+            dataset.read_exr(path)
+        self.assertIn(f"{path}: deep data (several samples per pixel of varying count) is not "
+                      f"read; flatten it first, e.g. oiiotool {path} --flatten -o flat.exr",
+                      str(e.exception))
+
     def test_uint_channels_read_as_their_integers(self):
         """A UINT channel reads as its integers converted to float, as
         OpenEXR and the C reader convert it, not scaled to [0, 1] as
