@@ -104,6 +104,8 @@ def main():
         with open(bad, "wb") as f:
             f.write(blob)
         out = os.path.join(w, "conv_" + name)
+        if os.path.exists(out):
+            os.remove(out)   # from an earlier run
         r = subprocess.run([py, os.path.join(TOOLS, "hair_convert.py"), bad, out],
                            capture_output=True, text=True)
         if r.returncode == 0 or f"hair_convert.py: {bad}: " not in r.stderr or \
