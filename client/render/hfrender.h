@@ -112,7 +112,10 @@ void hfr_hair_bounds(const hfr_hair *hair, float centre[3], float *radius);
  * spacing at its coordinates within HFR_SPACING_MAX_REL of the radius;
  * else HF_ERANGE with err naming the radius (or, where every point
  * coincides, the point; or the spacing and the way out, nearer the
- * origin) and the --units/--scale way out. */
+ * origin) and the --units/--scale way out. Also HF_ERANGE when a tenth of
+ * the strands or fewer reach over 1000 times as far from the origin as
+ * the others' median (a damaged file: the radius would be theirs), err
+ * naming how many and the first. */
 int hfr_hair_check_extent(const hfr_hair *hair, double scale, char *err, size_t errlen);
 
 /* ---- strand widths (hr_hair_width.c) ------------------------------------- */

@@ -107,12 +107,67 @@ void hfr_hair_bounds(const hfr_hair *h, float c[3], float *radius) {
   *radius = rd > 0 ? (float)rd : 1.0f;
 }
 
+static int cmp_double(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+/* When a few strands (a tenth or fewer) reach coordinates over
+ * OUTLIER_FACTOR times the other strands' typical reach, the extent is
+ * theirs, not the model's: a damaged file or a writer's fault
+ * (uninitialised points), which no --units or --scale mends. Writes why to
+ * err and returns 1 then; 0 otherwise (also when memory runs out, the
+ * plain refusal following). Needs the segments array or the default
+ * count. */
+#define OUTLIER_FACTOR 1e3
+static int outlier_strands(const hfr_hair *h, char *err, size_t errlen) {
+  if (!h->strands) return 0;
+  double *reach = malloc(sizeof *reach * h->strands);
+  if (!reach) return 0;
+  uint32_t p = 0;
+  for (uint32_t i = 0; i < h->strands; i++) {
+    uint32_t n = hfr_hair_strand_segments(h, i) + 1u;
+    double most = 0;
+    for (uint32_t k = 0; k < n && p + k < h->points; k++)
+      for (int c = 0; c < 3; c++) {
+        double v = fabs((double)h->pos[3 * ((size_t)p + k) + (size_t)c]);
+        if (v > most) most = v;
+      }
+    reach[i] = most;
+    p += n;
+  }
+  double *sorted = malloc(sizeof *sorted * h->strands);
+  if (!sorted) {
+    free(reach);
+    return 0;
+  }
+  memcpy(sorted, reach, sizeof *sorted * h->strands);
+  qsort(sorted, h->strands, sizeof *sorted, cmp_double);
+  double median = sorted[h->strands / 2], far = sorted[h->strands - 1];
+  free(sorted);
+  uint32_t out = 0, first = 0;
+  for (uint32_t i = 0; i < h->strands; i++)
+    if (reach[i] > median * OUTLIER_FACTOR && out++ == 0) first = i;
+  free(reach);
+  if (!out || median <= 0 || out > h->strands / 10) return 0;
+  if (err)
+    snprintf(err, errlen, "%u of %u strands (the first: strand %u) reach coordinates up to "
+             "%.4g, over %g times the other strands' (their median reach %.4g): the file is "
+             "damaged or its writer has a fault (uninitialised points?), and no --units or "
+             "--scale frames the model; write the file again or leave those strands out",
+             out, h->strands, first, far, OUTLIER_FACTOR, median);
+  return 1;
+}
+
 int hfr_hair_check_extent(const hfr_hair *h, double scale, char *err, size_t errlen) {
   if (err && errlen) err[0] = 0;
   if (!h || !h->pos || !h->points) return HF_EINVAL;
   double c[3], r;
   hfr_hair_extent(h, c, &r);
   double rs = r * scale;
+  /* Before the radius is judged: a few far strands make it theirs, and a
+   * --scale fitted to it would shrink the model out of sight. */
+  if (r > 0 && isfinite(r) && outlier_strands(h, err, errlen)) return HF_ERANGE;
   if (isfinite(rs) && rs >= HFR_RADIUS_MIN && rs <= HFR_RADIUS_MAX && r > 0) {
     /* Far from the origin float's spacing grows (2^-23 of the magnitude):
      * a model written there has its points rounded to a grid, and one

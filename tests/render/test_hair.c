@@ -362,6 +362,33 @@ static void test_refusals_say_why(void **state) {
   refused_saying(bad, n, "lack POINTS", NULL);
 }
 
+/* A few strands with points far from the rest (a damaged file, a writer
+ * that left points uninitialised) are named, not framed: the model's
+ * radius was theirs, refused with a --scale that shrank the rest out of
+ * sight, or (up to 1e15) accepted and drawn as a speck with strands as
+ * wide as the speck's frame. Every style's model passes. */
+static void test_far_strands_named(void **state) {
+  (void)state;
+  char err[512];
+  for (int s = 0; s < HFR_STYLE_COUNT; s++) {
+    hfr_hair h = small_style((hfr_style)s, 3);
+    if (hfr_hair_check_extent(&h, 1, err, sizeof err) != HF_OK)
+      fail_msg("style %s: %s", hfr_style_name((hfr_style)s), err);
+    hfr_hair_free(&h);
+  }
+  static const float far[] = {1e4f, 1e10f, 1e30f};
+  for (size_t i = 0; i < sizeof far / sizeof far[0]; i++) {
+    hfr_hair h = small_style(HFR_STYLE_STRAIGHT, 3);
+    uint32_t second = hfr_hair_strand_segments(&h, 0) + 1u;   /* strand 1's first point */
+    h.pos[3 * (size_t)second + 1] = far[i];
+    assert_int_equal(hfr_hair_check_extent(&h, 1, err, sizeof err), HF_ERANGE);
+    if (!strstr(err, "1 of 300 strands (the first: strand 1) reach coordinates up to") ||
+        !strstr(err, "the file is damaged"))
+      fail_msg("%g: %s", (double)far[i], err);
+    hfr_hair_free(&h);
+  }
+}
+
 static void test_styles(void **state) {
   (void)state;
   for (int s = 0; s < HFR_STYLE_COUNT; s++) {
@@ -429,7 +456,7 @@ int main(void) {
     cmocka_unit_test(test_malformed), cmocka_unit_test(test_refusals_say_why),
     cmocka_unit_test(test_single_point_strands),
     cmocka_unit_test(test_read_as_reference),
-    cmocka_unit_test(test_styles),
+    cmocka_unit_test(test_styles), cmocka_unit_test(test_far_strands_named),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
