@@ -178,16 +178,16 @@ def read_exr(path):
     # OpenImageIO reads one level of one part: a file cut short elsewhere
     # (its smaller MIP levels, another part) is refused, as the C reader
     # refuses it, not read as whole.
-    why = exr_complete.cut_short(path)
-    if why:
-        inp.close()
-        raise DatasetError(f"{path}: truncated / incomplete file: {why}; write or copy the "
-                           "file again")
     why = exr_complete.levels_mismatch(path)
     if why:
         inp.close()
         raise DatasetError(f"{path}: the EXR header contradicts itself: {why}; the file is "
                            "damaged, write it again")
+    why = exr_complete.cut_short(path)
+    if why:
+        inp.close()
+        raise DatasetError(f"{path}: truncated / incomplete file: {why}; write or copy the "
+                           "file again")
     specs = []
     while inp.seek_subimage(len(specs), 0):
         specs.append(inp.spec())
@@ -219,8 +219,7 @@ def read_exr(path):
     why = exr_complete.chunk_size_mismatch(path, part)
     if why:
         inp.close()
-        raise DatasetError(f"{path}: {why}; the header does not describe its data (a damaged "
-                           "file), write it again")
+        raise DatasetError(f"{path}: {why}; the file is damaged, write it again")
     data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
     if data is None:
         why = inp.geterror() or oiio.geterror()

@@ -97,7 +97,7 @@ def _chunk_sizes(data, part):
         at += 8 * sum(p[1] for p in parts[:part])
         count = chunks
     else:
-        count = None   # up to the first chunk
+        count = _single_count(parts[0])   # None: up to the first chunk
     first, n, pos = None, 0, at
     lines = {0: 1, 2: 1, 3: 16}[comp]
     while (count is None and (first is None or pos < first)) or (count is not None and n < count):
@@ -137,7 +137,8 @@ def _chunk_sizes(data, part):
                 return f"{what}: its ZIP data cannot be inflated ({e})"
         if got != want:
             return (f"{what} holds {got} bytes of pixels, but its {cw}x{ch} pixels of "
-                    f"{len(channels)} channels are {want} bytes")
+                    f"{len(channels)} channels are {want} bytes: the header does not describe "
+                    "its data")
     return None
 
 
@@ -245,6 +246,30 @@ def _tiles(w, h, desc):
     return None
 
 
+# Scanlines per chunk, by compression code (NONE, RLE, ZIPS, ZIP, PIZ, PXR24,
+# B44, B44A, DWAA, DWAB): the format's.
+_LINES = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 32, 9: 256}
+
+
+def _single_count(part):
+    """The chunks a single-part file's header makes, or None when it
+    cannot say: scanline chunks of the data window's lines, or the tiles of
+    every level."""
+    kind, chunks, tiles, window, _, comp = part
+    if chunks is not None:
+        return chunks
+    if not window:
+        return None
+    w, h = window[2] - window[0] + 1, window[3] - window[1] + 1
+    if w < 1 or h < 1:
+        return None
+    if kind in _TILED:
+        return _tiles(w, h, tiles) if tiles and tiles[0] and tiles[1] else None
+    if kind in _DEEP or comp not in _LINES:
+        return None
+    return -(-h // _LINES[comp])
+
+
 def levels_mismatch(path):
     """None, or why the tiled part of a single-part file has another number
     of chunks than its tile description makes (a level mode written over
@@ -308,6 +333,12 @@ def _cut_short(data):
         count = sum(p[1] for p in parts)
         if at + 8 * count > size:
             return (f"its chunk tables ({count} chunks) do not fit in its {size} bytes")
+        offsets = list(struct.unpack_from(f"<{count}Q", data, at))
+        tables_end = at + 8 * count
+    elif _single_count(parts[0]) is not None:
+        count = _single_count(parts[0])
+        if at + 8 * count > size:
+            return f"its chunk table ({count} chunks) does not fit in its {size} bytes"
         offsets = list(struct.unpack_from(f"<{count}Q", data, at))
         tables_end = at + 8 * count
     else:
