@@ -159,22 +159,44 @@ def split_frames(entries, val_fraction=0.1):
 
 # ---- EXR -------------------------------------------------------------------
 
+def _oiio_error(inp=None):
+    """OpenImageIO's last error (inp's, else the global one), its bytes
+    that are not UTF-8 replaced: the binding raises UnicodeDecodeError on
+    them, and a damaged file's names end up in its messages."""
+    try:
+        return (inp.geterror() if inp else "") or oiio.geterror()
+    except UnicodeDecodeError as e:
+        return e.object.decode("utf-8", "replace") if isinstance(e.object, bytes) else str(e)
+
+
 def read_exr(path):
     """(channel names, float32 array [h][w][c]) of the file's part that the
     C reader (src/exr_read.c) chooses: the only part, else the one part
     holding S0.color; other multi-part files are refused, naming the parts,
     and so are files cut short anywhere, tiled files whose header
-    contradicts its tiles and files that list a channel twice
+    contradicts its tiles and files whose channel list OpenEXR refuses
     (exr_complete.py)."""
+    # Before OpenImageIO reads the header: it aborts the process on some
+    # channel lists, and raises UnicodeDecodeError on names that are not
+    # UTF-8.
+    why = exr_complete.channel_fault(path) if os.path.isfile(path) else None
+    if why:
+        raise DatasetError(f"{path}: {why}")
     inp = oiio.ImageInput.open(path)
     if not inp:
-        raise DatasetError(f"cannot read {path}: {oiio.geterror()}")
-    dup = exr_complete.duplicate_channel(path)
-    if dup:
+        raise DatasetError(f"cannot read {path}: {_oiio_error()}")
+    try:
+        return _read_opened(inp, path)
+    except UnicodeDecodeError as e:
+        # A name the header walk above could not reach (a damaged header).
+        raise DatasetError(f"{path}: a name in its header is not UTF-8 ({e}); the file is "
+                           "damaged, write it again") from None
+    finally:
         inp.close()
-        raise DatasetError(f'{path}: channel "{dup[1]}" is listed twice in the channel list of '
-                           f"part {dup[0]}: every channel of a part needs its own name; write "
-                           "the file again with one of them renamed or left out")
+
+
+def _read_opened(inp, path):
+    """read_exr's reading of the file at path, open in inp."""
     # OpenImageIO reads one level of one part: a file cut short elsewhere
     # (its smaller MIP levels, another part) is refused, as the C reader
     # refuses it, not read as whole.
@@ -222,7 +244,7 @@ def read_exr(path):
         raise DatasetError(f"{path}: {why}; the file is damaged, write it again")
     data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
     if data is None:
-        why = inp.geterror() or oiio.geterror()
+        why = _oiio_error(inp)
         inp.close()
         raise DatasetError(f"cannot read pixels of {path}: {why or 'no reason given'}; the "
                            "file is damaged or incomplete, write or copy it again")

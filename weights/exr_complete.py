@@ -1,7 +1,7 @@
 """What the C reader (src/exr_read.c) checks of an OpenEXR file before it
 reads pixels and OpenImageIO does not: whether the data window's pixels
 can come out of a file of its size (claimed_size), whether a channel is
-listed twice (duplicate_channel), whether each uncompressed or ZIP chunk
+listed twice or has a type or sampling OpenEXR does not know (channel_fault), whether each uncompressed or ZIP chunk
 holds its pixels' bytes (chunk_size_mismatch), and whether the file
 holds every chunk its offset tables point to,
 judged as the C reader (src/exr_read.c, chunk_table) judges it, and
@@ -31,35 +31,69 @@ _TILED = ("tiledimage", "deeptile")
 
 def _chlist(v):
     """The channels of a chlist value (entries of name\\0, int32 pixel
-    type, 12 more bytes; ended by a 0 byte) as (name bytes, bytes per
-    value) pairs."""
+    type, uchar pLinear, 3 reserved bytes, int32 x and y sampling; ended by
+    a 0 byte) as (name bytes, pixel type, x sampling, y sampling)."""
     names, at = [], 0
     while at < len(v) and v[at]:
         end = v.find(b"\0", at)
         if end < 0 or end + 17 > len(v):
             break
         (ptype,) = struct.unpack_from("<i", v, end + 1)
-        names.append((v[at:end], 2 if ptype == 1 else 4))
+        xs, ys = struct.unpack_from("<ii", v, end + 9)
+        names.append((v[at:end], ptype, xs, ys))
         at = end + 17
     return names
 
 
-def duplicate_channel(path):
-    """None, or (part, name) of a channel listed twice in a part's channel
-    list, as the C reader (src/exr_channels.c) refuses it: OpenImageIO
-    keeps one of the two and reads on, a frame of one channel fewer with
-    either's values under the name."""
+def data_is_exr(path):
+    """Whether the file at path starts with OpenEXR's magic number."""
+    with open(path, "rb") as f:
+        return f.read(4) == b"\x76\x2f\x31\x01"
+
+
+def channel_fault(path):
+    """None, or why the headers of the file at path cannot be read: cut
+    short or damaged before OpenImageIO reads them (which reads a cut one
+    on into garbage), or a channel list the C reader refuses, in its words
+    (src/exr_channels.c): a channel listed twice (which
+    OpenImageIO reads as one), a pixel type other than UINT, HALF or FLOAT
+    (on which OpenImageIO aborts the process in some paths), a sampling
+    below 1, or a name that is not UTF-8 (which OpenImageIO's Python
+    binding raises UnicodeDecodeError on). To be asked before OpenImageIO
+    opens the file."""
     with open(path, "rb") as f:
         if not f.seek(0, 2):
             return None
         with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            walked = _headers(data)
+            why = []
+            walked = _headers(data, why)
+            size = len(data)
+    if not walked and why == ["cut"]:
+        return (f"truncated / incomplete file: it ends inside its header ({size} bytes); write "
+                "or copy the file again")
+    if not walked and data_is_exr(path):
+        return "the EXR header cannot be read (an attribute runs past its end); the file is " \
+               "damaged, write it again"
     for i, part in enumerate(walked[1] if walked else []):
         seen = set()
-        for n, _ in part[4]:
-            if n in seen:
-                return i, n.decode("utf-8", "replace")
-            seen.add(n)
+        for raw, ptype, xs, ys in part[4]:
+            name = raw.decode("utf-8", "replace")
+            if raw in seen:
+                return (f'channel "{name}" is listed twice in the channel list of part {i}: '
+                        "every channel of a part needs its own name; write the file again with "
+                        "one of them renamed or left out")
+            seen.add(raw)
+            try:
+                raw.decode("utf-8")
+            except UnicodeDecodeError:
+                return (f'channel "{name}" of part {i} has a name that is not UTF-8 '
+                        f"({raw!r}); rename the channel")
+            if not 0 <= ptype <= 2:
+                return (f'channel "{name}" of part {i} has pixel type {ptype}, not UINT (0), '
+                        "HALF (1) or FLOAT (2); the file is damaged, write it again")
+            if xs < 1 or ys < 1:
+                return (f'channel "{name}" of part {i} has sampling {xs}x{ys}, below 1; the '
+                        "file is damaged, write it again")
     return None
 
 
@@ -88,7 +122,7 @@ def _chunk_sizes(data, part):
         return None
     x0, y0, x1, y1 = window
     w, h = x1 - x0 + 1, y1 - y0 + 1
-    pixel = sum(b for _, b in channels)
+    pixel = sum(2 if t == 1 else 4 for _, t, _, _ in channels)
     if w < 1 or h < 1:
         return None
     if multipart:
@@ -142,12 +176,19 @@ def _chunk_sizes(data, part):
     return None
 
 
-def _headers(data):
-    """(offset past the headers, [per part: its type string or None and its
-    chunkCount or None], multi-part) or None when they cannot be walked
-    (damaged, or cut inside them: OpenImageIO says so itself)."""
-    if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
+def _headers(data, why=None):
+    """(offset past the headers, [per part: (type string, chunkCount or
+    None, tiles (x size, y size, mode) or None, dataWindow or None,
+    _chlist's channels, compression code or None)], multi-part), or None
+    when they cannot be walked: then why (a list, when given) gets "cut"
+    when the file ends inside them, else "damaged"."""
+    def fail(kind):
+        if why is not None:
+            why.append(kind)
         return None
+    if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
+        return fail("cut" if len(data) < 8 and data[:4] == b"\x76\x2f\x31\x01"[:len(data)]
+                    else "damaged")
     flags = data[5]
     multipart, single_tiled = bool(flags & 0x10), bool(flags & 0x02)
     at, parts = 8, []
@@ -158,18 +199,18 @@ def _headers(data):
         while True:
             end = data.find(b"\0", at, at + 256)
             if end < 0:
-                return None
+                return fail("cut" if at + 256 > len(data) else "damaged")
             name = data[at:end]
             at = end + 1
             if not name:
                 break
             tend = data.find(b"\0", at, at + 256)
             if tend < 0 or tend + 5 > len(data):
-                return None
+                return fail("cut" if at + 256 > len(data) or tend + 5 > len(data) else "damaged")
             (size,) = struct.unpack_from("<i", data, tend + 1)
             value_at = tend + 5
             if size < 0 or value_at + size > len(data):
-                return None
+                return fail("damaged" if size < 0 else "cut")
             if name == b"type":
                 kind = data[value_at:value_at + size].split(b"\0")[0].decode("latin-1")
             elif name == b"chunkCount" and size == 4:
@@ -257,7 +298,7 @@ def _single_count(part):
     every level."""
     kind, chunks, tiles, window, _, comp = part
     if chunks is not None:
-        return chunks
+        return chunks if chunks >= 0 else None
     if not window:
         return None
     w, h = window[2] - window[0] + 1, window[3] - window[1] + 1

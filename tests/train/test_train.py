@@ -327,6 +327,42 @@ class Recipe(unittest.TestCase):
                       f"read; flatten it first, e.g. oiiotool {path} --flatten -o flat.exr",
                       str(e.exception))
 
+    def test_header_faults_refused_before_openimageio_reads_them(self):
+        """A channel name that is not UTF-8, a pixel type OpenEXR does not
+        know and a header cut short are refused naming the file and the
+        fault, before OpenImageIO reads the header: its Python binding
+        raised a bare UnicodeDecodeError on the first, and it aborted the
+        process on some lists of the second. Read in a subprocess, so that
+        an abort fails the test instead of ending it."""
+        names = [f"S0.{f}" for f in dataset.FEATURES]
+        path = os.path.join(self.work, "names.exr")
+        dataset.write_exr(path, names, np.full((3, 4, 6), 0.5, np.float32))
+        with open(path, "rb") as f:
+            whole = f.read()
+        at = whole.index(b"S0.depth\0")
+        cases = [
+            (whole[:at + 1] + b"\xff" + whole[at + 2:],
+             'channel "S\ufffd.depth" of part 0 has a name that is not UTF-8'),
+            (whole[:at + 9] + struct.pack("<i", 52738) + whole[at + 13:],
+             'channel "S0.depth" of part 0 has pixel type 52738, not UINT (0), HALF (1) or '
+             "FLOAT (2)"),
+            (whole[:at + 4], "truncated / incomplete file: it ends inside its header"),
+        ]
+        code = ("import sys\n"
+                f"sys.path.insert(0, {WEIGHTS!r})\n"
+                "import dataset\n"
+                "try:\n"
+                "    dataset.read_exr(sys.argv[1])\n"
+                "except dataset.DatasetError as e:\n"
+                "    print(e)\n")
+        for i, (blob, want) in enumerate(cases):
+            bad = os.path.join(self.work, f"header_fault{i}.exr")
+            with open(bad, "wb") as f:
+                f.write(blob)
+            r = subprocess.run([sys.executable, "-c", code, bad], capture_output=True, text=True)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            self.assertIn(f"{bad}: {want}", r.stdout)
+
     def test_uint_channels_read_as_their_integers(self):
         """A UINT channel reads as its integers converted to float, as
         OpenEXR and the C reader convert it, not scaled to [0, 1] as
