@@ -423,8 +423,10 @@ HFC_API int hfc_pending(const hfc_client *c);
  * hfc_shm_free). At most 16 segments per client (a 17th is HFC_E_INFLIGHT,
  * with nothing asked of the server); *mem is page-aligned.
  * The server may refuse (HFC_E_BUSY when its shared-memory budget, or the
- * part of it one connection may hold, is spent, HFC_E_TOO_LARGE over all
- * of either, HFC_E_UNSUPPORTED on TCP or when disabled). While a request is pending, do not write its features or read
+ * part of it one client process, all its connections together, or one
+ * connection may hold, is spent, HFC_E_TOO_LARGE over all of any of them,
+ * HFC_E_UNSUPPORTED on TCP or when disabled; hfc_last_message names the
+ * server's option). While a request is pending, do not write its features or read
  * its results. */
 HFC_API int hfc_shm_alloc(hfc_client *c, size_t bytes, void **mem);
 /* Releases a segment from hfc_shm_alloc; no request on it may be pending. */
