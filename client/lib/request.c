@@ -281,7 +281,9 @@ static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
  * refuse such a frame only once its header arrived, while the client goes
  * on writing the whole tensor, and one over max_frame_bytes closes the
  * connection. 0, or HFC_E_TOO_LARGE / HFC_E_UNSUPPORTED with why (naming
- * the limit, the frame's size and what to do) in why[0..whylen). */
+ * the limit, the frame's size and what to do) in why[0..whylen); a frame
+ * with an estimate for a server of protocol version 1 or 2 is
+ * HFC_E_UNSUPPORTED too. */
 static int check_limits(const hfc_client *c, const conn *x, const pending *p,
                         uint64_t frame_size, const segment *seg, char *why, size_t whylen) {
   const hfc_server_info *i = &x->info;
@@ -292,6 +294,15 @@ static int check_limits(const hfc_client *c, const conn *x, const pending *p,
              "filter it in tiles within the limit, or raise the server's --max-size",
              p->width, p->height, i->max_width, i->max_height, url);
     return HFC_E_TOO_LARGE;
+  }
+  /* hfc_submit refuses this on such a server; after a failover to one
+   * (a list of servers part upgraded) the flag and the estimate behind the
+   * features are what it cannot read. */
+  if (p->estimate && i->version < 3) {
+    snprintf(why, whylen, "the frame carries an estimate, but %s speaks protocol version %d: "
+             "the estimate needs version 3 (a newer hairfilterd); nothing was sent",
+             url, i->version);
+    return HFC_E_UNSUPPORTED;
   }
   if ((p->in_dtype == HFC_F16 && !i->f16) || (p->in_dtype == HFC_F32 && !i->f32) ||
       (p->out_dtype == HFC_F16 && !i->f16) || (p->out_dtype == HFC_F32 && !i->f32)) {

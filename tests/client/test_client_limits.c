@@ -44,6 +44,8 @@ typedef struct fake {
   uint32_t max_side;
   uint64_t max_frame_bytes;
   uint32_t dtypes;
+  int version;           /* HELLO_OK's protocol version (fake_start: HFP_VERSION) */
+  int estimate;          /* 1: its variant "Tiny" reads the estimate (version 3) */
   int close_on_filter;   /* 1: close when a FILTER's header arrives, answering nothing */
   pthread_t thread;
   /* what it received after the handshake, read once the thread ended */
@@ -101,7 +103,7 @@ static void *fake_main(void *arg) {
     if (h.type == HFP_HELLO) {
       hfp_hello_ok ok;
       memset(&ok, 0, sizeof ok);
-      ok.version = HFP_VERSION;
+      ok.version = (uint16_t)f->version;
       ok.max_width = ok.max_height = f->max_side;
       ok.max_spp = 2;
       ok.max_inflight = 4;
@@ -121,7 +123,8 @@ static void *fake_main(void *arg) {
       v.spp = 2;
       v.num_levels = 1;
       v.levels[0] = 4;
-      n = hfp_encode_variants(out, sizeof out, &v, 1);
+      v.estimate = f->estimate ? HFP_ESTIMATE_ALPHA_CORRECTED : HFP_ESTIMATE_NONE;
+      n = hfp_encode_variants_v(out, sizeof out, &v, 1, f->version);
     } else if (h.type == HFP_FILTER) {
       hfp_error e;
       memset(&e, 0, sizeof e);
@@ -143,6 +146,7 @@ static void fake_start(fake *f, const char *name, uint32_t max_side, uint64_t ma
   f->max_side = max_side;
   f->max_frame_bytes = max_frame_bytes;
   f->dtypes = dtypes;
+  f->version = HFP_VERSION;
   struct sockaddr_un a;
   memset(&a, 0, sizeof a);
   a.sun_family = AF_UNIX;
@@ -253,6 +257,41 @@ static void test_failover_limits(void **state) {
   free(out);
 }
 
+/* A frame with an estimate (protocol version 3) queued for a server that
+ * is lost goes to the next endpoint, an older server of version 2: it
+ * completes there without being sent, HFC_E_UNSUPPORTED naming the
+ * version, as hfc_submit refuses it on such a server. Sent, its flag and
+ * estimate were what that server cannot read. */
+static void test_failover_version(void **state) {
+  (void)state;
+  fake newer, older;
+  fake_start(&newer, "newer", 64, 1u << 20, HFP_DTYPE_MASK_ALL);
+  newer.estimate = 1;
+  newer.close_on_filter = 1;
+  fake_start(&older, "older", 64, 1u << 20, HFP_DTYPE_MASK_ALL);
+  older.version = 2;
+  char url[512];
+  snprintf(url, sizeof url, "unix:%s,unix:%s", newer.path, older.path);
+  hfc_client *c = connect_url(url);
+  float *in = calloc(1, hfc_features_bytes(8, 8, 2, HFC_F32) + hfc_estimate_bytes(8, 8, HFC_F32));
+  float *out = calloc(1, hfc_output_bytes(8, 8, 3, HFC_F32));
+  assert_non_null(in);
+  assert_non_null(out);
+  hfc_request r = TEST_REQUEST(.variant = "Tiny", .width = 8, .height = 8, .spp = 2,
+                               .estimate = 1, .features = in, .result = out);
+  expect(c, hfc_filter(c, &r, NULL), HFC_E_UNSUPPORTED,
+         (const char *[]){"estimate", "version 2", "nothing was sent", NULL});
+  hfc_close(c);
+  fake_join(&newer);
+  fake_join(&older);
+  assert_int_equal(newer.filters, 1);
+  if (older.filters != 0)
+    fail_msg("the version-2 server received %d FILTER frames with an estimate, want none",
+             older.filters);
+  free(in);
+  free(out);
+}
+
 /* Shared memory on a real server of --max-size 16x16: a 32x32 frame in a
  * segment is refused before its reference goes out (the server counts no
  * request of the variant), and a 16x16 one then goes by reference on the
@@ -292,6 +331,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_socket_limits),
       cmocka_unit_test(test_failover_limits),
+      cmocka_unit_test(test_failover_version),
       cmocka_unit_test(test_shm_limits),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
