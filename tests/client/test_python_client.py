@@ -747,6 +747,28 @@ class PythonClient(unittest.TestCase):
         finally:
             t.join(30)
 
+    def test_close_after_server_gone(self):
+        """close() (and leaving a with block) after the server went away,
+        with a segment held: it closes and unmaps without raising. The
+        segment's release was written to the dead socket, and the loss
+        ('CLOSED: send: Broken pipe') came out of close(), leaving the
+        segment mapped."""
+        sock = os.path.join(ARGS.work, "gone_shm.sock")
+        if os.path.exists(sock):
+            os.unlink(sock)
+        proc, urls = start_daemon("gone_shm", ["--listen", "unix:" + sock, "--weights",
+                                               os.path.join(ARGS.weights, "small.safetensors")])
+        try:
+            c = hairfilter.Client(urls[0])
+            seg = c.shared_memory(1 << 16)
+        finally:
+            proc.kill()
+            proc.wait(timeout=30)
+        c.close()
+        self.assertIsNone(seg._mm)
+        with self.assertRaises(hairfilter.Error):
+            c.wait()
+
     def test_close_with_frame_pending_in_segment(self):
         """close() (and leaving a with block) while a frame in a shared
         segment is pending abandons it and closes: it raised ARG from the

@@ -165,10 +165,18 @@ class Segment:
     def close(self):
         """Releases the segment on the server and unmaps it; a second close
         does nothing. Error("ARG") while a pending request uses it (wait()
-        for its completion first): the segment then stays usable."""
+        for its completion first): the segment then stays usable. On a
+        lost connection it is unmapped all the same (the server released
+        it with the connection), and the loss is raised."""
         if self._mm is None:
             return
-        self._client._shm_destroy(self)
+        self._client._shm_check_unused(self)
+        try:
+            self._client._shm_destroy(self)
+        finally:
+            self._unmap()
+
+    def _unmap(self):
         try:
             self._mm.close()
         except BufferError:
@@ -435,10 +443,15 @@ class Client:
 
     def close(self):
         """Releases the segments and closes; pending requests are abandoned
-        (first, so that their segments can be released)."""
+        (first, so that their segments can be released). A connection
+        already lost raises nothing here: the segments are unmapped, the
+        socket closed."""
         self._pending.clear()
         for seg in list(self._segments):
-            seg.close()
+            try:
+                seg.close()
+            except Error:
+                pass   # the connection is lost, and its segments with it (unmapped here)
         self._close_socket()
         for fd in self._fds:
             os.close(fd)
@@ -606,12 +619,15 @@ class Client:
         self._segments.append(seg)
         return seg
 
-    def _shm_destroy(self, seg):
+    def _shm_check_unused(self, seg):
         # Refused before anything changes: a segment dropped from the list
         # would send its later frames through the socket without a word.
         if any(p.shm is seg for p in self._pending.values()):
             raise Error("ARG", "a request pending on this segment still uses it: wait() for "
                                "its completion, then close the segment")
+
+    def _shm_destroy(self, seg):
+        self._shm_check_unused(seg)
         if seg in self._segments:
             self._segments.remove(seg)
         if self._sock is not None and self._broken is None:
