@@ -32,6 +32,7 @@ static const char *const messages[HFP_E_COUNT] = {
   [HFP_E_SHUTTING_DOWN] = "server shutting down",
   [HFP_E_INVALID] = "field out of range",
   [HFP_E_NOSPACE] = "buffer too small",
+  [HFP_E_EXPIRED] = "the frame's deadline passed before it ran; retrying cannot help",
 };
 
 const char *hfp_strerror(int code) {
@@ -43,6 +44,7 @@ const char *hfp_strerror(int code) {
 static const char *const names[HFP_E_COUNT] = {
   "OK", "VERSION", "PROTOCOL", "UNKNOWN_VARIANT", "TOO_LARGE", "LENGTH", "BUSY",
   "UNAUTHORIZED", "INTERNAL", "UNSUPPORTED", "SHUTTING_DOWN", "INVALID", "NOSPACE",
+  "EXPIRED",
 };
 
 const char *hfp_code_name(int code) {
@@ -567,6 +569,11 @@ static int filter_fields(const hfp_filter *m, uint64_t *data_len) {
   return hfp_filter_input_bytes(m->width, m->height, m->spp, m->in_dtype, m->flags, data_len);
 }
 
+/* Bytes between the variant name and the tensor (or the SHM reference). */
+static size_t filter_extra(unsigned flags) {
+  return (flags & HFP_FILTER_DEADLINE) ? HFP_DEADLINE_SIZE : 0;
+}
+
 int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
                            const hfp_filter *m, uint64_t *frame_size) {
   wr w;
@@ -577,6 +584,10 @@ int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
     int rc = filter_fields(m, &data_len);
     if (rc) w.err = rc;
     else if (m->data_len != data_len || request_id == 0) w.err = -HFP_E_INVALID;
+    /* A budget of 0 would expire every frame; one without the flag would
+     * be dropped on the wire. */
+    else if ((m->flags & HFP_FILTER_DEADLINE) ? m->budget_us == 0 : m->budget_us != 0)
+      w.err = -HFP_E_INVALID;
   }
   wr_u16(&w, (uint16_t)vn);
   wr_u16(&w, m->flags);
@@ -589,6 +600,7 @@ int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
   for (int i = 0; i < 3; i++) wr_f32(&w, m->light[i]);
   for (int i = 0; i < 3; i++) wr_f32(&w, m->bg[i]);
   wr_bytes(&w, m->variant, vn);
+  if (m->flags & HFP_FILTER_DEADLINE) wr_u32(&w, m->budget_us);
   if (m->flags & HFP_FILTER_SHM) {
     /* The tensors stay in the segment: nothing follows the reference. */
     if (!w.err && (m->shm_segment == 0 || (!(m->flags & HFP_FILTER_COMPOSITE) && m->shm_rgba)))
@@ -624,7 +636,7 @@ int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
   if (r.err) return -HFP_E_NOSPACE;  /* the fixed part has not all arrived */
   if (vn < 1 || vn > HFP_NAME_MAX) return -HFP_E_INVALID;
   if ((size_t)HFP_FILTER_FIXED + vn > len) return -HFP_E_LENGTH;
-  size_t need = (size_t)HFP_FILTER_FIXED + vn +
+  size_t need = (size_t)HFP_FILTER_FIXED + vn + filter_extra(m->flags) +
                 ((m->flags & HFP_FILTER_SHM) ? HFP_SHM_REF_SIZE : 0);
   if (need > len) return -HFP_E_LENGTH;
   if (need > avail) return -HFP_E_NOSPACE;
@@ -634,6 +646,11 @@ int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
   int rc = filter_fields(m, &data_len);
   if (rc) return rc;
   m->data_len = data_len;
+  if (m->flags & HFP_FILTER_DEADLINE) {
+    m->budget_us = rd_u32(&r);
+    if (r.err) return r.err;
+    if (m->budget_us == 0) return -HFP_E_INVALID;
+  }
   if (m->flags & HFP_FILTER_SHM) {
     m->shm_segment = rd_u32(&r);
     uint32_t reserved = rd_u32(&r);
@@ -781,13 +798,17 @@ int hfp_decode_error(const uint8_t *payload, size_t len, hfp_error *m) {
 
 #define VSTATS_FIXED (7 * 8 + 2 * HFP_HIST_BUCKETS * 8)
 
+/* Per-variant counters after the entries: 3 in versions 2 and 3, 4 from
+ * version 4 (expired). */
+static int stats_counters(int version) { return version >= 4 ? HFP_STATS_COUNTERS : 3; }
+
 size_t hfp_frame_size_stats_v(const hfp_stats *m, int version) {
   size_t n = HFP_HEADER_SIZE + 40;
   for (int i = 0; i < m->num_variants && i < HFP_MAX_VARIANTS; i++)
     n += 1 + strnlen(m->variants[i].name, HFP_NAME_MAX + 1) + VSTATS_FIXED;
   if (version >= 2) {
     int nv = m->num_variants < HFP_MAX_VARIANTS ? m->num_variants : HFP_MAX_VARIANTS;
-    n += 2 + (size_t)nv * HFP_STATS_COUNTERS * 8;
+    n += 2 + (size_t)nv * stats_counters(version) * 8;
   }
   return n;
 }
@@ -821,11 +842,13 @@ int hfp_encode_stats_v(uint8_t *buf, size_t cap, const hfp_stats *m, int version
   }
   /* Version 2: the counters a version-1 entry has no room for. */
   if (version >= 2 && !w.err) {
-    wr_u16(&w, HFP_STATS_COUNTERS);
+    int nc = stats_counters(version);
+    wr_u16(&w, (uint16_t)nc);
     for (int i = 0; i < m->num_variants; i++) {
       wr_u64(&w, m->variants[i].out_of_range);
       wr_u64(&w, m->variants[i].frames_sanitised);
       wr_u64(&w, m->variants[i].cache_bytes);
+      if (nc > 3) wr_u64(&w, m->variants[i].expired);
     }
   }
   return wr_finish(&w, HFP_STATS_REPLY, 0, 0);
@@ -876,6 +899,7 @@ int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
         if (k == 0) m->variants[i].out_of_range = c;
         if (k == 1) m->variants[i].frames_sanitised = c;
         if (k == 2) m->variants[i].cache_bytes = c;
+        if (k == 3) m->variants[i].expired = c;
       }
   }
   int rc = rd_end(&r);

@@ -1,5 +1,5 @@
 /*
- * hfproto: the hairfilter wire protocol, versions 1, 2 and 3 (see
+ * hfproto: the hairfilter wire protocol, versions 1 to 4 (see
  * PROTOCOL.md, which is normative; this header follows it). Version 2 is
  * version 1 plus the input-range report and the input-sanitised flag:
  * RESULT flags HFP_RESULT_INPUT_SANITISED and HFP_RESULT_OUT_OF_RANGE, each
@@ -8,7 +8,10 @@
  * peer that negotiated version 1 never sees them. Version 3 is version 2
  * plus the alpha-corrected estimate: FILTER flag HFP_FILTER_ESTIMATE (the
  * features are followed by the frame's estimate) and, after VARIANTS'
- * ranges, the estimate each variant reads (hfp_variant.estimate).
+ * ranges, the estimate each variant reads (hfp_variant.estimate). Version 4
+ * is version 3 plus a frame's deadline: FILTER flag HFP_FILTER_DEADLINE and
+ * its budget (hfp_filter.budget_us), the RESULT status HFP_E_EXPIRED, and a
+ * fourth per-variant counter after STATS_REPLY (expired).
  *
  * A pure codec: it turns message structs into bytes and bytes into structs.
  * It does no I/O and never allocates, so every length it reads from the wire
@@ -36,7 +39,7 @@ extern "C" {
 #endif
 
 #define HFP_MAGIC          0x31504648u  /* "HFP1" in byte order */
-#define HFP_VERSION        3            /* the newest version this codec speaks */
+#define HFP_VERSION        4            /* the newest version this codec speaks */
 #define HFP_VERSION_MIN    1            /* the oldest */
 #define HFP_HEADER_SIZE    16
 
@@ -52,7 +55,7 @@ extern "C" {
 #define HFP_ESTIMATE_VALUES 3     /* the estimate's colour, highlight, alpha (v3) */
 #define HFP_HIST_BUCKETS   24     /* latency histogram buckets */
 #define HFP_MAX_STATS      16     /* input statistics a variant's range may name */
-#define HFP_STATS_COUNTERS 3      /* per-variant counters after STATS_REPLY (v2) */
+#define HFP_STATS_COUNTERS 4      /* per-variant counters after STATS_REPLY (v4; v2, v3: 3) */
 
 /* ---- error codes (stable; wire values are the positive numbers) -------- */
 
@@ -69,7 +72,9 @@ extern "C" {
 #define HFP_E_SHUTTING_DOWN  10  /* the server is draining and takes no new work */
 #define HFP_E_INVALID        11  /* a field is out of its domain */
 #define HFP_E_NOSPACE        12  /* (local only) output buffer too small */
-#define HFP_E_COUNT          13
+#define HFP_E_EXPIRED        13  /* (version 4) the frame's budget passed before it ran;
+                                    retrying cannot help */
+#define HFP_E_COUNT          14
 
 /* Accepts a code of either sign. Never NULL. */
 const char *hfp_strerror(int code);
@@ -103,7 +108,11 @@ enum { HFP_F32 = 0, HFP_F16 = 1 };
 #define HFP_FILTER_SHM       0x0002u  /* tensors in a shared segment, not the frame */
 #define HFP_FILTER_ESTIMATE  0x0004u  /* version 3: the features are followed by the
                                          frame's alpha-corrected estimate, W*H*3 values */
-#define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM | HFP_FILTER_ESTIMATE)
+#define HFP_FILTER_DEADLINE  0x0008u  /* version 4: a u32 budget_us follows the variant
+                                         name; a frame not running by then is EXPIRED */
+#define HFP_FILTER_KNOWN     (HFP_FILTER_COMPOSITE | HFP_FILTER_SHM | HFP_FILTER_ESTIMATE | \
+                              HFP_FILTER_DEADLINE)
+#define HFP_DEADLINE_SIZE    4        /* the budget field's bytes */
 
 /* What a variant reads besides the samples (VARIANTS, version 3). */
 enum { HFP_ESTIMATE_NONE = 0, HFP_ESTIMATE_ALPHA_CORRECTED = 1 };
@@ -194,6 +203,8 @@ typedef struct hfp_filter {
   /* With HFP_FILTER_SHM: where the tensors are in segment shm_segment. */
   uint32_t shm_segment;
   uint64_t shm_in, shm_out, shm_rgba;
+  uint32_t budget_us;                 /* with HFP_FILTER_DEADLINE (version 4): 1..2^32-1 us
+                                         from the frame's arrival; else 0 */
 } hfp_filter;
 
 /* Server-side per-request timing, microseconds. */
@@ -240,6 +251,7 @@ typedef struct hfp_variant_stats {
                                  sanitised (HFP_RESULT_INPUT_SANITISED) */
   uint64_t cache_bytes;       /* version 2: host memory, bytes, the variant's model
                                  keeps between runs (plans); a gauge */
+  uint64_t expired;           /* version 4: RESULTs with status HFP_E_EXPIRED */
 } hfp_variant_stats;
 
 typedef struct hfp_stats {
@@ -306,7 +318,8 @@ int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
                            const hfp_filter *m, uint64_t *frame_size);
 int hfp_encode_result_head(uint8_t *buf, size_t cap, uint32_t request_id,
                            const hfp_result *m, uint64_t *frame_size);
-#define HFP_FILTER_HEAD_MAX (HFP_HEADER_SIZE + HFP_FILTER_FIXED + HFP_NAME_MAX)
+#define HFP_FILTER_HEAD_MAX (HFP_HEADER_SIZE + HFP_FILTER_FIXED + HFP_NAME_MAX + \
+                             HFP_DEADLINE_SIZE)
 #define HFP_RESULT_HEAD_MAX (HFP_HEADER_SIZE + HFP_RESULT_FIXED)
 
 /* Decoders read a payload (the bytes after the header) of exactly len bytes:

@@ -398,6 +398,7 @@ static void account(hfd_server *s, hfd_job *j) {
   if (j->status == HFP_OK) hfd_metrics_observe(s, j);
   if (j->status != HFP_OK) {
     st->requests_failed++;
+    st->expired += j->status == HFP_E_EXPIRED;
     /* Counted apart for the stop line and /metrics: overload, not a
      * failure to run. Only BUSY RESULTs are pushed-out frames. */
     if (j->status == HFP_E_BUSY)
@@ -747,8 +748,10 @@ static void filter_head(hfd_conn *c, size_t have) {
   if (rc == -HFP_E_NOSPACE) {
     /* The fixed fields are in; the variant name (and, for SHM, the segment
      * reference) is still to come. The codec has checked that it fits. */
+    unsigned flags = hfp_get_u16(c->ctl + 2);
     size_t need = HFP_FILTER_FIXED + hfp_get_u16(c->ctl) +
-                  ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_SHM) ? HFP_SHM_REF_SIZE : 0);
+                  ((flags & HFP_FILTER_DEADLINE) ? HFP_DEADLINE_SIZE : 0) +
+                  ((flags & HFP_FILTER_SHM) ? HFP_SHM_REF_SIZE : 0);
     c->want = need;
     return;
   }
@@ -774,6 +777,13 @@ static void filter_head(hfd_conn *c, size_t have) {
   if ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_ESTIMATE) && c->version < 3) {
     reject(c, v, HFP_E_UNSUPPORTED, left,
            "FILTER flag ESTIMATE (bit 2) needs protocol version 3; this connection speaks %d",
+           c->version);
+    return;
+  }
+  /* Likewise bit 3 (DEADLINE) before version 4 (PROTOCOL.md, "Version 4"). */
+  if ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_DEADLINE) && c->version < 4) {
+    reject(c, v, HFP_E_UNSUPPORTED, left,
+           "FILTER flag DEADLINE (bit 3) needs protocol version 4; this connection speaks %d",
            c->version);
     return;
   }

@@ -110,7 +110,8 @@ static void lower(char *dst, size_t cap, const char *src) {
 static const char *status_class(int code) {
   switch (code) {
     case HFP_OK: return "ok";
-    case HFP_E_BUSY: return "overload";
+    case HFP_E_BUSY:
+    case HFP_E_EXPIRED: return "overload";  /* the server did not keep up */
     case HFP_E_SHUTTING_DOWN: return "unavailable";
     case HFP_E_INTERNAL: return "server_error";
     default: return "client_error";
@@ -121,7 +122,7 @@ static const char *status_class(int code) {
  * from the start; others appear once they happen. */
 static int always_shown(int code) {
   return code == HFP_OK || code == HFP_E_BUSY || code == HFP_E_INVALID ||
-         code == HFP_E_TOO_LARGE || code == HFP_E_INTERNAL;
+         code == HFP_E_TOO_LARGE || code == HFP_E_INTERNAL || code == HFP_E_EXPIRED;
 }
 
 static void requests(FILE *f, const char *variant, const hfd_variant_metrics *m, int unrouted,

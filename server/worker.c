@@ -25,6 +25,7 @@
 #define _GNU_SOURCE
 #include <errno.h>
 #include <malloc.h>
+#include <math.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -319,13 +320,42 @@ static void unlink_queued(hfd_worker *w, hfd_job *prev, hfd_job *j) {
   j->next = NULL;
 }
 
+/* When j's budget (FILTER flag DEADLINE, version 4) ends, on hfd_now_us's
+ * clock: it counts from the frame's arrival, as total_us does. Frames
+ * without one never expire. */
+static double expires_at(const hfd_job *j) {
+  if (!(j->req.flags & HFP_FILTER_DEADLINE)) return INFINITY;
+  return j->t_received + (double)j->req.budget_us;
+}
+
+/* Takes the queued frames whose budget has passed by now off the queue
+ * (mu held) and returns them as a list: they are answered EXPIRED unrun,
+ * and leave their queue places and memory to frames that can still make
+ * it. Frames in the batch being formed have left the queue: they run. */
+static hfd_job *take_expired(hfd_worker *w, double now) {
+  hfd_job *late = NULL, **tail = &late, *prev = NULL;
+  for (hfd_job *j = w->q_head, *next; j; j = next) {
+    next = j->next;
+    if (now < expires_at(j)) {
+      prev = j;
+      continue;
+    }
+    unlink_queued(w, prev, j);
+    *tail = j;
+    tail = &j->next;
+  }
+  return late;
+}
+
 /* Removes and returns the first queued job compatible with j0 (mu held),
  * when running it in the batch (nb jobs so far, which reserved reserved
  * bytes for running) needs no more than the batch's jobs reserved. */
 static hfd_job *take_compatible(hfd_worker *w, const hfd_job *j0, int nb, uint64_t reserved) {
   hfd_job *prev = NULL;
+  double now = hfd_now_us();
   for (hfd_job *j = w->q_head; j; prev = j, j = j->next) {
     if (!compatible(j, j0)) continue;
+    if (now >= expires_at(j)) continue;   /* take_expired answers it */
     if (hfd_worker_run_bytes(w, &j0->model->cfg, j0->req.width, j0->req.height, nb + 1,
                              j0->req.data_len) > reserved + j->infer_bytes)
       return NULL;
@@ -499,6 +529,7 @@ static void release_models(hfd_worker *w) {
 }
 
 static void complete(hfd_worker *w, hfd_job **batch, int nb);
+static void complete_unrun(hfd_worker *w, hfd_job *list, int status);
 
 /* Waits for the pending run (submitted earlier) and completes its jobs. */
 static void finish_pending(hfd_worker *w, run *p) {
@@ -572,6 +603,14 @@ static void *worker_main(void *arg) {
       continue;
     }
     if (!w->q_head) break;  /* stop requested and nothing left */
+    hfd_job *late = take_expired(w, hfd_now_us());
+    if (late) {
+      pthread_mutex_unlock(&w->mu);
+      complete_unrun(w, late, HFP_E_EXPIRED);
+      progress(w);
+      pthread_mutex_lock(&w->mu);
+      continue;
+    }
     hfd_job *j0 = w->q_head;
     w->q_head = j0->next;
     if (!w->q_head) w->q_tail = NULL;
@@ -584,11 +623,15 @@ static void *worker_main(void *arg) {
      * admitted frames that are not running yet, wherever they wait. */
     w->q_forming = 1;
     uint64_t reserved = j0->infer_bytes;
+    /* The batch waits for partners no longer than the shortest budget of
+     * its frames: taken before their budget passed, they run. */
     double deadline = j0->t_received + w->max_delay_us;
+    if (expires_at(j0) < deadline) deadline = expires_at(j0);
     while (nb < w->max_batch && !w->cancel) {
       hfd_job *j = take_compatible(w, j0, nb, reserved);
       if (j) {
         reserved += j->infer_bytes;
+        if (expires_at(j) < deadline) deadline = expires_at(j);
         batch[nb++] = j;
         w->q_forming = nb;
         continue;
@@ -792,12 +835,12 @@ int hfd_worker_queue_depth(hfd_worker *w) {
   return n;
 }
 
-/* Completes the jobs of list (taken off the queue) unrun, as
- * SHUTTING_DOWN. */
-static void complete_unrun(hfd_worker *w, hfd_job *list) {
+/* Completes the jobs of list (taken off the queue) unrun, with status
+ * (SHUTTING_DOWN, or EXPIRED). */
+static void complete_unrun(hfd_worker *w, hfd_job *list, int status) {
   for (hfd_job *j = list, *next; j; j = next) {
     next = j->next;
-    j->status = HFP_E_SHUTTING_DOWN;
+    j->status = status;
     j->t_started = j->t_done = hfd_now_us();
     j->batch = 0;
     hfd_job *one[1] = {j};
@@ -812,7 +855,7 @@ void hfd_worker_cancel(hfd_worker *w) {
   w->q_head = w->q_tail = NULL;
   w->q_len = 0;
   pthread_mutex_unlock(&w->mu);
-  complete_unrun(w, list);
+  complete_unrun(w, list, HFP_E_SHUTTING_DOWN);
 }
 
 int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn) {
@@ -832,7 +875,7 @@ int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn) {
     n++;
   }
   pthread_mutex_unlock(&w->mu);
-  complete_unrun(w, dropped); /* their status is never written: the connection is gone */
+  complete_unrun(w, dropped, HFP_E_SHUTTING_DOWN); /* their status is never written: the connection is gone */
   return n;
 }
 

@@ -1035,7 +1035,9 @@ enum { SV_V1 = 1, SV_V2 = 2, SV_MORE_COUNTERS, SV_ZERO_COUNTERS, SV_BUCKETS_23, 
 static int stats_handler(mock *m, const hfp_header *h, const uint8_t *p) {
   if (h->type != HFP_STATS) return mk_reply(m, h, p);
   size_t n;
-  uint8_t *b = mk_stats(m, m->arg == SV_V1 ? 1 : 2, &n);
+  /* Version 1, 2, or this codec's newest, whose counters are
+   * HFP_STATS_COUNTERS. */
+  uint8_t *b = mk_stats(m, m->arg == SV_V1 ? 1 : m->arg == SV_V2 ? 2 : HFP_VERSION, &n);
   if (!b) return CF_FAIL;
   uint8_t *q = b + HFP_HEADER_SIZE;
   switch (m->arg) {

@@ -199,7 +199,7 @@ static int same_values(cf_test *t, intptr_t n) {
 
 enum {
   F_WIDTH0, F_HEIGHT0, F_WIDTH_65536, F_HEIGHT_65536, F_WIDTH_U32, F_WIDTH_OVER, F_HEIGHT_OVER,
-  F_SPP0, F_SPP17, F_SPP_PLUS, F_SPP_MINUS, F_IN2, F_IN255, F_OUT2, F_OUT255, F_FLAG8,
+  F_SPP0, F_SPP17, F_SPP_PLUS, F_SPP_MINUS, F_IN2, F_IN255, F_OUT2, F_OUT255, F_FLAG10,
   F_FLAG8000, F_HAIR_NAN, F_HAIR_INF, F_HAIR_NINF, F_LIGHT_NAN, F_LIGHT_INF, F_LIGHT_NINF,
   F_BG_NAN, F_BG_INF, F_BG_NINF, F_UNKNOWN, F_CASE, F_VLEN0, F_VLEN65, F_VLEN_PAST,
   F_SHORT, F_LONG, F_FIXED_ONLY, F_BELOW_FIXED, F_EMPTY, F_OVERFLOW32, F_SHM_SHORT,
@@ -269,7 +269,7 @@ static int bad_field(cf_test *t, intptr_t which) {
     case F_OUT2: b[CF_FILTER_OUT_DTYPE] = 2; codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     case F_OUT255: b[CF_FILTER_OUT_DTYPE] = 255; codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     /* Bit 3: unknown in every version (bit 2 is version 3's ESTIMATE). */
-    case F_FLAG8: hfp_put_u16(b + CF_FILTER_FLAGS, 8); codes = CF_CODE(HFP_E_UNSUPPORTED); break;
+    case F_FLAG10: hfp_put_u16(b + CF_FILTER_FLAGS, 0x10); codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     case F_FLAG8000: hfp_put_u16(b + CF_FILTER_FLAGS, 0x8000); codes = CF_CODE(HFP_E_UNSUPPORTED); break;
     case F_HAIR_NAN: memcpy(b + CF_FILTER_HAIR, &nan, 4); break;
     case F_HAIR_INF: memcpy(b + CF_FILTER_HAIR + 4, &inf, 4); break;
@@ -446,6 +446,82 @@ static int estimate(cf_test *t, intptr_t which) {
   return cf_filter_ok(t, fd, &ok, version, NULL, NULL);
 }
 
+/* ---- a frame's deadline (version 4) ------------------------------------------ */
+
+enum { DL_V3_FLAG, DL_ZERO, DL_SHORT, DL_SERVED, DL_TINY };
+
+/* FILTER flag DEADLINE: unknown before version 4 (UNSUPPORTED, whatever
+ * the length); in version 4 a budget of 0 is INVALID and a payload without
+ * the 4 bytes the flag announces LENGTH (each non-fatal, the next frame
+ * served); a frame within a generous budget is served as any other; one
+ * whose budget of 1 us passes before it runs is a RESULT with status
+ * EXPIRED, 56 bytes, no tensors (a server that starts it within 1 us may
+ * serve it). */
+static int deadline(cf_test *t, intptr_t which) {
+  const cf_server *s = t->srv;
+  if (which != DL_V3_FLAG && s->version < 4)
+    return cf_skip(t, "the server speaks version %d, without deadlines", s->version);
+  if (s->variants[s->probe].estimate)
+    return cf_skip(t, "the probe variant reads the estimate");
+  int fd, version = which == DL_V3_FLAG ? 3 : s->version;
+  if (which == DL_V3_FLAG) {
+    if (s->version < 3) return cf_skip(t, "the server speaks version %d", s->version);
+    CF_TRY(cf_connect_hello(t, 1, 3, &fd, NULL));
+  } else {
+    CF_TRY(connect_v(t, &fd));
+  }
+  cf_filter f = {.id = 1800 + (uint32_t)which, .flags = HFP_FILTER_DEADLINE,
+                 .budget_us = which == DL_TINY ? 1 : 60000000};
+  cf_filter_defaults(t, &f);
+  if (which == DL_SERVED) return cf_filter_ok(t, fd, &f, version, NULL, NULL);
+  size_t n;
+  uint8_t *b = cf_filter_frame(t, &f, &n);
+  CF_CHECK(t, b, "out of memory");
+  if (which == DL_TINY) {
+    CF_TRY(cf_send(t, fd, b, n));
+    cf_frame fr;
+    int rc = cf_read(t, fd, t->o->timeout_ms, &fr);
+    if (rc == CF_EOF) return cf_fail(t, "wanted RESULT %u, the server closed", f.id);
+    if (rc == CF_TIMEOUT) return cf_fail(t, "wanted RESULT %u, nothing in %d ms", f.id, t->o->timeout_ms);
+    if (rc != CF_GOT) return CF_FAIL;
+    hfp_result r;
+    if (fr.h.type == HFP_RESULT && fr.h.length >= 2 && hfp_get_u16(fr.p) == HFP_E_EXPIRED) {
+      CF_CHECK(t, fr.h.request_id == f.id, "RESULT carries request id %u, the FILTER had %u",
+               fr.h.request_id, f.id);
+      CF_CHECK(t, hfp_decode_result(fr.p, fr.h.length, &r) == 0 && fr.h.length == HFP_RESULT_FIXED,
+               "an EXPIRED RESULT must be the 56 fixed bytes with width, height, batch and flags 0 "
+               "(%u payload bytes)", fr.h.length);
+      CF_CHECK(t, r.batch == 0 && r.timing.infer_us == 0 && r.timing.queue_us <= r.timing.total_us,
+               "an EXPIRED RESULT has batch %u, infer_us %llu, queue_us %llu of total %llu: "
+               "want batch 0, infer 0, queue within the total", r.batch,
+               (unsigned long long)r.timing.infer_us, (unsigned long long)r.timing.queue_us,
+               (unsigned long long)r.timing.total_us);
+    } else {
+      CF_TRY(cf_check_result(t, &fr, &f, version, NULL, NULL, NULL));
+    }
+  } else {
+    int code = HFP_E_UNSUPPORTED;
+    if (which == DL_ZERO) {
+      hfp_put_u32(b + CF_FILTER_NAME + strlen(f.variant), 0);
+      code = HFP_E_INVALID;
+    }
+    if (which == DL_SHORT) {
+      /* The budget announced, not sent: the tensor follows the name. */
+      memmove(b + CF_FILTER_NAME + strlen(f.variant),
+              b + CF_FILTER_NAME + strlen(f.variant) + HFP_DEADLINE_SIZE,
+              n - CF_FILTER_NAME - strlen(f.variant) - HFP_DEADLINE_SIZE);
+      n -= HFP_DEADLINE_SIZE;
+      hfp_put_u32(b + 12, (uint32_t)(n - HFP_HEADER_SIZE));
+      code = HFP_E_LENGTH;
+    }
+    CF_TRY(cf_send(t, fd, b, n));
+    CF_TRY(cf_expect_error(t, fd, code, 0, f.id));
+  }
+  cf_filter ok = {.id = f.id + 1000};
+  cf_filter_defaults(t, &ok);
+  return cf_filter_ok(t, fd, &ok, version, NULL, NULL);
+}
+
 /* PROTOCOL.md, "Which error a FILTER gets": a FILTER with two faults gets
  * one non-fatal ERROR, with its id, for the fault that comes first in the
  * order, and the next frame is served. Each case pairs a fault with one
@@ -487,14 +563,14 @@ static int fault_order(cf_test *t, intptr_t which) {
   switch (which) {
     case O_VLEN_FLAG:
       hfp_put_u16(b + CF_FILTER_VLEN, 0);
-      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      hfp_put_u16(b + CF_FILTER_FLAGS, 0x10);   /* a flag of no version up to 4 */
       break;
     case O_NAME_FLAG:
       b[CF_FILTER_NAME] = ' ';
-      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      hfp_put_u16(b + CF_FILTER_FLAGS, 0x10);   /* a flag of no version up to 4 */
       break;
     case O_FLAG_COLOUR:
-      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      hfp_put_u16(b + CF_FILTER_FLAGS, 0x10);   /* a flag of no version up to 4 */
       memcpy(b + CF_FILTER_HAIR, &nan, 4);
       code = HFP_E_UNSUPPORTED;
       break;
@@ -519,7 +595,7 @@ static int fault_order(cf_test *t, intptr_t which) {
       code = HFP_E_LENGTH;
       break;
     case O_FLAG_VARIANT:
-      hfp_put_u16(b + CF_FILTER_FLAGS, 8);
+      hfp_put_u16(b + CF_FILTER_FLAGS, 0x10);   /* a flag of no version up to 4 */
       unknown_name(s, b, vn);
       code = HFP_E_UNSUPPORTED;
       break;
@@ -829,7 +905,7 @@ const cf_case cf_cases_filter[] = {
   BF(F_OUT255, "out_dtype_255", "an unknown out_dtype is a non-fatal UNSUPPORTED"),
   BF(F_F16_WITH_F32_TENSOR, "f16_with_f32_tensor", "in_dtype f16 with a tensor of f32's size: LENGTH"),
   BF(F_DTYPE_UNOFFERED, "dtype_not_offered", "a dtype HELLO_OK does not offer is UNSUPPORTED"),
-  BF(F_FLAG8, "flags_bit3", "unknown FILTER flags are a non-fatal UNSUPPORTED"),
+  BF(F_FLAG10, "flags_bit4", "unknown FILTER flags are a non-fatal UNSUPPORTED (bit 3 is DEADLINE from version 4)"),
   BF(F_FLAG8000, "flags_bit15", "unknown FILTER flags are a non-fatal UNSUPPORTED"),
   BF(F_HAIR_NAN, "hair_nan", "colours must be finite even without COMPOSITE: INVALID"),
   BF(F_HAIR_INF, "hair_inf", "colours must be finite: INVALID"),
@@ -861,6 +937,11 @@ const cf_case cf_cases_filter[] = {
   {"filter.estimate.input_non_finite", "NaN and infinities in samples and estimate: results finite and in range", 0, estimate, EST_NAN},
   {"filter.estimate.input_huge", "huge values in samples and estimate: results finite and in range", 0, estimate, EST_HUGE},
   {"filter.estimate.input_negative", "negative values in samples and estimate: results finite and in range", 0, estimate, EST_NEGATIVE},
+  {"filter.deadline.v3_flag", "before version 4, FILTER flag bit 3 is unknown: a non-fatal UNSUPPORTED", 0, deadline, DL_V3_FLAG},
+  {"filter.deadline.zero", "DEADLINE with a budget of 0 is a non-fatal INVALID", 0, deadline, DL_ZERO},
+  {"filter.deadline.short", "DEADLINE without its 4 budget bytes is a non-fatal LENGTH", 0, deadline, DL_SHORT},
+  {"filter.deadline.served", "a frame within its budget is filtered as any other", 0, deadline, DL_SERVED},
+  {"filter.deadline.tiny_budget", "a budget of 1 us: a RESULT, EXPIRED (56 bytes, no tensors) or served", 0, deadline, DL_TINY},
   {"filter.order.variant_len_before_flag", "variant_len 0 and an unknown flag: INVALID, the name's fault first", 0, fault_order, O_VLEN_FLAG},
   {"filter.order.name_byte_before_flag", "a space in the name and an unknown flag: INVALID, the name's fault first", 0, fault_order, O_NAME_FLAG},
   {"filter.order.flag_before_colour", "an unknown flag and a NaN colour: UNSUPPORTED, the flag first", 0, fault_order, O_FLAG_COLOUR},

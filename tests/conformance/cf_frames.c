@@ -117,7 +117,8 @@ void cf_fill_features(const cf_filter *f, void *dst) {
 uint8_t *cf_filter_frame(cf_test *t, const cf_filter *f, size_t *len) {
   size_t vn = strlen(f->variant);
   uint64_t data = (f->flags & HFP_FILTER_SHM) ? HFP_SHM_REF_SIZE : cf_features_bytes(f);
-  size_t n = HFP_HEADER_SIZE + HFP_FILTER_FIXED + vn + (size_t)data;
+  size_t extra = (f->flags & HFP_FILTER_DEADLINE) ? HFP_DEADLINE_SIZE : 0;
+  size_t n = HFP_HEADER_SIZE + HFP_FILTER_FIXED + vn + extra + (size_t)data;
   uint8_t *b = cf_alloc(t, n);
   if (!b) return NULL;
   cf_header(b, HFP_FILTER, 0, f->id, (uint32_t)(n - HFP_HEADER_SIZE));
@@ -133,6 +134,8 @@ uint8_t *cf_filter_frame(cf_test *t, const cf_filter *f, size_t *len) {
   memcpy(b + CF_FILTER_BG, f->bg, 12);
   memcpy(b + CF_FILTER_NAME, f->variant, vn);
   uint8_t *tail = b + CF_FILTER_NAME + vn;
+  if (extra) hfp_put_u32(tail, f->budget_us);
+  tail += extra;
   if (f->flags & HFP_FILTER_SHM) {
     hfp_put_u32(tail, f->segment);
     hfp_put_u32(tail + 4, 0);

@@ -186,6 +186,8 @@ typedef struct cf_filter {
   /* With HFP_FILTER_SHM: the reference. */
   uint32_t segment;
   uint64_t shm_in, shm_out, shm_rgba;
+  /* With HFP_FILTER_DEADLINE (version 4): the budget after the name. */
+  uint32_t budget_us;
 } cf_filter;
 
 /* libhairfilter's options: name, token (NULL: none), timeout_ms. */

@@ -60,7 +60,7 @@ static void protocol(void) {
   static float feat[3 * 2 * 4 * 6];
   for (size_t i = 0; i < sizeof feat / sizeof feat[0]; i++) feat[i] = (float)(i % 7) / 7;
   hfp_filter f = {"Base", 0, 3, 2, 4, HFP_F32, HFP_F32, {0.5f, 0.4f, 0.3f}, {1, 1, 1},
-                  {0.1f, 0.1f, 0.1f}, feat, sizeof feat, 0, 0, 0, 0};
+                  {0.1f, 0.1f, 0.1f}, feat, sizeof feat, 0, 0, 0, 0, 0};
   uint64_t total;
   int n = hfp_encode_filter_head(b, sizeof b, 9, &f, &total);
   if (n > 0) memcpy(b + n, feat, sizeof feat), n = (int)total;
@@ -79,7 +79,7 @@ static void protocol(void) {
   static float feat_est[3 * 2 * (4 * 6 + 3)];
   for (size_t i = 0; i < sizeof feat_est / sizeof feat_est[0]; i++) feat_est[i] = (float)(i % 5) / 5;
   hfp_filter fe = {"KernelAC", HFP_FILTER_ESTIMATE, 3, 2, 4, HFP_F32, HFP_F32, {0.5f, 0.4f, 0.3f},
-                   {1, 1, 1}, {0.1f, 0.1f, 0.1f}, feat_est, sizeof feat_est, 0, 0, 0, 0};
+                   {1, 1, 1}, {0.1f, 0.1f, 0.1f}, feat_est, sizeof feat_est, 0, 0, 0, 0, 0};
   n = hfp_encode_filter_head(b, sizeof b, 13, &fe, &total);
   if (n > 0) memcpy(b + n, feat_est, sizeof feat_est), n = (int)total;
   frame("filter_estimate", n, b);

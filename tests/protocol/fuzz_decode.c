@@ -175,7 +175,7 @@ static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
     case 3: {
       static float d[2 * 2 * 6];
       hfp_filter m = {"Base", HFP_FILTER_COMPOSITE, 2, 2, 1, HFP_F32, HFP_F16, {0}, {0}, {0}, d,
-                      sizeof d, 0, 0, 0, 0};
+                      sizeof d, 0, 0, 0, 0, 0};
       uint64_t total;
       n = hfp_encode_filter_head(b, cap, 1, &m, &total);
       if (n > 0) {
@@ -212,7 +212,7 @@ static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
     case 7: {
       /* a FILTER by reference into a shared segment */
       hfp_filter m = {"Base", HFP_FILTER_SHM | HFP_FILTER_COMPOSITE, 3, 2, 1, HFP_F16, HFP_F16,
-                      {0}, {0}, {0}, NULL, 3 * 2 * 6 * 2, 5, 0, 512, 1024};
+                      {0}, {0}, {0}, NULL, 3 * 2 * 6 * 2, 5, 0, 512, 1024, 0};
       n = hfp_encode_filter_head(b, cap, 2, &m, NULL);
       break;
     }

@@ -795,7 +795,7 @@ static void test_version2(void **state) {
   memcpy(v1, buf, (size_t)n1);
   n2 = hfp_encode_stats_v(buf, sizeof buf, &m, 2);
   assert_int_equal((size_t)n2, hfp_frame_size_stats_v(&m, 2));
-  assert_int_equal(n2, n1 + 2 + 2 * HFP_STATS_COUNTERS * 8);
+  assert_int_equal(n2, n1 + 2 + 2 * 3 * 8);   /* versions 2 and 3: three counters */
   p = split(buf, n2, HFP_STATS_REPLY, &h);
   assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
   assert_memory_equal(&sd, &m, sizeof m);
@@ -806,12 +806,12 @@ static void test_version2(void **state) {
   assert_true(sd.variants[1].out_of_range == 0 && sd.variants[0].requests_ok == 5);
   assert_true(sd.variants[0].frames_sanitised == 0 && sd.variants[1].frames_sanitised == 0);
   assert_true(sd.variants[0].cache_bytes == 0 && sd.variants[1].cache_bytes == 0);
-  /* A newer peer's four counters: the first three are ours, the rest skipped. */
+  /* A newer peer's five counters: the first four are ours, the rest skipped. */
   memcpy(c, v1, (size_t)n1);
   size_t off = (size_t)n1;
-  hfp_put_u16(c + off, 4), off += 2;
+  hfp_put_u16(c + off, 5), off += 2;
   for (int i = 0; i < 2; i++)
-    for (int k = 0; k < 4; k++, off += 8) {
+    for (int k = 0; k < 5; k++, off += 8) {
       hfp_put_u32(c + off, (uint32_t)(10 * i + k + 1));
       hfp_put_u32(c + off + 4, 0);
     }
@@ -819,6 +819,7 @@ static void test_version2(void **state) {
   assert_true(sd.variants[0].out_of_range == 1 && sd.variants[1].out_of_range == 11);
   assert_true(sd.variants[0].frames_sanitised == 2 && sd.variants[1].frames_sanitised == 12);
   assert_true(sd.variants[0].cache_bytes == 3 && sd.variants[1].cache_bytes == 13);
+  assert_true(sd.variants[0].expired == 4 && sd.variants[1].expired == 14);
   hfp_put_u16(c + n1, 0);                   /* no counters: not a valid block */
   assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, (size_t)n1 + 2 - HFP_HEADER_SIZE, &sd),
                    -HFP_E_INVALID);
@@ -874,7 +875,7 @@ static void test_version3(void **state) {
   assert_int_equal(bytes, 3 * 2 * 24 * 2);
   static float t[3 * 2 * 27];
   hfp_filter f = {"V1", HFP_FILTER_ESTIMATE, 3, 2, 4, HFP_F32, HFP_F32, {0}, {0}, {0}, t,
-                  sizeof t, 0, 0, 0, 0}, fd;
+                  sizeof t, 0, 0, 0, 0, 0}, fd;
   uint64_t total;
   int n = hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total);
   assert_true(n > 0);
@@ -896,6 +897,114 @@ static void test_version3(void **state) {
   assert_int_equal(hfp_shm_check(&f, sizeof t + 3 * 2 * 3 * 4), -HFP_E_LENGTH);
   f.shm_out = sizeof t;
   assert_int_equal(hfp_shm_check(&f, sizeof t + 3 * 2 * 3 * 4 - 4), -HFP_E_LENGTH);
+}
+
+/* Version 4 (PROTOCOL.md, "Version 4"): FILTER flag DEADLINE and its
+ * budget after the variant name, before the tensor or the SHM reference;
+ * the status EXPIRED; a fourth counter after STATS_REPLY's entries. */
+static void test_version4(void **state) {
+  (void)state;
+  assert_int_equal(HFP_VERSION, 4);
+  assert_int_equal(hfp_negotiate(1, 4), 4);
+  assert_int_equal(hfp_negotiate(1, 3), 3);
+  assert_string_equal(hfp_code_name(HFP_E_EXPIRED), "EXPIRED");
+  assert_non_null(strstr(hfp_strerror(-HFP_E_EXPIRED), "deadline"));
+
+  static float t[3 * 2 * 24];
+  hfp_filter f = {"V1", HFP_FILTER_DEADLINE, 3, 2, 4, HFP_F32, HFP_F32, {0}, {0}, {0}, t,
+                  sizeof t, 0, 0, 0, 0, 16000}, fd;
+  uint64_t total;
+  int n = hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total);
+  assert_int_equal(n, HFP_HEADER_SIZE + HFP_FILTER_FIXED + 2 + HFP_DEADLINE_SIZE);
+  assert_int_equal(total, (uint64_t)n + sizeof t);
+  /* the budget right after the name, little-endian */
+  assert_int_equal(hfp_get_u32(buf + HFP_HEADER_SIZE + HFP_FILTER_FIXED + 2), 16000);
+  memcpy(buf + n, t, sizeof t);
+  hfp_header h;
+  const uint8_t *p = split(buf, (int)total, HFP_FILTER, &h);
+  assert_int_equal(hfp_decode_filter(p, h.length, &fd), 0);
+  assert_int_equal(fd.flags, HFP_FILTER_DEADLINE);
+  assert_int_equal(fd.budget_us, 16000);
+  assert_ptr_equal(fd.data, p + HFP_FILTER_FIXED + 2 + HFP_DEADLINE_SIZE);
+  /* the head alone, as a server reads it: not whole until the budget is in */
+  size_t head = 0;
+  assert_int_equal(hfp_decode_filter_head(p, HFP_FILTER_FIXED + 2 + 3, h.length, &fd, &head),
+                   -HFP_E_NOSPACE);
+  assert_int_equal(hfp_decode_filter_head(p, HFP_FILTER_FIXED + 2 + 4, h.length, &fd, &head), 0);
+  assert_int_equal(head, HFP_FILTER_FIXED + 2 + HFP_DEADLINE_SIZE);
+  /* the tensor without the budget the flag announces: the length disagrees */
+  static uint8_t c[4096];
+  memcpy(c, p, h.length);
+  assert_int_equal(hfp_decode_filter(c, h.length - HFP_DEADLINE_SIZE, &fd), -HFP_E_LENGTH);
+  /* a budget of 0 would expire the frame unseen: out of its domain */
+  hfp_put_u32(c + HFP_FILTER_FIXED + 2, 0);
+  assert_int_equal(hfp_decode_filter(c, h.length, &fd), -HFP_E_INVALID);
+  assert_string_equal(fd.variant, "V1");   /* charged to the variant it names */
+  f.budget_us = 0;
+  assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total), -HFP_E_INVALID);
+  /* a budget without the flag would be lost on the wire */
+  f.flags = 0, f.budget_us = 100;
+  assert_int_equal(hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total), -HFP_E_INVALID);
+  /* the largest budget */
+  f.flags = HFP_FILTER_DEADLINE, f.budget_us = UINT32_MAX;
+  n = hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total);
+  assert_true(n > 0);
+  memcpy(buf + n, t, sizeof t);
+  p = split(buf, (int)total, HFP_FILTER, &h);
+  assert_int_equal(hfp_decode_filter(p, h.length, &fd), 0);
+  assert_int_equal(fd.budget_us, UINT32_MAX);
+
+  /* by reference: the budget, then the reference */
+  f.flags = HFP_FILTER_DEADLINE | HFP_FILTER_SHM, f.budget_us = 7;
+  f.shm_segment = 3, f.shm_in = 0, f.shm_out = sizeof t, f.data = NULL;
+  n = hfp_encode_filter_head(buf, sizeof buf, 5, &f, &total);
+  assert_int_equal(n, HFP_HEADER_SIZE + HFP_FILTER_FIXED + 2 + HFP_DEADLINE_SIZE +
+                          HFP_SHM_REF_SIZE);
+  assert_true(n <= HFP_FILTER_HEAD_MAX + HFP_SHM_REF_SIZE);
+  p = split(buf, n, HFP_FILTER, &h);
+  assert_int_equal(hfp_decode_filter(p, h.length, &fd), 0);
+  assert_int_equal(fd.budget_us, 7);
+  assert_int_equal(fd.shm_segment, 3);
+  assert_int_equal(fd.shm_out, sizeof t);
+
+  /* RESULT with status EXPIRED: the fixed fields alone */
+  hfp_result r = {0};
+  r.status = HFP_E_EXPIRED;
+  r.timing.queue_us = r.timing.total_us = 17000;
+  n = hfp_encode_result_head(buf, sizeof buf, 5, &r, &total);
+  assert_int_equal(n, HFP_HEADER_SIZE + HFP_RESULT_FIXED);
+  hfp_result rd;
+  p = split(buf, n, HFP_RESULT, &h);
+  assert_int_equal(hfp_decode_result(p, h.length, &rd), 0);
+  assert_int_equal(rd.status, HFP_E_EXPIRED);
+  assert_true(rd.timing.queue_us == 17000);
+  /* and as an ERROR code */
+  hfp_error e = {HFP_E_EXPIRED, 0, "late"}, ed;
+  n = hfp_encode_error(buf, sizeof buf, 5, &e);
+  p = split(buf, n, HFP_ERROR, &h);
+  assert_int_equal(hfp_decode_error(p, h.length, &ed), 0);
+  assert_int_equal(ed.code, HFP_E_EXPIRED);
+
+  /* STATS_REPLY: four counters from version 4, the fourth expired */
+  static hfp_stats m, sd;
+  memset(&m, 0, sizeof m);
+  m.num_variants = 2;
+  strcpy(m.variants[0].name, "A");
+  strcpy(m.variants[1].name, "B");
+  m.variants[0].expired = 9;
+  m.variants[1].expired = 1ull << 33;
+  m.variants[1].cache_bytes = 5;
+  int n3 = hfp_encode_stats_v(buf, sizeof buf, &m, 3);
+  int n4 = hfp_encode_stats_v(c, sizeof c, &m, 4);
+  assert_int_equal((size_t)n4, hfp_frame_size_stats_v(&m, 4));
+  assert_int_equal(n4, n3 + 2 * 8);
+  p = split(c, n4, HFP_STATS_REPLY, &h);
+  assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
+  assert_memory_equal(&sd, &m, sizeof m);
+  p = split(buf, n3, HFP_STATS_REPLY, &h);   /* version 3: counted, not sent */
+  assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
+  assert_true(sd.variants[0].expired == 0 && sd.variants[1].expired == 0);
+  assert_true(sd.variants[1].cache_bytes == 5);
 }
 
 static void test_filter_shm(void **state) {
@@ -1088,6 +1197,7 @@ int main(void) {
     cmocka_unit_test(test_shm_messages),
     cmocka_unit_test(test_version2),
     cmocka_unit_test(test_version3),
+    cmocka_unit_test(test_version4),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

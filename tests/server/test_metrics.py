@@ -189,7 +189,7 @@ def run(d):
     check(d.get("/nope")[0] == 404, "unknown path is 404")
     samples, text = d.metrics()
     check(sample(samples, "hairfilterd_build_info", version=os.environ["HF_VERSION"],
-                 protocol_min="1", protocol_max="3") == 1, "build_info with the version")
+                 protocol_min="1", protocol_max="4") == 1, "build_info with the version")
     check(sample(samples, "hairfilterd_queue_capacity") == 2, "queue capacity 2")
     rc, out = promtool(text)
     check(rc == 0, "promtool check metrics at rest: " + out)

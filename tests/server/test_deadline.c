@@ -1,0 +1,242 @@
+/* hairfilterd and a frame's deadline (protocol version 4, PROTOCOL.md
+ * "Version 4"): a frame still queued when its budget has passed is
+ * answered EXPIRED and never computed; one within its budget is computed,
+ * and the batcher does not hold it for partners past its budget; STATS
+ * counts the expired frames (a fourth counter, version 4 only); before
+ * version 4 the flag is UNSUPPORTED, and a budget of 0 is INVALID. Raw
+ * frames, so that the daemon alone is tested. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "harness.h"
+
+static harness H;
+static server S;
+
+/* A frame alone waits 1.5 s in the batcher for partners: the queue behind
+ * it is held that long, whatever the machine's speed. */
+enum { HOLD_US = 1500000 };
+static const char *const args[] = {"--max-batch", "16", "--max-queue-delay-us", "1500000",
+                                   NULL};
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H)) return -1;
+  return server_start(&H, &S, args);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  return harness_stop(&H, &S);
+}
+
+/* A raw connection to the daemon's Unix socket that negotiated lo..hi. */
+static int connect_versions(int lo, int hi) {
+  int fd = raw_connect(S.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello_versions(fd, NULL, lo, hi), 0);
+  return fd;
+}
+
+/* Sends a FILTER of Small, w x h, with budget_us (0: no DEADLINE flag). */
+static void send_filter(int fd, uint32_t id, int w, int h, const float *in, uint32_t budget_us) {
+  const ref_variant *v = harness_variant(&H, "Small");
+  hfp_filter f;
+  memset(&f, 0, sizeof f);
+  strcpy(f.variant, "Small");
+  f.width = (uint32_t)w;
+  f.height = (uint32_t)h;
+  f.spp = (uint16_t)v->cfg.spp;
+  f.in_dtype = f.out_dtype = HFP_F32;
+  f.data = in;
+  assert_int_equal(hfp_features_bytes(f.width, f.height, f.spp, HFP_F32, &f.data_len), 0);
+  if (budget_us) {
+    f.flags = HFP_FILTER_DEADLINE;
+    f.budget_us = budget_us;
+  }
+  uint8_t head[HFP_FILTER_HEAD_MAX];
+  uint64_t total;
+  int n = hfp_encode_filter_head(head, sizeof head, id, &f, &total);
+  assert_true(n > 0);
+  assert_int_equal(raw_send(fd, head, (size_t)n), 0);
+  assert_int_equal(raw_send(fd, in, (size_t)f.data_len), 0);
+}
+
+/* Reads the next frame, a RESULT, into *r (its tensors copied to out,
+ * when out is not NULL); returns its request id. */
+static uint32_t read_result(int fd, hfp_result *r, float *out, size_t out_cap) {
+  hfp_header h;
+  uint8_t *p = NULL;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  if (h.type != HFP_RESULT) fail_msg("frame type %u, want RESULT", h.type);
+  assert_int_equal(hfp_decode_result(p, h.length, r), 0);
+  if (out && r->data_len) {
+    assert_true(r->data_len <= out_cap);
+    memcpy(out, r->data, (size_t)r->data_len);
+  }
+  r->data = r->rgba = NULL;
+  free(p);
+  return h.request_id;
+}
+
+/* Variant Small's statistics as a connection of fd's version reads them. */
+static hfp_variant_stats small_stats(int fd) {
+  uint8_t b[HFP_HEADER_SIZE];
+  assert_int_equal(hfp_encode_empty(b, sizeof b, HFP_STATS, 0), HFP_HEADER_SIZE);
+  assert_int_equal(raw_send(fd, b, sizeof b), 0);
+  hfp_header h;
+  uint8_t *p = NULL;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_STATS_REPLY);
+  static hfp_stats st;
+  assert_int_equal(hfp_decode_stats(p, h.length, &st), 0);
+  free(p);
+  for (int i = 0; i < st.num_variants; i++)
+    if (!strcmp(st.variants[i].name, "Small")) return st.variants[i];
+  fail_msg("STATS_REPLY lists no variant Small");
+  return st.variants[0];
+}
+
+/* A frame waits in the batcher (no partner comes) while two frames of other
+ * sizes queue behind it: one whose 200 ms budget passes meanwhile is
+ * answered EXPIRED, unrun (no backend run counted for it), and one with a
+ * budget of 60 s is computed, to the reference's values. */
+static void test_expired_while_queue_held(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  int spp = v->cfg.spp;
+  int fd = connect_versions(1, 4);
+  hfp_variant_stats before = small_stats(fd);
+  float *a = make_features(16, 16, spp, 1), *b = make_features(24, 20, spp, 2),
+        *c = make_features(20, 20, spp, 3);
+  double t0 = now_ms();
+  send_filter(fd, 1, 16, 16, a, 0);
+  usleep(100000);   /* frame 1 is the batcher's before the others arrive */
+  send_filter(fd, 2, 24, 20, b, 200000);
+  send_filter(fd, 3, 20, 20, c, 60000000);
+  static float got[20 * 20 * 3], want[20 * 20 * 3];
+  int seen = 0;
+  for (int k = 0; k < 3; k++) {
+    hfp_result r;
+    uint32_t id = read_result(fd, &r, got, sizeof got);
+    seen |= 1 << id;
+    if (id == 2) {
+      assert_int_equal(r.status, HFP_E_EXPIRED);
+      assert_int_equal(r.width, 0);
+      assert_int_equal(r.batch, 0);
+      assert_true(r.timing.infer_us == 0);
+      /* it waited its budget at least, in the queue */
+      assert_true(r.timing.queue_us >= 200000);
+      assert_true(r.timing.queue_us <= r.timing.total_us);
+    } else {
+      assert_int_equal(r.status, HFP_OK);
+      assert_int_equal(r.batch, 1);
+      if (id == 3) {
+        assert_int_equal(reference(v, 20, 20, c, HF_F32, want, HF_F32), 0);
+        assert_memory_equal(got, want, sizeof want);
+      }
+    }
+  }
+  assert_int_equal(seen, (1 << 1) | (1 << 2) | (1 << 3));
+  /* frame 1 held the queue for its partner wait */
+  assert_true(now_ms() - t0 >= HOLD_US / 1000.0 - 50);
+  hfp_variant_stats after = small_stats(fd);
+  assert_true(after.expired - before.expired == 1);
+  assert_true(after.requests_failed - before.requests_failed == 1);
+  assert_true(after.requests_ok - before.requests_ok == 2);
+  assert_true(after.batches - before.batches == 2);   /* frame 2 never ran */
+  close(fd);
+  free(a);
+  free(b);
+  free(c);
+}
+
+/* A frame alone with a budget of 300 ms is not held for partners for the
+ * 1.5 s the batcher would wait: it runs within its budget and is served. */
+static void test_within_budget_not_held(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  int fd = connect_versions(4, 4);
+  float *a = make_features(16, 16, v->cfg.spp, 4);
+  send_filter(fd, 7, 16, 16, a, 300000);
+  static float got[16 * 16 * 3], want[16 * 16 * 3];
+  hfp_result r;
+  assert_int_equal(read_result(fd, &r, got, sizeof got), 7);
+  assert_int_equal(r.status, HFP_OK);
+  assert_true(r.timing.queue_us < HOLD_US / 2);
+  assert_int_equal(reference(v, 16, 16, a, HF_F32, want, HF_F32), 0);
+  assert_memory_equal(got, want, sizeof want);
+  close(fd);
+  free(a);
+}
+
+/* Version 3 knows no DEADLINE flag: UNSUPPORTED, not fatal, and its STATS
+ * carry three counters (expired reads 0 there, counted all the same). A
+ * budget of 0 on version 4 is INVALID, not fatal. */
+static void test_version_rules(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  float *a = make_features(8, 8, v->cfg.spp, 5);
+  int fd = connect_versions(1, 3);
+  send_filter(fd, 9, 8, 8, a, 1000000);
+  hfp_header h;
+  hfp_error e;
+  assert_int_equal(raw_read_error(fd, &h, &e), 0);
+  assert_int_equal(e.code, HFP_E_UNSUPPORTED);
+  assert_int_equal(e.fatal, 0);
+  assert_int_equal(h.request_id, 9);
+  assert_non_null(strstr(e.message, "version 4"));
+  send_filter(fd, 10, 8, 8, a, 0);   /* still served */
+  hfp_result r;
+  assert_int_equal(read_result(fd, &r, NULL, 0), 10);
+  assert_int_equal(r.status, HFP_OK);
+  hfp_variant_stats st = small_stats(fd);
+  assert_true(st.expired == 0);
+  close(fd);
+
+  fd = connect_versions(4, 4);
+  assert_true(small_stats(fd).expired >= 1);   /* test_expired_while_queue_held's */
+  const ref_variant *sv = v;
+  hfp_filter f;
+  memset(&f, 0, sizeof f);
+  strcpy(f.variant, "Small");
+  f.width = f.height = 8;
+  f.spp = (uint16_t)sv->cfg.spp;
+  f.flags = HFP_FILTER_DEADLINE;
+  f.budget_us = 1;
+  f.data = a;
+  assert_int_equal(hfp_features_bytes(8, 8, f.spp, HFP_F32, &f.data_len), 0);
+  uint8_t head[HFP_FILTER_HEAD_MAX];
+  uint64_t total;
+  int n = hfp_encode_filter_head(head, sizeof head, 11, &f, &total);
+  assert_true(n > 0);
+  hfp_put_u32(head + HFP_HEADER_SIZE + HFP_FILTER_FIXED + 5, 0);   /* after "Small" */
+  assert_int_equal(raw_send(fd, head, (size_t)n), 0);
+  assert_int_equal(raw_send(fd, a, (size_t)f.data_len), 0);
+  assert_int_equal(raw_read_error(fd, &h, &e), 0);
+  assert_int_equal(e.code, HFP_E_INVALID);
+  assert_int_equal(e.fatal, 0);
+  assert_int_equal(h.request_id, 11);
+  send_filter(fd, 12, 8, 8, a, 0);
+  assert_int_equal(read_result(fd, &r, NULL, 0), 12);
+  assert_int_equal(r.status, HFP_OK);
+  close(fd);
+  free(a);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_expired_while_queue_held),
+      cmocka_unit_test(test_within_budget_not_held),
+      cmocka_unit_test(test_version_rules),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
