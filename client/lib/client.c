@@ -305,7 +305,9 @@ static int read_frame(hfc_client *c, int k) {
                  c->eps[x->endpoint].url, hfp_code_name(err),
                  err == HFC_E_BUSY ? " (its queue place went to a client holding less than "
                                      "its share; retry later)"
-                                   : "");
+                 : err == HFC_E_EXPIRED ? " (its budget, hfc_request.deadline_us, passed while "
+                                          "it was queued; the server is not keeping up)"
+                                        : "");
         hfci_finish(c, p, err, why);
       }
       return 0;

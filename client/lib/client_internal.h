@@ -79,6 +79,7 @@ typedef struct pending {
   int estimate;                 /* hfc_request.estimate */
   const void *estimate_buffer;  /* the estimate in a buffer of its own, or NULL */
   uint64_t estimate_len;        /* bytes sent from estimate_buffer (else 0) */
+  uint32_t deadline_us;         /* hfc_request.deadline_us: sent to version 4 and later */
   void *result, *rgba;
   int shm;                      /* the last send went by reference */
   int in_place;                 /* result or rgba overlaps the features: a

@@ -102,6 +102,7 @@ int hfc_get_stats(hfc_client *c, hfc_stats *out) {
     memcpy(d->hist_total, s->hist_total, sizeof d->hist_total);
     memcpy(d->hist_infer, s->hist_infer, sizeof d->hist_infer);
     d->out_of_range = s->out_of_range;
+    d->expired = s->expired;
     d->frames_sanitised = s->frames_sanitised;
     d->cache_bytes = s->cache_bytes;
   }

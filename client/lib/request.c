@@ -261,6 +261,12 @@ static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
   memcpy(f.bg, p->bg, sizeof f.bg);
   f.data = p->features;
   f.data_len = p->features_len + p->estimate_len;
+  /* A budget only where the connection knows the flag (PROTOCOL.md,
+   * "Version 4"); an older server computes the frame however late. */
+  if (p->deadline_us && c->active >= 0 && c->conns[c->active].info.version >= 4) {
+    f.flags |= HFP_FILTER_DEADLINE;
+    f.budget_us = p->deadline_us;
+  }
   /* By reference only when the tensor is one run of the segment (an
    * estimate of its own directly after the features was joined to them at
    * submission). */
@@ -394,12 +400,14 @@ static int overlaps_input(const pending *p) {
 }
 
 /* The caller's request in this header's layout (hfci_take_struct):
- * 0.1.0's ended at user, so the estimate fields default to none. */
+ * 0.1.0's ended at user, so the estimate fields default to none; 0.2.0's
+ * at estimate_bytes, so deadline_us defaults to none. */
 static int take_request(hfc_client *c, const hfc_request *r, hfc_request *full) {
   if (!r) return hfci_arg(c, "the request is NULL");
-  static const size_t released[] = {offsetof(hfc_request, estimate)};   /* 0.1.0 */
+  static const size_t released[] = {offsetof(hfc_request, estimate),      /* 0.1.0 */
+                                    offsetof(hfc_request, deadline_us)};  /* 0.2.0 */
   hfc_request_init(full);
-  return hfci_take_struct(c, "hfc_request", r, full, sizeof *full, released, 1,
+  return hfci_take_struct(c, "hfc_request", r, full, sizeof *full, released, 2,
                           "hfc_request_init");
 }
 
@@ -456,6 +464,7 @@ static int submit(const char *fn, hfc_client *c, const hfc_request *caller, uint
   memcpy(p->bg, r->background, sizeof p->bg);
   p->features = r->features;
   p->estimate = r->estimate;
+  p->deadline_us = r->deadline_us;
   p->features_len = hfc_features_bytes(r->width, r->height, r->spp, r->in_dtype);
   uint64_t est = r->estimate ? hfc_estimate_bytes(r->width, r->height, r->in_dtype) : 0;
   if (r->estimate_buffer &&

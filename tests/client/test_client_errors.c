@@ -241,6 +241,15 @@ static void test_request_sizes(void **state) {
   assert_int_equal(hfc_filter(c, &r, NULL), 0);
   expect_reference(&f);
 
+  /* 0.2.0's request ended at estimate_bytes: a budget in the memory past
+   * it is not read (a frame of 1 us would expire). */
+  r = f.r;
+  r.struct_size = offsetof(hfc_request, deadline_us);
+  r.deadline_us = 1;
+  memset(f.out, 0xff, hfc_output_bytes(8, 6, 3, HFC_F32));
+  assert_int_equal(hfc_filter(c, &r, NULL), 0);
+  expect_reference(&f);
+
   struct {
     hfc_request r;
     unsigned char newer[16];
@@ -260,7 +269,8 @@ static void test_request_sizes(void **state) {
 
   size_t bad[] = {offsetof(hfc_request, estimate) - 1, offsetof(hfc_request, estimate) + 2,
                   offsetof(hfc_request, estimate_buffer),
-                  offsetof(hfc_request, estimate_buffer) + 4, sizeof(hfc_request) - 1};
+                  offsetof(hfc_request, estimate_buffer) + 4,
+                  offsetof(hfc_request, deadline_us) + 2, sizeof(hfc_request) - 1};
   for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
     r = f.r;
     r.struct_size = bad[i];

@@ -144,6 +144,17 @@ void failed_completion() {
   if (c.last_message() != frame.message) fail("last_message() is not the completion's");
 }
 
+// A frame whose budget passed in the queue is routine in a frame loop, as
+// BUSY is: Status says which, and a Request has no budget unless given one.
+void status_kinds() {
+  hairfilter::Status expired(HFC_E_EXPIRED, ""), busy(HFC_E_BUSY, "");
+  if (!expired.expired() || expired.busy() || expired) fail("Status::expired() of HFC_E_EXPIRED");
+  if (busy.expired() || !busy.busy()) fail("Status::expired() of HFC_E_BUSY");
+  if (expired.what().find("deadline") == std::string::npos) fail("what() of HFC_E_EXPIRED");
+  hairfilter::Request r;
+  if (r.deadline_us != 0) fail("a Request's deadline_us is not 0 by default");
+}
+
 }  // namespace
 
 int main() {
@@ -153,6 +164,7 @@ int main() {
     client_moved();
     reset_frees();
     failed_completion();
+    status_kinds();
   } catch (const hairfilter::Error &e) {
     std::fprintf(stderr, "hairfilter::Error: %s\n", e.what());
     g_failures++;

@@ -380,6 +380,39 @@ static int check_filter_handler(mock *m, const hfp_header *h, const uint8_t *p) 
   return mk_reply(m, h, p);
 }
 
+/* hfc_request.deadline_us on the wire: FILTER flag DEADLINE and the budget
+ * from a server of version 4; nothing from an older one (PROTOCOL.md,
+ * "Version 4"). m->arg is the version the mock speaks. */
+static int deadline_handler(mock *m, const hfp_header *h, const uint8_t *p) {
+  if (h->type == HFP_FILTER) {
+    hfp_filter f;
+    if (hfp_decode_filter(p, h->length, &f)) return mk_fail(m, "the FILTER does not decode");
+    if (m->arg >= 4 && (!(f.flags & HFP_FILTER_DEADLINE) || f.budget_us != 16000))
+      return mk_fail(m, "a version-4 FILTER with deadline_us 16000 has flags 0x%x, budget %u us",
+                     f.flags, f.budget_us);
+    if (m->arg < 4 && (f.flags & HFP_FILTER_DEADLINE))
+      return mk_fail(m, "a version-%d server got FILTER flag DEADLINE, which it does not know",
+                     (int)m->arg);
+  }
+  return mk_reply(m, h, p);
+}
+
+static int deadline_wire(cf_test *t, intptr_t version) {
+  mock m = {0};
+  m.ok.version = (uint16_t)version;
+  m.on_frame = deadline_handler;
+  m.arg = version;
+  CASE_BEGIN(t, &m, c, 0);
+  frame_bufs b;
+  hfc_request r = request(&b, 0);
+  r.deadline_us = 16000;
+  hfc_completion d;
+  int rc = one(t, c, &r, &d);
+  if (!rc && d.status) rc = cf_fail(t, "the completion has status %s", hfc_strerror(d.status));
+  if (!rc) rc = check_values(t, d.id, b.out, NULL, &r);
+  return finish(t, &m, c, rc);
+}
+
 static int filter_wire(cf_test *t, intptr_t arg) {
   (void)arg;
   mock m = {0};
@@ -1317,6 +1350,9 @@ const cf_case cf_cases_client[] = {
   EC(HFP_E_TOO_LARGE | 1 << 16, "fatal_too_large"),
   {"client.result_status.internal", "RESULT status INTERNAL: the request fails INTERNAL", 0, result_status, HFP_E_INTERNAL},
   {"client.result_status.shutting_down", "RESULT status SHUTTING_DOWN: the request fails SHUTTING_DOWN", 0, result_status, HFP_E_SHUTTING_DOWN},
+  {"client.result_status.expired", "RESULT status EXPIRED (version 4): the request fails EXPIRED, the connection serves on", 0, result_status, HFP_E_EXPIRED},
+  {"client.deadline.wire", "deadline_us goes out as FILTER flag DEADLINE and its budget to a version-4 server", 0, deadline_wire, 4},
+  {"client.deadline.v3_server", "to a version-3 server a frame with deadline_us goes without the flag, and is served", 0, deadline_wire, 3},
   {"client.result_status.busy", "RESULT status BUSY (pushed out of a full queue): the request fails BUSY", 0, result_status, HFP_E_BUSY},
   {"client.result_status.with_tensor", "a RESULT with status and a tensor is malformed: PROTOCOL", 0, result_status, HFP_E_INTERNAL | 1 << 8},
   RB(RB_UNKNOWN_ID, "unknown_id", "a RESULT for an id not in flight: PROTOCOL"),

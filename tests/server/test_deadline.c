@@ -232,11 +232,67 @@ static void test_version_rules(void **state) {
   free(a);
 }
 
+/* libhairfilter: hfc_request.deadline_us goes to the daemon, a frame whose
+ * budget passes while the batcher holds the queue completes with
+ * HFC_E_EXPIRED and a message that names the budget, the next frame with
+ * one is served; hfc_get_stats counts it. */
+static void test_client_library(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  int spp = v->cfg.spp;
+  hfc_client *c = client_connect(&S, "deadline-client");
+  assert_non_null(c);
+  assert_int_equal(hfc_info(c)->version, 4);
+  hfc_stats st0;
+  assert_int_equal(hfc_get_stats(c, &st0), 0);
+  float *a = make_features(16, 16, spp, 6), *b = make_features(24, 20, spp, 7);
+  static float out_a[16 * 16 * 3], out_b[24 * 20 * 3], want[24 * 20 * 3];
+  hfc_request ra = TEST_REQUEST(.variant = "Small", .width = 16, .height = 16, .spp = spp,
+                                .in_dtype = HFC_F32, .features = a, .out_dtype = HFC_F32,
+                                .result = out_a, .user = (void *)1);
+  hfc_request rb = TEST_REQUEST(.variant = "Small", .width = 24, .height = 20, .spp = spp,
+                                .in_dtype = HFC_F32, .features = b, .out_dtype = HFC_F32,
+                                .result = out_b, .user = (void *)2, .deadline_us = 150000);
+  assert_int_equal(hfc_submit(c, &ra, NULL), 0);
+  usleep(100000);
+  assert_int_equal(hfc_submit(c, &rb, NULL), 0);
+  for (int k = 0; k < 2; k++) {
+    hfc_completion d;
+    assert_int_equal(hfc_wait(c, 20000, &d), 0);
+    if (d.user == (void *)2) {
+      assert_int_equal(d.status, HFC_E_EXPIRED);
+      assert_non_null(strstr(hfc_last_message(c), "deadline_us"));
+      assert_true(d.timing.queue_us >= 150000);
+    } else {
+      assert_int_equal(d.status, 0);
+    }
+  }
+  assert_non_null(strstr(hfc_strerror(HFC_E_EXPIRED), "deadline"));
+  /* within its budget: served */
+  rb.deadline_us = 30000000;
+  hfc_timing t;
+  assert_int_equal(hfc_filter(c, &rb, &t), 0);
+  assert_int_equal(reference(v, 24, 20, b, HF_F32, want, HF_F32), 0);
+  assert_memory_equal(out_b, want, sizeof want);
+  hfc_stats st1;
+  assert_int_equal(hfc_get_stats(c, &st1), 0);
+  uint64_t e0 = 0, e1 = 0;
+  for (int i = 0; i < st0.num_variants; i++)
+    if (!strcmp(st0.variants[i].name, "Small")) e0 = st0.variants[i].expired;
+  for (int i = 0; i < st1.num_variants; i++)
+    if (!strcmp(st1.variants[i].name, "Small")) e1 = st1.variants[i].expired;
+  assert_true(e1 - e0 == 1);
+  hfc_close(c);
+  free(a);
+  free(b);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_expired_while_queue_held),
       cmocka_unit_test(test_within_budget_not_held),
       cmocka_unit_test(test_version_rules),
+      cmocka_unit_test(test_client_library),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

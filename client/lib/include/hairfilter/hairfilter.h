@@ -79,6 +79,8 @@ HFC_API const char *hfc_version(void);
 #define HFC_E_UNSUPPORTED    -9
 #define HFC_E_SHUTTING_DOWN  -10
 #define HFC_E_INVALID        -11
+#define HFC_E_EXPIRED        -13  /* the frame's budget (hfc_request.deadline_us) passed
+                                     while it was queued: not computed; retrying cannot help */
 /* local */
 #define HFC_E_ARG            -100 /* bad argument: hfc_last_message names the field */
 #define HFC_E_URL            -101 /* not unix:PATH, tcp:HOST:PORT, tcp:PORT, tls:HOST:PORT or tls:PORT (or a list of them) */
@@ -319,6 +321,15 @@ typedef struct hfc_request {
    * estimate follows the features, or there is none. */
   const void *estimate_buffer;
   size_t estimate_bytes;     /* bytes at estimate_buffer: at least width*height*3*dtype size */
+  /* The frame's budget in microseconds, counted from its arrival at the
+   * server (on the server's clock: no clock sync needed); 0: none. A frame
+   * that has not started running when it passes is not computed and
+   * completes with HFC_E_EXPIRED (a frame that started runs to the end;
+   * compare hfc_timing.server_us with the budget). Needs protocol version
+   * 4 (hfc_info()->version >= 4): to an older server the frame goes
+   * without it and is computed however late, so an engine that must know
+   * checks the version. */
+  uint32_t deadline_us;
 } hfc_request;
 
 /* A request of this header's size with every field zero (NULL buffers,
@@ -446,6 +457,9 @@ typedef struct hfc_variant_stats {
   uint64_t cache_bytes;      /* host memory, bytes, the variant's model keeps between
                                 runs (plans, activations); a gauge that falls when the
                                 server gives memory back (v2; 0 from a version-1 server) */
+  uint64_t expired;          /* requests answered EXPIRED: their budget
+                                (hfc_request.deadline_us) passed in the queue (v4; 0
+                                from an older server) */
 } hfc_variant_stats;
 
 typedef struct hfc_stats {

@@ -10,12 +10,13 @@
 //   if (reads_estimate) r.set_estimate(estimate.data(), estimate.size() * sizeof(float));
 //   r.set_result(filtered.data(), filtered.size() * sizeof(float));
 //   hairfilter::Status s = hf.filter(r);        // never throws
-//   if (s.busy()) use_last_frame(); else if (!s) log(s.message);
+//   if (s.busy() || s.expired()) use_last_frame(); else if (!s) log(s.message);
 //
 // Setting up (connecting, listing, statistics, shared memory) throws
 // hairfilter::Error when it fails, with the code and hfc_last_message's
 // explanation; the per-frame calls (filter, submit, wait) return a Status
-// instead, because BUSY is routine in a frame loop. Built without
+// instead, because BUSY (and EXPIRED, a frame given a budget,
+// Request::deadline_us) is routine in a frame loop. Built without
 // exceptions (-fno-exceptions), the throwing constructors are left out and
 // Client::open and SharedBuffer::open give a Status.
 //
@@ -57,6 +58,9 @@ struct Status {
   Status(int c, std::string m) : code(c), message(std::move(m)) {}
   explicit operator bool() const { return code == HFC_OK; }
   bool busy() const { return code == HFC_E_BUSY; }
+  // The frame's budget (Request::deadline_us) passed in the server's queue:
+  // not computed, as routine in a frame loop under load as busy().
+  bool expired() const { return code == HFC_E_EXPIRED; }
   // "server busy: ...: <message>"
   std::string what() const {
     std::string s = hfc_strerror(code);
