@@ -146,7 +146,7 @@ def tearDownModule():
 class PythonClient(unittest.TestCase):
     def test_handshake_and_variants(self):
         with hairfilter.Client(UNIX, client_name="py-test") as hf:
-            self.assertEqual(hf.info.version, 3)
+            self.assertEqual(hf.info.version, 4)
             self.assertEqual(hf.info.software_version, ARGS.version)
             self.assertEqual(hairfilter.__version__, ARGS.version)
             self.assertTrue(hf.info.shm)
@@ -179,7 +179,7 @@ class PythonClient(unittest.TestCase):
             e[:, :4] = 0
             want = c_filter(url, "KernelAC", f, estimate=e)
             with hairfilter.Client(url) as hf:
-                self.assertEqual(hf.info.version, 3)
+                self.assertEqual(hf.info.version, 4)
                 self.assertTrue(hf.variants()[0].estimate)
                 done = hf.filter("KernelAC", f, estimate=e)
                 self.assertEqual(done.status, "OK", done.message)
@@ -798,6 +798,79 @@ class PythonClient(unittest.TestCase):
             self.assertIn("wait()", e.exception.message)
             while c.pending:
                 c.wait()
+
+    def test_deadline(self):
+        """deadline_us (protocol version 4): a frame whose budget passes while
+        a frame ahead of it holds the batcher completes EXPIRED, unrun, with
+        a message naming the budget; one within its budget is served; STATS
+        counts the expired one; a budget outside 1..2**32-1 is ARG."""
+        sock = os.path.join(ARGS.work, "deadline.sock")
+        if os.path.exists(sock):
+            os.unlink(sock)
+        d, _ = start_daemon("deadline", [
+            "--listen", "unix:" + sock, "--max-batch", "16", "--max-queue-delay-us", "1500000",
+            "--weights", os.path.join(ARGS.weights, "small.safetensors")])
+        try:
+            with hairfilter.Client("unix:" + sock) as c:
+                self.assertEqual(c.info.version, 4)
+                for bad in (0, -1, 2 ** 32, 1.5, True, "16000"):
+                    with self.assertRaises(hairfilter.Error) as e:
+                        c.submit("Small", features(8, 8, 4, 1), deadline_us=bad)
+                    self.assertEqual(e.exception.code, "ARG")
+                    self.assertIn("deadline_us", e.exception.message)
+                held = c.submit("Small", features(8, 8, 4, 2))
+                time.sleep(0.1)   # the batcher holds it, waiting for partners
+                late = c.submit("Small", features(8, 12, 4, 3), deadline_us=150000)
+                got = {}
+                while c.pending:
+                    x = c.wait()
+                    got[x.id] = x
+                self.assertEqual(got[held].status, "OK")
+                self.assertEqual(got[late].status, "EXPIRED")
+                self.assertIn("deadline_us", got[late].message)
+                self.assertGreaterEqual(got[late].timing.queue_us, 150000)
+                f = features(8, 12, 4, 4)
+                ok = c.filter("Small", f, deadline_us=30000000)
+                self.assertEqual(ok.status, "OK")
+                self.assertEqual(ok.result.tobytes(), c_filter("unix:" + sock, "Small", f))
+                small = [v for v in c.stats().variants if v.name == "Small"][0]
+                self.assertEqual(small.expired, 1)
+        finally:
+            d.terminate()
+            self.assertEqual(d.wait(timeout=30), 0)
+
+    def test_deadline_older_server(self):
+        """Against a connection of version 3 a budget is not sent: a frame
+        with deadline_us=1 (which would expire on version 4) is served."""
+        real = P.encode_hello
+        P.encode_hello = lambda name, token="": real(name, token, hi=3)
+        try:
+            with hairfilter.Client(UNIX) as c:
+                self.assertEqual(c.info.version, 3)
+                f = features(8, 8, 4, 9)
+                done = c.filter("Small", f, deadline_us=1)
+                self.assertEqual(done.status, "OK")
+                self.assertEqual(done.result.tobytes(), c_filter(UNIX, "Small", f))
+        finally:
+            P.encode_hello = real
+
+    def test_codec_deadline(self):
+        """FILTER flag DEADLINE and the budget right after the name; STATS'
+        fourth counter is expired."""
+        head = P.encode_filter_head(5, "Small", 2, 1, 4, P.F32, P.F32, budget_us=16000)
+        body = head[P.HEADER_SIZE:]
+        self.assertEqual(struct.unpack_from("<H", body, 2)[0], P.FILTER_DEADLINE)
+        at = P.FILTER_FIXED.size + len("Small")
+        self.assertEqual(len(body), at + 4)
+        self.assertEqual(struct.unpack_from("<I", body, at)[0], 16000)
+        _, _, length = P.decode_header(head[:P.HEADER_SIZE])
+        self.assertEqual(length, at + 4 + 2 * 1 * 4 * 6 * 4)
+        plain = P.encode_filter_head(5, "Small", 2, 1, 4, P.F32, P.F32)
+        self.assertEqual(len(plain), len(head) - 4)
+        for bad in (-1, 2 ** 32):
+            with self.assertRaises(ValueError):
+                P.encode_filter_head(5, "Small", 2, 1, 4, P.F32, P.F32, budget_us=bad)
+        self.assertEqual(P.code_name(P.E_EXPIRED), "EXPIRED")
 
     def test_codec(self):
         hello = P.encode_hello("py", "tok")

@@ -1,4 +1,4 @@
-"""A hairfilterd client in Python 3 and numpy: protocol version 3 (2 or 1
+"""A hairfilterd client in Python 3 and numpy: protocol version 4 (3, 2 or 1
 with a server that speaks only those) over a Unix socket or TCP, with
 shared memory.
 
@@ -704,7 +704,7 @@ class Client:
 
     def submit(self, variant, features, out_dtype=None, result=None, composite=False,
                rgba=None, hair=(0, 0, 0), light=(1, 1, 1), background=(0, 0, 0), user=None,
-               estimate=None):
+               estimate=None, deadline_us=None):
         """Sends one frame and returns its id; wait() gives its Completion.
         It does not wait for the result, but through the socket it writes
         the whole frame first (one larger than the socket's buffers waits
@@ -717,6 +717,12 @@ class Client:
         estimate: the frame's alpha-corrected estimate, [h][w][3] of the
         features' dtype, for a variant that reads it (Variant.estimate;
         protocol version 3), sent after the features.
+        deadline_us: the frame's budget, 1..2**32-1 microseconds from its
+        arrival at the server (on the server's clock): a frame that has not
+        started running when it passes is not computed, and its completion
+        has status "EXPIRED" (retrying cannot help). Sent to a server of
+        protocol version 4 (info.version); an older one gets the frame
+        without it and computes it however late. None: no budget.
         result / rgba: arrays to receive into ([h][w][3], [h][w][4] of
         out_dtype, by default the features' dtype), made when None. The
         arrays must stay untouched until the completion."""
@@ -741,6 +747,14 @@ class Client:
                     estimate.dtype != f.dtype or not estimate.flags.c_contiguous):
                 raise Error("ARG", "estimate: want a C-contiguous %s array of shape %s"
                             % (f.dtype, (h, w, 3)))
+        budget = 0
+        if deadline_us is not None:
+            if (isinstance(deadline_us, bool) or not isinstance(deadline_us, (int, np.integer))
+                    or not 1 <= deadline_us <= P.BUDGET_MAX):
+                raise Error("ARG", "deadline_us: want microseconds, 1..%d, or None for no "
+                                   "budget; got %r" % (P.BUDGET_MAX, deadline_us))
+            # Only a version-4 server knows the flag (PROTOCOL.md, "Version 4").
+            budget = int(deadline_us) if self.info.version >= 4 else 0
         odt = np.dtype(out_dtype) if out_dtype is not None else f.dtype
         if odt not in _DTYPES:
             raise Error("ARG", "out_dtype: want float32 or float16")
@@ -784,14 +798,14 @@ class Client:
         # The payload a FILTER header would announce: its fields and name,
         # then a reference or the tensors.
         payload = P.FILTER_FIXED.size + len(name.encode("ascii")) + (
-            P.SHM_REF_SIZE if ref else f.nbytes + (0 if estimate is None else estimate.nbytes))
+            P.SHM_REF_SIZE if ref else f.nbytes + (0 if estimate is None else estimate.nbytes)) + (4 if budget else 0)
         self._check_limits(w, h, spp, f.dtype, odt, ref is not None, payload)
         rid = self._next_id
         self._next_id = self._next_id % 0xFFFFFFFF + 1
         head = P.encode_filter_head(rid, name, w, h, spp, _DTYPES[f.dtype], _DTYPES[odt],
                                     composite, colours["hair"], colours["light"],
                                     colours["background"],
-                                    shm=ref, estimate=estimate is not None)
+                                    shm=ref, estimate=estimate is not None, budget_us=budget)
         self._pending[rid] = _Pending(rid, name, result, rgba, user, seg)
         try:
             if ref:
@@ -839,7 +853,11 @@ class Client:
                        (time.monotonic() - p.t0) * 1e6, r.batch, p.shm is not None,
                        bool(r.flags & P.RESULT_OUT_OF_RANGE),
                        bool(r.flags & P.RESULT_INPUT_SANITISED))
-            self._done.append(Completion(rid, status, "", p.result, p.rgba, t, p.user))
+            why = ""
+            if r.status == P.E_EXPIRED:
+                why = ("its budget (deadline_us) passed while it was queued at %s: not computed"
+                       % self.endpoint)
+            self._done.append(Completion(rid, status, why, p.result, p.rgba, t, p.user))
             del self._pending[rid]
             return None
         payload = self._read_payload(length)

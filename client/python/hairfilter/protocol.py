@@ -1,4 +1,4 @@
-"""The hairfilter wire protocol, versions 1 and 2 (protocol/PROTOCOL.md).
+"""The hairfilter wire protocol, versions 1 to 4 (protocol/PROTOCOL.md).
 
 A pure codec, the Python twin of protocol/hfproto.c: functions turn messages
 into bytes and bytes into messages, and do no I/O. Decoders take a frame's
@@ -14,7 +14,7 @@ import struct
 from collections import namedtuple
 
 MAGIC = 0x31504648          # the bytes "HFP1"
-VERSION = 3                 # the newest version spoken here
+VERSION = 4                 # the newest version spoken here
 VERSION_MIN = 1
 HEADER = struct.Struct("<IHHII")   # magic, type, flags, request_id, length
 HEADER_SIZE = HEADER.size
@@ -38,8 +38,11 @@ HELLO, HELLO_OK, LIST_VARIANTS, VARIANTS, FILTER, RESULT, ERROR, STATS, STATS_RE
 # error codes (positive on the wire)
 OK, E_VERSION, E_PROTOCOL, E_UNKNOWN_VARIANT, E_TOO_LARGE, E_LENGTH, E_BUSY, \
     E_UNAUTHORIZED, E_INTERNAL, E_UNSUPPORTED, E_SHUTTING_DOWN, E_INVALID = range(12)
+E_EXPIRED = 13              # version 4: the frame's budget passed before it ran
+# 12 is never sent (the C codec's local NOSPACE).
 CODE_NAMES = ("OK", "VERSION", "PROTOCOL", "UNKNOWN_VARIANT", "TOO_LARGE", "LENGTH", "BUSY",
-              "UNAUTHORIZED", "INTERNAL", "UNSUPPORTED", "SHUTTING_DOWN", "INVALID")
+              "UNAUTHORIZED", "INTERNAL", "UNSUPPORTED", "SHUTTING_DOWN", "INVALID", "NOSPACE",
+              "EXPIRED")
 
 # dtypes
 F32, F16 = 0, 1
@@ -49,6 +52,8 @@ DTYPE_SIZE = {F32: 4, F16: 2}
 FILTER_COMPOSITE = 0x1
 FILTER_SHM = 0x2
 FILTER_ESTIMATE = 0x4       # version 3: the alpha-corrected estimate follows the features
+FILTER_DEADLINE = 0x8       # version 4: a u32 budget_us follows the variant name
+BUDGET_MAX = 0xFFFFFFFF     # microseconds
 ESTIMATE_VALUES = 3         # its colour, highlight, alpha per pixel
 RESULT_INPUT_SANITISED = 0x4
 RESULT_OUT_OF_RANGE = 0x8
@@ -227,19 +232,25 @@ def output_bytes(width, height, channels, dtype):
 
 def encode_filter_head(request_id, variant, width, height, spp, in_dtype, out_dtype,
                        composite=False, hair=(0, 0, 0), light=(0, 0, 0), background=(0, 0, 0),
-                       shm=None, estimate=False):
+                       shm=None, estimate=False, budget_us=0):
     """The FILTER frame up to its tensor. shm: (segment, in_offset, out_offset,
     rgba_offset) to send a reference instead; the features then do not follow.
     estimate: the features are followed by the frame's alpha-corrected
-    estimate, [h][w][3] of in_dtype (flag ESTIMATE, version 3)."""
+    estimate, [h][w][3] of in_dtype (flag ESTIMATE, version 3).
+    budget_us: 1..2^32-1, the frame's budget from its arrival at the server
+    (flag DEADLINE, version 4), after the name; 0: none."""
     name = _text_bytes(variant, NAME_MAX)
     if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE and 1 <= spp <= MAX_SPP):
         raise ValueError("frame %dx%d of %d spp: want 1..%d pixels a side, 1..%d spp"
                          % (width, height, spp, MAX_SIDE, MAX_SPP))
+    if not 0 <= budget_us <= BUDGET_MAX:
+        raise ValueError("budget of %d us: want 1..%d, or 0 for none" % (budget_us, BUDGET_MAX))
     flags = (FILTER_COMPOSITE if composite else 0) | (FILTER_SHM if shm else 0) | \
-        (FILTER_ESTIMATE if estimate else 0)
+        (FILTER_ESTIMATE if estimate else 0) | (FILTER_DEADLINE if budget_us else 0)
     fixed = FILTER_FIXED.pack(len(name), flags, width, height, spp, in_dtype, out_dtype,
                               *hair, *light, *background)
+    if budget_us:
+        name += struct.pack("<I", budget_us)
     if shm:
         seg, off_in, off_out, off_rgba = shm
         ref = struct.pack("<IIQQQ", seg, 0, off_in, off_out, off_rgba)
@@ -289,7 +300,8 @@ def decode_error(payload):
 
 VariantStats = namedtuple("VariantStats", "name requests_ok requests_failed rejected batches "
                                           "sum_queue_us sum_infer_us sum_total_us hist_total "
-                                          "hist_infer out_of_range frames_sanitised cache_bytes")
+                                          "hist_infer out_of_range frames_sanitised cache_bytes "
+                                          "expired")
 Stats = namedtuple("Stats", "uptime_us connections_total connections_open queue_depth "
                             "queue_capacity protocol_errors variants")
 
@@ -305,15 +317,16 @@ def decode_stats(payload):
         counts = r.unpack("7Q")
         ht = r.unpack("%dQ" % nb)
         hi = r.unpack("%dQ" % nb)
-        rows.append([name, *counts, ht, hi, 0, 0, 0])
-    # Version 2: per-variant counters after the last entry; known ones first.
+        rows.append([name, *counts, ht, hi, 0, 0, 0, 0])
+    # Version 2: per-variant counters after the last entry; known ones first
+    # (version 4 adds expired).
     if r.left():
         (nc,) = r.unpack("H")
         if not 1 <= nc <= 64:
             raise ProtocolError(E_INVALID, "%d counters" % nc)
         for row in rows:
             counters = r.unpack("%dQ" % nc)
-            row[10:13] = (list(counters) + [0, 0, 0])[:3]
+            row[10:14] = (list(counters) + [0, 0, 0, 0])[:4]
     r.end()
     return Stats(uptime, total, open_, depth, cap, perr, [VariantStats(*row) for row in rows])
 
