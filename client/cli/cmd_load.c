@@ -61,6 +61,7 @@ typedef struct opts {
   double window_s, warmup_s, stability;
   double drain_s;                /* how long requests may take to be answered after a point */
   int max_trials, trials;        /* trials > 0: exactly that many windows */
+  uint32_t deadline_us;          /* --deadline: each frame's budget at the server; 0: none */
 } opts;
 
 enum { PHASE_WARMUP, PHASE_MEASURE, PHASE_STOP };
@@ -80,7 +81,7 @@ typedef struct shared {
   atomic_uint_fast64_t sent, answered, delayed;
   /* Requests sent in the warm-up, and how they were answered: the server
    * counts them too. */
-  atomic_uint_fast64_t warm_sent, warm_ok, warm_busy, warm_errors;
+  atomic_uint_fast64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
   atomic_int lost;
   /* Connections that stopped at a refusal no retry can fix, and whether
    * it has been said (once for all of them). */
@@ -143,8 +144,12 @@ static void record(shared *sh, const hfc_completion *d, double started, int warm
   /* BUSY and SHUTTING_DOWN refuse for now, not for good: busy, apart from
    * the errors (as hairfilter-load counts them). */
   int refused = d->status == HFC_E_BUSY || d->status == HFC_E_SHUTTING_DOWN;
+  /* EXPIRED: the frame's --deadline passed in the server's queue, what the
+   * option is there to count; not an error. */
+  int expired = d->status == HFC_E_EXPIRED;
   if (warm) {
     if (refused) atomic_fetch_add(&sh->warm_busy, 1);
+    else if (expired) atomic_fetch_add(&sh->warm_expired, 1);
     else if (!d->status) atomic_fetch_add(&sh->warm_ok, 1);
     else if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->warm_errors, 1);
     return;
@@ -159,6 +164,8 @@ static void record(shared *sh, const hfc_completion *d, double started, int warm
   load_window *w = sh->cur;
   if (refused) {
     w->busy++;
+  } else if (expired) {
+    w->expired++;
   } else if (d->status) {
     w->errors++;
   } else {
@@ -287,6 +294,7 @@ static void *run(void *arg) {
   r.height = o->height;
   r.spp = sh->spp;
   r.estimate = sh->estimate;
+  r.deadline_us = o->deadline_us;
   r.in_dtype = r.out_dtype = o->f16 ? HFC_F16 : HFC_F32;
   r.features = in;
   r.features_bytes = sh->in_bytes;
@@ -377,7 +385,8 @@ static void *run(void *arg) {
     if (d.status == HFC_E_SHUTTING_DOWN) w->saw_draining = 1;
     record(sh, &d, s->started, s->warm);
     if (d.status < 0 && d.status > HFC_E_ARG && d.status != HFC_E_BUSY &&
-        d.status != HFC_E_SHUTTING_DOWN && d.status != HFC_E_INTERNAL && !w->refused) {
+        d.status != HFC_E_SHUTTING_DOWN && d.status != HFC_E_INTERNAL &&
+        d.status != HFC_E_EXPIRED && !w->refused) {
       /* A refusal no retry can fix (the variant a reload removed, say):
        * sent again, each frame would be refused again, as fast as the
        * server answers. This connection sends no more (as hairfilter-load). */
@@ -507,6 +516,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   atomic_store(&sh->warm_ok, 0);
   atomic_store(&sh->warm_busy, 0);
   atomic_store(&sh->warm_errors, 0);
+  atomic_store(&sh->warm_expired, 0);
   atomic_store(&sh->lost, 0);
   atomic_store(&sh->refused, 0);
   atomic_store(&sh->refusal_said, 0);
@@ -614,6 +624,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
     p->result.ok += src->ok;
     p->result.busy += src->busy;
     p->result.errors += src->errors;
+    p->result.expired += src->expired;
     p->result.batch_sum += src->batch_sum;
     p->result.seconds += src->seconds;
   }
@@ -628,6 +639,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   p->warm_ok = atomic_load(&sh->warm_ok);
   p->warm_busy = atomic_load(&sh->warm_busy);
   p->warm_errors = atomic_load(&sh->warm_errors);
+  p->warm_expired = atomic_load(&sh->warm_expired);
   p->sent = atomic_load(&sh->sent) - p->warm_sent;
   p->delayed = atomic_load(&sh->delayed);
   p->lost_connections = atomic_load(&sh->lost);
@@ -661,6 +673,9 @@ static void usage(FILE *f) {
           "  --f16                           f16 features and results (default f32)\n"
           "  --composite                     ask for the composited RGBA too\n"
           "  --shm                           tensors in shared memory (Unix sockets)\n"
+          "  --deadline DUR                  each frame's budget at the server (plain number:\n"
+          "                                  ms; protocol version 4): a frame still queued\n"
+          "                                  then is not computed, counted as 'expired'\n"
           "closed loop (default):\n"
           "  --concurrency-range S[:E[:STEP]] requests kept in flight, swept (default 1)\n"
           "  --connections N                 connections they are spread over (default: one\n"
@@ -716,7 +731,8 @@ static int parse(int argc, char **argv, opts *o) {
     {"seconds", required_argument, 0, 19},        {"warmup", required_argument, 0, 20},
     {"json", required_argument, 0, 21},           {"csv", required_argument, 0, 22},
     {"plot", required_argument, 0, 23},           {"verbose", no_argument, 0, 24},
-    {"quiet", no_argument, 0, 25},                {"help", no_argument, 0, 'h'},
+    {"quiet", no_argument, 0, 25},                {"deadline", required_argument, 0, 26},
+    {"help", no_argument, 0, 'h'},
     CLI_TLS_LONG_OPTIONS,
     {0, 0, 0, 0},
   };
@@ -773,6 +789,13 @@ static int parse(int argc, char **argv, opts *o) {
       case 23: o->plot = optarg; break;
       case 24: o->verbose = 1; break;
       case 25: o->quiet = 1; break;
+      case 26: {
+        /* 1 us .. 2^32-1 us, the protocol's budget_us. */
+        double s;
+        if (cli_arg_duration(cmd, opt, optarg, 1e-3, 1e-6, 4294.967295, &s)) return -1;
+        o->deadline_us = s * 1e6 < 1 ? 1 : (uint32_t)(s * 1e6 + 0.5);
+        break;
+      }
       case 'h': usage(stdout); return 1;
       case ':': cli_arg_bad_option(cmd, argv, optind, optopt, 1); return -1;
       default:
@@ -922,6 +945,10 @@ int cmd_load(int argc, char **argv) {
     fprintf(stderr, "hairfilter load: --f16: the server does not take f16\n");
     return 2;
   }
+  if (o.deadline_us && info.version < 4)
+    fprintf(stderr, "hairfilter load: --deadline: %s speaks protocol version %d, which has no "
+                    "deadlines (version 4 does): frames go without one and none can expire\n",
+            o.server, info.version);
   size_t in_bytes;
   void *frame = make_frame(&o, spp, estimate, &in_bytes);
   if (!frame) {
@@ -959,7 +986,8 @@ int cmd_load(int argc, char **argv) {
   }
   load_run run_info = {o.server, o.variant, o.input, backend, precision, o.width, o.height, spp,
                        o.f16, o.shm, o.composite, o.poisson ? "poisson" : "constant",
-                       o.window_s, o.warmup_s, o.stability, points, 0, NULL, NULL, NULL, NULL, 0, 0};
+                       o.window_s, o.warmup_s, o.stability, points, 0, NULL, NULL, NULL, NULL, 0, 0,
+                       o.deadline_us};
   describe_run(argc, argv, &run_info);
   /* Results of an earlier run are not left where this run's go: a run
    * stopped before it writes leaves none (each is written under a

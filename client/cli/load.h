@@ -17,6 +17,8 @@ extern const char *const load_field_names[LF_COUNT];
 typedef struct load_window {
   lh_hist h[LF_COUNT];
   uint64_t ok, busy, errors;     /* completions by outcome */
+  uint64_t expired;              /* EXPIRED: the frame's budget (--deadline) passed in
+                                    the server's queue; not in errors */
   uint64_t batch_sum;            /* sum of RESULT batch sizes, for the mean */
   double seconds;                /* how long it lasted */
 } load_window;
@@ -44,7 +46,7 @@ typedef struct load_point {
   double window_p50[64], window_p99[64];
   uint64_t sent, answered, delayed, unanswered;
   /* Sent in the warm-up (not in sent), and their answers by outcome. */
-  uint64_t warm_sent, warm_ok, warm_busy, warm_errors;
+  uint64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
   int lost_connections;
   int refused_connections;       /* stopped by a refusal no retry can fix */
   int interrupted;               /* stopped by a signal: windows cut short dropped */
@@ -64,6 +66,7 @@ typedef struct load_run {
   const char *command, *cpu, *date, *version;
   int cores;
   int interrupted;               /* the sweep was stopped by a signal */
+  uint32_t deadline_us;          /* --deadline: each frame's budget at the server; 0: none */
 } load_run;
 
 /* Writers of the report: the text table of one point, the sweep's summary,

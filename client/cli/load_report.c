@@ -53,6 +53,11 @@ void load_print_point(FILE *f, const load_run *r, const load_point *p) {
   fprintf(f, "  frames %llu  throughput %.2f frames/s  busy %llu  errors %llu  mean batch %.2f\n",
           (unsigned long long)w->ok, throughput(p), (unsigned long long)w->busy,
           (unsigned long long)w->errors, w->ok ? (double)w->batch_sum / (double)w->ok : 0.0);
+  if (r->deadline_us)
+    fprintf(f, "  deadline %.3f ms  expired %llu (not computed: still queued at the server "
+               "when their budget passed)  warm-up expired %llu\n",
+            r->deadline_us / 1e3, (unsigned long long)w->expired,
+            (unsigned long long)p->warm_expired);
   fprintf(f, "  requests sent %llu  answered %llu  unanswered %llu  late (open loop) %llu%s\n",
           (unsigned long long)p->sent, (unsigned long long)p->answered,
           (unsigned long long)p->unanswered, (unsigned long long)p->delayed,
@@ -166,7 +171,7 @@ int load_write_csv(const char *path, const load_run *r) {
             load_field_names[k], load_field_names[k], load_field_names[k]);
   fprintf(f, ",stats_ok,stats_refused,stats_mean_batch,stats_mean_queue_ms,stats_mean_infer_ms,"
              "stats_mean_total_ms,warmup_sent,warmup_ok,warmup_busy,warmup_errors,command,cpu,cores,"
-             "date,version\n");
+             "date,version,deadline_ms,expired,warmup_expired\n");
   for (int i = 0; i < r->npoints; i++) {
     const load_point *p = &r->points[i];
     const load_window *w = &p->result;
@@ -193,7 +198,8 @@ int load_write_csv(const char *path, const load_run *r) {
     csv_quoted(f, r->command);
     fputc(',', f);
     csv_quoted(f, r->cpu);
-    fprintf(f, ",%d,%s,%s\n", r->cores, r->date, r->version);
+    fprintf(f, ",%d,%s,%s,%.3f,%llu,%llu\n", r->cores, r->date, r->version, r->deadline_us / 1e3,
+            (unsigned long long)w->expired, (unsigned long long)p->warm_expired);
   }
   return close_out(f, path, "CSV");
 }
@@ -247,6 +253,8 @@ int load_write_json(const char *path, const load_run *r) {
     cJSON_AddNumberToObject(o, "throughput", throughput(p));
     cJSON_AddNumberToObject(o, "busy", (double)w->busy);
     cJSON_AddNumberToObject(o, "errors", (double)w->errors);
+    cJSON_AddNumberToObject(o, "expired", (double)w->expired);
+    cJSON_AddNumberToObject(o, "deadline_ms", r->deadline_us / 1e3);
     cJSON_AddNumberToObject(o, "sent", (double)p->sent);
     cJSON_AddNumberToObject(o, "answered", (double)p->answered);
     cJSON_AddNumberToObject(o, "unanswered", (double)p->unanswered);
@@ -257,6 +265,7 @@ int load_write_json(const char *path, const load_run *r) {
     cJSON_AddNumberToObject(wu, "ok", (double)p->warm_ok);
     cJSON_AddNumberToObject(wu, "busy", (double)p->warm_busy);
     cJSON_AddNumberToObject(wu, "errors", (double)p->warm_errors);
+    cJSON_AddNumberToObject(wu, "expired", (double)p->warm_expired);
     cJSON *lat = cJSON_AddObjectToObject(o, "latency_ms");
     for (int k = 0; k < LF_COUNT; k++) {
       cJSON *fo = cJSON_AddObjectToObject(lat, load_field_names[k]);

@@ -239,6 +239,45 @@ static const char *str(const cJSON *o, const char *key) {
   return v->valuestring;
 }
 
+/* --deadline gives each frame a budget at the server (protocol version 4):
+ * with 1 us every frame is still queued when it passes and is answered
+ * EXPIRED, counted apart from the errors (not a refusal that stops the
+ * run); with 30 s none expires. The report, the JSON and the CSV say so. */
+static void test_deadline(void **state) {
+  (void)state;
+  int rc = load("--server %s --variant Tiny --size 16x16 --concurrency-range 2 --seconds 0.3s "
+                "--warmup 0.1s --deadline 1us --json %s --csv %s --quiet", S.unix_url, json_path,
+                csv_path);
+  /* Every frame expired: the point measured no frame, which is status 1. */
+  if ((rc != 0 && rc != 1) || strstr(text, "refused a frame"))
+    fail_msg("--deadline 1us: status %d:\n%s", rc, text);
+  const char *line = strstr(text, "  deadline 0.001 ms  expired ");
+  if (!line) fail_msg("no deadline line in:\n%s", text);
+  unsigned long long expired = 0;
+  assert_int_equal(sscanf(line, "  deadline 0.001 ms  expired %llu", &expired), 1);
+  assert_true(expired > 0);
+  cJSON *doc = read_json();
+  const cJSON *p = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(doc, "points"), 0);
+  assert_true(num(p, "expired") == (double)expired);
+  assert_true(num(p, "errors") == 0);
+  assert_true(num(p, "deadline_ms") == 0.001);
+  cJSON_Delete(doc);
+  char csv[65536];
+  assert_int_equal(read_text_file(csv_path, csv, sizeof csv), 0);
+  assert_non_null(strstr(csv, ",deadline_ms,expired,warmup_expired\n"));
+
+  rc = load("--server %s --variant Tiny --size 16x16 --concurrency-range 2 --seconds 0.3s "
+            "--warmup 0.1s --deadline 30000 --quiet", S.unix_url);
+  if (rc || !strstr(text, "  deadline 30000.000 ms  expired 0 "))
+    fail_msg("--deadline 30000: status %d:\n%s", rc, text);
+  /* Without --deadline the report has no such line. */
+  rc = load("--server %s --variant Tiny --size 16x16 --concurrency-range 1 --seconds 0.2s "
+            "--warmup 0.1s --quiet", S.unix_url);
+  if (rc || strstr(text, "expired")) fail_msg("no --deadline: status %d:\n%s", rc, text);
+  expect_refused("--deadline 0", "--deadline");
+  expect_refused("--deadline 5000s", "--deadline");
+}
+
 static void test_closed_sweep(void **state) {
   (void)state;
   uint64_t ok0, ok1;
@@ -758,6 +797,7 @@ int main(int argc, char **argv) {
     cmocka_unit_test(test_refusing_server),
     cmocka_unit_test(test_server_lost),
     cmocka_unit_test(test_refused_for_good),
+    cmocka_unit_test(test_deadline),
     cmocka_unit_test(test_connection_limit),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
