@@ -36,6 +36,7 @@ typedef struct opts {
   const char *tls_ca, *tls_cert, *tls_key, *tls_server_name;   /* tls: URLs */
   int width, height, connections, inflight, f16, shm;
   double seconds, warmup;
+  uint32_t deadline_us;          /* --deadline: each frame's budget at the server; 0: none */
 } opts;
 
 typedef struct sample {
@@ -52,8 +53,8 @@ typedef struct worker {
   size_t n, cap;
   /* Requests sent after the warm-up, and their answers; busy and errors
    * are of those. The warm-up's apart, by outcome. */
-  uint64_t sent, answered, busy, errors;
-  uint64_t warm_sent, warm_ok, warm_busy, warm_errors;
+  uint64_t sent, answered, busy, errors, expired;
+  uint64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
   int last_error;                /* the last error answered, for its name */
   int fatal;
   int cut;                       /* stopped (fatal) before its window's end */
@@ -83,10 +84,13 @@ static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilter-load --server URL --variant NAME [--size WxH] [--connections N]\n"
           "                       [--inflight K] [--seconds S] [--warmup S] [--f16]\n"
-          "                       [--token TOKEN] [--shm]\n"
+          "                       [--token TOKEN] [--shm] [--deadline DUR]\n"
           "                       [--tls-ca FILE] [--tls-server-name NAME]\n"
           "                       [--tls-cert FILE --tls-key FILE]\n"
           "--shm puts every frame in memory shared with the server (Unix sockets).\n"
+          "--deadline gives every frame that budget at the server (a plain number is ms;\n"
+          "protocol version 4): a frame still queued then is not computed and counts as\n"
+          "expired, apart from the errors.\n"
           "Defaults: --size 640x480 --connections 1 --inflight 1 --seconds 10 --warmup 1.\n"
           "--seconds and --warmup count seconds, or take a unit: 500ms, 2s, 1m.\n"
           "The token defaults to $HAIRFILTER_TOKEN. --tls-ca names the CA that signed a\n"
@@ -110,6 +114,8 @@ static int record(worker *w, const hfc_completion *d, int warm) {
   if (warm) {
     if (refused_for_now(d->status)) {
       w->warm_busy++;
+    } else if (d->status == HFC_E_EXPIRED) {
+      w->warm_expired++;
     } else if (d->status) {
       w->warm_errors++;
       w->last_error = d->status;
@@ -120,6 +126,12 @@ static int record(worker *w, const hfc_completion *d, int warm) {
   }
   if (refused_for_now(d->status)) {
     w->busy++;
+    return 0;
+  }
+  /* The frame's --deadline passed in the server's queue: what the option
+   * counts, not an error. */
+  if (d->status == HFC_E_EXPIRED) {
+    w->expired++;
     return 0;
   }
   if (d->status) {
@@ -228,6 +240,7 @@ static void *run(void *arg) {
   r.features = in;
   r.features_bytes = nin * es;
   r.estimate = w->estimate;
+  r.deadline_us = w->o->deadline_us;
   r.result_bytes = px * 3 * es;
   struct {
     int busy, warm;
@@ -300,7 +313,8 @@ static void *run(void *arg) {
     }
     if (refused_for_now(d.status)) {
       slots[s].not_before = now_s() + BUSY_BACKOFF_S;
-    } else if (d.status < 0 && d.status > HFC_E_ARG && d.status != HFC_E_INTERNAL && !refused) {
+    } else if (d.status < 0 && d.status > HFC_E_ARG && d.status != HFC_E_INTERNAL &&
+               d.status != HFC_E_EXPIRED && !refused) {
       /* Sent again, it would be refused again. */
       const char *m = hfc_last_message(c);
       fprintf(stderr, "hairfilter-load: the server refused a frame: %s%s%s%s; stopping\n",
@@ -378,7 +392,8 @@ int main(int argc, char **argv) {
     }
     static const char *const valued[] = {"--server", "--variant", "--token", "--tls-ca",
                                          "--tls-cert", "--tls-key", "--tls-server-name", "--size",
-                                         "--connections", "--inflight", "--seconds", "--warmup"};
+                                         "--connections", "--inflight", "--seconds", "--warmup",
+                                         "--deadline"};
     int known = 0;
     for (size_t j = 0; j < sizeof valued / sizeof valued[0]; j++) known |= !strcmp(a, valued[j]);
     if (!known || !v) {
@@ -415,6 +430,11 @@ int main(int argc, char **argv) {
       if (cli_arg_duration("hairfilter-load", a, v, 1, 1e-3, 7 * 86400, &o.seconds)) return 2;
     } else if (!strcmp(a, "--warmup")) {
       if (cli_arg_duration("hairfilter-load", a, v, 1, 0, 7 * 86400, &o.warmup)) return 2;
+    } else if (!strcmp(a, "--deadline")) {
+      /* 1 us .. 2^32-1 us, the protocol's budget_us. */
+      double s;
+      if (cli_arg_duration("hairfilter-load", a, v, 1e-3, 1e-6, 4294.967295, &s)) return 2;
+      o.deadline_us = s * 1e6 < 1 ? 1 : (uint32_t)(s * 1e6 + 0.5);
     }
   }
   if (!o.server || !o.variant || o.connections < 1 || o.connections > 1024 || o.inflight < 1 ||
@@ -474,6 +494,10 @@ int main(int argc, char **argv) {
   /* A server that offers no shared memory here (a TCP connection, or
    * hairfilterd --max-shm-mb 0) is said before the run, as the limits
    * above are, rather than after an empty window. */
+  if (o.deadline_us && info.version < 4)
+    fprintf(stderr, "hairfilter-load: --deadline: %s speaks protocol version %d, which has no "
+                    "deadlines (version 4 does): frames go without one and none can expire\n",
+            o.server, info.version);
   if (o.shm && !info.shm) {
     fprintf(stderr, "hairfilter-load: --shm: %s offers no shared memory (only Unix sockets do, "
             "unless the server runs with --max-shm-mb 0); leave out --shm\n", o.server);
@@ -511,6 +535,7 @@ int main(int argc, char **argv) {
   }
   size_t total = 0;
   uint64_t busy = 0, errors = 0, sent = 0, answered = 0, wsent = 0, wok = 0, wbusy = 0, werr = 0;
+  uint64_t expired = 0, wexpired = 0;
   int fatal = 0, bsum = 0, bn = 0, last_error = 0, cut = 0, cut_lost = 0;
   double elapsed = o.seconds, longest = 0;
   for (int i = 0; i < o.connections; i++) {
@@ -524,6 +549,8 @@ int main(int argc, char **argv) {
     wok += w[i].warm_ok;
     wbusy += w[i].warm_busy;
     werr += w[i].warm_errors;
+    expired += w[i].expired;
+    wexpired += w[i].warm_expired;
     if (w[i].last_error) last_error = w[i].last_error;
     /* Interrupted: the window ended when the connections noticed. */
     if (interrupted && w[i].t_end > w[i].t_measure && w[i].t_end - w[i].t_measure < elapsed)
@@ -572,6 +599,10 @@ int main(int argc, char **argv) {
          (unsigned long long)errors, last_error ? " (last: " : "",
          last_error ? hfc_strerror(last_error) : "", last_error ? ")" : "",
          bn ? (double)bsum / bn : 0.0);
+  if (o.deadline_us)
+    printf("  deadline %.3f ms  expired %llu (not computed: still queued at the server when "
+           "their budget passed)  warm-up expired %llu\n", o.deadline_us / 1e3,
+           (unsigned long long)expired, (unsigned long long)wexpired);
   printf("  requests sent %llu  answered %llu  unanswered %llu\n", (unsigned long long)sent,
          (unsigned long long)answered, (unsigned long long)(sent > answered ? sent - answered : 0));
   printf("  warm-up: requests sent %llu  ok %llu  busy %llu  errors %llu\n",

@@ -276,6 +276,17 @@ static void test_deadline(void **state) {
   if (rc || strstr(text, "expired")) fail_msg("no --deadline: status %d:\n%s", rc, text);
   expect_refused("--deadline 0", "--deadline");
   expect_refused("--deadline 5000s", "--deadline");
+
+  /* hairfilter-load the same. */
+  char args[600];
+  snprintf(args, sizeof args, "--server %s --variant Tiny --size 16x16 --inflight 2 --seconds 0.3s "
+           "--warmup 0.1s --deadline 1us", S.unix_url);
+  rc = load_prog(HAIRFILTER_LOADGEN_PATH, args);
+  line = strstr(text, "  deadline 0.001 ms  expired ");
+  if ((rc != 0 && rc != 1) || strstr(text, "refused a frame") || !line)
+    fail_msg("hairfilter-load --deadline 1us: status %d:\n%s", rc, text);
+  assert_int_equal(sscanf(line, "  deadline 0.001 ms  expired %llu", &expired), 1);
+  assert_true(expired > 0);
 }
 
 static void test_closed_sweep(void **state) {
