@@ -139,6 +139,11 @@ static int print_stats(hfc_client *c) {
       printf("  %s: %llu frame(s) with non-finite or out-of-range input, sanitised "
              "(protocol/FEATURES.md)\n", st->variants[i].name,
              (unsigned long long)st->variants[i].frames_sanitised);
+  for (int i = 0; i < st->num_variants; i++)
+    if (st->variants[i].expired)
+      printf("  %s: %llu frame(s) expired in the queue, not computed (their budget passed: "
+             "failed EXPIRED, protocol version 4)\n", st->variants[i].name,
+             (unsigned long long)st->variants[i].expired);
   printf("  (queue/infer/total: means over successful requests; p99<=: bound from the "
          "total-latency histogram;\n   outside: frames outside the variant's trained input "
          "range, protocol v2 servers)\n");

@@ -596,3 +596,44 @@ double now_ms(void) {
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec / 1e6;
 }
+
+/* The body of GET path on the daemon's --http endpoint, whose URL
+ * (http://HOST:PORT) its ready file lists; malloc'd, or NULL. */
+char *http_get(const server *d, const char *path) {
+  char buf[4096], url[300] = "";
+  if (read_text_file(d->ready, buf, sizeof buf) < 0) return NULL;
+  for (char *line = strtok(buf, "\n"); line; line = strtok(NULL, "\n"))
+    if (!strncmp(line, "http://", 7)) snprintf(url, sizeof url, "tcp:%s", line + 7);
+  if (!url[0]) return NULL;
+  int fd = raw_connect(url);
+  if (fd < 0) return NULL;
+  char req[256];
+  int n = snprintf(req, sizeof req, "GET %s HTTP/1.0\r\n\r\n", path);
+  size_t len = 0, cap = 1 << 16;
+  char *all = malloc(cap);
+  if (!all || raw_send(fd, req, (size_t)n)) {
+    free(all);
+    close(fd);
+    return NULL;
+  }
+  for (;;) {
+    if (len + 1 == cap) {
+      char *more = realloc(all, cap *= 2);
+      if (!more) break;
+      all = more;
+    }
+    ssize_t got = recv(fd, all + len, cap - 1 - len, 0);
+    if (got < 0 && errno == EINTR) continue;
+    if (got <= 0) break;
+    len += (size_t)got;
+  }
+  close(fd);
+  all[len] = 0;
+  char *body = strstr(all, "\r\n\r\n");
+  if (!body || strncmp(all, "HTTP/1.", 7) || strncmp(all + 8, " 200", 4)) {
+    free(all);
+    return NULL;
+  }
+  memmove(all, body + 4, strlen(body + 4) + 1);
+  return all;
+}

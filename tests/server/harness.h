@@ -110,6 +110,9 @@ float *make_features(int w, int h, int spp, uint32_t seed);
 int reference(const ref_variant *v, int w, int h, const void *in, int in_dtype, void *out,
               int out_dtype);
 
+/* The body of GET path on the daemon's --http endpoint, whose URL
+ * (http://HOST:PORT) its ready file lists; malloc'd, or NULL. */
+char *http_get(const server *d, const char *path);
 /* Milliseconds on the monotonic clock, for deadlines and durations. */
 double now_ms(void);
 

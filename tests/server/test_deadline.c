@@ -11,9 +11,11 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "harness.h"
@@ -25,7 +27,7 @@ static server S;
  * it is held that long, whatever the machine's speed. */
 enum { HOLD_US = 1500000 };
 static const char *const args[] = {"--max-batch", "16", "--max-queue-delay-us", "1500000",
-                                   NULL};
+                                   "--http", "tcp:127.0.0.1:0", NULL};
 
 static int setup(void **state) {
   (void)state;
@@ -287,12 +289,48 @@ static void test_client_library(void **state) {
   free(b);
 }
 
+/* The frames expired so far (two: test_expired_while_queue_held's and
+ * test_client_library's) in the operator's views: /metrics'
+ * requests_total{status="expired",class="overload"}, the SIGUSR1
+ * statistics line's expired=, and `hairfilter filter --stats`. */
+static void test_reports(void **state) {
+  (void)state;
+  char *m = http_get(&S, "/metrics");
+  assert_non_null(m);
+  if (!strstr(m, "hairfilterd_requests_total{variant=\"Small\",status=\"expired\","
+                 "class=\"overload\"} 2\n"))
+    fail_msg("no expired count of 2 for Small in /metrics:\n%s", m);
+  /* shown at zero too, for rate() and alerts */
+  if (!strstr(m, "hairfilterd_requests_total{variant=\"Tiny\",status=\"expired\","
+                 "class=\"overload\"} 0\n"))
+    fail_msg("no expired series at 0 for Tiny in /metrics");
+  free(m);
+  assert_int_equal(kill(S.pid, SIGUSR1), 0);
+  int seen = 0;
+  for (int waited = 0; waited < 5000 && !seen; waited += 10)
+    if (!(seen = server_log_has(&S, "sanitised=0 expired=2"))) usleep(10000);
+  if (!seen) {
+    server_dump_log(&S);
+    fail_msg("no 'expired=2' in the SIGUSR1 statistics line of Small");
+  }
+  char cmd[1200], out[300], text[8192];
+  snprintf(out, sizeof out, "%s/stats.out", H.dir);
+  snprintf(cmd, sizeof cmd, "'%s' filter --server %s --stats > '%s' 2>&1", HAIRFILTER_CLI_PATH,
+           S.unix_url, out);
+  int rc = system(cmd);
+  assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
+  assert_int_equal(read_text_file(out, text, sizeof text), 0);
+  if (!strstr(text, "  Small: 2 frame(s) expired in the queue, not computed"))
+    fail_msg("no expired line in hairfilter filter --stats:\n%s", text);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_expired_while_queue_held),
       cmocka_unit_test(test_within_budget_not_held),
       cmocka_unit_test(test_version_rules),
       cmocka_unit_test(test_client_library),
+      cmocka_unit_test(test_reports),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
