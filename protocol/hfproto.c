@@ -33,6 +33,7 @@ static const char *const messages[HFP_E_COUNT] = {
   [HFP_E_INVALID] = "field out of range",
   [HFP_E_NOSPACE] = "buffer too small",
   [HFP_E_EXPIRED] = "the frame's deadline passed before it ran; retrying cannot help",
+  [HFP_E_CANCELLED] = "cancelled by the client before it ran",
 };
 
 const char *hfp_strerror(int code) {
@@ -44,7 +45,7 @@ const char *hfp_strerror(int code) {
 static const char *const names[HFP_E_COUNT] = {
   "OK", "VERSION", "PROTOCOL", "UNKNOWN_VARIANT", "TOO_LARGE", "LENGTH", "BUSY",
   "UNAUTHORIZED", "INTERNAL", "UNSUPPORTED", "SHUTTING_DOWN", "INVALID", "NOSPACE",
-  "EXPIRED",
+  "EXPIRED", "CANCELLED",
 };
 
 const char *hfp_code_name(int code) {
@@ -403,7 +404,9 @@ int hfp_decode_hello_ok(const uint8_t *payload, size_t len, hfp_hello_ok *m) {
 /* ---- empty requests ---------------------------------------------------- */
 
 int hfp_encode_empty(uint8_t *buf, size_t cap, int type, uint32_t request_id) {
-  if (type != HFP_LIST_VARIANTS && type != HFP_STATS) return -HFP_E_INVALID;
+  /* CANCEL names its FILTER's id; the control requests carry 0. */
+  if (type == HFP_CANCEL ? request_id == 0 : type != HFP_LIST_VARIANTS && type != HFP_STATS)
+    return -HFP_E_INVALID;
   wr w;
   wr_begin(&w, buf, cap);
   return wr_finish(&w, type, request_id, 0);

@@ -11,7 +11,8 @@
  * ranges, the estimate each variant reads (hfp_variant.estimate). Version 4
  * is version 3 plus a frame's deadline: FILTER flag HFP_FILTER_DEADLINE and
  * its budget (hfp_filter.budget_us), the RESULT status HFP_E_EXPIRED, and a
- * fourth per-variant counter after STATS_REPLY (expired).
+ * fourth per-variant counter after STATS_REPLY (expired); and CANCEL, which
+ * takes a queued FILTER off the queue (RESULT status HFP_E_CANCELLED).
  *
  * A pure codec: it turns message structs into bytes and bytes into structs.
  * It does no I/O and never allocates, so every length it reads from the wire
@@ -74,7 +75,9 @@ extern "C" {
 #define HFP_E_NOSPACE        12  /* (local only) output buffer too small */
 #define HFP_E_EXPIRED        13  /* (version 4) the frame's budget passed before it ran;
                                     retrying cannot help */
-#define HFP_E_COUNT          14
+#define HFP_E_CANCELLED      14  /* (version 4) the client's CANCEL took the frame off the
+                                    queue before it ran */
+#define HFP_E_COUNT          15
 
 /* Accepts a code of either sign. Never NULL. */
 const char *hfp_strerror(int code);
@@ -96,7 +99,9 @@ enum {
   HFP_SHM_CREATE    = 10, /* client -> server: a shared segment, please */
   HFP_SHM_CREATED   = 11, /* server -> client: its id; the fd rides along */
   HFP_SHM_DESTROY   = 12, /* client -> server: done with a segment */
-  HFP_TYPE_MAX      = 12
+  HFP_CANCEL        = 13, /* client -> server, version 4: the FILTER of this request id is
+                             no longer wanted; empty payload, no reply of its own */
+  HFP_TYPE_MAX      = 13
 };
 
 /* Element types of tensors on the wire (same values as hfcore's hf_dtype). */

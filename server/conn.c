@@ -990,9 +990,10 @@ static void filter_admit(hfd_conn *c) {
 
 /* The types a client sends (PROTOCOL.md, "Frames"); the others go only
  * from server to client. */
-static int is_client_type(uint16_t type) {
+static int is_client_type(const hfd_conn *c, uint16_t type) {
   return type == HFP_HELLO || type == HFP_LIST_VARIANTS || type == HFP_FILTER ||
-         type == HFP_STATS || type == HFP_SHM_CREATE || type == HFP_SHM_DESTROY;
+         type == HFP_STATS || type == HFP_SHM_CREATE || type == HFP_SHM_DESTROY ||
+         (type == HFP_CANCEL && c->version >= 4);
 }
 
 /* A whole header is in hbuf. Request ids in ERRORs (PROTOCOL.md,
@@ -1007,7 +1008,7 @@ static void on_header(hfd_conn *c) {
    * claiming too much goes on to the switch below, which refuses it as
    * PROTOCOL whatever its length, and so does a second HELLO, which is no
    * request once the handshake is done. */
-  if (rc == -HFP_E_TOO_LARGE && c->hello_done && is_client_type(h->type) &&
+  if (rc == -HFP_E_TOO_LARGE && c->hello_done && is_client_type(c, h->type) &&
       h->type != HFP_HELLO) {
     s->protocol_errors++;
     send_error(c, h->type == HFP_FILTER ? h->request_id : 0, HFP_E_TOO_LARGE, 1,
@@ -1069,6 +1070,17 @@ static void on_header(hfd_conn *c) {
         return;
       }
       break;
+    case HFP_CANCEL:
+      /* Before version 4 no such request exists (PROTOCOL.md, "Version 4"). */
+      if (c->version < 4) {
+        s->protocol_errors++;
+        send_error(c, 0, HFP_E_PROTOCOL, 1,
+                   "message type 13 (CANCEL) needs protocol version 4; this connection speaks %d",
+                   c->version);
+        return;
+      }
+      /* An empty payload, as LIST_VARIANTS and STATS have. */
+      /* fall through */
     case HFP_LIST_VARIANTS:
     case HFP_STATS:
       if (h->length != 0) {
@@ -1305,6 +1317,14 @@ static void on_control(hfd_conn *c) {
     case HFP_STATS: reply_stats(c); break;
     case HFP_SHM_CREATE: shm_create(c); break;
     case HFP_SHM_DESTROY: shm_destroy(c); break;
+    case HFP_CANCEL:
+      /* A frame queued is answered CANCELLED through the worker's
+       * completions, as any frame; one running, answered or unknown is
+       * left as it is: a CANCEL has no reply of its own. */
+      if (hfd_worker_cancel_frame(&c->srv->worker, c, c->hdr.request_id))
+        hfd_debug("conn %llu request %u: cancelled in the queue", (unsigned long long)c->id,
+                  c->hdr.request_id);
+      break;
   }
   if (!c->fatal_sent && !c->closing) read_next(c);
 }

@@ -113,6 +113,7 @@ static const char *status_class(int code) {
     case HFP_E_BUSY:
     case HFP_E_EXPIRED: return "overload";  /* the server did not keep up */
     case HFP_E_SHUTTING_DOWN: return "unavailable";
+    case HFP_E_CANCELLED: return "cancelled";   /* the client's own choice */
     case HFP_E_INTERNAL: return "server_error";
     default: return "client_error";
   }

@@ -380,6 +380,12 @@ void hfd_worker_cancel(hfd_worker *w);
  * nothing would read their results, and they would hold queue places and
  * memory other clients are refused for. Loop thread; returns how many. */
 int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn);
+/* Takes conn's queued frame of request_id (the first, for a reused id)
+ * off the queue and completes it unrun with HFP_E_CANCELLED: 1 when one
+ * was queued, 0 when none was (not admitted, answered, or already taken
+ * by the batcher, which runs it). Loop thread (PROTOCOL.md, "Version 4",
+ * CANCEL). */
+int hfd_worker_cancel_frame(hfd_worker *w, const struct hfd_conn *conn, uint32_t request_id);
 /* Asks the thread to exit once the queue is empty, and joins it; models
  * still built are destroyed there. */
 void hfd_worker_stop(hfd_worker *w);

@@ -879,6 +879,20 @@ int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn) {
   return n;
 }
 
+int hfd_worker_cancel_frame(hfd_worker *w, const struct hfd_conn *conn, uint32_t request_id) {
+  pthread_mutex_lock(&w->mu);
+  hfd_job *prev = NULL, *found = NULL;
+  for (hfd_job *j = w->q_head; j; prev = j, j = j->next)
+    if (j->conn == conn && j->request_id == request_id) {
+      unlink_queued(w, prev, j);
+      found = j;
+      break;
+    }
+  pthread_mutex_unlock(&w->mu);
+  if (found) complete_unrun(w, found, HFP_E_CANCELLED);
+  return found != NULL;
+}
+
 void hfd_worker_stop(hfd_worker *w) {
   pthread_mutex_lock(&w->mu);
   w->stop = 1;

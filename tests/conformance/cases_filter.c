@@ -681,6 +681,84 @@ static int duplicate_id(cf_test *t, intptr_t arg) {
   return cf_still_serves(t, fd);
 }
 
+/* CANCEL (version 4): before version 4 no request (a fatal PROTOCOL with id
+ * 0); with a payload a fatal LENGTH; of an id not in flight (never sent,
+ * or already answered) no reply at all, the connection serving on; after
+ * several FILTERs in one write, each still gets exactly one reply, the
+ * cancelled one a RESULT CANCELLED (56 bytes) or, when it had started,
+ * its result. */
+enum { CN_V3, CN_PAYLOAD, CN_UNKNOWN, CN_PIPELINED };
+
+static int cancel(cf_test *t, intptr_t which) {
+  const cf_server *s = t->srv;
+  if (s->version < 4) return cf_skip(t, "the server speaks version %d, without CANCEL", s->version);
+  if (s->variants[s->probe].estimate) return cf_skip(t, "the probe variant reads the estimate");
+  int fd;
+  uint8_t b[HFP_HEADER_SIZE + 4];
+  memset(b, 0, sizeof b);
+  if (which == CN_V3) {
+    CF_TRY(cf_connect_hello(t, 1, 3, &fd, NULL));
+    cf_header(b, HFP_CANCEL, 0, 5, 0);
+    CF_TRY(cf_send(t, fd, b, HFP_HEADER_SIZE));
+    return cf_expect_error(t, fd, HFP_E_PROTOCOL, 1, 0);
+  }
+  CF_TRY(connect_v(t, &fd));
+  if (which == CN_PAYLOAD) {
+    cf_header(b, HFP_CANCEL, 0, 5, 4);
+    CF_TRY(cf_send(t, fd, b, sizeof b));
+    return cf_expect_error(t, fd, HFP_E_LENGTH, 1, 0);
+  }
+  cf_filter f = {.id = 1900};
+  cf_filter_defaults(t, &f);
+  if (which == CN_UNKNOWN) {
+    cf_header(b, HFP_CANCEL, 0, 77, 0);   /* never sent */
+    CF_TRY(cf_send(t, fd, b, HFP_HEADER_SIZE));
+    CF_TRY(cf_filter_ok(t, fd, &f, s->version, NULL, NULL));
+    cf_header(b, HFP_CANCEL, 0, f.id, 0);  /* already answered */
+    CF_TRY(cf_send(t, fd, b, HFP_HEADER_SIZE));
+    CF_TRY(cf_expect_quiet(t, fd));
+    return cf_still_serves(t, fd);
+  }
+  int n = (int)s->hello.max_inflight < 4 ? (int)s->hello.max_inflight : 4;
+  if (n < 2) return cf_skip(t, "max_inflight is 1");
+  size_t len;
+  for (int i = 0; i < n; i++) {
+    f.id = 1910 + (uint32_t)i;
+    uint8_t *fb = cf_filter_frame(t, &f, &len);
+    CF_CHECK(t, fb, "out of memory");
+    CF_TRY(cf_send(t, fd, fb, len));
+  }
+  cf_header(b, HFP_CANCEL, 0, 1910 + (uint32_t)n - 1, 0);
+  CF_TRY(cf_send(t, fd, b, HFP_HEADER_SIZE));
+  int seen = 0;
+  for (int i = 0; i < n; i++) {
+    cf_frame r;
+    int rc = cf_read(t, fd, t->o->timeout_ms, &r);
+    CF_CHECK(t, rc == CF_GOT, "%d of %d replies came", i, n);
+    uint32_t id = r.h.request_id;
+    CF_CHECK(t, id >= 1910 && id < 1910 + (uint32_t)n && !(seen & (1 << (id - 1910))),
+             "a reply with id %u: none or another was due", id);
+    seen |= 1 << (id - 1910);
+    int busy = cf_busy(t, &r, NULL);
+    if (busy < 0) return busy;
+    if (busy) continue;
+    if (r.h.type == HFP_RESULT && r.h.length >= 2 && hfp_get_u16(r.p) == HFP_E_CANCELLED) {
+      hfp_result res;
+      CF_CHECK(t, id == 1910 + (uint32_t)n - 1, "RESULT CANCELLED for request %u, not cancelled",
+               id);
+      CF_CHECK(t, hfp_decode_result(r.p, r.h.length, &res) == 0 && r.h.length == HFP_RESULT_FIXED &&
+                      res.batch == 0,
+               "a CANCELLED RESULT must be the 56 fixed bytes, batch 0 (%u payload bytes)",
+               r.h.length);
+      continue;
+    }
+    f.id = id;
+    CF_TRY(cf_check_result(t, &r, &f, s->version, NULL, NULL, NULL));
+  }
+  CF_TRY(cf_expect_quiet(t, fd));
+  return cf_still_serves(t, fd);
+}
+
 /* Many more FILTERs than max_inflight in one write: each gets exactly one
  * reply, a RESULT or a non-fatal BUSY with its id, and afterwards the
  * connection serves. */
@@ -942,6 +1020,10 @@ const cf_case cf_cases_filter[] = {
   {"filter.deadline.short", "DEADLINE without its 4 budget bytes is a non-fatal LENGTH", 0, deadline, DL_SHORT},
   {"filter.deadline.served", "a frame within its budget is filtered as any other", 0, deadline, DL_SERVED},
   {"filter.deadline.tiny_budget", "a budget of 1 us: a RESULT, EXPIRED (56 bytes, no tensors) or served", 0, deadline, DL_TINY},
+  {"cancel.v3", "before version 4, CANCEL is no request: a fatal PROTOCOL with id 0", 0, cancel, CN_V3},
+  {"cancel.payload", "a CANCEL with a payload is a fatal LENGTH", 0, cancel, CN_PAYLOAD},
+  {"cancel.unknown_id", "a CANCEL of an id not in flight, never sent or answered, gets no reply", 0, cancel, CN_UNKNOWN},
+  {"cancel.pipelined", "FILTERs then a CANCEL of the last: one reply each, CANCELLED or the result", 0, cancel, CN_PIPELINED},
   {"filter.order.variant_len_before_flag", "variant_len 0 and an unknown flag: INVALID, the name's fault first", 0, fault_order, O_VLEN_FLAG},
   {"filter.order.name_byte_before_flag", "a space in the name and an unknown flag: INVALID, the name's fault first", 0, fault_order, O_NAME_FLAG},
   {"filter.order.flag_before_colour", "an unknown flag and a NaN colour: UNSUPPORTED, the flag first", 0, fault_order, O_FLAG_COLOUR},

@@ -908,6 +908,19 @@ static void test_version4(void **state) {
   assert_int_equal(hfp_negotiate(1, 4), 4);
   assert_int_equal(hfp_negotiate(1, 3), 3);
   assert_string_equal(hfp_code_name(HFP_E_EXPIRED), "EXPIRED");
+  assert_string_equal(hfp_code_name(HFP_E_CANCELLED), "CANCELLED");
+  /* CANCEL: the FILTER's id, an empty payload; never id 0 */
+  {
+    uint8_t cb[HFP_HEADER_SIZE];
+    assert_int_equal(hfp_encode_empty(cb, sizeof cb, HFP_CANCEL, 0), -HFP_E_INVALID);
+    assert_int_equal(hfp_encode_empty(cb, sizeof cb, HFP_CANCEL, 7), HFP_HEADER_SIZE);
+    hfp_header ch;
+    assert_int_equal(hfp_header_decode(cb, 0, &ch), 0);
+    assert_int_equal(ch.type, HFP_CANCEL);
+    assert_int_equal(ch.request_id, 7);
+    assert_int_equal(ch.length, 0);
+    assert_int_equal(hfp_encode_empty(cb, sizeof cb, HFP_STATS, 0), HFP_HEADER_SIZE);
+  }
   assert_non_null(strstr(hfp_strerror(-HFP_E_EXPIRED), "deadline"));
 
   static float t[3 * 2 * 24];

@@ -1,0 +1,157 @@
+/* hairfilterd and CANCEL (protocol version 4, PROTOCOL.md "Version 4"): a
+ * queued frame is taken off the queue and answered CANCELLED, unrun, at
+ * once; one the batcher holds runs and is answered as usual; a CANCEL of
+ * an id not in flight gets no reply; before version 4 a CANCEL is a fatal
+ * PROTOCOL. Raw frames, so that the daemon alone is tested. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "harness.h"
+
+static harness H;
+static server S;
+
+/* A frame alone waits 1.5 s in the batcher for partners, holding the
+ * queue behind it. */
+static const char *const args[] = {"--max-batch", "16", "--max-queue-delay-us", "1500000",
+                                   NULL};
+
+static int setup(void **state) {
+  (void)state;
+  if (harness_init(&H)) return -1;
+  return server_start(&H, &S, args);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  return harness_stop(&H, &S);
+}
+
+static int connect_versions(int lo, int hi) {
+  int fd = raw_connect(S.unix_url);
+  assert_true(fd >= 0);
+  assert_int_equal(raw_hello_versions(fd, NULL, lo, hi), 0);
+  return fd;
+}
+
+static void send_filter(int fd, uint32_t id, int w, int h, const float *in) {
+  size_t len;
+  uint8_t *b = raw_filter(id, "Small", w, h, harness_variant(&H, "Small")->cfg.spp, in, &len);
+  assert_non_null(b);
+  assert_int_equal(raw_send(fd, b, len), 0);
+  free(b);
+}
+
+static void send_cancel(int fd, uint32_t id) {
+  uint8_t b[HFP_HEADER_SIZE];
+  assert_int_equal(hfp_encode_empty(b, sizeof b, HFP_CANCEL, id), HFP_HEADER_SIZE);
+  assert_int_equal(raw_send(fd, b, sizeof b), 0);
+}
+
+/* The next frame, a RESULT, into *r; its request id. */
+static uint32_t read_result(int fd, hfp_result *r) {
+  hfp_header h;
+  uint8_t *p = NULL;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  if (h.type != HFP_RESULT) fail_msg("frame type %u, want RESULT", h.type);
+  assert_int_equal(hfp_decode_result(p, h.length, r), 0);
+  r->data = r->rgba = NULL;
+  free(p);
+  return h.request_id;
+}
+
+static hfp_variant_stats small_stats(int fd) {
+  uint8_t b[HFP_HEADER_SIZE];
+  assert_int_equal(hfp_encode_empty(b, sizeof b, HFP_STATS, 0), HFP_HEADER_SIZE);
+  assert_int_equal(raw_send(fd, b, sizeof b), 0);
+  hfp_header h;
+  uint8_t *p = NULL;
+  assert_int_equal(raw_read(fd, &h, &p), 0);
+  assert_int_equal(h.type, HFP_STATS_REPLY);
+  static hfp_stats st;
+  assert_int_equal(hfp_decode_stats(p, h.length, &st), 0);
+  free(p);
+  for (int i = 0; i < st.num_variants; i++)
+    if (!strcmp(st.variants[i].name, "Small")) return st.variants[i];
+  fail_msg("STATS_REPLY lists no variant Small");
+  return st.variants[0];
+}
+
+/* Frame 1 waits in the batcher; frame 2 (another size) is queued behind
+ * it. Cancelled, frame 2 is answered CANCELLED at once, before frame 1's
+ * result, and never runs; frame 1, already the batcher's, is not
+ * cancelled: its result comes as usual. A CANCEL of an answered id, and
+ * of one never sent, gets nothing. */
+static void test_queued_and_held(void **state) {
+  (void)state;
+  int spp = harness_variant(&H, "Small")->cfg.spp;
+  int fd = connect_versions(1, 4);
+  hfp_variant_stats before = small_stats(fd);
+  float *a = make_features(16, 16, spp, 1), *b = make_features(24, 20, spp, 2);
+  send_filter(fd, 1, 16, 16, a);
+  usleep(100000);   /* frame 1 is the batcher's before the others arrive */
+  send_filter(fd, 2, 24, 20, b);
+  double t0 = now_ms();
+  send_cancel(fd, 2);
+  send_cancel(fd, 1);
+  hfp_result r;
+  assert_int_equal(read_result(fd, &r), 2);
+  assert_int_equal(r.status, HFP_E_CANCELLED);
+  assert_int_equal(r.batch, 0);
+  assert_int_equal(r.width, 0);
+  assert_true(now_ms() - t0 < 1000);   /* not after frame 1's 1.5 s wait */
+  assert_int_equal(read_result(fd, &r), 1);
+  assert_int_equal(r.status, HFP_OK);
+  send_cancel(fd, 1);    /* answered */
+  send_cancel(fd, 99);   /* never sent */
+  hfp_variant_stats after = small_stats(fd);   /* the next reply is STATS' */
+  assert_true(after.requests_failed - before.requests_failed == 1);
+  assert_true(after.requests_ok - before.requests_ok == 1);
+  assert_true(after.batches - before.batches == 1);   /* frame 2 never ran */
+  assert_true(after.expired == before.expired);
+  close(fd);
+  free(a);
+  free(b);
+}
+
+/* Before version 4 a CANCEL is no request: a fatal PROTOCOL with id 0.
+ * With a payload it is a fatal LENGTH. */
+static void test_refused(void **state) {
+  (void)state;
+  int fd = connect_versions(1, 3);
+  send_cancel(fd, 5);
+  hfp_header h;
+  hfp_error e;
+  assert_int_equal(raw_read_error(fd, &h, &e), 0);
+  assert_int_equal(e.code, HFP_E_PROTOCOL);
+  assert_int_equal(e.fatal, 1);
+  assert_int_equal(h.request_id, 0);
+  assert_non_null(strstr(e.message, "version 4"));
+  assert_true(raw_closed(fd, 5000));
+  close(fd);
+  fd = connect_versions(4, 4);
+  uint8_t b[HFP_HEADER_SIZE + 4] = {0};
+  assert_int_equal(hfp_encode_empty(b, sizeof b, HFP_CANCEL, 5), HFP_HEADER_SIZE);
+  hfp_put_u32(b + 12, 4);
+  assert_int_equal(raw_send(fd, b, sizeof b), 0);
+  assert_int_equal(raw_read_error(fd, &h, &e), 0);
+  assert_int_equal(e.code, HFP_E_LENGTH);
+  assert_int_equal(e.fatal, 1);
+  close(fd);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_queued_and_held),
+      cmocka_unit_test(test_refused),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
