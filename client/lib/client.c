@@ -307,7 +307,8 @@ static int read_frame(hfc_client *c, int k) {
                                      "its share; retry later)"
                  : err == HFC_E_EXPIRED ? " (its budget, hfc_request.deadline_us, passed while "
                                           "it was queued; the server is not keeping up)"
-                                        : "");
+                 : err == HFC_E_CANCELLED ? " (hfc_cancel took it off the queue)"
+                                          : "");
         hfci_finish(c, p, err, why);
       }
       return 0;

@@ -399,6 +399,44 @@ static int overlaps_input(const pending *p) {
   return 0;
 }
 
+int hfc_cancel(hfc_client *c, uint32_t id) {
+  hfci_begin(c);
+  if (!c) return hfci_arg(NULL, "hfc_cancel: the client is NULL");
+  pending *p = NULL;
+  for (int i = 0; i < c->np && !p; i++)
+    if (c->p[i].state != P_FREE && c->p[i].id == id) p = &c->p[i];
+  if (!p)
+    return hfci_arg(c, "hfc_cancel: request %u is not pending (the id hfc_submit gave; one "
+                       "hfc_wait has returned is done)", id);
+  /* Answered already: hfc_wait returns it as it came. */
+  if (p->state == P_DONE) return 0;
+  if (p->state == P_QUEUED) {
+    hfci_finish(c, p, HFC_E_CANCELLED, "cancelled by hfc_cancel before it was sent again");
+    return 0;
+  }
+  conn *x = &c->conns[p->conn];
+  if (x->info.version < 4) {
+    hfci_msg(c, "hfc_cancel: %s speaks protocol version %d; cancelling needs version 4 (a "
+                "newer hairfilterd): request %u completes as the server answers it",
+             c->eps[x->endpoint].url, x->info.version, id);
+    return HFC_E_UNSUPPORTED;
+  }
+  if (x->draining) {
+    hfci_msg(c, "hfc_cancel: the connection to %s is closing (nothing more is sent on it): "
+                "request %u completes as the server answers it", c->eps[x->endpoint].url, id);
+    return HFC_E_UNSUPPORTED;
+  }
+  uint8_t b[HFP_HEADER_SIZE];
+  int n = hfp_encode_empty(b, sizeof b, HFP_CANCEL, p->wire_id);
+  if (n < 0) return hfci_arg(c, "hfc_cancel: request %u cannot be encoded", id);
+  int rc = hfci_send_io(x->fd, x->ssl, c->timeout_ms, b, (size_t)n);
+  if (rc) {
+    hfci_send_failed(c, p->conn, rc);
+    return rc;
+  }
+  return 0;
+}
+
 /* The caller's request in this header's layout (hfci_take_struct):
  * 0.1.0's ended at user, so the estimate fields default to none; 0.2.0's
  * at estimate_bytes, so deadline_us defaults to none. */

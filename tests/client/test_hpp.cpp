@@ -151,6 +151,8 @@ void status_kinds() {
   if (!expired.expired() || expired.busy() || expired) fail("Status::expired() of HFC_E_EXPIRED");
   if (busy.expired() || !busy.busy()) fail("Status::expired() of HFC_E_BUSY");
   if (expired.what().find("deadline") == std::string::npos) fail("what() of HFC_E_EXPIRED");
+  hairfilter::Status cancelled(HFC_E_CANCELLED, "");
+  if (!cancelled.cancelled() || cancelled.expired()) fail("Status::cancelled() of HFC_E_CANCELLED");
   hairfilter::Request r;
   if (r.deadline_us != 0) fail("a Request's deadline_us is not 0 by default");
 }

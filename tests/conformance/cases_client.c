@@ -413,6 +413,57 @@ static int deadline_wire(cf_test *t, intptr_t version) {
   return finish(t, &m, c, rc);
 }
 
+/* hfc_cancel (version 4): a CANCEL with the FILTER's wire id goes out;
+ * the mock holds the FILTER until then and answers it CANCELLED, which
+ * completes it HFC_E_CANCELLED. Against a version-3 server nothing goes
+ * out (HFC_E_UNSUPPORTED) and the frame completes as answered. m->arg is
+ * the version the mock speaks. */
+static int cancel_handler(mock *m, const hfp_header *h, const uint8_t *p) {
+  if (h->type == HFP_CANCEL) {
+    if (m->arg < 4) return mk_fail(m, "a version-%d server got a CANCEL", (int)m->arg);
+    if (h->length || m->nids != 1 || h->request_id != m->ids[0])
+      return mk_fail(m, "a CANCEL of id %u with %u payload bytes; the FILTER had id %u",
+                     h->request_id, h->length, m->nids ? m->ids[0] : 0);
+    hfp_result r;
+    memset(&r, 0, sizeof r);
+    r.status = HFP_E_CANCELLED;
+    r.timing.total_us = r.timing.queue_us = 3;
+    uint8_t b[HFP_RESULT_HEAD_MAX];
+    int n = hfp_encode_result_head(b, sizeof b, h->request_id, &r, NULL);
+    if (n < 0) return mk_fail(m, "mock: cannot encode the RESULT");
+    mk_send(m, b, (size_t)n);
+    return 0;
+  }
+  /* Version 4: the FILTER waits for its CANCEL. */
+  if (h->type == HFP_FILTER && m->arg >= 4) return 0;
+  return mk_reply(m, h, p);
+}
+
+static int cancel_wire(cf_test *t, intptr_t version) {
+  mock m = {0};
+  m.ok.version = (uint16_t)version;
+  m.on_frame = cancel_handler;
+  m.arg = version;
+  CASE_BEGIN(t, &m, c, 0);
+  frame_bufs b;
+  hfc_request r = request(&b, 0);
+  uint32_t id;
+  int rc = hfc_submit(c, &r, &id), v = 0;
+  if (rc) v = cf_fail(t, "hfc_submit: %s", hfc_strerror(rc));
+  int want = version >= 4 ? 0 : HFC_E_UNSUPPORTED;
+  if (!v && (rc = hfc_cancel(c, id)) != want)
+    v = cf_fail(t, "hfc_cancel against a version-%d server returned %s, wanted %s", (int)version,
+                hfc_strerror(rc), hfc_strerror(want));
+  hfc_completion d;
+  if (!v && (rc = hfc_wait(c, 5000, &d)) != 0) v = cf_fail(t, "hfc_wait: %s", hfc_strerror(rc));
+  want = version >= 4 ? HFC_E_CANCELLED : 0;
+  if (!v && d.status != want)
+    v = cf_fail(t, "the cancelled frame completed %s, wanted %s", hfc_strerror(d.status),
+                hfc_strerror(want));
+  if (!v && version < 4) v = check_values(t, d.id, b.out, NULL, &r);
+  return finish(t, &m, c, v);
+}
+
 static int filter_wire(cf_test *t, intptr_t arg) {
   (void)arg;
   mock m = {0};
@@ -1351,6 +1402,8 @@ const cf_case cf_cases_client[] = {
   {"client.result_status.internal", "RESULT status INTERNAL: the request fails INTERNAL", 0, result_status, HFP_E_INTERNAL},
   {"client.result_status.shutting_down", "RESULT status SHUTTING_DOWN: the request fails SHUTTING_DOWN", 0, result_status, HFP_E_SHUTTING_DOWN},
   {"client.result_status.expired", "RESULT status EXPIRED (version 4): the request fails EXPIRED, the connection serves on", 0, result_status, HFP_E_EXPIRED},
+  {"client.cancel.wire", "hfc_cancel sends CANCEL with the FILTER's id; RESULT CANCELLED completes it HFC_E_CANCELLED", 0, cancel_wire, 4},
+  {"client.cancel.v3_server", "hfc_cancel against a version-3 server: UNSUPPORTED, nothing sent, the frame served", 0, cancel_wire, 3},
   {"client.deadline.wire", "deadline_us goes out as FILTER flag DEADLINE and its budget to a version-4 server", 0, deadline_wire, 4},
   {"client.deadline.v3_server", "to a version-3 server a frame with deadline_us goes without the flag, and is served", 0, deadline_wire, 3},
   {"client.result_status.busy", "RESULT status BUSY (pushed out of a full queue): the request fails BUSY", 0, result_status, HFP_E_BUSY},

@@ -148,10 +148,56 @@ static void test_refused(void **state) {
   close(fd);
 }
 
+/* libhairfilter: hfc_cancel of a frame queued behind one the batcher
+ * holds completes HFC_E_CANCELLED, with a message naming hfc_cancel,
+ * before the held one; hfc_cancel of the held one changes nothing (it
+ * completes OK); an id not pending is HFC_E_ARG naming it. */
+static void test_client_library(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  int spp = v->cfg.spp;
+  hfc_client *c = client_connect(&S, "cancel-client");
+  assert_non_null(c);
+  float *a = make_features(16, 16, spp, 3), *b = make_features(24, 20, spp, 4);
+  static float out_a[16 * 16 * 3], out_b[24 * 20 * 3], want[16 * 16 * 3];
+  hfc_request ra = TEST_REQUEST(.variant = "Small", .width = 16, .height = 16, .spp = spp,
+                                .in_dtype = HFC_F32, .features = a, .out_dtype = HFC_F32,
+                                .result = out_a, .user = (void *)1);
+  hfc_request rb = TEST_REQUEST(.variant = "Small", .width = 24, .height = 20, .spp = spp,
+                                .in_dtype = HFC_F32, .features = b, .out_dtype = HFC_F32,
+                                .result = out_b, .user = (void *)2);
+  uint32_t ida, idb;
+  assert_int_equal(hfc_submit(c, &ra, &ida), 0);
+  usleep(100000);
+  assert_int_equal(hfc_submit(c, &rb, &idb), 0);
+  assert_int_equal(hfc_cancel(c, idb), 0);
+  assert_int_equal(hfc_cancel(c, ida), 0);
+  hfc_completion d;
+  assert_int_equal(hfc_wait(c, 20000, &d), 0);
+  assert_int_equal(d.id, idb);
+  assert_int_equal(d.status, HFC_E_CANCELLED);
+  assert_non_null(strstr(hfc_last_message(c), "hfc_cancel"));
+  assert_int_equal(hfc_wait(c, 20000, &d), 0);
+  assert_int_equal(d.id, ida);
+  assert_int_equal(d.status, 0);
+  assert_int_equal(reference(v, 16, 16, a, HF_F32, want, HF_F32), 0);
+  assert_memory_equal(out_a, want, sizeof want);
+  assert_int_equal(hfc_cancel(c, ida), HFC_E_ARG);   /* returned by hfc_wait: done */
+  char id_text[32];
+  snprintf(id_text, sizeof id_text, "request %u", ida);
+  assert_non_null(strstr(hfc_last_message(c), id_text));
+  assert_int_equal(hfc_cancel(NULL, 1), HFC_E_ARG);
+  assert_non_null(strstr(hfc_strerror(HFC_E_CANCELLED), "cancelled"));
+  hfc_close(c);
+  free(a);
+  free(b);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_queued_and_held),
       cmocka_unit_test(test_refused),
+      cmocka_unit_test(test_client_library),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -81,6 +81,8 @@ HFC_API const char *hfc_version(void);
 #define HFC_E_INVALID        -11
 #define HFC_E_EXPIRED        -13  /* the frame's budget (hfc_request.deadline_us) passed
                                      while it was queued: not computed; retrying cannot help */
+#define HFC_E_CANCELLED      -14  /* hfc_cancel took the frame off the server's queue: not
+                                     computed */
 /* local */
 #define HFC_E_ARG            -100 /* bad argument: hfc_last_message names the field */
 #define HFC_E_URL            -101 /* not unix:PATH, tcp:HOST:PORT, tcp:PORT, tls:HOST:PORT or tls:PORT (or a list of them) */
@@ -419,6 +421,19 @@ HFC_API int hfc_wait(hfc_client *c, int timeout_ms, hfc_completion *done);
 /* Requests submitted and not yet returned by hfc_wait; HFC_E_ARG with c
  * NULL. */
 HFC_API int hfc_pending(const hfc_client *c);
+/* Asks the server to drop request id (hfc_submit's) if it has not started
+ * it (protocol version 4: CANCEL, protocol/PROTOCOL.md). It still
+ * completes through hfc_wait, exactly once: with HFC_E_CANCELLED when the
+ * server took it off its queue (not computed), or as usual when it had
+ * started (a server never cuts a computation short) or had answered
+ * already; until then its buffers stay the server's. A frame waiting to be
+ * sent again after a failover completes HFC_E_CANCELLED at once. Returns
+ * 0 when the cancel went out (or nothing was left to cancel: the
+ * completion is in); HFC_E_ARG for an id that is not pending (never
+ * submitted, or hfc_wait returned it); HFC_E_UNSUPPORTED when its server
+ * speaks a version before 4 (the frame completes as answered); or the
+ * connection's error when the send failed. */
+HFC_API int hfc_cancel(hfc_client *c, uint32_t id);
 
 /* ---- shared memory ------------------------------------------------------- */
 

@@ -61,6 +61,8 @@ struct Status {
   // The frame's budget (Request::deadline_us) passed in the server's queue:
   // not computed, as routine in a frame loop under load as busy().
   bool expired() const { return code == HFC_E_EXPIRED; }
+  // The frame was cancelled (Client::cancel) before it ran.
+  bool cancelled() const { return code == HFC_E_CANCELLED; }
   // "server busy: ...: <message>"
   std::string what() const {
     std::string s = hfc_strerror(code);
@@ -159,6 +161,9 @@ class Client {
   Status submit(const hfc_request &r, std::uint32_t *id = nullptr) {
     return status(hfc_submit(get(), &r, id));
   }
+  // Asks the server to drop frame id if it has not started (hfc_cancel);
+  // the frame still completes through wait(), cancelled() or as usual.
+  Status cancel(std::uint32_t id) { return status(hfc_cancel(get(), id)); }
   // The next completion (its own status in done.status); timeout_ms < 0:
   // the client's timeout, 0: just poll. A Status that is OK may carry a
   // completion that failed: completion() gives its code and message.
