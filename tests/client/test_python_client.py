@@ -839,6 +839,49 @@ class PythonClient(unittest.TestCase):
             d.terminate()
             self.assertEqual(d.wait(timeout=30), 0)
 
+    def test_cancel(self):
+        """cancel() (protocol version 4): a frame queued behind one the
+        batcher holds completes CANCELLED, first; the held one, cancelled
+        too, runs and is served; an id not pending is ARG. Against a
+        version-3 connection cancel() is UNSUPPORTED and the frame served."""
+        sock = os.path.join(ARGS.work, "cancel.sock")
+        if os.path.exists(sock):
+            os.unlink(sock)
+        d, _ = start_daemon("cancel", [
+            "--listen", "unix:" + sock, "--max-batch", "16", "--max-queue-delay-us", "1500000",
+            "--weights", os.path.join(ARGS.weights, "small.safetensors")])
+        try:
+            with hairfilter.Client("unix:" + sock) as c:
+                f = features(8, 8, 4, 5)
+                held = c.submit("Small", f)
+                time.sleep(0.1)   # the batcher holds it, waiting for partners
+                queued = c.submit("Small", features(8, 12, 4, 6))
+                c.cancel(queued)
+                c.cancel(held)
+                first = c.wait()
+                self.assertEqual((first.id, first.status), (queued, "CANCELLED"))
+                self.assertIn("cancel()", first.message)
+                second = c.wait()
+                self.assertEqual((second.id, second.status), (held, "OK"))
+                self.assertEqual(second.result.tobytes(), c_filter("unix:" + sock, "Small", f))
+                with self.assertRaises(hairfilter.Error) as e:
+                    c.cancel(held)
+                self.assertEqual(e.exception.code, "ARG")
+        finally:
+            d.terminate()
+            self.assertEqual(d.wait(timeout=30), 0)
+        real = P.encode_hello
+        P.encode_hello = lambda name, token="": real(name, token, hi=3)
+        try:
+            with hairfilter.Client(UNIX) as c:
+                rid = c.submit("Small", features(8, 8, 4, 7))
+                with self.assertRaises(hairfilter.Error) as e:
+                    c.cancel(rid)
+                self.assertEqual(e.exception.code, "UNSUPPORTED")
+                self.assertEqual(c.wait().status, "OK")
+        finally:
+            P.encode_hello = real
+
     def test_deadline_older_server(self):
         """Against a connection of version 3 a budget is not sent: a frame
         with deadline_us=1 (which would expire on version 4) is served."""

@@ -857,6 +857,8 @@ class Client:
             if r.status == P.E_EXPIRED:
                 why = ("its budget (deadline_us) passed while it was queued at %s: not computed"
                        % self.endpoint)
+            elif r.status == P.E_CANCELLED:
+                why = "cancel() took it off the queue at %s: not computed" % self.endpoint
             self._done.append(Completion(rid, status, why, p.result, p.rgba, t, p.user))
             del self._pending[rid]
             return None
@@ -898,6 +900,26 @@ class Client:
                 if not self._done:
                     raise
         return self._done.pop(0)
+
+    def cancel(self, rid):
+        """Asks the server to drop request rid (submit()'s id) if it has not
+        started it (protocol version 4: CANCEL). It still completes through
+        wait(), exactly once: status "CANCELLED" when the server took it
+        off its queue (not computed), or as usual when it had started (a
+        computation is never cut short) or answered already. Error("ARG")
+        for an id not pending, Error("UNSUPPORTED") against a server of an
+        older version (nothing is sent)."""
+        self._check()
+        if rid not in self._pending:
+            if any(d.id == rid for d in self._done):
+                return   # answered already: wait() returns it as it came
+            raise Error("ARG", "cancel: request %r is not pending (submit()'s id; one wait() "
+                               "returned is done)" % (rid,))
+        if self.info.version < 4:
+            raise Error("UNSUPPORTED", "cancel: %s speaks protocol version %d; cancelling needs "
+                                       "version 4: request %d completes as the server answers it"
+                        % (self.endpoint, self.info.version, rid))
+        self._send(P.encode_cancel(rid))
 
     @property
     def pending(self):

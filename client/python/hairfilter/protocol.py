@@ -33,16 +33,17 @@ SHM_REF_SIZE = 32
 
 # message types
 HELLO, HELLO_OK, LIST_VARIANTS, VARIANTS, FILTER, RESULT, ERROR, STATS, STATS_REPLY, \
-    SHM_CREATE, SHM_CREATED, SHM_DESTROY = range(1, 13)
+    SHM_CREATE, SHM_CREATED, SHM_DESTROY, CANCEL = range(1, 14)   # CANCEL: version 4
 
 # error codes (positive on the wire)
 OK, E_VERSION, E_PROTOCOL, E_UNKNOWN_VARIANT, E_TOO_LARGE, E_LENGTH, E_BUSY, \
     E_UNAUTHORIZED, E_INTERNAL, E_UNSUPPORTED, E_SHUTTING_DOWN, E_INVALID = range(12)
 E_EXPIRED = 13              # version 4: the frame's budget passed before it ran
+E_CANCELLED = 14            # version 4: a CANCEL took the frame off the queue
 # 12 is never sent (the C codec's local NOSPACE).
 CODE_NAMES = ("OK", "VERSION", "PROTOCOL", "UNKNOWN_VARIANT", "TOO_LARGE", "LENGTH", "BUSY",
               "UNAUTHORIZED", "INTERNAL", "UNSUPPORTED", "SHUTTING_DOWN", "INVALID", "NOSPACE",
-              "EXPIRED")
+              "EXPIRED", "CANCELLED")
 
 # dtypes
 F32, F16 = 0, 1
@@ -118,6 +119,13 @@ def check_text(raw, allow_space=False):
 def frame(type_, payload=b"", request_id=0, extra=0):
     """Header + payload; extra counts bytes the caller sends after them."""
     return HEADER.pack(MAGIC, type_, 0, request_id, len(payload) + extra) + payload
+
+
+def encode_cancel(request_id):
+    """CANCEL (version 4) of the FILTER with request_id: an empty payload."""
+    if not 1 <= request_id <= 0xFFFFFFFF:
+        raise ValueError("CANCEL of request id %d: want 1..2**32-1" % request_id)
+    return frame(CANCEL, b"", request_id)
 
 
 def decode_header(b):
