@@ -836,7 +836,7 @@ int hfd_worker_queue_depth(hfd_worker *w) {
 }
 
 /* Completes the jobs of list (taken off the queue) unrun, with status
- * (SHUTTING_DOWN, or EXPIRED). */
+ * (SHUTTING_DOWN, EXPIRED or CANCELLED). */
 static void complete_unrun(hfd_worker *w, hfd_job *list, int status) {
   for (hfd_job *j = list, *next; j; j = next) {
     next = j->next;

@@ -147,7 +147,9 @@ static void test_estimate_listed_and_filtered(void **state) {
   (void)state;
   hfc_client *c = client_connect(&S, "test-kernel-ac");
   assert_non_null(c);
-  assert_int_equal(hfc_info(c)->version, 3);
+  /* The estimate needs version 3 or later; the server speaks the newest. */
+  assert_int_equal(hfc_info(c)->version, HFP_VERSION);
+  assert_true(HFP_VERSION >= 3);
   hfc_variant v[8];
   int n = 0, found = 0;
   assert_int_equal(hfc_list_variants(c, v, 8, &n), 0);
