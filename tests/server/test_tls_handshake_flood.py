@@ -169,8 +169,10 @@ def main():
               "p90 %.2f ms, slowest %.2f ms (%d); the daemon's CPU during it %.2f s"
               % (p50_before * 1e3, len(before), p50 * 1e3, p90 * 1e3, during[-1] * 1e3,
                  len(during), cpu))
-        # The flood was one: it cost the daemon CPU (handshakes) ...
-        check(cpu > 0.5, "the flood made the daemon work (%.2f s of CPU)" % cpu)
+        # The flood was one: it cost the daemon CPU (handshakes; about 1 s
+        # here, and the handshake threads run at nice +10, so a machine
+        # busy with other work gives them less) ...
+        check(cpu > 0.25, "the flood made the daemon work (%.2f s of CPU)" % cpu)
         # ... and the loop still answered at once. Handshakes on the loop
         # held each turn for every ClientHello read in it: half the round
         # trips took 270 to 320 ms and 9 in 10 about 300 ms, on a 2-core
