@@ -680,6 +680,132 @@ int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m) {
   return 0;
 }
 
+/* The i-th colour of a FILTER's fixed fields (hair, light, background). */
+static const char *const colour_names[3] = {"hair", "light", "background"};
+
+void hfp_filter_fault(const uint8_t *payload, size_t avail, size_t len, int rc, char *buf,
+                      size_t cap) {
+  if (!cap) return;
+  if (rc < 0) rc = -rc;
+  /* Whatever is not recognised below is said by its code alone. */
+  snprintf(buf, cap, "%s", hfp_strerror(rc));
+  if (avail > len || len < HFP_FILTER_FIXED || avail < HFP_FILTER_FIXED) {
+    if (len < HFP_FILTER_FIXED)
+      snprintf(buf, cap, "a FILTER payload of %zu bytes is shorter than its %d fixed bytes", len,
+               HFP_FILTER_FIXED);
+    return;
+  }
+  rd r = {payload, avail, 0, 0};
+  hfp_filter m;
+  memset(&m, 0, sizeof m);
+  uint16_t vn = rd_u16(&r);
+  m.flags = rd_u16(&r);
+  m.width = rd_u32(&r);
+  m.height = rd_u32(&r);
+  m.spp = rd_u16(&r);
+  m.in_dtype = rd_u8(&r);
+  m.out_dtype = rd_u8(&r);
+  for (int i = 0; i < 3; i++) m.hair[i] = rd_f32(&r);
+  for (int i = 0; i < 3; i++) m.light[i] = rd_f32(&r);
+  for (int i = 0; i < 3; i++) m.bg[i] = rd_f32(&r);
+  /* In hfp_decode_filter_head's order, so the text is about the fault
+   * that decided the code. */
+  if (vn < 1 || vn > HFP_NAME_MAX) {
+    snprintf(buf, cap, "variant_len %u is outside 1..%d", vn, HFP_NAME_MAX);
+    return;
+  }
+  size_t extra = filter_extra(m.flags);
+  size_t ref = (m.flags & HFP_FILTER_SHM) ? HFP_SHM_REF_SIZE : 0;
+  size_t need = (size_t)HFP_FILTER_FIXED + vn + extra + ref;
+  if (need > len) {
+    snprintf(buf, cap,
+             "a payload of %zu bytes ends inside the fields after the fixed ones: the %u-byte "
+             "variant name%s%s need %zu bytes",
+             len, vn, extra ? ", the 4-byte budget_us (flag DEADLINE)" : "",
+             ref ? ", the 32-byte shared-memory reference (flag SHM)" : "", need);
+    return;
+  }
+  if (need > avail) return;
+  const uint8_t *name = payload + HFP_FILTER_FIXED;
+  for (size_t i = 0; i < vn; i++)
+    if (name[i] < 0x21 || name[i] > 0x7E) {
+      snprintf(buf, cap,
+               "variant name byte %zu is 0x%02x; a name is printable ASCII without spaces "
+               "(0x21..0x7E)",
+               i, name[i]);
+      return;
+    }
+  if (m.flags & ~HFP_FILTER_KNOWN) {
+    snprintf(buf, cap, "unknown FILTER flag bits 0x%04x (the known ones are 0x%04x)",
+             m.flags & ~HFP_FILTER_KNOWN, HFP_FILTER_KNOWN);
+    return;
+  }
+  if (!hfp_dtype_size(m.in_dtype) || !hfp_dtype_size(m.out_dtype)) {
+    snprintf(buf, cap, "%s %u is no dtype: 0 (f32) or 1 (f16)",
+             hfp_dtype_size(m.in_dtype) ? "out_dtype" : "in_dtype",
+             hfp_dtype_size(m.in_dtype) ? m.out_dtype : m.in_dtype);
+    return;
+  }
+  const float *colours[3] = {m.hair, m.light, m.bg};
+  for (int k = 0; k < 3; k++)
+    for (int i = 0; i < 3; i++)
+      if (!colors_finite(&colours[k][i], 1)) {
+        snprintf(buf, cap, "%s colour component %d is not finite; colours must be finite even "
+                 "without COMPOSITE", colour_names[k], i);
+        return;
+      }
+  if (m.spp < 1 || m.spp > HFP_MAX_SPP) {
+    snprintf(buf, cap, "spp %u is outside 1..%d", m.spp, HFP_MAX_SPP);
+    return;
+  }
+  if (m.width < 1 || m.width > HFP_MAX_SIDE || m.height < 1 || m.height > HFP_MAX_SIDE) {
+    snprintf(buf, cap, "%s %u is outside 1..%d", m.width < 1 || m.width > HFP_MAX_SIDE ?
+             "width" : "height", m.width < 1 || m.width > HFP_MAX_SIDE ? m.width : m.height,
+             HFP_MAX_SIDE);
+    return;
+  }
+  uint64_t data_len = 0;
+  if (hfp_filter_input_bytes(m.width, m.height, m.spp, m.in_dtype, m.flags, &data_len)) return;
+  size_t off = (size_t)HFP_FILTER_FIXED + vn;
+  if (m.flags & HFP_FILTER_DEADLINE) {
+    if (hfp_get_u32(payload + off) == 0) {
+      snprintf(buf, cap, "budget_us is 0: a DEADLINE budget is 1..4294967295 microseconds "
+               "(send the frame without flag DEADLINE for no budget)");
+      return;
+    }
+    off += HFP_DEADLINE_SIZE;
+  }
+  if (m.flags & HFP_FILTER_SHM) {
+    if (len != off + HFP_SHM_REF_SIZE) {
+      snprintf(buf, cap, "with flag SHM the payload is %zu bytes (the fixed fields, the name%s "
+               "and the 32-byte reference), not %zu", off + HFP_SHM_REF_SIZE,
+               extra ? ", the budget" : "", len);
+      return;
+    }
+    uint32_t seg = hfp_get_u32(payload + off), reserved = hfp_get_u32(payload + off + 4);
+    uint64_t rgba = hfp_get_u32(payload + off + 24) |
+                    (uint64_t)hfp_get_u32(payload + off + 28) << 32;
+    if (seg == 0)
+      snprintf(buf, cap, "the shared-memory reference names segment 0; use an id SHM_CREATED "
+               "gave");
+    else if (reserved)
+      snprintf(buf, cap, "the shared-memory reference's reserved word is %u; it must be 0",
+               reserved);
+    else if (rgba && !(m.flags & HFP_FILTER_COMPOSITE))
+      snprintf(buf, cap, "rgba_offset is %llu without flag COMPOSITE; it must be 0",
+               (unsigned long long)rgba);
+    return;
+  }
+  if ((uint64_t)len - off != data_len)
+    snprintf(buf, cap,
+             "the tensor is %llu bytes; %ux%u with spp %u in %s%s needs %llu (payload %zu "
+             "bytes: %zu before the tensor)",
+             (unsigned long long)(len - off), m.width, m.height, m.spp,
+             m.in_dtype == HFP_F16 ? "f16" : "f32",
+             (m.flags & HFP_FILTER_ESTIMATE) ? " with the estimate (flag ESTIMATE)" : "",
+             (unsigned long long)data_len, len, off);
+}
+
 /* ---- RESULT --------------------------------------------------------------- */
 
 static int result_sizes(const hfp_result *m, uint64_t *data_len, uint64_t *rgba_len) {

@@ -349,6 +349,12 @@ int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m);
  * the payload (checked before the name is read). */
 int hfp_decode_filter_head(const uint8_t *payload, size_t avail, size_t len,
                            hfp_filter *m, size_t *head_len);
+/* Says in buf (cap bytes; always terminated) which field of a FILTER made
+ * hfp_decode_filter_head return rc (its arguments as given to it) and what
+ * the field must be: the text of the refusal a server sends, so a client
+ * learns the field to fix, not the error code alone. */
+void hfp_filter_fault(const uint8_t *payload, size_t avail, size_t len, int rc, char *buf,
+                      size_t cap);
 int hfp_decode_result(const uint8_t *payload, size_t len, hfp_result *m);
 int hfp_decode_result_head(const uint8_t *payload, size_t avail, size_t len,
                            hfp_result *m);

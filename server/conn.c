@@ -788,7 +788,10 @@ static void filter_head(hfd_conn *c, size_t have) {
     return;
   }
   if (rc) {
-    reject(c, v, -rc, left, "malformed FILTER: %s", hfp_strerror(rc));
+    /* The field and what it must be, so the client knows what to fix. */
+    char why[200];
+    hfp_filter_fault(c->ctl, have, len, rc, why, sizeof why);
+    reject(c, v, -rc, left, "malformed FILTER: %s", why);
     return;
   }
   uint64_t need = 0;
