@@ -740,15 +740,29 @@ static void enqueue(hfd_worker *w, hfd_job *job) {
   pthread_cond_signal(&w->cv);
 }
 
+static void complete_unrun(hfd_worker *w, hfd_job *list, int status);
+
+/* A full queue first gives back the places of its frames whose budget has
+ * passed (mu held): they are answered EXPIRED (the caller completes the
+ * list returned once mu is released), and a frame that can still make it
+ * takes a place a dead one held, instead of a BUSY. The worker checks
+ * budgets only before it forms a batch, and a long run holds that off. */
+static hfd_job *expire_if_full(hfd_worker *w) {
+  if (w->stop || w->q_len + w->q_forming < w->q_cap) return NULL;
+  return take_expired(w, hfd_now_us());
+}
+
 int hfd_worker_submit(hfd_worker *w, hfd_job *job) {
   pthread_mutex_lock(&w->mu);
-  if (w->q_len + w->q_forming >= w->q_cap || w->stop) {
-    pthread_mutex_unlock(&w->mu);
-    return HFP_E_BUSY;
-  }
-  enqueue(w, job);
+  hfd_job *late = expire_if_full(w);
+  int rc = 0;
+  if (w->q_len + w->q_forming >= w->q_cap || w->stop)
+    rc = HFP_E_BUSY;
+  else
+    enqueue(w, job);
   pthread_mutex_unlock(&w->mu);
-  return 0;
+  complete_unrun(w, late, HFP_E_EXPIRED);
+  return rc;
 }
 
 int hfd_worker_push_out(hfd_worker *w, hfd_job *job, int share, hfd_job **pushed) {
@@ -758,6 +772,9 @@ int hfd_worker_push_out(hfd_worker *w, hfd_job *job, int share, hfd_job **pushed
     pthread_mutex_unlock(&w->mu);
     return HFP_E_BUSY;
   }
+  /* Frames past their budget leave first: none is pushed out (a BUSY
+   * RESULT for a frame that is EXPIRED) while a dead one holds a place. */
+  hfd_job *late = expire_if_full(w);
   if (w->q_len + w->q_forming >= w->q_cap) {
     /* The connection holding the most frames over share, and its newest
      * frame in the queue: the one its client sent last, which loses the
@@ -774,6 +791,7 @@ int hfd_worker_push_out(hfd_worker *w, hfd_job *job, int share, hfd_job **pushed
     }
     if (!victim) {
       pthread_mutex_unlock(&w->mu);
+      complete_unrun(w, late, HFP_E_EXPIRED);
       return HFP_E_BUSY;
     }
     unlink_queued(w, victim_prev, victim);
@@ -781,6 +799,7 @@ int hfd_worker_push_out(hfd_worker *w, hfd_job *job, int share, hfd_job **pushed
   }
   enqueue(w, job);
   pthread_mutex_unlock(&w->mu);
+  complete_unrun(w, late, HFP_E_EXPIRED);
   return 0;
 }
 
