@@ -53,6 +53,13 @@ const char *hfp_code_name(int code) {
   return code < HFP_E_COUNT ? names[code] : "UNKNOWN";
 }
 
+const char *hfp_type_name(unsigned type) {
+  static const char *const types[HFP_TYPE_MAX + 1] = {
+      "", "HELLO", "HELLO_OK", "LIST_VARIANTS", "VARIANTS", "FILTER", "RESULT", "ERROR",
+      "STATS", "STATS_REPLY", "SHM_CREATE", "SHM_CREATED", "SHM_DESTROY", "CANCEL"};
+  return type >= 1 && type <= HFP_TYPE_MAX ? types[type] : "UNKNOWN";
+}
+
 int hfp_negotiate(uint16_t client_min, uint16_t client_max) {
   if (client_min > client_max) return -HFP_E_VERSION;
   int lo = client_min > HFP_VERSION_MIN ? client_min : HFP_VERSION_MIN;

@@ -83,6 +83,9 @@ extern "C" {
 const char *hfp_strerror(int code);
 /* The code's name as PROTOCOL.md spells it ("BUSY"), or "UNKNOWN". */
 const char *hfp_code_name(int code);
+/* The name of message type type (PROTOCOL.md, "Frames"), e.g. "CANCEL";
+ * "UNKNOWN" outside 1..HFP_TYPE_MAX. */
+const char *hfp_type_name(unsigned type);
 
 /* ---- message types ------------------------------------------------------ */
 

@@ -1032,7 +1032,21 @@ static void on_header(hfd_conn *c) {
                  "or the server listen on tls:HOST:PORT", c->listener->url);
       return;
     }
-    send_error(c, 0, HFP_E_PROTOCOL, 1, "bad frame header (magic, type or flags)");
+    /* The field at fault, in hfp_header_decode's order. */
+    uint32_t magic = hfp_get_u32(c->hbuf);
+    unsigned type = hfp_get_u16(c->hbuf + 4), flags = hfp_get_u16(c->hbuf + 6);
+    if (magic != HFP_MAGIC)
+      send_error(c, 0, HFP_E_PROTOCOL, 1,
+                 "bad frame header: magic 0x%08x, not 0x%08x (the bytes HFP1): not a "
+                 "hairfilter client, or a frame's length that disagrees with its payload",
+                 magic, HFP_MAGIC);
+    else if (type < 1 || type > HFP_TYPE_MAX)
+      send_error(c, 0, HFP_E_PROTOCOL, 1,
+                 "bad frame header: message type %u is none of 1..%d", type, HFP_TYPE_MAX);
+    else
+      send_error(c, 0, HFP_E_PROTOCOL, 1,
+                 "bad frame header: flags 0x%04x in a %s header; they are reserved and must "
+                 "be 0", flags, hfp_type_name(type));
     return;
   }
   /* Before the handshake, the only frame read is a HELLO of a HELLO's
@@ -1040,7 +1054,8 @@ static void on_header(hfd_conn *c) {
   if (!c->hello_done) {
     if (h->type != HFP_HELLO) {
       s->protocol_errors++;
-      send_error(c, 0, HFP_E_PROTOCOL, 1, "HELLO must come first");
+      send_error(c, 0, HFP_E_PROTOCOL, 1, "HELLO must come first, not %s (type %u)",
+                 hfp_type_name(h->type), h->type);
       return;
     }
     if (h->length < 8 || h->length > 8 + HFP_NAME_MAX + HFP_TOKEN_MAX) {
@@ -1063,7 +1078,8 @@ static void on_header(hfd_conn *c) {
        * well-formed one is refused for the transport (PROTOCOL.md, "Errors"). */
       if (h->length != (h->type == HFP_SHM_CREATE ? 8u : 4u)) {
         s->protocol_errors++;
-        send_error(c, 0, HFP_E_LENGTH, 1, "malformed shared-memory request");
+        send_error(c, 0, HFP_E_LENGTH, 1, "malformed %s: its payload is %u bytes, not %u",
+                   hfp_type_name(h->type), h->type == HFP_SHM_CREATE ? 8u : 4u, h->length);
         return;
       }
       if (!c->is_ipc) {
@@ -1088,7 +1104,8 @@ static void on_header(hfd_conn *c) {
     case HFP_STATS:
       if (h->length != 0) {
         s->protocol_errors++;
-        send_error(c, 0, HFP_E_LENGTH, 1, "this request has no payload");
+        send_error(c, 0, HFP_E_LENGTH, 1, "%s has an empty payload; this one has %u bytes",
+                   hfp_type_name(h->type), h->length);
         return;
       }
       break;
