@@ -326,8 +326,10 @@ int hfp_encode_filter_head(uint8_t *buf, size_t cap, uint32_t request_id,
                            const hfp_filter *m, uint64_t *frame_size);
 int hfp_encode_result_head(uint8_t *buf, size_t cap, uint32_t request_id,
                            const hfp_result *m, uint64_t *frame_size);
+/* The largest FILTER head: a 64-byte name, the budget and the shared-memory
+ * reference (a frame by reference is all head). */
 #define HFP_FILTER_HEAD_MAX (HFP_HEADER_SIZE + HFP_FILTER_FIXED + HFP_NAME_MAX + \
-                             HFP_DEADLINE_SIZE)
+                             HFP_DEADLINE_SIZE + HFP_SHM_REF_SIZE)
 #define HFP_RESULT_HEAD_MAX (HFP_HEADER_SIZE + HFP_RESULT_FIXED)
 
 /* Decoders read a payload (the bytes after the header) of exactly len bytes:
