@@ -22,6 +22,15 @@ static void check_rc(const char *what, int rc) {
   if (rc > 0 || rc <= -HFP_E_COUNT) fail(what, rc);
 }
 
+/* The text a server sends for a refused FILTER head: it reads only the
+ * bytes that have arrived and is always a terminated, non-empty line. */
+static void fault_text(const uint8_t *p, size_t avail, size_t len, int rc) {
+  char why[200];
+  memset(why, 'x', sizeof why);
+  hfp_filter_fault(p, avail, len, rc, why, sizeof why);
+  if (!memchr(why, 0, sizeof why) || !why[0]) fail("filter fault text", rc);
+}
+
 /* The head decoders a receiver uses while a frame arrives: every prefix
  * of the payload is either enough (0, or an error about the frame) or
  * asks for more (NOSPACE), and a prefix that decodes agrees with the whole. */
@@ -30,10 +39,12 @@ static void heads(const uint8_t *p, size_t len) {
   size_t head_whole = 0, head_part = 0;
   int rw = hfp_decode_filter_head(p, len, len, &whole, &head_whole);
   check_rc("filter head", rw);
+  if (rw && rw != -HFP_E_NOSPACE) fault_text(p, len, len, rw);
   for (size_t avail = 0; avail <= len && avail <= HFP_FILTER_FIXED + HFP_NAME_MAX + HFP_SHM_REF_SIZE;
        avail++) {
     int rp = hfp_decode_filter_head(p, avail, len, &part, &head_part);
     check_rc("filter head prefix", rp);
+    if (rp && rp != -HFP_E_NOSPACE) fault_text(p, avail, len, rp);
     if (rp == 0 && (rw != 0 || head_part != head_whole || part.data_len != whole.data_len))
       fail("filter head prefix disagrees with the whole", rp);
     if (rp == 0) break;
