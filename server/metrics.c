@@ -12,10 +12,11 @@
  *
  * Requests are counted by variant and status once answered: a RESULT when
  * it is written (as STATS counts it), a refusal when it is sent. `class`
- * groups the statuses for alerts: ok, overload (BUSY: retry or add
- * capacity), client_error (the request was wrong: INVALID, TOO_LARGE,
- * UNKNOWN_VARIANT, ...), unavailable (SHUTTING_DOWN), server_error
- * (INTERNAL). Latency histograms have fixed buckets from 0.5 ms to 30 s.
+ * groups the statuses for alerts: ok, overload (BUSY and EXPIRED: retry
+ * or add capacity), client_error (the request was wrong: INVALID,
+ * TOO_LARGE, UNKNOWN_VARIANT, ...), unavailable (SHUTTING_DOWN),
+ * cancelled (CANCELLED: the client's choice), server_error (INTERNAL).
+ * Latency histograms have fixed buckets from 0.5 ms to 30 s.
  */
 #define _GNU_SOURCE
 #include <ctype.h>
@@ -107,16 +108,43 @@ static void lower(char *dst, size_t cap, const char *src) {
   dst[i] = 0;
 }
 
+/* The classes of requests_total, for alerts, with the statuses each holds;
+ * client_error (the request was wrong: INVALID, TOO_LARGE,
+ * UNKNOWN_VARIANT, ...) holds every status not listed. The HELP line is
+ * written from this table, so that it names every class and status the
+ * samples carry. */
+static const struct {
+  const char *name;
+  int codes[2];
+} CLASSES[] = {
+    {"ok", {HFP_OK, -1}},
+    {"overload", {HFP_E_BUSY, HFP_E_EXPIRED}},  /* the server did not keep up */
+    {"unavailable", {HFP_E_SHUTTING_DOWN, -1}},
+    {"cancelled", {HFP_E_CANCELLED, -1}},       /* the client's own choice */
+    {"server_error", {HFP_E_INTERNAL, -1}},
+};
+#define NCLASSES (sizeof CLASSES / sizeof CLASSES[0])
+
 static const char *status_class(int code) {
-  switch (code) {
-    case HFP_OK: return "ok";
-    case HFP_E_BUSY:
-    case HFP_E_EXPIRED: return "overload";  /* the server did not keep up */
-    case HFP_E_SHUTTING_DOWN: return "unavailable";
-    case HFP_E_CANCELLED: return "cancelled";   /* the client's own choice */
-    case HFP_E_INTERNAL: return "server_error";
-    default: return "client_error";
+  for (size_t i = 0; i < NCLASSES; i++)
+    for (int k = 0; k < 2; k++)
+      if (CLASSES[i].codes[k] == code) return CLASSES[i].name;
+  return "client_error";
+}
+
+/* requests_total's HELP: what it counts, and each class with its statuses
+ * (from CLASSES). */
+static void requests_help(char *help, size_t cap) {
+  size_t n = (size_t)snprintf(help, cap, "FILTER requests answered, by variant (empty: none could "
+                                         "be found) and status; class is");
+  for (size_t i = 0; i < NCLASSES && n < cap; i++) {
+    n += (size_t)snprintf(help + n, cap - n, " %s (", CLASSES[i].name);
+    for (int k = 0; k < 2 && CLASSES[i].codes[k] >= 0 && n < cap; k++)
+      n += (size_t)snprintf(help + n, cap - n, "%s%s", k ? ", " : "",
+                            hfp_code_name(CLASSES[i].codes[k]));
+    if (n < cap) n += (size_t)snprintf(help + n, cap - n, "),");
   }
+  if (n < cap) snprintf(help + n, cap - n, " or client_error (every other status).");
 }
 
 /* Statuses shown even at zero, so that rate() and alerts have a series
@@ -313,9 +341,9 @@ int hfd_metrics_render(hfd_server *s, char **out, size_t *len) {
   scalar(f, "hairfilterd_receive_buffer_maps_total", "counter",
          "Socket frames whose buffer had to be mapped afresh.", s->rpool.misses);
 
-  family(f, "hairfilterd_requests_total", "counter",
-         "FILTER requests answered, by variant (empty: none could be found) and status; class "
-         "is ok, overload (BUSY), client_error, unavailable (SHUTTING_DOWN) or server_error.");
+  char help[512];
+  requests_help(help, sizeof help);
+  family(f, "hairfilterd_requests_total", "counter", help);
   for (int i = 0; i < s->num_variants; i++) {
     const hfd_variant *v = &s->variants[i];
     if (counted(v)) requests(f, v->name, &v->m, 0, NULL);

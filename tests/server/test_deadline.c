@@ -304,6 +304,10 @@ static void test_reports(void **state) {
   if (!strstr(m, "hairfilterd_requests_total{variant=\"Tiny\",status=\"expired\","
                  "class=\"overload\"} 0\n"))
     fail_msg("no expired series at 0 for Tiny in /metrics");
+  /* The HELP line names the class of every status the samples carry. */
+  if (!strstr(m, "overload (BUSY, EXPIRED)") || !strstr(m, "cancelled (CANCELLED)"))
+    fail_msg("the HELP of hairfilterd_requests_total does not name EXPIRED's class and "
+             "CANCELLED's:\n%s", m);
   free(m);
   assert_int_equal(kill(S.pid, SIGUSR1), 0);
   int seen = 0;
