@@ -297,7 +297,9 @@ static int check_limits(const hfc_client *c, const conn *x, const pending *p,
   if (p->width > (uint32_t)i->max_width || p->height > (uint32_t)i->max_height) {
     snprintf(why, whylen, "a %ux%u frame is over the limit of %dx%d that %s announced "
              "(hfc_info()->max_width, max_height; hairfilterd's --max-size): nothing was sent; "
-             "filter it in tiles within the limit, or raise the server's --max-size",
+             "filter it in tiles within the limit, or have the server take larger frames: "
+             "its --max-size, or, where its log says 'max size lowered', the --max-memory-mb "
+             "or --max-frame-mb that lowered it",
              p->width, p->height, i->max_width, i->max_height, url);
     return HFC_E_TOO_LARGE;
   }
@@ -346,7 +348,7 @@ int hfci_send_request(hfc_client *c, pending *p) {
   }
   /* Checked at submission against the server then in use; a failover may
    * have brought one with lower limits. */
-  char why[512];
+  char why[MSG_MAX];
   int lim = check_limits(c, x, p, total, g, why, sizeof why);
   if (lim) {
     hfci_finish(c, p, lim, why);
@@ -529,7 +531,7 @@ static int submit(const char *fn, hfc_client *c, const hfc_request *caller, uint
   }
   /* Over the server's announced limits: refused here, the connection
    * untouched, rather than after an upload the server only discards. */
-  char why[512];
+  char why[MSG_MAX];
   if ((n = check_limits(c, x, p, total, g, why, sizeof why))) {
     hfci_msg(c, "%s", why);
     return n;

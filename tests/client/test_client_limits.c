@@ -198,7 +198,8 @@ static void test_socket_limits(void **state) {
   hfc_request r = TEST_REQUEST(.variant = "tiny", .width = 32, .height = 8, .spp = 2,
                                .features = in, .result = out);
   expect(c, hfc_filter(c, &r, NULL), HFC_E_TOO_LARGE,
-         (const char *[]){"32x8", "16x16", "max_width", "nothing was sent", NULL});
+         (const char *[]){"32x8", "16x16", "max_width", "nothing was sent", "--max-size",
+                          "--max-memory-mb", "--max-frame-mb", NULL});
   uint32_t id = 77;
   expect(c, hfc_submit(c, &r, &id), HFC_E_TOO_LARGE, (const char *[]){"32x8", NULL});
   assert_int_equal(id, 77);

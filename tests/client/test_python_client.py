@@ -581,7 +581,9 @@ class PythonClient(unittest.TestCase):
         try:
             with hairfilter.Client("unix:" + path) as c:
                 for f, code, says in (
-                        (features(8, 32, 4, 1), "TOO_LARGE", ("32x8", "16x16", "max_width")),
+                        (features(8, 32, 4, 1), "TOO_LARGE", ("32x8", "16x16", "max_width",
+                                                               "--max-memory-mb",
+                                                               "--max-frame-mb")),
                         (features(16, 16, 4, 1), "TOO_LARGE",
                          ("16x16 frame of 4 spp", "8192", "max_frame_bytes")),
                         (features(4, 4, 4, 1, np.float16), "UNSUPPORTED", ("float32",))):

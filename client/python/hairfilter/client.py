@@ -686,7 +686,9 @@ class Client:
             raise Error("TOO_LARGE", "a %dx%d frame is over the limit of %dx%d that %s announced "
                                      "(info.max_width, max_height; hairfilterd's --max-size): "
                                      "nothing was sent; filter it in tiles within the limit, or "
-                                     "raise the server's --max-size"
+                                     "have the server take larger frames: its --max-size, or, "
+                                     "where its log says 'max size lowered', the "
+                                     "--max-memory-mb or --max-frame-mb that lowered it"
                         % (w, h, i.max_width, i.max_height, self.endpoint))
         offered = {np.dtype(np.float32): i.f32, np.dtype(np.float16): i.f16}
         for what, dt in (("features", in_dtype), ("out_dtype", out_dtype)):
