@@ -300,13 +300,18 @@ static int read_frame(hfc_client *c, int k) {
        * failed (INTERNAL) or gave the frame's queue place to a client
        * under its share (BUSY) may leave the frame to another. */
       if (!fail_over_request(c, k, p, err)) {
-        char why[400];
+        char why[MSG_MAX], budget[160] = "";
+        /* The budget and the wait, so that a log line says by how much the
+         * server was behind. */
+        if (err == HFC_E_EXPIRED)
+          snprintf(budget, sizeof budget, " (its budget of %u us, hfc_request.deadline_us, "
+                   "passed while it was queued: it waited %.0f us; the server is not keeping "
+                   "up)", p->deadline_us, t->queue_us);
         snprintf(why, sizeof why, "%s admitted the frame, then did not run it: %s%s",
                  c->eps[x->endpoint].url, hfp_code_name(err),
                  err == HFC_E_BUSY ? " (its queue place went to a client holding less than "
                                      "its share; retry later)"
-                 : err == HFC_E_EXPIRED ? " (its budget, hfc_request.deadline_us, passed while "
-                                          "it was queued; the server is not keeping up)"
+                 : err == HFC_E_EXPIRED ? budget
                  : err == HFC_E_CANCELLED ? " (hfc_cancel took it off the queue)"
                                           : "");
         hfci_finish(c, p, err, why);

@@ -830,6 +830,7 @@ class PythonClient(unittest.TestCase):
                 self.assertEqual(got[held].status, "OK")
                 self.assertEqual(got[late].status, "EXPIRED")
                 self.assertIn("deadline_us", got[late].message)
+                self.assertIn("budget of 150000 us", got[late].message)
                 self.assertGreaterEqual(got[late].timing.queue_us, 150000)
                 f = features(8, 12, 4, 4)
                 ok = c.filter("Small", f, deadline_us=30000000)

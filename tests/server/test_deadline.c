@@ -264,6 +264,8 @@ static void test_client_library(void **state) {
     if (d.user == (void *)2) {
       assert_int_equal(d.status, HFC_E_EXPIRED);
       assert_non_null(strstr(hfc_last_message(c), "deadline_us"));
+      /* the budget's value, to tell by how much the server was behind */
+      assert_non_null(strstr(hfc_last_message(c), "budget of 150000 us"));
       assert_true(d.timing.queue_us >= 150000);
     } else {
       assert_int_equal(d.status, 0);

@@ -185,11 +185,11 @@ class Segment:
 
 
 class _Pending:
-    __slots__ = ("id", "variant", "result", "rgba", "user", "t0", "shm")
+    __slots__ = ("id", "variant", "result", "rgba", "user", "t0", "shm", "budget")
 
-    def __init__(self, id_, variant, result, rgba, user, shm):
+    def __init__(self, id_, variant, result, rgba, user, shm, budget=0):
         self.id, self.variant, self.result, self.rgba = id_, variant, result, rgba
-        self.user, self.t0, self.shm = user, time.monotonic(), shm
+        self.user, self.t0, self.shm, self.budget = user, time.monotonic(), shm, budget
 
 
 def _connect_hint(kind, e):
@@ -808,7 +808,7 @@ class Client:
                                     composite, colours["hair"], colours["light"],
                                     colours["background"],
                                     shm=ref, estimate=estimate is not None, budget_us=budget)
-        self._pending[rid] = _Pending(rid, name, result, rgba, user, seg)
+        self._pending[rid] = _Pending(rid, name, result, rgba, user, seg, budget)
         try:
             if ref:
                 self._send(head)
@@ -857,8 +857,9 @@ class Client:
                        bool(r.flags & P.RESULT_INPUT_SANITISED))
             why = ""
             if r.status == P.E_EXPIRED:
-                why = ("its budget (deadline_us) passed while it was queued at %s: not computed"
-                       % self.endpoint)
+                # the budget and the wait: by how much the server was behind
+                why = ("its budget of %d us (deadline_us) passed while it was queued at %s "
+                       "(it waited %d us): not computed" % (p.budget, self.endpoint, r.queue_us))
             elif r.status == P.E_CANCELLED:
                 why = "cancel() took it off the queue at %s: not computed" % self.endpoint
             self._done.append(Completion(rid, status, why, p.result, p.rgba, t, p.user))
