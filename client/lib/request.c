@@ -433,7 +433,24 @@ int hfc_cancel(hfc_client *c, uint32_t id) {
   if (n < 0) return hfci_arg(c, "hfc_cancel: request %u cannot be encoded", id);
   int rc = hfci_send_io(x->fd, x->ssl, c->timeout_ms, b, (size_t)n);
   if (rc) {
+    ptrdiff_t at = p - c->p;
     hfci_send_failed(c, p->conn, rc);
+    /* The CANCEL did not go out, and the lost connection may have queued
+     * the frame to be sent again, or sent it to the next endpoint already:
+     * the engine still does not want it. The connection's loss is this
+     * call's error either way. */
+    p = &c->p[at];
+    const char *then = "it completes with the connection's error";
+    if (p->id == id && p->state == P_QUEUED) {
+      hfci_finish(c, p, HFC_E_CANCELLED, "cancelled by hfc_cancel before it was sent again");
+      then = "it completes HFC_E_CANCELLED, not sent again";
+    } else if (p->id == id && p->state == P_SENT) {
+      then = hfc_cancel(c, id) ? "it was sent again to the next endpoint, which could not be "
+                                 "asked to cancel it: it completes as answered"
+                               : "it was sent again to the next endpoint, and cancelled there";
+    }
+    hfci_msg(c, "hfc_cancel: the connection was lost sending the CANCEL of request %u (%s): %s",
+             id, hfc_strerror(rc), then);
     return rc;
   }
   return 0;

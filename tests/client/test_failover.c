@@ -338,6 +338,57 @@ static void test_shared_memory_failover(void **state) {
   assert_int_equal(server_stop(&b, 20000), 0);
 }
 
+/* hfc_cancel whose CANCEL finds its connection gone: the frame that the
+ * loss sends to the next endpoint is cancelled there (or before it is
+ * sent), and completes once, CANCELLED, rather than computed. Both
+ * daemons' batchers hold a frame for partners for seconds: on a, the
+ * frame itself (so it is not answered before the kill); on b, a frame of
+ * another size (so the frame sent again waits in b's queue). */
+static void test_cancel_on_lost_connection(void **state) {
+  (void)state;
+  static const char *const holding[] = {"--max-batch", "4", "--max-queue-delay-us", "3000000",
+                                        NULL};
+  server a, b;
+  assert_int_equal(server_start(&H, &a, holding), 0);
+  assert_int_equal(server_start(&H, &b, holding), 0);
+  hfc_options o = test_options("blocker", NULL, 20000);
+  hfc_client *blk = NULL;
+  assert_int_equal(hfc_connect(b.unix_url, &o, &blk), 0);
+  float *blk_out = malloc(out_bytes), *out = malloc(out_bytes);
+  assert_non_null(blk_out);
+  assert_non_null(out);
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = W / 2, .height = HH, .spp = 4,
+                               .features = feat[0], .result = blk_out);
+  assert_int_equal(hfc_submit(blk, &r, NULL), 0);
+
+  hfc_client *c = connect_list(a.unix_url, b.unix_url, 0);
+  r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = 4,
+                   .features = feat[1], .result = out);
+  uint32_t id = 0;
+  assert_int_equal(hfc_submit(c, &r, &id), 0);
+  usleep(200000);   /* a's batcher holds it */
+  kill(a.pid, SIGKILL);
+  assert_int_equal(reap(&a), 128 + SIGKILL);
+  int rc = hfc_cancel(c, id);
+  assert_true(rc < 0);   /* the connection's error: the CANCEL did not go out on a */
+  assert_non_null(strstr(hfc_last_message(c), "CANCEL of request"));
+  hfc_completion d;
+  rc = hfc_wait(c, 20000, &d);
+  if (rc) fail_msg("wait: %s (%s)", hfc_strerror(rc), hfc_last_message(c));
+  assert_int_equal(d.id, id);
+  if (d.status != HFC_E_CANCELLED)
+    fail_msg("the cancelled frame completed %s (%s), not CANCELLED", hfc_strerror(d.status),
+             hfc_last_message(c));
+  assert_int_equal(hfc_wait(c, 0, &d), HFC_E_NOPENDING);   /* exactly once */
+  assert_int_equal(hfc_wait(blk, 20000, &d), 0);
+  assert_int_equal(d.status, HFC_OK);
+  hfc_close(c);
+  hfc_close(blk);
+  free(blk_out);
+  free(out);
+  assert_int_equal(server_stop(&b, 20000), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_unreachable_passed_over),
@@ -346,6 +397,7 @@ int main(void) {
     cmocka_unit_test(test_draining_mid_stream),
     cmocka_unit_test(test_busy_fails_over),
     cmocka_unit_test(test_shared_memory_failover),
+    cmocka_unit_test(test_cancel_on_lost_connection),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -432,7 +432,9 @@ HFC_API int hfc_pending(const hfc_client *c);
  * completion is in); HFC_E_ARG for an id that is not pending (never
  * submitted, or hfc_wait returned it); HFC_E_UNSUPPORTED when its server
  * speaks a version before 4 (the frame completes as answered); or the
- * connection's error when the send failed. */
+ * connection's error when the send failed (the frame is then not computed
+ * elsewhere either: where the loss would send it again, it completes
+ * HFC_E_CANCELLED, or the CANCEL follows it to the next endpoint). */
 HFC_API int hfc_cancel(hfc_client *c, uint32_t id);
 
 /* ---- shared memory ------------------------------------------------------- */
