@@ -454,6 +454,7 @@ static void stats_delta(const hfc_variant_stats *a, const hfc_variant_stats *b, 
   s->valid = 1;
   s->ok = b->requests_ok - a->requests_ok;
   s->failed = b->requests_failed - a->requests_failed;
+  s->expired = b->expired - a->expired;
   s->rejected = b->rejected - a->rejected;
   s->batches = b->batches - a->batches;
   if (s->ok) {

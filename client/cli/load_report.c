@@ -73,13 +73,19 @@ void load_print_point(FILE *f, const load_run *r, const load_point *p) {
     fprintf(f, " %10.3f\n", ms(p, k, 100));
   }
   const load_stats *s = &p->stats;
-  if (s->valid)
-    fprintf(f, "  server STATS over the point (all clients): %llu ok, %llu failed, %llu refused, "
-               "mean batch %.2f, mean queue %.3f ms, infer %.3f ms, total %.3f ms (p50 <= %.3f, "
-               "p99 <= %.3f ms)\n",
-            (unsigned long long)s->ok, (unsigned long long)s->failed,
+  if (s->valid) {
+    /* The server's expired frames beside the report's own: they are among
+     * its failed ones. */
+    char expired[64] = "";
+    if (r->deadline_us || s->expired)
+      snprintf(expired, sizeof expired, " (%llu expired)", (unsigned long long)s->expired);
+    fprintf(f, "  server STATS over the point (all clients): %llu ok, %llu failed%s, %llu "
+               "refused, mean batch %.2f, mean queue %.3f ms, infer %.3f ms, total %.3f ms (p50 "
+               "<= %.3f, p99 <= %.3f ms)\n",
+            (unsigned long long)s->ok, (unsigned long long)s->failed, expired,
             (unsigned long long)s->rejected, s->batches ? (double)s->ok / (double)s->batches : 0.0,
             s->mean_queue_ms, s->mean_infer_ms, s->mean_total_ms, s->p50_total_ms, s->p99_total_ms);
+  }
   fflush(f);
 }
 
@@ -287,6 +293,7 @@ int load_write_json(const char *path, const load_run *r) {
       cJSON *so = cJSON_AddObjectToObject(o, "server_stats");
       cJSON_AddNumberToObject(so, "ok", (double)s->ok);
       cJSON_AddNumberToObject(so, "failed", (double)s->failed);
+      cJSON_AddNumberToObject(so, "expired", (double)s->expired);
       cJSON_AddNumberToObject(so, "refused", (double)s->rejected);
       cJSON_AddNumberToObject(so, "batches", (double)s->batches);
       cJSON_AddNumberToObject(so, "mean_queue_ms", s->mean_queue_ms);

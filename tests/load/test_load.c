@@ -261,6 +261,12 @@ static void test_deadline(void **state) {
   assert_true(num(p, "expired") == (double)expired);
   assert_true(num(p, "errors") == 0);
   assert_true(num(p, "deadline_ms") == 0.001);
+  /* the server's own count of them, among its failed frames */
+  const cJSON *so = cJSON_GetObjectItemCaseSensitive(p, "server_stats");
+  assert_non_null(so);
+  assert_true(num(so, "expired") > 0 && num(so, "expired") <= num(so, "failed"));
+  if (!strstr(text, " failed (") || !strstr(text, " expired), "))
+    fail_msg("the server STATS line does not count the expired frames:\n%s", text);
   cJSON_Delete(doc);
   char csv[65536];
   assert_int_equal(read_text_file(csv_path, csv, sizeof csv), 0);
