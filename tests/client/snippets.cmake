@@ -5,7 +5,9 @@
 #   cmake -DREADME=... -DCC=... -DCXX=... -DINCLUDES="a|b" -DLIB=... [-DFLAGS=...] -DWORK=...
 #         -P snippets.cmake
 file(READ ${README} text)
-file(MAKE_DIRECTORY ${WORK})
+if(DEFINED WORK)
+  file(MAKE_DIRECTORY ${WORK})
+endif()
 # Semicolons would split CMake lists: they travel as a placeholder.
 string(REPLACE ";" "@SEMICOLON@" text "${text}")
 # Line by line: a block runs from its fence (```c or ```cpp) to the next
@@ -37,9 +39,14 @@ endif()
 if(nc LESS 5 OR ncpp LESS 1)
   message(FATAL_ERROR "snippets: found ${nc} C and ${ncpp} C++ blocks in ${README}")
 endif()
+string(REPLACE "@SEMICOLON@" ";" c_src "${c_src}")
+# -DBODY=FILE: only write the C blocks there, for a test that runs them.
+if(DEFINED BODY)
+  file(WRITE ${BODY} "${c_src}")
+  return()
+endif()
 # A program around them, so that they are linked too.
 set(main "\nint main(void) { return 0; }\n")
-string(REPLACE "@SEMICOLON@" ";" c_src "${c_src}")
 string(REPLACE "@SEMICOLON@" ";" cpp_src "${cpp_src}")
 file(WRITE ${WORK}/snippets.c "${c_src}${main}")
 file(WRITE ${WORK}/snippets_c.cpp "${c_src}${main}")
