@@ -144,7 +144,8 @@ static int print_stats(hfc_client *c) {
       printf("  %s: %llu frame(s) expired in the queue, not computed (their budget passed: "
              "failed EXPIRED, protocol version 4)\n", st->variants[i].name,
              (unsigned long long)st->variants[i].expired);
-  printf("  (queue/infer/total: means over successful requests; p99<=: bound from the "
+  printf("  (failed: frames answered with a status other than OK, EXPIRED and CANCELLED "
+         "included;\n   queue/infer/total: means over successful requests; p99<=: bound from the "
          "total-latency histogram;\n   outside: frames outside the variant's trained input "
          "range, protocol v2 servers)\n");
   free(st);
