@@ -46,6 +46,17 @@ int cli_arg_double(const char *cmd, const char *opt, const char *s, double lo, d
   return 0;
 }
 
+/* A bound of a duration written in the unit that shows it exactly (1us,
+ * 4294.967295s), so that the range an error gives holds what it says. */
+static void fmt_bound(char *out, size_t cap, double s) {
+  if (s > 0 && s < 1e-3)
+    snprintf(out, cap, "%.10gus", s * 1e6);
+  else if (s > 0 && s < 1)
+    snprintf(out, cap, "%.10gms", s * 1e3);
+  else
+    snprintf(out, cap, "%.10gs", s);
+}
+
 int cli_arg_duration(const char *cmd, const char *opt, const char *s, double plain_unit_s,
                      double lo_s, double hi_s, double *seconds) {
   static const struct {
@@ -72,7 +83,10 @@ int cli_arg_duration(const char *cmd, const char *opt, const char *s, double pla
   }
   v *= unit;
   if (v < lo_s || v > hi_s) {
-    fprintf(stderr, "%s: %s: %s is outside %gs..%gs\n", cmd, opt, s, lo_s, hi_s);
+    char lo[32], hi[32];
+    fmt_bound(lo, sizeof lo, lo_s);
+    fmt_bound(hi, sizeof hi, hi_s);
+    fprintf(stderr, "%s: %s: %s is outside %s..%s\n", cmd, opt, s, lo, hi);
     return -1;
   }
   *seconds = v;

@@ -282,6 +282,8 @@ static void test_deadline(void **state) {
   if (rc || strstr(text, "expired")) fail_msg("no --deadline: status %d:\n%s", rc, text);
   expect_refused("--deadline 0", "--deadline");
   expect_refused("--deadline 5000s", "--deadline");
+  /* the range given is the one that holds: its bounds as they are */
+  expect_refused("--deadline 4294.97s", "is outside 1us..4294.967295s");
 
   /* hairfilter-load the same. */
   char args[600];
