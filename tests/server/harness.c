@@ -467,6 +467,39 @@ int raw_hello_versions(int fd, const char *token, int lo, int hi) {
   return ok ? 0 : -1;
 }
 
+int raw_connect_versions(const char *url, int lo, int hi) {
+  int fd = raw_connect(url);
+  if (fd < 0) return -1;
+  if (raw_hello_versions(fd, NULL, lo, hi)) {
+    close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+int raw_variant_stats(int fd, const char *variant, hfp_variant_stats *out) {
+  uint8_t b[HFP_HEADER_SIZE];
+  if (hfp_encode_empty(b, sizeof b, HFP_STATS, 0) != HFP_HEADER_SIZE ||
+      raw_send(fd, b, sizeof b))
+    return -1;
+  hfp_header h;
+  uint8_t *p = NULL;
+  if (raw_read(fd, &h, &p)) return -1;
+  /* hfp_stats holds 64 variants' names and counters: too large for the
+   * stack of a test's thread. */
+  hfp_stats *st = malloc(sizeof *st);
+  int rc = -1;
+  if (st && h.type == HFP_STATS_REPLY && hfp_decode_stats(p, h.length, st) == 0)
+    for (int i = 0; i < st->num_variants && rc; i++)
+      if (!strcmp(st->variants[i].name, variant)) {
+        *out = st->variants[i];
+        rc = 0;
+      }
+  free(st);
+  free(p);
+  return rc;
+}
+
 uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, const float *in,
                     size_t *len) {
   hfp_filter f;

@@ -130,6 +130,13 @@ int raw_hello_versions(int fd, const char *token, int lo, int hi);
 int raw_read(int fd, hfp_header *h, uint8_t **payload);
 /* The same, also taking a descriptor passed with the frame (-1 if none). */
 int raw_read_fd(int fd, hfp_header *h, uint8_t **payload, int *passed);
+/* raw_connect then raw_hello_versions (no token): the socket, or -1
+ * (closed) when either fails. */
+int raw_connect_versions(const char *url, int lo, int hi);
+/* Sends STATS on fd and reads the STATS_REPLY: variant's counters, as a
+ * connection of fd's version reads them, into *out; 0, or -1 (no reply,
+ * another type, a reply that does not decode, no such variant). */
+int raw_variant_stats(int fd, const char *variant, hfp_variant_stats *out);
 /* Builds a FILTER frame (malloc'd, *len bytes). */
 uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, const float *in,
                     size_t *len);

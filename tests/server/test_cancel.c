@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include "harness.h"
+#include "harness_cmocka.h"
 
 static harness H;
 static server S;
@@ -33,13 +34,6 @@ static int setup(void **state) {
 static int teardown(void **state) {
   (void)state;
   return harness_stop(&H, &S);
-}
-
-static int connect_versions(int lo, int hi) {
-  int fd = raw_connect(S.unix_url);
-  assert_true(fd >= 0);
-  assert_int_equal(raw_hello_versions(fd, NULL, lo, hi), 0);
-  return fd;
 }
 
 static void send_filter(int fd, uint32_t id, int w, int h, const float *in) {
@@ -68,23 +62,6 @@ static uint32_t read_result(int fd, hfp_result *r) {
   return h.request_id;
 }
 
-static hfp_variant_stats small_stats(int fd) {
-  uint8_t b[HFP_HEADER_SIZE];
-  assert_int_equal(hfp_encode_empty(b, sizeof b, HFP_STATS, 0), HFP_HEADER_SIZE);
-  assert_int_equal(raw_send(fd, b, sizeof b), 0);
-  hfp_header h;
-  uint8_t *p = NULL;
-  assert_int_equal(raw_read(fd, &h, &p), 0);
-  assert_int_equal(h.type, HFP_STATS_REPLY);
-  static hfp_stats st;
-  assert_int_equal(hfp_decode_stats(p, h.length, &st), 0);
-  free(p);
-  for (int i = 0; i < st.num_variants; i++)
-    if (!strcmp(st.variants[i].name, "Small")) return st.variants[i];
-  fail_msg("STATS_REPLY lists no variant Small");
-  return st.variants[0];
-}
-
 /* Frame 1 waits in the batcher; frame 2 (another size) is queued behind
  * it. Cancelled, frame 2 is answered CANCELLED at once, before frame 1's
  * result, and never runs; frame 1, already the batcher's, is not
@@ -93,8 +70,8 @@ static hfp_variant_stats small_stats(int fd) {
 static void test_queued_and_held(void **state) {
   (void)state;
   int spp = harness_variant(&H, "Small")->cfg.spp;
-  int fd = connect_versions(1, 4);
-  hfp_variant_stats before = small_stats(fd);
+  int fd = connect_versions_or_fail(S.unix_url, 1, 4);
+  hfp_variant_stats before = variant_stats_or_fail(fd, "Small");
   float *a = make_features(16, 16, spp, 1), *b = make_features(24, 20, spp, 2);
   send_filter(fd, 1, 16, 16, a);
   usleep(100000);   /* frame 1 is the batcher's before the others arrive */
@@ -112,7 +89,7 @@ static void test_queued_and_held(void **state) {
   assert_int_equal(r.status, HFP_OK);
   send_cancel(fd, 1);    /* answered */
   send_cancel(fd, 99);   /* never sent */
-  hfp_variant_stats after = small_stats(fd);   /* the next reply is STATS' */
+  hfp_variant_stats after = variant_stats_or_fail(fd, "Small");   /* the next reply is STATS' */
   assert_true(after.requests_failed - before.requests_failed == 1);
   assert_true(after.requests_ok - before.requests_ok == 1);
   assert_true(after.batches - before.batches == 1);   /* frame 2 never ran */
@@ -126,7 +103,7 @@ static void test_queued_and_held(void **state) {
  * With a payload it is a fatal LENGTH. */
 static void test_refused(void **state) {
   (void)state;
-  int fd = connect_versions(1, 3);
+  int fd = connect_versions_or_fail(S.unix_url, 1, 3);
   send_cancel(fd, 5);
   hfp_header h;
   hfp_error e;
@@ -137,7 +114,7 @@ static void test_refused(void **state) {
   assert_non_null(strstr(e.message, "version 4"));
   assert_true(raw_closed(fd, 5000));
   close(fd);
-  fd = connect_versions(4, 4);
+  fd = connect_versions_or_fail(S.unix_url, 4, 4);
   uint8_t b[HFP_HEADER_SIZE + 4] = {0};
   assert_int_equal(hfp_encode_empty(b, sizeof b, HFP_CANCEL, 5), HFP_HEADER_SIZE);
   hfp_put_u32(b + 12, 4);

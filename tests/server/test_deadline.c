@@ -19,6 +19,7 @@
 #include <unistd.h>
 
 #include "harness.h"
+#include "harness_cmocka.h"
 
 static harness H;
 static server S;
@@ -41,13 +42,6 @@ static int teardown(void **state) {
 }
 
 /* A raw connection to the daemon's Unix socket that negotiated lo..hi. */
-static int connect_versions(int lo, int hi) {
-  int fd = raw_connect(S.unix_url);
-  assert_true(fd >= 0);
-  assert_int_equal(raw_hello_versions(fd, NULL, lo, hi), 0);
-  return fd;
-}
-
 /* Sends a FILTER of Small, w x h, with budget_us (0: no DEADLINE flag). */
 static void send_filter(int fd, uint32_t id, int w, int h, const float *in, uint32_t budget_us) {
   const ref_variant *v = harness_variant(&H, "Small");
@@ -89,24 +83,6 @@ static uint32_t read_result(int fd, hfp_result *r, float *out, size_t out_cap) {
   return h.request_id;
 }
 
-/* Variant Small's statistics as a connection of fd's version reads them. */
-static hfp_variant_stats small_stats(int fd) {
-  uint8_t b[HFP_HEADER_SIZE];
-  assert_int_equal(hfp_encode_empty(b, sizeof b, HFP_STATS, 0), HFP_HEADER_SIZE);
-  assert_int_equal(raw_send(fd, b, sizeof b), 0);
-  hfp_header h;
-  uint8_t *p = NULL;
-  assert_int_equal(raw_read(fd, &h, &p), 0);
-  assert_int_equal(h.type, HFP_STATS_REPLY);
-  static hfp_stats st;
-  assert_int_equal(hfp_decode_stats(p, h.length, &st), 0);
-  free(p);
-  for (int i = 0; i < st.num_variants; i++)
-    if (!strcmp(st.variants[i].name, "Small")) return st.variants[i];
-  fail_msg("STATS_REPLY lists no variant Small");
-  return st.variants[0];
-}
-
 /* A frame waits in the batcher (no partner comes) while two frames of other
  * sizes queue behind it: one whose 200 ms budget passes meanwhile is
  * answered EXPIRED, unrun (no backend run counted for it), and one with a
@@ -115,8 +91,8 @@ static void test_expired_while_queue_held(void **state) {
   (void)state;
   const ref_variant *v = harness_variant(&H, "Small");
   int spp = v->cfg.spp;
-  int fd = connect_versions(1, 4);
-  hfp_variant_stats before = small_stats(fd);
+  int fd = connect_versions_or_fail(S.unix_url, 1, 4);
+  hfp_variant_stats before = variant_stats_or_fail(fd, "Small");
   float *a = make_features(16, 16, spp, 1), *b = make_features(24, 20, spp, 2),
         *c = make_features(20, 20, spp, 3);
   double t0 = now_ms();
@@ -150,7 +126,7 @@ static void test_expired_while_queue_held(void **state) {
   assert_int_equal(seen, (1 << 1) | (1 << 2) | (1 << 3));
   /* frame 1 held the queue for its partner wait */
   assert_true(now_ms() - t0 >= HOLD_US / 1000.0 - 50);
-  hfp_variant_stats after = small_stats(fd);
+  hfp_variant_stats after = variant_stats_or_fail(fd, "Small");
   assert_true(after.expired - before.expired == 1);
   assert_true(after.requests_failed - before.requests_failed == 1);
   assert_true(after.requests_ok - before.requests_ok == 2);
@@ -166,7 +142,7 @@ static void test_expired_while_queue_held(void **state) {
 static void test_within_budget_not_held(void **state) {
   (void)state;
   const ref_variant *v = harness_variant(&H, "Small");
-  int fd = connect_versions(4, 4);
+  int fd = connect_versions_or_fail(S.unix_url, 4, 4);
   float *a = make_features(16, 16, v->cfg.spp, 4);
   send_filter(fd, 7, 16, 16, a, 300000);
   static float got[16 * 16 * 3], want[16 * 16 * 3];
@@ -187,7 +163,7 @@ static void test_version_rules(void **state) {
   (void)state;
   const ref_variant *v = harness_variant(&H, "Small");
   float *a = make_features(8, 8, v->cfg.spp, 5);
-  int fd = connect_versions(1, 3);
+  int fd = connect_versions_or_fail(S.unix_url, 1, 3);
   send_filter(fd, 9, 8, 8, a, 1000000);
   hfp_header h;
   hfp_error e;
@@ -200,12 +176,12 @@ static void test_version_rules(void **state) {
   hfp_result r;
   assert_int_equal(read_result(fd, &r, NULL, 0), 10);
   assert_int_equal(r.status, HFP_OK);
-  hfp_variant_stats st = small_stats(fd);
+  hfp_variant_stats st = variant_stats_or_fail(fd, "Small");
   assert_true(st.expired == 0);
   close(fd);
 
-  fd = connect_versions(4, 4);
-  assert_true(small_stats(fd).expired >= 1);   /* test_expired_while_queue_held's */
+  fd = connect_versions_or_fail(S.unix_url, 4, 4);
+  assert_true(variant_stats_or_fail(fd, "Small").expired >= 1);   /* test_expired_while_queue_held's */
   const ref_variant *sv = v;
   hfp_filter f;
   memset(&f, 0, sizeof f);
