@@ -55,7 +55,10 @@ static int clear_stale_socket(const char *path) {
             path, path);
     return -1;
   }
-  int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  /* Non-blocking: a blocking connect to a listener that does not accept
+   * (stopped, frozen, or its backlog full) waits for it without end, and
+   * the start would hang; non-blocking, that is EAGAIN, a live server. */
+  int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
   if (fd < 0) {
     hfd_err("--listen %s: socket: %s", url, strerror(errno));
     return -1;

@@ -81,7 +81,9 @@ static int ready_file_live(const char *path, char *url, size_t cap) {
     memset(&sa, 0, sizeof sa);
     sa.sun_family = AF_UNIX;
     memcpy(sa.sun_path, line + 5, strlen(line + 5) + 1);
-    int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    /* Non-blocking, as clear_stale_socket's probe: a daemon that does not
+     * accept (stopped, its backlog full) is EAGAIN, not a start that hangs. */
+    int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
     if (fd < 0) continue;
     if (connect(fd, (struct sockaddr *)&sa, sizeof sa) == 0 || errno == EAGAIN) {
       live = 1;
