@@ -913,6 +913,18 @@ static int queue_frame(hfd_server *s, const hfd_conn *c, int share, hfd_job *j,
   return hfd_worker_submit(&s->worker, j);
 }
 
+/* Answers now the queued frames whose budget has passed (EXPIRED): they
+ * count in their connections' in-flight frames and shares of the queue
+ * until answered, and the worker, busy with a run, would answer them only
+ * after it. */
+static void answer_expired(hfd_server *s) {
+  for (hfd_job *j = hfd_worker_take_expired(&s->worker), *next; j; j = next) {
+    next = j->next;
+    j->next = NULL;
+    deliver(s, j);
+  }
+}
+
 /* The FILTER's tensor is in: charge its result buffers and what running it
  * takes, and admit it to the queue, or say why not. */
 static void filter_admit(hfd_conn *c) {
@@ -924,7 +936,15 @@ static void filter_admit(hfd_conn *c) {
   const char *why = NULL;
   char share_why[256];
   hfd_job *pushed = NULL;
-  int share = queue_share(s, c);   /* c's count cannot change before it is queued */
+  int share = queue_share(s, c);
+  /* A frame that can still make it is not refused for places that frames
+   * past their budget hold, the connection's own included (docs/SERVER.md,
+   * "Deadlines"). */
+  if (!s->draining && (c->inflight >= s->cfg->max_inflight || over_queue_share(s, c, share))) {
+    answer_expired(s);
+    share = queue_share(s, c);
+  }
+  /* c's count cannot change from here until it is queued. */
   uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
                                       1, j->req.data_len);
   uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);

@@ -380,6 +380,12 @@ void hfd_worker_cancel(hfd_worker *w);
  * nothing would read their results, and they would hold queue places and
  * memory other clients are refused for. Loop thread; returns how many. */
 int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn);
+/* Takes the queued frames whose budget (FILTER flag DEADLINE) has passed
+ * off the queue and returns them, linked by next, with status
+ * HFP_E_EXPIRED, for the caller to answer at once (NULL: none). Loop
+ * thread: a connection at its in-flight limit or its share of the queue
+ * is not refused for places its dead frames hold. */
+hfd_job *hfd_worker_take_expired(hfd_worker *w);
 /* Takes conn's queued frame of request_id (the first, for a reused id)
  * off the queue and completes it unrun with HFP_E_CANCELLED: 1 when one
  * was queued, 0 when none was (not admitted, answered, or already taken

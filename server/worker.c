@@ -898,6 +898,19 @@ int hfd_worker_drop_conn(hfd_worker *w, const struct hfd_conn *conn) {
   return n;
 }
 
+hfd_job *hfd_worker_take_expired(hfd_worker *w) {
+  pthread_mutex_lock(&w->mu);
+  double now = hfd_now_us();
+  hfd_job *late = take_expired(w, now);
+  pthread_mutex_unlock(&w->mu);
+  for (hfd_job *j = late; j; j = j->next) {
+    j->status = HFP_E_EXPIRED;
+    j->t_started = j->t_done = now;
+    j->batch = 0;
+  }
+  return late;
+}
+
 int hfd_worker_cancel_frame(hfd_worker *w, const struct hfd_conn *conn, uint32_t request_id) {
   pthread_mutex_lock(&w->mu);
   hfd_job *prev = NULL, *found = NULL;

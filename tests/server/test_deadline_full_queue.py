@@ -7,7 +7,9 @@ The worker checked budgets only before it formed a batch. While it ran a
 long frame, a queue full of frames already past their budget (protocol
 version 4, FILTER flag DEADLINE) refused every new frame with BUSY (or
 pushed out a live one with a BUSY RESULT) until the run ended, though
-those frames could no longer be of use to anyone.
+those frames could no longer be of use to anyone. Nor may a connection at
+its share of the queue, or at its in-flight limit, be refused for frames
+of its own that have expired there.
 
 usage: test_deadline_full_queue.py HAIRFILTERD WEIGHTS_DIR
 """
@@ -85,6 +87,28 @@ def main():
                   "the %s expired frame is answered EXPIRED (%s)" % (what, r))
         r = reply(big)
         check(r[0] == RESULT and r[2] == 0, "the long frame is served (%s)" % (r,))
+        # One connection at its share of the queue (the long frame running,
+        # one frame queued behind it), the queued one past its budget: a
+        # new frame of that connection is served, not refused BUSY ("holds
+        # its share") for the place the dead frame holds.
+        # Frame 3 of a fixed size, long enough to be running still when 31
+        # arrives, whatever the calibration above made of a busy machine.
+        big.sendall(filt(3, 1600))
+        time.sleep(0.1)
+        big.sendall(filt(30, 2, budget=1000))
+        time.sleep(0.05)
+        big.sendall(filt(31, 2))
+        got = {}
+        for _ in range(3):
+            r = reply(big)
+            got[r[1]] = r
+        check(got.get(30, (0, 0, 0))[0] == RESULT and got[30][2] == EXPIRED,
+              "the frame past its budget is answered EXPIRED (%s)" % (got.get(30),))
+        check(got.get(31, (0, 0, 0))[0] == RESULT and got[31][2] == 0,
+              "a connection at its share whose queued frame has expired has its new frame "
+              "served, not refused (%s)" % (got.get(31),))
+        check(got.get(3, (0, 0, 0))[0] == RESULT and got[3][2] == 0,
+              "the second long frame is served (%s)" % (got.get(3),))
         print("the long frame was %dx%d; the new frame was answered %.2f s after it was sent"
               % (side, side, waited))
     finally:
