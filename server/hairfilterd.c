@@ -214,11 +214,19 @@ static int open_listener(hfd_server *s, const char *url, const hfp_url *u) {
     }
     snprintf(l->unix_path, sizeof l->unix_path, "%s", path);
     snprintf(l->url, sizeof l->url, "unix:%s", path);
+    /* The file as bound, which remove_files and /readyz compare with what
+     * the path names later: without it the socket would be taken for lost
+     * from the start, and left behind at the stop. */
     struct stat st;
-    if (stat(path, &st) == 0) {
-      l->sock_dev = (unsigned long long)st.st_dev;
-      l->sock_ino = (unsigned long long)st.st_ino;
+    if (stat(path, &st) != 0) {
+      hfd_err("--listen %s: the socket file cannot be looked at right after it was bound: %s; "
+              "does another process remove files in its directory? give the socket a "
+              "directory of its own (docs/SERVER.md, \"Socket directory\")", url, strerror(errno));
+      uv_close(&l->h.handle, NULL);
+      return -1;
     }
+    l->sock_dev = (unsigned long long)st.st_dev;
+    l->sock_ino = (unsigned long long)st.st_ino;
   } else {
     /* Numeric addresses only: a listener's address is not looked up. */
     const char *host = strcmp(u->host, "localhost") ? u->host : "127.0.0.1";
