@@ -942,6 +942,11 @@ static void filter_admit(hfd_conn *c) {
    * "Deadlines"). */
   if (!s->draining && (c->inflight >= s->cfg->max_inflight || over_queue_share(s, c, share))) {
     answer_expired(s);
+    /* A reply of c's own that could not be written closed c. */
+    if (c->closing) {
+      job_free(s, j);
+      return;
+    }
     share = queue_share(s, c);
   }
   /* c's count cannot change from here until it is queued. */
