@@ -431,7 +431,9 @@ HFC_API int hfc_pending(const hfc_client *c);
  * 0 when the cancel went out (or nothing was left to cancel: the
  * completion is in); HFC_E_ARG for an id that is not pending (never
  * submitted, or hfc_wait returned it); HFC_E_UNSUPPORTED when its server
- * speaks a version before 4 (the frame completes as answered); or the
+ * speaks a version before 4, or when the frame went on a connection the
+ * client left after a BUSY failover (half-closed, its replies still read:
+ * nothing more is sent on it), the frame completing as answered; or the
  * connection's error when the send failed (the frame is then not computed
  * elsewhere either: where the loss would send it again, it completes
  * HFC_E_CANCELLED, or the CANCEL follows it to the next endpoint). */
