@@ -776,14 +776,16 @@ static void filter_head(hfd_conn *c, size_t have) {
    * unknown flag, whatever the length says (PROTOCOL.md, "Version 3"). */
   if ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_ESTIMATE) && c->version < 3) {
     reject(c, v, HFP_E_UNSUPPORTED, left,
-           "FILTER flag ESTIMATE (bit 2) needs protocol version 3; this connection speaks %d",
-           c->version);
+           "FILTER flag ESTIMATE (bit 2) needs protocol version 3; this connection speaks %d: "
+           "offer version 3 or later in HELLO (a newer client), or send the frame without the "
+           "flag", c->version);
     return;
   }
   /* Likewise bit 3 (DEADLINE) before version 4 (PROTOCOL.md, "Version 4"). */
   if ((hfp_get_u16(c->ctl + 2) & HFP_FILTER_DEADLINE) && c->version < 4) {
     reject(c, v, HFP_E_UNSUPPORTED, left,
-           "FILTER flag DEADLINE (bit 3) needs protocol version 4; this connection speaks %d",
+           "FILTER flag DEADLINE (bit 3) needs protocol version 4; this connection speaks %d: "
+           "offer version 4 in HELLO (a newer client), or send the frame without the flag",
            c->version);
     return;
   }
@@ -1119,7 +1121,8 @@ static void on_header(hfd_conn *c) {
       if (c->version < 4) {
         s->protocol_errors++;
         send_error(c, 0, HFP_E_PROTOCOL, 1,
-                   "message type 13 (CANCEL) needs protocol version 4; this connection speaks %d",
+                   "message type 13 (CANCEL) needs protocol version 4; this connection speaks "
+                   "%d: offer version 4 in HELLO (a newer client) to cancel frames",
                    c->version);
         return;
       }

@@ -112,6 +112,7 @@ static void test_refused(void **state) {
   assert_int_equal(e.fatal, 1);
   assert_int_equal(h.request_id, 0);
   assert_non_null(strstr(e.message, "version 4"));
+  assert_non_null(strstr(e.message, "HELLO"));   /* what to do: offer version 4 */
   assert_true(raw_closed(fd, 5000));
   close(fd);
   fd = connect_versions_or_fail(S.unix_url, 4, 4);

@@ -172,6 +172,9 @@ static void test_version_rules(void **state) {
   assert_int_equal(e.fatal, 0);
   assert_int_equal(h.request_id, 9);
   assert_non_null(strstr(e.message, "version 4"));
+  /* and what to do: offer version 4, or send the frame without the flag */
+  assert_non_null(strstr(e.message, "HELLO"));
+  assert_non_null(strstr(e.message, "without"));
   send_filter(fd, 10, 8, 8, a, 0);   /* still served */
   hfp_result r;
   assert_int_equal(read_result(fd, &r, NULL, 0), 10);
