@@ -63,6 +63,32 @@ def read_message(s):
     return head + recv_exactly(s, P.decode_header(head)[2])
 
 
+def recorded_handshake():
+    """The session daemon's own HELLO_OK and VARIANTS messages, whole, for
+    a mock server to replay."""
+    raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    raw.settimeout(10)
+    raw.connect(UNIX[len("unix:"):])
+    raw.sendall(P.encode_hello("recorder"))
+    hello_ok = read_message(raw)
+    raw.sendall(P.frame(P.LIST_VARIANTS))
+    variants = read_message(raw)
+    raw.close()
+    return hello_ok, variants
+
+
+def unix_listener(name, backlog):
+    """A listening Unix socket at ARGS.work/name (one left there before is
+    removed): (path, socket)."""
+    path = os.path.join(ARGS.work, name)
+    if os.path.exists(path):
+        os.unlink(path)
+    lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    lsock.bind(path)
+    lsock.listen(backlog)
+    return path, lsock
+
+
 def c_filter(url, variant, f, shm=False, rgba=False, ca=None, estimate=None):
     """The C library's result (and composite) of frame f (and its estimate),
     as bytes."""
@@ -480,21 +506,9 @@ class PythonClient(unittest.TestCase):
         a fatal TOO_LARGE): the frame completes with the server's answer,
         not as a lost connection. The mock replays the daemon's own
         HELLO_OK and VARIANTS."""
-        raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        raw.settimeout(10)
-        raw.connect(UNIX[len("unix:"):])
-        raw.sendall(P.encode_hello("recorder"))
-        hello_ok = read_message(raw)
-        raw.sendall(P.frame(P.LIST_VARIANTS))
-        variants = read_message(raw)
-        raw.close()
+        hello_ok, variants = recorded_handshake()
         for code, fatal in ((P.E_SHUTTING_DOWN, 0), (P.E_TOO_LARGE, 1)):
-            path = os.path.join(ARGS.work, "mock.sock")
-            if os.path.exists(path):
-                os.unlink(path)
-            lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            lsock.bind(path)
-            lsock.listen(1)
+            path, lsock = unix_listener("mock.sock", 1)
 
             def serve():
                 s, _ = lsock.accept()
@@ -533,25 +547,14 @@ class PythonClient(unittest.TestCase):
         f32 only) is refused by the client before a byte of it is written,
         naming the limit and the frame's size, and the connection goes on:
         the mock counts the FILTERs that reach it."""
-        raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        raw.settimeout(10)
-        raw.connect(UNIX[len("unix:"):])
-        raw.sendall(P.encode_hello("recorder"))
-        hello_ok = bytearray(read_message(raw))
-        raw.sendall(P.frame(P.LIST_VARIANTS))
-        variants = read_message(raw)
-        raw.close()
+        hello_ok, variants = recorded_handshake()
+        hello_ok = bytearray(hello_ok)
         # HELLO_OK's max_width, max_height, dtypes and max_frame_bytes
         # (PROTOCOL.md), 16 header bytes in.
         struct.pack_into("<II", hello_ok, 16 + 4, 16, 16)
         struct.pack_into("<I", hello_ok, 16 + 16, 1)
         struct.pack_into("<Q", hello_ok, 16 + 28, 8192)
-        path = os.path.join(ARGS.work, "limits.sock")
-        if os.path.exists(path):
-            os.unlink(path)
-        lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        lsock.bind(path)
-        lsock.listen(1)
+        path, lsock = unix_listener("limits.sock", 1)
         filters = []
 
         def serve():
@@ -639,12 +642,7 @@ class PythonClient(unittest.TestCase):
         """A Unix listener that accepts nothing, its queue of connections
         full: CONNECT after about the timeout, saying what to check (it was
         refused at once with "Resource temporarily unavailable")."""
-        path = os.path.join(ARGS.work, "full.sock")
-        if os.path.exists(path):
-            os.unlink(path)
-        lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        lsock.bind(path)
-        lsock.listen(0)
+        path, lsock = unix_listener("full.sock", 0)
         fill = []
         try:
             for _ in range(8):
@@ -698,20 +696,8 @@ class PythonClient(unittest.TestCase):
         of them completed with the loss (pending counts down to 0), then
         raises it saying to connect again. wait() raised the loss for ever
         with pending stuck, so an engine's loop on pending never ended."""
-        raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        raw.settimeout(10)
-        raw.connect(UNIX[len("unix:"):])
-        raw.sendall(P.encode_hello("recorder"))
-        hello_ok = read_message(raw)
-        raw.sendall(P.frame(P.LIST_VARIANTS))
-        variants = read_message(raw)
-        raw.close()
-        path = os.path.join(ARGS.work, "gone.sock")
-        if os.path.exists(path):
-            os.unlink(path)
-        lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        lsock.bind(path)
-        lsock.listen(1)
+        hello_ok, variants = recorded_handshake()
+        path, lsock = unix_listener("gone.sock", 1)
 
         def serve():
             s, _ = lsock.accept()

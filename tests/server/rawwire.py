@@ -9,6 +9,7 @@ import socket
 import struct
 import subprocess
 import sys
+import tempfile
 import time
 
 MAGIC = 0x31504648
@@ -163,3 +164,37 @@ def stop_and_clean(proc, w):
     if failures:
         print(log)
     shutil.rmtree(w, ignore_errors=True)
+
+
+def expect_error(got, code, what, words):
+    """Checks that got (shm_create's answer) is a non-fatal ERROR of code
+    whose message names words."""
+    check(got[0] == "error" and got[1][0] == code and got[1][1] == 0 and words in got[1][2],
+          "%s: non-fatal error %d naming %r (%s)" % (what, code, words, got))
+
+
+def shm_ok(got, fds, what):
+    """Checks that got (shm_create's answer) is SHM_CREATED; keeps its
+    descriptor in fds (the caller closes them) and returns the segment's
+    id, or 0."""
+    check(got[0] == "ok", "%s: SHM_CREATED (%s)" % (what, got))
+    if got[0] == "ok":
+        fds.append(got[1][1])
+        return got[1][0]
+    return 0
+
+
+def with_daemon(binary, prefix, args, body):
+    """Runs body(sock, fds, w) against hairfilterd started with args in a
+    new work directory w (named from prefix), then closes the descriptors
+    body left in fds and stops the daemon."""
+    w = tempfile.mkdtemp(prefix=prefix)
+    proc, fds = None, []
+    try:
+        proc, sock = start(binary, w, args)
+        require_started(sock)
+        body(sock, fds, w)
+    finally:
+        for fd in fds:
+            os.close(fd)
+        stop_and_clean(proc, w)

@@ -15,27 +15,13 @@ import multiprocessing
 import os
 import struct
 import sys
-import tempfile
 import time
 
-from rawwire import (BUSY, SHM_DESTROY, STATS, STATS_REPLY, TOO_LARGE, check, connect, finish,
-                     frame, read_frame, require_started, shm_create, start, stop_and_clean)
+from rawwire import (BUSY, SHM_DESTROY, STATS, STATS_REPLY, TOO_LARGE, check, connect, expect_error,
+                     finish, frame, read_frame, shm_create, shm_ok, with_daemon)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 MIB = 1 << 20
-
-
-def expect(got, code, what, words):
-    check(got[0] == "error" and got[1][0] == code and got[1][1] == 0 and words in got[1][2],
-          "%s: non-fatal error %d naming %r (%s)" % (what, code, words, got))
-
-
-def ok(got, fds, what):
-    check(got[0] == "ok", "%s: SHM_CREATED (%s)" % (what, got))
-    if got[0] == "ok":
-        fds.append(got[1][1])
-        return got[1][0]
-    return 0
 
 
 def other_client(sock, sizes, pipe):
@@ -53,31 +39,21 @@ def other_client(sock, sizes, pipe):
 
 
 def run(args, body):
-    w = tempfile.mkdtemp(prefix="hfshmclient-")
-    proc, fds = None, []
-    try:
-        proc, sock = start(HAIRFILTERD, w,
-                           ["--weights", os.path.join(WEIGHTS, "small.safetensors"),
-                            "--max-size", "100x100"] + args)
-        require_started(sock)
-        body(sock, fds, w)
-    finally:
-        for fd in fds:
-            os.close(fd)
-        stop_and_clean(proc, w)
+    with_daemon(HAIRFILTERD, "hfshmclient-",
+                ["--weights", os.path.join(WEIGHTS, "small.safetensors"), "--max-size", "100x100"] + args, body)
 
 
 def parts(sock, fds, w):
     """--max-shm-mb 16, 6 per client, 4 per connection: three connections
     of this process hold 6 MiB in all; another process gets its 6 too."""
     a, b, c = connect(sock), connect(sock), connect(sock)
-    seg = ok(shm_create(a, 4 * MIB), fds, "connection A's 4 MiB")
-    ok(shm_create(b, 2 * MIB), fds, "connection B's 2 MiB (6 for the client)")
-    expect(shm_create(b, 1), BUSY, "B's next byte, over the client's 6 MiB",
+    seg = shm_ok(shm_create(a, 4 * MIB), fds, "connection A's 4 MiB")
+    shm_ok(shm_create(b, 2 * MIB), fds, "connection B's 2 MiB (6 for the client)")
+    expect_error(shm_create(b, 1), BUSY, "B's next byte, over the client's 6 MiB",
            "--max-shm-mb-per-client")
-    expect(shm_create(c, 1 * MIB), BUSY, "a third connection's 1 MiB, over the client's 6 MiB",
+    expect_error(shm_create(c, 1 * MIB), BUSY, "a third connection's 1 MiB, over the client's 6 MiB",
            "--max-shm-mb-per-client")
-    expect(shm_create(c, 5 * MIB), TOO_LARGE, "a 5 MiB segment, over a connection's 4",
+    expect_error(shm_create(c, 5 * MIB), TOO_LARGE, "a 5 MiB segment, over a connection's 4",
            "--max-shm-mb-per-connection")
     # Another process is another client, with a part of its own.
     here, there = multiprocessing.Pipe()
@@ -94,7 +70,7 @@ def parts(sock, fds, w):
     # then a connection closed.
     a.sendall(frame(SHM_DESTROY, struct.pack("<I", seg)) + frame(STATS))
     check(read_frame(a)[0] == STATS_REPLY, "STATS_REPLY after SHM_DESTROY")
-    ok(shm_create(c, 4 * MIB), fds, "C's 4 MiB once A's segment is destroyed")
+    shm_ok(shm_create(c, 4 * MIB), fds, "C's 4 MiB once A's segment is destroyed")
     b.close()
     deadline, got = time.time() + 10, None
     while time.time() < deadline:
@@ -102,7 +78,7 @@ def parts(sock, fds, w):
         if got[0] == "ok":
             break
         time.sleep(0.05)
-    ok(got, fds, "A's 2 MiB once B closed")
+    shm_ok(got, fds, "A's 2 MiB once B closed")
     a.close()
     c.close()
     log = open(os.path.join(w, "daemon.log")).read()
@@ -114,9 +90,9 @@ def client_smaller(sock, fds, w):
     """A client's part below a connection's: a segment over it is
     TOO_LARGE naming --max-shm-mb-per-client."""
     a = connect(sock)
-    expect(shm_create(a, 3 * MIB), TOO_LARGE, "a 3 MiB segment, over a client's 2",
+    expect_error(shm_create(a, 3 * MIB), TOO_LARGE, "a 3 MiB segment, over a client's 2",
            "--max-shm-mb-per-client")
-    ok(shm_create(a, 2 * MIB), fds, "a 2 MiB segment")
+    shm_ok(shm_create(a, 2 * MIB), fds, "a 2 MiB segment")
     a.close()
 
 

@@ -12,58 +12,35 @@ usage: test_shm_per_connection.py HAIRFILTERD WEIGHTS_DIR
 import os
 import struct
 import sys
-import tempfile
 import time
 
-from rawwire import (BUSY, SHM_DESTROY, STATS, STATS_REPLY, TOO_LARGE, check, connect, finish,
-                     frame, read_frame, require_started, shm_create, start, stop_and_clean)
+from rawwire import (BUSY, SHM_DESTROY, STATS, STATS_REPLY, TOO_LARGE, check, connect, expect_error,
+                     finish, frame, read_frame, shm_create, shm_ok, with_daemon)
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 MIB = 1 << 20
 
 
-def expect(got, code, what, words):
-    check(got[0] == "error" and got[1][0] == code and got[1][1] == 0 and words in got[1][2],
-          "%s: non-fatal error %d naming %r (%s)" % (what, code, words, got))
-
-
 def run(args, body):
-    w = tempfile.mkdtemp(prefix="hfshmconn-")
-    proc, fds = None, []
-    try:
-        proc, sock = start(HAIRFILTERD, w,
-                           ["--weights", os.path.join(WEIGHTS, "small.safetensors")] + args)
-        require_started(sock)
-        body(sock, fds, w)
-    finally:
-        for fd in fds:
-            os.close(fd)
-        stop_and_clean(proc, w)
-
-
-def ok(got, fds, what):
-    check(got[0] == "ok", "%s: SHM_CREATED (%s)" % (what, got))
-    if got[0] == "ok":
-        fds.append(got[1][1])
-        return got[1][0]
-    return 0
+    with_daemon(HAIRFILTERD, "hfshmconn-",
+                ["--weights", os.path.join(WEIGHTS, "small.safetensors")] + args, body)
 
 
 def explicit(sock, fds, w):
     """--max-shm-mb 8 --max-shm-mb-per-connection 4: two connections get 4
     MiB each, neither more."""
     a, b = connect(sock), connect(sock)
-    seg = ok(shm_create(a, 3 * MIB), fds, "A's first 3 MiB")
-    expect(shm_create(a, 2 * MIB), BUSY, "A's next 2 MiB, over its 4", "--max-shm-mb-per-connection")
-    expect(shm_create(a, 5 * MIB), TOO_LARGE, "a 5 MiB segment, over a connection's 4",
+    seg = shm_ok(shm_create(a, 3 * MIB), fds, "A's first 3 MiB")
+    expect_error(shm_create(a, 2 * MIB), BUSY, "A's next 2 MiB, over its 4", "--max-shm-mb-per-connection")
+    expect_error(shm_create(a, 5 * MIB), TOO_LARGE, "a 5 MiB segment, over a connection's 4",
            "--max-shm-mb-per-connection")
-    ok(shm_create(a, 1 * MIB), fds, "A's last 1 MiB")
-    ok(shm_create(b, 4 * MIB), fds, "B's 4 MiB while A holds its 4")
-    expect(shm_create(b, 1), BUSY, "B's next byte", "--max-shm-mb-per-connection")
+    shm_ok(shm_create(a, 1 * MIB), fds, "A's last 1 MiB")
+    shm_ok(shm_create(b, 4 * MIB), fds, "B's 4 MiB while A holds its 4")
+    expect_error(shm_create(b, 1), BUSY, "B's next byte", "--max-shm-mb-per-connection")
     # A released segment is A's to use again.
     a.sendall(frame(SHM_DESTROY, struct.pack("<I", seg)) + frame(STATS))
     check(read_frame(a)[0] == STATS_REPLY, "STATS_REPLY after SHM_DESTROY")
-    ok(shm_create(a, 3 * MIB), fds, "A's 3 MiB again after its SHM_DESTROY")
+    shm_ok(shm_create(a, 3 * MIB), fds, "A's 3 MiB again after its SHM_DESTROY")
     # A closed connection's part goes back.
     b.close()
     c = connect(sock)
@@ -73,7 +50,7 @@ def explicit(sock, fds, w):
         if got[0] == "ok":
             break
         time.sleep(0.05)
-    ok(got, fds, "C's 4 MiB once B closed")
+    shm_ok(got, fds, "C's 4 MiB once B closed")
     a.close()
     c.close()
 
@@ -85,13 +62,13 @@ def default(sock, fds, w):
     hold whole (and one client, a process, on all its connections)."""
     largest = 200 * 200 * (4 * 6 * 4 + 3 * 4 + 4 * 4)
     a, b = connect(sock), connect(sock)
-    ok(shm_create(a, largest), fds, "the largest frame's segments on one connection")
-    expect(shm_create(a, 1), BUSY, "one byte more on it", "--max-shm-mb-per-connection")
-    expect(shm_create(b, largest + 1), TOO_LARGE, "one byte over the largest frame's segments",
+    shm_ok(shm_create(a, largest), fds, "the largest frame's segments on one connection")
+    expect_error(shm_create(a, 1), BUSY, "one byte more on it", "--max-shm-mb-per-connection")
+    expect_error(shm_create(b, largest + 1), TOO_LARGE, "one byte over the largest frame's segments",
            "--max-shm-mb-per-connection")
     # Of the same process, whose part (--max-shm-mb-per-client) is the
     # same by default: test_shm_per_client.py has another process's.
-    expect(shm_create(b, largest), BUSY, "the same on a second connection of this client",
+    expect_error(shm_create(b, largest), BUSY, "the same on a second connection of this client",
            "--max-shm-mb-per-client")
     a.close()
     b.close()
