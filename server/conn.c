@@ -370,6 +370,29 @@ static void job_free(hfd_server *s, hfd_job *j) {
   free(j);
 }
 
+/* j's input tensor is no longer needed: its buffer and its charge go back
+ * (a shared segment's tensors are the client's, charged to no frame). */
+static void release_input(hfd_server *s, hfd_job *j) {
+  if (j->seg || !j->input) return;
+  hfd_rbuf_release(s, j->input);
+  j->input = NULL;
+  s->mem_held -= j->req.data_len;
+  j->bytes_held -= j->req.data_len;
+}
+
+/* j will send no tensor: its input and result buffers and their charges go
+ * back at once, so that --max-memory-mb is free for other frames. */
+static void release_buffers(hfd_server *s, hfd_job *j) {
+  release_input(s, j);
+  if (j->seg) return;
+  uint64_t results = (j->out ? j->out_len : 0) + (j->rgba ? j->rgba_len : 0);
+  hfd_rbuf_release(s, j->out);
+  hfd_rbuf_release(s, j->rgba);
+  j->out = j->rgba = NULL;
+  s->mem_held -= results;
+  j->bytes_held -= results;
+}
+
 static void account(hfd_server *s, hfd_job *j);
 
 /* Statistics count a reply once it is written: a frame whose peer left
@@ -435,6 +458,10 @@ static void deliver(hfd_server *s, hfd_job *j) {
   s->mem_held -= j->infer_bytes;
   j->bytes_held -= j->infer_bytes;
   j->infer_bytes = 0;
+  /* A frame answered unrun (EXPIRED, CANCELLED, BUSY, SHUTTING_DOWN) or
+   * failed sends no tensor: its buffers go back now, not once a slow
+   * client has read the 56 bytes of its RESULT. */
+  if (j->status != HFP_OK) release_buffers(s, j);
   /* Nothing follows a fatal ERROR (PROTOCOL.md, "Errors"). */
   if (c->closing || c->fatal_sent) {
     s->replies_lost++;
@@ -483,12 +510,7 @@ static void deliver(hfd_server *s, hfd_job *j) {
   if (r.rgba_len) bufs[nbufs++] = uv_buf_init(j->rgba, (unsigned)r.rgba_len);
   /* The input tensor is no longer needed; give its memory back now rather
    * than when the (possibly slow) client has read the reply. */
-  if (!j->seg) {
-    hfd_rbuf_release(s, j->input);
-    j->input = NULL;
-    s->mem_held -= j->req.data_len;
-    j->bytes_held -= j->req.data_len;
-  }
+  release_input(s, j);
   j->wreq.data = j;
   int rc = hfd_io_write(c, &j->wreq, bufs, nbufs, on_result_written);
   if (rc < 0) {
@@ -735,6 +757,21 @@ static int mem_fits(hfd_server *s, uint64_t more) {
   return used <= cap && more <= cap - used;
 }
 
+static void answer_expired(hfd_server *s);
+
+/* mem_fits for c's frame, after the frames past their budget have given
+ * their memory back when it does not fit otherwise (docs/SERVER.md,
+ * "Deadlines"): 1 or 0; -1 when answering them closed c (a reply of its
+ * own that could not be written; the frame c was receiving is dropped). */
+static int mem_fits_for(hfd_conn *c, uint64_t more) {
+  hfd_server *s = c->srv;
+  if (mem_fits(s, more)) return 1;
+  if (s->draining) return 0;
+  answer_expired(s);
+  if (c->closing) return -1;
+  return mem_fits(s, more);
+}
+
 /* The FILTER head is in ctl[]: check it against the server and, when it
  * passes, make the job that the tensor will be read into. Nothing is charged
  * yet but what has arrived: a peer that announces a large frame and sends
@@ -797,6 +834,7 @@ static void filter_head(hfd_conn *c, size_t have) {
     return;
   }
   uint64_t need = 0;
+  int fits;
   if (c->hdr.request_id == 0) {
     reject(c, v, HFP_E_INVALID, left, "request id 0 is reserved");
   } else if (v < 0) {
@@ -826,7 +864,8 @@ static void filter_head(hfd_conn *c, size_t have) {
            (unsigned long long)(s->frame_budget >> 20));
   } else if (s->draining) {
     reject(c, v, HFP_E_SHUTTING_DOWN, left, "%s", DRAINING_WHY);
-  } else if (!mem_fits(s, need)) {
+  } else if ((fits = mem_fits_for(c, need)) <= 0) {
+    if (fits < 0) return;
     /* Refused now rather than after the upload: it would not fit. */
     reject(c, v, HFP_E_BUSY, left,
            "request memory full: the frame needs %llu MiB, %llu of %llu MiB are in use "
@@ -916,9 +955,9 @@ static int queue_frame(hfd_server *s, const hfd_conn *c, int share, hfd_job *j,
 }
 
 /* Answers now the queued frames whose budget has passed (EXPIRED): they
- * count in their connections' in-flight frames and shares of the queue
- * until answered, and the worker, busy with a run, would answer them only
- * after it. */
+ * count in their connections' in-flight frames and shares of the queue,
+ * and hold their memory, until answered, and the worker, busy with a run,
+ * would answer them only after it. */
 static void answer_expired(hfd_server *s) {
   for (hfd_job *j = hfd_worker_take_expired(&s->worker), *next; j; j = next) {
     next = j->next;
@@ -939,9 +978,12 @@ static void filter_admit(hfd_conn *c) {
   char share_why[256];
   hfd_job *pushed = NULL;
   int share = queue_share(s, c);
-  /* A frame that can still make it is not refused for places that frames
-   * past their budget hold, the connection's own included (docs/SERVER.md,
-   * "Deadlines"). */
+  uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
+                                      1, j->req.data_len);
+  uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);
+  /* A frame that can still make it is not refused for places or memory
+   * that frames past their budget hold, the connection's own included
+   * (docs/SERVER.md, "Deadlines"). */
   if (!s->draining && (c->inflight >= s->cfg->max_inflight || over_queue_share(s, c, share))) {
     answer_expired(s);
     /* A reply of c's own that could not be written closed c. */
@@ -951,10 +993,14 @@ static void filter_admit(hfd_conn *c) {
     }
     share = queue_share(s, c);
   }
+  if (run != UINT64_MAX && !s->draining) {
+    if (mem_fits_for(c, more) < 0) {
+      job_free(s, j);
+      return;
+    }
+    share = queue_share(s, c);
+  }
   /* c's count cannot change from here until it is queued. */
-  uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
-                                      1, j->req.data_len);
-  uint64_t more = run + (j->seg ? 0 : j->out_len + j->rgba_len);
   if (s->draining) {
     code = HFP_E_SHUTTING_DOWN;
     why = DRAINING_WHY;
@@ -1487,7 +1533,9 @@ static void on_read(uv_stream_t *stream, ssize_t nread, const uv_buf_t *buf) {
     s->mem_held += n;
     j->bytes_held += n;
     hfd_rpool_charge(&s->rpool, j->input, n);
-    if (!mem_fits(s, 0)) {
+    int fits = mem_fits_for(c, 0);
+    if (fits < 0) return;
+    if (!fits) {
       int v = j->variant;
       uint64_t left = (uint64_t)c->want - c->got;
       c->job = NULL;

@@ -502,6 +502,11 @@ int raw_variant_stats(int fd, const char *variant, hfp_variant_stats *out) {
 
 uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, const float *in,
                     size_t *len) {
+  return raw_filter_budget(id, variant, w, h, spp, in, 0, len);
+}
+
+uint8_t *raw_filter_budget(uint32_t id, const char *variant, int w, int h, int spp,
+                           const float *in, uint32_t budget_us, size_t *len) {
   hfp_filter f;
   memset(&f, 0, sizeof f);
   snprintf(f.variant, sizeof f.variant, "%s", variant);
@@ -510,6 +515,10 @@ uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, con
   f.spp = (uint16_t)spp;
   f.in_dtype = f.out_dtype = HFP_F32;
   f.data = in;
+  if (budget_us) {
+    f.flags = HFP_FILTER_DEADLINE;
+    f.budget_us = budget_us;
+  }
   if (hfp_features_bytes(f.width, f.height, f.spp, HFP_F32, &f.data_len)) return NULL;
   uint8_t head[HFP_FILTER_HEAD_MAX];
   uint64_t total;

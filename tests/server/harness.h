@@ -140,6 +140,10 @@ int raw_variant_stats(int fd, const char *variant, hfp_variant_stats *out);
 /* Builds a FILTER frame (malloc'd, *len bytes). */
 uint8_t *raw_filter(uint32_t id, const char *variant, int w, int h, int spp, const float *in,
                     size_t *len);
+/* The same with FILTER flag DEADLINE and budget_us (0: no flag), for a
+ * connection of version 4. */
+uint8_t *raw_filter_budget(uint32_t id, const char *variant, int w, int h, int spp,
+                           const float *in, uint32_t budget_us, size_t *len);
 /* 1 when the peer has closed (recv returns 0 within timeout_ms). */
 int raw_closed(int fd, int timeout_ms);
 /* Reads one frame that must be an ERROR: 0 with *h and *e filled, -1 for

@@ -25,6 +25,7 @@
 #include <unistd.h>
 
 #include "harness.h"
+#include "harness_cmocka.h"
 #include "proc_memory.h"
 
 static harness H;
@@ -860,6 +861,72 @@ static void test_batcher_frames_are_queued(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* Item: a frame past its budget gives its memory back as soon as it is
+ * found expired (docs/SERVER.md, "Deadlines"), not when the worker next
+ * forms a batch. A small frame waits 3 s in the batcher for a partner; a
+ * frame of the announced maximum with a budget of 50 ms queues behind it
+ * and its budget passes; then another frame of the announced maximum,
+ * without a budget, comes from another connection. Two such frames do not
+ * fit --max-memory-mb together: the expired one is answered EXPIRED and
+ * the new one admitted and served, not refused BUSY for memory a frame
+ * that will never run holds. */
+static void test_expired_frame_gives_back_memory(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-memory-mb", "48", "--max-size", "4096x4096", "--max-batch", "16",
+                        "--max-queue-delay-us", "3000000", NULL};
+  hfc_client *c;
+  assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
+  int W = hfc_info(c)->max_width, HH = hfc_info(c)->max_height;
+  int fd0 = connect_versions_or_fail(d.unix_url, 4, 4), fd1;
+  raw_clients(&d, &fd1, 1);
+  send_small(fd0, 1, 8, 8);
+  expect_queue_depth(c, 1, "a frame in the batcher");
+  float *in = make_features(W, HH, 4, 2);
+  size_t len;
+  uint8_t *f = raw_filter_budget(2, "Small", W, HH, 4, in, 50000, &len);
+  assert_non_null(f);
+  assert_int_equal(raw_send(fd0, f, len), 0);
+  expect_queue_depth(c, 2, "a frame of the announced maximum queued behind it");
+  usleep(200000);   /* its 50 ms budget passes */
+  free(f);
+  f = raw_filter(3, "Small", W, HH, 4, in, &len);
+  assert_non_null(f);
+  assert_int_equal(raw_send(fd1, f, len), 0);
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(fd1, &h, &p), 0);
+  assert_int_equal(h.request_id, 3);
+  if (h.type == HFP_ERROR) {
+    hfp_error e;
+    assert_int_equal(hfp_decode_error(p, h.length, &e), 0);
+    fail_msg("a %dx%d frame refused beside an expired one of that size: %s", W, HH, e.message);
+  }
+  assert_int_equal(h.type, HFP_RESULT);
+  hfp_result r;
+  assert_int_equal(hfp_decode_result(p, h.length, &r), 0);
+  assert_int_equal(r.status, HFP_OK);
+  free(p);
+  int code;
+  int seen = 0;
+  for (int k = 0; k < 2; k++) {
+    assert_int_equal(raw_read(fd0, &h, &p), 0);
+    assert_int_equal(h.type, HFP_RESULT);
+    assert_int_equal(hfp_decode_result(p, h.length, &r), 0);
+    code = r.status;
+    assert_int_equal(code, h.request_id == 2 ? HFP_E_EXPIRED : HFP_OK);
+    seen |= 1 << h.request_id;
+    free(p);
+  }
+  assert_int_equal(seen, (1 << 1) | (1 << 2));
+  close(fd0);
+  close(fd1);
+  free(f);
+  free(in);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 /* Item: frames still queued when their connection goes are dropped unrun
  * (docs/SERVER.md, "Limits and backpressure"): nothing would read their
  * results, and their places and memory would be refused to other clients
@@ -997,6 +1064,7 @@ int main(void) {
     cmocka_unit_test(test_queue_push_out),
     cmocka_unit_test(test_batcher_frames_are_queued),
     cmocka_unit_test(test_gone_connection_frames_dropped),
+    cmocka_unit_test(test_expired_frame_gives_back_memory),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
     cmocka_unit_test(test_slow_senders_hold_what_they_sent),
