@@ -347,6 +347,15 @@ static hfd_job *take_expired(hfd_worker *w, double now) {
   return late;
 }
 
+/* When the first budget of the queued frames ends (mu held); INFINITY
+ * when none has one. */
+static double first_expiry(const hfd_worker *w) {
+  double first = INFINITY;
+  for (const hfd_job *j = w->q_head; j; j = j->next)
+    if (expires_at(j) < first) first = expires_at(j);
+  return first;
+}
+
 /* Removes and returns the first queued job compatible with j0 (mu held),
  * when running it in the batch (nb jobs so far, which reserved reserved
  * bytes for running) needs no more than the batch's jobs reserved. */
@@ -639,11 +648,24 @@ static void *worker_main(void *arg) {
       /* A pending batch is not kept waiting for partners of this one. Nor
        * is a full queue: no partner can be admitted until a frame leaves
        * it, and none leaves while this batch waits. */
-      if (w->stop || pend.nb || hfd_now_us() >= deadline ||
-          w->q_len + w->q_forming >= w->q_cap)
+      double now = hfd_now_us();
+      if (w->stop || pend.nb || now >= deadline || w->q_len + w->q_forming >= w->q_cap)
         break;
+      /* The frames queued behind the batch are answered EXPIRED as their
+       * budget passes, not once the batch has waited and run: the wait
+       * wakes for the first of their budgets too. */
+      double wake = first_expiry(w);
+      if (wake <= now) {
+        hfd_job *late = take_expired(w, now);
+        pthread_mutex_unlock(&w->mu);
+        complete_unrun(w, late, HFP_E_EXPIRED);
+        progress(w);
+        pthread_mutex_lock(&w->mu);
+        continue;
+      }
+      if (wake > deadline) wake = deadline;
       struct timespec ts;
-      deadline_ts(deadline, &ts);
+      deadline_ts(wake, &ts);
       int wr = pthread_cond_timedwait(&w->cv, &w->mu, &ts);
       if (wr && wr != ETIMEDOUT && wr != EINTR) break;
     }
@@ -746,7 +768,8 @@ static void complete_unrun(hfd_worker *w, hfd_job *list, int status);
  * passed (mu held): they are answered EXPIRED (the caller completes the
  * list returned once mu is released), and a frame that can still make it
  * takes a place a dead one held, instead of a BUSY. The worker checks
- * budgets only before it forms a batch, and a long run holds that off. */
+ * budgets before it forms a batch and while it waits for partners, and a
+ * long run holds that off. */
 static hfd_job *expire_if_full(hfd_worker *w) {
   if (w->stop || w->q_len + w->q_forming < w->q_cap) return NULL;
   return take_expired(w, hfd_now_us());

@@ -137,6 +137,35 @@ static void test_expired_while_queue_held(void **state) {
   free(c);
 }
 
+/* A frame queued behind the one the batcher holds for partners is answered
+ * EXPIRED as its budget passes, not once the batcher has waited its 1.5 s
+ * and run: its reply comes first, long before the held frame's. */
+static void test_expired_while_batcher_waits(void **state) {
+  (void)state;
+  const ref_variant *v = harness_variant(&H, "Small");
+  int spp = v->cfg.spp;
+  int fd = connect_versions_or_fail(S.unix_url, 4, 4);
+  float *a = make_features(16, 16, spp, 11), *b = make_features(24, 20, spp, 12);
+  send_filter(fd, 1, 16, 16, a, 0);
+  usleep(100000);   /* frame 1 is the batcher's before frame 2 arrives */
+  send_filter(fd, 2, 24, 20, b, 200000);
+  hfp_result r;
+  uint32_t id = read_result(fd, &r, NULL, 0);
+  if (id != 2)
+    fail_msg("frame %u answered first (status %u, %.3f s); want frame 2's EXPIRED as its "
+             "200 ms budget passed, before the batcher's 1.5 s wait for frame 1 ended",
+             id, r.status, r.timing.total_us / 1e6);
+  assert_int_equal(r.status, HFP_E_EXPIRED);
+  assert_true(r.timing.queue_us >= 200000);
+  assert_true(r.timing.total_us < HOLD_US);
+  assert_int_equal(read_result(fd, &r, NULL, 0), 1);
+  assert_int_equal(r.status, HFP_OK);
+  assert_int_equal(r.batch, 1);
+  close(fd);
+  free(a);
+  free(b);
+}
+
 /* A frame alone with a budget of 300 ms is not held for partners for the
  * 1.5 s the batcher would wait: it runs within its budget and is served. */
 static void test_within_budget_not_held(void **state) {
@@ -270,8 +299,8 @@ static void test_client_library(void **state) {
   free(b);
 }
 
-/* The frames expired so far (two: test_expired_while_queue_held's and
- * test_client_library's) in the operator's views: /metrics'
+/* The frames expired so far (three: test_expired_while_queue_held's,
+ * test_expired_while_batcher_waits' and test_client_library's) in the operator's views: /metrics'
  * requests_total{status="expired",class="overload"}, the SIGUSR1
  * statistics line's expired=, and `hairfilter filter --stats`. */
 static void test_reports(void **state) {
@@ -279,8 +308,8 @@ static void test_reports(void **state) {
   char *m = http_get(&S, "/metrics");
   assert_non_null(m);
   if (!strstr(m, "hairfilterd_requests_total{variant=\"Small\",status=\"expired\","
-                 "class=\"overload\"} 2\n"))
-    fail_msg("no expired count of 2 for Small in /metrics:\n%s", m);
+                 "class=\"overload\"} 3\n"))
+    fail_msg("no expired count of 3 for Small in /metrics:\n%s", m);
   /* shown at zero too, for rate() and alerts */
   if (!strstr(m, "hairfilterd_requests_total{variant=\"Tiny\",status=\"expired\","
                  "class=\"overload\"} 0\n"))
@@ -293,10 +322,10 @@ static void test_reports(void **state) {
   assert_int_equal(kill(S.pid, SIGUSR1), 0);
   int seen = 0;
   for (int waited = 0; waited < 5000 && !seen; waited += 10)
-    if (!(seen = server_log_has(&S, "sanitised=0 expired=2"))) usleep(10000);
+    if (!(seen = server_log_has(&S, "sanitised=0 expired=3"))) usleep(10000);
   if (!seen) {
     server_dump_log(&S);
-    fail_msg("no 'expired=2' in the SIGUSR1 statistics line of Small");
+    fail_msg("no 'expired=3' in the SIGUSR1 statistics line of Small");
   }
   char cmd[1200], out[300], text[8192];
   snprintf(out, sizeof out, "%s/stats.out", H.dir);
@@ -309,13 +338,14 @@ static void test_reports(void **state) {
    * otherwise: the legend says so */
   if (!strstr(text, "EXPIRED and CANCELLED included"))
     fail_msg("the --stats legend does not say what failed counts:\n%s", text);
-  if (!strstr(text, "  Small: 2 frame(s) expired in the queue, not computed"))
+  if (!strstr(text, "  Small: 3 frame(s) expired in the queue, not computed"))
     fail_msg("no expired line in hairfilter filter --stats:\n%s", text);
 }
 
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_expired_while_queue_held),
+      cmocka_unit_test(test_expired_while_batcher_waits),
       cmocka_unit_test(test_within_budget_not_held),
       cmocka_unit_test(test_version_rules),
       cmocka_unit_test(test_client_library),
