@@ -934,8 +934,8 @@ int hfp_decode_error(const uint8_t *payload, size_t len, hfp_error *m) {
 
 #define VSTATS_FIXED (7 * 8 + 2 * HFP_HIST_BUCKETS * 8)
 
-/* Per-variant counters after the entries: 3 in versions 2 and 3, 4 from
- * version 4 (expired). */
+/* Per-variant counters after the entries: 3 in versions 2 and 3, 5 from
+ * version 4 (expired, cancelled). */
 static int stats_counters(int version) { return version >= 4 ? HFP_STATS_COUNTERS : 3; }
 
 size_t hfp_frame_size_stats_v(const hfp_stats *m, int version) {
@@ -985,6 +985,7 @@ int hfp_encode_stats_v(uint8_t *buf, size_t cap, const hfp_stats *m, int version
       wr_u64(&w, m->variants[i].frames_sanitised);
       wr_u64(&w, m->variants[i].cache_bytes);
       if (nc > 3) wr_u64(&w, m->variants[i].expired);
+      if (nc > 4) wr_u64(&w, m->variants[i].cancelled);
     }
   }
   return wr_finish(&w, HFP_STATS_REPLY, 0, 0);
@@ -1036,6 +1037,7 @@ int hfp_decode_stats(const uint8_t *payload, size_t len, hfp_stats *m) {
         if (k == 1) m->variants[i].frames_sanitised = c;
         if (k == 2) m->variants[i].cache_bytes = c;
         if (k == 3) m->variants[i].expired = c;
+        if (k == 4) m->variants[i].cancelled = c;
       }
   }
   int rc = rd_end(&r);

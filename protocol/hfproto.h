@@ -11,7 +11,8 @@
  * ranges, the estimate each variant reads (hfp_variant.estimate). Version 4
  * is version 3 plus a frame's deadline: FILTER flag HFP_FILTER_DEADLINE and
  * its budget (hfp_filter.budget_us), the RESULT status HFP_E_EXPIRED, and a
- * fourth per-variant counter after STATS_REPLY (expired); and CANCEL, which
+ * fourth and fifth per-variant counters after STATS_REPLY (expired,
+ * cancelled); and CANCEL, which
  * takes a queued FILTER off the queue (RESULT status HFP_E_CANCELLED).
  *
  * A pure codec: it turns message structs into bytes and bytes into structs.
@@ -56,7 +57,7 @@ extern "C" {
 #define HFP_ESTIMATE_VALUES 3     /* the estimate's colour, highlight, alpha (v3) */
 #define HFP_HIST_BUCKETS   24     /* latency histogram buckets */
 #define HFP_MAX_STATS      16     /* input statistics a variant's range may name */
-#define HFP_STATS_COUNTERS 4      /* per-variant counters after STATS_REPLY (v4; v2, v3: 3) */
+#define HFP_STATS_COUNTERS 5      /* per-variant counters after STATS_REPLY (v4; v2, v3: 3) */
 
 /* ---- error codes (stable; wire values are the positive numbers) -------- */
 
@@ -260,6 +261,7 @@ typedef struct hfp_variant_stats {
   uint64_t cache_bytes;       /* version 2: host memory, bytes, the variant's model
                                  keeps between runs (plans); a gauge */
   uint64_t expired;           /* version 4: RESULTs with status HFP_E_EXPIRED */
+  uint64_t cancelled;         /* version 4: RESULTs with status HFP_E_CANCELLED */
 } hfp_variant_stats;
 
 typedef struct hfp_stats {

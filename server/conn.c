@@ -421,7 +421,10 @@ static void account(hfd_server *s, hfd_job *j) {
   if (j->status == HFP_OK) hfd_metrics_observe(s, j);
   if (j->status != HFP_OK) {
     st->requests_failed++;
+    /* Both also in requests_failed: its meaning (status != 0) is the
+     * same for every protocol version (docs/SERVER.md, "Deadlines"). */
     st->expired += j->status == HFP_E_EXPIRED;
+    st->cancelled += j->status == HFP_E_CANCELLED;
     /* Counted apart for the stop line and /metrics: overload, not a
      * failure to run. Only BUSY RESULTs are pushed-out frames. */
     if (j->status == HFP_E_BUSY)

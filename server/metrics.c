@@ -473,7 +473,8 @@ void hfd_metrics_log(hfd_server *s) {
     char kv[128] = "";
     hfd_kv(kv, sizeof kv, "variant", v->name);
     hfd_notice("statistics:%s ok=%llu busy=%llu unavailable=%llu errors=%llu batches=%llu "
-               "mean_total_ms=%.3f out_of_range=%llu sanitised=%llu expired=%llu", kv,
+               "mean_total_ms=%.3f out_of_range=%llu sanitised=%llu expired=%llu cancelled=%llu",
+               kv,
                (unsigned long long)v->m.by_status[HFP_OK],
                (unsigned long long)v->m.by_status[HFP_E_BUSY],
                (unsigned long long)v->m.by_status[HFP_E_SHUTTING_DOWN],
@@ -481,6 +482,7 @@ void hfd_metrics_log(hfd_server *s) {
                (unsigned long long)v->m.batch.count, t->count ? t->sum / t->count * 1e3 : 0.0,
                (unsigned long long)v->stats.out_of_range,
                (unsigned long long)v->stats.frames_sanitised,
-               (unsigned long long)v->stats.expired);
+               (unsigned long long)v->stats.expired,
+               (unsigned long long)v->stats.cancelled);
   }
 }

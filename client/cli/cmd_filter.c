@@ -144,6 +144,11 @@ static int print_stats(hfc_client *c) {
       printf("  %s: %llu frame(s) expired in the queue, not computed (their budget passed: "
              "failed EXPIRED, protocol version 4)\n", st->variants[i].name,
              (unsigned long long)st->variants[i].expired);
+  for (int i = 0; i < st->num_variants; i++)
+    if (st->variants[i].cancelled)
+      printf("  %s: %llu frame(s) cancelled in the queue, not computed (their client's CANCEL: "
+             "failed CANCELLED, protocol version 4)\n", st->variants[i].name,
+             (unsigned long long)st->variants[i].cancelled);
   printf("  (failed: frames answered with a status other than OK, EXPIRED and CANCELLED "
          "included;\n   queue/infer/total: means over successful requests; p99<=: bound from the "
          "total-latency histogram;\n   outside: frames outside the variant's trained input "

@@ -455,6 +455,7 @@ static void stats_delta(const hfc_variant_stats *a, const hfc_variant_stats *b, 
   s->ok = b->requests_ok - a->requests_ok;
   s->failed = b->requests_failed - a->requests_failed;
   s->expired = b->expired - a->expired;
+  s->cancelled = b->cancelled - a->cancelled;
   s->rejected = b->rejected - a->rejected;
   s->batches = b->batches - a->batches;
   if (s->ok) {

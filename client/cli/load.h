@@ -29,6 +29,7 @@ typedef struct load_stats {
   int valid;
   uint64_t ok, failed, rejected, batches;
   uint64_t expired;                    /* of failed: answered EXPIRED (protocol version 4) */
+  uint64_t cancelled;                  /* of failed: answered CANCELLED (protocol version 4) */
   double mean_queue_ms, mean_infer_ms, mean_total_ms;
   double p50_total_ms, p99_total_ms;   /* from STATS' power-of-two buckets: upper bounds */
 } load_stats;

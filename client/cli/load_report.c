@@ -74,11 +74,17 @@ void load_print_point(FILE *f, const load_run *r, const load_point *p) {
   }
   const load_stats *s = &p->stats;
   if (s->valid) {
-    /* The server's expired frames beside the report's own: they are among
-     * its failed ones. */
-    char expired[64] = "";
-    if (r->deadline_us || s->expired)
+    /* The server's expired and cancelled frames beside the report's own:
+     * they are among its failed ones. Cancelled ones are other clients'
+     * (this one cancels none), shown when there are some. */
+    char expired[96] = "";
+    if ((r->deadline_us || s->expired) && s->cancelled)
+      snprintf(expired, sizeof expired, " (%llu expired, %llu cancelled)",
+               (unsigned long long)s->expired, (unsigned long long)s->cancelled);
+    else if (r->deadline_us || s->expired)
       snprintf(expired, sizeof expired, " (%llu expired)", (unsigned long long)s->expired);
+    else if (s->cancelled)
+      snprintf(expired, sizeof expired, " (%llu cancelled)", (unsigned long long)s->cancelled);
     fprintf(f, "  server STATS over the point (all clients): %llu ok, %llu failed%s, %llu "
                "refused, mean batch %.2f, mean queue %.3f ms, infer %.3f ms, total %.3f ms (p50 "
                "<= %.3f, p99 <= %.3f ms)\n",
@@ -294,6 +300,7 @@ int load_write_json(const char *path, const load_run *r) {
       cJSON_AddNumberToObject(so, "ok", (double)s->ok);
       cJSON_AddNumberToObject(so, "failed", (double)s->failed);
       cJSON_AddNumberToObject(so, "expired", (double)s->expired);
+      cJSON_AddNumberToObject(so, "cancelled", (double)s->cancelled);
       cJSON_AddNumberToObject(so, "refused", (double)s->rejected);
       cJSON_AddNumberToObject(so, "batches", (double)s->batches);
       cJSON_AddNumberToObject(so, "mean_queue_ms", s->mean_queue_ms);

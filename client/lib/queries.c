@@ -103,6 +103,7 @@ int hfc_get_stats(hfc_client *c, hfc_stats *out) {
     memcpy(d->hist_infer, s->hist_infer, sizeof d->hist_infer);
     d->out_of_range = s->out_of_range;
     d->expired = s->expired;
+    d->cancelled = s->cancelled;
     d->frames_sanitised = s->frames_sanitised;
     d->cache_bytes = s->cache_bytes;
   }

@@ -856,6 +856,11 @@ class PythonClient(unittest.TestCase):
                 with self.assertRaises(hairfilter.Error) as e:
                     c.cancel(held)
                 self.assertEqual(e.exception.code, "ARG")
+                # STATS counts the CANCELLED frame apart, and in
+                # requests_failed as every status but OK
+                small = [v for v in c.stats().variants if v.name == "Small"][0]
+                self.assertEqual((small.cancelled, small.expired, small.requests_failed),
+                                 (1, 0, 1))
         finally:
             d.terminate()
             self.assertEqual(d.wait(timeout=30), 0)

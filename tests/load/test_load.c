@@ -265,6 +265,9 @@ static void test_deadline(void **state) {
   const cJSON *so = cJSON_GetObjectItemCaseSensitive(p, "server_stats");
   assert_non_null(so);
   assert_true(num(so, "expired") > 0 && num(so, "expired") <= num(so, "failed"));
+  /* and of its cancelled ones: no client here cancels */
+  assert_non_null(cJSON_GetObjectItemCaseSensitive(so, "cancelled"));
+  assert_true(num(so, "cancelled") == 0);
   if (!strstr(text, " failed (") || !strstr(text, " expired), "))
     fail_msg("the server STATS line does not count the expired frames:\n%s", text);
   cJSON_Delete(doc);

@@ -806,12 +806,12 @@ static void test_version2(void **state) {
   assert_true(sd.variants[1].out_of_range == 0 && sd.variants[0].requests_ok == 5);
   assert_true(sd.variants[0].frames_sanitised == 0 && sd.variants[1].frames_sanitised == 0);
   assert_true(sd.variants[0].cache_bytes == 0 && sd.variants[1].cache_bytes == 0);
-  /* A newer peer's five counters: the first four are ours, the rest skipped. */
+  /* A newer peer's six counters: the first five are ours, the rest skipped. */
   memcpy(c, v1, (size_t)n1);
   size_t off = (size_t)n1;
-  hfp_put_u16(c + off, 5), off += 2;
+  hfp_put_u16(c + off, 6), off += 2;
   for (int i = 0; i < 2; i++)
-    for (int k = 0; k < 5; k++, off += 8) {
+    for (int k = 0; k < 6; k++, off += 8) {
       hfp_put_u32(c + off, (uint32_t)(10 * i + k + 1));
       hfp_put_u32(c + off + 4, 0);
     }
@@ -820,6 +820,7 @@ static void test_version2(void **state) {
   assert_true(sd.variants[0].frames_sanitised == 2 && sd.variants[1].frames_sanitised == 12);
   assert_true(sd.variants[0].cache_bytes == 3 && sd.variants[1].cache_bytes == 13);
   assert_true(sd.variants[0].expired == 4 && sd.variants[1].expired == 14);
+  assert_true(sd.variants[0].cancelled == 5 && sd.variants[1].cancelled == 15);
   hfp_put_u16(c + n1, 0);                   /* no counters: not a valid block */
   assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, (size_t)n1 + 2 - HFP_HEADER_SIZE, &sd),
                    -HFP_E_INVALID);
@@ -998,7 +999,8 @@ static void test_version4(void **state) {
   assert_int_equal(hfp_decode_error(p, h.length, &ed), 0);
   assert_int_equal(ed.code, HFP_E_EXPIRED);
 
-  /* STATS_REPLY: four counters from version 4, the fourth expired */
+  /* STATS_REPLY: five counters from version 4, the fourth expired, the
+   * fifth cancelled */
   static hfp_stats m, sd;
   memset(&m, 0, sizeof m);
   m.num_variants = 2;
@@ -1007,17 +1009,37 @@ static void test_version4(void **state) {
   m.variants[0].expired = 9;
   m.variants[1].expired = 1ull << 33;
   m.variants[1].cache_bytes = 5;
+  m.variants[0].cancelled = 3;
+  m.variants[1].cancelled = 1ull << 34;
   int n3 = hfp_encode_stats_v(buf, sizeof buf, &m, 3);
   int n4 = hfp_encode_stats_v(c, sizeof c, &m, 4);
   assert_int_equal((size_t)n4, hfp_frame_size_stats_v(&m, 4));
-  assert_int_equal(n4, n3 + 2 * 8);
+  assert_int_equal(n4, n3 + 2 * 2 * 8);
   p = split(c, n4, HFP_STATS_REPLY, &h);
   assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
   assert_memory_equal(&sd, &m, sizeof m);
   p = split(buf, n3, HFP_STATS_REPLY, &h);   /* version 3: counted, not sent */
   assert_int_equal(hfp_decode_stats(p, h.length, &sd), 0);
   assert_true(sd.variants[0].expired == 0 && sd.variants[1].expired == 0);
+  assert_true(sd.variants[0].cancelled == 0 && sd.variants[1].cancelled == 0);
   assert_true(sd.variants[1].cache_bytes == 5);
+  /* A version-4 peer that sends four counters (before cancelled was
+   * appended): expired read, cancelled 0. */
+  uint8_t *tail = c + n4 - 2 * 5 * 8 - 2;
+  assert_int_equal(hfp_get_u16(tail), 5);
+  hfp_put_u16(tail, 4);
+  const uint64_t four[2][4] = {{0, 0, 0, 9}, {0, 0, 5, 1ull << 33}};
+  for (int i = 0; i < 2; i++)
+    for (int k = 0; k < 4; k++) {
+      uint8_t *at = tail + 2 + (size_t)(i * 4 + k) * 8;
+      hfp_put_u32(at, (uint32_t)four[i][k]);
+      hfp_put_u32(at + 4, (uint32_t)(four[i][k] >> 32));
+    }
+  size_t end = (size_t)(tail - c) + 2 + 2 * 4 * 8;
+  assert_int_equal(hfp_decode_stats(c + HFP_HEADER_SIZE, end - HFP_HEADER_SIZE, &sd), 0);
+  assert_true(sd.variants[0].expired == 9 && sd.variants[1].expired == 1ull << 33);
+  assert_true(sd.variants[1].cache_bytes == 5);
+  assert_true(sd.variants[0].cancelled == 0 && sd.variants[1].cancelled == 0);
 }
 
 static void test_filter_shm(void **state) {

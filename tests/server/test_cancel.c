@@ -2,16 +2,20 @@
  * queued frame is taken off the queue and answered CANCELLED, unrun, at
  * once; one the batcher holds runs and is answered as usual; a CANCEL of
  * an id not in flight gets no reply; before version 4 a CANCEL is a fatal
- * PROTOCOL. Raw frames, so that the daemon alone is tested. */
+ * PROTOCOL. STATS counts the cancelled frames (a fifth counter, version 4
+ * only), and so do /metrics, the SIGUSR1 statistics line and `hairfilter
+ * filter --stats`. Raw frames, so that the daemon alone is tested. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "harness.h"
@@ -23,7 +27,7 @@ static server S;
 /* A frame alone waits 1.5 s in the batcher for partners, holding the
  * queue behind it. */
 static const char *const args[] = {"--max-batch", "16", "--max-queue-delay-us", "1500000",
-                                   NULL};
+                                   "--http", "tcp:127.0.0.1:0", NULL};
 
 static int setup(void **state) {
   (void)state;
@@ -94,6 +98,14 @@ static void test_queued_and_held(void **state) {
   assert_true(after.requests_ok - before.requests_ok == 1);
   assert_true(after.batches - before.batches == 1);   /* frame 2 never ran */
   assert_true(after.expired == before.expired);
+  /* counted apart, as well as among the failed ones */
+  assert_true(after.cancelled - before.cancelled == 1);
+  close(fd);
+  /* Version 3 knows no such counter: read as 0, counted all the same. */
+  fd = connect_versions_or_fail(S.unix_url, 1, 3);
+  hfp_variant_stats v3 = variant_stats_or_fail(fd, "Small");
+  assert_true(v3.cancelled == 0 && v3.expired == 0);
+  assert_true(v3.requests_failed == after.requests_failed);
   close(fd);
   free(a);
   free(b);
@@ -136,6 +148,8 @@ static void test_client_library(void **state) {
   int spp = v->cfg.spp;
   hfc_client *c = client_connect(&S, "cancel-client");
   assert_non_null(c);
+  static hfc_stats st0, st1;
+  assert_int_equal(hfc_get_stats(c, &st0), 0);
   float *a = make_features(16, 16, spp, 3), *b = make_features(24, 20, spp, 4);
   static float out_a[16 * 16 * 3], out_b[24 * 20 * 3], want[16 * 16 * 3];
   hfc_request ra = TEST_REQUEST(.variant = "Small", .width = 16, .height = 16, .spp = spp,
@@ -166,9 +180,48 @@ static void test_client_library(void **state) {
   assert_non_null(strstr(hfc_last_message(c), id_text));
   assert_int_equal(hfc_cancel(NULL, 1), HFC_E_ARG);
   assert_non_null(strstr(hfc_strerror(HFC_E_CANCELLED), "cancelled"));
+  /* hfc_get_stats counts it */
+  assert_int_equal(hfc_get_stats(c, &st1), 0);
+  uint64_t c0 = 0, c1 = 0;
+  for (int i = 0; i < st0.num_variants; i++)
+    if (!strcmp(st0.variants[i].name, "Small")) c0 = st0.variants[i].cancelled;
+  for (int i = 0; i < st1.num_variants; i++)
+    if (!strcmp(st1.variants[i].name, "Small")) c1 = st1.variants[i].cancelled;
+  assert_true(c1 - c0 == 1);
   hfc_close(c);
   free(a);
   free(b);
+}
+
+/* The frames cancelled so far (two: test_queued_and_held's and
+ * test_client_library's) in the operator's views: /metrics'
+ * requests_total{status="cancelled",class="cancelled"}, the SIGUSR1
+ * statistics line's cancelled=, and `hairfilter filter --stats`. */
+static void test_reports(void **state) {
+  (void)state;
+  char *m = http_get(&S, "/metrics");
+  assert_non_null(m);
+  if (!strstr(m, "hairfilterd_requests_total{variant=\"Small\",status=\"cancelled\","
+                 "class=\"cancelled\"} 2\n"))
+    fail_msg("no cancelled count of 2 for Small in /metrics:\n%s", m);
+  free(m);
+  assert_int_equal(kill(S.pid, SIGUSR1), 0);
+  int seen = 0;
+  for (int waited = 0; waited < 5000 && !seen; waited += 10)
+    if (!(seen = server_log_has(&S, "expired=0 cancelled=2"))) usleep(10000);
+  if (!seen) {
+    server_dump_log(&S);
+    fail_msg("no 'cancelled=2' in the SIGUSR1 statistics line of Small");
+  }
+  char cmd[1200], out[300], text[8192];
+  snprintf(out, sizeof out, "%s/stats.out", H.dir);
+  snprintf(cmd, sizeof cmd, "'%s' filter --server %s --stats > '%s' 2>&1", HAIRFILTER_CLI_PATH,
+           S.unix_url, out);
+  int rc = system(cmd);
+  assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
+  assert_int_equal(read_text_file(out, text, sizeof text), 0);
+  if (!strstr(text, "  Small: 2 frame(s) cancelled in the queue, not computed"))
+    fail_msg("no cancelled line in hairfilter filter --stats:\n%s", text);
 }
 
 int main(void) {
@@ -176,6 +229,7 @@ int main(void) {
       cmocka_unit_test(test_queued_and_held),
       cmocka_unit_test(test_refused),
       cmocka_unit_test(test_client_library),
+      cmocka_unit_test(test_reports),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

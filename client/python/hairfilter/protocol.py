@@ -309,7 +309,7 @@ def decode_error(payload):
 VariantStats = namedtuple("VariantStats", "name requests_ok requests_failed rejected batches "
                                           "sum_queue_us sum_infer_us sum_total_us hist_total "
                                           "hist_infer out_of_range frames_sanitised cache_bytes "
-                                          "expired")
+                                          "expired cancelled")
 Stats = namedtuple("Stats", "uptime_us connections_total connections_open queue_depth "
                             "queue_capacity protocol_errors variants")
 
@@ -325,16 +325,16 @@ def decode_stats(payload):
         counts = r.unpack("7Q")
         ht = r.unpack("%dQ" % nb)
         hi = r.unpack("%dQ" % nb)
-        rows.append([name, *counts, ht, hi, 0, 0, 0, 0])
+        rows.append([name, *counts, ht, hi, 0, 0, 0, 0, 0])
     # Version 2: per-variant counters after the last entry; known ones first
-    # (version 4 adds expired).
+    # (version 4 adds expired and cancelled).
     if r.left():
         (nc,) = r.unpack("H")
         if not 1 <= nc <= 64:
             raise ProtocolError(E_INVALID, "%d counters" % nc)
         for row in rows:
             counters = r.unpack("%dQ" % nc)
-            row[10:14] = (list(counters) + [0, 0, 0, 0])[:4]
+            row[10:15] = (list(counters) + [0] * 5)[:5]
     r.end()
     return Stats(uptime, total, open_, depth, cap, perr, [VariantStats(*row) for row in rows])
 

@@ -478,7 +478,10 @@ typedef struct hfc_variant_stats {
                                 server gives memory back (v2; 0 from a version-1 server) */
   uint64_t expired;          /* requests answered EXPIRED: their budget
                                 (hfc_request.deadline_us) passed in the queue (v4; 0
-                                from an older server) */
+                                from an older server); also in requests_failed */
+  uint64_t cancelled;        /* requests answered CANCELLED: hfc_cancel took them off
+                                the queue unrun (v4; 0 from an older server); also in
+                                requests_failed */
 } hfc_variant_stats;
 
 typedef struct hfc_stats {
