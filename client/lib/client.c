@@ -300,10 +300,15 @@ static int read_frame(hfc_client *c, int k) {
        * failed (INTERNAL) or gave the frame's queue place to a client
        * under its share (BUSY) may leave the frame to another. */
       if (!fail_over_request(c, k, p, err)) {
-        char why[MSG_MAX], budget[160] = "";
+        char why[MSG_MAX], budget[256] = "";
         /* The budget and the wait, so that a log line says by how much the
          * server was behind. */
-        if (err == HFC_E_EXPIRED)
+        if (err == HFC_E_EXPIRED && p->budget_sent != p->deadline_us)
+          snprintf(budget, sizeof budget, " (its budget of %u us, what remained of "
+                   "hfc_request.deadline_us's %u us when it was sent again after a failover, "
+                   "passed while it was queued: it waited %.0f us; the server is not keeping "
+                   "up)", p->budget_sent, p->deadline_us, t->queue_us);
+        else if (err == HFC_E_EXPIRED)
           snprintf(budget, sizeof budget, " (its budget of %u us, hfc_request.deadline_us, "
                    "passed while it was queued: it waited %.0f us; the server is not keeping "
                    "up)", p->deadline_us, t->queue_us);

@@ -80,6 +80,8 @@ typedef struct pending {
   const void *estimate_buffer;  /* the estimate in a buffer of its own, or NULL */
   uint64_t estimate_len;        /* bytes sent from estimate_buffer (else 0) */
   uint32_t deadline_us;         /* hfc_request.deadline_us: sent to version 4 and later */
+  uint32_t budget_sent;         /* the budget of the last send: deadline_us, or after a
+                                   failover what remained of it */
   void *result, *rgba;
   int shm;                      /* the last send went by reference */
   int in_place;                 /* result or rgba overlaps the features: a

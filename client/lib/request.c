@@ -241,10 +241,11 @@ static uint32_t new_id(hfc_client *c, int wire) {
   return id;
 }
 
-/* The FILTER head of p for the active connection: its size, or a local
- * error; *seg is the segment it refers to, or NULL, and *frame_size the
- * whole frame's bytes, head and tensors. */
-static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
+/* The FILTER head of p for the active connection, with budget_us (sent
+ * where the connection knows the flag, when p has a deadline): its size,
+ * or a local error; *seg is the segment it refers to, or NULL, and
+ * *frame_size the whole frame's bytes, head and tensors. */
+static int filter_head(hfc_client *c, const pending *p, uint32_t budget_us, uint32_t wire_id,
                        uint8_t head[HFP_FILTER_HEAD_MAX], const segment **seg,
                        uint64_t *frame_size) {
   hfp_filter f;
@@ -265,7 +266,7 @@ static int filter_head(hfc_client *c, const pending *p, uint32_t wire_id,
    * "Version 4"); an older server computes the frame however late. */
   if (p->deadline_us && c->active >= 0 && c->conns[c->active].info.version >= 4) {
     f.flags |= HFP_FILTER_DEADLINE;
-    f.budget_us = p->deadline_us;
+    f.budget_us = budget_us;
   }
   /* By reference only when the tensor is one run of the segment (an
    * estimate of its own directly after the features was joined to them at
@@ -332,14 +333,40 @@ static int check_limits(const hfc_client *c, const conn *x, const pending *p,
   return 0;
 }
 
+/* The budget p is sent with: all of deadline_us the first time; sent again
+ * after a failover, what remains of it after the time spent since
+ * hfc_submit (on this client's monotonic clock: the servers' clocks need
+ * not agree with it), so that the next server does not wait for the frame
+ * longer than the caller allowed. 0 when nothing remains. */
+static uint32_t budget_left(const pending *p) {
+  if (p->resends == 0) return p->deadline_us;
+  double left = (double)p->deadline_us - (now_us() - p->t_submit);
+  if (left < 1) return 0;
+  return (uint32_t)left;
+}
+
 int hfci_send_request(hfc_client *c, pending *p) {
   int k = c->active;
   conn *x = &c->conns[k];
   uint8_t head[HFP_FILTER_HEAD_MAX];
   const segment *g;
+  uint32_t budget = p->deadline_us;
+  if (p->deadline_us && x->info.version >= 4 && (budget = budget_left(p)) == 0) {
+    /* Its budget passed while it went from one server to the next: the
+     * server would answer EXPIRED unrun (PROTOCOL.md, "Version 4"), so it
+     * is answered here, unsent. */
+    char why[MSG_MAX];
+    snprintf(why, sizeof why, "its budget of %u us (hfc_request.deadline_us) passed before it "
+             "could be sent again after a failover (%.0f us since hfc_submit, %d resend(s)): "
+             "not sent to %s, not computed", p->deadline_us, now_us() - p->t_submit,
+             p->resends, c->eps[x->endpoint].url);
+    hfci_finish(c, p, HFC_E_EXPIRED, why);
+    return 0;
+  }
   uint32_t wire = new_id(c, 1);
   uint64_t total = 0;
-  int n = filter_head(c, p, wire, head, &g, &total);
+  p->budget_sent = budget;
+  int n = filter_head(c, p, budget, wire, head, &g, &total);
   if (n < 0) {
     /* It was encoded once at submission: only a different server's
      * segment placement could change it, and that falls back to the socket. */
@@ -541,7 +568,7 @@ static int submit(const char *fn, hfc_client *c, const hfc_request *caller, uint
   uint8_t head[HFP_FILTER_HEAD_MAX];
   const segment *g;
   uint64_t total = 0;
-  int n = filter_head(c, p, 1, head, &g, &total);
+  int n = filter_head(c, p, p->deadline_us, 1, head, &g, &total);
   if (n < 0) {
     hfci_msg(c, "the request cannot be encoded: %s", hfc_strerror(n));
     return n;

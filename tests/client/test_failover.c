@@ -389,6 +389,110 @@ static void test_cancel_on_lost_connection(void **state) {
   assert_int_equal(server_stop(&b, 20000), 0);
 }
 
+/* Small's frames at b answered with a status other than OK or refused
+ * (its blocker, served, counts in neither). */
+static uint64_t small_frames_at(const server *b) {
+  hfc_client *c = client_connect(b, "counter");
+  assert_non_null(c);
+  hfc_stats *s = malloc(sizeof *s);
+  assert_non_null(s);
+  assert_int_equal(hfc_get_stats(c, s), 0);
+  uint64_t n = 0;
+  for (int i = 0; i < s->num_variants; i++)
+    if (!strcmp(s->variants[i].name, "Small"))
+      n = s->variants[i].requests_failed + s->variants[i].rejected;
+  free(s);
+  hfc_close(c);
+  return n;
+}
+
+/* hfc_last_message of resend_after_loss's completion. */
+static char resend_msg[1024];
+
+/* A frame with a budget that a's batcher holds when a is killed; the
+ * client learns of the loss only at hfc_wait, wait_ms after the submit.
+ * Returns its completion (its message in resend_msg), and b's frames not
+ * served over it in *at_b. */
+static hfc_completion resend_after_loss(server *a, server *b, uint32_t budget_us, int wait_ms,
+                                        uint64_t *at_b) {
+  uint64_t before = small_frames_at(b);
+  hfc_client *c = connect_list(a->unix_url, b->unix_url, 0);
+  float *out = malloc(out_bytes);
+  assert_non_null(out);
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = W, .height = HH, .spp = 4,
+                               .features = feat[2], .result = out, .deadline_us = budget_us);
+  double t0 = now_ms();
+  assert_int_equal(hfc_submit(c, &r, NULL), 0);
+  usleep(200000);   /* a's batcher holds it */
+  kill(a->pid, SIGKILL);
+  assert_int_equal(reap(a), 128 + SIGKILL);
+  double left = wait_ms - (now_ms() - t0);
+  if (left > 0) usleep((useconds_t)(left * 1e3));
+  hfc_completion d;
+  int rc = hfc_wait(c, 20000, &d);
+  if (rc) fail_msg("wait: %s (%s)", hfc_strerror(rc), hfc_last_message(c));
+  snprintf(resend_msg, sizeof resend_msg, "%s", d.status ? hfc_last_message(c) : "");
+  printf("budget %u us, loss seen after %d ms: %s, queued %.0f us (%s)\n", budget_us, wait_ms,
+         d.status ? hfc_strerror(d.status) : "OK", d.timing.queue_us, resend_msg);
+  assert_int_equal(d.timing.resends, 1);
+  assert_int_equal(hfc_wait(c, 0, &d), HFC_E_NOPENDING);   /* exactly once */
+  hfc_close(c);
+  free(out);
+  *at_b = small_frames_at(b) - before;
+  return d;
+}
+
+/* A frame sent again after a failover carries what remains of its budget,
+ * not all of it again. Its budget is 2 s; a holds it and is killed, and
+ * the client sends it to b 1.2 s after the submit, where the batcher holds
+ * a frame of another size for 6 s: the frame waits in b's queue until
+ * its budget passes and is answered EXPIRED, having waited there what
+ * remained (under 0.8 s), not 2 s. Then a frame whose budget (1.5 s) has
+ * passed when the loss is seen (1.8 s) is not sent at all: it completes
+ * EXPIRED at once, and b gets nothing (which, with its full budget again,
+ * would have expired there too). */
+static void test_resend_remaining_budget(void **state) {
+  (void)state;
+  static const char *const holding[] = {"--max-batch", "4", "--max-queue-delay-us", "6000000",
+                                        NULL};
+  server a, b;
+  assert_int_equal(server_start(&H, &a, holding), 0);
+  assert_int_equal(server_start(&H, &b, holding), 0);
+  hfc_options o = test_options("blocker", NULL, 30000);
+  hfc_client *blk = NULL;
+  assert_int_equal(hfc_connect(b.unix_url, &o, &blk), 0);
+  float *blk_out = malloc(out_bytes);
+  assert_non_null(blk_out);
+  hfc_request r = TEST_REQUEST(.variant = "Small", .width = W / 2, .height = HH, .spp = 4,
+                               .features = feat[0], .result = blk_out);
+  assert_int_equal(hfc_submit(blk, &r, NULL), 0);
+
+  uint64_t at_b;
+  hfc_completion d = resend_after_loss(&a, &b, 2000000, 1200, &at_b);
+  if (d.status != HFC_E_EXPIRED)
+    fail_msg("the frame sent again completed %s, not EXPIRED", hfc_strerror(d.status));
+  assert_int_equal(at_b, 1);
+  if (d.timing.queue_us >= 1500000)
+    fail_msg("the frame sent again waited %.0f us at b: its whole budget of 2 s again, not what "
+             "remained of it", d.timing.queue_us);
+  assert_non_null(strstr(resend_msg, "what remained of hfc_request.deadline_us's 2000000 us"));
+
+  assert_int_equal(server_start(&H, &a, holding), 0);
+  d = resend_after_loss(&a, &b, 1500000, 1800, &at_b);
+  if (d.status != HFC_E_EXPIRED)
+    fail_msg("a frame whose budget had passed before it was sent again completed %s, not "
+             "EXPIRED", hfc_strerror(d.status));
+  assert_int_equal(at_b, 0);   /* not sent */
+  assert_non_null(strstr(resend_msg, "budget of 1500000 us"));
+  assert_non_null(strstr(resend_msg, "not sent to"));
+
+  assert_int_equal(hfc_wait(blk, 30000, &d), 0);
+  assert_int_equal(d.status, HFC_OK);
+  hfc_close(blk);
+  free(blk_out);
+  assert_int_equal(server_stop(&b, 20000), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_unreachable_passed_over),
@@ -398,6 +502,7 @@ int main(void) {
     cmocka_unit_test(test_busy_fails_over),
     cmocka_unit_test(test_shared_memory_failover),
     cmocka_unit_test(test_cancel_on_lost_connection),
+    cmocka_unit_test(test_resend_remaining_budget),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -330,7 +330,10 @@ typedef struct hfc_request {
    * compare hfc_timing.server_us with the budget). Needs protocol version
    * 4 (hfc_info()->version >= 4): to an older server the frame goes
    * without it and is computed however late, so an engine that must know
-   * checks the version. */
+   * checks the version. Sent again after a failover, the frame carries
+   * what remains of it (less the time since hfc_submit, on this client's
+   * monotonic clock), and one with nothing left completes HFC_E_EXPIRED
+   * without being sent. */
   uint32_t deadline_us;
 } hfc_request;
 
