@@ -893,7 +893,7 @@ class PythonClient(unittest.TestCase):
 
     def test_codec_deadline(self):
         """FILTER flag DEADLINE and the budget right after the name; STATS'
-        fourth counter is expired."""
+        fourth counter is expired, the fifth cancelled."""
         head = P.encode_filter_head(5, "Small", 2, 1, 4, P.F32, P.F32, budget_us=16000)
         body = head[P.HEADER_SIZE:]
         self.assertEqual(struct.unpack_from("<H", body, 2)[0], P.FILTER_DEADLINE)
@@ -908,6 +908,15 @@ class PythonClient(unittest.TestCase):
             with self.assertRaises(ValueError):
                 P.encode_filter_head(5, "Small", 2, 1, 4, P.F32, P.F32, budget_us=bad)
         self.assertEqual(P.code_name(P.E_EXPIRED), "EXPIRED")
+        # STATS_REPLY of one variant with 4, 5 and 6 counters: a server
+        # that sends four has no cancelled (0); a sixth is skipped
+        entry = bytes([5]) + b"Small" + struct.pack("<7Q", 1, 2, 0, 1, 0, 0, 0) + \
+            struct.pack("<48Q", *([0] * 48))
+        head = struct.pack("<QQIIIQHH", 1, 1, 1, 0, 64, 0, 1, 24)
+        for nc, cancelled in ((4, 0), (5, 15), (6, 15)):
+            counters = struct.pack("<H%dQ" % nc, nc, *(11, 12, 13, 14, 15, 16)[:nc])
+            v = P.decode_stats(head + entry + counters).variants[0]
+            self.assertEqual((v.expired, v.cancelled, v.requests_failed), (14, cancelled, 2))
 
     def test_codec(self):
         hello = P.encode_hello("py", "tok")

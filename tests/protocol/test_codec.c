@@ -902,7 +902,8 @@ static void test_version3(void **state) {
 
 /* Version 4 (PROTOCOL.md, "Version 4"): FILTER flag DEADLINE and its
  * budget after the variant name, before the tensor or the SHM reference;
- * the status EXPIRED; a fourth counter after STATS_REPLY's entries. */
+ * the status EXPIRED; a fourth and a fifth counter after STATS_REPLY's
+ * entries (expired, cancelled). */
 static void test_version4(void **state) {
   (void)state;
   assert_int_equal(HFP_VERSION, 4);

@@ -2,7 +2,9 @@
  * "Version 4"): a frame still queued when its budget has passed is
  * answered EXPIRED and never computed; one within its budget is computed,
  * and the batcher does not hold it for partners past its budget; STATS
- * counts the expired frames (a fourth counter, version 4 only); before
+ * counts the expired frames (a fourth counter, version 4 only); the
+ * frames queued behind one the batcher holds are answered as their budget
+ * passes; before
  * version 4 the flag is UNSUPPORTED, and a budget of 0 is INVALID. Raw
  * frames, so that the daemon alone is tested. */
 #include <setjmp.h>
@@ -334,8 +336,8 @@ static void test_reports(void **state) {
   int rc = system(cmd);
   assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
   assert_int_equal(read_text_file(out, text, sizeof text), 0);
-  /* failed counts EXPIRED and CANCELLED, which STATS does not tell apart
-   * otherwise: the legend says so */
+  /* failed counts EXPIRED and CANCELLED too (each also counted apart
+   * below the table): the legend says so */
   if (!strstr(text, "EXPIRED and CANCELLED included"))
     fail_msg("the --stats legend does not say what failed counts:\n%s", text);
   if (!strstr(text, "  Small: 3 frame(s) expired in the queue, not computed"))
