@@ -927,6 +927,83 @@ static void test_expired_frame_gives_back_memory(void **state) {
   assert_int_equal(server_stop(&d, 20000), 0);
 }
 
+/* hairfilterd_request_memory_bytes of d's /metrics; fails when absent. */
+static double request_memory(const server *d) {
+  char *m = http_get(d, "/metrics");
+  assert_non_null(m);
+  const char *at = strstr(m, "\nhairfilterd_request_memory_bytes ");
+  if (!at) fail_msg("no hairfilterd_request_memory_bytes in /metrics:\n%s", m);
+  double v = strtod(at + strlen("\nhairfilterd_request_memory_bytes "), NULL);
+  free(m);
+  return v;
+}
+
+/* Sends a FILTER of Small at w x h with a composite (and budget_us, 0:
+ * none) with id on fd. */
+static void send_composite(int fd, uint32_t id, int w, int h, uint32_t budget_us) {
+  float *in = make_features(w, h, 4, id);
+  size_t len;
+  uint8_t *f = raw_filter_budget(id, "Small", w, h, 4, in, budget_us, &len);
+  assert_non_null(f);
+  uint8_t *flags = f + HFP_HEADER_SIZE + 2;
+  hfp_put_u16(flags, (uint16_t)(hfp_get_u16(flags) | HFP_FILTER_COMPOSITE));
+  assert_int_equal(raw_send(fd, f, len), 0);
+  free(f);
+  free(in);
+}
+
+/* Item: a frame answered without a tensor (EXPIRED here) gives its
+ * buffers back as it is answered, not once its RESULT has been written
+ * (docs/SERVER.md, "Deadlines"). A client that reads nothing gets two
+ * results with composites, which back up on its connection; then its
+ * 512x512 frame with a composite and a budget of 1 s queues behind a
+ * frame the batcher holds for 5 s and expires, its RESULT waiting behind
+ * the two unwritten ones. The memory charged is below that frame's 7 MiB
+ * of result buffers all the same: what is left is the two results (900
+ * KiB) and the held 8x8 frame. */
+static void test_unrun_frame_gives_back_buffers(void **state) {
+  (void)state;
+  server d;
+  const char *args[] = {"--max-batch", "2", "--max-queue-delay-us", "5000000", "--http",
+                        "tcp:127.0.0.1:0", NULL};
+  hfc_client *c;
+  assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
+  int a = raw_connect_rcvbuf(d.unix_url, 4096), b;
+  assert_true(a >= 0);
+  assert_int_equal(raw_hello_versions(a, NULL, 4, 4), 0);
+  raw_clients(&d, &b, 1);
+  /* A batch of two (--max-batch) runs at once; its 900 KiB of results
+   * fill a's socket buffers, and a reads none. */
+  send_composite(a, 1, 128, 128, 0);
+  send_composite(a, 2, 128, 128, 0);
+  expect_queue_depth(c, 0, "the two frames run");
+  send_small(b, 1, 8, 8);
+  expect_queue_depth(c, 1, "a frame in the batcher");
+  send_composite(a, 3, 512, 512, 1000000);
+  expect_queue_depth(c, 2, "the 512x512 frame queued behind it");
+  expect_queue_depth(c, 1, "the 512x512 frame answered EXPIRED");
+  /* 512x512 with a composite: 3 MiB of result and 4 MiB of composite */
+  const double results = 512.0 * 512 * 7 * 4;
+  double now = request_memory(&d);
+  for (int waited = 0; waited < 2000 && now >= results / 2; waited += 10) {
+    usleep(10000);
+    now = request_memory(&d);
+  }
+  printf("memory charged once the 512x512 frame expired: %.2f MiB\n", now / 1048576);
+  if (now >= results / 2)
+    fail_msg("the expired frame's %.0f MiB of result buffers are still charged (%.2f MiB in "
+             "all) while its RESULT waits to be written", results / 1048576, now / 1048576);
+  close(a);
+  hfp_header h;
+  uint8_t *p;
+  assert_int_equal(raw_read(b, &h, &p), 0);
+  assert_int_equal(h.type, HFP_RESULT);
+  free(p);
+  close(b);
+  hfc_close(c);
+  assert_int_equal(server_stop(&d, 20000), 0);
+}
+
 /* Item: frames still queued when their connection goes are dropped unrun
  * (docs/SERVER.md, "Limits and backpressure"): nothing would read their
  * results, and their places and memory would be refused to other clients
@@ -1065,6 +1142,7 @@ int main(void) {
     cmocka_unit_test(test_batcher_frames_are_queued),
     cmocka_unit_test(test_gone_connection_frames_dropped),
     cmocka_unit_test(test_expired_frame_gives_back_memory),
+    cmocka_unit_test(test_unrun_frame_gives_back_buffers),
     cmocka_unit_test(test_segment_too_large_vs_busy),
     cmocka_unit_test(test_memory_charged_as_received),
     cmocka_unit_test(test_slow_senders_hold_what_they_sent),
