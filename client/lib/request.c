@@ -354,12 +354,12 @@ int hfci_send_request(hfc_client *c, pending *p) {
   if (p->deadline_us && x->info.version >= 4 && (budget = budget_left(p)) == 0) {
     /* Its budget passed while it went from one server to the next: the
      * server would answer EXPIRED unrun (PROTOCOL.md, "Version 4"), so it
-     * is answered here, unsent. */
+     * is answered here, unsent (hfc_timing.resends counts the sends). */
+    p->resends--;
     char why[MSG_MAX];
     snprintf(why, sizeof why, "its budget of %u us (hfc_request.deadline_us) passed before it "
-             "could be sent again after a failover (%.0f us since hfc_submit, %d resend(s)): "
-             "not sent to %s, not computed", p->deadline_us, now_us() - p->t_submit,
-             p->resends, c->eps[x->endpoint].url);
+             "could be sent again after a failover (%.0f us since hfc_submit): not sent to %s, "
+             "not computed", p->deadline_us, now_us() - p->t_submit, c->eps[x->endpoint].url);
     hfci_finish(c, p, HFC_E_EXPIRED, why);
     return 0;
   }
