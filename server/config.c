@@ -46,6 +46,10 @@ static void usage(FILE *f) {
           "  --queue-size N           admitted frames not yet running: queued, or held for batch\n"
           "                           partners (default 64)\n"
           "  --max-inflight N         requests in flight per connection (default 32)\n"
+          "  --queue-share-by client | connection\n"
+          "                           what holds a share of the queue: a client (a process\n"
+          "                           on a Unix socket, an IP address over TCP; default)\n"
+          "                           or each connection\n"
           "  --max-size WxH           largest frame (default 3840x2160; lowered at start,\n"
           "                           keeping its aspect, to what the other limits let a\n"
           "                           frame of it meet)\n"
@@ -53,6 +57,7 @@ static void usage(FILE *f) {
           "  --max-memory-mb N        request buffers and inference memory, MiB (default 4096)\n"
           "  --max-connections N      open connections (default 256)\n"
           "  --max-handshakes N       connections still before their HELLO (default 32)\n"
+
           "  --max-shm-mb N           shared segments for Unix-socket clients, MiB (default\n"
           "                           1024; 0: no shared memory)\n"
           "  --max-shm-mb-per-client N\n"
@@ -345,7 +350,7 @@ enum {
   OPT_MAX_CONNECTIONS, OPT_MAX_HANDSHAKES, OPT_TOKEN_FILE, OPT_NO_AUTH, OPT_DRAIN,
   OPT_FLUSH, OPT_HANDSHAKE, OPT_STALL, OPT_MIN_RATE, OPT_READY, OPT_NAME, OPT_WARM,
   OPT_PIPELINE, OPT_HTTP, OPT_WATCHDOG, OPT_LOG_LEVEL, OPT_CONFIG, OPT_TLS_CERT, OPT_TLS_KEY,
-  OPT_TLS_CLIENT_CA, OPT_TLS_CLIENT_CERT_AUTH
+  OPT_TLS_CLIENT_CA, OPT_TLS_CLIENT_CERT_AUTH, OPT_QUEUE_SHARE_BY
 };
 
 static const struct option opts[] = {
@@ -357,6 +362,7 @@ static const struct option opts[] = {
   {"max-queue-delay-us", required_argument, 0, OPT_QUEUE_DELAY},
   {"queue-size", required_argument, 0, OPT_QUEUE_SIZE},
   {"max-inflight", required_argument, 0, OPT_MAX_INFLIGHT},
+  {"queue-share-by", required_argument, 0, OPT_QUEUE_SHARE_BY},
   {"max-size", required_argument, 0, OPT_MAX_SIZE},
   {"max-frame-mb", required_argument, 0, OPT_MAX_FRAME},
   {"max-memory-mb", required_argument, 0, OPT_MAX_MEMORY},
@@ -818,6 +824,16 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_MAX_HANDSHAKES:
         if (parse_int(name, val, 1, 1000000, &v)) goto fail;
         cfg->max_handshakes = (int)v;
+        break;
+      case OPT_QUEUE_SHARE_BY:
+        if (!strcmp(val, "client")) {
+          cfg->share_by_connection = 0;
+        } else if (!strcmp(val, "connection")) {
+          cfg->share_by_connection = 1;
+        } else {
+          hfd_err("--queue-share-by wants client or connection, not '%s'", val);
+          goto fail;
+        }
         break;
       case OPT_TOKEN_FILE: token_file = val; break;
       case OPT_NO_AUTH: cfg->no_auth = 1; break;

@@ -185,6 +185,7 @@ static void conn_release(hfd_conn *c) {
   hfd_server *s = c->srv;
   hfd_tls_conn_free(c);
   hfd_shm_client_leave(s, c);   /* its segments are freed: their jobs kept c */
+  hfd_client_leave(s, c);
   free(c);
   hfd_maybe_finish(s);
 }
@@ -448,7 +449,8 @@ static void account(hfd_server *s, hfd_job *j) {
  * still open. */
 static void deliver(hfd_server *s, hfd_job *j) {
   hfd_conn *c = j->conn;
-  if (--c->inflight == 0) s->conns_with_frames--;
+  c->inflight--;
+  if (--c->share->inflight == 0) s->sharers_with_frames--;
   s->jobs_outstanding--;
   /* The worker is done with the model: a replaced one may go now. */
   hfd_model_unref(s, j->model);
@@ -910,10 +912,13 @@ static void filter_head(hfd_conn *c, size_t have) {
   }
 }
 
-/* The queue places c may hold, queue_size / n with n the connections
- * holding frames (admitted, not yet answered), c counted, at least 1. */
+/* The queue places c's client may hold on all its connections together
+ * (c->share: the connection itself with --queue-share-by connection),
+ * queue_size / n with n the clients holding frames (admitted, not yet
+ * answered), c's counted, at least 1. Per connection, a client that opened
+ * many connections held as many shares and kept the others' frames out. */
 static int queue_share(const hfd_server *s, const hfd_conn *c) {
-  int q = s->cfg->queue_size, n = s->conns_with_frames + (c->inflight == 0);
+  int q = s->cfg->queue_size, n = s->sharers_with_frames + (c->share->inflight == 0);
   return q / n > 0 ? q / n : 1;
 }
 
@@ -934,10 +939,10 @@ static int over_queue_share(hfd_server *s, const hfd_conn *c, int share) {
   int q = s->cfg->queue_size, reserve = q / 4 > 0 ? q / 4 : 1;
   /* Within its share nothing is refused: only then is the worker's queue
    * (and its mutex) asked how full it is. */
-  return c->inflight >= share && hfd_worker_queue_depth(&s->worker) + 1 > q - reserve;
+  return c->share->inflight >= share && hfd_worker_queue_depth(&s->worker) + 1 > q - reserve;
 }
 
-/* Answers j, which a connection under its share pushed out of the queue
+/* Answers j, which a client under its share pushed out of the queue
  * (hfd_worker_push_out), with a RESULT of status BUSY: it was admitted, so
  * its reply is a RESULT (PROTOCOL.md, "Flow control"). */
 static void answer_pushed_out(hfd_server *s, hfd_job *j) {
@@ -953,7 +958,7 @@ static void answer_pushed_out(hfd_server *s, hfd_job *j) {
  * returns. */
 static int queue_frame(hfd_server *s, const hfd_conn *c, int share, hfd_job *j,
                        hfd_job **pushed) {
-  if (c->inflight < share) return hfd_worker_push_out(&s->worker, j, share, pushed);
+  if (c->share->inflight < share) return hfd_worker_push_out(&s->worker, j, share, pushed);
   return hfd_worker_submit(&s->worker, j);
 }
 
@@ -978,7 +983,7 @@ static void filter_admit(hfd_conn *c) {
   j->t_received = hfd_now_us();
   int code = 0;
   const char *why = NULL;
-  char share_why[256];
+  char share_why[400];
   hfd_job *pushed = NULL;
   int share = queue_share(s, c);
   uint64_t run = hfd_worker_run_bytes(&s->worker, &j->model->cfg, j->req.width, j->req.height,
@@ -1018,11 +1023,18 @@ static void filter_admit(hfd_conn *c) {
     code = HFP_E_BUSY;
     /* Where the share comes from, and the operator's knob: a single
      * connection meets this too, with a queue smaller than its window. */
+    const int by_conn = c->share == &c->own;
+    char who[128];
+    if (by_conn)
+      snprintf(who, sizeof who, "this connection");
+    else
+      snprintf(who, sizeof who, "this client (%s, %d connection(s) together)", c->share->name,
+               c->share->conns);
     snprintf(share_why, sizeof share_why,
-             "this connection holds its share of the queue (%d frame(s) of --queue-size %d, "
-             "shared by %d connection(s) holding frames; the server's operator can raise "
-             "--queue-size)", share, s->cfg->queue_size,
-             s->conns_with_frames + (c->inflight == 0));
+             "%s holds its share of the queue (%d frame(s) of --queue-size %d, shared by %d "
+             "%s(s) holding frames; the server's operator can raise --queue-size)", who, share,
+             s->cfg->queue_size, s->sharers_with_frames + (c->share->inflight == 0),
+             by_conn ? "connection" : "client");
     why = share_why;
   } else if (run == UINT64_MAX || !mem_fits(s, more)) {
     code = HFP_E_BUSY;
@@ -1058,7 +1070,8 @@ static void filter_admit(hfd_conn *c) {
     send_error(c, j->request_id, code, 0, "%s", why);
     job_free(s, j);
   } else {
-    if (c->inflight++ == 0) s->conns_with_frames++;
+    c->inflight++;
+    if (c->share->inflight++ == 0) s->sharers_with_frames++;
     s->jobs_outstanding++;
   }
   /* Answered once c's frame is counted (it is never one of c's: c holds
@@ -1958,6 +1971,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
     hfd_conn_close(c);
     return;
   }
+  hfd_client_join(s, c);
   if (l->is_tls && (rc = hfd_tls_conn_start(c)) < 0) {
     hfd_err("conn %llu: TLS session: %s", (unsigned long long)c->id, uv_strerror(rc));
     hfd_conn_close(c);

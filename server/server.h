@@ -88,6 +88,7 @@ typedef struct hfd_config {
   int max_queue_delay_us;        /* how long a batch may wait for partners */
   int queue_size;                /* admitted, not yet running */
   int max_inflight;              /* per connection */
+  int share_by_connection;       /* --queue-share-by connection: each its own share */
   int max_width, max_height;
   int max_connections;
   int max_handshakes;            /* connections that have not said HELLO */
@@ -345,14 +346,14 @@ typedef struct hfd_worker {
 int hfd_worker_start(hfd_worker *w);
 /* 0 when queued, HFP_E_BUSY when the queue is full. */
 int hfd_worker_submit(hfd_worker *w, hfd_job *job);
-/* hfd_worker_submit for a frame of a connection holding fewer than share
- * frames: when the queue is full, the newest queued frame (not one the
- * batcher holds or runs) of the connection holding the most frames, more
- * than share, leaves the queue and job takes its place, in one step.
+/* hfd_worker_submit for a frame of a client (hfd_conn.share) holding fewer
+ * than share frames: when the queue is full, the newest queued frame (not
+ * one the batcher holds or runs) of the client holding the most frames,
+ * more than share, leaves the queue and job takes its place, in one step.
  * 0 when job is queued, *pushed then the frame taken off (for the caller
  * to answer BUSY) or NULL when there was room; HFP_E_BUSY when no
- * connection over share has a frame in the queue, or the worker is
- * stopping. Loop thread only: it reads the connections' inflight counts.
+ * client over share has a frame in the queue, or the worker is
+ * stopping. Loop thread only: it reads the clients' inflight counts.
  * So the queue is shared (docs/SERVER.md, "Limits and backpressure"): a
  * client within its share is not refused for a queue that clients over
  * theirs keep full, however quickly they resend. */
@@ -492,6 +493,19 @@ typedef struct hfd_listener {
   int accept_deferred;           /* a connection left pending until the turn ends (conn.c) */
 } hfd_listener;
 
+/* A client (clients.c): the peer a connection belongs to, for what is
+ * shared among clients rather than connections. On a Unix socket, a
+ * process (the pid SO_PEERCRED gives); over TCP and TLS, an IP address.
+ * A Unix peer whose pid the daemon cannot see (another pid namespace: 0)
+ * is a client of its own on each connection. */
+typedef struct hfd_client {
+  struct hfd_client *next;       /* in hfd_server.clients, when listed */
+  int listed;                    /* 0: a connection's own (hfd_conn.own) */
+  char name[64];                 /* "pid 1234", "address 10.0.0.3", for messages */
+  int conns;                     /* connections counted in it */
+  int inflight;                  /* their frames admitted, not yet answered */
+} hfd_client;
+
 enum hfd_read_state {
   RD_HEADER,       /* the 16-byte header */
   RD_CONTROL,      /* a small control payload into ctl[] */
@@ -539,6 +553,10 @@ typedef struct hfd_conn {
   int num_segs;
   uint64_t shm_bytes;            /* of its segments not yet freed (--max-shm-mb-per-connection) */
   struct hfd_shm_client *shm_client; /* its client's count (--max-shm-mb-per-client), or NULL */
+  hfd_client *client;            /* its peer (clients.c); never NULL once accepted */
+  hfd_client *share;             /* what holds its share of the queue: client, or own
+                                  * with --queue-share-by connection */
+  hfd_client own;                /* the connection as a client of its own */
   uint32_t next_seg_id;
   double t_accept;               /* for the handshake deadline */
   double t_last_read;            /* for the stall sweep */
@@ -606,7 +624,8 @@ struct hfd_server {
   int jobs_outstanding;          /* admitted, not yet answered */
   int pins_outstanding;          /* segments being pinned on the thread pool: the
                                     worker (and its backend) must outlive them */
-  int conns_with_frames;         /* connections with inflight > 0 */
+  int sharers_with_frames;       /* queue-share holders (hfd_conn.share) with inflight > 0 */
+  hfd_client *clients;           /* clients with a connection, listed (clients.c) */
   int draining, stopped;
   int hurry;                     /* a second signal: no more waiting */
   int ready_written;             /* the ready file is ours to remove */
@@ -740,6 +759,14 @@ int hfd_tls_unanswered(const hfd_conn *c);
 int hfd_tls_record_waiting(const hfd_conn *c);
 /* Reply bytes handed over and not yet written to the socket. */
 size_t hfd_io_write_queue_size(const hfd_conn *c);
+/* clients.c */
+/* Counts c, accepted, in its client (c->client; made when it is the
+ * client's first connection) and sets c->share. A connection whose peer
+ * cannot be told (no pid, no address) or that finds no memory for an entry
+ * is a client of its own (the latter logged). */
+void hfd_client_join(hfd_server *s, hfd_conn *c);
+/* c is freed: its client goes with its last connection. */
+void hfd_client_leave(hfd_server *s, hfd_conn *c);
 /* limits.c */
 /* Host memory a frame is charged while the server holds it: its features
  * (unless in a shared segment), result and composite buffers, and what

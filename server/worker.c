@@ -799,15 +799,16 @@ int hfd_worker_push_out(hfd_worker *w, hfd_job *job, int share, hfd_job **pushed
    * RESULT for a frame that is EXPIRED) while a dead one holds a place. */
   hfd_job *late = expire_if_full(w);
   if (w->q_len + w->q_forming >= w->q_cap) {
-    /* The connection holding the most frames over share, and its newest
-     * frame in the queue: the one its client sent last, which loses the
-     * least waiting. Reading conn->inflight is safe only because this
+    /* The client (hfd_conn.share) holding the most frames over share, and
+     * its newest frame in the queue: the one it sent last, which loses the
+     * least waiting. Reading share->inflight is safe only because this
      * runs on the loop thread, which alone writes it. */
     hfd_job *victim = NULL, *victim_prev = NULL, *prev = NULL;
     for (hfd_job *j = w->q_head; j; prev = j, j = j->next) {
-      int held = j->conn->inflight;
+      int held = j->conn->share->inflight;
       if (held <= share) continue;
-      if (!victim || held > victim->conn->inflight || j->conn == victim->conn) {
+      if (!victim || held > victim->conn->share->inflight ||
+          j->conn->share == victim->conn->share) {
         victim = j;
         victim_prev = prev;
       }

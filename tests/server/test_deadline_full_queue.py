@@ -59,7 +59,10 @@ def main():
     try:
         proc, sock = start(HAIRFILTERD, w,
                            ["--weights", os.path.join(WEIGHTS, "small.safetensors"),
-                            "--max-batch", "1", "--queue-size", "2"])
+                            "--max-batch", "1", "--queue-size", "2",
+                            # the connections below are one process's, each
+                            # standing for a client of its own
+                            "--queue-share-by", "connection"])
         require_started(sock)
         big, a, b, c = (hello_v4(sock) for _ in range(4))
         # A frame that runs for about 2 s here, sized from one of 256x256.

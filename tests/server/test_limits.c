@@ -236,7 +236,9 @@ static void test_queue_share_within_window(void **state) {
   free(in);
 }
 
-/* Item: the queue is shared (docs/SERVER.md, "Limits and backpressure"). Three
+/* Item: the queue is shared (docs/SERVER.md, "Limits and backpressure"); here
+ * by connection (--queue-share-by connection), as the connections are one
+ * process's (test_queue_share_per_client.py has clients). Three
  * connections keep their windows full, resending at once after every reply;
  * with --queue-size 8 and 4 in flight each they could hold 12 frames, so
  * first come first served would leave a client that sends one frame every
@@ -248,7 +250,7 @@ static void test_queue_share_within_window(void **state) {
 static void test_queue_shared(void **state) {
   (void)state;
   const char *extra[] = {"--queue-size", "8", "--max-inflight", "4", "--max-batch", "1",
-                         NULL};
+                         "--queue-share-by", "connection", NULL};
   server d;
   if (server_start(&H, &d, extra)) fail_msg("daemon did not start");
   atomic_int stop = 0;
@@ -820,13 +822,14 @@ static void send_small(int fd, uint32_t id, int w, int h) {
  * the first connection's fifth frame would take a place in the queue's
  * last quarter over its share (8 / 2), so it is BUSY; two frames from a
  * third connection fill the queue, and then no partner can be admitted, so
- * the batch of 8 runs at once rather than when the 10 s are up. */
+ * the batch of 8 runs at once rather than when the 10 s are up. The
+ * connections are one process's: shares by connection. */
 static void test_batcher_frames_are_queued(void **state) {
   (void)state;
   enum { W = 24 };
   server d;
   const char *args[] = {"--queue-size", "8", "--max-batch", "16", "--max-queue-delay-us",
-                        "10000000", NULL};
+                        "10000000", "--queue-share-by", "connection", NULL};
   hfc_client *c;
   assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
   int fd[3];
@@ -1074,12 +1077,14 @@ static int reply_status(int fd, uint32_t id, int *status, hfp_result *r) {
  * fifth is refused, its share being every place but the running one's);
  * B's first frame takes the fourth place and its second (share 2 with two
  * connections holding frames) pushes out A's newest; C's frame (share 1)
- * pushes out A's next newest, A still holding the most. */
+ * pushes out A's next newest, A still holding the most. The connections
+ * are one process's: shares by connection. */
 static void test_queue_push_out(void **state) {
   (void)state;
   enum { BIG = 384, W = 16 };
   server d;
-  const char *args[] = {"--queue-size", "4", "--max-inflight", "8", "--max-batch", "1", NULL};
+  const char *args[] = {"--queue-size", "4", "--max-inflight", "8", "--max-batch", "1",
+                        "--queue-share-by", "connection", NULL};
   hfc_client *c;
   assert_int_equal(server_start_connected(&H, &d, args, "stats", &c), 0);
   int fd[3], st;

@@ -1,0 +1,87 @@
+/*
+ * clients.c: which client a connection belongs to.
+ *
+ * Some limits are shares among clients, not connections: a share of the
+ * queue. Counted per connection, a client that opens N connections gets N
+ * shares and pushes the others' frames out of the queue. A client is
+ * what a peer cannot multiply at will: on a Unix socket its process (the
+ * pid the kernel recorded at connect, SO_PEERCRED, as the shared-memory
+ * budget counts it), over TCP and TLS its IP address (several render nodes
+ * behind one NAT address are then one client: --queue-share-by connection
+ * gives each connection its share again, docs/SERVER.md).
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+
+#include "server.h"
+
+/* The name of c's peer as a client: "pid N" or "address A"; "" when it
+ * cannot be told (then c is a client of its own). */
+static void peer_name(hfd_conn *c, char *buf, size_t cap) {
+  buf[0] = 0;
+  if (c->listener->is_tcp) {
+    struct sockaddr_storage ss;
+    int len = sizeof ss;
+    char ip[48];  /* INET6_ADDRSTRLEN */
+    if (uv_tcp_getpeername(&c->h.tcp, (struct sockaddr *)&ss, &len) != 0) return;
+    int rc = ss.ss_family == AF_INET6 ? uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip)
+             : ss.ss_family == AF_INET ? uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip)
+                                       : UV_EINVAL;
+    if (rc == 0) snprintf(buf, cap, "address %s", ip);
+    return;
+  }
+  uv_os_fd_t fd;
+  struct ucred cr;
+  socklen_t len = sizeof cr;
+  if (uv_fileno(&c->h.handle, &fd) == 0 &&
+      getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cr, &len) == 0 && len == sizeof cr && cr.pid > 0)
+    snprintf(buf, cap, "pid %ld", (long)cr.pid);
+}
+
+void hfd_client_join(hfd_server *s, hfd_conn *c) {
+  char name[sizeof c->own.name];
+  peer_name(c, name, sizeof name);
+  hfd_client *k = NULL;
+  if (name[0]) {
+    for (k = s->clients; k && strcmp(k->name, name); k = k->next) {
+    }
+    if (!k) {
+      k = calloc(1, sizeof *k);
+      if (!k)
+        hfd_err("conn %llu: out of memory for its client's count; the connection is a "
+                "client of its own", (unsigned long long)c->id);
+    }
+    if (k && !k->listed) {
+      snprintf(k->name, sizeof k->name, "%s", name);
+      k->listed = 1;
+      k->next = s->clients;
+      s->clients = k;
+    }
+  }
+  if (!k) {
+    k = &c->own;
+    snprintf(k->name, sizeof k->name, "connection %llu", (unsigned long long)c->id);
+  }
+  k->conns++;
+  c->client = k;
+  c->share = s->cfg->share_by_connection ? &c->own : k;
+  if (c->share == &c->own && k != &c->own)
+    snprintf(c->own.name, sizeof c->own.name, "connection %llu", (unsigned long long)c->id);
+}
+
+void hfd_client_leave(hfd_server *s, hfd_conn *c) {
+  hfd_client *k = c->client;
+  if (!k) return;
+  c->client = c->share = NULL;
+  if (--k->conns > 0 || !k->listed) return;
+  for (hfd_client **p = &s->clients; *p; p = &(*p)->next)
+    if (*p == k) {
+      *p = k->next;
+      break;
+    }
+  free(k);
+}
