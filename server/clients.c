@@ -2,8 +2,10 @@
  * clients.c: which client a connection belongs to.
  *
  * Some limits are shares among clients, not connections: a share of the
- * queue. Counted per connection, a client that opens N connections gets N
- * shares and pushes the others' frames out of the queue. A client is
+ * queue, and the connections before their HELLO one IP address may hold.
+ * Counted per connection, a client that opens N connections gets N shares
+ * and pushes the others' frames out of the queue, and a peer that opens
+ * connections as fast as it can takes every handshake slot. A client is
  * what a peer cannot multiply at will: on a Unix socket its process (the
  * pid the kernel recorded at connect, SO_PEERCRED, as the shared-memory
  * budget counts it), over TCP and TLS its IP address (several render nodes
@@ -84,4 +86,10 @@ void hfd_client_leave(hfd_server *s, hfd_conn *c) {
       break;
     }
   free(k);
+}
+
+int hfd_client_handshake_cap(const hfd_server *s) {
+  int all = s->cfg->max_handshakes, cap = s->cfg->max_handshakes_addr;
+  if (cap <= 0) cap = all / 2 > 0 ? all / 2 : 1;
+  return cap < all ? cap : all;
 }

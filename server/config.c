@@ -57,6 +57,9 @@ static void usage(FILE *f) {
           "  --max-memory-mb N        request buffers and inference memory, MiB (default 4096)\n"
           "  --max-connections N      open connections (default 256)\n"
           "  --max-handshakes N       connections still before their HELLO (default 32)\n"
+          "  --max-handshakes-per-address N\n"
+          "                           of which one IP address may hold on tcp: and tls:\n"
+          "                           listeners (default half of --max-handshakes)\n"
 
           "  --max-shm-mb N           shared segments for Unix-socket clients, MiB (default\n"
           "                           1024; 0: no shared memory)\n"
@@ -350,7 +353,7 @@ enum {
   OPT_MAX_CONNECTIONS, OPT_MAX_HANDSHAKES, OPT_TOKEN_FILE, OPT_NO_AUTH, OPT_DRAIN,
   OPT_FLUSH, OPT_HANDSHAKE, OPT_STALL, OPT_MIN_RATE, OPT_READY, OPT_NAME, OPT_WARM,
   OPT_PIPELINE, OPT_HTTP, OPT_WATCHDOG, OPT_LOG_LEVEL, OPT_CONFIG, OPT_TLS_CERT, OPT_TLS_KEY,
-  OPT_TLS_CLIENT_CA, OPT_TLS_CLIENT_CERT_AUTH, OPT_QUEUE_SHARE_BY
+  OPT_TLS_CLIENT_CA, OPT_TLS_CLIENT_CERT_AUTH, OPT_QUEUE_SHARE_BY, OPT_MAX_HANDSHAKES_ADDR
 };
 
 static const struct option opts[] = {
@@ -371,6 +374,7 @@ static const struct option opts[] = {
   {"max-shm-mb-per-client", required_argument, 0, OPT_MAX_SHM_CLIENT},
   {"max-connections", required_argument, 0, OPT_MAX_CONNECTIONS},
   {"max-handshakes", required_argument, 0, OPT_MAX_HANDSHAKES},
+  {"max-handshakes-per-address", required_argument, 0, OPT_MAX_HANDSHAKES_ADDR},
   {"auth-token-file", required_argument, 0, OPT_TOKEN_FILE},
   {"no-auth", no_argument, 0, OPT_NO_AUTH},
   {"tls-cert", required_argument, 0, OPT_TLS_CERT},
@@ -824,6 +828,10 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_MAX_HANDSHAKES:
         if (parse_int(name, val, 1, 1000000, &v)) goto fail;
         cfg->max_handshakes = (int)v;
+        break;
+      case OPT_MAX_HANDSHAKES_ADDR:
+        if (parse_int(name, val, 1, 1000000, &v)) goto fail;
+        cfg->max_handshakes_addr = (int)v;
         break;
       case OPT_QUEUE_SHARE_BY:
         if (!strcmp(val, "client")) {

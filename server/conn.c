@@ -73,6 +73,7 @@ static void handshake_over(hfd_conn *c) {
   if (!c->handshaking) return;
   c->handshaking = 0;
   c->srv->num_handshaking--;
+  if (c->listener->is_tcp && c->client) c->client->handshaking--;
 }
 
 static int mid_frame(const hfd_conn *c) { return c->rstate != RD_HEADER || c->got > 0; }
@@ -1858,6 +1859,32 @@ static hfd_conn *oldest_handshake(hfd_server *s, const hfd_conn *fresh) {
   return NULL;
 }
 
+/* The connection to refuse when k, an IP address, holds more connections
+ * before their HELLO than --max-handshakes-per-address: the one
+ * oldest_handshake would pick among k's own (older than fresh, the one
+ * just accepted), else fresh itself. Per connection, a peer that replays a
+ * ClientHello on new connections made them all answered and stalled, and
+ * the oldest of those was another address's client in the middle of its
+ * handshake; among its own it pushes out only itself, and when each of
+ * its older ones has a record or HELLO waiting (a burst) its newest goes
+ * at once, before it costs a handshake, so it holds no more slots than
+ * its part and queues no more handshake steps than that. */
+static hfd_conn *address_handshake_victim(hfd_server *s, const hfd_client *k, hfd_conn *fresh) {
+  for (hfd_conn *c = s->conns_tail; c; c = c->prev)
+    if (c->client == k && c != fresh && refusable(c) && c->tls && hfd_tls_unanswered(c))
+      return c;
+  for (hfd_conn *c = s->conns_tail; c; c = c->prev) {
+    if (c->client != k || c == fresh || !refusable(c) || c->hello_waiting) continue;
+    if (c->tls) {
+      if (!hfd_tls_record_waiting(c)) return c;
+    } else {
+      if (!hello_waiting(c)) return c;
+      c->hello_waiting = 1;
+    }
+  }
+  return fresh;
+}
+
 /* A connection refused before its HELLO (the connection limit, or pushed
  * out by --max-handshakes) closes now, not when its ERROR's write
  * completes on a later turn of the loop: in a burst of connections libuv
@@ -2017,6 +2044,32 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   }
   c->handshaking = 1;
   s->num_handshaking++;
+  if (l->is_tcp && ++c->client->handshaking > hfd_client_handshake_cap(s) &&
+      hfd_client_handshake_cap(s) < s->cfg->max_handshakes) {
+    /* One address may hold only its part of the slots, so that a flood
+     * from it cannot push out the clients of others (address_handshake_victim).
+     * A part as large as the whole is no part: --max-handshakes decides. */
+    hfd_conn *old = address_handshake_victim(s, c->client, c);
+    s->protocol_errors++;
+    char kv[300];
+    if (hfd_conn_log_allowed())
+      hfd_err("too many connections before their HELLO from %s (--max-handshakes-per-address "
+              "%d); closing the %s%s", c->client->name, hfd_client_handshake_cap(s),
+              old == c ? "newest" : "oldest", conn_kv(old, kv, sizeof kv));
+    if (old->tls) {
+      /* Closed without a word: an ERROR would wait for a handshake, which
+       * is what the address has too many of. Its step, if queued, is
+       * skipped. */
+      hfd_conn_close(old);
+    } else {
+      send_error(old, 0, HFP_E_BUSY, 1,
+                 "too many connections before their HELLO from %s "
+                 "(--max-handshakes-per-address %d)", c->client->name,
+                 hfd_client_handshake_cap(s));
+      close_refused(old);
+    }
+    if (old == c) return;
+  }
   if (s->num_handshaking > s->cfg->max_handshakes) {
     /* Connections that have not said HELLO have their own small limit, so
      * that they cannot take every slot. A real client says HELLO at once;

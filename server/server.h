@@ -92,6 +92,7 @@ typedef struct hfd_config {
   int max_width, max_height;
   int max_connections;
   int max_handshakes;            /* connections that have not said HELLO */
+  int max_handshakes_addr;       /* of which one IP address may hold; 0: the default */
   uint64_t max_frame_bytes;      /* largest payload read */
   uint64_t max_memory_bytes;     /* request buffers + inference memory */
   uint64_t max_shm_bytes;        /* shared segments held at once; 0: no SHM */
@@ -504,6 +505,7 @@ typedef struct hfd_client {
   char name[64];                 /* "pid 1234", "address 10.0.0.3", for messages */
   int conns;                     /* connections counted in it */
   int inflight;                  /* their frames admitted, not yet answered */
+  int handshaking;               /* their TCP and TLS connections before their HELLO */
 } hfd_client;
 
 enum hfd_read_state {
@@ -767,6 +769,11 @@ size_t hfd_io_write_queue_size(const hfd_conn *c);
 void hfd_client_join(hfd_server *s, hfd_conn *c);
 /* c is freed: its client goes with its last connection. */
 void hfd_client_leave(hfd_server *s, hfd_conn *c);
+/* The most connections before their HELLO one IP address may hold:
+ * --max-handshakes-per-address, or by default half of --max-handshakes
+ * (at least 1), never more than --max-handshakes (as many: no bound but
+ * that one). */
+int hfd_client_handshake_cap(const hfd_server *s);
 /* limits.c */
 /* Host memory a frame is charged while the server holds it: its features
  * (unless in a shared segment), result and composite buffers, and what

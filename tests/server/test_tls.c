@@ -542,7 +542,9 @@ static void test_silent_crowd_held_to_max_handshakes(void **state) {
   enum { N = 6, KEEP = 2 };
   server L;
   char tcp[300];
-  const char *limits[] = {"--max-handshakes", "2", "--handshake-timeout-ms", "60000", NULL};
+  /* One address stands for many peers: its own part as large as the whole. */
+  const char *limits[] = {"--max-handshakes", "2", "--max-handshakes-per-address", "2",
+                          "--handshake-timeout-ms", "60000", NULL};
   start_tls_limited(&L, limits, tcp, sizeof tcp);
   int fd[N], open_[N];
   for (int i = 0; i < N; i++) {
@@ -634,7 +636,8 @@ static void test_mid_handshake_eviction_says_busy(void **state) {
   (void)state;
   server L;
   char tcp[300];
-  const char *limits[] = {"--max-handshakes", "2", NULL};
+  /* One address stands for many peers: its own part as large as the whole. */
+  const char *limits[] = {"--max-handshakes", "2", "--max-handshakes-per-address", "2", NULL};
   start_tls_limited(&L, limits, tcp, sizeof tcp);
   SSL_CTX *ctx = SSL_CTX_new(TLS_client_method());
   assert_non_null(ctx);
