@@ -554,6 +554,12 @@ static void take_reloadable(hfd_server *s, hfd_config *n) {
               (long long)(n->max_shm_client_bytes >> 20));
   restart_int("max-connections", c->max_connections, n->max_connections);
   restart_int("max-handshakes", c->max_handshakes, n->max_handshakes);
+  snprintf(a, sizeof a, "%d", c->max_handshakes_addr);
+  snprintf(b, sizeof b, "%d", n->max_handshakes_addr);
+  restart_str("max-handshakes-per-address", c->max_handshakes_addr ? a : "(default)",
+              n->max_handshakes_addr ? b : "(default)");
+  restart_str("queue-share-by", c->share_by_connection ? "connection" : "client",
+              n->share_by_connection ? "connection" : "client");
   restart_flag("no-auth", c->no_auth, n->no_auth);
   restart_flag("tls-client-cert-auth", c->tls_client_cert_auth, n->tls_client_cert_auth);
   restart_int("drain-timeout-ms", c->drain_timeout_ms, n->drain_timeout_ms);

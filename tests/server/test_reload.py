@@ -241,13 +241,18 @@ def run(d, w, conf):
     with open(conf) as f:
         text = f.read().replace("queue-size = 256", "queue-size = 128")
     with open(conf, "w") as f:
-        f.write(text + "max-connections = 100\n")
+        f.write(text + "max-connections = 100\nqueue-share-by = connection\n"
+                "max-handshakes-per-address = 4\n")
     reloads = reload_and_wait(d, reloads)
     log = d.log_text()
     check("warning: reload: --queue-size changed from 256 to 128; it takes effect at the next "
           "start" in log, "the reload names --queue-size with both values")
     check("--max-connections changed from 256 to 100" in log,
           "the reload names --max-connections with both values")
+    check("--queue-share-by changed from client to connection" in log,
+          "the reload names --queue-share-by with both values")
+    check("--max-handshakes-per-address changed from (default) to 4" in log,
+          "the reload names --max-handshakes-per-address with both values")
     check("--max-inflight changed" not in log and "--backend changed" not in log,
           "unchanged keys are not named")
     write_conf(conf, w)
