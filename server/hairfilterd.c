@@ -469,9 +469,16 @@ static const int early_signo[] = {SIGINT, SIGTERM, SIGHUP, SIGUSR1};
 static const char *const early_name[] = {"SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1"};
 static volatile sig_atomic_t early_signal[4];
 
+/* The daemon; file-scope so that a stop during the start reaches its
+ * worker from the signal handler. */
+static hfd_server srv;
+
 static void on_early_signal(int signo) {
   for (int i = 0; i < 4; i++)
     if (early_signo[i] == signo) early_signal[i] = 1;
+  /* A stop does not wait for the rest of the models (minutes on a GPU):
+   * the load under way ends at its next step. */
+  if (signo == SIGINT || signo == SIGTERM) hfd_worker_abandon_loads(&srv.worker);
 }
 
 static void catch_early_signals(void) {
@@ -487,6 +494,26 @@ static void catch_early_signals(void) {
  * or NULL. */
 static const char *early_stop(void) {
   return early_signal[0] ? early_name[0] : early_signal[1] ? early_name[1] : NULL;
+}
+
+/* A stop (SIGINT, SIGTERM) that came during the start, before the daemon
+ * listens: what was built is released (the worker, with the backend and the
+ * models it built, the receive buffers kept, the TLS context), nothing was
+ * bound and no ready file written, and the exit status is 0, as for any
+ * stop. The worker must have started. */
+static int stop_before_serving(hfd_server *s) {
+  hfd_notice("%s during the start: stopping before serving", early_stop());
+  hfd_worker_stop(&s->worker);
+  s->stopped = 1;
+  hfd_models_after_stop(s);
+  hfd_rpool_free(&s->rpool);
+  close_handle((uv_handle_t *)&s->async);
+  uv_run(s->loop, UV_RUN_DEFAULT);  /* runs the close */
+  int rc = uv_loop_close(s->loop);
+  if (rc < 0) hfd_err("uv_loop_close: %s", uv_strerror(rc));
+  hfd_tls_free(s);
+  hfd_config_free(s->cfg);
+  return 0;
 }
 
 /* Once libuv's handlers are in place and the daemon serves: each signal
@@ -600,7 +627,6 @@ static void on_signal(uv_signal_t *h, int signum) {
 
 int main(int argc, char **argv) {
   static hfd_config cfg;
-  static hfd_server srv;
   hfd_log_init();
   int prc = hfd_config_parse(argc, argv, &cfg);
   if (prc) return prc > 0 ? 0 : 2;
@@ -664,14 +690,37 @@ int main(int argc, char **argv) {
   }
   cfg.max_batch = w->max_batch; /* the backend's default, unless given */
   hfd_log("%s", w->init_msg);
-  if (hfd_models_load_initial(s)) return 1;
-  /* A stop asked for while the models loaded: no point in serving. */
-  if (early_stop()) {
-    hfd_notice("%s during the start: stopping before serving", early_stop());
-    return 0;
-  }
+  /* A stop asked for during the start is acted on between its steps (the
+   * backend, each weights file and --warm plan, each receive buffer), not
+   * once it is done: no point in serving, and systemd or the kubelet would
+   * kill a daemon that takes minutes to stop. */
+  if (early_stop()) return stop_before_serving(s);
+  int lrc = hfd_models_load_initial(s);
+  if (lrc > 0 || (lrc == 0 && early_stop())) return stop_before_serving(s);
+  if (lrc) return 1;
   if (hfd_limits_derive(s)) return 1;
   if (hfd_limits_fds(s)) return 1;
+  /* Receive buffers for the --warm shapes (float32 frames of the most
+   * values per pixel any variant takes, an estimate included), faulted in
+   * before the first frame, within the memory kept between runs
+   * (recv_pool.c); before the listeners open, as a part of the start a
+   * stop does not wait for (a second or more for large shapes). */
+  int channels = 0;
+  for (int i = 0; i < s->num_variants; i++)
+    if (s->variants[i].model && s->variants[i].model->cfg.in_channels > channels)
+      channels = s->variants[i].model->cfg.in_channels;
+  uint64_t plans = atomic_load(&w->cached_bytes);
+  uint64_t room = plans < w->cache_cap ? w->cache_cap - plans : 0;
+  for (int i = 0; i < cfg.num_warm && !early_stop(); i++) {
+    /* A shape over the lowered size was warned about (limits.c): none of
+     * its frames come through the socket. */
+    if (cfg.warm[i].width > s->max_width || cfg.warm[i].height > s->max_height) continue;
+    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * channels * sizeof(float);
+    if (hfd_rpool_prefault(&s->rpool, bytes, room))
+      hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",
+              cfg.warm[i].width, cfg.warm[i].height);
+  }
+  if (early_stop()) return stop_before_serving(s);
   if ((rc = uv_signal_init(s->loop, &s->sigint)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sigterm)) < 0 ||
       (rc = uv_signal_init(s->loop, &s->sighup)) < 0 ||
@@ -757,25 +806,6 @@ int main(int argc, char **argv) {
              "hold (%s %llu): such frames must go through the socket; raise it, or lower "
              "--max-size", s->max_width, s->max_height, hfd_shm_largest_frame(s) / 1048576.0, opt,
              (unsigned long long)(val >> 20));
-  }
-  /* Receive buffers for the --warm shapes (float32 frames of the most
-   * values per pixel any variant takes, an estimate included), faulted in
-   * before the first frame, within the memory kept between runs
-   * (recv_pool.c). */
-  int channels = 0;
-  for (int i = 0; i < s->num_variants; i++)
-    if (s->variants[i].model && s->variants[i].model->cfg.in_channels > channels)
-      channels = s->variants[i].model->cfg.in_channels;
-  uint64_t plans = atomic_load(&w->cached_bytes);
-  uint64_t room = plans < w->cache_cap ? w->cache_cap - plans : 0;
-  for (int i = 0; i < cfg.num_warm; i++) {
-    /* A shape over the lowered size was warned about (limits.c): none of
-     * its frames come through the socket. */
-    if (cfg.warm[i].width > s->max_width || cfg.warm[i].height > s->max_height) continue;
-    size_t bytes = (size_t)cfg.warm[i].width * cfg.warm[i].height * channels * sizeof(float);
-    if (hfd_rpool_prefault(&s->rpool, bytes, room))
-      hfd_log("no receive buffer kept for %dx%d: over the memory kept between runs",
-              cfg.warm[i].width, cfg.warm[i].height);
   }
 
   if (cfg.ready_file) {

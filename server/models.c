@@ -450,6 +450,20 @@ int hfd_models_load_initial(hfd_server *s) {
   for (int back = 0; back < queued;) {
     for (hfd_ctl *c = hfd_worker_take_ctl(&s->worker, 1); c; c = c->next) back++;
   }
+  if (atomic_load(&s->worker.abandon)) {
+    /* A stop came meanwhile: the loads after it failed at once, and the
+     * daemon will not serve, so none is installed (the worker frees the
+     * models it built when it stops). */
+    int built = 0;
+    for (int i = 0; i < nw; i++)
+      if (loads[i]) {
+        built += loads[i]->rc == 0;
+        loads[i]->next = NULL;
+        hfd_ctl_free_list(loads[i]);
+      }
+    hfd_log("stopping: %d of %d weights file(s) loaded", built, nw);
+    return 1;
+  }
   int failed = apply(s, ws, nw, loads, gone, ngone, 1);
   s->load_started = 1;
   return failed || queued < nw ? -1 : 0;

@@ -303,6 +303,12 @@ typedef struct hfd_worker {
   hfd_ctl *ctl_done;             /* loads done, for the loop thread (LIFO) */
   int stop;                      /* finish what is queued, then exit */
   int cancel;                    /* fail what is queued, then exit */
+  /* A stop came during the start (hfd_worker_abandon_loads): loads not
+   * begun fail at once, and one under way stops between its steps (the
+   * file, the model, each --warm plan), so the daemon stops within one step
+   * instead of after every model (minutes on a GPU). Set from a signal
+   * handler: a lock-free atomic. */
+  atomic_int abandon;
   int busy;                      /* a batch is running */
   /* startup handshake */
   int ready, init_rc;
@@ -345,6 +351,11 @@ typedef struct hfd_worker {
  * init_msg before hfd_worker_start returns. Models are loaded with
  * hfd_worker_control. */
 int hfd_worker_start(hfd_worker *w);
+/* Makes every load not yet done fail (HF_EUNAVAILABLE, "the daemon is
+ * stopping") at its next step, for a stop that comes during the start.
+ * Async-signal-safe (one lock-free atomic store), so a signal handler calls
+ * it; it may come before hfd_worker_start, and is not undone. */
+void hfd_worker_abandon_loads(hfd_worker *w);
 /* 0 when queued, HFP_E_BUSY when the queue is full. */
 int hfd_worker_submit(hfd_worker *w, hfd_job *job);
 /* hfd_worker_submit for a frame of a client (hfd_conn.share) holding fewer
@@ -866,7 +877,9 @@ int hfd_ready(const hfd_server *s, char *why, size_t whylen);
 /* The slot serving name, or -1. */
 int hfd_variant_find(const hfd_server *s, const char *name);
 /* Loads what the configuration names, waiting for the worker: 0, or -1
- * after logging why (any file that fails stops the start). */
+ * after logging why (any file that fails stops the start), or 1 when a stop
+ * came meanwhile (hfd_worker_abandon_loads): then nothing is installed, and
+ * the models built go when the worker stops. */
 int hfd_models_load_initial(hfd_server *s);
 /* SIGHUP: reads the configuration and the weights directory again, loads
  * new and changed files on the worker, and swaps them in when all are

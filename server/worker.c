@@ -422,6 +422,15 @@ static int name_ok(const char *s) {
   return 1;
 }
 
+/* A load abandoned for a stop during the start (hfd_worker_abandon_loads):
+ * 1, with c->rc and c->msg set, when it must go no further. */
+static int abandoned(hfd_worker *w, hfd_ctl *c) {
+  if (!atomic_load(&w->abandon)) return 0;
+  c->rc = HF_EUNAVAILABLE;
+  snprintf(c->msg, sizeof c->msg, "not loaded: the daemon is stopping");
+  return 1;
+}
+
 /* Reads m->path, builds its model on the backend, and the plans of the
  * --warm shapes. On failure, c->rc and c->msg say why and m is not kept. */
 static void do_load(hfd_worker *w, hfd_ctl *c) {
@@ -429,6 +438,7 @@ static void do_load(hfd_worker *w, hfd_ctl *c) {
   struct stat st;
   char err[256] = "";
   hf_weights *wt = NULL;
+  if (abandoned(w, c)) return;
   /* The file as it is now: what the next reload compares against. */
   if (stat(m->path, &st) == 0) {
     m->file = (hfd_file_id){(uint64_t)st.st_dev, (uint64_t)st.st_ino, (uint64_t)st.st_size,
@@ -453,6 +463,10 @@ static void do_load(hfd_worker *w, hfd_ctl *c) {
   m->cfg = wt->cfg;
   m->range = wt->input_range;
   m->params = wt->num_params;
+  if (abandoned(w, c)) {
+    hf_weights_free(wt);
+    return;
+  }
   rc = hf_model_create(w->backend, wt, &m->model);
   hf_weights_free(wt);
   if (rc) {
@@ -468,12 +482,14 @@ static void do_load(hfd_worker *w, hfd_ctl *c) {
     const int ww = w->cfg->warm[k].width, hh = w->cfg->warm[k].height,
               nb = w->cfg->warm[k].batch;
     const double t0 = hfd_now_us();
-    rc = hf_model_prepare(m->model, nb, ww, hh);
+    if (abandoned(w, c))
+      rc = c->rc;
+    else if ((rc = hf_model_prepare(m->model, nb, ww, hh)) != 0)
+      snprintf(c->msg, sizeof c->msg, "preparing %dx%d batch %d on %s failed: %s", ww, hh, nb,
+               hf_backend_name(w->backend), hf_strerror(rc));
     progress(w);
     if (rc) {
       c->rc = rc;
-      snprintf(c->msg, sizeof c->msg, "preparing %dx%d batch %d on %s failed: %s", ww, hh, nb,
-               hf_backend_name(w->backend), hf_strerror(rc));
       hf_model_destroy(m->model);
       m->model = NULL;
       return;
@@ -948,6 +964,11 @@ int hfd_worker_cancel_frame(hfd_worker *w, const struct hfd_conn *conn, uint32_t
   if (found) complete_unrun(w, found, HFP_E_CANCELLED);
   return found != NULL;
 }
+
+/* Called from a signal handler: the store must not take a lock. */
+_Static_assert(ATOMIC_INT_LOCK_FREE == 2, "hfd_worker_abandon_loads stores a lock-free int");
+
+void hfd_worker_abandon_loads(hfd_worker *w) { atomic_store(&w->abandon, 1); }
 
 void hfd_worker_stop(hfd_worker *w) {
   pthread_mutex_lock(&w->mu);
