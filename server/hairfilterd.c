@@ -605,6 +605,11 @@ static void on_signal(uv_signal_t *h, int signum) {
     return;
   }
   s->draining = 1;
+  /* A reload's loads still under way are given up at their next step:
+   * nothing is swapped in while draining, and the worker would otherwise
+   * finish every one (minutes on a GPU), ahead of the queued frames and
+   * before it can stop. */
+  hfd_worker_abandon_loads(&s->worker);
   hfd_notify_stopping();
   hfd_notice("%s: draining %d request(s), no new work accepted (frames sent from now on get "
              "SHUTTING_DOWN; the stop line counts them)", name, s->jobs_outstanding);

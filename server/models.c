@@ -477,7 +477,30 @@ static struct {
   int nw, ngone;
 } pending;
 
+/* Frees the reload's loads, none swapped in: the daemon is draining, and
+ * the loads still to do were given up (hfd_worker_abandon_loads). The
+ * models built go when the worker stops. */
+static void drop_reload(hfd_server *s) {
+  int built = 0, files = 0;
+  for (int i = 0; i < pending.nw; i++) {
+    hfd_ctl *c = pending.loads[i];
+    pending.loads[i] = NULL;
+    if (!c) continue;
+    files++;
+    built += c->rc == 0;
+    c->next = NULL;
+    hfd_ctl_free_list(c);
+  }
+  s->reload.active = 0;
+  hfd_log("reload: given up for the stop: %d of %d file(s) loaded, none swapped in", built,
+          files);
+}
+
 static void finish_reload(hfd_server *s) {
+  if (s->draining) {
+    drop_reload(s);
+    return;
+  }
   int failed = apply(s, pending.ws, pending.nw, pending.loads, pending.gone, pending.ngone, 0);
   s->reload.active = 0;
   if (failed || s->reload.tls_failed)
@@ -672,13 +695,5 @@ void hfd_models_after_stop(hfd_server *s) {
     s->variants[i].served_at_stop = s->variants[i].model != NULL;
     s->variants[i].model = NULL;
   }
-  if (!s->reload.active) return;
-  s->reload.active = 0;
-  for (int i = 0; i < pending.nw; i++) {
-    hfd_ctl *c = pending.loads[i];
-    pending.loads[i] = NULL;
-    if (!c) continue;
-    c->next = NULL;
-    hfd_ctl_free_list(c);
-  }
+  if (s->reload.active) drop_reload(s);
 }

@@ -303,11 +303,11 @@ typedef struct hfd_worker {
   hfd_ctl *ctl_done;             /* loads done, for the loop thread (LIFO) */
   int stop;                      /* finish what is queued, then exit */
   int cancel;                    /* fail what is queued, then exit */
-  /* A stop came during the start (hfd_worker_abandon_loads): loads not
-   * begun fail at once, and one under way stops between its steps (the
-   * file, the model, each --warm plan), so the daemon stops within one step
-   * instead of after every model (minutes on a GPU). Set from a signal
-   * handler: a lock-free atomic. */
+  /* A stop came, during the start or a reload (hfd_worker_abandon_loads):
+   * loads not begun fail at once, and one under way stops between its
+   * steps (the file, the model, each --warm plan), so the daemon stops
+   * within one step instead of after every model (minutes on a GPU). Set
+   * from a signal handler: a lock-free atomic. */
   atomic_int abandon;
   int busy;                      /* a batch is running */
   /* startup handshake */
@@ -352,9 +352,10 @@ typedef struct hfd_worker {
  * hfd_worker_control. */
 int hfd_worker_start(hfd_worker *w);
 /* Makes every load not yet done fail (HF_EUNAVAILABLE, "the daemon is
- * stopping") at its next step, for a stop that comes during the start.
- * Async-signal-safe (one lock-free atomic store), so a signal handler calls
- * it; it may come before hfd_worker_start, and is not undone. */
+ * stopping") at its next step, for a stop that comes during the start or
+ * a reload. Async-signal-safe (one lock-free atomic store), so a signal
+ * handler calls it; it may come before hfd_worker_start, and is not
+ * undone. */
 void hfd_worker_abandon_loads(hfd_worker *w);
 /* 0 when queued, HFP_E_BUSY when the queue is full. */
 int hfd_worker_submit(hfd_worker *w, hfd_job *job);
