@@ -9,7 +9,6 @@
  * error level, so under journald they carry priority 3 like the daemon's
  * other errors. */
 #define _GNU_SOURCE
-#include <arpa/inet.h>
 #include <errno.h>
 #include <getopt.h>
 #include <ini.h>
@@ -22,6 +21,7 @@
 
 #include <hairfilter/hairfilter_version.h>
 
+#include "peer_addr.h"
 #include "server.h"
 
 static void usage(FILE *f) {
@@ -299,25 +299,11 @@ static int tls_check(const hfd_config *cfg) {
   return 0;
 }
 
-/* Whether a listener's host is the loopback interface (127.0.0.0/8, ::1,
- * localhost); -1 when it is not a numeric address, which opening the
- * listener refuses. */
-static int loopback_host(const char *host) {
-  unsigned char a[16];
-  if (!strcmp(host, "localhost")) return 1;
-  if (inet_pton(AF_INET, host, a) == 1) return a[0] == 127;
-  if (inet_pton(AF_INET6, host, a) == 1) {
-    static const unsigned char lo[16] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1};
-    return !memcmp(a, lo, 16);
-  }
-  return -1;
-}
-
 int hfd_listener_auth(const hfd_config *cfg, const hfp_url *u, const char *url, int *loopback,
                       int *auth_required) {
   /* A host that is not a numeric address is refused when the listener
    * opens (hairfilterd.c), after what a start made is cleaned up. */
-  int loop = loopback_host(u->host);
+  int loop = hfd_host_is_loopback(u->host);
   if (cfg->no_auth && loop == 0) {
     hfd_err("--listen %s: --no-auth is only allowed on loopback addresses", url);
     return -1;

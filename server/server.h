@@ -137,7 +137,8 @@ typedef struct hfd_config {
  * TCP listener's authentication) are made here. */
 int hfd_config_parse(int argc, char **argv, hfd_config *cfg);
 /* For the tcp:/tls: listener u (written url) of cfg: *loopback 1 when its
- * host is the loopback interface (127.0.0.0/8, ::1, localhost), and
+ * host is the loopback interface (127.0.0.0/8, ::1, ::ffff:127.0.0.0/104,
+ * localhost: hfd_host_is_loopback), and
  * *auth_required 1 when its clients must give the token (not with
  * --no-auth, nor on tls: with --tls-client-cert-auth); either may be NULL.
  * -1, logged, when cfg cannot serve it: --no-auth off loopback, or no

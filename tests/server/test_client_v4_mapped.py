@@ -49,7 +49,7 @@ def main():
     w = tempfile.mkdtemp(prefix="hfv4mapped-")
     proc = None
     try:
-        # Silent connections need no token; a listener past loopback wants one.
+        # Silent connections need no token; the listeners want one all the same.
         token = os.path.join(w, "token")
         with open(os.open(token, os.O_WRONLY | os.O_CREAT, 0o600), "w") as f:
             f.write("s3cret\n")

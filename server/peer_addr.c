@@ -1,0 +1,43 @@
+/*
+ * peer_addr.c: what an IP address is to the daemon (peer_addr.h).
+ *
+ * An IPv6 socket that takes IPv4 too ([::], or a v4-mapped address) sees
+ * an IPv4 address as ::ffff:A.B.C.D: every decision about an address
+ * takes that form for the IPv4 address it is, or the same host would be
+ * one thing on an IPv4 listener and another on an IPv6 one.
+ */
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <string.h>
+
+#include "peer_addr.h"
+
+int hfd_addr_is_loopback(const struct sockaddr *sa) {
+  if (sa->sa_family == AF_INET) {
+    const struct sockaddr_in *s4 = (const struct sockaddr_in *)sa;
+    return (ntohl(s4->sin_addr.s_addr) >> 24) == 127;
+  }
+  if (sa->sa_family == AF_INET6) {
+    const struct in6_addr *a = &((const struct sockaddr_in6 *)sa)->sin6_addr;
+    if (IN6_IS_ADDR_V4MAPPED(a)) return a->s6_addr[12] == 127;
+    return IN6_IS_ADDR_LOOPBACK(a);
+  }
+  return 0;
+}
+
+int hfd_host_is_loopback(const char *host) {
+  if (!strcmp(host, "localhost")) return 1;
+  struct sockaddr_in s4;
+  struct sockaddr_in6 s6;
+  memset(&s4, 0, sizeof s4);
+  memset(&s6, 0, sizeof s6);
+  if (inet_pton(AF_INET, host, &s4.sin_addr) == 1) {
+    s4.sin_family = AF_INET;
+    return hfd_addr_is_loopback((const struct sockaddr *)&s4);
+  }
+  if (inet_pton(AF_INET6, host, &s6.sin6_addr) == 1) {
+    s6.sin6_family = AF_INET6;
+    return hfd_addr_is_loopback((const struct sockaddr *)&s6);
+  }
+  return -1;
+}
