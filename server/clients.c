@@ -9,7 +9,8 @@
  * what a peer cannot multiply at will: on a Unix socket its process (the
  * pid the kernel recorded at connect, SO_PEERCRED, as the shared-memory
  * budget counts it), over TCP and TLS its IP address, an IPv4 one named
- * alike on IPv4 and IPv6 listeners (several render nodes
+ * alike on IPv4 and IPv6 listeners, a link-local one with its interface
+ * (peer_addr.c: hfd_peer_client_name; several render nodes
  * behind one NAT address are then one client: --queue-share-by connection
  * gives each connection its share again, docs/SERVER.md).
  */
@@ -18,9 +19,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <netinet/in.h>
 #include <sys/socket.h>
 
+#include "peer_addr.h"
 #include "server.h"
 
 /* The name of c's peer as a client: "pid N" or "address A"; "" when it
@@ -30,24 +31,9 @@ static void peer_name(hfd_conn *c, char *buf, size_t cap) {
   if (c->listener->is_tcp) {
     struct sockaddr_storage ss;
     int len = sizeof ss;
-    char ip[48];  /* INET6_ADDRSTRLEN */
-    if (uv_tcp_getpeername(&c->h.tcp, (struct sockaddr *)&ss, &len) != 0) return;
-    const struct sockaddr_in6 *s6 = (const struct sockaddr_in6 *)&ss;
-    if (ss.ss_family == AF_INET6 && IN6_IS_ADDR_V4MAPPED(&s6->sin6_addr)) {
-      /* An IPv4 peer of an IPv6 listener that takes IPv4 ([::], or a
-       * v4-mapped address) is ::ffff:A.B.C.D there and A.B.C.D on an IPv4
-       * listener: one name, or by connecting to both it would be two
-       * clients, with twice the share and the handshake slots. */
-      struct sockaddr_in s4;
-      memset(&s4, 0, sizeof s4);
-      s4.sin_family = AF_INET;
-      memcpy(&s4.sin_addr, &s6->sin6_addr.s6_addr[12], sizeof s4.sin_addr);
-      memcpy(&ss, &s4, sizeof s4);
-    }
-    int rc = ss.ss_family == AF_INET6 ? uv_ip6_name((struct sockaddr_in6 *)&ss, ip, sizeof ip)
-             : ss.ss_family == AF_INET ? uv_ip4_name((struct sockaddr_in *)&ss, ip, sizeof ip)
-                                       : UV_EINVAL;
-    if (rc == 0) snprintf(buf, cap, "address %s", ip);
+    if (uv_tcp_getpeername(&c->h.tcp, (struct sockaddr *)&ss, &len) != 0 ||
+        hfd_peer_client_name((const struct sockaddr *)&ss, buf, cap) != 0)
+      buf[0] = 0;
     return;
   }
   uv_os_fd_t fd;

@@ -8,6 +8,7 @@
  */
 #include <arpa/inet.h>
 #include <netinet/in.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "peer_addr.h"
@@ -40,4 +41,33 @@ int hfd_host_is_loopback(const char *host) {
     return hfd_addr_is_loopback((const struct sockaddr *)&s6);
   }
   return -1;
+}
+
+int hfd_peer_client_name(const struct sockaddr *sa, char *buf, size_t cap) {
+  char ip[INET6_ADDRSTRLEN];
+  int n = -1;
+  if (sa->sa_family == AF_INET) {
+    if (inet_ntop(AF_INET, &((const struct sockaddr_in *)sa)->sin_addr, ip, sizeof ip))
+      n = snprintf(buf, cap, "address %s", ip);
+  } else if (sa->sa_family == AF_INET6) {
+    const struct sockaddr_in6 *s6 = (const struct sockaddr_in6 *)sa;
+    const struct in6_addr *a = &s6->sin6_addr;
+    if (IN6_IS_ADDR_V4MAPPED(a)) {
+      if (inet_ntop(AF_INET, &a->s6_addr[12], ip, sizeof ip))
+        n = snprintf(buf, cap, "address %s", ip);
+    } else if (inet_ntop(AF_INET6, a, ip, sizeof ip)) {
+      /* A link-local address means something only on its link: without
+       * the interface, the hosts of two links that picked the same one
+       * (each link's router is often fe80::1) would be one client. */
+      if (IN6_IS_ADDR_LINKLOCAL(a))
+        n = snprintf(buf, cap, "address %s%%%u", ip, (unsigned)s6->sin6_scope_id);
+      else
+        n = snprintf(buf, cap, "address %s", ip);
+    }
+  }
+  if (n < 0 || (size_t)n >= cap) {
+    if (cap) buf[0] = 0;
+    return -1;
+  }
+  return 0;
 }

@@ -20,4 +20,13 @@ int hfd_addr_is_loopback(const struct sockaddr *sa);
  * numeric address (which opening the listener refuses). */
 int hfd_host_is_loopback(const char *host);
 
+/* The client a TCP or TLS peer at sa is, as messages name it, written
+ * into buf (cap bytes): "address A". An IPv4 peer is its address, also
+ * when an IPv6 socket sees it v4-mapped (::ffff:A.B.C.D); an IPv6 peer
+ * its address, with the scope id (the interface's index) of a link-local
+ * one, "address fe80::1%2": the same link-local address on two links is
+ * two hosts. Peers with one name are one client. 0, or -1 when sa is
+ * neither IPv4 nor IPv6 or the name does not fit. */
+int hfd_peer_client_name(const struct sockaddr *sa, char *buf, size_t cap);
+
 #endif
