@@ -9,8 +9,9 @@
  * what a peer cannot multiply at will: on a Unix socket its process (the
  * pid the kernel recorded at connect, SO_PEERCRED, as the shared-memory
  * budget counts it), over TCP and TLS its IP address, an IPv4 one named
- * alike on IPv4 and IPv6 listeners, a link-local one with its interface
- * (peer_addr.c: hfd_peer_client_name; several render nodes
+ * alike on IPv4 and IPv6 listeners, an IPv6 one by its /64 (what one host
+ * is commonly given: --ipv6-client-prefix), a link-local one on its
+ * interface (peer_addr.c: hfd_peer_client_name; several render nodes
  * behind one NAT address are then one client: --queue-share-by connection
  * gives each connection its share again, docs/SERVER.md).
  */
@@ -32,7 +33,8 @@ static void peer_name(hfd_conn *c, char *buf, size_t cap) {
     struct sockaddr_storage ss;
     int len = sizeof ss;
     if (uv_tcp_getpeername(&c->h.tcp, (struct sockaddr *)&ss, &len) != 0 ||
-        hfd_peer_client_name((const struct sockaddr *)&ss, buf, cap) != 0)
+        hfd_peer_client_name((const struct sockaddr *)&ss, c->listener->srv->cfg->ipv6_client_prefix,
+                             buf, cap) != 0)
       buf[0] = 0;
     return;
   }

@@ -60,6 +60,9 @@ static void usage(FILE *f) {
           "  --max-handshakes-per-address N\n"
           "                           of which one IP address may hold on tcp: and tls:\n"
           "                           listeners (default half of --max-handshakes)\n"
+          "  --ipv6-client-prefix N   an IPv6 peer is one client (queue share, handshakes\n"
+          "                           per address) by its first N bits, 48..128\n"
+          "                           (default 64: one host's prefix)\n"
 
           "  --max-shm-mb N           shared segments for Unix-socket clients, MiB (default\n"
           "                           1024; 0: no shared memory)\n"
@@ -339,7 +342,8 @@ enum {
   OPT_MAX_CONNECTIONS, OPT_MAX_HANDSHAKES, OPT_TOKEN_FILE, OPT_NO_AUTH, OPT_DRAIN,
   OPT_FLUSH, OPT_HANDSHAKE, OPT_STALL, OPT_MIN_RATE, OPT_READY, OPT_NAME, OPT_WARM,
   OPT_PIPELINE, OPT_HTTP, OPT_WATCHDOG, OPT_LOG_LEVEL, OPT_CONFIG, OPT_TLS_CERT, OPT_TLS_KEY,
-  OPT_TLS_CLIENT_CA, OPT_TLS_CLIENT_CERT_AUTH, OPT_QUEUE_SHARE_BY, OPT_MAX_HANDSHAKES_ADDR
+  OPT_TLS_CLIENT_CA, OPT_TLS_CLIENT_CERT_AUTH, OPT_QUEUE_SHARE_BY, OPT_MAX_HANDSHAKES_ADDR,
+  OPT_IPV6_CLIENT_PREFIX
 };
 
 static const struct option opts[] = {
@@ -361,6 +365,7 @@ static const struct option opts[] = {
   {"max-connections", required_argument, 0, OPT_MAX_CONNECTIONS},
   {"max-handshakes", required_argument, 0, OPT_MAX_HANDSHAKES},
   {"max-handshakes-per-address", required_argument, 0, OPT_MAX_HANDSHAKES_ADDR},
+  {"ipv6-client-prefix", required_argument, 0, OPT_IPV6_CLIENT_PREFIX},
   {"auth-token-file", required_argument, 0, OPT_TOKEN_FILE},
   {"no-auth", no_argument, 0, OPT_NO_AUTH},
   {"tls-cert", required_argument, 0, OPT_TLS_CERT},
@@ -587,6 +592,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
   cfg->max_height = 2160;
   cfg->max_connections = 256;
   cfg->max_handshakes = 32;
+  cfg->ipv6_client_prefix = HFD_V6_CLIENT_PREFIX_DEFAULT;
   cfg->max_frame_bytes = 1024ull << 20;
   cfg->max_memory_bytes = 4096ull << 20;
   cfg->max_shm_bytes = 1024ull << 20;
@@ -818,6 +824,10 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
       case OPT_MAX_HANDSHAKES_ADDR:
         if (parse_int(name, val, 1, 1000000, &v)) goto fail;
         cfg->max_handshakes_addr = (int)v;
+        break;
+      case OPT_IPV6_CLIENT_PREFIX:
+        if (parse_int(name, val, HFD_V6_CLIENT_PREFIX_MIN, HFD_V6_CLIENT_PREFIX_MAX, &v)) goto fail;
+        cfg->ipv6_client_prefix = (int)v;
         break;
       case OPT_QUEUE_SHARE_BY:
         if (!strcmp(val, "client")) {

@@ -595,6 +595,7 @@ static void take_reloadable(hfd_server *s, hfd_config *n) {
   snprintf(b, sizeof b, "%d", n->max_handshakes_addr);
   restart_str("max-handshakes-per-address", c->max_handshakes_addr ? a : "(default)",
               n->max_handshakes_addr ? b : "(default)");
+  restart_int("ipv6-client-prefix", c->ipv6_client_prefix, n->ipv6_client_prefix);
   restart_str("queue-share-by", c->share_by_connection ? "connection" : "client",
               n->share_by_connection ? "connection" : "client");
   restart_flag("no-auth", c->no_auth, n->no_auth);

@@ -43,7 +43,7 @@ int hfd_host_is_loopback(const char *host) {
   return -1;
 }
 
-int hfd_peer_client_name(const struct sockaddr *sa, char *buf, size_t cap) {
+int hfd_peer_client_name(const struct sockaddr *sa, int v6_prefix, char *buf, size_t cap) {
   char ip[INET6_ADDRSTRLEN];
   int n = -1;
   if (sa->sa_family == AF_INET) {
@@ -55,14 +55,25 @@ int hfd_peer_client_name(const struct sockaddr *sa, char *buf, size_t cap) {
     if (IN6_IS_ADDR_V4MAPPED(a)) {
       if (inet_ntop(AF_INET, &a->s6_addr[12], ip, sizeof ip))
         n = snprintf(buf, cap, "address %s", ip);
-    } else if (inet_ntop(AF_INET6, a, ip, sizeof ip)) {
+    } else if (v6_prefix >= HFD_V6_CLIENT_PREFIX_MIN && v6_prefix <= HFD_V6_CLIENT_PREFIX_MAX) {
+      /* ::1 is this host, not the /64 of the unspecified address. */
+      int bits = IN6_IS_ADDR_LOOPBACK(a) ? 128 : v6_prefix;
+      struct in6_addr net = *a;
+      for (int i = 0; i < 16; i++) {
+        int keep = bits - 8 * i;
+        if (keep <= 0)
+          net.s6_addr[i] = 0;
+        else if (keep < 8)
+          net.s6_addr[i] &= (unsigned char)(0xff << (8 - keep));
+      }
       /* A link-local address means something only on its link: without
        * the interface, the hosts of two links that picked the same one
        * (each link's router is often fe80::1) would be one client. */
-      if (IN6_IS_ADDR_LINKLOCAL(a))
-        n = snprintf(buf, cap, "address %s%%%u", ip, (unsigned)s6->sin6_scope_id);
-      else
-        n = snprintf(buf, cap, "address %s", ip);
+      char zone[16] = "";
+      if (IN6_IS_ADDR_LINKLOCAL(a)) snprintf(zone, sizeof zone, "%%%u", (unsigned)s6->sin6_scope_id);
+      if (inet_ntop(AF_INET6, &net, ip, sizeof ip))
+        n = bits == 128 ? snprintf(buf, cap, "address %s%s", ip, zone)
+                        : snprintf(buf, cap, "address %s%s/%d", ip, zone, bits);
     }
   }
   if (n < 0 || (size_t)n >= cap) {

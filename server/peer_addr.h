@@ -20,13 +20,24 @@ int hfd_addr_is_loopback(const struct sockaddr *sa);
  * numeric address (which opening the listener refuses). */
 int hfd_host_is_loopback(const char *host);
 
+/* The shortest and longest IPv6 prefix a client may be counted by
+ * (--ipv6-client-prefix), and the default: one host's usual share, a /64. */
+#define HFD_V6_CLIENT_PREFIX_MIN 48
+#define HFD_V6_CLIENT_PREFIX_MAX 128
+#define HFD_V6_CLIENT_PREFIX_DEFAULT 64
+
 /* The client a TCP or TLS peer at sa is, as messages name it, written
  * into buf (cap bytes): "address A". An IPv4 peer is its address, also
- * when an IPv6 socket sees it v4-mapped (::ffff:A.B.C.D); an IPv6 peer
- * its address, with the scope id (the interface's index) of a link-local
- * one, "address fe80::1%2": the same link-local address on two links is
- * two hosts. Peers with one name are one client. 0, or -1 when sa is
- * neither IPv4 nor IPv6 or the name does not fit. */
-int hfd_peer_client_name(const struct sockaddr *sa, char *buf, size_t cap);
+ * when an IPv6 socket sees it v4-mapped (::ffff:A.B.C.D), and ::1 is
+ * itself. Any other IPv6 peer is its first v6_prefix bits
+ * (HFD_V6_CLIENT_PREFIX_MIN..MAX), "address 2001:db8:1:2::/64" (the
+ * address alone at 128): a host is commonly given a whole /64 and picks
+ * any address in it, so counted per address it could be as many clients
+ * as it likes. A link-local one (fe80::/10) is that on its interface, its
+ * scope id before the length, "address fe80::%2/64": the same link-local
+ * address on two links is two hosts. Peers with one name are one client.
+ * 0, or -1 when sa is neither IPv4 nor IPv6, v6_prefix is out of range or
+ * the name does not fit. */
+int hfd_peer_client_name(const struct sockaddr *sa, int v6_prefix, char *buf, size_t cap);
 
 #endif

@@ -93,6 +93,7 @@ typedef struct hfd_config {
   int max_connections;
   int max_handshakes;            /* connections that have not said HELLO */
   int max_handshakes_addr;       /* of which one IP address may hold; 0: the default */
+  int ipv6_client_prefix;        /* an IPv6 peer is a client by this many leading bits */
   uint64_t max_frame_bytes;      /* largest payload read */
   uint64_t max_memory_bytes;     /* request buffers + inference memory */
   uint64_t max_shm_bytes;        /* shared segments held at once; 0: no SHM */
@@ -509,13 +510,15 @@ typedef struct hfd_listener {
 
 /* A client (clients.c): the peer a connection belongs to, for what is
  * shared among clients rather than connections. On a Unix socket, a
- * process (the pid SO_PEERCRED gives); over TCP and TLS, an IP address.
+ * process (the pid SO_PEERCRED gives); over TCP and TLS, an IP address
+ * (an IPv6 one by its --ipv6-client-prefix bits: hfd_peer_client_name).
  * A Unix peer whose pid the daemon cannot see (another pid namespace: 0)
  * is a client of its own on each connection. */
 typedef struct hfd_client {
   struct hfd_client *next;       /* in hfd_server.clients, when listed */
   int listed;                    /* 0: a connection's own (hfd_conn.own) */
-  char name[64];                 /* "pid 1234", "address 10.0.0.3", for messages */
+  char name[64];                 /* "pid 1234", "address 10.0.0.3",
+                                  * "address 2001:db8:1:2::/64", for messages */
   int conns;                     /* connections counted in it */
   int inflight;                  /* their frames admitted, not yet answered */
   int handshaking;               /* their TCP and TLS connections before their HELLO */

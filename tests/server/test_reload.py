@@ -242,7 +242,7 @@ def run(d, w, conf):
         text = f.read().replace("queue-size = 256", "queue-size = 128")
     with open(conf, "w") as f:
         f.write(text + "max-connections = 100\nqueue-share-by = connection\n"
-                "max-handshakes-per-address = 4\n")
+                "max-handshakes-per-address = 4\nipv6-client-prefix = 56\n")
     reloads = reload_and_wait(d, reloads)
     log = d.log_text()
     check("warning: reload: --queue-size changed from 256 to 128; it takes effect at the next "
@@ -253,6 +253,8 @@ def run(d, w, conf):
           "the reload names --queue-share-by with both values")
     check("--max-handshakes-per-address changed from (default) to 4" in log,
           "the reload names --max-handshakes-per-address with both values")
+    check("--ipv6-client-prefix changed from 64 to 56" in log,
+          "the reload names --ipv6-client-prefix with both values")
     check("--max-inflight changed" not in log and "--backend changed" not in log,
           "unchanged keys are not named")
     write_conf(conf, w)
