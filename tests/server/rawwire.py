@@ -1,7 +1,8 @@
 """The wire of protocol/PROTOCOL.md at its lowest, for the server tests that
 must send what no client library would (a FILTER past the window, replies
 left unread, SHM_CREATE behind an unread reply): message types, frames,
-HELLO, starting and stopping the daemon, and the tests' check/finish."""
+HELLO, starting and stopping the daemon, the ports of its ready file, and
+the tests' check/finish."""
 import array
 import os
 import shutil
@@ -127,12 +128,40 @@ def start(binary, w, args, env=None, preexec_fn=None):
                                  "--backend", "cpu", "--ready-file", ready] + args,
                                 stdout=log, stderr=subprocess.STDOUT, env=env,
                                 preexec_fn=preexec_fn)
-    deadline = time.time() + 60
+    return proc, sock if wait_ready(proc, ready) else None
+
+
+def wait_ready(proc, ready, seconds=60):
+    """Waits for hairfilterd (proc) to write its ready file (path ready):
+    True once it is there, False when the process exited first or seconds
+    went by."""
+    deadline = time.time() + seconds
     while time.time() < deadline and not os.path.exists(ready):
         if proc.poll() is not None:
-            return proc, None
+            return False
         time.sleep(0.02)
-    return proc, sock if os.path.exists(ready) else None
+    return os.path.exists(ready)
+
+
+def ready_ports(w, scheme):
+    """The ports of the lines of w/ready (the daemon's listeners) that
+    start with scheme ("tcp", "tls"), in their order."""
+    return [int(line.rsplit(":", 1)[1]) for line in open(os.path.join(w, "ready")).read().split()
+            if line.startswith(scheme + ":")]
+
+
+def v4_mapped_unavailable():
+    """Why an IPv6 socket cannot be bound to a v4-mapped address here (the
+    tests of such listeners are then skipped), or None when it can."""
+    try:
+        s = socket.socket(socket.AF_INET6)
+        try:
+            s.bind(("::ffff:127.0.0.1", 0))
+        finally:
+            s.close()
+    except OSError as e:
+        return str(e)
+    return None
 
 
 def stop(proc, w):

@@ -23,28 +23,16 @@ import struct
 import sys
 import tempfile
 
-from rawwire import BUSY, ERROR, check, connect, finish, read_frame, require_started, start, \
-    stop_and_clean
+from rawwire import BUSY, ERROR, check, connect, finish, read_frame, ready_ports, \
+    require_started, start, stop_and_clean, v4_mapped_unavailable
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 
 
-def ports(w):
-    """The TCP ports of the ready file's tcp: lines, in their order."""
-    out = []
-    for line in open(os.path.join(w, "ready")).read().split():
-        if line.startswith("tcp:"):
-            out.append(int(line.rsplit(":", 1)[1]))
-    return out
-
-
 def main():
-    try:
-        s = socket.socket(socket.AF_INET6)
-        s.bind(("::ffff:127.0.0.1", 0))
-        s.close()
-    except OSError as e:
-        print("SKIP: no IPv6 socket bound to a v4-mapped address here (%s)" % e)
+    why = v4_mapped_unavailable()
+    if why:
+        print("SKIP: no IPv6 socket bound to a v4-mapped address here (%s)" % why)
         return 77
     w = tempfile.mkdtemp(prefix="hfv4mapped-")
     proc = None
@@ -60,7 +48,7 @@ def main():
                             "--max-handshakes", "8", "--max-handshakes-per-address", "1",
                             "--handshake-timeout-ms", "30000"])
         require_started(sock)
-        p6, p4 = ports(w)
+        p6, p4 = ready_ports(w, "tcp")
         first = socket.create_connection(("127.0.0.1", p6), timeout=20)
         # The daemon has accepted the first once it answers on the Unix
         # socket: its accepts and the Unix client's requests share one loop.

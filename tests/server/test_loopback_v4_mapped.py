@@ -22,28 +22,17 @@ import subprocess
 import sys
 import tempfile
 
-from rawwire import ERROR, HELLO, HELLO_OK, check, finish, frame, read_frame, \
-    require_started, start, stop, stop_and_clean
+from rawwire import ERROR, HELLO, HELLO_OK, check, finish, frame, read_frame, ready_ports, \
+    require_started, start, stop, stop_and_clean, v4_mapped_unavailable
 
 HAIRFILTERD, WEIGHTS = sys.argv[1:3]
 LISTEN = "tcp:[::ffff:127.0.0.1]:0"
 
 
-def tcp_port(w):
-    """The port of the ready file's tcp: line."""
-    for line in open(os.path.join(w, "ready")).read().split():
-        if line.startswith("tcp:"):
-            return int(line.rsplit(":", 1)[1])
-    raise RuntimeError("no tcp: line in the ready file")
-
-
 def main():
-    try:
-        s = socket.socket(socket.AF_INET6)
-        s.bind(("::ffff:127.0.0.1", 0))
-        s.close()
-    except OSError as e:
-        print("SKIP: no IPv6 socket bound to a v4-mapped address here (%s)" % e)
+    why = v4_mapped_unavailable()
+    if why:
+        print("SKIP: no IPv6 socket bound to a v4-mapped address here (%s)" % why)
         return 77
     weights = os.path.join(WEIGHTS, "small.safetensors")
     w = tempfile.mkdtemp(prefix="hfv4loop-")
@@ -52,7 +41,7 @@ def main():
         proc, sock = start(HAIRFILTERD, w, ["--weights", weights, "--listen", LISTEN,
                                             "--no-auth"])
         require_started(sock)
-        c = socket.create_connection(("127.0.0.1", tcp_port(w)), timeout=20)
+        c = socket.create_connection(("127.0.0.1", ready_ports(w, "tcp")[0]), timeout=20)
         c.sendall(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, 0) + b"test"))
         t, _, p = read_frame(c)
         c.close()
