@@ -20,31 +20,13 @@ import tempfile
 import time
 
 from rawwire import HELLO, check, failures, finish, frame, stop
+from tlswire import start_tls
 
 # A handshake record holding a ClientHello one byte long: OpenSSL refuses
 # it at once (a decode error).
 BAD_HELLO = bytes([0x16, 3, 1, 0, 5, 1, 0, 0, 1, 0])
 PLAIN_HELLO = frame(HELLO, b"\x01\x00\x03\x00\x04\x00\x00\x00test")
 PEERS = 200
-
-
-def start(hairfilterd, weights, w, certs):
-    ready = os.path.join(w, "ready")
-    with open(os.path.join(w, "daemon.log"), "w") as log:
-        proc = subprocess.Popen(
-            [hairfilterd, "--config", "none", "--backend", "cpu", "--ready-file", ready,
-             "--weights", os.path.join(weights, "small.safetensors"),
-             "--listen", "tls:127.0.0.1:0", "--tls-cert", os.path.join(certs, "server.pem"),
-             "--tls-key", os.path.join(certs, "server.key"), "--no-auth"],
-            stdout=log, stderr=subprocess.STDOUT)
-    deadline = time.time() + 60
-    while time.time() < deadline and not os.path.exists(ready):
-        if proc.poll() is not None:
-            return proc, None
-        time.sleep(0.02)
-    if not os.path.exists(ready):
-        return proc, None
-    return proc, int(open(ready).read().split()[0].rsplit(":", 1)[1])
 
 
 def peer(port, data):
@@ -67,7 +49,7 @@ def main():
     subprocess.run([make_certs, certs], check=True)
     proc = None
     try:
-        proc, port = start(hairfilterd, weights, w, certs)
+        proc, port = start_tls(hairfilterd, weights, w, certs, ["--no-auth"])
         check(port is not None, "the daemon started")
         if port is None:
             raise RuntimeError("hairfilterd did not start")

@@ -20,91 +20,17 @@ usage: test_tls_handshake_crowd.py HAIRFILTERD WEIGHTS_DIR MAKE_TEST_CERTS
 import os
 import shutil
 import socket
-import ssl
-import struct
 import subprocess
 import sys
 import tempfile
 import time
 
-from rawwire import (ERROR, HELLO, HELLO_OK, check, failures, finish, frame, recvn, stop)
+from rawwire import check, failures, finish, stop
+from tlswire import Tls, start_tls
 
 HAIRFILTERD, WEIGHTS, MAKE_TEST_CERTS = sys.argv[1:4]
 TOKEN = b"crowd-token"
 failed = []   # the crowds a check failed with
-
-
-def start(w, certs):
-    """hairfilterd on a TLS listener: (process, port), or (process, None)."""
-    ready = os.path.join(w, "ready")
-    with open(os.path.join(w, "token"), "w") as f:
-        f.write(TOKEN.decode())
-    with open(os.path.join(w, "daemon.log"), "w") as log:
-        proc = subprocess.Popen(
-            [HAIRFILTERD, "--config", "none", "--backend", "cpu", "--ready-file", ready,
-             "--weights", os.path.join(WEIGHTS, "small.safetensors"),
-             "--listen", "tls:127.0.0.1:0", "--tls-cert", os.path.join(certs, "server.pem"),
-             "--tls-key", os.path.join(certs, "server.key"),
-             "--auth-token-file", os.path.join(w, "token"), "--max-handshakes", "4"],
-            stdout=log, stderr=subprocess.STDOUT)
-    deadline = time.time() + 60
-    while time.time() < deadline and not os.path.exists(ready):
-        if proc.poll() is not None:
-            return proc, None
-        time.sleep(0.02)
-    if not os.path.exists(ready):
-        return proc, None
-    return proc, int(open(ready).read().split()[0].rsplit(":", 1)[1])
-
-
-class Tls:
-    """A TLS client driven by hand over a socket, so that it can stop in
-    the middle of its handshake."""
-
-    def __init__(self, port, ca):
-        ctx = ssl.create_default_context(cafile=ca)
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=10)
-        self.inc, self.out = ssl.MemoryBIO(), ssl.MemoryBIO()
-        self.obj = ctx.wrap_bio(self.inc, self.out, server_hostname="localhost")
-
-    def step(self):
-        """One handshake step: 1 when it is done, else 0 (bytes to send
-        are in self.out)."""
-        try:
-            self.obj.do_handshake()
-            return 1
-        except ssl.SSLWantReadError:
-            return 0
-
-    def flush(self):
-        data = self.out.read()
-        if data:
-            self.sock.sendall(data)
-
-    def feed(self):
-        data = self.sock.recv(65536)
-        if not data:
-            raise EOFError("the daemon closed the connection")
-        self.inc.write(data)
-
-    def handshake(self):
-        while not self.step():
-            self.flush()
-            self.feed()
-        self.flush()
-
-    def send(self, data):
-        self.obj.write(data)
-        self.flush()
-
-    def recv(self, n):
-        out = b""
-        while len(out) < n:
-            try:
-                out += self.obj.read(n - len(out))
-            except ssl.SSLWantReadError:
-                self.feed()
-        return out
 
 
 # What each peer of the crowd sends: nothing; one byte; the start of a
@@ -132,7 +58,11 @@ def main():
 def run(w, certs, what, sends):
     proc, crowd = None, []
     try:
-        proc, port = start(w, certs)
+        with open(os.path.join(w, "token"), "w") as f:
+            f.write(TOKEN.decode())
+        proc, port = start_tls(HAIRFILTERD, WEIGHTS, w, certs,
+                               ["--auth-token-file", os.path.join(w, "token"),
+                                "--max-handshakes", "4"])
         check(port is not None, "the daemon started")
         if port is None:
             raise RuntimeError("hairfilterd did not start")
@@ -151,13 +81,8 @@ def run(w, certs, what, sends):
                 crowd[-1].sendall(sends)
         time.sleep(0.5)
         c.handshake()
-        c.send(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, len(TOKEN)) + b"test" + TOKEN))
-        _, t, _, _, n = struct.unpack("<IHHII", c.recv(16))
-        p = c.recv(n)
-        got = "HELLO_OK"
-        if t == ERROR:
-            got = "ERROR %d: %s" % (struct.unpack("<I", p[:4])[0], p[8:].decode(errors="replace"))
-        check(t == HELLO_OK, "the client in the middle of its handshake is served, not pushed "
+        got = c.hello(TOKEN)
+        check(got == "HELLO_OK", "the client in the middle of its handshake is served, not pushed "
               "out by a crowd (%s) that sent %s" % (got, what))
         c.sock.close()
     finally:

@@ -21,10 +21,7 @@ usage: test_tls_handshake_flood.py HAIRFILTERD WEIGHTS_DIR
 """
 import multiprocessing
 import os
-import select
 import shutil
-import socket
-import ssl
 import subprocess
 import sys
 import tempfile
@@ -32,50 +29,12 @@ import time
 
 from rawwire import (STATS, STATS_REPLY, check, connect, failures, finish, frame, read_frame,
                      stop)
+from tlswire import burst, client_hello, start_tls
 
 FLOOD_S = 5          # how long the flood lasts
 FLOODERS = 2         # processes replaying ClientHellos
 BURST = 32           # connections a flooder opens at once
 PAUSE_S = 0.1        # between its bursts
-
-
-def start(hairfilterd, weights, w, certs):
-    """hairfilterd on a Unix socket and a TLS listener: (process, socket
-    path, TLS port); path and port None when it did not start."""
-    sock, ready = os.path.join(w, "s.sock"), os.path.join(w, "ready")
-    with open(os.path.join(w, "daemon.log"), "w") as log:
-        proc = subprocess.Popen(
-            [hairfilterd, "--config", "none", "--backend", "cpu", "--ready-file", ready,
-             "--weights", os.path.join(weights, "small.safetensors"),
-             "--listen", "unix:" + sock, "--listen", "tls:127.0.0.1:0",
-             "--tls-cert", os.path.join(certs, "rsa.pem"),
-             "--tls-key", os.path.join(certs, "rsa.key"), "--no-auth"],
-            stdout=log, stderr=subprocess.STDOUT)
-    deadline = time.time() + 60
-    while time.time() < deadline and not os.path.exists(ready):
-        if proc.poll() is not None:
-            break
-        time.sleep(0.02)
-    if not os.path.exists(ready):
-        return proc, None, None
-    urls = open(ready).read().split()
-    port = int([u for u in urls if u.startswith("tls:")][0].rsplit(":", 1)[1])
-    return proc, sock, port
-
-
-def client_hello():
-    """The bytes of one ClientHello, made once; a flooder replays them
-    and does no cryptography of its own."""
-    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
-    ctx.check_hostname = False
-    ctx.verify_mode = ssl.CERT_NONE
-    inc, out = ssl.MemoryBIO(), ssl.MemoryBIO()
-    obj = ctx.wrap_bio(inc, out, server_hostname="localhost")
-    try:
-        obj.do_handshake()
-    except ssl.SSLWantReadError:
-        pass
-    return out.read()
 
 
 def flooder(port, hello, seconds):
@@ -89,27 +48,11 @@ def flooder(port, hello, seconds):
     last = []
     end = time.time() + seconds
     while time.time() < end:
-        burst = []
-        for _ in range(BURST):
-            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            s.setblocking(False)
-            s.connect_ex(("127.0.0.1", port))
-            burst.append(s)
-        pending = set(burst)
-        until = time.time() + 0.2
-        while pending and time.time() < until:
-            _, ready, _ = select.select([], list(pending), [], max(0.0, until - time.time()))
-            for s in ready:
-                pending.discard(s)
-                try:
-                    if s.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == 0:
-                        s.send(hello)
-                        made += 1
-                except OSError:
-                    pass   # refused or reset: the daemon is behind, which is the point
+        socks, sent = burst(port, hello, BURST, 0.2)
+        made += sent
         for s in last:
             s.close()
-        last = burst
+        last = socks
         time.sleep(PAUSE_S)
     for s in last:
         s.close()
@@ -147,9 +90,11 @@ def main():
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     proc, flood = None, []
     try:
-        proc, sock, port = start(hairfilterd, weights, w, certs)
-        check(sock is not None, "the daemon started")
-        if sock is None:
+        sock = os.path.join(w, "s.sock")
+        proc, port = start_tls(hairfilterd, weights, w, certs,
+                               ["--listen", "unix:" + sock, "--no-auth"], key="rsa")
+        check(port is not None, "the daemon started")
+        if port is None:
             raise RuntimeError("hairfilterd did not start")
         hello = client_hello()
         client = connect(sock)

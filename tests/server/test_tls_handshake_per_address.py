@@ -25,133 +25,19 @@ usage: test_tls_handshake_per_address.py HAIRFILTERD WEIGHTS_DIR MAKE_TEST_CERTS
 """
 import os
 import re
-import select
 import shutil
 import socket
-import ssl
-import struct
 import subprocess
 import sys
 import tempfile
 import time
 
-from rawwire import HELLO, HELLO_OK, ERROR, check, failures, finish, frame, stop
+from rawwire import check, failures, finish, stop
+from tlswire import Tls, burst, client_hello, start_tls
 
 HAIRFILTERD, WEIGHTS, MAKE_TEST_CERTS = sys.argv[1:4]
 PER_ADDRESS = 4
 ROUNDS, BURST = 3, 16
-
-
-def start(w, certs):
-    """hairfilterd on a TLS listener: (process, port), or (process, None)."""
-    ready = os.path.join(w, "ready")
-    with open(os.path.join(w, "daemon.log"), "w") as log:
-        proc = subprocess.Popen(
-            [HAIRFILTERD, "--config", "none", "--backend", "cpu", "--ready-file", ready,
-             "--weights", os.path.join(WEIGHTS, "small.safetensors"),
-             "--listen", "tls:127.0.0.1:0", "--tls-cert", os.path.join(certs, "server.pem"),
-             "--tls-key", os.path.join(certs, "server.key"), "--no-auth",
-             "--max-handshakes", str(2 * PER_ADDRESS)],
-            stdout=log, stderr=subprocess.STDOUT)
-    deadline = time.time() + 60
-    while time.time() < deadline and not os.path.exists(ready):
-        if proc.poll() is not None:
-            return proc, None
-        time.sleep(0.02)
-    if not os.path.exists(ready):
-        return proc, None
-    return proc, int(open(ready).read().split()[0].rsplit(":", 1)[1])
-
-
-class Tls:
-    """A TLS client from source address src, driven by hand, so that it
-    can stop in the middle of its handshake."""
-
-    def __init__(self, port, ca, src):
-        ctx = ssl.create_default_context(cafile=ca)
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=20,
-                                             source_address=(src, 0))
-        self.inc, self.out = ssl.MemoryBIO(), ssl.MemoryBIO()
-        self.obj = ctx.wrap_bio(self.inc, self.out, server_hostname="localhost")
-
-    def step(self):
-        try:
-            self.obj.do_handshake()
-            return 1
-        except ssl.SSLWantReadError:
-            return 0
-
-    def flush(self):
-        data = self.out.read()
-        if data:
-            self.sock.sendall(data)
-
-    def feed(self):
-        data = self.sock.recv(65536)
-        if not data:
-            raise EOFError("the daemon closed the connection")
-        self.inc.write(data)
-
-    def handshake(self):
-        while not self.step():
-            self.flush()
-            self.feed()
-        self.flush()
-
-    def recv(self, n):
-        out = b""
-        while len(out) < n:
-            try:
-                out += self.obj.read(n - len(out))
-            except ssl.SSLWantReadError:
-                self.feed()
-        return out
-
-    def hello(self):
-        """HELLO_OK, or what came instead."""
-        self.obj.write(frame(HELLO, struct.pack("<HHHH", 1, 3, 4, 0) + b"test"))
-        self.flush()
-        _, t, _, _, n = struct.unpack("<IHHII", self.recv(16))
-        p = self.recv(n)
-        if t == ERROR:
-            return "ERROR %d: %s" % (struct.unpack("<I", p[:4])[0],
-                                     p[8:].decode(errors="replace"))
-        return "HELLO_OK" if t == HELLO_OK else "type %d" % t
-
-
-def client_hello():
-    """The bytes of one ClientHello, made once and replayed."""
-    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
-    ctx.check_hostname = False
-    ctx.verify_mode = ssl.CERT_NONE
-    inc, out = ssl.MemoryBIO(), ssl.MemoryBIO()
-    obj = ctx.wrap_bio(inc, out, server_hostname="localhost")
-    try:
-        obj.do_handshake()
-    except ssl.SSLWantReadError:
-        pass
-    return out.read()
-
-
-def burst(port, hello, n):
-    """n connections from 127.0.0.1, each sending hello once connected."""
-    socks = []
-    for _ in range(n):
-        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        s.setblocking(False)
-        s.connect_ex(("127.0.0.1", port))
-        socks.append(s)
-    pending, until = set(socks), time.time() + 5
-    while pending and time.time() < until:
-        _, ready, _ = select.select([], list(pending), [], max(0.0, until - time.time()))
-        for s in ready:
-            pending.discard(s)
-            try:
-                if s.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == 0:
-                    s.send(hello)
-            except OSError:
-                pass   # closed by the daemon already
-    return socks
 
 
 def still_open(s):
@@ -177,22 +63,23 @@ def main():
     ca = os.path.join(certs, "ca.pem")
     proc, flood = None, []
     try:
-        proc, port = start(w, certs)
+        proc, port = start_tls(HAIRFILTERD, WEIGHTS, w, certs,
+                               ["--no-auth", "--max-handshakes", str(2 * PER_ADDRESS)])
         check(port is not None, "the daemon started")
         if port is None:
             raise RuntimeError("hairfilterd did not start")
         hello = client_hello()
-        c = Tls(port, ca, "127.0.0.2")
+        c = Tls(port, ca, "127.0.0.2", timeout=20)
         check(not c.step(), "the handshake needs the server's answer")
         c.flush()      # ClientHello
         c.feed()       # the server's first flight: this client is answered
         t0 = time.time()
         for _ in range(ROUNDS):
-            flood += burst(port, hello, BURST)
+            flood += burst(port, hello, BURST, 5)[0]
             time.sleep(0.2)
         # Another address makes a whole handshake while the flood's
         # connections are there.
-        c2 = Tls(port, ca, "127.0.0.3")
+        c2 = Tls(port, ca, "127.0.0.3", timeout=20)
         c2.handshake()
         got2 = c2.hello()
         took = time.time() - t0
