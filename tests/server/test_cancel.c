@@ -205,21 +205,9 @@ static void test_reports(void **state) {
                  "class=\"cancelled\"} 2\n"))
     fail_msg("no cancelled count of 2 for Small in /metrics:\n%s", m);
   free(m);
-  assert_int_equal(kill(S.pid, SIGUSR1), 0);
-  int seen = 0;
-  for (int waited = 0; waited < 5000 && !seen; waited += 10)
-    if (!(seen = server_log_has(&S, "expired=0 cancelled=2"))) usleep(10000);
-  if (!seen) {
-    server_dump_log(&S);
-    fail_msg("no 'cancelled=2' in the SIGUSR1 statistics line of Small");
-  }
-  char cmd[1200], out[300], text[8192];
-  snprintf(out, sizeof out, "%s/stats.out", H.dir);
-  snprintf(cmd, sizeof cmd, "'%s' filter --server %s --stats > '%s' 2>&1", HAIRFILTER_CLI_PATH,
-           S.unix_url, out);
-  int rc = system(cmd);
-  assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
-  assert_int_equal(read_text_file(out, text, sizeof text), 0);
+  usr1_line_or_fail(&S, "expired=0 cancelled=2");
+  char text[8192];
+  cli_stats_or_fail(&H, &S, text, sizeof text);
   if (!strstr(text, "  Small: 2 frame(s) cancelled in the queue, not computed"))
     fail_msg("no cancelled line in hairfilter filter --stats:\n%s", text);
 }

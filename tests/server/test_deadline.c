@@ -321,21 +321,9 @@ static void test_reports(void **state) {
     fail_msg("the HELP of hairfilterd_requests_total does not name EXPIRED's class and "
              "CANCELLED's:\n%s", m);
   free(m);
-  assert_int_equal(kill(S.pid, SIGUSR1), 0);
-  int seen = 0;
-  for (int waited = 0; waited < 5000 && !seen; waited += 10)
-    if (!(seen = server_log_has(&S, "sanitised=0 expired=3"))) usleep(10000);
-  if (!seen) {
-    server_dump_log(&S);
-    fail_msg("no 'expired=3' in the SIGUSR1 statistics line of Small");
-  }
-  char cmd[1200], out[300], text[8192];
-  snprintf(out, sizeof out, "%s/stats.out", H.dir);
-  snprintf(cmd, sizeof cmd, "'%s' filter --server %s --stats > '%s' 2>&1", HAIRFILTER_CLI_PATH,
-           S.unix_url, out);
-  int rc = system(cmd);
-  assert_true(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
-  assert_int_equal(read_text_file(out, text, sizeof text), 0);
+  usr1_line_or_fail(&S, "sanitised=0 expired=3");
+  char text[8192];
+  cli_stats_or_fail(&H, &S, text, sizeof text);
   /* failed counts EXPIRED and CANCELLED too (each also counted apart
    * below the table): the legend says so */
   if (!strstr(text, "EXPIRED and CANCELLED included"))
