@@ -759,7 +759,7 @@ static void test_version2(void **state) {
   assert_int_equal(hfp_decode_variants(p, h.length, d, HFP_MAX_VARIANTS, &count), 0);
   assert_int_equal(d[1].num_ranges, 0);
   /* bad ranges are refused both ways */
-  static uint8_t c[1024];
+  static uint8_t c[2048];
   n2 = hfp_encode_variants_v(buf, sizeof buf, v, 2, 2);
   size_t last = (size_t)n2 - 17;            /* V1's second triple */
   memcpy(c, buf, (size_t)n2);
@@ -807,6 +807,7 @@ static void test_version2(void **state) {
   assert_true(sd.variants[0].frames_sanitised == 0 && sd.variants[1].frames_sanitised == 0);
   assert_true(sd.variants[0].cache_bytes == 0 && sd.variants[1].cache_bytes == 0);
   /* A newer peer's six counters: the first five are ours, the rest skipped. */
+  assert_true((size_t)n1 + 2 + 2 * 6 * 8 <= sizeof c);
   memcpy(c, v1, (size_t)n1);
   size_t off = (size_t)n1;
   hfp_put_u16(c + off, 6), off += 2;
