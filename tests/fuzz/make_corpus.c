@@ -75,6 +75,19 @@ static void protocol(void) {
   f.flags = HFP_FILTER_SHM | HFP_FILTER_COMPOSITE;
   f.shm_segment = 1, f.shm_in = 0, f.shm_out = 4096, f.shm_rgba = 8192;
   frame("filter_shm", hfp_encode_filter_head(b, sizeof b, 11, &f, NULL), b);
+  /* Version 4: a budget after the variant name, before a shared-memory
+   * reference or the inline tensors. */
+  f.flags |= HFP_FILTER_DEADLINE;
+  f.budget_us = 16000;
+  frame("filter_shm_deadline", hfp_encode_filter_head(b, sizeof b, 14, &f, NULL), b);
+  f.flags = HFP_FILTER_DEADLINE;
+  f.in_dtype = f.out_dtype = HFP_F32;
+  f.data_len = sizeof feat;
+  f.shm_segment = 0, f.shm_out = 0, f.shm_rgba = 0;
+  n = hfp_encode_filter_head(b, sizeof b, 15, &f, &total);
+  if (n > 0) memcpy(b + n, feat, sizeof feat), n = (int)total;
+  frame("filter_deadline", n, b);
+  frame("cancel", hfp_encode_empty(b, sizeof b, HFP_CANCEL, 15), b);
   /* Version 3: the estimate after the features (3 x 2 pixels, 3 values). */
   static float feat_est[3 * 2 * (4 * 6 + 3)];
   for (size_t i = 0; i < sizeof feat_est / sizeof feat_est[0]; i++) feat_est[i] = (float)(i % 5) / 5;
@@ -108,6 +121,8 @@ static void protocol(void) {
   st.variants[0].frames_sanitised = 1;
   frame("stats_reply_v1", hfp_encode_stats_v(b, sizeof b, &st, 1), b);
   frame("stats_reply_v2", hfp_encode_stats_v(b, sizeof b, &st, 2), b);
+  st.variants[0].cancelled = 2;
+  frame("stats_reply_v4", hfp_encode_stats_v(b, sizeof b, &st, 4), b);
   frame("shm_create", hfp_encode_shm_create(b, sizeof b, 1 << 20), b);
   frame("shm_created", hfp_encode_shm_created(b, sizeof b, 1, 1 << 20), b);
   frame("shm_destroy", hfp_encode_shm_destroy(b, sizeof b, 1), b);

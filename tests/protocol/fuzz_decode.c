@@ -40,7 +40,7 @@ static void heads(const uint8_t *p, size_t len) {
   int rw = hfp_decode_filter_head(p, len, len, &whole, &head_whole);
   check_rc("filter head", rw);
   if (rw && rw != -HFP_E_NOSPACE) fault_text(p, len, len, rw);
-  for (size_t avail = 0; avail <= len && avail <= HFP_FILTER_FIXED + HFP_NAME_MAX + HFP_SHM_REF_SIZE;
+  for (size_t avail = 0; avail <= len && avail <= HFP_FILTER_HEAD_MAX - HFP_HEADER_SIZE;
        avail++) {
     int rp = hfp_decode_filter_head(p, avail, len, &part, &head_part);
     check_rc("filter head prefix", rp);
@@ -112,12 +112,15 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (all || h.type == HFP_FILTER) {
     rc = hfp_decode_filter(p, len, &f);
     check_rc("filter", rc);
+    /* The fields between the variant name and the data: the budget (flag
+     * DEADLINE), then the shared-memory reference (flag SHM). */
+    size_t head = HFP_FILTER_FIXED + strlen(f.variant) +
+                  ((f.flags & HFP_FILTER_DEADLINE) ? HFP_DEADLINE_SIZE : 0);
     if (!rc && !(f.flags & HFP_FILTER_SHM) &&
-        (f.data_len != len - HFP_FILTER_FIXED - strlen(f.variant) ||
-         (const uint8_t *)f.data + f.data_len != p + len))
+        (f.data_len != len - head || (const uint8_t *)f.data + f.data_len != p + len))
       fail("filter data bounds", 0);
     if (!rc && (f.flags & HFP_FILTER_SHM)) {
-      if (len != HFP_FILTER_FIXED + strlen(f.variant) + HFP_SHM_REF_SIZE) fail("shm filter bounds", 0);
+      if (len != head + HFP_SHM_REF_SIZE) fail("shm filter bounds", 0);
       check_rc("shm_check", hfp_shm_check(&f, UINT64_MAX));
       check_rc("shm_check small", hfp_shm_check(&f, 4096));
     }
@@ -163,7 +166,7 @@ static uint64_t next(void) {
 }
 
 /* Builds a valid frame of each kind. */
-enum { KINDS = 9 };
+enum { KINDS = 11 };
 static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
   int n = 0;
   switch (kind) {
@@ -228,6 +231,26 @@ static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
       break;
     }
     case 8: n = hfp_encode_shm_created(b, cap, 3, 65536); break;
+    case 9: {
+      /* version 4: a budget, then the inline tensors */
+      static float d[2 * 2 * 6];
+      hfp_filter m = {"Base", HFP_FILTER_DEADLINE, 2, 2, 1, HFP_F32, HFP_F32, {0}, {0}, {0}, d,
+                      sizeof d, 0, 0, 0, 0, 16000};
+      uint64_t total;
+      n = hfp_encode_filter_head(b, cap, 3, &m, &total);
+      if (n > 0) {
+        memcpy(b + n, d, sizeof d);
+        n = (int)total;
+      }
+      break;
+    }
+    case 10: {
+      /* version 4: a budget, then a shared-memory reference */
+      hfp_filter m = {"Base", HFP_FILTER_SHM | HFP_FILTER_DEADLINE, 3, 2, 1, HFP_F16, HFP_F16,
+                      {0}, {0}, {0}, NULL, 3 * 2 * 6 * 2, 5, 0, 512, 0, 40000};
+      n = hfp_encode_filter_head(b, cap, 4, &m, NULL);
+      break;
+    }
   }
   if (n <= 0) fail("seed", n);
   return (size_t)n;
