@@ -199,17 +199,30 @@ def kernel_finish_sums(raw, sums, spp, radius, clamp=torch.clamp):
     pixel_sums lays them out (count, colour sum, highlight sum over spp
     samples); weights/experiments give other estimates in this form."""
     taps = kernel_taps(radius)
-    wts = kernel_weights(raw[:, :taps], radius)
+    return kernel_normalise(kernel_aggregate(raw[:, :taps], sums, radius), raw[:, taps:taps + 3],
+                            spp, clamp)
+
+
+def kernel_aggregate(logits, sums, radius):
+    """Each pixel's softmax-weighted sum of its taps' sums: logits
+    [n][taps][h][w], sums [n][k][h][w] (any k), result [n][k][h][w]."""
+    wts = kernel_weights(logits, radius)
     sums = F.pad(sums, (radius,) * 4)
     agg = 0
     for wt, (dy, dx) in zip(wts, _taps(radius)):
         agg = agg + wt[:, None] * _shifted(sums, radius, dy, dx)
+    return agg
+
+
+def kernel_normalise(agg, corr, spp, clamp=torch.clamp):
+    """Colour, highlight and alpha [n][3][h][w] of aggregated sums agg
+    [n][3][h][w] (count, colour sum, highlight sum) plus the corrections corr
+    [n][3][h][w], clamped as Residual's (kernel_finish)."""
     cnt = agg[:, 0:1]
     ok = cnt > 1e-12
     safe = torch.where(ok, cnt, torch.ones_like(cnt))
     color = torch.where(ok, agg[:, 1:2] / safe, torch.ones_like(cnt))
     hl = torch.where(ok, agg[:, 2:3] / safe, torch.zeros_like(cnt))
-    corr = raw[:, taps:taps + 3]
     return torch.cat([color + corr[:, 0:1], clamp(hl + corr[:, 1:2], 0, None),
                       clamp(cnt / spp + corr[:, 2:3], 0, 1)], dim=1)
 
