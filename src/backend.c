@@ -551,10 +551,12 @@ void hf_model_trim(hf_model *m, size_t keep) {
 /* ---- helpers shared by the CPU backends ---------------------------------- */
 
 size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height) {
-  /* A row of float results for an f16 output, and the whole-frame base. */
+  /* A row of float results for an f16 output, the whole-frame base and its
+   * scratch (a Kernel's per-pixel sums, 6 floats a pixel when it mixes). */
   size_t row = (size_t)width * 3 * sizeof(float);
   if (cfg->arch != HF_ARCH_RESIDUAL && cfg->arch != HF_ARCH_KERNEL) return row;
-  return row + 2 * (size_t)width * height * 3 * sizeof(float);
+  const int k = cfg->arch == HF_ARCH_KERNEL ? hf_kernel_sums_floats(hf_kernel_sums_of(cfg)) : 3;
+  return row + (size_t)width * height * (3 + k) * sizeof(float);
 }
 
 double hf_now_us(void) {
@@ -601,8 +603,10 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
   float *base = NULL, *tmp = NULL, *row = NULL;
   const int kernel = cfg->arch == HF_ARCH_KERNEL, raw_ch = cfg->out_channels;
   if (cfg->arch == HF_ARCH_RESIDUAL || kernel) {
+    /* tmp: the Kernel's per-pixel sums, 6 floats a pixel when it mixes */
+    const int k = kernel ? hf_kernel_sums_floats(hf_kernel_sums_of(cfg)) : 3;
     base = malloc((size_t)io->width * io->height * 3 * sizeof(float));
-    tmp = malloc((size_t)io->width * io->height * 3 * sizeof(float));
+    tmp = malloc((size_t)io->width * io->height * k * sizeof(float));
     if (!base || !tmp) free(base), free(tmp), base = tmp = NULL;
   }
   /* An f16 result is gathered a row at a time in float and converted per
@@ -613,8 +617,8 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
                           pw, cfg->in_channels};
     const float *raw = src + (size_t)n * ph * pw * raw_ch;
     if (base && kernel)
-      hf_kernel_output_frame(&view, cfg->spp, cfg->estimate, cfg->kernel_radius, raw, pw, raw_ch,
-                             base, tmp);
+      hf_kernel_output_frame(&view, cfg->spp, hf_kernel_sums_of(cfg), cfg->kernel_radius, raw, pw,
+                             raw_ch, base, tmp);
     else if (base)
       hf_residual_base_frame(&view, cfg->spp, base, tmp);
     for (int y = 0; y < io->height; y++) {

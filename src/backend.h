@@ -165,23 +165,26 @@ void hf_output_from_padded_f32(const hf_net_config *cfg, const float *in, const 
 size_t hf_output_extra_bytes(const hf_net_config *cfg, int width, int height);
 /* The Kernel architecture's output stage across each row's pixels
  * (cpu_kernel_output.c), the values of hf_kernel_output_rows up to
- * rounding: hf_cpu_kernel_sums writes the per-pixel sums of rows y0..y1-1 as
- * three planes (planes: [3][in->height][in->width], covered count, colour,
- * highlight); hf_cpu_kernel_rows reads them for rows y0-radius..y1-1+radius
- * and writes rows y0..y1-1 of out ([height][width][3]), with scratch of
- * hf_cpu_kernel_scratch(width, radius) floats. */
+ * rounding: hf_cpu_kernel_sums writes the per-pixel sums of kind ksums
+ * (HF_KSUMS_*; hf_pixel_sums_rows) of rows y0..y1-1 as
+ * hf_kernel_sums_floats(ksums) planes (planes: [k][in->height][in->width],
+ * covered count, colour, highlight, then with HF_KSUMS_MIXED the
+ * estimate's three); hf_cpu_kernel_rows reads them for rows
+ * y0-radius..y1-1+radius and writes rows y0..y1-1 of out
+ * ([height][width][3]), with scratch of hf_cpu_kernel_scratch(width, radius)
+ * floats. */
 size_t hf_cpu_kernel_scratch(int width, int radius);
-void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int ksums, int y0, int y1,
                         float *planes);
 /* The sums of one row of width pixels px (stride floats apart) into
- * planes[x], planes[plane + x] and planes[2 plane + x]: hf_cpu_kernel_sums a
- * row at a time, for a caller that has the row elsewhere. estimate: the
- * network's (hf_net_config.estimate; hf_pixel_sums_rows). */
-void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, int estimate,
+ * planes[x], planes[plane + x], planes[2 plane + x] (and 3..5 plane with
+ * HF_KSUMS_MIXED): hf_cpu_kernel_sums a row at a time, for a caller that has
+ * the row elsewhere. ksums: the network's (hf_kernel_sums_of). */
+void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, int ksums,
                             float *planes, size_t plane);
-void hf_cpu_kernel_rows(int width, int height, int spp, int radius, const float *planes,
-                        const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
-                        float *out, float *scratch);
+void hf_cpu_kernel_rows(int width, int height, int spp, int radius, int ksums,
+                        const float *planes, const float *raw, int raw_pitch, int raw_stride,
+                        int y0, int y1, float *out, float *scratch);
 /* Rounds n up to a multiple of a (a power of two). */
 static inline int hf_round_up(int n, int a) { return (n + a - 1) & ~(a - 1); }
 /* Monotonic clock in microseconds. */

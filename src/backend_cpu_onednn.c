@@ -1424,7 +1424,8 @@ typedef struct od_kernel_out {
   const od_input *in;           /* read a row at a time (od_in_row) */
   const float *raw;             /* raw output [batch][ph][pw][out_channels] */
   int pw, ph;
-  float *sums, *fin;            /* Kernel: [batch][3][height][width], [batch][height][width][3];
+  float *sums, *fin;            /* Kernel: [batch][k][height][width] (k: hf_kernel_sums_floats),
+                                 * [batch][height][width][3];
                                  * Residual: each frame's base [batch][height][width][3], and
                                  * a frame's scratch */
   float *scratch;               /* per thread, scratch_floats each */
@@ -1442,13 +1443,13 @@ static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
   for (size_t r = r0; r < r1; r++) {
     const size_t n = r / h, y = r % h;
     const float *row = od_in_row(k->in, (int)n, (int)y, buf);
-    float *sums = k->sums + n * h * w * 3;
+    const int ksums = hf_kernel_sums_of(k->cfg), nk = hf_kernel_sums_floats(ksums);
+    float *sums = k->sums + n * h * w * nk;
     if (k->ref) {
       hf_input_view v = {row, w, 1, k->pw, cin};
-      hf_pixel_sums_rows(&v, k->cfg->spp, k->cfg->estimate, 0, 1, sums + y * w * 3);
+      hf_pixel_sums_rows(&v, k->cfg->spp, ksums, 0, 1, sums + y * w * nk);
     } else {
-      hf_cpu_kernel_sums_row(row, w, cin, k->cfg->spp, k->cfg->estimate, sums + y * w,
-                             (size_t)h * w);
+      hf_cpu_kernel_sums_row(row, w, cin, k->cfg->spp, ksums, sums + y * w, (size_t)h * w);
     }
   }
 }
@@ -1458,15 +1459,16 @@ static void od_kernel_rows(const void *ctx, int job, size_t r0, size_t r1) {
   const int w = k->io->width, h = k->io->height, ch = k->cfg->out_channels;
   const int f16 = k->io->out_dtype == HF_F16;
   for (size_t r = r0; r < r1;) {
-    size_t n = r / h, frame = n * h * w * 3;
+    const int ksums = hf_kernel_sums_of(k->cfg);
+    size_t n = r / h, frame = n * h * w * 3, fsums = n * h * w * hf_kernel_sums_floats(ksums);
     int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
     float *out = f16 ? k->fin + frame : (float *)k->io->out + frame;
     const float *raw = k->raw + n * k->ph * k->pw * ch;
     if (k->ref)
-      hf_kernel_output_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, k->sums + frame, raw,
+      hf_kernel_output_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, ksums, k->sums + fsums, raw,
                             k->pw, ch, y0, y1, out);
     else
-      hf_cpu_kernel_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, k->sums + frame, raw, k->pw,
+      hf_cpu_kernel_rows(w, h, k->cfg->spp, k->cfg->kernel_radius, ksums, k->sums + fsums, raw, k->pw,
                          ch, y0, y1, out, k->scratch + (size_t)job * k->scratch_floats);
     if (f16)
       hf_f32_to_f16_serial(out + (size_t)y0 * w * 3,
@@ -1593,7 +1595,9 @@ static int od_layout_make(const hf_net_config *c, const int *use_taps, int head_
   l->head_in = head ? od_take(l, od_tensor_bytes(batch, head_sum ? c->kernel_hidden : head, ph, pw))
                     : OD_NONE;
   const int sums = c->arch == HF_ARCH_KERNEL || c->arch == HF_ARCH_RESIDUAL;
-  l->sums = sums ? od_take(l, od_tensor_bytes(batch, 3, ph, pw)) : OD_NONE;
+  /* a Kernel that mixes keeps 6 sums a pixel (hf_kernel_sums_floats) */
+  const int nsums = c->arch == HF_ARCH_KERNEL ? hf_kernel_sums_floats(hf_kernel_sums_of(c)) : 3;
+  l->sums = sums ? od_take(l, od_tensor_bytes(batch, nsums, ph, pw)) : OD_NONE;
   l->fin = sums ? od_take(l, od_tensor_bytes(batch, 3, ph, pw)) : OD_NONE;
   size_t ks = od_thread_scratch(c, pw);
   l->kscratch = ks <= SIZE_MAX / sizeof(float) / threads ? od_take(l, ks * threads * sizeof(float))

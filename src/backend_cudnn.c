@@ -912,7 +912,7 @@ static cudaError_t output_kernel(const cudnn_model *m, const plan *p, const slot
     head.b = m->d_head + (size_t)c->out_channels * hf_head_in(c);
   }
   return hf_cuk_output_kernel(raw_output(p), head, p->buf[HF_CL_BUF_IN], p->lo.cin_pad, p->pw,
-                              p->ph, c->spp, c->estimate, c->kernel_radius, s->io.batch,
+                              p->ph, c->spp, hf_kernel_sums_of(c), c->kernel_radius, s->io.batch,
                               s->io.width,
                               s->io.height, s->d_out, s->io.out_dtype == HF_F16, m->s_comp);
 }

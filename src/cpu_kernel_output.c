@@ -36,26 +36,28 @@ static size_t plane_pitch(int width) {
   return p % 512 ? p : p + 16;
 }
 
+/* The taps' logits, then the maximum, the denominator and six weighted
+ * sums (three without mixing, but the scratch is the same). */
 size_t hf_cpu_kernel_scratch(int width, int radius) {
-  return plane_pitch(width) * ((size_t)hf_kernel_taps(radius) + 5);
+  return plane_pitch(width) * ((size_t)hf_kernel_taps(radius) + 8);
 }
 
-void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, int estimate,
+void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, int ksums,
                             float *planes, size_t plane) {
   for (int x = 0; x < width; x++) {
-    float s[3];
-    if (estimate) hf_estimate_sums(px + (size_t)x * stride, spp, s);
-    else hf_pixel_sums(px + (size_t)x * stride, spp, s);
-    planes[x] = s[0], planes[plane + x] = s[1], planes[2 * plane + x] = s[2];
+    float s[6];
+    hf_input_view v = {px + (size_t)x * stride, 1, 1, 1, stride};
+    hf_pixel_sums_rows(&v, spp, ksums, 0, 1, s);
+    for (int k = 0; k < hf_kernel_sums_floats(ksums); k++) planes[k * plane + x] = s[k];
   }
 }
 
-void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+void hf_cpu_kernel_sums(const hf_input_view *in, int spp, int ksums, int y0, int y1,
                         float *planes) {
   const size_t plane = (size_t)in->width * in->height;
   for (int y = y0; y < y1; y++)
     hf_cpu_kernel_sums_row(in->data + (size_t)y * in->pitch * in->stride, in->width, in->stride,
-                           spp, estimate, planes + (size_t)y * in->width, plane);
+                           spp, ksums, planes + (size_t)y * in->width, plane);
 }
 
 /* e^x for x <= 0 (the logits less their maximum), 0 below -87 where e^x
@@ -106,24 +108,49 @@ HF_CPU_CLONES static void tap_accumulate(int x0, int x1, const float *restrict l
   }
 }
 
+/* tap_accumulate for a kernel that mixes: also the estimate's sums qe
+ * (count, colour, highlight planes, offset by the tap) into be[0..2]. */
+HF_CPU_CLONES static void tap_accumulate_mixed(int x0, int x1, const float *restrict l,
+                                 const float *restrict m, const float *restrict qn,
+                                 const float *restrict qc, const float *restrict qh,
+                                 const float *restrict en, const float *restrict ec,
+                                 const float *restrict eh, float *restrict den,
+                                 float *restrict an, float *restrict ac, float *restrict ah,
+                                 float *restrict bn, float *restrict bc, float *restrict bh) {
+#pragma omp simd
+  for (int x = x0; x < x1; x++) {
+    float e = od_exp(l[x] - m[x]);
+    den[x] += e;
+    an[x] += e * qn[x];
+    ac[x] += e * qc[x];
+    ah[x] += e * qh[x];
+    bn[x] += e * en[x];
+    bc[x] += e * ec[x];
+    bh[x] += e * eh[x];
+  }
+}
+
 HF_CPU_CLONES static void tap_max(int x0, int x1, const float *restrict l, float *restrict m) {
 #pragma omp simd
   for (int x = x0; x < x1; x++) m[x] = l[x] > m[x] ? l[x] : m[x];
 }
 
-void hf_cpu_kernel_rows(int width, int height, int spp, int radius, const float *planes,
-                        const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
-                        float *out, float *scratch) {
+void hf_cpu_kernel_rows(int width, int height, int spp, int radius, int ksums,
+                        const float *planes, const float *raw, int raw_pitch, int raw_stride,
+                        int y0, int y1, float *out, float *scratch) {
   const int r = radius, side = 2 * r + 1, taps = side * side, w = width;
+  const int mix = ksums == HF_KSUMS_MIXED;
   const size_t pitch = plane_pitch(width), plane = (size_t)width * height;
   float *logit = scratch, *m = logit + pitch * taps, *den = m + pitch;
   float *an = den + pitch, *ac = an + pitch, *ah = ac + pitch;
+  float *bn = ah + pitch, *bc = bn + pitch, *bh = bc + pitch; /* the estimate's, mixing */
   for (int y = y0; y < y1; y++) {
     const float *row = raw + (size_t)y * raw_pitch * raw_stride;
     for (int x = 0; x < w; x++)
       for (int t = 0; t < taps; t++) logit[t * pitch + x] = row[(size_t)x * raw_stride + t];
     int dy0 = y - r < 0 ? -y : -r, dy1 = y + r >= height ? height - 1 - y : r;
-    for (int x = 0; x < w; x++) m[x] = -INFINITY, den[x] = an[x] = ac[x] = ah[x] = 0;
+    for (int x = 0; x < w; x++)
+      m[x] = -INFINITY, den[x] = an[x] = ac[x] = ah[x] = bn[x] = bc[x] = bh[x] = 0;
     /* Pixel x sees tap dx when 0 <= x + dx < w: x from max(0, -dx) to
      * min(w, w - dx). */
     for (int dy = dy0; dy <= dy1; dy++)
@@ -137,8 +164,24 @@ void hf_cpu_kernel_rows(int width, int height, int spp, int radius, const float 
         /* Pixel x's neighbour is pixel q + x of the planes; q may be -r.
          * Only x in x0..x1-1 is read, where q + x is inside the frame. */
         ptrdiff_t q = (ptrdiff_t)(y + dy) * width + dx;
-        tap_accumulate(dx < 0 ? -dx : 0, dx > 0 ? w - dx : w, l, m, planes + q,
-                       planes + plane + q, planes + 2 * plane + q, den, an, ac, ah);
+        if (mix)
+          tap_accumulate_mixed(dx < 0 ? -dx : 0, dx > 0 ? w - dx : w, l, m, planes + q,
+                               planes + plane + q, planes + 2 * plane + q,
+                               planes + 3 * plane + q, planes + 4 * plane + q,
+                               planes + 5 * plane + q, den, an, ac, ah, bn, bc, bh);
+        else
+          tap_accumulate(dx < 0 ? -dx : 0, dx > 0 ? w - dx : w, l, m, planes + q,
+                         planes + plane + q, planes + 2 * plane + q, den, an, ac, ah);
+      }
+    /* Mixing: the estimate's sums plus beta times the samples' less the
+     * estimate's (hf_kernel_output_rows' order). */
+    if (mix)
+      for (int x = 0; x < w; x++) {
+        const float mv = row[(size_t)x * raw_stride + taps + 3];
+        const float beta = 1.0f / (1.0f + expf(-HF_KERNEL_MIX_GAIN * mv));
+        an[x] = bn[x] + beta * (an[x] - bn[x]);
+        ac[x] = bc[x] + beta * (ac[x] - bc[x]);
+        ah[x] = bh[x] + beta * (ah[x] - bh[x]);
       }
     /* The weights are e / den: N = an / den, and C / N = ac / an. */
     for (int x = 0; x < w; x++) {

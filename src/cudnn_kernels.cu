@@ -138,15 +138,17 @@ output_residual_kernel(hf_cuk_raw raw, const __half *in, int in_stride, int pw, 
 
 __global__ void __launch_bounds__(kTileX * kTileY)
 output_kernel_kernel(hf_cuk_raw raw, hf_cuk_head head, const __half *in, int in_stride, int pw,
-                     int ph, int spp, int estimate, int radius, int w, int h, void *dst,
+                     int ph, int spp, int ksums, int radius, int w, int h, void *dst,
                      int dst_f16) {
-  __shared__ float3 px[kKHaloH][kKHaloW];
+  // pe: the estimate's sums of a kernel that mixes (HF_KSUMS_MIXED)
+  __shared__ float3 px[kKHaloH][kKHaloW], pe_mem[kKHaloH][kKHaloW];
+  float3 (*pe)[kKHaloW] = ksums == HF_KSUMS_MIXED ? pe_mem : nullptr;
   const int tid = threadIdx.y * kTileX + threadIdx.x;
-  sums_load<kKR>(px, in, in_stride, pw, ph, spp, estimate, w, h, blockIdx.x, blockIdx.y,
+  sums_load<kKR>(px, pe, in, in_stride, pw, ph, spp, ksums, w, h, blockIdx.x, blockIdx.y,
                  blockIdx.z, tid, kTileX * kTileY);
   __syncthreads();
-  kernel_finish(px, raw, head, in, in_stride, pw, ph, spp, radius, w, h, dst, dst_f16, blockIdx.x,
-                blockIdx.y, blockIdx.z, threadIdx.x, threadIdx.y);
+  kernel_finish(px, pe, raw, head, in, in_stride, pw, ph, spp, radius, w, h, dst, dst_f16,
+                blockIdx.x, blockIdx.y, blockIdx.z, threadIdx.x, threadIdx.y);
 }
 
 }  // namespace
@@ -273,12 +275,14 @@ extern "C" cudaError_t hf_cuk_output_residual(hf_cuk_raw raw, const void *in, in
 }
 
 extern "C" cudaError_t hf_cuk_output_kernel(hf_cuk_raw raw, hf_cuk_head head, const void *in,
-                                            int in_stride, int pw, int ph, int spp, int estimate,
+                                            int in_stride, int pw, int ph, int spp, int ksums,
                                             int radius, int batch, int w, int h, void *dst,
                                             int dst_f16, cudaStream_t stream) {
   if (batch < 1 || batch > 65535 || w < 1 || h < 1 || radius < 0 || radius > kKR)
     return cudaErrorInvalidValue;
-  if (estimate && spp * HF_FEATURES_PER_SAMPLE + HF_ESTIMATE_CHANNELS > in_stride)
+  if (ksums != HF_KSUMS_SAMPLES && ksums != HF_KSUMS_ESTIMATE && ksums != HF_KSUMS_MIXED)
+    return cudaErrorInvalidValue;
+  if (ksums && spp * HF_FEATURES_PER_SAMPLE + HF_ESTIMATE_CHANNELS > in_stride)
     return cudaErrorInvalidValue;
   if (head.w && (!head.b || head.hidden < 0 || head.cin < 0 || head.hidden + head.cin > kMaxFeat ||
                  head.cin > in_stride))
@@ -286,6 +290,6 @@ extern "C" cudaError_t hf_cuk_output_kernel(hf_cuk_raw raw, hf_cuk_head head, co
   dim3 grid((w + kTileX - 1) / kTileX, (h + kTileY - 1) / kTileY, batch);
   if (grid.y > 65535) return cudaErrorInvalidValue;
   output_kernel_kernel<<<grid, dim3(kTileX, kTileY), 0, stream>>>(
-      raw, head, (const __half *)in, in_stride, pw, ph, spp, estimate, radius, w, h, dst, dst_f16);
+      raw, head, (const __half *)in, in_stride, pw, ph, spp, ksums, radius, w, h, dst, dst_f16);
   return cudaGetLastError();
 }

@@ -108,7 +108,7 @@ cudaError_t hf_cuk_output_residual(hf_cuk_raw raw, const void *in, int in_stride
                                    cudaStream_t stream);
 
 /* HF_ARCH_KERNEL's 1x1 head (hf_net_config), when the network has one:
- * FP32 weights [taps+3][hidden + cin] (PyTorch's Conv2d layout) and bias,
+ * FP32 weights [out_channels][hidden + cin] (taps + 3, + 1 with kernel_mix) (PyTorch's Conv2d layout) and bias,
  * over dec0's hidden channels (ReLU applied, the raw output's first hidden
  * channels) and the network input's cin channels. w NULL: no head, the raw
  * output holds the taps + 3 channels itself. */
@@ -121,15 +121,16 @@ typedef struct hf_cuk_head {
  * kernel's taps inside the frame of the logits (the raw output's first
  * taps channels, or the head's) weighs the per-pixel sums (covered count,
  * colour, highlight) of the (2 radius + 1)^2 pixels around it, read from
- * the FP16 network input in ([batch][ph][pw][in_stride], spp samples;
- * with estimate HF_ESTIMATE_ALPHA_CORRECTED, the sums of the estimate after
- * them instead, hf_estimate_sums); then the three corrections. Each block reduces its tile and a halo of
+ * the FP16 network input in ([batch][ph][pw][in_stride], spp samples) of
+ * kind ksums (HF_KSUMS_*: the samples', the estimate's after them,
+ * hf_estimate_sums, or both mixed at the pixel by the raw channel after the
+ * corrections); then the three corrections. Each block reduces its tile and a halo of
  * HF_KERNEL_MAX_RADIUS pixels to per-pixel sums in shared memory once;
  * each thread computes its pixel's logits one tap at a time (the head's
  * dot products when there is one) into an online softmax, so no logit is
  * stored. */
 cudaError_t hf_cuk_output_kernel(hf_cuk_raw raw, hf_cuk_head head, const void *in, int in_stride,
-                                 int pw, int ph, int spp, int estimate, int radius, int batch,
+                                 int pw, int ph, int spp, int ksums, int radius, int batch,
                                  int w, int h, void *dst, int dst_f16, cudaStream_t stream);
 
 #ifdef __cplusplus

@@ -263,27 +263,29 @@ template <int R> struct Halo {
 };
 
 // Per-pixel sums (covered samples, their colour sum, their highlight sum)
-// of a tile and its halo of R pixels, zero outside the frame; with an
-// estimate (HF_ESTIMATE_ALPHA_CORRECTED), those of the pixel's estimate
-// after its samples (hf_estimate_sums).
+// of a tile and its halo of R pixels, zero outside the frame, of kind ksums
+// (HF_KSUMS_*, hf_pixel_sums_rows): the samples', the estimate's after them
+// (hf_estimate_sums), or with HF_KSUMS_MIXED the samples' into px and the
+// estimate's into pe (NULL otherwise).
 template <int R>
-HF_HD void sums_load(float3 (*px)[Halo<R>::W], const __half *in, int in_stride, int pw, int ph,
-                     int spp, int estimate, int w, int h, int bx, int by, int n, int tid,
-                     int nthreads) {
+HF_HD void sums_load(float3 (*px)[Halo<R>::W], float3 (*pe)[Halo<R>::W], const __half *in,
+                     int in_stride, int pw, int ph, int spp, int ksums, int w, int h, int bx,
+                     int by, int n, int tid, int nthreads) {
   constexpr int HW = Halo<R>::W, HH = Halo<R>::H;
   const int gx0 = bx * kTileX - R, gy0 = by * kTileY - R;
   for (int i = tid; i < HW * HH; i += nthreads) {
     const int ly = i / HW, lx = i - ly * HW;
     const int gy = gy0 + ly, gx = gx0 + lx;
-    float cnt = 0.0f, col = 0.0f, hsum = 0.0f;
+    float cnt = 0.0f, col = 0.0f, hsum = 0.0f, ecnt = 0.0f, ecol = 0.0f, ehsum = 0.0f;
     if (gx >= 0 && gx < w && gy >= 0 && gy < h) {
       const __half *s = in + (((size_t)n * ph + gy) * pw + gx) * in_stride;
-      if (estimate) {
+      if (ksums != HF_KSUMS_SAMPLES) {
         const __half *e = s + spp * HF_FEATURES_PER_SAMPLE;
-        cnt = (float)spp * __half2float(e[2]);
-        col = cnt * __half2float(e[0]);
-        hsum = cnt * __half2float(e[1]);
-      } else {
+        ecnt = (float)spp * __half2float(e[2]);
+        ecol = ecnt * __half2float(e[0]);
+        ehsum = ecnt * __half2float(e[1]);
+      }
+      if (ksums != HF_KSUMS_ESTIMATE) {
         for (int k = 0; k < spp; k++, s += HF_FEATURES_PER_SAMPLE)
           if (__half2float(s[2]) > 0.0f) {
             cnt += 1.0f;
@@ -292,13 +294,16 @@ HF_HD void sums_load(float3 (*px)[Halo<R>::W], const __half *in, int in_stride, 
           }
       }
     }
-    px[ly][lx] = make_float3(cnt, col, hsum);
+    if (ksums == HF_KSUMS_ESTIMATE) px[ly][lx] = make_float3(ecnt, ecol, ehsum);
+    else px[ly][lx] = make_float3(cnt, col, hsum);
+    if (ksums == HF_KSUMS_MIXED) pe[ly][lx] = make_float3(ecnt, ecol, ehsum);
   }
 }
 
 HF_HD void residual_load(float3 (*px)[kHaloW], const __half *in, int in_stride, int pw, int ph,
                          int spp, int w, int h, int bx, int by, int n, int tid, int nthreads) {
-  sums_load<kR>(px, in, in_stride, pw, ph, spp, HF_ESTIMATE_NONE, w, h, bx, by, n, tid, nthreads);
+  sums_load<kR>(px, nullptr, in, in_stride, pw, ph, spp, HF_KSUMS_SAMPLES, w, h, bx, by, n, tid,
+                nthreads);
 }
 
 HF_HD void residual_rows(float3 (*px)[kHaloW], float3 (*rows)[kTileX], int tid, int nthreads) {
@@ -338,7 +343,8 @@ HF_HD void residual_finish(float3 (*rows)[kTileX], const hf_cuk_raw &raw, int sp
 
 // HF_ARCH_KERNEL, one block per kTileX x kTileY tile: (1) sums_load of the
 // tile and a halo of the largest radius; (2) each thread its pixel
-// (hf_kernel_output_frame's values).
+// (hf_kernel_output_frame's values; with pe, the estimate's sums of a
+// kernel that mixes, HF_KSUMS_MIXED).
 constexpr int kKR = HF_KERNEL_MAX_RADIUS;
 constexpr int kKHaloW = Halo<kKR>::W, kKHaloH = Halo<kKR>::H;
 constexpr int kMaxFeat =
@@ -355,8 +361,8 @@ HF_HD float kernel_channel(const __half *rp, const hf_cuk_head &hd, const float 
   return a;
 }
 
-HF_HD void kernel_finish(const float3 (*px)[kKHaloW], const hf_cuk_raw &raw,
-                         const hf_cuk_head &hd, const __half *in, int in_stride, int pw, int ph,
+HF_HD void kernel_finish(const float3 (*px)[kKHaloW], const float3 (*pe)[kKHaloW],
+                         const hf_cuk_raw &raw, const hf_cuk_head &hd, const __half *in, int in_stride, int pw, int ph,
                          int spp, int radius, int w, int h, void *dst, int dst_f16, int bx,
                          int by, int n, int tx, int ty) {
   const int x = bx * kTileX + tx, y = by * kTileY + ty;
@@ -374,6 +380,7 @@ HF_HD void kernel_finish(const float3 (*px)[kKHaloW], const hf_cuk_raw &raw,
   // An online softmax over the taps inside the frame: the sums are kept
   // relative to the largest logit so far and rescaled when a larger comes.
   float m = -INFINITY, den = 0.0f, an = 0.0f, ac = 0.0f, ah = 0.0f;
+  float bn = 0.0f, bc = 0.0f, bh = 0.0f;  // the estimate's, when mixing
   for (int dy = dy0; dy <= dy1; dy++)
     for (int dx = dx0; dx <= dx1; dx++) {
       const float l = kernel_channel(rp, hd, feat, (dy + radius) * side + dx + radius);
@@ -383,6 +390,9 @@ HF_HD void kernel_finish(const float3 (*px)[kKHaloW], const hf_cuk_raw &raw,
         an *= s;
         ac *= s;
         ah *= s;
+        bn *= s;
+        bc *= s;
+        bh *= s;
         m = l;
       }
       const float e = expf(l - m);
@@ -391,7 +401,21 @@ HF_HD void kernel_finish(const float3 (*px)[kKHaloW], const hf_cuk_raw &raw,
       an += e * q.x;
       ac += e * q.y;
       ah += e * q.z;
+      if (pe) {
+        const float3 qe = pe[ty + kKR + dy][tx + kKR + dx];
+        bn += e * qe.x;
+        bc += e * qe.y;
+        bh += e * qe.z;
+      }
     }
+  if (pe) {
+    // The estimate's sums plus beta times the samples' less the estimate's.
+    const float mv = kernel_channel(rp, hd, feat, taps + 3);
+    const float beta = 1.0f / (1.0f + expf(-HF_KERNEL_MIX_GAIN * mv));
+    an = bn + beta * (an - bn);
+    ac = bc + beta * (ac - bc);
+    ah = bh + beta * (ah - bh);
+  }
   const float c0 = kernel_channel(rp, hd, feat, taps), c1 = kernel_channel(rp, hd, feat, taps + 1);
   const float c2 = kernel_channel(rp, hd, feat, taps + 2);
   // The weights are e / den: N = an / den, and C / N = ac / an.

@@ -98,9 +98,22 @@ typedef enum hf_arch { HF_ARCH_UNET = 0, HF_ARCH_RESIDUAL = 1, HF_ARCH_KERNEL = 
  * estimate"). */
 enum { HF_ESTIMATE_NONE = 0, HF_ESTIMATE_ALPHA_CORRECTED = 1 };
 #define HF_ESTIMATE_CHANNELS 3
+
+/* What a Kernel network's kernel weighs at each tap (hf_kernel_sums_of):
+ * the samples' own sums (Kernel), the alpha-corrected estimate's
+ * (KernelAC), or both, mixed at each output pixel by one more raw channel
+ * (KernelMix, hf_net_config.kernel_mix). The first two equal
+ * HF_ESTIMATE_NONE and HF_ESTIMATE_ALPHA_CORRECTED, so a network's estimate
+ * also says what its kernel weighs when it does not mix. */
+enum { HF_KSUMS_SAMPLES = 0, HF_KSUMS_ESTIMATE = 1, HF_KSUMS_MIXED = 2 };
+/* beta = 1 / (1 + e^(-HF_KERNEL_MIX_GAIN m)) for the mixing channel m
+ * (weights/hfnet.py KERNEL_MIX_GAIN, the same value): the gain lets a
+ * training run move beta as far as it moves the logits. */
+#define HF_KERNEL_MIX_GAIN 16.0f
 #define HF_KERNEL_MAX_HIDDEN 64
-/* Most raw output channels of any network: the 9x9 kernel's taps + 3. */
-#define HF_MAX_RAW_CHANNELS  ((2 * HF_KERNEL_MAX_RADIUS + 1) * (2 * HF_KERNEL_MAX_RADIUS + 1) + HF_OUT_CHANNELS)
+/* Most raw output channels of any network: the 9x9 kernel's taps + 3, and
+ * the mixing channel. */
+#define HF_MAX_RAW_CHANNELS  ((2 * HF_KERNEL_MAX_RADIUS + 1) * (2 * HF_KERNEL_MAX_RADIUS + 1) + HF_OUT_CHANNELS + 1)
 
 typedef struct hf_net_config {
   char name[HF_NAME_MAX];
@@ -133,13 +146,21 @@ typedef struct hf_net_config {
    * memory is then its samples, [h][w][spp * 6], followed by the estimate,
    * [h][w][3] (hf_io), and the network reads both per pixel. */
   int estimate;
+  /* HF_ARCH_KERNEL with an estimate only, else 0 (beyond the paper;
+   * protocol/FEATURES.md, "Kernel architecture"): 1, raw channel taps + 3 is
+   * m, and pixel p's kernel weighs both its taps' samples' sums S and their
+   * estimate's E (hf_pixel_sums, hf_estimate_sums), mixed at p: (N, C, H) =
+   * sum w E + beta (sum w S - sum w E), beta = 1 / (1 + e^(-HF_KERNEL_MIX_GAIN
+   * m)); out_channels counts m. 0, the kernel weighs the estimate alone. */
+  int kernel_mix;
 } hf_net_config;
 
 /* The seven variants of the paper's Table 1, by name ("Base", "Base@1spp",
  * "Base@2spp", "Large", "Small", "Shallow", "Deep"), "Residual" (Base's
  * shape with HF_ARCH_RESIDUAL), "Kernel" (Base's shape with
- * HF_ARCH_KERNEL, kernel_radius 3, kernel_hidden 32) and "KernelAC"
- * (Kernel's shape reading HF_ESTIMATE_ALPHA_CORRECTED), case-insensitive. */
+ * HF_ARCH_KERNEL, kernel_radius 3, kernel_hidden 32), "KernelAC"
+ * (Kernel's shape reading HF_ESTIMATE_ALPHA_CORRECTED) and "KernelMix"
+ * (KernelAC with kernel_mix), case-insensitive. */
 int hf_variant_preset(const char *name, hf_net_config *out);
 /* Number of presets and the i-th preset's name, for listings. */
 int hf_variant_preset_count(void);
@@ -150,6 +171,12 @@ int hf_net_config_validate(const hf_net_config *cfg);
 /* Values per pixel of a frame of cfg (in_channels): spp * 6 samples'
  * features, plus HF_ESTIMATE_CHANNELS with an estimate. */
 int hf_net_in_channels(int spp, int estimate);
+/* What cfg's kernel weighs, HF_KSUMS_*: HF_KSUMS_MIXED with kernel_mix,
+ * else cfg->estimate (HF_KSUMS_SAMPLES for a network without a kernel). */
+int hf_kernel_sums_of(const hf_net_config *cfg);
+/* Floats per pixel of the sums of kind ksums: 6 for HF_KSUMS_MIXED (the
+ * samples' three, then the estimate's), else 3. */
+int hf_kernel_sums_floats(int ksums);
 /* Name of an estimate in the weights' metadata and in messages
  * ("alpha_corrected"; "none"), and back (HF_ENOTFOUND). */
 const char *hf_estimate_name(int estimate);
@@ -611,37 +638,42 @@ void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, 
  * highlight. pixel_in: the pixel's interleaved spp * 6 + 3 values. */
 void hf_estimate_sums(const float *pixel_in, int spp, float sums[3]);
 /* Per-pixel sums of rows y0..y1-1 of the frame into those rows of sums
- * ([height][width][3] for the whole frame): the number of covered samples
- * (alpha > 0), the sum of their colour and the sum of their highlight, the
- * stochastic-transparency estimate before its division (hf_pixel_sums);
- * with estimate HF_ESTIMATE_ALPHA_CORRECTED, hf_estimate_sums of the
- * pixel's estimate (in interleaved: stride spp * 6 + 3) instead. */
-void hf_pixel_sums_rows(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+ * ([height][width][k] for the whole frame, k = hf_kernel_sums_floats(ksums)):
+ * with ksums HF_KSUMS_SAMPLES the number of covered samples (alpha > 0), the
+ * sum of their colour and the sum of their highlight, the stochastic-
+ * transparency estimate before its division (hf_pixel_sums); with
+ * HF_KSUMS_ESTIMATE hf_estimate_sums of the pixel's estimate (in
+ * interleaved: stride spp * 6 + 3) instead; with HF_KSUMS_MIXED both, the
+ * samples' first. */
+void hf_pixel_sums_rows(const hf_input_view *in, int spp, int ksums, int y0, int y1,
                         float *sums);
 /* The output stage of HF_ARCH_KERNEL (beyond the paper; protocol/FEATURES.md,
  * "Kernel architecture"; weights/hfnet.py kernel_finish is its twin) for a
  * frame of in->width x in->height pixels. raw holds the network's raw output
- * for the frame: pixel (x, y)'s hf_kernel_taps(radius) + 3 channels at
+ * for the frame: pixel (x, y)'s hf_kernel_taps(radius) + 3 channels (+ 1,
+ * the mixing channel m, with ksums HF_KSUMS_MIXED) at
  * raw + (y * raw_pitch + x) * raw_stride. For each pixel, w_t is the softmax
  * of its logits over the taps inside the frame (taps outside are left out;
  * the frame is cut, never padded) and (N, C, H) = sum_t w_t (n, C, H) of the
- * tap's pixel (hf_pixel_sums_rows, of the estimate when estimate is
- * HF_ESTIMATE_ALPHA_CORRECTED); then
+ * tap's pixel (hf_pixel_sums_rows of kind ksums, HF_KSUMS_*; with
+ * HF_KSUMS_MIXED the estimate's weighted sums plus beta times the samples'
+ * less the estimate's, beta = 1 / (1 + e^(-HF_KERNEL_MIX_GAIN m))); then
  *   colour    = C / N (1 when N <= 1e-12) + c0,
  *   highlight = max(0, H / N (0 when N <= 1e-12) + c1),
  *   alpha     = min(1, max(0, N / spp + c2))
  * with c the three raw channels after the logits. out: [height][width][3];
- * sums: scratch of the same size. HF_EINVAL for an empty frame or a radius
- * outside 0..HF_KERNEL_MAX_RADIUS. */
-int hf_kernel_output_frame(const hf_input_view *in, int spp, int estimate, int radius,
+ * sums: scratch of [height][width][hf_kernel_sums_floats(ksums)]. HF_EINVAL
+ * for an empty frame, a radius outside 0..HF_KERNEL_MAX_RADIUS or an
+ * unknown ksums. */
+int hf_kernel_output_frame(const hf_input_view *in, int spp, int ksums, int radius,
                            const float *raw,
                            int raw_pitch, int raw_stride, float *out, float *sums);
 /* The same on rows y0..y1-1 of a width x height frame, from sums already
  * made for rows y0 - radius .. y1 - 1 + radius (those inside the frame), for
  * backends that split the frame over threads; radius as above (unchecked). */
-void hf_kernel_output_rows(int width, int height, int spp, int radius, const float *sums,
-                           const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
-                           float *out);
+void hf_kernel_output_rows(int width, int height, int spp, int radius, int ksums,
+                           const float *sums, const float *raw, int raw_pitch, int raw_stride,
+                           int y0, int y1, float *out);
 
 /* ---- input statistics --------------------------------------------------- */
 

@@ -20,24 +20,29 @@ static const struct {
   int arch;
   int kernel_radius, kernel_hidden;
   int estimate;
+  int kernel_mix;
 } presets[] = {
-  {"Base",      4, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
-  {"Base@1spp", 1, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
-  {"Base@2spp", 2, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
-  {"Large",     4, 3, {64, 128, 256}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
-  {"Small",     4, 3, {16, 32, 64}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
-  {"Shallow",   4, 2, {32, 64}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
-  {"Deep",      4, 4, {32, 64, 128, 256}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE},
+  {"Base",      4, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE, 0},
+  {"Base@1spp", 1, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE, 0},
+  {"Base@2spp", 2, 3, {32, 64, 128}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE, 0},
+  {"Large",     4, 3, {64, 128, 256}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE, 0},
+  {"Small",     4, 3, {16, 32, 64}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE, 0},
+  {"Shallow",   4, 2, {32, 64}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE, 0},
+  {"Deep",      4, 4, {32, 64, 128, 256}, HF_ARCH_UNET, 0, 0, HF_ESTIMATE_NONE, 0},
   /* Beyond the paper: Base's cost, residual on the samples' own estimate. */
-  {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL, 0, 0, HF_ESTIMATE_NONE},
+  {"Residual",  4, 3, {32, 64, 128}, HF_ARCH_RESIDUAL, 0, 0, HF_ESTIMATE_NONE, 0},
   /* Beyond the paper: Base's U-Net, the output read off the samples of the
    * 7x7 pixels around each pixel with a learned kernel; a 32-channel dec0
    * and the head over it and the input (weights/kernel.md: 16 channels
    * until 2026-12-02). */
-  {"Kernel",    4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32, HF_ESTIMATE_NONE},
+  {"Kernel",    4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32, HF_ESTIMATE_NONE, 0},
   /* Kernel reading stochastic transparency's alpha-corrected estimate too,
    * and filtering it instead of the samples' own (weights/kernel.md). */
-  {"KernelAC",  4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32, HF_ESTIMATE_ALPHA_CORRECTED},
+  {"KernelAC",  4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32, HF_ESTIMATE_ALPHA_CORRECTED, 0},
+  /* KernelAC whose kernel weighs the samples' own sums too, mixed per pixel:
+   * the estimate leaks hidden strands' colour where opaque strands a pixel
+   * wide overlap, the samples do not (weights/kernel_mix.md). */
+  {"KernelMix", 4, 3, {32, 64, 128}, HF_ARCH_KERNEL, 3, 32, HF_ESTIMATE_ALPHA_CORRECTED, 1},
 };
 #define NPRESETS ((int)(sizeof presets / sizeof presets[0]))
 
@@ -62,7 +67,9 @@ int hf_variant_preset(const char *name, hf_net_config *out) {
     out->arch = presets[i].arch;
     out->kernel_radius = presets[i].kernel_radius;
     out->kernel_hidden = presets[i].kernel_hidden;
-    if (out->arch == HF_ARCH_KERNEL) out->out_channels += hf_kernel_taps(out->kernel_radius);
+    out->kernel_mix = presets[i].kernel_mix;
+    if (out->arch == HF_ARCH_KERNEL)
+      out->out_channels += hf_kernel_taps(out->kernel_radius) + out->kernel_mix;
     return HF_OK;
   }
   return HF_ENOTFOUND;
@@ -84,12 +91,15 @@ int hf_net_config_validate(const hf_net_config *cfg) {
     return HF_EUNSUPPORTED;
   if (cfg->arch != HF_ARCH_KERNEL) {
     /* The kernel's fields describe nothing here: set, they are a mistake. */
-    if (cfg->kernel_radius || cfg->kernel_hidden) return HF_EFORMAT;
+    if (cfg->kernel_radius || cfg->kernel_hidden || cfg->kernel_mix) return HF_EFORMAT;
     return cfg->out_channels == HF_OUT_CHANNELS ? HF_OK : HF_EFORMAT;
   }
   if (cfg->kernel_radius < 1 || cfg->kernel_radius > HF_KERNEL_MAX_RADIUS) return HF_ERANGE;
   if (cfg->kernel_hidden < 0 || cfg->kernel_hidden > HF_KERNEL_MAX_HIDDEN) return HF_ERANGE;
-  if (cfg->out_channels != hf_kernel_taps(cfg->kernel_radius) + HF_OUT_CHANNELS)
+  /* Mixing needs the estimate: without it there is one kind of sums. */
+  if (cfg->kernel_mix < 0 || cfg->kernel_mix > 1 || (cfg->kernel_mix && !cfg->estimate))
+    return HF_EFORMAT;
+  if (cfg->out_channels != hf_kernel_taps(cfg->kernel_radius) + HF_OUT_CHANNELS + cfg->kernel_mix)
     return HF_EFORMAT;
   return HF_OK;
 }
@@ -97,6 +107,12 @@ int hf_net_config_validate(const hf_net_config *cfg) {
 int hf_net_in_channels(int spp, int estimate) {
   return spp * HF_FEATURES_PER_SAMPLE + (estimate ? HF_ESTIMATE_CHANNELS : 0);
 }
+
+int hf_kernel_sums_of(const hf_net_config *cfg) {
+  return cfg->kernel_mix ? HF_KSUMS_MIXED : cfg->estimate;
+}
+
+int hf_kernel_sums_floats(int ksums) { return ksums == HF_KSUMS_MIXED ? 6 : 3; }
 
 const char *hf_estimate_name(int estimate) {
   return estimate == HF_ESTIMATE_NONE              ? "none"
@@ -148,7 +164,9 @@ double hf_net_macs(const hf_net_config *cfg, int w, int h) {
   }
   double px = (double)w * h;
   macs += px * hf_head_in(cfg) * (hf_head_in(cfg) ? cfg->out_channels : 0);
-  if (cfg->arch == HF_ARCH_KERNEL) macs += px * 4.0 * hf_kernel_taps(cfg->kernel_radius);
+  /* the output stage: per tap the weight, then 3 weighted sums (6 mixing) */
+  if (cfg->arch == HF_ARCH_KERNEL)
+    macs += px * (cfg->kernel_mix ? 7.0 : 4.0) * hf_kernel_taps(cfg->kernel_radius);
   return macs;
 }
 
@@ -223,14 +241,19 @@ void hf_residual_base(const hf_input_view *in, int spp, int x, int y, float base
   base[HF_OUT_ALPHA] = n / (float)samples;
 }
 
-void hf_pixel_sums_rows(const hf_input_view *in, int spp, int estimate, int y0, int y1,
+void hf_pixel_sums_rows(const hf_input_view *in, int spp, int ksums, int y0, int y1,
                         float *sums) {
+  const int k = hf_kernel_sums_floats(ksums);
   for (int y = y0; y < y1; y++)
     for (int x = 0; x < in->width; x++) {
       const float *px = in->data + ((size_t)y * in->pitch + x) * in->stride;
-      float *s = sums + ((size_t)y * in->width + x) * 3;
-      if (estimate) hf_estimate_sums(px, spp, s);
-      else hf_pixel_sums(px, spp, s);
+      float *s = sums + ((size_t)y * in->width + x) * k;
+      if (ksums == HF_KSUMS_ESTIMATE) {
+        hf_estimate_sums(px, spp, s);
+      } else {
+        hf_pixel_sums(px, spp, s);
+        if (ksums == HF_KSUMS_MIXED) hf_estimate_sums(px, spp, s + 3);
+      }
     }
 }
 
@@ -288,13 +311,15 @@ void hf_residual_apply(const float base[3], float *v) {
 }
 
 /* The Kernel architecture's output of one pixel. raw: its taps + 3 raw
- * channels; sums: the per-pixel sums of the pixel itself, pitch floats per
- * row, 3 per pixel; the taps inside the frame are dy in dy0..dy1, dx in
- * dx0..dx1 (-r..r cut to the frame). Follows weights/hfnet.py
- * kernel_weights and kernel_finish step by step: the softmax's weights
- * e_t / den, then the weighted sums in tap order. */
-static void kernel_pixel(const float *raw, int spp, int r, const float *sums, ptrdiff_t pitch,
-                         int dy0, int dy1, int dx0, int dx1, float out[3]) {
+ * channels (+ 1, m, when mix); sums: the per-pixel sums of the pixel itself,
+ * pitch floats per row, 3 per pixel (6 when mix: the samples', then the
+ * estimate's); the taps inside the frame are dy in dy0..dy1, dx in dx0..dx1
+ * (-r..r cut to the frame). Follows weights/hfnet.py kernel_weights,
+ * kernel_aggregate and kernel_normalise step by step: the softmax's weights
+ * e_t / den, then the weighted sums in tap order, then (mix) the estimate's
+ * plus beta times the samples' less the estimate's. */
+static void kernel_pixel(const float *raw, int spp, int r, int mix, const float *sums,
+                         ptrdiff_t pitch, int dy0, int dy1, int dx0, int dx1, float out[3]) {
   const int side = 2 * r + 1, taps = side * side;
   /* The maximum over the taps inside the frame keeps every exponent <= 0
    * and the largest 1, so den >= 1: no overflow, no division by 0. */
@@ -308,15 +333,27 @@ static void kernel_pixel(const float *raw, int spp, int r, const float *sums, pt
       e[t] = expf(raw[t] - m);
       den += e[t];
     }
-  float n = 0, col = 0, hl = 0;
+  const int k = mix ? 6 : 3;
+  float n = 0, col = 0, hl = 0, en = 0, ecol = 0, ehl = 0;
   for (int dy = dy0; dy <= dy1; dy++)
     for (int dx = dx0; dx <= dx1; dx++) {
       float wt = e[(dy + r) * side + dx + r] / den;
-      const float *q = sums + dy * pitch + dx * 3;
+      const float *q = sums + dy * pitch + dx * k;
       n += wt * q[0];
       col += wt * q[1];
       hl += wt * q[2];
+      if (mix) {
+        en += wt * q[3];
+        ecol += wt * q[4];
+        ehl += wt * q[5];
+      }
     }
+  if (mix) {
+    const float beta = 1.0f / (1.0f + expf(-HF_KERNEL_MIX_GAIN * raw[taps + 3]));
+    n = en + beta * (n - en);
+    col = ecol + beta * (col - ecol);
+    hl = ehl + beta * (hl - ehl);
+  }
   const float *c = raw + taps;
   int ok = n > 1e-12f;
   float h = (ok ? hl / n : 0.0f) + c[1], a = n / (float)spp + c[2];
@@ -325,31 +362,32 @@ static void kernel_pixel(const float *raw, int spp, int r, const float *sums, pt
   out[HF_OUT_ALPHA] = a < 0.0f ? 0.0f : (a > 1.0f ? 1.0f : a);
 }
 
-void hf_kernel_output_rows(int width, int height, int spp, int radius, const float *sums,
-                           const float *raw, int raw_pitch, int raw_stride, int y0, int y1,
-                           float *out) {
-  const int r = radius;
-  const ptrdiff_t pitch = (ptrdiff_t)width * 3;
+void hf_kernel_output_rows(int width, int height, int spp, int radius, int ksums,
+                           const float *sums, const float *raw, int raw_pitch, int raw_stride,
+                           int y0, int y1, float *out) {
+  const int r = radius, k = hf_kernel_sums_floats(ksums), mix = ksums == HF_KSUMS_MIXED;
+  const ptrdiff_t pitch = (ptrdiff_t)width * k;
   for (int y = y0; y < y1; y++) {
     int dy0 = y - r < 0 ? -y : -r, dy1 = y + r >= height ? height - 1 - y : r;
     for (int x = 0; x < width; x++) {
       int dx0 = x - r < 0 ? -x : -r, dx1 = x + r >= width ? width - 1 - x : r;
-      kernel_pixel(raw + ((size_t)y * raw_pitch + x) * raw_stride, spp, r,
-                   sums + (size_t)y * pitch + (size_t)x * 3, pitch, dy0, dy1, dx0, dx1,
+      kernel_pixel(raw + ((size_t)y * raw_pitch + x) * raw_stride, spp, r, mix,
+                   sums + (size_t)y * pitch + (size_t)x * k, pitch, dy0, dy1, dx0, dx1,
                    out + ((size_t)y * width + x) * 3);
     }
   }
 }
 
-int hf_kernel_output_frame(const hf_input_view *in, int spp, int estimate, int radius,
+int hf_kernel_output_frame(const hf_input_view *in, int spp, int ksums, int radius,
                            const float *raw, int raw_pitch, int raw_stride, float *out,
                            float *sums) {
   if (in->width < 1 || in->height < 1 || spp < 1 || radius < 0 ||
-      radius > HF_KERNEL_MAX_RADIUS)
+      radius > HF_KERNEL_MAX_RADIUS ||
+      (ksums != HF_KSUMS_SAMPLES && ksums != HF_KSUMS_ESTIMATE && ksums != HF_KSUMS_MIXED))
     return HF_EINVAL;
-  hf_pixel_sums_rows(in, spp, estimate, 0, in->height, sums);
-  hf_kernel_output_rows(in->width, in->height, spp, radius, sums, raw, raw_pitch, raw_stride, 0,
-                        in->height, out);
+  hf_pixel_sums_rows(in, spp, ksums, 0, in->height, sums);
+  hf_kernel_output_rows(in->width, in->height, spp, radius, ksums, sums, raw, raw_pitch,
+                        raw_stride, 0, in->height, out);
   return HF_OK;
 }
 
@@ -357,18 +395,19 @@ void hf_output_finish(const hf_net_config *cfg, const hf_input_view *in, int x, 
   if (cfg->arch == HF_ARCH_KERNEL) {
     /* The sums of the (2r+1)^2 pixels around (x, y) alone, in a window of
      * the same geometry as a frame's. */
-    const int r = cfg->kernel_radius, side = 2 * r + 1;
-    float sums[(2 * HF_KERNEL_MAX_RADIUS + 1) * (2 * HF_KERNEL_MAX_RADIUS + 1) * 3];
+    const int r = cfg->kernel_radius, side = 2 * r + 1, ksums = hf_kernel_sums_of(cfg);
+    const int k = hf_kernel_sums_floats(ksums);
+    float sums[(2 * HF_KERNEL_MAX_RADIUS + 1) * (2 * HF_KERNEL_MAX_RADIUS + 1) * 6];
     int dy0 = y - r < 0 ? -y : -r, dy1 = y + r >= in->height ? in->height - 1 - y : r;
     int dx0 = x - r < 0 ? -x : -r, dx1 = x + r >= in->width ? in->width - 1 - x : r;
     for (int dy = dy0; dy <= dy1; dy++) {
       hf_input_view row = {in->data + ((size_t)(y + dy) * in->pitch + x + dx0) * in->stride,
                            dx1 - dx0 + 1, 1, in->pitch, in->stride};
-      hf_pixel_sums_rows(&row, cfg->spp, cfg->estimate, 0, 1,
-                         sums + ((dy + r) * side + dx0 + r) * 3);
+      hf_pixel_sums_rows(&row, cfg->spp, ksums, 0, 1, sums + ((dy + r) * side + dx0 + r) * k);
     }
     float o[3];
-    kernel_pixel(v, cfg->spp, r, sums + (r * side + r) * 3, side * 3, dy0, dy1, dx0, dx1, o);
+    kernel_pixel(v, cfg->spp, r, ksums == HF_KSUMS_MIXED, sums + (r * side + r) * k, side * k,
+                 dy0, dy1, dx0, dx1, o);
     memcpy(v, o, sizeof o);
     return;
   }

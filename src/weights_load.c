@@ -145,9 +145,11 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
   }
   const cJSON *radius = cJSON_GetObjectItemCaseSensitive(m, "kernel_radius");
   const cJSON *hidden = cJSON_GetObjectItemCaseSensitive(m, "kernel_hidden");
-  if (c->arch != HF_ARCH_KERNEL && (radius || hidden)) {
+  const cJSON *mix = cJSON_GetObjectItemCaseSensitive(m, "kernel_mix");
+  if (c->arch != HF_ARCH_KERNEL && (radius || hidden || mix)) {
     rc = fail(err, errlen, HF_EFORMAT,
-              "metadata: 'kernel_radius' and 'kernel_hidden' are for arch kernel only, not %s",
+              "metadata: 'kernel_radius', 'kernel_hidden' and 'kernel_mix' are for arch kernel "
+              "only, not %s",
               hf_arch_name(c->arch));
     goto out;
   }
@@ -164,11 +166,23 @@ static int parse_metadata(const char *text, hf_weights *w, char *err, size_t err
                 HF_KERNEL_MAX_HIDDEN);
       goto out;
     }
-    int want = hf_kernel_taps(c->kernel_radius) + HF_OUT_CHANNELS;
+    /* Optional: 0, the kernel weighs the estimate alone (or the samples). */
+    if (mix && json_int(m, "kernel_mix", 0, 1, &c->kernel_mix)) {
+      rc = fail(err, errlen, HF_EFORMAT, "metadata: 'kernel_mix' is not 0 or 1");
+      goto out;
+    }
+    if (c->kernel_mix && !c->estimate) {
+      rc = fail(err, errlen, HF_EFORMAT,
+                "metadata: 'kernel_mix' 1 mixes the samples' sums with the estimate's: it needs "
+                "'estimate' \"alpha_corrected\"");
+      goto out;
+    }
+    int want = hf_kernel_taps(c->kernel_radius) + HF_OUT_CHANNELS + c->kernel_mix;
     if (c->out_channels != want) {
       rc = fail(err, errlen, HF_EFORMAT,
-                "metadata: out_channels must be %d (kernel_radius %d: %d taps + %d)", want,
-                c->kernel_radius, hf_kernel_taps(c->kernel_radius), HF_OUT_CHANNELS);
+                "metadata: out_channels must be %d (kernel_radius %d: %d taps + %d%s)", want,
+                c->kernel_radius, hf_kernel_taps(c->kernel_radius), HF_OUT_CHANNELS,
+                c->kernel_mix ? " + 1 for kernel_mix" : "");
       goto out;
     }
   } else if (c->out_channels != HF_OUT_CHANNELS) {

@@ -21,6 +21,7 @@ static char *metadata_json(const hf_weights *w) {
   if (c->arch == HF_ARCH_KERNEL) {
     cJSON_AddNumberToObject(m, "kernel_radius", c->kernel_radius);
     cJSON_AddNumberToObject(m, "kernel_hidden", c->kernel_hidden);
+    if (c->kernel_mix) cJSON_AddNumberToObject(m, "kernel_mix", c->kernel_mix);
   }
   if (c->estimate) cJSON_AddStringToObject(m, "estimate", hf_estimate_name(c->estimate));
   cJSON_AddItemToObject(m, "features",

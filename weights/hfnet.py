@@ -44,7 +44,16 @@ VARIANTS = {
     # estimate (estimate_sums; protocol/FEATURES.md).
     "KernelAC":  dict(spp=4, levels=[32, 64, 128], arch="kernel", kernel_radius=3, kernel_hidden=32,
                       estimate="alpha_corrected"),
+    # KernelAC whose kernel weighs the samples' own sums too and mixes the
+    # two per pixel by one more output (kernel_finish_mixed): the estimate
+    # leaks hidden strands' colour where opaque strands overlap.
+    "KernelMix": dict(spp=4, levels=[32, 64, 128], arch="kernel", kernel_radius=3, kernel_hidden=32,
+                      estimate="alpha_corrected", kernel_mix=1),
 }
+# beta = sigmoid(KERNEL_MIX_GAIN m) for the mixing output m (src/hfcore.h
+# HF_KERNEL_MIX_GAIN): the gain lets Adam, whose steps are about lr in each
+# weight whatever the gradient's scale, move beta as far as the logits.
+KERNEL_MIX_GAIN = 16.0
 ESTIMATE_CHANNELS = ["acst4.color", "acst4.highlight", "acst4.alpha"]   # in EXR files
 TABLE1 = ["Base", "Base@1spp", "Base@2spp", "Large", "Small", "Shallow", "Deep"]
 
@@ -65,6 +74,9 @@ def variant_config(name):
                 cfg["kernel_radius"] = v["kernel_radius"]
                 cfg["kernel_hidden"] = v.get("kernel_hidden", 0)
                 cfg["out_channels"] = kernel_taps(v["kernel_radius"]) + len(OUTPUTS)
+                if v.get("kernel_mix"):
+                    cfg["kernel_mix"] = 1
+                    cfg["out_channels"] += 1
             if v.get("estimate"):
                 cfg["estimate"] = v["estimate"]
                 cfg["in_channels"] += len(OUTPUTS)
@@ -203,6 +215,23 @@ def kernel_finish_sums(raw, sums, spp, radius, clamp=torch.clamp):
                             spp, clamp)
 
 
+def kernel_finish_mixed(raw, x, spp, radius, clamp=torch.clamp):
+    """Output stage of a kernel that mixes (KernelMix): raw [n][taps + 4][h][w]
+    (logits, the three corrections, then the mixing output m), x the samples
+    then the estimate (NCHW). Pixel p's kernel weighs both its taps'
+    pixel_sums S and estimate_sums E and mixes them at p:
+        agg = sum w E + beta (sum w S - sum w E),  beta = sigmoid(KERNEL_MIX_GAIN m_p),
+    then kernel_normalise (src/net_config.c kernel_pixel, the same order).
+    At the output pixel, not at each tap, so that a pixel's result needs no
+    other pixel's raw output."""
+    taps = kernel_taps(radius)
+    sums = torch.cat([pixel_sums(x, spp), estimate_sums(x, spp)], 1)
+    agg = kernel_aggregate(raw[:, :taps], sums, radius)
+    beta = torch.sigmoid(KERNEL_MIX_GAIN * raw[:, taps + 3:taps + 4].float())
+    mixed = agg[:, 3:6] + beta * (agg[:, 0:3] - agg[:, 3:6])
+    return kernel_normalise(mixed, raw[:, taps:taps + 3], spp, clamp)
+
+
 def kernel_aggregate(logits, sums, radius):
     """Each pixel's softmax-weighted sum of its taps' sums: logits
     [n][taps][h][w], sums [n][k][h][w] (any k), result [n][k][h][w]."""
@@ -277,6 +306,26 @@ def grow_kernel_radius(state, old_radius, new_radius, hidden, logit_drop=4.0):
         out["dec0.weight"] = w[:, rows].clone()
         out["dec0.bias"] = b[rows].clone() - drop.to(b.dtype)
     return out
+
+
+def add_kernel_mix(state, hidden, beta0=0.05):
+    """KernelAC weights (kernel_hidden `hidden`) with KernelMix's mixing
+    output added: zero weights and a bias giving beta = beta0 (0 < beta0 <
+    1) everywhere, so the network starts as KernelAC with a twentieth of the
+    samples' own sums mixed in (beta0 0.05), and the output's gradient,
+    KERNEL_MIX_GAIN beta (1 - beta) times the difference of the two sums, is
+    not vanishing. The output is the head's last row, or dec0's last output
+    channel without a head."""
+    state = dict(state)
+    bias = math.log(beta0 / (1 - beta0)) / KERNEL_MIX_GAIN
+    key = "head" if hidden else "dec0"
+    w, b = state[f"{key}.weight"], state[f"{key}.bias"]
+    if hidden:      # Conv2d: [out][in][1][1]
+        state["head.weight"] = torch.cat([w, w.new_zeros(1, *w.shape[1:])], 0)
+    else:           # ConvTranspose2d: [in][out][k][k]
+        state["dec0.weight"] = torch.cat([w, w.new_zeros(w.shape[0], 1, *w.shape[2:])], 1)
+    state[f"{key}.bias"] = torch.cat([b, b.new_full((1,), bias)], 0)
+    return state
 
 
 def widen_levels(state, old_levels, fresh):
@@ -431,6 +480,9 @@ class HairNet(nn.Module):
         if self.arch == "residual":
             return residual_finish(raw, residual_base(x, self.cfg["spp"]), clamp)
         if self.arch == "kernel":
+            if self.cfg.get("kernel_mix"):
+                return kernel_finish_mixed(raw, x, self.cfg["spp"], self.cfg["kernel_radius"],
+                                           clamp)
             if self.cfg.get("estimate"):
                 return kernel_finish(raw, x, self.cfg["spp"], self.cfg["kernel_radius"], clamp,
                                      self.cfg["estimate"])
@@ -623,13 +675,18 @@ def check_config(path, cfg):
     lv = cfg.get("levels")
     if not isinstance(lv, list) or not 1 <= len(lv) <= 8 or not all(count(c, 1, 4096) for c in lv):
         bad("'levels' must be a list of 1..8 channel counts in 1..4096")
-    kernel_keys = [k for k in ("kernel_radius", "kernel_hidden") if k in cfg]
+    kernel_keys = [k for k in ("kernel_radius", "kernel_hidden", "kernel_mix") if k in cfg]
     if arch == "kernel":
         if not count(cfg.get("kernel_radius"), 1, 4):
             bad("'kernel_radius' missing or not an integer in 1..4 (arch kernel)")
         if not count(cfg.get("kernel_hidden", 0), 0, 64):
             bad("'kernel_hidden' not an integer in 0..64")
-        out = kernel_taps(cfg["kernel_radius"]) + len(OUTPUTS)
+        if not count(cfg.get("kernel_mix", 0), 0, 1):
+            bad("'kernel_mix' is not 0 or 1")
+        if cfg.get("kernel_mix") and est == "none":
+            bad("'kernel_mix' 1 mixes the samples' sums with the estimate's: it needs "
+                "'estimate' \"alpha_corrected\"")
+        out = kernel_taps(cfg["kernel_radius"]) + len(OUTPUTS) + cfg.get("kernel_mix", 0)
     else:
         if kernel_keys:
             bad(f"'{kernel_keys[0]}' is for arch kernel only, not {arch}")

@@ -25,6 +25,7 @@ CASES = [  # variant, width, height: odd sizes exercise pad-and-crop
     ("Kernel", 64, 48), ("Kernel", 37, 23),
     ("Kernel_r2h0", 64, 48), ("Kernel_r2h0", 37, 23),
     ("KernelAC", 64, 48), ("KernelAC", 37, 23),
+    ("KernelMix", 64, 48), ("KernelMix", 37, 23),
 ]
 
 # Configurations that are not presets: a name, the preset it varies, and

@@ -774,6 +774,9 @@ def init_mismatch(icfg, cfg):
         why.append(f"architecture {icfg.get('arch', 'unet')}, not {cfg['arch']}")
     if icfg["in_channels"] != cfg["in_channels"]:
         why.append(f"it reads {inputs(icfg)}, {cfg['name']} {inputs(cfg)}")
+    if icfg.get("kernel_mix") and not cfg.get("kernel_mix"):
+        why.append(f"its kernel mixes the samples' sums with the estimate's, {cfg['name']}'s "
+                   f"does not")
     if len(icfg["levels"]) != len(cfg["levels"]):
         why.append(f"{len(icfg['levels'])} levels {icfg['levels']}, not {len(cfg['levels'])} "
                    f"{cfg['levels']}")
@@ -1019,6 +1022,10 @@ def main(argv=None):
             state = hfnet.grow_kernel_radius(state, ir, cfg["kernel_radius"], ih)
             print(f"kernel_radius {ir} -> {cfg['kernel_radius']}: each new tap starts as its"
                   f" nearest old border tap less 4 in logit", file=sys.stderr)
+        if cfg.get("kernel_mix") and not icfg.get("kernel_mix"):
+            state = hfnet.add_kernel_mix(state, ih)
+            print("added the kernel's mixing output (beta 0.05: the estimate's sums and a "
+                  "twentieth of the samples')", file=sys.stderr)
         if cfg["arch"] == "kernel" and ih < cfg.get("kernel_hidden", 0):
             state = hfnet.widen_kernel_hidden(state, ih, net.state_dict())
             print(f"widened kernel_hidden {ih} -> {cfg['kernel_hidden']} (same function)",

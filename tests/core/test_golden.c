@@ -25,6 +25,7 @@ static const struct { const char *weights, *stem, *preset; } cases[] = {
   {"Kernel", "Kernel_64x48", "Kernel"},          {"Kernel", "Kernel_37x23", "Kernel"},
   {"Kernel_r2h0", "Kernel_r2h0_64x48", NULL},    {"Kernel_r2h0", "Kernel_r2h0_37x23", NULL},
   {"KernelAC", "KernelAC_64x48", "KernelAC"},    {"KernelAC", "KernelAC_37x23", "KernelAC"},
+  {"KernelMix", "KernelMix_64x48", "KernelMix"}, {"KernelMix", "KernelMix_37x23", "KernelMix"},
 };
 
 static int backend_in_build(const char *name) {

@@ -16,7 +16,8 @@ static void test_table1_presets(void **state) {
     {"Base@2spp", 2, 3, {32, 64, 128}}, {"Large", 4, 3, {64, 128, 256}},
     {"Small", 4, 3, {16, 32, 64}},     {"Shallow", 4, 2, {32, 64}},
     {"Deep", 4, 4, {32, 64, 128, 256}}};
-  assert_int_equal(hf_variant_preset_count(), 10); /* Table 1 + Residual + Kernel + KernelAC */
+  /* Table 1 + Residual + Kernel + KernelAC + KernelMix */
+  assert_int_equal(hf_variant_preset_count(), 11);
   for (size_t k = 0; k < sizeof want / sizeof want[0]; k++) {
     hf_net_config c;
     assert_int_equal(hf_variant_preset(want[k].name, &c), HF_OK);
@@ -56,9 +57,26 @@ static void test_table1_presets(void **state) {
   assert_int_equal(c.kernel_radius, 3);
   assert_int_equal(c.kernel_hidden, 32);
   assert_int_equal(hf_net_config_validate(&c), HF_OK);
+  assert_int_equal(c.kernel_mix, 0);
+  assert_int_equal(hf_kernel_sums_of(&c), HF_KSUMS_ESTIMATE);
   c.in_channels = 24;   /* the estimate's channels missing */
   assert_int_equal(hf_net_config_validate(&c), HF_EFORMAT);
   c.in_channels = 27;
+  /* KernelMix: KernelAC and one more raw channel, the mix of the two sums. */
+  hf_net_config mix;
+  assert_int_equal(hf_variant_preset("KernelMix", &mix), HF_OK);
+  assert_int_equal(mix.estimate, HF_ESTIMATE_ALPHA_CORRECTED);
+  assert_int_equal(mix.kernel_mix, 1);
+  assert_int_equal(mix.out_channels, 49 + 3 + 1);
+  assert_int_equal(hf_kernel_sums_of(&mix), HF_KSUMS_MIXED);
+  assert_int_equal(hf_kernel_sums_floats(HF_KSUMS_MIXED), 6);
+  assert_int_equal(hf_net_config_validate(&mix), HF_OK);
+  mix.out_channels = 49 + 3;  /* the mixing channel missing */
+  assert_int_equal(hf_net_config_validate(&mix), HF_EFORMAT);
+  mix.out_channels = 49 + 4, mix.estimate = HF_ESTIMATE_NONE, mix.in_channels = 24;
+  assert_int_equal(hf_net_config_validate(&mix), HF_EFORMAT); /* nothing to mix with */
+  mix.estimate = HF_ESTIMATE_ALPHA_CORRECTED, mix.in_channels = 27, mix.kernel_mix = 2;
+  assert_int_equal(hf_net_config_validate(&mix), HF_EFORMAT);
   c.arch = HF_ARCH_UNET, c.kernel_radius = c.kernel_hidden = 0, c.out_channels = 3;
   assert_int_equal(hf_net_config_validate(&c), HF_EUNSUPPORTED); /* Kernel only */
   assert_string_equal(hf_estimate_name(HF_ESTIMATE_ALPHA_CORRECTED), "alpha_corrected");
@@ -263,6 +281,63 @@ static void test_kernel_output(void **state) {
                    HF_EINVAL);
   assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_ESTIMATE_NONE, HF_KERNEL_MAX_RADIUS + 1, raw, PITCH,
                                           RAW_STRIDE, out, sums), HF_EINVAL);
+}
+
+/* A kernel that mixes (KernelMix): the estimate's sums alone at beta 0 (m
+ * very negative), the samples' alone at beta 1, and at beta 1/2 (m = 0) the
+ * mean of the two weighted sums, whose alpha is the mean of the two
+ * alphas; pixel by pixel (hf_output_finish) gives the same bits. */
+static void test_kernel_output_mixed(void **state) {
+  (void)state;
+  enum { FW = 9, FH = 7, SPP = 4, R = 2, TAPS = 25, RAW = TAPS + 4, STRIDE = SPP * 6 + 3 };
+  static float buf[FH * FW * STRIDE], raw[FH * FW * RAW], out[FH * FW * 3], a[FH * FW * 3],
+      b[FH * FW * 3], sums[FH * FW * 6];
+  srand(7);
+  for (int i = 0; i < FH * FW; i++) {
+    float *px = buf + (size_t)i * STRIDE;
+    for (int k = 0; k < SPP; k++) {
+      float *sm = px + 6 * k;
+      int covered = rand() % 3 > 0;
+      for (int f = 0; f < 6; f++) sm[f] = covered ? (float)rand() / RAND_MAX : 0.0f;
+      if (covered) sm[2] = 0.05f + sm[2] * 0.95f;
+    }
+    px[SPP * 6] = (float)rand() / RAND_MAX;             /* the estimate's colour, */
+    px[SPP * 6 + 1] = (float)rand() / RAND_MAX;         /* highlight */
+    px[SPP * 6 + 2] = 0.1f + 0.9f * (float)rand() / RAND_MAX; /* and alpha */
+    for (int t = 0; t < RAW; t++)
+      raw[(size_t)i * RAW + t] = t < TAPS ? (float)rand() / RAND_MAX : 0.0f;
+  }
+  hf_input_view v = {buf, FW, FH, FW, STRIDE};
+  hf_net_config c;
+  assert_int_equal(hf_variant_preset("KernelMix", &c), HF_OK);
+  c.kernel_radius = R, c.kernel_hidden = 0, c.out_channels = RAW;
+  assert_int_equal(hf_net_config_validate(&c), HF_OK);
+  static const float ms[] = {-100.0f, 100.0f, 0.0f};
+  for (int j = 0; j < 3; j++) {
+    for (int i = 0; i < FH * FW; i++) raw[(size_t)i * RAW + TAPS + 3] = ms[j];
+    assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_KSUMS_MIXED, R, raw, FW, RAW, out, sums),
+                     HF_OK);
+    assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_KSUMS_ESTIMATE, R, raw, FW, RAW, a, sums),
+                     HF_OK);
+    assert_int_equal(hf_kernel_output_frame(&v, SPP, HF_KSUMS_SAMPLES, R, raw, FW, RAW, b, sums),
+                     HF_OK);
+    for (int i = 0; i < FH * FW * 3; i++) {
+      const float want = j == 0 ? a[i] : j == 1 ? b[i] : 0.0f;
+      if (j < 2) assert_float_equal(out[i], want, 1e-6f * (1 + fabsf(want)));
+    }
+    for (int i = 0; i < FH * FW; i++) {
+      if (j == 2)
+        assert_float_equal(out[i * 3 + HF_OUT_ALPHA],
+                           0.5f * (a[i * 3 + HF_OUT_ALPHA] + b[i * 3 + HF_OUT_ALPHA]), 1e-6f);
+      float px[RAW];
+      memcpy(px, raw + (size_t)i * RAW, sizeof px);
+      hf_output_finish(&c, &v, i % FW, i / FW, px);
+      assert_memory_equal(px, out + i * 3, 3 * sizeof(float));
+    }
+  }
+  /* The estimate and the samples differ, so the mix is not either. */
+  assert_true(fabsf(a[HF_OUT_ALPHA] - b[HF_OUT_ALPHA]) > 1e-3f);
+  assert_int_equal(hf_kernel_output_frame(&v, SPP, 3, R, raw, FW, RAW, out, sums), HF_EINVAL);
 }
 
 static void test_wiring(void **state) {
@@ -523,6 +598,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_table1_presets),   cmocka_unit_test(test_wiring),
     cmocka_unit_test(test_residual_base),    cmocka_unit_test(test_kernel_output),
+    cmocka_unit_test(test_kernel_output_mixed),
     cmocka_unit_test(test_validate_rejects), cmocka_unit_test(test_output_transform),
     cmocka_unit_test(test_half_roundtrip),   cmocka_unit_test(test_backend_selection),
     cmocka_unit_test(test_submit_wait_prepare),

@@ -123,6 +123,37 @@ static void test_roundtrip_bit_exact(void **state) {
   free(b.data);
 }
 
+/* KernelMix's kernel_mix survives a save and a load; a file that says
+ * kernel_mix without the estimate, or another value than 0 or 1, or
+ * out_channels without the mixing channel, is refused by name. */
+static void test_kernel_mix_metadata(void **state) {
+  (void)state;
+  hf_net_config c;
+  assert_int_equal(hf_variant_preset("KernelMix", &c), HF_OK);
+  hf_weights *w, *r;
+  assert_int_equal(hf_weights_init_random(&c, 5, &w), HF_OK);
+  char path[256], err[512];
+  snprintf(path, sizeof path, "%s/mix.safetensors", tmpdir);
+  assert_int_equal(hf_weights_save(path, w), HF_OK);
+  assert_int_equal(hf_weights_load(path, &r, err, sizeof err), HF_OK);
+  assert_int_equal(r->cfg.kernel_mix, 1);
+  assert_int_equal(r->cfg.out_channels, 49 + 3 + 1);
+  assert_memory_equal(r->storage, w->storage, w->num_params * sizeof(float));
+  hf_weights_free(r);
+  hf_weights_free(w);
+  blob b = read_all(path);
+  blob two = with_header_edit(&b, "\\\"kernel_mix\\\":1", "\\\"kernel_mix\\\":2");
+  expect_reject(&two, HF_EFORMAT, "'kernel_mix' is not 0 or 1");
+  blob none = with_header_edit(&b, "\\\"estimate\\\":\\\"alpha_corrected\\\"",
+                               "\\\"estimate\\\":\\\"none\\\"");
+  expect_reject(&none, HF_EFORMAT, "in_channels");
+  blob none24 = with_header_edit(&none, "\\\"in_channels\\\":27", "\\\"in_channels\\\":24");
+  expect_reject(&none24, HF_EFORMAT, "it needs 'estimate' \"alpha_corrected\"");
+  blob out = with_header_edit(&b, "\\\"out_channels\\\":53", "\\\"out_channels\\\":52");
+  expect_reject(&out, HF_EFORMAT, "+ 1 for kernel_mix");
+  free(two.data), free(none.data), free(none24.data), free(out.data), free(b.data);
+}
+
 /* hf_weights_save writes beside the file and renames: a reader that has
  * the old file open reads it whole (written in place, it read the new
  * file's bytes after its first 100), and a failed save leaves the old file
@@ -674,7 +705,8 @@ static int teardown(void **state) {
 
 int main(void) {
   const struct CMUnitTest tests[] = {
-    cmocka_unit_test(test_roundtrip_bit_exact), cmocka_unit_test(test_truncated),
+    cmocka_unit_test(test_roundtrip_bit_exact),
+      cmocka_unit_test(test_kernel_mix_metadata), cmocka_unit_test(test_truncated),
     cmocka_unit_test(test_save_replaces_whole),
     cmocka_unit_test(test_huge_header_length),  cmocka_unit_test(test_offsets_past_end),
     cmocka_unit_test(test_wrong_shapes),        cmocka_unit_test(test_bad_json),

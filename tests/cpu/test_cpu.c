@@ -193,6 +193,9 @@ static void test_batch_and_dtypes(void **state) {
   compare(*state, "KernelAC", 2, 37, 23, HF_F16, HF_F16, 405);
   compare(*state, "KernelAC", 3, 64, 48, HF_F16, HF_F32, 406);
   compare(*state, "KernelAC", 2, 64, 48, HF_F32, HF_F16, 407);
+  /* ... and one whose kernel mixes the samples' sums with the estimate's. */
+  compare(*state, "KernelMix", 2, 37, 23, HF_F16, HF_F16, 408);
+  compare(*state, "KernelMix", 3, 64, 48, HF_F32, HF_F32, 409);
 }
 
 /* Where dec0 writes the caller's frames (aligned sizes; U-Net variants),
@@ -269,27 +272,30 @@ static void test_kernel_configs(void **state) {
  * covered sample puts the whole kernel of the corner pixel on uncovered
  * neighbours (colour 1, highlight 0, alpha from the corrections), and a
  * width that is no multiple of the vector width leaves a tail in every
- * tap's loop. */
-static void test_kernel_rows_extreme_logits(void **state) {
-  (void)state;
-  enum { W = 37, H = 11, R = 3, SPP = 4, TAPS = (2 * R + 1) * (2 * R + 1), CH = TAPS + 3 };
+ * tap's loop. ksums HF_KSUMS_MIXED: six sums a pixel (the estimate's other
+ * than the samples') and the mixing channel, beta from about 0.02 to 0.98. */
+static void kernel_rows_extreme_logits(int ksums) {
+  enum { W = 37, H = 11, R = 3, SPP = 4, TAPS = (2 * R + 1) * (2 * R + 1), MAXCH = TAPS + 4 };
   static const float maxima[] = {0.0f, 20.0f, 88.0f};
   static const float offset[] = {0.0f,   -1e-3f,  -0.5f,  -1.0f,   -2.0f,   -5.0f,
                                  -10.0f, -15.0f,  -50.0f, -86.99f, -87.0f,  -87.01f,
                                  -87.5f, -100.0f, -1e4f,  -1e30f};
-  static float raw[H * W * CH], planes[3 * H * W], sums[H * W * 3], got[H * W * 3],
+  const int K = hf_kernel_sums_floats(ksums), CH = TAPS + 3 + (ksums == HF_KSUMS_MIXED);
+  static float raw[H * W * MAXCH], planes[6 * H * W], sums[H * W * 6], got[H * W * 3],
       want[H * W * 3];
   float *scratch = malloc(hf_cpu_kernel_scratch(W, R) * sizeof(float));
   assert_non_null(scratch);
   uint32_t rng = 12345;
   for (int i = 0; i < H * W; i++) {
-    rng = rng * 1664525u + 1013904223u;
-    float n = (float)(rng >> 29) * 0.5f; /* 0 to 3.5 */
-    if (i % W < 6 && i / W < 6) n = 0.0f; /* the uncovered block */
-    float c = n * (float)((rng >> 8) & 255) / 255.0f, h = n * (float)((rng >> 16) & 63) / 16.0f;
-    planes[i] = sums[3 * i] = n;
-    planes[H * W + i] = sums[3 * i + 1] = c;
-    planes[2 * H * W + i] = sums[3 * i + 2] = h;
+    for (int j = 0; j < K; j += 3) {
+      rng = rng * 1664525u + 1013904223u;
+      float n = (float)(rng >> 29) * 0.5f; /* 0 to 3.5 */
+      if (i % W < 6 && i / W < 6) n = 0.0f; /* the uncovered block */
+      float c = n * (float)((rng >> 8) & 255) / 255.0f, h = n * (float)((rng >> 16) & 63) / 16.0f;
+      planes[j * H * W + i] = sums[K * i + j] = n;
+      planes[(j + 1) * H * W + i] = sums[K * i + j + 1] = c;
+      planes[(j + 2) * H * W + i] = sums[K * i + j + 2] = h;
+    }
     rng = rng * 1664525u + 1013904223u;
     const float m = maxima[(rng >> 8) % 3];
     const int top = (int)((rng >> 16) % TAPS);
@@ -301,8 +307,8 @@ static void test_kernel_rows_extreme_logits(void **state) {
       raw[(size_t)i * CH + k] = v;
     }
   }
-  hf_cpu_kernel_rows(W, H, SPP, R, planes, raw, W, CH, 0, H, got, scratch);
-  hf_kernel_output_rows(W, H, SPP, R, sums, raw, W, CH, 0, H, want);
+  hf_cpu_kernel_rows(W, H, SPP, R, ksums, planes, raw, W, CH, 0, H, got, scratch);
+  hf_kernel_output_rows(W, H, SPP, R, ksums, sums, raw, W, CH, 0, H, want);
   for (int i = 0; i < H * W * 3; i++) {
     assert_true(isfinite(got[i]));
     if (fabsf(got[i] - want[i]) > 1e-5f * (1.0f + fabsf(want[i])))
@@ -314,6 +320,16 @@ static void test_kernel_rows_extreme_logits(void **state) {
   assert_true(fabsf(got[HF_OUT_COLOR] - (1.0f + raw[TAPS])) < 1e-6f);
   assert_true(fabsf(got[HF_OUT_HIGHLIGHT] - fmaxf(raw[TAPS + 1], 0.0f)) < 1e-6f);
   free(scratch);
+}
+
+static void test_kernel_rows_extreme_logits(void **state) {
+  (void)state;
+  kernel_rows_extreme_logits(HF_KSUMS_SAMPLES);
+}
+
+static void test_kernel_rows_mixed(void **state) {
+  (void)state;
+  kernel_rows_extreme_logits(HF_KSUMS_MIXED);
 }
 
 /* The same frame gives the same bytes on a reused plan, after other sizes
@@ -390,6 +406,7 @@ int main(void) {
     cmocka_unit_test(test_direct_f16_output),
     cmocka_unit_test(test_kernel_configs),
     cmocka_unit_test(test_kernel_rows_extreme_logits),
+    cmocka_unit_test(test_kernel_rows_mixed),
     cmocka_unit_test(test_repeat_and_cache),
     cmocka_unit_test(test_deconv_path_matches_ref),
   };

@@ -350,15 +350,17 @@ static void test_output(int residual, int d2s, int dst_f16) {
 // HF_ARCH_KERNEL: the raw output in dec0's OUT buffer or D2S phases (the
 // taps + 3 channels, or the hidden ones a head reads with the input),
 // against hf_output_finish of the same values (the head's dot products
-// summed in the same order on the CPU).
-static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16, int estimate = 0) {
-  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4;
+// summed in the same order on the CPU). ksums: what the kernel weighs
+// (HF_KSUMS_*: Kernel, KernelAC, KernelMix).
+static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16,
+                               int ksums = HF_KSUMS_SAMPLES) {
+  const int batch = 2, w = 37, h = 23, pw = 40, ph = 24, spp = 4, estimate = ksums != 0;
   const int cin = estimate ? 27 : 24, cpad = estimate ? 32 : 24;
   hf_net_config cfg;
-  hf_variant_preset(estimate ? "KernelAC" : "Kernel", &cfg);
+  hf_variant_preset(ksums == HF_KSUMS_MIXED ? "KernelMix" : estimate ? "KernelAC" : "Kernel", &cfg);
   cfg.kernel_radius = radius;
   cfg.kernel_hidden = hidden;
-  cfg.out_channels = hf_kernel_taps(radius) + 3;
+  cfg.out_channels = hf_kernel_taps(radius) + 3 + cfg.kernel_mix;
   const int oc = hidden ? hidden : cfg.out_channels, co = (oc + 7) / 8 * 8;
   __half *rbuf;
   const hf_cuk_raw raw = random_raw(d2s, co, batch, pw, ph, &rbuf);
@@ -366,7 +368,8 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16, int
   if (hidden)  // after dec0's ReLU
     for (size_t i = 0; i < nraw; i++) rbuf[i] = __float2half_rn(fabsf(h2f(rbuf[i])));
   const int nfeat = hidden + cin;
-  float *hw = (float *)malloc((size_t)cfg.out_channels * nfeat * 4), *hb = (float *)malloc(84 * 4);
+  float *hw = (float *)malloc((size_t)cfg.out_channels * nfeat * 4),
+        *hb = (float *)malloc(HF_MAX_RAW_CHANNELS * 4);
   for (int i = 0; i < cfg.out_channels * nfeat; i++) hw[i] = (2 * frand() - 1) / 4;
   for (int i = 0; i < cfg.out_channels; i++) hb[i] = 2 * frand() - 1;
   hf_cuk_head head = {hidden ? hw : NULL, hidden ? hb : NULL, hidden, cin};
@@ -378,17 +381,18 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16, int
   void *out = dalloc(nout * 4);
   memset(out, 0xff, nout * 4);
   // One block per tile: the sums by every thread, then each thread's pixel.
-  static float3 px[kKHaloH][kKHaloW];
+  static float3 px[kKHaloH][kKHaloW], pe_mem[kKHaloH][kKHaloW];
+  float3 (*pe)[kKHaloW] = ksums == HF_KSUMS_MIXED ? pe_mem : nullptr;
   for (int n = 0; n < batch; n++)
     for (int by = 0; by < (h + kTileY - 1) / kTileY; by++)
       for (int bx = 0; bx < (w + kTileX - 1) / kTileX; bx++) {
         for (int t = 0; t < kTileX * kTileY; t++)
-          sums_load<kKR>(px, in, cpad, pw, ph, spp, estimate, w, h, bx, by, n, t,
+          sums_load<kKR>(px, pe, in, cpad, pw, ph, spp, ksums, w, h, bx, by, n, t,
                          kTileX * kTileY);
         for (int ty = 0; ty < kTileY; ty++)
           for (int tx = 0; tx < kTileX; tx++)
-            kernel_finish(px, raw, head, in, cpad, pw, ph, spp, radius, w, h, out, dst_f16, bx, by,
-                          n, tx, ty);
+            kernel_finish(px, pe, raw, head, in, cpad, pw, ph, spp, radius, w, h, out, dst_f16, bx,
+                          by, n, tx, ty);
       }
   double worst = 0;
   int colour_one = 0;
@@ -423,11 +427,11 @@ static void test_output_kernel(int radius, int hidden, int d2s, int dst_f16, int
   // order, and FP16 rounding of the result.
   const double tol = dst_f16 ? 1e-3 : 2e-5;
   CHECK(colour_one > 0, "no pixel without a covered sample in reach");
-  CHECK(worst <= tol, "output kernel%s r%d h%d%s %s: worst relative difference %.2e",
-        estimate ? " (estimate)" : "", radius, hidden, d2s ? " (D2S phases)" : "",
+  const char *kind = ksums == HF_KSUMS_MIXED ? " (mixed)" : estimate ? " (estimate)" : "";
+  CHECK(worst <= tol, "output kernel%s r%d h%d%s %s: worst relative difference %.2e", kind, radius, hidden, d2s ? " (D2S phases)" : "",
         dst_f16 ? "f16" : "f32", worst);
   printf("  output     kernel%s r%d h%-2d raw %-10s -> %s: worst relative difference %.1e\n",
-         estimate ? " (estimate)" : "", radius, hidden, d2s ? "D2S phases" : "OUT buffer",
+         kind, radius, hidden, d2s ? "D2S phases" : "OUT buffer",
          dst_f16 ? "f16" : "f32", worst);
   free(rbuf);
   free(in);
@@ -604,6 +608,9 @@ int main(void) {
   test_output_kernel(3, 32, 0, 0, 1);
   test_output_kernel(3, 32, 1, 1, 1);
   test_output_kernel(2, 0, 0, 0, 1);
+  test_output_kernel(3, 32, 0, 0, HF_KSUMS_MIXED);
+  test_output_kernel(3, 32, 1, 1, HF_KSUMS_MIXED);
+  test_output_kernel(2, 0, 0, 0, HF_KSUMS_MIXED);
   for (int f16 = 0; f16 <= 1; f16++) {
     test_scan(f16, 4, 2, 67, 45, 0);
     test_scan(f16, 4, 1, 64, 64, 1);

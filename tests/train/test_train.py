@@ -683,45 +683,43 @@ class Recipe(unittest.TestCase):
             self.assertAlmostEqual(float(pen[t, 0, 1]), (dx * dx + dy * dy) / 2, places=4)
             self.assertAlmostEqual(float(pen[t, 0, 2]), dx * dx + dy * dy, places=4)
 
-    def test_experimental_mixed_sums(self):
-        """weights/experiments/mixed_sums.py: from KernelAC weights at a
-        vanishing beta the stage computes what KernelAC did; at beta 1 it
-        filters the samples' own sums with the same kernel, and between the
-        two it mixes the aggregated sums linearly."""
-        sys.path.insert(0, os.path.join(WEIGHTS, "experiments"))
+    def test_kernel_mix_starts_from_kernel_ac(self):
+        """hfnet.add_kernel_mix: KernelAC weights with the mixing output
+        added at a vanishing beta make a KernelMix network that computes
+        what KernelAC did, with and without a head; kernel_finish_mixed at
+        beta 1 filters the samples' own sums with the same kernel, and
+        between the two mixes the aggregated sums linearly."""
         torch.manual_seed(11)
-        cfg = hfnet.variant_config("KernelAC")
-        kac = hfnet.HairNet(cfg)
-        x = torch.rand(2, cfg["in_channels"], 24, 40)
-        alpha = x[:, 2:24:6]
-        alpha[torch.rand_like(alpha) < 0.3] = 0
-        with torch.no_grad():
-            want = kac(x)
-        import mixed_sums
-        try:
-            mixed_sums.install()
-            c2, st2 = mixed_sums.start_from_kernel(cfg, kac.state_dict(), beta0=1e-9)
-            net = hfnet.HairNet(c2)
-            net.load_state_dict(st2)
+        for hidden in (32, 0):
+            cfg = dict(hfnet.variant_config("KernelAC"), kernel_hidden=hidden)
+            kac = hfnet.HairNet(cfg)
+            x = torch.rand(2, cfg["in_channels"], 24, 40)
+            alpha = x[:, 2:24:6]
+            alpha[torch.rand_like(alpha) < 0.3] = 0
+            with torch.no_grad():
+                want = kac(x)
+            mcfg = dict(hfnet.variant_config("KernelMix"), kernel_hidden=hidden)
+            self.assertEqual(mcfg["out_channels"], cfg["out_channels"] + 1)
+            net = hfnet.HairNet(mcfg)
+            net.load_state_dict(hfnet.add_kernel_mix(kac.state_dict(), hidden, beta0=1e-9))
             with torch.no_grad():
                 got = net(x)
-            self.assertLess(float((got - want).abs().max()), 1e-5)
-            with self.assertRaises(ValueError):
-                mixed_sums.start_from_kernel(hfnet.variant_config("Kernel"),
-                                             hfnet.HairNet(hfnet.variant_config("Kernel")).state_dict())
-        finally:
-            mixed_sums.uninstall()
+            self.assertLess(float((got - want).abs().max()), 1e-5, hidden)
         taps = hfnet.kernel_taps(3)
         with torch.no_grad():
             raw = kac.raw_any_size(x)
             for m, beta in ((1e9, 1.0), (0.0, 0.5)):
                 r4 = torch.cat([raw, torch.full_like(raw[:, :1], m)], 1)
-                got = mixed_sums.mixed_finish(r4, x, 4, 3)
+                got = hfnet.kernel_finish_mixed(r4, x, 4, 3)
                 sums = beta * hfnet.pixel_sums(x, 4) + (1 - beta) * hfnet.estimate_sums(x, 4)
                 exp = hfnet.kernel_finish_sums(raw, sums, 4, 3)
                 self.assertLess(float((got - exp).abs().max()), 1e-5, beta)
             self.assertGreater(float((hfnet.kernel_finish_sums(raw, hfnet.pixel_sums(x, 4), 4, 3)
                                       - want).abs().max()), 1e-3)
+        with self.assertRaises(ValueError) as e:
+            hfnet.check_config("x", dict(hfnet.variant_config("Kernel"), kernel_mix=1,
+                                         out_channels=taps + 4))
+        self.assertIn("kernel_mix", str(e.exception))
 
     def test_experiment_weights_load_with_the_experiment(self):
         """hfnet.load_safetensors reads, with its experiment installed, a

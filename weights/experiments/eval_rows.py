@@ -3,14 +3,14 @@ PyTorch as the channels st1.* (the first) and st2.* (the second), so that
 `hairfilter eval` scores networks no backend runs (the rows "stochastic
 transparency 1 spp" and "2 spp" of its tables) with its own code.
 
-  python3 weights/experiments/eval_rows.py [--stage split|frontback|fullres|aniso|sorted|ac|mixed]
+  python3 weights/experiments/eval_rows.py [--stage split|frontback|fullres|aniso|sorted|ac]
       A.safetensors B.safetensors OUT_ROOT DIR...
 
 Each DIR (a dataset directory with manifest.json) is copied to OUT_ROOT/<its
 name> with every frame's channels, attributes and windows, plus the six new
 channels. --stage installs an output stage of kernel_stages.py, the
 branch of fullres_branch.py (`fullres`), the stage of aniso_kernel.py
-(`aniso`), the mixed sums of mixed_sums.py (`mixed`), the depth-ordered samples of sorted_samples.py (`sorted`, for
+(`aniso`), the depth-ordered samples of sorted_samples.py (`sorted`, for
 both files) or the alpha-corrected input of ac_input.py (`ac`, for both
 files; the frames need acst4.*) for files that need one. A network with the
 estimate (KernelAC) reads it after the samples, as weights/train.py gives it. Frames that already hold st1.* or st2.* are refused."""
@@ -32,13 +32,11 @@ import fullres_branch  # noqa: E402
 import kernel_stages  # noqa: E402
 import sorted_samples  # noqa: E402
 import ac_input  # noqa: E402
-import mixed_sums  # noqa: E402
 
 
 def main(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--stage", choices=kernel_stages.STAGES + ("fullres", "aniso", "sorted", "ac",
-                                                                   "mixed"))
+    ap.add_argument("--stage", choices=kernel_stages.STAGES + ("fullres", "aniso", "sorted", "ac"))
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("a")
     ap.add_argument("b")
@@ -53,8 +51,6 @@ def main(argv):
         sorted_samples.install()
     elif args.stage == "ac":
         ac_input.install()
-    elif args.stage == "mixed":
-        mixed_sums.install()
     elif args.stage:
         kernel_stages.install(args.stage)
     torch.set_num_threads(args.threads)
