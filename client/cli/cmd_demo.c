@@ -179,7 +179,7 @@ static void usage(FILE *f) {
 
 int cmd_demo(int argc, char **argv) {
   char default_weights[PATH_MAX];
-  snprintf(default_weights, sizeof default_weights, "%s/weights/kernel_ac.safetensors",
+  snprintf(default_weights, sizeof default_weights, "%s/weights/kernel_mix.safetensors",
            cli_data_dir());
   demo_opts o = {.out = "hairfilter-demo.png", .backend = "auto", .weights = default_weights,
                  .style = "wavy", .width = 256, .height = 256, .seed = 7};

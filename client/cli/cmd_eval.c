@@ -1164,7 +1164,7 @@ int cmd_eval(int argc, char **argv) {
   snprintf(ms[nm++].label, sizeof ms[0].label, "input pooled over 5x5 pixels (Residual's base)");
   if (!weights_arg)
     fprintf(stderr, "hairfilter eval: no --weights: scoring the baselines only (add e.g. "
-                    "--weights weights/kernel_ac.safetensors to score the default variant)\n");
+                    "--weights weights/kernel_mix.safetensors to score the default variant)\n");
   if (weights_arg) {
     if ((rc = cli_open_backend(backend_name, &backend)) != 0) goto out;
     char *list = strdup(weights_arg);

@@ -14,11 +14,13 @@
 
 /* The variants README and `hairfilter demo` use: a server loaded from the
  * bundled weights directory has several, and an engine that just wants a
- * filtered frame should not have to pick one. KernelAC
- * (weights/kernel_ac.safetensors) for a frame that carries the
- * alpha-corrected estimate (acst4.*), else Kernel. */
+ * filtered frame should not have to pick one. KernelMix
+ * (weights/kernel_mix.safetensors) for a frame that carries the
+ * alpha-corrected estimate (acst4.*), else KernelAC (the default until
+ * 2026-12-06, on servers with the weights of then), else Kernel. */
 #define FILTER_DEFAULT_VARIANT "Kernel"
-#define FILTER_DEFAULT_ESTIMATE_VARIANT "KernelAC"
+#define FILTER_DEFAULT_ESTIMATE_VARIANT "KernelMix"
+#define FILTER_FALLBACK_ESTIMATE_VARIANT "KernelAC"
 
 static void usage(FILE *f) {
   fprintf(f,
@@ -33,8 +35,9 @@ static void usage(FILE *f) {
           "URL is unix:PATH, tcp:HOST:PORT or tls:HOST:PORT, or several of them separated by commas\n"
           "(tried in order, and failed over to). The token defaults to $HAIRFILTER_TOKEN.\n"
           "--variant defaults to the server's only variant, else to " FILTER_DEFAULT_ESTIMATE_VARIANT " (the\n"
-          "bundled default) for a frame with the alpha-corrected estimate (acst4.*) when the server\n"
-          "has it, else to " FILTER_DEFAULT_VARIANT " when the server has it. --f16 sends and\n"
+          "bundled default; else " FILTER_FALLBACK_ESTIMATE_VARIANT ") for a frame with the alpha-corrected\n"
+          "estimate (acst4.*) when the server has it, else to " FILTER_DEFAULT_VARIANT " when the server\n"
+          "has it. --f16 sends and\n"
           "receives half floats (a file of HALF channels is sent as stored, FLOAT ones are\n"
           "rounded to nearest even, finite ones beyond half's range to +-65504). The PNG is\n"
           "composited by the server, or here over the\n"
@@ -261,11 +264,14 @@ int cmd_filter(int argc, char **argv) {
     if (variant ? !strcmp(vs[i].name, variant) : nv == 1) v = &vs[i];
   for (int i = 0; i < nv && i < 64 && variant && !v; i++)
     if (!strcasecmp(vs[i].name, variant)) v = &vs[i];
-  /* The default: KernelAC where the frame has the estimate to give it. */
+  /* The default: KernelMix, else KernelAC, where the frame has the estimate
+   * to give it. */
   const int has_estimate =
       !variant && !v && hf_exr_has_channel(in_path, HF_ESTIMATE_PREFIX ".alpha") == 1;
   for (int i = 0; i < nv && i < 64 && !variant && !v && has_estimate; i++)
     if (!strcmp(vs[i].name, FILTER_DEFAULT_ESTIMATE_VARIANT) && vs[i].estimate) v = &vs[i];
+  for (int i = 0; i < nv && i < 64 && !variant && !v && has_estimate; i++)
+    if (!strcmp(vs[i].name, FILTER_FALLBACK_ESTIMATE_VARIANT) && vs[i].estimate) v = &vs[i];
   /* Kernel reads the samples alone: any frame, the estimate or not. */
   for (int i = 0; i < nv && i < 64 && !variant && !v; i++)
     if (!strcmp(vs[i].name, FILTER_DEFAULT_VARIANT)) v = &vs[i];
@@ -274,10 +280,11 @@ int cmd_filter(int argc, char **argv) {
       fprintf(stderr, "hairfilter: no such variant \"%s\"; the server has:", variant);
     else
       fprintf(stderr, "hairfilter: name a --variant: the default is "
-              FILTER_DEFAULT_ESTIMATE_VARIANT " for a frame with the alpha-corrected estimate "
-              "(acst4.*), else " FILTER_DEFAULT_VARIANT "; this frame has %s, and the server "
-              "has no %s; it has:", has_estimate ? "it" : "none",
-              has_estimate ? FILTER_DEFAULT_ESTIMATE_VARIANT " nor " FILTER_DEFAULT_VARIANT
+              FILTER_DEFAULT_ESTIMATE_VARIANT " (else " FILTER_FALLBACK_ESTIMATE_VARIANT ") for "
+              "a frame with the alpha-corrected estimate (acst4.*), else " FILTER_DEFAULT_VARIANT
+              "; this frame has %s, and the server has no %s; it has:", has_estimate ? "it" : "none",
+              has_estimate ? FILTER_DEFAULT_ESTIMATE_VARIANT ", " FILTER_FALLBACK_ESTIMATE_VARIANT
+                             " nor " FILTER_DEFAULT_VARIANT
                            : FILTER_DEFAULT_VARIANT);
     for (int i = 0; i < nv && i < 64; i++) fprintf(stderr, " %s", vs[i].name);
     fprintf(stderr, "\n");

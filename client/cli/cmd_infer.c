@@ -14,7 +14,7 @@ static void usage(FILE *f) {
           "                        [--png PREVIEW.png]\n"
           "                        [--hair r,g,b] [--light r,g,b] [--background r,g,b]\n"
           "Reads S{k}.<feature> channels (and acst4.color/highlight/alpha, the alpha-corrected\n"
-          "estimate, for weights that read it: KernelAC), writes color/highlight/alpha\n"
+          "estimate, for weights that read it: KernelMix, KernelAC), writes color/highlight/alpha\n"
           "(protocol/FEATURES.md) with the input's data window and display window.\n"
           "--part picks the part of a multi-part file (default: the one with S0.color).\n"
           "--png composites the result over the frame's background layer where it has one,\n"
@@ -122,7 +122,7 @@ int cmd_infer(int argc, char **argv) {
     if (!in) strcat(missing, " --in FEATURES.exr");
     if (!out) strcat(missing, " --out RESULT.exr");
     fprintf(stderr, "hairfilter infer: give%s (the default variant's weights: "
-                    "weights/kernel_ac.safetensors; weights/kernel.safetensors for a frame "
+                    "weights/kernel_mix.safetensors; weights/kernel.safetensors for a frame "
                     "without the estimate)\n", missing);
     goto bad;
   }

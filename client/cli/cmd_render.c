@@ -46,7 +46,7 @@ static void usage(FILE *f) {
     "           samples' own estimate, what a filter reads)\n"
     "         --no-background (leave out the occluder layer background.R/G/B/A)\n"
     "         --no-alpha-corrected (leave out acst4.*, the first 4 samples' alpha-corrected\n"
-    "           estimate, Enderton et al. 2010, that KernelAC reads: one more draw of the hair;\n"
+    "           estimate, Enderton et al. 2010, that KernelMix reads: one more draw of the hair;\n"
     "           written by default with --spp 4 or more) --alpha-corrected (also below 4)\n"
     "dataset: --styles a,b --count N (per style) --spp 1,2,4 --seed S --out DIR\n"
     "         --size WxH --strands N --gt-ss S --st LIST --opaque N --no-alpha-corrected --quiet\n"
@@ -989,7 +989,7 @@ int cmd_render(int argc, char **argv) {
   o.outputs.spp = 4;
   o.outputs.gt_supersample = HFR_GT_SUPERSAMPLE;
   o.outputs.seed = 1;
-  /* The default variant (KernelAC, 4 spp) reads it: on for frames of at
+  /* The default variant (KernelMix, 4 spp) reads it: on for frames of at
    * least 4 spp unless --no-alpha-corrected (-1: not said). */
   o.outputs.alpha_corrected = -1;
   hfr_dataset_defaults(&o.ds);

@@ -189,7 +189,7 @@ static void test_refusals(void **state) {
   assert_int_equal(cli("infer --in %s --out %s", test_field("frame-64x64.exr"), test_tmp("x.exr")),
                    2);
   expect_text("hairfilter infer: give --weights FILE (");
-  expect_text("weights/kernel_ac.safetensors");
+  expect_text("weights/kernel_mix.safetensors");
   assert_int_equal(cli("infer --weights %s --in %s --out %s stray", BASE,
                        test_field("frame-64x64.exr"), test_tmp("x.exr")), 2);
   expect_text("unexpected argument 'stray'");

@@ -1,8 +1,8 @@
 """hairfilter filter without --variant: the server's only variant, else
-KernelAC (the bundled default) for a frame with the alpha-corrected
-estimate when the server has it, else Kernel (any frame) when it has it, else
-a clear error that lists what the server has. The default's result must
-equal the one named explicitly, byte for byte."""
+KernelMix (the bundled default), else KernelAC, for a frame with the
+alpha-corrected estimate when the server has it, else Kernel (any frame) when
+it has it, else a clear error that lists what the server has. The default's
+result must equal the one named explicitly, byte for byte."""
 import os
 import subprocess
 import sys
@@ -69,6 +69,20 @@ def with_estimate_variant(d, w):
           "KernelAC on a frame without the estimate names what is missing: %r" % text3)
 
 
+def with_mix_variant(d, w):
+    """The bundled default, KernelMix, before KernelAC on a server with both."""
+    ac = estimate_frame(w)
+    rc, text = filt(d, w, "default_mix.exr", frame=ac)
+    check(rc == 0 and "KernelMix" in text, "filter without --variant of a frame with the "
+          "estimate on Kernel+KernelAC+KernelMix: rc %d: %s" % (rc, text))
+    rc2, text2 = filt(d, w, "named_mix.exr", "--variant", "KernelMix", frame=ac)
+    check(rc2 == 0, "filter --variant KernelMix: rc %d: %s" % (rc2, text2))
+    if rc == 0 and rc2 == 0:
+        a = open(os.path.join(w, "default_mix.exr"), "rb").read()
+        b = open(os.path.join(w, "named_mix.exr"), "rb").read()
+        check(a == b, "the default result differs from --variant KernelMix's")
+
+
 def estimate_frame_without_kernel_ac(d, w):
     """A frame with the estimate on a server without KernelAC: Kernel, which
     reads the samples alone."""
@@ -102,6 +116,8 @@ def only_one(d, w):
 
 with_daemon(["small.safetensors", "kernel.safetensors"], several_with_kernel)
 with_daemon(["kernel.safetensors", "kernel_ac.safetensors"], with_estimate_variant)
+with_daemon(["kernel.safetensors", "kernel_ac.safetensors", "kernel_mix.safetensors"],
+            with_mix_variant)
 with_daemon(["small.safetensors", "kernel.safetensors"], estimate_frame_without_kernel_ac)
 with_daemon(["small.safetensors", "shallow.safetensors"], several_without_kernel)
 with_daemon(["small.safetensors"], only_one)

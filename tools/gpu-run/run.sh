@@ -167,10 +167,12 @@ step bench 180 env HF_CUDNN_VERBOSE=1 CUDNN_LOGLEVEL_DBG=2 CUDNN_LOGDEST_DBG="$R
 step bench_f16 90 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --io f16
 step bench_pipe 90 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --io f16 --pipeline
 step bench_pipe_f32 90 "${BENCH[@]}" --batch 1 --iters 30 --warmup 3 --pipeline
-# The default variant, KernelAC (Kernel reading the alpha-corrected estimate:
-# 27 input channels, its frames interleaved on the host), beside Kernel.
+# The default variant, KernelMix (Kernel reading the alpha-corrected estimate:
+# 27 input channels, its frames interleaved on the host; its kernel weighs both
+# sums), beside KernelAC and Kernel.
 step bench_kernel_ac 90 "$B/hairfilter" bench --backend "$BACKEND" --sizes "$BIG" --batch 1 \
-  --iters 20 --warmup 3 --weights "$ROOT/weights/kernel_ac.safetensors,$ROOT/weights/kernel.safetensors"
+  --iters 20 --warmup 3 \
+  --weights "$ROOT/weights/kernel_mix.safetensors,$ROOT/weights/kernel_ac.safetensors,$ROOT/weights/kernel.safetensors"
 
 # The host's work on a frame's input, which the runs so far found to be most
 # of the end-to-end time: the input statistics, the out-of-contract check and
