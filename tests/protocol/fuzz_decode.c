@@ -167,6 +167,16 @@ static uint64_t next(void) {
 
 /* Builds a valid frame of each kind. */
 enum { KINDS = 11 };
+/* A whole FILTER of m with its inline tensors (m->data, m->data_len bytes)
+ * after the head; the frame's length, or the encoder's error. */
+static int filter_frame(uint8_t *b, size_t cap, uint32_t id, const hfp_filter *m) {
+  uint64_t total;
+  int n = hfp_encode_filter_head(b, cap, id, m, &total);
+  if (n <= 0) return n;
+  memcpy(b + n, m->data, m->data_len);
+  return (int)total;
+}
+
 static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
   int n = 0;
   switch (kind) {
@@ -190,12 +200,7 @@ static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
       static float d[2 * 2 * 6];
       hfp_filter m = {"Base", HFP_FILTER_COMPOSITE, 2, 2, 1, HFP_F32, HFP_F16, {0}, {0}, {0}, d,
                       sizeof d, 0, 0, 0, 0, 0};
-      uint64_t total;
-      n = hfp_encode_filter_head(b, cap, 1, &m, &total);
-      if (n > 0) {
-        memcpy(b + n, d, sizeof d);
-        n = (int)total;
-      }
+      n = filter_frame(b, cap, 1, &m);
       break;
     }
     case 4: {
@@ -236,12 +241,7 @@ static size_t seed_frame(int kind, uint8_t *b, size_t cap) {
       static float d[2 * 2 * 6];
       hfp_filter m = {"Base", HFP_FILTER_DEADLINE, 2, 2, 1, HFP_F32, HFP_F32, {0}, {0}, {0}, d,
                       sizeof d, 0, 0, 0, 0, 16000};
-      uint64_t total;
-      n = hfp_encode_filter_head(b, cap, 3, &m, &total);
-      if (n > 0) {
-        memcpy(b + n, d, sizeof d);
-        n = (int)total;
-      }
+      n = filter_frame(b, cap, 3, &m);
       break;
     }
     case 10: {

@@ -50,17 +50,23 @@ def estimate_frame(w):
     return out
 
 
+def default_is(d, w, frame, name, served):
+    """filter without --variant of frame takes variant name, whose result it
+    gives byte for byte; served: the server's variants, for the messages."""
+    rc, text = filt(d, w, "default_%s.exr" % name, frame=frame)
+    check(rc == 0 and name in text, "filter without --variant of a frame with the "
+          "estimate on %s: rc %d: %s" % (served, rc, text))
+    rc2, text2 = filt(d, w, "named_%s.exr" % name, "--variant", name, frame=frame)
+    check(rc2 == 0, "filter --variant %s: rc %d: %s" % (name, rc2, text2))
+    if rc == 0 and rc2 == 0:
+        a = open(os.path.join(w, "default_%s.exr" % name), "rb").read()
+        b = open(os.path.join(w, "named_%s.exr" % name), "rb").read()
+        check(a == b, "the default result differs from --variant %s's" % name)
+
+
 def with_estimate_variant(d, w):
     ac = estimate_frame(w)
-    rc, text = filt(d, w, "default_ac.exr", frame=ac)
-    check(rc == 0 and "KernelAC" in text, "filter without --variant of a frame with the "
-          "estimate on Kernel+KernelAC: rc %d: %s" % (rc, text))
-    rc2, text2 = filt(d, w, "named_ac.exr", "--variant", "KernelAC", frame=ac)
-    check(rc2 == 0, "filter --variant KernelAC: rc %d: %s" % (rc2, text2))
-    if rc == 0 and rc2 == 0:
-        a = open(os.path.join(w, "default_ac.exr"), "rb").read()
-        b = open(os.path.join(w, "named_ac.exr"), "rb").read()
-        check(a == b, "the default result differs from --variant KernelAC's")
+    default_is(d, w, ac, "KernelAC", "Kernel+KernelAC")
     # A frame without the estimate: Kernel, as named.
     several_with_kernel(d, w)
     # KernelAC named for a frame without the estimate: the render option named.
@@ -71,16 +77,7 @@ def with_estimate_variant(d, w):
 
 def with_mix_variant(d, w):
     """The bundled default, KernelMix, before KernelAC on a server with both."""
-    ac = estimate_frame(w)
-    rc, text = filt(d, w, "default_mix.exr", frame=ac)
-    check(rc == 0 and "KernelMix" in text, "filter without --variant of a frame with the "
-          "estimate on Kernel+KernelAC+KernelMix: rc %d: %s" % (rc, text))
-    rc2, text2 = filt(d, w, "named_mix.exr", "--variant", "KernelMix", frame=ac)
-    check(rc2 == 0, "filter --variant KernelMix: rc %d: %s" % (rc2, text2))
-    if rc == 0 and rc2 == 0:
-        a = open(os.path.join(w, "default_mix.exr"), "rb").read()
-        b = open(os.path.join(w, "named_mix.exr"), "rb").read()
-        check(a == b, "the default result differs from --variant KernelMix's")
+    default_is(d, w, estimate_frame(w), "KernelMix", "Kernel+KernelAC+KernelMix")
 
 
 def estimate_frame_without_kernel_ac(d, w):
