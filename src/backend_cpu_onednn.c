@@ -1440,10 +1440,10 @@ static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
   const od_kernel_out *k = ctx;
   const int w = k->io->width, h = k->io->height, cin = k->cfg->in_channels;
   float *buf = k->rows + (size_t)job * k->rows_floats;
+  const int ksums = hf_kernel_sums_of(k->cfg), nk = hf_kernel_sums_floats(ksums);
   for (size_t r = r0; r < r1; r++) {
     const size_t n = r / h, y = r % h;
     const float *row = od_in_row(k->in, (int)n, (int)y, buf);
-    const int ksums = hf_kernel_sums_of(k->cfg), nk = hf_kernel_sums_floats(ksums);
     float *sums = k->sums + n * h * w * nk;
     if (k->ref) {
       hf_input_view v = {row, w, 1, k->pw, cin};
@@ -1457,9 +1457,8 @@ static void od_kernel_sums(const void *ctx, int job, size_t r0, size_t r1) {
 static void od_kernel_rows(const void *ctx, int job, size_t r0, size_t r1) {
   const od_kernel_out *k = ctx;
   const int w = k->io->width, h = k->io->height, ch = k->cfg->out_channels;
-  const int f16 = k->io->out_dtype == HF_F16;
+  const int f16 = k->io->out_dtype == HF_F16, ksums = hf_kernel_sums_of(k->cfg);
   for (size_t r = r0; r < r1;) {
-    const int ksums = hf_kernel_sums_of(k->cfg);
     size_t n = r / h, frame = n * h * w * 3, fsums = n * h * w * hf_kernel_sums_floats(ksums);
     int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
     float *out = f16 ? k->fin + frame : (float *)k->io->out + frame;

@@ -44,11 +44,13 @@ size_t hf_cpu_kernel_scratch(int width, int radius) {
 
 void hf_cpu_kernel_sums_row(const float *px, int width, int stride, int spp, int ksums,
                             float *planes, size_t plane) {
+  const int nk = hf_kernel_sums_floats(ksums);
   for (int x = 0; x < width; x++) {
+    /* one pixel's sums by the reference's rule, then into the planes */
     float s[6];
     hf_input_view v = {px + (size_t)x * stride, 1, 1, 1, stride};
     hf_pixel_sums_rows(&v, spp, ksums, 0, 1, s);
-    for (int k = 0; k < hf_kernel_sums_floats(ksums); k++) planes[k * plane + x] = s[k];
+    for (int k = 0; k < nk; k++) planes[k * plane + x] = s[k];
   }
 }
 

@@ -267,10 +267,11 @@ int cmd_filter(int argc, char **argv) {
    * to give it. */
   const int has_estimate =
       !variant && !v && hf_exr_has_channel(in_path, HF_ESTIMATE_PREFIX ".alpha") == 1;
-  for (int i = 0; i < nv && i < 64 && !variant && !v && has_estimate; i++)
-    if (!strcmp(vs[i].name, FILTER_DEFAULT_ESTIMATE_VARIANT) && vs[i].estimate) v = &vs[i];
-  for (int i = 0; i < nv && i < 64 && !variant && !v && has_estimate; i++)
-    if (!strcmp(vs[i].name, FILTER_FALLBACK_ESTIMATE_VARIANT) && vs[i].estimate) v = &vs[i];
+  static const char *const estimate_defaults[] = {FILTER_DEFAULT_ESTIMATE_VARIANT,
+                                                  FILTER_FALLBACK_ESTIMATE_VARIANT};
+  for (int d = 0; d < 2 && !variant && !v && has_estimate; d++)
+    for (int i = 0; i < nv && i < 64 && !v; i++)
+      if (!strcmp(vs[i].name, estimate_defaults[d]) && vs[i].estimate) v = &vs[i];
   /* Kernel reads the samples alone: any frame, the estimate or not. */
   for (int i = 0; i < nv && i < 64 && !variant && !v; i++)
     if (!strcmp(vs[i].name, FILTER_DEFAULT_VARIANT)) v = &vs[i];
