@@ -1458,8 +1458,9 @@ static void od_kernel_rows(const void *ctx, int job, size_t r0, size_t r1) {
   const od_kernel_out *k = ctx;
   const int w = k->io->width, h = k->io->height, ch = k->cfg->out_channels;
   const int f16 = k->io->out_dtype == HF_F16, ksums = hf_kernel_sums_of(k->cfg);
+  const int nk = hf_kernel_sums_floats(ksums);
   for (size_t r = r0; r < r1;) {
-    size_t n = r / h, frame = n * h * w * 3, fsums = n * h * w * hf_kernel_sums_floats(ksums);
+    size_t n = r / h, frame = n * h * w * 3, fsums = n * h * w * nk;
     int y0 = (int)(r % h), y1 = r1 - r < (size_t)(h - y0) ? y0 + (int)(r1 - r) : h;
     float *out = f16 ? k->fin + frame : (float *)k->io->out + frame;
     const float *raw = k->raw + n * k->ph * k->pw * ch;

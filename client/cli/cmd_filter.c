@@ -269,7 +269,8 @@ int cmd_filter(int argc, char **argv) {
       !variant && !v && hf_exr_has_channel(in_path, HF_ESTIMATE_PREFIX ".alpha") == 1;
   static const char *const estimate_defaults[] = {FILTER_DEFAULT_ESTIMATE_VARIANT,
                                                   FILTER_FALLBACK_ESTIMATE_VARIANT};
-  for (int d = 0; d < 2 && !variant && !v && has_estimate; d++)
+  const size_t n_defaults = sizeof estimate_defaults / sizeof *estimate_defaults;
+  for (size_t d = 0; d < n_defaults && !variant && !v && has_estimate; d++)
     for (int i = 0; i < nv && i < 64 && !v; i++)
       if (!strcmp(vs[i].name, estimate_defaults[d]) && vs[i].estimate) v = &vs[i];
   /* Kernel reads the samples alone: any frame, the estimate or not. */
