@@ -879,6 +879,63 @@ class Recipe(unittest.TestCase):
         self.assertIs(hfnet.HairNet, fullres_branch._HairNet)
         self.assertNotIn("fullres", hfnet.variant_config("Kernel"))
 
+    def test_experimental_base_carry_holds_each_pixel(self):
+        """weights/experiments/base_carry.py: its taps read dec0's output
+        as the transposed convolution computes it; after the graft the 12
+        carry channels of enc0 hold each pixel's sample means of colour,
+        highlight and alpha; the colour's inverse undoes the paper's cubic;
+        and a dec0 refit against targets dec0 can make reproduces them."""
+        sys.path.insert(0, os.path.join(WEIGHTS, "experiments"))
+        import base_carry
+        import torch.nn.functional as F
+        torch.manual_seed(11)
+        z, w, b = torch.randn(2, 5, 6, 7), torch.randn(5, 3, 4, 4), torch.randn(3)
+        y = F.conv_transpose2d(z, w, b, stride=2, padding=1)
+        for a in (0, 1):
+            for c in (0, 1):
+                d, taps = base_carry.design(z, a, c)
+                wt = torch.cat([w[:, :, ky, kx] for ky, kx in taps]).double().numpy()
+                got = d @ wt + b.double().numpy()
+                want = y[:, :, a::2, c::2].permute(0, 2, 3, 1).double().numpy()
+                self.assertLess(float(np.abs(got - want).max()), 1e-4, (a, c))
+
+        col = np.linspace(0.0, 2.5, 11)
+        x = torch.from_numpy(base_carry.color_preactivation(col)).float().view(1, 1, 1, -1)
+        back = hfnet.output_transform(torch.cat([x, x, x], 1))[0, 0, 0].double().numpy()
+        self.assertLess(float(np.abs(back - col).max()), 1e-5)
+
+        cfg = hfnet.variant_config("Base")
+        net = hfnet.HairNet(cfg)
+        feats = torch.rand(2, cfg["in_channels"], 32, 32)
+        truth = torch.rand(2, 3, 32, 32)
+        chosen, _ = base_carry.graft(net, [(feats, truth)], 12, cfg["spp"])
+        self.assertEqual(len(set(chosen)), 12)
+        with torch.no_grad():
+            _, enc0 = base_carry.decoder_input(net, feats)
+        s = feats.view(2, cfg["spp"], 6, 32, 32).mean(1)            # [n][feature][h][w]
+        for k, ch in enumerate(chosen):
+            pix, f = divmod(k, 3)
+            a, c = divmod(pix, 2)
+            want = s[:, base_carry.CARRIED[f], a::2, c::2]
+            self.assertLess(float((enc0[:, ch] - want).abs().max()), 1e-5, (k, ch))
+            self.assertEqual(float(net.enc1.weight[:, ch].abs().sum()), 0.0)
+
+        # Targets dec0 can make exactly, inside every clamp: the refit finds them.
+        with torch.no_grad():
+            zin, _ = base_carry.decoder_input(net, feats)
+            r0 = F.conv_transpose2d(zin, net.dec0.weight, None, stride=2, padding=1)
+            net.dec0.weight.mul_(0.4 / float(r0.abs().max()))
+            net.dec0.bias.copy_(torch.tensor([0.0, 0.5, 0.5]))
+            raw = F.conv_transpose2d(zin, net.dec0.weight, net.dec0.bias, stride=2, padding=1)
+            target = hfnet.output_transform(raw)
+            net.dec0.weight.normal_()
+            net.dec0.bias.zero_()
+        self.assertTrue(bool(((raw[:, 1:] > 0) & (raw[:, 2:] < 1)).all()))
+        base_carry.refit_dec0(net, [(feats, target)], ridge=1e-9)
+        with torch.no_grad():
+            got = net.raw(feats)
+        self.assertLess(float((got - raw).abs().max()), 1e-3)
+
     def test_kernel_export_roundtrips(self):
         """A Kernel network (head and metadata keys) and one without a head
         go through the C loader and writer bit-exactly."""
