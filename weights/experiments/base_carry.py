@@ -30,11 +30,12 @@ into trained weights:
    error after the clamp). dec0 is linear in its weights, so each fit is
    exact for the crops given.
 
-Measured (weights/base.md): the carry costs more than it brings. Even with
-dec0 fitted to the output itself, Base's 32 trained channels give a lower
-error than 20 of them and the carry, and a fine-tune from the graft stays
-below one from Base on the same steps. The script stays as the record of
-that measurement.
+Measured (weights/base.md, "A full-resolution carry"): the carry costs more
+than it brings. On the crops it was fitted on, the graft's output error is
+above that of the weights it started from (the script prints both), and a
+fine-tune from the graft stays below one from those weights on the same
+steps, on opaque frames too. The script stays as the record of that
+measurement.
 
 The result is a plain Base file (same configuration, tensor names and
 shapes; the input range of the weights it started from) that every backend
@@ -189,8 +190,9 @@ def output_error(net, batches, drop=None):
 
 
 def graft(net, batches, channels, spp):
-    """Steps 1-3 of the module on net (a Base HairNet), in place; returns
-    the channels made into the carry."""
+    """Steps 1-3 of the module on net (a Base HairNet), in place, with
+    `channels` = 4 x len(CARRIED); returns the enc0 channels made into the
+    carry and each enc0 channel's cost (output_error's rise when zeroed)."""
     base = output_error(net, batches)
     cost = [output_error(net, batches, c) - base for c in range(net.enc0.out_channels)]
     chosen = sorted(int(c) for c in np.argsort(cost)[:channels])
@@ -231,7 +233,7 @@ def main():
         x, t = frames.batch(rng, 128, 16)
         batches.append((torch.from_numpy(x), torch.from_numpy(t)))
     before = output_error(net, batches)
-    chosen, cost = graft(net, batches, 4 * len(CARRIED), cfg["spp"])
+    chosen, _ = graft(net, batches, 4 * len(CARRIED), cfg["spp"])
     after = output_error(net, batches)
     print(f"carry channels {chosen}; output error on {args.crops} crops of {len(frames)} "
           f"frames: {before:.6g} before, {after:.6g} after")
