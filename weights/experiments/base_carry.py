@@ -72,17 +72,16 @@ def color_preactivation(c):
 
 
 def decoder_input(net, x):
-    """cat[dec1, enc0] (dec0's input) of NCHW input x, and enc0 alone."""
-    enc, h = [], x
-    for i in range(net.levels):
-        h = F.relu(getattr(net, f"enc{i}")(h))
-        enc.append(h)
-    y = enc[-1]
-    for i in reversed(range(1, net.levels)):
-        if i < net.levels - 1:
-            y = torch.cat([y, enc[i]], dim=1)
-        y = F.relu(getattr(net, f"dec{i}")(y))
-    return torch.cat([y, enc[0]], dim=1), enc[0]
+    """cat[dec1, enc0] (dec0's input) of NCHW input x, and enc0 alone (its
+    last channels), taken from HairNet.raw's own pass by a hook on dec0."""
+    seen = []
+    hook = net.dec0.register_forward_pre_hook(lambda m, args: seen.append(args[0]))
+    try:
+        net.raw(x)
+    finally:
+        hook.remove()
+    z = seen[0]
+    return z, z[:, z.shape[1] - net.enc0.out_channels:]
 
 
 def targets(t):
@@ -96,17 +95,21 @@ def targets(t):
     return tgt, wgt
 
 
+def phase_taps(a, b):
+    """dec0's (input offset y, input offset x, tap y, tap x) for the output
+    pixels (2i+a, 2j+b), the 2x2 pairs in the order design() lays them."""
+    return [(dy, dx, ky, kx) for dy, ky in PHASE_TAPS[a] for dx, kx in PHASE_TAPS[b]]
+
+
 def design(z, a, b):
     """The values dec0 combines for the output pixels (2i+a, 2j+b): for each
-    of the 2x2 (input offset, tap) pairs, z shifted by the offset
-    ([n][h/2][w/2][4 * channels]), and the pairs' taps."""
+    of phase_taps(a, b), z shifted by its offset ([n][h/2][w/2][4 *
+    channels]), and those pairs' taps."""
     n, c, h, w = z.shape
     zp = F.pad(z, (1, 1, 1, 1))
-    cols, taps = [], []
-    for dy, ky in PHASE_TAPS[a]:
-        for dx, kx in PHASE_TAPS[b]:
-            cols.append(zp[:, :, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w])
-            taps.append((ky, kx))
+    pairs = phase_taps(a, b)
+    cols = [zp[:, :, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy, dx, _, _ in pairs]
+    taps = [(ky, kx) for _, _, ky, kx in pairs]
     return torch.cat(cols, 1).permute(0, 2, 3, 1).numpy().astype(np.float64), taps
 
 
@@ -161,8 +164,7 @@ def refit_dec0(net, batches, ridge=1e-6, rounds=3):
         for a in (0, 1):
             for b in (0, 1):
                 ph = (2 * a + b) * 4 * cin
-                _, taps = design(torch.zeros(1, cin, 1, 1), a, b)
-                for s_, (ky, kx) in enumerate(taps):
+                for s_, (_, _, ky, kx) in enumerate(phase_taps(a, b)):
                     weight[:, o, ky, kx] = torch.from_numpy(
                         sol[o][ph + s_ * cin:ph + (s_ + 1) * cin])
         bias[o] = float(sol[o][-1])
@@ -200,7 +202,7 @@ def graft(net, batches, channels, spp):
     with torch.no_grad():
         for k, c in enumerate(chosen):
             pix, feat = divmod(k, len(CARRIED))
-            a, b = divmod(pix % 4, 2)
+            a, b = divmod(pix, 2)
             net.enc0.weight[c].zero_()
             net.enc0.bias[c] = 0
             for s in range(spp):
