@@ -544,7 +544,7 @@ def make_parser():
                     "separated by commas are trained on together")
     ap.add_argument("--variant", default="Base",
                     help="the variant: " + ", ".join(hfnet.VARIANTS) + " (default Base, the "
-                    "paper's; the server's default is KernelAC)")
+                    "paper's; the server's default is KernelMix)")
     ap.add_argument("--out", required=True, help="run directory (checkpoint, log)")
     ap.add_argument("--steps", type=int, default=10000, help="total optimizer steps (default 10000)")
     ap.add_argument("--batch", type=int, default=8, help="crops per step (default 8)")
