@@ -1,5 +1,5 @@
 /*
- * The input pass of a network with an estimate (KernelAC and KernelMix, the default),
+ * The input pass of a network with an estimate (KernelMix, the default, and KernelAC),
  * hf_features_interleave, beside what bounds it, side by side in one run
  * (docs/PERFORMANCE.md, "KernelAC against Kernel"):
  *
