@@ -1,8 +1,9 @@
 #!/usr/bin/python3
 """The asset tools of client/render/tools against the renderer:
 
-- hair_models.py: both models carry per-point widths in the range they
-  document and draw hair (the fur with its body mesh as occluder);
+- hair_models.py: the four models carry per-point widths in the range
+  they document and draw hair (the fur with its body mesh as occluder,
+  the spiky and coily cuts over the fitted head);
 - hair_convert.py: a model rewritten z up in centimetres, loaded with
   --up z --units cm, covers the same samples as the original, and loaded
   without them (taken as y up) does not; a damaged input is refused.
@@ -64,7 +65,12 @@ def main():
     body = os.path.join(w, "body.obj")
     run([py, os.path.join(TOOLS, "hair_models.py"), "tied", tied, "--strands", "400"])
     run([py, os.path.join(TOOLS, "hair_models.py"), "fur", fur, "--strands", "400", "--mesh", body])
-    for path, lo, hi in ((tied, 0.0012, 0.0035), (fur, 0.03, 0.09)):
+    spiky = os.path.join(w, "spiky.hair")
+    coily = os.path.join(w, "coily.hair")
+    run([py, os.path.join(TOOLS, "hair_models.py"), "spiky", spiky, "--strands", "400"])
+    run([py, os.path.join(TOOLS, "hair_models.py"), "coily", coily, "--strands", "400"])
+    for path, lo, hi in ((tied, 0.0012, 0.0035), (fur, 0.03, 0.09), (spiky, 0.003, 0.009),
+                         (coily, 0.05, 0.09)):
         b, strands, points, flags = read_header(path)
         if strands != 400 or flags != 1 | 2 | 4:
             sys.exit(f"FAIL: {path}: {strands} strands, flags {flags} (want 400, 7)")
@@ -126,15 +132,20 @@ def main():
     if abs(ref[1] - wrong[1]) <= 0.002 and abs(ref[0] - wrong[0]) <= 0.002:
         sys.exit("FAIL: the up axis changed nothing: the comparison cannot tell conventions apart")
 
-    # both models draw hair, the fur with its body as the occluder
+    # the models draw hair, the fur with its body as the occluder
     t = coverage(hf, w, "tied", ["--hair", tied, "--units", "in", "--children", "4"])
     # (fur 2 mm wide: at 64x64 its own 0.03-0.09 mm would be 1/200 of a pixel)
     f = coverage(hf, w, "fur", ["--hair", fur, "--up", "z", "--units", "mm", "--children", "8",
                                 "--thickness", "2", "--occluder", body])
     f_fit = coverage(hf, w, "fur_fit", ["--hair", fur, "--up", "z", "--units", "mm",
                                         "--children", "8", "--thickness", "2"])
-    print(f"coverage: tied {t}, fur with its body {f}, fur with the fitted occluder {f_fit}")
-    if t[1] <= 0.02 or f[1] <= 0.02:
+    sp = coverage(hf, w, "spiky", ["--hair", spiky, "--up", "z", "--units", "cm",
+                                   "--occluder", "fit", "--thickness-scale", "8"])
+    co = coverage(hf, w, "coily", ["--hair", coily, "--units", "mm", "--occluder", "fit",
+                                   "--thickness-scale", "8"])
+    print(f"coverage: tied {t}, fur with its body {f}, fur with the fitted occluder {f_fit}, "
+          f"spiky {sp}, coily {co}")
+    if min(t[1], f[1], sp[1], co[1]) <= 0.02:
         sys.exit("FAIL: a model draws (almost) no hair")
     # the body hides the fur behind it: fewer samples than over a smaller
     # fitted ellipsoid is not guaranteed, but the same count would mean the

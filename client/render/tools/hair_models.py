@@ -1,7 +1,8 @@
 #!/usr/bin/python3
-"""Writes two hair models made without the renderer's styles, in the
-conventions assets arrive in, for held-out evaluation (docs/QUALITY.md,
-"Models the styles did not make"):
+"""Writes hair models made without the renderer's styles, in the
+conventions assets arrive in (docs/QUALITY.md, "Models the styles did not
+make"; tied and fur are evaluated held out, and other seeds of all four
+are training data, weights/base.md):
 
     hair_models.py tied OUT.hair [--seed N]
         a long tied style: hair combed back over the scalp to a tie at the
@@ -16,8 +17,20 @@ conventions assets arrive in, for held-out evaluation (docs/QUALITY.md,
         segments per guide (grow children at render time with
         --children); --mesh also writes the body as a triangle mesh, to
         render with --occluder BODY.obj.
+    hair_models.py spiky OUT.hair [--seed N]
+        a short spiky cut: strands 1.5 to 6 cm long gathered into gelled
+        spikes that stand out from the scalp and lean up and back; z up,
+        centimetres, face towards -y, per-point thickness 0.009 cm at the
+        root to 0.003 cm at the tip, 8 to 13 points per strand.
+    hair_models.py coily OUT.hair [--seed N]
+        tightly coiled hair standing out from the scalp as an afro: each
+        strand a helix of radius 1.5 to 4 mm and pitch 2 to 5 mm around a
+        centre line 30 to 90 mm long that rises from the scalp and sags;
+        y up, millimetres, face towards +z, per-point thickness 0.09 mm at
+        the root to 0.05 mm at the tip, 8 points per turn.
 
-The directories of OUT and BODY must exist. Prints what it wrote.
+Render the spiky and coily models with --occluder fit (the head fitted
+under the roots). The directories of OUT and BODY must exist. Prints what it wrote.
 
 Numpy only. The format is Cem Yuksel's (docs/RENDERING.md, "Your own
 models"): header, segments, points, thickness."""
@@ -91,6 +104,87 @@ def tied(rng, count):
             pts.append(end + off + np.array([wave, -s, back]))
         p = np.array(pts)
         out.append((p, taper(len(p), 0.0035, 0.0012)))
+    return out
+
+
+def scalp_roots(rng, n, rad, keep):
+    """n points on the ellipsoid of half-widths rad where keep(unit
+    direction) holds; returns (points, outward unit normals)."""
+    pts, nrm = [], []
+    while len(pts) < n:
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        if not keep(d):
+            continue
+        q = d * rad
+        g = q / rad ** 2
+        pts.append(q)
+        nrm.append(g / np.linalg.norm(g))
+    return np.array(pts), np.array(nrm)
+
+
+def spiky(rng, count):
+    """Short spiky cut, z up, cm; head ellipsoid at the origin, face -y."""
+    rad = np.array([7.6, 9.4, 9.8])                   # half-widths x, y, z (cm)
+    # hairline: high over the forehead (-y), low at the nape (+y)
+    keep = lambda d: d[2] > 0.05 + 0.45 * max(0.0, -d[1]) - 0.35 * max(0.0, d[1])
+    nclump = max(1, count // rng.integers(20, 45))
+    centres, normals = scalp_roots(rng, nclump, rad, keep)
+    up_back = np.array([0.0, 0.45, 0.9])
+    tips, lengths = [], []
+    for c, n in zip(centres, normals):
+        lean = rng.uniform(0.2, 0.6)
+        d = (1 - lean) * n + lean * up_back + rng.normal(scale=0.15, size=3)
+        d /= np.linalg.norm(d)
+        length = rng.uniform(1.5, 6.0)
+        tips.append(c + d * length)
+        lengths.append(length)
+    tips = np.array(tips)
+    out = []
+    roots, rnorm = scalp_roots(rng, count, rad, keep)
+    for root, n in zip(roots, rnorm):
+        k = int(np.argmin(np.sum((centres - root) ** 2, axis=1)))
+        short = rng.uniform(0.55, 1.0)               # strands end short of the tip
+        tip = root + short * (tips[k] - root) + rng.normal(scale=0.12, size=3)
+        npts = rng.integers(8, 14)
+        ts = np.linspace(0.0, 1.0, npts) ** 1.2
+        lift = 0.25 * np.linalg.norm(tip - root)
+        pts = [(1 - t) * root + t * tip + n * lift * np.sin(np.pi * t) * (1 - t)
+               for t in ts]
+        out.append((np.array(pts), taper(npts, 0.009, 0.003)))
+    return out
+
+
+def coily(rng, count):
+    """Coiled hair as an afro, y up, mm; head ellipsoid at the origin,
+    face +z."""
+    rad = np.array([76.0, 92.0, 96.0])                # half-widths x, y, z (mm)
+    keep = lambda d: d[1] > -0.05 + 0.5 * max(0.0, d[2]) - 0.45 * max(0.0, -d[2])
+    roots, normals = scalp_roots(rng, count, rad, keep)
+    up = np.array([0.0, 1.0, 0.0])
+    out = []
+    for root, n in zip(roots, normals):
+        length = rng.uniform(30.0, 90.0)
+        radius = rng.uniform(1.5, 4.0)
+        pitch = rng.uniform(2.0, 5.0)
+        turns = length / pitch
+        npts = max(8, int(turns * 8))
+        sag = rng.uniform(0.0, 0.35)
+        phase = rng.uniform(0, 2 * np.pi)
+        s = np.linspace(0.0, 1.0, npts)
+        # centre line: out along the normal, then bending down a little
+        dirs = n[None, :] - sag * s[:, None] ** 2 * up[None, :]
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        centre = root + np.cumsum(dirs, axis=0) * (length / npts)
+        centre -= centre[0] - root
+        # a frame around the normal for the helix
+        a = np.cross(n, up if abs(n[1]) < 0.9 else np.array([1.0, 0.0, 0.0]))
+        a /= np.linalg.norm(a)
+        b = np.cross(n, a)
+        ang = phase + 2 * np.pi * turns * s
+        grow = np.minimum(1.0, s * 8.0)                # the coil opens off the root
+        p = centre + radius * grow[:, None] * (np.cos(ang)[:, None] * a + np.sin(ang)[:, None] * b)
+        out.append((p, taper(npts, 0.09, 0.05)))
     return out
 
 
@@ -213,10 +307,10 @@ def write_body_obj(path, rings=24, sectors=48):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("model", choices=["tied", "fur"], help="which model")
+    ap.add_argument("model", choices=["tied", "fur", "spiky", "coily"], help="which model")
     ap.add_argument("out", help="the .hair file to write")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--strands", type=int, help="strands (tied: 6000) or guides (fur: 4000)")
+    ap.add_argument("--strands", type=int, help="strands (tied: 6000, spiky: 20000, coily: 8000) or guides (fur: 4000)")
     ap.add_argument("--mesh", help="fur: also write the body as this OBJ")
     a = ap.parse_args()
     if a.mesh and a.model != "fur":
@@ -232,6 +326,14 @@ def main():
         strands = tied(rng, a.strands or 6000)
         write_hair(a.out, strands, "tied style, y up, inches")
         how = "y up, inches: render with --units in"
+    elif a.model == "spiky":
+        strands = spiky(rng, a.strands or 20000)
+        write_hair(a.out, strands, "spiky cut, z up, cm, face -y")
+        how = "z up, centimetres: render with --up z --units cm --occluder fit"
+    elif a.model == "coily":
+        strands = coily(rng, a.strands or 8000)
+        write_hair(a.out, strands, "coily afro, y up, mm, face +z")
+        how = "y up, millimetres: render with --units mm --occluder fit"
     else:
         strands = fur(rng, a.strands or 4000)
         write_hair(a.out, strands, "fur guides, z up, mm, front -y")
