@@ -139,10 +139,12 @@ def main():
                                 "--thickness", "2", "--occluder", body])
     f_fit = coverage(hf, w, "fur_fit", ["--hair", fur, "--up", "z", "--units", "mm",
                                         "--children", "8", "--thickness", "2"])
-    sp = coverage(hf, w, "spiky", ["--hair", spiky, "--up", "z", "--units", "cm",
-                                   "--occluder", "fit", "--thickness-scale", "8"])
-    co = coverage(hf, w, "coily", ["--hair", coily, "--units", "mm", "--occluder", "fit",
-                                   "--thickness-scale", "8"])
+    # the spiky and coily cuts over the fitted head, 8 times as wide to
+    # show at 64x64, each in its own convention
+    sp, co = (coverage(hf, w, name, ["--hair", path, "--occluder", "fit", "--thickness-scale", "8"]
+                       + conv_args)
+              for name, path, conv_args in (("spiky", spiky, ["--up", "z", "--units", "cm"]),
+                                            ("coily", coily, ["--units", "mm"])))
     print(f"coverage: tied {t}, fur with its body {f}, fur with the fitted occluder {f_fit}, "
           f"spiky {sp}, coily {co}")
     if min(t[1], f[1], sp[1], co[1]) <= 0.02:
