@@ -18,10 +18,11 @@ are training data, weights/base.md):
         --children); --mesh also writes the body as a triangle mesh, to
         render with --occluder BODY.obj.
     hair_models.py spiky OUT.hair [--seed N]
-        a short spiky cut: strands 1.5 to 6 cm long gathered into gelled
-        spikes that stand out from the scalp and lean up and back; z up,
-        centimetres, face towards -y, per-point thickness 0.009 cm at the
-        root to 0.003 cm at the tip, 8 to 13 points per strand.
+        a short spiky cut: strands gathered into gelled spikes 1.5 to 6 cm
+        long that stand out from the scalp and lean up and back, each
+        strand ending at 55 to 100% of its spike (strands about 0.6 to 7
+        cm); z up, centimetres, face towards -y, per-point thickness 0.009
+        cm at the root to 0.003 cm at the tip, 8 to 13 points per strand.
     hair_models.py coily OUT.hair [--seed N]
         tightly coiled hair standing out from the scalp as an afro: each
         strand a helix of radius 1.5 to 4 mm and pitch 2 to 5 mm around a
