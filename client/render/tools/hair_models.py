@@ -31,7 +31,8 @@ are training data, weights/base.md):
         the root to 0.05 mm at the tip, 8 points per turn.
 
 Render the spiky and coily models with --occluder fit (the head fitted
-under the roots). The directories of OUT and BODY must exist. Prints what it wrote.
+under the roots). The directories of OUT and BODY must exist. Prints
+what it wrote.
 
 Numpy only. The format is Cem Yuksel's (docs/RENDERING.md, "Your own
 models"): header, segments, points, thickness."""
@@ -132,14 +133,13 @@ def spiky(rng, count):
     nclump = max(1, count // rng.integers(20, 45))
     centres, normals = scalp_roots(rng, nclump, rad, keep)
     up_back = np.array([0.0, 0.45, 0.9])
-    tips, lengths = [], []
+    tips = []
     for c, n in zip(centres, normals):
         lean = rng.uniform(0.2, 0.6)
         d = (1 - lean) * n + lean * up_back + rng.normal(scale=0.15, size=3)
         d /= np.linalg.norm(d)
         length = rng.uniform(1.5, 6.0)
         tips.append(c + d * length)
-        lengths.append(length)
     tips = np.array(tips)
     out = []
     roots, rnorm = scalp_roots(rng, count, rad, keep)
