@@ -677,6 +677,25 @@ static int open_renderer(const opts *o, const hfr_hair *hair, const hfr_mesh *oc
   return rc;
 }
 
+/* load_model then open_renderer: on failure nothing is left to free, and
+ * the reason is printed. */
+static int open_scene(const opts *o, hfr_hair *hair, hfr_mesh *occ, hfr_renderer **r) {
+  *r = NULL;
+  int rc = load_model(o, hair, occ);
+  if (rc != HF_OK) return rc;
+  if ((rc = open_renderer(o, hair, occ, r)) != HF_OK) {
+    hfr_hair_free(hair);
+    hfr_mesh_free(occ);
+  }
+  return rc;
+}
+
+static void close_scene(hfr_hair *hair, hfr_mesh *occ, hfr_renderer *r) {
+  hfr_renderer_destroy(r);
+  hfr_hair_free(hair);
+  hfr_mesh_free(occ);
+}
+
 /* Says when the truth's sub-pixel centres include MSAA sample positions:
  * scores of the first pass's samples against it are then biased upward. */
 static void gt_grid_note(int shared) {
@@ -793,13 +812,8 @@ static int run_frame(opts *o) {
     return 1;
   hfr_hair hair;
   hfr_mesh occ;
-  hfr_renderer *r = NULL;
-  if (load_model(o, &hair, &occ) != HF_OK) return 1;
-  if (open_renderer(o, &hair, &occ, &r) != HF_OK) {
-    hfr_hair_free(&hair);
-    hfr_mesh_free(&occ);
-    return 1;
-  }
+  hfr_renderer *r;
+  if (open_scene(o, &hair, &occ, &r) != HF_OK) return 1;
   hf_image img;
   hfr_stats st;
   char err[512] = "";
@@ -843,9 +857,7 @@ static int run_frame(opts *o) {
   } else {
     fprintf(stderr, "hairfilter render: %s (%s)\n", err, hf_strerror(rc));
   }
-  hfr_renderer_destroy(r);
-  hfr_hair_free(&hair);
-  hfr_mesh_free(&occ);
+  close_scene(&hair, &occ, r);
   return rc == HF_OK ? 0 : 1;
 }
 
@@ -873,13 +885,8 @@ static int run_fig6(opts *o) {
   o->outputs.background_layer = !o->no_background;
   hfr_hair hair;
   hfr_mesh occ;
-  hfr_renderer *r = NULL;
-  if (load_model(o, &hair, &occ) != HF_OK) return 1;
-  if (open_renderer(o, &hair, &occ, &r) != HF_OK) {
-    hfr_hair_free(&hair);
-    hfr_mesh_free(&occ);
-    return 1;
-  }
+  hfr_renderer *r;
+  if (open_scene(o, &hair, &occ, &r) != HF_OK) return 1;
   hf_image img;
   hfr_stats st;
   char err[512] = "";
@@ -911,9 +918,7 @@ static int run_fig6(opts *o) {
     free(rgb);
     hf_image_free(&img);
   }
-  hfr_renderer_destroy(r);
-  hfr_hair_free(&hair);
-  hfr_mesh_free(&occ);
+  close_scene(&hair, &occ, r);
   return rc == HF_OK ? 0 : 1;
 }
 
