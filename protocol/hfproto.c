@@ -350,6 +350,62 @@ int hfp_decode_hello(const uint8_t *payload, size_t len, hfp_hello *m) {
   return 0;
 }
 
+/* Which of a text field's bytes is first outside its alphabet, or -1. */
+static long first_bad_text_byte(const uint8_t *s, size_t n) {
+  for (size_t i = 0; i < n; i++)
+    if (!text_ok(s + i, 1, 0)) return (long)i;
+  return -1;
+}
+
+void hfp_hello_fault(const uint8_t *payload, size_t len, int rc, char *buf, size_t cap) {
+  if (!cap) return;
+  if (rc < 0) rc = -rc;
+  snprintf(buf, cap, "%s", hfp_strerror(rc));
+  if (len < HFP_HELLO_FIXED) {
+    snprintf(buf, cap, "a HELLO payload of %zu bytes is shorter than its %d fixed bytes", len,
+             HFP_HELLO_FIXED);
+    return;
+  }
+  uint16_t nn = hfp_get_u16(payload + 4), tn = hfp_get_u16(payload + 6);
+  /* In hfp_decode_hello's order, so the text is about the fault that
+   * decided the code. */
+  if (nn < 1 || nn > HFP_NAME_MAX) {
+    snprintf(buf, cap, "name_len %u is outside 1..%d", nn, HFP_NAME_MAX);
+    return;
+  }
+  if ((size_t)HFP_HELLO_FIXED + nn > len) {
+    snprintf(buf, cap, "a payload of %zu bytes ends inside the %u-byte client name", len, nn);
+    return;
+  }
+  long bad = first_bad_text_byte(payload + HFP_HELLO_FIXED, nn);
+  if (bad >= 0) {
+    snprintf(buf, cap, "client name byte %ld is 0x%02x; a name is printable ASCII without "
+             "spaces (0x21..0x7E)", bad, payload[HFP_HELLO_FIXED + bad]);
+    return;
+  }
+  if (tn > HFP_TOKEN_MAX) {
+    snprintf(buf, cap, "token_len %u is outside 0..%d", tn, HFP_TOKEN_MAX);
+    return;
+  }
+  size_t need = (size_t)HFP_HELLO_FIXED + nn + tn;
+  if (need > len) {
+    snprintf(buf, cap, "a payload of %zu bytes ends inside the %u-byte auth token (the fields "
+             "need %zu)", len, tn, need);
+    return;
+  }
+  /* The token's bytes are not echoed: a server's log keeps no part of a
+   * secret. */
+  bad = first_bad_text_byte(payload + HFP_HELLO_FIXED + nn, tn);
+  if (bad >= 0) {
+    snprintf(buf, cap, "auth token byte %ld is outside printable ASCII without spaces "
+             "(0x21..0x7E)", bad);
+    return;
+  }
+  if (need != len)
+    snprintf(buf, cap, "the payload is %zu bytes but its fields (8 fixed, a %u-byte name, a "
+             "%u-byte token) make %zu", len, nn, tn, need);
+}
+
 int hfp_encode_hello_ok(uint8_t *buf, size_t cap, const hfp_hello_ok *m) {
   wr w;
   wr_begin(&w, buf, cap);
@@ -784,9 +840,9 @@ void hfp_filter_fault(const uint8_t *payload, size_t avail, size_t len, int rc, 
   }
   if (m.flags & HFP_FILTER_SHM) {
     if (len != off + HFP_SHM_REF_SIZE) {
-      snprintf(buf, cap, "with flag SHM the payload is %zu bytes (the fixed fields, the name%s "
-               "and the 32-byte reference), not %zu", off + HFP_SHM_REF_SIZE,
-               extra ? ", the budget" : "", len);
+      snprintf(buf, cap, "the payload is %zu bytes; with flag SHM it must be %zu (the fixed "
+               "fields, the name%s and the 32-byte reference)", len, off + HFP_SHM_REF_SIZE,
+               extra ? ", the budget" : "");
       return;
     }
     uint32_t seg = hfp_get_u32(payload + off), reserved = hfp_get_u32(payload + off + 4);

@@ -342,6 +342,12 @@ int hfp_encode_result_head(uint8_t *buf, size_t cap, uint32_t request_id,
  * after the last entry (none: version 1, no ranges, counters 0). */
 int hfp_decode_hello(const uint8_t *payload, size_t len, hfp_hello *m);
 int hfp_decode_hello_ok(const uint8_t *payload, size_t len, hfp_hello_ok *m);
+#define HFP_HELLO_FIXED    8   /* min/max_version, name_len, token_len */
+/* Says in buf (cap bytes; always terminated) which field of a HELLO of len
+ * bytes made hfp_decode_hello return rc (HFP_E_LENGTH or HFP_E_INVALID) and
+ * what it must be (PROTOCOL.md, "HELLO"): the text of a server's refusal.
+ * The token's bytes are never copied into buf. */
+void hfp_hello_fault(const uint8_t *payload, size_t len, int rc, char *buf, size_t cap);
 int hfp_decode_variants(const uint8_t *payload, size_t len, hfp_variant *v,
                         int max, int *count);
 int hfp_decode_filter(const uint8_t *payload, size_t len, hfp_filter *m);

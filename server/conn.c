@@ -558,8 +558,10 @@ static void reply_hello(hfd_conn *c, const uint8_t *p, size_t len) {
   if (rc && rc != -HFP_E_VERSION) {
     /* Whatever the codec found (a length that disagrees with its fields,
      * a bad name), a HELLO that is not one is a PROTOCOL error. */
+    char why[192];
+    hfp_hello_fault(p, len, rc, why, sizeof why);
     s->protocol_errors++;
-    send_error(c, 0, HFP_E_PROTOCOL, 1, "malformed HELLO: %s", hfp_strerror(rc));
+    send_error(c, 0, HFP_E_PROTOCOL, 1, "malformed HELLO: %s", why);
     return;
   }
   /* The token before the version: a peer without the token learns nothing
@@ -1168,8 +1170,8 @@ static void on_header(hfd_conn *c) {
        * well-formed one is refused for the transport (PROTOCOL.md, "Errors"). */
       if (h->length != (h->type == HFP_SHM_CREATE ? 8u : 4u)) {
         s->protocol_errors++;
-        send_error(c, 0, HFP_E_LENGTH, 1, "malformed %s: its payload is %u bytes, not %u",
-                   hfp_type_name(h->type), h->type == HFP_SHM_CREATE ? 8u : 4u, h->length);
+        send_error(c, 0, HFP_E_LENGTH, 1, "malformed %s: its payload is %u bytes; it must be %u",
+                   hfp_type_name(h->type), h->length, h->type == HFP_SHM_CREATE ? 8u : 4u);
         return;
       }
       if (!c->is_ipc) {

@@ -85,6 +85,12 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (all || h.type == HFP_HELLO) {
     rc = hfp_decode_hello(p, len, &hello);
     check_rc("hello", rc);
+    if (rc && rc != -HFP_E_VERSION) {
+      char why[192];
+      memset(why, 'x', sizeof why);
+      hfp_hello_fault(p, len, rc, why, sizeof why);
+      if (!memchr(why, 0, sizeof why) || !why[0]) fail("hello fault text", rc);
+    }
     if (!rc && hfp_encode_hello(out, sizeof out, &hello) != (int)(HFP_HEADER_SIZE + len))
       fail("hello re-encode", 0);
   }

@@ -124,6 +124,52 @@ static void test_hello(void **state) {
   assert_int_equal(hfp_negotiate(3, 2), -HFP_E_VERSION);
 }
 
+/* A malformed HELLO's refusal names the field at fault and what it must
+ * be, and never copies the token's bytes. */
+static void test_hello_fault(void **state) {
+  (void)state;
+  hfp_hello m = {1, 4, "engine-7", "s3cret"}, d;
+  int n = hfp_encode_hello(buf, sizeof buf, &m);
+  assert_true(n > 0);
+  hfp_header h;
+  const uint8_t *p = split(buf, n, HFP_HELLO, &h);
+  uint8_t q[512];
+  char why[192];
+  struct {
+    const char *what;
+    int set_name_len, set_token_len, poke_at, poke, len_delta;
+    const char *words;
+  } cases[] = {
+      {"name_len 0", 0, -1, -1, 0, 0, "name_len 0 is outside 1..64"},
+      {"name_len 65", 65, -1, -1, 0, 0, "name_len 65 is outside 1..64"},
+      {"token_len 257", -1, 257, -1, 0, 0, "token_len 257 is outside 0..256"},
+      {"space in the name", -1, -1, 8 + 3, ' ', 0, "client name byte 3 is 0x20"},
+      {"DEL in the name", -1, -1, 8, 0x7f, 0, "client name byte 0 is 0x7f"},
+      {"NUL in the token", -1, -1, 8 + 8 + 2, 0, 0, "auth token byte 2 is outside"},
+      {"one byte missing", -1, -1, -1, 0, -1, "ends inside the 6-byte auth token"},
+      {"one byte trailing", -1, -1, -1, 0, 1, "the payload is 23 bytes but its fields"},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    memcpy(q, p, h.length);
+    q[h.length] = 'x';
+    if (cases[i].set_name_len >= 0) hfp_put_u16(q + 4, (uint16_t)cases[i].set_name_len);
+    if (cases[i].set_token_len >= 0) hfp_put_u16(q + 6, (uint16_t)cases[i].set_token_len);
+    if (cases[i].poke_at >= 0) q[cases[i].poke_at] = (uint8_t)cases[i].poke;
+    size_t len = (size_t)((int)h.length + cases[i].len_delta);
+    int rc = hfp_decode_hello(q, len, &d);
+    assert_true(rc == -HFP_E_LENGTH || rc == -HFP_E_INVALID);
+    hfp_hello_fault(q, len, rc, why, sizeof why);
+    if (!strstr(why, cases[i].words)) fail_msg("%s: \"%s\" lacks \"%s\"", cases[i].what, why,
+                                               cases[i].words);
+    assert_null(strstr(why, "s3c"));
+  }
+  /* shorter than the fixed fields; and a buffer too small still ends in NUL */
+  hfp_hello_fault(p, 5, -HFP_E_LENGTH, why, sizeof why);
+  assert_non_null(strstr(why, "shorter than its 8 fixed bytes"));
+  hfp_hello_fault(p, 5, -HFP_E_LENGTH, why, 4);
+  assert_int_equal(strlen(why), 3);
+}
+
 /* One URL grammar for both sides (PROTOCOL.md, "Addresses"). */
 static void test_url(void **state) {
   (void)state;
@@ -1249,7 +1295,8 @@ static void test_head_max(void **state) {
 
 int main(void) {
   const struct CMUnitTest tests[] = {
-    cmocka_unit_test(test_header),  cmocka_unit_test(test_hello), cmocka_unit_test(test_url),
+    cmocka_unit_test(test_header),  cmocka_unit_test(test_hello),
+    cmocka_unit_test(test_hello_fault), cmocka_unit_test(test_url),
     cmocka_unit_test(test_hello_ok), cmocka_unit_test(test_hello_ok_software),
     cmocka_unit_test(test_empty),
     cmocka_unit_test(test_variants), cmocka_unit_test(test_filter),
