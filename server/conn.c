@@ -23,6 +23,7 @@
  * it takes when it is admitted (docs/SERVER.md, "Memory").
  */
 #define _POSIX_C_SOURCE 200809L
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1813,6 +1814,20 @@ static int hello_waiting(hfd_conn *c) {
   return (size_t)n >= HFP_HEADER_SIZE + (size_t)h.length;
 }
 
+/* Whether c's peer has closed (or reset) its end with nothing unread: in a
+ * storm of connect-and-close peers, the loop accepts a burst before it
+ * reads the closes, and the one --max-handshakes would push out is often
+ * gone already. Such a one is closed without an ERROR (nobody would read
+ * it) and is not counted in protocol_errors: no client did anything wrong.
+ * Looked at for the chosen connection only. */
+static int hung_up(hfd_conn *c) {
+  uv_os_fd_t fd;
+  if (uv_fileno(&c->h.handle, &fd) != 0) return 0;
+  uint8_t b;
+  ssize_t n = recv(fd, &b, 1, MSG_PEEK | MSG_DONTWAIT);
+  return n == 0 || (n < 0 && (errno == ECONNRESET || errno == EPIPE || errno == ENOTCONN));
+}
+
 /* A connection before its HELLO that --max-handshakes may refuse. */
 static int refusable(const hfd_conn *c) {
   return c->handshaking && !c->closing && !c->fatal_sent;
@@ -2052,32 +2067,40 @@ void hfd_on_connection(uv_stream_t *server, int status) {
      * from it cannot push out the clients of others (address_handshake_victim).
      * A part as large as the whole is no part: --max-handshakes decides. */
     hfd_conn *old = address_handshake_victim(s, c->client, c);
-    s->protocol_errors++;
-    char kv[300];
-    if (hfd_conn_log_allowed())
-      hfd_err("too many connections before their HELLO from %s (--max-handshakes-per-address "
-              "%d); closing the %s%s", c->client->name, hfd_client_handshake_cap(s),
-              old == c ? "newest" : "oldest", conn_kv(old, kv, sizeof kv));
-    if (old->tls) {
-      /* Closed without a word: an ERROR would wait for a handshake, which
-       * is what the address has too many of. Its step, if queued, is
-       * skipped. */
+    if (hung_up(old)) {
       hfd_conn_close(old);
+      if (old == c) return;
     } else {
-      send_error(old, 0, HFP_E_BUSY, 1,
-                 "too many connections before their HELLO from %s "
-                 "(--max-handshakes-per-address %d)", c->client->name,
-                 hfd_client_handshake_cap(s));
-      close_refused(old);
+      s->protocol_errors++;
+      char kv[300];
+      if (hfd_conn_log_allowed())
+        hfd_err("too many connections before their HELLO from %s (--max-handshakes-per-address "
+                "%d); closing the %s%s", c->client->name, hfd_client_handshake_cap(s),
+                old == c ? "newest" : "oldest", conn_kv(old, kv, sizeof kv));
+      if (old->tls) {
+        /* Closed without a word: an ERROR would wait for a handshake, which
+         * is what the address has too many of. Its step, if queued, is
+         * skipped. */
+        hfd_conn_close(old);
+      } else {
+        send_error(old, 0, HFP_E_BUSY, 1,
+                   "too many connections before their HELLO from %s "
+                   "(--max-handshakes-per-address %d)", c->client->name,
+                   hfd_client_handshake_cap(s));
+        close_refused(old);
+      }
+      if (old == c) return;
     }
-    if (old == c) return;
   }
   if (s->num_handshaking > s->cfg->max_handshakes) {
     /* Connections that have not said HELLO have their own small limit, so
      * that they cannot take every slot. A real client says HELLO at once;
      * the one that has waited longest is the likeliest not to, and goes. */
     hfd_conn *old = oldest_handshake(s, c);
-    if (old) {
+    if (old && hung_up(old)) {
+      hfd_conn_close(old);
+      if (old == c) return;
+    } else if (old) {
       s->protocol_errors++;
       /* Over TLS the ERROR waits for the handshake (a client racing its
        * handshake sees why it was refused); until then reclaim_slot may
