@@ -101,6 +101,54 @@ static int surrogate(const unsigned char *h) {
   return strchr("89abAB", h[1]) ? 1 : 2;
 }
 
+/* 1 when the n bytes at s are a number as JSON's grammar (RFC 8259, 6)
+ * writes it: -?(0|[1-9][0-9]*)(.[0-9]+)?([eE][+-]?[0-9]+)?. */
+static int number_ok(const char *s, size_t n) {
+  size_t i = 0, d;
+  if (i < n && s[i] == '-') i++;
+  if (i < n && s[i] == '0') i++;
+  else if (i < n && s[i] >= '1' && s[i] <= '9')
+    while (i < n && isdigit((unsigned char)s[i])) i++;
+  else return 0;
+  if (i < n && s[i] == '.') {
+    for (d = ++i; i < n && isdigit((unsigned char)s[i]);) i++;
+    if (i == d) return 0;
+  }
+  if (i < n && (s[i] == 'e' || s[i] == 'E')) {
+    if (++i < n && (s[i] == '+' || s[i] == '-')) i++;
+    for (d = i; i < n && isdigit((unsigned char)s[i]);) i++;
+    if (i == d) return 0;
+  }
+  return i == n;
+}
+
+/* The offset of the first number outside strings that JSON's grammar does
+ * not allow, or -1. cJSON reads a number with strtod, so it takes "016"
+ * as 16 and "1." as 1, which Python's json and safetensors' reference
+ * reader refuse: one file would be two things to two readers. */
+static long number_fault(const char *text, size_t len) {
+  for (size_t i = 0; i < len;) {
+    char c = text[i];
+    if (c == '"') {
+      for (i++; i < len && text[i] != '"';) i += text[i] == '\\' ? 2 : 1;
+      i++;
+    } else if (c == '-' || (c >= '0' && c <= '9')) {
+      size_t start = i;
+      while (i < len && (strchr("+-.eE", text[i]) || isdigit((unsigned char)text[i])) &&
+             text[i])
+        i++;
+      /* "-Infinity" is not JSON either; cJSON refuses it (its number is
+       * "-" alone), and the message for NaN and Infinity says why. */
+      if (i - start == 1 && text[start] == '-' && i < len && isalpha((unsigned char)text[i]))
+        continue;
+      if (!number_ok(text + start, i - start)) return (long)start;
+    } else {
+      i++;
+    }
+  }
+  return -1;
+}
+
 const char *hf_json_text_fault(const char *text, size_t len, size_t *at) {
   const unsigned char *p = (const unsigned char *)text;
   for (size_t i = 0; i < len;) {
@@ -133,6 +181,12 @@ const char *hf_json_text_fault(const char *text, size_t len, size_t *at) {
       }
     }
     i += k;
+  }
+  long n = number_fault(text, len);
+  if (n >= 0) {
+    if (at) *at = (size_t)n;
+    return "a number JSON does not allow (JSON writes no leading zero, no '+' before it, "
+           "and digits on both sides of a '.')";
   }
   return NULL;
 }

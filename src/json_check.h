@@ -19,8 +19,9 @@ cJSON *hf_json_one_value(const char *text, size_t len);
  * a \u0000 escape, which cJSON cuts a C string at, so "a\u0000b" would
  * be read as "a" where other readers see another name, or a lone half of
  * a UTF-16 surrogate pair (\uD800 not followed by \uDC00-\uDFFF, or
- * \uDC00 alone), which cJSON refuses and Python's json takes. *at gets
- * its offset. */
+ * \uDC00 alone), which cJSON refuses and Python's json takes; or a number
+ * JSON's grammar does not allow ("016", "1.", "-.5"), which cJSON reads
+ * with strtod and Python's json refuses. *at gets its offset. */
 const char *hf_json_text_fault(const char *text, size_t len, size_t *at);
 /* The offset in text (valid JSON, len bytes) of the first number written
  * with a fraction or an exponent ("32.0", "3.2e1") in an array that is the

@@ -287,11 +287,21 @@ static int check_tensor(const cJSON *t, const hf_tensor_spec *s, size_t data_len
   }
   if (!cJSON_IsArray(offs) || cJSON_GetArraySize(offs) != 2)
     return fail(err, errlen, HF_EFORMAT, "tensor '%s': bad data_offsets", s->name);
-  double b = cJSON_GetArrayItem(offs, 0)->valuedouble;
-  double e = cJSON_GetArrayItem(offs, 1)->valuedouble;
-  if (!cJSON_IsNumber(cJSON_GetArrayItem(offs, 0)) || !cJSON_IsNumber(cJSON_GetArrayItem(offs, 1)) ||
-      b < 0 || e < b || e > (double)data_len || b != (double)(size_t)b || e != (double)(size_t)e)
-    return fail(err, errlen, HF_EFORMAT, "tensor '%s': data_offsets outside the file", s->name);
+  const cJSON *ob = cJSON_GetArrayItem(offs, 0), *oe = cJSON_GetArrayItem(offs, 1);
+  if (!cJSON_IsNumber(ob) || !cJSON_IsNumber(oe))
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': data_offsets holds %s, not two integers",
+                s->name, hf_json_kind(cJSON_IsNumber(ob) ? oe : ob));
+  double b = ob->valuedouble, e = oe->valuedouble;
+  if (b < 0 || e < 0 || b != (double)(size_t)b || e != (double)(size_t)e)
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': data_offsets [%.17g, %.17g] are not two "
+                "byte offsets (integers from 0)", s->name, b, e);
+  if (e < b)
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': data_offsets [%.0f, %.0f] end before "
+                "they begin", s->name, b, e);
+  if (e > (double)data_len)
+    return fail(err, errlen, HF_EFORMAT, "tensor '%s': data_offsets [%.0f, %.0f] end past the "
+                "%zu bytes of data after the header (a truncated file?)", s->name, b, e,
+                (size_t)data_len);
   size_t bytes = s->numel * (*is_f16 ? 2 : 4);
   if ((size_t)e - (size_t)b != bytes)
     return fail(err, errlen, HF_EFORMAT, "tensor '%s': %zu bytes of data, shape needs %zu",
