@@ -3,6 +3,9 @@
 pkg_check_modules(CJSON REQUIRED IMPORTED_TARGET libcjson)
 pkg_check_modules(OPENEXR REQUIRED IMPORTED_TARGET OpenEXR)
 pkg_check_modules(PNG REQUIRED IMPORTED_TARGET libpng)
+# zlib: the EXR reader inflates PXR24 chunks to check their size
+# (src/exr_chunk_size.c).
+pkg_check_modules(ZLIB REQUIRED IMPORTED_TARGET zlib)
 
 # OpenEXRCore (the C API, openexr.h) is a separate library in OpenEXR 3.
 find_library(OPENEXRCORE_LIB NAMES OpenEXRCore-3_1 OpenEXRCore REQUIRED)

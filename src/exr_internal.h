@@ -26,6 +26,14 @@ int hf_exr_decode_part(exr_const_context_t ctx, int part, const char *path, cons
                        uint64_t file_size, const int *slot, int nch, exr_pixel_type_t type,
                        void *dst, char *err, size_t errlen);
 
+/* EXR_ERR_SUCCESS when the packed (compressed) chunk dec has read holds
+ * exactly what its compression makes of the chunk's pixels, else
+ * EXR_ERR_CORRUPT_CHUNK (EXR_ERR_OUT_OF_MEMORY when a PXR24 check cannot
+ * allocate). Checks PXR24, B44 and B44A chunks, whose decoders in
+ * OpenEXRCore 3.1.5 accept trailing bytes; others pass. Call it after the
+ * pipeline's read_fn, before its decompress_fn (exr_chunk_size.c). */
+exr_result_t hf_exr_check_packed(const exr_decode_pipeline_t *dec);
+
 /* 1 when a channel list of the file at path has an entry OpenEXRCore
  * refuses (a channel named twice, a pixel type other than UINT, HALF or
  * FLOAT, a sampling below 1), the refusal's words (naming the channel and

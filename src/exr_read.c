@@ -384,6 +384,17 @@ static int four_halves(const exr_decode_pipeline_t *dec, const int *slot) {
   return 1;
 }
 
+/* The library's decompressor of a chunk, run after hf_exr_check_packed. */
+typedef struct checked_fn {
+  exr_result_t (*decompress)(exr_decode_pipeline_t *dec);
+} checked_fn;
+
+static exr_result_t checked_decompress(exr_decode_pipeline_t *dec) {
+  const checked_fn *next = dec->decoding_user_data;
+  exr_result_t r = hf_exr_check_packed(dec);
+  return r ? r : next->decompress(dec);
+}
+
 static exr_result_t decode_chunk(exr_const_context_t ctx, int part, const exr_chunk_info_t *ci,
                                  const chunk_pos *p, const exr_attr_box2i_t *dw,
                                  const int *slot, int nch, exr_pixel_type_t type, void *dst) {
@@ -431,6 +442,11 @@ static exr_result_t decode_chunk(exr_const_context_t ctx, int part, const exr_ch
   if (r == EXR_ERR_SUCCESS && ci->packed_size == ci->unpacked_size &&
       (ci->compression == EXR_COMPRESSION_B44 || ci->compression == EXR_COMPRESSION_B44A))
     dec.decompress_fn = NULL;
+  checked_fn next = {dec.decompress_fn};
+  if (r == EXR_ERR_SUCCESS && next.decompress) {
+    dec.decoding_user_data = &next;
+    dec.decompress_fn = checked_decompress;
+  }
   if (r == EXR_ERR_SUCCESS) r = exr_decoding_run(ctx, part, &dec);
   exr_decoding_destroy(ctx, &dec);
   if (tmp && r == EXR_ERR_SUCCESS)
@@ -870,6 +886,15 @@ static int read_part(const char *path, const char *part, const char *channel, hf
   img->origin_x = dw.min.x;
   img->origin_y = dw.min.y;
   img->lossy = lossy_compression(ctx, pi, chl);
+  for (int c = 0; c < nch; c++)
+    if (chl->entries[c].pixel_type == EXR_PIXEL_UINT) {
+      if (!img->uint_stored && !(img->uint_stored = calloc((size_t)nch, 1))) {
+        free(slot);
+        rc = fail(err, errlen, HF_ENOMEM, "%s: out of memory", path);
+        goto fail_dst;
+      }
+      img->uint_stored[c] = 1;
+    }
   int64_t dispw = (int64_t)disp.max.x - disp.min.x + 1, disph = (int64_t)disp.max.y - disp.min.y + 1;
   if ((disp.min.x != dw.min.x || disp.min.y != dw.min.y || dispw != w || disph != h) &&
       dispw >= 1 && disph >= 1 && dispw <= INT32_MAX && disph <= INT32_MAX) {

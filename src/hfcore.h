@@ -293,7 +293,7 @@ typedef struct hf_timing {
 /* What was wrong with the first sanitised sample of a frame. */
 enum {
   HF_SANITISED_NONFINITE = 1, /* a feature is NaN or infinite: made uncovered */
-  HF_SANITISED_UNCOVERED = 2, /* alpha <= 0 with other features non-zero: made uncovered */
+  HF_SANITISED_UNCOVERED = 2, /* alpha <= 0, the sample not all zero: made uncovered */
   HF_SANITISED_CLAMPED = 3    /* a finite feature outside its range: clamped */
 };
 
@@ -319,7 +319,7 @@ typedef struct hf_input_report {
 void hf_features_check(const void *in, hf_dtype dtype, int width, int height, int spp,
                        hf_input_report *report);
 /* Applies the rule to one frame in place: a sample with a non-finite
- * feature, or with alpha <= 0 and another feature non-zero, becomes all 0
+ * feature, or with alpha <= 0 and not all zero, becomes all 0
  * (uncovered); finite features outside their range are clamped into it. */
 void hf_features_sanitise(void *in, hf_dtype dtype, int width, int height, int spp,
                           hf_input_report *report);
@@ -815,6 +815,9 @@ typedef struct hf_image {
   const char *lossy;            /* read from a file: NULL, or the lossy compression its
                                  * values went through ("B44", "B44A" for half channels,
                                  * "PXR24" for float ones, "DWAA", "DWAB") */
+  unsigned char *uint_stored;   /* read from a file with UINT channels: [channels], 1 where
+                                 * the channel is stored as UINT (32-bit unsigned
+                                 * integers, read as their values); else NULL */
 } hf_image;
 
 int hf_image_alloc(hf_image *img, int width, int height, int channels);

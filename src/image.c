@@ -27,6 +27,7 @@ void hf_image_free(hf_image *img) {
   if (!img) return;
   free(img->names);
   free(img->data);
+  free(img->uint_stored);
   memset(img, 0, sizeof *img);
 }
 

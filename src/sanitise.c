@@ -3,7 +3,8 @@
  * every backend, so what a bad sample does to a result is defined once:
  *
  *   - a sample with a non-finite feature (NaN, +-Inf), or with alpha <= 0
- *     but some other feature non-zero, is uncovered: all six features 0;
+ *     and not all zero (alpha negative, or another feature non-zero), is
+ *     uncovered: all six features 0;
  *   - a finite feature outside its range is clamped into it: color and
  *     highlight [0, HF_FEATURE_LIGHT_MAX], alpha (0, 1], depth [0, 1],
  *     tangent.x and tangent.y [-1, 1];

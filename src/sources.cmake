@@ -17,6 +17,7 @@ set(HF_CORE_SOURCES
   image.c
   exr_channels.c
   exr_read.c
+  exr_chunk_size.c
   exr_write.c
   features.c
   input_stats.c

@@ -33,10 +33,10 @@ def _clamp(a, low, high):
 def sanitise_samples(feat):
     """(samples after the rule as a new float32 array, mask [...] of the
     samples it changed). feat: [..., 6]. Rule 1: a non-finite feature makes
-    the sample uncovered (all 0); rule 2: alpha <= 0 with another feature
-    non-zero, uncovered; rule 3: a finite feature outside its range is
-    clamped into it (alpha above 1 to 1). An all-zero sample (-0.0
-    included) is left alone."""
+    the sample uncovered (all 0); rule 2: alpha <= 0 and not all zero
+    (alpha negative, or another feature non-zero), uncovered; rule 3: a
+    finite feature outside its range is clamped into it (alpha above 1 to
+    1). An all-zero sample (-0.0 included) is left alone."""
     x = np.array(feat, np.float32, copy=True)
     with np.errstate(invalid="ignore"):
         nonfinite = ~np.isfinite(x).all(-1)

@@ -1,3 +1,4 @@
+#include <ctype.h>
 #include <errno.h>
 #include <inttypes.h>
 #include <limits.h>
@@ -246,6 +247,10 @@ int cli_read_features(const char *path, const char *part, int spp, int estimate,
     return rc;
   }
   cli_warn_lossy("hairfilter", path, img);
+  if (cli_refuse_uint("hairfilter", path, img)) {
+    rc = HF_EFORMAT;
+    goto fail;
+  }
   int have = hf_features_spp(img);
   if (have < 0) {
     /* Compositing tools put a file's channels under a layer
@@ -269,6 +274,18 @@ int cli_read_features(const char *path, const char *part, int spp, int estimate,
     goto fail;
   }
   if (have < spp) {
+    /* Sample `have` lacks its colour but has other features: a channel
+     * missing, not a frame of fewer samples. */
+    char next[16];
+    snprintf(next, sizeof next, "S%d.", have);
+    for (int c = 0; c < img->channels; c++)
+      if (!strncmp(img->names[c], next, strlen(next))) {
+        fprintf(stderr, "hairfilter: %s: no channel S%d.color, though it has %s: sample %d lacks "
+                "its color feature (protocol/FEATURES.md; the sample count is the number of "
+                "consecutive S{k}.color channels from S0)\n", path, have, img->names[c], have);
+        rc = HF_EFORMAT;
+        goto fail;
+      }
     fprintf(stderr, "hairfilter: %s has %d sample%s per pixel (S0.color..S%d.color), "
             "variant %s needs %d: render the frame with --spp %d (or more), or filter it "
             "with %s\n", path, have, have == 1 ? "" : "s", have - 1, variant, spp, spp,
@@ -330,6 +347,29 @@ fail:
   return rc;
 }
 
+/* Whether name is "<letters><digits>." + something, letters being prefix. */
+static int numbered(const char *name, const char *prefix) {
+  size_t n = strlen(prefix);
+  if (strncmp(name, prefix, n) || !isdigit((unsigned char)name[n])) return 0;
+  for (name += n; isdigit((unsigned char)*name);) name++;
+  return *name == '.';
+}
+
+int cli_refuse_uint(const char *prog, const char *path, const hf_image *img) {
+  for (int c = 0; img->uint_stored && c < img->channels; c++) {
+    const char *n = img->names[c];
+    if (img->uint_stored[c] && (numbered(n, "S") || numbered(n, "st") || !strncmp(n, "gt.", 3) ||
+                                !strncmp(n, HF_ESTIMATE_PREFIX ".", strlen(HF_ESTIMATE_PREFIX) + 1))) {
+      fprintf(stderr, "%s: %s: channel %s is stored as UINT (32-bit unsigned integers), which "
+              "would be read as its integer values; the channels protocol/FEATURES.md names are "
+              "HALF or FLOAT: write them as float, e.g. oiiotool %s -d float -o float.exr\n",
+              prog, path, n, path);
+      return 1;
+    }
+  }
+  return 0;
+}
+
 void cli_warn_sanitised(const char *path, const hf_image *img, const hf_input_report *r) {
   if (r->samples) {
     char ch[40], what[160];
@@ -345,8 +385,8 @@ void cli_warn_sanitised(const char *path, const hf_image *img, const hf_input_re
     if (r->kind == HF_SANITISED_NONFINITE)
       snprintf(what, sizeof what, "%s = %g is not finite: %s", ch, r->value, gone);
     else if (r->kind == HF_SANITISED_UNCOVERED)
-      snprintf(what, sizeof what, "%s = %g but %s: %s", ch, r->value,
-               est ? "colour or highlight is not 0" : "other features are not 0", gone);
+      snprintf(what, sizeof what, "%s = %g is not above 0 in %s that is not all zero: %s", ch,
+               r->value, est ? "an estimate" : "a sample", gone);
     else
       snprintf(what, sizeof what, "%s = %g is out of range: clamped", ch, r->value);
     /* "First" in the frame's memory order: every sample before any

@@ -48,6 +48,10 @@ int cli_input_range_check(const hf_input_range *r, const void *in, hf_dtype dtyp
 /* "PROG: warning: PATH is compressed with B44, which is lossy: ..." on
  * stderr when img was read from a lossily compressed file (img->lossy). */
 void cli_warn_lossy(const char *prog, const char *path, const hf_image *img);
+/* 1, with a message naming the channel, when img (read from path) holds a
+ * channel of protocol/FEATURES.md's contract (S<k>.*, acst4.*, gt.*,
+ * st<n>.*) stored as UINT: its integers would be read as feature values. */
+int cli_refuse_uint(const char *prog, const char *path, const hf_image *img);
 /* "PROG: warning: FRAME is outside the input range VARIANT was trained on:
  * STAT VALUE (trained LOW..HIGH), ..." on stderr (hf_input_range_describe). */
 void cli_warn_input_range(const char *prog, const char *frame, const char *variant,

@@ -1258,6 +1258,10 @@ int cmd_eval(int argc, char **argv) {
       goto out;
     }
     cli_warn_lossy("hairfilter eval", fr->path, &img);
+    if (cli_refuse_uint("hairfilter eval", fr->path, &img)) {
+      rc = HF_EFORMAT;
+      goto out;
+    }
     int w = img.width, h = img.height, spp = hf_features_spp(&img);
     size_t npx = (size_t)w * h;
     if (temporal && scored && (w != seq_w || h != seq_h)) {

@@ -6,7 +6,7 @@ set -euo pipefail
 
 packages=(
   build-essential cmake pkg-config git dpkg-dev file
-  libcjson-dev libopenexr-dev libpng-dev libuv1-dev libcmocka-dev
+  libcjson-dev libopenexr-dev libpng-dev zlib1g-dev libuv1-dev libcmocka-dev
   libmicrohttpd-dev libsystemd-dev libinih-dev
   # TLS listeners and tls: URLs (OpenSSL); the openssl command makes
   # certificates (docs/SERVER.md, "TLS").

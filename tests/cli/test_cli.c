@@ -76,6 +76,39 @@ static void test_inf_sample(void **state) {
   expect_text("--compression zip");
 }
 
+/* A negative alpha in a sample otherwise all zero: rule 2 makes it
+ * uncovered (protocol/FEATURES.md), and the warning says why in those
+ * terms, not that other features are non-zero. */
+static void test_negative_alpha_sample(void **state) {
+  hf_image f;
+  char err[512];
+  assert_int_equal(hf_exr_read(test_field("frame-64x64.exr"), &f, err, sizeof err), HF_OK);
+  int alpha = hf_image_channel(&f, "S1.alpha"), found = -1;
+  assert_true(alpha >= 0);
+  /* The first pixel whose sample 1 is all zero. */
+  for (int p = 0; p < f.width * f.height && found < 0; p++) {
+    int zero = 1;
+    for (int c = 0; c < f.channels; c++)
+      if (!strncmp(f.names[c], "S1.", 3) && f.data[(size_t)p * f.channels + c] != 0.0f) zero = 0;
+    if (zero) found = p;
+  }
+  assert_true(found >= 0);
+  f.data[(size_t)found * f.channels + alpha] = -0.5f;
+  assert_int_equal(hf_exr_write(test_tmp("negalpha.exr"), &f, 0), HF_OK);
+  char want[160];
+  snprintf(want, sizeof want, "the first at pixel (%d, %d): S1.alpha = -0.5 is not above 0 in a "
+           "sample that is not all zero: the sample counts as uncovered", found % f.width,
+           found / f.width);
+  hf_image_free(&f);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_tmp("negalpha.exr"), test_tmp("negalpha_out.exr")), 0);
+  expect_text("negalpha.exr: 1 sample sanitised");
+  expect_text(want);
+  hf_image img;
+  read_result(test_tmp("negalpha_out.exr"), &img);
+  hf_image_free(&img);
+}
+
 /* An estimate out of contract: the warning names its channel and the
  * estimate's own rule (the pixel's estimate becomes 0), not a sample's. */
 static void test_estimate_sanitised(void **state) {
@@ -219,6 +252,37 @@ static void test_refusals(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_tmp("plain.exr"), test_tmp("x.exr")), 1);
   expect_text("no channel S0.color: not a feature file");
+  /* A feature stored as UINT is refused, naming it; a UINT channel outside
+   * the contract (an object id) is left alone. */
+  hf_image feat;
+  char err[512];
+  assert_int_equal(hf_exr_read(test_field("frame-64x64.exr"), &feat, err, sizeof err), HF_OK);
+  const char *names[64];
+  for (int c = 0; c < feat.channels; c++) names[c] = feat.names[c];
+  part_spec up = {"f", 0, 0, 0, 0, 0, 0, 64, 64, feat.channels, names, EXR_COMPRESSION_ZIP,
+                  0.0f, feat.data};
+  write_parts_uint(test_tmp("uint.exr"), &up, 1, "S2.alpha");
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_tmp("uint.exr"), test_tmp("x.exr")), 1);
+  expect_text("uint.exr: channel S2.alpha is stored as UINT");
+  expect_text("write them as float");
+  hf_image id;
+  assert_int_equal(hf_image_alloc(&id, 64, 64, feat.channels + 1), HF_OK);
+  for (int c = 0; c < feat.channels; c++) names[c] = feat.names[c];
+  names[feat.channels] = "id";
+  for (size_t p = 0; p < 64 * 64; p++) {
+    memcpy(id.data + p * (size_t)id.channels, feat.data + p * (size_t)feat.channels,
+           (size_t)feat.channels * sizeof(float));
+    id.data[p * (size_t)id.channels + (size_t)feat.channels] = (float)(p % 7);
+  }
+  part_spec ip = {"f", 0, 0, 0, 0, 0, 0, 64, 64, id.channels, names, EXR_COMPRESSION_ZIP, 0.0f,
+                  id.data};
+  write_parts_uint(test_tmp("uint_id.exr"), &ip, 1, "id");
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_tmp("uint_id.exr"), test_tmp("x.exr")), 0);
+  assert_null(strstr(text, "UINT"));
+  hf_image_free(&id);
+  hf_image_free(&feat);
 }
 
 /* An output in a directory that does not exist is refused before any
@@ -288,6 +352,15 @@ static void test_missing_samples(void **state) {
   assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
                        test_tmp("typo.exr"), test_tmp("x.exr")), 1);
   expect_text("no channel S3.depth: sample 3 lacks its depth feature");
+  /* Sample 1's colour missing, its other features there: said as such,
+   * not as a frame of one sample. */
+  strcpy(img.names[3 * 6 + 3], "S3.depth");
+  strcpy(img.names[1 * 6 + 0], "S1.colour");
+  assert_int_equal(hf_exr_write(test_tmp("nocolor.exr"), &img, 0), HF_OK);
+  assert_int_equal(cli("infer --backend cpu-ref --weights %s --in %s --out %s", BASE,
+                       test_tmp("nocolor.exr"), test_tmp("x.exr")), 1);
+  expect_text("no channel S1.color, though it has S1.");
+  expect_text("sample 1 lacks its color feature");
   hf_image_free(&img);
 #ifdef HF_TEST_RENDERER
   /* eval skips such a frame for that network, and says what would score it. */
@@ -1043,6 +1116,7 @@ static int teardown(void **state) { return test_tmp_remove(); }
 int main(void) {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_inf_sample),      cmocka_unit_test(test_estimate_sanitised),
+    cmocka_unit_test(test_negative_alpha_sample),
     cmocka_unit_test(test_tall_frame),
     cmocka_unit_test(test_crop_windows),    cmocka_unit_test(test_tiled_and_parts),
     cmocka_unit_test(test_refusals),        cmocka_unit_test(test_missing_samples),

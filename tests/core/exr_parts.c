@@ -17,6 +17,11 @@ float part_value(const part_spec *p, int c, int x, int y) {
 /* Writes the full-resolution level (and for mipmaps the others, zeroed) of
  * every part; float channels. */
 void write_parts(const char *path, const part_spec *parts, int nparts) {
+  write_parts_uint(path, parts, nparts, NULL);
+}
+
+void write_parts_uint(const char *path, const part_spec *parts, int nparts,
+                      const char *uint_channel) {
   exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
   exr_context_t ctx;
   assert_int_equal(exr_start_write(&ctx, path, EXR_WRITE_FILE_DIRECTLY, &init), 0);
@@ -38,7 +43,10 @@ void write_parts(const char *path, const part_spec *parts, int nparts) {
                                                          : EXR_TILE_ONE_LEVEL,
                                                EXR_TILE_ROUND_DOWN), 0);
     for (int c = 0; c < p->nch; c++)
-      assert_int_equal(exr_add_channel(ctx, idx, p->channels[c], EXR_PIXEL_FLOAT,
+      assert_int_equal(exr_add_channel(ctx, idx, p->channels[c],
+                                       uint_channel && !strcmp(uint_channel, p->channels[c])
+                                           ? EXR_PIXEL_UINT
+                                           : EXR_PIXEL_FLOAT,
                                        EXR_PERCEPTUALLY_LINEAR, 1, 1), 0);
   }
   assert_int_equal(exr_write_header(ctx), 0);
@@ -80,11 +88,20 @@ void write_parts(const char *path, const part_spec *parts, int nparts) {
             for (int k = 0; k < p->nch; k++)
               if (!strcmp(p->channels[k], enc.channels[c].channel_name)) src = k;
             assert_true(src >= 0);
-            enc.channels[c].encode_from_ptr = (const uint8_t *)(buf + (size_t)src * bh * bw);
+            float *from = buf + (size_t)src * bh * bw;
+            enc.channels[c].encode_from_ptr = (const uint8_t *)from;
             enc.channels[c].user_pixel_stride = 4;
             enc.channels[c].user_line_stride = 4 * bw;
             enc.channels[c].user_data_type = EXR_PIXEL_FLOAT;
             enc.channels[c].user_bytes_per_element = 4;
+            if (enc.channels[c].data_type == EXR_PIXEL_UINT) {
+              /* In place: a uint32 holds each float's value, rounded. */
+              for (size_t k = 0; k < (size_t)bh * bw; k++) {
+                uint32_t u = from[k] > 0 ? (uint32_t)(from[k] + 0.5f) : 0;
+                memcpy(from + k, &u, 4);
+              }
+              enc.channels[c].user_data_type = EXR_PIXEL_UINT;
+            }
           }
           assert_int_equal(exr_encoding_choose_default_routines(ctx, i, &enc), 0);
           assert_int_equal(exr_encoding_run(ctx, i, &enc), 0);

@@ -21,5 +21,9 @@ float part_value(const part_spec *p, int c, int x, int y);
 /* Writes every part (float channels; mipmap levels below the first are 0);
  * fails the test on any library error. */
 void write_parts(const char *path, const part_spec *parts, int nparts);
+/* write_parts with the channel named uint_channel, in every part that has
+ * one, stored as UINT (its values rounded). */
+void write_parts_uint(const char *path, const part_spec *parts, int nparts,
+                      const char *uint_channel);
 
 #endif

@@ -828,6 +828,40 @@ static void test_lossy_compression(void **state) {
   }
 }
 
+/* A chunk written by one compression in a file whose header names PXR24,
+ * B44 or B44A (a damaged or mislabelled file) is refused as damaged, not
+ * decoded into plausible garbage (src/exr_chunk_size.c): a ZIP file of
+ * FLOAT channels relabelled PXR24, and of HALF ones relabelled B44 and
+ * B44A. The files as written, and the real PXR24 and B44 files of
+ * test_lossy_compression and test_b44_raw_chunks, read. */
+static void test_mislabelled_compression(void **state) {
+  static const struct {
+    int half;
+    exr_compression_t as;
+  } cases[] = {{0, EXR_COMPRESSION_PXR24}, {1, EXR_COMPRESSION_B44}, {1, EXR_COMPRESSION_B44A}};
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    hf_image img, back;
+    assert_int_equal(hf_image_alloc(&img, 32, 32, 6), HF_OK);
+    for (int c = 0; c < 6; c++) snprintf(img.names[c], 32, "c%d", c);
+    for (size_t k = 0; k < (size_t)32 * 32 * 6; k++) img.data[k] = value(3, k, 6);
+    const char *path = test_tmp("relabelled.exr");
+    assert_int_equal(hf_exr_write(path, &img, cases[i].half), HF_OK);
+    hf_image_free(&img);
+    char err[512];
+    assert_int_equal(hf_exr_read(path, &back, err, sizeof err), HF_OK);
+    hf_image_free(&back);
+    set_compression(path, cases[i].as);
+    int rc = hf_exr_read(path, &back, err, sizeof err);
+    if (rc == HF_OK) {
+      hf_image_free(&back);
+      fail_msg("case %zu: a ZIP file labelled compression %d read", i, (int)cases[i].as);
+    }
+    assert_int_equal(rc, HF_EFORMAT);
+    assert_non_null(strstr(err, "relabelled.exr"));
+    assert_non_null(strstr(err, "damaged"));
+  }
+}
+
 static void test_subsampled_refused(void **state) {
   exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
   exr_context_t ctx;
@@ -1110,6 +1144,7 @@ int main(void) {
     cmocka_unit_test(test_undecodable_compression),  cmocka_unit_test(test_subsampled_refused),
     cmocka_unit_test(test_channel_list_faults),
     cmocka_unit_test(test_lossy_compression),        cmocka_unit_test(test_claimed_size),
+    cmocka_unit_test(test_mislabelled_compression),
     cmocka_unit_test(test_not_exr),                  cmocka_unit_test(test_many_samples),
     cmocka_unit_test(test_read_as_halves),           cmocka_unit_test(test_damaged_chunk_table),
     cmocka_unit_test(test_b44_float),                cmocka_unit_test(test_short_uncompressed_chunk),
