@@ -55,13 +55,19 @@ static void test_header(void **state) {
   assert_int_equal(hfp_header_decode(b, 5000, &d), -HFP_E_PROTOCOL);
 }
 
+/* m encoded into buf; its payload, the header in h. */
+static const uint8_t *hello_payload(const hfp_hello *m, hfp_header *h) {
+  int n = hfp_encode_hello(buf, sizeof buf, m);
+  assert_true(n > 0);
+  return split(buf, n, HFP_HELLO, h);
+}
+
 static void test_hello(void **state) {
   (void)state;
   hfp_hello m = {1, 3, "engine-7", "s3cret"}, d;
-  int n = hfp_encode_hello(buf, sizeof buf, &m);
-  assert_true(n > 0);
   hfp_header h;
-  const uint8_t *p = split(buf, n, HFP_HELLO, &h);
+  const uint8_t *p = hello_payload(&m, &h);
+  int n;
   assert_int_equal(hfp_decode_hello(p, h.length, &d), 0);
   assert_int_equal(d.min_version, 1);
   assert_int_equal(d.max_version, 3);
@@ -129,10 +135,8 @@ static void test_hello(void **state) {
 static void test_hello_fault(void **state) {
   (void)state;
   hfp_hello m = {1, 4, "engine-7", "s3cret"}, d;
-  int n = hfp_encode_hello(buf, sizeof buf, &m);
-  assert_true(n > 0);
   hfp_header h;
-  const uint8_t *p = split(buf, n, HFP_HELLO, &h);
+  const uint8_t *p = hello_payload(&m, &h);
   uint8_t q[512];
   char why[192];
   struct {

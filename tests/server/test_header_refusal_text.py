@@ -46,9 +46,9 @@ CASES = [
     ("STATS with a payload", True, raw(STATS, b"abc"), LENGTH,
      ["STATS has an empty payload", "3 bytes"]),
     ("SHM_CREATE of 9 bytes", True, raw(SHM_CREATE, bytes(9)), LENGTH,
-     ["SHM_CREATE", "8 bytes, not 9"]),
+     ["SHM_CREATE", "its payload is 9 bytes; it must be 8"]),
     ("SHM_DESTROY of 3 bytes", True, raw(SHM_DESTROY, bytes(3)), LENGTH,
-     ["SHM_DESTROY", "4 bytes, not 3"]),
+     ["SHM_DESTROY", "its payload is 3 bytes; it must be 4"]),
 ]
 
 
