@@ -1151,9 +1151,12 @@ static void on_header(hfd_conn *c) {
                  hfp_type_name(h->type), h->type);
       return;
     }
-    if (h->length < 8 || h->length > 8 + HFP_NAME_MAX + HFP_TOKEN_MAX) {
+    if (h->length < HFP_HELLO_FIXED || h->length > HFP_HELLO_FIXED + HFP_NAME_MAX + HFP_TOKEN_MAX) {
       s->protocol_errors++;
-      send_error(c, 0, HFP_E_PROTOCOL, 1, "malformed HELLO: %u payload bytes", h->length);
+      send_error(c, 0, HFP_E_PROTOCOL, 1, "malformed HELLO: its payload is %u bytes; a HELLO's "
+                 "is %d to %d (the fixed fields, a name of 1..%d, a token of 0..%d)", h->length,
+                 HFP_HELLO_FIXED + 1, HFP_HELLO_FIXED + HFP_NAME_MAX + HFP_TOKEN_MAX,
+                 HFP_NAME_MAX, HFP_TOKEN_MAX);
       return;
     }
   }

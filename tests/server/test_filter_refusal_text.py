@@ -88,6 +88,7 @@ HELLO_CASES = [
     ("name byte", struct.pack("<HHHH", 1, 4, 4, 0) + b"te t", ["client name byte 2 is 0x20"]),
     ("trailing byte", struct.pack("<HHHH", 1, 4, 4, 0) + b"textx",
      ["the payload is 13 bytes but its fields", "make 12"]),
+    ("of 5 bytes", bytes(5), ["its payload is 5 bytes; a HELLO's is 9 to 328"]),
 ]
 
 
