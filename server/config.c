@@ -427,7 +427,8 @@ typedef struct file_args {
   char why[300];
   FILE *f;
   int line, next_line;           /* the line being parsed, the next one */
-  int mid_line;                  /* the last piece read ended without a line end */
+  char *buf;                     /* read_line's whole line (getline) */
+  size_t buf_cap;
   int bad_line;                  /* a line refused before inih gave it to on_ini */
   int seen_line[64];             /* per option (opts[]): its last line, 0: none */
   int seen_arg[64];              /* and that line's index in argv, -1: none */
@@ -437,38 +438,57 @@ typedef struct file_args {
   int nwarnings;
 } file_args;
 
-/* inih's reader (fgets), counting lines so that on_ini knows which one it
- * is given: a line longer than inih's buffer is read in pieces, and only
- * the piece with its line end moves the count on. */
+/* inih's reader, one whole line of the file a call, so that inih's line
+ * numbers are the file's and on_ini knows which line it is given. inih
+ * (Debian's libinih, built with INI_MAX_LINE 200) takes num - 1 bytes of a
+ * line at most and would read a longer one as several lines: a comment of
+ * any length is passed on as an empty comment, and a longer key line is
+ * refused as such (the command line takes any length). */
 static char *read_line(char *str, int num, void *stream) {
   file_args *fa = stream;
-  char *r = fgets(str, num, fa->f);
-  if (r) {
-    fa->line = fa->next_line;
-    /* A section header is refused here: inih hands on_ini only key lines,
-     * so one with no key after it (at the end of the file) would pass. */
-    const char *t = r + strspn(r, " \t");
-    if (!fa->mid_line && *t == '[' && !fa->bad) {
-      size_t n = strcspn(t + 1, "]\r\n");
-      snprintf(fa->why, sizeof fa->why, "no sections ([%.*s]): keys are the options' names",
-               (int)(n > 64 ? 64 : n), t + 1);
+  ssize_t n = getline(&fa->buf, &fa->buf_cap, fa->f);
+  if (n < 0) return NULL;
+  fa->line = fa->next_line++;
+  const char *t = fa->buf + strspn(fa->buf, " \t");
+  if (n >= num || memchr(fa->buf, 0, (size_t)n)) {
+    if (!memchr(fa->buf, 0, (size_t)n) && (*t == ';' || *t == '#')) {
+      snprintf(str, (size_t)num, "#\n");
+      return str;
+    }
+    if (!fa->bad) {
+      if (memchr(fa->buf, 0, (size_t)n))
+        snprintf(fa->why, sizeof fa->why, "the line holds a NUL byte: a config file is text");
+      else
+        snprintf(fa->why, sizeof fa->why, "the line is %zd bytes, more than the %d a line of the "
+                 "file may have (libinih's INI_MAX_LINE): give this option on the command line "
+                 "instead, or shorten its value (a long path: a shorter link to it)", n, num - 1);
       fa->bad = 1;
       fa->bad_line = fa->line;
     }
-    /* An indented line is, to inih, more of the value of the key above it
-     * (a second --listen URL 'weights = FILE', say), which no message
-     * about that value would make plain. Comments and empty lines may be
-     * indented. */
-    if (!fa->mid_line && t != r && !strchr(";#\r\n", *t) && *t && !fa->bad) {
-      snprintf(fa->why, sizeof fa->why, "the line starts with whitespace, which continues the "
-               "key above it (inih's rule): indent nothing");
-      fa->bad = 1;
-      fa->bad_line = fa->line;
-    }
-    fa->mid_line = !strchr(r, '\n');
-    if (!fa->mid_line) fa->next_line++;
+    snprintf(str, (size_t)num, "\n");
+    return str;
   }
-  return r;
+  memcpy(str, fa->buf, (size_t)n + 1);
+  /* A section header is refused here: inih hands on_ini only key lines,
+   * so one with no key after it (at the end of the file) would pass. */
+  if (*t == '[' && !fa->bad) {
+    size_t k = strcspn(t + 1, "]\r\n");
+    snprintf(fa->why, sizeof fa->why, "no sections ([%.*s]): keys are the options' names",
+             (int)(k > 64 ? 64 : k), t + 1);
+    fa->bad = 1;
+    fa->bad_line = fa->line;
+  }
+  /* An indented line is, to inih, more of the value of the key above it
+   * (a second --listen URL 'weights = FILE', say), which no message
+   * about that value would make plain. Comments and empty lines may be
+   * indented. */
+  if (t != fa->buf && !strchr(";#\r\n", *t) && *t && !fa->bad) {
+    snprintf(fa->why, sizeof fa->why, "the line starts with whitespace, which continues the "
+             "key above it (inih's rule): indent nothing");
+    fa->bad = 1;
+    fa->bad_line = fa->line;
+  }
+  return str;
 }
 
 static int truthy(const char *v, int *out) {
@@ -621,6 +641,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
     if ((fa.f = open_file(path))) {
       rc = ini_parse_stream(read_line, &fa, on_ini, &fa);
       fclose(fa.f);
+      free(fa.buf);
       /* Lines a repeated key overrode (on_ini) leave holes. */
       int n = 0;
       for (int i = 0; i < fa.argc; i++)
@@ -737,10 +758,23 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
           goto fail;
         }
         char why[300];
+        const hfp_url *u = &cfg->listen_url[cfg->num_listen];
         if (hfp_url_parse(val, HFP_URL_LISTEN, &cfg->listen_url[cfg->num_listen], why,
                           sizeof why)) {
           hfd_err("--listen: %s", why);
           goto fail;
+        }
+        /* The same address twice would fail at its second bind as if
+         * another server held it. Port 0 (any free port) may repeat. */
+        for (int i = 0; i < cfg->num_listen; i++) {
+          const hfp_url *o = &cfg->listen_url[i];
+          if (o->kind == u->kind &&
+              (u->kind == HFP_URL_UNIX ? !strcmp(o->path, u->path)
+                                       : u->port && o->port == u->port && !strcmp(o->host, u->host))) {
+            hfd_err("--listen %s is given twice (also as %s): give each address once", val,
+                    cfg->listen[i]);
+            goto fail;
+          }
         }
         cfg->listen[cfg->num_listen++] = val;
         break;

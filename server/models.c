@@ -61,7 +61,7 @@ static hfd_file_id file_id(const struct stat *st) {
  * mode, and the fix; 0 when the file is readable or that is not the
  * reason (the loader's own message then stands). */
 static int explain_unreadable(const char *path, char *why, size_t whylen) {
-  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);   /* a FIFO must not block */
   if (fd >= 0) close(fd);
   if (fd >= 0 || errno != EACCES) return 0;
   struct stat st;
@@ -154,11 +154,16 @@ static int gather(const hfd_config *cfg, want *ws, int *nw, char *why, size_t wh
             sizeof w.path) {
           snprintf(why, whylen, "path too long in %s", cfg->weights_dir);
           rc = -1;
-        } else if (stat(w.path, &st) == 0 && S_ISREG(st.st_mode)) {
-          w.file = file_id(&st);
+        } else {
+          /* Every *.safetensors entry is a weights file the operator
+           * configured: one that is not a regular file (a dangling link, a
+           * FIFO, a folder) is loaded too, and fails with its reason,
+           * rather than being passed over without a word. */
+          if (stat(w.path, &st) != 0) w.stat_errno = errno;
+          else w.file = file_id(&st);
           found++;
           int dup = 0;
-          for (int j = 0; j < explicit; j++)
+          for (int j = 0; j < explicit && !w.stat_errno; j++)
             dup |= !ws[j].stat_errno && ws[j].file.dev == w.file.dev &&
                    ws[j].file.ino == w.file.ino;
           if (!dup && n == HFD_MAX_VARIANTS) {

@@ -13,7 +13,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <cjson/cJSON.h>
 
@@ -502,16 +504,28 @@ out:
 int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen) {
   if (!path || !out) return fail(err, errlen, HF_EINVAL, "null argument");
   *out = NULL;
-  FILE *f = fopen(path, "rb");
-  if (!f) return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
+  /* O_NONBLOCK: opening a FIFO (or a device that waits) would otherwise
+   * block until a writer comes, holding the daemon's worker and its stop
+   * forever; only a regular file is read. */
+  int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
+  struct stat st;
+  if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+    int dir = S_ISDIR(st.st_mode);
+    close(fd);
+    /* fopen reads a directory on Linux; its size was "not supported". */
+    return fail(err, errlen, HF_EIO, "%s: is %s: give a .safetensors file", path,
+                dir ? "a directory" : S_ISFIFO(st.st_mode) ? "a FIFO, not a regular file"
+                : S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ? "a device, not a regular file"
+                : "not a regular file");
+  }
+  FILE *f = fdopen(fd, "rb");
+  if (!f) {
+    close(fd);
+    return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
+  }
   int rc = HF_OK;
   unsigned char *buf = NULL;
-  struct stat st;
-  if (fstat(fileno(f), &st) == 0 && S_ISDIR(st.st_mode)) {
-    /* fopen reads a directory on Linux; its size was "not supported". */
-    rc = fail(err, errlen, HF_EIO, "%s: is a directory: give a .safetensors file", path);
-    goto out;
-  }
   if (fseek(f, 0, SEEK_END) != 0) {
     rc = fail(err, errlen, HF_EIO, "%s: cannot seek", path);
     goto out;

@@ -147,6 +147,34 @@ def body(w):
           "above it (inih's rule): indent nothing" % conf in out,
           "an indented line: exit status %s (want 2), said so: %r" % (rc, out))
 
+    # Lines longer than libinih's buffer (199 bytes): a comment of any
+    # length passes and the lines after it keep their numbers; a long key
+    # line, or one holding a NUL byte, is refused naming its own line (it
+    # was read as two lines, the error naming the wrong one).
+    with open(conf, "w") as f:
+        f.write("# " + "A" * 300 + "\n" + short + "queue-size = 0\n")
+    rc, out = run(["--config", conf], w)
+    check(rc == 2 and "<3>error: %s:4: " % conf in out and "queue" in out,
+          "a 302-byte comment, then a bad value on line 4: exit status %s (want 2), line 4 "
+          "named: %r" % (rc, out))
+    with open(conf, "w") as f:
+        f.write(short + "weights = %s/%s.safetensors\n" % (w, "x" * 250))
+    rc, out = run(["--config", conf], w)
+    check(rc == 2 and "<3>error: %s:3: the line is " % conf in out and
+          "give this option on the command line" in out,
+          "a long key line: exit status %s (want 2), its line named: %r" % (rc, out))
+    with open(conf, "wb") as f:
+        f.write(short.encode() + b"queue-size = 3\0junk\n")
+    rc, out = run(["--config", conf], w)
+    check(rc == 2 and "<3>error: %s:3: the line holds a NUL byte" % conf in out,
+          "a NUL byte: exit status %s (want 2), said so: %r" % (rc, out))
+
+    # The same listen address twice is said as such, not as another server.
+    rc, out = run(["--config", "none", "--listen", "unix:%s/d.sock" % w, "--listen",
+                   "unix:%s/d.sock" % w, "--weights", "%s/none.safetensors" % w], w)
+    check(rc == 2 and "is given twice" in out,
+          "--listen twice: exit status %s (want 2), said so: %r" % (rc, out))
+
     # A repeated key warns naming both lines; the TCP listener without a
     # token is refused before the backend starts (no "starting" line, no
     # backend named). Then a flag: no-auth = no on a later line undoes
@@ -304,6 +332,35 @@ def body(w):
     check(rc == 1 and "<3>error: no *.safetensors in %s/noweights: copy the weights files there, "
           "or give the folder that holds them" % w in out,
           "an empty --weights-dir: status %s (want 1), said with what to do: %r" % (rc, out))
+
+    # A weights path that is a FIFO: refused as not a regular file, at once
+    # (opening it waited for a writer forever, holding the start and any
+    # stop); in a --weights-dir a FIFO, a folder or a dangling link named
+    # *.safetensors is loaded and refused too, not passed over in silence.
+    fifo = os.path.join(w, "fifo.safetensors")
+    os.mkfifo(fifo)
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights", fifo,
+                   "--backend", "cpu-ref"], w)
+    check(rc == 1 and "is a FIFO, not a regular file" in out,
+          "--weights FIFO: status %s (want 1, at once), said so: %r" % (rc, out))
+    odd = os.path.join(w, "oddweights")
+    os.mkdir(odd)
+    os.mkfifo(os.path.join(odd, "f.safetensors"))
+    for name, make, words in (("f.safetensors", None, "is a FIFO"),
+                              ("d.safetensors", os.mkdir, "is a directory"),
+                              ("l.safetensors", lambda p: os.symlink("/nonexistent", p),
+                               "No such file or directory")):
+        for other in os.listdir(odd):
+            if other != name:
+                p = os.path.join(odd, other)
+                os.rmdir(p) if os.path.isdir(p) and not os.path.islink(p) else os.unlink(p)
+        if make:
+            make(os.path.join(odd, name))
+        rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights-dir", odd,
+                       "--backend", "cpu-ref"], w)
+        check(rc == 1 and name in out and words in out,
+              "--weights-dir with %s: status %s (want 1), named with %r: %r" %
+              (name, rc, words, out))
 
     # A ready file that cannot be written: said at start, before the
     # backend starts and the models are built (minutes with --warm on a
