@@ -131,6 +131,8 @@ static enum MHD_Result reply(struct MHD_Connection *conn, unsigned status, const
   }
   MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, type);
   MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
+  /* RFC 9110, 15.5.6: a 405 says which methods the resource takes. */
+  if (status == MHD_HTTP_METHOD_NOT_ALLOWED) MHD_add_response_header(r, "Allow", "GET, HEAD");
   enum MHD_Result rc = MHD_queue_response(conn, status, r);
   MHD_destroy_response(r);
   return rc;
@@ -171,7 +173,7 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
   (void)upload_data;
   (void)req_cls;
   if (strcmp(method, MHD_HTTP_METHOD_GET) && strcmp(method, MHD_HTTP_METHOD_HEAD))
-    return text_reply(conn, MHD_HTTP_METHOD_NOT_ALLOWED, "only GET\n");
+    return text_reply(conn, MHD_HTTP_METHOD_NOT_ALLOWED, "only GET and HEAD\n");
   if (*upload_data_size) return text_reply(conn, MHD_HTTP_BAD_REQUEST, "no body expected\n");
   if (!strcmp(url, "/healthz")) {
     char why[300];

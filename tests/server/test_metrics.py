@@ -24,7 +24,9 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.error
 import urllib.parse
+import urllib.request
 
 import numpy as np
 
@@ -187,6 +189,15 @@ def run(d):
     check(d.get("/healthz") == (200, "ok\n"), "/healthz is 200 at rest")
     check(d.get("/readyz") == (200, "ready\n"), "/readyz is 200 at rest")
     check(d.get("/nope")[0] == 404, "unknown path is 404")
+    # Another method: 405, saying which methods are taken (RFC 9110, 15.5.6).
+    req = urllib.request.Request(d.urls["http"] + "/healthz", data=b"", method="POST")
+    try:
+        urllib.request.urlopen(req, timeout=10)
+        check(False, "POST /healthz is refused")
+    except urllib.error.HTTPError as e:
+        check(e.code == 405 and e.headers.get("Allow") == "GET, HEAD" and
+              e.read().decode() == "only GET and HEAD\n",
+              "POST is 405 with Allow: GET, HEAD (%s %r)" % (e.code, e.headers.get("Allow")))
     samples, text = d.metrics()
     check(sample(samples, "hairfilterd_build_info", version=os.environ["HF_VERSION"],
                  protocol_min="1", protocol_max="4") == 1, "build_info with the version")
