@@ -18,8 +18,9 @@ static int bad(char *why, size_t whylen, const char *url, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 static int bad(char *why, size_t whylen, const char *url, const char *fmt, ...) {
   if (why && whylen) {
-    /* The URL is quoted as given, cut to keep the message one short line. */
-    int n = snprintf(why, whylen, "bad URL '%.120s': ", url);
+    /* The URL is quoted as given, cut (and said to be) to keep the
+     * message one short line. */
+    int n = snprintf(why, whylen, "bad URL '%.120s%s': ", url, strlen(url) > 120 ? "..." : "");
     if (n > 0 && (size_t)n < whylen) {
       va_list ap;
       va_start(ap, fmt);

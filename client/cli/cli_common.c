@@ -407,7 +407,12 @@ void cli_connect_failed(const char *prog, int rc) {
   /* The message starts with the endpoint (or names the option); the code's
    * words would only repeat it. */
   fprintf(stderr, "%s: %s\n", prog, m[0] ? m : hfc_strerror(rc));
-  if (rc == HFC_E_UNAUTHORIZED)
+  /* The server says "wrong token" when one was given, "needs a token" when
+   * none was. */
+  if (rc == HFC_E_UNAUTHORIZED && strstr(m, "wrong token"))
+    fprintf(stderr, "%s: the token given is not the server's: compare --token or "
+            "$HAIRFILTER_TOKEN with the server's --auth-token-file\n", prog);
+  else if (rc == HFC_E_UNAUTHORIZED)
     fprintf(stderr, "%s: give the server's token with --token TOKEN or $HAIRFILTER_TOKEN\n",
             prog);
 }

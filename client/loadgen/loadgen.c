@@ -469,7 +469,10 @@ int main(int argc, char **argv) {
   if (rc) {
     const char *m = hfc_last_message(NULL);
     fprintf(stderr, "hairfilter-load: %s\n", m[0] ? m : hfc_strerror(rc));
-    if (rc == HFC_E_UNAUTHORIZED)
+    if (rc == HFC_E_UNAUTHORIZED && strstr(m, "wrong token"))
+      fprintf(stderr, "hairfilter-load: the token given is not the server's: compare --token "
+                      "or $HAIRFILTER_TOKEN with the server's --auth-token-file\n");
+    else if (rc == HFC_E_UNAUTHORIZED)
       fprintf(stderr, "hairfilter-load: give the server's token with --token TOKEN or "
                       "$HAIRFILTER_TOKEN\n");
     return 1;

@@ -473,7 +473,8 @@ static void test_cli(void **state) {
   snprintf(args, sizeof args, "filter --server %s --tls-ca '%s' --tls-server-name localhost --list",
            num, ca);
   st = run_cli(args, "not-the-token", out, sizeof out);
-  if (st != 1 || !strstr(out, "UNAUTHORIZED") || !strstr(out, "--token TOKEN or $HAIRFILTER_TOKEN"))
+  if (st != 1 || !strstr(out, "UNAUTHORIZED") ||
+      !strstr(out, "the token given is not the server's: compare --token or $HAIRFILTER_TOKEN"))
     fail_msg("wrong token: status %d: %s", st, out);
   /* Half a client certificate is refused before connecting. */
   const char *cmds[] = {"filter --list", "load --variant Small", "conformance"};
