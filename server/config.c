@@ -9,6 +9,7 @@
  * error level, so under journald they carry priority 3 like the daemon's
  * other errors. */
 #define _GNU_SOURCE
+#include <ctype.h>
 #include <errno.h>
 #include <getopt.h>
 #include <ini.h>
@@ -111,7 +112,8 @@ static int parse_int(const char *opt, const char *s, long lo, long hi, long *out
   char *end;
   errno = 0;
   long v = strtol(s, &end, 10);
-  if (errno || *end || end == s || v < lo || v > hi) {
+  /* strtol skips leading whitespace; ' 5' is refused as '5 ' is. */
+  if (errno || *end || end == s || isspace((unsigned char)*s) || v < lo || v > hi) {
     hfd_err("--%s wants an integer in %ld..%ld, not '%s'", opt, lo, hi, s);
     return -1;
   }

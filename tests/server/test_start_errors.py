@@ -174,6 +174,12 @@ def body(w):
                    "unix:%s/d.sock" % w, "--weights", "%s/none.safetensors" % w], w)
     check(rc == 2 and "is given twice" in out,
           "--listen twice: exit status %s (want 2), said so: %r" % (rc, out))
+    # A number with whitespace before it is refused, as one with whitespace after.
+    for v in (" 5", "5 "):
+        rc, out = run(["--config", "none", "--queue-size", v, "--listen", "unix:%s/d.sock" % w,
+                       "--weights", "%s/none.safetensors" % w], w)
+        check(rc == 2 and "--queue-size wants an integer in 1..65536, not '%s'" % v in out,
+              "--queue-size %r: exit status %s (want 2): %r" % (v, rc, out))
 
     # A repeated key warns naming both lines; the TCP listener without a
     # token is refused before the backend starts (no "starting" line, no
