@@ -11,6 +11,7 @@
 #define _GNU_SOURCE
 #include <ctype.h>
 #include <errno.h>
+#include <limits.h>
 #include <getopt.h>
 #include <ini.h>
 #include <stdio.h>
@@ -106,6 +107,18 @@ static void usage(FILE *f) {
           "\n"
           "SIGHUP reads the config file and the weights again; SIGUSR1 logs the statistics;\n"
           "SIGTERM and SIGINT drain and stop.\n");
+}
+
+/* Whether two socket paths name one file: the same text, or the same
+ * name in folders that resolve to one ("/run/x/../x/s.sock"). */
+static int same_socket_path(const char *a, const char *b) {
+  if (!strcmp(a, b)) return 1;
+  const char *ba = strrchr(a, '/'), *bb = strrchr(b, '/');
+  if (strcmp(ba ? ba + 1 : a, bb ? bb + 1 : b)) return 0;
+  char da[PATH_MAX], db[PATH_MAX], ra[PATH_MAX], rb[PATH_MAX];
+  snprintf(da, sizeof da, "%.*s", ba ? (int)(ba - a) + 1 : 1, ba ? a : ".");
+  snprintf(db, sizeof db, "%.*s", bb ? (int)(bb - b) + 1 : 1, bb ? b : ".");
+  return realpath(da, ra) && realpath(db, rb) && !strcmp(ra, rb);
 }
 
 static int parse_int(const char *opt, const char *s, long lo, long hi, long *out) {
@@ -461,9 +474,10 @@ static char *read_line(char *str, int num, void *stream) {
       if (memchr(fa->buf, 0, (size_t)n))
         snprintf(fa->why, sizeof fa->why, "the line holds a NUL byte: a config file is text");
       else
-        snprintf(fa->why, sizeof fa->why, "the line is %zd bytes, more than the %d a line of the "
-                 "file may have (libinih's INI_MAX_LINE): give this option on the command line "
-                 "instead, or shorten its value (a long path: a shorter link to it)", n, num - 1);
+        snprintf(fa->why, sizeof fa->why, "the line is %zd bytes with its line end, more than "
+                 "the %d a line of the file may have (libinih's INI_MAX_LINE): give this option "
+                 "on the command line instead, or shorten its value (a long path: a shorter "
+                 "link to it)", n, num - 1);
       fa->bad = 1;
       fa->bad_line = fa->line;
     }
@@ -771,7 +785,7 @@ int hfd_config_parse(int argc, char **argv, hfd_config *cfg) {
         for (int i = 0; i < cfg->num_listen; i++) {
           const hfp_url *o = &cfg->listen_url[i];
           if (o->kind == u->kind &&
-              (u->kind == HFP_URL_UNIX ? !strcmp(o->path, u->path)
+              (u->kind == HFP_URL_UNIX ? same_socket_path(o->path, u->path)
                                        : u->port && o->port == u->port && !strcmp(o->host, u->host))) {
             hfd_err("--listen %s is given twice (also as %s): give each address once", val,
                     cfg->listen[i]);

@@ -508,7 +508,18 @@ int hf_weights_load(const char *path, hf_weights **out, char *err, size_t errlen
    * block until a writer comes, holding the daemon's worker and its stop
    * forever; only a regular file is read. */
   int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
-  if (fd < 0) return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(errno));
+  if (fd < 0) {
+    int e = errno;
+    char to[512];
+    ssize_t n;
+    /* A link that points nowhere is there to `ls`: say where it points. */
+    if (e == ENOENT && (n = readlink(path, to, sizeof to - 1)) > 0) {
+      to[n] = 0;
+      return fail(err, errlen, HF_EIO, "%s: is a symbolic link to %s, which does not exist",
+                  path, to);
+    }
+    return fail(err, errlen, HF_EIO, "%s: %s", path, strerror(e));
+  }
   struct stat st;
   if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
     int dir = S_ISDIR(st.st_mode);
