@@ -11,9 +11,10 @@
 #define _GNU_SOURCE
 #include <ctype.h>
 #include <errno.h>
-#include <limits.h>
 #include <getopt.h>
 #include <ini.h>
+#include <limits.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -459,51 +460,55 @@ typedef struct file_args {
  * line at most and would read a longer one as several lines: a comment of
  * any length is passed on as an empty comment, and a longer key line is
  * refused as such (the command line takes any length). */
+/* The first line refused before inih sees it: its reason, and its number. */
+static void refuse_line(file_args *fa, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void refuse_line(file_args *fa, const char *fmt, ...) {
+  if (fa->bad) return;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(fa->why, sizeof fa->why, fmt, ap);
+  va_end(ap);
+  fa->bad = 1;
+  fa->bad_line = fa->line;
+}
+
 static char *read_line(char *str, int num, void *stream) {
   file_args *fa = stream;
   ssize_t n = getline(&fa->buf, &fa->buf_cap, fa->f);
   if (n < 0) return NULL;
   fa->line = fa->next_line++;
   const char *t = fa->buf + strspn(fa->buf, " \t");
-  if (n >= num || memchr(fa->buf, 0, (size_t)n)) {
-    if (!memchr(fa->buf, 0, (size_t)n) && (*t == ';' || *t == '#')) {
+  int nul = memchr(fa->buf, 0, (size_t)n) != NULL;
+  if (n >= num || nul) {
+    if (!nul && (*t == ';' || *t == '#')) {
       snprintf(str, (size_t)num, "#\n");
       return str;
     }
-    if (!fa->bad) {
-      if (memchr(fa->buf, 0, (size_t)n))
-        snprintf(fa->why, sizeof fa->why, "the line holds a NUL byte: a config file is text");
-      else
-        snprintf(fa->why, sizeof fa->why, "the line is %zd bytes with its line end, more than "
-                 "the %d a line of the file may have (libinih's INI_MAX_LINE): give this option "
-                 "on the command line instead, or shorten its value (a long path: a shorter "
-                 "link to it)", n, num - 1);
-      fa->bad = 1;
-      fa->bad_line = fa->line;
-    }
+    if (nul)
+      refuse_line(fa, "the line holds a NUL byte: a config file is text");
+    else
+      refuse_line(fa, "the line is %zd bytes with its line end, more than the %d a line of the "
+                  "file may have (libinih's INI_MAX_LINE): give this option on the command "
+                  "line instead, or shorten its value (a long path: a shorter link to it)", n,
+                  num - 1);
     snprintf(str, (size_t)num, "\n");
     return str;
   }
   memcpy(str, fa->buf, (size_t)n + 1);
   /* A section header is refused here: inih hands on_ini only key lines,
    * so one with no key after it (at the end of the file) would pass. */
-  if (*t == '[' && !fa->bad) {
+  if (*t == '[') {
     size_t k = strcspn(t + 1, "]\r\n");
-    snprintf(fa->why, sizeof fa->why, "no sections ([%.*s]): keys are the options' names",
-             (int)(k > 64 ? 64 : k), t + 1);
-    fa->bad = 1;
-    fa->bad_line = fa->line;
+    refuse_line(fa, "no sections ([%.*s]): keys are the options' names",
+                (int)(k > 64 ? 64 : k), t + 1);
   }
   /* An indented line is, to inih, more of the value of the key above it
    * (a second --listen URL 'weights = FILE', say), which no message
    * about that value would make plain. Comments and empty lines may be
    * indented. */
-  if (t != fa->buf && !strchr(";#\r\n", *t) && *t && !fa->bad) {
-    snprintf(fa->why, sizeof fa->why, "the line starts with whitespace, which continues the "
-             "key above it (inih's rule): indent nothing");
-    fa->bad = 1;
-    fa->bad_line = fa->line;
-  }
+  if (t != fa->buf && !strchr(";#\r\n", *t) && *t)
+    refuse_line(fa, "the line starts with whitespace, which continues the key above it (inih's "
+                "rule): indent nothing");
   return str;
 }
 
