@@ -12,7 +12,8 @@
 # 3. a stale socket of root's in a sticky directory (as in /tmp), which
 #    only its owner may remove: status 1 naming the owner and `rm PATH`;
 #    it said "cannot remove stale socket PATH: Operation not permitted";
-# 4. a stale socket it may remove: removed, and the daemon serves.
+# 4. a stale socket it may remove: removed, and the daemon serves, then
+#    stops on SIGTERM with status 0 (what it was doing is shown if not).
 # usage: socket_path_nonroot.sh HAIRFILTERD WEIGHTS_FILE
 set -uo pipefail
 daemon=$1 weights=$2
@@ -79,11 +80,34 @@ grep -q "cannot remove the socket file left there by a server that is gone: Oper
 install -d -o "$uid" -g "$gid" -m 0750 "$tmp/own"
 stale_socket "$tmp/own/hf.sock"
 chown "$uid:$gid" "$tmp/own/hf.sock"
-timeout -s TERM 3 setpriv --reuid="$uid" --regid="$gid" --clear-groups -- "$daemon" --config none \
+setpriv --reuid="$uid" --regid="$gid" --clear-groups -- "$daemon" --config none \
   --listen "unix:$tmp/own/hf.sock" --weights "$tmp/small.safetensors" --backend cpu-ref \
-  > "$tmp/log" 2>&1
-cat "$tmp/log"
+  > "$tmp/log" 2>&1 &
+pid=$!
+for _ in $(seq 1 200); do
+  grep -q "listening on unix:$tmp/own/hf.sock" "$tmp/log" && break
+  kill -0 "$pid" 2>/dev/null || break
+  sleep 0.1
+done
 grep -q "listening on unix:$tmp/own/hf.sock" "$tmp/log" || bad "4: a stale socket it may remove stopped the start"
+kill -TERM "$pid" 2>/dev/null
+stopped=
+for _ in $(seq 1 100); do kill -0 "$pid" 2>/dev/null || { stopped=1; break; }; sleep 0.1; done
+if [ -z "$stopped" ]; then
+  # What the daemon is doing, for a stop that does not come: each
+  # thread's state and wait channel, and the process's signal masks.
+  bad "4: the daemon did not stop within 10 s of SIGTERM"
+  grep -E '^(State|Sig|ShdPnd)' "/proc/$pid/status"
+  for task in /proc/"$pid"/task/*; do
+    echo "thread ${task##*/} $(cat "$task/comm") $(cut -d' ' -f3 "$task/stat") $(cat "$task/wchan")"
+    grep -E '^(SigPnd|SigBlk)' "$task/status"
+  done
+  kill -KILL "$pid"
+fi
+wait "$pid"
+status=$?
+[ -n "$stopped" ] && [ "$status" -ne 0 ] && bad "4: status $status after SIGTERM, want 0"
+cat "$tmp/log"
 
 [ "$fail" -eq 0 ] && echo PASS
 exit "$fail"
