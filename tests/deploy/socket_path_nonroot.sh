@@ -32,7 +32,7 @@ bad() { echo "FAIL: $*"; fail=1; }
 # Runs the daemon as nobody on unix:$1 for at most 20 s; its status in
 # $status, its log in $tmp/log.
 as_nobody() {
-  timeout 20 setpriv --reuid="$uid" --regid="$gid" --clear-groups -- "$daemon" --config none \
+  timeout -k 5 20 setpriv --reuid="$uid" --regid="$gid" --clear-groups -- "$daemon" --config none \
     --listen "unix:$1" --weights "$tmp/small.safetensors" --backend cpu-ref \
     > "$tmp/log" 2>&1
   status=$?

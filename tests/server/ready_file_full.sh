@@ -41,7 +41,7 @@ fi
 rm -f "$w/full/probe"
 
 fail=0
-timeout 60 "$hfd" --config none --listen "unix:$w/d.sock" --backend cpu-ref \
+timeout -k 5 60 "$hfd" --config none --listen "unix:$w/d.sock" --backend cpu-ref \
   --weights "$weights" --ready-file "$w/full/ready" > "$w/log" 2>&1
 rc=$?
 cat "$w/log"
