@@ -57,14 +57,17 @@ awk '{printf "%s%s:%s", (NR > 1 ? "  " : "  "), $1, $2} NR % 8 == 0 {print ""} E
 read -r lo hi < <(awk '$1 >= 10 {if (!n++ || $2 < lo) lo = $2; if ($2 > hi) hi = $2} END {print lo, hi}' "$work/rss")
 echo "RSS after the warm-up: $((lo / 1024)) to $((hi / 1024)) MiB"
 # The point's own lines: its "requests sent ... answered ... unanswered"
-# line and its "frames ... errors N" line; the warm-up's requests are on a
+# line and its "answered by outcome" line; the warm-up's requests are on a
 # line of their own ("warm-up: requests sent W  ok ...  errors E"), counted
 # apart.
 point=$(grep -v 'warm-up:' "$work/load.txt" || true)
 sent=$(sed -n 's/^ *requests sent \([0-9]*\) .*/\1/p' <<< "$point" | tail -1)
 answered=$(sed -n 's/^ *requests sent .* answered \([0-9]*\)  unanswered.*/\1/p' <<< "$point" | tail -1)
 unanswered=$(sed -n 's/^ *requests sent .* unanswered \([0-9]*\).*/\1/p' <<< "$point" | tail -1)
-errors=$(sed -n 's/^ *frames [0-9]* .* errors \([0-9]*\) .*/\1/p' <<< "$point" | tail -1)
+# Errors among every answer to the point's requests, in any window or
+# after the last ("answered by outcome: ok O  busy B  errors E  (...)",
+# expired X before errors with --deadline).
+errors=$(sed -n 's/^ *answered by outcome: .* errors \([0-9]*\) .*/\1/p' <<< "$point" | tail -1)
 wsent=$(sed -n 's/.*warm-up: requests sent \([0-9]*\) .*/\1/p' "$work/load.txt" | tail -1)
 werrors=$(sed -n 's/.*warm-up: .* errors \([0-9]*\).*/\1/p' "$work/load.txt" | tail -1)
 echo "load exit status $rc; requests sent ${sent:-?}, answered ${answered:-?}, unanswered ${unanswered:-?}, errors ${errors:-?}; warm-up: requests sent ${wsent:-?}, errors ${werrors:-?}"

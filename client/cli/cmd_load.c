@@ -82,6 +82,11 @@ typedef struct shared {
   /* Requests sent in the warm-up, and how they were answered: the server
    * counts them too. */
   atomic_uint_fast64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
+  /* Every answer to a request sent after the warm-up, by outcome, whether
+   * or not a window counted it (those answered after the last window, or
+   * due before the first STATS): they add up to the answered requests, as
+   * the server's STATS count them. */
+  atomic_uint_fast64_t ans_ok, ans_busy, ans_errors, ans_expired;
   atomic_int lost;
   /* Connections that stopped at a refusal no retry can fix, and whether
    * it has been said (once for all of them). */
@@ -154,6 +159,10 @@ static void record(shared *sh, const hfc_completion *d, double started, int warm
     else if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->warm_errors, 1);
     return;
   }
+  if (refused) atomic_fetch_add(&sh->ans_busy, 1);
+  else if (expired) atomic_fetch_add(&sh->ans_expired, 1);
+  else if (!d->status) atomic_fetch_add(&sh->ans_ok, 1);
+  else if (d->status > HFC_E_ARG) atomic_fetch_add(&sh->ans_errors, 1);
   if (atomic_load(&sh->phase) != PHASE_MEASURE) return;
   double t = now_s();
   pthread_mutex_lock(&sh->mu);
@@ -500,10 +509,24 @@ static int within(const double *v, int n, double pct) {
 
 enum { STABLE_OVER = 3 };   /* windows that must agree (as perf_analyzer) */
 
+/* Adds window src to dst: histograms, counts and duration. */
+static void window_merge(load_window *dst, const load_window *src) {
+  for (int k = 0; k < LF_COUNT; k++) lh_merge(&dst->h[k], &src->h[k]);
+  dst->ok += src->ok;
+  dst->busy += src->busy;
+  dst->errors += src->errors;
+  dst->expired += src->expired;
+  dst->batch_sum += src->batch_sum;
+  dst->seconds += src->seconds;
+}
+
 static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p) {
   int n = p->connections;
   worker *ws = calloc((size_t)n, sizeof *ws);
-  load_window *win = calloc(STABLE_OVER + 1, sizeof *win);   /* a ring, and the current */
+  /* A ring of the last STABLE_OVER windows, the current one, and (for
+   * --trials) every window merged. */
+  load_window *win = calloc(STABLE_OVER + 2, sizeof *win);
+  load_window *all = &win[STABLE_OVER + 1];
   if (!ws || !win) {
     free(ws);
     free(win);
@@ -519,6 +542,10 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   atomic_store(&sh->warm_busy, 0);
   atomic_store(&sh->warm_errors, 0);
   atomic_store(&sh->warm_expired, 0);
+  atomic_store(&sh->ans_ok, 0);
+  atomic_store(&sh->ans_busy, 0);
+  atomic_store(&sh->ans_errors, 0);
+  atomic_store(&sh->ans_expired, 0);
   atomic_store(&sh->lost, 0);
   atomic_store(&sh->refused, 0);
   atomic_store(&sh->refusal_said, 0);
@@ -590,6 +617,7 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
     done->seconds = now_s() - t0;
     memset(sh->cur, 0, sizeof *sh->cur);
     pthread_mutex_unlock(&sh->mu);
+    window_merge(all, done);
     p->trials = t;
     if (t <= 64) {
       p->window_throughput[t - 1] = (double)done->ok / done->seconds;
@@ -617,18 +645,15 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
     }
   }
   if (isatty_err && !o->quiet) fprintf(stderr, "\r\033[K");
-  /* The result: the last (up to) STABLE_OVER windows merged. */
-  p->used = p->trials < STABLE_OVER ? p->trials : STABLE_OVER;
+  /* The result: with --trials (a soak), every window; else the last (up
+   * to) STABLE_OVER, those that agreed. */
   memset(&p->result, 0, sizeof p->result);
-  for (int i = 0; i < p->used; i++) {
-    const load_window *src = &win[(p->trials - 1 - i) % STABLE_OVER];
-    for (int k = 0; k < LF_COUNT; k++) lh_merge(&p->result.h[k], &src->h[k]);
-    p->result.ok += src->ok;
-    p->result.busy += src->busy;
-    p->result.errors += src->errors;
-    p->result.expired += src->expired;
-    p->result.batch_sum += src->batch_sum;
-    p->result.seconds += src->seconds;
+  if (o->trials) {
+    p->used = p->trials;
+    p->result = *all;
+  } else {
+    p->used = p->trials < STABLE_OVER ? p->trials : STABLE_OVER;
+    for (int i = 0; i < p->used; i++) window_merge(&p->result, &win[(p->trials - 1 - i) % STABLE_OVER]);
   }
   if (o->trials) p->stable = -1;   /* not asked */
   if (interrupted) p->interrupted = 1;
@@ -642,6 +667,10 @@ static int run_point(const opts *o, shared *sh, int max_inflight, load_point *p)
   p->warm_busy = atomic_load(&sh->warm_busy);
   p->warm_errors = atomic_load(&sh->warm_errors);
   p->warm_expired = atomic_load(&sh->warm_expired);
+  p->ans_ok = atomic_load(&sh->ans_ok);
+  p->ans_busy = atomic_load(&sh->ans_busy);
+  p->ans_errors = atomic_load(&sh->ans_errors);
+  p->ans_expired = atomic_load(&sh->ans_expired);
   p->sent = atomic_load(&sh->sent) - p->warm_sent;
   p->delayed = atomic_load(&sh->delayed);
   p->lost_connections = atomic_load(&sh->lost);
@@ -691,7 +720,8 @@ static void usage(FILE *f) {
           "  --stability-percentage P        the last 3 windows' throughput, p50 and p99 within\n"
           "                                  P %% of their mean make a point stable (default 10)\n"
           "  --max-trials N                  windows before giving up on stability (default 10)\n"
-          "  --trials N                      exactly N windows, no stability check (a soak)\n"
+          "  --trials N                      exactly N windows, all merged, no stability check\n"
+          "                                  (a soak)\n"
           "  --seconds DUR                   one window of DUR, no repetition (--trials 1)\n"
           "  --warmup DUR                    before each point (default 1s)\n"
           "output:\n"
@@ -744,10 +774,26 @@ static int parse(int argc, char **argv, opts *o) {
   opterr = 0;
   optind = 1;
   int ch, li = 0;
+  /* Options with a value seen, so that one given twice is refused rather
+   * than the last silently winning (two --json files, two --window
+   * lengths); a flag given twice says the same thing twice. */
+  unsigned char seen[CLI_TLS_SERVER_NAME + 1] = {0};
+  const char *seconds_with = NULL;   /* --window, --trials or --max-trials beside --seconds */
+  int seconds_given = 0;
   while ((ch = getopt_long(argc, argv, ":h", lo, &li)) != -1) {
     /* Every option but -h is long: messages name it as it is spelt. */
     char opt[64];
     snprintf(opt, sizeof opt, "--%s", ch > 0 && ch < 'h' ? lo[li].name : "");
+    if (ch > 0 && ch <= CLI_TLS_SERVER_NAME && ch != ':' && ch != '?' && ch != 'h' &&
+        lo[li].has_arg == required_argument) {
+      if (seen[ch]) {
+        fprintf(stderr, "hairfilter load: --%s given twice: give it once\n", lo[li].name);
+        return -1;
+      }
+      seen[ch] = 1;
+    }
+    if (ch == 15 || ch == 17 || ch == 18) seconds_with = ch == 15 ? "--window" : ch == 17 ? "--max-trials" : "--trials";
+    if (ch == 19) seconds_given = 1;
     switch (ch) {
       case 1: o->server = optarg; break;
       case 2: o->variant = optarg; break;
@@ -808,6 +854,11 @@ static int parse(int argc, char **argv, opts *o) {
   }
   if (optind < argc) {
     fprintf(stderr, "hairfilter load: unexpected argument '%s'\n", argv[optind]);
+    return -1;
+  }
+  if (seconds_given && seconds_with) {
+    fprintf(stderr, "hairfilter load: --seconds DUR is one window of DUR (--window DUR --trials "
+                    "1): give it or %s, not both\n", seconds_with);
     return -1;
   }
   if (!o->server || !o->variant) {

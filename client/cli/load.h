@@ -41,7 +41,8 @@ typedef struct load_point {
   double rate;                   /* open loop: frames/s offered */
   int connections;
   int trials;                    /* windows measured */
-  int used;                      /* of which merged into the result (the last ones) */
+  int used;                      /* of which merged into the result (--trials: all; else
+                                    the last ones, which agreed) */
   int stable;
   load_window result;            /* the merged windows */
   double window_throughput[64];  /* each window's frames/s (up to 64 kept) */
@@ -49,6 +50,9 @@ typedef struct load_point {
   uint64_t sent, answered, delayed, unanswered;
   /* Sent in the warm-up (not in sent), and their answers by outcome. */
   uint64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
+  /* The answered (after the warm-up) by outcome, windows or not: they add
+   * up to answered. */
+  uint64_t ans_ok, ans_busy, ans_errors, ans_expired;
   int lost_connections;
   int refused_connections;       /* stopped by a refusal no retry can fix */
   int interrupted;               /* stopped by a signal: windows cut short dropped */

@@ -45,10 +45,13 @@ void load_print_point(FILE *f, const load_run *r, const load_point *p) {
   else
     snprintf(mode, sizeof mode, "closed loop, %d connection(s) x %d in flight", p->connections,
              p->concurrency / p->connections);
-  fprintf(f, "%s %dx%d %s via %s%s (%s, %s): %s; %d window(s) of %.1f s, last %d merged (%s)\n",
+  /* The windows' measured length beside the one asked for: a window ends
+   * early when every connection is lost. */
+  fprintf(f, "%s %dx%d %s via %s%s (%s, %s): %s; %d window(s) of %.1f s, %s %d merged, %.2f s "
+             "measured (%s)\n",
           r->variant, r->width, r->height, r->f16 ? "f16" : "f32", r->server,
           r->shm ? " + shared memory" : "", r->backend, r->precision, mode, p->trials, r->window_s,
-          p->used, stability(p));
+          p->used == p->trials ? "all" : "last", p->used, p->result.seconds, stability(p));
   const load_window *w = &p->result;
   fprintf(f, "  frames %llu  throughput %.2f frames/s  busy %llu  errors %llu  mean batch %.2f\n",
           (unsigned long long)w->ok, throughput(p), (unsigned long long)w->busy,
@@ -62,6 +65,15 @@ void load_print_point(FILE *f, const load_run *r, const load_point *p) {
           (unsigned long long)p->sent, (unsigned long long)p->answered,
           (unsigned long long)p->unanswered, (unsigned long long)p->delayed,
           p->lost_connections ? "  CONNECTIONS LOST" : "");
+  /* Expired ones only where a frame can expire (--deadline), as above. */
+  char expired[48] = "";
+  if (r->deadline_us || p->ans_expired)
+    snprintf(expired, sizeof expired, "  expired %llu", (unsigned long long)p->ans_expired);
+  fprintf(f, "  answered by outcome: ok %llu  busy %llu%s  errors %llu  (%s, and those answered "
+             "after the last)\n",
+          (unsigned long long)p->ans_ok, (unsigned long long)p->ans_busy, expired,
+          (unsigned long long)p->ans_errors,
+          p->used < p->trials ? "every window, not only those merged" : "every window");
   fprintf(f, "  warm-up: requests sent %llu  ok %llu  busy %llu  errors %llu\n",
           (unsigned long long)p->warm_sent, (unsigned long long)p->warm_ok,
           (unsigned long long)p->warm_busy, (unsigned long long)p->warm_errors);
@@ -183,7 +195,8 @@ int load_write_csv(const char *path, const load_run *r) {
             load_field_names[k], load_field_names[k], load_field_names[k]);
   fprintf(f, ",stats_ok,stats_refused,stats_mean_batch,stats_mean_queue_ms,stats_mean_infer_ms,"
              "stats_mean_total_ms,warmup_sent,warmup_ok,warmup_busy,warmup_errors,command,cpu,cores,"
-             "date,version,deadline_ms,expired,warmup_expired\n");
+             "date,version,deadline_ms,expired,warmup_expired,answered_ok,answered_busy,"
+             "answered_expired,answered_errors,stats_failed,stats_expired\n");
   for (int i = 0; i < r->npoints; i++) {
     const load_point *p = &r->points[i];
     const load_window *w = &p->result;
@@ -210,8 +223,12 @@ int load_write_csv(const char *path, const load_run *r) {
     csv_quoted(f, r->command);
     fputc(',', f);
     csv_quoted(f, r->cpu);
-    fprintf(f, ",%d,%s,%s,%.3f,%llu,%llu\n", r->cores, r->date, r->version, r->deadline_us / 1e3,
-            (unsigned long long)w->expired, (unsigned long long)p->warm_expired);
+    fprintf(f, ",%d,%s,%s,%.3f,%llu,%llu,%llu,%llu,%llu,%llu,%llu,%llu\n", r->cores, r->date,
+            r->version, r->deadline_us / 1e3, (unsigned long long)w->expired,
+            (unsigned long long)p->warm_expired, (unsigned long long)p->ans_ok,
+            (unsigned long long)p->ans_busy, (unsigned long long)p->ans_expired,
+            (unsigned long long)p->ans_errors, (unsigned long long)s->failed,
+            (unsigned long long)s->expired);
   }
   return close_out(f, path, "CSV");
 }
@@ -272,6 +289,11 @@ int load_write_json(const char *path, const load_run *r) {
     cJSON_AddNumberToObject(o, "unanswered", (double)p->unanswered);
     cJSON_AddNumberToObject(o, "late", (double)p->delayed);
     cJSON_AddNumberToObject(o, "mean_batch", w->ok ? (double)w->batch_sum / (double)w->ok : 0.0);
+    cJSON *ao = cJSON_AddObjectToObject(o, "answered_by_outcome");
+    cJSON_AddNumberToObject(ao, "ok", (double)p->ans_ok);
+    cJSON_AddNumberToObject(ao, "busy", (double)p->ans_busy);
+    cJSON_AddNumberToObject(ao, "expired", (double)p->ans_expired);
+    cJSON_AddNumberToObject(ao, "errors", (double)p->ans_errors);
     cJSON *wu = cJSON_AddObjectToObject(o, "warmup");
     cJSON_AddNumberToObject(wu, "sent", (double)p->warm_sent);
     cJSON_AddNumberToObject(wu, "ok", (double)p->warm_ok);

@@ -56,7 +56,10 @@ typedef struct worker {
   uint64_t sent, answered, busy, errors, expired;
   uint64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
   int last_error;                /* the last error answered, for its name */
+  int lost_status;               /* why frames went unanswered: the connection's failure */
   int fatal;
+  int gated;                     /* passed the common start (gate_pass) */
+  int setup_failed;              /* never sent: no connection, segment or memory */
   int cut;                       /* stopped (fatal) before its window's end */
   int refused;                   /* stopped by a refusal no retry can fix, its link intact */
   int batch_sum, batch_n;
@@ -79,6 +82,37 @@ static double now_s(void) {
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
 }
+
+/* The connections' common start: each sets up (connects, maps its
+ * segment, fills its frame), then waits here until every one has, and the
+ * last sets the warm-up's and window's start for all. Windows opened one
+ * by one as each connection got ready would be staggered, and frames
+ * counted over their union divided by --seconds overstate the rate (with
+ * many connections and a short window, by a third and more). */
+static struct {
+  pthread_mutex_t mu;
+  pthread_cond_t cv;
+  int arrived, n;
+  double t_start;
+} gate = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER, 0, 0, 0};
+
+/* Marks w set up (or failed) and returns when every connection is; sets
+ * w's window. Called once per connection, whatever its outcome. */
+static void gate_pass(worker *w) {
+  if (w->gated) return;
+  w->gated = 1;
+  pthread_mutex_lock(&gate.mu);
+  if (++gate.arrived == gate.n) {
+    gate.t_start = now_s();
+    pthread_cond_broadcast(&gate.cv);
+  }
+  while (gate.arrived < gate.n) pthread_cond_wait(&gate.cv, &gate.mu);
+  double t = gate.t_start;
+  pthread_mutex_unlock(&gate.mu);
+  w->t_measure = t + w->o->warmup;
+  w->t_end = w->t_measure + w->o->seconds;
+}
+
 
 static void usage(FILE *f) {
   fprintf(f,
@@ -111,6 +145,12 @@ static int refused_for_now(int status) {
 }
 
 static int record(worker *w, const hfc_completion *d, int warm) {
+  /* Failed here, not answered (the connection lost, no answer in time):
+   * counted as unanswered, with the reason, not as the server's error. */
+  if (d->status <= HFC_E_ARG) {
+    w->lost_status = d->status;
+    return 0;
+  }
   if (warm) {
     if (refused_for_now(d->status)) {
       w->warm_busy++;
@@ -175,7 +215,8 @@ static void *run(void *arg) {
   if (rc) {
     const char *m = hfc_last_message(NULL);
     fprintf(stderr, "hairfilter-load: %s\n", m[0] ? m : hfc_strerror(rc));
-    w->fatal = 1;
+    w->fatal = w->setup_failed = 1;
+    gate_pass(w);
     return NULL;
   }
   size_t px = (size_t)o->width * o->height;
@@ -191,7 +232,8 @@ static void *run(void *arg) {
     if (rc) {
       const char *m = hfc_last_message(c);
       fprintf(stderr, "hairfilter-load: --shm: %s\n", m[0] ? m : hfc_strerror(rc));
-      w->fatal = 1;
+      w->fatal = w->setup_failed = 1;
+      gate_pass(w);
       hfc_close(c);
       return NULL;
     }
@@ -226,8 +268,7 @@ static void *run(void *arg) {
   /* The warm-up and the window start now that the connection is set up:
    * connecting, mapping a large segment and filling the frame can take
    * longer than a short window on a loaded machine. */
-  w->t_measure = now_s() + o->warmup;
-  w->t_end = w->t_measure + o->seconds;
+  gate_pass(w);
   /* Each in-flight slot owns an output buffer; the slot index rides in
    * the request's user pointer. */
   hfc_request r;
@@ -311,6 +352,12 @@ static void *run(void *arg) {
       rc = HFC_E_NOMEM;
       break;
     }
+    /* Failed here (the connection lost): the frames still pending on it
+     * fail the same way; the connection is done. */
+    if (d.status <= HFC_E_ARG) {
+      rc = d.status;
+      break;
+    }
     if (refused_for_now(d.status)) {
       slots[s].not_before = now_s() + BUSY_BACKOFF_S;
     } else if (d.status < 0 && d.status > HFC_E_ARG && d.status != HFC_E_INTERNAL &&
@@ -326,6 +373,7 @@ static void *run(void *arg) {
   }
   free(slots);
   if (rc) {
+    if (pending) w->lost_status = rc;
     fprintf(stderr, "hairfilter-load: connection failed: %s\n", hfc_strerror(rc));
     w->fatal = 1;
     w->refused = 0;   /* lost, whatever came before */
@@ -339,6 +387,8 @@ static void *run(void *arg) {
     }
   }
 done:
+  if (!w->gated) w->setup_failed = 1;
+  gate_pass(w);   /* no-op unless set-up failed */
   if (shm) {
     hfc_shm_free(c, shm);
   } else {
@@ -394,8 +444,17 @@ int main(int argc, char **argv) {
                                          "--tls-cert", "--tls-key", "--tls-server-name", "--size",
                                          "--connections", "--inflight", "--seconds", "--warmup",
                                          "--deadline"};
+    /* Each at most once: a second value would silently replace the first. */
+    static unsigned char given[sizeof valued / sizeof valued[0]];
     int known = 0;
-    for (size_t j = 0; j < sizeof valued / sizeof valued[0]; j++) known |= !strcmp(a, valued[j]);
+    for (size_t j = 0; j < sizeof valued / sizeof valued[0]; j++)
+      if (!strcmp(a, valued[j])) {
+        known = 1;
+        if (given[j]++) {
+          fprintf(stderr, "hairfilter-load: %s given twice: give it once\n", a);
+          return 2;
+        }
+      }
     if (!known || !v) {
       if (!known)
         fprintf(stderr, "hairfilter-load: %s '%s'\n",
@@ -437,9 +496,11 @@ int main(int argc, char **argv) {
       o.deadline_us = s * 1e6 < 1 ? 1 : (uint32_t)(s * 1e6 + 0.5);
     }
   }
-  if (!o.server || !o.variant || o.connections < 1 || o.connections > 1024 || o.inflight < 1 ||
-      o.seconds <= 0 || o.warmup < 0) {
-    usage(stderr);
+  if (!o.server || !o.variant) {
+    fprintf(stderr, "hairfilter-load: give %s (see --help)\n",
+            !o.server && !o.variant ? "--server URL and --variant NAME"
+            : !o.server             ? "--server URL"
+                                    : "--variant NAME");
     return 2;
   }
   if (!o.tls_cert != !o.tls_key) {
@@ -527,6 +588,7 @@ int main(int argc, char **argv) {
   else
     fprintf(stderr, "hairfilter-load: %d connection(s) starting; SIGINT or SIGTERM ends the "
             "window and reports it\n", o.connections);
+  gate.n = o.connections;
   for (int i = 0; i < o.connections; i++) {
     w[i].o = &o;
     w[i].spp = spp;
@@ -539,8 +601,13 @@ int main(int argc, char **argv) {
   size_t total = 0;
   uint64_t busy = 0, errors = 0, sent = 0, answered = 0, wsent = 0, wok = 0, wbusy = 0, werr = 0;
   uint64_t expired = 0, wexpired = 0;
+  int lost_status = 0;
   int fatal = 0, bsum = 0, bn = 0, last_error = 0, cut = 0, cut_lost = 0;
-  double elapsed = o.seconds, longest = 0;
+  /* Every connection's window opened at the same moment (gate_pass); the
+   * run measured for as long as any of them still did: one cut short (lost,
+   * refused for good) or an interruption ends its own window early. */
+  double elapsed = 0;
+  int running = 0;
   for (int i = 0; i < o.connections; i++) {
     pthread_join(w[i].thread, NULL);
     total += w[i].n;
@@ -554,21 +621,20 @@ int main(int argc, char **argv) {
     werr += w[i].warm_errors;
     expired += w[i].expired;
     wexpired += w[i].warm_expired;
+    if (w[i].lost_status) lost_status = w[i].lost_status;
     if (w[i].last_error) last_error = w[i].last_error;
-    /* Interrupted: the window ended when the connections noticed. */
-    if (interrupted && w[i].t_end > w[i].t_measure && w[i].t_end - w[i].t_measure < elapsed)
-      elapsed = w[i].t_end - w[i].t_measure;
-    if (interrupted && w[i].t_end <= w[i].t_measure) elapsed = 0;
-    if (w[i].t_end - w[i].t_measure > longest) longest = w[i].t_end - w[i].t_measure;
+    if (!w[i].setup_failed) {
+      running++;
+      double span = w[i].t_end - w[i].t_measure;
+      if (span > o.seconds) span = o.seconds;
+      if (span > elapsed) elapsed = span;
+    }
     cut |= w[i].cut;
     cut_lost |= w[i].cut && !w[i].refused;
     fatal |= w[i].fatal;
     bsum += w[i].batch_sum;
     bn += w[i].batch_n;
   }
-  /* Connections lost before the end: the window lasted as long as one of
-   * them still measured. */
-  if (cut && !interrupted) elapsed = longest < o.seconds ? longest : o.seconds;
   /* One sorted column per timing field, for the percentiles. */
   enum { COLS = 6 };
   static const char *const names[COLS] = {"total", "server", "queue", "input", "infer", "output"};
@@ -590,7 +656,17 @@ int main(int argc, char **argv) {
   }
   for (int j = 0; j < COLS; j++) qsort(col[j], total, sizeof(float), cmp_float);
   print_header(argc, argv);
-  printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.1f s measured%s\n",
+  if (!running) {
+    /* Not one connection got to send (each said why above): no window,
+     * nothing to report but that. */
+    printf("%s %dx%d %s via %s%s: none of the %d connection(s) was set up; nothing measured\n",
+           o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server,
+           o.shm ? " + shared memory" : "", o.connections);
+    for (int j = 0; j < COLS; j++) free(col[j]);
+    free(w);
+    return 1;
+  }
+  printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.2f s measured%s\n",
          o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server,
          o.shm ? " + shared memory" : "", backend, precision, o.connections, o.inflight, elapsed,
          interrupted ? " (interrupted)"
@@ -606,8 +682,13 @@ int main(int argc, char **argv) {
     printf("  deadline %.3f ms  expired %llu (not computed: still queued at the server when "
            "their budget passed)  warm-up expired %llu\n", o.deadline_us / 1e3,
            (unsigned long long)expired, (unsigned long long)wexpired);
-  printf("  requests sent %llu  answered %llu  unanswered %llu\n", (unsigned long long)sent,
-         (unsigned long long)answered, (unsigned long long)(sent > answered ? sent - answered : 0));
+  /* Every request sent after the warm-up is answered (frames + busy +
+   * expired + errors) or unanswered: in flight at the window's end, or
+   * lost with its connection (the reason said). */
+  printf("  requests sent %llu  answered %llu  unanswered %llu%s%s%s\n", (unsigned long long)sent,
+         (unsigned long long)answered, (unsigned long long)(sent > answered ? sent - answered : 0),
+         lost_status ? " (a connection lost: " : "", lost_status ? hfc_strerror(lost_status) : "",
+         lost_status ? ")" : "");
   printf("  warm-up: requests sent %llu  ok %llu  busy %llu  errors %llu\n",
          (unsigned long long)wsent, (unsigned long long)wok, (unsigned long long)wbusy,
          (unsigned long long)werr);
