@@ -73,7 +73,7 @@ HFC_API const char *hfc_version(void);
 #define HFC_E_UNKNOWN_VARIANT -3
 #define HFC_E_TOO_LARGE      -4
 #define HFC_E_LENGTH         -5
-#define HFC_E_BUSY           -6   /* retry later: queue or in-flight limit full */
+#define HFC_E_BUSY           -6   /* retry later: a queue, in-flight, memory or connection limit is full */
 #define HFC_E_UNAUTHORIZED   -7
 #define HFC_E_INTERNAL       -8
 #define HFC_E_UNSUPPORTED    -9
