@@ -67,7 +67,7 @@ extern "C" {
 #define HFP_E_UNKNOWN_VARIANT 3  /* FILTER names no loaded variant */
 #define HFP_E_TOO_LARGE      4   /* dimensions or frame over the server's limits */
 #define HFP_E_LENGTH         5   /* payload length disagrees with its fields */
-#define HFP_E_BUSY           6   /* queue or per-connection in-flight limit full */
+#define HFP_E_BUSY           6   /* a limit full: queue, in-flight, memory, shared memory, connections */
 #define HFP_E_UNAUTHORIZED   7   /* missing or wrong auth token */
 #define HFP_E_INTERNAL       8   /* the server failed; the request may be retried */
 #define HFP_E_UNSUPPORTED    9   /* valid but not offered (dtype, flag, shared memory here) */

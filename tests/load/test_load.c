@@ -733,7 +733,7 @@ static void test_connection_limit(void **state) {
   int rc = load("--server %s --variant Tiny --size 12x10 --concurrency-range 3 --seconds 0.5s "
                 "--warmup 0.1s --quiet", s2.unix_url);
   server_stop(&s2, 5000);
-  if (!strstr(text, "connection limit (2)") || strstr(text, "queue or in-flight limit"))
+  if (!strstr(text, "connection limit (2)") || strstr(text, "a queue, in-flight, memory or connection limit"))
     fail_msg("3 connections to a server of --max-connections 2: status %d:\n%s", rc, text);
 }
 
