@@ -21,6 +21,7 @@
 #include <string.h>
 #include <sys/epoll.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/timerfd.h>
 #include <sys/un.h>
 #include <time.h>
@@ -60,9 +61,15 @@ int hfci_parse_endpoints(const char *url, endpoint *eps, int *neps, char *why, s
 }
 
 int hfc_check_url(const char *url, char *why, size_t whylen) {
+  hfci_begin(NULL);
   endpoint eps[MAX_ENDPOINTS];
   int n;
-  return hfci_parse_endpoints(url, eps, &n, why, whylen);
+  char buf[MSG_MAX];
+  int rc = hfci_parse_endpoints(url, eps, &n, buf, sizeof buf);
+  /* Said in hfc_last_message(NULL) too, as every call that fails does. */
+  if (rc) hfci_msg(NULL, "%s", buf);
+  if (why && whylen) snprintf(why, whylen, "%s", rc ? buf : "");
+  return rc;
 }
 
 /* ---- one connection ------------------------------------------------------- */
@@ -138,6 +145,15 @@ static int open_socket(const endpoint *e, int timeout_ms, int *err, char *why, s
     if (fd >= 0 && connect_unix(fd, &sun, timeout_ms) == 0) return fd;
     *err = errno;
     if (fd >= 0) close(fd);
+    struct stat st;
+    if (*err == ECONNREFUSED && stat(u->path, &st) == 0 && !S_ISSOCK(st.st_mode)) {
+      /* connect() says "refused" for a file that is no socket at all: the
+       * path is wrong, not the server down. */
+      snprintf(why, whylen, "connect: %s is not a socket but a %s: is the path right? "
+               "(hairfilterd's --listen unix:PATH)", u->path,
+               S_ISDIR(st.st_mode) ? "directory" : S_ISFIFO(st.st_mode) ? "FIFO" : "regular file");
+      return HFC_E_CONNECT;
+    }
     snprintf(why, whylen, "connect: %s%s", strerror(*err), connect_hint(u->kind, *err));
     return HFC_E_CONNECT;
   }
@@ -459,6 +475,13 @@ static int set_options(hfc_client *c, const hfc_options *opt) {
   if (o.connect_rounds < 0 || o.retry_delay_ms < 0)
     return hfci_arg(c, "hfc_options.%s is negative", o.connect_rounds < 0 ? "connect_rounds"
                                                                           : "retry_delay_ms");
+  /* A bit this library does not know is a typo or a newer header's option
+   * it cannot honour: said, not ignored. */
+  unsigned known = HFC_FAILOVER_LOST | HFC_FAILOVER_BUSY | HFC_FAILOVER_NEVER;
+  if (o.failover & ~known)
+    return hfci_arg(c, "hfc_options.failover has bits 0x%x this library does not know: use "
+                       "HFC_FAILOVER_LOST, HFC_FAILOVER_BUSY or HFC_FAILOVER_NEVER",
+                    o.failover & ~known);
   memcpy(c->client_name, name, nl + 1);
   if (tl) memcpy(c->token, o.token, tl + 1);
   c->timeout_ms = o.timeout_ms == 0 ? 30000 : o.timeout_ms;

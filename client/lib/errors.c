@@ -24,7 +24,7 @@ static const struct {
   {HFC_E_TIMEOUT, "timed out waiting for the server"},
   {HFC_E_CLOSED, "server closed the connection"},
   {HFC_E_NOMEM, "out of memory"},
-  {HFC_E_INFLIGHT, "too many requests in flight on this connection"},
+  {HFC_E_INFLIGHT, "too many requests in flight, or shared segments held, on this connection"},
   {HFC_E_NOPENDING, "no request in flight"},
   {HFC_E_TLS, "TLS handshake or certificate refused"},
 };

@@ -444,9 +444,36 @@ static void test_connect_errno(void **state) {
   assert_non_null(strstr(hfc_last_message(NULL), "tcp:127.0.0.1:1: connect: "));
   assert_int_equal(errno, ECONNREFUSED);   /* the last endpoint's */
   assert_int_equal(hfc_check_url("unix:/a,,tcp:1", NULL, 0), HFC_E_URL);
+  /* hfc_last_message(NULL) says why, as after any call that fails (it was
+   * left empty). */
+  assert_true(hfc_last_message(NULL)[0] != 0);
   char why[200];
   assert_int_equal(hfc_check_url("unix:/a,tcp:h:99999", why, sizeof why), HFC_E_URL);
   assert_non_null(strstr(why, "99999"));
+  assert_non_null(strstr(hfc_last_message(NULL), "99999"));
+  assert_int_equal(hfc_check_url("unix:/a", why, sizeof why), 0);
+  assert_string_equal(hfc_last_message(NULL), "");
+
+  /* A path that is a file, not a socket: connect() says refused; the
+   * message says what is there (it said "nothing listens there: is
+   * hairfilterd running?"). */
+  snprintf(path, sizeof path, "%s/plain", H.dir);
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  fclose(f);
+  snprintf(url, sizeof url, "unix:%s", path);
+  assert_int_equal(hfc_connect(url, NULL, &c), HFC_E_CONNECT);
+  assert_non_null(strstr(hfc_last_message(NULL), "is not a socket but a regular file"));
+  assert_null(strstr(hfc_last_message(NULL), "is hairfilterd running"));
+  unlink(path);
+
+  /* A failover bit the library does not know is refused, naming it. */
+  hfc_options o;
+  hfc_options_init(&o);
+  o.failover = 0x40;
+  assert_int_equal(hfc_connect(S.unix_url, &o, &c), HFC_E_ARG);
+  assert_non_null(strstr(hfc_last_message(NULL), "hfc_options.failover has bits 0x40"));
+  assert_null(c);
 }
 
 /* A server at --max-connections answers the next connection with a fatal

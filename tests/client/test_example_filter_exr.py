@@ -2,8 +2,8 @@
 API and filtered with hairfilter.hpp) gives what `hairfilter filter` gives
 for the same file: the same values in color, highlight and alpha, the same
 data and display windows. Files: a 64x64 frame (Kernel); the same frame
-with the alpha-corrected estimate (KernelAC, the estimate from a buffer of
-its own); a crop of it, tiled, HALF, with its data window inside a larger
+with the alpha-corrected estimate (the example's default, KernelMix, the
+estimate from a buffer of its own); a crop of it (KernelAC), tiled, HALF, with its data window inside a larger
 display window. A file without the channels the variant reads fails with
 the channel named, an unknown variant with the server's listed.
 
@@ -73,7 +73,7 @@ def compare(d, w, tag, frame, variant):
     check(p.returncode == 0, "%s: filter_exr: rc %d: %s" % (tag, p.returncode, p.stderr))
     q = subprocess.run([HAIRFILTER, "filter", "--server", d.urls["unix"], "--in", frame,
                         "--out", theirs, "--variant",
-                        variant if variant != "default" else "KernelAC"],
+                        variant if variant != "default" else "KernelMix"],
                        capture_output=True, text=True, timeout=60)
     check(q.returncode == 0, "%s: hairfilter filter: rc %d: %s" % (tag, q.returncode, q.stderr))
     if p.returncode or q.returncode:
@@ -92,7 +92,7 @@ def compare(d, w, tag, frame, variant):
 def body(d, w):
     ac, crop = make_files(w)
     compare(d, w, "frame", FRAME, "Kernel")
-    compare(d, w, "estimate", ac, "default")     # KernelAC for a file with acst4.*
+    compare(d, w, "estimate", ac, "default")     # KernelMix for a file with acst4.*
     compare(d, w, "crop", crop, "KernelAC")
     p = subprocess.run([FILTER_EXR, d.urls["unix"], FRAME, os.path.join(w, "x.exr"), "KernelAC"],
                        capture_output=True, text=True, timeout=60)
@@ -110,7 +110,7 @@ def body(d, w):
 
 w = workdir()
 args = ["--listen", "unix:%s/s.sock" % w, "--backend", "cpu-ref", "--max-size", "64x64"]
-for f in ("kernel.safetensors", "kernel_ac.safetensors"):
+for f in ("kernel.safetensors", "kernel_ac.safetensors", "kernel_mix.safetensors"):
     args += ["--weights", os.path.join(WEIGHTS, f)]
 d = Daemon(HAIRFILTERD, args, w)
 run_then_stop(d, w, lambda: body(d, w))

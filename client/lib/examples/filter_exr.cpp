@@ -5,8 +5,9 @@
 //
 //   filter_exr URL FEATURES.exr RESULT.exr [VARIANT]
 //
-// VARIANT defaults to KernelAC for a file with the alpha-corrected estimate
-// (acst4.*), else to Kernel. The samples are read by channel name (OpenEXR
+// VARIANT defaults to KernelMix (the bundled default; KernelAC on a server
+// without it) for a file with the alpha-corrected estimate (acst4.*), else
+// to Kernel. The samples are read by channel name (OpenEXR
 // keeps channels sorted by name, so never by position): S{k}.color ...
 // S{k}.tangent.y for the variant's spp, into [height][width][spp * 6]
 // floats over the file's data window, HALF channels widened by OpenEXR. A
@@ -81,18 +82,24 @@ int main(int argc, char **argv) {
     const Imath::Box2i dw = head.dataWindow();
     const int width = dw.max.x - dw.min.x + 1, height = dw.max.y - dw.min.y + 1;
     const bool has_estimate = head.channels().findChannel(kEstimate[0]) != nullptr;
-    std::string name = argc == 5 ? argv[4] : has_estimate ? "KernelAC" : "Kernel";
-
     hairfilter::Options opt;
     opt.client_name = "filter_exr";
     hairfilter::Client hf(argv[1], opt);
-    const hfc_variant *v = nullptr;
     std::vector<hfc_variant> variants = hf.variants();
+    auto find = [&](const char *want) -> const hfc_variant * {
+      for (const hfc_variant &x : variants)
+        if (!strcasecmp(x.name, want)) return &x;  // as the server matches names
+      return nullptr;
+    };
+    // The bundled default, KernelMix, where the file has the estimate and
+    // the server has it; else KernelAC; else Kernel.
+    std::string name = argc == 5       ? argv[4]
+                       : !has_estimate ? "Kernel"
+                       : find("KernelMix") ? "KernelMix"
+                                           : "KernelAC";
+    const hfc_variant *v = find(name.c_str());
     std::string listed;
-    for (const hfc_variant &x : variants) {
-      if (!strcasecmp(x.name, name.c_str())) v = &x;  // as the server matches names
-      listed += std::string(listed.empty() ? "" : ", ") + x.name;
-    }
+    for (const hfc_variant &x : variants) listed += std::string(listed.empty() ? "" : ", ") + x.name;
     if (!v) throw std::runtime_error("the server has no variant " + name + "; it has " + listed);
 
     // One read of the rows for the samples and the estimate together.

@@ -1,5 +1,5 @@
 /*
- * libhairfilter: the client side of hairfilterd (protocol versions 1 to 3,
+ * libhairfilter: the client side of hairfilterd (protocol versions 1 to 4,
  * protocol/PROTOCOL.md). C99 and C++ (hairfilter.hpp wraps it in RAII).
  * The documents cited here as protocol/PROTOCOL.md, protocol/FEATURES.md
  * and client/lib/README.md (the guide) are installed beside it in
@@ -91,7 +91,7 @@ HFC_API const char *hfc_version(void);
 #define HFC_E_TIMEOUT        -104 /* no answer within the timeout */
 #define HFC_E_CLOSED         -105 /* the server closed the connection */
 #define HFC_E_NOMEM          -106
-#define HFC_E_INFLIGHT       -107 /* as many requests pending as the server allows */
+#define HFC_E_INFLIGHT       -107 /* as many requests pending as the server allows, or 16 segments */
 #define HFC_E_NOPENDING      -108 /* hfc_wait with nothing in flight */
 #define HFC_E_TLS            -109 /* TLS failed: a certificate refused (expired, another CA,
                                      another host name), a client certificate missing or
@@ -197,9 +197,12 @@ static inline void hfc_options_init(hfc_options *o) {
  *
  * Returns 0 with *out set, or: HFC_E_URL (hfc_check_url says why), HFC_E_ARG
  * (hfc_last_message(NULL) names the option), HFC_E_CONNECT with errno set
- * to the last endpoint's connect error (ENOENT, ECONNREFUSED, EACCES, ...),
- * or the handshake's error (HFC_E_UNAUTHORIZED, HFC_E_VERSION, HFC_E_BUSY,
- * ...). hfc_last_message(NULL) then names every endpoint and its reason. */
+ * to the last endpoint's connect error (ENOENT, ECONNREFUSED, EACCES, ...;
+ * 0 when its host name did not resolve), HFC_E_TIMEOUT when a connection
+ * was made but no answer to HELLO came within timeout_ms (a stopped or
+ * stuck server: the kernel accepts connections for it), or the
+ * handshake's error (HFC_E_UNAUTHORIZED, HFC_E_VERSION, HFC_E_BUSY, ...).
+ * hfc_last_message(NULL) then names every endpoint and its reason. */
 HFC_API int hfc_connect(const char *url, const hfc_options *opt, hfc_client **out);
 /* Checks url (one endpoint or a list) without connecting: 0, or HFC_E_URL
  * with why (when not NULL) naming the URL and what is wrong with it, e.g.
@@ -396,7 +399,12 @@ HFC_API int hfc_filter(hfc_client *c, const hfc_request *r, hfc_timing *timing);
  * flag the listed variant does not match (hfc_variant.spp,
  * hfc_variant.estimate) is HFC_E_ARG before anything is sent, and so is
  * one over the server's announced limits HFC_E_TOO_LARGE (hfc_server_info):
- * the server's refusal would come only after the whole upload. */
+ * the server's refusal would come only after the whole upload. id may be
+ * NULL when the caller does not need it (it cannot then hfc_cancel the
+ * frame; the completion carries r->user either way). On a server that
+ * stopped reading, sending waits up to timeout_ms and may still return
+ * HFC_OK: the frame then completes HFC_E_TIMEOUT (every frame submitted
+ * completes exactly once). */
 HFC_API int hfc_submit(hfc_client *c, const hfc_request *r, uint32_t *id);
 
 typedef struct hfc_completion {
