@@ -17,6 +17,7 @@
 #include <math.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -71,6 +72,9 @@ typedef struct worker {
 /* Seconds without an answer, frames pending, after which the server is
  * taken for stalled: the connections' hfc_options timeout. */
 #define STALL_S 30.0
+
+/* Connections that could not connect: the first says why. */
+static atomic_int connect_failures;
 
 /* Set by SIGINT or SIGTERM: the window ends there. */
 static volatile sig_atomic_t interrupted;
@@ -214,7 +218,11 @@ static void *run(void *arg) {
   int rc = hfc_connect(o->server, &co, &c);
   if (rc) {
     const char *m = hfc_last_message(NULL);
-    fprintf(stderr, "hairfilter-load: %s\n", m[0] ? m : hfc_strerror(rc));
+    /* Said once for all connections that fail alike (300 connections to
+     * a server of --max-connections 256 printed 44 lines); the count is
+     * in the report. */
+    if (atomic_fetch_add(&connect_failures, 1) == 0)
+      fprintf(stderr, "hairfilter-load: %s\n", m[0] ? m : hfc_strerror(rc));
     w->fatal = w->setup_failed = 1;
     gate_pass(w);
     return NULL;
@@ -656,6 +664,10 @@ int main(int argc, char **argv) {
   }
   for (int j = 0; j < COLS; j++) qsort(col[j], total, sizeof(float), cmp_float);
   print_header(argc, argv);
+  int failed_connects = atomic_load(&connect_failures);
+  if (failed_connects > 1)
+    fprintf(stderr, "hairfilter-load: %d of the %d connections could not connect (the first "
+            "said why above)\n", failed_connects, o.connections);
   if (!running) {
     /* Not one connection got to send (each said why above): no window,
      * nothing to report but that. */

@@ -264,10 +264,15 @@ int cf_run_server(const cf_options *opt, cf_summary *sum) {
     fprintf(o.out, "conformance: %s\n", line);
     return give_up(&o, sum, &rep, line);
   }
-  fprintf(o.out, "conformance: %s: %s, protocol version %d (speaks%s%s%s), %s%s, %d variant(s), "
-                 "limits %ux%u, %u in flight\n",
-          o.server, s.hello.server_name, s.version, s.speaks[1] ? " 1" : "",
-          s.speaks[2] ? " 2" : "", s.speaks[3] ? " 3" : "", s.auth ? "token checked" : "no token",
+  /* The older versions the server also speaks, as probed. */
+  char older[40] = "";
+  for (int v = 1; v <= 3; v++)
+    if (s.speaks[v])
+      snprintf(older + strlen(older), sizeof older - strlen(older), "%s%d", older[0] ? ", " : "", v);
+  fprintf(o.out, "conformance: %s: %s, protocol version %d (older ones it also speaks: %s), %s%s, "
+                 "%d variant(s), limits %ux%u, %u in flight\n",
+          o.server, s.hello.server_name, s.version, older[0] ? older : "none",
+          s.auth ? "token checked" : "no token",
           (s.hello.server_flags & HFP_SERVER_SHM) ? ", shared memory" : "", s.nv,
           s.hello.max_width, s.hello.max_height, s.hello.max_inflight);
   fflush(o.out);
