@@ -149,8 +149,17 @@ int hfci_recv_io(int fd, void *ssl, int *rx_fd, void *buf, size_t n, int timeout
 }
 
 static int recv_all(hfc_client *c, conn *x, void *buf, size_t n) {
+  errno = 0;
   int rc = hfci_recv_io(x->fd, x->ssl, &x->rx_fd, buf, n, c->timeout_ms);
   if (rc == HFC_E_TLS) snprintf(x->why, sizeof x->why, "%s", hfci_tls_why());
+  /* The kernel could not write where the reply goes: a result or rgba
+   * buffer smaller than its _bytes says (or freed, or read-only). The
+   * connection is lost either way (the reply is half read); the message
+   * points at the caller's buffer, not the network. */
+  if (rc == HFC_E_IO && errno == EFAULT)
+    snprintf(x->why, sizeof x->why, "reading the reply: %s: the request's result or rgba buffer "
+             "is not writable for its result_bytes or rgba_bytes (too small, freed, read-only, "
+             "or past the end of its shared segment)", strerror(EFAULT));
   return rc;
 }
 

@@ -16,6 +16,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
@@ -278,6 +279,33 @@ static void test_request_sizes(void **state) {
     assert_non_null(strstr(hfc_last_message(c), "not the size of any version"));
     assert_non_null(strstr(hfc_last_message(c), "hfc_request.struct_size"));
   }
+  frame_free(&f);
+  hfc_close(c);
+}
+
+/* A result buffer that is not writable for its result_bytes (a caller's
+ * mistake the library cannot see): the reply cannot be read, the
+ * connection is lost, and the message names the buffer (it said
+ * "connection failed: connect again" alone). */
+static void test_result_not_writable(void **state) {
+  (void)state;
+  hfc_client *c = client_connect(&S, "efault");
+  assert_non_null(c);
+  frame f;
+  size_t out = hfc_output_bytes(8, 6, 3, HFC_F32);
+  frame_make(&f, 8, 6, hfc_features_bytes(8, 6, 2, HFC_F32), out);
+  long page = sysconf(_SC_PAGESIZE);
+  size_t span = ((out + (size_t)page - 1) / (size_t)page + 1) * (size_t)page;
+  unsigned char *m = mmap(NULL, span, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  assert_true(m != MAP_FAILED);
+  /* Its last page read-only: a result starting 16 bytes before it. */
+  assert_int_equal(mprotect(m + span - (size_t)page, (size_t)page, PROT_READ), 0);
+  hfc_request r = f.r;
+  r.result = m + span - (size_t)page - 16;
+  int rc = hfc_filter(c, &r, NULL);
+  assert_int_equal(rc, HFC_E_IO);
+  assert_non_null(strstr(hfc_last_message(c), "result or rgba buffer is not writable"));
+  munmap(m, span);
   frame_free(&f);
   hfc_close(c);
 }
@@ -647,6 +675,7 @@ int main(void) {
     cmocka_unit_test(test_short_buffers_refused),
     cmocka_unit_test(test_fields_named),
     cmocka_unit_test(test_request_sizes),
+    cmocka_unit_test(test_result_not_writable),
     cmocka_unit_test(test_message_cleared),
     cmocka_unit_test(test_variant_names),
     cmocka_unit_test(test_spp_mismatch),
