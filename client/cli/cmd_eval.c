@@ -83,6 +83,10 @@ typedef struct frame_ref {
 typedef struct frame_list {
   frame_ref *v;
   int n, cap;
+  /* Frames a set's manifest lists that are not there (left out, said on
+   * stderr): the --json document names them, so that scores of a partial
+   * set are not taken for the whole set's. NULL until one is. */
+  cJSON *missing;
 } frame_list;
 
 /* What the frame's own EXR header says of its truth (hfr_frame_write), for
@@ -124,6 +128,7 @@ static int list_push(frame_list *l, const char *path, const char *style, int ful
 static void list_free(frame_list *l) {
   for (int i = 0; i < l->n; i++) free(l->v[i].path);
   free(l->v);
+  cJSON_Delete(l->missing);
 }
 
 /* A file's style when no manifest says: its name up to the first '_'. */
@@ -277,6 +282,11 @@ static int add_listed(frame_list *l, const char *dir, const cJSON *frames) {
     if (!f) continue;
     if (entry_path(dir, f, full, sizeof full) || stat(full, &st) || !S_ISREG(st.st_mode)) {
       if (!missing++) snprintf(first, sizeof first, "%s", f);
+      if (!l->missing && !(l->missing = cJSON_CreateArray())) return HF_ENOMEM;
+      char named[4400];
+      snprintf(named, sizeof named, "%s/%s", dir, f);
+      if (!cJSON_AddItemToArray(l->missing, cJSON_CreateString(f[0] == '/' ? f : named)))
+        return HF_ENOMEM;
       continue;
     }
     int fw = 0, fh = 0, shared = -1;
@@ -835,6 +845,11 @@ static int write_json(const char *path, const method *ms, int nm, const eval_str
   cJSON_AddStringToObject(doc, "format", "hairfilter-eval");
   cJSON_AddNumberToObject(doc, "version", 1);
   cJSON_AddNumberToObject(doc, "frames", frames);
+  /* Listed by a set's manifest and not there: always present, empty for
+   * a whole set. */
+  cJSON_AddItemToObject(doc, "frames_missing", frame_refs->missing
+                                                   ? cJSON_Duplicate(frame_refs->missing, 1)
+                                                   : cJSON_CreateArray());
   cJSON_AddNumberToObject(doc, "hair_pixels", (double)hair_px);
   cJSON_AddNumberToObject(doc, "input_spp", input_spp);
   if (styles && *styles) cJSON_AddStringToObject(doc, "styles", styles);
