@@ -857,6 +857,13 @@ def saved_args(args):
     directory reads and writes the same files (relative ones were taken
     from wherever the resumed command ran)."""
     saved = dict(vars(args))
+    # A resumed command's --export and --export-dtype are its own: the run
+    # keeps the ones it was started with (else one export elsewhere, say
+    # onto a file a daemon serves, became the run's for every later resume,
+    # and only if this resume reached a checkpoint).
+    run_export = saved.pop("run_export", None)
+    if run_export is not None:
+        saved["export"], saved["export_dtype"] = run_export
     if args.data:
         saved["data"] = ",".join(os.path.abspath(d) for d in args.data.split(",") if d)
     for k in ("init", "export"):
@@ -909,6 +916,9 @@ def resume_options(args, saved, given, ckpt_path):
     for k in RESUME_KEEPS:
         if k in saved and k not in given:
             setattr(args, k, saved[k])
+    # What the checkpoints of this resume keep as the run's export
+    # (saved_args): the run's own, whatever this command exports to.
+    args.run_export = (saved.get("export"), saved.get("export_dtype", "F32"))
     if diffs:
         sys.exit(f"train.py: --resume: {ckpt_path} is a run with other options: "
                  f"{'; '.join(diffs)}; a resumed run may change only "

@@ -1607,6 +1607,32 @@ class Recipe(unittest.TestCase):
         for k in sa:
             self.assertTrue(torch.equal(sa[k], sb[k]), f"{k} differs after resume")
 
+    def test_resume_export_elsewhere_is_that_commands_own(self):
+        """A resume that exports elsewhere (--export, --export-dtype) trains
+        on and checkpoints, but the run keeps its own export: the next
+        `--out RUN --resume` writes the run's file, not the other one (it
+        wrote the other, say a file a daemon serves, from then on)."""
+        common = ["--data", self.data, "--variant", "Small", "--batch", "2", "--crop", "32",
+                  "--val-every", "2", "--ckpt-every", "2", "--seed", "9", "--loss", "paper",
+                  "--steps", "6"]
+        run = os.path.join(self.work, "export_own")
+        mine, other = run + ".safetensors", run + "_other.safetensors"
+        run_train(*common, "--out", run, "--stop-at", "2", "--export", mine)
+        os.remove(mine)
+        run_train("--out", run, "--resume", "--stop-at", "4", "--export", other,
+                  "--export-dtype", "F16")
+        self.assertTrue(os.path.exists(other), "this command's --export was not written")
+        self.assertFalse(os.path.exists(mine), "the run's export was written by a command "
+                         "that exports elsewhere")
+        os.remove(other)
+        r = run_train("--out", run, "--resume")
+        self.assertIn("step 6,", r.stderr)
+        self.assertTrue(os.path.exists(mine), "the run's own --export was not written")
+        self.assertFalse(os.path.exists(other), "the other command's --export stuck to the run")
+        meta, sd = hfnet.load_safetensors(mine)
+        self.assertTrue(all(v.dtype == torch.float32 for v in sd.values()),
+                        "the other command's --export-dtype F16 stuck to the run")
+
     def test_resume_from_another_directory(self):
         """A run started with relative --data and --export and taken up with
         `--out RUN --resume` from another directory reads the same frames
