@@ -279,6 +279,12 @@ int hfr_hair_load_mem(const void *buf, size_t len, hfr_hair *out, char *err, siz
                  "the %u strands and %u points this renderer takes (a damaged header, or a "
                  "model to split or decimate)", strands, points, HFR_MAX_STRANDS,
                  HFR_MAX_POINTS);
+  /* A default of 0 segments with points == strands is legal (each strand
+   * one point) but draws nothing, said as the segments array's case is;
+   * with other counts, the header does not add up. */
+  if (!(flags & HFR_HAIR_SEGMENTS) && defseg == 0 && points == strands)
+    return fail(err, errlen, HF_EFORMAT, "every strand is a single point (no segments array, "
+                 "a default of 0 segments): nothing to draw");
   if (!(flags & HFR_HAIR_SEGMENTS) && (defseg == 0 || defseg > 65535))
     return fail(err, errlen, HF_EFORMAT, "no segments array (flags 0x%x) and a default "
                  "segment count of %u in the header, outside 1..65535: the header is damaged",

@@ -199,6 +199,24 @@ static void test_single_point_strands(void **state) {
   size_t m = 134 + 12 * 3 + 4 * 3;
   assert_int_equal(hfr_hair_load_mem(buf, m, &h, err, sizeof err), HF_EFORMAT);
   assert_non_null(strstr(err, "single point"));
+  /* The same model without a segments array: a default of 0 segments. It
+   * was called a damaged header. */
+  const uint32_t noseg = HFR_HAIR_POINTS;
+  uint32_t zero = 0;
+  memset(buf, 0, sizeof buf);
+  memcpy(buf, "HAIR", 4);
+  memcpy(buf + 4, &points, 4);   /* 3 strands */
+  memcpy(buf + 8, &points, 4);   /* 3 points */
+  memcpy(buf + 12, &noseg, 4);
+  memcpy(buf + 16, &zero, 4);    /* default segments */
+  assert_int_equal(hfr_hair_load_mem(buf, 128 + 12 * 3, &h, err, sizeof err), HF_EFORMAT);
+  assert_non_null(strstr(err, "every strand is a single point"));
+  assert_null(strstr(err, "damaged"));
+  /* 0 as the default with more points than strands does not add up. */
+  points = 4;
+  memcpy(buf + 8, &points, 4);
+  assert_int_equal(hfr_hair_load_mem(buf, 128 + 12 * 4, &h, err, sizeof err), HF_EFORMAT);
+  assert_non_null(strstr(err, "the header is damaged"));
 }
 
 /* What the reference reader (cyHairFile) takes, read the same way and
