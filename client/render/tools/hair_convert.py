@@ -47,6 +47,9 @@ def read_hair(path):
         bad(f"header flags 0x{flags:x} lack POINTS (0x2): the file has no points")
     if not strands or not points:
         bad(f"the header says {strands} strands and {points} points: an empty model")
+    if not flags & SEGMENTS and defseg == 0 and points == strands:
+        bad("every strand is a single point (no segments array, a default of 0 segments): "
+            "nothing to draw")
     if not flags & SEGMENTS and not 1 <= defseg <= 65535:
         bad(f"no segments array and a default segment count of {defseg}, outside 1..65535: "
             "the header is damaged")
