@@ -333,8 +333,16 @@ static int apply(hfd_server *s, const want *ws, int nw, hfd_ctl **loads, hfd_mod
       size_t pl = strlen(ws[i].path);
       const char *why = strncmp(c->msg, ws[i].path, pl) || strncmp(c->msg + pl, ": ", 2)
                             ? c->msg : c->msg + pl + 2;
-      char denied[600];
+      char denied[600], listed[600];
       if (explain_unreadable(ws[i].path, denied, sizeof denied)) why = denied;
+      /* `--weights a,b` (as `hairfilter eval --weights` takes a list): the
+       * daemon takes one file per --weights. */
+      struct stat lst;
+      if (strchr(ws[i].path, ',') && stat(ws[i].path, &lst) != 0 && errno == ENOENT) {
+        snprintf(listed, sizeof listed, "%.500s (one file per --weights: give --weights once for "
+                 "each, or --weights-dir DIR)", why);
+        why = listed;
+      }
       if (strict) {
         /* At start every configured file must load (docs/SERVER.md,
          * "Reload"): say so, and where the file came from to fix it. */

@@ -343,6 +343,14 @@ def body(w):
           "or give the folder that holds them" % w in out,
           "an empty --weights-dir: status %s (want 1), said with what to do: %r" % (rc, out))
 
+    # Two files in one --weights, as `hairfilter eval --weights` takes them:
+    # the daemon takes one per --weights, and says so.
+    pair = "%s,%s" % (os.path.join(WEIGHTS, "small.safetensors"), os.path.join(WEIGHTS, "base.safetensors"))
+    rc, out = run(["--config", "none", "--listen", "unix:%s/s.sock" % w, "--weights", pair,
+                   "--backend", "cpu-ref"], w)
+    check(rc == 1 and "one file per --weights: give --weights once for each" in out,
+          "--weights A,B: status %s (want 1), said how to give two: %r" % (rc, out))
+
     # A weights path that is a FIFO: refused as not a regular file, at once
     # (opening it waited for a writer forever, holding the start and any
     # stop); in a --weights-dir a FIFO, a folder or a dangling link named
