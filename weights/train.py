@@ -24,6 +24,7 @@ same conv + pixel-shuffle form there), else on the CPU; a checkpoint resumes
 on either.
 """
 import argparse
+import atexit
 import json
 import math
 import os
@@ -926,6 +927,14 @@ def resume_options(args, saved, given, ckpt_path):
                  f"or --out another directory for a new run")
 
 
+def remove_if_empty(path):
+    """Removes the folder at path if it holds nothing."""
+    try:
+        os.rmdir(path)
+    except OSError:
+        pass
+
+
 def main(argv=None):
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -937,6 +946,11 @@ def main(argv=None):
         # Before the directory is made: a mistyped --out is left as it was.
         sys.exit(f"train.py: --resume: {args.out} holds no {CKPT}: name the --out of the run "
                  f"to take up, or leave out --resume to start a run there")
+    if not os.path.exists(args.out):
+        # A run refused before it wrote anything (its data unreadable, an
+        # option wrong) leaves no empty --out behind: removed at exit when
+        # nothing is in it (os.rmdir refuses a folder that is not empty).
+        atexit.register(remove_if_empty, args.out)
     os.makedirs(args.out, exist_ok=True)
 
     if not args.resume and os.path.exists(ckpt_path):

@@ -1844,6 +1844,16 @@ class ScriptRefusals(unittest.TestCase):
         self.assertIn(f"train.py: --resume: {nowhere} holds no checkpoint.pt: name the --out of "
                       "the run to take up, or leave out --resume", err)
         self.assertFalse(os.path.exists(nowhere))
+        # A new run refused for its data (a set given twice) leaves no empty
+        # --out behind (it did); a process of its own, since the folder goes
+        # at the interpreter's exit.
+        fresh = os.path.join(self.work, "refused_run")
+        p = subprocess.run([sys.executable, os.path.join(WEIGHTS, "train.py"), "--data",
+                            f"{a},{a}", "--variant", "Small", "--out", fresh],
+                           capture_output=True, text=True)
+        self.assertNotEqual(p.returncode, 0)
+        self.assertIn("is given twice", p.stderr)
+        self.assertFalse(os.path.exists(fresh), "a refused run left its empty --out")
         # A checkpoint that cannot be read: the file named, and what to do.
         run = os.path.join(self.work, "torn")
         os.makedirs(run)
