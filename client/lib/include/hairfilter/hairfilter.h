@@ -239,8 +239,7 @@ typedef struct hfc_server_info {
  * NULL, an info of all zeros (and hfc_last_message(NULL) says so). */
 HFC_API const hfc_server_info *hfc_info(const hfc_client *c);
 /* The endpoint in use, as written in the URL ("unix:/a"); "" with c NULL,
- * and "" once the connection of a single-endpoint URL is lost (a list's
- * client names the endpoint it will use next). */
+ * and once the connection of a single-endpoint URL is lost. */
 HFC_API const char *hfc_endpoint(const hfc_client *c);
 /* A descriptor that polls readable whenever hfc_wait(c, 0, ...) has
  * something to do, for an engine's own event loop: a reply waiting on any
