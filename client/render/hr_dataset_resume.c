@@ -16,6 +16,7 @@
 
 #include <cjson/cJSON.h>
 
+#include "hfcore.h"
 #include "hr_dataset.h"
 #include "hr_internal.h"
 
@@ -383,8 +384,21 @@ cJSON *hr_dataset_resume_take(cJSON *old, const char *dir, const char *file, int
     char path[4200];
     struct stat st;
     snprintf(path, sizeof path, "%s/%s", dir, file);
-    if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) return e;
-    cJSON_Delete(e); /* listed but gone: render it again */
+    if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) {
+      /* Listed and there, but kept only if it reads whole: a file cut short
+       * or damaged since (a full disk, a copy stopped half way) would be
+       * kept as it is and refused later by train.py and eval, frame by
+       * frame. */
+      hf_image img;
+      char why[512];
+      memset(&img, 0, sizeof img);
+      int rc = hf_exr_read_part(path, NULL, "S0.color", &img, why, sizeof why);
+      hf_image_free(&img);
+      if (rc == HF_OK) return e;
+      fprintf(stderr, "hairfilter render dataset: --resume: %s is listed but does not read "
+              "whole (%s): rendered again\n", path, why);
+    }
+    cJSON_Delete(e); /* listed but gone or damaged: render it again */
     return NULL;
   }
   e = take_entry(cJSON_GetObjectItemCaseSensitive(old, "skipped"), file);
