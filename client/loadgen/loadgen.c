@@ -61,6 +61,7 @@ typedef struct worker {
   int fatal;
   int gated;                     /* passed the common start (gate_pass) */
   int setup_failed;              /* never sent: no connection, segment or memory */
+  int over_limits;               /* its segment is over the server's shared-memory limits */
   int cut;                       /* stopped (fatal) before its window's end */
   int refused;                   /* stopped by a refusal no retry can fix, its link intact */
   int batch_sum, batch_n;
@@ -138,7 +139,8 @@ static void usage(FILE *f) {
           "A request refused BUSY is sent again after 10 ms; a refusal no retry can fix\n"
           "stops the run, naming it. SIGINT or SIGTERM ends the window and reports it.\n"
           "Exit status: 0 frames measured; 1 none, or the server could not be reached or\n"
-          "refused; 2 bad options, over the server's limits, or --shm where the server\n"
+          "refused; 2 bad options, over the server's limits (a frame over its size, a\n"
+          "--shm segment over its shared-memory limits), or --shm where the server\n"
           "offers no shared memory; 130 interrupted.\n");
 }
 
@@ -241,6 +243,9 @@ static void *run(void *arg) {
       const char *m = hfc_last_message(c);
       fprintf(stderr, "hairfilter-load: --shm: %s\n", m[0] ? m : hfc_strerror(rc));
       w->fatal = w->setup_failed = 1;
+      /* A segment over the server's shared-memory limits (not over what is
+       * left of them): exit status 2, as for a frame over its size limit. */
+      w->over_limits = rc == HFC_E_TOO_LARGE;
       gate_pass(w);
       hfc_close(c);
       return NULL;
@@ -668,6 +673,8 @@ int main(int argc, char **argv) {
   if (failed_connects > 1)
     fprintf(stderr, "hairfilter-load: %d of the %d connections could not connect (the first "
             "said why above)\n", failed_connects, o.connections);
+  int over_limits = 0;
+  for (int i = 0; i < o.connections; i++) over_limits |= w[i].over_limits;
   if (!running) {
     /* Not one connection got to send (each said why above): no window,
      * nothing to report but that. */
@@ -676,7 +683,7 @@ int main(int argc, char **argv) {
            o.shm ? " + shared memory" : "", o.connections);
     for (int j = 0; j < COLS; j++) free(col[j]);
     free(w);
-    return 1;
+    return over_limits ? 2 : 1;
   }
   printf("%s %dx%d %s via %s%s (%s, %s): %d connection(s) x %d in flight, %.2f s measured%s\n",
          o.variant, o.width, o.height, o.f16 ? "f16" : "f32", o.server,

@@ -775,6 +775,19 @@ static void test_refusing_server(void **state) {
       snprintf(why, sizeof why, "hairfilter-load: %llu BUSY in 1 s with 6 in flight (wanted "
                "1..1000):\n%s", busy, text);
   }
+  /* hairfilter-load --shm whose one segment is over the whole 3 MiB budget:
+   * over the server's limits, status 2, and nothing measured said (it said
+   * "0.5 s measured" with no frame, status 1). */
+  if (!why[0]) {
+    char args[600];
+    snprintf(args, sizeof args, "--server %s --variant Tiny --size 512x512 --shm --seconds 0.3 "
+             "--warmup 0", s2.unix_url);
+    rc = load_prog(HAIRFILTER_LOADGEN_PATH, args);
+    if (rc != 2 || !strstr(text, "larger than the whole shared-memory budget") ||
+        !strstr(text, "none of the 1 connection(s) was set up; nothing measured"))
+      snprintf(why, sizeof why, "hairfilter-load --shm over the segment budget: status %d:\n%s",
+               rc, text);
+  }
   /* Tiny 128x128: 768 KiB of features (2 spp), 192 KiB of results a slot;
    * 32 slots are 30 MiB, over the 3 MiB budget. Tiny, not Small: with a
    * queue of 1, a network slower than the 50 ms between requests (Small
