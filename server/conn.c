@@ -2065,7 +2065,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   c->handshaking = 1;
   s->num_handshaking++;
   if (l->is_tcp && ++c->client->handshaking > hfd_client_handshake_cap(s) &&
-      hfd_client_handshake_cap(s) < s->cfg->max_handshakes) {
+      hfd_client_handshake_cap(s) < s->max_handshakes) {
     /* One address may hold only its part of the slots, so that a flood
      * from it cannot push out the clients of others (address_handshake_victim).
      * A part as large as the whole is no part: --max-handshakes decides. */
@@ -2095,7 +2095,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
       if (old == c) return;
     }
   }
-  if (s->num_handshaking > s->cfg->max_handshakes) {
+  if (s->num_handshaking > s->max_handshakes) {
     /* Connections that have not said HELLO have their own small limit, so
      * that they cannot take every slot. A real client says HELLO at once;
      * the one that has waited longest is the likeliest not to, and goes. */
@@ -2109,7 +2109,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
        * handshake sees why it was refused); until then reclaim_slot may
        * take the connection's slot for a newcomer. */
       send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
-                 s->cfg->max_handshakes);
+                 s->max_handshakes);
       close_refused(old);
       if (old == c) return;
     }
