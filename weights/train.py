@@ -481,11 +481,13 @@ def validate(net, frames, spp, grad_weight, mode, device, max_side=256, loss="pa
     return total / len(frames)
 
 
-def export(net, path, dtype, input_range=None, step=None, steps=None):
+def export(net, path, dtype, input_range=None, step=None, steps=None, run_path=None):
     """Writes the weights; input_range (weights/input_stats.py) becomes the
     `input_range` metadata that hairfilterd checks frames against. A run
     stopped before its --steps (--stop-at, --time-limit) exports the weights
-    of the step it reached, and says so: the file is not the finished run's."""
+    of the step it reached, and says so: the file is not the finished run's;
+    run_path, when not path, is where the run's own export goes on its
+    --resume (this command exported elsewhere)."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     meta = {"input_range": input_stats.input_range_json(input_range)} if input_range else None
     hfnet.save_safetensors(path, net.cfg, net.state_dict(), dtype=dtype, metadata=meta)
@@ -493,7 +495,9 @@ def export(net, path, dtype, input_range=None, step=None, steps=None):
     print(f"exported {net.cfg['name']} to {path} ({dtype}"
           f"{', input range of %d frames' % input_range['frames'] if input_range else ''})"
           + (f": the weights of step {step} of {steps}; --resume finishes the run and exports "
-             "again" if early else ""),
+             "again" + (f" (to the run's --export, {run_path})"
+                        if run_path and os.path.abspath(run_path) != os.path.abspath(path)
+                        else "") if early else ""),
           file=sys.stderr)
 
 
@@ -1248,7 +1252,9 @@ def main(argv=None):
         # record only those, and a server would flag every other frame.
         if rng is not None and init_range:
             rng = input_stats.union_range(rng, json.loads(init_range))
-        export(averaged(net, avg), args.export, args.export_dtype, rng, step, args.steps)
+        run_export = getattr(args, "run_export", None)
+        export(averaged(net, avg), args.export, args.export_dtype, rng, step, args.steps,
+               run_export[0] if run_export else None)
     return 0
 
 

@@ -1619,8 +1619,11 @@ class Recipe(unittest.TestCase):
         mine, other = run + ".safetensors", run + "_other.safetensors"
         run_train(*common, "--out", run, "--stop-at", "2", "--export", mine)
         os.remove(mine)
-        run_train("--out", run, "--resume", "--stop-at", "4", "--export", other,
-                  "--export-dtype", "F16")
+        r = run_train("--out", run, "--resume", "--stop-at", "4", "--export", other,
+                      "--export-dtype", "F16")
+        # Where the run's own export goes is said beside this one.
+        self.assertIn(f"--resume finishes the run and exports again (to the run's --export, "
+                      f"{os.path.abspath(mine)})", r.stderr)
         self.assertTrue(os.path.exists(other), "this command's --export was not written")
         self.assertFalse(os.path.exists(mine), "the run's export was written by a command "
                          "that exports elsewhere")
