@@ -55,6 +55,10 @@ typedef struct worker {
   /* Requests sent after the warm-up, and their answers; busy and errors
    * are of those. The warm-up's apart, by outcome. */
   uint64_t sent, answered, busy, errors, expired;
+  /* Every answer to a request sent after the warm-up, by outcome, in the
+   * window or after it (frames in flight when it closed): they add up to
+   * answered. */
+  uint64_t ans_ok, ans_busy, ans_errors, ans_expired;
   uint64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
   int last_error;                /* the last error answered, for its name */
   int lost_status;               /* why frames went unanswered: the connection's failure */
@@ -74,8 +78,9 @@ typedef struct worker {
  * taken for stalled: the connections' hfc_options timeout. */
 #define STALL_S 30.0
 
-/* Connections that could not connect: the first says why. */
-static atomic_int connect_failures;
+/* Connections that could not connect, and those lost after: the first of
+ * each says why. */
+static atomic_int connect_failures, connections_lost;
 
 /* Set by SIGINT or SIGTERM: the window ends there. */
 static volatile sig_atomic_t interrupted;
@@ -138,8 +143,8 @@ static void usage(FILE *f) {
           "client certificate for mutual TLS.\n"
           "A request refused BUSY is sent again after 10 ms; a refusal no retry can fix\n"
           "stops the run, naming it. SIGINT or SIGTERM ends the window and reports it.\n"
-          "Exit status: 0 frames measured; 1 none, or the server could not be reached or\n"
-          "refused; 2 bad options, over the server's limits (a frame over its size, a\n"
+          "Exit status: 0 frames measured; 1 none, a connection lost, or the server could\n"
+          "not be reached or refused; 2 bad options, over the server's limits (a frame over its size, a\n"
           "--shm segment over its shared-memory limits), or --shm where the server\n"
           "offers no shared memory; 130 interrupted.\n");
 }
@@ -170,6 +175,10 @@ static int record(worker *w, const hfc_completion *d, int warm) {
     }
     return 0;
   }
+  if (refused_for_now(d->status)) w->ans_busy++;
+  else if (d->status == HFC_E_EXPIRED) w->ans_expired++;
+  else if (d->status) w->ans_errors++;
+  else w->ans_ok++;
   if (refused_for_now(d->status)) {
     w->busy++;
     return 0;
@@ -387,7 +396,10 @@ static void *run(void *arg) {
   free(slots);
   if (rc) {
     if (pending) w->lost_status = rc;
-    fprintf(stderr, "hairfilter-load: connection failed: %s\n", hfc_strerror(rc));
+    /* Said once, as the connect failures are (a killed server loses every
+     * connection at once); the report counts what went unanswered. */
+    if (atomic_fetch_add(&connections_lost, 1) == 0)
+      fprintf(stderr, "hairfilter-load: connection failed: %s\n", hfc_strerror(rc));
     w->fatal = 1;
     w->refused = 0;   /* lost, whatever came before */
   }
@@ -615,6 +627,7 @@ int main(int argc, char **argv) {
   uint64_t busy = 0, errors = 0, sent = 0, answered = 0, wsent = 0, wok = 0, wbusy = 0, werr = 0;
   uint64_t expired = 0, wexpired = 0;
   int lost_status = 0;
+  uint64_t ans_ok = 0, ans_busy = 0, ans_errors = 0, ans_expired = 0;
   int fatal = 0, bsum = 0, bn = 0, last_error = 0, cut = 0, cut_lost = 0;
   /* Every connection's window opened at the same moment (gate_pass); the
    * run measured for as long as any of them still did: one cut short (lost,
@@ -635,6 +648,10 @@ int main(int argc, char **argv) {
     expired += w[i].expired;
     wexpired += w[i].warm_expired;
     if (w[i].lost_status) lost_status = w[i].lost_status;
+    ans_ok += w[i].ans_ok;
+    ans_busy += w[i].ans_busy;
+    ans_errors += w[i].ans_errors;
+    ans_expired += w[i].ans_expired;
     if (w[i].last_error) last_error = w[i].last_error;
     if (!w[i].setup_failed) {
       running++;
@@ -669,6 +686,10 @@ int main(int argc, char **argv) {
   }
   for (int j = 0; j < COLS; j++) qsort(col[j], total, sizeof(float), cmp_float);
   print_header(argc, argv);
+  int lost_connections = atomic_load(&connections_lost);
+  if (lost_connections > 1)
+    fprintf(stderr, "hairfilter-load: %d of the %d connections failed (the first said why "
+            "above)\n", lost_connections, o.connections);
   int failed_connects = atomic_load(&connect_failures);
   if (failed_connects > 1)
     fprintf(stderr, "hairfilter-load: %d of the %d connections could not connect (the first "
@@ -708,6 +729,15 @@ int main(int argc, char **argv) {
          (unsigned long long)answered, (unsigned long long)(sent > answered ? sent - answered : 0),
          lost_status ? " (a connection lost: " : "", lost_status ? hfc_strerror(lost_status) : "",
          lost_status ? ")" : "");
+  /* The answered by outcome add up to answered; frames above are the ok
+   * ones inside the window, those after it (in flight when it closed) are
+   * here too. */
+  char exp_txt[48] = "";
+  if (o.deadline_us || ans_expired)
+    snprintf(exp_txt, sizeof exp_txt, "  expired %llu", (unsigned long long)ans_expired);
+  printf("  answered by outcome: ok %llu  busy %llu%s  errors %llu  (ok: the frames above and "
+         "those answered after the window)\n", (unsigned long long)ans_ok,
+         (unsigned long long)ans_busy, exp_txt, (unsigned long long)ans_errors);
   printf("  warm-up: requests sent %llu  ok %llu  busy %llu  errors %llu\n",
          (unsigned long long)wsent, (unsigned long long)wok, (unsigned long long)wbusy,
          (unsigned long long)werr);

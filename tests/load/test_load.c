@@ -877,6 +877,16 @@ static void test_counts_add_up(void **state) {
     else if (frames + busy + errors > answered || answered > sent)
       snprintf(why, sizeof why, "hairfilter-load: frames %llu + busy %llu + errors %llu over the "
                "%llu answered (of %llu sent):\n%s", frames, busy, errors, answered, sent, text);
+    else {
+      /* ... and its answers by outcome add up to them. */
+      unsigned long long aok, abusy, aerr;
+      const char *a = strstr(text, "  answered by outcome: ");
+      if (!a || sscanf(a, "  answered by outcome: ok %llu busy %llu errors %llu", &aok, &abusy,
+                       &aerr) != 3 || aok + abusy + aerr != answered || aok < frames ||
+          abusy != busy)
+        snprintf(why, sizeof why, "hairfilter-load: the answers by outcome do not add up to the "
+                 "%llu answered:\n%s", answered, text);
+    }
   }
   int stopped = server_stop(&s2, 10000);
   if (why[0]) fail_msg("%s", why);
