@@ -779,7 +779,7 @@ static int parse(int argc, char **argv, opts *o) {
    * lengths); a flag given twice says the same thing twice. */
   unsigned char seen[CLI_TLS_SERVER_NAME + 1] = {0};
   const char *seconds_with = NULL;   /* --window, --trials or --max-trials beside --seconds */
-  int seconds_given = 0;
+  int seconds_given = 0, stability_given = 0;
   while ((ch = getopt_long(argc, argv, ":h", lo, &li)) != -1) {
     /* Every option but -h is long: messages name it as it is spelt. */
     char opt[64];
@@ -794,6 +794,7 @@ static int parse(int argc, char **argv, opts *o) {
     }
     if (ch == 15 || ch == 17 || ch == 18) seconds_with = ch == 15 ? "--window" : ch == 17 ? "--max-trials" : "--trials";
     if (ch == 19) seconds_given = 1;
+    if (ch == 16) stability_given = 1;
     switch (ch) {
       case 1: o->server = optarg; break;
       case 2: o->variant = optarg; break;
@@ -859,6 +860,14 @@ static int parse(int argc, char **argv, opts *o) {
   if (seconds_given && seconds_with) {
     fprintf(stderr, "hairfilter load: --seconds DUR is one window of DUR (--window DUR --trials "
                     "1): give it or %s, not both\n", seconds_with);
+    return -1;
+  }
+  if (stability_given && o->trials) {
+    /* A fixed number of windows is not checked for stability: the option
+     * would do nothing. */
+    fprintf(stderr, "hairfilter load: --stability-percentage goes with the stability check, "
+                    "which %s turns off (exactly that many windows); leave one out\n",
+            seconds_given ? "--seconds" : "--trials");
     return -1;
   }
   if (!o->server || !o->variant) {

@@ -86,6 +86,12 @@ static void expect_refused(const char *args, const char *says) {
 static void test_strict_options(void **state) {
   (void)state;
   expect_refused("--seconds 1x", "--seconds: unknown unit 'x' in '1x'");
+  /* Options whose values would conflict, or the second silently win. */
+  expect_refused("--json a.json --json b.json", "--json given twice: give it once");
+  expect_refused("--seconds 0.1 --window 0.3", "give it or --window, not both");
+  expect_refused("--trials 2 --seconds 0.2", "give it or --trials, not both");
+  expect_refused("--seconds 0.3 --stability-percentage 5",
+                 "--stability-percentage goes with the stability check, which --seconds");
   expect_refused("--window 5 s", "unexpected argument 's'");
   expect_refused("--window 2parsecs", "--window: unknown unit 'parsecs'");
   expect_refused("--warmup -1", "--warmup");
@@ -156,6 +162,12 @@ static void test_strict_options(void **state) {
     if (lrc != 2 || !strstr(text, bad[i][1]))
       fail_msg("hairfilter-load %s: status %d, wanted 2 and '%s':\n%s", bad[i][0], lrc, bad[i][1], text);
   }
+  int twice = load_prog(HAIRFILTER_LOADGEN_PATH, "--server x --variant Tiny --seconds 1 --seconds 2");
+  if (twice != 2 || !strstr(text, "--seconds given twice: give it once"))
+    fail_msg("hairfilter-load --seconds twice: status %d:\n%s", twice, text);
+  twice = load_prog(HAIRFILTER_LOADGEN_PATH, "--variant Tiny");
+  if (twice != 2 || !strstr(text, "give --server URL (see --help)"))
+    fail_msg("hairfilter-load without --server: status %d:\n%s", twice, text);
   /* hairfilter-load takes a unit too: 500ms is half a second (it was taken
    * as 500 seconds). */
   char lg[600];
