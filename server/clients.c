@@ -91,7 +91,7 @@ void hfd_client_leave(hfd_server *s, hfd_conn *c) {
 }
 
 int hfd_client_handshake_cap(const hfd_server *s) {
-  int all = s->max_handshakes, cap = s->cfg->max_handshakes_addr;
+  int all = s->cfg->max_handshakes, cap = s->cfg->max_handshakes_addr;
   if (cap <= 0) cap = all / 2 > 0 ? all / 2 : 1;
   return cap < all ? cap : all;
 }

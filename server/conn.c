@@ -1942,6 +1942,34 @@ static int reclaim_slot(hfd_server *s) {
   return 1;
 }
 
+/* At --max-connections, with no slot to reclaim: the oldest connection
+ * still before its HELLO whose HELLO has not arrived (as --max-handshakes
+ * picks, oldest_handshake) goes for fresh, the newest. Peers that connect
+ * and say nothing could otherwise hold every slot wherever
+ * --max-handshakes is not below --max-connections (its default 32 beside
+ * --max-connections 6), and each client after them got BUSY for the
+ * connection limit; a connection that has said HELLO, or whose HELLO is
+ * waiting to be read, is never the one. 1 when fresh may stay. */
+static int push_out_silent(hfd_server *s, hfd_conn *fresh) {
+  hfd_conn *old = oldest_handshake(s, fresh);
+  if (!old) return 0;
+  if (!hung_up(old)) {
+    s->protocol_errors++;
+    char kv[300];
+    if (hfd_conn_log_allowed())
+      hfd_err("connection limit (%d) reached: closing the oldest connection that has not said "
+              "HELLO for a new one%s", s->max_connections, conn_kv(old, kv, sizeof kv));
+    if (!old->tls)
+      send_error(old, 0, HFP_E_BUSY, 1,
+                 "connection limit (%d) reached: the oldest connection without its HELLO is "
+                 "closed for a newer one", s->max_connections);
+  }
+  /* Now, not once an ERROR is written: the slot is fresh's (over TLS
+   * without a word, no session to carry one yet). */
+  hfd_conn_close(old);
+  return 1;
+}
+
 /* Connections accepted in one turn of the loop before the others get a
  * turn. libuv accepts from a listener until the backlog is empty, with no
  * other I/O between: peers that connect as fast as the daemon can accept
@@ -2050,7 +2078,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   hfd_kv(kv, sizeof kv, "listener", l->url);
   hfd_debug("connection accepted%s", kv);
   read_next(c);
-  if (s->num_conns > s->max_connections && !reclaim_slot(s)) {
+  if (s->num_conns > s->max_connections && !reclaim_slot(s) && !push_out_silent(s, c)) {
     s->protocol_errors++;
     if (c->tls) {
       /* No TLS session yet to carry the ERROR; one queued for after the
@@ -2065,7 +2093,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
   c->handshaking = 1;
   s->num_handshaking++;
   if (l->is_tcp && ++c->client->handshaking > hfd_client_handshake_cap(s) &&
-      hfd_client_handshake_cap(s) < s->max_handshakes) {
+      hfd_client_handshake_cap(s) < s->cfg->max_handshakes) {
     /* One address may hold only its part of the slots, so that a flood
      * from it cannot push out the clients of others (address_handshake_victim).
      * A part as large as the whole is no part: --max-handshakes decides. */
@@ -2095,7 +2123,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
       if (old == c) return;
     }
   }
-  if (s->num_handshaking > s->max_handshakes) {
+  if (s->num_handshaking > s->cfg->max_handshakes) {
     /* Connections that have not said HELLO have their own small limit, so
      * that they cannot take every slot. A real client says HELLO at once;
      * the one that has waited longest is the likeliest not to, and goes. */
@@ -2109,7 +2137,7 @@ void hfd_on_connection(uv_stream_t *server, int status) {
        * handshake sees why it was refused); until then reclaim_slot may
        * take the connection's slot for a newcomer. */
       send_error(old, 0, HFP_E_BUSY, 1, "too many connections before their HELLO (%d)",
-                 s->max_handshakes);
+                 s->cfg->max_handshakes);
       close_refused(old);
       if (old == c) return;
     }

@@ -143,31 +143,7 @@ int hfd_limits_derive(hfd_server *s) {
  * weights file being read on reload, the ready file, TLS files. */
 #define FDS_RESERVE 64
 
-/* Connections before their HELLO may hold at most half the connection
- * slots when --max-handshakes is not below --max-connections (as lowered):
- * else peers that connect and say nothing fill every slot, and a client
- * gets BUSY for the connection limit instead of their oldest being closed
- * for it (--max-handshakes). */
-static void limit_handshakes(hfd_server *s) {
-  const hfd_config *cfg = s->cfg;
-  s->max_handshakes = cfg->max_handshakes;
-  if (cfg->max_handshakes < s->max_connections) return;
-  s->max_handshakes = s->max_connections / 2 > 0 ? s->max_connections / 2 : 1;
-  hfd_warn("--max-handshakes %d is not below --max-connections %d: connections that never say "
-           "HELLO could hold every slot; %d of them at most (half the connections); give "
-           "--max-handshakes below --max-connections to choose", cfg->max_handshakes,
-           s->max_connections, s->max_handshakes);
-}
-
-static int limits_fds(hfd_server *s);
-
 int hfd_limits_fds(hfd_server *s) {
-  int rc = limits_fds(s);
-  if (rc == 0) limit_handshakes(s);
-  return rc;
-}
-
-static int limits_fds(hfd_server *s) {
   const hfd_config *cfg = s->cfg;
   uint64_t reserve = FDS_RESERVE + (uint64_t)cfg->num_listen + (cfg->http ? HFD_HTTP_CONN_LIMIT : 0);
   uint64_t need = (uint64_t)cfg->max_connections * FDS_PER_CONN + reserve;

@@ -623,7 +623,6 @@ struct hfd_server {
   int num_handshaking;           /* connections before their HELLO */
   int max_width, max_height;     /* --max-size, lowered to what a frame can meet */
   int max_connections;           /* --max-connections, lowered to the open-file limit */
-  int max_handshakes;            /* --max-handshakes, below max_connections (hfd_limits_fds) */
   uint64_t conns_total, next_conn_id;
   uint64_t protocol_errors;
   uint64_t mem_held;             /* bytes charged: buffers and inference */
