@@ -55,10 +55,9 @@ typedef struct worker {
   /* Requests sent after the warm-up, and their answers; busy and errors
    * are of those. The warm-up's apart, by outcome. */
   uint64_t sent, answered, busy, errors, expired;
-  /* Every answer to a request sent after the warm-up, by outcome, in the
-   * window or after it (frames in flight when it closed): they add up to
-   * answered. */
-  uint64_t ans_ok, ans_busy, ans_errors, ans_expired;
+  /* Of those answered, the ok ones in the window or after it (frames in
+   * flight when it closed); busy, expired and errors count them all. */
+  uint64_t answered_ok;
   uint64_t warm_sent, warm_ok, warm_busy, warm_errors, warm_expired;
   int last_error;                /* the last error answered, for its name */
   int lost_status;               /* why frames went unanswered: the connection's failure */
@@ -123,7 +122,6 @@ static void gate_pass(worker *w) {
   w->t_end = w->t_measure + w->o->seconds;
 }
 
-
 static void usage(FILE *f) {
   fprintf(f,
           "usage: hairfilter-load --server URL --variant NAME [--size WxH] [--connections N]\n"
@@ -144,9 +142,9 @@ static void usage(FILE *f) {
           "A request refused BUSY is sent again after 10 ms; a refusal no retry can fix\n"
           "stops the run, naming it. SIGINT or SIGTERM ends the window and reports it.\n"
           "Exit status: 0 frames measured; 1 none, a connection lost, or the server could\n"
-          "not be reached or refused; 2 bad options, over the server's limits (a frame over its size, a\n"
-          "--shm segment over its shared-memory limits), or --shm where the server\n"
-          "offers no shared memory; 130 interrupted.\n");
+          "not be reached or refused; 2 bad options, over the server's limits (a frame\n"
+          "over its size, a --shm segment over its shared-memory limits), or --shm where\n"
+          "the server offers no shared memory; 130 interrupted.\n");
 }
 
 /* BUSY and SHUTTING_DOWN are refusals for now, counted as busy apart from
@@ -175,10 +173,6 @@ static int record(worker *w, const hfc_completion *d, int warm) {
     }
     return 0;
   }
-  if (refused_for_now(d->status)) w->ans_busy++;
-  else if (d->status == HFC_E_EXPIRED) w->ans_expired++;
-  else if (d->status) w->ans_errors++;
-  else w->ans_ok++;
   if (refused_for_now(d->status)) {
     w->busy++;
     return 0;
@@ -194,6 +188,7 @@ static int record(worker *w, const hfc_completion *d, int warm) {
     w->last_error = d->status;
     return 0;
   }
+  w->answered_ok++;
   /* Only completions inside the measured window count, so the frames still
    * in flight when it closes do not stretch it. */
   double t = now_s();
@@ -626,8 +621,8 @@ int main(int argc, char **argv) {
   size_t total = 0;
   uint64_t busy = 0, errors = 0, sent = 0, answered = 0, wsent = 0, wok = 0, wbusy = 0, werr = 0;
   uint64_t expired = 0, wexpired = 0;
-  int lost_status = 0;
-  uint64_t ans_ok = 0, ans_busy = 0, ans_errors = 0, ans_expired = 0;
+  int lost_status = 0, over_limits = 0;
+  uint64_t answered_ok = 0;
   int fatal = 0, bsum = 0, bn = 0, last_error = 0, cut = 0, cut_lost = 0;
   /* Every connection's window opened at the same moment (gate_pass); the
    * run measured for as long as any of them still did: one cut short (lost,
@@ -648,10 +643,8 @@ int main(int argc, char **argv) {
     expired += w[i].expired;
     wexpired += w[i].warm_expired;
     if (w[i].lost_status) lost_status = w[i].lost_status;
-    ans_ok += w[i].ans_ok;
-    ans_busy += w[i].ans_busy;
-    ans_errors += w[i].ans_errors;
-    ans_expired += w[i].ans_expired;
+    answered_ok += w[i].answered_ok;
+    over_limits |= w[i].over_limits;
     if (w[i].last_error) last_error = w[i].last_error;
     if (!w[i].setup_failed) {
       running++;
@@ -694,8 +687,6 @@ int main(int argc, char **argv) {
   if (failed_connects > 1)
     fprintf(stderr, "hairfilter-load: %d of the %d connections could not connect (the first "
             "said why above)\n", failed_connects, o.connections);
-  int over_limits = 0;
-  for (int i = 0; i < o.connections; i++) over_limits |= w[i].over_limits;
   if (!running) {
     /* Not one connection got to send (each said why above): no window,
      * nothing to report but that. */
@@ -733,11 +724,11 @@ int main(int argc, char **argv) {
    * ones inside the window, those after it (in flight when it closed) are
    * here too. */
   char exp_txt[48] = "";
-  if (o.deadline_us || ans_expired)
-    snprintf(exp_txt, sizeof exp_txt, "  expired %llu", (unsigned long long)ans_expired);
+  if (o.deadline_us || expired)
+    snprintf(exp_txt, sizeof exp_txt, "  expired %llu", (unsigned long long)expired);
   printf("  answered by outcome: ok %llu  busy %llu%s  errors %llu  (ok: the frames above and "
-         "those answered after the window)\n", (unsigned long long)ans_ok,
-         (unsigned long long)ans_busy, exp_txt, (unsigned long long)ans_errors);
+         "those answered after the window)\n", (unsigned long long)answered_ok,
+         (unsigned long long)busy, exp_txt, (unsigned long long)errors);
   printf("  warm-up: requests sent %llu  ok %llu  busy %llu  errors %llu\n",
          (unsigned long long)wsent, (unsigned long long)wok, (unsigned long long)wbusy,
          (unsigned long long)werr);
