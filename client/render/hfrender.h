@@ -425,7 +425,9 @@ typedef struct hfr_frame_stats {
   /* Strand diameter in pixels (thickness x scale x pixels per unit at the
    * point's depth) over the model's points inside the (cropped) view. */
   double width_px_p10, width_px_p50, width_px_p90;
-  uint64_t points_in_view;
+  uint64_t points_in_view;       /* of the points picked, those inside the window */
+  uint64_t points_picked;        /* evenly picked points measured (at most 2^20) */
+  uint64_t points_model;         /* the model's points they are picked from */
 } hfr_frame_stats;
 
 typedef struct hfr_stats {

@@ -67,6 +67,8 @@ static void add_stats(cJSON *e, const hfr_frame_stats *f) {
   double w[3] = {f->width_px_p10, f->width_px_p50, f->width_px_p90};
   cJSON_AddItemToObject(s, "width_px_p10_p50_p90", cJSON_CreateDoubleArray(w, 3));
   cJSON_AddNumberToObject(s, "points_in_view", (double)f->points_in_view);
+  cJSON_AddNumberToObject(s, "points_picked", (double)f->points_picked);
+  cJSON_AddNumberToObject(s, "points_model", (double)f->points_model);
 }
 
 /* Everything that went into a frame, for the manifest. */

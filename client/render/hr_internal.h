@@ -101,6 +101,7 @@ struct hfr_renderer {
    * picked, for the strand widths of hfr_frame_stats. */
   float *stat_pts;              /* [n_stat][4] */
   uint32_t n_stat;
+  uint32_t n_model_pts;         /* the model's points, of which stat_pts are picked */
   GLuint shadow_tex, shadow_fbo;
   int shadow_size;
   int ms_samples;               /* samples the MS framebuffer really has */

@@ -238,6 +238,7 @@ int hfr_renderer_set_hair(hfr_renderer *r, const hfr_hair *h, int head, char *er
   }
   r->stat_pts = sp;
   r->n_stat = n_stat;
+  r->n_model_pts = h->points;
   for (uint32_t k = 0; k < n_stat; k++)
     memcpy(sp + 4 * k, v + (size_t)k * pick * VERTEX_FLOATS, 3 * sizeof(float)),
         sp[4 * k + 3] = v[(size_t)k * pick * VERTEX_FLOATS + 6];

@@ -79,6 +79,8 @@ void hr_frame_stats(const hfr_renderer *r, const hfr_view *v, const hr_camera *c
   fs->width_px_p50 = quantile(wd, n, 0.5);
   fs->width_px_p90 = quantile(wd, n, 0.9);
   fs->points_in_view = n;
+  fs->points_picked = r->n_stat;
+  fs->points_model = r->n_model_pts;
   free(wd);
 }
 
@@ -99,7 +101,19 @@ void hfr_frame_stats_format(const hfr_frame_stats *s, char *buf, size_t len) {
   if (s->gt_opaque >= 0)
     k += snprintf(buf + k, len - k, ", opaque in the ground truth %.3g", s->gt_opaque);
   if (k < 0 || (size_t)k >= len) return;
-  snprintf(buf + k, len - k, "; strand width p10/p50/p90 %.3g/%.3g/%.3g px (%llu points in view)",
-           s->width_px_p10, s->width_px_p50, s->width_px_p90,
-           (unsigned long long)s->points_in_view);
+  /* Picked points are counted apart from the model's: a model of more than
+   * 2^20 points is measured at every k-th, and "in view" is of those. */
+  if (s->points_picked && s->points_picked < s->points_model)
+    snprintf(buf + k, len - k,
+             "; strand width p10/p50/p90 %.3g/%.3g/%.3g px (at %llu points in view, of %llu "
+             "picked evenly from the model's %llu)",
+             s->width_px_p10, s->width_px_p50, s->width_px_p90,
+             (unsigned long long)s->points_in_view, (unsigned long long)s->points_picked,
+             (unsigned long long)s->points_model);
+  else
+    snprintf(buf + k, len - k,
+             "; strand width p10/p50/p90 %.3g/%.3g/%.3g px (at %llu points in view, of the "
+             "model's %llu)",
+             s->width_px_p10, s->width_px_p50, s->width_px_p90,
+             (unsigned long long)s->points_in_view, (unsigned long long)s->points_model);
 }

@@ -391,7 +391,8 @@ static void test_stats_line_small_values(void **state) {
                        .alpha_p90 = 1.79e-5, .sample_coverage = 1.1e-4,
                        .hair_pixels = 3.66e-4, .full_pixels = 0, .gt_opaque = -1,
                        .width_px_p10 = 1.33e-5, .width_px_p50 = 1.46e-5,
-                       .width_px_p90 = 1.63e-5, .points_in_view = 125182};
+                       .width_px_p90 = 1.63e-5, .points_in_view = 125182,
+                       .points_picked = 200000, .points_model = 200000};
   char line[512];
   hfr_frame_stats_format(&s, line, sizeof line);
   print_message("%s\n", line);
@@ -402,6 +403,13 @@ static void test_stats_line_small_values(void **state) {
   hfr_frame_stats_format(&s, line, sizeof line);
   assert_non_null(strstr(line, "/0.0559/"));
   assert_non_null(strstr(line, "opaque in the ground truth 0.096"));
+  assert_non_null(strstr(line, "(at 125182 points in view, of the model's 200000)"));
+  /* A model of more points than are measured says which ones "in view"
+   * counts: it is of the picked points, not of the model's. */
+  s.points_picked = 613150, s.points_model = 1226300, s.points_in_view = 613150;
+  hfr_frame_stats_format(&s, line, sizeof line);
+  assert_non_null(strstr(line, "(at 613150 points in view, of 613150 picked evenly from the "
+                               "model's 1226300)"));
 }
 
 /* The typical diameter --regimes scales to its target width in pixels is
