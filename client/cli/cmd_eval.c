@@ -807,6 +807,16 @@ static const char *file_base(const char *path) {
   return b ? b + 1 : path;
 }
 
+/* Frame i's name in a table: its file name, or its path as given when
+ * another frame of the list has the same file name (eval256/a.exr and
+ * eval512/a.exr are told apart). */
+static const char *frame_label(const frame_list *frames, int i) {
+  const char *b = file_base(frames->v[i].path);
+  for (int j = 0; j < frames->n; j++)
+    if (j != i && !strcmp(file_base(frames->v[j].path), b)) return frames->v[i].path;
+  return b;
+}
+
 /* Adds lattice summary ls as object `name` of o (nothing when no frame was
  * measured): period, frames, mean, max, max_file (and, windowed, max_at:
  * the window's top-left pixel; both null where the windowed maximum is 0,
@@ -1023,10 +1033,10 @@ static void print_lattice(const method *ms, int nm, const frame_list *frames) {
     const lattice_summary *l = &m->lattice, *lw = &m->lattice_window;
     if (!l->frames) continue;
     printf("| %s | %d | %d | %.2f | %.2f | %s | %d ", m->label, m->lattice_period, l->frames,
-           l->sum / l->frames, l->max, file_base(frames->v[l->max_frame].path), l->visible);
+           l->sum / l->frames, l->max, frame_label(frames, l->max_frame), l->visible);
     if (lw->frames && lw->max > 0)
       printf("| %d | %.2f | %.2f | %s (%d, %d) | %d |\n", lw->frames, lw->sum / lw->frames,
-             lw->max, file_base(frames->v[lw->max_frame].path), lw->max_x, lw->max_y,
+             lw->max, frame_label(frames, lw->max_frame), lw->max_x, lw->max_y,
              lw->visible);
     else if (lw->frames)
       printf("| %d | 0 | 0 | - | 0 |\n", lw->frames);
