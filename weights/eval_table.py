@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""One Markdown table of a `hairfilter eval --json` document, per frame:
+"""One Markdown table of a `hairfilter eval --json` document, per frame bucket:
 
     eval_table.py OUT.json [--methods SUBSTR,SUBSTR,...] [--below]
 
@@ -9,9 +9,12 @@ error that lists the labels), `PSNR / SSIM` overall and in every
 bucket of the three frame groupings (strand width, coverage, resolution),
 each column headed by its bucket and frame count (buckets without frames
 left out): the table the weights' cards and docs/QUALITY.md quote.
---below adds, for each network, the frames where it is below its own input
-and below stochastic transparency at 16 spp (PSNR / SSIM / either). Reads
-only what `hairfilter eval` wrote; it computes no score of its own.
+--below adds, for each network, the count of frames where it is below its
+own input and below stochastic transparency at 16 spp (PSNR / SSIM /
+either), then a row per such frame: its file and the network's, the
+input's and 16 spp's PSNR / SSIM (the frames the counts hold, as eval
+marked them). Reads only what `hairfilter eval` wrote; it computes no
+score of its own.
 """
 import argparse
 import json
@@ -93,6 +96,38 @@ def main(argv=None):
             a, b = m["below_own_input"], m["below_st16"]
             print(f"| {m['method']} | {a['psnr']} / {a['ssim']} / {a['either']} of {a['frames']} "
                   f"| {b['psnr']} / {b['ssim']} / {b['either']} of {b['frames']} |")
+        below_frames(doc, [m for m in rows if m["kind"] == "network"])
+
+
+def score(v):
+    """'PSNR / SSIM' of one frame's score ('-' where there is none)."""
+    if not v:
+        return "-"
+    psnr = "inf" if v.get("psnr") is None else f"{v['psnr']:.2f}"
+    return f"{psnr} / {v['ssim']:.4f}"
+
+
+def below_frames(doc, nets):
+    """A row per network and frame that `hairfilter eval` marked below its
+    own input or below ST 16 spp (frame_rows' below_own_input and
+    below_st16), with the three scores side by side."""
+    out = []
+    for r in doc.get("frame_rows", []):
+        by = {m["method"]: m for m in r["methods"]}
+        st16 = next((m for m in r["methods"] if m["method"] == "stochastic transparency 16 spp"),
+                    None)
+        for n in nets:
+            m = by.get(n["method"])
+            if not m or not (m.get("below_own_input") or m.get("below_st16")):
+                continue
+            which = " and ".join(w for w, k in (("own input", "below_own_input"),
+                                                 ("16 spp", "below_st16")) if m.get(k))
+            out.append(f"| {n['method']} | {r['file']} | {which} | {score(m)} | "
+                       f"{score(m.get('own_input'))} | {score(st16)} |")
+    if out:
+        print("\n| network | frame | below | network | own input | 16 spp |\n"
+              "|---|---|---|---:|---:|---:|")
+        print("\n".join(out))
 
 
 if __name__ == "__main__":
