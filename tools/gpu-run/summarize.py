@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Summary of a one-call GPU run (tools/gpu-run/run.sh): reads the step logs
 in LOGDIR and prints what the run answered, section by section, then the
-goals of issue 12 computed from the same numbers, then what the next GPU run
-must still show (the section of docs/GPU.md). Missing logs are reported as
+performance goals (Base at 1024x1024 on an H100 or H200) computed from the
+same numbers, then what the next GPU run must still show (the section of
+docs/GPU.md). Missing logs are reported as
 missing, never guessed.
 
 usage: summarize.py LOGDIR ROOT
@@ -199,7 +200,7 @@ def main():
         else:
             print(f"  {name}: " + (t.strip().replace("\t", " ") or "not run"))
 
-    section("goals (issue 12: H100/H200, Base at 1024x1024)")
+    section("goals (H100/H200, Base at 1024x1024)")
     brows = table_rows(read(logdir, "bench.log"))
     size = None
     for r in brows:
