@@ -403,8 +403,35 @@ static size_t od_enc_band_bytes(size_t band_bytes) {
   return kb > 0 ? (size_t)kb << 10 : 0;
 }
 
+/* Every primitive the backend makes lives in a plan (od_plan), and plans
+ * are counted in hf_model_cached_bytes and freed within the daemon's
+ * memory budget. oneDNN's own primitive cache keeps primitives and the
+ * code it generated for their shapes after the plan that made them is
+ * gone: memory no budget sees. At its default of 1024 entries it grows
+ * with every new frame size a client sends (hairfilterd --max-memory-mb 48
+ * went from 25 to 85 MiB resident over 1500 sizes, its plans counting 8
+ * MiB); off, the bands of one plan, which share shapes, each generate
+ * their code again (a plan's first frame up to 1.7x as long). 128 entries
+ * keep the sharing and bound what is kept (45 MiB over the same 1500
+ * sizes; off: 40). An operator's size in the environment
+ * (ONEDNN_PRIMITIVE_CACHE_CAPACITY, or DNNL_, which oneDNN 2 also reads)
+ * is left as it is. docs/SERVER.md, "Memory". */
+#define OD_PRIMITIVE_CACHE 128
+
+static int od_primitive_cache_bound(void) {
+  const char *a = getenv("ONEDNN_PRIMITIVE_CACHE_CAPACITY");
+  const char *b = getenv("DNNL_PRIMITIVE_CACHE_CAPACITY");
+  if ((a && *a) || (b && *b)) return HF_OK;
+  dnnl_status_t s = dnnl_set_primitive_cache_capacity(OD_PRIMITIVE_CACHE);
+  return s == dnnl_success ? HF_OK : od_report(s, "dnnl_set_primitive_cache_capacity", __LINE__);
+}
+
 static int od_open(void **out, char *why, size_t whylen) {
   int rc;
+  if ((rc = od_primitive_cache_bound()) != HF_OK) {
+    if (why && whylen) snprintf(why, whylen, "oneDNN's primitive cache could not be bounded");
+    return rc;
+  }
   od_dev *d = calloc(1, sizeof *d);
   if (!d) return HF_ENOMEM;
   if (pthread_mutex_init(&d->lock, NULL)) {
