@@ -1169,11 +1169,11 @@ static int region_fits(const char *what, uint64_t off, uint64_t n, uint64_t size
   if (region_ok(off, n, size, es)) return 1;
   if (why && whylen) {
     if (off % es)
-      snprintf(why, whylen, "%s at offset %llu is not aligned to its %zu-byte elements", what,
+      snprintf(why, whylen, "%s: offset %llu is not a multiple of the %zu-byte elements", what,
                (unsigned long long)off, es);
     else
-      snprintf(why, whylen, "%s of %llu bytes at offset %llu ends past the segment's %llu bytes",
-               what, (unsigned long long)n, (unsigned long long)off,
+      snprintf(why, whylen, "%s: %llu bytes at offset %llu would end past the segment's %llu "
+               "bytes", what, (unsigned long long)n, (unsigned long long)off,
                (unsigned long long)size);
   }
   return 0;

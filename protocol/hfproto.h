@@ -388,9 +388,9 @@ int hfp_decode_shm_destroy(const uint8_t *payload, size_t len, uint32_t *segment
 int hfp_shm_check(const hfp_filter *m, uint64_t seg_bytes);
 /* The same, and when it fails writes into why (NUL-terminated, whylen
  * bytes at most; NULL: nothing) which region is wrong and how: "the
- * result of 288 bytes at offset 4000 ends past the segment's 4096 bytes",
- * "... is not aligned to its 4-byte elements", "the features and the
- * result overlap". */
+ * result: 288 bytes at offset 4000 would end past the segment's 4096
+ * bytes", "the features: offset 2 is not a multiple of the 4-byte
+ * elements", "the features and the result overlap". */
 int hfp_shm_check_why(const hfp_filter *m, uint64_t seg_bytes, char *why, size_t whylen);
 /* Whether the byte ranges [a, a + an) and [b, b + bn) share a byte (offsets
  * in one segment, or addresses in one process); an empty range shares none.

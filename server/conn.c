@@ -1118,11 +1118,15 @@ static void on_header(hfd_conn *c) {
      * a ClientHello. The ERROR below is no text to that client, but its
      * bytes make the client's TLS library report a wrong record version,
      * which libhairfilter explains as a plain listener. */
-    if (!c->hello_done && c->listener->is_tcp && c->hbuf[0] == 0x16 && c->hbuf[1] == 0x03 &&
-        c->hbuf[2] <= 0x04) {
-      send_error(c, 0, HFP_E_PROTOCOL, 1,
-                 "a TLS client on a plain tcp: listener (%s): the client must use a tcp: URL, "
-                 "or the server listen on tls:HOST:PORT", c->listener->url);
+    if (!c->hello_done && c->hbuf[0] == 0x16 && c->hbuf[1] == 0x03 && c->hbuf[2] <= 0x04) {
+      if (c->listener->is_tcp)
+        send_error(c, 0, HFP_E_PROTOCOL, 1,
+                   "a TLS client on a plain tcp: listener (%s): the client must use a tcp: URL, "
+                   "or the server listen on tls:HOST:PORT", c->listener->url);
+      else
+        send_error(c, 0, HFP_E_PROTOCOL, 1,
+                   "a TLS client on a Unix socket (%s): TLS is for tls:HOST:PORT listeners; "
+                   "over the socket the client must speak plain (a unix: URL)", c->listener->url);
       return;
     }
     /* The field at fault, in hfp_header_decode's order. */
@@ -1373,7 +1377,7 @@ static void shm_create(hfd_conn *c) {
     send_error(c, 0, HFP_E_BUSY, 0, "at most %d segments per connection", HFD_MAX_SEGMENTS);
     return;
   }
-  char why[200];
+  char why[HFP_MESSAGE_MAX + 1];
   hfd_seg *g;
   int fd;
   int code = hfd_seg_create(s, c, bytes, &g, &fd, why, sizeof why);
@@ -1752,7 +1756,7 @@ void hfd_sweep_stalled(hfd_server *s) {
         if (cfg->min_recv_rate && rate < (double)cfg->min_recv_rate) {
           if (log_allowed()) {
             char kv[300];
-            hfd_log("replies read at %.0f bytes/s, under the minimum of %llu KiB/s "
+            hfd_log("replies read at %.3g bytes/s, under the minimum of %llu KiB/s "
                     "(--min-recv-rate); closing%s", rate,
                     (unsigned long long)(cfg->min_recv_rate >> 10), conn_kv(c, kv, sizeof kv));
           }
@@ -1788,7 +1792,7 @@ void hfd_sweep_stalled(hfd_server *s) {
       if (cfg->min_recv_rate && rate < (double)cfg->min_recv_rate) {
         s->protocol_errors++;
         send_error(c, id, HFP_E_PROTOCOL, 1,
-                   "frame arriving at %.0f bytes/s, under the minimum of %llu KiB/s", rate,
+                   "frame arriving at %.3g bytes/s, under the minimum of %llu KiB/s", rate,
                    (unsigned long long)(cfg->min_recv_rate >> 10));
       } else {
         c->t_window = now;

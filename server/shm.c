@@ -146,11 +146,13 @@ int hfd_seg_create(hfd_server *s, hfd_conn *c, uint64_t bytes, hfd_seg **out, in
     return HFP_E_BUSY;
   }
   if (cheld + bytes > ccap) {
-    snprintf(why, whylen, "this client (process %ld) holds %llu bytes of segments on its %d "
-             "connection(s); %llu more would pass its %llu (--max-shm-mb-per-client): release "
-             "one first, or have hairfilterd's operator raise --max-shm-mb-per-client for a "
-             "client of many connections (a load test)", c->shm_client ? c->shm_client->pid : 0L, (unsigned long long)cheld,
-             cconns, (unsigned long long)bytes, (unsigned long long)ccap);
+    /* Within an ERROR's 256 bytes with every number at its widest in
+     * practice (a 7-digit pid, 64 GiB figures). */
+    snprintf(why, whylen, "this client (process %ld, %d connection(s)) holds %llu bytes of "
+             "segments; %llu more would pass its %llu (--max-shm-mb-per-client): release one "
+             "first, or ask the operator to raise it for a client of many connections",
+             c->shm_client ? c->shm_client->pid : 0L, cconns, (unsigned long long)cheld,
+             (unsigned long long)bytes, (unsigned long long)ccap);
     return HFP_E_BUSY;
   }
   if (s->shm_held + bytes > s->cfg->max_shm_bytes) {

@@ -121,6 +121,21 @@ static void test_nothing_before_hello(void **state) {
     m[n] = 'x';
     hfp_put_u32(m + 12, hfp_get_u32(m + 12) + 1);
     expect_refused(url, m, n + 1, HFP_E_PROTOCOL, "HELLO with a trailing byte");
+    /* A TLS ClientHello's first bytes (a handshake record, version 3.1) are
+     * named as TLS on either kind of listener, not as a bad magic. */
+    static const uint8_t client_hello[HFP_HEADER_SIZE] = {0x16, 0x03, 0x01, 0x02, 0x00, 0x01,
+                                                          0x00, 0x01, 0xfc, 0x03, 0x03};
+    int tfd = raw_connect(url);
+    assert_true(tfd >= 0);
+    assert_int_equal(raw_send(tfd, client_hello, sizeof client_hello), 0);
+    hfp_header th;
+    hfp_error te;
+    if (raw_read_error(tfd, &th, &te)) fail_msg("TLS ClientHello on %s: no ERROR", url);
+    assert_int_equal(te.code, HFP_E_PROTOCOL);
+    if (!strstr(te.message, u == 0 ? "a TLS client on a plain tcp: listener"
+                                   : "a TLS client on a Unix socket"))
+      fail_msg("TLS ClientHello on %s: '%s'", url, te.message);
+    close(tfd);
     /* and a correct one still works */
     int fd = raw_connect(url);
     assert_int_equal(raw_hello(fd, u == 0 ? TEST_TOKEN : NULL), 0);
