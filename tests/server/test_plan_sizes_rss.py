@@ -14,6 +14,12 @@ bounded; 34.7 MiB with the cache at 1024 entries).
 
 usage: test_plan_sizes_rss.py HAIRFILTERD WEIGHTS_DIR [SANITIZERS]
 
+HF_TEST_BACKEND (default cpu) runs the daemon on another backend and
+HF_TEST_SIZES (default 900) sends that many sizes, measured from the
+third: on a GPU machine, `HF_TEST_BACKEND=cudnn HF_TEST_SIZES=150` asks
+the same of what cuDNN keeps (docs/GPU.md, "What the next GPU run must
+show").
+
 With SANITIZERS (the tree's HF_SANITIZE) the test is skipped (status 77):
 AddressSanitizer keeps freed memory in its quarantine, so resident memory
 says nothing of what the daemon keeps.
@@ -30,9 +36,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import hairfilter  # noqa: E402
 from rawwire import check, finish, require_started, start, stop  # noqa: E402
 
-SIZES = 900
-FIRST = 300          # the cache is full by then, bounded or not at 1024
-GROWTH_MIB = 8       # allowed from FIRST to SIZES (bounded: 3.0; unbounded: 34.7)
+SIZES = int(os.environ.get("HF_TEST_SIZES", "900"))
+FIRST = SIZES // 3   # at 900, oneDNN's cache is full by then, bounded or not at 1024
+GROWTH_MIB = 8       # allowed from FIRST to SIZES (cpu, 900: bounded 3.0; unbounded 34.7)
+BACKEND = os.environ.get("HF_TEST_BACKEND", "cpu")
 
 
 def rss_kib(pid):
@@ -57,7 +64,7 @@ def main():
     env.pop("ONEDNN_PRIMITIVE_CACHE_CAPACITY", None)
     env.pop("DNNL_PRIMITIVE_CACHE_CAPACITY", None)
     proc, sock = start(hairfilterd, w, ["--weights", os.path.join(weights, "small.safetensors"),
-                                        "--max-memory-mb", "48"], env=env)
+                                        "--max-memory-mb", "48", "--backend", BACKEND], env=env)
     try:
         require_started(sock)
         rng = np.random.default_rng(1)
@@ -76,8 +83,8 @@ def main():
                         at_first = rss_kib(proc.pid)
             at_end = rss_kib(proc.pid)
         grew = (at_end - at_first) / 1024
-        print("resident memory: %.1f MiB after %d sizes, %.1f MiB after %d (grew %.1f MiB)"
-              % (at_first / 1024, FIRST, at_end / 1024, n, grew))
+        print("%s backend, resident memory: %.1f MiB after %d sizes, %.1f MiB after %d "
+              "(grew %.1f MiB)" % (BACKEND, at_first / 1024, FIRST, at_end / 1024, n, grew))
         check(n == SIZES, "%d sizes sent, %d meant" % (n, SIZES))
         check(grew < GROWTH_MIB,
               "resident memory grew %.1f MiB from the %dth to the %dth frame size (at most %d): "
