@@ -60,9 +60,9 @@ def main():
     if not net.cfg.get("kernel_mix"):
         sys.exit(f"kernel_mix_beta.py: {args.weights} is not a KernelMix file (no kernel_mix in "
                  "its metadata)")
-    print("| frame | hair pixels | beta p10 / p50 / p90 | learnt | beta 0 (estimate) | beta 1 "
-          "(samples) | better of the two per pixel | ST 16 | ST 64 |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    head = ("| frame | hair pixels | beta p10 / p50 / p90 | learnt | beta 0 (estimate) | beta 1 "
+            "(samples) | better of the two per pixel | ST 16 | ST 64 |\n"
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for path in args.frames:
         try:
             feat, truth = dataset.load_frame(path, spp=net.cfg["spp"], dtype=np.float32)
@@ -86,6 +86,9 @@ def main():
             else:
                 st.append("-")
         b = np.percentile(beta[hair], [10, 50, 90])
+        if head:   # after the first frame is read: a refused one prints no table
+            print(head)
+            head = None
         print(f"| {path} | {int(hair.sum())} | {b[0]:.3f} / {b[1]:.3f} / {b[2]:.3f} | "
               f"{err['learnt']:.3e} | {err['estimate']:.3e} | {err['samples']:.3e} | "
               f"{oracle:.3e} | {st[0]} | {st[1]} |")

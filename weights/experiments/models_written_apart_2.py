@@ -2,7 +2,7 @@
 """Four hair models written from the .hair format alone, sharing no code with
 client/render/tools/hair_models.py, the renderer's styles or
 models_written_apart.py, for evaluating on hair no training frame was made
-from (docs/QUALITY.md, "Four more models written apart").
+from (docs/QUALITY.md, "KernelMix on four more models written apart").
 
 Each is built in one frame (centimetres, y up, face towards +z, a head about
 15x18x20 cm) and written in its own up axis and unit, into the current
