@@ -60,17 +60,27 @@ def main():
         proc, sock = start(HAIRFILTERD, w,
                            ["--weights", os.path.join(WEIGHTS, "small.safetensors"),
                             "--max-batch", "1", "--queue-size", "2",
+                            # the reference backend: its runs are long enough
+                            # at sizes that arrive at once (Small on cpu ran a
+                            # 1800x1800 frame, the largest sent, in 0.3 s)
+                            "--backend", "cpu-ref",
                             # the connections below are one process's, each
                             # standing for a client of its own
                             "--queue-share-by", "connection"])
         require_started(sock)
         big, a, b, c = (hello_v4(sock) for _ in range(4))
-        # A frame that runs for about 2 s here, sized from one of 256x256.
+        # A frame that runs for about 2 s here, sized from one of 256x256
+        # timed once its plan is made: the first frame of a size also builds
+        # the plan, which took as long as the run on a busy machine and sized
+        # the long frame to a tenth of its mark (the expired frames then ran
+        # before their budget passed).
+        big.sendall(filt(1, 256))
+        reply(big)
         t0 = time.time()
         big.sendall(filt(1, 256))
         reply(big)
         per_pixel = max(time.time() - t0, 1e-3) / (256 * 256)
-        side = int(min(1800, max(256, (2.0 / per_pixel) ** 0.5)))
+        side = int(min(1800, max(64, (2.0 / per_pixel) ** 0.5)))
         big.sendall(filt(2, side))
         time.sleep(0.3)
         # Two frames of 1 ms fill the queue behind it and expire there.
@@ -94,9 +104,8 @@ def main():
         # one frame queued behind it), the queued one past its budget: a
         # new frame of that connection is served, not refused BUSY ("holds
         # its share") for the place the dead frame holds.
-        # Frame 3 of a fixed size, long enough to be running still when 31
-        # arrives, whatever the calibration above made of a busy machine.
-        big.sendall(filt(3, 1600))
+        # Frame 3 as long as frame 2, running still when 31 arrives.
+        big.sendall(filt(3, side))
         time.sleep(0.1)
         big.sendall(filt(30, 2, budget=1000))
         time.sleep(0.05)
@@ -112,8 +121,8 @@ def main():
               "served, not refused (%s)" % (got.get(31),))
         check(got.get(3, (0, 0, 0))[0] == RESULT and got[3][2] == 0,
               "the second long frame is served (%s)" % (got.get(3),))
-        print("the long frame was %dx%d; the new frame was answered %.2f s after it was sent"
-              % (side, side, waited))
+        print("the long frame was %dx%d (a 256x256 frame ran in %.3f s); the new frame was "
+              "answered %.2f s after it was sent" % (side, side, per_pixel * 256 * 256, waited))
     finally:
         stop_and_clean(proc, w)
     finish()
