@@ -408,12 +408,12 @@ static size_t od_enc_band_bytes(size_t band_bytes) {
  * memory budget. oneDNN's own primitive cache keeps primitives and the
  * code it generated for their shapes after the plan that made them is
  * gone: memory no budget sees. At its default of 1024 entries it grows
- * with every new frame size a client sends (hairfilterd --max-memory-mb 48
- * went from 25 to 85 MiB resident over 1500 sizes, its plans counting 8
- * MiB); off, the bands of one plan, which share shapes, each generate
- * their code again (a plan's first frame up to 1.7x as long). 128 entries
- * keep the sharing and bound what is kept (45 MiB over the same 1500
- * sizes; off: 40). An operator's size in the environment
+ * with every new frame size a client sends (docs/SERVER.md has the
+ * measurement: 88 MiB resident under --max-memory-mb 48 after 900 sizes);
+ * off, the bands of one plan, which share shapes, each generate their
+ * code again, and a plan's first frame takes longer. 128 entries keep the
+ * sharing and bound what is kept (36 MiB after the same 900 sizes). An
+ * operator's size in the environment
  * (ONEDNN_PRIMITIVE_CACHE_CAPACITY, or DNNL_, which oneDNN 2 also reads)
  * is left as it is. docs/SERVER.md, "Memory". */
 #define OD_PRIMITIVE_CACHE 128
