@@ -21,7 +21,7 @@ static void usage(FILE *f) {
   fprintf(f,
     "usage: hairfilter render <frame|fig6|dataset|hair> [options]\n"
     "\n"
-    "model:   --style straight|wavy|curly|coily|ponytail|spiky|fur (default straight)\n"
+    "model:   --style straight|wavy|curly|coily|ponytail|spiky|fur|braided (default straight)\n"
     "         --hair FILE.hair (instead of a style)   --hair-seed N\n"
     "         --strands N --segments N --length L --clumping C --frizz F\n"
     "         --curl-radius R --curl-period P --thickness T --opacity O\n"

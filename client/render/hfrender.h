@@ -228,6 +228,7 @@ typedef enum hfr_style {
   HFR_STYLE_PONYTAIL,            /* long hair tied at the back */
   HFR_STYLE_SPIKY,              /* a short spiky cut: stiff strands standing out, gelled clumps */
   HFR_STYLE_FUR,                /* an animal's fur: short dense strands lying along the body */
+  HFR_STYLE_BRAIDED,            /* combed flat over the scalp into one or two three-strand plaits */
   HFR_STYLE_COUNT
 } hfr_style;
 

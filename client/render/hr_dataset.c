@@ -174,7 +174,9 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
  * ranges cover every style default in hr_hair_gen.c with room to spare. */
 static void extend_style(hfr_style_params *sp, hr_rng *g, const hfr_dataset_opts *o) {
   sp->length = hr_rng_range(g, 0.7f, 3.0f);
-  if (sp->style != HFR_STYLE_STRAIGHT) {
+  if (sp->style == HFR_STYLE_BRAIDED) {
+    hr_braid_draw(g, o, sp);
+  } else if (sp->style != HFR_STYLE_STRAIGHT) {
     sp->curl_period = hr_rng_range(g, 0.07f, 0.9f);
     /* Radius relative to period: tight coils have small radii. */
     sp->curl_radius = sp->curl_period * hr_rng_range(g, 0.1f, 0.45f);

@@ -20,6 +20,15 @@ static float log_range(hr_rng *g, float lo, float hi) {
   return expf(hr_rng_range(g, logf(lo), logf(hi)));
 }
 
+void hr_braid_draw(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp) {
+  sp->curl_period = hr_rng_range(g, 0.15f, 0.6f);
+  sp->curl_radius = sp->curl_period * hr_rng_range(g, 0.15f, 0.35f);
+  /* About 8 segments per period over the whole strand (the combed part
+   * takes its share), 48 to 160. */
+  if (o->segments <= 0)
+    sp->segments = (int)fminf(160.0f, fmaxf(48.0f, ceilf(8.0f * sp->length / sp->curl_period)));
+}
+
 void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
                      hr_regime *rg) {
   memset(rg, 0, sizeof *rg);
@@ -43,6 +52,7 @@ void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
     if (o->segments <= 0)
       sp->segments = (int)fminf(128.0f, fmaxf(24.0f, ceilf(6.0f * sp->length / sp->curl_period)));
   }
+  if (sp->style == HFR_STYLE_BRAIDED) hr_braid_draw(g, o, sp);
   if (def.children) sp->children = (int)hr_rng_range(g, 7.0f, 32.0f);
   /* Per clump: diameter x s^u, u in [-1, 1]. */
   sp->width_spread = log_range(g, 1.0f, 4.0f);

@@ -15,8 +15,11 @@
  *      the tip, then frizz (a smoothed random walk growing to the tip) and a
  *      last push out of the head.
  * The ponytail's base curve runs over the scalp to a tie point at the back
- * of the head and hangs from there. Spiky and fur are grown from guides
- * (hr_hair_guides.c), then frizzed the same way.
+ * of the head and hangs from there; the braided style's is combed flat into
+ * a three-strand plait (hr_hair_braid.c), and a strand clumps only towards
+ * guides of its own section of the scalp (its bundle of the plait). Spiky
+ * and fur are grown from guides (hr_hair_guides.c), then frizzed the same
+ * way.
  *
  * width_spread gives each clump (the strands that follow one guide) its own
  * diameter factor, so that a frame holds strand groups of different widths
@@ -31,8 +34,8 @@
 #include "hr_math.h"
 #include "hr_style.h"
 
-static const char *const style_names[HFR_STYLE_COUNT] = {"straight", "wavy", "curly", "coily",
-                                                         "ponytail", "spiky", "fur"};
+static const char *const style_names[HFR_STYLE_COUNT] = {
+    "straight", "wavy", "curly", "coily", "ponytail", "spiky", "fur", "braided"};
 
 const char *hfr_style_name(hfr_style s) {
   return (unsigned)s < HFR_STYLE_COUNT ? style_names[s] : "unknown";
@@ -51,6 +54,10 @@ int hfr_style_from_name(const char *name, hfr_style *out) {
   }
   if (!strcasecmp(name, "long-tied")) {
     *out = HFR_STYLE_PONYTAIL;
+    return HF_OK;
+  }
+  if (!strcasecmp(name, "braids") || !strcasecmp(name, "plaits")) {
+    *out = HFR_STYLE_BRAIDED;
     return HF_OK;
   }
   return HF_ENOTFOUND;
@@ -98,6 +105,13 @@ int hfr_style_defaults(hfr_style s, hfr_style_params *p) {
     p->children = 15;
     p->thickness = 0.0018f;   /* artist fur: thick enough to cover the body */
     p->opacity = 0.85f;
+    break;
+  case HFR_STYLE_BRAIDED:
+    /* curl_radius: how far a bundle swings to each side of the plait's
+     * centre; curl_period: the plait's length over which each bundle
+     * crosses the other two (about 13 segments of it here). */
+    p->segments = 96, p->length = 3.0f, p->curl_radius = 0.11f, p->curl_period = 0.45f;
+    p->clumping = 0.3f, p->frizz = 0.004f;
     break;
   default:
     return HF_EINVAL;
@@ -158,6 +172,10 @@ static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3]
   hr_normalize(dir);
   memcpy(c, root, 3 * sizeof(float));
 
+  if (sp->style == HFR_STYLE_BRAIDED) {
+    hr_grow_braided(sp, g, root, len, shell, c);
+    return;
+  }
   if (sp->style == HFR_STYLE_PONYTAIL) {
     /* Over the scalp to the tie, then down. The tie, at the back, is a disc
      * the strands pass through at random points (a point would put every
@@ -370,7 +388,11 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
     float *c = out->pos + 3 * (size_t)s * (n + 1);
     hr_scalp_root(&g, roots + 3 * s, nrm);
     float len = sp->length * hr_rng_range(&g, 0.85f, 1.1f);
-    float shell = hr_rng_range(&g, 0.01f, sp->style == HFR_STYLE_COILY ? 0.05f : 0.12f);
+    /* The layer offset that gives the hair its volume; combed flat for a
+     * plait. */
+    float shell = sp->style == HFR_STYLE_BRAIDED
+                      ? hr_rng_range(&g, 0.003f, 0.02f)
+                      : hr_rng_range(&g, 0.01f, sp->style == HFR_STYLE_COILY ? 0.05f : 0.12f);
     grow_base(sp, &g, roots + 3 * s, nrm, len, shell, c);
     add_curl(sp, &g, nrm, c);
     float opac = hr_strand_opacity(sp->opacity, hr_rng_range(&g, 0.9f, 1.0f));
@@ -400,10 +422,14 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
     for (int s = 0; s < sp->strands; s++) {
       const float *r = roots + 3 * s;
       int best = s;
+      const int braided = sp->style == HFR_STYLE_BRAIDED;
+      const int sec = braided ? hr_braid_section(sp, r) : 0;
       if (s >= guides) {
         float bd = INFINITY;
         for (int q = 0; q < guides; q++) {
           const float *rq = roots + 3 * q;
+          /* A plait's strand stays in its bundle. */
+          if (braided && hr_braid_section(sp, rq) != sec) continue;
           float d[3] = {r[0] - rq[0], r[1] - rq[1], r[2] - rq[2]};
           float dd = hr_dot(d, d);
           if (dd < bd) bd = dd, best = q;
@@ -413,7 +439,9 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
         float f = hr_clump_width(sp, (uint64_t)best);
         for (int i = 0; i <= n; i++) out->thickness[(size_t)s * (n + 1) + i] *= f;
       }
-      if (s < guides || !(sp->clumping > 0)) continue;
+      /* best == s past the guides: no guide of its section (a plait's strand
+       * then follows none). */
+      if (s < guides || best == s || !(sp->clumping > 0)) continue;
       const float *gp = gcopy + 3 * (size_t)best * (n + 1);
       float *c = out->pos + 3 * (size_t)s * (n + 1);
       for (int i = 1; i <= n; i++) {

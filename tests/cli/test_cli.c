@@ -937,7 +937,7 @@ static void test_strict_numbers(void **state) {
   assert_int_equal(cli("render dataset --styles straight,bogus --count 1 --size 16x16 --out %s",
                        test_tmp("wrap_set")), 2);
   expect_text("--styles 'straight,bogus': no style 'bogus' (the styles: straight, wavy, curly, "
-              "coily, ponytail, spiky, fur;");
+              "coily, ponytail, spiky, fur, braided;");
 #endif
 }
 

@@ -407,6 +407,73 @@ static void test_far_strands_named(void **state) {
   }
 }
 
+/* Median over the strands of h of the largest radius (in head radii, 1 on
+ * the scalp) over the first quarter of each strand's points. */
+static float combed_height(const hfr_hair *h) {
+  float *v = malloc(sizeof(float) * h->strands);
+  assert_non_null(v);
+  size_t base = 0;
+  for (uint32_t s = 0; s < h->strands; s++) {
+    uint32_t n = hfr_hair_strand_segments(h, s);
+    float m = 0;
+    for (uint32_t i = 0; i <= n / 4; i++) {
+      float q = 0;
+      for (int k = 0; k < 3; k++) {
+        float x = h->pos[3 * (base + i) + k] / head_r[k];
+        q += x * x;
+      }
+      m = fmaxf(m, sqrtf(q));
+    }
+    v[s] = m;
+    base += n + 1;
+  }
+  for (uint32_t i = 1; i < h->strands; i++) /* insertion sort: 300 values */
+    for (uint32_t j = i; j > 0 && v[j - 1] > v[j]; j--) {
+      float t = v[j];
+      v[j] = v[j - 1], v[j - 1] = t;
+    }
+  float med = v[h->strands / 2];
+  free(v);
+  return med;
+}
+
+/* Braided: combed flat over the scalp (the other styles stand off it by
+ * their volume), into one plait at the nape or two behind the ears, the
+ * tips hanging below the head. */
+static void test_braided(void **state) {
+  (void)state;
+  hfr_hair straight = small_style(HFR_STYLE_STRAIGHT, 3);
+  float loose = combed_height(&straight);
+  hfr_hair_free(&straight);
+  int one = 0, two = 0;
+  for (uint64_t seed = 1; seed <= 8; seed++) {
+    hfr_hair h = small_style(HFR_STYLE_BRAIDED, seed);
+    float flat = combed_height(&h);
+    if (!(flat < 1.03f && loose > 1.04f))
+      fail_msg("seed %llu: braided's combed part %.4f head radii out, straight's %.4f",
+               (unsigned long long)seed, (double)flat, (double)loose);
+    int left = 0, right = 0, middle = 0;
+    size_t base = 0;
+    for (uint32_t s = 0; s < h.strands; s++) {
+      base += hfr_hair_strand_segments(&h, s) + 1;
+      const float *tip = h.pos + 3 * (base - 1);
+      assert_true(tip[1] < -0.9f);   /* below the chin */
+      if (tip[0] < -0.3f) left++;
+      else if (tip[0] > 0.3f) right++;
+      if (fabsf(tip[0]) < 0.35f) middle++;
+    }
+    if (middle == (int)h.strands) one++;
+    else if (left + right == (int)h.strands && left > 50 && right > 50) two++;
+    else fail_msg("seed %llu: tips neither in one plait nor in two: %d left, %d right, %d of "
+                  "%u in the middle", (unsigned long long)seed, left, right, middle, h.strands);
+    hfr_hair_free(&h);
+  }
+  assert_true(one > 0 && two > 0);   /* the seed picks */
+  hfr_style s;
+  assert_int_equal(hfr_style_from_name("braids", &s), HF_OK);
+  assert_int_equal(s, HFR_STYLE_BRAIDED);
+}
+
 static void test_styles(void **state) {
   (void)state;
   for (int s = 0; s < HFR_STYLE_COUNT; s++) {
@@ -429,7 +496,7 @@ static void test_styles(void **state) {
     hfr_style_body((hfr_style)s, &body);
     float br[3], minr = 1e9f;
     for (int k = 0; k < 3; k++) br[k] = body.radii[k] / 0.99f, minr = fminf(minr, br[k]);
-    if (s < HFR_STYLE_SPIKY) assert_memory_equal(head_r, br, sizeof br);
+    if (s != HFR_STYLE_FUR) assert_memory_equal(head_r, br, sizeof br);
     float lo = 1e9f, hi = 0;
     for (uint32_t i = 0; i < a.points; i++) {
       float q = 0;
@@ -474,7 +541,8 @@ int main(void) {
     cmocka_unit_test(test_malformed), cmocka_unit_test(test_refusals_say_why),
     cmocka_unit_test(test_single_point_strands),
     cmocka_unit_test(test_read_as_reference),
-    cmocka_unit_test(test_styles), cmocka_unit_test(test_far_strands_named),
+    cmocka_unit_test(test_styles), cmocka_unit_test(test_braided),
+    cmocka_unit_test(test_far_strands_named),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
