@@ -217,7 +217,10 @@ int cmd_demo(int argc, char **argv) {
   hfr_frame_defaults(&f, o.width, o.height);
   if (hfr_style_from_name(o.style, &f.style.style) < 0 ||
       hfr_style_defaults(f.style.style, &f.style) < 0) {
-    fprintf(stderr, "hairfilter demo: unknown style '%s'\n", o.style);
+    char known[256];
+    hfr_style_list(known, sizeof known);
+    fprintf(stderr, "hairfilter demo: --style '%s': no such style (the styles: %s)\n", o.style,
+            known);
     hf_weights_free(w);
     return 2;
   }
@@ -236,7 +239,7 @@ int cmd_demo(int argc, char **argv) {
     goto done;
   }
   printf("rendered %s, %d strands, %dx%d at %d spp: features %.0f ms, ground truth %.0f ms\n",
-         o.style, f.style.strands, o.width, o.height, w->cfg.spp, st.features_ms, st.gt_ms);
+         hfr_style_name(f.style.style), f.style.strands, o.width, o.height, w->cfg.spp, st.features_ms, st.gt_ms);
   size_t npx = (size_t)o.width * o.height;
   in = malloc(npx * w->cfg.in_channels * sizeof(float));
   out = malloc(npx * 3 * sizeof(float));

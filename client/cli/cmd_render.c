@@ -500,7 +500,10 @@ static int parse_args(int argc, char **argv, opts *o) {
     else if (!strcmp(a, "--style")) {
       hfr_style s;
       if (hfr_style_from_name(v, &s)) {
-        fprintf(stderr, "hairfilter render: unknown style '%s'\n", v);
+        char known[256];
+        hfr_style_list(known, sizeof known);
+        fprintf(stderr, "hairfilter render: --style '%s': no such style (the styles: %s; a model "
+                "of your own: --hair FILE.hair)\n", v, known);
         return -1;
       }
       hfr_style_defaults(s, &o->style);
@@ -518,12 +521,8 @@ static int parse_args(int argc, char **argv, opts *o) {
         }
         if (hfr_style_from_name(t, &o->ds.styles[o->ds.n_styles])) {
           /* The one not known, and those that are. */
-          char known[256] = "";
-          for (int k = 0; k < HFR_STYLE_COUNT; k++) {
-            size_t used = strlen(known);
-            snprintf(known + used, sizeof known - used, "%s%s", k ? ", " : "",
-                     hfr_style_name((hfr_style)k));
-          }
+          char known[256];
+          hfr_style_list(known, sizeof known);
           fprintf(stderr, "hairfilter render: --styles '%s': no style '%s' (the styles: %s; "
                   "your own models: --hair-files)\n", v, t, known);
           return -1;

@@ -261,6 +261,10 @@ typedef struct hfr_style_params {
 const char *hfr_style_name(hfr_style s);
 /* Case-insensitive; HF_ENOTFOUND for an unknown name. */
 int hfr_style_from_name(const char *name, hfr_style *out);
+/* The styles' names, ", " between them, into out (n bytes, always
+ * terminated; cut short if n is too small): for a message that names the
+ * styles there are. */
+void hfr_style_list(char *out, size_t n);
 /* The style's defaults (strands 50000, its segments, length, curl, ...). */
 int hfr_style_defaults(hfr_style s, hfr_style_params *p);
 /* Checks p against the ranges hfr_hair_generate takes: strands 1 to

@@ -12,6 +12,7 @@
 #include "hr_dataset.h"
 #include "hr_internal.h"
 #include "hr_math.h"
+#include "hr_style.h"
 
 void hfr_dataset_defaults(hfr_dataset_opts *o) {
   memset(o, 0, sizeof *o);
@@ -143,6 +144,7 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
     cJSON_AddNumberToObject(h, "opacity", sp->opacity);
     cJSON_AddNumberToObject(h, "width_spread", sp->width_spread);
     cJSON_AddNumberToObject(h, "children", sp->children);
+    if (sp->style == HFR_STYLE_BRAIDED) cJSON_AddNumberToObject(h, "plaits", hr_braid_plaits(sp));
   }
   cJSON_AddStringToObject(e, "occluder", !occ || !occ->vertices ? "none"
                                          : hair_file ? (hfr_asset_fitted(&o->asset) ? "fit"
@@ -265,7 +267,8 @@ static int check_source_names(const hfr_dataset_opts *o, char *err, size_t errle
       if (err)
         snprintf(err, errlen, "%s and %s would both write %s_NNNN.exr (a frame is named "
                  "after its style or .hair file): %s", sa, sb, na,
-                 b < o->n_styles   ? "give each style once"
+                 b < o->n_styles   ? "give each style once (afro names coily, long-tied "
+                                     "ponytail, braids and plaits braided)"
                  : a < o->n_styles ? "link the file under another name (ln -s "
                                      "DIR/NAME.hair OTHER.hair)"
                                    : "give each file once, or link one under another name "

@@ -21,6 +21,9 @@ static float log_range(hr_rng *g, float lo, float hi) {
 }
 
 void hr_braid_draw(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp) {
+  /* The comb to the gathering point takes 1 to 2 of a strand's length: 2.2
+   * or more leaves a plait. */
+  sp->length = hr_rng_range(g, 2.2f, 4.5f);
   sp->curl_period = hr_rng_range(g, 0.15f, 0.6f);
   sp->curl_radius = sp->curl_period * hr_rng_range(g, 0.15f, 0.35f);
   /* About 8 segments per period over the whole strand (the combed part

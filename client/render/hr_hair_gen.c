@@ -63,6 +63,16 @@ int hfr_style_from_name(const char *name, hfr_style *out) {
   return HF_ENOTFOUND;
 }
 
+void hfr_style_list(char *out, size_t n) {
+  if (!out || !n) return;
+  *out = 0;
+  for (int k = 0; k < HFR_STYLE_COUNT; k++) {
+    size_t used = strlen(out);
+    if (used + 1 >= n) return;
+    snprintf(out + used, n - used, "%s%s", k ? ", " : "", style_names[k]);
+  }
+}
+
 int hfr_style_defaults(hfr_style s, hfr_style_params *p) {
   if (!p || (unsigned)s >= HFR_STYLE_COUNT) return HF_EINVAL;
   memset(p, 0, sizeof *p);

@@ -938,6 +938,14 @@ static void test_strict_numbers(void **state) {
                        test_tmp("wrap_set")), 2);
   expect_text("--styles 'straight,bogus': no style 'bogus' (the styles: straight, wavy, curly, "
               "coily, ponytail, spiky, fur, braided;");
+  /* --style too names the styles there are. */
+  assert_int_equal(cli("render frame --style plait --size 16x16 --out %s", test_tmp("s.exr")), 2);
+  expect_text("--style 'plait': no such style (the styles: straight, wavy, curly, coily, "
+              "ponytail, spiky, fur, braided; a model of your own: --hair FILE.hair)");
+  /* An alias given twice with its style: both named as the style, the alias explained. */
+  assert_int_equal(cli("render dataset --styles braided,braids --count 1 --size 16x16 --out %s",
+                       test_tmp("alias_set")), 1);
+  expect_text("braids and plaits braided");
 #endif
 }
 

@@ -377,8 +377,8 @@ static void test_dataset_regimes(void **state) {
   hfr_dataset_opts o;
   hfr_dataset_defaults(&o);
   o.out_dir = dir;
-  o.styles[0] = HFR_STYLE_FUR, o.styles[1] = HFR_STYLE_PONYTAIL;
-  o.n_styles = 2;
+  o.styles[0] = HFR_STYLE_FUR, o.styles[1] = HFR_STYLE_PONYTAIL, o.styles[2] = HFR_STYLE_BRAIDED;
+  o.n_styles = 3;
   const char *files[] = {hair};
   o.hair_files = files, o.n_hair_files = 1;
   o.asset.up = HFR_AXIS_Z, o.asset.scale = 0.1f, o.asset.children.children = 5;
@@ -394,9 +394,9 @@ static void test_dataset_regimes(void **state) {
   cJSON *doc = run_dataset(&o, R);
   assert_true(cJSON_IsTrue(cJSON_GetObjectItem(doc, "regimes")));
   cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
-  assert_int_equal(cJSON_GetArraySize(frames), 6);
+  assert_int_equal(cJSON_GetArraySize(frames), 8);
   double wmin = 1e9, wmax = 0;
-  int files_seen = 0;
+  int files_seen = 0, braided_seen = 0;
   cJSON_ArrayForEach(f, frames) {
     cJSON *fr = cJSON_GetObjectItem(f, "frame"), *rg = cJSON_GetObjectItem(f, "regime");
     cJSON *st = cJSON_GetObjectItem(f, "stats"), *h = cJSON_GetObjectItem(f, "hair");
@@ -426,6 +426,20 @@ static void test_dataset_regimes(void **state) {
     } else {
       assert_true(cJSON_GetObjectItem(h, "width_spread")->valuedouble >= 1);
     }
+    /* Braided: a length and plait that leave a plait, and how many. */
+    if (!strcmp(cJSON_GetObjectItem(f, "style")->valuestring, "braided")) {
+      braided_seen++;
+      int plaits = cJSON_GetObjectItem(h, "plaits")->valueint;
+      double len = cJSON_GetObjectItem(h, "length")->valuedouble;
+      double per = cJSON_GetObjectItem(h, "curl_period")->valuedouble;
+      double swing = cJSON_GetObjectItem(h, "curl_radius")->valuedouble / per;
+      if (plaits < 1 || plaits > 2 || len < 2.2 - 1e-6 || len > 4.5 + 1e-6 || per < 0.15 - 1e-6 ||
+          per > 0.6 + 1e-6 || swing < 0.15 - 1e-5 || swing > 0.35 + 1e-5)
+        fail_msg("braided: %d plaits, length %g, period %g, swing %g of it", plaits, len, per,
+                 swing);
+    } else {
+      assert_null(cJSON_GetObjectItem(h, "plaits"));
+    }
     snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
     hf_image img;
     assert_int_equal(hf_exr_read(path, &img, err, sizeof err), HF_OK);
@@ -435,6 +449,7 @@ static void test_dataset_regimes(void **state) {
     remove(path);
   }
   assert_int_equal(files_seen, 2);
+  assert_int_equal(braided_seen, 2);
   assert_true(wmax > wmin);
   cJSON_Delete(doc);
   snprintf(path, sizeof path, "%s/manifest.json", dir);

@@ -3,7 +3,8 @@
 # frame, it changes the bundled KernelMix's mixing row (the head's last
 # row) and nothing else, keeps the metadata, and what it writes computes in
 # hairfilter what it computes in PyTorch (weights/check_weights.py); a
-# frame without the estimate and a non-KernelMix file are refused.
+# frame without the estimate, a non-KernelMix file, weights that do not
+# exist and an --out that cannot be written are refused, named.
 #
 #   beta_row.sh SOURCE_DIR HAIRFILTER WORK_DIR
 src=$1 hf=$2 work=$3
@@ -57,6 +58,17 @@ out=$("$py" "$s" --weights "$src/weights/kernel.safetensors" --steps 5 --out "$w
 rc=$?
 if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "is not a KernelMix file"; then
   echo "FAIL: Kernel's weights: status $rc, said: $out"; fail=1
+fi
+out=$("$py" "$s" --steps 5 --out "$work/none/x.safetensors" "$work/f.exr" 2>&1)
+rc=$?
+if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "cannot write into $work/none: create it first"; then
+  echo "FAIL: --out in a directory that does not exist: status $rc, said: $out"; fail=1
+fi
+out=$("$py" "$s" --weights "$work/none.safetensors" --steps 5 --out "$work/x.safetensors" \
+      "$work/f.exr" 2>&1)
+rc=$?
+if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "^kernel_mix_beta_row.py: --weights .*none.safetensors: No such file"; then
+  echo "FAIL: --weights that does not exist: status $rc, said: $out"; fail=1
 fi
 [ -e "$work/x.safetensors" ] && { echo "FAIL: a refused run wrote a file"; fail=1; }
 [ "$fail" -eq 0 ] && echo PASS

@@ -5,7 +5,7 @@ the network as it is: where beta stays 0 the output cannot move, and what
 the mix can gain on a kind of hair is measured apart from the rest.
 
     kernel_mix_beta_row.py --out NEW.safetensors [--weights KERNELMIX.safetensors]
-        [--steps 600] [--lr 3e-3] [--batch 8] [--seed 1] FRAME.exr|DIR ...
+        [--steps 600] [--lr 3e-3] [--batch 8] [--seed 1] [--threads 2] FRAME.exr|DIR ...
 
 FRAME.exr|DIR: training frames with the alpha-corrected estimate (a
 directory: its *.exr, as `render dataset` writes them). The network up to
@@ -91,22 +91,35 @@ def output(d, w, b, spp):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--weights", default=os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                                                      "..", "kernel_mix.safetensors"))
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--steps", type=int, default=600)
-    ap.add_argument("--lr", type=float, default=3e-3)
-    ap.add_argument("--batch", type=int, default=8)
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("frames", nargs="+")
+    ap.add_argument("--weights", default=os.path.normpath(os.path.join(
+        os.path.dirname(os.path.abspath(__file__)), "..", "kernel_mix.safetensors")),
+        help="the KernelMix weights to start from (default: the bundled %(default)s)")
+    ap.add_argument("--out", required=True,
+                    help="where the weights with the trained row go (its directory must exist)")
+    ap.add_argument("--steps", type=int, default=600, help="Adam steps (default %(default)s)")
+    ap.add_argument("--lr", type=float, default=3e-3, help="learning rate (default %(default)s)")
+    ap.add_argument("--batch", type=int, default=8, help="frames per step (default %(default)s)")
+    ap.add_argument("--seed", type=int, default=1, help="frame and look draws (default %(default)s)")
+    ap.add_argument("--threads", type=int, default=2, help="PyTorch threads (default %(default)s)")
+    ap.add_argument("frames", nargs="+", help="frames with the estimate, or directories of them")
     args = ap.parse_args()
     if args.steps < 1 or args.batch < 1 or not args.lr > 0:
         sys.exit("kernel_mix_beta_row.py: --steps and --batch take a count of at least 1, --lr "
                  "a positive rate")
+    # The output is checked before the frames are read and trained on, so a
+    # path that cannot be written does not cost the run.
+    out_dir = os.path.dirname(os.path.abspath(args.out))
+    if os.path.isdir(args.out) or not os.path.isdir(out_dir) or not os.access(out_dir, os.W_OK):
+        sys.exit(f"kernel_mix_beta_row.py: --out {args.out}: "
+                 + ("a directory: give a file name in it" if os.path.isdir(args.out)
+                    else f"cannot write into {out_dir}: create it first (mkdir -p {out_dir})"))
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
-    net = hfnet.load_model(args.weights).eval()
+    try:
+        net = hfnet.load_model(args.weights).eval()
+    except (OSError, ValueError) as e:
+        sys.exit(f"kernel_mix_beta_row.py: --weights {args.weights}: "
+                 f"{e.strerror if isinstance(e, OSError) and e.strerror else e}")
     if not net.cfg.get("kernel_mix"):
         sys.exit(f"kernel_mix_beta_row.py: {args.weights} is not a KernelMix file (no kernel_mix "
                  "in its metadata)")
