@@ -442,7 +442,12 @@ class HairNet(nn.Module):
     def raw(self, x):
         """The network without output transforms; x is NCHW, sides multiples
         of 2^L."""
-        inp, enc = x, []
+        return self.apply_head(self.decoded(x), x)
+
+    def decoded(self, x):
+        """dec0's output (before the head, if any) of NCHW x, sides multiples
+        of 2^L."""
+        enc = []
         for i in range(self.levels):
             x = F.relu(getattr(self, f"enc{i}")(x))
             enc.append(x)
@@ -453,13 +458,18 @@ class HairNet(nn.Module):
             y = getattr(self, f"dec{i}")(y)
             if i > 0:
                 y = F.relu(y)
-        return self.apply_head(y, inp)
+        return y
+
+    def head_input(self, y, inp):
+        """What the kernel architecture's 1x1 head reads: ReLU(dec0's output
+        y) and the input features inp, [n][kernel_hidden + in_channels][h][w]."""
+        return torch.cat([F.relu(y), inp.to(y.dtype)], dim=1)
 
     def apply_head(self, y, inp):
         """The kernel architecture's 1x1 head on ReLU(dec0) and the input."""
         if not self.hidden:
             return y
-        return self.head(torch.cat([F.relu(y), inp.to(y.dtype)], dim=1))
+        return self.head(self.head_input(y, inp))
 
     def forward(self, x):
         """NCHW input of any size: zero-padded right/bottom to a multiple of

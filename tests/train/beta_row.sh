@@ -48,28 +48,24 @@ rc=$?
 if [ "$rc" -ne 0 ] || ! printf '%s\n' "$out" | grep -q "passed: every output within 0.0001"; then
   echo "FAIL: check_weights.py on the trained file: status $rc, said: $out"; fail=1
 fi
-out=$("$py" "$s" --steps 5 --out "$work/x.safetensors" "$work/no_est.exr" 2>&1)
-rc=$?
-if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "no acst4.\* channels"; then
-  echo "FAIL: a frame without the estimate: status $rc, said: $out"; fail=1
-fi
-out=$("$py" "$s" --weights "$src/weights/kernel.safetensors" --steps 5 --out "$work/x.safetensors" \
-      "$work/f.exr" 2>&1)
-rc=$?
-if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "is not a KernelMix file"; then
-  echo "FAIL: Kernel's weights: status $rc, said: $out"; fail=1
-fi
-out=$("$py" "$s" --steps 5 --out "$work/none/x.safetensors" "$work/f.exr" 2>&1)
-rc=$?
-if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "cannot write into $work/none: create it first"; then
-  echo "FAIL: --out in a directory that does not exist: status $rc, said: $out"; fail=1
-fi
-out=$("$py" "$s" --weights "$work/none.safetensors" --steps 5 --out "$work/x.safetensors" \
-      "$work/f.exr" 2>&1)
-rc=$?
-if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "^kernel_mix_beta_row.py: --weights .*none.safetensors: No such file"; then
-  echo "FAIL: --weights that does not exist: status $rc, said: $out"; fail=1
-fi
+# refused WHAT PATTERN ARGS...: the script run with ARGS fails, saying PATTERN.
+refused() {
+  what=$1 pattern=$2
+  shift 2
+  out=$("$py" "$s" "$@" 2>&1)
+  rc=$?
+  if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "$pattern"; then
+    echo "FAIL: $what: status $rc, said: $out"; fail=1
+  fi
+}
+refused "a frame without the estimate" "no acst4.\* channels" \
+    --steps 5 --out "$work/x.safetensors" "$work/no_est.exr"
+refused "Kernel's weights" "is not a KernelMix file" \
+    --weights "$src/weights/kernel.safetensors" --steps 5 --out "$work/x.safetensors" "$work/f.exr"
+refused "--out in a directory that does not exist" "cannot write into $work/none: create it first" \
+    --steps 5 --out "$work/none/x.safetensors" "$work/f.exr"
+refused "--weights that do not exist" "^kernel_mix_beta_row.py: --weights .*none.safetensors: No such file" \
+    --weights "$work/none.safetensors" --steps 5 --out "$work/x.safetensors" "$work/f.exr"
 [ -e "$work/x.safetensors" ] && { echo "FAIL: a refused run wrote a file"; fail=1; }
 [ "$fail" -eq 0 ] && echo PASS
 exit "$fail"

@@ -62,18 +62,7 @@ def cached(net, path):
     with torch.no_grad():
         a = net.align
         xp = F.pad(x, (0, (-w) % a, 0, (-h) % a))
-        enc, y = [], xp
-        for i in range(net.levels):
-            y = F.relu(getattr(net, f"enc{i}")(y))
-            enc.append(y)
-        y = enc[-1]
-        for i in reversed(range(net.levels)):
-            if i < net.levels - 1:
-                y = torch.cat([y, enc[i]], 1)
-            y = getattr(net, f"dec{i}")(y)
-            if i > 0:
-                y = F.relu(y)
-        z = torch.cat([F.relu(y), xp], 1)[..., :h, :w].contiguous()
+        z = net.head_input(net.decoded(xp), xp)[..., :h, :w].contiguous()
         raw = net.head(z)
         sums = torch.cat([hfnet.pixel_sums(x, spp), hfnet.estimate_sums(x, spp)], 1)
         agg = hfnet.kernel_aggregate(raw[:, :taps], sums, radius)
@@ -99,7 +88,8 @@ def main():
     ap.add_argument("--steps", type=int, default=600, help="Adam steps (default %(default)s)")
     ap.add_argument("--lr", type=float, default=3e-3, help="learning rate (default %(default)s)")
     ap.add_argument("--batch", type=int, default=8, help="frames per step (default %(default)s)")
-    ap.add_argument("--seed", type=int, default=1, help="frame and look draws (default %(default)s)")
+    ap.add_argument("--seed", type=int, default=1,
+                    help="frame and look draws (default %(default)s)")
     ap.add_argument("--threads", type=int, default=2, help="PyTorch threads (default %(default)s)")
     ap.add_argument("frames", nargs="+", help="frames with the estimate, or directories of them")
     args = ap.parse_args()
