@@ -19,7 +19,7 @@
  * (A = curl_radius, period = curl_period), where two bundles at the same
  * side offset are always at opposite depths, so the bundles weave without
  * passing through each other. A strand keeps its own offset in its bundle
- * (a disc of 0.55 A), and the plait narrows towards its end. */
+ * (a disc of 0.55 A, at least 0.02), and the plait narrows towards its end. */
 #include <math.h>
 #include <string.h>
 
@@ -72,8 +72,11 @@ void hr_grow_braided(const hfr_style_params *sp, hr_rng *g, const float root[3],
   float gather[3], down[3], side[3], depth[3];
   plait_frame(plaits, sec, gather, down, side, depth);
   const float A = sp->curl_radius, period = sp->curl_period > 0 ? sp->curl_period : 1.0f;
-  /* The strand's place in its bundle: uniform over a disc of 0.55 A. */
-  float rr = 0.55f * A * sqrtf(hr_rng_uniform(g)), ra = 2 * HR_PI * hr_rng_uniform(g);
+  /* The strand's place in its bundle: uniform over a disc of 0.55 A, at
+   * least 0.02 across (a swing of 0 then gives a rope of three bundles on
+   * the centre line, not every strand drawn on one curve). */
+  float rr = fmaxf(0.55f * A, 0.02f) * sqrtf(hr_rng_uniform(g));
+  float ra = 2 * HR_PI * hr_rng_uniform(g);
   const float o_side = rr * cosf(ra), o_depth = rr * sinf(ra);
   const float phase = 2 * HR_PI * (float)bundle / 3;
   /* Where the strand joins the plait: its bundle's place at u = 0. */
