@@ -3,7 +3,8 @@
 # the 16-sample baseline: a table of six groups, the three highlight groups
 # and the three texture groups each covering every hair pixel and all of
 # the variant's error, an MSE column for ST 16 and none for ST 64 (the
-# frame has none); a frame without ground truth is refused, named.
+# frame has none); a frame without ground truth and weights that do not
+# exist are refused, named.
 #
 #   error_by_highlight.sh SOURCE_DIR HAIRFILTER WORK_DIR
 src=$1 hf=$2 work=$3
@@ -36,6 +37,11 @@ out=$("$py" "$s" "$src/tests/data/field/frame-64x64.exr" 2>&1)
 rc=$?
 if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "frame-64x64.exr: no ground truth"; then
   echo "FAIL: a frame without ground truth: status $rc, said: $out"; fail=1
+fi
+out=$("$py" "$s" --weights "$work/none.safetensors" "$work/f.exr" 2>&1)
+rc=$?
+if [ "$rc" -eq 0 ] || ! printf '%s\n' "$out" | grep -q "^error_by_highlight.py: --weights .*none.safetensors: No such file"; then
+  echo "FAIL: --weights that do not exist: status $rc, said: $out"; fail=1
 fi
 [ "$fail" -eq 0 ] && echo PASS
 exit "$fail"

@@ -56,7 +56,11 @@ def main():
     ap.add_argument("frames", nargs="+")
     args = ap.parse_args()
     torch.set_num_threads(2)
-    net = hfnet.load_model(args.weights).eval()
+    try:
+        net = hfnet.load_model(args.weights).eval()
+    except (OSError, ValueError) as e:
+        sys.exit(f"error_by_highlight.py: --weights {args.weights}: "
+                 f"{e.strerror if isinstance(e, OSError) and e.strerror else e}")
     name = net.cfg.get("name", os.path.basename(args.weights))
     for path in args.frames:
         try:

@@ -56,7 +56,11 @@ def main():
                                                       "..", "kernel_mix.safetensors"))
     ap.add_argument("frames", nargs="+")
     args = ap.parse_args()
-    net = hfnet.load_model(args.weights).eval()
+    try:
+        net = hfnet.load_model(args.weights).eval()
+    except (OSError, ValueError) as e:
+        sys.exit(f"kernel_mix_beta.py: --weights {args.weights}: "
+                 f"{e.strerror if isinstance(e, OSError) and e.strerror else e}")
     if not net.cfg.get("kernel_mix"):
         sys.exit(f"kernel_mix_beta.py: {args.weights} is not a KernelMix file (no kernel_mix in "
                  "its metadata)")
