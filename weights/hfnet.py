@@ -718,6 +718,23 @@ def load_model(path):
     return net
 
 
+def bundled(name):
+    """The path of a bundled weights file (weights/NAME), for a script's
+    default --weights."""
+    return os.path.join(os.path.dirname(os.path.abspath(__file__)), name)
+
+
+def load_model_or_exit(path, prog):
+    """load_model(path), or the script prog exits with one line naming the
+    file and why it cannot be read (missing, unreadable, not safetensors,
+    not hairfilter's), instead of a traceback."""
+    try:
+        return load_model(path)
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"{prog}: --weights {path}: "
+                         f"{e.strerror if isinstance(e, OSError) and e.strerror else e}")
+
+
 # ---- layouts --------------------------------------------------------------
 
 def nhwc_to_nchw(a):

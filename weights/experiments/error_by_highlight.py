@@ -51,16 +51,11 @@ def variant_output(net, path):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--weights", default=os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                                                      "..", "kernel_mix.safetensors"))
+    ap.add_argument("--weights", default=hfnet.bundled("kernel_mix.safetensors"))
     ap.add_argument("frames", nargs="+")
     args = ap.parse_args()
     torch.set_num_threads(2)
-    try:
-        net = hfnet.load_model(args.weights).eval()
-    except (OSError, ValueError) as e:
-        sys.exit(f"error_by_highlight.py: --weights {args.weights}: "
-                 f"{e.strerror if isinstance(e, OSError) and e.strerror else e}")
+    net = hfnet.load_model_or_exit(args.weights, "error_by_highlight.py").eval()
     name = net.cfg.get("name", os.path.basename(args.weights))
     for path in args.frames:
         try:

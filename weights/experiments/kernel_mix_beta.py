@@ -52,15 +52,10 @@ def outputs(net, x):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--weights", default=os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                                                      "..", "kernel_mix.safetensors"))
+    ap.add_argument("--weights", default=hfnet.bundled("kernel_mix.safetensors"))
     ap.add_argument("frames", nargs="+")
     args = ap.parse_args()
-    try:
-        net = hfnet.load_model(args.weights).eval()
-    except (OSError, ValueError) as e:
-        sys.exit(f"kernel_mix_beta.py: --weights {args.weights}: "
-                 f"{e.strerror if isinstance(e, OSError) and e.strerror else e}")
+    net = hfnet.load_model_or_exit(args.weights, "kernel_mix_beta.py").eval()
     if not net.cfg.get("kernel_mix"):
         sys.exit(f"kernel_mix_beta.py: {args.weights} is not a KernelMix file (no kernel_mix in "
                  "its metadata)")

@@ -80,8 +80,7 @@ def output(d, w, b, spp):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--weights", default=os.path.normpath(os.path.join(
-        os.path.dirname(os.path.abspath(__file__)), "..", "kernel_mix.safetensors")),
+    ap.add_argument("--weights", default=hfnet.bundled("kernel_mix.safetensors"),
         help="the KernelMix weights to start from (default: the bundled %(default)s)")
     ap.add_argument("--out", required=True,
                     help="where the weights with the trained row go (its directory must exist)")
@@ -105,11 +104,7 @@ def main():
                     else f"cannot write into {out_dir}: create it first (mkdir -p {out_dir})"))
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
-    try:
-        net = hfnet.load_model(args.weights).eval()
-    except (OSError, ValueError) as e:
-        sys.exit(f"kernel_mix_beta_row.py: --weights {args.weights}: "
-                 f"{e.strerror if isinstance(e, OSError) and e.strerror else e}")
+    net = hfnet.load_model_or_exit(args.weights, "kernel_mix_beta_row.py").eval()
     if not net.cfg.get("kernel_mix"):
         sys.exit(f"kernel_mix_beta_row.py: {args.weights} is not a KernelMix file (no kernel_mix "
                  "in its metadata)")
