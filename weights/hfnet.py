@@ -227,9 +227,18 @@ def kernel_finish_mixed(raw, x, spp, radius, clamp=torch.clamp):
     taps = kernel_taps(radius)
     sums = torch.cat([pixel_sums(x, spp), estimate_sums(x, spp)], 1)
     agg = kernel_aggregate(raw[:, :taps], sums, radius)
-    beta = torch.sigmoid(KERNEL_MIX_GAIN * raw[:, taps + 3:taps + 4].float())
+    return kernel_mix_normalise(agg, raw[:, taps + 3:taps + 4], raw[:, taps:taps + 3], spp,
+                                clamp)[0]
+
+
+def kernel_mix_normalise(agg, m, corr, spp, clamp=torch.clamp):
+    """KernelMix's last step: agg [n][6][h][w], the kernel-weighted samples'
+    sums then the estimate's (kernel_aggregate of both), mixed by the mixing
+    output m [n][1][h][w] and normalised with the corrections corr
+    (kernel_normalise). Returns (outputs [n][3][h][w], beta [n][1][h][w])."""
+    beta = torch.sigmoid(KERNEL_MIX_GAIN * m.float())
     mixed = agg[:, 3:6] + beta * (agg[:, 0:3] - agg[:, 3:6])
-    return kernel_normalise(mixed, raw[:, taps:taps + 3], spp, clamp)
+    return kernel_normalise(mixed, corr, spp, clamp), beta
 
 
 def kernel_aggregate(logits, sums, radius):

@@ -239,7 +239,8 @@ int cmd_demo(int argc, char **argv) {
     goto done;
   }
   printf("rendered %s, %d strands, %dx%d at %d spp: features %.0f ms, ground truth %.0f ms\n",
-         hfr_style_name(f.style.style), f.style.strands, o.width, o.height, w->cfg.spp, st.features_ms, st.gt_ms);
+         hfr_style_name(f.style.style), f.style.strands, o.width, o.height, w->cfg.spp,
+         st.features_ms, st.gt_ms);
   size_t npx = (size_t)o.width * o.height;
   in = malloc(npx * w->cfg.in_channels * sizeof(float));
   out = malloc(npx * 3 * sizeof(float));

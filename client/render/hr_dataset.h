@@ -34,14 +34,14 @@ void hr_regime_view(hr_rng *g, const hfr_dataset_opts *o, hfr_renderer *r, const
  * where it has no per-point widths or only zeros, as the renderer draws
  * it. */
 float hr_typical_thickness(const hfr_hair *h);
-/* The regimes' strand opacity range of o: o->opacity_min..max, or the
- * default 0.2..1 where o leaves it 0, 0. */
 /* The braided style's plait drawn for a set (--regimes, --extended): length
  * 2.2-4.5, period 0.15-0.6, a bundle's swing 0.15-0.35 of it, about 8
  * segments a period (48-160) unless the set fixes --segments. Other styles'
  * length and curl ranges would leave no plait (the comb takes 1-2 of the
  * length; a 0.07 period caps a strand at 1.5). */
 void hr_braid_draw(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp);
+/* The regimes' strand opacity range of o: o->opacity_min..max, or the
+ * default 0.2..1 where o leaves it 0, 0. */
 void hr_regime_opacity_range(const hfr_dataset_opts *o, float range[2]);
 
 /* ---- resuming (hr_dataset_resume.c) ---- */

@@ -35,8 +35,8 @@ int hr_braid_plaits(const hfr_style_params *sp) {
   return 1 + (int)(hr_rng_next(&g) >> 63);
 }
 
-int hr_braid_section(const hfr_style_params *sp, const float root[3]) {
-  if (hr_braid_plaits(sp) == 1) return root[0] < -0.2f ? 0 : root[0] > 0.2f ? 2 : 1;
+int hr_braid_section(int plaits, const float root[3]) {
+  if (plaits == 1) return root[0] < -0.2f ? 0 : root[0] > 0.2f ? 2 : 1;
   int side = root[0] < 0 ? 0 : 3;
   return side + (root[2] > 0.25f ? 0 : root[2] < -0.25f ? 2 : 1);
 }
@@ -68,7 +68,7 @@ static void plait_frame(int plaits, int sec, float gather[3], float down[3], flo
 void hr_grow_braided(const hfr_style_params *sp, hr_rng *g, const float root[3], float len,
                      float shell, float *c) {
   const int n = sp->segments, plaits = hr_braid_plaits(sp);
-  const int sec = hr_braid_section(sp, root), bundle = sec % 3;
+  const int sec = hr_braid_section(plaits, root), bundle = sec % 3;
   float gather[3], down[3], side[3], depth[3];
   plait_frame(plaits, sec, gather, down, side, depth);
   const float A = sp->curl_radius, period = sp->curl_period > 0 ? sp->curl_period : 1.0f;

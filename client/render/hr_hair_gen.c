@@ -429,17 +429,21 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
       return HF_ENOMEM;
     }
     memcpy(gcopy, out->pos, one * guides);
+    /* A plait's strand stays in its bundle: the guides' sections, once. */
+    const int braided = sp->style == HFR_STYLE_BRAIDED;
+    const int plaits = braided ? hr_braid_plaits(sp) : 0;
+    unsigned char gsec[2000]; /* guides <= 2000 above */
+    for (int q = 0; q < guides && braided; q++)
+      gsec[q] = (unsigned char)hr_braid_section(plaits, roots + 3 * q);
     for (int s = 0; s < sp->strands; s++) {
       const float *r = roots + 3 * s;
       int best = s;
-      const int braided = sp->style == HFR_STYLE_BRAIDED;
-      const int sec = braided ? hr_braid_section(sp, r) : 0;
+      const int sec = braided ? hr_braid_section(plaits, r) : 0;
       if (s >= guides) {
         float bd = INFINITY;
         for (int q = 0; q < guides; q++) {
           const float *rq = roots + 3 * q;
-          /* A plait's strand stays in its bundle. */
-          if (braided && hr_braid_section(sp, rq) != sec) continue;
+          if (braided && gsec[q] != sec) continue;
           float d[3] = {r[0] - rq[0], r[1] - rq[1], r[2] - rq[2]};
           float dd = hr_dot(d, d);
           if (dd < bd) bd = dd, best = q;

@@ -21,10 +21,11 @@ float hr_strand_opacity(float style_opacity, float jitter);
 /* Frizz of every strand of h, then a push out of the body (semi-axes). */
 void hr_frizz(const hfr_style_params *sp, const float body[3], hfr_hair *h);
 /* Braided (hr_hair_braid.c): how many plaits the model has (1 or 2, from
- * its seed), and which section of the scalp a root belongs to (the plait
- * and bundle its strand is plaited into; 0..2 for one plait, 0..5 for two). */
+ * its seed), and which section of the scalp a root belongs to in a model
+ * of that many plaits (the plait and bundle its strand is plaited into;
+ * 0..2 for one plait, 0..5 for two). */
 int hr_braid_plaits(const hfr_style_params *sp);
-int hr_braid_section(const hfr_style_params *sp, const float root[3]);
+int hr_braid_section(int plaits, const float root[3]);
 /* Braided: the n + 1 points of one strand into c (n = sp->segments),
  * combed from root over the scalp at layer offset shell into its plait,
  * then plaited; length len. */

@@ -30,10 +30,10 @@ import train  # noqa: E402
 
 
 def composite(y):
-    """The evaluation's look of [h][w][3] (colour, highlight, alpha)."""
-    hair, light, bg = (v.numpy().reshape(3) for v in train.eval_looks(1, "cpu"))
-    a = y[..., 2:3]
-    return np.clip(a * light * (hair * y[..., 0:1] + y[..., 1:2]) + (1 - a) * bg, 0, 1)
+    """The evaluation's look (train.composite with train.EVAL_LOOK) of
+    [h][w][3] (colour, highlight, alpha), [h][w][3]."""
+    t = hfnet.nhwc_to_nchw(np.asarray(y, dtype=np.float32)[None])
+    return hfnet.nchw_to_nhwc(train.composite(t, *train.eval_looks(1, "cpu")))[0]
 
 
 def variant_output(net, path):

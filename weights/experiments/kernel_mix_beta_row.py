@@ -73,9 +73,7 @@ def cached(net, path):
 def output(d, w, b, spp):
     """The network's output [1][3][h][w] with mixing row (w, b)."""
     m = torch.einsum("c,nchw->nhw", w, d["z"])[:, None] + b
-    beta = torch.sigmoid(hfnet.KERNEL_MIX_GAIN * m)
-    mixed = d["agg"][:, 3:6] + beta * (d["agg"][:, 0:3] - d["agg"][:, 3:6])
-    return hfnet.kernel_normalise(mixed, d["corr"], spp), beta
+    return hfnet.kernel_mix_normalise(d["agg"], m, d["corr"], spp)
 
 
 def main():
