@@ -26,6 +26,7 @@ static void usage(FILE *f) {
     "         --strands N --segments N --length L --clumping C --frizz F\n"
     "         --curl-radius R --curl-period P --thickness T --opacity O\n"
     "         --width-spread S (per clump width x S^u, u in [-1,1]) --children N (spiky, fur)\n"
+    "         --gather G (ponytail, braided: 0..1, 1 ties every strand through one point)\n"
     ".hair:   --up y|z|x|-y|-z|-x (the file's up axis; or --up-axis)\n"
     "         --units m|dm|cm|mm|in|ft or --scale S\n"
     "         --thickness T (diameter in the file's units, replaces the file's widths)\n"
@@ -59,6 +60,8 @@ static void usage(FILE *f) {
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
     "           --width-px MIN,MAX (regimes: strand width in pixels, default 0.004,4)\n"
     "           --opacity-range MIN,MAX (regimes: strand opacity, default 0.2,1; 1,1: opaque)\n"
+    "         --gather-range MIN,MAX (ponytail, braided: each frame's --gather drawn in it;\n"
+    "           default none, 0)\n"
     "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
     "           --thickness, --opacity, --occluder apply to them)\n"
     "         a ground truth too dense for one A-buffer is drawn in bands of rows; a frame\n"
@@ -83,7 +86,7 @@ typedef struct {
   hfr_dataset_opts ds;
   int st_set;
   /* Overrides applied after a --style resets the parameters. */
-  struct { int strands, segments; float length, clumping, frizz, cr, cp, thick, opac, wspread;
+  struct { int strands, segments; float length, clumping, frizz, cr, cp, thick, opac, wspread, gather;
            int children; uint64_t seed; } ov;
   hfr_asset_opts asset;
   int no_background, styles_set;
@@ -199,6 +202,7 @@ static const struct { const char *name; int modes; } option_modes[] = {
   {"--length", M_FRAME | M_FIG6 | M_HAIR},       {"--clumping", M_FRAME | M_FIG6 | M_HAIR},
   {"--frizz", M_FRAME | M_FIG6 | M_HAIR},        {"--curl-radius", M_FRAME | M_FIG6 | M_HAIR},
   {"--curl-period", M_FRAME | M_FIG6 | M_HAIR},  {"--opacity", M_FRAME | M_FIG6 | M_DATASET | M_HAIR},
+  {"--gather", M_FRAME | M_FIG6 | M_HAIR},
   {"--hair-seed", M_FRAME | M_FIG6 | M_HAIR},    /* a dataset draws a seed per frame */
   /* the view, which a dataset draws per frame */
   {"--cam-distance", M_FRAME | M_FIG6},  {"--cam-yaw", M_FRAME | M_FIG6},
@@ -226,6 +230,7 @@ static const struct { const char *name; int modes; } option_modes[] = {
   {"--styles", M_DATASET},       {"--count", M_DATASET},     {"--resume", M_DATASET},
   {"--extended", M_DATASET},     {"--regimes", M_DATASET},   {"--frame-sizes", M_DATASET},
   {"--width-px", M_DATASET},     {"--opacity-range", M_DATASET},
+  {"--gather-range", M_DATASET},
   {"--hair-files", M_DATASET},
 };
 
@@ -271,7 +276,8 @@ static int check_option_mode(const char *mode, const char *a) {
 static int check_model_options(const opts *o) {
   static const char *const style_only[] = {"--style", "--strands", "--segments", "--length",
                                            "--clumping", "--frizz", "--curl-radius",
-                                           "--curl-period", "--width-spread"};
+                                           "--curl-period", "--width-spread", "--gather",
+                                           "--gather-range"};
   static const char *const asset_only[] = {"--up", "--units", "--scale", "--occluder",
                                            "--child-spread", "--child-clumping"};
   const int dataset = !strcmp(o->cmd, "dataset");
@@ -350,6 +356,20 @@ static int check_model_options(const opts *o) {
     if (o->ds.regimes && given(o, "--width-spread")) {
       fprintf(stderr, "hairfilter render dataset: --regimes draws each frame's clump width "
               "spread itself: leave out --width-spread\n");
+      return -1;
+    }
+    int tied = 0;
+    for (int k = 0; k < o->ds.n_styles; k++)
+      tied |= o->ds.styles[k] == HFR_STYLE_PONYTAIL || o->ds.styles[k] == HFR_STYLE_BRAIDED;
+    const float g0 = o->ds.gather_min, g1 = o->ds.gather_max;
+    if (given(o, "--gather-range") && !(g0 >= 0 && g0 <= g1 && g1 <= 1)) {
+      fprintf(stderr, "hairfilter render dataset: --gather-range %g,%g: gathers must be 0 <= MIN "
+              "<= MAX <= 1\n", g0, g1);
+      return -1;
+    }
+    if (styles && given(o, "--gather-range") && !tied) {
+      fprintf(stderr, "hairfilter render dataset: --gather-range draws the tie of ponytail and "
+              "braided frames, and --styles has neither: add one of them, or leave it out\n");
       return -1;
     }
     if (!styles && given(o, "--opacity-range")) {
@@ -434,6 +454,7 @@ static int parse_args(int argc, char **argv, opts *o) {
     FLOAT_OPT("--shadow-bias", o->view.shadow_bias)
     FLOAT_OPT("--thickness-scale", o->view.thickness_scale)
     FLOAT_OPT("--width-spread", o->ov.wspread)
+    FLOAT_OPT("--gather", o->ov.gather)
     FLOAT_OPT("--scale", o->asset.scale)
     FLOAT_OPT("--child-spread", o->asset.children.spread)
     FLOAT_OPT("--child-clumping", o->asset.children.clumping)
@@ -492,6 +513,12 @@ static int parse_args(int argc, char **argv, opts *o) {
     } else if (!strcmp(a, "--opacity-range")) {
       if (sscanf(v, "%f,%f", &o->ds.opacity_min, &o->ds.opacity_max) != 2) {
         fprintf(stderr, "hairfilter render: --opacity-range wants MIN,MAX (strand opacity in (0, 1])\n");
+        return -1;
+      }
+    } else if (!strcmp(a, "--gather-range")) {
+      if (sscanf(v, "%f,%f", &o->ds.gather_min, &o->ds.gather_max) != 2) {
+        fprintf(stderr, "hairfilter render: --gather-range wants MIN,MAX (ponytail and braided "
+                "frames' gather, in [0, 1])\n");
         return -1;
       }
     } else if (!strcmp(a, "--hair-files")) {
@@ -626,6 +653,7 @@ static int parse_args(int argc, char **argv, opts *o) {
   if (given(o, "--opacity")) s->opacity = o->ov.opac, o->asset.opacity = o->ov.opac;
   if (given(o, "--hair-seed")) s->seed = o->ov.seed, o->asset.children.seed = o->ov.seed;
   if (given(o, "--width-spread")) s->width_spread = o->ov.wspread;
+  if (given(o, "--gather")) s->gather = o->ov.gather;
   if (given(o, "--children")) s->children = o->ov.children, o->asset.children.children = o->ov.children;
   if (o->random_view) hfr_view_randomize(&o->view, o->random_seed);
   return check_model_options(o);

@@ -256,6 +256,10 @@ typedef struct hfr_style_params {
   float opacity;                /* strand opacity (1 - transparency) */
   float width_spread;           /* per clump: diameter x s^u, u uniform in [-1, 1]; 0/1 none */
   int children;                 /* spiky, fur: children per guide (>= 0); others 0 */
+  float gather;                 /* ponytail, braided: 0..1, how tightly the strands are gathered
+                                   at the tie (0: through a disc 2 cm across, or each at its place
+                                   in its bundle; 1: every strand through one point, as a tight
+                                   elastic or a model whose strands are aimed at one point); others 0 */
 } hfr_style_params;
 
 const char *hfr_style_name(hfr_style s);
@@ -272,7 +276,8 @@ int hfr_style_defaults(hfr_style s, hfr_style_params *p);
  * HFR_MAX_POINTS, length and thickness above 0, opacity in (0, 1], clumping
  * in [0, 1], frizz and the curl's radius and period at least 0, width_spread
  * in [0, 100], children 0 to 10000 (above 0 on spiky and fur only, the
- * styles grown from guides). HF_OK; HF_EINVAL or HF_ERANGE (too many
+ * styles grown from guides), gather in [0, 1] (above 0 on ponytail and
+ * braided only, the styles with a tie). HF_OK; HF_EINVAL or HF_ERANGE (too many
  * strands or points) with err naming the parameter, its value and its range
  * (err may be NULL). */
 int hfr_style_check(const hfr_style_params *p, char *err, size_t errlen);
@@ -614,6 +619,11 @@ typedef struct hfr_dataset_opts {
    * are wider than a pixel; the draw is made either way, so the other
    * parameters' draws do not change. */
   float opacity_min, opacity_max;
+  /* Each ponytail and braided frame's gather (hfr_style_params) is drawn
+   * uniformly from gather_min..gather_max, from a stream of its own, so
+   * that the frame's other draws are those of a run without it (0, 0: the
+   * style's 0, not drawn). Any mode, not only regimes. */
+  float gather_min, gather_max;
   /* .hair files drawn as styles (frames {basename}_{i:04d}.exr), each taken
    * as asset says; children.seed is varied per frame. */
   const char *const *hair_files;

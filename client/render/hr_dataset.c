@@ -145,6 +145,9 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
     cJSON_AddNumberToObject(h, "width_spread", sp->width_spread);
     cJSON_AddNumberToObject(h, "children", sp->children);
     if (sp->style == HFR_STYLE_BRAIDED) cJSON_AddNumberToObject(h, "plaits", hr_braid_plaits(sp));
+    /* Only where drawn, so that other runs' manifests read as before. */
+    if (o->gather_max > 0 && hr_gathers(sp->style))
+      cJSON_AddNumberToObject(h, "gather", sp->gather);
   }
   cJSON_AddStringToObject(e, "occluder", !occ || !occ->vertices ? "none"
                                          : hair_file ? (hfr_asset_fitted(&o->asset) ? "fit"
@@ -308,6 +311,11 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     if (err) snprintf(err, errlen, "strand opacities must be 0 < MIN <= MAX <= 1 (--opacity-range)");
     return HF_EINVAL;
   }
+  if ((o->gather_min || o->gather_max) &&
+      !(o->gather_min >= 0 && o->gather_min <= o->gather_max && o->gather_max <= 1)) {
+    if (err) snprintf(err, errlen, "gathers must be 0 <= MIN <= MAX <= 1 (--gather-range)");
+    return HF_EINVAL;
+  }
   if (check_source_names(o, err, errlen) != HF_OK) return HF_EINVAL;
   if (mkdir(o->out_dir, 0777) != 0 && errno != EEXIST) {
     if (err) snprintf(err, errlen, "%s: %s", o->out_dir, strerror(errno));
@@ -364,6 +372,9 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   for (int k = 0; options && o->regimes && k < 3; k++)
     cJSON_AddItemToObject(doc, ranges[k],
                           cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, ranges[k]), 1));
+  if (options && o->gather_max > 0)
+    cJSON_AddItemToObject(doc, "gather_range",
+                          cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, "gather_range"), 1));
   if (options) cJSON_AddItemToObject(doc, "options", options);
   cJSON *frames = cJSON_AddArrayToObject(doc, "frames");
   cJSON *skipped = cJSON_AddArrayToObject(doc, "skipped");
@@ -424,6 +435,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         if (o->extended) extend_style(&sp, &g, o);
         if (o->width_spread > 0) sp.width_spread = o->width_spread;
         if (o->regimes) hr_regime_style(&g, o, &sp, &rg);
+        hr_gather_draw(o, &sp);
       }
       hfr_view v;
       hfr_view_defaults(&v);

@@ -82,6 +82,9 @@ cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
     hr_regime_opacity_range(o, op);
     add_range(j, "opacity_range", op[0], op[1]);
   }
+  /* Only when drawn, so that a manifest from before --gather-range still
+   * matches. */
+  if (o->gather_max > 0) add_range(j, "gather_range", o->gather_min, o->gather_max);
   cJSON_AddNumberToObject(j, "width_spread", o->width_spread);
   cJSON_AddBoolToObject(j, "background_layer", o->background_layer != 0);
   if (o->n_hair_files) {
@@ -142,7 +145,8 @@ static const char *const option_names[][2] = {
     {"seed", "--seed"}, {"half", "--half"}, {"extended", "--extended"},
     {"max_fragments", "--max-fragments"}, {"gt_cull", "--gt-cull"}, {"regimes", "--regimes"},
     {"frame_sizes", "--frame-sizes"}, {"width_px_range", "--width-px"},
-    {"opacity_range", "--opacity-range"}, {"width_spread", "--width-spread"},
+    {"opacity_range", "--opacity-range"}, {"gather_range", "--gather-range"},
+    {"width_spread", "--width-spread"},
     {"background_layer", "--no-background"}, {"asset.up", "--up"},
     {"asset.scale", "--units/--scale"}, {"asset.thickness", "--thickness"}, {"asset.opacity", "--opacity"},
     {"asset.occluder", "--occluder"}, {"asset.children", "--children"},

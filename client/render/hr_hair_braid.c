@@ -19,7 +19,14 @@
  * (A = curl_radius, period = curl_period), where two bundles at the same
  * side offset are always at opposite depths, so the bundles weave without
  * passing through each other. A strand keeps its own offset in its bundle
- * (a disc of 0.55 A, at least 0.02), and the plait narrows towards its end. */
+ * (a disc of 0.55 A, at least 0.02), and the plait narrows towards its end.
+ *
+ * gather (0..1) draws the strands together at the gathering point: every
+ * offset there, the bundle's and the strand's own, is scaled by 1 - gather
+ * and grows back to its full size over half a period down the plait. At 1
+ * every strand of a plait passes through one point, as when a model's
+ * strands are aimed at one point or an elastic ties them tight: the
+ * deepest fragment lists hair gives, thousands of strands in a pixel. */
 #include <math.h>
 #include <string.h>
 
@@ -66,7 +73,7 @@ static void plait_frame(int plaits, int sec, float gather[3], float down[3], flo
 }
 
 void hr_grow_braided(const hfr_style_params *sp, hr_rng *g, const float root[3], float len,
-                     float shell, float *c) {
+                     float shell, float *c, hr_tie *tie) {
   const int n = sp->segments, plaits = hr_braid_plaits(sp);
   const int sec = hr_braid_section(plaits, root), bundle = sec % 3;
   float gather[3], down[3], side[3], depth[3];
@@ -79,11 +86,13 @@ void hr_grow_braided(const hfr_style_params *sp, hr_rng *g, const float root[3],
   float ra = 2 * HR_PI * hr_rng_uniform(g);
   const float o_side = rr * cosf(ra), o_depth = rr * sinf(ra);
   const float phase = 2 * HR_PI * (float)bundle / 3;
-  /* Where the strand joins the plait: its bundle's place at u = 0. */
+  const float loose = 1 - sp->gather;
+  /* Where the strand joins the plait: its bundle's place at u = 0, drawn
+   * in towards the gathering point. */
   float start[3];
   for (int k = 0; k < 3; k++)
-    start[k] = gather[k] + (A * sinf(phase) + o_side) * side[k] +
-               (0.5f * A * sinf(2 * phase) + o_depth) * depth[k];
+    start[k] = gather[k] + loose * (A * sinf(phase) + o_side) * side[k] +
+               loose * (0.5f * A * sinf(2 * phase) + o_depth) * depth[k];
   float dt[3] = {start[0] - root[0], start[1] - root[1], start[2] - root[2]};
   float dist = hr_len(dt) * 1.15f;   /* over the scalp, not through it */
   int n1 = (int)(n * dist / len);
@@ -98,13 +107,19 @@ void hr_grow_braided(const hfr_style_params *sp, hr_rng *g, const float root[3],
     for (int k = 0; k < 3; k++) p[k] = root[k] + (start[k] - root[k]) * t;
     hr_push_out_of(head_r, p, shell * (1 - t) + 0.005f);
   }
+  if (tie) {
+    tie->index = n1;
+    memcpy(tie->point, c + 3 * n1, sizeof tie->point);
+  }
   /* The plait: the rest of the strand's length down the centre line. */
   float pl = len - dist;
   if (pl < 0.25f * len) pl = 0.25f * len;
   const float seg = pl / (n - n1);
   for (int i = n1 + 1; i <= n; i++) {
     float u = seg * (i - n1), t = (float)(i - n1) / (n - n1);
-    float taper = 1 - 0.4f * t * t;
+    /* Narrows towards the end; near the gathering point, opens from it. */
+    float open = fminf(1.0f, u / (0.5f * period));
+    float taper = (1 - 0.4f * t * t) * (1 - sp->gather * (1 - open * open * (3 - 2 * open)));
     float th = 2 * HR_PI * u / period + phase;
     float s = taper * (A * sinf(th) + o_side), d = taper * (0.5f * A * sinf(2 * th) + o_depth);
     float *p = c + 3 * i;

@@ -164,9 +164,11 @@ void hr_push_out_of(const float radii[3], float p[3], float shell) {
 /* Pushes p radially out of the head grown by (1 + shell). */
 static void push_out(float p[3], float shell) { hr_push_out_of(head_r, p, shell); }
 
-/* Step 2: the base curve of one strand, n + 1 points into c. */
+/* Step 2: the base curve of one strand, n + 1 points into c; for the tied
+ * styles, its tie into tie: the point's index, then the point. */
 static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3],
-                      const float nrm[3], float len, float shell, float *c) {
+                      const float nrm[3], float len, float shell, float *c,
+                      hr_tie *tie_record) {
   int n = sp->segments;
   float seg = len / n;
   float dir[3] = {nrm[0], nrm[1], nrm[2]};
@@ -183,14 +185,17 @@ static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3]
   memcpy(c, root, 3 * sizeof(float));
 
   if (sp->style == HFR_STYLE_BRAIDED) {
-    hr_grow_braided(sp, g, root, len, shell, c);
+    hr_grow_braided(sp, g, root, len, shell, c, tie_record);
     return;
   }
   if (sp->style == HFR_STYLE_PONYTAIL) {
     /* Over the scalp to the tie, then down. The tie, at the back, is a disc
-     * the strands pass through at random points (a point would put every
-     * strand in one pixel). */
-    float tr = 0.1f * sqrtf(hr_rng_uniform(g)), ta = 2 * HR_PI * hr_rng_uniform(g);
+     * the strands pass through at random points, 2 cm across at gather 0
+     * and shrinking to one point at gather 1 (every strand through one
+     * pixel: a tight elastic seen from afar, the deepest fragment lists
+     * hair gives). */
+    const float loose = 1 - sp->gather;
+    float tr = 0.1f * loose * sqrtf(hr_rng_uniform(g)), ta = 2 * HR_PI * hr_rng_uniform(g);
     const float tie[3] = {tr * cosf(ta), 0.35f + tr * sinf(ta), -1.0f};
     float dt[3] = {tie[0] - root[0], tie[1] - root[1], tie[2] - root[2]};
     float dist = hr_len(dt) * 1.15f;
@@ -203,6 +208,10 @@ static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3]
       for (int k = 0; k < 3; k++) p[k] = root[k] + (tie[k] - root[k]) * t;
       /* Bulge over the scalp, tightening into the tie. */
       push_out(p, shell * (1 - t) + 0.01f);
+    }
+    if (tie_record) {
+      tie_record->index = n1;
+      memcpy(tie_record->point, c + 3 * n1, sizeof tie_record->point);
     }
     /* Tail: strands keep an offset from the tie that shrinks near it. */
     float off[3] = {hr_rng_normal(g) * 0.08f, hr_rng_normal(g) * 0.08f,
@@ -217,7 +226,7 @@ static void grow_base(const hfr_style_params *sp, hr_rng *g, const float root[3]
       tdir[1] -= 1.2f * tseg;
       hr_normalize(tdir);
       for (int k = 0; k < 3; k++) p[k] += tdir[k] * tseg;
-      float spread = 0.3f + 1.7f * t;
+      float spread = 0.3f * loose + (1.7f + 0.3f * sp->gather) * t;
       for (int k = 0; k < 3; k++) c[3 * i + k] = p[k] + off[k] * spread;
       push_out(c + 3 * i, 0.02f);
     }
@@ -308,6 +317,26 @@ void hr_frizz(const hfr_style_params *sp, const float body[3], hfr_hair *h) {
   }
 }
 
+/* The gather of the tied styles, last: curl, clumping and frizz moved each
+ * strand off its tie, and an elastic holds the strands wherever they would
+ * go. Each strand is drawn back to its tie point by gather at the tie,
+ * less over a few segments on either side (a smooth bump), so that at
+ * gather 1 every strand passes through its tie point exactly. */
+static void gather_ties(const hfr_style_params *sp, const hr_tie *ties, hfr_hair *h) {
+  const int n = sp->segments;
+  const float reach = fmaxf(3.0f, n / 12.0f);
+  for (uint32_t s = 0; s < h->strands; s++) {
+    float *c = h->pos + 3 * (size_t)s * (n + 1);
+    const hr_tie *t = ties + s;
+    for (int i = 0; i <= n; i++) {
+      float d = fabsf((float)(i - t->index)) / reach;
+      if (d >= 1) continue;
+      float w = sp->gather * (1 - d * d * (3 - 2 * d));
+      for (int k = 0; k < 3; k++) c[3 * i + k] += w * (t->point[k] - c[3 * i + k]);
+    }
+  }
+}
+
 /* One failed range for hfr_style_check's message. */
 static int style_range(char *err, size_t errlen, const char *name, double v, const char *range) {
   if (err && errlen) snprintf(err, errlen, "%s %g is outside %s", name, v, range);
@@ -341,6 +370,16 @@ int hfr_style_check(const hfr_style_params *sp, char *err, size_t errlen) {
     if (err && errlen)
       snprintf(err, errlen, "children %d: the %s style draws every strand itself; children "
                "grow on the guides of spiky and fur only", sp->children, hfr_style_name(sp->style));
+    return HF_EINVAL;
+  }
+  if (!(sp->gather >= 0 && sp->gather <= 1))
+    return style_range(err, errlen, "gather", sp->gather, "[0, 1]");
+  /* Only the styles with a tie gather their strands; elsewhere the value
+   * would be dropped without a word. */
+  if (sp->gather > 0 && sp->style != HFR_STYLE_PONYTAIL && sp->style != HFR_STYLE_BRAIDED) {
+    if (err && errlen)
+      snprintf(err, errlen, "gather %g: the %s style has no tie; gather applies to ponytail "
+               "and braided only", sp->gather, hfr_style_name(sp->style));
     return HF_EINVAL;
   }
   if (sp->strands < 1 || (uint64_t)sp->strands > HFR_MAX_STRANDS) {
@@ -384,8 +423,13 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
   out->thickness = malloc(sizeof(float) * points);
   out->transparency = malloc(sizeof(float) * points);
   float *roots = malloc(sizeof(float) * 3 * (size_t)sp->strands);
-  if (!out->pos || !out->thickness || !out->transparency || !roots) {
+  /* Where each strand is tied, for the gather after clumping and frizz. */
+  const int tied = sp->gather > 0 &&
+                   (sp->style == HFR_STYLE_PONYTAIL || sp->style == HFR_STYLE_BRAIDED);
+  hr_tie *ties = tied ? malloc(sizeof *ties * (size_t)sp->strands) : NULL;
+  if (!out->pos || !out->thickness || !out->transparency || !roots || (tied && !ties)) {
     free(roots);
+    free(ties);
     hfr_hair_free(out);
     return HF_ENOMEM;
   }
@@ -403,7 +447,7 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
     float shell = sp->style == HFR_STYLE_BRAIDED
                       ? hr_rng_range(&g, 0.003f, 0.02f)
                       : hr_rng_range(&g, 0.01f, sp->style == HFR_STYLE_COILY ? 0.05f : 0.12f);
-    grow_base(sp, &g, roots + 3 * s, nrm, len, shell, c);
+    grow_base(sp, &g, roots + 3 * s, nrm, len, shell, c, ties ? ties + s : NULL);
     add_curl(sp, &g, nrm, c);
     float opac = hr_strand_opacity(sp->opacity, hr_rng_range(&g, 0.9f, 1.0f));
     for (int i = 0; i <= n; i++) {
@@ -425,6 +469,7 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
     float *gcopy = malloc(one * guides);
     if (!gcopy) {
       free(roots);
+      free(ties);
       hfr_hair_free(out);
       return HF_ENOMEM;
     }
@@ -470,5 +515,7 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
   }
   free(roots);
   hr_frizz(sp, head_r, out);
+  if (ties) gather_ties(sp, ties, out);
+  free(ties);
   return HF_OK;
 }

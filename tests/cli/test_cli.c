@@ -1025,6 +1025,24 @@ static void test_render_option_modes(void **state) {
   assert_int_equal(cli("render dataset --hair %s --count 1 --out %s", hair, test_tmp("mode_set")),
                    2);
   expect_text("here it is --hair-files");
+  /* The tie: the styles that have one, in [0, 1], and a range for a set
+   * with a tied style. */
+  assert_int_equal(cli("render hair --style wavy --gather 0.5 --out %s", test_tmp("g.hair")), 2);
+  expect_text("the wavy style has no tie; gather applies to ponytail and braided only");
+  assert_int_equal(cli("render hair --style ponytail --gather 2 --out %s", test_tmp("g.hair")), 2);
+  expect_text("gather 2 is outside [0, 1]");
+  assert_int_equal(cli("render frame --hair %s --gather 1 --out %s", hair,
+                       test_tmp("mode_frame.exr")), 2);
+  expect_text("--gather shapes a procedural style");
+  assert_int_equal(cli("render dataset --styles wavy,fur --gather-range 0,1 --count 1 --out %s",
+                       test_tmp("mode_set")), 2);
+  expect_text("--styles has neither");
+  assert_int_equal(cli("render dataset --styles braided --gather-range 1,0.5 --count 1 --out %s",
+                       test_tmp("mode_set")), 2);
+  expect_text("--gather-range 1,0.5: gathers must be 0 <= MIN <= MAX <= 1");
+  assert_int_equal(cli("render dataset --styles braided --gather-range 1 --count 1 --out %s",
+                       test_tmp("mode_set")), 2);
+  expect_text("--gather-range wants MIN,MAX");
   assert_int_equal(cli("render frame --hair %s --scale 0 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--scale 0: renderer units per file unit, above 0");

@@ -12,6 +12,7 @@
 #include <cmocka.h>
 
 #include "hfrender.h"
+#include "hr_style.h"
 
 static const float head_r[3] = HFR_HEAD_RADII;
 
@@ -474,6 +475,74 @@ static void test_braided(void **state) {
   assert_int_equal(s, HFR_STYLE_BRAIDED);
 }
 
+/* The largest share of h's strands that pass within 0.01 (0.1 mm on a
+ * head of radius 1 dm) of one point of strand 0: how tightly the strands
+ * of strand 0's tie meet. */
+static float tightest_share(const hfr_hair *h) {
+  uint32_t n0 = hfr_hair_strand_segments(h, 0), best = 0;
+  for (uint32_t i = 0; i <= n0; i++) {
+    const float *q = h->pos + 3 * i;
+    uint32_t near = 0;
+    size_t base = 0;
+    for (uint32_t s = 0; s < h->strands; s++) {
+      uint32_t n = hfr_hair_strand_segments(h, s);
+      for (uint32_t j = 0; j <= n; j++) {
+        const float *p = h->pos + 3 * (base + j);
+        float d2 = 0;
+        for (int k = 0; k < 3; k++) d2 += (p[k] - q[k]) * (p[k] - q[k]);
+        if (d2 < 1e-4f) {
+          near++;
+          break;
+        }
+      }
+      base += n + 1;
+    }
+    if (near > best) best = near;
+  }
+  return (float)best / h->strands;
+}
+
+static void test_gather(void **state) {
+  (void)state;
+  const hfr_style tied[] = {HFR_STYLE_PONYTAIL, HFR_STYLE_BRAIDED};
+  for (int t = 0; t < 2; t++)
+    for (uint64_t seed = 1; seed <= 2; seed++) {
+      hfr_style_params p;
+      hfr_style_defaults(tied[t], &p);
+      p.strands = 300, p.seed = seed;
+      /* Braided seed 1 or 2: one of them two plaits (strand 0's holds about
+       * half the strands). */
+      int plaits = tied[t] == HFR_STYLE_BRAIDED ? hr_braid_plaits(&p) : 1;
+      float share[2];
+      for (int g = 0; g < 2; g++) {
+        p.gather = (float)g;
+        hfr_hair h;
+        assert_int_equal(hfr_hair_generate(&p, &h), HF_OK);
+        share[g] = tightest_share(&h);
+        hfr_hair_free(&h);
+      }
+      /* Gather 1: every strand of the tie through one point; 0: a disc 2 cm
+       * across or the bundles' places, a few strands near any one point. */
+      if (!(share[1] > 0.95f / plaits && share[0] < 0.2f))
+        fail_msg("%s seed %llu (%d plaits): %.3f of the strands meet at gather 1, %.3f at 0",
+                 hfr_style_name(tied[t]), (unsigned long long)seed, plaits, (double)share[1],
+                 (double)share[0]);
+    }
+  /* Only the tied styles read it; out of [0, 1] refused, naming it. */
+  hfr_style_params p;
+  hfr_style_defaults(HFR_STYLE_WAVY, &p);
+  p.gather = 0.5f;
+  char err[256];
+  assert_int_equal(hfr_style_check(&p, err, sizeof err), HF_EINVAL);
+  assert_non_null(strstr(err, "ponytail and braided"));
+  hfr_style_defaults(HFR_STYLE_PONYTAIL, &p);
+  p.gather = 1.5f;
+  assert_int_equal(hfr_style_check(&p, err, sizeof err), HF_EINVAL);
+  assert_non_null(strstr(err, "gather 1.5 is outside [0, 1]"));
+  p.gather = 1;
+  assert_int_equal(hfr_style_check(&p, err, sizeof err), HF_OK);
+}
+
 static void test_styles(void **state) {
   (void)state;
   for (int s = 0; s < HFR_STYLE_COUNT; s++) {
@@ -542,6 +611,7 @@ int main(void) {
     cmocka_unit_test(test_single_point_strands),
     cmocka_unit_test(test_read_as_reference),
     cmocka_unit_test(test_styles), cmocka_unit_test(test_braided),
+    cmocka_unit_test(test_gather),
     cmocka_unit_test(test_far_strands_named),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);

@@ -571,8 +571,75 @@ static void test_dataset_opacity_range(void **state) {
   assert_ranges_refused(&o, &o.opacity_min, &o.opacity_max, bad, 4, "--opacity-range");
 }
 
+/* --gather-range draws each ponytail and braided frame's gather in it and
+ * the manifest records it (the range in the options, the draw per frame);
+ * the frame's other draws are those of a run without it; other styles'
+ * frames record none; a range outside [0, 1] or empty is refused naming
+ * the option. */
+static void test_dataset_gather_range(void **state) {
+  (void)state;
+  char dir[256], path[600];
+  snprintf(dir, sizeof dir, "/tmp/hf_test_gather_%d", (int)getpid());
+  hfr_dataset_opts o;
+  hfr_dataset_defaults(&o);
+  o.out_dir = dir;
+  o.styles[0] = HFR_STYLE_PONYTAIL, o.styles[1] = HFR_STYLE_BRAIDED, o.styles[2] = HFR_STYLE_WAVY;
+  o.n_styles = 3;
+  o.count = 2;
+  o.width = o.height = 16;
+  o.strands = 200;
+  o.regimes = 1, o.frame_min = 32, o.frame_max = 48;
+  o.gt_supersample = 1;
+  o.progress = 0;
+  o.platform = "osmesa";
+  double drawn[2][6], gathers[6] = {0};
+  for (int run = 0; run < 2; run++) {
+    o.gather_min = run ? 0.6f : 0, o.gather_max = run ? 0.9f : 0;
+    cJSON *doc = run_dataset(&o, R);
+    cJSON *gr = cJSON_GetObjectItem(doc, "gather_range");
+    if (run) {
+      assert_int_equal(cJSON_GetArraySize(gr), 2);
+      assert_float_equal(cJSON_GetArrayItem(gr, 0)->valuedouble, 0.6, 1e-6);
+      assert_float_equal(cJSON_GetArrayItem(gr, 1)->valuedouble, 0.9, 1e-6);
+    } else {
+      assert_null(gr);
+    }
+    cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
+    assert_int_equal(cJSON_GetArraySize(frames), 6);
+    int i = 0;
+    cJSON_ArrayForEach(f, frames) {
+      cJSON *h = cJSON_GetObjectItem(f, "hair");
+      drawn[run][i] = cJSON_GetObjectItem(h, "length")->valuedouble +
+                      cJSON_GetObjectItem(cJSON_GetObjectItem(f, "regime"), "target_width_px")->valuedouble;
+      const char *style = cJSON_GetObjectItem(f, "style")->valuestring;
+      cJSON *g = cJSON_GetObjectItem(h, "gather");
+      if (run && strcmp(style, "wavy")) {
+        assert_non_null(g);
+        gathers[i] = g->valuedouble;
+        if (!(gathers[i] >= 0.6 - 1e-6 && gathers[i] <= 0.9 + 1e-6))
+          fail_msg("%s: gather %g outside 0.6..0.9", style, gathers[i]);
+      } else {
+        assert_null(g);
+      }
+      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
+      remove(path);
+      i++;
+    }
+    cJSON_Delete(doc);
+    snprintf(path, sizeof path, "%s/manifest.json", dir);
+    remove(path);
+  }
+  for (int i = 0; i < 6; i++) assert_float_equal(drawn[0][i], drawn[1][i], 1e-9);
+  /* Drawn per frame, not one value for the set. */
+  assert_true(gathers[0] != gathers[1]);
+  rmdir(dir);
+  const float bad[][2] = {{0.8f, 0.5f}, {-0.1f, 1.0f}, {0.5f, 1.5f}};
+  assert_ranges_refused(&o, &o.gather_min, &o.gather_max, bad, 3, "--gather-range");
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_dataset_gather_range),
     cmocka_unit_test(test_crop_equals_window),
     cmocka_unit_test(test_occluder_hides),
     cmocka_unit_test(test_conventions_framing),
