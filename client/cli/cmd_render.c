@@ -360,7 +360,7 @@ static int check_model_options(const opts *o) {
     }
     int tied = 0;
     for (int k = 0; k < o->ds.n_styles; k++)
-      tied |= o->ds.styles[k] == HFR_STYLE_PONYTAIL || o->ds.styles[k] == HFR_STYLE_BRAIDED;
+      tied |= hfr_style_has_tie(o->ds.styles[k]);
     const float g0 = o->ds.gather_min, g1 = o->ds.gather_max;
     if (given(o, "--gather-range") && !(g0 >= 0 && g0 <= g1 && g1 <= 1)) {
       fprintf(stderr, "hairfilter render dataset: --gather-range %g,%g: gathers must be 0 <= MIN "

@@ -269,6 +269,9 @@ int hfr_style_from_name(const char *name, hfr_style *out);
  * terminated; cut short if n is too small): for a message that names the
  * styles there are. */
 void hfr_style_list(char *out, size_t n);
+/* 1 for the styles whose strands are tied (ponytail, braided): those that
+ * read hfr_style_params.gather; 0 for the others. */
+int hfr_style_has_tie(hfr_style s);
 /* The style's defaults (strands 50000, its segments, length, curl, ...). */
 int hfr_style_defaults(hfr_style s, hfr_style_params *p);
 /* Checks p against the ranges hfr_hair_generate takes: strands 1 to

@@ -146,7 +146,7 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
     cJSON_AddNumberToObject(h, "children", sp->children);
     if (sp->style == HFR_STYLE_BRAIDED) cJSON_AddNumberToObject(h, "plaits", hr_braid_plaits(sp));
     /* Only where drawn, so that other runs' manifests read as before. */
-    if (o->gather_max > 0 && hr_gathers(sp->style))
+    if (o->gather_max > 0 && hfr_style_has_tie(sp->style))
       cJSON_AddNumberToObject(h, "gather", sp->gather);
   }
   cJSON_AddStringToObject(e, "occluder", !occ || !occ->vertices ? "none"

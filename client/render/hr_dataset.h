@@ -40,9 +40,6 @@ float hr_typical_thickness(const hfr_hair *h);
  * length and curl ranges would leave no plait (the comb takes 1-2 of the
  * length; a 0.07 period caps a strand at 1.5). */
 void hr_braid_draw(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp);
-/* 1 for the styles that have a tie and read hfr_style_params.gather
- * (ponytail, braided). */
-int hr_gathers(hfr_style s);
 /* A ponytail or braided frame's gather, drawn uniformly from o's
  * gather_min..gather_max by a stream of sp->seed's own (the frame's other
  * draws unchanged); nothing for other styles or where o draws none. */

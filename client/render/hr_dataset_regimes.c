@@ -32,10 +32,8 @@ void hr_braid_draw(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp) {
     sp->segments = (int)fminf(160.0f, fmaxf(48.0f, ceilf(8.0f * sp->length / sp->curl_period)));
 }
 
-int hr_gathers(hfr_style s) { return s == HFR_STYLE_PONYTAIL || s == HFR_STYLE_BRAIDED; }
-
 void hr_gather_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
-  if (!(o->gather_max > 0) || !hr_gathers(sp->style)) return;
+  if (!(o->gather_max > 0) || !hfr_style_has_tie(sp->style)) return;
   /* A stream of its own, from the model's seed: the frame's other draws
    * stay those of a run without --gather-range. */
   hr_rng g = {sp->seed * 0xd1342543de82ef95ull + 0x2545f4914f6cdd1dull};

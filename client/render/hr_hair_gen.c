@@ -73,6 +73,8 @@ void hfr_style_list(char *out, size_t n) {
   }
 }
 
+int hfr_style_has_tie(hfr_style s) { return s == HFR_STYLE_PONYTAIL || s == HFR_STYLE_BRAIDED; }
+
 int hfr_style_defaults(hfr_style s, hfr_style_params *p) {
   if (!p || (unsigned)s >= HFR_STYLE_COUNT) return HF_EINVAL;
   memset(p, 0, sizeof *p);
@@ -376,7 +378,7 @@ int hfr_style_check(const hfr_style_params *sp, char *err, size_t errlen) {
     return style_range(err, errlen, "gather", sp->gather, "[0, 1]");
   /* Only the styles with a tie gather their strands; elsewhere the value
    * would be dropped without a word. */
-  if (sp->gather > 0 && sp->style != HFR_STYLE_PONYTAIL && sp->style != HFR_STYLE_BRAIDED) {
+  if (sp->gather > 0 && !hfr_style_has_tie(sp->style)) {
     if (err && errlen)
       snprintf(err, errlen, "gather %g: the %s style has no tie; gather applies to ponytail "
                "and braided only", sp->gather, hfr_style_name(sp->style));
@@ -424,8 +426,7 @@ int hfr_hair_generate(const hfr_style_params *sp, hfr_hair *out) {
   out->transparency = malloc(sizeof(float) * points);
   float *roots = malloc(sizeof(float) * 3 * (size_t)sp->strands);
   /* Where each strand is tied, for the gather after clumping and frizz. */
-  const int tied = sp->gather > 0 &&
-                   (sp->style == HFR_STYLE_PONYTAIL || sp->style == HFR_STYLE_BRAIDED);
+  const int tied = sp->gather > 0 && hfr_style_has_tie(sp->style);
   hr_tie *ties = tied ? malloc(sizeof *ties * (size_t)sp->strands) : NULL;
   if (!out->pos || !out->thickness || !out->transparency || !roots || (tied && !ties)) {
     free(roots);
