@@ -33,7 +33,7 @@ if [ -x /usr/bin/python3 ] && /usr/bin/python3 -c "import numpy" 2>/dev/null; th
   fi
   out=$(/usr/bin/python3 "$s" plaits 2>&1)
   rc=$?
-  if [ "$rc" -ne 2 ] || ! printf '%s\n' "$out" | grep -q "no model 'plaits'; the models: bob braids buzzbeard wavy"; then
+  if [ "$rc" -ne 2 ] || ! printf '%s\n' "$out" | grep -q "no model 'plaits'; the models: bob braids buzzbeard wavy; the braids' variants: braids-flat braids-unplaited braids-untwisted braids-thick-bundles"; then
     echo "FAIL: $s plaits: status $rc, said: $out"
     fail=1
   fi

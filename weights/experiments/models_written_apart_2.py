@@ -23,6 +23,11 @@ usage: models_written_apart_2.py [bob|braids|buzzbeard|wavy ...]
 One random stream (seed 20261207) runs through the models in the order
 given: without arguments (all four, in that order) it writes the files the
 evaluation used, byte for byte; a subset gives other models.
+
+braids-flat, braids-unplaited, braids-untwisted and braids-thick-bundles
+write braids_<variant>_zup_m.hair: the braids with one thing changed
+(BRAIDS_VARIANTS says what); each given alone draws what `braids` given
+alone draws.
 """
 import struct
 import sys
@@ -217,7 +222,19 @@ def bob(n=26000):
 
 
 # ---------------------------------------------------------------- model 2: braids
-def braids(n=16000):
+# Variants of the braids, each changing one thing (docs/QUALITY.md, "What
+# makes the braids hard"): the random draws are the same, only what is made
+# of them differs.
+BRAIDS_VARIANTS = {
+    "flat": "every strand at its own constant layer over the scalp (the braids "
+            "pinch every layer to 1% at the root and at the gathering point)",
+    "unplaited": "the bundles not woven: each hangs straight down the braid's line",
+    "untwisted": "a strand keeps its place in its bundle (no twist along the braid)",
+    "thick-bundles": "bundles 1.3 times as wide (0.715 against 0.55 cm)",
+}
+
+
+def braids(n=16000, variant=None):
     u, roots, nrm = sample_scalp(n, hairline)
     left = roots[:, 0] < 0
     G = np.where(left[:, None], np.array([-7.0, -4.5, -5.0]), np.array([7.0, -4.5, -5.0]))
@@ -231,7 +248,8 @@ def braids(n=16000):
     sw = np.sin(w) + 1e-6
     dirs = (np.sin((1 - t) * w) / sw) * u[:, None] + (np.sin(t * w) / sw) * gdir[:, None]
     dirs = normalize(dirs)
-    scalp = dirs * HEAD_R * (1.0 + off[:, None, None] * np.sin(np.pi * t) * 0.05 + 0.01)
+    layer = np.ones_like(t) if variant == "flat" else np.sin(np.pi * t)
+    scalp = dirs * HEAD_R * (1.0 + off[:, None, None] * layer * 0.05 + 0.01)
     # bundles: three per braid by root position front/middle/back & top
     key = roots[:, 2] + 0.4 * roots[:, 1]
     k = np.zeros(n, int)
@@ -246,16 +264,16 @@ def braids(n=16000):
     a, b = 1.3, 0.55
     tie = 0.82
     taper_r = np.where(s < tie, 1.0 - 0.45 * s, 0.55 * (1 - (s - tie) / (1 - tie)) + 0.2)
-    amp = np.where(s < tie, 1.0, 0.0)
+    amp = np.where(s < tie, 0.0 if variant == "unplaited" else 1.0, 0.0)
     down = normalize(np.array([0.0, -1.0, -0.25]))
     lat = np.array([1.0, 0, 0])
     fwd = normalize(np.cross(lat, down))
     cen = (G[:, None, :] + s[..., None] * L * down
            + (amp * a * taper_r * np.sin(om * s + ph))[..., None] * lat
            + (amp * b * taper_r * np.sin(2 * (om * s + ph)))[..., None] * fwd)
-    rr = 0.55 * np.sqrt(RNG.random(n))
+    rr = (0.715 if variant == "thick-bundles" else 0.55) * np.sqrt(RNG.random(n))
     th = RNG.random(n) * 2 * np.pi
-    twist = th[:, None] + 3.0 * s
+    twist = th[:, None] + (0.0 if variant == "untwisted" else 3.0) * s
     spread = np.where(s < tie, 1.0, 1.0 + 5.0 * (s - tie) / (1 - tie))
     o = (rr[:, None] * taper_r * spread)[..., None] * (np.cos(twist)[..., None] * lat + np.sin(twist)[..., None] * fwd)
     braid = cen + o
@@ -270,7 +288,7 @@ def braids(n=16000):
         m = nsc + 1 + int(nb * (0.88 + 0.12 * RNG.random()))
         strands.append(pts[i, :m] + 0.02 * RNG.normal(size=(m, 3)) * np.linspace(0, 1, m)[:, None])
     cols = [np.tile([0.25, 0.15, 0.08], (len(s_), 1)) for s_ in strands]
-    write_hair("braids_zup_m.hair", strands, "z", 0.01, colors=cols,
+    write_hair("braids_%szup_m.hair" % (variant + "_" if variant else ""), strands, "z", 0.01, colors=cols,
                d_thick=7e-5, d_transp=0.0, d_color=(0.25, 0.15, 0.08),
                text="two three-strand braids, z up, metres")
 
@@ -385,16 +403,18 @@ def wavy(n=3000, nclump=110):
 
 
 MODELS = {"bob": bob, "braids": braids, "buzzbeard": buzzbeard, "wavy": wavy}
+VARIANTS = {"braids-" + v: (lambda v=v: braids(variant=v)) for v in BRAIDS_VARIANTS}
 
 if __name__ == "__main__":
     if any(a in ("-h", "--help") for a in sys.argv[1:]):
         print(__doc__.strip())
         sys.exit(0)
     which = sys.argv[1:] or list(MODELS)
-    unknown = [w for w in which if w not in MODELS]
+    unknown = [w for w in which if w not in MODELS and w not in VARIANTS]
     if unknown:
-        print("models_written_apart_2.py: no model %s; the models: %s"
-              % (", ".join(repr(w) for w in unknown), " ".join(MODELS)), file=sys.stderr)
+        print("models_written_apart_2.py: no model %s; the models: %s; the braids' variants: %s"
+              % (", ".join(repr(w) for w in unknown), " ".join(MODELS), " ".join(VARIANTS)),
+              file=sys.stderr)
         sys.exit(2)
     for w in which:
-        MODELS[w]()
+        (MODELS.get(w) or VARIANTS[w])()
