@@ -255,7 +255,7 @@ static int check_option_mode(const char *mode, const char *a) {
         {"frame", "--hair-files", "--hair"},   {"fig6", "--hair-files", "--hair"},
         {"hair", "--hair-files", "--hair"},    {"frame", "--styles", "--style"},
         {"fig6", "--styles", "--style"},       {"hair", "--styles", "--style"},
-        {"hair", "--seed", "--hair-seed"}};
+        {"hair", "--seed", "--hair-seed"},     {"dataset", "--gather", "--gather-range"}};
     const char *instead = NULL;
     for (size_t k = 0; k < sizeof siblings / sizeof siblings[0]; k++)
       if (!strcmp(mode, siblings[k][0]) && !strcmp(a, siblings[k][1])) instead = siblings[k][2];
@@ -469,6 +469,7 @@ static int parse_args(int argc, char **argv, opts *o) {
     if (!strcmp(a, "--alpha-corrected")) { o->outputs.alpha_corrected = 1; continue; }
     if (!strcmp(a, "--no-alpha-corrected")) { o->outputs.alpha_corrected = 0; continue; }
     NEED_VALUE;
+    int end = 0; /* a range's two numbers must be all of its value: 0.5,0.7,0.9 is refused */
     if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--hair")) o->hair_path = v;
     else if (!strcmp(a, "--png")) o->png = v;
@@ -501,22 +502,22 @@ static int parse_args(int argc, char **argv, opts *o) {
       }
       o->outputs.gt_cull = m, o->ds.gt_cull = m;
     } else if (!strcmp(a, "--frame-sizes")) {
-      if (sscanf(v, "%d,%d", &o->ds.frame_min, &o->ds.frame_max) != 2) {
+      if (sscanf(v, "%d,%d%n", &o->ds.frame_min, &o->ds.frame_max, &end) != 2 || v[end]) {
         fprintf(stderr, "hairfilter render: --frame-sizes wants MIN,MAX\n");
         return -1;
       }
     } else if (!strcmp(a, "--width-px")) {
-      if (sscanf(v, "%f,%f", &o->ds.width_px_min, &o->ds.width_px_max) != 2) {
+      if (sscanf(v, "%f,%f%n", &o->ds.width_px_min, &o->ds.width_px_max, &end) != 2 || v[end]) {
         fprintf(stderr, "hairfilter render: --width-px wants MIN,MAX (strand width in pixels)\n");
         return -1;
       }
     } else if (!strcmp(a, "--opacity-range")) {
-      if (sscanf(v, "%f,%f", &o->ds.opacity_min, &o->ds.opacity_max) != 2) {
+      if (sscanf(v, "%f,%f%n", &o->ds.opacity_min, &o->ds.opacity_max, &end) != 2 || v[end]) {
         fprintf(stderr, "hairfilter render: --opacity-range wants MIN,MAX (strand opacity in (0, 1])\n");
         return -1;
       }
     } else if (!strcmp(a, "--gather-range")) {
-      if (sscanf(v, "%f,%f", &o->ds.gather_min, &o->ds.gather_max) != 2) {
+      if (sscanf(v, "%f,%f%n", &o->ds.gather_min, &o->ds.gather_max, &end) != 2 || v[end]) {
         fprintf(stderr, "hairfilter render: --gather-range wants MIN,MAX (ponytail and braided "
                 "frames' gather, in [0, 1])\n");
         return -1;

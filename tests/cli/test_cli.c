@@ -1043,6 +1043,13 @@ static void test_render_option_modes(void **state) {
   assert_int_equal(cli("render dataset --styles braided --gather-range 1 --count 1 --out %s",
                        test_tmp("mode_set")), 2);
   expect_text("--gather-range wants MIN,MAX");
+  /* A range is two numbers and nothing after them. */
+  assert_int_equal(cli("render dataset --styles braided --gather-range 0.5,0.7,0.9 --count 1 "
+                       "--out %s", test_tmp("mode_set")), 2);
+  expect_text("--gather-range wants MIN,MAX");
+  assert_int_equal(cli("render dataset --styles braided --gather 1 --count 1 --out %s",
+                       test_tmp("mode_set")), 2);
+  expect_text("here it is --gather-range");
   assert_int_equal(cli("render frame --hair %s --scale 0 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--scale 0: renderer units per file unit, above 0");

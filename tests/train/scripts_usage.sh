@@ -27,7 +27,7 @@ if [ -x /usr/bin/python3 ] && /usr/bin/python3 -c "import numpy" 2>/dev/null; th
   s=weights/experiments/models_written_apart_2.py
   out=$(/usr/bin/python3 "$s" --help 2>&1)
   rc=$?
-  if [ "$rc" -ne 0 ] || ! printf '%s\n' "$out" | grep -q '^usage: models_written_apart_2.py \[bob|braids|buzzbeard|wavy \.\.\.\]'; then
+  if [ "$rc" -ne 0 ] || ! printf '%s\n' "$out" | grep -q '^usage: models_written_apart_2.py \[bob|braids|buzzbeard|wavy|braids-<variant> \.\.\.\]'; then
     echo "FAIL: $s --help: status $rc, said: $out"
     fail=1
   fi

@@ -18,7 +18,7 @@ directory:
   wavy_negy_in.hair     long wavy hair in strong clumps, 3000 guides (render with
                         --children); -y up, inches; per-point thickness
 
-usage: models_written_apart_2.py [bob|braids|buzzbeard|wavy ...]
+usage: models_written_apart_2.py [bob|braids|buzzbeard|wavy|braids-<variant> ...]
 
 One random stream (seed 20261207) runs through the models in the order
 given: without arguments (all four, in that order) it writes the files the
@@ -26,8 +26,7 @@ evaluation used, byte for byte; a subset gives other models.
 
 braids-flat, braids-unplaited, braids-untwisted and braids-thick-bundles
 write braids_<variant>_zup_m.hair: the braids with one thing changed
-(BRAIDS_VARIANTS says what); each given alone draws what `braids` given
-alone draws.
+(listed below); each given alone draws what `braids` given alone draws.
 """
 import struct
 import sys
@@ -408,6 +407,9 @@ VARIANTS = {"braids-" + v: (lambda v=v: braids(variant=v)) for v in BRAIDS_VARIA
 if __name__ == "__main__":
     if any(a in ("-h", "--help") for a in sys.argv[1:]):
         print(__doc__.strip())
+        print("\nThe braids' variants:")
+        for v, what in BRAIDS_VARIANTS.items():
+            print("  braids-%-14s %s" % (v, what))
         sys.exit(0)
     which = sys.argv[1:] or list(MODELS)
     unknown = [w for w in which if w not in MODELS and w not in VARIANTS]
