@@ -1034,22 +1034,20 @@ static void test_render_option_modes(void **state) {
   assert_int_equal(cli("render frame --hair %s --gather 1 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--gather shapes a procedural style");
-  assert_int_equal(cli("render dataset --styles wavy,fur --gather-range 0,1 --count 1 --out %s",
-                       test_tmp("mode_set")), 2);
-  expect_text("--styles has neither");
-  assert_int_equal(cli("render dataset --styles braided --gather-range 1,0.5 --count 1 --out %s",
-                       test_tmp("mode_set")), 2);
-  expect_text("--gather-range 1,0.5: gathers must be 0 <= MIN <= MAX <= 1");
-  assert_int_equal(cli("render dataset --styles braided --gather-range 1 --count 1 --out %s",
-                       test_tmp("mode_set")), 2);
-  expect_text("--gather-range wants MIN,MAX");
-  /* A range is two numbers and nothing after them. */
-  assert_int_equal(cli("render dataset --styles braided --gather-range 0.5,0.7,0.9 --count 1 "
-                       "--out %s", test_tmp("mode_set")), 2);
-  expect_text("--gather-range wants MIN,MAX");
-  assert_int_equal(cli("render dataset --styles braided --gather 1 --count 1 --out %s",
-                       test_tmp("mode_set")), 2);
-  expect_text("here it is --gather-range");
+  /* A dataset's gather range: for a set with a tied style, in [0, 1], two
+   * numbers and nothing after them; --gather is render frame's. */
+  static const char *const gather_sets[][2] = {
+      {"--styles wavy,fur --gather-range 0,1", "--styles has neither"},
+      {"--styles braided --gather-range 1,0.5",
+       "--gather-range 1,0.5: gathers must be 0 <= MIN <= MAX <= 1"},
+      {"--styles braided --gather-range 1", "--gather-range wants MIN,MAX"},
+      {"--styles braided --gather-range 0.5,0.7,0.9", "--gather-range wants MIN,MAX"},
+      {"--styles braided --gather 1", "here it is --gather-range"}};
+  for (size_t k = 0; k < sizeof gather_sets / sizeof gather_sets[0]; k++) {
+    assert_int_equal(cli("render dataset %s --count 1 --out %s", gather_sets[k][0],
+                         test_tmp("mode_set")), 2);
+    expect_text(gather_sets[k][1]);
+  }
   assert_int_equal(cli("render frame --hair %s --scale 0 --out %s", hair,
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--scale 0: renderer units per file unit, above 0");

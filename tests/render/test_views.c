@@ -471,6 +471,20 @@ static void assert_ranges_refused(hfr_dataset_opts *o, float *lo, float *hi, con
   }
 }
 
+/* A small regimes set into dir for the range tests: 16x16 crops of 32-48
+ * frames, a 1x1 truth, count frames per style, strands strands each. */
+static void small_regimes_set(hfr_dataset_opts *o, const char *dir, int count, int strands) {
+  hfr_dataset_defaults(o);
+  o->out_dir = dir;
+  o->count = count;
+  o->width = o->height = 16;
+  o->strands = strands;
+  o->regimes = 1, o->frame_min = 32, o->frame_max = 48;
+  o->gt_supersample = 1;
+  o->progress = 0;
+  o->platform = "osmesa";
+}
+
 /* --width-px narrows the regimes' strand width: every frame's drawn width
  * lies in the range asked for, the manifest records it, and a range that
  * is empty or not positive is refused with an error naming the option. */
@@ -479,18 +493,10 @@ static void test_dataset_width_range(void **state) {
   char dir[256], path[600];
   snprintf(dir, sizeof dir, "/tmp/hf_test_width_px_%d", (int)getpid());
   hfr_dataset_opts o;
-  hfr_dataset_defaults(&o);
-  o.out_dir = dir;
+  small_regimes_set(&o, dir, 3, 200);
   o.styles[0] = HFR_STYLE_WAVY, o.styles[1] = HFR_STYLE_FUR;
   o.n_styles = 2;
-  o.count = 3;
-  o.width = o.height = 16;
-  o.strands = 200;
-  o.regimes = 1, o.frame_min = 32, o.frame_max = 48;
   o.width_px_min = 0.6f, o.width_px_max = 2.5f;
-  o.gt_supersample = 1;
-  o.progress = 0;
-  o.platform = "osmesa";
   cJSON *doc = run_dataset(&o, R);
   cJSON *wr = cJSON_GetObjectItem(doc, "width_px_range");
   assert_int_equal(cJSON_GetArraySize(wr), 2);
@@ -522,18 +528,10 @@ static void test_dataset_opacity_range(void **state) {
   char dir[256], path[600];
   snprintf(dir, sizeof dir, "/tmp/hf_test_opacity_%d", (int)getpid());
   hfr_dataset_opts o;
-  hfr_dataset_defaults(&o);
-  o.out_dir = dir;
+  small_regimes_set(&o, dir, 2, 300);
   o.styles[0] = HFR_STYLE_STRAIGHT;
   o.n_styles = 1;
-  o.count = 2;
-  o.width = o.height = 16;
-  o.strands = 300;
-  o.regimes = 1, o.frame_min = 32, o.frame_max = 48;
   o.width_px_min = 6.0f, o.width_px_max = 8.0f; /* at least 1.5 px after the clump factor */
-  o.gt_supersample = 1;
-  o.progress = 0;
-  o.platform = "osmesa";
   double drawn[2][2]; /* [run][frame] target width */
   for (int run = 0; run < 2; run++) {
     o.opacity_min = o.opacity_max = run ? 1.0f : 0.0f;
@@ -581,17 +579,9 @@ static void test_dataset_gather_range(void **state) {
   char dir[256], path[600];
   snprintf(dir, sizeof dir, "/tmp/hf_test_gather_%d", (int)getpid());
   hfr_dataset_opts o;
-  hfr_dataset_defaults(&o);
-  o.out_dir = dir;
+  small_regimes_set(&o, dir, 2, 200);
   o.styles[0] = HFR_STYLE_PONYTAIL, o.styles[1] = HFR_STYLE_BRAIDED, o.styles[2] = HFR_STYLE_WAVY;
   o.n_styles = 3;
-  o.count = 2;
-  o.width = o.height = 16;
-  o.strands = 200;
-  o.regimes = 1, o.frame_min = 32, o.frame_max = 48;
-  o.gt_supersample = 1;
-  o.progress = 0;
-  o.platform = "osmesa";
   double drawn[2][6], gathers[6] = {0};
   for (int run = 0; run < 2; run++) {
     o.gather_min = run ? 0.6f : 0, o.gather_max = run ? 0.9f : 0;
