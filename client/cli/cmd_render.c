@@ -62,6 +62,8 @@ static void usage(FILE *f) {
     "           --opacity-range MIN,MAX (regimes: strand opacity, default 0.2,1; 1,1: opaque)\n"
     "         --gather-range MIN,MAX (ponytail, braided: each frame's --gather drawn in it;\n"
     "           default none, 0)\n"
+    "         --smooth-share P (this share of the style frames drawn as smooth grooms: no frizz,\n"
+    "           no clumping but spiky's and fur's; default 0)\n"
     "         --hair-files A.hair,B.hair|DIR (these models as styles; --up, --units, --children,\n"
     "           --thickness, --opacity, --occluder apply to them)\n"
     "         a ground truth too dense for one A-buffer is drawn in bands of rows; a frame\n"
@@ -230,7 +232,7 @@ static const struct { const char *name; int modes; } option_modes[] = {
   {"--styles", M_DATASET},       {"--count", M_DATASET},     {"--resume", M_DATASET},
   {"--extended", M_DATASET},     {"--regimes", M_DATASET},   {"--frame-sizes", M_DATASET},
   {"--width-px", M_DATASET},     {"--opacity-range", M_DATASET},
-  {"--gather-range", M_DATASET},
+  {"--gather-range", M_DATASET}, {"--smooth-share", M_DATASET},
   {"--hair-files", M_DATASET},
 };
 
@@ -277,7 +279,7 @@ static int check_model_options(const opts *o) {
   static const char *const style_only[] = {"--style", "--strands", "--segments", "--length",
                                            "--clumping", "--frizz", "--curl-radius",
                                            "--curl-period", "--width-spread", "--gather",
-                                           "--gather-range"};
+                                           "--gather-range", "--smooth-share"};
   static const char *const asset_only[] = {"--up", "--units", "--scale", "--occluder",
                                            "--child-spread", "--child-clumping"};
   const int dataset = !strcmp(o->cmd, "dataset");
@@ -365,6 +367,11 @@ static int check_model_options(const opts *o) {
     if (given(o, "--gather-range") && !(g0 >= 0 && g0 <= g1 && g1 <= 1)) {
       fprintf(stderr, "hairfilter render dataset: --gather-range %g,%g: gathers must be 0 <= MIN "
               "<= MAX <= 1\n", g0, g1);
+      return -1;
+    }
+    if (given(o, "--smooth-share") && !(o->ds.smooth_share >= 0 && o->ds.smooth_share <= 1)) {
+      fprintf(stderr, "hairfilter render dataset: --smooth-share %g: a share of the frames, in "
+              "[0, 1]\n", o->ds.smooth_share);
       return -1;
     }
     if (styles && given(o, "--gather-range") && !tied) {
@@ -455,6 +462,7 @@ static int parse_args(int argc, char **argv, opts *o) {
     FLOAT_OPT("--thickness-scale", o->view.thickness_scale)
     FLOAT_OPT("--width-spread", o->ov.wspread)
     FLOAT_OPT("--gather", o->ov.gather)
+    FLOAT_OPT("--smooth-share", o->ds.smooth_share)
     FLOAT_OPT("--scale", o->asset.scale)
     FLOAT_OPT("--child-spread", o->asset.children.spread)
     FLOAT_OPT("--child-clumping", o->asset.children.clumping)

@@ -627,6 +627,13 @@ typedef struct hfr_dataset_opts {
    * that the frame's other draws are those of a run without it (0, 0: the
    * style's 0, not drawn). Any mode, not only regimes. */
   float gather_min, gather_max;
+  /* The share of procedural-style frames drawn as smooth grooms, 0..1:
+   * frizz 0, and clumping 0 on the styles drawn strand by strand (spiky's
+   * and fur's clumps are their children's, kept), so that every strand
+   * lies in its bundle as hand-made assets' often do (docs/QUALITY.md,
+   * "What makes the braids hard"). Which frames, from a stream of their
+   * own: the frames' other draws are those of a run without it. */
+  float smooth_share;
   /* .hair files drawn as styles (frames {basename}_{i:04d}.exr), each taken
    * as asset says; children.seed is varied per frame. */
   const char *const *hair_files;

@@ -148,6 +148,7 @@ static cJSON *frame_entry(const char *file, const char *source, const hfr_style_
     /* Only where drawn, so that other runs' manifests read as before. */
     if (o->gather_max > 0 && hfr_style_has_tie(sp->style))
       cJSON_AddNumberToObject(h, "gather", sp->gather);
+    if (o->smooth_share > 0) cJSON_AddBoolToObject(h, "smooth", hr_smooth_picked(o, sp->seed));
   }
   cJSON_AddStringToObject(e, "occluder", !occ || !occ->vertices ? "none"
                                          : hair_file ? (hfr_asset_fitted(&o->asset) ? "fit"
@@ -316,6 +317,10 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
     if (err) snprintf(err, errlen, "gathers must be 0 <= MIN <= MAX <= 1 (--gather-range)");
     return HF_EINVAL;
   }
+  if (!(o->smooth_share >= 0 && o->smooth_share <= 1)) {
+    if (err) snprintf(err, errlen, "the smooth share must be in [0, 1] (--smooth-share)");
+    return HF_EINVAL;
+  }
   if (check_source_names(o, err, errlen) != HF_OK) return HF_EINVAL;
   if (mkdir(o->out_dir, 0777) != 0 && errno != EEXIST) {
     if (err) snprintf(err, errlen, "%s: %s", o->out_dir, strerror(errno));
@@ -372,6 +377,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   for (int k = 0; options && o->regimes && k < 3; k++)
     cJSON_AddItemToObject(doc, ranges[k],
                           cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, ranges[k]), 1));
+  if (options && o->smooth_share > 0) cJSON_AddNumberToObject(doc, "smooth_share", o->smooth_share);
   if (options && o->gather_max > 0)
     cJSON_AddItemToObject(doc, "gather_range",
                           cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, "gather_range"), 1));
@@ -436,6 +442,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         if (o->width_spread > 0) sp.width_spread = o->width_spread;
         if (o->regimes) hr_regime_style(&g, o, &sp, &rg);
         hr_gather_draw(o, &sp);
+        hr_smooth_draw(o, &sp);
       }
       hfr_view v;
       hfr_view_defaults(&v);

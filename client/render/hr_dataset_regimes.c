@@ -40,6 +40,21 @@ void hr_gather_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
   sp->gather = hr_rng_range(&g, o->gather_min, o->gather_max);
 }
 
+int hr_smooth_picked(const hfr_dataset_opts *o, uint64_t seed) {
+  if (!(o->smooth_share > 0)) return 0;
+  /* A stream of its own, from the model's seed: the frame's other draws
+   * stay those of a run without --smooth-share. */
+  hr_rng g = {seed * 0x9fb21c651e98df25ull + 0x3c6ef372fe94f82bull};
+  return hr_rng_uniform(&g) < o->smooth_share;
+}
+
+int hr_smooth_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
+  if (!hr_smooth_picked(o, sp->seed)) return 0;
+  sp->frizz = 0;
+  if (!sp->children) sp->clumping = 0;
+  return 1;
+}
+
 void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
                      hr_regime *rg) {
   memset(rg, 0, sizeof *rg);

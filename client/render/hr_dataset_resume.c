@@ -85,6 +85,7 @@ cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
   /* Only when drawn, so that a manifest from before --gather-range still
    * matches. */
   if (o->gather_max > 0) add_range(j, "gather_range", o->gather_min, o->gather_max);
+  if (o->smooth_share > 0) cJSON_AddNumberToObject(j, "smooth_share", o->smooth_share);
   cJSON_AddNumberToObject(j, "width_spread", o->width_spread);
   cJSON_AddBoolToObject(j, "background_layer", o->background_layer != 0);
   if (o->n_hair_files) {
@@ -146,6 +147,7 @@ static const char *const option_names[][2] = {
     {"max_fragments", "--max-fragments"}, {"gt_cull", "--gt-cull"}, {"regimes", "--regimes"},
     {"frame_sizes", "--frame-sizes"}, {"width_px_range", "--width-px"},
     {"opacity_range", "--opacity-range"}, {"gather_range", "--gather-range"},
+    {"smooth_share", "--smooth-share"},
     {"width_spread", "--width-spread"},
     {"background_layer", "--no-background"}, {"asset.up", "--up"},
     {"asset.scale", "--units/--scale"}, {"asset.thickness", "--thickness"}, {"asset.opacity", "--opacity"},

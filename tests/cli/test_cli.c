@@ -1035,14 +1035,16 @@ static void test_render_option_modes(void **state) {
                        test_tmp("mode_frame.exr")), 2);
   expect_text("--gather shapes a procedural style");
   /* A dataset's gather range: for a set with a tied style, in [0, 1], two
-   * numbers and nothing after them; --gather is render frame's. */
+   * numbers and nothing after them; --gather is render frame's; a smooth
+   * share in [0, 1]. */
   static const char *const gather_sets[][2] = {
       {"--styles wavy,fur --gather-range 0,1", "--styles has neither"},
       {"--styles braided --gather-range 1,0.5",
        "--gather-range 1,0.5: gathers must be 0 <= MIN <= MAX <= 1"},
       {"--styles braided --gather-range 1", "--gather-range wants MIN,MAX"},
       {"--styles braided --gather-range 0.5,0.7,0.9", "--gather-range wants MIN,MAX"},
-      {"--styles braided --gather 1", "here it is --gather-range"}};
+      {"--styles braided --gather 1", "here it is --gather-range"},
+      {"--styles braided --smooth-share 1.5", "--smooth-share 1.5: a share of the frames, in [0, 1]"}};
   for (size_t k = 0; k < sizeof gather_sets / sizeof gather_sets[0]; k++) {
     assert_int_equal(cli("render dataset %s --count 1 --out %s", gather_sets[k][0],
                          test_tmp("mode_set")), 2);

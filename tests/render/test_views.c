@@ -627,8 +627,65 @@ static void test_dataset_gather_range(void **state) {
   assert_ranges_refused(&o, &o.gather_min, &o.gather_max, bad, 3, "--gather-range");
 }
 
+/* --smooth-share 1 draws every style frame as a smooth groom: frizz 0, and
+ * clumping 0 but on spiky (its children's clumps kept), each frame's
+ * manifest saying "smooth"; the frames' other draws are those of a run
+ * without it; a share outside [0, 1] is refused naming the option. */
+static void test_dataset_smooth_share(void **state) {
+  (void)state;
+  char dir[256], path[600];
+  snprintf(dir, sizeof dir, "/tmp/hf_test_smooth_%d", (int)getpid());
+  hfr_dataset_opts o;
+  small_regimes_set(&o, dir, 2, 200);
+  o.styles[0] = HFR_STYLE_BRAIDED, o.styles[1] = HFR_STYLE_SPIKY, o.styles[2] = HFR_STYLE_WAVY;
+  o.n_styles = 3;
+  double drawn[2][6];
+  for (int run = 0; run < 2; run++) {
+    o.smooth_share = (float)run;
+    cJSON *doc = run_dataset(&o, R);
+    cJSON *share = cJSON_GetObjectItem(doc, "smooth_share");
+    if (run) assert_float_equal(share->valuedouble, 1.0, 1e-9);
+    else assert_null(share);
+    cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
+    assert_int_equal(cJSON_GetArraySize(frames), 6);
+    int i = 0;
+    cJSON_ArrayForEach(f, frames) {
+      cJSON *h = cJSON_GetObjectItem(f, "hair");
+      const char *style = cJSON_GetObjectItem(f, "style")->valuestring;
+      double frizz = cJSON_GetObjectItem(h, "frizz")->valuedouble;
+      double clumping = cJSON_GetObjectItem(h, "clumping")->valuedouble;
+      drawn[run][i++] = cJSON_GetObjectItem(h, "length")->valuedouble +
+                        cJSON_GetObjectItem(cJSON_GetObjectItem(f, "regime"), "target_width_px")->valuedouble;
+      cJSON *smooth = cJSON_GetObjectItem(h, "smooth");
+      if (run) {
+        assert_true(cJSON_IsTrue(smooth));
+        if (frizz != 0 || (clumping != 0) != !strcmp(style, "spiky"))
+          fail_msg("%s, smooth: frizz %g, clumping %g", style, frizz, clumping);
+      } else {
+        assert_null(smooth);
+        assert_true(frizz > 0);
+      }
+      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
+      remove(path);
+    }
+    cJSON_Delete(doc);
+    snprintf(path, sizeof path, "%s/manifest.json", dir);
+    remove(path);
+  }
+  for (int i = 0; i < 6; i++) assert_float_equal(drawn[0][i], drawn[1][i], 1e-9);
+  rmdir(dir);
+  const float bad[] = {-0.5f, 1.5f};
+  for (int k = 0; k < 2; k++) {
+    char err[512] = "";
+    o.smooth_share = bad[k];
+    assert_int_equal(hfr_dataset_run(&o, err, sizeof err), HF_EINVAL);
+    assert_non_null(strstr(err, "--smooth-share"));
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_dataset_smooth_share),
     cmocka_unit_test(test_dataset_gather_range),
     cmocka_unit_test(test_crop_equals_window),
     cmocka_unit_test(test_occluder_hides),
