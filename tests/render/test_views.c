@@ -471,9 +471,12 @@ static void assert_ranges_refused(hfr_dataset_opts *o, float *lo, float *hi, con
   }
 }
 
-/* A small regimes set into dir for the range tests: 16x16 crops of 32-48
- * frames, a 1x1 truth, count frames per style, strands strands each. */
-static void small_regimes_set(hfr_dataset_opts *o, const char *dir, int count, int strands) {
+/* A small regimes set for the range tests, into /tmp/hf_test_<name>_<pid>
+ * (written to dir, 256 bytes): 16x16 crops of 32-48 frames, a 1x1 truth,
+ * count frames per style, strands strands each. */
+static void small_regimes_set(hfr_dataset_opts *o, char *dir, const char *name, int count,
+                              int strands) {
+  snprintf(dir, 256, "/tmp/hf_test_%s_%d", name, (int)getpid());
   hfr_dataset_defaults(o);
   o->out_dir = dir;
   o->count = count;
@@ -491,9 +494,8 @@ static void small_regimes_set(hfr_dataset_opts *o, const char *dir, int count, i
 static void test_dataset_width_range(void **state) {
   (void)state;
   char dir[256], path[600];
-  snprintf(dir, sizeof dir, "/tmp/hf_test_width_px_%d", (int)getpid());
   hfr_dataset_opts o;
-  small_regimes_set(&o, dir, 3, 200);
+  small_regimes_set(&o, dir, "width_px", 3, 200);
   o.styles[0] = HFR_STYLE_WAVY, o.styles[1] = HFR_STYLE_FUR;
   o.n_styles = 2;
   o.width_px_min = 0.6f, o.width_px_max = 2.5f;
@@ -526,9 +528,8 @@ static void test_dataset_width_range(void **state) {
 static void test_dataset_opacity_range(void **state) {
   (void)state;
   char dir[256], path[600];
-  snprintf(dir, sizeof dir, "/tmp/hf_test_opacity_%d", (int)getpid());
   hfr_dataset_opts o;
-  small_regimes_set(&o, dir, 2, 300);
+  small_regimes_set(&o, dir, "opacity", 2, 300);
   o.styles[0] = HFR_STYLE_STRAIGHT;
   o.n_styles = 1;
   o.width_px_min = 6.0f, o.width_px_max = 8.0f; /* at least 1.5 px after the clump factor */
@@ -577,9 +578,8 @@ static void test_dataset_opacity_range(void **state) {
 static void test_dataset_gather_range(void **state) {
   (void)state;
   char dir[256], path[600];
-  snprintf(dir, sizeof dir, "/tmp/hf_test_gather_%d", (int)getpid());
   hfr_dataset_opts o;
-  small_regimes_set(&o, dir, 2, 200);
+  small_regimes_set(&o, dir, "gather", 2, 200);
   o.styles[0] = HFR_STYLE_PONYTAIL, o.styles[1] = HFR_STYLE_BRAIDED, o.styles[2] = HFR_STYLE_WAVY;
   o.n_styles = 3;
   double drawn[2][6], gathers[6] = {0};
@@ -634,9 +634,8 @@ static void test_dataset_gather_range(void **state) {
 static void test_dataset_smooth_share(void **state) {
   (void)state;
   char dir[256], path[600];
-  snprintf(dir, sizeof dir, "/tmp/hf_test_smooth_%d", (int)getpid());
   hfr_dataset_opts o;
-  small_regimes_set(&o, dir, 2, 200);
+  small_regimes_set(&o, dir, "smooth", 2, 200);
   o.styles[0] = HFR_STYLE_BRAIDED, o.styles[1] = HFR_STYLE_SPIKY, o.styles[2] = HFR_STYLE_WAVY;
   o.n_styles = 3;
   double drawn[2][6];
