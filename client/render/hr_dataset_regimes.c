@@ -32,27 +32,30 @@ void hr_braid_draw(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp) {
     sp->segments = (int)fminf(160.0f, fmaxf(48.0f, ceilf(8.0f * sp->length / sp->curl_period)));
 }
 
+/* A stream of its own for one optional draw of a frame (salt tells the
+ * draws apart), from the model's seed: the frame's other draws stay those
+ * of a run without the option. */
+static hr_rng own_stream(uint64_t seed, uint64_t mul, uint64_t salt) {
+  hr_rng g = {seed * mul + salt};
+  return g;
+}
+
 void hr_gather_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
   if (!(o->gather_max > 0) || !hfr_style_has_tie(sp->style)) return;
-  /* A stream of its own, from the model's seed: the frame's other draws
-   * stay those of a run without --gather-range. */
-  hr_rng g = {sp->seed * 0xd1342543de82ef95ull + 0x2545f4914f6cdd1dull};
+  hr_rng g = own_stream(sp->seed, 0xd1342543de82ef95ull, 0x2545f4914f6cdd1dull);
   sp->gather = hr_rng_range(&g, o->gather_min, o->gather_max);
 }
 
 int hr_smooth_picked(const hfr_dataset_opts *o, uint64_t seed) {
   if (!(o->smooth_share > 0)) return 0;
-  /* A stream of its own, from the model's seed: the frame's other draws
-   * stay those of a run without --smooth-share. */
-  hr_rng g = {seed * 0x9fb21c651e98df25ull + 0x3c6ef372fe94f82bull};
+  hr_rng g = own_stream(seed, 0x9fb21c651e98df25ull, 0x3c6ef372fe94f82bull);
   return hr_rng_uniform(&g) < o->smooth_share;
 }
 
-int hr_smooth_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
-  if (!hr_smooth_picked(o, sp->seed)) return 0;
+void hr_smooth_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
+  if (!hr_smooth_picked(o, sp->seed)) return;
   sp->frizz = 0;
   if (!sp->children) sp->clumping = 0;
-  return 1;
 }
 
 void hr_regime_style(hr_rng *g, const hfr_dataset_opts *o, hfr_style_params *sp,
