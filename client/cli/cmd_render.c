@@ -59,7 +59,8 @@ static void usage(FILE *f) {
     "         --regimes (widths, density, zoom, crops, camera, light, shadows per frame and\n"
     "           clump) --frame-sizes MIN,MAX (regimes: virtual frames, default 256,1024)\n"
     "           --width-px MIN,MAX (regimes: strand width in pixels, default 0.004,4)\n"
-    "           --opacity-range MIN,MAX (regimes: strand opacity, default 0.2,1; 1,1: opaque)\n"
+    "         --opacity-range MIN,MAX (each style frame's strand opacity drawn in it; 1,1:\n"
+    "           opaque; default: with --regimes 0.2,1, else the style's own)\n"
     "         --gather-range MIN,MAX (ponytail, braided: each frame's --gather drawn in it;\n"
     "           default none, 0)\n"
     "         --smooth-share P (this share of the style frames drawn as smooth grooms: no frizz,\n"
@@ -349,8 +350,8 @@ static int check_model_options(const opts *o) {
   }
   if (dataset) {
     /* What only --regimes reads, and what it draws itself. */
-    static const char *const regimes_only[] = {"--frame-sizes", "--width-px", "--opacity-range"};
-    for (size_t k = 0; k < 3; k++)
+    static const char *const regimes_only[] = {"--frame-sizes", "--width-px"};
+    for (size_t k = 0; k < 2; k++)
       if (!o->ds.regimes && given(o, regimes_only[k])) {
         fprintf(stderr, "hairfilter render dataset: %s applies to --regimes\n", regimes_only[k]);
         return -1;

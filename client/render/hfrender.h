@@ -616,11 +616,13 @@ typedef struct hfr_dataset_opts {
    * sub-pixel to several pixels); a narrower range renders more frames of
    * one regime (wide strands, say) without changing the others' draws. */
   float width_px_min, width_px_max;
-  /* Regimes: each frame's strand opacity is drawn uniformly from
-   * opacity_min..opacity_max (0, 0: 0.2..1). 1, 1 draws opaque strands, as
-   * many assets have, so that covered-sample alpha reaches 1 where strands
-   * are wider than a pixel; the draw is made either way, so the other
-   * parameters' draws do not change. */
+  /* Each procedural-style frame's strand opacity is drawn uniformly from
+   * opacity_min..opacity_max. 1, 1 draws opaque strands, as many assets
+   * have, so that covered-sample alpha reaches 1 where strands are wider
+   * than a pixel. Regimes: 0, 0 is 0.2..1, and the draw is made either
+   * way, so the other parameters' draws do not change. Out of regimes: 0,
+   * 0 keeps the style's opacity; a range is drawn from a stream of the
+   * frame's own, so its other draws are those of a run without it. */
   float opacity_min, opacity_max;
   /* Each ponytail and braided frame's gather (hfr_style_params) is drawn
    * uniformly from gather_min..gather_max, from a stream of its own, so

@@ -307,7 +307,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
       snprintf(err, errlen, "strand widths must be 0 < MIN <= MAX <= 64 pixels (--width-px)");
     return HF_EINVAL;
   }
-  if (o->regimes && (o->opacity_min || o->opacity_max) &&
+  if ((o->opacity_min || o->opacity_max) &&
       !(o->opacity_min > 0 && o->opacity_min <= o->opacity_max && o->opacity_max <= 1)) {
     if (err) snprintf(err, errlen, "strand opacities must be 0 < MIN <= MAX <= 1 (--opacity-range)");
     return HF_EINVAL;
@@ -374,9 +374,10 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
    * options record's, at the top level where readers look for them. */
   cJSON *options = hr_dataset_options(o);
   static const char *const ranges[] = {"frame_sizes", "width_px_range", "opacity_range"};
-  for (int k = 0; options && o->regimes && k < 3; k++)
-    cJSON_AddItemToObject(doc, ranges[k],
-                          cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, ranges[k]), 1));
+  for (int k = 0; options && k < 3; k++)
+    if (o->regimes || (k == 2 && o->opacity_max > 0))
+      cJSON_AddItemToObject(doc, ranges[k],
+                            cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, ranges[k]), 1));
   if (options && o->smooth_share > 0) cJSON_AddNumberToObject(doc, "smooth_share", o->smooth_share);
   if (options && o->gather_max > 0)
     cJSON_AddItemToObject(doc, "gather_range",
@@ -441,6 +442,7 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
         if (o->extended) extend_style(&sp, &g, o);
         if (o->width_spread > 0) sp.width_spread = o->width_spread;
         if (o->regimes) hr_regime_style(&g, o, &sp, &rg);
+        hr_opacity_draw(o, &sp);
         hr_gather_draw(o, &sp);
         hr_smooth_draw(o, &sp);
       }

@@ -50,6 +50,10 @@ int hr_smooth_picked(const hfr_dataset_opts *o, uint64_t seed);
 /* With probability o->smooth_share, from a stream of sp->seed's own, makes
  * sp a smooth groom (frizz 0; clumping 0 but on the guide-grown styles). */
 void hr_smooth_draw(const hfr_dataset_opts *o, hfr_style_params *sp);
+/* Out of regimes, where o gives an opacity range: sp->opacity drawn
+ * uniformly from it by a stream of sp->seed's own (the frame's other draws
+ * unchanged); nothing where o gives none. */
+void hr_opacity_draw(const hfr_dataset_opts *o, hfr_style_params *sp);
 /* The regimes' strand opacity range of o: o->opacity_min..max, or the
  * default 0.2..1 where o leaves it 0, 0. */
 void hr_regime_opacity_range(const hfr_dataset_opts *o, float range[2]);

@@ -46,6 +46,12 @@ void hr_gather_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
   sp->gather = hr_rng_range(&g, o->gather_min, o->gather_max);
 }
 
+void hr_opacity_draw(const hfr_dataset_opts *o, hfr_style_params *sp) {
+  if (o->regimes || !(o->opacity_max > 0)) return;
+  hr_rng g = own_stream(sp->seed, 0xbf58476d1ce4e5b9ull, 0x94d049bb133111ebull);
+  sp->opacity = hr_rng_range(&g, o->opacity_min, o->opacity_max);
+}
+
 int hr_smooth_picked(const hfr_dataset_opts *o, uint64_t seed) {
   if (!(o->smooth_share > 0)) return 0;
   hr_rng g = own_stream(seed, 0x9fb21c651e98df25ull, 0x3c6ef372fe94f82bull);

@@ -81,6 +81,9 @@ cJSON *hr_dataset_options(const hfr_dataset_opts *o) {
     float op[2];
     hr_regime_opacity_range(o, op);
     add_range(j, "opacity_range", op[0], op[1]);
+  } else if (o->opacity_max > 0) {
+    /* Only when drawn, so that a manifest from before still matches. */
+    add_range(j, "opacity_range", o->opacity_min, o->opacity_max);
   }
   /* Only when drawn, so that a manifest from before --gather-range still
    * matches. */

@@ -1016,10 +1016,10 @@ static void test_render_option_modes(void **state) {
   assert_int_equal(cli("render dataset --styles wavy --count 1 --regimes --width-spread 2 "
                        "--out %s", test_tmp("mode_set")), 2);
   expect_text("--regimes draws each frame's clump width spread itself");
-  assert_int_equal(cli("render dataset --styles wavy --count 1 --opacity-range 0.2,0.5 --out %s",
+  assert_int_equal(cli("render dataset --styles wavy --count 1 --width-px 0.2,0.5 --out %s",
                        test_tmp("mode_set")), 2);
-  expect_text("--opacity-range applies to --regimes");
-  assert_int_equal(cli("render dataset --hair-files %s --regimes --opacity-range 0.2,0.5 "
+  expect_text("--width-px applies to --regimes");
+  assert_int_equal(cli("render dataset --hair-files %s --opacity-range 0.2,0.5 "
                        "--count 1 --out %s", hair, test_tmp("mode_set")), 2);
   expect_text("for --hair-files give --opacity");
   assert_int_equal(cli("render dataset --hair %s --count 1 --out %s", hair, test_tmp("mode_set")),

@@ -568,6 +568,59 @@ static void test_dataset_opacity_range(void **state) {
   rmdir(dir);
   const float bad[][2] = {{0.8f, 0.5f}, {-0.1f, 1.0f}, {0.0f, 1.0f}, {0.5f, 1.5f}};
   assert_ranges_refused(&o, &o.opacity_min, &o.opacity_max, bad, 4, "--opacity-range");
+  o.regimes = 0;
+  assert_ranges_refused(&o, &o.opacity_min, &o.opacity_max, bad, 4, "--opacity-range");
+}
+
+/* Out of --regimes, --opacity-range draws each style frame's opacity in
+ * it, per frame, from a stream of its own: the frames' other draws are
+ * those of a run without it, which keeps the style's opacity and records
+ * no range; the manifest records the range. */
+static void test_dataset_opacity_range_styles(void **state) {
+  (void)state;
+  char dir[256], path[600];
+  hfr_dataset_opts o;
+  small_regimes_set(&o, dir, "opacity_st", 2, 200);
+  o.regimes = 0;
+  o.styles[0] = HFR_STYLE_BRAIDED, o.styles[1] = HFR_STYLE_WAVY;
+  o.n_styles = 2;
+  double length[2][4], opacity[2][4];
+  for (int run = 0; run < 2; run++) {
+    o.opacity_min = run ? 0.4f : 0, o.opacity_max = run ? 0.5f : 0;
+    cJSON *doc = run_dataset(&o, R);
+    cJSON *orange = cJSON_GetObjectItem(doc, "opacity_range");
+    if (run) {
+      assert_int_equal(cJSON_GetArraySize(orange), 2);
+      assert_float_equal(cJSON_GetArrayItem(orange, 0)->valuedouble, 0.4, 1e-6);
+      assert_float_equal(cJSON_GetArrayItem(orange, 1)->valuedouble, 0.5, 1e-6);
+    } else {
+      assert_null(orange);
+    }
+    cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
+    assert_int_equal(cJSON_GetArraySize(frames), 4);
+    int i = 0;
+    cJSON_ArrayForEach(f, frames) {
+      cJSON *h = cJSON_GetObjectItem(f, "hair");
+      length[run][i] = cJSON_GetObjectItem(h, "length")->valuedouble;
+      opacity[run][i] = cJSON_GetObjectItem(h, "opacity")->valuedouble;
+      if (run && !(opacity[run][i] >= 0.4 - 1e-6 && opacity[run][i] <= 0.5 + 1e-6))
+        fail_msg("frame %d: opacity %g outside 0.4..0.5", i, opacity[run][i]);
+      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
+      remove(path);
+      i++;
+    }
+    cJSON_Delete(doc);
+    snprintf(path, sizeof path, "%s/manifest.json", dir);
+    remove(path);
+  }
+  for (int i = 0; i < 4; i++) {
+    assert_float_equal(length[0][i], length[1][i], 1e-9);
+    /* The styles' own opacities (0.68 and more) are outside the range. */
+    assert_true(opacity[0][i] > 0.6);
+  }
+  /* Drawn per frame, not one value for the set. */
+  assert_true(opacity[1][0] != opacity[1][1]);
+  rmdir(dir);
 }
 
 /* --gather-range draws each ponytail and braided frame's gather in it and
@@ -693,6 +746,7 @@ int main(void) {
     cmocka_unit_test(test_dataset_regimes),
     cmocka_unit_test(test_dataset_width_range),
     cmocka_unit_test(test_dataset_opacity_range),
+    cmocka_unit_test(test_dataset_opacity_range_styles),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
