@@ -364,6 +364,27 @@ static int check_model_options(const opts *o) {
     int tied = 0;
     for (int k = 0; k < o->ds.n_styles; k++)
       tied |= hfr_style_has_tie(o->ds.styles[k]);
+    /* The ranges' bounds, checked here so that a bad one is a usage error
+     * (exit 2) that echoes it; hfr_dataset_run checks them again for
+     * library callers. */
+    const int f0 = o->ds.frame_min, f1 = o->ds.frame_max;
+    if (given(o, "--frame-sizes") && !(f0 > 0 && f0 <= f1 && f1 <= 8192)) {
+      fprintf(stderr, "hairfilter render dataset: --frame-sizes %d,%d: frame sizes must be 0 < "
+              "MIN <= MAX <= 8192 pixels\n", f0, f1);
+      return -1;
+    }
+    const float w0 = o->ds.width_px_min, w1 = o->ds.width_px_max;
+    if (given(o, "--width-px") && !(w0 > 0 && w0 <= w1 && w1 <= 64)) {
+      fprintf(stderr, "hairfilter render dataset: --width-px %g,%g: strand widths must be 0 < "
+              "MIN <= MAX <= 64 pixels\n", w0, w1);
+      return -1;
+    }
+    const float op0 = o->ds.opacity_min, op1 = o->ds.opacity_max;
+    if (given(o, "--opacity-range") && !(op0 > 0 && op0 <= op1 && op1 <= 1)) {
+      fprintf(stderr, "hairfilter render dataset: --opacity-range %g,%g: strand opacities must "
+              "be 0 < MIN <= MAX <= 1\n", op0, op1);
+      return -1;
+    }
     const float g0 = o->ds.gather_min, g1 = o->ds.gather_max;
     if (given(o, "--gather-range") && !(g0 >= 0 && g0 <= g1 && g1 <= 1)) {
       fprintf(stderr, "hairfilter render dataset: --gather-range %g,%g: gathers must be 0 <= MIN "
@@ -405,7 +426,8 @@ static int check_model_options(const opts *o) {
   for (size_t k = 0; dataset && !files && k < 3; k++)
     if (given(o, dataset_asset[k])) {
       fprintf(stderr, "hairfilter render dataset: %s applies to --hair-files; the styles' "
-              "are drawn per frame\n", dataset_asset[k]);
+              "are drawn per frame%s\n", dataset_asset[k],
+              k == 1 ? " (--opacity-range MIN,MAX draws them in a range; 1,1: opaque)" : "");
       return -1;
     }
   return 0;

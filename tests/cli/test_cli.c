@@ -1036,7 +1036,9 @@ static void test_render_option_modes(void **state) {
   expect_text("--gather shapes a procedural style");
   /* A dataset's gather range: for a set with a tied style, in [0, 1], two
    * numbers and nothing after them; --gather is render frame's; a smooth
-   * share in [0, 1]. */
+   * share in [0, 1]; the other ranges' bounds, a usage error that echoes
+   * them, with or without --regimes; --opacity for styles points to
+   * --opacity-range. */
   static const char *const gather_sets[][2] = {
       {"--styles wavy,fur --gather-range 0,1", "--styles has neither"},
       {"--styles braided --gather-range 1,0.5",
@@ -1044,7 +1046,14 @@ static void test_render_option_modes(void **state) {
       {"--styles braided --gather-range 1", "--gather-range wants MIN,MAX"},
       {"--styles braided --gather-range 0.5,0.7,0.9", "--gather-range wants MIN,MAX"},
       {"--styles braided --gather 1", "here it is --gather-range"},
-      {"--styles braided --smooth-share 1.5", "--smooth-share 1.5: a share of the frames, in [0, 1]"}};
+      {"--styles braided --smooth-share 1.5", "--smooth-share 1.5: a share of the frames, in [0, 1]"},
+      {"--styles wavy --opacity-range 0.8,0.5",
+       "--opacity-range 0.8,0.5: strand opacities must be 0 < MIN <= MAX <= 1"},
+      {"--styles wavy --regimes --opacity-range 0,1", "--opacity-range 0,1: strand opacities must"},
+      {"--styles wavy --regimes --width-px 4,1", "--width-px 4,1: strand widths must be 0 < MIN"},
+      {"--styles wavy --regimes --frame-sizes 1024,256",
+       "--frame-sizes 1024,256: frame sizes must be 0 < MIN <= MAX <= 8192"},
+      {"--styles wavy --opacity 0.5", "--opacity-range MIN,MAX draws them in a range"}};
   for (size_t k = 0; k < sizeof gather_sets / sizeof gather_sets[0]; k++) {
     assert_int_equal(cli("render dataset %s --count 1 --out %s", gather_sets[k][0],
                          test_tmp("mode_set")), 2);
