@@ -7,7 +7,8 @@
 #   scripts_usage.sh SOURCE_DIR
 cd "$1" || exit 1
 fail=0
-for s in weights/data/kernel_ac_sets.sh weights/data/kernel_mix_sets.sh weights/data/train256.sh; do
+for s in weights/data/kernel_ac_sets.sh weights/data/kernel_mix_sets.sh weights/data/kernel_mix_eval_sets.sh \
+    weights/data/train256.sh; do
   out=$(sh "$s" 2>&1)
   rc=$?
   if [ "$rc" -ne 2 ] || ! printf '%s\n' "$out" | grep -q "^usage: $s BUILD/hairfilter OUT_DIR"; then
