@@ -123,6 +123,26 @@ static void pick_windows(const hfr_view *v, const hfr_outputs *o, int n, int out
     out[w][0] = found[pick[w]][0], out[w][1] = found[pick[w]][1], out[w][2] = n, out[w][3] = n;
 }
 
+/* Removes dir/name, a frame or manifest of a test's set. */
+static void remove_in(const char *dir, const char *name) {
+  char path[600];
+  snprintf(path, sizeof path, "%s/%s", dir, name);
+  remove(path);
+}
+
+/* The manifest doc records key as the range {lo, hi} (to float precision),
+ * or, where lo and hi are both 0, not at all. */
+static void assert_range_recorded(cJSON *doc, const char *key, double lo, double hi) {
+  cJSON *r = cJSON_GetObjectItem(doc, key);
+  if (lo == 0 && hi == 0) {
+    assert_null(r);
+    return;
+  }
+  assert_int_equal(cJSON_GetArraySize(r), 2);
+  assert_float_equal(cJSON_GetArrayItem(r, 0)->valuedouble, lo, 1e-6);
+  assert_float_equal(cJSON_GetArrayItem(r, 1)->valuedouble, hi, 1e-6);
+}
+
 /* A window of a frame, rendered on its own, holds the same samples and
  * ground truth as that window of the whole frame, though it draws only the
  * strands' segments that can reach it; strands many pixels wide reach
@@ -452,8 +472,7 @@ static void test_dataset_regimes(void **state) {
   assert_int_equal(braided_seen, 2);
   assert_true(wmax > wmin);
   cJSON_Delete(doc);
-  snprintf(path, sizeof path, "%s/manifest.json", dir);
-  remove(path);
+  remove_in(dir, "manifest.json");
   rmdir(dir);
   remove(hair);
 }
@@ -493,28 +512,23 @@ static void small_regimes_set(hfr_dataset_opts *o, char *dir, const char *name, 
  * is empty or not positive is refused with an error naming the option. */
 static void test_dataset_width_range(void **state) {
   (void)state;
-  char dir[256], path[600];
+  char dir[256];
   hfr_dataset_opts o;
   small_regimes_set(&o, dir, "width_px", 3, 200);
   o.styles[0] = HFR_STYLE_WAVY, o.styles[1] = HFR_STYLE_FUR;
   o.n_styles = 2;
   o.width_px_min = 0.6f, o.width_px_max = 2.5f;
   cJSON *doc = run_dataset(&o, R);
-  cJSON *wr = cJSON_GetObjectItem(doc, "width_px_range");
-  assert_int_equal(cJSON_GetArraySize(wr), 2);
-  assert_float_equal(cJSON_GetArrayItem(wr, 0)->valuedouble, 0.6, 1e-6);
-  assert_float_equal(cJSON_GetArrayItem(wr, 1)->valuedouble, 2.5, 1e-6);
+  assert_range_recorded(doc, "width_px_range", 0.6, 2.5);
   cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
   assert_int_equal(cJSON_GetArraySize(frames), 6);
   cJSON_ArrayForEach(f, frames) {
     double tw = cJSON_GetObjectItem(cJSON_GetObjectItem(f, "regime"), "target_width_px")->valuedouble;
     if (!(tw >= 0.6 - 1e-6 && tw <= 2.5 + 1e-6)) fail_msg("drawn width %g px outside 0.6..2.5", tw);
-    snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
-    remove(path);
+    remove_in(dir, cJSON_GetObjectItem(f, "file")->valuestring);
   }
   cJSON_Delete(doc);
-  snprintf(path, sizeof path, "%s/manifest.json", dir);
-  remove(path);
+  remove_in(dir, "manifest.json");
   rmdir(dir);
   const float bad[][2] = {{2.0f, 1.0f}, {-1.0f, 1.0f}, {0.0f, 1.0f}, {1.0f, 100.0f}};
   assert_ranges_refused(&o, &o.width_px_min, &o.width_px_max, bad, 4, "--width-px");
@@ -527,7 +541,7 @@ static void test_dataset_width_range(void **state) {
  * range that is empty or outside (0, 1] is refused naming the option. */
 static void test_dataset_opacity_range(void **state) {
   (void)state;
-  char dir[256], path[600];
+  char dir[256];
   hfr_dataset_opts o;
   small_regimes_set(&o, dir, "opacity", 2, 300);
   o.styles[0] = HFR_STYLE_STRAIGHT;
@@ -537,10 +551,7 @@ static void test_dataset_opacity_range(void **state) {
   for (int run = 0; run < 2; run++) {
     o.opacity_min = o.opacity_max = run ? 1.0f : 0.0f;
     cJSON *doc = run_dataset(&o, R);
-    cJSON *orange = cJSON_GetObjectItem(doc, "opacity_range");
-    assert_int_equal(cJSON_GetArraySize(orange), 2);
-    assert_float_equal(cJSON_GetArrayItem(orange, 0)->valuedouble, run ? 1.0 : 0.2, 1e-6);
-    assert_float_equal(cJSON_GetArrayItem(orange, 1)->valuedouble, 1.0, 1e-6);
+    assert_range_recorded(doc, "opacity_range", run ? 1.0 : 0.2, 1.0);
     cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
     assert_int_equal(cJSON_GetArraySize(frames), 2);
     int i = 0;
@@ -556,15 +567,13 @@ static void test_dataset_opacity_range(void **state) {
       } else if (!(op >= 0.2 - 1e-6 && op < 1.0)) {
         fail_msg("default opacity %g outside [0.2, 1)", op);
       }
-      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
-      remove(path);
+      remove_in(dir, cJSON_GetObjectItem(f, "file")->valuestring);
     }
     cJSON_Delete(doc);
   }
   assert_float_equal(drawn[0][0], drawn[1][0], 1e-9);
   assert_float_equal(drawn[0][1], drawn[1][1], 1e-9);
-  snprintf(path, sizeof path, "%s/manifest.json", dir);
-  remove(path);
+  remove_in(dir, "manifest.json");
   rmdir(dir);
   const float bad[][2] = {{0.8f, 0.5f}, {-0.1f, 1.0f}, {0.0f, 1.0f}, {0.5f, 1.5f}};
   assert_ranges_refused(&o, &o.opacity_min, &o.opacity_max, bad, 4, "--opacity-range");
@@ -578,7 +587,7 @@ static void test_dataset_opacity_range(void **state) {
  * no range; the manifest records the range. */
 static void test_dataset_opacity_range_styles(void **state) {
   (void)state;
-  char dir[256], path[600];
+  char dir[256];
   hfr_dataset_opts o;
   small_regimes_set(&o, dir, "opacity_st", 2, 200);
   o.regimes = 0;
@@ -588,14 +597,7 @@ static void test_dataset_opacity_range_styles(void **state) {
   for (int run = 0; run < 2; run++) {
     o.opacity_min = run ? 0.4f : 0, o.opacity_max = run ? 0.5f : 0;
     cJSON *doc = run_dataset(&o, R);
-    cJSON *orange = cJSON_GetObjectItem(doc, "opacity_range");
-    if (run) {
-      assert_int_equal(cJSON_GetArraySize(orange), 2);
-      assert_float_equal(cJSON_GetArrayItem(orange, 0)->valuedouble, 0.4, 1e-6);
-      assert_float_equal(cJSON_GetArrayItem(orange, 1)->valuedouble, 0.5, 1e-6);
-    } else {
-      assert_null(orange);
-    }
+    assert_range_recorded(doc, "opacity_range", o.opacity_min, o.opacity_max);
     cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
     assert_int_equal(cJSON_GetArraySize(frames), 4);
     int i = 0;
@@ -605,13 +607,11 @@ static void test_dataset_opacity_range_styles(void **state) {
       opacity[run][i] = cJSON_GetObjectItem(h, "opacity")->valuedouble;
       if (run && !(opacity[run][i] >= 0.4 - 1e-6 && opacity[run][i] <= 0.5 + 1e-6))
         fail_msg("frame %d: opacity %g outside 0.4..0.5", i, opacity[run][i]);
-      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
-      remove(path);
+      remove_in(dir, cJSON_GetObjectItem(f, "file")->valuestring);
       i++;
     }
     cJSON_Delete(doc);
-    snprintf(path, sizeof path, "%s/manifest.json", dir);
-    remove(path);
+    remove_in(dir, "manifest.json");
   }
   for (int i = 0; i < 4; i++) {
     assert_float_equal(length[0][i], length[1][i], 1e-9);
@@ -630,7 +630,7 @@ static void test_dataset_opacity_range_styles(void **state) {
  * the option. */
 static void test_dataset_gather_range(void **state) {
   (void)state;
-  char dir[256], path[600];
+  char dir[256];
   hfr_dataset_opts o;
   small_regimes_set(&o, dir, "gather", 2, 200);
   o.styles[0] = HFR_STYLE_PONYTAIL, o.styles[1] = HFR_STYLE_BRAIDED, o.styles[2] = HFR_STYLE_WAVY;
@@ -639,14 +639,7 @@ static void test_dataset_gather_range(void **state) {
   for (int run = 0; run < 2; run++) {
     o.gather_min = run ? 0.6f : 0, o.gather_max = run ? 0.9f : 0;
     cJSON *doc = run_dataset(&o, R);
-    cJSON *gr = cJSON_GetObjectItem(doc, "gather_range");
-    if (run) {
-      assert_int_equal(cJSON_GetArraySize(gr), 2);
-      assert_float_equal(cJSON_GetArrayItem(gr, 0)->valuedouble, 0.6, 1e-6);
-      assert_float_equal(cJSON_GetArrayItem(gr, 1)->valuedouble, 0.9, 1e-6);
-    } else {
-      assert_null(gr);
-    }
+    assert_range_recorded(doc, "gather_range", o.gather_min, o.gather_max);
     cJSON *frames = cJSON_GetObjectItem(doc, "frames"), *f;
     assert_int_equal(cJSON_GetArraySize(frames), 6);
     int i = 0;
@@ -664,13 +657,11 @@ static void test_dataset_gather_range(void **state) {
       } else {
         assert_null(g);
       }
-      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
-      remove(path);
+      remove_in(dir, cJSON_GetObjectItem(f, "file")->valuestring);
       i++;
     }
     cJSON_Delete(doc);
-    snprintf(path, sizeof path, "%s/manifest.json", dir);
-    remove(path);
+    remove_in(dir, "manifest.json");
   }
   for (int i = 0; i < 6; i++) assert_float_equal(drawn[0][i], drawn[1][i], 1e-9);
   /* Drawn per frame, not one value for the set. */
@@ -686,7 +677,7 @@ static void test_dataset_gather_range(void **state) {
  * without it; a share outside [0, 1] is refused naming the option. */
 static void test_dataset_smooth_share(void **state) {
   (void)state;
-  char dir[256], path[600];
+  char dir[256];
   hfr_dataset_opts o;
   small_regimes_set(&o, dir, "smooth", 2, 200);
   o.styles[0] = HFR_STYLE_BRAIDED, o.styles[1] = HFR_STYLE_SPIKY, o.styles[2] = HFR_STYLE_WAVY;
@@ -717,12 +708,10 @@ static void test_dataset_smooth_share(void **state) {
         assert_null(smooth);
         assert_true(frizz > 0);
       }
-      snprintf(path, sizeof path, "%s/%s", dir, cJSON_GetObjectItem(f, "file")->valuestring);
-      remove(path);
+      remove_in(dir, cJSON_GetObjectItem(f, "file")->valuestring);
     }
     cJSON_Delete(doc);
-    snprintf(path, sizeof path, "%s/manifest.json", dir);
-    remove(path);
+    remove_in(dir, "manifest.json");
   }
   for (int i = 0; i < 6; i++) assert_float_equal(drawn[0][i], drawn[1][i], 1e-9);
   rmdir(dir);

@@ -154,21 +154,24 @@ if ! have "$AS" fur_zup_mm.hair fur_body_zup_mm.obj; then
       --mesh "$AS/.part/fur_body_zup_mm.obj" --seed 6
   keep "$AS"
 fi
-mkdir -p "$OUT/models256" "$OUT/models512" "$OUT/models-thick256" "$OUT/models-thick512"
-for v in 1 2; do for s in 256 512; do
-  frame "$OUT/models$s/tied_v$v.exr" --hair "$AS/tied_yup_in.hair" --units in --children 8 \
-      --random-view $((700 + v)) --size ${s}x$s --spp 4 --st 4,8,16,64 "$@"
-  frame "$OUT/models$s/fur_v$v.exr" --hair "$AS/fur_zup_mm.hair" --up z --units mm --children 30 \
-      --occluder "$AS/fur_body_zup_mm.obj" --random-view $((800 + v)) --size ${s}x$s --spp 4 \
-      --st 4,8,16,64 "$@"
-done; done
-for v in 1 2; do for s in 256 512; do
-  frame "$OUT/models-thick$s/tied_v$v.exr" --hair "$AS/tied_yup_in.hair" --units in --children 8 \
-      --thickness 0.01 --random-view $((710 + v)) --size ${s}x$s --spp 4 --st 4,8,16,64 "$@"
-  frame "$OUT/models-thick$s/fur_v$v.exr" --hair "$AS/fur_zup_mm.hair" --up z --units mm \
-      --children 30 --occluder "$AS/fur_body_zup_mm.obj" --thickness 0.4 \
-      --random-view $((810 + v)) --size ${s}x$s --spp 4 --st 4,8,16,64 "$@"
-done; done
+# models_frames SET VIEW [tied options] -- [fur options]: views VIEW + 1 and
+# VIEW + 2 of the tied model, VIEW + 101 and VIEW + 102 of the fur, at 256
+# and 512, into OUT/SET256 and OUT/SET512.
+models_frames() {
+  mf_set=$1; mf_v=$2
+  mf_tied=$3; mf_fur=$4
+  shift 4
+  mkdir -p "$OUT/${mf_set}256" "$OUT/${mf_set}512"
+  for v in 1 2; do for s in 256 512; do
+    frame "$OUT/$mf_set$s/tied_v$v.exr" --hair "$AS/tied_yup_in.hair" --units in --children 8 \
+        $mf_tied --random-view $((mf_v + v)) --size ${s}x$s --spp 4 --st 4,8,16,64 "$@"
+    frame "$OUT/$mf_set$s/fur_v$v.exr" --hair "$AS/fur_zup_mm.hair" --up z --units mm \
+        --children 30 --occluder "$AS/fur_body_zup_mm.obj" $mf_fur \
+        --random-view $((mf_v + 100 + v)) --size ${s}x$s --spp 4 --st 4,8,16,64 "$@"
+  done; done
+}
+models_frames models 700 "" "" "$@"
+models_frames models-thick 710 "--thickness 0.01" "--thickness 0.4" "$@"
 
 # "Three models written apart" (a, b, c) and "Two more kinds, of thicker
 # strands" (d, e): two views at 256 and one at 512 each.
