@@ -19,6 +19,9 @@
 # Usage: weights/data/kernel_mix_sets.sh build/hairfilter data/kmtrain [render options]
 # The render options go to every `render dataset` and `render frame`: only
 # options both read (--gt-ss, --platform, --max-fragments, ...).
+#
+# The option strings below hold no spaces and are split on purpose:
+# shellcheck disable=SC2086
 set -e
 if [ $# -lt 2 ]; then
   echo "usage: weights/data/kernel_mix_sets.sh BUILD/hairfilter OUT_DIR [render options] (the script's header says more)" >&2
