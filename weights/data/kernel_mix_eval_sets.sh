@@ -102,6 +102,18 @@ keep() {
 }
 
 mkdir -p "$OUT/g8full" "$OUT/assets"
+AS="$OUT/assets"
+# zup_cm_model STYLE SEED: AS/STYLE_guides.hair, 1500 guides of the style,
+# and AS/STYLE_zup_cm.hair, the same z up in centimetres.
+zup_cm_model() {
+  if have "$AS" "$1_guides.hair" "$1_zup_cm.hair"; then return 0; fi
+  part "$AS"
+  "$HF" render hair --style "$1" --strands 1500 --children 0 --hair-seed "$2" \
+      --out "$AS/.part/$1_guides.hair"
+  "$PY" "$TOOLS/hair_convert.py" "$AS/.part/$1_guides.hair" "$AS/.part/$1_zup_cm.hair" \
+      --up z --scale 10
+  keep "$AS"
+}
 
 # "Real hair across regimes", "Evaluation data" (--count 2 for eval512).
 S=straight,wavy,curly,coily,ponytail,spiky,fur
@@ -110,15 +122,7 @@ S=straight,wavy,curly,coily,ponytail,spiky,fur
 "$HF" render dataset --regimes --styles $S --count 2 --size 512x512 --frame-sizes 512,1024 \
     --spp 4 --st 4,8,16,64 --seed 9512 --resume "$@" --out "$OUT/g8full/eval512"
 # a loaded model in another convention: z up, centimetres
-AS="$OUT/assets"
-if ! have "$AS" spiky_guides.hair spiky_zup_cm.hair; then
-  part "$AS"
-  "$HF" render hair --style spiky --strands 1500 --children 0 --hair-seed 77 \
-      --out "$AS/.part/spiky_guides.hair"
-  "$PY" "$TOOLS/hair_convert.py" "$AS/.part/spiky_guides.hair" "$AS/.part/spiky_zup_cm.hair" \
-      --up z --scale 10
-  keep "$AS"
-fi
+zup_cm_model spiky 77
 "$HF" render dataset --regimes --hair-files "$AS/spiky_zup_cm.hair" --up z --units cm \
     --children 15 --count 3 --size 256x256 --frame-sizes 256,1024 --spp 4 --st 4,8,16,64 \
     --seed 910256 --resume "$@" --out "$OUT/g8full/eval256-spiky-zup-cm"
@@ -129,14 +133,7 @@ E="--regimes --spp 4 --st 16,64 --alpha-corrected --width-px 1,6"
     --frame-sizes 256,1024 --seed 9307 --resume "$@" --out "$OUT/evalo256"
 "$HF" render dataset $E --styles straight,wavy,curly,coily --count 1 --opacity-range 1,1 \
     --size 512x512 --frame-sizes 512,1024 --seed 9308 --resume "$@" --out "$OUT/evalo512"
-if ! have "$AS" curly_guides.hair curly_zup_cm.hair; then
-  part "$AS"
-  "$HF" render hair --style curly --strands 1500 --children 0 --hair-seed 78 \
-      --out "$AS/.part/curly_guides.hair"
-  "$PY" "$TOOLS/hair_convert.py" "$AS/.part/curly_guides.hair" "$AS/.part/curly_zup_cm.hair" \
-      --up z --scale 10
-  keep "$AS"
-fi
+zup_cm_model curly 78
 "$HF" render dataset $E --hair-files "$AS/curly_zup_cm.hair" --up z --units cm --children 15 \
     --count 1 --opacity 1 --size 256x256 --frame-sizes 256,1024 --seed 910307 --resume \
     "$@" --out "$OUT/evalo256-curly-zup-cm"
