@@ -370,14 +370,15 @@ int hfr_dataset_run(const hfr_dataset_opts *o, char *err, size_t errlen) {
   cJSON_AddNumberToObject(doc, "seed", (double)o->seed);
   cJSON_AddBoolToObject(doc, "extended", o->extended != 0);
   cJSON_AddBoolToObject(doc, "regimes", o->regimes != 0);
-  /* The regimes' ranges as they were drawn from (defaults filled in): the
-   * options record's, at the top level where readers look for them. */
+  /* The ranges as they were drawn from (the regimes' with defaults filled
+   * in; an opacity range given out of regimes): the options record's, at
+   * the top level where readers look for them. */
   cJSON *options = hr_dataset_options(o);
   static const char *const ranges[] = {"frame_sizes", "width_px_range", "opacity_range"};
-  for (int k = 0; options && k < 3; k++)
-    if (o->regimes || (k == 2 && o->opacity_max > 0))
-      cJSON_AddItemToObject(doc, ranges[k],
-                            cJSON_Duplicate(cJSON_GetObjectItemCaseSensitive(options, ranges[k]), 1));
+  for (int k = 0; options && k < 3; k++) {
+    const cJSON *range = cJSON_GetObjectItemCaseSensitive(options, ranges[k]);
+    if (range) cJSON_AddItemToObject(doc, ranges[k], cJSON_Duplicate(range, 1));
+  }
   if (options && o->smooth_share > 0) cJSON_AddNumberToObject(doc, "smooth_share", o->smooth_share);
   if (options && o->gather_max > 0)
     cJSON_AddItemToObject(doc, "gather_range",
